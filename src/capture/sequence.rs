@@ -1,0 +1,1 @@
+//! Recorded EXR/HDR sequences as a frame source. (Being written.)

@@ -1,0 +1,1 @@
+//! Decomposition of environment-map frames into directional lights. (Being written.)

@@ -1,0 +1,80 @@
+//! Lat-long (equirectangular) projection in DESIGN.md's (Mitsuba 3's) convention.
+
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// Direction at continuous pixel position (x, y).
+pub fn pixel_to_direction(width: u32, height: u32, x: f64, y: f64) -> DVec3 {
+    let phi = 2.0 * PI * x / f64::from(width);
+    let theta = PI * y / f64::from(height);
+    let (sin_t, cos_t) = theta.sin_cos();
+    let (sin_p, cos_p) = phi.sin_cos();
+    DVec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p)
+}
+
+/// Continuous pixel position of direction `d`; x in [0, W), y in [0, H].
+pub fn direction_to_pixel(width: u32, height: u32, d: DVec3) -> Option<(f64, f64)> {
+    let len = d.length();
+    if !(len > 0.0) || !len.is_finite() {
+        return None;
+    }
+    let d = d / len;
+    let theta = d.y.clamp(-1.0, 1.0).acos();
+    let mut phi = d.x.atan2(-d.z);
+    if phi < 0.0 {
+        phi += 2.0 * PI;
+    }
+    let x = (phi / (2.0 * PI) * f64::from(width)).min(f64::from(width) - 1e-9);
+    Some((x.max(0.0), theta / PI * f64::from(height)))
+}
+
+/// Exact per-pixel solid angles: (2π/W)(cos θ_top − cos θ_bottom). To second order this is
+/// DESIGN.md's (2π/W)(π/H) sin θ_centre; the exact form sums to 4π.
+pub fn solid_angles(width: u32, height: u32) -> Vec<f64> {
+    let dphi = 2.0 * PI / f64::from(width);
+    let mut out = Vec::with_capacity(width as usize * height as usize);
+    for y in 0..height {
+        let t0 = PI * f64::from(y) / f64::from(height);
+        let t1 = PI * f64::from(y + 1) / f64::from(height);
+        let omega = dphi * (t0.cos() - t1.cos());
+        out.extend(std::iter::repeat_n(omega, width as usize));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn conventions_of_design_md() {
+        let d = pixel_to_direction(4, 2, 0.0, 1.0);
+        assert!(
+            (d - DVec3::new(0.0, 0.0, -1.0)).length() < 1e-12,
+            "u=0 looks along -Z"
+        );
+        let d = pixel_to_direction(4, 2, 1.0, 1.0);
+        assert!((d - DVec3::X).length() < 1e-12, "u=0.25 looks along +X");
+        let d = pixel_to_direction(4, 2, 2.0, 1.0);
+        assert!((d - DVec3::Z).length() < 1e-12, "u=0.5 looks along +Z");
+        assert!(
+            (pixel_to_direction(4, 2, 1.0, 0.0) - DVec3::Y).length() < 1e-12,
+            "row 0 is +Y"
+        );
+    }
+
+    #[test]
+    fn round_trip_and_total_solid_angle() {
+        let (w, h) = (64, 32);
+        for y in 0..h {
+            for x in 0..w {
+                let (px, py) = (f64::from(x) + 0.5, f64::from(y) + 0.5);
+                let d = pixel_to_direction(w, h, px, py);
+                let (qx, qy) = direction_to_pixel(w, h, d).unwrap();
+                assert!((qx - px).abs() < 1e-9 && (qy - py).abs() < 1e-9);
+            }
+        }
+        let total: f64 = solid_angles(w, h).iter().sum();
+        assert!((total - 4.0 * PI).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,99 @@
+//! `HdrFrame`: one environment-map frame as linear RGB radiance plus its projection and timing.
+
+use crate::envmap::Projection;
+
+/// Rec. 709 / sRGB-primaries luminance weights.
+pub const LUMINANCE_WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
+
+/// Rec. 709 luminance of a linear RGB triple.
+#[inline]
+pub fn luminance(rgb: [f32; 3]) -> f32 {
+    LUMINANCE_WEIGHTS[0] * rgb[0] + LUMINANCE_WEIGHTS[1] * rgb[1] + LUMINANCE_WEIGHTS[2] * rgb[2]
+}
+
+/// One HDR environment-map frame: linear RGB radiance (W/(m²·sr) per channel), row-major,
+/// row 0 at the top of the image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HdrFrame {
+    pub width: u32,
+    pub height: u32,
+    /// `width * height` linear RGB pixels, row-major.
+    pub pixels: Vec<[f32; 3]>,
+    /// How pixels map to directions.
+    pub projection: Projection,
+    /// Capture time in seconds since the source started.
+    pub time: f64,
+    /// Sequence number assigned by the source, starting at 0.
+    pub seq: u64,
+}
+
+impl HdrFrame {
+    /// A frame from its pixels. Returns `None` if `pixels.len() != width * height` or a side is 0.
+    pub fn new(
+        width: u32,
+        height: u32,
+        pixels: Vec<[f32; 3]>,
+        projection: Projection,
+    ) -> Option<Self> {
+        if width == 0 || height == 0 || pixels.len() != width as usize * height as usize {
+            return None;
+        }
+        Some(Self {
+            width,
+            height,
+            pixels,
+            projection,
+            time: 0.0,
+            seq: 0,
+        })
+    }
+
+    /// The pixel at column `x`, row `y`.
+    #[inline]
+    pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
+        self.pixels[y as usize * self.width as usize + x as usize]
+    }
+
+    /// Replaces NaN, ±Inf and negative channel values by 0 and returns how many pixels had one.
+    /// Radiance is non-negative and finite; callers report the count (one warning per frame).
+    pub fn sanitize(&mut self) -> usize {
+        let mut bad = 0;
+        for p in &mut self.pixels {
+            let mut pixel_bad = false;
+            for c in p.iter_mut() {
+                if !c.is_finite() || *c < 0.0 {
+                    *c = 0.0;
+                    pixel_bad = true;
+                }
+            }
+            bad += usize::from(pixel_bad);
+        }
+        bad
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sanitize_zeroes_and_counts_bad_pixels() {
+        let pixels = vec![
+            [1.0, 2.0, 3.0],
+            [f32::NAN, 1.0, 1.0],
+            [-1.0, f32::INFINITY, 0.0],
+            [0.5; 3],
+        ];
+        let mut frame = HdrFrame::new(2, 2, pixels, Projection::LatLong).unwrap();
+        assert_eq!(frame.sanitize(), 2);
+        assert_eq!(frame.pixels[1], [0.0, 1.0, 1.0]);
+        assert_eq!(frame.pixels[2], [0.0, 0.0, 0.0]);
+        assert_eq!(frame.pixels[3], [0.5; 3]);
+    }
+
+    #[test]
+    fn new_rejects_wrong_pixel_count() {
+        assert!(HdrFrame::new(2, 2, vec![[0.0; 3]; 3], Projection::LatLong).is_none());
+        assert!(HdrFrame::new(0, 2, vec![], Projection::LatLong).is_none());
+    }
+}

@@ -1,0 +1,18 @@
+//! envlight: a real-time mixed-reality lighting daemon.
+//!
+//! HDR environment-map frames (a fisheye camera, a recorded EXR/HDR sequence or the built-in sky)
+//! are decomposed into temporally stable directional lights by inverse-transform sampling
+//! (Havran et al. 2005). See `DESIGN.md` in the shared folder for the whole pipeline.
+//!
+//! The CPU math (`envmap`, `decompose`, `yardstick`) has no async, no GPU and no I/O; `capture`
+//! reads frames; `main.rs` is only the command line.
+
+pub mod capture;
+pub mod decompose;
+pub mod envmap;
+pub mod frame;
+pub mod light;
+pub mod yardstick;
+
+pub use frame::HdrFrame;
+pub use light::{Light, LightFrame};

@@ -1,0 +1,2 @@
+//! envlight command line. (Being written.)
+fn main() {}
