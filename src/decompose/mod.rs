@@ -1,1 +1,434 @@
-//! Decomposition of environment-map frames into directional lights. (Being written.)
+//! Decomposition of environment-map frames into temporally stable directional lights.
+//!
+//! The method of Havran et al. 2005 ("Interactive system for dynamic scene lighting using
+//! captured video environment maps"), made exact in energy and continuous. For every frame:
+//! 1. **Working map** ([`working_map`]): the frame is resampled to a small lat-long map of
+//!    per-pixel energy (radiance × exact solid angle, f64), whatever its projection.
+//! 2. **PDF and warp** ([`distribution`]): the luminance of that energy is a 2D density on the
+//!    map; [`PiecewiseConstant2d`] maps the unit square onto it continuously (conditional CDFs
+//!    blended across rows), so a small change of the map or of a point moves a light a little.
+//! 3. **Fixed progressive point set** ([`point_set`]): Halton points, Lloyd-relaxed so that every
+//!    2^k prefix is well stratified, computed once and reused by every frame. Light i is point i,
+//!    and a light count N uses the first N points.
+//! 4. **Regions and lights**: light i owns the image of its point's Voronoi cell (in the square)
+//!    under the warp. Every working pixel is mapped back to the square (`invert`; pixels holding
+//!    much energy are split into sub-samples) and its energy is added to the cell it lands in.
+//!    So each light carries the energy and colour of its own region, and the lights sum exactly
+//!    to the map's integral. The light points at the luminance-weighted centroid of its region
+//!    ([`LightPlacement::Centroid`]) or at the warped point itself (`SamplePoint`, the paper's).
+//! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's direction and power by id.
+//! 6. **Merge** ([`merge`]): lights crowding a concentrated source become one light that records
+//!    the source's spread (solid angle).
+
+pub mod distribution;
+pub mod filter;
+pub mod merge;
+pub mod point_set;
+pub mod working_map;
+
+pub use distribution::PiecewiseConstant2d;
+pub use filter::FirFilter;
+pub use point_set::{CellLut, MAX_POINTS};
+
+use crate::envmap::Projection;
+use crate::frame::HdrFrame;
+use crate::light::{Light, LightFrame};
+use std::collections::HashMap;
+use std::sync::Arc;
+use working_map::{Resampler, WorkingMap};
+
+/// Smallest and largest working-map width.
+pub const WORKING_WIDTH_RANGE: std::ops::RangeInclusive<u32> = 16..=4096;
+
+/// Where a light points within its region.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LightPlacement {
+    /// The luminance-weighted centroid of the light's region (default: most accurate).
+    #[default]
+    Centroid,
+    /// The warped sample point itself, as in Havran et al. 2005.
+    SamplePoint,
+}
+
+/// Settings of a [`Decomposer`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecomposeSettings {
+    /// Number of lights, 1..=[`MAX_POINTS`].
+    pub lights: usize,
+    /// Width of the lat-long working map (height = width/2). A lat-long input is box-filtered by
+    /// the largest integer factor that keeps the width ≥ this when its size allows.
+    pub working_width: u32,
+    pub placement: LightPlacement,
+    /// FIR taps, newest frame first; `None` disables temporal filtering.
+    pub filter_taps: Option<Vec<f64>>,
+    /// Merge radius as a fraction of the mean light spacing; `None` disables merging.
+    pub merge_spacing_fraction: Option<f64>,
+}
+
+impl Default for DecomposeSettings {
+    fn default() -> Self {
+        Self {
+            lights: 256,
+            working_width: 256,
+            placement: LightPlacement::Centroid,
+            filter_taps: Some(filter::DEFAULT_TAPS.to_vec()),
+            merge_spacing_fraction: Some(merge::DEFAULT_SPACING_FRACTION),
+        }
+    }
+}
+
+/// Errors of the decomposition. Each names the setting or input at fault.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum DecomposeError {
+    #[error("light count {0} is out of range: it must be between 1 and {MAX_POINTS}")]
+    LightCount(usize),
+    #[error("working width {0} is out of range: it must be between 16 and 4096")]
+    WorkingWidth(u32),
+    #[error("filter taps: {0}")]
+    FilterTaps(String),
+    #[error("merge spacing fraction {0} must be a finite number in (0, 2]")]
+    MergeFraction(f64),
+}
+
+/// Per-light accumulator of a region's integrals.
+#[derive(Clone, Copy, Debug, Default)]
+struct Region {
+    rgb: [f64; 3],
+    /// Σ luminance-energy × direction.
+    weighted_dir: [f64; 3],
+    solid_angle: f64,
+}
+
+/// Turns frames into light lists; holds the point set, the per-geometry resampler and the
+/// temporal filter state, so one `Decomposer` serves one stream of frames.
+pub struct Decomposer {
+    settings: DecomposeSettings,
+    resampler: Option<Resampler>,
+    luts: HashMap<usize, Arc<CellLut>>,
+    filter: Option<FirFilter>,
+    regions: Vec<Region>,
+}
+
+impl Decomposer {
+    /// Validates `settings` and prepares the point set for `settings.lights` lights.
+    pub fn new(settings: DecomposeSettings) -> Result<Self, DecomposeError> {
+        validate_light_count(settings.lights)?;
+        if !WORKING_WIDTH_RANGE.contains(&settings.working_width) {
+            return Err(DecomposeError::WorkingWidth(settings.working_width));
+        }
+        if let Some(f) = settings.merge_spacing_fraction {
+            if !(f > 0.0 && f <= 2.0) {
+                return Err(DecomposeError::MergeFraction(f));
+            }
+        }
+        let filter = match &settings.filter_taps {
+            Some(taps) => Some(FirFilter::new(taps).map_err(DecomposeError::FilterTaps)?),
+            None => None,
+        };
+        let mut decomposer =
+            Self { settings, resampler: None, luts: HashMap::new(), filter, regions: Vec::new() };
+        decomposer.lut(decomposer.settings.lights);
+        Ok(decomposer)
+    }
+
+    pub fn settings(&self) -> &DecomposeSettings {
+        &self.settings
+    }
+
+    /// Delay of the temporal filter in frames (0 without filter).
+    pub fn filter_delay_frames(&self) -> f64 {
+        self.filter.as_ref().map_or(0.0, FirFilter::delay_frames)
+    }
+
+    fn lut(&mut self, n: usize) -> Arc<CellLut> {
+        self.luts.entry(n).or_insert_with(|| Arc::new(CellLut::new(n))).clone()
+    }
+
+    /// Decomposes `frame` into `settings.lights` lights.
+    pub fn decompose(&mut self, frame: &HdrFrame) -> LightFrame {
+        let n = self.settings.lights;
+        self.decompose_with_count(frame, n).unwrap_or_else(|_| unreachable!("validated count"))
+    }
+
+    /// Decomposes `frame` into `n` lights (the first n of the progressive set): the light count
+    /// may change every frame.
+    pub fn decompose_with_count(
+        &mut self,
+        frame: &HdrFrame,
+        n: usize,
+    ) -> Result<LightFrame, DecomposeError> {
+        validate_light_count(n)?;
+        let mut lights = self.raw_lights(frame, n);
+        if let Some(filter) = &mut self.filter {
+            filter.apply(&mut lights);
+        }
+        if let Some(fraction) = self.settings.merge_spacing_fraction {
+            lights = merge::merge_crowded(&lights, fraction);
+        }
+        Ok(LightFrame { seq: frame.seq, time: frame.time, lights })
+    }
+
+    /// Steps 1–4: unfiltered, unmerged lights, ids 0..n.
+    fn raw_lights(&mut self, frame: &HdrFrame, n: usize) -> Vec<Light> {
+        if !self.resampler.as_ref().is_some_and(|r| r.fits(frame)) {
+            self.resampler = Some(Resampler::new(
+                frame.projection,
+                frame.width,
+                frame.height,
+                self.settings.working_width,
+            ));
+        }
+        let lut = self.lut(n);
+        let Some(resampler) = self.resampler.as_mut() else { unreachable!("set above") };
+        let map = resampler.resample(frame);
+        let weights: Vec<f64> =
+            map.energy.iter().map(|e| luminance_f64(*e)).collect();
+        let dist = PiecewiseConstant2d::new(&weights, map.width, map.height);
+        self.regions.clear();
+        self.regions.resize(n, Region::default());
+        accumulate_regions(map, &weights, &dist, &lut, &mut self.regions);
+
+        let placement = self.settings.placement;
+        lut.points()
+            .iter()
+            .zip(&self.regions)
+            .enumerate()
+            .map(|(id, (point, region))| {
+                let centroid = glam::DVec3::from(region.weighted_dir).try_normalize();
+                let dir = match (placement, centroid) {
+                    (LightPlacement::Centroid, Some(d)) => d,
+                    _ => {
+                        let (p, _) = dist.sample(*point);
+                        Projection::LatLong
+                            .pixel_to_direction(
+                                map.width as u32,
+                                map.height as u32,
+                                p[0] * map.width as f64,
+                                p[1] * map.height as f64,
+                            )
+                            .unwrap_or(glam::DVec3::Y)
+                    }
+                };
+                Light {
+                    id: id as u32,
+                    dir: [dir.x as f32, dir.y as f32, dir.z as f32],
+                    rgb: region.rgb.map(|c| c as f32),
+                    solid_angle: region.solid_angle as f32,
+                }
+            })
+            .collect()
+    }
+}
+
+fn validate_light_count(n: usize) -> Result<(), DecomposeError> {
+    if (1..=MAX_POINTS).contains(&n) {
+        Ok(())
+    } else {
+        Err(DecomposeError::LightCount(n))
+    }
+}
+
+/// Rec. 709 luminance of an f64 rgb triple.
+#[inline]
+pub fn luminance_f64(e: [f64; 3]) -> f64 {
+    let w = crate::frame::LUMINANCE_WEIGHTS;
+    f64::from(w[0]) * e[0] + f64::from(w[1]) * e[1] + f64::from(w[2]) * e[2]
+}
+
+/// Adds every working pixel's energy to the region of the cell its preimage lies in. A pixel
+/// whose preimage spans more than about a quarter of a cell is split into kx×ky sub-samples.
+fn accumulate_regions(
+    map: &WorkingMap,
+    weights: &[f64],
+    dist: &PiecewiseConstant2d,
+    lut: &CellLut,
+    regions: &mut [Region],
+) {
+    let (w, h) = (map.width, map.height);
+    let total = dist.total();
+    let cells_across = (lut.len() as f64).sqrt();
+    for y in 0..h {
+        let row = &weights[y * w..(y + 1) * w];
+        let row_mass: f64 = row.iter().sum();
+        let row_omega = map.row_solid_angle[y];
+        // Extent of a pixel's preimage along u1 (same for the whole row).
+        let du1 = if total > 0.0 { row_mass / total } else { 1.0 / h as f64 };
+        let ky = ((4.0 * du1 * cells_across).ceil() as usize).clamp(1, 64);
+        for x in 0..w {
+            let idx = y * w + x;
+            let energy = map.energy[idx];
+            let lum = weights[idx];
+            let du0 = if row_mass > 0.0 { lum / row_mass } else { 0.0 };
+            let kx = ((4.0 * du0 * cells_across).ceil() as usize).clamp(1, 64);
+            let ky = if lum > 0.0 { ky } else { 1 };
+            let share = 1.0 / (kx * ky) as f64;
+            let d = map.directions[idx];
+            let dir_weight = lum * share;
+            for j in 0..ky {
+                let ys = y as f64 + (j as f64 + 0.5) / ky as f64;
+                for i in 0..kx {
+                    let xs = x as f64 + (i as f64 + 0.5) / kx as f64;
+                    let u = dist.invert_pixel(xs, ys);
+                    let r = &mut regions[lut.cell(u)];
+                    for c in 0..3 {
+                        r.rgb[c] += energy[c] * share;
+                        r.weighted_dir[c] += dir_weight * f64::from(d[c]);
+                    }
+                    r.solid_angle += row_omega * share;
+                }
+            }
+        }
+    }
+}
+
+/// Total radiance integral of a frame (Σ rgb·Ω over its pixels, f64): what the lights sum to.
+pub fn frame_integral(frame: &HdrFrame) -> [f64; 3] {
+    let omegas = frame.projection.solid_angles(frame.width, frame.height);
+    let mut sum = [0.0f64; 3];
+    for (p, omega) in frame.pixels.iter().zip(omegas) {
+        for c in 0..3 {
+            if p[c].is_finite() && p[c] > 0.0 {
+                sum[c] += f64::from(p[c]) * omega;
+            }
+        }
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sky_with_sun(w: u32, h: u32, sun: (u32, u32), sun_power: f32) -> HdrFrame {
+        let mut pixels = Vec::with_capacity((w * h) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let sky = if y < h / 2 { 1.0 + 0.5 * (y as f32 / h as f32) } else { 0.2 };
+                let tint = 1.0 + 0.3 * ((x as f32 / w as f32) * 6.28).sin();
+                pixels.push([sky * tint, sky, sky * 1.2]);
+            }
+        }
+        pixels[(sun.1 * w + sun.0) as usize] = [sun_power, sun_power * 0.9, sun_power * 0.8];
+        HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
+    }
+
+    fn raw_settings(n: usize) -> DecomposeSettings {
+        DecomposeSettings {
+            lights: n,
+            filter_taps: None,
+            merge_spacing_fraction: None,
+            ..DecomposeSettings::default()
+        }
+    }
+
+    #[test]
+    fn lights_sum_to_the_integral() {
+        let frame = sky_with_sun(512, 256, (100, 60), 1e5);
+        let truth = frame_integral(&frame);
+        for n in [1, 16, 100, 256, 1024] {
+            for merge in [None, Some(0.25)] {
+                let settings = DecomposeSettings { merge_spacing_fraction: merge, ..raw_settings(n) };
+                let lights = Decomposer::new(settings).unwrap().decompose(&frame);
+                let sum = lights.total_rgb();
+                for c in 0..3 {
+                    assert!((sum[c] - truth[c]).abs() < 1e-4 * truth[c], "n={n} c={c}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lights_have_their_regions_colour() {
+        // Left half red, right half blue: lights on each side carry that side's colour.
+        let (w, h) = (128u32, 64u32);
+        let pixels = (0..w * h)
+            .map(|i| if i % w < w / 2 { [1.0, 0.0, 0.0] } else { [0.0, 0.0, 3.0] })
+            .collect();
+        let frame = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
+        let lights = Decomposer::new(raw_settings(64)).unwrap().decompose(&frame);
+        let pure = lights
+            .lights
+            .iter()
+            .filter(|l| l.rgb[0] == 0.0 || l.rgb[2] == 0.0)
+            .count();
+        assert!(pure >= 48, "only {pure} of 64 lights are single-coloured");
+    }
+
+    fn sun_energy_near(lights: &LightFrame, sun: glam::DVec3, max_angle_deg: f64) -> f64 {
+        let cos_max = max_angle_deg.to_radians().cos();
+        lights
+            .lights
+            .iter()
+            .filter(|l| {
+                let d = glam::DVec3::new(l.dir[0].into(), l.dir[1].into(), l.dir[2].into());
+                d.dot(sun) > cos_max
+            })
+            .map(|l| f64::from(l.rgb[0]))
+            .sum()
+    }
+
+    #[test]
+    fn sun_energy_lands_on_the_sun() {
+        let frame = sky_with_sun(256, 128, (40, 30), 1e6);
+        let sun = Projection::LatLong.pixel_to_direction(256, 128, 40.5, 30.5).unwrap();
+        let sun_energy = 1e6 * Projection::LatLong.solid_angles(256, 128)[30 * 256];
+        for placement in [LightPlacement::Centroid, LightPlacement::SamplePoint] {
+            let settings = DecomposeSettings { placement, ..raw_settings(256) };
+            let lights = Decomposer::new(settings).unwrap().decompose(&frame);
+            let near = sun_energy_near(&lights, sun, 1.0);
+            assert!(near > 0.9 * sun_energy, "{placement:?}: {near} of {sun_energy} within 1°");
+        }
+    }
+
+    #[test]
+    fn merged_sun_becomes_one_light() {
+        let frame = sky_with_sun(256, 128, (40, 30), 1e6);
+        let settings = DecomposeSettings { filter_taps: None, ..DecomposeSettings::default() };
+        let merged = Decomposer::new(settings).unwrap().decompose(&frame);
+        let raw = Decomposer::new(raw_settings(256)).unwrap().decompose(&frame);
+        assert!(merged.lights.len() < raw.lights.len() / 2);
+        let sun = merged
+            .lights
+            .iter()
+            .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
+            .unwrap();
+        // Cells that straddle the sun's preimage in the square carry sun and sky energy in equal
+        // measure, so their centroids sit off the sun; the rest of the sun merges into one light.
+        let sun_energy = 1e6 * Projection::LatLong.solid_angles(256, 128)[30 * 256];
+        assert!(f64::from(sun.rgb[0]) > 0.9 * sun_energy, "{} vs {}", sun.rgb[0], sun_energy);
+        assert!(sun.solid_angle > 0.0);
+    }
+
+    #[test]
+    fn black_frame_gives_zero_lights_without_nan() {
+        let frame = HdrFrame::new(64, 32, vec![[0.0; 3]; 64 * 32], Projection::LatLong).unwrap();
+        for settings in [raw_settings(16), DecomposeSettings::default()] {
+            let lights = Decomposer::new(settings).unwrap().decompose(&frame);
+            for l in &lights.lights {
+                assert_eq!(l.rgb, [0.0; 3]);
+                assert!(l.dir.iter().all(|c| c.is_finite()));
+                assert!(l.solid_angle.is_finite());
+            }
+        }
+    }
+
+    #[test]
+    fn nan_pixels_do_not_poison_the_lights() {
+        let mut frame = sky_with_sun(64, 32, (10, 10), 100.0);
+        frame.pixels[5] = [f32::NAN, f32::INFINITY, -3.0];
+        let lights = Decomposer::new(raw_settings(16)).unwrap().decompose(&frame);
+        assert!(lights.lights.iter().all(|l| l.rgb.iter().chain(&l.dir).all(|c| c.is_finite())));
+    }
+
+    #[test]
+    fn light_count_is_validated() {
+        let bad = |n| Decomposer::new(raw_settings(n)).err();
+        assert_eq!(bad(0), Some(DecomposeError::LightCount(0)));
+        assert_eq!(bad(MAX_POINTS + 1), Some(DecomposeError::LightCount(MAX_POINTS + 1)));
+        let frame = sky_with_sun(32, 16, (1, 1), 10.0);
+        let mut d = Decomposer::new(raw_settings(8)).unwrap();
+        assert!(d.decompose_with_count(&frame, 0).is_err());
+        assert_eq!(d.decompose_with_count(&frame, 5).unwrap().lights.len(), 5);
+        assert_eq!(d.decompose_with_count(&frame, 40).unwrap().lights.len(), 40);
+    }
+}

@@ -1,0 +1,260 @@
+//! The fixed, progressive point set in the unit square and its Voronoi-cell lookup.
+//!
+//! Havran et al. 2005 draw the same samples every frame, so light i in frame t is light i in
+//! frame t−1, and use a progressive sequence so the light count can change by taking a prefix.
+//! Steps:
+//! 1. Start from the 2D Halton sequence (bases 2 and 3, index from 1).
+//! 2. Relax level by level: for prefix size P = 2, 4, 8, …, the points [P/2, P) move by Lloyd's
+//!    algorithm (to the centroid of their Voronoi cell among all P points, computed on a grid of
+//!    ~256 samples per cell) while the points [0, P/2) stay fixed. Every prefix of 2^k points is
+//!    therefore a relaxed, blue-noise-like set, and adding points never moves earlier ones.
+//! 3. [`CellLut`] rasterises the Voronoi diagram of a prefix on a fine grid so a point of the
+//!    square finds its cell (its light) in O(1) every frame.
+//!
+//! The set is computed once per process and extended on demand (`progressive_points`).
+
+use std::sync::{Arc, Mutex, OnceLock};
+
+/// Largest supported light count (cell ids are stored as u16).
+pub const MAX_POINTS: usize = 16384;
+
+const LLOYD_ITERATIONS: usize = 12;
+const SAMPLES_PER_CELL: usize = 256;
+
+fn radical_inverse(mut i: u64, base: u64) -> f64 {
+    let inv = 1.0 / base as f64;
+    let mut f = inv;
+    let mut r = 0.0;
+    while i > 0 {
+        r += f * (i % base) as f64;
+        i /= base;
+        f *= inv;
+    }
+    r
+}
+
+/// Uniform bucket grid over the unit square for nearest-point queries.
+struct NearestGrid<'a> {
+    points: &'a [[f64; 2]],
+    res: usize,
+    buckets: Vec<Vec<u32>>,
+}
+
+impl<'a> NearestGrid<'a> {
+    fn new(points: &'a [[f64; 2]]) -> Self {
+        let res = ((points.len() as f64).sqrt().ceil() as usize).max(1);
+        let mut buckets = vec![Vec::new(); res * res];
+        for (i, p) in points.iter().enumerate() {
+            let (bx, by) = Self::bucket_of(res, *p);
+            buckets[by * res + bx].push(i as u32);
+        }
+        Self { points, res, buckets }
+    }
+
+    fn bucket_of(res: usize, p: [f64; 2]) -> (usize, usize) {
+        let f = |v: f64| ((v * res as f64) as usize).min(res - 1);
+        (f(p[0]), f(p[1]))
+    }
+
+    /// Index of the point nearest to q (ties to the lower index).
+    fn nearest(&self, q: [f64; 2]) -> usize {
+        let (bx, by) = Self::bucket_of(self.res, q);
+        let cell = 1.0 / self.res as f64;
+        let mut best = (f64::INFINITY, usize::MAX);
+        for ring in 0..=self.res {
+            // Any point in ring r+1 or beyond is at least r·cell away.
+            if ring > 0 && (ring as f64 - 1.0) * cell > best.0.sqrt() {
+                break;
+            }
+            let (x0, x1) = (bx as isize - ring as isize, bx as isize + ring as isize);
+            let (y0, y1) = (by as isize - ring as isize, by as isize + ring as isize);
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    let on_ring = x == x0 || x == x1 || y == y0 || y == y1;
+                    if !on_ring || x < 0 || y < 0 || x >= self.res as isize || y >= self.res as isize {
+                        continue;
+                    }
+                    for &i in &self.buckets[y as usize * self.res + x as usize] {
+                        let p = self.points[i as usize];
+                        let d = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
+                        if d < best.0 || (d == best.0 && (i as usize) < best.1) {
+                            best = (d, i as usize);
+                        }
+                    }
+                }
+            }
+        }
+        best.1
+    }
+}
+
+/// Lloyd-relaxes points [fixed, len) with points [0, fixed) held in place.
+fn relax_level(points: &mut [[f64; 2]], fixed: usize) {
+    let n = points.len();
+    let res = ((n * SAMPLES_PER_CELL) as f64).sqrt().ceil() as usize;
+    for _ in 0..LLOYD_ITERATIONS {
+        let mut sums = vec![[0.0f64; 3]; n];
+        {
+            let grid = NearestGrid::new(points);
+            for j in 0..res {
+                for i in 0..res {
+                    let q = [(i as f64 + 0.5) / res as f64, (j as f64 + 0.5) / res as f64];
+                    let k = grid.nearest(q);
+                    if k >= fixed {
+                        sums[k][0] += q[0];
+                        sums[k][1] += q[1];
+                        sums[k][2] += 1.0;
+                    }
+                }
+            }
+        }
+        for (p, s) in points.iter_mut().zip(&sums).skip(fixed) {
+            if s[2] > 0.0 {
+                *p = [s[0] / s[2], s[1] / s[2]];
+            }
+        }
+    }
+}
+
+fn extend(points: &mut Vec<[f64; 2]>, n: usize) {
+    let target = n.next_power_of_two().min(MAX_POINTS);
+    while points.len() < target {
+        let fixed = points.len();
+        let size = (fixed * 2).max(1);
+        for i in fixed..size {
+            points.push([radical_inverse(i as u64 + 1, 2), radical_inverse(i as u64 + 1, 3)]);
+        }
+        if fixed > 0 {
+            relax_level(points, fixed);
+        }
+    }
+}
+
+/// The first `n` points (1 ≤ n ≤ [`MAX_POINTS`]) of the progressive relaxed set. Computed once
+/// per process (extended when a larger prefix is first asked for) and shared.
+pub fn progressive_points(n: usize) -> Arc<[[f64; 2]]> {
+    static CACHE: OnceLock<Mutex<Vec<[f64; 2]>>> = OnceLock::new();
+    let n = n.clamp(1, MAX_POINTS);
+    let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
+    let mut points = cache.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    if points.len() < n {
+        extend(&mut points, n);
+    }
+    Arc::from(&points[..n])
+}
+
+/// Voronoi diagram of a prefix of the point set, rasterised for O(1) cell look-up.
+#[derive(Clone, Debug)]
+pub struct CellLut {
+    res: usize,
+    cells: Vec<u16>,
+    points: Arc<[[f64; 2]]>,
+}
+
+impl CellLut {
+    /// The look-up table of the first `n` points. Its resolution puts ~16 texels across a cell.
+    pub fn new(n: usize) -> Self {
+        let points = progressive_points(n);
+        let res = (((points.len() as f64).sqrt().ceil() as usize).next_power_of_two() * 16)
+            .clamp(64, 4096);
+        let grid = NearestGrid::new(&points);
+        let mut cells = Vec::with_capacity(res * res);
+        for j in 0..res {
+            for i in 0..res {
+                let q = [(i as f64 + 0.5) / res as f64, (j as f64 + 0.5) / res as f64];
+                cells.push(grid.nearest(q) as u16);
+            }
+        }
+        Self { res, cells, points }
+    }
+
+    /// Number of cells (lights).
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The points, in id order.
+    pub fn points(&self) -> &[[f64; 2]] {
+        &self.points
+    }
+
+    /// Id of the cell containing u ∈ [0,1]².
+    #[inline]
+    pub fn cell(&self, u: [f64; 2]) -> usize {
+        let max = self.res - 1;
+        let i = ((u[0] * self.res as f64) as usize).min(max);
+        let j = ((u[1] * self.res as f64) as usize).min(max);
+        usize::from(self.cells[j * self.res + i])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mean squared distance from the square to the nearest point (Lloyd's objective).
+    fn quantization_error(points: &[[f64; 2]]) -> f64 {
+        let grid = NearestGrid::new(points);
+        let res = 256;
+        let mut sum = 0.0;
+        for j in 0..res {
+            for i in 0..res {
+                let q = [(i as f64 + 0.5) / res as f64, (j as f64 + 0.5) / res as f64];
+                let p = points[grid.nearest(q)];
+                sum += (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
+            }
+        }
+        sum / (res * res) as f64
+    }
+
+    #[test]
+    fn prefixes_are_stable() {
+        let a = progressive_points(64);
+        let b = progressive_points(256);
+        assert_eq!(&a[..], &b[..64]);
+        assert!(b.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
+    }
+
+    #[test]
+    fn relaxation_stratifies_every_power_of_two_prefix() {
+        let relaxed = progressive_points(1024);
+        for k in 2..=10 {
+            let n = 1usize << k;
+            let halton: Vec<[f64; 2]> = (1..=n as u64)
+                .map(|i| [radical_inverse(i, 2), radical_inverse(i, 3)])
+                .collect();
+            let e_relaxed = quantization_error(&relaxed[..n]);
+            let e_halton = quantization_error(&halton);
+            // A hexagonal lattice of n points reaches 5/(18√3)/n ≈ 0.1604/n.
+            let hexagonal = 0.1604 / n as f64;
+            assert!(e_relaxed < e_halton, "prefix {n}: {e_relaxed} vs Halton {e_halton}");
+            assert!(e_relaxed < 1.25 * hexagonal, "prefix {n}: {:.3}x hexagonal", e_relaxed / hexagonal);
+        }
+    }
+
+    #[test]
+    fn lut_matches_brute_force_nearest() {
+        let lut = CellLut::new(100);
+        let pts = lut.points();
+        let mut mismatches = 0;
+        for j in 0..97 {
+            for i in 0..97 {
+                let q = [(i as f64 + 0.5) / 97.0, (j as f64 + 0.5) / 97.0];
+                let brute = (0..pts.len())
+                    .min_by(|&a, &b| {
+                        let da = (pts[a][0] - q[0]).powi(2) + (pts[a][1] - q[1]).powi(2);
+                        let db = (pts[b][0] - q[0]).powi(2) + (pts[b][1] - q[1]).powi(2);
+                        da.total_cmp(&db)
+                    })
+                    .unwrap_or(0);
+                mismatches += usize::from(lut.cell(q) != brute);
+            }
+        }
+        // Only texel quantisation near cell borders may differ.
+        assert!(mismatches < 97 * 97 / 20, "{mismatches} mismatches");
+    }
+}
