@@ -1,1 +1,390 @@
-//! Recorded EXR/HDR sequences as a frame source. (Being written.)
+//! Recorded EXR/HDR sequences as a frame source ([`SequenceSource`]).
+//!
+//! Inputs are files, directories (every `.exr`/`.hdr` file directly in them, not recursive) and
+//! glob patterns (`frames/*.exr`, `take_[12]/*.hdr`). The frames found are deduplicated (by
+//! canonical path) and put in natural order: by the last run of digits in the file name (without
+//! extension), so `frame_2.exr` comes before `frame_10.exr`; files without a number come after
+//! the numbered ones, and ties are broken by file name and then full path.
+//!
+//! Each call of [`FrameSource::next_frame`] reads one file ([`read_hdr_image`]), checks it has
+//! the first frame's size, sanitises its pixels ([`HdrFrame::sanitize`], one warning per frame
+//! that needed it) and stamps it:
+//! - `seq`: 0, 1, 2, … counting delivered frames, continuing across loops;
+//! - `time`: the frame's nominal time `seq / fps`. Without an `fps` (as fast as possible) the
+//!   time is `seq / NOMINAL_FPS` (30 fps): a recording replays with the same, deterministic
+//!   timestamps however fast it is decoded, so time-based filters behave as in a paced replay.
+//!
+//! Paced mode (`fps` set) sleeps until frame `seq` is due at `start + seq / fps`, where `start`
+//! is when the first frame was delivered; due times are computed from that one instant, so
+//! sleeping error does not accumulate. A frame that is late is delivered at once (frames are
+//! not skipped). Looped mode starts again at the first file forever; otherwise the source
+//! returns `Ok(None)` after the last file (and on every call after that).
+//!
+//! A file that fails to read or has the wrong size returns its error and is skipped: the next
+//! call goes on with the following file (and `seq` is not used up by the failed one).
+
+use super::image_file::{read_hdr_image, ImageFormat};
+use super::{CaptureError, FrameSource};
+use crate::envmap::Projection;
+use crate::frame::HdrFrame;
+use std::cmp::Ordering;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Frame rate used for `HdrFrame::time` when a sequence is replayed as fast as possible.
+pub const NOMINAL_FPS: f64 = 30.0;
+
+/// How a [`SequenceSource`] replays its frames.
+#[derive(Clone, Debug, Default)]
+pub struct SequenceOptions {
+    /// Frames per second to pace the replay at; `None` = as fast as possible.
+    pub fps: Option<f64>,
+    /// Start again at the first frame after the last one, forever.
+    pub looped: bool,
+    /// How the frames' pixels map to directions.
+    pub projection: Projection,
+}
+
+/// A recorded sequence of `.exr` / `.hdr` frames. See the module docs.
+#[derive(Debug)]
+pub struct SequenceSource {
+    paths: Vec<PathBuf>,
+    options: SequenceOptions,
+    /// Index into `paths` of the next file to read.
+    next: usize,
+    /// Sequence number of the next delivered frame.
+    seq: u64,
+    first_size: Option<(u32, u32)>,
+    /// When the first frame was delivered (paced mode).
+    start: Option<Instant>,
+    finished: bool,
+}
+
+impl SequenceSource {
+    /// Collects the frames named by `inputs` (files, directories, glob patterns).
+    ///
+    /// Errors: `InvalidSettings` for a bad fps or glob pattern, `Io` for a plain path that does
+    /// not exist, `Format` for a named file with an unsupported extension, `NoFrames` if nothing
+    /// was found.
+    pub fn new(inputs: &[String], options: SequenceOptions) -> Result<Self, CaptureError> {
+        if let Some(fps) = options.fps {
+            if !(fps.is_finite() && fps > 0.0) {
+                return Err(CaptureError::InvalidSettings(format!(
+                    "fps must be a positive number, got {fps}"
+                )));
+            }
+        }
+        let paths = collect_frames(inputs)?;
+        if paths.is_empty() {
+            return Err(CaptureError::NoFrames(if inputs.is_empty() {
+                "(no inputs given)".to_string()
+            } else {
+                inputs.join(", ")
+            }));
+        }
+        Ok(Self {
+            paths,
+            options,
+            next: 0,
+            seq: 0,
+            first_size: None,
+            start: None,
+            finished: false,
+        })
+    }
+
+    /// Number of files in the sequence (one loop).
+    pub fn frame_count(&self) -> usize {
+        self.paths.len()
+    }
+
+    /// The files in replay order.
+    pub fn paths(&self) -> &[PathBuf] {
+        &self.paths
+    }
+
+    /// The replay options.
+    pub fn options(&self) -> &SequenceOptions {
+        &self.options
+    }
+
+    fn read_frame(&mut self, path: &Path) -> Result<HdrFrame, CaptureError> {
+        let image = read_hdr_image(path)?;
+        let (first_width, first_height) =
+            *self.first_size.get_or_insert((image.width, image.height));
+        if (image.width, image.height) != (first_width, first_height) {
+            return Err(CaptureError::SizeMismatch {
+                path: path.to_path_buf(),
+                width: image.width,
+                height: image.height,
+                first_width,
+                first_height,
+            });
+        }
+        let mut frame = HdrFrame::new(
+            image.width,
+            image.height,
+            image.pixels,
+            self.options.projection,
+        )
+        .ok_or_else(|| CaptureError::Format {
+            path: path.to_path_buf(),
+            message: "decoded image has an inconsistent pixel count".to_string(),
+        })?;
+        let bad = frame.sanitize();
+        if bad > 0 {
+            tracing::warn!(
+                file = %path.display(),
+                pixels = bad,
+                "replaced NaN, infinite or negative values in {bad} pixels of {}",
+                path.display()
+            );
+        }
+        Ok(frame)
+    }
+}
+
+impl FrameSource for SequenceSource {
+    fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
+        if self.finished {
+            return Ok(None);
+        }
+        if self.next >= self.paths.len() {
+            if self.options.looped {
+                self.next = 0;
+            } else {
+                self.finished = true;
+                return Ok(None);
+            }
+        }
+        let path = self.paths[self.next].clone();
+        self.next += 1;
+        let mut frame = self.read_frame(&path)?;
+
+        let seq = self.seq;
+        self.seq += 1;
+        frame.seq = seq;
+        let fps = self.options.fps.unwrap_or(NOMINAL_FPS);
+        frame.time = seq as f64 / fps;
+        if self.options.fps.is_some() {
+            let now = Instant::now();
+            let start = *self.start.get_or_insert(now);
+            let due = start + Duration::from_secs_f64(frame.time);
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+        }
+        Ok(Some(frame))
+    }
+
+    fn describe(&self) -> String {
+        let first = self.paths.first().map(|p| p.display().to_string());
+        let pace = match self.options.fps {
+            Some(fps) => format!("at {fps} fps"),
+            None => "as fast as possible".to_string(),
+        };
+        format!(
+            "sequence of {} {} from {}, {}{}, {}",
+            self.paths.len(),
+            if self.paths.len() == 1 {
+                "frame"
+            } else {
+                "frames"
+            },
+            first.unwrap_or_default(),
+            pace,
+            if self.options.looped { ", looped" } else { "" },
+            self.options.projection.name()
+        )
+    }
+}
+
+fn has_supported_extension(path: &Path) -> bool {
+    ImageFormat::from_path(path).is_some()
+}
+
+fn is_glob_pattern(input: &str) -> bool {
+    input.contains(['*', '?', '['])
+}
+
+/// Files named by `inputs`, deduplicated and in natural order.
+fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
+    let mut found: Vec<PathBuf> = Vec::new();
+    for input in inputs {
+        let path = Path::new(input);
+        match std::fs::metadata(path) {
+            Ok(meta) if meta.is_dir() => {
+                let io_err = |source| CaptureError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                };
+                for entry in std::fs::read_dir(path).map_err(io_err)? {
+                    let entry_path = entry.map_err(io_err)?.path();
+                    if entry_path.is_file() && has_supported_extension(&entry_path) {
+                        found.push(entry_path);
+                    }
+                }
+            }
+            Ok(_) => {
+                if !has_supported_extension(path) {
+                    return Err(CaptureError::Format {
+                        path: path.to_path_buf(),
+                        message: "unsupported file type; supported extensions are .exr, .hdr"
+                            .to_string(),
+                    });
+                }
+                found.push(path.to_path_buf());
+            }
+            Err(_) if is_glob_pattern(input) => {
+                let matches = glob::glob(input).map_err(|e| {
+                    CaptureError::InvalidSettings(format!("bad glob pattern {input:?}: {e}"))
+                })?;
+                for entry in matches {
+                    let entry_path = entry.map_err(|e| CaptureError::Io {
+                        path: e.path().to_path_buf(),
+                        source: e.into(),
+                    })?;
+                    if entry_path.is_file() && has_supported_extension(&entry_path) {
+                        found.push(entry_path);
+                    }
+                }
+            }
+            Err(source) => {
+                return Err(CaptureError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })
+            }
+        }
+    }
+
+    let mut seen = HashSet::new();
+    let mut unique = Vec::with_capacity(found.len());
+    for path in found {
+        let key = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
+        if seen.insert(key) {
+            unique.push(path);
+        }
+    }
+    unique.sort_by(|a, b| compare_frame_paths(a, b));
+    Ok(unique)
+}
+
+/// The last run of ASCII digits in `stem`, without leading zeros ("" for zero).
+fn last_number(stem: &str) -> Option<&str> {
+    let end = stem.rfind(|c: char| c.is_ascii_digit())? + 1;
+    let start = stem[..end]
+        .rfind(|c: char| !c.is_ascii_digit())
+        .map_or(0, |i| i + 1);
+    Some(stem[start..end].trim_start_matches('0'))
+}
+
+/// Natural order of frame files (see the module docs).
+fn compare_frame_paths(a: &Path, b: &Path) -> Ordering {
+    let stem = |p: &Path| {
+        p.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let name = |p: &Path| p.file_name().map(|s| s.to_os_string()).unwrap_or_default();
+    let (stem_a, stem_b) = (stem(a), stem(b));
+    let by_number = match (last_number(&stem_a), last_number(&stem_b)) {
+        (Some(x), Some(y)) => x.len().cmp(&y.len()).then_with(|| x.cmp(y)),
+        (Some(_), None) => Ordering::Less,
+        (None, Some(_)) => Ordering::Greater,
+        (None, None) => Ordering::Equal,
+    };
+    by_number
+        .then_with(|| name(a).cmp(&name(b)))
+        .then_with(|| a.cmp(b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn last_number_finds_the_last_digit_run() {
+        assert_eq!(last_number("frame_10"), Some("10"));
+        assert_eq!(last_number("take3_frame_0007"), Some("7"));
+        assert_eq!(last_number("multipart.0001"), Some("1"));
+        assert_eq!(last_number("f000"), Some(""));
+        assert_eq!(last_number("sky"), None);
+        assert_eq!(last_number("12"), Some("12"));
+    }
+
+    #[test]
+    fn natural_order() {
+        let mut paths: Vec<PathBuf> = [
+            "b/sky.exr",
+            "a/frame_10.exr",
+            "a/frame_2.exr",
+            "a/frame_0002.hdr",
+            "a/frame_1.exr",
+            "a/alpha.exr",
+            "a/frame_99999999999999999999999999999.exr",
+            "c/frame_2.exr",
+        ]
+        .iter()
+        .map(PathBuf::from)
+        .collect();
+        paths.sort_by(|a, b| compare_frame_paths(a, b));
+        let expected: Vec<PathBuf> = [
+            "a/frame_1.exr",
+            "a/frame_0002.hdr",
+            "a/frame_2.exr",
+            "c/frame_2.exr",
+            "a/frame_10.exr",
+            "a/frame_99999999999999999999999999999.exr",
+            "a/alpha.exr",
+            "b/sky.exr",
+        ]
+        .iter()
+        .map(PathBuf::from)
+        .collect();
+        assert_eq!(paths, expected);
+    }
+
+    #[test]
+    fn rejects_bad_fps() {
+        for fps in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let options = SequenceOptions {
+                fps: Some(fps),
+                ..Default::default()
+            };
+            let err = SequenceSource::new(&["x.exr".to_string()], options).unwrap_err();
+            assert!(matches!(err, CaptureError::InvalidSettings(_)), "{err}");
+        }
+    }
+
+    #[test]
+    fn no_inputs_is_no_frames() {
+        let err = SequenceSource::new(&[], SequenceOptions::default()).unwrap_err();
+        assert!(matches!(err, CaptureError::NoFrames(_)), "{err}");
+    }
+
+    #[test]
+    fn missing_plain_path_is_io_error_naming_it() {
+        let err = SequenceSource::new(
+            &["/nonexistent/dir/frame_1.exr".to_string()],
+            SequenceOptions::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(err, CaptureError::Io { .. }), "{err}");
+        assert!(err.to_string().contains("/nonexistent/dir/frame_1.exr"));
+    }
+
+    #[test]
+    fn glob_without_matches_is_no_frames() {
+        let err = SequenceSource::new(
+            &["/nonexistent/dir/*.exr".to_string()],
+            SequenceOptions::default(),
+        )
+        .unwrap_err();
+        assert!(
+            matches!(err, CaptureError::NoFrames(ref s) if s.contains("*.exr")),
+            "{err}"
+        );
+    }
+}
