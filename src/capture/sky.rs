@@ -39,10 +39,19 @@
 //!    `(E_sky + E_sun,h)/π` scaled, plus Henyey–Greenstein forward scattering, so brighter near
 //!    the sun), blended over the sky by their opacity, fading out toward the horizon. The sun disc
 //!    is attenuated by the cloud opacity in its direction, so its power changes as clouds pass.
+//!    Octaves finer than a pixel's footprint on the layer fade to their mean (anti-aliasing, so
+//!    the clouds near the horizon do not flicker as they drift).
 //! 5. **Ground** (below the horizon): uniform Lambertian ground of `ground_albedo`, radiance
 //!    `albedo · E_ground / π`, with `E_ground` = the sun's direct irradiance × sin(elevation) ×
 //!    cloud transmittance + the sky's irradiance on a horizontal plane (summed from the rendered
 //!    sky pixels, clouds included).
+//!
+//! # Cost
+//!
+//! [`SkySource`] computes the per-pixel directions and solid angles once; a frame then costs one
+//! pass per stage. The Perez gradation term is evaluated per row and the scattering term comes
+//! from a per-frame table over sin(γ/2). 512×256 with clouds renders in about 8 ms in the test
+//! profile (opt-level 2) on a loaded 2-core machine; without clouds about 3 ms.
 //!
 //! # Units
 //!
@@ -266,7 +275,7 @@ pub fn sun_at(options: &SkyOptions, time_s: f64) -> SunState {
     let (elevation_deg, azimuth_deg) = sun_position(options, time_s);
     let direction = direction_from_elevation_azimuth(elevation_deg, azimuth_deg);
     let cloud_transmittance = if options.clouds {
-        1.0 - Clouds::new(options, time_s).opacity(direction)
+        1.0 - Clouds::new(options, time_s).opacity(direction, 0.0)
     } else {
         1.0
     };
@@ -347,12 +356,15 @@ fn zenith_chromaticity(t: f64, theta_s: f64) -> (f64, f64) {
     (x, y)
 }
 
+/// CIE xyY → linear sRGB (Rec. 709 primaries, D65), negative channels clamped to 0.
+#[inline]
 fn xyy_to_linear_srgb(x: f64, y: f64, big_y: f64) -> [f64; 3] {
     if y.is_nan() || big_y.is_nan() || y <= 1e-6 || big_y <= 0.0 {
         return [0.0; 3];
     }
-    let big_x = x * big_y / y;
-    let big_z = (1.0 - x - y) * big_y / y;
+    let k = big_y / y;
+    let big_x = x * k;
+    let big_z = (1.0 - x - y) * k;
     let r = 3.2404542 * big_x - 1.5371385 * big_y - 0.4985314 * big_z;
     let g = -0.9692660 * big_x + 1.8760108 * big_y + 0.0415560 * big_z;
     let b = 0.0556434 * big_x - 0.2040259 * big_y + 1.0572252 * big_z;
@@ -440,8 +452,8 @@ impl PreethamSky {
         let t = x - i as f64;
         let (a, b) = (self.table[i], self.table[i + 1]);
         let q = |k: usize| gradations[k] * (a[k] + (b[k] - a[k]) * t);
-        let big_y = q(0) * self.fade + NIGHT_LUMINANCE;
-        xyy_to_linear_srgb(q(1), q(2), big_y).map(|c| c / LUMENS_PER_WATT)
+        let big_y = (q(0) * self.fade + NIGHT_LUMINANCE) * (1.0 / LUMENS_PER_WATT);
+        xyy_to_linear_srgb(q(1), q(2), big_y)
     }
 
     /// Gradation terms (Y, x, y) for a view zenith cosine; depends only on the pixel row.
@@ -484,19 +496,34 @@ fn hash64(mut x: u64) -> u64 {
     x ^ (x >> 31)
 }
 
+#[inline]
 fn lattice_value(ix: i64, iy: i64, seed: u64) -> f64 {
-    let key = (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+    // One multiply-xorshift round over the combined key is plenty for value noise.
+    let mut h = (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
         ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
         ^ seed;
-    (hash64(key) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    h ^= h >> 32;
+    h = h.wrapping_mul(0xD6E8_FEB8_6659_FD93);
+    h ^= h >> 32;
+    (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// `floor` without a libm call (x86-64 baseline has no rounding instruction); |x| < 2⁶³.
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i - 1
+    } else {
+        i
+    }
 }
 
 /// Value noise in [0, 1] with quintic interpolation.
+#[inline]
 fn value_noise(p: DVec2, seed: u64) -> f64 {
-    let fx = p.x.floor();
-    let fy = p.y.floor();
-    let (ix, iy) = (fx as i64, fy as i64);
-    let (tx, ty) = (p.x - fx, p.y - fy);
+    let (ix, iy) = (floor_i64(p.x), floor_i64(p.y));
+    let (tx, ty) = (p.x - ix as f64, p.y - iy as f64);
     let fade = |t: f64| t * t * t * (t * (t * 6.0 - 15.0) + 10.0);
     let (sx, sy) = (fade(tx), fade(ty));
     let v00 = lattice_value(ix, iy, seed);
@@ -559,14 +586,28 @@ fn fbm(p: DVec2, seed: u64) -> f64 {
 }
 
 /// `smoothstep(lo, hi, fbm(p, seed))`, stopping early once the remaining octaves cannot change
-/// the result.
-fn fbm_step(p: DVec2, seed: u64, lo: f64, hi: f64) -> f64 {
+/// the result. `footprint` is the pixel's size in noise units: octaves whose lattice spacing
+/// (2^−k) is below two footprints fade to their mean 0.5 (anti-aliasing: near the horizon the
+/// fine octaves would only alias and flicker as the clouds drift). 0 keeps every octave.
+fn fbm_step(p: DVec2, seed: u64, lo: f64, hi: f64, footprint: f64) -> f64 {
     let (amp, total, rest) = OCTAVES;
     let (lo, hi) = (lo * total, hi * total);
     let mut sum = 0.0;
     let mut q = p;
+    let mut spacing = 1.0;
     for octave in 0..CLOUD_OCTAVES {
-        sum += amp[octave] * value_noise(q, octave_seed(seed, octave));
+        let weight = if footprint > 0.0 {
+            (spacing / footprint - 1.0).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        if weight <= 0.0 {
+            // This and all finer octaves are at their mean.
+            sum += 0.5 * (amp[octave] + rest[octave]);
+            break;
+        }
+        let noise = value_noise(q, octave_seed(seed, octave));
+        sum += amp[octave] * (0.5 + weight * (noise - 0.5));
         if sum + rest[octave] <= lo {
             return 0.0;
         }
@@ -574,6 +615,7 @@ fn fbm_step(p: DVec2, seed: u64, lo: f64, hi: f64) -> f64 {
             return 1.0;
         }
         q = next_octave(q);
+        spacing *= 0.5;
     }
     smoothstep(lo, hi, sum)
 }
@@ -628,14 +670,19 @@ impl Clouds {
         }
     }
 
-    /// Cloud opacity in [0, 1] towards direction `d` (0 below and near the horizon).
-    fn opacity(&self, d: DVec3) -> f64 {
+    /// Cloud opacity in [0, 1] towards direction `d` (0 below and near the horizon), for a pixel
+    /// of angular size `pixel_angle` (radians; 0 = a single ray, all octaves).
+    fn opacity(&self, d: DVec3, pixel_angle: f64) -> f64 {
         if !self.enabled || d.y <= 0.02 {
             return 0.0;
         }
         let horizon = smoothstep(0.02, 0.15, d.y);
-        let p = DVec2::new(d.x, d.z) * (CLOUD_HEIGHT_M / d.y) / CLOUD_FEATURE_M + self.offset;
-        fbm_step(p, self.seed, self.threshold, self.threshold + self.edge) * horizon
+        let scale = CLOUD_HEIGHT_M / CLOUD_FEATURE_M / d.y;
+        let p = DVec2::new(d.x, d.z) * scale + self.offset;
+        // Distance × angle, stretched by 1/sin(elevation) on the plane.
+        let footprint = pixel_angle * scale / d.y;
+        let lo = self.threshold;
+        fbm_step(p, self.seed, lo, lo + self.edge, footprint) * horizon
     }
 }
 
@@ -769,11 +816,12 @@ fn render_with_geometry(
         let clouds = Clouds::new(options, time_s);
         let ambient: [f64; 3] =
             std::array::from_fn(|c| (clear_sky_irradiance[c] + clear[c] * sun_sin) / PI);
+        let pixel_angle = PI / f64::from(geometry.height);
         for (d, p) in geometry.directions.iter().zip(pixels.iter_mut()) {
             if d.y <= 0.02 {
                 continue;
             }
-            let alpha = clouds.opacity(*d);
+            let alpha = clouds.opacity(*d, pixel_angle);
             if alpha <= 0.0 {
                 continue;
             }
@@ -1310,7 +1358,13 @@ mod tests {
                 for i in 0..100 {
                     for j in 0..100 {
                         let p = DVec2::new(f64::from(i) * 0.13, f64::from(j) * 0.13);
-                        sum += fbm_step(p, clouds.seed, clouds.threshold, clouds.threshold + 0.12);
+                        sum += fbm_step(
+                            p,
+                            clouds.seed,
+                            clouds.threshold,
+                            clouds.threshold + 0.12,
+                            0.0,
+                        );
                         n += 1.0;
                     }
                 }
@@ -1326,7 +1380,12 @@ mod tests {
             let p = DVec2::new(f64::from(i) * 0.377, f64::from(i % 37) * 0.91);
             let (lo, hi) = (0.55, 0.67);
             let exact = smoothstep(lo, hi, fbm(p, 99));
-            assert!((fbm_step(p, 99, lo, hi) - exact).abs() < 1e-12);
+            assert!((fbm_step(p, 99, lo, hi, 0.0) - exact).abs() < 1e-12);
+            // A footprint far above the coarsest lattice spacing leaves the mean.
+            let mean = smoothstep(0.4, 0.6, 0.5);
+            assert!((fbm_step(p, 99, 0.4, 0.6, 5.0) - mean).abs() < 1e-12);
+            // Footprints below the finest spacing change nothing.
+            assert!((fbm_step(p, 99, lo, hi, 0.01) - exact).abs() < 1e-12);
         }
     }
 
