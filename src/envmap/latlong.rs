@@ -15,7 +15,7 @@ pub fn pixel_to_direction(width: u32, height: u32, x: f64, y: f64) -> DVec3 {
 /// Continuous pixel position of direction `d`; x in [0, W), y in [0, H].
 pub fn direction_to_pixel(width: u32, height: u32, d: DVec3) -> Option<(f64, f64)> {
     let len = d.length();
-    if !(len > 0.0) || !len.is_finite() {
+    if !(len.is_finite() && len > 0.0) {
         return None;
     }
     let d = d / len;
