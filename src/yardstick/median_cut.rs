@@ -20,7 +20,7 @@
 //!    black region or one covering the whole sphere), rgb = Σ rgb·Ω (so the lights sum exactly to
 //!    the map's integral), solid_angle = Σ Ω; ids 0..n−1 in region order.
 
-use super::{add_scaled, check_latlong, clean, lum, YardstickError};
+use super::{add_scaled, check_latlong, clean, lum, unit_if_significant, YardstickError};
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use crate::light::{Light, LightFrame};
@@ -240,11 +240,4 @@ fn latlong_dir(w: usize, h: usize, x: f64, y: f64) -> DVec3 {
     Projection::LatLong
         .pixel_to_direction(w as u32, h as u32, x, y)
         .unwrap_or(DVec3::Y)
-}
-
-/// `v / |v|` if `v` is a meaningful mean direction of weights summing to `weight` (its length is
-/// not lost in rounding), else `None`.
-fn unit_if_significant(v: DVec3, weight: f64) -> Option<DVec3> {
-    let len = v.length();
-    (len.is_finite() && len > 0.0 && len > 1e-9 * weight).then(|| v / len)
 }

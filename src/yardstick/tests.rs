@@ -312,3 +312,39 @@ fn median_cut_splits_the_energy_evenly() {
         assert!((e - mean).abs() < 0.05 * mean, "{e} vs {mean}");
     }
 }
+
+#[test]
+fn coarse_reference_agrees_with_full_resolution_on_a_low_sun() {
+    // Sky plus a 2×2-pixel sun 8° above the horizon: the coarse reference keeps the sun's block
+    // at full resolution, so its yardsticks match the full-resolution ones.
+    let (w, h) = (512, 256);
+    let frame = latlong(w, h, |x, y| {
+        if (300..302).contains(&x) && (116..118).contains(&y) {
+            [2e5, 1.8e5, 1.5e5]
+        } else if y < h / 2 {
+            [0.3, 0.5, 1.0]
+        } else {
+            [0.1, 0.1, 0.05]
+        }
+    });
+    let coarse = ReferenceMap::new(&frame, 64).unwrap();
+    let full = ReferenceMap::new(&frame, w).unwrap();
+    assert_eq!((coarse.factor(), full.factor()), (8, 1));
+    assert!(coarse.refined_blocks() >= 1 && full.refined_blocks() == 0);
+    let total: f64 = coarse.solid_angles().iter().sum();
+    assert!((total - 4.0 * PI).abs() < 1e-9);
+    for n in [16, 64] {
+        let lights = median_cut(&frame, n).unwrap();
+        let (a, b) = (
+            evaluate(&coarse, &lights.lights),
+            evaluate(&full, &lights.lights),
+        );
+        for (x, y) in [
+            (a.diffuse, b.diffuse),
+            (a.glossy16, b.glossy16),
+            (a.ground_shadow, b.ground_shadow),
+        ] {
+            assert!((x - y).abs() < 0.1 * y + 1e-3, "n={n}: {a:?} vs {b:?}");
+        }
+    }
+}
