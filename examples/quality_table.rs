@@ -5,11 +5,13 @@
 //! cargo run --release --example quality_table -- tests/data/*.hdr
 //! ```
 //!
-//! Only Radiance `.hdr` files are read here (through the `image` crate); any other file is
-//! reported on stderr and skipped, and the exit status is then 1. A method is one more entry in
-//! `methods`.
+//! Reads `.hdr` and `.exr` lat-long maps; a file that cannot be read is reported on stderr and
+//! skipped, and the exit status is then 1. A method is one more entry in `methods`.
 
 use anyhow::{bail, Context, Result};
+use envlight::capture::image_file::read_hdr_image;
+use envlight::decompose::merge::DEFAULT_SPACING_FRACTION;
+use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement};
 use envlight::envmap::Projection;
 use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
@@ -23,22 +25,29 @@ const LIGHT_COUNTS: [usize; 2] = [64, 256];
 /// A light-generation method: frame and light count in, lights out.
 type Method = Box<dyn Fn(&HdrFrame, usize) -> Result<LightFrame>>;
 
-fn read_hdr(path: &Path) -> Result<HdrFrame> {
-    let is_hdr = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
-    if !is_hdr {
-        bail!("only Radiance .hdr files are supported by this example");
+fn read_map(path: &Path) -> Result<HdrFrame> {
+    let image = read_hdr_image(path)?;
+    if image.width != 2 * image.height {
+        bail!("{}x{} is not a 2:1 lat-long map", image.width, image.height);
     }
-    let image = image::open(path)?.to_rgb32f();
-    let (w, h) = image.dimensions();
-    if w != 2 * h {
-        bail!("{w}x{h} is not a 2:1 lat-long map");
-    }
-    let pixels = image.pixels().map(|p| p.0).collect();
-    let mut frame = HdrFrame::new(w, h, pixels, Projection::LatLong).context("empty image")?;
+    let mut frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+        .context("empty image")?;
     frame.sanitize();
     Ok(frame)
+}
+
+/// envlight's decomposition of a single frame (the temporal filter is a no-op on one frame).
+fn envlight_method(placement: LightPlacement, merge: bool) -> Method {
+    Box::new(move |frame: &HdrFrame, n: usize| {
+        let settings = DecomposeSettings {
+            lights: n,
+            placement,
+            filter_taps: None,
+            merge_spacing_fraction: merge.then_some(DEFAULT_SPACING_FRACTION),
+            ..DecomposeSettings::default()
+        };
+        Ok(Decomposer::new(settings)?.decompose(frame))
+    })
 }
 
 fn main() {
@@ -47,10 +56,21 @@ fn main() {
         eprintln!("usage: quality_table MAP.hdr...");
         std::process::exit(2);
     }
-    let methods: Vec<(&str, Method)> = vec![(
-        "median cut",
-        Box::new(|frame: &HdrFrame, n: usize| Ok(median_cut(frame, n)?)),
-    )];
+    let methods: Vec<(&str, Method)> = vec![
+        (
+            "median cut",
+            Box::new(|frame: &HdrFrame, n: usize| Ok(median_cut(frame, n)?)),
+        ),
+        ("envlight", envlight_method(LightPlacement::Centroid, true)),
+        (
+            "envlight, no merge",
+            envlight_method(LightPlacement::Centroid, false),
+        ),
+        (
+            "envlight, sample point",
+            envlight_method(LightPlacement::SamplePoint, false),
+        ),
+    ];
 
     println!(
         "| map | N | method | lights | diffuse | glossy-16 | glossy-128 | ground-shadow | energy |"
@@ -63,7 +83,7 @@ fn main() {
             || path.display().to_string(),
             |s| s.to_string_lossy().into_owned(),
         );
-        let (frame, map) = match read_hdr(path).and_then(|frame| {
+        let (frame, map) = match read_map(path).and_then(|frame| {
             let map = ReferenceMap::new(&frame, REFERENCE_WIDTH)?;
             Ok((frame, map))
         }) {

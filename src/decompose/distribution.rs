@@ -33,8 +33,15 @@ impl PiecewiseConstant2d {
     /// Negative or non-finite weights count as 0. An all-zero image gives the uniform
     /// distribution (and `total() == 0`).
     pub fn new(weights: &[f64], width: usize, height: usize) -> Self {
-        assert_eq!(weights.len(), width * height, "weights must be width*height");
-        assert!(width > 0 && height > 0, "distribution needs a non-empty image");
+        assert_eq!(
+            weights.len(),
+            width * height,
+            "weights must be width*height"
+        );
+        assert!(
+            width > 0 && height > 0,
+            "distribution needs a non-empty image"
+        );
         let mut prefix = Vec::with_capacity(height * (width + 1));
         let mut marginal_cdf = Vec::with_capacity(height + 1);
         marginal_cdf.push(0.0);
@@ -61,7 +68,13 @@ impl PiecewiseConstant2d {
                 *c = i as f64 / height as f64;
             }
         }
-        Self { width, height, prefix, marginal_cdf, total }
+        Self {
+            width,
+            height,
+            prefix,
+            marginal_cdf,
+            total,
+        }
     }
 
     /// Sum of all weights.
@@ -114,12 +127,19 @@ impl PiecewiseConstant2d {
     fn sample_row(&self, u1: f64) -> (f64, f64) {
         let cdf = &self.marginal_cdf;
         // Largest row r with cdf[r] <= u1, among rows of non-zero width.
-        let mut r = cdf.partition_point(|&c| c <= u1).saturating_sub(1).min(self.height - 1);
+        let mut r = cdf
+            .partition_point(|&c| c <= u1)
+            .saturating_sub(1)
+            .min(self.height - 1);
         while r > 0 && cdf[r + 1] - cdf[r] <= 0.0 && cdf[r] >= u1 {
             r -= 1;
         }
         let width = cdf[r + 1] - cdf[r];
-        let frac = if width > 0.0 { ((u1 - cdf[r]) / width).clamp(0.0, 1.0) } else { 0.5 };
+        let frac = if width > 0.0 {
+            ((u1 - cdf[r]) / width).clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
         (r as f64 + frac, width * self.height as f64)
     }
 
@@ -220,7 +240,9 @@ mod tests {
     use super::*;
 
     fn lcg(state: &mut u64) -> f64 {
-        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (*state >> 11) as f64 / (1u64 << 53) as f64
     }
 
@@ -230,7 +252,11 @@ mod tests {
             .map(|_| {
                 let z = lcg(&mut s);
                 let v = lcg(&mut s);
-                if z < zero_fraction { 0.0 } else { v * v * 10.0 }
+                if z < zero_fraction {
+                    0.0
+                } else {
+                    v * v * 10.0
+                }
             })
             .collect()
     }
@@ -249,7 +275,10 @@ mod tests {
                     continue;
                 }
                 let v = dist.invert(p);
-                assert!((u[0] - v[0]).abs() < 1e-9 && (u[1] - v[1]).abs() < 1e-9, "{u:?} -> {p:?} -> {v:?}");
+                assert!(
+                    (u[0] - v[0]).abs() < 1e-9 && (u[1] - v[1]).abs() < 1e-9,
+                    "{u:?} -> {p:?} -> {v:?}"
+                );
             }
         }
     }
@@ -262,7 +291,10 @@ mod tests {
         for _ in 0..10000 {
             let (p, pdf) = dist.sample([lcg(&mut s), lcg(&mut s)]);
             assert!(pdf > 0.0);
-            assert!((dist.pdf(p) - pdf).abs() <= 1e-9 * pdf.max(1.0), "pdf mismatch at {p:?}");
+            assert!(
+                (dist.pdf(p) - pdf).abs() <= 1e-9 * pdf.max(1.0),
+                "pdf mismatch at {p:?}"
+            );
         }
     }
 
@@ -306,7 +338,10 @@ mod tests {
         let fine = largest_step(&dist, 40_000);
         // Continuous: the largest step shrinks with the step size (a jump would not).
         assert!(coarse < 5e-3, "largest step {coarse}");
-        assert!(fine < 0.3 * coarse, "largest step {fine} at 4x finer sweep vs {coarse}");
+        assert!(
+            fine < 0.3 * coarse,
+            "largest step {fine} at 4x finer sweep vs {coarse}"
+        );
     }
 
     #[test]

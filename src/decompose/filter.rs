@@ -63,7 +63,11 @@ impl FirFilter {
         if !(sum > 0.0) {
             return Err(format!("taps must have a positive sum, got {sum}"));
         }
-        Ok(Self { taps: taps.iter().map(|t| t / sum).collect(), histories: Vec::new(), frame: 0 })
+        Ok(Self {
+            taps: taps.iter().map(|t| t / sum).collect(),
+            histories: Vec::new(),
+            frame: 0,
+        })
     }
 
     /// The filter with [`DEFAULT_TAPS`].
@@ -78,7 +82,11 @@ impl FirFilter {
 
     /// Group delay at low frequencies, in frames: Σ k·w_k. (T−1)/2 for symmetric taps.
     pub fn delay_frames(&self) -> f64 {
-        self.taps.iter().enumerate().map(|(k, w)| k as f64 * w).sum()
+        self.taps
+            .iter()
+            .enumerate()
+            .map(|(k, w)| k as f64 * w)
+            .sum()
     }
 
     /// Forgets all histories.
@@ -97,7 +105,11 @@ impl FirFilter {
                 self.histories.resize_with(id + 1, History::default);
             }
             let sample = Sample {
-                dir: DVec3::new(light.dir[0].into(), light.dir[1].into(), light.dir[2].into()),
+                dir: DVec3::new(
+                    light.dir[0].into(),
+                    light.dir[1].into(),
+                    light.dir[2].into(),
+                ),
                 rgb: light.rgb.map(f64::from),
                 solid_angle: light.solid_angle.into(),
             };
@@ -137,14 +149,22 @@ mod tests {
     use super::*;
 
     fn light(id: u32, dir: [f32; 3], power: f32) -> Light {
-        Light { id, dir, rgb: [power; 3], solid_angle: 0.01 }
+        Light {
+            id,
+            dir,
+            rgb: [power; 3],
+            solid_angle: 0.01,
+        }
     }
 
     #[test]
     fn constant_input_stays_constant() {
         let mut f = FirFilter::with_default_taps();
         for _ in 0..20 {
-            let mut lights = vec![light(0, [0.0, 1.0, 0.0], 5.0), light(3, [0.6, 0.0, 0.8], 2.0)];
+            let mut lights = vec![
+                light(0, [0.0, 1.0, 0.0], 5.0),
+                light(3, [0.6, 0.0, 0.8], 2.0),
+            ];
             f.apply(&mut lights);
             assert!((lights[0].rgb[0] - 5.0).abs() < 1e-5);
             assert!((lights[1].dir[0] - 0.6).abs() < 1e-6 && (lights[1].dir[2] - 0.8).abs() < 1e-6);
@@ -165,7 +185,10 @@ mod tests {
         // Symmetric taps: the output reaches half the step exactly `delay` frames after it,
         // rises monotonically and settles at the new value once all taps see it.
         let half = 10 + f.delay_frames() as usize;
-        assert!(out[half - 1] < 0.5 && out[half] >= 0.5 && out[half + 1] > 0.5, "{out:?}");
+        assert!(
+            out[half - 1] < 0.5 && out[half] >= 0.5 && out[half + 1] > 0.5,
+            "{out:?}"
+        );
         assert!(out.windows(2).all(|w| w[1] >= w[0]));
         assert_eq!(out[9], 0.0);
         assert!((out[16] - 1.0).abs() < 1e-6);
@@ -211,6 +234,9 @@ mod tests {
         assert!(FirFilter::new(&[1.0, f64::NAN]).is_err());
         assert!(FirFilter::new(&[1.0, -1.0]).is_err());
         assert!(FirFilter::new(&[1.0; 65]).is_err());
-        assert_eq!(FirFilter::new(&[2.0, 2.0]).map(|f| f.taps().to_vec()), Ok(vec![0.5, 0.5]));
+        assert_eq!(
+            FirFilter::new(&[2.0, 2.0]).map(|f| f.taps().to_vec()),
+            Ok(vec![0.5, 0.5])
+        );
     }
 }

@@ -33,7 +33,10 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
     let dirs: Vec<DVec3> = lights.iter().map(|l| dvec(l.dir)).collect();
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| {
-        lights[b].luminance().total_cmp(&lights[a].luminance()).then(lights[a].id.cmp(&lights[b].id))
+        lights[b]
+            .luminance()
+            .total_cmp(&lights[a].luminance())
+            .then(lights[a].id.cmp(&lights[b].id))
     });
     let mut taken = vec![false; n];
     let mut out = Vec::with_capacity(n);
@@ -83,7 +86,12 @@ mod tests {
 
     fn light(id: u32, dir: DVec3, power: f32) -> Light {
         let d = dir.normalize();
-        Light { id, dir: [d.x as f32, d.y as f32, d.z as f32], rgb: [power; 3], solid_angle: 0.001 }
+        Light {
+            id,
+            dir: [d.x as f32, d.y as f32, d.z as f32],
+            rgb: [power; 3],
+            solid_angle: 0.001,
+        }
     }
 
     #[test]
@@ -105,9 +113,15 @@ mod tests {
         let merged = merge_crowded(&lights, DEFAULT_SPACING_FRACTION);
         let total = |ls: &[Light]| ls.iter().map(|l| f64::from(l.rgb[0])).sum::<f64>();
         assert!((total(&merged) - total(&lights)).abs() < 1e-3 * total(&lights));
-        let sun_light = merged.iter().find(|l| l.id == 0).expect("merged sun keeps the lowest id");
+        let sun_light = merged
+            .iter()
+            .find(|l| l.id == 0)
+            .expect("merged sun keeps the lowest id");
         assert!(sun_light.rgb[0] >= 500.0);
-        assert!((sun_light.solid_angle - 0.01).abs() < 2e-3, "spread is the members' total");
+        assert!(
+            (sun_light.solid_angle - 0.01).abs() < 2e-3,
+            "spread is the members' total"
+        );
         assert!(dvec(sun_light.dir).dot(sun) > 0.9999);
         // The evenly spread lights are not merged with each other.
         assert!(merged.len() >= 195, "{} lights left", merged.len());

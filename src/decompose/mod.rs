@@ -125,8 +125,13 @@ impl Decomposer {
             Some(taps) => Some(FirFilter::new(taps).map_err(DecomposeError::FilterTaps)?),
             None => None,
         };
-        let mut decomposer =
-            Self { settings, resampler: None, luts: HashMap::new(), filter, regions: Vec::new() };
+        let mut decomposer = Self {
+            settings,
+            resampler: None,
+            luts: HashMap::new(),
+            filter,
+            regions: Vec::new(),
+        };
         decomposer.lut(decomposer.settings.lights);
         Ok(decomposer)
     }
@@ -141,13 +146,17 @@ impl Decomposer {
     }
 
     fn lut(&mut self, n: usize) -> Arc<CellLut> {
-        self.luts.entry(n).or_insert_with(|| Arc::new(CellLut::new(n))).clone()
+        self.luts
+            .entry(n)
+            .or_insert_with(|| Arc::new(CellLut::new(n)))
+            .clone()
     }
 
     /// Decomposes `frame` into `settings.lights` lights.
     pub fn decompose(&mut self, frame: &HdrFrame) -> LightFrame {
         let n = self.settings.lights;
-        self.decompose_with_count(frame, n).unwrap_or_else(|_| unreachable!("validated count"))
+        self.decompose_with_count(frame, n)
+            .unwrap_or_else(|_| unreachable!("validated count"))
     }
 
     /// Decomposes `frame` into `n` lights (the first n of the progressive set): the light count
@@ -165,7 +174,11 @@ impl Decomposer {
         if let Some(fraction) = self.settings.merge_spacing_fraction {
             lights = merge::merge_crowded(&lights, fraction);
         }
-        Ok(LightFrame { seq: frame.seq, time: frame.time, lights })
+        Ok(LightFrame {
+            seq: frame.seq,
+            time: frame.time,
+            lights,
+        })
     }
 
     /// Steps 1–4: unfiltered, unmerged lights, ids 0..n.
@@ -179,10 +192,11 @@ impl Decomposer {
             ));
         }
         let lut = self.lut(n);
-        let Some(resampler) = self.resampler.as_mut() else { unreachable!("set above") };
+        let Some(resampler) = self.resampler.as_mut() else {
+            unreachable!("set above")
+        };
         let map = resampler.resample(frame);
-        let weights: Vec<f64> =
-            map.energy.iter().map(|e| luminance_f64(*e)).collect();
+        let weights: Vec<f64> = map.energy.iter().map(|e| luminance_f64(*e)).collect();
         let dist = PiecewiseConstant2d::new(&weights, map.width, map.height);
         self.regions.clear();
         self.regions.resize(n, Region::default());
@@ -252,7 +266,11 @@ fn accumulate_regions(
         let row_mass: f64 = row.iter().sum();
         let row_omega = map.row_solid_angle[y];
         // Extent of a pixel's preimage along u1 (same for the whole row).
-        let du1 = if total > 0.0 { row_mass / total } else { 1.0 / h as f64 };
+        let du1 = if total > 0.0 {
+            row_mass / total
+        } else {
+            1.0 / h as f64
+        };
         let ky = ((4.0 * du1 * cells_across).ceil() as usize).clamp(1, 64);
         for x in 0..w {
             let idx = y * w + x;
@@ -303,7 +321,11 @@ mod tests {
         let mut pixels = Vec::with_capacity((w * h) as usize);
         for y in 0..h {
             for x in 0..w {
-                let sky = if y < h / 2 { 1.0 + 0.5 * (y as f32 / h as f32) } else { 0.2 };
+                let sky = if y < h / 2 {
+                    1.0 + 0.5 * (y as f32 / h as f32)
+                } else {
+                    0.2
+                };
                 let tint = 1.0 + 0.3 * ((x as f32 / w as f32) * 6.28).sin();
                 pixels.push([sky * tint, sky, sky * 1.2]);
             }
@@ -327,7 +349,10 @@ mod tests {
         let truth = frame_integral(&frame);
         for n in [1, 16, 100, 256, 1024] {
             for merge in [None, Some(0.25)] {
-                let settings = DecomposeSettings { merge_spacing_fraction: merge, ..raw_settings(n) };
+                let settings = DecomposeSettings {
+                    merge_spacing_fraction: merge,
+                    ..raw_settings(n)
+                };
                 let lights = Decomposer::new(settings).unwrap().decompose(&frame);
                 let sum = lights.total_rgb();
                 for c in 0..3 {
@@ -342,7 +367,13 @@ mod tests {
         // Left half red, right half blue: lights on each side carry that side's colour.
         let (w, h) = (128u32, 64u32);
         let pixels = (0..w * h)
-            .map(|i| if i % w < w / 2 { [1.0, 0.0, 0.0] } else { [0.0, 0.0, 3.0] })
+            .map(|i| {
+                if i % w < w / 2 {
+                    [1.0, 0.0, 0.0]
+                } else {
+                    [0.0, 0.0, 3.0]
+                }
+            })
             .collect();
         let frame = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
         let lights = Decomposer::new(raw_settings(64)).unwrap().decompose(&frame);
@@ -370,22 +401,35 @@ mod tests {
     #[test]
     fn sun_energy_lands_on_the_sun() {
         let frame = sky_with_sun(256, 128, (40, 30), 1e6);
-        let sun = Projection::LatLong.pixel_to_direction(256, 128, 40.5, 30.5).unwrap();
+        let sun = Projection::LatLong
+            .pixel_to_direction(256, 128, 40.5, 30.5)
+            .unwrap();
         let sun_energy = 1e6 * Projection::LatLong.solid_angles(256, 128)[30 * 256];
         for placement in [LightPlacement::Centroid, LightPlacement::SamplePoint] {
-            let settings = DecomposeSettings { placement, ..raw_settings(256) };
+            let settings = DecomposeSettings {
+                placement,
+                ..raw_settings(256)
+            };
             let lights = Decomposer::new(settings).unwrap().decompose(&frame);
             let near = sun_energy_near(&lights, sun, 1.0);
-            assert!(near > 0.9 * sun_energy, "{placement:?}: {near} of {sun_energy} within 1°");
+            assert!(
+                near > 0.9 * sun_energy,
+                "{placement:?}: {near} of {sun_energy} within 1°"
+            );
         }
     }
 
     #[test]
     fn merged_sun_becomes_one_light() {
         let frame = sky_with_sun(256, 128, (40, 30), 1e6);
-        let settings = DecomposeSettings { filter_taps: None, ..DecomposeSettings::default() };
+        let settings = DecomposeSettings {
+            filter_taps: None,
+            ..DecomposeSettings::default()
+        };
         let merged = Decomposer::new(settings).unwrap().decompose(&frame);
-        let raw = Decomposer::new(raw_settings(256)).unwrap().decompose(&frame);
+        let raw = Decomposer::new(raw_settings(256))
+            .unwrap()
+            .decompose(&frame);
         assert!(merged.lights.len() < raw.lights.len() / 2);
         let sun = merged
             .lights
@@ -395,7 +439,12 @@ mod tests {
         // Cells that straddle the sun's preimage in the square carry sun and sky energy in equal
         // measure, so their centroids sit off the sun; the rest of the sun merges into one light.
         let sun_energy = 1e6 * Projection::LatLong.solid_angles(256, 128)[30 * 256];
-        assert!(f64::from(sun.rgb[0]) > 0.9 * sun_energy, "{} vs {}", sun.rgb[0], sun_energy);
+        assert!(
+            f64::from(sun.rgb[0]) > 0.9 * sun_energy,
+            "{} vs {}",
+            sun.rgb[0],
+            sun_energy
+        );
         assert!(sun.solid_angle > 0.0);
     }
 
@@ -417,14 +466,20 @@ mod tests {
         let mut frame = sky_with_sun(64, 32, (10, 10), 100.0);
         frame.pixels[5] = [f32::NAN, f32::INFINITY, -3.0];
         let lights = Decomposer::new(raw_settings(16)).unwrap().decompose(&frame);
-        assert!(lights.lights.iter().all(|l| l.rgb.iter().chain(&l.dir).all(|c| c.is_finite())));
+        assert!(lights
+            .lights
+            .iter()
+            .all(|l| l.rgb.iter().chain(&l.dir).all(|c| c.is_finite())));
     }
 
     #[test]
     fn light_count_is_validated() {
         let bad = |n| Decomposer::new(raw_settings(n)).err();
         assert_eq!(bad(0), Some(DecomposeError::LightCount(0)));
-        assert_eq!(bad(MAX_POINTS + 1), Some(DecomposeError::LightCount(MAX_POINTS + 1)));
+        assert_eq!(
+            bad(MAX_POINTS + 1),
+            Some(DecomposeError::LightCount(MAX_POINTS + 1))
+        );
         let frame = sky_with_sun(32, 16, (1, 1), 10.0);
         let mut d = Decomposer::new(raw_settings(8)).unwrap();
         assert!(d.decompose_with_count(&frame, 0).is_err());

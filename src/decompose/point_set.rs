@@ -48,7 +48,11 @@ impl<'a> NearestGrid<'a> {
             let (bx, by) = Self::bucket_of(res, *p);
             buckets[by * res + bx].push(i as u32);
         }
-        Self { points, res, buckets }
+        Self {
+            points,
+            res,
+            buckets,
+        }
     }
 
     fn bucket_of(res: usize, p: [f64; 2]) -> (usize, usize) {
@@ -71,7 +75,12 @@ impl<'a> NearestGrid<'a> {
             for y in y0..=y1 {
                 for x in x0..=x1 {
                     let on_ring = x == x0 || x == x1 || y == y0 || y == y1;
-                    if !on_ring || x < 0 || y < 0 || x >= self.res as isize || y >= self.res as isize {
+                    if !on_ring
+                        || x < 0
+                        || y < 0
+                        || x >= self.res as isize
+                        || y >= self.res as isize
+                    {
                         continue;
                     }
                     for &i in &self.buckets[y as usize * self.res + x as usize] {
@@ -122,7 +131,10 @@ fn extend(points: &mut Vec<[f64; 2]>, n: usize) {
         let fixed = points.len();
         let size = (fixed * 2).max(1);
         for i in fixed..size {
-            points.push([radical_inverse(i as u64 + 1, 2), radical_inverse(i as u64 + 1, 3)]);
+            points.push([
+                radical_inverse(i as u64 + 1, 2),
+                radical_inverse(i as u64 + 1, 3),
+            ]);
         }
         if fixed > 0 {
             relax_level(points, fixed);
@@ -136,7 +148,9 @@ pub fn progressive_points(n: usize) -> Arc<[[f64; 2]]> {
     static CACHE: OnceLock<Mutex<Vec<[f64; 2]>>> = OnceLock::new();
     let n = n.clamp(1, MAX_POINTS);
     let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
-    let mut points = cache.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut points = cache
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
     if points.len() < n {
         extend(&mut points, n);
     }
@@ -216,7 +230,9 @@ mod tests {
         let a = progressive_points(64);
         let b = progressive_points(256);
         assert_eq!(&a[..], &b[..64]);
-        assert!(b.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
+        assert!(b
+            .iter()
+            .all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
     }
 
     #[test]
@@ -231,8 +247,15 @@ mod tests {
             let e_halton = quantization_error(&halton);
             // A hexagonal lattice of n points reaches 5/(18√3)/n ≈ 0.1604/n.
             let hexagonal = 0.1604 / n as f64;
-            assert!(e_relaxed < e_halton, "prefix {n}: {e_relaxed} vs Halton {e_halton}");
-            assert!(e_relaxed < 1.25 * hexagonal, "prefix {n}: {:.3}x hexagonal", e_relaxed / hexagonal);
+            assert!(
+                e_relaxed < e_halton,
+                "prefix {n}: {e_relaxed} vs Halton {e_halton}"
+            );
+            assert!(
+                e_relaxed < 1.25 * hexagonal,
+                "prefix {n}: {:.3}x hexagonal",
+                e_relaxed / hexagonal
+            );
         }
     }
 

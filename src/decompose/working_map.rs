@@ -26,9 +26,15 @@ pub struct WorkingMap {
 #[derive(Clone, Debug)]
 enum Plan {
     /// Lat-long input, `factor`×`factor` input pixels per working pixel.
-    Box { factor: usize, row_solid_angle: Vec<f64> },
+    Box {
+        factor: usize,
+        row_solid_angle: Vec<f64>,
+    },
     /// Per input pixel: working pixel index (u32::MAX = none) and solid angle.
-    Table { target: Vec<u32>, solid_angle: Vec<f32> },
+    Table {
+        target: Vec<u32>,
+        solid_angle: Vec<f32>,
+    },
 }
 
 /// Resamples frames of one geometry (projection and size) to a working map.
@@ -44,51 +50,72 @@ pub struct Resampler {
 impl Resampler {
     /// A resampler for `projection` frames of `src_width`×`src_height`, aiming at a working map
     /// `working_width` wide (never wider than a lat-long input).
-    pub fn new(projection: Projection, src_width: u32, src_height: u32, working_width: u32) -> Self {
+    pub fn new(
+        projection: Projection,
+        src_width: u32,
+        src_height: u32,
+        working_width: u32,
+    ) -> Self {
         let (sw, sh) = (src_width as usize, src_height as usize);
         let target = working_width.max(2) as usize;
         let box_factor = (sw / target).max(1);
-        let (width, height, plan) = if projection == Projection::LatLong
-            && sw % box_factor == 0
-            && sh % box_factor == 0
-        {
-            let omegas = Projection::LatLong.solid_angles(src_width, src_height);
-            let row_solid_angle = (0..sh).map(|y| omegas[y * sw]).collect();
-            (sw / box_factor, sh / box_factor, Plan::Box { factor: box_factor, row_solid_angle })
-        } else {
-            let width = if projection == Projection::LatLong { target.min(sw) } else { target };
-            let height = (width / 2).max(1);
-            let omegas = projection.solid_angles(src_width, src_height);
-            let mut target_index = Vec::with_capacity(sw * sh);
-            let mut solid_angle = Vec::with_capacity(sw * sh);
-            for y in 0..sh {
-                for x in 0..sw {
-                    let omega = omegas[y * sw + x];
-                    let dir = projection.pixel_to_direction(
-                        src_width,
-                        src_height,
-                        x as f64 + 0.5,
-                        y as f64 + 0.5,
-                    );
-                    let px = dir.and_then(|d| {
-                        Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
-                    });
-                    match px {
-                        Some((px, py)) if omega > 0.0 => {
-                            let ix = (px as usize).min(width - 1);
-                            let iy = (py as usize).min(height - 1);
-                            target_index.push((iy * width + ix) as u32);
-                            solid_angle.push(omega as f32);
-                        }
-                        _ => {
-                            target_index.push(u32::MAX);
-                            solid_angle.push(0.0);
+        let (width, height, plan) =
+            if projection == Projection::LatLong && sw % box_factor == 0 && sh % box_factor == 0 {
+                let omegas = Projection::LatLong.solid_angles(src_width, src_height);
+                let row_solid_angle = (0..sh).map(|y| omegas[y * sw]).collect();
+                (
+                    sw / box_factor,
+                    sh / box_factor,
+                    Plan::Box {
+                        factor: box_factor,
+                        row_solid_angle,
+                    },
+                )
+            } else {
+                let width = if projection == Projection::LatLong {
+                    target.min(sw)
+                } else {
+                    target
+                };
+                let height = (width / 2).max(1);
+                let omegas = projection.solid_angles(src_width, src_height);
+                let mut target_index = Vec::with_capacity(sw * sh);
+                let mut solid_angle = Vec::with_capacity(sw * sh);
+                for y in 0..sh {
+                    for x in 0..sw {
+                        let omega = omegas[y * sw + x];
+                        let dir = projection.pixel_to_direction(
+                            src_width,
+                            src_height,
+                            x as f64 + 0.5,
+                            y as f64 + 0.5,
+                        );
+                        let px = dir.and_then(|d| {
+                            Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
+                        });
+                        match px {
+                            Some((px, py)) if omega > 0.0 => {
+                                let ix = (px as usize).min(width - 1);
+                                let iy = (py as usize).min(height - 1);
+                                target_index.push((iy * width + ix) as u32);
+                                solid_angle.push(omega as f32);
+                            }
+                            _ => {
+                                target_index.push(u32::MAX);
+                                solid_angle.push(0.0);
+                            }
                         }
                     }
                 }
-            }
-            (width, height, Plan::Table { target: target_index, solid_angle })
-        };
+                (
+                    width,
+                    height,
+                    Plan::Table {
+                        target: target_index,
+                        solid_angle,
+                    },
+                )
+            };
         let omegas = Projection::LatLong.solid_angles(width as u32, height as u32);
         let mut directions = Vec::with_capacity(width * height);
         for y in 0..height {
@@ -106,7 +133,13 @@ impl Resampler {
             directions,
             row_solid_angle: (0..height).map(|y| omegas[y * width]).collect(),
         };
-        Self { projection, src_width, src_height, plan, map }
+        Self {
+            projection,
+            src_width,
+            src_height,
+            plan,
+            map,
+        }
     }
 
     /// Whether this resampler was built for frames like `frame`.
@@ -123,7 +156,10 @@ impl Resampler {
         map.energy.iter_mut().for_each(|e| *e = [0.0; 3]);
         let sw = self.src_width as usize;
         match &self.plan {
-            Plan::Box { factor, row_solid_angle } => {
+            Plan::Box {
+                factor,
+                row_solid_angle,
+            } => {
                 let f = *factor;
                 for (y, row) in frame.pixels.chunks_exact(sw).enumerate() {
                     let omega = row_solid_angle[y];
@@ -141,7 +177,10 @@ impl Resampler {
                     }
                 }
             }
-            Plan::Table { target, solid_angle } => {
+            Plan::Table {
+                target,
+                solid_angle,
+            } => {
                 for ((p, &t), &omega) in frame.pixels.iter().zip(target).zip(solid_angle) {
                     if t == u32::MAX {
                         continue;
