@@ -37,11 +37,22 @@ fn read_map(path: &Path) -> Result<HdrFrame> {
 }
 
 /// envlight's decomposition of a single frame (the temporal filter is a no-op on one frame).
-fn envlight_method(placement: LightPlacement, merge: bool) -> Method {
+fn envlight_method(placement: LightPlacement, merge: bool, pdf_exponent: f64) -> Method {
+    envlight_method_w(placement, merge, pdf_exponent, 256)
+}
+
+fn envlight_method_w(
+    placement: LightPlacement,
+    merge: bool,
+    pdf_exponent: f64,
+    working_width: u32,
+) -> Method {
     Box::new(move |frame: &HdrFrame, n: usize| {
         let settings = DecomposeSettings {
             lights: n,
             placement,
+            pdf_exponent,
+            working_width,
             filter_taps: None,
             merge_spacing_fraction: merge.then_some(DEFAULT_SPACING_FRACTION),
             ..DecomposeSettings::default()
@@ -61,14 +72,29 @@ fn main() {
             "median cut",
             Box::new(|frame: &HdrFrame, n: usize| Ok(median_cut(frame, n)?)),
         ),
-        ("envlight", envlight_method(LightPlacement::Centroid, true)),
+        (
+            "envlight",
+            envlight_method(LightPlacement::Centroid, true, 0.5),
+        ),
         (
             "envlight, no merge",
-            envlight_method(LightPlacement::Centroid, false),
+            envlight_method(LightPlacement::Centroid, false, 0.5),
+        ),
+        (
+            "envlight, γ=1",
+            envlight_method(LightPlacement::Centroid, true, 1.0),
+        ),
+        (
+            "envlight, w512",
+            envlight_method_w(LightPlacement::Centroid, false, 0.5, 512),
+        ),
+        (
+            "envlight, w1024",
+            envlight_method_w(LightPlacement::Centroid, false, 0.5, 1024),
         ),
         (
             "envlight, sample point",
-            envlight_method(LightPlacement::SamplePoint, false),
+            envlight_method(LightPlacement::SamplePoint, false, 0.5),
         ),
     ];
 

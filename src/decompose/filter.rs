@@ -60,7 +60,7 @@ impl FirFilter {
             return Err(format!("tap {bad} is not a finite number"));
         }
         let sum: f64 = taps.iter().sum();
-        if !(sum > 0.0) {
+        if sum.is_nan() || sum <= 0.0 {
             return Err(format!("taps must have a positive sum, got {sum}"));
         }
         Ok(Self {

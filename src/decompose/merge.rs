@@ -16,7 +16,7 @@ use crate::light::Light;
 use glam::DVec3;
 
 /// Default merge radius as a fraction of the mean light spacing.
-pub const DEFAULT_SPACING_FRACTION: f64 = 0.25;
+pub const DEFAULT_SPACING_FRACTION: f64 = 0.1;
 
 fn dvec(d: [f32; 3]) -> DVec3 {
     DVec3::new(d[0].into(), d[1].into(), d[2].into())
@@ -25,7 +25,7 @@ fn dvec(d: [f32; 3]) -> DVec3 {
 /// Merges crowded lights; the result is ordered by id.
 pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
     let n = lights.len();
-    if n < 2 || !(spacing_fraction > 0.0) {
+    if n < 2 || spacing_fraction.is_nan() || spacing_fraction <= 0.0 {
         return lights.to_vec();
     }
     let radius = spacing_fraction * (4.0 * std::f64::consts::PI / n as f64).sqrt();

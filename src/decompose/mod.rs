@@ -8,14 +8,16 @@
 //!    map; [`PiecewiseConstant2d`] maps the unit square onto it continuously (conditional CDFs
 //!    blended across rows), so a small change of the map or of a point moves a light a little.
 //! 3. **Fixed progressive point set** ([`point_set`]): Halton points, Lloyd-relaxed so that every
-//!    2^k prefix is well stratified, computed once and reused by every frame. Light i is point i,
-//!    and a light count N uses the first N points.
-//! 4. **Regions and lights**: light i owns the image of its point's Voronoi cell (in the square)
-//!    under the warp. Every working pixel is mapped back to the square (`invert`; pixels holding
-//!    much energy are split into sub-samples) and its energy is added to the cell it lands in.
-//!    So each light carries the energy and colour of its own region, and the lights sum exactly
-//!    to the map's integral. The light points at the luminance-weighted centroid of its region
-//!    ([`LightPlacement::Centroid`]) or at the warped point itself (`SamplePoint`, the paper's).
+//!    2^k prefix is well stratified, computed once and reused by every frame. Light i is point i
+//!    warped to the sphere, and a light count N uses the first N points. The sampling density is
+//!    luminance^γ ([`DecomposeSettings::pdf_exponent`]); γ = 1 is the paper's, the default
+//!    γ = 1/2 spreads lights more evenly, which lowers every yardstick in docs/quality.md.
+//! 4. **Regions and lights** ([`regions`]): light i owns the spherical Voronoi cell of its sample
+//!    direction; every working pixel gives its energy to its nearest light (concentrated sources
+//!    first, and a light holding a source keeps only sources). So each light carries the energy
+//!    and colour of its own compact region, and the lights sum exactly to the map's integral.
+//!    The light points at the luminance-weighted centroid of its region
+//!    ([`LightPlacement::Centroid`]) or at its sample direction (`SamplePoint`, the paper's).
 //! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's direction and power by id.
 //! 6. **Merge** ([`merge`]): lights crowding a concentrated source become one light that records
 //!    the source's spread (solid angle).
@@ -24,21 +26,23 @@ pub mod distribution;
 pub mod filter;
 pub mod merge;
 pub mod point_set;
+mod regions;
 pub mod working_map;
 
 pub use distribution::PiecewiseConstant2d;
 pub use filter::FirFilter;
-pub use point_set::{CellLut, MAX_POINTS};
+pub use point_set::MAX_POINTS;
 
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use crate::light::{Light, LightFrame};
-use std::collections::HashMap;
-use std::sync::Arc;
-use working_map::{Resampler, WorkingMap};
+use working_map::Resampler;
 
 /// Smallest and largest working-map width.
 pub const WORKING_WIDTH_RANGE: std::ops::RangeInclusive<u32> = 16..=4096;
+
+/// Default exponent γ of the sampling density (luminance^γ).
+pub const DEFAULT_PDF_EXPONENT: f64 = 0.5;
 
 /// Where a light points within its region.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -56,13 +60,18 @@ pub struct DecomposeSettings {
     /// Number of lights, 1..=[`MAX_POINTS`].
     pub lights: usize,
     /// Width of the lat-long working map (height = width/2). A lat-long input is box-filtered by
-    /// the largest integer factor that keeps the width ≥ this when its size allows.
+    /// the largest integer factor that keeps the width ≥ this when its size allows. Directions
+    /// keep full input resolution (each working pixel points at its energy centroid).
     pub working_width: u32,
     pub placement: LightPlacement,
     /// FIR taps, newest frame first; `None` disables temporal filtering.
     pub filter_taps: Option<Vec<f64>>,
     /// Merge radius as a fraction of the mean light spacing; `None` disables merging.
     pub merge_spacing_fraction: Option<f64>,
+    /// γ in (0, 1]: lights are placed with density ∝ luminance^γ. 1 is Havran et al.'s pure
+    /// inverse-transform sampling; smaller values spread lights more evenly over dim regions
+    /// (each light still carries exactly its region's energy).
+    pub pdf_exponent: f64,
 }
 
 impl Default for DecomposeSettings {
@@ -73,6 +82,7 @@ impl Default for DecomposeSettings {
             placement: LightPlacement::Centroid,
             filter_taps: Some(filter::DEFAULT_TAPS.to_vec()),
             merge_spacing_fraction: Some(merge::DEFAULT_SPACING_FRACTION),
+            pdf_exponent: DEFAULT_PDF_EXPONENT,
         }
     }
 }
@@ -88,6 +98,8 @@ pub enum DecomposeError {
     FilterTaps(String),
     #[error("merge spacing fraction {0} must be a finite number in (0, 2]")]
     MergeFraction(f64),
+    #[error("pdf exponent {0} must be a number in (0, 1]")]
+    PdfExponent(f64),
 }
 
 /// Per-light accumulator of a region's integrals.
@@ -99,13 +111,14 @@ struct Region {
     solid_angle: f64,
 }
 
-/// Turns frames into light lists; holds the point set, the per-geometry resampler and the
-/// temporal filter state, so one `Decomposer` serves one stream of frames.
+/// Turns frames into light lists; holds the point set, the per-geometry resampler and buckets,
+/// and the temporal filter state, so one `Decomposer` serves one stream of frames.
 pub struct Decomposer {
     settings: DecomposeSettings,
     resampler: Option<Resampler>,
-    luts: HashMap<usize, Arc<CellLut>>,
+    buckets: Option<regions::BucketGrid>,
     filter: Option<FirFilter>,
+    weights: Vec<f64>,
     regions: Vec<Region>,
 }
 
@@ -121,19 +134,22 @@ impl Decomposer {
                 return Err(DecomposeError::MergeFraction(f));
             }
         }
+        if !(settings.pdf_exponent > 0.0 && settings.pdf_exponent <= 1.0) {
+            return Err(DecomposeError::PdfExponent(settings.pdf_exponent));
+        }
         let filter = match &settings.filter_taps {
             Some(taps) => Some(FirFilter::new(taps).map_err(DecomposeError::FilterTaps)?),
             None => None,
         };
-        let mut decomposer = Self {
+        point_set::progressive_points(settings.lights);
+        Ok(Self {
             settings,
             resampler: None,
-            luts: HashMap::new(),
+            buckets: None,
             filter,
+            weights: Vec::new(),
             regions: Vec::new(),
-        };
-        decomposer.lut(decomposer.settings.lights);
-        Ok(decomposer)
+        })
     }
 
     pub fn settings(&self) -> &DecomposeSettings {
@@ -143,13 +159,6 @@ impl Decomposer {
     /// Delay of the temporal filter in frames (0 without filter).
     pub fn filter_delay_frames(&self) -> f64 {
         self.filter.as_ref().map_or(0.0, FirFilter::delay_frames)
-    }
-
-    fn lut(&mut self, n: usize) -> Arc<CellLut> {
-        self.luts
-            .entry(n)
-            .or_insert_with(|| Arc::new(CellLut::new(n)))
-            .clone()
     }
 
     /// Decomposes `frame` into `settings.lights` lights.
@@ -190,38 +199,63 @@ impl Decomposer {
                 frame.height,
                 self.settings.working_width,
             ));
+            self.buckets = None;
         }
-        let lut = self.lut(n);
         let Some(resampler) = self.resampler.as_mut() else {
             unreachable!("set above")
         };
         let map = resampler.resample(frame);
-        let weights: Vec<f64> = map.energy.iter().map(|e| luminance_f64(*e)).collect();
-        let dist = PiecewiseConstant2d::new(&weights, map.width, map.height);
+        let buckets = self
+            .buckets
+            .get_or_insert_with(|| regions::BucketGrid::new(map.width, map.height));
+
+        // The sampling density: luminance radiance to the power γ, per solid angle.
+        let gamma = self.settings.pdf_exponent;
+        self.weights.clear();
+        for (y, row) in map.energy.chunks_exact(map.width).enumerate() {
+            let omega = map.row_solid_angle[y];
+            self.weights.extend(row.iter().map(|e| {
+                let radiance = luminance_f64(*e) / omega;
+                if gamma == 1.0 {
+                    radiance * omega
+                } else {
+                    radiance.powf(gamma) * omega
+                }
+            }));
+        }
+        let dist = PiecewiseConstant2d::new(&self.weights, map.width, map.height);
+
+        // Light i sits where point i warps to.
+        let points = point_set::progressive_points(n);
+        let sample_dirs: Vec<glam::DVec3> = points
+            .iter()
+            .map(|u| {
+                let (p, _) = dist.sample(*u);
+                Projection::LatLong
+                    .pixel_to_direction(
+                        map.width as u32,
+                        map.height as u32,
+                        p[0] * map.width as f64,
+                        p[1] * map.height as f64,
+                    )
+                    .unwrap_or(glam::DVec3::Y)
+            })
+            .collect();
+
         self.regions.clear();
         self.regions.resize(n, Region::default());
-        accumulate_regions(map, &weights, &dist, &lut, &mut self.regions);
+        regions::accumulate(map, buckets, &sample_dirs, &mut self.regions);
 
         let placement = self.settings.placement;
-        lut.points()
+        sample_dirs
             .iter()
             .zip(&self.regions)
             .enumerate()
-            .map(|(id, (point, region))| {
+            .map(|(id, (sample_dir, region))| {
                 let centroid = glam::DVec3::from(region.weighted_dir).try_normalize();
                 let dir = match (placement, centroid) {
                     (LightPlacement::Centroid, Some(d)) => d,
-                    _ => {
-                        let (p, _) = dist.sample(*point);
-                        Projection::LatLong
-                            .pixel_to_direction(
-                                map.width as u32,
-                                map.height as u32,
-                                p[0] * map.width as f64,
-                                p[1] * map.height as f64,
-                            )
-                            .unwrap_or(glam::DVec3::Y)
-                    }
+                    _ => *sample_dir,
                 };
                 Light {
                     id: id as u32,
@@ -247,56 +281,6 @@ fn validate_light_count(n: usize) -> Result<(), DecomposeError> {
 pub fn luminance_f64(e: [f64; 3]) -> f64 {
     let w = crate::frame::LUMINANCE_WEIGHTS;
     f64::from(w[0]) * e[0] + f64::from(w[1]) * e[1] + f64::from(w[2]) * e[2]
-}
-
-/// Adds every working pixel's energy to the region of the cell its preimage lies in. A pixel
-/// whose preimage spans more than about a quarter of a cell is split into kx×ky sub-samples.
-fn accumulate_regions(
-    map: &WorkingMap,
-    weights: &[f64],
-    dist: &PiecewiseConstant2d,
-    lut: &CellLut,
-    regions: &mut [Region],
-) {
-    let (w, h) = (map.width, map.height);
-    let total = dist.total();
-    let cells_across = (lut.len() as f64).sqrt();
-    for y in 0..h {
-        let row = &weights[y * w..(y + 1) * w];
-        let row_mass: f64 = row.iter().sum();
-        let row_omega = map.row_solid_angle[y];
-        // Extent of a pixel's preimage along u1 (same for the whole row).
-        let du1 = if total > 0.0 {
-            row_mass / total
-        } else {
-            1.0 / h as f64
-        };
-        let ky = ((4.0 * du1 * cells_across).ceil() as usize).clamp(1, 64);
-        for x in 0..w {
-            let idx = y * w + x;
-            let energy = map.energy[idx];
-            let lum = weights[idx];
-            let du0 = if row_mass > 0.0 { lum / row_mass } else { 0.0 };
-            let kx = ((4.0 * du0 * cells_across).ceil() as usize).clamp(1, 64);
-            let ky = if lum > 0.0 { ky } else { 1 };
-            let share = 1.0 / (kx * ky) as f64;
-            let d = map.directions[idx];
-            let dir_weight = lum * share;
-            for j in 0..ky {
-                let ys = y as f64 + (j as f64 + 0.5) / ky as f64;
-                for i in 0..kx {
-                    let xs = x as f64 + (i as f64 + 0.5) / kx as f64;
-                    let u = dist.invert_pixel(xs, ys);
-                    let r = &mut regions[lut.cell(u)];
-                    for c in 0..3 {
-                        r.rgb[c] += energy[c] * share;
-                        r.weighted_dir[c] += dir_weight * f64::from(d[c]);
-                    }
-                    r.solid_angle += row_omega * share;
-                }
-            }
-        }
-    }
 }
 
 /// Total radiance integral of a frame (Σ rgb·Ω over its pixels, f64): what the lights sum to.
@@ -326,7 +310,7 @@ mod tests {
                 } else {
                     0.2
                 };
-                let tint = 1.0 + 0.3 * ((x as f32 / w as f32) * 6.28).sin();
+                let tint = 1.0 + 0.3 * ((x as f32 / w as f32) * std::f32::consts::TAU).sin();
                 pixels.push([sky * tint, sky, sky * 1.2]);
             }
         }
@@ -430,14 +414,13 @@ mod tests {
         let raw = Decomposer::new(raw_settings(256))
             .unwrap()
             .decompose(&frame);
-        assert!(merged.lights.len() < raw.lights.len() / 2);
+        assert!(merged.lights.len() < raw.lights.len());
         let sun = merged
             .lights
             .iter()
             .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
             .unwrap();
-        // Cells that straddle the sun's preimage in the square carry sun and sky energy in equal
-        // measure, so their centroids sit off the sun; the rest of the sun merges into one light.
+        // The lights that share the sun pixel merge into one light holding the sun's energy.
         let sun_energy = 1e6 * Projection::LatLong.solid_angles(256, 128)[30 * 256];
         assert!(
             f64::from(sun.rgb[0]) > 0.9 * sun_energy,
