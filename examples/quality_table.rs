@@ -11,7 +11,7 @@
 use anyhow::{bail, Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::decompose::merge::DEFAULT_SPACING_FRACTION;
-use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement};
+use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement, DEFAULT_PDF_EXPONENT};
 use envlight::envmap::Projection;
 use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
@@ -38,21 +38,11 @@ fn read_map(path: &Path) -> Result<HdrFrame> {
 
 /// envlight's decomposition of a single frame (the temporal filter is a no-op on one frame).
 fn envlight_method(placement: LightPlacement, merge: bool, pdf_exponent: f64) -> Method {
-    envlight_method_w(placement, merge, pdf_exponent, 256)
-}
-
-fn envlight_method_w(
-    placement: LightPlacement,
-    merge: bool,
-    pdf_exponent: f64,
-    working_width: u32,
-) -> Method {
     Box::new(move |frame: &HdrFrame, n: usize| {
         let settings = DecomposeSettings {
             lights: n,
             placement,
             pdf_exponent,
-            working_width,
             filter_taps: None,
             merge_spacing_fraction: merge.then_some(DEFAULT_SPACING_FRACTION),
             ..DecomposeSettings::default()
@@ -64,9 +54,10 @@ fn envlight_method_w(
 fn main() {
     let paths: Vec<String> = std::env::args().skip(1).collect();
     if paths.is_empty() {
-        eprintln!("usage: quality_table MAP.hdr...");
+        eprintln!("usage: quality_table MAP.hdr|MAP.exr...");
         std::process::exit(2);
     }
+    let gamma = DEFAULT_PDF_EXPONENT;
     let methods: Vec<(&str, Method)> = vec![
         (
             "median cut",
@@ -74,27 +65,15 @@ fn main() {
         ),
         (
             "envlight",
-            envlight_method(LightPlacement::Centroid, true, 0.5),
+            envlight_method(LightPlacement::Centroid, true, gamma),
         ),
         (
             "envlight, no merge",
-            envlight_method(LightPlacement::Centroid, false, 0.5),
+            envlight_method(LightPlacement::Centroid, false, gamma),
         ),
         (
-            "envlight, γ=1",
-            envlight_method(LightPlacement::Centroid, true, 1.0),
-        ),
-        (
-            "envlight, w512",
-            envlight_method_w(LightPlacement::Centroid, false, 0.5, 512),
-        ),
-        (
-            "envlight, w1024",
-            envlight_method_w(LightPlacement::Centroid, false, 0.5, 1024),
-        ),
-        (
-            "envlight, sample point",
-            envlight_method(LightPlacement::SamplePoint, false, 0.5),
+            "Havran-style: γ=1, sample point",
+            envlight_method(LightPlacement::SamplePoint, false, 1.0),
         ),
     ];
 
