@@ -104,6 +104,20 @@ fn moved_angles_deg(a: &LightFrame, b: &LightFrame) -> Vec<(u32, f64)> {
         .collect()
 }
 
+/// Median and how many ids moved more than 0.5° and 1°, for the reports.
+fn spread(angles: &[(u32, f64)]) -> String {
+    let mut sorted: Vec<f64> = angles.iter().map(|a| a.1).collect();
+    sorted.sort_by(f64::total_cmp);
+    let over = |limit: f64| sorted.iter().filter(|a| **a > limit).count();
+    format!(
+        "median {:.4}°, {} of {} ids > 0.5°, {} > 1°",
+        sorted[sorted.len() / 2],
+        over(0.5),
+        sorted.len(),
+        over(1.0)
+    )
+}
+
 /// (max, 99th percentile, id of the max) of per-id angles.
 fn max_and_p99(angles: &[(u32, f64)]) -> (f64, f64, u32) {
     assert!(!angles.is_empty());
@@ -126,9 +140,17 @@ fn relative_error(actual: [f64; 3], expected: [f64; 3]) -> [f64; 3] {
     out
 }
 
+fn sci(v: [f64; 3]) -> String {
+    format!("[{:.2e}, {:.2e}, {:.2e}]", v[0], v[1], v[2])
+}
+
 fn assert_finite(lights: &LightFrame, what: &str) {
     for l in &lights.lights {
-        let values = l.dir.iter().chain(&l.rgb).chain(std::iter::once(&l.solid_angle));
+        let values = l
+            .dir
+            .iter()
+            .chain(&l.rgb)
+            .chain(std::iter::once(&l.solid_angle));
         assert!(
             values.clone().all(|v| v.is_finite()),
             "{what}: light {} is not finite: {l:?}",
@@ -164,8 +186,11 @@ fn lights_sum_to_the_integral(name: &str) {
                 assert_ids_are_0_to(&lights, n, name);
             }
             let rel = relative_error(lights.total_rgb(), truth);
-            if rel.iter().any(|r| !(*r < 1e-3)) {
-                failures.push(format!("N={n} {label}: relative error per channel {rel:.2e?}"));
+            if !rel.iter().all(|r| *r < 1e-3) {
+                failures.push(format!(
+                    "N={n} {label}: relative error per channel {}",
+                    sci(rel)
+                ));
             }
         }
     }
@@ -346,7 +371,8 @@ fn chi_square_of_samples_on_a_real_map() {
     let uniform: Vec<[f64; 2]> = (0..CHI2_SAMPLES)
         .map(|_| [rng.uniform(), rng.uniform()])
         .collect();
-    let (statistic, critical) = chi_square_test(&dist, &uniform, "uniform vs rooitou (must reject)");
+    let (statistic, critical) =
+        chi_square_test(&dist, &uniform, "uniform vs rooitou (must reject)");
     assert!(statistic > critical, "uniform points pass: {statistic}");
 }
 
@@ -365,7 +391,10 @@ fn chi_square_of_samples_on_a_random_map() {
     let b = PiecewiseConstant2d::new(&random_weights(w, h, 21, 0.0), w, h);
     let points = draw(&a, 22, CHI2_SAMPLES);
     let (statistic, critical) = chi_square_test(&b, &points, "map A vs map B (must reject)");
-    assert!(statistic > critical, "another map's points pass: {statistic}");
+    assert!(
+        statistic > critical,
+        "another map's points pass: {statistic}"
+    );
 }
 
 /// pbrt's InverseRandoms on real maps: invert(sample(u)) ≈ u (1e-9) wherever pdf > 0.
@@ -389,7 +418,10 @@ fn invert_undoes_sample_on_a_real_map() {
                 "{w}×{h}: {u:?} -> {p:?} -> {v:?}"
             );
         }
-        assert!(checked > 9_000, "{w}×{h}: only {checked} samples with pdf > 0");
+        assert!(
+            checked > 9_000,
+            "{w}×{h}: only {checked} samples with pdf > 0"
+        );
     }
 }
 
@@ -453,18 +485,30 @@ fn movement(a: &HdrFrame, b: &HdrFrame, what: &str) -> (f64, f64) {
         .take(5)
         .map(|(i, a)| format!("id {i}: {a:.3}°"))
         .collect();
-    eprintln!("{what}: max {max:.4}° (id {id}), p99 {p99:.4}°; largest: {}", top.join(", "));
+    eprintln!(
+        "{what}: max {max:.4}° (id {id}), p99 {p99:.4}°, {}; largest: {}",
+        spread(&angles),
+        top.join(", ")
+    );
     (max, p99)
 }
 
 /// Spot position in the continuity tests: θ ≈ 56°, φ ≈ 141°.
 const SPOT: (u32, u32) = (200, 80);
 
-/// Moving the 3×3 spot by one pixel (0.70° in x, 0.70° in y) moves every light by little.
+/// Moving the 3×3 spot by one pixel (0.70° of longitude or latitude) moves every light by little.
 ///
-/// Measured with the current internals: see the bounds below. A one-pixel step of the spot is
-/// 0.70°; the mean light spacing at 256 lights is √(4π/256) ≈ 12.7°.
-/// Bound (max over all ids): `SPOT_MOVE_MAX_DEG`; 99th percentile: `SPOT_MOVE_P99_DEG`.
+/// The requirement is isotropic, so x and y share one bound, set from the well-behaved direction.
+/// Measured with the internals at d1216be, before the region rewrite (raw decomposition, 256
+/// lights, Centroid placement):
+/// - +1 px in x: max 1.33° (id 57), p99 1.19°, median 0.00°, 8 ids > 1°.
+/// - +1 px in y: max 37.3° (id 246), p99 16.0°, median 0.00°, 25 ids > 1°: ids whose preimage
+///   straddles the spot's band in the square jump across the map (a row losing or gaining a
+///   third of the spot changes its conditional CDF wholesale), so this case FAILS with those
+///   internals; the region rewrite is meant to fix it.
+///
+/// Bounds: max < 2.0° (1.5 × 1.33°) and p99 < 1.8° (1.5 × 1.19°). For scale: the mean light
+/// spacing at 256 lights is √(4π/256) ≈ 12.7°. p99 over 256 ids is the third-largest angle.
 #[test]
 fn moving_a_bright_spot_by_one_pixel_moves_lights_little() {
     let base = sky_with_spot(SPOT.0, SPOT.1, 1.0);
@@ -477,12 +521,23 @@ fn moving_a_bright_spot_by_one_pixel_moves_lights_little() {
         results.push((what, max, p99));
     }
     for (what, max, p99) in results {
-        assert!(p99 < SPOT_MOVE_P99_DEG, "{what}: p99 {p99}° ≥ {SPOT_MOVE_P99_DEG}°");
-        assert!(max < SPOT_MOVE_MAX_DEG, "{what}: max {max}° ≥ {SPOT_MOVE_MAX_DEG}°");
+        assert!(
+            p99 < SPOT_MOVE_P99_DEG,
+            "{what}: p99 {p99}° ≥ {SPOT_MOVE_P99_DEG}°"
+        );
+        assert!(
+            max < SPOT_MOVE_MAX_DEG,
+            "{what}: max {max}° ≥ {SPOT_MOVE_MAX_DEG}°"
+        );
     }
 }
 
 /// Brightening the sky (not the spot) by 1% moves every light by little.
+///
+/// Measured with the internals at d1216be, before the region rewrite: max 3.11° (id 135 alone;
+/// the next is 1.45°), p99 1.42°, median 0.00°, 6 ids > 1°. A single id straddling the spot's
+/// preimage moves far, so the max has its own, looser bound and the p99 states the
+/// requirement: max < 4.7° (1.5 × 3.11°), p99 < 2.1° (1.5 × 1.42°).
 #[test]
 fn brightening_the_sky_by_one_percent_moves_lights_little() {
     let base = sky_with_spot(SPOT.0, SPOT.1, 1.0);
@@ -492,15 +547,23 @@ fn brightening_the_sky_by_one_percent_moves_lights_little() {
     assert!(max < SKY_SCALE_MAX_DEG, "max {max}° ≥ {SKY_SCALE_MAX_DEG}°");
 }
 
-const SPOT_MOVE_MAX_DEG: f64 = 1.0;
-const SPOT_MOVE_P99_DEG: f64 = 1.0;
-const SKY_SCALE_MAX_DEG: f64 = 1.0;
-const SKY_SCALE_P99_DEG: f64 = 1.0;
-const SKY_FRAME_MAX_DEG: f64 = 1.0;
-const SKY_FRAME_P99_DEG: f64 = 1.0;
+/// Bounds of the continuity tests (degrees); see each test's doc for the measurements.
+const SPOT_MOVE_MAX_DEG: f64 = 2.0;
+const SPOT_MOVE_P99_DEG: f64 = 1.8;
+const SKY_SCALE_MAX_DEG: f64 = 4.7;
+const SKY_SCALE_P99_DEG: f64 = 2.1;
+/// The built-in sky changes far less in 1/30 s (the sun moves 0.067°, clouds ~0.02°) than the
+/// spot's one-pixel step (0.70°), so its lights must not move more than in that test.
+const SKY_FRAME_MAX_DEG: f64 = SPOT_MOVE_MAX_DEG;
+const SKY_FRAME_P99_DEG: f64 = SPOT_MOVE_P99_DEG;
 
-/// The built-in sky one frame (1/30 s) apart: lights (same id) move little and sum to the
-/// frame's integral.
+/// The built-in sky one frame (1/30 s) apart: lights (same id, raw decomposition, 256 lights)
+/// move little, and sum to the frame's integral (also with the default settings).
+///
+/// Bounds are those of the one-pixel spot step (max < 2.0°, p99 < 1.8°), set by the requirement,
+/// not by this measurement: the sky changes far less per frame. Measured with the internals at
+/// d1216be, before the region rewrite (default `SkyOptions`, t = 10 s): max 4.80° (id 8), p99
+/// 2.44°, median 0.0007°, 5 ids > 1°, so this FAILS with those internals (ids straddling the sun's preimage jump).
 #[test]
 fn built_in_sky_lights_move_little_per_frame() {
     let options = SkyOptions::default();
@@ -516,7 +579,10 @@ fn built_in_sky_lights_move_little_per_frame() {
     }
     let angles = moved_angles_deg(&la, &lb);
     let (max, p99, id) = max_and_p99(&angles);
-    eprintln!("built-in sky, 1/30 s: max {max:.4}° (id {id}), p99 {p99:.4}°");
+    eprintln!(
+        "built-in sky, 1/30 s: max {max:.4}° (id {id}), p99 {p99:.4}°, {}",
+        spread(&angles)
+    );
     assert!(p99 < SKY_FRAME_P99_DEG, "p99 {p99}° ≥ {SKY_FRAME_P99_DEG}°");
     assert!(max < SKY_FRAME_MAX_DEG, "max {max}° ≥ {SKY_FRAME_MAX_DEG}°");
 
@@ -614,7 +680,10 @@ fn brightness_step_is_delayed_by_the_filter_delay() {
     let truth = frame_integral(rooitou())[1];
     for (series, what) in [(&raw_total, "raw"), (&filtered_total, "filtered")] {
         assert!((series[0] / truth - 1.0).abs() < 1e-3, "{what} start");
-        assert!((series[29] / (2.0 * truth) - 1.0).abs() < 1e-3, "{what} end");
+        assert!(
+            (series[29] / (2.0 * truth) - 1.0).abs() < 1e-3,
+            "{what} end"
+        );
     }
     let t_raw = half_way_crossing(&raw_total);
     let t_filtered = half_way_crossing(&filtered_total);
@@ -668,7 +737,8 @@ fn light_count_changes_keep_ids_energy_and_filter_history() {
                     let rel = relative_error(lights.total_rgb(), truth);
                     eprintln!(
                         "count {n_prev} -> {n}: energy error of the filtered lights at the \
-                         change {rel:.2e?}"
+                         change {}",
+                        sci(rel)
                     );
                     for (id, l) in lights.lights.iter().enumerate() {
                         let new = &reference.lights[id];
@@ -676,8 +746,7 @@ fn light_count_changes_keep_ids_energy_and_filter_history() {
                             let o = &old.lights[id];
                             let rgb: Vec<f64> = (0..3)
                                 .map(|c| {
-                                    w0 * f64::from(new.rgb[c])
-                                        + (1.0 - w0) * f64::from(o.rgb[c])
+                                    w0 * f64::from(new.rgb[c]) + (1.0 - w0) * f64::from(o.rgb[c])
                                 })
                                 .collect();
                             let d = (w0 * dir(new) + (1.0 - w0) * dir(o)).normalize_or_zero();
