@@ -1,1 +1,120 @@
-fn main() {}
+//! Benchmarks of the light decomposition (single-threaded: one core).
+//!
+//! - `frame/default_256/{512x256,1024x512,2048x1024}`: one frame of rooitou_park (lat-long)
+//!   decomposed with the default settings (256 lights, filter and merge on). One `Decomposer` is
+//!   reused across iterations, as in the daemon: its filter state and per-geometry tables persist,
+//!   so this is the steady per-frame cost. 512×256 is the map box-downsampled by 2, 2048×1024 the
+//!   map upsampled by pixel replication.
+//! - `frame/raw_256/1024x512`: the same without filter and merge.
+//! - `distribution/new_256x128`: `PiecewiseConstant2d::new` on 256×128 luminance × solid-angle
+//!   weights (the default working-map size).
+//!
+//! Run with `cargo bench --bench decompose`; quote the medians.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use envlight::capture::image_file::read_hdr_image;
+use envlight::decompose::{DecomposeSettings, Decomposer, PiecewiseConstant2d};
+use envlight::envmap::Projection;
+use envlight::frame::luminance;
+use envlight::HdrFrame;
+use std::hint::black_box;
+use std::path::Path;
+use std::time::Duration;
+
+fn rooitou() -> HdrFrame {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
+    let image = read_hdr_image(&path).unwrap_or_else(|e| panic!("{e}"));
+    let mut frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+        .expect("valid size");
+    frame.sanitize();
+    frame
+}
+
+/// Box-downsamples by 2 in each direction.
+fn downsample2(frame: &HdrFrame) -> HdrFrame {
+    let (w, h) = (frame.width / 2, frame.height / 2);
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let mut sum = [0.0f32; 3];
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let p = frame.pixel(2 * x + dx, 2 * y + dy);
+                for c in 0..3 {
+                    sum[c] += 0.25 * p[c];
+                }
+            }
+            pixels.push(sum);
+        }
+    }
+    HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
+}
+
+/// Upsamples by 2 in each direction by pixel replication.
+fn upsample2(frame: &HdrFrame) -> HdrFrame {
+    let (w, h) = (frame.width * 2, frame.height * 2);
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            pixels.push(frame.pixel(x / 2, y / 2));
+        }
+    }
+    HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
+}
+
+/// Luminance × solid angle of `frame` box-downsampled by `factor`.
+fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
+    let (w, h) = (frame.width / factor, frame.height / factor);
+    let omega = Projection::LatLong.solid_angles(frame.width, frame.height);
+    let mut weights = vec![0.0f64; (w * h) as usize];
+    for y in 0..h * factor {
+        for x in 0..w * factor {
+            let i = (y * frame.width + x) as usize;
+            weights[((y / factor) * w + x / factor) as usize] +=
+                f64::from(luminance(frame.pixels[i])) * omega[i];
+        }
+    }
+    (weights, w as usize, h as usize)
+}
+
+fn bench_frames(c: &mut Criterion) {
+    let full = rooitou();
+    let frames = [
+        ("512x256", downsample2(&full)),
+        ("2048x1024", upsample2(&full)),
+        ("1024x512", full),
+    ];
+    let mut group = c.benchmark_group("frame");
+    for (size, frame) in &frames {
+        let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
+        group.bench_function(format!("default_256/{size}"), |b| {
+            b.iter(|| decomposer.decompose(black_box(frame)))
+        });
+    }
+    let raw = DecomposeSettings {
+        lights: 256,
+        filter_taps: None,
+        merge_spacing_fraction: None,
+        ..DecomposeSettings::default()
+    };
+    let mut decomposer = Decomposer::new(raw).expect("valid");
+    let full = &frames[2].1;
+    group.bench_function("raw_256/1024x512", |b| {
+        b.iter(|| decomposer.decompose(black_box(full)))
+    });
+    group.finish();
+
+    let (weights, w, h) = energy_weights(full, 4);
+    c.bench_function("distribution/new_256x128", |b| {
+        b.iter(|| PiecewiseConstant2d::new(black_box(&weights), w, h))
+    });
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default()
+        .sample_size(30)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(5));
+    targets = bench_frames
+}
+criterion_main!(benches);

@@ -1,0 +1,791 @@
+//! Integration tests of the light decomposition, written against the public API only
+//! (`Decomposer`, `DecomposeSettings`, `frame_integral`, `LightPlacement`, `PiecewiseConstant2d`),
+//! so they hold whatever way the regions are formed inside.
+//!
+//! - Energy: on every HDRI in tests/data and N ∈ {16, 64, 256, 1024}, Σ light rgb equals the
+//!   frame's integral within 0.1% per channel, with and without filter/merge.
+//! - Sampling: a chi-square goodness-of-fit test of `PiecewiseConstant2d::sample` against its own
+//!   `pdf` (significance 0.001), which is shown to reject a wrong distribution; and
+//!   `invert(sample(u)) ≈ u`.
+//! - Continuity: moving a bright spot by one pixel, or brightening the sky by 1%, moves the lights
+//!   (same id) only a little; so does one frame of the built-in sky.
+//! - Temporal filter end to end: constant input gives constant lights; a brightness step appears
+//!   with exactly `filter_delay_frames()` of delay; light-count changes keep ids, energy and the
+//!   per-id filter history.
+//!
+//! Angles and bounds are printed with `eprintln!` (run with `--nocapture` to see them).
+
+use envlight::capture::image_file::read_hdr_image;
+use envlight::capture::sky::{render_sky, SkyOptions};
+use envlight::decompose::{
+    frame_integral, DecomposeSettings, Decomposer, LightPlacement, PiecewiseConstant2d,
+};
+use envlight::envmap::Projection;
+use envlight::frame::luminance;
+use envlight::{HdrFrame, Light, LightFrame};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+// ---------------------------------------------------------------------------------------------
+// Helpers
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+/// Reads a lat-long map with the crate's reader. The frame is not sanitised: the decomposition
+/// and `frame_integral` must both ignore non-finite and negative values on their own.
+fn load_latlong(name: &str) -> HdrFrame {
+    let image = read_hdr_image(&data(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+    HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+        .unwrap_or_else(|| panic!("{name}: bad size"))
+}
+
+/// rooitou_park_1k.hdr, decoded once for all tests of this binary.
+fn rooitou() -> &'static HdrFrame {
+    static FRAME: OnceLock<HdrFrame> = OnceLock::new();
+    FRAME.get_or_init(|| load_latlong("rooitou_park_1k.hdr"))
+}
+
+/// Settings without temporal filter and merge: ids are exactly 0..n.
+fn raw_settings(n: usize) -> DecomposeSettings {
+    DecomposeSettings {
+        lights: n,
+        filter_taps: None,
+        merge_spacing_fraction: None,
+        ..DecomposeSettings::default()
+    }
+}
+
+fn default_settings(n: usize) -> DecomposeSettings {
+    DecomposeSettings {
+        lights: n,
+        ..DecomposeSettings::default()
+    }
+}
+
+/// SplitMix64: a small, fixed-seed, dependency-free generator.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+fn dir(l: &Light) -> glam::DVec3 {
+    glam::DVec3::new(l.dir[0].into(), l.dir[1].into(), l.dir[2].into())
+}
+
+fn angle(a: glam::DVec3, b: glam::DVec3) -> f64 {
+    // atan2 of |a×b| and a·b is accurate for tiny angles (acos of the dot is not).
+    a.cross(b).length().atan2(a.dot(b))
+}
+
+/// Angle (degrees) each id moved between two light lists; ids in only one list are skipped.
+fn moved_angles_deg(a: &LightFrame, b: &LightFrame) -> Vec<(u32, f64)> {
+    a.lights
+        .iter()
+        .filter_map(|la| {
+            let lb = b.lights.iter().find(|l| l.id == la.id)?;
+            Some((la.id, angle(dir(la), dir(lb)).to_degrees()))
+        })
+        .collect()
+}
+
+/// Median and how many ids moved more than 0.5° and 1°, for the reports.
+fn spread(angles: &[(u32, f64)]) -> String {
+    let mut sorted: Vec<f64> = angles.iter().map(|a| a.1).collect();
+    sorted.sort_by(f64::total_cmp);
+    let over = |limit: f64| sorted.iter().filter(|a| **a > limit).count();
+    format!(
+        "median {:.4}°, {} of {} ids > 0.5°, {} > 1°",
+        sorted[sorted.len() / 2],
+        over(0.5),
+        sorted.len(),
+        over(1.0)
+    )
+}
+
+/// (max, 99th percentile, id of the max) of per-id angles.
+fn max_and_p99(angles: &[(u32, f64)]) -> (f64, f64, u32) {
+    assert!(!angles.is_empty());
+    let mut sorted: Vec<f64> = angles.iter().map(|a| a.1).collect();
+    sorted.sort_by(f64::total_cmp);
+    let p99 = sorted[((0.99 * sorted.len() as f64).ceil() as usize).max(1) - 1];
+    let (id, max) = angles
+        .iter()
+        .copied()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, 0.0));
+    (max, p99, id)
+}
+
+fn relative_error(actual: [f64; 3], expected: [f64; 3]) -> [f64; 3] {
+    let mut out = [0.0; 3];
+    for c in 0..3 {
+        out[c] = (actual[c] - expected[c]).abs() / expected[c].abs().max(f64::MIN_POSITIVE);
+    }
+    out
+}
+
+fn sci(v: [f64; 3]) -> String {
+    format!("[{:.2e}, {:.2e}, {:.2e}]", v[0], v[1], v[2])
+}
+
+fn assert_finite(lights: &LightFrame, what: &str) {
+    for l in &lights.lights {
+        let values = l
+            .dir
+            .iter()
+            .chain(&l.rgb)
+            .chain(std::iter::once(&l.solid_angle));
+        assert!(
+            values.clone().all(|v| v.is_finite()),
+            "{what}: light {} is not finite: {l:?}",
+            l.id
+        );
+    }
+}
+
+fn assert_ids_are_0_to(lights: &LightFrame, n: usize, what: &str) {
+    let ids: Vec<u32> = lights.lights.iter().map(|l| l.id).collect();
+    let expected: Vec<u32> = (0..n as u32).collect();
+    assert!(ids == expected, "{what}: ids are not 0..{n}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Energy on the real maps
+
+/// Σ light rgb = frame_integral within 0.1% per channel, for N ∈ {16, 64, 256, 1024}, with the
+/// default settings (filter and merge on) and with both off. One decode per map.
+fn lights_sum_to_the_integral(name: &str) {
+    let frame = load_latlong(name);
+    let truth = frame_integral(&frame);
+    assert!(truth.iter().all(|c| *c > 0.0), "{name}: integral {truth:?}");
+    let mut failures = Vec::new();
+    for n in [16, 64, 256, 1024] {
+        for (label, settings) in [("default", default_settings(n)), ("raw", raw_settings(n))] {
+            let raw = settings.merge_spacing_fraction.is_none();
+            let lights = Decomposer::new(settings)
+                .expect("valid settings")
+                .decompose(&frame);
+            assert_finite(&lights, name);
+            if raw {
+                assert_ids_are_0_to(&lights, n, name);
+            }
+            let rel = relative_error(lights.total_rgb(), truth);
+            if !rel.iter().all(|r| *r < 1e-3) {
+                failures.push(format!(
+                    "N={n} {label}: relative error per channel {}",
+                    sci(rel)
+                ));
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{name}: lights do not sum to the integral (0.1%):\n{}",
+        failures.join("\n")
+    );
+}
+
+macro_rules! energy_tests {
+    ($($test:ident => $file:literal),* $(,)?) => {
+        $(
+            #[test]
+            fn $test() {
+                lights_sum_to_the_integral($file);
+            }
+        )*
+    };
+}
+
+energy_tests! {
+    energy_empty_warehouse => "empty_warehouse_01_1k.hdr",
+    energy_noon_grass => "noon_grass_1k.hdr",
+    energy_potsdamer_platz => "potsdamer_platz_1k.hdr",
+    energy_rooitou_park => "rooitou_park_1k.hdr",
+    energy_st_peters_square_night => "st_peters_square_night_1k.hdr",
+    energy_studio_small => "studio_small_03_1k.hdr",
+    energy_venice_sunset => "venice_sunset_1k.hdr",
+    energy_kerner_exr => "KernerEnvLatLong.exr",
+    energy_stage_exr => "StageEnvLatLong.exr",
+}
+
+// ---------------------------------------------------------------------------------------------
+// Sampling: chi-square and inversion
+
+/// Luminance × solid angle of a lat-long frame, box-downsampled by `factor` (row-major).
+fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
+    let (w, h) = (frame.width / factor, frame.height / factor);
+    let omega = Projection::LatLong.solid_angles(frame.width, frame.height);
+    let mut weights = vec![0.0f64; (w * h) as usize];
+    for y in 0..h * factor {
+        for x in 0..w * factor {
+            let i = (y * frame.width + x) as usize;
+            let l = f64::from(luminance(frame.pixels[i]));
+            if l.is_finite() && l > 0.0 {
+                weights[((y / factor) * w + x / factor) as usize] += l * omega[i];
+            }
+        }
+    }
+    (weights, w as usize, h as usize)
+}
+
+/// A random map with exact zeros (`zero_fraction`) and a dynamic range of ~10⁴.
+fn random_weights(w: usize, h: usize, seed: u64, zero_fraction: f64) -> Vec<f64> {
+    let mut rng = Rng(seed);
+    (0..w * h)
+        .map(|_| {
+            let z = rng.uniform();
+            let v = rng.uniform();
+            if z < zero_fraction {
+                0.0
+            } else {
+                10f64.powf(4.0 * v)
+            }
+        })
+        .collect()
+}
+
+/// ∫ pdf over each of `bx`×`by` bins of the unit square by a `sub`×`sub` midpoint rule per bin.
+fn bin_probabilities(dist: &PiecewiseConstant2d, bx: usize, by: usize, sub: usize) -> Vec<f64> {
+    let mut out = vec![0.0; bx * by];
+    let (dx, dy) = (1.0 / (bx * sub) as f64, 1.0 / (by * sub) as f64);
+    for j in 0..by * sub {
+        for i in 0..bx * sub {
+            let p = [(i as f64 + 0.5) * dx, (j as f64 + 0.5) * dy];
+            out[(j / sub) * bx + i / sub] += dist.pdf(p) * dx * dy;
+        }
+    }
+    out
+}
+
+fn histogram(points: &[[f64; 2]], bx: usize, by: usize) -> Vec<f64> {
+    let mut counts = vec![0.0; bx * by];
+    for p in points {
+        let i = ((p[0] * bx as f64) as usize).min(bx - 1);
+        let j = ((p[1] * by as f64) as usize).min(by - 1);
+        counts[j * bx + i] += 1.0;
+    }
+    counts
+}
+
+/// Pearson's statistic and degrees of freedom. Bins with expected count < 5 are pooled (as in
+/// pbrt's and Mitsuba's chi2 tests); a bin with zero expected probability that holds samples
+/// makes the statistic infinite.
+fn chi_square(observed: &[f64], probabilities: &[f64], samples: usize) -> (f64, usize) {
+    let mut bins: Vec<(f64, f64)> = probabilities
+        .iter()
+        .zip(observed)
+        .map(|(p, o)| (p * samples as f64, *o))
+        .collect();
+    if bins.iter().any(|(e, o)| *e <= 0.0 && *o > 0.0) {
+        return (f64::INFINITY, bins.len() - 1);
+    }
+    bins.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut pooled = (0.0, 0.0);
+    let mut kept: Vec<(f64, f64)> = Vec::new();
+    for (e, o) in bins {
+        if e < 5.0 {
+            pooled.0 += e;
+            pooled.1 += o;
+        } else {
+            kept.push((e, o));
+        }
+    }
+    if pooled.0 > 0.0 {
+        if pooled.0 < 5.0 && !kept.is_empty() {
+            kept[0].0 += pooled.0;
+            kept[0].1 += pooled.1;
+        } else {
+            kept.push(pooled);
+        }
+    }
+    let statistic = kept.iter().map(|(e, o)| (o - e) * (o - e) / e).sum();
+    (statistic, kept.len().saturating_sub(1))
+}
+
+/// Upper critical value of the chi-square distribution with `dof` degrees of freedom at
+/// significance 0.001 (Wilson–Hilferty: χ² ≈ k(1 − 2/(9k) + z√(2/(9k)))³, z = Φ⁻¹(0.999)).
+fn chi_square_critical_0_001(dof: usize) -> f64 {
+    const Z_0_999: f64 = 3.090_232_306_167_813;
+    let k = dof as f64;
+    let a = 2.0 / (9.0 * k);
+    k * (1.0 - a + Z_0_999 * a.sqrt()).powi(3)
+}
+
+const CHI2_SAMPLES: usize = 200_000;
+const BINS: (usize, usize) = (16, 8);
+/// Midpoint points per bin and axis. The pdf is piecewise constant in x on pixel columns and a
+/// smooth blend in y between row centres; 64 per bin puts ≥ 8 points across every pixel of the
+/// maps below, aligned to the pixel edges.
+const SUB: usize = 64;
+
+/// Runs the chi-square test of points against `dist`'s pdf; returns (statistic, critical value).
+fn chi_square_test(dist: &PiecewiseConstant2d, points: &[[f64; 2]], what: &str) -> (f64, f64) {
+    let probabilities = bin_probabilities(dist, BINS.0, BINS.1, SUB);
+    let total: f64 = probabilities.iter().sum();
+    assert!((total - 1.0).abs() < 1e-6, "{what}: ∫pdf = {total}");
+    let observed = histogram(points, BINS.0, BINS.1);
+    let (statistic, dof) = chi_square(&observed, &probabilities, points.len());
+    let critical = chi_square_critical_0_001(dof);
+    eprintln!("chi-square {what}: {statistic:.1} (dof {dof}, critical {critical:.1} at 0.001)");
+    (statistic, critical)
+}
+
+fn draw(dist: &PiecewiseConstant2d, seed: u64, n: usize) -> Vec<[f64; 2]> {
+    let mut rng = Rng(seed);
+    (0..n)
+        .map(|_| {
+            let (p, pdf) = dist.sample([rng.uniform(), rng.uniform()]);
+            assert!(pdf > 0.0, "sample {p:?} has pdf {pdf}");
+            p
+        })
+        .collect()
+}
+
+#[test]
+fn chi_square_of_samples_on_a_real_map() {
+    let (weights, w, h) = energy_weights(rooitou(), 16);
+    assert_eq!((w, h), (64, 32));
+    let dist = PiecewiseConstant2d::new(&weights, w, h);
+    let points = draw(&dist, 1, CHI2_SAMPLES);
+    let (statistic, critical) = chi_square_test(&dist, &points, "rooitou 64×32");
+    assert!(statistic < critical, "rooitou: {statistic} ≥ {critical}");
+
+    // The test can fail: uniform points are rejected against the map's pdf.
+    let mut rng = Rng(2);
+    let uniform: Vec<[f64; 2]> = (0..CHI2_SAMPLES)
+        .map(|_| [rng.uniform(), rng.uniform()])
+        .collect();
+    let (statistic, critical) =
+        chi_square_test(&dist, &uniform, "uniform vs rooitou (must reject)");
+    assert!(statistic > critical, "uniform points pass: {statistic}");
+}
+
+#[test]
+fn chi_square_of_samples_on_a_random_map() {
+    let (w, h) = (32, 16);
+    for (seed, zeros) in [(10u64, 0.0), (11, 0.3)] {
+        let dist = PiecewiseConstant2d::new(&random_weights(w, h, seed, zeros), w, h);
+        let points = draw(&dist, seed + 100, CHI2_SAMPLES);
+        let what = format!("random map seed {seed}, {zeros} zeros");
+        let (statistic, critical) = chi_square_test(&dist, &points, &what);
+        assert!(statistic < critical, "{what}: {statistic} ≥ {critical}");
+    }
+    // The test can fail: points of one random map are rejected against another's pdf.
+    let a = PiecewiseConstant2d::new(&random_weights(w, h, 20, 0.0), w, h);
+    let b = PiecewiseConstant2d::new(&random_weights(w, h, 21, 0.0), w, h);
+    let points = draw(&a, 22, CHI2_SAMPLES);
+    let (statistic, critical) = chi_square_test(&b, &points, "map A vs map B (must reject)");
+    assert!(
+        statistic > critical,
+        "another map's points pass: {statistic}"
+    );
+}
+
+/// pbrt's InverseRandoms on real maps: invert(sample(u)) ≈ u (1e-9) wherever pdf > 0.
+#[test]
+fn invert_undoes_sample_on_a_real_map() {
+    for factor in [16, 4] {
+        let (weights, w, h) = energy_weights(rooitou(), factor);
+        let dist = PiecewiseConstant2d::new(&weights, w, h);
+        let mut rng = Rng(factor.into());
+        let mut checked = 0;
+        for _ in 0..10_000 {
+            let u = [rng.uniform(), rng.uniform()];
+            let (p, pdf) = dist.sample(u);
+            if pdf <= 0.0 {
+                continue;
+            }
+            checked += 1;
+            let v = dist.invert(p);
+            assert!(
+                (u[0] - v[0]).abs() < 1e-9 && (u[1] - v[1]).abs() < 1e-9,
+                "{w}×{h}: {u:?} -> {p:?} -> {v:?}"
+            );
+        }
+        assert!(
+            checked > 9_000,
+            "{w}×{h}: only {checked} samples with pdf > 0"
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Continuity
+
+const SPOT_W: u32 = 512;
+const SPOT_H: u32 = 256;
+
+/// A smooth sky: brighter toward the zenith, a gentle azimuthal variation, a dim ground.
+fn smooth_sky(x: u32, y: u32) -> [f32; 3] {
+    let u = (f64::from(x) + 0.5) / f64::from(SPOT_W);
+    let v = (f64::from(y) + 0.5) / f64::from(SPOT_H);
+    let theta = std::f64::consts::PI * v;
+    let phi = 2.0 * std::f64::consts::PI * u;
+    let elevation = theta.cos(); // 1 at the zenith, −1 at the nadir
+    let base = 0.4 + 0.6 * (0.5 + 0.5 * elevation).powi(2);
+    let azimuthal = 1.0 + 0.25 * phi.sin() + 0.1 * (2.0 * phi).cos();
+    let l = base * azimuthal;
+    [(0.7 * l) as f32, (0.85 * l) as f32, (1.1 * l) as f32]
+}
+
+/// 512×256 lat-long frame: the smooth sky times `sky_scale` plus a 3×3 spot of 1000× the sky's
+/// radiance whose top-left pixel is (sx, sy).
+fn sky_with_spot(sx: u32, sy: u32, sky_scale: f32) -> HdrFrame {
+    let mut pixels = Vec::with_capacity((SPOT_W * SPOT_H) as usize);
+    for y in 0..SPOT_H {
+        for x in 0..SPOT_W {
+            let s = smooth_sky(x, y);
+            let spot = (sx..sx + 3).contains(&x) && (sy..sy + 3).contains(&y);
+            pixels.push(if spot {
+                s.map(|c| 1000.0 * c)
+            } else {
+                s.map(|c| sky_scale * c)
+            });
+        }
+    }
+    HdrFrame::new(SPOT_W, SPOT_H, pixels, Projection::LatLong).expect("valid size")
+}
+
+fn continuity_settings() -> DecomposeSettings {
+    DecomposeSettings {
+        placement: LightPlacement::default(),
+        ..raw_settings(256)
+    }
+}
+
+/// Decomposes two frames with fresh decomposers of the same settings and reports how far each
+/// id moved: (max, p99) in degrees.
+fn movement(a: &HdrFrame, b: &HdrFrame, what: &str) -> (f64, f64) {
+    let la = Decomposer::new(continuity_settings()).unwrap().decompose(a);
+    let lb = Decomposer::new(continuity_settings()).unwrap().decompose(b);
+    assert_ids_are_0_to(&la, 256, what);
+    assert_ids_are_0_to(&lb, 256, what);
+    let angles = moved_angles_deg(&la, &lb);
+    let (max, p99, id) = max_and_p99(&angles);
+    let mut sorted: Vec<&(u32, f64)> = angles.iter().collect();
+    sorted.sort_by(|x, y| y.1.total_cmp(&x.1));
+    let top: Vec<String> = sorted
+        .iter()
+        .take(5)
+        .map(|(i, a)| format!("id {i}: {a:.3}°"))
+        .collect();
+    eprintln!(
+        "{what}: max {max:.4}° (id {id}), p99 {p99:.4}°, {}; largest: {}",
+        spread(&angles),
+        top.join(", ")
+    );
+    (max, p99)
+}
+
+/// Spot position in the continuity tests: θ ≈ 56°, φ ≈ 141°.
+const SPOT: (u32, u32) = (200, 80);
+
+/// Moving the 3×3 spot by one pixel (0.70° of longitude or latitude) moves every light by little.
+///
+/// The requirement is isotropic, so x and y share one bound, set from the well-behaved direction.
+/// Measured with the internals at d1216be, before the region rewrite (raw decomposition, 256
+/// lights, Centroid placement):
+/// - +1 px in x: max 1.33° (id 57), p99 1.19°, median 0.00°, 8 ids > 1°.
+/// - +1 px in y: max 37.3° (id 246), p99 16.0°, median 0.00°, 25 ids > 1°: ids whose preimage
+///   straddles the spot's band in the square jump across the map (a row losing or gaining a
+///   third of the spot changes its conditional CDF wholesale), so this case FAILS with those
+///   internals; the region rewrite is meant to fix it.
+///
+/// Bounds: max < 2.0° (1.5 × 1.33°) and p99 < 1.8° (1.5 × 1.19°). For scale: the mean light
+/// spacing at 256 lights is √(4π/256) ≈ 12.7°. p99 over 256 ids is the third-largest angle.
+#[test]
+fn moving_a_bright_spot_by_one_pixel_moves_lights_little() {
+    let base = sky_with_spot(SPOT.0, SPOT.1, 1.0);
+    let mut results = Vec::new();
+    for (what, moved) in [
+        ("spot +1 px in x", sky_with_spot(SPOT.0 + 1, SPOT.1, 1.0)),
+        ("spot +1 px in y", sky_with_spot(SPOT.0, SPOT.1 + 1, 1.0)),
+    ] {
+        let (max, p99) = movement(&base, &moved, what);
+        results.push((what, max, p99));
+    }
+    for (what, max, p99) in results {
+        assert!(
+            p99 < SPOT_MOVE_P99_DEG,
+            "{what}: p99 {p99}° ≥ {SPOT_MOVE_P99_DEG}°"
+        );
+        assert!(
+            max < SPOT_MOVE_MAX_DEG,
+            "{what}: max {max}° ≥ {SPOT_MOVE_MAX_DEG}°"
+        );
+    }
+}
+
+/// Brightening the sky (not the spot) by 1% moves every light by little.
+///
+/// Measured with the internals at d1216be, before the region rewrite: max 3.11° (id 135 alone;
+/// the next is 1.45°), p99 1.42°, median 0.00°, 6 ids > 1°. A single id straddling the spot's
+/// preimage moves far, so the max has its own, looser bound and the p99 states the
+/// requirement: max < 4.7° (1.5 × 3.11°), p99 < 2.1° (1.5 × 1.42°).
+#[test]
+fn brightening_the_sky_by_one_percent_moves_lights_little() {
+    let base = sky_with_spot(SPOT.0, SPOT.1, 1.0);
+    let brighter = sky_with_spot(SPOT.0, SPOT.1, 1.01);
+    let (max, p99) = movement(&base, &brighter, "sky ×1.01");
+    assert!(p99 < SKY_SCALE_P99_DEG, "p99 {p99}° ≥ {SKY_SCALE_P99_DEG}°");
+    assert!(max < SKY_SCALE_MAX_DEG, "max {max}° ≥ {SKY_SCALE_MAX_DEG}°");
+}
+
+/// Bounds of the continuity tests (degrees); see each test's doc for the measurements.
+const SPOT_MOVE_MAX_DEG: f64 = 2.0;
+const SPOT_MOVE_P99_DEG: f64 = 1.8;
+const SKY_SCALE_MAX_DEG: f64 = 4.7;
+const SKY_SCALE_P99_DEG: f64 = 2.1;
+/// The built-in sky changes far less in 1/30 s (the sun moves 0.067°, clouds ~0.02°) than the
+/// spot's one-pixel step (0.70°), so its lights must not move more than in that test.
+const SKY_FRAME_MAX_DEG: f64 = SPOT_MOVE_MAX_DEG;
+const SKY_FRAME_P99_DEG: f64 = SPOT_MOVE_P99_DEG;
+
+/// The built-in sky one frame (1/30 s) apart: lights (same id, raw decomposition, 256 lights)
+/// move little, and sum to the frame's integral (also with the default settings).
+///
+/// Bounds are those of the one-pixel spot step (max < 2.0°, p99 < 1.8°), set by the requirement,
+/// not by this measurement: the sky changes far less per frame. Measured with the internals at
+/// d1216be, before the region rewrite (default `SkyOptions`, t = 10 s): max 4.80° (id 8), p99
+/// 2.44°, median 0.0007°, 5 ids > 1°, so this FAILS with those internals (ids straddling the sun's preimage jump).
+#[test]
+fn built_in_sky_lights_move_little_per_frame() {
+    let options = SkyOptions::default();
+    let t = 10.0;
+    let a = render_sky(&options, t);
+    let b = render_sky(&options, t + 1.0 / 30.0);
+    let settings = raw_settings(256);
+    let la = Decomposer::new(settings.clone()).unwrap().decompose(&a);
+    let lb = Decomposer::new(settings).unwrap().decompose(&b);
+    for (frame, lights) in [(&a, &la), (&b, &lb)] {
+        let rel = relative_error(lights.total_rgb(), frame_integral(frame));
+        assert!(rel.iter().all(|r| *r < 1e-3), "sky energy error {rel:?}");
+    }
+    let angles = moved_angles_deg(&la, &lb);
+    let (max, p99, id) = max_and_p99(&angles);
+    eprintln!(
+        "built-in sky, 1/30 s: max {max:.4}° (id {id}), p99 {p99:.4}°, {}",
+        spread(&angles)
+    );
+    assert!(p99 < SKY_FRAME_P99_DEG, "p99 {p99}° ≥ {SKY_FRAME_P99_DEG}°");
+    assert!(max < SKY_FRAME_MAX_DEG, "max {max}° ≥ {SKY_FRAME_MAX_DEG}°");
+
+    // With the default settings (filter and merge on) the sum still matches.
+    let mut decomposer = Decomposer::new(DecomposeSettings::default()).unwrap();
+    for frame in [&a, &b] {
+        let lights = decomposer.decompose(frame);
+        assert_finite(&lights, "sky, default settings");
+        let rel = relative_error(lights.total_rgb(), frame_integral(frame));
+        assert!(rel.iter().all(|r| *r < 1e-3), "sky energy error {rel:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Temporal filter, end to end
+
+fn scaled(frame: &HdrFrame, factor: f32, seq: u64) -> HdrFrame {
+    let mut out = frame.clone();
+    for p in &mut out.pixels {
+        *p = p.map(|c| c * factor);
+    }
+    out.seq = seq;
+    out.time = seq as f64 / 30.0;
+    out
+}
+
+fn close(a: f32, b: f32, rel: f32) -> bool {
+    (a - b).abs() <= rel * a.abs().max(b.abs()) + f32::MIN_POSITIVE
+}
+
+/// A constant frame sequence gives the same lights every frame (ids, dirs, rgb within 1e-5
+/// relative), with the default settings (filter and merge on).
+#[test]
+fn constant_frames_give_constant_lights() {
+    let mut decomposer = Decomposer::new(DecomposeSettings::default()).unwrap();
+    let frames: Vec<LightFrame> = (0..12)
+        .map(|seq| decomposer.decompose(&scaled(rooitou(), 1.0, seq)))
+        .collect();
+    let reference = &frames[1];
+    for (k, lights) in frames.iter().enumerate().skip(2) {
+        let ids: Vec<u32> = lights.lights.iter().map(|l| l.id).collect();
+        let ref_ids: Vec<u32> = reference.lights.iter().map(|l| l.id).collect();
+        assert_eq!(ids, ref_ids, "frame {k}: ids changed");
+        for (l, r) in lights.lights.iter().zip(&reference.lights) {
+            for c in 0..3 {
+                assert!(
+                    close(l.rgb[c], r.rgb[c], 1e-5) && (l.dir[c] - r.dir[c]).abs() <= 1e-5,
+                    "frame {k}, id {}: {l:?} vs {r:?}",
+                    l.id
+                );
+            }
+        }
+    }
+}
+
+/// Time (fractional frame index, linear interpolation) at which `series` first reaches the
+/// middle between its first and last values.
+fn half_way_crossing(series: &[f64]) -> f64 {
+    let (first, last) = (series[0], series[series.len() - 1]);
+    let mid = 0.5 * (first + last);
+    let k = series
+        .iter()
+        .position(|v| (v - mid) * (last - first) >= 0.0)
+        .expect("series reaches its end value");
+    assert!(k > 0, "series starts past the middle");
+    let (a, b) = (series[k - 1], series[k]);
+    (k - 1) as f64 + (mid - a) / (b - a)
+}
+
+/// A brightness step (×2 from frame 10) shows up in the total power exactly
+/// `filter_delay_frames()` frames after it does without filter (half-way crossings). Merge is off
+/// so that ids stay put.
+#[test]
+fn brightness_step_is_delayed_by_the_filter_delay() {
+    let filtered_settings = DecomposeSettings {
+        merge_spacing_fraction: None,
+        ..DecomposeSettings::default()
+    };
+    let mut filtered = Decomposer::new(filtered_settings).unwrap();
+    let mut raw = Decomposer::new(raw_settings(256)).unwrap();
+    let delay = filtered.filter_delay_frames();
+    assert_eq!(raw.filter_delay_frames(), 0.0);
+    assert!(delay > 0.0);
+    let mut raw_total = Vec::new();
+    let mut filtered_total = Vec::new();
+    for seq in 0..30u64 {
+        let factor = if seq < 10 { 1.0 } else { 2.0 };
+        let frame = scaled(rooitou(), factor, seq);
+        let r = raw.decompose(&frame);
+        let f = filtered.decompose(&frame);
+        assert_finite(&f, "step");
+        raw_total.push(r.total_rgb()[1]);
+        filtered_total.push(f.total_rgb()[1]);
+    }
+    let truth = frame_integral(rooitou())[1];
+    for (series, what) in [(&raw_total, "raw"), (&filtered_total, "filtered")] {
+        assert!((series[0] / truth - 1.0).abs() < 1e-3, "{what} start");
+        assert!(
+            (series[29] / (2.0 * truth) - 1.0).abs() < 1e-3,
+            "{what} end"
+        );
+    }
+    let t_raw = half_way_crossing(&raw_total);
+    let t_filtered = half_way_crossing(&filtered_total);
+    eprintln!(
+        "step: raw crosses half-way at {t_raw:.4}, filtered at {t_filtered:.4}, delay {delay}"
+    );
+    assert!(
+        ((t_filtered - t_raw) - delay).abs() < 1e-3,
+        "measured delay {} vs filter_delay_frames {delay}",
+        t_filtered - t_raw
+    );
+}
+
+/// Light counts changing from frame to frame (64, 256, 64, 1024, each held for taps+1 frames) on
+/// a constant frame: ids are 0..n; without filter the energy is right every frame; with the
+/// filter, an id that persists across a change keeps its history (its first output after the
+/// change is the FIR blend of the old and new values), an id that is new or returns starts
+/// afresh, and once the history has filled with the new count the lights equal the unfiltered
+/// ones again (energy right).
+#[test]
+fn light_count_changes_keep_ids_energy_and_filter_history() {
+    let frame = rooitou();
+    let truth = frame_integral(frame);
+    let filtered_settings = DecomposeSettings {
+        merge_spacing_fraction: None,
+        ..DecomposeSettings::default()
+    };
+    let taps = filtered_settings.filter_taps.clone().expect("default taps");
+    let w0 = taps[0] / taps.iter().sum::<f64>();
+    let hold = taps.len() + 1;
+    let mut raw = Decomposer::new(raw_settings(64)).unwrap();
+    let mut filtered = Decomposer::new(filtered_settings).unwrap();
+    let schedule = [64usize, 256, 64, 1024];
+    let mut previous: Option<(usize, LightFrame)> = None;
+    let mut seq = 0;
+    for &n in &schedule {
+        let reference = raw.decompose_with_count(frame, n).unwrap();
+        assert_ids_are_0_to(&reference, n, "raw");
+        let rel = relative_error(reference.total_rgb(), truth);
+        assert!(rel.iter().all(|r| *r < 1e-3), "raw n={n}: energy {rel:?}");
+        for k in 0..hold {
+            let mut f = frame.clone();
+            f.seq = seq;
+            seq += 1;
+            let lights = filtered.decompose_with_count(&f, n).unwrap();
+            let what = format!("filtered n={n} frame {k}");
+            assert_ids_are_0_to(&lights, n, &what);
+            assert_finite(&lights, &what);
+            if k == 0 {
+                if let Some((n_prev, old)) = &previous {
+                    let rel = relative_error(lights.total_rgb(), truth);
+                    eprintln!(
+                        "count {n_prev} -> {n}: energy error of the filtered lights at the \
+                         change {}",
+                        sci(rel)
+                    );
+                    for (id, l) in lights.lights.iter().enumerate() {
+                        let new = &reference.lights[id];
+                        let (rgb, d) = if id < *n_prev {
+                            let o = &old.lights[id];
+                            let rgb: Vec<f64> = (0..3)
+                                .map(|c| {
+                                    w0 * f64::from(new.rgb[c]) + (1.0 - w0) * f64::from(o.rgb[c])
+                                })
+                                .collect();
+                            let d = (w0 * dir(new) + (1.0 - w0) * dir(o)).normalize_or_zero();
+                            (rgb, d)
+                        } else {
+                            (new.rgb.iter().map(|c| f64::from(*c)).collect(), dir(new))
+                        };
+                        for c in 0..3 {
+                            assert!(
+                                close(l.rgb[c], rgb[c] as f32, 1e-4),
+                                "{what}, id {id} (persisting: {}): rgb {:?} vs expected {rgb:?}",
+                                id < *n_prev,
+                                l.rgb
+                            );
+                        }
+                        assert!(
+                            angle(dir(l), d) < 1e-4,
+                            "{what}, id {id}: dir {:?} vs expected {d:?}",
+                            l.dir
+                        );
+                    }
+                }
+            }
+            if k == hold - 1 {
+                for (l, r) in lights.lights.iter().zip(&reference.lights) {
+                    for c in 0..3 {
+                        assert!(
+                            close(l.rgb[c], r.rgb[c], 1e-5),
+                            "{what}, id {}: settled rgb {:?} vs {:?}",
+                            l.id,
+                            l.rgb,
+                            r.rgb
+                        );
+                    }
+                }
+                let rel = relative_error(lights.total_rgb(), truth);
+                assert!(rel.iter().all(|r| *r < 1e-3), "{what}: energy {rel:?}");
+            }
+        }
+        previous = Some((n, reference));
+    }
+}
