@@ -120,6 +120,7 @@ pub struct Decomposer {
     filter: Option<FirFilter>,
     weights: Vec<f64>,
     regions: Vec<Region>,
+    last_count: Option<usize>,
 }
 
 impl Decomposer {
@@ -149,6 +150,7 @@ impl Decomposer {
             filter,
             weights: Vec::new(),
             regions: Vec::new(),
+            last_count: None,
         })
     }
 
@@ -178,8 +180,14 @@ impl Decomposer {
         validate_light_count(n)?;
         let mut lights = self.raw_lights(frame, n);
         if let Some(filter) = &mut self.filter {
+            // A new light count reshapes every region, so a light's history no longer matches
+            // what it now represents: restart the filter rather than blend (energy stays exact).
+            if self.last_count.is_some_and(|last| last != n) {
+                filter.reset();
+            }
             filter.apply(&mut lights);
         }
+        self.last_count = Some(n);
         if let Some(fraction) = self.settings.merge_spacing_fraction {
             lights = merge::merge_crowded(&lights, fraction);
         }
