@@ -8,6 +8,7 @@
 //! reads frames; `main.rs` is only the command line.
 
 pub mod capture;
+pub mod config;
 pub mod decompose;
 pub mod envmap;
 pub mod frame;
