@@ -349,8 +349,15 @@ fn main() -> ExitCode {
         Err(err) => {
             tracing::debug!("{err:?}");
             eprintln!("error: {err}");
+            // Library errors often show their source in their own message too; print each
+            // cause only when it adds something.
+            let mut previous = err.to_string();
             for cause in err.chain().skip(1) {
-                eprintln!("  caused by: {cause}");
+                let text = cause.to_string();
+                if !previous.contains(&text) {
+                    eprintln!("  caused by: {text}");
+                }
+                previous = text;
             }
             ExitCode::FAILURE
         }
