@@ -11,6 +11,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod capture;
+pub mod config;
 pub mod decompose;
 pub mod envmap;
 pub mod frame;

@@ -1,2 +1,538 @@
-//! envlight command line. (Being written.)
-fn main() {}
+//! envlight command line: parse arguments, build the configuration, call the library, and map
+//! errors to exit codes (2: usage error, reported by clap; 1: runtime error; 0: success, also
+//! when the reader of stdout goes away, as with `| head`).
+
+use anyhow::{anyhow, bail, Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use envlight::capture::sequence::{SequenceOptions, SequenceSource};
+use envlight::capture::sky::SkySource;
+use envlight::capture::FrameSource;
+use envlight::config::{Config, ConfigError, RawConfig, SourceKind, DEFAULT_SKY_FRAMES};
+use envlight::decompose::Decomposer;
+use envlight::envmap::Projection;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+const LONG_ABOUT: &str = "\
+envlight turns HDR environment maps (a recorded .exr/.hdr sequence, or a built-in analytic sky)
+into a few hundred temporally stable directional lights per frame, by inverse-transform sampling
+of the luminance (Havran et al. 2005).
+
+Coordinates: right-handed, +Y up. In a lat-long map row 0 is the zenith and the left edge
+(u = 0) looks along -Z, u = 0.25 along +X, u = 0.5 along +Z (Mitsuba 3's convention).
+
+Units: a light's `rgb` is the environment radiance integrated over the light's region of the
+sphere (W/m² at normal incidence, per channel), so the lights of a frame sum to the map's
+integral; `solid_angle` is in steradians.";
+
+const DECOMPOSE_LONG_ABOUT: &str = "\
+Decompose frames into directional lights and print them as JSON Lines, one object per frame:
+
+  {\"seq\":0,\"time\":0.0,\"lights\":[{\"id\":3,\"dir\":[0.71,0.60,-0.35],\"rgb\":[812.1,790.4,701.9],\"solid_angle\":0.0021}]}
+
+seq: frame number; time: frame time in seconds; id: the light's index in the fixed point set
+(stable across frames); dir: unit direction towards the light (+Y up); rgb: integrated radiance
+(W/m² at normal incidence); solid_angle: size of the light's region or merged source (sr).
+
+Without INPUT the built-in sky is rendered (60 frames unless --frames says otherwise).
+Logs go to stderr (RUST_LOG overrides the level, e.g. RUST_LOG=debug).";
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "envlight",
+    version,
+    about = "Real-time lighting from HDR environment maps: frames in, directional lights out",
+    long_about = LONG_ABOUT,
+    arg_required_else_help = true
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Decompose HDR frames (files or the built-in sky) into directional lights (JSON Lines).
+    #[command(long_about = DECOMPOSE_LONG_ABOUT)]
+    Decompose(DecomposeArgs),
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum ProjectionArg {
+    /// Equirectangular (lat-long), row 0 = zenith.
+    Latlong,
+    /// Zenith-looking fisheye; see --fisheye-model, --center, --radius, --fov, --rotation.
+    Fisheye,
+    /// Light-probe angular map.
+    Angular,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum FisheyeModelArg {
+    /// r = f·θ
+    Equidistant,
+    /// r = 2f·sin(θ/2)
+    Equisolid,
+    /// r = 2f·tan(θ/2)
+    Stereographic,
+    /// r = f·sin θ
+    Orthographic,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PlacementArg {
+    /// Luminance-weighted centroid of the light's region (most accurate).
+    Centroid,
+    /// The warped sample point (Havran et al. 2005).
+    SamplePoint,
+}
+
+#[derive(Args, Debug)]
+struct DecomposeArgs {
+    /// .exr/.hdr files, directories or glob patterns (quote globs). None: the built-in sky.
+    #[arg(value_name = "INPUT")]
+    inputs: Vec<String>,
+
+    /// TOML config file (see config/envlight.toml); flags override its values.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+
+    /// Number of lights per frame (1..=16384; merging may leave fewer). [default: 256]
+    #[arg(long, short = 'n', value_name = "N")]
+    lights: Option<usize>,
+
+    /// Frames to process; 0 = no limit. [default: 60 for the sky, every file for a sequence]
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
+
+    /// Pace frames at F frames per second. [default: as fast as possible]
+    #[arg(long, value_name = "F")]
+    fps: Option<f64>,
+
+    /// Replay the input sequence forever (stop with --frames or Ctrl-C).
+    #[arg(long = "loop")]
+    looped: bool,
+
+    /// How input pixels map to directions. [default: latlong]
+    #[arg(long, value_enum)]
+    projection: Option<ProjectionArg>,
+
+    /// Fisheye lens model. [default: equidistant]
+    #[arg(long, value_enum, value_name = "MODEL")]
+    fisheye_model: Option<FisheyeModelArg>,
+
+    /// Fisheye image-circle centre in pixels. [default: image centre]
+    #[arg(long, value_name = "X,Y", value_parser = parse_pair)]
+    center: Option<[f64; 2]>,
+
+    /// Fisheye image-circle radius in pixels. [default: half the shorter side]
+    #[arg(long, value_name = "R")]
+    radius: Option<f64>,
+
+    /// Fisheye full field of view in degrees, in (0, 360). [default: 180]
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    fov: Option<f64>,
+
+    /// Fisheye rotation about the zenith in degrees. [default: 0]
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    rotation: Option<f64>,
+
+    /// Disable the temporal FIR filter.
+    #[arg(long, conflicts_with = "taps")]
+    no_filter: bool,
+
+    /// FIR filter taps, newest frame first (normalised). [default: 1,6,15,20,15,6,1]
+    #[arg(
+        long,
+        value_name = "W,W,…",
+        value_delimiter = ',',
+        num_args = 1,
+        allow_negative_numbers = true
+    )]
+    taps: Option<Vec<f64>>,
+
+    /// Disable merging of lights crowding a concentrated source.
+    #[arg(long, conflicts_with = "merge_fraction")]
+    no_merge: bool,
+
+    /// Merge radius as a fraction of the mean light spacing, in (0, 2]. [default: 0.25]
+    #[arg(long, value_name = "F")]
+    merge_fraction: Option<f64>,
+
+    /// Width of the internal lat-long working map in pixels (16..=4096). [default: 256]
+    #[arg(long, value_name = "W")]
+    working_width: Option<u32>,
+
+    /// Where a light points within its region. [default: centroid]
+    #[arg(long, value_enum)]
+    placement: Option<PlacementArg>,
+
+    /// Size of the built-in sky map in pixels. [default: 512x256]
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    sky_size: Option<(u32, u32)>,
+
+    /// Render the built-in sky without clouds.
+    #[arg(long)]
+    no_clouds: bool,
+
+    /// Seed of the sky's clouds. [default: 0]
+    #[arg(long)]
+    seed: Option<u64>,
+
+    /// Write the JSON lines to FILE (created or truncated) instead of stdout.
+    #[arg(long, short = 'o', value_name = "FILE")]
+    out: Option<PathBuf>,
+}
+
+fn parse_pair(s: &str) -> Result<[f64; 2], String> {
+    let (x, y) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected X,Y (two numbers), got {s:?}"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|e| format!("{v:?} is not a number: {e}"))
+    };
+    Ok([num(x)?, num(y)?])
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
+    let num = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .map_err(|e| format!("{v:?} is not a pixel count: {e}"))
+    };
+    Ok((num(w)?, num(h)?))
+}
+
+impl DecomposeArgs {
+    /// Applies the flags to the raw configuration. Returns, for each config key a flag set,
+    /// the flag's name (so validation errors can name the flag).
+    fn apply(&self, raw: &mut RawConfig) -> Result<Vec<(&'static str, &'static str)>> {
+        let mut set = Vec::new();
+        let mut note = |key, flag| set.push((key, flag));
+        let src = &mut raw.source;
+        if !self.inputs.is_empty() {
+            src.kind = Some("sequence".into());
+            src.paths = Some(self.inputs.clone());
+            note("source.paths", "INPUT");
+        }
+        if let Some(v) = self.frames {
+            src.frames = Some(v);
+        }
+        if let Some(v) = self.fps {
+            src.fps = Some(v);
+            note("source.fps", "--fps");
+        }
+        if self.looped {
+            src.looped = Some(true);
+        }
+        if let Some(p) = self.projection {
+            src.projection = Some(
+                match p {
+                    ProjectionArg::Latlong => "latlong",
+                    ProjectionArg::Fisheye => "fisheye",
+                    ProjectionArg::Angular => "angular",
+                }
+                .into(),
+            );
+            note("source.projection", "--projection");
+        }
+        let fisheye_flags = self.fisheye_model.is_some()
+            || self.center.is_some()
+            || self.radius.is_some()
+            || self.fov.is_some()
+            || self.rotation.is_some();
+        let is_fisheye = src.projection.as_deref() == Some("fisheye");
+        if fisheye_flags && !is_fisheye {
+            bail!("--fisheye-model, --center, --radius, --fov and --rotation need --projection fisheye");
+        }
+        let fe = &mut src.fisheye;
+        if let Some(m) = self.fisheye_model {
+            fe.model = Some(
+                match m {
+                    FisheyeModelArg::Equidistant => "equidistant",
+                    FisheyeModelArg::Equisolid => "equisolid",
+                    FisheyeModelArg::Stereographic => "stereographic",
+                    FisheyeModelArg::Orthographic => "orthographic",
+                }
+                .into(),
+            );
+        }
+        if let Some(c) = self.center {
+            fe.center = Some(c);
+            note("source.fisheye.center", "--center");
+        }
+        if let Some(r) = self.radius {
+            fe.radius = Some(r);
+            note("source.fisheye.radius", "--radius");
+        }
+        if let Some(f) = self.fov {
+            fe.fov_deg = Some(f);
+            note("source.fisheye.fov_deg", "--fov");
+        }
+        if let Some(r) = self.rotation {
+            fe.rotation_deg = Some(r);
+            note("source.fisheye.rotation_deg", "--rotation");
+        }
+
+        let sky_flags = self.sky_size.is_some() || self.no_clouds || self.seed.is_some();
+        if sky_flags && !self.inputs.is_empty() {
+            bail!(
+                "--sky-size, --no-clouds and --seed apply to the built-in sky, not to INPUT files"
+            );
+        }
+        if let Some((w, h)) = self.sky_size {
+            raw.sky.width = Some(w);
+            raw.sky.height = Some(h);
+            note("sky.width", "--sky-size");
+            note("sky.height", "--sky-size");
+        }
+        if self.no_clouds {
+            raw.sky.clouds = Some(false);
+        }
+        if let Some(s) = self.seed {
+            raw.sky.seed = Some(s);
+        }
+
+        let dec = &mut raw.decompose;
+        if let Some(n) = self.lights {
+            dec.lights = Some(n);
+            note("decompose.lights", "--lights");
+        }
+        if let Some(w) = self.working_width {
+            dec.working_width = Some(w);
+            note("decompose.working_width", "--working-width");
+        }
+        if let Some(p) = self.placement {
+            dec.placement = Some(
+                match p {
+                    PlacementArg::Centroid => "centroid",
+                    PlacementArg::SamplePoint => "sample-point",
+                }
+                .into(),
+            );
+        }
+        if self.no_filter {
+            dec.filter = Some(false);
+        }
+        if let Some(taps) = &self.taps {
+            dec.filter = Some(true);
+            dec.filter_taps = Some(taps.clone());
+            note("decompose.filter_taps", "--taps");
+        }
+        if self.no_merge {
+            dec.merge = Some(false);
+        }
+        if let Some(f) = self.merge_fraction {
+            dec.merge = Some(true);
+            dec.merge_spacing_fraction = Some(f);
+            note("decompose.merge_spacing_fraction", "--merge-fraction");
+        }
+        Ok(set)
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_tracing();
+    let result = match cli.command {
+        Command::Decompose(args) => decompose(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            tracing::debug!("{err:?}");
+            eprintln!("error: {err}");
+            // Library errors often show their source in their own message too; print each
+            // cause only when it adds something.
+            let mut previous = err.to_string();
+            for cause in err.chain().skip(1) {
+                let text = cause.to_string();
+                if !previous.contains(&text) {
+                    eprintln!("  caused by: {text}");
+                }
+                previous = text;
+            }
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Logs to stderr: info by default (`RUST_LOG` overrides), compact, colours only on a terminal,
+/// no timestamps under systemd (journald adds its own).
+fn init_tracing() {
+    use tracing_subscriber::filter::{EnvFilter, LevelFilter};
+    let filter = EnvFilter::builder()
+        .with_default_directive(LevelFilter::INFO.into())
+        .from_env_lossy();
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .compact();
+    if std::env::var_os("JOURNAL_STREAM").is_some() {
+        builder.without_time().init();
+    } else {
+        builder.init();
+    }
+}
+
+/// Whether an error chain ends in a broken pipe (the reader of our output went away).
+fn is_broken_pipe(err: &std::io::Error) -> bool {
+    err.kind() == std::io::ErrorKind::BrokenPipe
+}
+
+fn decompose(args: &DecomposeArgs) -> Result<()> {
+    let (mut raw, config_name) = match &args.config {
+        Some(path) => (
+            RawConfig::from_file(path)?,
+            format!("config file {}", path.display()),
+        ),
+        None => (RawConfig::default(), "defaults".to_string()),
+    };
+    let flags = args.apply(&mut raw)?;
+    let config = raw.validate().map_err(|e| match &e {
+        // A value from a flag: name the flag, not the config key.
+        ConfigError::Invalid {
+            key,
+            value,
+            message,
+        } => match flags.iter().find(|(k, _)| k == key) {
+            Some((_, flag)) => anyhow!("invalid {flag} {value}: {message}"),
+            None => anyhow!(e).context(format!("invalid setting in {config_name}")),
+        },
+        _ => anyhow!(e),
+    })?;
+    run_decompose(&config, args.out.as_deref())
+}
+
+fn open_source(config: &Config) -> Result<(Box<dyn FrameSource>, Option<u64>)> {
+    let src = &config.source;
+    // A frame limit the main loop enforces (None = until the source ends).
+    let limit = src.frames.filter(|&n| n > 0);
+    Ok(match src.kind {
+        SourceKind::Sky => {
+            let frames = match src.frames {
+                None => Some(DEFAULT_SKY_FRAMES),
+                Some(0) => None,
+                Some(n) => Some(n),
+            };
+            let options = config.sky.to_options(src.fps, frames);
+            let sky = SkySource::new(options).context("cannot set up the built-in sky")?;
+            (Box::new(sky), frames)
+        }
+        SourceKind::Sequence => {
+            let options = SequenceOptions {
+                fps: src.fps,
+                looped: src.looped,
+                projection: src.projection,
+            };
+            let seq =
+                SequenceSource::new(&src.paths, options).context("cannot open the input frames")?;
+            (Box::new(seq), limit)
+        }
+    })
+}
+
+fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
+    Ok(match out {
+        Some(path) => Box::new(
+            std::fs::File::create(path)
+                .with_context(|| format!("cannot create output file {}", path.display()))?,
+        ),
+        None => Box::new(std::io::stdout().lock()),
+    })
+}
+
+fn run_decompose(config: &Config, out: Option<&Path>) -> Result<()> {
+    let (mut source, limit) = open_source(config)?;
+    let mut decomposer =
+        Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
+    let mut writer = std::io::BufWriter::new(open_output(out)?);
+    let out_name = out.map_or("stdout".to_string(), |p| p.display().to_string());
+
+    tracing::info!("source: {}", source.describe());
+    let d = &config.decompose;
+    tracing::info!(
+        "decomposing into {} lights (working width {}, placement {:?}, filter {}, merge {})",
+        d.lights,
+        d.working_width,
+        d.placement,
+        d.filter_taps
+            .as_ref()
+            .map_or("off".to_string(), |t| format!("{t:?}")),
+        d.merge_spacing_fraction
+            .map_or("off".to_string(), |f| format!("at {f} of the spacing")),
+    );
+    tracing::info!(
+        "temporal filter delay: {} frames",
+        decomposer.filter_delay_frames()
+    );
+
+    let mut frames = 0u64;
+    let mut lights_total = 0u64;
+    let mut decompose_time = Duration::ZERO;
+    let mut line = Vec::with_capacity(64 * 1024);
+    let mut checked_size = None;
+    while limit.is_none_or(|n| frames < n) {
+        let Some(frame) = source.next_frame().context("cannot read a frame")? else {
+            break;
+        };
+        if checked_size != Some((frame.width, frame.height)) {
+            if let Projection::Fisheye(cal) = frame.projection {
+                cal.validate(frame.width, frame.height)
+                    .map_err(|e| anyhow!(e))
+                    .with_context(|| {
+                        format!(
+                            "fisheye calibration (--center, --radius, --fov, --rotation or \
+                             [source.fisheye]) does not fit the {}x{} frames",
+                            frame.width, frame.height
+                        )
+                    })?;
+            }
+            checked_size = Some((frame.width, frame.height));
+        }
+        let start = Instant::now();
+        let lights = decomposer.decompose(&frame);
+        decompose_time += start.elapsed();
+        frames += 1;
+        lights_total += lights.lights.len() as u64;
+
+        line.clear();
+        serde_json::to_writer(&mut line, &lights).context("cannot serialise a light frame")?;
+        line.push(b'\n');
+        // Flush every frame: a consumer tailing the output sees whole frames as they come.
+        let written = writer.write_all(&line).and_then(|()| writer.flush());
+        match written {
+            Err(e) if out.is_none() && is_broken_pipe(&e) => {
+                tracing::debug!("stdout closed after {frames} frames; stopping");
+                return Ok(());
+            }
+            r => r.with_context(|| format!("cannot write to {out_name}"))?,
+        }
+    }
+    match writer.flush() {
+        Err(e) if out.is_none() && is_broken_pipe(&e) => return Ok(()),
+        r => r.with_context(|| format!("cannot write to {out_name}"))?,
+    }
+
+    let per_frame = |total: f64| {
+        if frames > 0 {
+            total / frames as f64
+        } else {
+            0.0
+        }
+    };
+    tracing::info!(
+        "done: {frames} frames, {:.1} lights/frame on average, {:.2} ms mean decomposition time per frame",
+        per_frame(lights_total as f64),
+        per_frame(decompose_time.as_secs_f64() * 1e3),
+    );
+    Ok(())
+}

@@ -1,0 +1,712 @@
+//! Configuration file (`config/envlight.toml`): raw TOML → validated [`Config`].
+//!
+//! Two stages, as ripgrep does it: [`RawConfig`] is exactly what the file says (every key
+//! optional, unknown keys rejected by `#[serde(deny_unknown_fields)]`), and
+//! [`RawConfig::validate`] turns it into a [`Config`] of library types with every default filled
+//! in, or a [`ConfigError`] that names the key and the value at fault. Nothing here panics on
+//! input. The command line applies its flags to a `RawConfig` before validating, so flags
+//! override the file and are checked by the same code.
+
+use crate::capture::sky::{SkyOptions, MAX_SIDE};
+use crate::decompose::filter::FirFilter;
+use crate::decompose::{DecomposeSettings, LightPlacement, MAX_POINTS, WORKING_WIDTH_RANGE};
+use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// Errors of reading and validating a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config file {}: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// TOML syntax error, unknown key or wrong type (the message names the key and line).
+    #[error("config file {}: {message}", path.display())]
+    Parse { path: PathBuf, message: String },
+    /// A key has a value of the right type that is not allowed.
+    #[error("{key} = {value}: {message}")]
+    Invalid {
+        key: &'static str,
+        value: String,
+        message: String,
+    },
+}
+
+fn invalid(
+    key: &'static str,
+    value: impl std::fmt::Debug,
+    message: impl Into<String>,
+) -> ConfigError {
+    ConfigError::Invalid {
+        key,
+        value: format!("{value:?}"),
+        message: message.into(),
+    }
+}
+
+// ------------------------------------------------------------------------------------------------
+// Raw stage
+
+/// The file as written: every key optional.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    #[serde(default)]
+    pub source: RawSource,
+    #[serde(default)]
+    pub sky: RawSky,
+    #[serde(default)]
+    pub decompose: RawDecompose,
+}
+
+/// `[source]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawSource {
+    pub kind: Option<String>,
+    pub paths: Option<Vec<String>>,
+    pub fps: Option<f64>,
+    pub frames: Option<u64>,
+    #[serde(rename = "loop")]
+    pub looped: Option<bool>,
+    pub projection: Option<String>,
+    #[serde(default)]
+    pub fisheye: RawFisheye,
+}
+
+/// `[source.fisheye]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawFisheye {
+    pub model: Option<String>,
+    pub center: Option<[f64; 2]>,
+    pub radius: Option<f64>,
+    pub fov_deg: Option<f64>,
+    pub rotation_deg: Option<f64>,
+}
+
+/// `[sky]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawSky {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub turbidity: Option<f64>,
+    pub sun_start_elevation_deg: Option<f64>,
+    pub sun_start_azimuth_deg: Option<f64>,
+    pub sun_speed_deg_per_s: Option<f64>,
+    pub clouds: Option<bool>,
+    pub cloud_cover: Option<f64>,
+    pub wind_speed: Option<f64>,
+    pub ground_albedo: Option<f64>,
+    pub seed: Option<u64>,
+}
+
+/// `[decompose]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawDecompose {
+    pub lights: Option<usize>,
+    pub working_width: Option<u32>,
+    pub placement: Option<String>,
+    pub filter: Option<bool>,
+    pub filter_taps: Option<Vec<f64>>,
+    pub merge: Option<bool>,
+    pub merge_spacing_fraction: Option<f64>,
+}
+
+impl RawConfig {
+    /// Parses TOML text; `path` is only used in error messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string().trim_end().to_string(),
+        })
+    }
+
+    /// Reads and parses a file (not yet validated).
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Checks every value and fills in the defaults.
+    pub fn validate(&self) -> Result<Config, ConfigError> {
+        Ok(Config {
+            source: self.source.validate()?,
+            sky: self.sky.validate()?,
+            decompose: self.decompose.validate()?,
+        })
+    }
+}
+
+// ------------------------------------------------------------------------------------------------
+// Validated stage
+
+/// Where frames come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SourceKind {
+    /// The built-in analytic sky.
+    #[default]
+    Sky,
+    /// Recorded `.exr` / `.hdr` files.
+    Sequence,
+}
+
+/// Validated `[source]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SourceConfig {
+    pub kind: SourceKind,
+    /// Files, directories or glob patterns (kind = sequence).
+    pub paths: Vec<String>,
+    /// Pacing in frames per second; `None` = as fast as possible.
+    pub fps: Option<f64>,
+    /// Frames to process: `None` = the source's default (sky: [`DEFAULT_SKY_FRAMES`]; sequence:
+    /// every file once, endless when looped), `Some(0)` = no limit.
+    pub frames: Option<u64>,
+    /// Replay a sequence forever.
+    pub looped: bool,
+    /// How the sequence's pixels map to directions (the sky is always lat-long).
+    pub projection: Projection,
+}
+
+/// Number of sky frames when neither the config nor the command line says.
+pub const DEFAULT_SKY_FRAMES: u64 = 60;
+
+/// Validated `[sky]` (the parts of [`SkyOptions`] that are not pacing).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SkyConfig {
+    pub width: u32,
+    pub height: u32,
+    pub turbidity: f64,
+    pub sun_start_elevation_deg: f64,
+    pub sun_start_azimuth_deg: f64,
+    pub sun_speed_deg_per_s: f64,
+    pub clouds: bool,
+    pub cloud_cover: f64,
+    pub wind_speed: f64,
+    pub ground_albedo: f64,
+    pub seed: u64,
+}
+
+impl Default for SkyConfig {
+    fn default() -> Self {
+        let d = SkyOptions::default();
+        Self {
+            width: d.width,
+            height: d.height,
+            turbidity: d.turbidity,
+            sun_start_elevation_deg: d.sun_start_elevation_deg,
+            sun_start_azimuth_deg: d.sun_start_azimuth_deg,
+            sun_speed_deg_per_s: d.sun_speed_deg_per_s,
+            clouds: d.clouds,
+            cloud_cover: d.cloud_cover,
+            wind_speed: d.wind_speed,
+            ground_albedo: d.ground_albedo,
+            seed: d.seed,
+        }
+    }
+}
+
+impl SkyConfig {
+    /// Sky options with this pacing and frame count.
+    pub fn to_options(&self, fps: Option<f64>, frames: Option<u64>) -> SkyOptions {
+        SkyOptions {
+            width: self.width,
+            height: self.height,
+            turbidity: self.turbidity,
+            sun_start_elevation_deg: self.sun_start_elevation_deg,
+            sun_start_azimuth_deg: self.sun_start_azimuth_deg,
+            sun_speed_deg_per_s: self.sun_speed_deg_per_s,
+            clouds: self.clouds,
+            cloud_cover: self.cloud_cover,
+            wind_speed: self.wind_speed,
+            ground_albedo: self.ground_albedo,
+            seed: self.seed,
+            fps,
+            frames,
+        }
+    }
+}
+
+/// The whole validated configuration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Config {
+    pub source: SourceConfig,
+    pub sky: SkyConfig,
+    pub decompose: DecomposeSettings,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            source: SourceConfig::default(),
+            sky: SkyConfig::default(),
+            decompose: DecomposeSettings::default(),
+        }
+    }
+}
+
+impl Config {
+    /// Reads, parses and validates a config file.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        RawConfig::from_file(path)?.validate()
+    }
+}
+
+/// Parses a `--placement` / `decompose.placement` value.
+pub fn parse_placement(s: &str) -> Option<LightPlacement> {
+    match s {
+        "centroid" => Some(LightPlacement::Centroid),
+        "sample-point" => Some(LightPlacement::SamplePoint),
+        _ => None,
+    }
+}
+
+/// Parses a fisheye model name (`equidistant`, `equisolid`, `stereographic`, `orthographic`).
+pub fn parse_fisheye_model(s: &str) -> Option<FisheyeModel> {
+    FisheyeModel::ALL.into_iter().find(|m| m.name() == s)
+}
+
+fn check_finite(key: &'static str, v: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(invalid(key, v, "must be a finite number"))
+    }
+}
+
+impl RawSource {
+    fn validate(&self) -> Result<SourceConfig, ConfigError> {
+        let kind = match self.kind.as_deref().unwrap_or("sky") {
+            "sky" => SourceKind::Sky,
+            "sequence" => SourceKind::Sequence,
+            other => {
+                return Err(invalid(
+                    "source.kind",
+                    other,
+                    "must be \"sky\" or \"sequence\"",
+                ))
+            }
+        };
+        let paths = self.paths.clone().unwrap_or_default();
+        match kind {
+            SourceKind::Sequence if paths.is_empty() => {
+                return Err(invalid(
+                    "source.paths",
+                    &paths,
+                    "kind = \"sequence\" needs at least one file, directory or glob pattern",
+                ))
+            }
+            SourceKind::Sky if !paths.is_empty() => {
+                return Err(invalid(
+                    "source.paths",
+                    &paths,
+                    "is only used with kind = \"sequence\"",
+                ))
+            }
+            _ => {}
+        }
+        if let Some(fps) = self.fps {
+            if !(fps.is_finite() && fps > 0.0) {
+                return Err(invalid("source.fps", fps, "must be a positive number"));
+            }
+        }
+        let projection = match self.projection.as_deref().unwrap_or("latlong") {
+            "latlong" => Projection::LatLong,
+            "angular" => Projection::AngularMap,
+            "fisheye" => Projection::Fisheye(self.fisheye.validate()?),
+            other => {
+                return Err(invalid(
+                    "source.projection",
+                    other,
+                    "must be \"latlong\", \"fisheye\" or \"angular\"",
+                ))
+            }
+        };
+        // Check the fisheye section even when it is not used, so a typo does not hide.
+        self.fisheye.validate()?;
+        if kind == SourceKind::Sky && projection != Projection::LatLong {
+            return Err(invalid(
+                "source.projection",
+                projection.name(),
+                "the built-in sky is always \"latlong\"; projections apply to sequences",
+            ));
+        }
+        Ok(SourceConfig {
+            kind,
+            paths,
+            fps: self.fps,
+            frames: self.frames,
+            looped: self.looped.unwrap_or(false),
+            projection,
+        })
+    }
+}
+
+impl RawFisheye {
+    fn validate(&self) -> Result<FisheyeCalibration, ConfigError> {
+        let d = FisheyeCalibration::default();
+        let model = match self.model.as_deref() {
+            None => d.model,
+            Some(s) => parse_fisheye_model(s).ok_or_else(|| {
+                invalid(
+                    "source.fisheye.model",
+                    s,
+                    "must be \"equidistant\", \"equisolid\", \"stereographic\" or \"orthographic\"",
+                )
+            })?,
+        };
+        let fov_deg = self.fov_deg.unwrap_or(d.fov_deg);
+        if !(fov_deg.is_finite() && fov_deg > 0.0 && fov_deg < 360.0) {
+            return Err(invalid(
+                "source.fisheye.fov_deg",
+                fov_deg,
+                "must be in (0, 360) degrees",
+            ));
+        }
+        if let Some(r) = self.radius {
+            if !(r.is_finite() && r > 0.0) {
+                return Err(invalid(
+                    "source.fisheye.radius",
+                    r,
+                    "must be a positive number of pixels",
+                ));
+            }
+        }
+        if let Some(c) = self.center {
+            if !c.iter().all(|v| v.is_finite()) {
+                return Err(invalid(
+                    "source.fisheye.center",
+                    c,
+                    "must be finite pixel coordinates [x, y]",
+                ));
+            }
+        }
+        let rotation_deg = check_finite(
+            "source.fisheye.rotation_deg",
+            self.rotation_deg.unwrap_or(d.rotation_deg),
+        )?;
+        Ok(FisheyeCalibration {
+            model,
+            center: self.center,
+            radius: self.radius,
+            fov_deg,
+            rotation_deg,
+        })
+    }
+}
+
+fn check_range(key: &'static str, v: f64, lo: f64, hi: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(invalid(key, v, format!("must be in {lo}..={hi}")))
+    }
+}
+
+impl RawSky {
+    fn validate(&self) -> Result<SkyConfig, ConfigError> {
+        let d = SkyConfig::default();
+        let side = |key: &'static str, v: Option<u32>, default: u32| {
+            let v = v.unwrap_or(default);
+            if (1..=MAX_SIDE).contains(&v) {
+                Ok(v)
+            } else {
+                Err(invalid(key, v, format!("must be in 1..={MAX_SIDE} pixels")))
+            }
+        };
+        Ok(SkyConfig {
+            width: side("sky.width", self.width, d.width)?,
+            height: side("sky.height", self.height, d.height)?,
+            turbidity: check_range(
+                "sky.turbidity",
+                self.turbidity.unwrap_or(d.turbidity),
+                1.7,
+                10.0,
+            )?,
+            sun_start_elevation_deg: check_range(
+                "sky.sun_start_elevation_deg",
+                self.sun_start_elevation_deg
+                    .unwrap_or(d.sun_start_elevation_deg),
+                -90.0,
+                90.0,
+            )?,
+            sun_start_azimuth_deg: check_finite(
+                "sky.sun_start_azimuth_deg",
+                self.sun_start_azimuth_deg
+                    .unwrap_or(d.sun_start_azimuth_deg),
+            )?,
+            sun_speed_deg_per_s: check_finite(
+                "sky.sun_speed_deg_per_s",
+                self.sun_speed_deg_per_s.unwrap_or(d.sun_speed_deg_per_s),
+            )?,
+            clouds: self.clouds.unwrap_or(d.clouds),
+            cloud_cover: check_range(
+                "sky.cloud_cover",
+                self.cloud_cover.unwrap_or(d.cloud_cover),
+                0.0,
+                1.0,
+            )?,
+            wind_speed: check_range(
+                "sky.wind_speed",
+                self.wind_speed.unwrap_or(d.wind_speed),
+                0.0,
+                1000.0,
+            )?,
+            ground_albedo: check_range(
+                "sky.ground_albedo",
+                self.ground_albedo.unwrap_or(d.ground_albedo),
+                0.0,
+                1.0,
+            )?,
+            seed: self.seed.unwrap_or(d.seed),
+        })
+    }
+}
+
+impl RawDecompose {
+    fn validate(&self) -> Result<DecomposeSettings, ConfigError> {
+        let d = DecomposeSettings::default();
+        let lights = self.lights.unwrap_or(d.lights);
+        if !(1..=MAX_POINTS).contains(&lights) {
+            return Err(invalid(
+                "decompose.lights",
+                lights,
+                format!("must be between 1 and {MAX_POINTS}"),
+            ));
+        }
+        let working_width = self.working_width.unwrap_or(d.working_width);
+        if !WORKING_WIDTH_RANGE.contains(&working_width) {
+            return Err(invalid(
+                "decompose.working_width",
+                working_width,
+                format!(
+                    "must be between {} and {}",
+                    WORKING_WIDTH_RANGE.start(),
+                    WORKING_WIDTH_RANGE.end()
+                ),
+            ));
+        }
+        let placement = match self.placement.as_deref() {
+            None => d.placement,
+            Some(s) => parse_placement(s).ok_or_else(|| {
+                invalid(
+                    "decompose.placement",
+                    s,
+                    "must be \"centroid\" or \"sample-point\"",
+                )
+            })?,
+        };
+        let taps = match &self.filter_taps {
+            None => d.filter_taps.clone().unwrap_or_default(),
+            Some(taps) => {
+                FirFilter::new(taps)
+                    .map_err(|message| invalid("decompose.filter_taps", taps, message))?;
+                taps.clone()
+            }
+        };
+        let filter_taps = self.filter.unwrap_or(true).then_some(taps);
+        let fraction = self
+            .merge_spacing_fraction
+            .or(d.merge_spacing_fraction)
+            .unwrap_or_default();
+        if !(fraction.is_finite() && fraction > 0.0 && fraction <= 2.0) {
+            return Err(invalid(
+                "decompose.merge_spacing_fraction",
+                fraction,
+                "must be a number in (0, 2]",
+            ));
+        }
+        let merge_spacing_fraction = self.merge.unwrap_or(true).then_some(fraction);
+        Ok(DecomposeSettings {
+            lights,
+            working_width,
+            placement,
+            filter_taps,
+            merge_spacing_fraction,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SHIPPED: &str = include_str!("../config/envlight.toml");
+
+    fn parse(text: &str) -> Result<Config, ConfigError> {
+        RawConfig::parse(text, Path::new("test.toml"))?.validate()
+    }
+
+    fn error(text: &str) -> String {
+        parse(text).expect_err(text).to_string()
+    }
+
+    #[test]
+    fn shipped_config_equals_the_defaults() {
+        let config = parse(SHIPPED).unwrap();
+        assert_eq!(config, Config::default());
+        assert_eq!(parse("").unwrap(), Config::default());
+        assert_eq!(config.decompose, DecomposeSettings::default());
+    }
+
+    #[test]
+    fn shipped_config_sets_every_key() {
+        // Every key of the raw config appears in the shipped file (optional ones commented).
+        let uncommented: String = SHIPPED
+            .lines()
+            .map(|l| l.trim_start().trim_start_matches("# "))
+            .collect::<Vec<_>>()
+            .join("\n");
+        for key in [
+            "kind",
+            "paths",
+            "fps",
+            "frames",
+            "loop",
+            "projection",
+            "model",
+            "center",
+            "radius",
+            "fov_deg",
+            "rotation_deg",
+            "width",
+            "height",
+            "turbidity",
+            "sun_start_elevation_deg",
+            "sun_start_azimuth_deg",
+            "sun_speed_deg_per_s",
+            "clouds",
+            "cloud_cover",
+            "wind_speed",
+            "ground_albedo",
+            "seed",
+            "lights",
+            "working_width",
+            "placement",
+            "filter",
+            "filter_taps",
+            "merge",
+            "merge_spacing_fraction",
+        ] {
+            assert!(
+                uncommented
+                    .lines()
+                    .any(|l| l.starts_with(&format!("{key} = "))),
+                "{key} missing from config/envlight.toml"
+            );
+        }
+    }
+
+    #[test]
+    fn unknown_keys_are_named() {
+        let e = error("[decompose]\nlightz = 3\n");
+        assert!(e.contains("lightz"), "{e}");
+        let e = error("[nonsense]\n");
+        assert!(e.contains("nonsense"), "{e}");
+        let e = error("[source.fisheye]\nfocal = 3.0\n");
+        assert!(e.contains("focal"), "{e}");
+    }
+
+    #[test]
+    fn invalid_values_name_the_key() {
+        for (text, key, value) in [
+            ("[decompose]\nlights = 0", "decompose.lights", "0"),
+            (
+                "[decompose]\nlights = 100000000",
+                "decompose.lights",
+                "100000000",
+            ),
+            (
+                "[decompose]\nfilter_taps = []",
+                "decompose.filter_taps",
+                "[]",
+            ),
+            (
+                "[decompose]\nfilter_taps = [0, 0]",
+                "decompose.filter_taps",
+                "0.0",
+            ),
+            (
+                "[decompose]\nworking_width = 8",
+                "decompose.working_width",
+                "8",
+            ),
+            (
+                "[decompose]\nplacement = \"middle\"",
+                "decompose.placement",
+                "middle",
+            ),
+            (
+                "[decompose]\nmerge_spacing_fraction = 3.0",
+                "decompose.merge_spacing_fraction",
+                "3",
+            ),
+            (
+                "[source.fisheye]\nfov_deg = 400",
+                "source.fisheye.fov_deg",
+                "400",
+            ),
+            (
+                "[source.fisheye]\nradius = -2",
+                "source.fisheye.radius",
+                "-2",
+            ),
+            (
+                "[source.fisheye]\nmodel = \"pinhole\"",
+                "source.fisheye.model",
+                "pinhole",
+            ),
+            ("[source]\nkind = \"camera\"", "source.kind", "camera"),
+            ("[source]\nkind = \"sequence\"", "source.paths", "[]"),
+            ("[source]\nfps = 0", "source.fps", "0"),
+            (
+                "[source]\nprojection = \"cube\"",
+                "source.projection",
+                "cube",
+            ),
+            ("[sky]\nwidth = 0", "sky.width", "0"),
+            ("[sky]\ncloud_cover = 2", "sky.cloud_cover", "2"),
+        ] {
+            let e = error(text);
+            assert!(e.contains(key) && e.contains(value), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn values_override_defaults() {
+        let c = parse(
+            "[source]\nkind = \"sequence\"\npaths = [\"a/*.exr\"]\nloop = true\nfps = 30\n\
+             projection = \"fisheye\"\n[source.fisheye]\nmodel = \"equisolid\"\nfov_deg = 190\n\
+             center = [10.0, 12.0]\n[decompose]\nlights = 64\nfilter = false\nmerge = false\n\
+             placement = \"sample-point\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.source.kind, SourceKind::Sequence);
+        assert!(c.source.looped);
+        assert_eq!(c.source.fps, Some(30.0));
+        let Projection::Fisheye(cal) = c.source.projection else {
+            panic!("not fisheye")
+        };
+        assert_eq!(cal.model, FisheyeModel::Equisolid);
+        assert_eq!(cal.fov_deg, 190.0);
+        assert_eq!(cal.center, Some([10.0, 12.0]));
+        assert_eq!(c.decompose.lights, 64);
+        assert_eq!(c.decompose.filter_taps, None);
+        assert_eq!(c.decompose.merge_spacing_fraction, None);
+        assert_eq!(c.decompose.placement, LightPlacement::SamplePoint);
+    }
+
+    #[test]
+    fn missing_file_is_named() {
+        let e = Config::from_file(Path::new("/nonexistent/envlight.toml")).unwrap_err();
+        assert!(e.to_string().contains("/nonexistent/envlight.toml"));
+    }
+}

@@ -1,0 +1,458 @@
+//! Integration tests of the `envlight` binary: output form, exit codes and error messages.
+
+use exr::prelude::{
+    AnyChannel, AnyChannels, Encoding, FlatSamples, Image, ImageAttributes, IntegerBounds, Layer,
+    LayerAttributes, SmallVec, WritableImage,
+};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn envlight(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(args)
+        .env_remove("RUST_LOG")
+        .output()
+        .expect("run envlight")
+}
+
+fn data(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// Parses JSON lines and checks every light: unit dir, finite non-negative rgb, solid angle ≥ 0.
+fn check_frames(text: &str, max_lights: usize) -> Vec<Value> {
+    let frames: Vec<Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("bad JSON {l:?}: {e}")))
+        .collect();
+    for f in &frames {
+        assert!(f["time"].as_f64().is_some_and(f64::is_finite), "{f}");
+        let lights = f["lights"].as_array().expect("lights array");
+        assert!(
+            !lights.is_empty() && lights.len() <= max_lights,
+            "{}",
+            lights.len()
+        );
+        for l in lights {
+            assert!(l["id"].as_u64().is_some(), "{l}");
+            let dir: Vec<f64> = l["dir"]
+                .as_array()
+                .expect("dir")
+                .iter()
+                .map(|c| c.as_f64().expect("number"))
+                .collect();
+            assert_eq!(dir.len(), 3);
+            let norm = dir.iter().map(|c| c * c).sum::<f64>().sqrt();
+            assert!((norm - 1.0).abs() < 1e-3, "dir {dir:?} is not unit");
+            let rgb = l["rgb"].as_array().expect("rgb");
+            assert_eq!(rgb.len(), 3);
+            for c in rgb {
+                let c = c.as_f64().expect("rgb must be numbers (no NaN)");
+                assert!(c.is_finite() && c >= 0.0, "{l}");
+            }
+            let omega = l["solid_angle"].as_f64().expect("solid_angle");
+            assert!(omega.is_finite() && omega >= 0.0, "{l}");
+        }
+    }
+    frames
+}
+
+fn assert_fails_naming(o: &Output, needles: &[&str]) {
+    let err = stderr(o);
+    assert!(!o.status.success(), "expected failure; stderr: {err}");
+    assert!(err.contains("error:"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr does not mention {n:?}: {err}");
+    }
+}
+
+fn write_rgb(path: &Path, w: usize, h: usize, value: f32) {
+    exr::prelude::write_rgb_file(path, w, h, |_, _| (value, value, value)).unwrap();
+}
+
+#[test]
+fn sky_run_prints_json_lines() {
+    let o = envlight(&["decompose", "--frames", "3", "--lights", "16"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let frames = check_frames(&stdout(&o), 16);
+    assert_eq!(frames.len(), 3);
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(f["seq"].as_u64(), Some(i as u64));
+    }
+    let err = stderr(&o);
+    assert!(err.contains("built-in sky"), "{err}");
+    assert!(err.contains("filter delay"), "{err}");
+    assert!(err.contains("3 frames"), "{err}");
+}
+
+#[test]
+fn hdr_file_to_out_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("lights.jsonl");
+    let o = envlight(&[
+        "decompose",
+        &data("rooitou_park_1k.hdr"),
+        "--lights",
+        "64",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(o.stdout.is_empty());
+    let text = std::fs::read_to_string(&out).unwrap();
+    let frames = check_frames(&text, 64);
+    assert_eq!(frames.len(), 1);
+    assert_eq!(frames[0]["seq"].as_u64(), Some(0));
+}
+
+#[test]
+fn options_are_accepted() {
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "2",
+        "--lights",
+        "8",
+        "--no-filter",
+        "--no-merge",
+        "--placement",
+        "sample-point",
+        "--working-width",
+        "32",
+        "--sky-size",
+        "64x32",
+        "--no-clouds",
+        "--seed",
+        "7",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let frames = check_frames(&stdout(&o), 8);
+    assert_eq!(frames.len(), 2);
+    // Without merging every light is there.
+    assert!(frames
+        .iter()
+        .all(|f| f["lights"].as_array().unwrap().len() == 8));
+
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "2",
+        "--lights",
+        "8",
+        "--taps",
+        "1,2,1",
+        "--merge-fraction",
+        "0.5",
+        "--sky-size",
+        "64x32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("delay: 1 frames"), "{}", stderr(&o));
+}
+
+#[test]
+fn fisheye_options_decompose() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("fish.exr");
+    write_rgb(&path, 32, 32, 1.0);
+    let o = envlight(&[
+        "decompose",
+        s(&path),
+        "--lights",
+        "8",
+        "--projection",
+        "fisheye",
+        "--fisheye-model",
+        "equisolid",
+        "--center",
+        "16,16",
+        "--radius",
+        "16",
+        "--fov",
+        "190",
+        "--rotation",
+        "-10",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    check_frames(&stdout(&o), 8);
+
+    // An image circle outside the image is named.
+    let o = envlight(&[
+        "decompose",
+        s(&path),
+        "--projection",
+        "fisheye",
+        "--center",
+        "500,500",
+        "--radius",
+        "10",
+    ]);
+    assert_fails_naming(&o, &["--center", "32x32"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn config_file_is_used_and_flags_override_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("envlight.toml");
+    std::fs::write(
+        &config,
+        "[source]\nframes = 2\n[sky]\nwidth = 64\nheight = 32\n[decompose]\nlights = 4\nmerge = false\n",
+    )
+    .unwrap();
+    let o = envlight(&["decompose", "--config", s(&config)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let frames = check_frames(&stdout(&o), 4);
+    assert_eq!(frames.len(), 2);
+    assert!(frames
+        .iter()
+        .all(|f| f["lights"].as_array().unwrap().len() == 4));
+
+    let o = envlight(&["decompose", "--config", s(&config), "--lights", "6"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(check_frames(&stdout(&o), 6)
+        .iter()
+        .all(|f| f["lights"].as_array().unwrap().len() == 6));
+
+    // The shipped config works as is.
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/envlight.toml");
+    let o = envlight(&[
+        "decompose",
+        "--config",
+        s(&shipped),
+        "--frames",
+        "1",
+        "--sky-size",
+        "64x32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    std::fs::write(&config, "[decompose]\nlightz = 4\n").unwrap();
+    let o = envlight(&["decompose", "--config", s(&config)]);
+    assert_fails_naming(&o, &["lightz", "envlight.toml"]);
+
+    std::fs::write(&config, "[source.fisheye]\nfov_deg = 400\n").unwrap();
+    let o = envlight(&["decompose", "--config", s(&config)]);
+    assert_fails_naming(&o, &["source.fisheye.fov_deg", "400"]);
+}
+
+#[test]
+fn broken_pipe_ends_quietly() {
+    use std::io::Read;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "decompose",
+            "--frames",
+            "0",
+            "--lights",
+            "4",
+            "--sky-size",
+            "32x16",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = child.stdout.take().unwrap();
+    let mut first = [0u8; 16];
+    stdout.read_exact(&mut first).unwrap();
+    drop(stdout);
+    let status = child.wait().unwrap();
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(status.success(), "{status}: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn no_subcommand_prints_help_and_version_works() {
+    let o = envlight(&[]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("decompose"), "{}", stderr(&o));
+    let o = envlight(&["--version"]);
+    assert!(o.status.success());
+    assert!(stdout(&o).contains(env!("CARGO_PKG_VERSION")));
+    let o = envlight(&["decompose", "--help"]);
+    assert!(o.status.success());
+    assert!(stdout(&o).contains("solid_angle"));
+}
+
+// ------------------------------------------------------------------------------------------------
+// Errors
+
+#[test]
+fn missing_file_is_named() {
+    let o = envlight(&["decompose", "/nonexistent/frame_0001.exr"]);
+    assert_fails_naming(&o, &["/nonexistent/frame_0001.exr"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn corrupt_exr_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("garbage.exr");
+    std::fs::write(
+        &path,
+        b"this is not an OpenEXR file at all, just some garbage bytes",
+    )
+    .unwrap();
+    let o = envlight(&["decompose", s(&path)]);
+    assert_fails_naming(&o, &["garbage.exr"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn truncated_hdr_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(data("noon_grass_1k.hdr")).unwrap();
+    let path = dir.path().join("half.hdr");
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    let o = envlight(&["decompose", s(&path)]);
+    assert_fails_naming(&o, &["half.hdr"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn size_change_is_fatal_and_named() {
+    let dir = tempfile::tempdir().unwrap();
+    write_rgb(&dir.path().join("frame_1.exr"), 16, 8, 1.0);
+    write_rgb(&dir.path().join("frame_2.exr"), 32, 16, 1.0);
+    let o = envlight(&["decompose", s(dir.path()), "--lights", "4"]);
+    assert_fails_naming(&o, &["frame_2.exr", "32x16", "16x8"]);
+    assert_eq!(o.status.code(), Some(1));
+    // The first frame was written before the error.
+    assert_eq!(stdout(&o).lines().count(), 1);
+}
+
+#[test]
+fn unsupported_channels_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("depth.exr");
+    let (w, h) = (8usize, 4usize);
+    let channel = AnyChannel::new("Z", FlatSamples::F32(vec![1.0; w * h]));
+    let layer = Layer::new(
+        (w, h),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(SmallVec::from_vec(vec![channel])),
+    );
+    let image = Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions((w, h))),
+        vec![layer],
+    );
+    image.write().to_file(&path).unwrap();
+    let o = envlight(&["decompose", s(&path)]);
+    assert_fails_naming(&o, &["depth.exr", "Z"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn bad_light_counts_name_the_flag() {
+    for n in ["0", "100000000"] {
+        let o = envlight(&["decompose", "--lights", n, "--frames", "1"]);
+        let max = envlight::decompose::MAX_POINTS.to_string();
+        assert_fails_naming(&o, &["--lights", n, &max]);
+        assert_eq!(o.status.code(), Some(1));
+    }
+    let o = envlight(&["decompose", "--lights", "many"]);
+    assert_fails_naming(&o, &["--lights"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn bad_taps_name_the_flag() {
+    let o = envlight(&["decompose", "--taps", "1,x,1"]);
+    assert_fails_naming(&o, &["--taps"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = envlight(&["decompose", "--taps", "0,0", "--frames", "1"]);
+    assert_fails_naming(&o, &["--taps"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn bad_fov_names_the_flag() {
+    let o = envlight(&[
+        "decompose",
+        &data("rooitou_park_1k.hdr"),
+        "--projection",
+        "fisheye",
+        "--fov",
+        "400",
+    ]);
+    assert_fails_naming(&o, &["--fov", "400"]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn unwritable_out_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let out: PathBuf = dir.path().join("no/such/dir/lights.jsonl");
+    let o = envlight(&["decompose", "--frames", "1", "--out", s(&out)]);
+    assert_fails_naming(&o, &[s(&out)]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+// ------------------------------------------------------------------------------------------------
+// Awkward pixels
+
+#[test]
+fn nan_inf_negative_pixels_are_sanitised_with_one_warning() {
+    let image =
+        envlight::capture::image_file::read_hdr_image(Path::new(&data("AllHalfValues.exr")))
+            .unwrap();
+    let bad = image
+        .pixels
+        .iter()
+        .filter(|p| p.iter().any(|c| !(c.is_finite() && *c >= 0.0)))
+        .count();
+    assert!(bad > 0);
+
+    let o = envlight(&["decompose", &data("AllHalfValues.exr"), "--lights", "32"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(!out.contains("NaN") && !out.contains("null"), "{out}");
+    check_frames(&out, 32);
+    let err = stderr(&o);
+    let warnings: Vec<&str> = err.lines().filter(|l| l.contains("WARN")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(warnings[0].contains(&bad.to_string()), "{err}");
+}
+
+#[test]
+fn black_frame_gives_black_lights() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("black.exr");
+    write_rgb(&path, 32, 16, 0.0);
+    let o = envlight(&["decompose", s(&path), "--lights", "8"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(!out.contains("NaN") && !out.contains("null"), "{out}");
+    let frames = check_frames(&out, 8);
+    for l in frames[0]["lights"].as_array().unwrap() {
+        for c in l["rgb"].as_array().unwrap() {
+            assert_eq!(c.as_f64(), Some(0.0), "{l}");
+        }
+    }
+}
