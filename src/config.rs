@@ -116,6 +116,7 @@ pub struct RawDecompose {
     pub filter_taps: Option<Vec<f64>>,
     pub merge: Option<bool>,
     pub merge_spacing_fraction: Option<f64>,
+    pub pdf_exponent: Option<f64>,
 }
 
 impl RawConfig {
@@ -236,21 +237,11 @@ impl SkyConfig {
 }
 
 /// The whole validated configuration.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Config {
     pub source: SourceConfig,
     pub sky: SkyConfig,
     pub decompose: DecomposeSettings,
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Self {
-            source: SourceConfig::default(),
-            sky: SkyConfig::default(),
-            decompose: DecomposeSettings::default(),
-        }
-    }
 }
 
 impl Config {
@@ -525,12 +516,21 @@ impl RawDecompose {
             ));
         }
         let merge_spacing_fraction = self.merge.unwrap_or(true).then_some(fraction);
+        let pdf_exponent = self.pdf_exponent.unwrap_or(d.pdf_exponent);
+        if !(pdf_exponent.is_finite() && pdf_exponent > 0.0 && pdf_exponent <= 1.0) {
+            return Err(invalid(
+                "decompose.pdf_exponent",
+                pdf_exponent,
+                "must be a number in (0, 1]",
+            ));
+        }
         Ok(DecomposeSettings {
             lights,
             working_width,
             placement,
             filter_taps,
             merge_spacing_fraction,
+            pdf_exponent,
         })
     }
 }
@@ -595,6 +595,7 @@ mod tests {
             "filter_taps",
             "merge",
             "merge_spacing_fraction",
+            "pdf_exponent",
         ] {
             assert!(
                 uncommented

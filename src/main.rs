@@ -157,7 +157,7 @@ struct DecomposeArgs {
     #[arg(long, conflicts_with = "merge_fraction")]
     no_merge: bool,
 
-    /// Merge radius as a fraction of the mean light spacing, in (0, 2]. [default: 0.25]
+    /// Merge radius as a fraction of the mean light spacing, in (0, 2]. [default: 0.1]
     #[arg(long, value_name = "F")]
     merge_fraction: Option<f64>,
 
