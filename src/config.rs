@@ -235,22 +235,12 @@ impl SkyConfig {
     }
 }
 
-/// The whole validated configuration.
-#[derive(Clone, Debug, PartialEq)]
+/// The whole validated configuration; `Config::default()` is what an empty file gives.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Config {
     pub source: SourceConfig,
     pub sky: SkyConfig,
     pub decompose: DecomposeSettings,
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Self {
-            source: SourceConfig::default(),
-            sky: SkyConfig::default(),
-            decompose: DecomposeSettings::default(),
-        }
-    }
 }
 
 impl Config {
