@@ -236,7 +236,7 @@ impl SkyConfig {
     }
 }
 
-/// The whole validated configuration.
+/// The whole validated configuration; `Config::default()` is what an empty file gives.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Config {
     pub source: SourceConfig,

@@ -230,6 +230,9 @@ impl DecomposeArgs {
             note("source.fps", "--fps");
         }
         if self.looped {
+            if src.kind.as_deref().unwrap_or("sky") == "sky" {
+                bail!("--loop replays INPUT files; the built-in sky is endless with --frames 0");
+            }
             src.looped = Some(true);
         }
         if let Some(p) = self.projection {

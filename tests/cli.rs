@@ -376,6 +376,8 @@ fn bad_light_counts_name_the_flag() {
         assert_fails_naming(&o, &["--lights", n, &max]);
         assert_eq!(o.status.code(), Some(1));
     }
+    let o = envlight(&["decompose", "--loop"]);
+    assert_fails_naming(&o, &["--loop"]);
     let o = envlight(&["decompose", "--lights", "many"]);
     assert_fails_naming(&o, &["--lights"]);
     assert_eq!(o.status.code(), Some(2));
