@@ -58,19 +58,15 @@ fn main() {
         std::process::exit(2);
     }
     let gamma = DEFAULT_PDF_EXPONENT;
+    let centroid = LightPlacement::Centroid;
     let methods: Vec<(&str, Method)> = vec![
         (
             "median cut",
             Box::new(|frame: &HdrFrame, n: usize| Ok(median_cut(frame, n)?)),
         ),
-        (
-            "envlight",
-            envlight_method(LightPlacement::Centroid, true, gamma),
-        ),
-        (
-            "envlight, no merge",
-            envlight_method(LightPlacement::Centroid, false, gamma),
-        ),
+        ("envlight", envlight_method(centroid, false, gamma)),
+        ("envlight, γ=0.5", envlight_method(centroid, false, 0.5)),
+        ("envlight, merge", envlight_method(centroid, true, gamma)),
         (
             "Havran-style: γ=1, sample point",
             envlight_method(LightPlacement::SamplePoint, false, 1.0),

@@ -507,6 +507,7 @@ impl RawDecompose {
         let fraction = self
             .merge_spacing_fraction
             .or(d.merge_spacing_fraction)
+            .or(Some(crate::decompose::merge::DEFAULT_SPACING_FRACTION))
             .unwrap_or_default();
         if !(fraction.is_finite() && fraction > 0.0 && fraction <= 2.0) {
             return Err(invalid(
@@ -515,7 +516,8 @@ impl RawDecompose {
                 "must be a number in (0, 2]",
             ));
         }
-        let merge_spacing_fraction = self.merge.unwrap_or(true).then_some(fraction);
+        let merge = self.merge.unwrap_or(d.merge_spacing_fraction.is_some());
+        let merge_spacing_fraction = merge.then_some(fraction);
         let pdf_exponent = self.pdf_exponent.unwrap_or(d.pdf_exponent);
         if !(pdf_exponent.is_finite() && pdf_exponent > 0.0 && pdf_exponent <= 1.0) {
             return Err(invalid(

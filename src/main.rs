@@ -153,8 +153,13 @@ struct DecomposeArgs {
     )]
     taps: Option<Vec<f64>>,
 
-    /// Disable merging of lights crowding a concentrated source.
-    #[arg(long, conflicts_with = "merge_fraction")]
+    /// Merge lights crowding a concentrated source (the sun) into one light that records the
+    /// source's spread in `solid_angle`. Off by default.
+    #[arg(long)]
+    merge: bool,
+
+    /// Disable merging (overrides the config file).
+    #[arg(long, conflicts_with_all = ["merge_fraction", "merge"])]
     no_merge: bool,
 
     /// Merge radius as a fraction of the mean light spacing, in (0, 2]. [default: 0.1]
@@ -164,6 +169,11 @@ struct DecomposeArgs {
     /// Width of the internal lat-long working map in pixels (16..=4096). [default: 256]
     #[arg(long, value_name = "W")]
     working_width: Option<u32>,
+
+    /// Lights are placed with density ∝ luminance^γ, γ in (0, 1]; 1 is Havran et al.'s pure
+    /// inverse-transform sampling. [default: 0.75]
+    #[arg(long, value_name = "GAMMA")]
+    pdf_exponent: Option<f64>,
 
     /// Where a light points within its region. [default: centroid]
     #[arg(long, value_enum)]
@@ -308,6 +318,10 @@ impl DecomposeArgs {
             dec.lights = Some(n);
             note("decompose.lights", "--lights");
         }
+        if let Some(g) = self.pdf_exponent {
+            dec.pdf_exponent = Some(g);
+            note("decompose.pdf_exponent", "--pdf-exponent");
+        }
         if let Some(w) = self.working_width {
             dec.working_width = Some(w);
             note("decompose.working_width", "--working-width");
@@ -328,6 +342,9 @@ impl DecomposeArgs {
             dec.filter = Some(true);
             dec.filter_taps = Some(taps.clone());
             note("decompose.filter_taps", "--taps");
+        }
+        if self.merge {
+            dec.merge = Some(true);
         }
         if self.no_merge {
             dec.merge = Some(false);

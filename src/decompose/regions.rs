@@ -3,8 +3,9 @@
 //! Every working pixel gives its energy to the light whose sample direction is nearest on the
 //! sphere, so regions are compact (as median cut's are), every light carries its own region's
 //! energy and colour, and the lights sum to the map's integral exactly. Regions change
-//! continuously as the sample directions move. A pixel holding a large share of the energy (a
-//! sun) is split into sub-samples so the several lights inside it share it.
+//! continuously as the sample directions move. The input pixels of concentrated working pixels
+//! (a sun) are assigned one by one, so the several lights that share a sun split it at full
+//! resolution and keep its shape (and so its penumbra).
 //!
 //! Nearest-light queries use buckets of B×B working pixels: per frame, each bucket keeps the
 //! lights that can be nearest to any point in it — those within d_min + 2r of its centre, where
@@ -82,18 +83,20 @@ struct Candidates {
 }
 
 impl Candidates {
-    /// Candidate lists over the lights not `excluded`.
-    fn new(grid: &BucketGrid, lights: &[Vec3], excluded: &[bool]) -> Self {
+    fn new(grid: &BucketGrid, lights: &[Vec3]) -> Self {
+        // Structure of arrays, so the dot products vectorise.
+        let xs: Vec<f32> = lights.iter().map(|l| l.x).collect();
+        let ys: Vec<f32> = lights.iter().map(|l| l.y).collect();
+        let zs: Vec<f32> = lights.iter().map(|l| l.z).collect();
         let mut offsets = Vec::with_capacity(grid.centres.len() + 1);
-        let mut list = Vec::new();
+        let mut list = Vec::with_capacity(grid.centres.len() * 16);
         let mut dots = vec![0.0f32; lights.len()];
         offsets.push(0);
         for (c, r) in grid.centres.iter().zip(&grid.radii) {
-            let mut best = -1.0f32;
-            for ((d, l), &skip) in dots.iter_mut().zip(lights).zip(excluded) {
-                *d = if skip { -3.0 } else { c.dot(*l) };
-                best = best.max(*d);
+            for (((d, x), y), z) in dots.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
+                *d = c.x * x + c.y * y + c.z * z;
             }
+            let best = dots.iter().copied().fold(-1.0f32, f32::max);
             let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * r;
             let threshold = if reach >= std::f32::consts::PI {
                 -2.0
@@ -133,12 +136,9 @@ fn nearest(candidates: &[u32], lights: &[Vec3], d: Vec3) -> usize {
 }
 
 /// Adds every working pixel's energy, luminance-weighted direction and solid angle to the
-/// region of its nearest light.
-///
-/// Concentrated sources come first: a pixel holding more than 1/(4N) of the luminance energy
-/// (a sun, a lamp) is split among the lights nearest to its sub-samples, and those lights then
-/// keep only such pixels — the ordinary pixels around them go to the nearest other light. So a
-/// sun light carries the sun and not the bright sky around it, and casts the sun's shadow.
+/// region of its nearest light. A concentrated working pixel (a sun, a lamp; see
+/// [`WorkingMap::fine`]) is assigned input pixel by input pixel, by exact direction, so the
+/// lights that share a sun split it along their Voronoi borders at full resolution.
 pub(super) fn accumulate(
     map: &WorkingMap,
     grid: &BucketGrid,
@@ -147,106 +147,43 @@ pub(super) fn accumulate(
 ) {
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
     let lights: Vec<Vec3> = sample_dirs.iter().map(|d| d.as_vec3()).collect();
-    let mut owns_source = vec![false; lights.len()];
-    let all = Candidates::new(grid, &lights, &owns_source);
-    let n = lights.len() as f64;
-    let total: f64 = map.energy.iter().map(|e| luminance_f64(*e)).sum();
-    let split_above = if total > 0.0 {
-        total / (4.0 * n)
-    } else {
-        f64::INFINITY
+    let candidates = Candidates::new(grid, &lights);
+    let bucket_of = |pixel: usize| {
+        let (x, y) = (pixel % map.width, pixel / map.width);
+        (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS
     };
-    let (w, h) = (map.width, map.height);
-
-    // Pass 1: concentrated sources.
-    for y in 0..h {
-        let omega = map.row_solid_angle[y];
-        let bucket_row = (y / BUCKET_PIXELS) * grid.cols;
-        for x in 0..w {
-            let idx = y * w + x;
-            let energy = map.energy[idx];
-            let lum = luminance_f64(energy);
-            if lum > split_above {
-                let cands = all.of(bucket_row + x / BUCKET_PIXELS);
-                split_pixel(
-                    map,
-                    (x, y),
-                    omega,
-                    total,
-                    n,
-                    cands,
-                    &lights,
-                    regions,
-                    &mut owns_source,
-                );
-            }
+    let mut add = |pixel: usize, dir: Vec3, energy: [f64; 3], solid_angle: f64| {
+        let r = &mut regions[nearest(candidates.of(bucket_of(pixel)), &lights, dir)];
+        let lum = luminance_f64(energy);
+        for c in 0..3 {
+            r.rgb[c] += energy[c];
+            r.weighted_dir[c] += lum * f64::from(dir[c]);
         }
-    }
-
-    // Pass 2: every other pixel goes to its nearest light that owns no source (if there is one).
-    let rest = if owns_source.iter().all(|&o| o) {
-        all
-    } else {
-        Candidates::new(grid, &lights, &owns_source)
+        r.solid_angle += solid_angle;
     };
-    for y in 0..h {
-        let omega = map.row_solid_angle[y];
-        let bucket_row = (y / BUCKET_PIXELS) * grid.cols;
-        for x in 0..w {
-            let idx = y * w + x;
-            let energy = map.energy[idx];
-            let lum = luminance_f64(energy);
-            if lum > split_above {
-                continue;
-            }
-            let d = Vec3::from(map.directions[idx]);
-            let r = &mut regions[nearest(rest.of(bucket_row + x / BUCKET_PIXELS), &lights, d)];
-            for c in 0..3 {
-                r.rgb[c] += energy[c];
-                r.weighted_dir[c] += lum * f64::from(d[c]);
-            }
-            r.solid_angle += omega;
-        }
+    for sample in &map.fine {
+        let energy = sample.energy.map(f64::from);
+        add(
+            sample.pixel as usize,
+            Vec3::from(sample.dir),
+            energy,
+            sample.solid_angle.into(),
+        );
     }
-}
-
-/// Splits a concentrated-source pixel among the lights nearest to its k×k sub-samples.
-#[allow(clippy::too_many_arguments)]
-fn split_pixel(
-    map: &WorkingMap,
-    (x, y): (usize, usize),
-    omega: f64,
-    total: f64,
-    n: f64,
-    cands: &[u32],
-    lights: &[Vec3],
-    regions: &mut [Region],
-    owns_source: &mut [bool],
-) {
-    let (w, h) = (map.width, map.height);
-    let idx = y * w + x;
-    let energy = map.energy[idx];
-    let lum = luminance_f64(energy);
-    // Sub-samples over the pixel decide which lights share it; they all point at the pixel's
-    // energy centroid.
-    let k = ((4.0 * lum / total * n).sqrt().ceil() as usize).clamp(2, 32);
-    let share = 1.0 / (k * k) as f64;
-    let centroid = map.directions[idx];
-    for j in 0..k {
-        for i in 0..k {
-            let sx = x as f64 + (i as f64 + 0.5) / k as f64;
-            let sy = y as f64 + (j as f64 + 0.5) / k as f64;
-            let d = crate::envmap::Projection::LatLong
-                .pixel_to_direction(w as u32, h as u32, sx, sy)
-                .unwrap_or(DVec3::Y);
-            let nearest_light = nearest(cands, lights, d.as_vec3());
-            owns_source[nearest_light] = true;
-            let r = &mut regions[nearest_light];
-            for c in 0..3 {
-                r.rgb[c] += energy[c] * share;
-                r.weighted_dir[c] += lum * share * f64::from(centroid[c]);
-            }
-            r.solid_angle += omega * share;
+    for (idx, ((energy, dir), &concentrated)) in map
+        .energy
+        .iter()
+        .zip(&map.directions)
+        .zip(&map.concentrated)
+        .enumerate()
+    {
+        if !concentrated {
+            add(
+                idx,
+                Vec3::from(*dir),
+                *energy,
+                map.row_solid_angle[idx / map.width],
+            );
         }
     }
 }

@@ -1,15 +1,33 @@
-//! The working map: any input frame resampled to a small lat-long map of per-pixel energy.
+//! The working map: any input frame resampled to a small lat-long map of per-pixel energy, plus
+//! the input pixels of concentrated sources at full resolution.
 //!
 //! The decomposition works on a lat-long grid of a few hundred pixels across, whatever the
 //! input's projection and size. Each input pixel's energy (radiance × its exact solid angle)
 //! goes to the working pixel that contains its centre direction, so the working map's total
-//! equals the input's integral exactly (to rounding, summed in f64). A lat-long input whose size
-//! is an integer multiple of the working size takes a fast box-filter path; other inputs use a
+//! equals the input's integral (to rounding; sums in f64). A lat-long input whose size is an
+//! integer multiple of the working size takes a fast box-filter path; other inputs use a
 //! per-pixel index table built once per input geometry.
+//!
+//! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
+//! *concentrated*: their input pixels are also kept as [`FineSample`]s with exact directions,
+//! so the lights that share a sun keep its shape and full-resolution position (and so its
+//! penumbra).
 
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use std::f64::consts::PI;
+
+/// One input pixel of a concentrated working pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FineSample {
+    /// Index of the working pixel it falls in.
+    pub pixel: u32,
+    /// Exact direction of the input pixel's centre.
+    pub dir: [f32; 3],
+    /// rgb · solid angle of the input pixel.
+    pub energy: [f32; 3],
+    pub solid_angle: f32,
+}
 
 /// Lat-long map of energy (rgb · solid angle, f64) per working pixel.
 #[derive(Clone, Debug)]
@@ -18,16 +36,14 @@ pub struct WorkingMap {
     pub height: usize,
     /// Σ rgb·Ω of the input pixels that fall in each working pixel, row-major.
     pub energy: Vec<[f64; 3]>,
-    /// Direction of each working pixel: the luminance-weighted mean direction of the input
-    /// pixels it gathers (so a sun keeps its full-resolution position), or the pixel centre
-    /// when it holds no energy. Row-major, unit length.
+    /// Centre direction of each working pixel, row-major.
     pub directions: Vec<[f32; 3]>,
-    /// The working pixels' centre directions.
-    pub centre_directions: Vec<[f32; 3]>,
-    /// Σ luminance-energy × direction per working pixel (before normalisation).
-    weighted_dirs: Vec<[f64; 3]>,
     /// Exact solid angle of the working pixels of each row.
     pub row_solid_angle: Vec<f64>,
+    /// Whether each working pixel is concentrated (its energy is given by `fine` instead).
+    pub concentrated: Vec<bool>,
+    /// The input pixels of the concentrated working pixels.
+    pub fine: Vec<FineSample>,
 }
 
 #[derive(Clone, Debug)]
@@ -36,17 +52,21 @@ enum Plan {
     /// separable: d = (sin θ·sin φ, cos θ, −sin θ·cos φ), so per row and column tables suffice.
     Box {
         factor: usize,
+        /// Solid angle of each input row's pixels.
         row_solid_angle: Vec<f64>,
         /// (sin θ, cos θ) of each input row's centre.
-        row_theta: Vec<(f64, f64)>,
+        row_theta: Vec<(f32, f32)>,
         /// (sin φ, cos φ) of each input column's centre.
         column_phi: Vec<(f32, f32)>,
     },
-    /// Per input pixel: working pixel index (u32::MAX = none), solid angle and direction.
+    /// Arbitrary projection: per input pixel its working pixel (u32::MAX = none), solid angle
+    /// and direction, and per working pixel the list of its input pixels.
     Table {
         target: Vec<u32>,
         solid_angle: Vec<f32>,
         direction: Vec<[f32; 3]>,
+        member_offsets: Vec<u32>,
+        members: Vec<u32>,
     },
 }
 
@@ -77,20 +97,19 @@ impl Resampler {
         let (width, height, plan) = if is_box {
             let omegas = Projection::LatLong.solid_angles(src_width, src_height);
             let row_solid_angle = (0..sh).map(|y| omegas[y * sw]).collect();
-            let row_theta = (0..sh)
-                .map(|y| (PI * (y as f64 + 0.5) / sh as f64).sin_cos())
-                .collect();
-            let column_phi = (0..sw)
-                .map(|x| {
-                    let (s, c) = (2.0 * PI * (x as f64 + 0.5) / sw as f64).sin_cos();
-                    (s as f32, c as f32)
-                })
-                .collect();
+            let angle_table = |n: usize, scale: f64| -> Vec<(f32, f32)> {
+                (0..n)
+                    .map(|i| {
+                        let (s, c) = (scale * (i as f64 + 0.5) / n as f64).sin_cos();
+                        (s as f32, c as f32)
+                    })
+                    .collect()
+            };
             let plan = Plan::Box {
                 factor: box_factor,
                 row_solid_angle,
-                row_theta,
-                column_phi,
+                row_theta: angle_table(sh, PI),
+                column_phi: angle_table(sw, 2.0 * PI),
             };
             (sw / box_factor, sh / box_factor, plan)
         } else {
@@ -100,46 +119,10 @@ impl Resampler {
                 target
             };
             let height = (width / 2).max(1);
-            let omegas = projection.solid_angles(src_width, src_height);
-            let mut target_index = Vec::with_capacity(sw * sh);
-            let mut solid_angle = Vec::with_capacity(sw * sh);
-            let mut direction = Vec::with_capacity(sw * sh);
-            for y in 0..sh {
-                for x in 0..sw {
-                    let omega = omegas[y * sw + x];
-                    let dir = projection.pixel_to_direction(
-                        src_width,
-                        src_height,
-                        x as f64 + 0.5,
-                        y as f64 + 0.5,
-                    );
-                    let px = dir.and_then(|d| {
-                        Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
-                    });
-                    match (px, dir) {
-                        (Some((px, py)), Some(d)) if omega > 0.0 => {
-                            let ix = (px as usize).min(width - 1);
-                            let iy = (py as usize).min(height - 1);
-                            target_index.push((iy * width + ix) as u32);
-                            solid_angle.push(omega as f32);
-                            direction.push(d.as_vec3().to_array());
-                        }
-                        _ => {
-                            target_index.push(u32::MAX);
-                            solid_angle.push(0.0);
-                            direction.push([0.0; 3]);
-                        }
-                    }
-                }
-            }
             (
                 width,
                 height,
-                Plan::Table {
-                    target: target_index,
-                    solid_angle,
-                    direction,
-                },
+                Self::table_plan(projection, src_width, src_height, width, height),
             )
         };
         let omegas = Projection::LatLong.solid_angles(width as u32, height as u32);
@@ -149,17 +132,17 @@ impl Resampler {
                 let d = Projection::LatLong
                     .pixel_to_direction(width as u32, height as u32, x as f64 + 0.5, y as f64 + 0.5)
                     .unwrap_or_default();
-                directions.push([d.x as f32, d.y as f32, d.z as f32]);
+                directions.push(d.as_vec3().to_array());
             }
         }
         let map = WorkingMap {
             width,
             height,
             energy: vec![[0.0; 3]; width * height],
-            directions: directions.clone(),
-            centre_directions: directions,
-            weighted_dirs: vec![[0.0; 3]; width * height],
+            directions,
             row_solid_angle: (0..height).map(|y| omegas[y * width]).collect(),
+            concentrated: vec![false; width * height],
+            fine: Vec::new(),
         };
         Self {
             projection,
@@ -170,6 +153,60 @@ impl Resampler {
         }
     }
 
+    fn table_plan(projection: Projection, sw: u32, sh: u32, width: usize, height: usize) -> Plan {
+        let omegas = projection.solid_angles(sw, sh);
+        let n = sw as usize * sh as usize;
+        let mut target = Vec::with_capacity(n);
+        let mut solid_angle = Vec::with_capacity(n);
+        let mut direction = Vec::with_capacity(n);
+        for y in 0..sh {
+            for x in 0..sw {
+                let omega = omegas[target.len()];
+                let dir = projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
+                let px = dir.and_then(|d| {
+                    Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
+                });
+                match (px, dir) {
+                    (Some((px, py)), Some(d)) if omega > 0.0 => {
+                        let ix = (px as usize).min(width - 1);
+                        let iy = (py as usize).min(height - 1);
+                        target.push((iy * width + ix) as u32);
+                        solid_angle.push(omega as f32);
+                        direction.push(d.as_vec3().to_array());
+                    }
+                    _ => {
+                        target.push(u32::MAX);
+                        solid_angle.push(0.0);
+                        direction.push([0.0; 3]);
+                    }
+                }
+            }
+        }
+        // Working pixel → its input pixels (compressed rows).
+        let mut counts = vec![0u32; width * height + 1];
+        for &t in target.iter().filter(|&&t| t != u32::MAX) {
+            counts[t as usize + 1] += 1;
+        }
+        for i in 1..counts.len() {
+            counts[i] += counts[i - 1];
+        }
+        let member_offsets = counts.clone();
+        let mut members = vec![0u32; member_offsets[width * height] as usize];
+        for (i, &t) in target.iter().enumerate() {
+            if t != u32::MAX {
+                members[counts[t as usize] as usize] = i as u32;
+                counts[t as usize] += 1;
+            }
+        }
+        Plan::Table {
+            target,
+            solid_angle,
+            direction,
+            member_offsets,
+            members,
+        }
+    }
+
     /// Whether this resampler was built for frames like `frame`.
     pub fn fits(&self, frame: &HdrFrame) -> bool {
         self.projection == frame.projection
@@ -177,97 +214,125 @@ impl Resampler {
             && self.src_height == frame.height
     }
 
-    /// Resamples `frame` (which must fit) and returns the working map. Non-finite or negative
-    /// channel values count as 0.
-    pub fn resample(&mut self, frame: &HdrFrame) -> &WorkingMap {
+    /// Resamples `frame` (which must fit) and returns the working map. Working pixels holding
+    /// more than `concentrated_share` of the luminance energy keep their input pixels as fine
+    /// samples. Non-finite or negative values count as 0 (sources sanitise them already).
+    pub fn resample(&mut self, frame: &HdrFrame, concentrated_share: f64) -> &WorkingMap {
         let map = &mut self.map;
-        map.energy.iter_mut().for_each(|e| *e = [0.0; 3]);
-        map.weighted_dirs.iter_mut().for_each(|e| *e = [0.0; 3]);
         let sw = self.src_width as usize;
-        let [wr, wg, wb] = crate::frame::LUMINANCE_WEIGHTS;
         match &self.plan {
             Plan::Box {
                 factor,
                 row_solid_angle,
-                row_theta,
-                column_phi,
+                ..
             } => {
                 let f = *factor;
-                for (y, row) in frame.pixels.chunks_exact(sw).enumerate() {
-                    let omega = row_solid_angle[y];
-                    let (sin_t, cos_t) = row_theta[y];
-                    let out = (y / f) * map.width..(y / f + 1) * map.width;
-                    let blocks = row.chunks_exact(f).zip(column_phi.chunks_exact(f));
-                    for ((e, wd), (block, phis)) in map.energy[out.clone()]
-                        .iter_mut()
-                        .zip(&mut map.weighted_dirs[out])
-                        .zip(blocks)
-                    {
-                        let (mut s, mut lum, mut lum_sin, mut lum_cos) =
-                            ([0.0f32; 3], 0.0f32, 0.0f32, 0.0f32);
-                        for (p, &(sin_p, cos_p)) in block.iter().zip(phis) {
-                            s[0] += p[0];
-                            s[1] += p[1];
-                            s[2] += p[2];
-                            let l = wr * p[0] + wg * p[1] + wb * p[2];
-                            lum += l;
-                            lum_sin += l * sin_p;
-                            lum_cos += l * cos_p;
+                // The f input rows of a working row are summed column by column (each weighted
+                // by its solid angle; flat f32 slices, so it vectorises), then each run of f
+                // columns is summed into the working pixel.
+                let mut column_sums = vec![0.0f32; 3 * sw];
+                for (wy, rows) in frame.pixels.chunks_exact(sw * f).enumerate() {
+                    column_sums.iter_mut().for_each(|a| *a = 0.0);
+                    for (k, row) in rows.chunks_exact(sw).enumerate() {
+                        let omega = row_solid_angle[wy * f + k] as f32;
+                        for (a, p) in column_sums.iter_mut().zip(row.as_flattened()) {
+                            *a += p * omega;
                         }
-                        for c in 0..3 {
-                            e[c] += f64::from(s[c]) * omega;
+                    }
+                    let out = &mut map.energy[wy * map.width..(wy + 1) * map.width];
+                    for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * f)) {
+                        let mut sum = [0.0f32; 3];
+                        for p in block.chunks_exact(3) {
+                            sum[0] += p[0];
+                            sum[1] += p[1];
+                            sum[2] += p[2];
                         }
-                        wd[0] += f64::from(lum_sin) * sin_t * omega;
-                        wd[1] += f64::from(lum) * cos_t * omega;
-                        wd[2] -= f64::from(lum_cos) * sin_t * omega;
+                        *e = sum.map(f64::from);
                     }
                 }
             }
             Plan::Table {
                 target,
                 solid_angle,
-                direction,
+                ..
             } => {
-                for (((p, &t), &omega), d) in frame
-                    .pixels
-                    .iter()
-                    .zip(target)
-                    .zip(solid_angle)
-                    .zip(direction)
-                {
-                    if t == u32::MAX {
-                        continue;
-                    }
-                    let e = &mut map.energy[t as usize];
-                    for c in 0..3 {
-                        e[c] += f64::from(p[c] * omega);
-                    }
-                    let l = f64::from((wr * p[0] + wg * p[1] + wb * p[2]) * omega);
-                    let wd = &mut map.weighted_dirs[t as usize];
-                    for c in 0..3 {
-                        wd[c] += l * f64::from(d[c]);
+                map.energy.iter_mut().for_each(|e| *e = [0.0; 3]);
+                for ((p, &t), &omega) in frame.pixels.iter().zip(target).zip(solid_angle) {
+                    if t != u32::MAX {
+                        let e = &mut map.energy[t as usize];
+                        for c in 0..3 {
+                            e[c] += f64::from(p[c] * omega);
+                        }
                     }
                 }
             }
         }
-        // Bad pixels (NaN, ±Inf, negative) should have been sanitised by the source; if any
-        // slipped through, drop them here rather than poison every light.
-        for ((e, wd), (dir, centre)) in map
-            .energy
-            .iter_mut()
-            .zip(&map.weighted_dirs)
-            .zip(map.directions.iter_mut().zip(&map.centre_directions))
-        {
-            if e.iter().any(|c| !c.is_finite() || *c < 0.0) {
-                e.iter_mut()
-                    .for_each(|c| *c = if c.is_finite() { c.max(0.0) } else { 0.0 });
-                *dir = *centre;
+        // Bad pixels should have been sanitised by the source; if any slipped through, drop
+        // them here rather than poison every light.
+        for e in &mut map.energy {
+            for c in e.iter_mut() {
+                if !c.is_finite() || *c < 0.0 {
+                    *c = 0.0;
+                }
+            }
+        }
+
+        let total: f64 = map.energy.iter().map(|e| super::luminance_f64(*e)).sum();
+        let threshold = concentrated_share * total;
+        map.fine.clear();
+        for (idx, (e, flag)) in map.energy.iter().zip(&mut map.concentrated).enumerate() {
+            *flag = super::luminance_f64(*e) > threshold;
+            if !*flag {
                 continue;
             }
-            *dir = match glam::DVec3::from(*wd).try_normalize() {
-                Some(d) => d.as_vec3().to_array(),
-                None => *centre,
+            let pixel = idx as u32;
+            let mut push = |p: [f32; 3], dir: [f32; 3], omega: f32| {
+                let clean = |v: f32| {
+                    if v.is_finite() && v > 0.0 {
+                        v * omega
+                    } else {
+                        0.0
+                    }
+                };
+                map.fine.push(FineSample {
+                    pixel,
+                    dir,
+                    energy: p.map(clean),
+                    solid_angle: omega,
+                });
             };
+            match &self.plan {
+                Plan::Box {
+                    factor: f,
+                    row_solid_angle,
+                    row_theta,
+                    column_phi,
+                } => {
+                    let (bx, by) = (idx % map.width, idx / map.width);
+                    for y in by * f..(by + 1) * f {
+                        let (sin_t, cos_t) = row_theta[y];
+                        let omega = row_solid_angle[y] as f32;
+                        for x in bx * f..(bx + 1) * f {
+                            let (sin_p, cos_p) = column_phi[x];
+                            let dir = [sin_t * sin_p, cos_t, -sin_t * cos_p];
+                            push(frame.pixels[y * sw + x], dir, omega);
+                        }
+                    }
+                }
+                Plan::Table {
+                    solid_angle,
+                    direction,
+                    member_offsets,
+                    members,
+                    ..
+                } => {
+                    let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
+                    for &i in &members[range] {
+                        let i = i as usize;
+                        push(frame.pixels[i], direction[i], solid_angle[i]);
+                    }
+                }
+            }
         }
         &self.map
     }
