@@ -239,6 +239,9 @@ impl Decomposer {
                     radiance
                 } else if gamma == 0.5 {
                     radiance.sqrt()
+                } else if gamma == 0.75 {
+                    let root = radiance.sqrt();
+                    root * root.sqrt()
                 } else {
                     radiance.powf(gamma)
                 };

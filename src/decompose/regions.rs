@@ -76,10 +76,22 @@ impl BucketGrid {
     }
 }
 
-/// Per-bucket candidate lights for one frame.
+/// A light that may be nearest to some point of a bucket, with an upper bound of its dot
+/// product with any direction in the bucket.
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    /// The light's direction, kept inline so a scan touches one array.
+    dir: Vec3,
+    light: u32,
+    /// cos(max(0, a − r)) where a is the light's angle from the bucket centre and r the bucket's
+    /// radius: no direction in the bucket is closer to the light than that.
+    bound: f32,
+}
+
+/// Per-bucket candidate lights for one frame, nearest to the bucket centre first.
 struct Candidates {
     offsets: Vec<u32>,
-    lights: Vec<u32>,
+    list: Vec<Candidate>,
 }
 
 impl Candidates {
@@ -92,7 +104,7 @@ impl Candidates {
         let mut list = Vec::with_capacity(grid.centres.len() * 16);
         let mut dots = vec![0.0f32; lights.len()];
         offsets.push(0);
-        for (c, r) in grid.centres.iter().zip(&grid.radii) {
+        for (c, &r) in grid.centres.iter().zip(&grid.radii) {
             for (((d, x), y), z) in dots.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
                 *d = c.x * x + c.y * y + c.z * z;
             }
@@ -103,36 +115,57 @@ impl Candidates {
             } else {
                 reach.cos() - 1e-6
             };
+            let (sin_r, cos_r) = r.sin_cos();
+            let start = list.len();
             list.extend(
                 dots.iter()
                     .enumerate()
                     .filter(|(_, &d)| d >= threshold)
-                    .map(|(i, _)| i as u32),
+                    .map(|(i, &d)| {
+                        let cos_a = d.clamp(-1.0, 1.0);
+                        let bound = if cos_a >= cos_r {
+                            1.0
+                        } else {
+                            // cos(a − r) = cos a cos r + sin a sin r, a ∈ [r, π].
+                            cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r
+                        };
+                        Candidate {
+                            dir: lights[i],
+                            light: i as u32,
+                            bound: bound + 1e-6,
+                        }
+                    }),
             );
+            list[start..].sort_unstable_by(|a, b| b.bound.total_cmp(&a.bound));
             offsets.push(list.len() as u32);
         }
-        Self {
-            offsets,
-            lights: list,
-        }
+        Self { offsets, list }
     }
 
     #[inline]
-    fn of(&self, bucket: usize) -> &[u32] {
-        &self.lights[self.offsets[bucket] as usize..self.offsets[bucket + 1] as usize]
+    fn of(&self, bucket: usize) -> &[Candidate] {
+        &self.list[self.offsets[bucket] as usize..self.offsets[bucket + 1] as usize]
     }
 }
 
+/// The candidate light nearest to `d`. `hint` (any light, typically the previous pixel's) seeds
+/// the search; candidates come nearest-to-the-bucket-centre first, so the search stops once no
+/// remaining candidate's bound can beat the best dot product found.
 #[inline]
-fn nearest(candidates: &[u32], lights: &[Vec3], d: Vec3) -> usize {
-    let mut best = (f32::NEG_INFINITY, 0usize);
-    for &i in candidates {
-        let dot = lights[i as usize].dot(d);
-        if dot > best.0 {
-            best = (dot, i as usize);
+fn nearest(candidates: &[Candidate], lights: &[Vec3], d: Vec3, hint: usize) -> usize {
+    let mut best_dot = lights[hint].dot(d);
+    let mut best = hint;
+    for c in candidates {
+        if c.bound < best_dot {
+            break;
+        }
+        let dot = c.dir.dot(d);
+        if dot > best_dot {
+            best_dot = dot;
+            best = c.light as usize;
         }
     }
-    best.1
+    best
 }
 
 /// Adds every working pixel's energy, luminance-weighted direction and solid angle to the
@@ -148,12 +181,11 @@ pub(super) fn accumulate(
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
     let lights: Vec<Vec3> = sample_dirs.iter().map(|d| d.as_vec3()).collect();
     let candidates = Candidates::new(grid, &lights);
-    let bucket_of = |pixel: usize| {
-        let (x, y) = (pixel % map.width, pixel / map.width);
-        (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS
-    };
-    let mut add = |pixel: usize, dir: Vec3, energy: [f64; 3], solid_angle: f64| {
-        let r = &mut regions[nearest(candidates.of(bucket_of(pixel)), &lights, dir)];
+    let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
+    let mut hint = 0;
+    let mut add = |bucket: usize, dir: Vec3, energy: [f64; 3], solid_angle: f64| {
+        hint = nearest(candidates.of(bucket), &lights, dir, hint);
+        let r = &mut regions[hint];
         let lum = luminance_f64(energy);
         for c in 0..3 {
             r.rgb[c] += energy[c];
@@ -162,28 +194,28 @@ pub(super) fn accumulate(
         r.solid_angle += solid_angle;
     };
     for sample in &map.fine {
+        let (x, y) = (
+            sample.pixel as usize % map.width,
+            sample.pixel as usize / map.width,
+        );
         let energy = sample.energy.map(f64::from);
         add(
-            sample.pixel as usize,
+            bucket_of(x, y),
             Vec3::from(sample.dir),
             energy,
             sample.solid_angle.into(),
         );
     }
-    for (idx, ((energy, dir), &concentrated)) in map
-        .energy
-        .iter()
-        .zip(&map.directions)
-        .zip(&map.concentrated)
-        .enumerate()
-    {
-        if !concentrated {
-            add(
-                idx,
-                Vec3::from(*dir),
-                *energy,
-                map.row_solid_angle[idx / map.width],
-            );
+    for y in 0..map.height {
+        let row = y * map.width..(y + 1) * map.width;
+        let omega = map.row_solid_angle[y];
+        let pixels = map.energy[row.clone()]
+            .iter()
+            .zip(&map.directions[row.clone()]);
+        for (x, ((energy, dir), &concentrated)) in pixels.zip(&map.concentrated[row]).enumerate() {
+            if !concentrated {
+                add(bucket_of(x, y), Vec3::from(*dir), *energy, omega);
+            }
         }
     }
 }
