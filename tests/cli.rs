@@ -165,6 +165,31 @@ fn options_are_accepted() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("delay: 1 frames"), "{}", stderr(&o));
+
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "1",
+        "--lights",
+        "8",
+        "--merge",
+        "--pdf-exponent",
+        "1",
+        "--sky-size",
+        "64x32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("merge at 0.1"), "{}", stderr(&o));
+    check_frames(&stdout(&o), 8);
+}
+
+#[test]
+fn merge_flags_conflict_and_exponent_is_checked() {
+    let o = envlight(&["decompose", "--frames", "1", "--merge", "--no-merge"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = envlight(&["decompose", "--frames", "1", "--pdf-exponent", "0"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--pdf-exponent"), "{}", stderr(&o));
 }
 
 #[test]
