@@ -7,7 +7,7 @@
 //! input. The command line applies its flags to a `RawConfig` before validating, so flags
 //! override the file and are checked by the same code.
 
-use crate::capture::sky::{SkyOptions, MAX_SIDE};
+use crate::capture::sky::SkyOptions;
 use crate::decompose::filter::FirFilter;
 use crate::decompose::{DecomposeSettings, LightPlacement, MAX_POINTS, WORKING_WIDTH_RANGE};
 use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
@@ -180,67 +180,12 @@ pub struct SourceConfig {
 /// Number of sky frames when neither the config nor the command line says.
 pub const DEFAULT_SKY_FRAMES: u64 = 60;
 
-/// Validated `[sky]` (the parts of [`SkyOptions`] that are not pacing).
-#[derive(Clone, Debug, PartialEq)]
-pub struct SkyConfig {
-    pub width: u32,
-    pub height: u32,
-    pub turbidity: f64,
-    pub sun_start_elevation_deg: f64,
-    pub sun_start_azimuth_deg: f64,
-    pub sun_speed_deg_per_s: f64,
-    pub clouds: bool,
-    pub cloud_cover: f64,
-    pub wind_speed: f64,
-    pub ground_albedo: f64,
-    pub seed: u64,
-}
-
-impl Default for SkyConfig {
-    fn default() -> Self {
-        let d = SkyOptions::default();
-        Self {
-            width: d.width,
-            height: d.height,
-            turbidity: d.turbidity,
-            sun_start_elevation_deg: d.sun_start_elevation_deg,
-            sun_start_azimuth_deg: d.sun_start_azimuth_deg,
-            sun_speed_deg_per_s: d.sun_speed_deg_per_s,
-            clouds: d.clouds,
-            cloud_cover: d.cloud_cover,
-            wind_speed: d.wind_speed,
-            ground_albedo: d.ground_albedo,
-            seed: d.seed,
-        }
-    }
-}
-
-impl SkyConfig {
-    /// Sky options with this pacing and frame count.
-    pub fn to_options(&self, fps: Option<f64>, frames: Option<u64>) -> SkyOptions {
-        SkyOptions {
-            width: self.width,
-            height: self.height,
-            turbidity: self.turbidity,
-            sun_start_elevation_deg: self.sun_start_elevation_deg,
-            sun_start_azimuth_deg: self.sun_start_azimuth_deg,
-            sun_speed_deg_per_s: self.sun_speed_deg_per_s,
-            clouds: self.clouds,
-            cloud_cover: self.cloud_cover,
-            wind_speed: self.wind_speed,
-            ground_albedo: self.ground_albedo,
-            seed: self.seed,
-            fps,
-            frames,
-        }
-    }
-}
-
 /// The whole validated configuration; `Config::default()` is what an empty file gives.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Config {
     pub source: SourceConfig,
-    pub sky: SkyConfig,
+    /// The built-in sky; its pacing (`fps`, `frames`) comes from `[source]` when it is used.
+    pub sky: SkyOptions,
     pub decompose: DecomposeSettings,
 }
 
@@ -394,71 +339,50 @@ impl RawFisheye {
     }
 }
 
-fn check_range(key: &'static str, v: f64, lo: f64, hi: f64) -> Result<f64, ConfigError> {
-    if v.is_finite() && (lo..=hi).contains(&v) {
-        Ok(v)
-    } else {
-        Err(invalid(key, v, format!("must be in {lo}..={hi}")))
+impl RawSky {
+    fn validate(&self) -> Result<SkyOptions, ConfigError> {
+        let d = SkyOptions::default();
+        let options = SkyOptions {
+            width: self.width.unwrap_or(d.width),
+            height: self.height.unwrap_or(d.height),
+            turbidity: self.turbidity.unwrap_or(d.turbidity),
+            sun_start_elevation_deg: self
+                .sun_start_elevation_deg
+                .unwrap_or(d.sun_start_elevation_deg),
+            sun_start_azimuth_deg: self
+                .sun_start_azimuth_deg
+                .unwrap_or(d.sun_start_azimuth_deg),
+            sun_speed_deg_per_s: self.sun_speed_deg_per_s.unwrap_or(d.sun_speed_deg_per_s),
+            clouds: self.clouds.unwrap_or(d.clouds),
+            cloud_cover: self.cloud_cover.unwrap_or(d.cloud_cover),
+            wind_speed: self.wind_speed.unwrap_or(d.wind_speed),
+            ground_albedo: self.ground_albedo.unwrap_or(d.ground_albedo),
+            seed: self.seed.unwrap_or(d.seed),
+            fps: None,
+            frames: None,
+        };
+        options.check().map_err(|e| ConfigError::Invalid {
+            key: sky_key(e.field),
+            value: e.value,
+            message: format!("must be {}", e.expected),
+        })?;
+        Ok(options)
     }
 }
 
-impl RawSky {
-    fn validate(&self) -> Result<SkyConfig, ConfigError> {
-        let d = SkyConfig::default();
-        let side = |key: &'static str, v: Option<u32>, default: u32| {
-            let v = v.unwrap_or(default);
-            if (1..=MAX_SIDE).contains(&v) {
-                Ok(v)
-            } else {
-                Err(invalid(key, v, format!("must be in 1..={MAX_SIDE} pixels")))
-            }
-        };
-        Ok(SkyConfig {
-            width: side("sky.width", self.width, d.width)?,
-            height: side("sky.height", self.height, d.height)?,
-            turbidity: check_range(
-                "sky.turbidity",
-                self.turbidity.unwrap_or(d.turbidity),
-                1.7,
-                10.0,
-            )?,
-            sun_start_elevation_deg: check_range(
-                "sky.sun_start_elevation_deg",
-                self.sun_start_elevation_deg
-                    .unwrap_or(d.sun_start_elevation_deg),
-                -90.0,
-                90.0,
-            )?,
-            sun_start_azimuth_deg: check_finite(
-                "sky.sun_start_azimuth_deg",
-                self.sun_start_azimuth_deg
-                    .unwrap_or(d.sun_start_azimuth_deg),
-            )?,
-            sun_speed_deg_per_s: check_finite(
-                "sky.sun_speed_deg_per_s",
-                self.sun_speed_deg_per_s.unwrap_or(d.sun_speed_deg_per_s),
-            )?,
-            clouds: self.clouds.unwrap_or(d.clouds),
-            cloud_cover: check_range(
-                "sky.cloud_cover",
-                self.cloud_cover.unwrap_or(d.cloud_cover),
-                0.0,
-                1.0,
-            )?,
-            wind_speed: check_range(
-                "sky.wind_speed",
-                self.wind_speed.unwrap_or(d.wind_speed),
-                0.0,
-                1000.0,
-            )?,
-            ground_albedo: check_range(
-                "sky.ground_albedo",
-                self.ground_albedo.unwrap_or(d.ground_albedo),
-                0.0,
-                1.0,
-            )?,
-            seed: self.seed.unwrap_or(d.seed),
-        })
+/// The config key of a `[sky]` field.
+fn sky_key(field: &str) -> &'static str {
+    match field {
+        "width" => "sky.width",
+        "height" => "sky.height",
+        "turbidity" => "sky.turbidity",
+        "sun_start_elevation_deg" => "sky.sun_start_elevation_deg",
+        "sun_start_azimuth_deg" => "sky.sun_start_azimuth_deg",
+        "sun_speed_deg_per_s" => "sky.sun_speed_deg_per_s",
+        "cloud_cover" => "sky.cloud_cover",
+        "wind_speed" => "sky.wind_speed",
+        "ground_albedo" => "sky.ground_albedo",
+        _ => "sky",
     }
 }
 

@@ -5,7 +5,7 @@
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource};
-use envlight::capture::sky::SkySource;
+use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
 use envlight::config::{Config, ConfigError, RawConfig, SourceKind, DEFAULT_SKY_FRAMES};
 use envlight::decompose::Decomposer;
@@ -443,7 +443,11 @@ fn open_source(config: &Config) -> Result<(Box<dyn FrameSource>, Option<u64>)> {
                 Some(0) => None,
                 Some(n) => Some(n),
             };
-            let options = config.sky.to_options(src.fps, frames);
+            let options = SkyOptions {
+                fps: src.fps,
+                frames,
+                ..config.sky.clone()
+            };
             let sky = SkySource::new(options).context("cannot set up the built-in sky")?;
             (Box::new(sky), frames)
         }

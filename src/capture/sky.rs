@@ -91,7 +91,7 @@ const CLOUD_FEATURE_M: f64 = 1000.0;
 pub const UNPACED_FRAME_RATE: f64 = 30.0;
 
 /// Settings of the built-in sky. See the module doc for the model.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct SkyOptions {
     /// Image width in pixels (lat-long map), 1..=16384.
     pub width: u32,
@@ -141,36 +141,60 @@ impl Default for SkyOptions {
     }
 }
 
-fn invalid(message: String) -> CaptureError {
-    CaptureError::InvalidSettings(message)
+/// A sky setting out of range: the field, its value and what is allowed.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct InvalidSkyOption {
+    /// Field name, as in [`SkyOptions`] and the config file's `[sky]` table.
+    pub field: &'static str,
+    pub value: String,
+    /// What is allowed, e.g. "in 1.7..=10".
+    pub expected: String,
 }
 
-fn check_range(name: &str, value: f64, lo: f64, hi: f64) -> Result<(), CaptureError> {
-    if value.is_finite() && (lo..=hi).contains(&value) {
-        Ok(())
-    } else {
-        Err(invalid(format!(
-            "sky {name} must be in {lo}..={hi}, got {value}"
-        )))
+impl std::fmt::Display for InvalidSkyOption {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "sky {} must be {}, got {}",
+            self.field, self.expected, self.value
+        )
     }
 }
 
-fn check_finite(name: &str, value: f64) -> Result<(), CaptureError> {
+fn check_range(field: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), InvalidSkyOption> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(())
+    } else {
+        Err(InvalidSkyOption {
+            field,
+            value: value.to_string(),
+            expected: format!("in {lo}..={hi}"),
+        })
+    }
+}
+
+fn check_finite(field: &'static str, value: f64) -> Result<(), InvalidSkyOption> {
     if value.is_finite() {
         Ok(())
     } else {
-        Err(invalid(format!("sky {name} must be finite, got {value}")))
+        Err(InvalidSkyOption {
+            field,
+            value: value.to_string(),
+            expected: "finite".into(),
+        })
     }
 }
 
 impl SkyOptions {
     /// Checks every setting; the error names the field and its value.
-    pub fn validate(&self) -> Result<(), CaptureError> {
-        for (name, side) in [("width", self.width), ("height", self.height)] {
+    pub fn check(&self) -> Result<(), InvalidSkyOption> {
+        for (field, side) in [("width", self.width), ("height", self.height)] {
             if side == 0 || side > MAX_SIDE {
-                return Err(invalid(format!(
-                    "sky {name} must be in 1..={MAX_SIDE}, got {side}"
-                )));
+                return Err(InvalidSkyOption {
+                    field,
+                    value: side.to_string(),
+                    expected: format!("in 1..={MAX_SIDE}"),
+                });
             }
         }
         check_range("turbidity", self.turbidity, 1.7, 10.0)?;
@@ -187,12 +211,20 @@ impl SkyOptions {
         check_range("ground_albedo", self.ground_albedo, 0.0, 1.0)?;
         if let Some(fps) = self.fps {
             if !(fps.is_finite() && fps > 0.0) {
-                return Err(invalid(format!(
-                    "sky fps must be finite and > 0, got {fps}"
-                )));
+                return Err(InvalidSkyOption {
+                    field: "fps",
+                    value: fps.to_string(),
+                    expected: "finite and > 0".into(),
+                });
             }
         }
         Ok(())
+    }
+
+    /// [`SkyOptions::check`] as a frame-source error.
+    pub fn validate(&self) -> Result<(), CaptureError> {
+        self.check()
+            .map_err(|e| CaptureError::InvalidSettings(e.to_string()))
     }
 }
 
