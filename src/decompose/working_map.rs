@@ -70,6 +70,50 @@ enum Plan {
     },
 }
 
+impl Plan {
+    /// Calls `f(input index, solid angle, direction)` for every input pixel of working pixel
+    /// `idx` (`width`: working map width, `sw`: input width).
+    fn for_each_input(
+        &self,
+        idx: usize,
+        width: usize,
+        sw: usize,
+        mut f: impl FnMut(usize, f32, [f32; 3]),
+    ) {
+        match self {
+            Plan::Box {
+                factor: k,
+                row_solid_angle,
+                row_theta,
+                column_phi,
+            } => {
+                let (bx, by) = (idx % width, idx / width);
+                for y in by * k..(by + 1) * k {
+                    let (sin_t, cos_t) = row_theta[y];
+                    let omega = row_solid_angle[y] as f32;
+                    for x in bx * k..(bx + 1) * k {
+                        let (sin_p, cos_p) = column_phi[x];
+                        f(y * sw + x, omega, [sin_t * sin_p, cos_t, -sin_t * cos_p]);
+                    }
+                }
+            }
+            Plan::Table {
+                solid_angle,
+                direction,
+                member_offsets,
+                members,
+                ..
+            } => {
+                let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
+                for &i in &members[range] {
+                    let i = i as usize;
+                    f(i, solid_angle[i], direction[i]);
+                }
+            }
+        }
+    }
+}
+
 /// Resamples frames of one geometry (projection and size) to a working map.
 #[derive(Clone, Debug)]
 pub struct Resampler {
@@ -267,14 +311,23 @@ impl Resampler {
                 }
             }
         }
-        // Bad pixels should have been sanitised by the source; if any slipped through, drop
-        // them here rather than poison every light.
-        for e in &mut map.energy {
-            for c in e.iter_mut() {
-                if !c.is_finite() || *c < 0.0 {
-                    *c = 0.0;
-                }
+        // Bad pixels should have been sanitised by the source. If any slipped through, the
+        // working pixels they poisoned are summed again with those pixels counted as 0, so
+        // neither the lights nor the good pixels beside them are lost.
+        for idx in 0..map.energy.len() {
+            if map.energy[idx].iter().all(|c| c.is_finite() && *c >= 0.0) {
+                continue;
             }
+            let mut sum = [0.0f64; 3];
+            self.plan.for_each_input(idx, map.width, sw, |i, omega, _| {
+                for c in 0..3 {
+                    let v = frame.pixels[i][c];
+                    if v.is_finite() && v > 0.0 {
+                        sum[c] += f64::from(v) * f64::from(omega);
+                    }
+                }
+            });
+            map.energy[idx] = sum;
         }
 
         let total: f64 = map.energy.iter().map(|e| super::luminance_f64(*e)).sum();
@@ -286,53 +339,23 @@ impl Resampler {
                 continue;
             }
             let pixel = idx as u32;
-            let mut push = |p: [f32; 3], dir: [f32; 3], omega: f32| {
-                let clean = |v: f32| {
-                    if v.is_finite() && v > 0.0 {
-                        v * omega
-                    } else {
-                        0.0
-                    }
-                };
-                map.fine.push(FineSample {
-                    pixel,
-                    dir,
-                    energy: p.map(clean),
-                    solid_angle: omega,
-                });
-            };
-            match &self.plan {
-                Plan::Box {
-                    factor: f,
-                    row_solid_angle,
-                    row_theta,
-                    column_phi,
-                } => {
-                    let (bx, by) = (idx % map.width, idx / map.width);
-                    for y in by * f..(by + 1) * f {
-                        let (sin_t, cos_t) = row_theta[y];
-                        let omega = row_solid_angle[y] as f32;
-                        for x in bx * f..(bx + 1) * f {
-                            let (sin_p, cos_p) = column_phi[x];
-                            let dir = [sin_t * sin_p, cos_t, -sin_t * cos_p];
-                            push(frame.pixels[y * sw + x], dir, omega);
+            self.plan
+                .for_each_input(idx, map.width, sw, |i, solid_angle, dir| {
+                    let clean = |v: f32| {
+                        if v.is_finite() && v > 0.0 {
+                            v * solid_angle
+                        } else {
+                            0.0
                         }
-                    }
-                }
-                Plan::Table {
-                    solid_angle,
-                    direction,
-                    member_offsets,
-                    members,
-                    ..
-                } => {
-                    let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
-                    for &i in &members[range] {
-                        let i = i as usize;
-                        push(frame.pixels[i], direction[i], solid_angle[i]);
-                    }
-                }
-            }
+                    };
+                    let energy = frame.pixels[i].map(clean);
+                    map.fine.push(FineSample {
+                        pixel,
+                        dir,
+                        energy,
+                        solid_angle,
+                    });
+                });
         }
         &self.map
     }
