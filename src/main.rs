@@ -194,6 +194,11 @@ struct DecomposeArgs {
     /// Write the JSON lines to FILE (created or truncated) instead of stdout.
     #[arg(long, short = 'o', value_name = "FILE")]
     out: Option<PathBuf>,
+
+    /// Also keep FILE holding only the newest frame's JSON, replaced atomically (written to
+    /// FILE.tmp, then renamed) after every frame: bounded output for a long-running service.
+    #[arg(long, value_name = "FILE")]
+    latest: Option<PathBuf>,
 }
 
 fn parse_pair(s: &str) -> Result<[f64; 2], String> {
@@ -429,7 +434,7 @@ fn decompose(args: &DecomposeArgs) -> Result<()> {
         },
         _ => anyhow!(e),
     })?;
-    run_decompose(&config, args.out.as_deref())
+    run_decompose(&config, args.out.as_deref(), args.latest.as_deref())
 }
 
 fn open_source(config: &Config) -> Result<(Box<dyn FrameSource>, Option<u64>)> {
@@ -464,6 +469,14 @@ fn open_source(config: &Config) -> Result<(Box<dyn FrameSource>, Option<u64>)> {
     })
 }
 
+/// Replaces `path` with `contents` atomically: readers see the old or the new file, never half.
+fn replace_file(path: &Path, contents: &[u8]) -> std::io::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    std::fs::write(&tmp, contents)?;
+    std::fs::rename(&tmp, path)
+}
+
 fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
     Ok(match out {
         Some(path) => Box::new(
@@ -474,7 +487,7 @@ fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
     })
 }
 
-fn run_decompose(config: &Config, out: Option<&Path>) -> Result<()> {
+fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> Result<()> {
     let (mut source, limit) = open_source(config)?;
     let mut decomposer =
         Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
@@ -531,6 +544,10 @@ fn run_decompose(config: &Config, out: Option<&Path>) -> Result<()> {
         line.clear();
         serde_json::to_writer(&mut line, &lights).context("cannot serialise a light frame")?;
         line.push(b'\n');
+        if let Some(path) = latest {
+            replace_file(path, &line)
+                .with_context(|| format!("cannot write the newest frame to {}", path.display()))?;
+        }
         // Flush every frame: a consumer tailing the output sees whole frames as they come.
         let written = writer.write_all(&line).and_then(|()| writer.flush());
         match written {

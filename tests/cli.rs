@@ -483,3 +483,49 @@ fn black_frame_gives_black_lights() {
         }
     }
 }
+
+#[test]
+fn latest_file_holds_only_the_newest_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let latest = dir.path().join("lights.json");
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "3",
+        "--lights",
+        "8",
+        "--sky-size",
+        "64x32",
+        "--latest",
+        latest.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        check_frames(&stdout(&o), 8).len(),
+        3,
+        "stdout still has every frame"
+    );
+    let text = std::fs::read_to_string(&latest).unwrap();
+    let frames = check_frames(&text, 8);
+    assert_eq!(frames.len(), 1);
+    assert_eq!(frames[0]["seq"].as_u64(), Some(2));
+    assert!(!dir.path().join("lights.json.tmp").exists());
+
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "1",
+        "--lights",
+        "4",
+        "--sky-size",
+        "64x32",
+        "--latest",
+        "/nonexistent-dir/lights.json",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("/nonexistent-dir/lights.json"),
+        "{}",
+        stderr(&o)
+    );
+}
