@@ -492,14 +492,37 @@ mod tests {
     }
 
     #[test]
-    fn nan_pixels_do_not_poison_the_lights() {
-        let mut frame = sky_with_sun(64, 32, (10, 10), 100.0);
-        frame.pixels[5] = [f32::NAN, f32::INFINITY, -3.0];
-        let lights = Decomposer::new(raw_settings(16)).unwrap().decompose(&frame);
-        assert!(lights
-            .lights
-            .iter()
-            .all(|l| l.rgb.iter().chain(&l.dir).all(|c| c.is_finite())));
+    fn bad_pixels_count_as_zero_and_spare_their_neighbours() {
+        // 64×32 takes the box-filter path (4×4 input pixels per working pixel at width 16);
+        // 63×32 the index-table path.
+        for (w, h) in [(64u32, 32u32), (63, 32)] {
+            let mut frame = sky_with_sun(w, h, (10, 10), 100.0);
+            frame.pixels[5] = [f32::NAN, f32::INFINITY, -3.0];
+            frame.pixels[w as usize * 20 + 7] = [-1e4, 1.0, 1.0];
+            frame.pixels[w as usize * 3 + 40] = [1.0, f32::NEG_INFINITY, 1.0];
+            // Small enough that its working pixel's sum stays positive.
+            frame.pixels[w as usize * 25 + 30] = [1.0, -0.5, 1.0];
+            let mut clean = frame.clone();
+            clean.sanitize();
+            let truth = frame_integral(&clean);
+            let settings = DecomposeSettings {
+                working_width: 16,
+                ..raw_settings(16)
+            };
+            let lights = Decomposer::new(settings).unwrap().decompose(&frame);
+            assert!(lights.lights.iter().all(|l| l
+                .rgb
+                .iter()
+                .chain(&l.dir)
+                .all(|c| c.is_finite())));
+            let sum = lights.total_rgb();
+            for c in 0..3 {
+                assert!(
+                    (sum[c] - truth[c]).abs() < 1e-5 * truth[c],
+                    "{w}x{h} channel {c}"
+                );
+            }
+        }
     }
 
     #[test]

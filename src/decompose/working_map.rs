@@ -277,10 +277,14 @@ impl Resampler {
                 let mut column_sums = vec![0.0f32; 3 * sw];
                 for (wy, rows) in frame.pixels.chunks_exact(sw * f).enumerate() {
                     column_sums.iter_mut().for_each(|a| *a = 0.0);
+                    // The smallest input value, to catch negative ones (NaN and ±Inf show in
+                    // the sums).
+                    let mut min = 0.0f32;
                     for (k, row) in rows.chunks_exact(sw).enumerate() {
                         let omega = row_solid_angle[wy * f + k] as f32;
                         for (a, p) in column_sums.iter_mut().zip(row.as_flattened()) {
                             *a += p * omega;
+                            min = min.min(*p);
                         }
                     }
                     let out = &mut map.energy[wy * map.width..(wy + 1) * map.width];
@@ -292,6 +296,10 @@ impl Resampler {
                             sum[2] += p[2];
                         }
                         *e = sum.map(f64::from);
+                        if min < 0.0 {
+                            // Flag the whole working row for the careful sum below.
+                            e[0] = f64::NAN;
+                        }
                     }
                 }
             }
@@ -305,15 +313,20 @@ impl Resampler {
                     if t != u32::MAX {
                         let e = &mut map.energy[t as usize];
                         for c in 0..3 {
-                            e[c] += f64::from(p[c] * omega);
+                            // A negative value poisons the sum (NaN) for the careful sum below.
+                            e[c] += if p[c] < 0.0 {
+                                f64::NAN
+                            } else {
+                                f64::from(p[c] * omega)
+                            };
                         }
                     }
                 }
             }
         }
-        // Bad pixels should have been sanitised by the source. If any slipped through, the
-        // working pixels they poisoned are summed again with those pixels counted as 0, so
-        // neither the lights nor the good pixels beside them are lost.
+        // Bad pixels (NaN, ±Inf, negative) should have been sanitised by the source. If any
+        // slipped through, the working pixels they poisoned are summed again with those pixels
+        // counted as 0, so neither the lights nor the good pixels beside them are lost.
         for idx in 0..map.energy.len() {
             if map.energy[idx].iter().all(|c| c.is_finite() && *c >= 0.0) {
                 continue;
