@@ -277,16 +277,17 @@ impl Resampler {
                 let mut column_sums = vec![0.0f32; 3 * sw];
                 for (wy, rows) in frame.pixels.chunks_exact(sw * f).enumerate() {
                     column_sums.iter_mut().for_each(|a| *a = 0.0);
-                    // The smallest input value, to catch negative ones (NaN and ±Inf show in
-                    // the sums).
-                    let mut min = 0.0f32;
+                    // OR of the inputs' bits: its sign bit catches negative values (and −0.0, which
+                    // only costs the careful sum); NaN and ±Inf show in the sums. Bitwise, so the loop still vectorises.
+                    let mut bits = 0u32;
                     for (k, row) in rows.chunks_exact(sw).enumerate() {
                         let omega = row_solid_angle[wy * f + k] as f32;
                         for (a, p) in column_sums.iter_mut().zip(row.as_flattened()) {
                             *a += p * omega;
-                            min = min.min(*p);
+                            bits |= p.to_bits();
                         }
                     }
+                    let has_negative = bits & 0x8000_0000 != 0;
                     let out = &mut map.energy[wy * map.width..(wy + 1) * map.width];
                     for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * f)) {
                         let mut sum = [0.0f32; 3];
@@ -296,7 +297,7 @@ impl Resampler {
                             sum[2] += p[2];
                         }
                         *e = sum.map(f64::from);
-                        if min < 0.0 {
+                        if has_negative {
                             // Flag the whole working row for the careful sum below.
                             e[0] = f64::NAN;
                         }
