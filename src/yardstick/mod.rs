@@ -510,6 +510,33 @@ pub fn energy_error(map: &ReferenceMap, lights: &[Light]) -> f64 {
     ratio((total - truth).abs(), truth)
 }
 
+/// A light list's diffuse irradiance E(n) at [`evaluation_directions`] and its shadowed ground
+/// irradiance at [`ground_points`], per channel: what the yardsticks compare with [`Truth`].
+pub fn light_irradiance(lights: &[Light]) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let sources = light_sources(lights);
+    (directional_sums(&sources).0, ground_sums(&sources))
+}
+
+/// Temporal flicker over a sequence (DESIGN.md): how much the approximation changes from frame
+/// to frame *beyond* the change of the truth, relative to the truth,
+/// sqrt(Σ_t Σ_i (Δapprox − Δtruth)²) / sqrt(Σ_t Σ_i truth²) on luminance, where Δ is the change
+/// from frame t−1 to t at evaluation point i. 0 for a still sequence decomposed identically.
+pub fn flicker(approx: &[Vec<[f64; 3]>], truth: &[Vec<[f64; 3]>]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for t in 1..approx.len().min(truth.len()) {
+        let points = approx[t]
+            .iter()
+            .zip(&approx[t - 1])
+            .zip(truth[t].iter().zip(&truth[t - 1]));
+        for ((&a, &a_prev), (&tr, &tr_prev)) in points {
+            let excess = (lum(a) - lum(a_prev)) - (lum(tr) - lum(tr_prev));
+            num += excess * excess;
+            den += lum(tr) * lum(tr);
+        }
+    }
+    ratio(num.sqrt(), den.sqrt())
+}
+
 /// All yardsticks of one light list (relative errors on luminance; 0 is perfect).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QualityReport {

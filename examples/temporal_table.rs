@@ -1,0 +1,163 @@
+//! Prints a Markdown table of temporal stability (DESIGN.md's temporal yardsticks) for each
+//! light-generation method on two slowly changing sequences:
+//!
+//! - **sky**: the built-in sky, 90 frames at 30 frames/s (sun moving, clouds drifting);
+//! - **pan**: a real HDRI turned about the vertical axis by one input pixel (0.35°) per frame,
+//!   60 frames, as a camera panning slowly would see it.
+//!
+//! Columns: flicker of the diffuse irradiance and of the shadowed ground irradiance (the change
+//! from frame to frame beyond the change of the truth, relative to the truth; 0 is perfectly
+//! steady), and how far lights with the same id move per frame (mean, 99th percentile and
+//! maximum over ids and frames). Median cut has no stable ids, so its movement is not given.
+//!
+//! ```text
+//! cargo run --release --example temporal_table -- tests/data/rooitou_park_1k.hdr
+//! ```
+
+use anyhow::{Context, Result};
+use envlight::capture::image_file::read_hdr_image;
+use envlight::capture::sky::{render_sky, SkyOptions};
+use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement};
+use envlight::envmap::Projection;
+use envlight::yardstick::{flicker, light_irradiance, median_cut, ReferenceMap};
+use envlight::{HdrFrame, LightFrame};
+
+const LIGHTS: usize = 256;
+
+/// A light-generation method over a sequence: `None` = median cut, else envlight settings.
+struct Method {
+    name: &'static str,
+    settings: Option<DecomposeSettings>,
+}
+
+fn envlight(
+    filter: bool,
+    placement: LightPlacement,
+    pdf_exponent: f64,
+) -> Option<DecomposeSettings> {
+    let defaults = DecomposeSettings::default();
+    Some(DecomposeSettings {
+        lights: LIGHTS,
+        placement,
+        pdf_exponent,
+        filter_taps: if filter {
+            defaults.filter_taps.clone()
+        } else {
+            None
+        },
+        ..defaults
+    })
+}
+
+fn rotated(frame: &HdrFrame, shift: u32) -> HdrFrame {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let mut pixels = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let row = &frame.pixels[y * w..(y + 1) * w];
+        let s = shift as usize % w;
+        pixels.extend_from_slice(&row[s..]);
+        pixels.extend_from_slice(&row[..s]);
+    }
+    HdrFrame::new(frame.width, frame.height, pixels, Projection::LatLong)
+        .unwrap_or_else(|| frame.clone())
+}
+
+fn angle_deg(a: [f32; 3], b: [f32; 3]) -> f64 {
+    let dot: f64 = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| f64::from(*x) * f64::from(*y))
+        .sum();
+    dot.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+fn row(sequence: &str, frames: &[HdrFrame], method: &Method) -> Result<String> {
+    let mut decomposer = method.settings.clone().map(Decomposer::new).transpose()?;
+    let (mut approx_d, mut approx_g, mut truth_d, mut truth_g) = (vec![], vec![], vec![], vec![]);
+    let mut moves = Vec::new();
+    let mut previous: Option<LightFrame> = None;
+    for frame in frames {
+        let lights = match &mut decomposer {
+            Some(d) => d.decompose(frame),
+            None => median_cut(frame, LIGHTS)?,
+        };
+        let reference = ReferenceMap::new(frame, 256)?;
+        let truth = reference.truth();
+        truth_d.push(truth.diffuse.clone());
+        truth_g.push(truth.ground.clone());
+        let (d, g) = light_irradiance(&lights.lights);
+        approx_d.push(d);
+        approx_g.push(g);
+        if let (Some(prev), true) = (&previous, decomposer.is_some()) {
+            for l in &lights.lights {
+                if let Some(p) = prev.lights.iter().find(|p| p.id == l.id) {
+                    moves.push(angle_deg(p.dir, l.dir));
+                }
+            }
+        }
+        previous = Some(lights);
+    }
+    let movement = if moves.is_empty() {
+        "— | — | —".to_string()
+    } else {
+        moves.sort_by(f64::total_cmp);
+        let mean = moves.iter().sum::<f64>() / moves.len() as f64;
+        let p99 = moves[(moves.len() - 1) * 99 / 100];
+        let max = moves[moves.len() - 1];
+        format!("{mean:.3}° | {p99:.2}° | {max:.1}°")
+    };
+    Ok(format!(
+        "| {sequence} | {} | {:.4} | {:.4} | {movement} |",
+        method.name,
+        flicker(&approx_d, &truth_d),
+        flicker(&approx_g, &truth_g)
+    ))
+}
+
+fn main() -> Result<()> {
+    let path = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "tests/data/rooitou_park_1k.hdr".into());
+    let image = read_hdr_image(std::path::Path::new(&path))?;
+    let still = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+        .context("empty image")?;
+    let pan: Vec<HdrFrame> = (0..60).map(|t| rotated(&still, t)).collect();
+    let options = SkyOptions::default();
+    let sky: Vec<HdrFrame> = (0..90)
+        .map(|t| render_sky(&options, f64::from(t) / 30.0))
+        .collect();
+
+    let methods = [
+        Method {
+            name: "median cut",
+            settings: None,
+        },
+        Method {
+            name: "envlight (filter on)",
+            settings: envlight(true, LightPlacement::Centroid, 0.75),
+        },
+        Method {
+            name: "envlight, no filter",
+            settings: envlight(false, LightPlacement::Centroid, 0.75),
+        },
+        Method {
+            name: "envlight, γ=0.5, filter on",
+            settings: envlight(true, LightPlacement::Centroid, 0.5),
+        },
+        Method {
+            name: "Havran-style (γ=1, sample point, filter on)",
+            settings: envlight(true, LightPlacement::SamplePoint, 1.0),
+        },
+    ];
+    println!("| sequence | method | diffuse flicker | ground flicker | mean move/frame | p99 move | max move |");
+    println!("|---|---|---:|---:|---:|---:|---:|");
+    for (name, frames) in [
+        ("sky (90 frames)", &sky),
+        ("pan of the map (60 frames)", &pan),
+    ] {
+        for method in &methods {
+            println!("{}", row(name, frames, method)?);
+        }
+    }
+    Ok(())
+}
