@@ -18,6 +18,9 @@ use glam::{DVec3, Vec3};
 
 const BUCKET_PIXELS: usize = 8;
 
+/// Buckets per super-bucket side: candidate lists are found for 4×4 buckets at once first.
+const SUPER_BUCKETS: usize = 4;
+
 /// Per-geometry bucket layout of a working map.
 #[derive(Clone, Debug)]
 pub struct BucketGrid {
@@ -27,43 +30,41 @@ pub struct BucketGrid {
     centres: Vec<Vec3>,
     /// Angular radius of each bucket (radians), with a small safety margin.
     radii: Vec<f32>,
+    /// Index of each bucket's super-bucket.
+    super_of: Vec<u32>,
+    super_centres: Vec<Vec3>,
+    super_radii: Vec<f32>,
 }
 
 impl BucketGrid {
     pub fn new(width: usize, height: usize) -> Self {
         let cols = width.div_ceil(BUCKET_PIXELS);
         let rows = height.div_ceil(BUCKET_PIXELS);
-        let dir = |x: f64, y: f64| {
-            crate::envmap::Projection::LatLong
-                .pixel_to_direction(width as u32, height as u32, x, y)
-                .unwrap_or(DVec3::Y)
+        let cap = |x0: usize, y0: usize, x1: usize, y1: usize| {
+            bounding_cap(width, height, (x0, y0), (x1.min(width), y1.min(height)))
         };
-        let mut centres = Vec::with_capacity(cols * rows);
-        let mut radii = Vec::with_capacity(cols * rows);
+        let (mut centres, mut radii, mut super_of) = (Vec::new(), Vec::new(), Vec::new());
+        let super_cols = cols.div_ceil(SUPER_BUCKETS);
         for by in 0..rows {
             for bx in 0..cols {
-                let x0 = (bx * BUCKET_PIXELS) as f64;
-                let y0 = (by * BUCKET_PIXELS) as f64;
-                let x1 = ((bx + 1) * BUCKET_PIXELS).min(width) as f64;
-                let y1 = ((by + 1) * BUCKET_PIXELS).min(height) as f64;
-                let c = dir(0.5 * (x0 + x1), 0.5 * (y0 + y1));
-                // The farthest point of a lat-long rectangle from its centre lies on its border;
-                // sample the border densely.
-                let mut radius = 0.0f64;
-                let steps = 16;
-                for k in 0..=steps {
-                    let t = k as f64 / steps as f64;
-                    for p in [
-                        (x0 + t * (x1 - x0), y0),
-                        (x0 + t * (x1 - x0), y1),
-                        (x0, y0 + t * (y1 - y0)),
-                        (x1, y0 + t * (y1 - y0)),
-                    ] {
-                        radius = radius.max(c.dot(dir(p.0, p.1)).clamp(-1.0, 1.0).acos());
-                    }
-                }
-                centres.push(c.as_vec3());
-                radii.push((radius * 1.05 + 1e-4) as f32);
+                let (c, r) = cap(
+                    bx * BUCKET_PIXELS,
+                    by * BUCKET_PIXELS,
+                    (bx + 1) * BUCKET_PIXELS,
+                    (by + 1) * BUCKET_PIXELS,
+                );
+                centres.push(c);
+                radii.push(r);
+                super_of.push(((by / SUPER_BUCKETS) * super_cols + bx / SUPER_BUCKETS) as u32);
+            }
+        }
+        let (mut super_centres, mut super_radii) = (Vec::new(), Vec::new());
+        let span = SUPER_BUCKETS * BUCKET_PIXELS;
+        for sy in 0..rows.div_ceil(SUPER_BUCKETS) {
+            for sx in 0..super_cols {
+                let (c, r) = cap(sx * span, sy * span, (sx + 1) * span, (sy + 1) * span);
+                super_centres.push(c);
+                super_radii.push(r);
             }
         }
         Self {
@@ -72,8 +73,73 @@ impl BucketGrid {
             cols,
             centres,
             radii,
+            super_of,
+            super_centres,
+            super_radii,
         }
     }
+}
+
+/// Centre direction and angular radius (with a small safety margin) of the lat-long pixel
+/// rectangle [x0, x1) × [y0, y1). The farthest point of such a rectangle from its centre lies
+/// on its border, which is sampled densely.
+fn bounding_cap(
+    width: usize,
+    height: usize,
+    (x0, y0): (usize, usize),
+    (x1, y1): (usize, usize),
+) -> (Vec3, f32) {
+    let dir = |x: f64, y: f64| {
+        crate::envmap::Projection::LatLong
+            .pixel_to_direction(width as u32, height as u32, x, y)
+            .unwrap_or(DVec3::Y)
+    };
+    let (x0, y0, x1, y1) = (x0 as f64, y0 as f64, x1 as f64, y1 as f64);
+    let c = dir(0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let mut radius = 0.0f64;
+    let steps = 32;
+    for k in 0..=steps {
+        let t = k as f64 / steps as f64;
+        for p in [
+            (x0 + t * (x1 - x0), y0),
+            (x0 + t * (x1 - x0), y1),
+            (x0, y0 + t * (y1 - y0)),
+            (x1, y0 + t * (y1 - y0)),
+        ] {
+            radius = radius.max(c.dot(dir(p.0, p.1)).clamp(-1.0, 1.0).acos());
+        }
+    }
+    (c.as_vec3(), (radius * 1.05 + 1e-4) as f32)
+}
+
+/// The lights within (nearest angle + 2·radius) of a cap's centre, i.e. every light that can be
+/// nearest to some point of the cap (triangle inequality), with their dot products with the
+/// centre. `dots` is scratch space.
+fn reachable(
+    centre: Vec3,
+    radius: f32,
+    among: &[u32],
+    lights: &[Vec3],
+    dots: &mut Vec<f32>,
+    out: &mut Vec<(u32, f32)>,
+) {
+    dots.clear();
+    dots.extend(among.iter().map(|&i| centre.dot(lights[i as usize])));
+    let best = dots.iter().copied().fold(-1.0f32, f32::max);
+    let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
+    let threshold = if reach >= std::f32::consts::PI {
+        -2.0
+    } else {
+        reach.cos() - 1e-6
+    };
+    out.clear();
+    out.extend(
+        among
+            .iter()
+            .zip(dots.iter())
+            .filter(|(_, &d)| d >= threshold)
+            .map(|(&i, &d)| (i, d)),
+    );
 }
 
 /// A light that may be nearest to some point of a bucket, with an upper bound of its dot
@@ -95,47 +161,42 @@ struct Candidates {
 }
 
 impl Candidates {
+    /// Candidate lists of every bucket: first per super-bucket among all lights, then per bucket
+    /// among its super-bucket's candidates (a bucket lies inside its super-bucket, so its
+    /// candidates are among those).
     fn new(grid: &BucketGrid, lights: &[Vec3]) -> Self {
-        // Structure of arrays, so the dot products vectorise.
-        let xs: Vec<f32> = lights.iter().map(|l| l.x).collect();
-        let ys: Vec<f32> = lights.iter().map(|l| l.y).collect();
-        let zs: Vec<f32> = lights.iter().map(|l| l.z).collect();
+        let all: Vec<u32> = (0..lights.len() as u32).collect();
+        let (mut dots, mut found) = (Vec::new(), Vec::new());
+        let supers: Vec<Vec<u32>> = grid
+            .super_centres
+            .iter()
+            .zip(&grid.super_radii)
+            .map(|(&c, &r)| {
+                reachable(c, r, &all, lights, &mut dots, &mut found);
+                found.iter().map(|&(i, _)| i).collect()
+            })
+            .collect();
         let mut offsets = Vec::with_capacity(grid.centres.len() + 1);
         let mut list = Vec::with_capacity(grid.centres.len() * 16);
-        let mut dots = vec![0.0f32; lights.len()];
         offsets.push(0);
-        for (c, &r) in grid.centres.iter().zip(&grid.radii) {
-            for (((d, x), y), z) in dots.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
-                *d = c.x * x + c.y * y + c.z * z;
-            }
-            let best = dots.iter().copied().fold(-1.0f32, f32::max);
-            let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * r;
-            let threshold = if reach >= std::f32::consts::PI {
-                -2.0
-            } else {
-                reach.cos() - 1e-6
-            };
+        for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
+            reachable(c, r, &supers[s as usize], lights, &mut dots, &mut found);
             let (sin_r, cos_r) = r.sin_cos();
             let start = list.len();
-            list.extend(
-                dots.iter()
-                    .enumerate()
-                    .filter(|(_, &d)| d >= threshold)
-                    .map(|(i, &d)| {
-                        let cos_a = d.clamp(-1.0, 1.0);
-                        let bound = if cos_a >= cos_r {
-                            1.0
-                        } else {
-                            // cos(a − r) = cos a cos r + sin a sin r, a ∈ [r, π].
-                            cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r
-                        };
-                        Candidate {
-                            dir: lights[i],
-                            light: i as u32,
-                            bound: bound + 1e-6,
-                        }
-                    }),
-            );
+            list.extend(found.iter().map(|&(i, d)| {
+                let cos_a = d.clamp(-1.0, 1.0);
+                let bound = if cos_a >= cos_r {
+                    1.0
+                } else {
+                    // cos(a − r) = cos a cos r + sin a sin r, a ∈ [r, π].
+                    cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r
+                };
+                Candidate {
+                    dir: lights[i as usize],
+                    light: i,
+                    bound: bound + 1e-6,
+                }
+            }));
             list[start..].sort_unstable_by(|a, b| b.bound.total_cmp(&a.bound));
             offsets.push(list.len() as u32);
         }
