@@ -66,8 +66,8 @@ pub struct DecomposeSettings {
     /// Number of lights, 1..=[`MAX_POINTS`].
     pub lights: usize,
     /// Width of the lat-long working map (height = width/2). A lat-long input is box-filtered by
-    /// the largest integer factor that keeps the width ≥ this when its size allows. Directions
-    /// keep full input resolution (each working pixel points at its energy centroid).
+    /// the largest integer factor that keeps the width ≥ this when its size allows; concentrated
+    /// sources keep their full input resolution.
     pub working_width: u32,
     pub placement: LightPlacement,
     /// FIR taps, newest frame first; `None` disables temporal filtering.
