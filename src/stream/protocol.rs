@@ -766,8 +766,9 @@ fn to_json<T: Serialize>(value: &T) -> String {
 /// {"seq":17,"time":0.5,"representation":"lights","stale":false,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}
 /// ```
 ///
-/// Floats are written in shortest round-trip form, so parsing them back as f32/f64 gives the
-/// same values.
+/// Floats are written in shortest round-trip form, so parsing them back as f32/f64 with a
+/// correctly rounding parser (serde_json's `float_roundtrip` feature, Python's `json`) gives the
+/// same values bit for bit.
 pub fn frame_to_json(frame: &LightFrame, max_lights: Option<usize>, stale: bool) -> String {
     to_json(&JsonFrame {
         seq: frame.seq,
