@@ -53,6 +53,10 @@ pub const SUBSCRIBE_BODY_LEN: usize = 8;
 pub const MAX_MESSAGE_LEN: usize = 1 << 20;
 /// The most lights one frame message can carry within [`MAX_MESSAGE_LEN`] (32767).
 pub const MAX_FRAME_LIGHTS: usize = (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN) / LIGHT_RECORD_LEN;
+// The largest frame fits in a message, one more light would not.
+const _: () = assert!(8 + FRAME_FIXED_LEN + MAX_FRAME_LIGHTS * LIGHT_RECORD_LEN <= MAX_MESSAGE_LEN);
+const _: () =
+    assert!(8 + FRAME_FIXED_LEN + (MAX_FRAME_LIGHTS + 1) * LIGHT_RECORD_LEN > MAX_MESSAGE_LEN);
 /// Longest text (UTF-8 bytes) written in an error or goodbye message; longer text is cut at a
 /// character boundary.
 pub const MAX_TEXT_LEN: usize = 4096;
@@ -900,8 +904,6 @@ mod tests {
     #[test]
     fn max_frame_lights_fits_the_limit() {
         assert_eq!(MAX_FRAME_LIGHTS, 32767);
-        assert!(8 + FRAME_FIXED_LEN + MAX_FRAME_LIGHTS * LIGHT_RECORD_LEN <= MAX_MESSAGE_LEN);
-        assert!(8 + FRAME_FIXED_LEN + (MAX_FRAME_LIGHTS + 1) * LIGHT_RECORD_LEN > MAX_MESSAGE_LEN);
     }
 
     #[test]
