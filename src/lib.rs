@@ -5,7 +5,7 @@
 //! (Havran et al. 2005). See `DESIGN.md` in the shared folder for the whole pipeline.
 //!
 //! The CPU math (`envmap`, `decompose`, `yardstick`) has no async, no GPU and no I/O; `capture`
-//! reads frames; `main.rs` is only the command line.
+//! reads frames; `stream` holds the wire format for light lists; `main.rs` is only the command line.
 
 // Per-channel loops `for c in 0..3` over rgb triples read better than zipped iterators.
 #![allow(clippy::needless_range_loop)]
@@ -16,6 +16,7 @@ pub mod decompose;
 pub mod envmap;
 pub mod frame;
 pub mod light;
+pub mod stream;
 pub mod yardstick;
 
 pub use frame::HdrFrame;

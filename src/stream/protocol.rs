@@ -1,0 +1,1093 @@
+//! The envlight wire protocol, version 1: light lists as length-prefixed binary messages, and the
+//! JSON form of the same for WebSocket and scripts. `docs/protocol.md` is the byte-exact contract;
+//! this module implements it and its tests pin it.
+//!
+//! Every binary message is
+//!
+//! ```text
+//! u32 length (bytes that follow) | "ENVL" | u16 version | u16 type | body
+//! ```
+//!
+//! all little-endian. Server → client: [`TYPE_FRAME`] (a light list), [`TYPE_ERROR`] (the
+//! connection is about to close because of the error), [`TYPE_GOODBYE`] (the daemon is shutting
+//! down). Client → server: [`TYPE_SUBSCRIBE`] (a [`Request`]: light cap, representation, binary or
+//! JSON). The JSON forms are [`frame_to_json`], [`error_to_json`], [`goodbye_to_json`],
+//! [`request_to_json`], and the parsers [`parse_json_request`] and [`parse_json_message`].
+//!
+//! [`Decoder`] reads messages from a byte stream fed in arbitrary pieces. It never panics on any
+//! input, rejects an oversized length prefix as soon as the 12-byte header has arrived (before any
+//! of the body is stored, so a peer cannot make it allocate more than [`MAX_MESSAGE_LEN`]), and
+//! after an error stays failed: once framing is lost the connection must be closed, and
+//! [`ProtocolError::code`] gives the error code to send in the closing [`encode_error`] message.
+
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
+
+use crate::light::{Light, LightFrame};
+
+/// The four bytes after the length prefix of every message.
+pub const MAGIC: [u8; 4] = *b"ENVL";
+/// The protocol version this build writes and reads.
+pub const VERSION: u16 = 1;
+
+/// Message type: a light list (server → client).
+pub const TYPE_FRAME: u16 = 1;
+/// Message type: an error; the sender closes the connection after it.
+pub const TYPE_ERROR: u16 = 2;
+/// Message type: goodbye; the daemon is shutting down and closes the connection after it.
+pub const TYPE_GOODBYE: u16 = 3;
+/// Message type: subscribe (client → server), carrying a [`Request`].
+pub const TYPE_SUBSCRIBE: u16 = 16;
+
+/// Size of the common header including the length prefix: length, magic, version, type.
+pub const HEADER_LEN: usize = 12;
+/// Size of a frame message's fixed part after the common header: seq, time, representation,
+/// flags, reserved, count.
+pub const FRAME_FIXED_LEN: usize = 24;
+/// Size of one light record: u32 id, 3×f32 dir, 3×f32 rgb, f32 solid angle.
+pub const LIGHT_RECORD_LEN: usize = 32;
+/// Size of a subscribe message's body after the common header.
+pub const SUBSCRIBE_BODY_LEN: usize = 8;
+/// The largest accepted value of the length prefix (bytes after it): 1 MiB.
+pub const MAX_MESSAGE_LEN: usize = 1 << 20;
+/// The most lights one frame message can carry within [`MAX_MESSAGE_LEN`] (32767).
+pub const MAX_FRAME_LIGHTS: usize = (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN) / LIGHT_RECORD_LEN;
+// The largest frame fits in a message, one more light would not.
+const _: () = assert!(8 + FRAME_FIXED_LEN + MAX_FRAME_LIGHTS * LIGHT_RECORD_LEN <= MAX_MESSAGE_LEN);
+const _: () =
+    assert!(8 + FRAME_FIXED_LEN + (MAX_FRAME_LIGHTS + 1) * LIGHT_RECORD_LEN > MAX_MESSAGE_LEN);
+/// Longest text (UTF-8 bytes) written in an error or goodbye message; longer text is cut at a
+/// character boundary.
+pub const MAX_TEXT_LEN: usize = 4096;
+
+/// Frame flag bit 0: the lights are the last known ones; the source is lost.
+pub const FLAG_STALE: u8 = 1;
+
+/// Error codes carried by [`TYPE_ERROR`] messages (and by [`ProtocolError::code`]).
+pub mod code {
+    /// Malformed bytes: bad magic, inconsistent lengths, non-finite floats, invalid UTF-8, a
+    /// stream that ended inside a message.
+    pub const MALFORMED: u16 = 1;
+    /// The message's protocol version is not spoken here.
+    pub const UNSUPPORTED_VERSION: u16 = 2;
+    /// The message type is unknown.
+    pub const UNKNOWN_TYPE: u16 = 3;
+    /// The length prefix exceeds the maximum message size.
+    pub const TOO_LARGE: u16 = 4;
+    /// The request is well formed but invalid: bad JSON, unknown field, unknown
+    /// representation or format code.
+    pub const BAD_REQUEST: u16 = 5;
+    /// The representation is valid but not produced by this daemon (or has no v1 layout).
+    pub const UNSUPPORTED_REPRESENTATION: u16 = 6;
+    /// A valid message that the receiver does not accept in this direction (e.g. a client
+    /// sending a frame).
+    pub const UNEXPECTED_MESSAGE: u16 = 7;
+    /// The server failed for a reason that is not the client's fault.
+    pub const INTERNAL: u16 = 100;
+    /// Goodbye code: the daemon is shutting down.
+    pub const SHUTDOWN: u16 = 0;
+}
+
+/// What kind of lighting a frame carries. Only [`Representation::Lights`] is produced and has a
+/// frame layout in version 1; the other codes are reserved.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Representation {
+    /// Directional lights (code 0).
+    #[default]
+    Lights,
+    /// Anisotropic spherical Gaussians (code 1, reserved).
+    Asg,
+    /// Sparse wavelet coefficients (code 2, reserved).
+    Wavelet,
+}
+
+impl Representation {
+    /// The wire code.
+    pub fn code(self) -> u8 {
+        match self {
+            Representation::Lights => 0,
+            Representation::Asg => 1,
+            Representation::Wavelet => 2,
+        }
+    }
+
+    /// The representation with this wire code.
+    pub fn from_code(code: u8) -> Result<Self, ProtocolError> {
+        match code {
+            0 => Ok(Representation::Lights),
+            1 => Ok(Representation::Asg),
+            2 => Ok(Representation::Wavelet),
+            _ => Err(ProtocolError::UnknownRepresentation { code }),
+        }
+    }
+}
+
+/// How the server encodes the frames it sends to a client.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Binary frame messages (code 0).
+    Binary,
+    /// JSON text, one object per frame (code 1).
+    #[default]
+    Json,
+}
+
+impl Format {
+    /// The wire code.
+    pub fn code(self) -> u8 {
+        match self {
+            Format::Binary => 0,
+            Format::Json => 1,
+        }
+    }
+
+    /// The format with this wire code.
+    pub fn from_code(code: u8) -> Result<Self, ProtocolError> {
+        match code {
+            0 => Ok(Format::Binary),
+            1 => Ok(Format::Json),
+            _ => Err(ProtocolError::UnknownFormat { code }),
+        }
+    }
+}
+
+/// A client's subscription: what it wants to receive.
+///
+/// JSON form: `{"subscribe": {"max_lights": 64, "representation": "lights", "format": "json"}}`;
+/// every field is optional (defaults: all lights, `"lights"`, `"json"`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Request {
+    /// At most this many lights per frame; 0 = all.
+    pub max_lights: u32,
+    /// The representation wanted.
+    pub representation: Representation,
+    /// Binary or JSON frames.
+    pub format: Format,
+}
+
+impl Request {
+    /// The light cap as [`encode_frame`] takes it: `None` for all lights.
+    pub fn cap(&self) -> Option<usize> {
+        (self.max_lights != 0).then_some(self.max_lights as usize)
+    }
+}
+
+/// A decoded light-list message.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameMessage {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, seconds since the source started.
+    pub time: f64,
+    /// Always [`Representation::Lights`] in version 1.
+    pub representation: Representation,
+    /// The lights are the last known ones; the source is lost.
+    pub stale: bool,
+    /// The lights, in the order they were sent (by id, as in [`LightFrame`]).
+    pub lights: Vec<Light>,
+}
+
+impl FrameMessage {
+    /// The light list without the transport fields.
+    pub fn into_light_frame(self) -> LightFrame {
+        LightFrame {
+            seq: self.seq,
+            time: self.time,
+            lights: self.lights,
+        }
+    }
+}
+
+/// One decoded message.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Message {
+    /// A light list.
+    Frame(FrameMessage),
+    /// An error; the sender closes the connection after it.
+    Error {
+        /// One of [`code`].
+        code: u16,
+        /// Human-readable text.
+        message: String,
+    },
+    /// The daemon is shutting down.
+    Goodbye {
+        /// Human-readable text.
+        message: String,
+    },
+    /// A client's subscription.
+    Subscribe(Request),
+}
+
+/// Everything that can be wrong with bytes or text received from a peer.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ProtocolError {
+    /// The four bytes after the length prefix are not `ENVL`.
+    #[error("bad magic {found:02x?} (expected \"ENVL\" = [45, 4e, 56, 4c]): not an envlight stream, or the stream lost its framing")]
+    BadMagic {
+        /// The bytes found.
+        found: [u8; 4],
+    },
+    /// A protocol version other than [`VERSION`].
+    #[error("unsupported protocol version {version}; this side speaks version {VERSION}")]
+    UnsupportedVersion {
+        /// The version found.
+        version: u16,
+    },
+    /// A message type this version does not define.
+    #[error("unknown message type {message_type} (version 1 defines 1 = frame, 2 = error, 3 = goodbye, 16 = subscribe)")]
+    UnknownType {
+        /// The type found.
+        message_type: u16,
+    },
+    /// The length prefix exceeds [`MAX_MESSAGE_LEN`].
+    #[error("length prefix {len} exceeds the maximum message size of {MAX_MESSAGE_LEN} bytes")]
+    Oversized {
+        /// The length found.
+        len: u64,
+    },
+    /// The lengths inside a message disagree with each other or with the message type.
+    #[error("malformed {kind} message: {reason}")]
+    Inconsistent {
+        /// Which message.
+        kind: &'static str,
+        /// What disagrees.
+        reason: String,
+    },
+    /// A float that must be finite is NaN or infinite.
+    #[error("non-finite value in {field}")]
+    NonFinite {
+        /// Which field (with the light index for light fields).
+        field: String,
+    },
+    /// Text that is not valid UTF-8.
+    #[error("{kind} message text is not valid UTF-8: {detail}")]
+    InvalidUtf8 {
+        /// Which message.
+        kind: &'static str,
+        /// Where it fails.
+        detail: String,
+    },
+    /// A representation code that no version defines.
+    #[error("unknown representation code {code} (0 = lights, 1 = asg, 2 = wavelet)")]
+    UnknownRepresentation {
+        /// The code found.
+        code: u8,
+    },
+    /// A frame of a representation that has no frame layout in version 1.
+    #[error("frame of representation {representation:?} has no layout in protocol version 1")]
+    UnsupportedRepresentation {
+        /// The representation found.
+        representation: Representation,
+    },
+    /// A format code that no version defines.
+    #[error("unknown format code {code} (0 = binary, 1 = json)")]
+    UnknownFormat {
+        /// The code found.
+        code: u8,
+    },
+    /// JSON text that does not parse as the expected message.
+    #[error("invalid JSON message: {0}")]
+    Json(String),
+    /// The stream ended inside a message.
+    #[error("stream ended inside a message ({buffered} bytes of it received)")]
+    Truncated {
+        /// How many bytes of the unfinished message had arrived.
+        buffered: usize,
+    },
+}
+
+impl ProtocolError {
+    /// The error code to send to the peer in the closing [`TYPE_ERROR`] message.
+    pub fn code(&self) -> u16 {
+        match self {
+            ProtocolError::BadMagic { .. }
+            | ProtocolError::Inconsistent { .. }
+            | ProtocolError::NonFinite { .. }
+            | ProtocolError::InvalidUtf8 { .. }
+            | ProtocolError::Truncated { .. } => code::MALFORMED,
+            ProtocolError::UnsupportedVersion { .. } => code::UNSUPPORTED_VERSION,
+            ProtocolError::UnknownType { .. } => code::UNKNOWN_TYPE,
+            ProtocolError::Oversized { .. } => code::TOO_LARGE,
+            ProtocolError::UnknownRepresentation { .. }
+            | ProtocolError::UnknownFormat { .. }
+            | ProtocolError::Json(_) => code::BAD_REQUEST,
+            ProtocolError::UnsupportedRepresentation { .. } => code::UNSUPPORTED_REPRESENTATION,
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Light selection
+
+/// The lights to send for a cap: all of them, or the `max` with the largest luminance
+/// ([`Light::luminance`]), ties broken by position, kept in their original order (by id).
+/// Never more than [`MAX_FRAME_LIGHTS`]. Kept lights are copied unchanged.
+fn select_lights(lights: &[Light], max_lights: Option<usize>) -> Cow<'_, [Light]> {
+    let cap = max_lights.unwrap_or(usize::MAX).min(MAX_FRAME_LIGHTS);
+    if lights.len() <= cap {
+        return Cow::Borrowed(lights);
+    }
+    let mut order: Vec<usize> = (0..lights.len()).collect();
+    let brighter = |a: &usize, b: &usize| {
+        lights[*b]
+            .luminance()
+            .total_cmp(&lights[*a].luminance())
+            .then(a.cmp(b))
+    };
+    if cap > 0 {
+        order.select_nth_unstable_by(cap - 1, brighter);
+    }
+    order.truncate(cap);
+    order.sort_unstable();
+    Cow::Owned(order.into_iter().map(|i| lights[i]).collect())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Binary encoding
+
+fn put_header(out: &mut Vec<u8>, body_len: usize, message_type: u16) {
+    // Callers keep body_len ≤ MAX_MESSAGE_LEN - 8, so the prefix fits a u32.
+    out.extend_from_slice(&((body_len + 8) as u32).to_le_bytes());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.extend_from_slice(&message_type.to_le_bytes());
+}
+
+/// Appends one binary frame message for `frame` to `out`.
+///
+/// With `max_lights = Some(n)` and more than `n` lights, only the `n` lights of largest
+/// luminance ([`Light::luminance`], Rec. 709) are sent — the ones that matter most for shading —
+/// in their original order (by id); ties go to the earlier light. Capping selects, it never
+/// merges or rescales: every kept light is sent bit for bit as it is in `frame` (so the energy of
+/// the dropped lights is missing, not redistributed). A message carries at most
+/// [`MAX_FRAME_LIGHTS`] lights; a longer list is capped to that. `stale` sets [`FLAG_STALE`].
+///
+/// Lights and time should be finite (the decomposition guarantees it); decoders reject
+/// non-finite values.
+pub fn encode_frame(frame: &LightFrame, max_lights: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+    let lights = select_lights(&frame.lights, max_lights);
+    let body_len = FRAME_FIXED_LEN + lights.len() * LIGHT_RECORD_LEN;
+    out.reserve(4 + 8 + body_len);
+    put_header(out, body_len, TYPE_FRAME);
+    out.extend_from_slice(&frame.seq.to_le_bytes());
+    out.extend_from_slice(&frame.time.to_le_bytes());
+    out.push(Representation::Lights.code());
+    out.push(if stale { FLAG_STALE } else { 0 });
+    out.extend_from_slice(&0u16.to_le_bytes());
+    out.extend_from_slice(&(lights.len() as u32).to_le_bytes());
+    for light in lights.iter() {
+        out.extend_from_slice(&light.id.to_le_bytes());
+        for v in light.dir.iter().chain(&light.rgb) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&light.solid_angle.to_le_bytes());
+    }
+}
+
+/// `text` cut to at most [`MAX_TEXT_LEN`] bytes at a character boundary.
+fn clip_text(text: &str) -> &str {
+    if text.len() <= MAX_TEXT_LEN {
+        return text;
+    }
+    let mut end = MAX_TEXT_LEN;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    &text[..end]
+}
+
+fn encode_text(message_type: u16, code: u16, text: &str, out: &mut Vec<u8>) {
+    let text = clip_text(text);
+    put_header(out, 6 + text.len(), message_type);
+    out.extend_from_slice(&code.to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(text.as_bytes());
+}
+
+/// Appends an error message (`code` from [`code`], e.g. [`ProtocolError::code`]) to `out`.
+/// Text longer than [`MAX_TEXT_LEN`] bytes is cut at a character boundary.
+pub fn encode_error(code: u16, message: &str, out: &mut Vec<u8>) {
+    encode_text(TYPE_ERROR, code, message, out);
+}
+
+/// Appends a goodbye message (code [`code::SHUTDOWN`]) to `out`. Text longer than
+/// [`MAX_TEXT_LEN`] bytes is cut at a character boundary.
+pub fn encode_goodbye(message: &str, out: &mut Vec<u8>) {
+    encode_text(TYPE_GOODBYE, code::SHUTDOWN, message, out);
+}
+
+/// Appends a subscribe message carrying `request` to `out`.
+pub fn encode_request(request: &Request, out: &mut Vec<u8>) {
+    put_header(out, SUBSCRIBE_BODY_LEN, TYPE_SUBSCRIBE);
+    out.extend_from_slice(&request.max_lights.to_le_bytes());
+    out.push(request.representation.code());
+    out.push(request.format.code());
+    out.extend_from_slice(&0u16.to_le_bytes());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Binary decoding
+
+fn u16_at(b: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([b[at], b[at + 1]])
+}
+
+fn u32_at(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+
+fn u64_at(b: &[u8], at: usize) -> u64 {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(&b[at..at + 8]);
+    u64::from_le_bytes(a)
+}
+
+fn f32_at(b: &[u8], at: usize) -> f32 {
+    f32::from_bits(u32_at(b, at))
+}
+
+fn kind_name(message_type: u16) -> &'static str {
+    match message_type {
+        TYPE_FRAME => "frame",
+        TYPE_ERROR => "error",
+        TYPE_GOODBYE => "goodbye",
+        TYPE_SUBSCRIBE => "subscribe",
+        _ => "unknown",
+    }
+}
+
+/// Checks whatever part of the 12-byte header `b` already holds (it may hold less). Returns the
+/// length prefix once it is known.
+fn check_header(b: &[u8]) -> Result<Option<usize>, ProtocolError> {
+    if b.len() < 4 {
+        return Ok(None);
+    }
+    let len = u32_at(b, 0) as usize;
+    if len > MAX_MESSAGE_LEN {
+        return Err(ProtocolError::Oversized { len: len as u64 });
+    }
+    if b.len() >= 8 {
+        let found = [b[4], b[5], b[6], b[7]];
+        if found != MAGIC {
+            return Err(ProtocolError::BadMagic { found });
+        }
+    }
+    if b.len() >= 10 {
+        let version = u16_at(b, 8);
+        if version != VERSION {
+            return Err(ProtocolError::UnsupportedVersion { version });
+        }
+    }
+    if len < 8 {
+        return Err(ProtocolError::Inconsistent {
+            kind: "any",
+            reason: format!("length prefix {len} is shorter than the 8-byte header after it"),
+        });
+    }
+    if b.len() >= 12 {
+        let message_type = u16_at(b, 10);
+        let body = len - 8;
+        let ok = match message_type {
+            TYPE_FRAME => {
+                body >= FRAME_FIXED_LEN && (body - FRAME_FIXED_LEN) % LIGHT_RECORD_LEN == 0
+            }
+            TYPE_ERROR | TYPE_GOODBYE => body >= 6,
+            TYPE_SUBSCRIBE => body == SUBSCRIBE_BODY_LEN,
+            _ => return Err(ProtocolError::UnknownType { message_type }),
+        };
+        if !ok {
+            return Err(ProtocolError::Inconsistent {
+                kind: kind_name(message_type),
+                reason: format!("length prefix {len} does not fit the message layout"),
+            });
+        }
+    }
+    Ok(Some(len))
+}
+
+fn finite(v: f32, field: impl FnOnce() -> String) -> Result<f32, ProtocolError> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(ProtocolError::NonFinite { field: field() })
+    }
+}
+
+/// Decodes a body (the bytes after the 12-byte header) whose type and length `check_header`
+/// accepted.
+fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError> {
+    match message_type {
+        TYPE_FRAME => {
+            let seq = u64_at(body, 0);
+            let time = f64::from_le_bytes(body[8..16].try_into().unwrap_or([0; 8]));
+            if !time.is_finite() {
+                return Err(ProtocolError::NonFinite {
+                    field: "frame time".into(),
+                });
+            }
+            let representation = Representation::from_code(body[16])?;
+            if representation != Representation::Lights {
+                return Err(ProtocolError::UnsupportedRepresentation { representation });
+            }
+            let stale = body[17] & FLAG_STALE != 0;
+            let count = u32_at(body, 20) as usize;
+            let records = &body[FRAME_FIXED_LEN..];
+            if records.len() / LIGHT_RECORD_LEN != count {
+                return Err(ProtocolError::Inconsistent {
+                    kind: "frame",
+                    reason: format!(
+                        "count {count} × {LIGHT_RECORD_LEN} bytes ≠ {} bytes of light records",
+                        records.len()
+                    ),
+                });
+            }
+            let mut lights = Vec::with_capacity(count);
+            for (i, r) in records.chunks_exact(LIGHT_RECORD_LEN).enumerate() {
+                let f =
+                    |at: usize, name: &str| finite(f32_at(r, at), || format!("light {i} {name}"));
+                lights.push(Light {
+                    id: u32_at(r, 0),
+                    dir: [f(4, "dir")?, f(8, "dir")?, f(12, "dir")?],
+                    rgb: [f(16, "rgb")?, f(20, "rgb")?, f(24, "rgb")?],
+                    solid_angle: f(28, "solid_angle")?,
+                });
+            }
+            Ok(Message::Frame(FrameMessage {
+                seq,
+                time,
+                representation,
+                stale,
+                lights,
+            }))
+        }
+        TYPE_ERROR | TYPE_GOODBYE => {
+            let kind = kind_name(message_type);
+            let code = u16_at(body, 0);
+            let text_len = u32_at(body, 2) as usize;
+            let text = &body[6..];
+            if text.len() != text_len {
+                return Err(ProtocolError::Inconsistent {
+                    kind,
+                    reason: format!(
+                        "text length {text_len} ≠ {} bytes left in the message",
+                        text.len()
+                    ),
+                });
+            }
+            let message = std::str::from_utf8(text)
+                .map_err(|e| ProtocolError::InvalidUtf8 {
+                    kind,
+                    detail: e.to_string(),
+                })?
+                .to_owned();
+            Ok(if message_type == TYPE_ERROR {
+                Message::Error { code, message }
+            } else {
+                Message::Goodbye { message }
+            })
+        }
+        TYPE_SUBSCRIBE => Ok(Message::Subscribe(Request {
+            max_lights: u32_at(body, 0),
+            representation: Representation::from_code(body[4])?,
+            format: Format::from_code(body[5])?,
+        })),
+        message_type => Err(ProtocolError::UnknownType { message_type }),
+    }
+}
+
+/// Decodes exactly one complete binary message from `bytes` (length prefix included); trailing
+/// bytes are an error. For streams use [`Decoder`].
+pub fn decode_message(bytes: &[u8]) -> Result<Message, ProtocolError> {
+    let mut decoder = Decoder::new();
+    decoder.push(bytes);
+    match decoder.next_message()? {
+        Some(message) if decoder.buffered() == 0 => Ok(message),
+        Some(_) => Err(ProtocolError::Inconsistent {
+            kind: "any",
+            reason: format!("{} bytes after the end of the message", decoder.buffered()),
+        }),
+        None => Err(ProtocolError::Truncated {
+            buffered: bytes.len(),
+        }),
+    }
+}
+
+/// Incremental decoder for a byte stream: [`push`](Decoder::push) bytes as they arrive, in any
+/// pieces, and take complete messages with [`next_message`](Decoder::next_message).
+///
+/// Memory stays bounded: the header of the pending message (length prefix, magic, version,
+/// type, and whether the length fits the type) is checked as soon as its 12 bytes arrive and
+/// before any byte of its body is stored, so the decoder holds at most one message of at most
+/// [`MAX_MESSAGE_LEN`] + 4 bytes plus the rest of the latest push. After an error the decoder
+/// stays failed: it discards further input and returns the same error again.
+#[derive(Debug, Default)]
+pub struct Decoder {
+    buf: Vec<u8>,
+    /// Start of the first unconsumed byte in `buf`.
+    pos: usize,
+    error: Option<ProtocolError>,
+}
+
+impl Decoder {
+    /// An empty decoder.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Appends received bytes.
+    pub fn push(&mut self, mut bytes: &[u8]) {
+        if self.error.is_some() {
+            return;
+        }
+        let pending = self.buf.len() - self.pos;
+        if pending < HEADER_LEN {
+            let take = (HEADER_LEN - pending).min(bytes.len());
+            self.buf.extend_from_slice(&bytes[..take]);
+            bytes = &bytes[take..];
+            if let Err(e) = check_header(&self.buf[self.pos..]) {
+                self.fail(e);
+                return;
+            }
+        }
+        self.buf.extend_from_slice(bytes);
+    }
+
+    /// The next complete message, `Ok(None)` if more bytes are needed, or the error that ends
+    /// the stream (returned again on every later call).
+    pub fn next_message(&mut self) -> Result<Option<Message>, ProtocolError> {
+        if let Some(e) = &self.error {
+            return Err(e.clone());
+        }
+        let pending = &self.buf[self.pos..];
+        let len = match check_header(pending) {
+            Err(e) => return Err(self.fail(e)),
+            Ok(None) => return Ok(None),
+            Ok(Some(len)) => len,
+        };
+        if pending.len() < 4 + len {
+            return Ok(None);
+        }
+        let message_type = u16_at(pending, 10);
+        match decode_body(message_type, &pending[HEADER_LEN..4 + len]) {
+            Err(e) => Err(self.fail(e)),
+            Ok(message) => {
+                self.pos += 4 + len;
+                if self.pos == self.buf.len() {
+                    self.buf.clear();
+                    self.pos = 0;
+                } else if self.pos >= self.buf.len() / 2 {
+                    self.buf.drain(..self.pos);
+                    self.pos = 0;
+                }
+                Ok(Some(message))
+            }
+        }
+    }
+
+    /// Bytes received and not yet returned as messages.
+    pub fn buffered(&self) -> usize {
+        self.buf.len() - self.pos
+    }
+
+    /// Call when the stream has ended: an error if it ended inside a message (or the decoder
+    /// had failed).
+    pub fn finish(&self) -> Result<(), ProtocolError> {
+        match &self.error {
+            Some(e) => Err(e.clone()),
+            None if self.buffered() > 0 => Err(ProtocolError::Truncated {
+                buffered: self.buffered(),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    fn fail(&mut self, e: ProtocolError) -> ProtocolError {
+        self.buf = Vec::new();
+        self.pos = 0;
+        self.error = Some(e.clone());
+        e
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// JSON form
+
+#[derive(Serialize, Deserialize)]
+struct JsonFrame<'a> {
+    seq: u64,
+    time: f64,
+    #[serde(default)]
+    representation: Representation,
+    #[serde(default)]
+    stale: bool,
+    lights: Cow<'a, [Light]>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonText<'a> {
+    code: u16,
+    message: Cow<'a, str>,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "lowercase")]
+enum JsonEnvelope<'a> {
+    Error(JsonText<'a>),
+    Goodbye(JsonText<'a>),
+    Subscribe(&'a Request),
+}
+
+#[derive(Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
+enum JsonRequest {
+    Subscribe(Request),
+}
+
+#[derive(Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
+enum JsonControl<'a> {
+    Error(JsonText<'a>),
+    Goodbye(JsonText<'a>),
+    Subscribe(Request),
+}
+
+fn to_json<T: Serialize>(value: &T) -> String {
+    // Plain derived structs of numbers and strings: serialising to a String cannot fail
+    // (non-finite floats become `null`).
+    serde_json::to_string(value).unwrap_or_default()
+}
+
+/// The JSON form of a frame (DESIGN.md's object plus `representation` and `stale`), with the
+/// same light selection as [`encode_frame`]:
+///
+/// ```json
+/// {"seq":17,"time":0.5,"representation":"lights","stale":false,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}
+/// ```
+///
+/// Floats are written in shortest round-trip form, so parsing them back as f32/f64 with a
+/// correctly rounding parser (serde_json's `float_roundtrip` feature, Python's `json`) gives the
+/// same values bit for bit.
+pub fn frame_to_json(frame: &LightFrame, max_lights: Option<usize>, stale: bool) -> String {
+    to_json(&JsonFrame {
+        seq: frame.seq,
+        time: frame.time,
+        representation: Representation::Lights,
+        stale,
+        lights: select_lights(&frame.lights, max_lights),
+    })
+}
+
+/// The JSON form of an error: `{"error":{"code":5,"message":"..."}}`.
+pub fn error_to_json(code: u16, message: &str) -> String {
+    to_json(&JsonEnvelope::Error(JsonText {
+        code,
+        message: Cow::Borrowed(clip_text(message)),
+    }))
+}
+
+/// The JSON form of a goodbye: `{"goodbye":{"code":0,"message":"..."}}`.
+pub fn goodbye_to_json(message: &str) -> String {
+    to_json(&JsonEnvelope::Goodbye(JsonText {
+        code: code::SHUTDOWN,
+        message: Cow::Borrowed(clip_text(message)),
+    }))
+}
+
+/// The JSON form of a request: `{"subscribe":{"max_lights":64,"representation":"lights","format":"json"}}`.
+pub fn request_to_json(request: &Request) -> String {
+    to_json(&JsonEnvelope::Subscribe(request))
+}
+
+fn check_json_len(text: &str) -> Result<(), ProtocolError> {
+    if text.len() > MAX_MESSAGE_LEN {
+        return Err(ProtocolError::Oversized {
+            len: text.len() as u64,
+        });
+    }
+    Ok(())
+}
+
+/// Parses a client's JSON request, `{"subscribe": {...}}`. Unknown fields, unknown
+/// representation or format names, and text longer than [`MAX_MESSAGE_LEN`] are errors.
+pub fn parse_json_request(text: &str) -> Result<Request, ProtocolError> {
+    check_json_len(text)?;
+    match serde_json::from_str::<JsonRequest>(text) {
+        Ok(JsonRequest::Subscribe(request)) => Ok(request),
+        Err(e) => Err(ProtocolError::Json(e.to_string())),
+    }
+}
+
+/// Parses any JSON message (what a JSON client receives, or a request): a frame object (has
+/// `lights`), `{"error":…}`, `{"goodbye":…}` or `{"subscribe":…}`. Frame lights must be finite.
+pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
+    check_json_len(text)?;
+    let value: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| ProtocolError::Json(e.to_string()))?;
+    let json_err = |e: serde_json::Error| ProtocolError::Json(e.to_string());
+    if value.get("lights").is_some() {
+        let frame: JsonFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
+        if frame.representation != Representation::Lights {
+            return Err(ProtocolError::UnsupportedRepresentation {
+                representation: frame.representation,
+            });
+        }
+        // JSON has no NaN, but a huge number parsed as f32 becomes infinite.
+        let lights = frame.lights.into_owned();
+        let finite_light = |l: &Light| {
+            l.dir
+                .iter()
+                .chain(&l.rgb)
+                .chain([&l.solid_angle])
+                .all(|v| v.is_finite())
+        };
+        if !frame.time.is_finite() {
+            return Err(ProtocolError::NonFinite {
+                field: "frame time".into(),
+            });
+        }
+        if let Some(i) = lights.iter().position(|l| !finite_light(l)) {
+            return Err(ProtocolError::NonFinite {
+                field: format!("light {i}"),
+            });
+        }
+        return Ok(Message::Frame(FrameMessage {
+            seq: frame.seq,
+            time: frame.time,
+            representation: frame.representation,
+            stale: frame.stale,
+            lights,
+        }));
+    }
+    let control: JsonControl<'_> = serde_json::from_str(text).map_err(json_err)?;
+    Ok(match control {
+        JsonControl::Error(t) => Message::Error {
+            code: t.code,
+            message: t.message.into_owned(),
+        },
+        JsonControl::Goodbye(t) => Message::Goodbye {
+            message: t.message.into_owned(),
+        },
+        JsonControl::Subscribe(request) => Message::Subscribe(request),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn light(id: u32, power: f32) -> Light {
+        Light {
+            id,
+            dir: [0.0, 1.0, 0.0],
+            rgb: [power, power * 0.5, power * 0.25],
+            solid_angle: 0.01,
+        }
+    }
+
+    fn decode_all(bytes: &[u8]) -> Vec<Message> {
+        let mut d = Decoder::new();
+        d.push(bytes);
+        let mut out = Vec::new();
+        while let Some(m) = d.next_message().unwrap() {
+            out.push(m);
+        }
+        d.finish().unwrap();
+        out
+    }
+
+    #[test]
+    fn max_frame_lights_fits_the_limit() {
+        assert_eq!(MAX_FRAME_LIGHTS, 32767);
+    }
+
+    #[test]
+    fn frame_message_sizes() {
+        let mut out = Vec::new();
+        let frame = LightFrame {
+            seq: 1,
+            time: 0.0,
+            lights: (0..3).map(|i| light(i, 1.0)).collect(),
+        };
+        encode_frame(&frame, None, false, &mut out);
+        assert_eq!(
+            out.len(),
+            HEADER_LEN + FRAME_FIXED_LEN + 3 * LIGHT_RECORD_LEN
+        );
+        assert_eq!(u32_at(&out, 0) as usize, out.len() - 4);
+    }
+
+    #[test]
+    fn selection_keeps_brightest_in_id_order() {
+        let lights: Vec<Light> = [5.0, 1.0, 9.0, 3.0, 9.0, 0.5]
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| light(i as u32, p))
+            .collect();
+        let kept = select_lights(&lights, Some(3));
+        let ids: Vec<u32> = kept.iter().map(|l| l.id).collect();
+        assert_eq!(ids, vec![0, 2, 4]);
+        assert!(select_lights(&lights, Some(0)).is_empty());
+        assert_eq!(select_lights(&lights, Some(6)).len(), 6);
+        assert_eq!(select_lights(&lights, None).len(), 6);
+        // Ties go to the earlier light.
+        let ids: Vec<u32> = select_lights(&lights, Some(1))
+            .iter()
+            .map(|l| l.id)
+            .collect();
+        assert_eq!(ids, vec![2]);
+    }
+
+    #[test]
+    fn error_and_goodbye_round_trip() {
+        let mut out = Vec::new();
+        encode_error(code::BAD_REQUEST, "no such representation: ä", &mut out);
+        encode_goodbye("daemon shutting down", &mut out);
+        let messages = decode_all(&out);
+        assert_eq!(
+            messages,
+            vec![
+                Message::Error {
+                    code: code::BAD_REQUEST,
+                    message: "no such representation: ä".into()
+                },
+                Message::Goodbye {
+                    message: "daemon shutting down".into()
+                }
+            ]
+        );
+    }
+
+    #[test]
+    fn long_text_is_clipped_at_a_char_boundary() {
+        let text = "é".repeat(MAX_TEXT_LEN); // 2 bytes each
+        let mut out = Vec::new();
+        encode_error(code::INTERNAL, &text, &mut out);
+        match decode_message(&out).unwrap() {
+            Message::Error { message, .. } => {
+                assert_eq!(message.len(), MAX_TEXT_LEN);
+                assert!(message.chars().all(|c| c == 'é'));
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+
+    #[test]
+    fn header_errors_are_detected_early() {
+        // Bad magic as soon as 8 bytes are there.
+        let mut d = Decoder::new();
+        d.push(&[16, 0, 0, 0, b'H', b'T', b'T', b'P']);
+        assert!(matches!(
+            d.next_message(),
+            Err(ProtocolError::BadMagic { found }) if &found == b"HTTP"
+        ));
+        // Sticky: later input is discarded and the error repeats.
+        d.push(&[0; 100]);
+        assert_eq!(d.buffered(), 0);
+        assert!(matches!(
+            d.next_message(),
+            Err(ProtocolError::BadMagic { .. })
+        ));
+
+        let mut d = Decoder::new();
+        d.push(&[8, 0, 0, 0, b'E', b'N', b'V', b'L', 2, 0]);
+        assert_eq!(
+            d.next_message(),
+            Err(ProtocolError::UnsupportedVersion { version: 2 })
+        );
+
+        let mut d = Decoder::new();
+        d.push(&[8, 0, 0, 0, b'E', b'N', b'V', b'L', 1, 0, 9, 0]);
+        assert_eq!(
+            d.next_message(),
+            Err(ProtocolError::UnknownType { message_type: 9 })
+        );
+
+        let mut d = Decoder::new();
+        d.push(&[3, 0, 0, 0]);
+        assert!(matches!(
+            d.next_message(),
+            Err(ProtocolError::Inconsistent { .. })
+        ));
+    }
+
+    #[test]
+    fn error_codes_map() {
+        assert_eq!(
+            ProtocolError::Oversized { len: 1 << 30 }.code(),
+            code::TOO_LARGE
+        );
+        assert_eq!(
+            ProtocolError::BadMagic { found: [0; 4] }.code(),
+            code::MALFORMED
+        );
+        assert_eq!(ProtocolError::Json("x".into()).code(), code::BAD_REQUEST);
+    }
+
+    #[test]
+    fn subscribe_with_unknown_codes_is_rejected() {
+        let mut out = Vec::new();
+        encode_request(&Request::default(), &mut out);
+        let mut bad = out.clone();
+        bad[16] = 7;
+        assert_eq!(
+            decode_message(&bad),
+            Err(ProtocolError::UnknownRepresentation { code: 7 })
+        );
+        let mut bad = out.clone();
+        bad[17] = 2;
+        assert_eq!(
+            decode_message(&bad),
+            Err(ProtocolError::UnknownFormat { code: 2 })
+        );
+    }
+
+    #[test]
+    fn frame_with_reserved_representation_is_rejected() {
+        let mut out = Vec::new();
+        encode_frame(&LightFrame::default(), None, false, &mut out);
+        out[28] = Representation::Asg.code();
+        assert_eq!(
+            decode_message(&out),
+            Err(ProtocolError::UnsupportedRepresentation {
+                representation: Representation::Asg
+            })
+        );
+    }
+
+    #[test]
+    fn json_request_defaults_and_errors() {
+        assert_eq!(
+            parse_json_request(r#"{"subscribe":{}}"#),
+            Ok(Request::default())
+        );
+        assert_eq!(
+            parse_json_request(r#"{"subscribe":{"max_lights":8,"format":"binary"}}"#),
+            Ok(Request {
+                max_lights: 8,
+                representation: Representation::Lights,
+                format: Format::Binary
+            })
+        );
+        for bad in [
+            "",
+            "{",
+            "{}",
+            r#"{"subscribe":{"max_lights":-1}}"#,
+            r#"{"subscribe":{"max_lights":1.5}}"#,
+            r#"{"subscribe":{"max_lights":1e999}}"#,
+            r#"{"subscribe":{"representation":"sh"}}"#,
+            r#"{"subscribe":{"colour":"red"}}"#,
+            r#"{"subscribe":{},"extra":1}"#,
+            r#"{"unsubscribe":{}}"#,
+        ] {
+            let e = parse_json_request(bad).unwrap_err();
+            assert_eq!(e.code(), code::BAD_REQUEST, "{bad}: {e}");
+        }
+    }
+}

@@ -1,0 +1,553 @@
+//! The wire format (src/stream/protocol.rs, docs/protocol.md): round trips through the
+//! incremental decoder in any chunking, light caps, hostile input, the golden byte layout.
+
+use envlight::stream::protocol::{
+    self, code, decode_message, encode_error, encode_frame, encode_goodbye, encode_request,
+    frame_to_json, parse_json_message, parse_json_request, request_to_json, Decoder, Format,
+    FrameMessage, Message, ProtocolError, Representation, Request, MAX_MESSAGE_LEN,
+};
+use envlight::{Light, LightFrame};
+use proptest::prelude::*;
+
+/// Small deterministic generator (xorshift64*), so failures reproduce.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn unit(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+fn random_frame(n: usize, seed: u64) -> LightFrame {
+    let mut rng = Rng(seed | 1);
+    let lights = (0..n)
+        .map(|i| {
+            let z = 2.0 * rng.unit() - 1.0;
+            let phi = std::f32::consts::TAU * rng.unit();
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let p = 1000.0 * rng.unit().powi(4);
+            Light {
+                id: i as u32 * 3 + 1,
+                dir: [r * phi.cos(), z, r * phi.sin()],
+                rgb: [p, p * rng.unit(), p * rng.unit()],
+                solid_angle: 4.0 * std::f32::consts::PI / n as f32 * (0.5 + rng.unit()),
+            }
+        })
+        .collect();
+    LightFrame {
+        seq: seed.wrapping_mul(7919),
+        time: seed as f64 / 60.0,
+        lights,
+    }
+}
+
+fn as_frame(message: Message) -> FrameMessage {
+    match message {
+        Message::Frame(f) => f,
+        other => panic!("expected a frame, got {other:?}"),
+    }
+}
+
+/// Feeds `bytes` to a decoder in the given chunk sizes (cycled) and collects every message;
+/// checks that nothing is returned before its last byte arrived.
+fn decode_chunked(bytes: &[u8], mut chunk: impl FnMut() -> usize) -> Vec<Message> {
+    let mut d = Decoder::new();
+    let mut out = Vec::new();
+    let mut at = 0;
+    while at < bytes.len() {
+        let n = chunk().clamp(1, bytes.len() - at);
+        d.push(&bytes[at..at + n]);
+        at += n;
+        while let Some(m) = d.next_message().expect("valid stream") {
+            out.push(m);
+        }
+    }
+    d.finish().expect("stream ends on a message boundary");
+    out
+}
+
+fn check_frame(decoded: &FrameMessage, frame: &LightFrame, stale: bool) {
+    assert_eq!(decoded.seq, frame.seq);
+    assert_eq!(decoded.time.to_bits(), frame.time.to_bits());
+    assert_eq!(decoded.representation, Representation::Lights);
+    assert_eq!(decoded.stale, stale);
+    assert_eq!(decoded.lights.len(), frame.lights.len());
+    for (a, b) in decoded.lights.iter().zip(&frame.lights) {
+        assert_eq!(a.id, b.id);
+        for (x, y) in a.dir.iter().chain(&a.rgb).zip(b.dir.iter().chain(&b.rgb)) {
+            assert_eq!(x.to_bits(), y.to_bits());
+        }
+        assert_eq!(a.solid_angle.to_bits(), b.solid_angle.to_bits());
+    }
+}
+
+#[test]
+fn frames_round_trip_in_any_chunking() {
+    for (k, n) in [0usize, 1, 256, 16384].into_iter().enumerate() {
+        let frame = random_frame(n, 11 + k as u64);
+        let mut bytes = Vec::new();
+        encode_frame(&frame, None, k % 2 == 1, &mut bytes);
+        assert_eq!(bytes.len(), 36 + 32 * n);
+
+        let whole = decode_chunked(&bytes, || usize::MAX);
+        let mut rng = Rng(99 + n as u64);
+        let random = decode_chunked(&bytes, || 1 + (rng.next() % 97) as usize);
+        let singles = if n <= 256 {
+            decode_chunked(&bytes, || 1)
+        } else {
+            whole.clone()
+        };
+        for messages in [whole, random, singles] {
+            assert_eq!(messages.len(), 1);
+            check_frame(&as_frame(messages[0].clone()), &frame, k % 2 == 1);
+        }
+    }
+}
+
+#[test]
+fn a_stream_of_mixed_messages_decodes_in_order() {
+    let mut bytes = Vec::new();
+    let frames: Vec<LightFrame> = (0..20).map(|i| random_frame(i * 7, i as u64 + 1)).collect();
+    encode_request(
+        &Request {
+            max_lights: 64,
+            representation: Representation::Lights,
+            format: Format::Binary,
+        },
+        &mut bytes,
+    );
+    for f in &frames {
+        encode_frame(f, None, false, &mut bytes);
+    }
+    encode_goodbye("bye", &mut bytes);
+    let mut rng = Rng(5);
+    let messages = decode_chunked(&bytes, || 1 + (rng.next() % 300) as usize);
+    assert_eq!(messages.len(), 22);
+    assert!(matches!(messages[0], Message::Subscribe(r) if r.max_lights == 64));
+    for (m, f) in messages[1..21].iter().zip(&frames) {
+        check_frame(&as_frame(m.clone()), f, false);
+    }
+    assert_eq!(
+        messages[21],
+        Message::Goodbye {
+            message: "bye".into()
+        }
+    );
+}
+
+#[test]
+fn truncated_stream_waits_until_complete() {
+    let frame = random_frame(10, 3);
+    let mut bytes = Vec::new();
+    encode_frame(&frame, None, false, &mut bytes);
+    let mut d = Decoder::new();
+    for (i, b) in bytes.iter().enumerate() {
+        assert_eq!(d.next_message(), Ok(None), "message before byte {i}");
+        d.push(std::slice::from_ref(b));
+    }
+    check_frame(&as_frame(d.next_message().unwrap().unwrap()), &frame, false);
+    assert_eq!(d.next_message(), Ok(None));
+
+    // A stream that ends mid-message is reported by finish().
+    let mut d = Decoder::new();
+    d.push(&bytes[..bytes.len() - 1]);
+    assert_eq!(d.next_message(), Ok(None));
+    assert_eq!(
+        d.finish(),
+        Err(ProtocolError::Truncated {
+            buffered: bytes.len() - 1
+        })
+    );
+    assert!(matches!(
+        decode_message(&bytes[..20]),
+        Err(ProtocolError::Truncated { .. })
+    ));
+}
+
+#[test]
+fn cap_keeps_the_brightest_lights_exactly() {
+    let frame = random_frame(300, 8);
+    for cap in [0usize, 1, 16, 299, 300, 1000] {
+        let mut bytes = Vec::new();
+        encode_frame(&frame, Some(cap), false, &mut bytes);
+        let decoded = as_frame(decode_message(&bytes).unwrap());
+        let kept = cap.min(300);
+        assert_eq!(decoded.lights.len(), kept);
+
+        // The kept lights are the `kept` largest luminances, bit for bit, in id order.
+        let mut lum: Vec<f32> = frame.lights.iter().map(Light::luminance).collect();
+        lum.sort_by(|a, b| b.total_cmp(a));
+        let threshold = if kept == 0 {
+            f32::INFINITY
+        } else {
+            lum[kept - 1]
+        };
+        for l in &decoded.lights {
+            let original = frame.lights.iter().find(|o| o.id == l.id).unwrap();
+            assert_eq!(l, original);
+            assert!(l.luminance() >= threshold);
+        }
+        assert!(decoded.lights.windows(2).all(|w| w[0].id < w[1].id));
+
+        // The JSON form selects the same lights.
+        let json = as_frame(parse_json_message(&frame_to_json(&frame, Some(cap), false)).unwrap());
+        assert_eq!(json.lights, decoded.lights);
+    }
+}
+
+#[test]
+fn oversized_length_prefix_fails_before_buffering() {
+    let mut d = Decoder::new();
+    let len = (MAX_MESSAGE_LEN as u32 + 1).to_le_bytes();
+    d.push(&len);
+    assert_eq!(
+        d.next_message(),
+        Err(ProtocolError::Oversized {
+            len: MAX_MESSAGE_LEN as u64 + 1
+        })
+    );
+    // Whatever follows is not stored.
+    d.push(&vec![0u8; 4 << 20]);
+    assert_eq!(d.buffered(), 0);
+    assert!(d.next_message().is_err());
+
+    // u32::MAX in the same push as a valid magic: rejected at the header, body never stored.
+    let mut d = Decoder::new();
+    let mut bytes = u32::MAX.to_le_bytes().to_vec();
+    bytes.extend_from_slice(b"ENVL\x01\x00\x01\x00");
+    bytes.extend_from_slice(&vec![0u8; 1 << 20]);
+    d.push(&bytes);
+    assert_eq!(d.buffered(), 0);
+    let e = d.next_message().unwrap_err();
+    assert_eq!(e.code(), code::TOO_LARGE);
+    assert!(e.to_string().contains("4294967295"), "{e}");
+
+    // The largest allowed message still decodes.
+    let frame = random_frame(protocol::MAX_FRAME_LIGHTS, 2);
+    let mut bytes = Vec::new();
+    encode_frame(&frame, None, false, &mut bytes);
+    assert!(bytes.len() - 4 <= MAX_MESSAGE_LEN);
+    check_frame(&as_frame(decode_message(&bytes).unwrap()), &frame, false);
+    // A longer light list is capped to what fits.
+    let frame = random_frame(protocol::MAX_FRAME_LIGHTS + 5, 2);
+    let mut bytes = Vec::new();
+    encode_frame(&frame, None, false, &mut bytes);
+    assert_eq!(
+        as_frame(decode_message(&bytes).unwrap()).lights.len(),
+        protocol::MAX_FRAME_LIGHTS
+    );
+}
+
+#[test]
+fn wrong_magic_version_type_and_inconsistent_bodies() {
+    let mut good = Vec::new();
+    encode_frame(&random_frame(2, 4), None, false, &mut good);
+
+    let mut bad = good.clone();
+    bad[4..8].copy_from_slice(b"GET ");
+    let e = decode_message(&bad).unwrap_err();
+    assert!(matches!(e, ProtocolError::BadMagic { .. }));
+    assert!(e.to_string().contains("bad magic"), "{e}");
+
+    let mut bad = good.clone();
+    bad[8] = 2;
+    assert_eq!(
+        decode_message(&bad),
+        Err(ProtocolError::UnsupportedVersion { version: 2 })
+    );
+
+    let mut bad = good.clone();
+    bad[10] = 4;
+    assert_eq!(
+        decode_message(&bad),
+        Err(ProtocolError::UnknownType { message_type: 4 })
+    );
+
+    // count disagrees with the length.
+    let mut bad = good.clone();
+    bad[32] = 3;
+    let e = decode_message(&bad).unwrap_err();
+    assert!(matches!(e, ProtocolError::Inconsistent { .. }), "{e}");
+    assert!(e.to_string().contains("count 3"), "{e}");
+
+    // Length not a whole number of light records.
+    let mut bad = good.clone();
+    bad[0] += 1;
+    bad.push(0);
+    assert!(matches!(
+        decode_message(&bad),
+        Err(ProtocolError::Inconsistent { .. })
+    ));
+
+    // Non-finite light values.
+    let mut bad = good.clone();
+    bad[36 + 16..36 + 20].copy_from_slice(&f32::NAN.to_le_bytes());
+    let e = decode_message(&bad).unwrap_err();
+    assert!(matches!(e, ProtocolError::NonFinite { .. }));
+    assert!(e.to_string().contains("light 0 rgb"), "{e}");
+    let mut bad = good.clone();
+    bad[20..28].copy_from_slice(&f64::INFINITY.to_le_bytes());
+    assert!(matches!(
+        decode_message(&bad),
+        Err(ProtocolError::NonFinite { .. })
+    ));
+
+    // Invalid UTF-8 in an error message.
+    let mut bytes = Vec::new();
+    encode_error(code::INTERNAL, "ab", &mut bytes);
+    let n = bytes.len();
+    bytes[n - 1] = 0xff;
+    assert!(matches!(
+        decode_message(&bytes),
+        Err(ProtocolError::InvalidUtf8 { .. })
+    ));
+
+    // Text length disagreeing with the message length.
+    let mut bytes = Vec::new();
+    encode_goodbye("abc", &mut bytes);
+    bytes[14] = 2;
+    assert!(matches!(
+        decode_message(&bytes),
+        Err(ProtocolError::Inconsistent { .. })
+    ));
+
+    // Trailing bytes after a single message.
+    let mut bytes = good.clone();
+    bytes.push(0);
+    assert!(decode_message(&bytes).is_err());
+}
+
+#[test]
+fn garbage_is_an_error_not_a_panic() {
+    let mut rng = Rng(1234);
+    for _ in 0..2000 {
+        let n = (rng.next() % 200) as usize;
+        let bytes: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
+        let mut d = Decoder::new();
+        d.push(&bytes);
+        while let Ok(Some(_)) = d.next_message() {}
+    }
+    let mut d = Decoder::new();
+    d.push(b"GET / HTTP/1.1\r\nHost: envlight\r\n\r\n");
+    let e = d.next_message().unwrap_err();
+    assert_eq!(e.code(), code::TOO_LARGE, "{e}"); // "GET " read as a length
+    let mut d = Decoder::new();
+    d.push(b"\x10\x00\x00\x00HTTP/1.1 200 OK");
+    assert_eq!(d.next_message().unwrap_err().code(), code::MALFORMED);
+}
+
+#[test]
+fn request_round_trips_binary_and_json() {
+    for request in [
+        Request::default(),
+        Request {
+            max_lights: 64,
+            representation: Representation::Lights,
+            format: Format::Json,
+        },
+        Request {
+            max_lights: u32::MAX,
+            representation: Representation::Wavelet,
+            format: Format::Binary,
+        },
+        Request {
+            max_lights: 15,
+            representation: Representation::Asg,
+            format: Format::Binary,
+        },
+    ] {
+        let mut bytes = Vec::new();
+        encode_request(&request, &mut bytes);
+        assert_eq!(bytes.len(), 20);
+        assert_eq!(decode_message(&bytes), Ok(Message::Subscribe(request)));
+        let json = request_to_json(&request);
+        assert_eq!(parse_json_request(&json), Ok(request), "{json}");
+        assert_eq!(parse_json_message(&json), Ok(Message::Subscribe(request)));
+    }
+    assert_eq!(
+        parse_json_request(
+            r#"{"subscribe": {"max_lights": 64, "representation": "lights", "format": "json"}}"#
+        ),
+        Ok(Request {
+            max_lights: 64,
+            representation: Representation::Lights,
+            format: Format::Json
+        })
+    );
+    assert_eq!(Request::default().cap(), None);
+    assert_eq!(
+        Request {
+            max_lights: 5,
+            ..Request::default()
+        }
+        .cap(),
+        Some(5)
+    );
+}
+
+/// The frame of docs/protocol.md's worked example.
+fn golden_frame() -> LightFrame {
+    LightFrame {
+        seq: 17,
+        time: 0.5,
+        lights: vec![Light {
+            id: 3,
+            dir: [0.0, 1.0, 0.0],
+            rgb: [1.0, 0.5, 0.25],
+            solid_angle: 0.0625,
+        }],
+    }
+}
+
+fn hex(s: &str) -> Vec<u8> {
+    let digits: Vec<u8> = s.bytes().filter(|b| b.is_ascii_hexdigit()).collect();
+    digits
+        .chunks(2)
+        .map(|p| u8::from_str_radix(std::str::from_utf8(p).unwrap(), 16).unwrap())
+        .collect()
+}
+
+#[test]
+fn golden_frame_bytes() {
+    // Pinned layout: see docs/protocol.md, "Worked example".
+    let expected = hex("40 00 00 00  45 4e 56 4c  01 00  01 00
+         11 00 00 00 00 00 00 00
+         00 00 00 00 00 00 e0 3f
+         00  01  00 00
+         01 00 00 00
+         03 00 00 00
+         00 00 00 00  00 00 80 3f  00 00 00 00
+         00 00 80 3f  00 00 00 3f  00 00 80 3e
+         00 00 80 3d");
+    let mut bytes = Vec::new();
+    encode_frame(&golden_frame(), None, true, &mut bytes);
+    assert_eq!(bytes, expected);
+    assert_eq!(bytes.len(), 68);
+    check_frame(
+        &as_frame(decode_message(&bytes).unwrap()),
+        &golden_frame(),
+        true,
+    );
+}
+
+#[test]
+fn golden_control_bytes() {
+    let mut bytes = Vec::new();
+    encode_request(
+        &Request {
+            max_lights: 64,
+            representation: Representation::Lights,
+            format: Format::Binary,
+        },
+        &mut bytes,
+    );
+    assert_eq!(
+        bytes,
+        hex("10 00 00 00  45 4e 56 4c  01 00  10 00  40 00 00 00  00  00  00 00")
+    );
+    let mut bytes = Vec::new();
+    encode_goodbye("bye", &mut bytes);
+    assert_eq!(
+        bytes,
+        hex("11 00 00 00  45 4e 56 4c  01 00  03 00  00 00  03 00 00 00  62 79 65")
+    );
+    let mut bytes = Vec::new();
+    encode_error(code::UNKNOWN_TYPE, "x", &mut bytes);
+    assert_eq!(
+        bytes,
+        hex("0f 00 00 00  45 4e 56 4c  01 00  02 00  03 00  01 00 00 00  78")
+    );
+}
+
+#[test]
+fn golden_json() {
+    assert_eq!(
+        frame_to_json(&golden_frame(), None, false),
+        r#"{"seq":17,"time":0.5,"representation":"lights","stale":false,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}"#
+    );
+    assert_eq!(
+        protocol::error_to_json(code::BAD_REQUEST, "bad"),
+        r#"{"error":{"code":5,"message":"bad"}}"#
+    );
+    assert_eq!(
+        protocol::goodbye_to_json("bye"),
+        r#"{"goodbye":{"code":0,"message":"bye"}}"#
+    );
+    // DESIGN.md's object (no representation/stale) and extra fields are accepted.
+    let design = r#"{"seq": 17, "time": 0.5667, "extra": 1, "lights": [{"id": 3, "dir": [0.71, 0.60, -0.35], "rgb": [812.1, 790.4, 701.9], "solid_angle": 0.0021}]}"#;
+    let f = as_frame(parse_json_message(design).unwrap());
+    assert_eq!((f.seq, f.stale, f.lights.len()), (17, false, 1));
+    assert!(matches!(
+        parse_json_message(
+            r#"{"seq":1,"time":0,"lights":[{"id":0,"dir":[1e300,0,0],"rgb":[0,0,0],"solid_angle":0}]}"#
+        ),
+        Err(ProtocolError::NonFinite { .. })
+    ));
+}
+
+fn arb_light() -> impl Strategy<Value = Light> {
+    let f = || -1e30f32..1e30f32;
+    (any::<u32>(), [f(), f(), f()], [f(), f(), f()], f()).prop_map(|(id, dir, rgb, solid_angle)| {
+        Light {
+            id,
+            dir,
+            rgb,
+            solid_angle,
+        }
+    })
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_bytes_never_panic(
+        bytes in proptest::collection::vec(any::<u8>(), 0..512),
+        chunk in 1usize..64,
+    ) {
+        let mut d = Decoder::new();
+        for piece in bytes.chunks(chunk) {
+            d.push(piece);
+            while let Ok(Some(_)) = d.next_message() {}
+        }
+        let _ = d.finish();
+        let _ = decode_message(&bytes);
+        let _ = parse_json_message(&String::from_utf8_lossy(&bytes));
+    }
+
+    #[test]
+    fn arbitrary_valid_headers_with_random_bodies_never_panic(
+        message_type in prop_oneof![Just(1u16), Just(2), Just(3), Just(16), any::<u16>()],
+        body in proptest::collection::vec(any::<u8>(), 0..200),
+    ) {
+        let mut bytes = ((body.len() + 8) as u32).to_le_bytes().to_vec();
+        bytes.extend_from_slice(b"ENVL\x01\x00");
+        bytes.extend_from_slice(&message_type.to_le_bytes());
+        bytes.extend_from_slice(&body);
+        let _ = decode_message(&bytes);
+    }
+
+    #[test]
+    fn arbitrary_valid_frames_round_trip(
+        seq in any::<u64>(),
+        time in -1e12f64..1e12,
+        lights in proptest::collection::vec(arb_light(), 0..64),
+        stale in any::<bool>(),
+        chunk in 1usize..100,
+    ) {
+        let frame = LightFrame { seq, time, lights };
+        let mut bytes = Vec::new();
+        encode_frame(&frame, None, stale, &mut bytes);
+        let messages = decode_chunked(&bytes, || chunk);
+        prop_assert_eq!(messages.len(), 1);
+        let decoded = as_frame(messages[0].clone());
+        prop_assert_eq!(decoded.stale, stale);
+        prop_assert_eq!(&decoded.clone().into_light_frame(), &frame);
+        let json = as_frame(parse_json_message(&frame_to_json(&frame, None, stale)).unwrap());
+        prop_assert_eq!(json, decoded);
+    }
+}
