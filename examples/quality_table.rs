@@ -11,7 +11,9 @@
 use anyhow::{bail, Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::decompose::merge::DEFAULT_SPACING_FRACTION;
-use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement, DEFAULT_PDF_EXPONENT};
+use envlight::decompose::{
+    DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
+};
 use envlight::envmap::Projection;
 use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
@@ -38,9 +40,14 @@ fn read_map(path: &Path) -> Result<HdrFrame> {
 
 /// envlight's decomposition of a single frame (the temporal filter is a no-op on one frame).
 fn envlight_method(placement: LightPlacement, merge: bool, pdf_exponent: f64) -> Method {
+    envlight_warp(placement, merge, pdf_exponent, Warp::Rows)
+}
+
+fn envlight_warp(placement: LightPlacement, merge: bool, pdf_exponent: f64, warp: Warp) -> Method {
     Box::new(move |frame: &HdrFrame, n: usize| {
         let settings = DecomposeSettings {
             lights: n,
+            warp,
             placement,
             pdf_exponent,
             filter_taps: None,
@@ -66,6 +73,10 @@ fn main() {
         ),
         ("envlight", envlight_method(centroid, false, gamma)),
         ("envlight, γ=0.5", envlight_method(centroid, false, 0.5)),
+        (
+            "envlight, hierarchical warp",
+            envlight_warp(centroid, false, gamma, Warp::Hierarchical),
+        ),
         ("envlight, merge", envlight_method(centroid, true, gamma)),
         (
             "Havran-style: γ=1, sample point",

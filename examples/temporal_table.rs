@@ -17,7 +17,7 @@
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
-use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement};
+use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement, Warp};
 use envlight::envmap::Projection;
 use envlight::yardstick::{flicker, light_irradiance, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
@@ -35,11 +35,21 @@ fn envlight(
     placement: LightPlacement,
     pdf_exponent: f64,
 ) -> Option<DecomposeSettings> {
+    envlight_warp(filter, placement, pdf_exponent, Warp::Rows)
+}
+
+fn envlight_warp(
+    filter: bool,
+    placement: LightPlacement,
+    pdf_exponent: f64,
+    warp: Warp,
+) -> Option<DecomposeSettings> {
     let defaults = DecomposeSettings::default();
     Some(DecomposeSettings {
         lights: LIGHTS,
         placement,
         pdf_exponent,
+        warp,
         filter_taps: if filter {
             defaults.filter_taps.clone()
         } else {
@@ -139,6 +149,14 @@ fn main() -> Result<()> {
         Method {
             name: "envlight, no filter",
             settings: envlight(false, LightPlacement::Centroid, 0.75),
+        },
+        Method {
+            name: "envlight, hierarchical warp, filter on",
+            settings: envlight_warp(true, LightPlacement::Centroid, 0.75, Warp::Hierarchical),
+        },
+        Method {
+            name: "envlight, hierarchical warp, no filter",
+            settings: envlight_warp(false, LightPlacement::Centroid, 0.75, Warp::Hierarchical),
         },
         Method {
             name: "envlight, γ=0.5, filter on",

@@ -9,7 +9,7 @@
 
 use crate::capture::sky::SkyOptions;
 use crate::decompose::filter::FirFilter;
-use crate::decompose::{DecomposeSettings, LightPlacement, MAX_POINTS, WORKING_WIDTH_RANGE};
+use crate::decompose::{DecomposeSettings, LightPlacement, Warp, MAX_POINTS, WORKING_WIDTH_RANGE};
 use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -112,6 +112,7 @@ pub struct RawDecompose {
     pub lights: Option<usize>,
     pub working_width: Option<u32>,
     pub placement: Option<String>,
+    pub warp: Option<String>,
     pub filter: Option<bool>,
     pub filter_taps: Option<Vec<f64>>,
     pub merge: Option<bool>,
@@ -201,6 +202,15 @@ pub fn parse_placement(s: &str) -> Option<LightPlacement> {
     match s {
         "centroid" => Some(LightPlacement::Centroid),
         "sample-point" => Some(LightPlacement::SamplePoint),
+        _ => None,
+    }
+}
+
+/// Parses a `--warp` / `decompose.warp` value.
+pub fn parse_warp(s: &str) -> Option<Warp> {
+    match s {
+        "rows" => Some(Warp::Rows),
+        "hierarchical" => Some(Warp::Hierarchical),
         _ => None,
     }
 }
@@ -419,6 +429,12 @@ impl RawDecompose {
                 )
             })?,
         };
+        let warp = match self.warp.as_deref() {
+            None => d.warp,
+            Some(s) => parse_warp(s).ok_or_else(|| {
+                invalid("decompose.warp", s, "must be \"rows\" or \"hierarchical\"")
+            })?,
+        };
         let taps = match &self.filter_taps {
             None => d.filter_taps.clone().unwrap_or_default(),
             Some(taps) => {
@@ -457,6 +473,7 @@ impl RawDecompose {
             filter_taps,
             merge_spacing_fraction,
             pdf_exponent,
+            warp,
         })
     }
 }
@@ -522,6 +539,7 @@ mod tests {
             "merge",
             "merge_spacing_fraction",
             "pdf_exponent",
+            "warp",
         ] {
             assert!(
                 uncommented

@@ -82,6 +82,14 @@ enum FisheyeModelArg {
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
+enum WarpArg {
+    /// Row-by-row inverse CDF, continuous in the point (default).
+    Rows,
+    /// k-d tree of mass splits: steadier lights when bright sources move.
+    Hierarchical,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum PlacementArg {
     /// Luminance-weighted centroid of the light's region (most accurate).
     Centroid,
@@ -178,6 +186,11 @@ struct DecomposeArgs {
     /// Where a light points within its region. [default: centroid]
     #[arg(long, value_enum)]
     placement: Option<PlacementArg>,
+
+    /// How the fixed point set is warped onto the density: `rows` (continuous) or
+    /// `hierarchical` (steadier under moving sources; see docs/quality.md). [default: rows]
+    #[arg(long, value_enum)]
+    warp: Option<WarpArg>,
 
     /// Size of the built-in sky map in pixels. [default: 512x256]
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
@@ -330,6 +343,15 @@ impl DecomposeArgs {
         if let Some(w) = self.working_width {
             dec.working_width = Some(w);
             note("decompose.working_width", "--working-width");
+        }
+        if let Some(w) = self.warp {
+            dec.warp = Some(
+                match w {
+                    WarpArg::Rows => "rows",
+                    WarpArg::Hierarchical => "hierarchical",
+                }
+                .into(),
+            );
         }
         if let Some(p) = self.placement {
             dec.placement = Some(

@@ -134,6 +134,8 @@ fn options_are_accepted() {
         "--no-merge",
         "--placement",
         "sample-point",
+        "--warp",
+        "hierarchical",
         "--working-width",
         "32",
         "--sky-size",

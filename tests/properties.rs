@@ -2,7 +2,9 @@
 //! maps — including NaN, ±Inf and negative pixels — and always conserves energy; the 2D warp
 //! inverts itself on arbitrary weight images.
 
-use envlight::decompose::{frame_integral, DecomposeSettings, Decomposer, PiecewiseConstant2d};
+use envlight::decompose::{
+    frame_integral, DecomposeSettings, Decomposer, PiecewiseConstant2d, Warp,
+};
 use envlight::envmap::Projection;
 use envlight::HdrFrame;
 use proptest::prelude::*;
@@ -44,6 +46,7 @@ proptest! {
         merge in any::<bool>(),
         gamma in prop_oneof![Just(0.5f64), Just(0.75), Just(1.0), 0.1f64..1.0],
         working_width in prop_oneof![Just(16u32), Just(256)],
+        hierarchical in any::<bool>(),
     ) {
         let mut sanitized = frame.clone();
         sanitized.sanitize();
@@ -54,6 +57,7 @@ proptest! {
             filter_taps: if filter { DecomposeSettings::default().filter_taps } else { None },
             merge_spacing_fraction: merge.then_some(0.25),
             working_width,
+            warp: if hierarchical { Warp::Hierarchical } else { Warp::Rows },
             ..DecomposeSettings::default()
         };
         let mut decomposer = Decomposer::new(settings).expect("valid settings");

@@ -26,6 +26,7 @@
 
 pub mod distribution;
 pub mod filter;
+pub mod hierarchical;
 pub mod merge;
 pub mod point_set;
 mod regions;
@@ -33,6 +34,7 @@ pub mod working_map;
 
 pub use distribution::PiecewiseConstant2d;
 pub use filter::FirFilter;
+pub use hierarchical::HierarchicalWarp;
 pub use point_set::MAX_POINTS;
 
 use crate::envmap::Projection;
@@ -49,6 +51,26 @@ const CONCENTRATED_SHARE: f64 = 0.25;
 
 /// Default exponent γ of the sampling density (luminance^γ).
 pub const DEFAULT_PDF_EXPONENT: f64 = 0.75;
+
+/// How the unit square is warped onto the sampling density.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Warp {
+    /// Row-by-row inverse CDF with conditional CDFs blended across rows
+    /// ([`PiecewiseConstant2d`]): continuous in the point, but a bright source moving within
+    /// its rows slides points far along them.
+    #[default]
+    Rows,
+    /// k-d tree of mass splits ([`HierarchicalWarp`]): a change of the map moves only the
+    /// points whose tree paths see it, so lights are much steadier under moving sources
+    /// (docs/quality.md), but a point that crosses a split jumps to the neighbouring node.
+    Hierarchical,
+}
+
+/// The warp of one frame.
+enum Sampler {
+    Rows(PiecewiseConstant2d),
+    Hierarchical(HierarchicalWarp),
+}
 
 /// Where a light points within its region.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -80,6 +102,8 @@ pub struct DecomposeSettings {
     /// inverse-transform sampling; smaller values spread lights more evenly over dim regions
     /// (each light still carries exactly its region's energy).
     pub pdf_exponent: f64,
+    /// How the fixed points are warped onto the density.
+    pub warp: Warp,
 }
 
 impl Default for DecomposeSettings {
@@ -91,6 +115,7 @@ impl Default for DecomposeSettings {
             filter_taps: Some(filter::DEFAULT_TAPS.to_vec()),
             merge_spacing_fraction: None,
             pdf_exponent: DEFAULT_PDF_EXPONENT,
+            warp: Warp::Rows,
         }
     }
 }
@@ -248,7 +273,16 @@ impl Decomposer {
                 density * omega
             }));
         }
-        let dist = PiecewiseConstant2d::new(&self.weights, map.width, map.height);
+        let warp = match self.settings.warp {
+            Warp::Rows => Sampler::Rows(PiecewiseConstant2d::new(
+                &self.weights,
+                map.width,
+                map.height,
+            )),
+            Warp::Hierarchical => {
+                Sampler::Hierarchical(HierarchicalWarp::new(&self.weights, map.width, map.height))
+            }
+        };
 
         // Light i sits where point i warps to.
         if self.points.len() != n {
@@ -258,7 +292,10 @@ impl Decomposer {
         let sample_dirs: Vec<glam::DVec3> = points
             .iter()
             .map(|u| {
-                let (p, _) = dist.sample(*u);
+                let p = match &warp {
+                    Sampler::Rows(dist) => dist.sample(*u).0,
+                    Sampler::Hierarchical(tree) => tree.sample(*u),
+                };
                 Projection::LatLong
                     .pixel_to_direction(
                         map.width as u32,
