@@ -1,0 +1,627 @@
+//! The capture → decompose pipeline: two named threads joined by a bounded queue, publishing
+//! light lists on a latest-value channel.
+//!
+//! ```text
+//! envlight-capture ──bounded(queue_capacity)──► envlight-decompose ──watch──► consumers
+//!  (FrameSource)        crossbeam-channel          (Decomposer)        Option<Arc<LightFrame>>
+//! ```
+//!
+//! - **Capture thread** (`envlight-capture`) pulls [`HdrFrame`]s from the [`FrameSource`] and
+//!   pushes them into a bounded crossbeam channel (capacity [`PipelineOptions::queue_capacity`],
+//!   2 by default).
+//! - **Drop-oldest policy.** Capture never waits for a slow decomposition: when the queue is full,
+//!   the capture thread takes the *oldest* queued frame out itself (it holds a clone of the
+//!   receiver), counts it in [`PipelineStats::frames_dropped`] and retries, so the queue always
+//!   holds the newest frames. Every captured frame is therefore either decomposed or dropped:
+//!   once both threads have finished, `frames_captured == frames_decomposed + frames_dropped`.
+//! - **Decompose thread** (`envlight-decompose`) receives frames, runs the [`Decomposer`] and
+//!   publishes each result as `Some(Arc<LightFrame>)` on a [`tokio::sync::watch`] channel (a plain
+//!   thread can send on it; no runtime is needed). Consumers ([`Pipeline::subscribe`]) always read
+//!   the newest light list; a slow consumer skips frames and never holds the pipeline back.
+//!   When the decompose thread ends, the sender is dropped, so `watch::Receiver::changed` reports
+//!   the end of the stream.
+//! - **Source errors.** A [`CaptureError`] is logged (`tracing::warn`), counted in
+//!   [`PipelineStats::capture_errors`] and ends the capture: the error is kept and
+//!   [`Pipeline::join`] returns it as [`PipelineError::Capture`], so nothing is lost silently.
+//!   (Retrying a flaky camera is the source's business, not the pipeline's.)
+//! - **Shutdown.** The capture thread ends when the source is exhausted (`Ok(None)`), on a source
+//!   error, or after [`Pipeline::stop`] (checked before every frame, so an endless source stops
+//!   after at most the frame it is waiting for). Ending capture closes the queue; the decompose
+//!   thread drains what is still queued and ends. If the decompose thread ends early (a panic),
+//!   capture stops too. [`Pipeline::join`] joins both threads; a panicked thread becomes
+//!   [`PipelineError::ThreadPanicked`], never a panic in the caller.
+
+use crate::capture::{CaptureError, FrameSource};
+use crate::decompose::{DecomposeError, DecomposeSettings, Decomposer};
+use crate::frame::HdrFrame;
+use crate::light::LightFrame;
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+
+/// Name of the capture thread.
+pub const CAPTURE_THREAD_NAME: &str = "envlight-capture";
+/// Name of the decompose thread.
+pub const DECOMPOSE_THREAD_NAME: &str = "envlight-decompose";
+
+/// What consumers receive: the newest light list, `None` until the first one is published.
+pub type LatestLights = Option<Arc<LightFrame>>;
+
+/// Options of a [`Pipeline`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PipelineOptions {
+    /// Capacity of the capture → decompose queue, at least 1 (default 2). When it is full the
+    /// oldest queued frame is dropped.
+    pub queue_capacity: usize,
+}
+
+impl Default for PipelineOptions {
+    fn default() -> Self {
+        Self { queue_capacity: 2 }
+    }
+}
+
+/// Errors of the pipeline.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("invalid decomposition settings: {0}")]
+    Decompose(#[from] DecomposeError),
+    #[error("invalid pipeline option queue_capacity = {0}: it must be at least 1")]
+    QueueCapacity(usize),
+    #[error("cannot start thread {thread}: {source}")]
+    Spawn {
+        thread: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("frame source failed: {0}")]
+    Capture(#[source] CaptureError),
+    #[error("thread {thread} panicked: {message}")]
+    ThreadPanicked {
+        thread: &'static str,
+        message: String,
+    },
+}
+
+/// Counters of a running or finished pipeline.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PipelineStats {
+    /// Frames the source delivered.
+    pub frames_captured: u64,
+    /// Frames dropped (oldest first) because the queue was full.
+    pub frames_dropped: u64,
+    /// Frames decomposed and published.
+    pub frames_decomposed: u64,
+    /// Duration of the most recent decomposition.
+    pub last_decompose_time: Duration,
+    /// Errors returned by the source.
+    pub capture_errors: u64,
+}
+
+/// Shared counters and flags.
+#[derive(Debug, Default)]
+struct Shared {
+    shutdown: AtomicBool,
+    frames_captured: AtomicU64,
+    frames_dropped: AtomicU64,
+    frames_decomposed: AtomicU64,
+    last_decompose_nanos: AtomicU64,
+    capture_errors: AtomicU64,
+    /// The source error that ended the capture, handed to [`Pipeline::join`].
+    capture_error: Mutex<Option<CaptureError>>,
+}
+
+impl Shared {
+    fn stats(&self) -> PipelineStats {
+        PipelineStats {
+            frames_captured: self.frames_captured.load(Ordering::Acquire),
+            frames_dropped: self.frames_dropped.load(Ordering::Acquire),
+            frames_decomposed: self.frames_decomposed.load(Ordering::Acquire),
+            last_decompose_time: Duration::from_nanos(
+                self.last_decompose_nanos.load(Ordering::Acquire),
+            ),
+            capture_errors: self.capture_errors.load(Ordering::Acquire),
+        }
+    }
+}
+
+/// A running capture → decompose pipeline. See the module documentation.
+pub struct Pipeline {
+    shared: Arc<Shared>,
+    /// Never marked as seen, so each clone handed out starts with the newest value unseen.
+    lights: watch::Receiver<LatestLights>,
+    capture: JoinHandle<()>,
+    decompose: JoinHandle<()>,
+}
+
+impl Pipeline {
+    /// Validates `settings` and `options` and starts the capture and decompose threads.
+    pub fn start(
+        source: Box<dyn FrameSource>,
+        settings: DecomposeSettings,
+        options: PipelineOptions,
+    ) -> Result<Pipeline, PipelineError> {
+        let mut decomposer = Decomposer::new(settings)?;
+        Self::start_with(source, options, move |frame| decomposer.decompose(frame))
+    }
+
+    /// Starts the pipeline with any decomposition step (the tests use slow or panicking ones).
+    fn start_with<F>(
+        mut source: Box<dyn FrameSource>,
+        options: PipelineOptions,
+        mut decompose: F,
+    ) -> Result<Pipeline, PipelineError>
+    where
+        F: FnMut(&HdrFrame) -> LightFrame + Send + 'static,
+    {
+        if options.queue_capacity == 0 {
+            return Err(PipelineError::QueueCapacity(options.queue_capacity));
+        }
+        let shared = Arc::new(Shared::default());
+        let (frame_tx, frame_rx) = crossbeam_channel::bounded::<HdrFrame>(options.queue_capacity);
+        let (lights_tx, lights_rx) = watch::channel::<LatestLights>(None);
+        tracing::info!(
+            source = %source.describe(),
+            queue_capacity = options.queue_capacity,
+            "starting pipeline"
+        );
+
+        let decompose_shared = Arc::clone(&shared);
+        let decompose_rx = frame_rx.clone();
+        let decompose_handle = std::thread::Builder::new()
+            .name(DECOMPOSE_THREAD_NAME.to_owned())
+            .spawn(move || {
+                // However this thread ends (drained queue or panic), capture must stop too.
+                let _stop_capture = StopOnDrop(Arc::clone(&decompose_shared));
+                for frame in decompose_rx.iter() {
+                    let started = Instant::now();
+                    let lights = decompose(&frame);
+                    let nanos = u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                    decompose_shared
+                        .last_decompose_nanos
+                        .store(nanos, Ordering::Release);
+                    decompose_shared
+                        .frames_decomposed
+                        .fetch_add(1, Ordering::AcqRel);
+                    // `send_replace` succeeds with or without subscribers.
+                    lights_tx.send_replace(Some(Arc::new(lights)));
+                }
+            })
+            .map_err(|source| PipelineError::Spawn {
+                thread: DECOMPOSE_THREAD_NAME,
+                source,
+            })?;
+
+        let capture_shared = Arc::clone(&shared);
+        let capture_handle = std::thread::Builder::new()
+            .name(CAPTURE_THREAD_NAME.to_owned())
+            .spawn(move || capture_loop(source.as_mut(), &frame_tx, &frame_rx, &capture_shared));
+        let capture_handle = match capture_handle {
+            Ok(handle) => handle,
+            Err(source) => {
+                // The capture closure (and with it the queue's sender) is gone, so the decompose
+                // thread sees a closed, empty queue and ends.
+                let _ = decompose_handle.join();
+                return Err(PipelineError::Spawn {
+                    thread: CAPTURE_THREAD_NAME,
+                    source,
+                });
+            }
+        };
+
+        Ok(Pipeline {
+            shared,
+            lights: lights_rx,
+            capture: capture_handle,
+            decompose: decompose_handle,
+        })
+    }
+
+    /// A receiver of the newest light list. If a list has been published already, the receiver
+    /// sees it as changed. `changed()` returns an error once the decompose thread has ended.
+    pub fn subscribe(&self) -> watch::Receiver<LatestLights> {
+        self.lights.clone()
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> PipelineStats {
+        self.shared.stats()
+    }
+
+    /// Asks the capture thread to stop before its next frame; queued frames are still
+    /// decomposed. Returns at once; use [`Pipeline::join`] to wait.
+    pub fn stop(&self) {
+        self.shared.shutdown.store(true, Ordering::Release);
+    }
+
+    /// Whether both threads have finished.
+    pub fn is_finished(&self) -> bool {
+        self.capture.is_finished() && self.decompose.is_finished()
+    }
+
+    /// Waits for both threads and returns the final counters, or the error that ended the
+    /// pipeline: a panicked thread (decompose first, since its panic also ends capture), then
+    /// the source error that ended the capture.
+    pub fn join(self) -> Result<PipelineStats, PipelineError> {
+        let capture = self.capture.join();
+        let decompose = self.decompose.join();
+        if let Err(payload) = decompose {
+            return Err(panicked(DECOMPOSE_THREAD_NAME, payload.as_ref()));
+        }
+        if let Err(payload) = capture {
+            return Err(panicked(CAPTURE_THREAD_NAME, payload.as_ref()));
+        }
+        let error = self
+            .shared
+            .capture_error
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        match error {
+            Some(error) => Err(PipelineError::Capture(error)),
+            None => Ok(self.shared.stats()),
+        }
+    }
+}
+
+/// Sets the shutdown flag when dropped (also during a panic).
+struct StopOnDrop(Arc<Shared>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        self.0.shutdown.store(true, Ordering::Release);
+    }
+}
+
+/// The body of the capture thread.
+fn capture_loop(
+    source: &mut dyn FrameSource,
+    tx: &Sender<HdrFrame>,
+    oldest: &Receiver<HdrFrame>,
+    shared: &Shared,
+) {
+    while !shared.shutdown.load(Ordering::Acquire) {
+        match source.next_frame() {
+            Ok(Some(frame)) => {
+                shared.frames_captured.fetch_add(1, Ordering::AcqRel);
+                push_drop_oldest(tx, oldest, frame, shared);
+            }
+            Ok(None) => {
+                tracing::info!(source = %source.describe(), "frame source finished");
+                break;
+            }
+            Err(error) => {
+                tracing::warn!(source = %source.describe(), %error, "frame source failed; stopping capture");
+                shared.capture_errors.fetch_add(1, Ordering::AcqRel);
+                *shared
+                    .capture_error
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(error);
+                break;
+            }
+        }
+    }
+}
+
+/// Queues `frame` without blocking: while the queue is full, takes out the oldest frame and
+/// counts it as dropped.
+fn push_drop_oldest(
+    tx: &Sender<HdrFrame>,
+    oldest: &Receiver<HdrFrame>,
+    mut frame: HdrFrame,
+    shared: &Shared,
+) {
+    loop {
+        match tx.try_send(frame) {
+            Ok(()) => return,
+            Err(TrySendError::Full(back)) => {
+                frame = back;
+                // The decompose thread may have emptied a slot meanwhile: then nothing is dropped.
+                if let Ok(dropped) = oldest.try_recv() {
+                    shared.frames_dropped.fetch_add(1, Ordering::AcqRel);
+                    tracing::debug!(seq = dropped.seq, "queue full: dropped the oldest frame");
+                }
+            }
+            // Unreachable while `oldest` lives, but dropping is the only sensible answer.
+            Err(TrySendError::Disconnected(_)) => {
+                shared.frames_dropped.fetch_add(1, Ordering::AcqRel);
+                return;
+            }
+        }
+    }
+}
+
+fn panicked(thread: &'static str, payload: &(dyn std::any::Any + Send)) -> PipelineError {
+    let message = payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "non-string panic payload".to_owned());
+    PipelineError::ThreadPanicked { thread, message }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::decompose::LightPlacement;
+    use crate::envmap::Projection;
+    use std::path::PathBuf;
+
+    /// A test source: `count` tiny 16×8 lat-long frames (`None` = endless), optionally paced,
+    /// optionally failing after the frames, recording the name of the thread it runs on.
+    struct FakeSource {
+        next_seq: u64,
+        count: Option<u64>,
+        pace: Duration,
+        fail_at_end: bool,
+        thread_name: Arc<Mutex<Option<String>>>,
+        finished_at: Arc<Mutex<Option<Instant>>>,
+    }
+
+    impl FakeSource {
+        fn new(count: Option<u64>, pace: Duration) -> Self {
+            Self {
+                next_seq: 0,
+                count,
+                pace,
+                fail_at_end: false,
+                thread_name: Arc::default(),
+                finished_at: Arc::default(),
+            }
+        }
+    }
+
+    fn tiny_frame(seq: u64) -> HdrFrame {
+        let (w, h) = (16u32, 8u32);
+        let pixels = (0..w * h)
+            .map(|i| {
+                let v = 0.1 + (i % 7) as f32 + seq as f32 * 0.01;
+                [v, v * 0.5, v * 0.25]
+            })
+            .collect();
+        let mut frame = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
+        frame.seq = seq;
+        frame.time = seq as f64 / 60.0;
+        frame
+    }
+
+    impl FrameSource for FakeSource {
+        fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
+            *self.thread_name.lock().unwrap() = std::thread::current().name().map(str::to_owned);
+            if self.count.is_some_and(|n| self.next_seq >= n) {
+                *self.finished_at.lock().unwrap() = Some(Instant::now());
+                if self.fail_at_end {
+                    return Err(CaptureError::Format {
+                        path: PathBuf::from("fake/frame.exr"),
+                        message: "truncated".to_owned(),
+                    });
+                }
+                return Ok(None);
+            }
+            if !self.pace.is_zero() {
+                std::thread::sleep(self.pace);
+            }
+            let frame = tiny_frame(self.next_seq);
+            self.next_seq += 1;
+            Ok(Some(frame))
+        }
+
+        fn describe(&self) -> String {
+            "fake source".to_owned()
+        }
+    }
+
+    fn small_settings() -> DecomposeSettings {
+        DecomposeSettings {
+            lights: 16,
+            working_width: 16,
+            placement: LightPlacement::Centroid,
+            filter_taps: None,
+            merge_spacing_fraction: None,
+            pdf_exponent: 1.0,
+        }
+    }
+
+    /// Reads the watch channel until a frame with seq ≥ `last_seq` shows up (the poll may miss
+    /// frames that are replaced quickly); returns the seqs seen.
+    fn collect_until(rx: &mut watch::Receiver<LatestLights>, last_seq: u64) -> Vec<u64> {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let mut seen = Vec::new();
+        loop {
+            let latest = rx.borrow_and_update().clone();
+            if let Some(frame) = latest {
+                if seen.last() != Some(&frame.seq) {
+                    seen.push(frame.seq);
+                }
+                if frame.seq >= last_seq {
+                    return seen;
+                }
+            }
+            assert!(Instant::now() < deadline, "timed out; seen {seen:?}");
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+
+    #[test]
+    fn finite_paced_source_is_fully_decomposed_in_order() {
+        let source = FakeSource::new(Some(20), Duration::from_millis(5));
+        let pipeline = Pipeline::start(
+            Box::new(source),
+            small_settings(),
+            PipelineOptions::default(),
+        )
+        .unwrap();
+        let mut rx = pipeline.subscribe();
+        let seen = collect_until(&mut rx, 19);
+        assert!(seen.windows(2).all(|w| w[0] < w[1]), "seqs {seen:?}");
+        let stats = pipeline.join().unwrap();
+        assert_eq!(stats.frames_captured, 20);
+        assert_eq!(stats.frames_decomposed, 20);
+        assert_eq!(stats.frames_dropped, 0);
+        assert_eq!(stats.capture_errors, 0);
+        assert!(stats.last_decompose_time > Duration::ZERO);
+        // The sender is gone with the decompose thread: the stream reports its end.
+        assert!(rx.has_changed().is_err());
+        let last = rx.borrow().clone().unwrap();
+        assert_eq!(last.seq, 19);
+        assert_eq!(last.lights.len(), 16);
+    }
+
+    #[test]
+    fn slow_decomposition_drops_oldest_without_blocking_capture() {
+        const N: u64 = 200;
+        let source = FakeSource::new(Some(N), Duration::ZERO);
+        let finished_at = Arc::clone(&source.finished_at);
+        let started = Instant::now();
+        let pipeline = Pipeline::start_with(
+            Box::new(source),
+            PipelineOptions::default(),
+            |frame: &HdrFrame| {
+                std::thread::sleep(Duration::from_millis(2));
+                LightFrame {
+                    seq: frame.seq,
+                    time: frame.time,
+                    lights: Vec::new(),
+                }
+            },
+        )
+        .unwrap();
+        let mut rx = pipeline.subscribe();
+        // The newest frame is never dropped, so the last one is always published.
+        let seen = collect_until(&mut rx, N - 1);
+        assert!(seen.windows(2).all(|w| w[0] < w[1]), "seqs {seen:?}");
+        let stats = pipeline.join().unwrap();
+        // Capture ran through all frames far faster than 200 × 2 ms of decomposition.
+        let capture_time = finished_at.lock().unwrap().unwrap() - started;
+        assert!(
+            capture_time < Duration::from_millis(200),
+            "capture took {capture_time:?}"
+        );
+        assert_eq!(stats.frames_captured, N);
+        assert!(stats.frames_dropped > 0, "{stats:?}");
+        assert_eq!(
+            stats.frames_captured,
+            stats.frames_decomposed + stats.frames_dropped,
+            "{stats:?}"
+        );
+    }
+
+    #[test]
+    fn stop_ends_an_endless_source_promptly() {
+        let source = FakeSource::new(None, Duration::from_millis(1));
+        let pipeline = Pipeline::start(
+            Box::new(source),
+            small_settings(),
+            PipelineOptions::default(),
+        )
+        .unwrap();
+        let mut rx = pipeline.subscribe();
+        collect_until(&mut rx, 3);
+        let stopped = Instant::now();
+        pipeline.stop();
+        let stats = pipeline.join().unwrap();
+        assert!(stopped.elapsed() < Duration::from_secs(1));
+        assert!(stats.frames_captured >= 4);
+        assert_eq!(
+            stats.frames_captured,
+            stats.frames_decomposed + stats.frames_dropped
+        );
+    }
+
+    #[test]
+    fn source_error_is_returned_by_join() {
+        let mut source = FakeSource::new(Some(3), Duration::ZERO);
+        source.fail_at_end = true;
+        let pipeline = Pipeline::start(
+            Box::new(source),
+            small_settings(),
+            PipelineOptions::default(),
+        )
+        .unwrap();
+        let stats_probe = pipeline.subscribe();
+        match pipeline.join() {
+            Err(PipelineError::Capture(CaptureError::Format { path, message })) => {
+                assert_eq!(path, PathBuf::from("fake/frame.exr"));
+                assert_eq!(message, "truncated");
+            }
+            other => panic!("expected the capture error, got {other:?}"),
+        }
+        // Frames before the error were still processed.
+        assert_eq!(stats_probe.borrow().as_ref().map(|f| f.seq), Some(2));
+    }
+
+    #[test]
+    fn threads_are_named() {
+        let source = FakeSource::new(Some(2), Duration::ZERO);
+        let capture_name = Arc::clone(&source.thread_name);
+        let decompose_name = Arc::new(Mutex::new(None::<String>));
+        let recorder = Arc::clone(&decompose_name);
+        let pipeline = Pipeline::start_with(
+            Box::new(source),
+            PipelineOptions::default(),
+            move |frame: &HdrFrame| {
+                *recorder.lock().unwrap() = std::thread::current().name().map(str::to_owned);
+                LightFrame {
+                    seq: frame.seq,
+                    ..LightFrame::default()
+                }
+            },
+        )
+        .unwrap();
+        pipeline.join().unwrap();
+        assert_eq!(
+            capture_name.lock().unwrap().as_deref(),
+            Some(CAPTURE_THREAD_NAME)
+        );
+        assert_eq!(
+            decompose_name.lock().unwrap().as_deref(),
+            Some(DECOMPOSE_THREAD_NAME)
+        );
+    }
+
+    #[test]
+    fn decompose_panic_becomes_an_error_and_stops_capture() {
+        let source = FakeSource::new(None, Duration::from_millis(1));
+        let pipeline = Pipeline::start_with(
+            Box::new(source),
+            PipelineOptions::default(),
+            |frame: &HdrFrame| {
+                assert!(frame.seq < 5, "boom at {}", frame.seq);
+                LightFrame::default()
+            },
+        )
+        .unwrap();
+        match pipeline.join() {
+            Err(PipelineError::ThreadPanicked { thread, message }) => {
+                assert_eq!(thread, DECOMPOSE_THREAD_NAME);
+                assert!(message.contains("boom at 5"), "{message}");
+            }
+            other => panic!("expected a panic error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn invalid_options_and_settings_are_rejected() {
+        let source = FakeSource::new(Some(1), Duration::ZERO);
+        let err = Pipeline::start(
+            Box::new(source),
+            small_settings(),
+            PipelineOptions { queue_capacity: 0 },
+        )
+        .err()
+        .unwrap();
+        assert!(matches!(err, PipelineError::QueueCapacity(0)));
+        let source = FakeSource::new(Some(1), Duration::ZERO);
+        let settings = DecomposeSettings {
+            lights: 0,
+            ..small_settings()
+        };
+        let err = Pipeline::start(Box::new(source), settings, PipelineOptions::default())
+            .err()
+            .unwrap();
+        assert!(matches!(err, PipelineError::Decompose(_)));
+    }
+}
