@@ -422,6 +422,7 @@ mod tests {
             filter_taps: None,
             merge_spacing_fraction: None,
             pdf_exponent: 1.0,
+            ..DecomposeSettings::default()
         }
     }
 
