@@ -44,8 +44,9 @@ mod median_cut;
 
 pub use median_cut::median_cut;
 
+use crate::decompose::luminance_f64 as lum;
 use crate::envmap::Projection;
-use crate::frame::{HdrFrame, LUMINANCE_WEIGHTS};
+use crate::frame::HdrFrame;
 use crate::light::Light;
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -104,13 +105,6 @@ fn clean(rgb: [f32; 3]) -> [f64; 3] {
             0.0
         }
     })
-}
-
-#[inline]
-fn lum(rgb: [f64; 3]) -> f64 {
-    f64::from(LUMINANCE_WEIGHTS[0]) * rgb[0]
-        + f64::from(LUMINANCE_WEIGHTS[1]) * rgb[1]
-        + f64::from(LUMINANCE_WEIGHTS[2]) * rgb[2]
 }
 
 /// `v / |v|` if `v` is a meaningful mean direction of weights summing to `weight` (its length is
