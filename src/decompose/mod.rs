@@ -477,9 +477,8 @@ mod tests {
                 frame.pixels[y * 1024 + x] = [1e5; 3];
             }
         }
-        let sun_energy: f64 = (120..126)
-            .map(|y| 6.0 * 1e5 * Projection::LatLong.solid_angles(1024, 512)[y * 1024])
-            .sum();
+        let omegas = Projection::LatLong.solid_angles(1024, 512);
+        let sun_energy: f64 = (120..126).map(|y| 6.0 * 1e5 * omegas[y * 1024]).sum();
         let settings = |merge| DecomposeSettings {
             merge_spacing_fraction: merge,
             ..raw_settings(256)
