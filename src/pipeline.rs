@@ -18,8 +18,18 @@
 //!   publishes each result as `Some(Arc<LightFrame>)` on a [`tokio::sync::watch`] channel (a plain
 //!   thread can send on it; no runtime is needed). Consumers ([`Pipeline::subscribe`]) always read
 //!   the newest light list; a slow consumer skips frames and never holds the pipeline back.
-//!   When the decompose thread ends, the sender is dropped, so `watch::Receiver::changed` reports
-//!   the end of the stream.
+//!   Each publication is a [`Published`]: the lights, a running index (so a consumer can count
+//!   what it skipped), a stale flag and when the frame reached the decomposition (for latency
+//!   figures). Once the pipeline is joined or dropped, `watch::Receiver::changed` reports the
+//!   end of the stream.
+//! - **Replay** uses [`QueuePolicy::Block`]: capture waits for the decomposition instead of
+//!   dropping, so every recorded frame reaches the temporal filter and the stream is reproduced.
+//! - **Recording** taps the decompose thread ([`PipelineOptions::tap`]): every decomposed frame
+//!   and its lights go to the recorder, which the decompose thread waits for (nothing recorded
+//!   is lost; a slow disk shows up as dropped capture frames, which are counted).
+//! - **Live changes.** [`Pipeline::reconfigure`] swaps in a new [`Decomposer`] before the next
+//!   frame (SIGHUP); [`Pipeline::set_stale`] re-publishes the newest lights marked stale while a
+//!   lost camera is being reconnected.
 //! - **Source errors.** A [`CaptureError`] is logged (`tracing::warn`), counted in
 //!   [`PipelineStats::capture_errors`] and ends the capture: the error is kept and
 //!   [`Pipeline::join`] returns it as [`PipelineError::Capture`], so nothing is lost silently.
@@ -47,21 +57,66 @@ pub const CAPTURE_THREAD_NAME: &str = "envlight-capture";
 /// Name of the decompose thread.
 pub const DECOMPOSE_THREAD_NAME: &str = "envlight-decompose";
 
-/// What consumers receive: the newest light list, `None` until the first one is published.
-pub type LatestLights = Option<Arc<LightFrame>>;
-
-/// Options of a [`Pipeline`].
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct PipelineOptions {
-    /// Capacity of the capture → decompose queue, at least 1 (default 2). When it is full the
-    /// oldest queued frame is dropped.
-    pub queue_capacity: usize,
+/// One publication on the latest-value channel.
+#[derive(Clone, Debug)]
+pub struct Published {
+    /// 1 for the first publication, one more for each later one (stale re-publications
+    /// included). A consumer that last handled index `i` and now reads `j` skipped `j − i − 1`.
+    pub index: u64,
+    /// The light list.
+    pub lights: Arc<LightFrame>,
+    /// The lights are the last known ones and the source is lost (set by
+    /// [`Pipeline::set_stale`]; a newly decomposed frame is never stale).
+    pub stale: bool,
+    /// When the source frame reached the decompose thread (`None` for a stale re-publication).
+    /// Latency measurements start here.
+    pub arrived: Option<Instant>,
+    /// How long its decomposition took.
+    pub decompose_time: Duration,
 }
 
-impl Default for PipelineOptions {
-    fn default() -> Self {
-        Self { queue_capacity: 2 }
+/// What consumers receive: the newest publication, `None` until the first one.
+pub type LatestLights = Option<Arc<Published>>;
+
+/// What a full capture → decompose queue does with a new frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum QueuePolicy {
+    /// Drop the oldest queued frame and count it: a live source never waits (the default).
+    #[default]
+    DropOldest,
+    /// Wait until the decomposition takes a frame: nothing is dropped. For replaying recorded
+    /// sessions, where every frame must reach the temporal filter to reproduce the stream.
+    Block,
+}
+
+/// Options of a [`Pipeline`].
+#[derive(Clone, Debug, Default)]
+pub struct PipelineOptions {
+    /// Capacity of the capture → decompose queue, at least 1 (default 2).
+    pub queue_capacity: usize,
+    /// What a full queue does.
+    pub queue_policy: QueuePolicy,
+    /// Every decomposed frame with its lights, for a recorder. The decompose thread waits for
+    /// room on this channel (a recording loses nothing; a slow recorder shows up as dropped
+    /// capture frames instead). If the receiver is gone, tapping stops with a warning.
+    pub tap: Option<Sender<Tapped>>,
+}
+
+impl PipelineOptions {
+    /// The defaults: a queue of 2 frames that drops the oldest, no tap.
+    pub fn new() -> Self {
+        Self {
+            queue_capacity: 2,
+            ..Self::default()
+        }
     }
+}
+
+/// A decomposed frame and its lights, as handed to [`PipelineOptions::tap`].
+#[derive(Debug)]
+pub struct Tapped {
+    pub frame: HdrFrame,
+    pub lights: Arc<LightFrame>,
 }
 
 /// Errors of the pipeline.
@@ -99,10 +154,15 @@ pub struct PipelineStats {
     pub last_decompose_time: Duration,
     /// Errors returned by the source.
     pub capture_errors: u64,
+    /// Number of lights in the most recent light list.
+    pub light_count: u64,
 }
 
+/// A decomposition step: a [`Decomposer`] in the daemon, anything in tests.
+type Step = Box<dyn FnMut(&HdrFrame) -> LightFrame + Send>;
+
 /// Shared counters and flags.
-#[derive(Debug, Default)]
+#[derive(Default)]
 struct Shared {
     shutdown: AtomicBool,
     frames_captured: AtomicU64,
@@ -110,8 +170,11 @@ struct Shared {
     frames_decomposed: AtomicU64,
     last_decompose_nanos: AtomicU64,
     capture_errors: AtomicU64,
+    light_count: AtomicU64,
     /// The source error that ended the capture, handed to [`Pipeline::join`].
     capture_error: Mutex<Option<CaptureError>>,
+    /// A replacement decomposition step, taken by the decompose thread before its next frame.
+    pending_step: Mutex<Option<Step>>,
 }
 
 impl Shared {
@@ -124,13 +187,36 @@ impl Shared {
                 self.last_decompose_nanos.load(Ordering::Acquire),
             ),
             capture_errors: self.capture_errors.load(Ordering::Acquire),
+            light_count: self.light_count.load(Ordering::Acquire),
         }
     }
+}
+
+/// Publishes on the latest-value channel, numbering publications under the channel's lock.
+fn publish(
+    tx: &watch::Sender<LatestLights>,
+    lights: Arc<LightFrame>,
+    stale: bool,
+    arrived: Option<Instant>,
+    decompose_time: Duration,
+) {
+    tx.send_modify(|latest| {
+        let index = latest.as_ref().map_or(0, |p| p.index) + 1;
+        *latest = Some(Arc::new(Published {
+            index,
+            lights,
+            stale,
+            arrived,
+            decompose_time,
+        }));
+    });
 }
 
 /// A running capture → decompose pipeline. See the module documentation.
 pub struct Pipeline {
     shared: Arc<Shared>,
+    /// The sending side, also used by [`Pipeline::set_stale`].
+    lights_tx: Arc<watch::Sender<LatestLights>>,
     /// Never marked as seen, so each clone handed out starts with the newest value unseen.
     lights: watch::Receiver<LatestLights>,
     capture: JoinHandle<()>,
@@ -149,10 +235,10 @@ impl Pipeline {
     }
 
     /// Starts the pipeline with any decomposition step (the tests use slow or panicking ones).
-    fn start_with<F>(
+    pub fn start_with<F>(
         mut source: Box<dyn FrameSource>,
         options: PipelineOptions,
-        mut decompose: F,
+        decompose: F,
     ) -> Result<Pipeline, PipelineError>
     where
         F: FnMut(&HdrFrame) -> LightFrame + Send + 'static,
@@ -160,34 +246,58 @@ impl Pipeline {
         if options.queue_capacity == 0 {
             return Err(PipelineError::QueueCapacity(options.queue_capacity));
         }
+        let mut step: Step = Box::new(decompose);
         let shared = Arc::new(Shared::default());
         let (frame_tx, frame_rx) = crossbeam_channel::bounded::<HdrFrame>(options.queue_capacity);
         let (lights_tx, lights_rx) = watch::channel::<LatestLights>(None);
+        let lights_tx = Arc::new(lights_tx);
         tracing::info!(
             source = %source.describe(),
             queue_capacity = options.queue_capacity,
+            queue_policy = ?options.queue_policy,
             "starting pipeline"
         );
 
         let decompose_shared = Arc::clone(&shared);
         let decompose_rx = frame_rx.clone();
+        let decompose_tx = Arc::clone(&lights_tx);
+        let mut tap = options.tap;
         let decompose_handle = std::thread::Builder::new()
             .name(DECOMPOSE_THREAD_NAME.to_owned())
             .spawn(move || {
                 // However this thread ends (drained queue or panic), capture must stop too.
                 let _stop_capture = StopOnDrop(Arc::clone(&decompose_shared));
                 for frame in decompose_rx.iter() {
-                    let started = Instant::now();
-                    let lights = decompose(&frame);
-                    let nanos = u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
-                    decompose_shared
-                        .last_decompose_nanos
-                        .store(nanos, Ordering::Release);
-                    decompose_shared
-                        .frames_decomposed
-                        .fetch_add(1, Ordering::AcqRel);
-                    // `send_replace` succeeds with or without subscribers.
-                    lights_tx.send_replace(Some(Arc::new(lights)));
+                    let arrived = Instant::now();
+                    if let Some(new_step) = decompose_shared
+                        .pending_step
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .take()
+                    {
+                        step = new_step;
+                    }
+                    let lights = Arc::new(step(&frame));
+                    let elapsed = arrived.elapsed();
+                    let nanos = u64::try_from(elapsed.as_nanos()).unwrap_or(u64::MAX);
+                    let s = &decompose_shared;
+                    s.last_decompose_nanos.store(nanos, Ordering::Release);
+                    s.light_count
+                        .store(lights.lights.len() as u64, Ordering::Release);
+                    s.frames_decomposed.fetch_add(1, Ordering::AcqRel);
+                    publish(
+                        &decompose_tx,
+                        Arc::clone(&lights),
+                        false,
+                        Some(arrived),
+                        elapsed,
+                    );
+                    if let Some(tx) = &tap {
+                        if tx.send(Tapped { frame, lights }).is_err() {
+                            tracing::warn!("the recorder is gone; frames are no longer recorded");
+                            tap = None;
+                        }
+                    }
                 }
             })
             .map_err(|source| PipelineError::Spawn {
@@ -196,9 +306,18 @@ impl Pipeline {
             })?;
 
         let capture_shared = Arc::clone(&shared);
+        let policy = options.queue_policy;
         let capture_handle = std::thread::Builder::new()
             .name(CAPTURE_THREAD_NAME.to_owned())
-            .spawn(move || capture_loop(source.as_mut(), &frame_tx, &frame_rx, &capture_shared));
+            .spawn(move || {
+                capture_loop(
+                    source.as_mut(),
+                    &frame_tx,
+                    &frame_rx,
+                    policy,
+                    &capture_shared,
+                )
+            });
         let capture_handle = match capture_handle {
             Ok(handle) => handle,
             Err(source) => {
@@ -214,6 +333,7 @@ impl Pipeline {
 
         Ok(Pipeline {
             shared,
+            lights_tx,
             lights: lights_rx,
             capture: capture_handle,
             decompose: decompose_handle,
@@ -221,7 +341,8 @@ impl Pipeline {
     }
 
     /// A receiver of the newest light list. If a list has been published already, the receiver
-    /// sees it as changed. `changed()` returns an error once the decompose thread has ended.
+    /// sees it as changed. `changed()` returns an error once the decompose thread has ended
+    /// and the pipeline is dropped.
     pub fn subscribe(&self) -> watch::Receiver<LatestLights> {
         self.lights.clone()
     }
@@ -229,6 +350,41 @@ impl Pipeline {
     /// A snapshot of the counters.
     pub fn stats(&self) -> PipelineStats {
         self.shared.stats()
+    }
+
+    /// Replaces the decomposition settings from the next frame on (a new [`Decomposer`]: its
+    /// temporal filter starts afresh). Invalid settings are rejected and change nothing.
+    pub fn reconfigure(&self, settings: DecomposeSettings) -> Result<(), DecomposeError> {
+        let mut decomposer = Decomposer::new(settings)?;
+        *self
+            .shared
+            .pending_step
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) =
+            Some(Box::new(move |frame: &HdrFrame| {
+                decomposer.decompose(frame)
+            }));
+        Ok(())
+    }
+
+    /// Marks the newest light list stale (the source is lost) or live again. On a change, the
+    /// newest lights are published again with the flag, so every consumer learns of it; a
+    /// newly decomposed frame is always live. Returns whether anything was published.
+    pub fn set_stale(&self, stale: bool) -> bool {
+        let latest = self.lights.borrow().clone();
+        match latest {
+            Some(p) if p.stale != stale => {
+                publish(
+                    &self.lights_tx,
+                    Arc::clone(&p.lights),
+                    stale,
+                    None,
+                    Duration::ZERO,
+                );
+                true
+            }
+            _ => false,
+        }
     }
 
     /// Asks the capture thread to stop before its next frame; queued frames are still
@@ -281,13 +437,17 @@ fn capture_loop(
     source: &mut dyn FrameSource,
     tx: &Sender<HdrFrame>,
     oldest: &Receiver<HdrFrame>,
+    policy: QueuePolicy,
     shared: &Shared,
 ) {
     while !shared.shutdown.load(Ordering::Acquire) {
         match source.next_frame() {
             Ok(Some(frame)) => {
                 shared.frames_captured.fetch_add(1, Ordering::AcqRel);
-                push_drop_oldest(tx, oldest, frame, shared);
+                match policy {
+                    QueuePolicy::DropOldest => push_drop_oldest(tx, oldest, frame, shared),
+                    QueuePolicy::Block => push_blocking(tx, frame, shared),
+                }
             }
             Ok(None) => {
                 tracing::info!(source = %source.describe(), "frame source finished");
@@ -301,6 +461,27 @@ fn capture_loop(
                     .lock()
                     .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(error);
                 break;
+            }
+        }
+    }
+}
+
+/// Queues `frame`, waiting for room, but gives up (counting the frame as dropped) when the
+/// pipeline is stopped meanwhile.
+fn push_blocking(tx: &Sender<HdrFrame>, mut frame: HdrFrame, shared: &Shared) {
+    loop {
+        match tx.send_timeout(frame, Duration::from_millis(50)) {
+            Ok(()) => return,
+            Err(crossbeam_channel::SendTimeoutError::Timeout(back)) => {
+                if shared.shutdown.load(Ordering::Acquire) {
+                    shared.frames_dropped.fetch_add(1, Ordering::AcqRel);
+                    return;
+                }
+                frame = back;
+            }
+            Err(crossbeam_channel::SendTimeoutError::Disconnected(_)) => {
+                shared.frames_dropped.fetch_add(1, Ordering::AcqRel);
+                return;
             }
         }
     }
@@ -433,7 +614,8 @@ mod tests {
         let mut seen = Vec::new();
         loop {
             let latest = rx.borrow_and_update().clone();
-            if let Some(frame) = latest {
+            if let Some(published) = latest {
+                let frame = &published.lights;
                 if seen.last() != Some(&frame.seq) {
                     seen.push(frame.seq);
                 }
@@ -449,12 +631,8 @@ mod tests {
     #[test]
     fn finite_paced_source_is_fully_decomposed_in_order() {
         let source = FakeSource::new(Some(20), Duration::from_millis(5));
-        let pipeline = Pipeline::start(
-            Box::new(source),
-            small_settings(),
-            PipelineOptions::default(),
-        )
-        .unwrap();
+        let pipeline =
+            Pipeline::start(Box::new(source), small_settings(), PipelineOptions::new()).unwrap();
         let mut rx = pipeline.subscribe();
         let seen = collect_until(&mut rx, 19);
         assert!(seen.windows(2).all(|w| w[0] < w[1]), "seqs {seen:?}");
@@ -464,9 +642,9 @@ mod tests {
         assert_eq!(stats.frames_dropped, 0);
         assert_eq!(stats.capture_errors, 0);
         assert!(stats.last_decompose_time > Duration::ZERO);
-        // The sender is gone with the decompose thread: the stream reports its end.
+        // The senders are gone with the pipeline: the stream reports its end.
         assert!(rx.has_changed().is_err());
-        let last = rx.borrow().clone().unwrap();
+        let last = rx.borrow().clone().unwrap().lights.clone();
         assert_eq!(last.seq, 19);
         assert_eq!(last.lights.len(), 16);
     }
@@ -479,7 +657,7 @@ mod tests {
         let started = Instant::now();
         let pipeline = Pipeline::start_with(
             Box::new(source),
-            PipelineOptions::default(),
+            PipelineOptions::new(),
             |frame: &HdrFrame| {
                 std::thread::sleep(Duration::from_millis(2));
                 LightFrame {
@@ -513,12 +691,8 @@ mod tests {
     #[test]
     fn stop_ends_an_endless_source_promptly() {
         let source = FakeSource::new(None, Duration::from_millis(1));
-        let pipeline = Pipeline::start(
-            Box::new(source),
-            small_settings(),
-            PipelineOptions::default(),
-        )
-        .unwrap();
+        let pipeline =
+            Pipeline::start(Box::new(source), small_settings(), PipelineOptions::new()).unwrap();
         let mut rx = pipeline.subscribe();
         collect_until(&mut rx, 3);
         let stopped = Instant::now();
@@ -536,12 +710,8 @@ mod tests {
     fn source_error_is_returned_by_join() {
         let mut source = FakeSource::new(Some(3), Duration::ZERO);
         source.fail_at_end = true;
-        let pipeline = Pipeline::start(
-            Box::new(source),
-            small_settings(),
-            PipelineOptions::default(),
-        )
-        .unwrap();
+        let pipeline =
+            Pipeline::start(Box::new(source), small_settings(), PipelineOptions::new()).unwrap();
         let stats_probe = pipeline.subscribe();
         match pipeline.join() {
             Err(PipelineError::Capture(CaptureError::Format { path, message })) => {
@@ -551,7 +721,92 @@ mod tests {
             other => panic!("expected the capture error, got {other:?}"),
         }
         // Frames before the error were still processed.
-        assert_eq!(stats_probe.borrow().as_ref().map(|f| f.seq), Some(2));
+        assert_eq!(stats_probe.borrow().as_ref().map(|p| p.lights.seq), Some(2));
+    }
+
+    #[test]
+    fn blocking_queue_decomposes_every_frame() {
+        const N: u64 = 60;
+        let source = FakeSource::new(Some(N), Duration::ZERO);
+        let (tap_tx, tap_rx) = crossbeam_channel::bounded(2);
+        let options = PipelineOptions {
+            queue_policy: QueuePolicy::Block,
+            tap: Some(tap_tx),
+            ..PipelineOptions::new()
+        };
+        let pipeline = Pipeline::start_with(Box::new(source), options, |frame: &HdrFrame| {
+            std::thread::sleep(Duration::from_micros(300));
+            LightFrame {
+                seq: frame.seq,
+                time: frame.time,
+                lights: Vec::new(),
+            }
+        })
+        .unwrap();
+        let tapped: Vec<u64> = tap_rx.iter().map(|t| t.frame.seq).collect();
+        let stats = pipeline.join().unwrap();
+        assert_eq!(stats.frames_dropped, 0);
+        assert_eq!(stats.frames_decomposed, N);
+        assert_eq!(tapped, (0..N).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn stale_flag_republishes_the_newest_lights() {
+        let source = FakeSource::new(Some(3), Duration::ZERO);
+        let pipeline =
+            Pipeline::start(Box::new(source), small_settings(), PipelineOptions::new()).unwrap();
+        let mut rx = pipeline.subscribe();
+        collect_until(&mut rx, 2);
+        while !pipeline.is_finished() {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let live = rx.borrow_and_update().clone().unwrap();
+        assert!(!live.stale);
+        assert!(
+            !pipeline.set_stale(false),
+            "already live: nothing to publish"
+        );
+        assert!(pipeline.set_stale(true));
+        let stale = rx.borrow_and_update().clone().unwrap();
+        assert!(stale.stale);
+        assert_eq!(stale.index, live.index + 1);
+        assert!(Arc::ptr_eq(&stale.lights, &live.lights));
+        assert!(!pipeline.set_stale(true));
+        assert!(pipeline.set_stale(false));
+        assert!(!rx.borrow().as_ref().unwrap().stale);
+        pipeline.join().unwrap();
+    }
+
+    #[test]
+    fn reconfigure_applies_from_the_next_frame_and_rejects_bad_settings() {
+        let source = FakeSource::new(None, Duration::from_millis(2));
+        let pipeline =
+            Pipeline::start(Box::new(source), small_settings(), PipelineOptions::new()).unwrap();
+        let mut rx = pipeline.subscribe();
+        collect_until(&mut rx, 1);
+        let bad = DecomposeSettings {
+            lights: 0,
+            ..small_settings()
+        };
+        assert!(pipeline.reconfigure(bad).is_err());
+        let eight = DecomposeSettings {
+            lights: 8,
+            ..small_settings()
+        };
+        pipeline.reconfigure(eight).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            let latest = rx.borrow_and_update().clone().unwrap();
+            if latest.lights.lights.len() == 8 {
+                break;
+            }
+            assert_eq!(latest.lights.lights.len(), 16);
+            assert!(Instant::now() < deadline, "the new settings never applied");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(pipeline.stats().light_count, 8);
+        pipeline.stop();
+        pipeline.join().unwrap();
     }
 
     #[test]
@@ -562,7 +817,7 @@ mod tests {
         let recorder = Arc::clone(&decompose_name);
         let pipeline = Pipeline::start_with(
             Box::new(source),
-            PipelineOptions::default(),
+            PipelineOptions::new(),
             move |frame: &HdrFrame| {
                 *recorder.lock().unwrap() = std::thread::current().name().map(str::to_owned);
                 LightFrame {
@@ -588,7 +843,7 @@ mod tests {
         let source = FakeSource::new(None, Duration::from_millis(1));
         let pipeline = Pipeline::start_with(
             Box::new(source),
-            PipelineOptions::default(),
+            PipelineOptions::new(),
             |frame: &HdrFrame| {
                 assert!(frame.seq < 5, "boom at {}", frame.seq);
                 LightFrame::default()
@@ -610,7 +865,10 @@ mod tests {
         let err = Pipeline::start(
             Box::new(source),
             small_settings(),
-            PipelineOptions { queue_capacity: 0 },
+            PipelineOptions {
+                queue_capacity: 0,
+                ..PipelineOptions::new()
+            },
         )
         .err()
         .unwrap();
@@ -620,7 +878,7 @@ mod tests {
             lights: 0,
             ..small_settings()
         };
-        let err = Pipeline::start(Box::new(source), settings, PipelineOptions::default())
+        let err = Pipeline::start(Box::new(source), settings, PipelineOptions::new())
             .err()
             .unwrap();
         assert!(matches!(err, PipelineError::Decompose(_)));
