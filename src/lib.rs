@@ -16,6 +16,7 @@ pub mod decompose;
 pub mod envmap;
 pub mod frame;
 pub mod light;
+pub mod metrics;
 pub mod pipeline;
 pub mod stream;
 pub mod yardstick;

@@ -53,7 +53,8 @@ const CONCENTRATED_SHARE: f64 = 0.25;
 pub const DEFAULT_PDF_EXPONENT: f64 = 0.75;
 
 /// How the unit square is warped onto the sampling density.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Warp {
     /// Row-by-row inverse CDF with conditional CDFs blended across rows
     /// ([`PiecewiseConstant2d`]): continuous in the point, but a bright source moving within
@@ -73,7 +74,8 @@ enum Sampler {
 }
 
 /// Where a light points within its region.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum LightPlacement {
     /// The luminance-weighted centroid of the light's region (default: most accurate).
     #[default]
@@ -83,7 +85,8 @@ pub enum LightPlacement {
 }
 
 /// Settings of a [`Decomposer`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct DecomposeSettings {
     /// Number of lights, 1..=[`MAX_POINTS`].
     pub lights: usize,

@@ -71,7 +71,8 @@ use glam::DVec3;
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 /// Radial lens model: how the angle θ from the optical axis maps to the image radius r.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum FisheyeModel {
     /// r = f·θ
     #[default]
@@ -159,7 +160,7 @@ fn sinc(x: f64) -> f64 {
 }
 
 /// Calibration of a zenith-looking fisheye camera.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FisheyeCalibration {
     pub model: FisheyeModel,
     /// Image-circle centre in pixels; `None` = the image centre.

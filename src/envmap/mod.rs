@@ -17,7 +17,8 @@ pub use fisheye::{FisheyeCalibration, FisheyeModel};
 use glam::DVec3;
 
 /// How the pixels of an environment-map image map to directions.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Projection {
     /// Equirectangular map of the full sphere (DESIGN.md's convention).
     #[default]

@@ -1,13 +1,17 @@
 //! Streaming: how light lists leave the daemon for other processes.
 //!
-//! For now this is only the wire format ([`protocol`]): the versioned, length-prefixed binary
-//! messages and their JSON form that clients on Unix sockets, TCP and WebSocket read and write.
-//! The server and per-connection handling (tokio) will live beside it; the format itself has no
-//! networking and no async, so it is testable alone. The byte layout is documented in
-//! `docs/protocol.md`.
+//! - [`protocol`]: the versioned, length-prefixed binary messages and their JSON form
+//!   (docs/protocol.md); no networking and no async, so it is testable alone.
+//! - [`server`]: the tokio server for Unix sockets, TCP and WebSocket, one task per client,
+//!   newest-frame-wins for slow clients.
+//! - [`client`]: a small blocking client (used by `envlight subscribe`, the examples and the
+//!   tests).
 
+pub mod client;
 pub mod protocol;
+pub mod server;
 
 pub use protocol::{
     Decoder, Format, FrameMessage, Message, ProtocolError, Representation, Request,
 };
+pub use server::{BoundAddresses, ServerConfig, StreamServer};

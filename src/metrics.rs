@@ -1,0 +1,247 @@
+//! Daemon metrics in the Prometheus text format, and the health verdict.
+//!
+//! [`Metrics`] owns a `prometheus_client` registry. Counters that the pipeline keeps itself
+//! (frames captured, dropped, decomposed, source errors) are copied from
+//! [`PipelineStats`] when the endpoint is scraped ([`Metrics::update_pipeline`]), so they are
+//! exact at that moment; the stream server counts clients, frames sent and frames skipped as
+//! they happen; latencies go into histograms:
+//!
+//! | metric | kind | meaning |
+//! |---|---|---|
+//! | `envlight_frames_captured_total` | counter | frames the source delivered |
+//! | `envlight_frames_dropped_total` | counter | frames dropped because the decomposition was behind |
+//! | `envlight_frames_decomposed_total` | counter | light lists published |
+//! | `envlight_capture_errors_total` | counter | source errors |
+//! | `envlight_lights` | gauge | lights in the newest light list |
+//! | `envlight_source_stale` | gauge | 1 while the newest lights are stale (source lost) |
+//! | `envlight_decompose_seconds` | histogram | decomposition time per frame |
+//! | `envlight_delivery_seconds` | histogram | frame reaches the decomposition → last byte written to a client |
+//! | `envlight_clients_connected` | gauge | clients connected, by endpoint |
+//! | `envlight_client_frames_sent_total` | counter | frames written to clients, by endpoint |
+//! | `envlight_client_frames_skipped_total` | counter | frames a slow client skipped, by endpoint |
+//! | `envlight_client_skipped_frames` | gauge | frames skipped so far, per connected client |
+//! | `envlight_client_errors_total` | counter | connections closed for a protocol error or a timeout, by endpoint |
+//!
+//! The per-client gauge is removed when the client disconnects, so its cardinality is bounded
+//! by the client limit.
+
+use crate::pipeline::PipelineStats;
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::Histogram;
+use prometheus_client::registry::Registry;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+/// Label of the per-endpoint families: `endpoint="uds"|"tcp"|"websocket"`.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct EndpointLabel {
+    pub endpoint: &'static str,
+}
+
+/// Label of the per-client gauge: the endpoint and the peer, e.g. `tcp 127.0.0.1:50112 #7`.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ClientLabel {
+    pub client: String,
+}
+
+/// Every metric of the daemon.
+pub struct Metrics {
+    registry: Registry,
+    frames_captured: Counter,
+    frames_dropped: Counter,
+    frames_decomposed: Counter,
+    capture_errors: Counter,
+    lights: Gauge,
+    pub source_stale: Gauge,
+    pub decompose_seconds: Histogram,
+    pub delivery_seconds: Histogram,
+    pub clients_connected: Family<EndpointLabel, Gauge>,
+    pub frames_sent: Family<EndpointLabel, Counter>,
+    pub frames_skipped: Family<EndpointLabel, Counter>,
+    pub client_skipped: Family<ClientLabel, Gauge>,
+    pub client_errors: Family<EndpointLabel, Counter>,
+}
+
+/// Latency buckets from 50 µs to about 1.6 s, doubling.
+fn latency_buckets() -> impl Iterator<Item = f64> {
+    prometheus_client::metrics::histogram::exponential_buckets(50e-6, 2.0, 16)
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Metrics {
+    /// All metrics at zero, registered under the `envlight_` prefix.
+    pub fn new() -> Self {
+        let mut registry = Registry::with_prefix("envlight");
+        let frames_captured = Counter::default();
+        let frames_dropped = Counter::default();
+        let frames_decomposed = Counter::default();
+        let capture_errors = Counter::default();
+        let lights = Gauge::default();
+        let source_stale = Gauge::default();
+        let decompose_seconds = Histogram::new(latency_buckets());
+        let delivery_seconds = Histogram::new(latency_buckets());
+        let clients_connected = Family::<EndpointLabel, Gauge>::default();
+        let frames_sent = Family::<EndpointLabel, Counter>::default();
+        let frames_skipped = Family::<EndpointLabel, Counter>::default();
+        let client_skipped = Family::<ClientLabel, Gauge>::default();
+        let client_errors = Family::<EndpointLabel, Counter>::default();
+        registry.register(
+            "frames_captured",
+            "Frames the source delivered",
+            frames_captured.clone(),
+        );
+        registry.register(
+            "frames_dropped",
+            "Frames dropped because the decomposition was behind (oldest first)",
+            frames_dropped.clone(),
+        );
+        registry.register(
+            "frames_decomposed",
+            "Light lists decomposed and published",
+            frames_decomposed.clone(),
+        );
+        registry.register(
+            "capture_errors",
+            "Errors returned by the frame source",
+            capture_errors.clone(),
+        );
+        registry.register("lights", "Lights in the newest light list", lights.clone());
+        registry.register(
+            "source_stale",
+            "1 while the newest lights are stale because the source is lost",
+            source_stale.clone(),
+        );
+        registry.register(
+            "decompose_seconds",
+            "Decomposition time per frame",
+            decompose_seconds.clone(),
+        );
+        registry.register(
+            "delivery_seconds",
+            "Time from a frame's arrival at the decomposition to the last byte written to a client",
+            delivery_seconds.clone(),
+        );
+        registry.register(
+            "clients_connected",
+            "Clients connected",
+            clients_connected.clone(),
+        );
+        registry.register(
+            "client_frames_sent",
+            "Frames written to clients",
+            frames_sent.clone(),
+        );
+        registry.register(
+            "client_frames_skipped",
+            "Frames slow clients skipped (they got a newer one instead)",
+            frames_skipped.clone(),
+        );
+        registry.register(
+            "client_skipped_frames",
+            "Frames skipped so far by each connected client",
+            client_skipped.clone(),
+        );
+        registry.register(
+            "client_errors",
+            "Connections closed for a protocol error or a timeout",
+            client_errors.clone(),
+        );
+        Self {
+            registry,
+            frames_captured,
+            frames_dropped,
+            frames_decomposed,
+            capture_errors,
+            lights,
+            source_stale,
+            decompose_seconds,
+            delivery_seconds,
+            clients_connected,
+            frames_sent,
+            frames_skipped,
+            client_skipped,
+            client_errors,
+        }
+    }
+
+    /// Copies the pipeline's own counters into the metrics.
+    pub fn update_pipeline(&self, stats: &PipelineStats) {
+        self.frames_captured
+            .inner()
+            .store(stats.frames_captured, Ordering::Relaxed);
+        self.frames_dropped
+            .inner()
+            .store(stats.frames_dropped, Ordering::Relaxed);
+        self.frames_decomposed
+            .inner()
+            .store(stats.frames_decomposed, Ordering::Relaxed);
+        self.capture_errors
+            .inner()
+            .store(stats.capture_errors, Ordering::Relaxed);
+        self.lights
+            .set(i64::try_from(stats.light_count).unwrap_or(i64::MAX));
+    }
+
+    /// Records one decomposition time.
+    pub fn observe_decompose(&self, time: Duration) {
+        self.decompose_seconds.observe(time.as_secs_f64());
+    }
+
+    /// The registry in the Prometheus text exposition format.
+    pub fn encode(&self) -> String {
+        let mut text = String::new();
+        // Writing into a String cannot fail.
+        let _ = prometheus_client::encoding::text::encode(&mut text, &self.registry);
+        text
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exposition_names_every_metric_with_its_value() {
+        let metrics = Metrics::new();
+        metrics.update_pipeline(&PipelineStats {
+            frames_captured: 12,
+            frames_dropped: 3,
+            frames_decomposed: 9,
+            capture_errors: 1,
+            light_count: 256,
+            ..PipelineStats::default()
+        });
+        metrics.observe_decompose(Duration::from_micros(900));
+        let tcp = EndpointLabel { endpoint: "tcp" };
+        metrics.clients_connected.get_or_create(&tcp).inc();
+        metrics.frames_skipped.get_or_create(&tcp).inc_by(5);
+        let client = ClientLabel {
+            client: "tcp 127.0.0.1:1 #1".into(),
+        };
+        metrics.client_skipped.get_or_create(&client).set(5);
+        let text = metrics.encode();
+        for line in [
+            "envlight_frames_captured_total 12",
+            "envlight_frames_dropped_total 3",
+            "envlight_frames_decomposed_total 9",
+            "envlight_capture_errors_total 1",
+            "envlight_lights 256",
+            "envlight_decompose_seconds_count 1",
+            "envlight_clients_connected{endpoint=\"tcp\"} 1",
+            "envlight_client_frames_skipped_total{endpoint=\"tcp\"} 5",
+            "envlight_client_skipped_frames{client=\"tcp 127.0.0.1:1 #1\"} 5",
+        ] {
+            assert!(text.contains(line), "missing {line:?} in\n{text}");
+        }
+        metrics.client_skipped.remove(&client);
+        assert!(!metrics.encode().contains("#1\""));
+    }
+}

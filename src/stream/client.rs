@@ -1,0 +1,276 @@
+//! A small blocking client of the stream server, for `envlight subscribe`, the examples and
+//! the tests.
+//!
+//! [`Endpoint`] parses the address forms the command line accepts:
+//! `unix:/run/envlight/envlight.sock` (or any path containing a `/`), `tcp:HOST:PORT` (or just
+//! `HOST:PORT`) and `ws://HOST:PORT/`. [`Client::connect`] connects and subscribes;
+//! [`Client::next_message`] returns the messages one by one.
+//!
+//! On Unix sockets and TCP the subscribe is sent in the binary form; frames then arrive binary
+//! or as JSON lines, as requested. On WebSocket the subscribe is a text message for JSON frames
+//! and a binary one for binary frames.
+
+use super::protocol::{self, Decoder, Format, Message, ProtocolError, Request};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::os::unix::net::UnixStream;
+use std::path::PathBuf;
+use std::time::Duration;
+use tokio_tungstenite::tungstenite;
+
+/// Where a server listens.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Endpoint {
+    Unix(PathBuf),
+    Tcp(String),
+    WebSocket(String),
+}
+
+impl std::str::FromStr for Endpoint {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        if let Some(path) = s.strip_prefix("unix:") {
+            if path.is_empty() {
+                return Err(
+                    "unix: needs a socket path, e.g. unix:/run/envlight/envlight.sock".into(),
+                );
+            }
+            return Ok(Endpoint::Unix(PathBuf::from(path)));
+        }
+        if s.starts_with("ws://") {
+            return Ok(Endpoint::WebSocket(s.to_owned()));
+        }
+        if s.starts_with("wss://") {
+            return Err(
+                "wss:// is not supported; envlight serves plain ws:// (put a TLS proxy in front)"
+                    .into(),
+            );
+        }
+        if let Some(addr) = s.strip_prefix("tcp:") {
+            return Ok(Endpoint::Tcp(addr.to_owned()));
+        }
+        if s.contains('/') {
+            return Ok(Endpoint::Unix(PathBuf::from(s)));
+        }
+        if s.rsplit_once(':')
+            .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
+        {
+            return Ok(Endpoint::Tcp(s.to_owned()));
+        }
+        Err(format!(
+            "cannot tell what {s:?} is: use unix:PATH, tcp:HOST:PORT, HOST:PORT or ws://HOST:PORT/"
+        ))
+    }
+}
+
+impl std::fmt::Display for Endpoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Endpoint::Unix(path) => write!(f, "unix:{}", path.display()),
+            Endpoint::Tcp(addr) => write!(f, "tcp:{addr}"),
+            Endpoint::WebSocket(url) => f.write_str(url),
+        }
+    }
+}
+
+/// Errors of the client.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    #[error("{endpoint}: {source}")]
+    Io {
+        endpoint: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{endpoint}: websocket: {message}")]
+    WebSocket { endpoint: String, message: String },
+    #[error("{endpoint}: {source}")]
+    Protocol {
+        endpoint: String,
+        #[source]
+        source: ProtocolError,
+    },
+}
+
+trait ReadWrite: Read + Write + Send {}
+impl<T: Read + Write + Send> ReadWrite for T {}
+
+enum Transport {
+    Binary {
+        stream: Box<dyn ReadWrite>,
+        decoder: Decoder,
+    },
+    JsonLines {
+        reader: BufReader<Box<dyn ReadWrite>>,
+    },
+    WebSocket(Box<tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>>),
+}
+
+/// A subscribed connection.
+pub struct Client {
+    endpoint: String,
+    transport: Transport,
+    buf: Vec<u8>,
+}
+
+impl Client {
+    /// Connects to `endpoint` and subscribes with `request`. `read_timeout` bounds every later
+    /// read (`None` = wait forever).
+    pub fn connect(
+        endpoint: &Endpoint,
+        request: &Request,
+        read_timeout: Option<Duration>,
+    ) -> Result<Client, ClientError> {
+        let name = endpoint.to_string();
+        let io = |source| ClientError::Io {
+            endpoint: name.clone(),
+            source,
+        };
+        let mut subscribe = Vec::new();
+        protocol::encode_request(request, &mut subscribe);
+        let stream: Box<dyn ReadWrite> = match endpoint {
+            Endpoint::Unix(path) => {
+                let s = UnixStream::connect(path).map_err(io)?;
+                s.set_read_timeout(read_timeout).map_err(io)?;
+                Box::new(s)
+            }
+            Endpoint::Tcp(addr) => {
+                let s = TcpStream::connect(addr.as_str()).map_err(io)?;
+                s.set_read_timeout(read_timeout).map_err(io)?;
+                let _ = s.set_nodelay(true);
+                Box::new(s)
+            }
+            Endpoint::WebSocket(url) => {
+                let ws_error = |e: tungstenite::Error| ClientError::WebSocket {
+                    endpoint: name.clone(),
+                    message: e.to_string(),
+                };
+                let (mut ws, _) = tungstenite::connect(url.as_str()).map_err(ws_error)?;
+                if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_mut() {
+                    s.set_read_timeout(read_timeout).map_err(io)?;
+                    let _ = s.set_nodelay(true);
+                }
+                let message = match request.format {
+                    Format::Json => tungstenite::Message::text(protocol::request_to_json(request)),
+                    Format::Binary => tungstenite::Message::binary(subscribe),
+                };
+                ws.send(message).map_err(ws_error)?;
+                return Ok(Client {
+                    endpoint: name,
+                    transport: Transport::WebSocket(Box::new(ws)),
+                    buf: Vec::new(),
+                });
+            }
+        };
+        let mut stream = stream;
+        stream.write_all(&subscribe).map_err(io)?;
+        let transport = match request.format {
+            Format::Binary => Transport::Binary {
+                stream,
+                decoder: Decoder::new(),
+            },
+            Format::Json => Transport::JsonLines {
+                reader: BufReader::new(stream),
+            },
+        };
+        Ok(Client {
+            endpoint: name,
+            transport,
+            buf: vec![0; 64 * 1024],
+        })
+    }
+
+    /// The next message; `Ok(None)` when the server closed the connection.
+    pub fn next_message(&mut self) -> Result<Option<Message>, ClientError> {
+        let endpoint = &self.endpoint;
+        let protocol_error = |source| ClientError::Protocol {
+            endpoint: endpoint.clone(),
+            source,
+        };
+        let io = |source| ClientError::Io {
+            endpoint: endpoint.clone(),
+            source,
+        };
+        match &mut self.transport {
+            Transport::Binary { stream, decoder } => loop {
+                if let Some(message) = decoder.next_message().map_err(protocol_error)? {
+                    return Ok(Some(message));
+                }
+                let n = stream.read(&mut self.buf).map_err(io)?;
+                if n == 0 {
+                    decoder.finish().map_err(protocol_error)?;
+                    return Ok(None);
+                }
+                decoder.push(&self.buf[..n]);
+            },
+            Transport::JsonLines { reader } => {
+                let mut line = String::new();
+                if reader.read_line(&mut line).map_err(io)? == 0 {
+                    return Ok(None);
+                }
+                protocol::parse_json_message(line.trim_end())
+                    .map(Some)
+                    .map_err(protocol_error)
+            }
+            Transport::WebSocket(ws) => loop {
+                let message = match ws.read() {
+                    Ok(m) => m,
+                    Err(
+                        tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed,
+                    ) => return Ok(None),
+                    Err(tungstenite::Error::Io(e)) => return Err(io(e)),
+                    Err(e) => {
+                        return Err(ClientError::WebSocket {
+                            endpoint: endpoint.clone(),
+                            message: e.to_string(),
+                        })
+                    }
+                };
+                match message {
+                    tungstenite::Message::Text(text) => {
+                        return protocol::parse_json_message(text.as_str())
+                            .map(Some)
+                            .map_err(protocol_error)
+                    }
+                    tungstenite::Message::Binary(bytes) => {
+                        return protocol::decode_message(&bytes)
+                            .map(Some)
+                            .map_err(protocol_error)
+                    }
+                    tungstenite::Message::Close(_) => return Ok(None),
+                    _ => continue,
+                }
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn endpoints_parse_in_every_form() {
+        assert_eq!(
+            "unix:/run/envlight/envlight.sock".parse(),
+            Ok(Endpoint::Unix("/run/envlight/envlight.sock".into()))
+        );
+        assert_eq!("./x.sock".parse(), Ok(Endpoint::Unix("./x.sock".into())));
+        assert_eq!(
+            "127.0.0.1:7878".parse(),
+            Ok(Endpoint::Tcp("127.0.0.1:7878".into()))
+        );
+        assert_eq!(
+            "tcp:localhost:7878".parse(),
+            Ok(Endpoint::Tcp("localhost:7878".into()))
+        );
+        assert_eq!(
+            "ws://127.0.0.1:7879/".parse(),
+            Ok(Endpoint::WebSocket("ws://127.0.0.1:7879/".into()))
+        );
+        for bad in ["", "unix:", "localhost", "wss://x:1/", "host:port"] {
+            assert!(bad.parse::<Endpoint>().is_err(), "{bad:?} parsed");
+        }
+    }
+}

@@ -1,0 +1,994 @@
+//! The stream server: light lists to any number of clients over a Unix domain socket, TCP and
+//! WebSocket, in the wire format of [`super::protocol`] (docs/protocol.md).
+//!
+//! Shaped like mini-redis: [`StreamServer::start`] binds the endpoints and spawns one accept
+//! loop per endpoint and one task per connection on the caller's tokio runtime;
+//! [`StreamServer::shutdown`] broadcasts the goodbye, waits (bounded) for the connections to
+//! send it, and removes the socket file.
+//!
+//! A connection:
+//! 1. **Handshake.** The client sends one subscribe message within
+//!    [`ServerConfig::handshake_timeout`] (binary; on UDS/TCP also one JSON line starting with
+//!    `{`; on WebSocket a binary or text message). Anything else, a half-open connection that
+//!    never speaks, or a client that vanishes mid-message ends the connection (with an error
+//!    message where the client can still read it).
+//! 2. **Frames.** Each connection task waits on the pipeline's latest-value channel. When a new
+//!    light list is published it encodes it for this client (cap, binary or JSON) and writes it.
+//!    A client that reads slowly blocks only its own task; meanwhile newer lists replace older
+//!    ones in the channel, so when the write completes it gets the newest one and the lists in
+//!    between are counted as skipped. Per client the server holds one encoded frame, so memory
+//!    stays bounded whatever the client does; a write that makes no progress for
+//!    [`ServerConfig::write_timeout`] closes the connection.
+//! 3. **Client input after the subscribe** is not expected: any message is answered with an
+//!    error and the connection is closed; other clients are not affected. End of input (a
+//!    half-closed socket) is fine: the client keeps receiving.
+//! 4. **Shutdown** sends a goodbye (code 0) and closes.
+
+use super::protocol::{
+    self, code as error_code, decode_message, encode_error, encode_frame, encode_goodbye,
+    frame_to_json, goodbye_to_json, Decoder, Format, Message, ProtocolError, Representation,
+    Request,
+};
+use crate::metrics::{ClientLabel, EndpointLabel, Metrics};
+use crate::pipeline::{LatestLights, Published};
+use futures_util::{SinkExt, StreamExt};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::{TcpListener, UnixListener};
+use tokio::sync::{mpsc, watch};
+use tokio_tungstenite::tungstenite;
+
+/// The goodbye text sent when the daemon shuts down.
+pub const SHUTDOWN_MESSAGE: &str = "envlight shutting down";
+
+/// Longest JSON subscribe line accepted on UDS/TCP.
+const MAX_JSON_LINE: usize = protocol::MAX_TEXT_LEN;
+
+/// Settings of the stream server (`[stream]` in the config file).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServerConfig {
+    /// Unix domain socket path; `None` disables the endpoint.
+    pub unix_socket: Option<PathBuf>,
+    /// Permission bits of the socket file.
+    pub unix_socket_mode: u32,
+    /// TCP listen address; `None` disables the endpoint.
+    pub tcp: Option<SocketAddr>,
+    /// WebSocket listen address; `None` disables the endpoint.
+    pub websocket: Option<SocketAddr>,
+    /// Connections beyond this many are refused with an error message.
+    pub max_clients: usize,
+    /// Time a new connection has to send its subscribe message.
+    pub handshake_timeout: Duration,
+    /// A write that makes no progress for this long closes the connection.
+    pub write_timeout: Duration,
+}
+
+/// Default Unix socket path.
+pub const DEFAULT_UNIX_SOCKET: &str = "/run/envlight/envlight.sock";
+/// Default TCP address.
+pub const DEFAULT_TCP: &str = "127.0.0.1:7878";
+/// Default WebSocket address.
+pub const DEFAULT_WEBSOCKET: &str = "127.0.0.1:7879";
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self {
+            unix_socket: Some(PathBuf::from(DEFAULT_UNIX_SOCKET)),
+            unix_socket_mode: 0o666,
+            tcp: DEFAULT_TCP.parse().ok(),
+            websocket: DEFAULT_WEBSOCKET.parse().ok(),
+            max_clients: 256,
+            handshake_timeout: Duration::from_secs(5),
+            write_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Errors of starting the server.
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error("cannot listen on {endpoint} {address}: {source}")]
+    Bind {
+        endpoint: &'static str,
+        address: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("unix socket {}: another process is serving on it (remove it or choose another path)", path.display())]
+    SocketInUse { path: PathBuf },
+    #[error("unix socket {}: a file that is not a socket is in the way", path.display())]
+    NotASocket { path: PathBuf },
+}
+
+/// The addresses the endpoints are bound to (with port 0 resolved).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BoundAddresses {
+    pub unix_socket: Option<PathBuf>,
+    pub tcp: Option<SocketAddr>,
+    pub websocket: Option<SocketAddr>,
+}
+
+/// State shared by all connections.
+struct Context {
+    config: ServerConfig,
+    metrics: Arc<Metrics>,
+    clients: AtomicUsize,
+    next_client: AtomicU64,
+}
+
+/// A running stream server.
+pub struct StreamServer {
+    bound: BoundAddresses,
+    shutdown_tx: watch::Sender<Option<String>>,
+    /// Every accept loop and connection holds a clone; all gone = all finished.
+    done_tx: mpsc::Sender<()>,
+    done_rx: mpsc::Receiver<()>,
+    accept_tasks: Vec<tokio::task::JoinHandle<()>>,
+}
+
+impl StreamServer {
+    /// Binds every configured endpoint and starts serving `lights` on the current runtime.
+    pub async fn start(
+        config: &ServerConfig,
+        lights: watch::Receiver<LatestLights>,
+        metrics: Arc<Metrics>,
+    ) -> Result<StreamServer, ServerError> {
+        let ctx = Arc::new(Context {
+            config: config.clone(),
+            metrics,
+            clients: AtomicUsize::new(0),
+            next_client: AtomicU64::new(1),
+        });
+        let (shutdown_tx, _) = watch::channel(None::<String>);
+        let (done_tx, done_rx) = mpsc::channel(1);
+        let mut bound = BoundAddresses::default();
+        let mut accept_tasks = Vec::new();
+
+        // Bind everything first, so a failure leaves nothing running.
+        let unix = match &config.unix_socket {
+            Some(path) => Some((bind_unix(path, config.unix_socket_mode)?, path.clone())),
+            None => None,
+        };
+        let tcp = match config.tcp {
+            Some(addr) => Some(bind_tcp("tcp", addr).await?),
+            None => None,
+        };
+        let websocket = match config.websocket {
+            Some(addr) => Some(bind_tcp("websocket", addr).await?),
+            None => None,
+        };
+
+        if let Some((listener, path)) = unix {
+            tracing::info!(path = %path.display(), "serving light lists on a unix socket");
+            bound.unix_socket = Some(path.clone());
+            let accept = Acceptor::new(&ctx, "uds", &lights, &shutdown_tx, &done_tx);
+            accept_tasks.push(tokio::spawn(accept.unix(listener, path)));
+        }
+        if let Some(listener) = tcp {
+            let addr = listener.local_addr().ok();
+            tracing::info!(address = ?addr, "serving light lists over tcp");
+            bound.tcp = addr;
+            let accept = Acceptor::new(&ctx, "tcp", &lights, &shutdown_tx, &done_tx);
+            accept_tasks.push(tokio::spawn(accept.tcp(listener, false)));
+        }
+        if let Some(listener) = websocket {
+            let addr = listener.local_addr().ok();
+            tracing::info!(address = ?addr, "serving light lists over websocket");
+            bound.websocket = addr;
+            let accept = Acceptor::new(&ctx, "websocket", &lights, &shutdown_tx, &done_tx);
+            accept_tasks.push(tokio::spawn(accept.tcp(listener, true)));
+        }
+        Ok(StreamServer {
+            bound,
+            shutdown_tx,
+            done_tx,
+            done_rx,
+            accept_tasks,
+        })
+    }
+
+    /// Where the endpoints listen.
+    pub fn bound(&self) -> &BoundAddresses {
+        &self.bound
+    }
+
+    /// Sends `message` as a goodbye to every client, stops accepting, waits up to `grace` for
+    /// the connections to close, and removes the socket file. Returns whether every connection
+    /// closed in time (the rest are abandoned with the runtime).
+    pub async fn shutdown(self, message: &str, grace: Duration) -> bool {
+        let StreamServer {
+            bound,
+            shutdown_tx,
+            done_tx,
+            mut done_rx,
+            accept_tasks,
+        } = self;
+        shutdown_tx.send_replace(Some(message.to_owned()));
+        drop(done_tx);
+        let all_closed = tokio::time::timeout(grace, done_rx.recv()).await.is_ok();
+        for task in accept_tasks {
+            task.abort();
+        }
+        if let Some(path) = &bound.unix_socket {
+            remove_socket_file(path);
+        }
+        all_closed
+    }
+}
+
+fn remove_socket_file(path: &Path) {
+    match std::fs::remove_file(path) {
+        Ok(()) => tracing::debug!(path = %path.display(), "removed the socket file"),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => {
+            tracing::warn!(path = %path.display(), error = %e, "cannot remove the socket file")
+        }
+    }
+}
+
+/// Binds a Unix socket, replacing a stale socket file left by a crashed daemon but never one
+/// that another process still serves on.
+fn bind_unix(path: &Path, mode: u32) -> Result<UnixListener, ServerError> {
+    use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+    let bind_error = |source| ServerError::Bind {
+        endpoint: "uds",
+        address: path.display().to_string(),
+        source,
+    };
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        if !meta.file_type().is_socket() {
+            return Err(ServerError::NotASocket {
+                path: path.to_path_buf(),
+            });
+        }
+        if std::os::unix::net::UnixStream::connect(path).is_ok() {
+            return Err(ServerError::SocketInUse {
+                path: path.to_path_buf(),
+            });
+        }
+        tracing::info!(path = %path.display(), "removing a stale socket file");
+        std::fs::remove_file(path).map_err(bind_error)?;
+    }
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(bind_error)?;
+    }
+    let listener = UnixListener::bind(path).map_err(bind_error)?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).map_err(bind_error)?;
+    Ok(listener)
+}
+
+async fn bind_tcp(endpoint: &'static str, addr: SocketAddr) -> Result<TcpListener, ServerError> {
+    TcpListener::bind(addr)
+        .await
+        .map_err(|source| ServerError::Bind {
+            endpoint,
+            address: addr.to_string(),
+            source,
+        })
+}
+
+/// What an accept loop needs to start connections.
+struct Acceptor {
+    ctx: Arc<Context>,
+    endpoint: &'static str,
+    lights: watch::Receiver<LatestLights>,
+    shutdown: watch::Receiver<Option<String>>,
+    done: mpsc::Sender<()>,
+}
+
+impl Acceptor {
+    fn new(
+        ctx: &Arc<Context>,
+        endpoint: &'static str,
+        lights: &watch::Receiver<LatestLights>,
+        shutdown: &watch::Sender<Option<String>>,
+        done: &mpsc::Sender<()>,
+    ) -> Self {
+        Self {
+            ctx: Arc::clone(ctx),
+            endpoint,
+            lights: lights.clone(),
+            shutdown: shutdown.subscribe(),
+            done: done.clone(),
+        }
+    }
+
+    async fn unix(self, listener: UnixListener, path: PathBuf) {
+        let mut shutdown = self.shutdown.clone();
+        loop {
+            let accepted = tokio::select! {
+                _ = shutdown.wait_for(Option::is_some) => break,
+                accepted = listener.accept() => accepted,
+            };
+            {
+                match accepted {
+                    Ok((stream, _)) => {
+                        let peer = path.display().to_string();
+                        if let Some(conn) = self.connection(peer) {
+                            tokio::spawn(conn.serve_stream(stream));
+                        }
+                    }
+                    Err(e) => accept_failed(self.endpoint, &e).await,
+                }
+            }
+        }
+    }
+
+    async fn tcp(self, listener: TcpListener, websocket: bool) {
+        let mut shutdown = self.shutdown.clone();
+        loop {
+            let accepted = tokio::select! {
+                _ = shutdown.wait_for(Option::is_some) => break,
+                accepted = listener.accept() => accepted,
+            };
+            {
+                match accepted {
+                    Ok((stream, peer)) => {
+                        let _ = stream.set_nodelay(true);
+                        if let Some(conn) = self.connection(peer.to_string()) {
+                            if websocket {
+                                tokio::spawn(conn.serve_websocket(stream));
+                            } else {
+                                tokio::spawn(conn.serve_stream(stream));
+                            }
+                        }
+                    }
+                    Err(e) => accept_failed(self.endpoint, &e).await,
+                }
+            }
+        }
+    }
+
+    /// A new connection's state, counted as a client (the count drops with it).
+    fn connection(&self, peer: String) -> Option<Connection> {
+        let id = self.ctx.next_client.fetch_add(1, Ordering::Relaxed);
+        let name = format!("{} {} #{}", self.endpoint, peer, id);
+        let previous = self.ctx.clients.fetch_add(1, Ordering::AcqRel);
+        let guard = ClientGuard {
+            ctx: Arc::clone(&self.ctx),
+            endpoint: self.endpoint,
+            label: ClientLabel {
+                client: name.clone(),
+            },
+        };
+        let label = EndpointLabel {
+            endpoint: self.endpoint,
+        };
+        self.ctx
+            .metrics
+            .clients_connected
+            .get_or_create(&label)
+            .inc();
+        let over_limit = previous >= self.ctx.config.max_clients;
+        tracing::debug!(client = %name, "client connected");
+        Some(Connection {
+            ctx: Arc::clone(&self.ctx),
+            endpoint: self.endpoint,
+            name,
+            lights: self.lights.clone(),
+            shutdown: self.shutdown.clone(),
+            over_limit,
+            _guard: guard,
+            _done: self.done.clone(),
+        })
+    }
+}
+
+/// An accept error (out of file descriptors, typically): logged, and a short pause so a
+/// persistent error does not spin.
+async fn accept_failed(endpoint: &str, error: &std::io::Error) {
+    tracing::warn!(endpoint, %error, "accepting a connection failed");
+    tokio::time::sleep(Duration::from_millis(100)).await;
+}
+
+/// Waits for the shutdown broadcast and returns the goodbye text.
+async fn shutdown_message(shutdown: &mut watch::Receiver<Option<String>>) -> String {
+    match shutdown.wait_for(Option::is_some).await {
+        Ok(message) => message.clone().unwrap_or_default(),
+        // The server is gone without a broadcast: say the usual.
+        Err(_) => SHUTDOWN_MESSAGE.to_owned(),
+    }
+}
+
+/// What woke a connection task.
+enum Event<T> {
+    /// A new light list (false: the stream ended).
+    Lights(bool),
+    /// The daemon is shutting down, with this goodbye.
+    Shutdown(String),
+    /// Input from the client.
+    Input(T),
+    /// The handshake deadline passed.
+    Timeout,
+}
+
+/// Counts a client while it is connected.
+struct ClientGuard {
+    ctx: Arc<Context>,
+    endpoint: &'static str,
+    label: ClientLabel,
+}
+
+impl Drop for ClientGuard {
+    fn drop(&mut self) {
+        self.ctx.clients.fetch_sub(1, Ordering::AcqRel);
+        let label = EndpointLabel {
+            endpoint: self.endpoint,
+        };
+        self.ctx
+            .metrics
+            .clients_connected
+            .get_or_create(&label)
+            .dec();
+        self.ctx.metrics.client_skipped.remove(&self.label);
+        tracing::debug!(client = %self.label.client, "client disconnected");
+    }
+}
+
+/// Why a connection ends: sent to the client where it can still read it.
+enum Close {
+    /// Quietly: the client went away, or the write stalled.
+    Quiet,
+    /// With an error message.
+    Error(u16, String),
+    /// With a goodbye.
+    Goodbye(String),
+}
+
+impl From<ProtocolError> for Close {
+    fn from(e: ProtocolError) -> Self {
+        Close::Error(e.code(), e.to_string())
+    }
+}
+
+/// One client connection.
+struct Connection {
+    ctx: Arc<Context>,
+    endpoint: &'static str,
+    name: String,
+    lights: watch::Receiver<LatestLights>,
+    shutdown: watch::Receiver<Option<String>>,
+    over_limit: bool,
+    _guard: ClientGuard,
+    _done: mpsc::Sender<()>,
+}
+
+/// How a stream client speaks: binary messages or JSON lines.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Dialect {
+    Binary,
+    JsonLines,
+}
+
+/// Per-client bookkeeping of what was sent.
+#[derive(Default)]
+struct Progress {
+    last_index: u64,
+    skipped: u64,
+}
+
+impl Connection {
+    fn label(&self) -> EndpointLabel {
+        EndpointLabel {
+            endpoint: self.endpoint,
+        }
+    }
+
+    fn count_error(&self, why: &str) {
+        tracing::info!(client = %self.name, reason = why, "closing connection");
+        self.ctx
+            .metrics
+            .client_errors
+            .get_or_create(&self.label())
+            .inc();
+    }
+
+    fn too_many_clients(&self) -> Close {
+        let message = format!(
+            "too many clients (limit {}); try again later",
+            self.ctx.config.max_clients
+        );
+        self.count_error(&message);
+        Close::Error(error_code::INTERNAL, message)
+    }
+
+    fn check_request(&self, request: Request) -> Result<Request, Close> {
+        if request.representation != Representation::Lights {
+            let text = format!(
+                "representation {:?} is not produced by this daemon (it produces: lights)",
+                request.representation
+            )
+            .to_lowercase();
+            self.count_error(&text);
+            return Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text));
+        }
+        Ok(request)
+    }
+
+    /// Takes the newest publication if it is new to this client, counting skipped ones.
+    fn take_newest(
+        &self,
+        lights: &mut watch::Receiver<LatestLights>,
+        progress: &mut Progress,
+    ) -> Option<Arc<Published>> {
+        let published = lights.borrow_and_update().clone()?;
+        if published.index <= progress.last_index {
+            return None;
+        }
+        if progress.last_index != 0 && published.index > progress.last_index + 1 {
+            let skipped = published.index - progress.last_index - 1;
+            progress.skipped += skipped;
+            self.ctx
+                .metrics
+                .frames_skipped
+                .get_or_create(&self.label())
+                .inc_by(skipped);
+            self.ctx
+                .metrics
+                .client_skipped
+                .get_or_create(&self._guard.label)
+                .set(i64::try_from(progress.skipped).unwrap_or(i64::MAX));
+        }
+        progress.last_index = published.index;
+        Some(published)
+    }
+
+    fn delivered(&self, published: &Published) {
+        self.ctx
+            .metrics
+            .frames_sent
+            .get_or_create(&self.label())
+            .inc();
+        if let Some(arrived) = published.arrived {
+            self.ctx
+                .metrics
+                .delivery_seconds
+                .observe(arrived.elapsed().as_secs_f64());
+        }
+    }
+
+    // --------------------------------------------------------------------------------------
+    // Unix socket and TCP
+
+    async fn serve_stream<S>(self, stream: S)
+    where
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    {
+        let (mut reader, mut writer) = tokio::io::split(stream);
+        let mut dialect = Dialect::Binary;
+        let close = self
+            .stream_session(&mut reader, &mut writer, &mut dialect)
+            .await;
+        let mut out = Vec::new();
+        match (&close, dialect) {
+            (Close::Quiet, _) => {}
+            (Close::Error(code, text), Dialect::Binary) => encode_error(*code, text, &mut out),
+            (Close::Goodbye(text), Dialect::Binary) => encode_goodbye(text, &mut out),
+            (Close::Error(code, text), Dialect::JsonLines) => {
+                out.extend(protocol::error_to_json(*code, text).as_bytes());
+                out.push(b'\n');
+            }
+            (Close::Goodbye(text), Dialect::JsonLines) => {
+                out.extend(goodbye_to_json(text).as_bytes());
+                out.push(b'\n');
+            }
+        }
+        if !out.is_empty() {
+            // A client that does not read its closing message within a second loses it.
+            let _ = tokio::time::timeout(Duration::from_secs(1), async {
+                writer.write_all(&out).await?;
+                writer.shutdown().await
+            })
+            .await;
+        }
+    }
+
+    async fn stream_session<R, W>(
+        &self,
+        reader: &mut R,
+        writer: &mut W,
+        dialect: &mut Dialect,
+    ) -> Close
+    where
+        R: AsyncRead + Unpin,
+        W: AsyncWrite + Unpin,
+    {
+        if self.over_limit {
+            return self.too_many_clients();
+        }
+        let mut decoder = Decoder::new();
+        let mut buf = vec![0u8; 4096];
+        let request = match self
+            .stream_handshake(reader, &mut decoder, &mut buf, dialect)
+            .await
+        {
+            Ok(request) => request,
+            Err(close) => return close,
+        };
+        let request = match self.check_request(request) {
+            Ok(r) => r,
+            Err(close) => return close,
+        };
+        tracing::info!(
+            client = %self.name,
+            max_lights = request.max_lights,
+            format = ?request.format,
+            "client subscribed"
+        );
+        // Frames and the closing message follow the requested format from now on.
+        let subscribed_binary = *dialect == Dialect::Binary;
+        *dialect = match request.format {
+            Format::Binary => Dialect::Binary,
+            Format::Json => Dialect::JsonLines,
+        };
+        // Bytes that came with the subscribe are input after it.
+        if subscribed_binary && decoder.buffered() > 0 {
+            return self.unexpected_input(&mut decoder);
+        }
+        let mut reading = true;
+        let mut progress = Progress::default();
+        let mut out = Vec::with_capacity(64 * 1024);
+        let mut lights = self.lights.clone();
+        let mut shutdown = self.shutdown.clone();
+        loop {
+            let event = tokio::select! {
+                biased;
+                changed = lights.changed() => Event::Lights(changed.is_ok()),
+                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
+                read = reader.read(&mut buf), if reading => Event::Input(read),
+            };
+            match event {
+                Event::Lights(false) => {
+                    return Close::Goodbye("the light stream ended".to_owned());
+                }
+                Event::Lights(true) => {
+                    let Some(published) = self.take_newest(&mut lights, &mut progress) else {
+                        continue;
+                    };
+                    out.clear();
+                    match request.format {
+                        Format::Binary => encode_frame(
+                            &published.lights,
+                            request.cap(),
+                            published.stale,
+                            &mut out,
+                        ),
+                        Format::Json => {
+                            out.extend(
+                                frame_to_json(&published.lights, request.cap(), published.stale)
+                                    .as_bytes(),
+                            );
+                            out.push(b'\n');
+                        }
+                    }
+                    let write =
+                        tokio::time::timeout(self.ctx.config.write_timeout, writer.write_all(&out));
+                    let written = tokio::select! {
+                        written = write => written,
+                        // A client stuck mid-frame cannot take a goodbye.
+                        _ = shutdown.wait_for(Option::is_some) => return Close::Quiet,
+                    };
+                    match written {
+                        Ok(Ok(())) => self.delivered(&published),
+                        Ok(Err(_)) => return Close::Quiet,
+                        Err(_) => {
+                            self.count_error("write stalled");
+                            return Close::Quiet;
+                        }
+                    }
+                }
+                Event::Shutdown(message) => return Close::Goodbye(message),
+                Event::Input(Ok(0)) => reading = false, // half-closed: keep sending
+                Event::Input(Ok(n)) => {
+                    decoder.push(&buf[..n]);
+                    return self.unexpected_input(&mut decoder);
+                }
+                Event::Input(Err(_)) => return Close::Quiet,
+                Event::Timeout => unreachable!("no deadline after the handshake"),
+            }
+        }
+    }
+
+    fn handshake_timed_out(&self) -> Close {
+        let text = format!(
+            "no subscribe message within {:.1} s",
+            self.ctx.config.handshake_timeout.as_secs_f64()
+        );
+        self.count_error(&text);
+        Close::Error(error_code::BAD_REQUEST, text)
+    }
+
+    /// Input after the subscribe: an error for whatever it is.
+    fn unexpected_input(&self, decoder: &mut Decoder) -> Close {
+        match decoder.next_message() {
+            Err(e) => {
+                self.count_error(&e.to_string());
+                e.into()
+            }
+            Ok(message) => {
+                let what = match message {
+                    Some(Message::Subscribe(_)) => "a second subscribe",
+                    Some(Message::Frame(_)) => "a frame",
+                    Some(Message::Error { .. }) => "an error message",
+                    Some(Message::Goodbye { .. }) => return Close::Quiet,
+                    None => "bytes",
+                };
+                let text =
+                    format!("unexpected {what} after the subscribe; clients send nothing more");
+                self.count_error(&text);
+                Close::Error(error_code::UNEXPECTED_MESSAGE, text)
+            }
+        }
+    }
+
+    /// Reads the subscribe: a binary message, or one JSON line.
+    async fn stream_handshake<R: AsyncRead + Unpin>(
+        &self,
+        reader: &mut R,
+        decoder: &mut Decoder,
+        buf: &mut [u8],
+        dialect: &mut Dialect,
+    ) -> Result<Request, Close> {
+        let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
+        let mut shutdown = self.shutdown.clone();
+        let mut line: Vec<u8> = Vec::new();
+        let mut first = true;
+        loop {
+            let event = tokio::select! {
+                read = reader.read(buf) => Event::Input(read),
+                _ = tokio::time::sleep_until(deadline) => Event::Timeout,
+                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
+            };
+            let read = match event {
+                Event::Input(read) => read,
+                Event::Timeout => return Err(self.handshake_timed_out()),
+                Event::Shutdown(message) => return Err(Close::Goodbye(message)),
+                Event::Lights(_) => unreachable!("lights are not watched in the handshake"),
+            };
+            let n = match read {
+                Ok(0) => {
+                    if let Err(e) = decoder.finish() {
+                        self.count_error(&format!("vanished mid-message: {e}"));
+                    } else if !line.is_empty() {
+                        self.count_error("vanished mid-line");
+                    }
+                    return Err(Close::Quiet);
+                }
+                Ok(n) => n,
+                Err(_) => return Err(Close::Quiet),
+            };
+            let bytes = &buf[..n];
+            if first {
+                first = false;
+                if bytes[0] == b'{' {
+                    *dialect = Dialect::JsonLines;
+                }
+            }
+            if *dialect == Dialect::JsonLines {
+                if let Some(end) = bytes.iter().position(|&b| b == b'\n') {
+                    line.extend_from_slice(&bytes[..end]);
+                    if end + 1 < bytes.len() {
+                        let text = "unexpected bytes after the subscribe line".to_owned();
+                        self.count_error(&text);
+                        return Err(Close::Error(error_code::UNEXPECTED_MESSAGE, text));
+                    }
+                    let text = String::from_utf8_lossy(&line);
+                    return protocol::parse_json_request(text.trim_end_matches('\r')).map_err(
+                        |e| {
+                            self.count_error(&e.to_string());
+                            e.into()
+                        },
+                    );
+                }
+                line.extend_from_slice(bytes);
+                if line.len() > MAX_JSON_LINE {
+                    let text = format!("subscribe line longer than {MAX_JSON_LINE} bytes");
+                    self.count_error(&text);
+                    return Err(Close::Error(error_code::TOO_LARGE, text));
+                }
+                continue;
+            }
+            decoder.push(bytes);
+            match decoder.next_message() {
+                Ok(None) => continue,
+                Ok(Some(Message::Subscribe(request))) => return Ok(request),
+                Ok(Some(_)) => {
+                    let text = "the first message must be a subscribe".to_owned();
+                    self.count_error(&text);
+                    return Err(Close::Error(error_code::UNEXPECTED_MESSAGE, text));
+                }
+                Err(e) => {
+                    self.count_error(&e.to_string());
+                    return Err(e.into());
+                }
+            }
+        }
+    }
+
+    // --------------------------------------------------------------------------------------
+    // WebSocket
+
+    async fn serve_websocket(self, stream: tokio::net::TcpStream) {
+        let mut config = tungstenite::protocol::WebSocketConfig::default();
+        config.max_message_size = Some(protocol::MAX_MESSAGE_LEN);
+        config.max_frame_size = Some(protocol::MAX_MESSAGE_LEN);
+        let accepted = tokio::time::timeout(
+            self.ctx.config.handshake_timeout,
+            tokio_tungstenite::accept_async_with_config(stream, Some(config)),
+        )
+        .await;
+        let ws = match accepted {
+            Ok(Ok(ws)) => ws,
+            Ok(Err(e)) => {
+                self.count_error(&format!("websocket handshake failed: {e}"));
+                return;
+            }
+            Err(_) => {
+                self.count_error("websocket handshake timed out");
+                return;
+            }
+        };
+        let (mut sink, mut source) = ws.split();
+        let mut json = true;
+        let close = self
+            .websocket_session(&mut sink, &mut source, &mut json)
+            .await;
+        let message = match close {
+            Close::Quiet => None,
+            Close::Error(code, text) if json => Some(tungstenite::Message::text(
+                protocol::error_to_json(code, &text),
+            )),
+            Close::Goodbye(text) if json => {
+                Some(tungstenite::Message::text(goodbye_to_json(&text)))
+            }
+            Close::Error(code, text) => {
+                let mut out = Vec::new();
+                encode_error(code, &text, &mut out);
+                Some(tungstenite::Message::binary(out))
+            }
+            Close::Goodbye(text) => {
+                let mut out = Vec::new();
+                encode_goodbye(&text, &mut out);
+                Some(tungstenite::Message::binary(out))
+            }
+        };
+        let _ = tokio::time::timeout(Duration::from_secs(1), async {
+            if let Some(message) = message {
+                sink.send(message).await?;
+            }
+            sink.send(tungstenite::Message::Close(None)).await
+        })
+        .await;
+    }
+
+    async fn websocket_session<K, S>(&self, sink: &mut K, source: &mut S, json: &mut bool) -> Close
+    where
+        K: futures_util::Sink<tungstenite::Message, Error = tungstenite::Error> + Unpin,
+        S: futures_util::Stream<Item = Result<tungstenite::Message, tungstenite::Error>> + Unpin,
+    {
+        if self.over_limit {
+            return self.too_many_clients();
+        }
+        let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
+        let mut shutdown = self.shutdown.clone();
+        let mut lights = self.lights.clone();
+        let request = loop {
+            let event = tokio::select! {
+                next = source.next() => Event::Input(next),
+                _ = tokio::time::sleep_until(deadline) => Event::Timeout,
+                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
+            };
+            let next = match event {
+                Event::Input(next) => next,
+                Event::Timeout => return self.handshake_timed_out(),
+                Event::Shutdown(message) => return Close::Goodbye(message),
+                Event::Lights(_) => unreachable!("lights are not watched in the handshake"),
+            };
+            let parsed = match next {
+                None | Some(Err(_)) | Some(Ok(tungstenite::Message::Close(_))) => {
+                    return Close::Quiet
+                }
+                Some(Ok(tungstenite::Message::Text(text))) => {
+                    *json = true;
+                    protocol::parse_json_message(text.as_str())
+                }
+                Some(Ok(tungstenite::Message::Binary(bytes))) => {
+                    *json = false;
+                    decode_message(&bytes)
+                }
+                Some(Ok(_)) => continue, // ping, pong
+            };
+            match parsed {
+                Ok(Message::Subscribe(request)) => break request,
+                Ok(_) => {
+                    let text = "the first message must be a subscribe".to_owned();
+                    self.count_error(&text);
+                    return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
+                }
+                Err(e) => {
+                    self.count_error(&e.to_string());
+                    return e.into();
+                }
+            }
+        };
+        let request = match self.check_request(request) {
+            Ok(r) => r,
+            Err(close) => return close,
+        };
+        tracing::info!(
+            client = %self.name,
+            max_lights = request.max_lights,
+            format = ?request.format,
+            "client subscribed"
+        );
+        let mut progress = Progress::default();
+        loop {
+            let event = tokio::select! {
+                biased;
+                changed = lights.changed() => Event::Lights(changed.is_ok()),
+                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
+                next = source.next() => Event::Input(next),
+            };
+            match event {
+                Event::Lights(false) => {
+                    return Close::Goodbye("the light stream ended".to_owned());
+                }
+                Event::Lights(true) => {
+                    let Some(published) = self.take_newest(&mut lights, &mut progress) else {
+                        continue;
+                    };
+                    let message = match request.format {
+                        Format::Binary => {
+                            let mut out = Vec::new();
+                            encode_frame(
+                                &published.lights,
+                                request.cap(),
+                                published.stale,
+                                &mut out,
+                            );
+                            tungstenite::Message::binary(out)
+                        }
+                        Format::Json => tungstenite::Message::text(frame_to_json(
+                            &published.lights,
+                            request.cap(),
+                            published.stale,
+                        )),
+                    };
+                    let write =
+                        tokio::time::timeout(self.ctx.config.write_timeout, sink.send(message));
+                    let written = tokio::select! {
+                        written = write => written,
+                        _ = shutdown.wait_for(Option::is_some) => return Close::Quiet,
+                    };
+                    match written {
+                        Ok(Ok(())) => self.delivered(&published),
+                        Ok(Err(_)) => return Close::Quiet,
+                        Err(_) => {
+                            self.count_error("write stalled");
+                            return Close::Quiet;
+                        }
+                    }
+                }
+                Event::Shutdown(message) => return Close::Goodbye(message),
+                Event::Input(next) => match next {
+                    None | Some(Err(_)) | Some(Ok(tungstenite::Message::Close(_))) => {
+                        return Close::Quiet
+                    }
+                    Some(Ok(tungstenite::Message::Ping(_) | tungstenite::Message::Pong(_))) => {}
+                    Some(Ok(_)) => {
+                        let text =
+                            "unexpected message after the subscribe; clients send nothing more"
+                                .to_owned();
+                        self.count_error(&text);
+                        return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
+                    }
+                },
+                Event::Timeout => unreachable!("no deadline after the handshake"),
+            }
+        }
+    }
+}
