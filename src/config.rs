@@ -11,8 +11,11 @@ use crate::capture::sky::SkyOptions;
 use crate::decompose::filter::FirFilter;
 use crate::decompose::{DecomposeSettings, LightPlacement, Warp, MAX_POINTS, WORKING_WIDTH_RANGE};
 use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
+use crate::stream::ServerConfig;
 use serde::Deserialize;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// Errors of reading and validating a configuration.
 #[derive(Debug, thiserror::Error)]
@@ -60,6 +63,50 @@ pub struct RawConfig {
     pub sky: RawSky,
     #[serde(default)]
     pub decompose: RawDecompose,
+    #[serde(default)]
+    pub pipeline: RawPipeline,
+    #[serde(default)]
+    pub stream: RawStream,
+    #[serde(default)]
+    pub metrics: RawMetrics,
+    #[serde(default)]
+    pub daemon: RawDaemon,
+}
+
+/// `[pipeline]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawPipeline {
+    pub queue_capacity: Option<usize>,
+}
+
+/// `[stream]`: the light-list endpoints. An empty string disables an endpoint.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawStream {
+    pub unix_socket: Option<String>,
+    pub unix_socket_mode: Option<u32>,
+    pub tcp: Option<String>,
+    pub websocket: Option<String>,
+    pub max_clients: Option<usize>,
+    pub handshake_timeout_s: Option<f64>,
+    pub write_timeout_s: Option<f64>,
+}
+
+/// `[metrics]`: the HTTP endpoint for Prometheus metrics and the health check.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawMetrics {
+    pub listen: Option<String>,
+    pub max_frame_age_s: Option<f64>,
+}
+
+/// `[daemon]`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawDaemon {
+    pub shutdown_grace_s: Option<f64>,
+    pub serve_threads: Option<usize>,
 }
 
 /// `[source]`.
@@ -144,6 +191,10 @@ impl RawConfig {
             source: self.source.validate()?,
             sky: self.sky.validate()?,
             decompose: self.decompose.validate()?,
+            pipeline: self.pipeline.validate()?,
+            stream: self.stream.validate()?,
+            metrics: self.metrics.validate()?,
+            daemon: self.daemon.validate()?,
         })
     }
 }
@@ -188,12 +239,217 @@ pub struct Config {
     /// The built-in sky; its pacing (`fps`, `frames`) comes from `[source]` when it is used.
     pub sky: SkyOptions,
     pub decompose: DecomposeSettings,
+    pub pipeline: PipelineConfig,
+    pub stream: ServerConfig,
+    pub metrics: MetricsConfig,
+    pub daemon: DaemonConfig,
+}
+
+/// Validated `[pipeline]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PipelineConfig {
+    /// Capture → decompose queue capacity in frames (1..=64).
+    pub queue_capacity: usize,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self { queue_capacity: 2 }
+    }
+}
+
+/// Validated `[metrics]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MetricsConfig {
+    /// HTTP listen address for `/metrics` and `/health`; `None` disables it.
+    pub listen: Option<SocketAddr>,
+    /// `/health` reports unhealthy when the newest light list is older than this.
+    pub max_frame_age: Duration,
+}
+
+/// Default metrics address.
+pub const DEFAULT_METRICS_LISTEN: &str = "127.0.0.1:9898";
+
+impl Default for MetricsConfig {
+    fn default() -> Self {
+        Self {
+            listen: DEFAULT_METRICS_LISTEN.parse().ok(),
+            max_frame_age: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Validated `[daemon]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DaemonConfig {
+    /// How long shutdown waits for clients to take their goodbye.
+    pub shutdown_grace: Duration,
+    /// Worker threads of the serving runtime (1..=64).
+    pub serve_threads: usize,
+}
+
+impl Default for DaemonConfig {
+    fn default() -> Self {
+        Self {
+            shutdown_grace: Duration::from_secs(2),
+            serve_threads: 2,
+        }
+    }
 }
 
 impl Config {
     /// Reads, parses and validates a config file.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
         RawConfig::from_file(path)?.validate()
+    }
+}
+
+/// A duration in seconds from `key`, within `range`.
+fn seconds(
+    key: &'static str,
+    value: Option<f64>,
+    default: Duration,
+    range: std::ops::RangeInclusive<f64>,
+) -> Result<Duration, ConfigError> {
+    match value {
+        None => Ok(default),
+        Some(v) if v.is_finite() && range.contains(&v) => Ok(Duration::from_secs_f64(v)),
+        Some(v) => Err(invalid(
+            key,
+            v,
+            format!(
+                "must be a number of seconds in {}..={}",
+                range.start(),
+                range.end()
+            ),
+        )),
+    }
+}
+
+/// A listen address from `key`: `None` when the value is empty (endpoint disabled).
+fn listen_address(
+    key: &'static str,
+    value: Option<&str>,
+    default: Option<SocketAddr>,
+) -> Result<Option<SocketAddr>, ConfigError> {
+    match value {
+        None => Ok(default),
+        Some("") => Ok(None),
+        Some(text) => text.parse().map(Some).map_err(|_| {
+            invalid(
+                key,
+                text,
+                "must be IP:PORT (e.g. \"127.0.0.1:7878\", \"[::1]:7878\", \"0.0.0.0:7878\"), or \"\" to disable",
+            )
+        }),
+    }
+}
+
+impl RawPipeline {
+    fn validate(&self) -> Result<PipelineConfig, ConfigError> {
+        let queue_capacity = self.queue_capacity.unwrap_or(2);
+        if !(1..=64).contains(&queue_capacity) {
+            return Err(invalid(
+                "pipeline.queue_capacity",
+                queue_capacity,
+                "must be 1..=64 frames",
+            ));
+        }
+        Ok(PipelineConfig { queue_capacity })
+    }
+}
+
+impl RawStream {
+    fn validate(&self) -> Result<ServerConfig, ConfigError> {
+        let d = ServerConfig::default();
+        let unix_socket = match self.unix_socket.as_deref() {
+            None => d.unix_socket,
+            Some("") => None,
+            Some(path) => {
+                // sun_path holds 108 bytes including the terminating NUL.
+                if path.len() > 107 {
+                    return Err(invalid(
+                        "stream.unix_socket",
+                        path,
+                        "is longer than the 107 bytes a Unix socket path may have",
+                    ));
+                }
+                Some(PathBuf::from(path))
+            }
+        };
+        let unix_socket_mode = self.unix_socket_mode.unwrap_or(d.unix_socket_mode);
+        if unix_socket_mode > 0o777 {
+            return Err(invalid(
+                "stream.unix_socket_mode",
+                format!("{unix_socket_mode:#o}"),
+                "must be permission bits, 0o000..=0o777 (write it as 0o666)",
+            ));
+        }
+        let max_clients = self.max_clients.unwrap_or(d.max_clients);
+        if !(1..=100_000).contains(&max_clients) {
+            return Err(invalid(
+                "stream.max_clients",
+                max_clients,
+                "must be 1..=100000",
+            ));
+        }
+        Ok(ServerConfig {
+            unix_socket,
+            unix_socket_mode,
+            tcp: listen_address("stream.tcp", self.tcp.as_deref(), d.tcp)?,
+            websocket: listen_address("stream.websocket", self.websocket.as_deref(), d.websocket)?,
+            max_clients,
+            handshake_timeout: seconds(
+                "stream.handshake_timeout_s",
+                self.handshake_timeout_s,
+                d.handshake_timeout,
+                0.01..=3600.0,
+            )?,
+            write_timeout: seconds(
+                "stream.write_timeout_s",
+                self.write_timeout_s,
+                d.write_timeout,
+                0.01..=3600.0,
+            )?,
+        })
+    }
+}
+
+impl RawMetrics {
+    fn validate(&self) -> Result<MetricsConfig, ConfigError> {
+        let d = MetricsConfig::default();
+        Ok(MetricsConfig {
+            listen: listen_address("metrics.listen", self.listen.as_deref(), d.listen)?,
+            max_frame_age: seconds(
+                "metrics.max_frame_age_s",
+                self.max_frame_age_s,
+                d.max_frame_age,
+                0.01..=86400.0,
+            )?,
+        })
+    }
+}
+
+impl RawDaemon {
+    fn validate(&self) -> Result<DaemonConfig, ConfigError> {
+        let d = DaemonConfig::default();
+        let serve_threads = self.serve_threads.unwrap_or(d.serve_threads);
+        if !(1..=64).contains(&serve_threads) {
+            return Err(invalid(
+                "daemon.serve_threads",
+                serve_threads,
+                "must be 1..=64",
+            ));
+        }
+        Ok(DaemonConfig {
+            shutdown_grace: seconds(
+                "daemon.shutdown_grace_s",
+                self.shutdown_grace_s,
+                d.shutdown_grace,
+                0.0..=600.0,
+            )?,
+            serve_threads,
+        })
     }
 }
 

@@ -12,12 +12,14 @@
 
 pub mod capture;
 pub mod config;
+pub mod daemon;
 pub mod decompose;
 pub mod envmap;
 pub mod frame;
 pub mod light;
 pub mod metrics;
 pub mod pipeline;
+pub mod record;
 pub mod stream;
 pub mod yardstick;
 

@@ -8,8 +8,10 @@ use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
 use envlight::config::{Config, ConfigError, RawConfig, SourceKind, DEFAULT_SKY_FRAMES};
+use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::decompose::Decomposer;
 use envlight::envmap::Projection;
+use envlight::record::Pacing;
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -56,7 +58,108 @@ struct Cli {
 enum Command {
     /// Decompose HDR frames (files or the built-in sky) into directional lights (JSON Lines).
     #[command(long_about = DECOMPOSE_LONG_ABOUT)]
-    Decompose(DecomposeArgs),
+    Decompose(Box<DecomposeArgs>),
+    /// Run the daemon: capture, decompose, and serve light lists over UDS, TCP and WebSocket.
+    #[command(long_about = RUN_LONG_ABOUT)]
+    Run(RunArgs),
+    /// Run the daemon and record the session (input frames as EXR, timestamps, light stream).
+    #[command(long_about = RECORD_LONG_ABOUT)]
+    Record(RecordArgs),
+    /// Validate a config file without running anything.
+    CheckConfig(CheckConfigArgs),
+    /// Connect to a running daemon and print its light stream.
+    #[command(long_about = SUBSCRIBE_LONG_ABOUT)]
+    Subscribe(SubscribeArgs),
+}
+
+const RUN_LONG_ABOUT: &str = "\
+Run envlight as a daemon: a capture thread feeds frames to a decomposition thread, whose light
+lists are served to any number of clients over a Unix domain socket, TCP and WebSocket
+(docs/protocol.md), with Prometheus metrics and a health check over HTTP.
+
+Endpoints and every other setting come from --config (see config/envlight.toml); without it the
+built-in sky is served on the defaults: unix:/run/envlight/envlight.sock, tcp:127.0.0.1:7878,
+ws://127.0.0.1:7879/ and http://127.0.0.1:9898/metrics (and /health).
+
+Signals: SIGTERM / SIGINT shut down gracefully (clients get a goodbye, the socket file is
+removed); SIGHUP reloads --config: [decompose] applies from the next frame, other changed
+sections are reported as needing a restart, and a bad file changes nothing. Under systemd
+(Type=notify) it reports READY, RELOADING and STOPPING and feeds the watchdog.
+
+--replay DIR plays a recording (envlight record) at its original timing (--fast: as fast as
+possible) with the recording's decomposition settings and no dropped frames, reproducing the
+recorded light stream. A finite source ends the daemon once it has been served.";
+
+const RECORD_LONG_ABOUT: &str = "\
+Run the daemon (as `envlight run`) and record the session into --out DIR, which must be new or
+empty: session.json (source, decomposition settings), frames.jsonl (seq, capture time, file and
+projection of every frame that reached the decomposition), frames/NNNNNN.exr (32-bit float
+linear RGB) and lights.jsonl (the emitted light stream, as `envlight decompose` prints it).
+Replay with `envlight run --replay DIR`.";
+
+const SUBSCRIBE_LONG_ABOUT: &str = "\
+Connect to a running envlight daemon and print the light lists it streams, until the daemon
+says goodbye (or --frames have arrived).
+
+ADDR is unix:PATH (or a path), tcp:HOST:PORT (or HOST:PORT), or ws://HOST:PORT/.
+With --json every frame is printed as one JSON line (docs/protocol.md's JSON form); otherwise
+one summary line per frame.";
+
+#[derive(Args, Debug)]
+struct DaemonArgs {
+    /// Config file (TOML; see config/envlight.toml). Reloaded on SIGHUP.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Input frames instead of the configured source: .exr/.hdr files, directories or globs.
+    #[arg(value_name = "INPUT")]
+    inputs: Vec<String>,
+}
+
+#[derive(Args, Debug)]
+struct RunArgs {
+    #[command(flatten)]
+    daemon: DaemonArgs,
+    /// Replay a recording made by `envlight record` instead of the configured source.
+    #[arg(long, value_name = "DIR", conflicts_with = "inputs")]
+    replay: Option<PathBuf>,
+    /// With --replay: as fast as possible instead of at the original timing.
+    #[arg(long, requires = "replay")]
+    fast: bool,
+    /// Also record the session into DIR (new or empty).
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+struct RecordArgs {
+    #[command(flatten)]
+    daemon: DaemonArgs,
+    /// The recording directory (created; must be new or empty).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+struct CheckConfigArgs {
+    /// The config file; without it the built-in defaults are checked and shown.
+    #[arg(value_name = "FILE")]
+    file: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+struct SubscribeArgs {
+    /// Where the daemon listens: unix:PATH, tcp:HOST:PORT, HOST:PORT or ws://HOST:PORT/.
+    #[arg(value_name = "ADDR")]
+    address: envlight::stream::client::Endpoint,
+    /// Print every frame as a JSON line.
+    #[arg(long)]
+    json: bool,
+    /// Ask for at most N lights per frame (the brightest); 0 = all.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    max_lights: u32,
+    /// Stop after N frames.
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -390,6 +493,29 @@ fn main() -> ExitCode {
     init_tracing();
     let result = match cli.command {
         Command::Decompose(args) => decompose(&args),
+        Command::Run(args) => run_daemon(
+            &args.daemon,
+            DaemonOptions {
+                replay: args.replay.map(|dir| {
+                    let pacing = if args.fast {
+                        Pacing::AsFastAsPossible
+                    } else {
+                        Pacing::Original
+                    };
+                    (dir, pacing)
+                }),
+                record: args.record,
+            },
+        ),
+        Command::Record(args) => run_daemon(
+            &args.daemon,
+            DaemonOptions {
+                replay: None,
+                record: Some(args.out),
+            },
+        ),
+        Command::CheckConfig(args) => check_config(&args),
+        Command::Subscribe(args) => subscribe(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -409,6 +535,149 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Loads the config (defaults without --config) with INPUT as the source.
+fn daemon_config(args: &DaemonArgs) -> Result<Config> {
+    let mut raw = match &args.config {
+        Some(path) => RawConfig::from_file(path)?,
+        None => RawConfig::default(),
+    };
+    if !args.inputs.is_empty() {
+        raw.source.kind = Some("sequence".to_owned());
+        raw.source.paths = Some(args.inputs.clone());
+    }
+    raw.validate().map_err(|e| match &args.config {
+        Some(path) => anyhow!(e).context(format!("invalid setting in {}", path.display())),
+        None => anyhow!(e),
+    })
+}
+
+fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
+    let config = daemon_config(args)?;
+    let daemon = Daemon::start(config, options)?;
+    let addresses = daemon.addresses().clone();
+    if let Some(path) = &addresses.stream.unix_socket {
+        tracing::info!("clients: envlight subscribe unix:{}", path.display());
+    }
+    if let Some(addr) = addresses.stream.tcp {
+        tracing::info!("clients: envlight subscribe tcp:{addr}");
+    }
+    if let Some(addr) = addresses.stream.websocket {
+        tracing::info!("clients: envlight subscribe ws://{addr}/");
+    }
+    if let Some(addr) = addresses.metrics {
+        tracing::info!("metrics: http://{addr}/metrics, health: http://{addr}/health");
+    }
+    let (_reason, summary) = daemon.run(args.config.as_deref())?;
+    if let Some(recorded) = summary.recorded {
+        tracing::info!("recorded {} frames", recorded.frames);
+    }
+    Ok(())
+}
+
+fn check_config(args: &CheckConfigArgs) -> Result<()> {
+    let (config, name) = match &args.file {
+        Some(path) => (Config::from_file(path)?, path.display().to_string()),
+        None => (Config::default(), "the built-in defaults".to_owned()),
+    };
+    let off = |a: Option<String>| a.unwrap_or_else(|| "off".to_owned());
+    println!("{name}: ok");
+    println!("  source: {:?}", config.source.kind);
+    println!(
+        "  decompose: {} lights, warp {:?}, filter {}",
+        config.decompose.lights,
+        config.decompose.warp,
+        if config.decompose.filter_taps.is_some() {
+            "on"
+        } else {
+            "off"
+        }
+    );
+    println!(
+        "  stream: unix {}, tcp {}, websocket {}, at most {} clients",
+        off(config
+            .stream
+            .unix_socket
+            .as_ref()
+            .map(|p| p.display().to_string())),
+        off(config.stream.tcp.map(|a| a.to_string())),
+        off(config.stream.websocket.map(|a| a.to_string())),
+        config.stream.max_clients
+    );
+    println!(
+        "  metrics: {}",
+        off(config.metrics.listen.map(|a| format!("http://{a}/metrics")))
+    );
+    Ok(())
+}
+
+fn subscribe(args: &SubscribeArgs) -> Result<()> {
+    use envlight::stream::client::Client;
+    use envlight::stream::{Format, Message, Request};
+    let request = Request {
+        max_lights: args.max_lights,
+        format: if args.json {
+            Format::Json
+        } else {
+            Format::Binary
+        },
+        ..Request::default()
+    };
+    let mut client = Client::connect(&args.address, &request, None)?;
+    let mut stdout = std::io::stdout().lock();
+    let mut frames = 0u64;
+    while args.frames.is_none_or(|n| frames < n) {
+        let Some(message) = client.next_message()? else {
+            bail!("{}: the daemon closed the connection", args.address);
+        };
+        let line = match message {
+            Message::Frame(frame) => {
+                frames += 1;
+                if args.json {
+                    let stale = frame.stale;
+                    envlight::stream::protocol::frame_to_json(
+                        &frame.into_light_frame(),
+                        None,
+                        stale,
+                    )
+                } else {
+                    let total = frame.lights.iter().fold([0.0f64; 3], |s, l| {
+                        [0, 1, 2].map(|c| s[c] + f64::from(l.rgb[c]))
+                    });
+                    format!(
+                        "seq {} time {:.3} s: {} lights, total rgb [{:.4}, {:.4}, {:.4}]{}",
+                        frame.seq,
+                        frame.time,
+                        frame.lights.len(),
+                        total[0],
+                        total[1],
+                        total[2],
+                        if frame.stale { " (stale)" } else { "" }
+                    )
+                }
+            }
+            Message::Goodbye { message } => {
+                tracing::info!("the daemon said goodbye: {message}");
+                return Ok(());
+            }
+            Message::Error { code, message } => {
+                bail!(
+                    "{}: the daemon reported error {code}: {message}",
+                    args.address
+                )
+            }
+            Message::Subscribe(_) => {
+                bail!("{}: unexpected subscribe from the daemon", args.address)
+            }
+        };
+        let written = writeln!(stdout, "{line}").and_then(|()| stdout.flush());
+        match written {
+            Err(e) if is_broken_pipe(&e) => return Ok(()),
+            r => r.context("cannot write to stdout")?,
+        }
+    }
+    Ok(())
 }
 
 /// Logs to stderr: info by default (`RUST_LOG` overrides), compact, colours only on a terminal,

@@ -73,6 +73,8 @@ pub struct Published {
     pub arrived: Option<Instant>,
     /// How long its decomposition took.
     pub decompose_time: Duration,
+    /// When it was published.
+    pub published_at: Instant,
 }
 
 /// What consumers receive: the newest publication, `None` until the first one.
@@ -100,6 +102,18 @@ pub struct PipelineOptions {
     /// room on this channel (a recording loses nothing; a slow recorder shows up as dropped
     /// capture frames instead). If the receiver is gone, tapping stops with a warning.
     pub tap: Option<Sender<Tapped>>,
+    /// Called on the decompose thread after each decomposed frame is published (metrics).
+    pub on_publish: Option<PublishHook>,
+}
+
+/// A callback run on the decompose thread for every decomposed frame.
+#[derive(Clone)]
+pub struct PublishHook(pub Arc<dyn Fn(&Published) + Send + Sync>);
+
+impl std::fmt::Debug for PublishHook {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PublishHook")
+    }
 }
 
 impl PipelineOptions {
@@ -208,6 +222,7 @@ fn publish(
             stale,
             arrived,
             decompose_time,
+            published_at: Instant::now(),
         }));
     });
 }
@@ -262,6 +277,7 @@ impl Pipeline {
         let decompose_rx = frame_rx.clone();
         let decompose_tx = Arc::clone(&lights_tx);
         let mut tap = options.tap;
+        let on_publish = options.on_publish;
         let decompose_handle = std::thread::Builder::new()
             .name(DECOMPOSE_THREAD_NAME.to_owned())
             .spawn(move || {
@@ -292,6 +308,11 @@ impl Pipeline {
                         Some(arrived),
                         elapsed,
                     );
+                    if let Some(PublishHook(hook)) = &on_publish {
+                        if let Some(published) = decompose_tx.borrow().as_ref() {
+                            hook(published);
+                        }
+                    }
                     if let Some(tx) = &tap {
                         if tx.send(Tapped { frame, lights }).is_err() {
                             tracing::warn!("the recorder is gone; frames are no longer recorded");
@@ -350,6 +371,11 @@ impl Pipeline {
     /// A snapshot of the counters.
     pub fn stats(&self) -> PipelineStats {
         self.shared.stats()
+    }
+
+    /// A handle that reads the counters from anywhere (the metrics endpoint).
+    pub fn stats_handle(&self) -> StatsHandle {
+        StatsHandle(Arc::clone(&self.shared))
     }
 
     /// Replaces the decomposition settings from the next frame on (a new [`Decomposer`]: its
@@ -420,6 +446,17 @@ impl Pipeline {
             Some(error) => Err(PipelineError::Capture(error)),
             None => Ok(self.shared.stats()),
         }
+    }
+}
+
+/// Reads a pipeline's counters; cheap to clone, valid after the pipeline has ended.
+#[derive(Clone)]
+pub struct StatsHandle(Arc<Shared>);
+
+impl StatsHandle {
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> PipelineStats {
+        self.0.stats()
     }
 }
 

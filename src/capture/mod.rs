@@ -47,3 +47,81 @@ pub trait FrameSource: Send {
     /// A short human-readable description for logs.
     fn describe(&self) -> String;
 }
+
+/// Opens the frame source a validated [`Config`](crate::config::Config) describes: the
+/// built-in sky (its `[source]` fps and frame count applied) or a recorded sequence, limited to
+/// `source.frames` frames and with a fisheye calibration checked against the frames' size.
+pub fn open(config: &crate::config::Config) -> Result<Box<dyn FrameSource>, CaptureError> {
+    use crate::config::{SourceKind, DEFAULT_SKY_FRAMES};
+    let src = &config.source;
+    let inner: Box<dyn FrameSource> = match src.kind {
+        SourceKind::Sky => {
+            let frames = match src.frames {
+                None => Some(DEFAULT_SKY_FRAMES),
+                Some(0) => None,
+                Some(n) => Some(n),
+            };
+            let options = sky::SkyOptions {
+                fps: src.fps,
+                frames,
+                ..config.sky.clone()
+            };
+            Box::new(sky::SkySource::new(options)?)
+        }
+        SourceKind::Sequence => {
+            let options = sequence::SequenceOptions {
+                fps: src.fps,
+                looped: src.looped,
+                projection: src.projection,
+            };
+            Box::new(sequence::SequenceSource::new(&src.paths, options)?)
+        }
+    };
+    Ok(Box::new(Checked {
+        inner,
+        remaining: src.frames.filter(|&n| n > 0),
+        checked_size: None,
+    }))
+}
+
+/// A source limited to a number of frames, whose fisheye calibration is checked against the
+/// size of its frames (once per size).
+struct Checked {
+    inner: Box<dyn FrameSource>,
+    remaining: Option<u64>,
+    checked_size: Option<(u32, u32)>,
+}
+
+impl FrameSource for Checked {
+    fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
+        if self.remaining == Some(0) {
+            return Ok(None);
+        }
+        let Some(frame) = self.inner.next_frame()? else {
+            return Ok(None);
+        };
+        if let Some(n) = &mut self.remaining {
+            *n -= 1;
+        }
+        if self.checked_size != Some((frame.width, frame.height)) {
+            if let crate::envmap::Projection::Fisheye(cal) = frame.projection {
+                cal.validate(frame.width, frame.height).map_err(|e| {
+                    CaptureError::InvalidSettings(format!(
+                        "fisheye calibration (--center, --radius, --fov, --rotation or \
+                         [source.fisheye]) does not fit the {}x{} frames: {e}",
+                        frame.width, frame.height
+                    ))
+                })?;
+            }
+            self.checked_size = Some((frame.width, frame.height));
+        }
+        Ok(Some(frame))
+    }
+
+    fn describe(&self) -> String {
+        match self.remaining {
+            Some(n) => format!("{} (at most {n} more frames)", self.inner.describe()),
+            None => self.inner.describe(),
+        }
+    }
+}

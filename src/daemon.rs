@@ -1,0 +1,563 @@
+//! The daemon (`envlight run`): capture → decompose threads, the stream server, the metrics
+//! endpoint, an optional recorder, and the process lifecycle.
+//!
+//! ```text
+//! envlight-capture ─bounded─► envlight-decompose ─watch─► stream server (tokio: UDS, TCP, WebSocket)
+//!                                   │                     metrics + health (HTTP)
+//!                                   └─tap─► envlight-record (optional)
+//! ```
+//!
+//! - [`Daemon::start`] builds everything from a validated [`Config`]: a tokio runtime with
+//!   `daemon.serve_threads` workers named `envlight-serve` (tokio lives only in serving), the
+//!   pipeline ([`crate::pipeline`]), the stream server ([`crate::stream::server`]) and the HTTP
+//!   endpoint. A replay ([`DaemonOptions::replay`]) decomposes with the recording's settings and
+//!   a lossless queue, so it reproduces the recorded stream.
+//! - [`Daemon::run`] is the service's main loop: it tells systemd `READY=1`, pings the watchdog
+//!   while the pipeline is alive, reloads the config on SIGHUP (what cannot change live is
+//!   reported), and shuts down on SIGTERM/SIGINT or when a finite source has been fully served.
+//! - [`Daemon::shutdown`] stops capture, sends every client a goodbye, removes the socket file,
+//!   joins the threads and finishes the recording. It returns the pipeline's counters or the
+//!   error that ended the pipeline (a failed source), so nothing is lost silently.
+//!
+//! HTTP endpoint (`metrics.listen`): `GET /metrics` (Prometheus text format, see
+//! [`crate::metrics`]) and `GET /health` (200 with a JSON status while fresh lights are being
+//! published; 503 while there are none yet, they are stale, or older than
+//! `metrics.max_frame_age_s`).
+
+use crate::capture::{self, CaptureError, FrameSource};
+use crate::config::{Config, ConfigError, RawConfig};
+use crate::metrics::Metrics;
+use crate::pipeline::{
+    LatestLights, Pipeline, PipelineError, PipelineOptions, PipelineStats, PublishHook,
+    QueuePolicy, StatsHandle,
+};
+use crate::record::{Pacing, RecordError, RecordSummary, Recorder, ReplaySource};
+use crate::stream::server::{ServerError, SHUTDOWN_MESSAGE};
+use crate::stream::{BoundAddresses, StreamServer};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+
+/// Name of the serving runtime's worker threads.
+pub const SERVE_THREAD_NAME: &str = "envlight-serve";
+
+/// What `envlight run` adds to the config.
+#[derive(Clone, Debug, Default)]
+pub struct DaemonOptions {
+    /// Replay this recording instead of the configured source.
+    pub replay: Option<(PathBuf, Pacing)>,
+    /// Record the session into this (new or empty) directory.
+    pub record: Option<PathBuf>,
+}
+
+/// Errors of the daemon.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error("cannot open the frame source: {0}")]
+    Source(#[source] CaptureError),
+    #[error(transparent)]
+    Pipeline(#[from] PipelineError),
+    #[error(transparent)]
+    Server(#[from] ServerError),
+    #[error("recording: {0}")]
+    Record(#[from] RecordError),
+    #[error("cannot start the serving runtime: {0}")]
+    Runtime(#[source] std::io::Error),
+    #[error("cannot listen on metrics {address}: {source}")]
+    Metrics {
+        address: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot install the signal handlers: {0}")]
+    Signals(#[source] std::io::Error),
+}
+
+/// Where the daemon listens.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DaemonAddresses {
+    pub stream: BoundAddresses,
+    pub metrics: Option<SocketAddr>,
+}
+
+/// What a SIGHUP reload did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ReloadReport {
+    /// Sections applied live.
+    pub applied: Vec<String>,
+    /// Sections that changed but need a restart (with the reason).
+    pub needs_restart: Vec<String>,
+}
+
+/// Why [`Daemon::run`] returned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// SIGTERM or SIGINT.
+    Signal,
+    /// A finite source was fully decomposed and served.
+    SourceFinished,
+}
+
+/// What the daemon did, returned by [`Daemon::shutdown`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DaemonSummary {
+    pub pipeline: PipelineStats,
+    pub recorded: Option<RecordSummary>,
+    /// Whether every client took its goodbye within the grace period.
+    pub clients_closed_in_time: bool,
+}
+
+/// A running daemon. See the module docs.
+pub struct Daemon {
+    config: Config,
+    replaying: bool,
+    runtime: tokio::runtime::Runtime,
+    pipeline: Pipeline,
+    server: StreamServer,
+    http: Option<(tokio::task::JoinHandle<()>, watch::Sender<bool>)>,
+    metrics: Arc<Metrics>,
+    recorder: Option<Recorder>,
+    addresses: DaemonAddresses,
+}
+
+impl Daemon {
+    /// Opens the source, binds every endpoint and starts the threads.
+    pub fn start(config: Config, options: DaemonOptions) -> Result<Daemon, DaemonError> {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(config.daemon.serve_threads)
+            .thread_name(SERVE_THREAD_NAME)
+            .enable_all()
+            .build()
+            .map_err(DaemonError::Runtime)?;
+
+        let (source, settings, policy): (Box<dyn FrameSource>, _, _) = match &options.replay {
+            Some((dir, pacing)) => {
+                let replay = ReplaySource::open(dir, *pacing).map_err(DaemonError::Source)?;
+                let settings = replay.session().decompose.clone();
+                tracing::info!(
+                    "replaying with the recording's decomposition settings ({} lights)",
+                    settings.lights
+                );
+                (Box::new(replay), settings, QueuePolicy::Block)
+            }
+            None => (
+                capture::open(&config).map_err(DaemonError::Source)?,
+                config.decompose.clone(),
+                QueuePolicy::DropOldest,
+            ),
+        };
+        let description = source.describe();
+
+        let metrics = Arc::new(Metrics::new());
+        let hook_metrics = Arc::clone(&metrics);
+        let on_publish = PublishHook(Arc::new(move |published| {
+            hook_metrics.observe_decompose(published.decompose_time);
+        }));
+        let (tap, recorder) = match &options.record {
+            Some(dir) => {
+                let (tx, rx) = crossbeam_channel::bounded(4);
+                let recorder = Recorder::start(dir, &description, &settings, rx)?;
+                tracing::info!(dir = %dir.display(), "recording the session");
+                (Some(tx), Some(recorder))
+            }
+            None => (None, None),
+        };
+        let pipeline_options = PipelineOptions {
+            queue_capacity: config.pipeline.queue_capacity,
+            queue_policy: policy,
+            tap,
+            on_publish: Some(on_publish),
+        };
+        let pipeline = Pipeline::start(source, settings, pipeline_options)?;
+
+        // Endpoints: if one cannot be bound, stop what was started and report it.
+        let started = runtime.block_on(async {
+            let server =
+                StreamServer::start(&config.stream, pipeline.subscribe(), Arc::clone(&metrics))
+                    .await?;
+            let http = match config.metrics.listen {
+                Some(address) => {
+                    let listener = tokio::net::TcpListener::bind(address)
+                        .await
+                        .map_err(|source| DaemonError::Metrics { address, source })?;
+                    let bound = listener.local_addr().ok();
+                    let (stop_tx, stop_rx) = watch::channel(false);
+                    let state = Arc::new(HttpState {
+                        metrics: Arc::clone(&metrics),
+                        stats: pipeline.stats_handle(),
+                        lights: pipeline.subscribe(),
+                        max_frame_age: config.metrics.max_frame_age,
+                    });
+                    tracing::info!(address = ?bound, "serving metrics and health over http");
+                    let task = tokio::spawn(serve_http(listener, state, stop_rx));
+                    Some((task, stop_tx, bound))
+                }
+                None => None,
+            };
+            Ok::<_, DaemonError>((server, http))
+        });
+        let (server, http) = match started {
+            Ok(started) => started,
+            Err(error) => {
+                pipeline.stop();
+                let _ = pipeline.join();
+                if let Some(recorder) = recorder {
+                    let _ = recorder.finish();
+                }
+                return Err(error);
+            }
+        };
+        let addresses = DaemonAddresses {
+            stream: server.bound().clone(),
+            metrics: http.as_ref().and_then(|(_, _, bound)| *bound),
+        };
+        Ok(Daemon {
+            config,
+            replaying: options.replay.is_some(),
+            runtime,
+            pipeline,
+            server,
+            http: http.map(|(task, stop, _)| (task, stop)),
+            metrics,
+            recorder,
+            addresses,
+        })
+    }
+
+    /// Where the endpoints listen (ports resolved).
+    pub fn addresses(&self) -> &DaemonAddresses {
+        &self.addresses
+    }
+
+    /// The daemon's metrics.
+    pub fn metrics(&self) -> &Arc<Metrics> {
+        &self.metrics
+    }
+
+    /// The pipeline (to subscribe in-process or read its counters).
+    pub fn pipeline(&self) -> &Pipeline {
+        &self.pipeline
+    }
+
+    /// Whether a finite source has been fully decomposed.
+    pub fn source_finished(&self) -> bool {
+        self.pipeline.is_finished()
+    }
+
+    /// Applies a new configuration: the decomposition settings change live (from the next
+    /// frame; the temporal filter restarts); every other section that changed is reported as
+    /// needing a restart and keeps its running value.
+    pub fn reload(&mut self, new: Config) -> ReloadReport {
+        let mut report = ReloadReport::default();
+        if new.decompose != self.config.decompose {
+            if self.replaying {
+                report
+                    .needs_restart
+                    .push("[decompose] (a replay uses the recording's settings)".to_owned());
+            } else {
+                match self.pipeline.reconfigure(new.decompose.clone()) {
+                    Ok(()) => {
+                        report.applied.push("[decompose]".to_owned());
+                        self.config.decompose = new.decompose.clone();
+                    }
+                    Err(e) => report.needs_restart.push(format!("[decompose] ({e})")),
+                }
+            }
+        }
+        let old = &self.config;
+        let sections = [
+            ("[source]", new.source != old.source),
+            ("[source] / [sky]", new.sky != old.sky),
+            ("[pipeline]", new.pipeline != old.pipeline),
+            ("[stream]", new.stream != old.stream),
+            ("[metrics]", new.metrics != old.metrics),
+            ("[daemon]", new.daemon != old.daemon),
+        ];
+        for (name, changed) in sections {
+            if changed {
+                report
+                    .needs_restart
+                    .push(format!("{name} (restart envlight to apply)"));
+            }
+        }
+        report
+    }
+
+    /// Reads, validates and applies a config file; a bad file changes nothing.
+    pub fn reload_file(&mut self, path: &Path) -> Result<ReloadReport, ConfigError> {
+        let config = RawConfig::from_file(path)?.validate()?;
+        Ok(self.reload(config))
+    }
+
+    /// Runs until SIGTERM/SIGINT or the end of a finite source, handling SIGHUP (reload of
+    /// `config_path`, if any) and the systemd notifications, then shuts down.
+    pub fn run(
+        mut self,
+        config_path: Option<&Path>,
+    ) -> Result<(StopReason, DaemonSummary), DaemonError> {
+        use tokio::signal::unix::{signal, SignalKind};
+        let signals = self.runtime.block_on(async {
+            Ok::<_, std::io::Error>((
+                signal(SignalKind::terminate())?,
+                signal(SignalKind::interrupt())?,
+                signal(SignalKind::hangup())?,
+            ))
+        });
+        let (mut term, mut int, mut hup) = signals.map_err(DaemonError::Signals)?;
+        notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Status("serving light lists"),
+        ]);
+        let watchdog = sd_notify::watchdog_enabled();
+        let tick = watchdog.map_or(Duration::from_millis(250), |w| {
+            (w / 2).min(Duration::from_millis(250))
+        });
+        let mut last_progress = (0u64, Instant::now());
+        let reason = loop {
+            enum Wake {
+                Stop(&'static str),
+                Reload,
+                Tick,
+            }
+            let wake = self.runtime.block_on(async {
+                tokio::select! {
+                    _ = term.recv() => Wake::Stop("SIGTERM"),
+                    _ = int.recv() => Wake::Stop("SIGINT"),
+                    _ = hup.recv() => Wake::Reload,
+                    _ = tokio::time::sleep(tick) => Wake::Tick,
+                }
+            });
+            match wake {
+                Wake::Stop(signal) => {
+                    tracing::info!("{signal}: shutting down");
+                    break StopReason::Signal;
+                }
+                Wake::Reload => self.handle_reload(config_path),
+                Wake::Tick => {
+                    if self.source_finished() {
+                        tracing::info!("the source has ended; shutting down");
+                        break StopReason::SourceFinished;
+                    }
+                    // The watchdog is fed while the threads are alive; a hung decomposition
+                    // (no new frame while frames are being captured) stops feeding it.
+                    let stats = self.pipeline.stats();
+                    let moving = stats.frames_decomposed != last_progress.0
+                        || stats.frames_captured == stats.frames_decomposed + stats.frames_dropped;
+                    if stats.frames_decomposed != last_progress.0 {
+                        last_progress = (stats.frames_decomposed, Instant::now());
+                    }
+                    let hung = !moving && last_progress.1.elapsed() > Duration::from_secs(10);
+                    if watchdog.is_some() && !hung {
+                        notify(&[sd_notify::NotifyState::Watchdog]);
+                    }
+                }
+            }
+        };
+        notify(&[sd_notify::NotifyState::Stopping]);
+        let summary = self.shutdown()?;
+        Ok((reason, summary))
+    }
+
+    fn handle_reload(&mut self, config_path: Option<&Path>) {
+        let Some(path) = config_path else {
+            tracing::warn!("SIGHUP: no config file was given (--config); nothing to reload");
+            return;
+        };
+        if let Ok(now) = sd_notify::NotifyState::monotonic_usec_now() {
+            notify(&[sd_notify::NotifyState::Reloading, now]);
+        }
+        match self.reload_file(path) {
+            Err(error) => {
+                tracing::error!(%error, "SIGHUP: config reload failed; keeping the running configuration")
+            }
+            Ok(report) => {
+                if report.applied.is_empty() && report.needs_restart.is_empty() {
+                    tracing::info!(path = %path.display(), "SIGHUP: config reloaded; nothing changed");
+                }
+                for section in &report.applied {
+                    tracing::info!("SIGHUP: applied {section}");
+                }
+                for section in &report.needs_restart {
+                    tracing::warn!("SIGHUP: not applied: {section}");
+                }
+            }
+        }
+        notify(&[sd_notify::NotifyState::Ready]);
+    }
+
+    /// Stops capture, says goodbye to every client, removes the socket file, joins the threads
+    /// and finishes the recording.
+    pub fn shutdown(self) -> Result<DaemonSummary, DaemonError> {
+        let Daemon {
+            config,
+            runtime,
+            pipeline,
+            server,
+            http,
+            recorder,
+            ..
+        } = self;
+        pipeline.stop();
+        let clients_closed_in_time = runtime.block_on(async {
+            if let Some((task, stop)) = http {
+                stop.send_replace(true);
+                let _ = tokio::time::timeout(Duration::from_secs(1), task).await;
+            }
+            server
+                .shutdown(SHUTDOWN_MESSAGE, config.daemon.shutdown_grace)
+                .await
+        });
+        let stats = pipeline.join();
+        let recorded = recorder.map(Recorder::finish).transpose();
+        runtime.shutdown_timeout(Duration::from_secs(1));
+        let stats = stats?;
+        let recorded = recorded?;
+        tracing::info!(
+            frames_captured = stats.frames_captured,
+            frames_dropped = stats.frames_dropped,
+            frames_decomposed = stats.frames_decomposed,
+            "stopped"
+        );
+        Ok(DaemonSummary {
+            pipeline: stats,
+            recorded,
+            clients_closed_in_time,
+        })
+    }
+}
+
+/// Sends a systemd notification; a no-op outside systemd, a logged warning on failure.
+fn notify(states: &[sd_notify::NotifyState]) {
+    if let Err(error) = sd_notify::notify(states) {
+        tracing::warn!(%error, "cannot notify systemd");
+    }
+}
+
+/// What the HTTP endpoint reads.
+struct HttpState {
+    metrics: Arc<Metrics>,
+    stats: StatsHandle,
+    lights: watch::Receiver<LatestLights>,
+    max_frame_age: Duration,
+}
+
+impl HttpState {
+    /// `/health`: status code and JSON body.
+    fn health(&self) -> (u16, String) {
+        let latest = self.lights.borrow().clone();
+        let (healthy, reason, age) = match &latest {
+            None => (false, "no light list published yet".to_owned(), None),
+            Some(p) => {
+                let age = p.published_at.elapsed();
+                if p.stale {
+                    (
+                        false,
+                        "the source is lost; serving stale lights".to_owned(),
+                        Some(age),
+                    )
+                } else if age > self.max_frame_age {
+                    (
+                        false,
+                        format!(
+                            "the newest light list is {:.1} s old (limit {:.1} s)",
+                            age.as_secs_f64(),
+                            self.max_frame_age.as_secs_f64()
+                        ),
+                        Some(age),
+                    )
+                } else {
+                    (true, "ok".to_owned(), Some(age))
+                }
+            }
+        };
+        let stats = self.stats.stats();
+        let body = serde_json::json!({
+            "status": if healthy { "ok" } else { "unhealthy" },
+            "reason": reason,
+            "newest_age_s": age.map(|a| a.as_secs_f64()),
+            "seq": latest.as_ref().map(|p| p.lights.seq),
+            "lights": latest.as_ref().map(|p| p.lights.lights.len()),
+            "frames_decomposed": stats.frames_decomposed,
+            "frames_dropped": stats.frames_dropped,
+        });
+        (if healthy { 200 } else { 503 }, body.to_string() + "\n")
+    }
+
+    fn metrics_text(&self) -> String {
+        self.metrics.update_pipeline(&self.stats.stats());
+        let stale = self.lights.borrow().as_ref().is_some_and(|p| p.stale);
+        self.metrics.source_stale.set(i64::from(stale));
+        self.metrics.encode()
+    }
+}
+
+async fn serve_http(
+    listener: tokio::net::TcpListener,
+    state: Arc<HttpState>,
+    mut stop: watch::Receiver<bool>,
+) {
+    use hyper::service::service_fn;
+    use hyper_util::rt::TokioIo;
+    loop {
+        let accepted = tokio::select! {
+            _ = stop.wait_for(|s| *s) => break,
+            accepted = listener.accept() => accepted,
+        };
+        let stream = match accepted {
+            Ok((stream, _)) => stream,
+            Err(error) => {
+                tracing::warn!(%error, "metrics endpoint: accept failed");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let state = Arc::clone(&state);
+        tokio::spawn(async move {
+            let service = service_fn(move |request| {
+                let state = Arc::clone(&state);
+                async move { Ok::<_, std::convert::Infallible>(respond(&state, &request)) }
+            });
+            let connection = hyper::server::conn::http1::Builder::new()
+                .serve_connection(TokioIo::new(stream), service);
+            // A client that neither finishes nor closes its request is cut off.
+            let _ = tokio::time::timeout(Duration::from_secs(30), connection).await;
+        });
+    }
+}
+
+fn respond<B>(
+    state: &HttpState,
+    request: &hyper::Request<B>,
+) -> hyper::Response<http_body_util::Full<hyper::body::Bytes>> {
+    let (status, content_type, body) = if request.method() != hyper::Method::GET {
+        (405, "text/plain", "only GET is served\n".to_owned())
+    } else {
+        match request.uri().path() {
+            "/metrics" => (
+                200,
+                "application/openmetrics-text; version=1.0.0; charset=utf-8",
+                state.metrics_text(),
+            ),
+            "/health" | "/healthz" => {
+                let (status, body) = state.health();
+                (status, "application/json", body)
+            }
+            _ => (
+                404,
+                "text/plain",
+                "not found; envlight serves /metrics and /health\n".to_owned(),
+            ),
+        }
+    };
+    let mut response = hyper::Response::new(http_body_util::Full::new(body.into()));
+    *response.status_mut() =
+        hyper::StatusCode::from_u16(status).unwrap_or(hyper::StatusCode::INTERNAL_SERVER_ERROR);
+    if let Ok(value) = hyper::header::HeaderValue::from_str(content_type) {
+        response
+            .headers_mut()
+            .insert(hyper::header::CONTENT_TYPE, value);
+    }
+    response
+}

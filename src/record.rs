@@ -1,0 +1,374 @@
+//! Recording and replay of sessions.
+//!
+//! A recording is a directory:
+//!
+//! ```text
+//! session.json     {"format": "envlight-recording", "version": 1, "source": "...",
+//!                   "decompose": {settings}, "envlight": "0.1.0", "created_unix_s": ...}
+//! frames.jsonl     one line per frame: {"seq": 0, "time": 0.0, "file": "frames/000000.exr",
+//!                   "projection": ...}
+//! frames/NNNNNN.exr  the frame as the decomposition received it: linear RGB, 32-bit float
+//! lights.jsonl     the light stream, exactly as `envlight decompose` prints it
+//! ```
+//!
+//! [`Recorder`] runs on its own thread (`envlight-record`) and is fed by the pipeline's tap
+//! ([`crate::pipeline::PipelineOptions::tap`]): it stores the frames that reached the
+//! decomposition (frames the capture dropped never reached it and are not part of the stream)
+//! and the lights made from them. Every line is flushed as it is written, so a recording cut
+//! short by a crash is readable up to its last whole frame.
+//!
+//! [`ReplaySource`] plays a recording back as a [`FrameSource`], at its original timing or as
+//! fast as possible. Decomposed with the recorded settings and a lossless queue
+//! ([`crate::pipeline::QueuePolicy::Block`]), the replay reproduces the recorded light stream
+//! bit for bit: the frames are stored losslessly (f32) and the decomposition is deterministic.
+
+use crate::capture::image_file::read_hdr_image;
+use crate::capture::{CaptureError, FrameSource};
+use crate::decompose::DecomposeSettings;
+use crate::envmap::Projection;
+use crate::frame::HdrFrame;
+use crate::pipeline::Tapped;
+use crossbeam_channel::Receiver;
+use serde::{Deserialize, Serialize};
+use std::io::{BufRead, Write};
+use std::path::{Path, PathBuf};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Name of the recorder thread.
+pub const RECORD_THREAD_NAME: &str = "envlight-record";
+/// `format` of `session.json`.
+pub const FORMAT_NAME: &str = "envlight-recording";
+/// `version` of `session.json`.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// `session.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    pub format: String,
+    pub version: u32,
+    /// The source that was recorded, for people.
+    pub source: String,
+    /// The decomposition settings the lights were made with.
+    pub decompose: DecomposeSettings,
+    /// The envlight version that recorded it.
+    pub envlight: String,
+    pub created_unix_s: u64,
+}
+
+/// One line of `frames.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameEntry {
+    pub seq: u64,
+    /// Capture time, seconds since the source started.
+    pub time: f64,
+    /// The EXR file, relative to the recording directory.
+    pub file: String,
+    pub projection: Projection,
+}
+
+/// Errors of recording.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("recording directory {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("recording directory {} is not empty; choose a new directory (a recording is never overwritten)", path.display())]
+    NotEmpty { path: PathBuf },
+    #[error("cannot write frame {}: {message}", path.display())]
+    Exr { path: PathBuf, message: String },
+    #[error("recorder thread panicked")]
+    Panicked,
+}
+
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> RecordError + '_ {
+    move |source| RecordError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// What a finished recording holds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RecordSummary {
+    pub frames: u64,
+}
+
+/// A running recorder. See the module docs.
+pub struct Recorder {
+    dir: PathBuf,
+    thread: JoinHandle<Result<RecordSummary, RecordError>>,
+}
+
+impl Recorder {
+    /// Creates the recording directory (it must be new or empty), writes `session.json` and
+    /// starts the recorder thread on `frames`.
+    pub fn start(
+        dir: &Path,
+        source: &str,
+        settings: &DecomposeSettings,
+        frames: Receiver<Tapped>,
+    ) -> Result<Recorder, RecordError> {
+        std::fs::create_dir_all(dir).map_err(io_error(dir))?;
+        if std::fs::read_dir(dir)
+            .map_err(io_error(dir))?
+            .next()
+            .is_some()
+        {
+            return Err(RecordError::NotEmpty {
+                path: dir.to_path_buf(),
+            });
+        }
+        let frames_dir = dir.join("frames");
+        std::fs::create_dir(&frames_dir).map_err(io_error(&frames_dir))?;
+        let session = Session {
+            format: FORMAT_NAME.to_owned(),
+            version: FORMAT_VERSION,
+            source: source.to_owned(),
+            decompose: settings.clone(),
+            envlight: env!("CARGO_PKG_VERSION").to_owned(),
+            created_unix_s: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs()),
+        };
+        let session_path = dir.join("session.json");
+        let text = serde_json::to_string_pretty(&session).unwrap_or_default();
+        std::fs::write(&session_path, text + "\n").map_err(io_error(&session_path))?;
+        let open = |name: &str| {
+            let path = dir.join(name);
+            std::fs::File::create(&path)
+                .map(std::io::BufWriter::new)
+                .map_err(io_error(&path))
+        };
+        let mut index = open("frames.jsonl")?;
+        let mut lights = open("lights.jsonl")?;
+        let root = dir.to_path_buf();
+        let thread = std::thread::Builder::new()
+            .name(RECORD_THREAD_NAME.to_owned())
+            .spawn(move || {
+                let mut summary = RecordSummary::default();
+                for tapped in frames.iter() {
+                    let result = write_frame(&root, &tapped, &mut index, &mut lights);
+                    if let Err(error) = result {
+                        tracing::error!(%error, "recording failed; the recording stops here");
+                        return Err(error);
+                    }
+                    summary.frames += 1;
+                }
+                Ok(summary)
+            })
+            .map_err(io_error(dir))?;
+        Ok(Recorder {
+            dir: dir.to_path_buf(),
+            thread,
+        })
+    }
+
+    /// The recording directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Waits for the recorder to store everything it was sent (the pipeline must have ended,
+    /// closing the tap) and reports what it stored or the error that stopped it.
+    pub fn finish(self) -> Result<RecordSummary, RecordError> {
+        self.thread.join().unwrap_or(Err(RecordError::Panicked))
+    }
+}
+
+fn write_frame(
+    root: &Path,
+    tapped: &Tapped,
+    index: &mut impl Write,
+    lights: &mut impl Write,
+) -> Result<(), RecordError> {
+    let frame = &tapped.frame;
+    let file = format!("frames/{:06}.exr", frame.seq);
+    let path = root.join(&file);
+    let width = frame.width as usize;
+    exr::prelude::write_rgb_file(&path, width, frame.height as usize, |x, y| {
+        let [r, g, b] = frame.pixels[y * width + x];
+        (r, g, b)
+    })
+    .map_err(|e| RecordError::Exr {
+        path: path.clone(),
+        message: e.to_string(),
+    })?;
+    let entry = FrameEntry {
+        seq: frame.seq,
+        time: frame.time,
+        file,
+        projection: frame.projection,
+    };
+    let mut line = serde_json::to_vec(&entry).unwrap_or_default();
+    line.push(b'\n');
+    let index_path = root.join("frames.jsonl");
+    index
+        .write_all(&line)
+        .and_then(|()| index.flush())
+        .map_err(io_error(&index_path))?;
+    let mut line = serde_json::to_vec(tapped.lights.as_ref()).unwrap_or_default();
+    line.push(b'\n');
+    let lights_path = root.join("lights.jsonl");
+    lights
+        .write_all(&line)
+        .and_then(|()| lights.flush())
+        .map_err(io_error(&lights_path))
+}
+
+/// How a replay is paced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Pacing {
+    /// At the recorded capture times (the default).
+    #[default]
+    Original,
+    /// As fast as the decomposition takes them.
+    AsFastAsPossible,
+}
+
+/// A recording played back as a frame source. See the module docs.
+pub struct ReplaySource {
+    dir: PathBuf,
+    session: Session,
+    entries: Vec<FrameEntry>,
+    next: usize,
+    pacing: Pacing,
+    started: Option<(Instant, f64)>,
+}
+
+impl ReplaySource {
+    /// Opens a recording: reads `session.json` and the frame index (the frames themselves are
+    /// read as they are replayed).
+    pub fn open(dir: &Path, pacing: Pacing) -> Result<ReplaySource, CaptureError> {
+        let session_path = dir.join("session.json");
+        let io = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| CaptureError::Io { path, source }
+        };
+        let text = std::fs::read_to_string(&session_path).map_err(io(&session_path))?;
+        let session: Session = serde_json::from_str(&text).map_err(|e| CaptureError::Format {
+            path: session_path.clone(),
+            message: format!("not an envlight session file: {e}"),
+        })?;
+        if session.format != FORMAT_NAME || session.version != FORMAT_VERSION {
+            return Err(CaptureError::Format {
+                path: session_path,
+                message: format!(
+                    "format {:?} version {} (this envlight reads {FORMAT_NAME:?} version {FORMAT_VERSION})",
+                    session.format, session.version
+                ),
+            });
+        }
+        let index_path = dir.join("frames.jsonl");
+        let file = std::fs::File::open(&index_path).map_err(io(&index_path))?;
+        let mut entries: Vec<FrameEntry> = Vec::new();
+        for (number, line) in std::io::BufReader::new(file).lines().enumerate() {
+            let line = line.map_err(io(&index_path))?;
+            if line.trim().is_empty() {
+                continue;
+            }
+            let entry: FrameEntry =
+                serde_json::from_str(&line).map_err(|e| CaptureError::Format {
+                    path: index_path.clone(),
+                    message: format!("line {}: {e}", number + 1),
+                })?;
+            let bad = |message: String| CaptureError::Format {
+                path: index_path.clone(),
+                message: format!("line {}: {message}", number + 1),
+            };
+            if !entry.time.is_finite() {
+                return Err(bad(format!("time {} is not finite", entry.time)));
+            }
+            if let Some(previous) = entries.last() {
+                if entry.seq <= previous.seq || entry.time < previous.time {
+                    return Err(bad(format!(
+                        "frame seq {} at {} s does not follow seq {} at {} s",
+                        entry.seq, entry.time, previous.seq, previous.time
+                    )));
+                }
+            }
+            let relative = Path::new(&entry.file);
+            if relative.is_absolute()
+                || relative
+                    .components()
+                    .any(|c| matches!(c, std::path::Component::ParentDir))
+            {
+                return Err(bad(format!(
+                    "file {:?} must be a path inside the recording",
+                    entry.file
+                )));
+            }
+            entries.push(entry);
+        }
+        if entries.is_empty() {
+            return Err(CaptureError::NoFrames(index_path.display().to_string()));
+        }
+        Ok(ReplaySource {
+            dir: dir.to_path_buf(),
+            session,
+            entries,
+            next: 0,
+            pacing,
+            started: None,
+        })
+    }
+
+    /// The recording's `session.json`: replay decomposes with its settings.
+    pub fn session(&self) -> &Session {
+        &self.session
+    }
+
+    /// Number of frames in the recording.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether the recording has no frames (never true for an opened recording).
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+impl FrameSource for ReplaySource {
+    fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
+        let Some(entry) = self.entries.get(self.next) else {
+            return Ok(None);
+        };
+        self.next += 1;
+        let path = self.dir.join(&entry.file);
+        let image = read_hdr_image(&path)?;
+        let mut frame = HdrFrame::new(image.width, image.height, image.pixels, entry.projection)
+            .ok_or_else(|| CaptureError::Format {
+                path: path.clone(),
+                message: "empty image".to_owned(),
+            })?;
+        frame.seq = entry.seq;
+        frame.time = entry.time;
+        if self.pacing == Pacing::Original {
+            let (start, first_time) = *self.started.get_or_insert((Instant::now(), entry.time));
+            let due = start + Duration::from_secs_f64((entry.time - first_time).max(0.0));
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+        }
+        Ok(Some(frame))
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "recording {} ({} frames of {}, {})",
+            self.dir.display(),
+            self.entries.len(),
+            self.session.source,
+            match self.pacing {
+                Pacing::Original => "at the original timing",
+                Pacing::AsFastAsPossible => "as fast as possible",
+            }
+        )
+    }
+}
