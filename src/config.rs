@@ -91,6 +91,7 @@ pub struct RawStream {
     pub max_clients: Option<usize>,
     pub handshake_timeout_s: Option<f64>,
     pub write_timeout_s: Option<f64>,
+    pub send_buffer_bytes: Option<usize>,
 }
 
 /// `[metrics]`: the HTTP endpoint for Prometheus metrics and the health check.
@@ -393,7 +394,20 @@ impl RawStream {
                 "must be 1..=100000",
             ));
         }
+        let send_buffer_bytes = match self.send_buffer_bytes {
+            None => d.send_buffer_bytes,
+            Some(0) => None,
+            Some(n) if (4096..=64 << 20).contains(&n) => Some(n),
+            Some(n) => {
+                return Err(invalid(
+                    "stream.send_buffer_bytes",
+                    n,
+                    "must be 0 (the system default) or 4096..=67108864 bytes",
+                ))
+            }
+        };
         Ok(ServerConfig {
+            send_buffer_bytes,
             unix_socket,
             unix_socket_mode,
             tcp: listen_address("stream.tcp", self.tcp.as_deref(), d.tcp)?,

@@ -65,6 +65,10 @@ pub struct ServerConfig {
     pub handshake_timeout: Duration,
     /// A write that makes no progress for this long closes the connection.
     pub write_timeout: Duration,
+    /// Kernel send buffer per connection in bytes (`None` = the system's default). A small
+    /// buffer keeps a slow client from being fed seconds of old frames from the kernel's queue:
+    /// once it is full, the client skips to the newest frame instead.
+    pub send_buffer_bytes: Option<usize>,
 }
 
 /// Default Unix socket path.
@@ -73,6 +77,9 @@ pub const DEFAULT_UNIX_SOCKET: &str = "/run/envlight/envlight.sock";
 pub const DEFAULT_TCP: &str = "127.0.0.1:7878";
 /// Default WebSocket address.
 pub const DEFAULT_WEBSOCKET: &str = "127.0.0.1:7879";
+
+/// Default kernel send buffer per connection: 64 KiB (Linux doubles it for bookkeeping).
+pub const DEFAULT_SEND_BUFFER_BYTES: usize = 64 * 1024;
 
 impl Default for ServerConfig {
     fn default() -> Self {
@@ -84,6 +91,7 @@ impl Default for ServerConfig {
             max_clients: 256,
             handshake_timeout: Duration::from_secs(5),
             write_timeout: Duration::from_secs(10),
+            send_buffer_bytes: Some(DEFAULT_SEND_BUFFER_BYTES),
         }
     }
 }
@@ -307,6 +315,7 @@ impl Acceptor {
             {
                 match accepted {
                     Ok((stream, _)) => {
+                        self.limit_send_buffer(socket2::SockRef::from(&stream));
                         let peer = path.display().to_string();
                         if let Some(conn) = self.connection(peer) {
                             tokio::spawn(conn.serve_stream(stream));
@@ -329,6 +338,7 @@ impl Acceptor {
                 match accepted {
                     Ok((stream, peer)) => {
                         let _ = stream.set_nodelay(true);
+                        self.limit_send_buffer(socket2::SockRef::from(&stream));
                         if let Some(conn) = self.connection(peer.to_string()) {
                             if websocket {
                                 tokio::spawn(conn.serve_websocket(stream));
@@ -339,6 +349,14 @@ impl Acceptor {
                     }
                     Err(e) => accept_failed(self.endpoint, &e).await,
                 }
+            }
+        }
+    }
+
+    fn limit_send_buffer(&self, socket: socket2::SockRef<'_>) {
+        if let Some(bytes) = self.ctx.config.send_buffer_bytes {
+            if let Err(error) = socket.set_send_buffer_size(bytes) {
+                tracing::debug!(%error, "cannot set the send buffer size");
             }
         }
     }

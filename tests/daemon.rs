@@ -1,0 +1,716 @@
+//! The daemon end to end: clients on every endpoint, slow clients, bad input, metrics,
+//! recording and replay (in-process), and the process lifecycle (signals) of `envlight run`.
+
+use envlight::capture::sequence::{SequenceOptions, SequenceSource};
+use envlight::capture::sky::{SkyOptions, SkySource};
+use envlight::capture::FrameSource;
+use envlight::config::{Config, RawConfig};
+use envlight::daemon::{Daemon, DaemonOptions};
+use envlight::decompose::Decomposer;
+use envlight::envmap::Projection;
+use envlight::light::LightFrame;
+use envlight::record::Pacing;
+use envlight::stream::client::{Client, Endpoint};
+use envlight::stream::protocol::{self, code, encode_frame, encode_request, Decoder};
+use envlight::stream::{Format, FrameMessage, Message, Representation, Request};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const TIMEOUT: Duration = Duration::from_secs(20);
+
+/// Writes `count` small sky frames as EXR files `frame_0000.exr`… into `dir`.
+fn write_sky_sequence(dir: &Path, count: u64) -> Vec<PathBuf> {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut sky = SkySource::new(SkyOptions {
+        width: 64,
+        height: 32,
+        frames: Some(count),
+        sun_speed_deg_per_s: 20.0,
+        ..SkyOptions::default()
+    })
+    .unwrap();
+    let mut paths = Vec::new();
+    while let Some(frame) = sky.next_frame().unwrap() {
+        let path = dir.join(format!("frame_{:04}.exr", frame.seq));
+        let w = frame.width as usize;
+        exr::prelude::write_rgb_file(&path, w, frame.height as usize, |x, y| {
+            let [r, g, b] = frame.pixels[y * w + x];
+            (r, g, b)
+        })
+        .unwrap();
+        paths.push(path);
+    }
+    paths
+}
+
+/// A config from TOML text with every endpoint on loopback port 0 / in `dir`, metrics on.
+fn config(dir: &Path, extra: &str) -> Config {
+    let text = format!(
+        "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
+         handshake_timeout_s = 0.5\n[metrics]\nlisten = \"127.0.0.1:0\"\n{extra}",
+        dir.join("envlight.sock").display()
+    );
+    RawConfig::parse(&text, Path::new("test.toml"))
+        .unwrap()
+        .validate()
+        .unwrap()
+}
+
+/// What a client thread saw.
+#[derive(Debug, Default)]
+struct Received {
+    frames: Vec<FrameMessage>,
+    goodbye: Option<String>,
+    error: Option<(u16, String)>,
+}
+
+fn read_all(mut client: Client) -> Received {
+    let mut received = Received::default();
+    loop {
+        match client.next_message() {
+            Ok(Some(Message::Frame(frame))) => received.frames.push(frame),
+            Ok(Some(Message::Goodbye { message })) => {
+                received.goodbye = Some(message);
+                return received;
+            }
+            Ok(Some(Message::Error { code, message })) => {
+                received.error = Some((code, message));
+                return received;
+            }
+            Ok(Some(other)) => panic!("unexpected {other:?}"),
+            Ok(None) => return received,
+            Err(e) => panic!("client error: {e}"),
+        }
+    }
+}
+
+fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + TIMEOUT;
+    while !done() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// The frame a client with cap `cap` must receive for `expected`.
+fn capped(expected: &LightFrame, cap: Option<usize>) -> Vec<envlight::Light> {
+    let mut bytes = Vec::new();
+    encode_frame(expected, cap, false, &mut bytes);
+    match protocol::decode_message(&bytes).unwrap() {
+        Message::Frame(frame) => frame.lights,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn every_endpoint_streams_what_decompose_computes() {
+    let dir = tempfile::tempdir().unwrap();
+    const N: u64 = 24;
+    write_sky_sequence(&dir.path().join("frames"), N);
+    let pattern = dir.path().join("frames").display().to_string();
+    let extra = format!(
+        "[source]\nkind = \"sequence\"\npaths = [\"{pattern}\"]\nfps = 15.0\n\
+         [decompose]\nlights = 48\nworking_width = 64\n"
+    );
+    let config = config(dir.path(), &extra);
+
+    // What `envlight decompose --fps 15` prints for the same frames.
+    let mut decomposer = Decomposer::new(config.decompose.clone()).unwrap();
+    let mut source = SequenceSource::new(
+        std::slice::from_ref(&pattern),
+        SequenceOptions {
+            fps: Some(15.0),
+            looped: false,
+            projection: Projection::LatLong,
+        },
+    )
+    .unwrap();
+    let mut expected = Vec::new();
+    while let Some(frame) = source.next_frame().unwrap() {
+        expected.push(decomposer.decompose(&frame));
+    }
+    assert_eq!(expected.len() as u64, N);
+
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
+    let addrs = daemon.addresses().clone();
+    let endpoints = [
+        (Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()), Format::Binary, 0),
+        (Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()), Format::Binary, 10),
+        (Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()), Format::Json, 3),
+        (
+            Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
+            Format::Json,
+            5,
+        ),
+        (
+            Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
+            Format::Binary,
+            0,
+        ),
+    ];
+    let clients: Vec<_> = endpoints
+        .iter()
+        .map(|(endpoint, format, cap)| {
+            let request = Request {
+                max_lights: *cap,
+                format: *format,
+                representation: Representation::Lights,
+            };
+            let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
+            std::thread::spawn(move || read_all(client))
+        })
+        .collect();
+    wait_until("the end of the sequence", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    assert_eq!(summary.pipeline.frames_decomposed, N);
+    assert!(summary.clients_closed_in_time);
+
+    for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
+        let received = client.join().unwrap();
+        let what = format!("{endpoint} {format:?} cap {cap}");
+        assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"), "{what}");
+        let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
+        assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
+        // The clients connected before the first frame was due and keep up at 15 fps.
+        assert!(seqs.len() as u64 >= N / 2, "{what}: only {seqs:?}");
+        assert_eq!(seqs.last(), Some(&(N - 1)), "{what}");
+        let cap = (*cap != 0).then_some(*cap as usize);
+        for frame in &received.frames {
+            let want = &expected[frame.seq as usize];
+            assert_eq!(frame.time, want.time, "{what}");
+            assert!(!frame.stale);
+            assert_eq!(frame.lights.len(), cap.unwrap_or(usize::MAX).min(want.lights.len()));
+            assert_eq!(frame.lights, capped(want, cap), "{what} seq {}", frame.seq);
+        }
+    }
+}
+
+/// Connects a TCP client whose receive buffer is tiny, so that not reading fills the pipe fast.
+fn connect_small_buffer(addr: std::net::SocketAddr) -> TcpStream {
+    let socket = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    socket.connect(&addr.into()).unwrap();
+    let stream: TcpStream = socket.into();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream
+}
+
+fn read_frame(stream: &mut TcpStream, decoder: &mut Decoder) -> FrameMessage {
+    let mut buf = [0u8; 65536];
+    loop {
+        match decoder.next_message().unwrap() {
+            Some(Message::Frame(frame)) => return frame,
+            Some(other) => panic!("unexpected {other:?}"),
+            None => {}
+        }
+        let n = stream.read(&mut buf).unwrap();
+        assert!(n > 0, "connection closed");
+        decoder.push(&buf[..n]);
+    }
+}
+
+#[test]
+fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 60.0\nframes = 0\n[sky]\nwidth = 128\nheight = 64\n\
+                 [decompose]\nlights = 256\nworking_width = 64\n";
+    let config = config(dir.path(), extra);
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+
+    // The slow client subscribes, reads one frame, then stops reading for 2 s.
+    let mut slow = connect_small_buffer(tcp);
+    let mut subscribe = Vec::new();
+    encode_request(
+        &Request {
+            format: Format::Binary,
+            ..Request::default()
+        },
+        &mut subscribe,
+    );
+    slow.write_all(&subscribe).unwrap();
+    let mut slow_decoder = Decoder::new();
+    let first = read_frame(&mut slow, &mut slow_decoder);
+
+    // Three clients that keep up, for the same 2 s.
+    let fast: Vec<_> = (0..3)
+        .map(|_| {
+            let request = Request {
+                format: Format::Binary,
+                ..Request::default()
+            };
+            let mut client =
+                Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
+            std::thread::spawn(move || {
+                let started = Instant::now();
+                let mut seqs = Vec::new();
+                while started.elapsed() < Duration::from_secs(3) {
+                    match client.next_message().unwrap() {
+                        Some(Message::Frame(frame)) => seqs.push(frame.seq),
+                        other => panic!("unexpected {other:?}"),
+                    }
+                }
+                seqs
+            })
+        })
+        .collect();
+    std::thread::sleep(Duration::from_secs(2));
+    let newest_before_resume = daemon.pipeline().subscribe().borrow().as_ref().unwrap().lights.seq;
+
+    // Resume: the kernel buffers hold at most a few old frames; then the newest ones follow.
+    let mut resumed = Vec::new();
+    while resumed.last().is_none_or(|&s| s < newest_before_resume + 10) {
+        resumed.push(read_frame(&mut slow, &mut slow_decoder).seq);
+        assert!(resumed.len() < 200, "never caught up: {resumed:?}");
+    }
+    let jump = resumed
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .max()
+        .unwrap_or(0)
+        .max(resumed[0] - first.seq);
+    // 2 s at 60 fps is ~120 frames; the buffers (64 KiB send + 4 KiB receive) hold < 20 of 8 KiB.
+    assert!(jump >= 60, "the slow client did not skip: first {} then {resumed:?}", first.seq);
+    let backlog = resumed.iter().take_while(|&&s| s < newest_before_resume).count();
+    assert!(backlog <= 24, "{backlog} old frames were buffered: {resumed:?}");
+
+    for client in fast {
+        let seqs = client.join().unwrap();
+        assert!(seqs.len() >= 120, "a fast client got only {} frames", seqs.len());
+        let gaps: Vec<_> = seqs.windows(2).filter(|w| w[1] != w[0] + 1).collect();
+        assert!(gaps.is_empty(), "a fast client skipped frames: {gaps:?}");
+    }
+    let metrics = daemon.metrics().encode();
+    let skipped = metric_value(&metrics, "envlight_client_frames_skipped_total{endpoint=\"tcp\"}");
+    assert!(skipped >= 60.0, "{metrics}");
+    let stats = daemon.pipeline().stats();
+    assert_eq!(stats.frames_dropped, 0, "the pipeline was held back: {stats:?}");
+    drop(slow);
+    daemon.shutdown().unwrap();
+}
+
+fn metric_value(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find_map(|line| line.strip_prefix(name)?.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no {name} in\n{text}"))
+}
+
+/// Sends raw bytes and returns what the server answers before closing.
+fn raw_exchange(addr: std::net::SocketAddr, bytes: &[u8], close_write: bool) -> Vec<Message> {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream.write_all(bytes).unwrap();
+    if close_write {
+        stream.shutdown(std::net::Shutdown::Write).unwrap();
+    }
+    let mut decoder = Decoder::new();
+    let mut messages = Vec::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        while let Some(message) = decoder.next_message().unwrap() {
+            messages.push(message);
+        }
+        match stream.read(&mut buf) {
+            Ok(0) | Err(_) => return messages,
+            Ok(n) => decoder.push(&buf[..n]),
+        }
+    }
+}
+
+fn error_code(messages: &[Message]) -> Option<u16> {
+    messages.iter().find_map(|m| match m {
+        Message::Error { code, .. } => Some(*code),
+        _ => None,
+    })
+}
+
+#[test]
+fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 64\nheight = 32\n\
+                 [decompose]\nlights = 32\nworking_width = 32\n";
+    let mut daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    let good = Client::connect(
+        &Endpoint::Tcp(tcp.to_string()),
+        &Request {
+            format: Format::Binary,
+            ..Request::default()
+        },
+        Some(TIMEOUT),
+    )
+    .unwrap();
+    let good = std::thread::spawn(move || read_all(good));
+
+    // Garbage bytes: bad magic.
+    let garbage = raw_exchange(tcp, b"\x08\0\0\0GET / HTTP/1.1\r\n\r\n", false);
+    assert_eq!(error_code(&garbage), Some(code::MALFORMED), "{garbage:?}");
+    // An oversized length prefix is refused as soon as it is read.
+    let oversized = raw_exchange(tcp, &u32::MAX.to_le_bytes(), false);
+    assert_eq!(error_code(&oversized), Some(code::TOO_LARGE), "{oversized:?}");
+    // A half-open connection that never subscribes is closed after the handshake timeout.
+    let started = Instant::now();
+    let silent = raw_exchange(tcp, b"", false);
+    assert_eq!(error_code(&silent), Some(code::BAD_REQUEST), "{silent:?}");
+    assert!(started.elapsed() >= Duration::from_millis(400));
+    // A client that vanishes in the middle of its subscribe message.
+    let binary = Request {
+        format: Format::Binary,
+        ..Request::default()
+    };
+    let mut subscribe = Vec::new();
+    encode_request(&binary, &mut subscribe);
+    let vanished = raw_exchange(tcp, &subscribe[..7], true);
+    assert!(error_code(&vanished).is_none(), "{vanished:?}");
+    // A representation the daemon does not produce.
+    let mut asg = Vec::new();
+    encode_request(
+        &Request {
+            representation: Representation::Asg,
+            ..binary
+        },
+        &mut asg,
+    );
+    let refused = raw_exchange(tcp, &asg, false);
+    assert_eq!(error_code(&refused), Some(code::UNSUPPORTED_REPRESENTATION));
+    // A client that sends something after its subscribe.
+    let mut twice = subscribe.clone();
+    twice.extend_from_slice(&subscribe);
+    let chatty = raw_exchange(tcp, &twice, false);
+    assert_eq!(error_code(&chatty), Some(code::UNEXPECTED_MESSAGE), "{chatty:?}");
+    // A bad config on reload changes nothing.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[decompose]\nlights = 0\n").unwrap();
+    assert!(daemon.reload_file(&bad).is_err());
+
+    // The good client kept receiving throughout.
+    let seq_before = daemon.pipeline().stats().frames_decomposed;
+    wait_until("more frames", || {
+        daemon.pipeline().stats().frames_decomposed > seq_before + 5
+    });
+    let errors = daemon.metrics().encode();
+    assert!(metric_value(&errors, "envlight_client_errors_total{endpoint=\"tcp\"}") >= 6.0);
+    daemon.shutdown().unwrap();
+    let received = good.join().unwrap();
+    assert!(received.error.is_none(), "{:?}", received.error);
+    assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"));
+    let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
+    assert!(seqs.len() > 10, "{seqs:?}");
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]));
+}
+
+#[test]
+fn json_lines_clients_on_tcp_get_json_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    let mut stream = TcpStream::connect(tcp).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream.write_all(b"{\"subscribe\":{\"colour\":1}}\n").unwrap();
+    let mut text = String::new();
+    stream.read_to_string(&mut text).unwrap();
+    match protocol::parse_json_message(text.trim_end()).unwrap() {
+        Message::Error { code: c, message } => {
+            assert_eq!(c, code::BAD_REQUEST);
+            assert!(message.contains("colour"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // A good JSON line: frames come back as JSON lines, capped.
+    let mut stream = TcpStream::connect(tcp).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream
+        .write_all(b"{\"subscribe\":{\"max_lights\":2}}\n")
+        .unwrap();
+    let mut reader = std::io::BufReader::new(stream);
+    let mut line = String::new();
+    std::io::BufRead::read_line(&mut reader, &mut line).unwrap();
+    match protocol::parse_json_message(line.trim_end()).unwrap() {
+        Message::Frame(frame) => assert_eq!(frame.lights.len(), 2),
+        other => panic!("{other:?}"),
+    }
+    daemon.shutdown().unwrap();
+}
+
+fn http_get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    write!(stream, "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").unwrap();
+    let mut text = String::new();
+    stream.read_to_string(&mut text).unwrap();
+    let status = text[9..12].parse().unwrap();
+    let body = text.split_once("\r\n\r\n").map(|(_, b)| b.to_owned()).unwrap_or_default();
+    (status, body)
+}
+
+#[test]
+fn metrics_and_health_over_http() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let http = daemon.addresses().metrics.unwrap();
+    let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
+    let _client = Client::connect(&Endpoint::Unix(uds), &Request::default(), Some(TIMEOUT)).unwrap();
+    wait_until("some frames", || daemon.pipeline().stats().frames_decomposed >= 3);
+    let (status, body) = http_get(http, "/health");
+    assert_eq!(status, 200, "{body}");
+    assert!(body.contains("\"status\":\"ok\""), "{body}");
+    let (status, text) = http_get(http, "/metrics");
+    assert_eq!(status, 200);
+    assert!(metric_value(&text, "envlight_frames_decomposed_total") >= 3.0, "{text}");
+    assert_eq!(metric_value(&text, "envlight_lights"), 8.0);
+    assert_eq!(metric_value(&text, "envlight_clients_connected{endpoint=\"uds\"}"), 1.0);
+    assert!(text.contains("envlight_decompose_seconds_bucket"), "{text}");
+    assert!(text.contains("envlight_frames_dropped_total"), "{text}");
+    assert_eq!(http_get(http, "/nope").0, 404);
+    // Stale lights make the health check fail.
+    assert!(daemon.pipeline().set_stale(true) || daemon.pipeline().set_stale(true));
+    let (status, body) = http_get(http, "/health");
+    // A new live frame may have replaced the stale one already; either way the answer is
+    // consistent with the newest publication.
+    assert!(status == 503 && body.contains("stale") || status == 200, "{status} {body}");
+    daemon.shutdown().unwrap();
+}
+
+#[test]
+fn a_recording_replays_to_the_same_light_stream() {
+    let dir = tempfile::tempdir().unwrap();
+    let none = "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let text = format!(
+        "{none}[source]\nframes = 20\n[sky]\nwidth = 64\nheight = 32\nsun_speed_deg_per_s = 30.0\n\
+         [decompose]\nlights = 32\nworking_width = 32\n"
+    );
+    let config = RawConfig::parse(&text, Path::new("t.toml"))
+        .unwrap()
+        .validate()
+        .unwrap();
+    let recording = dir.path().join("session");
+    let daemon = Daemon::start(
+        config.clone(),
+        DaemonOptions {
+            replay: None,
+            record: Some(recording.clone()),
+        },
+    )
+    .unwrap();
+    wait_until("the recording", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    let recorded = summary.recorded.unwrap().frames;
+    assert_eq!(recorded, summary.pipeline.frames_decomposed);
+    assert!(recorded >= 1);
+
+    // Recording into the same directory again is refused: nothing is overwritten.
+    let again = Daemon::start(
+        config.clone(),
+        DaemonOptions {
+            replay: None,
+            record: Some(recording.clone()),
+        },
+    );
+    assert!(again.err().unwrap().to_string().contains("not empty"));
+
+    // Replay (as fast as possible, different decompose settings in the config: the
+    // recording's are used) and record the replay.
+    let mut replay_config = config;
+    replay_config.decompose.lights = 7;
+    let replayed = dir.path().join("replayed");
+    let daemon = Daemon::start(
+        replay_config,
+        DaemonOptions {
+            replay: Some((recording.clone(), Pacing::AsFastAsPossible)),
+            record: Some(replayed.clone()),
+        },
+    )
+    .unwrap();
+    wait_until("the replay", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    assert_eq!(summary.pipeline.frames_dropped, 0);
+    assert_eq!(summary.recorded.unwrap().frames, recorded);
+    let original = std::fs::read_to_string(recording.join("lights.jsonl")).unwrap();
+    let replay = std::fs::read_to_string(replayed.join("lights.jsonl")).unwrap();
+    assert_eq!(original.lines().count() as u64, recorded);
+    assert_eq!(original, replay);
+    let index = std::fs::read_to_string(recording.join("frames.jsonl")).unwrap();
+    assert!(index.lines().next().unwrap().contains("\"file\":\"frames/"));
+}
+
+#[test]
+fn replay_keeps_the_original_timing() {
+    let dir = tempfile::tempdir().unwrap();
+    let none = "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let text = format!(
+        "{none}[source]\nframes = 6\nfps = 10.0\n[sky]\nwidth = 32\nheight = 16\n\
+         [decompose]\nlights = 8\nworking_width = 16\n"
+    );
+    let config = RawConfig::parse(&text, Path::new("t.toml"))
+        .unwrap()
+        .validate()
+        .unwrap();
+    let recording = dir.path().join("session");
+    let options = DaemonOptions {
+        replay: None,
+        record: Some(recording.clone()),
+    };
+    let daemon = Daemon::start(config.clone(), options).unwrap();
+    wait_until("the recording", || daemon.source_finished());
+    daemon.shutdown().unwrap();
+    let started = Instant::now();
+    let options = DaemonOptions {
+        replay: Some((recording, Pacing::Original)),
+        record: None,
+    };
+    let daemon = Daemon::start(config, options).unwrap();
+    wait_until("the replay", || daemon.source_finished());
+    // 6 frames at 10 fps span 0.5 s from the first to the last.
+    assert!(started.elapsed() >= Duration::from_millis(450), "{:?}", started.elapsed());
+    assert_eq!(daemon.shutdown().unwrap().pipeline.frames_decomposed, 6);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The process: signals, socket file, exit codes.
+
+fn envlight() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+}
+
+fn signal(child: &std::process::Child, name: &str) {
+    let status = std::process::Command::new("kill")
+        .args([&format!("-{name}"), &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+fn wait_exit(child: &mut std::process::Child) -> std::process::ExitStatus {
+    let deadline = Instant::now() + TIMEOUT;
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("envlight run did not exit");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("envlight.sock");
+    let config_path = dir.path().join("envlight.toml");
+    let base = format!(
+        "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+         [stream]\nunix_socket = \"{}\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n",
+        socket.display()
+    );
+    std::fs::write(&config_path, format!("{base}[decompose]\nlights = 16\nworking_width = 16\n"))
+        .unwrap();
+    let mut child = envlight()
+        .arg("run")
+        .arg("--config")
+        .arg(&config_path)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_until("the socket file", || socket.exists());
+    let mut client = Client::connect(
+        &Endpoint::Unix(socket.clone()),
+        &Request::default(),
+        Some(TIMEOUT),
+    )
+    .unwrap();
+    let mut next_frame = |client: &mut Client| loop {
+        match client.next_message().unwrap() {
+            Some(Message::Frame(frame)) => return frame,
+            other => panic!("unexpected {other:?}"),
+        }
+    };
+    assert_eq!(next_frame(&mut client).lights.len(), 16);
+
+    // A bad config on SIGHUP changes nothing and the daemon keeps serving.
+    std::fs::write(&config_path, format!("{base}[decompose]\nlights = 0\n")).unwrap();
+    signal(&child, "HUP");
+    for _ in 0..10 {
+        assert_eq!(next_frame(&mut client).lights.len(), 16);
+    }
+    assert!(child.try_wait().unwrap().is_none(), "the daemon stopped");
+    // A good one applies [decompose] from the next frame.
+    std::fs::write(&config_path, format!("{base}[decompose]\nlights = 4\nworking_width = 16\n"))
+        .unwrap();
+    signal(&child, "HUP");
+    let deadline = Instant::now() + TIMEOUT;
+    while next_frame(&mut client).lights.len() != 4 {
+        assert!(Instant::now() < deadline, "the reload never applied");
+    }
+
+    signal(&child, "TERM");
+    let goodbye = loop {
+        match client.next_message().unwrap() {
+            Some(Message::Frame(_)) => continue,
+            Some(Message::Goodbye { message }) => break message,
+            other => panic!("unexpected {other:?}"),
+        }
+    };
+    assert_eq!(goodbye, "envlight shutting down");
+    let status = wait_exit(&mut child);
+    let mut log = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut log).unwrap();
+    assert!(status.success(), "exit {status:?}\n{log}");
+    assert!(!socket.exists(), "the socket file is left behind");
+    assert!(log.contains("SIGHUP: config reload failed"), "{log}");
+    assert!(log.contains("decompose.lights"), "the bad key is not named:\n{log}");
+    assert!(log.contains("SIGHUP: applied [decompose]"), "{log}");
+    assert!(log.contains("SIGTERM: shutting down"), "{log}");
+}
+
+#[test]
+fn check_config_names_the_bad_key_and_value() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = envlight()
+        .args(["check-config", "config/envlight.toml"])
+        .output()
+        .unwrap();
+    assert!(good.status.success(), "{}", String::from_utf8_lossy(&good.stderr));
+    assert!(String::from_utf8_lossy(&good.stdout).contains("config/envlight.toml: ok"));
+    for (text, needle) in [
+        ("[stream]\ntcp = \"localhost\"\n", "stream.tcp = \"localhost\""),
+        ("[stream]\nmax_clients = 0\n", "stream.max_clients = 0"),
+        ("[metrics]\nlisten = \"1.2.3.4\"\n", "metrics.listen"),
+        ("[stream]\ncolour = 1\n", "colour"),
+        ("[daemon]\nshutdown_grace_s = -1.0\n", "daemon.shutdown_grace_s = -1.0"),
+        ("[pipeline]\nqueue_capacity = 0\n", "pipeline.queue_capacity = 0"),
+    ] {
+        let path = dir.path().join("bad.toml");
+        std::fs::write(&path, text).unwrap();
+        let out = envlight().arg("check-config").arg(&path).output().unwrap();
+        assert!(!out.status.success(), "{text} passed");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(needle), "{text}: {stderr}");
+    }
+}
+
+#[test]
+fn a_socket_in_use_is_not_stolen() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let first = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let second = Daemon::start(config(dir.path(), extra), DaemonOptions::default());
+    let error = second.err().unwrap().to_string();
+    assert!(error.contains("another process is serving"), "{error}");
+    first.shutdown().unwrap();
+    // A stale socket file (no one serving) is replaced.
+    let socket = dir.path().join("envlight.sock");
+    drop(std::os::unix::net::UnixListener::bind(&socket).unwrap());
+    assert!(socket.exists());
+    let third = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    third.shutdown().unwrap();
+    assert!(!socket.exists());
+}
