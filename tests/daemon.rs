@@ -136,9 +136,21 @@ fn every_endpoint_streams_what_decompose_computes() {
     let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
     let addrs = daemon.addresses().clone();
     let endpoints = [
-        (Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()), Format::Binary, 0),
-        (Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()), Format::Binary, 10),
-        (Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()), Format::Json, 3),
+        (
+            Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()),
+            Format::Binary,
+            0,
+        ),
+        (
+            Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
+            Format::Binary,
+            10,
+        ),
+        (
+            Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
+            Format::Json,
+            3,
+        ),
         (
             Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
             Format::Json,
@@ -170,7 +182,11 @@ fn every_endpoint_streams_what_decompose_computes() {
     for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
         let received = client.join().unwrap();
         let what = format!("{endpoint} {format:?} cap {cap}");
-        assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"), "{what}");
+        assert_eq!(
+            received.goodbye.as_deref(),
+            Some("envlight shutting down"),
+            "{what}"
+        );
         let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
         assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
         // The clients connected before the first frame was due and keep up at 15 fps.
@@ -181,7 +197,10 @@ fn every_endpoint_streams_what_decompose_computes() {
             let want = &expected[frame.seq as usize];
             assert_eq!(frame.time, want.time, "{what}");
             assert!(!frame.stale);
-            assert_eq!(frame.lights.len(), cap.unwrap_or(usize::MAX).min(want.lights.len()));
+            assert_eq!(
+                frame.lights.len(),
+                cap.unwrap_or(usize::MAX).min(want.lights.len())
+            );
             assert_eq!(frame.lights, capped(want, cap), "{what} seq {}", frame.seq);
         }
     }
@@ -257,11 +276,21 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         })
         .collect();
     std::thread::sleep(Duration::from_secs(2));
-    let newest_before_resume = daemon.pipeline().subscribe().borrow().as_ref().unwrap().lights.seq;
+    let newest_before_resume = daemon
+        .pipeline()
+        .subscribe()
+        .borrow()
+        .as_ref()
+        .unwrap()
+        .lights
+        .seq;
 
     // Resume: the kernel buffers hold at most a few old frames; then the newest ones follow.
     let mut resumed = Vec::new();
-    while resumed.last().is_none_or(|&s| s < newest_before_resume + 10) {
+    while resumed
+        .last()
+        .is_none_or(|&s| s < newest_before_resume + 10)
+    {
         resumed.push(read_frame(&mut slow, &mut slow_decoder).seq);
         assert!(resumed.len() < 200, "never caught up: {resumed:?}");
     }
@@ -272,21 +301,41 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         .unwrap_or(0)
         .max(resumed[0] - first.seq);
     // 2 s at 60 fps is ~120 frames; the buffers (64 KiB send + 4 KiB receive) hold < 20 of 8 KiB.
-    assert!(jump >= 60, "the slow client did not skip: first {} then {resumed:?}", first.seq);
-    let backlog = resumed.iter().take_while(|&&s| s < newest_before_resume).count();
-    assert!(backlog <= 24, "{backlog} old frames were buffered: {resumed:?}");
+    assert!(
+        jump >= 60,
+        "the slow client did not skip: first {} then {resumed:?}",
+        first.seq
+    );
+    let backlog = resumed
+        .iter()
+        .take_while(|&&s| s < newest_before_resume)
+        .count();
+    assert!(
+        backlog <= 24,
+        "{backlog} old frames were buffered: {resumed:?}"
+    );
 
     for client in fast {
         let seqs = client.join().unwrap();
-        assert!(seqs.len() >= 120, "a fast client got only {} frames", seqs.len());
+        assert!(
+            seqs.len() >= 120,
+            "a fast client got only {} frames",
+            seqs.len()
+        );
         let gaps: Vec<_> = seqs.windows(2).filter(|w| w[1] != w[0] + 1).collect();
         assert!(gaps.is_empty(), "a fast client skipped frames: {gaps:?}");
     }
     let metrics = daemon.metrics().encode();
-    let skipped = metric_value(&metrics, "envlight_client_frames_skipped_total{endpoint=\"tcp\"}");
+    let skipped = metric_value(
+        &metrics,
+        "envlight_client_frames_skipped_total{endpoint=\"tcp\"}",
+    );
     assert!(skipped >= 60.0, "{metrics}");
     let stats = daemon.pipeline().stats();
-    assert_eq!(stats.frames_dropped, 0, "the pipeline was held back: {stats:?}");
+    assert_eq!(
+        stats.frames_dropped, 0,
+        "the pipeline was held back: {stats:?}"
+    );
     drop(slow);
     daemon.shutdown().unwrap();
 }
@@ -349,7 +398,11 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
     assert_eq!(error_code(&garbage), Some(code::MALFORMED), "{garbage:?}");
     // An oversized length prefix is refused as soon as it is read.
     let oversized = raw_exchange(tcp, &u32::MAX.to_le_bytes(), false);
-    assert_eq!(error_code(&oversized), Some(code::TOO_LARGE), "{oversized:?}");
+    assert_eq!(
+        error_code(&oversized),
+        Some(code::TOO_LARGE),
+        "{oversized:?}"
+    );
     // A half-open connection that never subscribes is closed after the handshake timeout.
     let started = Instant::now();
     let silent = raw_exchange(tcp, b"", false);
@@ -379,7 +432,11 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
     let mut twice = subscribe.clone();
     twice.extend_from_slice(&subscribe);
     let chatty = raw_exchange(tcp, &twice, false);
-    assert_eq!(error_code(&chatty), Some(code::UNEXPECTED_MESSAGE), "{chatty:?}");
+    assert_eq!(
+        error_code(&chatty),
+        Some(code::UNEXPECTED_MESSAGE),
+        "{chatty:?}"
+    );
     // A bad config on reload changes nothing.
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "[decompose]\nlights = 0\n").unwrap();
@@ -410,7 +467,9 @@ fn json_lines_clients_on_tcp_get_json_errors() {
     let tcp = daemon.addresses().stream.tcp.unwrap();
     let mut stream = TcpStream::connect(tcp).unwrap();
     stream.set_read_timeout(Some(TIMEOUT)).unwrap();
-    stream.write_all(b"{\"subscribe\":{\"colour\":1}}\n").unwrap();
+    stream
+        .write_all(b"{\"subscribe\":{\"colour\":1}}\n")
+        .unwrap();
     let mut text = String::new();
     stream.read_to_string(&mut text).unwrap();
     match protocol::parse_json_message(text.trim_end()).unwrap() {
@@ -439,11 +498,18 @@ fn json_lines_clients_on_tcp_get_json_errors() {
 fn http_get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
     let mut stream = TcpStream::connect(addr).unwrap();
     stream.set_read_timeout(Some(TIMEOUT)).unwrap();
-    write!(stream, "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").unwrap();
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
     let mut text = String::new();
     stream.read_to_string(&mut text).unwrap();
     let status = text[9..12].parse().unwrap();
-    let body = text.split_once("\r\n\r\n").map(|(_, b)| b.to_owned()).unwrap_or_default();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_owned())
+        .unwrap_or_default();
     (status, body)
 }
 
@@ -455,16 +521,25 @@ fn metrics_and_health_over_http() {
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let http = daemon.addresses().metrics.unwrap();
     let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
-    let _client = Client::connect(&Endpoint::Unix(uds), &Request::default(), Some(TIMEOUT)).unwrap();
-    wait_until("some frames", || daemon.pipeline().stats().frames_decomposed >= 3);
+    let _client =
+        Client::connect(&Endpoint::Unix(uds), &Request::default(), Some(TIMEOUT)).unwrap();
+    wait_until("some frames", || {
+        daemon.pipeline().stats().frames_decomposed >= 3
+    });
     let (status, body) = http_get(http, "/health");
     assert_eq!(status, 200, "{body}");
     assert!(body.contains("\"status\":\"ok\""), "{body}");
     let (status, text) = http_get(http, "/metrics");
     assert_eq!(status, 200);
-    assert!(metric_value(&text, "envlight_frames_decomposed_total") >= 3.0, "{text}");
+    assert!(
+        metric_value(&text, "envlight_frames_decomposed_total") >= 3.0,
+        "{text}"
+    );
     assert_eq!(metric_value(&text, "envlight_lights"), 8.0);
-    assert_eq!(metric_value(&text, "envlight_clients_connected{endpoint=\"uds\"}"), 1.0);
+    assert_eq!(
+        metric_value(&text, "envlight_clients_connected{endpoint=\"uds\"}"),
+        1.0
+    );
     assert!(text.contains("envlight_decompose_seconds_bucket"), "{text}");
     assert!(text.contains("envlight_frames_dropped_total"), "{text}");
     assert_eq!(http_get(http, "/nope").0, 404);
@@ -473,14 +548,18 @@ fn metrics_and_health_over_http() {
     let (status, body) = http_get(http, "/health");
     // A new live frame may have replaced the stale one already; either way the answer is
     // consistent with the newest publication.
-    assert!(status == 503 && body.contains("stale") || status == 200, "{status} {body}");
+    assert!(
+        status == 503 && body.contains("stale") || status == 200,
+        "{status} {body}"
+    );
     daemon.shutdown().unwrap();
 }
 
 #[test]
 fn a_recording_replays_to_the_same_light_stream() {
     let dir = tempfile::tempdir().unwrap();
-    let none = "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let none =
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
     let text = format!(
         "{none}[source]\nframes = 20\n[sky]\nwidth = 64\nheight = 32\nsun_speed_deg_per_s = 30.0\n\
          [decompose]\nlights = 32\nworking_width = 32\n"
@@ -542,7 +621,8 @@ fn a_recording_replays_to_the_same_light_stream() {
 #[test]
 fn replay_keeps_the_original_timing() {
     let dir = tempfile::tempdir().unwrap();
-    let none = "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let none =
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
     let text = format!(
         "{none}[source]\nframes = 6\nfps = 10.0\n[sky]\nwidth = 32\nheight = 16\n\
          [decompose]\nlights = 8\nworking_width = 16\n"
@@ -567,7 +647,11 @@ fn replay_keeps_the_original_timing() {
     let daemon = Daemon::start(config, options).unwrap();
     wait_until("the replay", || daemon.source_finished());
     // 6 frames at 10 fps span 0.5 s from the first to the last.
-    assert!(started.elapsed() >= Duration::from_millis(450), "{:?}", started.elapsed());
+    assert!(
+        started.elapsed() >= Duration::from_millis(450),
+        "{:?}",
+        started.elapsed()
+    );
     assert_eq!(daemon.shutdown().unwrap().pipeline.frames_decomposed, 6);
 }
 
@@ -610,8 +694,11 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
          [stream]\nunix_socket = \"{}\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n",
         socket.display()
     );
-    std::fs::write(&config_path, format!("{base}[decompose]\nlights = 16\nworking_width = 16\n"))
-        .unwrap();
+    std::fs::write(
+        &config_path,
+        format!("{base}[decompose]\nlights = 16\nworking_width = 16\n"),
+    )
+    .unwrap();
     let mut child = envlight()
         .arg("run")
         .arg("--config")
@@ -642,8 +729,11 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     }
     assert!(child.try_wait().unwrap().is_none(), "the daemon stopped");
     // A good one applies [decompose] from the next frame.
-    std::fs::write(&config_path, format!("{base}[decompose]\nlights = 4\nworking_width = 16\n"))
-        .unwrap();
+    std::fs::write(
+        &config_path,
+        format!("{base}[decompose]\nlights = 4\nworking_width = 16\n"),
+    )
+    .unwrap();
     signal(&child, "HUP");
     let deadline = Instant::now() + TIMEOUT;
     while next_frame(&mut client).lights.len() != 4 {
@@ -661,11 +751,19 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     assert_eq!(goodbye, "envlight shutting down");
     let status = wait_exit(&mut child);
     let mut log = String::new();
-    child.stderr.take().unwrap().read_to_string(&mut log).unwrap();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
     assert!(status.success(), "exit {status:?}\n{log}");
     assert!(!socket.exists(), "the socket file is left behind");
     assert!(log.contains("SIGHUP: config reload failed"), "{log}");
-    assert!(log.contains("decompose.lights"), "the bad key is not named:\n{log}");
+    assert!(
+        log.contains("decompose.lights"),
+        "the bad key is not named:\n{log}"
+    );
     assert!(log.contains("SIGHUP: applied [decompose]"), "{log}");
     assert!(log.contains("SIGTERM: shutting down"), "{log}");
 }
@@ -677,15 +775,28 @@ fn check_config_names_the_bad_key_and_value() {
         .args(["check-config", "config/envlight.toml"])
         .output()
         .unwrap();
-    assert!(good.status.success(), "{}", String::from_utf8_lossy(&good.stderr));
+    assert!(
+        good.status.success(),
+        "{}",
+        String::from_utf8_lossy(&good.stderr)
+    );
     assert!(String::from_utf8_lossy(&good.stdout).contains("config/envlight.toml: ok"));
     for (text, needle) in [
-        ("[stream]\ntcp = \"localhost\"\n", "stream.tcp = \"localhost\""),
+        (
+            "[stream]\ntcp = \"localhost\"\n",
+            "stream.tcp = \"localhost\"",
+        ),
         ("[stream]\nmax_clients = 0\n", "stream.max_clients = 0"),
         ("[metrics]\nlisten = \"1.2.3.4\"\n", "metrics.listen"),
         ("[stream]\ncolour = 1\n", "colour"),
-        ("[daemon]\nshutdown_grace_s = -1.0\n", "daemon.shutdown_grace_s = -1.0"),
-        ("[pipeline]\nqueue_capacity = 0\n", "pipeline.queue_capacity = 0"),
+        (
+            "[daemon]\nshutdown_grace_s = -1.0\n",
+            "daemon.shutdown_grace_s = -1.0",
+        ),
+        (
+            "[pipeline]\nqueue_capacity = 0\n",
+            "pipeline.queue_capacity = 0",
+        ),
     ] {
         let path = dir.path().join("bad.toml");
         std::fs::write(&path, text).unwrap();
