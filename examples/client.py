@@ -1,0 +1,104 @@
+#!/usr/bin/env python3
+"""Minimal envlight client using only the Python standard library.
+
+Connects to a running daemon over a Unix socket or TCP, subscribes (binary frames), and prints
+one line per light list. The wire format is docs/protocol.md.
+
+    python3 examples/client.py unix:/run/envlight/envlight.sock
+    python3 examples/client.py 127.0.0.1:7878 --max-lights 16 --frames 10
+"""
+
+import argparse
+import socket
+import struct
+import sys
+
+MAGIC = b"ENVL"
+VERSION = 1
+TYPE_FRAME, TYPE_ERROR, TYPE_GOODBYE, TYPE_SUBSCRIBE = 1, 2, 3, 16
+MAX_MESSAGE_LEN = 1 << 20
+
+
+def connect(address):
+    if address.startswith("unix:") or "/" in address:
+        path = address[5:] if address.startswith("unix:") else address
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.connect(path)
+    else:
+        host, _, port = address.removeprefix("tcp:").rpartition(":")
+        sock = socket.create_connection((host.strip("[]"), int(port)))
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock
+
+
+def subscribe_message(max_lights):
+    # length, magic, version, type | max_lights, representation 0 = lights, format 0 = binary, reserved
+    body = struct.pack("<IBBH", max_lights, 0, 0, 0)
+    return struct.pack("<I4sHH", 8 + len(body), MAGIC, VERSION, TYPE_SUBSCRIBE) + body
+
+
+def read_exact(sock, n):
+    data = bytearray()
+    while len(data) < n:
+        chunk = sock.recv(n - len(data))
+        if not chunk:
+            raise EOFError("the daemon closed the connection")
+        data += chunk
+    return bytes(data)
+
+
+def read_message(sock):
+    (length,) = struct.unpack("<I", read_exact(sock, 4))
+    if length < 8 or length > MAX_MESSAGE_LEN:
+        raise ValueError(f"bad length prefix {length}")
+    payload = read_exact(sock, length)
+    magic, version, kind = struct.unpack_from("<4sHH", payload)
+    if magic != MAGIC:
+        raise ValueError(f"bad magic {magic!r}")
+    if version != VERSION:
+        raise ValueError(f"unsupported version {version}")
+    return kind, payload[8:]
+
+
+def parse_frame(body):
+    seq, time, representation, flags, _reserved, count = struct.unpack_from("<QdBBHI", body)
+    lights = []
+    for i in range(count):
+        fields = struct.unpack_from("<I3f3ff", body, 24 + 32 * i)
+        lights.append({"id": fields[0], "dir": fields[1:4], "rgb": fields[4:7], "solid_angle": fields[7]})
+    return {"seq": seq, "time": time, "stale": bool(flags & 1), "lights": lights}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("address", help="unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT")
+    parser.add_argument("--max-lights", type=int, default=0, help="at most N lights per frame (0 = all)")
+    parser.add_argument("--frames", type=int, default=0, help="stop after N frames (0 = until goodbye)")
+    args = parser.parse_args()
+
+    sock = connect(args.address)
+    sock.sendall(subscribe_message(args.max_lights))
+    frames = 0
+    while args.frames == 0 or frames < args.frames:
+        kind, body = read_message(sock)
+        if kind == TYPE_FRAME:
+            frame = parse_frame(body)
+            total = [sum(l["rgb"][c] for l in frame["lights"]) for c in range(3)]
+            stale = " (stale)" if frame["stale"] else ""
+            print(f"seq {frame['seq']} time {frame['time']:.3f} s: {len(frame['lights'])} lights, "
+                  f"total rgb [{total[0]:.4f}, {total[1]:.4f}, {total[2]:.4f}]{stale}", flush=True)
+            frames += 1
+        elif kind in (TYPE_ERROR, TYPE_GOODBYE):
+            code, text_len = struct.unpack_from("<HI", body)
+            text = body[6:6 + text_len].decode("utf-8", "replace")
+            what = "goodbye" if kind == TYPE_GOODBYE else f"error {code}"
+            print(f"{what}: {text}", file=sys.stderr)
+            return 0 if kind == TYPE_GOODBYE else 1
+        else:
+            print(f"unknown message type {kind}", file=sys.stderr)
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
