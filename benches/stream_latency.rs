@@ -90,6 +90,7 @@ fn run(clients: usize, seconds: f64, lights: usize) -> Run {
             let mut client = Client::connect(&endpoint, &request, Some(Duration::from_secs(10)))
                 .expect("connect");
             std::thread::Builder::new()
+                .name("bench client".to_owned())
                 .stack_size(256 * 1024)
                 .spawn(move || {
                     let mut received = Vec::new();

@@ -52,7 +52,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 eprintln!("goodbye: {message}");
                 break;
             }
-            Message::Error { code, message } => return Err(format!("error {code}: {message}").into()),
+            Message::Error { code, message } => {
+                return Err(format!("error {code}: {message}").into())
+            }
             Message::Subscribe(_) => return Err("unexpected subscribe from the daemon".into()),
         }
     }

@@ -20,6 +20,16 @@ use std::time::{Duration, Instant};
 
 const TIMEOUT: Duration = Duration::from_secs(20);
 
+fn spawn<T: Send + 'static>(
+    name: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> std::thread::JoinHandle<T> {
+    std::thread::Builder::new()
+        .name(name.to_owned())
+        .spawn(f)
+        .unwrap()
+}
+
 /// Writes `count` small sky frames as EXR files `frame_0000.exr`… into `dir`.
 fn write_sky_sequence(dir: &Path, count: u64) -> Vec<PathBuf> {
     std::fs::create_dir_all(dir).unwrap();
@@ -171,7 +181,7 @@ fn every_endpoint_streams_what_decompose_computes() {
                 representation: Representation::Lights,
             };
             let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
-            std::thread::spawn(move || read_all(client))
+            spawn("client", move || read_all(client))
         })
         .collect();
     wait_until("the end of the sequence", || daemon.source_finished());
@@ -262,7 +272,7 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
             };
             let mut client =
                 Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
-            std::thread::spawn(move || {
+            spawn("fast client", move || {
                 let started = Instant::now();
                 let mut seqs = Vec::new();
                 while started.elapsed() < Duration::from_secs(3) {
@@ -391,7 +401,7 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
         Some(TIMEOUT),
     )
     .unwrap();
-    let good = std::thread::spawn(move || read_all(good));
+    let good = spawn("good client", move || read_all(good));
 
     // Garbage bytes: bad magic.
     let garbage = raw_exchange(tcp, b"\x08\0\0\0GET / HTTP/1.1\r\n\r\n", false);
@@ -713,7 +723,7 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
         Some(TIMEOUT),
     )
     .unwrap();
-    let mut next_frame = |client: &mut Client| loop {
+    let next_frame = |client: &mut Client| loop {
         match client.next_message().unwrap() {
             Some(Message::Frame(frame)) => return frame,
             other => panic!("unexpected {other:?}"),

@@ -412,7 +412,7 @@ async fn shutdown_message(shutdown: &mut watch::Receiver<Option<String>>) -> Str
     }
 }
 
-/// What woke a connection task.
+/// What woke a subscribed connection's task.
 enum Event<T> {
     /// A new light list (false: the stream ended).
     Lights(bool),
@@ -420,6 +420,12 @@ enum Event<T> {
     Shutdown(String),
     /// Input from the client.
     Input(T),
+}
+
+/// What woke a connection's task during the handshake.
+enum HandshakeEvent<T> {
+    Input(T),
+    Shutdown(String),
     /// The handshake deadline passed.
     Timeout,
 }
@@ -706,7 +712,6 @@ impl Connection {
                     return self.unexpected_input(&mut decoder);
                 }
                 Event::Input(Err(_)) => return Close::Quiet,
-                Event::Timeout => unreachable!("no deadline after the handshake"),
             }
         }
     }
@@ -757,15 +762,14 @@ impl Connection {
         let mut first = true;
         loop {
             let event = tokio::select! {
-                read = reader.read(buf) => Event::Input(read),
-                _ = tokio::time::sleep_until(deadline) => Event::Timeout,
-                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
+                read = reader.read(buf) => HandshakeEvent::Input(read),
+                _ = tokio::time::sleep_until(deadline) => HandshakeEvent::Timeout,
+                message = shutdown_message(&mut shutdown) => HandshakeEvent::Shutdown(message),
             };
             let read = match event {
-                Event::Input(read) => read,
-                Event::Timeout => return Err(self.handshake_timed_out()),
-                Event::Shutdown(message) => return Err(Close::Goodbye(message)),
-                Event::Lights(_) => unreachable!("lights are not watched in the handshake"),
+                HandshakeEvent::Input(read) => read,
+                HandshakeEvent::Timeout => return Err(self.handshake_timed_out()),
+                HandshakeEvent::Shutdown(message) => return Err(Close::Goodbye(message)),
             };
             let n = match read {
                 Ok(0) => {
@@ -896,15 +900,14 @@ impl Connection {
         let mut lights = self.lights.clone();
         let request = loop {
             let event = tokio::select! {
-                next = source.next() => Event::Input(next),
-                _ = tokio::time::sleep_until(deadline) => Event::Timeout,
-                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
+                next = source.next() => HandshakeEvent::Input(next),
+                _ = tokio::time::sleep_until(deadline) => HandshakeEvent::Timeout,
+                message = shutdown_message(&mut shutdown) => HandshakeEvent::Shutdown(message),
             };
             let next = match event {
-                Event::Input(next) => next,
-                Event::Timeout => return self.handshake_timed_out(),
-                Event::Shutdown(message) => return Close::Goodbye(message),
-                Event::Lights(_) => unreachable!("lights are not watched in the handshake"),
+                HandshakeEvent::Input(next) => next,
+                HandshakeEvent::Timeout => return self.handshake_timed_out(),
+                HandshakeEvent::Shutdown(message) => return Close::Goodbye(message),
             };
             let parsed = match next {
                 None | Some(Err(_)) | Some(Ok(tungstenite::Message::Close(_))) => {
@@ -1005,7 +1008,6 @@ impl Connection {
                         return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
                     }
                 },
-                Event::Timeout => unreachable!("no deadline after the handshake"),
             }
         }
     }
