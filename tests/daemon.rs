@@ -723,11 +723,9 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
         Some(TIMEOUT),
     )
     .unwrap();
-    let next_frame = |client: &mut Client| loop {
-        match client.next_message().unwrap() {
-            Some(Message::Frame(frame)) => return frame,
-            other => panic!("unexpected {other:?}"),
-        }
+    let next_frame = |client: &mut Client| match client.next_message().unwrap() {
+        Some(Message::Frame(frame)) => frame,
+        other => panic!("unexpected {other:?}"),
     };
     assert_eq!(next_frame(&mut client).lights.len(), 16);
 
