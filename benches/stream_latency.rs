@@ -18,6 +18,9 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+/// Per frame seq: arrival at the decomposition, publication, decomposition time.
+type Stamps = (Instant, Instant, Duration);
+
 struct Run {
     /// Arrival at the decomposition → last byte read by a client.
     latencies: Vec<Duration>,
@@ -40,7 +43,7 @@ fn run(clients: usize, seconds: f64, lights: usize) -> Run {
         ..SkyOptions::default()
     })
     .expect("sky");
-    let arrivals: Arc<Mutex<HashMap<u64, (Instant, Instant, Duration)>>> = Arc::default();
+    let arrivals: Arc<Mutex<HashMap<u64, Stamps>>> = Arc::default();
     let hook_arrivals = Arc::clone(&arrivals);
     let options = PipelineOptions {
         on_publish: Some(PublishHook(Arc::new(move |published| {
