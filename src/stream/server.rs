@@ -126,6 +126,78 @@ struct Context {
     metrics: Arc<Metrics>,
     clients: AtomicUsize,
     next_client: AtomicU64,
+    /// The newest publication's encodings, shared by the clients that ask for the same form.
+    encoded: std::sync::Mutex<EncodeCache>,
+}
+
+/// How a frame is encoded for a client.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Encoding {
+    /// A binary frame message.
+    Binary,
+    /// The JSON form and a newline (UDS/TCP JSON lines).
+    JsonLine,
+    /// The JSON form (a WebSocket text message).
+    JsonText,
+}
+
+/// Encodings of one publication, so that 64 clients asking for the same cap and form cost one
+/// encoding, not 64.
+#[derive(Default)]
+struct EncodeCache {
+    index: u64,
+    entries: Vec<(Option<usize>, Encoding, Arc<Vec<u8>>)>,
+}
+
+/// At most this many (cap, form) variants are kept per publication; more are encoded per client.
+const ENCODE_CACHE_ENTRIES: usize = 16;
+
+impl Context {
+    /// The publication encoded for a client with `cap` in `encoding`.
+    fn encoded(
+        &self,
+        published: &Published,
+        cap: Option<usize>,
+        encoding: Encoding,
+    ) -> Arc<Vec<u8>> {
+        let lock = || {
+            self.encoded
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        {
+            let cache = lock();
+            if cache.index == published.index {
+                if let Some((_, _, bytes)) = cache
+                    .entries
+                    .iter()
+                    .find(|(c, e, _)| *c == cap && *e == encoding)
+                {
+                    return Arc::clone(bytes);
+                }
+            }
+        }
+        let mut out = Vec::new();
+        match encoding {
+            Encoding::Binary => encode_frame(&published.lights, cap, published.stale, &mut out),
+            Encoding::JsonLine | Encoding::JsonText => {
+                out = frame_to_json(&published.lights, cap, published.stale).into_bytes();
+                if encoding == Encoding::JsonLine {
+                    out.push(b'\n');
+                }
+            }
+        }
+        let bytes = Arc::new(out);
+        let mut cache = lock();
+        if published.index > cache.index {
+            cache.index = published.index;
+            cache.entries.clear();
+        }
+        if cache.index == published.index && cache.entries.len() < ENCODE_CACHE_ENTRIES {
+            cache.entries.push((cap, encoding, Arc::clone(&bytes)));
+        }
+        bytes
+    }
 }
 
 /// A running stream server.
@@ -150,6 +222,7 @@ impl StreamServer {
             metrics,
             clients: AtomicUsize::new(0),
             next_client: AtomicU64::new(1),
+            encoded: std::sync::Mutex::default(),
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
         let (done_tx, done_rx) = mpsc::channel(1);
@@ -655,7 +728,6 @@ impl Connection {
         }
         let mut reading = true;
         let mut progress = Progress::default();
-        let mut out = Vec::with_capacity(64 * 1024);
         let mut lights = self.lights.clone();
         let mut shutdown = self.shutdown.clone();
         loop {
@@ -673,24 +745,15 @@ impl Connection {
                     let Some(published) = self.take_newest(&mut lights, &mut progress) else {
                         continue;
                     };
-                    out.clear();
-                    match request.format {
-                        Format::Binary => encode_frame(
-                            &published.lights,
-                            request.cap(),
-                            published.stale,
-                            &mut out,
-                        ),
-                        Format::Json => {
-                            out.extend(
-                                frame_to_json(&published.lights, request.cap(), published.stale)
-                                    .as_bytes(),
-                            );
-                            out.push(b'\n');
-                        }
-                    }
-                    let write =
-                        tokio::time::timeout(self.ctx.config.write_timeout, writer.write_all(&out));
+                    let encoding = match request.format {
+                        Format::Binary => Encoding::Binary,
+                        Format::Json => Encoding::JsonLine,
+                    };
+                    let out = self.ctx.encoded(&published, request.cap(), encoding);
+                    let write = tokio::time::timeout(
+                        self.ctx.config.write_timeout,
+                        writer.write_all(out.as_slice()),
+                    );
                     let written = tokio::select! {
                         written = write => written,
                         // A client stuck mid-frame cannot take a goodbye.
@@ -964,20 +1027,25 @@ impl Connection {
                     };
                     let message = match request.format {
                         Format::Binary => {
-                            let mut out = Vec::new();
-                            encode_frame(
-                                &published.lights,
-                                request.cap(),
-                                published.stale,
-                                &mut out,
-                            );
-                            tungstenite::Message::binary(out)
+                            let out = self
+                                .ctx
+                                .encoded(&published, request.cap(), Encoding::Binary);
+                            tungstenite::Message::binary(out.as_slice().to_vec())
                         }
-                        Format::Json => tungstenite::Message::text(frame_to_json(
-                            &published.lights,
-                            request.cap(),
-                            published.stale,
-                        )),
+                        Format::Json => {
+                            let out =
+                                self.ctx
+                                    .encoded(&published, request.cap(), Encoding::JsonText);
+                            match String::from_utf8(out.as_slice().to_vec()) {
+                                Ok(text) => tungstenite::Message::text(text),
+                                Err(_) => {
+                                    return Close::Error(
+                                        error_code::INTERNAL,
+                                        "frame encoding produced invalid UTF-8".to_owned(),
+                                    )
+                                }
+                            }
+                        }
                     };
                     let write =
                         tokio::time::timeout(self.ctx.config.write_timeout, sink.send(message));
