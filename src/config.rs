@@ -12,6 +12,9 @@ use crate::decompose::filter::FirFilter;
 use crate::decompose::{DecomposeSettings, LightPlacement, Warp, MAX_POINTS, WORKING_WIDTH_RANGE};
 use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
 use serde::Deserialize;
+
+mod camera;
+pub use camera::RawCamera;
 use std::path::{Path, PathBuf};
 
 /// Errors of reading and validating a configuration.
@@ -60,6 +63,8 @@ pub struct RawConfig {
     pub sky: RawSky,
     #[serde(default)]
     pub decompose: RawDecompose,
+    #[serde(default)]
+    pub camera: RawCamera,
 }
 
 /// `[source]`.
@@ -140,8 +145,10 @@ impl RawConfig {
 
     /// Checks every value and fills in the defaults.
     pub fn validate(&self) -> Result<Config, ConfigError> {
+        let source = self.source.validate()?;
         Ok(Config {
-            source: self.source.validate()?,
+            camera: self.camera.validate(source.projection)?,
+            source,
             sky: self.sky.validate()?,
             decompose: self.decompose.validate()?,
         })
@@ -159,6 +166,8 @@ pub enum SourceKind {
     Sky,
     /// Recorded `.exr` / `.hdr` files.
     Sequence,
+    /// A V4L2 camera (`[camera]`).
+    V4l2,
 }
 
 /// Validated `[source]`.
@@ -188,6 +197,8 @@ pub struct Config {
     /// The built-in sky; its pacing (`fps`, `frames`) comes from `[source]` when it is used.
     pub sky: SkyOptions,
     pub decompose: DecomposeSettings,
+    /// The camera (used with `source.kind = "v4l2"`).
+    pub camera: crate::capture::v4l2::CameraSettings,
 }
 
 impl Config {
@@ -233,11 +244,12 @@ impl RawSource {
         let kind = match self.kind.as_deref().unwrap_or("sky") {
             "sky" => SourceKind::Sky,
             "sequence" => SourceKind::Sequence,
+            "v4l2" => SourceKind::V4l2,
             other => {
                 return Err(invalid(
                     "source.kind",
                     other,
-                    "must be \"sky\" or \"sequence\"",
+                    "must be \"sky\", \"sequence\" or \"v4l2\"",
                 ))
             }
         };
@@ -250,7 +262,7 @@ impl RawSource {
                     "kind = \"sequence\" needs at least one file, directory or glob pattern",
                 ))
             }
-            SourceKind::Sky if !paths.is_empty() => {
+            SourceKind::Sky | SourceKind::V4l2 if !paths.is_empty() => {
                 return Err(invalid(
                     "source.paths",
                     &paths,
