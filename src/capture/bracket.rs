@@ -7,8 +7,12 @@
 //! Every bracket k has code values v_k (normalised, [0, 1]) and an effective exposure
 //! T_k = t_k · gain_k. Per pixel and channel:
 //! 1. the radiance seen by bracket k is L_k = X(v_k) · wb · scale / T_k (see [`super::response`]);
-//! 2. its weight is the hat w(v) = min(v − dark, saturated − v), so codes at or below `dark`
-//!    (noise, black level) or at or above `saturated` (clipped) get no weight;
+//! 2. its weight is w = T_k · hat(v) with hat(v) = min(v − dark, saturated − v), so codes at or
+//!    below `dark` (noise, black level) or at or above `saturated` (clipped) get no weight.
+//!    Debevec & Malik use the hat alone; the factor T_k makes it the noise-optimal weight for
+//!    photon (shot) noise, whose variance in L_k falls as 1/T_k (Granados et al., "Optimal HDR
+//!    reconstruction with linear digital cameras", CVPR 2010): without it, read noise in the
+//!    short exposures, amplified by 1/T_k, dominates the dark parts of the scene;
 //! 3. L = Σ w_k L_k / Σ w_k. If no bracket has weight, the pixel is too bright for the
 //!    shortest exposure (then its L_k is used: a lower bound) or too dark for the longest
 //!    (then the longest exposure's L_k is used).
@@ -22,8 +26,8 @@
 //! - one row g(n/2) = 0 fixing the scale (the curve is relative: X = 1 at mid code);
 //! - smoothness rows λ·w(z)·(g(z−1) − 2g(z) + g(z+1)) = 0 for z = 1 … n−2;
 //!
-//! with the hat weight w(z) = min(z, n−1−z) + 1 (Debevec & Malik's hat, shifted so the end codes
-//! keep a little smoothness weight). The normal equations (n + N unknowns, a few hundred) are
+//! with Debevec & Malik's hat weight w(z) = min(z, n−1−z) (so clipped and black samples carry no
+//! data; the smoothness rows use w(z) + 1 so the end codes stay tied to their neighbours). The normal equations (n + N unknowns, a few hundred) are
 //! solved by a dense Cholesky factorisation in f64. Samples are chosen per bracket at evenly
 //! spaced quantiles of its code values, so every part of the code range is covered. Each
 //! channel is solved on its own (so each channel's curve is 1 at mid code; the colour balance
@@ -162,7 +166,7 @@ pub fn merge_brackets(
             let (mut num, mut den) = (0.0f32, 0.0f32);
             for (b, lin) in brackets.iter().zip(&lins) {
                 let v = b.image.pixels[i][c];
-                let w = limits.weight(v);
+                let w = limits.weight(v) * (b.exposure_s * b.gain) as f32;
                 if w > 0.0 {
                     num += w * lin.apply(c, v);
                     den += w;
@@ -184,6 +188,34 @@ pub fn merge_brackets(
     Ok(out)
 }
 
+/// Reads an 8- or 16-bit PNG (one bracket of an ordinary camera) as normalised code values.
+pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::CaptureError> {
+    let err = |message: String| super::CaptureError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let reader = image::ImageReader::open(path).map_err(|source| super::CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let img = reader
+        .with_guessed_format()
+        .map_err(|e| err(e.to_string()))?
+        .decode()
+        .map_err(|e| err(e.to_string()))?
+        .to_rgb32f();
+    let (width, height) = img.dimensions();
+    let pixels = img
+        .pixels()
+        .map(|p| p.0.map(|v| v.clamp(0.0, 1.0)))
+        .collect();
+    Ok(CodeImage {
+        width,
+        height,
+        pixels,
+    })
+}
+
 /// Settings of [`recover_response`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SolveSettings {
@@ -199,8 +231,8 @@ impl Default for SolveSettings {
     fn default() -> Self {
         Self {
             levels: 256,
-            lambda: 20.0,
-            samples: 200,
+            lambda: 100.0,
+            samples: 300,
         }
     }
 }
@@ -260,7 +292,8 @@ pub fn recover_response(
         .map(|b| (b.exposure_s * b.gain).ln())
         .collect();
     let top = (n - 1) as f64;
-    let weight = |z: usize| (z.min(n - 1 - z) + 1) as f64;
+    // Debevec & Malik's hat: 0 at both ends, so clipped and black samples carry no data
+    let weight = |z: usize| z.min(n - 1 - z) as f64;
     let mut values: [Vec<f64>; 3] = Default::default();
     for c in 0..3 {
         let m = n + picks.len();
@@ -284,7 +317,7 @@ pub fn recover_response(
         }
         add_row(&[(n / 2, 1.0)], 0.0);
         for z in 1..n - 1 {
-            let w = settings.lambda * weight(z);
+            let w = settings.lambda * (weight(z) + 1.0);
             add_row(&[(z - 1, w), (z, -2.0 * w), (z + 1, w)], 0.0);
         }
         let g = cholesky_solve(&mut ata, &atb, m).ok_or_else(|| {
@@ -310,7 +343,7 @@ fn cholesky_solve(a: &mut [f64], b: &[f64], m: usize) -> Option<Vec<f64>> {
         for k in 0..j {
             d -= a[j * m + k] * a[j * m + k];
         }
-        if !(d > 0.0) || !d.is_finite() {
+        if !(d.is_finite() && d > 0.0) {
             return None;
         }
         let d = d.sqrt();
@@ -419,8 +452,8 @@ mod tests {
             dark: 0.9,
             saturated: 0.1,
         };
-        assert!(merge_brackets(&[ok.clone()], &m, 255.0, &r, bad_limits).is_err());
-        let e = recover_response(&[ok.clone()], SolveSettings::default()).unwrap_err();
+        assert!(merge_brackets(std::slice::from_ref(&ok), &m, 255.0, &r, bad_limits).is_err());
+        let e = recover_response(std::slice::from_ref(&ok), SolveSettings::default()).unwrap_err();
         assert!(e.to_string().contains("at least 2"), "{e}");
         // identical exposures of a flat image cannot determine a curve, but must not panic
         let _ = recover_response(&[ok.clone(), ok], SolveSettings::default());

@@ -64,6 +64,8 @@ pub struct ResilientSource {
     /// (seconds since `start` when the current inner source opened, its first frame's time):
     /// frame times are rebased so they keep increasing across reconnects.
     epoch: Option<(f64, Option<f64>)>,
+    /// Time of the last frame returned.
+    last_time: f64,
 }
 
 impl ResilientSource {
@@ -83,6 +85,7 @@ impl ResilientSource {
             next_seq: 0,
             start: std::time::Instant::now(),
             epoch: None,
+            last_time: 0.0,
         }
     }
 
@@ -135,7 +138,8 @@ impl FrameSource for ResilientSource {
                     Ok(src) => {
                         tracing::info!("{}: opened {}", self.name, src.describe());
                         self.inner = Some(src);
-                        self.epoch = Some((self.start.elapsed().as_secs_f64(), None));
+                        let now = self.start.elapsed().as_secs_f64();
+                        self.epoch = Some((now.max(self.last_time), None));
                     }
                     Err(e) => {
                         self.fail(e)?;
@@ -165,7 +169,9 @@ impl FrameSource for ResilientSource {
                         *opened + (frame.time - first).max(0.0)
                     } else {
                         self.start.elapsed().as_secs_f64()
-                    };
+                    }
+                    .max(self.last_time);
+                    self.last_time = frame.time;
                     return Ok(Some(frame));
                 }
                 Ok(None) => return Ok(None),

@@ -59,7 +59,7 @@ impl ResponseCurve {
             return Err("every channel needs one value per code".into());
         }
         for (i, w) in codes.windows(2).enumerate() {
-            if !(w[1] > w[0]) {
+            if !(w[1] > w[0] && w[1].is_finite()) {
                 return Err(format!(
                     "codes must increase strictly: entry {} ({}) follows {}",
                     i + 2,
@@ -159,7 +159,7 @@ impl ResponseCurve {
     pub fn eval(&self, channel: usize, v: f64) -> f64 {
         let (codes, vals) = (&self.codes, &self.values[channel.min(2)]);
         let n = codes.len();
-        if !(v > codes[0]) {
+        if v.is_nan() || v <= codes[0] {
             return vals[0];
         }
         if v >= codes[n - 1] {

@@ -369,6 +369,43 @@ impl V4l2Source {
         Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
     }
 
+    /// Captures one frame per exposure time (seconds), dropping `settle_frames` frames after
+    /// each change; returns the code images with the exposure and gain read back, and the
+    /// driver timestamp of the first. Needs an exposure control.
+    pub fn capture_brackets(
+        &mut self,
+        exposures_s: &[f64],
+    ) -> Result<(Vec<Bracket>, f64), CaptureError> {
+        if !self.has_exposure {
+            return Err(CaptureError::InvalidSettings(format!(
+                "{}: bracketing needs an exposure control (V4L2_CID_EXPOSURE_ABSOLUTE)",
+                self.path.display()
+            )));
+        }
+        let mut brackets = Vec::new();
+        let mut first_ts = None;
+        for &t in exposures_s {
+            set_control(
+                &self.device,
+                &self.path,
+                CID_EXPOSURE_ABSOLUTE,
+                exposure_units(t),
+            )?;
+            for _ in 0..self.settings.settle_frames {
+                self.grab()?;
+            }
+            let ts = self.grab()?;
+            first_ts.get_or_insert(ts);
+            let (t_read, g) = self.exposure_and_gain();
+            brackets.push(Bracket {
+                image: self.codes.clone(),
+                exposure_s: t_read,
+                gain: g,
+            });
+        }
+        Ok((brackets, first_ts.unwrap_or(0.0)))
+    }
+
     fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
         Radiometry {
             exposure_s,
@@ -402,27 +439,8 @@ impl FrameSource for V4l2Source {
             let lin = Linearizer::new(&self.settings.response, code_max, &self.radiometry(t, g));
             (lin.linearize(&self.codes), ts)
         } else {
-            let mut brackets = Vec::new();
-            let mut first_ts = None;
-            for &t in &self.settings.bracket_exposures_s.clone() {
-                set_control(
-                    &self.device,
-                    &self.path,
-                    CID_EXPOSURE_ABSOLUTE,
-                    exposure_units(t),
-                )?;
-                for _ in 0..self.settings.settle_frames {
-                    self.grab()?;
-                }
-                let ts = self.grab()?;
-                first_ts.get_or_insert(ts);
-                let (t_read, g) = self.exposure_and_gain();
-                brackets.push(Bracket {
-                    image: self.codes.clone(),
-                    exposure_s: t_read,
-                    gain: g,
-                });
-            }
+            let exposures = self.settings.bracket_exposures_s.clone();
+            let (brackets, first_ts) = self.capture_brackets(&exposures)?;
             let merged = bracket::merge_brackets(
                 &brackets,
                 &self.settings.response,
@@ -434,7 +452,7 @@ impl FrameSource for V4l2Source {
                 path: self.path.clone(),
                 message: e.to_string(),
             })?;
-            (merged, first_ts.unwrap_or(0.0))
+            (merged, first_ts)
         };
         let first = *self.first_timestamp.get_or_insert(timestamp);
         let Some(mut frame) =

@@ -75,7 +75,7 @@ pub fn detect_image_circle(
     sorted.sort_by(f32::total_cmp);
     let bg = percentile(&sorted, 0.05);
     let level = percentile(&sorted, 0.60);
-    if !(level > bg) {
+    if !(level > bg && level.is_finite()) {
         return Err(DetectError::NoContrast);
     }
     let thr = bg + 0.05 * (level - bg);
@@ -279,7 +279,7 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
     };
     let d = det(a);
-    if !(d.abs() > 1e-300) {
+    if !(d.abs() > 1e-300 && d.is_finite()) {
         return None;
     }
     let mut x = [0.0; 3];
