@@ -488,6 +488,18 @@ fn retry_backoff_doubles_up_to_the_cap_and_attempts_are_bounded() {
     let err = src.next_frame().unwrap_err();
     assert!(err.to_string().contains("/dev/video-fake"), "{err}");
     assert_eq!(opens.load(Ordering::SeqCst), 3);
+    // a settings error before the first open is not retried
+    let tries = Arc::new(AtomicU64::new(0));
+    let t2 = tries.clone();
+    let mut src = ResilientSource::new("named camera", RetryPolicy::default(), move || {
+        t2.fetch_add(1, Ordering::SeqCst);
+        Err(CaptureError::InvalidSettings(
+            "no camera named \"x\"".into(),
+        ))
+    });
+    let err = src.next_frame().unwrap_err();
+    assert!(err.to_string().contains("no camera named"), "{err}");
+    assert_eq!(tries.load(Ordering::SeqCst), 1);
     // a stop request ends the retries with the end of the stream
     let mut src = fake_source(
         Arc::new(AtomicBool::new(false)),
@@ -622,4 +634,152 @@ fn real_device_delivers_a_frame_when_present() {
         opened += 1;
     }
     println!("{opened} camera(s) streamed");
+}
+
+// ----------------------------------------------------------------------------------------------
+// Command line
+
+fn envlight(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run envlight")
+}
+
+/// Writes an 8-bit sRGB PNG of linear RGB pixels scaled by `k`.
+fn write_png(path: &Path, w: u32, h: u32, pixels: &[[f32; 3]], k: f64) {
+    let bytes: Vec<u8> = pixels
+        .iter()
+        .flat_map(|p| {
+            p.map(|v| (srgb_encode((f64::from(v) * k).clamp(0.0, 1.0)) * 255.0).round() as u8)
+        })
+        .collect();
+    image::RgbImage::from_raw(w, h, bytes)
+        .expect("size")
+        .save(path)
+        .unwrap_or_else(|e| panic!("{e}"));
+}
+
+#[test]
+fn calibrate_fisheye_prints_config_lines_for_the_detected_circle() {
+    let img = read_hdr_image(&data("venice_sunset_1k.hdr")).unwrap_or_else(|e| panic!("{e}"));
+    let truth = FisheyeCalibration {
+        model: FisheyeModel::Equisolid,
+        center: Some([131.6, 97.3]),
+        radius: Some(84.2),
+        ..Default::default()
+    };
+    let (w, h) = (256, 192);
+    let frame = render_fisheye(&img.pixels, img.width, img.height, &truth, w, h, 4);
+    let mut g: Vec<f32> = frame.iter().map(|p| p[1]).filter(|&v| v > 0.0).collect();
+    g.sort_by(f32::total_cmp);
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("frame.png");
+    write_png(&png, w, h, &frame, 0.3 / f64::from(g[g.len() / 2]));
+    let o = envlight(&[
+        "calibrate-fisheye",
+        png.to_str().unwrap(),
+        "--model",
+        "equisolid",
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    // the printed lines are a valid [source.fisheye] table with the circle within a pixel
+    let cfg = RawConfig::parse(
+        &format!("[source]\nprojection = \"fisheye\"\n{}", out),
+        Path::new("out"),
+    )
+    .and_then(|r| r.validate())
+    .unwrap_or_else(|e| panic!("{e}\n{out}"));
+    let Projection::Fisheye(cal) = cfg.source.projection else {
+        panic!("not fisheye: {out}");
+    };
+    assert_eq!(cal.model, FisheyeModel::Equisolid);
+    let c = cal.center.unwrap_or_default();
+    let r = cal.radius.unwrap_or_default();
+    assert!(
+        (c[0] - 131.6).abs() < 1.0 && (c[1] - 97.3).abs() < 1.0,
+        "{out}"
+    );
+    assert!((r - 84.2).abs() < 1.0, "{out}");
+    // an image without a circle is an error naming the file
+    let flat = dir.path().join("flat.png");
+    write_png(&flat, 64, 64, &vec![[0.5; 3]; 64 * 64], 1.0);
+    let o = envlight(&["calibrate-fisheye", flat.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("flat.png"));
+}
+
+#[test]
+fn calibrate_response_writes_a_curve_file_from_png_brackets() {
+    let (w, h, e) = small_hdri("noon_grass_1k.hdr", 8);
+    let mut g: Vec<f32> = e.iter().map(|p| p[1]).collect();
+    g.sort_by(f32::total_cmp);
+    let median = f64::from(g[g.len() / 2]);
+    let dir = tempfile::tempdir().unwrap();
+    let times: Vec<f64> = (-3..=1).map(|k| 0.3 / median * 4f64.powi(k)).collect();
+    let mut args: Vec<String> = vec!["calibrate-response".into()];
+    for (i, t) in times.iter().enumerate() {
+        let p = dir.path().join(format!("b{i}.png"));
+        write_png(&p, w, h, &e, *t);
+        args.push(p.to_str().unwrap().into());
+    }
+    let curve_path = dir.path().join("curve.txt");
+    let exposures: Vec<String> = times.iter().map(|t| t.to_string()).collect();
+    args.extend([
+        "--exposures".into(),
+        exposures.join(","),
+        "-o".into(),
+        curve_path.to_str().unwrap().into(),
+    ]);
+    let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = envlight(&argv);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let curve = ResponseCurve::read(&curve_path).unwrap();
+    // the PNGs are sRGB-encoded: the recovered curve is sRGB's (relative to mid code)
+    let s = |z: usize| {
+        ResponseModel::Srgb
+            .relative_exposure(1, z as f64 / 255.0, 255.0)
+            .ln()
+    };
+    let worst = (40..=240)
+        .map(|z| ((curve.values[1][z].ln() - curve.values[1][128].ln()) - (s(z) - s(128))).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 0.05, "worst ln difference to sRGB {worst}");
+    // one exposure per image
+    let o = envlight(&[argv[1], argv[2], "--exposures", "0.1", "-o", "x.txt"]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("2 images but 1"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn devices_lists_or_says_there_are_none() {
+    let o = envlight(&["devices"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    if envlight::capture::v4l2::device_nodes().is_empty() {
+        assert!(String::from_utf8_lossy(&o.stderr).contains("no /dev/video* devices"));
+    } else {
+        assert!(String::from_utf8_lossy(&o.stdout).contains("/dev/video"));
+    }
+    // a camera name that matches nothing is a settings error before the first open: it fails
+    // at once, naming it, instead of being retried
+    let o = envlight(&[
+        "decompose",
+        "--device",
+        "no-such-camera-xyz",
+        "--frames",
+        "1",
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("no-such-camera-xyz"), "{err}");
 }

@@ -8,6 +8,13 @@
 //! 3. on the first frame after a recovery clears `stale`, resets the backoff and logs the
 //!    resumption.
 //!
+//! A settings error ([`CaptureError::InvalidSettings`]: no camera of that name, no usable
+//! format) before the source has ever opened is returned at once: it is a configuration
+//! mistake, not a lost device. After the first open every error is retried.
+//!
+//! Frame sequence numbers continue across reconnects, and frame times are rebased so that they
+//! never decrease.
+//!
 //! Meanwhile `next_frame` does not return, so the pipeline keeps serving the last lights; the
 //! daemon reads [`SourceHealth::is_stale`] to mark them stale in the stream and metrics.
 //! [`SourceHealth::request_stop`] ends the retries (`next_frame` returns `Ok(None)`), and
@@ -66,6 +73,8 @@ pub struct ResilientSource {
     epoch: Option<(f64, Option<f64>)>,
     /// Time of the last frame returned.
     last_time: f64,
+    /// Whether the source has been opened once (settings errors are fatal before that).
+    opened_once: bool,
 }
 
 impl ResilientSource {
@@ -86,6 +95,7 @@ impl ResilientSource {
             start: std::time::Instant::now(),
             epoch: None,
             last_time: 0.0,
+            opened_once: false,
         }
     }
 
@@ -138,8 +148,14 @@ impl FrameSource for ResilientSource {
                     Ok(src) => {
                         tracing::info!("{}: opened {}", self.name, src.describe());
                         self.inner = Some(src);
+                        self.opened_once = true;
                         let now = self.start.elapsed().as_secs_f64();
                         self.epoch = Some((now.max(self.last_time), None));
+                    }
+                    Err(e @ CaptureError::InvalidSettings(_)) if !self.opened_once => {
+                        // a wrong name or format is a configuration error, not a lost device
+                        self.health.mark_failure(&e.to_string());
+                        return Err(e);
                     }
                     Err(e) => {
                         self.fail(e)?;

@@ -234,3 +234,53 @@ impl RawCamera {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SHIPPED: &str = include_str!("../../config/envlight.toml");
+
+    #[test]
+    fn shipped_camera_section_is_the_default_and_names_every_key() {
+        let raw = crate::config::RawConfig::parse(SHIPPED, Path::new("envlight.toml")).unwrap();
+        assert_eq!(
+            raw.camera.validate(Projection::LatLong).unwrap(),
+            CameraSettings::default()
+        );
+        let section = SHIPPED.split("[camera]").nth(1).unwrap_or_default();
+        for key in [
+            "device",
+            "formats",
+            "width",
+            "height",
+            "fps",
+            "yuv_matrix",
+            "response",
+            "gamma",
+            "log_a",
+            "log_b",
+            "curve",
+            "exposure_s",
+            "gain",
+            "gain_unity",
+            "white_balance",
+            "scale",
+            "bracket_exposures_s",
+            "settle_frames",
+            "dark",
+            "saturated",
+            "timeout_s",
+            "retry_initial_s",
+            "retry_max_s",
+        ] {
+            assert!(
+                section
+                    .lines()
+                    .map(|l| l.trim_start_matches("# "))
+                    .any(|l| l.starts_with(&format!("{key} = "))),
+                "camera.{key} missing from config/envlight.toml"
+            );
+        }
+    }
+}
