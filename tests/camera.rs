@@ -691,7 +691,7 @@ fn calibrate_fisheye_prints_config_lines_for_the_detected_circle() {
     );
     // the printed lines are a valid [source.fisheye] table with the circle within a pixel
     let cfg = RawConfig::parse(
-        &format!("[source]\nprojection = \"fisheye\"\n{}", out),
+        &format!("[source]\nkind = \"v4l2\"\nprojection = \"fisheye\"\n{out}"),
         Path::new("out"),
     )
     .and_then(|r| r.validate())
@@ -752,7 +752,16 @@ fn calibrate_response_writes_a_curve_file_from_png_brackets() {
         .fold(0.0, f64::max);
     assert!(worst < 0.05, "worst ln difference to sRGB {worst}");
     // one exposure per image
-    let o = envlight(&[argv[1], argv[2], "--exposures", "0.1", "-o", "x.txt"]);
+    let unused = dir.path().join("unused.txt");
+    let o = envlight(&[
+        argv[0],
+        argv[1],
+        argv[2],
+        "--exposures",
+        "0.1",
+        "-o",
+        unused.to_str().unwrap(),
+    ]);
     assert!(!o.status.success());
     assert!(
         String::from_utf8_lossy(&o.stderr).contains("2 images but 1"),

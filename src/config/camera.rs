@@ -248,7 +248,7 @@ mod tests {
             raw.camera.validate(Projection::LatLong).unwrap(),
             CameraSettings::default()
         );
-        let section = SHIPPED.split("[camera]").nth(1).unwrap_or_default();
+        let section = SHIPPED.split("\n[camera]\n").nth(1).unwrap_or_default();
         for key in [
             "device",
             "formats",
