@@ -145,6 +145,12 @@ fn bench_capture(c: &mut Criterion) {
                 lin.linearize(&codes)
             })
         });
+        let mut out = Vec::new();
+        pixel_format::decode_into(&raw, YuvMatrix::Bt709, &mut codes)
+            .unwrap_or_else(|e| panic!("{e}"));
+        group.bench_function(format!("linearize_reused/{name}_1280x960"), |b| {
+            b.iter(|| lin.linearize_into(black_box(&codes), &mut out))
+        });
     }
     let raw = RawFrame {
         data: &buffers[1].2,

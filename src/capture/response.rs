@@ -265,10 +265,22 @@ impl Radiometry {
 /// Intervals of the per-channel look-up table.
 pub const LUT_INTERVALS: usize = 4096;
 
+/// Piecewise-linear table look-up of a normalised code (clamped to [0, 1]).
+#[inline]
+fn lookup(lut: &[[f32; 2]], v: f32) -> f32 {
+    const N: f32 = LUT_INTERVALS as f32;
+    let p = (v * N).clamp(0.0, N);
+    // `as usize` saturates (NaN → 0); p = N lands at the end of the last interval
+    let i = (p as usize).min(LUT_INTERVALS - 1);
+    let [a, slope] = lut[i];
+    a + (p - i as f32) * slope
+}
+
 /// Code values → radiance through per-channel tables (response × radiometry folded in).
 #[derive(Clone, Debug)]
 pub struct Linearizer {
-    luts: [Vec<f32>; 3],
+    /// Per channel and interval: (value at the interval's start, slope over the interval).
+    luts: [Vec<[f32; 2]>; 3],
 }
 
 impl Linearizer {
@@ -286,6 +298,9 @@ impl Linearizer {
                         f32::MAX
                     }
                 })
+                .collect::<Vec<f32>>()
+                .windows(2)
+                .map(|k| [k[0], k[1] - k[0]])
                 .collect()
         });
         Self { luts }
@@ -294,26 +309,26 @@ impl Linearizer {
     /// Radiance of one code value in `channel` (v clamped to [0, 1]).
     #[inline]
     pub fn apply(&self, channel: usize, v: f32) -> f32 {
-        let lut = &self.luts[channel];
-        let p = v.clamp(0.0, 1.0) * LUT_INTERVALS as f32;
-        let i = (p as usize).min(LUT_INTERVALS - 1);
-        let t = p - i as f32;
-        lut[i] + t * (lut[i + 1] - lut[i])
+        lookup(&self.luts[channel], v)
     }
 
     /// Radiance of every pixel of a code image.
     pub fn linearize(&self, image: &CodeImage) -> Vec<[f32; 3]> {
-        image
-            .pixels
-            .iter()
-            .map(|p| {
-                [
-                    self.apply(0, p[0]),
-                    self.apply(1, p[1]),
-                    self.apply(2, p[2]),
-                ]
-            })
-            .collect()
+        let mut out = Vec::new();
+        self.linearize_into(image, &mut out);
+        out
+    }
+
+    /// [`Self::linearize`] into an existing buffer.
+    pub fn linearize_into(&self, image: &CodeImage, out: &mut Vec<[f32; 3]>) {
+        let [r, g, b] = &self.luts;
+        out.clear();
+        out.extend(
+            image
+                .pixels
+                .iter()
+                .map(|p| [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]),
+        );
     }
 }
 

@@ -208,6 +208,8 @@ pub struct V4l2Source {
     seq: u64,
     codes: CodeImage,
     card: String,
+    /// Tables for the last (exposure, gain) bit patterns.
+    linearizer: Option<((u64, u64), Linearizer)>,
 }
 
 impl V4l2Source {
@@ -307,6 +309,7 @@ impl V4l2Source {
                 pixels: Vec::new(),
             },
             card: caps.card,
+            linearizer: None,
         })
     }
 
@@ -436,8 +439,18 @@ impl FrameSource for V4l2Source {
         let (pixels, timestamp) = if self.settings.bracket_exposures_s.is_empty() {
             let ts = self.grab()?;
             let (t, g) = self.exposure_and_gain();
-            let lin = Linearizer::new(&self.settings.response, code_max, &self.radiometry(t, g));
-            (lin.linearize(&self.codes), ts)
+            // the tables are rebuilt only when the exposure or gain changes (auto exposure)
+            let key = (t.to_bits(), g.to_bits());
+            if self.linearizer.as_ref().is_none_or(|(k, _)| *k != key) {
+                let lin =
+                    Linearizer::new(&self.settings.response, code_max, &self.radiometry(t, g));
+                self.linearizer = Some((key, lin));
+            }
+            let lin = self.linearizer.as_ref().map(|(_, l)| l);
+            (
+                lin.map(|l| l.linearize(&self.codes)).unwrap_or_default(),
+                ts,
+            )
         } else {
             let exposures = self.settings.bracket_exposures_s.clone();
             let (brackets, first_ts) = self.capture_brackets(&exposures)?;
