@@ -14,6 +14,9 @@ use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
 use crate::stream::ServerConfig;
 use serde::Deserialize;
 use std::net::SocketAddr;
+
+mod camera;
+pub use camera::RawCamera;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -63,6 +66,8 @@ pub struct RawConfig {
     pub sky: RawSky,
     #[serde(default)]
     pub decompose: RawDecompose,
+    #[serde(default)]
+    pub camera: RawCamera,
     #[serde(default)]
     pub pipeline: RawPipeline,
     #[serde(default)]
@@ -188,8 +193,10 @@ impl RawConfig {
 
     /// Checks every value and fills in the defaults.
     pub fn validate(&self) -> Result<Config, ConfigError> {
+        let source = self.source.validate()?;
         Ok(Config {
-            source: self.source.validate()?,
+            camera: self.camera.validate(source.projection)?,
+            source,
             sky: self.sky.validate()?,
             decompose: self.decompose.validate()?,
             pipeline: self.pipeline.validate()?,
@@ -211,6 +218,8 @@ pub enum SourceKind {
     Sky,
     /// Recorded `.exr` / `.hdr` files.
     Sequence,
+    /// A V4L2 camera (`[camera]`).
+    V4l2,
 }
 
 /// Validated `[source]`.
@@ -240,6 +249,8 @@ pub struct Config {
     /// The built-in sky; its pacing (`fps`, `frames`) comes from `[source]` when it is used.
     pub sky: SkyOptions,
     pub decompose: DecomposeSettings,
+    /// The camera (used with `source.kind = "v4l2"`).
+    pub camera: crate::capture::v4l2::CameraSettings,
     pub pipeline: PipelineConfig,
     pub stream: ServerConfig,
     pub metrics: MetricsConfig,
@@ -503,11 +514,12 @@ impl RawSource {
         let kind = match self.kind.as_deref().unwrap_or("sky") {
             "sky" => SourceKind::Sky,
             "sequence" => SourceKind::Sequence,
+            "v4l2" => SourceKind::V4l2,
             other => {
                 return Err(invalid(
                     "source.kind",
                     other,
-                    "must be \"sky\" or \"sequence\"",
+                    "must be \"sky\", \"sequence\" or \"v4l2\"",
                 ))
             }
         };
@@ -520,7 +532,7 @@ impl RawSource {
                     "kind = \"sequence\" needs at least one file, directory or glob pattern",
                 ))
             }
-            SourceKind::Sky if !paths.is_empty() => {
+            SourceKind::Sky | SourceKind::V4l2 if !paths.is_empty() => {
                 return Err(invalid(
                     "source.paths",
                     &paths,

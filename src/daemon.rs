@@ -24,12 +24,12 @@
 //! published; 503 while there are none yet, they are stale, or older than
 //! `metrics.max_frame_age_s`).
 
-use crate::capture::{self, CaptureError, FrameSource};
+use crate::capture::{self, CaptureError, FrameSource, SourceHealth};
 use crate::config::{Config, ConfigError, RawConfig};
 use crate::metrics::Metrics;
 use crate::pipeline::{
     LatestLights, Pipeline, PipelineError, PipelineOptions, PipelineStats, PublishHook,
-    QueuePolicy, StatsHandle,
+    QueuePolicy, StaleHandle, StatsHandle,
 };
 use crate::record::{Pacing, RecordError, RecordSummary, Recorder, ReplaySource};
 use crate::stream::server::{ServerError, SHUTDOWN_MESSAGE};
@@ -120,18 +120,13 @@ pub struct Daemon {
     metrics: Arc<Metrics>,
     recorder: Option<Recorder>,
     addresses: DaemonAddresses,
+    /// Health of a source that can lose its device (a camera).
+    health: Option<Arc<SourceHealth>>,
 }
 
 impl Daemon {
     /// Opens the source, binds every endpoint and starts the threads.
     pub fn start(config: Config, options: DaemonOptions) -> Result<Daemon, DaemonError> {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(config.daemon.serve_threads)
-            .thread_name(SERVE_THREAD_NAME)
-            .enable_all()
-            .build()
-            .map_err(DaemonError::Runtime)?;
-
         let (source, settings, policy): (Box<dyn FrameSource>, _, _) = match &options.replay {
             Some((dir, pacing)) => {
                 let replay = ReplaySource::open(dir, *pacing).map_err(DaemonError::Source)?;
@@ -148,14 +143,43 @@ impl Daemon {
                 QueuePolicy::DropOldest,
             ),
         };
+        Self::start_parts(config, source, settings, policy, options.record.as_deref())
+    }
+
+    /// Starts the daemon on a frame source of the caller's (a custom camera, a test source)
+    /// with the configured decomposition settings.
+    pub fn start_with_source(
+        config: Config,
+        source: Box<dyn FrameSource>,
+        record: Option<&Path>,
+    ) -> Result<Daemon, DaemonError> {
+        let settings = config.decompose.clone();
+        Self::start_parts(config, source, settings, QueuePolicy::DropOldest, record)
+    }
+
+    fn start_parts(
+        config: Config,
+        source: Box<dyn FrameSource>,
+        settings: crate::decompose::DecomposeSettings,
+        policy: QueuePolicy,
+        record: Option<&Path>,
+    ) -> Result<Daemon, DaemonError> {
+        let replaying = policy == QueuePolicy::Block;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(config.daemon.serve_threads)
+            .thread_name(SERVE_THREAD_NAME)
+            .enable_all()
+            .build()
+            .map_err(DaemonError::Runtime)?;
         let description = source.describe();
+        let health = source.health();
 
         let metrics = Arc::new(Metrics::new());
         let hook_metrics = Arc::clone(&metrics);
         let on_publish = PublishHook(Arc::new(move |published| {
             hook_metrics.observe_decompose(published.decompose_time);
         }));
-        let (tap, recorder) = match &options.record {
+        let (tap, recorder) = match record {
             Some(dir) => {
                 let (tx, rx) = crossbeam_channel::bounded(4);
                 let recorder = Recorder::start(dir, &description, &settings, rx)?;
@@ -185,6 +209,7 @@ impl Daemon {
                     let bound = listener.local_addr().ok();
                     let (stop_tx, stop_rx) = watch::channel(false);
                     let state = Arc::new(HttpState {
+                        health: health.clone(),
                         metrics: Arc::clone(&metrics),
                         stats: pipeline.stats_handle(),
                         lights: pipeline.subscribe(),
@@ -196,6 +221,9 @@ impl Daemon {
                 }
                 None => None,
             };
+            if let Some(health) = &health {
+                tokio::spawn(monitor_health(Arc::clone(health), pipeline.stale_handle()));
+            }
             Ok::<_, DaemonError>((server, http))
         });
         let (server, http) = match started {
@@ -215,7 +243,7 @@ impl Daemon {
         };
         Ok(Daemon {
             config,
-            replaying: options.replay.is_some(),
+            replaying,
             runtime,
             pipeline,
             server,
@@ -223,6 +251,7 @@ impl Daemon {
             metrics,
             recorder,
             addresses,
+            health,
         })
     }
 
@@ -397,8 +426,13 @@ impl Daemon {
             server,
             http,
             recorder,
+            health,
             ..
         } = self;
+        // A camera that is being reconnected stops retrying.
+        if let Some(health) = &health {
+            health.request_stop();
+        }
         pipeline.stop();
         let clients_closed_in_time = runtime.block_on(async {
             if let Some((task, stop)) = http {
@@ -435,8 +469,28 @@ fn notify(states: &[sd_notify::NotifyState]) {
     }
 }
 
+/// Marks the lights stale while the source is lost and live again when it is back.
+async fn monitor_health(health: Arc<SourceHealth>, stale: StaleHandle) {
+    let mut interval = tokio::time::interval(Duration::from_millis(50));
+    loop {
+        interval.tick().await;
+        let lost = health.is_stale();
+        if stale.set_stale(lost) {
+            if lost {
+                tracing::warn!(
+                    error = %health.last_error(),
+                    "the source is lost; serving the last lights marked stale while it reconnects"
+                );
+            } else {
+                tracing::info!("the source is back; serving fresh lights");
+            }
+        }
+    }
+}
+
 /// What the HTTP endpoint reads.
 struct HttpState {
+    health: Option<Arc<SourceHealth>>,
     metrics: Arc<Metrics>,
     stats: StatsHandle,
     lights: watch::Receiver<LatestLights>,
@@ -489,6 +543,10 @@ impl HttpState {
         self.metrics.update_pipeline(&self.stats.stats());
         let stale = self.lights.borrow().as_ref().is_some_and(|p| p.stale);
         self.metrics.source_stale.set(i64::from(stale));
+        if let Some(health) = &self.health {
+            self.metrics
+                .update_source(health.failures_total(), health.reconnect_attempts());
+        }
         self.metrics.encode()
     }
 }

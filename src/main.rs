@@ -17,6 +17,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
+mod camera_cli;
+
 const LONG_ABOUT: &str = "\
 envlight turns HDR environment maps (a recorded .exr/.hdr sequence, or a built-in analytic sky)
 into a few hundred temporally stable directional lights per frame, by inverse-transform sampling
@@ -70,6 +72,13 @@ enum Command {
     /// Connect to a running daemon and print its light stream.
     #[command(long_about = SUBSCRIBE_LONG_ABOUT)]
     Subscribe(SubscribeArgs),
+    /// List V4L2 cameras with their formats, frame sizes, rates and controls.
+    Devices,
+    /// Recover a camera's response curve from bracketed exposures (Debevec & Malik 1997) and
+    /// write the curve file for `[camera] response = "curve"`.
+    CalibrateResponse(camera_cli::CalibrateResponseArgs),
+    /// Find a fisheye image circle automatically and print the `[source.fisheye]` lines.
+    CalibrateFisheye(camera_cli::CalibrateFisheyeArgs),
 }
 
 const RUN_LONG_ABOUT: &str = "\
@@ -307,6 +316,11 @@ struct DecomposeArgs {
     #[arg(long)]
     seed: Option<u64>,
 
+    /// Capture from a V4L2 camera (path or name; see `envlight devices` and `[camera]`).
+    /// INPUT `v4l2:DEVICE` does the same.
+    #[arg(long, value_name = "DEVICE", conflicts_with = "inputs")]
+    device: Option<String>,
+
     /// Write the JSON lines to FILE (created or truncated) instead of stdout.
     #[arg(long, short = 'o', value_name = "FILE")]
     out: Option<PathBuf>,
@@ -347,8 +361,19 @@ impl DecomposeArgs {
     fn apply(&self, raw: &mut RawConfig) -> Result<Vec<(&'static str, &'static str)>> {
         let mut set = Vec::new();
         let mut note = |key, flag| set.push((key, flag));
+        let device = self
+            .device
+            .clone()
+            .or_else(|| match self.inputs.as_slice() {
+                [one] => one.strip_prefix("v4l2:").map(str::to_string),
+                _ => None,
+            });
+        if let Some(dev) = device {
+            raw.source.kind = Some("v4l2".into());
+            raw.camera.device = Some(dev);
+        }
         let src = &mut raw.source;
-        if !self.inputs.is_empty() {
+        if !self.inputs.is_empty() && src.kind.as_deref() != Some("v4l2") {
             src.kind = Some("sequence".into());
             src.paths = Some(self.inputs.clone());
             note("source.paths", "INPUT");
@@ -516,6 +541,9 @@ fn main() -> ExitCode {
         ),
         Command::CheckConfig(args) => check_config(&args),
         Command::Subscribe(args) => subscribe(&args),
+        Command::Devices => camera_cli::devices(),
+        Command::CalibrateResponse(args) => camera_cli::calibrate_response(&args),
+        Command::CalibrateFisheye(args) => camera_cli::calibrate_fisheye(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -757,6 +785,7 @@ fn open_source(config: &Config) -> Result<(Box<dyn FrameSource>, Option<u64>)> {
                 SequenceSource::new(&src.paths, options).context("cannot open the input frames")?;
             (Box::new(seq), limit)
         }
+        SourceKind::V4l2 => (camera_cli::open_camera(&config.camera), limit),
     })
 }
 

@@ -14,6 +14,8 @@
 //! | `envlight_capture_errors_total` | counter | source errors |
 //! | `envlight_lights` | gauge | lights in the newest light list |
 //! | `envlight_source_stale` | gauge | 1 while the newest lights are stale (source lost) |
+//! | `envlight_source_failures_total` | counter | times a live source (camera) was lost |
+//! | `envlight_source_reconnect_attempts_total` | counter | attempts to reopen a lost source |
 //! | `envlight_decompose_seconds` | histogram | decomposition time per frame |
 //! | `envlight_delivery_seconds` | histogram | frame reaches the decomposition → last byte written to a client |
 //! | `envlight_clients_connected` | gauge | clients connected, by endpoint |
@@ -55,6 +57,8 @@ pub struct Metrics {
     frames_decomposed: Counter,
     capture_errors: Counter,
     lights: Gauge,
+    source_failures: Counter,
+    source_reconnects: Counter,
     pub source_stale: Gauge,
     pub decompose_seconds: Histogram,
     pub delivery_seconds: Histogram,
@@ -86,6 +90,8 @@ impl Metrics {
         let capture_errors = Counter::default();
         let lights = Gauge::default();
         let source_stale = Gauge::default();
+        let source_failures = Counter::default();
+        let source_reconnects = Counter::default();
         let decompose_seconds = Histogram::new(latency_buckets());
         let delivery_seconds = Histogram::new(latency_buckets());
         let clients_connected = Family::<EndpointLabel, Gauge>::default();
@@ -114,6 +120,16 @@ impl Metrics {
             capture_errors.clone(),
         );
         registry.register("lights", "Lights in the newest light list", lights.clone());
+        registry.register(
+            "source_failures",
+            "Times the source (a camera) was lost: unplugged, I/O error, timeout",
+            source_failures.clone(),
+        );
+        registry.register(
+            "source_reconnect_attempts",
+            "Attempts to reopen a lost source",
+            source_reconnects.clone(),
+        );
         registry.register(
             "source_stale",
             "1 while the newest lights are stale because the source is lost",
@@ -161,6 +177,8 @@ impl Metrics {
             frames_decomposed,
             capture_errors,
             lights,
+            source_failures,
+            source_reconnects,
             source_stale,
             decompose_seconds,
             delivery_seconds,
@@ -188,6 +206,16 @@ impl Metrics {
             .store(stats.capture_errors, Ordering::Relaxed);
         self.lights
             .set(i64::try_from(stats.light_count).unwrap_or(i64::MAX));
+    }
+
+    /// Copies a live source's failure and reconnect counts into the metrics.
+    pub fn update_source(&self, failures: u64, reconnect_attempts: u64) {
+        self.source_failures
+            .inner()
+            .store(failures, Ordering::Relaxed);
+        self.source_reconnects
+            .inner()
+            .store(reconnect_attempts, Ordering::Relaxed);
     }
 
     /// Records one decomposition time.

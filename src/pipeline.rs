@@ -397,20 +397,13 @@ impl Pipeline {
     /// newest lights are published again with the flag, so every consumer learns of it; a
     /// newly decomposed frame is always live. Returns whether anything was published.
     pub fn set_stale(&self, stale: bool) -> bool {
-        let latest = self.lights.borrow().clone();
-        match latest {
-            Some(p) if p.stale != stale => {
-                publish(
-                    &self.lights_tx,
-                    Arc::clone(&p.lights),
-                    stale,
-                    None,
-                    Duration::ZERO,
-                );
-                true
-            }
-            _ => false,
-        }
+        self.stale_handle().set_stale(stale)
+    }
+
+    /// A handle that marks the lights stale or live from another thread (the daemon's source
+    /// health monitor; the capture thread itself is busy reconnecting).
+    pub fn stale_handle(&self) -> StaleHandle {
+        StaleHandle(Arc::clone(&self.lights_tx))
     }
 
     /// Asks the capture thread to stop before its next frame; queued frames are still
@@ -446,6 +439,34 @@ impl Pipeline {
             Some(error) => Err(PipelineError::Capture(error)),
             None => Ok(self.shared.stats()),
         }
+    }
+}
+
+/// Marks a pipeline's newest lights stale or live; see [`Pipeline::set_stale`].
+#[derive(Clone)]
+pub struct StaleHandle(Arc<watch::Sender<LatestLights>>);
+
+impl StaleHandle {
+    /// As [`Pipeline::set_stale`].
+    pub fn set_stale(&self, stale: bool) -> bool {
+        let mut changed = false;
+        self.0.send_if_modified(|latest| match latest {
+            Some(p) if p.stale != stale => {
+                let lights = Arc::clone(&p.lights);
+                *latest = Some(Arc::new(Published {
+                    index: p.index + 1,
+                    lights,
+                    stale,
+                    arrived: None,
+                    decompose_time: Duration::ZERO,
+                    published_at: Instant::now(),
+                }));
+                changed = true;
+                true
+            }
+            _ => false,
+        });
+        changed
     }
 }
 

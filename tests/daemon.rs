@@ -833,3 +833,111 @@ fn a_socket_in_use_is_not_stolen() {
     third.shutdown().unwrap();
     assert!(!socket.exists());
 }
+
+/// A sky that "unplugs" once: after `fail_after` frames its next call fails like a lost device.
+struct FlakySky {
+    sky: SkySource,
+    frames: u64,
+    fail_after: u64,
+    failed: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl FrameSource for FlakySky {
+    fn next_frame(
+        &mut self,
+    ) -> Result<Option<envlight::HdrFrame>, envlight::capture::CaptureError> {
+        if self.frames == self.fail_after
+            && !self.failed.swap(true, std::sync::atomic::Ordering::SeqCst)
+        {
+            return Err(envlight::capture::CaptureError::Io {
+                path: "/dev/video9".into(),
+                source: std::io::Error::other("No such device (unplugged)"),
+            });
+        }
+        self.frames += 1;
+        self.sky.next_frame()
+    }
+
+    fn describe(&self) -> String {
+        "flaky sky".to_owned()
+    }
+}
+
+#[test]
+fn a_lost_source_is_served_stale_until_it_returns() {
+    use envlight::capture::resilient::{ResilientSource, RetryPolicy};
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[decompose]\nlights = 8\nworking_width = 16\n";
+    let config = config(dir.path(), extra);
+    let failed = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let opener_failed = std::sync::Arc::clone(&failed);
+    let source = ResilientSource::new(
+        "flaky camera",
+        RetryPolicy {
+            initial_backoff: Duration::from_millis(600),
+            max_backoff: Duration::from_millis(600),
+            max_attempts: None,
+        },
+        move || {
+            let sky = SkySource::new(SkyOptions {
+                width: 32,
+                height: 16,
+                fps: Some(30.0),
+                frames: None,
+                ..SkyOptions::default()
+            })?;
+            Ok(Box::new(FlakySky {
+                sky,
+                frames: 0,
+                fail_after: 10,
+                failed: std::sync::Arc::clone(&opener_failed),
+            }) as Box<dyn FrameSource>)
+        },
+    );
+    let daemon = Daemon::start_with_source(config, Box::new(source), None).unwrap();
+    let http = daemon.addresses().metrics.unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    let request = Request {
+        format: Format::Binary,
+        ..Request::default()
+    };
+    let mut client =
+        Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
+    let mut frames = Vec::new();
+    let mut saw_unhealthy = false;
+    // Live frames, then the stale re-send of the last one, then live frames again.
+    while frames.iter().filter(|f: &&FrameMessage| f.stale).count() == 0
+        || frames.last().is_none_or(|f| f.stale)
+        || frames.iter().filter(|f| !f.stale).count() < 15
+    {
+        match client.next_message().unwrap() {
+            Some(Message::Frame(frame)) => {
+                if frame.stale {
+                    let (status, body) = http_get(http, "/health");
+                    saw_unhealthy |= status == 503 && body.contains("stale");
+                    let metrics = http_get(http, "/metrics").1;
+                    assert_eq!(metric_value(&metrics, "envlight_source_stale"), 1.0);
+                    assert!(metric_value(&metrics, "envlight_source_failures_total") >= 1.0);
+                }
+                frames.push(frame);
+            }
+            other => panic!("unexpected {other:?}"),
+        }
+        assert!(frames.len() < 500, "never recovered");
+    }
+    assert!(failed.load(std::sync::atomic::Ordering::SeqCst));
+    assert!(
+        saw_unhealthy,
+        "the health check did not report the stale source"
+    );
+    let stale_at = frames.iter().position(|f| f.stale).unwrap();
+    let (before, after) = (&frames[stale_at - 1], &frames[stale_at + 1]);
+    assert!(!before.stale && !after.stale);
+    // The stale frame repeats the last live lights and seq; fresh ones continue after it.
+    assert_eq!(frames[stale_at].seq, before.seq);
+    assert_eq!(frames[stale_at].lights, before.lights);
+    assert!(after.seq > before.seq);
+    let (status, _) = http_get(http, "/health");
+    assert_eq!(status, 200);
+    daemon.shutdown().unwrap();
+}

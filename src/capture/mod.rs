@@ -5,12 +5,19 @@
 //! - [`sky::SkySource`]: the built-in analytic sky with a moving sun and passing clouds; the
 //!   default when no input is given.
 
+pub mod bracket;
 pub mod image_file;
+pub mod pixel_format;
+pub mod resilient;
+pub mod response;
 pub mod sequence;
 pub mod sky;
+pub mod v4l2;
 
 use crate::frame::HdrFrame;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 /// Errors of frame sources. Every variant names the file or source it is about.
 #[derive(Debug, thiserror::Error)]
@@ -46,6 +53,74 @@ pub trait FrameSource: Send {
 
     /// A short human-readable description for logs.
     fn describe(&self) -> String;
+
+    /// Shared health of a source that can lose its device (see [`resilient::ResilientSource`]);
+    /// `None` for sources that cannot.
+    fn health(&self) -> Option<Arc<SourceHealth>> {
+        None
+    }
+}
+
+/// Health of a live source, shared with the pipeline (stream and metrics) through an `Arc`.
+#[derive(Debug, Default)]
+pub struct SourceHealth {
+    stale: AtomicBool,
+    reconnect_attempts: AtomicU64,
+    failures_total: AtomicU64,
+    stop: AtomicBool,
+    last_error: Mutex<String>,
+}
+
+impl SourceHealth {
+    /// Whether the device is lost: the lights being served are the last ones before the loss.
+    pub fn is_stale(&self) -> bool {
+        self.stale.load(Ordering::Acquire)
+    }
+
+    /// Consecutive failed attempts since the last good frame (0 while healthy).
+    pub fn reconnect_attempts(&self) -> u64 {
+        self.reconnect_attempts.load(Ordering::Acquire)
+    }
+
+    /// Failures since the source was created.
+    pub fn failures_total(&self) -> u64 {
+        self.failures_total.load(Ordering::Acquire)
+    }
+
+    /// The text of the most recent error ("" if none yet).
+    pub fn last_error(&self) -> String {
+        self.last_error
+            .lock()
+            .map(|s| s.clone())
+            .unwrap_or_else(|p| p.into_inner().clone())
+    }
+
+    /// Asks a retrying source to give up: its `next_frame` returns `Ok(None)` soon.
+    pub fn request_stop(&self) {
+        self.stop.store(true, Ordering::Release);
+    }
+
+    /// Whether [`Self::request_stop`] was called.
+    pub fn stop_requested(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+    }
+
+    /// Records a failure (marks stale).
+    pub fn mark_failure(&self, error: &str) {
+        match self.last_error.lock() {
+            Ok(mut s) => *s = error.to_string(),
+            Err(p) => *p.into_inner() = error.to_string(),
+        }
+        self.failures_total.fetch_add(1, Ordering::AcqRel);
+        self.reconnect_attempts.fetch_add(1, Ordering::AcqRel);
+        self.stale.store(true, Ordering::Release);
+    }
+
+    /// Records a good frame (clears stale and the attempt count; keeps the last error text).
+    pub fn mark_ok(&self) {
+        self.reconnect_attempts.store(0, Ordering::Release);
+        self.stale.store(false, Ordering::Release);
+    }
 }
 
 /// Opens the frame source a validated [`Config`](crate::config::Config) describes: the
@@ -75,6 +150,15 @@ pub fn open(config: &crate::config::Config) -> Result<Box<dyn FrameSource>, Capt
                 projection: src.projection,
             };
             Box::new(sequence::SequenceSource::new(&src.paths, options)?)
+        }
+        SourceKind::V4l2 => {
+            // Device loss is retried with backoff; meanwhile the source reports itself stale.
+            let settings = config.camera.clone();
+            Box::new(resilient::ResilientSource::new(
+                format!("camera {}", settings.device),
+                settings.retry,
+                move || Ok(Box::new(v4l2::V4l2Source::open(&settings)?) as Box<dyn FrameSource>),
+            ))
         }
     };
     Ok(Box::new(Checked {
@@ -116,6 +200,10 @@ impl FrameSource for Checked {
             self.checked_size = Some((frame.width, frame.height));
         }
         Ok(Some(frame))
+    }
+
+    fn health(&self) -> Option<Arc<SourceHealth>> {
+        self.inner.health()
     }
 
     fn describe(&self) -> String {

@@ -10,6 +10,7 @@
 //! - [`Projection::AngularMap`]: Debevec's angular map of the full sphere.
 
 mod fisheye;
+pub mod fisheye_detect;
 mod latlong;
 
 pub use fisheye::{FisheyeCalibration, FisheyeModel};

@@ -1,0 +1,193 @@
+//! Benchmarks of the camera conversions (single-threaded), per 1280×960 frame:
+//!
+//! - `decode/{y16,yuyv,mjpeg}`: raw buffer → normalised code values
+//!   ([`pixel_format::decode_into`], output image reused as in the capture loop);
+//! - `radiance/{y16,yuyv,mjpeg}`: the same plus linearisation to radiance ([`Linearizer`]:
+//!   linear response for Y16, sRGB for YUYV and MJPEG), i.e. the whole conversion cost of a
+//!   frame;
+//! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame.
+//!
+//! The frames are rooitou_park (tests/data) resampled to 1280×960: Y16 holds its luminance,
+//! YUYV its sRGB-encoded colours (BT.709), MJPEG the same encoded at quality 90.
+//!
+//! Run with `cargo bench --bench capture`; quote the medians.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use envlight::capture::bracket::{merge_brackets, Bracket, MergeLimits};
+use envlight::capture::image_file::read_hdr_image;
+use envlight::capture::pixel_format::{self, CodeImage, PixelFormat, RawFrame, YuvMatrix};
+use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
+use std::hint::black_box;
+use std::path::Path;
+use std::time::Duration;
+
+const W: u32 = 1280;
+const H: u32 = 960;
+
+fn srgb(x: f32) -> f32 {
+    let x = x.clamp(0.0, 1.0);
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// rooitou_park resampled (nearest) to 1280×960 and scaled so its median is 0.18.
+fn scene() -> Vec<[f32; 3]> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
+    let img = read_hdr_image(&path).unwrap_or_else(|e| panic!("{e}"));
+    let mut out = Vec::with_capacity((W * H) as usize);
+    for y in 0..H {
+        for x in 0..W {
+            let (sx, sy) = (x * img.width / W, y * img.height / H);
+            out.push(img.pixels[(sy * img.width + sx) as usize]);
+        }
+    }
+    let mut g: Vec<f32> = out.iter().map(|p| p[1]).collect();
+    g.sort_by(f32::total_cmp);
+    let k = 0.18 / g[g.len() / 2].max(1e-6);
+    out.iter().map(|p| p.map(|v| v * k)).collect()
+}
+
+fn y16(scene: &[[f32; 3]]) -> Vec<u8> {
+    scene
+        .iter()
+        .flat_map(|p| {
+            {
+                let l = envlight::frame::luminance(*p);
+                ((l * 0.25).clamp(0.0, 1.0) * 65535.0).round() as u16
+            }
+            .to_le_bytes()
+        })
+        .collect()
+}
+
+fn yuyv(scene: &[[f32; 3]]) -> Vec<u8> {
+    let (kr, kb) = (0.2126f32, 0.0722f32);
+    let mut out = Vec::with_capacity(scene.len() * 2);
+    for pair in scene.chunks_exact(2) {
+        let enc = |p: [f32; 3]| {
+            let (r, g, b) = (srgb(p[0]), srgb(p[1]), srgb(p[2]));
+            let y = kr * r + (1.0 - kr - kb) * g + kb * b;
+            (
+                y,
+                (b - y) / (2.0 * (1.0 - kb)),
+                (r - y) / (2.0 * (1.0 - kr)),
+            )
+        };
+        let (y0, u0, v0) = enc(pair[0]);
+        let (y1, u1, v1) = enc(pair[1]);
+        let q = |v: f32| v.round().clamp(0.0, 255.0) as u8;
+        out.extend_from_slice(&[
+            q(16.0 + 219.0 * y0),
+            q(128.0 + 112.0 * (u0 + u1)),
+            q(16.0 + 219.0 * y1),
+            q(128.0 + 112.0 * (v0 + v1)),
+        ]);
+    }
+    out
+}
+
+fn mjpeg(scene: &[[f32; 3]]) -> Vec<u8> {
+    let rgb: Vec<u8> = scene
+        .iter()
+        .flat_map(|p| p.map(|v| (srgb(v) * 255.0).round() as u8))
+        .collect();
+    let mut out = Vec::new();
+    jpeg_encoder::Encoder::new(&mut out, 90)
+        .encode(&rgb, W as u16, H as u16, jpeg_encoder::ColorType::Rgb)
+        .unwrap_or_else(|e| panic!("{e}"));
+    out
+}
+
+fn bench_capture(c: &mut Criterion) {
+    let scene = scene();
+    let buffers = [
+        ("y16", PixelFormat::Grey { bits: 16 }, y16(&scene)),
+        ("yuyv", PixelFormat::Yuyv, yuyv(&scene)),
+        ("mjpeg", PixelFormat::Mjpeg, mjpeg(&scene)),
+    ];
+    let radiometry = Radiometry {
+        exposure_s: 0.01,
+        ..Radiometry::default()
+    };
+    let mut group = c.benchmark_group("capture");
+    for (name, format, data) in &buffers {
+        let raw = RawFrame {
+            data,
+            format: *format,
+            width: W,
+            height: H,
+            stride: 0,
+        };
+        let model = if format.is_raw() {
+            ResponseModel::Linear
+        } else {
+            ResponseModel::Srgb
+        };
+        let lin = Linearizer::new(&model, format.code_max(), &radiometry);
+        let mut codes = CodeImage {
+            width: 0,
+            height: 0,
+            pixels: Vec::new(),
+        };
+        group.bench_function(format!("decode/{name}_1280x960"), |b| {
+            b.iter(|| {
+                pixel_format::decode_into(black_box(&raw), YuvMatrix::Bt709, &mut codes)
+                    .unwrap_or_else(|e| panic!("{e}"))
+            })
+        });
+        group.bench_function(format!("radiance/{name}_1280x960"), |b| {
+            b.iter(|| {
+                pixel_format::decode_into(black_box(&raw), YuvMatrix::Bt709, &mut codes)
+                    .unwrap_or_else(|e| panic!("{e}"));
+                lin.linearize(&codes)
+            })
+        });
+        let mut out = Vec::new();
+        pixel_format::decode_into(&raw, YuvMatrix::Bt709, &mut codes)
+            .unwrap_or_else(|e| panic!("{e}"));
+        group.bench_function(format!("linearize_reused/{name}_1280x960"), |b| {
+            b.iter(|| lin.linearize_into(black_box(&codes), &mut out))
+        });
+    }
+    let raw = RawFrame {
+        data: &buffers[1].2,
+        format: PixelFormat::Yuyv,
+        width: W,
+        height: H,
+        stride: 0,
+    };
+    let codes = pixel_format::decode(&raw, YuvMatrix::Bt709).unwrap_or_else(|e| panic!("{e}"));
+    let brackets: Vec<Bracket> = [0.0025, 0.01, 0.04]
+        .iter()
+        .map(|&t| Bracket {
+            image: codes.clone(),
+            exposure_s: t,
+            gain: 1.0,
+        })
+        .collect();
+    group.bench_function("merge/3_brackets_1280x960", |b| {
+        b.iter(|| {
+            merge_brackets(
+                black_box(&brackets),
+                &ResponseModel::Srgb,
+                255.0,
+                &Radiometry::default(),
+                MergeLimits::default(),
+            )
+        })
+    });
+    group.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default()
+        .sample_size(30)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(4));
+    targets = bench_capture
+}
+criterion_main!(benches);

@@ -1,0 +1,197 @@
+//! The camera subcommands of the command line: `devices`, `calibrate-response`,
+//! `calibrate-fisheye`, and opening the camera for `decompose`. Only argument handling and
+//! printing; the work is in `envlight::capture` and `envlight::envmap::fisheye_detect`.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use envlight::capture::bracket::{read_bracket_image, recover_response, Bracket, SolveSettings};
+use envlight::capture::image_file::{read_hdr_image, ImageFormat};
+use envlight::capture::resilient::ResilientSource;
+use envlight::capture::v4l2::{list_devices, CameraSettings, V4l2Source};
+use envlight::capture::FrameSource;
+use envlight::envmap::fisheye_detect::detect_image_circle;
+use std::path::{Path, PathBuf};
+
+#[derive(Args, Debug)]
+pub struct CalibrateResponseArgs {
+    /// Bracketed 8- or 16-bit PNG images of a static scene (one per exposure).
+    #[arg(value_name = "IMAGE", required_unless_present = "device")]
+    images: Vec<PathBuf>,
+
+    /// Exposure time of each image (or of each bracket captured with --device), seconds.
+    #[arg(
+        long,
+        value_name = "T,T,…",
+        value_delimiter = ',',
+        num_args = 1,
+        required = true
+    )]
+    exposures: Vec<f64>,
+
+    /// Capture the brackets from this V4L2 camera instead of reading IMAGEs.
+    #[arg(long, value_name = "DEVICE", conflicts_with = "images")]
+    device: Option<String>,
+
+    /// Where to write the curve file.
+    #[arg(long, short = 'o', value_name = "FILE")]
+    out: PathBuf,
+
+    /// Code levels of the curve (256 for 8-bit data). [default: 256]
+    #[arg(long, value_name = "N")]
+    levels: Option<usize>,
+
+    /// Smoothness weight λ. [default: 100]
+    #[arg(long, value_name = "L")]
+    lambda: Option<f64>,
+
+    /// Number of sample pixels. [default: 300]
+    #[arg(long, value_name = "N")]
+    samples: Option<usize>,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ModelArg {
+    Equidistant,
+    Equisolid,
+    Stereographic,
+    Orthographic,
+}
+
+#[derive(Args, Debug)]
+pub struct CalibrateFisheyeArgs {
+    /// A frame of the fisheye camera (.exr, .hdr or .png), the surround dark.
+    #[arg(value_name = "IMAGE")]
+    image: PathBuf,
+
+    /// Lens model to write (not detectable from the circle). [default: equidistant]
+    #[arg(long, value_enum)]
+    model: Option<ModelArg>,
+
+    /// Field of view to write, degrees (not detectable from the circle). [default: 180]
+    #[arg(long, value_name = "DEG")]
+    fov: Option<f64>,
+}
+
+pub fn devices() -> Result<()> {
+    let devices = list_devices();
+    if devices.is_empty() {
+        eprintln!("no /dev/video* devices found");
+    }
+    for (path, info) in devices {
+        match info {
+            Ok(info) => print!("{info}"),
+            Err(e) => println!("{}: cannot query: {e}", path.display()),
+        }
+    }
+    Ok(())
+}
+
+/// A camera source that reconnects after device loss.
+pub fn open_camera(settings: &CameraSettings) -> Box<dyn FrameSource> {
+    let s = settings.clone();
+    Box::new(ResilientSource::new(
+        format!("camera {}", settings.device),
+        settings.retry,
+        move || Ok(Box::new(V4l2Source::open(&s)?) as Box<dyn FrameSource>),
+    ))
+}
+
+pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
+    let brackets: Vec<Bracket> = if let Some(dev) = &args.device {
+        let settings = CameraSettings {
+            device: dev.clone(),
+            ..Default::default()
+        };
+        let mut cam = V4l2Source::open(&settings).context("cannot open the camera")?;
+        cam.capture_brackets(&args.exposures)
+            .context("cannot capture the brackets")?
+            .0
+    } else {
+        if args.images.len() != args.exposures.len() {
+            bail!(
+                "{} images but {} --exposures: give one exposure time per image",
+                args.images.len(),
+                args.exposures.len()
+            );
+        }
+        args.images
+            .iter()
+            .zip(&args.exposures)
+            .map(|(p, &t)| {
+                Ok(Bracket {
+                    image: read_bracket_image(p)?,
+                    exposure_s: t,
+                    gain: 1.0,
+                })
+            })
+            .collect::<Result<_>>()?
+    };
+    let d = SolveSettings::default();
+    let settings = SolveSettings {
+        levels: args.levels.unwrap_or(d.levels),
+        lambda: args.lambda.unwrap_or(d.lambda),
+        samples: args.samples.unwrap_or(d.samples),
+    };
+    let curve = recover_response(&brackets, settings)?;
+    let comment = format!(
+        "recovered by envlight calibrate-response from {} brackets (exposures {:?} s), \
+         levels {}, lambda {}, samples {}",
+        brackets.len(),
+        args.exposures,
+        settings.levels,
+        settings.lambda,
+        settings.samples
+    );
+    curve.write(&args.out, &comment)?;
+    eprintln!(
+        "wrote {} ({} levels); use it with [camera] response = \"curve\", curve = {:?}",
+        args.out.display(),
+        settings.levels,
+        args.out.display().to_string()
+    );
+    Ok(())
+}
+
+fn read_any_image(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
+    if ImageFormat::from_path(path).is_some() {
+        let img = read_hdr_image(path)?;
+        Ok((img.width, img.height, img.pixels))
+    } else {
+        let img = read_bracket_image(path)?;
+        Ok((img.width, img.height, img.pixels))
+    }
+}
+
+pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
+    let (w, h, pixels) = read_any_image(&args.image)?;
+    let circle = detect_image_circle(&pixels, w, h)
+        .with_context(|| format!("{}: no image circle found", args.image.display()))?;
+    let model = match args.model.unwrap_or(ModelArg::Equidistant) {
+        ModelArg::Equidistant => "equidistant",
+        ModelArg::Equisolid => "equisolid",
+        ModelArg::Stereographic => "stereographic",
+        ModelArg::Orthographic => "orthographic",
+    };
+    let fov = args.fov.unwrap_or(180.0);
+    if !(fov.is_finite() && fov > 0.0 && fov < 360.0) {
+        bail!("invalid --fov {fov}: must be in (0, 360) degrees");
+    }
+    println!(
+        "# envlight calibrate-fisheye {}: {w}x{h}, {} edge points, rms residual {:.3} px",
+        args.image.display(),
+        circle.points,
+        circle.rms_residual
+    );
+    println!("# model and fov_deg are as given (--model, --fov); rotation_deg is not detected:");
+    println!("# set it so that a known direction (the sun, a landmark) lands where it should.");
+    println!("[source.fisheye]");
+    println!("model = \"{model}\"");
+    println!(
+        "center = [{:.3}, {:.3}]",
+        circle.center[0], circle.center[1]
+    );
+    println!("radius = {:.3}", circle.radius);
+    println!("fov_deg = {fov:?}");
+    println!("rotation_deg = 0.0");
+    Ok(())
+}

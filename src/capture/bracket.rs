@@ -1,0 +1,461 @@
+//! HDR from an ordinary camera: merging exposure brackets, and recovering the camera response
+//! from them (Debevec & Malik, "Recovering High Dynamic Range Radiance Maps from Photographs",
+//! SIGGRAPH 1997).
+//!
+//! # Merge ([`merge_brackets`])
+//!
+//! Every bracket k has code values v_k (normalised, [0, 1]) and an effective exposure
+//! T_k = t_k · gain_k. Per pixel and channel:
+//! 1. the radiance seen by bracket k is L_k = X(v_k) · wb · scale / T_k (see [`super::response`]);
+//! 2. its weight is w = T_k · hat(v) with hat(v) = min(v − dark, saturated − v), so codes at or
+//!    below `dark` (noise, black level) or at or above `saturated` (clipped) get no weight.
+//!    Debevec & Malik use the hat alone; the factor T_k makes it the noise-optimal weight for
+//!    photon (shot) noise, whose variance in L_k falls as 1/T_k (Granados et al., "Optimal HDR
+//!    reconstruction with linear digital cameras", CVPR 2010): without it, read noise in the
+//!    short exposures, amplified by 1/T_k, dominates the dark parts of the scene;
+//! 3. L = Σ w_k L_k / Σ w_k. If no bracket has weight, the pixel is too bright for the
+//!    shortest exposure (then its L_k is used: a lower bound) or too dark for the longest
+//!    (then the longest exposure's L_k is used).
+//!
+//! # Response recovery ([`recover_response`])
+//!
+//! Codes are quantised to n levels z = 0 … n−1. With g(z) = ln X(z) (the log inverse response),
+//! every sample pixel i seen in bracket j gives g(Z_ij) = ln E_i + ln T_j. Debevec & Malik's
+//! `gsolve` finds g and the ln E_i by weighted linear least squares:
+//! - data rows w(Z_ij)·(g(Z_ij) − ln E_i) = w(Z_ij)·ln T_j for every sample and bracket;
+//! - one row g(n/2) = 0 fixing the scale (the curve is relative: X = 1 at mid code);
+//! - smoothness rows λ·w(z)·(g(z−1) − 2g(z) + g(z+1)) = 0 for z = 1 … n−2;
+//!
+//! with Debevec & Malik's hat weight w(z) = min(z, n−1−z) (so clipped and black samples carry no
+//! data; the smoothness rows use w(z) + 1 so the end codes stay tied to their neighbours). The normal equations (n + N unknowns, a few hundred) are
+//! solved by a dense Cholesky factorisation in f64. Samples are chosen per bracket at evenly
+//! spaced quantiles of its code values, so every part of the code range is covered. Each
+//! channel is solved on its own (so each channel's curve is 1 at mid code; the colour balance
+//! between channels is the `white_balance` of the config).
+
+use super::pixel_format::CodeImage;
+use super::response::{Linearizer, Radiometry, ResponseCurve, ResponseModel};
+
+/// Errors of merging and calibration; messages name the bracket or setting at fault.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BracketError {
+    #[error("no brackets given")]
+    Empty,
+    #[error("bracket {index} is {width}x{height}, bracket 1 is {first_width}x{first_height}")]
+    SizeMismatch {
+        index: usize,
+        width: u32,
+        height: u32,
+        first_width: u32,
+        first_height: u32,
+    },
+    #[error(
+        "bracket {index}: exposure {exposure} (exposure time × gain) must be a positive number"
+    )]
+    Exposure { index: usize, exposure: f64 },
+    #[error("{0}")]
+    Settings(String),
+    #[error("response recovery failed: {0}")]
+    Solve(String),
+}
+
+/// One exposure of a bracket set.
+#[derive(Clone, Debug)]
+pub struct Bracket {
+    pub image: CodeImage,
+    /// Exposure time in seconds.
+    pub exposure_s: f64,
+    /// Linear gain (1 = unity).
+    pub gain: f64,
+}
+
+/// Code-value limits of the merge weight.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MergeLimits {
+    /// Codes at or below are noise (no weight).
+    pub dark: f32,
+    /// Codes at or above are clipped (no weight).
+    pub saturated: f32,
+}
+
+impl Default for MergeLimits {
+    fn default() -> Self {
+        Self {
+            dark: 0.02,
+            saturated: 0.98,
+        }
+    }
+}
+
+impl MergeLimits {
+    /// Checks 0 ≤ dark < saturated ≤ 1.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.dark >= 0.0 && self.dark < self.saturated && self.saturated <= 1.0) {
+            return Err(format!(
+                "dark = {} and saturated = {} must satisfy 0 <= dark < saturated <= 1",
+                self.dark, self.saturated
+            ));
+        }
+        Ok(())
+    }
+
+    #[inline]
+    fn weight(&self, v: f32) -> f32 {
+        (v - self.dark).min(self.saturated - v).max(0.0)
+    }
+}
+
+fn check_brackets(brackets: &[Bracket]) -> Result<(), BracketError> {
+    let first = brackets.first().ok_or(BracketError::Empty)?;
+    for (i, b) in brackets.iter().enumerate() {
+        if (b.image.width, b.image.height) != (first.image.width, first.image.height)
+            || b.image.pixels.len() != first.image.pixels.len()
+        {
+            return Err(BracketError::SizeMismatch {
+                index: i + 1,
+                width: b.image.width,
+                height: b.image.height,
+                first_width: first.image.width,
+                first_height: first.image.height,
+            });
+        }
+        let exposure = b.exposure_s * b.gain;
+        if !(exposure.is_finite() && exposure > 0.0) {
+            return Err(BracketError::Exposure {
+                index: i + 1,
+                exposure,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Merges a bracket set into one radiance image (see the module docs). `radiometry`'s
+/// white balance and scale are used; its exposure and gain are replaced by each bracket's.
+pub fn merge_brackets(
+    brackets: &[Bracket],
+    model: &ResponseModel,
+    code_max: f32,
+    radiometry: &Radiometry,
+    limits: MergeLimits,
+) -> Result<Vec<[f32; 3]>, BracketError> {
+    check_brackets(brackets)?;
+    limits.check().map_err(BracketError::Settings)?;
+    let lins: Vec<Linearizer> = brackets
+        .iter()
+        .map(|b| {
+            let r = Radiometry {
+                exposure_s: b.exposure_s,
+                gain: b.gain,
+                ..*radiometry
+            };
+            Linearizer::new(model, code_max, &r)
+        })
+        .collect();
+    let exposure = |k: usize| brackets[k].exposure_s * brackets[k].gain;
+    let shortest = (0..brackets.len())
+        .min_by(|&a, &b| exposure(a).total_cmp(&exposure(b)))
+        .unwrap_or(0);
+    let longest = (0..brackets.len())
+        .max_by(|&a, &b| exposure(a).total_cmp(&exposure(b)))
+        .unwrap_or(0);
+    let n = brackets[0].image.pixels.len();
+    let mut out = vec![[0.0f32; 3]; n];
+    for (i, px) in out.iter_mut().enumerate() {
+        for c in 0..3 {
+            let (mut num, mut den) = (0.0f32, 0.0f32);
+            for (b, lin) in brackets.iter().zip(&lins) {
+                let v = b.image.pixels[i][c];
+                let w = limits.weight(v) * (b.exposure_s * b.gain) as f32;
+                if w > 0.0 {
+                    num += w * lin.apply(c, v);
+                    den += w;
+                }
+            }
+            px[c] = if den > 0.0 {
+                num / den
+            } else {
+                let short_v = brackets[shortest].image.pixels[i][c];
+                let k = if short_v >= limits.saturated {
+                    shortest
+                } else {
+                    longest
+                };
+                lins[k].apply(c, brackets[k].image.pixels[i][c])
+            };
+        }
+    }
+    Ok(out)
+}
+
+/// Reads an 8- or 16-bit PNG (one bracket of an ordinary camera) as normalised code values.
+pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::CaptureError> {
+    let err = |message: String| super::CaptureError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let reader = image::ImageReader::open(path).map_err(|source| super::CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let img = reader
+        .with_guessed_format()
+        .map_err(|e| err(e.to_string()))?
+        .decode()
+        .map_err(|e| err(e.to_string()))?
+        .to_rgb32f();
+    let (width, height) = img.dimensions();
+    let pixels = img
+        .pixels()
+        .map(|p| p.0.map(|v| v.clamp(0.0, 1.0)))
+        .collect();
+    Ok(CodeImage {
+        width,
+        height,
+        pixels,
+    })
+}
+
+/// Settings of [`recover_response`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveSettings {
+    /// Quantisation levels of the curve (256 for 8-bit cameras).
+    pub levels: usize,
+    /// Smoothness weight λ.
+    pub lambda: f64,
+    /// Sample pixels (spread over the brackets).
+    pub samples: usize,
+}
+
+impl Default for SolveSettings {
+    fn default() -> Self {
+        Self {
+            levels: 256,
+            lambda: 100.0,
+            samples: 300,
+        }
+    }
+}
+
+/// Recovers a camera's response curve from brackets of a static scene (Debevec & Malik's
+/// gsolve per channel). Gains are folded into the exposures.
+pub fn recover_response(
+    brackets: &[Bracket],
+    settings: SolveSettings,
+) -> Result<ResponseCurve, BracketError> {
+    check_brackets(brackets)?;
+    if brackets.len() < 2 {
+        return Err(BracketError::Settings(
+            "response recovery needs at least 2 brackets with different exposures".into(),
+        ));
+    }
+    let n = settings.levels;
+    if !(4..=4096).contains(&n) {
+        return Err(BracketError::Settings(format!(
+            "levels = {n} must be in 4..=4096"
+        )));
+    }
+    if !(settings.lambda.is_finite() && settings.lambda >= 0.0) {
+        return Err(BracketError::Settings(format!(
+            "lambda = {} must be a non-negative number",
+            settings.lambda
+        )));
+    }
+    if !(2..=5000).contains(&settings.samples) {
+        return Err(BracketError::Settings(format!(
+            "samples = {} must be in 2..=5000",
+            settings.samples
+        )));
+    }
+    let pixels = brackets[0].image.pixels.len();
+    // sample positions: evenly spaced quantiles of each bracket's mean code
+    let per = settings.samples.div_ceil(brackets.len()).max(1);
+    let mut picks: Vec<usize> = Vec::new();
+    for b in brackets {
+        let mut order: Vec<(f32, usize)> = b
+            .image
+            .pixels
+            .iter()
+            .enumerate()
+            .map(|(i, p)| ((p[0] + p[1] + p[2]) / 3.0, i))
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for k in 0..per {
+            let q = (k as f64 + 0.5) / per as f64;
+            picks.push(order[((q * pixels as f64) as usize).min(pixels - 1)].1);
+        }
+    }
+    picks.sort_unstable();
+    picks.dedup();
+    let ln_t: Vec<f64> = brackets
+        .iter()
+        .map(|b| (b.exposure_s * b.gain).ln())
+        .collect();
+    let top = (n - 1) as f64;
+    // Debevec & Malik's hat: 0 at both ends, so clipped and black samples carry no data
+    let weight = |z: usize| z.min(n - 1 - z) as f64;
+    let mut values: [Vec<f64>; 3] = Default::default();
+    for c in 0..3 {
+        let m = n + picks.len();
+        let mut ata = vec![0.0f64; m * m];
+        let mut atb = vec![0.0f64; m];
+        let mut add_row = |entries: &[(usize, f64)], rhs: f64| {
+            for &(i, a) in entries {
+                atb[i] += a * rhs;
+                for &(j, b) in entries {
+                    ata[i * m + j] += a * b;
+                }
+            }
+        };
+        for (s, &p) in picks.iter().enumerate() {
+            for (b, &lt) in brackets.iter().zip(&ln_t) {
+                let v = f64::from(b.image.pixels[p][c]).clamp(0.0, 1.0);
+                let z = (v * top).round() as usize;
+                let w = weight(z);
+                add_row(&[(z, w), (n + s, -w)], w * lt);
+            }
+        }
+        add_row(&[(n / 2, 1.0)], 0.0);
+        for z in 1..n - 1 {
+            let w = settings.lambda * (weight(z) + 1.0);
+            add_row(&[(z - 1, w), (z, -2.0 * w), (z + 1, w)], 0.0);
+        }
+        let g = cholesky_solve(&mut ata, &atb, m).ok_or_else(|| {
+            BracketError::Solve(format!(
+                "the {} channel's system is singular (are the exposures all equal?)",
+                ["red", "green", "blue"][c]
+            ))
+        })?;
+        values[c] = g[..n].iter().map(|&g| g.exp()).collect();
+        if values[c].iter().any(|v| !v.is_finite()) {
+            return Err(BracketError::Solve("the solution overflowed".into()));
+        }
+    }
+    let codes = (0..n).map(|z| z as f64 / top).collect();
+    ResponseCurve::new(codes, values).map_err(BracketError::Solve)
+}
+
+/// Solves A x = b for symmetric positive definite A (row-major m×m, overwritten by its
+/// Cholesky factor). `None` if A is not positive definite.
+fn cholesky_solve(a: &mut [f64], b: &[f64], m: usize) -> Option<Vec<f64>> {
+    for j in 0..m {
+        let mut d = a[j * m + j];
+        for k in 0..j {
+            d -= a[j * m + k] * a[j * m + k];
+        }
+        if !(d.is_finite() && d > 0.0) {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * m + j] = d;
+        for i in j + 1..m {
+            let mut s = a[i * m + j];
+            for k in 0..j {
+                s -= a[i * m + k] * a[j * m + k];
+            }
+            a[i * m + j] = s / d;
+        }
+    }
+    let mut y = b.to_vec();
+    for i in 0..m {
+        for k in 0..i {
+            y[i] -= a[i * m + k] * y[k];
+        }
+        y[i] /= a[i * m + i];
+    }
+    for i in (0..m).rev() {
+        for k in i + 1..m {
+            y[i] -= a[k * m + i] * y[k];
+        }
+        y[i] /= a[i * m + i];
+    }
+    Some(y)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(pixels: Vec<[f32; 3]>) -> CodeImage {
+        CodeImage {
+            width: pixels.len() as u32,
+            height: 1,
+            pixels,
+        }
+    }
+
+    #[test]
+    fn cholesky_solves_a_known_system() {
+        let mut a = vec![4.0, 2.0, 2.0, 3.0];
+        let x = cholesky_solve(&mut a, &[2.0, 1.0], 2).unwrap();
+        assert!((x[0] - 0.5).abs() < 1e-12 && x[1].abs() < 1e-12, "{x:?}");
+        let mut singular = vec![1.0, 1.0, 1.0, 1.0];
+        assert!(cholesky_solve(&mut singular, &[1.0, 1.0], 2).is_none());
+    }
+
+    #[test]
+    fn merge_weights_and_exclusions() {
+        // linear response; a pixel at 0.5 in exposure 1 and clipped in exposure 4
+        let b1 = Bracket {
+            image: image(vec![[0.5, 0.99, 0.001]]),
+            exposure_s: 1.0,
+            gain: 1.0,
+        };
+        let b2 = Bracket {
+            image: image(vec![[1.0, 1.0, 0.004]]),
+            exposure_s: 4.0,
+            gain: 1.0,
+        };
+        let out = merge_brackets(
+            &[b1, b2],
+            &ResponseModel::Linear,
+            255.0,
+            &Radiometry::default(),
+            MergeLimits::default(),
+        )
+        .unwrap();
+        // red: only exposure 1 counts (exposure 4 is clipped)
+        assert!((out[0][0] - 0.5).abs() < 1e-6);
+        // green: clipped everywhere → the shortest exposure's value, a lower bound
+        assert!((out[0][1] - 0.99).abs() < 1e-6);
+        // blue: dark everywhere → the longest exposure's value
+        assert!((out[0][2] - 0.001).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_brackets_are_errors() {
+        let ok = Bracket {
+            image: image(vec![[0.5; 3]; 2]),
+            exposure_s: 1.0,
+            gain: 1.0,
+        };
+        let m = ResponseModel::Srgb;
+        let r = Radiometry::default();
+        let l = MergeLimits::default();
+        assert_eq!(
+            merge_brackets(&[], &m, 255.0, &r, l).unwrap_err(),
+            BracketError::Empty
+        );
+        let small = Bracket {
+            image: image(vec![[0.5; 3]]),
+            ..ok.clone()
+        };
+        let e = merge_brackets(&[ok.clone(), small], &m, 255.0, &r, l).unwrap_err();
+        assert!(e.to_string().contains("bracket 2 is 1x1"), "{e}");
+        let zero = Bracket {
+            exposure_s: 0.0,
+            ..ok.clone()
+        };
+        let e = merge_brackets(&[ok.clone(), zero], &m, 255.0, &r, l).unwrap_err();
+        assert!(e.to_string().contains("bracket 2: exposure 0"), "{e}");
+        let bad_limits = MergeLimits {
+            dark: 0.9,
+            saturated: 0.1,
+        };
+        assert!(merge_brackets(std::slice::from_ref(&ok), &m, 255.0, &r, bad_limits).is_err());
+        let e = recover_response(std::slice::from_ref(&ok), SolveSettings::default()).unwrap_err();
+        assert!(e.to_string().contains("at least 2"), "{e}");
+        // identical exposures of a flat image cannot determine a curve, but must not panic
+        let _ = recover_response(&[ok.clone(), ok], SolveSettings::default());
+    }
+}

@@ -1,0 +1,852 @@
+//! Camera pixel formats: a raw V4L2 buffer → normalised code values (f32 RGB in [0, 1]).
+//!
+//! Nothing here touches a device, so every conversion is tested on made-up buffers. The output
+//! is the camera's *code value* per channel, normalised by the format's largest code
+//! (255, 1023, 4095 or 65535); turning code values into radiance is [`super::response`]'s job.
+//!
+//! | format             | V4L2 fourcc                 | conversion                                        |
+//! |--------------------|-----------------------------|---------------------------------------------------|
+//! | YUYV 4:2:2         | `YUYV`                      | limited-range Y'CbCr → R'G'B', BT.601 or BT.709   |
+//! | Motion JPEG        | `MJPG`, `JPEG`              | `zune-jpeg` (JFIF full-range BT.601) → RGB        |
+//! | grey 8/10/12/16    | `GREY`, `Y10 `, `Y12 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
+//! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
+//! | Bayer 8/10/12/16   | `RGGB` `BA81` …, `RG10` …, `RG12` …, `RG16` `BYR2` … | bilinear demosaic |
+//!
+//! YUYV: each 4-byte group Y0 U Y1 V holds two pixels that share (U, V). With
+//! y = (Y − 16)/219, u = (U − 128)/224, v = (V − 128)/224 (limited range),
+//! R' = y + 2(1 − Kr)·v, B' = y + 2(1 − Kb)·u, G' = (y − Kr·R' − Kb·B')/(1 − Kr − Kb), with
+//! (Kr, Kb) = (0.299, 0.114) for BT.601 and (0.2126, 0.0722) for BT.709 (ITU-R BT.601-7 and
+//! BT.709-6). [`YuvMatrix::Auto`] picks BT.709 from 1280×720 up and BT.601 below, as the
+//! V4L2 default colorspace rules do for YUV formats without an explicit encoding.
+//!
+//! Bayer demosaic (bilinear): each pixel keeps its own colour; a missing colour is the mean of
+//! the pixels of that colour in its 3×3 neighbourhood (the 2 or 4 nearest samples). Borders are
+//! mirrored without repeating the edge (x = −1 reads x = 1), which keeps the colour phase, so
+//! every pixel has the same stencil. This reproduces a linear ramp exactly in every colour.
+//!
+//! 10/12/16-bit formats are the unpacked V4L2 layouts: one little-endian 16-bit word per
+//! sample, the value in the low bits. Values above the format's largest code are clamped.
+//!
+//! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
+//! odd width for YUYV or Bayer, or a corrupt JPEG is a [`PixelError`], never a panic.
+
+use std::fmt;
+
+/// Bayer colour-filter layout: the colours of the top-left 2×2 block, row by row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BayerPattern {
+    Rggb,
+    Bggr,
+    Grbg,
+    Gbrg,
+}
+
+impl BayerPattern {
+    /// Channel index (0 = R, 1 = G, 2 = B) of the pixel at (x, y).
+    #[inline]
+    pub fn channel(self, x: usize, y: usize) -> usize {
+        let cells: [usize; 4] = match self {
+            BayerPattern::Rggb => [0, 1, 1, 2],
+            BayerPattern::Bggr => [2, 1, 1, 0],
+            BayerPattern::Grbg => [1, 0, 2, 1],
+            BayerPattern::Gbrg => [1, 2, 0, 1],
+        };
+        cells[(y & 1) * 2 + (x & 1)]
+    }
+}
+
+/// The pixel formats envlight converts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PixelFormat {
+    Yuyv,
+    Mjpeg,
+    /// Grey with 8, 10, 12 or 16 significant bits.
+    Grey {
+        bits: u8,
+    },
+    Rgb24,
+    Bgr24,
+    /// Raw Bayer with 8, 10, 12 or 16 significant bits.
+    Bayer {
+        pattern: BayerPattern,
+        bits: u8,
+    },
+}
+
+/// The formats in envlight's default preference order (most dynamic range first).
+pub const DEFAULT_PREFERENCE: [PixelFormat; 15] = {
+    use BayerPattern::*;
+    use PixelFormat::*;
+    [
+        Grey { bits: 16 },
+        Bayer {
+            pattern: Rggb,
+            bits: 16,
+        },
+        Grey { bits: 12 },
+        Bayer {
+            pattern: Rggb,
+            bits: 12,
+        },
+        Grey { bits: 10 },
+        Bayer {
+            pattern: Rggb,
+            bits: 10,
+        },
+        Bayer {
+            pattern: Bggr,
+            bits: 16,
+        },
+        Bayer {
+            pattern: Bggr,
+            bits: 12,
+        },
+        Bayer {
+            pattern: Bggr,
+            bits: 10,
+        },
+        Bayer {
+            pattern: Rggb,
+            bits: 8,
+        },
+        Rgb24,
+        Bgr24,
+        Yuyv,
+        Grey { bits: 8 },
+        Mjpeg,
+    ]
+};
+
+const BAYER_FOURCCS: [(BayerPattern, u8, &[u8; 4]); 16] = {
+    use BayerPattern::*;
+    [
+        (Bggr, 8, b"BA81"),
+        (Gbrg, 8, b"GBRG"),
+        (Grbg, 8, b"GRBG"),
+        (Rggb, 8, b"RGGB"),
+        (Bggr, 10, b"BG10"),
+        (Gbrg, 10, b"GB10"),
+        (Grbg, 10, b"BA10"),
+        (Rggb, 10, b"RG10"),
+        (Bggr, 12, b"BG12"),
+        (Gbrg, 12, b"GB12"),
+        (Grbg, 12, b"BA12"),
+        (Rggb, 12, b"RG12"),
+        (Bggr, 16, b"BYR2"),
+        (Gbrg, 16, b"GB16"),
+        (Grbg, 16, b"GR16"),
+        (Rggb, 16, b"RG16"),
+    ]
+};
+
+impl PixelFormat {
+    /// Every format envlight converts (for tests and listings).
+    pub fn all() -> Vec<PixelFormat> {
+        let mut v = vec![
+            PixelFormat::Yuyv,
+            PixelFormat::Mjpeg,
+            PixelFormat::Grey { bits: 8 },
+            PixelFormat::Grey { bits: 10 },
+            PixelFormat::Grey { bits: 12 },
+            PixelFormat::Grey { bits: 16 },
+            PixelFormat::Rgb24,
+            PixelFormat::Bgr24,
+        ];
+        v.extend(
+            BAYER_FOURCCS
+                .iter()
+                .map(|&(pattern, bits, _)| PixelFormat::Bayer { pattern, bits }),
+        );
+        v
+    }
+
+    /// The V4L2 four-character code.
+    pub fn fourcc(self) -> [u8; 4] {
+        match self {
+            PixelFormat::Yuyv => *b"YUYV",
+            PixelFormat::Mjpeg => *b"MJPG",
+            PixelFormat::Grey { bits: 10 } => *b"Y10 ",
+            PixelFormat::Grey { bits: 12 } => *b"Y12 ",
+            PixelFormat::Grey { bits: 16 } => *b"Y16 ",
+            PixelFormat::Grey { .. } => *b"GREY",
+            PixelFormat::Rgb24 => *b"RGB3",
+            PixelFormat::Bgr24 => *b"BGR3",
+            PixelFormat::Bayer { pattern, bits } => BAYER_FOURCCS
+                .iter()
+                .find(|&&(p, b, _)| p == pattern && b == bits)
+                .map_or(*b"RGGB", |&(_, _, f)| *f),
+        }
+    }
+
+    /// The format of a V4L2 four-character code, `None` if envlight cannot convert it.
+    pub fn from_fourcc(code: [u8; 4]) -> Option<Self> {
+        Some(match &code {
+            b"YUYV" => PixelFormat::Yuyv,
+            b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
+            b"GREY" => PixelFormat::Grey { bits: 8 },
+            b"Y10 " => PixelFormat::Grey { bits: 10 },
+            b"Y12 " => PixelFormat::Grey { bits: 12 },
+            b"Y16 " => PixelFormat::Grey { bits: 16 },
+            b"RGB3" => PixelFormat::Rgb24,
+            b"BGR3" => PixelFormat::Bgr24,
+            _ => {
+                let &(pattern, bits, _) = BAYER_FOURCCS.iter().find(|(_, _, f)| **f == code)?;
+                PixelFormat::Bayer { pattern, bits }
+            }
+        })
+    }
+
+    /// Parses a config/CLI name: a fourcc (`"Y16"`, `"MJPG"`, `"RG10"`; trailing spaces may be
+    /// left out) or one of `yuyv`, `mjpeg`, `grey`, `rgb24`, `bgr24` (case-insensitive).
+    pub fn parse(name: &str) -> Option<Self> {
+        let lower = name.trim().to_ascii_lowercase();
+        match lower.as_str() {
+            "yuyv" => return Some(PixelFormat::Yuyv),
+            "mjpeg" | "mjpg" => return Some(PixelFormat::Mjpeg),
+            "grey" | "gray" => return Some(PixelFormat::Grey { bits: 8 }),
+            "rgb24" => return Some(PixelFormat::Rgb24),
+            "bgr24" => return Some(PixelFormat::Bgr24),
+            _ => {}
+        }
+        let bytes = name.trim().as_bytes();
+        if bytes.is_empty() || bytes.len() > 4 {
+            return None;
+        }
+        let mut code = [b' '; 4];
+        code[..bytes.len()].copy_from_slice(bytes);
+        Self::from_fourcc(code)
+    }
+
+    /// Significant bits per sample.
+    pub fn bits(self) -> u8 {
+        match self {
+            PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => bits,
+            _ => 8,
+        }
+    }
+
+    /// Largest code value (2^bits − 1).
+    pub fn code_max(self) -> f32 {
+        ((1u32 << self.bits()) - 1) as f32
+    }
+
+    /// Bytes per pixel of a packed row (0 for the compressed MJPEG).
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            PixelFormat::Yuyv => 2,
+            PixelFormat::Mjpeg => 0,
+            PixelFormat::Rgb24 | PixelFormat::Bgr24 => 3,
+            PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => {
+                if bits > 8 {
+                    2
+                } else {
+                    1
+                }
+            }
+        }
+    }
+
+    /// Whether code values are proportional to sensor exposure (raw grey and Bayer data) rather
+    /// than gamma-encoded for display (YUYV, MJPEG, RGB24 usually are).
+    pub fn is_raw(self) -> bool {
+        matches!(self, PixelFormat::Grey { .. } | PixelFormat::Bayer { .. })
+    }
+}
+
+impl fmt::Display for PixelFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let code = self.fourcc();
+        let s = String::from_utf8_lossy(&code);
+        write!(f, "{}", s.trim_end())
+    }
+}
+
+/// Y'CbCr → R'G'B' matrix for YUYV.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum YuvMatrix {
+    /// BT.709 from 1280×720 up, BT.601 below.
+    #[default]
+    Auto,
+    Bt601,
+    Bt709,
+}
+
+impl YuvMatrix {
+    /// The matrix to use for a `width`×`height` frame (resolves `Auto`).
+    pub fn resolve(self, width: u32, height: u32) -> YuvMatrix {
+        match self {
+            YuvMatrix::Auto if width >= 1280 && height >= 720 => YuvMatrix::Bt709,
+            YuvMatrix::Auto => YuvMatrix::Bt601,
+            m => m,
+        }
+    }
+
+    fn coefficients(self) -> (f32, f32) {
+        match self {
+            YuvMatrix::Bt709 => (0.2126, 0.0722),
+            _ => (0.299, 0.114),
+        }
+    }
+}
+
+/// Why a buffer cannot be converted.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PixelError {
+    #[error("{format} {width}x{height}: buffer has {got} bytes, needs {needed}")]
+    Short {
+        format: PixelFormat,
+        width: u32,
+        height: u32,
+        got: usize,
+        needed: usize,
+    },
+    #[error("{format} {width}x{height}: {message}")]
+    Geometry {
+        format: PixelFormat,
+        width: u32,
+        height: u32,
+        message: String,
+    },
+    #[error("MJPEG frame: {0}")]
+    Jpeg(String),
+}
+
+/// One raw camera buffer and how to read it.
+#[derive(Clone, Copy, Debug)]
+pub struct RawFrame<'a> {
+    pub data: &'a [u8],
+    pub format: PixelFormat,
+    pub width: u32,
+    pub height: u32,
+    /// Bytes per row; 0 = packed rows (width × bytes per pixel). Ignored for MJPEG.
+    pub stride: usize,
+}
+
+/// An image of normalised code values in [0, 1], row-major, top row first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CodeImage {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<[f32; 3]>,
+}
+
+/// Largest frame accepted (pixels), so a corrupt size cannot allocate gigabytes.
+pub const MAX_PIXELS: u64 = 16384 * 16384;
+
+/// Converts a raw buffer into normalised code values. `matrix` is used for YUYV only.
+pub fn decode(raw: &RawFrame<'_>, matrix: YuvMatrix) -> Result<CodeImage, PixelError> {
+    let mut out = CodeImage {
+        width: 0,
+        height: 0,
+        pixels: Vec::new(),
+    };
+    decode_into(raw, matrix, &mut out)?;
+    Ok(out)
+}
+
+/// [`decode`] into an existing image, reusing its allocation.
+pub fn decode_into(
+    raw: &RawFrame<'_>,
+    matrix: YuvMatrix,
+    out: &mut CodeImage,
+) -> Result<(), PixelError> {
+    let (format, w, h) = (raw.format, raw.width, raw.height);
+    let geometry = |message: &str| PixelError::Geometry {
+        format,
+        width: w,
+        height: h,
+        message: message.to_string(),
+    };
+    if w == 0 || h == 0 || u64::from(w) * u64::from(h) > MAX_PIXELS {
+        return Err(geometry("frame size must be 1 to 16384² pixels"));
+    }
+    if format == PixelFormat::Mjpeg {
+        return decode_jpeg(raw.data, w, h, out);
+    }
+    if matches!(format, PixelFormat::Yuyv | PixelFormat::Bayer { .. }) && w % 2 != 0 {
+        return Err(geometry("width must be even"));
+    }
+    let row_bytes = w as usize * format.bytes_per_pixel();
+    let stride = if raw.stride == 0 {
+        row_bytes
+    } else {
+        raw.stride
+    };
+    if stride < row_bytes {
+        return Err(geometry(&format!(
+            "stride {stride} is smaller than a row of {row_bytes} bytes"
+        )));
+    }
+    let needed = stride * (h as usize - 1) + row_bytes;
+    if raw.data.len() < needed {
+        return Err(PixelError::Short {
+            format,
+            width: w,
+            height: h,
+            got: raw.data.len(),
+            needed,
+        });
+    }
+    let (wu, hu) = (w as usize, h as usize);
+    out.width = w;
+    out.height = h;
+    out.pixels.clear();
+    out.pixels.resize(wu * hu, [0.0; 3]);
+    let rows = |y: usize| &raw.data[y * stride..y * stride + row_bytes];
+    match format {
+        PixelFormat::Yuyv => {
+            let (kr, kb) = matrix.resolve(w, h).coefficients();
+            let (rv, bu) = (2.0 * (1.0 - kr), 2.0 * (1.0 - kb));
+            let kg = 1.0 / (1.0 - kr - kb);
+            for y in 0..hu {
+                let dst = &mut out.pixels[y * wu..(y + 1) * wu];
+                for (quad, pair) in rows(y).chunks_exact(4).zip(dst.chunks_exact_mut(2)) {
+                    let u = (f32::from(quad[1]) - 128.0) / 224.0;
+                    let v = (f32::from(quad[3]) - 128.0) / 224.0;
+                    for (k, luma) in [quad[0], quad[2]].into_iter().enumerate() {
+                        let l = (f32::from(luma) - 16.0) / 219.0;
+                        let r = l + rv * v;
+                        let b = l + bu * u;
+                        let g = (l - kr * r - kb * b) * kg;
+                        pair[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
+                    }
+                }
+            }
+        }
+        PixelFormat::Rgb24 | PixelFormat::Bgr24 => {
+            let (ri, bi) = if format == PixelFormat::Rgb24 {
+                (0, 2)
+            } else {
+                (2, 0)
+            };
+            for y in 0..hu {
+                let dst = &mut out.pixels[y * wu..(y + 1) * wu];
+                for (px, d) in rows(y).chunks_exact(3).zip(dst.iter_mut()) {
+                    *d = [
+                        f32::from(px[ri]) / 255.0,
+                        f32::from(px[1]) / 255.0,
+                        f32::from(px[bi]) / 255.0,
+                    ];
+                }
+            }
+        }
+        PixelFormat::Grey { .. } => {
+            let max = format.code_max();
+            let inv = 1.0 / max;
+            for y in 0..hu {
+                let dst = &mut out.pixels[y * wu..(y + 1) * wu];
+                if format.bytes_per_pixel() == 1 {
+                    for (&b, d) in rows(y).iter().zip(dst.iter_mut()) {
+                        *d = [f32::from(b) * inv; 3];
+                    }
+                } else {
+                    for (b, d) in rows(y).chunks_exact(2).zip(dst.iter_mut()) {
+                        let v = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
+                        *d = [v; 3];
+                    }
+                }
+            }
+        }
+        PixelFormat::Bayer { pattern, .. } => {
+            let max = format.code_max();
+            let inv = 1.0 / max;
+            let mut mosaic = vec![0.0f32; wu * hu];
+            for y in 0..hu {
+                let dst = &mut mosaic[y * wu..(y + 1) * wu];
+                if format.bytes_per_pixel() == 1 {
+                    for (&b, d) in rows(y).iter().zip(dst.iter_mut()) {
+                        *d = f32::from(b) * inv;
+                    }
+                } else {
+                    for (b, d) in rows(y).chunks_exact(2).zip(dst.iter_mut()) {
+                        *d = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
+                    }
+                }
+            }
+            demosaic_bilinear(&mosaic, wu, hu, pattern, &mut out.pixels);
+        }
+        PixelFormat::Mjpeg => unreachable!("handled above"),
+    }
+    Ok(())
+}
+
+/// Mirror index without repeating the edge: −1 → 1, n → n − 2 (n = 1: 0).
+#[inline]
+fn mirror(i: isize, n: usize) -> usize {
+    let n = n as isize;
+    let j = if i < 0 {
+        -i
+    } else if i >= n {
+        2 * n - 2 - i
+    } else {
+        i
+    };
+    j.clamp(0, n - 1) as usize
+}
+
+/// Bilinear demosaic: missing colours are the mean of that colour's samples in the 3×3
+/// neighbourhood (mirrored borders).
+pub fn demosaic_bilinear(
+    mosaic: &[f32],
+    w: usize,
+    h: usize,
+    pattern: BayerPattern,
+    out: &mut [[f32; 3]],
+) {
+    for y in 0..h {
+        for x in 0..w {
+            let own = pattern.channel(x, y);
+            let mut sum = [0.0f32; 3];
+            let mut count = [0u32; 3];
+            for dy in -1isize..=1 {
+                let yy = mirror(y as isize + dy, h);
+                for dx in -1isize..=1 {
+                    let xx = mirror(x as isize + dx, w);
+                    // the colour phase is that of the unmirrored offset (mirroring keeps parity)
+                    let c = pattern.channel((x as isize + dx).rem_euclid(2) as usize, {
+                        (y as isize + dy).rem_euclid(2) as usize
+                    });
+                    sum[c] += mosaic[yy * w + xx];
+                    count[c] += 1;
+                }
+            }
+            let mut px = [0.0f32; 3];
+            for c in 0..3 {
+                px[c] = if c == own {
+                    mosaic[y * w + x]
+                } else if count[c] > 0 {
+                    sum[c] / count[c] as f32
+                } else {
+                    0.0
+                };
+            }
+            out[y * w + x] = px;
+        }
+    }
+}
+
+fn decode_jpeg(data: &[u8], w: u32, h: u32, out: &mut CodeImage) -> Result<(), PixelError> {
+    use zune_jpeg::zune_core::bytestream::ZCursor;
+    use zune_jpeg::zune_core::colorspace::ColorSpace;
+    use zune_jpeg::zune_core::options::DecoderOptions;
+    let options = DecoderOptions::default()
+        .jpeg_set_out_colorspace(ColorSpace::RGB)
+        .set_max_width(16384)
+        .set_max_height(16384);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(data), options);
+    // zune-jpeg returns errors on corrupt data; a panic on some input is still caught.
+    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        decoder.decode().map(|bytes| (bytes, decoder.info()))
+    }))
+    .map_err(|_| PixelError::Jpeg("the decoder panicked on corrupt data".into()))?
+    .map_err(|e| PixelError::Jpeg(format!("{e:?}")))?;
+    let (bytes, info) = decoded;
+    let info = info.ok_or_else(|| PixelError::Jpeg("no image header".into()))?;
+    if (u32::from(info.width), u32::from(info.height)) != (w, h) {
+        return Err(PixelError::Jpeg(format!(
+            "image is {}x{}, the negotiated frame size is {w}x{h}",
+            info.width, info.height
+        )));
+    }
+    let n = w as usize * h as usize;
+    if bytes.len() < 3 * n {
+        return Err(PixelError::Jpeg(format!(
+            "decoder returned {} bytes for {n} RGB pixels",
+            bytes.len()
+        )));
+    }
+    out.width = w;
+    out.height = h;
+    out.pixels.clear();
+    out.pixels.extend(bytes.chunks_exact(3).take(n).map(|p| {
+        [
+            f32::from(p[0]) / 255.0,
+            f32::from(p[1]) / 255.0,
+            f32::from(p[2]) / 255.0,
+        ]
+    }));
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw(data: &[u8], format: PixelFormat, w: u32, h: u32) -> RawFrame<'_> {
+        RawFrame {
+            data,
+            format,
+            width: w,
+            height: h,
+            stride: 0,
+        }
+    }
+
+    fn close(a: [f32; 3], b: [f32; 3], tol: f32) -> bool {
+        a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol)
+    }
+
+    #[test]
+    fn fourcc_round_trip_and_names() {
+        for f in PixelFormat::all() {
+            assert_eq!(PixelFormat::from_fourcc(f.fourcc()), Some(f), "{f}");
+            assert_eq!(PixelFormat::parse(&f.to_string()), Some(f), "{f}");
+        }
+        assert_eq!(
+            PixelFormat::parse("Y16"),
+            Some(PixelFormat::Grey { bits: 16 })
+        );
+        assert_eq!(PixelFormat::parse("mjpeg"), Some(PixelFormat::Mjpeg));
+        assert_eq!(PixelFormat::parse("NV12"), None);
+        assert_eq!(PixelFormat::parse(""), None);
+        assert_eq!(PixelFormat::parse("TOOLONG"), None);
+        assert_eq!(PixelFormat::Grey { bits: 12 }.code_max(), 4095.0);
+    }
+
+    #[test]
+    fn yuyv_known_values_bt601_and_bt709() {
+        // Black, white, and 100% red of each standard: Y = 16 + 219·Kr, Cb = 128 − 112·Kr/(1 − Kb),
+        // Cr = 240 (BT.601: 81, 90, 240; BT.709: 63, 102, 240).
+        let data = [16, 128, 235, 128];
+        let img = decode(&raw(&data, PixelFormat::Yuyv, 2, 1), YuvMatrix::Bt601).unwrap();
+        assert!(close(img.pixels[0], [0.0; 3], 1e-6));
+        assert!(close(img.pixels[1], [1.0; 3], 1e-6));
+        let img = decode(
+            &raw(&[81, 90, 81, 240], PixelFormat::Yuyv, 2, 1),
+            YuvMatrix::Bt601,
+        )
+        .unwrap();
+        assert!(
+            close(img.pixels[0], [1.0, 0.0, 0.0], 0.006),
+            "{:?}",
+            img.pixels[0]
+        );
+        let img = decode(
+            &raw(&[63, 102, 63, 240], PixelFormat::Yuyv, 2, 1),
+            YuvMatrix::Bt709,
+        )
+        .unwrap();
+        assert!(
+            close(img.pixels[0], [1.0, 0.0, 0.0], 0.006),
+            "{:?}",
+            img.pixels[0]
+        );
+        // 75% yellow (R = G = 0.75, B = 0) encoded with the BT.709 forward equations
+        let (kr, kb) = (0.2126f32, 0.0722f32);
+        let (r, g, b) = (0.75f32, 0.75f32, 0.0f32);
+        let y = kr * r + (1.0 - kr - kb) * g + kb * b;
+        let cb = (b - y) / (2.0 * (1.0 - kb));
+        let cr = (r - y) / (2.0 * (1.0 - kr));
+        let code = |v: f32| v.round() as u8;
+        let quad = [
+            code(16.0 + 219.0 * y),
+            code(128.0 + 224.0 * cb),
+            0,
+            code(128.0 + 224.0 * cr),
+        ];
+        let img = decode(&raw(&quad, PixelFormat::Yuyv, 2, 1), YuvMatrix::Bt709).unwrap();
+        assert!(
+            close(img.pixels[0], [r, g, b], 0.008),
+            "{:?}",
+            img.pixels[0]
+        );
+        // the same code read with the wrong matrix is visibly off
+        let wrong = decode(&raw(&quad, PixelFormat::Yuyv, 2, 1), YuvMatrix::Bt601).unwrap();
+        assert!(
+            !close(wrong.pixels[0], [r, g, b], 0.02),
+            "{:?}",
+            wrong.pixels[0]
+        );
+        assert_eq!(YuvMatrix::Auto.resolve(1280, 960), YuvMatrix::Bt709);
+        assert_eq!(YuvMatrix::Auto.resolve(640, 480), YuvMatrix::Bt601);
+    }
+
+    #[test]
+    fn rgb24_bgr24_grey_and_stride() {
+        let rgb = [10, 20, 30, 40, 50, 60];
+        let a = decode(&raw(&rgb, PixelFormat::Rgb24, 2, 1), YuvMatrix::Auto).unwrap();
+        assert_eq!(a.pixels[1], [40.0 / 255.0, 50.0 / 255.0, 60.0 / 255.0]);
+        let b = decode(&raw(&rgb, PixelFormat::Bgr24, 2, 1), YuvMatrix::Auto).unwrap();
+        assert_eq!(b.pixels[0], [30.0 / 255.0, 20.0 / 255.0, 10.0 / 255.0]);
+        // GREY with a padded stride of 4 bytes for a 2-pixel row
+        let grey = [0, 255, 9, 9, 51, 102];
+        let mut r = raw(&grey, PixelFormat::Grey { bits: 8 }, 2, 2);
+        r.stride = 4;
+        let g = decode(&r, YuvMatrix::Auto).unwrap();
+        let want = [[0.0; 3], [1.0; 3], [0.2; 3], [0.4; 3]];
+        assert!(
+            g.pixels.iter().zip(want).all(|(p, w)| close(*p, w, 1e-6)),
+            "{g:?}"
+        );
+    }
+
+    #[test]
+    fn y10_y12_y16_little_endian() {
+        for (bits, code) in [(10u8, 1023u16), (12, 2048), (16, 0xBEEF)] {
+            let f = PixelFormat::Grey { bits };
+            let b = code.to_le_bytes();
+            let img = decode(&raw(&[b[0], b[1], 0, 0], f, 2, 1), YuvMatrix::Auto).unwrap();
+            let want = f32::from(code) / f.code_max();
+            assert!((img.pixels[0][0] - want).abs() < 1e-7, "Y{bits}");
+            assert_eq!(img.pixels[1], [0.0; 3]);
+        }
+        // an out-of-range 10-bit value is clamped to the largest code
+        let img = decode(
+            &raw(&[0xFF, 0xFF], PixelFormat::Grey { bits: 10 }, 1, 1),
+            YuvMatrix::Auto,
+        )
+        .unwrap();
+        assert_eq!(img.pixels[0], [1.0; 3]);
+    }
+
+    /// Mosaics a smooth RGB function with a pattern and checks the demosaic.
+    fn mosaic_of(
+        f: impl Fn(usize, usize) -> [f32; 3],
+        w: usize,
+        h: usize,
+        pattern: BayerPattern,
+        bits: u8,
+    ) -> Vec<u8> {
+        let max = ((1u32 << bits) - 1) as f32;
+        let mut out = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let v = (f(x, y)[pattern.channel(x, y)] * max).round() as u16;
+                if bits > 8 {
+                    out.extend_from_slice(&v.to_le_bytes());
+                } else {
+                    out.push(v as u8);
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn bayer_demosaic_every_pattern_and_depth() {
+        let (w, h) = (8usize, 6usize);
+        for f in PixelFormat::all() {
+            let PixelFormat::Bayer { pattern, bits } = f else {
+                continue;
+            };
+            let max = f.code_max();
+            // a constant colour is reproduced everywhere, borders included
+            let flat = |_: usize, _: usize| [0.8f32, 0.5, 0.25];
+            let data = mosaic_of(flat, w, h, pattern, bits);
+            let img = decode(&raw(&data, f, w as u32, h as u32), YuvMatrix::Auto).unwrap();
+            let q = |v: f32| (v * max).round() / max;
+            for p in &img.pixels {
+                assert!(close(*p, [q(0.8), q(0.5), q(0.25)], 1e-6), "{f} {p:?}");
+            }
+            // a linear ramp (in x and y, different per channel) is exact away from the border
+            let ramp = |x: usize, y: usize| {
+                let (x, y) = (x as f32, y as f32);
+                [0.05 * x + 0.02 * y, 0.1 + 0.03 * x, 0.5 - 0.04 * y]
+            };
+            let data = mosaic_of(ramp, w, h, pattern, 16);
+            let f16 = PixelFormat::Bayer { pattern, bits: 16 };
+            let img = decode(&raw(&data, f16, w as u32, h as u32), YuvMatrix::Auto).unwrap();
+            for y in 1..h - 1 {
+                for x in 1..w - 1 {
+                    let p = img.pixels[y * w + x];
+                    assert!(close(p, ramp(x, y), 2e-4), "{pattern:?} ({x},{y}) {p:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bayer_pattern_phase() {
+        // RGGB: a single red sample at (0,0) of an otherwise black mosaic
+        let mut data = vec![0u8; 16];
+        data[0] = 255;
+        let f = PixelFormat::Bayer {
+            pattern: BayerPattern::Rggb,
+            bits: 8,
+        };
+        let img = decode(&raw(&data, f, 4, 4), YuvMatrix::Auto).unwrap();
+        assert_eq!(img.pixels[0], [1.0, 0.0, 0.0]);
+        // its right neighbour (green site) sees red from the left and, mirrored, the right
+        // red site x = 2 (0): (1 + 0)/2
+        assert!(
+            close(img.pixels[1], [0.5, 0.0, 0.0], 1e-6),
+            "{:?}",
+            img.pixels[1]
+        );
+        // the blue site (1,1) averages four red diagonals: (0,0) only is lit
+        assert!(
+            close(img.pixels[5], [0.25, 0.0, 0.0], 1e-6),
+            "{:?}",
+            img.pixels[5]
+        );
+    }
+
+    #[test]
+    fn mjpeg_decodes_to_the_encoded_colours() {
+        let (w, h) = (16u16, 8u16);
+        let mut rgb = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                rgb.extend_from_slice(&[(x * 16) as u8, 128, (y * 32) as u8]);
+            }
+        }
+        let mut jpeg = Vec::new();
+        jpeg_encoder::Encoder::new(&mut jpeg, 100)
+            .encode(&rgb, w, h, jpeg_encoder::ColorType::Rgb)
+            .unwrap();
+        let img = decode(
+            &raw(&jpeg, PixelFormat::Mjpeg, w.into(), h.into()),
+            YuvMatrix::Auto,
+        )
+        .unwrap();
+        let mut worst = 0.0f32;
+        for (p, want) in img.pixels.iter().zip(rgb.chunks_exact(3)) {
+            for c in 0..3 {
+                worst = worst.max((p[c] - f32::from(want[c]) / 255.0).abs());
+            }
+        }
+        assert!(worst < 6.0 / 255.0, "worst difference {worst}");
+        // a frame of the wrong size is an error naming both sizes
+        let err = decode(&raw(&jpeg, PixelFormat::Mjpeg, 32, 8), YuvMatrix::Auto).unwrap_err();
+        assert!(err.to_string().contains("16x8"), "{err}");
+    }
+
+    #[test]
+    fn malformed_buffers_are_errors_not_panics() {
+        let formats = PixelFormat::all();
+        let garbage: Vec<u8> = (0..200u32).map(|i| (i * 37 % 251) as u8).collect();
+        for f in formats {
+            for (w, h) in [
+                (4u32, 4u32),
+                (3, 3),
+                (0, 4),
+                (1, 1),
+                (100, 100),
+                (u32::MAX, 2),
+            ] {
+                for len in [0usize, 1, 7, 31, 32, 200] {
+                    let r = raw(&garbage[..len], f, w, h);
+                    // must return (Ok or Err), never panic
+                    let res = decode(&r, YuvMatrix::Auto);
+                    if f != PixelFormat::Mjpeg && len < w as usize * h as usize {
+                        assert!(res.is_err(), "{f} {w}x{h} len {len}");
+                    }
+                }
+            }
+        }
+        let short = decode(
+            &raw(&[0; 10], PixelFormat::Grey { bits: 16 }, 4, 4),
+            YuvMatrix::Auto,
+        )
+        .unwrap_err();
+        assert!(short.to_string().contains("needs 32"), "{short}");
+        let mut r = raw(&[0; 64], PixelFormat::Rgb24, 4, 4);
+        r.stride = 5;
+        let e = decode(&r, YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("stride 5"), "{e}");
+        let e = decode(&raw(&[0; 64], PixelFormat::Yuyv, 3, 2), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("even"), "{e}");
+        let e = decode(&raw(&garbage, PixelFormat::Mjpeg, 4, 4), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().starts_with("MJPEG"), "{e}");
+    }
+}

@@ -1,0 +1,715 @@
+//! Live capture from a V4L2 camera ([`V4l2Source`]) and device listing ([`list_devices`]).
+//!
+//! Opening a camera:
+//! 1. the device is `/dev/videoN` (a path) or a name matched case-insensitively against the
+//!    names of the `/dev/video*` nodes (`/sys/class/video4linux/videoN/name`);
+//! 2. format negotiation: the first format of the preference list that the device enumerates is
+//!    requested at the configured size (`VIDIOC_S_FMT`); the driver's answer (size, stride) is
+//!    used as it comes, and a driver that substitutes another pixel format is rejected;
+//! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
+//!    configured time when the config gives one (`V4L2_CID_EXPOSURE_AUTO` = manual,
+//!    `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units);
+//! 4. memory-mapped streaming with 4 buffers and a dequeue timeout.
+//!
+//! Every frame: dequeue → [`pixel_format::decode_into`] (code values) → [`Linearizer`] with the
+//! exposure time read back from the camera's exposure control (so auto exposure is folded in),
+//! the gain (from the config, or the gain control divided by `gain_unity`), white balance and
+//! scale → [`HdrFrame`] with the configured projection. The frame's time is the driver's
+//! timestamp (`v4l2_buffer.timestamp`, CLOCK_MONOTONIC on current drivers) relative to the
+//! first frame.
+//!
+//! With bracketing, each frame is a bracket set: for every configured exposure the control is
+//! set, `settle_frames` frames are dropped (drivers apply controls a frame or two late), one
+//! frame is kept; the set is merged by [`bracket::merge_brackets`].
+//!
+//! Errors (EIO after an unplug, ENODEV, dequeue timeouts) are returned as [`CaptureError::Io`]
+//! naming the device; [`super::resilient::ResilientSource`] reopens. The `v4l` crate unwraps on
+//! some malformed driver answers; those calls run under `catch_unwind` and become errors.
+
+use super::bracket::{self, Bracket, MergeLimits};
+use super::pixel_format::{self, CodeImage, PixelFormat, RawFrame, YuvMatrix};
+use super::response::{Linearizer, Radiometry, ResponseModel};
+use super::{CaptureError, FrameSource};
+use crate::envmap::Projection;
+use crate::frame::HdrFrame;
+use std::fmt;
+use std::io;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use v4l::buffer::Type;
+use v4l::io::traits::CaptureStream;
+use v4l::video::Capture;
+
+/// `V4L2_CID_EXPOSURE_AUTO` (menu; 1 = manual).
+pub const CID_EXPOSURE_AUTO: u32 = 0x009a_0901;
+/// `V4L2_CID_EXPOSURE_ABSOLUTE` (100 µs units).
+pub const CID_EXPOSURE_ABSOLUTE: u32 = 0x009a_0902;
+/// `V4L2_CID_GAIN`.
+pub const CID_GAIN: u32 = 0x0098_0913;
+
+/// Everything needed to open and read a camera (validated `[camera]` config).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraSettings {
+    /// `/dev/videoN` or a device name.
+    pub device: String,
+    /// Pixel formats in order of preference.
+    pub formats: Vec<PixelFormat>,
+    pub width: u32,
+    pub height: u32,
+    pub fps: Option<f64>,
+    pub yuv_matrix: YuvMatrix,
+    pub response: ResponseModel,
+    /// Manual exposure time in seconds; `None` = leave the camera's exposure as it is and read
+    /// it back every frame.
+    pub exposure_s: Option<f64>,
+    /// Linear gain; `None` = read `V4L2_CID_GAIN` / `gain_unity` if `gain_unity` is set, else 1.
+    pub gain: Option<f64>,
+    /// Gain-control value that means unity gain.
+    pub gain_unity: Option<f64>,
+    pub white_balance: [f64; 3],
+    pub scale: f64,
+    /// Exposure times of a bracket set (seconds); empty = no bracketing.
+    pub bracket_exposures_s: Vec<f64>,
+    /// Frames dropped after each exposure change.
+    pub settle_frames: u32,
+    pub merge_limits: MergeLimits,
+    /// Dequeue timeout.
+    pub timeout: Duration,
+    /// Reconnection after device loss.
+    pub retry: super::resilient::RetryPolicy,
+    /// How pixels map to directions.
+    pub projection: Projection,
+}
+
+impl Default for CameraSettings {
+    fn default() -> Self {
+        Self {
+            device: "/dev/video0".into(),
+            formats: pixel_format::DEFAULT_PREFERENCE.to_vec(),
+            width: 1280,
+            height: 960,
+            fps: None,
+            yuv_matrix: YuvMatrix::Auto,
+            response: ResponseModel::Srgb,
+            exposure_s: None,
+            gain: None,
+            gain_unity: None,
+            white_balance: [1.0; 3],
+            scale: 1.0,
+            bracket_exposures_s: Vec::new(),
+            settle_frames: 2,
+            merge_limits: MergeLimits::default(),
+            timeout: Duration::from_secs(2),
+            retry: super::resilient::RetryPolicy::default(),
+            projection: Projection::default(),
+        }
+    }
+}
+
+fn io_err(path: &Path, source: io::Error) -> CaptureError {
+    CaptureError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn guarded<T>(
+    path: &Path,
+    what: &str,
+    f: impl FnOnce() -> io::Result<T>,
+) -> Result<T, CaptureError> {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(r) => r.map_err(|e| io_err(path, io::Error::new(e.kind(), format!("{what}: {e}")))),
+        Err(_) => Err(CaptureError::Format {
+            path: path.to_path_buf(),
+            message: format!("{what}: the driver's answer could not be parsed"),
+        }),
+    }
+}
+
+/// The `/dev/video*` nodes, sorted.
+pub fn device_nodes() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir("/dev")
+        .map(|d| {
+            d.filter_map(Result::ok)
+                .filter(|e| e.file_name().to_string_lossy().starts_with("video"))
+                .map(|e| e.path())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// The sysfs name of a `/dev/videoN` node.
+fn node_name(path: &Path) -> Option<String> {
+    let file = path.file_name()?.to_str()?;
+    let text = std::fs::read_to_string(format!("/sys/class/video4linux/{file}/name")).ok()?;
+    Some(text.trim().to_string())
+}
+
+/// Resolves a device spec (a path, or a name matched case-insensitively) to a node path.
+pub fn resolve_device(spec: &str) -> Result<PathBuf, CaptureError> {
+    let path = Path::new(spec);
+    if spec.starts_with('/') || path.exists() {
+        return Ok(path.to_path_buf());
+    }
+    let nodes = device_nodes();
+    let want = spec.to_lowercase();
+    let named: Vec<(PathBuf, String)> = nodes
+        .iter()
+        .filter_map(|p| node_name(p).map(|n| (p.clone(), n)))
+        .collect();
+    named
+        .iter()
+        .find(|(_, n)| n.to_lowercase().contains(&want))
+        .map(|(p, _)| p.clone())
+        .ok_or_else(|| {
+            let have: Vec<String> = named
+                .iter()
+                .map(|(p, n)| format!("{} ({n})", p.display()))
+                .collect();
+            CaptureError::InvalidSettings(format!(
+                "no camera named {spec:?}; found: {}",
+                if have.is_empty() {
+                    "none".to_string()
+                } else {
+                    have.join(", ")
+                }
+            ))
+        })
+}
+
+/// Picks the first preferred format the device offers.
+pub fn choose_format(preference: &[PixelFormat], offered: &[[u8; 4]]) -> Option<PixelFormat> {
+    preference.iter().copied().find(|f| {
+        offered
+            .iter()
+            .any(|o| PixelFormat::from_fourcc(*o) == Some(*f))
+    })
+}
+
+/// A streaming V4L2 camera (see the module docs).
+pub struct V4l2Source {
+    path: PathBuf,
+    settings: CameraSettings,
+    format: PixelFormat,
+    width: u32,
+    height: u32,
+    stride: usize,
+    // The stream borrows nothing from the device (it holds its own handle); it is declared
+    // before the device so it is dropped (streaming stopped, buffers unmapped) first.
+    stream: v4l::io::mmap::Stream<'static>,
+    device: v4l::Device,
+    has_exposure: bool,
+    has_gain: bool,
+    first_timestamp: Option<f64>,
+    seq: u64,
+    codes: CodeImage,
+    card: String,
+    /// Tables for the last (exposure, gain) bit patterns.
+    linearizer: Option<((u64, u64), Linearizer)>,
+}
+
+impl V4l2Source {
+    /// Opens and configures the camera and starts streaming.
+    pub fn open(settings: &CameraSettings) -> Result<Self, CaptureError> {
+        let path = resolve_device(&settings.device)?;
+        let p = path.as_path();
+        let device = v4l::Device::with_path(p).map_err(|e| io_err(p, e))?;
+        let caps = guarded(p, "VIDIOC_QUERYCAP", || device.query_caps())?;
+        let offered: Vec<[u8; 4]> = guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
+            .iter()
+            .map(|d| d.fourcc.repr)
+            .collect();
+        let format = choose_format(&settings.formats, &offered).ok_or_else(|| {
+            let names: Vec<String> = offered
+                .iter()
+                .map(|c| String::from_utf8_lossy(c).trim_end().to_string())
+                .collect();
+            CaptureError::InvalidSettings(format!(
+                "{}: none of the configured formats is offered; the camera has {}",
+                p.display(),
+                names.join(", ")
+            ))
+        })?;
+        let mut fmt = guarded(p, "VIDIOC_G_FMT", || device.format())?;
+        fmt.width = settings.width;
+        fmt.height = settings.height;
+        fmt.fourcc = v4l::FourCC::new(&format.fourcc());
+        let fmt = guarded(p, "VIDIOC_S_FMT", || device.set_format(&fmt))?;
+        if PixelFormat::from_fourcc(fmt.fourcc.repr) != Some(format) {
+            return Err(CaptureError::InvalidSettings(format!(
+                "{}: asked for {format}, the driver chose {}",
+                p.display(),
+                fmt.fourcc
+            )));
+        }
+        if let Some(fps) = settings.fps {
+            let params = v4l::video::capture::Parameters::new(v4l::Fraction::new(
+                1000,
+                (fps * 1000.0).round().clamp(1.0, u32::MAX as f64) as u32,
+            ));
+            if let Err(e) = guarded(p, "VIDIOC_S_PARM", || device.set_params(&params)) {
+                tracing::warn!("{e} (keeping the driver's frame rate)");
+            }
+        }
+        let controls =
+            guarded(p, "VIDIOC_QUERY_EXT_CTRL", || device.query_controls()).unwrap_or_default();
+        let has = |id: u32| controls.iter().any(|c| c.id == id);
+        let (has_exposure, has_gain) = (has(CID_EXPOSURE_ABSOLUTE), has(CID_GAIN));
+        if let Some(t) = settings.exposure_s {
+            if has(CID_EXPOSURE_AUTO) {
+                set_control(&device, p, CID_EXPOSURE_AUTO, 1)?;
+            }
+            if has_exposure {
+                set_control(&device, p, CID_EXPOSURE_ABSOLUTE, exposure_units(t))?;
+            } else {
+                tracing::warn!(
+                    "{}: no exposure control; using exposure_s = {t} as given",
+                    p.display()
+                );
+            }
+        }
+        if !settings.bracket_exposures_s.is_empty() && !has_exposure {
+            return Err(CaptureError::InvalidSettings(format!(
+                "{}: bracketing needs an exposure control (V4L2_CID_EXPOSURE_ABSOLUTE)",
+                p.display()
+            )));
+        }
+        let mut stream = guarded(p, "VIDIOC_REQBUFS", || {
+            v4l::io::mmap::Stream::with_buffers(&device, Type::VideoCapture, 4)
+        })?;
+        stream.set_timeout(settings.timeout);
+        tracing::info!(
+            "{} ({}): {format} {}x{} stride {}",
+            p.display(),
+            caps.card,
+            fmt.width,
+            fmt.height,
+            fmt.stride
+        );
+        Ok(Self {
+            path,
+            settings: settings.clone(),
+            format,
+            width: fmt.width,
+            height: fmt.height,
+            stride: fmt.stride as usize,
+            stream,
+            device,
+            has_exposure,
+            has_gain,
+            first_timestamp: None,
+            seq: 0,
+            codes: CodeImage {
+                width: 0,
+                height: 0,
+                pixels: Vec::new(),
+            },
+            card: caps.card,
+            linearizer: None,
+        })
+    }
+
+    /// The negotiated format and size.
+    pub fn format(&self) -> (PixelFormat, u32, u32) {
+        (self.format, self.width, self.height)
+    }
+
+    fn control(&self, id: u32) -> Option<i64> {
+        let r = catch_unwind(AssertUnwindSafe(|| self.device.control(id))).ok()?;
+        match r.ok()?.value {
+            v4l::control::Value::Integer(v) => Some(v),
+            _ => None,
+        }
+    }
+
+    /// Exposure (s) and gain in force, for the radiometry.
+    fn exposure_and_gain(&self) -> (f64, f64) {
+        let t = if self.has_exposure {
+            self.control(CID_EXPOSURE_ABSOLUTE)
+                .map(|v| v as f64 * 1e-4)
+                .filter(|t| *t > 0.0)
+                .or(self.settings.exposure_s)
+        } else {
+            self.settings.exposure_s
+        };
+        let gain = match (self.settings.gain, self.settings.gain_unity) {
+            (Some(g), _) => g,
+            (None, Some(unity)) if self.has_gain => self
+                .control(CID_GAIN)
+                .map(|v| v as f64 / unity)
+                .filter(|g| *g > 0.0)
+                .unwrap_or(1.0),
+            _ => 1.0,
+        };
+        (t.unwrap_or(1.0), gain)
+    }
+
+    /// Dequeues one buffer and decodes it to code values; returns the driver timestamp (s).
+    fn grab(&mut self) -> Result<f64, CaptureError> {
+        let p = self.path.clone();
+        let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
+            let (buf, meta) = self.stream.next()?;
+            Ok((buf, *meta))
+        })?;
+        let used = (meta.bytesused as usize).min(data.len());
+        let raw = RawFrame {
+            data: &data[..used],
+            format: self.format,
+            width: self.width,
+            height: self.height,
+            stride: self.stride,
+        };
+        pixel_format::decode_into(&raw, self.settings.yuv_matrix, &mut self.codes).map_err(
+            |e| CaptureError::Format {
+                path: p.clone(),
+                message: e.to_string(),
+            },
+        )?;
+        Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
+    }
+
+    /// Captures one frame per exposure time (seconds), dropping `settle_frames` frames after
+    /// each change; returns the code images with the exposure and gain read back, and the
+    /// driver timestamp of the first. Needs an exposure control.
+    pub fn capture_brackets(
+        &mut self,
+        exposures_s: &[f64],
+    ) -> Result<(Vec<Bracket>, f64), CaptureError> {
+        if !self.has_exposure {
+            return Err(CaptureError::InvalidSettings(format!(
+                "{}: bracketing needs an exposure control (V4L2_CID_EXPOSURE_ABSOLUTE)",
+                self.path.display()
+            )));
+        }
+        let mut brackets = Vec::new();
+        let mut first_ts = None;
+        for &t in exposures_s {
+            set_control(
+                &self.device,
+                &self.path,
+                CID_EXPOSURE_ABSOLUTE,
+                exposure_units(t),
+            )?;
+            for _ in 0..self.settings.settle_frames {
+                self.grab()?;
+            }
+            let ts = self.grab()?;
+            first_ts.get_or_insert(ts);
+            let (t_read, g) = self.exposure_and_gain();
+            brackets.push(Bracket {
+                image: self.codes.clone(),
+                exposure_s: t_read,
+                gain: g,
+            });
+        }
+        Ok((brackets, first_ts.unwrap_or(0.0)))
+    }
+
+    fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
+        Radiometry {
+            exposure_s,
+            gain,
+            white_balance: self.settings.white_balance,
+            scale: self.settings.scale,
+        }
+    }
+}
+
+/// Exposure time in V4L2's 100 µs units (at least 1).
+pub fn exposure_units(seconds: f64) -> i64 {
+    (seconds * 1e4).round().clamp(1.0, i32::MAX as f64) as i64
+}
+
+fn set_control(device: &v4l::Device, path: &Path, id: u32, value: i64) -> Result<(), CaptureError> {
+    guarded(path, &format!("VIDIOC_S_CTRL {id:#x}"), || {
+        device.set_control(v4l::control::Control {
+            id,
+            value: v4l::control::Value::Integer(value),
+        })
+    })
+}
+
+impl FrameSource for V4l2Source {
+    fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
+        let code_max = self.format.code_max();
+        let (pixels, timestamp) = if self.settings.bracket_exposures_s.is_empty() {
+            let ts = self.grab()?;
+            let (t, g) = self.exposure_and_gain();
+            // the tables are rebuilt only when the exposure or gain changes (auto exposure)
+            let key = (t.to_bits(), g.to_bits());
+            if self.linearizer.as_ref().is_none_or(|(k, _)| *k != key) {
+                let lin =
+                    Linearizer::new(&self.settings.response, code_max, &self.radiometry(t, g));
+                self.linearizer = Some((key, lin));
+            }
+            let lin = self.linearizer.as_ref().map(|(_, l)| l);
+            (
+                lin.map(|l| l.linearize(&self.codes)).unwrap_or_default(),
+                ts,
+            )
+        } else {
+            let exposures = self.settings.bracket_exposures_s.clone();
+            let (brackets, first_ts) = self.capture_brackets(&exposures)?;
+            let merged = bracket::merge_brackets(
+                &brackets,
+                &self.settings.response,
+                code_max,
+                &self.radiometry(1.0, 1.0),
+                self.settings.merge_limits,
+            )
+            .map_err(|e| CaptureError::Format {
+                path: self.path.clone(),
+                message: e.to_string(),
+            })?;
+            (merged, first_ts)
+        };
+        let first = *self.first_timestamp.get_or_insert(timestamp);
+        let Some(mut frame) =
+            HdrFrame::new(self.width, self.height, pixels, self.settings.projection)
+        else {
+            return Err(CaptureError::Format {
+                path: self.path.clone(),
+                message: "frame has no pixels".into(),
+            });
+        };
+        frame.time = (timestamp - first).max(0.0);
+        frame.seq = self.seq;
+        self.seq += 1;
+        let bad = frame.sanitize();
+        if bad > 0 {
+            tracing::warn!(
+                "{}: {bad} pixels with invalid values set to 0",
+                self.path.display()
+            );
+        }
+        Ok(Some(frame))
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "V4L2 camera {} ({}), {} {}x{}, response {}{}",
+            self.path.display(),
+            self.card,
+            self.format,
+            self.width,
+            self.height,
+            self.settings.response.name(),
+            if self.settings.bracket_exposures_s.is_empty() {
+                String::new()
+            } else {
+                format!(", {} brackets", self.settings.bracket_exposures_s.len())
+            }
+        )
+    }
+}
+
+/// One format a device offers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FormatInfo {
+    pub fourcc: String,
+    pub description: String,
+    /// Whether envlight converts it.
+    pub supported: bool,
+    /// Frame sizes, each with its frame rates (as text: discrete or stepwise).
+    pub sizes: Vec<(String, Vec<String>)>,
+}
+
+/// One control of a device.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ControlInfo {
+    pub id: u32,
+    pub name: String,
+    pub minimum: i64,
+    pub maximum: i64,
+    pub step: u64,
+    pub default: i64,
+    pub value: Option<i64>,
+}
+
+/// What `envlight devices` prints for one camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeviceInfo {
+    pub path: PathBuf,
+    pub card: String,
+    pub driver: String,
+    pub bus: String,
+    pub formats: Vec<FormatInfo>,
+    pub controls: Vec<ControlInfo>,
+}
+
+/// Queries one device.
+pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
+    let device = v4l::Device::with_path(path).map_err(|e| io_err(path, e))?;
+    let caps = guarded(path, "VIDIOC_QUERYCAP", || device.query_caps())?;
+    let mut formats = Vec::new();
+    for d in guarded(path, "VIDIOC_ENUM_FMT", || device.enum_formats())? {
+        let mut sizes = Vec::new();
+        let sz = guarded(path, "VIDIOC_ENUM_FRAMESIZES", || {
+            device.enum_framesizes(d.fourcc)
+        })
+        .unwrap_or_default();
+        for s in sz {
+            match s.size {
+                v4l::framesize::FrameSizeEnum::Discrete(ds) => {
+                    let rates = guarded(path, "VIDIOC_ENUM_FRAMEINTERVALS", || {
+                        device.enum_frameintervals(d.fourcc, ds.width, ds.height)
+                    })
+                    .unwrap_or_default()
+                    .iter()
+                    .map(|i| match &i.interval {
+                        v4l::frameinterval::FrameIntervalEnum::Discrete(f) if f.numerator > 0 => {
+                            format!(
+                                "{:.2} fps",
+                                f64::from(f.denominator) / f64::from(f.numerator)
+                            )
+                        }
+                        other => other.to_string(),
+                    })
+                    .collect();
+                    sizes.push((format!("{}x{}", ds.width, ds.height), rates));
+                }
+                other => sizes.push((other.to_string(), Vec::new())),
+            }
+        }
+        formats.push(FormatInfo {
+            fourcc: String::from_utf8_lossy(&d.fourcc.repr)
+                .trim_end()
+                .to_string(),
+            description: d.description.clone(),
+            supported: PixelFormat::from_fourcc(d.fourcc.repr).is_some(),
+            sizes,
+        });
+    }
+    let controls = guarded(path, "VIDIOC_QUERY_EXT_CTRL", || device.query_controls())
+        .unwrap_or_default()
+        .into_iter()
+        .map(|c| {
+            let value = catch_unwind(AssertUnwindSafe(|| device.control(c.id)))
+                .ok()
+                .and_then(Result::ok)
+                .and_then(|v| match v.value {
+                    v4l::control::Value::Integer(i) => Some(i),
+                    v4l::control::Value::Boolean(b) => Some(i64::from(b)),
+                    _ => None,
+                });
+            ControlInfo {
+                id: c.id,
+                name: c.name,
+                minimum: c.minimum,
+                maximum: c.maximum,
+                step: c.step,
+                default: c.default,
+                value,
+            }
+        })
+        .collect();
+    Ok(DeviceInfo {
+        path: path.to_path_buf(),
+        card: caps.card,
+        driver: caps.driver,
+        bus: caps.bus,
+        formats,
+        controls,
+    })
+}
+
+/// Every `/dev/video*` node with its description (or why it could not be queried).
+pub fn list_devices() -> Vec<(PathBuf, Result<DeviceInfo, CaptureError>)> {
+    device_nodes()
+        .into_iter()
+        .map(|p| {
+            let info = device_info(&p);
+            (p, info)
+        })
+        .collect()
+}
+
+impl fmt::Display for DeviceInfo {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{}: {} (driver {}, bus {})",
+            self.path.display(),
+            self.card,
+            self.driver,
+            self.bus
+        )?;
+        if self.formats.is_empty() {
+            writeln!(f, "  no capture formats (metadata or output node)")?;
+        }
+        for fm in &self.formats {
+            writeln!(
+                f,
+                "  format {} ({}){}",
+                fm.fourcc,
+                fm.description,
+                if fm.supported {
+                    ""
+                } else {
+                    " [not supported by envlight]"
+                }
+            )?;
+            for (size, rates) in &fm.sizes {
+                writeln!(f, "    {size}: {}", rates.join(", "))?;
+            }
+        }
+        if !self.controls.is_empty() {
+            writeln!(f, "  controls:")?;
+        }
+        for c in &self.controls {
+            let value = c.value.map_or("?".to_string(), |v| v.to_string());
+            writeln!(
+                f,
+                "    {:#010x} {}: {value} (min {}, max {}, step {}, default {})",
+                c.id, c.name, c.minimum, c.maximum, c.step, c.default
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn format_choice_follows_the_preference() {
+        let offered = [*b"YUYV", *b"MJPG", *b"Y16 "];
+        let pref = pixel_format::DEFAULT_PREFERENCE;
+        assert_eq!(
+            choose_format(&pref, &offered),
+            Some(PixelFormat::Grey { bits: 16 })
+        );
+        assert_eq!(
+            choose_format(&[PixelFormat::Mjpeg, PixelFormat::Yuyv], &offered),
+            Some(PixelFormat::Mjpeg)
+        );
+        assert_eq!(choose_format(&[PixelFormat::Rgb24], &offered), None);
+        assert_eq!(choose_format(&pref, &[*b"NV12"]), None);
+    }
+
+    #[test]
+    fn exposure_units_are_100_microseconds() {
+        assert_eq!(exposure_units(0.01), 100);
+        assert_eq!(exposure_units(1e-6), 1);
+        assert_eq!(exposure_units(f64::INFINITY), i32::MAX as i64);
+    }
+
+    #[test]
+    fn unknown_device_names_are_errors_naming_the_spec() {
+        let e = resolve_device("no-such-camera-xyz").unwrap_err();
+        assert!(e.to_string().contains("no-such-camera-xyz"), "{e}");
+        let e = V4l2Source::open(&CameraSettings {
+            device: "/nonexistent/video9".into(),
+            ..Default::default()
+        })
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+        assert!(e.contains("/nonexistent/video9"), "{e}");
+    }
+}

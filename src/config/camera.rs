@@ -1,0 +1,286 @@
+//! `[camera]`: the V4L2 camera (used when `source.kind = "v4l2"`), raw → validated
+//! [`CameraSettings`]. Every key is optional; errors name the key and the value.
+
+use super::{check_finite, invalid, ConfigError};
+use crate::capture::bracket::MergeLimits;
+use crate::capture::pixel_format::{PixelFormat, YuvMatrix};
+use crate::capture::resilient::RetryPolicy;
+use crate::capture::response::{ResponseCurve, ResponseModel};
+use crate::capture::v4l2::CameraSettings;
+use crate::envmap::Projection;
+use serde::Deserialize;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// `[camera]` as written.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawCamera {
+    pub device: Option<String>,
+    pub formats: Option<Vec<String>>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub fps: Option<f64>,
+    pub yuv_matrix: Option<String>,
+    pub response: Option<String>,
+    pub gamma: Option<f64>,
+    pub log_a: Option<f64>,
+    pub log_b: Option<f64>,
+    pub curve: Option<String>,
+    pub exposure_s: Option<f64>,
+    pub gain: Option<f64>,
+    pub gain_unity: Option<f64>,
+    pub white_balance: Option<[f64; 3]>,
+    pub scale: Option<f64>,
+    pub bracket_exposures_s: Option<Vec<f64>>,
+    pub settle_frames: Option<u32>,
+    pub dark: Option<f64>,
+    pub saturated: Option<f64>,
+    pub timeout_s: Option<f64>,
+    pub retry_initial_s: Option<f64>,
+    pub retry_max_s: Option<f64>,
+}
+
+fn positive(key: &'static str, v: f64) -> Result<f64, ConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(invalid(key, v, "must be a positive number"))
+    }
+}
+
+fn seconds(key: &'static str, v: f64) -> Result<Duration, ConfigError> {
+    let v = positive(key, v)?;
+    if v > 86_400.0 {
+        return Err(invalid(key, v, "must be at most 86400 seconds"));
+    }
+    Ok(Duration::from_secs_f64(v))
+}
+
+impl RawCamera {
+    /// Validated settings; `projection` comes from `[source]`.
+    pub fn validate(&self, projection: Projection) -> Result<CameraSettings, ConfigError> {
+        let d = CameraSettings::default();
+        let formats = match &self.formats {
+            None => d.formats,
+            Some(names) if names.is_empty() => {
+                return Err(invalid(
+                    "camera.formats",
+                    names,
+                    "needs at least one format",
+                ))
+            }
+            Some(names) => names
+                .iter()
+                .map(|n| {
+                    PixelFormat::parse(n).ok_or_else(|| {
+                        invalid(
+                            "camera.formats",
+                            n,
+                            "is not a supported format (YUYV, MJPG, GREY, Y10, Y12, Y16, RGB3, \
+                             BGR3, Bayer RGGB/BA81/GBRG/GRBG and their 10/12/16-bit codes)",
+                        )
+                    })
+                })
+                .collect::<Result<_, _>>()?,
+        };
+        let width = self.width.unwrap_or(d.width);
+        let height = self.height.unwrap_or(d.height);
+        for (key, v) in [("camera.width", width), ("camera.height", height)] {
+            if !(1..=16384).contains(&v) {
+                return Err(invalid(key, v, "must be 1..=16384 pixels"));
+            }
+        }
+        let fps = self.fps.map(|f| positive("camera.fps", f)).transpose()?;
+        let yuv_matrix = match self.yuv_matrix.as_deref().unwrap_or("auto") {
+            "auto" => YuvMatrix::Auto,
+            "bt601" => YuvMatrix::Bt601,
+            "bt709" => YuvMatrix::Bt709,
+            other => {
+                return Err(invalid(
+                    "camera.yuv_matrix",
+                    other,
+                    "must be \"auto\", \"bt601\" or \"bt709\"",
+                ))
+            }
+        };
+        let response = match self.response.as_deref().unwrap_or("srgb") {
+            "srgb" => ResponseModel::Srgb,
+            "linear" => ResponseModel::Linear,
+            "gamma" => ResponseModel::Gamma(positive("camera.gamma", self.gamma.unwrap_or(2.2))?),
+            "logarithmic" => {
+                let (Some(a), Some(b)) = (self.log_a, self.log_b) else {
+                    return Err(invalid(
+                        "camera.response",
+                        "logarithmic",
+                        "needs camera.log_a and camera.log_b (code = log_a·ln(X) + log_b)",
+                    ));
+                };
+                let a = check_finite("camera.log_a", a)?;
+                if a == 0.0 {
+                    return Err(invalid("camera.log_a", a, "must not be 0"));
+                }
+                ResponseModel::Logarithmic {
+                    a,
+                    b: check_finite("camera.log_b", b)?,
+                }
+            }
+            "curve" => {
+                let Some(path) = &self.curve else {
+                    return Err(invalid(
+                        "camera.response",
+                        "curve",
+                        "needs camera.curve = \"FILE\" (see envlight calibrate-response)",
+                    ));
+                };
+                let curve = ResponseCurve::read(Path::new(path))
+                    .map_err(|e| invalid("camera.curve", path, e.to_string()))?;
+                ResponseModel::Curve(Arc::new(curve))
+            }
+            other => {
+                return Err(invalid(
+                    "camera.response",
+                    other,
+                    "must be \"srgb\", \"gamma\", \"linear\", \"logarithmic\" or \"curve\"",
+                ))
+            }
+        };
+        let exposure_s = self
+            .exposure_s
+            .map(|v| positive("camera.exposure_s", v))
+            .transpose()?;
+        let gain = self.gain.map(|v| positive("camera.gain", v)).transpose()?;
+        let gain_unity = self
+            .gain_unity
+            .map(|v| positive("camera.gain_unity", v))
+            .transpose()?;
+        let white_balance = self.white_balance.unwrap_or(d.white_balance);
+        if !white_balance.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(invalid(
+                "camera.white_balance",
+                white_balance,
+                "must be three positive numbers [r, g, b]",
+            ));
+        }
+        let scale = positive("camera.scale", self.scale.unwrap_or(d.scale))?;
+        let bracket_exposures_s = self.bracket_exposures_s.clone().unwrap_or_default();
+        if let Some(bad) = bracket_exposures_s
+            .iter()
+            .find(|v| !(v.is_finite() && **v > 0.0))
+        {
+            return Err(invalid(
+                "camera.bracket_exposures_s",
+                bad,
+                "every exposure must be a positive number of seconds",
+            ));
+        }
+        if bracket_exposures_s.len() == 1 {
+            return Err(invalid(
+                "camera.bracket_exposures_s",
+                &bracket_exposures_s,
+                "needs at least 2 exposures (or none to turn bracketing off)",
+            ));
+        }
+        let merge_limits = MergeLimits {
+            dark: self.dark.unwrap_or(f64::from(d.merge_limits.dark)) as f32,
+            saturated: self
+                .saturated
+                .unwrap_or(f64::from(d.merge_limits.saturated)) as f32,
+        };
+        merge_limits.check().map_err(|m| {
+            invalid(
+                "camera.dark",
+                [merge_limits.dark, merge_limits.saturated],
+                m,
+            )
+        })?;
+        let timeout = seconds(
+            "camera.timeout_s",
+            self.timeout_s.unwrap_or(d.timeout.as_secs_f64()),
+        )?;
+        let r = RetryPolicy::default();
+        let retry = RetryPolicy {
+            initial_backoff: seconds(
+                "camera.retry_initial_s",
+                self.retry_initial_s
+                    .unwrap_or(r.initial_backoff.as_secs_f64()),
+            )?,
+            max_backoff: seconds(
+                "camera.retry_max_s",
+                self.retry_max_s.unwrap_or(r.max_backoff.as_secs_f64()),
+            )?,
+            max_attempts: None,
+        };
+        Ok(CameraSettings {
+            device: self.device.clone().unwrap_or(d.device),
+            formats,
+            width,
+            height,
+            fps,
+            yuv_matrix,
+            response,
+            exposure_s,
+            gain,
+            gain_unity,
+            white_balance,
+            scale,
+            bracket_exposures_s,
+            settle_frames: self.settle_frames.unwrap_or(d.settle_frames),
+            merge_limits,
+            timeout,
+            retry,
+            projection,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SHIPPED: &str = include_str!("../../config/envlight.toml");
+
+    #[test]
+    fn shipped_camera_section_is_the_default_and_names_every_key() {
+        let raw = crate::config::RawConfig::parse(SHIPPED, Path::new("envlight.toml")).unwrap();
+        assert_eq!(
+            raw.camera.validate(Projection::LatLong).unwrap(),
+            CameraSettings::default()
+        );
+        let section = SHIPPED.split("\n[camera]\n").nth(1).unwrap_or_default();
+        for key in [
+            "device",
+            "formats",
+            "width",
+            "height",
+            "fps",
+            "yuv_matrix",
+            "response",
+            "gamma",
+            "log_a",
+            "log_b",
+            "curve",
+            "exposure_s",
+            "gain",
+            "gain_unity",
+            "white_balance",
+            "scale",
+            "bracket_exposures_s",
+            "settle_frames",
+            "dark",
+            "saturated",
+            "timeout_s",
+            "retry_initial_s",
+            "retry_max_s",
+        ] {
+            assert!(
+                section
+                    .lines()
+                    .map(|l| l.trim_start_matches("# "))
+                    .any(|l| l.starts_with(&format!("{key} = "))),
+                "camera.{key} missing from config/envlight.toml"
+            );
+        }
+    }
+}
