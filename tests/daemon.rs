@@ -941,3 +941,44 @@ fn a_lost_source_is_served_stale_until_it_returns() {
     assert_eq!(status, 200);
     daemon.shutdown().unwrap();
 }
+
+#[test]
+fn the_python_example_client_reads_the_stream() {
+    if std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        eprintln!("skipped: python3 is not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let socket = daemon.addresses().stream.unix_socket.clone().unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    for address in [format!("unix:{}", socket.display()), tcp.to_string()] {
+        let out = std::process::Command::new("python3")
+            .args([
+                "examples/client.py",
+                &address,
+                "--frames",
+                "3",
+                "--max-lights",
+                "4",
+            ])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{address}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let lines: Vec<&str> = stdout.lines().collect();
+        assert_eq!(lines.len(), 3, "{stdout}");
+        assert!(lines.iter().all(|l| l.contains(": 4 lights")), "{stdout}");
+    }
+    daemon.shutdown().unwrap();
+}
