@@ -17,6 +17,7 @@ pub mod envmap;
 pub mod frame;
 pub mod light;
 pub mod pipeline;
+pub mod render;
 pub mod stream;
 pub mod yardstick;
 
