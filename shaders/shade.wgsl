@@ -5,7 +5,7 @@
 //  * n·l ≤ 0: the light adds nothing; with culling on it costs no shading and no shadow lookup.
 //  * glossy pixels: lights inside a cone around the mirror direction (the GGX lobe widened by
 //    the light's own angular radius) get the full path, a PCF_TAPS-tap Poisson-disk PCF; the
-//    others get the cheap path, one bilinear (2×2) comparison tap.
+//    others get the cheap path, 4 bilinear (2×2) comparison taps.
 // With culling off every light takes the full path (and the shadow lookup is made even where
 // n·l ≤ 0, the plain loop a renderer without culling runs).
 //
@@ -93,12 +93,22 @@ fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, full: bool) -> f32 {
     if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) {
         return 1.0;
     }
-    // Receivers beyond the far plane compare as just inside it: lit unless a caster is there.
-    let depth = min(c.z, 0.99999) - globals.shadow_params.y;
-    if !full {
-        return textureSampleCompareLevel(shadow_maps, shadow_sampler, uv, layer, depth);
-    }
+    // The kernel reaches `radius` across a receiver tilted by θ from the light: bias the
+    // reference by radius·tan θ (depth and uv both span 2R, so the units agree), capped.
     let radius = light.params.x;
+    let ndl = clamp(dot(n, light.dir.xyz), 0.05, 1.0);
+    let tan_theta = min(sqrt(1.0 - ndl * ndl) / ndl, 10.0);
+    // Receivers beyond the far plane compare as just inside it: lit unless a caster is there.
+    let depth = min(c.z, 0.99999) - globals.shadow_params.y - radius * tan_theta;
+    if !full {
+        // Cheap path: 4 bilinear taps on the kernel's half radius.
+        let h = 0.5 * radius;
+        var cheap = textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(h, h), layer, depth);
+        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(-h, h), layer, depth);
+        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(h, -h), layer, depth);
+        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(-h, -h), layer, depth);
+        return 0.25 * cheap;
+    }
     var sum = 0.0;
     for (var k = 0u; k < PCF_TAPS; k = k + 1u) {
         sum = sum + textureSampleCompareLevel(

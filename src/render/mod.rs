@@ -53,7 +53,7 @@ pub const SHADERS: &[(&str, &str)] = &[("shade.wgsl", SHADE_WGSL), ("shadow.wgsl
 
 /// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
 /// opaque value (see docs/rendering.md): (mean absolute difference, 99.9th percentile).
-pub const CULLING_TOLERANCE: (f32, f32) = (0.002, 0.05);
+pub const CULLING_TOLERANCE: (f32, f32) = (0.0005, 0.01);
 
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
