@@ -7,7 +7,7 @@
 //! and `ENVLIGHT_BENCH_SHADOW_RES=1024` change the grid (e.g. for the real-GPU target of 256
 //! shadowed lights at 1280×720 under 8 ms).
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
 use envlight::light::Light;
 use envlight::render::scene::Scene;
 use envlight::render::{RenderSettings, Renderer};
@@ -61,9 +61,11 @@ fn bench(c: &mut Criterion) {
         .unwrap_or_else(|e| panic!("the render benchmark needs a graphics adapter: {e}"));
     eprintln!("adapter: {}", renderer.gpu().describe());
     let mut group = c.benchmark_group(format!("render_{w}x{h}_shadow{shadow_res}"));
+    // Frames take seconds on lavapipe: one frame per sample, 10 samples.
+    group.sampling_mode(SamplingMode::Flat);
     group.sample_size(10);
-    group.warm_up_time(Duration::from_millis(500));
-    group.measurement_time(Duration::from_secs(3));
+    group.warm_up_time(Duration::from_millis(100));
+    group.measurement_time(Duration::from_secs(1));
     for &n in &counts {
         let set = lights(n as usize);
         for culling in [true, false] {

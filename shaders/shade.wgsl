@@ -81,22 +81,20 @@ var<private> POISSON: array<vec2<f32>, 12> = array<vec2<f32>, 12>(
 );
 
 // Visibility of light `i` at world point `p` with normal `n`: 1 lit, 0 shadowed.
-fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, full: bool) -> f32 {
-    let light = lights[i];
-    let layer = i32(light.rgb.w);
+fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, l: vec3<f32>, layer: i32, full: bool) -> f32 {
     if globals.shadows == 0u || layer < 0 {
         return 1.0;
     }
     let q = p + n * globals.shadow_params.x;
-    let c = light.view_proj * vec4<f32>(q, 1.0);
+    let c = lights[i].view_proj * vec4<f32>(q, 1.0);
     let uv = vec2<f32>(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5);
     if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) {
         return 1.0;
     }
     // The kernel reaches `radius` across a receiver tilted by θ from the light: bias the
     // reference by radius·tan θ (depth and uv both span 2R, so the units agree), capped.
-    let radius = light.params.x;
-    let ndl = clamp(dot(n, light.dir.xyz), 0.05, 1.0);
+    let radius = lights[i].params.x;
+    let ndl = clamp(dot(n, l), 0.05, 1.0);
     let tan_theta = min(sqrt(1.0 - ndl * ndl) / ndl, 10.0);
     // Receivers beyond the far plane compare as just inside it: lit unless a caster is there.
     let depth = min(c.z, 0.99999) - globals.shadow_params.y - radius * tan_theta;
@@ -152,14 +150,16 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
     var e_lit = 0.0;
     var e_all = 0.0;
     for (var i = 0u; i < globals.light_count; i = i + 1u) {
-        let light = lights[i];
-        let l = light.dir.xyz;
+        // Field by field: copying the whole Light (with its matrix) costs on CPU rasterisers.
+        let dir = lights[i].dir;
+        let l = dir.xyz;
         let ndl_raw = dot(n, l);
         if culling && ndl_raw <= 0.0 {
             continue;
         }
+        let rgb = lights[i].rgb;
         let ndl = max(ndl_raw, 0.0);
-        let rho = light.dir.w;
+        let rho = dir.w;
         // The light's own size widens the lobe (Karis 2013), energy kept by (α/α')².
         let alpha_l = min(alpha + 0.5 * rho, 1.0);
         var full = true;
@@ -169,8 +169,8 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
             let cone = min(2.0 * atan(3.0 * alpha_l) + rho, PI);
             full = dot(r, l) >= cos(cone);
         }
-        let vis = visibility(i, in.world, n, full);
-        let e = light.rgb.rgb * ndl;
+        let vis = visibility(i, in.world, n, l, i32(rgb.w), full);
+        let e = rgb.rgb * ndl;
         var brdf = diffuse;
         if has_specular {
             let norm = (alpha / alpha_l) * (alpha / alpha_l);

@@ -690,7 +690,8 @@ fn render(args: &RenderArgs) -> Result<()> {
             .validate()
             .map_err(|e| anyhow!(e).context("invalid --light-count or INPUT"))?;
         let (src, _) = open_source(&config)?;
-        let dec = Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
+        let dec =
+            Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
         source = Some((src, dec));
     }
     let settings = RenderSettings {
@@ -765,18 +766,25 @@ fn render(args: &RenderArgs) -> Result<()> {
             "seq": lights.seq, "lights": stats.lights, "shadow_maps": stats.shadow_maps,
             "gpu_ms": stats.gpu_ms, "cpu_ms": stats.cpu_ms, "frame_ms": stats.frame_ms(),
         });
-        writeln!(stats_file, "{line}").with_context(|| format!("cannot write {}", stats_path.display()))?;
+        writeln!(stats_file, "{line}")
+            .with_context(|| format!("cannot write {}", stats_path.display()))?;
         tracing::info!(
             "frame {}: {} lights, {} shadow maps, {:.2} ms ({})",
             lights.seq,
             stats.lights,
             stats.shadow_maps,
             stats.frame_ms(),
-            if stats.gpu_ms.is_some() { "GPU timestamps" } else { "CPU time" }
+            if stats.gpu_ms.is_some() {
+                "GPU timestamps"
+            } else {
+                "CPU time"
+            }
         );
         done += 1;
     }
-    stats_file.flush().with_context(|| format!("cannot write {}", stats_path.display()))?;
+    stats_file
+        .flush()
+        .with_context(|| format!("cannot write {}", stats_path.display()))?;
     tracing::info!("rendered {done} frames into {}", args.out.display());
     Ok(())
 }

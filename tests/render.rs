@@ -5,6 +5,9 @@
 //! render` rewrites them. A failing comparison writes the actual and difference images to
 //! `$CARGO_TARGET_DIR/golden-failures/` (default `target/golden-failures/`).
 
+// Per-channel loops over rgb triples read better than zipped iterators.
+#![allow(clippy::needless_range_loop)]
+
 use envlight::light::Light;
 use envlight::render::scene::{Camera, Ground, Material, Scene};
 use envlight::render::{output, Image, RenderSettings, Renderer, CULLING_TOLERANCE};
@@ -47,7 +50,11 @@ fn sky_lights(n: usize) -> Vec<Light> {
             light(
                 i as u32,
                 d,
-                [0.6 * sky * glow * w * 20.0, 0.8 * sky * glow * w * 20.0, sky * glow * w * 20.0],
+                [
+                    0.6 * sky * glow * w * 20.0,
+                    0.8 * sky * glow * w * 20.0,
+                    sky * glow * w * 20.0,
+                ],
                 w,
             )
         })
@@ -89,7 +96,14 @@ fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
         target: Vec3::ZERO,
         fov_y: 35f32.to_radians(),
     };
-    let scene = Scene::sphere(Vec3::ZERO, 1.0, 160, Material::lambertian(albedo), None, camera);
+    let scene = Scene::sphere(
+        Vec3::ZERO,
+        1.0,
+        160,
+        Material::lambertian(albedo),
+        None,
+        camera,
+    );
     let lights = vec![
         light(0, Vec3::new(0.3, 1.0, 0.5), [300.0, 280.0, 250.0], 1e-4),
         light(1, Vec3::new(-1.0, 0.2, 0.4), [60.0, 80.0, 120.0], 0.02),
@@ -146,7 +160,10 @@ fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
         }
     }
     assert!(checked > 2500, "only {checked} pixels checked");
-    eprintln!("diffuse sphere: {checked} pixels, worst relative error {:.4}%", worst * 100.0);
+    eprintln!(
+        "diffuse sphere: {checked} pixels, worst relative error {:.4}%",
+        worst * 100.0
+    );
 }
 
 #[test]
@@ -248,7 +265,10 @@ fn ground_behind_the_occluder_lacks_exactly_that_lights_contribution() {
         }
     }
     for (i, n) in shadowed.iter().enumerate() {
-        assert!(*n >= 20, "only {n} pixels in light {i}'s shadow were checked");
+        assert!(
+            *n >= 20,
+            "only {n} pixels in light {i}'s shadow were checked"
+        );
     }
     assert!(lit_checked > 1000, "{lit_checked}");
 }
@@ -306,7 +326,11 @@ fn culling_on_and_off_agree_within_the_stated_tolerance() {
         .zip(&culled.rgba)
         .filter(|(a, b)| (*a - *b).abs() <= 1e-4 * a.abs().max(1.0))
         .count();
-    assert!(same as f64 > 0.9 * full.rgba.len() as f64, "{same} of {}", full.rgba.len());
+    assert!(
+        same as f64 > 0.9 * full.rgba.len() as f64,
+        "{same} of {}",
+        full.rgba.len()
+    );
 }
 
 #[test]
@@ -351,7 +375,10 @@ fn merged_light_spread_softens_its_shadow() {
     };
     let (hard_soft, hard_dark) = penumbra(&mut r, 1e-5);
     let (merged_soft, _) = penumbra(&mut r, 0.05);
-    assert!(hard_dark > 100, "the sharp shadow has an umbra: {hard_dark}");
+    assert!(
+        hard_dark > 100,
+        "the sharp shadow has an umbra: {hard_dark}"
+    );
     assert!(
         merged_soft > 2 * hard_soft.max(1),
         "penumbra pixels: point light {hard_soft}, merged light {merged_soft}"
@@ -370,7 +397,9 @@ fn shadow_catcher_output_composites_over_a_camera_image() {
             ..Default::default()
         },
     );
-    let (mut img, _) = r.render(&[light(0, Vec3::new(0.2, 1.0, 0.3), [500.0; 3], 1e-4)]).unwrap();
+    let (mut img, _) = r
+        .render(&[light(0, Vec3::new(0.2, 1.0, 0.3), [500.0; 3], 1e-4)])
+        .unwrap();
     // Ground pixels: zero colour and alpha = shadow fraction; the objects are opaque; the ground
     // far from the objects is transparent.
     let (mut shadow, mut clear, mut opaque) = (0, 0, 0);
@@ -383,13 +412,19 @@ fn shadow_catcher_output_composites_over_a_camera_image() {
             clear += 1;
         }
     }
-    assert!(opaque > 300 && shadow > 50 && clear > 1000, "{opaque} {shadow} {clear}");
+    assert!(
+        opaque > 300 && shadow > 50 && clear > 1000,
+        "{opaque} {shadow} {clear}"
+    );
     // Compositing over a grey camera image darkens it exactly by the shadow's alpha.
     let before = img.clone();
     output::composite_background(&mut img, |_, _| [1.0, 1.0, 1.0]);
     for (a, b) in before.rgba.chunks_exact(4).zip(img.rgba.chunks_exact(4)) {
         let want = a[0] + (1.0 - a[3].clamp(0.0, 1.0));
-        assert!((b[0] - want).abs() <= 1e-5 * want.abs().max(1.0), "{a:?} → {b:?}");
+        assert!(
+            (b[0] - want).abs() <= 1e-5 * want.abs().max(1.0),
+            "{a:?} → {b:?}"
+        );
         assert_eq!(b[3], 1.0);
     }
 }
@@ -429,7 +464,10 @@ fn lights_that_reach_no_visible_surface_render_no_map() {
         ])
         .unwrap();
     assert_eq!(stats.lights, 2, "the NaN light is dropped");
-    assert_eq!(stats.shadow_maps, 1, "only the light from above needs a map");
+    assert_eq!(
+        stats.shadow_maps, 1,
+        "only the light from above needs a map"
+    );
     assert!(stats.frame_ms() > 0.0);
 }
 
@@ -472,7 +510,10 @@ fn check_golden(name: &str, img: &Image, exposure: f32) {
         .map(|(a, b)| a.abs_diff(*b))
         .collect();
     let mean = diff.iter().map(|&d| f64::from(d)).sum::<f64>() / diff.len() as f64;
-    let bad_pixels = diff.chunks_exact(4).filter(|p| p.iter().any(|&d| d > 6)).count();
+    let bad_pixels = diff
+        .chunks_exact(4)
+        .filter(|p| p.iter().any(|&d| d > 6))
+        .count();
     let frac_bad = bad_pixels as f64 / (img.width * img.height) as f64;
     if mean > 0.5 || frac_bad > 0.005 {
         let dir = failure_dir();
@@ -482,7 +523,14 @@ fn check_golden(name: &str, img: &Image, exposure: f32) {
         // Differences amplified ×16, opaque.
         let amplified: Vec<u8> = diff
             .chunks_exact(4)
-            .flat_map(|p| [p[0].saturating_mul(16), p[1].saturating_mul(16), p[2].saturating_mul(16), 255])
+            .flat_map(|p| {
+                [
+                    p[0].saturating_mul(16),
+                    p[1].saturating_mul(16),
+                    p[2].saturating_mul(16),
+                    255,
+                ]
+            })
             .collect();
         save(&diff_path, &amplified);
         panic!(
@@ -537,14 +585,30 @@ fn cli_renders_png_and_exr_per_frame() {
     std::fs::write(&lights, format!("{}\n{}\n", frame(0), frame(1))).unwrap();
     let out = dir.path().join("out");
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
-        .args(["render", "--size", "48x32", "--shadow-res", "64", "--lights"])
+        .args([
+            "render",
+            "--size",
+            "48x32",
+            "--shadow-res",
+            "64",
+            "--lights",
+        ])
         .arg(&lights)
         .arg("--out")
         .arg(&out)
         .output()
         .unwrap();
-    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
-    for f in ["frame_00000.png", "frame_00000.exr", "frame_00001.png", "frame_00001.exr"] {
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    for f in [
+        "frame_00000.png",
+        "frame_00000.exr",
+        "frame_00001.png",
+        "frame_00001.exr",
+    ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let png = image::open(out.join("frame_00001.png")).unwrap();

@@ -115,8 +115,8 @@ mod tests {
             self.state ^= self.state >> 12;
             self.state ^= self.state << 25;
             self.state ^= self.state >> 27;
-            let r = (self.state.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64
-                / (1u64 << 53) as f64;
+            let r =
+                (self.state.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
             (self.fixed_ms + self.per_light_ms * n as f64) * (1.0 + self.noise * (2.0 * r - 1.0))
         }
     }
@@ -139,7 +139,10 @@ mod tests {
             .map(|w| w[1] as i64 - w[0] as i64)
             .filter(|&d| d != 0)
             .collect();
-        steps.windows(2).filter(|w| w[0].signum() != w[1].signum()).count()
+        steps
+            .windows(2)
+            .filter(|w| w[0].signum() != w[1].signum())
+            .count()
     }
 
     #[test]
@@ -187,7 +190,10 @@ mod tests {
         let counts: Vec<usize> = tail.iter().map(|p| p.0).collect();
         assert!(reversals(&counts) <= 4, "{counts:?}");
         let (lo, hi) = (counts.iter().min().unwrap(), counts.iter().max().unwrap());
-        assert!((*hi as f64) < 1.15 * (*lo as f64), "count wanders {lo}..{hi}");
+        assert!(
+            (*hi as f64) < 1.15 * (*lo as f64),
+            "count wanders {lo}..{hi}"
+        );
 
         // The scene gets twice as expensive per light: the count halves, roughly.
         let before = *counts.last().unwrap();

@@ -236,8 +236,7 @@ impl Renderer {
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                let catcher =
-                    settings.shadow_catcher && scene.ground_material == Some(i as u32);
+                let catcher = settings.shadow_catcher && scene.ground_material == Some(i as u32);
                 m.to_raw(if catcher { shading::FLAG_CATCHER } else { 0 })
             })
             .collect();
@@ -681,7 +680,8 @@ impl Renderer {
     /// shadow maps.
     fn prepare(&mut self, lights: &[Light]) -> (Vec<GpuLight>, usize) {
         let device = &self.gpu.device;
-        let mut gpu_lights: Vec<GpuLight> = lights.iter().filter_map(GpuLight::from_light).collect();
+        let mut gpu_lights: Vec<GpuLight> =
+            lights.iter().filter_map(GpuLight::from_light).collect();
         let res = self.settings.shadow_resolution;
         let bounds = self.scene.bounds;
         let mut maps = 0u32;
@@ -767,9 +767,11 @@ impl Renderer {
             normal_offset: 2.0 * texel_world,
             depth_bias: 1.0 / res as f32,
         };
-        self.gpu
-            .queue
-            .write_buffer(&self.globals_buffer, 0, bytemuck::bytes_of(&globals.to_raw()));
+        self.gpu.queue.write_buffer(
+            &self.globals_buffer,
+            0,
+            bytemuck::bytes_of(&globals.to_raw()),
+        );
         (gpu_lights, maps as usize)
     }
 
@@ -777,7 +779,9 @@ impl Renderer {
         let mut enc = self
             .gpu
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("frame"),
+            });
         let ts = self.timestamps.as_ref();
         for layer in 0..maps {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -890,7 +894,7 @@ impl Renderer {
         f: impl FnOnce(&[u8]) -> T,
     ) -> Result<T, RenderError> {
         let slice = buffer.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
+        let (tx, rx) = crossbeam_channel::bounded(1);
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
@@ -916,8 +920,7 @@ impl Renderer {
             let v: &[u64] = bytemuck::cast_slice(b);
             (v[0], v[1])
         })?;
-        Ok((ticks.1 > ticks.0)
-            .then(|| (ticks.1 - ticks.0) as f64 * f64::from(t.period_ns) * 1e-6))
+        Ok((ticks.1 > ticks.0).then(|| (ticks.1 - ticks.0) as f64 * f64::from(t.period_ns) * 1e-6))
     }
 
     /// Renders one frame and waits for it, without reading the image back (benchmarks,

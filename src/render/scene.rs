@@ -91,7 +91,11 @@ pub struct Camera {
 impl Camera {
     pub fn view(&self) -> Mat4 {
         let fwd = (self.target - self.eye).normalize_or(Vec3::NEG_Z);
-        let up = if fwd.y.abs() > 0.999 { Vec3::Z } else { Vec3::Y };
+        let up = if fwd.y.abs() > 0.999 {
+            Vec3::Z
+        } else {
+            Vec3::Y
+        };
         look_at_rh(self.eye, self.target, up)
     }
 
@@ -206,7 +210,11 @@ impl Builder {
             let theta = std::f32::consts::PI * r as f32 / rings as f32;
             for s in 0..=segments {
                 let phi = std::f32::consts::TAU * s as f32 / segments as f32;
-                let n = Vec3::new(theta.sin() * phi.sin(), theta.cos(), theta.sin() * phi.cos());
+                let n = Vec3::new(
+                    theta.sin() * phi.sin(),
+                    theta.cos(),
+                    theta.sin() * phi.cos(),
+                );
                 pos.push(center + radius * n);
                 nor.push(n);
             }
@@ -504,7 +512,9 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                 Some(i) => i.into_u32().collect(),
                 None => (0..positions.len() as u32).collect(),
             };
-            if indices.len() % 3 != 0 || indices.iter().any(|&i| i as usize >= positions.len()) {
+            if !indices.len().is_multiple_of(3)
+                || indices.iter().any(|&i| i as usize >= positions.len())
+            {
                 return Err(err(format!(
                     "mesh {:?}: triangle indices out of range or not a multiple of 3",
                     mesh.name().unwrap_or("")
@@ -694,7 +704,10 @@ mod tests {
         let p = dir.path().join("model.stl");
         std::fs::write(&p, b"solid").unwrap();
         let e = Scene::load(&p, true).unwrap_err().to_string();
-        assert!(e.contains("model.stl") && e.contains("unknown format"), "{e}");
+        assert!(
+            e.contains("model.stl") && e.contains("unknown format"),
+            "{e}"
+        );
         let p = dir.path().join("empty.obj");
         std::fs::write(&p, b"# nothing\n").unwrap();
         let e = Scene::load(&p, true).unwrap_err().to_string();

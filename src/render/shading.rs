@@ -76,7 +76,9 @@ impl GpuLight {
     /// non-finite power (negative channels are clamped to 0).
     pub fn from_light(light: &Light) -> Option<Self> {
         let dir = Vec3::from_array(light.dir);
-        if !dir.is_finite() || dir.length_squared() < 1e-12 || light.rgb.iter().any(|c| !c.is_finite())
+        if !dir.is_finite()
+            || dir.length_squared() < 1e-12
+            || light.rgb.iter().any(|c| !c.is_finite())
         {
             return None;
         }

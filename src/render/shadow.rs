@@ -101,8 +101,12 @@ mod tests {
                 assert!(p.z >= 0.0 && p.z <= 1.0, "{p}");
             }
             // Nearer the light is smaller depth.
-            let near = m.project_point3(b.center + d.normalize() * b.radius * 0.5).z;
-            let far = m.project_point3(b.center - d.normalize() * b.radius * 0.5).z;
+            let near = m
+                .project_point3(b.center + d.normalize() * b.radius * 0.5)
+                .z;
+            let far = m
+                .project_point3(b.center - d.normalize() * b.radius * 0.5)
+                .z;
             assert!(near < far);
         }
     }
@@ -139,11 +143,7 @@ mod tests {
             }),
             cam,
         );
-        let dirs = [
-            Vec3::Y,
-            Vec3::new(1.0, -0.05, 0.0).normalize(),
-            Vec3::NEG_Y,
-        ];
+        let dirs = [Vec3::Y, Vec3::new(1.0, -0.05, 0.0).normalize(), Vec3::NEG_Y];
         let need = lights_needing_maps(&scene, &dirs);
         assert_eq!(need, vec![true, true, false]);
     }
