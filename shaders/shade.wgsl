@@ -3,8 +3,8 @@
 //
 // Per-pixel light culling (src/render/mod.rs documents the scheme and its tolerance):
 //  * n·l ≤ 0: the light adds nothing; with culling on it costs no shading and no shadow lookup.
-//  * glossy pixels: lights inside a cone around the mirror direction (the GGX lobe widened by
-//    the light's own angular radius) get the full path, a PCF_TAPS-tap Poisson-disk PCF; the
+//  * glossy pixels: lights inside a cone around the mirror direction (where the GGX lobe, widened
+//    by the light's own angular radius, is above ~1% of its peak) get the full path, a PCF_TAPS-tap Poisson-disk PCF; the
 //    others get the cheap path, 4 bilinear (2×2) comparison taps.
 // With culling off every light takes the full path (and the shadow lookup is made even where
 // n·l ≤ 0, the plain loop a renderer without culling runs).
@@ -143,7 +143,6 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
     let diffuse = mat.base_color.rgb * (1.0 - metallic) / PI;
     let f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), mat.base_color.rgb, metallic);
     let has_specular = any(f0 > vec3<f32>(0.0));
-    let r = reflect(-v, n);
     let culling = globals.culling != 0u;
 
     var radiance = vec3<f32>(0.0);
@@ -164,10 +163,11 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
         let alpha_l = min(alpha + 0.5 * rho, 1.0);
         var full = true;
         if culling && has_specular {
-            // Beyond ≈3α in tan θ_h the GGX lobe is below 1% of its peak; ×2 to the mirror
-            // direction, plus the light's radius.
-            let cone = min(2.0 * atan(3.0 * alpha_l) + rho, PI);
-            full = dot(r, l) >= cos(cone);
+            // The GGX lobe is below ~1% of its peak beyond tan θ_h = 3α′ (θ_h: the half vector's
+            // angle to n), i.e. outside a cone of half-angle ≈ 2θ_h around the mirror direction.
+            // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light.
+            let nh = max(dot(n, normalize(v + l)), 0.0);
+            full = nh * nh * (1.0 + 9.0 * alpha_l * alpha_l) >= 1.0;
         }
         let vis = visibility(i, in.world, n, l, i32(rgb.w), full);
         let e = rgb.rgb * ndl;

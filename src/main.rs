@@ -64,9 +64,9 @@ struct RenderArgs {
     /// Image size. [default: 640x360]
     #[arg(long, value_name = "WxH", value_parser = parse_size, default_value = "640x360")]
     size: (u32, u32),
-    /// Output folder (created if missing).
-    #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    /// Output folder (created if missing). Required unless --window.
+    #[arg(long, value_name = "DIR", required_unless_present = "window")]
+    out: Option<PathBuf>,
     /// Lights per frame when decomposing INPUT or the sky (1..=16384).
     #[arg(long, short = 'n', value_name = "N", default_value_t = 256)]
     light_count: usize,
@@ -94,6 +94,9 @@ struct RenderArgs {
     /// Exposure scale before tone mapping. [default: from the first frame's median]
     #[arg(long, value_name = "X")]
     exposure: Option<f32>,
+    /// Show the frames in a window instead of writing files (needs the `window` feature).
+    #[arg(long, conflicts_with = "background")]
+    window: bool,
 }
 
 #[derive(Parser, Debug)]
@@ -702,11 +705,39 @@ fn render(args: &RenderArgs) -> Result<()> {
         culling: !args.no_culling,
         shadow_catcher: args.catcher,
     };
+    let mut next_frame =
+        move || -> Result<Option<(envlight::LightFrame, Option<envlight::HdrFrame>)>> {
+            if let Some(frames) = &mut from_file {
+                return Ok(frames.next().map(|f| (f, None)));
+            }
+            let Some((src, dec)) = &mut source else {
+                return Ok(None);
+            };
+            Ok(src
+                .next_frame()
+                .context("cannot read a frame")?
+                .map(|frame| (dec.decompose(&frame), Some(frame))))
+        };
+    let Some(out) = args.out.as_ref().filter(|_| !args.window) else {
+        #[cfg(feature = "window")]
+        {
+            let source = Box::new(move || {
+                next_frame()
+                    .map(|f| f.map(|(l, _)| l.lights))
+                    .map_err(|e| format!("{e:#}"))
+            });
+            let exposure = args.exposure.unwrap_or(0.02);
+            render::window::run(scene, settings, exposure, args.budget_ms, source)?;
+            return Ok(());
+        }
+        #[cfg(not(feature = "window"))]
+        bail!("--window needs envlight built with `--features window`");
+    };
     let mut renderer = Renderer::new(scene, settings)?;
     tracing::info!("adapter: {}", renderer.gpu().describe());
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
-    let stats_path = args.out.join("stats.jsonl");
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("cannot create output folder {}", out.display()))?;
+    let stats_path = out.join("stats.jsonl");
     let mut stats_file = std::io::BufWriter::new(
         std::fs::File::create(&stats_path)
             .with_context(|| format!("cannot create {}", stats_path.display()))?,
@@ -716,17 +747,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     let limit = args.frames.filter(|&n| n > 0);
     let mut done = 0u64;
     while limit.is_none_or(|n| done < n) {
-        let (lights, env) = if let Some(frames) = &mut from_file {
-            match frames.next() {
-                Some(f) => (f, None),
-                None => break,
-            }
-        } else if let Some((src, dec)) = &mut source {
-            match src.next_frame().context("cannot read a frame")? {
-                Some(frame) => (dec.decompose(&frame), Some(frame)),
-                None => break,
-            }
-        } else {
+        let Some((lights, env)) = next_frame()? else {
             break;
         };
         let all = render::light_prefix(&lights.lights, usize::MAX);
@@ -759,7 +780,7 @@ fn render(args: &RenderArgs) -> Result<()> {
             });
         }
         let exp = *exposure.get_or_insert_with(|| output::auto_exposure(&image));
-        let stem = args.out.join(format!("frame_{:05}", lights.seq));
+        let stem = out.join(format!("frame_{:05}", lights.seq));
         output::write_png(&stem.with_extension("png"), &image, exp)?;
         output::write_exr(&stem.with_extension("exr"), &image)?;
         let line = serde_json::json!({
@@ -785,6 +806,6 @@ fn render(args: &RenderArgs) -> Result<()> {
     stats_file
         .flush()
         .with_context(|| format!("cannot write {}", stats_path.display()))?;
-    tracing::info!("rendered {done} frames into {}", args.out.display());
+    tracing::info!("rendered {done} frames into {}", out.display());
     Ok(())
 }

@@ -76,6 +76,21 @@ fn failure_dir() -> PathBuf {
     dir
 }
 
+/// Panics with the first failures, after writing the image to the failure folder.
+fn fail_with_image(name: &str, img: &Image, failures: &[String]) {
+    if failures.is_empty() {
+        return;
+    }
+    let path = failure_dir().join(format!("{name}.actual.exr"));
+    output::write_exr(&path, img).unwrap();
+    panic!(
+        "{} pixel values off (image written to {}):\n{}",
+        failures.len(),
+        path.display(),
+        failures[..failures.len().min(10)].join("\n")
+    );
+}
+
 /// Ray-sphere intersection: the nearest t > 0.
 fn hit_sphere(o: Vec3, d: Vec3, c: Vec3, r: f32) -> Option<f32> {
     let oc = o - c;
@@ -122,8 +137,7 @@ fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
     );
     let (img, stats) = r.render(&lights).unwrap();
     assert_eq!(stats.lights, 5);
-    let debug = failure_dir().join("diffuse_sphere.actual.exr");
-    output::write_exr(&debug, &img).unwrap();
+    let mut failures = Vec::new();
     let mut checked = 0;
     let mut worst = 0.0f32;
     for y in 0..96 {
@@ -149,16 +163,18 @@ fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
                 let want = albedo[c] / PI * e[c];
                 let rel = (px[c] - want).abs() / want.max(1e-3);
                 worst = worst.max(rel);
-                assert!(
-                    rel <= 0.01,
-                    "pixel ({x},{y}) channel {c}: GPU {} vs CPU {want} ({:.3}% off)",
-                    px[c],
-                    rel * 100.0
-                );
+                if rel > 0.01 {
+                    failures.push(format!(
+                        "pixel ({x},{y}) channel {c}: GPU {} vs CPU {want} ({:.3}% off)",
+                        px[c],
+                        rel * 100.0
+                    ));
+                }
             }
             checked += 1;
         }
     }
+    fail_with_image("diffuse_sphere", &img, &failures);
     assert!(checked > 2500, "only {checked} pixels checked");
     eprintln!(
         "diffuse sphere: {checked} pixels, worst relative error {:.4}%",
@@ -205,7 +221,7 @@ fn ground_behind_the_occluder_lacks_exactly_that_lights_contribution() {
     );
     let (img, stats) = r.render(&lights).unwrap();
     assert_eq!(stats.shadow_maps, 3);
-    output::write_exr(&failure_dir().join("ground_shadows.actual.exr"), &img).unwrap();
+    let mut failures = Vec::new();
     let mut shadowed = [0usize; 3];
     let mut lit_checked = 0;
     for y in 0..h {
@@ -249,14 +265,15 @@ fn ground_behind_the_occluder_lacks_exactly_that_lights_contribution() {
             let px = img.pixel(x, y);
             for c in 0..3 {
                 let rel = (px[c] - expected[c]).abs() / expected[c].max(1e-3);
-                assert!(
-                    rel <= 0.01,
-                    "ground pixel ({x},{y}) shadowed by {in_shadow:?}: channel {c} GPU {} vs {} \
-                     ({:.2}% off)",
-                    px[c],
-                    expected[c],
-                    rel * 100.0
-                );
+                if rel > 0.01 {
+                    failures.push(format!(
+                        "ground pixel ({x},{y}) shadowed by {in_shadow:?}: channel {c} GPU {} \
+                         vs {} ({:.2}% off)",
+                        px[c],
+                        expected[c],
+                        rel * 100.0
+                    ));
+                }
             }
             for i in 0..3 {
                 shadowed[i] += usize::from(in_shadow[i]);
@@ -264,6 +281,7 @@ fn ground_behind_the_occluder_lacks_exactly_that_lights_contribution() {
             lit_checked += usize::from(!in_shadow.iter().any(|&s| s));
         }
     }
+    fail_with_image("ground_shadows", &img, &failures);
     for (i, n) in shadowed.iter().enumerate() {
         assert!(
             *n >= 20,
@@ -556,7 +574,7 @@ fn golden_default_scene() {
         },
     );
     let (img, _) = r.render(&sky_lights(24)).unwrap();
-    check_golden("default_scene", &img, 0.02);
+    check_golden("default_scene", &img, 0.003);
 }
 
 #[test]
@@ -572,7 +590,7 @@ fn golden_mixed_reality() {
         },
     );
     let (img, _) = r.render(&sky_lights(24)).unwrap();
-    check_golden("mixed_reality", &img, 0.02);
+    check_golden("mixed_reality", &img, 0.003);
 }
 
 #[test]

@@ -27,6 +27,8 @@ pub enum DeviceError {
 
 /// A device, its queue and what the renderer needs to know about the adapter.
 pub struct Gpu {
+    pub instance: wgpu::Instance,
+    pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
@@ -61,14 +63,33 @@ pub fn device_type_rank(t: wgpu::DeviceType) -> u32 {
 impl Gpu {
     /// Opens the preferred adapter (see the module doc).
     pub fn new() -> Result<Self, DeviceError> {
-        pollster::block_on(Self::new_async())
+        Self::with_instance(Self::new_instance(), None)
     }
 
-    async fn new_async() -> Result<Self, DeviceError> {
+    /// A Vulkan-only wgpu instance.
+    pub fn new_instance() -> wgpu::Instance {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = wgpu::Backends::VULKAN;
-        let instance = wgpu::Instance::new(desc);
+        wgpu::Instance::new(desc)
+    }
+
+    /// Opens the preferred adapter of `instance`; with a `surface`, only adapters that can
+    /// present to it are considered.
+    pub fn with_instance(
+        instance: wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+    ) -> Result<Self, DeviceError> {
+        pollster::block_on(Self::new_async(instance, surface))
+    }
+
+    async fn new_async(
+        instance: wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+    ) -> Result<Self, DeviceError> {
         let mut adapters = instance.enumerate_adapters(wgpu::Backends::VULKAN).await;
+        if let Some(s) = surface {
+            adapters.retain(|a| a.is_surface_supported(s));
+        }
         let wanted = std::env::var("ENVLIGHT_ADAPTER").ok();
         if let Some(w) = &wanted {
             let w = w.to_lowercase();
@@ -102,6 +123,8 @@ impl Gpu {
                 message: e.to_string(),
             })?;
         Ok(Self {
+            instance,
+            adapter,
             device,
             queue,
             info,

@@ -18,11 +18,12 @@
 //! **Per-pixel light culling** (Havran et al. 2005 cull lights below a pixel's horizon; this
 //! renderer also culls by the specular lobe): a light with n·l ≤ 0 is skipped before any
 //! shading or shadow lookup (exact: its contribution is zero). On glossy pixels (any
-//! specular), only lights inside a cone around the mirror direction — half-angle
-//! 2·atan(3α′) + ρ, where the GGX lobe is above 1% of its peak, α′ the roughness widened by the
-//! light's angular radius ρ — take the full path (a 12-tap PCF); the others take a cheap path
-//! with one bilinear 2×2 comparison tap. Culling changes only the shadow filtering of
-//! off-lobe lights, so culled and unculled images differ only in penumbrae: the tolerance
+//! specular), only lights inside a cone around the mirror direction — where the half vector is
+//! within θ_h of the normal, tan θ_h = 3α′, so the GGX lobe is above ~1% of its peak (α′ the
+//! roughness widened by the light's angular radius) — take the full path (a 12-tap PCF); the
+//! others take a cheap path with four bilinear 2×2 comparison taps. Culling changes only the
+//! shadow filtering of off-lobe lights, so culled and unculled images differ only in
+//! penumbrae: the tolerance
 //! ([`CULLING_TOLERANCE`]) is stated in docs/rendering.md and enforced by tests/render.rs.
 //!
 //! Mixed reality: with [`RenderSettings::shadow_catcher`], the ground outputs (0, 0, 0, α) with
@@ -35,6 +36,8 @@ pub mod output;
 pub mod scene;
 pub mod shading;
 pub mod shadow;
+#[cfg(feature = "window")]
+pub mod window;
 
 use crate::light::Light;
 use device::{DeviceError, Gpu};
@@ -48,8 +51,14 @@ use thiserror::Error;
 pub const SHADE_WGSL: &str = include_str!("../../shaders/shade.wgsl");
 /// WGSL source of the shadow pass.
 pub const SHADOW_WGSL: &str = include_str!("../../shaders/shadow.wgsl");
+/// WGSL source of the windowed mode's present pass.
+pub const PRESENT_WGSL: &str = include_str!("../../shaders/present.wgsl");
 /// Every shader, by file name (the naga test validates each).
-pub const SHADERS: &[(&str, &str)] = &[("shade.wgsl", SHADE_WGSL), ("shadow.wgsl", SHADOW_WGSL)];
+pub const SHADERS: &[(&str, &str)] = &[
+    ("present.wgsl", PRESENT_WGSL),
+    ("shade.wgsl", SHADE_WGSL),
+    ("shadow.wgsl", SHADOW_WGSL),
+];
 
 /// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
 /// opaque value (see docs/rendering.md): (mean absolute difference, 99.9th percentile).
@@ -565,7 +574,9 @@ impl Renderer {
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: COLOR_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
             view_formats: &[],
         });
         let depth = device.create_texture(&wgpu::TextureDescriptor {
@@ -651,6 +662,11 @@ impl Renderer {
 
     pub fn settings(&self) -> &RenderSettings {
         &self.settings
+    }
+
+    /// The HDR colour target (`Rgba32Float`), for passes that read the frame.
+    pub fn color_view(&self) -> &wgpu::TextureView {
+        &self.color_view
     }
 
     /// Turns culling on or off for the next frames.
@@ -775,7 +791,7 @@ impl Renderer {
         (gpu_lights, maps as usize)
     }
 
-    fn encode(&self, maps: usize, readback: bool) -> wgpu::CommandBuffer {
+    fn encode(&self, maps: usize, readback: bool) -> wgpu::CommandEncoder {
         let mut enc = self
             .gpu
             .device
@@ -876,7 +892,7 @@ impl Renderer {
                 },
             );
         }
-        enc.finish()
+        enc
     }
 
     fn wait(&self) -> Result<(), RenderError> {
@@ -928,8 +944,31 @@ impl Renderer {
     pub fn render_timed(&mut self, lights: &[Light]) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
         let (gl, maps) = self.prepare(lights);
-        let cmd = self.encode(maps, false);
+        let cmd = self.encode(maps, false).finish();
         self.gpu.queue.submit([cmd]);
+        self.wait()?;
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(FrameStats {
+            lights: gl.len(),
+            shadow_maps: maps,
+            gpu_ms: self.gpu_time()?,
+            cpu_ms,
+        })
+    }
+
+    /// Renders one frame, lets `then` encode more work that reads the frame (the HDR colour
+    /// view, `Rgba32Float`) into the same submission, and waits for it (the windowed mode's
+    /// present pass).
+    pub fn render_then(
+        &mut self,
+        lights: &[Light],
+        then: impl FnOnce(&wgpu::Device, &mut wgpu::CommandEncoder, &wgpu::TextureView),
+    ) -> Result<FrameStats, RenderError> {
+        let start = Instant::now();
+        let (gl, maps) = self.prepare(lights);
+        let mut enc = self.encode(maps, false);
+        then(&self.gpu.device, &mut enc, &self.color_view);
+        self.gpu.queue.submit([enc.finish()]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(FrameStats {
@@ -944,7 +983,7 @@ impl Renderer {
     pub fn render(&mut self, lights: &[Light]) -> Result<(Image, FrameStats), RenderError> {
         let start = Instant::now();
         let (gl, maps) = self.prepare(lights);
-        let cmd = self.encode(maps, true);
+        let cmd = self.encode(maps, true).finish();
         self.gpu.queue.submit([cmd]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
