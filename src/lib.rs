@@ -20,6 +20,7 @@ pub mod light;
 pub mod metrics;
 pub mod pipeline;
 pub mod record;
+pub mod render;
 pub mod stream;
 pub mod yardstick;
 

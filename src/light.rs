@@ -51,3 +51,68 @@ impl LightFrame {
         sum
     }
 }
+
+/// Why a JSON Lines light list could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum LightListError {
+    #[error("cannot read light list {path}: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+    #[error("light list {path}, line {line}: {message}")]
+    Parse {
+        path: std::path::PathBuf,
+        line: usize,
+        message: String,
+    },
+}
+
+/// Reads the JSON Lines written by `envlight decompose` (one [`LightFrame`] per non-empty line).
+pub fn read_json_lines(path: &std::path::Path) -> Result<Vec<LightFrame>, LightListError> {
+    let text = std::fs::read_to_string(path).map_err(|source| LightListError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse_json_lines(&text).map_err(|(line, message)| LightListError::Parse {
+        path: path.to_path_buf(),
+        line,
+        message,
+    })
+}
+
+/// Parses JSON Lines text; the error gives the 1-based line number and the problem.
+pub fn parse_json_lines(text: &str) -> Result<Vec<LightFrame>, (usize, String)> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| serde_json::from_str(l).map_err(|e| (i + 1, e.to_string())))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_lines_round_trip_and_errors_name_the_line() {
+        let frame = LightFrame {
+            seq: 3,
+            time: 0.1,
+            lights: vec![Light {
+                id: 7,
+                dir: [0.0, 1.0, 0.0],
+                rgb: [1.0, 2.0, 3.0],
+                solid_angle: 0.01,
+            }],
+        };
+        let line = serde_json::to_string(&frame).unwrap();
+        let text = format!("{line}\n\n{line}\n");
+        let frames = parse_json_lines(&text).unwrap();
+        assert_eq!(frames, vec![frame.clone(), frame]);
+        let err = parse_json_lines(&format!("{line}\n{{\"seq\":1}}\n")).unwrap_err();
+        assert_eq!(err.0, 2);
+        let e = read_json_lines(std::path::Path::new("/no/such/lights.jsonl")).unwrap_err();
+        assert!(e.to_string().contains("lights.jsonl"));
+    }
+}

@@ -43,6 +43,66 @@ seq: frame number; time: frame time in seconds; id: the light's index in the fix
 Without INPUT the built-in sky is rendered (60 frames unless --frames says otherwise).
 Logs go to stderr (RUST_LOG overrides the level, e.g. RUST_LOG=debug).";
 
+const RENDER_LONG_ABOUT: &str = "\
+Render a scene (glTF 2.0 / OBJ via --scene, or the built-in spheres on a ground plane) under
+directional lights with per-light PCF shadows, on the best graphics adapter (a GPU, else Mesa's
+lavapipe). Lights come from --lights (the JSON Lines of `envlight decompose`), from INPUT frames
+decomposed in-process, or from the built-in sky (1 frame unless --frames says otherwise).
+Writes OUT/frame_NNNNN.png (tone-mapped sRGB, RGBA), OUT/frame_NNNNN.exr (linear, premultiplied
+RGBA) and OUT/stats.jsonl (lights, shadow maps and time of every frame).
+--catcher makes the ground a shadow catcher (RGBA to composite over a camera image);
+--background composites over the environment map (not with --lights).
+--budget-ms holds a frame time by rendering a prefix of the progressive light set.";
+
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// .exr/.hdr frames to decompose in-process. None (and no --lights): the built-in sky.
+    #[arg(value_name = "INPUT", conflicts_with = "lights")]
+    inputs: Vec<String>,
+    /// Light list: JSON Lines as written by `envlight decompose`.
+    #[arg(long, value_name = "FILE")]
+    lights: Option<PathBuf>,
+    /// Scene file (.gltf, .glb, .obj). [default: built-in spheres on a ground plane]
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
+    /// Image size. [default: 640x360]
+    #[arg(long, value_name = "WxH", value_parser = parse_size, default_value = "640x360")]
+    size: (u32, u32),
+    /// Output folder (created if missing). Required unless --window.
+    #[arg(long, value_name = "DIR", required_unless_present = "window")]
+    out: Option<PathBuf>,
+    /// Lights per frame when decomposing INPUT or the sky (1..=16384).
+    #[arg(long, short = 'n', value_name = "N", default_value_t = 256)]
+    light_count: usize,
+    /// Frames to render. [default: every frame of --lights or INPUT; 1 for the sky]
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
+    /// Shadow-map side in texels (16..=8192).
+    #[arg(long, value_name = "N", default_value_t = 512)]
+    shadow_res: u32,
+    /// No shadows.
+    #[arg(long)]
+    no_shadows: bool,
+    /// No per-pixel light culling (every light takes the full path).
+    #[arg(long)]
+    no_culling: bool,
+    /// The ground plane catches shadows: RGBA output to composite over a camera image.
+    #[arg(long)]
+    catcher: bool,
+    /// Composite over the environment map (INPUT frames or the sky).
+    #[arg(long, conflicts_with = "lights")]
+    background: bool,
+    /// Frame-time budget in ms: render the prefix of the light set (by id) that holds it.
+    #[arg(long, value_name = "MS")]
+    budget_ms: Option<f64>,
+    /// Exposure scale before tone mapping. [default: from the first frame's median]
+    #[arg(long, value_name = "X")]
+    exposure: Option<f32>,
+    /// Show the frames in a window instead of writing files (needs the `window` feature).
+    #[arg(long, conflicts_with = "background")]
+    window: bool,
+}
+
 #[derive(Parser, Debug)]
 #[command(
     name = "envlight",
@@ -79,6 +139,9 @@ enum Command {
     CalibrateResponse(camera_cli::CalibrateResponseArgs),
     /// Find a fisheye image circle automatically and print the `[source.fisheye]` lines.
     CalibrateFisheye(camera_cli::CalibrateFisheyeArgs),
+    /// Render a scene under the lights: one tone-mapped PNG and one linear EXR per frame.
+    #[command(long_about = RENDER_LONG_ABOUT)]
+    Render(RenderArgs),
 }
 
 const RUN_LONG_ABOUT: &str = "\
@@ -544,6 +607,7 @@ fn main() -> ExitCode {
         Command::Devices => camera_cli::devices(),
         Command::CalibrateResponse(args) => camera_cli::calibrate_response(&args),
         Command::CalibrateFisheye(args) => camera_cli::calibrate_fisheye(&args),
+        Command::Render(args) => render(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -895,5 +959,151 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         per_frame(lights_total as f64),
         per_frame(decompose_time.as_secs_f64() * 1e3),
     );
+    Ok(())
+}
+
+fn render(args: &RenderArgs) -> Result<()> {
+    use envlight::render::{self, budget, output, scene::Scene, RenderSettings, Renderer};
+    if let Some(b) = args.budget_ms.filter(|b| !(b.is_finite() && *b > 0.0)) {
+        bail!("invalid --budget-ms {b}: must be a positive number of milliseconds");
+    }
+    if args.exposure.is_some_and(|e| !(e.is_finite() && e > 0.0)) {
+        bail!("invalid --exposure: must be a positive number");
+    }
+    let scene = match &args.scene {
+        Some(path) => Scene::load(path, true)?,
+        None => Scene::default_scene(),
+    };
+    // Lights: a JSON Lines file, or frames decomposed here (INPUT or the sky).
+    let mut from_file = None;
+    let mut source = None;
+    if let Some(path) = &args.lights {
+        from_file = Some(envlight::light::read_json_lines(path)?.into_iter());
+    } else {
+        let mut raw = RawConfig::default();
+        if !args.inputs.is_empty() {
+            raw.source.kind = Some("sequence".into());
+            raw.source.paths = Some(args.inputs.clone());
+        }
+        raw.source.frames = Some(args.frames.unwrap_or(u64::from(args.inputs.is_empty())));
+        raw.decompose.lights = Some(args.light_count);
+        let config = raw
+            .validate()
+            .map_err(|e| anyhow!(e).context("invalid --light-count or INPUT"))?;
+        let (src, _) = open_source(&config)?;
+        let dec =
+            Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
+        source = Some((src, dec));
+    }
+    let settings = RenderSettings {
+        width: args.size.0,
+        height: args.size.1,
+        shadow_resolution: args.shadow_res,
+        shadows: !args.no_shadows,
+        culling: !args.no_culling,
+        shadow_catcher: args.catcher,
+    };
+    let mut next_frame =
+        move || -> Result<Option<(envlight::LightFrame, Option<envlight::HdrFrame>)>> {
+            if let Some(frames) = &mut from_file {
+                return Ok(frames.next().map(|f| (f, None)));
+            }
+            let Some((src, dec)) = &mut source else {
+                return Ok(None);
+            };
+            Ok(src
+                .next_frame()
+                .context("cannot read a frame")?
+                .map(|frame| (dec.decompose(&frame), Some(frame))))
+        };
+    let Some(out) = args.out.as_ref().filter(|_| !args.window) else {
+        #[cfg(feature = "window")]
+        {
+            let source = Box::new(move || {
+                next_frame()
+                    .map(|f| f.map(|(l, _)| l.lights))
+                    .map_err(|e| format!("{e:#}"))
+            });
+            let exposure = args.exposure.unwrap_or(0.02);
+            render::window::run(scene, settings, exposure, args.budget_ms, source)?;
+            return Ok(());
+        }
+        #[cfg(not(feature = "window"))]
+        bail!("--window needs envlight built with `--features window`");
+    };
+    let mut renderer = Renderer::new(scene, settings)?;
+    tracing::info!("adapter: {}", renderer.gpu().describe());
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("cannot create output folder {}", out.display()))?;
+    let stats_path = out.join("stats.jsonl");
+    let mut stats_file = std::io::BufWriter::new(
+        std::fs::File::create(&stats_path)
+            .with_context(|| format!("cannot create {}", stats_path.display()))?,
+    );
+    let mut controller = None;
+    let mut exposure = args.exposure;
+    let limit = args.frames.filter(|&n| n > 0);
+    let mut done = 0u64;
+    while limit.is_none_or(|n| done < n) {
+        let Some((lights, env)) = next_frame()? else {
+            break;
+        };
+        let all = render::light_prefix(&lights.lights, usize::MAX);
+        let ctl = controller.get_or_insert_with(|| {
+            args.budget_ms.map(|ms| {
+                budget::BudgetController::new(budget::BudgetSettings::new(ms, all.len()), all.len())
+            })
+        });
+        let count = ctl.as_ref().map_or(all.len(), |c| c.count());
+        let (mut image, stats) = renderer.render(&all[..count.min(all.len())])?;
+        if let Some(c) = ctl.as_mut() {
+            c.update(stats.frame_ms());
+        }
+        if let (true, Some(env)) = (args.background, &env) {
+            let rays: Vec<_> = (0..image.height)
+                .flat_map(|y| (0..image.width).map(move |x| (x, y)))
+                .map(|(x, y)| renderer.pixel_ray(x as f32, y as f32))
+                .collect();
+            let w = image.width;
+            output::composite_background(&mut image, |x, y| {
+                let d = rays[(y * w + x) as usize].as_dvec3();
+                env.projection
+                    .direction_to_pixel(env.width, env.height, d)
+                    .map_or([0.0; 3], |(px, py)| {
+                        env.pixel(
+                            (px as u32).min(env.width - 1),
+                            (py as u32).min(env.height - 1),
+                        )
+                    })
+            });
+        }
+        let exp = *exposure.get_or_insert_with(|| output::auto_exposure(&image));
+        let stem = out.join(format!("frame_{:05}", lights.seq));
+        output::write_png(&stem.with_extension("png"), &image, exp)?;
+        output::write_exr(&stem.with_extension("exr"), &image)?;
+        let line = serde_json::json!({
+            "seq": lights.seq, "lights": stats.lights, "shadow_maps": stats.shadow_maps,
+            "gpu_ms": stats.gpu_ms, "cpu_ms": stats.cpu_ms, "frame_ms": stats.frame_ms(),
+        });
+        writeln!(stats_file, "{line}")
+            .with_context(|| format!("cannot write {}", stats_path.display()))?;
+        tracing::info!(
+            "frame {}: {} lights, {} shadow maps, {:.2} ms ({})",
+            lights.seq,
+            stats.lights,
+            stats.shadow_maps,
+            stats.frame_ms(),
+            if stats.gpu_ms.is_some() {
+                "GPU timestamps"
+            } else {
+                "CPU time"
+            }
+        );
+        done += 1;
+    }
+    stats_file
+        .flush()
+        .with_context(|| format!("cannot write {}", stats_path.display()))?;
+    tracing::info!("rendered {done} frames into {}", out.display());
     Ok(())
 }

@@ -494,7 +494,7 @@ fn check_header(b: &[u8]) -> Result<Option<usize>, ProtocolError> {
         let body = len - 8;
         let ok = match message_type {
             TYPE_FRAME => {
-                body >= FRAME_FIXED_LEN && (body - FRAME_FIXED_LEN) % LIGHT_RECORD_LEN == 0
+                body >= FRAME_FIXED_LEN && (body - FRAME_FIXED_LEN).is_multiple_of(LIGHT_RECORD_LEN)
             }
             TYPE_ERROR | TYPE_GOODBYE => body >= 6,
             TYPE_SUBSCRIBE => body == SUBSCRIBE_BODY_LEN,

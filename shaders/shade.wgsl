@@ -1,0 +1,192 @@
+// Main pass: Lambertian diffuse + GGX specular (metallic-roughness) under N directional lights,
+// each with its own PCF-filtered shadow map layer, in linear HDR (rgba32float target).
+//
+// Per-pixel light culling (src/render/mod.rs documents the scheme and its tolerance):
+//  * n·l ≤ 0: the light adds nothing; with culling on it costs no shading and no shadow lookup.
+//  * glossy pixels: lights inside a cone around the mirror direction (where the GGX lobe, widened
+//    by the light's own angular radius, is above ~1% of its peak) get the full path, a PCF_TAPS-tap Poisson-disk PCF; the
+//    others get the cheap path, 4 bilinear (2×2) comparison taps.
+// With culling off every light takes the full path (and the shadow lookup is made even where
+// n·l ≤ 0, the plain loop a renderer without culling runs).
+//
+// The ground's material may be a shadow catcher: it then outputs premultiplied RGBA
+// (0, 0, 0, α) with α = 1 − E_shadowed / E_unshadowed, to darken the camera image beneath.
+
+const PI: f32 = 3.14159265358979;
+const PCF_TAPS: u32 = 12u;
+const FLAG_CATCHER: u32 = 1u;
+
+struct Globals {
+    view_proj: mat4x4<f32>,
+    camera_pos: vec4<f32>,
+    light_count: u32,
+    culling: u32,
+    shadows: u32,
+    _pad0: u32,
+    // x: normal offset (world units), y: depth bias (NDC depth), z, w: unused.
+    shadow_params: vec4<f32>,
+};
+
+struct Light {
+    // xyz: unit direction towards the light; w: angular radius (rad).
+    dir: vec4<f32>,
+    // rgb: integrated radiance; w: shadow-map layer, negative for none.
+    rgb: vec4<f32>,
+    view_proj: mat4x4<f32>,
+    // x: PCF radius in shadow-map uv; y, z, w: unused.
+    params: vec4<f32>,
+};
+
+struct Material {
+    base_color: vec4<f32>,
+    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
+    params: vec4<f32>,
+};
+
+@group(0) @binding(0) var<uniform> globals: Globals;
+@group(0) @binding(1) var<storage, read> lights: array<Light>;
+@group(0) @binding(2) var<storage, read> materials: array<Material>;
+@group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
+@group(0) @binding(4) var shadow_sampler: sampler_comparison;
+
+struct VertexIn {
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) material: u32,
+};
+
+struct VertexOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) @interpolate(flat) material: u32,
+};
+
+@vertex
+fn vs_main(v: VertexIn) -> VertexOut {
+    var out: VertexOut;
+    out.clip = globals.view_proj * vec4<f32>(v.position, 1.0);
+    out.world = v.position;
+    out.normal = v.normal;
+    out.material = v.material;
+    return out;
+}
+
+// A 12-tap Poisson disk in the unit circle.
+var<private> POISSON: array<vec2<f32>, 12> = array<vec2<f32>, 12>(
+    vec2<f32>(-0.326, -0.406), vec2<f32>(-0.840, -0.074), vec2<f32>(-0.696, 0.457),
+    vec2<f32>(-0.203, 0.621), vec2<f32>(0.962, -0.195), vec2<f32>(0.473, -0.480),
+    vec2<f32>(0.519, 0.767), vec2<f32>(0.185, -0.893), vec2<f32>(0.507, 0.064),
+    vec2<f32>(0.896, 0.412), vec2<f32>(-0.322, -0.933), vec2<f32>(-0.792, -0.598),
+);
+
+// Visibility of light `i` at world point `p` with normal `n`: 1 lit, 0 shadowed.
+fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, l: vec3<f32>, layer: i32, full: bool) -> f32 {
+    if globals.shadows == 0u || layer < 0 {
+        return 1.0;
+    }
+    let q = p + n * globals.shadow_params.x;
+    let c = lights[i].view_proj * vec4<f32>(q, 1.0);
+    let uv = vec2<f32>(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5);
+    if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) {
+        return 1.0;
+    }
+    // The kernel reaches `radius` across a receiver tilted by θ from the light: bias the
+    // reference by radius·tan θ (depth and uv both span 2R, so the units agree), capped.
+    let radius = lights[i].params.x;
+    let ndl = clamp(dot(n, l), 0.05, 1.0);
+    let tan_theta = min(sqrt(1.0 - ndl * ndl) / ndl, 10.0);
+    // Receivers beyond the far plane compare as just inside it: lit unless a caster is there.
+    let depth = min(c.z, 0.99999) - globals.shadow_params.y - radius * tan_theta;
+    if !full {
+        // Cheap path: 4 bilinear taps on the kernel's half radius.
+        let h = 0.5 * radius;
+        var cheap = textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(h, h), layer, depth);
+        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(-h, h), layer, depth);
+        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(h, -h), layer, depth);
+        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(-h, -h), layer, depth);
+        return 0.25 * cheap;
+    }
+    var sum = 0.0;
+    for (var k = 0u; k < PCF_TAPS; k = k + 1u) {
+        sum = sum + textureSampleCompareLevel(
+            shadow_maps, shadow_sampler, uv + POISSON[k] * radius, layer, depth);
+    }
+    return sum / f32(PCF_TAPS);
+}
+
+// GGX normal distribution × height-correlated Smith visibility × Schlick Fresnel.
+fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha: f32, f0: vec3<f32>) -> vec3<f32> {
+    let h = normalize(v + l);
+    let ndl = max(dot(n, l), 0.0);
+    let ndv = max(dot(n, v), 1e-4);
+    let ndh = max(dot(n, h), 0.0);
+    let vdh = max(dot(v, h), 0.0);
+    let a2 = alpha * alpha;
+    let dd = ndh * ndh * (a2 - 1.0) + 1.0;
+    let d = a2 / (PI * dd * dd);
+    let vis = 0.5 / max(ndl * sqrt(ndv * ndv * (1.0 - a2) + a2) + ndv * sqrt(ndl * ndl * (1.0 - a2) + a2), 1e-6);
+    let f = f0 + (vec3<f32>(1.0) - f0) * pow(1.0 - vdh, 5.0);
+    return d * vis * f;
+}
+
+@fragment
+fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
+    let mat = materials[in.material];
+    let n = normalize(in.normal);
+    let v = normalize(globals.camera_pos.xyz - in.world);
+    let roughness = clamp(mat.params.x, 0.0, 1.0);
+    let metallic = clamp(mat.params.y, 0.0, 1.0);
+    let spec_level = mat.params.z;
+    let catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
+    let alpha = max(roughness * roughness, 0.002);
+    let diffuse = mat.base_color.rgb * (1.0 - metallic) / PI;
+    let f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), mat.base_color.rgb, metallic);
+    let has_specular = any(f0 > vec3<f32>(0.0));
+    let culling = globals.culling != 0u;
+
+    var radiance = vec3<f32>(0.0);
+    var e_lit = 0.0;
+    var e_all = 0.0;
+    for (var i = 0u; i < globals.light_count; i = i + 1u) {
+        // Field by field: copying the whole Light (with its matrix) costs on CPU rasterisers.
+        let dir = lights[i].dir;
+        let l = dir.xyz;
+        let ndl_raw = dot(n, l);
+        if culling && ndl_raw <= 0.0 {
+            continue;
+        }
+        let rgb = lights[i].rgb;
+        let ndl = max(ndl_raw, 0.0);
+        let rho = dir.w;
+        // The light's own size widens the lobe (Karis 2013), energy kept by (α/α')².
+        let alpha_l = min(alpha + 0.5 * rho, 1.0);
+        var full = true;
+        if culling && has_specular {
+            // The GGX lobe is below ~1% of its peak beyond tan θ_h = 3α′ (θ_h: the half vector's
+            // angle to n), i.e. outside a cone of half-angle ≈ 2θ_h around the mirror direction.
+            // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light.
+            let nh = max(dot(n, normalize(v + l)), 0.0);
+            full = nh * nh * (1.0 + 9.0 * alpha_l * alpha_l) >= 1.0;
+        }
+        let vis = visibility(i, in.world, n, l, i32(rgb.w), full);
+        let e = rgb.rgb * ndl;
+        var brdf = diffuse;
+        if has_specular {
+            let norm = (alpha / alpha_l) * (alpha / alpha_l);
+            brdf = brdf + ggx_specular(n, v, l, alpha_l, f0) * norm;
+        }
+        radiance = radiance + brdf * e * vis;
+        let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));
+        e_lit = e_lit + lum * vis;
+        e_all = e_all + lum;
+    }
+    if catcher {
+        var shadow = 0.0;
+        if e_all > 0.0 {
+            shadow = clamp(1.0 - e_lit / e_all, 0.0, 1.0);
+        }
+        return vec4<f32>(0.0, 0.0, 0.0, shadow);
+    }
+    return vec4<f32>(radiance, 1.0);
+}

@@ -1,0 +1,1082 @@
+//! The wgpu renderer: shades a scene under a frame's directional lights, with a shadow map per
+//! light, per-pixel light culling and a fixed frame budget.
+//!
+//! Passes, per frame:
+//! 1. **Shadow passes** (`shaders/shadow.wgsl`): for every light that reaches a visible surface
+//!    ([`shadow::reaches_visible`]), one depth-only pass of the shadow casters into its layer of
+//!    a `Depth32Float` texture array, with an orthographic projection fitted to the casters'
+//!    bounding sphere ([`shadow::light_view_proj`]). Lights that reach nothing visible render
+//!    no map.
+//! 2. **Main pass** (`shaders/shade.wgsl`): one draw of the whole scene into an `Rgba32Float`
+//!    target (linear HDR, premultiplied alpha over a transparent background). Per pixel it sums
+//!    Lambertian diffuse + GGX specular (metallic-roughness) over the lights, each times its
+//!    PCF-filtered shadow visibility; a light's solid angle widens both its PCF kernel (softer
+//!    shadows for merged lights) and its specular lobe.
+//! 3. Read-back (for files and tests) and timing: GPU timestamps around the passes where the
+//!    adapter has them, CPU wall time from submit to completion otherwise.
+//!
+//! **Per-pixel light culling** (Havran et al. 2005 cull lights below a pixel's horizon; this
+//! renderer also culls by the specular lobe): a light with n·l ≤ 0 is skipped before any
+//! shading or shadow lookup (exact: its contribution is zero). On glossy pixels (any
+//! specular), only lights inside a cone around the mirror direction — where the half vector is
+//! within θ_h of the normal, tan θ_h = 3α′, so the GGX lobe is above ~1% of its peak (α′ the
+//! roughness widened by the light's angular radius) — take the full path (a 12-tap PCF); the
+//! others take a cheap path with four bilinear 2×2 comparison taps. Culling changes only the
+//! shadow filtering of off-lobe lights, so culled and unculled images differ only in
+//! penumbrae: the tolerance
+//! ([`CULLING_TOLERANCE`]) is stated in docs/rendering.md and enforced by tests/render.rs.
+//!
+//! Mixed reality: with [`RenderSettings::shadow_catcher`], the ground outputs (0, 0, 0, α) with
+//! α = 1 − E_shadowed/E_unshadowed, so the RGBA image composites over the camera picture (or
+//! over the environment map, [`output::composite_background`]).
+
+pub mod budget;
+pub mod device;
+pub mod output;
+pub mod scene;
+pub mod shading;
+pub mod shadow;
+#[cfg(feature = "window")]
+pub mod window;
+
+use crate::light::Light;
+use device::{DeviceError, Gpu};
+use glam::{Mat4, Vec3};
+use scene::Scene;
+use shading::{Globals, GpuLight};
+use std::time::Instant;
+use thiserror::Error;
+
+/// WGSL source of the main pass.
+pub const SHADE_WGSL: &str = include_str!("../../shaders/shade.wgsl");
+/// WGSL source of the shadow pass.
+pub const SHADOW_WGSL: &str = include_str!("../../shaders/shadow.wgsl");
+/// WGSL source of the windowed mode's present pass.
+pub const PRESENT_WGSL: &str = include_str!("../../shaders/present.wgsl");
+/// Every shader, by file name (the naga test validates each).
+pub const SHADERS: &[(&str, &str)] = &[
+    ("present.wgsl", PRESENT_WGSL),
+    ("shade.wgsl", SHADE_WGSL),
+    ("shadow.wgsl", SHADOW_WGSL),
+];
+
+/// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
+/// opaque value (see docs/rendering.md): (mean absolute difference, 99.9th percentile).
+pub const CULLING_TOLERANCE: (f32, f32) = (0.0005, 0.01);
+
+const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// Renderer errors.
+#[derive(Debug, Error)]
+pub enum RenderError {
+    #[error(transparent)]
+    Device(#[from] DeviceError),
+    #[error("invalid render settings: {0}")]
+    Settings(String),
+    #[error("GPU failure: {0}")]
+    Gpu(String),
+}
+
+/// What to render and how.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    /// Side of each shadow map in texels.
+    pub shadow_resolution: u32,
+    pub shadows: bool,
+    /// Per-pixel light culling (see the module doc).
+    pub culling: bool,
+    /// The ground plane is a shadow catcher (mixed-reality output).
+    pub shadow_catcher: bool,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 360,
+            shadow_resolution: 512,
+            shadows: true,
+            culling: true,
+            shadow_catcher: false,
+        }
+    }
+}
+
+/// A rendered frame: linear HDR RGBA, premultiplied alpha, row 0 at the top.
+#[derive(Clone, Debug)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub rgba: Vec<f32>,
+}
+
+impl Image {
+    pub fn pixel(&self, x: u32, y: u32) -> [f32; 4] {
+        let i = 4 * (y as usize * self.width as usize + x as usize);
+        [
+            self.rgba[i],
+            self.rgba[i + 1],
+            self.rgba[i + 2],
+            self.rgba[i + 3],
+        ]
+    }
+}
+
+/// What one frame cost.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameStats {
+    /// Lights drawn.
+    pub lights: usize,
+    /// Shadow maps rendered.
+    pub shadow_maps: usize,
+    /// GPU time of the passes (timestamp queries), if the adapter has them.
+    pub gpu_ms: Option<f64>,
+    /// CPU wall time from the start of encoding to completion on the GPU.
+    pub cpu_ms: f64,
+}
+
+impl FrameStats {
+    /// The time the budget controller uses: GPU time where measured, else CPU time.
+    pub fn frame_ms(&self) -> f64 {
+        self.gpu_ms.unwrap_or(self.cpu_ms)
+    }
+}
+
+struct ShadowArray {
+    _texture: wgpu::Texture,
+    layer_views: Vec<wgpu::TextureView>,
+    array_view: wgpu::TextureView,
+    layers: u32,
+}
+
+struct Timestamps {
+    set: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    read: wgpu::Buffer,
+    period_ns: f32,
+}
+
+/// The renderer: device, pipelines and buffers for one scene and image size.
+pub struct Renderer {
+    gpu: Gpu,
+    scene: Scene,
+    settings: RenderSettings,
+    facing: Vec<Vec3>,
+    vertex_buffer: wgpu::Buffer,
+    index_buffer: wgpu::Buffer,
+    material_buffer: wgpu::Buffer,
+    globals_buffer: wgpu::Buffer,
+    light_buffer: wgpu::Buffer,
+    light_capacity: usize,
+    light_cam_buffer: wgpu::Buffer,
+    light_cam_stride: u64,
+    light_cam_capacity: usize,
+    shadow: ShadowArray,
+    shadow_sampler: wgpu::Sampler,
+    shade_layout: wgpu::BindGroupLayout,
+    shadow_cam_layout: wgpu::BindGroupLayout,
+    shade_bind_group: wgpu::BindGroup,
+    shadow_cam_bind_group: wgpu::BindGroup,
+    shade_pipeline: wgpu::RenderPipeline,
+    shadow_pipeline: wgpu::RenderPipeline,
+    color_view: wgpu::TextureView,
+    color_texture: wgpu::Texture,
+    depth_view: wgpu::TextureView,
+    readback: wgpu::Buffer,
+    padded_row: u32,
+    timestamps: Option<Timestamps>,
+    warned_layers: bool,
+}
+
+fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
+    wgpu::VertexBufferLayout {
+        array_stride: std::mem::size_of::<scene::Vertex>() as u64,
+        step_mode: wgpu::VertexStepMode::Vertex,
+        attributes,
+    }
+}
+
+impl Renderer {
+    /// Opens the preferred adapter ([`Gpu::new`]) and builds a renderer.
+    pub fn new(scene: Scene, settings: RenderSettings) -> Result<Self, RenderError> {
+        let gpu = Gpu::new()?;
+        Self::with_gpu(gpu, scene, settings)
+    }
+
+    /// Builds a renderer on an open device.
+    pub fn with_gpu(gpu: Gpu, scene: Scene, settings: RenderSettings) -> Result<Self, RenderError> {
+        use wgpu::util::DeviceExt;
+        let max_dim = gpu.device.limits().max_texture_dimension_2d;
+        if settings.width == 0
+            || settings.height == 0
+            || settings.width > max_dim
+            || settings.height > max_dim
+        {
+            return Err(RenderError::Settings(format!(
+                "image size {}x{} outside 1..={max_dim}",
+                settings.width, settings.height
+            )));
+        }
+        if !(16..=max_dim).contains(&settings.shadow_resolution) {
+            return Err(RenderError::Settings(format!(
+                "shadow map resolution {} outside 16..={max_dim}",
+                settings.shadow_resolution
+            )));
+        }
+        if scene.indices.is_empty() {
+            return Err(RenderError::Settings("the scene has no triangles".into()));
+        }
+        let device = &gpu.device;
+        let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("vertices"),
+            contents: bytemuck::cast_slice(&scene.vertices),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("indices"),
+            contents: bytemuck::cast_slice(&scene.indices),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        let materials: Vec<shading::MaterialRaw> = scene
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let catcher = settings.shadow_catcher && scene.ground_material == Some(i as u32);
+                m.to_raw(if catcher { shading::FLAG_CATCHER } else { 0 })
+            })
+            .collect();
+        let material_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("materials"),
+            contents: bytemuck::cast_slice(&materials),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let globals_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("globals"),
+            size: std::mem::size_of::<shading::GlobalsRaw>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let light_capacity = 64;
+        let light_buffer = Self::make_light_buffer(device, light_capacity);
+        let align = u64::from(device.limits().min_uniform_buffer_offset_alignment);
+        let light_cam_stride = 64u64.div_ceil(align) * align;
+        let light_cam_capacity = 64;
+        let light_cam_buffer =
+            Self::make_light_cam_buffer(device, light_cam_stride, light_cam_capacity);
+        let shadow = Self::make_shadow_array(device, settings.shadow_resolution, 1);
+        let shadow_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("shadow comparison"),
+            address_mode_u: wgpu::AddressMode::ClampToEdge,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            compare: Some(wgpu::CompareFunction::LessEqual),
+            ..Default::default()
+        });
+
+        let shade_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("shade"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Depth,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
+            ],
+        });
+        let shadow_cam_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("light camera"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::VERTEX,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(64),
+                },
+                count: None,
+            }],
+        });
+
+        let shade_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("shade.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADE_WGSL.into()),
+        });
+        let shadow_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("shadow.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADOW_WGSL.into()),
+        });
+        let shade_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shade"),
+            bind_group_layouts: &[Some(&shade_layout)],
+            immediate_size: 0,
+        });
+        let shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shadow"),
+            bind_group_layouts: &[Some(&shadow_cam_layout)],
+            immediate_size: 0,
+        });
+        let shade_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
+        let shadow_attrs = wgpu::vertex_attr_array![0 => Float32x3];
+        let shade_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("shade"),
+            layout: Some(&shade_pl),
+            vertex: wgpu::VertexState {
+                module: &shade_module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(vertex_layout(&shade_attrs))],
+            },
+            primitive: wgpu::PrimitiveState {
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shade_module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: COLOR_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let shadow_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("shadow"),
+            layout: Some(&shadow_pl),
+            vertex: wgpu::VertexState {
+                module: &shadow_module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(vertex_layout(&shadow_attrs))],
+            },
+            primitive: wgpu::PrimitiveState {
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: wgpu::DepthBiasState {
+                    constant: 2,
+                    slope_scale: 1.5,
+                    clamp: 0.0,
+                },
+            }),
+            multisample: Default::default(),
+            fragment: None,
+            multiview_mask: None,
+            cache: None,
+        });
+
+        let (color_texture, color_view, depth_view) =
+            Self::make_targets(device, settings.width, settings.height);
+        let padded_row = (settings.width * 16).div_ceil(256) * 256;
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: u64::from(padded_row) * u64::from(settings.height),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let timestamps = gpu.timestamps.then(|| Timestamps {
+            set: device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("frame timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            }),
+            resolve: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp resolve"),
+                size: 16,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            }),
+            read: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp read"),
+                size: 16,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            period_ns: gpu.queue.get_timestamp_period(),
+        });
+        let shade_bind_group = Self::make_shade_bind_group(
+            device,
+            &shade_layout,
+            &globals_buffer,
+            &light_buffer,
+            &material_buffer,
+            &shadow.array_view,
+            &shadow_sampler,
+        );
+        let shadow_cam_bind_group =
+            Self::make_cam_bind_group(device, &shadow_cam_layout, &light_cam_buffer);
+        let facing = shadow::facing_normals(&scene);
+        Ok(Self {
+            gpu,
+            scene,
+            settings,
+            facing,
+            vertex_buffer,
+            index_buffer,
+            material_buffer,
+            globals_buffer,
+            light_buffer,
+            light_capacity,
+            light_cam_buffer,
+            light_cam_stride,
+            light_cam_capacity,
+            shadow,
+            shadow_sampler,
+            shade_layout,
+            shadow_cam_layout,
+            shade_bind_group,
+            shadow_cam_bind_group,
+            shade_pipeline,
+            shadow_pipeline,
+            color_view,
+            color_texture,
+            depth_view,
+            readback,
+            padded_row,
+            timestamps,
+            warned_layers: false,
+        })
+    }
+
+    fn make_light_buffer(device: &wgpu::Device, capacity: usize) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lights"),
+            size: (capacity.max(1) * std::mem::size_of::<shading::LightRaw>()) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    fn make_light_cam_buffer(device: &wgpu::Device, stride: u64, capacity: usize) -> wgpu::Buffer {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("light cameras"),
+            size: stride * capacity.max(1) as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    fn make_shadow_array(device: &wgpu::Device, resolution: u32, layers: u32) -> ShadowArray {
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("shadow maps"),
+            size: wgpu::Extent3d {
+                width: resolution,
+                height: resolution,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let layer_views = (0..layers)
+            .map(|i| {
+                texture.create_view(&wgpu::TextureViewDescriptor {
+                    label: Some("shadow layer"),
+                    dimension: Some(wgpu::TextureViewDimension::D2),
+                    base_array_layer: i,
+                    array_layer_count: Some(1),
+                    ..Default::default()
+                })
+            })
+            .collect();
+        let array_view = texture.create_view(&wgpu::TextureViewDescriptor {
+            label: Some("shadow array"),
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        ShadowArray {
+            _texture: texture,
+            layer_views,
+            array_view,
+            layers,
+        }
+    }
+
+    fn make_targets(
+        device: &wgpu::Device,
+        width: u32,
+        height: u32,
+    ) -> (wgpu::Texture, wgpu::TextureView, wgpu::TextureView) {
+        let size = wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        };
+        let color = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("color"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: COLOR_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let depth = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("depth"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        });
+        let cv = color.create_view(&Default::default());
+        let dv = depth.create_view(&Default::default());
+        (color, cv, dv)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn make_shade_bind_group(
+        device: &wgpu::Device,
+        layout: &wgpu::BindGroupLayout,
+        globals: &wgpu::Buffer,
+        lights: &wgpu::Buffer,
+        materials: &wgpu::Buffer,
+        shadow_view: &wgpu::TextureView,
+        sampler: &wgpu::Sampler,
+    ) -> wgpu::BindGroup {
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("shade"),
+            layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: globals.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: lights.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: materials.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: wgpu::BindingResource::TextureView(shadow_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::Sampler(sampler),
+                },
+            ],
+        })
+    }
+
+    fn make_cam_bind_group(
+        device: &wgpu::Device,
+        layout: &wgpu::BindGroupLayout,
+        buffer: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("light camera"),
+            layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(64),
+                }),
+            }],
+        })
+    }
+
+    /// The adapter, for reports.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    pub fn settings(&self) -> &RenderSettings {
+        &self.settings
+    }
+
+    /// The HDR colour target (`Rgba32Float`), for passes that read the frame.
+    pub fn color_view(&self) -> &wgpu::TextureView {
+        &self.color_view
+    }
+
+    /// Turns culling on or off for the next frames.
+    pub fn set_culling(&mut self, on: bool) {
+        self.settings.culling = on;
+    }
+
+    /// The camera's view-projection for this image's aspect ratio.
+    pub fn view_proj(&self) -> Mat4 {
+        let (near, far) = self.clip_planes();
+        self.scene.camera.view_proj(
+            self.settings.width as f32 / self.settings.height as f32,
+            near,
+            far,
+        )
+    }
+
+    fn clip_planes(&self) -> (f32, f32) {
+        let b = self.scene.bounds;
+        let d = self.scene.camera.eye.distance(b.center);
+        let far = (d + b.radius) * 8.0 + 10.0;
+        let near = (far * 1e-4).max(1e-3);
+        (near, far)
+    }
+
+    /// Writes the frame's lights and shadow cameras; returns the GPU lights and the number of
+    /// shadow maps.
+    fn prepare(&mut self, lights: &[Light]) -> (Vec<GpuLight>, usize) {
+        let device = &self.gpu.device;
+        let mut gpu_lights: Vec<GpuLight> =
+            lights.iter().filter_map(GpuLight::from_light).collect();
+        let res = self.settings.shadow_resolution;
+        let bounds = self.scene.bounds;
+        let mut maps = 0u32;
+        let max_layers = self.gpu.max_array_layers;
+        let mut skipped = 0usize;
+        if self.settings.shadows {
+            for l in &mut gpu_lights {
+                if !shadow::reaches_visible(&self.facing, l.dir) {
+                    continue;
+                }
+                if maps >= max_layers {
+                    skipped += 1;
+                    continue;
+                }
+                l.layer = Some(maps);
+                l.view_proj = shadow::light_view_proj(l.dir, bounds);
+                l.pcf_radius = shadow::pcf_radius_uv(l.solid_angle, res);
+                maps += 1;
+            }
+        }
+        if skipped > 0 && !self.warned_layers {
+            tracing::warn!(
+                "{skipped} lights drawn without shadows: the adapter allows {max_layers} shadow-map layers"
+            );
+            self.warned_layers = true;
+        }
+        let mut rebind = false;
+        if gpu_lights.len() > self.light_capacity {
+            self.light_capacity = gpu_lights.len().next_power_of_two();
+            self.light_buffer = Self::make_light_buffer(device, self.light_capacity);
+            rebind = true;
+        }
+        if maps > self.shadow.layers {
+            let layers = maps.next_power_of_two().min(max_layers);
+            self.shadow = Self::make_shadow_array(device, res, layers);
+            rebind = true;
+        }
+        if maps as usize > self.light_cam_capacity {
+            self.light_cam_capacity = (maps as usize).next_power_of_two();
+            self.light_cam_buffer =
+                Self::make_light_cam_buffer(device, self.light_cam_stride, self.light_cam_capacity);
+            self.shadow_cam_bind_group =
+                Self::make_cam_bind_group(device, &self.shadow_cam_layout, &self.light_cam_buffer);
+        }
+        if rebind {
+            self.shade_bind_group = Self::make_shade_bind_group(
+                device,
+                &self.shade_layout,
+                &self.globals_buffer,
+                &self.light_buffer,
+                &self.material_buffer,
+                &self.shadow.array_view,
+                &self.shadow_sampler,
+            );
+        }
+        let raw: Vec<shading::LightRaw> = gpu_lights.iter().map(GpuLight::to_raw).collect();
+        if !raw.is_empty() {
+            self.gpu
+                .queue
+                .write_buffer(&self.light_buffer, 0, bytemuck::cast_slice(&raw));
+        }
+        if maps > 0 {
+            let stride = self.light_cam_stride as usize;
+            let mut cams = vec![0u8; stride * maps as usize];
+            for l in &gpu_lights {
+                if let Some(layer) = l.layer {
+                    let m = l.view_proj.to_cols_array();
+                    let at = stride * layer as usize;
+                    cams[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m));
+                }
+            }
+            self.gpu
+                .queue
+                .write_buffer(&self.light_cam_buffer, 0, &cams);
+        }
+        let texel_world = 2.0 * bounds.radius / res as f32;
+        let globals = Globals {
+            view_proj: self.view_proj(),
+            camera_pos: self.scene.camera.eye,
+            light_count: gpu_lights.len() as u32,
+            culling: self.settings.culling,
+            shadows: self.settings.shadows,
+            normal_offset: 2.0 * texel_world,
+            depth_bias: 1.0 / res as f32,
+        };
+        self.gpu.queue.write_buffer(
+            &self.globals_buffer,
+            0,
+            bytemuck::bytes_of(&globals.to_raw()),
+        );
+        (gpu_lights, maps as usize)
+    }
+
+    fn encode(&self, maps: usize, readback: bool) -> wgpu::CommandEncoder {
+        let mut enc = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("frame"),
+            });
+        let ts = self.timestamps.as_ref();
+        for layer in 0..maps {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("shadow"),
+                color_attachments: &[],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.shadow.layer_views[layer],
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: ts.filter(|_| layer == 0).map(|t| {
+                    wgpu::RenderPassTimestampWrites {
+                        query_set: &t.set,
+                        beginning_of_pass_write_index: Some(0),
+                        end_of_pass_write_index: None,
+                    }
+                }),
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.shadow_pipeline);
+            pass.set_bind_group(
+                0,
+                &self.shadow_cam_bind_group,
+                &[(layer as u64 * self.light_cam_stride) as u32],
+            );
+            pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
+            pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..self.scene.caster_indices, 0, 0..1);
+        }
+        {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("shade"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &self.color_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: ts.map(|t| wgpu::RenderPassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: (maps == 0).then_some(0),
+                    end_of_pass_write_index: Some(1),
+                }),
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.shade_pipeline);
+            pass.set_bind_group(0, &self.shade_bind_group, &[]);
+            pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
+            pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..self.scene.indices.len() as u32, 0, 0..1);
+        }
+        if let Some(t) = ts {
+            enc.resolve_query_set(&t.set, 0..2, &t.resolve, 0);
+            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 16);
+        }
+        if readback {
+            enc.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.color_texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &self.readback,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(self.padded_row),
+                        rows_per_image: Some(self.settings.height),
+                    },
+                },
+                wgpu::Extent3d {
+                    width: self.settings.width,
+                    height: self.settings.height,
+                    depth_or_array_layers: 1,
+                },
+            );
+        }
+        enc
+    }
+
+    fn wait(&self) -> Result<(), RenderError> {
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| RenderError::Gpu(e.to_string()))
+    }
+
+    /// Maps `buffer`, waits, and hands its bytes to `f`.
+    fn read_buffer<T>(
+        &self,
+        buffer: &wgpu::Buffer,
+        f: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, RenderError> {
+        let slice = buffer.slice(..);
+        let (tx, rx) = crossbeam_channel::bounded(1);
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|e| RenderError::Gpu(format!("buffer map callback lost: {e}")))?
+            .map_err(|e| RenderError::Gpu(format!("cannot map a buffer: {e}")))?;
+        let out = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| RenderError::Gpu(format!("cannot read a mapped buffer: {e:?}")))?;
+            f(&view)
+        };
+        buffer.unmap();
+        Ok(out)
+    }
+
+    fn gpu_time(&self) -> Result<Option<f64>, RenderError> {
+        let Some(t) = &self.timestamps else {
+            return Ok(None);
+        };
+        let ticks = self.read_buffer(&t.read, |b| {
+            let v: &[u64] = bytemuck::cast_slice(b);
+            (v[0], v[1])
+        })?;
+        Ok((ticks.1 > ticks.0).then(|| (ticks.1 - ticks.0) as f64 * f64::from(t.period_ns) * 1e-6))
+    }
+
+    /// Renders one frame and waits for it, without reading the image back (benchmarks,
+    /// display-less budget runs).
+    pub fn render_timed(&mut self, lights: &[Light]) -> Result<FrameStats, RenderError> {
+        let start = Instant::now();
+        let (gl, maps) = self.prepare(lights);
+        let cmd = self.encode(maps, false).finish();
+        self.gpu.queue.submit([cmd]);
+        self.wait()?;
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(FrameStats {
+            lights: gl.len(),
+            shadow_maps: maps,
+            gpu_ms: self.gpu_time()?,
+            cpu_ms,
+        })
+    }
+
+    /// Renders one frame, lets `then` encode more work that reads the frame (the HDR colour
+    /// view, `Rgba32Float`) into the same submission, and waits for it (the windowed mode's
+    /// present pass).
+    pub fn render_then(
+        &mut self,
+        lights: &[Light],
+        then: impl FnOnce(&wgpu::Device, &mut wgpu::CommandEncoder, &wgpu::TextureView),
+    ) -> Result<FrameStats, RenderError> {
+        let start = Instant::now();
+        let (gl, maps) = self.prepare(lights);
+        let mut enc = self.encode(maps, false);
+        then(&self.gpu.device, &mut enc, &self.color_view);
+        self.gpu.queue.submit([enc.finish()]);
+        self.wait()?;
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(FrameStats {
+            lights: gl.len(),
+            shadow_maps: maps,
+            gpu_ms: self.gpu_time()?,
+            cpu_ms,
+        })
+    }
+
+    /// Renders one frame and reads the image back.
+    pub fn render(&mut self, lights: &[Light]) -> Result<(Image, FrameStats), RenderError> {
+        let start = Instant::now();
+        let (gl, maps) = self.prepare(lights);
+        let cmd = self.encode(maps, true).finish();
+        self.gpu.queue.submit([cmd]);
+        self.wait()?;
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let (w, h) = (self.settings.width as usize, self.settings.height as usize);
+        let row = self.padded_row as usize;
+        let rgba = self.read_buffer(&self.readback, |bytes| {
+            let mut out = Vec::with_capacity(w * h * 4);
+            for y in 0..h {
+                let line = &bytes[y * row..y * row + w * 16];
+                out.extend(
+                    line.chunks_exact(4)
+                        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                );
+            }
+            out
+        })?;
+        let stats = FrameStats {
+            lights: gl.len(),
+            shadow_maps: maps,
+            gpu_ms: self.gpu_time()?,
+            cpu_ms,
+        };
+        Ok((
+            Image {
+                width: self.settings.width,
+                height: self.settings.height,
+                rgba,
+            },
+            stats,
+        ))
+    }
+
+    /// World-space direction of the camera ray through the centre of pixel (x, y).
+    pub fn pixel_ray(&self, x: f32, y: f32) -> Vec3 {
+        let inv = self.view_proj().inverse();
+        let ndc_x = (x + 0.5) / self.settings.width as f32 * 2.0 - 1.0;
+        let ndc_y = 1.0 - (y + 0.5) / self.settings.height as f32 * 2.0;
+        let p = inv.project_point3(Vec3::new(ndc_x, ndc_y, 0.5));
+        (p - self.scene.camera.eye).normalize()
+    }
+}
+
+/// The first `count` lights of the progressive set: the lights sorted by id, truncated.
+pub fn light_prefix(lights: &[Light], count: usize) -> Vec<Light> {
+    let mut v = lights.to_vec();
+    v.sort_by_key(|l| l.id);
+    v.truncate(count);
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_wgsl_file_parses_and_validates() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
+        let mut files: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "wgsl"))
+            .collect();
+        files.sort();
+        assert!(!files.is_empty());
+        for path in &files {
+            let name = path.file_name().unwrap().to_str().unwrap();
+            let text = std::fs::read_to_string(path).unwrap();
+            // Every file on disk is one the renderer loads.
+            assert!(
+                SHADERS.iter().any(|(n, src)| *n == name && *src == text),
+                "{name} is not in render::SHADERS"
+            );
+            let module = naga::front::wgsl::parse_str(&text)
+                .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::empty(),
+            )
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
+        }
+        assert_eq!(files.len(), SHADERS.len());
+    }
+
+    #[test]
+    fn prefix_is_by_id() {
+        let l = |id| Light {
+            id,
+            dir: [0.0, 1.0, 0.0],
+            rgb: [1.0; 3],
+            solid_angle: 0.1,
+        };
+        let p = light_prefix(&[l(5), l(1), l(3), l(0)], 3);
+        assert_eq!(p.iter().map(|l| l.id).collect::<Vec<_>>(), vec![0, 1, 3]);
+    }
+}

@@ -1,0 +1,185 @@
+//! Writing frames: a tone-mapped 8-bit sRGB PNG (RGBA, premultiplied alpha un-premultiplied for
+//! the file) and a linear 32-bit float EXR, plus mixed-reality compositing over a background.
+//!
+//! Tone mapping: exposure scale, then Narkowicz's fitted ACES curve, then the sRGB transfer
+//! function. [`auto_exposure`] picks a scale that maps the median luminance of the opaque
+//! pixels to 0.18; a sequence should fix it from its first frame so frames do not flicker.
+
+use super::Image;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// Why an image could not be written.
+#[derive(Debug, Error)]
+pub enum OutputError {
+    #[error("cannot write {path}: {message}")]
+    Write { path: PathBuf, message: String },
+}
+
+fn aces(x: f32) -> f32 {
+    let (a, b, c, d, e) = (2.51, 0.03, 2.43, 0.59, 0.14);
+    ((x * (a * x + b)) / (x * (c * x + d) + e)).clamp(0.0, 1.0)
+}
+
+fn srgb_oetf(x: f32) -> f32 {
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Linear value → 8-bit sRGB after exposure and tone curve.
+pub fn tone_map(x: f32, exposure: f32) -> u8 {
+    let v = if x.is_finite() { x.max(0.0) } else { 0.0 };
+    (srgb_oetf(aces(v * exposure)) * 255.0 + 0.5) as u8
+}
+
+/// Exposure that maps the median luminance of the opaque pixels to 0.18 (1 if none).
+pub fn auto_exposure(image: &Image) -> f32 {
+    let mut lum: Vec<f32> = image
+        .rgba
+        .chunks_exact(4)
+        .filter(|p| p[3] >= 0.999)
+        .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2])
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .collect();
+    if lum.is_empty() {
+        return 1.0;
+    }
+    let mid = lum.len() / 2;
+    let (_, m, _) = lum.select_nth_unstable_by(mid, f32::total_cmp);
+    0.18 / *m
+}
+
+/// 8-bit RGBA after tone mapping (colour un-premultiplied by alpha).
+pub fn to_rgba8(image: &Image, exposure: f32) -> Vec<u8> {
+    image
+        .rgba
+        .chunks_exact(4)
+        .flat_map(|p| {
+            let a = p[3].clamp(0.0, 1.0);
+            let un = |c: f32| if a > 1e-6 { c / a } else { 0.0 };
+            [
+                tone_map(un(p[0]), exposure),
+                tone_map(un(p[1]), exposure),
+                tone_map(un(p[2]), exposure),
+                (a * 255.0 + 0.5) as u8,
+            ]
+        })
+        .collect()
+}
+
+/// Writes a tone-mapped PNG.
+pub fn write_png(path: &Path, image: &Image, exposure: f32) -> Result<(), OutputError> {
+    let bytes = to_rgba8(image, exposure);
+    image::save_buffer_with_format(
+        path,
+        &bytes,
+        image.width,
+        image.height,
+        image::ExtendedColorType::Rgba8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| OutputError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Writes the linear image as a 32-bit float RGBA EXR (premultiplied, as EXR expects).
+pub fn write_exr(path: &Path, image: &Image) -> Result<(), OutputError> {
+    let w = image.width as usize;
+    exr::prelude::write_rgba_file(path, w, image.height as usize, |x, y| {
+        let i = 4 * (y * w + x);
+        let p = &image.rgba[i..i + 4];
+        (p[0], p[1], p[2], p[3])
+    })
+    .map_err(|e| OutputError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Composites the (premultiplied) image over a background: out = c + (1 − α)·bg, α → 1.
+/// `background(x, y)` gives the linear background radiance of a pixel (the camera picture, or
+/// the environment map seen along the pixel's ray).
+pub fn composite_background(image: &mut Image, mut background: impl FnMut(u32, u32) -> [f32; 3]) {
+    let w = image.width;
+    for (i, p) in image.rgba.chunks_exact_mut(4).enumerate() {
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        let a = p[3].clamp(0.0, 1.0);
+        if a < 1.0 {
+            let bg = background(x, y);
+            for c in 0..3 {
+                p[c] += (1.0 - a) * bg[c];
+            }
+        }
+        p[3] = 1.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tone_curve_is_monotone_and_bounded() {
+        let mut last = 0u8;
+        for i in 0..1000 {
+            let v = tone_map(i as f32 * 0.01, 1.0);
+            assert!(v >= last);
+            last = v;
+        }
+        assert_eq!(tone_map(0.0, 1.0), 0);
+        assert_eq!(tone_map(1e6, 1.0), 255);
+        assert_eq!(tone_map(f32::NAN, 1.0), 0);
+    }
+
+    #[test]
+    fn compositing_darkens_by_shadow_alpha() {
+        // An opaque red pixel, a 25% shadow, and empty background.
+        let mut img = Image {
+            width: 3,
+            height: 1,
+            rgba: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.25, 0.0, 0.0, 0.0, 0.0],
+        };
+        composite_background(&mut img, |_, _| [2.0, 2.0, 2.0]);
+        assert_eq!(img.pixel(0, 0), [1.0, 0.0, 0.0, 1.0]);
+        assert_eq!(img.pixel(1, 0), [1.5, 1.5, 1.5, 1.0]);
+        assert_eq!(img.pixel(2, 0), [2.0, 2.0, 2.0, 1.0]);
+    }
+
+    #[test]
+    fn files_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = Image {
+            width: 2,
+            height: 2,
+            rgba: vec![
+                0.5, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0, 0.0, 4.0, 0.25, 0.0, 1.0, 0.0, 0.0, 0.0, 0.5,
+            ],
+        };
+        let exr_path = dir.path().join("f.exr");
+        write_exr(&exr_path, &img).unwrap();
+        let back = exr::prelude::read_first_rgba_layer_from_file(
+            &exr_path,
+            |res, _| vec![[0f32; 4]; res.width() * res.height()],
+            |px: &mut Vec<[f32; 4]>, pos, (r, g, b, a): (f32, f32, f32, f32)| {
+                px[pos.y() * 2 + pos.x()] = [r, g, b, a]
+            },
+        )
+        .unwrap();
+        let px = &back.layer_data.channel_data.pixels;
+        assert_eq!(px[0], [0.5, 1.0, 2.0, 1.0]);
+        assert_eq!(px[2], [4.0, 0.25, 0.0, 1.0]);
+        let png_path = dir.path().join("f.png");
+        write_png(&png_path, &img, 1.0).unwrap();
+        let png = image::open(&png_path).unwrap().to_rgba8();
+        assert_eq!(png.get_pixel(1, 0)[3], 0);
+        assert_eq!(png.get_pixel(1, 1)[3], 128);
+        let bad = dir.path().join("no/such/dir/f.png");
+        let e = write_png(&bad, &img, 1.0).unwrap_err().to_string();
+        assert!(e.contains("f.png"), "{e}");
+    }
+}

@@ -1,0 +1,171 @@
+//! GPU-side data of the main pass: each CPU struct beside its `#[repr(C)]` `…Raw` twin (as in
+//! the wgpu examples), made by `to_raw()`. The layouts match `shaders/shade.wgsl`.
+
+use super::scene::Material;
+use super::shadow;
+use crate::light::Light;
+use glam::{Mat4, Vec3};
+
+/// Per-frame constants of the main pass.
+#[derive(Clone, Copy, Debug)]
+pub struct Globals {
+    pub view_proj: Mat4,
+    pub camera_pos: Vec3,
+    pub light_count: u32,
+    pub culling: bool,
+    pub shadows: bool,
+    /// Normal offset of shadow lookups, world units.
+    pub normal_offset: f32,
+    /// Depth bias of shadow lookups, in shadow-map depth units.
+    pub depth_bias: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GlobalsRaw {
+    view_proj: [[f32; 4]; 4],
+    camera_pos: [f32; 4],
+    light_count: u32,
+    culling: u32,
+    shadows: u32,
+    _pad0: u32,
+    shadow_params: [f32; 4],
+}
+
+impl Globals {
+    pub fn to_raw(&self) -> GlobalsRaw {
+        GlobalsRaw {
+            view_proj: self.view_proj.to_cols_array_2d(),
+            camera_pos: self.camera_pos.extend(1.0).to_array(),
+            light_count: self.light_count,
+            culling: u32::from(self.culling),
+            shadows: u32::from(self.shadows),
+            _pad0: 0,
+            shadow_params: [self.normal_offset, self.depth_bias, 0.0, 0.0],
+        }
+    }
+}
+
+/// One light as the main pass sees it.
+#[derive(Clone, Copy, Debug)]
+pub struct GpuLight {
+    /// Unit direction towards the light.
+    pub dir: Vec3,
+    pub rgb: [f32; 3],
+    /// Solid angle of the light's region or merged source (sr).
+    pub solid_angle: f32,
+    /// Shadow-map layer, if the light has a map.
+    pub layer: Option<u32>,
+    /// The light camera's view-projection (identity without a map).
+    pub view_proj: Mat4,
+    /// PCF kernel radius in shadow-map uv.
+    pub pcf_radius: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LightRaw {
+    dir: [f32; 4],
+    rgb: [f32; 4],
+    view_proj: [[f32; 4]; 4],
+    params: [f32; 4],
+}
+
+impl GpuLight {
+    /// From a light of the list; `None` for a light with a non-finite or zero direction or
+    /// non-finite power (negative channels are clamped to 0).
+    pub fn from_light(light: &Light) -> Option<Self> {
+        let dir = Vec3::from_array(light.dir);
+        if !dir.is_finite()
+            || dir.length_squared() < 1e-12
+            || light.rgb.iter().any(|c| !c.is_finite())
+        {
+            return None;
+        }
+        let omega = if light.solid_angle.is_finite() {
+            light.solid_angle.max(0.0)
+        } else {
+            0.0
+        };
+        Some(Self {
+            dir: dir.normalize(),
+            rgb: light.rgb.map(|c| c.max(0.0)),
+            solid_angle: omega,
+            layer: None,
+            view_proj: Mat4::IDENTITY,
+            pcf_radius: 0.0,
+        })
+    }
+
+    pub fn to_raw(&self) -> LightRaw {
+        LightRaw {
+            dir: self
+                .dir
+                .extend(shadow::angular_radius(self.solid_angle))
+                .to_array(),
+            rgb: [
+                self.rgb[0],
+                self.rgb[1],
+                self.rgb[2],
+                self.layer.map_or(-1.0, |l| l as f32),
+            ],
+            view_proj: self.view_proj.to_cols_array_2d(),
+            params: [self.pcf_radius, 0.0, 0.0, 0.0],
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct MaterialRaw {
+    base_color: [f32; 4],
+    params: [f32; 4],
+}
+
+/// Material flag: the surface is a shadow catcher (mixed-reality compositing).
+pub const FLAG_CATCHER: u32 = 1;
+
+impl Material {
+    pub fn to_raw(&self, flags: u32) -> MaterialRaw {
+        MaterialRaw {
+            base_color: [
+                self.base_color[0],
+                self.base_color[1],
+                self.base_color[2],
+                1.0,
+            ],
+            params: [self.roughness, self.metallic, self.specular, flags as f32],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raw_sizes_match_the_shader() {
+        // WGSL: Globals = mat4 + vec4 + 4×u32 + vec4; Light = 2×vec4 + mat4 + vec4.
+        assert_eq!(std::mem::size_of::<GlobalsRaw>(), 112);
+        assert_eq!(std::mem::size_of::<LightRaw>(), 112);
+        assert_eq!(std::mem::size_of::<MaterialRaw>(), 32);
+    }
+
+    #[test]
+    fn bad_lights_are_dropped_or_clamped() {
+        let l = |dir: [f32; 3], rgb: [f32; 3]| Light {
+            id: 0,
+            dir,
+            rgb,
+            solid_angle: f32::NAN,
+        };
+        assert!(GpuLight::from_light(&l([0.0; 3], [1.0; 3])).is_none());
+        assert!(GpuLight::from_light(&l([f32::NAN, 1.0, 0.0], [1.0; 3])).is_none());
+        assert!(GpuLight::from_light(&l([0.0, 1.0, 0.0], [f32::INFINITY, 1.0, 1.0])).is_none());
+        let g = GpuLight::from_light(&l([0.0, 2.0, 0.0], [-1.0, 2.0, 3.0])).unwrap();
+        assert_eq!(g.rgb, [0.0, 2.0, 3.0]);
+        assert_eq!(g.dir, Vec3::Y);
+        assert_eq!(g.solid_angle, 0.0);
+        assert_eq!(g.to_raw().rgb[3], -1.0);
+    }
+}

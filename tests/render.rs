@@ -1,0 +1,649 @@
+//! GPU tests of the renderer, on whatever adapter wgpu finds (lavapipe on CI). A missing adapter
+//! FAILS these tests with the install hint: they never skip silently.
+//!
+//! Golden images live in tests/data/golden/; `ENVLIGHT_BLESS=1 cargo test --release --test
+//! render` rewrites them. A failing comparison writes the actual and difference images to
+//! `$CARGO_TARGET_DIR/golden-failures/` (default `target/golden-failures/`).
+
+// Per-channel loops over rgb triples read better than zipped iterators.
+#![allow(clippy::needless_range_loop)]
+
+use envlight::light::Light;
+use envlight::render::scene::{Camera, Ground, Material, Scene};
+use envlight::render::{output, Image, RenderSettings, Renderer, CULLING_TOLERANCE};
+use glam::Vec3;
+use std::f32::consts::PI;
+use std::path::PathBuf;
+
+fn renderer(scene: Scene, settings: RenderSettings) -> Renderer {
+    Renderer::new(scene, settings).unwrap_or_else(|e| {
+        panic!(
+            "GPU tests need a graphics adapter; on a machine without a GPU install Mesa's \
+             lavapipe (apt-get install mesa-vulkan-drivers libvulkan1): {e}"
+        )
+    })
+}
+
+fn light(id: u32, dir: Vec3, rgb: [f32; 3], solid_angle: f32) -> Light {
+    Light {
+        id,
+        dir: dir.normalize().to_array(),
+        rgb,
+        solid_angle,
+    }
+}
+
+/// A deterministic sky-like light set: `n` lights on a Fibonacci sphere, brighter towards a
+/// sun direction and above the horizon, each covering 4π/n, plus a small bright sun.
+fn sky_lights(n: usize) -> Vec<Light> {
+    let sun = Vec3::new(0.5, 0.7, 0.4).normalize();
+    let golden = PI * (3.0 - 5f32.sqrt());
+    let mut v: Vec<Light> = (1..n)
+        .map(|i| {
+            let y = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+            let r = (1.0 - y * y).sqrt();
+            let phi = golden * i as f32;
+            let d = Vec3::new(r * phi.cos(), y, r * phi.sin());
+            let sky = if d.y > 0.0 { 1.0 + 3.0 * d.y } else { 0.3 };
+            let w = 4.0 * PI / n as f32;
+            let glow = 1.0 + 20.0 * d.dot(sun).max(0.0).powi(8);
+            light(
+                i as u32,
+                d,
+                [
+                    0.6 * sky * glow * w * 20.0,
+                    0.8 * sky * glow * w * 20.0,
+                    sky * glow * w * 20.0,
+                ],
+                w,
+            )
+        })
+        .collect();
+    v.insert(0, light(0, sun, [400.0, 380.0, 340.0], 6.8e-5));
+    v
+}
+
+fn lum(p: [f32; 4]) -> f32 {
+    0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]
+}
+
+fn failure_dir() -> PathBuf {
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target"));
+    let dir = target.join("golden-failures");
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Panics with the first failures, after writing the image to the failure folder.
+fn fail_with_image(name: &str, img: &Image, failures: &[String]) {
+    if failures.is_empty() {
+        return;
+    }
+    let path = failure_dir().join(format!("{name}.actual.exr"));
+    output::write_exr(&path, img).unwrap();
+    panic!(
+        "{} pixel values off (image written to {}):\n{}",
+        failures.len(),
+        path.display(),
+        failures[..failures.len().min(10)].join("\n")
+    );
+}
+
+/// Ray-sphere intersection: the nearest t > 0.
+fn hit_sphere(o: Vec3, d: Vec3, c: Vec3, r: f32) -> Option<f32> {
+    let oc = o - c;
+    let b = oc.dot(d);
+    let disc = b * b - (oc.length_squared() - r * r);
+    if disc < 0.0 {
+        return None;
+    }
+    let t = -b - disc.sqrt();
+    (t > 0.0).then_some(t)
+}
+
+#[test]
+fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
+    let albedo = [0.8, 0.6, 0.4];
+    let camera = Camera {
+        eye: Vec3::new(0.0, 0.5, 4.0),
+        target: Vec3::ZERO,
+        fov_y: 35f32.to_radians(),
+    };
+    let scene = Scene::sphere(
+        Vec3::ZERO,
+        1.0,
+        160,
+        Material::lambertian(albedo),
+        None,
+        camera,
+    );
+    let lights = vec![
+        light(0, Vec3::new(0.3, 1.0, 0.5), [300.0, 280.0, 250.0], 1e-4),
+        light(1, Vec3::new(-1.0, 0.2, 0.4), [60.0, 80.0, 120.0], 0.02),
+        light(2, Vec3::new(0.8, -0.3, 0.6), [40.0, 30.0, 20.0], 0.05),
+        light(3, Vec3::new(0.0, 0.1, -1.0), [100.0, 100.0, 100.0], 0.01),
+        light(4, Vec3::new(-0.2, 0.9, 0.9), [25.0, 50.0, 25.0], 0.1),
+    ];
+    let mut r = renderer(
+        scene,
+        RenderSettings {
+            width: 96,
+            height: 96,
+            shadow_resolution: 512,
+            ..Default::default()
+        },
+    );
+    let (img, stats) = r.render(&lights).unwrap();
+    assert_eq!(stats.lights, 5);
+    let mut failures = Vec::new();
+    let mut checked = 0;
+    let mut worst = 0.0f32;
+    for y in 0..96 {
+        for x in 0..96 {
+            let d = r.pixel_ray(x as f32, y as f32);
+            let Some(t) = hit_sphere(camera.eye, d, Vec3::ZERO, 1.0) else {
+                continue;
+            };
+            let n = (camera.eye + d * t).normalize();
+            // Away from the silhouette.
+            if n.dot(-d) < 0.3 {
+                continue;
+            }
+            let mut e = [0.0f32; 3];
+            for l in &lights {
+                let cos = n.dot(Vec3::from_array(l.dir)).max(0.0);
+                for c in 0..3 {
+                    e[c] += l.rgb[c] * cos;
+                }
+            }
+            let px = img.pixel(x, y);
+            for c in 0..3 {
+                let want = albedo[c] / PI * e[c];
+                let rel = (px[c] - want).abs() / want.max(1e-3);
+                worst = worst.max(rel);
+                if rel > 0.01 {
+                    failures.push(format!(
+                        "pixel ({x},{y}) channel {c}: GPU {} vs CPU {want} ({:.3}% off)",
+                        px[c],
+                        rel * 100.0
+                    ));
+                }
+            }
+            checked += 1;
+        }
+    }
+    fail_with_image("diffuse_sphere", &img, &failures);
+    assert!(checked > 2500, "only {checked} pixels checked");
+    eprintln!(
+        "diffuse sphere: {checked} pixels, worst relative error {:.4}%",
+        worst * 100.0
+    );
+}
+
+#[test]
+fn ground_behind_the_occluder_lacks_exactly_that_lights_contribution() {
+    let albedo = 0.5;
+    let center = Vec3::new(0.0, 0.9, 0.0);
+    let radius = 0.5;
+    let camera = Camera {
+        eye: Vec3::new(0.0, 4.5, 4.0),
+        target: Vec3::new(0.0, 0.0, 0.3),
+        fov_y: 45f32.to_radians(),
+    };
+    let scene = Scene::sphere(
+        center,
+        radius,
+        64,
+        Material::default(),
+        Some(Ground {
+            height: 0.0,
+            half_size: 4.0,
+            material: Material::lambertian([albedo; 3]),
+        }),
+        camera,
+    );
+    let lights = vec![
+        light(0, Vec3::new(0.9, 1.0, 0.3), [300.0, 280.0, 260.0], 1e-5),
+        light(1, Vec3::new(-0.8, 1.0, -0.2), [200.0, 210.0, 220.0], 1e-5),
+        light(2, Vec3::new(0.2, 1.0, -0.8), [150.0, 150.0, 160.0], 1e-5),
+    ];
+    let (w, h) = (128, 96);
+    let mut r = renderer(
+        scene,
+        RenderSettings {
+            width: w,
+            height: h,
+            shadow_resolution: 1024,
+            ..Default::default()
+        },
+    );
+    let (img, stats) = r.render(&lights).unwrap();
+    assert_eq!(stats.shadow_maps, 3);
+    let mut failures = Vec::new();
+    let mut shadowed = [0usize; 3];
+    let mut lit_checked = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let d = r.pixel_ray(x as f32, y as f32);
+            if d.y >= -1e-3 {
+                continue;
+            }
+            let t = -camera.eye.y / d.y;
+            let p = camera.eye + d * t;
+            if p.x.abs() > 3.5 || p.z.abs() > 3.5 {
+                continue;
+            }
+            // The sphere hides this ground point from the camera (with a margin).
+            let to_c = center - camera.eye;
+            let along = to_c.dot(d);
+            if along > 0.0 && (to_c - d * along).length() < radius * 1.2 {
+                continue;
+            }
+            let mut expected = [0.0f32; 3];
+            let mut ambiguous = false;
+            let mut in_shadow = [false; 3];
+            for (i, l) in lights.iter().enumerate() {
+                let ld = Vec3::from_array(l.dir);
+                let pc = center - p;
+                let s = pc.dot(ld);
+                let miss = (pc - ld * s).length();
+                if s > 0.0 && miss < radius * 0.9 {
+                    in_shadow[i] = true;
+                } else if s > 0.0 && miss < radius * 1.1 {
+                    ambiguous = true;
+                } else {
+                    for c in 0..3 {
+                        expected[c] += albedo / PI * l.rgb[c] * ld.y;
+                    }
+                }
+            }
+            if ambiguous {
+                continue;
+            }
+            let px = img.pixel(x, y);
+            for c in 0..3 {
+                let rel = (px[c] - expected[c]).abs() / expected[c].max(1e-3);
+                if rel > 0.01 {
+                    failures.push(format!(
+                        "ground pixel ({x},{y}) shadowed by {in_shadow:?}: channel {c} GPU {} \
+                         vs {} ({:.2}% off)",
+                        px[c],
+                        expected[c],
+                        rel * 100.0
+                    ));
+                }
+            }
+            for i in 0..3 {
+                shadowed[i] += usize::from(in_shadow[i]);
+            }
+            lit_checked += usize::from(!in_shadow.iter().any(|&s| s));
+        }
+    }
+    fail_with_image("ground_shadows", &img, &failures);
+    for (i, n) in shadowed.iter().enumerate() {
+        assert!(
+            *n >= 20,
+            "only {n} pixels in light {i}'s shadow were checked"
+        );
+    }
+    assert!(lit_checked > 1000, "{lit_checked}");
+}
+
+/// Differences between two renders, relative to the mean of the reference's opaque pixels:
+/// (mean absolute, 99.9th percentile, maximum).
+fn relative_differences(reference: &Image, other: &Image) -> (f32, f32, f32) {
+    let opaque: Vec<usize> = (0..reference.rgba.len() / 4)
+        .filter(|&i| reference.rgba[4 * i + 3] > 0.0)
+        .collect();
+    let mean: f32 = opaque
+        .iter()
+        .map(|&i| reference.rgba[4 * i..4 * i + 3].iter().sum::<f32>() / 3.0)
+        .sum::<f32>()
+        / opaque.len() as f32;
+    let mut diffs: Vec<f32> = opaque
+        .iter()
+        .flat_map(|&i| (0..4).map(move |c| 4 * i + c))
+        .map(|k| {
+            let scale = if k % 4 == 3 { 1.0 } else { mean };
+            (reference.rgba[k] - other.rgba[k]).abs() / scale
+        })
+        .collect();
+    diffs.sort_by(f32::total_cmp);
+    let avg = diffs.iter().sum::<f32>() / diffs.len() as f32;
+    let p999 = diffs[(diffs.len() as f64 * 0.999) as usize];
+    (avg, p999, *diffs.last().unwrap())
+}
+
+#[test]
+fn culling_on_and_off_agree_within_the_stated_tolerance() {
+    let lights = sky_lights(64);
+    let mut r = renderer(
+        Scene::default_scene(),
+        RenderSettings {
+            width: 128,
+            height: 80,
+            shadow_resolution: 256,
+            culling: false,
+            ..Default::default()
+        },
+    );
+    let (full, _) = r.render(&lights).unwrap();
+    r.set_culling(true);
+    let (culled, _) = r.render(&lights).unwrap();
+    let (mean, p999, max) = relative_differences(&full, &culled);
+    eprintln!("culling on vs off: mean {mean:.5}, 99.9th percentile {p999:.5}, max {max:.5}");
+    let (tol_mean, tol_p999) = CULLING_TOLERANCE;
+    assert!(mean <= tol_mean, "mean difference {mean} > {tol_mean}");
+    assert!(p999 <= tol_p999, "99.9th percentile {p999} > {tol_p999}");
+    // Nearly every pixel is identical: only off-lobe penumbrae differ.
+    let same = full
+        .rgba
+        .iter()
+        .zip(&culled.rgba)
+        .filter(|(a, b)| (*a - *b).abs() <= 1e-4 * a.abs().max(1.0))
+        .count();
+    assert!(
+        same as f64 > 0.9 * full.rgba.len() as f64,
+        "{same} of {}",
+        full.rgba.len()
+    );
+}
+
+#[test]
+fn merged_light_spread_softens_its_shadow() {
+    let camera = Camera {
+        eye: Vec3::new(0.0, 5.0, 0.01),
+        target: Vec3::ZERO,
+        fov_y: 40f32.to_radians(),
+    };
+    let scene = || {
+        Scene::sphere(
+            Vec3::new(0.0, 0.8, 0.0),
+            0.4,
+            48,
+            Material::default(),
+            Some(Ground {
+                height: 0.0,
+                half_size: 4.0,
+                material: Material::lambertian([0.5; 3]),
+            }),
+            camera,
+        )
+    };
+    let settings = RenderSettings {
+        width: 96,
+        height: 96,
+        shadow_resolution: 512,
+        shadow_catcher: true,
+        ..Default::default()
+    };
+    let mut r = renderer(scene(), settings);
+    let penumbra = |r: &mut Renderer, omega: f32| {
+        let l = [light(0, Vec3::new(0.3, 1.0, 0.2), [100.0; 3], omega)];
+        let (img, _) = r.render(&l).unwrap();
+        let ground: Vec<f32> = (0..img.rgba.len() / 4)
+            .filter(|&i| img.rgba[4 * i..4 * i + 3] == [0.0; 3])
+            .map(|i| img.rgba[4 * i + 3])
+            .collect();
+        let soft = ground.iter().filter(|a| **a > 0.05 && **a < 0.95).count();
+        let dark = ground.iter().filter(|a| **a >= 0.95).count();
+        (soft, dark)
+    };
+    let (hard_soft, hard_dark) = penumbra(&mut r, 1e-5);
+    let (merged_soft, _) = penumbra(&mut r, 0.05);
+    assert!(
+        hard_dark > 100,
+        "the sharp shadow has an umbra: {hard_dark}"
+    );
+    assert!(
+        merged_soft > 2 * hard_soft.max(1),
+        "penumbra pixels: point light {hard_soft}, merged light {merged_soft}"
+    );
+}
+
+#[test]
+fn shadow_catcher_output_composites_over_a_camera_image() {
+    let mut r = renderer(
+        Scene::default_scene(),
+        RenderSettings {
+            width: 96,
+            height: 64,
+            shadow_resolution: 256,
+            shadow_catcher: true,
+            ..Default::default()
+        },
+    );
+    let (mut img, _) = r
+        .render(&[light(0, Vec3::new(0.2, 1.0, 0.3), [500.0; 3], 1e-4)])
+        .unwrap();
+    // Ground pixels: zero colour and alpha = shadow fraction; the objects are opaque; the ground
+    // far from the objects is transparent.
+    let (mut shadow, mut clear, mut opaque) = (0, 0, 0);
+    for p in img.rgba.chunks_exact(4) {
+        if p[3] >= 0.999 && lum([p[0], p[1], p[2], p[3]]) > 0.0 {
+            opaque += 1;
+        } else if p[..3] == [0.0; 3] && p[3] > 0.5 {
+            shadow += 1;
+        } else if p[3] < 0.01 {
+            clear += 1;
+        }
+    }
+    assert!(
+        opaque > 300 && shadow > 50 && clear > 1000,
+        "{opaque} {shadow} {clear}"
+    );
+    // Compositing over a grey camera image darkens it exactly by the shadow's alpha.
+    let before = img.clone();
+    output::composite_background(&mut img, |_, _| [1.0, 1.0, 1.0]);
+    for (a, b) in before.rgba.chunks_exact(4).zip(img.rgba.chunks_exact(4)) {
+        let want = a[0] + (1.0 - a[3].clamp(0.0, 1.0));
+        assert!(
+            (b[0] - want).abs() <= 1e-5 * want.abs().max(1.0),
+            "{a:?} → {b:?}"
+        );
+        assert_eq!(b[3], 1.0);
+    }
+}
+
+#[test]
+fn lights_that_reach_no_visible_surface_render_no_map() {
+    // Seen from straight above, only the ground and the sphere's upper half are visible.
+    let camera = Camera {
+        eye: Vec3::new(0.0, 6.0, 0.01),
+        target: Vec3::ZERO,
+        fov_y: 0.7,
+    };
+    let scene = Scene::sphere(
+        Vec3::new(0.0, 0.5, 0.0),
+        0.5,
+        32,
+        Material::default(),
+        Some(Ground {
+            height: 0.0,
+            half_size: 4.0,
+            material: Material::default(),
+        }),
+        camera,
+    );
+    let settings = RenderSettings {
+        width: 32,
+        height: 32,
+        shadow_resolution: 64,
+        ..Default::default()
+    };
+    let mut r = renderer(scene, settings);
+    let (_, stats) = r
+        .render(&[
+            light(0, Vec3::new(0.0, -1.0, 0.0), [10.0; 3], 0.01),
+            light(1, Vec3::new(0.0, 1.0, 0.0), [10.0; 3], 0.01),
+            light(2, Vec3::new(f32::NAN, 1.0, 0.0), [10.0; 3], 0.01),
+        ])
+        .unwrap();
+    assert_eq!(stats.lights, 2, "the NaN light is dropped");
+    assert_eq!(
+        stats.shadow_maps, 1,
+        "only the light from above needs a map"
+    );
+    assert!(stats.frame_ms() > 0.0);
+}
+
+/// Compares an image with its golden PNG (tone-mapped, fixed exposure). Tolerance: every 8-bit
+/// channel within 6 levels on ≥ 99.5% of pixels, and a mean absolute difference ≤ 0.5 levels.
+fn check_golden(name: &str, img: &Image, exposure: f32) {
+    let actual = output::to_rgba8(img, exposure);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/golden")
+        .join(format!("{name}.png"));
+    let save = |p: &std::path::Path, bytes: &[u8]| {
+        image::save_buffer_with_format(
+            p,
+            bytes,
+            img.width,
+            img.height,
+            image::ExtendedColorType::Rgba8,
+            image::ImageFormat::Png,
+        )
+        .unwrap()
+    };
+    if std::env::var_os("ENVLIGHT_BLESS").is_some() {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        save(&path, &actual);
+        eprintln!("blessed {}", path.display());
+        return;
+    }
+    let golden = image::open(&path)
+        .unwrap_or_else(|e| {
+            panic!(
+                "golden image {} missing or unreadable ({e}); run with ENVLIGHT_BLESS=1 to create it",
+                path.display()
+            )
+        })
+        .to_rgba8();
+    assert_eq!((golden.width(), golden.height()), (img.width, img.height));
+    let diff: Vec<u8> = actual
+        .iter()
+        .zip(golden.as_raw())
+        .map(|(a, b)| a.abs_diff(*b))
+        .collect();
+    let mean = diff.iter().map(|&d| f64::from(d)).sum::<f64>() / diff.len() as f64;
+    let bad_pixels = diff
+        .chunks_exact(4)
+        .filter(|p| p.iter().any(|&d| d > 6))
+        .count();
+    let frac_bad = bad_pixels as f64 / (img.width * img.height) as f64;
+    if mean > 0.5 || frac_bad > 0.005 {
+        let dir = failure_dir();
+        let actual_path = dir.join(format!("{name}.actual.png"));
+        let diff_path = dir.join(format!("{name}.diff.png"));
+        save(&actual_path, &actual);
+        // Differences amplified ×16, opaque.
+        let amplified: Vec<u8> = diff
+            .chunks_exact(4)
+            .flat_map(|p| {
+                [
+                    p[0].saturating_mul(16),
+                    p[1].saturating_mul(16),
+                    p[2].saturating_mul(16),
+                    255,
+                ]
+            })
+            .collect();
+        save(&diff_path, &amplified);
+        panic!(
+            "{name}: differs from {} (mean {mean:.3} levels, {:.2}% of pixels off by > 6); \
+             wrote {} and {}",
+            path.display(),
+            frac_bad * 100.0,
+            actual_path.display(),
+            diff_path.display()
+        );
+    }
+}
+
+#[test]
+fn golden_default_scene() {
+    let mut r = renderer(
+        Scene::default_scene(),
+        RenderSettings {
+            width: 128,
+            height: 80,
+            shadow_resolution: 256,
+            ..Default::default()
+        },
+    );
+    let (img, _) = r.render(&sky_lights(24)).unwrap();
+    check_golden("default_scene", &img, 0.003);
+}
+
+#[test]
+fn golden_mixed_reality() {
+    let mut r = renderer(
+        Scene::default_scene(),
+        RenderSettings {
+            width: 128,
+            height: 80,
+            shadow_resolution: 256,
+            shadow_catcher: true,
+            ..Default::default()
+        },
+    );
+    let (img, _) = r.render(&sky_lights(24)).unwrap();
+    check_golden("mixed_reality", &img, 0.003);
+}
+
+#[test]
+fn cli_renders_png_and_exr_per_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let lights = dir.path().join("lights.jsonl");
+    let frame = |seq: u64| {
+        serde_json::json!({"seq": seq, "time": 0.0, "lights": sky_lights(8)}).to_string()
+    };
+    std::fs::write(&lights, format!("{}\n{}\n", frame(0), frame(1))).unwrap();
+    let out = dir.path().join("out");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--size",
+            "48x32",
+            "--shadow-res",
+            "64",
+            "--lights",
+        ])
+        .arg(&lights)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    for f in [
+        "frame_00000.png",
+        "frame_00000.exr",
+        "frame_00001.png",
+        "frame_00001.exr",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let png = image::open(out.join("frame_00001.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (48, 32));
+    let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count(), 2);
+
+    // A bad scene file is an error that names it, not a panic.
+    let bad = dir.path().join("bad.glb");
+    std::fs::write(&bad, b"glTF garbage").unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["render", "--out"])
+        .arg(&out)
+        .arg("--scene")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("bad.glb"));
+}
