@@ -377,7 +377,12 @@ pub fn decode_into(
             "stride {stride} is smaller than a row of {row_bytes} bytes"
         )));
     }
-    let needed = stride * (h as usize - 1) + row_bytes;
+    let Some(needed) = stride
+        .checked_mul(h as usize - 1)
+        .and_then(|v| v.checked_add(row_bytes))
+    else {
+        return Err(geometry(&format!("stride {stride} is too large")));
+    };
     if raw.data.len() < needed {
         return Err(PixelError::Short {
             format,
@@ -844,6 +849,9 @@ mod tests {
         r.stride = 5;
         let e = decode(&r, YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("stride 5"), "{e}");
+        r.stride = usize::MAX;
+        let e = decode(&r, YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("too large"), "{e}");
         let e = decode(&raw(&[0; 64], PixelFormat::Yuyv, 3, 2), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("even"), "{e}");
         let e = decode(&raw(&garbage, PixelFormat::Mjpeg, 4, 4), YuvMatrix::Auto).unwrap_err();

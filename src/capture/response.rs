@@ -158,7 +158,10 @@ impl ResponseCurve {
     /// X of `channel` at normalised code `v`, linear interpolation, clamped at the ends.
     pub fn eval(&self, channel: usize, v: f64) -> f64 {
         let (codes, vals) = (&self.codes, &self.values[channel.min(2)]);
-        let n = codes.len();
+        let n = codes.len().min(vals.len());
+        if n == 0 {
+            return 0.0;
+        }
         if v.is_nan() || v <= codes[0] {
             return vals[0];
         }
