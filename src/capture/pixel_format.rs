@@ -16,8 +16,8 @@
 //! y = (Y − 16)/219, u = (U − 128)/224, v = (V − 128)/224 (limited range),
 //! R' = y + 2(1 − Kr)·v, B' = y + 2(1 − Kb)·u, G' = (y − Kr·R' − Kb·B')/(1 − Kr − Kb), with
 //! (Kr, Kb) = (0.299, 0.114) for BT.601 and (0.2126, 0.0722) for BT.709 (ITU-R BT.601-7 and
-//! BT.709-6). [`YuvMatrix::Auto`] picks BT.709 from 1280×720 up and BT.601 below, as the
-//! V4L2 default colorspace rules do for YUV formats without an explicit encoding.
+//! BT.709-6). [`YuvMatrix::Auto`] picks BT.709 from 1280×720 up and BT.601 below (the usual HD/SD
+//! convention); the V4L2 source first tries the colorspace the driver reports.
 //!
 //! Bayer demosaic (bilinear): each pixel keeps its own colour; a missing colour is the mean of
 //! the pixels of that colour in its 3×3 neighbourhood (the 2 or 4 nearest samples). Borders are

@@ -6,6 +6,9 @@
 //! 2. format negotiation: the first format of the preference list that the device enumerates is
 //!    requested at the configured size (`VIDIOC_S_FMT`); the driver's answer (size, stride) is
 //!    used as it comes, and a driver that substitutes another pixel format is rejected;
+//!    With `yuv_matrix = "auto"`, YUYV uses the matrix V4L2 implies for the colorspace the
+//!    driver reports ([`yuv_matrix_for`]: BT.709 for Rec. 709, BT.601 for sRGB/SMPTE 170M/JPEG,
+//!    which covers most UVC webcams), and the frame-size rule only if it reports none;
 //! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
 //!    configured time when the config gives one (`V4L2_CID_EXPOSURE_AUTO` = manual,
 //!    `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units);
@@ -246,6 +249,10 @@ impl V4l2Source {
                 fmt.fourcc
             )));
         }
+        let yuv_matrix = match settings.yuv_matrix {
+            YuvMatrix::Auto => yuv_matrix_for(fmt.colorspace),
+            m => m,
+        };
         if let Some(fps) = settings.fps {
             let params = v4l::video::capture::Parameters::new(v4l::Fraction::new(
                 1000,
@@ -292,7 +299,10 @@ impl V4l2Source {
         );
         Ok(Self {
             path,
-            settings: settings.clone(),
+            settings: CameraSettings {
+                yuv_matrix,
+                ..settings.clone()
+            },
             format,
             width: fmt.width,
             height: fmt.height,
@@ -416,6 +426,18 @@ impl V4l2Source {
             white_balance: self.settings.white_balance,
             scale: self.settings.scale,
         }
+    }
+}
+
+/// The Y'CbCr matrix V4L2 implies for a colorspace (`V4L2_MAP_YCBCR_ENC_DEFAULT`): BT.709 for
+/// Rec. 709 and DCI-P3, BT.601 for SMPTE 170M, NTSC, EBU, sRGB, JPEG and opRGB; `Auto` (by frame
+/// size) when the driver says nothing useful.
+pub fn yuv_matrix_for(colorspace: v4l::format::Colorspace) -> YuvMatrix {
+    use v4l::format::Colorspace as C;
+    match colorspace {
+        C::Rec709 | C::DCIP3 => YuvMatrix::Bt709,
+        C::SMPTE170M | C::NTSC | C::EBUTech3212 | C::SRGB | C::JPEG | C::OPRGB => YuvMatrix::Bt601,
+        _ => YuvMatrix::Auto,
     }
 }
 
@@ -690,6 +712,15 @@ mod tests {
         );
         assert_eq!(choose_format(&[PixelFormat::Rgb24], &offered), None);
         assert_eq!(choose_format(&pref, &[*b"NV12"]), None);
+    }
+
+    #[test]
+    fn yuv_matrix_follows_the_driver_colorspace() {
+        use v4l::format::Colorspace as C;
+        assert_eq!(yuv_matrix_for(C::Rec709), YuvMatrix::Bt709);
+        assert_eq!(yuv_matrix_for(C::SRGB), YuvMatrix::Bt601);
+        assert_eq!(yuv_matrix_for(C::SMPTE170M), YuvMatrix::Bt601);
+        assert_eq!(yuv_matrix_for(C::Default), YuvMatrix::Auto);
     }
 
     #[test]
