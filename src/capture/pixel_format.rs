@@ -490,7 +490,10 @@ fn mirror(i: isize, n: usize) -> usize {
 }
 
 /// Bilinear demosaic: missing colours are the mean of that colour's samples in the 3×3
-/// neighbourhood (mirrored borders).
+/// neighbourhood (mirrored borders). At a red or blue site that is the 4 edge neighbours for
+/// green and the 4 diagonals for the other colour; at a green site the 2 horizontal and the 2
+/// vertical neighbours for the two other colours. Mirroring keeps the colour phase, so the same
+/// stencils hold at the border with mirrored indices.
 pub fn demosaic_bilinear(
     mosaic: &[f32],
     w: usize,
@@ -498,34 +501,29 @@ pub fn demosaic_bilinear(
     pattern: BayerPattern,
     out: &mut [[f32; 3]],
 ) {
+    if w == 0 || h == 0 || mosaic.len() < w * h || out.len() < w * h {
+        return;
+    }
+    let left: Vec<usize> = (0..w).map(|x| mirror(x as isize - 1, w)).collect();
+    let right: Vec<usize> = (0..w).map(|x| mirror(x as isize + 1, w)).collect();
     for y in 0..h {
+        let (up, down) = (mirror(y as isize - 1, h) * w, mirror(y as isize + 1, h) * w);
+        let row = y * w;
         for x in 0..w {
             let own = pattern.channel(x, y);
-            let mut sum = [0.0f32; 3];
-            let mut count = [0u32; 3];
-            for dy in -1isize..=1 {
-                let yy = mirror(y as isize + dy, h);
-                for dx in -1isize..=1 {
-                    let xx = mirror(x as isize + dx, w);
-                    // the colour phase is that of the unmirrored offset (mirroring keeps parity)
-                    let c = pattern.channel((x as isize + dx).rem_euclid(2) as usize, {
-                        (y as isize + dy).rem_euclid(2) as usize
-                    });
-                    sum[c] += mosaic[yy * w + xx];
-                    count[c] += 1;
-                }
-            }
+            let (l, r) = (left[x], right[x]);
+            let m = |i: usize| mosaic[i];
             let mut px = [0.0f32; 3];
-            for c in 0..3 {
-                px[c] = if c == own {
-                    mosaic[y * w + x]
-                } else if count[c] > 0 {
-                    sum[c] / count[c] as f32
-                } else {
-                    0.0
-                };
+            px[own] = m(row + x);
+            if own != 1 {
+                px[1] = 0.25 * (m(row + l) + m(row + r) + m(up + x) + m(down + x));
+                px[2 - own] = 0.25 * (m(up + l) + m(up + r) + m(down + l) + m(down + r));
+            } else {
+                let horizontal = pattern.channel(x + 1, y);
+                px[horizontal] = 0.5 * (m(row + l) + m(row + r));
+                px[2 - horizontal] = 0.5 * (m(up + x) + m(down + x));
             }
-            out[y * w + x] = px;
+            out[row + x] = px;
         }
     }
 }
