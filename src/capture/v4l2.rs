@@ -203,7 +203,9 @@ pub struct V4l2Source {
     stride: usize,
     // The stream borrows nothing from the device (it holds its own handle); it is declared
     // before the device so it is dropped (streaming stopped, buffers unmapped) first.
-    stream: v4l::io::mmap::Stream<'static>,
+    // `Option` so `Drop` can take it out and drop it under `catch_unwind`: the `v4l` crate
+    // panics when stopping the stream fails with anything but ENODEV (an EIO after an unplug).
+    stream: Option<v4l::io::mmap::Stream<'static>>,
     device: v4l::Device,
     has_exposure: bool,
     has_gain: bool,
@@ -307,7 +309,7 @@ impl V4l2Source {
             width: fmt.width,
             height: fmt.height,
             stride: fmt.stride as usize,
-            stream,
+            stream: Some(stream),
             device,
             has_exposure,
             has_gain,
@@ -362,7 +364,10 @@ impl V4l2Source {
     fn grab(&mut self) -> Result<f64, CaptureError> {
         let p = self.path.clone();
         let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
-            let (buf, meta) = self.stream.next()?;
+            let stream = self.stream.as_mut().ok_or_else(|| {
+                io::Error::new(io::ErrorKind::NotConnected, "the stream is closed")
+            })?;
+            let (buf, meta) = stream.next()?;
             Ok((buf, *meta))
         })?;
         let used = (meta.bytesused as usize).min(data.len());
@@ -438,6 +443,19 @@ pub fn yuv_matrix_for(colorspace: v4l::format::Colorspace) -> YuvMatrix {
         C::Rec709 | C::DCIP3 => YuvMatrix::Bt709,
         C::SMPTE170M | C::NTSC | C::EBUTech3212 | C::SRGB | C::JPEG | C::OPRGB => YuvMatrix::Bt601,
         _ => YuvMatrix::Auto,
+    }
+}
+
+impl Drop for V4l2Source {
+    fn drop(&mut self) {
+        if let Some(stream) = self.stream.take() {
+            if catch_unwind(AssertUnwindSafe(move || drop(stream))).is_err() {
+                tracing::warn!(
+                    "{}: stopping the stream failed (device gone?)",
+                    self.path.display()
+                );
+            }
+        }
     }
 }
 
