@@ -12,6 +12,10 @@
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
 //! | Bayer 8/10/12/16   | `RGGB` `BA81` …, `RG10` …, `RG12` …, `RG16` `BYR2` … | bilinear demosaic |
 //!
+//! MJPEG frames without Huffman tables (many UVC cameras leave them out, as Motion-JPEG in AVI
+//! does) get an `AVI1` APP0 segment, which makes zune-jpeg use the standard tables of JPEG
+//! Annex K.
+//!
 //! YUYV: each 4-byte group Y0 U Y1 V holds two pixels that share (U, V). With
 //! y = (Y − 16)/219, u = (U − 128)/224, v = (V − 128)/224 (limited range),
 //! R' = y + 2(1 − Kr)·v, B' = y + 2(1 − Kb)·u, G' = (y − Kr·R' − Kb·B')/(1 − Kr − Kb), with
@@ -528,7 +532,43 @@ pub fn demosaic_bilinear(
     }
 }
 
+/// Whether a JPEG stream defines Huffman tables (a DHT segment before the first scan). Many
+/// UVC cameras send MJPEG frames without them, relying on the standard tables of JPEG Annex K
+/// (as Motion-JPEG/AVI does).
+fn has_huffman_tables(data: &[u8]) -> bool {
+    let mut pos = 2; // after SOI
+    while pos + 4 <= data.len() {
+        if data[pos] != 0xFF {
+            return true; // malformed: let the decoder report it
+        }
+        match data[pos + 1] {
+            0xC4 => return true,
+            0xDA => return false,
+            0xFF => pos += 1, // fill byte
+            _ => {
+                let len = usize::from(u16::from_be_bytes([data[pos + 2], data[pos + 3]]));
+                pos += 2 + len;
+            }
+        }
+    }
+    true
+}
+
 fn decode_jpeg(data: &[u8], w: u32, h: u32, out: &mut CodeImage) -> Result<(), PixelError> {
+    // A frame without Huffman tables gets an "AVI1" APP0 segment after its SOI, which tells
+    // zune-jpeg to use the standard Motion-JPEG tables.
+    let patched;
+    let data = if data.starts_with(&[0xFF, 0xD8]) && !has_huffman_tables(data) {
+        let mut v = Vec::with_capacity(data.len() + 10);
+        v.extend_from_slice(&[
+            0xFF, 0xD8, 0xFF, 0xE0, 0x00, 0x08, b'A', b'V', b'I', b'1', 0, 0,
+        ]);
+        v.extend_from_slice(&data[2..]);
+        patched = v;
+        &patched[..]
+    } else {
+        data
+    };
     use zune_jpeg::zune_core::bytestream::ZCursor;
     use zune_jpeg::zune_core::colorspace::ColorSpace;
     use zune_jpeg::zune_core::options::DecoderOptions;
@@ -809,6 +849,32 @@ mod tests {
             }
         }
         assert!(worst < 6.0 / 255.0, "worst difference {worst}");
+        // MJPEG as many UVC cameras send it: the DHT segments left out (standard tables)
+        let mut stripped = vec![0xFF, 0xD8];
+        let mut pos = 2;
+        let mut removed = 0;
+        while pos + 4 <= jpeg.len() && jpeg[pos + 1] != 0xDA {
+            let len = usize::from(u16::from_be_bytes([jpeg[pos + 2], jpeg[pos + 3]]));
+            if jpeg[pos + 1] == 0xC4 {
+                removed += 1;
+            } else {
+                stripped.extend_from_slice(&jpeg[pos..pos + 2 + len]);
+            }
+            pos += 2 + len;
+        }
+        stripped.extend_from_slice(&jpeg[pos..]);
+        assert!(removed > 0 && !has_huffman_tables(&stripped));
+        // zune-jpeg alone cannot decode it
+        let mut plain = zune_jpeg::JpegDecoder::new(
+            zune_jpeg::zune_core::bytestream::ZCursor::new(&stripped[..]),
+        );
+        assert!(plain.decode().is_err());
+        let no_dht = decode(
+            &raw(&stripped, PixelFormat::Mjpeg, w.into(), h.into()),
+            YuvMatrix::Auto,
+        )
+        .unwrap();
+        assert_eq!(no_dht.pixels, img.pixels);
         // a frame of the wrong size is an error naming both sizes
         let err = decode(&raw(&jpeg, PixelFormat::Mjpeg, 32, 8), YuvMatrix::Auto).unwrap_err();
         assert!(err.to_string().contains("16x8"), "{err}");
