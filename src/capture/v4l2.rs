@@ -25,6 +25,9 @@
 //! set, `settle_frames` frames are dropped (drivers apply controls a frame or two late), one
 //! frame is kept; the set is merged by [`bracket::merge_brackets`].
 //!
+//! Single bad frames (flagged corrupt by the driver, empty, or not decodable, as a damaged MJPEG
+//! frame) are skipped with a warning; [`MAX_BAD_FRAMES`] in a row are an error.
+//!
 //! Errors (EIO after an unplug, ENODEV, dequeue timeouts) are returned as [`CaptureError::Io`]
 //! naming the device; [`super::resilient::ResilientSource`] reopens. The `v4l` crate unwraps on
 //! some malformed driver answers; those calls run under `catch_unwind` and become errors.
@@ -43,6 +46,9 @@ use std::time::Duration;
 use v4l::buffer::Type;
 use v4l::io::traits::CaptureStream;
 use v4l::video::Capture;
+
+/// Consecutive corrupt or undecodable frames tolerated before the source reports an error.
+pub const MAX_BAD_FRAMES: usize = 10;
 
 /// `V4L2_CID_EXPOSURE_AUTO` (menu; 1 = manual).
 pub const CID_EXPOSURE_AUTO: u32 = 0x009a_0901;
@@ -360,31 +366,52 @@ impl V4l2Source {
         (t.unwrap_or(1.0), gain)
     }
 
-    /// Dequeues one buffer and decodes it to code values; returns the driver timestamp (s).
+    /// Dequeues buffers until one decodes to code values; returns its driver timestamp (s).
+    /// Buffers the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`), empty ones and ones that do
+    /// not decode (a damaged MJPEG frame) are skipped with a warning; only
+    /// [`MAX_BAD_FRAMES`] of them in a row are an error (and so a reconnect).
     fn grab(&mut self) -> Result<f64, CaptureError> {
         let p = self.path.clone();
-        let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
-            let stream = self.stream.as_mut().ok_or_else(|| {
-                io::Error::new(io::ErrorKind::NotConnected, "the stream is closed")
+        let mut last_problem = String::new();
+        for _ in 0..MAX_BAD_FRAMES {
+            let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
+                let stream = self.stream.as_mut().ok_or_else(|| {
+                    io::Error::new(io::ErrorKind::NotConnected, "the stream is closed")
+                })?;
+                let (buf, meta) = stream.next()?;
+                Ok((buf, *meta))
             })?;
-            let (buf, meta) = stream.next()?;
-            Ok((buf, *meta))
-        })?;
-        let used = (meta.bytesused as usize).min(data.len());
-        let raw = RawFrame {
-            data: &data[..used],
-            format: self.format,
-            width: self.width,
-            height: self.height,
-            stride: self.stride,
-        };
-        pixel_format::decode_into(&raw, self.settings.yuv_matrix, &mut self.codes).map_err(
-            |e| CaptureError::Format {
-                path: p.clone(),
-                message: e.to_string(),
-            },
-        )?;
-        Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
+            let used = (meta.bytesused as usize).min(data.len());
+            let problem = if meta.flags.contains(v4l::buffer::Flags::ERROR) {
+                "the driver flagged the buffer as corrupt".to_string()
+            } else if used == 0 {
+                "the buffer is empty".to_string()
+            } else {
+                let raw = RawFrame {
+                    data: &data[..used],
+                    format: self.format,
+                    width: self.width,
+                    height: self.height,
+                    stride: self.stride,
+                };
+                match pixel_format::decode_into(&raw, self.settings.yuv_matrix, &mut self.codes) {
+                    Ok(()) => {
+                        return Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
+                    }
+                    Err(e) => e.to_string(),
+                }
+            };
+            tracing::warn!(
+                "{}: frame {} skipped: {problem}",
+                p.display(),
+                meta.sequence
+            );
+            last_problem = problem;
+        }
+        Err(CaptureError::Format {
+            path: p,
+            message: format!("{MAX_BAD_FRAMES} bad frames in a row; the last: {last_problem}"),
+        })
     }
 
     /// Captures one frame per exposure time (seconds), dropping `settle_frames` frames after
