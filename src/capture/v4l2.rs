@@ -214,6 +214,7 @@ pub struct V4l2Source {
     stream: Option<v4l::io::mmap::Stream<'static>>,
     device: v4l::Device,
     has_exposure: bool,
+    has_exposure_auto: bool,
     has_gain: bool,
     first_timestamp: Option<f64>,
     seq: u64,
@@ -274,8 +275,9 @@ impl V4l2Source {
             guarded(p, "VIDIOC_QUERY_EXT_CTRL", || device.query_controls()).unwrap_or_default();
         let has = |id: u32| controls.iter().any(|c| c.id == id);
         let (has_exposure, has_gain) = (has(CID_EXPOSURE_ABSOLUTE), has(CID_GAIN));
+        let has_exposure_auto = has(CID_EXPOSURE_AUTO);
         if let Some(t) = settings.exposure_s {
-            if has(CID_EXPOSURE_AUTO) {
+            if has_exposure_auto {
                 set_control(&device, p, CID_EXPOSURE_AUTO, 1)?;
             }
             if has_exposure {
@@ -318,6 +320,7 @@ impl V4l2Source {
             stream: Some(stream),
             device,
             has_exposure,
+            has_exposure_auto,
             has_gain,
             first_timestamp: None,
             seq: 0,
@@ -426,6 +429,10 @@ impl V4l2Source {
                 "{}: bracketing needs an exposure control (V4L2_CID_EXPOSURE_ABSOLUTE)",
                 self.path.display()
             )));
+        }
+        if self.has_exposure_auto {
+            // manual exposure, or the camera would override the bracket times
+            set_control(&self.device, &self.path, CID_EXPOSURE_AUTO, 1)?;
         }
         let mut brackets = Vec::new();
         let mut first_ts = None;
