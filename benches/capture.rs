@@ -5,6 +5,7 @@
 //! - `radiance/{y16,yuyv,mjpeg}`: the same plus linearisation to radiance ([`Linearizer`]:
 //!   linear response for Y16, sRGB for YUYV and MJPEG), i.e. the whole conversion cost of a
 //!   frame;
+//! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame.
 //!
 //! The frames are rooitou_park (tests/data) resampled to 1280×960: Y16 holds its luminance,
@@ -89,6 +90,18 @@ fn yuyv(scene: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// An RGGB mosaic with 12-bit codes in little-endian 16-bit words.
+fn bayer12(scene: &[[f32; 3]]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(scene.len() * 2);
+    for (i, p) in scene.iter().enumerate() {
+        let (x, y) = (i % W as usize, i / W as usize);
+        let c = [[0, 1], [1, 2]][y & 1][x & 1];
+        let v = ((p[c] * 0.25).clamp(0.0, 1.0) * 4095.0).round() as u16;
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
 fn mjpeg(scene: &[[f32; 3]]) -> Vec<u8> {
     let rgb: Vec<u8> = scene
         .iter()
@@ -107,6 +120,14 @@ fn bench_capture(c: &mut Criterion) {
         ("y16", PixelFormat::Grey { bits: 16 }, y16(&scene)),
         ("yuyv", PixelFormat::Yuyv, yuyv(&scene)),
         ("mjpeg", PixelFormat::Mjpeg, mjpeg(&scene)),
+        (
+            "bayer_rg12",
+            PixelFormat::Bayer {
+                pattern: pixel_format::BayerPattern::Rggb,
+                bits: 12,
+            },
+            bayer12(&scene),
+        ),
     ];
     let radiometry = Radiometry {
         exposure_s: 0.01,

@@ -792,3 +792,58 @@ fn devices_lists_or_says_there_are_none() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("no-such-camera-xyz"), "{err}");
 }
+
+#[test]
+fn logarithmic_hdr_camera_path_recovers_radiance_within_quantisation() {
+    use envlight::capture::pixel_format::{decode, PixelFormat, RawFrame, YuvMatrix};
+    use envlight::capture::response::Linearizer;
+    // An HDRC-style 10-bit logarithmic camera looking at a shared HDRI: D = a ln(L·k) + b.
+    let (w, h, e) = small_hdri("noon_grass_1k.hdr", 8);
+    let (a, b) = (40.0f64, 512.0f64);
+    let radiometry = Radiometry {
+        exposure_s: 1.0,
+        gain: 1.0,
+        white_balance: [1.0; 3],
+        scale: 2.0, // L = 2·X
+    };
+    let mut data = Vec::new();
+    let mut expected = Vec::new();
+    for p in &e {
+        let l = f64::from(envlight::frame::luminance(*p));
+        let x = l / radiometry.scale;
+        let dn = (a * x.max(1e-30).ln() + b).round().clamp(0.0, 1023.0);
+        data.extend_from_slice(&(dn as u16).to_le_bytes());
+        expected.push((l, dn));
+    }
+    let raw = RawFrame {
+        data: &data,
+        format: PixelFormat::Grey { bits: 10 },
+        width: w,
+        height: h,
+        stride: 0,
+    };
+    let codes = decode(&raw, YuvMatrix::Auto).unwrap();
+    let lin = Linearizer::new(&ResponseModel::Logarithmic { a, b }, 1023.0, &radiometry);
+    let radiance = lin.linearize(&codes);
+    let mut worst: f64 = 0.0;
+    let mut in_range = 0;
+    for (r, &(l, dn)) in radiance.iter().zip(&expected) {
+        if dn <= 0.0 || dn >= 1023.0 {
+            continue; // outside the sensor's range
+        }
+        in_range += 1;
+        let rel = (f64::from(r[1]) - l).abs() / l;
+        worst = worst.max(rel);
+        assert_eq!(r[0], r[2], "grey");
+    }
+    // rounding D to an integer is an error of at most ½ DN = 1/(2a) neper
+    let bound = (0.5 / a).exp() - 1.0;
+    eprintln!(
+        "log camera: {in_range} of {} pixels in range, worst relative error {:.3}% (bound {:.3}%)",
+        expected.len(),
+        worst * 100.0,
+        bound * 100.0
+    );
+    assert!(in_range * 100 >= expected.len() * 99, "{in_range}");
+    assert!(worst <= bound * 1.01 + 1e-4, "{worst} > {bound}");
+}

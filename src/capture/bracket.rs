@@ -268,6 +268,9 @@ pub fn recover_response(
         )));
     }
     let pixels = brackets[0].image.pixels.len();
+    if pixels == 0 {
+        return Err(BracketError::Settings("the brackets have no pixels".into()));
+    }
     // sample positions: evenly spaced quantiles of each bracket's mean code
     let per = settings.samples.div_ceil(brackets.len()).max(1);
     let mut picks: Vec<usize> = Vec::new();

@@ -12,12 +12,16 @@
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
 //! | Bayer 8/10/12/16   | `RGGB` `BA81` …, `RG10` …, `RG12` …, `RG16` `BYR2` … | bilinear demosaic |
 //!
+//! MJPEG frames without Huffman tables (many UVC cameras leave them out, as Motion-JPEG in AVI
+//! does) get an `AVI1` APP0 segment, which makes zune-jpeg use the standard tables of JPEG
+//! Annex K.
+//!
 //! YUYV: each 4-byte group Y0 U Y1 V holds two pixels that share (U, V). With
 //! y = (Y − 16)/219, u = (U − 128)/224, v = (V − 128)/224 (limited range),
 //! R' = y + 2(1 − Kr)·v, B' = y + 2(1 − Kb)·u, G' = (y − Kr·R' − Kb·B')/(1 − Kr − Kb), with
 //! (Kr, Kb) = (0.299, 0.114) for BT.601 and (0.2126, 0.0722) for BT.709 (ITU-R BT.601-7 and
-//! BT.709-6). [`YuvMatrix::Auto`] picks BT.709 from 1280×720 up and BT.601 below, as the
-//! V4L2 default colorspace rules do for YUV formats without an explicit encoding.
+//! BT.709-6). [`YuvMatrix::Auto`] picks BT.709 from 1280×720 up and BT.601 below (the usual HD/SD
+//! convention); the V4L2 source first tries the colorspace the driver reports.
 //!
 //! Bayer demosaic (bilinear): each pixel keeps its own colour; a missing colour is the mean of
 //! the pixels of that colour in its 3×3 neighbourhood (the 2 or 4 nearest samples). Borders are
@@ -377,7 +381,12 @@ pub fn decode_into(
             "stride {stride} is smaller than a row of {row_bytes} bytes"
         )));
     }
-    let needed = stride * (h as usize - 1) + row_bytes;
+    let Some(needed) = stride
+        .checked_mul(h as usize - 1)
+        .and_then(|v| v.checked_add(row_bytes))
+    else {
+        return Err(geometry(&format!("stride {stride} is too large")));
+    };
     if raw.data.len() < needed {
         return Err(PixelError::Short {
             format,
@@ -485,7 +494,10 @@ fn mirror(i: isize, n: usize) -> usize {
 }
 
 /// Bilinear demosaic: missing colours are the mean of that colour's samples in the 3×3
-/// neighbourhood (mirrored borders).
+/// neighbourhood (mirrored borders). At a red or blue site that is the 4 edge neighbours for
+/// green and the 4 diagonals for the other colour; at a green site the 2 horizontal and the 2
+/// vertical neighbours for the two other colours. Mirroring keeps the colour phase, so the same
+/// stencils hold at the border with mirrored indices.
 pub fn demosaic_bilinear(
     mosaic: &[f32],
     w: usize,
@@ -493,39 +505,70 @@ pub fn demosaic_bilinear(
     pattern: BayerPattern,
     out: &mut [[f32; 3]],
 ) {
+    if w == 0 || h == 0 || mosaic.len() < w * h || out.len() < w * h {
+        return;
+    }
+    let left: Vec<usize> = (0..w).map(|x| mirror(x as isize - 1, w)).collect();
+    let right: Vec<usize> = (0..w).map(|x| mirror(x as isize + 1, w)).collect();
     for y in 0..h {
+        let (up, down) = (mirror(y as isize - 1, h) * w, mirror(y as isize + 1, h) * w);
+        let row = y * w;
         for x in 0..w {
             let own = pattern.channel(x, y);
-            let mut sum = [0.0f32; 3];
-            let mut count = [0u32; 3];
-            for dy in -1isize..=1 {
-                let yy = mirror(y as isize + dy, h);
-                for dx in -1isize..=1 {
-                    let xx = mirror(x as isize + dx, w);
-                    // the colour phase is that of the unmirrored offset (mirroring keeps parity)
-                    let c = pattern.channel((x as isize + dx).rem_euclid(2) as usize, {
-                        (y as isize + dy).rem_euclid(2) as usize
-                    });
-                    sum[c] += mosaic[yy * w + xx];
-                    count[c] += 1;
-                }
-            }
+            let (l, r) = (left[x], right[x]);
+            let m = |i: usize| mosaic[i];
             let mut px = [0.0f32; 3];
-            for c in 0..3 {
-                px[c] = if c == own {
-                    mosaic[y * w + x]
-                } else if count[c] > 0 {
-                    sum[c] / count[c] as f32
-                } else {
-                    0.0
-                };
+            px[own] = m(row + x);
+            if own != 1 {
+                px[1] = 0.25 * (m(row + l) + m(row + r) + m(up + x) + m(down + x));
+                px[2 - own] = 0.25 * (m(up + l) + m(up + r) + m(down + l) + m(down + r));
+            } else {
+                let horizontal = pattern.channel(x + 1, y);
+                px[horizontal] = 0.5 * (m(row + l) + m(row + r));
+                px[2 - horizontal] = 0.5 * (m(up + x) + m(down + x));
             }
-            out[y * w + x] = px;
+            out[row + x] = px;
         }
     }
 }
 
+/// Whether a JPEG stream defines Huffman tables (a DHT segment before the first scan). Many
+/// UVC cameras send MJPEG frames without them, relying on the standard tables of JPEG Annex K
+/// (as Motion-JPEG/AVI does).
+fn has_huffman_tables(data: &[u8]) -> bool {
+    let mut pos = 2; // after SOI
+    while pos + 4 <= data.len() {
+        if data[pos] != 0xFF {
+            return true; // malformed: let the decoder report it
+        }
+        match data[pos + 1] {
+            0xC4 => return true,
+            0xDA => return false,
+            0xFF => pos += 1, // fill byte
+            _ => {
+                let len = usize::from(u16::from_be_bytes([data[pos + 2], data[pos + 3]]));
+                pos += 2 + len;
+            }
+        }
+    }
+    true
+}
+
 fn decode_jpeg(data: &[u8], w: u32, h: u32, out: &mut CodeImage) -> Result<(), PixelError> {
+    // A frame without Huffman tables gets an "AVI1" APP0 segment after its SOI, which tells
+    // zune-jpeg to use the standard Motion-JPEG tables.
+    let patched;
+    let data = if data.starts_with(&[0xFF, 0xD8]) && !has_huffman_tables(data) {
+        let mut v = Vec::with_capacity(data.len() + 10);
+        v.extend_from_slice(&[
+            0xFF, 0xD8, 0xFF, 0xE0, 0x00, 0x08, b'A', b'V', b'I', b'1', 0, 0,
+        ]);
+        v.extend_from_slice(&data[2..]);
+        patched = v;
+        &patched[..]
+    } else {
+        data
+    };
     use zune_jpeg::zune_core::bytestream::ZCursor;
     use zune_jpeg::zune_core::colorspace::ColorSpace;
     use zune_jpeg::zune_core::options::DecoderOptions;
@@ -806,6 +849,32 @@ mod tests {
             }
         }
         assert!(worst < 6.0 / 255.0, "worst difference {worst}");
+        // MJPEG as many UVC cameras send it: the DHT segments left out (standard tables)
+        let mut stripped = vec![0xFF, 0xD8];
+        let mut pos = 2;
+        let mut removed = 0;
+        while pos + 4 <= jpeg.len() && jpeg[pos + 1] != 0xDA {
+            let len = usize::from(u16::from_be_bytes([jpeg[pos + 2], jpeg[pos + 3]]));
+            if jpeg[pos + 1] == 0xC4 {
+                removed += 1;
+            } else {
+                stripped.extend_from_slice(&jpeg[pos..pos + 2 + len]);
+            }
+            pos += 2 + len;
+        }
+        stripped.extend_from_slice(&jpeg[pos..]);
+        assert!(removed > 0 && !has_huffman_tables(&stripped));
+        // zune-jpeg alone cannot decode it
+        let mut plain = zune_jpeg::JpegDecoder::new(
+            zune_jpeg::zune_core::bytestream::ZCursor::new(&stripped[..]),
+        );
+        assert!(plain.decode().is_err());
+        let no_dht = decode(
+            &raw(&stripped, PixelFormat::Mjpeg, w.into(), h.into()),
+            YuvMatrix::Auto,
+        )
+        .unwrap();
+        assert_eq!(no_dht.pixels, img.pixels);
         // a frame of the wrong size is an error naming both sizes
         let err = decode(&raw(&jpeg, PixelFormat::Mjpeg, 32, 8), YuvMatrix::Auto).unwrap_err();
         assert!(err.to_string().contains("16x8"), "{err}");
@@ -844,6 +913,9 @@ mod tests {
         r.stride = 5;
         let e = decode(&r, YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("stride 5"), "{e}");
+        r.stride = usize::MAX;
+        let e = decode(&r, YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("too large"), "{e}");
         let e = decode(&raw(&[0; 64], PixelFormat::Yuyv, 3, 2), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("even"), "{e}");
         let e = decode(&raw(&garbage, PixelFormat::Mjpeg, 4, 4), YuvMatrix::Auto).unwrap_err();

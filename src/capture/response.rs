@@ -158,7 +158,10 @@ impl ResponseCurve {
     /// X of `channel` at normalised code `v`, linear interpolation, clamped at the ends.
     pub fn eval(&self, channel: usize, v: f64) -> f64 {
         let (codes, vals) = (&self.codes, &self.values[channel.min(2)]);
-        let n = codes.len();
+        let n = codes.len().min(vals.len());
+        if n == 0 {
+            return 0.0;
+        }
         if v.is_nan() || v <= codes[0] {
             return vals[0];
         }
@@ -281,17 +284,21 @@ fn lookup(lut: &[[f32; 2]], v: f32) -> f32 {
 pub struct Linearizer {
     /// Per channel and interval: (value at the interval's start, slope over the interval).
     luts: [Vec<[f32; 2]>; 3],
+    /// For models that treat every channel alike (all but `Curve`): the table of X alone and
+    /// the per-channel factors, so a grey pixel (R = G = B codes, as from GREY/Y10/Y12/Y16)
+    /// costs one look-up.
+    shared: Option<(Vec<[f32; 2]>, [f32; 3])>,
 }
 
 impl Linearizer {
     /// Tables for `model` on a format whose largest code is `code_max`.
     pub fn new(model: &ResponseModel, code_max: f32, radiometry: &Radiometry) -> Self {
         let factors = radiometry.factors();
-        let luts = std::array::from_fn(|c| {
+        let table = |c: usize, factor: f64| -> Vec<[f32; 2]> {
             (0..=LUT_INTERVALS)
                 .map(|i| {
                     let v = i as f64 / LUT_INTERVALS as f64;
-                    let x = model.relative_exposure(c, v, f64::from(code_max)) * factors[c];
+                    let x = model.relative_exposure(c, v, f64::from(code_max)) * factor;
                     if x.is_finite() {
                         x.max(0.0) as f32
                     } else {
@@ -302,8 +309,13 @@ impl Linearizer {
                 .windows(2)
                 .map(|k| [k[0], k[1] - k[0]])
                 .collect()
-        });
-        Self { luts }
+        };
+        let luts = std::array::from_fn(|c| table(c, factors[c]));
+        let shared = match model {
+            ResponseModel::Curve(_) => None,
+            _ => Some((table(0, 1.0), factors.map(|f| f as f32))),
+        };
+        Self { luts, shared }
     }
 
     /// Radiance of one code value in `channel` (v clamped to [0, 1]).
@@ -323,12 +335,22 @@ impl Linearizer {
     pub fn linearize_into(&self, image: &CodeImage, out: &mut Vec<[f32; 3]>) {
         let [r, g, b] = &self.luts;
         out.clear();
-        out.extend(
-            image
-                .pixels
-                .iter()
-                .map(|p| [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]),
-        );
+        match &self.shared {
+            Some((x, [fr, fg, fb])) => out.extend(image.pixels.iter().map(|p| {
+                if p[0] == p[1] && p[1] == p[2] {
+                    let v = lookup(x, p[0]);
+                    [v * fr, v * fg, v * fb]
+                } else {
+                    [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]
+                }
+            })),
+            None => out.extend(
+                image
+                    .pixels
+                    .iter()
+                    .map(|p| [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]),
+            ),
+        }
     }
 }
 
@@ -423,6 +445,33 @@ mod tests {
         assert!(e.to_string().contains("[0, 1]"), "{e}");
         let e = ResponseCurve::read(Path::new("/nonexistent/curve.txt")).unwrap_err();
         assert!(e.to_string().contains("/nonexistent/curve.txt"), "{e}");
+    }
+
+    #[test]
+    fn grey_pixels_take_the_shared_table_with_the_same_result() {
+        let radiometry = Radiometry {
+            exposure_s: 0.02,
+            gain: 1.5,
+            white_balance: [1.2, 1.0, 0.7],
+            scale: 4.0,
+        };
+        let lin = Linearizer::new(&ResponseModel::Gamma(2.2), 4095.0, &radiometry);
+        let pixels: Vec<[f32; 3]> = (0..=100).map(|i| [i as f32 / 100.0; 3]).collect();
+        let img = CodeImage {
+            width: 101,
+            height: 1,
+            pixels: pixels.clone(),
+        };
+        let out = lin.linearize(&img);
+        for (p, o) in pixels.iter().zip(&out) {
+            for c in 0..3 {
+                let want = lin.apply(c, p[c]);
+                assert!(
+                    (o[c] - want).abs() <= 1e-6 * want.abs().max(1e-6),
+                    "{p:?} {o:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -6,6 +6,9 @@
 //! 2. format negotiation: the first format of the preference list that the device enumerates is
 //!    requested at the configured size (`VIDIOC_S_FMT`); the driver's answer (size, stride) is
 //!    used as it comes, and a driver that substitutes another pixel format is rejected;
+//!    With `yuv_matrix = "auto"`, YUYV uses the matrix V4L2 implies for the colorspace the
+//!    driver reports ([`yuv_matrix_for`]: BT.709 for Rec. 709, BT.601 for sRGB/SMPTE 170M/JPEG,
+//!    which covers most UVC webcams), and the frame-size rule only if it reports none;
 //! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
 //!    configured time when the config gives one (`V4L2_CID_EXPOSURE_AUTO` = manual,
 //!    `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units);
@@ -21,6 +24,9 @@
 //! With bracketing, each frame is a bracket set: for every configured exposure the control is
 //! set, `settle_frames` frames are dropped (drivers apply controls a frame or two late), one
 //! frame is kept; the set is merged by [`bracket::merge_brackets`].
+//!
+//! Single bad frames (flagged corrupt by the driver, empty, or not decodable, as a damaged MJPEG
+//! frame) are skipped with a warning; [`MAX_BAD_FRAMES`] in a row are an error.
 //!
 //! Errors (EIO after an unplug, ENODEV, dequeue timeouts) are returned as [`CaptureError::Io`]
 //! naming the device; [`super::resilient::ResilientSource`] reopens. The `v4l` crate unwraps on
@@ -40,6 +46,9 @@ use std::time::Duration;
 use v4l::buffer::Type;
 use v4l::io::traits::CaptureStream;
 use v4l::video::Capture;
+
+/// Consecutive corrupt or undecodable frames tolerated before the source reports an error.
+pub const MAX_BAD_FRAMES: usize = 10;
 
 /// `V4L2_CID_EXPOSURE_AUTO` (menu; 1 = manual).
 pub const CID_EXPOSURE_AUTO: u32 = 0x009a_0901;
@@ -200,9 +209,12 @@ pub struct V4l2Source {
     stride: usize,
     // The stream borrows nothing from the device (it holds its own handle); it is declared
     // before the device so it is dropped (streaming stopped, buffers unmapped) first.
-    stream: v4l::io::mmap::Stream<'static>,
+    // `Option` so `Drop` can take it out and drop it under `catch_unwind`: the `v4l` crate
+    // panics when stopping the stream fails with anything but ENODEV (an EIO after an unplug).
+    stream: Option<v4l::io::mmap::Stream<'static>>,
     device: v4l::Device,
     has_exposure: bool,
+    has_exposure_auto: bool,
     has_gain: bool,
     first_timestamp: Option<f64>,
     seq: u64,
@@ -246,6 +258,10 @@ impl V4l2Source {
                 fmt.fourcc
             )));
         }
+        let yuv_matrix = match settings.yuv_matrix {
+            YuvMatrix::Auto => yuv_matrix_for(fmt.colorspace),
+            m => m,
+        };
         if let Some(fps) = settings.fps {
             let params = v4l::video::capture::Parameters::new(v4l::Fraction::new(
                 1000,
@@ -259,8 +275,9 @@ impl V4l2Source {
             guarded(p, "VIDIOC_QUERY_EXT_CTRL", || device.query_controls()).unwrap_or_default();
         let has = |id: u32| controls.iter().any(|c| c.id == id);
         let (has_exposure, has_gain) = (has(CID_EXPOSURE_ABSOLUTE), has(CID_GAIN));
+        let has_exposure_auto = has(CID_EXPOSURE_AUTO);
         if let Some(t) = settings.exposure_s {
-            if has(CID_EXPOSURE_AUTO) {
+            if has_exposure_auto {
                 set_control(&device, p, CID_EXPOSURE_AUTO, 1)?;
             }
             if has_exposure {
@@ -292,14 +309,18 @@ impl V4l2Source {
         );
         Ok(Self {
             path,
-            settings: settings.clone(),
+            settings: CameraSettings {
+                yuv_matrix,
+                ..settings.clone()
+            },
             format,
             width: fmt.width,
             height: fmt.height,
             stride: fmt.stride as usize,
-            stream,
+            stream: Some(stream),
             device,
             has_exposure,
+            has_exposure_auto,
             has_gain,
             first_timestamp: None,
             seq: 0,
@@ -348,28 +369,52 @@ impl V4l2Source {
         (t.unwrap_or(1.0), gain)
     }
 
-    /// Dequeues one buffer and decodes it to code values; returns the driver timestamp (s).
+    /// Dequeues buffers until one decodes to code values; returns its driver timestamp (s).
+    /// Buffers the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`), empty ones and ones that do
+    /// not decode (a damaged MJPEG frame) are skipped with a warning; only
+    /// [`MAX_BAD_FRAMES`] of them in a row are an error (and so a reconnect).
     fn grab(&mut self) -> Result<f64, CaptureError> {
         let p = self.path.clone();
-        let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
-            let (buf, meta) = self.stream.next()?;
-            Ok((buf, *meta))
-        })?;
-        let used = (meta.bytesused as usize).min(data.len());
-        let raw = RawFrame {
-            data: &data[..used],
-            format: self.format,
-            width: self.width,
-            height: self.height,
-            stride: self.stride,
-        };
-        pixel_format::decode_into(&raw, self.settings.yuv_matrix, &mut self.codes).map_err(
-            |e| CaptureError::Format {
-                path: p.clone(),
-                message: e.to_string(),
-            },
-        )?;
-        Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
+        let mut last_problem = String::new();
+        for _ in 0..MAX_BAD_FRAMES {
+            let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
+                let stream = self.stream.as_mut().ok_or_else(|| {
+                    io::Error::new(io::ErrorKind::NotConnected, "the stream is closed")
+                })?;
+                let (buf, meta) = stream.next()?;
+                Ok((buf, *meta))
+            })?;
+            let used = (meta.bytesused as usize).min(data.len());
+            let problem = if meta.flags.contains(v4l::buffer::Flags::ERROR) {
+                "the driver flagged the buffer as corrupt".to_string()
+            } else if used == 0 {
+                "the buffer is empty".to_string()
+            } else {
+                let raw = RawFrame {
+                    data: &data[..used],
+                    format: self.format,
+                    width: self.width,
+                    height: self.height,
+                    stride: self.stride,
+                };
+                match pixel_format::decode_into(&raw, self.settings.yuv_matrix, &mut self.codes) {
+                    Ok(()) => {
+                        return Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
+                    }
+                    Err(e) => e.to_string(),
+                }
+            };
+            tracing::warn!(
+                "{}: frame {} skipped: {problem}",
+                p.display(),
+                meta.sequence
+            );
+            last_problem = problem;
+        }
+        Err(CaptureError::Format {
+            path: p,
+            message: format!("{MAX_BAD_FRAMES} bad frames in a row; the last: {last_problem}"),
+        })
     }
 
     /// Captures one frame per exposure time (seconds), dropping `settle_frames` frames after
@@ -384,6 +429,10 @@ impl V4l2Source {
                 "{}: bracketing needs an exposure control (V4L2_CID_EXPOSURE_ABSOLUTE)",
                 self.path.display()
             )));
+        }
+        if self.has_exposure_auto {
+            // manual exposure, or the camera would override the bracket times
+            set_control(&self.device, &self.path, CID_EXPOSURE_AUTO, 1)?;
         }
         let mut brackets = Vec::new();
         let mut first_ts = None;
@@ -415,6 +464,31 @@ impl V4l2Source {
             gain,
             white_balance: self.settings.white_balance,
             scale: self.settings.scale,
+        }
+    }
+}
+
+/// The Y'CbCr matrix V4L2 implies for a colorspace (`V4L2_MAP_YCBCR_ENC_DEFAULT`): BT.709 for
+/// Rec. 709 and DCI-P3, BT.601 for SMPTE 170M, NTSC, EBU, sRGB, JPEG and opRGB; `Auto` (by frame
+/// size) when the driver says nothing useful.
+pub fn yuv_matrix_for(colorspace: v4l::format::Colorspace) -> YuvMatrix {
+    use v4l::format::Colorspace as C;
+    match colorspace {
+        C::Rec709 | C::DCIP3 => YuvMatrix::Bt709,
+        C::SMPTE170M | C::NTSC | C::EBUTech3212 | C::SRGB | C::JPEG | C::OPRGB => YuvMatrix::Bt601,
+        _ => YuvMatrix::Auto,
+    }
+}
+
+impl Drop for V4l2Source {
+    fn drop(&mut self) {
+        if let Some(stream) = self.stream.take() {
+            if catch_unwind(AssertUnwindSafe(move || drop(stream))).is_err() {
+                tracing::warn!(
+                    "{}: stopping the stream failed (device gone?)",
+                    self.path.display()
+                );
+            }
         }
     }
 }
@@ -690,6 +764,15 @@ mod tests {
         );
         assert_eq!(choose_format(&[PixelFormat::Rgb24], &offered), None);
         assert_eq!(choose_format(&pref, &[*b"NV12"]), None);
+    }
+
+    #[test]
+    fn yuv_matrix_follows_the_driver_colorspace() {
+        use v4l::format::Colorspace as C;
+        assert_eq!(yuv_matrix_for(C::Rec709), YuvMatrix::Bt709);
+        assert_eq!(yuv_matrix_for(C::SRGB), YuvMatrix::Bt601);
+        assert_eq!(yuv_matrix_for(C::SMPTE170M), YuvMatrix::Bt601);
+        assert_eq!(yuv_matrix_for(C::Default), YuvMatrix::Auto);
     }
 
     #[test]

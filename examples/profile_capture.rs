@@ -1,0 +1,137 @@
+//! Per-frame cost of the camera conversions as *thread CPU time*, for a busy machine where
+//! criterion's wall-clock medians are inflated by other processes (docs/performance.md).
+//!
+//! ```text
+//! cargo run --release --example profile_capture -- 100
+//! ```
+//!
+//! For each format a 1280×960 buffer of rooitou_park (as in `benches/capture.rs`) is converted to
+//! radiance `N` times; the thread's user + system time comes from `/proc/thread-self/stat`
+//! (clock ticks, 10 ms), so N should make each run last a second or more.
+
+use envlight::capture::image_file::read_hdr_image;
+use envlight::capture::pixel_format::{self, BayerPattern, CodeImage, PixelFormat, RawFrame};
+use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
+use std::time::Instant;
+
+const W: u32 = 1280;
+const H: u32 = 960;
+
+/// This thread's user + system CPU time in seconds (Linux).
+fn thread_cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
+    // fields after the parenthesised command name; utime and stime are fields 14 and 15
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<f64> = rest
+        .split_whitespace()
+        .filter_map(|s| s.parse().ok())
+        .collect();
+    // `rest` starts at field 3 (the state letter is skipped by the parse filter)
+    f.get(10)
+        .zip(f.get(11))
+        .map_or(f64::NAN, |(u, s)| (u + s) / 100.0)
+}
+
+fn srgb(x: f32) -> f32 {
+    let x = x.clamp(0.0, 1.0);
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    let n: usize = std::env::args().nth(1).map_or(Ok(100), |s| s.parse())?;
+    let img = read_hdr_image(std::path::Path::new("tests/data/rooitou_park_1k.hdr"))?;
+    let mut scene = Vec::with_capacity((W * H) as usize);
+    for y in 0..H {
+        for x in 0..W {
+            let p = img.pixels[((y * img.height / H) * img.width + x * img.width / W) as usize];
+            scene.push(p.map(|v| (v * 0.05).min(1.0)));
+        }
+    }
+    let y16: Vec<u8> = scene
+        .iter()
+        .flat_map(|p| ((envlight::frame::luminance(*p) * 65535.0) as u16).to_le_bytes())
+        .collect();
+    let yuyv: Vec<u8> = scene
+        .chunks_exact(2)
+        .flat_map(|q| {
+            let y = |p: [f32; 3]| (16.0 + 219.0 * srgb(envlight::frame::luminance(p))) as u8;
+            [y(q[0]), 128, y(q[1]), 128]
+        })
+        .collect();
+    let rgb: Vec<u8> = scene
+        .iter()
+        .flat_map(|p| p.map(|v| (srgb(v) * 255.0) as u8))
+        .collect();
+    let mut mjpeg = Vec::new();
+    jpeg_encoder::Encoder::new(&mut mjpeg, 90).encode(
+        &rgb,
+        W as u16,
+        H as u16,
+        jpeg_encoder::ColorType::Rgb,
+    )?;
+    let bayer: Vec<u8> = scene
+        .iter()
+        .enumerate()
+        .flat_map(|(i, p)| {
+            let (x, y) = (i % W as usize, i / W as usize);
+            ((p[[[0, 1], [1, 2]][y & 1][x & 1]] * 4095.0) as u16).to_le_bytes()
+        })
+        .collect();
+    let rg12 = PixelFormat::Bayer {
+        pattern: BayerPattern::Rggb,
+        bits: 12,
+    };
+    let cases = [
+        ("Y16", PixelFormat::Grey { bits: 16 }, &y16),
+        ("YUYV", PixelFormat::Yuyv, &yuyv),
+        ("MJPEG", PixelFormat::Mjpeg, &mjpeg),
+        ("Bayer RG12", rg12, &bayer),
+    ];
+    println!("| format | decode CPU ms/frame | decode + linearise CPU ms/frame | wall ms/frame |");
+    println!("|---|---:|---:|---:|");
+    for (name, format, data) in cases {
+        let raw = RawFrame {
+            data,
+            format,
+            width: W,
+            height: H,
+            stride: 0,
+        };
+        let model = if format.is_raw() {
+            ResponseModel::Linear
+        } else {
+            ResponseModel::Srgb
+        };
+        let lin = Linearizer::new(&model, format.code_max(), &Radiometry::default());
+        let mut codes = CodeImage {
+            width: 0,
+            height: 0,
+            pixels: Vec::new(),
+        };
+        let c0 = thread_cpu_s();
+        for _ in 0..n {
+            pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
+        }
+        let decode = (thread_cpu_s() - c0) / n as f64;
+        let (c0, t0) = (thread_cpu_s(), Instant::now());
+        let mut sum = 0.0f32;
+        for _ in 0..n {
+            pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
+            sum += lin.linearize(&codes)[0][0];
+        }
+        let total = (thread_cpu_s() - c0) / n as f64;
+        let wall = t0.elapsed().as_secs_f64() / n as f64;
+        std::hint::black_box(sum);
+        println!(
+            "| {name} | {:.1} | {:.1} | {:.1} |",
+            decode * 1e3,
+            total * 1e3,
+            wall * 1e3
+        );
+    }
+    Ok(())
+}
