@@ -76,6 +76,8 @@ pub struct RawConfig {
     pub metrics: RawMetrics,
     #[serde(default)]
     pub daemon: RawDaemon,
+    #[serde(default)]
+    pub render: RawRender,
 }
 
 /// `[pipeline]`.
@@ -105,6 +107,21 @@ pub struct RawStream {
 pub struct RawMetrics {
     pub listen: Option<String>,
     pub max_frame_age_s: Option<f64>,
+}
+
+/// `[render]`: the daemon's render thread.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawRender {
+    pub enabled: Option<bool>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub scene: Option<String>,
+    pub shadow_resolution: Option<u32>,
+    pub culling: Option<bool>,
+    pub shadow_catcher: Option<bool>,
+    pub budget_ms: Option<f64>,
+    pub latest_png: Option<String>,
 }
 
 /// `[daemon]`.
@@ -203,6 +220,7 @@ impl RawConfig {
             stream: self.stream.validate()?,
             metrics: self.metrics.validate()?,
             daemon: self.daemon.validate()?,
+            render: self.render.validate()?,
         })
     }
 }
@@ -255,6 +273,7 @@ pub struct Config {
     pub stream: ServerConfig,
     pub metrics: MetricsConfig,
     pub daemon: DaemonConfig,
+    pub render: RenderConfig,
 }
 
 /// Validated `[pipeline]`.
@@ -288,6 +307,73 @@ impl Default for MetricsConfig {
             listen: DEFAULT_METRICS_LISTEN.parse().ok(),
             max_frame_age: Duration::from_secs(5),
         }
+    }
+}
+
+/// Validated `[render]`: a render thread in the daemon that shades the scene under every new
+/// light list (docs/daemon.md).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderConfig {
+    pub enabled: bool,
+    pub settings: crate::render::RenderSettings,
+    /// glTF or OBJ scene; `None` = the built-in scene.
+    pub scene: Option<PathBuf>,
+    /// Hold this frame time by adapting the light count; `None` = always every light.
+    pub budget_ms: Option<f64>,
+    /// Write the newest image here (tone-mapped PNG, replaced atomically); `None` = no file.
+    pub latest_png: Option<PathBuf>,
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            settings: crate::render::RenderSettings::default(),
+            scene: None,
+            budget_ms: None,
+            latest_png: None,
+        }
+    }
+}
+
+impl RawRender {
+    fn validate(&self) -> Result<RenderConfig, ConfigError> {
+        let d = RenderConfig::default();
+        let size = |key: &'static str, v: Option<u32>, default: u32, max: u32| match v {
+            None => Ok(default),
+            Some(n) if (1..=max).contains(&n) => Ok(n),
+            Some(n) => Err(invalid(key, n, format!("must be 1..={max}"))),
+        };
+        let settings = crate::render::RenderSettings {
+            width: size("render.width", self.width, d.settings.width, 8192)?,
+            height: size("render.height", self.height, d.settings.height, 8192)?,
+            shadow_resolution: size(
+                "render.shadow_resolution",
+                self.shadow_resolution,
+                d.settings.shadow_resolution,
+                8192,
+            )?,
+            shadows: true,
+            culling: self.culling.unwrap_or(d.settings.culling),
+            shadow_catcher: self.shadow_catcher.unwrap_or(d.settings.shadow_catcher),
+        };
+        if let Some(ms) = self.budget_ms {
+            if !(ms.is_finite() && ms > 0.0) {
+                return Err(invalid(
+                    "render.budget_ms",
+                    ms,
+                    "must be a positive number of milliseconds",
+                ));
+            }
+        }
+        let path = |v: &Option<String>| v.as_deref().filter(|p| !p.is_empty()).map(PathBuf::from);
+        Ok(RenderConfig {
+            enabled: self.enabled.unwrap_or(false),
+            settings,
+            scene: path(&self.scene),
+            budget_ms: self.budget_ms,
+            latest_png: path(&self.latest_png),
+        })
     }
 }
 

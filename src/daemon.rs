@@ -4,6 +4,7 @@
 //! ```text
 //! envlight-capture ─bounded─► envlight-decompose ─watch─► stream server (tokio: UDS, TCP, WebSocket)
 //!                                   │                     metrics + health (HTTP)
+//!                                   ├─watch─► envlight-render (optional: wgpu, frame budget)
 //!                                   └─tap─► envlight-record (optional)
 //! ```
 //!
@@ -73,6 +74,8 @@ pub enum DaemonError {
     },
     #[error("cannot install the signal handlers: {0}")]
     Signals(#[source] std::io::Error),
+    #[error("render thread: {0}")]
+    Render(String),
 }
 
 /// Where the daemon listens.
@@ -122,6 +125,11 @@ pub struct Daemon {
     addresses: DaemonAddresses,
     /// Health of a source that can lose its device (a camera).
     health: Option<Arc<SourceHealth>>,
+    /// The render thread and its stop flag (`[render] enabled`).
+    render_thread: Option<(
+        std::thread::JoinHandle<Result<u64, String>>,
+        Arc<std::sync::atomic::AtomicBool>,
+    )>,
 }
 
 impl Daemon {
@@ -194,6 +202,13 @@ impl Daemon {
             tap,
             on_publish: Some(on_publish),
         };
+        // The renderer is built before anything starts, so a missing GPU adapter or a bad scene
+        // is a clear start-up error.
+        let renderer = if config.render.enabled {
+            Some(build_renderer(&config.render)?)
+        } else {
+            None
+        };
         let pipeline = Pipeline::start(source, settings, pipeline_options)?;
 
         // Endpoints: if one cannot be bound, stop what was started and report it.
@@ -237,6 +252,25 @@ impl Daemon {
                 return Err(error);
             }
         };
+        let render_thread = match renderer {
+            None => None,
+            Some(renderer) => {
+                let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+                let thread = RenderThread {
+                    renderer,
+                    config: config.render.clone(),
+                    lights: pipeline.subscribe(),
+                    stop: Arc::clone(&stop),
+                    metrics: Arc::clone(&metrics),
+                    runtime: runtime.handle().clone(),
+                };
+                let handle = std::thread::Builder::new()
+                    .name(RENDER_THREAD_NAME.to_owned())
+                    .spawn(move || thread.run())
+                    .map_err(|e| DaemonError::Render(format!("cannot start the thread: {e}")))?;
+                Some((handle, stop))
+            }
+        };
         let addresses = DaemonAddresses {
             stream: server.bound().clone(),
             metrics: http.as_ref().and_then(|(_, _, bound)| *bound),
@@ -252,6 +286,7 @@ impl Daemon {
             recorder,
             addresses,
             health,
+            render_thread,
         })
     }
 
@@ -427,8 +462,15 @@ impl Daemon {
             http,
             recorder,
             health,
+            render_thread,
             ..
         } = self;
+        let rendered = render_thread.map(|(handle, stop)| {
+            stop.store(true, std::sync::atomic::Ordering::Release);
+            handle
+                .join()
+                .unwrap_or_else(|_| Err("the render thread panicked".to_owned()))
+        });
         // A camera that is being reconnected stops retrying.
         if let Some(health) = &health {
             health.request_stop();
@@ -448,6 +490,10 @@ impl Daemon {
         runtime.shutdown_timeout(Duration::from_secs(1));
         let stats = stats?;
         let recorded = recorded?;
+        if let Some(rendered) = rendered {
+            let frames = rendered.map_err(DaemonError::Render)?;
+            tracing::info!(frames, "render thread finished");
+        }
         tracing::info!(
             frames_captured = stats.frames_captured,
             frames_dropped = stats.frames_dropped,
@@ -459,6 +505,106 @@ impl Daemon {
             recorded,
             clients_closed_in_time,
         })
+    }
+}
+
+/// Name of the render thread.
+pub const RENDER_THREAD_NAME: &str = "envlight-render";
+
+fn build_renderer(
+    config: &crate::config::RenderConfig,
+) -> Result<crate::render::Renderer, DaemonError> {
+    use crate::render::{scene::Scene, Renderer};
+    let scene = match &config.scene {
+        Some(path) => Scene::load(path, true).map_err(|e| DaemonError::Render(e.to_string()))?,
+        None => Scene::default_scene(),
+    };
+    let renderer =
+        Renderer::new(scene, config.settings).map_err(|e| DaemonError::Render(e.to_string()))?;
+    tracing::info!(
+        adapter = %renderer.gpu().describe(),
+        width = config.settings.width,
+        height = config.settings.height,
+        "render thread enabled"
+    );
+    Ok(renderer)
+}
+
+/// The render consumer: shades the scene under every new light list (the newest one; a slow
+/// renderer skips lists), holding `budget_ms` by using a prefix of the progressive light set.
+struct RenderThread {
+    renderer: crate::render::Renderer,
+    config: crate::config::RenderConfig,
+    lights: watch::Receiver<LatestLights>,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    metrics: Arc<Metrics>,
+    runtime: tokio::runtime::Handle,
+}
+
+impl RenderThread {
+    /// Renders until stopped or the stream ends; returns the number of frames drawn, or the
+    /// first GPU or output error (which also ends the thread, logged).
+    fn run(mut self) -> Result<u64, String> {
+        use crate::render::{budget, light_prefix, output};
+        let mut controller: Option<budget::BudgetController> = None;
+        let mut frames = 0u64;
+        while !self.stop.load(std::sync::atomic::Ordering::Acquire) {
+            let lights = &mut self.lights;
+            let changed = self.runtime.block_on(async {
+                tokio::time::timeout(Duration::from_millis(100), lights.changed()).await
+            });
+            match changed {
+                Err(_) => continue,  // nothing new; check the stop flag
+                Ok(Err(_)) => break, // the stream ended
+                Ok(Ok(())) => {}
+            }
+            let Some(published) = self.lights.borrow_and_update().clone() else {
+                continue;
+            };
+            let all = published.lights.lights.len();
+            let count = match self.config.budget_ms {
+                Some(ms) => controller
+                    .get_or_insert_with(|| {
+                        budget::BudgetController::new(budget::BudgetSettings::new(ms, all), all)
+                    })
+                    .count(),
+                None => all,
+            };
+            let used = light_prefix(&published.lights.lights, count);
+            let result = if let Some(path) = &self.config.latest_png {
+                self.renderer.render(&used).and_then(|(image, stats)| {
+                    let exposure = output::auto_exposure(&image);
+                    let mut tmp = path.as_os_str().to_owned();
+                    tmp.push(".tmp.png");
+                    let tmp = std::path::PathBuf::from(tmp);
+                    output::write_png(&tmp, &image, exposure)
+                        .map_err(|e| crate::render::RenderError::Gpu(e.to_string()))?;
+                    std::fs::rename(&tmp, path).map_err(|e| {
+                        crate::render::RenderError::Gpu(format!("{}: {e}", path.display()))
+                    })?;
+                    Ok(stats)
+                })
+            } else {
+                self.renderer.render_timed(&used)
+            };
+            let stats = match result {
+                Ok(stats) => stats,
+                Err(error) => {
+                    tracing::error!(%error, "rendering failed; the render thread stops");
+                    return Err(error.to_string());
+                }
+            };
+            frames += 1;
+            self.metrics.frames_rendered.inc();
+            self.metrics.render_seconds.observe(stats.frame_ms() / 1e3);
+            self.metrics
+                .render_lights
+                .set(i64::try_from(stats.lights).unwrap_or(i64::MAX));
+            if let Some(c) = &mut controller {
+                c.update(stats.frame_ms());
+            }
+        }
+        Ok(frames)
     }
 }
 

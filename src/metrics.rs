@@ -23,6 +23,9 @@
 //! | `envlight_client_frames_skipped_total` | counter | frames a slow client skipped, by endpoint |
 //! | `envlight_client_skipped_frames` | gauge | frames skipped so far, per connected client |
 //! | `envlight_client_errors_total` | counter | connections closed for a protocol error or a timeout, by endpoint |
+//! | `envlight_frames_rendered_total` | counter | frames the render thread drew (`[render] enabled`) |
+//! | `envlight_render_seconds` | histogram | render time per frame |
+//! | `envlight_render_lights` | gauge | lights used by the newest rendered frame |
 //!
 //! The per-client gauge is removed when the client disconnects, so its cardinality is bounded
 //! by the client limit.
@@ -67,6 +70,9 @@ pub struct Metrics {
     pub frames_skipped: Family<EndpointLabel, Counter>,
     pub client_skipped: Family<ClientLabel, Gauge>,
     pub client_errors: Family<EndpointLabel, Counter>,
+    pub frames_rendered: Counter,
+    pub render_seconds: Histogram,
+    pub render_lights: Gauge,
 }
 
 /// Latency buckets from 50 µs to about 1.6 s, doubling.
@@ -99,6 +105,24 @@ impl Metrics {
         let frames_skipped = Family::<EndpointLabel, Counter>::default();
         let client_skipped = Family::<ClientLabel, Gauge>::default();
         let client_errors = Family::<EndpointLabel, Counter>::default();
+        let frames_rendered = Counter::default();
+        let render_seconds = Histogram::new(latency_buckets());
+        let render_lights = Gauge::default();
+        registry.register(
+            "frames_rendered",
+            "Frames the render thread drew",
+            frames_rendered.clone(),
+        );
+        registry.register(
+            "render_seconds",
+            "Render time per frame (GPU timestamps where the adapter has them)",
+            render_seconds.clone(),
+        );
+        registry.register(
+            "render_lights",
+            "Lights the render thread used in its newest frame (the budget controller's choice)",
+            render_lights.clone(),
+        );
         registry.register(
             "frames_captured",
             "Frames the source delivered",
@@ -187,6 +211,9 @@ impl Metrics {
             frames_skipped,
             client_skipped,
             client_errors,
+            frames_rendered,
+            render_seconds,
+            render_lights,
         }
     }
 

@@ -982,3 +982,28 @@ fn the_python_example_client_reads_the_stream() {
     }
     daemon.shutdown().unwrap();
 }
+
+#[test]
+fn the_render_thread_draws_every_new_light_list() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("latest.png");
+    let extra = format!(
+        "[source]\nfps = 20.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+         [decompose]\nlights = 8\nworking_width = 16\n\
+         [render]\nenabled = true\nwidth = 48\nheight = 32\nshadow_resolution = 64\n\
+         budget_ms = 1000.0\nlatest_png = \"{}\"\n",
+        png.display()
+    );
+    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
+    let http = daemon.addresses().metrics.unwrap();
+    wait_until("rendered frames", || {
+        let text = http_get(http, "/metrics").1;
+        metric_value(&text, "envlight_frames_rendered_total") >= 3.0
+    });
+    let text = http_get(http, "/metrics").1;
+    assert_eq!(metric_value(&text, "envlight_render_lights"), 8.0);
+    assert!(text.contains("envlight_render_seconds_count"), "{text}");
+    let image = image::open(&png).unwrap();
+    assert_eq!((image.width(), image.height()), (48, 32));
+    daemon.shutdown().unwrap();
+}
