@@ -1,0 +1,477 @@
+//! Anisotropic spherical Gaussians (ASGs): the lobe model, its integral, and closed-form shading.
+//!
+//! The ASG of Xu et al. 2013 ("Anisotropic spherical Gaussians", ACM TOG 32(6)) with an
+//! orthonormal frame (x, y, z), bandwidths λ, μ > 0 and an RGB amplitude c:
+//!
+//! ```text
+//! G(v) = c · max(v·z, 0) · exp(−λ (v·x)² − μ (v·y)²)
+//! ```
+//!
+//! λ controls the spread along x (the lobe is narrow along x when λ is large), μ along y.
+//! Radiance units: c is in W/(m²·sr), so ∫G dω is in W/m² like a light's `rgb` (DESIGN.md).
+//!
+//! # Integral
+//!
+//! With z as the pole, (v·x)² = sin²θ cos²φ and (v·y)² = sin²θ sin²φ; substituting s = sin²θ
+//! turns the hemisphere integral into a single one over φ:
+//!
+//! ```text
+//! ∫G dω / c = ∫₀^{2π} (1 − e^{−a(φ)}) / (2 a(φ)) dφ,    a(φ) = λ cos²φ + μ sin²φ
+//!           = π/√(λμ) − ∫₀^{2π} e^{−a(φ)} / (2 a(φ)) dφ.
+//! ```
+//!
+//! [`integral_approx`] is Xu et al.'s closed form π/√(λμ). Since e^{−a} ≤ e^{−min(λ,μ)}, its
+//! relative error is at most e^{−min(λ,μ)} (below 1 % when both bandwidths exceed 4.6; an
+//! overestimate, badly so for wide lobes: λ = μ = 0.5 overestimates by 65 %). [`integral`] is
+//! exact up to rounding: the φ integrand is smooth and periodic, so the trapezoid rule with
+//! [`INTEGRAL_NODES`] nodes converges geometrically (relative error < 1e-10 for λ, μ ≤ 10⁴, tested
+//! against a dense 2-D quadrature in `tests/asg.rs`).
+//!
+//! # Lambertian shading ([`Asg::irradiance`])
+//!
+//! E(n) = ∫ G(v) max(n·v, 0) dω. An ASG near its axis behaves like a spherical Gaussian
+//! e^{ν(v·z − 1)} ≈ e^{−ν θ²/2} with ν = 2λ (and ν = 2μ across), so we use the isotropic
+//! equivalent ν = 2√(λμ) and Hill's fitted closed form for the cosine convolution of a spherical
+//! Gaussian (S. Hill, reproduced in M. Pettineo's "SG series" 2016), scaled by the exact integral:
+//!
+//! ```text
+//! E(n) ≈ ∫G · h(n·z, ν),  h = scale·y + bias,
+//! scale = 1 + 2e^{−2ν} − 1/ν,  bias = (e^{−ν} − e^{−2ν})/ν − e^{−2ν},
+//! y = (c₀t + c₁x)²/x if |c₀t| ≤ c₁x else max(t, 0),  x = √(1 − scale), c₀ = 0.36, c₁ = 1/(4c₀).
+//! ```
+//!
+//! It is exact in the limit of narrow lobes (h → max(t, 0)) and smooth (C¹) in t and ν, so it
+//! serves as the predicted diffuse map of the fit. Stated tolerance (tested against numerical
+//! integration over the sphere): |E − E_ref| ≤ [`IRRADIANCE_TOLERANCE`] · ∫G for every normal
+//! and every lobe with λ, μ ≥ [`MIN_BANDWIDTH`] and anisotropy μ/λ ≤ 8.
+//!
+//! # GGX shading ([`Asg::ggx_specular`])
+//!
+//! As Xu et al., the specular lobe is replaced by a spherical Gaussian: the GGX NDF
+//! D(h) ≈ (1/(πα²)) e^{(2/α²)(h·n − 1)} warped from half-vector space to light directions around
+//! the reflection vector r (angles double, so the sharpness quarters: ν = 1/(2α²)). The product
+//! of an ASG and an isotropic SG is integrated in the tangent plane of r (two Gaussians convolve
+//! into a Gaussian):
+//!
+//! ```text
+//! ∫ G(l) e^{ν(l·r − 1)} dl ≈ c · max(r·z, 0) · π/√((λ+ν/2)(μ+ν/2))
+//!                              · exp(−λ'(r·x)² − μ'(r·y)²),   λ' = λν/(2λ + ν), μ' = μν/(2μ + ν)
+//! ```
+//!
+//! and the outgoing radiance is that times F·G₂/(4 n·v) / (πα²) with Smith's height-correlated
+//! masking G₂ and F = f₀ (no Fresnel variation: a constant-reflectance metal). Tolerance at
+//! normal incidence (n = v): [`GGX_TOLERANCE`] relative to the reference for α ≥ 0.1 and lobes
+//! not wider than the hemisphere (λ, μ ≥ 2), tested in `tests/asg.rs`.
+//!
+//! # Parameterisation for optimisation ([`AsgParams`])
+//!
+//! Frame: a rotation, updated multiplicatively (R ← exp([δ]×)·R); the gradient with respect to a
+//! world-space rotation δ at δ = 0 is Σ_{a ∈ {x,y,z}} a × ∂L/∂a. Bandwidths: λ = λ_min + e^{α},
+//! μ = λ_min + e^{β}. Amplitude: c = e^{σ} per channel (scale-free steps for HDR values that span
+//! six orders of magnitude). [`Asg::gradients`] gives the analytic derivatives of G(v).
+//!
+//! The fitting (Clausen et al. 2024) is in [`fit`]; ball renderings and the comparison baselines
+//! used by `examples/asg_table.rs` in [`eval`].
+
+pub mod eval;
+pub mod fit;
+
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// Smallest bandwidth λ, μ of a lobe: a λ = 0.25 lobe is flat within 25 % over its hemisphere.
+pub const MIN_BANDWIDTH: f64 = 0.25;
+/// Largest bandwidth a fit produces (a lobe about 0.5° wide, the size of the sun).
+pub const MAX_BANDWIDTH: f64 = 1.0e5;
+/// Trapezoid nodes over φ ∈ [0, 2π) used by [`integral`].
+pub const INTEGRAL_NODES: usize = 256;
+/// Absolute tolerance of [`Asg::irradiance`] relative to the lobe's integral (see module doc).
+pub const IRRADIANCE_TOLERANCE: f64 = 0.06;
+/// Relative tolerance of [`Asg::ggx_specular`] at normal incidence (see module doc).
+pub const GGX_TOLERANCE: f64 = 0.25;
+
+/// Hill's constants for the cosine convolution of a spherical Gaussian.
+const HILL_C0: f64 = 0.36;
+const HILL_C1: f64 = 1.0 / (4.0 * HILL_C0);
+
+/// One anisotropic spherical Gaussian lobe.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Asg {
+    /// Lobe axis z (unit).
+    pub axis: [f64; 3],
+    /// Tangent x (unit, ⟂ axis): the direction of bandwidth λ.
+    pub tangent: [f64; 3],
+    /// Bitangent y = z × x (unit): the direction of bandwidth μ.
+    pub bitangent: [f64; 3],
+    /// Bandwidth along the tangent.
+    pub lambda: f64,
+    /// Bandwidth along the bitangent.
+    pub mu: f64,
+    /// Amplitude c, linear RGB radiance.
+    pub rgb: [f64; 3],
+}
+
+/// Derivatives of the scalar shape g(v) = max(v·z,0)·exp(−λ(v·x)² − μ(v·y)²) at one direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShapeGradient {
+    /// g(v).
+    pub value: f64,
+    /// ∂g/∂x, ∂g/∂y, ∂g/∂z (frame vectors treated as free).
+    pub d_x: DVec3,
+    pub d_y: DVec3,
+    pub d_z: DVec3,
+    /// ∂g/∂λ, ∂g/∂μ.
+    pub d_lambda: f64,
+    pub d_mu: f64,
+}
+
+impl Asg {
+    /// A lobe from an axis and a tangent hint (projected to ⟂ axis; any ⟂ vector if parallel).
+    /// Returns `None` for a zero or non-finite axis, or non-finite bandwidths or amplitude.
+    pub fn new(
+        axis: DVec3,
+        tangent_hint: DVec3,
+        lambda: f64,
+        mu: f64,
+        rgb: [f64; 3],
+    ) -> Option<Self> {
+        let (x, y, z) = orthonormal_frame(axis, tangent_hint)?;
+        if !(lambda.is_finite() && mu.is_finite() && lambda > 0.0 && mu > 0.0)
+            || rgb.iter().any(|c| !c.is_finite())
+        {
+            return None;
+        }
+        Some(Self {
+            axis: z.to_array(),
+            tangent: x.to_array(),
+            bitangent: y.to_array(),
+            lambda,
+            mu,
+            rgb,
+        })
+    }
+
+    /// The frame (x, y, z).
+    #[inline]
+    pub fn frame(&self) -> (DVec3, DVec3, DVec3) {
+        (
+            DVec3::from_array(self.tangent),
+            DVec3::from_array(self.bitangent),
+            DVec3::from_array(self.axis),
+        )
+    }
+
+    /// The scalar shape g(v) = max(v·z,0)·exp(−λ(v·x)² − μ(v·y)²) for a unit `v`.
+    #[inline]
+    pub fn shape(&self, v: DVec3) -> f64 {
+        let (x, y, z) = self.frame();
+        let s = v.dot(z);
+        if s <= 0.0 {
+            return 0.0;
+        }
+        let (a, b) = (v.dot(x), v.dot(y));
+        s * (-self.lambda * a * a - self.mu * b * b).exp()
+    }
+
+    /// G(v), radiance towards unit direction `v`.
+    #[inline]
+    pub fn eval(&self, v: DVec3) -> [f64; 3] {
+        let g = self.shape(v);
+        self.rgb.map(|c| c * g)
+    }
+
+    /// The shape g(v) and its analytic derivatives.
+    pub fn gradients(&self, v: DVec3) -> ShapeGradient {
+        let (x, y, z) = self.frame();
+        let s = v.dot(z);
+        if s <= 0.0 {
+            return ShapeGradient {
+                value: 0.0,
+                d_x: DVec3::ZERO,
+                d_y: DVec3::ZERO,
+                d_z: DVec3::ZERO,
+                d_lambda: 0.0,
+                d_mu: 0.0,
+            };
+        }
+        let (a, b) = (v.dot(x), v.dot(y));
+        let e = (-self.lambda * a * a - self.mu * b * b).exp();
+        let g = s * e;
+        ShapeGradient {
+            value: g,
+            d_x: v * (-2.0 * self.lambda * a * g),
+            d_y: v * (-2.0 * self.mu * b * g),
+            d_z: v * e,
+            d_lambda: -a * a * g,
+            d_mu: -b * b * g,
+        }
+    }
+
+    /// ∫G dω per channel (exact, [`integral`]).
+    pub fn integral(&self) -> [f64; 3] {
+        let i = integral(self.lambda, self.mu);
+        self.rgb.map(|c| c * i)
+    }
+
+    /// Irradiance at a surface with unit normal `n` (Lambertian convolution, module doc).
+    pub fn irradiance(&self, n: DVec3) -> [f64; 3] {
+        let (_, _, z) = self.frame();
+        let nu = 2.0 * (self.lambda * self.mu).sqrt();
+        let h = hill_irradiance(n.dot(z), nu).0;
+        let i = integral(self.lambda, self.mu) * h;
+        self.rgb.map(|c| c * i)
+    }
+
+    /// Radiance reflected towards unit `view` (pointing away from the surface) by a GGX surface
+    /// with unit normal `n`, roughness α (= perceptual roughness²) and constant reflectance
+    /// `f0`, lit by this lobe (spherical-Gaussian approximation, module doc). Zero when the
+    /// view is below the surface.
+    pub fn ggx_specular(&self, n: DVec3, view: DVec3, alpha: f64, f0: f64) -> [f64; 3] {
+        let n_v = n.dot(view);
+        if n_v <= 1e-6 {
+            return [0.0; 3];
+        }
+        let alpha = alpha.max(1e-3);
+        let a2 = alpha * alpha;
+        let r = (2.0 * n_v * n - view).normalize();
+        let nu = 1.0 / (2.0 * a2);
+        let (x, y, z) = self.frame();
+        let s = r.dot(z);
+        if s <= 0.0 {
+            return [0.0; 3];
+        }
+        let (l, m) = (self.lambda, self.mu);
+        let (a, b) = (r.dot(x), r.dot(y));
+        let lp = l * nu / (2.0 * l + nu);
+        let mp = m * nu / (2.0 * m + nu);
+        let conv =
+            s * PI / ((l + nu / 2.0) * (m + nu / 2.0)).sqrt() * (-lp * a * a - mp * b * b).exp();
+        // Light along r: n·l = n·v; Smith height-correlated G2 / (4 n·l n·v) = V, times n·l.
+        let n_l = n_v;
+        let lambda_v = ((1.0 + a2 * (1.0 / (n_v * n_v) - 1.0)).sqrt() - 1.0) / 2.0;
+        let g2 = 1.0 / (1.0 + 2.0 * lambda_v);
+        let k = conv / (PI * a2) * f0 * g2 / (4.0 * n_v * n_l) * n_l;
+        self.rgb.map(|c| c * k)
+    }
+}
+
+/// Right-handed orthonormal frame (x, y, z) with z along `axis`, x along `hint` projected ⟂ z
+/// (any ⟂ vector when the hint is parallel or zero). `None` for a zero or non-finite axis.
+pub fn orthonormal_frame(axis: DVec3, hint: DVec3) -> Option<(DVec3, DVec3, DVec3)> {
+    let len = axis.length();
+    if !(len.is_finite() && len > 0.0) {
+        return None;
+    }
+    let z = axis / len;
+    let mut x = hint - z * hint.dot(z);
+    if !(x.length_squared() > 1e-20 && x.is_finite()) {
+        x = z.any_orthonormal_vector();
+    }
+    let x = x.normalize();
+    let y = z.cross(x);
+    Some((x, y, z))
+}
+
+/// ∫ max(v·z,0)·exp(−λ(v·x)² − μ(v·y)²) dω, exact (trapezoid over φ, module doc).
+pub fn integral(lambda: f64, mu: f64) -> f64 {
+    integral_with_derivatives(lambda, mu).0
+}
+
+/// Xu et al.'s closed form π/√(λμ); relative error ≤ e^{−min(λ, μ)} (an overestimate).
+pub fn integral_approx(lambda: f64, mu: f64) -> f64 {
+    PI / (lambda * mu).sqrt()
+}
+
+/// The exact integral and its derivatives with respect to λ and μ.
+pub fn integral_with_derivatives(lambda: f64, mu: f64) -> (f64, f64, f64) {
+    // f(a) = (1 − e^{−a}) / (2a), f'(a) = (a e^{−a} − (1 − e^{−a})) / (2a²); integrand is
+    // symmetric under φ → −φ and φ → π − φ, so a quarter period with the trapezoid rule
+    // (midpoints) suffices.
+    let n = INTEGRAL_NODES / 4;
+    let h = (PI / 2.0) / n as f64;
+    let (mut v, mut dl, mut dm) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let phi = (i as f64 + 0.5) * h;
+        let (s, c) = phi.sin_cos();
+        let (c2, s2) = (c * c, s * s);
+        let a = lambda * c2 + mu * s2;
+        let (f, df) = if a < 1e-4 {
+            // Series: f ≈ 1/2 − a/4 + a²/12, f' ≈ −1/4 + a/6.
+            (0.5 - a / 4.0 + a * a / 12.0, -0.25 + a / 6.0)
+        } else {
+            let em = (-a).exp_m1(); // e^{−a} − 1
+            let f = -em / (2.0 * a);
+            let df = (a * (em + 1.0) + em) / (2.0 * a * a);
+            (f, df)
+        };
+        v += f;
+        dl += df * c2;
+        dm += df * s2;
+    }
+    let w = 4.0 * h;
+    (v * w, dl * w, dm * w)
+}
+
+/// Hill's normalised cosine convolution h(t, ν) of a spherical Gaussian of sharpness ν at
+/// t = n·axis, with ∂h/∂t and ∂h/∂ν (module doc).
+pub fn hill_irradiance(t: f64, nu: f64) -> (f64, f64, f64) {
+    let t = t.clamp(-1.0, 1.0);
+    let eml = (-nu).exp();
+    let em2l = eml * eml;
+    let rl = 1.0 / nu;
+    let scale = 1.0 + 2.0 * em2l - rl;
+    let d_scale = -4.0 * em2l + rl * rl;
+    let bias = (eml - em2l) * rl - em2l;
+    let d_bias = (-eml + 2.0 * em2l) * rl - (eml - em2l) * rl * rl + 2.0 * em2l;
+    let x = (1.0 - scale).max(1e-12).sqrt();
+    let dx = -d_scale / (2.0 * x);
+    let x0 = HILL_C0 * t;
+    let x1 = HILL_C1 * x;
+    let (y, dy_t, dy_nu) = if x0.abs() <= x1 {
+        let n = x0 + x1;
+        let y = n * n / x;
+        let dy_t = 2.0 * n * HILL_C0 / x;
+        let dy_nu = (2.0 * n * HILL_C1 / x - n * n / (x * x)) * dx;
+        (y, dy_t, dy_nu)
+    } else if t > 0.0 {
+        (t, 1.0, 0.0)
+    } else {
+        (0.0, 0.0, 0.0)
+    };
+    (
+        scale * y + bias,
+        scale * dy_t,
+        d_scale * y + scale * dy_nu + d_bias,
+    )
+}
+
+/// Rotates `v` by the rotation vector `w` (axis × angle, Rodrigues).
+pub fn rotate(v: DVec3, w: DVec3) -> DVec3 {
+    let angle = w.length();
+    if angle < 1e-300 {
+        return v;
+    }
+    let k = w / angle;
+    let (s, c) = angle.sin_cos();
+    v * c + k.cross(v) * s + k * k.dot(v) * (1.0 - c)
+}
+
+/// Errors of ASG fitting and evaluation. Each names the input it is about.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AsgError {
+    #[error("lobe count {0} is outside 1..=64")]
+    LobeCount(usize),
+    #[error("fit map size {width}x{height} is invalid (height 4..=1024, width = 2 × height)")]
+    MapSize { width: u32, height: u32 },
+    #[error("frame claims {width}x{height} pixels but holds {len}")]
+    PixelCount { width: u32, height: u32, len: usize },
+    #[error("invalid fit setting {name} = {value}: {message}")]
+    Setting {
+        name: &'static str,
+        value: String,
+        message: &'static str,
+    },
+    #[error("the warm start has {got} lobes but the fit asks for {expected}")]
+    WarmStart { got: usize, expected: usize },
+    #[error("lobe {index} is invalid: {message}")]
+    Lobe { index: usize, message: &'static str },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integral_approaches_xu_for_narrow_lobes_and_bounds_hold() {
+        for &(l, m) in &[
+            (5.0, 5.0),
+            (10.0, 40.0),
+            (100.0, 3.0),
+            (0.3, 0.5),
+            (1e4, 2e4),
+        ] {
+            let exact = integral(l, m);
+            let approx = integral_approx(l, m);
+            assert!(approx >= exact, "Xu's form overestimates ({l}, {m})");
+            let rel = (approx - exact) / exact;
+            assert!(
+                rel <= (-f64::min(l, m)).exp() * (1.0 + 1e-9),
+                "bound ({l}, {m}): {rel}"
+            );
+        }
+        // λ = μ → 0: the clamped cosine, ∫ max(v·z,0) dω = π.
+        assert!((integral(1e-9, 1e-9) - PI).abs() < 1e-6);
+    }
+
+    #[test]
+    fn integral_derivatives_match_finite_differences() {
+        for &(l, m) in &[(0.3, 2.0), (5.0, 7.0), (60.0, 1.0)] {
+            let (_, dl, dm) = integral_with_derivatives(l, m);
+            let h = 1e-6;
+            let fl = (integral(l * (1.0 + h), m) - integral(l * (1.0 - h), m)) / (2.0 * h * l);
+            let fm = (integral(l, m * (1.0 + h)) - integral(l, m * (1.0 - h))) / (2.0 * h * m);
+            assert!((dl - fl).abs() < 1e-6 * fl.abs().max(1e-3), "{dl} vs {fl}");
+            assert!((dm - fm).abs() < 1e-6 * fm.abs().max(1e-3), "{dm} vs {fm}");
+        }
+    }
+
+    #[test]
+    fn hill_is_continuous_and_its_derivatives_match() {
+        for &nu in &[0.5, 2.0, 10.0, 200.0] {
+            for i in 0..=40 {
+                let t = -1.0 + 2.0 * i as f64 / 40.0;
+                let (h, dt, dn) = hill_irradiance(t, nu);
+                assert!(h.is_finite());
+                let e = 1e-6;
+                if t > -1.0 + e && t < 1.0 - e {
+                    let ft =
+                        (hill_irradiance(t + e, nu).0 - hill_irradiance(t - e, nu).0) / (2.0 * e);
+                    assert!((dt - ft).abs() < 1e-4, "dt at t={t} nu={nu}: {dt} vs {ft}");
+                }
+                let fnu = (hill_irradiance(t, nu * (1.0 + e)).0
+                    - hill_irradiance(t, nu * (1.0 - e)).0)
+                    / (2.0 * e * nu);
+                assert!(
+                    (dn - fnu).abs() < 1e-4,
+                    "dnu at t={t} nu={nu}: {dn} vs {fnu}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn new_rejects_bad_input() {
+        assert!(Asg::new(DVec3::ZERO, DVec3::X, 1.0, 1.0, [1.0; 3]).is_none());
+        assert!(Asg::new(DVec3::Y, DVec3::X, f64::NAN, 1.0, [1.0; 3]).is_none());
+        assert!(Asg::new(DVec3::Y, DVec3::X, 1.0, 1.0, [f64::INFINITY, 0.0, 0.0]).is_none());
+        let g = Asg::new(DVec3::Y, DVec3::Y, 1.0, 2.0, [1.0; 3]).expect("parallel hint is fine");
+        let (x, y, z) = g.frame();
+        assert!((x.cross(y) - z).length() < 1e-12);
+    }
+
+    #[test]
+    fn shape_gradients_match_finite_differences() {
+        let g = Asg::new(DVec3::new(0.3, 0.8, -0.2), DVec3::X, 3.0, 11.0, [1.0; 3]).unwrap();
+        let v = DVec3::new(0.4, 0.85, -0.1).normalize();
+        let gr = g.gradients(v);
+        let h = 1e-6;
+        let (x, y, z) = g.frame();
+        let raw = |x: DVec3, y: DVec3, z: DVec3, l: f64, m: f64| {
+            let s = v.dot(z);
+            s.max(0.0) * (-l * v.dot(x).powi(2) - m * v.dot(y).powi(2)).exp()
+        };
+        for k in 0..3 {
+            let mut e = DVec3::ZERO;
+            e[k] = h;
+            let fx = (raw(x + e, y, z, 3.0, 11.0) - raw(x - e, y, z, 3.0, 11.0)) / (2.0 * h);
+            let fy = (raw(x, y + e, z, 3.0, 11.0) - raw(x, y - e, z, 3.0, 11.0)) / (2.0 * h);
+            let fz = (raw(x, y, z + e, 3.0, 11.0) - raw(x, y, z - e, 3.0, 11.0)) / (2.0 * h);
+            assert!((gr.d_x[k] - fx).abs() < 1e-7);
+            assert!((gr.d_y[k] - fy).abs() < 1e-7);
+            assert!((gr.d_z[k] - fz).abs() < 1e-7);
+        }
+        let fl = (raw(x, y, z, 3.0 + h, 11.0) - raw(x, y, z, 3.0 - h, 11.0)) / (2.0 * h);
+        assert!((gr.d_lambda - fl).abs() < 1e-7);
+        assert!((gr.value - g.shape(v)).abs() < 1e-15);
+    }
+}
