@@ -690,7 +690,7 @@ fn diffuse_loss(
     for (n, gt) in target.normals.iter().zip(&target.diffuse) {
         let mut pred = [0.0; 3];
         for (j, l) in lobes.iter().enumerate() {
-            h[j] = super::hill_irradiance(n.dot(l.z), per[j].3);
+            h[j] = super::cosine_convolution(n.dot(l.z), per[j].3);
             let s = per[j].0 * h[j].0;
             for c in 0..3 {
                 pred[c] += l.c[c] * s;
