@@ -224,10 +224,16 @@ fn fits_on_real_hdris_lower_the_loss_and_keep_energy() {
         "venice_sunset_1k.hdr",
     ] {
         let frame = read_hdr(name);
-        let mut fitter = AsgFitter::new(settings_small()).unwrap();
+        // The default K = 16 on a 64×32 map, 300 iterations.
+        let settings = FitSettings {
+            lobes: 16,
+            iterations: 300,
+            ..settings_small()
+        };
+        let mut fitter = AsgFitter::new(settings).unwrap();
         let target = FitTarget::from_frame(&frame, 32, 128).unwrap();
         let result = fitter.fit_target(&target);
-        assert_eq!(result.lobes.len(), 8);
+        assert_eq!(result.lobes.len(), 16);
         assert!(
             result.loss.total < 0.8 * result.initial_loss.total,
             "{name}: loss {:?} from {:?}",
