@@ -22,6 +22,7 @@
 //!    ([`super::Asg::irradiance`]), and, from the second frame on, the paper's temporal term
 //!    L_T = Σ_i ‖(g_i^t − g_i^{t−1}) / max_i |g_i^{t−1}|‖₂ over the lobe vector
 //!    g = (z, x, ln λ, ln μ, c) (the division per component; 1 for the unit-vector components).
+//!    Bandwidths are capped at [`FitTarget::max_bandwidth`] (a lobe at least one pixel wide).
 //! 4. **Optimiser**: Adam on (rotation, α, β, σ) per lobe (module doc of [`super`]), analytic
 //!    (sub)gradients, cosine-decayed learning rate. The rotation step of a lobe is scaled by
 //!    1/√(1 + max(λ, μ)) so a sun-sized lobe moves by a fraction of its width. The pixel sums
@@ -377,6 +378,15 @@ impl FitTarget {
         })
     }
 
+    /// Largest bandwidth a fit on this map may use: λ ≤ 1/(2Δθ²) with Δθ = π/height, so a lobe's
+    /// standard deviation is at least one pixel. Narrower lobes would be fitted through the
+    /// pixel centres alone, whose values say nothing of the lobe's integral (a sun fitted as a
+    /// needle at one pixel centre keeps its peak but loses most of its energy).
+    pub fn max_bandwidth(&self) -> f64 {
+        let dt = PI / f64::from(self.height);
+        (0.5 / (dt * dt)).clamp(4.0 * MIN_BANDWIDTH, MAX_BANDWIDTH)
+    }
+
     /// Map reconstructed from `lobes` at this target's pixels.
     pub fn reconstruct(&self, lobes: &[Asg]) -> Vec<[f64; 3]> {
         self.directions
@@ -400,8 +410,7 @@ pub fn initial_lobes(target: &FitTarget, k: usize) -> Vec<Asg> {
     let lum = |p: &[f64; 3]| crate::decompose::luminance_f64(*p);
     let mut residual = target.radiance.clone();
     let floor = target.mean.max(1e-30) * 1e-6;
-    let pixel_angle = PI / f64::from(target.height);
-    let max_init = (std::f64::consts::LN_2 / (0.5 * pixel_angle).sin().powi(2)).min(MAX_BANDWIDTH);
+    let max_init = target.max_bandwidth();
     let spare = fibonacci_sphere(k);
     let mut lobes = Vec::with_capacity(k);
     for i in 0..k {
@@ -961,6 +970,11 @@ pub fn optimise(
     settings: &FitSettings,
 ) -> FitResult {
     let mut lobes: Vec<Lobe> = init.iter().map(Lobe::from_asg).collect();
+    let amax = (target.max_bandwidth() - MIN_BANDWIDTH).ln();
+    for l in &mut lobes {
+        l.alpha = l.alpha.min(amax);
+        l.beta = l.beta.min(amax);
+    }
     if settings.isotropic {
         for l in &mut lobes {
             l.beta = l.alpha;
@@ -1024,6 +1038,8 @@ pub fn optimise(
                 d[i] = -lr * scale * mh / (vh.sqrt() + eps);
             }
             step(p, &d);
+            p.alpha = p.alpha.min(amax);
+            p.beta = p.beta.min(amax);
         }
     }
     let (loss, best) = best.unwrap_or_default();
