@@ -55,6 +55,8 @@ fn sum_integrals(lobes: &[Asg]) -> [f64; 3] {
     e
 }
 
+type Ball = Vec<Option<[f64; 3]>>;
+
 struct Row {
     name: String,
     params: usize,
@@ -213,7 +215,8 @@ fn temporal() {
         })
         .unwrap();
         let (mut loss, mut axis, mut amp, mut flicker) = (0.0, 0.0, 0.0, 0.0);
-        let mut prev: Option<(Vec<Asg>, Vec<Option<[f64; 3]>>, Vec<Option<[f64; 3]>>)> = None;
+        // (lobes, truth ball, ASG ball) of the previous frame.
+        let mut prev: Option<(Vec<Asg>, Ball, Ball)> = None;
         for f in &frames {
             let target = FitTarget::from_frame(f, 64, 256).unwrap();
             let r = fitter.fit_target(&target);
