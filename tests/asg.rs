@@ -356,3 +356,58 @@ fn bad_inputs_give_errors_not_panics() {
         .unwrap();
     assert!(r.loss.total.is_finite() && r.loss.total < r.initial_loss.total.max(1e-9) + 1e-9);
 }
+
+#[test]
+fn fit_asg_command_prints_one_json_line_per_frame() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "fit-asg",
+            "--frames",
+            "2",
+            "--height",
+            "8",
+            "--iterations",
+            "20",
+            "--lobes",
+            "4",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2);
+    for (i, v) in lines.iter().enumerate() {
+        assert_eq!(v["seq"], i as u64);
+        assert!(v["time"].is_number() && v["loss"].as_f64().unwrap().is_finite());
+        let lobes = v["lobes"].as_array().unwrap();
+        assert_eq!(lobes.len(), 4);
+        for l in lobes {
+            let axis: Vec<f64> = l["axis"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect();
+            let n = axis.iter().map(|x| x * x).sum::<f64>().sqrt();
+            assert!((n - 1.0).abs() < 1e-9);
+            for key in ["tangent", "bitangent", "rgb"] {
+                assert_eq!(l[key].as_array().unwrap().len(), 3, "{key}");
+            }
+            assert!(l["lambda"].as_f64().unwrap() > 0.0 && l["mu"].as_f64().unwrap() > 0.0);
+        }
+    }
+    let bad = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["fit-asg", "--lobes", "65"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("lobe count 65"));
+}
