@@ -24,8 +24,9 @@
 //! overestimates by at most e^{−min(λ,μ)} of itself (below 1 % when both bandwidths exceed 4.6;
 //! badly for wide lobes: λ = μ = 0.5 overestimates by 65 %). [`integral`] is
 //! exact up to rounding: the φ integrand is smooth and periodic, so the trapezoid rule with
-//! [`INTEGRAL_NODES`] nodes converges geometrically (relative error < 1e-10 for λ, μ ≤ 10⁴, tested
-//! against a dense 2-D quadrature in `tests/asg.rs`).
+//! [`INTEGRAL_NODES`] nodes converges geometrically. `tests/asg.rs` checks it against a dense
+//! 2-D quadrature over the sphere for λ, μ ∈ [0.25, 5000] to that quadrature's own accuracy
+//! (5·10⁻⁴ relative; measured 1.6·10⁻⁴ at λ = 2000, μ = 5000).
 //!
 //! # Lambertian shading ([`Asg::irradiance`])
 //!
