@@ -10,6 +10,7 @@
 // Per-channel loops `for c in 0..3` over rgb triples read better than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+pub mod asg;
 pub mod capture;
 pub mod config;
 pub mod daemon;

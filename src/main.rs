@@ -129,6 +129,8 @@ enum Command {
     Record(RecordArgs),
     /// Validate a config file without running anything.
     CheckConfig(CheckConfigArgs),
+    /// Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
+    FitAsg(FitAsgArgs),
     /// Connect to a running daemon and print its light stream.
     #[command(long_about = SUBSCRIBE_LONG_ABOUT)]
     Subscribe(SubscribeArgs),
@@ -608,6 +610,7 @@ fn main() -> ExitCode {
         Command::CalibrateResponse(args) => camera_cli::calibrate_response(&args),
         Command::CalibrateFisheye(args) => camera_cli::calibrate_fisheye(&args),
         Command::Render(args) => render(&args),
+        Command::FitAsg(args) => fit_asg(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -1106,4 +1109,91 @@ fn render(args: &RenderArgs) -> Result<()> {
         .with_context(|| format!("cannot write {}", stats_path.display()))?;
     tracing::info!("rendered {done} frames into {}", out.display());
     Ok(())
+}
+
+/// `fit-asg`: one JSON line per frame,
+/// {"seq","time","lobes":[{"axis","tangent","bitangent","lambda","mu","rgb"}],"loss"}.
+#[derive(Args, Debug)]
+struct FitAsgArgs {
+    /// .exr/.hdr lat-long files, directories or glob patterns. None: the built-in sky.
+    #[arg(value_name = "INPUT")]
+    inputs: Vec<String>,
+    /// Number of lobes K (1..=64).
+    #[arg(long, default_value_t = envlight::asg::fit::DEFAULT_LOBES)]
+    lobes: usize,
+    /// Adam iterations of the first frame.
+    #[arg(long, default_value_t = 300)]
+    iterations: usize,
+    /// Adam iterations of each warm-started frame.
+    #[arg(long, default_value_t = 30)]
+    warm_iterations: usize,
+    /// Fit-map height (width is twice), 4..=1024.
+    #[arg(long, default_value_t = envlight::asg::fit::DEFAULT_HEIGHT)]
+    height: u32,
+    /// Weight of the temporal loss L_T (0 disables it).
+    #[arg(long, default_value_t = 0.05)]
+    temporal_weight: f64,
+    /// Sky frames to fit when no INPUT is given.
+    #[arg(long, default_value_t = 10)]
+    frames: u64,
+    /// Output file (JSON Lines). [default: stdout]
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+}
+
+fn fit_asg(args: &FitAsgArgs) -> Result<()> {
+    use envlight::asg::fit::{AsgFitter, FitSettings};
+    let settings = FitSettings {
+        lobes: args.lobes,
+        iterations: args.iterations,
+        warm_iterations: args.warm_iterations,
+        height: args.height,
+        temporal_weight: args.temporal_weight,
+        ..FitSettings::default()
+    };
+    let mut fitter = AsgFitter::new(settings).context("invalid fit-asg options")?;
+    let mut source: Box<dyn FrameSource> = if args.inputs.is_empty() {
+        let options = SkyOptions {
+            frames: Some(args.frames),
+            ..SkyOptions::default()
+        };
+        Box::new(SkySource::new(options).context("cannot set up the built-in sky")?)
+    } else {
+        let options = SequenceOptions {
+            fps: None,
+            looped: false,
+            projection: Projection::LatLong,
+        };
+        Box::new(
+            SequenceSource::new(&args.inputs, options).context("cannot open the input frames")?,
+        )
+    };
+    let mut writer = std::io::BufWriter::new(open_output(args.out.as_deref())?);
+    while let Some(frame) = source.next_frame().context("cannot read a frame")? {
+        let result = fitter
+            .fit_frame(&frame)
+            .with_context(|| format!("cannot fit frame {}", frame.seq))?;
+        #[derive(serde::Serialize)]
+        struct Line<'a> {
+            seq: u64,
+            time: f64,
+            lobes: &'a [envlight::asg::Asg],
+            loss: f64,
+        }
+        let line = Line {
+            seq: frame.seq,
+            time: frame.time,
+            lobes: &result.lobes,
+            loss: result.loss.total,
+        };
+        let line = serde_json::to_string(&line).context("cannot encode a frame")?;
+        match writeln!(writer, "{line}") {
+            Err(e) if is_broken_pipe(&e) => return Ok(()),
+            r => r.context("cannot write the output")?,
+        }
+    }
+    match writer.flush() {
+        Err(e) if is_broken_pipe(&e) => Ok(()),
+        r => r.context("cannot write the output"),
+    }
 }

@@ -1,0 +1,272 @@
+//! Regenerates the tables of docs/asg.md: ASG fits against SH and isotropic lobes on real HDRIs
+//! (GGX balls of roughness 0.05…1 under each representation vs under the full map, map PSNR,
+//! energy error; L1 vs L2; with and without the diffuse loss) and the temporal table on the
+//! built-in sky (with and without L_T).
+//!
+//! Run: `cargo run --release --example asg_table` (about a minute on 2 cores).
+
+use envlight::asg::eval::{
+    energy_error, map_psnr, relative_rms, render_ball, LatLongMap, ShProjection,
+};
+use envlight::asg::fit::{AsgFitter, FitSettings, FitTarget, Norm};
+use envlight::asg::Asg;
+use envlight::capture::sky::{render_sky, SkyOptions};
+use envlight::envmap::Projection;
+use envlight::HdrFrame;
+
+const MAPS: [&str; 3] = [
+    "rooitou_park_1k.hdr",
+    "studio_small_03_1k.hdr",
+    "venice_sunset_1k.hdr",
+];
+const ROUGHNESS: [f64; 6] = [0.05, 0.1, 0.25, 0.5, 0.75, 1.0];
+const FIT_HEIGHT: u32 = 128;
+const BALL_RES: u32 = 32;
+
+fn read_hdr(name: &str) -> HdrFrame {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name);
+    let image = image::open(&path).expect("test HDRI").to_rgb32f();
+    let (w, h) = image.dimensions();
+    let mut f = HdrFrame::new(
+        w,
+        h,
+        image.pixels().map(|p| p.0).collect(),
+        Projection::LatLong,
+    )
+    .unwrap();
+    f.sanitize();
+    f
+}
+
+fn lobes_map(target: &FitTarget, lobes: &[Asg]) -> LatLongMap {
+    LatLongMap::new(target.width, target.height, target.reconstruct(lobes)).unwrap()
+}
+
+fn sum_integrals(lobes: &[Asg]) -> [f64; 3] {
+    let mut e = [0.0; 3];
+    for l in lobes {
+        let i = l.integral();
+        for c in 0..3 {
+            e[c] += i[c];
+        }
+    }
+    e
+}
+
+type Ball = Vec<Option<[f64; 3]>>;
+
+struct Row {
+    name: String,
+    params: usize,
+    psnr: f64,
+    energy: f64,
+    balls: Vec<f64>,
+}
+
+fn main() {
+    let base = FitSettings {
+        height: FIT_HEIGHT,
+        ..FitSettings::default()
+    };
+    let variants: Vec<(&str, FitSettings, usize)> = vec![
+        ("ASG K=16, L1 + diffuse (default)", base.clone(), 16 * 8),
+        (
+            "ASG K=16, L1, no diffuse loss",
+            FitSettings {
+                diffuse_weight: 0.0,
+                ..base.clone()
+            },
+            16 * 8,
+        ),
+        (
+            "ASG K=16, L2 + diffuse",
+            FitSettings {
+                norm: Norm::L2,
+                ..base.clone()
+            },
+            16 * 8,
+        ),
+        (
+            "isotropic (λ = μ) K=21, L1 + diffuse",
+            FitSettings {
+                lobes: 21,
+                isotropic: true,
+                ..base.clone()
+            },
+            21 * 6,
+        ),
+    ];
+    let mut all: Vec<Vec<Row>> = Vec::new();
+    for name in MAPS {
+        let frame = read_hdr(name);
+        let target = FitTarget::from_frame(&frame, FIT_HEIGHT, base.diffuse_normals).unwrap();
+        let truth = LatLongMap::new(target.width, target.height, target.radiance.clone()).unwrap();
+        let truth_small = truth.downsample(2).unwrap();
+        let truth_balls: Vec<_> = ROUGHNESS
+            .iter()
+            .map(|&r| render_ball(&truth_small, r, BALL_RES))
+            .collect();
+        let mut rows = Vec::new();
+        let mut add = |label: String, params: usize, map: LatLongMap, energy: [f64; 3]| {
+            let small = map.downsample(2).unwrap();
+            let balls = ROUGHNESS
+                .iter()
+                .zip(&truth_balls)
+                .map(|(&r, t)| relative_rms(&render_ball(&small, r, BALL_RES), t))
+                .collect();
+            rows.push(Row {
+                name: label,
+                params,
+                psnr: map_psnr(&map, &truth),
+                energy: energy_error(energy, target.integral),
+                balls,
+            });
+        };
+        for (label, settings, params) in &variants {
+            let result = AsgFitter::new(settings.clone())
+                .unwrap()
+                .fit_target(&target);
+            eprintln!(
+                "{name}: {label}: loss {:.4} -> {:.4}",
+                result.initial_loss.total, result.loss.total
+            );
+            add(
+                label.to_string(),
+                *params,
+                lobes_map(&target, &result.lobes),
+                sum_integrals(&result.lobes),
+            );
+        }
+        for order in [2, 3] {
+            let sh = ShProjection::project(&truth, order);
+            let map = LatLongMap::new(
+                target.width,
+                target.height,
+                target.directions.iter().map(|&d| sh.eval(d)).collect(),
+            )
+            .unwrap();
+            let e = map.integral();
+            add(format!("SH order {order}"), order * order * 3, map, e);
+        }
+        println!("\n### {name}\n");
+        print_rows(&rows);
+        all.push(rows);
+    }
+    println!("\n### Mean over the {} maps\n", MAPS.len());
+    let n = all.len() as f64;
+    let mean: Vec<Row> = (0..all[0].len())
+        .map(|i| Row {
+            name: all[0][i].name.clone(),
+            params: all[0][i].params,
+            psnr: all.iter().map(|r| r[i].psnr).sum::<f64>() / n,
+            energy: all.iter().map(|r| r[i].energy).sum::<f64>() / n,
+            balls: (0..ROUGHNESS.len())
+                .map(|k| all.iter().map(|r| r[i].balls[k]).sum::<f64>() / n)
+                .collect(),
+        })
+        .collect();
+    print_rows(&mean);
+    temporal();
+}
+
+fn print_rows(rows: &[Row]) {
+    let head: Vec<String> = ROUGHNESS.iter().map(|r| format!("ball r={r}")).collect();
+    println!(
+        "| representation | params | map PSNR (dB) | energy error | {} |",
+        head.join(" | ")
+    );
+    println!("|---|---:|---:|---:|{}", "---:|".repeat(ROUGHNESS.len()));
+    for r in rows {
+        let b: Vec<String> = r.balls.iter().map(|x| format!("{x:.3}")).collect();
+        println!(
+            "| {} | {} | {:.2} | {:.4} | {} |",
+            r.name,
+            r.params,
+            r.psnr,
+            r.energy,
+            b.join(" | ")
+        );
+    }
+}
+
+/// Built-in sky, 16 frames at 30 fps with the sun moving 15°/s, 128×64 maps.
+fn temporal() {
+    let options = SkyOptions {
+        width: 128,
+        height: 64,
+        sun_speed_deg_per_s: 15.0,
+        ..SkyOptions::default()
+    };
+    let frames: Vec<HdrFrame> = (0..16)
+        .map(|i| render_sky(&options, f64::from(i) / 30.0))
+        .collect();
+    let alpha = 0.25;
+    let res = 24;
+    println!("\n### Temporal: built-in sky, 16 frames, sun at 15°/s, 64×128 fit map, K = 16\n");
+    println!("| L_T weight | mean loss | axis change (°/frame/lobe) | amplitude change (rel./frame/lobe) | ball flicker (r = 0.25) |");
+    println!("|---:|---:|---:|---:|---:|");
+    for w in [0.0, 0.05, 0.2] {
+        let mut fitter = AsgFitter::new(FitSettings {
+            height: 64,
+            temporal_weight: w,
+            ..FitSettings::default()
+        })
+        .unwrap();
+        let (mut loss, mut axis, mut amp, mut flicker) = (0.0, 0.0, 0.0, 0.0);
+        // (lobes, truth ball, ASG ball) of the previous frame.
+        let mut prev: Option<(Vec<Asg>, Ball, Ball)> = None;
+        for f in &frames {
+            let target = FitTarget::from_frame(f, 64, 256).unwrap();
+            let r = fitter.fit_target(&target);
+            loss += r.loss.reconstruction + r.loss.diffuse;
+            let truth =
+                LatLongMap::new(target.width, target.height, target.radiance.clone()).unwrap();
+            let tb = render_ball(&truth, alpha, res);
+            let ab = render_ball(&lobes_map(&target, &r.lobes), alpha, res);
+            if let Some((pl, pt, pa)) = &prev {
+                for (a, b) in r.lobes.iter().zip(pl) {
+                    axis += glam::DVec3::from(a.axis)
+                        .angle_between(glam::DVec3::from(b.axis))
+                        .to_degrees();
+                    let (ca, cb) = (a.rgb.iter().sum::<f64>(), b.rgb.iter().sum::<f64>());
+                    amp += (ca - cb).abs() / cb.max(1e-12);
+                }
+                // Change of the ball beyond the change of the truth.
+                let d: Vec<Option<[f64; 3]>> = ab
+                    .iter()
+                    .zip(pa)
+                    .zip(tb.iter().zip(pt))
+                    .map(|((a, b), (t, u))| match (a, b, t, u) {
+                        (Some(a), Some(b), Some(t), Some(u)) => {
+                            Some([0, 1, 2].map(|c| (a[c] - b[c]) - (t[c] - u[c])))
+                        }
+                        _ => None,
+                    })
+                    .collect();
+                // √Σ lum(d)² / √Σ lum(truth)².
+                let (mut n2, mut t2) = (0.0, 0.0);
+                for (x, t) in d.iter().zip(&tb) {
+                    if let (Some(x), Some(t)) = (x, t) {
+                        let l = envlight::decompose::luminance_f64(*x);
+                        let lt = envlight::decompose::luminance_f64(*t);
+                        n2 += l * l;
+                        t2 += lt * lt;
+                    }
+                }
+                flicker += (n2 / t2.max(1e-300)).sqrt();
+            }
+            prev = Some((r.lobes.clone(), tb, ab));
+        }
+        let steps = (frames.len() - 1) as f64;
+        let k = 16.0;
+        println!(
+            "| {w} | {:.4} | {:.3} | {:.4} | {:.4} |",
+            loss / frames.len() as f64,
+            axis / steps / k,
+            amp / steps / k,
+            flicker / steps
+        );
+    }
+}

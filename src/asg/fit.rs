@@ -1,0 +1,1114 @@
+//! Fitting K ASG lobes to environment-map frames, temporally consistent (Clausen et al. 2024,
+//! "Fitting anisotropic spherical Gaussians to dynamic HDRIs").
+//!
+//! Steps for every frame:
+//! 1. **Target** ([`FitTarget::from_frame`]): the frame is resampled to a `2h × h` lat-long map
+//!    (default 512×256, the paper's) by averaging `s × s` sub-samples per pixel, weighted by
+//!    their solid angle (an exact box filter when the source is lat-long and an integer
+//!    multiple of the size). Non-finite and negative values count as 0. The ground-truth
+//!    diffuse map D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p is computed once per frame by direct
+//!    convolution of a ≤ 64×128 box-downsampled copy, at [`FitSettings::diffuse_normals`]
+//!    normals of a Fibonacci sphere.
+//! 2. **Initialisation** ([`initial_lobes`]), first frame only: greedy peak picking. Repeatedly
+//!    the brightest pixel of the residual map becomes a lobe axis, its residual radiance the
+//!    amplitude, and the half-maximum radius r of the bright region around it the bandwidth
+//!    λ = μ = ln 2 / sin² r; the lobe is subtracted from the residual (clamped at 0).
+//!    Deterministic, O(K·N), and it puts narrow lobes on suns and lamps at once.
+//! 3. **Loss**, normalised by the map's mean radiance M = (1/4π)∫Σ_c L dω (so a black
+//!    prediction has L_R = 1):
+//!    `L = L_R + w_D·L_D + w_T·L_T`, with
+//!    L_R = (1/4πM) Σ_p Ω_p Σ_c |Î_p − I_p| (L1; [`Norm::L2`] uses squares / M²),
+//!    L_D = (1/(N_n π M)) Σ_n Σ_c |D̂(n) − D_GT(n)| with D̂ from the closed-form ASG irradiance
+//!    ([`super::Asg::irradiance`]), and, from the second frame on, the paper's temporal term
+//!    L_T = Σ_i ‖(g_i^t − g_i^{t−1}) / max_i |g_i^{t−1}|‖₂ over the lobe vector
+//!    g = (z, x, ln λ, ln μ, c) (the division per component; 1 for the unit-vector components).
+//!    Bandwidths are capped at [`FitTarget::max_bandwidth`] (a lobe at least one pixel wide).
+//! 4. **Optimiser**: Adam on (rotation, α, β, σ) per lobe (module doc of [`super`]), analytic
+//!    (sub)gradients, cosine-decayed learning rate. The rotation step of a lobe is scaled by
+//!    1/√(1 + max(λ, μ)) so a sun-sized lobe moves by a fraction of its width. The pixel sums
+//!    run on [`FitSettings::threads`] named scoped threads over a fixed partition into row
+//!    bands, summed in band order: results do not depend on the thread count.
+//! 5. **Warm start**: each later frame starts from the previous lobes and runs
+//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] with L_T added.
+
+use super::{integral_with_derivatives, rotate, Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
+use crate::envmap::Projection;
+use crate::frame::HdrFrame;
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// Largest number of lobes.
+pub const MAX_LOBES: usize = 64;
+/// Default number of lobes (the paper reports about 15 enough).
+pub const DEFAULT_LOBES: usize = 16;
+/// Default fit-map height (width is twice): 256×512 as the paper.
+pub const DEFAULT_HEIGHT: u32 = 256;
+/// Row bands the pixel sums are split into (fixed, so results do not depend on threads).
+const BANDS: usize = 32;
+/// Log-amplitude bounds: c ∈ [e^−60, e^25].
+const SIGMA_RANGE: (f64, f64) = (-60.0, 25.0);
+
+/// Reconstruction norm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Norm {
+    /// |Î − I| (the paper's choice).
+    #[default]
+    L1,
+    /// (Î − I)².
+    L2,
+}
+
+/// Settings of [`AsgFitter`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitSettings {
+    /// Number of lobes K, 1..=64.
+    pub lobes: usize,
+    /// Fit-map height h (width 2h), 4..=1024.
+    pub height: u32,
+    /// Adam iterations of the first frame.
+    pub iterations: usize,
+    /// Adam iterations of every warm-started frame.
+    pub warm_iterations: usize,
+    /// Initial learning rate of the first frame (log-bandwidth and log-amplitude steps; radians
+    /// for a wide lobe's rotation).
+    pub learning_rate: f64,
+    /// Learning rate of warm-started frames.
+    pub warm_learning_rate: f64,
+    /// Weight w_D of the diffuse loss (0 disables it).
+    pub diffuse_weight: f64,
+    /// Weight w_T of the temporal loss (0 disables it).
+    pub temporal_weight: f64,
+    /// Reconstruction (and diffuse) norm.
+    pub norm: Norm,
+    /// Normals at which the diffuse maps are compared, 16..=4096.
+    pub diffuse_normals: usize,
+    /// Worker threads, 0 = all available cores.
+    pub threads: usize,
+    /// Tie μ to λ: isotropic lobes (a comparison baseline; 6 parameters per lobe instead of 8).
+    pub isotropic: bool,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self {
+            lobes: DEFAULT_LOBES,
+            height: DEFAULT_HEIGHT,
+            iterations: 300,
+            warm_iterations: 30,
+            learning_rate: 0.05,
+            warm_learning_rate: 0.01,
+            diffuse_weight: 1.0,
+            temporal_weight: 0.05,
+            norm: Norm::L1,
+            diffuse_normals: 256,
+            threads: 0,
+            isotropic: false,
+        }
+    }
+}
+
+impl FitSettings {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), AsgError> {
+        if !(1..=MAX_LOBES).contains(&self.lobes) {
+            return Err(AsgError::LobeCount(self.lobes));
+        }
+        if !(4..=1024).contains(&self.height) {
+            return Err(AsgError::MapSize {
+                width: self.height.saturating_mul(2),
+                height: self.height,
+            });
+        }
+        let bad = |name, value: f64, message| AsgError::Setting {
+            name,
+            value: value.to_string(),
+            message,
+        };
+        for (name, v) in [
+            ("learning_rate", self.learning_rate),
+            ("warm_learning_rate", self.warm_learning_rate),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 1.0) {
+                return Err(bad(name, v, "must be in (0, 1]"));
+            }
+        }
+        for (name, v) in [
+            ("diffuse_weight", self.diffuse_weight),
+            ("temporal_weight", self.temporal_weight),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad(name, v, "must be finite and >= 0"));
+            }
+        }
+        if !(16..=4096).contains(&self.diffuse_normals) {
+            return Err(bad(
+                "diffuse_normals",
+                self.diffuse_normals as f64,
+                "must be in 16..=4096",
+            ));
+        }
+        if self.iterations > 10_000_000 || self.warm_iterations > 10_000_000 {
+            return Err(bad(
+                "iterations",
+                self.iterations.max(self.warm_iterations) as f64,
+                "must be at most 10^7",
+            ));
+        }
+        Ok(())
+    }
+
+    fn thread_count(&self) -> usize {
+        if self.threads > 0 {
+            self.threads.min(BANDS)
+        } else {
+            std::thread::available_parallelism().map_or(1, |n| n.get().min(BANDS))
+        }
+    }
+}
+
+/// One frame resampled for fitting, with its ground-truth diffuse map.
+#[derive(Clone, Debug)]
+pub struct FitTarget {
+    pub width: u32,
+    pub height: u32,
+    /// Pixel-centre directions, row-major.
+    pub directions: Vec<DVec3>,
+    /// Radiance per pixel (non-negative, finite).
+    pub radiance: Vec<[f64; 3]>,
+    /// Solid angle / 4π per pixel (sums to 1).
+    pub weights: Vec<f64>,
+    /// Diffuse-comparison normals (Fibonacci sphere).
+    pub normals: Vec<DVec3>,
+    /// D_GT at `normals` (irradiance).
+    pub diffuse: Vec<[f64; 3]>,
+    /// Mean radiance M = (1/4π)∫ Σ_c L dω.
+    pub mean: f64,
+    /// ∫ L dω per channel.
+    pub integral: [f64; 3],
+}
+
+/// `n` directions of a Fibonacci sphere.
+pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
+    let golden = PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let y = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+            let r = (1.0 - y * y).max(0.0).sqrt();
+            let (s, c) = (golden * i as f64).sin_cos();
+            DVec3::new(r * c, y, r * s)
+        })
+        .collect()
+}
+
+#[inline]
+fn clean(c: f32) -> f64 {
+    if c.is_finite() && c > 0.0 {
+        f64::from(c)
+    } else {
+        0.0
+    }
+}
+
+/// Resamples `frame` (any projection) to a `2h × h` lat-long map of radiance (module doc).
+pub fn resample_latlong(frame: &HdrFrame, height: u32) -> Result<Vec<[f64; 3]>, AsgError> {
+    let (sw, sh) = (frame.width, frame.height);
+    if sw == 0 || sh == 0 || frame.pixels.len() != sw as usize * sh as usize {
+        return Err(AsgError::PixelCount {
+            width: sw,
+            height: sh,
+            len: frame.pixels.len(),
+        });
+    }
+    if !(1..=4096).contains(&height) {
+        return Err(AsgError::MapSize {
+            width: height.saturating_mul(2),
+            height,
+        });
+    }
+    let (w, h) = (2 * height, height);
+    let mut out = vec![[0.0; 3]; w as usize * h as usize];
+    let exact = frame.projection == Projection::LatLong && sw % w == 0 && sh % h == 0;
+    if exact {
+        let (fx, fy) = (sw / w, sh / h);
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = [0.0; 3];
+                let mut wsum = 0.0;
+                for j in 0..fy {
+                    let sy = y * fy + j;
+                    let sin_t = (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin();
+                    for i in 0..fx {
+                        let p = frame.pixel(x * fx + i, sy);
+                        for c in 0..3 {
+                            acc[c] += clean(p[c]) * sin_t;
+                        }
+                    }
+                    wsum += sin_t * f64::from(fx);
+                }
+                out[(y * w + x) as usize] = acc.map(|a| a / wsum);
+            }
+        }
+        return Ok(out);
+    }
+    let s = sh.div_ceil(h).clamp(1, 8);
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = [0.0; 3];
+            let mut wsum = 0.0;
+            for j in 0..s {
+                let py = f64::from(y) + (f64::from(j) + 0.5) / f64::from(s);
+                for i in 0..s {
+                    let px = f64::from(x) + (f64::from(i) + 0.5) / f64::from(s);
+                    let d = Projection::LatLong
+                        .pixel_to_direction(w, h, px, py)
+                        .unwrap_or(DVec3::Y);
+                    let wt = (PI * py / f64::from(h)).sin();
+                    wsum += wt;
+                    if let Some((qx, qy)) = frame.projection.direction_to_pixel(sw, sh, d) {
+                        let (ix, iy) = (qx.floor(), qy.floor());
+                        if ix >= 0.0 && iy >= 0.0 && ix < f64::from(sw) && iy < f64::from(sh) {
+                            let p = frame.pixel(ix as u32, iy as u32);
+                            for c in 0..3 {
+                                acc[c] += clean(p[c]) * wt;
+                            }
+                        }
+                    }
+                }
+            }
+            out[(y * w + x) as usize] = acc.map(|a| if wsum > 0.0 { a / wsum } else { 0.0 });
+        }
+    }
+    Ok(out)
+}
+
+impl FitTarget {
+    /// The target of `frame` at fit-map height `height` with `normals` diffuse normals.
+    pub fn from_frame(frame: &HdrFrame, height: u32, normals: usize) -> Result<Self, AsgError> {
+        let radiance = resample_latlong(frame, height)?;
+        Self::from_latlong(2 * height, height, radiance, normals)
+    }
+
+    /// The target of a `width × height` lat-long radiance map (width = 2 × height).
+    pub fn from_latlong(
+        width: u32,
+        height: u32,
+        radiance: Vec<[f64; 3]>,
+        normals: usize,
+    ) -> Result<Self, AsgError> {
+        if height < 1 || width != 2 * height {
+            return Err(AsgError::MapSize { width, height });
+        }
+        if radiance.len() != width as usize * height as usize {
+            return Err(AsgError::PixelCount {
+                width,
+                height,
+                len: radiance.len(),
+            });
+        }
+        let radiance: Vec<[f64; 3]> = radiance
+            .into_iter()
+            .map(|p| p.map(|c| if c.is_finite() && c > 0.0 { c } else { 0.0 }))
+            .collect();
+        let omegas = Projection::LatLong.solid_angles(width, height);
+        let weights: Vec<f64> = omegas.iter().map(|o| o / (4.0 * PI)).collect();
+        let mut directions = Vec::with_capacity(radiance.len());
+        for y in 0..height {
+            for x in 0..width {
+                directions.push(
+                    Projection::LatLong
+                        .pixel_to_direction(width, height, f64::from(x) + 0.5, f64::from(y) + 0.5)
+                        .unwrap_or(DVec3::Y),
+                );
+            }
+        }
+        let mut integral = [0.0; 3];
+        for (p, o) in radiance.iter().zip(&omegas) {
+            for c in 0..3 {
+                integral[c] += p[c] * o;
+            }
+        }
+        let mean = integral.iter().sum::<f64>() / (4.0 * PI);
+        // Ground-truth diffuse map from a box-downsampled copy (≤ 64 rows).
+        let f = (height / 64).max(1);
+        let (cw, ch) = (width.div_ceil(f), height.div_ceil(f));
+        let mut coarse = vec![(DVec3::ZERO, [0.0; 3]); cw as usize * ch as usize];
+        for y in 0..height {
+            for x in 0..width {
+                let i = (y * width + x) as usize;
+                let o = omegas[i];
+                let cell = &mut coarse[((y / f) * cw + x / f) as usize];
+                cell.0 += directions[i] * o;
+                for c in 0..3 {
+                    cell.1[c] += radiance[i][c] * o;
+                }
+            }
+        }
+        let coarse: Vec<(DVec3, [f64; 3])> = coarse
+            .into_iter()
+            .filter(|(_, e)| e.iter().any(|&c| c > 0.0))
+            .map(|(d, e)| (d.normalize_or(DVec3::Y), e))
+            .collect();
+        let normals = fibonacci_sphere(normals);
+        let diffuse = normals
+            .iter()
+            .map(|&n| {
+                let mut acc = [0.0; 3];
+                for (d, e) in &coarse {
+                    let t = n.dot(*d);
+                    if t > 0.0 {
+                        for c in 0..3 {
+                            acc[c] += e[c] * t;
+                        }
+                    }
+                }
+                acc
+            })
+            .collect();
+        Ok(Self {
+            width,
+            height,
+            directions,
+            radiance,
+            weights,
+            normals,
+            diffuse,
+            mean,
+            integral,
+        })
+    }
+
+    /// Largest bandwidth a fit on this map may use: λ ≤ 1/(2Δθ²) with Δθ = π/height, so a lobe's
+    /// standard deviation is at least one pixel. Narrower lobes would be fitted through the
+    /// pixel centres alone, whose values say nothing of the lobe's integral (a sun fitted as a
+    /// needle at one pixel centre keeps its peak but loses most of its energy).
+    pub fn max_bandwidth(&self) -> f64 {
+        let dt = PI / f64::from(self.height);
+        (0.5 / (dt * dt)).clamp(4.0 * MIN_BANDWIDTH, MAX_BANDWIDTH)
+    }
+
+    /// Map reconstructed from `lobes` at this target's pixels.
+    pub fn reconstruct(&self, lobes: &[Asg]) -> Vec<[f64; 3]> {
+        self.directions
+            .iter()
+            .map(|&d| {
+                let mut acc = [0.0; 3];
+                for l in lobes {
+                    let g = l.shape(d);
+                    for c in 0..3 {
+                        acc[c] += l.rgb[c] * g;
+                    }
+                }
+                acc
+            })
+            .collect()
+    }
+}
+
+/// Greedy peak-picking initialisation of `k` lobes (module doc, step 2).
+pub fn initial_lobes(target: &FitTarget, k: usize) -> Vec<Asg> {
+    let lum = |p: &[f64; 3]| crate::decompose::luminance_f64(*p);
+    let mut residual = target.radiance.clone();
+    let floor = target.mean.max(1e-30) * 1e-6;
+    let max_init = target.max_bandwidth();
+    let spare = fibonacci_sphere(k);
+    let mut lobes = Vec::with_capacity(k);
+    for i in 0..k {
+        let (best, peak) = residual
+            .iter()
+            .enumerate()
+            .map(|(j, p)| (j, lum(p)))
+            .fold((0, -1.0), |acc, x| if x.1 > acc.1 { x } else { acc });
+        let lobe = if peak > floor {
+            let z = target.directions[best];
+            let half = 0.5 * peak;
+            let mut cos_r: f64 = -1.0;
+            for (d, p) in target.directions.iter().zip(&residual) {
+                if lum(p) < half {
+                    cos_r = cos_r.max(d.dot(z));
+                }
+            }
+            let sin2 = (1.0 - cos_r * cos_r).max(1e-12);
+            let sin2 = if cos_r < 0.0 { 1.0 } else { sin2 };
+            let lambda = (std::f64::consts::LN_2 / sin2).clamp(MIN_BANDWIDTH * 2.0, max_init);
+            let rgb = residual[best].map(|c| c.max(floor));
+            Asg::new(z, DVec3::Y, lambda, lambda, rgb)
+        } else {
+            Asg::new(spare[i], DVec3::Y, 1.0, 1.0, [floor; 3])
+        };
+        let Some(lobe) = lobe else { continue };
+        for (d, p) in target.directions.iter().zip(residual.iter_mut()) {
+            let g = lobe.shape(*d);
+            if g > 0.0 {
+                for c in 0..3 {
+                    p[c] = (p[c] - lobe.rgb[c] * g).max(0.0);
+                }
+            }
+        }
+        lobes.push(lobe);
+    }
+    lobes
+}
+
+/// Parts of the fit loss (module doc, step 3).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Loss {
+    pub reconstruction: f64,
+    pub diffuse: f64,
+    pub temporal: f64,
+    /// L_R + w_D·L_D + w_T·L_T.
+    pub total: f64,
+}
+
+/// Result of fitting one frame.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct FitResult {
+    pub lobes: Vec<Asg>,
+    /// Loss of the initial (greedy or warm-start) lobes.
+    pub initial_loss: Loss,
+    /// Loss of the returned lobes.
+    pub loss: Loss,
+    pub iterations: usize,
+    /// Whether this frame was warm-started from the previous one.
+    pub warm: bool,
+}
+
+/// Optimisation state of one lobe.
+#[derive(Clone, Copy, Debug)]
+struct Lobe {
+    x: DVec3,
+    y: DVec3,
+    z: DVec3,
+    alpha: f64,
+    beta: f64,
+    sigma: [f64; 3],
+}
+
+impl Lobe {
+    fn from_asg(a: &Asg) -> Self {
+        let (x, y, z) = a.frame();
+        let inv =
+            |b: f64| (b.clamp(MIN_BANDWIDTH * (1.0 + 1e-9), MAX_BANDWIDTH) - MIN_BANDWIDTH).ln();
+        Self {
+            x,
+            y,
+            z,
+            alpha: inv(a.lambda),
+            beta: inv(a.mu),
+            sigma: a
+                .rgb
+                .map(|c| c.max(1e-300).ln().clamp(SIGMA_RANGE.0, SIGMA_RANGE.1)),
+        }
+    }
+    fn lambda(&self) -> f64 {
+        MIN_BANDWIDTH + self.alpha.exp()
+    }
+    fn mu(&self) -> f64 {
+        MIN_BANDWIDTH + self.beta.exp()
+    }
+    fn rgb(&self) -> [f64; 3] {
+        self.sigma.map(f64::exp)
+    }
+    fn to_asg(self) -> Asg {
+        Asg {
+            axis: self.z.to_array(),
+            tangent: self.x.to_array(),
+            bitangent: self.y.to_array(),
+            lambda: self.lambda(),
+            mu: self.mu(),
+            rgb: self.rgb(),
+        }
+    }
+    /// Temporal vector g = (z, x, ln λ, ln μ, c).
+    fn temporal_vector(&self) -> [f64; 11] {
+        let c = self.rgb();
+        [
+            self.z.x,
+            self.z.y,
+            self.z.z,
+            self.x.x,
+            self.x.y,
+            self.x.z,
+            self.lambda().ln(),
+            self.mu().ln(),
+            c[0],
+            c[1],
+            c[2],
+        ]
+    }
+}
+
+/// Gradient of the loss with respect to one lobe's free quantities.
+#[derive(Clone, Copy, Debug, Default)]
+struct Grad {
+    x: DVec3,
+    y: DVec3,
+    z: DVec3,
+    lambda: f64,
+    mu: f64,
+    c: [f64; 3],
+}
+
+impl Grad {
+    fn add(&mut self, o: &Grad) {
+        self.x += o.x;
+        self.y += o.y;
+        self.z += o.z;
+        self.lambda += o.lambda;
+        self.mu += o.mu;
+        for c in 0..3 {
+            self.c[c] += o.c[c];
+        }
+    }
+}
+
+/// Adam moments of one lobe's 8 parameters (rotation 3, α, β, σ 3).
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    m: [f64; 8],
+    v: [f64; 8],
+}
+
+/// Evaluation context: derived per-lobe quantities.
+struct Derived {
+    x: DVec3,
+    y: DVec3,
+    z: DVec3,
+    l: f64,
+    m: f64,
+    c: [f64; 3],
+}
+
+fn derive(lobes: &[Lobe]) -> Vec<Derived> {
+    lobes
+        .iter()
+        .map(|p| Derived {
+            x: p.x,
+            y: p.y,
+            z: p.z,
+            l: p.lambda(),
+            m: p.mu(),
+            c: p.rgb(),
+        })
+        .collect()
+}
+
+/// Reconstruction loss over rows `rows` and, if `grads`, its gradient.
+fn reconstruction_band(
+    target: &FitTarget,
+    lobes: &[Derived],
+    norm: Norm,
+    rows: std::ops::Range<u32>,
+    grads: Option<&mut [Grad]>,
+) -> f64 {
+    let w = target.width as usize;
+    let k = lobes.len();
+    let inv_m = 1.0 / target.mean;
+    let mut loss = 0.0;
+    let mut shape = [0.0f64; MAX_LOBES];
+    let mut ab = [(0.0f64, 0.0f64, 0.0f64); MAX_LOBES];
+    let mut grads = grads;
+    for i in rows.start as usize * w..rows.end as usize * w {
+        let d = target.directions[i];
+        let mut pred = [0.0; 3];
+        for (j, l) in lobes.iter().enumerate() {
+            let s = d.dot(l.z);
+            shape[j] = 0.0;
+            if s <= 0.0 {
+                continue;
+            }
+            let (a, b) = (d.dot(l.x), d.dot(l.y));
+            let ex = -l.l * a * a - l.m * b * b;
+            if ex < -60.0 {
+                continue;
+            }
+            let e = ex.exp();
+            let g = s * e;
+            shape[j] = g;
+            ab[j] = (a, b, e);
+            for c in 0..3 {
+                pred[c] += l.c[c] * g;
+            }
+        }
+        let gt = target.radiance[i];
+        let wt = target.weights[i] * inv_m;
+        let mut r = [0.0; 3];
+        for c in 0..3 {
+            let diff = pred[c] - gt[c];
+            match norm {
+                Norm::L1 => {
+                    loss += wt * diff.abs();
+                    r[c] = if diff > 0.0 {
+                        wt
+                    } else if diff < 0.0 {
+                        -wt
+                    } else {
+                        0.0
+                    };
+                }
+                Norm::L2 => {
+                    loss += wt * inv_m * diff * diff;
+                    r[c] = 2.0 * wt * inv_m * diff;
+                }
+            }
+        }
+        let Some(grads) = grads.as_deref_mut() else {
+            continue;
+        };
+        for j in 0..k {
+            let g = shape[j];
+            if g == 0.0 {
+                continue;
+            }
+            let l = &lobes[j];
+            let gr = &mut grads[j];
+            let rr = r[0] * l.c[0] + r[1] * l.c[1] + r[2] * l.c[2];
+            for c in 0..3 {
+                gr.c[c] += r[c] * g;
+            }
+            let (a, b, e) = ab[j];
+            gr.x += d * (rr * -2.0 * l.l * a * g);
+            gr.y += d * (rr * -2.0 * l.m * b * g);
+            gr.z += d * (rr * e);
+            gr.lambda -= rr * a * a * g;
+            gr.mu -= rr * b * b * g;
+        }
+    }
+    loss
+}
+
+/// Diffuse loss and (if `grads`) its gradient.
+fn diffuse_loss(
+    target: &FitTarget,
+    lobes: &[Derived],
+    norm: Norm,
+    grads: Option<&mut [Grad]>,
+) -> f64 {
+    let nn = target.normals.len() as f64;
+    let inv = 1.0 / (nn * PI * target.mean);
+    let per: Vec<(f64, f64, f64, f64)> = lobes
+        .iter()
+        .map(|l| {
+            let (i, di_l, di_m) = integral_with_derivatives(l.l, l.m);
+            (i, di_l, di_m, 2.0 * (l.l * l.m).sqrt())
+        })
+        .collect();
+    let mut loss = 0.0;
+    let mut grads = grads;
+    let mut h = vec![(0.0, 0.0, 0.0); lobes.len()];
+    for (n, gt) in target.normals.iter().zip(&target.diffuse) {
+        let mut pred = [0.0; 3];
+        for (j, l) in lobes.iter().enumerate() {
+            h[j] = super::cosine_convolution(n.dot(l.z), per[j].3);
+            let s = per[j].0 * h[j].0;
+            for c in 0..3 {
+                pred[c] += l.c[c] * s;
+            }
+        }
+        let mut r = [0.0; 3];
+        for c in 0..3 {
+            let diff = pred[c] - gt[c];
+            match norm {
+                Norm::L1 => {
+                    loss += inv * diff.abs();
+                    r[c] = inv * diff.signum() * f64::from(u8::from(diff != 0.0));
+                }
+                Norm::L2 => {
+                    let k2 = inv / (PI * target.mean);
+                    loss += k2 * diff * diff;
+                    r[c] = 2.0 * k2 * diff;
+                }
+            }
+        }
+        let Some(grads) = grads.as_deref_mut() else {
+            continue;
+        };
+        for (j, l) in lobes.iter().enumerate() {
+            let (i, di_l, di_m, nu) = per[j];
+            let (hv, dh_t, dh_nu) = h[j];
+            let rr = r[0] * l.c[0] + r[1] * l.c[1] + r[2] * l.c[2];
+            let gr = &mut grads[j];
+            for c in 0..3 {
+                gr.c[c] += r[c] * i * hv;
+            }
+            gr.z += *n * (rr * i * dh_t);
+            let d_nu = rr * i * dh_nu;
+            gr.lambda += rr * di_l * hv + d_nu * nu / (2.0 * l.l);
+            gr.mu += rr * di_m * hv + d_nu * nu / (2.0 * l.m);
+        }
+    }
+    loss
+}
+
+/// Per-component scales max_i |g_i^{t−1}| of the temporal vector (1 for unit-vector parts).
+fn temporal_scales(prev: &[Lobe]) -> [f64; 11] {
+    let mut s = [1.0; 11];
+    for i in 6..11 {
+        s[i] = prev
+            .iter()
+            .map(|p| p.temporal_vector()[i].abs())
+            .fold(0.0, f64::max)
+            .max(if i < 8 { 1.0 } else { 1e-30 });
+    }
+    s
+}
+
+/// Temporal loss Σ_i ‖(g_i − g_i^prev)/scale‖₂ and (if `grads`) its gradient.
+fn temporal_loss(
+    lobes: &[Lobe],
+    prev: &[Lobe],
+    scales: &[f64; 11],
+    grads: Option<&mut [Grad]>,
+) -> f64 {
+    let mut loss = 0.0;
+    let mut grads = grads;
+    for (j, (p, q)) in lobes.iter().zip(prev).enumerate() {
+        let (g, h) = (p.temporal_vector(), q.temporal_vector());
+        let u: Vec<f64> = (0..11).map(|i| (g[i] - h[i]) / scales[i]).collect();
+        let norm = u.iter().map(|x| x * x).sum::<f64>().sqrt();
+        loss += norm;
+        let Some(grads) = grads.as_deref_mut() else {
+            continue;
+        };
+        if norm <= 1e-300 {
+            continue;
+        }
+        let du: Vec<f64> = (0..11).map(|i| u[i] / norm / scales[i]).collect();
+        let gr = &mut grads[j];
+        gr.z += DVec3::new(du[0], du[1], du[2]);
+        gr.x += DVec3::new(du[3], du[4], du[5]);
+        gr.lambda += du[6] / p.lambda();
+        gr.mu += du[7] / p.mu();
+        for c in 0..3 {
+            gr.c[c] += du[8 + c];
+        }
+    }
+    loss
+}
+
+/// The whole loss of `lobes` (and its gradient with respect to the free quantities).
+fn loss_and_grad(
+    target: &FitTarget,
+    lobes: &[Lobe],
+    prev: Option<(&[Lobe], &[f64; 11])>,
+    settings: &FitSettings,
+    threads: usize,
+    want_grad: bool,
+) -> (Loss, Vec<Grad>) {
+    let derived = derive(lobes);
+    let k = lobes.len();
+    let h = target.height;
+    let bands: Vec<std::ops::Range<u32>> = (0..BANDS as u32)
+        .map(|b| (b * h / BANDS as u32)..((b + 1) * h / BANDS as u32))
+        .filter(|r| !r.is_empty())
+        .collect();
+    let mut results: Vec<(f64, Vec<Grad>)> = vec![(0.0, Vec::new()); bands.len()];
+    let run = |band: &std::ops::Range<u32>| -> (f64, Vec<Grad>) {
+        let mut g = if want_grad {
+            vec![Grad::default(); k]
+        } else {
+            Vec::new()
+        };
+        let loss = reconstruction_band(
+            target,
+            &derived,
+            settings.norm,
+            band.clone(),
+            want_grad.then_some(g.as_mut_slice()),
+        );
+        (loss, g)
+    };
+    if threads <= 1 {
+        for (out, band) in results.iter_mut().zip(&bands) {
+            *out = run(band);
+        }
+    } else {
+        let per = bands.len().div_ceil(threads);
+        std::thread::scope(|scope| {
+            for (ti, (outs, bs)) in results.chunks_mut(per).zip(bands.chunks(per)).enumerate() {
+                let run = &run;
+                std::thread::Builder::new()
+                    .name(format!("asg-fit-{ti}"))
+                    .spawn_scoped(scope, move || {
+                        for (out, band) in outs.iter_mut().zip(bs) {
+                            *out = run(band);
+                        }
+                    })
+                    .expect("cannot start an ASG fitting thread");
+            }
+        });
+    }
+    let mut grads = vec![Grad::default(); if want_grad { k } else { 0 }];
+    let mut rec = 0.0;
+    for (l, g) in &results {
+        rec += l;
+        for (a, b) in grads.iter_mut().zip(g) {
+            a.add(b);
+        }
+    }
+    let mut dgrads = vec![Grad::default(); if want_grad { k } else { 0 }];
+    let dif = if settings.diffuse_weight > 0.0 {
+        diffuse_loss(
+            target,
+            &derived,
+            settings.norm,
+            want_grad.then_some(dgrads.as_mut_slice()),
+        )
+    } else {
+        0.0
+    };
+    let mut tgrads = vec![Grad::default(); if want_grad { k } else { 0 }];
+    let tmp = match prev {
+        Some((p, s)) if settings.temporal_weight > 0.0 => {
+            temporal_loss(lobes, p, s, want_grad.then_some(tgrads.as_mut_slice()))
+        }
+        _ => 0.0,
+    };
+    for j in 0..grads.len() {
+        let (d, t) = (dgrads[j], tgrads[j]);
+        let wd = settings.diffuse_weight;
+        let wt = settings.temporal_weight;
+        let g = &mut grads[j];
+        g.x += d.x * wd + t.x * wt;
+        g.y += d.y * wd + t.y * wt;
+        g.z += d.z * wd + t.z * wt;
+        g.lambda += d.lambda * wd + t.lambda * wt;
+        g.mu += d.mu * wd + t.mu * wt;
+        for c in 0..3 {
+            g.c[c] += d.c[c] * wd + t.c[c] * wt;
+        }
+    }
+    let loss = Loss {
+        reconstruction: rec,
+        diffuse: dif,
+        temporal: tmp,
+        total: rec + settings.diffuse_weight * dif + settings.temporal_weight * tmp,
+    };
+    (loss, grads)
+}
+
+/// Gradient with respect to the optimisation parameters (rotation 3, α, β, σ 3).
+fn param_grad(p: &Lobe, g: &Grad) -> [f64; 8] {
+    let rot = p.x.cross(g.x) + p.y.cross(g.y) + p.z.cross(g.z);
+    let c = p.rgb();
+    [
+        rot.x,
+        rot.y,
+        rot.z,
+        g.lambda * p.alpha.exp(),
+        g.mu * p.beta.exp(),
+        g.c[0] * c[0],
+        g.c[1] * c[1],
+        g.c[2] * c[2],
+    ]
+}
+
+/// Public analytic gradient of the loss with respect to each lobe's parameters
+/// (rotation vector 3, α = ln(λ − λ_min), β = ln(μ − λ_min), σ = ln c per channel), for tests
+/// and tools. `prev` enables the temporal term.
+pub fn loss_gradient(
+    target: &FitTarget,
+    lobes: &[Asg],
+    prev: Option<&[Asg]>,
+    settings: &FitSettings,
+) -> (Loss, Vec<[f64; 8]>) {
+    let ls: Vec<Lobe> = lobes.iter().map(Lobe::from_asg).collect();
+    let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
+    let scales = pv.as_deref().map(temporal_scales);
+    let prev = pv.as_deref().zip(scales.as_ref());
+    let (loss, g) = loss_and_grad(target, &ls, prev, settings, 1, true);
+    (
+        loss,
+        ls.iter().zip(&g).map(|(p, g)| param_grad(p, g)).collect(),
+    )
+}
+
+/// Loss of `lobes` on `target` (temporal term against `prev` if given).
+pub fn loss(
+    target: &FitTarget,
+    lobes: &[Asg],
+    prev: Option<&[Asg]>,
+    settings: &FitSettings,
+) -> Loss {
+    let ls: Vec<Lobe> = lobes.iter().map(Lobe::from_asg).collect();
+    let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
+    let scales = pv.as_deref().map(temporal_scales);
+    let prev = pv.as_deref().zip(scales.as_ref());
+    loss_and_grad(target, &ls, prev, settings, 1, false).0
+}
+
+/// Applies parameter vector `delta` (rotation 3, α, β, σ 3) to `lobe` (as the optimiser does).
+pub fn perturb(lobe: &Asg, delta: [f64; 8]) -> Asg {
+    let mut p = Lobe::from_asg(lobe);
+    step(&mut p, &delta);
+    p.to_asg()
+}
+
+fn step(p: &mut Lobe, d: &[f64; 8]) {
+    let w = DVec3::new(d[0], d[1], d[2]);
+    let z = rotate(p.z, w).normalize();
+    let x = rotate(p.x, w);
+    let x = (x - z * x.dot(z)).normalize();
+    p.z = z;
+    p.x = x;
+    p.y = z.cross(x);
+    let amax = (MAX_BANDWIDTH - MIN_BANDWIDTH).ln();
+    p.alpha = (p.alpha + d[3]).min(amax);
+    p.beta = (p.beta + d[4]).min(amax);
+    for c in 0..3 {
+        p.sigma[c] = (p.sigma[c] + d[5 + c]).clamp(SIGMA_RANGE.0, SIGMA_RANGE.1);
+    }
+}
+
+/// Runs `iterations` Adam steps from `init` on `target`.
+pub fn optimise(
+    target: &FitTarget,
+    init: &[Asg],
+    prev: Option<&[Asg]>,
+    iterations: usize,
+    learning_rate: f64,
+    settings: &FitSettings,
+) -> FitResult {
+    let mut lobes: Vec<Lobe> = init.iter().map(Lobe::from_asg).collect();
+    let amax = (target.max_bandwidth() - MIN_BANDWIDTH).ln();
+    for l in &mut lobes {
+        l.alpha = l.alpha.min(amax);
+        l.beta = l.beta.min(amax);
+    }
+    if settings.isotropic {
+        for l in &mut lobes {
+            l.beta = l.alpha;
+        }
+    }
+    let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
+    let scales = pv.as_deref().map(temporal_scales);
+    let prevs = pv.as_deref().zip(scales.as_ref());
+    let threads = settings.thread_count();
+    if !(target.mean > 0.0 && target.mean.is_finite()) {
+        // A black map: nothing to fit; lobes keep their place with zero amplitude.
+        let lobes: Vec<Asg> = init
+            .iter()
+            .map(|a| Asg {
+                rgb: [0.0; 3],
+                ..*a
+            })
+            .collect();
+        return FitResult {
+            lobes,
+            initial_loss: Loss::default(),
+            loss: Loss::default(),
+            iterations: 0,
+            warm: prev.is_some(),
+        };
+    }
+    let (b1, b2, eps) = (0.9, 0.999, 1e-12);
+    let mut moments = vec![Moments::default(); lobes.len()];
+    let mut best: Option<(Loss, Vec<Lobe>)> = None;
+    let mut initial = None;
+    for it in 0..=iterations {
+        let want = it < iterations;
+        let (loss, grads) = loss_and_grad(target, &lobes, prevs, settings, threads, want);
+        if initial.is_none() {
+            initial = Some(loss);
+        }
+        if best.as_ref().is_none_or(|(b, _)| loss.total < b.total) {
+            best = Some((loss, lobes.clone()));
+        }
+        if !want {
+            break;
+        }
+        let t = (it + 1) as f64;
+        let progress = it as f64 / iterations.max(1) as f64;
+        let lr = learning_rate * (0.1 + 0.9 * 0.5 * (1.0 + (PI * progress).cos()));
+        for ((p, g), mo) in lobes.iter_mut().zip(&grads).zip(moments.iter_mut()) {
+            let mut pg = param_grad(p, g);
+            if settings.isotropic {
+                pg[3] += pg[4];
+                pg[4] = pg[3];
+            }
+            let rot_scale = 1.0 / (1.0 + p.lambda().max(p.mu())).sqrt();
+            let mut d = [0.0; 8];
+            for i in 0..8 {
+                let gi = if pg[i].is_finite() { pg[i] } else { 0.0 };
+                mo.m[i] = b1 * mo.m[i] + (1.0 - b1) * gi;
+                mo.v[i] = b2 * mo.v[i] + (1.0 - b2) * gi * gi;
+                let mh = mo.m[i] / (1.0 - b1.powf(t));
+                let vh = mo.v[i] / (1.0 - b2.powf(t));
+                let scale = if i < 3 { rot_scale } else { 1.0 };
+                d[i] = -lr * scale * mh / (vh.sqrt() + eps);
+            }
+            step(p, &d);
+            p.alpha = p.alpha.min(amax);
+            p.beta = p.beta.min(amax);
+        }
+    }
+    let (loss, best) = best.unwrap_or_default();
+    FitResult {
+        lobes: best.into_iter().map(Lobe::to_asg).collect(),
+        initial_loss: initial.unwrap_or_default(),
+        loss,
+        iterations,
+        warm: prev.is_some(),
+    }
+}
+
+/// Fits frame after frame, warm-starting each from the previous result.
+#[derive(Clone, Debug)]
+pub struct AsgFitter {
+    settings: FitSettings,
+    previous: Option<Vec<Asg>>,
+}
+
+impl AsgFitter {
+    /// A fitter with validated settings.
+    pub fn new(settings: FitSettings) -> Result<Self, AsgError> {
+        settings.validate()?;
+        Ok(Self {
+            settings,
+            previous: None,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &FitSettings {
+        &self.settings
+    }
+
+    /// Forgets the previous frame: the next one is fitted from scratch.
+    pub fn reset(&mut self) {
+        self.previous = None;
+    }
+
+    /// The lobes of the last fitted frame.
+    pub fn previous(&self) -> Option<&[Asg]> {
+        self.previous.as_deref()
+    }
+
+    /// Fits one frame (any projection; resampled to the fit-map size).
+    pub fn fit_frame(&mut self, frame: &HdrFrame) -> Result<FitResult, AsgError> {
+        let target =
+            FitTarget::from_frame(frame, self.settings.height, self.settings.diffuse_normals)?;
+        Ok(self.fit_target(&target))
+    }
+
+    /// Fits one prepared target.
+    pub fn fit_target(&mut self, target: &FitTarget) -> FitResult {
+        let s = &self.settings;
+        let result = match &self.previous {
+            Some(prev) => optimise(
+                target,
+                prev,
+                Some(prev),
+                s.warm_iterations,
+                s.warm_learning_rate,
+                s,
+            ),
+            None => {
+                let init = initial_lobes(target, s.lobes);
+                optimise(target, &init, None, s.iterations, s.learning_rate, s)
+            }
+        };
+        self.previous = Some(result.lobes.clone());
+        result
+    }
+}

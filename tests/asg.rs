@@ -1,0 +1,413 @@
+//! ASG lobes and fitting: closed forms against numerical integration, analytic gradients against
+//! finite differences, fits on the real HDRIs in tests/data, temporal stability on the sky.
+
+use envlight::asg::eval::{ggx_reference, LatLongMap};
+use envlight::asg::fit::{
+    initial_lobes, loss, loss_gradient, perturb, AsgFitter, FitSettings, FitTarget, Norm,
+};
+use envlight::asg::{
+    integral, integral_approx, Asg, AsgError, GGX_TOLERANCE, IRRADIANCE_TOLERANCE,
+};
+use envlight::capture::sky::{SkyOptions, SkySource};
+use envlight::capture::FrameSource;
+use envlight::envmap::Projection;
+use envlight::HdrFrame;
+use glam::DVec3;
+use std::path::Path;
+
+fn read_hdr(name: &str) -> HdrFrame {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name);
+    let image = image::open(&path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_rgb32f();
+    let (w, h) = image.dimensions();
+    let pixels = image.pixels().map(|p| p.0).collect();
+    let mut frame = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
+    frame.sanitize();
+    frame
+}
+
+/// A lobe with its axis at +Y (the lat-long pole, where rows are densest).
+fn polar_lobe(lambda: f64, mu: f64) -> Asg {
+    Asg::new(
+        DVec3::Y,
+        DVec3::new(1.0, 0.0, 0.3),
+        lambda,
+        mu,
+        [1.0, 0.5, 0.25],
+    )
+    .unwrap()
+}
+
+/// ∫ f over the sphere on a fine lat-long grid (exact pixel solid angles).
+fn quadrature(width: u32, height: u32, f: impl Fn(DVec3) -> f64) -> f64 {
+    let omegas = Projection::LatLong.solid_angles(width, height);
+    let mut s = 0.0;
+    for y in 0..height {
+        for x in 0..width {
+            let d = Projection::LatLong
+                .pixel_to_direction(width, height, f64::from(x) + 0.5, f64::from(y) + 0.5)
+                .unwrap();
+            s += f(d) * omegas[(y * width + x) as usize];
+        }
+    }
+    s
+}
+
+#[test]
+fn closed_form_integral_matches_numerical_integration() {
+    for &(l, m) in &[
+        (0.25, 0.25),
+        (1.0, 3.0),
+        (10.0, 10.0),
+        (40.0, 400.0),
+        (2000.0, 5000.0),
+    ] {
+        let g = polar_lobe(l, m);
+        let numeric = quadrature(512, 4096, |d| g.shape(d));
+        let exact = integral(l, m);
+        assert!(
+            (exact - numeric).abs() <= 5e-4 * numeric,
+            "λ={l} μ={m}: closed form {exact} vs numerical {numeric}"
+        );
+        // Xu et al.'s form: within its bound e^{−min(λ,μ)} (plus the quadrature's error).
+        let xu = integral_approx(l, m);
+        assert!((xu - numeric) / xu <= (-f64::min(l, m)).exp() + 1e-4);
+        let rgb = g.integral();
+        assert!((rgb[1] - 0.5 * exact).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn lambert_approximation_matches_numerical_integration() {
+    let normals = envlight::asg::fit::fibonacci_sphere(40);
+    let mut worst: f64 = 0.0;
+    for &(l, m) in &[
+        (0.25, 0.25),
+        (1.0, 1.0),
+        (4.0, 4.0),
+        (2.0, 16.0),
+        (30.0, 30.0),
+        (500.0, 500.0),
+        (100.0, 800.0),
+    ] {
+        let g = polar_lobe(l, m);
+        let total = integral(l, m);
+        for &n in &normals {
+            let reference = quadrature(256, 1024, |d| g.shape(d) * n.dot(d).max(0.0));
+            let approx = g.irradiance(n)[0];
+            let err = (approx - reference).abs() / total;
+            worst = worst.max(err);
+            assert!(
+                err <= IRRADIANCE_TOLERANCE,
+                "λ={l} μ={m} n={n}: {approx} vs {reference} (∫G = {total})"
+            );
+        }
+    }
+    eprintln!("worst Lambert error / ∫G: {worst:.4}");
+}
+
+#[test]
+fn ggx_approximation_matches_numerical_integration() {
+    let mut worst: f64 = 0.0;
+    for &alpha in &[0.1, 0.3, 0.6, 1.0] {
+        for &(l, m) in &[(2.0, 2.0), (10.0, 40.0), (100.0, 100.0)] {
+            for &tilt in &[0.0f64, 0.1, 0.25] {
+                // Lobe near the reflection direction (n = v = +Z, r = +Z), tilted about X.
+                let axis = DVec3::new(0.0, tilt.sin(), tilt.cos());
+                let g = Asg::new(axis, DVec3::X, l, m, [1.0; 3]).unwrap();
+                let map = LatLongMap::from_fn(1024, 512, |d| g.eval(d));
+                let reference = ggx_reference(&map, DVec3::Z, DVec3::Z, alpha)[0];
+                let approx = g.ggx_specular(DVec3::Z, DVec3::Z, alpha, 1.0)[0];
+                // Relative to the lobe's on-axis response, so tails far off r are not judged
+                // by a vanishing denominator.
+                let head_map = LatLongMap::from_fn(1024, 512, |d| {
+                    Asg::new(DVec3::Z, DVec3::X, l, m, [1.0; 3])
+                        .unwrap()
+                        .eval(d)
+                });
+                let head = ggx_reference(&head_map, DVec3::Z, DVec3::Z, alpha)[0];
+                let err = (approx - reference).abs() / head;
+                worst = worst.max(err);
+                assert!(
+                    err <= GGX_TOLERANCE,
+                    "α={alpha} λ={l} μ={m} tilt={tilt}: {approx} vs {reference} (on-axis {head})"
+                );
+            }
+        }
+    }
+    eprintln!("worst GGX error / on-axis response: {worst:.4}");
+}
+
+fn small_target(name: &str, height: u32) -> FitTarget {
+    FitTarget::from_frame(&read_hdr(name), height, 64).unwrap()
+}
+
+fn check_gradients(norm: Norm, rel_tol: f64) {
+    let target = small_target("rooitou_park_1k.hdr", 16);
+    let settings = FitSettings {
+        norm,
+        diffuse_weight: 0.7,
+        temporal_weight: 0.3,
+        ..FitSettings::default()
+    };
+    let lobes: Vec<Asg> = initial_lobes(&target, 4)
+        .into_iter()
+        .map(|a| Asg {
+            mu: a.mu * 1.7 + 0.3,
+            rgb: a.rgb.map(|c| c * 1.1),
+            ..a
+        })
+        .collect();
+    // A previous frame that differs, so the temporal norm is away from its kink at 0.
+    let prev: Vec<Asg> = lobes
+        .iter()
+        .map(|a| perturb(a, [0.02, -0.01, 0.015, 0.1, -0.1, 0.05, 0.1, -0.05]))
+        .collect();
+    let (_, grad) = loss_gradient(&target, &lobes, Some(&prev), &settings);
+    let h = 1e-5;
+    let mut max_abs: f64 = 0.0;
+    let mut max_err: f64 = 0.0;
+    for (k, lobe) in lobes.iter().enumerate() {
+        for p in 0..8 {
+            let mut d = [0.0; 8];
+            d[p] = h;
+            let mut plus = lobes.clone();
+            plus[k] = perturb(lobe, d);
+            d[p] = -h;
+            let mut minus = lobes.clone();
+            minus[k] = perturb(lobe, d);
+            let fd = (loss(&target, &plus, Some(&prev), &settings).total
+                - loss(&target, &minus, Some(&prev), &settings).total)
+                / (2.0 * h);
+            max_abs = max_abs.max(fd.abs());
+            max_err = max_err.max((fd - grad[k][p]).abs());
+        }
+    }
+    assert!(max_abs > 0.0);
+    assert!(
+        max_err <= rel_tol * max_abs,
+        "{norm:?}: max |analytic − finite difference| = {max_err:e}, max |gradient| = {max_abs:e}"
+    );
+}
+
+#[test]
+fn gradients_agree_with_finite_differences_l2() {
+    check_gradients(Norm::L2, 1e-4);
+}
+
+#[test]
+fn gradients_agree_with_finite_differences_l1() {
+    // L1 has kinks where a pixel's residual changes sign; a few pixels may cross within ±h.
+    check_gradients(Norm::L1, 2e-2);
+}
+
+fn settings_small() -> FitSettings {
+    FitSettings {
+        lobes: 8,
+        height: 32,
+        iterations: 150,
+        warm_iterations: 20,
+        diffuse_normals: 128,
+        threads: 2,
+        ..FitSettings::default()
+    }
+}
+
+#[test]
+fn fits_on_real_hdris_lower_the_loss_and_keep_energy() {
+    for name in [
+        "rooitou_park_1k.hdr",
+        "studio_small_03_1k.hdr",
+        "venice_sunset_1k.hdr",
+    ] {
+        let frame = read_hdr(name);
+        // The default K = 16 on a 64×32 map, 300 iterations.
+        let settings = FitSettings {
+            lobes: 16,
+            iterations: 300,
+            ..settings_small()
+        };
+        let mut fitter = AsgFitter::new(settings).unwrap();
+        let target = FitTarget::from_frame(&frame, 32, 128).unwrap();
+        let result = fitter.fit_target(&target);
+        assert_eq!(result.lobes.len(), 16);
+        assert!(
+            result.loss.total < 0.8 * result.initial_loss.total,
+            "{name}: loss {:?} from {:?}",
+            result.loss,
+            result.initial_loss
+        );
+        let mut e = [0.0; 3];
+        for l in &result.lobes {
+            let i = l.integral();
+            for c in 0..3 {
+                e[c] += i[c];
+            }
+        }
+        let err = envlight::asg::eval::energy_error(e, target.integral);
+        assert!(err < 0.02, "{name}: energy error {err}");
+        eprintln!(
+            "{name}: loss {:.4} -> {:.4}, energy error {err:.4}",
+            result.initial_loss.total, result.loss.total
+        );
+    }
+}
+
+#[test]
+fn fit_is_deterministic_across_thread_counts() {
+    let target = small_target("noon_grass_1k.hdr", 16);
+    let mut s = settings_small();
+    s.iterations = 30;
+    s.threads = 1;
+    let a = AsgFitter::new(s.clone()).unwrap().fit_target(&target);
+    s.threads = 2;
+    let b = AsgFitter::new(s).unwrap().fit_target(&target);
+    assert_eq!(a, b);
+}
+
+/// Mean per-frame parameter change Σ_i ‖Δg_i‖ over a sky sequence (axis change in radians plus
+/// relative amplitude change).
+fn sky_parameter_change(temporal_weight: f64) -> f64 {
+    let options = SkyOptions {
+        width: 64,
+        height: 32,
+        sun_speed_deg_per_s: 15.0,
+        frames: Some(8),
+        ..SkyOptions::default()
+    };
+    let mut source = SkySource::new(options).unwrap();
+    let mut fitter = AsgFitter::new(FitSettings {
+        temporal_weight,
+        ..settings_small()
+    })
+    .unwrap();
+    let mut prev: Option<Vec<Asg>> = None;
+    let mut total = 0.0;
+    let mut steps = 0;
+    while let Some(frame) = source.next_frame().unwrap() {
+        let lobes = fitter.fit_frame(&frame).unwrap().lobes;
+        if let Some(p) = &prev {
+            for (a, b) in lobes.iter().zip(p) {
+                let angle = DVec3::from(a.axis).angle_between(DVec3::from(b.axis));
+                let ca = a.rgb.iter().sum::<f64>();
+                let cb = b.rgb.iter().sum::<f64>();
+                total += angle + (ca - cb).abs() / cb.max(1e-12);
+            }
+            steps += 1;
+        }
+        prev = Some(lobes);
+    }
+    total / steps as f64
+}
+
+#[test]
+fn temporal_loss_reduces_parameter_change_on_the_sky() {
+    let without = sky_parameter_change(0.0);
+    let with = sky_parameter_change(FitSettings::default().temporal_weight);
+    eprintln!("per-frame parameter change: without L_T {without:.4}, with {with:.4}");
+    assert!(with < without, "with L_T {with} vs without {without}");
+}
+
+#[test]
+fn bad_inputs_give_errors_not_panics() {
+    for k in [0, 65] {
+        let r = AsgFitter::new(FitSettings {
+            lobes: k,
+            ..FitSettings::default()
+        });
+        assert_eq!(r.unwrap_err(), AsgError::LobeCount(k));
+    }
+    let e = AsgFitter::new(FitSettings {
+        learning_rate: f64::NAN,
+        ..FitSettings::default()
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("learning_rate"), "{e}");
+    let bad = HdrFrame {
+        width: 4,
+        height: 2,
+        pixels: vec![[0.0; 3]; 3],
+        projection: Projection::LatLong,
+        time: 0.0,
+        seq: 0,
+    };
+    let mut fitter = AsgFitter::new(settings_small()).unwrap();
+    assert!(matches!(
+        fitter.fit_frame(&bad),
+        Err(AsgError::PixelCount { .. })
+    ));
+    // Black, NaN-filled and single-pixel frames fit to finite (dark) lobes.
+    for pixels in [vec![[0.0f32; 3]; 8], vec![[f32::NAN; 3]; 8]] {
+        let frame = HdrFrame::new(4, 2, pixels, Projection::LatLong).unwrap();
+        let r = fitter.fit_frame(&frame).unwrap();
+        assert!(r
+            .lobes
+            .iter()
+            .all(|l| l.rgb.iter().all(|c| c.is_finite() && *c < 1e-6)));
+        assert!(r.loss.total.is_finite());
+    }
+    let tiny = HdrFrame::new(1, 1, vec![[5.0, 1.0, 0.0]], Projection::LatLong).unwrap();
+    let r = AsgFitter::new(settings_small())
+        .unwrap()
+        .fit_frame(&tiny)
+        .unwrap();
+    assert!(r.loss.total.is_finite() && r.loss.total < r.initial_loss.total.max(1e-9) + 1e-9);
+}
+
+#[test]
+fn fit_asg_command_prints_one_json_line_per_frame() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "fit-asg",
+            "--frames",
+            "2",
+            "--height",
+            "8",
+            "--iterations",
+            "20",
+            "--lobes",
+            "4",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2);
+    for (i, v) in lines.iter().enumerate() {
+        assert_eq!(v["seq"], i as u64);
+        assert!(v["time"].is_number() && v["loss"].as_f64().unwrap().is_finite());
+        let lobes = v["lobes"].as_array().unwrap();
+        assert_eq!(lobes.len(), 4);
+        for l in lobes {
+            let axis: Vec<f64> = l["axis"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect();
+            let n = axis.iter().map(|x| x * x).sum::<f64>().sqrt();
+            assert!((n - 1.0).abs() < 1e-9);
+            for key in ["tangent", "bitangent", "rgb"] {
+                assert_eq!(l[key].as_array().unwrap().len(), 3, "{key}");
+            }
+            assert!(l["lambda"].as_f64().unwrap() > 0.0 && l["mu"].as_f64().unwrap() > 0.0);
+        }
+    }
+    let bad = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["fit-asg", "--lobes", "65"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("lobe count 65"));
+}
