@@ -311,8 +311,8 @@ impl Default for MetricsConfig {
 }
 
 /// Validated `[render]`: a render thread in the daemon that shades the scene under every new
-/// light list (docs/daemon.md).
-#[derive(Clone, Debug, PartialEq)]
+/// light list (docs/daemon.md). The default is disabled, 640×360, the built-in scene.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct RenderConfig {
     pub enabled: bool,
     pub settings: crate::render::RenderSettings,
@@ -322,18 +322,6 @@ pub struct RenderConfig {
     pub budget_ms: Option<f64>,
     /// Write the newest image here (tone-mapped PNG, replaced atomically); `None` = no file.
     pub latest_png: Option<PathBuf>,
-}
-
-impl Default for RenderConfig {
-    fn default() -> Self {
-        Self {
-            enabled: false,
-            settings: crate::render::RenderSettings::default(),
-            scene: None,
-            budget_ms: None,
-            latest_png: None,
-        }
-    }
 }
 
 impl RawRender {

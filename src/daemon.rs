@@ -126,10 +126,7 @@ pub struct Daemon {
     /// Health of a source that can lose its device (a camera).
     health: Option<Arc<SourceHealth>>,
     /// The render thread and its stop flag (`[render] enabled`).
-    render_thread: Option<(
-        std::thread::JoinHandle<Result<u64, String>>,
-        Arc<std::sync::atomic::AtomicBool>,
-    )>,
+    render_thread: Option<RenderHandle>,
 }
 
 impl Daemon {
@@ -507,6 +504,12 @@ impl Daemon {
         })
     }
 }
+
+/// The render thread (returns frames drawn or its error) and its stop flag.
+type RenderHandle = (
+    std::thread::JoinHandle<Result<u64, String>>,
+    Arc<std::sync::atomic::AtomicBool>,
+);
 
 /// Name of the render thread.
 pub const RENDER_THREAD_NAME: &str = "envlight-render";

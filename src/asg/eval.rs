@@ -59,7 +59,7 @@ impl LatLongMap {
     /// Box-downsamples by `factor` (both sides must divide), preserving Σ L·Ω.
     pub fn downsample(&self, factor: u32) -> Option<Self> {
         let f = factor.max(1);
-        if self.width % f != 0 || self.height % f != 0 {
+        if !self.width.is_multiple_of(f) || !self.height.is_multiple_of(f) {
             return None;
         }
         let (w, h) = (self.width / f, self.height / f);
