@@ -634,6 +634,32 @@ impl Connection {
         Some(published)
     }
 
+    /// Writes one frame within the write timeout, giving up at shutdown (a client stuck
+    /// mid-frame cannot take a goodbye). `None`: written; otherwise why the connection ends.
+    async fn write_frame<E>(
+        &self,
+        write: impl std::future::Future<Output = Result<(), E>>,
+        shutdown: &mut watch::Receiver<Option<String>>,
+        published: &Published,
+    ) -> Option<Close> {
+        let write = tokio::time::timeout(self.ctx.config.write_timeout, write);
+        let written = tokio::select! {
+            written = write => written,
+            _ = shutdown.wait_for(Option::is_some) => return Some(Close::Quiet),
+        };
+        match written {
+            Ok(Ok(())) => {
+                self.delivered(published);
+                None
+            }
+            Ok(Err(_)) => Some(Close::Quiet),
+            Err(_) => {
+                self.count_error("write stalled");
+                Some(Close::Quiet)
+            }
+        }
+    }
+
     fn delivered(&self, published: &Published) {
         self.ctx
             .metrics
@@ -750,22 +776,9 @@ impl Connection {
                         Format::Json => Encoding::JsonLine,
                     };
                     let out = self.ctx.encoded(&published, request.cap(), encoding);
-                    let write = tokio::time::timeout(
-                        self.ctx.config.write_timeout,
-                        writer.write_all(out.as_slice()),
-                    );
-                    let written = tokio::select! {
-                        written = write => written,
-                        // A client stuck mid-frame cannot take a goodbye.
-                        _ = shutdown.wait_for(Option::is_some) => return Close::Quiet,
-                    };
-                    match written {
-                        Ok(Ok(())) => self.delivered(&published),
-                        Ok(Err(_)) => return Close::Quiet,
-                        Err(_) => {
-                            self.count_error("write stalled");
-                            return Close::Quiet;
-                        }
+                    let write = writer.write_all(out.as_slice());
+                    if let Some(close) = self.write_frame(write, &mut shutdown, &published).await {
+                        return close;
                     }
                 }
                 Event::Shutdown(message) => return Close::Goodbye(message),
@@ -1047,19 +1060,9 @@ impl Connection {
                             }
                         }
                     };
-                    let write =
-                        tokio::time::timeout(self.ctx.config.write_timeout, sink.send(message));
-                    let written = tokio::select! {
-                        written = write => written,
-                        _ = shutdown.wait_for(Option::is_some) => return Close::Quiet,
-                    };
-                    match written {
-                        Ok(Ok(())) => self.delivered(&published),
-                        Ok(Err(_)) => return Close::Quiet,
-                        Err(_) => {
-                            self.count_error("write stalled");
-                            return Close::Quiet;
-                        }
+                    let write = sink.send(message);
+                    if let Some(close) = self.write_frame(write, &mut shutdown, &published).await {
+                        return close;
                     }
                 }
                 Event::Shutdown(message) => return Close::Goodbye(message),
