@@ -6,9 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use envlight::capture::bracket::{read_bracket_image, recover_response, Bracket, SolveSettings};
 use envlight::capture::image_file::{read_hdr_image, ImageFormat};
-use envlight::capture::resilient::ResilientSource;
 use envlight::capture::v4l2::{list_devices, CameraSettings, V4l2Source};
-use envlight::capture::FrameSource;
 use envlight::envmap::fisheye_detect::detect_image_circle;
 use std::path::{Path, PathBuf};
 
@@ -84,16 +82,6 @@ pub fn devices() -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// A camera source that reconnects after device loss.
-pub fn open_camera(settings: &CameraSettings) -> Box<dyn FrameSource> {
-    let s = settings.clone();
-    Box::new(ResilientSource::new(
-        format!("camera {}", settings.device),
-        settings.retry,
-        move || Ok(Box::new(V4l2Source::open(&s)?) as Box<dyn FrameSource>),
-    ))
 }
 
 pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {

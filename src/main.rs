@@ -7,7 +7,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
-use envlight::config::{Config, ConfigError, RawConfig, SourceKind, DEFAULT_SKY_FRAMES};
+use envlight::config::{Config, ConfigError, RawConfig, SourceKind};
 use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::decompose::Decomposer;
 use envlight::envmap::Projection;
@@ -823,37 +823,15 @@ fn decompose(args: &DecomposeArgs) -> Result<()> {
     run_decompose(&config, args.out.as_deref(), args.latest.as_deref())
 }
 
-fn open_source(config: &Config) -> Result<(Box<dyn FrameSource>, Option<u64>)> {
-    let src = &config.source;
-    // A frame limit the main loop enforces (None = until the source ends).
-    let limit = src.frames.filter(|&n| n > 0);
-    Ok(match src.kind {
-        SourceKind::Sky => {
-            let frames = match src.frames {
-                None => Some(DEFAULT_SKY_FRAMES),
-                Some(0) => None,
-                Some(n) => Some(n),
-            };
-            let options = SkyOptions {
-                fps: src.fps,
-                frames,
-                ..config.sky.clone()
-            };
-            let sky = SkySource::new(options).context("cannot set up the built-in sky")?;
-            (Box::new(sky), frames)
-        }
-        SourceKind::Sequence => {
-            let options = SequenceOptions {
-                fps: src.fps,
-                looped: src.looped,
-                projection: src.projection,
-            };
-            let seq =
-                SequenceSource::new(&src.paths, options).context("cannot open the input frames")?;
-            (Box::new(seq), limit)
-        }
-        SourceKind::V4l2 => (camera_cli::open_camera(&config.camera), limit),
-    })
+/// The configured frame source (sky, sequence or camera), limited to `source.frames` and with a
+/// fisheye calibration checked against the frames: [`envlight::capture::open`].
+fn open_source(config: &Config) -> Result<Box<dyn FrameSource>> {
+    let context = match config.source.kind {
+        SourceKind::Sky => "cannot set up the built-in sky",
+        SourceKind::Sequence => "cannot open the input frames",
+        SourceKind::V4l2 => "cannot open the camera",
+    };
+    envlight::capture::open(config).context(context)
 }
 
 /// Replaces `path` with `contents` atomically: readers see the old or the new file, never half.
@@ -875,7 +853,7 @@ fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
 }
 
 fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> Result<()> {
-    let (mut source, limit) = open_source(config)?;
+    let mut source = open_source(config)?;
     let mut decomposer =
         Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
     let mut writer = std::io::BufWriter::new(open_output(out)?);
@@ -903,25 +881,10 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
     let mut lights_total = 0u64;
     let mut decompose_time = Duration::ZERO;
     let mut line = Vec::with_capacity(64 * 1024);
-    let mut checked_size = None;
-    while limit.is_none_or(|n| frames < n) {
+    loop {
         let Some(frame) = source.next_frame().context("cannot read a frame")? else {
             break;
         };
-        if checked_size != Some((frame.width, frame.height)) {
-            if let Projection::Fisheye(cal) = frame.projection {
-                cal.validate(frame.width, frame.height)
-                    .map_err(|e| anyhow!(e))
-                    .with_context(|| {
-                        format!(
-                            "fisheye calibration (--center, --radius, --fov, --rotation or \
-                             [source.fisheye]) does not fit the {}x{} frames",
-                            frame.width, frame.height
-                        )
-                    })?;
-            }
-            checked_size = Some((frame.width, frame.height));
-        }
         let start = Instant::now();
         let lights = decomposer.decompose(&frame);
         decompose_time += start.elapsed();
@@ -993,7 +956,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         let config = raw
             .validate()
             .map_err(|e| anyhow!(e).context("invalid --light-count or INPUT"))?;
-        let (src, _) = open_source(&config)?;
+        let src = open_source(&config)?;
         let dec =
             Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
         source = Some((src, dec));

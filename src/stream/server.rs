@@ -385,17 +385,13 @@ impl Acceptor {
                 _ = shutdown.wait_for(Option::is_some) => break,
                 accepted = listener.accept() => accepted,
             };
-            {
-                match accepted {
-                    Ok((stream, _)) => {
-                        self.limit_send_buffer(socket2::SockRef::from(&stream));
-                        let peer = path.display().to_string();
-                        if let Some(conn) = self.connection(peer) {
-                            tokio::spawn(conn.serve_stream(stream));
-                        }
-                    }
-                    Err(e) => accept_failed(self.endpoint, &e).await,
+            match accepted {
+                Ok((stream, _)) => {
+                    self.limit_send_buffer(socket2::SockRef::from(&stream));
+                    let peer = path.display().to_string();
+                    tokio::spawn(self.connection(peer).serve_stream(stream));
                 }
+                Err(e) => accept_failed(self.endpoint, &e).await,
             }
         }
     }
@@ -407,21 +403,18 @@ impl Acceptor {
                 _ = shutdown.wait_for(Option::is_some) => break,
                 accepted = listener.accept() => accepted,
             };
-            {
-                match accepted {
-                    Ok((stream, peer)) => {
-                        let _ = stream.set_nodelay(true);
-                        self.limit_send_buffer(socket2::SockRef::from(&stream));
-                        if let Some(conn) = self.connection(peer.to_string()) {
-                            if websocket {
-                                tokio::spawn(conn.serve_websocket(stream));
-                            } else {
-                                tokio::spawn(conn.serve_stream(stream));
-                            }
-                        }
+            match accepted {
+                Ok((stream, peer)) => {
+                    let _ = stream.set_nodelay(true);
+                    self.limit_send_buffer(socket2::SockRef::from(&stream));
+                    let conn = self.connection(peer.to_string());
+                    if websocket {
+                        tokio::spawn(conn.serve_websocket(stream));
+                    } else {
+                        tokio::spawn(conn.serve_stream(stream));
                     }
-                    Err(e) => accept_failed(self.endpoint, &e).await,
                 }
+                Err(e) => accept_failed(self.endpoint, &e).await,
             }
         }
     }
@@ -435,7 +428,7 @@ impl Acceptor {
     }
 
     /// A new connection's state, counted as a client (the count drops with it).
-    fn connection(&self, peer: String) -> Option<Connection> {
+    fn connection(&self, peer: String) -> Connection {
         let id = self.ctx.next_client.fetch_add(1, Ordering::Relaxed);
         let name = format!("{} {} #{}", self.endpoint, peer, id);
         let previous = self.ctx.clients.fetch_add(1, Ordering::AcqRel);
@@ -456,7 +449,7 @@ impl Acceptor {
             .inc();
         let over_limit = previous >= self.ctx.config.max_clients;
         tracing::debug!(client = %name, "client connected");
-        Some(Connection {
+        Connection {
             ctx: Arc::clone(&self.ctx),
             endpoint: self.endpoint,
             name,
@@ -465,7 +458,7 @@ impl Acceptor {
             over_limit,
             _guard: guard,
             _done: self.done.clone(),
-        })
+        }
     }
 }
 
