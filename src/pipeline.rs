@@ -77,6 +77,26 @@ pub struct Published {
     pub published_at: Instant,
 }
 
+impl Published {
+    /// The publication that follows `previous` (numbered one more), stamped now.
+    fn after(
+        previous: Option<&Published>,
+        lights: Arc<LightFrame>,
+        stale: bool,
+        arrived: Option<Instant>,
+        decompose_time: Duration,
+    ) -> Arc<Published> {
+        Arc::new(Published {
+            index: previous.map_or(0, |p| p.index) + 1,
+            lights,
+            stale,
+            arrived,
+            decompose_time,
+            published_at: Instant::now(),
+        })
+    }
+}
+
 /// What consumers receive: the newest publication, `None` until the first one.
 pub type LatestLights = Option<Arc<Published>>;
 
@@ -215,15 +235,13 @@ fn publish(
     decompose_time: Duration,
 ) {
     tx.send_modify(|latest| {
-        let index = latest.as_ref().map_or(0, |p| p.index) + 1;
-        *latest = Some(Arc::new(Published {
-            index,
+        *latest = Some(Published::after(
+            latest.as_deref(),
             lights,
             stale,
             arrived,
             decompose_time,
-            published_at: Instant::now(),
-        }));
+        ));
     });
 }
 
@@ -453,14 +471,13 @@ impl StaleHandle {
         self.0.send_if_modified(|latest| match latest {
             Some(p) if p.stale != stale => {
                 let lights = Arc::clone(&p.lights);
-                *latest = Some(Arc::new(Published {
-                    index: p.index + 1,
+                *latest = Some(Published::after(
+                    Some(p),
                     lights,
                     stale,
-                    arrived: None,
-                    decompose_time: Duration::ZERO,
-                    published_at: Instant::now(),
-                }));
+                    None,
+                    Duration::ZERO,
+                ));
                 changed = true;
                 true
             }

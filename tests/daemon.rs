@@ -553,15 +553,6 @@ fn metrics_and_health_over_http() {
     assert!(text.contains("envlight_decompose_seconds_bucket"), "{text}");
     assert!(text.contains("envlight_frames_dropped_total"), "{text}");
     assert_eq!(http_get(http, "/nope").0, 404);
-    // Stale lights make the health check fail.
-    assert!(daemon.pipeline().set_stale(true) || daemon.pipeline().set_stale(true));
-    let (status, body) = http_get(http, "/health");
-    // A new live frame may have replaced the stale one already; either way the answer is
-    // consistent with the newest publication.
-    assert!(
-        status == 503 && body.contains("stale") || status == 200,
-        "{status} {body}"
-    );
     daemon.shutdown().unwrap();
 }
 
