@@ -812,6 +812,13 @@ impl Connection {
             Ok(request) => request,
             Err(close) => return close,
         };
+        // Frames and the closing message (an error 6 for the representation included) follow
+        // the requested format from now on.
+        let subscribed_binary = *dialect == Dialect::Binary;
+        *dialect = match request.format {
+            Format::Binary => Dialect::Binary,
+            Format::Json => Dialect::JsonLines,
+        };
         let (request, mut feed) = match self.check_request(request) {
             Ok(r) => r,
             Err(close) => return close,
@@ -823,12 +830,6 @@ impl Connection {
             format = ?request.format,
             "client subscribed"
         );
-        // Frames and the closing message follow the requested format from now on.
-        let subscribed_binary = *dialect == Dialect::Binary;
-        *dialect = match request.format {
-            Format::Binary => Dialect::Binary,
-            Format::Json => Dialect::JsonLines,
-        };
         // Bytes that came with the subscribe are input after it.
         if subscribed_binary && decoder.buffered() > 0 {
             return self.unexpected_input(&mut decoder);
