@@ -52,7 +52,9 @@ Writes OUT/frame_NNNNN.png (tone-mapped sRGB, RGBA), OUT/frame_NNNNN.exr (linear
 RGBA) and OUT/stats.jsonl (lights, shadow maps and time of every frame).
 --catcher makes the ground a shadow catcher (RGBA to composite over a camera image);
 --background composites over the environment map (not with --lights).
---budget-ms holds a frame time by rendering a prefix of the progressive light set.";
+--budget-ms holds a frame time by rendering a prefix of the progressive light set.
+--lighting asg shades instead with ASG lobes fitted to each INPUT frame (or sky frame), in closed
+form (Lambert + GGX, no shadows; --lobes, --fit-height).";
 
 #[derive(Args, Debug)]
 struct RenderArgs {
@@ -149,7 +151,7 @@ enum Command {
     CheckConfig(CheckConfigArgs),
     /// Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
     FitAsg(FitAsgArgs),
-    /// Connect to a running daemon and print its light stream.
+    /// Connect to a running daemon and print its light stream (or ASG sets).
     #[command(long_about = SUBSCRIBE_LONG_ABOUT)]
     Subscribe(SubscribeArgs),
     /// List V4L2 cameras with their formats, frame sizes, rates and controls.
@@ -195,7 +197,8 @@ says goodbye (or --frames have arrived).
 
 ADDR is unix:PATH (or a path), tcp:HOST:PORT (or HOST:PORT), or ws://HOST:PORT/.
 With --json every frame is printed as one JSON line (docs/protocol.md's JSON form); otherwise
-one summary line per frame.";
+one summary line per frame. --representation asg prints the ASG sets of a daemon whose [asg]
+stage is enabled (--max-lights then caps the lobes).";
 
 #[derive(Args, Debug)]
 struct DaemonArgs {
@@ -734,6 +737,19 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         "  metrics: {}",
         off(config.metrics.listen.map(|a| format!("http://{a}/metrics")))
     );
+    if config.asg.enabled {
+        println!(
+            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {} thread(s)",
+            config.asg.fit.lobes,
+            2 * config.asg.fit.height,
+            config.asg.fit.height,
+            config.asg.fit.iterations,
+            config.asg.fit.warm_iterations,
+            config.asg.fit.threads
+        );
+    } else {
+        println!("  asg: off");
+    }
     Ok(())
 }
 
