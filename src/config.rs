@@ -320,8 +320,8 @@ pub struct AsgConfig {
     pub fit: crate::asg::fit::FitSettings,
 }
 
-/// Default `[asg] fit_height`: a 64×128 fit map. The fitter's own default (256×512, the
-/// paper's) costs about 16 times as much per iteration; the daemon trades detail for rate.
+/// Default `[asg] fit_height`: a 64×128 fit map, 16 times fewer pixels per iteration than the
+/// fitter's own default (256×512, the paper's); the daemon trades detail for rate.
 pub const DEFAULT_ASG_FIT_HEIGHT: u32 = 64;
 
 impl Default for AsgConfig {

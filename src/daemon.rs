@@ -396,6 +396,8 @@ impl Daemon {
                     }
                     Err(e) => report.needs_restart.push(format!("[asg] ({e})")),
                 },
+                // Disabled before and after: nothing runs, nothing to apply.
+                None if !new.asg.enabled => self.config.asg = new.asg.clone(),
                 _ => report
                     .needs_restart
                     .push("[asg] enabled (restart envlight to start or stop the stage)".to_owned()),

@@ -333,3 +333,47 @@ fn the_render_thread_shades_with_asg_lighting() {
     assert_eq!((image.width(), image.height()), (48, 32));
     daemon.shutdown().unwrap();
 }
+
+#[test]
+fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                [decompose]\nlights = 8\nworking_width = 16\n";
+    let mut daemon = Daemon::start(
+        config(dir.path(), &format!("{base}{ASG}")),
+        DaemonOptions::default(),
+    )
+    .unwrap();
+    let mut rx = daemon.asg().unwrap().subscribe();
+    wait_until("a first set", || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.set.lobes.len() == 4)
+    });
+    // Six lobes instead of four: applied live.
+    let six = config(
+        dir.path(),
+        &format!("{base}{}", ASG.replace("lobes = 4", "lobes = 6")),
+    );
+    let report = daemon.reload(six.clone());
+    assert_eq!(report.applied, vec!["[asg]".to_owned()]);
+    assert!(report.needs_restart.is_empty(), "{report:?}");
+    wait_until("a set with the new settings", || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.set.lobes.len() == 6)
+    });
+    // Turning the stage off needs a restart; the stage keeps running.
+    let off = config(
+        dir.path(),
+        &format!("{base}{}", ASG.replace("enabled = true", "enabled = false")),
+    );
+    let report = daemon.reload(off);
+    assert!(report.applied.is_empty(), "{report:?}");
+    assert!(
+        report.needs_restart.iter().any(|s| s.starts_with("[asg]")),
+        "{report:?}"
+    );
+    assert!(daemon.asg().is_some());
+    daemon.shutdown().unwrap();
+}

@@ -804,3 +804,62 @@ fn asg_lit_spheres_match_the_cpu_closed_form() {
         tolerance,
     );
 }
+
+#[test]
+fn cli_renders_with_asg_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--lighting",
+            "asg",
+            "--lobes",
+            "4",
+            "--fit-height",
+            "8",
+            "--frames",
+            "2",
+            "--size",
+            "48x32",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count(), 2);
+    for line in stats.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert_eq!(v["lights"], 4, "{line}");
+        assert_eq!(v["shadow_maps"], 0, "{line}");
+    }
+    let png = image::open(out.join("frame_00001.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (48, 32));
+    // ASG lighting fits frames: it cannot take a light list, and bad fit options are named.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--lighting",
+            "asg",
+            "--lights",
+            "x.jsonl",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "a usage error");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["render", "--lighting", "asg", "--lobes", "65", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("--lobes"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

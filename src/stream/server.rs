@@ -554,7 +554,7 @@ async fn shutdown_message(shutdown: &mut watch::Receiver<Option<String>>) -> Str
 
 /// What woke a subscribed connection's task.
 enum Event<T> {
-    /// A new light list (false: the stream ended).
+    /// A new publication: light list or ASG set (false: the stream ended).
     Lights(bool),
     /// The daemon is shutting down, with this goodbye.
     Shutdown(String),
