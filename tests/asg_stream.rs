@@ -377,3 +377,48 @@ fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
     assert!(daemon.asg().is_some());
     daemon.shutdown().unwrap();
 }
+
+#[test]
+fn the_python_example_client_reads_asg_sets() {
+    if std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        eprintln!("skipped: python3 is not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let extra = format!(
+        "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+         [decompose]\nlights = 8\nworking_width = 16\n{ASG}"
+    );
+    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    let out = std::process::Command::new("python3")
+        .args([
+            "examples/client.py",
+            &tcp.to_string(),
+            "--representation",
+            "asg",
+            "--frames",
+            "2",
+            "--max-lights",
+            "3",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    assert!(
+        lines.iter().all(|l| l.contains(": 3 ASG lobes")),
+        "{stdout}"
+    );
+    daemon.shutdown().unwrap();
+}
