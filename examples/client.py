@@ -2,10 +2,12 @@
 """Minimal envlight client using only the Python standard library.
 
 Connects to a running daemon over a Unix socket or TCP, subscribes (binary frames), and prints
-one line per light list. The wire format is docs/protocol.md.
+one line per light list (or per ASG set with --representation asg). The wire format is
+docs/protocol.md.
 
     python3 examples/client.py unix:/run/envlight/envlight.sock
     python3 examples/client.py 127.0.0.1:7878 --max-lights 16 --frames 10
+    python3 examples/client.py 127.0.0.1:7878 --representation asg   # needs [asg] enabled
 """
 
 import argparse
@@ -17,6 +19,7 @@ MAGIC = b"ENVL"
 VERSION = 1
 TYPE_FRAME, TYPE_ERROR, TYPE_GOODBYE, TYPE_SUBSCRIBE = 1, 2, 3, 16
 MAX_MESSAGE_LEN = 1 << 20
+REPRESENTATIONS = {"lights": 0, "asg": 1}
 
 
 def connect(address):
@@ -31,9 +34,10 @@ def connect(address):
     return sock
 
 
-def subscribe_message(max_lights):
-    # length, magic, version, type | max_lights, representation 0 = lights, format 0 = binary, reserved
-    body = struct.pack("<IBBH", max_lights, 0, 0, 0)
+def subscribe_message(max_lights, representation=0):
+    # length, magic, version, type | max_lights, representation (0 = lights, 1 = asg),
+    # format 0 = binary, reserved
+    body = struct.pack("<IBBH", max_lights, representation, 0, 0)
     return struct.pack("<I4sHH", 8 + len(body), MAGIC, VERSION, TYPE_SUBSCRIBE) + body
 
 
@@ -62,11 +66,22 @@ def read_message(sock):
 
 def parse_frame(body):
     seq, time, representation, flags, _reserved, count = struct.unpack_from("<QdBBHI", body)
+    frame = {"seq": seq, "time": time, "stale": bool(flags & 1), "representation": representation}
+    if representation == 1:
+        # ASG lobe: id, axis, tangent (bitangent = axis x tangent), lambda, mu, rgb, integral.
+        lobes = []
+        for i in range(count):
+            f = struct.unpack_from("<I3f3fff3ff", body, 24 + 52 * i)
+            lobes.append({"id": f[0], "axis": f[1:4], "tangent": f[4:7], "lambda": f[7], "mu": f[8],
+                          "rgb": f[9:12], "integral": f[12]})
+        frame["lobes"] = lobes
+        return frame
     lights = []
     for i in range(count):
         fields = struct.unpack_from("<I3f3ff", body, 24 + 32 * i)
         lights.append({"id": fields[0], "dir": fields[1:4], "rgb": fields[4:7], "solid_angle": fields[7]})
-    return {"seq": seq, "time": time, "stale": bool(flags & 1), "lights": lights}
+    frame["lights"] = lights
+    return frame
 
 
 def main():
@@ -74,18 +89,25 @@ def main():
     parser.add_argument("address", help="unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT")
     parser.add_argument("--max-lights", type=int, default=0, help="at most N lights per frame (0 = all)")
     parser.add_argument("--frames", type=int, default=0, help="stop after N frames (0 = until goodbye)")
+    parser.add_argument("--representation", choices=sorted(REPRESENTATIONS), default="lights",
+                        help="directional lights or ASG lobes (--max-lights then caps the lobes)")
     args = parser.parse_args()
 
     sock = connect(args.address)
-    sock.sendall(subscribe_message(args.max_lights))
+    sock.sendall(subscribe_message(args.max_lights, REPRESENTATIONS[args.representation]))
     frames = 0
     while args.frames == 0 or frames < args.frames:
         kind, body = read_message(sock)
         if kind == TYPE_FRAME:
             frame = parse_frame(body)
-            total = [sum(l["rgb"][c] for l in frame["lights"]) for c in range(3)]
             stale = " (stale)" if frame["stale"] else ""
-            print(f"seq {frame['seq']} time {frame['time']:.3f} s: {len(frame['lights'])} lights, "
+            if "lobes" in frame:
+                items, what = frame["lobes"], "ASG lobes"
+                total = [sum(g["rgb"][c] * g["integral"] for g in items) for c in range(3)]
+            else:
+                items, what = frame["lights"], "lights"
+                total = [sum(l["rgb"][c] for l in items) for c in range(3)]
+            print(f"seq {frame['seq']} time {frame['time']:.3f} s: {len(items)} {what}, "
                   f"total rgb [{total[0]:.4f}, {total[1]:.4f}, {total[2]:.4f}]{stale}", flush=True)
             frames += 1
         elif kind in (TYPE_ERROR, TYPE_GOODBYE):

@@ -1,13 +1,14 @@
-//! A Rust client of the envlight daemon: connect, subscribe for the brightest N lights, and
-//! print each frame's strongest light.
+//! A Rust client of the envlight daemon: connect, subscribe for the brightest N lights (or ASG
+//! lobes), and print each frame's strongest one.
 //!
 //! ```sh
 //! cargo run --release -- run &                       # the daemon on the built-in sky
 //! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 16
+//! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 16 asg   # needs [asg] enabled
 //! ```
 
 use envlight::stream::client::{Client, Endpoint};
-use envlight::stream::{Format, Message, Request};
+use envlight::stream::{Format, Message, Representation, Request};
 use std::io::Write;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -17,10 +18,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .unwrap_or_else(|| "unix:/run/envlight/envlight.sock".to_owned())
         .parse()?;
     let max_lights: u32 = args.next().map_or(Ok(16), |n| n.parse())?;
+    let representation = match args.next().as_deref() {
+        None | Some("lights") => Representation::Lights,
+        Some("asg") => Representation::Asg,
+        Some(other) => {
+            return Err(format!("unknown representation {other:?}: lights or asg").into())
+        }
+    };
     let request = Request {
         max_lights,
         format: Format::Binary,
-        ..Request::default()
+        representation,
     };
     let mut client = Client::connect(&endpoint, &request, None)?;
     let mut out = std::io::stdout().lock();
@@ -44,6 +52,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     None => writeln!(out, "seq {:>5}: no lights", frame.seq),
                 };
                 // The reader of our output went away (`| head`): stop quietly.
+                if written.is_err() {
+                    break;
+                }
+            }
+            Message::Asg(frame) => {
+                let brightest = frame
+                    .lobes
+                    .iter()
+                    .max_by(|a, b| a.luminance().total_cmp(&b.luminance()));
+                let written = match brightest {
+                    Some(lobe) => writeln!(
+                        out,
+                        "seq {:>5}: {} lobes; brightest id {} along {:?}, λ {} μ {}, energy {:?} W/m²",
+                        frame.seq,
+                        frame.lobes.len(),
+                        lobe.id,
+                        lobe.axis,
+                        lobe.lambda,
+                        lobe.mu,
+                        lobe.rgb.map(|c| c * lobe.integral)
+                    ),
+                    None => writeln!(out, "seq {:>5}: no lobes", frame.seq),
+                };
                 if written.is_err() {
                     break;
                 }

@@ -78,6 +78,25 @@ pub struct RawConfig {
     pub daemon: RawDaemon,
     #[serde(default)]
     pub render: RawRender,
+    #[serde(default)]
+    pub asg: RawAsg,
+}
+
+/// `[asg]`: the daemon's ASG stage (fits anisotropic spherical Gaussians to the newest frames).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawAsg {
+    pub enabled: Option<bool>,
+    pub lobes: Option<usize>,
+    pub fit_height: Option<u32>,
+    pub iterations: Option<usize>,
+    pub warm_iterations: Option<usize>,
+    pub learning_rate: Option<f64>,
+    pub warm_learning_rate: Option<f64>,
+    pub diffuse_weight: Option<f64>,
+    pub temporal_weight: Option<f64>,
+    pub diffuse_normals: Option<usize>,
+    pub threads: Option<usize>,
 }
 
 /// `[pipeline]`.
@@ -122,6 +141,7 @@ pub struct RawRender {
     pub shadow_catcher: Option<bool>,
     pub budget_ms: Option<f64>,
     pub latest_png: Option<String>,
+    pub lighting: Option<String>,
 }
 
 /// `[daemon]`.
@@ -221,6 +241,20 @@ impl RawConfig {
             metrics: self.metrics.validate()?,
             daemon: self.daemon.validate()?,
             render: self.render.validate()?,
+            asg: self.asg.validate()?,
+        })
+        .and_then(|config: Config| {
+            if config.render.enabled
+                && config.render.lighting == Lighting::Asg
+                && !config.asg.enabled
+            {
+                return Err(invalid(
+                    "render.lighting",
+                    "asg",
+                    "needs the ASG stage: set [asg] enabled = true",
+                ));
+            }
+            Ok(config)
         })
     }
 }
@@ -274,6 +308,168 @@ pub struct Config {
     pub metrics: MetricsConfig,
     pub daemon: DaemonConfig,
     pub render: RenderConfig,
+    pub asg: AsgConfig,
+}
+
+/// Validated `[asg]`: the daemon's ASG stage. Default: disabled; when enabled, 16 lobes fitted
+/// at 64×128 (first frame 300 iterations, then 30 warm-started ones per frame) on one thread.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AsgConfig {
+    pub enabled: bool,
+    /// The fitter's settings.
+    pub fit: crate::asg::fit::FitSettings,
+}
+
+/// Default `[asg] fit_height`: a 64×128 fit map, 16 times fewer pixels per iteration than the
+/// fitter's own default (256×512, the paper's); the daemon trades detail for rate.
+pub const DEFAULT_ASG_FIT_HEIGHT: u32 = 64;
+
+impl Default for AsgConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            fit: crate::asg::fit::FitSettings {
+                height: DEFAULT_ASG_FIT_HEIGHT,
+                threads: 1,
+                ..crate::asg::fit::FitSettings::default()
+            },
+        }
+    }
+}
+
+impl RawAsg {
+    fn validate(&self) -> Result<AsgConfig, ConfigError> {
+        let d = AsgConfig::default().fit;
+        let int = |key: &'static str,
+                   v: Option<usize>,
+                   default: usize,
+                   range: std::ops::RangeInclusive<usize>| match v {
+            None => Ok(default),
+            Some(n) if range.contains(&n) => Ok(n),
+            Some(n) => Err(invalid(
+                key,
+                n,
+                format!("must be {}..={}", range.start(), range.end()),
+            )),
+        };
+        let real =
+            |key: &'static str, v: Option<f64>, default: f64, positive: bool, max: f64| match v {
+                None => Ok(default),
+                Some(x)
+                    if x.is_finite() && x <= max && (if positive { x > 0.0 } else { x >= 0.0 }) =>
+                {
+                    Ok(x)
+                }
+                Some(x) => Err(invalid(
+                    key,
+                    x,
+                    if positive {
+                        format!("must be in (0, {max}]")
+                    } else {
+                        format!("must be in [0, {max}]")
+                    },
+                )),
+            };
+        let fit_height = match self.fit_height {
+            None => d.height,
+            Some(h) if (4..=1024).contains(&h) => h,
+            Some(h) => {
+                return Err(invalid(
+                    "asg.fit_height",
+                    h,
+                    "must be 4..=1024 (the fit map is 2·fit_height wide)",
+                ))
+            }
+        };
+        let fit = crate::asg::fit::FitSettings {
+            lobes: int(
+                "asg.lobes",
+                self.lobes,
+                d.lobes,
+                1..=crate::asg::fit::MAX_LOBES,
+            )?,
+            height: fit_height,
+            iterations: int(
+                "asg.iterations",
+                self.iterations,
+                d.iterations,
+                0..=10_000_000,
+            )?,
+            warm_iterations: int(
+                "asg.warm_iterations",
+                self.warm_iterations,
+                d.warm_iterations,
+                0..=10_000_000,
+            )?,
+            learning_rate: real(
+                "asg.learning_rate",
+                self.learning_rate,
+                d.learning_rate,
+                true,
+                1.0,
+            )?,
+            warm_learning_rate: real(
+                "asg.warm_learning_rate",
+                self.warm_learning_rate,
+                d.warm_learning_rate,
+                true,
+                1.0,
+            )?,
+            diffuse_weight: real(
+                "asg.diffuse_weight",
+                self.diffuse_weight,
+                d.diffuse_weight,
+                false,
+                1e6,
+            )?,
+            temporal_weight: real(
+                "asg.temporal_weight",
+                self.temporal_weight,
+                d.temporal_weight,
+                false,
+                1e6,
+            )?,
+            diffuse_normals: int(
+                "asg.diffuse_normals",
+                self.diffuse_normals,
+                d.diffuse_normals,
+                16..=4096,
+            )?,
+            threads: int("asg.threads", self.threads, d.threads, 0..=64)?,
+            ..d
+        };
+        // The fitter's own check, as a backstop (the keys above cover every rule it has).
+        fit.validate().map_err(|e| {
+            invalid(
+                "asg",
+                e.to_string(),
+                "the ASG fitter rejects these settings",
+            )
+        })?;
+        Ok(AsgConfig {
+            enabled: self.enabled.unwrap_or(false),
+            fit,
+        })
+    }
+}
+
+/// What the daemon's render thread shades with (`[render] lighting`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Lighting {
+    /// The directional lights, with shadows (the default).
+    #[default]
+    Lights,
+    /// The ASG stage's lobes, in closed form (no shadows).
+    Asg,
+}
+
+/// Parses a `--lighting` / `render.lighting` value.
+pub fn parse_lighting(s: &str) -> Option<Lighting> {
+    match s {
+        "lights" => Some(Lighting::Lights),
+        "asg" => Some(Lighting::Asg),
+        _ => None,
+    }
 }
 
 /// Validated `[pipeline]`.
@@ -322,6 +518,8 @@ pub struct RenderConfig {
     pub budget_ms: Option<f64>,
     /// Write the newest image here (tone-mapped PNG, replaced atomically); `None` = no file.
     pub latest_png: Option<PathBuf>,
+    /// Shade with the lights (shadowed) or with the ASG stage's lobes.
+    pub lighting: Lighting,
 }
 
 impl RawRender {
@@ -355,12 +553,18 @@ impl RawRender {
             }
         }
         let path = |v: &Option<String>| v.as_deref().filter(|p| !p.is_empty()).map(PathBuf::from);
+        let lighting = match self.lighting.as_deref() {
+            None => Lighting::default(),
+            Some(s) => parse_lighting(s)
+                .ok_or_else(|| invalid("render.lighting", s, "must be \"lights\" or \"asg\""))?,
+        };
         Ok(RenderConfig {
             enabled: self.enabled.unwrap_or(false),
             settings,
             scene: path(&self.scene),
             budget_ms: self.budget_ms,
             latest_png: path(&self.latest_png),
+            lighting,
         })
     }
 }
@@ -896,6 +1100,18 @@ mod tests {
             "merge_spacing_fraction",
             "pdf_exponent",
             "warp",
+            "enabled",
+            "lobes",
+            "fit_height",
+            "iterations",
+            "warm_iterations",
+            "learning_rate",
+            "warm_learning_rate",
+            "diffuse_weight",
+            "temporal_weight",
+            "diffuse_normals",
+            "threads",
+            "lighting",
         ] {
             assert!(
                 uncommented
@@ -974,6 +1190,19 @@ mod tests {
                 "cube",
             ),
             ("[sky]\nwidth = 0", "sky.width", "0"),
+            ("[asg]\nlobes = 0", "asg.lobes", "0"),
+            ("[asg]\nlobes = 65", "asg.lobes", "65"),
+            ("[asg]\nfit_height = 2", "asg.fit_height", "2"),
+            ("[asg]\nlearning_rate = 0", "asg.learning_rate", "0"),
+            ("[asg]\ntemporal_weight = -1", "asg.temporal_weight", "-1"),
+            ("[asg]\ndiffuse_normals = 8", "asg.diffuse_normals", "8"),
+            ("[asg]\nthreads = 1000", "asg.threads", "1000"),
+            ("[render]\nlighting = \"sh\"", "render.lighting", "sh"),
+            (
+                "[render]\nenabled = true\nlighting = \"asg\"",
+                "render.lighting",
+                "asg",
+            ),
             ("[sky]\ncloud_cover = 2", "sky.cloud_cover", "2"),
         ] {
             let e = error(text);

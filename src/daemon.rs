@@ -5,8 +5,16 @@
 //! envlight-capture ─bounded─► envlight-decompose ─watch─► stream server (tokio: UDS, TCP, WebSocket)
 //!                                   │                     metrics + health (HTTP)
 //!                                   ├─watch─► envlight-render (optional: wgpu, frame budget)
-//!                                   └─tap─► envlight-record (optional)
+//!                                   ├─tap─► envlight-record (optional)
+//!                                   └─feed─► envlight-asg (optional, [asg]) ─watch─► stream server
+//!                                                                                  envlight-render
 //! ```
+//!
+//! The ASG stage ([`crate::asg_stage`]) gets each frame after its lights are published and
+//! fits the newest one whenever it is free (skipping, and counting, the frames in between), so
+//! it never slows the lights; in a replay it fits every frame. Clients subscribe to it with
+//! representation `asg`; `[render] lighting = "asg"` shades the render thread's scene with its
+//! lobes. `/health` is about the lights only.
 //!
 //! - [`Daemon::start`] builds everything from a validated [`Config`]: a tokio runtime with
 //!   `daemon.serve_threads` workers named `envlight-serve` (tokio lives only in serving), the
@@ -25,6 +33,7 @@
 //! published; 503 while there are none yet, they are stale, or older than
 //! `metrics.max_frame_age_s`).
 
+use crate::asg_stage::{AsgStage, AsgStageError, AsgStaleHandle, AsgStatsHandle, LatestAsg};
 use crate::capture::{self, CaptureError, FrameSource, SourceHealth};
 use crate::config::{Config, ConfigError, RawConfig};
 use crate::metrics::Metrics;
@@ -76,6 +85,8 @@ pub enum DaemonError {
     Signals(#[source] std::io::Error),
     #[error("render thread: {0}")]
     Render(String),
+    #[error("ASG stage: {0}")]
+    Asg(#[from] AsgStageError),
 }
 
 /// Where the daemon listens.
@@ -107,6 +118,8 @@ pub enum StopReason {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct DaemonSummary {
     pub pipeline: PipelineStats,
+    /// The ASG stage's counters, if it ran.
+    pub asg: Option<crate::asg_stage::AsgStats>,
     pub recorded: Option<RecordSummary>,
     /// Whether every client took its goodbye within the grace period.
     pub clients_closed_in_time: bool,
@@ -127,6 +140,8 @@ pub struct Daemon {
     health: Option<Arc<SourceHealth>>,
     /// The render thread and its stop flag (`[render] enabled`).
     render_thread: Option<RenderHandle>,
+    /// The ASG stage (`[asg] enabled`).
+    asg: Option<AsgStage>,
 }
 
 impl Daemon {
@@ -193,12 +208,6 @@ impl Daemon {
             }
             None => (None, None),
         };
-        let pipeline_options = PipelineOptions {
-            queue_capacity: config.pipeline.queue_capacity,
-            queue_policy: policy,
-            tap,
-            on_publish: Some(on_publish),
-        };
         // The renderer is built before anything starts, so a missing GPU adapter or a bad scene
         // is a clear start-up error.
         let renderer = if config.render.enabled {
@@ -206,13 +215,48 @@ impl Daemon {
         } else {
             None
         };
-        let pipeline = Pipeline::start(source, settings, pipeline_options)?;
+        let asg = if config.asg.enabled {
+            let hook_metrics = Arc::clone(&metrics);
+            let hook: crate::asg_stage::AsgHook = Arc::new(move |published| {
+                hook_metrics
+                    .asg_fit_seconds
+                    .observe(published.fit_time.as_secs_f64());
+            });
+            Some(AsgStage::start(
+                config.asg.fit.clone(),
+                replaying,
+                Some(hook),
+            )?)
+        } else {
+            None
+        };
+        let pipeline_options = PipelineOptions {
+            queue_capacity: config.pipeline.queue_capacity,
+            queue_policy: policy,
+            tap,
+            on_publish: Some(on_publish),
+            asg_feed: asg.as_ref().map(AsgStage::feed),
+        };
+        let pipeline = match Pipeline::start(source, settings, pipeline_options) {
+            Ok(pipeline) => pipeline,
+            Err(error) => {
+                if let Some(asg) = asg {
+                    let _ = asg.join();
+                }
+                return Err(error.into());
+            }
+        };
+        let asg_rx: Option<watch::Receiver<LatestAsg>> = asg.as_ref().map(AsgStage::subscribe);
 
         // Endpoints: if one cannot be bound, stop what was started and report it.
         let started = runtime.block_on(async {
-            let server =
-                StreamServer::start(&config.stream, pipeline.subscribe(), Arc::clone(&metrics))
-                    .await?;
+            let server = StreamServer::start_with_asg(
+                &config.stream,
+                pipeline.subscribe(),
+                asg_rx.clone(),
+                Arc::clone(&metrics),
+            )
+            .await?;
             let http = match config.metrics.listen {
                 Some(address) => {
                     let listener = tokio::net::TcpListener::bind(address)
@@ -226,6 +270,7 @@ impl Daemon {
                         stats: pipeline.stats_handle(),
                         lights: pipeline.subscribe(),
                         max_frame_age: config.metrics.max_frame_age,
+                        asg: asg.as_ref().map(AsgStage::stats_handle),
                     });
                     tracing::info!(address = ?bound, "serving metrics and health over http");
                     let task = tokio::spawn(serve_http(listener, state, stop_rx));
@@ -234,7 +279,11 @@ impl Daemon {
                 None => None,
             };
             if let Some(health) = &health {
-                tokio::spawn(monitor_health(Arc::clone(health), pipeline.stale_handle()));
+                tokio::spawn(monitor_health(
+                    Arc::clone(health),
+                    pipeline.stale_handle(),
+                    asg.as_ref().map(AsgStage::stale_handle),
+                ));
             }
             Ok::<_, DaemonError>((server, http))
         });
@@ -243,6 +292,9 @@ impl Daemon {
             Err(error) => {
                 pipeline.stop();
                 let _ = pipeline.join();
+                if let Some(asg) = asg {
+                    let _ = asg.join();
+                }
                 if let Some(recorder) = recorder {
                     let _ = recorder.finish();
                 }
@@ -257,6 +309,7 @@ impl Daemon {
                     renderer,
                     config: config.render.clone(),
                     lights: pipeline.subscribe(),
+                    asg: asg_rx.clone(),
                     stop: Arc::clone(&stop),
                     metrics: Arc::clone(&metrics),
                     runtime: runtime.handle().clone(),
@@ -284,6 +337,7 @@ impl Daemon {
             addresses,
             health,
             render_thread,
+            asg,
         })
     }
 
@@ -302,9 +356,15 @@ impl Daemon {
         &self.pipeline
     }
 
-    /// Whether a finite source has been fully decomposed.
+    /// Whether a finite source has been fully decomposed (and, with an ASG stage, its last
+    /// frame fitted).
     pub fn source_finished(&self) -> bool {
-        self.pipeline.is_finished()
+        self.pipeline.is_finished() && self.asg.as_ref().is_none_or(AsgStage::is_finished)
+    }
+
+    /// The ASG stage, if `[asg]` enabled it.
+    pub fn asg(&self) -> Option<&AsgStage> {
+        self.asg.as_ref()
     }
 
     /// Applies a new configuration: the decomposition settings change live (from the next
@@ -327,6 +387,22 @@ impl Daemon {
                 }
             }
         }
+        if new.asg != self.config.asg {
+            match &self.asg {
+                Some(stage) if new.asg.enabled => match stage.reconfigure(new.asg.fit.clone()) {
+                    Ok(()) => {
+                        report.applied.push("[asg]".to_owned());
+                        self.config.asg = new.asg.clone();
+                    }
+                    Err(e) => report.needs_restart.push(format!("[asg] ({e})")),
+                },
+                // Disabled before and after: nothing runs, nothing to apply.
+                None if !new.asg.enabled => self.config.asg = new.asg.clone(),
+                _ => report
+                    .needs_restart
+                    .push("[asg] enabled (restart envlight to start or stop the stage)".to_owned()),
+            }
+        }
         let old = &self.config;
         let sections = [
             ("[source]", new.source != old.source),
@@ -335,6 +411,7 @@ impl Daemon {
             ("[stream]", new.stream != old.stream),
             ("[metrics]", new.metrics != old.metrics),
             ("[daemon]", new.daemon != old.daemon),
+            ("[render]", new.render != old.render),
         ];
         for (name, changed) in sections {
             if changed {
@@ -460,6 +537,7 @@ impl Daemon {
             recorder,
             health,
             render_thread,
+            asg,
             ..
         } = self;
         let rendered = render_thread.map(|(handle, stop)| {
@@ -483,9 +561,12 @@ impl Daemon {
                 .await
         });
         let stats = pipeline.join();
+        // The pipeline closed the feed: the stage fits what is waiting and ends.
+        let asg_stats = asg.map(AsgStage::join).transpose();
         let recorded = recorder.map(Recorder::finish).transpose();
         runtime.shutdown_timeout(Duration::from_secs(1));
         let stats = stats?;
+        let asg_stats = asg_stats?;
         let recorded = recorded?;
         if let Some(rendered) = rendered {
             let frames = rendered.map_err(DaemonError::Render)?;
@@ -499,6 +580,7 @@ impl Daemon {
         );
         Ok(DaemonSummary {
             pipeline: stats,
+            asg: asg_stats,
             recorded,
             clients_closed_in_time,
         })
@@ -534,11 +616,14 @@ fn build_renderer(
 }
 
 /// The render consumer: shades the scene under every new light list (the newest one; a slow
-/// renderer skips lists), holding `budget_ms` by using a prefix of the progressive light set.
+/// renderer skips lists), holding `budget_ms` by using a prefix of the progressive light set;
+/// or, with `lighting = "asg"`, under every new ASG set (closed form, no budget: the cost is
+/// one pass over 16-ish lobes).
 struct RenderThread {
     renderer: crate::render::Renderer,
     config: crate::config::RenderConfig,
     lights: watch::Receiver<LatestLights>,
+    asg: Option<watch::Receiver<LatestAsg>>,
     stop: Arc<std::sync::atomic::AtomicBool>,
     metrics: Arc<Metrics>,
     runtime: tokio::runtime::Handle,
@@ -549,6 +634,9 @@ impl RenderThread {
     /// first GPU or output error (which also ends the thread, logged).
     fn run(mut self) -> Result<u64, String> {
         use crate::render::{budget, light_prefix, output};
+        if self.config.lighting == crate::config::Lighting::Asg {
+            return self.run_asg();
+        }
         let mut controller: Option<budget::BudgetController> = None;
         let mut frames = 0u64;
         while !self.stop.load(std::sync::atomic::Ordering::Acquire) {
@@ -611,6 +699,69 @@ impl RenderThread {
     }
 }
 
+impl RenderThread {
+    /// The ASG loop of [`RenderThread::run`].
+    fn run_asg(mut self) -> Result<u64, String> {
+        let Some(mut rx) = self.asg.take() else {
+            return Err("lighting = \"asg\" needs the ASG stage ([asg] enabled = true)".into());
+        };
+        let mut frames = 0u64;
+        while !self.stop.load(std::sync::atomic::Ordering::Acquire) {
+            let changed = self.runtime.block_on(async {
+                tokio::time::timeout(Duration::from_millis(100), rx.changed()).await
+            });
+            match changed {
+                Err(_) => continue,
+                Ok(Err(_)) => break,
+                Ok(Ok(())) => {}
+            }
+            let Some(published) = rx.borrow_and_update().clone() else {
+                continue;
+            };
+            let lobes: Vec<crate::asg::Asg> = published
+                .set
+                .lobes
+                .iter()
+                .filter_map(crate::light::AsgLobe::to_asg)
+                .collect();
+            let result = match &self.config.latest_png {
+                Some(path) => self
+                    .renderer
+                    .render_asg(&lobes)
+                    .and_then(|(image, stats)| write_latest_png(path, &image).map(|()| stats)),
+                None => self.renderer.render_asg_timed(&lobes),
+            };
+            let stats = match result {
+                Ok(stats) => stats,
+                Err(error) => {
+                    tracing::error!(%error, "rendering failed; the render thread stops");
+                    return Err(error.to_string());
+                }
+            };
+            frames += 1;
+            self.metrics.frames_rendered.inc();
+            self.metrics.render_seconds.observe(stats.frame_ms() / 1e3);
+        }
+        Ok(frames)
+    }
+}
+
+/// Writes a tone-mapped PNG next to `path` and renames it into place.
+fn write_latest_png(
+    path: &Path,
+    image: &crate::render::Image,
+) -> Result<(), crate::render::RenderError> {
+    use crate::render::output;
+    let exposure = output::auto_exposure(image);
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp.png");
+    let tmp = PathBuf::from(tmp);
+    output::write_png(&tmp, image, exposure)
+        .map_err(|e| crate::render::RenderError::Gpu(e.to_string()))?;
+    std::fs::rename(&tmp, path)
+        .map_err(|e| crate::render::RenderError::Gpu(format!("{}: {e}", path.display())))
+}
+
 /// Sends a systemd notification; a no-op outside systemd, a logged warning on failure.
 fn notify(states: &[sd_notify::NotifyState]) {
     if let Err(error) = sd_notify::notify(states) {
@@ -619,11 +770,18 @@ fn notify(states: &[sd_notify::NotifyState]) {
 }
 
 /// Marks the lights stale while the source is lost and live again when it is back.
-async fn monitor_health(health: Arc<SourceHealth>, stale: StaleHandle) {
+async fn monitor_health(
+    health: Arc<SourceHealth>,
+    stale: StaleHandle,
+    asg_stale: Option<AsgStaleHandle>,
+) {
     let mut interval = tokio::time::interval(Duration::from_millis(50));
     loop {
         interval.tick().await;
         let lost = health.is_stale();
+        if let Some(asg) = &asg_stale {
+            asg.set_stale(lost);
+        }
         if stale.set_stale(lost) {
             if lost {
                 tracing::warn!(
@@ -644,6 +802,7 @@ struct HttpState {
     stats: StatsHandle,
     lights: watch::Receiver<LatestLights>,
     max_frame_age: Duration,
+    asg: Option<AsgStatsHandle>,
 }
 
 impl HttpState {
@@ -690,6 +849,9 @@ impl HttpState {
 
     fn metrics_text(&self) -> String {
         self.metrics.update_pipeline(&self.stats.stats());
+        if let Some(asg) = &self.asg {
+            self.metrics.update_asg(&asg.stats());
+        }
         let stale = self.lights.borrow().as_ref().is_some_and(|p| p.stale);
         self.metrics.source_stale.set(i64::from(stale));
         if let Some(health) = &self.health {

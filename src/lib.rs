@@ -11,6 +11,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod asg;
+pub mod asg_stage;
 pub mod capture;
 pub mod config;
 pub mod daemon;

@@ -5,6 +5,11 @@
 //! sum to ∫L dω; `dir` is a unit vector in envlight's right-handed, +Y-up frame; `id` is the
 //! light's index in the progressive point set and is stable across frames; `solid_angle` is the
 //! size of the light's region (or of a merged source) in steradians.
+//!
+//! The second representation, anisotropic spherical Gaussians ([`crate::asg`]), travels as an
+//! [`AsgSet`] of [`AsgLobe`]s: the fitted lobes in f32 with a stable id (the lobe's index in
+//! the fit, kept by warm-started refits) and the lobe's exact integral, so a consumer knows each
+//! lobe's energy without re-deriving it.
 
 use serde::{Deserialize, Serialize};
 
@@ -49,6 +54,98 @@ impl LightFrame {
             }
         }
         sum
+    }
+}
+
+/// One anisotropic spherical Gaussian lobe as streamed (docs/protocol.md):
+/// G(v) = rgb · max(v·z, 0) · exp(−λ (v·x)² − μ (v·y)²) with z = `axis`, x = `tangent` and
+/// y = z × x.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AsgLobe {
+    /// The lobe's index in the fit; stable from frame to frame (warm-started fits keep it).
+    pub id: u32,
+    /// Lobe axis z (unit).
+    pub axis: [f32; 3],
+    /// Tangent x (unit, ⟂ axis): the direction of bandwidth λ.
+    pub tangent: [f32; 3],
+    /// Bandwidth λ along the tangent (> 0).
+    pub lambda: f32,
+    /// Bandwidth μ along the bitangent y = z × x (> 0).
+    pub mu: f32,
+    /// Amplitude c, linear RGB radiance, W/(m²·sr).
+    pub rgb: [f32; 3],
+    /// ∫ max(v·z,0)·exp(−λ(v·x)² − μ(v·y)²) dω of the unit-amplitude lobe, steradians
+    /// ([`crate::asg::integral`], exact); `rgb · integral` is the lobe's energy in W/m².
+    pub integral: f32,
+}
+
+impl AsgLobe {
+    /// The streamed form of a fitted lobe (f64 → f32, rounded to nearest).
+    pub fn from_asg(id: u32, asg: &crate::asg::Asg) -> Self {
+        let f = |v: [f64; 3]| v.map(|c| c as f32);
+        Self {
+            id,
+            axis: f(asg.axis),
+            tangent: f(asg.tangent),
+            lambda: asg.lambda as f32,
+            mu: asg.mu as f32,
+            rgb: f(asg.rgb),
+            integral: crate::asg::integral(asg.lambda, asg.mu) as f32,
+        }
+    }
+
+    /// The lobe for shading (frame re-orthonormalised in f64); `None` if it is degenerate
+    /// (zero or non-finite axis, non-positive or non-finite bandwidths or amplitude).
+    pub fn to_asg(&self) -> Option<crate::asg::Asg> {
+        let d = |v: [f32; 3]| glam::DVec3::from_array(v.map(f64::from));
+        crate::asg::Asg::new(
+            d(self.axis),
+            d(self.tangent),
+            f64::from(self.lambda),
+            f64::from(self.mu),
+            self.rgb.map(f64::from),
+        )
+    }
+
+    /// The bitangent y = z × x.
+    pub fn bitangent(&self) -> [f32; 3] {
+        let (z, x) = (self.axis, self.tangent);
+        [
+            z[1] * x[2] - z[2] * x[1],
+            z[2] * x[0] - z[0] * x[2],
+            z[0] * x[1] - z[1] * x[0],
+        ]
+    }
+
+    /// Rec. 709 luminance of the lobe's energy (`rgb · integral`): what a lobe cap ranks by.
+    pub fn luminance(&self) -> f32 {
+        crate::frame::luminance(self.rgb) * self.integral
+    }
+}
+
+/// The ASG lobes fitted to one environment-map frame.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct AsgSet {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, in seconds since the source started.
+    pub time: f64,
+    /// The lobes, ordered by id.
+    pub lobes: Vec<AsgLobe>,
+}
+
+impl AsgSet {
+    /// The streamed form of a fit's lobes (ids 0, 1, …, in fit order).
+    pub fn from_fit(seq: u64, time: f64, lobes: &[crate::asg::Asg]) -> Self {
+        Self {
+            seq,
+            time,
+            lobes: lobes
+                .iter()
+                .enumerate()
+                .map(|(i, a)| AsgLobe::from_asg(u32::try_from(i).unwrap_or(u32::MAX), a))
+                .collect(),
+        }
     }
 }
 

@@ -52,7 +52,9 @@ Writes OUT/frame_NNNNN.png (tone-mapped sRGB, RGBA), OUT/frame_NNNNN.exr (linear
 RGBA) and OUT/stats.jsonl (lights, shadow maps and time of every frame).
 --catcher makes the ground a shadow catcher (RGBA to composite over a camera image);
 --background composites over the environment map (not with --lights).
---budget-ms holds a frame time by rendering a prefix of the progressive light set.";
+--budget-ms holds a frame time by rendering a prefix of the progressive light set.
+--lighting asg shades instead with ASG lobes fitted to each INPUT frame (or sky frame), in closed
+form (Lambert + GGX, no shadows; --lobes, --fit-height).";
 
 #[derive(Args, Debug)]
 struct RenderArgs {
@@ -101,6 +103,24 @@ struct RenderArgs {
     /// Show the frames in a window instead of writing files (needs the `window` feature).
     #[arg(long, conflicts_with = "background")]
     window: bool,
+    /// Shade with the decomposed lights (shadow maps) or with ASG lobes fitted to each frame
+    /// (closed-form Lambert + GGX, no shadows; warm-started from frame to frame).
+    #[arg(long, value_enum, default_value = "lights", conflicts_with_all = ["lights", "window", "budget_ms"])]
+    lighting: LightingArg,
+    /// ASG lobes per frame with --lighting asg (1..=64).
+    #[arg(long, value_name = "K", default_value_t = envlight::asg::fit::DEFAULT_LOBES)]
+    lobes: usize,
+    /// Fit-map height with --lighting asg (width is twice; 4..=1024).
+    #[arg(long, value_name = "H", default_value_t = envlight::config::DEFAULT_ASG_FIT_HEIGHT)]
+    fit_height: u32,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum LightingArg {
+    /// Directional lights from the decomposition, with shadow maps.
+    Lights,
+    /// Anisotropic spherical Gaussians fitted to each frame, in closed form.
+    Asg,
 }
 
 #[derive(Parser, Debug)]
@@ -131,7 +151,7 @@ enum Command {
     CheckConfig(CheckConfigArgs),
     /// Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
     FitAsg(FitAsgArgs),
-    /// Connect to a running daemon and print its light stream.
+    /// Connect to a running daemon and print its light stream (or ASG sets).
     #[command(long_about = SUBSCRIBE_LONG_ABOUT)]
     Subscribe(SubscribeArgs),
     /// List V4L2 cameras with their formats, frame sizes, rates and controls.
@@ -177,7 +197,8 @@ says goodbye (or --frames have arrived).
 
 ADDR is unix:PATH (or a path), tcp:HOST:PORT (or HOST:PORT), or ws://HOST:PORT/.
 With --json every frame is printed as one JSON line (docs/protocol.md's JSON form); otherwise
-one summary line per frame.";
+one summary line per frame. --representation asg prints the ASG sets of a daemon whose [asg]
+stage is enabled (--max-lights then caps the lobes).";
 
 #[derive(Args, Debug)]
 struct DaemonArgs {
@@ -234,6 +255,18 @@ struct SubscribeArgs {
     /// Stop after N frames.
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
+    /// What to receive: directional lights, or ASG sets (the daemon needs [asg] enabled);
+    /// --max-lights then caps the lobes.
+    #[arg(long, value_enum, default_value = "lights")]
+    representation: RepresentationArg,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum RepresentationArg {
+    /// Directional lights.
+    Lights,
+    /// Anisotropic spherical Gaussians.
+    Asg,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -704,12 +737,25 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         "  metrics: {}",
         off(config.metrics.listen.map(|a| format!("http://{a}/metrics")))
     );
+    if config.asg.enabled {
+        println!(
+            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {} thread(s)",
+            config.asg.fit.lobes,
+            2 * config.asg.fit.height,
+            config.asg.fit.height,
+            config.asg.fit.iterations,
+            config.asg.fit.warm_iterations,
+            config.asg.fit.threads
+        );
+    } else {
+        println!("  asg: off");
+    }
     Ok(())
 }
 
 fn subscribe(args: &SubscribeArgs) -> Result<()> {
     use envlight::stream::client::Client;
-    use envlight::stream::{Format, Message, Request};
+    use envlight::stream::{Format, Message, Representation, Request};
     let request = Request {
         max_lights: args.max_lights,
         format: if args.json {
@@ -717,7 +763,10 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
         } else {
             Format::Binary
         },
-        ..Request::default()
+        representation: match args.representation {
+            RepresentationArg::Lights => Representation::Lights,
+            RepresentationArg::Asg => Representation::Asg,
+        },
     };
     let mut client = Client::connect(&args.address, &request, None)?;
     let mut stdout = std::io::stdout().lock();
@@ -745,6 +794,31 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
                         frame.seq,
                         frame.time,
                         frame.lights.len(),
+                        total[0],
+                        total[1],
+                        total[2],
+                        if frame.stale { " (stale)" } else { "" }
+                    )
+                }
+            }
+            Message::Asg(frame) => {
+                frames += 1;
+                if args.json {
+                    let stale = frame.stale;
+                    envlight::stream::protocol::asg_frame_to_json(
+                        &frame.into_asg_set(),
+                        None,
+                        stale,
+                    )
+                } else {
+                    let total = frame.lobes.iter().fold([0.0f64; 3], |s, l| {
+                        [0, 1, 2].map(|c| s[c] + f64::from(l.rgb[c]) * f64::from(l.integral))
+                    });
+                    format!(
+                        "seq {} time {:.3} s: {} ASG lobes, total rgb [{:.4}, {:.4}, {:.4}]{}",
+                        frame.seq,
+                        frame.time,
+                        frame.lobes.len(),
                         total[0],
                         total[1],
                         total[2],
@@ -940,6 +1014,20 @@ fn render(args: &RenderArgs) -> Result<()> {
         Some(path) => Scene::load(path, true)?,
         None => Scene::default_scene(),
     };
+    let asg_lighting = args.lighting == LightingArg::Asg;
+    let mut fitter = if asg_lighting {
+        let settings = envlight::asg::fit::FitSettings {
+            lobes: args.lobes,
+            height: args.fit_height,
+            ..envlight::asg::fit::FitSettings::default()
+        };
+        Some(
+            envlight::asg::fit::AsgFitter::new(settings)
+                .context("invalid --lobes or --fit-height")?,
+        )
+    } else {
+        None
+    };
     // Lights: a JSON Lines file, or frames decomposed here (INPUT or the sky).
     let mut from_file = None;
     let mut source = None;
@@ -980,7 +1068,19 @@ fn render(args: &RenderArgs) -> Result<()> {
             Ok(src
                 .next_frame()
                 .context("cannot read a frame")?
-                .map(|frame| (dec.decompose(&frame), Some(frame))))
+                .map(|frame| {
+                    // ASG lighting fits the frame itself; the lights are not needed.
+                    let lights = if asg_lighting {
+                        envlight::LightFrame {
+                            seq: frame.seq,
+                            time: frame.time,
+                            lights: Vec::new(),
+                        }
+                    } else {
+                        dec.decompose(&frame)
+                    };
+                    (lights, Some(frame))
+                }))
         };
     let Some(out) = args.out.as_ref().filter(|_| !args.window) else {
         #[cfg(feature = "window")]
@@ -1021,7 +1121,15 @@ fn render(args: &RenderArgs) -> Result<()> {
             })
         });
         let count = ctl.as_ref().map_or(all.len(), |c| c.count());
-        let (mut image, stats) = renderer.render(&all[..count.min(all.len())])?;
+        let (mut image, stats) = match (&mut fitter, &env) {
+            (Some(fitter), Some(frame)) => {
+                let fit = fitter
+                    .fit_frame(frame)
+                    .with_context(|| format!("cannot fit ASG lobes to frame {}", frame.seq))?;
+                renderer.render_asg(&fit.lobes)?
+            }
+            _ => renderer.render(&all[..count.min(all.len())])?,
+        };
         if let Some(c) = ctl.as_mut() {
             c.update(stats.frame_ms());
         }

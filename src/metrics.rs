@@ -73,6 +73,14 @@ pub struct Metrics {
     pub frames_rendered: Counter,
     pub render_seconds: Histogram,
     pub render_lights: Gauge,
+    /// ASG stage (`[asg]`): sets fitted and published.
+    pub asg_fits: Counter,
+    /// ASG stage: frames that were replaced by a newer one before the stage was free.
+    pub asg_frames_skipped: Counter,
+    /// ASG stage: frames whose fit failed.
+    pub asg_fit_errors: Counter,
+    /// ASG stage: fit time per frame.
+    pub asg_fit_seconds: Histogram,
 }
 
 /// Latency buckets from 50 µs to about 1.6 s, doubling.
@@ -108,6 +116,33 @@ impl Metrics {
         let frames_rendered = Counter::default();
         let render_seconds = Histogram::new(latency_buckets());
         let render_lights = Gauge::default();
+        let asg_fits = Counter::default();
+        let asg_frames_skipped = Counter::default();
+        let asg_fit_errors = Counter::default();
+        // 1 ms to about 16 s, doubling: fits take far longer than decompositions.
+        let asg_fit_seconds = Histogram::new(
+            prometheus_client::metrics::histogram::exponential_buckets(1e-3, 2.0, 15),
+        );
+        registry.register(
+            "asg_fits",
+            "ASG sets fitted and published by the [asg] stage",
+            asg_fits.clone(),
+        );
+        registry.register(
+            "asg_frames_skipped",
+            "Frames the [asg] stage skipped because a newer one arrived while it was fitting",
+            asg_frames_skipped.clone(),
+        );
+        registry.register(
+            "asg_fit_errors",
+            "Frames the [asg] stage could not fit",
+            asg_fit_errors.clone(),
+        );
+        registry.register(
+            "asg_fit_seconds",
+            "ASG fit time per frame",
+            asg_fit_seconds.clone(),
+        );
         registry.register(
             "frames_rendered",
             "Frames the render thread drew",
@@ -214,6 +249,10 @@ impl Metrics {
             frames_rendered,
             render_seconds,
             render_lights,
+            asg_fits,
+            asg_frames_skipped,
+            asg_fit_errors,
+            asg_fit_seconds,
         }
     }
 
@@ -233,6 +272,17 @@ impl Metrics {
             .store(stats.capture_errors, Ordering::Relaxed);
         self.lights
             .set(i64::try_from(stats.light_count).unwrap_or(i64::MAX));
+    }
+
+    /// Copies the ASG stage's counters into the metrics.
+    pub fn update_asg(&self, stats: &crate::asg_stage::AsgStats) {
+        self.asg_fits.inner().store(stats.fits, Ordering::Relaxed);
+        self.asg_frames_skipped
+            .inner()
+            .store(stats.frames_skipped, Ordering::Relaxed);
+        self.asg_fit_errors
+            .inner()
+            .store(stats.fit_errors, Ordering::Relaxed);
     }
 
     /// Copies a live source's failure and reconnect counts into the metrics.

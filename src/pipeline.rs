@@ -27,6 +27,10 @@
 //! - **Recording** taps the decompose thread ([`PipelineOptions::tap`]): every decomposed frame
 //!   and its lights go to the recorder, which the decompose thread waits for (nothing recorded
 //!   is lost; a slow disk shows up as dropped capture frames, which are counted).
+//! - **ASG stage.** With [`PipelineOptions::asg_feed`], the decompose thread hands every frame
+//!   to the ASG stage ([`crate::asg_stage`]) after publishing its lights — newest frame wins, so
+//!   the slow fit never delays the lights (lossless in replay) — and closes the feed when it
+//!   ends.
 //! - **Live changes.** [`Pipeline::reconfigure`] swaps in a new [`Decomposer`] before the next
 //!   frame (SIGHUP); [`Pipeline::set_stale`] re-publishes the newest lights marked stale while a
 //!   lost camera is being reconnected.
@@ -124,6 +128,9 @@ pub struct PipelineOptions {
     pub tap: Option<Sender<Tapped>>,
     /// Called on the decompose thread after each decomposed frame is published (metrics).
     pub on_publish: Option<PublishHook>,
+    /// Every decomposed frame is offered to this ASG stage after its lights are published; the
+    /// feed is closed when the decompose thread ends.
+    pub asg_feed: Option<crate::asg_stage::AsgFeed>,
 }
 
 /// A callback run on the decompose thread for every decomposed frame.
@@ -296,11 +303,13 @@ impl Pipeline {
         let decompose_tx = Arc::clone(&lights_tx);
         let mut tap = options.tap;
         let on_publish = options.on_publish;
+        let asg_feed = options.asg_feed;
         let decompose_handle = std::thread::Builder::new()
             .name(DECOMPOSE_THREAD_NAME.to_owned())
             .spawn(move || {
                 // However this thread ends (drained queue or panic), capture must stop too.
                 let _stop_capture = StopOnDrop(Arc::clone(&decompose_shared));
+                let _close_asg = asg_feed.clone().map(crate::asg_stage::CloseOnDrop);
                 for frame in decompose_rx.iter() {
                     let arrived = Instant::now();
                     if let Some(new_step) = decompose_shared
@@ -331,7 +340,20 @@ impl Pipeline {
                             hook(published);
                         }
                     }
-                    if let Some(tx) = &tap {
+                    // The lights are out: the ASG stage may have the frame now (a copy only when
+                    // the recorder needs it too).
+                    let frame = match &asg_feed {
+                        Some(feed) if tap.is_some() => {
+                            feed.offer(frame.clone());
+                            Some(frame)
+                        }
+                        Some(feed) => {
+                            feed.offer(frame);
+                            None
+                        }
+                        None => Some(frame),
+                    };
+                    if let (Some(tx), Some(frame)) = (&tap, frame) {
                         if tx.send(Tapped { frame, lights }).is_err() {
                             tracing::warn!("the recorder is gone; frames are no longer recorded");
                             tap = None;

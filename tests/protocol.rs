@@ -551,3 +551,296 @@ proptest! {
         prop_assert_eq!(json, decoded);
     }
 }
+
+// -------------------------------------------------------------------------------------------
+// ASG sets (representation 1)
+
+use envlight::asg::Asg;
+use envlight::light::{AsgLobe, AsgSet};
+use envlight::stream::protocol::{
+    asg_frame_to_json, encode_asg_frame, AsgFrameMessage, ASG_RECORD_LEN, FRAME_FIXED_LEN,
+    HEADER_LEN,
+};
+use glam::DVec3;
+
+fn as_asg(message: Message) -> AsgFrameMessage {
+    match message {
+        Message::Asg(f) => f,
+        other => panic!("expected an ASG frame, got {other:?}"),
+    }
+}
+
+/// `n` fitted-looking lobes: random frames, bandwidths over the fitter's range, HDR amplitudes.
+fn random_set(n: usize, seed: u64) -> AsgSet {
+    let mut rng = Rng(seed | 1);
+    let mut unit = || f64::from(rng.unit());
+    let lobes: Vec<Asg> = (0..n)
+        .map(|_| {
+            let axis = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5 + 1e-3);
+            let hint = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5);
+            let lambda = 0.25 * (4e5f64).powf(unit());
+            let mu = 0.25 * (4e5f64).powf(unit());
+            let p = 1e4 * unit().powi(4);
+            Asg::new(axis, hint, lambda, mu, [p, p * unit(), p * unit()]).unwrap()
+        })
+        .collect();
+    AsgSet::from_fit(seed.wrapping_mul(31), seed as f64 / 30.0, &lobes)
+}
+
+#[test]
+fn asg_frames_round_trip_binary_and_json() {
+    for (n, seed) in [(0usize, 1u64), (1, 2), (16, 3), (64, 4)] {
+        let set = random_set(n, seed);
+        for stale in [false, true] {
+            let mut bytes = Vec::new();
+            encode_asg_frame(&set, None, stale, &mut bytes);
+            assert_eq!(
+                bytes.len(),
+                HEADER_LEN + FRAME_FIXED_LEN + n * ASG_RECORD_LEN
+            );
+            let mut k = 0usize;
+            let messages = decode_chunked(&bytes, || {
+                k += 1;
+                k % 13
+            });
+            assert_eq!(messages.len(), 1);
+            let decoded = as_asg(messages[0].clone());
+            assert_eq!(decoded.stale, stale);
+            assert_eq!(decoded.clone().into_asg_set(), set, "binary, {n} lobes");
+            let json = asg_frame_to_json(&set, None, stale);
+            assert!(json.contains("\"representation\":\"asg\""), "{json}");
+            let from_json = as_asg(parse_json_message(&json).unwrap());
+            // Bit for bit: shortest round-trip floats.
+            assert_eq!(from_json, decoded, "JSON, {n} lobes");
+        }
+    }
+}
+
+#[test]
+fn asg_lobes_survive_the_wire_as_lobes() {
+    // What a renderer gets back is the fitted lobe up to f32 rounding.
+    let set = random_set(8, 9);
+    let mut bytes = Vec::new();
+    encode_asg_frame(&set, None, false, &mut bytes);
+    let decoded = as_asg(decode_message(&bytes).unwrap());
+    for lobe in &decoded.lobes {
+        let asg = lobe.to_asg().expect("a valid lobe");
+        let rel = (asg.lambda - f64::from(lobe.lambda)).abs() / asg.lambda;
+        assert!(rel < 1e-6);
+        let integral = envlight::asg::integral(asg.lambda, asg.mu);
+        assert!((integral - f64::from(lobe.integral)).abs() <= 1e-6 * integral);
+        let y = lobe.bitangent();
+        let z = DVec3::from_array(asg.bitangent);
+        assert!((DVec3::new(y[0].into(), y[1].into(), y[2].into()) - z).length() < 1e-6);
+    }
+}
+
+#[test]
+fn asg_cap_keeps_the_most_energetic_lobes_in_id_order() {
+    let set = random_set(20, 5);
+    let mut by_energy: Vec<&AsgLobe> = set.lobes.iter().collect();
+    by_energy.sort_by(|a, b| b.luminance().total_cmp(&a.luminance()));
+    let mut want: Vec<u32> = by_energy[..6].iter().map(|l| l.id).collect();
+    want.sort_unstable();
+    let mut bytes = Vec::new();
+    encode_asg_frame(&set, Some(6), false, &mut bytes);
+    let decoded = as_asg(decode_message(&bytes).unwrap());
+    let got: Vec<u32> = decoded.lobes.iter().map(|l| l.id).collect();
+    assert_eq!(got, want);
+    for l in &decoded.lobes {
+        assert_eq!(*l, set.lobes[l.id as usize], "kept lobes are unchanged");
+    }
+    let json = as_asg(parse_json_message(&asg_frame_to_json(&set, Some(6), false)).unwrap());
+    assert_eq!(json, decoded);
+    let mut zero = Vec::new();
+    encode_asg_frame(&set, Some(0), false, &mut zero);
+    assert!(as_asg(decode_message(&zero).unwrap()).lobes.is_empty());
+}
+
+/// Offset of lobe `i`'s field at `at` (record-relative) in an encoded frame.
+fn lobe_field(i: usize, at: usize) -> usize {
+    HEADER_LEN + FRAME_FIXED_LEN + i * ASG_RECORD_LEN + at
+}
+
+#[test]
+fn bad_asg_frames_are_errors_not_panics() {
+    let set = random_set(3, 11);
+    let mut good = Vec::new();
+    encode_asg_frame(&set, None, false, &mut good);
+    // Truncated: waits, then fails at the end of the stream.
+    let mut d = Decoder::new();
+    d.push(&good[..good.len() - 5]);
+    assert_eq!(d.next_message(), Ok(None));
+    assert!(matches!(d.finish(), Err(ProtocolError::Truncated { .. })));
+    // Wrong sizes: a count that disagrees with the records, a record short by 4 bytes.
+    let mut bad = good.clone();
+    bad[HEADER_LEN + 20] = 4;
+    assert!(matches!(
+        decode_message(&bad),
+        Err(ProtocolError::Inconsistent { kind: "frame", .. })
+    ));
+    let mut short = good[..good.len() - 4].to_vec();
+    let len = (short.len() - 4) as u32;
+    short[..4].copy_from_slice(&len.to_le_bytes());
+    assert!(matches!(
+        decode_message(&short),
+        Err(ProtocolError::Inconsistent { kind: "frame", .. })
+    ));
+    // Values: NaN, infinity, non-positive bandwidths or integral, a frame that is not one.
+    let put = |at: usize, v: f32| {
+        let mut b = good.clone();
+        b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+        decode_message(&b)
+    };
+    assert!(
+        matches!(put(lobe_field(1, 28), f32::NAN), Err(ProtocolError::NonFinite { field }) if field == "lobe 1 lambda")
+    );
+    assert!(matches!(
+        put(lobe_field(2, 40), f32::INFINITY),
+        Err(ProtocolError::NonFinite { .. })
+    ));
+    for (at, v) in [(28, 0.0), (32, -1.0), (48, 0.0), (4, 2.0), (16, 0.5)] {
+        let e = put(lobe_field(0, at), v).unwrap_err();
+        assert!(
+            matches!(e, ProtocolError::InvalidLobe { index: 0, .. }),
+            "{at}: {e}"
+        );
+        assert_eq!(e.code(), code::MALFORMED);
+    }
+    // A tangent along the axis: not orthogonal.
+    let mut b = good.clone();
+    let axis: Vec<u8> = b[lobe_field(0, 4)..lobe_field(0, 16)].to_vec();
+    b[lobe_field(0, 16)..lobe_field(0, 28)].copy_from_slice(&axis);
+    assert!(matches!(
+        decode_message(&b),
+        Err(ProtocolError::InvalidLobe { index: 0, .. })
+    ));
+    // JSON: a number too large for f32, a missing or wrong representation, a bad lobe.
+    let json = asg_frame_to_json(&set, None, false);
+    let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let edit = |f: &dyn Fn(&mut serde_json::Value)| {
+        let mut v = value.clone();
+        f(&mut v);
+        parse_json_message(&v.to_string())
+    };
+    assert!(matches!(
+        edit(&|v| v["lobes"][0]["mu"] = serde_json::json!(1e300)),
+        Err(ProtocolError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        edit(&|v| v["lobes"][1]["lambda"] = serde_json::json!(-3.0)),
+        Err(ProtocolError::InvalidLobe { index: 1, .. })
+    ));
+    assert!(matches!(
+        edit(&|v| v["representation"] = serde_json::json!("lights")),
+        Err(ProtocolError::Json(_))
+    ));
+    assert!(matches!(
+        edit(&|v| {
+            v.as_object_mut().unwrap().remove("representation");
+        }),
+        Err(ProtocolError::Json(_))
+    ));
+    assert!(matches!(
+        edit(&|v| v["lobes"][0]
+            .as_object_mut()
+            .unwrap()
+            .remove("integral")
+            .map(|_| ())
+            .unwrap()),
+        Err(ProtocolError::Json(_))
+    ));
+}
+
+/// The golden ASG frame of docs/protocol.md: seq 17, time 0.5, one lobe with id 0, axis +Y,
+/// tangent +X, λ 8, μ 2, rgb (3, 2.5, 2) and integral 0.75 (a value exact in binary; a real
+/// frame carries `asg::integral(λ, μ)`).
+fn golden_asg() -> AsgSet {
+    AsgSet {
+        seq: 17,
+        time: 0.5,
+        lobes: vec![AsgLobe {
+            id: 0,
+            axis: [0.0, 1.0, 0.0],
+            tangent: [1.0, 0.0, 0.0],
+            lambda: 8.0,
+            mu: 2.0,
+            rgb: [3.0, 2.5, 2.0],
+            integral: 0.75,
+        }],
+    }
+}
+
+#[test]
+fn golden_asg_frame_bytes_and_json() {
+    let mut bytes = Vec::new();
+    encode_asg_frame(&golden_asg(), None, false, &mut bytes);
+    let want = hex(
+        "54000000 454e564c 0100 0100 1100000000000000 000000000000e03f 01 00 0000 01000000 \
+         00000000 00000000 0000803f 00000000 0000803f 00000000 00000000 00000041 00000040 \
+         00004040 00002040 00000040 0000403f",
+    );
+    assert_eq!(bytes, want);
+    assert_eq!(
+        asg_frame_to_json(&golden_asg(), None, false),
+        r#"{"seq":17,"time":0.5,"representation":"asg","stale":false,"lobes":[{"id":0,"axis":[0.0,1.0,0.0],"tangent":[1.0,0.0,0.0],"lambda":8.0,"mu":2.0,"rgb":[3.0,2.5,2.0],"integral":0.75}]}"#
+    );
+}
+
+#[test]
+fn asg_subscribe_round_trips() {
+    let request = Request {
+        max_lights: 8,
+        representation: Representation::Asg,
+        format: Format::Binary,
+    };
+    let mut bytes = Vec::new();
+    encode_request(&request, &mut bytes);
+    assert_eq!(bytes[16], 1);
+    assert_eq!(decode_message(&bytes), Ok(Message::Subscribe(request)));
+    assert_eq!(
+        parse_json_request(
+            r#"{"subscribe":{"representation":"asg","max_lights":8,"format":"binary"}}"#
+        ),
+        Ok(request)
+    );
+}
+
+fn arb_asg() -> impl Strategy<Value = Asg> {
+    let v = || -1.0f64..1.0;
+    (
+        [v(), v(), v()],
+        [v(), v(), v()],
+        0.25f64..1e5,
+        0.25f64..1e5,
+        [0.0f64..1e6, 0.0f64..1e6, 0.0f64..1e6],
+    )
+        .prop_filter_map("degenerate axis", |(axis, hint, l, m, rgb)| {
+            Asg::new(DVec3::from_array(axis), DVec3::from_array(hint), l, m, rgb)
+        })
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_asg_sets_round_trip(
+        seq in any::<u64>(),
+        time in -1e12f64..1e12,
+        lobes in proptest::collection::vec(arb_asg(), 0..64),
+        stale in any::<bool>(),
+        cap in proptest::option::of(0usize..70),
+        chunk in 1usize..100,
+    ) {
+        let set = AsgSet::from_fit(seq, time, &lobes);
+        let mut bytes = Vec::new();
+        encode_asg_frame(&set, cap, stale, &mut bytes);
+        let messages = decode_chunked(&bytes, || chunk);
+        prop_assert_eq!(messages.len(), 1);
+        let decoded = as_asg(messages[0].clone());
+        prop_assert_eq!(decoded.lobes.len(), cap.unwrap_or(usize::MAX).min(lobes.len()));
+        if cap.is_none() {
+            prop_assert_eq!(&decoded.clone().into_asg_set(), &set);
+        }
+        let json = as_asg(parse_json_message(&asg_frame_to_json(&set, cap, stale)).unwrap());
+        prop_assert_eq!(json, decoded);
+    }
+}

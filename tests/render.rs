@@ -647,3 +647,219 @@ fn cli_renders_png_and_exr_per_frame() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("bad.glb"));
 }
+
+/// Lobes for the ASG tests: a sharp sun-like lobe, a wide sky, an anisotropic streak, a lobe
+/// from behind the sphere.
+fn test_lobes() -> Vec<envlight::asg::Asg> {
+    use envlight::asg::Asg;
+    use glam::DVec3;
+    vec![
+        Asg::new(
+            DVec3::new(0.3, 1.0, 0.5),
+            DVec3::X,
+            200.0,
+            60.0,
+            [50.0, 45.0, 40.0],
+        ),
+        Asg::new(DVec3::Y, DVec3::Z, 1.5, 1.5, [2.0, 3.0, 4.0]),
+        Asg::new(
+            DVec3::new(-1.0, 0.2, 0.4),
+            DVec3::Y,
+            30.0,
+            3.0,
+            [6.0, 4.0, 2.0],
+        ),
+        Asg::new(
+            DVec3::new(0.5, -0.3, 1.0),
+            DVec3::X,
+            5.0,
+            10.0,
+            [3.0, 3.0, 3.0],
+        ),
+    ]
+    .into_iter()
+    .map(|a| a.expect("valid lobe"))
+    .collect()
+}
+
+/// Renders one sphere of `material` under [`test_lobes`] with ASG lighting and compares every
+/// pixel away from the silhouette with the CPU closed form (`Asg::irradiance` for the diffuse
+/// part, `Asg::ggx_specular` for the specular one). Returns the worst error relative to the
+/// CPU value (pixels above 5% of the image's brightest) and the worst error relative to the
+/// brightest CPU value (all pixels), after asserting both are within `tolerance`.
+fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32)) -> (f32, f32) {
+    let camera = Camera {
+        eye: Vec3::new(0.0, 0.5, 4.0),
+        target: Vec3::ZERO,
+        fov_y: 35f32.to_radians(),
+    };
+    let scene = Scene::sphere(Vec3::ZERO, 1.0, 160, material, None, camera);
+    let lobes = test_lobes();
+    let mut r = renderer(
+        scene,
+        RenderSettings {
+            width: 96,
+            height: 96,
+            ..Default::default()
+        },
+    );
+    let (img, stats) = r.render_asg(&lobes).unwrap();
+    assert_eq!(stats.lights, lobes.len());
+    assert_eq!(stats.shadow_maps, 0);
+    let alpha = f64::from(material.roughness * material.roughness).max(0.002);
+    let f0: [f64; 3] = if material.metallic > 0.0 {
+        material.base_color.map(f64::from)
+    } else {
+        [0.16 * f64::from(material.specular).powi(2); 3]
+    };
+    let albedo = material
+        .base_color
+        .map(|c| f64::from(c) * f64::from(1.0 - material.metallic));
+    let mut pixels = Vec::new();
+    for y in 0..96 {
+        for x in 0..96 {
+            let d = r.pixel_ray(x as f32, y as f32);
+            let Some(t) = hit_sphere(camera.eye, d, Vec3::ZERO, 1.0) else {
+                continue;
+            };
+            let n = (camera.eye + d * t).normalize();
+            if n.dot(-d) < 0.3 {
+                continue;
+            }
+            let (n64, v64) = (n.as_dvec3(), (-d).as_dvec3());
+            let mut want = [0.0f64; 3];
+            for lobe in &lobes {
+                let e = lobe.irradiance(n64);
+                let s = lobe.ggx_specular(n64, v64, alpha, 1.0);
+                for c in 0..3 {
+                    want[c] += albedo[c] / std::f64::consts::PI * e[c] + f0[c] * s[c];
+                }
+            }
+            pixels.push((x, y, want.map(|w| w as f32), img.pixel(x, y)));
+        }
+    }
+    assert!(pixels.len() > 2500, "only {} pixels checked", pixels.len());
+    let peak = pixels.iter().flat_map(|p| p.2).fold(0.0f32, f32::max);
+    let (mut worst_rel, mut worst_abs) = (0.0f32, 0.0f32);
+    let mut failures = Vec::new();
+    for (x, y, want, got) in &pixels {
+        for c in 0..3 {
+            let abs = (got[c] - want[c]).abs() / peak;
+            worst_abs = worst_abs.max(abs);
+            let bright = want[c] > 0.05 * peak;
+            let rel = (got[c] - want[c]).abs() / want[c].max(1e-12);
+            if bright {
+                worst_rel = worst_rel.max(rel);
+            }
+            if abs > tolerance.1 || (bright && rel > tolerance.0) {
+                failures.push(format!(
+                    "pixel ({x},{y}) channel {c}: GPU {} vs CPU {} ({:.3}% off, {:.3}% of peak)",
+                    got[c],
+                    want[c],
+                    rel * 100.0,
+                    abs * 100.0
+                ));
+            }
+        }
+    }
+    fail_with_image(name, &img, &failures);
+    eprintln!(
+        "{name}: {} pixels, worst {:.3}% of the CPU value (bright pixels), {:.3}% of the peak",
+        pixels.len(),
+        worst_rel * 100.0,
+        worst_abs * 100.0
+    );
+    (worst_rel, worst_abs)
+}
+
+#[test]
+fn asg_lit_spheres_match_the_cpu_closed_form() {
+    // Stated tolerances (docs/rendering.md): 2% of the CPU value on pixels above 5% of the
+    // peak, 1% of the peak everywhere (f32 shading, and the tessellated sphere's interpolated
+    // normals against the exact ones the CPU uses).
+    let tolerance = (0.02, 0.01);
+    asg_sphere_against_cpu(
+        "asg_diffuse_sphere",
+        Material::lambertian([0.8, 0.6, 0.4]),
+        tolerance,
+    );
+    asg_sphere_against_cpu(
+        "asg_glossy_metal_sphere",
+        Material {
+            base_color: [0.95, 0.9, 0.8],
+            roughness: 0.5,
+            metallic: 1.0,
+            specular: 0.5,
+        },
+        tolerance,
+    );
+    asg_sphere_against_cpu(
+        "asg_plastic_sphere",
+        Material {
+            base_color: [0.2, 0.5, 0.8],
+            roughness: 0.7,
+            metallic: 0.0,
+            specular: 0.5,
+        },
+        tolerance,
+    );
+}
+
+#[test]
+fn cli_renders_with_asg_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--lighting",
+            "asg",
+            "--lobes",
+            "4",
+            "--fit-height",
+            "8",
+            "--frames",
+            "2",
+            "--size",
+            "48x32",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count(), 2);
+    for line in stats.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert_eq!(v["lights"], 4, "{line}");
+        assert_eq!(v["shadow_maps"], 0, "{line}");
+    }
+    let png = image::open(out.join("frame_00001.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (48, 32));
+    // ASG lighting fits frames: it cannot take a light list, and bad fit options are named.
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--lighting",
+            "asg",
+            "--lights",
+            "x.jsonl",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "a usage error");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["render", "--lighting", "asg", "--lobes", "65", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("--lobes"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

@@ -26,10 +26,15 @@
 //! penumbrae: the tolerance
 //! ([`CULLING_TOLERANCE`]) is stated in docs/rendering.md and enforced by tests/render.rs.
 //!
+//! **ASG lighting** ([`Renderer::render_asg`], module [`asg`], `shaders/asg.wgsl`): the same
+//! scene shaded in closed form under anisotropic spherical Gaussians instead of lights — one
+//! pass, no shadow maps, no occlusion.
+//!
 //! Mixed reality: with [`RenderSettings::shadow_catcher`], the ground outputs (0, 0, 0, α) with
 //! α = 1 − E_shadowed/E_unshadowed, so the RGBA image composites over the camera picture (or
 //! over the environment map, [`output::composite_background`]).
 
+pub mod asg;
 pub mod budget;
 pub mod device;
 pub mod output;
@@ -55,6 +60,7 @@ pub const SHADOW_WGSL: &str = include_str!("../../shaders/shadow.wgsl");
 pub const PRESENT_WGSL: &str = include_str!("../../shaders/present.wgsl");
 /// Every shader, by file name (the naga test validates each).
 pub const SHADERS: &[(&str, &str)] = &[
+    ("asg.wgsl", asg::ASG_WGSL),
     ("present.wgsl", PRESENT_WGSL),
     ("shade.wgsl", SHADE_WGSL),
     ("shadow.wgsl", SHADOW_WGSL),
@@ -189,6 +195,8 @@ pub struct Renderer {
     padded_row: u32,
     timestamps: Option<Timestamps>,
     warned_layers: bool,
+    /// The ASG lighting pass, built on first use.
+    asg_pass: Option<asg::AsgPass>,
 }
 
 fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
@@ -497,6 +505,7 @@ impl Renderer {
             padded_row,
             timestamps,
             warned_layers: false,
+            asg_pass: None,
         })
     }
 
@@ -870,6 +879,14 @@ impl Renderer {
             enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 16);
         }
         if readback {
+            self.encode_readback(&mut enc);
+        }
+        enc
+    }
+
+    /// Copies the colour target into the read-back buffer.
+    fn encode_readback(&self, enc: &mut wgpu::CommandEncoder) {
+        {
             enc.copy_texture_to_buffer(
                 wgpu::TexelCopyTextureInfo {
                     texture: &self.color_texture,
@@ -892,7 +909,6 @@ impl Renderer {
                 },
             );
         }
-        enc
     }
 
     fn wait(&self) -> Result<(), RenderError> {
@@ -987,6 +1003,18 @@ impl Renderer {
         self.gpu.queue.submit([cmd]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let image = self.read_image()?;
+        let stats = FrameStats {
+            lights: gl.len(),
+            shadow_maps: maps,
+            gpu_ms: self.gpu_time()?,
+            cpu_ms,
+        };
+        Ok((image, stats))
+    }
+
+    /// Reads the rendered image from the read-back buffer (after a frame encoded with it).
+    fn read_image(&self) -> Result<Image, RenderError> {
         let (w, h) = (self.settings.width as usize, self.settings.height as usize);
         let row = self.padded_row as usize;
         let rgba = self.read_buffer(&self.readback, |bytes| {
@@ -1000,20 +1028,11 @@ impl Renderer {
             }
             out
         })?;
-        let stats = FrameStats {
-            lights: gl.len(),
-            shadow_maps: maps,
-            gpu_ms: self.gpu_time()?,
-            cpu_ms,
-        };
-        Ok((
-            Image {
-                width: self.settings.width,
-                height: self.settings.height,
-                rgba,
-            },
-            stats,
-        ))
+        Ok(Image {
+            width: self.settings.width,
+            height: self.settings.height,
+            rgba,
+        })
     }
 
     /// World-space direction of the camera ray through the centre of pixel (x, y).

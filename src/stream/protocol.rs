@@ -1,6 +1,6 @@
-//! The envlight wire protocol, version 1: light lists as length-prefixed binary messages, and the
-//! JSON form of the same for WebSocket and scripts. `docs/protocol.md` is the byte-exact contract;
-//! this module implements it and its tests pin it.
+//! The envlight wire protocol, version 1: light lists and ASG sets as length-prefixed binary
+//! messages, and the JSON form of the same for WebSocket and scripts. `docs/protocol.md` is the
+//! byte-exact contract; this module implements it and its tests pin it.
 //!
 //! Every binary message is
 //!
@@ -8,11 +8,19 @@
 //! u32 length (bytes that follow) | "ENVL" | u16 version | u16 type | body
 //! ```
 //!
-//! all little-endian. Server → client: [`TYPE_FRAME`] (a light list), [`TYPE_ERROR`] (the
+//! all little-endian. Server → client: [`TYPE_FRAME`] (a light list or an ASG set), [`TYPE_ERROR`] (the
 //! connection is about to close because of the error), [`TYPE_GOODBYE`] (the daemon is shutting
 //! down). Client → server: [`TYPE_SUBSCRIBE`] (a [`Request`]: light cap, representation, binary or
-//! JSON). The JSON forms are [`frame_to_json`], [`error_to_json`], [`goodbye_to_json`],
-//! [`request_to_json`], and the parsers [`parse_json_request`] and [`parse_json_message`].
+//! JSON). The JSON forms are [`frame_to_json`], [`asg_frame_to_json`], [`error_to_json`],
+//! [`goodbye_to_json`], [`request_to_json`], and the parsers [`parse_json_request`] and
+//! [`parse_json_message`].
+//!
+//! A frame's records depend on its representation ([`Representation::frame_layout`]): 32-byte
+//! light records (code 0, [`encode_frame`]) or 52-byte ASG lobe records (code 1,
+//! [`encode_asg_frame`]). The decoder takes the record size from the representation byte, so a
+//! representation is added by giving it a layout, an encoder and a record decoder; a
+//! representation without a layout (2 = wavelet, documented but not produced yet) is rejected
+//! with [`ProtocolError::UnsupportedRepresentation`].
 //!
 //! [`Decoder`] reads messages from a byte stream fed in arbitrary pieces. It never panics on any
 //! input, rejects an oversized length prefix as soon as the 12-byte header has arrived (before any
@@ -24,7 +32,7 @@ use std::borrow::Cow;
 
 use serde::{Deserialize, Serialize};
 
-use crate::light::{Light, LightFrame};
+use crate::light::{AsgLobe, AsgSet, Light, LightFrame};
 
 /// The four bytes after the length prefix of every message.
 pub const MAGIC: [u8; 4] = *b"ENVL";
@@ -47,6 +55,9 @@ pub const HEADER_LEN: usize = 12;
 pub const FRAME_FIXED_LEN: usize = 24;
 /// Size of one light record: u32 id, 3×f32 dir, 3×f32 rgb, f32 solid angle.
 pub const LIGHT_RECORD_LEN: usize = 32;
+/// Size of one ASG lobe record: u32 id, 3×f32 axis, 3×f32 tangent, f32 λ, f32 μ, 3×f32 rgb,
+/// f32 integral.
+pub const ASG_RECORD_LEN: usize = 52;
 /// Size of a subscribe message's body after the common header.
 pub const SUBSCRIBE_BODY_LEN: usize = 8;
 /// The largest accepted value of the length prefix (bytes after it): 1 MiB.
@@ -57,6 +68,11 @@ pub const MAX_FRAME_LIGHTS: usize = (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN) / LI
 const _: () = assert!(8 + FRAME_FIXED_LEN + MAX_FRAME_LIGHTS * LIGHT_RECORD_LEN <= MAX_MESSAGE_LEN);
 const _: () =
     assert!(8 + FRAME_FIXED_LEN + (MAX_FRAME_LIGHTS + 1) * LIGHT_RECORD_LEN > MAX_MESSAGE_LEN);
+/// The most lobes one ASG frame message can carry within [`MAX_MESSAGE_LEN`] (20164).
+pub const MAX_FRAME_LOBES: usize = (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN) / ASG_RECORD_LEN;
+/// Tolerance of an ASG record's frame: |axis|, |tangent| within this of 1 and |axis·tangent|
+/// at most this (f32 rounding of a unit frame is about 10⁻⁷).
+pub const ASG_FRAME_TOLERANCE: f32 = 1e-3;
 /// Longest text (UTF-8 bytes) written in an error or goodbye message; longer text is cut at a
 /// character boundary.
 pub const MAX_TEXT_LEN: usize = 4096;
@@ -89,15 +105,15 @@ pub mod code {
     pub const SHUTDOWN: u16 = 0;
 }
 
-/// What kind of lighting a frame carries. Only [`Representation::Lights`] is produced and has a
-/// frame layout in version 1; the other codes are reserved.
+/// What kind of lighting a frame carries. Lights (0) and ASG sets (1) have frame layouts in
+/// version 1; code 2 (wavelet) is reserved, its layout documented but not yet produced.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Representation {
     /// Directional lights (code 0).
     #[default]
     Lights,
-    /// Anisotropic spherical Gaussians (code 1, reserved).
+    /// Anisotropic spherical Gaussians (code 1).
     Asg,
     /// Sparse wavelet coefficients (code 2, reserved).
     Wavelet,
@@ -122,6 +138,41 @@ impl Representation {
             _ => Err(ProtocolError::UnknownRepresentation { code }),
         }
     }
+
+    /// The layout of this representation's frame records, `None` if it has none in this
+    /// build (wavelet).
+    pub fn frame_layout(self) -> Option<FrameLayout> {
+        match self {
+            Representation::Lights => Some(FrameLayout {
+                prefix_len: 0,
+                record_len: LIGHT_RECORD_LEN,
+            }),
+            Representation::Asg => Some(FrameLayout {
+                prefix_len: 0,
+                record_len: ASG_RECORD_LEN,
+            }),
+            Representation::Wavelet => None,
+        }
+    }
+
+    /// The name used in JSON and messages: `lights`, `asg`, `wavelet`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Representation::Lights => "lights",
+            Representation::Asg => "asg",
+            Representation::Wavelet => "wavelet",
+        }
+    }
+}
+
+/// How a frame's body continues after the 24 fixed bytes (seq … count): `prefix_len` bytes of
+/// representation-specific fields, then `count` records of `record_len` bytes each.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameLayout {
+    /// Bytes between `count` and the first record.
+    pub prefix_len: usize,
+    /// Bytes per record.
+    pub record_len: usize,
 }
 
 /// How the server encodes the frames it sends to a client.
@@ -157,11 +208,12 @@ impl Format {
 /// A client's subscription: what it wants to receive.
 ///
 /// JSON form: `{"subscribe": {"max_lights": 64, "representation": "lights", "format": "json"}}`;
-/// every field is optional (defaults: all lights, `"lights"`, `"json"`).
+/// every field is optional (defaults: all lights, `"lights"`, `"json"`). `max_lights` caps
+/// whatever the representation's records are: lights, or lobes of an ASG set.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Request {
-    /// At most this many lights per frame; 0 = all.
+    /// At most this many lights (or ASG lobes) per frame; 0 = all.
     pub max_lights: u32,
     /// The representation wanted.
     pub representation: Representation,
@@ -202,11 +254,37 @@ impl FrameMessage {
     }
 }
 
+/// A decoded ASG-set message (representation 1).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AsgFrameMessage {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, seconds since the source started.
+    pub time: f64,
+    /// The lobes are the last known ones; the source is lost.
+    pub stale: bool,
+    /// The lobes, in the order they were sent (by id).
+    pub lobes: Vec<AsgLobe>,
+}
+
+impl AsgFrameMessage {
+    /// The ASG set without the transport fields.
+    pub fn into_asg_set(self) -> AsgSet {
+        AsgSet {
+            seq: self.seq,
+            time: self.time,
+            lobes: self.lobes,
+        }
+    }
+}
+
 /// One decoded message.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
     /// A light list.
     Frame(FrameMessage),
+    /// An ASG set.
+    Asg(AsgFrameMessage),
     /// An error; the sender closes the connection after it.
     Error {
         /// One of [`code`].
@@ -264,6 +342,15 @@ pub enum ProtocolError {
         /// Which field (with the light index for light fields).
         field: String,
     },
+    /// An ASG lobe record that is not a valid lobe (bandwidths or integral not positive, a
+    /// frame that is not orthonormal).
+    #[error("ASG lobe {index} is invalid: {reason}")]
+    InvalidLobe {
+        /// Position of the record in the frame.
+        index: usize,
+        /// What is wrong.
+        reason: String,
+    },
     /// Text that is not valid UTF-8.
     #[error("{kind} message text is not valid UTF-8: {detail}")]
     InvalidUtf8 {
@@ -278,8 +365,8 @@ pub enum ProtocolError {
         /// The code found.
         code: u8,
     },
-    /// A frame of a representation that has no frame layout in version 1.
-    #[error("frame of representation {representation:?} has no layout in protocol version 1")]
+    /// A frame of a representation that has no frame layout in this build.
+    #[error("frame of representation {} has no layout in this build of protocol version 1", .representation.name())]
     UnsupportedRepresentation {
         /// The representation found.
         representation: Representation,
@@ -308,6 +395,7 @@ impl ProtocolError {
             ProtocolError::BadMagic { .. }
             | ProtocolError::Inconsistent { .. }
             | ProtocolError::NonFinite { .. }
+            | ProtocolError::InvalidLobe { .. }
             | ProtocolError::InvalidUtf8 { .. }
             | ProtocolError::Truncated { .. } => code::MALFORMED,
             ProtocolError::UnsupportedVersion { .. } => code::UNSUPPORTED_VERSION,
@@ -328,15 +416,31 @@ impl ProtocolError {
 /// ([`Light::luminance`]), ties broken by position, kept in their original order (by id).
 /// Never more than [`MAX_FRAME_LIGHTS`]. Kept lights are copied unchanged.
 fn select_lights(lights: &[Light], max_lights: Option<usize>) -> Cow<'_, [Light]> {
-    let cap = max_lights.unwrap_or(usize::MAX).min(MAX_FRAME_LIGHTS);
-    if lights.len() <= cap {
-        return Cow::Borrowed(lights);
+    select_brightest(lights, max_lights, MAX_FRAME_LIGHTS, Light::luminance)
+}
+
+/// The lobes to send for a cap: as [`select_lights`], ranked by [`AsgLobe::luminance`] (the
+/// lobe's energy), never more than [`MAX_FRAME_LOBES`].
+fn select_lobes(lobes: &[AsgLobe], max_lobes: Option<usize>) -> Cow<'_, [AsgLobe]> {
+    select_brightest(lobes, max_lobes, MAX_FRAME_LOBES, AsgLobe::luminance)
+}
+
+/// The `cap` (at most `limit`) records of largest `luminance`, ties to the earlier one, kept in
+/// their original order.
+fn select_brightest<T: Copy>(
+    items: &[T],
+    cap: Option<usize>,
+    limit: usize,
+    luminance: impl Fn(&T) -> f32,
+) -> Cow<'_, [T]> {
+    let cap = cap.unwrap_or(usize::MAX).min(limit);
+    if items.len() <= cap {
+        return Cow::Borrowed(items);
     }
-    let mut order: Vec<usize> = (0..lights.len()).collect();
+    let mut order: Vec<usize> = (0..items.len()).collect();
     let brighter = |a: &usize, b: &usize| {
-        lights[*b]
-            .luminance()
-            .total_cmp(&lights[*a].luminance())
+        luminance(&items[*b])
+            .total_cmp(&luminance(&items[*a]))
             .then(a.cmp(b))
     };
     if cap > 0 {
@@ -344,7 +448,7 @@ fn select_lights(lights: &[Light], max_lights: Option<usize>) -> Cow<'_, [Light]
     }
     order.truncate(cap);
     order.sort_unstable();
-    Cow::Owned(order.into_iter().map(|i| lights[i]).collect())
+    Cow::Owned(order.into_iter().map(|i| items[i]).collect())
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -371,21 +475,78 @@ fn put_header(out: &mut Vec<u8>, body_len: usize, message_type: u16) {
 /// non-finite values.
 pub fn encode_frame(frame: &LightFrame, max_lights: Option<usize>, stale: bool, out: &mut Vec<u8>) {
     let lights = select_lights(&frame.lights, max_lights);
-    let body_len = FRAME_FIXED_LEN + lights.len() * LIGHT_RECORD_LEN;
-    out.reserve(4 + 8 + body_len);
-    put_header(out, body_len, TYPE_FRAME);
-    out.extend_from_slice(&frame.seq.to_le_bytes());
-    out.extend_from_slice(&frame.time.to_le_bytes());
-    out.push(Representation::Lights.code());
-    out.push(if stale { FLAG_STALE } else { 0 });
-    out.extend_from_slice(&0u16.to_le_bytes());
-    out.extend_from_slice(&(lights.len() as u32).to_le_bytes());
+    put_frame_head(
+        out,
+        frame.seq,
+        frame.time,
+        Representation::Lights,
+        stale,
+        lights.len(),
+    );
     for light in lights.iter() {
         out.extend_from_slice(&light.id.to_le_bytes());
         for v in light.dir.iter().chain(&light.rgb) {
             out.extend_from_slice(&v.to_le_bytes());
         }
         out.extend_from_slice(&light.solid_angle.to_le_bytes());
+    }
+}
+
+/// The header and the 24 fixed bytes of a frame with `count` records of `representation`
+/// (whose layout must exist; callers pass lights or ASG, and keep `count` within the limit).
+fn put_frame_head(
+    out: &mut Vec<u8>,
+    seq: u64,
+    time: f64,
+    representation: Representation,
+    stale: bool,
+    count: usize,
+) {
+    let layout = representation.frame_layout().unwrap_or(FrameLayout {
+        prefix_len: 0,
+        record_len: 0,
+    });
+    let body_len = FRAME_FIXED_LEN + layout.prefix_len + count * layout.record_len;
+    out.reserve(4 + 8 + body_len);
+    put_header(out, body_len, TYPE_FRAME);
+    out.extend_from_slice(&seq.to_le_bytes());
+    out.extend_from_slice(&time.to_le_bytes());
+    out.push(representation.code());
+    out.push(if stale { FLAG_STALE } else { 0 });
+    out.extend_from_slice(&0u16.to_le_bytes());
+    out.extend_from_slice(&(count as u32).to_le_bytes());
+}
+
+/// Appends one binary ASG frame message (representation 1) for `set` to `out`.
+///
+/// With `max_lobes = Some(n)` and more than `n` lobes, only the `n` lobes of largest energy
+/// luminance ([`AsgLobe::luminance`]) are sent, in their original order (by id), each bit for
+/// bit as in `set`; ties go to the earlier lobe. A message carries at most
+/// [`MAX_FRAME_LOBES`] lobes. `stale` sets [`FLAG_STALE`]. Values should be finite with
+/// positive bandwidths and integral and an orthonormal frame (what [`AsgLobe::from_asg`]
+/// gives); decoders reject anything else.
+pub fn encode_asg_frame(set: &AsgSet, max_lobes: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+    let lobes = select_lobes(&set.lobes, max_lobes);
+    put_frame_head(
+        out,
+        set.seq,
+        set.time,
+        Representation::Asg,
+        stale,
+        lobes.len(),
+    );
+    for lobe in lobes.iter() {
+        out.extend_from_slice(&lobe.id.to_le_bytes());
+        let values = lobe
+            .axis
+            .iter()
+            .chain(&lobe.tangent)
+            .chain([&lobe.lambda, &lobe.mu])
+            .chain(&lobe.rgb)
+            .chain([&lobe.integral]);
+        for v in values {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
     }
 }
 
@@ -493,9 +654,8 @@ fn check_header(b: &[u8]) -> Result<Option<usize>, ProtocolError> {
         let message_type = u16_at(b, 10);
         let body = len - 8;
         let ok = match message_type {
-            TYPE_FRAME => {
-                body >= FRAME_FIXED_LEN && (body - FRAME_FIXED_LEN).is_multiple_of(LIGHT_RECORD_LEN)
-            }
+            // The record size depends on the representation, in the body: checked there.
+            TYPE_FRAME => body >= FRAME_FIXED_LEN,
             TYPE_ERROR | TYPE_GOODBYE => body >= 6,
             TYPE_SUBSCRIBE => body == SUBSCRIBE_BODY_LEN,
             _ => return Err(ProtocolError::UnknownType { message_type }),
@@ -531,20 +691,39 @@ fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError>
                 });
             }
             let representation = Representation::from_code(body[16])?;
-            if representation != Representation::Lights {
+            let Some(layout) = representation.frame_layout() else {
                 return Err(ProtocolError::UnsupportedRepresentation { representation });
-            }
+            };
             let stale = body[17] & FLAG_STALE != 0;
             let count = u32_at(body, 20) as usize;
-            let records = &body[FRAME_FIXED_LEN..];
-            if records.len() / LIGHT_RECORD_LEN != count {
+            let rest = &body[FRAME_FIXED_LEN..];
+            let expected = count
+                .checked_mul(layout.record_len)
+                .and_then(|n| n.checked_add(layout.prefix_len));
+            if expected != Some(rest.len()) {
                 return Err(ProtocolError::Inconsistent {
                     kind: "frame",
                     reason: format!(
-                        "count {count} × {LIGHT_RECORD_LEN} bytes ≠ {} bytes of light records",
-                        records.len()
+                        "count {count} × {} bytes per {} record{} ≠ {} bytes after the count",
+                        layout.record_len,
+                        representation.name(),
+                        if layout.prefix_len > 0 {
+                            format!(" + {} bytes of prefix", layout.prefix_len)
+                        } else {
+                            String::new()
+                        },
+                        rest.len()
                     ),
                 });
+            }
+            let records = &rest[layout.prefix_len..];
+            if representation == Representation::Asg {
+                return Ok(Message::Asg(AsgFrameMessage {
+                    seq,
+                    time,
+                    stale,
+                    lobes: decode_lobes(records)?,
+                }));
             }
             let mut lights = Vec::with_capacity(count);
             for (i, r) in records.chunks_exact(LIGHT_RECORD_LEN).enumerate() {
@@ -598,6 +777,53 @@ fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError>
         })),
         message_type => Err(ProtocolError::UnknownType { message_type }),
     }
+}
+
+/// ASG lobe records (whose total length the caller checked).
+fn decode_lobes(records: &[u8]) -> Result<Vec<AsgLobe>, ProtocolError> {
+    let mut lobes = Vec::with_capacity(records.len() / ASG_RECORD_LEN);
+    for (i, r) in records.chunks_exact(ASG_RECORD_LEN).enumerate() {
+        let f = |at: usize, name: &str| finite(f32_at(r, at), || format!("lobe {i} {name}"));
+        let lobe = AsgLobe {
+            id: u32_at(r, 0),
+            axis: [f(4, "axis")?, f(8, "axis")?, f(12, "axis")?],
+            tangent: [f(16, "tangent")?, f(20, "tangent")?, f(24, "tangent")?],
+            lambda: f(28, "lambda")?,
+            mu: f(32, "mu")?,
+            rgb: [f(36, "rgb")?, f(40, "rgb")?, f(44, "rgb")?],
+            integral: f(48, "integral")?,
+        };
+        check_lobe(i, &lobe)?;
+        lobes.push(lobe);
+    }
+    Ok(lobes)
+}
+
+/// A lobe's values beyond finiteness: positive bandwidths and integral, an orthonormal frame
+/// within [`ASG_FRAME_TOLERANCE`]. (Finiteness is checked by the caller.)
+fn check_lobe(index: usize, lobe: &AsgLobe) -> Result<(), ProtocolError> {
+    let bad = |reason: String| Err(ProtocolError::InvalidLobe { index, reason });
+    for (name, v) in [
+        ("lambda", lobe.lambda),
+        ("mu", lobe.mu),
+        ("integral", lobe.integral),
+    ] {
+        if v.is_nan() || v <= 0.0 {
+            return bad(format!("{name} = {v} must be positive"));
+        }
+    }
+    let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    for (name, v) in [("axis", lobe.axis), ("tangent", lobe.tangent)] {
+        let len = dot(v, v).sqrt();
+        if (len - 1.0).abs() > ASG_FRAME_TOLERANCE || len.is_nan() {
+            return bad(format!("{name} has length {len}, not 1"));
+        }
+    }
+    let d = dot(lobe.axis, lobe.tangent);
+    if d.abs() > ASG_FRAME_TOLERANCE || d.is_nan() {
+        return bad(format!("axis·tangent = {d}, not 0"));
+    }
+    Ok(())
 }
 
 /// Decodes exactly one complete binary message from `bytes` (length prefix included); trailing
@@ -729,6 +955,16 @@ struct JsonFrame<'a> {
 }
 
 #[derive(Serialize, Deserialize)]
+struct JsonAsgFrame<'a> {
+    seq: u64,
+    time: f64,
+    representation: Representation,
+    #[serde(default)]
+    stale: bool,
+    lobes: Cow<'a, [AsgLobe]>,
+}
+
+#[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct JsonText<'a> {
     code: u16,
@@ -783,6 +1019,22 @@ pub fn frame_to_json(frame: &LightFrame, max_lights: Option<usize>, stale: bool)
     })
 }
 
+/// The JSON form of an ASG frame, with the same lobe selection as [`encode_asg_frame`]
+/// (`bitangent` is not sent: y = axis × tangent):
+///
+/// ```json
+/// {"seq":17,"time":0.5,"representation":"asg","stale":false,"lobes":[{"id":0,"axis":[0.0,1.0,0.0],"tangent":[1.0,0.0,0.0],"lambda":8.0,"mu":2.0,"rgb":[3.0,2.5,2.0],"integral":0.7853982}]}
+/// ```
+pub fn asg_frame_to_json(set: &AsgSet, max_lobes: Option<usize>, stale: bool) -> String {
+    to_json(&JsonAsgFrame {
+        seq: set.seq,
+        time: set.time,
+        representation: Representation::Asg,
+        stale,
+        lobes: select_lobes(&set.lobes, max_lobes),
+    })
+}
+
 /// The JSON form of an error: `{"error":{"code":5,"message":"..."}}`.
 pub fn error_to_json(code: u16, message: &str) -> String {
     to_json(&JsonEnvelope::Error(JsonText {
@@ -823,13 +1075,50 @@ pub fn parse_json_request(text: &str) -> Result<Request, ProtocolError> {
     }
 }
 
-/// Parses any JSON message (what a JSON client receives, or a request): a frame object (has
-/// `lights`), `{"error":…}`, `{"goodbye":…}` or `{"subscribe":…}`. Frame lights must be finite.
+/// Parses any JSON message (what a JSON client receives, or a request): a light frame (has
+/// `lights`), an ASG frame (has `lobes`), `{"error":…}`, `{"goodbye":…}` or
+/// `{"subscribe":…}`. Frame values must be finite (and lobes valid, as in binary frames).
 pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
     check_json_len(text)?;
     let value: serde_json::Value =
         serde_json::from_str(text).map_err(|e| ProtocolError::Json(e.to_string()))?;
     let json_err = |e: serde_json::Error| ProtocolError::Json(e.to_string());
+    if value.get("lobes").is_some() {
+        let frame: JsonAsgFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
+        if frame.representation != Representation::Asg {
+            return Err(ProtocolError::Json(format!(
+                "a frame with lobes must have representation \"asg\", not {:?}",
+                frame.representation.name()
+            )));
+        }
+        if !frame.time.is_finite() {
+            return Err(ProtocolError::NonFinite {
+                field: "frame time".into(),
+            });
+        }
+        let lobes = frame.lobes.into_owned();
+        for (i, l) in lobes.iter().enumerate() {
+            let values = l
+                .axis
+                .iter()
+                .chain(&l.tangent)
+                .chain([&l.lambda, &l.mu])
+                .chain(&l.rgb)
+                .chain([&l.integral]);
+            if values.into_iter().any(|v| !v.is_finite()) {
+                return Err(ProtocolError::NonFinite {
+                    field: format!("lobe {i}"),
+                });
+            }
+            check_lobe(i, l)?;
+        }
+        return Ok(Message::Asg(AsgFrameMessage {
+            seq: frame.seq,
+            time: frame.time,
+            stale: frame.stale,
+            lobes,
+        }));
+    }
     if value.get("lights").is_some() {
         let frame: JsonFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
         if frame.representation != Representation::Lights {
@@ -1051,13 +1340,44 @@ mod tests {
     fn frame_with_reserved_representation_is_rejected() {
         let mut out = Vec::new();
         encode_frame(&LightFrame::default(), None, false, &mut out);
-        out[28] = Representation::Asg.code();
+        out[28] = Representation::Wavelet.code();
         assert_eq!(
             decode_message(&out),
             Err(ProtocolError::UnsupportedRepresentation {
-                representation: Representation::Asg
+                representation: Representation::Wavelet
             })
         );
+    }
+
+    #[test]
+    fn record_size_follows_the_representation() {
+        // One light record (32 bytes) relabelled as ASG: 32 is not a multiple of 52.
+        let mut out = Vec::new();
+        let frame = LightFrame {
+            seq: 1,
+            time: 0.0,
+            lights: vec![light(0, 1.0)],
+        };
+        encode_frame(&frame, None, false, &mut out);
+        out[28] = Representation::Asg.code();
+        assert!(matches!(
+            decode_message(&out),
+            Err(ProtocolError::Inconsistent { kind: "frame", .. })
+        ));
+        // An empty ASG frame is 36 bytes, like an empty light frame.
+        let mut out = Vec::new();
+        encode_asg_frame(&AsgSet::default(), None, false, &mut out);
+        assert_eq!(out.len(), HEADER_LEN + FRAME_FIXED_LEN);
+        assert_eq!(
+            decode_message(&out),
+            Ok(Message::Asg(AsgFrameMessage {
+                seq: 0,
+                time: 0.0,
+                stale: false,
+                lobes: Vec::new()
+            }))
+        );
+        assert_eq!(MAX_FRAME_LOBES, 20164);
     }
 
     #[test]

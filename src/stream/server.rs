@@ -12,8 +12,11 @@
 //!    `{`; on WebSocket a binary or text message). Anything else, a half-open connection that
 //!    never speaks, or a client that vanishes mid-message ends the connection (with an error
 //!    message where the client can still read it).
-//! 2. **Frames.** Each connection task waits on the pipeline's latest-value channel. When a new
-//!    light list is published it encodes it for this client (cap, binary or JSON) and writes it.
+//! 2. **Frames.** Each connection task waits on the latest-value channel of the representation
+//!    it subscribed to: the pipeline's light lists, or the ASG stage's sets
+//!    ([`StreamServer::start_with_asg`]; without an ASG stage an `asg` subscribe gets error 6).
+//!    When a new publication appears it is encoded for this client (cap, binary or JSON; once
+//!    per publication, cap and form, shared by the clients that ask for the same) and written.
 //!    A client that reads slowly blocks only its own task; meanwhile newer lists replace older
 //!    ones in the channel, so when the write completes it gets the newest one and the lists in
 //!    between are counted as skipped. Per client the server holds one encoded frame, so memory
@@ -25,10 +28,11 @@
 //! 4. **Shutdown** sends a goodbye (code 0) and closes.
 
 use super::protocol::{
-    self, code as error_code, decode_message, encode_error, encode_frame, encode_goodbye,
-    frame_to_json, goodbye_to_json, Decoder, Format, Message, ProtocolError, Representation,
-    Request,
+    self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
+    encode_frame, encode_goodbye, frame_to_json, goodbye_to_json, Decoder, Format, Message,
+    ProtocolError, Representation, Request,
 };
+use crate::asg_stage::{LatestAsg, PublishedAsg};
 use crate::metrics::{ClientLabel, EndpointLabel, Metrics};
 use crate::pipeline::{LatestLights, Published};
 use futures_util::{SinkExt, StreamExt};
@@ -128,6 +132,49 @@ struct Context {
     next_client: AtomicU64,
     /// The newest publication's encodings, shared by the clients that ask for the same form.
     encoded: std::sync::Mutex<EncodeCache>,
+    /// The ASG stage's sets, if the daemon produces them.
+    asg: Option<watch::Receiver<LatestAsg>>,
+    /// As `encoded`, for ASG sets (their publication indices are a sequence of their own).
+    encoded_asg: std::sync::Mutex<EncodeCache>,
+}
+
+/// One publication, of the representation a client subscribed to.
+enum Publication {
+    Lights(Arc<Published>),
+    Asg(Arc<PublishedAsg>),
+}
+
+impl Publication {
+    fn index(&self) -> u64 {
+        match self {
+            Publication::Lights(p) => p.index,
+            Publication::Asg(p) => p.index,
+        }
+    }
+}
+
+/// The latest-value channel a subscribed connection follows.
+enum Feed {
+    Lights(watch::Receiver<LatestLights>),
+    Asg(watch::Receiver<LatestAsg>),
+}
+
+impl Feed {
+    /// Waits for a new publication; `false` once the stream has ended.
+    async fn changed(&mut self) -> bool {
+        match self {
+            Feed::Lights(rx) => rx.changed().await.is_ok(),
+            Feed::Asg(rx) => rx.changed().await.is_ok(),
+        }
+    }
+
+    /// The newest publication, marked seen.
+    fn newest(&mut self) -> Option<Publication> {
+        match self {
+            Feed::Lights(rx) => rx.borrow_and_update().clone().map(Publication::Lights),
+            Feed::Asg(rx) => rx.borrow_and_update().clone().map(Publication::Asg),
+        }
+    }
 }
 
 /// How a frame is encoded for a client.
@@ -156,18 +203,23 @@ impl Context {
     /// The publication encoded for a client with `cap` in `encoding`.
     fn encoded(
         &self,
-        published: &Published,
+        published: &Publication,
         cap: Option<usize>,
         encoding: Encoding,
     ) -> Arc<Vec<u8>> {
+        let cache = match published {
+            Publication::Lights(_) => &self.encoded,
+            Publication::Asg(_) => &self.encoded_asg,
+        };
         let lock = || {
-            self.encoded
+            cache
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
         };
+        let index = published.index();
         {
             let cache = lock();
-            if cache.index == published.index {
+            if cache.index == index {
                 if let Some((_, _, bytes)) = cache
                     .entries
                     .iter()
@@ -178,10 +230,19 @@ impl Context {
             }
         }
         let mut out = Vec::new();
-        match encoding {
-            Encoding::Binary => encode_frame(&published.lights, cap, published.stale, &mut out),
-            Encoding::JsonLine | Encoding::JsonText => {
-                out = frame_to_json(&published.lights, cap, published.stale).into_bytes();
+        match (encoding, published) {
+            (Encoding::Binary, Publication::Lights(p)) => {
+                encode_frame(&p.lights, cap, p.stale, &mut out)
+            }
+            (Encoding::Binary, Publication::Asg(p)) => {
+                encode_asg_frame(&p.set, cap, p.stale, &mut out)
+            }
+            (Encoding::JsonLine | Encoding::JsonText, _) => {
+                out = match published {
+                    Publication::Lights(p) => frame_to_json(&p.lights, cap, p.stale),
+                    Publication::Asg(p) => asg_frame_to_json(&p.set, cap, p.stale),
+                }
+                .into_bytes();
                 if encoding == Encoding::JsonLine {
                     out.push(b'\n');
                 }
@@ -189,11 +250,11 @@ impl Context {
         }
         let bytes = Arc::new(out);
         let mut cache = lock();
-        if published.index > cache.index {
-            cache.index = published.index;
+        if index > cache.index {
+            cache.index = index;
             cache.entries.clear();
         }
-        if cache.index == published.index && cache.entries.len() < ENCODE_CACHE_ENTRIES {
+        if cache.index == index && cache.entries.len() < ENCODE_CACHE_ENTRIES {
             cache.entries.push((cap, encoding, Arc::clone(&bytes)));
         }
         bytes
@@ -217,12 +278,25 @@ impl StreamServer {
         lights: watch::Receiver<LatestLights>,
         metrics: Arc<Metrics>,
     ) -> Result<StreamServer, ServerError> {
+        Self::start_with_asg(config, lights, None, metrics).await
+    }
+
+    /// As [`StreamServer::start`], also serving the ASG stage's sets (`asg`) to clients that
+    /// subscribe with representation `asg`.
+    pub async fn start_with_asg(
+        config: &ServerConfig,
+        lights: watch::Receiver<LatestLights>,
+        asg: Option<watch::Receiver<LatestAsg>>,
+        metrics: Arc<Metrics>,
+    ) -> Result<StreamServer, ServerError> {
         let ctx = Arc::new(Context {
             config: config.clone(),
             metrics,
             clients: AtomicUsize::new(0),
             next_client: AtomicU64::new(1),
             encoded: std::sync::Mutex::default(),
+            asg,
+            encoded_asg: std::sync::Mutex::default(),
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
         let (done_tx, done_rx) = mpsc::channel(1);
@@ -480,7 +554,7 @@ async fn shutdown_message(shutdown: &mut watch::Receiver<Option<String>>) -> Str
 
 /// What woke a subscribed connection's task.
 enum Event<T> {
-    /// A new light list (false: the stream ended).
+    /// A new publication: light list or ASG set (false: the stream ended).
     Lights(bool),
     /// The daemon is shutting down, with this goodbye.
     Shutdown(String),
@@ -586,31 +660,40 @@ impl Connection {
         Close::Error(error_code::INTERNAL, message)
     }
 
-    fn check_request(&self, request: Request) -> Result<Request, Close> {
-        if request.representation != Representation::Lights {
-            let text = format!(
-                "representation {:?} is not produced by this daemon (it produces: lights)",
-                request.representation
-            )
-            .to_lowercase();
-            self.count_error(&text);
-            return Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text));
+    /// The request if this daemon produces its representation, with the feed to follow.
+    fn check_request(&self, request: Request) -> Result<(Request, Feed), Close> {
+        let feed = match request.representation {
+            Representation::Lights => Some(Feed::Lights(self.lights.clone())),
+            Representation::Asg => self.ctx.asg.clone().map(Feed::Asg),
+            Representation::Wavelet => None,
+        };
+        match feed {
+            Some(feed) => Ok((request, feed)),
+            None => {
+                let produced = if self.ctx.asg.is_some() {
+                    "lights, asg"
+                } else {
+                    "lights; asg needs [asg] enabled = true"
+                };
+                let text = format!(
+                    "representation {} is not produced by this daemon (it produces: {produced})",
+                    request.representation.name()
+                );
+                self.count_error(&text);
+                Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text))
+            }
         }
-        Ok(request)
     }
 
     /// Takes the newest publication if it is new to this client, counting skipped ones.
-    fn take_newest(
-        &self,
-        lights: &mut watch::Receiver<LatestLights>,
-        progress: &mut Progress,
-    ) -> Option<Arc<Published>> {
-        let published = lights.borrow_and_update().clone()?;
-        if published.index <= progress.last_index {
+    fn take_newest(&self, feed: &mut Feed, progress: &mut Progress) -> Option<Publication> {
+        let published = feed.newest()?;
+        let index = published.index();
+        if index <= progress.last_index {
             return None;
         }
-        if progress.last_index != 0 && published.index > progress.last_index + 1 {
-            let skipped = published.index - progress.last_index - 1;
+        if progress.last_index != 0 && index > progress.last_index + 1 {
+            let skipped = index - progress.last_index - 1;
             progress.skipped += skipped;
             self.ctx
                 .metrics
@@ -623,7 +706,7 @@ impl Connection {
                 .get_or_create(&self._guard.label)
                 .set(i64::try_from(progress.skipped).unwrap_or(i64::MAX));
         }
-        progress.last_index = published.index;
+        progress.last_index = index;
         Some(published)
     }
 
@@ -633,7 +716,7 @@ impl Connection {
         &self,
         write: impl std::future::Future<Output = Result<(), E>>,
         shutdown: &mut watch::Receiver<Option<String>>,
-        published: &Published,
+        published: &Publication,
     ) -> Option<Close> {
         let write = tokio::time::timeout(self.ctx.config.write_timeout, write);
         let written = tokio::select! {
@@ -653,13 +736,17 @@ impl Connection {
         }
     }
 
-    fn delivered(&self, published: &Published) {
+    fn delivered(&self, published: &Publication) {
         self.ctx
             .metrics
             .frames_sent
             .get_or_create(&self.label())
             .inc();
-        if let Some(arrived) = published.arrived {
+        // Delivery latency is the lights' figure (from arrival at the decomposition).
+        if let Publication::Lights(p) = published {
+            let Some(arrived) = p.arrived else {
+                return;
+            };
             self.ctx
                 .metrics
                 .delivery_seconds
@@ -725,34 +812,35 @@ impl Connection {
             Ok(request) => request,
             Err(close) => return close,
         };
-        let request = match self.check_request(request) {
+        // Frames and the closing message (an error 6 for the representation included) follow
+        // the requested format from now on.
+        let subscribed_binary = *dialect == Dialect::Binary;
+        *dialect = match request.format {
+            Format::Binary => Dialect::Binary,
+            Format::Json => Dialect::JsonLines,
+        };
+        let (request, mut feed) = match self.check_request(request) {
             Ok(r) => r,
             Err(close) => return close,
         };
         tracing::info!(
             client = %self.name,
             max_lights = request.max_lights,
+            representation = request.representation.name(),
             format = ?request.format,
             "client subscribed"
         );
-        // Frames and the closing message follow the requested format from now on.
-        let subscribed_binary = *dialect == Dialect::Binary;
-        *dialect = match request.format {
-            Format::Binary => Dialect::Binary,
-            Format::Json => Dialect::JsonLines,
-        };
         // Bytes that came with the subscribe are input after it.
         if subscribed_binary && decoder.buffered() > 0 {
             return self.unexpected_input(&mut decoder);
         }
         let mut reading = true;
         let mut progress = Progress::default();
-        let mut lights = self.lights.clone();
         let mut shutdown = self.shutdown.clone();
         loop {
             let event = tokio::select! {
                 biased;
-                changed = lights.changed() => Event::Lights(changed.is_ok()),
+                changed = feed.changed() => Event::Lights(changed),
                 message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
                 read = reader.read(&mut buf), if reading => Event::Input(read),
             };
@@ -761,7 +849,7 @@ impl Connection {
                     return Close::Goodbye("the light stream ended".to_owned());
                 }
                 Event::Lights(true) => {
-                    let Some(published) = self.take_newest(&mut lights, &mut progress) else {
+                    let Some(published) = self.take_newest(&mut feed, &mut progress) else {
                         continue;
                     };
                     let encoding = match request.format {
@@ -804,7 +892,7 @@ impl Connection {
             Ok(message) => {
                 let what = match message {
                     Some(Message::Subscribe(_)) => "a second subscribe",
-                    Some(Message::Frame(_)) => "a frame",
+                    Some(Message::Frame(_) | Message::Asg(_)) => "a frame",
                     Some(Message::Error { .. }) => "an error message",
                     Some(Message::Goodbye { .. }) => return Close::Quiet,
                     None => "bytes",
@@ -966,7 +1054,6 @@ impl Connection {
         }
         let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
         let mut shutdown = self.shutdown.clone();
-        let mut lights = self.lights.clone();
         let request = loop {
             let event = tokio::select! {
                 next = source.next() => HandshakeEvent::Input(next),
@@ -1005,13 +1092,14 @@ impl Connection {
                 }
             }
         };
-        let request = match self.check_request(request) {
+        let (request, mut feed) = match self.check_request(request) {
             Ok(r) => r,
             Err(close) => return close,
         };
         tracing::info!(
             client = %self.name,
             max_lights = request.max_lights,
+            representation = request.representation.name(),
             format = ?request.format,
             "client subscribed"
         );
@@ -1019,7 +1107,7 @@ impl Connection {
         loop {
             let event = tokio::select! {
                 biased;
-                changed = lights.changed() => Event::Lights(changed.is_ok()),
+                changed = feed.changed() => Event::Lights(changed),
                 message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
                 next = source.next() => Event::Input(next),
             };
@@ -1028,7 +1116,7 @@ impl Connection {
                     return Close::Goodbye("the light stream ended".to_owned());
                 }
                 Event::Lights(true) => {
-                    let Some(published) = self.take_newest(&mut lights, &mut progress) else {
+                    let Some(published) = self.take_newest(&mut feed, &mut progress) else {
                         continue;
                     };
                     let message = match request.format {

@@ -1,0 +1,150 @@
+// ASG lighting pass: Lambertian diffuse + GGX specular (metallic-roughness) under a set of
+// anisotropic spherical Gaussians, in closed form, in linear HDR (rgba32float target). No shadows
+// and no occlusion: every lobe lights every surface facing it.
+//
+// The same maths as src/asg/mod.rs (docs/asg.md; Xu et al. 2013):
+//  * irradiance: E(n) = c · ∫G · H(n·z, ν), ν = 2√(λμ), with H the normalised cosine convolution
+//    of an isotropic lobe, tabulated on the CPU (129 values of t = n·z × 72 of ln ν, exactly the
+//    table of `asg::cosine_convolution`) and interpolated bilinearly here;
+//  * specular: the GGX lobe as a spherical Gaussian of sharpness 1/(2α²) around the mirror
+//    direction r, its product with the ASG integrated in r's tangent plane, times Smith's
+//    height-correlated G2 / (4 n·v) and F = f0 (`Asg::ggx_specular`).
+// A shadow-catcher material outputs (0, 0, 0, 0): without shadows there is nothing to catch.
+
+const PI: f32 = 3.14159265358979;
+const FLAG_CATCHER: u32 = 1u;
+const TABLE_T: u32 = 129u;
+const TABLE_NU: u32 = 72u;
+const TABLE_NU_MIN: f32 = 0.5;
+const TABLE_NU_MAX: f32 = 400000.0;
+
+struct Globals {
+    view_proj: mat4x4<f32>,
+    camera_pos: vec4<f32>,
+    lobe_count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+};
+
+struct Lobe {
+    // xyz: tangent x; w: λ.
+    x: vec4<f32>,
+    // xyz: bitangent y = z × x; w: μ.
+    y: vec4<f32>,
+    // xyz: axis z; w: ν = 2√(λμ).
+    z: vec4<f32>,
+    // rgb: amplitude c; w: ∫ of the unit-amplitude lobe (sr).
+    rgb: vec4<f32>,
+};
+
+struct Material {
+    base_color: vec4<f32>,
+    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
+    params: vec4<f32>,
+};
+
+@group(0) @binding(0) var<uniform> globals: Globals;
+@group(0) @binding(1) var<storage, read> lobes: array<Lobe>;
+@group(0) @binding(2) var<storage, read> materials: array<Material>;
+@group(0) @binding(3) var<storage, read> cosine_table: array<f32>;
+
+struct VertexIn {
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) material: u32,
+};
+
+struct VertexOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) @interpolate(flat) material: u32,
+};
+
+@vertex
+fn vs_main(v: VertexIn) -> VertexOut {
+    var out: VertexOut;
+    out.clip = globals.view_proj * vec4<f32>(v.position, 1.0);
+    out.world = v.position;
+    out.normal = v.normal;
+    out.material = v.material;
+    return out;
+}
+
+// H(t, ν): bilinear in t and ln ν on the table (clamped at its ends), as
+// `asg::cosine_convolution`.
+fn cosine_h(t: f32, nu: f32) -> f32 {
+    let dt = 2.0 / f32(TABLE_T - 1u);
+    let dl = log(TABLE_NU_MAX / TABLE_NU_MIN) / f32(TABLE_NU - 1u);
+    let ut = clamp((clamp(t, -1.0, 1.0) + 1.0) / dt, 0.0, f32(TABLE_T - 1u));
+    let un = clamp(log(max(nu, 1e-30) / TABLE_NU_MIN) / dl, 0.0, f32(TABLE_NU - 1u));
+    let i = min(u32(floor(ut)), TABLE_T - 2u);
+    let j = min(u32(floor(un)), TABLE_NU - 2u);
+    let ft = ut - f32(i);
+    let fv = un - f32(j);
+    let h00 = cosine_table[j * TABLE_T + i];
+    let h10 = cosine_table[j * TABLE_T + i + 1u];
+    let h01 = cosine_table[(j + 1u) * TABLE_T + i];
+    let h11 = cosine_table[(j + 1u) * TABLE_T + i + 1u];
+    let h0 = h00 + (h10 - h00) * ft;
+    let h1 = h01 + (h11 - h01) * ft;
+    return h0 + (h1 - h0) * fv;
+}
+
+// Specular response to lobe `k` per unit f0 (`Asg::ggx_specular` with f0 = 1), without the
+// lobe's colour.
+fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
+    let n_v = dot(n, v);
+    if n_v <= 1e-6 {
+        return 0.0;
+    }
+    let alpha = max(alpha_in, 1e-3);
+    let a2 = alpha * alpha;
+    let r = normalize(2.0 * n_v * n - v);
+    let nu = 1.0 / (2.0 * a2);
+    let lobe = lobes[k];
+    let s = dot(r, lobe.z.xyz);
+    if s <= 0.0 {
+        return 0.0;
+    }
+    let l = lobe.x.w;
+    let m = lobe.y.w;
+    let a = dot(r, lobe.x.xyz);
+    let b = dot(r, lobe.y.xyz);
+    let lp = l * nu / (2.0 * l + nu);
+    let mp = m * nu / (2.0 * m + nu);
+    let conv = s * PI / sqrt((l + 0.5 * nu) * (m + 0.5 * nu)) * exp(-lp * a * a - mp * b * b);
+    let lambda_v = (sqrt(1.0 + a2 * (1.0 / (n_v * n_v) - 1.0)) - 1.0) * 0.5;
+    let g2 = 1.0 / (1.0 + 2.0 * lambda_v);
+    return conv / (PI * a2) * g2 / (4.0 * n_v);
+}
+
+@fragment
+fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
+    let mat = materials[in.material];
+    if (u32(mat.params.w) & FLAG_CATCHER) != 0u {
+        return vec4<f32>(0.0);
+    }
+    let n = normalize(in.normal);
+    let v = normalize(globals.camera_pos.xyz - in.world);
+    let roughness = clamp(mat.params.x, 0.0, 1.0);
+    let metallic = clamp(mat.params.y, 0.0, 1.0);
+    let spec_level = mat.params.z;
+    let alpha = max(roughness * roughness, 0.002);
+    let diffuse = mat.base_color.rgb * (1.0 - metallic) / PI;
+    let f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), mat.base_color.rgb, metallic);
+    let has_specular = any(f0 > vec3<f32>(0.0));
+
+    var irradiance = vec3<f32>(0.0);
+    var specular = vec3<f32>(0.0);
+    for (var k = 0u; k < globals.lobe_count; k = k + 1u) {
+        let c = lobes[k].rgb;
+        let h = cosine_h(dot(n, lobes[k].z.xyz), lobes[k].z.w);
+        irradiance = irradiance + c.rgb * (c.w * h);
+        if has_specular {
+            specular = specular + c.rgb * ggx_response(k, n, v, alpha);
+        }
+    }
+    return vec4<f32>(diffuse * irradiance + f0 * specular, 1.0);
+}

@@ -1,0 +1,556 @@
+//! The daemon's ASG stage (`[asg]`): fits anisotropic spherical Gaussians ([`crate::asg::fit`])
+//! to the newest frames on its own thread and publishes each set on a latest-value channel.
+//!
+//! ```text
+//! envlight-decompose ──AsgFeed (one slot, newest wins)──► envlight-asg ──watch──► stream server
+//!   (after publishing its lights)                           (AsgFitter)      Option<Arc<PublishedAsg>>
+//! ```
+//!
+//! - **Never slows the lights.** A fit takes far longer than a decomposition. The decompose
+//!   thread hands each frame to the stage *after* publishing its lights ([`AsgFeed::offer`]):
+//!   the feed is a single slot, and a frame that is still waiting when a newer one arrives is
+//!   replaced and counted in [`AsgStats::frames_skipped`]. The decompose thread never waits
+//!   (live sources).
+//! - **Replay is lossless.** With [`AsgFeed::new`]`(true)` (the daemon's replay mode, like the
+//!   pipeline's [`crate::pipeline::QueuePolicy::Block`]) `offer` waits until the slot is free,
+//!   so every frame is fitted in order and the ASG stream of a recording is reproducible (the
+//!   fit is deterministic: its sums are split in fixed bands, independent of the thread count).
+//!   The lights then advance at the fit's pace.
+//! - **Thread** `envlight-asg` runs an [`AsgFitter`]: the first frame is fitted from scratch,
+//!   every later one is warm-started from the previous lobes (skipped frames simply are not
+//!   part of that chain). Each result is published as a [`PublishedAsg`] (numbered like
+//!   [`crate::pipeline::Published`], so a consumer can count what it skipped) with its fit
+//!   time. A frame that cannot be fitted is logged and counted ([`AsgStats::fit_errors`]); the
+//!   stage goes on with the next one.
+//! - **Reconfiguration** ([`AsgStage::reconfigure`], SIGHUP) swaps in a new fitter before the
+//!   next frame (the warm-start chain restarts).
+//! - **End.** Closing the feed ([`AsgFeed::close`]; the pipeline does it when its decompose
+//!   thread ends) lets the stage fit the frame still waiting and end; [`AsgStage::join`] waits
+//!   for it. A panic in the thread becomes an error of `join`, never a panic in the caller.
+
+use crate::asg::fit::{AsgFitter, FitSettings};
+use crate::asg::AsgError;
+use crate::frame::HdrFrame;
+use crate::light::AsgSet;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+
+/// Name of the ASG thread.
+pub const ASG_THREAD_NAME: &str = "envlight-asg";
+
+/// One publication of the ASG stage.
+#[derive(Clone, Debug)]
+pub struct PublishedAsg {
+    /// 1 for the first publication, one more for each later one (stale re-publications
+    /// included).
+    pub index: u64,
+    /// The fitted lobes.
+    pub set: Arc<AsgSet>,
+    /// The lobes are the last known ones and the source is lost.
+    pub stale: bool,
+    /// When the frame was handed to the stage (`None` for a stale re-publication).
+    pub arrived: Option<Instant>,
+    /// How long the fit took.
+    pub fit_time: Duration,
+    /// When it was published.
+    pub published_at: Instant,
+}
+
+impl PublishedAsg {
+    fn after(
+        previous: Option<&PublishedAsg>,
+        set: Arc<AsgSet>,
+        stale: bool,
+        arrived: Option<Instant>,
+        fit_time: Duration,
+    ) -> Arc<Self> {
+        Arc::new(Self {
+            index: previous.map_or(0, |p| p.index) + 1,
+            set,
+            stale,
+            arrived,
+            fit_time,
+            published_at: Instant::now(),
+        })
+    }
+}
+
+/// What ASG consumers receive: the newest publication, `None` until the first one.
+pub type LatestAsg = Option<Arc<PublishedAsg>>;
+
+/// Counters of the ASG stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AsgStats {
+    /// Frames offered to the stage.
+    pub frames_offered: u64,
+    /// Frames replaced by a newer one before the stage took them.
+    pub frames_skipped: u64,
+    /// Sets fitted and published.
+    pub fits: u64,
+    /// Frames whose fit failed.
+    pub fit_errors: u64,
+    /// Duration of the most recent fit.
+    pub last_fit_time: Duration,
+}
+
+/// Errors of the ASG stage.
+#[derive(Debug, thiserror::Error)]
+pub enum AsgStageError {
+    #[error("invalid [asg] settings: {0}")]
+    Settings(#[from] AsgError),
+    #[error("cannot start thread {ASG_THREAD_NAME}: {0}")]
+    Spawn(#[source] std::io::Error),
+    #[error("thread {ASG_THREAD_NAME} panicked: {0}")]
+    Panicked(String),
+}
+
+#[derive(Default)]
+struct Slot {
+    frame: Option<(HdrFrame, Instant)>,
+    closed: bool,
+}
+
+#[derive(Default)]
+struct FeedInner {
+    slot: Mutex<Slot>,
+    /// Signalled when a frame is put in the slot, taken out of it, or the feed closes.
+    changed: Condvar,
+    lossless: bool,
+    offered: AtomicU64,
+    skipped: AtomicU64,
+}
+
+/// The hand-off from the decompose thread to the ASG stage: one slot, newest frame wins (or,
+/// lossless, the sender waits for the slot). Cheap to clone.
+#[derive(Clone, Default)]
+pub struct AsgFeed(Arc<FeedInner>);
+
+impl std::fmt::Debug for AsgFeed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AsgFeed")
+            .field("lossless", &self.0.lossless)
+            .finish_non_exhaustive()
+    }
+}
+
+impl AsgFeed {
+    /// An open feed; `lossless` makes [`AsgFeed::offer`] wait for a free slot instead of
+    /// replacing the waiting frame.
+    pub fn new(lossless: bool) -> Self {
+        Self(Arc::new(FeedInner {
+            lossless,
+            ..FeedInner::default()
+        }))
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Slot> {
+        self.0
+            .slot
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Hands a frame to the stage. Live: replaces a frame still waiting (counted as skipped)
+    /// and returns at once. Lossless: waits while a frame is waiting. A closed feed drops it.
+    pub fn offer(&self, frame: HdrFrame) {
+        let mut slot = self.lock();
+        if slot.closed {
+            return;
+        }
+        self.0.offered.fetch_add(1, Ordering::AcqRel);
+        if self.0.lossless {
+            while slot.frame.is_some() && !slot.closed {
+                slot = self
+                    .0
+                    .changed
+                    .wait(slot)
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+            }
+            if slot.closed {
+                return;
+            }
+        }
+        if slot.frame.replace((frame, Instant::now())).is_some() {
+            self.0.skipped.fetch_add(1, Ordering::AcqRel);
+        }
+        drop(slot);
+        self.0.changed.notify_all();
+    }
+
+    /// No more frames: the stage fits the one still waiting (if any) and ends.
+    pub fn close(&self) {
+        self.lock().closed = true;
+        self.0.changed.notify_all();
+    }
+
+    /// The next frame, waiting for one; `None` once the feed is closed and empty.
+    fn take(&self) -> Option<(HdrFrame, Instant)> {
+        let mut slot = self.lock();
+        loop {
+            if let Some(frame) = slot.frame.take() {
+                drop(slot);
+                self.0.changed.notify_all();
+                return Some(frame);
+            }
+            if slot.closed {
+                return None;
+            }
+            slot = self
+                .0
+                .changed
+                .wait(slot)
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+        }
+    }
+}
+
+/// Closes the feed when dropped (the end of the thread that feeds it, a panic included).
+pub struct CloseOnDrop(pub AsgFeed);
+
+impl Drop for CloseOnDrop {
+    fn drop(&mut self) {
+        self.0.close();
+    }
+}
+
+/// Called on the ASG thread after each published set (metrics).
+pub type AsgHook = Arc<dyn Fn(&PublishedAsg) + Send + Sync>;
+
+#[derive(Default)]
+struct Shared {
+    fits: AtomicU64,
+    fit_errors: AtomicU64,
+    last_fit_nanos: AtomicU64,
+    pending: Mutex<Option<AsgFitter>>,
+}
+
+/// The running ASG stage. See the module documentation.
+pub struct AsgStage {
+    feed: AsgFeed,
+    shared: Arc<Shared>,
+    tx: Arc<watch::Sender<LatestAsg>>,
+    rx: watch::Receiver<LatestAsg>,
+    handle: JoinHandle<()>,
+}
+
+impl AsgStage {
+    /// Validates `settings` and starts the `envlight-asg` thread, fed by a new feed
+    /// (`lossless` as in [`AsgFeed::new`]). `on_publish` runs on the thread after each set.
+    pub fn start(
+        settings: FitSettings,
+        lossless: bool,
+        on_publish: Option<AsgHook>,
+    ) -> Result<AsgStage, AsgStageError> {
+        let mut fitter = AsgFitter::new(settings)?;
+        let feed = AsgFeed::new(lossless);
+        let shared = Arc::new(Shared::default());
+        let (tx, rx) = watch::channel::<LatestAsg>(None);
+        let tx = Arc::new(tx);
+        let (thread_feed, thread_shared, thread_tx) =
+            (feed.clone(), Arc::clone(&shared), Arc::clone(&tx));
+        tracing::info!(
+            lobes = fitter.settings().lobes,
+            height = fitter.settings().height,
+            iterations = fitter.settings().iterations,
+            warm_iterations = fitter.settings().warm_iterations,
+            lossless,
+            "starting the ASG stage"
+        );
+        let handle = std::thread::Builder::new()
+            .name(ASG_THREAD_NAME.to_owned())
+            .spawn(move || {
+                // If this thread dies, the feed must not make a lossless sender wait forever.
+                let _close = CloseOnDrop(thread_feed.clone());
+                while let Some((frame, arrived)) = thread_feed.take() {
+                    if let Some(new) = thread_shared
+                        .pending
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .take()
+                    {
+                        fitter = new;
+                    }
+                    let started = Instant::now();
+                    let result = fitter.fit_frame(&frame);
+                    let elapsed = started.elapsed();
+                    let result = match result {
+                        Ok(result) => result,
+                        Err(error) => {
+                            thread_shared.fit_errors.fetch_add(1, Ordering::AcqRel);
+                            tracing::warn!(seq = frame.seq, %error, "ASG fit failed; skipping the frame");
+                            continue;
+                        }
+                    };
+                    let set = Arc::new(AsgSet::from_fit(frame.seq, frame.time, &result.lobes));
+                    let nanos = u64::try_from(elapsed.as_nanos()).unwrap_or(u64::MAX);
+                    thread_shared
+                        .last_fit_nanos
+                        .store(nanos, Ordering::Release);
+                    thread_shared.fits.fetch_add(1, Ordering::AcqRel);
+                    thread_tx.send_modify(|latest| {
+                        *latest = Some(PublishedAsg::after(
+                            latest.as_deref(),
+                            set,
+                            false,
+                            Some(arrived),
+                            elapsed,
+                        ));
+                    });
+                    if let Some(hook) = &on_publish {
+                        if let Some(published) = thread_tx.borrow().as_ref() {
+                            hook(published);
+                        }
+                    }
+                }
+            })
+            .map_err(AsgStageError::Spawn)?;
+        Ok(AsgStage {
+            feed,
+            shared,
+            tx,
+            rx,
+            handle,
+        })
+    }
+
+    /// The feed to hand frames to (give it to the pipeline).
+    pub fn feed(&self) -> AsgFeed {
+        self.feed.clone()
+    }
+
+    /// A receiver of the newest ASG set; a set published already shows as changed.
+    pub fn subscribe(&self) -> watch::Receiver<LatestAsg> {
+        self.rx.clone()
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> AsgStats {
+        stats(&self.feed, &self.shared)
+    }
+
+    /// A handle that reads the counters from anywhere (the metrics endpoint).
+    pub fn stats_handle(&self) -> AsgStatsHandle {
+        AsgStatsHandle(self.feed.clone(), Arc::clone(&self.shared))
+    }
+
+    /// Replaces the fit settings from the next frame on (a new fitter: the next frame is
+    /// fitted from scratch). Invalid settings are rejected and change nothing.
+    pub fn reconfigure(&self, settings: FitSettings) -> Result<(), AsgError> {
+        let fitter = AsgFitter::new(settings)?;
+        *self
+            .shared
+            .pending
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(fitter);
+        Ok(())
+    }
+
+    /// Marks the newest set stale (the source is lost) or live again, re-publishing it on a
+    /// change. Returns whether anything was published.
+    pub fn set_stale(&self, stale: bool) -> bool {
+        self.stale_handle().set_stale(stale)
+    }
+
+    /// A handle for [`AsgStage::set_stale`] from another thread.
+    pub fn stale_handle(&self) -> AsgStaleHandle {
+        AsgStaleHandle(Arc::clone(&self.tx))
+    }
+
+    /// Whether the thread has ended (the feed was closed and drained).
+    pub fn is_finished(&self) -> bool {
+        self.handle.is_finished()
+    }
+
+    /// Closes the feed (the stage fits the frame still waiting, then ends).
+    pub fn stop(&self) {
+        self.feed.close();
+    }
+
+    /// Closes the feed, waits for the thread and returns the final counters.
+    pub fn join(self) -> Result<AsgStats, AsgStageError> {
+        self.feed.close();
+        let joined = self.handle.join();
+        if let Err(payload) = joined {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "non-string panic payload".to_owned());
+            return Err(AsgStageError::Panicked(message));
+        }
+        Ok(stats(&self.feed, &self.shared))
+    }
+}
+
+fn stats(feed: &AsgFeed, shared: &Shared) -> AsgStats {
+    AsgStats {
+        frames_offered: feed.0.offered.load(Ordering::Acquire),
+        frames_skipped: feed.0.skipped.load(Ordering::Acquire),
+        fits: shared.fits.load(Ordering::Acquire),
+        fit_errors: shared.fit_errors.load(Ordering::Acquire),
+        last_fit_time: Duration::from_nanos(shared.last_fit_nanos.load(Ordering::Acquire)),
+    }
+}
+
+/// Reads the stage's counters; valid after the stage has ended.
+#[derive(Clone)]
+pub struct AsgStatsHandle(AsgFeed, Arc<Shared>);
+
+impl AsgStatsHandle {
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> AsgStats {
+        stats(&self.0, &self.1)
+    }
+}
+
+/// Marks the newest ASG set stale or live; see [`AsgStage::set_stale`].
+#[derive(Clone)]
+pub struct AsgStaleHandle(Arc<watch::Sender<LatestAsg>>);
+
+impl AsgStaleHandle {
+    /// As [`AsgStage::set_stale`].
+    pub fn set_stale(&self, stale: bool) -> bool {
+        let mut changed = false;
+        self.0.send_if_modified(|latest| match latest {
+            Some(p) if p.stale != stale => {
+                let set = Arc::clone(&p.set);
+                *latest = Some(PublishedAsg::after(
+                    Some(p),
+                    set,
+                    stale,
+                    None,
+                    Duration::ZERO,
+                ));
+                changed = true;
+                true
+            }
+            _ => false,
+        });
+        changed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::envmap::Projection;
+
+    fn frame(seq: u64) -> HdrFrame {
+        let (w, h) = (32u32, 16u32);
+        let pixels = (0..w * h)
+            .map(|i| {
+                let v = 0.2 + ((i * 7 + seq as u32) % 11) as f32;
+                [v, 0.5 * v, 0.25 * v]
+            })
+            .collect();
+        let mut f = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
+        f.seq = seq;
+        f.time = seq as f64 / 30.0;
+        f
+    }
+
+    fn settings() -> FitSettings {
+        FitSettings {
+            lobes: 3,
+            height: 8,
+            iterations: 10,
+            warm_iterations: 3,
+            diffuse_normals: 16,
+            threads: 1,
+            ..FitSettings::default()
+        }
+    }
+
+    #[test]
+    fn live_feed_keeps_the_newest_frame_and_counts_skips() {
+        let feed = AsgFeed::new(false);
+        feed.offer(frame(0));
+        feed.offer(frame(1));
+        feed.offer(frame(2));
+        assert_eq!(feed.take().map(|(f, _)| f.seq), Some(2));
+        assert_eq!(feed.0.skipped.load(Ordering::Acquire), 2);
+        feed.offer(frame(3));
+        feed.close();
+        // The waiting frame is still delivered after close; later offers are dropped.
+        feed.offer(frame(4));
+        assert_eq!(feed.take().map(|(f, _)| f.seq), Some(3));
+        assert!(feed.take().is_none());
+    }
+
+    #[test]
+    fn lossless_stage_fits_every_frame_like_a_plain_fitter() {
+        let stage = AsgStage::start(settings(), true, None).unwrap();
+        let mut rx = stage.subscribe();
+        let feed = stage.feed();
+        let sender = std::thread::Builder::new()
+            .name("test-feeder".into())
+            .spawn(move || {
+                let _close = CloseOnDrop(feed.clone());
+                for seq in 0..5 {
+                    feed.offer(frame(seq));
+                }
+            })
+            .unwrap();
+        let mut seen = Vec::new();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            while rx.changed().await.is_ok() {
+                let p = rx.borrow_and_update().clone().unwrap();
+                seen.push(p);
+                if seen.last().unwrap().set.seq == 4 {
+                    break;
+                }
+            }
+        });
+        sender.join().unwrap();
+        let stats = stage.join().unwrap();
+        assert_eq!(stats.frames_skipped, 0);
+        assert_eq!(stats.fits, 5);
+        assert_eq!(stats.frames_offered, 5);
+        // Same lobes as a fitter run over the same frames in order.
+        let mut fitter = AsgFitter::new(settings()).unwrap();
+        let mut want = Vec::new();
+        for seq in 0..5 {
+            let r = fitter.fit_frame(&frame(seq)).unwrap();
+            want.push(AsgSet::from_fit(seq, seq as f64 / 30.0, &r.lobes));
+        }
+        let last = seen.last().unwrap();
+        assert_eq!(*last.set, want[4]);
+        assert_eq!(last.index, 5, "every fit was published");
+        for p in &seen {
+            assert_eq!(*p.set, want[p.set.seq as usize]);
+        }
+    }
+
+    #[test]
+    fn bad_settings_are_rejected_and_stale_republishes() {
+        let bad = FitSettings {
+            lobes: 0,
+            ..settings()
+        };
+        assert!(matches!(
+            AsgStage::start(bad.clone(), false, None),
+            Err(AsgStageError::Settings(_))
+        ));
+        let stage = AsgStage::start(settings(), false, None).unwrap();
+        assert!(stage.reconfigure(bad).is_err());
+        assert!(!stage.set_stale(true), "nothing published yet");
+        stage.feed().offer(frame(0));
+        while stage.stats().fits == 0 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let live = stage.subscribe().borrow().clone().unwrap();
+        assert!(stage.set_stale(true));
+        let stale = stage.subscribe().borrow().clone().unwrap();
+        assert!(stale.stale && Arc::ptr_eq(&stale.set, &live.set));
+        assert_eq!(stale.index, live.index + 1);
+        let stats = stage.join().unwrap();
+        assert_eq!(stats.fits, 1);
+    }
+}

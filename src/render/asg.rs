@@ -1,0 +1,405 @@
+//! ASG lighting: shades the scene under a set of anisotropic spherical Gaussians in closed form
+//! (`shaders/asg.wgsl`), the GPU twin of [`Asg::irradiance`] and [`Asg::ggx_specular`].
+//!
+//! One pass draws the scene into the renderer's HDR target: per pixel, Lambertian diffuse
+//! (albedo/π · Σ E_k(n), E from the normalised cosine convolution H tabulated by
+//! [`crate::asg::cosine_convolution`] and uploaded once as a storage buffer) plus GGX specular
+//! (Σ c_k · S_k(n, v, α) · f0, the spherical-Gaussian approximation of the GGX lobe). No shadow
+//! maps and no ambient occlusion: every lobe lights every surface that faces it, so a shadow
+//! catcher outputs transparent black. `tests/render.rs` compares the shaded pixels of a sphere
+//! with the CPU closed form.
+//!
+//! The pass is built on first use ([`Renderer::render_asg`]); the light pass is untouched.
+
+use super::{FrameStats, Image, RenderError, Renderer, COLOR_FORMAT, DEPTH_FORMAT};
+use crate::asg::{cosine_convolution, integral, Asg};
+use std::time::Instant;
+
+/// WGSL source of the ASG pass.
+pub const ASG_WGSL: &str = include_str!("../../shaders/asg.wgsl");
+
+/// Nodes of the cosine-convolution table over t = n·z (as in `crate::asg`).
+const TABLE_T: usize = 129;
+/// Nodes over ln ν ∈ [ln 0.5, ln 4·10⁵].
+const TABLE_NU: usize = 72;
+const TABLE_NU_MIN: f64 = 0.5;
+const TABLE_NU_MAX: f64 = 4.0e5;
+
+/// Per-frame constants of the ASG pass (matches `Globals` in asg.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct AsgGlobalsRaw {
+    view_proj: [[f32; 4]; 4],
+    camera_pos: [f32; 4],
+    lobe_count: u32,
+    _pad: [u32; 3],
+}
+
+/// One lobe as the shader reads it (matches `Lobe` in asg.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LobeRaw {
+    /// Tangent, λ.
+    pub x: [f32; 4],
+    /// Bitangent, μ.
+    pub y: [f32; 4],
+    /// Axis, ν = 2√(λμ).
+    pub z: [f32; 4],
+    /// Amplitude, exact integral of the unit-amplitude lobe.
+    pub rgb: [f32; 4],
+}
+
+impl LobeRaw {
+    /// The shader's form of a lobe; `None` for a lobe with non-finite values or non-positive
+    /// bandwidths (negative amplitudes are clamped to 0).
+    pub fn from_asg(asg: &Asg) -> Option<Self> {
+        let (x, y, z) = asg.frame();
+        let ok = [x, y, z].iter().all(|v| v.is_finite())
+            && asg.lambda.is_finite()
+            && asg.mu.is_finite()
+            && asg.lambda > 0.0
+            && asg.mu > 0.0
+            && asg.rgb.iter().all(|c| c.is_finite());
+        if !ok {
+            return None;
+        }
+        let v = |a: glam::DVec3, w: f64| [a.x as f32, a.y as f32, a.z as f32, w as f32];
+        let c = asg.rgb.map(|c| c.max(0.0) as f32);
+        Some(Self {
+            x: v(x, asg.lambda),
+            y: v(y, asg.mu),
+            z: v(z, 2.0 * (asg.lambda * asg.mu).sqrt()),
+            rgb: [c[0], c[1], c[2], integral(asg.lambda, asg.mu) as f32],
+        })
+    }
+}
+
+/// The table of H(t, ν) at its nodes, row by row in ν (the layout asg.wgsl reads), taken from
+/// [`cosine_convolution`] at the nodes (where its bilinear interpolation returns the node).
+pub fn cosine_table() -> Vec<f32> {
+    let dl = (TABLE_NU_MAX / TABLE_NU_MIN).ln() / (TABLE_NU - 1) as f64;
+    let mut out = Vec::with_capacity(TABLE_T * TABLE_NU);
+    for j in 0..TABLE_NU {
+        let nu = TABLE_NU_MIN * (dl * j as f64).exp();
+        for i in 0..TABLE_T {
+            let t = -1.0 + 2.0 * i as f64 / (TABLE_T - 1) as f64;
+            out.push(cosine_convolution(t, nu).0 as f32);
+        }
+    }
+    out
+}
+
+/// GPU objects of the ASG pass.
+pub(super) struct AsgPass {
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+    globals: wgpu::Buffer,
+    lobes: wgpu::Buffer,
+    capacity: usize,
+    table: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+}
+
+fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn lobe_buffer(device: &wgpu::Device, capacity: usize) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("asg lobes"),
+        size: (capacity * std::mem::size_of::<LobeRaw>()) as u64,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+impl AsgPass {
+    fn new(renderer: &Renderer) -> Self {
+        use wgpu::util::DeviceExt;
+        let device = &renderer.gpu.device;
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("asg"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                storage_entry(1),
+                storage_entry(2),
+                storage_entry(3),
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("asg.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(ASG_WGSL.into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("asg"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("asg"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[Some(super::vertex_layout(&attrs))],
+            },
+            primitive: wgpu::PrimitiveState {
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: COLOR_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let globals = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("asg globals"),
+            size: std::mem::size_of::<AsgGlobalsRaw>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let capacity = 64;
+        let lobes = lobe_buffer(device, capacity);
+        let table = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("asg cosine table"),
+            contents: bytemuck::cast_slice(&cosine_table()),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let bind_group = Self::bind(renderer, &layout, &globals, &lobes, &table);
+        Self {
+            pipeline,
+            layout,
+            globals,
+            lobes,
+            capacity,
+            table,
+            bind_group,
+        }
+    }
+
+    fn bind(
+        renderer: &Renderer,
+        layout: &wgpu::BindGroupLayout,
+        globals: &wgpu::Buffer,
+        lobes: &wgpu::Buffer,
+        table: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
+        renderer
+            .gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("asg"),
+                layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: globals.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: lobes.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: renderer.material_buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: table.as_entire_binding(),
+                    },
+                ],
+            })
+    }
+}
+
+impl Renderer {
+    /// Uploads the lobes (building the pass on first use); returns how many are drawn.
+    fn prepare_asg(&mut self, lobes: &[Asg]) -> usize {
+        let mut pass = match self.asg_pass.take() {
+            Some(pass) => pass,
+            None => AsgPass::new(self),
+        };
+        let raw: Vec<LobeRaw> = lobes.iter().filter_map(LobeRaw::from_asg).collect();
+        if raw.len() > pass.capacity {
+            pass.capacity = raw.len().next_power_of_two();
+            pass.lobes = lobe_buffer(&self.gpu.device, pass.capacity);
+            pass.bind_group =
+                AsgPass::bind(self, &pass.layout, &pass.globals, &pass.lobes, &pass.table);
+        }
+        if !raw.is_empty() {
+            self.gpu
+                .queue
+                .write_buffer(&pass.lobes, 0, bytemuck::cast_slice(&raw));
+        }
+        let globals = AsgGlobalsRaw {
+            view_proj: self.view_proj().to_cols_array_2d(),
+            camera_pos: self.scene.camera.eye.extend(1.0).to_array(),
+            lobe_count: raw.len() as u32,
+            _pad: [0; 3],
+        };
+        self.gpu
+            .queue
+            .write_buffer(&pass.globals, 0, bytemuck::bytes_of(&globals));
+        self.asg_pass = Some(pass);
+        raw.len()
+    }
+
+    fn encode_asg(&self, readback: bool) -> wgpu::CommandEncoder {
+        let mut enc = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("asg frame"),
+            });
+        if let Some(asg) = &self.asg_pass {
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("asg shade"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &self.color_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&asg.pipeline);
+            pass.set_bind_group(0, &asg.bind_group, &[]);
+            pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
+            pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+            pass.draw_indexed(0..self.scene.indices.len() as u32, 0, 0..1);
+        }
+        if readback {
+            self.encode_readback(&mut enc);
+        }
+        enc
+    }
+
+    /// Renders one frame under ASG lighting and waits for it, without reading the image back.
+    /// `FrameStats::lights` counts the lobes drawn; there are no shadow maps and no GPU
+    /// timestamps (CPU wall time only).
+    pub fn render_asg_timed(&mut self, lobes: &[Asg]) -> Result<FrameStats, RenderError> {
+        let start = Instant::now();
+        let n = self.prepare_asg(lobes);
+        let cmd = self.encode_asg(false).finish();
+        self.gpu.queue.submit([cmd]);
+        self.wait()?;
+        Ok(FrameStats {
+            lights: n,
+            shadow_maps: 0,
+            gpu_ms: None,
+            cpu_ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// Renders one frame under ASG lighting (module doc) and reads the image back.
+    pub fn render_asg(&mut self, lobes: &[Asg]) -> Result<(Image, FrameStats), RenderError> {
+        let start = Instant::now();
+        let n = self.prepare_asg(lobes);
+        let cmd = self.encode_asg(true).finish();
+        self.gpu.queue.submit([cmd]);
+        self.wait()?;
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let image = self.read_image()?;
+        Ok((
+            image,
+            FrameStats {
+                lights: n,
+                shadow_maps: 0,
+                gpu_ms: None,
+                cpu_ms,
+            },
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raw_sizes_match_the_shader() {
+        assert_eq!(std::mem::size_of::<AsgGlobalsRaw>(), 96);
+        assert_eq!(std::mem::size_of::<LobeRaw>(), 64);
+    }
+
+    #[test]
+    fn table_reproduces_the_cpu_interpolant() {
+        let table = cosine_table();
+        assert_eq!(table.len(), TABLE_T * TABLE_NU);
+        // Between nodes, bilinear interpolation of the uploaded table equals the CPU's.
+        let dl = (TABLE_NU_MAX / TABLE_NU_MIN).ln() / (TABLE_NU - 1) as f64;
+        for &(t, nu) in &[(0.3, 5.0), (-0.2, 0.9), (0.95, 3000.0), (0.0, 1.0e5)] {
+            let ut = (t + 1.0) / (2.0 / (TABLE_T - 1) as f64);
+            let un = (nu / TABLE_NU_MIN).ln() / dl;
+            let (i, j) = (ut.floor() as usize, un.floor() as usize);
+            let (ft, fv) = (ut - i as f64, un - j as f64);
+            let at = |i: usize, j: usize| f64::from(table[j * TABLE_T + i]);
+            let h0 = at(i, j) + (at(i + 1, j) - at(i, j)) * ft;
+            let h1 = at(i, j + 1) + (at(i + 1, j + 1) - at(i, j + 1)) * ft;
+            let h = h0 + (h1 - h0) * fv;
+            let cpu = cosine_convolution(t, nu).0;
+            assert!((h - cpu).abs() < 1e-6, "H({t}, {nu}): {h} vs {cpu}");
+        }
+    }
+
+    #[test]
+    fn degenerate_lobes_are_dropped() {
+        let mut a = Asg::new(glam::DVec3::Y, glam::DVec3::X, 4.0, 2.0, [1.0, -1.0, 2.0]).unwrap();
+        let raw = LobeRaw::from_asg(&a).unwrap();
+        assert_eq!(raw.rgb[1], 0.0);
+        assert!((raw.z[3] - 2.0 * 8f32.sqrt()).abs() < 1e-6);
+        a.lambda = f64::NAN;
+        assert!(LobeRaw::from_asg(&a).is_none());
+        a.lambda = 0.0;
+        assert!(LobeRaw::from_asg(&a).is_none());
+    }
+}

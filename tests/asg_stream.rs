@@ -1,0 +1,424 @@
+//! The ASG stage end to end (`[asg]`, src/asg_stage.rs): clients that subscribe with
+//! representation `asg` receive the sets `AsgFitter` computes for the same frames; without the
+//! stage an `asg` subscribe is refused with error 6; the live stage skips frames instead of
+//! slowing the lights; the render thread shades with ASG lighting.
+//!
+//! The comparison uses a replay: there the stage fits every frame in order (lossless, like the
+//! replay's decomposition), and the fit is deterministic (fixed summation bands, one thread), so
+//! every set a client receives must equal, bit for bit, the fitter's result for that frame after
+//! all earlier frames. A client may still skip sets (newest wins), so the test matches by seq.
+
+use envlight::asg::fit::AsgFitter;
+use envlight::capture::FrameSource;
+use envlight::config::{Config, RawConfig};
+use envlight::daemon::{Daemon, DaemonOptions};
+use envlight::light::AsgSet;
+use envlight::record::{Pacing, ReplaySource};
+use envlight::stream::client::{Client, Endpoint};
+use envlight::stream::protocol::{code, encode_asg_frame};
+use envlight::stream::{AsgFrameMessage, Format, Message, Representation, Request};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+const TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Small fits: 4 lobes on a 16×8 map, a few iterations (milliseconds per frame).
+const ASG: &str = "[asg]\nenabled = true\nlobes = 4\nfit_height = 8\niterations = 40\n\
+                   warm_iterations = 8\ndiffuse_normals = 16\nthreads = 1\n";
+
+fn config(dir: &Path, extra: &str) -> Config {
+    let text = format!(
+        "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
+         handshake_timeout_s = 2.0\n[metrics]\nlisten = \"127.0.0.1:0\"\n{extra}",
+        dir.join("envlight.sock").display()
+    );
+    RawConfig::parse(&text, Path::new("test.toml"))
+        .unwrap()
+        .validate()
+        .unwrap()
+}
+
+fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + TIMEOUT;
+    while !done() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+fn http_get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    stream.read_to_string(&mut text).unwrap();
+    let status = text[9..12].parse().unwrap();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_owned())
+        .unwrap_or_default();
+    (status, body)
+}
+
+fn metric_value(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+        .unwrap_or_else(|| panic!("no {name} in\n{text}"))
+}
+
+/// Everything an ASG client received until the goodbye.
+fn read_sets(mut client: Client) -> (Vec<AsgFrameMessage>, Option<String>) {
+    let mut sets = Vec::new();
+    loop {
+        match client.next_message() {
+            Ok(Some(Message::Asg(set))) => sets.push(set),
+            Ok(Some(Message::Goodbye { message })) => return (sets, Some(message)),
+            Ok(Some(other)) => panic!("unexpected {other:?}"),
+            Ok(None) => return (sets, None),
+            Err(e) => panic!("client error: {e}"),
+        }
+    }
+}
+
+/// Records up to `frames` small sky frames at 30 fps into `dir` (no ASG stage); returns how
+/// many were recorded (a loaded machine may drop some: the recorder is a live consumer).
+fn record_sky(dir: &Path, frames: u64) -> u64 {
+    let none =
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let text = format!(
+        "{none}[source]\nframes = {frames}\nfps = 30.0\n[sky]\nwidth = 64\nheight = 32\n\
+         sun_speed_deg_per_s = 30.0\n[decompose]\nlights = 16\nworking_width = 32\n"
+    );
+    let config = RawConfig::parse(&text, Path::new("t.toml"))
+        .unwrap()
+        .validate()
+        .unwrap();
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: None,
+            record: Some(dir.to_path_buf()),
+        },
+    )
+    .unwrap();
+    wait_until("the recording", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    summary.recorded.unwrap().frames
+}
+
+#[test]
+fn asg_clients_receive_what_the_fitter_computes() {
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("session");
+    let n = record_sky(&recording, 12);
+    assert!(n >= 4, "only {n} frames recorded");
+    let config = config(dir.path(), ASG);
+
+    // What the fitter gives for the recorded frames, in order, with the daemon's settings.
+    let mut fitter = AsgFitter::new(config.asg.fit.clone()).unwrap();
+    let mut replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
+    let mut expected = Vec::new();
+    while let Some(frame) = replay.next_frame().unwrap() {
+        let fit = fitter.fit_frame(&frame).unwrap();
+        expected.push(AsgSet::from_fit(frame.seq, frame.time, &fit.lobes));
+    }
+    assert_eq!(expected.len() as u64, n);
+
+    // Original timing (the sky's 30 fps), so that the clients are connected early on.
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: Some((recording.clone(), Pacing::Original)),
+            record: None,
+        },
+    )
+    .unwrap();
+    let addrs = daemon.addresses().clone();
+    let endpoints = [
+        (
+            Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()),
+            Format::Binary,
+            0u32,
+        ),
+        (
+            Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
+            Format::Json,
+            2,
+        ),
+        (
+            Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
+            Format::Binary,
+            3,
+        ),
+        (
+            Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
+            Format::Json,
+            0,
+        ),
+    ];
+    let clients: Vec<_> = endpoints
+        .iter()
+        .map(|(endpoint, format, cap)| {
+            let request = Request {
+                max_lights: *cap,
+                representation: Representation::Asg,
+                format: *format,
+            };
+            let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
+            std::thread::Builder::new()
+                .name("asg-client".into())
+                .spawn(move || read_sets(client))
+                .unwrap()
+        })
+        .collect();
+    // A lights client on the same daemon is unaffected.
+    let lights = Client::connect(
+        &Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
+        &Request::default(),
+        Some(TIMEOUT),
+    )
+    .unwrap();
+    let http = addrs.metrics.unwrap();
+    wait_until("the end of the replay", || daemon.source_finished());
+    let metrics = http_get(http, "/metrics").1;
+    let summary = daemon.shutdown().unwrap();
+    let asg = summary.asg.expect("the ASG stage ran");
+    assert_eq!(asg.fits, n, "a replay fits every frame");
+    assert_eq!(asg.frames_skipped, 0);
+    assert_eq!(asg.fit_errors, 0);
+    assert_eq!(summary.pipeline.frames_decomposed, n);
+    assert_eq!(metric_value(&metrics, "envlight_asg_fits_total"), n as f64);
+    assert_eq!(
+        metric_value(&metrics, "envlight_asg_frames_skipped_total"),
+        0.0
+    );
+    assert_eq!(
+        metric_value(&metrics, "envlight_asg_fit_seconds_count"),
+        n as f64
+    );
+
+    for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
+        let what = format!("{endpoint} {format:?} cap {cap}");
+        let (sets, goodbye) = client.join().unwrap();
+        assert_eq!(goodbye.as_deref(), Some("envlight shutting down"), "{what}");
+        let seqs: Vec<u64> = sets.iter().map(|s| s.seq).collect();
+        assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
+        assert_eq!(
+            seqs.last(),
+            Some(&expected.last().unwrap().seq),
+            "{what}: {seqs:?}"
+        );
+        let cap = (*cap != 0).then_some(*cap as usize);
+        for set in &sets {
+            let want = expected
+                .iter()
+                .find(|e| e.seq == set.seq)
+                .expect("a recorded frame");
+            assert!(!set.stale);
+            assert_eq!(set.time, want.time, "{what}");
+            // The capped set is the encoder's selection of the fitter's set, bit for bit.
+            let mut bytes = Vec::new();
+            encode_asg_frame(want, cap, false, &mut bytes);
+            let Ok(Message::Asg(capped)) = envlight::stream::protocol::decode_message(&bytes)
+            else {
+                panic!("the expected set does not encode");
+            };
+            assert_eq!(set.lobes, capped.lobes, "{what} seq {}", set.seq);
+            assert_eq!(
+                set.lobes.len(),
+                cap.unwrap_or(usize::MAX).min(want.lobes.len()),
+                "{what}"
+            );
+        }
+    }
+    drop(lights);
+}
+
+#[test]
+fn asg_subscribe_without_the_stage_is_unsupported() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    assert!(daemon.asg().is_none());
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    for format in [Format::Binary, Format::Json] {
+        let request = Request {
+            representation: Representation::Asg,
+            format,
+            ..Request::default()
+        };
+        let mut client =
+            Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
+        match client.next_message().unwrap() {
+            Some(Message::Error { code: c, message }) => {
+                assert_eq!(c, code::UNSUPPORTED_REPRESENTATION);
+                assert!(message.contains("[asg] enabled"), "{message}");
+            }
+            other => panic!("expected error 6, got {other:?}"),
+        }
+    }
+    daemon.shutdown().unwrap();
+}
+
+#[test]
+fn the_live_stage_skips_frames_and_never_slows_the_lights() {
+    let dir = tempfile::tempdir().unwrap();
+    // A fit far slower than the 60 fps source: 800 first-frame iterations on a 64×128 map.
+    let extra = "[source]\nfps = 60.0\nframes = 90\n[sky]\nwidth = 64\nheight = 32\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n\
+                 [asg]\nenabled = true\nlobes = 8\nfit_height = 64\niterations = 800\n\
+                 warm_iterations = 100\nthreads = 1\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let request = Request {
+        representation: Representation::Asg,
+        format: Format::Binary,
+        ..Request::default()
+    };
+    let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
+    let client = Client::connect(&Endpoint::Unix(uds), &request, Some(TIMEOUT)).unwrap();
+    let reader = std::thread::Builder::new()
+        .name("asg-client".into())
+        .spawn(move || read_sets(client))
+        .unwrap();
+    wait_until("the end of the source", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    // Every frame was decomposed: the lights never waited for the fits.
+    assert_eq!(summary.pipeline.frames_decomposed, 90);
+    assert_eq!(summary.pipeline.frames_dropped, 0);
+    let asg = summary.asg.unwrap();
+    assert_eq!(asg.frames_offered, 90);
+    assert!(asg.frames_skipped > 0, "{asg:?}");
+    assert_eq!(asg.fits + asg.frames_skipped, 90, "{asg:?}");
+    let (sets, _) = reader.join().unwrap();
+    assert!(!sets.is_empty());
+    assert_eq!(
+        sets.last().unwrap().seq,
+        89,
+        "the newest frame is always fitted"
+    );
+    assert!(sets.iter().all(|s| s.lobes.len() == 8));
+}
+
+#[test]
+fn the_render_thread_shades_with_asg_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("latest.png");
+    let extra = format!(
+        "[source]\nfps = 20.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+         [decompose]\nlights = 8\nworking_width = 16\n{ASG}\
+         [render]\nenabled = true\nwidth = 48\nheight = 32\nlighting = \"asg\"\n\
+         latest_png = \"{}\"\n",
+        png.display()
+    );
+    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default())
+        .unwrap_or_else(|e| {
+            panic!(
+                "the render thread needs a graphics adapter; without a GPU install Mesa's \
+                 lavapipe (apt-get install mesa-vulkan-drivers libvulkan1): {e}"
+            )
+        });
+    let http = daemon.addresses().metrics.unwrap();
+    wait_until("rendered frames", || {
+        let text = http_get(http, "/metrics").1;
+        metric_value(&text, "envlight_frames_rendered_total") >= 3.0
+    });
+    let image = image::open(&png).unwrap();
+    assert_eq!((image.width(), image.height()), (48, 32));
+    daemon.shutdown().unwrap();
+}
+
+#[test]
+fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                [decompose]\nlights = 8\nworking_width = 16\n";
+    let mut daemon = Daemon::start(
+        config(dir.path(), &format!("{base}{ASG}")),
+        DaemonOptions::default(),
+    )
+    .unwrap();
+    let mut rx = daemon.asg().unwrap().subscribe();
+    wait_until("a first set", || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.set.lobes.len() == 4)
+    });
+    // Six lobes instead of four: applied live.
+    let six = config(
+        dir.path(),
+        &format!("{base}{}", ASG.replace("lobes = 4", "lobes = 6")),
+    );
+    let report = daemon.reload(six.clone());
+    assert_eq!(report.applied, vec!["[asg]".to_owned()]);
+    assert!(report.needs_restart.is_empty(), "{report:?}");
+    wait_until("a set with the new settings", || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.set.lobes.len() == 6)
+    });
+    // Turning the stage off needs a restart; the stage keeps running.
+    let off = config(
+        dir.path(),
+        &format!("{base}{}", ASG.replace("enabled = true", "enabled = false")),
+    );
+    let report = daemon.reload(off);
+    assert!(report.applied.is_empty(), "{report:?}");
+    assert!(
+        report.needs_restart.iter().any(|s| s.starts_with("[asg]")),
+        "{report:?}"
+    );
+    assert!(daemon.asg().is_some());
+    daemon.shutdown().unwrap();
+}
+
+#[test]
+fn the_python_example_client_reads_asg_sets() {
+    if std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        eprintln!("skipped: python3 is not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let extra = format!(
+        "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+         [decompose]\nlights = 8\nworking_width = 16\n{ASG}"
+    );
+    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    let out = std::process::Command::new("python3")
+        .args([
+            "examples/client.py",
+            &tcp.to_string(),
+            "--representation",
+            "asg",
+            "--frames",
+            "2",
+            "--max-lights",
+            "3",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    assert!(
+        lines.iter().all(|l| l.contains(": 3 ASG lobes")),
+        "{stdout}"
+    );
+    daemon.shutdown().unwrap();
+}
