@@ -20,8 +20,9 @@
 //!   every later one is warm-started from the previous lobes (skipped frames simply are not
 //!   part of that chain). Each result is published as a [`PublishedAsg`] (numbered like
 //!   [`crate::pipeline::Published`], so a consumer can count what it skipped) with its fit
-//!   time. A frame that cannot be fitted is logged and counted ([`AsgStats::fit_errors`]); the
-//!   stage goes on with the next one.
+//!   time. A frame that cannot be fitted, or whose fit has a lobe the wire format rejects
+//!   ([`crate::stream::protocol::validate_lobe`]), is logged and counted
+//!   ([`AsgStats::fit_errors`]); the stage goes on with the next one.
 //! - **Reconfiguration** ([`AsgStage::reconfigure`], SIGHUP) swaps in a new fitter before the
 //!   next frame (the warm-start chain restarts).
 //! - **End.** Closing the feed ([`AsgFeed::close`]; the pipeline does it when its decompose
@@ -284,7 +285,17 @@ impl AsgStage {
                             continue;
                         }
                     };
-                    let set = Arc::new(AsgSet::from_fit(frame.seq, frame.time, &result.lobes));
+                    let set = AsgSet::from_fit(frame.seq, frame.time, &result.lobes);
+                    // Never publish what a client's decoder would reject (and close on).
+                    let invalid = set.lobes.iter().enumerate().find_map(|(i, lobe)| {
+                        crate::stream::protocol::validate_lobe(i, lobe).err()
+                    });
+                    if let Some(error) = invalid {
+                        thread_shared.fit_errors.fetch_add(1, Ordering::AcqRel);
+                        tracing::warn!(seq = frame.seq, %error, "ASG fit produced an invalid lobe; skipping the frame");
+                        continue;
+                    }
+                    let set = Arc::new(set);
                     let nanos = u64::try_from(elapsed.as_nanos()).unwrap_or(u64::MAX);
                     thread_shared
                         .last_fit_nanos

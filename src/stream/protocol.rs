@@ -793,15 +793,28 @@ fn decode_lobes(records: &[u8]) -> Result<Vec<AsgLobe>, ProtocolError> {
             rgb: [f(36, "rgb")?, f(40, "rgb")?, f(44, "rgb")?],
             integral: f(48, "integral")?,
         };
-        check_lobe(i, &lobe)?;
+        validate_lobe(i, &lobe)?;
         lobes.push(lobe);
     }
     Ok(lobes)
 }
 
-/// A lobe's values beyond finiteness: positive bandwidths and integral, an orthonormal frame
-/// within [`ASG_FRAME_TOLERANCE`]. (Finiteness is checked by the caller.)
-fn check_lobe(index: usize, lobe: &AsgLobe) -> Result<(), ProtocolError> {
+/// Whether `lobe` (at position `index` of its frame) may be sent: finite values, positive
+/// bandwidths and integral, an orthonormal frame within [`ASG_FRAME_TOLERANCE`]. Decoders
+/// apply it to every received lobe; the daemon's ASG stage applies it before publishing.
+pub fn validate_lobe(index: usize, lobe: &AsgLobe) -> Result<(), ProtocolError> {
+    let values = lobe
+        .axis
+        .iter()
+        .chain(&lobe.tangent)
+        .chain([&lobe.lambda, &lobe.mu])
+        .chain(&lobe.rgb)
+        .chain([&lobe.integral]);
+    if values.into_iter().any(|v| !v.is_finite()) {
+        return Err(ProtocolError::NonFinite {
+            field: format!("lobe {index}"),
+        });
+    }
     let bad = |reason: String| Err(ProtocolError::InvalidLobe { index, reason });
     for (name, v) in [
         ("lambda", lobe.lambda),
@@ -1098,19 +1111,7 @@ pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
         }
         let lobes = frame.lobes.into_owned();
         for (i, l) in lobes.iter().enumerate() {
-            let values = l
-                .axis
-                .iter()
-                .chain(&l.tangent)
-                .chain([&l.lambda, &l.mu])
-                .chain(&l.rgb)
-                .chain([&l.integral]);
-            if values.into_iter().any(|v| !v.is_finite()) {
-                return Err(ProtocolError::NonFinite {
-                    field: format!("lobe {i}"),
-                });
-            }
-            check_lobe(i, l)?;
+            validate_lobe(i, l)?;
         }
         return Ok(Message::Asg(AsgFrameMessage {
             seq: frame.seq,
