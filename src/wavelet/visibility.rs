@@ -155,7 +155,10 @@ impl Mesh {
         let normals = smooth_normals(&positions, &triangles)
             .into_iter()
             .zip(&positions)
-            .map(|(n, p)| n.try_normalize().unwrap_or((*p - center).normalize_or(Vec3::Y)))
+            .map(|(n, p)| {
+                n.try_normalize()
+                    .unwrap_or((*p - center).normalize_or(Vec3::Y))
+            })
             .collect();
         Self {
             positions,
@@ -418,12 +421,10 @@ pub const RAY_OFFSET: f32 = 1e-4;
 
 /// Casts one shadow ray per vertex and texel direction (upper hemisphere only), in parallel.
 pub fn vertex_visibility(mesh: &Mesh, bvh: &Bvh, dirs: &[Vec3]) -> Visibility {
-    let (lo, hi) = mesh
-        .positions
-        .iter()
-        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(l, h), p| {
-            (l.min(*p), h.max(*p))
-        });
+    let (lo, hi) = mesh.positions.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(l, h), p| (l.min(*p), h.max(*p)),
+    );
     let diag = (hi - lo).length().max(1e-6);
     let eps = RAY_OFFSET * diag;
     let words = dirs.len().div_ceil(64).max(1);
