@@ -2,7 +2,8 @@
 """Writes src/wavelet/taps.rs: the decomposition filters (dec_lo, dec_hi) of PyWavelets for
 Haar, db2..db10 and coif1..coif5, as f64 literals that round-trip exactly.
 
-Run once (committed output):  /tmp/pywt/bin/python scripts/wavelet_taps.py > src/wavelet/taps.rs
+Run once (committed output):
+    /tmp/pywt/bin/python scripts/wavelet_taps.py > src/wavelet/taps.rs && cargo fmt
 (python3 -m venv /tmp/pywt && /tmp/pywt/bin/pip install pywavelets numpy)
 """
 import pywt
@@ -19,5 +20,10 @@ for name in names:
     for kind, taps in (("LO", w.dec_lo), ("HI", w.dec_hi)):
         print(f"pub(crate) const {ident}_{kind}: [f64; {len(taps)}] = [")
         for t in taps:
-            print(f"    {float(t)!r},")
+            # Haar's taps are ±1/√2 exactly; name the constant (clippy::approx_constant).
+            if abs(abs(float(t)) - 0.7071067811865476) == 0.0 and name == "haar":
+                sign = "-" if t < 0 else ""
+                print(f"    {sign}std::f64::consts::FRAC_1_SQRT_2,")
+            else:
+                print(f"    {float(t)!r},")
         print("];")

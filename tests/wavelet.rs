@@ -282,3 +282,239 @@ fn wavelet_sets_serialise_and_validate() {
     deep.levels = 9;
     assert!(deep.validate().is_err());
 }
+
+mod sphere {
+    use envlight::capture::image_file::read_hdr_image;
+    use envlight::envmap::Projection;
+    use envlight::wavelet::sphere::{texel_solid_angle, OctahedralMap};
+    use envlight::HdrFrame;
+    use glam::DVec3;
+    use std::f64::consts::PI;
+
+    fn latlong(path: &str) -> HdrFrame {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+        let image = read_hdr_image(&path).unwrap();
+        let mut frame =
+            HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).unwrap();
+        frame.sanitize();
+        frame
+    }
+
+    fn frame_integral(frame: &HdrFrame) -> [f64; 3] {
+        let omegas = frame.projection.solid_angles(frame.width, frame.height);
+        let mut sum = [0.0; 3];
+        for (p, o) in frame.pixels.iter().zip(omegas) {
+            for c in 0..3 {
+                sum[c] += f64::from(p[c]) * o;
+            }
+        }
+        sum
+    }
+
+    #[test]
+    fn texels_have_equal_solid_angle() {
+        // Monte Carlo over the sphere: the share of uniform directions landing in each of the
+        // 8×8 texels is 1/64 within sampling noise, and the map's texel solid angle is 4π/64.
+        let side = 8;
+        let map = OctahedralMap::new(side, vec![[0.0; 3]; side * side]).unwrap();
+        assert!((map.texel_solid_angle() - 4.0 * PI / 64.0).abs() < 1e-15);
+        let n = 400_000usize;
+        let mut counts = vec![0usize; side * side];
+        // Fibonacci sphere: deterministic and nearly uniform.
+        let golden = PI * (3.0 - 5f64.sqrt());
+        for i in 0..n {
+            let y = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+            let r = (1.0 - y * y).sqrt();
+            let (s, c) = (golden * i as f64).sin_cos();
+            let (x, t) = map.texel_of(DVec3::new(r * c, y, r * s));
+            counts[t * side + x] += 1;
+        }
+        let expected = n as f64 / (side * side) as f64;
+        for (i, &c) in counts.iter().enumerate() {
+            assert!(
+                (c as f64 - expected).abs() < 0.01 * expected,
+                "texel {i}: {c} of {n} directions, expected {expected}"
+            );
+        }
+    }
+
+    #[test]
+    fn resampling_preserves_energy_of_real_maps() {
+        for (path, side) in [
+            ("tests/data/rooitou_park_1k.hdr", 128),
+            ("tests/data/studio_small_03_1k.hdr", 64),
+            ("tests/data/noon_grass_1k.hdr", 256),
+        ] {
+            let frame = latlong(path);
+            let truth = frame_integral(&frame);
+            let map = OctahedralMap::from_frame(&frame, side).unwrap();
+            let got = map.integral();
+            for c in 0..3 {
+                // f32 texels: 1e-6 relative.
+                assert!(
+                    (got[c] - truth[c]).abs() < 1e-6 * truth[c],
+                    "{path} side {side} channel {c}: {} vs {}",
+                    got[c],
+                    truth[c]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn constant_map_stays_constant_and_a_point_source_lands_in_place() {
+        for (w, h, side) in [(1024u32, 512u32, 128usize), (64, 32, 128), (512, 256, 32)] {
+            let frame =
+                HdrFrame::new(w, h, vec![[2.0; 3]; (w * h) as usize], Projection::LatLong).unwrap();
+            let map = OctahedralMap::from_frame(&frame, side).unwrap();
+            let (lo, hi) = map
+                .texels()
+                .iter()
+                .fold((f32::MAX, f32::MIN), |(lo, hi), t| {
+                    (lo.min(t[0]), hi.max(t[0]))
+                });
+            assert!(
+                lo > 2.0 * 0.97 && hi < 2.0 * 1.03,
+                "{w}x{h} → {side}²: constant 2 became {lo}..{hi}"
+            );
+            let total = map.integral()[0];
+            assert!((total - 8.0 * PI).abs() < 1e-6 * 8.0 * PI);
+        }
+        // One bright pixel: all its energy within the 2×2 texels around its direction.
+        let (w, h) = (1024u32, 512u32);
+        let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
+        let (px, py) = (300u32, 140u32);
+        pixels[(py * w + px) as usize] = [1e6, 5e5, 1e5];
+        let frame = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
+        let energy = frame_integral(&frame)[0];
+        let dir = Projection::LatLong
+            .pixel_to_direction(w, h, f64::from(px) + 0.5, f64::from(py) + 0.5)
+            .unwrap();
+        let side = 64;
+        let map = OctahedralMap::from_frame(&frame, side).unwrap();
+        let (tx, ty) = map.texel_of(dir);
+        let omega = texel_solid_angle(side);
+        let mut near = 0.0;
+        for y in ty.saturating_sub(1)..=(ty + 1).min(side - 1) {
+            for x in tx.saturating_sub(1)..=(tx + 1).min(side - 1) {
+                near += f64::from(map.texels()[y * side + x][0]) * omega;
+            }
+        }
+        assert!((near - energy).abs() < 1e-6 * energy, "{near} vs {energy}");
+    }
+
+    #[test]
+    fn upper_hemisphere_only_sources_leave_the_ground_black() {
+        // An angular map of a function that is 1 above the horizon and 0 below.
+        let side = 32;
+        let (w, h) = (256u32, 256u32);
+        let pixels = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let d = Projection::AngularMap.pixel_to_direction(
+                    w,
+                    h,
+                    f64::from(x) + 0.5,
+                    f64::from(y) + 0.5,
+                );
+                match d {
+                    Some(d) if d.y > 0.0 => [1.0f32; 3],
+                    _ => [0.0; 3],
+                }
+            })
+            .collect();
+        let frame = HdrFrame::new(w, h, pixels, Projection::AngularMap).unwrap();
+        let map = OctahedralMap::from_frame(&frame, side).unwrap();
+        let total = map.integral()[0];
+        assert!((total - 2.0 * PI).abs() < 0.02 * 2.0 * PI, "{total}");
+        // The corner texels (around the nadir) are black, the centre (zenith) is 1.
+        assert_eq!(map.texels()[0], [0.0; 3]);
+        let centre = map.texels()[(side / 2) * side + side / 2][0];
+        assert!((centre - 1.0).abs() < 0.02, "{centre}");
+    }
+}
+
+mod cli {
+    use std::process::{Command, Output};
+
+    fn envlight(args: &[&str]) -> Output {
+        Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(args)
+            .env_remove("RUST_LOG")
+            .output()
+            .expect("run envlight")
+    }
+
+    fn data(name: &str) -> String {
+        format!("{}/tests/data/{name}", env!("CARGO_MANIFEST_DIR"))
+    }
+
+    #[test]
+    fn approx_writes_sets_that_reconstruct() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("set.jsonl");
+        let exr = dir.path().join("rec_{seq}.exr");
+        let o = envlight(&[
+            "wavelet",
+            "approx",
+            &data("studio_small_03_1k.hdr"),
+            "--basis",
+            "coif2",
+            "--coefficients",
+            "300",
+            "--size",
+            "64",
+            "--out",
+            out.to_str().unwrap(),
+            "--reconstruct",
+            exr.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let text = std::fs::read_to_string(&out).unwrap();
+        let line: serde_json::Value = serde_json::from_str(text.lines().next().unwrap()).unwrap();
+        assert_eq!(line["basis"], "coif2");
+        assert_eq!(line["side"], 64);
+        assert_eq!(line["levels"], 6);
+        assert_eq!(line["coefficients"].as_array().unwrap().len(), 300);
+        let err = line["relative_l2"].as_f64().unwrap();
+        assert!(err > 0.0 && err < 1.0, "{err}");
+        // The line is a WaveletSet too.
+        let set: envlight::wavelet::WaveletSet = serde_json::from_str(&text).unwrap();
+        let rec = set.reconstruct().unwrap();
+        assert_eq!(rec.len(), 64 * 64);
+        let image = exr::prelude::read_first_rgba_layer_from_file(
+            dir.path().join("rec_0.exr"),
+            |res, _| vec![[0f32; 3]; res.width() * res.height()],
+            |px: &mut Vec<[f32; 3]>, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                px[pos.y() * 64 + pos.x()] = [r, g, b];
+            },
+        )
+        .unwrap();
+        let px = image.layer_data.channel_data.pixels;
+        for (a, b) in px.iter().zip(&rec) {
+            assert!((f64::from(a[1]) - b[1]).abs() <= 1e-5 * b[1].abs().max(1.0));
+        }
+    }
+
+    #[test]
+    fn approx_of_the_sky_and_bad_flags() {
+        let o = envlight(&["wavelet", "approx", "-k", "16", "--size", "32"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 1);
+        for (args, needle) in [
+            (vec!["--basis", "db99"], "db99"),
+            (vec!["--size", "100"], "--size"),
+            (vec!["--size", "32", "-k", "2000"], "--coefficients"),
+            (vec!["--size", "32", "--levels", "6"], "--levels"),
+        ] {
+            let mut all = vec!["wavelet", "approx"];
+            all.extend(args);
+            let o = envlight(&all);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                !o.status.success() && err.contains(needle),
+                "{all:?}: {err}"
+            );
+        }
+    }
+}

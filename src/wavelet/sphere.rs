@@ -25,13 +25,15 @@
 //! # Resampling ([`OctahedralMap::from_frame`])
 //!
 //! Energy-preserving splatting: every source pixel with solid angle Ω > 0 is split into n × n
-//! sub-pixels (n chosen so that at least 9 sub-pixels land on an average texel: n = ⌈3·side/√P⌉
-//! for P covered pixels, at least 1), each carrying energy rgb·Ω/n² at its centre direction. That
+//! sub-pixels (n chosen so that about 16 sub-pixels land on an average texel: n = ⌈4·side/√P⌉
+//! for P covered pixels, at least 1, the sub-pixel grid capped at 2^25), each carrying energy
+//! rgb·Ω_sub at its centre direction, Ω_sub being the projection's solid angle of the sub-pixel
+//! (its `solid_angles` at n× the resolution; they sum to the pixel's Ω). That
 //! energy is splatted bilinearly (tent filter) onto the 4 nearest texel centres, folded across the
 //! edges. A texel's radiance is its energy divided by 4π/side². Total energy is preserved up to
-//! rounding (Σ texel·4π/side² = Σ pixel·Ω; the tests check 1e-9 relative), a small bright source
+//! rounding (Σ texel·4π/side² = Σ pixel·Ω; the tests check 1e-6 relative with f32 texels), a small bright source
 //! (a 1-pixel sun) lands with all its energy on the 2×2 texels around its direction instead of
-//! being missed or aliased, and the tent filter keeps a constant map constant to about 1 %
+//! being missed or aliased, and the tent filter keeps a constant map constant to within 2 % (tested)
 //! (uneven sub-pixel density across a texel) — [`OctahedralMap::from_fn`] samples an analytic
 //! function instead, S × S stratified points per texel. Non-finite and negative channels count
 //! as 0. Directions a projection does not see (below a fisheye's horizon) get no energy.
@@ -56,8 +58,8 @@ pub enum SphereError {
     },
 }
 
-/// Largest supported side (4096² texels, 200 MB of f32 RGB at most).
-pub const MAX_SIDE: usize = 4096;
+/// Largest supported side (1024² texels).
+pub const MAX_SIDE: usize = 1024;
 
 /// Direction (unit vector) of the point (u, v) ∈ [0,1]² of the equal-area octahedral map.
 pub fn square_to_sphere(u: f64, v: f64) -> DVec3 {
@@ -257,16 +259,22 @@ impl OctahedralMap {
         }
         let omegas = frame.projection.solid_angles(w, h);
         let covered = omegas.iter().filter(|&&o| o > 0.0).count().max(1);
-        let n = ((3.0 * side as f64 / (covered as f64).sqrt()).ceil() as usize).clamp(1, 64);
-        let inv_n2 = 1.0 / (n * n) as f64;
+        let n = sub_pixels(side, covered, w, h);
+        // Sub-pixel solid angles: the projection's own at n× the resolution, so the energy of a
+        // pixel is shared as the sphere is (near a lat-long pole the sub-pixels differ a lot).
+        let fine = if n > 1 {
+            frame.projection.solid_angles(w * n as u32, h * n as u32)
+        } else {
+            Vec::new()
+        };
+        let fine_w = w as usize * n;
         let s = side as f64;
         let mut energy = vec![[0.0f64; 3]; side * side];
         let latlong = frame.projection == Projection::LatLong;
         for py in 0..h {
             for px in 0..w {
                 let idx = py as usize * w as usize + px as usize;
-                let omega = omegas[idx];
-                if omega <= 0.0 {
+                if omegas[idx] <= 0.0 {
                     continue;
                 }
                 let rgb = frame.pixels[idx].map(|c| {
@@ -279,9 +287,16 @@ impl OctahedralMap {
                 if rgb == [0.0; 3] {
                     continue;
                 }
-                let e = rgb.map(|c| c * omega * inv_n2);
                 for j in 0..n {
                     for i in 0..n {
+                        let omega = if n > 1 {
+                            fine[(py as usize * n + j) * fine_w + px as usize * n + i]
+                        } else {
+                            omegas[idx]
+                        };
+                        if omega <= 0.0 {
+                            continue;
+                        }
                         let sx = f64::from(px) + (i as f64 + 0.5) / n as f64;
                         let sy = f64::from(py) + (j as f64 + 0.5) / n as f64;
                         let d = if latlong {
@@ -291,7 +306,13 @@ impl OctahedralMap {
                         };
                         let Some(d) = d else { continue };
                         let (u, v) = sphere_to_square(d);
-                        splat(&mut energy, side, u * s - 0.5, v * s - 0.5, e);
+                        splat(
+                            &mut energy,
+                            side,
+                            u * s - 0.5,
+                            v * s - 0.5,
+                            rgb.map(|c| c * omega),
+                        );
                     }
                 }
             }
@@ -327,6 +348,21 @@ impl OctahedralMap {
         lights
     }
 }
+
+/// Sub-pixels per pixel side for resampling: enough for about 16 sub-pixels per texel
+/// (n = ⌈4·side/√covered⌉), at least 1, and at most what keeps the sub-pixel grid under
+/// [`MAX_SUB_PIXELS`].
+fn sub_pixels(side: usize, covered: usize, w: u32, h: u32) -> usize {
+    let want = (4.0 * side as f64 / (covered as f64).sqrt())
+        .ceil()
+        .max(1.0) as usize;
+    let pixels = (w as usize * h as usize).max(1);
+    let cap = ((MAX_SUB_PIXELS / pixels) as f64).sqrt().floor().max(1.0) as usize;
+    want.min(cap).min(64)
+}
+
+/// Upper bound on the sub-pixel grid of one resampling (its solid angles are held in memory).
+pub const MAX_SUB_PIXELS: usize = 1 << 25;
 
 /// Solid angle of a texel of a `side × side` map: 4π/side².
 pub fn texel_solid_angle(side: usize) -> f64 {

@@ -3,8 +3,14 @@
 //! `dec_lo` is the time-reversed scaling filter, `dec_hi[k] = (-1)^(k+1) dec_lo[F-1-k]`).
 //! Do not edit by hand.
 
-pub(crate) const HAAR_LO: [f64; 2] = [0.7071067811865476, 0.7071067811865476];
-pub(crate) const HAAR_HI: [f64; 2] = [-0.7071067811865476, 0.7071067811865476];
+pub(crate) const HAAR_LO: [f64; 2] = [
+    std::f64::consts::FRAC_1_SQRT_2,
+    std::f64::consts::FRAC_1_SQRT_2,
+];
+pub(crate) const HAAR_HI: [f64; 2] = [
+    -std::f64::consts::FRAC_1_SQRT_2,
+    std::f64::consts::FRAC_1_SQRT_2,
+];
 pub(crate) const DB2_LO: [f64; 4] = [
     -0.12940952255126037,
     0.2241438680420134,
