@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 
 mod camera_cli;
 mod wavelet_cli;
+mod wavelet_transport_cli;
 
 const LONG_ABOUT: &str = "\
 envlight turns HDR environment maps (a recorded .exr/.hdr sequence, or a built-in analytic sky)
@@ -145,7 +146,8 @@ enum Command {
     /// Render a scene under the lights: one tone-mapped PNG and one linear EXR per frame.
     #[command(long_about = RENDER_LONG_ABOUT)]
     Render(RenderArgs),
-    /// Wavelet lighting: sparse wavelet sets of HDR frames (`approx`).
+    /// Wavelet lighting: sparse wavelet sets of HDR frames (`approx`), relighting a mesh
+    /// (`relight`) and recovering lighting from observations (`recover`).
     Wavelet(wavelet_cli::WaveletArgs),
 }
 

@@ -1,5 +1,5 @@
 //! The `envlight wavelet …` subcommands of the command line: `approx` (sparse wavelet sets of
-//! HDR frames). Only argument handling, I/O and printing; the work is in `envlight::wavelet`.
+//! HDR frames); `relight` and `recover` are in `wavelet_transport_cli.rs`. Only argument handling, I/O and printing; the work is in `envlight::wavelet`.
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -42,6 +42,12 @@ enum WaveletCommand {
     /// Keep the K largest wavelet coefficients of HDR frames (files or the built-in sky).
     #[command(long_about = APPROX_LONG_ABOUT)]
     Approx(ApproxArgs),
+    /// Relight a static mesh with wavelet lighting, frame by frame (precomputed transport).
+    #[command(long_about = crate::wavelet_transport_cli::RELIGHT_LONG_ABOUT)]
+    Relight(crate::wavelet_transport_cli::RelightArgs),
+    /// Recover lighting from synthetic observations of a known object (hierarchical refinement).
+    #[command(long_about = crate::wavelet_transport_cli::RECOVER_LONG_ABOUT)]
+    Recover(crate::wavelet_transport_cli::RecoverArgs),
 }
 
 /// Projection of INPUT files.
@@ -166,6 +172,8 @@ pub struct ApproxArgs {
 pub fn run(args: &WaveletArgs) -> Result<()> {
     match &args.command {
         WaveletCommand::Approx(a) => approx(a),
+        WaveletCommand::Relight(a) => crate::wavelet_transport_cli::relight(a),
+        WaveletCommand::Recover(a) => crate::wavelet_transport_cli::recover(a),
     }
 }
 

@@ -561,6 +561,55 @@ pub fn relative_error(recovered: &[Vec<f64>; 3], truth: &[Vec<f64>; 3]) -> f64 {
     }
 }
 
+/// Relative L2 error of the recovered lighting over the upper hemisphere only (texels with
+/// direction y > 0): the directions an object standing on the ground can see.
+pub fn upper_hemisphere_error(
+    grid: &Grid,
+    recovered: &[Vec<f64>; 3],
+    truth: &[Vec<f64>; 3],
+) -> Result<f64, TransportError> {
+    let mut num = 0.0;
+    let mut den = 0.0;
+    for c in 0..3 {
+        let r = grid.reconstruct(&recovered[c])?;
+        let t = grid.reconstruct(&truth[c])?;
+        for (i, d) in grid.dirs.iter().enumerate() {
+            if d.y > 0.0 {
+                num += (r[i] - t[i]).powi(2);
+                den += t[i] * t[i];
+            }
+        }
+    }
+    Ok(if den == 0.0 {
+        num.sqrt()
+    } else {
+        (num / den).sqrt()
+    })
+}
+
+/// Relative RMS error of the radiance that `recovered` predicts for transport `rows` against
+/// what `truth` gives (noise-free): how well the recovered lighting relights the object.
+pub fn prediction_error(
+    rows: &[Vec<f64>],
+    recovered: &[Vec<f64>; 3],
+    truth: &[Vec<f64>; 3],
+) -> f64 {
+    let mut num = 0.0;
+    let mut den = 0.0;
+    for r in rows {
+        for c in 0..3 {
+            let t = dot(r, &truth[c]);
+            num += (dot(r, &recovered[c]) - t).powi(2);
+            den += t * t;
+        }
+    }
+    if den == 0.0 {
+        num.sqrt()
+    } else {
+        (num / den).sqrt()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::basis::Basis;

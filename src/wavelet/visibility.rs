@@ -351,8 +351,8 @@ fn slab_hit(lo: Vec3, hi: Vec3, origin: Vec3, inv: Vec3, t_max: f32) -> bool {
     let t1 = (hi - origin) * inv;
     let tmin = t0.min(t1).max_element().max(0.0);
     let tmax = t0.max(t1).min_element().min(t_max);
-    // NaN (0 · ∞ for a ray in a slab's plane) compares false: treated as a hit via `!(a > b)`.
-    !(tmin > tmax)
+    // NaN (0 · ∞ for a ray in a slab's plane) is incomparable: treated as a hit.
+    !matches!(tmin.partial_cmp(&tmax), Some(std::cmp::Ordering::Greater))
 }
 
 fn triangle_hit(tri: &[Vec3; 3], origin: Vec3, dir: Vec3, t_max: f32) -> bool {
