@@ -24,6 +24,7 @@ pub mod pipeline;
 pub mod record;
 pub mod render;
 pub mod stream;
+pub mod wavelet;
 pub mod yardstick;
 
 pub use frame::HdrFrame;

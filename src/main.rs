@@ -18,6 +18,8 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 mod camera_cli;
+mod wavelet_cli;
+mod wavelet_transport_cli;
 
 const LONG_ABOUT: &str = "\
 envlight turns HDR environment maps (a recorded .exr/.hdr sequence, or a built-in analytic sky)
@@ -164,6 +166,9 @@ enum Command {
     /// Render a scene under the lights: one tone-mapped PNG and one linear EXR per frame.
     #[command(long_about = RENDER_LONG_ABOUT)]
     Render(RenderArgs),
+    /// Wavelet lighting: sparse wavelet sets of HDR frames (`approx`), relighting a mesh
+    /// (`relight`) and recovering lighting from observations (`recover`).
+    Wavelet(wavelet_cli::WaveletArgs),
 }
 
 const RUN_LONG_ABOUT: &str = "\
@@ -644,6 +649,7 @@ fn main() -> ExitCode {
         Command::CalibrateFisheye(args) => camera_cli::calibrate_fisheye(&args),
         Command::Render(args) => render(&args),
         Command::FitAsg(args) => fit_asg(&args),
+        Command::Wavelet(args) => wavelet_cli::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

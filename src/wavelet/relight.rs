@@ -1,0 +1,646 @@
+//! Relighting a static mesh with wavelet lighting: BRDF slices, per-vertex transport and the
+//! per-frame sparse dot product (Ng, Ramamoorthi and Hanrahan 2003/2004; Michiels et al. 2013).
+//!
+//! # Basis and scale
+//!
+//! A [`Grid`] is the `side × side` equal-area octahedral map ([`sphere`](super::sphere)) with a
+//! basis and a number of levels. A function f on the sphere is represented by its texel values
+//! f_t (piecewise constant on texels, solid angle dω = 4π/side² each); its coefficients are
+//! `c = W (f_t √dω)` with `W` the orthonormal 2-D transform ([`Grid::project`]). Then
+//! `Σ_k c_k(f) c_k(g) = Σ_t f_t g_t dω = ∫ f g dω` exactly (Parseval). Lighting coefficients of a
+//! [`WaveletSet`] are those of the texel radiances; [`WaveletSet::sphere_scale`] (= √dω) converts.
+//!
+//! # Outgoing radiance
+//!
+//! `B(x, ω_o) = ∫ V(x, ω) L(ω) ρ(x, ω, ω_o) dω`, with ρ the BRDF slice of vertex x (normal n, view
+//! ω_o) including the cosine: [`Brdf::slice`] gives `ρ(ω) = f_r(ω, ω_o) · max(0, n·ω)`, where
+//! f_r is 1/π for [`Brdf::Lambert`] (albedo applied by the caller) and the energy-normalised Phong
+//! lobe `(s+2)/(2π) · max(0, r·ω)^s` around the mirror direction r of ω_o for [`Brdf::Phong`].
+//!
+//! # What is precomputed and what is per frame
+//!
+//! For a static mesh with a fixed BRDF and view, V and ρ are both known in advance, so their
+//! product collapses into one **transport** function per vertex, T_x(ω) = V(x, ω) ρ(x, ω). It is
+//! built in the pixel domain (visibility bits times the slice), projected with the transform and
+//! truncated to its `keep` largest coefficients ([`Transport::precompute`]), stored as one CSR
+//! row per vertex (u16 index, f32 value). Per frame only the lighting changes: its sparse
+//! coefficients are scattered into a dense table of `side²` RGBA f32 entries (zeros elsewhere;
+//! 16 KiB at side 32, 64 KiB at side 64, so it stays in L1/L2), and every vertex computes
+//! `B_x = Σ_k T_x[k] · L[k]` over its row: one 4-wide multiply-add per stored entry, vertices
+//! split across threads (rayon) ([`Transport::relight`]). The work per frame is
+//! `vertices × keep` multiply-adds, independent of how many lighting coefficients are kept.
+//! When V, L and ρ are all given in wavelets and ρ changes (a moving view for a glossy BRDF), the
+//! full triple product of [`triple`](super::triple) is needed instead.
+
+use super::approx::WaveletSet;
+use super::basis::Basis;
+use super::sphere::{self, SphereError};
+use super::transform::{self, TransformError};
+use super::visibility::{MeshError, Visibility};
+use glam::Vec3;
+use rayon::prelude::*;
+use thiserror::Error;
+
+/// Errors of the light-transport modules (relighting, triple products, inverse rendering).
+#[derive(Debug, Error, PartialEq)]
+pub enum TransportError {
+    #[error(transparent)]
+    Transform(#[from] TransformError),
+    #[error(transparent)]
+    Sphere(#[from] SphereError),
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error("unsupported wavelet basis {0}")]
+    UnsupportedBasis(Basis),
+    #[error("{what}: side {side} is above the limit {max}")]
+    SideTooLarge {
+        what: &'static str,
+        side: usize,
+        max: usize,
+    },
+    #[error("{what}: expected {expected} values, got {got}")]
+    Length {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error(
+        "{what}: grid is side {expected} ({basis_expected}), data is side {got} ({basis_got})"
+    )]
+    GridMismatch {
+        what: &'static str,
+        expected: usize,
+        basis_expected: String,
+        got: usize,
+        basis_got: String,
+    },
+    #[error("Phong exponent must be finite and ≥ 0, got {0}")]
+    PhongExponent(f32),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Largest side for transport (coefficient indices are stored as u16).
+pub const MAX_TRANSPORT_SIDE: usize = 256;
+
+/// The equal-area octahedral map with a wavelet basis: texel directions and the projection.
+#[derive(Clone, Debug)]
+pub struct Grid {
+    pub side: usize,
+    pub basis: Basis,
+    pub levels: u32,
+    /// Direction of every texel centre, row-major (`side²`).
+    pub dirs: Vec<Vec3>,
+}
+
+impl Grid {
+    /// A grid of `side` (power of two) with `levels` decomposition levels (`None`: all, down to
+    /// one coefficient).
+    pub fn new(side: usize, basis: Basis, levels: Option<u32>) -> Result<Self, TransportError> {
+        sphere::check_side(side)?;
+        if !basis.is_supported() {
+            return Err(TransportError::UnsupportedBasis(basis));
+        }
+        let max = transform::max_levels(side);
+        let levels = levels.unwrap_or(max);
+        if levels > max {
+            return Err(TransformError::TooManyLevels { side, levels, max }.into());
+        }
+        let s = side as f64;
+        let dirs = (0..side * side)
+            .map(|t| {
+                let (x, y) = (t % side, t / side);
+                sphere::square_to_sphere((x as f64 + 0.5) / s, (y as f64 + 0.5) / s).as_vec3()
+            })
+            .collect();
+        Ok(Self {
+            side,
+            basis,
+            levels,
+            dirs,
+        })
+    }
+
+    /// Number of texels (= number of coefficients).
+    pub fn len(&self) -> usize {
+        self.side * self.side
+    }
+
+    /// Whether the grid is empty (never: side ≥ 2).
+    pub fn is_empty(&self) -> bool {
+        self.side == 0
+    }
+
+    /// Solid angle of every texel, 4π/side².
+    pub fn d_omega(&self) -> f64 {
+        sphere::texel_solid_angle(self.side)
+    }
+
+    /// Coefficients of a function given by its texel values: `W (f √dω)`.
+    pub fn project(&self, values: &[f64]) -> Result<Vec<f64>, TransportError> {
+        if values.len() != self.len() {
+            return Err(TransportError::Length {
+                what: "texel values",
+                expected: self.len(),
+                got: values.len(),
+            });
+        }
+        let s = self.d_omega().sqrt();
+        let mut c: Vec<f64> = values.iter().map(|v| v * s).collect();
+        transform::forward_2d(&mut c, self.side, self.basis, self.levels)?;
+        Ok(c)
+    }
+
+    /// Texel values of a function from its coefficients (inverse of [`Grid::project`]).
+    pub fn reconstruct(&self, coeffs: &[f64]) -> Result<Vec<f64>, TransportError> {
+        if coeffs.len() != self.len() {
+            return Err(TransportError::Length {
+                what: "coefficients",
+                expected: self.len(),
+                got: coeffs.len(),
+            });
+        }
+        let mut v = coeffs.to_vec();
+        transform::inverse_2d(&mut v, self.side, self.basis, self.levels)?;
+        let s = 1.0 / self.d_omega().sqrt();
+        v.iter_mut().for_each(|x| *x *= s);
+        Ok(v)
+    }
+
+    /// Checks that a wavelet set was made on this grid.
+    pub fn check_set(&self, set: &WaveletSet) -> Result<(), TransportError> {
+        if set.side as usize != self.side || set.basis != self.basis || set.levels != self.levels {
+            return Err(TransportError::GridMismatch {
+                what: "wavelet set",
+                expected: self.side,
+                basis_expected: format!("{} with {} levels", self.basis, self.levels),
+                got: set.side as usize,
+                basis_got: format!("{} with {} levels", set.basis, set.levels),
+            });
+        }
+        set.validate()
+            .map_err(|e| TransportError::Invalid(format!("wavelet set: {e}")))
+    }
+}
+
+/// A BRDF whose slice (fixed normal and view) is projected into the wavelet basis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Brdf {
+    /// f_r = 1/π (albedo is applied by the caller).
+    Lambert,
+    /// Energy-normalised Phong lobe (s+2)/(2π) · max(0, r·ω)^s around the mirror direction.
+    Phong { exponent: f32 },
+}
+
+impl Brdf {
+    /// Checks the parameters.
+    pub fn validate(self) -> Result<(), TransportError> {
+        match self {
+            Brdf::Lambert => Ok(()),
+            Brdf::Phong { exponent } if exponent.is_finite() && exponent >= 0.0 => Ok(()),
+            Brdf::Phong { exponent } => Err(TransportError::PhongExponent(exponent)),
+        }
+    }
+
+    /// `f_r(ω, ω_o) · max(0, n·ω)` for unit `normal`, unit `view` (towards the viewer) and `dir`.
+    pub fn eval(self, normal: Vec3, view: Vec3, dir: Vec3) -> f64 {
+        let cos = normal.dot(dir);
+        if cos <= 0.0 {
+            return 0.0;
+        }
+        let cos = f64::from(cos);
+        match self {
+            Brdf::Lambert => cos * std::f64::consts::FRAC_1_PI,
+            Brdf::Phong { exponent } => {
+                let r = 2.0 * normal.dot(view) * normal - view;
+                let rd = f64::from(r.dot(dir)).max(0.0);
+                let s = f64::from(exponent);
+                (s + 2.0) / std::f64::consts::TAU * rd.powf(s) * cos
+            }
+        }
+    }
+
+    /// The slice in the pixel domain: one value per texel direction.
+    pub fn slice(self, normal: Vec3, view: Vec3, dirs: &[Vec3]) -> Vec<f64> {
+        dirs.iter().map(|d| self.eval(normal, view, *d)).collect()
+    }
+}
+
+/// Texel values of a vertex's visibility (1 visible, 0 blocked or below the tangent plane).
+pub fn visibility_texels(vis: &Visibility, vertex: usize) -> Vec<f64> {
+    (0..vis.texels)
+        .map(|t| if vis.get(vertex, t) { 1.0 } else { 0.0 })
+        .collect()
+}
+
+/// Indices of the `k` largest |values| (ties: lower index), sorted by index.
+pub fn largest_indices(values: &[f64], k: usize) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..values.len()).collect();
+    let k = k.min(values.len());
+    if k < values.len() {
+        order.select_nth_unstable_by(k, |&a, &b| {
+            values[b].abs().total_cmp(&values[a].abs()).then(a.cmp(&b))
+        });
+        order.truncate(k);
+    }
+    order.sort_unstable();
+    order
+}
+
+/// Per-vertex transport in the wavelet basis, truncated per vertex: one CSR row per vertex.
+#[derive(Clone, Debug)]
+pub struct Transport {
+    pub side: usize,
+    pub basis: Basis,
+    pub levels: u32,
+    offsets: Vec<u32>,
+    index: Vec<u16>,
+    value: Vec<f32>,
+}
+
+/// How a vertex's view direction is chosen for glossy transport.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum View {
+    /// Every vertex looks at this point (a camera position).
+    Eye(Vec3),
+    /// The same direction (towards the viewer) for every vertex.
+    Direction(Vec3),
+}
+
+impl View {
+    /// The unit direction towards the viewer from point `p`.
+    pub fn at(self, p: Vec3) -> Vec3 {
+        match self {
+            View::Eye(e) => (e - p).normalize_or(Vec3::Y),
+            View::Direction(d) => d.normalize_or(Vec3::Y),
+        }
+    }
+}
+
+impl Transport {
+    /// `T_x = W((V_x · ρ_x) √dω)` for every vertex x, keeping the `keep` largest coefficients
+    /// (`keep ≥ side²` keeps all). Vertices in parallel.
+    pub fn precompute(
+        grid: &Grid,
+        positions: &[Vec3],
+        normals: &[Vec3],
+        vis: &Visibility,
+        brdf: Brdf,
+        view: View,
+        keep: usize,
+    ) -> Result<Self, TransportError> {
+        brdf.validate()?;
+        if grid.side > MAX_TRANSPORT_SIDE {
+            return Err(TransportError::SideTooLarge {
+                what: "transport",
+                side: grid.side,
+                max: MAX_TRANSPORT_SIDE,
+            });
+        }
+        if vis.texels != grid.len() || vis.vertices() != positions.len() {
+            return Err(TransportError::Length {
+                what: "visibility (texels × vertices)",
+                expected: grid.len() * positions.len(),
+                got: vis.texels * vis.vertices(),
+            });
+        }
+        if normals.len() != positions.len() {
+            return Err(TransportError::Length {
+                what: "normals",
+                expected: positions.len(),
+                got: normals.len(),
+            });
+        }
+        let rows: Vec<Result<Vec<(u16, f32)>, TransportError>> = (0..positions.len())
+            .into_par_iter()
+            .map(|v| {
+                let slice = brdf.slice(normals[v], view.at(positions[v]), &grid.dirs);
+                let values: Vec<f64> = slice
+                    .iter()
+                    .enumerate()
+                    .map(|(t, r)| if vis.get(v, t) { *r } else { 0.0 })
+                    .collect();
+                let c = grid.project(&values)?;
+                Ok(largest_indices(&c, keep)
+                    .into_iter()
+                    .filter(|&k| c[k] != 0.0)
+                    .map(|k| (k as u16, c[k] as f32))
+                    .collect())
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(positions.len() + 1);
+        offsets.push(0u32);
+        let mut index = Vec::new();
+        let mut value = Vec::new();
+        for row in rows {
+            for (k, c) in row? {
+                index.push(k);
+                value.push(c);
+            }
+            offsets.push(index.len() as u32);
+        }
+        Ok(Self {
+            side: grid.side,
+            basis: grid.basis,
+            levels: grid.levels,
+            offsets,
+            index,
+            value,
+        })
+    }
+
+    /// Builds transport from explicit rows (index, value) per vertex; indices must be < side².
+    pub fn from_rows(
+        grid: &Grid,
+        rows: impl IntoIterator<Item = Vec<(u16, f32)>>,
+    ) -> Result<Self, TransportError> {
+        let mut offsets = vec![0u32];
+        let mut index = Vec::new();
+        let mut value = Vec::new();
+        for row in rows {
+            for (k, c) in row {
+                if k as usize >= grid.len() || !c.is_finite() {
+                    return Err(TransportError::Invalid(format!(
+                        "transport row {}: entry ({k}, {c}) out of range or not finite",
+                        offsets.len() - 1
+                    )));
+                }
+                index.push(k);
+                value.push(c);
+            }
+            offsets.push(index.len() as u32);
+        }
+        Ok(Self {
+            side: grid.side,
+            basis: grid.basis,
+            levels: grid.levels,
+            offsets,
+            index,
+            value,
+        })
+    }
+
+    /// Number of vertices.
+    pub fn vertices(&self) -> usize {
+        self.offsets.len() - 1
+    }
+
+    /// Stored coefficients over all vertices.
+    pub fn entries(&self) -> usize {
+        self.index.len()
+    }
+
+    /// Vertex `v`'s row: (coefficient index, value).
+    pub fn row(&self, v: usize) -> impl Iterator<Item = (usize, f32)> + '_ {
+        let (a, b) = (self.offsets[v] as usize, self.offsets[v + 1] as usize);
+        self.index[a..b]
+            .iter()
+            .zip(&self.value[a..b])
+            .map(|(&k, &c)| (k as usize, c))
+    }
+
+    /// Outgoing radiance of every vertex under `light` into `out` (one RGB per vertex).
+    pub fn relight(
+        &self,
+        light: &DenseLighting,
+        out: &mut [[f32; 3]],
+    ) -> Result<(), TransportError> {
+        if light.side != self.side || light.basis != self.basis || light.levels != self.levels {
+            return Err(TransportError::GridMismatch {
+                what: "lighting",
+                expected: self.side,
+                basis_expected: format!("{} with {} levels", self.basis, self.levels),
+                got: light.side,
+                basis_got: format!("{} with {} levels", light.basis, light.levels),
+            });
+        }
+        if out.len() != self.vertices() {
+            return Err(TransportError::Length {
+                what: "relight output",
+                expected: self.vertices(),
+                got: out.len(),
+            });
+        }
+        const CHUNK: usize = 512;
+        out.par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(ci, chunk)| {
+                let v0 = ci * CHUNK;
+                for (i, o) in chunk.iter_mut().enumerate() {
+                    let v = v0 + i;
+                    let (a, b) = (self.offsets[v] as usize, self.offsets[v + 1] as usize);
+                    let acc = dot_row(&self.index[a..b], &self.value[a..b], &light.table);
+                    *o = [acc[0], acc[1], acc[2]];
+                }
+            });
+        Ok(())
+    }
+}
+
+/// Σ value[i] · table[index[i]] with four independent accumulators (RGBA lanes).
+#[inline]
+fn dot_row(index: &[u16], value: &[f32], table: &[[f32; 4]]) -> [f32; 4] {
+    let mut acc = [[0.0f32; 4]; 2];
+    let mut ic = index.chunks_exact(2);
+    let mut vc = value.chunks_exact(2);
+    for (i2, v2) in (&mut ic).zip(&mut vc) {
+        for lane in 0..2 {
+            let l = table.get(i2[lane] as usize).copied().unwrap_or([0.0; 4]);
+            for c in 0..4 {
+                acc[lane][c] += v2[lane] * l[c];
+            }
+        }
+    }
+    for (&i, &v) in ic.remainder().iter().zip(vc.remainder()) {
+        let l = table.get(i as usize).copied().unwrap_or([0.0; 4]);
+        for c in 0..4 {
+            acc[0][c] += v * l[c];
+        }
+    }
+    std::array::from_fn(|c| acc[0][c] + acc[1][c])
+}
+
+/// Lighting coefficients (basis of [`Grid::project`]) scattered into a dense RGBA table.
+#[derive(Clone, Debug)]
+pub struct DenseLighting {
+    pub side: usize,
+    pub basis: Basis,
+    pub levels: u32,
+    table: Vec<[f32; 4]>,
+}
+
+impl DenseLighting {
+    /// All zeros.
+    pub fn new(grid: &Grid) -> Self {
+        Self {
+            side: grid.side,
+            basis: grid.basis,
+            levels: grid.levels,
+            table: vec![[0.0; 4]; grid.len()],
+        }
+    }
+
+    /// Replaces the table with a wavelet set's coefficients (scaled by its sphere scale); this
+    /// is the per-frame update.
+    pub fn set(&mut self, grid: &Grid, set: &WaveletSet) -> Result<(), TransportError> {
+        grid.check_set(set)?;
+        let s = set.sphere_scale() as f32;
+        self.table.iter_mut().for_each(|e| *e = [0.0; 4]);
+        for &(i, rgb) in &set.coefficients {
+            self.table[i as usize] = [rgb[0] * s, rgb[1] * s, rgb[2] * s, 0.0];
+        }
+        Ok(())
+    }
+
+    /// From dense per-channel coefficients (already in the basis of [`Grid::project`]).
+    pub fn from_planes(grid: &Grid, planes: &[Vec<f64>; 3]) -> Result<Self, TransportError> {
+        for p in planes {
+            if p.len() != grid.len() {
+                return Err(TransportError::Length {
+                    what: "lighting plane",
+                    expected: grid.len(),
+                    got: p.len(),
+                });
+            }
+        }
+        let mut l = Self::new(grid);
+        for (k, e) in l.table.iter_mut().enumerate() {
+            *e = [
+                planes[0][k] as f32,
+                planes[1][k] as f32,
+                planes[2][k] as f32,
+                0.0,
+            ];
+        }
+        Ok(l)
+    }
+
+    /// Number of nonzero coefficients.
+    pub fn nonzero(&self) -> usize {
+        self.table.iter().filter(|e| e[..3] != [0.0; 3]).count()
+    }
+}
+
+/// Brute-force outgoing radiance of one vertex: Σ_t V_t L_t ρ_t dω over all texels.
+pub fn brute_force(
+    grid: &Grid,
+    vis: &Visibility,
+    vertex: usize,
+    slice: &[f64],
+    light: &[[f64; 3]],
+) -> [f64; 3] {
+    let mut acc = [0.0; 3];
+    for t in 0..grid.len().min(slice.len()).min(light.len()) {
+        if vis.get(vertex, t) {
+            for c in 0..3 {
+                acc[c] += slice[t] * light[t][c];
+            }
+        }
+    }
+    acc.map(|a| a * grid.d_omega())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::approx::Coefficients;
+    use super::super::visibility::{vertex_visibility, Bvh, Mesh};
+    use super::*;
+
+    /// A sky with a sun, smooth gradient and a dark ground.
+    pub(crate) fn test_light(d: Vec3) -> [f64; 3] {
+        let sun = Vec3::new(0.5, 0.7, -0.5).normalize();
+        let s = f64::from(d.dot(sun)).max(0.0).powi(60) * 50.0;
+        let sky = if d.y > 0.0 { 1.0 + f64::from(d.y) } else { 0.2 };
+        [sky + s, sky * 0.9 + s, sky * 0.7 + 0.8 * s]
+    }
+
+    #[test]
+    fn projection_is_orthonormal_on_the_sphere() {
+        let grid = Grid::new(16, Basis::Daubechies(3), None).unwrap();
+        let f: Vec<f64> = grid
+            .dirs
+            .iter()
+            .map(|d| f64::from(d.x + 2.0 * d.y))
+            .collect();
+        let g: Vec<f64> = grid.dirs.iter().map(|d| f64::from(d.z * d.z)).collect();
+        let (cf, cg) = (grid.project(&f).unwrap(), grid.project(&g).unwrap());
+        let coeff: f64 = cf.iter().zip(&cg).map(|(a, b)| a * b).sum();
+        let texel: f64 = f.iter().zip(&g).map(|(a, b)| a * b).sum::<f64>() * grid.d_omega();
+        assert!((coeff - texel).abs() < 1e-12 * texel.abs().max(1.0));
+        let back = grid.reconstruct(&cf).unwrap();
+        for (a, b) in back.iter().zip(&f) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        assert!(grid.project(&f[1..]).is_err());
+    }
+
+    #[test]
+    fn brdf_slices_integrate_as_expected() {
+        let grid = Grid::new(64, Basis::Haar, None).unwrap();
+        let n = Vec3::new(0.3, 0.9, 0.1).normalize();
+        // ∫ cos/π dω = 1 over the hemisphere; normalised Phong at normal incidence integrates
+        // to (s+2)/(s+3)·... ≤ 1: check Lambert exactly and Phong's albedo is in (0.5, 1].
+        let lambert: f64 =
+            Brdf::Lambert.slice(n, n, &grid.dirs).iter().sum::<f64>() * grid.d_omega();
+        assert!((lambert - 1.0).abs() < 0.01, "{lambert}");
+        let phong: f64 = Brdf::Phong { exponent: 16.0 }
+            .slice(n, n, &grid.dirs)
+            .iter()
+            .sum::<f64>()
+            * grid.d_omega();
+        assert!(phong > 0.5 && phong <= 1.02, "{phong}");
+        assert!(Brdf::Phong { exponent: f32::NAN }.validate().is_err());
+    }
+
+    #[test]
+    fn relight_with_all_coefficients_matches_brute_force() {
+        let grid = Grid::new(16, Basis::Coiflet(1), None).unwrap();
+        let mesh = Mesh::sphere_on_plane(16, 6);
+        let bvh = Bvh::build(&mesh).unwrap();
+        let vis = vertex_visibility(&mesh, &bvh, &grid.dirs);
+        let light: Vec<[f64; 3]> = grid.dirs.iter().map(|d| test_light(*d)).collect();
+        let pixels: Vec<[f32; 3]> = light.iter().map(|l| l.map(|c| c as f32)).collect();
+        let coeffs = Coefficients::analyze(&pixels, grid.side, grid.basis, grid.levels).unwrap();
+        let set = coeffs.truncate(grid.len());
+        let mut dense = DenseLighting::new(&grid);
+        dense.set(&grid, &set).unwrap();
+        let view = View::Eye(Vec3::new(0.0, 2.0, 4.0));
+        for brdf in [Brdf::Lambert, Brdf::Phong { exponent: 8.0 }] {
+            let tr = Transport::precompute(
+                &grid,
+                &mesh.positions,
+                &mesh.normals,
+                &vis,
+                brdf,
+                view,
+                usize::MAX,
+            )
+            .unwrap();
+            let mut out = vec![[0.0f32; 3]; mesh.positions.len()];
+            tr.relight(&dense, &mut out).unwrap();
+            let mut worst = 0.0f64;
+            for v in 0..mesh.positions.len() {
+                let slice = brdf.slice(mesh.normals[v], view.at(mesh.positions[v]), &grid.dirs);
+                let b = brute_force(&grid, &vis, v, &slice, &light);
+                for c in 0..3 {
+                    let err = (f64::from(out[v][c]) - b[c]).abs() / b[c].abs().max(1e-3);
+                    worst = worst.max(err);
+                }
+            }
+            assert!(worst < 1e-3, "{brdf:?}: worst relative error {worst}");
+        }
+    }
+
+    #[test]
+    fn mismatched_lighting_is_an_error() {
+        let grid = Grid::new(8, Basis::Haar, None).unwrap();
+        let other = Grid::new(8, Basis::Daubechies(2), None).unwrap();
+        let tr = Transport::from_rows(&grid, [vec![(0u16, 1.0f32)]]).unwrap();
+        let mut out = vec![[0.0; 3]; 1];
+        assert!(tr.relight(&DenseLighting::new(&other), &mut out).is_err());
+        assert!(tr
+            .relight(&DenseLighting::new(&grid), &mut out[..0])
+            .is_err());
+        assert!(Transport::from_rows(&grid, [vec![(64u16, 1.0f32)]]).is_err());
+    }
+}

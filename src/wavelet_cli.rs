@@ -1,0 +1,291 @@
+//! The `envlight wavelet …` subcommands of the command line: `approx` (sparse wavelet sets of
+//! HDR frames); `relight` and `recover` are in `wavelet_transport_cli.rs`. Only argument handling, I/O and printing; the work is in `envlight::wavelet`.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use envlight::capture::sequence::{SequenceOptions, SequenceSource};
+use envlight::capture::sky::{SkyOptions, SkySource};
+use envlight::capture::FrameSource;
+use envlight::envmap::Projection;
+use envlight::wavelet::approx::Coefficients;
+use envlight::wavelet::sphere::OctahedralMap;
+use envlight::wavelet::transform::{max_levels, Workspace};
+use envlight::wavelet::{Basis, WaveletSet};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+const APPROX_LONG_ABOUT: &str = "\
+Resample HDR frames onto the equal-area octahedral map (SIZE x SIZE texels, each of solid angle
+4π/SIZE²), transform it with an orthonormal wavelet basis (periodic boundary) and keep the K
+coefficients with the largest RGB norm. Prints one JSON line per frame:
+
+  {\"seq\":0,\"time\":0.0,\"basis\":\"db4\",\"side\":128,\"levels\":7,
+   \"coefficients\":[[index,[r,g,b]],…],\"relative_l2\":0.031,\"integral\":[r,g,b]}
+
+`index` is a position in the SIZE x SIZE coefficient array (Mallat layout, docs/wavelets.md),
+`relative_l2` the RGB L2 error of the K-term reconstruction relative to the full map (exact, by
+Parseval) and `integral` the map's ∫L dω. Without INPUT the built-in sky is used (1 frame
+unless --frames says otherwise).
+
+Bases: haar, db2..db10 (the number is PyWavelets': vanishing moments, db2 = D4 with 4 taps),
+coif1..coif5 (coif1 = C6 with 6 taps); d4..d20 and c6..c30 name them by filter length.";
+
+/// `envlight wavelet <SUBCOMMAND>`.
+#[derive(Args, Debug)]
+pub struct WaveletArgs {
+    #[command(subcommand)]
+    command: WaveletCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum WaveletCommand {
+    /// Keep the K largest wavelet coefficients of HDR frames (files or the built-in sky).
+    #[command(long_about = APPROX_LONG_ABOUT)]
+    Approx(ApproxArgs),
+    /// Relight a static mesh with wavelet lighting, frame by frame (precomputed transport).
+    #[command(long_about = crate::wavelet_transport_cli::RELIGHT_LONG_ABOUT)]
+    Relight(crate::wavelet_transport_cli::RelightArgs),
+    /// Recover lighting from synthetic observations of a known object (hierarchical refinement).
+    #[command(long_about = crate::wavelet_transport_cli::RECOVER_LONG_ABOUT)]
+    Recover(crate::wavelet_transport_cli::RecoverArgs),
+}
+
+/// Projection of INPUT files.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ProjectionArg {
+    /// Equirectangular (DESIGN.md's convention).
+    Latlong,
+    /// Debevec's angular map.
+    Angular,
+}
+
+impl From<ProjectionArg> for Projection {
+    fn from(p: ProjectionArg) -> Self {
+        match p {
+            ProjectionArg::Latlong => Projection::LatLong,
+            ProjectionArg::Angular => Projection::AngularMap,
+        }
+    }
+}
+
+/// The frames every wavelet subcommand reads: INPUT files or the built-in sky.
+#[derive(Args, Debug)]
+pub struct FrameInput {
+    /// .exr/.hdr files, directories or glob patterns (quote globs). None: the built-in sky.
+    #[arg(value_name = "INPUT")]
+    inputs: Vec<String>,
+    /// Projection of the INPUT files.
+    #[arg(long, value_enum, default_value_t = ProjectionArg::Latlong)]
+    projection: ProjectionArg,
+    /// Frames to process; 0 = every frame. [default: 1 for the sky, every file for INPUT]
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
+}
+
+impl FrameInput {
+    /// Opens the frames: a sequence of INPUT files, or the built-in sky.
+    pub fn open(&self) -> Result<Box<dyn FrameSource>> {
+        if self.inputs.is_empty() {
+            let frames = match self.frames {
+                Some(0) => None,
+                Some(n) => Some(n),
+                None => Some(1),
+            };
+            let options = SkyOptions {
+                frames,
+                ..SkyOptions::default()
+            };
+            return Ok(Box::new(
+                SkySource::new(options).context("cannot set up the built-in sky")?,
+            ));
+        }
+        let options = SequenceOptions {
+            fps: None,
+            looped: false,
+            projection: self.projection.into(),
+        };
+        let source =
+            SequenceSource::new(&self.inputs, options).context("cannot open the input frames")?;
+        Ok(Box::new(Limited {
+            inner: source,
+            left: self.frames.filter(|&n| n > 0),
+        }))
+    }
+}
+
+/// A source cut after `left` frames (`None`: no limit).
+struct Limited<S> {
+    inner: S,
+    left: Option<u64>,
+}
+
+impl<S: FrameSource> FrameSource for Limited<S> {
+    fn next_frame(
+        &mut self,
+    ) -> Result<Option<envlight::HdrFrame>, envlight::capture::CaptureError> {
+        match &mut self.left {
+            Some(0) => Ok(None),
+            Some(n) => {
+                *n -= 1;
+                self.inner.next_frame()
+            }
+            None => self.inner.next_frame(),
+        }
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+}
+
+fn parse_basis(s: &str) -> Result<Basis, String> {
+    Basis::parse(s).map_err(|e| e.to_string())
+}
+
+#[derive(Args, Debug)]
+pub struct ApproxArgs {
+    #[command(flatten)]
+    input: FrameInput,
+    /// Wavelet basis: haar, db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
+    #[arg(long, value_parser = parse_basis, default_value = "db4")]
+    basis: Basis,
+    /// Coefficients to keep per frame (K ≥ 1; at most SIZE²).
+    #[arg(long, short = 'k', value_name = "K", default_value_t = 1024)]
+    coefficients: usize,
+    /// Side of the octahedral map, a power of two in 2..=1024.
+    #[arg(long, value_name = "SIZE", default_value_t = 128)]
+    size: usize,
+    /// Decomposition levels (1..=log2 SIZE). [default: log2 SIZE, the full pyramid]
+    #[arg(long, value_name = "L")]
+    levels: Option<u32>,
+    /// Output file (JSON Lines). [default: stdout]
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+    /// Also write each frame's K-term reconstruction (the SIZE x SIZE octahedral map) as a linear
+    /// RGB EXR. `{seq}` in the path is replaced by the frame's sequence number; without it each
+    /// frame overwrites the file.
+    #[arg(long, value_name = "FILE.exr")]
+    reconstruct: Option<PathBuf>,
+}
+
+/// Runs `envlight wavelet …`.
+pub fn run(args: &WaveletArgs) -> Result<()> {
+    match &args.command {
+        WaveletCommand::Approx(a) => approx(a),
+        WaveletCommand::Relight(a) => crate::wavelet_transport_cli::relight(a),
+        WaveletCommand::Recover(a) => crate::wavelet_transport_cli::recover(a),
+    }
+}
+
+/// One output line of `approx`.
+#[derive(serde::Serialize)]
+struct ApproxLine<'a> {
+    seq: u64,
+    time: f64,
+    #[serde(flatten)]
+    set: &'a WaveletSet,
+    relative_l2: f64,
+    integral: [f64; 3],
+}
+
+fn approx(args: &ApproxArgs) -> Result<()> {
+    envlight::wavelet::sphere::check_side(args.size).context("invalid --size")?;
+    let max = max_levels(args.size);
+    let levels = args.levels.unwrap_or(max);
+    if levels == 0 || levels > max {
+        bail!(
+            "invalid --levels {levels}: a map of side {} allows 1..={max}",
+            args.size
+        );
+    }
+    if args.coefficients == 0 || args.coefficients > args.size * args.size {
+        bail!(
+            "invalid --coefficients {}: expected 1..={} for --size {}",
+            args.coefficients,
+            args.size * args.size,
+            args.size
+        );
+    }
+    let mut source = args.input.open()?;
+    let mut writer = std::io::BufWriter::new(open_output(args.out.as_deref())?);
+    let mut ws = Workspace::new();
+    while let Some(frame) = source.next_frame().context("cannot read a frame")? {
+        let map = OctahedralMap::from_frame(&frame, args.size)
+            .with_context(|| format!("cannot resample frame {}", frame.seq))?;
+        let coeffs =
+            Coefficients::analyze_with(map.texels(), args.size, args.basis, levels, &mut ws)
+                .with_context(|| format!("cannot transform frame {}", frame.seq))?;
+        let set = coeffs.truncate(args.coefficients);
+        let total = coeffs.energy();
+        let kept: f64 = set
+            .coefficients
+            .iter()
+            .map(|&(i, _)| coeffs.norm2(i as usize))
+            .sum();
+        let relative_l2 = if total > 0.0 {
+            ((total - kept).max(0.0) / total).sqrt()
+        } else {
+            0.0
+        };
+        if let Some(path) = &args.reconstruct {
+            let path = expand_seq(path, frame.seq);
+            let rec = set
+                .reconstruct()
+                .with_context(|| format!("cannot reconstruct frame {}", frame.seq))?;
+            write_rgb_exr(&path, args.size, &rec)?;
+        }
+        let line = ApproxLine {
+            seq: frame.seq,
+            time: frame.time,
+            set: &set,
+            relative_l2,
+            integral: map.integral(),
+        };
+        let line = serde_json::to_string(&line).context("cannot encode a frame")?;
+        match writeln!(writer, "{line}") {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+            r => r.context("cannot write the output")?,
+        }
+        tracing::info!(
+            "frame {}: {} of {} coefficients ({}), relative L2 error {:.4}",
+            frame.seq,
+            set.len(),
+            args.size * args.size,
+            args.basis,
+            relative_l2
+        );
+    }
+    match writer.flush() {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => r.context("cannot write the output"),
+    }
+}
+
+/// `path` with `{seq}` replaced by `seq`.
+fn expand_seq(path: &Path, seq: u64) -> PathBuf {
+    let s = path.to_string_lossy();
+    if s.contains("{seq}") {
+        PathBuf::from(s.replace("{seq}", &seq.to_string()))
+    } else {
+        path.to_path_buf()
+    }
+}
+
+fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
+    Ok(match out {
+        Some(path) => Box::new(
+            std::fs::File::create(path)
+                .with_context(|| format!("cannot create output file {}", path.display()))?,
+        ),
+        None => Box::new(std::io::stdout().lock()),
+    })
+}
+
+/// Writes a `side × side` linear RGB map as a 32-bit float EXR.
+fn write_rgb_exr(path: &Path, side: usize, pixels: &[[f64; 3]]) -> Result<()> {
+    exr::prelude::write_rgb_file(path, side, side, |x, y| {
+        let p = pixels[y * side + x];
+        (p[0] as f32, p[1] as f32, p[2] as f32)
+    })
+    .with_context(|| format!("cannot write {}", path.display()))
+}
