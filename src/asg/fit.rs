@@ -25,11 +25,31 @@
 //!    Bandwidths are capped at [`FitTarget::max_bandwidth`] (a lobe at least one pixel wide).
 //! 4. **Optimiser**: Adam on (rotation, α, β, σ) per lobe (module doc of [`super`]), analytic
 //!    (sub)gradients, cosine-decayed learning rate. The rotation step of a lobe is scaled by
-//!    1/√(1 + max(λ, μ)) so a sun-sized lobe moves by a fraction of its width. The pixel sums
-//!    run on [`FitSettings::threads`] named scoped threads over a fixed partition into row
-//!    bands, summed in band order: results do not depend on the thread count.
+//!    1/√(1 + max(λ, μ)) so a sun-sized lobe moves by a fraction of its width. L_R and its
+//!    gradient come from the f32 tiled kernel with per-tile lobe culling ([`super::fast`]); the
+//!    exact f64 sums remain for [`loss`] and [`loss_gradient`]. The kernel's fixed tile groups
+//!    run on [`FitSettings::threads`] named scoped threads, summed in group order: results do
+//!    not depend on the thread count.
+//!    **First frame** ([`optimise_pyramid`]): a coarse-to-fine schedule. The target is halved
+//!    ([`FitTarget::half`], solid-angle-weighted 2×2 averages, same diffuse ground truth) down
+//!    to [`FitSettings::coarse_height`] rows; [`FitSettings::iterations`] are split so the
+//!    finest level gets [`FitSettings::fine_share`] of them and the coarser levels the rest in
+//!    equal parts, coarsest first, with one Adam state and one cosine schedule throughout.
+//!    Each level caps the bandwidths at its own [`FitTarget::max_bandwidth`]. A coarse
+//!    iteration costs a quarter of the next finer one, so 1,000 iterations cost about as much
+//!    as 150 at full size. The best loss seen on the finest level is returned.
 //! 5. **Warm start**: each later frame starts from the previous lobes and runs
-//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] with L_T added.
+//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] at full size,
+//!    continuing the previous frame's Adam state ([`AdamState`], kept by [`AsgFitter`]): a
+//!    fresh Adam's first bias-corrected steps move every parameter by the full rate, which
+//!    from a near-optimal start made the loss worse. L_T is not differentiated but applied as
+//!    a proximal step after each gradient step on L_R + w_D·L_D (proximal gradient): the prox
+//!    of τ‖u‖₂ is group soft-thresholding, u ← u·max(0, 1 − τ/‖u‖), i.e. each lobe moves back
+//!    towards its previous parameters by that factor on all its temporal components, and
+//!    stays where it was if ‖u‖ ≤ τ. The step size is Adam's nominal one, τ = w_T·rate (the
+//!    preconditioned metric taken as the identity in the scaled units of u). The last iterate
+//!    is returned (the lowest total loss is, with L_T's kink at "no change", the previous
+//!    lobes themselves, which is what the subgradient version returned).
 
 use super::{integral_with_derivatives, rotate, Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
 use crate::envmap::Projection;
@@ -88,8 +108,9 @@ pub struct FitSettings {
     /// Tie μ to λ: isotropic lobes (a comparison baseline; 6 parameters per lobe instead of 8).
     pub isotropic: bool,
     /// First frame: the coarsest pyramid level's height (the fit starts there and halves the
-    /// pixel size level by level up to [`FitSettings::height`]); ≥ `height` fits at full
-    /// resolution only.
+    /// pixel size level by level up to [`FitSettings::height`]); > `height / 2` (the default,
+    /// 1024) fits at full resolution only: on real HDRIs with small bright lamps the pyramid
+    /// converged worse (docs/asg.md).
     pub coarse_height: u32,
     /// First frame: share of [`FitSettings::iterations`] run on the finest level, 0..=1.
     pub fine_share: f64,
@@ -110,7 +131,7 @@ impl Default for FitSettings {
             diffuse_normals: 256,
             threads: 0,
             isotropic: false,
-            coarse_height: 32,
+            coarse_height: 1024,
             fine_share: 0.1,
         }
     }
@@ -402,7 +423,7 @@ impl FitTarget {
     /// with their solid angles; the diffuse ground truth, mean and integral are kept (they
     /// describe the same frame). `None` when the height is odd or below 4.
     pub fn half(&self) -> Option<Self> {
-        if self.height < 4 || self.height % 2 != 0 {
+        if self.height < 4 || !self.height.is_multiple_of(2) {
             return None;
         }
         let (w, h) = (self.width / 2, self.height / 2);
@@ -1321,7 +1342,10 @@ fn run_stages(
                 ..*l
             })
             .collect();
-        initial = Some(loss_and_grad(target, &clamped, prevs, settings, mode(false)).0);
+        let l = loss_and_grad(target, &clamped, prevs, settings, mode(false)).0;
+        initial = Some(l);
+        // The coarse levels can end worse than the start: the start stays a candidate.
+        best = Some((l, clamped));
     }
     let mut t = 0usize;
     for (si, &(stage, its)) in stages.iter().enumerate() {
