@@ -30,14 +30,17 @@
 //!    exact f64 sums remain for [`loss`] and [`loss_gradient`]. The kernel's fixed tile groups
 //!    run on [`FitSettings::threads`] named scoped threads, summed in group order: results do
 //!    not depend on the thread count.
-//!    **First frame** ([`optimise_pyramid`]): a coarse-to-fine schedule. The target is halved
+//!    **First frame**: [`FitSettings::iterations`] (1,000) at full size by default. Optionally
+//!    ([`optimise_pyramid`], [`FitSettings::coarse_height`]) coarse-to-fine: the target is halved
 //!    ([`FitTarget::half`], solid-angle-weighted 2×2 averages, same diffuse ground truth) down
 //!    to [`FitSettings::coarse_height`] rows; [`FitSettings::iterations`] are split so the
 //!    finest level gets [`FitSettings::fine_share`] of them and the coarser levels the rest in
 //!    equal parts, coarsest first, with one Adam state and one cosine schedule throughout.
 //!    Each level caps the bandwidths at its own [`FitTarget::max_bandwidth`]. A coarse
 //!    iteration costs a quarter of the next finer one, so 1,000 iterations cost about as much
-//!    as 150 at full size. The best loss seen on the finest level is returned.
+//!    as 150 at full size. The best loss seen on the finest level (or the start, if lower) is
+//!    returned. It converges better on the smooth sky but worse on maps with small lamps
+//!    (docs/asg.md), hence off by default.
 //! 5. **Warm start**: each later frame starts from the previous lobes and runs
 //!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] at full size,
 //!    continuing the previous frame's Adam state ([`AdamState`], kept by [`AsgFitter`]): a
