@@ -97,6 +97,24 @@ fn main() {
             },
             21 * 6,
         ),
+        (
+            "ASG K=16, L1 + diffuse, 4,000 iterations",
+            FitSettings {
+                iterations: 4000,
+                ..base.clone()
+            },
+            16 * 8,
+        ),
+        (
+            "isotropic (λ = μ) K=21, 4,000 iterations",
+            FitSettings {
+                lobes: 21,
+                isotropic: true,
+                iterations: 4000,
+                ..base.clone()
+            },
+            21 * 6,
+        ),
     ];
     let mut all: Vec<Vec<Row>> = Vec::new();
     for name in MAPS {
@@ -207,7 +225,7 @@ fn temporal() {
     println!("\n### Temporal: built-in sky, 16 frames, sun at 15°/s, 64×128 fit map, K = 16\n");
     println!("| L_T weight | mean loss | axis change (°/frame/lobe) | amplitude change (rel./frame/lobe) | ball flicker (r = 0.25) |");
     println!("|---:|---:|---:|---:|---:|");
-    for w in [0.0, 0.05, 0.2] {
+    for w in [0.0, 0.05, 0.2, 1.0] {
         let mut fitter = AsgFitter::new(FitSettings {
             height: 64,
             temporal_weight: w,

@@ -312,7 +312,7 @@ pub struct Config {
 }
 
 /// Validated `[asg]`: the daemon's ASG stage. Default: disabled; when enabled, 16 lobes fitted
-/// at 64×128 (first frame 300 iterations, then 30 warm-started ones per frame) on one thread.
+/// at 64×128 (first frame 1,000 iterations, then 6 warm-started ones per frame) on one thread.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AsgConfig {
     pub enabled: bool,

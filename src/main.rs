@@ -1198,17 +1198,19 @@ struct FitAsgArgs {
     /// Number of lobes K (1..=64).
     #[arg(long, default_value_t = envlight::asg::fit::DEFAULT_LOBES)]
     lobes: usize,
-    /// Adam iterations of the first frame.
-    #[arg(long, default_value_t = 300)]
+    /// Adam iterations of the first frame (spread over a pyramid of map sizes from 32 rows up,
+    /// a tenth at the full size).
+    #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().iterations)]
     iterations: usize,
-    /// Adam iterations of each warm-started frame.
-    #[arg(long, default_value_t = 30)]
+    /// Adam iterations of each warm-started frame (continuing the previous frame's Adam state;
+    /// L_T applied as a proximal step).
+    #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().warm_iterations)]
     warm_iterations: usize,
     /// Fit-map height (width is twice), 4..=1024.
     #[arg(long, default_value_t = envlight::asg::fit::DEFAULT_HEIGHT)]
     height: u32,
     /// Weight of the temporal loss L_T (0 disables it).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().temporal_weight)]
     temporal_weight: f64,
     /// Sky frames to fit when no INPUT is given.
     #[arg(long, default_value_t = 10)]

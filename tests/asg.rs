@@ -3,12 +3,13 @@
 
 use envlight::asg::eval::{ggx_reference, LatLongMap};
 use envlight::asg::fit::{
-    initial_lobes, loss, loss_gradient, perturb, AsgFitter, FitSettings, FitTarget, Norm,
+    fast_loss_gradient, initial_lobes, loss, loss_gradient, perturb, AsgFitter, FitSettings,
+    FitTarget, Norm,
 };
 use envlight::asg::{
     integral, integral_approx, Asg, AsgError, GGX_TOLERANCE, IRRADIANCE_TOLERANCE,
 };
-use envlight::capture::sky::{SkyOptions, SkySource};
+use envlight::capture::sky::{render_sky, SkyOptions, SkySource};
 use envlight::capture::FrameSource;
 use envlight::envmap::Projection;
 use envlight::HdrFrame;
@@ -202,6 +203,105 @@ fn gradients_agree_with_finite_differences_l2() {
 fn gradients_agree_with_finite_differences_l1() {
     // L1 has kinks where a pixel's residual changes sign; a few pixels may cross within ±h.
     check_gradients(Norm::L1, 2e-2);
+}
+
+#[test]
+fn fast_kernel_matches_the_exact_loss_and_gradient() {
+    // The f32 tiled kernel the optimiser uses against the exact f64 sums, on a real map with
+    // narrow (culled) and wide lobes, both norms.
+    let target = small_target("rooitou_park_1k.hdr", 48);
+    let mut lobes = initial_lobes(&target, 12);
+    lobes.push(
+        Asg::new(
+            DVec3::new(0.2, 0.3, -0.9),
+            DVec3::X,
+            0.4,
+            3.0,
+            [0.2, 0.3, 0.5],
+        )
+        .unwrap(),
+    );
+    lobes.push(Asg::new(DVec3::new(-0.5, 0.8, 0.1), DVec3::Y, 900.0, 40.0, [5.0; 3]).unwrap());
+    for norm in [Norm::L1, Norm::L2] {
+        let settings = FitSettings {
+            norm,
+            ..FitSettings::default()
+        };
+        let (exact, ge) = loss_gradient(&target, &lobes, None, &settings);
+        let (fast, gf) = fast_loss_gradient(&target, &lobes, &settings);
+        let rel = (fast.total - exact.total).abs() / exact.total;
+        assert!(
+            rel < 1e-5,
+            "{norm:?}: loss {} vs {}",
+            fast.total,
+            exact.total
+        );
+        let max = ge.iter().flatten().fold(0.0f64, |m, g| m.max(g.abs()));
+        let err = ge
+            .iter()
+            .flatten()
+            .zip(gf.iter().flatten())
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(
+            err <= 1e-3 * max,
+            "{norm:?}: max |fast − exact| gradient {err:e} of max {max:e}"
+        );
+    }
+}
+
+#[test]
+fn half_resolution_target_keeps_the_energy() {
+    let target = small_target("venice_sunset_1k.hdr", 32);
+    let half = target.half().unwrap();
+    assert_eq!((half.width, half.height), (32, 16));
+    let energy = |t: &FitTarget| {
+        t.radiance
+            .iter()
+            .zip(&t.weights)
+            .map(|(p, w)| w * (p[0] + p[1] + p[2]))
+            .sum::<f64>()
+    };
+    let (a, b) = (energy(&target), energy(&half));
+    assert!((a - b).abs() <= 1e-12 * a, "{a} vs {b}");
+    let smallest = half.half().unwrap().half().unwrap().half().unwrap();
+    assert_eq!(smallest.height, 2);
+    assert!(smallest.half().is_none());
+}
+
+#[test]
+fn warm_refit_with_temporal_loss_follows_the_map() {
+    // Issue 6: with L_T as a subgradient and the best total loss returned, a warm refit gave
+    // back the previous lobes unchanged. With the proximal step the lobes follow the sun.
+    let options = SkyOptions {
+        width: 128,
+        height: 64,
+        sun_speed_deg_per_s: 60.0,
+        clouds: false,
+        ..SkyOptions::default()
+    };
+    let settings = FitSettings {
+        height: 32,
+        iterations: 400,
+        warm_iterations: 20,
+        threads: 1,
+        ..FitSettings::default()
+    };
+    assert!(settings.temporal_weight > 0.0);
+    let mut fitter = AsgFitter::new(settings.clone()).unwrap();
+    let t0 = FitTarget::from_frame(&render_sky(&options, 0.0), 32, 256).unwrap();
+    let t1 = FitTarget::from_frame(&render_sky(&options, 0.1), 32, 256).unwrap();
+    let first = fitter.fit_target(&t0).lobes;
+    let refit = fitter.fit_target(&t1);
+    assert!(refit.warm);
+    assert_ne!(refit.lobes, first, "the refit returned the previous lobes");
+    let plain = FitSettings {
+        temporal_weight: 0.0,
+        ..settings
+    };
+    let before = loss(&t1, &first, None, &plain).total;
+    let after = loss(&t1, &refit.lobes, None, &plain).total;
+    eprintln!("frame 1: previous lobes {before:.5}, warm refit {after:.5}");
+    assert!(after < before, "refit {after} vs previous lobes {before}");
 }
 
 fn settings_small() -> FitSettings {

@@ -25,11 +25,34 @@
 //!    Bandwidths are capped at [`FitTarget::max_bandwidth`] (a lobe at least one pixel wide).
 //! 4. **Optimiser**: Adam on (rotation, α, β, σ) per lobe (module doc of [`super`]), analytic
 //!    (sub)gradients, cosine-decayed learning rate. The rotation step of a lobe is scaled by
-//!    1/√(1 + max(λ, μ)) so a sun-sized lobe moves by a fraction of its width. The pixel sums
-//!    run on [`FitSettings::threads`] named scoped threads over a fixed partition into row
-//!    bands, summed in band order: results do not depend on the thread count.
+//!    1/√(1 + max(λ, μ)) so a sun-sized lobe moves by a fraction of its width. L_R and its
+//!    gradient come from the f32 tiled kernel with per-tile lobe culling ([`super::fast`]); the
+//!    exact f64 sums remain for [`loss`] and [`loss_gradient`]. The kernel's fixed tile groups
+//!    run on [`FitSettings::threads`] named scoped threads, summed in group order: results do
+//!    not depend on the thread count.
+//!    **First frame**: [`FitSettings::iterations`] (1,000) at full size by default. Optionally
+//!    ([`optimise_pyramid`], [`FitSettings::coarse_height`]) coarse-to-fine: the target is halved
+//!    ([`FitTarget::half`], solid-angle-weighted 2×2 averages, same diffuse ground truth) down
+//!    to [`FitSettings::coarse_height`] rows; [`FitSettings::iterations`] are split so the
+//!    finest level gets [`FitSettings::fine_share`] of them and the coarser levels the rest in
+//!    equal parts, coarsest first, with one Adam state and one cosine schedule throughout.
+//!    Each level caps the bandwidths at its own [`FitTarget::max_bandwidth`]. A coarse
+//!    iteration costs a quarter of the next finer one, so 1,000 iterations cost about as much
+//!    as 150 at full size. The best loss seen on the finest level (or the start, if lower) is
+//!    returned. It converges better on the smooth sky but worse on maps with small lamps
+//!    (docs/asg.md), hence off by default.
 //! 5. **Warm start**: each later frame starts from the previous lobes and runs
-//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] with L_T added.
+//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] at full size,
+//!    continuing the previous frame's Adam state ([`AdamState`], kept by [`AsgFitter`]): a
+//!    fresh Adam's first bias-corrected steps move every parameter by the full rate, which
+//!    from a near-optimal start made the loss worse. L_T is not differentiated but applied as
+//!    a proximal step after each gradient step on L_R + w_D·L_D (proximal gradient): the prox
+//!    of τ‖u‖₂ is group soft-thresholding, u ← u·max(0, 1 − τ/‖u‖), i.e. each lobe moves back
+//!    towards its previous parameters by that factor on all its temporal components, and
+//!    stays where it was if ‖u‖ ≤ τ. The step size is Adam's nominal one, τ = w_T·rate (the
+//!    preconditioned metric taken as the identity in the scaled units of u). The last iterate
+//!    is returned (the lowest total loss is, with L_T's kink at "no change", the previous
+//!    lobes themselves, which is what the subgradient version returned).
 
 use super::{integral_with_derivatives, rotate, Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
 use crate::envmap::Projection;
@@ -87,6 +110,13 @@ pub struct FitSettings {
     pub threads: usize,
     /// Tie μ to λ: isotropic lobes (a comparison baseline; 6 parameters per lobe instead of 8).
     pub isotropic: bool,
+    /// First frame: the coarsest pyramid level's height (the fit starts there and halves the
+    /// pixel size level by level up to [`FitSettings::height`]); > `height / 2` (the default,
+    /// 1024) fits at full resolution only: on real HDRIs with small bright lamps the pyramid
+    /// converged worse (docs/asg.md).
+    pub coarse_height: u32,
+    /// First frame: share of [`FitSettings::iterations`] run on the finest level, 0..=1.
+    pub fine_share: f64,
 }
 
 impl Default for FitSettings {
@@ -94,8 +124,8 @@ impl Default for FitSettings {
         Self {
             lobes: DEFAULT_LOBES,
             height: DEFAULT_HEIGHT,
-            iterations: 300,
-            warm_iterations: 30,
+            iterations: 1000,
+            warm_iterations: 6,
             learning_rate: 0.05,
             warm_learning_rate: 0.01,
             diffuse_weight: 1.0,
@@ -104,6 +134,8 @@ impl Default for FitSettings {
             diffuse_normals: 256,
             threads: 0,
             isotropic: false,
+            coarse_height: 1024,
+            fine_share: 0.1,
         }
     }
 }
@@ -140,6 +172,9 @@ impl FitSettings {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(bad(name, v, "must be finite and >= 0"));
             }
+        }
+        if !(self.fine_share.is_finite() && (0.0..=1.0).contains(&self.fine_share)) {
+            return Err(bad("fine_share", self.fine_share, "must be in [0, 1]"));
         }
         if !(16..=4096).contains(&self.diffuse_normals) {
             return Err(bad(
@@ -186,6 +221,9 @@ pub struct FitTarget {
     pub mean: f64,
     /// ∫ L dω per channel.
     pub integral: [f64; 3],
+    /// The pixels tiled for the fast kernel, made on first use (a target is not meant to be
+    /// changed after it is made).
+    tiled: std::sync::OnceLock<super::fast::Pixels>,
 }
 
 /// `n` directions of a Fibonacci sphere.
@@ -375,6 +413,55 @@ impl FitTarget {
             diffuse,
             mean,
             integral,
+            tiled: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// The pixels tiled for the fast kernel ([`super::fast`]).
+    pub fn tiled(&self) -> &super::fast::Pixels {
+        self.tiled.get_or_init(|| super::fast::Pixels::new(self))
+    }
+
+    /// This target at half the resolution (`height / 2`, at least 2): 2×2 pixels averaged
+    /// with their solid angles; the diffuse ground truth, mean and integral are kept (they
+    /// describe the same frame). `None` when the height is odd or below 4.
+    pub fn half(&self) -> Option<Self> {
+        if self.height < 4 || !self.height.is_multiple_of(2) {
+            return None;
+        }
+        let (w, h) = (self.width / 2, self.height / 2);
+        let mut radiance = vec![[0.0; 3]; (w * h) as usize];
+        let mut weights = vec![0.0; (w * h) as usize];
+        let mut directions = vec![DVec3::ZERO; (w * h) as usize];
+        for y in 0..self.height {
+            for x in 0..self.width {
+                let i = (y * self.width + x) as usize;
+                let o = ((y / 2) * w + x / 2) as usize;
+                let wt = self.weights[i];
+                weights[o] += wt;
+                directions[o] += self.directions[i] * wt;
+                for c in 0..3 {
+                    radiance[o][c] += self.radiance[i][c] * wt;
+                }
+            }
+        }
+        for ((r, d), wt) in radiance.iter_mut().zip(directions.iter_mut()).zip(&weights) {
+            if *wt > 0.0 {
+                *r = r.map(|v| v / wt);
+            }
+            *d = d.normalize_or(DVec3::Y);
+        }
+        Some(Self {
+            width: w,
+            height: h,
+            directions,
+            radiance,
+            weights,
+            normals: self.normals.clone(),
+            diffuse: self.diffuse.clone(),
+            mean: self.mean,
+            integral: self.integral,
+            tiled: std::sync::OnceLock::new(),
         })
     }
 
@@ -567,6 +654,15 @@ impl Grad {
 struct Moments {
     m: [f64; 8],
     v: [f64; 8],
+}
+
+/// Adam's state (moments and step count), carried from frame to frame by [`AsgFitter`] so a
+/// warm refit continues the previous frame's optimisation instead of restarting Adam (whose
+/// first, bias-corrected steps move every parameter by the full learning rate).
+#[derive(Clone, Debug, Default)]
+pub struct AdamState {
+    moments: Vec<Moments>,
+    steps: usize,
 }
 
 /// Evaluation context: derived per-lobe quantities.
@@ -786,66 +882,63 @@ fn temporal_loss(
     loss
 }
 
+/// How [`loss_and_grad`] evaluates.
+#[derive(Clone, Copy, Debug)]
+struct Mode {
+    threads: usize,
+    want_grad: bool,
+    /// The f32 tiled kernel ([`super::fast`]) instead of the exact f64 sums.
+    fast: bool,
+    /// Whether the gradient includes L_T's (the optimiser uses a proximal step instead).
+    temporal_grad: bool,
+}
+
 /// The whole loss of `lobes` (and its gradient with respect to the free quantities).
 fn loss_and_grad(
     target: &FitTarget,
     lobes: &[Lobe],
     prev: Option<(&[Lobe], &[f64; 11])>,
     settings: &FitSettings,
-    threads: usize,
-    want_grad: bool,
+    mode: Mode,
 ) -> (Loss, Vec<Grad>) {
     let derived = derive(lobes);
     let k = lobes.len();
-    let h = target.height;
-    let bands: Vec<std::ops::Range<u32>> = (0..BANDS as u32)
-        .map(|b| (b * h / BANDS as u32)..((b + 1) * h / BANDS as u32))
-        .filter(|r| !r.is_empty())
-        .collect();
-    let mut results: Vec<(f64, Vec<Grad>)> = vec![(0.0, Vec::new()); bands.len()];
-    let run = |band: &std::ops::Range<u32>| -> (f64, Vec<Grad>) {
-        let mut g = if want_grad {
-            vec![Grad::default(); k]
-        } else {
-            Vec::new()
-        };
-        let loss = reconstruction_band(
-            target,
-            &derived,
+    let want_grad = mode.want_grad;
+    let (rec, mut grads) = if mode.fast {
+        let inv_m = 1.0 / target.mean;
+        let kl: Vec<super::fast::KLobe> = derived
+            .iter()
+            .map(|d| super::fast::KLobe {
+                x: d.x,
+                y: d.y,
+                z: d.z,
+                lambda: d.l,
+                mu: d.m,
+                c: d.c.map(|c| c * inv_m),
+            })
+            .collect();
+        let (rec, sums) = super::fast::reconstruction(
+            target.tiled(),
+            &kl,
             settings.norm,
-            band.clone(),
-            want_grad.then_some(g.as_mut_slice()),
+            mode.threads,
+            want_grad,
         );
-        (loss, g)
-    };
-    if threads <= 1 {
-        for (out, band) in results.iter_mut().zip(&bands) {
-            *out = run(band);
-        }
+        let grads = sums
+            .iter()
+            .map(|s| Grad {
+                x: s.x,
+                y: s.y,
+                z: s.z,
+                lambda: s.lambda,
+                mu: s.mu,
+                c: s.c.map(|c| c * inv_m),
+            })
+            .collect();
+        (rec, grads)
     } else {
-        let per = bands.len().div_ceil(threads);
-        std::thread::scope(|scope| {
-            for (ti, (outs, bs)) in results.chunks_mut(per).zip(bands.chunks(per)).enumerate() {
-                let run = &run;
-                std::thread::Builder::new()
-                    .name(format!("asg-fit-{ti}"))
-                    .spawn_scoped(scope, move || {
-                        for (out, band) in outs.iter_mut().zip(bs) {
-                            *out = run(band);
-                        }
-                    })
-                    .expect("cannot start an ASG fitting thread");
-            }
-        });
-    }
-    let mut grads = vec![Grad::default(); if want_grad { k } else { 0 }];
-    let mut rec = 0.0;
-    for (l, g) in &results {
-        rec += l;
-        for (a, b) in grads.iter_mut().zip(g) {
-            a.add(b);
-        }
-    }
+        exact_reconstruction(target, &derived, settings.norm, mode.threads, want_grad)
+    };
     let mut dgrads = vec![Grad::default(); if want_grad { k } else { 0 }];
     let dif = if settings.diffuse_weight > 0.0 {
         diffuse_loss(
@@ -859,9 +952,12 @@ fn loss_and_grad(
     };
     let mut tgrads = vec![Grad::default(); if want_grad { k } else { 0 }];
     let tmp = match prev {
-        Some((p, s)) if settings.temporal_weight > 0.0 => {
-            temporal_loss(lobes, p, s, want_grad.then_some(tgrads.as_mut_slice()))
-        }
+        Some((p, s)) if settings.temporal_weight > 0.0 => temporal_loss(
+            lobes,
+            p,
+            s,
+            (want_grad && mode.temporal_grad).then_some(tgrads.as_mut_slice()),
+        ),
         _ => 0.0,
     };
     for j in 0..grads.len() {
@@ -885,6 +981,71 @@ fn loss_and_grad(
         total: rec + settings.diffuse_weight * dif + settings.temporal_weight * tmp,
     };
     (loss, grads)
+}
+
+/// L_R by the exact f64 sums over fixed row bands (and its gradient if `want_grad`).
+fn exact_reconstruction(
+    target: &FitTarget,
+    derived: &[Derived],
+    norm: Norm,
+    threads: usize,
+    want_grad: bool,
+) -> (f64, Vec<Grad>) {
+    let k = derived.len();
+    let h = target.height;
+    let bands: Vec<std::ops::Range<u32>> = (0..BANDS as u32)
+        .map(|b| (b * h / BANDS as u32)..((b + 1) * h / BANDS as u32))
+        .filter(|r| !r.is_empty())
+        .collect();
+    let mut results: Vec<Option<(f64, Vec<Grad>)>> = vec![None; bands.len()];
+    let run = |band: &std::ops::Range<u32>| -> (f64, Vec<Grad>) {
+        let mut g = if want_grad {
+            vec![Grad::default(); k]
+        } else {
+            Vec::new()
+        };
+        let loss = reconstruction_band(
+            target,
+            derived,
+            norm,
+            band.clone(),
+            want_grad.then_some(g.as_mut_slice()),
+        );
+        (loss, g)
+    };
+    if threads > 1 {
+        let per = bands.len().div_ceil(threads);
+        std::thread::scope(|scope| {
+            for (ti, (outs, bs)) in results.chunks_mut(per).zip(bands.chunks(per)).enumerate() {
+                let run = &run;
+                let spawned = std::thread::Builder::new()
+                    .name(format!("asg-fit-{ti}"))
+                    .spawn_scoped(scope, move || {
+                        for (out, band) in outs.iter_mut().zip(bs) {
+                            *out = Some(run(band));
+                        }
+                    });
+                if let Err(e) = spawned {
+                    // Computed below on this thread.
+                    tracing::warn!("cannot start an ASG fitting thread: {e}");
+                }
+            }
+        });
+    }
+    for (out, band) in results.iter_mut().zip(&bands) {
+        if out.is_none() {
+            *out = Some(run(band));
+        }
+    }
+    let mut grads = vec![Grad::default(); if want_grad { k } else { 0 }];
+    let mut rec = 0.0;
+    for (l, g) in results.iter().flatten() {
+        rec += l;
+        for (a, b) in grads.iter_mut().zip(g) {
+            a.add(b);
+        }
+    }
+    (rec, grads)
 }
 
 /// Gradient with respect to the optimisation parameters (rotation 3, α, β, σ 3).
@@ -916,7 +1077,34 @@ pub fn loss_gradient(
     let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
     let scales = pv.as_deref().map(temporal_scales);
     let prev = pv.as_deref().zip(scales.as_ref());
-    let (loss, g) = loss_and_grad(target, &ls, prev, settings, 1, true);
+    let mode = Mode {
+        threads: 1,
+        want_grad: true,
+        fast: false,
+        temporal_grad: true,
+    };
+    let (loss, g) = loss_and_grad(target, &ls, prev, settings, mode);
+    (
+        loss,
+        ls.iter().zip(&g).map(|(p, g)| param_grad(p, g)).collect(),
+    )
+}
+
+/// As [`loss_gradient`] without a previous frame, but computed by the fast f32 kernel the
+/// optimiser uses ([`super::fast`]); for tests and tools.
+pub fn fast_loss_gradient(
+    target: &FitTarget,
+    lobes: &[Asg],
+    settings: &FitSettings,
+) -> (Loss, Vec<[f64; 8]>) {
+    let ls: Vec<Lobe> = lobes.iter().map(Lobe::from_asg).collect();
+    let mode = Mode {
+        threads: 1,
+        want_grad: true,
+        fast: true,
+        temporal_grad: true,
+    };
+    let (loss, g) = loss_and_grad(target, &ls, None, settings, mode);
     (
         loss,
         ls.iter().zip(&g).map(|(p, g)| param_grad(p, g)).collect(),
@@ -934,7 +1122,13 @@ pub fn loss(
     let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
     let scales = pv.as_deref().map(temporal_scales);
     let prev = pv.as_deref().zip(scales.as_ref());
-    loss_and_grad(target, &ls, prev, settings, 1, false).0
+    let mode = Mode {
+        threads: 1,
+        want_grad: false,
+        fast: false,
+        temporal_grad: false,
+    };
+    loss_and_grad(target, &ls, prev, settings, mode).0
 }
 
 /// Applies parameter vector `delta` (rotation 3, α, β, σ 3) to `lobe` (as the optimiser does).
@@ -960,7 +1154,9 @@ fn step(p: &mut Lobe, d: &[f64; 8]) {
     }
 }
 
-/// Runs `iterations` Adam steps from `init` on `target`.
+/// Runs `iterations` Adam steps from `init` on `target`, all at the target's resolution; with
+/// `prev`, L_T (if its weight is > 0) is applied as a proximal step after each gradient step
+/// (module doc, step 5).
 pub fn optimise(
     target: &FitTarget,
     init: &[Asg],
@@ -969,12 +1165,135 @@ pub fn optimise(
     learning_rate: f64,
     settings: &FitSettings,
 ) -> FitResult {
-    let mut lobes: Vec<Lobe> = init.iter().map(Lobe::from_asg).collect();
-    let amax = (target.max_bandwidth() - MIN_BANDWIDTH).ln();
-    for l in &mut lobes {
-        l.alpha = l.alpha.min(amax);
-        l.beta = l.beta.min(amax);
+    let mut state = AdamState::default();
+    run_stages(
+        &[(target, iterations)],
+        init,
+        prev,
+        learning_rate,
+        settings,
+        &mut state,
+    )
+}
+
+/// As [`optimise`], continuing from (and updating) Adam's `state` of the previous call.
+pub fn optimise_continued(
+    target: &FitTarget,
+    init: &[Asg],
+    prev: Option<&[Asg]>,
+    iterations: usize,
+    learning_rate: f64,
+    settings: &FitSettings,
+    state: &mut AdamState,
+) -> FitResult {
+    run_stages(
+        &[(target, iterations)],
+        init,
+        prev,
+        learning_rate,
+        settings,
+        state,
+    )
+}
+
+/// The first-frame schedule (module doc, step 4): `iterations` split over the pyramid
+/// `target`, `target.half()`, … down to [`FitSettings::coarse_height`] rows.
+pub fn optimise_pyramid(
+    target: &FitTarget,
+    init: &[Asg],
+    iterations: usize,
+    learning_rate: f64,
+    settings: &FitSettings,
+) -> FitResult {
+    let levels = pyramid(target, settings);
+    optimise_stages(
+        &levels.stages(iterations, settings.fine_share),
+        init,
+        learning_rate,
+        settings,
+        &mut AdamState::default(),
+    )
+}
+
+/// The levels of the first-frame pyramid: `target.half()`s down to `coarse_height` rows.
+struct Pyramid<'a> {
+    finest: &'a FitTarget,
+    /// Coarsest first.
+    coarser: Vec<FitTarget>,
+}
+
+fn pyramid<'a>(target: &'a FitTarget, settings: &FitSettings) -> Pyramid<'a> {
+    let mut coarser: Vec<FitTarget> = Vec::new();
+    loop {
+        let t = coarser.last().unwrap_or(target);
+        if t.height / 2 < settings.coarse_height.max(4) {
+            break;
+        }
+        match t.half() {
+            Some(h) => coarser.push(h),
+            None => break,
+        }
     }
+    coarser.reverse();
+    Pyramid {
+        finest: target,
+        coarser,
+    }
+}
+
+impl Pyramid<'_> {
+    /// `iterations` split: `fine_share` on the finest level, the rest evenly over the others.
+    fn stages(&self, iterations: usize, fine_share: f64) -> Vec<(&FitTarget, usize)> {
+        let n = self.coarser.len();
+        if n == 0 {
+            return vec![(self.finest, iterations)];
+        }
+        let fine = (((iterations as f64) * fine_share).round() as usize).min(iterations);
+        let rest = iterations - fine;
+        let mut stages: Vec<(&FitTarget, usize)> = self
+            .coarser
+            .iter()
+            .enumerate()
+            .map(|(i, t)| (t, rest / n + usize::from(i < rest % n)))
+            .collect();
+        stages.push((self.finest, fine));
+        stages
+    }
+}
+
+/// Runs `stages` (target, iterations) in order from `init` without a previous frame, leaving
+/// Adam's state in `state`; the last target is the one the result is judged on.
+pub fn optimise_stages(
+    stages: &[(&FitTarget, usize)],
+    init: &[Asg],
+    learning_rate: f64,
+    settings: &FitSettings,
+    state: &mut AdamState,
+) -> FitResult {
+    run_stages(stages, init, None, learning_rate, settings, state)
+}
+
+/// Adam over `stages` (target, iterations), the last stage's target being the one the result
+/// is judged on.
+fn run_stages(
+    stages: &[(&FitTarget, usize)],
+    init: &[Asg],
+    prev: Option<&[Asg]>,
+    learning_rate: f64,
+    settings: &FitSettings,
+    state: &mut AdamState,
+) -> FitResult {
+    let Some(&(target, _)) = stages.last() else {
+        return FitResult {
+            lobes: init.to_vec(),
+            initial_loss: Loss::default(),
+            loss: Loss::default(),
+            iterations: 0,
+            warm: prev.is_some(),
+        };
+    };
+    let iterations: usize = stages.iter().map(|s| s.1).sum();
+    let mut lobes: Vec<Lobe> = init.iter().map(Lobe::from_asg).collect();
     if settings.isotropic {
         for l in &mut lobes {
             l.beta = l.alpha;
@@ -1001,45 +1320,99 @@ pub fn optimise(
             warm: prev.is_some(),
         };
     }
+    let mode = |want_grad| Mode {
+        threads,
+        want_grad,
+        fast: true,
+        temporal_grad: false,
+    };
     let (b1, b2, eps) = (0.9, 0.999, 1e-12);
-    let mut moments = vec![Moments::default(); lobes.len()];
+    if state.moments.len() != lobes.len() {
+        *state = AdamState {
+            moments: vec![Moments::default(); lobes.len()],
+            steps: 0,
+        };
+    }
     let mut best: Option<(Loss, Vec<Lobe>)> = None;
     let mut initial = None;
-    for it in 0..=iterations {
-        let want = it < iterations;
-        let (loss, grads) = loss_and_grad(target, &lobes, prevs, settings, threads, want);
-        if initial.is_none() {
-            initial = Some(loss);
+    if stages.len() > 1 {
+        let amax = (target.max_bandwidth() - MIN_BANDWIDTH).ln();
+        let clamped: Vec<Lobe> = lobes
+            .iter()
+            .map(|l| Lobe {
+                alpha: l.alpha.min(amax),
+                beta: l.beta.min(amax),
+                ..*l
+            })
+            .collect();
+        let l = loss_and_grad(target, &clamped, prevs, settings, mode(false)).0;
+        initial = Some(l);
+        // The coarse levels can end worse than the start: the start stays a candidate.
+        best = Some((l, clamped));
+    }
+    let mut t = 0usize;
+    for (si, &(stage, its)) in stages.iter().enumerate() {
+        let last = si + 1 == stages.len();
+        let amax = (stage.max_bandwidth() - MIN_BANDWIDTH).ln();
+        for l in &mut lobes {
+            l.alpha = l.alpha.min(amax);
+            l.beta = l.beta.min(amax);
         }
-        if best.as_ref().is_none_or(|(b, _)| loss.total < b.total) {
-            best = Some((loss, lobes.clone()));
-        }
-        if !want {
-            break;
-        }
-        let t = (it + 1) as f64;
-        let progress = it as f64 / iterations.max(1) as f64;
-        let lr = learning_rate * (0.1 + 0.9 * 0.5 * (1.0 + (PI * progress).cos()));
-        for ((p, g), mo) in lobes.iter_mut().zip(&grads).zip(moments.iter_mut()) {
-            let mut pg = param_grad(p, g);
-            if settings.isotropic {
-                pg[3] += pg[4];
-                pg[4] = pg[3];
+        for it in 0..=its {
+            let want = it < its;
+            if !want && !last {
+                break;
             }
-            let rot_scale = 1.0 / (1.0 + p.lambda().max(p.mu())).sqrt();
-            let mut d = [0.0; 8];
-            for i in 0..8 {
-                let gi = if pg[i].is_finite() { pg[i] } else { 0.0 };
-                mo.m[i] = b1 * mo.m[i] + (1.0 - b1) * gi;
-                mo.v[i] = b2 * mo.v[i] + (1.0 - b2) * gi * gi;
-                let mh = mo.m[i] / (1.0 - b1.powf(t));
-                let vh = mo.v[i] / (1.0 - b2.powf(t));
-                let scale = if i < 3 { rot_scale } else { 1.0 };
-                d[i] = -lr * scale * mh / (vh.sqrt() + eps);
+            let (loss, grads) = loss_and_grad(stage, &lobes, prevs, settings, mode(want));
+            if last {
+                if initial.is_none() {
+                    initial = Some(loss);
+                }
+                // With L_T as a proximal step, the iterates descend L_R + w_D·L_D + a penalty
+                // on the change; the last one is returned (the best total seen would be the
+                // unchanged previous lobes, L_T being 0 there). Otherwise the best seen.
+                let keep_last = prevs.is_some() && settings.temporal_weight > 0.0;
+                if keep_last || best.as_ref().is_none_or(|(b, _)| loss.total < b.total) {
+                    best = Some((loss, lobes.clone()));
+                }
             }
-            step(p, &d);
-            p.alpha = p.alpha.min(amax);
-            p.beta = p.beta.min(amax);
+            if !want {
+                break;
+            }
+            t += 1;
+            state.steps += 1;
+            let progress = (t - 1) as f64 / iterations.max(1) as f64;
+            let lr = learning_rate * (0.1 + 0.9 * 0.5 * (1.0 + (PI * progress).cos()));
+            let tf = state.steps as f64;
+            for ((p, g), mo) in lobes.iter_mut().zip(&grads).zip(state.moments.iter_mut()) {
+                let mut pg = param_grad(p, g);
+                if settings.isotropic {
+                    pg[3] += pg[4];
+                    pg[4] = pg[3];
+                }
+                let rot_scale = 1.0 / (1.0 + p.lambda().max(p.mu())).sqrt();
+                let mut d = [0.0; 8];
+                for i in 0..8 {
+                    let gi = if pg[i].is_finite() { pg[i] } else { 0.0 };
+                    mo.m[i] = b1 * mo.m[i] + (1.0 - b1) * gi;
+                    mo.v[i] = b2 * mo.v[i] + (1.0 - b2) * gi * gi;
+                    let mh = mo.m[i] / (1.0 - b1.powf(tf));
+                    let vh = mo.v[i] / (1.0 - b2.powf(tf));
+                    let scale = if i < 3 { rot_scale } else { 1.0 };
+                    d[i] = -lr * scale * mh / (vh.sqrt() + eps);
+                }
+                step(p, &d);
+                p.alpha = p.alpha.min(amax);
+                p.beta = p.beta.min(amax);
+            }
+            if let Some((pl, sc)) = prevs {
+                if settings.temporal_weight > 0.0 {
+                    let tau = settings.temporal_weight * lr;
+                    for (p, q) in lobes.iter_mut().zip(pl) {
+                        temporal_prox(p, q, sc, tau);
+                    }
+                }
+            }
         }
     }
     let (loss, best) = best.unwrap_or_default();
@@ -1052,11 +1425,50 @@ pub fn optimise(
     }
 }
 
+/// The proximal step of τ·‖(g − g_prev)/scale‖₂ (group soft-thresholding): the lobe moves back
+/// towards `prev` by the factor κ = max(0, 1 − τ/‖u‖) on every component of its temporal vector
+/// (axis and tangent re-orthonormalised, ln λ, ln μ and c interpolated).
+fn temporal_prox(p: &mut Lobe, prev: &Lobe, scales: &[f64; 11], tau: f64) {
+    let (g, h) = (p.temporal_vector(), prev.temporal_vector());
+    let norm = (0..11)
+        .map(|i| ((g[i] - h[i]) / scales[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    if !(norm.is_finite()) {
+        *p = *prev;
+        return;
+    }
+    if norm <= tau {
+        *p = *prev;
+        return;
+    }
+    let k = 1.0 - tau / norm;
+    let z = (prev.z + (p.z - prev.z) * k).normalize_or(prev.z);
+    let x = prev.x + (p.x - prev.x) * k;
+    let x = (x - z * x.dot(z)).normalize_or(prev.x);
+    let lerp = |a: f64, b: f64| a + (b - a) * k;
+    let inv = |b: f64| (b.clamp(MIN_BANDWIDTH * (1.0 + 1e-9), MAX_BANDWIDTH) - MIN_BANDWIDTH).ln();
+    let lam = lerp(h[6], g[6]).exp();
+    let mu = lerp(h[7], g[7]).exp();
+    p.z = z;
+    p.x = x;
+    p.y = z.cross(x);
+    p.alpha = inv(lam);
+    p.beta = inv(mu);
+    for c in 0..3 {
+        p.sigma[c] = lerp(h[8 + c], g[8 + c])
+            .max(1e-300)
+            .ln()
+            .clamp(SIGMA_RANGE.0, SIGMA_RANGE.1);
+    }
+}
+
 /// Fits frame after frame, warm-starting each from the previous result.
 #[derive(Clone, Debug)]
 pub struct AsgFitter {
     settings: FitSettings,
     previous: Option<Vec<Asg>>,
+    adam: AdamState,
 }
 
 impl AsgFitter {
@@ -1066,6 +1478,7 @@ impl AsgFitter {
         Ok(Self {
             settings,
             previous: None,
+            adam: AdamState::default(),
         })
     }
 
@@ -1074,9 +1487,21 @@ impl AsgFitter {
         &self.settings
     }
 
+    /// Replaces the settings (validated), keeping the previous frame and the optimiser's state
+    /// unless the lobe count changes (then the next frame is fitted from scratch).
+    pub fn set_settings(&mut self, settings: FitSettings) -> Result<(), AsgError> {
+        settings.validate()?;
+        if settings.lobes != self.settings.lobes {
+            self.reset();
+        }
+        self.settings = settings;
+        Ok(())
+    }
+
     /// Forgets the previous frame: the next one is fitted from scratch.
     pub fn reset(&mut self) {
         self.previous = None;
+        self.adam = AdamState::default();
     }
 
     /// The lobes of the last fitted frame.
@@ -1095,17 +1520,25 @@ impl AsgFitter {
     pub fn fit_target(&mut self, target: &FitTarget) -> FitResult {
         let s = &self.settings;
         let result = match &self.previous {
-            Some(prev) => optimise(
+            Some(prev) => optimise_continued(
                 target,
                 prev,
                 Some(prev),
                 s.warm_iterations,
                 s.warm_learning_rate,
                 s,
+                &mut self.adam,
             ),
             None => {
                 let init = initial_lobes(target, s.lobes);
-                optimise(target, &init, None, s.iterations, s.learning_rate, s)
+                let levels = pyramid(target, s);
+                optimise_stages(
+                    &levels.stages(s.iterations, s.fine_share),
+                    &init,
+                    s.learning_rate,
+                    s,
+                    &mut self.adam,
+                )
             }
         };
         self.previous = Some(result.lobes.clone());

@@ -80,6 +80,7 @@
 //! used by `examples/asg_table.rs` in [`eval`].
 
 pub mod eval;
+pub mod fast;
 pub mod fit;
 
 use glam::DVec3;
