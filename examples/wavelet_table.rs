@@ -58,6 +58,7 @@ struct Kernel {
 type Shading = [Vec<f64>; 3];
 
 impl Kernel {
+    /// Needs side² to be a multiple of 16 (side ≥ 4).
     fn new(map: &OctahedralMap) -> Self {
         let side = map.side();
         let dirs: Vec<_> = (0..side * side)
@@ -80,19 +81,26 @@ impl Kernel {
         let k128 = 129.0 / (2.0 * std::f64::consts::PI);
         let lum32: Vec<f32> = lum.iter().map(|&v| v as f32).collect();
         let mut out: Shading = std::array::from_fn(|_| Vec::with_capacity(1024));
+        const LANES: usize = 16;
         for row in self.cos.chunks_exact(self.texels) {
-            let (mut e, mut g16, mut g128) = (0.0f32, 0.0f32, 0.0f32);
-            for (&c, &l) in row.iter().zip(&lum32) {
-                let c2 = c * c;
-                let c4 = c2 * c2;
-                let c8 = c4 * c4;
-                let c16 = c8 * c8;
-                let c32 = c16 * c16;
-                let c64 = c32 * c32;
-                e += c * l;
-                g16 += c16 * l;
-                g128 += c64 * c64 * l;
+            // LANES independent partial sums, so the compiler can vectorise the loop.
+            let (mut e, mut g16, mut g128) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+            for (cs, ls) in row.chunks_exact(LANES).zip(lum32.chunks_exact(LANES)) {
+                for k in 0..LANES {
+                    let (c, l) = (cs[k], ls[k]);
+                    let c2 = c * c;
+                    let c4 = c2 * c2;
+                    let c8 = c4 * c4;
+                    let c16 = c8 * c8;
+                    let c32 = c16 * c16;
+                    let c64 = c32 * c32;
+                    e[k] += c * l;
+                    g16[k] += c16 * l;
+                    g128[k] += c64 * c64 * l;
+                }
             }
+            let (e, g16, g128): (f32, f32, f32) =
+                (e.iter().sum(), g16.iter().sum(), g128.iter().sum());
             out[0].push(f64::from(e) * self.omega);
             out[1].push(f64::from(g16) * self.omega * k16);
             out[2].push(f64::from(g128) * self.omega * k128);
