@@ -168,6 +168,15 @@ impl Curve {
     }
 }
 
+/// Four decimals, or two significant digits in scientific notation below 0.001.
+fn fmt_error(e: f64) -> String {
+    if e >= 1e-3 || e == 0.0 || !e.is_finite() {
+        format!("{e:.4}")
+    } else {
+        format!("{e:.1e}")
+    }
+}
+
 fn k_grid(n: usize) -> Vec<usize> {
     let mut grid: Vec<usize> = (0..)
         .map(|j| (16.0 * 2f64.powf(j as f64 / 4.0)).round() as usize)
@@ -321,7 +330,7 @@ fn main() {
                     } else {
                         c.shading_at(k)[q - 1]
                     };
-                    print!(" {e:.4} |");
+                    print!(" {} |", fmt_error(e));
                 }
                 println!();
             }
@@ -401,7 +410,12 @@ fn main() {
     println!("\n## Resampling floor: full {side}² octahedral map against the lat-long map (yardsticks)\n");
     println!("| map | diffuse | glossy16 | glossy128 |\n|---|---|---|---|");
     for (name, _, f) in &results {
-        println!("| {name} | {:.4} | {:.4} | {:.4} |", f[0], f[1], f[2]);
+        println!(
+            "| {name} | {} | {} | {} |",
+            fmt_error(f[0]),
+            fmt_error(f[1]),
+            fmt_error(f[2])
+        );
     }
     if failed {
         std::process::exit(1);
