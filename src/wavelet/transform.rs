@@ -31,8 +31,10 @@
 //! - rows `h..m`, columns `h..m`: high-pass along both (pywt `'dd'`, cD).
 //!
 //! This is exactly the array `pywt.coeffs_to_array(pywt.wavedec2(x, w, mode="periodization",
-//! level=levels))` returns. The transforms work in place with one scratch buffer of `side`
-//! samples ([`Workspace`]); nothing is allocated per level.
+//! level=levels))` returns. The transforms work in place with scratch space kept in a
+//! [`Workspace`] (one line, and one `side²` block for the column pass, which combines whole rows
+//! so that memory is read sequentially); nothing is allocated per level, nor per call when a
+//! `Workspace` is reused.
 
 use super::basis::Basis;
 
