@@ -33,7 +33,7 @@
 //! edges. A texel's radiance is its energy divided by 4π/side². Total energy is preserved up to
 //! rounding (Σ texel·4π/side² = Σ pixel·Ω; the tests check 1e-6 relative with f32 texels), a small bright source
 //! (a 1-pixel sun) lands with all its energy on the 2×2 texels around its direction instead of
-//! being missed or aliased, and the tent filter keeps a constant map constant to within 2 % (tested)
+//! being missed or aliased, and the tent filter keeps a constant map constant to within 3 % (tested)
 //! (uneven sub-pixel density across a texel) — [`OctahedralMap::from_fn`] samples an analytic
 //! function instead, S × S stratified points per texel. Non-finite and negative channels count
 //! as 0. Directions a projection does not see (below a fisheye's horizon) get no energy.
