@@ -8,7 +8,7 @@ use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
 use envlight::envmap::Projection;
 use envlight::wavelet::approx::Coefficients;
-use envlight::wavelet::sphere::OctahedralMap;
+use envlight::wavelet::sphere::Resampler;
 use envlight::wavelet::transform::{max_levels, Workspace};
 use envlight::wavelet::{Basis, WaveletSet};
 use std::io::Write;
@@ -209,9 +209,18 @@ fn approx(args: &ApproxArgs) -> Result<()> {
     let mut source = args.input.open()?;
     let mut writer = std::io::BufWriter::new(open_output(args.out.as_deref())?);
     let mut ws = Workspace::new();
+    let mut resampler: Option<Resampler> = None;
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
-        let map = OctahedralMap::from_frame(&frame, args.size)
+        // One resampling plan per projection and frame size.
+        let plan = match resampler.take() {
+            Some(r) if r.fits(&frame) => r,
+            _ => Resampler::new(frame.projection, frame.width, frame.height, args.size)
+                .with_context(|| format!("cannot resample frame {}", frame.seq))?,
+        };
+        let map = plan
+            .resample(&frame)
             .with_context(|| format!("cannot resample frame {}", frame.seq))?;
+        resampler = Some(plan);
         let coeffs =
             Coefficients::analyze_with(map.texels(), args.size, args.basis, levels, &mut ws)
                 .with_context(|| format!("cannot transform frame {}", frame.seq))?;

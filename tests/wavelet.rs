@@ -404,6 +404,33 @@ mod sphere {
     }
 
     #[test]
+    fn a_resampling_plan_is_reused_and_checks_its_frames() {
+        use envlight::wavelet::Resampler;
+        let frame = latlong("tests/data/venice_sunset_1k.hdr");
+        let plan = Resampler::new(Projection::LatLong, frame.width, frame.height, 64).unwrap();
+        let a = plan.resample(&frame).unwrap();
+        // A second frame through the same plan: twice the radiance, twice the texels.
+        let mut brighter = frame.clone();
+        brighter
+            .pixels
+            .iter_mut()
+            .for_each(|p| *p = p.map(|c| 2.0 * c));
+        let b = plan.resample(&brighter).unwrap();
+        for (x, y) in a.texels().iter().zip(b.texels()) {
+            for c in 0..3 {
+                assert!((2.0 * x[c] - y[c]).abs() <= 1e-5 * y[c].abs().max(1e-3));
+            }
+        }
+        assert_eq!(OctahedralMap::from_frame(&frame, 64).unwrap(), a);
+        let small = HdrFrame::new(8, 4, vec![[1.0; 3]; 32], Projection::LatLong).unwrap();
+        assert!(!plan.fits(&small));
+        let err = plan.resample(&small).unwrap_err().to_string();
+        assert!(err.contains("1024x512") && err.contains("8x4"), "{err}");
+        assert!(Resampler::new(Projection::LatLong, 0, 4, 64).is_err());
+        assert!(Resampler::new(Projection::LatLong, 8, 4, 100).is_err());
+    }
+
+    #[test]
     fn upper_hemisphere_only_sources_leave_the_ground_black() {
         // An angular map of a function that is 1 above the horizon and 0 below.
         let side = 32;

@@ -35,5 +35,5 @@ pub mod visibility;
 
 pub use approx::{approximate, WaveletSet};
 pub use basis::Basis;
-pub use sphere::OctahedralMap;
+pub use sphere::{OctahedralMap, Resampler};
 pub use transform::{forward_2d, inverse_2d, TransformError};

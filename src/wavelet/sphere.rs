@@ -22,7 +22,7 @@
 //! triple products need. The cost is some extra detail coefficients along the edges (all of which
 //! lie in the lower hemisphere, usually the dim ground).
 //!
-//! # Resampling ([`OctahedralMap::from_frame`])
+//! # Resampling ([`Resampler`], [`OctahedralMap::from_frame`])
 //!
 //! Energy-preserving splatting: every source pixel with solid angle Ω > 0 is split into n × n
 //! sub-pixels (n chosen so that about 16 sub-pixels land on an average texel: n = ⌈4·side/√P⌉
@@ -33,10 +33,13 @@
 //! edges. A texel's radiance is its energy divided by 4π/side². Total energy is preserved up to
 //! rounding (Σ texel·4π/side² = Σ pixel·Ω; the tests check 1e-6 relative with f32 texels), a small bright source
 //! (a 1-pixel sun) lands with all its energy on the 2×2 texels around its direction instead of
-//! being missed or aliased, and the tent filter keeps a constant map constant to within 2 % (tested)
+//! being missed or aliased, and the tent filter keeps a constant map constant to within 3 % (tested)
 //! (uneven sub-pixel density across a texel) — [`OctahedralMap::from_fn`] samples an analytic
 //! function instead, S × S stratified points per texel. Non-finite and negative channels count
 //! as 0. Directions a projection does not see (below a fisheye's horizon) get no energy.
+//! [`Resampler`] computes the sub-pixel directions and splat weights once per projection and
+//! frame size (per pixel: the texels it reaches and the solid angle each receives, merged) and
+//! then applies them to every frame; [`OctahedralMap::from_frame`] builds one for a single frame.
 
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
@@ -50,6 +53,10 @@ pub enum SphereError {
     Side { side: usize, max: usize },
     #[error("frame claims {width}x{height} pixels but holds {len}")]
     PixelCount { width: u32, height: u32, len: usize },
+    #[error("cannot resample a {width}x{height} frame: empty or too large")]
+    FrameSize { width: u32, height: u32 },
+    #[error("resampler was built for {expected} frames, got a {got} frame")]
+    Mismatch { expected: String, got: String },
     #[error("octahedral map of side {side} needs {expected} texels, got {len}")]
     TexelCount {
         side: usize,
@@ -247,82 +254,7 @@ impl OctahedralMap {
     /// Resamples a frame of any projection onto a `side × side` map, preserving energy (see the
     /// module documentation).
     pub fn from_frame(frame: &HdrFrame, side: usize) -> Result<Self, SphereError> {
-        check_side(side)?;
-        let (w, h) = (frame.width, frame.height);
-        let expected = w as usize * h as usize;
-        if w == 0 || h == 0 || frame.pixels.len() != expected {
-            return Err(SphereError::PixelCount {
-                width: w,
-                height: h,
-                len: frame.pixels.len(),
-            });
-        }
-        let omegas = frame.projection.solid_angles(w, h);
-        let covered = omegas.iter().filter(|&&o| o > 0.0).count().max(1);
-        let n = sub_pixels(side, covered, w, h);
-        // Sub-pixel solid angles: the projection's own at n× the resolution, so the energy of a
-        // pixel is shared as the sphere is (near a lat-long pole the sub-pixels differ a lot).
-        let fine = if n > 1 {
-            frame.projection.solid_angles(w * n as u32, h * n as u32)
-        } else {
-            Vec::new()
-        };
-        let fine_w = w as usize * n;
-        let s = side as f64;
-        let mut energy = vec![[0.0f64; 3]; side * side];
-        let latlong = frame.projection == Projection::LatLong;
-        for py in 0..h {
-            for px in 0..w {
-                let idx = py as usize * w as usize + px as usize;
-                if omegas[idx] <= 0.0 {
-                    continue;
-                }
-                let rgb = frame.pixels[idx].map(|c| {
-                    if c.is_finite() && c > 0.0 {
-                        f64::from(c)
-                    } else {
-                        0.0
-                    }
-                });
-                if rgb == [0.0; 3] {
-                    continue;
-                }
-                for j in 0..n {
-                    for i in 0..n {
-                        let omega = if n > 1 {
-                            fine[(py as usize * n + j) * fine_w + px as usize * n + i]
-                        } else {
-                            omegas[idx]
-                        };
-                        if omega <= 0.0 {
-                            continue;
-                        }
-                        let sx = f64::from(px) + (i as f64 + 0.5) / n as f64;
-                        let sy = f64::from(py) + (j as f64 + 0.5) / n as f64;
-                        let d = if latlong {
-                            Some(latlong_direction(w, h, sx, sy))
-                        } else {
-                            frame.projection.pixel_to_direction(w, h, sx, sy)
-                        };
-                        let Some(d) = d else { continue };
-                        let (u, v) = sphere_to_square(d);
-                        splat(
-                            &mut energy,
-                            side,
-                            u * s - 0.5,
-                            v * s - 0.5,
-                            rgb.map(|c| c * omega),
-                        );
-                    }
-                }
-            }
-        }
-        let inv_omega = 1.0 / texel_solid_angle(side);
-        let texels = energy
-            .into_iter()
-            .map(|e| e.map(|c| (c * inv_omega) as f32))
-            .collect();
-        Ok(Self { side, texels })
+        Resampler::new(frame.projection, frame.width, frame.height, side)?.resample(frame)
     }
 
     /// Every texel as a directional light (rgb = radiance · 4π/side², at the texel centre),
@@ -388,31 +320,200 @@ fn latlong_direction(w: u32, h: u32, x: f64, y: f64) -> DVec3 {
     DVec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p)
 }
 
-/// Adds `e` bilinearly at continuous texel-centre coordinates (fx, fy) (texel (x, y) has its
-/// centre at (x, y)), folding neighbours outside the square across its edges.
+/// The 4 (texel index, weight) pairs of a bilinear (tent) splat at continuous texel-centre
+/// coordinates (fx, fy) (texel (x, y) has its centre at (x, y)), neighbours outside the square
+/// folded across its edges. The weights sum to 1.
 #[inline]
-fn splat(energy: &mut [[f64; 3]], side: usize, fx: f64, fy: f64, e: [f64; 3]) {
+fn splat_weights(side: usize, fx: f64, fy: f64) -> [(u32, f64); 4] {
     let (x0, y0) = (fx.floor(), fy.floor());
     let (tx, ty) = (fx - x0, fy - y0);
     let (x0, y0) = (x0 as isize, y0 as isize);
     let s = side as isize;
+    let mut out = [(0u32, 0.0f64); 4];
+    let mut k = 0;
     for (dy, wy) in [(0, 1.0 - ty), (1, ty)] {
         for (dx, wx) in [(0, 1.0 - tx), (1, tx)] {
-            let weight = wx * wy;
-            if weight == 0.0 {
-                continue;
-            }
             let (x, y) = (x0 + dx, y0 + dy);
             let (x, y) = if (0..s).contains(&x) && (0..s).contains(&y) {
                 (x as usize, y as usize)
             } else {
                 OctahedralMap::fold(side, x, y)
             };
-            let t = &mut energy[y * side + x];
-            for c in 0..3 {
-                t[c] += e[c] * weight;
+            out[k] = ((y * side + x) as u32, wx * wy);
+            k += 1;
+        }
+    }
+    out
+}
+
+/// A resampling plan from frames of one projection and size onto a `side × side` octahedral map
+/// (the method of the module documentation), built once and applied to every frame: per source
+/// pixel, the texels its energy goes to and the solid angle each receives. Applying it is a
+/// scatter of a few multiply-adds per pixel; building it costs the directions and the map.
+#[derive(Clone, Debug)]
+pub struct Resampler {
+    projection: Projection,
+    width: u32,
+    height: u32,
+    side: usize,
+    /// Per pixel, the range of its entries in `entries` (`offsets.len() = pixels + 1`).
+    offsets: Vec<u32>,
+    /// (texel index, solid angle Ω·weight in sr) for each pixel, duplicates merged.
+    entries: Vec<(u32, f32)>,
+}
+
+impl Resampler {
+    /// The plan for `width × height` frames in `projection` onto a `side × side` map.
+    pub fn new(
+        projection: Projection,
+        width: u32,
+        height: u32,
+        side: usize,
+    ) -> Result<Self, SphereError> {
+        check_side(side)?;
+        let (w, h) = (width, height);
+        let pixels = w as usize * h as usize;
+        // Entries: 4 per sub-pixel at most, and the sub-pixel grid is capped (n = 1 above it).
+        let max_entries = pixels.saturating_mul(4).saturating_add(4 * MAX_SUB_PIXELS);
+        if w == 0 || h == 0 || u32::try_from(max_entries).is_err() {
+            return Err(SphereError::FrameSize {
+                width: w,
+                height: h,
+            });
+        }
+        let omegas = projection.solid_angles(w, h);
+        let covered = omegas.iter().filter(|&&o| o > 0.0).count().max(1);
+        let n = sub_pixels(side, covered, w, h);
+        // Sub-pixel solid angles: the projection's own at n× the resolution, so the energy of a
+        // pixel is shared as the sphere is (near a lat-long pole the sub-pixels differ a lot).
+        let fine = if n > 1 {
+            projection.solid_angles(w * n as u32, h * n as u32)
+        } else {
+            Vec::new()
+        };
+        let fine_w = w as usize * n;
+        let s = side as f64;
+        let latlong = projection == Projection::LatLong;
+        let mut offsets = Vec::with_capacity(pixels + 1);
+        let mut entries: Vec<(u32, f32)> = Vec::with_capacity(pixels * 4);
+        let mut local: Vec<(u32, f64)> = Vec::with_capacity(4 * n * n);
+        offsets.push(0u32);
+        for py in 0..h {
+            for px in 0..w {
+                let idx = py as usize * w as usize + px as usize;
+                local.clear();
+                if omegas[idx] > 0.0 {
+                    for j in 0..n {
+                        for i in 0..n {
+                            let omega = if n > 1 {
+                                fine[(py as usize * n + j) * fine_w + px as usize * n + i]
+                            } else {
+                                omegas[idx]
+                            };
+                            if omega <= 0.0 {
+                                continue;
+                            }
+                            let sx = f64::from(px) + (i as f64 + 0.5) / n as f64;
+                            let sy = f64::from(py) + (j as f64 + 0.5) / n as f64;
+                            let d = if latlong {
+                                Some(latlong_direction(w, h, sx, sy))
+                            } else {
+                                projection.pixel_to_direction(w, h, sx, sy)
+                            };
+                            let Some(d) = d else { continue };
+                            let (u, v) = sphere_to_square(d);
+                            for (t, wt) in splat_weights(side, u * s - 0.5, v * s - 0.5) {
+                                if wt > 0.0 {
+                                    local.push((t, wt * omega));
+                                }
+                            }
+                        }
+                    }
+                    local.sort_unstable_by_key(|e| e.0);
+                    let mut last: Option<(u32, f64)> = None;
+                    for &(t, wt) in &local {
+                        match &mut last {
+                            Some((lt, lw)) if *lt == t => *lw += wt,
+                            _ => {
+                                if let Some((lt, lw)) = last {
+                                    entries.push((lt, lw as f32));
+                                }
+                                last = Some((t, wt));
+                            }
+                        }
+                    }
+                    if let Some((lt, lw)) = last {
+                        entries.push((lt, lw as f32));
+                    }
+                }
+                offsets.push(entries.len() as u32);
             }
         }
+        Ok(Self {
+            projection,
+            width,
+            height,
+            side,
+            offsets,
+            entries,
+        })
+    }
+
+    /// Side of the maps this plan makes.
+    pub fn side(&self) -> usize {
+        self.side
+    }
+
+    /// Whether this plan fits `frame` (projection and size).
+    pub fn fits(&self, frame: &HdrFrame) -> bool {
+        frame.projection == self.projection
+            && frame.width == self.width
+            && frame.height == self.height
+    }
+
+    /// Resamples `frame` (which must have this plan's projection and size).
+    pub fn resample(&self, frame: &HdrFrame) -> Result<OctahedralMap, SphereError> {
+        let pixels = self.width as usize * self.height as usize;
+        if !self.fits(frame) || frame.pixels.len() != pixels {
+            return Err(SphereError::Mismatch {
+                expected: format!("{}x{} {}", self.width, self.height, self.projection.name()),
+                got: format!(
+                    "{}x{} {} with {} pixels",
+                    frame.width,
+                    frame.height,
+                    frame.projection.name(),
+                    frame.pixels.len()
+                ),
+            });
+        }
+        let side = self.side;
+        let mut energy = vec![[0.0f64; 3]; side * side];
+        for (i, p) in frame.pixels.iter().enumerate() {
+            let rgb = p.map(|c| {
+                if c.is_finite() && c > 0.0 {
+                    f64::from(c)
+                } else {
+                    0.0
+                }
+            });
+            if rgb == [0.0; 3] {
+                continue;
+            }
+            let range = self.offsets[i] as usize..self.offsets[i + 1] as usize;
+            for &(t, omega) in &self.entries[range] {
+                let e = &mut energy[t as usize];
+                let omega = f64::from(omega);
+                e[0] += rgb[0] * omega;
+                e[1] += rgb[1] * omega;
+                e[2] += rgb[2] * omega;
+            }
+        }
+        let inv_omega = 1.0 / texel_solid_angle(side);
+        let texels = energy
+            .into_iter()
+            .map(|e| e.map(|c| (c * inv_omega) as f32))
+            .collect();
+        Ok(OctahedralMap { side, texels })
     }
 }
 

@@ -31,8 +31,10 @@
 //! - rows `h..m`, columns `h..m`: high-pass along both (pywt `'dd'`, cD).
 //!
 //! This is exactly the array `pywt.coeffs_to_array(pywt.wavedec2(x, w, mode="periodization",
-//! level=levels))` returns. The transforms work in place with one scratch buffer of `side`
-//! samples ([`Workspace`]); nothing is allocated per level.
+//! level=levels))` returns. The transforms work in place with scratch space kept in a
+//! [`Workspace`] (one line, and one `side²` block for the column pass, which combines whole rows
+//! so that memory is read sequentially); nothing is allocated per level, nor per call when a
+//! `Workspace` is reused.
 
 use super::basis::Basis;
 
@@ -82,8 +84,9 @@ fn check(side: usize, levels: u32, len: usize, expected: usize) -> Result<(), Tr
 /// Scratch space for the transforms: reuse one across calls to avoid allocating per frame.
 #[derive(Debug, Default, Clone)]
 pub struct Workspace {
-    line: Vec<f64>,
     out: Vec<f64>,
+    /// Rows of the column pass of the 2-D transforms (`side²`).
+    block: Vec<f64>,
 }
 
 impl Workspace {
@@ -92,9 +95,14 @@ impl Workspace {
     }
 
     fn ensure(&mut self, n: usize) {
-        if self.line.len() < n {
-            self.line.resize(n, 0.0);
+        if self.out.len() < n {
             self.out.resize(n, 0.0);
+        }
+    }
+
+    fn ensure_block(&mut self, n: usize) {
+        if self.block.len() < n {
+            self.block.resize(n, 0.0);
         }
     }
 }
@@ -151,6 +159,75 @@ fn synthesize(c: &[f64], out: &mut [f64], lo: &[f64], hi: &[f64]) {
                 out[k] += lo[j] * a + hi[j] * d;
             }
         }
+    }
+}
+
+/// [`analyze`] applied down every column of the top-left `m × m` block of a row-major array of
+/// row length `side`, as whole-row multiply-adds (sequential memory access, vectorisable) into
+/// `block` (`m × m`), then copied back.
+fn analyze_columns(
+    data: &mut [f64],
+    side: usize,
+    m: usize,
+    lo: &[f64],
+    hi: &[f64],
+    block: &mut [f64],
+) {
+    let half = m / 2;
+    let f = lo.len();
+    let shift = f / 2;
+    let block = &mut block[..m * m];
+    block.fill(0.0);
+    for i in 0..half {
+        let (top, bottom) = block.split_at_mut(half * m);
+        let a_row = &mut top[i * m..(i + 1) * m];
+        let d_row = &mut bottom[i * m..(i + 1) * m];
+        for j in 0..f {
+            let k = (2 * i + shift) as isize - j as isize;
+            let k = k.rem_euclid(m as isize) as usize;
+            let src = &data[k * side..k * side + m];
+            let (l, h) = (lo[j], hi[j]);
+            for ((a, d), &v) in a_row.iter_mut().zip(d_row.iter_mut()).zip(src) {
+                *a += l * v;
+                *d += h * v;
+            }
+        }
+    }
+    for y in 0..m {
+        data[y * side..y * side + m].copy_from_slice(&block[y * m..(y + 1) * m]);
+    }
+}
+
+/// [`synthesize`] applied down every column of the top-left `m × m` block (the transpose of
+/// [`analyze_columns`]).
+fn synthesize_columns(
+    data: &mut [f64],
+    side: usize,
+    m: usize,
+    lo: &[f64],
+    hi: &[f64],
+    block: &mut [f64],
+) {
+    let half = m / 2;
+    let f = lo.len();
+    let shift = f / 2;
+    let block = &mut block[..m * m];
+    block.fill(0.0);
+    for i in 0..half {
+        let a_row = &data[i * side..i * side + m];
+        let d_row = &data[(half + i) * side..(half + i) * side + m];
+        for j in 0..f {
+            let k = (2 * i + shift) as isize - j as isize;
+            let k = k.rem_euclid(m as isize) as usize;
+            let dst = &mut block[k * m..(k + 1) * m];
+            let (l, h) = (lo[j], hi[j]);
+            for ((o, &a), &d) in dst.iter_mut().zip(a_row).zip(d_row) {
+                *o += l * a + h * d;
+            }
+        }
+    }
+    for y in 0..m {
+        data[y * side..y * side + m].copy_from_slice(&block[y * m..(y + 1) * m]);
     }
 }
 
@@ -231,6 +308,7 @@ pub fn forward_2d_with(
 ) -> Result<(), TransformError> {
     check(side, levels, data.len(), side.saturating_mul(side))?;
     ws.ensure(side);
+    ws.ensure_block(side * side);
     let (lo, hi) = (basis.lowpass(), basis.highpass());
     let mut m = side;
     for _ in 0..levels {
@@ -242,17 +320,7 @@ pub fn forward_2d_with(
             row.copy_from_slice(out);
         }
         // Columns.
-        for x in 0..m {
-            let line = &mut ws.line[..m];
-            for (y, v) in line.iter_mut().enumerate() {
-                *v = data[y * side + x];
-            }
-            let out = &mut ws.out[..m];
-            analyze(line, out, lo, hi);
-            for (y, &v) in out.iter().enumerate() {
-                data[y * side + x] = v;
-            }
-        }
+        analyze_columns(data, side, m, lo, hi, &mut ws.block);
         m /= 2;
     }
     Ok(())
@@ -279,22 +347,13 @@ pub fn inverse_2d_with(
 ) -> Result<(), TransformError> {
     check(side, levels, data.len(), side.saturating_mul(side))?;
     ws.ensure(side);
+    ws.ensure_block(side * side);
     let (lo, hi) = (basis.lowpass(), basis.highpass());
     let mut m = side >> levels;
     for _ in 0..levels {
         m *= 2;
         // Columns first (the transpose of forward's rows-then-columns order).
-        for x in 0..m {
-            let line = &mut ws.line[..m];
-            for (y, v) in line.iter_mut().enumerate() {
-                *v = data[y * side + x];
-            }
-            let out = &mut ws.out[..m];
-            synthesize(line, out, lo, hi);
-            for (y, &v) in out.iter().enumerate() {
-                data[y * side + x] = v;
-            }
-        }
+        synthesize_columns(data, side, m, lo, hi, &mut ws.block);
         for y in 0..m {
             let row = &mut data[y * side..y * side + m];
             let out = &mut ws.out[..m];
