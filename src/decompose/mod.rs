@@ -276,10 +276,11 @@ impl Decomposer {
                 .zip(weights.chunks_exact_mut(map.width))
                 .zip(&map.row_solid_angle)
             {
-                let inv_omega = (1.0 / omega) as f32;
+                let inv_omega = 1.0 / omega;
                 let omega = omega as f32;
                 let density = |e: &[f64; 3]| -> f32 {
-                    let radiance = luminance_f64(*e) as f32 * inv_omega;
+                    // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
+                    let radiance = (luminance_f64(*e) * inv_omega).min(f64::from(f32::MAX)) as f32;
                     if gamma == 1.0 {
                         radiance
                     } else if gamma == 0.75 {

@@ -11,6 +11,12 @@
 //! lights that can be nearest to any point in it — those within d_min + 2r of its centre, where
 //! d_min is the angle to the nearest light and r the bucket's angular radius (triangle
 //! inequality) — so a pixel tests a handful of candidates instead of all N.
+//!
+//! Steps per frame: (1) candidate lists per bucket; (2) the input pixels of concentrated working
+//! pixels go to their nearest light one by one; (3) every other working pixel is labelled with
+//! its nearest light, a bucket at a time, with dot products computed from separable row and
+//! column terms (vectorised, eight pixels per vector); (4) each row is summed run by run
+//! (consecutive pixels of one light, in f64) and each run is added to its light's region.
 
 use super::working_map::WorkingMap;
 use super::{luminance_f64, Region};

@@ -5,8 +5,9 @@
 //! input's projection and size. Each input pixel's energy (radiance × its exact solid angle)
 //! goes to the working pixel that contains its centre direction, so the working map's total
 //! equals the input's integral (to rounding; sums in f64). A lat-long input whose size is an
-//! integer multiple of the working size takes a fast box-filter path; other inputs use a
-//! per-pixel index table built once per input geometry.
+//! integer multiple of the working size takes a fast box-filter path (f32 column sums, compiled
+//! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth); other
+//! inputs use a per-pixel index table built once per input geometry.
 //!
 //! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
 //! *concentrated*: their input pixels are also kept as [`FineSample`]s with exact directions,
