@@ -33,6 +33,20 @@ impl PiecewiseConstant2d {
     /// Negative or non-finite weights count as 0. An all-zero image gives the uniform
     /// distribution (and `total() == 0`).
     pub fn new(weights: &[f64], width: usize, height: usize) -> Self {
+        let mut dist = Self {
+            width,
+            height,
+            prefix: Vec::new(),
+            marginal_cdf: Vec::new(),
+            total: 0.0,
+        };
+        dist.rebuild(weights, width, height);
+        dist
+    }
+
+    /// Rebuilds the distribution in place for new weights (as [`Self::new`]), reusing its
+    /// buffers.
+    pub fn rebuild(&mut self, weights: &[f64], width: usize, height: usize) {
         assert_eq!(
             weights.len(),
             width * height,
@@ -42,25 +56,33 @@ impl PiecewiseConstant2d {
             width > 0 && height > 0,
             "distribution needs a non-empty image"
         );
-        let mut prefix = Vec::with_capacity(height * (width + 1));
-        let mut marginal_cdf = Vec::with_capacity(height + 1);
-        marginal_cdf.push(0.0);
+        self.width = width;
+        self.height = height;
+        let prefix = &mut self.prefix;
+        let marginal_cdf = &mut self.marginal_cdf;
+        prefix.resize(height * (width + 1), 0.0);
+        marginal_cdf.resize(height + 1, 0.0);
+        marginal_cdf[0] = 0.0;
         let mut running_total = 0.0f64;
-        for row in weights.chunks_exact(width) {
+        for ((row, out), cdf) in weights
+            .chunks_exact(width)
+            .zip(prefix.chunks_exact_mut(width + 1))
+            .zip(&mut marginal_cdf[1..])
+        {
             let mut sum = 0.0f64;
-            prefix.push(0.0);
-            for &w in row {
+            out[0] = 0.0;
+            for (&w, p) in row.iter().zip(&mut out[1..]) {
                 if w.is_finite() && w > 0.0 {
                     sum += w;
                 }
-                prefix.push(sum);
+                *p = sum;
             }
             running_total += sum;
-            marginal_cdf.push(running_total);
+            *cdf = running_total;
         }
         let total = running_total;
         if total > 0.0 {
-            for c in &mut marginal_cdf {
+            for c in marginal_cdf.iter_mut() {
                 *c /= total;
             }
         } else {
@@ -68,13 +90,7 @@ impl PiecewiseConstant2d {
                 *c = i as f64 / height as f64;
             }
         }
-        Self {
-            width,
-            height,
-            prefix,
-            marginal_cdf,
-            total,
-        }
+        self.total = total;
     }
 
     /// Sum of all weights.

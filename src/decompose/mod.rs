@@ -68,8 +68,8 @@ pub enum Warp {
 }
 
 /// The warp of one frame.
-enum Sampler {
-    Rows(PiecewiseConstant2d),
+enum Sampler<'a> {
+    Rows(&'a PiecewiseConstant2d),
     Hierarchical(HierarchicalWarp),
 }
 
@@ -153,6 +153,11 @@ pub struct Decomposer {
     settings: DecomposeSettings,
     resampler: Option<Resampler>,
     buckets: Option<regions::BucketGrid>,
+    region_scratch: regions::Scratch,
+    /// The rows warp of the last frame (its buffers are reused).
+    rows_warp: Option<PiecewiseConstant2d>,
+    /// The CPU's vector unit, detected once: hot loops are compiled for it.
+    arch: pulp::Arch,
     filter: Option<FirFilter>,
     weights: Vec<f64>,
     regions: Vec<Region>,
@@ -185,6 +190,9 @@ impl Decomposer {
             settings,
             resampler: None,
             buckets: None,
+            region_scratch: regions::Scratch::default(),
+            rows_warp: None,
+            arch: pulp::Arch::new(),
             filter,
             weights: Vec::new(),
             regions: Vec::new(),
@@ -256,32 +264,47 @@ impl Decomposer {
             .buckets
             .get_or_insert_with(|| regions::BucketGrid::new(map.width, map.height));
 
-        // The sampling density: luminance radiance to the power γ, per solid angle.
+        // The sampling density: luminance radiance to the power γ, per solid angle. It only
+        // places the lights (their energies are summed separately, in f64), so f32 suffices.
         let gamma = self.settings.pdf_exponent;
-        self.weights.clear();
-        for (y, row) in map.energy.chunks_exact(map.width).enumerate() {
-            let omega = map.row_solid_angle[y];
-            self.weights.extend(row.iter().map(|e| {
-                let radiance = luminance_f64(*e) / omega;
-                let density = if gamma == 1.0 {
-                    radiance
-                } else if gamma == 0.5 {
-                    radiance.sqrt()
-                } else if gamma == 0.75 {
-                    let root = radiance.sqrt();
-                    root * root.sqrt()
-                } else {
-                    radiance.powf(gamma)
+        let weights = &mut self.weights;
+        weights.resize(map.width * map.height, 0.0);
+        self.arch.dispatch(|| {
+            for ((row, out), &omega) in map
+                .energy
+                .chunks_exact(map.width)
+                .zip(weights.chunks_exact_mut(map.width))
+                .zip(&map.row_solid_angle)
+            {
+                let inv_omega = 1.0 / omega;
+                let omega = omega as f32;
+                let density = |e: &[f64; 3]| -> f32 {
+                    // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
+                    let radiance = (luminance_f64(*e) * inv_omega).min(f64::from(f32::MAX)) as f32;
+                    if gamma == 1.0 {
+                        radiance
+                    } else if gamma == 0.75 {
+                        let root = radiance.sqrt();
+                        root * root.sqrt()
+                    } else if gamma == 0.5 {
+                        radiance.sqrt()
+                    } else {
+                        radiance.powf(gamma as f32)
+                    }
                 };
-                density * omega
-            }));
-        }
+                for (w, e) in out.iter_mut().zip(row) {
+                    *w = f64::from(density(e) * omega);
+                }
+            }
+        });
         let warp = match self.settings.warp {
-            Warp::Rows => Sampler::Rows(PiecewiseConstant2d::new(
-                &self.weights,
-                map.width,
-                map.height,
-            )),
+            Warp::Rows => {
+                let dist = self
+                    .rows_warp
+                    .get_or_insert_with(|| PiecewiseConstant2d::new(&[0.0], 1, 1));
+                dist.rebuild(&self.weights, map.width, map.height);
+                Sampler::Rows(dist)
+            }
             Warp::Hierarchical => {
                 Sampler::Hierarchical(HierarchicalWarp::new(&self.weights, map.width, map.height))
             }
@@ -312,7 +335,9 @@ impl Decomposer {
 
         self.regions.clear();
         self.regions.resize(n, Region::default());
-        regions::accumulate(map, buckets, &sample_dirs, &mut self.regions);
+        let (regions, scratch) = (&mut self.regions, &mut self.region_scratch);
+        self.arch
+            .dispatch(|| regions::accumulate(map, buckets, &sample_dirs, regions, scratch));
 
         let placement = self.settings.placement;
         sample_dirs

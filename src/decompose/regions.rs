@@ -11,6 +11,12 @@
 //! lights that can be nearest to any point in it — those within d_min + 2r of its centre, where
 //! d_min is the angle to the nearest light and r the bucket's angular radius (triangle
 //! inequality) — so a pixel tests a handful of candidates instead of all N.
+//!
+//! Steps per frame: (1) candidate lists per bucket; (2) the input pixels of concentrated working
+//! pixels go to their nearest light one by one; (3) every other working pixel is labelled with
+//! its nearest light, a bucket at a time, with dot products computed from separable row and
+//! column terms (vectorised, eight pixels per vector); (4) each row is summed run by run
+//! (consecutive pixels of one light, in f64) and each run is added to its light's region.
 
 use super::working_map::WorkingMap;
 use super::{luminance_f64, Region};
@@ -229,54 +235,191 @@ fn nearest(candidates: &[Candidate], lights: &[Vec3], d: Vec3, hint: usize) -> u
     best
 }
 
+/// Scratch buffers of the region pass, kept between frames.
+#[derive(Default)]
+pub(super) struct Scratch {
+    /// The nearest light of every working pixel, row-major.
+    labels: Vec<u32>,
+    lights: Vec<Vec3>,
+}
+
+/// Pixels of one bucket row (the labelling works on fixed-size rows so that it vectorises).
+type Lanes = [f32; BUCKET_PIXELS];
+
+/// Labels every pixel of bucket (`bx`, `by`) with its nearest light among the bucket's
+/// candidates. Directions are separable, d = (sin θ·sin φ, cos θ, −sin θ·cos φ), so a light's dot
+/// product with a pixel is sin θ·(Lx sin φ − Lz cos φ) + Ly cos θ: per candidate one column term
+/// per bucket column, then one multiply-add per pixel. Candidates come in falling order of their
+/// bound, so the scan stops once no remaining candidate can beat any pixel's best.
+#[inline(always)]
+fn label_bucket(
+    map: &WorkingMap,
+    candidates: &[Candidate],
+    (bx, by): (usize, usize),
+    labels: &mut [u32],
+) {
+    let x0 = bx * BUCKET_PIXELS;
+    let y0 = by * BUCKET_PIXELS;
+    let x1 = (x0 + BUCKET_PIXELS).min(map.width);
+    let y1 = (y0 + BUCKET_PIXELS).min(map.height);
+    let Some((first, rest)) = candidates.split_first() else {
+        return;
+    };
+    if rest.is_empty() {
+        for y in y0..y1 {
+            labels[y * map.width + x0..y * map.width + x1].fill(first.light);
+        }
+        return;
+    }
+    // Columns past the map's edge repeat the last column; their labels are not stored.
+    let mut sin_phi: Lanes = [0.0; BUCKET_PIXELS];
+    let mut cos_phi: Lanes = [0.0; BUCKET_PIXELS];
+    for (k, (s, c)) in sin_phi.iter_mut().zip(&mut cos_phi).enumerate() {
+        (*s, *c) = map.column_trig[(x0 + k).min(x1 - 1)];
+    }
+    let rows = y1 - y0;
+    let mut best = [[0.0f32; BUCKET_PIXELS]; BUCKET_PIXELS];
+    let mut best_id = [[first.light; BUCKET_PIXELS]; BUCKET_PIXELS];
+    let column_terms =
+        |l: Vec3| -> Lanes { std::array::from_fn(|k| l.x * sin_phi[k] - l.z * cos_phi[k]) };
+    let terms = column_terms(first.dir);
+    for (r, row) in best.iter_mut().enumerate().take(rows) {
+        let (sin_t, cos_t) = map.row_trig[y0 + r];
+        let constant = first.dir.y * cos_t;
+        for (b, t) in row.iter_mut().zip(&terms) {
+            *b = sin_t * t + constant;
+        }
+    }
+    let mut worst_best = min_of(&best[..rows]);
+    for c in rest {
+        if c.bound < worst_best {
+            break;
+        }
+        let terms = column_terms(c.dir);
+        for (r, (row, ids)) in best.iter_mut().zip(&mut best_id).enumerate().take(rows) {
+            let (sin_t, cos_t) = map.row_trig[y0 + r];
+            let constant = c.dir.y * cos_t;
+            for ((b, id), t) in row.iter_mut().zip(ids.iter_mut()).zip(&terms) {
+                let dot = sin_t * t + constant;
+                let closer = dot > *b;
+                *b = if closer { dot } else { *b };
+                *id = if closer { c.light } else { *id };
+            }
+        }
+        worst_best = min_of(&best[..rows]);
+    }
+    for (r, ids) in best_id.iter().enumerate().take(rows) {
+        let start = (y0 + r) * map.width + x0;
+        labels[start..start + (x1 - x0)].copy_from_slice(&ids[..x1 - x0]);
+    }
+}
+
+/// Smallest value of the rows.
+#[inline(always)]
+fn min_of(rows: &[Lanes]) -> f32 {
+    let mut m: Lanes = [f32::INFINITY; BUCKET_PIXELS];
+    for row in rows {
+        for (m, v) in m.iter_mut().zip(row) {
+            *m = m.min(*v);
+        }
+    }
+    m.into_iter().fold(f32::INFINITY, f32::min)
+}
+
 /// Adds every working pixel's energy, luminance-weighted direction and solid angle to the
 /// region of its nearest light. A concentrated working pixel (a sun, a lamp; see
 /// [`WorkingMap::fine`]) is assigned input pixel by input pixel, by exact direction, so the
 /// lights that share a sun split it along their Voronoi borders at full resolution.
+///
+/// Two passes: every working pixel is labelled with its nearest light (bucket by bucket, see
+/// [`label_bucket`]); then each row is summed run by run (consecutive pixels of one light, f64)
+/// and each run is added to its light's region once.
+#[inline(always)]
 pub(super) fn accumulate(
     map: &WorkingMap,
     grid: &BucketGrid,
     sample_dirs: &[DVec3],
     regions: &mut [Region],
+    scratch: &mut Scratch,
 ) {
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
-    let lights: Vec<Vec3> = sample_dirs.iter().map(|d| d.as_vec3()).collect();
-    let candidates = Candidates::new(grid, &lights);
+    scratch.lights.clear();
+    scratch
+        .lights
+        .extend(sample_dirs.iter().map(|d| d.as_vec3()));
+    let lights = &scratch.lights;
+    let candidates = Candidates::new(grid, lights);
     let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
+
     let mut hint = 0;
-    let mut add = |bucket: usize, dir: Vec3, energy: [f64; 3], solid_angle: f64| {
-        hint = nearest(candidates.of(bucket), &lights, dir, hint);
-        let r = &mut regions[hint];
-        let lum = luminance_f64(energy);
-        for c in 0..3 {
-            r.rgb[c] += energy[c];
-            r.weighted_dir[c] += lum * f64::from(dir[c]);
-        }
-        r.solid_angle += solid_angle;
-    };
     for sample in &map.fine {
         let (x, y) = (
             sample.pixel as usize % map.width,
             sample.pixel as usize / map.width,
         );
+        let dir = Vec3::from(sample.dir);
+        hint = nearest(candidates.of(bucket_of(x, y)), lights, dir, hint);
+        let r = &mut regions[hint];
         let energy = sample.energy.map(f64::from);
-        add(
-            bucket_of(x, y),
-            Vec3::from(sample.dir),
-            energy,
-            sample.solid_angle.into(),
-        );
+        let lum = luminance_f64(energy);
+        for c in 0..3 {
+            r.rgb[c] += energy[c];
+            r.weighted_dir[c] += lum * f64::from(dir[c]);
+        }
+        r.solid_angle += f64::from(sample.solid_angle);
     }
+
+    let labels = &mut scratch.labels;
+    labels.resize(map.width * map.height, 0);
+    let rows = map.height.div_ceil(BUCKET_PIXELS);
+    for by in 0..rows {
+        for bx in 0..grid.cols {
+            label_bucket(map, candidates.of(by * grid.cols + bx), (bx, by), labels);
+        }
+    }
+
     for y in 0..map.height {
         let row = y * map.width..(y + 1) * map.width;
         let omega = map.row_solid_angle[y];
+        let (sin_t, cos_t) = map.row_trig_f64[y];
+        // Per run: Σ rgb, Σ lum·sin φ, Σ lum, Σ lum·cos φ, pixel count.
+        let mut run = ([0.0f64; 3], [0.0f64; 3], 0u32);
+        let mut current = labels[row.start];
+        let mut flush = |light: u32, (rgb, lum, count): ([f64; 3], [f64; 3], u32)| {
+            if count == 0 {
+                return;
+            }
+            let r = &mut regions[light as usize];
+            for c in 0..3 {
+                r.rgb[c] += rgb[c];
+            }
+            r.weighted_dir[0] += sin_t * lum[0];
+            r.weighted_dir[1] += cos_t * lum[1];
+            r.weighted_dir[2] -= sin_t * lum[2];
+            r.solid_angle += f64::from(count) * omega;
+        };
         let pixels = map.energy[row.clone()]
             .iter()
-            .zip(&map.directions[row.clone()]);
-        for (x, ((energy, dir), &concentrated)) in pixels.zip(&map.concentrated[row]).enumerate() {
-            if !concentrated {
-                add(bucket_of(x, y), Vec3::from(*dir), *energy, omega);
+            .zip(&labels[row.clone()])
+            .zip(&map.concentrated[row])
+            .zip(&map.column_trig_f64);
+        for (((energy, &label), &concentrated), &(sin_p, cos_p)) in pixels {
+            if label != current {
+                flush(current, std::mem::take(&mut run));
+                current = label;
             }
+            if concentrated {
+                continue;
+            }
+            let lum = luminance_f64(*energy);
+            for c in 0..3 {
+                run.0[c] += energy[c];
+            }
+            run.1[0] += lum * sin_p;
+            run.1[1] += lum;
+            run.1[2] += lum * cos_p;
+            run.2 += 1;
         }
+        flush(current, run);
     }
 }

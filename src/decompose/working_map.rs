@@ -5,8 +5,9 @@
 //! input's projection and size. Each input pixel's energy (radiance × its exact solid angle)
 //! goes to the working pixel that contains its centre direction, so the working map's total
 //! equals the input's integral (to rounding; sums in f64). A lat-long input whose size is an
-//! integer multiple of the working size takes a fast box-filter path; other inputs use a
-//! per-pixel index table built once per input geometry.
+//! integer multiple of the working size takes a fast box-filter path (f32 column sums, compiled
+//! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth); other
+//! inputs use a per-pixel index table built once per input geometry.
 //!
 //! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
 //! *concentrated*: their input pixels are also kept as [`FineSample`]s with exact directions,
@@ -36,8 +37,13 @@ pub struct WorkingMap {
     pub height: usize,
     /// Σ rgb·Ω of the input pixels that fall in each working pixel, row-major.
     pub energy: Vec<[f64; 3]>,
-    /// Centre direction of each working pixel, row-major.
-    pub directions: Vec<[f32; 3]>,
+    /// (sin θ, cos θ) of each row's centre: a working pixel's centre direction is
+    /// (sin θ·sin φ, cos θ, −sin θ·cos φ).
+    pub row_trig: Vec<(f32, f32)>,
+    pub row_trig_f64: Vec<(f64, f64)>,
+    /// (sin φ, cos φ) of each column's centre.
+    pub column_trig: Vec<(f32, f32)>,
+    pub column_trig_f64: Vec<(f64, f64)>,
     /// Exact solid angle of the working pixels of each row.
     pub row_solid_angle: Vec<f64>,
     /// Whether each working pixel is concentrated (its energy is given by `fine` instead).
@@ -122,6 +128,9 @@ pub struct Resampler {
     src_height: u32,
     plan: Plan,
     map: WorkingMap,
+    /// Scratch row of the box filter.
+    column_sums: Vec<f32>,
+    arch: pulp::Arch,
 }
 
 impl Resampler {
@@ -170,20 +179,22 @@ impl Resampler {
             )
         };
         let omegas = Projection::LatLong.solid_angles(width as u32, height as u32);
-        let mut directions = Vec::with_capacity(width * height);
-        for y in 0..height {
-            for x in 0..width {
-                let d = Projection::LatLong
-                    .pixel_to_direction(width as u32, height as u32, x as f64 + 0.5, y as f64 + 0.5)
-                    .unwrap_or_default();
-                directions.push(d.as_vec3().to_array());
-            }
-        }
+        let trig = |n: usize, scale: f64| -> Vec<(f64, f64)> {
+            (0..n)
+                .map(|i| (scale * (i as f64 + 0.5) / n as f64).sin_cos())
+                .collect()
+        };
+        let row_trig_f64 = trig(height, PI);
+        let column_trig_f64 = trig(width, 2.0 * PI);
+        let to_f32 = |t: &[(f64, f64)]| t.iter().map(|&(s, c)| (s as f32, c as f32)).collect();
         let map = WorkingMap {
             width,
             height,
             energy: vec![[0.0; 3]; width * height],
-            directions,
+            row_trig: to_f32(&row_trig_f64),
+            row_trig_f64,
+            column_trig: to_f32(&column_trig_f64),
+            column_trig_f64,
             row_solid_angle: (0..height).map(|y| omegas[y * width]).collect(),
             concentrated: vec![false; width * height],
             fine: Vec::new(),
@@ -194,6 +205,8 @@ impl Resampler {
             src_height,
             plan,
             map,
+            column_sums: Vec::new(),
+            arch: pulp::Arch::new(),
         }
     }
 
@@ -270,39 +283,22 @@ impl Resampler {
                 row_solid_angle,
                 ..
             } => {
-                let f = *factor;
-                // The f input rows of a working row are summed column by column (each weighted
-                // by its solid angle; flat f32 slices, so it vectorises), then each run of f
-                // columns is summed into the working pixel.
-                let mut column_sums = vec![0.0f32; 3 * sw];
-                for (wy, rows) in frame.pixels.chunks_exact(sw * f).enumerate() {
-                    column_sums.iter_mut().for_each(|a| *a = 0.0);
-                    // OR of the inputs' bits: its sign bit catches negative values (and −0.0, which
-                    // only costs the careful sum); NaN and ±Inf show in the sums. Bitwise, so the loop still vectorises.
-                    let mut bits = 0u32;
-                    for (k, row) in rows.chunks_exact(sw).enumerate() {
-                        let omega = row_solid_angle[wy * f + k] as f32;
-                        for (a, p) in column_sums.iter_mut().zip(row.as_flattened()) {
-                            *a += p * omega;
-                            bits |= p.to_bits();
-                        }
-                    }
-                    let has_negative = bits & 0x8000_0000 != 0;
-                    let out = &mut map.energy[wy * map.width..(wy + 1) * map.width];
-                    for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * f)) {
-                        let mut sum = [0.0f32; 3];
-                        for p in block.chunks_exact(3) {
-                            sum[0] += p[0];
-                            sum[1] += p[1];
-                            sum[2] += p[2];
-                        }
-                        *e = sum.map(f64::from);
-                        if has_negative {
-                            // Flag the whole working row for the careful sum below.
-                            e[0] = f64::NAN;
-                        }
-                    }
-                }
+                let column_sums = &mut self.column_sums;
+                column_sums.resize(3 * sw, 0.0);
+                let width = map.width;
+                let energy = &mut map.energy;
+                // Compiled for the widest vector unit the CPU has (runtime detection).
+                self.arch.dispatch(|| {
+                    box_filter(
+                        &frame.pixels,
+                        sw,
+                        *factor,
+                        row_solid_angle,
+                        column_sums,
+                        energy,
+                        width,
+                    )
+                });
             }
             Plan::Table {
                 target,
@@ -326,10 +322,14 @@ impl Resampler {
             }
         }
         // Bad pixels (NaN, ±Inf, negative) should have been sanitised by the source. If any
-        // slipped through, the working pixels they poisoned are summed again with those pixels
-        // counted as 0, so neither the lights nor the good pixels beside them are lost.
+        // slipped through, the working pixels they poisoned (NaN or ±Inf: both paths flag a
+        // negative input with NaN) are summed again with those pixels counted as 0, so neither
+        // the lights nor the good pixels beside them are lost. Sums of non-negative finite
+        // values stay finite, so a finite total means there is nothing to redo.
+        let mut sums = channel_sums(&map.energy);
+        let poisoned = !sums.iter().all(|c| c.is_finite());
         for idx in 0..map.energy.len() {
-            if map.energy[idx].iter().all(|c| c.is_finite() && *c >= 0.0) {
+            if !poisoned || map.energy[idx].iter().all(|c| c.is_finite() && *c >= 0.0) {
                 continue;
             }
             let mut sum = [0.0f64; 3];
@@ -344,7 +344,10 @@ impl Resampler {
             map.energy[idx] = sum;
         }
 
-        let total: f64 = map.energy.iter().map(|e| super::luminance_f64(*e)).sum();
+        if poisoned {
+            sums = channel_sums(&map.energy);
+        }
+        let total = super::luminance_f64(sums);
         let threshold = concentrated_share * total;
         map.fine.clear();
         for (idx, (e, flag)) in map.energy.iter().zip(&mut map.concentrated).enumerate() {
@@ -373,4 +376,101 @@ impl Resampler {
         }
         &self.map
     }
+}
+
+/// Box filter of a lat-long input by `factor`×`factor` into `energy` (one working row per
+/// `factor` input rows): the input rows are weighted by their solid angle and summed column by
+/// column into `column_sums` (flat f32, so it vectorises; the first row initialises the sums),
+/// then each run of `factor` columns is summed into its working pixel. A working row that saw a
+/// negative input (sign bit in the OR of all its inputs' bits) gets NaN in its first channel,
+/// so the careful sum redoes it; NaN and ±Inf inputs show in the sums by themselves.
+#[inline(always)]
+fn box_filter(
+    pixels: &[[f32; 3]],
+    sw: usize,
+    factor: usize,
+    row_solid_angle: &[f64],
+    column_sums: &mut [f32],
+    energy: &mut [[f64; 3]],
+    width: usize,
+) {
+    let f = factor;
+    for (wy, (rows, out)) in pixels
+        .chunks_exact(sw * f)
+        .zip(energy.chunks_exact_mut(width))
+        .enumerate()
+    {
+        let mut bits = 0u32;
+        for (k, row) in rows.chunks_exact(sw).enumerate() {
+            let omega = row_solid_angle[wy * f + k] as f32;
+            let row = row.as_flattened();
+            if k == 0 {
+                for (a, p) in column_sums.iter_mut().zip(row) {
+                    *a = p * omega;
+                    bits |= p.to_bits();
+                }
+            } else {
+                for (a, p) in column_sums.iter_mut().zip(row) {
+                    *a += p * omega;
+                    bits |= p.to_bits();
+                }
+            }
+        }
+        match f {
+            2 => sum_columns::<2>(column_sums, out),
+            4 => sum_columns::<4>(column_sums, out),
+            8 => sum_columns::<8>(column_sums, out),
+            _ => {
+                for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * f)) {
+                    let mut sum = [0.0f32; 3];
+                    for p in block.chunks_exact(3) {
+                        sum[0] += p[0];
+                        sum[1] += p[1];
+                        sum[2] += p[2];
+                    }
+                    *e = sum.map(f64::from);
+                }
+            }
+        }
+        if bits & 0x8000_0000 != 0 {
+            // Flag the whole working row for the careful sum.
+            out.iter_mut().for_each(|e| e[0] = f64::NAN);
+        }
+    }
+}
+
+/// Sums each run of `F` rgb columns of `column_sums` into one working pixel.
+#[inline(always)]
+fn sum_columns<const F: usize>(column_sums: &[f32], out: &mut [[f64; 3]]) {
+    for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * F)) {
+        let mut sum = [block[0], block[1], block[2]];
+        for k in 1..F {
+            sum[0] += block[3 * k];
+            sum[1] += block[3 * k + 1];
+            sum[2] += block[3 * k + 2];
+        }
+        *e = sum.map(f64::from);
+    }
+}
+
+/// Σ of each channel over the working pixels (four partial sums per channel, so the adds
+/// overlap).
+fn channel_sums(energy: &[[f64; 3]]) -> [f64; 3] {
+    let mut partial = [[0.0f64; 3]; 4];
+    let quads = energy.chunks_exact(4);
+    let rest = quads.remainder();
+    for quad in quads {
+        for (p, e) in partial.iter_mut().zip(quad) {
+            p[0] += e[0];
+            p[1] += e[1];
+            p[2] += e[2];
+        }
+    }
+    let mut sums = [0.0f64; 3];
+    for e in partial.iter().chain(rest) {
+        for c in 0..3 {
+            sums[c] += e[c];
+        }
+    }
+    sums
 }
