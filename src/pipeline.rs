@@ -943,14 +943,16 @@ mod tests {
     #[test]
     fn decompose_panic_becomes_an_error_and_stops_capture() {
         let source = FakeSource::new(None, Duration::from_millis(1));
-        let pipeline = Pipeline::start_with(
-            Box::new(source),
-            PipelineOptions::new(),
-            |frame: &HdrFrame| {
-                assert!(frame.seq < 5, "boom at {}", frame.seq);
-                LightFrame::default()
-            },
-        )
+        // A lossless queue: with the default drop-oldest queue a loaded machine can drop frame 5
+        // and the panic would come at a later frame.
+        let options = PipelineOptions {
+            queue_policy: QueuePolicy::Block,
+            ..PipelineOptions::new()
+        };
+        let pipeline = Pipeline::start_with(Box::new(source), options, |frame: &HdrFrame| {
+            assert!(frame.seq < 5, "boom at {}", frame.seq);
+            LightFrame::default()
+        })
         .unwrap();
         match pipeline.join() {
             Err(PipelineError::ThreadPanicked { thread, message }) => {
