@@ -87,23 +87,29 @@ fn scene(grid: &Grid) -> Scene {
     }
 }
 
-/// Relative RMS (over vertices) of the RGB error against brute force.
-fn rms_rel(got: &[[f64; 3]], want: &[[f64; 3]]) -> f64 {
+/// Two relative errors of the RGB radiance against brute force: the RMS over vertices of each
+/// vertex's own relative error (weighs a dark vertex like a bright one), and the error relative
+/// to the whole set, ‖got − want‖ / ‖want‖ over all vertices (what an image shows).
+fn rms_rel(got: &[[f64; 3]], want: &[[f64; 3]]) -> (f64, f64) {
     let mut sq = 0.0;
     let mut n = 0;
+    let (mut num, mut den) = (0.0, 0.0);
     for (g, w) in got.iter().zip(want) {
         let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let err2 = (0..3).map(|c| (g[c] - w[c]).powi(2)).sum::<f64>();
+        num += err2;
+        den += norm * norm;
         if norm > 0.0 {
-            let e = (0..3).map(|c| (g[c] - w[c]).powi(2)).sum::<f64>().sqrt() / norm;
-            sq += e * e;
+            sq += err2 / (norm * norm);
             n += 1;
         }
     }
-    (sq / n.max(1) as f64).sqrt()
+    let image = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
+    ((sq / n.max(1) as f64).sqrt(), image)
 }
 
 fn relight() {
-    println!("## relight (side 32, sphere on plane, rooitou_park; relative RMS error over all vertices vs brute force)");
+    println!("## relight (side 32, sphere on plane, rooitou_park; error vs brute force: per-vertex relative RMS / relative to all vertices)");
     let side = 32;
     let env = frame("rooitou_park_1k.hdr");
     let eye = Vec3::new(0.0, 1.5, 4.0);
@@ -156,7 +162,8 @@ fn relight() {
                     let mut out = vec![[0.0f32; 3]; t.vertices()];
                     t.relight(&light, &mut out).expect("relight");
                     let got: Vec<[f64; 3]> = out.iter().map(|o| o.map(f64::from)).collect();
-                    row += &format!(" {:.4} |", rms_rel(&got, &want));
+                    let (per_vertex, image) = rms_rel(&got, &want);
+                    row += &format!(" {per_vertex:.4} / {image:.1e} |");
                 }
                 println!("{row}");
             }
@@ -212,7 +219,7 @@ fn triple() {
                 })
                 .collect();
             ms = t0.elapsed().as_secs_f64() * 1e3 / verts.len() as f64;
-            row += &format!(" {:.4} |", rms_rel(&got, &want));
+            row += &format!(" {:.4} |", rms_rel(&got, &want).0);
         }
         println!("{row} {ms:.1} |");
     }
