@@ -1,9 +1,15 @@
-//! Runs the default decomposition of one map many times (for `perf record`).
+//! Runs the default decomposition of one map many times (for `perf record` and timing).
 //!
 //! ```text
 //! cargo run --release --example profile_decompose -- tests/data/rooitou_park_1k.hdr 2000
+//! cargo run --release --example profile_decompose -- sky 3000 128
 //! ```
+//!
+//! Arguments: the map (an .hdr file, or `sky` for one second of the built-in sky at 256×128,
+//! 60 frames cycled, as the streaming bench uses), the number of frames, and optionally the
+//! working width (default: the decomposition's default).
 use envlight::capture::image_file::read_hdr_image;
+use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{DecomposeSettings, Decomposer};
 use envlight::envmap::Projection;
 use envlight::HdrFrame;
@@ -14,20 +20,39 @@ fn main() -> anyhow::Result<()> {
         .next()
         .unwrap_or_else(|| "tests/data/rooitou_park_1k.hdr".into());
     let iterations: usize = args.next().map_or(Ok(1000), |s| s.parse())?;
-    let image = read_hdr_image(std::path::Path::new(&path))?;
-    let frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
-        .ok_or_else(|| anyhow::anyhow!("empty image"))?;
-    let mut decomposer = Decomposer::new(DecomposeSettings::default())?;
+    let mut settings = DecomposeSettings::default();
+    if let Some(width) = args.next() {
+        settings.working_width = width.parse()?;
+    }
+    let frames: Vec<HdrFrame> = if path == "sky" {
+        let options = SkyOptions {
+            width: 256,
+            height: 128,
+            ..SkyOptions::default()
+        };
+        (0..60)
+            .map(|i| render_sky(&options, f64::from(i) / 60.0))
+            .collect()
+    } else {
+        let image = read_hdr_image(std::path::Path::new(&path))?;
+        vec![
+            HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+                .ok_or_else(|| anyhow::anyhow!("empty image"))?,
+        ]
+    };
+    let mut decomposer = Decomposer::new(settings)?;
+    // The point set is computed once per process: keep it out of the timing.
+    decomposer.decompose(&frames[0]);
     let start = std::time::Instant::now();
     let mut lights = 0;
-    for _ in 0..iterations {
-        lights += decomposer.decompose(&frame).lights.len();
+    for i in 0..iterations {
+        lights += decomposer.decompose(&frames[i % frames.len()]).lights.len();
     }
-    let per_frame = start.elapsed().as_secs_f64() / iterations as f64;
+    let per_frame = start.elapsed().as_secs_f64() / iterations.max(1) as f64;
     println!(
         "{:.3} ms per frame, {} lights per frame",
         per_frame * 1e3,
-        lights / iterations
+        lights / iterations.max(1)
     );
     Ok(())
 }
