@@ -1073,21 +1073,7 @@ pub fn loss_gradient(
     prev: Option<&[Asg]>,
     settings: &FitSettings,
 ) -> (Loss, Vec<[f64; 8]>) {
-    let ls: Vec<Lobe> = lobes.iter().map(Lobe::from_asg).collect();
-    let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
-    let scales = pv.as_deref().map(temporal_scales);
-    let prev = pv.as_deref().zip(scales.as_ref());
-    let mode = Mode {
-        threads: 1,
-        want_grad: true,
-        fast: false,
-        temporal_grad: true,
-    };
-    let (loss, g) = loss_and_grad(target, &ls, prev, settings, mode);
-    (
-        loss,
-        ls.iter().zip(&g).map(|(p, g)| param_grad(p, g)).collect(),
-    )
+    parameter_gradient(target, lobes, prev, settings, false)
 }
 
 /// As [`loss_gradient`] without a previous frame, but computed by the fast f32 kernel the
@@ -1097,14 +1083,29 @@ pub fn fast_loss_gradient(
     lobes: &[Asg],
     settings: &FitSettings,
 ) -> (Loss, Vec<[f64; 8]>) {
+    parameter_gradient(target, lobes, None, settings, true)
+}
+
+/// Loss and gradient with respect to each lobe's 8 parameters, by the exact f64 path or the
+/// fast f32 kernel.
+fn parameter_gradient(
+    target: &FitTarget,
+    lobes: &[Asg],
+    prev: Option<&[Asg]>,
+    settings: &FitSettings,
+    fast: bool,
+) -> (Loss, Vec<[f64; 8]>) {
     let ls: Vec<Lobe> = lobes.iter().map(Lobe::from_asg).collect();
+    let pv: Option<Vec<Lobe>> = prev.map(|p| p.iter().map(Lobe::from_asg).collect());
+    let scales = pv.as_deref().map(temporal_scales);
+    let prev = pv.as_deref().zip(scales.as_ref());
     let mode = Mode {
         threads: 1,
         want_grad: true,
-        fast: true,
+        fast,
         temporal_grad: true,
     };
-    let (loss, g) = loss_and_grad(target, &ls, None, settings, mode);
+    let (loss, g) = loss_and_grad(target, &ls, prev, settings, mode);
     (
         loss,
         ls.iter().zip(&g).map(|(p, g)| param_grad(p, g)).collect(),
