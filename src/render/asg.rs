@@ -11,7 +11,7 @@
 //!
 //! The pass is built on first use ([`Renderer::render_asg`]); the light pass is untouched.
 
-use super::{FrameStats, Image, RenderError, Renderer, COLOR_FORMAT, DEPTH_FORMAT};
+use super::{FrameStats, Image, RenderError, Renderer};
 use crate::asg::{cosine_convolution, integral, Asg};
 use std::time::Instant;
 
@@ -154,40 +154,15 @@ impl AsgPass {
             immediate_size: 0,
         });
         let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("asg"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(super::vertex_layout(&attrs))],
-            },
-            primitive: wgpu::PrimitiveState {
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: COLOR_FORMAT,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let pipeline = super::depth_tested_pipeline(
+            device,
+            "asg",
+            &pipeline_layout,
+            &module,
+            &attrs,
+            wgpu::DepthBiasState::default(),
+            true,
+        );
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("asg globals"),
             size: std::mem::size_of::<AsgGlobalsRaw>() as u64,

@@ -207,6 +207,55 @@ fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayo
     }
 }
 
+/// A triangle pipeline over the scene's vertices (`vs_main`), depth-tested with `Less` and
+/// depth writes, no culling; with `color`, `fs_main` writes the colour target unblended, without
+/// it the pass is depth-only (shadow maps).
+fn depth_tested_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    layout: &wgpu::PipelineLayout,
+    module: &wgpu::ShaderModule,
+    attributes: &[wgpu::VertexAttribute],
+    bias: wgpu::DepthBiasState,
+    color: bool,
+) -> wgpu::RenderPipeline {
+    let targets = [Some(wgpu::ColorTargetState {
+        format: COLOR_FORMAT,
+        blend: None,
+        write_mask: wgpu::ColorWrites::ALL,
+    })];
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(label),
+        layout: Some(layout),
+        vertex: wgpu::VertexState {
+            module,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: &[Some(vertex_layout(attributes))],
+        },
+        primitive: wgpu::PrimitiveState {
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH_FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            bias,
+        }),
+        multisample: Default::default(),
+        fragment: color.then(|| wgpu::FragmentState {
+            module,
+            entry_point: Some("fs_main"),
+            compilation_options: Default::default(),
+            targets: &targets,
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
 impl Renderer {
     /// Opens the preferred adapter ([`Gpu::new`]) and builds a renderer.
     pub fn new(scene: Scene, settings: RenderSettings) -> Result<Self, RenderError> {
@@ -371,69 +420,28 @@ impl Renderer {
         });
         let shade_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
         let shadow_attrs = wgpu::vertex_attr_array![0 => Float32x3];
-        let shade_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("shade"),
-            layout: Some(&shade_pl),
-            vertex: wgpu::VertexState {
-                module: &shade_module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(vertex_layout(&shade_attrs))],
+        let shade_pipeline = depth_tested_pipeline(
+            device,
+            "shade",
+            &shade_pl,
+            &shade_module,
+            &shade_attrs,
+            wgpu::DepthBiasState::default(),
+            true,
+        );
+        let shadow_pipeline = depth_tested_pipeline(
+            device,
+            "shadow",
+            &shadow_pl,
+            &shadow_module,
+            &shadow_attrs,
+            wgpu::DepthBiasState {
+                constant: 2,
+                slope_scale: 1.5,
+                clamp: 0.0,
             },
-            primitive: wgpu::PrimitiveState {
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shade_module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: COLOR_FORMAT,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        let shadow_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("shadow"),
-            layout: Some(&shadow_pl),
-            vertex: wgpu::VertexState {
-                module: &shadow_module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(vertex_layout(&shadow_attrs))],
-            },
-            primitive: wgpu::PrimitiveState {
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: wgpu::DepthBiasState {
-                    constant: 2,
-                    slope_scale: 1.5,
-                    clamp: 0.0,
-                },
-            }),
-            multisample: Default::default(),
-            fragment: None,
-            multiview_mask: None,
-            cache: None,
-        });
+            false,
+        );
 
         let (color_texture, color_view, depth_view) =
             Self::make_targets(device, settings.width, settings.height);
