@@ -10,9 +10,8 @@
 //    direction r, its product with the ASG integrated in r's tangent plane, times Smith's
 //    height-correlated G2 / (4 n·v) and F = f0 (`Asg::ggx_specular`).
 // A shadow-catcher material outputs (0, 0, 0, 0): without shadows there is nothing to catch.
+// Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
 
-const PI: f32 = 3.14159265358979;
-const FLAG_CATCHER: u32 = 1u;
 const TABLE_T: u32 = 129u;
 const TABLE_NU: u32 = 72u;
 const TABLE_NU_MIN: f32 = 0.5;
@@ -38,38 +37,14 @@ struct Lobe {
     rgb: vec4<f32>,
 };
 
-struct Material {
-    base_color: vec4<f32>,
-    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
-    params: vec4<f32>,
-};
-
 @group(0) @binding(0) var<uniform> globals: Globals;
 @group(0) @binding(1) var<storage, read> lobes: array<Lobe>;
 @group(0) @binding(2) var<storage, read> materials: array<Material>;
 @group(0) @binding(3) var<storage, read> cosine_table: array<f32>;
 
-struct VertexIn {
-    @location(0) position: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) material: u32,
-};
-
-struct VertexOut {
-    @builtin(position) clip: vec4<f32>,
-    @location(0) world: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) @interpolate(flat) material: u32,
-};
-
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
-    var out: VertexOut;
-    out.clip = globals.view_proj * vec4<f32>(v.position, 1.0);
-    out.world = v.position;
-    out.normal = v.normal;
-    out.material = v.material;
-    return out;
+    return surface_vertex(globals.view_proj, v);
 }
 
 // H(t, ν): bilinear in t and ln ν on the table (clamped at its ends), as
@@ -122,19 +97,16 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
 
 @fragment
 fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    if (u32(mat.params.w) & FLAG_CATCHER) != 0u {
+    let s = surface_at(in, materials[in.material], globals.camera_pos.xyz);
+    if s.catcher {
         return vec4<f32>(0.0);
     }
-    let n = normalize(in.normal);
-    let v = normalize(globals.camera_pos.xyz - in.world);
-    let roughness = clamp(mat.params.x, 0.0, 1.0);
-    let metallic = clamp(mat.params.y, 0.0, 1.0);
-    let spec_level = mat.params.z;
-    let alpha = max(roughness * roughness, 0.002);
-    let diffuse = mat.base_color.rgb * (1.0 - metallic) / PI;
-    let f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), mat.base_color.rgb, metallic);
-    let has_specular = any(f0 > vec3<f32>(0.0));
+    let n = s.n;
+    let v = s.v;
+    let alpha = s.alpha;
+    let diffuse = s.diffuse;
+    let f0 = s.f0;
+    let has_specular = s.has_specular;
 
     var irradiance = vec3<f32>(0.0);
     var specular = vec3<f32>(0.0);

@@ -9,12 +9,12 @@
 // With culling off every light takes the full path (and the shadow lookup is made even where
 // n·l ≤ 0, the plain loop a renderer without culling runs).
 //
+// Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
+//
 // The ground's material may be a shadow catcher: it then outputs premultiplied RGBA
 // (0, 0, 0, α) with α = 1 − E_shadowed / E_unshadowed, to darken the camera image beneath.
 
-const PI: f32 = 3.14159265358979;
 const PCF_TAPS: u32 = 12u;
-const FLAG_CATCHER: u32 = 1u;
 
 struct Globals {
     view_proj: mat4x4<f32>,
@@ -37,39 +37,15 @@ struct Light {
     params: vec4<f32>,
 };
 
-struct Material {
-    base_color: vec4<f32>,
-    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
-    params: vec4<f32>,
-};
-
 @group(0) @binding(0) var<uniform> globals: Globals;
 @group(0) @binding(1) var<storage, read> lights: array<Light>;
 @group(0) @binding(2) var<storage, read> materials: array<Material>;
 @group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
 @group(0) @binding(4) var shadow_sampler: sampler_comparison;
 
-struct VertexIn {
-    @location(0) position: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) material: u32,
-};
-
-struct VertexOut {
-    @builtin(position) clip: vec4<f32>,
-    @location(0) world: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) @interpolate(flat) material: u32,
-};
-
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
-    var out: VertexOut;
-    out.clip = globals.view_proj * vec4<f32>(v.position, 1.0);
-    out.world = v.position;
-    out.normal = v.normal;
-    out.material = v.material;
-    return out;
+    return surface_vertex(globals.view_proj, v);
 }
 
 // A 12-tap Poisson disk in the unit circle.
@@ -132,17 +108,14 @@ fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha: f32, f0: vec3<f
 
 @fragment
 fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    let n = normalize(in.normal);
-    let v = normalize(globals.camera_pos.xyz - in.world);
-    let roughness = clamp(mat.params.x, 0.0, 1.0);
-    let metallic = clamp(mat.params.y, 0.0, 1.0);
-    let spec_level = mat.params.z;
-    let catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
-    let alpha = max(roughness * roughness, 0.002);
-    let diffuse = mat.base_color.rgb * (1.0 - metallic) / PI;
-    let f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), mat.base_color.rgb, metallic);
-    let has_specular = any(f0 > vec3<f32>(0.0));
+    let s = surface_at(in, materials[in.material], globals.camera_pos.xyz);
+    let n = s.n;
+    let v = s.v;
+    let alpha = s.alpha;
+    let diffuse = s.diffuse;
+    let f0 = s.f0;
+    let has_specular = s.has_specular;
+    let catcher = s.catcher;
     let culling = globals.culling != 0u;
 
     var radiance = vec3<f32>(0.0);

@@ -15,8 +15,11 @@ use super::{FrameStats, Image, RenderError, Renderer};
 use crate::asg::{cosine_convolution, integral, Asg};
 use std::time::Instant;
 
-/// WGSL source of the ASG pass.
-pub const ASG_WGSL: &str = include_str!("../../shaders/asg.wgsl");
+/// WGSL source of the ASG pass (`surface.wgsl` prepended).
+pub const ASG_WGSL: &str = concat!(
+    include_str!("../../shaders/surface.wgsl"),
+    include_str!("../../shaders/asg.wgsl")
+);
 
 /// Nodes of the cosine-convolution table over t = n·z (as in `crate::asg`).
 const TABLE_T: usize = 129;

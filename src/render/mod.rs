@@ -52,19 +52,26 @@ use shading::{Globals, GpuLight};
 use std::time::Instant;
 use thiserror::Error;
 
-/// WGSL source of the main pass.
-pub const SHADE_WGSL: &str = include_str!("../../shaders/shade.wgsl");
+/// WGSL source of the main pass (`surface.wgsl` prepended).
+pub const SHADE_WGSL: &str = concat!(
+    include_str!("../../shaders/surface.wgsl"),
+    include_str!("../../shaders/shade.wgsl")
+);
 /// WGSL source of the shadow pass.
 pub const SHADOW_WGSL: &str = include_str!("../../shaders/shadow.wgsl");
 /// WGSL source of the windowed mode's present pass.
 pub const PRESENT_WGSL: &str = include_str!("../../shaders/present.wgsl");
-/// Every shader, by file name (the naga test validates each).
+/// Every shader module the renderer builds, by the file that defines its entry points, as
+/// composed (the naga test validates each).
 pub const SHADERS: &[(&str, &str)] = &[
     ("asg.wgsl", asg::ASG_WGSL),
     ("present.wgsl", PRESENT_WGSL),
     ("shade.wgsl", SHADE_WGSL),
     ("shadow.wgsl", SHADOW_WGSL),
 ];
+/// The shared prelude prepended to `shade.wgsl` and `asg.wgsl`: vertex layout, materials, the
+/// shaded point's set-up.
+pub const SURFACE_WGSL: &str = include_str!("../../shaders/surface.wgsl");
 
 /// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
 /// opaque value (see docs/rendering.md): (mean absolute difference, 99.9th percentile).
@@ -1077,12 +1084,23 @@ mod tests {
         assert!(!files.is_empty());
         for path in &files {
             let name = path.file_name().unwrap().to_str().unwrap();
-            let text = std::fs::read_to_string(path).unwrap();
-            // Every file on disk is one the renderer loads.
-            assert!(
-                SHADERS.iter().any(|(n, src)| *n == name && *src == text),
-                "{name} is not in render::SHADERS"
-            );
+            let file = std::fs::read_to_string(path).unwrap();
+            // Every file on disk is one the renderer loads: a module's entry file is its source
+            // or its source after the prelude; the prelude itself must stand alone too.
+            let text = if name == "surface.wgsl" {
+                assert_eq!(file, SURFACE_WGSL);
+                file
+            } else {
+                let (_, text) = SHADERS
+                    .iter()
+                    .find(|(n, _)| *n == name)
+                    .unwrap_or_else(|| panic!("{name} is not in render::SHADERS"));
+                assert!(
+                    *text == file || *text == format!("{SURFACE_WGSL}{file}"),
+                    "{name}: render::SHADERS holds another text"
+                );
+                text.to_string()
+            };
             let module = naga::front::wgsl::parse_str(&text)
                 .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
             naga::valid::Validator::new(
@@ -1092,7 +1110,7 @@ mod tests {
             .validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
         }
-        assert_eq!(files.len(), SHADERS.len());
+        assert_eq!(files.len(), SHADERS.len() + 1);
     }
 
     #[test]
