@@ -116,6 +116,7 @@ fn relight() {
     for (name, brdf) in [
         ("Lambert", Brdf::Lambert),
         ("Phong 32", Brdf::Phong { exponent: 32.0 }),
+        ("GGX α = 0.3", Brdf::Ggx { alpha: 0.3 }),
     ] {
         println!("### {name}");
         println!("| basis | light K | transport 32 | transport 64 | transport 128 | transport 256 | all 1024 |");

@@ -23,7 +23,7 @@ use std::time::Instant;
 pub const RELIGHT_LONG_ABOUT: &str = "\
 Relight a static mesh with wavelet lighting, frame by frame. Once: trace the visibility of every
 direction of the SIZE x SIZE equal-area octahedral map from every vertex (CPU ray casting, BVH),
-multiply by the BRDF slice (Lambert cosine, or a normalised Phong lobe seen from --eye), project
+multiply by the BRDF slice (Lambert cosine, a normalised Phong lobe or a GGX lobe seen from --eye), project
 onto the wavelet basis and keep the --transport largest coefficients per vertex. Per frame:
 resample the frame onto the map, keep its K largest coefficients and compute every vertex's
 outgoing radiance as a sparse dot product (all cores). Prints one JSON line per frame:
@@ -81,6 +81,9 @@ pub enum BrdfArg {
     Lambert,
     /// Normalised Phong lobe of --exponent, seen from --eye.
     Phong,
+    /// GGX microfacet specular (Smith height-correlated, F = 1) of roughness --alpha, seen
+    /// from --eye.
+    Ggx,
 }
 
 #[derive(Args, Debug)]
@@ -112,7 +115,10 @@ pub struct RelightArgs {
     /// Phong exponent for --brdf phong.
     #[arg(long, default_value_t = 32.0)]
     exponent: f32,
-    /// Eye position for --brdf phong, x,y,z. [default: the scene's camera]
+    /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1).
+    #[arg(long, default_value_t = 0.3)]
+    alpha: f32,
+    /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
     eye: Option<Vec3>,
     /// Vertices compared with brute-force integration per frame (0: no check).
@@ -222,6 +228,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         BrdfArg::Phong => Brdf::Phong {
             exponent: args.exponent,
         },
+        BrdfArg::Ggx => Brdf::Ggx { alpha: args.alpha },
     };
     let view = View::Eye(args.eye.unwrap_or(scene.camera.eye));
     let transport = Transport::precompute(

@@ -15,7 +15,10 @@
 //! `B(x, ω_o) = ∫ V(x, ω) L(ω) ρ(x, ω, ω_o) dω`, with ρ the BRDF slice of vertex x (normal n, view
 //! ω_o) including the cosine: [`Brdf::slice`] gives `ρ(ω) = f_r(ω, ω_o) · max(0, n·ω)`, where
 //! f_r is 1/π for [`Brdf::Lambert`] (albedo applied by the caller) and the energy-normalised Phong
-//! lobe `(s+2)/(2π) · max(0, r·ω)^s` around the mirror direction r of ω_o for [`Brdf::Phong`].
+//! lobe `(s+2)/(2π) · max(0, r·ω)^s` around the mirror direction r of ω_o for [`Brdf::Phong`],
+//! and the microfacet `D(h) · G2(ω, ω_o) / (4 (n·ω)(n·ω_o))` for [`Brdf::Ggx`] (Trowbridge–Reitz
+//! distribution, Smith height-correlated masking-shadowing, F = 1: the caller applies the
+//! Fresnel colour, as the ASG balls of docs/asg.md do).
 //!
 //! # What is precomputed and what is per frame
 //!
@@ -76,6 +79,8 @@ pub enum TransportError {
     },
     #[error("Phong exponent must be finite and ≥ 0, got {0}")]
     PhongExponent(f32),
+    #[error("GGX roughness α must be in [{MIN_GGX_ALPHA}, 1], got {0}")]
+    GgxAlpha(f32),
     #[error("{0}")]
     Invalid(String),
 }
@@ -190,7 +195,13 @@ pub enum Brdf {
     Lambert,
     /// Energy-normalised Phong lobe (s+2)/(2π) · max(0, r·ω)^s around the mirror direction.
     Phong { exponent: f32 },
+    /// GGX microfacet specular with roughness α (= perceptual roughness²), F = 1: D(h) · G2 /
+    /// (4 n·ω n·ω_o), Smith height-correlated G2. Zero where the view is below the surface.
+    Ggx { alpha: f32 },
 }
+
+/// Smallest GGX α accepted: below it the lobe is narrower than a texel of any supported map.
+pub const MIN_GGX_ALPHA: f32 = 1e-3;
 
 impl Brdf {
     /// Checks the parameters.
@@ -199,6 +210,8 @@ impl Brdf {
             Brdf::Lambert => Ok(()),
             Brdf::Phong { exponent } if exponent.is_finite() && exponent >= 0.0 => Ok(()),
             Brdf::Phong { exponent } => Err(TransportError::PhongExponent(exponent)),
+            Brdf::Ggx { alpha } if (MIN_GGX_ALPHA..=1.0).contains(&alpha) => Ok(()),
+            Brdf::Ggx { alpha } => Err(TransportError::GgxAlpha(alpha)),
         }
     }
 
@@ -216,6 +229,22 @@ impl Brdf {
                 let rd = f64::from(r.dot(dir)).max(0.0);
                 let s = f64::from(exponent);
                 (s + 2.0) / std::f64::consts::TAU * rd.powf(s) * cos
+            }
+            Brdf::Ggx { alpha } => {
+                let n_v = f64::from(normal.dot(view));
+                if n_v <= 0.0 {
+                    return 0.0;
+                }
+                let h = (view + dir).normalize_or_zero();
+                let n_h = f64::from(normal.dot(h)).max(0.0);
+                let a2 = f64::from(alpha).powi(2);
+                let d = n_h * n_h * (a2 - 1.0) + 1.0;
+                let ndf = a2 / (std::f64::consts::PI * d * d);
+                // Smith height-correlated: G2 = 1 / (1 + Λ(v) + Λ(l)).
+                let lambda = |c: f64| ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5;
+                let g2 = 1.0 / (1.0 + lambda(n_v) + lambda(cos));
+                // f_r · cos = D G2 / (4 n·ω n·ω_o) · n·ω.
+                ndf * g2 / (4.0 * n_v)
             }
         }
     }
@@ -590,6 +619,50 @@ mod tests {
             * grid.d_omega();
         assert!(phong > 0.5 && phong <= 1.02, "{phong}");
         assert!(Brdf::Phong { exponent: f32::NAN }.validate().is_err());
+        // GGX (F = 1) at normal incidence: the single-scattering albedo is just under 1 for a
+        // smooth surface and falls as α grows (the energy multiple scattering would return;
+        // Kulla and Conty 2017). At α = 1, D = 1/π and G2 = 2 n·ω / (1 + n·ω), so the albedo
+        // is ∫₀¹ c/(1+c) dc = 1 − ln 2 exactly. Side 128 resolves α ≥ 0.1.
+        let fine = Grid::new(128, Basis::Haar, None).unwrap();
+        let albedo = |alpha: f32| {
+            let ggx = Brdf::Ggx { alpha };
+            ggx.validate().unwrap();
+            ggx.slice(n, n, &fine.dirs).iter().sum::<f64>() * fine.d_omega()
+        };
+        let smooth = albedo(0.1);
+        assert!(
+            smooth > 0.97 && smooth <= 1.01,
+            "GGX α=0.1: albedo {smooth}"
+        );
+        let rough = albedo(1.0);
+        let exact = 1.0 - std::f64::consts::LN_2;
+        assert!(
+            (rough - exact).abs() < 0.01 * exact,
+            "GGX α=1: {rough} vs {exact}"
+        );
+        let mut previous = smooth;
+        for alpha in [0.3f32, 0.6, 1.0] {
+            let a = albedo(alpha);
+            assert!(
+                a < previous,
+                "GGX α={alpha}: albedo {a} not below {previous}"
+            );
+            previous = a;
+        }
+        for alpha in [0.0, -0.5, 1.5, f32::NAN, f32::INFINITY] {
+            assert!(Brdf::Ggx { alpha }.validate().is_err(), "{alpha}");
+        }
+        // Reciprocal: f_r(ω, ω_o) = f_r(ω_o, ω), so eval/cos is symmetric in its two directions.
+        let (a, b) = (
+            Vec3::new(0.5, 0.8, 0.2).normalize(),
+            Vec3::new(-0.1, 0.7, 0.6).normalize(),
+        );
+        let ggx = Brdf::Ggx { alpha: 0.4 };
+        let fa = ggx.eval(n, a, b) / f64::from(n.dot(b));
+        let fb = ggx.eval(n, b, a) / f64::from(n.dot(a));
+        assert!((fa - fb).abs() <= 1e-5 * fa, "{fa} vs {fb}");
+        // The view below the surface sees nothing.
+        assert_eq!(ggx.eval(n, -n, n), 0.0);
     }
 
     #[test]
@@ -605,7 +678,11 @@ mod tests {
         let mut dense = DenseLighting::new(&grid);
         dense.set(&grid, &set).unwrap();
         let view = View::Eye(Vec3::new(0.0, 2.0, 4.0));
-        for brdf in [Brdf::Lambert, Brdf::Phong { exponent: 8.0 }] {
+        for brdf in [
+            Brdf::Lambert,
+            Brdf::Phong { exponent: 8.0 },
+            Brdf::Ggx { alpha: 0.3 },
+        ] {
             let tr = Transport::precompute(
                 &grid,
                 &mesh.positions,
