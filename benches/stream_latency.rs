@@ -26,12 +26,12 @@ use envlight::capture::{CaptureError, FrameSource};
 use envlight::decompose::{DecomposeSettings, Decomposer};
 use envlight::metrics::Metrics;
 use envlight::pipeline::{Pipeline, PipelineOptions, PublishHook};
-use envlight::stream::client::{Client, Endpoint};
+use envlight::stream::client::Endpoint;
 use envlight::stream::protocol::{encode_frame, encode_request};
 use envlight::stream::{Decoder, Format, Message, Request, ServerConfig, StreamServer};
 use envlight::{HdrFrame, LightFrame};
 use std::collections::HashMap;
-use std::io::Write;
+use std::io::{Read, Write};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -56,6 +56,12 @@ struct Run {
     /// CPU time per published frame of all client threads together.
     client_cpu: Duration,
 }
+
+/// A client that gets nothing for this long gives up.
+const READ_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The measurement window ends this long before the clients stop.
+const WINDOW_END: Duration = Duration::from_millis(300);
 
 /// Names (as the kernel keeps them, at most 15 bytes) of the threads counted as serving.
 const SERVING_THREADS: &[&str] = &["envlight-serve", "envlight-fanout", "bench sender"];
@@ -213,7 +219,9 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
     };
     let first_seq = newest() + 2;
     let cpu_before = thread_run_times();
-    std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
+    // The window ends a little before the clients stop (their threads must still be there
+    // for their CPU time to be read).
+    std::thread::sleep((deadline - WINDOW_END).saturating_duration_since(Instant::now()));
     let cpu_after = thread_run_times();
     let last_seq = newest().saturating_sub(2);
     let received: Vec<_> = handles
@@ -319,7 +327,9 @@ fn run_floor(transport: Transport, harness: Harness, clients: usize, seconds: f6
     std::thread::sleep(Duration::from_secs(1));
     let first_seq = newest.load(Ordering::Acquire) + 2;
     let cpu_before = thread_run_times();
-    std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
+    // The window ends a little before the clients stop (their threads must still be there
+    // for their CPU time to be read).
+    std::thread::sleep((deadline - WINDOW_END).saturating_duration_since(Instant::now()));
     let cpu_after = thread_run_times();
     let last_seq = newest.load(Ordering::Acquire).saturating_sub(2);
     sender.join().expect("sender");
@@ -382,7 +392,7 @@ fn start_clients(
 /// How the bench's clients read.
 #[derive(Clone, Copy, Debug)]
 enum Harness {
-    /// One OS thread per client, blocking reads (`envlight::stream::client::Client`).
+    /// One OS thread per client, blocking reads.
     Threads,
     /// All clients on one thread: a current-thread tokio runtime, one task per client (how a
     /// load generator reads many sockets; the server sees the same connections).
@@ -469,21 +479,46 @@ fn thread_clients(
     clients: usize,
     deadline: Instant,
 ) -> Vec<std::thread::JoinHandle<Vec<Received>>> {
+    let mut subscribe = Vec::new();
+    encode_request(request, &mut subscribe);
     (0..clients)
         .map(|_| {
-            let mut client =
-                Client::connect(endpoint, request, Some(Duration::from_secs(10))).expect("connect");
+            let mut stream: Box<dyn std::io::Read + Send> = match endpoint {
+                Endpoint::Unix(path) => {
+                    let mut s = std::os::unix::net::UnixStream::connect(path).expect("uds");
+                    s.set_read_timeout(Some(READ_TIMEOUT)).expect("timeout");
+                    s.write_all(&subscribe).expect("subscribe");
+                    Box::new(s)
+                }
+                Endpoint::Tcp(addr) => {
+                    let mut s = std::net::TcpStream::connect(addr.as_str()).expect("tcp");
+                    s.set_nodelay(true).expect("nodelay");
+                    s.set_read_timeout(Some(READ_TIMEOUT)).expect("timeout");
+                    s.write_all(&subscribe).expect("subscribe");
+                    Box::new(s)
+                }
+                Endpoint::WebSocket(_) => unreachable!("the bench serves TCP and UDS"),
+            };
             std::thread::Builder::new()
                 .name("bench client".to_owned())
                 .stack_size(256 * 1024)
                 .spawn(move || {
+                    // As the event loop: the stamp is taken when the read that completes a
+                    // frame returns, before the frame is decoded (decoded in full all the same).
                     let mut received = Vec::new();
+                    let mut decoder = Decoder::new();
+                    let mut buf = vec![0u8; 64 * 1024];
                     while Instant::now() < deadline {
-                        match client.next_message() {
-                            Ok(Some(Message::Frame(frame))) => {
-                                received.push((frame.seq, Instant::now()))
+                        let n = match stream.read(&mut buf) {
+                            Ok(0) | Err(_) => break,
+                            Ok(n) => n,
+                        };
+                        let at = Instant::now();
+                        decoder.push(&buf[..n]);
+                        while let Ok(Some(message)) = decoder.next_message() {
+                            if let Message::Frame(frame) = message {
+                                received.push((frame.seq, at));
                             }
-                            _ => break,
                         }
                     }
                     vec![received]
