@@ -4,13 +4,17 @@
 //!   (docs/protocol.md); no networking and no async, so it is testable alone.
 //! - [`server`]: the tokio server for Unix sockets, TCP and WebSocket, one task per client,
 //!   newest-frame-wins for slow clients.
+//! - `fanout`: the thread that writes each publication to every Unix-socket and TCP client
+//!   that keeps up in one pass, with non-blocking writes (no task wake-up per client).
 //! - [`client`]: a small blocking client (used by `envlight subscribe`, the examples and the
 //!   tests).
 
 pub mod client;
+mod fanout;
 pub mod protocol;
 pub mod server;
 
+pub use fanout::FANOUT_THREAD_NAME;
 pub use protocol::{
     AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation, Request,
 };

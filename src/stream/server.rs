@@ -27,6 +27,7 @@
 //!    half-closed socket) is fine: the client keeps receiving.
 //! 4. **Shutdown** sends a goodbye (code 0) and closes.
 
+use super::fanout::{Fanout, Frame, Shared, Slot, SlotMetrics, Socket, Writer, FANOUT_THREAD_NAME};
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
     encode_frame, encode_goodbye, frame_to_json, goodbye_to_json, Decoder, Format, Message,
@@ -114,6 +115,51 @@ pub enum ServerError {
     SocketInUse { path: PathBuf },
     #[error("unix socket {}: a file that is not a socket is in the way", path.display())]
     NotASocket { path: PathBuf },
+    #[error("cannot start the {FANOUT_THREAD_NAME} thread: {0}")]
+    Spawn(#[source] std::io::Error),
+}
+
+/// Starts the fan-out thread of `feed`'s channel: woken once per publication, it writes the
+/// publication to every client of [`Context::fanout`] that keeps up (see [`super::fanout`]).
+/// It ends at the shutdown broadcast, or once the channel has ended (then it tells the
+/// clients).
+fn spawn_fanout(
+    ctx: &Arc<Context>,
+    mut feed: Feed,
+    mut shutdown: watch::Receiver<Option<String>>,
+) -> Result<std::thread::JoinHandle<()>, ServerError> {
+    let ctx = Arc::clone(ctx);
+    std::thread::Builder::new()
+        .name(FANOUT_THREAD_NAME.to_owned())
+        .spawn(move || {
+            let fanout = Arc::clone(ctx.fanout(&feed));
+            loop {
+                // No runtime here: the channels' futures need none, so a plain blocking
+                // executor waits on them.
+                let changed = pollster::block_on(async {
+                    tokio::select! {
+                        biased;
+                        _ = shutdown.wait_for(Option::is_some) => None,
+                        changed = feed.changed() => Some(changed),
+                    }
+                });
+                match changed {
+                    None => return,
+                    Some(false) => {
+                        fanout.end();
+                        return;
+                    }
+                    Some(true) => {
+                        if let Some(published) = feed.newest() {
+                            fanout.pass(&published, &|cap, encoding| {
+                                ctx.encoded(&published, cap, encoding)
+                            });
+                        }
+                    }
+                }
+            }
+        })
+        .map_err(ServerError::Spawn)
 }
 
 /// The addresses the endpoints are bound to (with port 0 resolved).
@@ -136,6 +182,10 @@ struct Context {
     asg: Option<watch::Receiver<LatestAsg>>,
     /// As `encoded`, for ASG sets (their publication indices are a sequence of their own).
     encoded_asg: std::sync::Mutex<EncodeCache>,
+    /// The Unix-socket and TCP clients of the light lists, written by the fan-out thread.
+    fanout: Arc<Fanout>,
+    /// As `fanout`, for ASG sets.
+    fanout_asg: Arc<Fanout>,
 }
 
 /// One publication, of the representation a client subscribed to.
@@ -144,11 +194,19 @@ enum Publication {
     Asg(Arc<PublishedAsg>),
 }
 
-impl Publication {
+impl Frame for Publication {
     fn index(&self) -> u64 {
         match self {
             Publication::Lights(p) => p.index,
             Publication::Asg(p) => p.index,
+        }
+    }
+
+    fn delivery_start(&self) -> Option<std::time::Instant> {
+        // Delivery latency is the lights' figure (from arrival at the decomposition).
+        match self {
+            Publication::Lights(p) => p.arrived,
+            Publication::Asg(_) => None,
         }
     }
 }
@@ -179,7 +237,7 @@ impl Feed {
 
 /// How a frame is encoded for a client.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Encoding {
+pub(super) enum Encoding {
     /// A binary frame message.
     Binary,
     /// The JSON form and a newline (UDS/TCP JSON lines).
@@ -200,6 +258,14 @@ struct EncodeCache {
 const ENCODE_CACHE_ENTRIES: usize = 16;
 
 impl Context {
+    /// The fan-out of the channel `feed` follows.
+    fn fanout(&self, feed: &Feed) -> &Arc<Fanout> {
+        match feed {
+            Feed::Lights(_) => &self.fanout,
+            Feed::Asg(_) => &self.fanout_asg,
+        }
+    }
+
     /// The publication encoded for a client with `cap` in `encoding`.
     fn encoded(
         &self,
@@ -269,6 +335,8 @@ pub struct StreamServer {
     done_tx: mpsc::Sender<()>,
     done_rx: mpsc::Receiver<()>,
     accept_tasks: Vec<tokio::task::JoinHandle<()>>,
+    /// The fan-out threads; they end at the shutdown broadcast.
+    fanout_threads: Vec<std::thread::JoinHandle<()>>,
 }
 
 impl StreamServer {
@@ -297,6 +365,8 @@ impl StreamServer {
             encoded: std::sync::Mutex::default(),
             asg,
             encoded_asg: std::sync::Mutex::default(),
+            fanout: Arc::default(),
+            fanout_asg: Arc::default(),
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
         let (done_tx, done_rx) = mpsc::channel(1);
@@ -316,6 +386,24 @@ impl StreamServer {
             Some(addr) => Some(bind_tcp("websocket", addr).await?),
             None => None,
         };
+        let mut fanout_threads = vec![spawn_fanout(
+            &ctx,
+            Feed::Lights(lights.clone()),
+            shutdown_tx.subscribe(),
+        )?];
+        if let Some(asg) = &ctx.asg {
+            let feed = Feed::Asg(asg.clone());
+            match spawn_fanout(&ctx, feed, shutdown_tx.subscribe()) {
+                Ok(thread) => fanout_threads.push(thread),
+                Err(e) => {
+                    shutdown_tx.send_replace(Some(String::new()));
+                    for thread in fanout_threads {
+                        let _ = thread.join();
+                    }
+                    return Err(e);
+                }
+            }
+        }
 
         if let Some((listener, path)) = unix {
             tracing::info!(path = %path.display(), "serving light lists on a unix socket");
@@ -343,6 +431,7 @@ impl StreamServer {
             done_tx,
             done_rx,
             accept_tasks,
+            fanout_threads,
         })
     }
 
@@ -361,6 +450,7 @@ impl StreamServer {
             done_tx,
             mut done_rx,
             accept_tasks,
+            fanout_threads,
         } = self;
         shutdown_tx.send_replace(Some(message.to_owned()));
         drop(done_tx);
@@ -368,6 +458,15 @@ impl StreamServer {
         for task in accept_tasks {
             task.abort();
         }
+        // The fan-out threads end at the broadcast (a pass takes well under a millisecond).
+        let _ = tokio::task::spawn_blocking(move || {
+            for thread in fanout_threads {
+                if thread.join().is_err() {
+                    tracing::error!("a fan-out thread panicked");
+                }
+            }
+        })
+        .await;
         if let Some(path) = &bound.unix_socket {
             remove_socket_file(path);
         }
@@ -463,7 +562,7 @@ impl Acceptor {
                 Ok((stream, _)) => {
                     self.limit_send_buffer(socket2::SockRef::from(&stream));
                     let peer = path.display().to_string();
-                    tokio::spawn(self.connection(peer).serve_stream(stream));
+                    tokio::spawn(self.connection(peer).serve_stream(Arc::new(stream)));
                 }
                 Err(e) => accept_failed(self.endpoint, &e).await,
             }
@@ -485,7 +584,7 @@ impl Acceptor {
                     if websocket {
                         tokio::spawn(conn.serve_websocket(stream));
                     } else {
-                        tokio::spawn(conn.serve_stream(stream));
+                        tokio::spawn(conn.serve_stream(Arc::new(stream)));
                     }
                 }
                 Err(e) => accept_failed(self.endpoint, &e).await,
@@ -718,21 +817,46 @@ impl Connection {
         shutdown: &mut watch::Receiver<Option<String>>,
         published: &Publication,
     ) -> Option<Close> {
+        let close = self.write_timed(write, shutdown).await;
+        if close.is_none() {
+            self.delivered(published);
+        }
+        close
+    }
+
+    /// Writes within the write timeout, giving up at shutdown. `None`: written; otherwise why
+    /// the connection ends.
+    async fn write_timed<E>(
+        &self,
+        write: impl std::future::Future<Output = Result<(), E>>,
+        shutdown: &mut watch::Receiver<Option<String>>,
+    ) -> Option<Close> {
         let write = tokio::time::timeout(self.ctx.config.write_timeout, write);
         let written = tokio::select! {
             written = write => written,
             _ = shutdown.wait_for(Option::is_some) => return Some(Close::Quiet),
         };
         match written {
-            Ok(Ok(())) => {
-                self.delivered(published);
-                None
-            }
+            Ok(Ok(())) => None,
             Ok(Err(_)) => Some(Close::Quiet),
             Err(_) => {
                 self.count_error("write stalled");
                 Some(Close::Quiet)
             }
+        }
+    }
+
+    /// This client's metric handles, for its fan-out slot.
+    fn slot_metrics(&self) -> SlotMetrics {
+        let metrics = &self.ctx.metrics;
+        SlotMetrics {
+            sent: metrics.frames_sent.get_or_create(&self.label()).clone(),
+            skipped: metrics.frames_skipped.get_or_create(&self.label()).clone(),
+            client_skipped: metrics
+                .client_skipped
+                .get_or_create(&self._guard.label)
+                .clone(),
+            delivery: metrics.delivery_seconds.clone(),
         }
     }
 
@@ -742,11 +866,7 @@ impl Connection {
             .frames_sent
             .get_or_create(&self.label())
             .inc();
-        // Delivery latency is the lights' figure (from arrival at the decomposition).
-        if let Publication::Lights(p) = published {
-            let Some(arrived) = p.arrived else {
-                return;
-            };
+        if let Some(arrived) = published.delivery_start() {
             self.ctx
                 .metrics
                 .delivery_seconds
@@ -757,14 +877,14 @@ impl Connection {
     // --------------------------------------------------------------------------------------
     // Unix socket and TCP
 
-    async fn serve_stream<S>(self, stream: S)
-    where
-        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
-    {
-        let (mut reader, mut writer) = tokio::io::split(stream);
+    async fn serve_stream(self, socket: Arc<dyn Socket>) {
+        // The task reads and writes through one clone, the fan-out thread writes through
+        // another.
+        let mut reader = Shared(Arc::clone(&socket));
+        let mut writer = Shared(Arc::clone(&socket));
         let mut dialect = Dialect::Binary;
         let close = self
-            .stream_session(&mut reader, &mut writer, &mut dialect)
+            .stream_session(&mut reader, &mut writer, &socket, &mut dialect)
             .await;
         let mut out = Vec::new();
         match (&close, dialect) {
@@ -794,6 +914,7 @@ impl Connection {
         &self,
         reader: &mut R,
         writer: &mut W,
+        socket: &Arc<dyn Socket>,
         dialect: &mut Dialect,
     ) -> Close
     where
@@ -834,34 +955,64 @@ impl Connection {
         if subscribed_binary && decoder.buffered() > 0 {
             return self.unexpected_input(&mut decoder);
         }
+        let encoding = match request.format {
+            Format::Binary => Encoding::Binary,
+            Format::Json => Encoding::JsonLine,
+        };
+        let cap = request.cap();
+        let slot = Arc::new(Slot::new(
+            Arc::clone(socket),
+            cap,
+            encoding,
+            self.slot_metrics(),
+        ));
+        let fanout = Arc::clone(self.ctx.fanout(&feed));
+        let Some(_registration) = fanout.register(&slot) else {
+            return Close::Goodbye("the light stream ended".to_owned());
+        };
         let mut reading = true;
-        let mut progress = Progress::default();
         let mut shutdown = self.shutdown.clone();
         loop {
+            // The task's turn (a new client, or the fan-out found the socket full): finish
+            // the frame the fan-out began, then send the newest publication until this client
+            // has it; then the fan-out writes again.
+            if slot.writer() == Writer::Task {
+                if let Some(unfinished) = slot.take_unfinished() {
+                    let write = writer.write_all(&unfinished.bytes[unfinished.written..]);
+                    if let Some(close) = self.write_timed(write, &mut shutdown).await {
+                        slot.close();
+                        return close;
+                    }
+                    slot.delivered(unfinished.delivery_start);
+                }
+                if let Some(published) = slot.next_for_task(|| feed.newest()) {
+                    let out = self.ctx.encoded(&published, cap, encoding);
+                    let write = writer.write_all(out.as_slice());
+                    if let Some(close) = self.write_timed(write, &mut shutdown).await {
+                        slot.close();
+                        return close;
+                    }
+                    slot.delivered(published.delivery_start());
+                    continue;
+                }
+            }
+            if fanout.ended() {
+                slot.close();
+                return Close::Goodbye("the light stream ended".to_owned());
+            }
             let event = tokio::select! {
                 biased;
-                changed = feed.changed() => Event::Lights(changed),
+                _ = slot.handed_over() => continue,
                 message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
                 read = reader.read(&mut buf), if reading => Event::Input(read),
             };
+            // From here on nobody writes frames; a frame left half written means no closing
+            // message can follow.
+            if !matches!(event, Event::Input(Ok(0))) && slot.close() {
+                return Close::Quiet;
+            }
             match event {
-                Event::Lights(false) => {
-                    return Close::Goodbye("the light stream ended".to_owned());
-                }
-                Event::Lights(true) => {
-                    let Some(published) = self.take_newest(&mut feed, &mut progress) else {
-                        continue;
-                    };
-                    let encoding = match request.format {
-                        Format::Binary => Encoding::Binary,
-                        Format::Json => Encoding::JsonLine,
-                    };
-                    let out = self.ctx.encoded(&published, request.cap(), encoding);
-                    let write = writer.write_all(out.as_slice());
-                    if let Some(close) = self.write_frame(write, &mut shutdown, &published).await {
-                        return close;
-                    }
-                }
+                Event::Lights(_) => unreachable!("publications come through the fan-out"),
                 Event::Shutdown(message) => return Close::Goodbye(message),
                 Event::Input(Ok(0)) => reading = false, // half-closed: keep sending
                 Event::Input(Ok(n)) => {
