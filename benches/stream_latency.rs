@@ -46,8 +46,8 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
         on_publish: Some(PublishHook(Arc::new(move |published| {
             if let Some(arrived) = published.arrived {
                 hook_arrivals.lock().unwrap().insert(
-                    published.lights.seq,
-                    (arrived, published.published_at, published.decompose_time),
+                    published.payload.seq,
+                    (arrived, published.published_at, published.compute_time),
                 );
             }
         }))),
@@ -106,14 +106,14 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
         .subscribe()
         .borrow()
         .as_ref()
-        .map_or(0, |p| p.lights.seq)
+        .map_or(0, |p| p.payload.seq)
         + 2;
     std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
     let last_seq = pipeline
         .subscribe()
         .borrow()
         .as_ref()
-        .map_or(0, |p| p.lights.seq)
+        .map_or(0, |p| p.payload.seq)
         .saturating_sub(2);
     let received: Vec<_> = handles
         .into_iter()

@@ -14,4 +14,4 @@ pub mod server;
 pub use protocol::{
     AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation, Request,
 };
-pub use server::{BoundAddresses, ServerConfig, StreamServer};
+pub use server::{BoundAddresses, ServerConfig, StreamServer, Streamed, Streams};
