@@ -168,8 +168,8 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
         on_publish: Some(PublishHook(Arc::new(move |published| {
             if let Some(arrived) = published.arrived {
                 hook_arrivals.lock().unwrap().insert(
-                    published.lights.seq,
-                    (arrived, published.published_at, published.decompose_time),
+                    published.payload.seq,
+                    (arrived, published.published_at, published.compute_time),
                 );
             }
         }))),
@@ -215,7 +215,7 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
             .subscribe()
             .borrow()
             .as_ref()
-            .map_or(0, |p| p.lights.seq)
+            .map_or(0, |p| p.payload.seq)
     };
     let first_seq = newest() + 2;
     let cpu_before = thread_run_times();

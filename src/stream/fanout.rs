@@ -28,7 +28,7 @@
 //! fine) and waits for a hand-over, the shutdown broadcast, or the end of the stream, which the
 //! fan-out thread announces to every slot ([`Fanout::end`]).
 
-use super::server::Encoding;
+use super::server::{Encoding, Frame};
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::Histogram;
@@ -129,14 +129,6 @@ impl AsyncWrite for Shared {
     fn poll_shutdown(self: Pin<&mut Self>, _: &mut Context<'_>) -> Poll<io::Result<()>> {
         Poll::Ready(self.0.shutdown_write())
     }
-}
-
-/// One publication as the fan-out sees it.
-pub(super) trait Frame: Send + Sync {
-    /// The publication's index on its channel.
-    fn index(&self) -> u64;
-    /// Where the delivery latency of this frame starts, if it is observed.
-    fn delivery_start(&self) -> Option<Instant>;
 }
 
 /// Who writes a client's frames.
@@ -293,7 +285,10 @@ impl Slot {
 
     /// For the task: the newest publication (from `newest`, read under the slot's lock) if this
     /// client has not had it, or else `None`, and the fan-out writes from now on.
-    pub fn next_for_task<F: Frame>(&self, newest: impl FnOnce() -> Option<F>) -> Option<F> {
+    pub fn next_for_task(
+        &self,
+        newest: impl FnOnce() -> Option<Arc<dyn Frame>>,
+    ) -> Option<Arc<dyn Frame>> {
         let mut state = self.lock();
         if state.writer != Writer::Task {
             return None;
@@ -468,6 +463,13 @@ mod tests {
         fn delivery_start(&self) -> Option<Instant> {
             None
         }
+        fn encode(&self, _: Option<usize>, _: Encoding) -> Vec<u8> {
+            bytes_of(self.0)
+        }
+    }
+
+    fn frame(index: u64) -> Option<Arc<dyn Frame>> {
+        Some(Arc::new(TestFrame(index)))
     }
 
     fn bytes_of(index: u64) -> Vec<u8> {
@@ -500,7 +502,7 @@ mod tests {
         let shared: Arc<dyn Socket> = socket.clone();
         let slot = Arc::new(Slot::new(shared, None, Encoding::Binary, metrics));
         let registration = fanout.register(&slot).expect("registered");
-        assert!(slot.next_for_task(|| None::<TestFrame>).is_none());
+        assert!(slot.next_for_task(|| None).is_none());
         assert_eq!(slot.writer(), Writer::Fanout);
         Client {
             socket,
@@ -555,10 +557,10 @@ mod tests {
         assert_eq!(fast.socket.written(), all);
         // The task then takes the newest (3), skipping 2, and hands the slot back once it has
         // sent it.
-        let newest = slow.slot.next_for_task(|| Some(TestFrame(3)));
-        assert_eq!(newest.map(|f| f.0), Some(3));
+        let newest = slow.slot.next_for_task(|| frame(3));
+        assert_eq!(newest.map(|f| f.index()), Some(3));
         assert_eq!(slow.skipped.get(), 1);
-        assert!(slow.slot.next_for_task(|| Some(TestFrame(3))).is_none());
+        assert!(slow.slot.next_for_task(|| frame(3)).is_none());
         assert_eq!(slow.slot.writer(), Writer::Fanout);
         pass(&fanout, 4);
         assert_eq!(&slow.socket.written()[1..], bytes_of(4).as_slice());
@@ -573,8 +575,8 @@ mod tests {
         assert_eq!(c.slot.writer(), Writer::Task);
         assert!(c.slot.take_unfinished().is_none());
         // Frame 1 was not sent: it is still new to this client, and nothing was skipped.
-        let next = c.slot.next_for_task(|| Some(TestFrame(1)));
-        assert_eq!(next.map(|f| f.0), Some(1));
+        let next = c.slot.next_for_task(|| frame(1));
+        assert_eq!(next.map(|f| f.index()), Some(1));
         assert_eq!(c.skipped.get(), 0);
     }
 
@@ -585,12 +587,12 @@ mod tests {
         c.socket.then_take(None);
         pass(&fanout, 1);
         // The task sends 1; publication 2 appears while it writes (the pass skips the slot).
-        assert!(c.slot.next_for_task(|| Some(TestFrame(1))).is_some());
+        assert!(c.slot.next_for_task(|| frame(1)).is_some());
         pass(&fanout, 2);
         assert!(c.socket.written().is_empty());
         // Reading the channel under the slot's lock, the task finds 2 and keeps the slot.
-        let next = c.slot.next_for_task(|| Some(TestFrame(2)));
-        assert_eq!(next.map(|f| f.0), Some(2));
+        let next = c.slot.next_for_task(|| frame(2));
+        assert_eq!(next.map(|f| f.index()), Some(2));
         assert_eq!(c.slot.writer(), Writer::Task);
     }
 

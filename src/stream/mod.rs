@@ -18,4 +18,4 @@ pub use fanout::FANOUT_THREAD_NAME;
 pub use protocol::{
     AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation, Request,
 };
-pub use server::{BoundAddresses, ServerConfig, StreamServer};
+pub use server::{BoundAddresses, ServerConfig, StreamServer, Streamed, Streams};

@@ -13,10 +13,12 @@
 //!    never speaks, or a client that vanishes mid-message ends the connection (with an error
 //!    message where the client can still read it).
 //! 2. **Frames.** Each connection task waits on the latest-value channel of the representation
-//!    it subscribed to: the pipeline's light lists, or the ASG stage's sets
-//!    ([`StreamServer::start_with_asg`]; without an ASG stage an `asg` subscribe gets error 6).
-//!    When a new publication appears it is encoded for this client (cap, binary or JSON; once
-//!    per publication, cap and form, shared by the clients that ask for the same) and written.
+//!    it subscribed to: the pipeline's light lists, or another stage's channel ([`Streams`]:
+//!    the ASG stage's sets; a representation the daemon does not produce gets error 6). Each
+//!    payload type says how it is encoded ([`Streamed`]), so the connection code is the same for
+//!    every representation. When a new publication appears it is encoded for this client (cap,
+//!    binary or JSON; once per publication, cap and form, shared by the clients that ask for
+//!    the same) and written.
 //!    A client that reads slowly blocks only its own task; meanwhile newer lists replace older
 //!    ones in the channel, so when the write completes it gets the newest one and the lists in
 //!    between are counted as skipped. Per client the server holds one encoded frame, so memory
@@ -27,21 +29,23 @@
 //!    half-closed socket) is fine: the client keeps receiving.
 //! 4. **Shutdown** sends a goodbye (code 0) and closes.
 
-use super::fanout::{Fanout, Frame, Shared, Slot, SlotMetrics, Socket, Writer, FANOUT_THREAD_NAME};
+use super::fanout::{Fanout, Shared, Slot, SlotMetrics, Socket, Writer, FANOUT_THREAD_NAME};
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
     encode_frame, encode_goodbye, frame_to_json, goodbye_to_json, Decoder, Format, Message,
     ProtocolError, Representation, Request,
 };
-use crate::asg_stage::{LatestAsg, PublishedAsg};
+use crate::light::{AsgSet, LightFrame};
 use crate::metrics::{ClientLabel, EndpointLabel, Metrics};
-use crate::pipeline::{LatestLights, Published};
+use crate::pipeline::LatestLights;
+use crate::publication::{Latest, Publication};
+use futures_util::future::BoxFuture;
 use futures_util::{SinkExt, StreamExt};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::{TcpListener, UnixListener};
 use tokio::sync::{mpsc, watch};
@@ -140,7 +144,7 @@ fn spawn_fanout(
                     tokio::select! {
                         biased;
                         _ = shutdown.wait_for(Option::is_some) => None,
-                        changed = feed.changed() => Some(changed),
+                        changed = feed.rx.changed() => Some(changed),
                     }
                 });
                 match changed {
@@ -150,9 +154,9 @@ fn spawn_fanout(
                         return;
                     }
                     Some(true) => {
-                        if let Some(published) = feed.newest() {
-                            fanout.pass(&published, &|cap, encoding| {
-                                ctx.encoded(&published, cap, encoding)
+                        if let Some(published) = feed.rx.newest() {
+                            fanout.pass(&*published, &|cap, encoding| {
+                                ctx.encoded(&feed, &*published, cap, encoding)
                             });
                         }
                     }
@@ -176,63 +180,168 @@ struct Context {
     metrics: Arc<Metrics>,
     clients: AtomicUsize,
     next_client: AtomicU64,
-    /// The newest publication's encodings, shared by the clients that ask for the same form.
-    encoded: std::sync::Mutex<EncodeCache>,
-    /// The ASG stage's sets, if the daemon produces them.
-    asg: Option<watch::Receiver<LatestAsg>>,
-    /// As `encoded`, for ASG sets (their publication indices are a sequence of their own).
-    encoded_asg: std::sync::Mutex<EncodeCache>,
-    /// The Unix-socket and TCP clients of the light lists, written by the fan-out thread.
-    fanout: Arc<Fanout>,
-    /// As `fanout`, for ASG sets.
-    fanout_asg: Arc<Fanout>,
+    /// The latest-value channels served, one per representation the daemon produces, each with
+    /// its newest publication's encodings.
+    sources: Vec<Source>,
 }
 
-/// One publication, of the representation a client subscribed to.
-enum Publication {
-    Lights(Arc<Published>),
-    Asg(Arc<PublishedAsg>),
+/// A payload the server can stream: the representation clients subscribe to for it and its
+/// encodings. Streaming a new representation is an implementation of this trait (with a frame
+/// layout in [`protocol`]) and one more [`Streams::with`].
+pub trait Streamed: Send + Sync + 'static {
+    /// The representation of this payload.
+    const REPRESENTATION: Representation;
+    /// Whether delivering it is observed in the delivery-latency histogram (the lights are).
+    const OBSERVE_DELIVERY: bool = false;
+    /// Appends the binary frame message with at most `cap` records.
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>);
+    /// The JSON form with at most `cap` records.
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String;
 }
 
-impl Frame for Publication {
+impl Streamed for LightFrame {
+    const REPRESENTATION: Representation = Representation::Lights;
+    const OBSERVE_DELIVERY: bool = true;
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+        encode_frame(self, cap, stale, out);
+    }
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
+        frame_to_json(self, cap, stale)
+    }
+}
+
+impl Streamed for AsgSet {
+    const REPRESENTATION: Representation = Representation::Asg;
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+        encode_asg_frame(self, cap, stale, out);
+    }
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
+        asg_frame_to_json(self, cap, stale)
+    }
+}
+
+/// One publication of any representation, as a connection (and the fan-out) sees it.
+pub(super) trait Frame: Send + Sync {
+    /// The publication's index on its channel.
+    fn index(&self) -> u64;
+    /// Where the delivery latency of this frame starts, if it is observed.
+    fn delivery_start(&self) -> Option<Instant>;
+    /// The frame encoded with at most `cap` records.
+    fn encode(&self, cap: Option<usize>, encoding: Encoding) -> Vec<u8>;
+}
+
+impl<T: Streamed> Frame for Publication<T> {
     fn index(&self) -> u64 {
-        match self {
-            Publication::Lights(p) => p.index,
-            Publication::Asg(p) => p.index,
-        }
+        self.index
     }
 
-    fn delivery_start(&self) -> Option<std::time::Instant> {
-        // Delivery latency is the lights' figure (from arrival at the decomposition).
-        match self {
-            Publication::Lights(p) => p.arrived,
-            Publication::Asg(_) => None,
+    fn delivery_start(&self) -> Option<Instant> {
+        self.arrived.filter(|_| T::OBSERVE_DELIVERY)
+    }
+
+    fn encode(&self, cap: Option<usize>, encoding: Encoding) -> Vec<u8> {
+        match encoding {
+            Encoding::Binary => {
+                let mut out = Vec::new();
+                self.payload.encode_binary(cap, self.stale, &mut out);
+                out
+            }
+            Encoding::JsonLine | Encoding::JsonText => {
+                let mut out = self.payload.to_json(cap, self.stale).into_bytes();
+                if encoding == Encoding::JsonLine {
+                    out.push(b'\n');
+                }
+                out
+            }
         }
     }
 }
 
-/// The latest-value channel a subscribed connection follows.
-enum Feed {
-    Lights(watch::Receiver<LatestLights>),
-    Asg(watch::Receiver<LatestAsg>),
-}
-
-impl Feed {
+/// A latest-value channel of any representation, as a connection follows it.
+trait FeedRx: Send + Sync {
     /// Waits for a new publication; `false` once the stream has ended.
-    async fn changed(&mut self) -> bool {
-        match self {
-            Feed::Lights(rx) => rx.changed().await.is_ok(),
-            Feed::Asg(rx) => rx.changed().await.is_ok(),
+    fn changed(&mut self) -> BoxFuture<'_, bool>;
+    /// The newest publication, marked seen.
+    fn newest(&mut self) -> Option<Arc<dyn Frame>>;
+    /// Another receiver of the same channel, in the same state.
+    fn boxed_clone(&self) -> Box<dyn FeedRx>;
+}
+
+impl<T: Streamed> FeedRx for watch::Receiver<Latest<T>> {
+    fn changed(&mut self) -> BoxFuture<'_, bool> {
+        Box::pin(async move { watch::Receiver::changed(self).await.is_ok() })
+    }
+
+    fn newest(&mut self) -> Option<Arc<dyn Frame>> {
+        let newest = self.borrow_and_update().clone()?;
+        Some(newest)
+    }
+
+    fn boxed_clone(&self) -> Box<dyn FeedRx> {
+        Box::new(self.clone())
+    }
+}
+
+/// One channel the server serves.
+struct Source {
+    representation: Representation,
+    /// Never marked as seen: each clone handed to a connection starts with the newest
+    /// publication unseen.
+    rx: Box<dyn FeedRx>,
+    /// The newest publication's encodings, shared by the clients that ask for the same form.
+    cache: std::sync::Mutex<EncodeCache>,
+    /// The Unix-socket and TCP clients of this channel, written by its fan-out thread.
+    fanout: Arc<Fanout>,
+}
+
+/// What a [`StreamServer`] serves: the light lists, and the other representations the daemon
+/// produces, each on its own latest-value channel.
+pub struct Streams {
+    sources: Vec<Source>,
+}
+
+impl Streams {
+    /// The light lists only.
+    pub fn new(lights: watch::Receiver<LatestLights>) -> Self {
+        Self {
+            sources: Vec::new(),
+        }
+        .with(lights)
+    }
+
+    /// Also serves `rx` to the clients that subscribe to `T`'s representation (replacing an
+    /// earlier channel of the same representation).
+    pub fn with<T: Streamed>(mut self, rx: watch::Receiver<Latest<T>>) -> Self {
+        self.sources
+            .retain(|s| s.representation != T::REPRESENTATION);
+        self.sources.push(Source {
+            representation: T::REPRESENTATION,
+            rx: Box::new(rx),
+            cache: std::sync::Mutex::default(),
+            fanout: Arc::default(),
+        });
+        self
+    }
+
+    /// [`Streams::with`] if `rx` is there.
+    pub fn with_optional<T: Streamed>(self, rx: Option<watch::Receiver<Latest<T>>>) -> Self {
+        match rx {
+            Some(rx) => self.with(rx),
+            None => self,
         }
     }
 
-    /// The newest publication, marked seen.
-    fn newest(&mut self) -> Option<Publication> {
-        match self {
-            Feed::Lights(rx) => rx.borrow_and_update().clone().map(Publication::Lights),
-            Feed::Asg(rx) => rx.borrow_and_update().clone().map(Publication::Asg),
-        }
+    /// The representations served, in the order they were added.
+    pub fn representations(&self) -> Vec<Representation> {
+        self.sources.iter().map(|s| s.representation).collect()
     }
+}
+
+/// The channel a subscribed connection follows.
+struct Feed {
+    rx: Box<dyn FeedRx>,
+    /// Its position in [`Context::sources`].
+    source: usize,
 }
 
 /// How a frame is encoded for a client.
@@ -260,23 +369,18 @@ const ENCODE_CACHE_ENTRIES: usize = 16;
 impl Context {
     /// The fan-out of the channel `feed` follows.
     fn fanout(&self, feed: &Feed) -> &Arc<Fanout> {
-        match feed {
-            Feed::Lights(_) => &self.fanout,
-            Feed::Asg(_) => &self.fanout_asg,
-        }
+        &self.sources[feed.source].fanout
     }
 
-    /// The publication encoded for a client with `cap` in `encoding`.
+    /// The publication `published` of `feed` encoded for a client with `cap` in `encoding`.
     fn encoded(
         &self,
-        published: &Publication,
+        feed: &Feed,
+        published: &dyn Frame,
         cap: Option<usize>,
         encoding: Encoding,
     ) -> Arc<Vec<u8>> {
-        let cache = match published {
-            Publication::Lights(_) => &self.encoded,
-            Publication::Asg(_) => &self.encoded_asg,
-        };
+        let cache = &self.sources[feed.source].cache;
         let lock = || {
             cache
                 .lock()
@@ -295,26 +399,7 @@ impl Context {
                 }
             }
         }
-        let mut out = Vec::new();
-        match (encoding, published) {
-            (Encoding::Binary, Publication::Lights(p)) => {
-                encode_frame(&p.lights, cap, p.stale, &mut out)
-            }
-            (Encoding::Binary, Publication::Asg(p)) => {
-                encode_asg_frame(&p.set, cap, p.stale, &mut out)
-            }
-            (Encoding::JsonLine | Encoding::JsonText, _) => {
-                out = match published {
-                    Publication::Lights(p) => frame_to_json(&p.lights, cap, p.stale),
-                    Publication::Asg(p) => asg_frame_to_json(&p.set, cap, p.stale),
-                }
-                .into_bytes();
-                if encoding == Encoding::JsonLine {
-                    out.push(b'\n');
-                }
-            }
-        }
-        let bytes = Arc::new(out);
+        let bytes = Arc::new(published.encode(cap, encoding));
         let mut cache = lock();
         if index > cache.index {
             cache.index = index;
@@ -346,15 +431,14 @@ impl StreamServer {
         lights: watch::Receiver<LatestLights>,
         metrics: Arc<Metrics>,
     ) -> Result<StreamServer, ServerError> {
-        Self::start_with_asg(config, lights, None, metrics).await
+        Self::start_streams(config, Streams::new(lights), metrics).await
     }
 
-    /// As [`StreamServer::start`], also serving the ASG stage's sets (`asg`) to clients that
-    /// subscribe with representation `asg`.
-    pub async fn start_with_asg(
+    /// As [`StreamServer::start`], serving every channel of `streams` to the clients that
+    /// subscribe to its representation; other representations get error 6.
+    pub async fn start_streams(
         config: &ServerConfig,
-        lights: watch::Receiver<LatestLights>,
-        asg: Option<watch::Receiver<LatestAsg>>,
+        streams: Streams,
         metrics: Arc<Metrics>,
     ) -> Result<StreamServer, ServerError> {
         let ctx = Arc::new(Context {
@@ -362,11 +446,7 @@ impl StreamServer {
             metrics,
             clients: AtomicUsize::new(0),
             next_client: AtomicU64::new(1),
-            encoded: std::sync::Mutex::default(),
-            asg,
-            encoded_asg: std::sync::Mutex::default(),
-            fanout: Arc::default(),
-            fanout_asg: Arc::default(),
+            sources: streams.sources,
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
         let (done_tx, done_rx) = mpsc::channel(1);
@@ -386,13 +466,12 @@ impl StreamServer {
             Some(addr) => Some(bind_tcp("websocket", addr).await?),
             None => None,
         };
-        let mut fanout_threads = vec![spawn_fanout(
-            &ctx,
-            Feed::Lights(lights.clone()),
-            shutdown_tx.subscribe(),
-        )?];
-        if let Some(asg) = &ctx.asg {
-            let feed = Feed::Asg(asg.clone());
+        let mut fanout_threads = Vec::new();
+        for (source, served) in ctx.sources.iter().enumerate() {
+            let feed = Feed {
+                rx: served.rx.boxed_clone(),
+                source,
+            };
             match spawn_fanout(&ctx, feed, shutdown_tx.subscribe()) {
                 Ok(thread) => fanout_threads.push(thread),
                 Err(e) => {
@@ -408,21 +487,21 @@ impl StreamServer {
         if let Some((listener, path)) = unix {
             tracing::info!(path = %path.display(), "serving light lists on a unix socket");
             bound.unix_socket = Some(path.clone());
-            let accept = Acceptor::new(&ctx, "uds", &lights, &shutdown_tx, &done_tx);
+            let accept = Acceptor::new(&ctx, "uds", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.unix(listener, path)));
         }
         if let Some(listener) = tcp {
             let addr = listener.local_addr().ok();
             tracing::info!(address = ?addr, "serving light lists over tcp");
             bound.tcp = addr;
-            let accept = Acceptor::new(&ctx, "tcp", &lights, &shutdown_tx, &done_tx);
+            let accept = Acceptor::new(&ctx, "tcp", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.tcp(listener, false)));
         }
         if let Some(listener) = websocket {
             let addr = listener.local_addr().ok();
             tracing::info!(address = ?addr, "serving light lists over websocket");
             bound.websocket = addr;
-            let accept = Acceptor::new(&ctx, "websocket", &lights, &shutdown_tx, &done_tx);
+            let accept = Acceptor::new(&ctx, "websocket", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.tcp(listener, true)));
         }
         Ok(StreamServer {
@@ -529,7 +608,6 @@ async fn bind_tcp(endpoint: &'static str, addr: SocketAddr) -> Result<TcpListene
 struct Acceptor {
     ctx: Arc<Context>,
     endpoint: &'static str,
-    lights: watch::Receiver<LatestLights>,
     shutdown: watch::Receiver<Option<String>>,
     done: mpsc::Sender<()>,
 }
@@ -538,14 +616,12 @@ impl Acceptor {
     fn new(
         ctx: &Arc<Context>,
         endpoint: &'static str,
-        lights: &watch::Receiver<LatestLights>,
         shutdown: &watch::Sender<Option<String>>,
         done: &mpsc::Sender<()>,
     ) -> Self {
         Self {
             ctx: Arc::clone(ctx),
             endpoint,
-            lights: lights.clone(),
             shutdown: shutdown.subscribe(),
             done: done.clone(),
         }
@@ -626,7 +702,6 @@ impl Acceptor {
             ctx: Arc::clone(&self.ctx),
             endpoint: self.endpoint,
             name,
-            lights: self.lights.clone(),
             shutdown: self.shutdown.clone(),
             over_limit,
             _guard: guard,
@@ -653,8 +728,16 @@ async fn shutdown_message(shutdown: &mut watch::Receiver<Option<String>>) -> Str
 
 /// What woke a subscribed connection's task.
 enum Event<T> {
-    /// A new publication: light list or ASG set (false: the stream ended).
+    /// A new publication of the subscribed representation (false: the stream ended).
     Lights(bool),
+    /// The daemon is shutting down, with this goodbye.
+    Shutdown(String),
+    /// Input from the client.
+    Input(T),
+}
+
+/// What woke a Unix-socket or TCP connection's task while the fan-out writes its frames.
+enum StreamEvent<T> {
     /// The daemon is shutting down, with this goodbye.
     Shutdown(String),
     /// Input from the client.
@@ -713,7 +796,6 @@ struct Connection {
     ctx: Arc<Context>,
     endpoint: &'static str,
     name: String,
-    lights: watch::Receiver<LatestLights>,
     shutdown: watch::Receiver<Option<String>>,
     over_limit: bool,
     _guard: ClientGuard,
@@ -761,32 +843,28 @@ impl Connection {
 
     /// The request if this daemon produces its representation, with the feed to follow.
     fn check_request(&self, request: Request) -> Result<(Request, Feed), Close> {
-        let feed = match request.representation {
-            Representation::Lights => Some(Feed::Lights(self.lights.clone())),
-            Representation::Asg => self.ctx.asg.clone().map(Feed::Asg),
-            Representation::Wavelet => None,
-        };
-        match feed {
-            Some(feed) => Ok((request, feed)),
-            None => {
-                let produced = if self.ctx.asg.is_some() {
-                    "lights, asg"
-                } else {
-                    "lights; asg needs [asg] enabled = true"
-                };
-                let text = format!(
-                    "representation {} is not produced by this daemon (it produces: {produced})",
-                    request.representation.name()
-                );
-                self.count_error(&text);
-                Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text))
-            }
+        let sources = &self.ctx.sources;
+        if let Some(source) = sources
+            .iter()
+            .position(|s| s.representation == request.representation)
+        {
+            let rx = sources[source].rx.boxed_clone();
+            return Ok((request, Feed { rx, source }));
         }
+        let produced: Vec<&str> = sources.iter().map(|s| s.representation.name()).collect();
+        let name = request.representation.name();
+        let text = format!(
+            "representation {name} is not produced by this daemon (it produces: {}; {name} \
+             needs [{name}] enabled = true)",
+            produced.join(", ")
+        );
+        self.count_error(&text);
+        Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text))
     }
 
     /// Takes the newest publication if it is new to this client, counting skipped ones.
-    fn take_newest(&self, feed: &mut Feed, progress: &mut Progress) -> Option<Publication> {
-        let published = feed.newest()?;
+    fn take_newest(&self, feed: &mut Feed, progress: &mut Progress) -> Option<Arc<dyn Frame>> {
+        let published = feed.rx.newest()?;
         let index = published.index();
         if index <= progress.last_index {
             return None;
@@ -815,7 +893,7 @@ impl Connection {
         &self,
         write: impl std::future::Future<Output = Result<(), E>>,
         shutdown: &mut watch::Receiver<Option<String>>,
-        published: &Publication,
+        published: &dyn Frame,
     ) -> Option<Close> {
         let close = self.write_timed(write, shutdown).await;
         if close.is_none() {
@@ -860,7 +938,7 @@ impl Connection {
         }
     }
 
-    fn delivered(&self, published: &Publication) {
+    fn delivered(&self, published: &dyn Frame) {
         self.ctx
             .metrics
             .frames_sent
@@ -985,8 +1063,8 @@ impl Connection {
                     }
                     slot.delivered(unfinished.delivery_start);
                 }
-                if let Some(published) = slot.next_for_task(|| feed.newest()) {
-                    let out = self.ctx.encoded(&published, cap, encoding);
+                if let Some(published) = slot.next_for_task(|| feed.rx.newest()) {
+                    let out = self.ctx.encoded(&feed, &*published, cap, encoding);
                     let write = writer.write_all(out.as_slice());
                     if let Some(close) = self.write_timed(write, &mut shutdown).await {
                         slot.close();
@@ -1003,23 +1081,22 @@ impl Connection {
             let event = tokio::select! {
                 biased;
                 _ = slot.handed_over() => continue,
-                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
-                read = reader.read(&mut buf), if reading => Event::Input(read),
+                message = shutdown_message(&mut shutdown) => StreamEvent::Shutdown(message),
+                read = reader.read(&mut buf), if reading => StreamEvent::Input(read),
             };
             // From here on nobody writes frames; a frame left half written means no closing
             // message can follow.
-            if !matches!(event, Event::Input(Ok(0))) && slot.close() {
+            if !matches!(event, StreamEvent::Input(Ok(0))) && slot.close() {
                 return Close::Quiet;
             }
             match event {
-                Event::Lights(_) => unreachable!("publications come through the fan-out"),
-                Event::Shutdown(message) => return Close::Goodbye(message),
-                Event::Input(Ok(0)) => reading = false, // half-closed: keep sending
-                Event::Input(Ok(n)) => {
+                StreamEvent::Shutdown(message) => return Close::Goodbye(message),
+                StreamEvent::Input(Ok(0)) => reading = false, // half-closed: keep sending
+                StreamEvent::Input(Ok(n)) => {
                     decoder.push(&buf[..n]);
                     return self.unexpected_input(&mut decoder);
                 }
-                Event::Input(Err(_)) => return Close::Quiet,
+                StreamEvent::Input(Err(_)) => return Close::Quiet,
             }
         }
     }
@@ -1258,7 +1335,7 @@ impl Connection {
         loop {
             let event = tokio::select! {
                 biased;
-                changed = feed.changed() => Event::Lights(changed),
+                changed = feed.rx.changed() => Event::Lights(changed),
                 message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
                 next = source.next() => Event::Input(next),
             };
@@ -1272,15 +1349,21 @@ impl Connection {
                     };
                     let message = match request.format {
                         Format::Binary => {
-                            let out = self
-                                .ctx
-                                .encoded(&published, request.cap(), Encoding::Binary);
+                            let out = self.ctx.encoded(
+                                &feed,
+                                &*published,
+                                request.cap(),
+                                Encoding::Binary,
+                            );
                             tungstenite::Message::binary(out.as_slice().to_vec())
                         }
                         Format::Json => {
-                            let out =
-                                self.ctx
-                                    .encoded(&published, request.cap(), Encoding::JsonText);
+                            let out = self.ctx.encoded(
+                                &feed,
+                                &*published,
+                                request.cap(),
+                                Encoding::JsonText,
+                            );
                             match String::from_utf8(out.as_slice().to_vec()) {
                                 Ok(text) => tungstenite::Message::text(text),
                                 Err(_) => {
@@ -1293,7 +1376,7 @@ impl Connection {
                         }
                     };
                     let write = sink.send(message);
-                    if let Some(close) = self.write_frame(write, &mut shutdown, &published).await {
+                    if let Some(close) = self.write_frame(write, &mut shutdown, &*published).await {
                         return close;
                     }
                 }
