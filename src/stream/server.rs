@@ -29,7 +29,9 @@
 //!    half-closed socket) is fine: the client keeps receiving.
 //! 4. **Shutdown** sends a goodbye (code 0) and closes.
 
-use super::fanout::{Fanout, Shared, Slot, SlotMetrics, Socket, Writer, FANOUT_THREAD_NAME};
+use super::fanout::{
+    Fanout, FdSocket, Shared, Slot, SlotMetrics, Socket, Stream, Writer, FANOUT_THREAD_NAME,
+};
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
     encode_frame, encode_goodbye, frame_to_json, goodbye_to_json, Decoder, Format, Message,
@@ -638,7 +640,8 @@ impl Acceptor {
                 Ok((stream, _)) => {
                     self.limit_send_buffer(socket2::SockRef::from(&stream));
                     let peer = path.display().to_string();
-                    tokio::spawn(self.connection(peer).serve_stream(Arc::new(stream)));
+                    let socket = stream.into_std().map(Stream::Unix);
+                    self.serve(peer, socket);
                 }
                 Err(e) => accept_failed(self.endpoint, &e).await,
             }
@@ -656,14 +659,27 @@ impl Acceptor {
                 Ok((stream, peer)) => {
                     let _ = stream.set_nodelay(true);
                     self.limit_send_buffer(socket2::SockRef::from(&stream));
-                    let conn = self.connection(peer.to_string());
                     if websocket {
+                        let conn = self.connection(peer.to_string());
                         tokio::spawn(conn.serve_websocket(stream));
                     } else {
-                        tokio::spawn(conn.serve_stream(Arc::new(stream)));
+                        let socket = stream.into_std().map(Stream::Tcp);
+                        self.serve(peer.to_string(), socket);
                     }
                 }
                 Err(e) => accept_failed(self.endpoint, &e).await,
+            }
+        }
+    }
+
+    /// Starts a Unix-socket or TCP connection's task.
+    fn serve(&self, peer: String, stream: std::io::Result<Stream>) {
+        match stream.and_then(FdSocket::new) {
+            Ok(socket) => {
+                tokio::spawn(self.connection(peer).serve_stream(Arc::new(socket)));
+            }
+            Err(error) => {
+                tracing::warn!(endpoint = self.endpoint, %error, "cannot serve a connection");
             }
         }
     }
@@ -1073,6 +1089,8 @@ impl Connection {
                     slot.delivered(published.delivery_start());
                     continue;
                 }
+                // Handed back: the reactor need not watch for room any more.
+                socket.write_done();
             }
             if fanout.ended() {
                 slot.close();
