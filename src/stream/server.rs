@@ -12,18 +12,25 @@
 //!    `{`; on WebSocket a binary or text message). Anything else, a half-open connection that
 //!    never speaks, or a client that vanishes mid-message ends the connection (with an error
 //!    message where the client can still read it).
-//! 2. **Frames.** Each connection task waits on the latest-value channel of the representation
-//!    it subscribed to: the pipeline's light lists, or another stage's channel ([`Streams`]:
-//!    the ASG stage's sets; a representation the daemon does not produce gets error 6). Each
+//! 2. **Frames.** A client follows the latest-value channel of the representation it
+//!    subscribed to: the pipeline's light lists, or another stage's channel ([`Streams`]: the
+//!    ASG stage's sets; a representation the daemon does not produce gets error 6). Each
 //!    payload type says how it is encoded ([`Streamed`]), so the connection code is the same for
-//!    every representation. When a new publication appears it is encoded for this client (cap,
-//!    binary or JSON; once per publication, cap and form, shared by the clients that ask for
-//!    the same) and written.
-//!    A client that reads slowly blocks only its own task; meanwhile newer lists replace older
-//!    ones in the channel, so when the write completes it gets the newest one and the lists in
-//!    between are counted as skipped. Per client the server holds one encoded frame, so memory
-//!    stays bounded whatever the client does; a write that makes no progress for
-//!    [`ServerConfig::write_timeout`] closes the connection.
+//!    every representation. Each publication is encoded once per cap and form (binary or JSON),
+//!    shared by the clients that ask for the same.
+//!    - **Unix socket and TCP:** one `envlight-fanout` thread per channel, woken once per
+//!      publication, writes it to every client that keeps up in one pass of non-blocking writes
+//!      ([`super::fanout`]); no task is woken per client. A client whose socket is full goes to
+//!      its connection task, which finishes the frame, then sends the newest publication (the
+//!      ones in between are counted as skipped) and hands the client back. The task otherwise
+//!      only reads (input is an error, below) and waits for the shutdown.
+//!    - **WebSocket:** the connection task waits on the channel and writes each new
+//!      publication itself.
+//!
+//!    A client that reads slowly holds up nobody: newer publications replace older ones in the
+//!    channel, so when its write completes it gets the newest one. Per client the server holds
+//!    at most one encoded frame, so memory stays bounded whatever the client does; a write that
+//!    makes no progress for [`ServerConfig::write_timeout`] closes the connection.
 //! 3. **Client input after the subscribe** is not expected: any message is answered with an
 //!    error and the connection is closed; other clients are not affected. End of input (a
 //!    half-closed socket) is fine: the client keeps receiving.
