@@ -4,7 +4,9 @@
 //!
 //! Not a criterion benchmark (latency percentiles under a paced load are not what criterion
 //! measures); run it with `cargo bench --bench stream_latency` (add `-- --quick` for a short
-//! run). The whole chain runs in this process so one clock serves both ends: the built-in sky
+//! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp`,
+//! `--harness=threads|events|both`, `--sender=daemon|floor|both`, `--seconds=S`,
+//! `--repeat=N`; docs/performance.md "Streaming"). The whole chain runs in this process so one clock serves both ends: the built-in sky
 //! at 60 frames/s → pipeline (256 lights) → stream server (UDS or TCP, binary frames) → N
 //! clients (one blocking thread each, or one event loop), each stamping the moment a frame's
 //! last byte has been read.
