@@ -6,10 +6,10 @@
 //! measures); run it with `cargo bench --bench stream_latency` (add `-- --quick` for a short
 //! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp`,
 //! `--harness=threads|events|both`, `--sender=daemon|floor|both`, `--seconds=S`,
-//! `--repeat=N`; docs/performance.md "Streaming"). The whole chain runs in this process so one clock serves both ends: the built-in sky
-//! at 60 frames/s → pipeline (256 lights) → stream server (UDS or TCP, binary frames) → N
-//! clients (one blocking thread each, or one event loop), each stamping the moment a frame's
-//! last byte has been read.
+//! `--repeat=N`; docs/performance.md "Streaming"). The whole chain runs in this process so one
+//! clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
+//! server (UDS or TCP, binary frames) → N clients (one blocking thread each, or one event
+//! loop), each stamping the moment a frame's last byte has been read.
 //!
 //! `--sender=floor` replaces the daemon by the least a sender can do: one plain thread that
 //! writes the same pre-encoded 256-light frame to every client socket in turn with blocking

@@ -20,10 +20,10 @@
 //!    shared by the clients that ask for the same.
 //!    - **Unix socket and TCP:** one `envlight-fanout` thread per channel, woken once per
 //!      publication, writes it to every client that keeps up in one pass of non-blocking writes
-//!      ([`super::fanout`]); no task is woken per client. A client whose socket is full goes to
-//!      its connection task, which finishes the frame, then sends the newest publication (the
-//!      ones in between are counted as skipped) and hands the client back. The task otherwise
-//!      only reads (input is an error, below) and waits for the shutdown.
+//!      (`src/stream/fanout.rs`); no task is woken per client. A client whose socket is full
+//!      goes to its connection task, which finishes the frame, then sends the newest
+//!      publication (the ones in between are counted as skipped) and hands the client back. The
+//!      task otherwise only reads (input is an error, below) and waits for the shutdown.
 //!    - **WebSocket:** the connection task waits on the channel and writes each new
 //!      publication itself.
 //!
@@ -133,7 +133,7 @@ pub enum ServerError {
 }
 
 /// Starts the fan-out thread of `feed`'s channel: woken once per publication, it writes the
-/// publication to every client of [`Context::fanout`] that keeps up (see [`super::fanout`]).
+/// publication to every client of [`Context::fanout`] that keeps up (`src/stream/fanout.rs`).
 /// It ends at the shutdown broadcast, or once the channel has ended (then it tells the
 /// clients).
 fn spawn_fanout(
