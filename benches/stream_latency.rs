@@ -4,20 +4,37 @@
 //!
 //! Not a criterion benchmark (latency percentiles under a paced load are not what criterion
 //! measures); run it with `cargo bench --bench stream_latency` (add `-- --quick` for a short
-//! run). The whole chain runs in this process so one clock serves both ends: the built-in sky
-//! at 60 frames/s → pipeline (256 lights) → stream server (TCP, binary frames) → N client
-//! threads, each reading with blocking I/O and stamping the moment a frame is complete.
+//! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp`,
+//! `--harness=threads|events|both`, `--sender=daemon|floor|both`, `--seconds=S`,
+//! `--repeat=N`; docs/performance.md "Streaming"). The whole chain runs in this process so one
+//! clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
+//! server (UDS or TCP, binary frames) → N clients (one blocking thread each, or one event
+//! loop), each stamping the moment a frame's last byte has been read.
+//!
+//! `--sender=floor` replaces the daemon by the least a sender can do: one plain thread that
+//! writes the same pre-encoded 256-light frame to every client socket in turn with blocking
+//! writes, 60 times a second. Its "fan-out" is what the harness (the client threads, the
+//! kernel's socket path) costs by itself on this machine; the daemon's fan-out minus that is
+//! the server's own share.
+//!
+//! Besides the latencies, each row gives the CPU time per frame of the serving threads (the
+//! tokio workers and, if any, the fan-out thread; the floor's sender thread) and of all client
+//! threads together, from the scheduler's per-thread run time (`/proc/self/task/*/schedstat`),
+//! and the load average when the row ended: on a shared machine the wall-clock figures are
+//! noisy, the CPU times much less so.
 
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::capture::{CaptureError, FrameSource};
-use envlight::decompose::DecomposeSettings;
+use envlight::decompose::{DecomposeSettings, Decomposer};
 use envlight::metrics::Metrics;
 use envlight::pipeline::{Pipeline, PipelineOptions, PublishHook};
-use envlight::stream::client::{Client, Endpoint};
-use envlight::stream::protocol::encode_request;
+use envlight::stream::client::Endpoint;
+use envlight::stream::protocol::{encode_frame, encode_request};
 use envlight::stream::{Decoder, Format, Message, Request, ServerConfig, StreamServer};
-use envlight::HdrFrame;
+use envlight::{HdrFrame, LightFrame};
 use std::collections::HashMap;
+use std::io::{Read, Write};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -36,6 +53,113 @@ struct Run {
     published: u64,
     /// Per client: frames missed among those published while it was connected.
     missed: Vec<u64>,
+    /// CPU time per published frame of the serving threads (or the floor's sender).
+    serve_cpu: Duration,
+    /// CPU time per published frame of all client threads together.
+    client_cpu: Duration,
+}
+
+/// A client that gets nothing for this long gives up.
+const READ_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The measurement window ends this long before the clients stop.
+const WINDOW_END: Duration = Duration::from_millis(300);
+
+/// Names (as the kernel keeps them, at most 15 bytes) of the threads counted as serving.
+const SERVING_THREADS: &[&str] = &["envlight-serve", "envlight-fanout", "bench sender"];
+/// Name of the client threads (thread per client, or the one event loop).
+const CLIENT_THREADS: &[&str] = &["bench client", "bench clients"];
+
+/// Run time in nanoseconds of this process's threads, summed by thread name.
+fn thread_run_times() -> HashMap<String, u64> {
+    let mut times = HashMap::new();
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return times;
+    };
+    for task in tasks.flatten() {
+        let dir = task.path();
+        let (Ok(name), Ok(stat)) = (
+            std::fs::read_to_string(dir.join("comm")),
+            std::fs::read_to_string(dir.join("schedstat")),
+        ) else {
+            continue;
+        };
+        let run_ns: u64 = stat
+            .split_whitespace()
+            .next()
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(0);
+        *times.entry(name.trim_end().to_owned()).or_default() += run_ns;
+    }
+    times
+}
+
+/// CPU time per frame of the threads named in `names` between two snapshots.
+fn cpu_per_frame(
+    before: &HashMap<String, u64>,
+    after: &HashMap<String, u64>,
+    names: &[&str],
+    frames: u64,
+) -> Duration {
+    let total: u64 = names
+        .iter()
+        .map(|name| {
+            let a = after.get(*name).copied().unwrap_or(0);
+            let b = before.get(*name).copied().unwrap_or(0);
+            a.saturating_sub(b)
+        })
+        .sum();
+    Duration::from_nanos(total / frames.max(1))
+}
+
+/// The 1-minute load average.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|l| l.split_whitespace().next().map(str::to_owned))
+        .unwrap_or_else(|| "?".to_owned())
+}
+
+/// Turns the stamps of the measured frames (`first_seq..=last_seq`) into a [`Run`].
+fn analyse(
+    arrivals: &HashMap<u64, Stamps>,
+    received: &[Received],
+    first_seq: u64,
+    last_seq: u64,
+    cpu: (&HashMap<String, u64>, &HashMap<String, u64>),
+) -> Run {
+    let mut latencies = Vec::new();
+    let mut fan_out = Vec::new();
+    let mut missed = Vec::new();
+    let mut decompose: Vec<Duration> = (first_seq..=last_seq)
+        .filter_map(|seq| arrivals.get(&seq).map(|a| a.2))
+        .collect();
+    decompose.sort();
+    for frames in received {
+        let mut seen = 0u64;
+        for &(seq, at) in frames {
+            if (first_seq..=last_seq).contains(&seq) {
+                seen += 1;
+                if let Some((arrived, published, _)) = arrivals.get(&seq) {
+                    latencies.push(at.saturating_duration_since(*arrived));
+                    fan_out.push(at.saturating_duration_since(*published));
+                }
+            }
+        }
+        missed.push((last_seq + 1).saturating_sub(first_seq) - seen);
+    }
+    latencies.sort();
+    fan_out.sort();
+    let published = (last_seq + 1).saturating_sub(first_seq);
+    Run {
+        latencies,
+        fan_out,
+        decompose,
+        published,
+        missed,
+        serve_cpu: cpu_per_frame(cpu.0, cpu.1, SERVING_THREADS, published),
+        client_cpu: cpu_per_frame(cpu.0, cpu.1, CLIENT_THREADS, published),
+    }
 }
 
 fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lights: usize) -> Run {
@@ -46,19 +170,15 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
         on_publish: Some(PublishHook(Arc::new(move |published| {
             if let Some(arrived) = published.arrived {
                 hook_arrivals.lock().unwrap().insert(
-                    published.lights.seq,
-                    (arrived, published.published_at, published.decompose_time),
+                    published.payload.seq,
+                    (arrived, published.published_at, published.compute_time),
                 );
             }
         }))),
         ..PipelineOptions::new()
     };
-    let settings = DecomposeSettings {
-        lights,
-        working_width: 128,
-        ..DecomposeSettings::default()
-    };
-    let pipeline = Pipeline::start(Box::new(sky), settings, options).expect("pipeline");
+    let pipeline =
+        Pipeline::start(Box::new(sky), bench_settings(lights), options).expect("pipeline");
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("envlight-serve")
@@ -89,32 +209,23 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
         ..Request::default()
     };
     let deadline = Instant::now() + Duration::from_secs_f64(seconds + 1.0);
-    let handles = match harness {
-        Harness::Threads => thread_clients(&endpoint, &request, clients, deadline),
-        Harness::EventLoop => {
-            vec![event_loop_clients(
-                endpoint.clone(),
-                &request,
-                clients,
-                deadline,
-            )]
-        }
-    };
+    let handles = start_clients(harness, &endpoint, &request, clients, deadline);
     // Measure only while every client is connected: from one second in until the deadline.
     std::thread::sleep(Duration::from_secs(1));
-    let first_seq = pipeline
-        .subscribe()
-        .borrow()
-        .as_ref()
-        .map_or(0, |p| p.lights.seq)
-        + 2;
-    std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
-    let last_seq = pipeline
-        .subscribe()
-        .borrow()
-        .as_ref()
-        .map_or(0, |p| p.lights.seq)
-        .saturating_sub(2);
+    let newest = || {
+        pipeline
+            .subscribe()
+            .borrow()
+            .as_ref()
+            .map_or(0, |p| p.payload.seq)
+    };
+    let first_seq = newest() + 2;
+    let cpu_before = thread_run_times();
+    // The window ends a little before the clients stop (their threads must still be there
+    // for their CPU time to be read).
+    std::thread::sleep((deadline - WINDOW_END).saturating_duration_since(Instant::now()));
+    let cpu_after = thread_run_times();
+    let last_seq = newest().saturating_sub(2);
     let received: Vec<_> = handles
         .into_iter()
         .flat_map(|h| h.join().expect("client"))
@@ -123,45 +234,180 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
     runtime.block_on(server.shutdown("bench done", Duration::from_millis(200)));
     let _ = pipeline.join();
     let arrivals = arrivals.lock().unwrap();
-    let mut latencies = Vec::new();
-    let mut fan_out = Vec::new();
-    let mut missed = Vec::new();
-    let mut decompose: Vec<Duration> = (first_seq..=last_seq)
-        .filter_map(|seq| arrivals.get(&seq).map(|a| a.2))
-        .collect();
-    decompose.sort();
-    for frames in &received {
-        let mut seen = 0u64;
-        for &(seq, at) in frames {
-            if (first_seq..=last_seq).contains(&seq) {
-                seen += 1;
-                if let Some((arrived, published, _)) = arrivals.get(&seq) {
-                    latencies.push(at.saturating_duration_since(*arrived));
-                    fan_out.push(at.saturating_duration_since(*published));
-                }
+    analyse(
+        &arrivals,
+        &received,
+        first_seq,
+        last_seq,
+        (&cpu_before, &cpu_after),
+    )
+}
+
+/// The harness floor: one plain thread writes a pre-encoded 256-light frame to every client
+/// socket in turn (blocking writes, the daemon's socket options) at 60 frames/s. Publication
+/// and arrival are both the moment before the first write.
+fn run_floor(transport: Transport, harness: Harness, clients: usize, seconds: f64) -> Run {
+    let frame = sample_light_frame();
+    let socket_dir = tempfile::tempdir().expect("socket dir");
+    let defaults = ServerConfig::default();
+    let send_buffer = defaults.send_buffer_bytes;
+    let (endpoint, listener): (Endpoint, Box<dyn FnMut() -> Box<dyn Write + Send> + Send>) =
+        match transport {
+            Transport::Unix => {
+                let path = socket_dir.path().join("floor.sock");
+                let listener = std::os::unix::net::UnixListener::bind(&path).expect("bind uds");
+                (
+                    Endpoint::Unix(path),
+                    Box::new(move || {
+                        let (stream, _) = listener.accept().expect("accept uds");
+                        if let Some(bytes) = send_buffer {
+                            let _ = socket2::SockRef::from(&stream).set_send_buffer_size(bytes);
+                        }
+                        Box::new(stream)
+                    }),
+                )
             }
-        }
-        missed.push((last_seq + 1).saturating_sub(first_seq) - seen);
+            Transport::Tcp => {
+                let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind tcp");
+                let addr = listener.local_addr().expect("tcp address");
+                (
+                    Endpoint::Tcp(addr.to_string()),
+                    Box::new(move || {
+                        let (stream, _) = listener.accept().expect("accept tcp");
+                        let _ = stream.set_nodelay(true);
+                        if let Some(bytes) = send_buffer {
+                            let _ = socket2::SockRef::from(&stream).set_send_buffer_size(bytes);
+                        }
+                        Box::new(stream)
+                    }),
+                )
+            }
+        };
+    let arrivals: Arc<Mutex<HashMap<u64, Stamps>>> = Arc::default();
+    let newest = Arc::new(AtomicU64::new(0));
+    let deadline = Instant::now() + Duration::from_secs_f64(seconds + 1.0);
+    let sender = {
+        let arrivals = Arc::clone(&arrivals);
+        let newest = Arc::clone(&newest);
+        let mut accept = listener;
+        std::thread::Builder::new()
+            .name("bench sender".to_owned())
+            .spawn(move || {
+                let mut sockets: Vec<_> = (0..clients).map(|_| accept()).collect();
+                let start = Instant::now();
+                let mut out = Vec::new();
+                for seq in 1u64.. {
+                    let due = start + Duration::from_secs_f64(seq as f64 / 60.0);
+                    if due >= deadline {
+                        break;
+                    }
+                    std::thread::sleep(due.saturating_duration_since(Instant::now()));
+                    let frame = LightFrame {
+                        seq,
+                        ..frame.clone()
+                    };
+                    out.clear();
+                    encode_frame(&frame, None, false, &mut out);
+                    let now = Instant::now();
+                    arrivals
+                        .lock()
+                        .unwrap()
+                        .insert(seq, (now, now, Duration::ZERO));
+                    for socket in &mut sockets {
+                        let _ = socket.write_all(&out);
+                    }
+                    newest.store(seq, Ordering::Release);
+                }
+            })
+            .expect("sender thread")
+    };
+    let request = Request {
+        format: Format::Binary,
+        ..Request::default()
+    };
+    let handles = start_clients(harness, &endpoint, &request, clients, deadline);
+    std::thread::sleep(Duration::from_secs(1));
+    let first_seq = newest.load(Ordering::Acquire) + 2;
+    let cpu_before = thread_run_times();
+    // The window ends a little before the clients stop (their threads must still be there
+    // for their CPU time to be read).
+    std::thread::sleep((deadline - WINDOW_END).saturating_duration_since(Instant::now()));
+    let cpu_after = thread_run_times();
+    let last_seq = newest.load(Ordering::Acquire).saturating_sub(2);
+    sender.join().expect("sender");
+    let received: Vec<_> = handles
+        .into_iter()
+        .flat_map(|h| h.join().expect("client"))
+        .collect();
+    let arrivals = arrivals.lock().unwrap();
+    analyse(
+        &arrivals,
+        &received,
+        first_seq,
+        last_seq,
+        (&cpu_before, &cpu_after),
+    )
+}
+
+/// One decomposed sky frame (256 lights), the floor sender's payload.
+fn sample_light_frame() -> LightFrame {
+    let sky = render_sky(
+        &SkyOptions {
+            width: 256,
+            height: 128,
+            ..SkyOptions::default()
+        },
+        0.0,
+    );
+    let mut decomposer = Decomposer::new(bench_settings(256)).expect("decomposer");
+    decomposer.decompose(&sky)
+}
+
+fn bench_settings(lights: usize) -> DecomposeSettings {
+    DecomposeSettings {
+        lights,
+        working_width: 128,
+        ..DecomposeSettings::default()
     }
-    latencies.sort();
-    fan_out.sort();
-    Run {
-        latencies,
-        fan_out,
-        decompose,
-        published: (last_seq + 1).saturating_sub(first_seq),
-        missed,
+}
+
+fn start_clients(
+    harness: Harness,
+    endpoint: &Endpoint,
+    request: &Request,
+    clients: usize,
+    deadline: Instant,
+) -> Vec<std::thread::JoinHandle<Vec<Received>>> {
+    match harness {
+        Harness::Threads => thread_clients(endpoint, request, clients, deadline),
+        Harness::EventLoop => {
+            vec![event_loop_clients(
+                endpoint.clone(),
+                request,
+                clients,
+                deadline,
+            )]
+        }
     }
 }
 
 /// How the bench's clients read.
 #[derive(Clone, Copy, Debug)]
 enum Harness {
-    /// One OS thread per client, blocking reads (`envlight::stream::client::Client`).
+    /// One OS thread per client, blocking reads.
     Threads,
     /// All clients on one thread: a current-thread tokio runtime, one task per client (how a
     /// load generator reads many sockets; the server sees the same connections).
     EventLoop,
+}
+
+/// What writes the frames to the clients.
+#[derive(Clone, Copy, Debug)]
+enum Sender {
+    /// The pipeline and the stream server: what is measured.
+    Daemon,
+    /// One plain thread writing a pre-encoded frame to every socket: the harness's floor.
+    Floor,
 }
 
 /// A connected client socket of either transport.
@@ -235,21 +481,46 @@ fn thread_clients(
     clients: usize,
     deadline: Instant,
 ) -> Vec<std::thread::JoinHandle<Vec<Received>>> {
+    let mut subscribe = Vec::new();
+    encode_request(request, &mut subscribe);
     (0..clients)
         .map(|_| {
-            let mut client =
-                Client::connect(endpoint, request, Some(Duration::from_secs(10))).expect("connect");
+            let mut stream: Box<dyn std::io::Read + Send> = match endpoint {
+                Endpoint::Unix(path) => {
+                    let mut s = std::os::unix::net::UnixStream::connect(path).expect("uds");
+                    s.set_read_timeout(Some(READ_TIMEOUT)).expect("timeout");
+                    s.write_all(&subscribe).expect("subscribe");
+                    Box::new(s)
+                }
+                Endpoint::Tcp(addr) => {
+                    let mut s = std::net::TcpStream::connect(addr.as_str()).expect("tcp");
+                    s.set_nodelay(true).expect("nodelay");
+                    s.set_read_timeout(Some(READ_TIMEOUT)).expect("timeout");
+                    s.write_all(&subscribe).expect("subscribe");
+                    Box::new(s)
+                }
+                Endpoint::WebSocket(_) => unreachable!("the bench serves TCP and UDS"),
+            };
             std::thread::Builder::new()
                 .name("bench client".to_owned())
                 .stack_size(256 * 1024)
                 .spawn(move || {
+                    // As the event loop: the stamp is taken when the read that completes a
+                    // frame returns, before the frame is decoded (decoded in full all the same).
                     let mut received = Vec::new();
+                    let mut decoder = Decoder::new();
+                    let mut buf = vec![0u8; 64 * 1024];
                     while Instant::now() < deadline {
-                        match client.next_message() {
-                            Ok(Some(Message::Frame(frame))) => {
-                                received.push((frame.seq, Instant::now()))
+                        let n = match stream.read(&mut buf) {
+                            Ok(0) | Err(_) => break,
+                            Ok(n) => n,
+                        };
+                        let at = Instant::now();
+                        decoder.push(&buf[..n]);
+                        while let Ok(Some(message)) = decoder.next_message() {
+                            if let Message::Frame(frame) = message {
+                                received.push((frame.seq, at));
                             }
-                            _ => break,
                         }
                     }
                     vec![received]
@@ -356,6 +627,11 @@ fn main() {
         Some("tcp") => vec![Transport::Tcp],
         _ => vec![Transport::Unix, Transport::Tcp],
     };
+    let senders: Vec<Sender> = match option("--sender=").as_deref() {
+        Some("floor") => vec![Sender::Floor],
+        Some("both") => vec![Sender::Daemon, Sender::Floor],
+        _ => vec![Sender::Daemon],
+    };
     let counts: Vec<usize> = match option("--clients=") {
         Some(list) => list
             .split(',')
@@ -364,34 +640,50 @@ fn main() {
         None if quick => vec![64, 256],
         None => vec![1, 64, 128, 256, 512, 1024],
     };
-    let seconds = if quick { 3.0 } else { 10.0 };
+    let seconds = match option("--seconds=") {
+        Some(s) => s.parse().expect("--seconds=S"),
+        None if quick => 3.0,
+        None => 10.0,
+    };
+    let repeat: usize = option("--repeat=").map_or(1, |n| n.parse().expect("--repeat=N"));
     println!("stream latency: sky 256x128 at 60 frames/s, 256 lights, binary frames");
     println!(
-        "arrival at the decomposition → last byte at a client (end to end), and its two parts"
+        "arrival at the decomposition → last byte at a client (end to end), and its two parts; \
+         CPU per frame: serving threads / all client threads"
     );
     for transport in transports {
         for &harness in &harnesses {
-            println!();
-            println!("endpoint: {transport:?}; clients: {harness:?}");
-            println!(
-                "| clients | frames | decompose p50 | fan-out p50 | fan-out p99 | end-to-end p50 | end-to-end p99 | end-to-end max | clients with loss | frames missed |"
-            );
-            println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-            for &clients in &counts {
-                let r = run(transport, harness, clients, seconds, 256);
-                let lossy = r.missed.iter().filter(|&&m| m > 0).count();
-                let missed: u64 = r.missed.iter().sum();
-                let ms = |d: Duration| d.as_secs_f64() * 1e3;
+            for &sender in &senders {
+                println!();
+                println!("endpoint: {transport:?}; clients: {harness:?}; sender: {sender:?}");
                 println!(
-                    "| {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} |",
-                    r.published,
-                    ms(percentile(&r.decompose, 0.5)),
-                    ms(percentile(&r.fan_out, 0.5)),
-                    ms(percentile(&r.fan_out, 0.99)),
-                    ms(percentile(&r.latencies, 0.5)),
-                    ms(percentile(&r.latencies, 0.99)),
-                    ms(percentile(&r.latencies, 1.0)),
+                    "| clients | frames | decompose p50 | fan-out p50 | fan-out p99 | end-to-end p50 | end-to-end p99 | end-to-end max | clients with loss | frames missed | serve CPU/frame | client CPU/frame | load |"
                 );
+                println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+                for &clients in &counts {
+                    for _ in 0..repeat {
+                        let r = match sender {
+                            Sender::Daemon => run(transport, harness, clients, seconds, 256),
+                            Sender::Floor => run_floor(transport, harness, clients, seconds),
+                        };
+                        let lossy = r.missed.iter().filter(|&&m| m > 0).count();
+                        let missed: u64 = r.missed.iter().sum();
+                        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+                        println!(
+                            "| {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {} |",
+                            r.published,
+                            ms(percentile(&r.decompose, 0.5)),
+                            ms(percentile(&r.fan_out, 0.5)),
+                            ms(percentile(&r.fan_out, 0.99)),
+                            ms(percentile(&r.latencies, 0.5)),
+                            ms(percentile(&r.latencies, 0.99)),
+                            ms(percentile(&r.latencies, 1.0)),
+                            ms(r.serve_cpu),
+                            ms(r.client_cpu),
+                            load_average(),
+                        );
+                    }
+                }
             }
         }
     }

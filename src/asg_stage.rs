@@ -18,9 +18,9 @@
 //!   The lights then advance at the fit's pace.
 //! - **Thread** `envlight-asg` runs an [`AsgFitter`]: the first frame is fitted from scratch,
 //!   every later one is warm-started from the previous lobes (skipped frames simply are not
-//!   part of that chain). Each result is published as a [`PublishedAsg`] (numbered like
-//!   [`crate::pipeline::Published`], so a consumer can count what it skipped) with its fit
-//!   time. A frame that cannot be fitted, or whose fit has a lobe the wire format rejects
+//!   part of that chain). Each result is published as a [`PublishedAsg`] (a
+//!   [`crate::publication::Publication`], numbered like the lights', so a consumer can count
+//!   what it skipped) with its fit time. A frame that cannot be fitted, or whose fit has a lobe the wire format rejects
 //!   ([`crate::stream::protocol::validate_lobe`]), is logged and counted
 //!   ([`AsgStats::fit_errors`]); the stage goes on with the next one.
 //! - **Reconfiguration** ([`AsgStage::reconfigure`], SIGHUP) swaps in a new fitter before the
@@ -33,6 +33,7 @@ use crate::asg::fit::{AsgFitter, FitSettings};
 use crate::asg::AsgError;
 use crate::frame::HdrFrame;
 use crate::light::AsgSet;
+use crate::publication::{publish, Latest, Publication};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -42,45 +43,12 @@ use tokio::sync::watch;
 /// Name of the ASG thread.
 pub const ASG_THREAD_NAME: &str = "envlight-asg";
 
-/// One publication of the ASG stage.
-#[derive(Clone, Debug)]
-pub struct PublishedAsg {
-    /// 1 for the first publication, one more for each later one (stale re-publications
-    /// included).
-    pub index: u64,
-    /// The fitted lobes.
-    pub set: Arc<AsgSet>,
-    /// The lobes are the last known ones and the source is lost.
-    pub stale: bool,
-    /// When the frame was handed to the stage (`None` for a stale re-publication).
-    pub arrived: Option<Instant>,
-    /// How long the fit took.
-    pub fit_time: Duration,
-    /// When it was published.
-    pub published_at: Instant,
-}
-
-impl PublishedAsg {
-    fn after(
-        previous: Option<&PublishedAsg>,
-        set: Arc<AsgSet>,
-        stale: bool,
-        arrived: Option<Instant>,
-        fit_time: Duration,
-    ) -> Arc<Self> {
-        Arc::new(Self {
-            index: previous.map_or(0, |p| p.index) + 1,
-            set,
-            stale,
-            arrived,
-            fit_time,
-            published_at: Instant::now(),
-        })
-    }
-}
+/// One publication of the ASG stage: the fitted set is the [`Publication::payload`],
+/// [`Publication::compute_time`] the fit time.
+pub type PublishedAsg = Publication<AsgSet>;
 
 /// What ASG consumers receive: the newest publication, `None` until the first one.
-pub type LatestAsg = Option<Arc<PublishedAsg>>;
+pub type LatestAsg = Latest<AsgSet>;
 
 /// Counters of the ASG stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -301,15 +269,7 @@ impl AsgStage {
                         .last_fit_nanos
                         .store(nanos, Ordering::Release);
                     thread_shared.fits.fetch_add(1, Ordering::AcqRel);
-                    thread_tx.send_modify(|latest| {
-                        *latest = Some(PublishedAsg::after(
-                            latest.as_deref(),
-                            set,
-                            false,
-                            Some(arrived),
-                            elapsed,
-                        ));
-                    });
+                    publish(&thread_tx, set, Some(arrived), elapsed);
                     if let Some(hook) = &on_publish {
                         if let Some(published) = thread_tx.borrow().as_ref() {
                             hook(published);
@@ -367,7 +327,7 @@ impl AsgStage {
 
     /// A handle for [`AsgStage::set_stale`] from another thread.
     pub fn stale_handle(&self) -> AsgStaleHandle {
-        AsgStaleHandle(Arc::clone(&self.tx))
+        AsgStaleHandle::new(Arc::clone(&self.tx))
     }
 
     /// Whether the thread has ended (the feed was closed and drained).
@@ -418,31 +378,7 @@ impl AsgStatsHandle {
 }
 
 /// Marks the newest ASG set stale or live; see [`AsgStage::set_stale`].
-#[derive(Clone)]
-pub struct AsgStaleHandle(Arc<watch::Sender<LatestAsg>>);
-
-impl AsgStaleHandle {
-    /// As [`AsgStage::set_stale`].
-    pub fn set_stale(&self, stale: bool) -> bool {
-        let mut changed = false;
-        self.0.send_if_modified(|latest| match latest {
-            Some(p) if p.stale != stale => {
-                let set = Arc::clone(&p.set);
-                *latest = Some(PublishedAsg::after(
-                    Some(p),
-                    set,
-                    stale,
-                    None,
-                    Duration::ZERO,
-                ));
-                changed = true;
-                true
-            }
-            _ => false,
-        });
-        changed
-    }
-}
+pub type AsgStaleHandle = crate::publication::StaleHandle<AsgSet>;
 
 #[cfg(test)]
 mod tests {
@@ -514,7 +450,7 @@ mod tests {
             while rx.changed().await.is_ok() {
                 let p = rx.borrow_and_update().clone().unwrap();
                 seen.push(p);
-                if seen.last().unwrap().set.seq == 4 {
+                if seen.last().unwrap().payload.seq == 4 {
                     break;
                 }
             }
@@ -532,10 +468,10 @@ mod tests {
             want.push(AsgSet::from_fit(seq, seq as f64 / 30.0, &r.lobes));
         }
         let last = seen.last().unwrap();
-        assert_eq!(*last.set, want[4]);
+        assert_eq!(*last.payload, want[4]);
         assert_eq!(last.index, 5, "every fit was published");
         for p in &seen {
-            assert_eq!(*p.set, want[p.set.seq as usize]);
+            assert_eq!(*p.payload, want[p.payload.seq as usize]);
         }
     }
 
@@ -559,7 +495,7 @@ mod tests {
         let live = stage.subscribe().borrow().clone().unwrap();
         assert!(stage.set_stale(true));
         let stale = stage.subscribe().borrow().clone().unwrap();
-        assert!(stale.stale && Arc::ptr_eq(&stale.set, &live.set));
+        assert!(stale.stale && Arc::ptr_eq(&stale.payload, &live.payload));
         assert_eq!(stale.index, live.index + 1);
         let stats = stage.join().unwrap();
         assert_eq!(stats.fits, 1);

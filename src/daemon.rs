@@ -42,7 +42,7 @@ use crate::pipeline::{
     QueuePolicy, StaleHandle, StatsHandle,
 };
 use crate::record::{Pacing, RecordError, RecordSummary, Recorder, ReplaySource};
-use crate::stream::server::{ServerError, SHUTDOWN_MESSAGE};
+use crate::stream::server::{ServerError, Streams, SHUTDOWN_MESSAGE};
 use crate::stream::{BoundAddresses, StreamServer};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -197,7 +197,7 @@ impl Daemon {
         let metrics = Arc::new(Metrics::new());
         let hook_metrics = Arc::clone(&metrics);
         let on_publish = PublishHook(Arc::new(move |published| {
-            hook_metrics.observe_decompose(published.decompose_time);
+            hook_metrics.observe_decompose(published.compute_time);
         }));
         let (tap, recorder) = match record {
             Some(dir) => {
@@ -220,7 +220,7 @@ impl Daemon {
             let hook: crate::asg_stage::AsgHook = Arc::new(move |published| {
                 hook_metrics
                     .asg_fit_seconds
-                    .observe(published.fit_time.as_secs_f64());
+                    .observe(published.compute_time.as_secs_f64());
             });
             Some(AsgStage::start(
                 config.asg.fit.clone(),
@@ -250,13 +250,9 @@ impl Daemon {
 
         // Endpoints: if one cannot be bound, stop what was started and report it.
         let started = runtime.block_on(async {
-            let server = StreamServer::start_with_asg(
-                &config.stream,
-                pipeline.subscribe(),
-                asg_rx.clone(),
-                Arc::clone(&metrics),
-            )
-            .await?;
+            let streams = Streams::new(pipeline.subscribe()).with_optional(asg_rx.clone());
+            let server =
+                StreamServer::start_streams(&config.stream, streams, Arc::clone(&metrics)).await?;
             let http = match config.metrics.listen {
                 Some(address) => {
                     let listener = tokio::net::TcpListener::bind(address)
@@ -652,7 +648,7 @@ impl RenderThread {
             let Some(published) = self.lights.borrow_and_update().clone() else {
                 continue;
             };
-            let all = published.lights.lights.len();
+            let all = published.payload.lights.len();
             let count = match self.config.budget_ms {
                 Some(ms) => controller
                     .get_or_insert_with(|| {
@@ -661,7 +657,7 @@ impl RenderThread {
                     .count(),
                 None => all,
             };
-            let used = light_prefix(&published.lights.lights, count);
+            let used = light_prefix(&published.payload.lights, count);
             let result = if let Some(path) = &self.config.latest_png {
                 self.renderer.render(&used).and_then(|(image, stats)| {
                     let exposure = output::auto_exposure(&image);
@@ -719,7 +715,7 @@ impl RenderThread {
                 continue;
             };
             let lobes: Vec<crate::asg::Asg> = published
-                .set
+                .payload
                 .lobes
                 .iter()
                 .filter_map(crate::light::AsgLobe::to_asg)
@@ -839,8 +835,8 @@ impl HttpState {
             "status": if healthy { "ok" } else { "unhealthy" },
             "reason": reason,
             "newest_age_s": age.map(|a| a.as_secs_f64()),
-            "seq": latest.as_ref().map(|p| p.lights.seq),
-            "lights": latest.as_ref().map(|p| p.lights.lights.len()),
+            "seq": latest.as_ref().map(|p| p.payload.seq),
+            "lights": latest.as_ref().map(|p| p.payload.lights.len()),
             "frames_decomposed": stats.frames_decomposed,
             "frames_dropped": stats.frames_dropped,
         });

@@ -21,6 +21,7 @@ pub mod frame;
 pub mod light;
 pub mod metrics;
 pub mod pipeline;
+pub mod publication;
 pub mod record;
 pub mod render;
 pub mod stream;

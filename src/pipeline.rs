@@ -49,6 +49,7 @@ use crate::capture::{CaptureError, FrameSource};
 use crate::decompose::{DecomposeError, DecomposeSettings, Decomposer};
 use crate::frame::HdrFrame;
 use crate::light::LightFrame;
+use crate::publication::{publish, Latest, Publication};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -61,48 +62,12 @@ pub const CAPTURE_THREAD_NAME: &str = "envlight-capture";
 /// Name of the decompose thread.
 pub const DECOMPOSE_THREAD_NAME: &str = "envlight-decompose";
 
-/// One publication on the latest-value channel.
-#[derive(Clone, Debug)]
-pub struct Published {
-    /// 1 for the first publication, one more for each later one (stale re-publications
-    /// included). A consumer that last handled index `i` and now reads `j` skipped `j − i − 1`.
-    pub index: u64,
-    /// The light list.
-    pub lights: Arc<LightFrame>,
-    /// The lights are the last known ones and the source is lost (set by
-    /// [`Pipeline::set_stale`]; a newly decomposed frame is never stale).
-    pub stale: bool,
-    /// When the source frame reached the decompose thread (`None` for a stale re-publication).
-    /// Latency measurements start here.
-    pub arrived: Option<Instant>,
-    /// How long its decomposition took.
-    pub decompose_time: Duration,
-    /// When it was published.
-    pub published_at: Instant,
-}
-
-impl Published {
-    /// The publication that follows `previous` (numbered one more), stamped now.
-    fn after(
-        previous: Option<&Published>,
-        lights: Arc<LightFrame>,
-        stale: bool,
-        arrived: Option<Instant>,
-        decompose_time: Duration,
-    ) -> Arc<Published> {
-        Arc::new(Published {
-            index: previous.map_or(0, |p| p.index) + 1,
-            lights,
-            stale,
-            arrived,
-            decompose_time,
-            published_at: Instant::now(),
-        })
-    }
-}
+/// One publication on the lights' latest-value channel: the light list is the
+/// [`Publication::payload`], [`Publication::compute_time`] the decomposition time.
+pub type Published = Publication<LightFrame>;
 
 /// What consumers receive: the newest publication, `None` until the first one.
-pub type LatestLights = Option<Arc<Published>>;
+pub type LatestLights = Latest<LightFrame>;
 
 /// What a full capture → decompose queue does with a new frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -233,25 +198,6 @@ impl Shared {
     }
 }
 
-/// Publishes on the latest-value channel, numbering publications under the channel's lock.
-fn publish(
-    tx: &watch::Sender<LatestLights>,
-    lights: Arc<LightFrame>,
-    stale: bool,
-    arrived: Option<Instant>,
-    decompose_time: Duration,
-) {
-    tx.send_modify(|latest| {
-        *latest = Some(Published::after(
-            latest.as_deref(),
-            lights,
-            stale,
-            arrived,
-            decompose_time,
-        ));
-    });
-}
-
 /// A running capture → decompose pipeline. See the module documentation.
 pub struct Pipeline {
     shared: Arc<Shared>,
@@ -328,13 +274,7 @@ impl Pipeline {
                     s.light_count
                         .store(lights.lights.len() as u64, Ordering::Release);
                     s.frames_decomposed.fetch_add(1, Ordering::AcqRel);
-                    publish(
-                        &decompose_tx,
-                        Arc::clone(&lights),
-                        false,
-                        Some(arrived),
-                        elapsed,
-                    );
+                    publish(&decompose_tx, Arc::clone(&lights), Some(arrived), elapsed);
                     if let Some(PublishHook(hook)) = &on_publish {
                         if let Some(published) = decompose_tx.borrow().as_ref() {
                             hook(published);
@@ -443,7 +383,7 @@ impl Pipeline {
     /// A handle that marks the lights stale or live from another thread (the daemon's source
     /// health monitor; the capture thread itself is busy reconnecting).
     pub fn stale_handle(&self) -> StaleHandle {
-        StaleHandle(Arc::clone(&self.lights_tx))
+        StaleHandle::new(Arc::clone(&self.lights_tx))
     }
 
     /// Asks the capture thread to stop before its next frame; queued frames are still
@@ -483,31 +423,7 @@ impl Pipeline {
 }
 
 /// Marks a pipeline's newest lights stale or live; see [`Pipeline::set_stale`].
-#[derive(Clone)]
-pub struct StaleHandle(Arc<watch::Sender<LatestLights>>);
-
-impl StaleHandle {
-    /// As [`Pipeline::set_stale`].
-    pub fn set_stale(&self, stale: bool) -> bool {
-        let mut changed = false;
-        self.0.send_if_modified(|latest| match latest {
-            Some(p) if p.stale != stale => {
-                let lights = Arc::clone(&p.lights);
-                *latest = Some(Published::after(
-                    Some(p),
-                    lights,
-                    stale,
-                    None,
-                    Duration::ZERO,
-                ));
-                changed = true;
-                true
-            }
-            _ => false,
-        });
-        changed
-    }
-}
+pub type StaleHandle = crate::publication::StaleHandle<LightFrame>;
 
 /// Reads a pipeline's counters; cheap to clone, valid after the pipeline has ended.
 #[derive(Clone)]
@@ -712,7 +628,7 @@ mod tests {
         loop {
             let latest = rx.borrow_and_update().clone();
             if let Some(published) = latest {
-                let frame = &published.lights;
+                let frame = &published.payload;
                 if seen.last() != Some(&frame.seq) {
                     seen.push(frame.seq);
                 }
@@ -746,7 +662,7 @@ mod tests {
         assert!(stats.last_decompose_time > Duration::ZERO);
         // The senders are gone with the pipeline: the stream reports its end.
         assert!(rx.has_changed().is_err());
-        let last = rx.borrow().clone().unwrap().lights.clone();
+        let last = rx.borrow().clone().unwrap().payload.clone();
         assert_eq!(last.seq, 19);
         assert_eq!(last.lights.len(), 16);
     }
@@ -823,7 +739,10 @@ mod tests {
             other => panic!("expected the capture error, got {other:?}"),
         }
         // Frames before the error were still processed.
-        assert_eq!(stats_probe.borrow().as_ref().map(|p| p.lights.seq), Some(2));
+        assert_eq!(
+            stats_probe.borrow().as_ref().map(|p| p.payload.seq),
+            Some(2)
+        );
     }
 
     #[test]
@@ -872,7 +791,7 @@ mod tests {
         let stale = rx.borrow_and_update().clone().unwrap();
         assert!(stale.stale);
         assert_eq!(stale.index, live.index + 1);
-        assert!(Arc::ptr_eq(&stale.lights, &live.lights));
+        assert!(Arc::ptr_eq(&stale.payload, &live.payload));
         assert!(!pipeline.set_stale(true));
         assert!(pipeline.set_stale(false));
         assert!(!rx.borrow().as_ref().unwrap().stale);
@@ -899,10 +818,10 @@ mod tests {
         let deadline = Instant::now() + Duration::from_secs(20);
         loop {
             let latest = rx.borrow_and_update().clone().unwrap();
-            if latest.lights.lights.len() == 8 {
+            if latest.payload.lights.len() == 8 {
                 break;
             }
-            assert_eq!(latest.lights.lights.len(), 16);
+            assert_eq!(latest.payload.lights.len(), 16);
             assert!(Instant::now() < deadline, "the new settings never applied");
             std::thread::sleep(Duration::from_millis(1));
         }

@@ -8,68 +8,26 @@
 //! every set a client receives must equal, bit for bit, the fitter's result for that frame after
 //! all earlier frames. A client may still skip sets (newest wins), so the test matches by seq.
 
+mod common;
+
+use common::{http_get, metric_value, record_sky, spawn, wait_until, TIMEOUT};
 use envlight::asg::fit::AsgFitter;
 use envlight::capture::FrameSource;
-use envlight::config::{Config, RawConfig};
+use envlight::config::Config;
 use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::light::AsgSet;
 use envlight::record::{Pacing, ReplaySource};
 use envlight::stream::client::{Client, Endpoint};
 use envlight::stream::protocol::{code, encode_asg_frame};
 use envlight::stream::{AsgFrameMessage, Format, Message, Representation, Request};
-use std::io::{Read, Write};
-use std::net::TcpStream;
 use std::path::Path;
-use std::time::{Duration, Instant};
-
-const TIMEOUT: Duration = Duration::from_secs(30);
 
 /// Small fits: 4 lobes on a 16×8 map, a few iterations (milliseconds per frame).
 const ASG: &str = "[asg]\nenabled = true\nlobes = 4\nfit_height = 8\niterations = 40\n\
                    warm_iterations = 8\ndiffuse_normals = 16\nthreads = 1\n";
 
 fn config(dir: &Path, extra: &str) -> Config {
-    let text = format!(
-        "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
-         handshake_timeout_s = 2.0\n[metrics]\nlisten = \"127.0.0.1:0\"\n{extra}",
-        dir.join("envlight.sock").display()
-    );
-    RawConfig::parse(&text, Path::new("test.toml"))
-        .unwrap()
-        .validate()
-        .unwrap()
-}
-
-fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + TIMEOUT;
-    while !done() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(5));
-    }
-}
-
-fn http_get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
-    let mut stream = TcpStream::connect(addr).unwrap();
-    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
-    write!(
-        stream,
-        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut text = String::new();
-    stream.read_to_string(&mut text).unwrap();
-    let status = text[9..12].parse().unwrap();
-    let body = text
-        .split_once("\r\n\r\n")
-        .map(|(_, b)| b.to_owned())
-        .unwrap_or_default();
-    (status, body)
-}
-
-fn metric_value(text: &str, name: &str) -> f64 {
-    text.lines()
-        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
-        .unwrap_or_else(|| panic!("no {name} in\n{text}"))
+    common::config(dir, 2.0, extra)
 }
 
 /// Everything an ASG client received until the goodbye.
@@ -84,32 +42,6 @@ fn read_sets(mut client: Client) -> (Vec<AsgFrameMessage>, Option<String>) {
             Err(e) => panic!("client error: {e}"),
         }
     }
-}
-
-/// Records up to `frames` small sky frames at 30 fps into `dir` (no ASG stage); returns how
-/// many were recorded (a loaded machine may drop some: the recorder is a live consumer).
-fn record_sky(dir: &Path, frames: u64) -> u64 {
-    let none =
-        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
-    let text = format!(
-        "{none}[source]\nframes = {frames}\nfps = 30.0\n[sky]\nwidth = 64\nheight = 32\n\
-         sun_speed_deg_per_s = 30.0\n[decompose]\nlights = 16\nworking_width = 32\n"
-    );
-    let config = RawConfig::parse(&text, Path::new("t.toml"))
-        .unwrap()
-        .validate()
-        .unwrap();
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: None,
-            record: Some(dir.to_path_buf()),
-        },
-    )
-    .unwrap();
-    wait_until("the recording", || daemon.source_finished());
-    let summary = daemon.shutdown().unwrap();
-    summary.recorded.unwrap().frames
 }
 
 #[test]
@@ -171,10 +103,7 @@ fn asg_clients_receive_what_the_fitter_computes() {
                 format: *format,
             };
             let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
-            std::thread::Builder::new()
-                .name("asg-client".into())
-                .spawn(move || read_sets(client))
-                .unwrap()
+            spawn("asg-client", move || read_sets(client))
         })
         .collect();
     // A lights client on the same daemon is unaffected.
@@ -286,10 +215,7 @@ fn the_live_stage_skips_frames_and_never_slows_the_lights() {
     };
     let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
     let client = Client::connect(&Endpoint::Unix(uds), &request, Some(TIMEOUT)).unwrap();
-    let reader = std::thread::Builder::new()
-        .name("asg-client".into())
-        .spawn(move || read_sets(client))
-        .unwrap();
+    let reader = spawn("asg-client", move || read_sets(client));
     wait_until("the end of the source", || daemon.source_finished());
     let summary = daemon.shutdown().unwrap();
     // Every frame was decomposed: the lights never waited for the fits.
@@ -351,7 +277,7 @@ fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
     wait_until("a first set", || {
         rx.borrow_and_update()
             .as_ref()
-            .is_some_and(|p| p.set.lobes.len() == 4)
+            .is_some_and(|p| p.payload.lobes.len() == 4)
     });
     // Six lobes instead of four: applied live.
     let six = config(
@@ -364,7 +290,7 @@ fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
     wait_until("a set with the new settings", || {
         rx.borrow_and_update()
             .as_ref()
-            .is_some_and(|p| p.set.lobes.len() == 6)
+            .is_some_and(|p| p.payload.lobes.len() == 6)
     });
     // Turning the stage off needs a restart; the stage keeps running.
     let off = config(

@@ -1,6 +1,9 @@
 //! The daemon end to end: clients on every endpoint, slow clients, bad input, metrics,
 //! recording and replay (in-process), and the process lifecycle (signals) of `envlight run`.
 
+mod common;
+
+use common::{http_get, metric_value, spawn, wait_until, TIMEOUT};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
@@ -17,18 +20,6 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-
-const TIMEOUT: Duration = Duration::from_secs(20);
-
-fn spawn<T: Send + 'static>(
-    name: &str,
-    f: impl FnOnce() -> T + Send + 'static,
-) -> std::thread::JoinHandle<T> {
-    std::thread::Builder::new()
-        .name(name.to_owned())
-        .spawn(f)
-        .unwrap()
-}
 
 /// Writes `count` small sky frames as EXR files `frame_0000.exr`… into `dir`.
 fn write_sky_sequence(dir: &Path, count: u64) -> Vec<PathBuf> {
@@ -55,17 +46,8 @@ fn write_sky_sequence(dir: &Path, count: u64) -> Vec<PathBuf> {
     paths
 }
 
-/// A config from TOML text with every endpoint on loopback port 0 / in `dir`, metrics on.
 fn config(dir: &Path, extra: &str) -> Config {
-    let text = format!(
-        "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
-         handshake_timeout_s = 0.5\n[metrics]\nlisten = \"127.0.0.1:0\"\n{extra}",
-        dir.join("envlight.sock").display()
-    );
-    RawConfig::parse(&text, Path::new("test.toml"))
-        .unwrap()
-        .validate()
-        .unwrap()
+    common::config(dir, 0.5, extra)
 }
 
 /// What a client thread saw.
@@ -93,14 +75,6 @@ fn read_all(mut client: Client) -> Received {
             Ok(None) => return received,
             Err(e) => panic!("client error: {e}"),
         }
-    }
-}
-
-fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + TIMEOUT;
-    while !done() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(5));
     }
 }
 
@@ -292,7 +266,7 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         .borrow()
         .as_ref()
         .unwrap()
-        .lights
+        .payload
         .seq;
 
     // Resume: the kernel buffers hold at most a few old frames; then the newest ones follow.
@@ -348,12 +322,6 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
     );
     drop(slow);
     daemon.shutdown().unwrap();
-}
-
-fn metric_value(text: &str, name: &str) -> f64 {
-    text.lines()
-        .find_map(|line| line.strip_prefix(name)?.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no {name} in\n{text}"))
 }
 
 /// Sends raw bytes and returns what the server answers before closing.
@@ -503,24 +471,6 @@ fn json_lines_clients_on_tcp_get_json_errors() {
         other => panic!("{other:?}"),
     }
     daemon.shutdown().unwrap();
-}
-
-fn http_get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
-    let mut stream = TcpStream::connect(addr).unwrap();
-    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
-    write!(
-        stream,
-        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut text = String::new();
-    stream.read_to_string(&mut text).unwrap();
-    let status = text[9..12].parse().unwrap();
-    let body = text
-        .split_once("\r\n\r\n")
-        .map(|(_, b)| b.to_owned())
-        .unwrap_or_default();
-    (status, body)
 }
 
 #[test]

@@ -12,35 +12,49 @@
 //!    `{`; on WebSocket a binary or text message). Anything else, a half-open connection that
 //!    never speaks, or a client that vanishes mid-message ends the connection (with an error
 //!    message where the client can still read it).
-//! 2. **Frames.** Each connection task waits on the latest-value channel of the representation
-//!    it subscribed to: the pipeline's light lists, or the ASG stage's sets
-//!    ([`StreamServer::start_with_asg`]; without an ASG stage an `asg` subscribe gets error 6).
-//!    When a new publication appears it is encoded for this client (cap, binary or JSON; once
-//!    per publication, cap and form, shared by the clients that ask for the same) and written.
-//!    A client that reads slowly blocks only its own task; meanwhile newer lists replace older
-//!    ones in the channel, so when the write completes it gets the newest one and the lists in
-//!    between are counted as skipped. Per client the server holds one encoded frame, so memory
-//!    stays bounded whatever the client does; a write that makes no progress for
-//!    [`ServerConfig::write_timeout`] closes the connection.
+//! 2. **Frames.** A client follows the latest-value channel of the representation it
+//!    subscribed to: the pipeline's light lists, or another stage's channel ([`Streams`]: the
+//!    ASG stage's sets; a representation the daemon does not produce gets error 6). Each
+//!    payload type says how it is encoded ([`Streamed`]), so the connection code is the same for
+//!    every representation. Each publication is encoded once per cap and form (binary or JSON),
+//!    shared by the clients that ask for the same.
+//!    - **Unix socket and TCP:** one `envlight-fanout` thread per channel, woken once per
+//!      publication, writes it to every client that keeps up in one pass of non-blocking writes
+//!      (`src/stream/fanout.rs`); no task is woken per client. A client whose socket is full
+//!      goes to its connection task, which finishes the frame, then sends the newest
+//!      publication (the ones in between are counted as skipped) and hands the client back. The
+//!      task otherwise only reads (input is an error, below) and waits for the shutdown.
+//!    - **WebSocket:** the connection task waits on the channel and writes each new
+//!      publication itself.
+//!
+//!    A client that reads slowly holds up nobody: newer publications replace older ones in the
+//!    channel, so when its write completes it gets the newest one. Per client the server holds
+//!    at most one encoded frame, so memory stays bounded whatever the client does; a write that
+//!    makes no progress for [`ServerConfig::write_timeout`] closes the connection.
 //! 3. **Client input after the subscribe** is not expected: any message is answered with an
 //!    error and the connection is closed; other clients are not affected. End of input (a
 //!    half-closed socket) is fine: the client keeps receiving.
 //! 4. **Shutdown** sends a goodbye (code 0) and closes.
 
+use super::fanout::{
+    Fanout, FdSocket, Shared, Slot, SlotMetrics, Socket, Stream, Writer, FANOUT_THREAD_NAME,
+};
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
     encode_frame, encode_goodbye, frame_to_json, goodbye_to_json, Decoder, Format, Message,
     ProtocolError, Representation, Request,
 };
-use crate::asg_stage::{LatestAsg, PublishedAsg};
+use crate::light::{AsgSet, LightFrame};
 use crate::metrics::{ClientLabel, EndpointLabel, Metrics};
-use crate::pipeline::{LatestLights, Published};
+use crate::pipeline::LatestLights;
+use crate::publication::{Latest, Publication};
+use futures_util::future::BoxFuture;
 use futures_util::{SinkExt, StreamExt};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::{TcpListener, UnixListener};
 use tokio::sync::{mpsc, watch};
@@ -114,6 +128,51 @@ pub enum ServerError {
     SocketInUse { path: PathBuf },
     #[error("unix socket {}: a file that is not a socket is in the way", path.display())]
     NotASocket { path: PathBuf },
+    #[error("cannot start the {FANOUT_THREAD_NAME} thread: {0}")]
+    Spawn(#[source] std::io::Error),
+}
+
+/// Starts the fan-out thread of `feed`'s channel: woken once per publication, it writes the
+/// publication to every client of [`Context::fanout`] that keeps up (`src/stream/fanout.rs`).
+/// It ends at the shutdown broadcast, or once the channel has ended (then it tells the
+/// clients).
+fn spawn_fanout(
+    ctx: &Arc<Context>,
+    mut feed: Feed,
+    mut shutdown: watch::Receiver<Option<String>>,
+) -> Result<std::thread::JoinHandle<()>, ServerError> {
+    let ctx = Arc::clone(ctx);
+    std::thread::Builder::new()
+        .name(FANOUT_THREAD_NAME.to_owned())
+        .spawn(move || {
+            let fanout = Arc::clone(ctx.fanout(&feed));
+            loop {
+                // No runtime here: the channels' futures need none, so a plain blocking
+                // executor waits on them.
+                let changed = pollster::block_on(async {
+                    tokio::select! {
+                        biased;
+                        _ = shutdown.wait_for(Option::is_some) => None,
+                        changed = feed.rx.changed() => Some(changed),
+                    }
+                });
+                match changed {
+                    None => return,
+                    Some(false) => {
+                        fanout.end();
+                        return;
+                    }
+                    Some(true) => {
+                        if let Some(published) = feed.rx.newest() {
+                            fanout.pass(&*published, &|cap, encoding| {
+                                ctx.encoded(&feed, &*published, cap, encoding)
+                            });
+                        }
+                    }
+                }
+            }
+        })
+        .map_err(ServerError::Spawn)
 }
 
 /// The addresses the endpoints are bound to (with port 0 resolved).
@@ -130,56 +189,173 @@ struct Context {
     metrics: Arc<Metrics>,
     clients: AtomicUsize,
     next_client: AtomicU64,
-    /// The newest publication's encodings, shared by the clients that ask for the same form.
-    encoded: std::sync::Mutex<EncodeCache>,
-    /// The ASG stage's sets, if the daemon produces them.
-    asg: Option<watch::Receiver<LatestAsg>>,
-    /// As `encoded`, for ASG sets (their publication indices are a sequence of their own).
-    encoded_asg: std::sync::Mutex<EncodeCache>,
+    /// The latest-value channels served, one per representation the daemon produces, each with
+    /// its newest publication's encodings.
+    sources: Vec<Source>,
 }
 
-/// One publication, of the representation a client subscribed to.
-enum Publication {
-    Lights(Arc<Published>),
-    Asg(Arc<PublishedAsg>),
+/// A payload the server can stream: the representation clients subscribe to for it and its
+/// encodings. Streaming a new representation is an implementation of this trait (with a frame
+/// layout in [`protocol`]) and one more [`Streams::with`].
+pub trait Streamed: Send + Sync + 'static {
+    /// The representation of this payload.
+    const REPRESENTATION: Representation;
+    /// Whether delivering it is observed in the delivery-latency histogram (the lights are).
+    const OBSERVE_DELIVERY: bool = false;
+    /// Appends the binary frame message with at most `cap` records.
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>);
+    /// The JSON form with at most `cap` records.
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String;
 }
 
-impl Publication {
+impl Streamed for LightFrame {
+    const REPRESENTATION: Representation = Representation::Lights;
+    const OBSERVE_DELIVERY: bool = true;
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+        encode_frame(self, cap, stale, out);
+    }
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
+        frame_to_json(self, cap, stale)
+    }
+}
+
+impl Streamed for AsgSet {
+    const REPRESENTATION: Representation = Representation::Asg;
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+        encode_asg_frame(self, cap, stale, out);
+    }
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
+        asg_frame_to_json(self, cap, stale)
+    }
+}
+
+/// One publication of any representation, as a connection (and the fan-out) sees it.
+pub(super) trait Frame: Send + Sync {
+    /// The publication's index on its channel.
+    fn index(&self) -> u64;
+    /// Where the delivery latency of this frame starts, if it is observed.
+    fn delivery_start(&self) -> Option<Instant>;
+    /// The frame encoded with at most `cap` records.
+    fn encode(&self, cap: Option<usize>, encoding: Encoding) -> Vec<u8>;
+}
+
+impl<T: Streamed> Frame for Publication<T> {
     fn index(&self) -> u64 {
-        match self {
-            Publication::Lights(p) => p.index,
-            Publication::Asg(p) => p.index,
+        self.index
+    }
+
+    fn delivery_start(&self) -> Option<Instant> {
+        self.arrived.filter(|_| T::OBSERVE_DELIVERY)
+    }
+
+    fn encode(&self, cap: Option<usize>, encoding: Encoding) -> Vec<u8> {
+        match encoding {
+            Encoding::Binary => {
+                let mut out = Vec::new();
+                self.payload.encode_binary(cap, self.stale, &mut out);
+                out
+            }
+            Encoding::JsonLine | Encoding::JsonText => {
+                let mut out = self.payload.to_json(cap, self.stale).into_bytes();
+                if encoding == Encoding::JsonLine {
+                    out.push(b'\n');
+                }
+                out
+            }
         }
     }
 }
 
-/// The latest-value channel a subscribed connection follows.
-enum Feed {
-    Lights(watch::Receiver<LatestLights>),
-    Asg(watch::Receiver<LatestAsg>),
-}
-
-impl Feed {
+/// A latest-value channel of any representation, as a connection follows it.
+trait FeedRx: Send + Sync {
     /// Waits for a new publication; `false` once the stream has ended.
-    async fn changed(&mut self) -> bool {
-        match self {
-            Feed::Lights(rx) => rx.changed().await.is_ok(),
-            Feed::Asg(rx) => rx.changed().await.is_ok(),
+    fn changed(&mut self) -> BoxFuture<'_, bool>;
+    /// The newest publication, marked seen.
+    fn newest(&mut self) -> Option<Arc<dyn Frame>>;
+    /// Another receiver of the same channel, in the same state.
+    fn boxed_clone(&self) -> Box<dyn FeedRx>;
+}
+
+impl<T: Streamed> FeedRx for watch::Receiver<Latest<T>> {
+    fn changed(&mut self) -> BoxFuture<'_, bool> {
+        Box::pin(async move { watch::Receiver::changed(self).await.is_ok() })
+    }
+
+    fn newest(&mut self) -> Option<Arc<dyn Frame>> {
+        let newest = self.borrow_and_update().clone()?;
+        Some(newest)
+    }
+
+    fn boxed_clone(&self) -> Box<dyn FeedRx> {
+        Box::new(self.clone())
+    }
+}
+
+/// One channel the server serves.
+struct Source {
+    representation: Representation,
+    /// Never marked as seen: each clone handed to a connection starts with the newest
+    /// publication unseen.
+    rx: Box<dyn FeedRx>,
+    /// The newest publication's encodings, shared by the clients that ask for the same form.
+    cache: std::sync::Mutex<EncodeCache>,
+    /// The Unix-socket and TCP clients of this channel, written by its fan-out thread.
+    fanout: Arc<Fanout>,
+}
+
+/// What a [`StreamServer`] serves: the light lists, and the other representations the daemon
+/// produces, each on its own latest-value channel.
+pub struct Streams {
+    sources: Vec<Source>,
+}
+
+impl Streams {
+    /// The light lists only.
+    pub fn new(lights: watch::Receiver<LatestLights>) -> Self {
+        Self {
+            sources: Vec::new(),
+        }
+        .with(lights)
+    }
+
+    /// Also serves `rx` to the clients that subscribe to `T`'s representation (replacing an
+    /// earlier channel of the same representation).
+    pub fn with<T: Streamed>(mut self, rx: watch::Receiver<Latest<T>>) -> Self {
+        self.sources
+            .retain(|s| s.representation != T::REPRESENTATION);
+        self.sources.push(Source {
+            representation: T::REPRESENTATION,
+            rx: Box::new(rx),
+            cache: std::sync::Mutex::default(),
+            fanout: Arc::default(),
+        });
+        self
+    }
+
+    /// [`Streams::with`] if `rx` is there.
+    pub fn with_optional<T: Streamed>(self, rx: Option<watch::Receiver<Latest<T>>>) -> Self {
+        match rx {
+            Some(rx) => self.with(rx),
+            None => self,
         }
     }
 
-    /// The newest publication, marked seen.
-    fn newest(&mut self) -> Option<Publication> {
-        match self {
-            Feed::Lights(rx) => rx.borrow_and_update().clone().map(Publication::Lights),
-            Feed::Asg(rx) => rx.borrow_and_update().clone().map(Publication::Asg),
-        }
+    /// The representations served, in the order they were added.
+    pub fn representations(&self) -> Vec<Representation> {
+        self.sources.iter().map(|s| s.representation).collect()
     }
+}
+
+/// The channel a subscribed connection follows.
+struct Feed {
+    rx: Box<dyn FeedRx>,
+    /// Its position in [`Context::sources`].
+    source: usize,
 }
 
 /// How a frame is encoded for a client.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Encoding {
+pub(super) enum Encoding {
     /// A binary frame message.
     Binary,
     /// The JSON form and a newline (UDS/TCP JSON lines).
@@ -200,17 +376,20 @@ struct EncodeCache {
 const ENCODE_CACHE_ENTRIES: usize = 16;
 
 impl Context {
-    /// The publication encoded for a client with `cap` in `encoding`.
+    /// The fan-out of the channel `feed` follows.
+    fn fanout(&self, feed: &Feed) -> &Arc<Fanout> {
+        &self.sources[feed.source].fanout
+    }
+
+    /// The publication `published` of `feed` encoded for a client with `cap` in `encoding`.
     fn encoded(
         &self,
-        published: &Publication,
+        feed: &Feed,
+        published: &dyn Frame,
         cap: Option<usize>,
         encoding: Encoding,
     ) -> Arc<Vec<u8>> {
-        let cache = match published {
-            Publication::Lights(_) => &self.encoded,
-            Publication::Asg(_) => &self.encoded_asg,
-        };
+        let cache = &self.sources[feed.source].cache;
         let lock = || {
             cache
                 .lock()
@@ -229,26 +408,7 @@ impl Context {
                 }
             }
         }
-        let mut out = Vec::new();
-        match (encoding, published) {
-            (Encoding::Binary, Publication::Lights(p)) => {
-                encode_frame(&p.lights, cap, p.stale, &mut out)
-            }
-            (Encoding::Binary, Publication::Asg(p)) => {
-                encode_asg_frame(&p.set, cap, p.stale, &mut out)
-            }
-            (Encoding::JsonLine | Encoding::JsonText, _) => {
-                out = match published {
-                    Publication::Lights(p) => frame_to_json(&p.lights, cap, p.stale),
-                    Publication::Asg(p) => asg_frame_to_json(&p.set, cap, p.stale),
-                }
-                .into_bytes();
-                if encoding == Encoding::JsonLine {
-                    out.push(b'\n');
-                }
-            }
-        }
-        let bytes = Arc::new(out);
+        let bytes = Arc::new(published.encode(cap, encoding));
         let mut cache = lock();
         if index > cache.index {
             cache.index = index;
@@ -269,6 +429,8 @@ pub struct StreamServer {
     done_tx: mpsc::Sender<()>,
     done_rx: mpsc::Receiver<()>,
     accept_tasks: Vec<tokio::task::JoinHandle<()>>,
+    /// The fan-out threads; they end at the shutdown broadcast.
+    fanout_threads: Vec<std::thread::JoinHandle<()>>,
 }
 
 impl StreamServer {
@@ -278,15 +440,14 @@ impl StreamServer {
         lights: watch::Receiver<LatestLights>,
         metrics: Arc<Metrics>,
     ) -> Result<StreamServer, ServerError> {
-        Self::start_with_asg(config, lights, None, metrics).await
+        Self::start_streams(config, Streams::new(lights), metrics).await
     }
 
-    /// As [`StreamServer::start`], also serving the ASG stage's sets (`asg`) to clients that
-    /// subscribe with representation `asg`.
-    pub async fn start_with_asg(
+    /// As [`StreamServer::start`], serving every channel of `streams` to the clients that
+    /// subscribe to its representation; other representations get error 6.
+    pub async fn start_streams(
         config: &ServerConfig,
-        lights: watch::Receiver<LatestLights>,
-        asg: Option<watch::Receiver<LatestAsg>>,
+        streams: Streams,
         metrics: Arc<Metrics>,
     ) -> Result<StreamServer, ServerError> {
         let ctx = Arc::new(Context {
@@ -294,9 +455,7 @@ impl StreamServer {
             metrics,
             clients: AtomicUsize::new(0),
             next_client: AtomicU64::new(1),
-            encoded: std::sync::Mutex::default(),
-            asg,
-            encoded_asg: std::sync::Mutex::default(),
+            sources: streams.sources,
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
         let (done_tx, done_rx) = mpsc::channel(1);
@@ -316,25 +475,42 @@ impl StreamServer {
             Some(addr) => Some(bind_tcp("websocket", addr).await?),
             None => None,
         };
+        let mut fanout_threads = Vec::new();
+        for (source, served) in ctx.sources.iter().enumerate() {
+            let feed = Feed {
+                rx: served.rx.boxed_clone(),
+                source,
+            };
+            match spawn_fanout(&ctx, feed, shutdown_tx.subscribe()) {
+                Ok(thread) => fanout_threads.push(thread),
+                Err(e) => {
+                    shutdown_tx.send_replace(Some(String::new()));
+                    for thread in fanout_threads {
+                        let _ = thread.join();
+                    }
+                    return Err(e);
+                }
+            }
+        }
 
         if let Some((listener, path)) = unix {
             tracing::info!(path = %path.display(), "serving light lists on a unix socket");
             bound.unix_socket = Some(path.clone());
-            let accept = Acceptor::new(&ctx, "uds", &lights, &shutdown_tx, &done_tx);
+            let accept = Acceptor::new(&ctx, "uds", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.unix(listener, path)));
         }
         if let Some(listener) = tcp {
             let addr = listener.local_addr().ok();
             tracing::info!(address = ?addr, "serving light lists over tcp");
             bound.tcp = addr;
-            let accept = Acceptor::new(&ctx, "tcp", &lights, &shutdown_tx, &done_tx);
+            let accept = Acceptor::new(&ctx, "tcp", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.tcp(listener, false)));
         }
         if let Some(listener) = websocket {
             let addr = listener.local_addr().ok();
             tracing::info!(address = ?addr, "serving light lists over websocket");
             bound.websocket = addr;
-            let accept = Acceptor::new(&ctx, "websocket", &lights, &shutdown_tx, &done_tx);
+            let accept = Acceptor::new(&ctx, "websocket", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.tcp(listener, true)));
         }
         Ok(StreamServer {
@@ -343,6 +519,7 @@ impl StreamServer {
             done_tx,
             done_rx,
             accept_tasks,
+            fanout_threads,
         })
     }
 
@@ -361,6 +538,7 @@ impl StreamServer {
             done_tx,
             mut done_rx,
             accept_tasks,
+            fanout_threads,
         } = self;
         shutdown_tx.send_replace(Some(message.to_owned()));
         drop(done_tx);
@@ -368,6 +546,15 @@ impl StreamServer {
         for task in accept_tasks {
             task.abort();
         }
+        // The fan-out threads end at the broadcast (a pass takes well under a millisecond).
+        let _ = tokio::task::spawn_blocking(move || {
+            for thread in fanout_threads {
+                if thread.join().is_err() {
+                    tracing::error!("a fan-out thread panicked");
+                }
+            }
+        })
+        .await;
         if let Some(path) = &bound.unix_socket {
             remove_socket_file(path);
         }
@@ -430,7 +617,6 @@ async fn bind_tcp(endpoint: &'static str, addr: SocketAddr) -> Result<TcpListene
 struct Acceptor {
     ctx: Arc<Context>,
     endpoint: &'static str,
-    lights: watch::Receiver<LatestLights>,
     shutdown: watch::Receiver<Option<String>>,
     done: mpsc::Sender<()>,
 }
@@ -439,14 +625,12 @@ impl Acceptor {
     fn new(
         ctx: &Arc<Context>,
         endpoint: &'static str,
-        lights: &watch::Receiver<LatestLights>,
         shutdown: &watch::Sender<Option<String>>,
         done: &mpsc::Sender<()>,
     ) -> Self {
         Self {
             ctx: Arc::clone(ctx),
             endpoint,
-            lights: lights.clone(),
             shutdown: shutdown.subscribe(),
             done: done.clone(),
         }
@@ -463,7 +647,8 @@ impl Acceptor {
                 Ok((stream, _)) => {
                     self.limit_send_buffer(socket2::SockRef::from(&stream));
                     let peer = path.display().to_string();
-                    tokio::spawn(self.connection(peer).serve_stream(stream));
+                    let socket = stream.into_std().map(Stream::Unix);
+                    self.serve(peer, socket);
                 }
                 Err(e) => accept_failed(self.endpoint, &e).await,
             }
@@ -481,14 +666,27 @@ impl Acceptor {
                 Ok((stream, peer)) => {
                     let _ = stream.set_nodelay(true);
                     self.limit_send_buffer(socket2::SockRef::from(&stream));
-                    let conn = self.connection(peer.to_string());
                     if websocket {
+                        let conn = self.connection(peer.to_string());
                         tokio::spawn(conn.serve_websocket(stream));
                     } else {
-                        tokio::spawn(conn.serve_stream(stream));
+                        let socket = stream.into_std().map(Stream::Tcp);
+                        self.serve(peer.to_string(), socket);
                     }
                 }
                 Err(e) => accept_failed(self.endpoint, &e).await,
+            }
+        }
+    }
+
+    /// Starts a Unix-socket or TCP connection's task.
+    fn serve(&self, peer: String, stream: std::io::Result<Stream>) {
+        match stream.and_then(FdSocket::new) {
+            Ok(socket) => {
+                tokio::spawn(self.connection(peer).serve_stream(Arc::new(socket)));
+            }
+            Err(error) => {
+                tracing::warn!(endpoint = self.endpoint, %error, "cannot serve a connection");
             }
         }
     }
@@ -527,7 +725,6 @@ impl Acceptor {
             ctx: Arc::clone(&self.ctx),
             endpoint: self.endpoint,
             name,
-            lights: self.lights.clone(),
             shutdown: self.shutdown.clone(),
             over_limit,
             _guard: guard,
@@ -554,8 +751,16 @@ async fn shutdown_message(shutdown: &mut watch::Receiver<Option<String>>) -> Str
 
 /// What woke a subscribed connection's task.
 enum Event<T> {
-    /// A new publication: light list or ASG set (false: the stream ended).
+    /// A new publication of the subscribed representation (false: the stream ended).
     Lights(bool),
+    /// The daemon is shutting down, with this goodbye.
+    Shutdown(String),
+    /// Input from the client.
+    Input(T),
+}
+
+/// What woke a Unix-socket or TCP connection's task while the fan-out writes its frames.
+enum StreamEvent<T> {
     /// The daemon is shutting down, with this goodbye.
     Shutdown(String),
     /// Input from the client.
@@ -614,7 +819,6 @@ struct Connection {
     ctx: Arc<Context>,
     endpoint: &'static str,
     name: String,
-    lights: watch::Receiver<LatestLights>,
     shutdown: watch::Receiver<Option<String>>,
     over_limit: bool,
     _guard: ClientGuard,
@@ -662,32 +866,28 @@ impl Connection {
 
     /// The request if this daemon produces its representation, with the feed to follow.
     fn check_request(&self, request: Request) -> Result<(Request, Feed), Close> {
-        let feed = match request.representation {
-            Representation::Lights => Some(Feed::Lights(self.lights.clone())),
-            Representation::Asg => self.ctx.asg.clone().map(Feed::Asg),
-            Representation::Wavelet => None,
-        };
-        match feed {
-            Some(feed) => Ok((request, feed)),
-            None => {
-                let produced = if self.ctx.asg.is_some() {
-                    "lights, asg"
-                } else {
-                    "lights; asg needs [asg] enabled = true"
-                };
-                let text = format!(
-                    "representation {} is not produced by this daemon (it produces: {produced})",
-                    request.representation.name()
-                );
-                self.count_error(&text);
-                Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text))
-            }
+        let sources = &self.ctx.sources;
+        if let Some(source) = sources
+            .iter()
+            .position(|s| s.representation == request.representation)
+        {
+            let rx = sources[source].rx.boxed_clone();
+            return Ok((request, Feed { rx, source }));
         }
+        let produced: Vec<&str> = sources.iter().map(|s| s.representation.name()).collect();
+        let name = request.representation.name();
+        let text = format!(
+            "representation {name} is not produced by this daemon (it produces: {}; {name} \
+             needs [{name}] enabled = true)",
+            produced.join(", ")
+        );
+        self.count_error(&text);
+        Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text))
     }
 
     /// Takes the newest publication if it is new to this client, counting skipped ones.
-    fn take_newest(&self, feed: &mut Feed, progress: &mut Progress) -> Option<Publication> {
-        let published = feed.newest()?;
+    fn take_newest(&self, feed: &mut Feed, progress: &mut Progress) -> Option<Arc<dyn Frame>> {
+        let published = feed.rx.newest()?;
         let index = published.index();
         if index <= progress.last_index {
             return None;
@@ -716,7 +916,21 @@ impl Connection {
         &self,
         write: impl std::future::Future<Output = Result<(), E>>,
         shutdown: &mut watch::Receiver<Option<String>>,
-        published: &Publication,
+        published: &dyn Frame,
+    ) -> Option<Close> {
+        let close = self.write_timed(write, shutdown).await;
+        if close.is_none() {
+            self.delivered(published);
+        }
+        close
+    }
+
+    /// Writes within the write timeout, giving up at shutdown. `None`: written; otherwise why
+    /// the connection ends.
+    async fn write_timed<E>(
+        &self,
+        write: impl std::future::Future<Output = Result<(), E>>,
+        shutdown: &mut watch::Receiver<Option<String>>,
     ) -> Option<Close> {
         let write = tokio::time::timeout(self.ctx.config.write_timeout, write);
         let written = tokio::select! {
@@ -724,10 +938,7 @@ impl Connection {
             _ = shutdown.wait_for(Option::is_some) => return Some(Close::Quiet),
         };
         match written {
-            Ok(Ok(())) => {
-                self.delivered(published);
-                None
-            }
+            Ok(Ok(())) => None,
             Ok(Err(_)) => Some(Close::Quiet),
             Err(_) => {
                 self.count_error("write stalled");
@@ -736,17 +947,27 @@ impl Connection {
         }
     }
 
-    fn delivered(&self, published: &Publication) {
+    /// This client's metric handles, for its fan-out slot.
+    fn slot_metrics(&self) -> SlotMetrics {
+        let metrics = &self.ctx.metrics;
+        SlotMetrics {
+            sent: metrics.frames_sent.get_or_create(&self.label()).clone(),
+            skipped: metrics.frames_skipped.get_or_create(&self.label()).clone(),
+            client_skipped: metrics
+                .client_skipped
+                .get_or_create(&self._guard.label)
+                .clone(),
+            delivery: metrics.delivery_seconds.clone(),
+        }
+    }
+
+    fn delivered(&self, published: &dyn Frame) {
         self.ctx
             .metrics
             .frames_sent
             .get_or_create(&self.label())
             .inc();
-        // Delivery latency is the lights' figure (from arrival at the decomposition).
-        if let Publication::Lights(p) = published {
-            let Some(arrived) = p.arrived else {
-                return;
-            };
+        if let Some(arrived) = published.delivery_start() {
             self.ctx
                 .metrics
                 .delivery_seconds
@@ -757,14 +978,14 @@ impl Connection {
     // --------------------------------------------------------------------------------------
     // Unix socket and TCP
 
-    async fn serve_stream<S>(self, stream: S)
-    where
-        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
-    {
-        let (mut reader, mut writer) = tokio::io::split(stream);
+    async fn serve_stream(self, socket: Arc<dyn Socket>) {
+        // The task reads and writes through one clone, the fan-out thread writes through
+        // another.
+        let mut reader = Shared(Arc::clone(&socket));
+        let mut writer = Shared(Arc::clone(&socket));
         let mut dialect = Dialect::Binary;
         let close = self
-            .stream_session(&mut reader, &mut writer, &mut dialect)
+            .stream_session(&mut reader, &mut writer, &socket, &mut dialect)
             .await;
         let mut out = Vec::new();
         match (&close, dialect) {
@@ -794,6 +1015,7 @@ impl Connection {
         &self,
         reader: &mut R,
         writer: &mut W,
+        socket: &Arc<dyn Socket>,
         dialect: &mut Dialect,
     ) -> Close
     where
@@ -834,41 +1056,72 @@ impl Connection {
         if subscribed_binary && decoder.buffered() > 0 {
             return self.unexpected_input(&mut decoder);
         }
+        let encoding = match request.format {
+            Format::Binary => Encoding::Binary,
+            Format::Json => Encoding::JsonLine,
+        };
+        let cap = request.cap();
+        let slot = Arc::new(Slot::new(
+            Arc::clone(socket),
+            cap,
+            encoding,
+            self.slot_metrics(),
+        ));
+        let fanout = Arc::clone(self.ctx.fanout(&feed));
+        let Some(_registration) = fanout.register(&slot) else {
+            return Close::Goodbye("the light stream ended".to_owned());
+        };
         let mut reading = true;
-        let mut progress = Progress::default();
         let mut shutdown = self.shutdown.clone();
         loop {
-            let event = tokio::select! {
-                biased;
-                changed = feed.changed() => Event::Lights(changed),
-                message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
-                read = reader.read(&mut buf), if reading => Event::Input(read),
-            };
-            match event {
-                Event::Lights(false) => {
-                    return Close::Goodbye("the light stream ended".to_owned());
-                }
-                Event::Lights(true) => {
-                    let Some(published) = self.take_newest(&mut feed, &mut progress) else {
-                        continue;
-                    };
-                    let encoding = match request.format {
-                        Format::Binary => Encoding::Binary,
-                        Format::Json => Encoding::JsonLine,
-                    };
-                    let out = self.ctx.encoded(&published, request.cap(), encoding);
-                    let write = writer.write_all(out.as_slice());
-                    if let Some(close) = self.write_frame(write, &mut shutdown, &published).await {
+            // The task's turn (a new client, or the fan-out found the socket full): finish
+            // the frame the fan-out began, then send the newest publication until this client
+            // has it; then the fan-out writes again.
+            if slot.writer() == Writer::Task {
+                if let Some(unfinished) = slot.take_unfinished() {
+                    let write = writer.write_all(&unfinished.bytes[unfinished.written..]);
+                    if let Some(close) = self.write_timed(write, &mut shutdown).await {
+                        slot.close();
                         return close;
                     }
+                    slot.delivered(unfinished.delivery_start);
                 }
-                Event::Shutdown(message) => return Close::Goodbye(message),
-                Event::Input(Ok(0)) => reading = false, // half-closed: keep sending
-                Event::Input(Ok(n)) => {
+                if let Some(published) = slot.next_for_task(|| feed.rx.newest()) {
+                    let out = self.ctx.encoded(&feed, &*published, cap, encoding);
+                    let write = writer.write_all(out.as_slice());
+                    if let Some(close) = self.write_timed(write, &mut shutdown).await {
+                        slot.close();
+                        return close;
+                    }
+                    slot.delivered(published.delivery_start());
+                    continue;
+                }
+                // Handed back: the reactor need not watch for room any more.
+                socket.write_done();
+            }
+            if fanout.ended() {
+                slot.close();
+                return Close::Goodbye("the light stream ended".to_owned());
+            }
+            let event = tokio::select! {
+                biased;
+                _ = slot.handed_over() => continue,
+                message = shutdown_message(&mut shutdown) => StreamEvent::Shutdown(message),
+                read = reader.read(&mut buf), if reading => StreamEvent::Input(read),
+            };
+            // From here on nobody writes frames; a frame left half written means no closing
+            // message can follow.
+            if !matches!(event, StreamEvent::Input(Ok(0))) && slot.close() {
+                return Close::Quiet;
+            }
+            match event {
+                StreamEvent::Shutdown(message) => return Close::Goodbye(message),
+                StreamEvent::Input(Ok(0)) => reading = false, // half-closed: keep sending
+                StreamEvent::Input(Ok(n)) => {
                     decoder.push(&buf[..n]);
                     return self.unexpected_input(&mut decoder);
                 }
-                Event::Input(Err(_)) => return Close::Quiet,
+                StreamEvent::Input(Err(_)) => return Close::Quiet,
             }
         }
     }
@@ -1107,7 +1360,7 @@ impl Connection {
         loop {
             let event = tokio::select! {
                 biased;
-                changed = feed.changed() => Event::Lights(changed),
+                changed = feed.rx.changed() => Event::Lights(changed),
                 message = shutdown_message(&mut shutdown) => Event::Shutdown(message),
                 next = source.next() => Event::Input(next),
             };
@@ -1121,15 +1374,21 @@ impl Connection {
                     };
                     let message = match request.format {
                         Format::Binary => {
-                            let out = self
-                                .ctx
-                                .encoded(&published, request.cap(), Encoding::Binary);
+                            let out = self.ctx.encoded(
+                                &feed,
+                                &*published,
+                                request.cap(),
+                                Encoding::Binary,
+                            );
                             tungstenite::Message::binary(out.as_slice().to_vec())
                         }
                         Format::Json => {
-                            let out =
-                                self.ctx
-                                    .encoded(&published, request.cap(), Encoding::JsonText);
+                            let out = self.ctx.encoded(
+                                &feed,
+                                &*published,
+                                request.cap(),
+                                Encoding::JsonText,
+                            );
                             match String::from_utf8(out.as_slice().to_vec()) {
                                 Ok(text) => tungstenite::Message::text(text),
                                 Err(_) => {
@@ -1142,7 +1401,7 @@ impl Connection {
                         }
                     };
                     let write = sink.send(message);
-                    if let Some(close) = self.write_frame(write, &mut shutdown, &published).await {
+                    if let Some(close) = self.write_frame(write, &mut shutdown, &*published).await {
                         return close;
                     }
                 }

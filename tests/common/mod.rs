@@ -1,0 +1,104 @@
+//! Helpers shared by the daemon's end-to-end tests (tests/daemon.rs, tests/asg_stream.rs,
+//! tests/wavelet_stream.rs): configs on loopback port 0, waiting with a deadline, named client
+//! threads, the metrics endpoint, and a short recorded sky session.
+
+// Each test binary uses its own subset of these helpers.
+#![allow(dead_code)]
+
+use envlight::config::{Config, RawConfig};
+use envlight::daemon::{Daemon, DaemonOptions};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How long a test waits for anything (a frame, a thread, an HTTP answer) before failing.
+pub const TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Starts a named thread (clippy bans unnamed ones).
+pub fn spawn<T: Send + 'static>(
+    name: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> std::thread::JoinHandle<T> {
+    std::thread::Builder::new()
+        .name(name.to_owned())
+        .spawn(f)
+        .unwrap()
+}
+
+/// A config from TOML text `extra` with every endpoint on loopback port 0 or in `dir`, the
+/// given handshake timeout, and metrics on.
+pub fn config(dir: &Path, handshake_timeout_s: f64, extra: &str) -> Config {
+    let text = format!(
+        "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
+         handshake_timeout_s = {handshake_timeout_s:?}\n[metrics]\nlisten = \"127.0.0.1:0\"\n\
+         {extra}",
+        dir.join("envlight.sock").display()
+    );
+    RawConfig::parse(&text, Path::new("test.toml"))
+        .unwrap()
+        .validate()
+        .unwrap()
+}
+
+/// Polls `done` every 5 ms until it holds; fails after [`TIMEOUT`].
+pub fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + TIMEOUT;
+    while !done() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// A plain HTTP/1.1 GET: (status, body).
+pub fn http_get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    stream.read_to_string(&mut text).unwrap();
+    let status = text[9..12].parse().unwrap();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map(|(_, b)| b.to_owned())
+        .unwrap_or_default();
+    (status, body)
+}
+
+/// The value of the unlabelled metric `name` in Prometheus text.
+pub fn metric_value(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+        .unwrap_or_else(|| panic!("no {name} in\n{text}"))
+}
+
+/// Records up to `frames` small sky frames (64×32) at 30 fps into `dir` with no stage but the
+/// decomposition; returns how many were recorded (a loaded machine may drop some: the recorder
+/// is a live consumer).
+pub fn record_sky(dir: &Path, frames: u64) -> u64 {
+    let none =
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let text = format!(
+        "{none}[source]\nframes = {frames}\nfps = 30.0\n[sky]\nwidth = 64\nheight = 32\n\
+         sun_speed_deg_per_s = 30.0\n[decompose]\nlights = 16\nworking_width = 32\n"
+    );
+    let config = RawConfig::parse(&text, Path::new("t.toml"))
+        .unwrap()
+        .validate()
+        .unwrap();
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: None,
+            record: Some(dir.to_path_buf()),
+        },
+    )
+    .unwrap();
+    wait_until("the recording", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    summary.recorded.unwrap().frames
+}
