@@ -98,19 +98,19 @@ fn main() {
             21 * 6,
         ),
         (
-            "ASG K=16, L1 + diffuse, 4,000 iterations",
+            "ASG K=16, L1 + diffuse, 4× the iterations",
             FitSettings {
-                iterations: 4000,
+                iterations: 4 * base.iterations,
                 ..base.clone()
             },
             16 * 8,
         ),
         (
-            "isotropic (λ = μ) K=21, 4,000 iterations",
+            "isotropic (λ = μ) K=21, 4× the iterations",
             FitSettings {
                 lobes: 21,
                 isotropic: true,
-                iterations: 4000,
+                iterations: 4 * base.iterations,
                 ..base.clone()
             },
             21 * 6,

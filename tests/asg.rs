@@ -250,6 +250,55 @@ fn fast_kernel_matches_the_exact_loss_and_gradient() {
 }
 
 #[test]
+fn tile_subsets_partition_the_map() {
+    // The optimiser's stratified subsets (fast module doc, step 5): every tile is in exactly one
+    // subset of a stride, so the subsets' estimates (each scaled by the stride) average to the
+    // whole map's loss and gradient sums, and no subset alone is the whole map.
+    use envlight::asg::fast::{reconstruction, KLobe, Subset};
+    let target = small_target("rooitou_park_1k.hdr", 48);
+    let lobes: Vec<KLobe> = initial_lobes(&target, 10)
+        .iter()
+        .map(|a| KLobe {
+            x: DVec3::from(a.tangent),
+            y: DVec3::from(a.bitangent),
+            z: DVec3::from(a.axis),
+            lambda: a.lambda,
+            mu: a.mu,
+            c: a.rgb.map(|c| c / target.mean),
+        })
+        .collect();
+    let px = target.tiled();
+    let (whole, ws) = reconstruction(px, &lobes, Norm::L1, 1, true, Subset::ALL);
+    for stride in [2, 3, 4] {
+        let mut loss = 0.0;
+        let mut lambda = vec![0.0; lobes.len()];
+        for phase in 0..stride {
+            let (l, s) = reconstruction(px, &lobes, Norm::L1, 2, true, Subset::new(stride, phase));
+            assert!(
+                (l - whole).abs() > 1e-6 * whole,
+                "stride {stride}, phase {phase}: the subset saw the whole map"
+            );
+            loss += l / stride as f64;
+            for (a, b) in lambda.iter_mut().zip(&s) {
+                *a += b.lambda / stride as f64;
+            }
+        }
+        assert!(
+            (loss - whole).abs() <= 1e-9 * whole,
+            "stride {stride}: mean of subsets {loss} vs whole {whole}"
+        );
+        let max = ws.iter().fold(0.0f64, |m, s| m.max(s.lambda.abs()));
+        for (a, b) in lambda.iter().zip(&ws) {
+            assert!(
+                (a - b.lambda).abs() <= 1e-9 * max,
+                "stride {stride}: ∂λ {a} vs {}",
+                b.lambda
+            );
+        }
+    }
+}
+
+#[test]
 fn half_resolution_target_keeps_the_energy() {
     let target = small_target("venice_sunset_1k.hdr", 32);
     let half = target.half().unwrap();
