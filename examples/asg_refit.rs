@@ -17,7 +17,7 @@
 //!
 //! Run: `cargo run --release --example asg_refit -- [--height 256] [--frames 30] [--every 5]
 //! [--warm N] [--rate R] [--temporal W] [--subset S] [--first N] [--first-subset S] [--coarse ROWS]
-//! [--reference 6000] [--map NAME] [--turn DEG]` (settings not given are `FitSettings::default()`'s).
+//! [--centroid 0|1] [--reference 6000] [--map NAME] [--turn DEG]` (settings not given are `FitSettings::default()`'s).
 
 use envlight::asg::fit::{loss, optimise, AsgFitter, FitSettings, FitTarget};
 use envlight::asg::Asg;
@@ -86,6 +86,7 @@ fn parse() -> Args {
             "--subset" => settings.warm_subset = num(&value) as usize,
             "--first-subset" => settings.first_subset = num(&value) as usize,
             "--coarse" => settings.coarse_height = num(&value) as u32,
+            "--centroid" => settings.warm_centroid = num(&value) != 0.0,
             "--reference" => reference = num(&value) as usize,
             "--map" => map = Some(value),
             "--turn" => turn = num(&value),
@@ -164,7 +165,7 @@ fn main() {
     println!(
         "{} at 30 frames/s, fit map {}x{}, K = {}, one thread; first frame: {} iterations, \
          coarsest level {} rows; warm: {} iterations at rate {} on 1/{} of the tiles, L_T \
-         weight {}; reference: {} iterations from the previous lobes; load average {}",
+         weight {}, centroid step {}; reference: {} iterations from the previous lobes; load average {}",
         a.map.as_deref().unwrap_or("built-in sky"),
         2 * s.height,
         s.height,
@@ -175,6 +176,7 @@ fn main() {
         s.warm_learning_rate,
         s.warm_subset,
         s.temporal_weight,
+        if s.warm_centroid { "on" } else { "off" },
         a.reference,
         load_average()
     );

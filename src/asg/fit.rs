@@ -135,6 +135,10 @@ pub struct FitSettings {
     /// The same for the first frame (its gradients on rotating subsets of 1/`first_subset` of
     /// the tiles and normals; the start's and the returned loss are the whole map's). 1..=16.
     pub first_subset: usize,
+    /// Warm-started frames: before the Adam iterations, move each narrow lobe's axis to the
+    /// centroid of its share of the map around it ([`centroid_step`]), so suns and lamps that
+    /// move faster than Adam's small warm steps are followed.
+    pub warm_centroid: bool,
 }
 
 impl Default for FitSettings {
@@ -156,6 +160,7 @@ impl Default for FitSettings {
             fine_share: 0.1,
             warm_subset: 4,
             first_subset: 4,
+            warm_centroid: true,
         }
     }
 }
@@ -297,13 +302,16 @@ pub fn resample_latlong(frame: &HdrFrame, height: u32) -> Result<Vec<[f64; 3]>, 
     let exact = frame.projection == Projection::LatLong && sw % w == 0 && sh % h == 0;
     if exact {
         let (fx, fy) = (sw / w, sh / h);
+        let sines: Vec<f64> = (0..sh)
+            .map(|sy| (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin())
+            .collect();
         for y in 0..h {
             for x in 0..w {
                 let mut acc = [0.0; 3];
                 let mut wsum = 0.0;
                 for j in 0..fy {
                     let sy = y * fy + j;
-                    let sin_t = (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin();
+                    let sin_t = sines[sy as usize];
                     for i in 0..fx {
                         let p = frame.pixel(x * fx + i, sy);
                         for c in 0..3 {
@@ -378,14 +386,18 @@ impl FitTarget {
             .collect();
         let omegas = Projection::LatLong.solid_angles(width, height);
         let weights: Vec<f64> = omegas.iter().map(|o| o / (4.0 * PI)).collect();
+        // Pixel centres as `Projection::LatLong.pixel_to_direction` gives them (the same
+        // arithmetic, with the sines and cosines of each row and column computed once).
+        let rows: Vec<(f64, f64)> = (0..height)
+            .map(|y| (PI * (f64::from(y) + 0.5) / f64::from(height)).sin_cos())
+            .collect();
+        let cols: Vec<(f64, f64)> = (0..width)
+            .map(|x| (2.0 * PI * (f64::from(x) + 0.5) / f64::from(width)).sin_cos())
+            .collect();
         let mut directions = Vec::with_capacity(radiance.len());
-        for y in 0..height {
-            for x in 0..width {
-                directions.push(
-                    Projection::LatLong
-                        .pixel_to_direction(width, height, f64::from(x) + 0.5, f64::from(y) + 0.5)
-                        .unwrap_or(DVec3::Y),
-                );
+        for &(sin_t, cos_t) in &rows {
+            for &(sin_p, cos_p) in &cols {
+                directions.push(DVec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p));
             }
         }
         let mut integral = [0.0; 3];
@@ -1530,6 +1542,72 @@ fn temporal_prox(p: &mut Lobe, prev: &Lobe, scales: &[f64; 11], tau: f64) {
     }
 }
 
+/// Lobes at least this narrow (min(λ, μ)) get the centroid step.
+const CENTROID_MIN_BANDWIDTH: f64 = 100.0;
+/// The centroid window: where min(λ, μ)·sin²θ ≤ this (3 standard deviations of the lobe's
+/// wider direction).
+const CENTROID_WINDOW: f64 = 9.0;
+
+/// The warm start's centroid (mean-shift) step (module doc, step 5): every lobe with
+/// min(λ, μ) ≥ 100 is turned, frame and all, so that its axis points at the centroid of its
+/// share of the map inside a window of 3 standard deviations around the axis: the luminance
+/// of `target` minus that of the other lobes, clamped at 0, weighted by solid angle. A sun or
+/// lamp that moved by a fraction of its width since the previous frame is then under its lobe
+/// again at once (Adam's warm steps move a narrow lobe by about 1 % of its width per
+/// iteration). Wider lobes, and lobes with no positive share in their window, are unchanged.
+pub fn centroid_step(target: &FitTarget, lobes: &[Asg]) -> Vec<Asg> {
+    let lum = crate::decompose::luminance_f64;
+    let (w, h) = (target.width as usize, target.height as usize);
+    let mut out = lobes.to_vec();
+    for (j, lobe) in lobes.iter().enumerate() {
+        let b = lobe.lambda.min(lobe.mu);
+        if !(b >= CENTROID_MIN_BANDWIDTH && b.is_finite()) {
+            continue;
+        }
+        let z = DVec3::from(lobe.axis);
+        let sin_r = (CENTROID_WINDOW / b).sqrt().min(1.0);
+        let (rho, cos_r) = (sin_r.asin(), (1.0 - sin_r * sin_r).sqrt());
+        let theta = z.y.clamp(-1.0, 1.0).acos();
+        let row = |t: f64| (t / PI * h as f64).clamp(0.0, h as f64);
+        let (y0, y1) = (
+            row(theta - rho).floor() as usize,
+            row(theta + rho).ceil() as usize,
+        );
+        let (mut acc, mut mass) = (DVec3::ZERO, 0.0);
+        for i in y0 * w..y1 * w {
+            let d = target.directions[i];
+            if d.dot(z) < cos_r {
+                continue;
+            }
+            let mut others = [0.0; 3];
+            for (k, l) in lobes.iter().enumerate() {
+                if k != j {
+                    let g = l.shape(d);
+                    for c in 0..3 {
+                        others[c] += l.rgb[c] * g;
+                    }
+                }
+            }
+            let share = (lum(target.radiance[i]) - lum(others)).max(0.0);
+            let m = target.weights[i] * share;
+            acc += d * m;
+            mass += m;
+        }
+        let centre = acc.normalize_or_zero();
+        let axis = z.cross(centre);
+        let sin_a = axis.length();
+        if !(mass > 0.0 && mass.is_finite()) || centre == DVec3::ZERO || sin_a < 1e-12 {
+            continue;
+        }
+        let turn = axis / sin_a * sin_a.atan2(z.dot(centre));
+        let o = &mut out[j];
+        o.axis = rotate(z, turn).to_array();
+        o.tangent = rotate(DVec3::from(o.tangent), turn).to_array();
+        o.bitangent = rotate(DVec3::from(o.bitangent), turn).to_array();
+    }
+    out
+}
+
 /// Fits frame after frame, warm-starting each from the previous result.
 #[derive(Clone, Debug)]
 pub struct AsgFitter {
@@ -1589,7 +1667,11 @@ impl AsgFitter {
         let result = match &self.previous {
             Some(prev) => optimise_continued(
                 target,
-                prev,
+                &if s.warm_centroid {
+                    centroid_step(target, prev)
+                } else {
+                    prev.clone()
+                },
                 Some(prev),
                 s.warm_iterations,
                 s.warm_learning_rate,
