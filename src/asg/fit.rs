@@ -50,10 +50,16 @@
 //!    as 150 at full size. The best loss seen on the finest level (or the start, if lower) is
 //!    returned. It converges better on the smooth sky but worse on maps with small lamps
 //!    (docs/asg.md), hence off by default.
-//! 5. **Warm start**: each later frame starts from the previous lobes and runs
-//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] at full size on
-//!    subsets of [`FitSettings::warm_subset`] of the tiles and normals, continuing the previous frame's Adam state ([`AdamState`], kept by [`AsgFitter`]): a
-//!    fresh Adam's first bias-corrected steps move every parameter by the full rate, which
+//! 5. **Warm start**: each later frame starts from the previous lobes, narrow ones (min(λ, μ)
+//!    ≥ 100) first turned onto the centroid of their share of the new frame around them
+//!    ([`centroid_step`], a mean-shift step; [`FitSettings::warm_centroid`]: Adam's small warm
+//!    steps move a sun-sized lobe by about 1 % of its width per iteration, too slow for a
+//!    turning map; L_T below is then measured from the lobes so moved — anchored at the
+//!    unmoved previous lobes, its proximal step pulled a turning map's sun lobe back and
+//!    doubled the gap to a long fit, docs/asg.md), and runs [`FitSettings::warm_iterations`] at
+//!    [`FitSettings::warm_learning_rate`] at full size on subsets of
+//!    [`FitSettings::warm_subset`] of the tiles and normals, continuing the previous frame's
+//!    Adam state ([`AdamState`], kept by [`AsgFitter`]): a fresh Adam's first bias-corrected steps move every parameter by the full rate, which
 //!    from a near-optimal start made the loss worse. L_T is not differentiated but applied as
 //!    a proximal step after each gradient step on L_R + w_D·L_D (proximal gradient): the prox
 //!    of τ‖u‖₂ is group soft-thresholding, u ← u·max(0, 1 − τ/‖u‖), i.e. each lobe moves back
@@ -137,7 +143,8 @@ pub struct FitSettings {
     pub first_subset: usize,
     /// Warm-started frames: before the Adam iterations, move each narrow lobe's axis to the
     /// centroid of its share of the map around it ([`centroid_step`]), so suns and lamps that
-    /// move faster than Adam's small warm steps are followed.
+    /// move faster than Adam's small warm steps are followed; L_T is then measured from the
+    /// moved lobes.
     pub warm_centroid: bool,
 }
 
@@ -1665,19 +1672,24 @@ impl AsgFitter {
     pub fn fit_target(&mut self, target: &FitTarget) -> FitResult {
         let s = &self.settings;
         let result = match &self.previous {
-            Some(prev) => optimise_continued(
-                target,
-                &if s.warm_centroid {
+            Some(prev) => {
+                // L_T is measured from the previous lobes as the centroid step moved them: the
+                // step says where a moving light went, L_T damps the rest of the change.
+                let start = if s.warm_centroid {
                     centroid_step(target, prev)
                 } else {
                     prev.clone()
-                },
-                Some(prev),
-                s.warm_iterations,
-                s.warm_learning_rate,
-                s,
-                &mut self.adam,
-            ),
+                };
+                optimise_continued(
+                    target,
+                    &start,
+                    Some(&start),
+                    s.warm_iterations,
+                    s.warm_learning_rate,
+                    s,
+                    &mut self.adam,
+                )
+            }
             None => {
                 let init = initial_lobes(target, s.lobes);
                 let levels = pyramid(target, s);
