@@ -3,7 +3,8 @@
 //! energy error; L1 vs L2; with and without the diffuse loss) and the temporal table on the
 //! built-in sky (with and without L_T).
 //!
-//! Run: `cargo run --release --example asg_table` (about a minute on 2 cores).
+//! Run: `cargo run --release --example asg_table` (about 3 minutes of CPU time; 10 minutes of
+//! wall time on the loaded 2-core development machine).
 
 use envlight::asg::eval::{
     energy_error, map_psnr, relative_rms, render_ball, LatLongMap, ShProjection,
