@@ -21,6 +21,14 @@
 //! 4. **Sums**: per tile in f32, per lobe across tiles in f64; tiles form 32 fixed groups
 //!    summed in group order, so results do not depend on the number of threads.
 //!
+//! 5. **Subsets** ([`Subset`]): an evaluation may visit only the tiles whose diagonal index
+//!    (tile row + tile column) is `phase` modulo `stride`, and scale its sums by `stride`: a
+//!    stratified estimate of the whole map's loss and gradient (every tile row contributes the
+//!    same share of its tiles when `stride` divides the tile columns) at 1/`stride` of the
+//!    cost; the stride is capped at the number of diagonals so no subset is empty. The
+//!    optimiser rotates `phase` from iteration to iteration (`FitSettings::warm_subset`,
+//!    `FitSettings::first_subset`), so over `stride` iterations every tile counts once.
+//!
 //! Relative accuracy against the f64 reference: about 10⁻⁶ on the loss and 10⁻⁴ on the gradient
 //! (`tests/asg.rs::fast_kernel_matches_the_exact_loss_and_gradient`).
 
@@ -47,6 +55,8 @@ type Block = [f32; LANES];
 #[derive(Clone, Debug)]
 struct Tile {
     first: usize,
+    /// Tile row + tile column: the tile is in subset `diagonal % stride` (step 5).
+    diagonal: usize,
     blocks: usize,
     centre: DVec3,
     cos_rho: f64,
@@ -63,6 +73,8 @@ pub struct Pixels {
     rad: [Vec<Block>; 3],
     tiles: Vec<Tile>,
     groups: Vec<std::ops::Range<usize>>,
+    /// Number of tile diagonals (tile rows + tile columns − 1): the largest useful stride.
+    diagonals: usize,
 }
 
 /// A lobe in the kernel's units (amplitude divided by the map's mean M).
@@ -89,6 +101,16 @@ pub struct Sums {
 }
 
 impl Sums {
+    fn scale(&mut self, f: f64) {
+        self.x *= f;
+        self.y *= f;
+        self.z *= f;
+        self.lambda *= f;
+        self.mu *= f;
+        for c in &mut self.c {
+            *c *= f;
+        }
+    }
     fn add(&mut self, o: &Sums) {
         self.x += o.x;
         self.y += o.y;
@@ -119,9 +141,10 @@ impl Pixels {
             rad: [Vec::new(), Vec::new(), Vec::new()],
             tiles: Vec::new(),
             groups: Vec::new(),
+            diagonals: 1,
         };
-        for ty in (0..h).step_by(tr as usize) {
-            for tx in (0..w).step_by(tc as usize) {
+        for (tyi, ty) in (0..h).step_by(tr as usize).enumerate() {
+            for (txi, tx) in (0..w).step_by(tc as usize).enumerate() {
                 let mut idx = Vec::with_capacity((tr * tc) as usize);
                 for y in ty..(ty + tr).min(h) {
                     for x in tx..(tx + tc).min(w) {
@@ -143,6 +166,7 @@ impl Pixels {
                 let blocks = idx.len().div_ceil(LANES);
                 px.tiles.push(Tile {
                     first: px.dx.len(),
+                    diagonal: tyi + txi,
                     blocks,
                     centre,
                     cos_rho: rho.cos(),
@@ -175,6 +199,7 @@ impl Pixels {
                 }
             }
         }
+        px.diagonals = px.tiles.iter().map(|t| t.diagonal + 1).max().unwrap_or(1);
         let n = px.tiles.len();
         px.groups = (0..GROUPS)
             .map(|g| (g * n / GROUPS)..((g + 1) * n / GROUPS))
@@ -250,6 +275,7 @@ fn run_groups(
     lobes: &[KLobe],
     norm: Norm,
     want_grad: bool,
+    subset: Subset,
     groups: &[std::ops::Range<usize>],
     out: &mut [Option<(f64, Vec<Sums>)>],
 ) {
@@ -259,6 +285,9 @@ fn run_groups(
         let mut loss = 0.0f64;
         let mut sums = vec![Sums::default(); if want_grad { k } else { 0 }];
         for tile in &px.tiles[range.clone()] {
+            if tile.diagonal % subset.stride != subset.phase {
+                continue;
+            }
             s.active.clear();
             s.active
                 .extend((0..k).filter(|&j| visible(tile, &lobes[j])));
@@ -415,10 +444,11 @@ fn run_groups_avx2(
     lobes: &[KLobe],
     norm: Norm,
     want_grad: bool,
+    subset: Subset,
     groups: &[std::ops::Range<usize>],
     out: &mut [Option<(f64, Vec<Sums>)>],
 ) {
-    run_groups(px, lobes, norm, want_grad, groups, out);
+    run_groups(px, lobes, norm, want_grad, subset, groups, out);
 }
 
 fn run_groups_dispatch(
@@ -426,6 +456,7 @@ fn run_groups_dispatch(
     lobes: &[KLobe],
     norm: Norm,
     want_grad: bool,
+    subset: Subset,
     groups: &[std::ops::Range<usize>],
     out: &mut [Option<(f64, Vec<Sums>)>],
 ) {
@@ -433,26 +464,56 @@ fn run_groups_dispatch(
     {
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            unsafe { run_groups_avx2(px, lobes, norm, want_grad, groups, out) };
+            unsafe { run_groups_avx2(px, lobes, norm, want_grad, subset, groups, out) };
             return;
         }
     }
-    run_groups(px, lobes, norm, want_grad, groups, out);
+    run_groups(px, lobes, norm, want_grad, subset, groups, out);
+}
+
+/// Which tiles an evaluation visits (module doc, step 5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Subset {
+    /// Every `stride`-th tile diagonal (1 = all tiles).
+    pub stride: usize,
+    /// Which diagonal class, `0..stride`.
+    pub phase: usize,
+}
+
+impl Subset {
+    /// All tiles.
+    pub const ALL: Subset = Subset {
+        stride: 1,
+        phase: 0,
+    };
+
+    /// Subset `phase % stride` of `stride` (stride 0 counts as 1).
+    pub fn new(stride: usize, phase: usize) -> Self {
+        let stride = stride.max(1);
+        Self {
+            stride,
+            phase: phase % stride,
+        }
+    }
 }
 
 /// L_R (normalised as `fit`'s) and, if `want_grad`, the gradient sums of every lobe, on
-/// `threads` named scoped threads.
+/// `threads` named scoped threads; over the tiles of `subset` only, scaled by its stride (an
+/// estimate of the whole map's sums).
 pub fn reconstruction(
     px: &Pixels,
     lobes: &[KLobe],
     norm: Norm,
     threads: usize,
     want_grad: bool,
+    subset: Subset,
 ) -> (f64, Vec<Sums>) {
+    // A stride above the number of diagonals would leave some subsets empty.
+    let subset = Subset::new(subset.stride.min(px.diagonals), subset.phase);
     let k = lobes.len();
     let mut results: Vec<Option<(f64, Vec<Sums>)>> = vec![None; px.groups.len()];
     if threads <= 1 || px.groups.len() <= 1 {
-        run_groups_dispatch(px, lobes, norm, want_grad, &px.groups, &mut results);
+        run_groups_dispatch(px, lobes, norm, want_grad, subset, &px.groups, &mut results);
     } else {
         let per = px.groups.len().div_ceil(threads);
         std::thread::scope(|scope| {
@@ -464,7 +525,7 @@ pub fn reconstruction(
                 let spawned = std::thread::Builder::new()
                     .name(format!("asg-fit-{ti}"))
                     .spawn_scoped(scope, move || {
-                        run_groups_dispatch(px, lobes, norm, want_grad, gs, outs)
+                        run_groups_dispatch(px, lobes, norm, want_grad, subset, gs, outs)
                     });
                 if let Err(e) = spawned {
                     // No thread: this group set is computed below on the caller's thread.
@@ -480,6 +541,7 @@ pub fn reconstruction(
                     lobes,
                     norm,
                     want_grad,
+                    subset,
                     std::slice::from_ref(g),
                     std::slice::from_mut(out),
                 );
@@ -492,6 +554,13 @@ pub fn reconstruction(
         loss += l;
         for (a, b) in sums.iter_mut().zip(s) {
             a.add(b);
+        }
+    }
+    if subset.stride > 1 {
+        let f = subset.stride as f64;
+        loss *= f;
+        for s in &mut sums {
+            s.scale(f);
         }
     }
     (loss, sums)

@@ -30,7 +30,16 @@
 //!    exact f64 sums remain for [`loss`] and [`loss_gradient`]. The kernel's fixed tile groups
 //!    run on [`FitSettings::threads`] named scoped threads, summed in group order: results do
 //!    not depend on the thread count.
-//!    **First frame**: [`FitSettings::iterations`] (1,000) at full size by default. Optionally
+//!    **Stratified subsets**: an iteration may take its gradient on 1/s of the tiles (a
+//!    diagonal class of the tile grid, [`super::fast::Subset`]) and 1/s of the diffuse
+//!    normals, scaled by s, the class rotating every iteration, so s iterations together see
+//!    every pixel once at the cost of one full evaluation (stochastic gradients, as in SGD).
+//!    The loss of the start and of the returned lobes are always evaluated on the whole map.
+//!    **First frame**: [`FitSettings::iterations`] (8,000) on subsets of
+//!    [`FitSettings::first_subset`] (1/4) of the tiles by default, costing about 2,000
+//!    whole-map iterations: on the built-in sky at 256×512 this reaches a point that 6,000
+//!    more whole-map iterations improve by 0.1 % (1,000 whole-map iterations, the former
+//!    default, stopped 5–7 % above; docs/asg.md). Optionally
 //!    ([`optimise_pyramid`], [`FitSettings::coarse_height`]) coarse-to-fine: the target is halved
 //!    ([`FitTarget::half`], solid-angle-weighted 2×2 averages, same diffuse ground truth) down
 //!    to [`FitSettings::coarse_height`] rows; [`FitSettings::iterations`] are split so the
@@ -41,10 +50,16 @@
 //!    as 150 at full size. The best loss seen on the finest level (or the start, if lower) is
 //!    returned. It converges better on the smooth sky but worse on maps with small lamps
 //!    (docs/asg.md), hence off by default.
-//! 5. **Warm start**: each later frame starts from the previous lobes and runs
-//!    [`FitSettings::warm_iterations`] at [`FitSettings::warm_learning_rate`] at full size,
-//!    continuing the previous frame's Adam state ([`AdamState`], kept by [`AsgFitter`]): a
-//!    fresh Adam's first bias-corrected steps move every parameter by the full rate, which
+//! 5. **Warm start**: each later frame starts from the previous lobes, narrow ones (min(λ, μ)
+//!    ≥ 100) first turned onto the centroid of their share of the new frame around them
+//!    ([`centroid_step`], a mean-shift step; [`FitSettings::warm_centroid`]: Adam's small warm
+//!    steps move a sun-sized lobe by about 1 % of its width per iteration, too slow for a
+//!    turning map; L_T below is then measured from the lobes so moved — anchored at the
+//!    unmoved previous lobes, its proximal step pulled a turning map's sun lobe back and
+//!    doubled the gap to a long fit, docs/asg.md), and runs [`FitSettings::warm_iterations`] at
+//!    [`FitSettings::warm_learning_rate`] at full size on subsets of
+//!    [`FitSettings::warm_subset`] of the tiles and normals, continuing the previous frame's
+//!    Adam state ([`AdamState`], kept by [`AsgFitter`]): a fresh Adam's first bias-corrected steps move every parameter by the full rate, which
 //!    from a near-optimal start made the loss worse. L_T is not differentiated but applied as
 //!    a proximal step after each gradient step on L_R + w_D·L_D (proximal gradient): the prox
 //!    of τ‖u‖₂ is group soft-thresholding, u ← u·max(0, 1 − τ/‖u‖), i.e. each lobe moves back
@@ -89,9 +104,11 @@ pub struct FitSettings {
     pub lobes: usize,
     /// Fit-map height h (width 2h), 4..=1024.
     pub height: u32,
-    /// Adam iterations of the first frame.
+    /// Adam iterations of the first frame (each on 1/[`FitSettings::first_subset`] of the
+    /// map).
     pub iterations: usize,
-    /// Adam iterations of every warm-started frame.
+    /// Adam iterations of every warm-started frame (each on 1/[`FitSettings::warm_subset`]
+    /// of the map).
     pub warm_iterations: usize,
     /// Initial learning rate of the first frame (log-bandwidth and log-amplitude steps; radians
     /// for a wide lobe's rotation).
@@ -117,6 +134,18 @@ pub struct FitSettings {
     pub coarse_height: u32,
     /// First frame: share of [`FitSettings::iterations`] run on the finest level, 0..=1.
     pub fine_share: f64,
+    /// Warm-started frames: each iteration's gradient is taken on 1/`warm_subset` of the
+    /// fit map's tiles and of the diffuse normals (stratified subsets, rotated every
+    /// iteration; 1 = all); the returned loss is always the whole map's. 1..=16.
+    pub warm_subset: usize,
+    /// The same for the first frame (its gradients on rotating subsets of 1/`first_subset` of
+    /// the tiles and normals; the start's and the returned loss are the whole map's). 1..=16.
+    pub first_subset: usize,
+    /// Warm-started frames: before the Adam iterations, move each narrow lobe's axis to the
+    /// centroid of its share of the map around it ([`centroid_step`]), so suns and lamps that
+    /// move faster than Adam's small warm steps are followed; L_T is then measured from the
+    /// moved lobes.
+    pub warm_centroid: bool,
 }
 
 impl Default for FitSettings {
@@ -124,8 +153,8 @@ impl Default for FitSettings {
         Self {
             lobes: DEFAULT_LOBES,
             height: DEFAULT_HEIGHT,
-            iterations: 1000,
-            warm_iterations: 6,
+            iterations: 8000,
+            warm_iterations: 8,
             learning_rate: 0.05,
             warm_learning_rate: 0.01,
             diffuse_weight: 1.0,
@@ -136,6 +165,9 @@ impl Default for FitSettings {
             isotropic: false,
             coarse_height: 1024,
             fine_share: 0.1,
+            warm_subset: 4,
+            first_subset: 4,
+            warm_centroid: true,
         }
     }
 }
@@ -175,6 +207,14 @@ impl FitSettings {
         }
         if !(self.fine_share.is_finite() && (0.0..=1.0).contains(&self.fine_share)) {
             return Err(bad("fine_share", self.fine_share, "must be in [0, 1]"));
+        }
+        for (name, v) in [
+            ("warm_subset", self.warm_subset),
+            ("first_subset", self.first_subset),
+        ] {
+            if !(1..=16).contains(&v) {
+                return Err(bad(name, v as f64, "must be in 1..=16"));
+            }
         }
         if !(16..=4096).contains(&self.diffuse_normals) {
             return Err(bad(
@@ -269,13 +309,16 @@ pub fn resample_latlong(frame: &HdrFrame, height: u32) -> Result<Vec<[f64; 3]>, 
     let exact = frame.projection == Projection::LatLong && sw % w == 0 && sh % h == 0;
     if exact {
         let (fx, fy) = (sw / w, sh / h);
+        let sines: Vec<f64> = (0..sh)
+            .map(|sy| (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin())
+            .collect();
         for y in 0..h {
             for x in 0..w {
                 let mut acc = [0.0; 3];
                 let mut wsum = 0.0;
                 for j in 0..fy {
                     let sy = y * fy + j;
-                    let sin_t = (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin();
+                    let sin_t = sines[sy as usize];
                     for i in 0..fx {
                         let p = frame.pixel(x * fx + i, sy);
                         for c in 0..3 {
@@ -350,14 +393,18 @@ impl FitTarget {
             .collect();
         let omegas = Projection::LatLong.solid_angles(width, height);
         let weights: Vec<f64> = omegas.iter().map(|o| o / (4.0 * PI)).collect();
+        // Pixel centres as `Projection::LatLong.pixel_to_direction` gives them (the same
+        // arithmetic, with the sines and cosines of each row and column computed once).
+        let rows: Vec<(f64, f64)> = (0..height)
+            .map(|y| (PI * (f64::from(y) + 0.5) / f64::from(height)).sin_cos())
+            .collect();
+        let cols: Vec<(f64, f64)> = (0..width)
+            .map(|x| (2.0 * PI * (f64::from(x) + 0.5) / f64::from(width)).sin_cos())
+            .collect();
         let mut directions = Vec::with_capacity(radiance.len());
-        for y in 0..height {
-            for x in 0..width {
-                directions.push(
-                    Projection::LatLong
-                        .pixel_to_direction(width, height, f64::from(x) + 0.5, f64::from(y) + 0.5)
-                        .unwrap_or(DVec3::Y),
-                );
+        for &(sin_t, cos_t) in &rows {
+            for &(sin_p, cos_p) in &cols {
+                directions.push(DVec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p));
             }
         }
         let mut integral = [0.0; 3];
@@ -551,7 +598,8 @@ pub struct Loss {
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct FitResult {
     pub lobes: Vec<Asg>,
-    /// Loss of the initial (greedy or warm-start) lobes.
+    /// Loss of the initial (greedy or warm-start) lobes (with [`FitSettings::warm_subset`] > 1,
+    /// a warm refit's is the estimate from the first iteration's subset of tiles).
     pub initial_loss: Loss,
     /// Loss of the returned lobes.
     pub loss: Loss,
@@ -773,15 +821,20 @@ fn reconstruction_band(
     loss
 }
 
-/// Diffuse loss and (if `grads`) its gradient.
+/// Diffuse loss and (if `grads`) its gradient; over the normals `phase` modulo `stride` only
+/// (the Fibonacci normals run from pole to pole, so that is a stratified subset), scaled by
+/// the stride.
 fn diffuse_loss(
     target: &FitTarget,
     lobes: &[Derived],
     norm: Norm,
     grads: Option<&mut [Grad]>,
+    subset: super::fast::Subset,
 ) -> f64 {
     let nn = target.normals.len() as f64;
-    let inv = 1.0 / (nn * PI * target.mean);
+    let stride = subset.stride.clamp(1, target.normals.len().max(1));
+    let phase = subset.phase % stride;
+    let inv = stride as f64 / (nn * PI * target.mean);
     let per: Vec<(f64, f64, f64, f64)> = lobes
         .iter()
         .map(|l| {
@@ -792,7 +845,13 @@ fn diffuse_loss(
     let mut loss = 0.0;
     let mut grads = grads;
     let mut h = vec![(0.0, 0.0, 0.0); lobes.len()];
-    for (n, gt) in target.normals.iter().zip(&target.diffuse) {
+    for (n, gt) in target
+        .normals
+        .iter()
+        .zip(&target.diffuse)
+        .skip(phase)
+        .step_by(stride)
+    {
         let mut pred = [0.0; 3];
         for (j, l) in lobes.iter().enumerate() {
             h[j] = super::cosine_convolution(n.dot(l.z), per[j].3);
@@ -891,6 +950,8 @@ struct Mode {
     fast: bool,
     /// Whether the gradient includes L_T's (the optimiser uses a proximal step instead).
     temporal_grad: bool,
+    /// Tiles visited by the fast kernel and diffuse normals visited (every stride-th).
+    subset: super::fast::Subset,
 }
 
 /// The whole loss of `lobes` (and its gradient with respect to the free quantities).
@@ -923,6 +984,7 @@ fn loss_and_grad(
             settings.norm,
             mode.threads,
             want_grad,
+            mode.subset,
         );
         let grads = sums
             .iter()
@@ -946,6 +1008,7 @@ fn loss_and_grad(
             &derived,
             settings.norm,
             want_grad.then_some(dgrads.as_mut_slice()),
+            mode.subset,
         )
     } else {
         0.0
@@ -1104,6 +1167,7 @@ fn parameter_gradient(
         want_grad: true,
         fast,
         temporal_grad: true,
+        subset: super::fast::Subset::ALL,
     };
     let (loss, g) = loss_and_grad(target, &ls, prev, settings, mode);
     (
@@ -1128,6 +1192,7 @@ pub fn loss(
         want_grad: false,
         fast: false,
         temporal_grad: false,
+        subset: super::fast::Subset::ALL,
     };
     loss_and_grad(target, &ls, prev, settings, mode).0
 }
@@ -1321,11 +1386,23 @@ fn run_stages(
             warm: prev.is_some(),
         };
     }
-    let mode = |want_grad| Mode {
+    // Warm refits may take each gradient on a rotating subset of the tiles (the final loss is
+    // always the whole map's).
+    let stride = if prev.is_some() {
+        settings.warm_subset.max(1)
+    } else {
+        settings.first_subset.max(1)
+    };
+    let mode = |want_grad, phase| Mode {
         threads,
         want_grad,
         fast: true,
         temporal_grad: false,
+        subset: if want_grad {
+            super::fast::Subset::new(stride, phase)
+        } else {
+            super::fast::Subset::ALL
+        },
     };
     let (b1, b2, eps) = (0.9, 0.999, 1e-12);
     if state.moments.len() != lobes.len() {
@@ -1336,7 +1413,7 @@ fn run_stages(
     }
     let mut best: Option<(Loss, Vec<Lobe>)> = None;
     let mut initial = None;
-    if stages.len() > 1 {
+    if stages.len() > 1 || (stride > 1 && prev.is_none()) {
         let amax = (target.max_bandwidth() - MIN_BANDWIDTH).ln();
         let clamped: Vec<Lobe> = lobes
             .iter()
@@ -1346,7 +1423,7 @@ fn run_stages(
                 ..*l
             })
             .collect();
-        let l = loss_and_grad(target, &clamped, prevs, settings, mode(false)).0;
+        let l = loss_and_grad(target, &clamped, prevs, settings, mode(false, 0)).0;
         initial = Some(l);
         // The coarse levels can end worse than the start: the start stays a candidate.
         best = Some((l, clamped));
@@ -1364,16 +1441,24 @@ fn run_stages(
             if !want && !last {
                 break;
             }
-            let (loss, grads) = loss_and_grad(stage, &lobes, prevs, settings, mode(want));
+            let (loss, grads) = loss_and_grad(
+                stage,
+                &lobes,
+                prevs,
+                settings,
+                mode(want, state.steps % stride),
+            );
             if last {
                 if initial.is_none() {
                     initial = Some(loss);
                 }
                 // With L_T as a proximal step, the iterates descend L_R + w_D·L_D + a penalty
                 // on the change; the last one is returned (the best total seen would be the
-                // unchanged previous lobes, L_T being 0 there). Otherwise the best seen.
+                // unchanged previous lobes, L_T being 0 there). Otherwise the best seen;
+                // with subsets only the whole-map losses (the start's, the last one) count.
                 let keep_last = prevs.is_some() && settings.temporal_weight > 0.0;
-                if keep_last || best.as_ref().is_none_or(|(b, _)| loss.total < b.total) {
+                let exact = !want || stride == 1;
+                if exact && (keep_last || best.as_ref().is_none_or(|(b, _)| loss.total < b.total)) {
                     best = Some((loss, lobes.clone()));
                 }
             }
@@ -1464,6 +1549,72 @@ fn temporal_prox(p: &mut Lobe, prev: &Lobe, scales: &[f64; 11], tau: f64) {
     }
 }
 
+/// Lobes at least this narrow (min(λ, μ)) get the centroid step.
+const CENTROID_MIN_BANDWIDTH: f64 = 100.0;
+/// The centroid window: where min(λ, μ)·sin²θ ≤ this (3 standard deviations of the lobe's
+/// wider direction).
+const CENTROID_WINDOW: f64 = 9.0;
+
+/// The warm start's centroid (mean-shift) step (module doc, step 5): every lobe with
+/// min(λ, μ) ≥ 100 is turned, frame and all, so that its axis points at the centroid of its
+/// share of the map inside a window of 3 standard deviations around the axis: the luminance
+/// of `target` minus that of the other lobes, clamped at 0, weighted by solid angle. A sun or
+/// lamp that moved by a fraction of its width since the previous frame is then under its lobe
+/// again at once (Adam's warm steps move a narrow lobe by about 1 % of its width per
+/// iteration). Wider lobes, and lobes with no positive share in their window, are unchanged.
+pub fn centroid_step(target: &FitTarget, lobes: &[Asg]) -> Vec<Asg> {
+    let lum = crate::decompose::luminance_f64;
+    let (w, h) = (target.width as usize, target.height as usize);
+    let mut out = lobes.to_vec();
+    for (j, lobe) in lobes.iter().enumerate() {
+        let b = lobe.lambda.min(lobe.mu);
+        if !(b >= CENTROID_MIN_BANDWIDTH && b.is_finite()) {
+            continue;
+        }
+        let z = DVec3::from(lobe.axis);
+        let sin_r = (CENTROID_WINDOW / b).sqrt().min(1.0);
+        let (rho, cos_r) = (sin_r.asin(), (1.0 - sin_r * sin_r).sqrt());
+        let theta = z.y.clamp(-1.0, 1.0).acos();
+        let row = |t: f64| (t / PI * h as f64).clamp(0.0, h as f64);
+        let (y0, y1) = (
+            row(theta - rho).floor() as usize,
+            row(theta + rho).ceil() as usize,
+        );
+        let (mut acc, mut mass) = (DVec3::ZERO, 0.0);
+        for i in y0 * w..y1 * w {
+            let d = target.directions[i];
+            if d.dot(z) < cos_r {
+                continue;
+            }
+            let mut others = [0.0; 3];
+            for (k, l) in lobes.iter().enumerate() {
+                if k != j {
+                    let g = l.shape(d);
+                    for c in 0..3 {
+                        others[c] += l.rgb[c] * g;
+                    }
+                }
+            }
+            let share = (lum(target.radiance[i]) - lum(others)).max(0.0);
+            let m = target.weights[i] * share;
+            acc += d * m;
+            mass += m;
+        }
+        let centre = acc.normalize_or_zero();
+        let axis = z.cross(centre);
+        let sin_a = axis.length();
+        if !(mass > 0.0 && mass.is_finite()) || centre == DVec3::ZERO || sin_a < 1e-12 {
+            continue;
+        }
+        let turn = axis / sin_a * sin_a.atan2(z.dot(centre));
+        let o = &mut out[j];
+        o.axis = rotate(z, turn).to_array();
+        o.tangent = rotate(DVec3::from(o.tangent), turn).to_array();
+        o.bitangent = rotate(DVec3::from(o.bitangent), turn).to_array();
+    }
+    out
+}
+
 /// Fits frame after frame, warm-starting each from the previous result.
 #[derive(Clone, Debug)]
 pub struct AsgFitter {
@@ -1521,15 +1672,24 @@ impl AsgFitter {
     pub fn fit_target(&mut self, target: &FitTarget) -> FitResult {
         let s = &self.settings;
         let result = match &self.previous {
-            Some(prev) => optimise_continued(
-                target,
-                prev,
-                Some(prev),
-                s.warm_iterations,
-                s.warm_learning_rate,
-                s,
-                &mut self.adam,
-            ),
+            Some(prev) => {
+                // L_T is measured from the previous lobes as the centroid step moved them: the
+                // step says where a moving light went, L_T damps the rest of the change.
+                let start = if s.warm_centroid {
+                    centroid_step(target, prev)
+                } else {
+                    prev.clone()
+                };
+                optimise_continued(
+                    target,
+                    &start,
+                    Some(&start),
+                    s.warm_iterations,
+                    s.warm_learning_rate,
+                    s,
+                    &mut self.adam,
+                )
+            }
             None => {
                 let init = initial_lobes(target, s.lobes);
                 let levels = pyramid(target, s);
