@@ -203,7 +203,10 @@ says goodbye (or --frames have arrived).
 ADDR is unix:PATH (or a path), tcp:HOST:PORT (or HOST:PORT), or ws://HOST:PORT/.
 With --json every frame is printed as one JSON line (docs/protocol.md's JSON form); otherwise
 one summary line per frame. --representation asg prints the ASG sets of a daemon whose [asg]
-stage is enabled (--max-lights then caps the lobes).";
+stage is enabled (--max-lights then caps the lobes); --representation wavelet the wavelet
+coefficient sets of a daemon whose [wavelet] stage is enabled (--max-lights then caps the
+coefficients: the scaling coefficient first, then the largest; the summary line's total rgb is
+∫L dω from the scaling coefficient).";
 
 #[derive(Args, Debug)]
 struct DaemonArgs {
