@@ -21,8 +21,8 @@
 //!    frame's seq and time.
 //!
 //! Every step is deterministic, so the set of a frame does not depend on timing: what a client
-//! receives equals [`crate::wavelet::approximate`] on [`OctahedralMap::from_frame`] of the same
-//! frame, bit for bit.
+//! receives equals [`crate::wavelet::approximate`] on
+//! [`crate::wavelet::sphere::OctahedralMap::from_frame`] of the same frame, bit for bit.
 //!
 //! The rest is the ASG stage's design ([`crate::asg_stage`]): the decompose thread offers each
 //! frame after publishing its lights, a live feed keeps only the newest (skips counted), a
