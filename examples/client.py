@@ -2,15 +2,17 @@
 """Minimal envlight client using only the Python standard library.
 
 Connects to a running daemon over a Unix socket or TCP, subscribes (binary frames), and prints
-one line per light list (or per ASG set with --representation asg). The wire format is
-docs/protocol.md.
+one line per light list (or per ASG set with --representation asg, per wavelet coefficient set
+with --representation wavelet). The wire format is docs/protocol.md.
 
     python3 examples/client.py unix:/run/envlight/envlight.sock
     python3 examples/client.py 127.0.0.1:7878 --max-lights 16 --frames 10
     python3 examples/client.py 127.0.0.1:7878 --representation asg   # needs [asg] enabled
+    python3 examples/client.py 127.0.0.1:7878 --representation wavelet   # needs [wavelet] enabled
 """
 
 import argparse
+import math
 import socket
 import struct
 import sys
@@ -19,7 +21,8 @@ MAGIC = b"ENVL"
 VERSION = 1
 TYPE_FRAME, TYPE_ERROR, TYPE_GOODBYE, TYPE_SUBSCRIBE = 1, 2, 3, 16
 MAX_MESSAGE_LEN = 1 << 20
-REPRESENTATIONS = {"lights": 0, "asg": 1}
+REPRESENTATIONS = {"lights": 0, "asg": 1, "wavelet": 2}
+BASES = {1: "haar", **{n: f"db{n}" for n in range(2, 11)}, **{16 + n: f"coif{n}" for n in range(1, 6)}}
 
 
 def connect(address):
@@ -35,7 +38,7 @@ def connect(address):
 
 
 def subscribe_message(max_lights, representation=0):
-    # length, magic, version, type | max_lights, representation (0 = lights, 1 = asg),
+    # length, magic, version, type | max_lights, representation (0 = lights, 1 = asg, 2 = wavelet),
     # format 0 = binary, reserved
     body = struct.pack("<IBBH", max_lights, representation, 0, 0)
     return struct.pack("<I4sHH", 8 + len(body), MAGIC, VERSION, TYPE_SUBSCRIBE) + body
@@ -67,6 +70,14 @@ def read_message(sock):
 def parse_frame(body):
     seq, time, representation, flags, _reserved, count = struct.unpack_from("<QdBBHI", body)
     frame = {"seq": seq, "time": time, "stale": bool(flags & 1), "representation": representation}
+    if representation == 2:
+        # Prefix: basis code, levels, map (0 = equal-area octahedral), reserved, side; then
+        # records of index (row * side + column in the coefficient layout) and rgb.
+        basis, levels, _map, _reserved, side = struct.unpack_from("<BBBBI", body, 24)
+        coefficients = [struct.unpack_from("<I3f", body, 32 + 16 * i) for i in range(count)]
+        frame.update(basis=BASES.get(basis, f"code {basis}"), levels=levels, side=side,
+                     coefficients=[(c[0], c[1:4]) for c in coefficients])
+        return frame
     if representation == 1:
         # ASG lobe: id, axis, tangent (bitangent = axis x tangent), lambda, mu, rgb, integral.
         lobes = []
@@ -90,7 +101,8 @@ def main():
     parser.add_argument("--max-lights", type=int, default=0, help="at most N lights per frame (0 = all)")
     parser.add_argument("--frames", type=int, default=0, help="stop after N frames (0 = until goodbye)")
     parser.add_argument("--representation", choices=sorted(REPRESENTATIONS), default="lights",
-                        help="directional lights or ASG lobes (--max-lights then caps the lobes)")
+                        help="directional lights, ASG lobes or wavelet coefficients "
+                             "(--max-lights then caps the lobes or coefficients)")
     args = parser.parse_args()
 
     sock = connect(args.address)
@@ -101,7 +113,16 @@ def main():
         if kind == TYPE_FRAME:
             frame = parse_frame(body)
             stale = " (stale)" if frame["stale"] else ""
-            if "lobes" in frame:
+            if "coefficients" in frame:
+                # The scaling coefficients (top-left block of side / 2^levels) give the integral:
+                # sum of texels = 2^levels * sum of scaling coefficients, texel = 4 pi / side^2 sr.
+                side, levels, items = frame["side"], frame["levels"], frame["coefficients"]
+                block = side >> levels
+                scaling = [rgb for index, rgb in items if index // side < block and index % side < block]
+                scale = 2 ** levels * 4 * math.pi / side ** 2
+                total = [scale * sum(rgb[c] for rgb in scaling) for c in range(3)]
+                what = f"wavelet coefficients ({frame['basis']} on {side}^2, {levels} levels)"
+            elif "lobes" in frame:
                 items, what = frame["lobes"], "ASG lobes"
                 total = [sum(g["rgb"][c] * g["integral"] for g in items) for c in range(3)]
             else:

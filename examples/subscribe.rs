@@ -1,10 +1,11 @@
 //! A Rust client of the envlight daemon: connect, subscribe for the brightest N lights (or ASG
-//! lobes), and print each frame's strongest one.
+//! lobes, or wavelet coefficients), and print each frame's strongest one.
 //!
 //! ```sh
 //! cargo run --release -- run &                       # the daemon on the built-in sky
 //! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 16
 //! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 16 asg   # needs [asg] enabled
+//! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 256 wavelet   # [wavelet] enabled
 //! ```
 
 use envlight::stream::client::{Client, Endpoint};
@@ -21,8 +22,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let representation = match args.next().as_deref() {
         None | Some("lights") => Representation::Lights,
         Some("asg") => Representation::Asg,
+        Some("wavelet") => Representation::Wavelet,
         Some(other) => {
-            return Err(format!("unknown representation {other:?}: lights or asg").into())
+            return Err(format!("unknown representation {other:?}: lights, asg or wavelet").into())
         }
     };
     let request = Request {
@@ -74,6 +76,32 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         lobe.rgb.map(|c| c * lobe.integral)
                     ),
                     None => writeln!(out, "seq {:>5}: no lobes", frame.seq),
+                };
+                if written.is_err() {
+                    break;
+                }
+            }
+            Message::Wavelet(frame) => {
+                let frame = frame.into_wavelet_frame();
+                let set = &frame.set;
+                let norm = |rgb: &[f32; 3]| rgb.iter().map(|c| c * c).sum::<f32>().sqrt();
+                let largest = set
+                    .coefficients
+                    .iter()
+                    .max_by(|a, b| norm(&a.1).total_cmp(&norm(&b.1)));
+                let written = match largest {
+                    Some((index, rgb)) => writeln!(
+                        out,
+                        "seq {:>5}: {} {} coefficients on {}²; largest index {} = {:?}; ∫L dω {:?} W/m²",
+                        frame.seq,
+                        set.coefficients.len(),
+                        set.basis,
+                        set.side,
+                        index,
+                        rgb,
+                        frame.integral().map(|c| c as f32)
+                    ),
+                    None => writeln!(out, "seq {:>5}: no coefficients", frame.seq),
                 };
                 if written.is_err() {
                     break;

@@ -31,11 +31,12 @@
 
 use crate::asg::fit::{AsgFitter, FitSettings};
 use crate::asg::AsgError;
-use crate::frame::HdrFrame;
+pub use crate::frame_feed::CloseOnDrop;
+use crate::frame_feed::FrameFeed;
 use crate::light::AsgSet;
 use crate::publication::{publish, Latest, Publication};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tokio::sync::watch;
@@ -76,114 +77,8 @@ pub enum AsgStageError {
     Panicked(String),
 }
 
-#[derive(Default)]
-struct Slot {
-    frame: Option<(HdrFrame, Instant)>,
-    closed: bool,
-}
-
-#[derive(Default)]
-struct FeedInner {
-    slot: Mutex<Slot>,
-    /// Signalled when a frame is put in the slot, taken out of it, or the feed closes.
-    changed: Condvar,
-    lossless: bool,
-    offered: AtomicU64,
-    skipped: AtomicU64,
-}
-
-/// The hand-off from the decompose thread to the ASG stage: one slot, newest frame wins (or,
-/// lossless, the sender waits for the slot). Cheap to clone.
-#[derive(Clone, Default)]
-pub struct AsgFeed(Arc<FeedInner>);
-
-impl std::fmt::Debug for AsgFeed {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("AsgFeed")
-            .field("lossless", &self.0.lossless)
-            .finish_non_exhaustive()
-    }
-}
-
-impl AsgFeed {
-    /// An open feed; `lossless` makes [`AsgFeed::offer`] wait for a free slot instead of
-    /// replacing the waiting frame.
-    pub fn new(lossless: bool) -> Self {
-        Self(Arc::new(FeedInner {
-            lossless,
-            ..FeedInner::default()
-        }))
-    }
-
-    fn lock(&self) -> MutexGuard<'_, Slot> {
-        self.0
-            .slot
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-    }
-
-    /// Hands a frame to the stage. Live: replaces a frame still waiting (counted as skipped)
-    /// and returns at once. Lossless: waits while a frame is waiting. A closed feed drops it.
-    pub fn offer(&self, frame: HdrFrame) {
-        let mut slot = self.lock();
-        if slot.closed {
-            return;
-        }
-        self.0.offered.fetch_add(1, Ordering::AcqRel);
-        if self.0.lossless {
-            while slot.frame.is_some() && !slot.closed {
-                slot = self
-                    .0
-                    .changed
-                    .wait(slot)
-                    .unwrap_or_else(std::sync::PoisonError::into_inner);
-            }
-            if slot.closed {
-                return;
-            }
-        }
-        if slot.frame.replace((frame, Instant::now())).is_some() {
-            self.0.skipped.fetch_add(1, Ordering::AcqRel);
-        }
-        drop(slot);
-        self.0.changed.notify_all();
-    }
-
-    /// No more frames: the stage fits the one still waiting (if any) and ends.
-    pub fn close(&self) {
-        self.lock().closed = true;
-        self.0.changed.notify_all();
-    }
-
-    /// The next frame, waiting for one; `None` once the feed is closed and empty.
-    fn take(&self) -> Option<(HdrFrame, Instant)> {
-        let mut slot = self.lock();
-        loop {
-            if let Some(frame) = slot.frame.take() {
-                drop(slot);
-                self.0.changed.notify_all();
-                return Some(frame);
-            }
-            if slot.closed {
-                return None;
-            }
-            slot = self
-                .0
-                .changed
-                .wait(slot)
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-        }
-    }
-}
-
-/// Closes the feed when dropped (the end of the thread that feeds it, a panic included).
-pub struct CloseOnDrop(pub AsgFeed);
-
-impl Drop for CloseOnDrop {
-    fn drop(&mut self) {
-        self.0.close();
-    }
-}
+/// The hand-off from the decompose thread to the ASG stage (see [`FrameFeed`]).
+pub type AsgFeed = FrameFeed;
 
 /// Called on the ASG thread after each published set (metrics).
 pub type AsgHook = Arc<dyn Fn(&PublishedAsg) + Send + Sync>;
@@ -358,8 +253,8 @@ impl AsgStage {
 
 fn stats(feed: &AsgFeed, shared: &Shared) -> AsgStats {
     AsgStats {
-        frames_offered: feed.0.offered.load(Ordering::Acquire),
-        frames_skipped: feed.0.skipped.load(Ordering::Acquire),
+        frames_offered: feed.offered(),
+        frames_skipped: feed.skipped(),
         fits: shared.fits.load(Ordering::Acquire),
         fit_errors: shared.fit_errors.load(Ordering::Acquire),
         last_fit_time: Duration::from_nanos(shared.last_fit_nanos.load(Ordering::Acquire)),
@@ -384,6 +279,7 @@ pub type AsgStaleHandle = crate::publication::StaleHandle<AsgSet>;
 mod tests {
     use super::*;
     use crate::envmap::Projection;
+    use crate::frame::HdrFrame;
 
     fn frame(seq: u64) -> HdrFrame {
         let (w, h) = (32u32, 16u32);
@@ -409,22 +305,6 @@ mod tests {
             threads: 1,
             ..FitSettings::default()
         }
-    }
-
-    #[test]
-    fn live_feed_keeps_the_newest_frame_and_counts_skips() {
-        let feed = AsgFeed::new(false);
-        feed.offer(frame(0));
-        feed.offer(frame(1));
-        feed.offer(frame(2));
-        assert_eq!(feed.take().map(|(f, _)| f.seq), Some(2));
-        assert_eq!(feed.0.skipped.load(Ordering::Acquire), 2);
-        feed.offer(frame(3));
-        feed.close();
-        // The waiting frame is still delivered after close; later offers are dropped.
-        feed.offer(frame(4));
-        assert_eq!(feed.take().map(|(f, _)| f.seq), Some(3));
-        assert!(feed.take().is_none());
     }
 
     #[test]

@@ -80,6 +80,19 @@ pub struct RawConfig {
     pub render: RawRender,
     #[serde(default)]
     pub asg: RawAsg,
+    #[serde(default)]
+    pub wavelet: RawWavelet,
+}
+
+/// `[wavelet]`: the daemon's wavelet stage (sparse wavelet coefficient sets of the newest
+/// frames, streamed as representation `wavelet`).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawWavelet {
+    pub enabled: Option<bool>,
+    pub basis: Option<String>,
+    pub side: Option<usize>,
+    pub coefficients: Option<usize>,
 }
 
 /// `[asg]`: the daemon's ASG stage (fits anisotropic spherical Gaussians to the newest frames).
@@ -242,6 +255,7 @@ impl RawConfig {
             daemon: self.daemon.validate()?,
             render: self.render.validate()?,
             asg: self.asg.validate()?,
+            wavelet: self.wavelet.validate()?,
         })
         .and_then(|config: Config| {
             if config.render.enabled
@@ -309,6 +323,54 @@ pub struct Config {
     pub daemon: DaemonConfig,
     pub render: RenderConfig,
     pub asg: AsgConfig,
+    pub wavelet: WaveletConfig,
+}
+
+/// Validated `[wavelet]`: the daemon's wavelet stage. Default: disabled; when enabled, the 256
+/// largest Haar coefficients of a 64×64 octahedral map per frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WaveletConfig {
+    pub enabled: bool,
+    /// What the stage computes.
+    pub settings: crate::wavelet_stage::WaveletSettings,
+}
+
+impl RawWavelet {
+    fn validate(&self) -> Result<WaveletConfig, ConfigError> {
+        use crate::wavelet_stage::{WaveletSettings, WaveletStageError};
+        let d = WaveletSettings::default();
+        let basis = match &self.basis {
+            None => d.basis,
+            Some(name) => crate::wavelet::Basis::parse(name).map_err(|e| {
+                invalid(
+                    "wavelet.basis",
+                    name,
+                    format!("{e} (default \"{}\")", d.basis),
+                )
+            })?,
+        };
+        let settings = WaveletSettings {
+            basis,
+            side: self.side.unwrap_or(d.side),
+            coefficients: self.coefficients.unwrap_or(d.coefficients),
+        };
+        if let Err(WaveletStageError::Settings { field, value, rule }) = settings.validate() {
+            let key = match field {
+                "side" => "wavelet.side",
+                "coefficients" => "wavelet.coefficients",
+                _ => "wavelet.basis",
+            };
+            return Err(ConfigError::Invalid {
+                key,
+                value,
+                message: format!("must be {rule}"),
+            });
+        }
+        Ok(WaveletConfig {
+            enabled: self.enabled.unwrap_or(false),
+            settings,
+        })
+    }
 }
 
 /// Validated `[asg]`: the daemon's ASG stage. Default: disabled; when enabled, 16 lobes fitted
@@ -1112,6 +1174,9 @@ mod tests {
             "diffuse_normals",
             "threads",
             "lighting",
+            "basis",
+            "side",
+            "coefficients",
         ] {
             assert!(
                 uncommented
@@ -1204,6 +1269,15 @@ mod tests {
                 "asg",
             ),
             ("[sky]\ncloud_cover = 2", "sky.cloud_cover", "2"),
+            ("[wavelet]\nside = 48", "wavelet.side", "48"),
+            ("[wavelet]\nside = 2048", "wavelet.side", "2048"),
+            ("[wavelet]\ncoefficients = 0", "wavelet.coefficients", "0"),
+            (
+                "[wavelet]\nside = 8\ncoefficients = 65",
+                "wavelet.coefficients",
+                "65",
+            ),
+            ("[wavelet]\nbasis = \"db42\"", "wavelet.basis", "db42"),
         ] {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");

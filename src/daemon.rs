@@ -6,15 +6,17 @@
 //!                                   │                     metrics + health (HTTP)
 //!                                   ├─watch─► envlight-render (optional: wgpu, frame budget)
 //!                                   ├─tap─► envlight-record (optional)
-//!                                   └─feed─► envlight-asg (optional, [asg]) ─watch─► stream server
-//!                                                                                  envlight-render
+//!                                   ├─feed─► envlight-asg (optional, [asg]) ─watch─► stream server
+//!                                   │                                              envlight-render
+//!                                   └─feed─► envlight-wavelet (optional, [wavelet]) ─watch─► stream server
 //! ```
 //!
 //! The ASG stage ([`crate::asg_stage`]) gets each frame after its lights are published and
 //! fits the newest one whenever it is free (skipping, and counting, the frames in between), so
 //! it never slows the lights; in a replay it fits every frame. Clients subscribe to it with
 //! representation `asg`; `[render] lighting = "asg"` shades the render thread's scene with its
-//! lobes. `/health` is about the lights only.
+//! lobes. The wavelet stage ([`crate::wavelet_stage`]) is fed the same way and serves
+//! representation `wavelet`. `/health` is about the lights only.
 //!
 //! - [`Daemon::start`] builds everything from a validated [`Config`]: a tokio runtime with
 //!   `daemon.serve_threads` workers named `envlight-serve` (tokio lives only in serving), the
@@ -44,6 +46,10 @@ use crate::pipeline::{
 use crate::record::{Pacing, RecordError, RecordSummary, Recorder, ReplaySource};
 use crate::stream::server::{ServerError, Streams, SHUTDOWN_MESSAGE};
 use crate::stream::{BoundAddresses, StreamServer};
+use crate::wavelet_stage::{
+    WaveletHook, WaveletStage, WaveletStageError, WaveletStaleHandle, WaveletStats,
+    WaveletStatsHandle,
+};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -87,6 +93,8 @@ pub enum DaemonError {
     Render(String),
     #[error("ASG stage: {0}")]
     Asg(#[from] AsgStageError),
+    #[error("wavelet stage: {0}")]
+    Wavelet(#[from] WaveletStageError),
 }
 
 /// Where the daemon listens.
@@ -120,6 +128,8 @@ pub struct DaemonSummary {
     pub pipeline: PipelineStats,
     /// The ASG stage's counters, if it ran.
     pub asg: Option<crate::asg_stage::AsgStats>,
+    /// The wavelet stage's counters, if it ran.
+    pub wavelet: Option<WaveletStats>,
     pub recorded: Option<RecordSummary>,
     /// Whether every client took its goodbye within the grace period.
     pub clients_closed_in_time: bool,
@@ -142,6 +152,8 @@ pub struct Daemon {
     render_thread: Option<RenderHandle>,
     /// The ASG stage (`[asg] enabled`).
     asg: Option<AsgStage>,
+    /// The wavelet stage (`[wavelet] enabled`).
+    wavelet: Option<WaveletStage>,
 }
 
 impl Daemon {
@@ -230,12 +242,37 @@ impl Daemon {
         } else {
             None
         };
+        let wavelet = if config.wavelet.enabled {
+            let hook_metrics = Arc::clone(&metrics);
+            let hook: WaveletHook = Arc::new(move |published| {
+                hook_metrics
+                    .wavelet_seconds
+                    .observe(published.compute_time.as_secs_f64());
+            });
+            match WaveletStage::start(config.wavelet.settings, replaying, Some(hook)) {
+                Ok(stage) => Some(stage),
+                Err(error) => {
+                    if let Some(asg) = asg {
+                        let _ = asg.join();
+                    }
+                    return Err(error.into());
+                }
+            }
+        } else {
+            None
+        };
+        let stage_feeds = asg
+            .as_ref()
+            .map(AsgStage::feed)
+            .into_iter()
+            .chain(wavelet.as_ref().map(WaveletStage::feed))
+            .collect();
         let pipeline_options = PipelineOptions {
             queue_capacity: config.pipeline.queue_capacity,
             queue_policy: policy,
             tap,
             on_publish: Some(on_publish),
-            asg_feed: asg.as_ref().map(AsgStage::feed),
+            stage_feeds,
         };
         let pipeline = match Pipeline::start(source, settings, pipeline_options) {
             Ok(pipeline) => pipeline,
@@ -243,14 +280,20 @@ impl Daemon {
                 if let Some(asg) = asg {
                     let _ = asg.join();
                 }
+                if let Some(wavelet) = wavelet {
+                    let _ = wavelet.join();
+                }
                 return Err(error.into());
             }
         };
+        let wavelet_rx = wavelet.as_ref().map(WaveletStage::subscribe);
         let asg_rx: Option<watch::Receiver<LatestAsg>> = asg.as_ref().map(AsgStage::subscribe);
 
         // Endpoints: if one cannot be bound, stop what was started and report it.
         let started = runtime.block_on(async {
-            let streams = Streams::new(pipeline.subscribe()).with_optional(asg_rx.clone());
+            let streams = Streams::new(pipeline.subscribe())
+                .with_optional(asg_rx.clone())
+                .with_optional(wavelet_rx);
             let server =
                 StreamServer::start_streams(&config.stream, streams, Arc::clone(&metrics)).await?;
             let http = match config.metrics.listen {
@@ -267,6 +310,7 @@ impl Daemon {
                         lights: pipeline.subscribe(),
                         max_frame_age: config.metrics.max_frame_age,
                         asg: asg.as_ref().map(AsgStage::stats_handle),
+                        wavelet: wavelet.as_ref().map(WaveletStage::stats_handle),
                     });
                     tracing::info!(address = ?bound, "serving metrics and health over http");
                     let task = tokio::spawn(serve_http(listener, state, stop_rx));
@@ -279,6 +323,7 @@ impl Daemon {
                     Arc::clone(health),
                     pipeline.stale_handle(),
                     asg.as_ref().map(AsgStage::stale_handle),
+                    wavelet.as_ref().map(WaveletStage::stale_handle),
                 ));
             }
             Ok::<_, DaemonError>((server, http))
@@ -290,6 +335,9 @@ impl Daemon {
                 let _ = pipeline.join();
                 if let Some(asg) = asg {
                     let _ = asg.join();
+                }
+                if let Some(wavelet) = wavelet {
+                    let _ = wavelet.join();
                 }
                 if let Some(recorder) = recorder {
                     let _ = recorder.finish();
@@ -334,6 +382,7 @@ impl Daemon {
             health,
             render_thread,
             asg,
+            wavelet,
         })
     }
 
@@ -352,15 +401,22 @@ impl Daemon {
         &self.pipeline
     }
 
-    /// Whether a finite source has been fully decomposed (and, with an ASG stage, its last
-    /// frame fitted).
+    /// Whether a finite source has been fully decomposed (and, with an ASG or wavelet stage,
+    /// its last frame fitted or transformed).
     pub fn source_finished(&self) -> bool {
-        self.pipeline.is_finished() && self.asg.as_ref().is_none_or(AsgStage::is_finished)
+        self.pipeline.is_finished()
+            && self.asg.as_ref().is_none_or(AsgStage::is_finished)
+            && self.wavelet.as_ref().is_none_or(WaveletStage::is_finished)
     }
 
     /// The ASG stage, if `[asg]` enabled it.
     pub fn asg(&self) -> Option<&AsgStage> {
         self.asg.as_ref()
+    }
+
+    /// The wavelet stage, if `[wavelet]` enabled it.
+    pub fn wavelet(&self) -> Option<&WaveletStage> {
+        self.wavelet.as_ref()
     }
 
     /// Applies a new configuration: the decomposition settings change live (from the next
@@ -397,6 +453,24 @@ impl Daemon {
                 _ => report
                     .needs_restart
                     .push("[asg] enabled (restart envlight to start or stop the stage)".to_owned()),
+            }
+        }
+        if new.wavelet != self.config.wavelet {
+            match &self.wavelet {
+                Some(stage) if new.wavelet.enabled => {
+                    match stage.reconfigure(new.wavelet.settings) {
+                        Ok(()) => {
+                            report.applied.push("[wavelet]".to_owned());
+                            self.config.wavelet = new.wavelet;
+                        }
+                        Err(e) => report.needs_restart.push(format!("[wavelet] ({e})")),
+                    }
+                }
+                // Disabled before and after: nothing runs, nothing to apply.
+                None if !new.wavelet.enabled => self.config.wavelet = new.wavelet,
+                _ => report.needs_restart.push(
+                    "[wavelet] enabled (restart envlight to start or stop the stage)".to_owned(),
+                ),
             }
         }
         let old = &self.config;
@@ -534,6 +608,7 @@ impl Daemon {
             health,
             render_thread,
             asg,
+            wavelet,
             ..
         } = self;
         let rendered = render_thread.map(|(handle, stop)| {
@@ -559,10 +634,12 @@ impl Daemon {
         let stats = pipeline.join();
         // The pipeline closed the feed: the stage fits what is waiting and ends.
         let asg_stats = asg.map(AsgStage::join).transpose();
+        let wavelet_stats = wavelet.map(WaveletStage::join).transpose();
         let recorded = recorder.map(Recorder::finish).transpose();
         runtime.shutdown_timeout(Duration::from_secs(1));
         let stats = stats?;
         let asg_stats = asg_stats?;
+        let wavelet_stats = wavelet_stats?;
         let recorded = recorded?;
         if let Some(rendered) = rendered {
             let frames = rendered.map_err(DaemonError::Render)?;
@@ -577,6 +654,7 @@ impl Daemon {
         Ok(DaemonSummary {
             pipeline: stats,
             asg: asg_stats,
+            wavelet: wavelet_stats,
             recorded,
             clients_closed_in_time,
         })
@@ -770,6 +848,7 @@ async fn monitor_health(
     health: Arc<SourceHealth>,
     stale: StaleHandle,
     asg_stale: Option<AsgStaleHandle>,
+    wavelet_stale: Option<WaveletStaleHandle>,
 ) {
     let mut interval = tokio::time::interval(Duration::from_millis(50));
     loop {
@@ -777,6 +856,9 @@ async fn monitor_health(
         let lost = health.is_stale();
         if let Some(asg) = &asg_stale {
             asg.set_stale(lost);
+        }
+        if let Some(wavelet) = &wavelet_stale {
+            wavelet.set_stale(lost);
         }
         if stale.set_stale(lost) {
             if lost {
@@ -799,6 +881,7 @@ struct HttpState {
     lights: watch::Receiver<LatestLights>,
     max_frame_age: Duration,
     asg: Option<AsgStatsHandle>,
+    wavelet: Option<WaveletStatsHandle>,
 }
 
 impl HttpState {
@@ -845,6 +928,9 @@ impl HttpState {
 
     fn metrics_text(&self) -> String {
         self.metrics.update_pipeline(&self.stats.stats());
+        if let Some(wavelet) = &self.wavelet {
+            self.metrics.update_wavelet(&wavelet.stats());
+        }
         if let Some(asg) = &self.asg {
             self.metrics.update_asg(&asg.stats());
         }

@@ -18,6 +18,7 @@ pub mod daemon;
 pub mod decompose;
 pub mod envmap;
 pub mod frame;
+pub mod frame_feed;
 pub mod light;
 pub mod metrics;
 pub mod pipeline;
@@ -26,6 +27,7 @@ pub mod record;
 pub mod render;
 pub mod stream;
 pub mod wavelet;
+pub mod wavelet_stage;
 pub mod yardstick;
 
 pub use frame::HdrFrame;

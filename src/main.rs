@@ -203,7 +203,10 @@ says goodbye (or --frames have arrived).
 ADDR is unix:PATH (or a path), tcp:HOST:PORT (or HOST:PORT), or ws://HOST:PORT/.
 With --json every frame is printed as one JSON line (docs/protocol.md's JSON form); otherwise
 one summary line per frame. --representation asg prints the ASG sets of a daemon whose [asg]
-stage is enabled (--max-lights then caps the lobes).";
+stage is enabled (--max-lights then caps the lobes); --representation wavelet the wavelet
+coefficient sets of a daemon whose [wavelet] stage is enabled (--max-lights then caps the
+coefficients: the scaling coefficient first, then the largest; the summary line's total rgb is
+∫L dω from the scaling coefficient).";
 
 #[derive(Args, Debug)]
 struct DaemonArgs {
@@ -260,8 +263,9 @@ struct SubscribeArgs {
     /// Stop after N frames.
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
-    /// What to receive: directional lights, or ASG sets (the daemon needs [asg] enabled);
-    /// --max-lights then caps the lobes.
+    /// What to receive: directional lights, ASG sets (the daemon needs [asg] enabled) or
+    /// wavelet coefficient sets (needs [wavelet] enabled); --max-lights then caps the lobes or
+    /// the coefficients (the largest are kept).
     #[arg(long, value_enum, default_value = "lights")]
     representation: RepresentationArg,
 }
@@ -272,6 +276,8 @@ enum RepresentationArg {
     Lights,
     /// Anisotropic spherical Gaussians.
     Asg,
+    /// Sparse wavelet coefficients of the environment (equal-area octahedral map).
+    Wavelet,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -756,6 +762,19 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     } else {
         println!("  asg: off");
     }
+    if config.wavelet.enabled {
+        let w = &config.wavelet.settings;
+        println!(
+            "  wavelet: {} largest {} coefficients of a {}x{} octahedral map ({} levels)",
+            w.coefficients,
+            w.basis,
+            w.side,
+            w.side,
+            w.levels()
+        );
+    } else {
+        println!("  wavelet: off");
+    }
     Ok(())
 }
 
@@ -772,6 +791,7 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
         representation: match args.representation {
             RepresentationArg::Lights => Representation::Lights,
             RepresentationArg::Asg => Representation::Asg,
+            RepresentationArg::Wavelet => Representation::Wavelet,
         },
     };
     let mut client = Client::connect(&args.address, &request, None)?;
@@ -829,6 +849,31 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
                         total[1],
                         total[2],
                         if frame.stale { " (stale)" } else { "" }
+                    )
+                }
+            }
+            Message::Wavelet(frame) => {
+                frames += 1;
+                let stale = frame.stale;
+                let frame = frame.into_wavelet_frame();
+                if args.json {
+                    envlight::stream::protocol::wavelet_frame_to_json(&frame, None, stale)
+                } else {
+                    let total = frame.integral();
+                    let set = &frame.set;
+                    format!(
+                        "seq {} time {:.3} s: {} wavelet coefficients ({} on {}², {} levels), \
+                         total rgb [{:.4}, {:.4}, {:.4}]{}",
+                        frame.seq,
+                        frame.time,
+                        set.coefficients.len(),
+                        set.basis,
+                        set.side,
+                        set.levels,
+                        total[0],
+                        total[1],
+                        total[2],
+                        if stale { " (stale)" } else { "" }
                     )
                 }
             }

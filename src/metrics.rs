@@ -81,6 +81,14 @@ pub struct Metrics {
     pub asg_fit_errors: Counter,
     /// ASG stage: fit time per frame.
     pub asg_fit_seconds: Histogram,
+    /// Wavelet stage (`[wavelet]`): sets computed and published.
+    pub wavelet_sets: Counter,
+    /// Wavelet stage: frames that were replaced by a newer one before the stage was free.
+    pub wavelet_frames_skipped: Counter,
+    /// Wavelet stage: frames that gave no set.
+    pub wavelet_errors: Counter,
+    /// Wavelet stage: time per set (resample, transform, selection).
+    pub wavelet_seconds: Histogram,
 }
 
 /// Latency buckets from 50 µs to about 1.6 s, doubling.
@@ -122,6 +130,30 @@ impl Metrics {
         // 1 ms to about 16 s, doubling: fits take far longer than decompositions.
         let asg_fit_seconds = Histogram::new(
             prometheus_client::metrics::histogram::exponential_buckets(1e-3, 2.0, 15),
+        );
+        let wavelet_sets = Counter::default();
+        let wavelet_frames_skipped = Counter::default();
+        let wavelet_errors = Counter::default();
+        let wavelet_seconds = Histogram::new(latency_buckets());
+        registry.register(
+            "wavelet_sets",
+            "Wavelet coefficient sets computed and published by the [wavelet] stage",
+            wavelet_sets.clone(),
+        );
+        registry.register(
+            "wavelet_frames_skipped",
+            "Frames the [wavelet] stage skipped because a newer one arrived while it was busy",
+            wavelet_frames_skipped.clone(),
+        );
+        registry.register(
+            "wavelet_errors",
+            "Frames the [wavelet] stage could not turn into a set",
+            wavelet_errors.clone(),
+        );
+        registry.register(
+            "wavelet_seconds",
+            "Wavelet stage time per set: resampling, transform and selection",
+            wavelet_seconds.clone(),
         );
         registry.register(
             "asg_fits",
@@ -253,6 +285,10 @@ impl Metrics {
             asg_frames_skipped,
             asg_fit_errors,
             asg_fit_seconds,
+            wavelet_sets,
+            wavelet_frames_skipped,
+            wavelet_errors,
+            wavelet_seconds,
         }
     }
 
@@ -283,6 +319,19 @@ impl Metrics {
         self.asg_fit_errors
             .inner()
             .store(stats.fit_errors, Ordering::Relaxed);
+    }
+
+    /// Copies the wavelet stage's counters into the metrics.
+    pub fn update_wavelet(&self, stats: &crate::wavelet_stage::WaveletStats) {
+        self.wavelet_sets
+            .inner()
+            .store(stats.sets, Ordering::Relaxed);
+        self.wavelet_frames_skipped
+            .inner()
+            .store(stats.frames_skipped, Ordering::Relaxed);
+        self.wavelet_errors
+            .inner()
+            .store(stats.errors, Ordering::Relaxed);
     }
 
     /// Copies a live source's failure and reconnect counts into the metrics.

@@ -27,10 +27,11 @@
 //! - **Recording** taps the decompose thread ([`PipelineOptions::tap`]): every decomposed frame
 //!   and its lights go to the recorder, which the decompose thread waits for (nothing recorded
 //!   is lost; a slow disk shows up as dropped capture frames, which are counted).
-//! - **ASG stage.** With [`PipelineOptions::asg_feed`], the decompose thread hands every frame
-//!   to the ASG stage ([`crate::asg_stage`]) after publishing its lights — newest frame wins, so
-//!   the slow fit never delays the lights (lossless in replay) — and closes the feed when it
-//!   ends.
+//! - **Slower stages** (the ASG fits, [`crate::asg_stage`]; the wavelet transforms,
+//!   [`crate::wavelet_stage`]). With [`PipelineOptions::stage_feeds`], the decompose thread
+//!   hands every frame to each stage's [`FrameFeed`] after publishing its lights — newest frame
+//!   wins, so a slow stage never delays the lights (lossless in replay) — and closes the feeds
+//!   when it ends.
 //! - **Live changes.** [`Pipeline::reconfigure`] swaps in a new [`Decomposer`] before the next
 //!   frame (SIGHUP); [`Pipeline::set_stale`] re-publishes the newest lights marked stale while a
 //!   lost camera is being reconnected.
@@ -48,6 +49,7 @@
 use crate::capture::{CaptureError, FrameSource};
 use crate::decompose::{DecomposeError, DecomposeSettings, Decomposer};
 use crate::frame::HdrFrame;
+use crate::frame_feed::{CloseOnDrop, FrameFeed};
 use crate::light::LightFrame;
 use crate::publication::{publish, Latest, Publication};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
@@ -93,9 +95,10 @@ pub struct PipelineOptions {
     pub tap: Option<Sender<Tapped>>,
     /// Called on the decompose thread after each decomposed frame is published (metrics).
     pub on_publish: Option<PublishHook>,
-    /// Every decomposed frame is offered to this ASG stage after its lights are published; the
-    /// feed is closed when the decompose thread ends.
-    pub asg_feed: Option<crate::asg_stage::AsgFeed>,
+    /// Every decomposed frame is offered to each of these stages (ASG, wavelet) after its
+    /// lights are published, in this order; the feeds are closed when the decompose thread
+    /// ends.
+    pub stage_feeds: Vec<FrameFeed>,
 }
 
 /// A callback run on the decompose thread for every decomposed frame.
@@ -249,13 +252,14 @@ impl Pipeline {
         let decompose_tx = Arc::clone(&lights_tx);
         let mut tap = options.tap;
         let on_publish = options.on_publish;
-        let asg_feed = options.asg_feed;
+        let stage_feeds = options.stage_feeds;
         let decompose_handle = std::thread::Builder::new()
             .name(DECOMPOSE_THREAD_NAME.to_owned())
             .spawn(move || {
                 // However this thread ends (drained queue or panic), capture must stop too.
                 let _stop_capture = StopOnDrop(Arc::clone(&decompose_shared));
-                let _close_asg = asg_feed.clone().map(crate::asg_stage::CloseOnDrop);
+                let _close_stages: Vec<CloseOnDrop> =
+                    stage_feeds.iter().cloned().map(CloseOnDrop).collect();
                 for frame in decompose_rx.iter() {
                     let arrived = Instant::now();
                     if let Some(new_step) = decompose_shared
@@ -280,19 +284,20 @@ impl Pipeline {
                             hook(published);
                         }
                     }
-                    // The lights are out: the ASG stage may have the frame now (a copy only when
-                    // the recorder needs it too).
-                    let frame = match &asg_feed {
-                        Some(feed) if tap.is_some() => {
-                            feed.offer(frame.clone());
-                            Some(frame)
+                    // The lights are out: the stages may have the frame now (copies only where
+                    // another stage or the recorder needs it too).
+                    let mut frame = Some(frame);
+                    for (i, feed) in stage_feeds.iter().enumerate() {
+                        let last = i + 1 == stage_feeds.len() && tap.is_none();
+                        match frame.take() {
+                            Some(f) if last => feed.offer(f),
+                            Some(f) => {
+                                feed.offer(f.clone());
+                                frame = Some(f);
+                            }
+                            None => {}
                         }
-                        Some(feed) => {
-                            feed.offer(frame);
-                            None
-                        }
-                        None => Some(frame),
-                    };
+                    }
                     if let (Some(tx), Some(frame)) = (&tap, frame) {
                         if tx.send(Tapped { frame, lights }).is_err() {
                             tracing::warn!("the recorder is gone; frames are no longer recorded");

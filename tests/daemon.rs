@@ -814,9 +814,12 @@ fn a_lost_source_is_served_stale_until_it_returns() {
     let opener_failed = std::sync::Arc::clone(&failed);
     let source = ResilientSource::new(
         "flaky camera",
+        // The stale window lasts the backoff: 2 s, so that a client thread starved for a while
+        // on a loaded machine (tests in parallel on 2 cores) still asks /health inside it. (At
+        // 600 ms the check missed the window in two runs of five at load average 7.)
         RetryPolicy {
-            initial_backoff: Duration::from_millis(600),
-            max_backoff: Duration::from_millis(600),
+            initial_backoff: Duration::from_millis(2000),
+            max_backoff: Duration::from_millis(2000),
             max_attempts: None,
         },
         move || {

@@ -844,3 +844,206 @@ proptest! {
         prop_assert_eq!(json, decoded);
     }
 }
+
+// -------------------------------------------------------------------------------------------
+// Wavelet sets (representation 2)
+
+use envlight::stream::protocol::{
+    encode_wavelet_frame, wavelet_frame_to_json, WaveletFrame, WaveletFrameMessage,
+    MAX_FRAME_COEFFICIENTS, WAVELET_PREFIX_LEN, WAVELET_RECORD_LEN,
+};
+use envlight::wavelet::{Basis, WaveletSet};
+
+fn as_wavelet(message: Message) -> WaveletFrameMessage {
+    match message {
+        Message::Wavelet(m) => m,
+        other => panic!("expected a wavelet frame, got {other:?}"),
+    }
+}
+
+/// The golden wavelet frame of docs/protocol.md: seq 17, time 0.5, live, Haar on a 4 × 4 map
+/// with 2 levels, two coefficients: index 0 (the scaling coefficient) = (4, 2, 1) and index 5
+/// = (−0.5, 0.25, 0).
+fn golden_wavelet() -> WaveletFrame {
+    WaveletFrame {
+        seq: 17,
+        time: 0.5,
+        set: WaveletSet {
+            basis: Basis::Haar,
+            side: 4,
+            levels: 2,
+            coefficients: vec![(0, [4.0, 2.0, 1.0]), (5, [-0.5, 0.25, 0.0])],
+        },
+    }
+}
+
+#[test]
+fn golden_wavelet_frame_bytes_and_json() {
+    let mut bytes = Vec::new();
+    encode_wavelet_frame(&golden_wavelet(), None, false, &mut bytes);
+    let want = hex(
+        "48000000 454e564c 0100 0100 1100000000000000 000000000000e03f 02 00 0000 02000000 \
+         01 02 00 00 04000000 \
+         00000000 00008040 00000040 0000803f \
+         05000000 000000bf 0000803e 00000000",
+    );
+    assert_eq!(bytes, want);
+    assert_eq!(
+        bytes.len(),
+        HEADER_LEN + FRAME_FIXED_LEN + WAVELET_PREFIX_LEN + 2 * WAVELET_RECORD_LEN
+    );
+    let json = wavelet_frame_to_json(&golden_wavelet(), None, false);
+    assert_eq!(
+        json,
+        r#"{"seq":17,"time":0.5,"representation":"wavelet","stale":false,"basis":"haar","side":4,"levels":2,"coefficients":[[0,[4.0,2.0,1.0]],[5,[-0.5,0.25,0.0]]]}"#
+    );
+    let decoded = as_wavelet(decode_message(&bytes).unwrap());
+    assert_eq!(decoded, as_wavelet(parse_json_message(&json).unwrap()));
+    assert_eq!(decoded.into_wavelet_frame(), golden_wavelet());
+    // ∫L dω from the scaling coefficient: 2² · 4 · 4π / 4² for red.
+    let red = golden_wavelet().integral()[0];
+    assert!((red - 4.0 * std::f64::consts::PI).abs() < 1e-12, "{red}");
+    // Readers ignore unknown fields of a frame.
+    let extended = json.replacen('{', r#"{"future":[1,2],"#, 1);
+    assert_eq!(
+        parse_json_message(&extended).map(as_wavelet),
+        parse_json_message(&json).map(as_wavelet)
+    );
+}
+
+#[test]
+fn wavelet_subscribe_round_trips() {
+    let request = Request {
+        max_lights: 256,
+        representation: Representation::Wavelet,
+        format: Format::Json,
+    };
+    let mut bytes = Vec::new();
+    encode_request(&request, &mut bytes);
+    assert_eq!(bytes[16], 2);
+    assert_eq!(decode_message(&bytes), Ok(Message::Subscribe(request)));
+    assert_eq!(
+        parse_json_request(r#"{"subscribe":{"representation":"wavelet","max_lights":256}}"#),
+        Ok(request)
+    );
+}
+
+#[test]
+fn hostile_wavelet_frames_are_errors_not_panics() {
+    let mut bytes = Vec::new();
+    encode_wavelet_frame(&golden_wavelet(), None, false, &mut bytes);
+    // Every single-byte corruption of the prefix and the records decodes or fails cleanly, and
+    // a frame that decodes is a valid set.
+    for at in 36..bytes.len() {
+        for value in [0u8, 1, 0x7f, 0x80, 0xff] {
+            let mut b = bytes.clone();
+            b[at] = value;
+            if let Ok(Message::Wavelet(m)) = decode_message(&b) {
+                protocol::validate_wavelet_set(&m.set).unwrap();
+            }
+        }
+    }
+    // A count that promises more records than there are: error 1 before any allocation.
+    let mut b = bytes.clone();
+    b[32..36].copy_from_slice(&u32::MAX.to_le_bytes());
+    assert_eq!(decode_message(&b).unwrap_err().code(), code::MALFORMED);
+    // A declared side of 2^15 with an index near the end is fine; 2^16 is not.
+    let mut big = golden_wavelet();
+    big.set.side = 1 << 15;
+    big.set.levels = 15;
+    big.set.coefficients = vec![(0, [1.0; 3]), ((1 << 30) - 1, [2.0; 3])];
+    let mut b = Vec::new();
+    encode_wavelet_frame(&big, None, false, &mut b);
+    assert_eq!(as_wavelet(decode_message(&b).unwrap()).set, big.set);
+    b[40..44].copy_from_slice(&(1u32 << 16).to_le_bytes());
+    assert_eq!(decode_message(&b).unwrap_err().code(), code::MALFORMED);
+    // A set larger than one message is capped to what fits.
+    let mut huge = golden_wavelet();
+    huge.set.side = 512;
+    huge.set.levels = 9;
+    huge.set.coefficients = (0..70_000u32).map(|i| (i, [1.0, 0.0, 0.0])).collect();
+    let mut b = Vec::new();
+    encode_wavelet_frame(&huge, None, false, &mut b);
+    assert!(b.len() - 4 <= MAX_MESSAGE_LEN);
+    let decoded = as_wavelet(decode_message(&b).unwrap());
+    assert_eq!(decoded.set.coefficients.len(), MAX_FRAME_COEFFICIENTS);
+}
+
+fn arb_wavelet_frame() -> impl Strategy<Value = WaveletFrame> {
+    let basis = prop_oneof![
+        Just(Basis::Haar),
+        (2usize..=10).prop_map(Basis::Daubechies),
+        (1usize..=5).prop_map(Basis::Coiflet),
+    ];
+    (1u32..=8, basis, any::<u64>(), -1e9f64..1e9)
+        .prop_flat_map(|(log_side, basis, seq, time)| {
+            let side = 1u32 << log_side;
+            let value = -1e6f32..1e6;
+            (
+                Just((side, basis, seq, time)),
+                0..=log_side,
+                proptest::collection::vec(
+                    (0..side * side, [value.clone(), value.clone(), value]),
+                    0..80,
+                ),
+            )
+        })
+        .prop_map(
+            |((side, basis, seq, time), levels, coefficients)| WaveletFrame {
+                seq,
+                time,
+                set: WaveletSet {
+                    basis,
+                    side,
+                    levels,
+                    // Sorted by index, unique (a later duplicate replaces an earlier one).
+                    coefficients: coefficients
+                        .into_iter()
+                        .collect::<std::collections::BTreeMap<_, _>>()
+                        .into_iter()
+                        .collect(),
+                },
+            },
+        )
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_wavelet_sets_round_trip_and_caps_keep_scaling_then_largest(
+        frame in arb_wavelet_frame(),
+        stale in any::<bool>(),
+        cap in proptest::option::of(0usize..90),
+        chunk in 1usize..100,
+    ) {
+        let mut bytes = Vec::new();
+        encode_wavelet_frame(&frame, cap, stale, &mut bytes);
+        let messages = decode_chunked(&bytes, || chunk);
+        prop_assert_eq!(messages.len(), 1);
+        let decoded = as_wavelet(messages[0].clone());
+        prop_assert_eq!(decoded.stale, stale);
+        let all = &frame.set.coefficients;
+        let kept = &decoded.set.coefficients;
+        prop_assert_eq!(kept.len(), cap.unwrap_or(usize::MAX).min(all.len()));
+        // Kept coefficients are unchanged, in index order, and none dropped outranks one kept:
+        // scaling coefficients first, then by RGB norm.
+        prop_assert!(kept.iter().all(|c| all.contains(c)));
+        prop_assert!(kept.windows(2).all(|w| w[0].0 < w[1].0));
+        let side = frame.set.side;
+        let block = side >> frame.set.levels;
+        let rank = |&(i, rgb): &(u32, [f32; 3])| {
+            let scaling = i / side < block && i % side < block;
+            let norm2: f64 = rgb.iter().map(|&c| f64::from(c).powi(2)).sum();
+            (scaling, norm2)
+        };
+        if let Some(worst_kept) = kept.iter().map(rank).min_by(|a, b| a.partial_cmp(b).unwrap()) {
+            for dropped in all.iter().filter(|c| !kept.contains(c)) {
+                prop_assert!(rank(dropped) <= worst_kept);
+            }
+        }
+        if cap.is_none() {
+            prop_assert_eq!(&decoded.clone().into_wavelet_frame(), &frame);
+        }
+        let json = as_wavelet(parse_json_message(&wavelet_frame_to_json(&frame, cap, stale)).unwrap());
+        prop_assert_eq!(json, decoded);
+    }
+}

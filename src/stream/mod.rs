@@ -1,4 +1,4 @@
-//! Streaming: how light lists (and ASG sets) leave the daemon for other processes.
+//! Streaming: how light lists (and ASG and wavelet sets) leave the daemon for other processes.
 //!
 //! - [`protocol`]: the versioned, length-prefixed binary messages and their JSON form
 //!   (docs/protocol.md); no networking and no async, so it is testable alone.
@@ -16,6 +16,7 @@ pub mod server;
 
 pub use fanout::FANOUT_THREAD_NAME;
 pub use protocol::{
-    AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation, Request,
+    AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation,
+    Request, WaveletFrame, WaveletFrameMessage,
 };
 pub use server::{BoundAddresses, ServerConfig, StreamServer, Streamed, Streams};

@@ -1,4 +1,5 @@
-//! The envlight wire protocol, version 1: light lists and ASG sets as length-prefixed binary
+//! The envlight wire protocol, version 1: light lists, ASG sets and wavelet coefficient sets as
+//! length-prefixed binary
 //! messages, and the JSON form of the same for WebSocket and scripts. `docs/protocol.md` is the
 //! byte-exact contract; this module implements it and its tests pin it.
 //!
@@ -8,19 +9,21 @@
 //! u32 length (bytes that follow) | "ENVL" | u16 version | u16 type | body
 //! ```
 //!
-//! all little-endian. Server → client: [`TYPE_FRAME`] (a light list or an ASG set), [`TYPE_ERROR`] (the
+//! all little-endian. Server → client: [`TYPE_FRAME`] (a light list, an ASG set or a wavelet
+//! set), [`TYPE_ERROR`] (the
 //! connection is about to close because of the error), [`TYPE_GOODBYE`] (the daemon is shutting
 //! down). Client → server: [`TYPE_SUBSCRIBE`] (a [`Request`]: light cap, representation, binary or
-//! JSON). The JSON forms are [`frame_to_json`], [`asg_frame_to_json`], [`error_to_json`],
+//! JSON). The JSON forms are [`frame_to_json`], [`asg_frame_to_json`],
+//! [`wavelet_frame_to_json`], [`error_to_json`],
 //! [`goodbye_to_json`], [`request_to_json`], and the parsers [`parse_json_request`] and
 //! [`parse_json_message`].
 //!
 //! A frame's records depend on its representation ([`Representation::frame_layout`]): 32-byte
-//! light records (code 0, [`encode_frame`]) or 52-byte ASG lobe records (code 1,
-//! [`encode_asg_frame`]). The decoder takes the record size from the representation byte, so a
-//! representation is added by giving it a layout, an encoder and a record decoder; a
-//! representation without a layout (2 = wavelet, documented but not produced yet) is rejected
-//! with [`ProtocolError::UnsupportedRepresentation`].
+//! light records (code 0, [`encode_frame`]), 52-byte ASG lobe records (code 1,
+//! [`encode_asg_frame`]), or an 8-byte prefix (basis, levels, map, side) and 16-byte wavelet
+//! coefficient records (code 2, [`encode_wavelet_frame`], checked by [`validate_wavelet_set`]).
+//! The decoder takes the prefix and record sizes from the representation byte, so a
+//! representation is added by giving it a layout, an encoder and a record decoder.
 //!
 //! [`Decoder`] reads messages from a byte stream fed in arbitrary pieces. It never panics on any
 //! input, rejects an oversized length prefix as soon as the 12-byte header has arrived (before any
@@ -33,6 +36,7 @@ use std::borrow::Cow;
 use serde::{Deserialize, Serialize};
 
 use crate::light::{AsgLobe, AsgSet, Light, LightFrame};
+use crate::wavelet::{Basis, WaveletSet};
 
 /// The four bytes after the length prefix of every message.
 pub const MAGIC: [u8; 4] = *b"ENVL";
@@ -70,6 +74,18 @@ const _: () =
     assert!(8 + FRAME_FIXED_LEN + (MAX_FRAME_LIGHTS + 1) * LIGHT_RECORD_LEN > MAX_MESSAGE_LEN);
 /// The most lobes one ASG frame message can carry within [`MAX_MESSAGE_LEN`] (20164).
 pub const MAX_FRAME_LOBES: usize = (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN) / ASG_RECORD_LEN;
+/// Size of the wavelet prefix after `count`: u8 basis, u8 levels, u8 map, u8 reserved, u32 side.
+pub const WAVELET_PREFIX_LEN: usize = 8;
+/// Size of one wavelet coefficient record: u32 index, 3×f32 rgb.
+pub const WAVELET_RECORD_LEN: usize = 16;
+/// The most coefficients one wavelet frame message can carry within [`MAX_MESSAGE_LEN`] (65533).
+pub const MAX_FRAME_COEFFICIENTS: usize =
+    (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN - WAVELET_PREFIX_LEN) / WAVELET_RECORD_LEN;
+/// The largest wavelet map side a frame may declare (2^15: side² indices fit a u32 easily).
+pub const MAX_WAVELET_SIDE: u32 = 1 << 15;
+/// Wavelet map code: the equal-area octahedral map of [`crate::wavelet::sphere`] (the only one
+/// in version 1).
+pub const WAVELET_MAP_OCTAHEDRAL: u8 = 0;
 /// Tolerance of an ASG record's frame: |axis|, |tangent| within this of 1 and |axis·tangent|
 /// at most this (f32 rounding of a unit frame is about 10⁻⁷).
 pub const ASG_FRAME_TOLERANCE: f32 = 1e-3;
@@ -105,8 +121,8 @@ pub mod code {
     pub const SHUTDOWN: u16 = 0;
 }
 
-/// What kind of lighting a frame carries. Lights (0) and ASG sets (1) have frame layouts in
-/// version 1; code 2 (wavelet) is reserved, its layout documented but not yet produced.
+/// What kind of lighting a frame carries: lights (0), ASG sets (1) and wavelet coefficient sets
+/// (2) all have frame layouts in version 1.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Representation {
@@ -115,7 +131,7 @@ pub enum Representation {
     Lights,
     /// Anisotropic spherical Gaussians (code 1).
     Asg,
-    /// Sparse wavelet coefficients (code 2, reserved).
+    /// Sparse wavelet coefficients (code 2).
     Wavelet,
 }
 
@@ -139,8 +155,9 @@ impl Representation {
         }
     }
 
-    /// The layout of this representation's frame records, `None` if it has none in this
-    /// build (wavelet).
+    /// The layout of this representation's frame records, `None` if it had none in this
+    /// build (every representation of version 1 has one now; the decoder keeps the check for
+    /// codes added later).
     pub fn frame_layout(self) -> Option<FrameLayout> {
         match self {
             Representation::Lights => Some(FrameLayout {
@@ -151,7 +168,10 @@ impl Representation {
                 prefix_len: 0,
                 record_len: ASG_RECORD_LEN,
             }),
-            Representation::Wavelet => None,
+            Representation::Wavelet => Some(FrameLayout {
+                prefix_len: WAVELET_PREFIX_LEN,
+                record_len: WAVELET_RECORD_LEN,
+            }),
         }
     }
 
@@ -278,6 +298,68 @@ impl AsgFrameMessage {
     }
 }
 
+/// A wavelet coefficient set of one source frame, as the daemon's wavelet stage publishes it
+/// and the wire carries it (representation 2).
+#[derive(Clone, Debug, PartialEq)]
+pub struct WaveletFrame {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, seconds since the source started.
+    pub time: f64,
+    /// The kept coefficients, with basis, side and levels.
+    pub set: WaveletSet,
+}
+
+impl WaveletFrame {
+    /// ∫L dω (W/m² per channel, the counterpart of the sum of a light list's `rgb`) from the
+    /// scaling coefficients the set holds: the top-left (side/2^levels)² block of the layout
+    /// (a capped frame keeps them first).
+    /// Every orthonormal analysis step halves the sum of a 2-D signal, so Σ texels =
+    /// 2^levels · Σ scaling coefficients, and a texel has solid angle 4π/side². Exact when all
+    /// scaling coefficients are kept (with the full pyramid there is one, index 0).
+    pub fn integral(&self) -> [f64; 3] {
+        let set = &self.set;
+        let side = u64::from(set.side.max(1));
+        let block = side >> set.levels.min(31);
+        let mut sum = [0.0f64; 3];
+        for (index, rgb) in &set.coefficients {
+            let (row, col) = (u64::from(*index) / side, u64::from(*index) % side);
+            if row < block && col < block {
+                for c in 0..3 {
+                    sum[c] += f64::from(rgb[c]);
+                }
+            }
+        }
+        let scale = 2f64.powi(set.levels.min(31) as i32) * 4.0 * std::f64::consts::PI
+            / (side * side) as f64;
+        sum.map(|v| v * scale)
+    }
+}
+
+/// A decoded wavelet-set message (representation 2).
+#[derive(Clone, Debug, PartialEq)]
+pub struct WaveletFrameMessage {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, seconds since the source started.
+    pub time: f64,
+    /// The set is the last known one; the source is lost.
+    pub stale: bool,
+    /// The coefficients as sent (by increasing index).
+    pub set: WaveletSet,
+}
+
+impl WaveletFrameMessage {
+    /// The wavelet frame without the transport fields.
+    pub fn into_wavelet_frame(self) -> WaveletFrame {
+        WaveletFrame {
+            seq: self.seq,
+            time: self.time,
+            set: self.set,
+        }
+    }
+}
+
 /// One decoded message.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
@@ -285,6 +367,8 @@ pub enum Message {
     Frame(FrameMessage),
     /// An ASG set.
     Asg(AsgFrameMessage),
+    /// A wavelet coefficient set.
+    Wavelet(WaveletFrameMessage),
     /// An error; the sender closes the connection after it.
     Error {
         /// One of [`code`].
@@ -351,6 +435,14 @@ pub enum ProtocolError {
         /// What is wrong.
         reason: String,
     },
+    /// A wavelet frame whose header or coefficients are not a valid set (unknown basis or map
+    /// code, a side that is not a power of two, too many levels, indices out of range or not
+    /// strictly increasing).
+    #[error("invalid wavelet set: {reason}")]
+    InvalidWaveletSet {
+        /// What is wrong.
+        reason: String,
+    },
     /// Text that is not valid UTF-8.
     #[error("{kind} message text is not valid UTF-8: {detail}")]
     InvalidUtf8 {
@@ -396,6 +488,7 @@ impl ProtocolError {
             | ProtocolError::Inconsistent { .. }
             | ProtocolError::NonFinite { .. }
             | ProtocolError::InvalidLobe { .. }
+            | ProtocolError::InvalidWaveletSet { .. }
             | ProtocolError::InvalidUtf8 { .. }
             | ProtocolError::Truncated { .. } => code::MALFORMED,
             ProtocolError::UnsupportedVersion { .. } => code::UNSUPPORTED_VERSION,
@@ -423,6 +516,43 @@ fn select_lights(lights: &[Light], max_lights: Option<usize>) -> Cow<'_, [Light]
 /// lobe's energy), never more than [`MAX_FRAME_LOBES`].
 fn select_lobes(lobes: &[AsgLobe], max_lobes: Option<usize>) -> Cow<'_, [AsgLobe]> {
     select_brightest(lobes, max_lobes, MAX_FRAME_LOBES, AsgLobe::luminance)
+}
+
+/// The coefficients of `set` to send for a cap: all of them, or `max` of them chosen
+/// **scaling coefficients first** (the top-left (side/2^levels)² block of the layout: the
+/// map's local means, with the full pyramid only index 0 = mean × side, which carries the whole
+/// ∫L dω), then the details of largest RGB norm √(r² + g² + b²) (the ranking of
+/// [`crate::wavelet::approx`], which by Parseval minimises the RGB L2 error of the
+/// reconstruction); within each group ties go to the lower index. Kept in index order, never
+/// more than [`MAX_FRAME_COEFFICIENTS`].
+fn select_coefficients(set: &WaveletSet, max: Option<usize>) -> Cow<'_, [(u32, [f32; 3])]> {
+    let items = &set.coefficients;
+    let cap = max.unwrap_or(usize::MAX).min(MAX_FRAME_COEFFICIENTS);
+    if items.len() <= cap {
+        return Cow::Borrowed(items);
+    }
+    let side = u64::from(set.side);
+    let block = side >> set.levels.min(63);
+    let scaling = |i: u32| {
+        let i = u64::from(i);
+        side > 0 && i / side < block && i % side < block
+    };
+    let norm2 = |rgb: &[f32; 3]| -> f64 { rgb.iter().map(|&c| f64::from(c) * f64::from(c)).sum() };
+    let mut order: Vec<usize> = (0..items.len()).collect();
+    let first = |a: &usize, b: &usize| {
+        let (ia, ra) = &items[*a];
+        let (ib, rb) = &items[*b];
+        scaling(*ib)
+            .cmp(&scaling(*ia))
+            .then(norm2(rb).total_cmp(&norm2(ra)))
+            .then(a.cmp(b))
+    };
+    if cap > 0 {
+        order.select_nth_unstable_by(cap - 1, first);
+    }
+    order.truncate(cap);
+    order.sort_unstable();
+    Cow::Owned(order.into_iter().map(|i| items[i]).collect())
 }
 
 /// The `cap` (at most `limit`) records of largest `luminance`, ties to the earlier one, kept in
@@ -545,6 +675,44 @@ pub fn encode_asg_frame(set: &AsgSet, max_lobes: Option<usize>, stale: bool, out
             .chain(&lobe.rgb)
             .chain([&lobe.integral]);
         for v in values {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
+/// Appends one binary wavelet frame message (representation 2) for `frame` to `out`.
+///
+/// With `max_coefficients = Some(n)` and more than `n` coefficients, `n` are sent: the scaling
+/// coefficients first, then the details of largest RGB norm (ties to the lower index), in
+/// index order, each bit for bit as in the set (capping drops coefficients, it never alters
+/// one; with the scaling coefficients kept, a capped set keeps the map's ∫L dω). A message carries at most
+/// [`MAX_FRAME_COEFFICIENTS`]. The set should be valid ([`WaveletSet::validate`]: finite
+/// values, indices below side², sorted and unique; the daemon's stage checks); decoders reject
+/// anything else. `stale` sets [`FLAG_STALE`].
+pub fn encode_wavelet_frame(
+    frame: &WaveletFrame,
+    max_coefficients: Option<usize>,
+    stale: bool,
+    out: &mut Vec<u8>,
+) {
+    let set = &frame.set;
+    let coefficients = select_coefficients(set, max_coefficients);
+    put_frame_head(
+        out,
+        frame.seq,
+        frame.time,
+        Representation::Wavelet,
+        stale,
+        coefficients.len(),
+    );
+    out.push(set.basis.code());
+    out.push(u8::try_from(set.levels).unwrap_or(u8::MAX));
+    out.push(WAVELET_MAP_OCTAHEDRAL);
+    out.push(0);
+    out.extend_from_slice(&set.side.to_le_bytes());
+    for (index, rgb) in coefficients.iter() {
+        out.extend_from_slice(&index.to_le_bytes());
+        for v in rgb {
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
@@ -717,6 +885,15 @@ fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError>
                 });
             }
             let records = &rest[layout.prefix_len..];
+            if representation == Representation::Wavelet {
+                let set = decode_wavelet(&rest[..layout.prefix_len], records)?;
+                return Ok(Message::Wavelet(WaveletFrameMessage {
+                    seq,
+                    time,
+                    stale,
+                    set,
+                }));
+            }
             if representation == Representation::Asg {
                 return Ok(Message::Asg(AsgFrameMessage {
                     seq,
@@ -797,6 +974,89 @@ fn decode_lobes(records: &[u8]) -> Result<Vec<AsgLobe>, ProtocolError> {
         lobes.push(lobe);
     }
     Ok(lobes)
+}
+
+/// A wavelet set from its 8-byte prefix and its records (whose total length the caller checked).
+fn decode_wavelet(prefix: &[u8], records: &[u8]) -> Result<WaveletSet, ProtocolError> {
+    let bad = |reason: String| ProtocolError::InvalidWaveletSet { reason };
+    let basis = Basis::from_code(prefix[0]).ok_or_else(|| {
+        bad(format!(
+            "unknown basis code {} (1 = haar, 2..=10 = db2..db10, 17..=21 = coif1..coif5)",
+            prefix[0]
+        ))
+    })?;
+    if prefix[2] != WAVELET_MAP_OCTAHEDRAL {
+        return Err(bad(format!(
+            "unknown map code {} (0 = equal-area octahedral)",
+            prefix[2]
+        )));
+    }
+    let mut coefficients = Vec::with_capacity(records.len() / WAVELET_RECORD_LEN);
+    for (i, r) in records.chunks_exact(WAVELET_RECORD_LEN).enumerate() {
+        let f = |at: usize| finite(f32_at(r, at), || format!("coefficient {i} rgb"));
+        coefficients.push((u32_at(r, 0), [f(4)?, f(8)?, f(12)?]));
+    }
+    let set = WaveletSet {
+        basis,
+        side: u32_at(prefix, 4),
+        levels: u32::from(prefix[1]),
+        coefficients,
+    };
+    validate_wavelet_set(&set)?;
+    Ok(set)
+}
+
+/// Whether `set` may be sent: a supported basis, a power-of-two side in 2..=[`MAX_WAVELET_SIDE`],
+/// levels at most log2(side), at most [`MAX_FRAME_COEFFICIENTS`] coefficients with finite
+/// values and indices below side², strictly increasing. Decoders apply it to every received
+/// set; the daemon's wavelet stage applies it before publishing. Allocates nothing, whatever
+/// side a peer declares.
+pub fn validate_wavelet_set(set: &WaveletSet) -> Result<(), ProtocolError> {
+    let bad = |reason: String| Err(ProtocolError::InvalidWaveletSet { reason });
+    if !set.basis.is_supported() {
+        return bad(format!("unsupported basis {:?}", set.basis));
+    }
+    let side = set.side;
+    if !(2..=MAX_WAVELET_SIDE).contains(&side) || !side.is_power_of_two() {
+        return bad(format!(
+            "side {side} is not a power of two in 2..={MAX_WAVELET_SIDE}"
+        ));
+    }
+    let max_levels = side.trailing_zeros();
+    if set.levels > max_levels {
+        return bad(format!(
+            "{} levels on side {side} (at most {max_levels})",
+            set.levels
+        ));
+    }
+    if set.coefficients.len() > MAX_FRAME_COEFFICIENTS {
+        return bad(format!(
+            "{} coefficients (at most {MAX_FRAME_COEFFICIENTS} per frame)",
+            set.coefficients.len()
+        ));
+    }
+    let n = u64::from(side) * u64::from(side);
+    let mut previous: Option<u32> = None;
+    for (i, (index, rgb)) in set.coefficients.iter().enumerate() {
+        if u64::from(*index) >= n {
+            return bad(format!(
+                "coefficient {i} has index {index}, outside 0..{n} (side {side})"
+            ));
+        }
+        if previous.is_some_and(|p| *index <= p) {
+            return bad(format!(
+                "coefficient {i} has index {index} after {}: indices must be strictly increasing",
+                previous.unwrap_or_default()
+            ));
+        }
+        if rgb.iter().any(|v| !v.is_finite()) {
+            return Err(ProtocolError::NonFinite {
+                field: format!("coefficient {i} rgb"),
+            });
+        }
+        previous = Some(*index);
+    }
+    Ok(())
 }
 
 /// Whether `lobe` (at position `index` of its frame) may be sent: finite values, positive
@@ -978,6 +1238,19 @@ struct JsonAsgFrame<'a> {
 }
 
 #[derive(Serialize, Deserialize)]
+struct JsonWaveletFrame<'a> {
+    seq: u64,
+    time: f64,
+    representation: Representation,
+    #[serde(default)]
+    stale: bool,
+    basis: Basis,
+    side: u32,
+    levels: u32,
+    coefficients: Cow<'a, [(u32, [f32; 3])]>,
+}
+
+#[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct JsonText<'a> {
     code: u16,
@@ -1048,6 +1321,31 @@ pub fn asg_frame_to_json(set: &AsgSet, max_lobes: Option<usize>, stale: bool) ->
     })
 }
 
+/// The JSON form of a wavelet frame, with the same coefficient selection as
+/// [`encode_wavelet_frame`]; `coefficients` is a list of `[index, [r, g, b]]` (the form of
+/// `envlight wavelet approx`):
+///
+/// ```json
+/// {"seq":17,"time":0.5,"representation":"wavelet","stale":false,"basis":"haar","side":4,"levels":2,"coefficients":[[0,[4.0,2.0,1.0]],[5,[-0.5,0.25,0.0]]]}
+/// ```
+pub fn wavelet_frame_to_json(
+    frame: &WaveletFrame,
+    max_coefficients: Option<usize>,
+    stale: bool,
+) -> String {
+    let set = &frame.set;
+    to_json(&JsonWaveletFrame {
+        seq: frame.seq,
+        time: frame.time,
+        representation: Representation::Wavelet,
+        stale,
+        basis: set.basis,
+        side: set.side,
+        levels: set.levels,
+        coefficients: select_coefficients(set, max_coefficients),
+    })
+}
+
 /// The JSON form of an error: `{"error":{"code":5,"message":"..."}}`.
 pub fn error_to_json(code: u16, message: &str) -> String {
     to_json(&JsonEnvelope::Error(JsonText {
@@ -1096,6 +1394,33 @@ pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
     let value: serde_json::Value =
         serde_json::from_str(text).map_err(|e| ProtocolError::Json(e.to_string()))?;
     let json_err = |e: serde_json::Error| ProtocolError::Json(e.to_string());
+    if value.get("coefficients").is_some() {
+        let frame: JsonWaveletFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
+        if frame.representation != Representation::Wavelet {
+            return Err(ProtocolError::Json(format!(
+                "a frame with coefficients must have representation \"wavelet\", not {:?}",
+                frame.representation.name()
+            )));
+        }
+        if !frame.time.is_finite() {
+            return Err(ProtocolError::NonFinite {
+                field: "frame time".into(),
+            });
+        }
+        let set = WaveletSet {
+            basis: frame.basis,
+            side: frame.side,
+            levels: frame.levels,
+            coefficients: frame.coefficients.into_owned(),
+        };
+        validate_wavelet_set(&set)?;
+        return Ok(Message::Wavelet(WaveletFrameMessage {
+            seq: frame.seq,
+            time: frame.time,
+            stale: frame.stale,
+            set,
+        }));
+    }
     if value.get("lobes").is_some() {
         let frame: JsonAsgFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
         if frame.representation != Representation::Asg {
@@ -1338,16 +1663,173 @@ mod tests {
     }
 
     #[test]
-    fn frame_with_reserved_representation_is_rejected() {
+    fn a_light_frame_relabelled_as_wavelet_lacks_the_prefix() {
         let mut out = Vec::new();
         encode_frame(&LightFrame::default(), None, false, &mut out);
         out[28] = Representation::Wavelet.code();
-        assert_eq!(
+        assert!(matches!(
             decode_message(&out),
-            Err(ProtocolError::UnsupportedRepresentation {
-                representation: Representation::Wavelet
-            })
+            Err(ProtocolError::Inconsistent { kind: "frame", .. })
+        ));
+    }
+
+    fn wavelet_frame(coefficients: Vec<(u32, [f32; 3])>) -> WaveletFrame {
+        WaveletFrame {
+            seq: 3,
+            time: 0.25,
+            set: WaveletSet {
+                basis: Basis::Daubechies(4),
+                side: 8,
+                levels: 3,
+                coefficients,
+            },
+        }
+    }
+
+    #[test]
+    fn wavelet_frames_round_trip_binary_and_json() {
+        let frame = wavelet_frame(vec![
+            (0, [8.0, 4.0, 2.0]),
+            (3, [-0.5, 0.25, 1e-30]),
+            (63, [0.0, -3.5, 0.125]),
+        ]);
+        let mut out = Vec::new();
+        encode_wavelet_frame(&frame, None, true, &mut out);
+        assert_eq!(
+            out.len(),
+            HEADER_LEN + FRAME_FIXED_LEN + WAVELET_PREFIX_LEN + 3 * WAVELET_RECORD_LEN
         );
+        assert_eq!(&out[36..44], &[4, 3, 0, 0, 8, 0, 0, 0]);
+        let want = WaveletFrameMessage {
+            seq: 3,
+            time: 0.25,
+            stale: true,
+            set: frame.set.clone(),
+        };
+        assert_eq!(decode_message(&out), Ok(Message::Wavelet(want.clone())));
+        let json = wavelet_frame_to_json(&frame, None, true);
+        assert!(
+            json.contains(r#""basis":"db4","side":8,"levels":3"#),
+            "{json}"
+        );
+        assert_eq!(parse_json_message(&json), Ok(Message::Wavelet(want)));
+        assert_eq!(MAX_FRAME_COEFFICIENTS, 65533);
+    }
+
+    fn kept(frame: &WaveletFrame, cap: usize) -> Vec<u32> {
+        let mut out = Vec::new();
+        encode_wavelet_frame(frame, Some(cap), false, &mut out);
+        let json = parse_json_message(&wavelet_frame_to_json(frame, Some(cap), false));
+        match (decode_message(&out), json) {
+            (Ok(Message::Wavelet(m)), Ok(Message::Wavelet(j))) => {
+                assert_eq!(m.set, j.set, "binary and JSON select the same");
+                m.set.coefficients.iter().map(|c| c.0).collect()
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn wavelet_cap_keeps_scaling_then_the_largest_rgb_norms_in_index_order() {
+        // Side 8, 3 levels: index 0 is the only scaling coefficient. Norms: 1 (scaling),
+        // 3 (luminance ≈ 0: pure chroma), 4, 5, 3 (a tie with index 1).
+        let frame = wavelet_frame(vec![
+            (0, [1.0, 0.0, 0.0]),
+            (1, [3.0, 0.0, 0.0]),
+            (2, [0.0, 0.0, -4.0]),
+            (9, [3.0, 4.0, 0.0]),
+            (10, [0.0, -3.0, 0.0]),
+        ]);
+        assert_eq!(kept(&frame, 0), Vec::<u32>::new());
+        assert_eq!(kept(&frame, 1), vec![0], "the scaling coefficient first");
+        assert_eq!(kept(&frame, 2), vec![0, 9]);
+        assert_eq!(kept(&frame, 3), vec![0, 2, 9]);
+        assert_eq!(
+            kept(&frame, 4),
+            vec![0, 1, 2, 9],
+            "ties go to the lower index"
+        );
+        assert_eq!(kept(&frame, 9), vec![0, 1, 2, 9, 10]);
+        // One level on side 8: the scaling block is 4 × 4 (rows 0..4, columns 0..4).
+        let mut shallow = frame.clone();
+        shallow.set.levels = 1;
+        shallow.set.coefficients = vec![
+            (5, [0.5, 0.0, 0.0]),  // row 0, column 5: detail
+            (11, [0.1, 0.0, 0.0]), // row 1, column 3: scaling
+            (24, [0.2, 0.0, 0.0]), // row 3, column 0: scaling
+            (32, [9.0, 0.0, 0.0]), // row 4, column 0: detail
+        ];
+        assert_eq!(kept(&shallow, 1), vec![24]);
+        assert_eq!(kept(&shallow, 2), vec![11, 24]);
+        assert_eq!(kept(&shallow, 3), vec![11, 24, 32]);
+        let integral = |f: &WaveletFrame| f.integral();
+        // ∫L dω = 2^levels · Σ scaling · 4π / side².
+        let want = 2.0 * f64::from(0.1f32 + 0.2f32) * 4.0 * std::f64::consts::PI / 64.0;
+        assert!((integral(&shallow)[0] - want).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_wavelet_frames_are_rejected() {
+        let good = wavelet_frame(vec![(1, [1.0, 1.0, 1.0]), (2, [2.0, 2.0, 2.0])]);
+        let mut bytes = Vec::new();
+        encode_wavelet_frame(&good, None, false, &mut bytes);
+        let patched = |at: usize, value: &[u8]| {
+            let mut b = bytes.clone();
+            b[at..at + value.len()].copy_from_slice(value);
+            decode_message(&b)
+        };
+        let invalid = |r: Result<Message, ProtocolError>| {
+            matches!(r, Err(ProtocolError::InvalidWaveletSet { .. }))
+        };
+        assert!(invalid(patched(36, &[0])), "basis code 0");
+        assert!(invalid(patched(36, &[11])), "basis code 11");
+        assert!(invalid(patched(37, &[4])), "4 levels on side 8");
+        assert!(invalid(patched(38, &[1])), "map code 1");
+        assert!(invalid(patched(40, &12u32.to_le_bytes())), "side 12");
+        assert!(invalid(patched(40, &1u32.to_le_bytes())), "side 1");
+        assert!(
+            invalid(patched(40, &(1u32 << 31).to_le_bytes())),
+            "huge side"
+        );
+        assert!(
+            invalid(patched(44, &64u32.to_le_bytes())),
+            "index 64 on side 8"
+        );
+        assert!(invalid(patched(44, &2u32.to_le_bytes())), "duplicate index");
+        assert!(invalid(patched(60, &1u32.to_le_bytes())), "decreasing");
+        assert!(matches!(
+            patched(48, &f32::NAN.to_le_bytes()),
+            Err(ProtocolError::NonFinite { .. })
+        ));
+        // A record short: the length does not fit the layout.
+        let mut short = bytes.clone();
+        short.truncate(short.len() - 4);
+        let len = (short.len() - 4) as u32;
+        short[0..4].copy_from_slice(&len.to_le_bytes());
+        assert!(matches!(
+            decode_message(&short),
+            Err(ProtocolError::Inconsistent { kind: "frame", .. })
+        ));
+        // Every rejection is error 1 (malformed).
+        assert_eq!(
+            ProtocolError::InvalidWaveletSet { reason: "x".into() }.code(),
+            code::MALFORMED
+        );
+        // JSON: the same checks.
+        let json = wavelet_frame_to_json(&good, None, false);
+        for (from, to) in [
+            (r#""basis":"db4""#, r#""basis":"db42""#),
+            (r#""side":8"#, r#""side":6"#),
+            (r#""levels":3"#, r#""levels":9"#),
+            ("[2,[2.0", "[1,[2.0"),
+            ("[2,[2.0", "[64,[2.0"),
+            (r#""representation":"wavelet""#, r#""representation":"asg""#),
+            ("[2,[2.0", "[2,[1e39"),
+        ] {
+            let bad = json.replace(from, to);
+            assert_ne!(bad, json, "{from} not in {json}");
+            assert!(parse_json_message(&bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

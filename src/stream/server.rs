@@ -41,8 +41,9 @@ use super::fanout::{
 };
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
-    encode_frame, encode_goodbye, frame_to_json, goodbye_to_json, Decoder, Format, Message,
-    ProtocolError, Representation, Request,
+    encode_frame, encode_goodbye, encode_wavelet_frame, frame_to_json, goodbye_to_json,
+    wavelet_frame_to_json, Decoder, Format, Message, ProtocolError, Representation, Request,
+    WaveletFrame,
 };
 use crate::light::{AsgSet, LightFrame};
 use crate::metrics::{ClientLabel, EndpointLabel, Metrics};
@@ -226,6 +227,16 @@ impl Streamed for AsgSet {
     }
     fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
         asg_frame_to_json(self, cap, stale)
+    }
+}
+
+impl Streamed for WaveletFrame {
+    const REPRESENTATION: Representation = Representation::Wavelet;
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+        encode_wavelet_frame(self, cap, stale, out);
+    }
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
+        wavelet_frame_to_json(self, cap, stale)
     }
 }
 
@@ -1145,7 +1156,7 @@ impl Connection {
             Ok(message) => {
                 let what = match message {
                     Some(Message::Subscribe(_)) => "a second subscribe",
-                    Some(Message::Frame(_) | Message::Asg(_)) => "a frame",
+                    Some(Message::Frame(_) | Message::Asg(_) | Message::Wavelet(_)) => "a frame",
                     Some(Message::Error { .. }) => "an error message",
                     Some(Message::Goodbye { .. }) => return Close::Quiet,
                     None => "bytes",

@@ -1,0 +1,569 @@
+//! The daemon's wavelet stage (`[wavelet]`): the newest frames as sparse wavelet coefficient
+//! sets ([`crate::wavelet`], issue 7), computed on their own thread and published on a
+//! latest-value channel for the stream server (representation 2, docs/protocol.md).
+//!
+//! ```text
+//! envlight-decompose ──FrameFeed (one slot, newest wins)──► envlight-wavelet ──watch──► stream server
+//!   (after publishing its lights)                          (WaveletTransformer)  Latest<WaveletFrame>
+//! ```
+//!
+//! Per frame, the steps of [`WaveletTransformer::transform`]:
+//! 1. **Resample** the frame onto the `side × side` equal-area octahedral map
+//!    ([`crate::wavelet::sphere::Resampler`], energy-preserving splats). The resampling plan
+//!    (per source pixel, the texels it reaches and their weights) is built once per frame
+//!    size and projection and reused for every later frame of that shape; a frame of another
+//!    shape builds a new one ([`WaveletStats::plans`] counts them).
+//! 2. **Transform** each channel with the orthonormal 2-D wavelet transform of `basis`, full
+//!    pyramid (log2(side) levels, periodic boundary; [`crate::wavelet::transform`]), with one
+//!    reused workspace.
+//! 3. **Keep the K largest** coefficients by RGB norm ([`Coefficients::truncate`]: by Parseval
+//!    the best K-term approximation in RGB L2), in index order, as a [`WaveletFrame`] with the
+//!    frame's seq and time.
+//!
+//! Every step is deterministic, so the set of a frame does not depend on timing: what a client
+//! receives equals [`crate::wavelet::approximate`] on
+//! [`crate::wavelet::sphere::OctahedralMap::from_frame`] of the same frame, bit for bit.
+//!
+//! The rest is the ASG stage's design ([`crate::asg_stage`]): the decompose thread offers each
+//! frame after publishing its lights, a live feed keeps only the newest (skips counted), a
+//! lossless feed (replay) makes every frame transformed in order so a replay reproduces the
+//! stream; a set the wire format would reject ([`validate_wavelet_set`]; a non-finite value from
+//! a non-finite frame, say) or a frame that cannot be resampled is logged and counted
+//! ([`WaveletStats::errors`]); [`WaveletStage::reconfigure`] (SIGHUP) swaps the settings before
+//! the next frame; [`WaveletStage::join`] turns a panic into an error.
+
+use crate::frame::HdrFrame;
+use crate::frame_feed::{CloseOnDrop, FrameFeed};
+use crate::publication::{publish, Latest, StaleHandle};
+use crate::stream::protocol::{validate_wavelet_set, WaveletFrame, MAX_FRAME_COEFFICIENTS};
+use crate::wavelet::approx::{ApproxError, Coefficients};
+use crate::wavelet::sphere::{Resampler, SphereError, MAX_SIDE};
+use crate::wavelet::transform::{max_levels, Workspace};
+use crate::wavelet::Basis;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+
+/// Name of the wavelet thread.
+pub const WAVELET_THREAD_NAME: &str = "envlight-wavelet";
+
+/// Default basis: Haar. At the stage's coefficient budget (a few hundred) Haar is as good as
+/// or better than the high-order bases on maps with a sun or lamps (docs/wavelets.md: up to 4×
+/// fewer coefficients for the same error at K = 64 on sunny maps; the high-order bases win
+/// from about K = 1024), its 2 taps make the cheapest transform, and a truncated Haar set does
+/// not ring around a bright, compact source.
+pub const DEFAULT_BASIS: Basis = Basis::Haar;
+/// Default side of the octahedral map: 64 (4,096 texels of 3.1·10⁻³ sr, about 3.6° across).
+pub const DEFAULT_SIDE: usize = 64;
+/// Default number of coefficients kept per frame.
+pub const DEFAULT_COEFFICIENTS: usize = 256;
+/// Smallest side the stage accepts.
+pub const MIN_SIDE: usize = 8;
+
+/// What the stage computes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WaveletSettings {
+    /// The wavelet basis.
+    pub basis: Basis,
+    /// Side of the octahedral map, a power of two in [`MIN_SIDE`]..=[`MAX_SIDE`].
+    pub side: usize,
+    /// Coefficients kept per frame, 1..=min(side², [`MAX_FRAME_COEFFICIENTS`]).
+    pub coefficients: usize,
+}
+
+impl Default for WaveletSettings {
+    fn default() -> Self {
+        Self {
+            basis: DEFAULT_BASIS,
+            side: DEFAULT_SIDE,
+            coefficients: DEFAULT_COEFFICIENTS,
+        }
+    }
+}
+
+impl WaveletSettings {
+    /// Decomposition levels: the full pyramid, log2(side).
+    pub fn levels(&self) -> u32 {
+        max_levels(self.side)
+    }
+
+    /// Checks every field (the error names the field and the value).
+    pub fn validate(&self) -> Result<(), WaveletStageError> {
+        let bad = |field: &'static str, value: String, rule: String| {
+            Err(WaveletStageError::Settings { field, value, rule })
+        };
+        if !self.basis.is_supported() {
+            return bad(
+                "basis",
+                format!("{:?}", self.basis),
+                "haar, db2..db10 or coif1..coif5".into(),
+            );
+        }
+        if !(MIN_SIDE..=MAX_SIDE).contains(&self.side) || !self.side.is_power_of_two() {
+            return bad(
+                "side",
+                self.side.to_string(),
+                format!("a power of two in {MIN_SIDE}..={MAX_SIDE}"),
+            );
+        }
+        let max = (self.side * self.side).min(MAX_FRAME_COEFFICIENTS);
+        if !(1..=max).contains(&self.coefficients) {
+            return bad(
+                "coefficients",
+                self.coefficients.to_string(),
+                format!(
+                    "1..={max} (at most side² = {} and what one frame message carries, {MAX_FRAME_COEFFICIENTS})",
+                    self.side * self.side
+                ),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Errors of the wavelet stage.
+#[derive(Debug, thiserror::Error)]
+pub enum WaveletStageError {
+    #[error("invalid [wavelet] setting {field} = {value}: must be {rule}")]
+    Settings {
+        field: &'static str,
+        value: String,
+        rule: String,
+    },
+    #[error("frame {seq}: cannot resample onto the octahedral map: {source}")]
+    Resample {
+        seq: u64,
+        #[source]
+        source: SphereError,
+    },
+    #[error("frame {seq}: wavelet transform failed: {source}")]
+    Transform {
+        seq: u64,
+        #[source]
+        source: ApproxError,
+    },
+    #[error("frame {seq}: the wavelet set would not be accepted on the wire: {source}")]
+    Invalid {
+        seq: u64,
+        #[source]
+        source: crate::stream::ProtocolError,
+    },
+    #[error("cannot start thread {WAVELET_THREAD_NAME}: {0}")]
+    Spawn(#[source] std::io::Error),
+    #[error("thread {WAVELET_THREAD_NAME} panicked: {0}")]
+    Panicked(String),
+}
+
+/// Frames to wavelet sets, with the resampling plan and the transform's scratch space kept
+/// from frame to frame. See the module documentation for the steps.
+pub struct WaveletTransformer {
+    settings: WaveletSettings,
+    resampler: Option<Resampler>,
+    workspace: Workspace,
+    plans: u64,
+}
+
+impl WaveletTransformer {
+    /// A transformer with validated `settings`.
+    pub fn new(settings: WaveletSettings) -> Result<Self, WaveletStageError> {
+        settings.validate()?;
+        Ok(Self {
+            settings,
+            resampler: None,
+            workspace: Workspace::new(),
+            plans: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &WaveletSettings {
+        &self.settings
+    }
+
+    /// Resampling plans built so far (one per frame shape met, again after a shape change).
+    pub fn plans(&self) -> u64 {
+        self.plans
+    }
+
+    /// The set of `frame`: resample, transform, keep the largest coefficients.
+    pub fn transform(&mut self, frame: &HdrFrame) -> Result<WaveletFrame, WaveletStageError> {
+        let seq = frame.seq;
+        let side = self.settings.side;
+        let resample_error = |source| WaveletStageError::Resample { seq, source };
+        let resampler = match self.resampler.take() {
+            Some(plan) if plan.fits(frame) => plan,
+            _ => {
+                self.plans += 1;
+                Resampler::new(frame.projection, frame.width, frame.height, side)
+                    .map_err(resample_error)?
+            }
+        };
+        let map = resampler.resample(frame);
+        self.resampler = Some(resampler);
+        let map = map.map_err(resample_error)?;
+        let coefficients = Coefficients::analyze_with(
+            map.texels(),
+            side,
+            self.settings.basis,
+            self.settings.levels(),
+            &mut self.workspace,
+        )
+        .map_err(|source| WaveletStageError::Transform { seq, source })?;
+        let set = coefficients.truncate(self.settings.coefficients);
+        validate_wavelet_set(&set).map_err(|source| WaveletStageError::Invalid { seq, source })?;
+        Ok(WaveletFrame {
+            seq,
+            time: frame.time,
+            set,
+        })
+    }
+}
+
+/// One publication of the wavelet stage: the set is the
+/// [`Publication::payload`](crate::publication::Publication::payload),
+/// `compute_time` the time of the three steps.
+pub type PublishedWavelet = crate::publication::Publication<WaveletFrame>;
+
+/// What wavelet consumers receive: the newest publication, `None` until the first one.
+pub type LatestWavelet = Latest<WaveletFrame>;
+
+/// Marks the newest wavelet set stale or live; see [`WaveletStage::set_stale`].
+pub type WaveletStaleHandle = StaleHandle<WaveletFrame>;
+
+/// Called on the wavelet thread after each published set (metrics).
+pub type WaveletHook = Arc<dyn Fn(&PublishedWavelet) + Send + Sync>;
+
+/// Counters of the wavelet stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WaveletStats {
+    /// Frames offered to the stage.
+    pub frames_offered: u64,
+    /// Frames replaced by a newer one before the stage took them.
+    pub frames_skipped: u64,
+    /// Sets computed and published.
+    pub sets: u64,
+    /// Frames that gave no set (resampling failed, invalid values).
+    pub errors: u64,
+    /// Resampling plans built (one per frame size and projection met).
+    pub plans: u64,
+    /// Duration of the most recent set (resample, transform, selection).
+    pub last_time: Duration,
+}
+
+#[derive(Default)]
+struct Shared {
+    sets: AtomicU64,
+    errors: AtomicU64,
+    plans: AtomicU64,
+    last_nanos: AtomicU64,
+    pending: Mutex<Option<WaveletTransformer>>,
+}
+
+/// The running wavelet stage. See the module documentation.
+pub struct WaveletStage {
+    feed: FrameFeed,
+    shared: Arc<Shared>,
+    tx: Arc<watch::Sender<LatestWavelet>>,
+    rx: watch::Receiver<LatestWavelet>,
+    handle: JoinHandle<()>,
+}
+
+impl WaveletStage {
+    /// Validates `settings` and starts the `envlight-wavelet` thread, fed by a new feed
+    /// (`lossless` as in [`FrameFeed::new`]). `on_publish` runs on the thread after each set.
+    pub fn start(
+        settings: WaveletSettings,
+        lossless: bool,
+        on_publish: Option<WaveletHook>,
+    ) -> Result<WaveletStage, WaveletStageError> {
+        let mut transformer = WaveletTransformer::new(settings)?;
+        let feed = FrameFeed::new(lossless);
+        let shared = Arc::new(Shared::default());
+        let (tx, rx) = watch::channel::<LatestWavelet>(None);
+        let tx = Arc::new(tx);
+        let (thread_feed, thread_shared, thread_tx) =
+            (feed.clone(), Arc::clone(&shared), Arc::clone(&tx));
+        tracing::info!(
+            basis = %settings.basis,
+            side = settings.side,
+            levels = settings.levels(),
+            coefficients = settings.coefficients,
+            lossless,
+            "starting the wavelet stage"
+        );
+        let handle = std::thread::Builder::new()
+            .name(WAVELET_THREAD_NAME.to_owned())
+            .spawn(move || {
+                // If this thread dies, the feed must not make a lossless sender wait forever.
+                let _close = CloseOnDrop(thread_feed.clone());
+                let mut plans_before = 0;
+                while let Some((frame, arrived)) = thread_feed.take() {
+                    if let Some(new) = thread_shared
+                        .pending
+                        .lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .take()
+                    {
+                        transformer = new;
+                        plans_before = 0;
+                    }
+                    let started = Instant::now();
+                    let result = transformer.transform(&frame);
+                    let elapsed = started.elapsed();
+                    let plans = transformer.plans();
+                    thread_shared
+                        .plans
+                        .fetch_add(plans - plans_before, Ordering::AcqRel);
+                    plans_before = plans;
+                    let set = match result {
+                        Ok(set) => Arc::new(set),
+                        Err(error) => {
+                            thread_shared.errors.fetch_add(1, Ordering::AcqRel);
+                            tracing::warn!(%error, "wavelet stage: skipping the frame");
+                            continue;
+                        }
+                    };
+                    let nanos = u64::try_from(elapsed.as_nanos()).unwrap_or(u64::MAX);
+                    thread_shared.last_nanos.store(nanos, Ordering::Release);
+                    thread_shared.sets.fetch_add(1, Ordering::AcqRel);
+                    publish(&thread_tx, set, Some(arrived), elapsed);
+                    if let Some(hook) = &on_publish {
+                        if let Some(published) = thread_tx.borrow().as_ref() {
+                            hook(published);
+                        }
+                    }
+                }
+            })
+            .map_err(WaveletStageError::Spawn)?;
+        Ok(WaveletStage {
+            feed,
+            shared,
+            tx,
+            rx,
+            handle,
+        })
+    }
+
+    /// The feed to hand frames to (give it to the pipeline).
+    pub fn feed(&self) -> FrameFeed {
+        self.feed.clone()
+    }
+
+    /// A receiver of the newest set; a set published already shows as changed.
+    pub fn subscribe(&self) -> watch::Receiver<LatestWavelet> {
+        self.rx.clone()
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> WaveletStats {
+        stats(&self.feed, &self.shared)
+    }
+
+    /// A handle that reads the counters from anywhere (the metrics endpoint).
+    pub fn stats_handle(&self) -> WaveletStatsHandle {
+        WaveletStatsHandle(self.feed.clone(), Arc::clone(&self.shared))
+    }
+
+    /// Replaces the settings from the next frame on (a new resampling plan if the side
+    /// changed). Invalid settings are rejected and change nothing.
+    pub fn reconfigure(&self, settings: WaveletSettings) -> Result<(), WaveletStageError> {
+        let transformer = WaveletTransformer::new(settings)?;
+        *self
+            .shared
+            .pending
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(transformer);
+        Ok(())
+    }
+
+    /// Marks the newest set stale (the source is lost) or live again, re-publishing it on a
+    /// change. Returns whether anything was published.
+    pub fn set_stale(&self, stale: bool) -> bool {
+        self.stale_handle().set_stale(stale)
+    }
+
+    /// A handle for [`WaveletStage::set_stale`] from another thread.
+    pub fn stale_handle(&self) -> WaveletStaleHandle {
+        StaleHandle::new(Arc::clone(&self.tx))
+    }
+
+    /// Whether the thread has ended (the feed was closed and drained).
+    pub fn is_finished(&self) -> bool {
+        self.handle.is_finished()
+    }
+
+    /// Closes the feed, waits for the thread and returns the final counters.
+    pub fn join(self) -> Result<WaveletStats, WaveletStageError> {
+        self.feed.close();
+        if let Err(payload) = self.handle.join() {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "non-string panic payload".to_owned());
+            return Err(WaveletStageError::Panicked(message));
+        }
+        Ok(stats(&self.feed, &self.shared))
+    }
+}
+
+fn stats(feed: &FrameFeed, shared: &Shared) -> WaveletStats {
+    WaveletStats {
+        frames_offered: feed.offered(),
+        frames_skipped: feed.skipped(),
+        sets: shared.sets.load(Ordering::Acquire),
+        errors: shared.errors.load(Ordering::Acquire),
+        plans: shared.plans.load(Ordering::Acquire),
+        last_time: Duration::from_nanos(shared.last_nanos.load(Ordering::Acquire)),
+    }
+}
+
+/// Reads the stage's counters; valid after the stage has ended.
+#[derive(Clone)]
+pub struct WaveletStatsHandle(FrameFeed, Arc<Shared>);
+
+impl WaveletStatsHandle {
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> WaveletStats {
+        stats(&self.0, &self.1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::envmap::Projection;
+    use crate::wavelet::sphere::OctahedralMap;
+
+    fn frame(seq: u64, width: u32) -> HdrFrame {
+        let height = width / 2;
+        let pixels = (0..width * height)
+            .map(|i| {
+                let v = 0.1 + ((i * 13 + seq as u32 * 5) % 17) as f32;
+                [v, 0.5 * v, 0.25 * v]
+            })
+            .collect();
+        let mut f = HdrFrame::new(width, height, pixels, Projection::LatLong).unwrap();
+        f.seq = seq;
+        f.time = seq as f64 / 30.0;
+        f
+    }
+
+    fn settings() -> WaveletSettings {
+        WaveletSettings {
+            basis: Basis::Daubechies(2),
+            side: 16,
+            coefficients: 40,
+        }
+    }
+
+    #[test]
+    fn the_transformer_equals_the_library_and_plans_once_per_shape() {
+        let mut t = WaveletTransformer::new(settings()).unwrap();
+        for (seq, width) in [(0, 32), (1, 32), (2, 32), (3, 64), (4, 64)] {
+            let f = frame(seq, width);
+            let got = t.transform(&f).unwrap();
+            let map = OctahedralMap::from_frame(&f, 16).unwrap();
+            let want =
+                crate::wavelet::approximate(map.texels(), 16, Basis::Daubechies(2), 4, 40).unwrap();
+            assert_eq!(got.set, want, "seq {seq}");
+            assert_eq!((got.seq, got.time), (seq, f.time));
+        }
+        assert_eq!(t.plans(), 2, "one plan per frame size");
+    }
+
+    #[test]
+    fn settings_are_checked_field_by_field() {
+        for (bad, field) in [
+            (
+                WaveletSettings {
+                    side: 48,
+                    ..settings()
+                },
+                "side",
+            ),
+            (
+                WaveletSettings {
+                    side: 4,
+                    ..settings()
+                },
+                "side",
+            ),
+            (
+                WaveletSettings {
+                    coefficients: 0,
+                    ..settings()
+                },
+                "coefficients",
+            ),
+            (
+                WaveletSettings {
+                    coefficients: 257,
+                    ..settings()
+                },
+                "coefficients",
+            ),
+            (
+                WaveletSettings {
+                    basis: Basis::Daubechies(11),
+                    ..settings()
+                },
+                "basis",
+            ),
+        ] {
+            match WaveletStage::start(bad, false, None) {
+                Err(WaveletStageError::Settings { field: f, .. }) => assert_eq!(f, field),
+                other => panic!("{bad:?}: {:?}", other.err()),
+            }
+        }
+        assert!(WaveletSettings::default().validate().is_ok());
+    }
+
+    #[test]
+    fn lossless_stage_transforms_every_frame_and_stale_republishes() {
+        let stage = WaveletStage::start(settings(), true, None).unwrap();
+        let mut rx = stage.subscribe();
+        let feed = stage.feed();
+        let sender = std::thread::Builder::new()
+            .name("test-feeder".into())
+            .spawn(move || {
+                let _close = CloseOnDrop(feed.clone());
+                for seq in 0..6 {
+                    feed.offer(frame(seq, 32));
+                }
+            })
+            .unwrap();
+        let mut seen = Vec::new();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            while rx.changed().await.is_ok() {
+                let p = rx.borrow_and_update().clone().unwrap();
+                let last = p.payload.seq == 5;
+                seen.push(p);
+                if last {
+                    break;
+                }
+            }
+        });
+        sender.join().unwrap();
+        let live = stage.subscribe().borrow().clone().unwrap();
+        assert!(stage.set_stale(true));
+        let stale = stage.subscribe().borrow().clone().unwrap();
+        assert!(stale.stale && Arc::ptr_eq(&stale.payload, &live.payload));
+        let stats = stage.join().unwrap();
+        assert_eq!(
+            (stats.frames_offered, stats.frames_skipped, stats.sets),
+            (6, 0, 6)
+        );
+        assert_eq!((stats.errors, stats.plans), (0, 1));
+        let mut t = WaveletTransformer::new(settings()).unwrap();
+        for p in &seen {
+            assert_eq!(*p.payload, t.transform(&frame(p.payload.seq, 32)).unwrap());
+        }
+        assert_eq!(live.index, 6, "every set was published");
+    }
+}
