@@ -266,36 +266,11 @@ impl Decomposer {
 
         // The sampling density: luminance radiance to the power γ, per solid angle. It only
         // places the lights (their energies are summed separately, in f64), so f32 suffices.
-        let gamma = self.settings.pdf_exponent;
-        let weights = &mut self.weights;
-        weights.resize(map.width * map.height, 0.0);
-        self.arch.dispatch(|| {
-            for ((row, out), &omega) in map
-                .energy
-                .chunks_exact(map.width)
-                .zip(weights.chunks_exact_mut(map.width))
-                .zip(&map.row_solid_angle)
-            {
-                let inv_omega = 1.0 / omega;
-                let omega = omega as f32;
-                let density = |e: &[f64; 3]| -> f32 {
-                    // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
-                    let radiance = (luminance_f64(*e) * inv_omega).min(f64::from(f32::MAX)) as f32;
-                    if gamma == 1.0 {
-                        radiance
-                    } else if gamma == 0.75 {
-                        let root = radiance.sqrt();
-                        root * root.sqrt()
-                    } else if gamma == 0.5 {
-                        radiance.sqrt()
-                    } else {
-                        radiance.powf(gamma as f32)
-                    }
-                };
-                for (w, e) in out.iter_mut().zip(row) {
-                    *w = f64::from(density(e) * omega);
-                }
-            }
+        self.weights.resize(map.width * map.height, 0.0);
+        self.arch.dispatch(Density {
+            map,
+            gamma: self.settings.pdf_exponent,
+            weights: &mut self.weights,
         });
         let warp = match self.settings.warp {
             Warp::Rows => {
@@ -335,9 +310,13 @@ impl Decomposer {
 
         self.regions.clear();
         self.regions.resize(n, Region::default());
-        let (regions, scratch) = (&mut self.regions, &mut self.region_scratch);
-        self.arch
-            .dispatch(|| regions::accumulate(map, buckets, &sample_dirs, regions, scratch));
+        self.arch.dispatch(regions::Accumulate {
+            map,
+            grid: buckets,
+            sample_dirs: &sample_dirs,
+            regions: &mut self.regions,
+            scratch: &mut self.region_scratch,
+        });
 
         let placement = self.settings.placement;
         sample_dirs
@@ -358,6 +337,60 @@ impl Decomposer {
                 }
             })
             .collect()
+    }
+}
+
+/// The sampling density of a working map, run through [`pulp::Arch::dispatch`] so that it is
+/// compiled for the CPU's vector unit.
+struct Density<'a> {
+    map: &'a working_map::WorkingMap,
+    gamma: f64,
+    weights: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Density<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Density {
+            map,
+            gamma,
+            weights,
+        } = self;
+        let g = gamma as f32;
+        // One branch per frame, not per pixel: the common exponents have cheap exact forms.
+        if gamma == 1.0 {
+            density_rows(map, weights, |r| r);
+        } else if gamma == 0.75 {
+            density_rows(map, weights, |r| {
+                let root = r.sqrt();
+                root * root.sqrt()
+            });
+        } else if gamma == 0.5 {
+            density_rows(map, weights, f32::sqrt);
+        } else {
+            density_rows(map, weights, |r| r.powf(g));
+        }
+    }
+}
+
+/// weight = power(luminance / Ω) · Ω for every working pixel.
+#[inline(always)]
+fn density_rows(map: &working_map::WorkingMap, weights: &mut [f64], power: impl Fn(f32) -> f32) {
+    for ((row, out), &omega) in map
+        .luminance
+        .chunks_exact(map.width)
+        .zip(weights.chunks_exact_mut(map.width))
+        .zip(&map.row_solid_angle)
+    {
+        let inv_omega = (1.0 / omega) as f32;
+        let omega = omega as f32;
+        for (w, &lum) in out.iter_mut().zip(row) {
+            // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
+            let radiance = (lum * inv_omega).min(f32::MAX);
+            *w = f64::from(power(radiance) * omega);
+        }
     }
 }
 

@@ -326,6 +326,26 @@ fn min_of(rows: &[Lanes]) -> f32 {
     m.into_iter().fold(f32::INFINITY, f32::min)
 }
 
+/// The region pass's arguments, run through [`pulp::Arch::dispatch`] so that the pass is
+/// compiled for the CPU's vector unit (`with_simd` and everything it calls are inlined into the
+/// target-feature function).
+pub(super) struct Accumulate<'a> {
+    pub map: &'a WorkingMap,
+    pub grid: &'a BucketGrid,
+    pub sample_dirs: &'a [DVec3],
+    pub regions: &'a mut [Region],
+    pub scratch: &'a mut Scratch,
+}
+
+impl pulp::WithSimd for Accumulate<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        accumulate(self);
+    }
+}
+
 /// Adds every working pixel's energy, luminance-weighted direction and solid angle to the
 /// region of its nearest light. A concentrated working pixel (a sun, a lamp; see
 /// [`WorkingMap::fine`]) is assigned input pixel by input pixel, by exact direction, so the
@@ -335,13 +355,14 @@ fn min_of(rows: &[Lanes]) -> f32 {
 /// [`label_bucket`]); then each row is summed run by run (consecutive pixels of one light, f64)
 /// and each run is added to its light's region once.
 #[inline(always)]
-pub(super) fn accumulate(
-    map: &WorkingMap,
-    grid: &BucketGrid,
-    sample_dirs: &[DVec3],
-    regions: &mut [Region],
-    scratch: &mut Scratch,
-) {
+fn accumulate(args: Accumulate<'_>) {
+    let Accumulate {
+        map,
+        grid,
+        sample_dirs,
+        regions,
+        scratch,
+    } = args;
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
     scratch.lights.clear();
     scratch
@@ -400,10 +421,11 @@ pub(super) fn accumulate(
         };
         let pixels = map.energy[row.clone()]
             .iter()
+            .zip(&map.luminance[row.clone()])
             .zip(&labels[row.clone()])
             .zip(&map.concentrated[row])
             .zip(&map.column_trig_f64);
-        for (((energy, &label), &concentrated), &(sin_p, cos_p)) in pixels {
+        for ((((energy, &lum), &label), &concentrated), &(sin_p, cos_p)) in pixels {
             if label != current {
                 flush(current, std::mem::take(&mut run));
                 current = label;
@@ -411,7 +433,7 @@ pub(super) fn accumulate(
             if concentrated {
                 continue;
             }
-            let lum = luminance_f64(*energy);
+            let lum = f64::from(lum);
             for c in 0..3 {
                 run.0[c] += energy[c];
             }
