@@ -262,7 +262,7 @@ impl Decomposer {
         let map = resampler.resample(frame, CONCENTRATED_SHARE / n as f64);
         let buckets = self
             .buckets
-            .get_or_insert_with(|| regions::BucketGrid::new(map.width, map.height));
+            .get_or_insert_with(|| regions::BucketGrid::new(map));
 
         // The sampling density: luminance radiance to the power γ, per solid angle. It only
         // places the lights (their energies are summed separately, in f64), so f32 suffices.
