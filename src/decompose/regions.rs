@@ -144,34 +144,73 @@ fn bounding_cap(
     (c.as_vec3(), (radius * 1.05 + 1e-4) as f32)
 }
 
-/// The lights within (nearest angle + 2·radius) of a cap's centre, i.e. every light that can be
-/// nearest to some point of the cap (triangle inequality), with their dot products with the
-/// centre. `dots` is scratch space.
-fn reachable(
+/// Directions as three coordinate arrays plus their light ids, so that the dot products of
+/// one direction with all of them vectorise.
+#[derive(Default)]
+struct DirSet {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    id: Vec<u32>,
+}
+
+impl DirSet {
+    fn clear(&mut self) {
+        self.x.clear();
+        self.y.clear();
+        self.z.clear();
+        self.id.clear();
+    }
+
+    fn push(&mut self, id: u32, d: Vec3) {
+        self.x.push(d.x);
+        self.y.push(d.y);
+        self.z.push(d.z);
+        self.id.push(id);
+    }
+
+    fn len(&self) -> usize {
+        self.id.len()
+    }
+}
+
+/// `dots[i] = centre · set[range][i]` and the reach threshold: the dot product of `centre` with
+/// a light at (nearest angle + 2·radius), i.e. the smallest dot product of a light that can be
+/// nearest to some point of the cap (triangle inequality).
+#[inline(always)]
+fn reach(
     centre: Vec3,
     radius: f32,
-    among: &[u32],
-    lights: &[Vec3],
+    set: &DirSet,
+    range: std::ops::Range<usize>,
     dots: &mut Vec<f32>,
-    out: &mut Vec<(u32, f32)>,
-) {
+) -> f32 {
     dots.clear();
-    dots.extend(among.iter().map(|&i| centre.dot(lights[i as usize])));
-    let best = dots.iter().copied().fold(-1.0f32, f32::max);
+    let (x, y, z) = (&set.x[range.clone()], &set.y[range.clone()], &set.z[range]);
+    dots.extend(
+        x.iter()
+            .zip(y)
+            .zip(z)
+            .map(|((x, y), z)| centre.x * x + centre.y * y + centre.z * z),
+    );
+    // Eight running maxima (so the loop vectorises), then their maximum.
+    let mut m = [-1.0f32; 8];
+    let chunks = dots.chunks_exact(8);
+    for &d in chunks.remainder() {
+        m[0] = m[0].max(d);
+    }
+    for chunk in chunks {
+        for (m, &d) in m.iter_mut().zip(chunk) {
+            *m = if d > *m { d } else { *m };
+        }
+    }
+    let best = m.into_iter().fold(-1.0f32, f32::max);
     let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
-    let threshold = if reach >= std::f32::consts::PI {
+    if reach >= std::f32::consts::PI {
         -2.0
     } else {
         reach.cos() - 1e-6
-    };
-    out.clear();
-    out.extend(
-        among
-            .iter()
-            .zip(dots.iter())
-            .filter(|(_, &d)| d >= threshold)
-            .map(|(&i, &d)| (i, d)),
-    );
+    }
 }
 
 /// A light that may be nearest to some point of a bucket, with an upper bound of its dot
@@ -186,36 +225,52 @@ struct Candidate {
     bound: f32,
 }
 
-/// Per-bucket candidate lights for one frame, nearest to the bucket centre first.
+/// Per-bucket candidate lights for one frame, nearest to the bucket centre first. The buffers
+/// are kept between frames.
+#[derive(Default)]
 struct Candidates {
     offsets: Vec<u32>,
     list: Vec<Candidate>,
+    /// Every light, then the candidates of each super-bucket (`super_offsets`).
+    all: DirSet,
+    supers: DirSet,
+    super_offsets: Vec<usize>,
+    dots: Vec<f32>,
 }
 
 impl Candidates {
     /// Candidate lists of every bucket: first per super-bucket among all lights, then per bucket
     /// among its super-bucket's candidates (a bucket lies inside its super-bucket, so its
     /// candidates are among those).
-    fn new(grid: &BucketGrid, lights: &[Vec3]) -> Self {
-        let all: Vec<u32> = (0..lights.len() as u32).collect();
-        let (mut dots, mut found) = (Vec::new(), Vec::new());
-        let supers: Vec<Vec<u32>> = grid
-            .super_centres
-            .iter()
-            .zip(&grid.super_radii)
-            .map(|(&c, &r)| {
-                reachable(c, r, &all, lights, &mut dots, &mut found);
-                found.iter().map(|&(i, _)| i).collect()
-            })
-            .collect();
-        let mut offsets = Vec::with_capacity(grid.centres.len() + 1);
-        let mut list = Vec::with_capacity(grid.centres.len() * 16);
-        offsets.push(0);
+    fn build(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
+        self.all.clear();
+        for (i, &l) in lights.iter().enumerate() {
+            self.all.push(i as u32, l);
+        }
+        self.supers.clear();
+        self.super_offsets.clear();
+        self.super_offsets.push(0);
+        for (&c, &r) in grid.super_centres.iter().zip(&grid.super_radii) {
+            let threshold = reach(c, r, &self.all, 0..self.all.len(), &mut self.dots);
+            for (i, &d) in self.dots.iter().enumerate() {
+                if d >= threshold {
+                    self.supers.push(self.all.id[i], lights[i]);
+                }
+            }
+            self.super_offsets.push(self.supers.len());
+        }
+        self.offsets.clear();
+        self.list.clear();
+        self.offsets.push(0);
         for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
-            reachable(c, r, &supers[s as usize], lights, &mut dots, &mut found);
+            let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
+            let threshold = reach(c, r, &self.supers, range.clone(), &mut self.dots);
             let (sin_r, cos_r) = r.sin_cos();
-            let start = list.len();
-            list.extend(found.iter().map(|&(i, d)| {
+            let start = self.list.len();
+            for (k, &d) in self.dots.iter().enumerate() {
+                if d < threshold {
+                    continue;
+                }
                 let cos_a = d.clamp(-1.0, 1.0);
                 let bound = if cos_a >= cos_r {
                     1.0
@@ -223,21 +278,35 @@ impl Candidates {
                     // cos(a − r) = cos a cos r + sin a sin r, a ∈ [r, π].
                     cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r
                 };
-                Candidate {
+                let i = self.supers.id[range.start + k];
+                self.list.push(Candidate {
                     dir: lights[i as usize],
                     light: i,
                     bound: bound + 1e-6,
-                }
-            }));
-            list[start..].sort_unstable_by(|a, b| b.bound.total_cmp(&a.bound));
-            offsets.push(list.len() as u32);
+                });
+            }
+            sort_by_bound(&mut self.list[start..]);
+            self.offsets.push(self.list.len() as u32);
         }
-        Self { offsets, list }
     }
 
     #[inline]
     fn of(&self, bucket: usize) -> &[Candidate] {
         &self.list[self.offsets[bucket] as usize..self.offsets[bucket + 1] as usize]
+    }
+}
+
+/// Sorts a short candidate list by falling bound (insertion sort: the lists hold a handful).
+#[inline(always)]
+fn sort_by_bound(list: &mut [Candidate]) {
+    for i in 1..list.len() {
+        let c = list[i];
+        let mut j = i;
+        while j > 0 && list[j - 1].bound < c.bound {
+            list[j] = list[j - 1];
+            j -= 1;
+        }
+        list[j] = c;
     }
 }
 
@@ -267,6 +336,7 @@ pub(super) struct Scratch {
     /// The nearest light of every working pixel, row-major.
     labels: Vec<u32>,
     lights: Vec<Vec3>,
+    candidates: Candidates,
 }
 
 /// Labels every pixel of bucket (`bx`, `by`) with its nearest light among the bucket's
@@ -390,7 +460,8 @@ fn accumulate(args: Accumulate<'_>) {
         .lights
         .extend(sample_dirs.iter().map(|d| d.as_vec3()));
     let lights = &scratch.lights;
-    let candidates = Candidates::new(grid, lights);
+    scratch.candidates.build(grid, lights);
+    let candidates = &scratch.candidates;
     let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
 
     let mut hint = 0;
