@@ -436,21 +436,35 @@ fn box_filter(args: BoxFilter<'_>) {
         .enumerate()
     {
         let mut bits = 0u32;
-        for (k, row) in rows.chunks_exact(sw).enumerate() {
-            let omega = row_solid_angle[wy * f + k] as f32;
-            let row = row.as_flattened();
-            let sums = &mut column_sums[..row_len];
+        let omegas = &row_solid_angle[wy * f..(wy + 1) * f];
+        let sums = &mut column_sums[..row_len];
+        // Two input rows per pass over the column sums (half the loads and stores of the sums);
+        // an odd factor starts with one row.
+        let mut k = 0;
+        if f % 2 == 1 {
+            let (row, w) = (rows[..sw].as_flattened(), omegas[0] as f32);
+            for (a, p) in sums.iter_mut().zip(row) {
+                *a = p * w;
+                bits |= p.to_bits();
+            }
+            k = 1;
+        }
+        while k + 1 < f {
+            let row0 = rows[k * sw..(k + 1) * sw].as_flattened();
+            let row1 = rows[(k + 1) * sw..(k + 2) * sw].as_flattened();
+            let (w0, w1) = (omegas[k] as f32, omegas[k + 1] as f32);
             if k == 0 {
-                for (a, p) in sums.iter_mut().zip(row) {
-                    *a = p * omega;
-                    bits |= p.to_bits();
+                for ((a, p), q) in sums.iter_mut().zip(row0).zip(row1) {
+                    *a = p * w0 + q * w1;
+                    bits |= p.to_bits() | q.to_bits();
                 }
             } else {
-                for (a, p) in sums.iter_mut().zip(row) {
-                    *a += p * omega;
-                    bits |= p.to_bits();
+                for ((a, p), q) in sums.iter_mut().zip(row0).zip(row1) {
+                    *a += p * w0 + q * w1;
+                    bits |= p.to_bits() | q.to_bits();
                 }
             }
+            k += 2;
         }
         match f {
             1 => sum_columns::<1>(column_sums, out, lum),
