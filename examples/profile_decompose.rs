@@ -55,7 +55,12 @@ fn main() -> anyhow::Result<()> {
     let n = iterations.max(1);
     let mean = times.iter().sum::<f64>() / n as f64;
     times.sort_by(f64::total_cmp);
-    let at = |q: f64| times.get((q * times.len() as f64) as usize).copied().unwrap_or(0.0);
+    let at = |q: f64| {
+        times
+            .get((q * times.len() as f64) as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
     println!(
         "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame",
         at(0.5),
