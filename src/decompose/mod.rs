@@ -164,6 +164,8 @@ pub struct Decomposer {
     last_count: Option<usize>,
     /// The first `n` points of the progressive set for the last light count n.
     points: std::sync::Arc<[[f64; 2]]>,
+    /// Where the points warp to in the last frame (the buffer is reused).
+    sample_dirs: Vec<glam::DVec3>,
 }
 
 impl Decomposer {
@@ -198,6 +200,7 @@ impl Decomposer {
             regions: Vec::new(),
             last_count: None,
             points: std::sync::Arc::from(Vec::new()),
+            sample_dirs: Vec::new(),
         })
     }
 
@@ -290,30 +293,30 @@ impl Decomposer {
             self.points = point_set::progressive_points(n);
         }
         let points = &self.points;
-        let sample_dirs: Vec<glam::DVec3> = points
-            .iter()
-            .map(|u| {
-                let p = match &warp {
-                    Sampler::Rows(dist) => dist.sample(*u).0,
-                    Sampler::Hierarchical(tree) => tree.sample(*u),
-                };
-                Projection::LatLong
-                    .pixel_to_direction(
-                        map.width as u32,
-                        map.height as u32,
-                        p[0] * map.width as f64,
-                        p[1] * map.height as f64,
-                    )
-                    .unwrap_or(glam::DVec3::Y)
-            })
-            .collect();
+        let sample_dirs = &mut self.sample_dirs;
+        sample_dirs.clear();
+        sample_dirs.extend(points.iter().map(|u| {
+            let p = match &warp {
+                Sampler::Rows(dist) => dist.sample(*u).0,
+                Sampler::Hierarchical(tree) => tree.sample(*u),
+            };
+            Projection::LatLong
+                .pixel_to_direction(
+                    map.width as u32,
+                    map.height as u32,
+                    p[0] * map.width as f64,
+                    p[1] * map.height as f64,
+                )
+                .unwrap_or(glam::DVec3::Y)
+        }));
+        let sample_dirs = &self.sample_dirs;
 
         self.regions.clear();
         self.regions.resize(n, Region::default());
         self.arch.dispatch(regions::Accumulate {
             map,
             grid: buckets,
-            sample_dirs: &sample_dirs,
+            sample_dirs,
             regions: &mut self.regions,
             scratch: &mut self.region_scratch,
         });
