@@ -321,7 +321,9 @@ impl Resampler {
                     }
                 }
                 for (l, e) in map.luminance.iter_mut().zip(&map.energy) {
-                    *l = (super::luminance_f64(*e) as f32).min(f32::MAX);
+                    // Not clamped: NaN or ∞ here must reach the careful sum below (f32::min
+                    // would turn NaN into a finite value).
+                    *l = super::luminance_f64(*e) as f32;
                 }
             }
         }
