@@ -626,6 +626,37 @@ mod tests {
     }
 
     #[test]
+    fn many_bad_pixels_stay_out_of_the_lights() {
+        // 34×17 takes the index-table path. Five poisoned working pixels and one light: none of
+        // them may be mistaken for a finite bright pixel (a NaN clamped to f32::MAX once was,
+        // and its NaN energy reached the light).
+        let (w, h) = (34u32, 17u32);
+        let mut frame = sky_with_sun(w, h, (5, 5), 50.0);
+        for i in [3usize, 100, 200, 301, 450] {
+            frame.pixels[i] = [f32::NAN, f32::INFINITY, -2.0];
+        }
+        let mut clean = frame.clone();
+        clean.sanitize();
+        let truth = frame_integral(&clean);
+        for n in [1, 4] {
+            let settings = DecomposeSettings {
+                working_width: 16,
+                ..raw_settings(n)
+            };
+            let lights = Decomposer::new(settings).unwrap().decompose(&frame);
+            let sum = lights.total_rgb();
+            for c in 0..3 {
+                assert!(
+                    (sum[c] - truth[c]).abs() < 1e-5 * truth[c],
+                    "n={n} channel {c}: {} vs {}",
+                    sum[c],
+                    truth[c]
+                );
+            }
+        }
+    }
+
+    #[test]
     fn light_count_is_validated() {
         let bad = |n| Decomposer::new(raw_settings(n)).err();
         assert_eq!(bad(0), Some(DecomposeError::LightCount(0)));
