@@ -1,7 +1,7 @@
 //! Benchmarks of the light decomposition (single-threaded: one core).
 //!
 //! - `frame/default_256/{512x256,1024x512,2048x1024}`: one frame of rooitou_park (lat-long)
-//!   decomposed with the default settings (256 lights, filter and merge on). One `Decomposer` is
+//!   decomposed with the default settings (256 lights, filter on, merge off). One `Decomposer` is
 //!   reused across iterations, as in the daemon: its filter state and per-geometry tables persist,
 //!   so this is the steady per-frame cost. 512×256 is the map box-downsampled by 2, 2048×1024 the
 //!   map upsampled by pixel replication.

@@ -7,7 +7,8 @@
 //!
 //! Arguments: the map (an .hdr file, or `sky` for one second of the built-in sky at 256×128,
 //! 60 frames cycled, as the streaming bench uses), the number of frames, and optionally the
-//! working width (default: the decomposition's default).
+//! working width (default: the decomposition's default). Prints the mean, median and minimum
+//! time per frame.
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{DecomposeSettings, Decomposer};
@@ -43,16 +44,28 @@ fn main() -> anyhow::Result<()> {
     let mut decomposer = Decomposer::new(settings)?;
     // The point set is computed once per process: keep it out of the timing.
     decomposer.decompose(&frames[0]);
-    let start = std::time::Instant::now();
+    // Per-frame times: on a shared machine the median and the minimum say more than the mean.
+    let mut times = Vec::with_capacity(iterations);
     let mut lights = 0;
     for i in 0..iterations {
+        let start = std::time::Instant::now();
         lights += decomposer.decompose(&frames[i % frames.len()]).lights.len();
+        times.push(start.elapsed().as_secs_f64() * 1e3);
     }
-    let per_frame = start.elapsed().as_secs_f64() / iterations.max(1) as f64;
+    let n = iterations.max(1);
+    let mean = times.iter().sum::<f64>() / n as f64;
+    times.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        times
+            .get((q * times.len() as f64) as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
     println!(
-        "{:.3} ms per frame, {} lights per frame",
-        per_frame * 1e3,
-        lights / iterations.max(1)
+        "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame",
+        at(0.5),
+        at(0.0),
+        lights / n
     );
     Ok(())
 }

@@ -71,10 +71,17 @@ impl PiecewiseConstant2d {
         {
             let mut sum = 0.0f64;
             out[0] = 0.0;
+            // Two passes: the clean-up vectorises, the running sum is one add per weight.
             for (&w, p) in row.iter().zip(&mut out[1..]) {
-                if w.is_finite() && w > 0.0 {
-                    sum += w;
-                }
+                // NaN, ±∞ and negative weights count as 0.
+                *p = if (w > 0.0) & (w < f64::INFINITY) {
+                    w
+                } else {
+                    0.0
+                };
+            }
+            for p in &mut out[1..] {
+                sum += *p;
                 *p = sum;
             }
             running_total += sum;

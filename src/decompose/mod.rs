@@ -164,6 +164,8 @@ pub struct Decomposer {
     last_count: Option<usize>,
     /// The first `n` points of the progressive set for the last light count n.
     points: std::sync::Arc<[[f64; 2]]>,
+    /// Where the points warp to in the last frame (the buffer is reused).
+    sample_dirs: Vec<glam::DVec3>,
 }
 
 impl Decomposer {
@@ -198,6 +200,7 @@ impl Decomposer {
             regions: Vec::new(),
             last_count: None,
             points: std::sync::Arc::from(Vec::new()),
+            sample_dirs: Vec::new(),
         })
     }
 
@@ -262,40 +265,15 @@ impl Decomposer {
         let map = resampler.resample(frame, CONCENTRATED_SHARE / n as f64);
         let buckets = self
             .buckets
-            .get_or_insert_with(|| regions::BucketGrid::new(map.width, map.height));
+            .get_or_insert_with(|| regions::BucketGrid::new(map));
 
         // The sampling density: luminance radiance to the power γ, per solid angle. It only
         // places the lights (their energies are summed separately, in f64), so f32 suffices.
-        let gamma = self.settings.pdf_exponent;
-        let weights = &mut self.weights;
-        weights.resize(map.width * map.height, 0.0);
-        self.arch.dispatch(|| {
-            for ((row, out), &omega) in map
-                .energy
-                .chunks_exact(map.width)
-                .zip(weights.chunks_exact_mut(map.width))
-                .zip(&map.row_solid_angle)
-            {
-                let inv_omega = 1.0 / omega;
-                let omega = omega as f32;
-                let density = |e: &[f64; 3]| -> f32 {
-                    // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
-                    let radiance = (luminance_f64(*e) * inv_omega).min(f64::from(f32::MAX)) as f32;
-                    if gamma == 1.0 {
-                        radiance
-                    } else if gamma == 0.75 {
-                        let root = radiance.sqrt();
-                        root * root.sqrt()
-                    } else if gamma == 0.5 {
-                        radiance.sqrt()
-                    } else {
-                        radiance.powf(gamma as f32)
-                    }
-                };
-                for (w, e) in out.iter_mut().zip(row) {
-                    *w = f64::from(density(e) * omega);
-                }
-            }
+        self.weights.resize(map.width * map.height, 0.0);
+        self.arch.dispatch(Density {
+            map,
+            gamma: self.settings.pdf_exponent,
+            weights: &mut self.weights,
         });
         let warp = match self.settings.warp {
             Warp::Rows => {
@@ -315,29 +293,33 @@ impl Decomposer {
             self.points = point_set::progressive_points(n);
         }
         let points = &self.points;
-        let sample_dirs: Vec<glam::DVec3> = points
-            .iter()
-            .map(|u| {
-                let p = match &warp {
-                    Sampler::Rows(dist) => dist.sample(*u).0,
-                    Sampler::Hierarchical(tree) => tree.sample(*u),
-                };
-                Projection::LatLong
-                    .pixel_to_direction(
-                        map.width as u32,
-                        map.height as u32,
-                        p[0] * map.width as f64,
-                        p[1] * map.height as f64,
-                    )
-                    .unwrap_or(glam::DVec3::Y)
-            })
-            .collect();
+        let sample_dirs = &mut self.sample_dirs;
+        sample_dirs.clear();
+        sample_dirs.extend(points.iter().map(|u| {
+            let p = match &warp {
+                Sampler::Rows(dist) => dist.sample(*u).0,
+                Sampler::Hierarchical(tree) => tree.sample(*u),
+            };
+            Projection::LatLong
+                .pixel_to_direction(
+                    map.width as u32,
+                    map.height as u32,
+                    p[0] * map.width as f64,
+                    p[1] * map.height as f64,
+                )
+                .unwrap_or(glam::DVec3::Y)
+        }));
+        let sample_dirs = &self.sample_dirs;
 
         self.regions.clear();
         self.regions.resize(n, Region::default());
-        let (regions, scratch) = (&mut self.regions, &mut self.region_scratch);
-        self.arch
-            .dispatch(|| regions::accumulate(map, buckets, &sample_dirs, regions, scratch));
+        self.arch.dispatch(regions::Accumulate {
+            map,
+            grid: buckets,
+            sample_dirs,
+            regions: &mut self.regions,
+            scratch: &mut self.region_scratch,
+        });
 
         let placement = self.settings.placement;
         sample_dirs
@@ -358,6 +340,60 @@ impl Decomposer {
                 }
             })
             .collect()
+    }
+}
+
+/// The sampling density of a working map, run through [`pulp::Arch::dispatch`] so that it is
+/// compiled for the CPU's vector unit.
+struct Density<'a> {
+    map: &'a working_map::WorkingMap,
+    gamma: f64,
+    weights: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Density<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Density {
+            map,
+            gamma,
+            weights,
+        } = self;
+        let g = gamma as f32;
+        // One branch per frame, not per pixel: the common exponents have cheap exact forms.
+        if gamma == 1.0 {
+            density_rows(map, weights, |r| r);
+        } else if gamma == 0.75 {
+            density_rows(map, weights, |r| {
+                let root = r.sqrt();
+                root * root.sqrt()
+            });
+        } else if gamma == 0.5 {
+            density_rows(map, weights, f32::sqrt);
+        } else {
+            density_rows(map, weights, |r| r.powf(g));
+        }
+    }
+}
+
+/// weight = power(luminance / Ω) · Ω for every working pixel.
+#[inline(always)]
+fn density_rows(map: &working_map::WorkingMap, weights: &mut [f64], power: impl Fn(f32) -> f32) {
+    for ((row, out), &omega) in map
+        .luminance
+        .chunks_exact(map.width)
+        .zip(weights.chunks_exact_mut(map.width))
+        .zip(&map.row_solid_angle)
+    {
+        let inv_omega = (1.0 / omega) as f32;
+        let omega = omega as f32;
+        for (w, &lum) in out.iter_mut().zip(row) {
+            // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
+            let radiance = (lum * inv_omega).min(f32::MAX);
+            *w = f64::from(power(radiance) * omega);
+        }
     }
 }
 
@@ -584,6 +620,37 @@ mod tests {
                 assert!(
                     (sum[c] - truth[c]).abs() < 1e-5 * truth[c],
                     "{w}x{h} channel {c}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn many_bad_pixels_stay_out_of_the_lights() {
+        // 34×17 takes the index-table path. Five poisoned working pixels and one light: none of
+        // them may be mistaken for a finite bright pixel (a NaN clamped to f32::MAX once was,
+        // and its NaN energy reached the light).
+        let (w, h) = (34u32, 17u32);
+        let mut frame = sky_with_sun(w, h, (5, 5), 50.0);
+        for i in [3usize, 100, 200, 301, 450] {
+            frame.pixels[i] = [f32::NAN, f32::INFINITY, -2.0];
+        }
+        let mut clean = frame.clone();
+        clean.sanitize();
+        let truth = frame_integral(&clean);
+        for n in [1, 4] {
+            let settings = DecomposeSettings {
+                working_width: 16,
+                ..raw_settings(n)
+            };
+            let lights = Decomposer::new(settings).unwrap().decompose(&frame);
+            let sum = lights.total_rgb();
+            for c in 0..3 {
+                assert!(
+                    (sum[c] - truth[c]).abs() < 1e-5 * truth[c],
+                    "n={n} channel {c}: {} vs {}",
+                    sum[c],
+                    truth[c]
                 );
             }
         }

@@ -24,6 +24,9 @@ use glam::{DVec3, Vec3};
 
 const BUCKET_PIXELS: usize = 8;
 
+/// Working pixels per bucket.
+const CELLS: usize = BUCKET_PIXELS * BUCKET_PIXELS;
+
 /// Buckets per super-bucket side: candidate lists are found for 4×4 buckets at once first.
 const SUPER_BUCKETS: usize = 4;
 
@@ -40,10 +43,31 @@ pub struct BucketGrid {
     super_of: Vec<u32>,
     super_centres: Vec<Vec3>,
     super_radii: Vec<f32>,
+    /// Per bucket column, (sin φ, cos φ) of its pixels tiled over the bucket's 64 lanes (lane
+    /// r·8 + k holds column k); columns past the map's edge repeat the last one.
+    column_tiles: Vec<[[f32; CELLS]; 2]>,
+    /// Per bucket row, (sin θ, cos θ) of its pixels tiled over the 64 lanes (lane r·8 + k holds
+    /// row r); rows past the map's edge repeat the last one.
+    row_tiles: Vec<[[f32; CELLS]; 2]>,
 }
 
 impl BucketGrid {
-    pub fn new(width: usize, height: usize) -> Self {
+    /// The buckets of `map`'s geometry.
+    pub fn new(map: &WorkingMap) -> Self {
+        let (width, height) = (map.width, map.height);
+        let tile = |trig: &[(f32, f32)], start: usize, lane: fn(usize) -> usize| {
+            let at = |i: usize| trig[(start + lane(i)).min(trig.len() - 1)];
+            [
+                std::array::from_fn(|i| at(i).0),
+                std::array::from_fn(|i| at(i).1),
+            ]
+        };
+        let column_tiles = (0..width.div_ceil(BUCKET_PIXELS))
+            .map(|bx| tile(&map.column_trig, bx * BUCKET_PIXELS, |i| i % BUCKET_PIXELS))
+            .collect();
+        let row_tiles = (0..height.div_ceil(BUCKET_PIXELS))
+            .map(|by| tile(&map.row_trig, by * BUCKET_PIXELS, |i| i / BUCKET_PIXELS))
+            .collect();
         let cols = width.div_ceil(BUCKET_PIXELS);
         let rows = height.div_ceil(BUCKET_PIXELS);
         let cap = |x0: usize, y0: usize, x1: usize, y1: usize| {
@@ -82,6 +106,8 @@ impl BucketGrid {
             super_of,
             super_centres,
             super_radii,
+            column_tiles,
+            row_tiles,
         }
     }
 }
@@ -118,34 +144,73 @@ fn bounding_cap(
     (c.as_vec3(), (radius * 1.05 + 1e-4) as f32)
 }
 
-/// The lights within (nearest angle + 2·radius) of a cap's centre, i.e. every light that can be
-/// nearest to some point of the cap (triangle inequality), with their dot products with the
-/// centre. `dots` is scratch space.
-fn reachable(
+/// Directions as three coordinate arrays plus their light ids, so that the dot products of
+/// one direction with all of them vectorise.
+#[derive(Default)]
+struct DirSet {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    id: Vec<u32>,
+}
+
+impl DirSet {
+    fn clear(&mut self) {
+        self.x.clear();
+        self.y.clear();
+        self.z.clear();
+        self.id.clear();
+    }
+
+    fn push(&mut self, id: u32, d: Vec3) {
+        self.x.push(d.x);
+        self.y.push(d.y);
+        self.z.push(d.z);
+        self.id.push(id);
+    }
+
+    fn len(&self) -> usize {
+        self.id.len()
+    }
+}
+
+/// `dots[i] = centre · set[range][i]` and the reach threshold: the dot product of `centre` with
+/// a light at (nearest angle + 2·radius), i.e. the smallest dot product of a light that can be
+/// nearest to some point of the cap (triangle inequality).
+#[inline(always)]
+fn reach(
     centre: Vec3,
     radius: f32,
-    among: &[u32],
-    lights: &[Vec3],
+    set: &DirSet,
+    range: std::ops::Range<usize>,
     dots: &mut Vec<f32>,
-    out: &mut Vec<(u32, f32)>,
-) {
+) -> f32 {
     dots.clear();
-    dots.extend(among.iter().map(|&i| centre.dot(lights[i as usize])));
-    let best = dots.iter().copied().fold(-1.0f32, f32::max);
+    let (x, y, z) = (&set.x[range.clone()], &set.y[range.clone()], &set.z[range]);
+    dots.extend(
+        x.iter()
+            .zip(y)
+            .zip(z)
+            .map(|((x, y), z)| centre.x * x + centre.y * y + centre.z * z),
+    );
+    // Eight running maxima (so the loop vectorises), then their maximum.
+    let mut m = [-1.0f32; 8];
+    let chunks = dots.chunks_exact(8);
+    for &d in chunks.remainder() {
+        m[0] = m[0].max(d);
+    }
+    for chunk in chunks {
+        for (m, &d) in m.iter_mut().zip(chunk) {
+            *m = if d > *m { d } else { *m };
+        }
+    }
+    let best = m.into_iter().fold(-1.0f32, f32::max);
     let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
-    let threshold = if reach >= std::f32::consts::PI {
+    if reach >= std::f32::consts::PI {
         -2.0
     } else {
         reach.cos() - 1e-6
-    };
-    out.clear();
-    out.extend(
-        among
-            .iter()
-            .zip(dots.iter())
-            .filter(|(_, &d)| d >= threshold)
-            .map(|(&i, &d)| (i, d)),
-    );
+    }
 }
 
 /// A light that may be nearest to some point of a bucket, with an upper bound of its dot
@@ -160,36 +225,52 @@ struct Candidate {
     bound: f32,
 }
 
-/// Per-bucket candidate lights for one frame, nearest to the bucket centre first.
+/// Per-bucket candidate lights for one frame, nearest to the bucket centre first. The buffers
+/// are kept between frames.
+#[derive(Default)]
 struct Candidates {
     offsets: Vec<u32>,
     list: Vec<Candidate>,
+    /// Every light, then the candidates of each super-bucket (`super_offsets`).
+    all: DirSet,
+    supers: DirSet,
+    super_offsets: Vec<usize>,
+    dots: Vec<f32>,
 }
 
 impl Candidates {
     /// Candidate lists of every bucket: first per super-bucket among all lights, then per bucket
     /// among its super-bucket's candidates (a bucket lies inside its super-bucket, so its
     /// candidates are among those).
-    fn new(grid: &BucketGrid, lights: &[Vec3]) -> Self {
-        let all: Vec<u32> = (0..lights.len() as u32).collect();
-        let (mut dots, mut found) = (Vec::new(), Vec::new());
-        let supers: Vec<Vec<u32>> = grid
-            .super_centres
-            .iter()
-            .zip(&grid.super_radii)
-            .map(|(&c, &r)| {
-                reachable(c, r, &all, lights, &mut dots, &mut found);
-                found.iter().map(|&(i, _)| i).collect()
-            })
-            .collect();
-        let mut offsets = Vec::with_capacity(grid.centres.len() + 1);
-        let mut list = Vec::with_capacity(grid.centres.len() * 16);
-        offsets.push(0);
+    fn build(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
+        self.all.clear();
+        for (i, &l) in lights.iter().enumerate() {
+            self.all.push(i as u32, l);
+        }
+        self.supers.clear();
+        self.super_offsets.clear();
+        self.super_offsets.push(0);
+        for (&c, &r) in grid.super_centres.iter().zip(&grid.super_radii) {
+            let threshold = reach(c, r, &self.all, 0..self.all.len(), &mut self.dots);
+            for (i, &d) in self.dots.iter().enumerate() {
+                if d >= threshold {
+                    self.supers.push(self.all.id[i], lights[i]);
+                }
+            }
+            self.super_offsets.push(self.supers.len());
+        }
+        self.offsets.clear();
+        self.list.clear();
+        self.offsets.push(0);
         for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
-            reachable(c, r, &supers[s as usize], lights, &mut dots, &mut found);
+            let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
+            let threshold = reach(c, r, &self.supers, range.clone(), &mut self.dots);
             let (sin_r, cos_r) = r.sin_cos();
-            let start = list.len();
-            list.extend(found.iter().map(|&(i, d)| {
+            let start = self.list.len();
+            for (k, &d) in self.dots.iter().enumerate() {
+                if d < threshold {
+                    continue;
+                }
                 let cos_a = d.clamp(-1.0, 1.0);
                 let bound = if cos_a >= cos_r {
                     1.0
@@ -197,21 +278,35 @@ impl Candidates {
                     // cos(a − r) = cos a cos r + sin a sin r, a ∈ [r, π].
                     cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r
                 };
-                Candidate {
+                let i = self.supers.id[range.start + k];
+                self.list.push(Candidate {
                     dir: lights[i as usize],
                     light: i,
                     bound: bound + 1e-6,
-                }
-            }));
-            list[start..].sort_unstable_by(|a, b| b.bound.total_cmp(&a.bound));
-            offsets.push(list.len() as u32);
+                });
+            }
+            sort_by_bound(&mut self.list[start..]);
+            self.offsets.push(self.list.len() as u32);
         }
-        Self { offsets, list }
     }
 
     #[inline]
     fn of(&self, bucket: usize) -> &[Candidate] {
         &self.list[self.offsets[bucket] as usize..self.offsets[bucket + 1] as usize]
+    }
+}
+
+/// Sorts a short candidate list by falling bound (insertion sort: the lists hold a handful).
+#[inline(always)]
+fn sort_by_bound(list: &mut [Candidate]) {
+    for i in 1..list.len() {
+        let c = list[i];
+        let mut j = i;
+        while j > 0 && list[j - 1].bound < c.bound {
+            list[j] = list[j - 1];
+            j -= 1;
+        }
+        list[j] = c;
     }
 }
 
@@ -241,10 +336,8 @@ pub(super) struct Scratch {
     /// The nearest light of every working pixel, row-major.
     labels: Vec<u32>,
     lights: Vec<Vec3>,
+    candidates: Candidates,
 }
-
-/// Pixels of one bucket row (the labelling works on fixed-size rows so that it vectorises).
-type Lanes = [f32; BUCKET_PIXELS];
 
 /// Labels every pixel of bucket (`bx`, `by`) with its nearest light among the bucket's
 /// candidates. Directions are separable, d = (sin θ·sin φ, cos θ, −sin θ·cos φ), so a light's dot
@@ -254,6 +347,7 @@ type Lanes = [f32; BUCKET_PIXELS];
 #[inline(always)]
 fn label_bucket(
     map: &WorkingMap,
+    grid: &BucketGrid,
     candidates: &[Candidate],
     (bx, by): (usize, usize),
     labels: &mut [u32],
@@ -271,59 +365,76 @@ fn label_bucket(
         }
         return;
     }
-    // Columns past the map's edge repeat the last column; their labels are not stored.
-    let mut sin_phi: Lanes = [0.0; BUCKET_PIXELS];
-    let mut cos_phi: Lanes = [0.0; BUCKET_PIXELS];
-    for (k, (s, c)) in sin_phi.iter_mut().zip(&mut cos_phi).enumerate() {
-        (*s, *c) = map.column_trig[(x0 + k).min(x1 - 1)];
-    }
-    let rows = y1 - y0;
-    let mut best = [[0.0f32; BUCKET_PIXELS]; BUCKET_PIXELS];
-    let mut best_id = [[first.light; BUCKET_PIXELS]; BUCKET_PIXELS];
-    let column_terms =
-        |l: Vec3| -> Lanes { std::array::from_fn(|k| l.x * sin_phi[k] - l.z * cos_phi[k]) };
-    let terms = column_terms(first.dir);
-    for (r, row) in best.iter_mut().enumerate().take(rows) {
-        let (sin_t, cos_t) = map.row_trig[y0 + r];
-        let constant = first.dir.y * cos_t;
-        for (b, t) in row.iter_mut().zip(&terms) {
-            *b = sin_t * t + constant;
-        }
-    }
-    let mut worst_best = min_of(&best[..rows]);
+    // Columns and rows past the map's edge repeat the last one; their labels are not stored.
+    // So every bucket is a full block of 64 lanes, and the loops below are one fixed-size loop
+    // that the compiler vectorises (eight lanes per AVX2 vector).
+    let [sin_phi, cos_phi] = &grid.column_tiles[bx];
+    let [sin_theta, cos_theta] = &grid.row_tiles[by];
+    // d·l = sin θ·(lx sin φ − lz cos φ) + ly cos θ.
+    let dot = |l: Vec3, i: usize| {
+        sin_theta[i] * (l.x * sin_phi[i] - l.z * cos_phi[i]) + l.y * cos_theta[i]
+    };
+    let mut best: [f32; CELLS] = std::array::from_fn(|i| dot(first.dir, i));
+    let mut best_id = [first.light; CELLS];
+    let mut worst_best = min_of(&best);
     for c in rest {
         if c.bound < worst_best {
             break;
         }
-        let terms = column_terms(c.dir);
-        for (r, (row, ids)) in best.iter_mut().zip(&mut best_id).enumerate().take(rows) {
-            let (sin_t, cos_t) = map.row_trig[y0 + r];
-            let constant = c.dir.y * cos_t;
-            for ((b, id), t) in row.iter_mut().zip(ids.iter_mut()).zip(&terms) {
-                let dot = sin_t * t + constant;
-                let closer = dot > *b;
-                *b = if closer { dot } else { *b };
-                *id = if closer { c.light } else { *id };
-            }
+        // Copied out first: selecting between a load from `c` and a lane makes the compiler
+        // select addresses and branch instead of blending.
+        let (dir, light) = (c.dir, c.light);
+        for i in 0..CELLS {
+            let d = dot(dir, i);
+            let closer = d > best[i];
+            best[i] = if closer { d } else { best[i] };
+            best_id[i] = if closer { light } else { best_id[i] };
         }
-        worst_best = min_of(&best[..rows]);
+        worst_best = min_of(&best);
     }
-    for (r, ids) in best_id.iter().enumerate().take(rows) {
+    for (r, ids) in best_id
+        .chunks_exact(BUCKET_PIXELS)
+        .enumerate()
+        .take(y1 - y0)
+    {
         let start = (y0 + r) * map.width + x0;
         labels[start..start + (x1 - x0)].copy_from_slice(&ids[..x1 - x0]);
     }
 }
 
-/// Smallest value of the rows.
+/// Smallest value of the lanes.
 #[inline(always)]
-fn min_of(rows: &[Lanes]) -> f32 {
-    let mut m: Lanes = [f32::INFINITY; BUCKET_PIXELS];
-    for row in rows {
+fn min_of(lanes: &[f32; CELLS]) -> f32 {
+    let mut m = [f32::INFINITY; BUCKET_PIXELS];
+    for row in lanes.chunks_exact(BUCKET_PIXELS) {
         for (m, v) in m.iter_mut().zip(row) {
             *m = m.min(*v);
         }
     }
-    m.into_iter().fold(f32::INFINITY, f32::min)
+    // Halving folds: vector minima, not a serial chain.
+    let m4: [f32; 4] = std::array::from_fn(|k| m[k].min(m[k + 4]));
+    let m2: [f32; 2] = std::array::from_fn(|k| m4[k].min(m4[k + 2]));
+    m2[0].min(m2[1])
+}
+
+/// The region pass's arguments, run through [`pulp::Arch::dispatch`] so that the pass is
+/// compiled for the CPU's vector unit (`with_simd` and everything it calls are inlined into the
+/// target-feature function).
+pub(super) struct Accumulate<'a> {
+    pub map: &'a WorkingMap,
+    pub grid: &'a BucketGrid,
+    pub sample_dirs: &'a [DVec3],
+    pub regions: &'a mut [Region],
+    pub scratch: &'a mut Scratch,
+}
+
+impl pulp::WithSimd for Accumulate<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        accumulate(self);
+    }
 }
 
 /// Adds every working pixel's energy, luminance-weighted direction and solid angle to the
@@ -335,20 +446,22 @@ fn min_of(rows: &[Lanes]) -> f32 {
 /// [`label_bucket`]); then each row is summed run by run (consecutive pixels of one light, f64)
 /// and each run is added to its light's region once.
 #[inline(always)]
-pub(super) fn accumulate(
-    map: &WorkingMap,
-    grid: &BucketGrid,
-    sample_dirs: &[DVec3],
-    regions: &mut [Region],
-    scratch: &mut Scratch,
-) {
+fn accumulate(args: Accumulate<'_>) {
+    let Accumulate {
+        map,
+        grid,
+        sample_dirs,
+        regions,
+        scratch,
+    } = args;
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
     scratch.lights.clear();
     scratch
         .lights
         .extend(sample_dirs.iter().map(|d| d.as_vec3()));
     let lights = &scratch.lights;
-    let candidates = Candidates::new(grid, lights);
+    scratch.candidates.build(grid, lights);
+    let candidates = &scratch.candidates;
     let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
 
     let mut hint = 0;
@@ -374,7 +487,13 @@ pub(super) fn accumulate(
     let rows = map.height.div_ceil(BUCKET_PIXELS);
     for by in 0..rows {
         for bx in 0..grid.cols {
-            label_bucket(map, candidates.of(by * grid.cols + bx), (bx, by), labels);
+            label_bucket(
+                map,
+                grid,
+                candidates.of(by * grid.cols + bx),
+                (bx, by),
+                labels,
+            );
         }
     }
 
@@ -400,10 +519,11 @@ pub(super) fn accumulate(
         };
         let pixels = map.energy[row.clone()]
             .iter()
+            .zip(&map.luminance[row.clone()])
             .zip(&labels[row.clone()])
             .zip(&map.concentrated[row])
             .zip(&map.column_trig_f64);
-        for (((energy, &label), &concentrated), &(sin_p, cos_p)) in pixels {
+        for ((((energy, &lum), &label), &concentrated), &(sin_p, cos_p)) in pixels {
             if label != current {
                 flush(current, std::mem::take(&mut run));
                 current = label;
@@ -411,7 +531,7 @@ pub(super) fn accumulate(
             if concentrated {
                 continue;
             }
-            let lum = luminance_f64(*energy);
+            let lum = f64::from(lum);
             for c in 0..3 {
                 run.0[c] += energy[c];
             }

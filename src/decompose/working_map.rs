@@ -46,6 +46,9 @@ pub struct WorkingMap {
     pub column_trig_f64: Vec<(f64, f64)>,
     /// Exact solid angle of the working pixels of each row.
     pub row_solid_angle: Vec<f64>,
+    /// Rec. 709 luminance of each working pixel's energy (f32: it ranks and weights pixels; the
+    /// energies themselves stay f64).
+    pub luminance: Vec<f32>,
     /// Whether each working pixel is concentrated (its energy is given by `fine` instead).
     pub concentrated: Vec<bool>,
     /// The input pixels of the concentrated working pixels.
@@ -196,6 +199,7 @@ impl Resampler {
             column_trig: to_f32(&column_trig_f64),
             column_trig_f64,
             row_solid_angle: (0..height).map(|y| omegas[y * width]).collect(),
+            luminance: vec![0.0; width * height],
             concentrated: vec![false; width * height],
             fine: Vec::new(),
         };
@@ -283,21 +287,18 @@ impl Resampler {
                 row_solid_angle,
                 ..
             } => {
-                let column_sums = &mut self.column_sums;
-                column_sums.resize(3 * sw, 0.0);
-                let width = map.width;
-                let energy = &mut map.energy;
+                // One slack value: the horizontal sums read four lanes for three channels.
+                self.column_sums.resize(3 * sw + 1, 0.0);
                 // Compiled for the widest vector unit the CPU has (runtime detection).
-                self.arch.dispatch(|| {
-                    box_filter(
-                        &frame.pixels,
-                        sw,
-                        *factor,
-                        row_solid_angle,
-                        column_sums,
-                        energy,
-                        width,
-                    )
+                self.arch.dispatch(BoxFilter {
+                    pixels: &frame.pixels,
+                    sw,
+                    factor: *factor,
+                    row_solid_angle,
+                    column_sums: &mut self.column_sums,
+                    energy: &mut map.energy,
+                    luminance: &mut map.luminance,
+                    width: map.width,
                 });
             }
             Plan::Table {
@@ -319,40 +320,49 @@ impl Resampler {
                         }
                     }
                 }
+                for (l, e) in map.luminance.iter_mut().zip(&map.energy) {
+                    // Not clamped: NaN or ∞ here must reach the careful sum below (f32::min
+                    // would turn NaN into a finite value).
+                    *l = super::luminance_f64(*e) as f32;
+                }
             }
         }
         // Bad pixels (NaN, ±Inf, negative) should have been sanitised by the source. If any
         // slipped through, the working pixels they poisoned (NaN or ±Inf: both paths flag a
-        // negative input with NaN) are summed again with those pixels counted as 0, so neither
-        // the lights nor the good pixels beside them are lost. Sums of non-negative finite
-        // values stay finite, so a finite total means there is nothing to redo.
-        let mut sums = channel_sums(&map.energy);
-        let poisoned = !sums.iter().all(|c| c.is_finite());
-        for idx in 0..map.energy.len() {
-            if !poisoned || map.energy[idx].iter().all(|c| c.is_finite() && *c >= 0.0) {
-                continue;
-            }
-            let mut sum = [0.0f64; 3];
-            self.plan.for_each_input(idx, map.width, sw, |i, omega, _| {
-                for c in 0..3 {
-                    let v = frame.pixels[i][c];
-                    if v.is_finite() && v > 0.0 {
-                        sum[c] += f64::from(v) * f64::from(omega);
-                    }
+        // negative input with NaN, and any non-finite channel makes the luminance non-finite)
+        // are summed again with those pixels counted as 0, so neither the lights nor the good
+        // pixels beside them are lost. Sums of non-negative finite values stay finite, so a
+        // finite total means there is nothing to redo.
+        let mut total = luminance_sum(&map.luminance);
+        if !total.is_finite() {
+            for idx in 0..map.energy.len() {
+                if map.luminance[idx].is_finite()
+                    && map.energy[idx].iter().all(|c| c.is_finite() && *c >= 0.0)
+                {
+                    continue;
                 }
-            });
-            map.energy[idx] = sum;
+                let mut sum = [0.0f64; 3];
+                self.plan.for_each_input(idx, map.width, sw, |i, omega, _| {
+                    for c in 0..3 {
+                        let v = frame.pixels[i][c];
+                        if v.is_finite() && v > 0.0 {
+                            sum[c] += f64::from(v) * f64::from(omega);
+                        }
+                    }
+                });
+                map.energy[idx] = sum;
+                map.luminance[idx] = (super::luminance_f64(sum) as f32).min(f32::MAX);
+            }
+            total = luminance_sum(&map.luminance);
         }
 
-        if poisoned {
-            sums = channel_sums(&map.energy);
-        }
-        let total = super::luminance_f64(sums);
         let threshold = concentrated_share * total;
         map.fine.clear();
-        for (idx, (e, flag)) in map.energy.iter().zip(&mut map.concentrated).enumerate() {
-            *flag = super::luminance_f64(*e) > threshold;
-            if !*flag {
+        for (flag, &lum) in map.concentrated.iter_mut().zip(&map.luminance) {
+            *flag = f64::from(lum) > threshold;
+        }
+        for idx in 0..map.concentrated.len() {
+            if !map.concentrated[idx] {
                 continue;
             }
             let pixel = idx as u32;
@@ -378,50 +388,97 @@ impl Resampler {
     }
 }
 
-/// Box filter of a lat-long input by `factor`×`factor` into `energy` (one working row per
-/// `factor` input rows): the input rows are weighted by their solid angle and summed column by
-/// column into `column_sums` (flat f32, so it vectorises; the first row initialises the sums),
-/// then each run of `factor` columns is summed into its working pixel. A working row that saw a
-/// negative input (sign bit in the OR of all its inputs' bits) gets NaN in its first channel,
-/// so the careful sum redoes it; NaN and ±Inf inputs show in the sums by themselves.
-#[inline(always)]
-fn box_filter(
-    pixels: &[[f32; 3]],
+/// The box filter's arguments, run through [`pulp::Arch::dispatch`] so that it is compiled for
+/// the CPU's vector unit (`with_simd` and everything it calls are inlined into the
+/// target-feature function).
+struct BoxFilter<'a> {
+    pixels: &'a [[f32; 3]],
     sw: usize,
     factor: usize,
-    row_solid_angle: &[f64],
-    column_sums: &mut [f32],
-    energy: &mut [[f64; 3]],
+    row_solid_angle: &'a [f64],
+    column_sums: &'a mut [f32],
+    energy: &'a mut [[f64; 3]],
+    luminance: &'a mut [f32],
     width: usize,
-) {
-    let f = factor;
-    for (wy, (rows, out)) in pixels
+}
+
+impl pulp::WithSimd for BoxFilter<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        box_filter(self);
+    }
+}
+
+/// Box filter of a lat-long input by `factor`×`factor` into `energy` and `luminance` (one
+/// working row per `factor` input rows): the input rows are weighted by their solid angle and
+/// summed column by column into `column_sums` (flat f32, so it vectorises; the first row
+/// initialises the sums), then each run of `factor` columns is summed into its working pixel
+/// with four-lane vectors (rgb plus one lane of the next pixel, ignored). A working row that saw
+/// a negative input (sign bit in the OR of all its inputs' bits) gets NaN in its first channel,
+/// so the careful sum redoes it; NaN and ±Inf inputs show in the sums by themselves.
+#[inline(always)]
+fn box_filter(args: BoxFilter<'_>) {
+    let BoxFilter {
+        pixels,
+        sw,
+        factor: f,
+        row_solid_angle,
+        column_sums,
+        energy,
+        luminance,
+        width,
+    } = args;
+    let row_len = 3 * sw;
+    for (wy, ((rows, out), lum)) in pixels
         .chunks_exact(sw * f)
         .zip(energy.chunks_exact_mut(width))
+        .zip(luminance.chunks_exact_mut(width))
         .enumerate()
     {
         let mut bits = 0u32;
-        for (k, row) in rows.chunks_exact(sw).enumerate() {
-            let omega = row_solid_angle[wy * f + k] as f32;
-            let row = row.as_flattened();
+        let omegas = &row_solid_angle[wy * f..(wy + 1) * f];
+        let sums = &mut column_sums[..row_len];
+        // Two input rows per pass over the column sums (half the loads and stores of the sums);
+        // an odd factor starts with one row.
+        let mut k = 0;
+        if f % 2 == 1 {
+            let (row, w) = (rows[..sw].as_flattened(), omegas[0] as f32);
+            for (a, p) in sums.iter_mut().zip(row) {
+                *a = p * w;
+                bits |= p.to_bits();
+            }
+            k = 1;
+        }
+        while k + 1 < f {
+            let row0 = rows[k * sw..(k + 1) * sw].as_flattened();
+            let row1 = rows[(k + 1) * sw..(k + 2) * sw].as_flattened();
+            let (w0, w1) = (omegas[k] as f32, omegas[k + 1] as f32);
             if k == 0 {
-                for (a, p) in column_sums.iter_mut().zip(row) {
-                    *a = p * omega;
-                    bits |= p.to_bits();
+                for ((a, p), q) in sums.iter_mut().zip(row0).zip(row1) {
+                    *a = p * w0 + q * w1;
+                    bits |= p.to_bits() | q.to_bits();
                 }
             } else {
-                for (a, p) in column_sums.iter_mut().zip(row) {
-                    *a += p * omega;
-                    bits |= p.to_bits();
+                for ((a, p), q) in sums.iter_mut().zip(row0).zip(row1) {
+                    *a += p * w0 + q * w1;
+                    bits |= p.to_bits() | q.to_bits();
                 }
             }
+            k += 2;
         }
         match f {
-            2 => sum_columns::<2>(column_sums, out),
-            4 => sum_columns::<4>(column_sums, out),
-            8 => sum_columns::<8>(column_sums, out),
+            1 => sum_columns::<1>(column_sums, out, lum),
+            2 => sum_columns::<2>(column_sums, out, lum),
+            4 => sum_columns::<4>(column_sums, out, lum),
+            8 => sum_columns::<8>(column_sums, out, lum),
             _ => {
-                for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * f)) {
+                for ((e, l), block) in out
+                    .iter_mut()
+                    .zip(lum.iter_mut())
+                    .zip(column_sums.chunks_exact(3 * f))
+                {
                     let mut sum = [0.0f32; 3];
                     for p in block.chunks_exact(3) {
                         sum[0] += p[0];
@@ -429,48 +486,57 @@ fn box_filter(
                         sum[2] += p[2];
                     }
                     *e = sum.map(f64::from);
+                    *l = luminance_f32(sum);
                 }
             }
         }
         if bits & 0x8000_0000 != 0 {
             // Flag the whole working row for the careful sum.
             out.iter_mut().for_each(|e| e[0] = f64::NAN);
+            lum.fill(f32::NAN);
         }
     }
 }
 
-/// Sums each run of `F` rgb columns of `column_sums` into one working pixel.
+/// Sums each run of `F` rgb columns of `column_sums` (3·F·width values and one slack value)
+/// into one working pixel and its luminance, four lanes at a time.
 #[inline(always)]
-fn sum_columns<const F: usize>(column_sums: &[f32], out: &mut [[f64; 3]]) {
-    for (e, block) in out.iter_mut().zip(column_sums.chunks_exact(3 * F)) {
-        let mut sum = [block[0], block[1], block[2]];
+fn sum_columns<const F: usize>(column_sums: &[f32], out: &mut [[f64; 3]], lum: &mut [f32]) {
+    let lanes = |i: usize| -> [f32; 4] {
+        let mut v = [0.0f32; 4];
+        v.copy_from_slice(&column_sums[i..i + 4]);
+        v
+    };
+    for (m, (e, l)) in out.iter_mut().zip(lum.iter_mut()).enumerate() {
+        let base = 3 * F * m;
+        let mut sum = lanes(base);
         for k in 1..F {
-            sum[0] += block[3 * k];
-            sum[1] += block[3 * k + 1];
-            sum[2] += block[3 * k + 2];
+            let v = lanes(base + 3 * k);
+            for (s, v) in sum.iter_mut().zip(v) {
+                *s += v;
+            }
         }
-        *e = sum.map(f64::from);
+        let rgb = [sum[0], sum[1], sum[2]];
+        *e = rgb.map(f64::from);
+        *l = luminance_f32(rgb);
     }
 }
 
-/// Σ of each channel over the working pixels (four partial sums per channel, so the adds
-/// overlap).
-fn channel_sums(energy: &[[f64; 3]]) -> [f64; 3] {
-    let mut partial = [[0.0f64; 3]; 4];
-    let quads = energy.chunks_exact(4);
+/// Rec. 709 luminance of an f32 rgb triple.
+#[inline(always)]
+fn luminance_f32(rgb: [f32; 3]) -> f32 {
+    crate::frame::luminance(rgb)
+}
+
+/// Σ of the working pixels' luminance in f64 (four partial sums, so the adds overlap).
+fn luminance_sum(luminance: &[f32]) -> f64 {
+    let mut partial = [0.0f64; 4];
+    let quads = luminance.chunks_exact(4);
     let rest = quads.remainder();
     for quad in quads {
-        for (p, e) in partial.iter_mut().zip(quad) {
-            p[0] += e[0];
-            p[1] += e[1];
-            p[2] += e[2];
+        for (p, &l) in partial.iter_mut().zip(quad) {
+            *p += f64::from(l);
         }
     }
-    let mut sums = [0.0f64; 3];
-    for e in partial.iter().chain(rest) {
-        for c in 0..3 {
-            sums[c] += e[c];
-        }
-    }
-    sums
+    partial.iter().sum::<f64>() + rest.iter().map(|&l| f64::from(l)).sum::<f64>()
 }
