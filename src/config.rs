@@ -110,6 +110,9 @@ pub struct RawAsg {
     pub temporal_weight: Option<f64>,
     pub diffuse_normals: Option<usize>,
     pub threads: Option<usize>,
+    pub first_subset: Option<usize>,
+    pub warm_subset: Option<usize>,
+    pub warm_centroid: Option<bool>,
 }
 
 /// `[pipeline]`.
@@ -498,6 +501,14 @@ impl RawAsg {
                 16..=4096,
             )?,
             threads: int("asg.threads", self.threads, d.threads, 0..=64)?,
+            first_subset: int(
+                "asg.first_subset",
+                self.first_subset,
+                d.first_subset,
+                1..=16,
+            )?,
+            warm_subset: int("asg.warm_subset", self.warm_subset, d.warm_subset, 1..=16)?,
+            warm_centroid: self.warm_centroid.unwrap_or(d.warm_centroid),
             ..d
         };
         // The fitter's own check, as a backstop (the keys above cover every rule it has).
@@ -1173,6 +1184,9 @@ mod tests {
             "temporal_weight",
             "diffuse_normals",
             "threads",
+            "first_subset",
+            "warm_subset",
+            "warm_centroid",
             "lighting",
             "basis",
             "side",
@@ -1261,6 +1275,8 @@ mod tests {
             ("[asg]\nlearning_rate = 0", "asg.learning_rate", "0"),
             ("[asg]\ntemporal_weight = -1", "asg.temporal_weight", "-1"),
             ("[asg]\ndiffuse_normals = 8", "asg.diffuse_normals", "8"),
+            ("[asg]\nwarm_subset = 0", "asg.warm_subset", "0"),
+            ("[asg]\nfirst_subset = 17", "asg.first_subset", "17"),
             ("[asg]\nthreads = 1000", "asg.threads", "1000"),
             ("[render]\nlighting = \"sh\"", "render.lighting", "sh"),
             (
