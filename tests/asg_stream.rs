@@ -10,7 +10,10 @@
 
 mod common;
 
-use common::{http_get, metric_value, record_sky, spawn, wait_until, TIMEOUT};
+use common::{
+    assert_unsupported, has_python3, http_get, metric_value, python_client, record_sky, spawn,
+    wait_until, TIMEOUT,
+};
 use envlight::asg::fit::AsgFitter;
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -18,7 +21,7 @@ use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::light::AsgSet;
 use envlight::record::{Pacing, ReplaySource};
 use envlight::stream::client::{Client, Endpoint};
-use envlight::stream::protocol::{code, encode_asg_frame};
+use envlight::stream::protocol::encode_asg_frame;
 use envlight::stream::{AsgFrameMessage, Format, Message, Representation, Request};
 use std::path::Path;
 
@@ -177,22 +180,7 @@ fn asg_subscribe_without_the_stage_is_unsupported() {
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     assert!(daemon.asg().is_none());
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    for format in [Format::Binary, Format::Json] {
-        let request = Request {
-            representation: Representation::Asg,
-            format,
-            ..Request::default()
-        };
-        let mut client =
-            Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
-        match client.next_message().unwrap() {
-            Some(Message::Error { code: c, message }) => {
-                assert_eq!(c, code::UNSUPPORTED_REPRESENTATION);
-                assert!(message.contains("[asg] enabled"), "{message}");
-            }
-            other => panic!("expected error 6, got {other:?}"),
-        }
-    }
+    assert_unsupported(tcp, Representation::Asg, "[asg] enabled");
     daemon.shutdown().unwrap();
 }
 
@@ -309,12 +297,7 @@ fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
 
 #[test]
 fn the_python_example_client_reads_asg_sets() {
-    if std::process::Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_err()
-    {
-        eprintln!("skipped: python3 is not installed");
+    if !has_python3() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -324,30 +307,19 @@ fn the_python_example_client_reads_asg_sets() {
     );
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let out = std::process::Command::new("python3")
-        .args([
-            "examples/client.py",
-            &tcp.to_string(),
-            "--representation",
-            "asg",
-            "--frames",
-            "2",
-            "--max-lights",
-            "3",
-        ])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let lines: Vec<&str> = stdout.lines().collect();
-    assert_eq!(lines.len(), 2, "{stdout}");
+    let lines = python_client(&[
+        &tcp.to_string(),
+        "--representation",
+        "asg",
+        "--frames",
+        "2",
+        "--max-lights",
+        "3",
+    ]);
+    assert_eq!(lines.len(), 2, "{lines:?}");
     assert!(
         lines.iter().all(|l| l.contains(": 3 ASG lobes")),
-        "{stdout}"
+        "{lines:?}"
     );
     daemon.shutdown().unwrap();
 }

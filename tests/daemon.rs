@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{http_get, metric_value, spawn, wait_until, TIMEOUT};
+use common::{has_python3, http_get, metric_value, python_client, spawn, wait_until, TIMEOUT};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
@@ -888,12 +888,7 @@ fn a_lost_source_is_served_stale_until_it_returns() {
 
 #[test]
 fn the_python_example_client_reads_the_stream() {
-    if std::process::Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_err()
-    {
-        eprintln!("skipped: python3 is not installed");
+    if !has_python3() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -903,26 +898,9 @@ fn the_python_example_client_reads_the_stream() {
     let socket = daemon.addresses().stream.unix_socket.clone().unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     for address in [format!("unix:{}", socket.display()), tcp.to_string()] {
-        let out = std::process::Command::new("python3")
-            .args([
-                "examples/client.py",
-                &address,
-                "--frames",
-                "3",
-                "--max-lights",
-                "4",
-            ])
-            .output()
-            .unwrap();
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "{address}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let lines: Vec<&str> = stdout.lines().collect();
-        assert_eq!(lines.len(), 3, "{stdout}");
-        assert!(lines.iter().all(|l| l.contains(": 4 lights")), "{stdout}");
+        let lines = python_client(&[&address, "--frames", "3", "--max-lights", "4"]);
+        assert_eq!(lines.len(), 3, "{lines:?}");
+        assert!(lines.iter().all(|l| l.contains(": 4 lights")), "{lines:?}");
     }
     daemon.shutdown().unwrap();
 }

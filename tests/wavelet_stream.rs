@@ -12,13 +12,16 @@
 
 mod common;
 
-use common::{http_get, metric_value, record_sky, spawn, wait_until, TIMEOUT};
+use common::{
+    assert_unsupported, has_python3, http_get, metric_value, python_client, record_sky, spawn,
+    wait_until, TIMEOUT,
+};
 use envlight::capture::FrameSource;
 use envlight::config::Config;
 use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::record::{Pacing, ReplaySource};
 use envlight::stream::client::{Client, Endpoint};
-use envlight::stream::protocol::{code, decode_message, encode_wavelet_frame};
+use envlight::stream::protocol::{decode_message, encode_wavelet_frame};
 use envlight::stream::{Format, Message, Representation, Request, WaveletFrame};
 use envlight::wavelet::sphere::OctahedralMap;
 use envlight::wavelet::{approximate, Basis};
@@ -236,22 +239,7 @@ fn wavelet_subscribe_without_the_stage_is_unsupported() {
     let daemon = Daemon::start(config(dir.path(), LIVE_SKY), DaemonOptions::default()).unwrap();
     assert!(daemon.wavelet().is_none());
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    for format in [Format::Binary, Format::Json] {
-        let request = Request {
-            representation: Representation::Wavelet,
-            format,
-            ..Request::default()
-        };
-        let mut client =
-            Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
-        match client.next_message().unwrap() {
-            Some(Message::Error { code: c, message }) => {
-                assert_eq!(c, code::UNSUPPORTED_REPRESENTATION);
-                assert!(message.contains("[wavelet] enabled = true"), "{message}");
-            }
-            other => panic!("expected error 6, got {other:?}"),
-        }
-    }
+    assert_unsupported(tcp, Representation::Wavelet, "[wavelet] enabled = true");
     daemon.shutdown().unwrap();
 }
 
@@ -303,44 +291,28 @@ fn sighup_reload_applies_new_wavelet_settings_from_the_next_frame() {
 
 #[test]
 fn the_python_example_client_reads_wavelet_sets() {
-    if std::process::Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_err()
-    {
-        eprintln!("skipped: python3 is not installed");
+    if !has_python3() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
     let extra = format!("{LIVE_SKY}[wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n");
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let out = std::process::Command::new("python3")
-        .args([
-            "examples/client.py",
-            &tcp.to_string(),
-            "--representation",
-            "wavelet",
-            "--frames",
-            "2",
-            "--max-lights",
-            "5",
-        ])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let lines: Vec<&str> = stdout.lines().collect();
-    assert_eq!(lines.len(), 2, "{stdout}");
+    let lines = python_client(&[
+        &tcp.to_string(),
+        "--representation",
+        "wavelet",
+        "--frames",
+        "2",
+        "--max-lights",
+        "5",
+    ]);
+    assert_eq!(lines.len(), 2, "{lines:?}");
     assert!(
         lines
             .iter()
             .all(|l| l.contains(": 5 wavelet coefficients (haar on 16^2, 4 levels)")),
-        "{stdout}"
+        "{lines:?}"
     );
     daemon.shutdown().unwrap();
 }

@@ -102,3 +102,62 @@ pub fn record_sky(dir: &Path, frames: u64) -> u64 {
     let summary = daemon.shutdown().unwrap();
     summary.recorded.unwrap().frames
 }
+
+/// Whether python3 is installed (the example-client tests skip without it).
+pub fn has_python3() -> bool {
+    let found = std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_ok();
+    if !found {
+        eprintln!("skipped: python3 is not installed");
+    }
+    found
+}
+
+/// Runs `examples/client.py` with `args`, asserts it exited successfully and returns its
+/// stdout lines.
+pub fn python_client(args: &[&str]) -> Vec<String> {
+    let out = std::process::Command::new("python3")
+        .arg("examples/client.py")
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "client.py {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(str::to_owned)
+        .collect()
+}
+
+/// Asserts that the daemon at `tcp` answers a subscription to `representation` (binary and
+/// JSON) with error 6 whose message contains `hint` (the config section that enables it).
+pub fn assert_unsupported(
+    tcp: std::net::SocketAddr,
+    representation: envlight::stream::Representation,
+    hint: &str,
+) {
+    use envlight::stream::client::{Client, Endpoint};
+    use envlight::stream::protocol::code;
+    use envlight::stream::{Format, Message, Request};
+    for format in [Format::Binary, Format::Json] {
+        let request = Request {
+            representation,
+            format,
+            ..Request::default()
+        };
+        let mut client =
+            Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
+        match client.next_message().unwrap() {
+            Some(Message::Error { code: c, message }) => {
+                assert_eq!(c, code::UNSUPPORTED_REPRESENTATION);
+                assert!(message.contains(hint), "{message}");
+            }
+            other => panic!("expected error 6, got {other:?}"),
+        }
+    }
+}
