@@ -357,25 +357,7 @@ impl Transport {
                     .collect())
             })
             .collect();
-        let mut offsets = Vec::with_capacity(positions.len() + 1);
-        offsets.push(0u32);
-        let mut index = Vec::new();
-        let mut value = Vec::new();
-        for row in rows {
-            for (k, c) in row? {
-                index.push(k);
-                value.push(c);
-            }
-            offsets.push(index.len() as u32);
-        }
-        Ok(Self {
-            side: grid.side,
-            basis: grid.basis,
-            levels: grid.levels,
-            offsets,
-            index,
-            value,
-        })
+        Self::from_rows(grid, rows.into_iter().collect::<Result<Vec<_>, _>>()?)
     }
 
     /// Builds transport from explicit rows (index, value) per vertex; indices must be < side².
