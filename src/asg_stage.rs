@@ -16,12 +16,14 @@
 //!   so every frame is fitted in order and the ASG stream of a recording is reproducible (the
 //!   fit is deterministic: its sums are split in fixed bands, independent of the thread count).
 //!   The lights then advance at the fit's pace.
-//! - **Thread** `envlight-asg` runs an [`AsgFitter`]: the first frame is fitted from scratch,
+//! - **Thread** `envlight-asg` (the generic runner of [`crate::slow_stage`]) runs an
+//!   [`AsgFitter`]: the first frame is fitted from scratch,
 //!   every later one is warm-started from the previous lobes (skipped frames simply are not
 //!   part of that chain). Each result is published as a [`PublishedAsg`] (a
 //!   [`crate::publication::Publication`], numbered like the lights', so a consumer can count
-//!   what it skipped) with its fit time. A frame that cannot be fitted, or whose fit has a lobe the wire format rejects
-//!   ([`crate::stream::protocol::validate_lobe`]), is logged and counted
+//!   what it skipped) with its fit time. A frame that cannot be fitted, or whose fit has a
+//!   lobe the wire format rejects ([`crate::stream::protocol::validate_lobe`]), is logged and
+//!   counted
 //!   ([`AsgStats::fit_errors`]); the stage goes on with the next one.
 //! - **Reconfiguration** ([`AsgStage::reconfigure`], SIGHUP) swaps in a new fitter before the
 //!   next frame (the warm-start chain restarts).
@@ -31,14 +33,13 @@
 
 use crate::asg::fit::{AsgFitter, FitSettings};
 use crate::asg::AsgError;
+use crate::frame::HdrFrame;
 pub use crate::frame_feed::CloseOnDrop;
 use crate::frame_feed::FrameFeed;
 use crate::light::AsgSet;
-use crate::publication::{publish, Latest, Publication};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use crate::publication::{Latest, Publication};
+use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
+use std::time::Duration;
 use tokio::sync::watch;
 
 /// Name of the ASG thread.
@@ -66,11 +67,35 @@ pub struct AsgStats {
     pub last_fit_time: Duration,
 }
 
+impl From<StageCounters> for AsgStats {
+    fn from(c: StageCounters) -> Self {
+        Self {
+            frames_offered: c.offered,
+            frames_skipped: c.skipped,
+            fits: c.published,
+            fit_errors: c.errors,
+            last_fit_time: c.last_time,
+        }
+    }
+}
+
 /// Errors of the ASG stage.
 #[derive(Debug, thiserror::Error)]
 pub enum AsgStageError {
     #[error("invalid [asg] settings: {0}")]
     Settings(#[from] AsgError),
+    #[error("frame {seq}: ASG fit failed: {source}")]
+    Fit {
+        seq: u64,
+        #[source]
+        source: AsgError,
+    },
+    #[error("frame {seq}: the fit has a lobe the wire format rejects: {source}")]
+    InvalidLobe {
+        seq: u64,
+        #[source]
+        source: crate::stream::ProtocolError,
+    },
     #[error("cannot start thread {ASG_THREAD_NAME}: {0}")]
     Spawn(#[source] std::io::Error),
     #[error("thread {ASG_THREAD_NAME} panicked: {0}")]
@@ -81,24 +106,33 @@ pub enum AsgStageError {
 pub type AsgFeed = FrameFeed;
 
 /// Called on the ASG thread after each published set (metrics).
-pub type AsgHook = Arc<dyn Fn(&PublishedAsg) + Send + Sync>;
+pub type AsgHook = PublishHook<AsgSet>;
 
-#[derive(Default)]
-struct Shared {
-    fits: AtomicU64,
-    fit_errors: AtomicU64,
-    last_fit_nanos: AtomicU64,
-    pending: Mutex<Option<AsgFitter>>,
+/// The stage's work per frame: a warm-started fit, checked against the wire format.
+struct AsgWorker(AsgFitter);
+
+impl StageWorker for AsgWorker {
+    type Output = AsgSet;
+    type Error = AsgStageError;
+
+    fn process(&mut self, frame: &HdrFrame) -> Result<AsgSet, AsgStageError> {
+        let seq = frame.seq;
+        let result = self
+            .0
+            .fit_frame(frame)
+            .map_err(|source| AsgStageError::Fit { seq, source })?;
+        let set = AsgSet::from_fit(seq, frame.time, &result.lobes);
+        // Never publish what a client's decoder would reject (and close on).
+        for (i, lobe) in set.lobes.iter().enumerate() {
+            crate::stream::protocol::validate_lobe(i, lobe)
+                .map_err(|source| AsgStageError::InvalidLobe { seq, source })?;
+        }
+        Ok(set)
+    }
 }
 
 /// The running ASG stage. See the module documentation.
-pub struct AsgStage {
-    feed: AsgFeed,
-    shared: Arc<Shared>,
-    tx: Arc<watch::Sender<LatestAsg>>,
-    rx: watch::Receiver<LatestAsg>,
-    handle: JoinHandle<()>,
-}
+pub struct AsgStage(SlowStage<AsgWorker>);
 
 impl AsgStage {
     /// Validates `settings` and starts the `envlight-asg` thread, fed by a new feed
@@ -108,13 +142,7 @@ impl AsgStage {
         lossless: bool,
         on_publish: Option<AsgHook>,
     ) -> Result<AsgStage, AsgStageError> {
-        let mut fitter = AsgFitter::new(settings)?;
-        let feed = AsgFeed::new(lossless);
-        let shared = Arc::new(Shared::default());
-        let (tx, rx) = watch::channel::<LatestAsg>(None);
-        let tx = Arc::new(tx);
-        let (thread_feed, thread_shared, thread_tx) =
-            (feed.clone(), Arc::clone(&shared), Arc::clone(&tx));
+        let fitter = AsgFitter::new(settings)?;
         tracing::info!(
             lobes = fitter.settings().lobes,
             height = fitter.settings().height,
@@ -123,94 +151,35 @@ impl AsgStage {
             lossless,
             "starting the ASG stage"
         );
-        let handle = std::thread::Builder::new()
-            .name(ASG_THREAD_NAME.to_owned())
-            .spawn(move || {
-                // If this thread dies, the feed must not make a lossless sender wait forever.
-                let _close = CloseOnDrop(thread_feed.clone());
-                while let Some((frame, arrived)) = thread_feed.take() {
-                    if let Some(new) = thread_shared
-                        .pending
-                        .lock()
-                        .unwrap_or_else(std::sync::PoisonError::into_inner)
-                        .take()
-                    {
-                        fitter = new;
-                    }
-                    let started = Instant::now();
-                    let result = fitter.fit_frame(&frame);
-                    let elapsed = started.elapsed();
-                    let result = match result {
-                        Ok(result) => result,
-                        Err(error) => {
-                            thread_shared.fit_errors.fetch_add(1, Ordering::AcqRel);
-                            tracing::warn!(seq = frame.seq, %error, "ASG fit failed; skipping the frame");
-                            continue;
-                        }
-                    };
-                    let set = AsgSet::from_fit(frame.seq, frame.time, &result.lobes);
-                    // Never publish what a client's decoder would reject (and close on).
-                    let invalid = set.lobes.iter().enumerate().find_map(|(i, lobe)| {
-                        crate::stream::protocol::validate_lobe(i, lobe).err()
-                    });
-                    if let Some(error) = invalid {
-                        thread_shared.fit_errors.fetch_add(1, Ordering::AcqRel);
-                        tracing::warn!(seq = frame.seq, %error, "ASG fit produced an invalid lobe; skipping the frame");
-                        continue;
-                    }
-                    let set = Arc::new(set);
-                    let nanos = u64::try_from(elapsed.as_nanos()).unwrap_or(u64::MAX);
-                    thread_shared
-                        .last_fit_nanos
-                        .store(nanos, Ordering::Release);
-                    thread_shared.fits.fetch_add(1, Ordering::AcqRel);
-                    publish(&thread_tx, set, Some(arrived), elapsed);
-                    if let Some(hook) = &on_publish {
-                        if let Some(published) = thread_tx.borrow().as_ref() {
-                            hook(published);
-                        }
-                    }
-                }
-            })
-            .map_err(AsgStageError::Spawn)?;
-        Ok(AsgStage {
-            feed,
-            shared,
-            tx,
-            rx,
-            handle,
-        })
+        SlowStage::start(ASG_THREAD_NAME, AsgWorker(fitter), lossless, on_publish)
+            .map(AsgStage)
+            .map_err(AsgStageError::Spawn)
     }
 
     /// The feed to hand frames to (give it to the pipeline).
     pub fn feed(&self) -> AsgFeed {
-        self.feed.clone()
+        self.0.feed()
     }
 
     /// A receiver of the newest ASG set; a set published already shows as changed.
     pub fn subscribe(&self) -> watch::Receiver<LatestAsg> {
-        self.rx.clone()
+        self.0.subscribe()
     }
 
     /// A snapshot of the counters.
     pub fn stats(&self) -> AsgStats {
-        stats(&self.feed, &self.shared)
+        self.0.counters().into()
     }
 
     /// A handle that reads the counters from anywhere (the metrics endpoint).
     pub fn stats_handle(&self) -> AsgStatsHandle {
-        AsgStatsHandle(self.feed.clone(), Arc::clone(&self.shared))
+        AsgStatsHandle(self.0.counters_handle())
     }
 
     /// Replaces the fit settings from the next frame on (a new fitter: the next frame is
     /// fitted from scratch). Invalid settings are rejected and change nothing.
     pub fn reconfigure(&self, settings: FitSettings) -> Result<(), AsgError> {
-        let fitter = AsgFitter::new(settings)?;
-        *self
-            .shared
-            .pending
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(fitter);
+        self.0.replace_worker(AsgWorker(AsgFitter::new(settings)?));
         Ok(())
     }
 
@@ -222,53 +191,36 @@ impl AsgStage {
 
     /// A handle for [`AsgStage::set_stale`] from another thread.
     pub fn stale_handle(&self) -> AsgStaleHandle {
-        AsgStaleHandle::new(Arc::clone(&self.tx))
+        self.0.stale_handle()
     }
 
     /// Whether the thread has ended (the feed was closed and drained).
     pub fn is_finished(&self) -> bool {
-        self.handle.is_finished()
+        self.0.is_finished()
     }
 
     /// Closes the feed (the stage fits the frame still waiting, then ends).
     pub fn stop(&self) {
-        self.feed.close();
+        self.0.stop();
     }
 
     /// Closes the feed, waits for the thread and returns the final counters.
     pub fn join(self) -> Result<AsgStats, AsgStageError> {
-        self.feed.close();
-        let joined = self.handle.join();
-        if let Err(payload) = joined {
-            let message = payload
-                .downcast_ref::<&str>()
-                .map(|s| (*s).to_owned())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "non-string panic payload".to_owned());
-            return Err(AsgStageError::Panicked(message));
-        }
-        Ok(stats(&self.feed, &self.shared))
-    }
-}
-
-fn stats(feed: &AsgFeed, shared: &Shared) -> AsgStats {
-    AsgStats {
-        frames_offered: feed.offered(),
-        frames_skipped: feed.skipped(),
-        fits: shared.fits.load(Ordering::Acquire),
-        fit_errors: shared.fit_errors.load(Ordering::Acquire),
-        last_fit_time: Duration::from_nanos(shared.last_fit_nanos.load(Ordering::Acquire)),
+        self.0
+            .join()
+            .map(AsgStats::from)
+            .map_err(AsgStageError::Panicked)
     }
 }
 
 /// Reads the stage's counters; valid after the stage has ended.
 #[derive(Clone)]
-pub struct AsgStatsHandle(AsgFeed, Arc<Shared>);
+pub struct AsgStatsHandle(CountersHandle<AsgWorker>);
 
 impl AsgStatsHandle {
     /// A snapshot of the counters.
     pub fn stats(&self) -> AsgStats {
-        stats(&self.0, &self.1)
+        self.0.counters().into()
     }
 }
 
@@ -280,6 +232,7 @@ mod tests {
     use super::*;
     use crate::envmap::Projection;
     use crate::frame::HdrFrame;
+    use std::sync::Arc;
 
     fn frame(seq: u64) -> HdrFrame {
         let (w, h) = (32u32, 16u32);

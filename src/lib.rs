@@ -25,6 +25,7 @@ pub mod pipeline;
 pub mod publication;
 pub mod record;
 pub mod render;
+pub mod slow_stage;
 pub mod stream;
 pub mod wavelet;
 pub mod wavelet_stage;

@@ -24,7 +24,8 @@
 //! receives equals [`crate::wavelet::approximate`] on
 //! [`crate::wavelet::sphere::OctahedralMap::from_frame`] of the same frame, bit for bit.
 //!
-//! The rest is the ASG stage's design ([`crate::asg_stage`]): the decompose thread offers each
+//! The thread is the generic runner of [`crate::slow_stage`], shared with the ASG stage
+//! ([`crate::asg_stage`]): the decompose thread offers each
 //! frame after publishing its lights, a live feed keeps only the newest (skips counted), a
 //! lossless feed (replay) makes every frame transformed in order so a replay reproduces the
 //! stream; a set the wire format would reject ([`validate_wavelet_set`]; a non-finite value from
@@ -33,17 +34,15 @@
 //! the next frame; [`WaveletStage::join`] turns a panic into an error.
 
 use crate::frame::HdrFrame;
-use crate::frame_feed::{CloseOnDrop, FrameFeed};
-use crate::publication::{publish, Latest, StaleHandle};
+use crate::frame_feed::FrameFeed;
+use crate::publication::{Latest, StaleHandle};
+use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
 use crate::stream::protocol::{validate_wavelet_set, WaveletFrame, MAX_FRAME_COEFFICIENTS};
 use crate::wavelet::approx::{ApproxError, Coefficients};
 use crate::wavelet::sphere::{Resampler, SphereError, MAX_SIDE};
 use crate::wavelet::transform::{max_levels, Workspace};
 use crate::wavelet::Basis;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tokio::sync::watch;
 
 /// Name of the wavelet thread.
@@ -221,6 +220,19 @@ impl WaveletTransformer {
     }
 }
 
+impl StageWorker for WaveletTransformer {
+    type Output = WaveletFrame;
+    type Error = WaveletStageError;
+
+    fn process(&mut self, frame: &HdrFrame) -> Result<WaveletFrame, WaveletStageError> {
+        self.transform(frame)
+    }
+
+    fn plans(&self) -> u64 {
+        self.plans
+    }
+}
+
 /// One publication of the wavelet stage: the set is the
 /// [`Publication::payload`](crate::publication::Publication::payload),
 /// `compute_time` the time of the three steps.
@@ -233,7 +245,7 @@ pub type LatestWavelet = Latest<WaveletFrame>;
 pub type WaveletStaleHandle = StaleHandle<WaveletFrame>;
 
 /// Called on the wavelet thread after each published set (metrics).
-pub type WaveletHook = Arc<dyn Fn(&PublishedWavelet) + Send + Sync>;
+pub type WaveletHook = PublishHook<WaveletFrame>;
 
 /// Counters of the wavelet stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -252,23 +264,21 @@ pub struct WaveletStats {
     pub last_time: Duration,
 }
 
-#[derive(Default)]
-struct Shared {
-    sets: AtomicU64,
-    errors: AtomicU64,
-    plans: AtomicU64,
-    last_nanos: AtomicU64,
-    pending: Mutex<Option<WaveletTransformer>>,
+impl From<StageCounters> for WaveletStats {
+    fn from(c: StageCounters) -> Self {
+        Self {
+            frames_offered: c.offered,
+            frames_skipped: c.skipped,
+            sets: c.published,
+            errors: c.errors,
+            plans: c.plans,
+            last_time: c.last_time,
+        }
+    }
 }
 
 /// The running wavelet stage. See the module documentation.
-pub struct WaveletStage {
-    feed: FrameFeed,
-    shared: Arc<Shared>,
-    tx: Arc<watch::Sender<LatestWavelet>>,
-    rx: watch::Receiver<LatestWavelet>,
-    handle: JoinHandle<()>,
-}
+pub struct WaveletStage(SlowStage<WaveletTransformer>);
 
 impl WaveletStage {
     /// Validates `settings` and starts the `envlight-wavelet` thread, fed by a new feed
@@ -278,13 +288,7 @@ impl WaveletStage {
         lossless: bool,
         on_publish: Option<WaveletHook>,
     ) -> Result<WaveletStage, WaveletStageError> {
-        let mut transformer = WaveletTransformer::new(settings)?;
-        let feed = FrameFeed::new(lossless);
-        let shared = Arc::new(Shared::default());
-        let (tx, rx) = watch::channel::<LatestWavelet>(None);
-        let tx = Arc::new(tx);
-        let (thread_feed, thread_shared, thread_tx) =
-            (feed.clone(), Arc::clone(&shared), Arc::clone(&tx));
+        let transformer = WaveletTransformer::new(settings)?;
         tracing::info!(
             basis = %settings.basis,
             side = settings.side,
@@ -293,88 +297,35 @@ impl WaveletStage {
             lossless,
             "starting the wavelet stage"
         );
-        let handle = std::thread::Builder::new()
-            .name(WAVELET_THREAD_NAME.to_owned())
-            .spawn(move || {
-                // If this thread dies, the feed must not make a lossless sender wait forever.
-                let _close = CloseOnDrop(thread_feed.clone());
-                let mut plans_before = 0;
-                while let Some((frame, arrived)) = thread_feed.take() {
-                    if let Some(new) = thread_shared
-                        .pending
-                        .lock()
-                        .unwrap_or_else(std::sync::PoisonError::into_inner)
-                        .take()
-                    {
-                        transformer = new;
-                        plans_before = 0;
-                    }
-                    let started = Instant::now();
-                    let result = transformer.transform(&frame);
-                    let elapsed = started.elapsed();
-                    let plans = transformer.plans();
-                    thread_shared
-                        .plans
-                        .fetch_add(plans - plans_before, Ordering::AcqRel);
-                    plans_before = plans;
-                    let set = match result {
-                        Ok(set) => Arc::new(set),
-                        Err(error) => {
-                            thread_shared.errors.fetch_add(1, Ordering::AcqRel);
-                            tracing::warn!(%error, "wavelet stage: skipping the frame");
-                            continue;
-                        }
-                    };
-                    let nanos = u64::try_from(elapsed.as_nanos()).unwrap_or(u64::MAX);
-                    thread_shared.last_nanos.store(nanos, Ordering::Release);
-                    thread_shared.sets.fetch_add(1, Ordering::AcqRel);
-                    publish(&thread_tx, set, Some(arrived), elapsed);
-                    if let Some(hook) = &on_publish {
-                        if let Some(published) = thread_tx.borrow().as_ref() {
-                            hook(published);
-                        }
-                    }
-                }
-            })
-            .map_err(WaveletStageError::Spawn)?;
-        Ok(WaveletStage {
-            feed,
-            shared,
-            tx,
-            rx,
-            handle,
-        })
+        SlowStage::start(WAVELET_THREAD_NAME, transformer, lossless, on_publish)
+            .map(WaveletStage)
+            .map_err(WaveletStageError::Spawn)
     }
 
     /// The feed to hand frames to (give it to the pipeline).
     pub fn feed(&self) -> FrameFeed {
-        self.feed.clone()
+        self.0.feed()
     }
 
     /// A receiver of the newest set; a set published already shows as changed.
     pub fn subscribe(&self) -> watch::Receiver<LatestWavelet> {
-        self.rx.clone()
+        self.0.subscribe()
     }
 
     /// A snapshot of the counters.
     pub fn stats(&self) -> WaveletStats {
-        stats(&self.feed, &self.shared)
+        self.0.counters().into()
     }
 
     /// A handle that reads the counters from anywhere (the metrics endpoint).
     pub fn stats_handle(&self) -> WaveletStatsHandle {
-        WaveletStatsHandle(self.feed.clone(), Arc::clone(&self.shared))
+        WaveletStatsHandle(self.0.counters_handle())
     }
 
     /// Replaces the settings from the next frame on (a new resampling plan if the side
     /// changed). Invalid settings are rejected and change nothing.
     pub fn reconfigure(&self, settings: WaveletSettings) -> Result<(), WaveletStageError> {
-        let transformer = WaveletTransformer::new(settings)?;
-        *self
-            .shared
-            .pending
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(transformer);
+        self.0.replace_worker(WaveletTransformer::new(settings)?);
         Ok(())
     }
 
@@ -386,48 +337,31 @@ impl WaveletStage {
 
     /// A handle for [`WaveletStage::set_stale`] from another thread.
     pub fn stale_handle(&self) -> WaveletStaleHandle {
-        StaleHandle::new(Arc::clone(&self.tx))
+        self.0.stale_handle()
     }
 
     /// Whether the thread has ended (the feed was closed and drained).
     pub fn is_finished(&self) -> bool {
-        self.handle.is_finished()
+        self.0.is_finished()
     }
 
     /// Closes the feed, waits for the thread and returns the final counters.
     pub fn join(self) -> Result<WaveletStats, WaveletStageError> {
-        self.feed.close();
-        if let Err(payload) = self.handle.join() {
-            let message = payload
-                .downcast_ref::<&str>()
-                .map(|s| (*s).to_owned())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "non-string panic payload".to_owned());
-            return Err(WaveletStageError::Panicked(message));
-        }
-        Ok(stats(&self.feed, &self.shared))
-    }
-}
-
-fn stats(feed: &FrameFeed, shared: &Shared) -> WaveletStats {
-    WaveletStats {
-        frames_offered: feed.offered(),
-        frames_skipped: feed.skipped(),
-        sets: shared.sets.load(Ordering::Acquire),
-        errors: shared.errors.load(Ordering::Acquire),
-        plans: shared.plans.load(Ordering::Acquire),
-        last_time: Duration::from_nanos(shared.last_nanos.load(Ordering::Acquire)),
+        self.0
+            .join()
+            .map(WaveletStats::from)
+            .map_err(WaveletStageError::Panicked)
     }
 }
 
 /// Reads the stage's counters; valid after the stage has ended.
 #[derive(Clone)]
-pub struct WaveletStatsHandle(FrameFeed, Arc<Shared>);
+pub struct WaveletStatsHandle(CountersHandle<WaveletTransformer>);
 
 impl WaveletStatsHandle {
     /// A snapshot of the counters.
     pub fn stats(&self) -> WaveletStats {
-        stats(&self.0, &self.1)
+        self.0.counters().into()
     }
 }
 
@@ -435,7 +369,9 @@ impl WaveletStatsHandle {
 mod tests {
     use super::*;
     use crate::envmap::Projection;
+    use crate::frame_feed::CloseOnDrop;
     use crate::wavelet::sphere::OctahedralMap;
+    use std::sync::Arc;
 
     fn frame(seq: u64, width: u32) -> HdrFrame {
         let height = width / 2;
