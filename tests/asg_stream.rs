@@ -11,8 +11,9 @@
 mod common;
 
 use common::{
-    assert_unsupported, has_python3, http_get, metric_value, python_client, record_sky, spawn,
-    wait_until, TIMEOUT,
+    assert_ordered_to_the_end, assert_unsupported, every_transport, has_python3, http_get,
+    metric_value, python_client, read_until_goodbye, record_sky, spawn, subscribe_all, wait_until,
+    TIMEOUT,
 };
 use envlight::asg::fit::AsgFitter;
 use envlight::capture::FrameSource;
@@ -34,17 +35,11 @@ fn config(dir: &Path, extra: &str) -> Config {
 }
 
 /// Everything an ASG client received until the goodbye.
-fn read_sets(mut client: Client) -> (Vec<AsgFrameMessage>, Option<String>) {
-    let mut sets = Vec::new();
-    loop {
-        match client.next_message() {
-            Ok(Some(Message::Asg(set))) => sets.push(set),
-            Ok(Some(Message::Goodbye { message })) => return (sets, Some(message)),
-            Ok(Some(other)) => panic!("unexpected {other:?}"),
-            Ok(None) => return (sets, None),
-            Err(e) => panic!("client error: {e}"),
-        }
-    }
+fn read_sets(client: Client) -> (Vec<AsgFrameMessage>, Option<String>) {
+    read_until_goodbye(client, |message| match message {
+        Message::Asg(set) => Ok(set),
+        other => Err(other),
+    })
 }
 
 #[test]
@@ -75,40 +70,8 @@ fn asg_clients_receive_what_the_fitter_computes() {
     )
     .unwrap();
     let addrs = daemon.addresses().clone();
-    let endpoints = [
-        (
-            Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()),
-            Format::Binary,
-            0u32,
-        ),
-        (
-            Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
-            Format::Json,
-            2,
-        ),
-        (
-            Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
-            Format::Binary,
-            3,
-        ),
-        (
-            Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap())),
-            Format::Json,
-            0,
-        ),
-    ];
-    let clients: Vec<_> = endpoints
-        .iter()
-        .map(|(endpoint, format, cap)| {
-            let request = Request {
-                max_lights: *cap,
-                representation: Representation::Asg,
-                format: *format,
-            };
-            let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
-            spawn("asg-client", move || read_sets(client))
-        })
-        .collect();
+    let endpoints = every_transport(&addrs.stream, [0, 2, 3, 0]);
+    let clients = subscribe_all(&endpoints, Representation::Asg, read_sets);
     // A lights client on the same daemon is unaffected.
     let lights = Client::connect(
         &Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
@@ -138,14 +101,9 @@ fn asg_clients_receive_what_the_fitter_computes() {
     for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
         let what = format!("{endpoint} {format:?} cap {cap}");
         let (sets, goodbye) = client.join().unwrap();
-        assert_eq!(goodbye.as_deref(), Some("envlight shutting down"), "{what}");
         let seqs: Vec<u64> = sets.iter().map(|s| s.seq).collect();
-        assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
-        assert_eq!(
-            seqs.last(),
-            Some(&expected.last().unwrap().seq),
-            "{what}: {seqs:?}"
-        );
+        let last = expected.last().unwrap().seq;
+        assert_ordered_to_the_end(&what, goodbye.as_deref(), &seqs, last);
         let cap = (*cap != 0).then_some(*cap as usize);
         for set in &sets {
             let want = expected

@@ -13,8 +13,9 @@
 mod common;
 
 use common::{
-    assert_unsupported, has_python3, http_get, metric_value, python_client, record_sky, spawn,
-    wait_until, TIMEOUT,
+    assert_ordered_to_the_end, assert_unsupported, every_transport, has_python3, http_get,
+    metric_value, python_client, read_until_goodbye, record_sky, subscribe_all, wait_until,
+    TIMEOUT,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -22,7 +23,7 @@ use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::record::{Pacing, ReplaySource};
 use envlight::stream::client::{Client, Endpoint};
 use envlight::stream::protocol::{decode_message, encode_wavelet_frame};
-use envlight::stream::{Format, Message, Representation, Request, WaveletFrame};
+use envlight::stream::{Message, Representation, Request, WaveletFrame};
 use envlight::wavelet::sphere::OctahedralMap;
 use envlight::wavelet::{approximate, Basis};
 use std::path::Path;
@@ -35,21 +36,15 @@ fn config(dir: &Path, extra: &str) -> Config {
 const LIVE_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
                         [decompose]\nlights = 8\nworking_width = 16\n";
 
-/// Everything a wavelet client received until the goodbye.
-fn read_sets(mut client: Client) -> (Vec<(WaveletFrame, bool)>, Option<String>) {
-    let mut sets = Vec::new();
-    loop {
-        match client.next_message() {
-            Ok(Some(Message::Wavelet(m))) => {
-                let stale = m.stale;
-                sets.push((m.into_wavelet_frame(), stale));
-            }
-            Ok(Some(Message::Goodbye { message })) => return (sets, Some(message)),
-            Ok(Some(other)) => panic!("unexpected {other:?}"),
-            Ok(None) => return (sets, None),
-            Err(e) => panic!("client error: {e}"),
+/// Everything a wavelet client received until the goodbye, with each set's stale flag.
+fn read_sets(client: Client) -> (Vec<(WaveletFrame, bool)>, Option<String>) {
+    read_until_goodbye(client, |message| match message {
+        Message::Wavelet(m) => {
+            let stale = m.stale;
+            Ok((m.into_wavelet_frame(), stale))
         }
-    }
+        other => Err(other),
+    })
 }
 
 #[test]
@@ -92,29 +87,8 @@ fn wavelet_clients_receive_what_the_library_computes() {
     .unwrap();
     let addrs = daemon.addresses().clone();
     let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
-    let ws = Endpoint::WebSocket(format!("ws://{}/", addrs.stream.websocket.unwrap()));
-    let endpoints = [
-        (
-            Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()),
-            Format::Binary,
-            0u32,
-        ),
-        (tcp.clone(), Format::Json, 32),
-        (ws.clone(), Format::Binary, 1),
-        (ws, Format::Json, 0),
-    ];
-    let clients: Vec<_> = endpoints
-        .iter()
-        .map(|(endpoint, format, cap)| {
-            let request = Request {
-                max_lights: *cap,
-                representation: Representation::Wavelet,
-                format: *format,
-            };
-            let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
-            spawn("wavelet-client", move || read_sets(client))
-        })
-        .collect();
+    let endpoints = every_transport(&addrs.stream, [0, 32, 1, 0]);
+    let clients = subscribe_all(&endpoints, Representation::Wavelet, read_sets);
     // A lights client on the same daemon is unaffected.
     let lights = Client::connect(&tcp, &Request::default(), Some(TIMEOUT)).unwrap();
     let http = addrs.metrics.unwrap();
@@ -143,10 +117,8 @@ fn wavelet_clients_receive_what_the_library_computes() {
     for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
         let what = format!("{endpoint} {format:?} cap {cap}");
         let (sets, goodbye) = client.join().unwrap();
-        assert_eq!(goodbye.as_deref(), Some("envlight shutting down"), "{what}");
         let seqs: Vec<u64> = sets.iter().map(|(s, _)| s.seq).collect();
-        assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
-        assert_eq!(seqs.last(), Some(&(n - 1)), "{what}: {seqs:?}");
+        assert_ordered_to_the_end(&what, goodbye.as_deref(), &seqs, n - 1);
         let cap = (*cap != 0).then_some(*cap as usize);
         for (set, stale) in &sets {
             let (want, map) = &expected[set.seq as usize];

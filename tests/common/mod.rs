@@ -161,3 +161,87 @@ pub fn assert_unsupported(
         }
     }
 }
+
+/// A test client's subscription: where, in which format, with which cap (0: no cap).
+pub type Subscription = (
+    envlight::stream::client::Endpoint,
+    envlight::stream::Format,
+    u32,
+);
+
+/// One client of each transport and both formats — UDS binary, TCP JSON, WebSocket binary,
+/// WebSocket JSON — with `caps` in that order.
+pub fn every_transport(
+    stream: &envlight::stream::server::BoundAddresses,
+    caps: [u32; 4],
+) -> [Subscription; 4] {
+    use envlight::stream::client::Endpoint;
+    use envlight::stream::Format;
+    let ws = format!("ws://{}/", stream.websocket.expect("a WebSocket endpoint"));
+    [
+        (
+            Endpoint::Unix(stream.unix_socket.clone().expect("a Unix socket")),
+            Format::Binary,
+            caps[0],
+        ),
+        (
+            Endpoint::Tcp(stream.tcp.expect("a TCP endpoint").to_string()),
+            Format::Json,
+            caps[1],
+        ),
+        (Endpoint::WebSocket(ws.clone()), Format::Binary, caps[2]),
+        (Endpoint::WebSocket(ws), Format::Json, caps[3]),
+    ]
+}
+
+/// Connects one client per subscription asking for `representation`; each is read by `read`
+/// on its own thread (joined for the result).
+pub fn subscribe_all<T: Send + 'static>(
+    subscriptions: &[Subscription],
+    representation: envlight::stream::Representation,
+    read: fn(envlight::stream::client::Client) -> T,
+) -> Vec<std::thread::JoinHandle<T>> {
+    use envlight::stream::client::Client;
+    use envlight::stream::Request;
+    subscriptions
+        .iter()
+        .map(|(endpoint, format, cap)| {
+            let request = Request {
+                max_lights: *cap,
+                representation,
+                format: *format,
+            };
+            let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
+            spawn("test-client", move || read(client))
+        })
+        .collect()
+}
+
+/// The messages a client received, as picked by `pick`, until the daemon's goodbye (returned)
+/// or the end of the stream. A message `pick` hands back, or a client error, fails the test.
+pub fn read_until_goodbye<T>(
+    mut client: envlight::stream::client::Client,
+    pick: impl Fn(envlight::stream::Message) -> Result<T, envlight::stream::Message>,
+) -> (Vec<T>, Option<String>) {
+    use envlight::stream::Message;
+    let mut picked = Vec::new();
+    loop {
+        match client.next_message() {
+            Ok(Some(Message::Goodbye { message })) => return (picked, Some(message)),
+            Ok(Some(message)) => match pick(message) {
+                Ok(item) => picked.push(item),
+                Err(other) => panic!("unexpected {other:?}"),
+            },
+            Ok(None) => return (picked, None),
+            Err(e) => panic!("client error: {e}"),
+        }
+    }
+}
+
+/// A client that read to the end of a shutdown: the goodbye came, the sequence numbers it got
+/// strictly increase and end at `last`.
+pub fn assert_ordered_to_the_end(what: &str, goodbye: Option<&str>, seqs: &[u64], last: u64) {
+    assert_eq!(goodbye, Some("envlight shutting down"), "{what}");
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
+    assert_eq!(seqs.last(), Some(&last), "{what}: {seqs:?}");
+}
