@@ -409,6 +409,9 @@ impl Slot {
 #[derive(Default)]
 pub(super) struct Fanout {
     registry: Mutex<Registry>,
+    /// The publishing thread runs the pass of each live publication itself
+    /// ([`super::server::PublisherPass`]); the fan-out thread passes only the others.
+    publisher_passes: std::sync::atomic::AtomicBool,
 }
 
 #[derive(Default)]
@@ -451,6 +454,18 @@ impl Fanout {
             fanout: Arc::clone(self),
             slot: Arc::clone(slot),
         })
+    }
+
+    /// Whether the publishing thread runs the pass of live publications.
+    pub fn publisher_passes(&self) -> bool {
+        self.publisher_passes
+            .load(std::sync::atomic::Ordering::Acquire)
+    }
+
+    /// The publishing thread runs (`true`) or stops running the pass of live publications.
+    pub fn set_publisher_passes(&self, on: bool) {
+        self.publisher_passes
+            .store(on, std::sync::atomic::Ordering::Release);
     }
 
     /// Whether the channel has ended.
