@@ -208,8 +208,13 @@ fn streams_what_decompose_computes(fanout_on: &str) {
 
 /// Connects a TCP client whose receive buffer is tiny, so that not reading fills the pipe fast.
 fn connect_small_buffer(addr: std::net::SocketAddr) -> TcpStream {
+    connect_with_buffer(addr, 4096)
+}
+
+/// Connects a TCP client with a receive buffer of `bytes`.
+fn connect_with_buffer(addr: std::net::SocketAddr, bytes: usize) -> TcpStream {
     let socket = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
-    socket.set_recv_buffer_size(4096).unwrap();
+    socket.set_recv_buffer_size(bytes).unwrap();
     socket.connect(&addr.into()).unwrap();
     let stream: TcpStream = socket.into();
     stream.set_read_timeout(Some(TIMEOUT)).unwrap();
@@ -235,16 +240,9 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
     let dir = tempfile::tempdir().unwrap();
     let extra = "[source]\nfps = 60.0\nframes = 0\n[sky]\nwidth = 128\nheight = 64\n\
                  [decompose]\nlights = 256\nworking_width = 64\n";
-    let stream = std::env::var("ENVLIGHT_TEST_FANOUT_ON")
-        .map(|on| format!("fanout_on = \"{on}\"\n"))
-        .unwrap_or_default();
-    let config = common::config_with_stream(dir.path(), 0.5, &stream, extra);
+    let config = config(dir.path(), extra);
     let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
-
-    // The slow client (TCP) subscribes, reads one frame, then stops reading for 2 s.
-    let mut slow = connect_small_buffer(tcp);
     let mut subscribe = Vec::new();
     encode_request(
         &Request {
@@ -253,35 +251,36 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         },
         &mut subscribe,
     );
+
+    // The slow client subscribes, reads one frame, then stops reading for 2 s.
+    let start = daemon.pipeline().stats();
+    let mut slow = connect_small_buffer(tcp);
     slow.write_all(&subscribe).unwrap();
     let mut slow_decoder = Decoder::new();
     let first = read_frame(&mut slow, &mut slow_decoder);
 
-    // Three clients that keep up, for the same 2 s and one more, on the Unix socket: the
-    // server's count of skipped frames per endpoint then tells them from the slow one.
+    // Three clients that keep up, for the same 2 s and one more. Each has a receive buffer of
+    // 4 MiB (some 500 frames): a reader thread that a loaded machine leaves without a CPU for
+    // a while (at load average 8–14 the old test's 60 kB buffers filled) still keeps up.
     let before = daemon.pipeline().stats();
     let fast: Vec<_> = (0..3)
         .map(|_| {
-            let request = Request {
-                format: Format::Binary,
-                ..Request::default()
-            };
-            let mut client =
-                Client::connect(&Endpoint::Unix(uds.clone()), &request, Some(TIMEOUT)).unwrap();
+            let mut stream = connect_with_buffer(tcp, 4 << 20);
+            stream.write_all(&subscribe).unwrap();
+            let port = stream.local_addr().unwrap().port();
             spawn("fast client", move || {
+                let mut decoder = Decoder::new();
                 let started = Instant::now();
                 let mut seqs = Vec::new();
                 let mut longest_wait = Duration::ZERO;
                 let mut last = Instant::now();
                 while started.elapsed() < Duration::from_secs(3) {
-                    match client.next_message().unwrap() {
-                        Some(Message::Frame(frame)) => seqs.push(frame.seq),
-                        other => panic!("unexpected {other:?}"),
-                    }
+                    seqs.push(read_frame(&mut stream, &mut decoder).seq);
                     longest_wait = longest_wait.max(last.elapsed());
                     last = Instant::now();
                 }
-                (seqs, longest_wait)
+                // Still connected (the server's per-client counters go with the connection).
+                (port, stream, seqs, longest_wait)
             })
         })
         .collect();
@@ -307,9 +306,9 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
     let jump = resumed
         .windows(2)
         .map(|w| w[1] - w[0])
+        .chain([resumed[0] - first.seq])
         .max()
-        .unwrap_or(0)
-        .max(resumed[0] - first.seq);
+        .unwrap_or(0);
     // 2 s at 60 fps is ~120 frames; the buffers (64 KiB send + 4 KiB receive) hold < 20 of 8 KiB.
     assert!(
         jump >= 60,
@@ -325,23 +324,34 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         "{backlog} old frames were buffered: {resumed:?}"
     );
 
-    let fast: Vec<(Vec<u64>, Duration)> = fast.into_iter().map(|c| c.join().unwrap()).collect();
+    let fast: Vec<_> = fast.into_iter().map(|c| c.join().unwrap()).collect();
     let stats = daemon.pipeline().stats();
     let decomposed = stats.frames_decomposed - before.frames_decomposed;
-    let dropped = stats.frames_dropped - before.frames_dropped;
+    // Every captured frame the pipeline dropped since the clients connected: a frame missing
+    // from a client's stream is either one of these (never published) or one the server
+    // skipped for that client (and counted).
+    let dropped = stats.frames_dropped - start.frames_dropped;
     let metrics = daemon.metrics().encode();
-    // The server skipped none of the fast clients' frames …
-    let skipped = |endpoint: &str| {
-        let name = format!("envlight_client_frames_skipped_total{{endpoint=\"{endpoint}\"}}");
-        metric_value(&metrics, &name)
+    // The server's count of frames it skipped for the client on local port `port`.
+    let skipped_for = |port: u16| -> u64 {
+        let prefix = format!("envlight_client_skipped_frames{{client=\"tcp 127.0.0.1:{port} #");
+        let line = metrics.lines().find(|l| l.starts_with(&prefix));
+        let value = line.and_then(|l| l.rsplit(' ').next()?.parse().ok());
+        value.unwrap_or_else(|| panic!("no {prefix} in\n{metrics}"))
     };
-    assert_eq!(skipped("uds"), 0.0, "{metrics}");
-    assert!(skipped("tcp") >= 60.0, "{metrics}");
-    for (seqs, longest_wait) in &fast {
-        // … so a fast client's stream has a gap only where the pipeline dropped a captured
-        // frame before decomposing it (a loaded machine can starve the capture or the
-        // decomposition for a few frames; that is not the slow client's doing and never
-        // happens on a quiet one).
+    // The slow client's jump is made of skipped publications (counted) and dropped frames.
+    let slow_skipped = skipped_for(slow.local_addr().unwrap().port());
+    assert!(
+        slow_skipped + dropped >= jump - 1,
+        "the server counted {slow_skipped} skipped frames for a jump of {jump} (pipeline \
+         dropped {dropped})"
+    );
+    for (port, _stream, seqs, longest_wait) in &fast {
+        // The server skipped none of a fast client's frames …
+        assert_eq!(skipped_for(*port), 0, "{metrics}");
+        // … so its stream has a gap only where the pipeline dropped a captured frame before
+        // decomposing it (a loaded machine can starve the capture or the decomposition for a
+        // few frames; not the slow client's doing, and none on a quiet machine).
         let missing: u64 = seqs.windows(2).map(|w| w[1] - w[0] - 1).sum();
         assert!(
             missing <= dropped,
@@ -353,15 +363,16 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
             "a fast client got only {} of {decomposed} frames",
             seqs.len()
         );
-        // … and nothing stopped while the slow client did not read: a fan-out, or a
-        // pipeline, held back by it would have left the others without frames for 2 s.
+        // … and nothing stopped while the slow client did not read: a pass, or a pipeline,
+        // held back by it would have left the others without frames for its 2 s. (How many
+        // captured frames the pipeline dropped says nothing about that: none on a quiet
+        // machine, but 35–41% at load average 13–14, when the decomposition is starved.)
         assert!(
             *longest_wait < Duration::from_millis(1000),
-            "a fast client waited {longest_wait:?} for a frame"
+            "a fast client waited {longest_wait:?} for a frame: held back ({stats:?})"
         );
     }
-    // 2 s of a held-back pipeline would drop ~120 captured frames (none on a quiet machine).
-    assert!(dropped < 30, "the pipeline was held back: {stats:?}");
+    drop(fast);
     drop(slow);
     daemon.shutdown().unwrap();
 }
