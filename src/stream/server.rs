@@ -18,9 +18,12 @@
 //!    payload type says how it is encoded ([`Streamed`]), so the connection code is the same for
 //!    every representation. Each publication is encoded once per cap and form (binary or JSON),
 //!    shared by the clients that ask for the same.
-//!    - **Unix socket and TCP:** one `envlight-fanout` thread per channel, woken once per
-//!      publication, writes it to every client that keeps up in one pass of non-blocking writes
-//!      (`src/stream/fanout.rs`); no task is woken per client. A client whose socket is full
+//!    - **Unix socket and TCP:** one pass of non-blocking writes sends each publication to
+//!      every client that keeps up (`src/stream/fanout.rs`); no task is woken per client. The
+//!      light lists' pass runs on the decompose thread right after publishing when the server
+//!      is given a [`PublisherPass`] (the daemon's default, `stream.fanout_on`); otherwise,
+//!      and for the other channels and stale re-sends, one `envlight-fanout` thread per
+//!      channel, woken once per publication, runs it. A client whose socket is full
 //!      goes to its connection task, which finishes the frame, then sends the newest
 //!      publication (the ones in between are counted as skipped) and hands the client back. The
 //!      task otherwise only reads (input is an error, below) and waits for the shutdown.
