@@ -796,6 +796,10 @@ fn check_config_names_the_bad_key_and_value() {
             "stream.tcp = \"localhost\"",
         ),
         ("[stream]\nmax_clients = 0\n", "stream.max_clients = 0"),
+        (
+            "[stream]\nfanout_on = \"gpu\"\n",
+            "stream.fanout_on = \"gpu\"",
+        ),
         ("[metrics]\nlisten = \"1.2.3.4\"\n", "metrics.listen"),
         ("[stream]\ncolour = 1\n", "colour"),
         (
