@@ -5,8 +5,12 @@
 //! Not a criterion benchmark (latency percentiles under a paced load are not what criterion
 //! measures); run it with `cargo bench --bench stream_latency` (add `-- --quick` for a short
 //! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp`,
-//! `--harness=threads|events|both`, `--sender=daemon|floor|both`, `--seconds=S`,
-//! `--repeat=N`; docs/performance.md "Streaming"). The whole chain runs in this process so one
+//! `--harness=threads|events|both`, `--sender=daemon|floor|both`,
+//! `--fanout=publisher|thread|both` (which thread runs the daemon's fan-out pass: the
+//! decompose thread right after publishing, as the daemon does by default, or the
+//! `envlight-fanout` thread), `--seconds=S`,
+//! `--repeat=N` (each repeat runs every sender once, back to back); docs/performance.md
+//! "Streaming"). The whole chain runs in this process so one
 //! clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
 //! server (UDS or TCP, binary frames) → N clients (one blocking thread each, or one event
 //! loop), each stamping the moment a frame's last byte has been read.
@@ -17,11 +21,15 @@
 //! kernel's socket path) costs by itself on this machine; the daemon's fan-out minus that is
 //! the server's own share.
 //!
-//! Besides the latencies, each row gives the CPU time per frame of the serving threads (the
-//! tokio workers and, if any, the fan-out thread; the floor's sender thread) and of all client
-//! threads together, from the scheduler's per-thread run time (`/proc/self/task/*/schedstat`),
-//! and the load average when the row ended: on a shared machine the wall-clock figures are
-//! noisy, the CPU times much less so.
+//! Besides the latencies, each row gives per frame: when the first copy was read after the
+//! publication (the hop to the fan-out, one write, one reader's wake-up) and how long after it
+//! the last copy was (the rest of the pass and the readers' turns on the CPUs); the CPU time of
+//! the decompose thread, of the serving threads (the tokio workers and, if any, the fan-out
+//! thread; the floor's sender thread) and of all client threads together, from the scheduler's
+//! per-thread run time (`/proc/self/task/*/schedstat`); how long the decompose and serving
+//! threads were runnable but waiting for a CPU (schedstat) and how often the serving threads
+//! were preempted (`nonvoluntary_ctxt_switches`); and the load average when the row ended. On
+//! a shared machine the wall-clock figures are noisy, the CPU times much less so.
 
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::capture::{CaptureError, FrameSource};
@@ -30,7 +38,9 @@ use envlight::metrics::Metrics;
 use envlight::pipeline::{Pipeline, PipelineOptions, PublishHook};
 use envlight::stream::client::Endpoint;
 use envlight::stream::protocol::{encode_frame, encode_request};
-use envlight::stream::{Decoder, Format, Message, Request, ServerConfig, StreamServer};
+use envlight::stream::{
+    Decoder, Format, Message, PublisherPass, Request, ServerConfig, StreamServer, Streams,
+};
 use envlight::{HdrFrame, LightFrame};
 use std::collections::HashMap;
 use std::io::{Read, Write};
@@ -57,6 +67,21 @@ struct Run {
     serve_cpu: Duration,
     /// CPU time per published frame of all client threads together.
     client_cpu: Duration,
+    /// Per frame: publication → the first client's last byte (the hop to the fan-out, one
+    /// write, one reader's wake-up).
+    first_copy: Vec<Duration>,
+    /// Per frame: the first client's last byte → the last client's (the rest of the pass and
+    /// the readers' turns on the CPUs).
+    spread: Vec<Duration>,
+    /// CPU time per published frame of the decompose thread (with the fan-out pass when it
+    /// runs there).
+    decompose_cpu: Duration,
+    /// Per published frame: run-queue wait (runnable, not running) of the decompose thread.
+    decompose_wait: Duration,
+    /// Per published frame: run-queue wait of the serving threads (or the floor's sender).
+    serve_wait: Duration,
+    /// Per published frame: involuntary context switches (preemptions) of the serving threads.
+    serve_preempted: f64,
 }
 
 /// A client that gets nothing for this long gives up.
@@ -65,51 +90,81 @@ const READ_TIMEOUT: Duration = Duration::from_secs(10);
 /// The measurement window ends this long before the clients stop.
 const WINDOW_END: Duration = Duration::from_millis(300);
 
+/// Name (as the kernel keeps it, at most 15 bytes) of the decompose thread.
+const DECOMPOSE_THREADS: &[&str] = &["envlight-decomp"];
 /// Names (as the kernel keeps them, at most 15 bytes) of the threads counted as serving.
 const SERVING_THREADS: &[&str] = &["envlight-serve", "envlight-fanout", "bench sender"];
 /// Name of the client threads (thread per client, or the one event loop).
 const CLIENT_THREADS: &[&str] = &["bench client", "bench clients"];
 
-/// Run time in nanoseconds of this process's threads, summed by thread name.
-fn thread_run_times() -> HashMap<String, u64> {
-    let mut times = HashMap::new();
+/// What the scheduler counts for a thread: `/proc/self/task/*/schedstat` (run time, time
+/// runnable but waiting for a CPU) and `status` (involuntary context switches: preemptions).
+#[derive(Clone, Copy, Default)]
+struct SchedStats {
+    run_ns: u64,
+    wait_ns: u64,
+    preempted: u64,
+}
+
+/// The scheduler's counters of this process's threads, summed by thread name.
+fn thread_stats() -> HashMap<String, SchedStats> {
+    let mut stats: HashMap<String, SchedStats> = HashMap::new();
     let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
-        return times;
+        return stats;
     };
     for task in tasks.flatten() {
         let dir = task.path();
-        let (Ok(name), Ok(stat)) = (
+        let (Ok(name), Ok(stat), Ok(status)) = (
             std::fs::read_to_string(dir.join("comm")),
             std::fs::read_to_string(dir.join("schedstat")),
+            std::fs::read_to_string(dir.join("status")),
         ) else {
             continue;
         };
-        let run_ns: u64 = stat
+        let mut fields = stat
             .split_whitespace()
-            .next()
-            .and_then(|t| t.parse().ok())
+            .map(|t| t.parse::<u64>().unwrap_or(0));
+        let preempted = status
+            .lines()
+            .find_map(|l| l.strip_prefix("nonvoluntary_ctxt_switches:"))
+            .and_then(|v| v.trim().parse().ok())
             .unwrap_or(0);
-        *times.entry(name.trim_end().to_owned()).or_default() += run_ns;
+        let entry = stats.entry(name.trim_end().to_owned()).or_default();
+        entry.run_ns += fields.next().unwrap_or(0);
+        entry.wait_ns += fields.next().unwrap_or(0);
+        entry.preempted += preempted;
     }
-    times
+    stats
 }
 
-/// CPU time per frame of the threads named in `names` between two snapshots.
-fn cpu_per_frame(
-    before: &HashMap<String, u64>,
-    after: &HashMap<String, u64>,
+/// A counter of the threads named in `names`, per frame, between two snapshots.
+fn per_frame(
+    before: &HashMap<String, SchedStats>,
+    after: &HashMap<String, SchedStats>,
     names: &[&str],
     frames: u64,
-) -> Duration {
+    counter: fn(&SchedStats) -> u64,
+) -> f64 {
     let total: u64 = names
         .iter()
         .map(|name| {
-            let a = after.get(*name).copied().unwrap_or(0);
-            let b = before.get(*name).copied().unwrap_or(0);
+            let a = after.get(*name).map_or(0, counter);
+            let b = before.get(*name).map_or(0, counter);
             a.saturating_sub(b)
         })
         .sum();
-    Duration::from_nanos(total / frames.max(1))
+    total as f64 / frames.max(1) as f64
+}
+
+/// A time counter (nanoseconds) of the threads named in `names`, per frame.
+fn time_per_frame(
+    before: &HashMap<String, SchedStats>,
+    after: &HashMap<String, SchedStats>,
+    names: &[&str],
+    frames: u64,
+    counter: fn(&SchedStats) -> u64,
+) -> Duration {
+    Duration::from_nanos(per_frame(before, after, names, frames, counter) as u64)
 }
 
 /// The 1-minute load average.
@@ -126,7 +181,7 @@ fn analyse(
     received: &[Received],
     first_seq: u64,
     last_seq: u64,
-    cpu: (&HashMap<String, u64>, &HashMap<String, u64>),
+    cpu: (&HashMap<String, SchedStats>, &HashMap<String, SchedStats>),
 ) -> Run {
     let mut latencies = Vec::new();
     let mut fan_out = Vec::new();
@@ -135,11 +190,16 @@ fn analyse(
         .filter_map(|seq| arrivals.get(&seq).map(|a| a.2))
         .collect();
     decompose.sort();
+    // Per frame: when its first and its last copy were read.
+    let mut copies: HashMap<u64, (Instant, Instant)> = HashMap::new();
     for frames in received {
         let mut seen = 0u64;
         for &(seq, at) in frames {
             if (first_seq..=last_seq).contains(&seq) {
                 seen += 1;
+                let entry = copies.entry(seq).or_insert((at, at));
+                entry.0 = entry.0.min(at);
+                entry.1 = entry.1.max(at);
                 if let Some((arrived, published, _)) = arrivals.get(&seq) {
                     latencies.push(at.saturating_duration_since(*arrived));
                     fan_out.push(at.saturating_duration_since(*published));
@@ -150,35 +210,65 @@ fn analyse(
     }
     latencies.sort();
     fan_out.sort();
+    let mut first_copy = Vec::new();
+    let mut spread = Vec::new();
+    for (seq, (first, last)) in &copies {
+        if let Some((_, published, _)) = arrivals.get(seq) {
+            first_copy.push(first.saturating_duration_since(*published));
+            spread.push(last.saturating_duration_since(*first));
+        }
+    }
+    first_copy.sort();
+    spread.sort();
     let published = (last_seq + 1).saturating_sub(first_seq);
+    let (before, after) = cpu;
     Run {
         latencies,
         fan_out,
         decompose,
         published,
         missed,
-        serve_cpu: cpu_per_frame(cpu.0, cpu.1, SERVING_THREADS, published),
-        client_cpu: cpu_per_frame(cpu.0, cpu.1, CLIENT_THREADS, published),
+        serve_cpu: time_per_frame(before, after, SERVING_THREADS, published, |s| s.run_ns),
+        client_cpu: time_per_frame(before, after, CLIENT_THREADS, published, |s| s.run_ns),
+        first_copy,
+        spread,
+        decompose_cpu: time_per_frame(before, after, DECOMPOSE_THREADS, published, |s| s.run_ns),
+        decompose_wait: time_per_frame(before, after, DECOMPOSE_THREADS, published, |s| s.wait_ns),
+        serve_wait: time_per_frame(before, after, SERVING_THREADS, published, |s| s.wait_ns),
+        serve_preempted: per_frame(before, after, SERVING_THREADS, published, |s| s.preempted),
     }
 }
 
-fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lights: usize) -> Run {
+fn run(
+    transport: Transport,
+    harness: Harness,
+    clients: usize,
+    seconds: f64,
+    pass_on: PassOn,
+) -> Run {
     let sky = PrerenderedSky::new(60.0);
     let arrivals: Arc<Mutex<HashMap<u64, Stamps>>> = Arc::default();
     let hook_arrivals = Arc::clone(&arrivals);
+    let stamps = PublishHook(Arc::new(move |published| {
+        if let Some(arrived) = published.arrived {
+            hook_arrivals.lock().unwrap().insert(
+                published.payload.seq,
+                (arrived, published.published_at, published.compute_time),
+            );
+        }
+    }));
+    let publisher_pass = (pass_on == PassOn::Publisher).then(PublisherPass::new);
+    let on_publish = match &publisher_pass {
+        // As the daemon wires it: the pass first, then the rest.
+        Some(pass) => pass.hook().then(stamps),
+        None => stamps,
+    };
     let options = PipelineOptions {
-        on_publish: Some(PublishHook(Arc::new(move |published| {
-            if let Some(arrived) = published.arrived {
-                hook_arrivals.lock().unwrap().insert(
-                    published.payload.seq,
-                    (arrived, published.published_at, published.compute_time),
-                );
-            }
-        }))),
+        on_publish: Some(on_publish),
         ..PipelineOptions::new()
     };
     let pipeline =
-        Pipeline::start(Box::new(sky), bench_settings(lights), options).expect("pipeline");
+        Pipeline::start(Box::new(sky), bench_settings(LIGHTS), options).expect("pipeline");
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("envlight-serve")
@@ -193,10 +283,14 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
         max_clients: 100_000,
         ..ServerConfig::default()
     };
+    let mut streams = Streams::new(pipeline.subscribe());
+    if let Some(pass) = publisher_pass {
+        streams = streams.with_publisher_pass(pass);
+    }
     let server = runtime
-        .block_on(StreamServer::start(
+        .block_on(StreamServer::start_streams(
             &config,
-            pipeline.subscribe(),
+            streams,
             Arc::new(Metrics::new()),
         ))
         .expect("server");
@@ -220,11 +314,11 @@ fn run(transport: Transport, harness: Harness, clients: usize, seconds: f64, lig
             .map_or(0, |p| p.payload.seq)
     };
     let first_seq = newest() + 2;
-    let cpu_before = thread_run_times();
+    let cpu_before = thread_stats();
     // The window ends a little before the clients stop (their threads must still be there
     // for their CPU time to be read).
     std::thread::sleep((deadline - WINDOW_END).saturating_duration_since(Instant::now()));
-    let cpu_after = thread_run_times();
+    let cpu_after = thread_stats();
     let last_seq = newest().saturating_sub(2);
     let received: Vec<_> = handles
         .into_iter()
@@ -328,11 +422,11 @@ fn run_floor(transport: Transport, harness: Harness, clients: usize, seconds: f6
     let handles = start_clients(harness, &endpoint, &request, clients, deadline);
     std::thread::sleep(Duration::from_secs(1));
     let first_seq = newest.load(Ordering::Acquire) + 2;
-    let cpu_before = thread_run_times();
+    let cpu_before = thread_stats();
     // The window ends a little before the clients stop (their threads must still be there
     // for their CPU time to be read).
     std::thread::sleep((deadline - WINDOW_END).saturating_duration_since(Instant::now()));
-    let cpu_after = thread_run_times();
+    let cpu_after = thread_stats();
     let last_seq = newest.load(Ordering::Acquire).saturating_sub(2);
     sender.join().expect("sender");
     let received: Vec<_> = handles
@@ -359,7 +453,7 @@ fn sample_light_frame() -> LightFrame {
         },
         0.0,
     );
-    let mut decomposer = Decomposer::new(bench_settings(256)).expect("decomposer");
+    let mut decomposer = Decomposer::new(bench_settings(LIGHTS)).expect("decomposer");
     decomposer.decompose(&sky)
 }
 
@@ -404,11 +498,34 @@ enum Harness {
 /// What writes the frames to the clients.
 #[derive(Clone, Copy, Debug)]
 enum Sender {
-    /// The pipeline and the stream server: what is measured.
-    Daemon,
+    /// The pipeline and the stream server: what is measured, with the fan-out pass on this
+    /// thread.
+    Daemon(PassOn),
     /// One plain thread writing a pre-encoded frame to every socket: the harness's floor.
     Floor,
 }
+
+impl Sender {
+    fn name(self) -> &'static str {
+        match self {
+            Sender::Daemon(PassOn::Thread) => "daemon, fan-out thread",
+            Sender::Daemon(PassOn::Publisher) => "daemon, pass on publisher",
+            Sender::Floor => "floor",
+        }
+    }
+}
+
+/// Which thread runs the daemon's fan-out pass of a light list.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PassOn {
+    /// The `envlight-fanout` thread, woken by the publication (`stream.fanout_on = "thread"`).
+    Thread,
+    /// The decompose thread, right after publishing ([`PublisherPass`]; the daemon's default).
+    Publisher,
+}
+
+/// Lights per frame.
+const LIGHTS: usize = 256;
 
 /// A connected client socket of either transport.
 trait ClientStream: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
@@ -627,10 +744,18 @@ fn main() {
         Some("tcp") => vec![Transport::Tcp],
         _ => vec![Transport::Unix, Transport::Tcp],
     };
+    // As the daemon by default: the pass on the decompose thread.
+    let daemon_passes: Vec<PassOn> = match option("--fanout=").as_deref() {
+        Some("thread") => vec![PassOn::Thread],
+        Some("both") => vec![PassOn::Thread, PassOn::Publisher],
+        _ => vec![PassOn::Publisher],
+    };
+    let daemons = daemon_passes.iter().map(|&p| Sender::Daemon(p));
+    // Each repeat runs every sender once, back to back (A/B pairs on a noisy machine).
     let senders: Vec<Sender> = match option("--sender=").as_deref() {
         Some("floor") => vec![Sender::Floor],
-        Some("both") => vec![Sender::Daemon, Sender::Floor],
-        _ => vec![Sender::Daemon],
+        Some("both") => daemons.chain([Sender::Floor]).collect(),
+        _ => daemons.collect(),
     };
     let counts: Vec<usize> = match option("--clients=") {
         Some(list) => list
@@ -653,24 +778,29 @@ fn main() {
     );
     for transport in transports {
         for &harness in &harnesses {
-            for &sender in &senders {
-                println!();
-                println!("endpoint: {transport:?}; clients: {harness:?}; sender: {sender:?}");
-                println!(
-                    "| clients | frames | decompose p50 | fan-out p50 | fan-out p99 | end-to-end p50 | end-to-end p99 | end-to-end max | clients with loss | frames missed | serve CPU/frame | client CPU/frame | load |"
-                );
-                println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-                for &clients in &counts {
-                    for _ in 0..repeat {
+            println!();
+            println!("endpoint: {transport:?}; clients: {harness:?}");
+            println!(
+                "| sender | clients | frames | decompose p50 | fan-out p50 | fan-out p99 | end-to-end p50 | end-to-end p99 | end-to-end max | clients with loss | frames missed | first copy p50 | first→last p50 | first→last p99 | decompose CPU/frame | serve CPU/frame | client CPU/frame | decompose wait/frame | serve wait/frame | serve preempted/frame | load |"
+            );
+            println!(
+                "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+            );
+            for &clients in &counts {
+                for _ in 0..repeat {
+                    for &sender in &senders {
                         let r = match sender {
-                            Sender::Daemon => run(transport, harness, clients, seconds, 256),
+                            Sender::Daemon(pass_on) => {
+                                run(transport, harness, clients, seconds, pass_on)
+                            }
                             Sender::Floor => run_floor(transport, harness, clients, seconds),
                         };
                         let lossy = r.missed.iter().filter(|&&m| m > 0).count();
                         let missed: u64 = r.missed.iter().sum();
                         let ms = |d: Duration| d.as_secs_f64() * 1e3;
                         println!(
-                            "| {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {} |",
+                            "| {} | {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {} |",
+                            sender.name(),
                             r.published,
                             ms(percentile(&r.decompose, 0.5)),
                             ms(percentile(&r.fan_out, 0.5)),
@@ -678,8 +808,15 @@ fn main() {
                             ms(percentile(&r.latencies, 0.5)),
                             ms(percentile(&r.latencies, 0.99)),
                             ms(percentile(&r.latencies, 1.0)),
+                            ms(percentile(&r.first_copy, 0.5)),
+                            ms(percentile(&r.spread, 0.5)),
+                            ms(percentile(&r.spread, 0.99)),
+                            ms(r.decompose_cpu),
                             ms(r.serve_cpu),
                             ms(r.client_cpu),
+                            ms(r.decompose_wait),
+                            ms(r.serve_wait),
+                            r.serve_preempted,
                             load_average(),
                         );
                     }

@@ -11,7 +11,7 @@ use crate::capture::sky::SkyOptions;
 use crate::decompose::filter::FirFilter;
 use crate::decompose::{DecomposeSettings, LightPlacement, Warp, MAX_POINTS, WORKING_WIDTH_RANGE};
 use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
-use crate::stream::ServerConfig;
+use crate::stream::{FanoutOn, ServerConfig};
 use serde::Deserialize;
 use std::net::SocketAddr;
 
@@ -134,6 +134,7 @@ pub struct RawStream {
     pub handshake_timeout_s: Option<f64>,
     pub write_timeout_s: Option<f64>,
     pub send_buffer_bytes: Option<usize>,
+    pub fanout_on: Option<String>,
 }
 
 /// `[metrics]`: the HTTP endpoint for Prometheus metrics and the health check.
@@ -768,8 +769,21 @@ impl RawStream {
                 ))
             }
         };
+        let fanout_on =
+            match self.fanout_on.as_deref() {
+                None => d.fanout_on,
+                Some("publisher") => FanoutOn::Publisher,
+                Some("thread") => FanoutOn::Thread,
+                Some(other) => return Err(invalid(
+                    "stream.fanout_on",
+                    other,
+                    "must be \"publisher\" (the decompose thread writes each light list to the \
+                     Unix-socket and TCP clients) or \"thread\" (an envlight-fanout thread does)",
+                )),
+            };
         Ok(ServerConfig {
             send_buffer_bytes,
+            fanout_on,
             unix_socket,
             unix_socket_mode,
             tcp: listen_address("stream.tcp", self.tcp.as_deref(), d.tcp)?,

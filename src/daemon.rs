@@ -45,7 +45,7 @@ use crate::pipeline::{
 };
 use crate::record::{Pacing, RecordError, RecordSummary, Recorder, ReplaySource};
 use crate::stream::server::{ServerError, Streams, SHUTDOWN_MESSAGE};
-use crate::stream::{BoundAddresses, StreamServer};
+use crate::stream::{BoundAddresses, FanoutOn, PublisherPass, StreamServer};
 use crate::wavelet_stage::{
     WaveletHook, WaveletStage, WaveletStageError, WaveletStaleHandle, WaveletStats,
     WaveletStatsHandle,
@@ -208,9 +208,16 @@ impl Daemon {
 
         let metrics = Arc::new(Metrics::new());
         let hook_metrics = Arc::clone(&metrics);
-        let on_publish = PublishHook(Arc::new(move |published| {
+        let observe = PublishHook(Arc::new(move |published| {
             hook_metrics.observe_decompose(published.compute_time);
         }));
+        // The light lists' fan-out pass runs on the decompose thread, first (docs/daemon.md).
+        let publisher_pass =
+            (config.stream.fanout_on == FanoutOn::Publisher).then(PublisherPass::new);
+        let on_publish = match &publisher_pass {
+            Some(pass) => pass.hook().then(observe),
+            None => observe,
+        };
         let (tap, recorder) = match record {
             Some(dir) => {
                 let (tx, rx) = crossbeam_channel::bounded(4);
@@ -291,9 +298,12 @@ impl Daemon {
 
         // Endpoints: if one cannot be bound, stop what was started and report it.
         let started = runtime.block_on(async {
-            let streams = Streams::new(pipeline.subscribe())
+            let mut streams = Streams::new(pipeline.subscribe())
                 .with_optional(asg_rx.clone())
                 .with_optional(wavelet_rx);
+            if let Some(pass) = publisher_pass {
+                streams = streams.with_publisher_pass(pass);
+            }
             let server =
                 StreamServer::start_streams(&config.stream, streams, Arc::clone(&metrics)).await?;
             let http = match config.metrics.listen {

@@ -93,7 +93,9 @@ pub struct PipelineOptions {
     /// room on this channel (a recording loses nothing; a slow recorder shows up as dropped
     /// capture frames instead). If the receiver is gone, tapping stops with a warning.
     pub tap: Option<Sender<Tapped>>,
-    /// Called on the decompose thread after each decomposed frame is published (metrics).
+    /// Called on the decompose thread after each decomposed frame is published, before the
+    /// frame goes to the stages (metrics; the stream server's fan-out pass when it runs on
+    /// the publishing thread, [`crate::stream::server::PublisherPass`]).
     pub on_publish: Option<PublishHook>,
     /// Every decomposed frame is offered to each of these stages (ASG, wavelet) after its
     /// lights are published, in this order; the feeds are closed when the decompose thread
@@ -104,6 +106,16 @@ pub struct PipelineOptions {
 /// A callback run on the decompose thread for every decomposed frame.
 #[derive(Clone)]
 pub struct PublishHook(pub Arc<dyn Fn(&Published) + Send + Sync>);
+
+impl PublishHook {
+    /// A hook that runs this one, then `next`.
+    pub fn then(self, next: PublishHook) -> PublishHook {
+        PublishHook(Arc::new(move |published| {
+            (self.0)(published);
+            (next.0)(published);
+        }))
+    }
+}
 
 impl std::fmt::Debug for PublishHook {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -280,8 +292,12 @@ impl Pipeline {
                     s.frames_decomposed.fetch_add(1, Ordering::AcqRel);
                     publish(&decompose_tx, Arc::clone(&lights), Some(arrived), elapsed);
                     if let Some(PublishHook(hook)) = &on_publish {
-                        if let Some(published) = decompose_tx.borrow().as_ref() {
-                            hook(published);
+                        // Out of the channel's lock first: a hook may take a while (the stream
+                        // server's fan-out pass, when it runs here) and must not hold up
+                        // readers or a stale re-publication.
+                        let published = decompose_tx.borrow().clone();
+                        if let Some(published) = published {
+                            hook(&published);
                         }
                     }
                     // The lights are out: the stages may have the frame now (copies only where
@@ -571,6 +587,35 @@ mod tests {
                 finished_at: Arc::default(),
             }
         }
+    }
+
+    #[test]
+    fn chained_publish_hooks_run_in_order_on_every_publication() {
+        let calls: Arc<Mutex<Vec<(&'static str, u64)>>> = Arc::default();
+        let hook = |name: &'static str| {
+            let calls = Arc::clone(&calls);
+            PublishHook(Arc::new(move |p: &Published| {
+                calls.lock().unwrap().push((name, p.index));
+            }))
+        };
+        let options = PipelineOptions {
+            on_publish: Some(hook("pass").then(hook("metrics"))),
+            queue_policy: QueuePolicy::Block,
+            ..PipelineOptions::new()
+        };
+        let source = FakeSource::new(Some(3), Duration::ZERO);
+        let pipeline = Pipeline::start_with(Box::new(source), options, |frame| LightFrame {
+            seq: frame.seq,
+            time: 0.0,
+            lights: Vec::new(),
+        })
+        .unwrap();
+        pipeline.join().unwrap();
+        let calls = calls.lock().unwrap().clone();
+        let expected: Vec<_> = (1..=3)
+            .flat_map(|i| [("pass", i), ("metrics", i)])
+            .collect();
+        assert_eq!(calls, expected);
     }
 
     fn tiny_frame(seq: u64) -> HdrFrame {

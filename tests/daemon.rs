@@ -90,6 +90,17 @@ fn capped(expected: &LightFrame, cap: Option<usize>) -> Vec<envlight::Light> {
 
 #[test]
 fn every_endpoint_streams_what_decompose_computes() {
+    // The decompose thread writes to the Unix-socket and TCP clients (the default) …
+    streams_what_decompose_computes("publisher");
+}
+
+#[test]
+fn every_endpoint_streams_what_decompose_computes_with_a_fanout_thread() {
+    // … or an envlight-fanout thread does (`stream.fanout_on = "thread"`).
+    streams_what_decompose_computes("thread");
+}
+
+fn streams_what_decompose_computes(fanout_on: &str) {
     let dir = tempfile::tempdir().unwrap();
     const N: u64 = 24;
     write_sky_sequence(&dir.path().join("frames"), N);
@@ -98,7 +109,12 @@ fn every_endpoint_streams_what_decompose_computes() {
         "[source]\nkind = \"sequence\"\npaths = [\"{pattern}\"]\nfps = 15.0\n\
          [decompose]\nlights = 48\nworking_width = 64\n"
     );
-    let config = config(dir.path(), &extra);
+    let stream = format!("fanout_on = \"{fanout_on}\"\n");
+    let config = common::config_with_stream(dir.path(), 0.5, &stream, &extra);
+    assert_eq!(
+        format!("{:?}", config.stream.fanout_on).to_lowercase(),
+        fanout_on
+    );
 
     // What `envlight decompose --fps 15` prints for the same frames.
     let mut decomposer = Decomposer::new(config.decompose.clone()).unwrap();
@@ -173,8 +189,15 @@ fn every_endpoint_streams_what_decompose_computes() {
         );
         let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
         assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
-        // The clients connected before the first frame was due and keep up at 15 fps.
-        assert!(seqs.len() as u64 >= N / 2, "{what}: only {seqs:?}");
+        // The clients connected before the first frame was due and keep up at 15 fps. (A
+        // fan-out thread starved on a loaded machine passes only the newest of the lists
+        // published meanwhile, docs/daemon.md: there, a Unix-socket or TCP client may get
+        // fewer, as in one run of the whole file at load average 15.)
+        let coalesces = fanout_on == "thread" && !matches!(endpoint, Endpoint::WebSocket(_));
+        assert!(
+            coalesces || seqs.len() as u64 >= N / 2,
+            "{what}: only {seqs:?}"
+        );
         assert_eq!(seqs.last(), Some(&(N - 1)), "{what}");
         let cap = (*cap != 0).then_some(*cap as usize);
         for frame in &received.frames {
@@ -192,8 +215,13 @@ fn every_endpoint_streams_what_decompose_computes() {
 
 /// Connects a TCP client whose receive buffer is tiny, so that not reading fills the pipe fast.
 fn connect_small_buffer(addr: std::net::SocketAddr) -> TcpStream {
+    connect_with_buffer(addr, 4096)
+}
+
+/// Connects a TCP client with a receive buffer of `bytes`.
+fn connect_with_buffer(addr: std::net::SocketAddr, bytes: usize) -> TcpStream {
     let socket = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
-    socket.set_recv_buffer_size(4096).unwrap();
+    socket.set_recv_buffer_size(bytes).unwrap();
     socket.connect(&addr.into()).unwrap();
     let stream: TcpStream = socket.into();
     stream.set_read_timeout(Some(TIMEOUT)).unwrap();
@@ -222,9 +250,6 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
     let config = config(dir.path(), extra);
     let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-
-    // The slow client subscribes, reads one frame, then stops reading for 2 s.
-    let mut slow = connect_small_buffer(tcp);
     let mut subscribe = Vec::new();
     encode_request(
         &Request {
@@ -233,29 +258,36 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         },
         &mut subscribe,
     );
+
+    // The slow client subscribes, reads one frame, then stops reading for 2 s.
+    let start = daemon.pipeline().stats();
+    let mut slow = connect_small_buffer(tcp);
     slow.write_all(&subscribe).unwrap();
     let mut slow_decoder = Decoder::new();
     let first = read_frame(&mut slow, &mut slow_decoder);
 
-    // Three clients that keep up, for the same 2 s.
+    // Three clients that keep up, for the same 2 s and one more. Each has a receive buffer of
+    // 4 MiB (some 500 frames): a reader thread that a loaded machine leaves without a CPU for
+    // a while (at load average 8–14 the old test's 60 kB buffers filled) still keeps up.
+    let before = daemon.pipeline().stats();
     let fast: Vec<_> = (0..3)
         .map(|_| {
-            let request = Request {
-                format: Format::Binary,
-                ..Request::default()
-            };
-            let mut client =
-                Client::connect(&Endpoint::Tcp(tcp.to_string()), &request, Some(TIMEOUT)).unwrap();
+            let mut stream = connect_with_buffer(tcp, 4 << 20);
+            stream.write_all(&subscribe).unwrap();
+            let port = stream.local_addr().unwrap().port();
             spawn("fast client", move || {
+                let mut decoder = Decoder::new();
                 let started = Instant::now();
                 let mut seqs = Vec::new();
+                let mut longest_wait = Duration::ZERO;
+                let mut last = Instant::now();
                 while started.elapsed() < Duration::from_secs(3) {
-                    match client.next_message().unwrap() {
-                        Some(Message::Frame(frame)) => seqs.push(frame.seq),
-                        other => panic!("unexpected {other:?}"),
-                    }
+                    seqs.push(read_frame(&mut stream, &mut decoder).seq);
+                    longest_wait = longest_wait.max(last.elapsed());
+                    last = Instant::now();
                 }
-                seqs
+                // Still connected (the server's per-client counters go with the connection).
+                (port, stream, seqs, longest_wait)
             })
         })
         .collect();
@@ -281,9 +313,9 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
     let jump = resumed
         .windows(2)
         .map(|w| w[1] - w[0])
+        .chain([resumed[0] - first.seq])
         .max()
-        .unwrap_or(0)
-        .max(resumed[0] - first.seq);
+        .unwrap_or(0);
     // 2 s at 60 fps is ~120 frames; the buffers (64 KiB send + 4 KiB receive) hold < 20 of 8 KiB.
     assert!(
         jump >= 60,
@@ -299,27 +331,55 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
         "{backlog} old frames were buffered: {resumed:?}"
     );
 
-    for client in fast {
-        let seqs = client.join().unwrap();
+    let fast: Vec<_> = fast.into_iter().map(|c| c.join().unwrap()).collect();
+    let stats = daemon.pipeline().stats();
+    let decomposed = stats.frames_decomposed - before.frames_decomposed;
+    // Every captured frame the pipeline dropped since the clients connected: a frame missing
+    // from a client's stream is either one of these (never published) or one the server
+    // skipped for that client (and counted).
+    let dropped = stats.frames_dropped - start.frames_dropped;
+    let metrics = daemon.metrics().encode();
+    // The server's count of frames it skipped for the client on local port `port`.
+    let skipped_for = |port: u16| -> u64 {
+        let prefix = format!("envlight_client_skipped_frames{{client=\"tcp 127.0.0.1:{port} #");
+        let line = metrics.lines().find(|l| l.starts_with(&prefix));
+        let value = line.and_then(|l| l.rsplit(' ').next()?.parse().ok());
+        value.unwrap_or_else(|| panic!("no {prefix} in\n{metrics}"))
+    };
+    // The slow client's jump is made of skipped publications (counted) and dropped frames.
+    let slow_skipped = skipped_for(slow.local_addr().unwrap().port());
+    assert!(
+        slow_skipped + dropped >= jump - 1,
+        "the server counted {slow_skipped} skipped frames for a jump of {jump} (pipeline \
+         dropped {dropped})"
+    );
+    for (port, _stream, seqs, longest_wait) in &fast {
+        // The server skipped none of a fast client's frames …
+        assert_eq!(skipped_for(*port), 0, "{metrics}");
+        // … so its stream has a gap only where the pipeline dropped a captured frame before
+        // decomposing it (a loaded machine can starve the capture or the decomposition for a
+        // few frames; not the slow client's doing, and none on a quiet machine).
+        let missing: u64 = seqs.windows(2).map(|w| w[1] - w[0] - 1).sum();
         assert!(
-            seqs.len() >= 120,
-            "a fast client got only {} frames",
+            missing <= dropped,
+            "a fast client skipped {missing} frames, the pipeline dropped {dropped}: {seqs:?}"
+        );
+        // It read at the pipeline's rate (for 3 of the ~3.1 s counted), …
+        assert!(
+            seqs.len() as u64 + 8 >= decomposed * 3 / 4,
+            "a fast client got only {} of {decomposed} frames",
             seqs.len()
         );
-        let gaps: Vec<_> = seqs.windows(2).filter(|w| w[1] != w[0] + 1).collect();
-        assert!(gaps.is_empty(), "a fast client skipped frames: {gaps:?}");
+        // … and nothing stopped while the slow client did not read: a pass, or a pipeline,
+        // held back by it would have left the others without frames for its 2 s. (How many
+        // captured frames the pipeline dropped says nothing about that: none on a quiet
+        // machine, but 35–41% at load average 13–14, when the decomposition is starved.)
+        assert!(
+            *longest_wait < Duration::from_millis(1000),
+            "a fast client waited {longest_wait:?} for a frame: held back ({stats:?})"
+        );
     }
-    let metrics = daemon.metrics().encode();
-    let skipped = metric_value(
-        &metrics,
-        "envlight_client_frames_skipped_total{endpoint=\"tcp\"}",
-    );
-    assert!(skipped >= 60.0, "{metrics}");
-    let stats = daemon.pipeline().stats();
-    assert_eq!(
-        stats.frames_dropped, 0,
-        "the pipeline was held back: {stats:?}"
-    );
+    drop(fast);
     drop(slow);
     daemon.shutdown().unwrap();
 }
@@ -736,6 +796,10 @@ fn check_config_names_the_bad_key_and_value() {
             "stream.tcp = \"localhost\"",
         ),
         ("[stream]\nmax_clients = 0\n", "stream.max_clients = 0"),
+        (
+            "[stream]\nfanout_on = \"gpu\"\n",
+            "stream.fanout_on = \"gpu\"",
+        ),
         ("[metrics]\nlisten = \"1.2.3.4\"\n", "metrics.listen"),
         ("[stream]\ncolour = 1\n", "colour"),
         (

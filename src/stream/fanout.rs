@@ -3,9 +3,13 @@
 //! With one tokio task per client, every publication woke 64 tasks for 64 clients, and each
 //! looked up the encoding, armed a write timer and wrote: on 2 cores shared with the
 //! decomposition and the clients, those hops made up much of the end-to-end latency (docs/
-//! performance.md, "Streaming"). Here one named thread per served channel (`envlight-fanout`)
-//! is woken once per publication and, in one pass, writes the frame (encoded once per cap and
-//! form) to every client whose socket has room, with non-blocking writes.
+//! performance.md, "Streaming"). Here one pass writes the frame (encoded once per cap and form)
+//! to every client whose socket has room, with non-blocking writes. For the light lists the
+//! pass runs by default on the thread that publishes them, right after publishing
+//! ([`super::server::PublisherPass`], `stream.fanout_on = "publisher"`); one named thread per
+//! served channel (`envlight-fanout`), woken once per publication, runs it for everything
+//! else (stale re-sends, the ASG and wavelet channels) and, with `fanout_on = "thread"`, for
+//! the light lists too.
 //!
 //! Each client has a [`Slot`] shared by the fan-out thread and the client's connection task,
 //! which says who writes to the socket now ([`Writer`]):
@@ -409,6 +413,9 @@ impl Slot {
 #[derive(Default)]
 pub(super) struct Fanout {
     registry: Mutex<Registry>,
+    /// The publishing thread runs the pass of each live publication itself
+    /// ([`super::server::PublisherPass`]); the fan-out thread passes only the others.
+    publisher_passes: std::sync::atomic::AtomicBool,
 }
 
 #[derive(Default)]
@@ -451,6 +458,18 @@ impl Fanout {
             fanout: Arc::clone(self),
             slot: Arc::clone(slot),
         })
+    }
+
+    /// Whether the publishing thread runs the pass of live publications.
+    pub fn publisher_passes(&self) -> bool {
+        self.publisher_passes
+            .load(std::sync::atomic::Ordering::Acquire)
+    }
+
+    /// The publishing thread runs (`true`) or stops running the pass of live publications.
+    pub fn set_publisher_passes(&self, on: bool) {
+        self.publisher_passes
+            .store(on, std::sync::atomic::Ordering::Release);
     }
 
     /// Whether the channel has ended.

@@ -19,4 +19,6 @@ pub use protocol::{
     AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation,
     Request, WaveletFrame, WaveletFrameMessage,
 };
-pub use server::{BoundAddresses, ServerConfig, StreamServer, Streamed, Streams};
+pub use server::{
+    BoundAddresses, FanoutOn, PublisherPass, ServerConfig, StreamServer, Streamed, Streams,
+};

@@ -18,9 +18,12 @@
 //!    payload type says how it is encoded ([`Streamed`]), so the connection code is the same for
 //!    every representation. Each publication is encoded once per cap and form (binary or JSON),
 //!    shared by the clients that ask for the same.
-//!    - **Unix socket and TCP:** one `envlight-fanout` thread per channel, woken once per
-//!      publication, writes it to every client that keeps up in one pass of non-blocking writes
-//!      (`src/stream/fanout.rs`); no task is woken per client. A client whose socket is full
+//!    - **Unix socket and TCP:** one pass of non-blocking writes sends each publication to
+//!      every client that keeps up (`src/stream/fanout.rs`); no task is woken per client. The
+//!      light lists' pass runs on the decompose thread right after publishing when the server
+//!      is given a [`PublisherPass`] (the daemon's default, `stream.fanout_on`); otherwise,
+//!      and for the other channels and stale re-sends, one `envlight-fanout` thread per
+//!      channel, woken once per publication, runs it. A client whose socket is full
 //!      goes to its connection task, which finishes the frame, then sends the newest
 //!      publication (the ones in between are counted as skipped) and hands the client back. The
 //!      task otherwise only reads (input is an error, below) and waits for the shutdown.
@@ -88,6 +91,22 @@ pub struct ServerConfig {
     /// buffer keeps a slow client from being fed seconds of old frames from the kernel's queue:
     /// once it is full, the client skips to the newest frame instead.
     pub send_buffer_bytes: Option<usize>,
+    /// Which thread writes each light list to the Unix-socket and TCP clients that keep up.
+    /// The daemon wires [`FanoutOn::Publisher`] with a [`PublisherPass`]; the server itself
+    /// follows what its [`Streams`] were given.
+    pub fanout_on: FanoutOn,
+}
+
+/// Which thread runs the light lists' fan-out pass (`stream.fanout_on`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FanoutOn {
+    /// The decompose thread, right after publishing ([`PublisherPass`]): no wake-up between a
+    /// light list and its clients, and every light list is passed (a starved fan-out thread
+    /// would pass only the newest of those published meanwhile).
+    #[default]
+    Publisher,
+    /// The `envlight-fanout` thread, woken by each publication.
+    Thread,
 }
 
 /// Default Unix socket path.
@@ -111,6 +130,7 @@ impl Default for ServerConfig {
             handshake_timeout: Duration::from_secs(5),
             write_timeout: Duration::from_secs(10),
             send_buffer_bytes: Some(DEFAULT_SEND_BUFFER_BYTES),
+            fanout_on: FanoutOn::default(),
         }
     }
 }
@@ -165,6 +185,10 @@ fn spawn_fanout(
                     }
                     Some(true) => {
                         if let Some(published) = feed.rx.newest() {
+                            if published.live() && fanout.publisher_passes() {
+                                // The publishing thread runs (or has run) this one's pass.
+                                continue;
+                            }
                             fanout.pass(&*published, &|cap, encoding| {
                                 ctx.encoded(&feed, &*published, cap, encoding)
                             });
@@ -248,6 +272,11 @@ pub(super) trait Frame: Send + Sync {
     fn delivery_start(&self) -> Option<Instant>;
     /// The frame encoded with at most `cap` records.
     fn encode(&self, cap: Option<usize>, encoding: Encoding) -> Vec<u8>;
+    /// Newly computed by its stage (not a stale re-publication): the publisher runs the pass
+    /// of such a publication itself when a [`PublisherPass`] is wired.
+    fn live(&self) -> bool {
+        false
+    }
 }
 
 impl<T: Streamed> Frame for Publication<T> {
@@ -257,6 +286,10 @@ impl<T: Streamed> Frame for Publication<T> {
 
     fn delivery_start(&self) -> Option<Instant> {
         self.arrived.filter(|_| T::OBSERVE_DELIVERY)
+    }
+
+    fn live(&self) -> bool {
+        !self.stale && self.arrived.is_some()
     }
 
     fn encode(&self, cap: Option<usize>, encoding: Encoding) -> Vec<u8> {
@@ -318,6 +351,50 @@ struct Source {
 /// produces, each on its own latest-value channel.
 pub struct Streams {
     sources: Vec<Source>,
+    publisher_pass: Option<PublisherPass>,
+}
+
+/// The light lists' fan-out pass, run on the thread that publishes them (the decomposition)
+/// instead of on an `envlight-fanout` thread woken for it: one wake-up fewer between a light
+/// list and its clients. Wire it both ways: to the pipeline as (part of) its
+/// [`PipelineOptions::on_publish`](crate::pipeline::PipelineOptions::on_publish) hook
+/// ([`PublisherPass::hook`]) and to the server with [`Streams::with_publisher_pass`]; the
+/// server installs the pass when it starts and removes it at shutdown. The fan-out thread then
+/// only passes what the publisher does not: stale re-publications (a lost source).
+#[derive(Clone, Default)]
+pub struct PublisherPass {
+    pass: Arc<std::sync::Mutex<Option<PassFn>>>,
+}
+
+/// A fan-out pass for one publication of the light lists.
+type PassFn = Arc<dyn Fn(&crate::pipeline::Published) + Send + Sync>;
+
+impl PublisherPass {
+    /// Not installed yet: the hook does nothing until a server starts with it.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Option<PassFn>> {
+        self.pass
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Runs the pass of `published` (nothing before the server has started or after it has
+    /// shut down).
+    pub fn run(&self, published: &crate::pipeline::Published) {
+        let pass = self.lock().clone();
+        if let Some(pass) = pass {
+            pass(published);
+        }
+    }
+
+    /// The pipeline hook that runs [`PublisherPass::run`].
+    pub fn hook(&self) -> crate::pipeline::PublishHook {
+        let this = self.clone();
+        crate::pipeline::PublishHook(Arc::new(move |published| this.run(published)))
+    }
 }
 
 impl Streams {
@@ -325,8 +402,16 @@ impl Streams {
     pub fn new(lights: watch::Receiver<LatestLights>) -> Self {
         Self {
             sources: Vec::new(),
+            publisher_pass: None,
         }
         .with(lights)
+    }
+
+    /// The pipeline runs the light lists' fan-out pass on its publishing thread through
+    /// `pass` (which must also be wired into its `on_publish` hook, see [`PublisherPass`]).
+    pub fn with_publisher_pass(mut self, pass: PublisherPass) -> Self {
+        self.publisher_pass = Some(pass);
+        self
     }
 
     /// Also serves `rx` to the clients that subscribe to `T`'s representation (replacing an
@@ -400,7 +485,18 @@ impl Context {
         cap: Option<usize>,
         encoding: Encoding,
     ) -> Arc<Vec<u8>> {
-        let cache = &self.sources[feed.source].cache;
+        self.encoded_at(feed.source, published, cap, encoding)
+    }
+
+    /// As [`Context::encoded`], for the channel at `source` in [`Context::sources`].
+    fn encoded_at(
+        &self,
+        source: usize,
+        published: &dyn Frame,
+        cap: Option<usize>,
+        encoding: Encoding,
+    ) -> Arc<Vec<u8>> {
+        let cache = &self.sources[source].cache;
         let lock = || {
             cache
                 .lock()
@@ -442,6 +538,8 @@ pub struct StreamServer {
     accept_tasks: Vec<tokio::task::JoinHandle<()>>,
     /// The fan-out threads; they end at the shutdown broadcast.
     fanout_threads: Vec<std::thread::JoinHandle<()>>,
+    /// The light lists' pass on the publishing thread, if wired; removed at shutdown.
+    publisher_pass: Option<PublisherPass>,
 }
 
 impl StreamServer {
@@ -461,6 +559,7 @@ impl StreamServer {
         streams: Streams,
         metrics: Arc<Metrics>,
     ) -> Result<StreamServer, ServerError> {
+        let publisher_pass = streams.publisher_pass;
         let ctx = Arc::new(Context {
             config: config.clone(),
             metrics,
@@ -504,6 +603,25 @@ impl StreamServer {
             }
         }
 
+        if let Some(pass) = &publisher_pass {
+            if let Some(source) = ctx
+                .sources
+                .iter()
+                .position(|s| s.representation == Representation::Lights)
+            {
+                let pass_ctx = Arc::clone(&ctx);
+                *pass.lock() = Some(Arc::new(move |published: &crate::pipeline::Published| {
+                    let frame: &dyn Frame = published;
+                    pass_ctx.sources[source]
+                        .fanout
+                        .pass(frame, &|cap, encoding| {
+                            pass_ctx.encoded_at(source, frame, cap, encoding)
+                        });
+                }));
+                ctx.sources[source].fanout.set_publisher_passes(true);
+            }
+        }
+
         if let Some((listener, path)) = unix {
             tracing::info!(path = %path.display(), "serving light lists on a unix socket");
             bound.unix_socket = Some(path.clone());
@@ -531,6 +649,7 @@ impl StreamServer {
             done_rx,
             accept_tasks,
             fanout_threads,
+            publisher_pass,
         })
     }
 
@@ -550,7 +669,11 @@ impl StreamServer {
             mut done_rx,
             accept_tasks,
             fanout_threads,
+            publisher_pass,
         } = self;
+        if let Some(pass) = publisher_pass {
+            *pass.lock() = None;
+        }
         shutdown_tx.send_replace(Some(message.to_owned()));
         drop(done_tx);
         let all_closed = tokio::time::timeout(grace, done_rx.recv()).await.is_ok();

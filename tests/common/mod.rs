@@ -29,9 +29,19 @@ pub fn spawn<T: Send + 'static>(
 /// A config from TOML text `extra` with every endpoint on loopback port 0 or in `dir`, the
 /// given handshake timeout, and metrics on.
 pub fn config(dir: &Path, handshake_timeout_s: f64, extra: &str) -> Config {
+    config_with_stream(dir, handshake_timeout_s, "", extra)
+}
+
+/// As [`config`], with more `[stream]` keys (TOML lines) in `stream`.
+pub fn config_with_stream(
+    dir: &Path,
+    handshake_timeout_s: f64,
+    stream: &str,
+    extra: &str,
+) -> Config {
     let text = format!(
         "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
-         handshake_timeout_s = {handshake_timeout_s:?}\n[metrics]\nlisten = \"127.0.0.1:0\"\n\
+         handshake_timeout_s = {handshake_timeout_s:?}\n{stream}[metrics]\nlisten = \"127.0.0.1:0\"\n\
          {extra}",
         dir.join("envlight.sock").display()
     );
