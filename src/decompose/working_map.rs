@@ -333,7 +333,7 @@ impl Resampler {
         // are summed again with those pixels counted as 0, so neither the lights nor the good
         // pixels beside them are lost. Sums of non-negative finite values stay finite, so a
         // finite total means there is nothing to redo.
-        let mut total = luminance_sum(&map.luminance);
+        let mut total = self.arch.dispatch(LuminanceSum(&map.luminance));
         if !total.is_finite() {
             for idx in 0..map.energy.len() {
                 if map.luminance[idx].is_finite()
@@ -358,9 +358,11 @@ impl Resampler {
 
         let threshold = concentrated_share * total;
         map.fine.clear();
-        for (flag, &lum) in map.concentrated.iter_mut().zip(&map.luminance) {
-            *flag = f64::from(lum) > threshold;
-        }
+        self.arch.dispatch(Flags {
+            luminance: &map.luminance,
+            concentrated: &mut map.concentrated,
+            threshold,
+        });
         for idx in 0..map.concentrated.len() {
             if !map.concentrated[idx] {
                 continue;
@@ -440,8 +442,9 @@ fn box_filter(args: BoxFilter<'_>) {
         let mut bits = 0u32;
         let omegas = &row_solid_angle[wy * f..(wy + 1) * f];
         let sums = &mut column_sums[..row_len];
-        // Two input rows per pass over the column sums (half the loads and stores of the sums);
-        // an odd factor starts with one row.
+        // Four, else two input rows per pass over the column sums (fewer loads and stores of
+        // the sums); an odd factor starts with one row. The adds are grouped as in pairs of
+        // rows, ((r0 + r1) + (r2 + r3)), so the sums do not depend on the grouping.
         let mut k = 0;
         if f % 2 == 1 {
             let (row, w) = (rows[..sw].as_flattened(), omegas[0] as f32);
@@ -450,6 +453,28 @@ fn box_filter(args: BoxFilter<'_>) {
                 bits |= p.to_bits();
             }
             k = 1;
+        }
+        if f % 4 == 0 {
+            while k + 3 < f {
+                let row = |j: usize| rows[(k + j) * sw..(k + j + 1) * sw].as_flattened();
+                let (row0, row1, row2, row3) = (row(0), row(1), row(2), row(3));
+                let w = |j: usize| omegas[k + j] as f32;
+                let (w0, w1, w2, w3) = (w(0), w(1), w(2), w(3));
+                let quads = sums.iter_mut().zip(row0).zip(row1).zip(row2).zip(row3);
+                if k == 0 {
+                    for ((((a, p), q), r), s) in quads {
+                        *a = p * w0 + q * w1 + (r * w2 + s * w3);
+                        bits |= (p.to_bits() | q.to_bits()) | (r.to_bits() | s.to_bits());
+                    }
+                } else {
+                    for ((((a, p), q), r), s) in quads {
+                        *a += p * w0 + q * w1;
+                        *a += r * w2 + s * w3;
+                        bits |= (p.to_bits() | q.to_bits()) | (r.to_bits() | s.to_bits());
+                    }
+                }
+                k += 4;
+            }
         }
         while k + 1 < f {
             let row0 = rows[k * sw..(k + 1) * sw].as_flattened();
@@ -528,7 +553,39 @@ fn luminance_f32(rgb: [f32; 3]) -> f32 {
     crate::frame::luminance(rgb)
 }
 
+/// [`luminance_sum`] compiled for the CPU's vector unit.
+struct LuminanceSum<'a>(&'a [f32]);
+
+impl pulp::WithSimd for LuminanceSum<'_> {
+    type Output = f64;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> f64 {
+        luminance_sum(self.0)
+    }
+}
+
+/// Flags the working pixels whose luminance exceeds `threshold` (compiled for the CPU's vector
+/// unit).
+struct Flags<'a> {
+    luminance: &'a [f32],
+    concentrated: &'a mut [bool],
+    threshold: f64,
+}
+
+impl pulp::WithSimd for Flags<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        for (flag, &lum) in self.concentrated.iter_mut().zip(self.luminance) {
+            *flag = f64::from(lum) > self.threshold;
+        }
+    }
+}
+
 /// Σ of the working pixels' luminance in f64 (four partial sums, so the adds overlap).
+#[inline(always)]
 fn luminance_sum(luminance: &[f32]) -> f64 {
     let mut partial = [0.0f64; 4];
     let quads = luminance.chunks_exact(4);
