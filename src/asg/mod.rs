@@ -82,6 +82,7 @@
 pub mod eval;
 pub mod fast;
 pub mod fit;
+pub mod target;
 
 use glam::DVec3;
 use std::f64::consts::PI;
