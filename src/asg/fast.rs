@@ -216,13 +216,16 @@ impl Pixels {
         };
         for c in 0..3 {
             self.rad[c].clear();
-            self.rad[c].extend(self.source.iter().map(|src| {
-                src.map(|i| {
-                    radiance
-                        .get(i as usize)
-                        .map_or(0.0, |p| (p[c] * inv_m) as f32)
-                })
-            }));
+            self.rad[c].resize(self.source.len(), [0.0; LANES]);
+        }
+        let [r0, r1, r2] = &mut self.rad;
+        for (((src, b0), b1), b2) in self.source.iter().zip(r0).zip(r1).zip(r2) {
+            for l in 0..LANES {
+                let p = radiance.get(src[l] as usize).copied().unwrap_or([0.0; 3]);
+                b0[l] = (p[0] * inv_m) as f32;
+                b1[l] = (p[1] * inv_m) as f32;
+                b2[l] = (p[2] * inv_m) as f32;
+            }
         }
     }
 }

@@ -1390,6 +1390,19 @@ impl AsgFitter {
         }
     }
 
+    /// The target prepared last ([`AsgFitter::prepare`], [`AsgFitter::fit_frame`]).
+    pub fn target(&self) -> Option<&FitTarget> {
+        self.target.as_ref()
+    }
+
+    /// Fits the target prepared last ([`AsgFitter::prepare`]); `None` if there is none.
+    pub fn fit_prepared(&mut self) -> Option<FitResult> {
+        let target = self.target.take()?;
+        let result = self.fit_target(&target);
+        self.target = Some(target);
+        Some(result)
+    }
+
     /// Fits one frame (any projection; resampled to the fit-map size): [`AsgFitter::prepare`]
     /// and [`AsgFitter::fit_target`].
     pub fn fit_frame(&mut self, frame: &HdrFrame) -> Result<FitResult, AsgError> {

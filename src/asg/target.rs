@@ -181,31 +181,38 @@ pub fn resample_latlong_into(
     let exact = frame.projection == Projection::LatLong && sw % w == 0 && sh % h == 0;
     if exact {
         let (fx, fy) = (sw / w, sh / h);
+        let (fx, fy, sw) = (fx as usize, fy as usize, sw as usize);
         let sines: Vec<f64> = (0..sh)
             .map(|sy| (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin())
             .collect();
-        for y in 0..h {
-            let rows = (y * fy) as usize..((y + 1) * fy) as usize;
-            // The weight sum is the same for every pixel of the row (same order of additions
-            // as per pixel).
+        // Per output row, the fy source rows are added one after the other into a row of
+        // sums: each pixel's sum takes its sub-samples in the same order as a per-pixel loop
+        // (rows, then columns), and the weight sum is the same for the whole row.
+        let mut sums = vec![[0.0f64; 3]; w as usize];
+        for y in 0..h as usize {
+            sums.fill([0.0; 3]);
             let mut wsum = 0.0;
-            for &sin_t in &sines[rows.clone()] {
-                wsum += sin_t * f64::from(fx);
-            }
-            for x in 0..w as usize {
-                let mut acc = [0.0; 3];
-                let cols = x * fx as usize..(x + 1) * fx as usize;
-                for sy in rows.clone() {
-                    let sin_t = sines[sy];
-                    let row = &frame.pixels[sy * sw as usize..(sy + 1) * sw as usize];
-                    for p in &row[cols.clone()] {
+            for sy in y * fy..(y + 1) * fy {
+                let sin_t = sines[sy];
+                wsum += sin_t * fx as f64;
+                let row = &frame.pixels[sy * sw..(sy + 1) * sw];
+                if fx == 1 {
+                    for (acc, p) in sums.iter_mut().zip(row) {
+                        for c in 0..3 {
+                            acc[c] += clean(p[c]) * sin_t;
+                        }
+                    }
+                    continue;
+                }
+                for (acc, px) in sums.iter_mut().zip(row.chunks_exact(fx)) {
+                    for p in px {
                         for c in 0..3 {
                             acc[c] += clean(p[c]) * sin_t;
                         }
                     }
                 }
-                out.push(acc.map(|a| a / wsum));
             }
+            out.extend(sums.iter().map(|acc| acc.map(|a| a / wsum)));
         }
         return Ok(());
     }
@@ -243,28 +250,25 @@ pub fn resample_latlong_into(
 /// D_GT at the normal blocks from the cells with energy (module doc, step 3).
 #[inline(always)]
 fn diffuse_sums(blocks: &[[[f64; NORMAL_LANES]; 3]], cells: &[[f64; 6]], out: &mut [[f64; 3]]) {
-    for (bi, nb) in blocks.iter().enumerate() {
-        let mut acc = [[0.0f64; NORMAL_LANES]; 3];
+    for (nb, out) in blocks.iter().zip(out.chunks_mut(NORMAL_LANES)) {
+        let (nx, ny, nz) = (&nb[0], &nb[1], &nb[2]);
+        let mut r = [0.0f64; NORMAL_LANES];
+        let mut g = [0.0f64; NORMAL_LANES];
+        let mut b = [0.0f64; NORMAL_LANES];
         for cell in cells {
-            let (dx, dy, dz) = (cell[0], cell[1], cell[2]);
-            let e = [cell[3], cell[4], cell[5]];
+            let (dx, dy, dz, e0, e1, e2) = (cell[0], cell[1], cell[2], cell[3], cell[4], cell[5]);
             for l in 0..NORMAL_LANES {
                 // n·d as `DVec3::dot` computes it; max(·, 0) without a branch. Energies are
                 // finite and ≥ 0, so a clamped 0 adds exactly nothing.
-                let t = nb[0][l] * dx + nb[1][l] * dy + nb[2][l] * dz;
+                let t = nx[l] * dx + ny[l] * dy + nz[l] * dz;
                 let t = if t > 0.0 { t } else { 0.0 };
-                for c in 0..3 {
-                    acc[c][l] += e[c] * t;
-                }
+                r[l] += e0 * t;
+                g[l] += e1 * t;
+                b[l] += e2 * t;
             }
         }
-        for (l, o) in out
-            .iter_mut()
-            .skip(bi * NORMAL_LANES)
-            .take(NORMAL_LANES)
-            .enumerate()
-        {
-            *o = [acc[0][l], acc[1][l], acc[2][l]];
+        for (l, o) in out.iter_mut().enumerate() {
+            *o = [r[l], g[l], b[l]];
         }
     }
 }
@@ -319,6 +323,10 @@ impl FitTarget {
                 len: radiance.len(),
             });
         }
+        let mut radiance = radiance;
+        for p in &mut radiance {
+            *p = p.map(|c| if c.is_finite() && c > 0.0 { c } else { 0.0 });
+        }
         let omegas = Projection::LatLong.solid_angles(width, height);
         let weights: Vec<f64> = omegas.iter().map(|o| o / (4.0 * PI)).collect();
         // Pixel centres as `Projection::LatLong.pixel_to_direction` gives them (the same
@@ -362,44 +370,42 @@ impl FitTarget {
     /// `FitTarget::from_frame(frame, self.height, self.normals.len())`. On error the target is
     /// unchanged.
     pub fn refill(&mut self, frame: &HdrFrame) -> Result<(), AsgError> {
+        // The resampled radiance is finite and ≥ 0 already: no cleaning pass.
         resample_latlong_into(frame, self.height, &mut self.radiance)?;
         self.update();
         Ok(())
     }
 
-    /// Steps 2 and 3 of the module doc from `self.radiance` (cleaned first), and the tiles'
+    /// Steps 2 and 3 of the module doc from `self.radiance` (finite and ≥ 0), and the tiles'
     /// radiance if they were made.
     fn update(&mut self) {
-        for p in &mut self.radiance {
-            *p = p.map(|c| if c.is_finite() && c > 0.0 { c } else { 0.0 });
-        }
         let g = &*self.geometry;
+        // One pass: the integral and the coarse copy's per-cell sums of radiance × solid
+        // angle, pixels in row-major order.
         let mut integral = [0.0; 3];
-        for (p, o) in self.radiance.iter().zip(&g.omegas) {
-            for c in 0..3 {
-                integral[c] += p[c] * o;
-            }
-        }
-        self.integral = integral;
-        self.mean = integral.iter().sum::<f64>() / (4.0 * PI);
-        // The coarse copy: per-cell sums of radiance × solid angle, pixels in row-major order.
         self.energy.clear();
         self.energy.resize(g.cell_directions.len(), [0.0; 3]);
         let w = self.width as usize;
+        let factor = g.factor as usize;
         for (y, (row, orow)) in self
             .radiance
             .chunks_exact(w)
             .zip(g.omegas.chunks_exact(w))
             .enumerate()
         {
-            let base = (y as u32 / g.factor * g.cells_wide) as usize;
+            let base = y / factor * g.cells_wide as usize;
+            let cells = &mut self.energy[base..];
             for (x, (p, o)) in row.iter().zip(orow).enumerate() {
-                let cell = &mut self.energy[base + x / g.factor as usize];
+                let cell = &mut cells[x / factor];
                 for c in 0..3 {
-                    cell[c] += p[c] * o;
+                    let e = p[c] * o;
+                    integral[c] += e;
+                    cell[c] += e;
                 }
             }
         }
+        self.integral = integral;
+        self.mean = integral.iter().sum::<f64>() / (4.0 * PI);
         // Cells without energy add nothing: left out.
         self.cells.clear();
         self.cells.extend(
