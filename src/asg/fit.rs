@@ -2,13 +2,15 @@
 //! "Fitting anisotropic spherical Gaussians to dynamic HDRIs").
 //!
 //! Steps for every frame:
-//! 1. **Target** ([`FitTarget::from_frame`]): the frame is resampled to a `2h × h` lat-long map
-//!    (default 512×256, the paper's) by averaging `s × s` sub-samples per pixel, weighted by
-//!    their solid angle (an exact box filter when the source is lat-long and an integer
-//!    multiple of the size). Non-finite and negative values count as 0. The ground-truth
-//!    diffuse map D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p is computed once per frame by direct
-//!    convolution of a ≤ 64×128 box-downsampled copy, at [`FitSettings::diffuse_normals`]
-//!    normals of a Fibonacci sphere.
+//! 1. **Target** ([`FitTarget::from_frame`], [`super::target`]): the frame is resampled to a
+//!    `2h × h` lat-long map (default 512×256, the paper's) by averaging `s × s` sub-samples per
+//!    pixel, weighted by their solid angle (an exact box filter when the source is lat-long and
+//!    an integer multiple of the size). Non-finite and negative values count as 0. The
+//!    ground-truth diffuse map D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p is computed once per frame
+//!    by direct convolution of a ≤ 64×128 box-downsampled copy, at
+//!    [`FitSettings::diffuse_normals`] normals of a Fibonacci sphere. [`AsgFitter`] keeps its
+//!    target and refills it frame after frame ([`AsgFitter::prepare`], [`FitTarget::refill`]):
+//!    what depends only on the size is made once.
 //! 2. **Initialisation** ([`initial_lobes`]), first frame only: greedy peak picking. Repeatedly
 //!    the brightest pixel of the residual map becomes a lobe axis, its residual radiance the
 //!    amplitude, and the half-maximum radius r of the bright region around it the bandwidth
