@@ -10,23 +10,28 @@
 //! `--reference`-iteration fit of the same frame started from the same previous lobes (the
 //! best iterate of Adam at the first-frame learning rate, as the issue's "6,000-iteration fit
 //! of the same frame"), and with those previous lobes left unchanged. Times are CPU time of the
-//! fitting thread (`/proc/thread-self/schedstat`), so a loaded machine inflates them less than
-//! wall time; the median and the largest per refit are printed with the load average, and the
-//! median time to prepare a frame's target (resampling, diffuse ground truth, tiling: the same
-//! whatever the optimiser) apart.
+//! fitting thread (`/proc/thread-self/schedstat`, read after a yield), so a loaded machine inflates them less than
+//! wall time: per frame, preparing the target (`AsgFitter::prepare`: resampling, diffuse
+//! ground truth, tiling, into the previous frame's buffers), the refit
+//! (`AsgFitter::fit_prepared`) and their sum, the whole frame; the medians and the largest are
+//! printed at the end with the load average.
 //!
 //! Run: `cargo run --release --example asg_refit -- [--height 256] [--frames 30] [--every 5]
 //! [--warm N] [--rate R] [--temporal W] [--subset S] [--first N] [--first-subset S] [--coarse ROWS]
 //! [--centroid 0|1] [--reference 6000] [--map NAME] [--turn DEG]` (settings not given are `FitSettings::default()`'s).
 
-use envlight::asg::fit::{loss, optimise, AsgFitter, FitSettings, FitTarget};
+use envlight::asg::fit::{loss, optimise, AsgFitter, FitSettings};
 use envlight::asg::Asg;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::envmap::Projection;
 use envlight::HdrFrame;
 
-/// CPU time of this thread in seconds (Linux), or wall time where that is unavailable.
+/// CPU time of this thread in seconds (Linux), or wall time where that is unavailable. The
+/// kernel brings a running thread's figure up to date only at a scheduler tick (4 ms here) or
+/// when it is scheduled, so the thread yields first: the figure is then exact to the
+/// nanosecond instead of a tick.
 fn cpu_seconds() -> f64 {
+    std::thread::yield_now();
     std::fs::read_to_string("/proc/thread-self/schedstat")
         .ok()
         .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
@@ -149,19 +154,9 @@ fn main() {
         Some(f) => turned(f, a.turn * i as f64, 1.0 - 0.002 * i as f32),
         None => render_sky(&sky, i as f64 / 30.0),
     };
-    // Preparing a target (resampling, diffuse ground truth, tiling) is timed apart from the
-    // refit: it is the same work whatever the optimiser does.
-    let mut prepare = Vec::new();
-    let targets: Vec<FitTarget> = (0..=a.frames)
-        .map(|i| {
-            let f = frame(i);
-            let c = cpu_seconds();
-            let t = FitTarget::from_frame(&f, s.height, s.diffuse_normals).expect("frame");
-            let _ = t.tiled();
-            prepare.push(cpu_seconds() - c);
-            t
-        })
-        .collect();
+    // Each frame's target is prepared by the fitter (`AsgFitter::prepare`: the previous
+    // frame's target refilled, tiles included) and timed apart from the refit
+    // (`AsgFitter::fit_prepared`): together they are a whole frame.
     println!(
         "{} at 30 frames/s, fit map {}x{}, K = {}, one thread; first frame: {} iterations, \
          coarsest level {} rows; warm: {} iterations at rate {} on 1/{} of the tiles, L_T \
@@ -182,49 +177,66 @@ fn main() {
     );
     let mut fitter = AsgFitter::new(s.clone()).expect("valid settings");
     let c0 = cpu_seconds();
-    let first = fitter.fit_target(&targets[0]);
+    fitter.prepare(&frame(0)).expect("frame");
+    let first = fitter.fit_prepared().expect("a prepared target");
+    let first_cpu = cpu_seconds() - c0;
+    let t0 = fitter.target().expect("a prepared target");
     println!(
-        "frame 0: loss {:.5} in {:.2} s CPU",
-        loss(&targets[0], &first.lobes, None, &plain).total,
-        cpu_seconds() - c0
+        "frame 0: loss {:.5} in {first_cpu:.2} s CPU",
+        loss(t0, &first.lobes, None, &plain).total,
     );
-    println!("| frame | refit loss L_R + L_D | no refit | reference | refit gap | no-refit gap | refit CPU |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|");
-    let (mut times, mut gaps) = (Vec::new(), Vec::new());
-    for (i, t) in targets.iter().enumerate().skip(1) {
+    println!(
+        "| frame | refit loss L_R + L_D | no refit | reference | refit gap | no-refit gap | prepare CPU | refit CPU | whole frame CPU |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let (mut prepare, mut times, mut wholes, mut gaps) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for i in 1..=a.frames {
+        let f = frame(i);
         let before = fitter.previous().map(<[Asg]>::to_vec).unwrap_or_default();
         let c = cpu_seconds();
-        let r = fitter.fit_target(t);
-        let dt = cpu_seconds() - c;
+        fitter.prepare(&f).expect("frame");
+        let cp = cpu_seconds();
+        let r = fitter.fit_prepared().expect("a prepared target");
+        let ce = cpu_seconds();
+        let (dp, dt) = (cp - c, ce - cp);
+        prepare.push(dp);
         times.push(dt);
+        wholes.push(dp + dt);
+        let t = fitter.target().expect("a prepared target");
         let score = |lobes: &[Asg]| loss(t, lobes, None, &plain).total;
         let (refit, stale) = (score(&r.lobes), score(&before));
+        let cpu = format!(
+            "{:.1} ms | {:.1} ms | {:.1} ms",
+            1e3 * dp,
+            1e3 * dt,
+            1e3 * (dp + dt)
+        );
         if i % a.every == 0 || i == a.frames {
             let long = optimise(t, &before, None, a.reference, s.learning_rate, &plain);
             let reference = score(&long.lobes);
             let gap = 100.0 * (refit / reference - 1.0);
             gaps.push(gap);
             println!(
-                "| {i} | {refit:.5} | {stale:.5} | {reference:.5} | {gap:+.2} % | {:+.2} % | {:.1} ms |",
+                "| {i} | {refit:.5} | {stale:.5} | {reference:.5} | {gap:+.2} % | {:+.2} % | {cpu} |",
                 100.0 * (stale / reference - 1.0),
-                1e3 * dt
             );
         } else {
-            println!(
-                "| {i} | {refit:.5} | {stale:.5} | – | – | – | {:.1} ms |",
-                1e3 * dt
-            );
+            println!("| {i} | {refit:.5} | {stale:.5} | – | – | – | {cpu} |");
         }
     }
-    let worst = times.iter().copied().fold(0.0, f64::max);
+    let largest = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
     println!(
-        "refit CPU time: median {:.1} ms, largest {:.1} ms over {} refits (preparing a target: \
-         median {:.1} ms more); largest gap {:+.2} %, mean gap {:+.2} % over {} reference \
-         frames; load average {}",
-        1e3 * median(times.clone()),
-        1e3 * worst,
+        "CPU time per frame over {} frames, median / largest: preparing the target {:.1} / {:.1} ms, \
+         refit {:.1} / {:.1} ms, whole frame {:.1} / {:.1} ms; largest gap {:+.2} %, mean gap \
+         {:+.2} % over {} reference frames; load average {}",
         times.len(),
-        1e3 * median(prepare),
+        1e3 * median(prepare.clone()),
+        1e3 * largest(&prepare),
+        1e3 * median(times.clone()),
+        1e3 * largest(&times),
+        1e3 * median(wholes.clone()),
+        1e3 * largest(&wholes),
         gaps.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         gaps.iter().sum::<f64>() / gaps.len().max(1) as f64,
         gaps.len(),

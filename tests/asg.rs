@@ -477,6 +477,100 @@ fn fit_is_deterministic_across_thread_counts() {
     assert_eq!(a, b);
 }
 
+/// Asserts that two targets are equal field by field, bit for bit, tiles included (through
+/// the fast kernel's sums, which read every tiled value).
+fn assert_same_target(a: &FitTarget, b: &FitTarget, what: &str) {
+    use envlight::asg::fast::{reconstruction, KLobe, Subset};
+    assert_eq!((a.width, a.height), (b.width, b.height), "{what}: size");
+    assert!(a.directions == b.directions, "{what}: directions");
+    assert!(a.radiance == b.radiance, "{what}: radiance");
+    assert!(a.weights == b.weights, "{what}: weights");
+    assert!(a.normals == b.normals, "{what}: normals");
+    assert!(a.diffuse == b.diffuse, "{what}: diffuse ground truth");
+    assert_eq!(a.mean.to_bits(), b.mean.to_bits(), "{what}: mean");
+    assert_eq!(a.integral, b.integral, "{what}: integral");
+    let lobes: Vec<KLobe> = initial_lobes(b, 6)
+        .iter()
+        .map(|l| KLobe {
+            x: DVec3::from(l.tangent),
+            y: DVec3::from(l.bitangent),
+            z: DVec3::from(l.axis),
+            lambda: l.lambda,
+            mu: l.mu,
+            c: l.rgb.map(|c| c / b.mean),
+        })
+        .collect();
+    let (la, sa) = reconstruction(a.tiled(), &lobes, Norm::L1, 1, true, Subset::ALL);
+    let (lb, sb) = reconstruction(b.tiled(), &lobes, Norm::L1, 1, true, Subset::ALL);
+    assert_eq!(la.to_bits(), lb.to_bits(), "{what}: tiled loss");
+    assert_eq!(sa, sb, "{what}: tiled gradient sums");
+}
+
+#[test]
+fn refilled_target_equals_a_fresh_one() {
+    // The fitter reuses its target from frame to frame (target module doc, step 4): a refill
+    // must give what a target made from scratch gives, for the exact box filter (the 512x256
+    // sky to 256 rows, one pixel each; the 1k HDRIs to 256 and 64 rows) and the general
+    // resampling (to 48 rows).
+    let sky = SkyOptions::default();
+    let (roo, studio) = (
+        read_hdr("rooitou_park_1k.hdr"),
+        read_hdr("studio_small_03_1k.hdr"),
+    );
+    for height in [256, 64, 48] {
+        let mut target = FitTarget::from_frame(&render_sky(&sky, 0.0), height, 96).unwrap();
+        let _ = target.tiled();
+        for (name, frame) in [
+            ("rooitou", &roo),
+            ("sky at 0.5 s", &render_sky(&sky, 0.5)),
+            ("studio", &studio),
+        ] {
+            target.refill(frame).unwrap();
+            let fresh = FitTarget::from_frame(frame, height, 96).unwrap();
+            assert_same_target(&target, &fresh, &format!("{name} at {height} rows"));
+        }
+        // A bad frame is refused and leaves the target as it was.
+        let bad = HdrFrame {
+            width: 4,
+            height: 2,
+            pixels: vec![[0.0; 3]; 3],
+            projection: Projection::LatLong,
+            time: 0.0,
+            seq: 0,
+        };
+        assert!(matches!(
+            target.refill(&bad),
+            Err(AsgError::PixelCount { .. })
+        ));
+        let fresh = FitTarget::from_frame(&studio, height, 96).unwrap();
+        assert_same_target(&target, &fresh, "after a refused frame");
+    }
+}
+
+#[test]
+fn fitter_reusing_its_target_fits_like_fresh_targets() {
+    // `AsgFitter::fit_frame` refills one target; fitting fresh targets gives the same bits.
+    let s = FitSettings {
+        warm_iterations: 8,
+        threads: 1,
+        ..settings_small()
+    };
+    let (mut reusing, mut fresh) = (
+        AsgFitter::new(s.clone()).unwrap(),
+        AsgFitter::new(s.clone()).unwrap(),
+    );
+    let roo = read_hdr("rooitou_park_1k.hdr");
+    let sky = SkyOptions::default();
+    let frames = [render_sky(&sky, 0.0), render_sky(&sky, 0.1), roo];
+    for (i, frame) in frames.iter().enumerate() {
+        let a = reusing.fit_frame(frame).unwrap();
+        let target = FitTarget::from_frame(frame, s.height, s.diffuse_normals).unwrap();
+        let b = fresh.fit_target(&target);
+        assert_eq!(a, b, "frame {i}");
+    }
+    assert!(reusing.target().is_some());
+}
+
 /// Mean per-frame parameter change Σ_i ‖Δg_i‖ over a sky sequence (axis change in radians plus
 /// relative amplitude change).
 fn sky_parameter_change(temporal_weight: f64) -> f64 {

@@ -75,6 +75,9 @@ pub struct Pixels {
     groups: Vec<std::ops::Range<usize>>,
     /// Number of tile diagonals (tile rows + tile columns − 1): the largest useful stride.
     diagonals: usize,
+    /// The target pixel of every lane of every block (padding lanes repeat the tile's first
+    /// pixel), so [`Pixels::refill`] can redo the radiance alone.
+    source: Vec<[u32; LANES]>,
 }
 
 /// A lobe in the kernel's units (amplitude divided by the map's mean M).
@@ -127,11 +130,6 @@ impl Pixels {
     /// Tiles `target` (module doc, step 1).
     pub fn new(target: &FitTarget) -> Self {
         let (w, h) = (target.width, target.height);
-        let inv_m = if target.mean > 0.0 && target.mean.is_finite() {
-            1.0 / target.mean
-        } else {
-            0.0
-        };
         let (tr, tc) = (TILE_ROWS.min(h), TILE_COLS.min(w));
         let mut px = Pixels {
             dx: Vec::new(),
@@ -142,10 +140,12 @@ impl Pixels {
             tiles: Vec::new(),
             groups: Vec::new(),
             diagonals: 1,
+            source: Vec::new(),
         };
+        let mut idx = Vec::with_capacity((tr * tc) as usize);
         for (tyi, ty) in (0..h).step_by(tr as usize).enumerate() {
             for (txi, tx) in (0..w).step_by(tc as usize).enumerate() {
-                let mut idx = Vec::with_capacity((tr * tc) as usize);
+                idx.clear();
                 for y in ty..(ty + tr).min(h) {
                     for x in tx..(tx + tc).min(w) {
                         idx.push((y * w + x) as usize);
@@ -173,7 +173,8 @@ impl Pixels {
                     sin_rho: rho.sin(),
                 });
                 for b in 0..blocks {
-                    let mut blk = [[0.0f32; LANES]; 7];
+                    let mut blk = [[0.0f32; LANES]; 4];
+                    let mut src = [0u32; LANES];
                     for l in 0..LANES {
                         // Padding repeats the tile's first pixel with weight 0.
                         let (i, wt) = match idx.get(b * LANES + l) {
@@ -185,17 +186,13 @@ impl Pixels {
                         blk[1][l] = d.y as f32;
                         blk[2][l] = d.z as f32;
                         blk[3][l] = wt as f32;
-                        for c in 0..3 {
-                            blk[4 + c][l] = (target.radiance[i][c] * inv_m) as f32;
-                        }
+                        src[l] = i as u32;
                     }
                     px.dx.push(blk[0]);
                     px.dy.push(blk[1]);
                     px.dz.push(blk[2]);
                     px.w.push(blk[3]);
-                    for c in 0..3 {
-                        px.rad[c].push(blk[4 + c]);
-                    }
+                    px.source.push(src);
                 }
             }
         }
@@ -205,7 +202,31 @@ impl Pixels {
             .map(|g| (g * n / GROUPS)..((g + 1) * n / GROUPS))
             .filter(|r| !r.is_empty())
             .collect();
+        px.refill(&target.radiance, target.mean);
         px
+    }
+
+    /// Redoes the tiles' radiance (radiance / M) for a new frame of the same size: everything
+    /// else depends only on the size (`target` module doc, step 4).
+    pub(crate) fn refill(&mut self, radiance: &[[f64; 3]], mean: f64) {
+        let inv_m = if mean > 0.0 && mean.is_finite() {
+            1.0 / mean
+        } else {
+            0.0
+        };
+        for c in 0..3 {
+            self.rad[c].clear();
+            self.rad[c].resize(self.source.len(), [0.0; LANES]);
+        }
+        let [r0, r1, r2] = &mut self.rad;
+        for (((src, b0), b1), b2) in self.source.iter().zip(r0).zip(r1).zip(r2) {
+            for l in 0..LANES {
+                let p = radiance.get(src[l] as usize).copied().unwrap_or([0.0; 3]);
+                b0[l] = (p[0] * inv_m) as f32;
+                b1[l] = (p[1] * inv_m) as f32;
+                b2[l] = (p[2] * inv_m) as f32;
+            }
+        }
     }
 }
 

@@ -2,13 +2,15 @@
 //! "Fitting anisotropic spherical Gaussians to dynamic HDRIs").
 //!
 //! Steps for every frame:
-//! 1. **Target** ([`FitTarget::from_frame`]): the frame is resampled to a `2h × h` lat-long map
-//!    (default 512×256, the paper's) by averaging `s × s` sub-samples per pixel, weighted by
-//!    their solid angle (an exact box filter when the source is lat-long and an integer
-//!    multiple of the size). Non-finite and negative values count as 0. The ground-truth
-//!    diffuse map D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p is computed once per frame by direct
-//!    convolution of a ≤ 64×128 box-downsampled copy, at [`FitSettings::diffuse_normals`]
-//!    normals of a Fibonacci sphere.
+//! 1. **Target** ([`FitTarget::from_frame`], [`super::target`]): the frame is resampled to a
+//!    `2h × h` lat-long map (default 512×256, the paper's) by averaging `s × s` sub-samples per
+//!    pixel, weighted by their solid angle (an exact box filter when the source is lat-long and
+//!    an integer multiple of the size). Non-finite and negative values count as 0. The
+//!    ground-truth diffuse map D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p is computed once per frame
+//!    by direct convolution of a ≤ 64×128 box-downsampled copy, at
+//!    [`FitSettings::diffuse_normals`] normals of a Fibonacci sphere. [`AsgFitter`] keeps its
+//!    target and refills it frame after frame ([`AsgFitter::prepare`], [`FitTarget::refill`]):
+//!    what depends only on the size is made once.
 //! 2. **Initialisation** ([`initial_lobes`]), first frame only: greedy peak picking. Repeatedly
 //!    the brightest pixel of the residual map becomes a lobe axis, its residual radiance the
 //!    amplitude, and the half-maximum radius r of the bright region around it the bandwidth
@@ -69,8 +71,8 @@
 //!    is returned (the lowest total loss is, with L_T's kink at "no change", the previous
 //!    lobes themselves, which is what the subgradient version returned).
 
+pub use super::target::{fibonacci_sphere, resample_latlong, resample_latlong_into, FitTarget};
 use super::{integral_with_derivatives, rotate, Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
-use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -239,303 +241,6 @@ impl FitSettings {
         } else {
             std::thread::available_parallelism().map_or(1, |n| n.get().min(BANDS))
         }
-    }
-}
-
-/// One frame resampled for fitting, with its ground-truth diffuse map.
-#[derive(Clone, Debug)]
-pub struct FitTarget {
-    pub width: u32,
-    pub height: u32,
-    /// Pixel-centre directions, row-major.
-    pub directions: Vec<DVec3>,
-    /// Radiance per pixel (non-negative, finite).
-    pub radiance: Vec<[f64; 3]>,
-    /// Solid angle / 4π per pixel (sums to 1).
-    pub weights: Vec<f64>,
-    /// Diffuse-comparison normals (Fibonacci sphere).
-    pub normals: Vec<DVec3>,
-    /// D_GT at `normals` (irradiance).
-    pub diffuse: Vec<[f64; 3]>,
-    /// Mean radiance M = (1/4π)∫ Σ_c L dω.
-    pub mean: f64,
-    /// ∫ L dω per channel.
-    pub integral: [f64; 3],
-    /// The pixels tiled for the fast kernel, made on first use (a target is not meant to be
-    /// changed after it is made).
-    tiled: std::sync::OnceLock<super::fast::Pixels>,
-}
-
-/// `n` directions of a Fibonacci sphere.
-pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
-    let golden = PI * (3.0 - 5f64.sqrt());
-    (0..n)
-        .map(|i| {
-            let y = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
-            let r = (1.0 - y * y).max(0.0).sqrt();
-            let (s, c) = (golden * i as f64).sin_cos();
-            DVec3::new(r * c, y, r * s)
-        })
-        .collect()
-}
-
-#[inline]
-fn clean(c: f32) -> f64 {
-    if c.is_finite() && c > 0.0 {
-        f64::from(c)
-    } else {
-        0.0
-    }
-}
-
-/// Resamples `frame` (any projection) to a `2h × h` lat-long map of radiance (module doc).
-pub fn resample_latlong(frame: &HdrFrame, height: u32) -> Result<Vec<[f64; 3]>, AsgError> {
-    let (sw, sh) = (frame.width, frame.height);
-    if sw == 0 || sh == 0 || frame.pixels.len() != sw as usize * sh as usize {
-        return Err(AsgError::PixelCount {
-            width: sw,
-            height: sh,
-            len: frame.pixels.len(),
-        });
-    }
-    if !(1..=4096).contains(&height) {
-        return Err(AsgError::MapSize {
-            width: height.saturating_mul(2),
-            height,
-        });
-    }
-    let (w, h) = (2 * height, height);
-    let mut out = vec![[0.0; 3]; w as usize * h as usize];
-    let exact = frame.projection == Projection::LatLong && sw % w == 0 && sh % h == 0;
-    if exact {
-        let (fx, fy) = (sw / w, sh / h);
-        let sines: Vec<f64> = (0..sh)
-            .map(|sy| (PI * (f64::from(sy) + 0.5) / f64::from(sh)).sin())
-            .collect();
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = [0.0; 3];
-                let mut wsum = 0.0;
-                for j in 0..fy {
-                    let sy = y * fy + j;
-                    let sin_t = sines[sy as usize];
-                    for i in 0..fx {
-                        let p = frame.pixel(x * fx + i, sy);
-                        for c in 0..3 {
-                            acc[c] += clean(p[c]) * sin_t;
-                        }
-                    }
-                    wsum += sin_t * f64::from(fx);
-                }
-                out[(y * w + x) as usize] = acc.map(|a| a / wsum);
-            }
-        }
-        return Ok(out);
-    }
-    let s = sh.div_ceil(h).clamp(1, 8);
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = [0.0; 3];
-            let mut wsum = 0.0;
-            for j in 0..s {
-                let py = f64::from(y) + (f64::from(j) + 0.5) / f64::from(s);
-                for i in 0..s {
-                    let px = f64::from(x) + (f64::from(i) + 0.5) / f64::from(s);
-                    let d = Projection::LatLong
-                        .pixel_to_direction(w, h, px, py)
-                        .unwrap_or(DVec3::Y);
-                    let wt = (PI * py / f64::from(h)).sin();
-                    wsum += wt;
-                    if let Some((qx, qy)) = frame.projection.direction_to_pixel(sw, sh, d) {
-                        let (ix, iy) = (qx.floor(), qy.floor());
-                        if ix >= 0.0 && iy >= 0.0 && ix < f64::from(sw) && iy < f64::from(sh) {
-                            let p = frame.pixel(ix as u32, iy as u32);
-                            for c in 0..3 {
-                                acc[c] += clean(p[c]) * wt;
-                            }
-                        }
-                    }
-                }
-            }
-            out[(y * w + x) as usize] = acc.map(|a| if wsum > 0.0 { a / wsum } else { 0.0 });
-        }
-    }
-    Ok(out)
-}
-
-impl FitTarget {
-    /// The target of `frame` at fit-map height `height` with `normals` diffuse normals.
-    pub fn from_frame(frame: &HdrFrame, height: u32, normals: usize) -> Result<Self, AsgError> {
-        let radiance = resample_latlong(frame, height)?;
-        Self::from_latlong(2 * height, height, radiance, normals)
-    }
-
-    /// The target of a `width × height` lat-long radiance map (width = 2 × height).
-    pub fn from_latlong(
-        width: u32,
-        height: u32,
-        radiance: Vec<[f64; 3]>,
-        normals: usize,
-    ) -> Result<Self, AsgError> {
-        if height < 1 || width != 2 * height {
-            return Err(AsgError::MapSize { width, height });
-        }
-        if radiance.len() != width as usize * height as usize {
-            return Err(AsgError::PixelCount {
-                width,
-                height,
-                len: radiance.len(),
-            });
-        }
-        let radiance: Vec<[f64; 3]> = radiance
-            .into_iter()
-            .map(|p| p.map(|c| if c.is_finite() && c > 0.0 { c } else { 0.0 }))
-            .collect();
-        let omegas = Projection::LatLong.solid_angles(width, height);
-        let weights: Vec<f64> = omegas.iter().map(|o| o / (4.0 * PI)).collect();
-        // Pixel centres as `Projection::LatLong.pixel_to_direction` gives them (the same
-        // arithmetic, with the sines and cosines of each row and column computed once).
-        let rows: Vec<(f64, f64)> = (0..height)
-            .map(|y| (PI * (f64::from(y) + 0.5) / f64::from(height)).sin_cos())
-            .collect();
-        let cols: Vec<(f64, f64)> = (0..width)
-            .map(|x| (2.0 * PI * (f64::from(x) + 0.5) / f64::from(width)).sin_cos())
-            .collect();
-        let mut directions = Vec::with_capacity(radiance.len());
-        for &(sin_t, cos_t) in &rows {
-            for &(sin_p, cos_p) in &cols {
-                directions.push(DVec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p));
-            }
-        }
-        let mut integral = [0.0; 3];
-        for (p, o) in radiance.iter().zip(&omegas) {
-            for c in 0..3 {
-                integral[c] += p[c] * o;
-            }
-        }
-        let mean = integral.iter().sum::<f64>() / (4.0 * PI);
-        // Ground-truth diffuse map from a box-downsampled copy (≤ 64 rows).
-        let f = (height / 64).max(1);
-        let (cw, ch) = (width.div_ceil(f), height.div_ceil(f));
-        let mut coarse = vec![(DVec3::ZERO, [0.0; 3]); cw as usize * ch as usize];
-        for y in 0..height {
-            for x in 0..width {
-                let i = (y * width + x) as usize;
-                let o = omegas[i];
-                let cell = &mut coarse[((y / f) * cw + x / f) as usize];
-                cell.0 += directions[i] * o;
-                for c in 0..3 {
-                    cell.1[c] += radiance[i][c] * o;
-                }
-            }
-        }
-        let coarse: Vec<(DVec3, [f64; 3])> = coarse
-            .into_iter()
-            .filter(|(_, e)| e.iter().any(|&c| c > 0.0))
-            .map(|(d, e)| (d.normalize_or(DVec3::Y), e))
-            .collect();
-        let normals = fibonacci_sphere(normals);
-        let diffuse = normals
-            .iter()
-            .map(|&n| {
-                let mut acc = [0.0; 3];
-                for (d, e) in &coarse {
-                    let t = n.dot(*d);
-                    if t > 0.0 {
-                        for c in 0..3 {
-                            acc[c] += e[c] * t;
-                        }
-                    }
-                }
-                acc
-            })
-            .collect();
-        Ok(Self {
-            width,
-            height,
-            directions,
-            radiance,
-            weights,
-            normals,
-            diffuse,
-            mean,
-            integral,
-            tiled: std::sync::OnceLock::new(),
-        })
-    }
-
-    /// The pixels tiled for the fast kernel ([`super::fast`]).
-    pub fn tiled(&self) -> &super::fast::Pixels {
-        self.tiled.get_or_init(|| super::fast::Pixels::new(self))
-    }
-
-    /// This target at half the resolution (`height / 2`, at least 2): 2×2 pixels averaged
-    /// with their solid angles; the diffuse ground truth, mean and integral are kept (they
-    /// describe the same frame). `None` when the height is odd or below 4.
-    pub fn half(&self) -> Option<Self> {
-        if self.height < 4 || !self.height.is_multiple_of(2) {
-            return None;
-        }
-        let (w, h) = (self.width / 2, self.height / 2);
-        let mut radiance = vec![[0.0; 3]; (w * h) as usize];
-        let mut weights = vec![0.0; (w * h) as usize];
-        let mut directions = vec![DVec3::ZERO; (w * h) as usize];
-        for y in 0..self.height {
-            for x in 0..self.width {
-                let i = (y * self.width + x) as usize;
-                let o = ((y / 2) * w + x / 2) as usize;
-                let wt = self.weights[i];
-                weights[o] += wt;
-                directions[o] += self.directions[i] * wt;
-                for c in 0..3 {
-                    radiance[o][c] += self.radiance[i][c] * wt;
-                }
-            }
-        }
-        for ((r, d), wt) in radiance.iter_mut().zip(directions.iter_mut()).zip(&weights) {
-            if *wt > 0.0 {
-                *r = r.map(|v| v / wt);
-            }
-            *d = d.normalize_or(DVec3::Y);
-        }
-        Some(Self {
-            width: w,
-            height: h,
-            directions,
-            radiance,
-            weights,
-            normals: self.normals.clone(),
-            diffuse: self.diffuse.clone(),
-            mean: self.mean,
-            integral: self.integral,
-            tiled: std::sync::OnceLock::new(),
-        })
-    }
-
-    /// Largest bandwidth a fit on this map may use: λ ≤ 1/(2Δθ²) with Δθ = π/height, so a lobe's
-    /// standard deviation is at least one pixel. Narrower lobes would be fitted through the
-    /// pixel centres alone, whose values say nothing of the lobe's integral (a sun fitted as a
-    /// needle at one pixel centre keeps its peak but loses most of its energy).
-    pub fn max_bandwidth(&self) -> f64 {
-        let dt = PI / f64::from(self.height);
-        (0.5 / (dt * dt)).clamp(4.0 * MIN_BANDWIDTH, MAX_BANDWIDTH)
-    }
-
-    /// Map reconstructed from `lobes` at this target's pixels.
-    pub fn reconstruct(&self, lobes: &[Asg]) -> Vec<[f64; 3]> {
-        self.directions
-            .iter()
-            .map(|&d| {
-                let mut acc = [0.0; 3];
-                for l in lobes {
-                    let g = l.shape(d);
-                    for c in 0..3 {
-                        acc[c] += l.rgb[c] * g;
-                    }
-                }
-                acc
-            })
-            .collect()
     }
 }
 
@@ -1621,6 +1326,9 @@ pub struct AsgFitter {
     settings: FitSettings,
     previous: Option<Vec<Asg>>,
     adam: AdamState,
+    /// The last frame's target, refilled by the next frame of the same size
+    /// ([`FitTarget::refill`]: the size-dependent parts and the buffers are reused).
+    target: Option<FitTarget>,
 }
 
 impl AsgFitter {
@@ -1631,6 +1339,7 @@ impl AsgFitter {
             settings,
             previous: None,
             adam: AdamState::default(),
+            target: None,
         })
     }
 
@@ -1661,11 +1370,48 @@ impl AsgFitter {
         self.previous.as_deref()
     }
 
-    /// Fits one frame (any projection; resampled to the fit-map size).
+    /// Prepares the target of `frame` (any projection; resampled to the fit-map size) in the
+    /// fitter's own buffers: the previous frame's target is refilled when its size and number
+    /// of normals match the settings ([`FitTarget::refill`]), else a new one is made. The same
+    /// target as [`FitTarget::from_frame`] gives, faster.
+    pub fn prepare(&mut self, frame: &HdrFrame) -> Result<&FitTarget, AsgError> {
+        let target = self.take_prepared(frame)?;
+        Ok(self.target.insert(target))
+    }
+
+    /// The target of `frame`, taken out of the fitter (refilled or made anew): on an error no
+    /// half-made target is kept.
+    fn take_prepared(&mut self, frame: &HdrFrame) -> Result<FitTarget, AsgError> {
+        let (height, normals) = (self.settings.height, self.settings.diffuse_normals);
+        match self.target.take() {
+            Some(mut t) if t.height == height && t.normals.len() == normals => {
+                t.refill(frame)?;
+                Ok(t)
+            }
+            _ => FitTarget::from_frame(frame, height, normals),
+        }
+    }
+
+    /// The target prepared last ([`AsgFitter::prepare`], [`AsgFitter::fit_frame`]).
+    pub fn target(&self) -> Option<&FitTarget> {
+        self.target.as_ref()
+    }
+
+    /// Fits the target prepared last ([`AsgFitter::prepare`]); `None` if there is none.
+    pub fn fit_prepared(&mut self) -> Option<FitResult> {
+        let target = self.target.take()?;
+        let result = self.fit_target(&target);
+        self.target = Some(target);
+        Some(result)
+    }
+
+    /// Fits one frame (any projection; resampled to the fit-map size): [`AsgFitter::prepare`]
+    /// and [`AsgFitter::fit_target`].
     pub fn fit_frame(&mut self, frame: &HdrFrame) -> Result<FitResult, AsgError> {
-        let target =
-            FitTarget::from_frame(frame, self.settings.height, self.settings.diffuse_normals)?;
-        Ok(self.fit_target(&target))
+        let target = self.take_prepared(frame)?;
+        let result = self.fit_target(&target);
+        self.target = Some(target);
+        Ok(result)
     }
 
     /// Fits one prepared target.

@@ -76,12 +76,15 @@
 //! μ = λ_min + e^{β}. Amplitude: c = e^{σ} per channel (scale-free steps for HDR values that span
 //! six orders of magnitude). [`Asg::gradients`] gives the analytic derivatives of G(v).
 //!
-//! The fitting (Clausen et al. 2024) is in [`fit`]; ball renderings and the comparison baselines
-//! used by `examples/asg_table.rs` in [`eval`].
+//! The fitting (Clausen et al. 2024) is in [`fit`], the per-frame target it fits (resampling,
+//! diffuse ground truth, buffers reused from frame to frame) in [`target`], the f32 loss kernel
+//! in [`fast`]; ball renderings and the comparison baselines used by `examples/asg_table.rs` in
+//! [`eval`].
 
 pub mod eval;
 pub mod fast;
 pub mod fit;
+pub mod target;
 
 use glam::DVec3;
 use std::f64::consts::PI;
