@@ -69,9 +69,9 @@
 //! λ, μ ≥ 10 with α ≥ 0.3; the tangent-plane product is worst for wide lobes (λ = 2: 16–28 %)
 //! and for α = 0.1 (7–23 %, where the SG underestimates GGX's long tails).
 //!
-//! # Parameterisation for optimisation ([`AsgParams`])
+//! # Parameterisation for optimisation (`src/asg/fit.rs`)
 //!
-//! Frame: a rotation, updated multiplicatively (R ← exp([δ]×)·R); the gradient with respect to a
+//! Frame: a rotation, updated multiplicatively (R ← exp(\[δ\]×)·R); the gradient with respect to a
 //! world-space rotation δ at δ = 0 is Σ_{a ∈ {x,y,z}} a × ∂L/∂a. Bandwidths: λ = λ_min + e^{α},
 //! μ = λ_min + e^{β}. Amplitude: c = e^{σ} per channel (scale-free steps for HDR values that span
 //! six orders of magnitude). [`Asg::gradients`] gives the analytic derivatives of G(v).
