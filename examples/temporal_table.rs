@@ -208,11 +208,21 @@ fn main() -> Result<()> {
         },
         Method {
             name: "envlight, hierarchical warp, filter on",
-            settings: envlight_warp(true, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT, Warp::Hierarchical),
+            settings: envlight_warp(
+                true,
+                LightPlacement::Centroid,
+                DEFAULT_PDF_EXPONENT,
+                Warp::Hierarchical,
+            ),
         },
         Method {
             name: "envlight, hierarchical warp, no filter",
-            settings: envlight_warp(false, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT, Warp::Hierarchical),
+            settings: envlight_warp(
+                false,
+                LightPlacement::Centroid,
+                DEFAULT_PDF_EXPONENT,
+                Warp::Hierarchical,
+            ),
         },
         Method {
             name: "envlight, γ=0.5, filter on",
