@@ -400,13 +400,11 @@ struct DecomposeArgs {
     working_width: Option<u32>,
 
     /// Lights are placed with density ∝ luminance^γ, γ in (0, 1]; 1 is Havran et al.'s pure
-    /// inverse-transform sampling. [default: 0.8125]
+    /// inverse-transform sampling. [default: 0.75]
     #[arg(long, value_name = "GAMMA")]
     pdf_exponent: Option<f64>,
 
-    /// Where a light points within its region: `centroid` (with one Lloyd step that first moves
-    /// each sample to its region's centroid) or `sample-point` (Havran et al.'s). [default:
-    /// centroid]
+    /// Where a light points within its region. [default: centroid]
     #[arg(long, value_enum)]
     placement: Option<PlacementArg>,
 

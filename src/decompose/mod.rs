@@ -6,23 +6,19 @@
 //!    per-pixel energy (radiance × exact solid angle, f64), whatever its projection. Working
 //!    pixels holding more than 1/(4N) of the energy (suns, lamps) also keep their input pixels.
 //! 2. **PDF and warp** ([`distribution`]): luminance^γ per solid angle is a 2D density on the
-//!    map ([`DecomposeSettings::pdf_exponent`]; γ = 1 is the paper's, the default 13/16 spreads
+//!    map ([`DecomposeSettings::pdf_exponent`]; γ = 1 is the paper's, the default 0.75 spreads
 //!    lights a little more evenly and measures better in docs/quality.md).
 //!    [`PiecewiseConstant2d`] maps the unit square onto it continuously (conditional CDFs
 //!    blended across rows, so a point never jumps from one row band to another).
 //! 3. **Fixed progressive point set** ([`point_set`]): Halton points, Lloyd-relaxed so that every
 //!    2^k prefix is well stratified, computed once and reused by every frame. Light i sits where
-//!    point i warps to, and a light count N uses the first N points. A point that lands in a
-//!    concentrated working pixel is warped once more over that pixel's input pixels (density ∝
-//!    energy), so the lights sharing a sun or a lamp sit on its bright pixels ([`relax`]).
-//! 4. **Regions and lights** ([`regions`]): with the default [`LightPlacement::Centroid`], one
-//!    Lloyd step on a 4× coarser map first moves each sample direction to the centroid of its
-//!    Voronoi region ([`relax`]). Then light i owns the spherical Voronoi cell of its
+//!    point i warps to, and a light count N uses the first N points.
+//! 4. **Regions and lights** ([`regions`]): light i owns the spherical Voronoi cell of its sample
 //!    direction; every working pixel (or, for concentrated ones, every input pixel) gives its
 //!    energy to its nearest light. So each light carries the energy and colour of its own
 //!    compact region, and the lights sum exactly to the map's integral. The light points at the
-//!    luminance-weighted centroid of its region (`Centroid`, default) or at its sample
-//!    direction (`SamplePoint`, the paper's, without the Lloyd step).
+//!    luminance-weighted centroid of its region ([`LightPlacement::Centroid`], default) or at its
+//!    sample direction (`SamplePoint`, the paper's).
 //! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's direction and power by
 //!    id; it restarts when the light count changes.
 //! 6. **Merge** ([`merge`], off by default): lights crowding a concentrated source become one
@@ -34,7 +30,6 @@ pub mod hierarchical;
 pub mod merge;
 pub mod point_set;
 mod regions;
-mod relax;
 pub mod working_map;
 
 pub use distribution::PiecewiseConstant2d;
@@ -42,6 +37,7 @@ pub use filter::FirFilter;
 pub use hierarchical::HierarchicalWarp;
 pub use point_set::MAX_POINTS;
 
+use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use crate::light::{Light, LightFrame};
 use working_map::Resampler;
@@ -53,9 +49,8 @@ pub const WORKING_WIDTH_RANGE: std::ops::RangeInclusive<u32> = 16..=4096;
 /// concentrated source: its input pixels are assigned to lights one by one.
 const CONCENTRATED_SHARE: f64 = 0.25;
 
-/// Default exponent γ of the sampling density (luminance^γ): 13/16, computed exactly with four
-/// square roots (docs/quality.md).
-pub const DEFAULT_PDF_EXPONENT: f64 = 0.8125;
+/// Default exponent γ of the sampling density (luminance^γ).
+pub const DEFAULT_PDF_EXPONENT: f64 = 0.75;
 
 /// How the unit square is warped onto the sampling density.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -171,11 +166,6 @@ pub struct Decomposer {
     points: std::sync::Arc<[[f64; 2]]>,
     /// Where the points warp to in the last frame (the buffer is reused).
     sample_dirs: Vec<glam::DVec3>,
-    /// The Lloyd step's coarse map and buffers.
-    relax: relax::Relax,
-    /// The inner warp of a concentrated working pixel and its weights (buffers reused).
-    fine_dist: Option<PiecewiseConstant2d>,
-    fine_weights: Vec<f64>,
 }
 
 impl Decomposer {
@@ -211,9 +201,6 @@ impl Decomposer {
             last_count: None,
             points: std::sync::Arc::from(Vec::new()),
             sample_dirs: Vec::new(),
-            relax: relax::Relax::default(),
-            fine_dist: None,
-            fine_weights: Vec::new(),
         })
     }
 
@@ -301,25 +288,27 @@ impl Decomposer {
             }
         };
 
-        // Light i sits where point i warps to (inside a concentrated source, where its fine
-        // warp takes it).
+        // Light i sits where point i warps to.
         if self.points.len() != n {
             self.points = point_set::progressive_points(n);
         }
-        self.sample_dirs.clear();
-        for u in self.points.iter() {
+        let points = &self.points;
+        let sample_dirs = &mut self.sample_dirs;
+        sample_dirs.clear();
+        sample_dirs.extend(points.iter().map(|u| {
             let p = match &warp {
                 Sampler::Rows(dist) => dist.sample(*u).0,
                 Sampler::Hierarchical(tree) => tree.sample(*u),
             };
-            let p = [p[0] * map.width as f64, p[1] * map.height as f64];
-            let p = relax::fine_warp(map, p, &mut self.fine_weights, &mut self.fine_dist);
-            self.sample_dirs
-                .push(relax::direction(map.width, map.height, p));
-        }
-        if self.settings.placement == LightPlacement::Centroid {
-            self.relax.step(self.arch, map, &mut self.sample_dirs);
-        }
+            Projection::LatLong
+                .pixel_to_direction(
+                    map.width as u32,
+                    map.height as u32,
+                    p[0] * map.width as f64,
+                    p[1] * map.height as f64,
+                )
+                .unwrap_or(glam::DVec3::Y)
+        }));
         let sample_dirs = &self.sample_dirs;
 
         self.regions.clear();
@@ -376,13 +365,6 @@ impl pulp::WithSimd for Density<'_> {
         // One branch per frame, not per pixel: the common exponents have cheap exact forms.
         if gamma == 1.0 {
             density_rows(map, weights, |r| r);
-        } else if gamma == 0.8125 {
-            // r^(13/16) = r^(1/2) · r^(1/4) · r^(1/16).
-            density_rows(map, weights, |r| {
-                let r2 = r.sqrt();
-                let r4 = r2.sqrt();
-                r2 * r4 * r4.sqrt().sqrt()
-            });
         } else if gamma == 0.75 {
             density_rows(map, weights, |r| {
                 let root = r.sqrt();
@@ -447,7 +429,6 @@ pub fn frame_integral(frame: &HdrFrame) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::envmap::Projection;
 
     fn sky_with_sun(w: u32, h: u32, sun: (u32, u32), sun_power: f32) -> HdrFrame {
         let mut pixels = Vec::with_capacity((w * h) as usize);

@@ -51,49 +51,8 @@ pub struct WorkingMap {
     pub luminance: Vec<f32>,
     /// Whether each working pixel is concentrated (its energy is given by `fine` instead).
     pub concentrated: Vec<bool>,
-    /// The input pixels of the concentrated working pixels, in working-pixel order.
+    /// The input pixels of the concentrated working pixels.
     pub fine: Vec<FineSample>,
-    /// k when every working pixel is a k×k block of lat-long input pixels (the box-filter
-    /// path): then the fine samples of a concentrated working pixel are its k×k input pixels in
-    /// row-major order. 0 on the index-table path (any projection), whose fine samples form no
-    /// grid.
-    pub fine_grid: usize,
-}
-
-impl WorkingMap {
-    /// An all-black lat-long map of `width`×`height` pixels with its geometry tables.
-    pub fn blank(width: usize, height: usize) -> Self {
-        let omegas = Projection::LatLong.solid_angles(width as u32, height as u32);
-        let trig = |n: usize, scale: f64| -> Vec<(f64, f64)> {
-            (0..n)
-                .map(|i| (scale * (i as f64 + 0.5) / n as f64).sin_cos())
-                .collect()
-        };
-        let row_trig_f64 = trig(height, PI);
-        let column_trig_f64 = trig(width, 2.0 * PI);
-        let to_f32 = |t: &[(f64, f64)]| t.iter().map(|&(s, c)| (s as f32, c as f32)).collect();
-        WorkingMap {
-            width,
-            height,
-            energy: vec![[0.0; 3]; width * height],
-            row_trig: to_f32(&row_trig_f64),
-            row_trig_f64,
-            column_trig: to_f32(&column_trig_f64),
-            column_trig_f64,
-            row_solid_angle: (0..height).map(|y| omegas[y * width]).collect(),
-            luminance: vec![0.0; width * height],
-            concentrated: vec![false; width * height],
-            fine: Vec::new(),
-            fine_grid: 0,
-        }
-    }
-
-    /// The fine samples of working pixel `idx` (empty unless it is concentrated).
-    pub fn fine_of(&self, idx: usize) -> &[FineSample] {
-        let start = self.fine.partition_point(|s| (s.pixel as usize) < idx);
-        let end = start + self.fine[start..].partition_point(|s| s.pixel as usize == idx);
-        &self.fine[start..end]
-    }
 }
 
 #[derive(Clone, Debug)]
@@ -243,10 +202,6 @@ impl Resampler {
             luminance: vec![0.0; width * height],
             concentrated: vec![false; width * height],
             fine: Vec::new(),
-            fine_grid: match &plan {
-                Plan::Box { factor, .. } => *factor,
-                Plan::Table { .. } => 0,
-            },
         };
         Self {
             projection,
