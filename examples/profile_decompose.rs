@@ -8,7 +8,8 @@
 //! Arguments: the map (an .hdr file, or `sky` for one second of the built-in sky at 256×128,
 //! 60 frames cycled, as the streaming bench uses), the number of frames, and optionally the
 //! working width (default: the decomposition's default). Prints the mean, median and minimum
-//! time per frame.
+//! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
+//! can be checked to give the same lights.
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{DecomposeSettings, Decomposer};
@@ -47,10 +48,24 @@ fn main() -> anyhow::Result<()> {
     // Per-frame times: on a shared machine the median and the minimum say more than the mean.
     let mut times = Vec::with_capacity(iterations);
     let mut lights = 0;
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
     for i in 0..iterations {
         let start = std::time::Instant::now();
-        lights += decomposer.decompose(&frames[i % frames.len()]).lights.len();
+        let frame = decomposer.decompose(&frames[i % frames.len()]);
         times.push(start.elapsed().as_secs_f64() * 1e3);
+        lights += frame.lights.len();
+        if i + 1 == iterations {
+            // FNV-1a over every field of the last frame's lights.
+            for l in &frame.lights {
+                let words = [l.id]
+                    .into_iter()
+                    .chain(l.dir.iter().chain(&l.rgb).map(|v| v.to_bits()))
+                    .chain([l.solid_angle.to_bits()]);
+                for w in words {
+                    hash = (hash ^ u64::from(w)).wrapping_mul(0x100_0000_01b3);
+                }
+            }
+        }
     }
     let n = iterations.max(1);
     let mean = times.iter().sum::<f64>() / n as f64;
@@ -62,7 +77,7 @@ fn main() -> anyhow::Result<()> {
             .unwrap_or(0.0)
     };
     println!(
-        "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame",
+        "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame, lights hash {hash:016x}",
         at(0.5),
         at(0.0),
         lights / n

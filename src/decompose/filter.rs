@@ -128,8 +128,10 @@ impl FirFilter {
             let mut dir = DVec3::ZERO;
             let mut rgb = [0.0f64; 3];
             let mut solid_angle = 0.0;
-            for (k, w) in self.taps.iter().enumerate() {
-                let s = &h.ring[(h.head + n - k) % n];
+            // Newest first: head, head − 1, …, 0, then n − 1, …, head + 1.
+            let (recent, earlier) = h.ring.split_at(h.head + 1);
+            let newest_first = recent.iter().rev().chain(earlier.iter().rev());
+            for (w, s) in self.taps.iter().zip(newest_first) {
                 dir += *w * s.dir;
                 for c in 0..3 {
                     rgb[c] += w * s.rgb[c];

@@ -236,12 +236,18 @@ struct Candidates {
     supers: DirSet,
     super_offsets: Vec<usize>,
     dots: Vec<f32>,
+    /// Per super-bucket candidate of the bucket at hand: its bound.
+    bounds: Vec<f32>,
+    /// Sort keys of a bucket's candidates: falling bound, then rising position.
+    keys: Vec<u64>,
 }
 
 impl Candidates {
     /// Candidate lists of every bucket: first per super-bucket among all lights, then per bucket
     /// among its super-bucket's candidates (a bucket lies inside its super-bucket, so its
-    /// candidates are among those).
+    /// candidates are among those). Inlined into the region pass, so compiled for its vector
+    /// unit.
+    #[inline(always)]
     fn build(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
         self.all.clear();
         for (i, &l) in lights.iter().enumerate() {
@@ -266,26 +272,35 @@ impl Candidates {
             let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
             let threshold = reach(c, r, &self.supers, range.clone(), &mut self.dots);
             let (sin_r, cos_r) = r.sin_cos();
-            let start = self.list.len();
-            for (k, &d) in self.dots.iter().enumerate() {
-                if d < threshold {
-                    continue;
-                }
+            // Every bound at once (vectorised, branch-free), then the candidates that pass.
+            self.bounds.clear();
+            self.bounds.extend(self.dots.iter().map(|&d| {
                 let cos_a = d.clamp(-1.0, 1.0);
-                let bound = if cos_a >= cos_r {
-                    1.0
-                } else {
-                    // cos(a − r) = cos a cos r + sin a sin r, a ∈ [r, π].
-                    cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r
-                };
+                // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
+                let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
+                (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
+            }));
+            // Branch-free compaction: every key is written, the count moves on for those that
+            // pass (which ones do is unpredictable).
+            self.keys.resize(self.dots.len(), 0);
+            let mut passing = 0;
+            for (k, (&d, &b)) in self.dots.iter().zip(&self.bounds).enumerate() {
+                self.keys[passing] = falling_key(b, k);
+                passing += usize::from(d >= threshold);
+            }
+            self.keys.truncate(passing);
+            // Sorting the 8-byte keys (branch-free small-sort networks in the standard
+            // library) gives the order of a stable sort by falling bound.
+            self.keys.sort_unstable();
+            for &key in &self.keys {
+                let k = key as u32 as usize;
                 let i = self.supers.id[range.start + k];
                 self.list.push(Candidate {
                     dir: lights[i as usize],
                     light: i,
-                    bound: bound + 1e-6,
+                    bound: self.bounds[k],
                 });
             }
-            sort_by_bound(&mut self.list[start..]);
             self.offsets.push(self.list.len() as u32);
         }
     }
@@ -296,18 +311,18 @@ impl Candidates {
     }
 }
 
-/// Sorts a short candidate list by falling bound (insertion sort: the lists hold a handful).
+/// Sort key of candidate `k` with bound `bound`: ascending keys are falling bounds, ties in
+/// rising `k`.
 #[inline(always)]
-fn sort_by_bound(list: &mut [Candidate]) {
-    for i in 1..list.len() {
-        let c = list[i];
-        let mut j = i;
-        while j > 0 && list[j - 1].bound < c.bound {
-            list[j] = list[j - 1];
-            j -= 1;
-        }
-        list[j] = c;
-    }
+fn falling_key(bound: f32, k: usize) -> u64 {
+    let bits = bound.to_bits();
+    // Unsigned order of the float's total order, then reversed.
+    let rising = if bits & 0x8000_0000 != 0 {
+        !bits
+    } else {
+        bits | 0x8000_0000
+    };
+    (u64::from(!rising) << 32) | k as u64
 }
 
 /// The candidate light nearest to `d`. `hint` (any light, typically the previous pixel's) seeds
@@ -376,9 +391,10 @@ fn label_bucket(
     };
     let mut best: [f32; CELLS] = std::array::from_fn(|i| dot(first.dir, i));
     let mut best_id = [first.light; CELLS];
-    let mut worst_best = min_of(&best);
     for c in rest {
-        if c.bound < worst_best {
+        // Every lane's best is at most 1, so a bound ≥ 1 cannot stop the scan: the lanes'
+        // minimum is only needed (and only computed) for a bound below 1.
+        if c.bound < 1.0 && c.bound < min_of(&best) {
             break;
         }
         // Copied out first: selecting between a load from `c` and a lane makes the compiler
@@ -390,7 +406,6 @@ fn label_bucket(
             best[i] = if closer { d } else { best[i] };
             best_id[i] = if closer { light } else { best_id[i] };
         }
-        worst_best = min_of(&best);
     }
     for (r, ids) in best_id
         .chunks_exact(BUCKET_PIXELS)
@@ -402,19 +417,21 @@ fn label_bucket(
     }
 }
 
-/// Smallest value of the lanes.
+/// Smallest value of the lanes (which are never NaN).
 #[inline(always)]
 fn min_of(lanes: &[f32; CELLS]) -> f32 {
+    // A select is one `vminps`; `f32::min` adds a NaN test and a blend per vector.
+    let min = |a: f32, b: f32| if b < a { b } else { a };
     let mut m = [f32::INFINITY; BUCKET_PIXELS];
     for row in lanes.chunks_exact(BUCKET_PIXELS) {
-        for (m, v) in m.iter_mut().zip(row) {
-            *m = m.min(*v);
+        for (m, &v) in m.iter_mut().zip(row) {
+            *m = min(*m, v);
         }
     }
     // Halving folds: vector minima, not a serial chain.
-    let m4: [f32; 4] = std::array::from_fn(|k| m[k].min(m[k + 4]));
-    let m2: [f32; 2] = std::array::from_fn(|k| m4[k].min(m4[k + 2]));
-    m2[0].min(m2[1])
+    let m4: [f32; 4] = std::array::from_fn(|k| min(m[k], m[k + 4]));
+    let m2: [f32; 2] = std::array::from_fn(|k| min(m4[k], m4[k + 2]));
+    min(m2[0], m2[1])
 }
 
 /// The region pass's arguments, run through [`pulp::Arch::dispatch`] so that the pass is
@@ -501,20 +518,21 @@ fn accumulate(args: Accumulate<'_>) {
         let row = y * map.width..(y + 1) * map.width;
         let omega = map.row_solid_angle[y];
         let (sin_t, cos_t) = map.row_trig_f64[y];
-        // Per run: Σ rgb, Σ lum·sin φ, Σ lum, Σ lum·cos φ, pixel count.
-        let mut run = ([0.0f64; 3], [0.0f64; 3], 0u32);
+        // Per run: [Σ r, Σ g, Σ b, Σ lum], [Σ lum·sin φ, Σ lum·cos φ] and the pixel count, as
+        // short arrays whose adds the compiler does as one vector add each.
+        let mut run = ([0.0f64; 4], [0.0f64; 2], 0u32);
         let mut current = labels[row.start];
-        let mut flush = |light: u32, (rgb, lum, count): ([f64; 3], [f64; 3], u32)| {
+        let mut flush = |light: u32, (sums, trig, count): ([f64; 4], [f64; 2], u32)| {
             if count == 0 {
                 return;
             }
             let r = &mut regions[light as usize];
             for c in 0..3 {
-                r.rgb[c] += rgb[c];
+                r.rgb[c] += sums[c];
             }
-            r.weighted_dir[0] += sin_t * lum[0];
-            r.weighted_dir[1] += cos_t * lum[1];
-            r.weighted_dir[2] -= sin_t * lum[2];
+            r.weighted_dir[0] += sin_t * trig[0];
+            r.weighted_dir[1] += cos_t * sums[3];
+            r.weighted_dir[2] -= sin_t * trig[1];
             r.solid_angle += f64::from(count) * omega;
         };
         let pixels = map.energy[row.clone()]
@@ -532,12 +550,14 @@ fn accumulate(args: Accumulate<'_>) {
                 continue;
             }
             let lum = f64::from(lum);
-            for c in 0..3 {
-                run.0[c] += energy[c];
+            let pixel = [energy[0], energy[1], energy[2], lum];
+            for (s, v) in run.0.iter_mut().zip(pixel) {
+                *s += v;
             }
-            run.1[0] += lum * sin_p;
-            run.1[1] += lum;
-            run.1[2] += lum * cos_p;
+            let trig = [lum * sin_p, lum * cos_p];
+            for (s, v) in run.1.iter_mut().zip(trig) {
+                *s += v;
+            }
             run.2 += 1;
         }
         flush(current, run);

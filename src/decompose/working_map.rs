@@ -440,8 +440,9 @@ fn box_filter(args: BoxFilter<'_>) {
         let mut bits = 0u32;
         let omegas = &row_solid_angle[wy * f..(wy + 1) * f];
         let sums = &mut column_sums[..row_len];
-        // Two input rows per pass over the column sums (half the loads and stores of the sums);
-        // an odd factor starts with one row.
+        // Four, else two input rows per pass over the column sums (fewer loads and stores of
+        // the sums); an odd factor starts with one row. The adds are grouped as in pairs of
+        // rows, ((r0 + r1) + (r2 + r3)), so the sums do not depend on the grouping.
         let mut k = 0;
         if f % 2 == 1 {
             let (row, w) = (rows[..sw].as_flattened(), omegas[0] as f32);
@@ -450,6 +451,28 @@ fn box_filter(args: BoxFilter<'_>) {
                 bits |= p.to_bits();
             }
             k = 1;
+        }
+        if f % 4 == 0 {
+            while k + 3 < f {
+                let row = |j: usize| rows[(k + j) * sw..(k + j + 1) * sw].as_flattened();
+                let (row0, row1, row2, row3) = (row(0), row(1), row(2), row(3));
+                let w = |j: usize| omegas[k + j] as f32;
+                let (w0, w1, w2, w3) = (w(0), w(1), w(2), w(3));
+                let quads = sums.iter_mut().zip(row0).zip(row1).zip(row2).zip(row3);
+                if k == 0 {
+                    for ((((a, p), q), r), s) in quads {
+                        *a = p * w0 + q * w1 + (r * w2 + s * w3);
+                        bits |= (p.to_bits() | q.to_bits()) | (r.to_bits() | s.to_bits());
+                    }
+                } else {
+                    for ((((a, p), q), r), s) in quads {
+                        *a += p * w0 + q * w1;
+                        *a += r * w2 + s * w3;
+                        bits |= (p.to_bits() | q.to_bits()) | (r.to_bits() | s.to_bits());
+                    }
+                }
+                k += 4;
+            }
         }
         while k + 1 < f {
             let row0 = rows[k * sw..(k + 1) * sw].as_flattened();
