@@ -862,6 +862,9 @@ fn default_beats_median_cut_on_the_quality_table() {
         .iter()
         .filter(|(what, _)| matches!(*what, "diffuse" | "glossy-16"))
         .collect();
-    assert!(basic.is_empty(), "diffuse or glossy-16 rows lost: {basic:#?}");
+    assert!(
+        basic.is_empty(),
+        "diffuse or glossy-16 rows lost: {basic:#?}"
+    );
     assert!(wins >= 67, "only {wins} of 72 rows won: {losses:#?}");
 }
