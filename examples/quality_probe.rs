@@ -311,8 +311,8 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
                         let (st, ct) = map.row_trig_f64[y];
                         let (sp, cp) = map.column_trig_f64[x];
                         let d = DVec3::new(st * sp, ct, -st * cp);
-                        for c in 0..3 {
-                            e[c] += map.energy[i][c];
+                        for (acc, v) in e.iter_mut().zip(map.energy[i]) {
+                            *acc += v;
                         }
                         ld += d * luminance_f64(map.energy[i]);
                     }
@@ -398,8 +398,8 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
                 l * (l / p.omega).powf(o.cpow - 1.0)
             };
             assign[pi] = best;
-            for c in 0..3 {
-                rgb[best][c] += p.energy[c];
+            for (acc, v) in rgb[best].iter_mut().zip(p.energy) {
+                *acc += v;
             }
             wd[best] += p.dir * wl;
             sa[best] += p.omega;
