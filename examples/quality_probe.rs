@@ -13,12 +13,16 @@
 //! density; `mx` every working pixel gets at least this × its energy share of the points (`mxc=1`:
 //! concentrated pixels only); `c` concentrated share (× 1/N); `w` working width; `p` centroid
 //! weighted by radiance^p; `hz=1` regions kept on one side of the horizon; `up` density factor
-//! of the upper hemisphere; `fw` fine warp inside concentrated pixels with this exponent;
+//! of the upper hemisphere; `fw` fine warp inside concentrated pixels with this exponent; `gc` density
+//! exponent inside concentrated working pixels only; `lc=1` Lloyd steps move only the lights
+//! whose regions hold concentrated input pixels (`LCSTAT=1` in the environment prints how many
+//! lights move and how much of the sphere their regions cover);
 //! `lloyd` Lloyd steps on the working map; `cl` one Lloyd step on a map coarser by this factor
 //! (`cc=1`: coarse pixels at their luminance centroids, `cc=2`: assigned from their centres
 //! with exact centroids; `cf=0`: without the concentrated pixels' input pixels); `fl=1`
 //! (diagnostic, more than N lights) every input pixel of a concentrated working pixel is a
-//! light of its own; `lib=1` the library's decomposition with `g` and `w`.
+//! light of its own; `lib=1` the library's decomposition with `g`, `w` and `lc`
+//! (`lc=1`: [`DecomposeSettings::concentrated_lloyd`]).
 //!
 //! Environment: `NS=128,512` other light counts; `V=1` every cell; `DIAG=MAP:N` the lights with
 //! the largest ground-shadow error of the first variant; `PNG=MAP:N` writes /tmp/probe.png with
@@ -69,6 +73,10 @@ struct Opts {
     coarse_centroid: u8,
     /// Keep fine samples in the coarse pass.
     coarse_fine: bool,
+    /// Density exponent inside concentrated working pixels (0 = the same as `gamma`).
+    gamma_conc: f64,
+    /// Lloyd steps move only the lights whose regions hold concentrated input pixels.
+    lloyd_conc: bool,
 }
 
 impl Default for Opts {
@@ -93,6 +101,8 @@ impl Default for Opts {
             coarse_lloyd: 0,
             coarse_centroid: 0,
             coarse_fine: true,
+            gamma_conc: 0.0,
+            lloyd_conc: false,
         }
     }
 }
@@ -123,6 +133,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             lights: n,
             pdf_exponent: o.gamma,
             working_width: o.width,
+            concentrated_lloyd: o.lloyd_conc,
             filter_taps: None,
             merge_spacing_fraction: None,
             ..DecomposeSettings::default()
@@ -185,6 +196,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             });
         }
     }
+    let nwork = pixels.len();
     let mut extra = Vec::new();
     for s in &map.fine {
         if o.fine_lights {
@@ -210,7 +222,12 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
         let om = map.row_solid_angle[y];
         for x in 0..w {
             let l = f64::from(map.luminance[y * w + x]);
-            let mut v = (l / om).powf(o.gamma) * om;
+            let g = if o.gamma_conc > 0.0 && map.concentrated[y * w + x] {
+                o.gamma_conc
+            } else {
+                o.gamma
+            };
+            let mut v = (l / om).powf(g) * om;
             if y < h / 2 {
                 v *= o.upper;
             }
@@ -364,10 +381,13 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
     }
     let mut lights = Vec::new();
     let mut assign = vec![0usize; pixels.len()];
+    let mut first_assign = Vec::new();
+    let mut moved = vec![false; n];
     for it in 0..=o.lloyd {
         let mut rgb = vec![[0.0f64; 3]; n];
         let mut wd = vec![DVec3::ZERO; n];
         let mut sa = vec![0.0f64; n];
+        let mut holds_conc = vec![false; n];
         for (pi, p) in pixels.iter().enumerate() {
             let mut best = 0;
             let mut bd = f64::NEG_INFINITY;
@@ -398,6 +418,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
                 l * (l / p.omega).powf(o.cpow - 1.0)
             };
             assign[pi] = best;
+            holds_conc[best] |= pi >= nwork;
             for (acc, v) in rgb[best].iter_mut().zip(p.energy) {
                 *acc += v;
             }
@@ -405,7 +426,14 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             sa[best] += p.omega;
         }
         if it < o.lloyd {
+            if it == 0 {
+                first_assign = assign.clone();
+            }
             for i in 0..n {
+                if o.lloyd_conc && !holds_conc[i] {
+                    continue;
+                }
+                moved[i] = true;
                 if let Some(d) = wd[i].try_normalize() {
                     sample_dirs[i] = d;
                 }
@@ -423,6 +451,27 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
                 }
             })
             .collect();
+    }
+    if o.lloyd_conc && std::env::var("LCSTAT").is_ok() && !first_assign.is_empty() {
+        // What a Lloyd step on the concentrated sources' lights would have to redraw: the
+        // working pixels of the moved lights' old regions, and those whose light changed.
+        let total: f64 = pixels[..nwork].iter().map(|p| p.omega).sum();
+        let (mut in_moved, mut changed) = (0.0, 0.0);
+        for (pi, p) in pixels[..nwork].iter().enumerate() {
+            if moved[first_assign[pi]] || moved[assign[pi]] {
+                in_moved += p.omega;
+            }
+            if first_assign[pi] != assign[pi] {
+                changed += p.omega;
+            }
+        }
+        eprintln!(
+            "LCSTAT n={n} moved lights {} ({:.1}%), sphere in their regions {:.2}%, relabelled {:.2}%",
+            moved.iter().filter(|&&m| m).count(),
+            100.0 * moved.iter().filter(|&&m| m).count() as f64 / n as f64,
+            100.0 * in_moved / total,
+            100.0 * changed / total
+        );
     }
     lights.extend(extra);
     (lights, pixels, assign)
@@ -562,6 +611,8 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                     o.coarse_centroid = v.parse().with_context(|| format!("{kv}: not a number"))?
                 }
                 "cf" => o.coarse_fine = v == "1",
+                "gc" => o.gamma_conc = v.parse().with_context(|| format!("{kv}: not a number"))?,
+                "lc" => o.lloyd_conc = v == "1",
                 _ => anyhow::bail!("unknown switch {k}"),
             }
         }
