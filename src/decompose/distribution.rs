@@ -45,8 +45,18 @@ impl PiecewiseConstant2d {
     }
 
     /// Rebuilds the distribution in place for new weights (as [`Self::new`]), reusing its
-    /// buffers.
+    /// buffers. Compiled for the CPU's widest vector unit (runtime detection).
     pub fn rebuild(&mut self, weights: &[f64], width: usize, height: usize) {
+        pulp::Arch::new().dispatch(Rebuild {
+            dist: self,
+            weights,
+            width,
+            height,
+        });
+    }
+
+    #[inline(always)]
+    fn rebuild_inline(&mut self, weights: &[f64], width: usize, height: usize) {
         assert_eq!(
             weights.len(),
             width * height,
@@ -276,6 +286,25 @@ impl PiecewiseConstant2d {
             }
         };
         [u0.clamp(0.0, 1.0), u1.clamp(0.0, 1.0)]
+    }
+}
+
+/// [`PiecewiseConstant2d::rebuild`]'s arguments, run through [`pulp::Arch::dispatch`] so that
+/// the clean-up and the sums are compiled for the CPU's vector unit.
+struct Rebuild<'a> {
+    dist: &'a mut PiecewiseConstant2d,
+    weights: &'a [f64],
+    width: usize,
+    height: usize,
+}
+
+impl pulp::WithSimd for Rebuild<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        self.dist
+            .rebuild_inline(self.weights, self.width, self.height);
     }
 }
 

@@ -333,7 +333,7 @@ impl Resampler {
         // are summed again with those pixels counted as 0, so neither the lights nor the good
         // pixels beside them are lost. Sums of non-negative finite values stay finite, so a
         // finite total means there is nothing to redo.
-        let mut total = luminance_sum(&map.luminance);
+        let mut total = self.arch.dispatch(LuminanceSum(&map.luminance));
         if !total.is_finite() {
             for idx in 0..map.energy.len() {
                 if map.luminance[idx].is_finite()
@@ -358,9 +358,11 @@ impl Resampler {
 
         let threshold = concentrated_share * total;
         map.fine.clear();
-        for (flag, &lum) in map.concentrated.iter_mut().zip(&map.luminance) {
-            *flag = f64::from(lum) > threshold;
-        }
+        self.arch.dispatch(Flags {
+            luminance: &map.luminance,
+            concentrated: &mut map.concentrated,
+            threshold,
+        });
         for idx in 0..map.concentrated.len() {
             if !map.concentrated[idx] {
                 continue;
@@ -551,7 +553,39 @@ fn luminance_f32(rgb: [f32; 3]) -> f32 {
     crate::frame::luminance(rgb)
 }
 
+/// [`luminance_sum`] compiled for the CPU's vector unit.
+struct LuminanceSum<'a>(&'a [f32]);
+
+impl pulp::WithSimd for LuminanceSum<'_> {
+    type Output = f64;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> f64 {
+        luminance_sum(self.0)
+    }
+}
+
+/// Flags the working pixels whose luminance exceeds `threshold` (compiled for the CPU's vector
+/// unit).
+struct Flags<'a> {
+    luminance: &'a [f32],
+    concentrated: &'a mut [bool],
+    threshold: f64,
+}
+
+impl pulp::WithSimd for Flags<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        for (flag, &lum) in self.concentrated.iter_mut().zip(self.luminance) {
+            *flag = f64::from(lum) > self.threshold;
+        }
+    }
+}
+
 /// Σ of the working pixels' luminance in f64 (four partial sums, so the adds overlap).
+#[inline(always)]
 fn luminance_sum(luminance: &[f32]) -> f64 {
     let mut partial = [0.0f64; 4];
     let quads = luminance.chunks_exact(4);
