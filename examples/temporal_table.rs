@@ -22,7 +22,9 @@
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
-use envlight::decompose::{DecomposeSettings, Decomposer, LightPlacement, Warp};
+use envlight::decompose::{
+    DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
+};
 use envlight::envmap::Projection;
 use envlight::yardstick::{flicker, light_irradiance, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
@@ -198,19 +200,29 @@ fn main() -> Result<()> {
         },
         Method {
             name: "envlight (filter on)",
-            settings: envlight(true, LightPlacement::Centroid, 0.75),
+            settings: envlight(true, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT),
         },
         Method {
             name: "envlight, no filter",
-            settings: envlight(false, LightPlacement::Centroid, 0.75),
+            settings: envlight(false, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT),
         },
         Method {
             name: "envlight, hierarchical warp, filter on",
-            settings: envlight_warp(true, LightPlacement::Centroid, 0.75, Warp::Hierarchical),
+            settings: envlight_warp(
+                true,
+                LightPlacement::Centroid,
+                DEFAULT_PDF_EXPONENT,
+                Warp::Hierarchical,
+            ),
         },
         Method {
             name: "envlight, hierarchical warp, no filter",
-            settings: envlight_warp(false, LightPlacement::Centroid, 0.75, Warp::Hierarchical),
+            settings: envlight_warp(
+                false,
+                LightPlacement::Centroid,
+                DEFAULT_PDF_EXPONENT,
+                Warp::Hierarchical,
+            ),
         },
         Method {
             name: "envlight, γ=0.5, filter on",

@@ -1121,6 +1121,7 @@ impl RawDecompose {
             merge_spacing_fraction,
             pdf_exponent,
             warp,
+            concentrated_lloyd: d.concentrated_lloyd,
         })
     }
 }

@@ -12,6 +12,8 @@
 //! - Temporal filter end to end: constant input gives constant lights; a brightness step appears
 //!   with exactly `filter_delay_frames()` of delay; light-count changes keep ids, energy and the
 //!   per-id filter history.
+//! - Quality: the default decomposition beats median cut on at least 67 of the 72 rows of
+//!   docs/quality.md, and on every diffuse and glossy-16 row.
 //!
 //! Angles and bounds are printed with `eprintln!` (run with `--nocapture` to see them).
 
@@ -23,6 +25,7 @@ use envlight::decompose::{
 };
 use envlight::envmap::Projection;
 use envlight::frame::luminance;
+use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, Light, LightFrame};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -794,4 +797,74 @@ fn light_count_changes_keep_ids_and_energy() {
         }
         previous = Some((n, reference));
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Quality against the classic peer
+
+/// The maps of docs/quality.md's table.
+const QUALITY_MAPS: [&str; 9] = [
+    "empty_warehouse_01_1k.hdr",
+    "noon_grass_1k.hdr",
+    "potsdamer_platz_1k.hdr",
+    "rooitou_park_1k.hdr",
+    "st_peters_square_night_1k.hdr",
+    "studio_small_03_1k.hdr",
+    "venice_sunset_1k.hdr",
+    "KernerEnvLatLong.exr",
+    "StageEnvLatLong.exr",
+];
+
+/// Issue 2's quality target, as far as it is met: the default decomposition's error against
+/// Debevec's median cut on the rows of docs/quality.md (diffuse, glossy-16, glossy-128 and
+/// ground-shadow on every map there, at 64 and 256 lights: 72 comparisons; the yardsticks of
+/// `envlight::yardstick` on a 256-wide reference, single frames, no filter or merge, as
+/// examples/quality_table.rs computes them).
+///
+/// Measured: lower on 67 of 72 rows. Diffuse and glossy-16 are lower on all 18 rows each. Lost:
+/// glossy-128 on venice_sunset at 64 lights, and ground-shadow on empty_warehouse_01 (64),
+/// st_peters_square_night (64 and 256) and studio_small_03 (256), all by lamps or suns
+/// concentrated in few lights (docs/quality.md says why, and what winning all 72 rows cost).
+/// Pinned: every diffuse and glossy-16 row, and at least 67 rows in all.
+#[test]
+fn default_beats_median_cut_on_the_quality_table() {
+    let mut losses = Vec::new();
+    let mut wins = 0;
+    for name in QUALITY_MAPS {
+        let mut frame = load_latlong(name);
+        frame.sanitize();
+        let map = ReferenceMap::new(&frame, 256).unwrap();
+        for n in [64, 256] {
+            let lights = Decomposer::new(raw_settings(n)).unwrap().decompose(&frame);
+            let ours = evaluate(&map, &lights.lights);
+            let peer = evaluate(&map, &median_cut(&frame, n).unwrap().lights);
+            let rows = [
+                ("diffuse", ours.diffuse, peer.diffuse),
+                ("glossy-16", ours.glossy16, peer.glossy16),
+                ("glossy-128", ours.glossy128, peer.glossy128),
+                ("ground-shadow", ours.ground_shadow, peer.ground_shadow),
+            ];
+            for (what, ours, peer) in rows {
+                eprintln!(
+                    "{name} N={n} {what}: envlight {ours:.4}, median cut {peer:.4} ({:.2}×)",
+                    ours / peer
+                );
+                if ours < peer {
+                    wins += 1;
+                } else {
+                    losses.push((what, format!("{name} N={n} {what}: {ours:.4} vs {peer:.4}")));
+                }
+            }
+        }
+    }
+    eprintln!("envlight lower on {wins} of 72 rows; lost: {losses:#?}");
+    let basic: Vec<_> = losses
+        .iter()
+        .filter(|(what, _)| matches!(*what, "diffuse" | "glossy-16"))
+        .collect();
+    assert!(
+        basic.is_empty(),
+        "diffuse or glossy-16 rows lost: {basic:#?}"
+    );
+    assert!(wins >= 67, "only {wins} of 72 rows won: {losses:#?}");
 }

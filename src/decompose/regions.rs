@@ -240,6 +240,9 @@ struct Candidates {
     bounds: Vec<f32>,
     /// Sort keys of a bucket's candidates: falling bound, then rising position.
     keys: Vec<u64>,
+    /// Per bucket, the reach threshold of its candidates: a light whose dot product with the
+    /// bucket's centre is below it cannot be nearest to any point of the bucket.
+    thresholds: Vec<f32>,
 }
 
 impl Candidates {
@@ -267,48 +270,89 @@ impl Candidates {
         }
         self.offsets.clear();
         self.list.clear();
+        self.thresholds.clear();
         self.offsets.push(0);
         for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
             let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
-            let threshold = reach(c, r, &self.supers, range.clone(), &mut self.dots);
-            let (sin_r, cos_r) = r.sin_cos();
-            // Every bound at once (vectorised, branch-free), then the candidates that pass.
-            self.bounds.clear();
-            self.bounds.extend(self.dots.iter().map(|&d| {
-                let cos_a = d.clamp(-1.0, 1.0);
-                // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
-                let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
-                (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
-            }));
-            // Branch-free compaction: every key is written, the count moves on for those that
-            // pass (which ones do is unpredictable).
-            self.keys.resize(self.dots.len(), 0);
-            let mut passing = 0;
-            for (k, (&d, &b)) in self.dots.iter().zip(&self.bounds).enumerate() {
-                self.keys[passing] = falling_key(b, k);
-                passing += usize::from(d >= threshold);
-            }
-            self.keys.truncate(passing);
-            // Sorting the 8-byte keys (branch-free small-sort networks in the standard
-            // library) gives the order of a stable sort by falling bound.
-            self.keys.sort_unstable();
-            for &key in &self.keys {
-                let k = key as u32 as usize;
-                let i = self.supers.id[range.start + k];
-                self.list.push(Candidate {
-                    dir: lights[i as usize],
-                    light: i,
-                    bound: self.bounds[k],
-                });
-            }
+            let threshold = self.bucket_list(c, r, Set::Supers(range), lights, None);
+            self.thresholds.push(threshold);
             self.offsets.push(self.list.len() as u32);
         }
+    }
+
+    /// Appends the candidates of the cap (`centre`, `radius`) among `set` to `out` (or to
+    /// `self.list`), nearest to the centre first, and returns the reach threshold.
+    #[inline(always)]
+    fn bucket_list(
+        &mut self,
+        centre: Vec3,
+        radius: f32,
+        set: Set<'_>,
+        lights: &[Vec3],
+        out: Option<&mut Vec<Candidate>>,
+    ) -> f32 {
+        let Candidates {
+            supers,
+            dots,
+            bounds,
+            keys,
+            list,
+            ..
+        } = self;
+        let (set, range) = match set {
+            Set::Supers(range) => (&*supers, range),
+            Set::Other(set) => (set, 0..set.len()),
+        };
+        let threshold = reach(centre, radius, set, range.clone(), dots);
+        let (sin_r, cos_r) = radius.sin_cos();
+        // Every bound at once (vectorised, branch-free), then the candidates that pass.
+        bounds.clear();
+        bounds.extend(dots.iter().map(|&d| {
+            let cos_a = d.clamp(-1.0, 1.0);
+            // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
+            let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
+            (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
+        }));
+        // Branch-free compaction: every key is written, the count moves on for those that
+        // pass (which ones do is unpredictable).
+        keys.resize(dots.len(), 0);
+        let mut passing = 0;
+        for (k, (&d, &b)) in dots.iter().zip(bounds.iter()).enumerate() {
+            keys[passing] = falling_key(b, k);
+            passing += usize::from(d >= threshold);
+        }
+        keys.truncate(passing);
+        // Sorting the 8-byte keys (branch-free small-sort networks in the standard library)
+        // gives the order of a stable sort by falling bound.
+        keys.sort_unstable();
+        let out = match out {
+            Some(out) => out,
+            None => list,
+        };
+        for &key in keys.iter() {
+            let k = key as u32 as usize;
+            let i = set.id[range.start + k];
+            out.push(Candidate {
+                dir: lights[i as usize],
+                light: i,
+                bound: bounds[k],
+            });
+        }
+        threshold
     }
 
     #[inline]
     fn of(&self, bucket: usize) -> &[Candidate] {
         &self.list[self.offsets[bucket] as usize..self.offsets[bucket + 1] as usize]
     }
+}
+
+/// The lights a bucket's candidates are chosen from.
+enum Set<'a> {
+    /// A range of the super-buckets' candidates.
+    Supers(std::ops::Range<usize>),
+    /// Every light of another set.
+    Other(&'a DirSet),
 }
 
 /// Sort key of candidate `k` with bound `bound`: ascending keys are falling bounds, ties in
@@ -352,6 +396,15 @@ pub(super) struct Scratch {
     labels: Vec<u32>,
     lights: Vec<Vec3>,
     candidates: Candidates,
+    /// Lights holding input pixels of concentrated sources.
+    moved: Vec<bool>,
+    /// The lights after the Lloyd step, as an array and as a set.
+    new_lights: Vec<Vec3>,
+    new_set: DirSet,
+    /// Per bucket, its index among the buckets relabelled by the Lloyd step (u32::MAX: not).
+    local: Vec<u32>,
+    local_offsets: Vec<u32>,
+    local_list: Vec<Candidate>,
 }
 
 /// Labels every pixel of bucket (`bx`, `by`) with its nearest light among the bucket's
@@ -443,6 +496,8 @@ pub(super) struct Accumulate<'a> {
     pub sample_dirs: &'a [DVec3],
     pub regions: &'a mut [Region],
     pub scratch: &'a mut Scratch,
+    /// One Lloyd step for the lights holding concentrated sources (see [`accumulate`]).
+    pub concentrated_lloyd: bool,
 }
 
 impl pulp::WithSimd for Accumulate<'_> {
@@ -462,6 +517,12 @@ impl pulp::WithSimd for Accumulate<'_> {
 /// Two passes: every working pixel is labelled with its nearest light (bucket by bucket, see
 /// [`label_bucket`]); then each row is summed run by run (consecutive pixels of one light, f64)
 /// and each run is added to its light's region once.
+///
+/// With `concentrated_lloyd`, one Lloyd step follows for the lights that hold input pixels of
+/// concentrated sources: each moves to its region's luminance centroid and the regions are
+/// redrawn. Only the buckets the moved lights can reach are labelled again (a bucket none of
+/// whose candidates moved, and which no moved light's new direction passes the bucket's reach
+/// threshold for, keeps its labels); the row sums are redone.
 #[inline(always)]
 fn accumulate(args: Accumulate<'_>) {
     let Accumulate {
@@ -470,34 +531,25 @@ fn accumulate(args: Accumulate<'_>) {
         sample_dirs,
         regions,
         scratch,
+        concentrated_lloyd,
     } = args;
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
     scratch.lights.clear();
     scratch
         .lights
         .extend(sample_dirs.iter().map(|d| d.as_vec3()));
-    let lights = &scratch.lights;
-    scratch.candidates.build(grid, lights);
-    let candidates = &scratch.candidates;
-    let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
-
-    let mut hint = 0;
-    for sample in &map.fine {
-        let (x, y) = (
-            sample.pixel as usize % map.width,
-            sample.pixel as usize / map.width,
-        );
-        let dir = Vec3::from(sample.dir);
-        hint = nearest(candidates.of(bucket_of(x, y)), lights, dir, hint);
-        let r = &mut regions[hint];
-        let energy = sample.energy.map(f64::from);
-        let lum = luminance_f64(energy);
-        for c in 0..3 {
-            r.rgb[c] += energy[c];
-            r.weighted_dir[c] += lum * f64::from(dir[c]);
-        }
-        r.solid_angle += f64::from(sample.solid_angle);
-    }
+    scratch.candidates.build(grid, &scratch.lights);
+    let lookup = |bucket: usize| scratch.candidates.of(bucket);
+    scratch.moved.clear();
+    scratch.moved.resize(sample_dirs.len(), false);
+    assign_fine(
+        map,
+        grid,
+        lookup,
+        &scratch.lights,
+        regions,
+        &mut scratch.moved,
+    );
 
     let labels = &mut scratch.labels;
     labels.resize(map.width * map.height, 0);
@@ -507,13 +559,120 @@ fn accumulate(args: Accumulate<'_>) {
             label_bucket(
                 map,
                 grid,
-                candidates.of(by * grid.cols + bx),
+                scratch.candidates.of(by * grid.cols + bx),
                 (bx, by),
                 labels,
             );
         }
     }
+    sum_runs(map, labels, regions);
+    if !concentrated_lloyd || !scratch.moved.contains(&true) {
+        return;
+    }
 
+    // The Lloyd step on the concentrated sources' lights.
+    let Scratch {
+        labels,
+        lights,
+        candidates,
+        moved,
+        new_lights,
+        new_set,
+        local,
+        local_offsets,
+        local_list,
+    } = scratch;
+    new_lights.clear();
+    new_lights.extend_from_slice(lights);
+    new_set.clear();
+    for (i, l) in new_lights.iter_mut().enumerate() {
+        if moved[i] {
+            if let Some(d) = DVec3::from(regions[i].weighted_dir).try_normalize() {
+                *l = d.as_vec3();
+            }
+        }
+        new_set.push(i as u32, *l);
+    }
+    local.clear();
+    local_offsets.clear();
+    local_offsets.push(0);
+    local_list.clear();
+    for b in 0..grid.centres.len() {
+        let centre = grid.centres[b];
+        let threshold = candidates.thresholds[b];
+        let affected = candidates.of(b).iter().any(|c| moved[c.light as usize])
+            || new_lights
+                .iter()
+                .zip(moved.iter())
+                .any(|(l, &m)| m && centre.dot(*l) >= threshold);
+        if affected {
+            local.push(local_offsets.len() as u32 - 1);
+            candidates.bucket_list(
+                centre,
+                grid.radii[b],
+                Set::Other(new_set),
+                new_lights,
+                Some(local_list),
+            );
+            local_offsets.push(local_list.len() as u32);
+        } else {
+            local.push(u32::MAX);
+        }
+    }
+    let list_of = |b: usize| match local[b] {
+        u32::MAX => candidates.of(b),
+        k => {
+            &local_list[local_offsets[k as usize] as usize..local_offsets[k as usize + 1] as usize]
+        }
+    };
+    for by in 0..rows {
+        for bx in 0..grid.cols {
+            let b = by * grid.cols + bx;
+            if local[b] != u32::MAX {
+                label_bucket(map, grid, list_of(b), (bx, by), labels);
+            }
+        }
+    }
+    regions.fill(Region::default());
+    assign_fine(map, grid, list_of, new_lights, regions, moved);
+    sum_runs(map, labels, regions);
+}
+
+/// Assigns the input pixels of concentrated working pixels to their nearest lights (candidates
+/// per bucket from `lookup`), marking in `holds` the lights that receive any.
+#[inline(always)]
+fn assign_fine<'c>(
+    map: &WorkingMap,
+    grid: &BucketGrid,
+    lookup: impl Fn(usize) -> &'c [Candidate],
+    lights: &[Vec3],
+    regions: &mut [Region],
+    holds: &mut [bool],
+) {
+    let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
+    let mut hint = 0;
+    for sample in &map.fine {
+        let (x, y) = (
+            sample.pixel as usize % map.width,
+            sample.pixel as usize / map.width,
+        );
+        let dir = Vec3::from(sample.dir);
+        hint = nearest(lookup(bucket_of(x, y)), lights, dir, hint);
+        holds[hint] = true;
+        let r = &mut regions[hint];
+        let energy = sample.energy.map(f64::from);
+        let lum = luminance_f64(energy);
+        for c in 0..3 {
+            r.rgb[c] += energy[c];
+            r.weighted_dir[c] += lum * f64::from(dir[c]);
+        }
+        r.solid_angle += f64::from(sample.solid_angle);
+    }
+}
+
+/// Sums each row of the labelled working map run by run into the regions.
+#[inline(always)]
+fn sum_runs(map: &WorkingMap, labels: &[u32], regions: &mut [Region]) {
     for y in 0..map.height {
         let row = y * map.width..(y + 1) * map.width;
         let omega = map.row_solid_angle[y];
