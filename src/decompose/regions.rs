@@ -397,7 +397,7 @@ pub(super) struct Scratch {
     lights: Vec<Vec3>,
     candidates: Candidates,
     /// Lights holding input pixels of concentrated sources.
-    moved: Vec<bool>,
+    holds_concentrated: Vec<bool>,
     /// The lights after the Lloyd step, as an array and as a set.
     new_lights: Vec<Vec3>,
     new_set: DirSet,
@@ -540,15 +540,15 @@ fn accumulate(args: Accumulate<'_>) {
         .extend(sample_dirs.iter().map(|d| d.as_vec3()));
     scratch.candidates.build(grid, &scratch.lights);
     let lookup = |bucket: usize| scratch.candidates.of(bucket);
-    scratch.moved.clear();
-    scratch.moved.resize(sample_dirs.len(), false);
+    scratch.holds_concentrated.clear();
+    scratch.holds_concentrated.resize(sample_dirs.len(), false);
     assign_fine(
         map,
         grid,
         lookup,
         &scratch.lights,
         regions,
-        &mut scratch.moved,
+        &mut scratch.holds_concentrated,
     );
 
     let labels = &mut scratch.labels;
@@ -566,7 +566,7 @@ fn accumulate(args: Accumulate<'_>) {
         }
     }
     sum_runs(map, labels, regions);
-    if !concentrated_lloyd || !scratch.moved.contains(&true) {
+    if !concentrated_lloyd || !scratch.holds_concentrated.contains(&true) {
         return;
     }
 
@@ -575,7 +575,7 @@ fn accumulate(args: Accumulate<'_>) {
         labels,
         lights,
         candidates,
-        moved,
+        holds_concentrated,
         new_lights,
         new_set,
         local,
@@ -586,7 +586,7 @@ fn accumulate(args: Accumulate<'_>) {
     new_lights.extend_from_slice(lights);
     new_set.clear();
     for (i, l) in new_lights.iter_mut().enumerate() {
-        if moved[i] {
+        if holds_concentrated[i] {
             if let Some(d) = DVec3::from(regions[i].weighted_dir).try_normalize() {
                 *l = d.as_vec3();
             }
@@ -600,10 +600,13 @@ fn accumulate(args: Accumulate<'_>) {
     for b in 0..grid.centres.len() {
         let centre = grid.centres[b];
         let threshold = candidates.thresholds[b];
-        let affected = candidates.of(b).iter().any(|c| moved[c.light as usize])
+        let affected = candidates
+            .of(b)
+            .iter()
+            .any(|c| holds_concentrated[c.light as usize])
             || new_lights
                 .iter()
-                .zip(moved.iter())
+                .zip(holds_concentrated.iter())
                 .any(|(l, &m)| m && centre.dot(*l) >= threshold);
         if affected {
             local.push(local_offsets.len() as u32 - 1);
@@ -634,7 +637,7 @@ fn accumulate(args: Accumulate<'_>) {
         }
     }
     regions.fill(Region::default());
-    assign_fine(map, grid, list_of, new_lights, regions, moved);
+    assign_fine(map, grid, list_of, new_lights, regions, holds_concentrated);
     sum_runs(map, labels, regions);
 }
 
