@@ -66,6 +66,14 @@ fn envlight_warp(
     })
 }
 
+/// The same settings with [`DecomposeSettings::concentrated_lloyd`] on.
+fn with_concentrated_lloyd(settings: Option<DecomposeSettings>) -> Option<DecomposeSettings> {
+    settings.map(|s| DecomposeSettings {
+        concentrated_lloyd: true,
+        ..s
+    })
+}
+
 fn rotated(frame: &HdrFrame, shift: u32) -> HdrFrame {
     let (w, h) = (frame.width as usize, frame.height as usize);
     let mut pixels = Vec::with_capacity(w * h);
@@ -223,6 +231,22 @@ fn main() -> Result<()> {
                 DEFAULT_PDF_EXPONENT,
                 Warp::Hierarchical,
             ),
+        },
+        Method {
+            name: "envlight, concentrated Lloyd step, filter on",
+            settings: with_concentrated_lloyd(envlight(
+                true,
+                LightPlacement::Centroid,
+                DEFAULT_PDF_EXPONENT,
+            )),
+        },
+        Method {
+            name: "envlight, concentrated Lloyd step, no filter",
+            settings: with_concentrated_lloyd(envlight(
+                false,
+                LightPlacement::Centroid,
+                DEFAULT_PDF_EXPONENT,
+            )),
         },
         Method {
             name: "envlight, γ=0.5, filter on",

@@ -225,6 +225,7 @@ pub struct RawDecompose {
     pub merge: Option<bool>,
     pub merge_spacing_fraction: Option<f64>,
     pub pdf_exponent: Option<f64>,
+    pub concentrated_lloyd: Option<bool>,
 }
 
 impl RawConfig {
@@ -1121,7 +1122,7 @@ impl RawDecompose {
             merge_spacing_fraction,
             pdf_exponent,
             warp,
-            concentrated_lloyd: d.concentrated_lloyd,
+            concentrated_lloyd: self.concentrated_lloyd.unwrap_or(d.concentrated_lloyd),
         })
     }
 }
@@ -1188,6 +1189,7 @@ mod tests {
             "merge_spacing_fraction",
             "pdf_exponent",
             "warp",
+            "concentrated_lloyd",
             "enabled",
             "lobes",
             "fit_height",
@@ -1309,6 +1311,11 @@ mod tests {
                 "65",
             ),
             ("[wavelet]\nbasis = \"db42\"", "wavelet.basis", "db42"),
+            (
+                "[decompose]\nconcentrated_lloyd = \"yes\"",
+                "concentrated_lloyd",
+                "yes",
+            ),
         ] {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");
@@ -1321,7 +1328,7 @@ mod tests {
             "[source]\nkind = \"sequence\"\npaths = [\"a/*.exr\"]\nloop = true\nfps = 30\n\
              projection = \"fisheye\"\n[source.fisheye]\nmodel = \"equisolid\"\nfov_deg = 190\n\
              center = [10.0, 12.0]\n[decompose]\nlights = 64\nfilter = false\nmerge = false\n\
-             placement = \"sample-point\"\n",
+             placement = \"sample-point\"\nconcentrated_lloyd = true\n",
         )
         .unwrap();
         assert_eq!(c.source.kind, SourceKind::Sequence);
@@ -1337,6 +1344,7 @@ mod tests {
         assert_eq!(c.decompose.filter_taps, None);
         assert_eq!(c.decompose.merge_spacing_fraction, None);
         assert_eq!(c.decompose.placement, LightPlacement::SamplePoint);
+        assert!(c.decompose.concentrated_lloyd);
     }
 
     #[test]

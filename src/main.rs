@@ -413,6 +413,11 @@ struct DecomposeArgs {
     #[arg(long, value_enum)]
     warp: Option<WarpArg>,
 
+    /// One Lloyd step for the lights holding lamps and suns (sharper shadows of small bright
+    /// sources, about a third more time per frame; docs/quality.md). Off by default.
+    #[arg(long)]
+    concentrated_lloyd: bool,
+
     /// Size of the built-in sky map in pixels. [default: 512x256]
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
     sky_size: Option<(u32, u32)>,
@@ -590,6 +595,9 @@ impl DecomposeArgs {
                 .into(),
             );
         }
+        if self.concentrated_lloyd {
+            dec.concentrated_lloyd = Some(true);
+        }
         if let Some(p) = self.placement {
             dec.placement = Some(
                 match p {
@@ -725,9 +733,14 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     println!("{name}: ok");
     println!("  source: {:?}", config.source.kind);
     println!(
-        "  decompose: {} lights, warp {:?}, filter {}",
+        "  decompose: {} lights, warp {:?}, concentrated Lloyd step {}, filter {}",
         config.decompose.lights,
         config.decompose.warp,
+        if config.decompose.concentrated_lloyd {
+            "on"
+        } else {
+            "off"
+        },
         if config.decompose.filter_taps.is_some() {
             "on"
         } else {
@@ -987,10 +1000,14 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
     tracing::info!("source: {}", source.describe());
     let d = &config.decompose;
     tracing::info!(
-        "decomposing into {} lights (working width {}, placement {:?}, filter {}, merge {})",
+        "decomposing into {} lights (working width {}, placement {:?}, warp {:?}, density \
+         exponent {}, concentrated Lloyd step {}, filter {}, merge {})",
         d.lights,
         d.working_width,
         d.placement,
+        d.warp,
+        d.pdf_exponent,
+        if d.concentrated_lloyd { "on" } else { "off" },
         d.filter_taps
             .as_ref()
             .map_or("off".to_string(), |t| format!("{t:?}")),

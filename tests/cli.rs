@@ -182,7 +182,30 @@ fn options_are_accepted() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("merge at 0.1"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("concentrated Lloyd step off"),
+        "{}",
+        stderr(&o)
+    );
     check_frames(&stdout(&o), 8);
+
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "2",
+        "--lights",
+        "16",
+        "--concentrated-lloyd",
+        "--sky-size",
+        "64x32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("concentrated Lloyd step on"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(check_frames(&stdout(&o), 16).len(), 2);
 }
 
 #[test]
