@@ -1313,7 +1313,7 @@ impl Decoder {
     /// `bytes`. The iterator ends when `bytes` is used up or after the first error (which
     /// every later call returns again). Bytes left when it is dropped early are stored, as by
     /// [`push`](Decoder::push), so nothing is lost.
-    pub fn feed<'d, 'b>(&'d mut self, bytes: &'b [u8]) -> Messages<'d, 'b> {
+    pub fn feed<'b>(&mut self, bytes: &'b [u8]) -> Messages<'_, 'b> {
         Messages {
             decoder: self,
             rest: bytes,
