@@ -24,8 +24,8 @@
 //!      is given a [`PublisherPass`] (the daemon's default, `stream.fanout_on`); otherwise,
 //!      and for the other channels and stale re-sends, one `envlight-fanout` thread per
 //!      channel, woken once per publication, runs it (the light lists' thread, while the
-//!      publisher passes, looks for stale re-sends every 20 ms instead of being woken). A client whose socket is full
-//!      goes to its connection task, which finishes the frame, then sends the newest
+//!      publisher passes, looks for stale re-sends every 20 ms instead of being woken). A
+//!      client whose socket is full goes to its connection task, which finishes the frame, then sends the newest
 //!      publication (the ones in between are counted as skipped) and hands the client back. The
 //!      task otherwise only reads (input is an error, below) and waits for the shutdown.
 //!    - **WebSocket:** the connection task waits on the channel and writes each new
@@ -177,11 +177,11 @@ fn spawn_fanout(
             loop {
                 if fanout.publisher_passes() {
                     // The publishing thread passes every live publication. Waiting on the
-                    // channel would wake this thread with each of them, at the moment the
-                    // pass starts (a futex wake on the publisher and a thread on the other
-                    // core during the pass: docs/performance.md "Round 4"); it only has to
-                    // catch stale re-publications and the end, so it looks every
-                    // `PUBLISHER_PASS_POLL` instead.
+                    // channel would wake this thread with each of them, just as the pass
+                    // starts (a scheduler trace showed two futex wakes by the publisher per
+                    // publication, each letting this thread preempt it on its CPU, before the
+                    // first write: docs/performance.md "Round 4"); it only has to catch stale
+                    // re-publications and the end, so it looks every `PUBLISHER_PASS_POLL`.
                     std::thread::sleep(PUBLISHER_PASS_POLL);
                     if shutdown.borrow().is_some() {
                         return;
