@@ -27,7 +27,8 @@
 //!      publisher passes, looks for stale re-sends every 20 ms instead of being woken). A
 //!      client whose socket is full goes to its connection task, which finishes the frame,
 //!      then sends the newest publication (the ones in between are counted as skipped) and
-//!      hands the client back. The task otherwise only reads (input is an error, below) and waits for the shutdown.
+//!      hands the client back. The task otherwise only reads (input is an error, below) and
+//!      waits for the shutdown.
 //!    - **WebSocket:** the connection task waits on the channel and writes each new
 //!      publication itself.
 //!
