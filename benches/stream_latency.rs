@@ -9,11 +9,18 @@
 //! `--fanout=publisher|thread|both` (which thread runs the daemon's fan-out pass: the
 //! decompose thread right after publishing, as the daemon does by default, or the
 //! `envlight-fanout` thread), `--seconds=S`,
+//! `--decode=in-place|buffered|both` (how the clients decode, below),
 //! `--repeat=N` (each repeat runs every sender once, back to back); docs/performance.md
 //! "Streaming"). The whole chain runs in this process so one
 //! clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
 //! server (UDS or TCP, binary frames) → N clients (one blocking thread each, or one event
 //! loop), each stamping the moment a frame's last byte has been read.
+//!
+//! The clients decode every frame in full with the library's [`Decoder`], as a Rust client
+//! does: by default straight from the read buffer (`Decoder::feed`), handing each light list
+//! back for the next (`Decoder::recycle`); `--decode=buffered` copies every read into the
+//! decoder first (`push` + `next_message`) and allocates each list, as before round 4 (for A/B
+//! runs of the client path; `both` alternates them within each repeat).
 //!
 //! `--sender=floor` replaces the daemon by the least a sender can do: one plain thread that
 //! writes the same pre-encoded 256-light frame to every client socket in turn with blocking
@@ -44,7 +51,7 @@ use envlight::stream::{
 use envlight::{HdrFrame, LightFrame};
 use std::collections::HashMap;
 use std::io::{Read, Write};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -527,6 +534,31 @@ enum PassOn {
 /// Lights per frame.
 const LIGHTS: usize = 256;
 
+/// The clients of the next run copy each read into the decoder (`--decode=buffered`) instead of
+/// decoding in place.
+static BUFFERED_DECODE: AtomicBool = AtomicBool::new(false);
+
+/// Decodes the frames of one read as a client does (in place, recycling the light lists, or
+/// buffered); each frame's seq goes to `received` with the read's stamp `at`.
+fn decode_read(decoder: &mut Decoder, bytes: &[u8], at: Instant, received: &mut Received) {
+    if BUFFERED_DECODE.load(Ordering::Relaxed) {
+        decoder.push(bytes);
+        while let Ok(Some(message)) = decoder.next_message() {
+            if let Message::Frame(frame) = message {
+                received.push((frame.seq, at));
+            }
+        }
+        return;
+    }
+    let mut input = bytes;
+    while let Ok(Some(message)) = decoder.next_from(&mut input) {
+        if let Message::Frame(frame) = message {
+            received.push((frame.seq, at));
+            decoder.recycle(frame.lights);
+        }
+    }
+}
+
 /// A connected client socket of either transport.
 trait ClientStream: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
 impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send> ClientStream for T {}
@@ -633,12 +665,7 @@ fn thread_clients(
                             Ok(n) => n,
                         };
                         let at = Instant::now();
-                        decoder.push(&buf[..n]);
-                        while let Ok(Some(message)) = decoder.next_message() {
-                            if let Message::Frame(frame) = message {
-                                received.push((frame.seq, at));
-                            }
-                        }
+                        decode_read(&mut decoder, &buf[..n], at, &mut received);
                     }
                     vec![received]
                 })
@@ -695,13 +722,8 @@ fn event_loop_clients(
                                 if n == 0 {
                                     break;
                                 }
-                                decoder.push(&buf[..n]);
                                 let at = Instant::now();
-                                while let Ok(Some(message)) = decoder.next_message() {
-                                    if let Message::Frame(frame) = message {
-                                        received.push((frame.seq, at));
-                                    }
-                                }
+                                decode_read(&mut decoder, &buf[..n], at, &mut received);
                             }
                             received
                         })
@@ -771,6 +793,11 @@ fn main() {
         None => 10.0,
     };
     let repeat: usize = option("--repeat=").map_or(1, |n| n.parse().expect("--repeat=N"));
+    let decodes: Vec<bool> = match option("--decode=").as_deref() {
+        Some("buffered") => vec![true],
+        Some("both") => vec![false, true],
+        _ => vec![false],
+    };
     println!("stream latency: sky 256x128 at 60 frames/s, 256 lights, binary frames");
     println!(
         "arrival at the decomposition → last byte at a client (end to end), and its two parts; \
@@ -788,7 +815,11 @@ fn main() {
             );
             for &clients in &counts {
                 for _ in 0..repeat {
-                    for &sender in &senders {
+                    for (&sender, &buffered) in senders
+                        .iter()
+                        .flat_map(|s| decodes.iter().map(move |d| (s, d)))
+                    {
+                        BUFFERED_DECODE.store(buffered, Ordering::Relaxed);
                         let r = match sender {
                             Sender::Daemon(pass_on) => {
                                 run(transport, harness, clients, seconds, pass_on)
@@ -799,8 +830,9 @@ fn main() {
                         let missed: u64 = r.missed.iter().sum();
                         let ms = |d: Duration| d.as_secs_f64() * 1e3;
                         println!(
-                            "| {} | {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {} |",
+                            "| {}{} | {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {} |",
                             sender.name(),
+                            if buffered { ", buffered decode" } else { "" },
                             r.published,
                             ms(percentile(&r.decompose, 0.5)),
                             ms(percentile(&r.fan_out, 0.5)),

@@ -57,6 +57,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 if written.is_err() {
                     break;
                 }
+                // The next light list is decoded into this one's allocation.
+                client.recycle(frame.lights);
             }
             Message::Asg(frame) => {
                 let brightest = frame

@@ -553,6 +553,234 @@ proptest! {
 }
 
 // -------------------------------------------------------------------------------------------
+// Decoding straight from the read buffer (`Decoder::next_from`, `Decoder::feed`)
+
+/// What `push` + `next_message` give for `bytes` cut at `cuts`: the messages, then the error
+/// that ended the stream (if any) or what `finish` says.
+fn decode_buffered(bytes: &[u8], cuts: &[usize]) -> (Vec<Message>, Result<(), ProtocolError>) {
+    let mut d = Decoder::new();
+    let mut out = Vec::new();
+    let mut start = 0;
+    for &end in cuts.iter().chain([&bytes.len()]) {
+        d.push(&bytes[start..end]);
+        start = end;
+        loop {
+            match d.next_message() {
+                Ok(Some(m)) => out.push(m),
+                Ok(None) => break,
+                Err(e) => return (out, Err(e)),
+            }
+        }
+    }
+    (out, d.finish())
+}
+
+/// The same through `feed`, handing every light list back (`recycle`) as a client would.
+fn decode_fed(bytes: &[u8], cuts: &[usize]) -> (Vec<Message>, Result<(), ProtocolError>) {
+    let mut d = Decoder::new();
+    let mut out = Vec::new();
+    let mut start = 0;
+    for &end in cuts.iter().chain([&bytes.len()]) {
+        let piece = &bytes[start..end];
+        start = end;
+        // The decoder is borrowed by the iterator: the lists go back after it.
+        let mut used = Vec::new();
+        for m in d.feed(piece) {
+            match m {
+                Ok(Message::Frame(f)) => {
+                    out.push(Message::Frame(f.clone()));
+                    used.push(f.lights);
+                }
+                Ok(m) => out.push(m),
+                Err(e) => return (out, Err(e)),
+            }
+        }
+        for lights in used {
+            d.recycle(lights);
+        }
+    }
+    (out, d.finish())
+}
+
+/// The same through `next_from`, one message at a time, as `stream::client` reads.
+fn decode_next_from(bytes: &[u8], cuts: &[usize]) -> (Vec<Message>, Result<(), ProtocolError>) {
+    let mut d = Decoder::new();
+    let mut out = Vec::new();
+    let mut start = 0;
+    for &end in cuts.iter().chain([&bytes.len()]) {
+        let mut input = &bytes[start..end];
+        start = end;
+        loop {
+            let before = input.len();
+            match d.next_from(&mut input) {
+                Ok(Some(Message::Frame(f))) => {
+                    out.push(Message::Frame(f.clone()));
+                    d.recycle(f.lights);
+                }
+                Ok(Some(m)) => out.push(m),
+                Ok(None) => {
+                    assert!(input.is_empty(), "Ok(None) with {} bytes left", input.len());
+                    break;
+                }
+                Err(e) => return (out, Err(e)),
+            }
+            assert!(input.len() < before, "a message from no bytes");
+        }
+    }
+    (out, d.finish())
+}
+
+/// A stream of frames of several sizes (one with a cap), an error and a goodbye.
+fn mixed_stream(seed: u64) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    for (i, n) in [256usize, 0, 3, 256, 64].into_iter().enumerate() {
+        let frame = random_frame(n, seed + i as u64);
+        encode_frame(&frame, (i == 3).then_some(17), i == 2, &mut bytes);
+    }
+    encode_error(code::BAD_REQUEST, "bad request: whatever", &mut bytes);
+    encode_frame(&random_frame(5, seed + 9), None, false, &mut bytes);
+    encode_goodbye("bye", &mut bytes);
+    bytes
+}
+
+#[test]
+fn a_message_whole_in_the_read_is_decoded_in_place_and_a_split_one_is_stored() {
+    let mut bytes = Vec::new();
+    encode_frame(&random_frame(256, 1), None, false, &mut bytes);
+    let one = bytes.len();
+    encode_frame(&random_frame(256, 2), None, false, &mut bytes);
+    let mut d = Decoder::new();
+    // The first message and 100 bytes of the second in one read.
+    let mut input = &bytes[..one + 100];
+    let first = as_frame(d.next_from(&mut input).unwrap().unwrap());
+    assert_eq!(input.len(), 100, "only the first message is taken");
+    assert_eq!(
+        d.buffered(),
+        0,
+        "a whole message is not copied into the decoder"
+    );
+    check_frame(&first, &random_frame(256, 1), false);
+    assert!(d.next_from(&mut input).unwrap().is_none());
+    assert!(input.is_empty());
+    assert_eq!(d.buffered(), 100, "the split message is stored");
+    // The rest of the second, and a third message's first bytes, in the next read.
+    let mut tail = bytes[one + 100..].to_vec();
+    tail.extend_from_slice(&bytes[..5]);
+    let mut input = &tail[..];
+    let second = as_frame(d.next_from(&mut input).unwrap().unwrap());
+    check_frame(&second, &random_frame(256, 2), false);
+    assert_eq!(
+        input.len(),
+        5,
+        "exactly the split message's bytes are taken"
+    );
+    assert_eq!(d.buffered(), 0);
+}
+
+#[test]
+fn recycled_light_lists_are_decoded_into_without_allocating() {
+    let mut bytes = Vec::new();
+    encode_frame(&random_frame(256, 3), None, false, &mut bytes);
+    let mut d = Decoder::new();
+    let first = as_frame(d.feed(&bytes).next().unwrap().unwrap());
+    let ptr = first.lights.as_ptr();
+    d.recycle(first.lights);
+    let second = as_frame(d.feed(&bytes).next().unwrap().unwrap());
+    assert_eq!(
+        second.lights.as_ptr(),
+        ptr,
+        "the recycled allocation is reused"
+    );
+    check_frame(&second, &random_frame(256, 3), false);
+    // A smaller list handed back does not replace a larger spare.
+    d.recycle(second.lights);
+    d.recycle(Vec::with_capacity(1));
+    let third = as_frame(d.feed(&bytes).next().unwrap().unwrap());
+    assert_eq!(third.lights.as_ptr(), ptr);
+}
+
+#[test]
+fn a_feed_dropped_early_keeps_the_rest_of_the_bytes() {
+    let bytes = mixed_stream(11);
+    let (all, end) = decode_buffered(&bytes, &[]);
+    end.unwrap();
+    let mut d = Decoder::new();
+    let first = d.feed(&bytes).next().unwrap().unwrap();
+    assert_eq!(first, all[0]);
+    let rest: Vec<Message> = d.feed(&[]).map(Result::unwrap).collect();
+    assert_eq!(rest, all[1..]);
+    d.finish().unwrap();
+}
+
+#[test]
+fn errors_in_place_match_the_buffered_decoder() {
+    let good = mixed_stream(5);
+    let mut oversized = good.clone();
+    oversized.extend_from_slice(&(MAX_MESSAGE_LEN as u32 + 1).to_le_bytes());
+    let mut bad_magic = good.clone();
+    bad_magic.extend_from_slice(b"\x20\0\0\0ENVX");
+    let mut nan = Vec::new();
+    let mut frame = random_frame(4, 8);
+    frame.lights[2].rgb[1] = f32::NAN;
+    encode_frame(&frame, None, false, &mut nan);
+    let mut bad_body = good.clone();
+    bad_body.extend_from_slice(&nan);
+    for (name, bytes) in [
+        ("oversized", oversized),
+        ("magic", bad_magic),
+        ("nan", bad_body),
+    ] {
+        for cuts in [
+            vec![],
+            vec![good.len() - 3],
+            vec![good.len() + 2],
+            vec![1, 2, 3],
+        ] {
+            let buffered = decode_buffered(&bytes, &cuts);
+            assert!(buffered.1.is_err(), "{name}");
+            assert_eq!(decode_fed(&bytes, &cuts), buffered, "{name} {cuts:?}");
+            assert_eq!(decode_next_from(&bytes, &cuts), buffered, "{name} {cuts:?}");
+        }
+    }
+}
+
+proptest! {
+    #[test]
+    fn in_place_decoding_equals_buffered_decoding_at_any_split_points(
+        seed in any::<u64>(),
+        cuts in proptest::collection::vec(any::<prop::sample::Index>(), 0..12),
+        truncate in any::<prop::sample::Index>(),
+        truncated in any::<bool>(),
+    ) {
+        let mut bytes = mixed_stream(seed);
+        if truncated {
+            // The stream may also end inside a message.
+            bytes.truncate(truncate.index(bytes.len()));
+        }
+        let mut cuts: Vec<usize> = cuts.iter().map(|i| i.index(bytes.len() + 1)).collect();
+        cuts.sort_unstable();
+        let buffered = decode_buffered(&bytes, &cuts);
+        if !truncated {
+            prop_assert_eq!(buffered.0.len(), 8);
+        }
+        prop_assert_eq!(&decode_fed(&bytes, &cuts), &buffered);
+        prop_assert_eq!(&decode_next_from(&bytes, &cuts), &buffered);
+    }
+
+    #[test]
+    fn arbitrary_bytes_decode_alike_in_place_and_buffered(
+        bytes in proptest::collection::vec(any::<u8>(), 0..512),
+        cuts in proptest::collection::vec(any::<prop::sample::Index>(), 0..6),
+    ) {
+        let mut cuts: Vec<usize> = cuts.iter().map(|i| i.index(bytes.len() + 1)).collect();
+        cuts.sort_unstable();
+        let buffered = decode_buffered(&bytes, &cuts);
+        prop_assert_eq!(&decode_fed(&bytes, &cuts), &buffered);
+        prop_assert_eq!(&decode_next_from(&bytes, &cuts), &buffered);
+    }
+}
+
+// -------------------------------------------------------------------------------------------
 // ASG sets (representation 1)
 
 use envlight::asg::Asg;

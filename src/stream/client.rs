@@ -100,6 +100,8 @@ enum Transport {
     Binary {
         stream: Box<dyn ReadWrite>,
         decoder: Decoder,
+        /// The bytes of `Client::buf` read and not yet decoded.
+        unread: std::ops::Range<usize>,
     },
     JsonLines {
         reader: BufReader<Box<dyn ReadWrite>>,
@@ -169,6 +171,7 @@ impl Client {
             Format::Binary => Transport::Binary {
                 stream,
                 decoder: Decoder::new(),
+                unread: 0..0,
             },
             Format::Json => Transport::JsonLines {
                 reader: BufReader::new(stream),
@@ -179,6 +182,15 @@ impl Client {
             transport,
             buf: vec![0; 64 * 1024],
         })
+    }
+
+    /// Hands a decoded light list back (e.g. `FrameMessage::lights` once used): the next
+    /// binary light list is decoded into its allocation ([`Decoder::recycle`]). A no-op for
+    /// JSON and WebSocket clients.
+    pub fn recycle(&mut self, lights: Vec<crate::light::Light>) {
+        if let Transport::Binary { decoder, .. } = &mut self.transport {
+            decoder.recycle(lights);
+        }
     }
 
     /// The next message; `Ok(None)` when the server closed the connection.
@@ -193,8 +205,17 @@ impl Client {
             source,
         };
         match &mut self.transport {
-            Transport::Binary { stream, decoder } => loop {
-                if let Some(message) = decoder.next_message().map_err(protocol_error)? {
+            Transport::Binary {
+                stream,
+                decoder,
+                unread,
+            } => loop {
+                // Messages are decoded straight from the read buffer (`unread` is the part
+                // not yet handed to the decoder); only a message split over reads is copied.
+                let mut input = &self.buf[unread.clone()];
+                let message = decoder.next_from(&mut input);
+                unread.start = unread.end - input.len();
+                if let Some(message) = message.map_err(protocol_error)? {
                     return Ok(Some(message));
                 }
                 let n = stream.read(&mut self.buf).map_err(io)?;
@@ -202,7 +223,7 @@ impl Client {
                     decoder.finish().map_err(protocol_error)?;
                     return Ok(None);
                 }
-                decoder.push(&self.buf[..n]);
+                *unread = 0..n;
             },
             Transport::JsonLines { reader } => {
                 let mut line = String::new();

@@ -7,7 +7,8 @@
 //! to every client whose socket has room, with non-blocking writes. For the light lists the
 //! pass runs by default on the thread that publishes them, right after publishing
 //! ([`super::server::PublisherPass`], `stream.fanout_on = "publisher"`); one named thread per
-//! served channel (`envlight-fanout`), woken once per publication, runs it for everything
+//! served channel (`envlight-fanout`), woken once per publication (or, for a channel whose
+//! publisher passes, looking every 20 ms), runs it for everything
 //! else (stale re-sends, the ASG and wavelet channels) and, with `fanout_on = "thread"`, for
 //! the light lists too.
 //!

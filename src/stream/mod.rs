@@ -16,8 +16,8 @@ pub mod server;
 
 pub use fanout::FANOUT_THREAD_NAME;
 pub use protocol::{
-    AsgFrameMessage, Decoder, Format, FrameMessage, Message, ProtocolError, Representation,
-    Request, WaveletFrame, WaveletFrameMessage,
+    AsgFrameMessage, Decoder, Format, FrameMessage, Message, Messages, ProtocolError,
+    Representation, Request, WaveletFrame, WaveletFrameMessage,
 };
 pub use server::{
     BoundAddresses, FanoutOn, PublisherPass, ServerConfig, StreamServer, Streamed, Streams,

@@ -847,8 +847,13 @@ fn finite(v: f32, field: impl FnOnce() -> String) -> Result<f32, ProtocolError> 
 }
 
 /// Decodes a body (the bytes after the 12-byte header) whose type and length `check_header`
-/// accepted.
-fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError> {
+/// accepted. A light list's records go into `spare` (cleared first), which the message then
+/// owns: a client that hands its lists back ([`Decoder::recycle`]) decodes without allocating.
+fn decode_body(
+    message_type: u16,
+    body: &[u8],
+    spare: &mut Vec<Light>,
+) -> Result<Message, ProtocolError> {
     match message_type {
         TYPE_FRAME => {
             let seq = u64_at(body, 0);
@@ -902,7 +907,8 @@ fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError>
                     lobes: decode_lobes(records)?,
                 }));
             }
-            let lights = decode_lights(records, count)?;
+            let mut lights = std::mem::take(spare);
+            decode_lights(records, count, &mut lights)?;
             Ok(Message::Frame(FrameMessage {
                 seq,
                 time,
@@ -953,8 +959,15 @@ fn decode_body(message_type: u16, body: &[u8]) -> Result<Message, ProtocolError>
 /// seven floats are checked for finiteness together; only a record that fails is looked at
 /// again, to name the field. (With a bounds-checked read and a `Result` per float, decoding
 /// took about half of the stream bench's client CPU time; docs/performance.md "Streaming".)
-fn decode_lights(records: &[u8], count: usize) -> Result<Vec<Light>, ProtocolError> {
-    let mut lights = Vec::with_capacity(count);
+///
+/// The lights go into `lights`, cleared first (its allocation is reused when large enough).
+fn decode_lights(
+    records: &[u8],
+    count: usize,
+    lights: &mut Vec<Light>,
+) -> Result<(), ProtocolError> {
+    lights.clear();
+    lights.reserve(count);
     for (i, r) in records.chunks_exact(LIGHT_RECORD_LEN).enumerate() {
         let Ok(r) = <&[u8; LIGHT_RECORD_LEN]>::try_from(r) else {
             continue; // chunks_exact: never shorter
@@ -978,7 +991,7 @@ fn decode_lights(records: &[u8], count: usize) -> Result<Vec<Light>, ProtocolErr
             solid_angle: float(7),
         });
     }
-    Ok(lights)
+    Ok(())
 }
 
 /// ASG lobe records (whose total length the caller checked).
@@ -1128,13 +1141,13 @@ pub fn validate_lobe(index: usize, lobe: &AsgLobe) -> Result<(), ProtocolError> 
 /// bytes are an error. For streams use [`Decoder`].
 pub fn decode_message(bytes: &[u8]) -> Result<Message, ProtocolError> {
     let mut decoder = Decoder::new();
-    decoder.push(bytes);
-    match decoder.next_message()? {
-        Some(message) if decoder.buffered() == 0 => Ok(message),
-        Some(_) => Err(ProtocolError::Inconsistent {
+    let mut input = bytes;
+    match decoder.next_from(&mut input)? {
+        Some(_) if !input.is_empty() => Err(ProtocolError::Inconsistent {
             kind: "any",
-            reason: format!("{} bytes after the end of the message", decoder.buffered()),
+            reason: format!("{} bytes after the end of the message", input.len()),
         }),
+        Some(message) => Ok(message),
         None => Err(ProtocolError::Truncated {
             buffered: bytes.len(),
         }),
@@ -1142,19 +1155,28 @@ pub fn decode_message(bytes: &[u8]) -> Result<Message, ProtocolError> {
 }
 
 /// Incremental decoder for a byte stream: [`push`](Decoder::push) bytes as they arrive, in any
-/// pieces, and take complete messages with [`next_message`](Decoder::next_message).
+/// pieces, and take complete messages with [`next_message`](Decoder::next_message); or, without
+/// copying, hand it each read's bytes with [`next_from`](Decoder::next_from) (or the iterator
+/// [`feed`](Decoder::feed)), which decodes a message straight from them when they hold all of it
+/// and stores only the bytes of a message that is not complete yet.
 ///
 /// Memory stays bounded: the header of the pending message (length prefix, magic, version,
 /// type, and whether the length fits the type) is checked as soon as its 12 bytes arrive and
 /// before any byte of its body is stored, so the decoder holds at most one message of at most
 /// [`MAX_MESSAGE_LEN`] + 4 bytes plus the rest of the latest push. After an error the decoder
 /// stays failed: it discards further input and returns the same error again.
+///
+/// A client that hands each decoded light list back with [`recycle`](Decoder::recycle) has the
+/// next one decoded into the same allocation: at a steady light count, no allocation per
+/// message.
 #[derive(Debug, Default)]
 pub struct Decoder {
     buf: Vec<u8>,
     /// Start of the first unconsumed byte in `buf`.
     pos: usize,
     error: Option<ProtocolError>,
+    /// A light list handed back, decoded into next.
+    spare: Vec<Light>,
 }
 
 impl Decoder {
@@ -1197,7 +1219,7 @@ impl Decoder {
             return Ok(None);
         }
         let message_type = u16_at(pending, 10);
-        match decode_body(message_type, &pending[HEADER_LEN..4 + len]) {
+        match decode_body(message_type, &pending[HEADER_LEN..4 + len], &mut self.spare) {
             Err(e) => Err(self.fail(e)),
             Ok(message) => {
                 self.pos += 4 + len;
@@ -1210,6 +1232,100 @@ impl Decoder {
                 }
                 Ok(Some(message))
             }
+        }
+    }
+
+    /// The next message from the bytes stored before and then from `input`, which is advanced
+    /// past the bytes taken. Same result as [`push`](Decoder::push)ing `input` and calling
+    /// [`next_message`](Decoder::next_message), without the copy: a message that lies whole in
+    /// `input` is decoded from there, and only a message that `input` ends inside is stored
+    /// (then `input` is left empty and the result is `Ok(None)`). Call it again until it
+    /// returns `Ok(None)`: `input` may hold more messages. After an error `input` is left empty
+    /// and the decoder is failed, as with `next_message`.
+    pub fn next_from(&mut self, input: &mut &[u8]) -> Result<Option<Message>, ProtocolError> {
+        if let Some(e) = &self.error {
+            *input = &[];
+            return Err(e.clone());
+        }
+        if self.buffered() > 0 {
+            // Complete the stored message first: its header, then exactly its remaining bytes.
+            let pending = self.buffered();
+            if pending < HEADER_LEN {
+                let take = (HEADER_LEN - pending).min(input.len());
+                self.push(&input[..take]);
+                *input = &input[take..];
+                if let Some(e) = &self.error {
+                    *input = &[];
+                    return Err(e.clone());
+                }
+            }
+            let len = match check_header(&self.buf[self.pos..]) {
+                Err(e) => {
+                    *input = &[];
+                    return Err(self.fail(e));
+                }
+                Ok(None) => return Ok(None), // `input` is used up
+                Ok(Some(len)) => len,
+            };
+            let missing = (4 + len).saturating_sub(self.buffered());
+            let take = missing.min(input.len());
+            self.push(&input[..take]);
+            *input = &input[take..];
+            let message = self.next_message();
+            if message.is_err() {
+                *input = &[];
+            }
+            return message;
+        }
+        let bytes = *input;
+        let len = match check_header(bytes) {
+            Err(e) => {
+                *input = &[];
+                return Err(self.fail(e));
+            }
+            Ok(Some(len)) if bytes.len() >= 4 + len => len,
+            // Not a whole message: keep what there is (its header checked as it is stored).
+            Ok(_) => {
+                self.push(bytes);
+                *input = &[];
+                return match &self.error {
+                    Some(e) => Err(e.clone()),
+                    None => Ok(None),
+                };
+            }
+        };
+        // 4 + len ≥ 12 (check_header): the whole header is there and was checked.
+        let message_type = u16_at(bytes, 10);
+        match decode_body(message_type, &bytes[HEADER_LEN..4 + len], &mut self.spare) {
+            Err(e) => {
+                *input = &[];
+                Err(self.fail(e))
+            }
+            Ok(message) => {
+                *input = &bytes[4 + len..];
+                Ok(Some(message))
+            }
+        }
+    }
+
+    /// The messages in `bytes` (after any stored bytes), decoded as by
+    /// [`next_from`](Decoder::next_from): without copying the messages that lie whole in
+    /// `bytes`. The iterator ends when `bytes` is used up or after the first error (which
+    /// every later call returns again). Bytes left when it is dropped early are stored, as by
+    /// [`push`](Decoder::push), so nothing is lost.
+    pub fn feed<'b>(&mut self, bytes: &'b [u8]) -> Messages<'_, 'b> {
+        Messages {
+            decoder: self,
+            rest: bytes,
+            failed: false,
+        }
+    }
+
+    /// Hands a decoded light list back: the next light list is decoded into its allocation
+    /// (only the largest one handed back is kept).
+    pub fn recycle(&mut self, lights: Vec<Light>) {
+        if lights.capacity() > self.spare.capacity() {
+            self.spare = lights;
         }
     }
 
@@ -1235,6 +1351,39 @@ impl Decoder {
         self.pos = 0;
         self.error = Some(e.clone());
         e
+    }
+}
+
+/// The messages of one read's bytes: [`Decoder::feed`].
+#[derive(Debug)]
+pub struct Messages<'d, 'b> {
+    decoder: &'d mut Decoder,
+    rest: &'b [u8],
+    failed: bool,
+}
+
+impl Iterator for Messages<'_, '_> {
+    type Item = Result<Message, ProtocolError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        match self.decoder.next_from(&mut self.rest) {
+            Ok(message) => message.map(Ok),
+            Err(e) => {
+                self.failed = true;
+                Some(Err(e))
+            }
+        }
+    }
+}
+
+impl Drop for Messages<'_, '_> {
+    fn drop(&mut self) {
+        if !self.rest.is_empty() {
+            self.decoder.push(self.rest);
+        }
     }
 }
 

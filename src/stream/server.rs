@@ -23,10 +23,12 @@
 //!      light lists' pass runs on the decompose thread right after publishing when the server
 //!      is given a [`PublisherPass`] (the daemon's default, `stream.fanout_on`); otherwise,
 //!      and for the other channels and stale re-sends, one `envlight-fanout` thread per
-//!      channel, woken once per publication, runs it. A client whose socket is full
-//!      goes to its connection task, which finishes the frame, then sends the newest
-//!      publication (the ones in between are counted as skipped) and hands the client back. The
-//!      task otherwise only reads (input is an error, below) and waits for the shutdown.
+//!      channel, woken once per publication, runs it (the light lists' thread, while the
+//!      publisher passes, looks for stale re-sends every 20 ms instead of being woken). A
+//!      client whose socket is full goes to its connection task, which finishes the frame,
+//!      then sends the newest publication (the ones in between are counted as skipped) and
+//!      hands the client back. The task otherwise only reads (input is an error, below) and
+//!      waits for the shutdown.
 //!    - **WebSocket:** the connection task waits on the channel and writes each new
 //!      publication itself.
 //!
@@ -153,8 +155,14 @@ pub enum ServerError {
     Spawn(#[source] std::io::Error),
 }
 
+/// How often the fan-out thread of a channel whose publisher runs the pass looks for stale
+/// re-publications and the end of the channel (instead of being woken by every publication).
+const PUBLISHER_PASS_POLL: Duration = Duration::from_millis(20);
+
 /// Starts the fan-out thread of `feed`'s channel: woken once per publication, it writes the
-/// publication to every client of [`Context::fanout`] that keeps up (`src/stream/fanout.rs`).
+/// publication to every client of [`Context::fanout`] that keeps up (`src/stream/fanout.rs`);
+/// while the publishing thread passes the live publications itself, it looks every
+/// [`PUBLISHER_PASS_POLL`] for the others instead.
 /// It ends at the shutdown broadcast, or once the channel has ended (then it tells the
 /// clients).
 fn spawn_fanout(
@@ -168,6 +176,35 @@ fn spawn_fanout(
         .spawn(move || {
             let fanout = Arc::clone(ctx.fanout(&feed));
             loop {
+                if fanout.publisher_passes() {
+                    // The publishing thread passes every live publication. Waiting on the
+                    // channel would wake this thread with each of them, just as the pass
+                    // starts (a scheduler trace showed two futex wakes by the publisher per
+                    // publication, each letting this thread preempt it on its CPU, before the
+                    // first write: docs/performance.md "Round 4"); it only has to catch stale
+                    // re-publications and the end, so it looks every `PUBLISHER_PASS_POLL`.
+                    std::thread::sleep(PUBLISHER_PASS_POLL);
+                    if shutdown.borrow().is_some() {
+                        return;
+                    }
+                    match feed.rx.has_changed() {
+                        None => {
+                            fanout.end();
+                            return;
+                        }
+                        Some(false) => {}
+                        Some(true) => {
+                            if let Some(published) = feed.rx.newest() {
+                                if !published.live() {
+                                    fanout.pass(&*published, &|cap, encoding| {
+                                        ctx.encoded(&feed, &*published, cap, encoding)
+                                    });
+                                }
+                            }
+                        }
+                    }
+                    continue;
+                }
                 // No runtime here: the channels' futures need none, so a plain blocking
                 // executor waits on them.
                 let changed = pollster::block_on(async {
@@ -314,6 +351,9 @@ impl<T: Streamed> Frame for Publication<T> {
 trait FeedRx: Send + Sync {
     /// Waits for a new publication; `false` once the stream has ended.
     fn changed(&mut self) -> BoxFuture<'_, bool>;
+    /// Whether there is a publication not yet seen, without waiting; `None` once the stream
+    /// has ended.
+    fn has_changed(&self) -> Option<bool>;
     /// The newest publication, marked seen.
     fn newest(&mut self) -> Option<Arc<dyn Frame>>;
     /// Another receiver of the same channel, in the same state.
@@ -323,6 +363,10 @@ trait FeedRx: Send + Sync {
 impl<T: Streamed> FeedRx for watch::Receiver<Latest<T>> {
     fn changed(&mut self) -> BoxFuture<'_, bool> {
         Box::pin(async move { watch::Receiver::changed(self).await.is_ok() })
+    }
+
+    fn has_changed(&self) -> Option<bool> {
+        watch::Receiver::has_changed(self).ok()
     }
 
     fn newest(&mut self) -> Option<Arc<dyn Frame>> {
