@@ -30,11 +30,12 @@
 //! instructions per frame on rooitou_park), a build whose lists served one frame only is
 //! followed by builds without margin, with the margin tried again every 16th build.
 //!
-//! Steps per frame: (1) candidate lists per bucket (or the last frame's); (2) the input pixels of concentrated working
-//! pixels go to their nearest light one by one; (3) every other working pixel is labelled with
-//! its nearest light, a bucket at a time, with dot products computed from separable row and
-//! column terms (vectorised, eight pixels per vector); (4) each row is summed run by run
-//! (consecutive pixels of one light, in f64) and each run is added to its light's region.
+//! Steps per frame: (1) candidate lists per bucket (or the last frame's); (2) the input pixels
+//! of concentrated working pixels go to their nearest light one by one; (3) every other working
+//! pixel is labelled with its nearest light, a bucket at a time, with dot products computed from
+//! separable row and column terms (vectorised, eight pixels per vector); (4) each row is summed
+//! run by run (consecutive pixels of one light, in f64) and each run is added to its light's
+//! region.
 
 use super::working_map::WorkingMap;
 use super::{luminance_f64, Region};
