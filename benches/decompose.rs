@@ -6,6 +6,10 @@
 //!   so this is the steady per-frame cost. 512×256 is the map box-downsampled by 2, 2048×1024 the
 //!   map upsampled by pixel replication.
 //! - `frame/raw_256/1024x512`: the same without filter and merge.
+//! - `frame/turning_256/1024x512` and `frame/turning_256_no_reuse/1024x512`: default settings on
+//!   rooitou_park turned about the zenith by one pixel per frame (0, 1, …, 7, 6, …, 1 pixels,
+//!   cycled), so every light moves every frame: the cost of a moving map, with the region pass's
+//!   candidate lists reused while the lights stay within their margin, and built every frame.
 //! - `distribution/new_256x128`: `PiecewiseConstant2d::new` on 256×128 luminance × solid-angle
 //!   weights (the default working-map size).
 //!
@@ -61,6 +65,17 @@ fn upsample2(frame: &HdrFrame) -> HdrFrame {
     HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
 }
 
+/// `frame` turned about the zenith by `shift` pixels.
+fn turned(frame: &HdrFrame, shift: usize) -> HdrFrame {
+    let w = frame.width as usize;
+    let pixels = frame
+        .pixels
+        .chunks_exact(w)
+        .flat_map(|row| (0..w).map(move |x| row[(x + shift) % w]))
+        .collect();
+    HdrFrame::new(frame.width, frame.height, pixels, frame.projection).expect("same size")
+}
+
 /// Luminance × solid angle of `frame` box-downsampled by `factor`.
 fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
     let (w, h) = (frame.width / factor, frame.height / factor);
@@ -101,6 +116,22 @@ fn bench_frames(c: &mut Criterion) {
     group.bench_function("raw_256/1024x512", |b| {
         b.iter(|| decomposer.decompose(black_box(full)))
     });
+
+    // A pixel per frame, forwards and back: every light moves every frame.
+    let turning: Vec<HdrFrame> = (0..14usize)
+        .map(|k| turned(full, if k <= 7 { k } else { 14 - k }))
+        .collect();
+    for (name, reuse) in [("turning_256", true), ("turning_256_no_reuse", false)] {
+        let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
+        decomposer.set_candidate_reuse(reuse);
+        let mut next = 0;
+        group.bench_function(format!("{name}/1024x512"), |b| {
+            b.iter(|| {
+                next = (next + 1) % turning.len();
+                decomposer.decompose(black_box(&turning[next]))
+            })
+        });
+    }
     group.finish();
 
     let (weights, w, h) = energy_weights(full, 4);

@@ -3,11 +3,15 @@
 //! ```text
 //! cargo run --release --example profile_decompose -- tests/data/rooitou_park_1k.hdr 2000
 //! cargo run --release --example profile_decompose -- sky 3000 128
+//! cargo run --release --example profile_decompose -- turn:tests/data/rooitou_park_1k.hdr 2000 - no-reuse
 //! ```
 //!
-//! Arguments: the map (an .hdr file, or `sky` for one second of the built-in sky at 256×128,
-//! 60 frames cycled, as the streaming bench uses), the number of frames, and optionally the
-//! working width (default: the decomposition's default). Prints the mean, median and minimum
+//! Arguments: the map (an .hdr file; `turn:` before it turns the map about the zenith by a
+//! pixel per frame, 8 frames forwards and back, so every light moves every frame; or `sky` for
+//! one second of the built-in sky at 256×128, 60 frames cycled, as the streaming bench uses),
+//! the number of frames, optionally the working width (`-` or nothing: the decomposition's
+//! default) and `no-reuse` (build the region pass's candidate lists afresh every frame).
+//! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
 use envlight::capture::image_file::read_hdr_image;
@@ -23,9 +27,14 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or_else(|| "tests/data/rooitou_park_1k.hdr".into());
     let iterations: usize = args.next().map_or(Ok(1000), |s| s.parse())?;
     let mut settings = DecomposeSettings::default();
-    if let Some(width) = args.next() {
+    if let Some(width) = args.next().filter(|w| w != "-") {
         settings.working_width = width.parse()?;
     }
+    let reuse = match args.next().as_deref() {
+        None => true,
+        Some("no-reuse") => false,
+        Some(other) => anyhow::bail!("unknown option {other:?} (expected no-reuse)"),
+    };
     let frames: Vec<HdrFrame> = if path == "sky" {
         let options = SkyOptions {
             width: 256,
@@ -36,13 +45,24 @@ fn main() -> anyhow::Result<()> {
             .map(|i| render_sky(&options, f64::from(i) / 60.0))
             .collect()
     } else {
-        let image = read_hdr_image(std::path::Path::new(&path))?;
-        vec![
-            HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
-                .ok_or_else(|| anyhow::anyhow!("empty image"))?,
-        ]
+        let (turn, path) = match path.strip_prefix("turn:") {
+            Some(path) => (true, path),
+            None => (false, path.as_str()),
+        };
+        let image = read_hdr_image(std::path::Path::new(path))?;
+        let frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+            .ok_or_else(|| anyhow::anyhow!("empty image"))?;
+        if turn {
+            // 0, 1, …, 7, 6, …, 1 pixels: one pixel per frame, every frame.
+            (0..14usize)
+                .map(|k| turned(&frame, if k <= 7 { k } else { 14 - k }))
+                .collect()
+        } else {
+            vec![frame]
+        }
     };
     let mut decomposer = Decomposer::new(settings)?;
+    decomposer.set_candidate_reuse(reuse);
     // The point set is computed once per process: keep it out of the timing.
     decomposer.decompose(&frames[0]);
     // Per-frame times: on a shared machine the median and the minimum say more than the mean.
@@ -77,10 +97,22 @@ fn main() -> anyhow::Result<()> {
             .unwrap_or(0.0)
     };
     println!(
-        "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame, lights hash {hash:016x}",
+        "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame, lights hash {hash:016x}, candidate lists built {} times",
         at(0.5),
         at(0.0),
-        lights / n
+        lights / n,
+        decomposer.candidate_builds()
     );
     Ok(())
+}
+
+/// `frame` turned about the zenith by `shift` pixels.
+fn turned(frame: &HdrFrame, shift: usize) -> HdrFrame {
+    let w = frame.width as usize;
+    let pixels = frame
+        .pixels
+        .chunks_exact(w)
+        .flat_map(|row| (0..w).map(move |x| row[(x + shift) % w]))
+        .collect();
+    HdrFrame::new(frame.width, frame.height, pixels, frame.projection).expect("same size")
 }

@@ -217,6 +217,20 @@ impl Decomposer {
         &self.settings
     }
 
+    /// Allows (the default) or forbids reusing the region pass's candidate lists between frames
+    /// while the lights stay within [`regions::REUSE_MARGIN`] of where the lists were built.
+    /// The lights are the same either way; forbidding it measures the cost of a full build
+    /// every frame.
+    pub fn set_candidate_reuse(&mut self, on: bool) {
+        self.region_scratch.set_candidate_reuse(on);
+    }
+
+    /// How many times the region pass has built its candidate lists in full (the other frames
+    /// reused the last ones).
+    pub fn candidate_builds(&self) -> u64 {
+        self.region_scratch.candidate_builds()
+    }
+
     /// Delay of the temporal filter in frames (0 without filter).
     pub fn filter_delay_frames(&self) -> f64 {
         self.filter.as_ref().map_or(0.0, FirFilter::delay_frames)
@@ -665,6 +679,82 @@ mod tests {
                     "n={n} channel {c}: {} vs {}",
                     sum[c],
                     truth[c]
+                );
+            }
+        }
+    }
+
+    /// Every field's bits, so that lights compare exactly.
+    fn light_bits(frame: &LightFrame) -> Vec<[u32; 8]> {
+        frame
+            .lights
+            .iter()
+            .map(|l| {
+                let [x, y, z] = l.dir.map(f32::to_bits);
+                let [r, g, b] = l.rgb.map(f32::to_bits);
+                [l.id, x, y, z, r, g, b, l.solid_angle.to_bits()]
+            })
+            .collect()
+    }
+
+    /// `frame` turned about the zenith by `shift` pixels.
+    fn turned(frame: &HdrFrame, shift: usize) -> HdrFrame {
+        let w = frame.width as usize;
+        let pixels = frame
+            .pixels
+            .chunks_exact(w)
+            .flat_map(|row| (0..w).map(move |x| row[(x + shift) % w]))
+            .collect();
+        HdrFrame::new(frame.width, frame.height, pixels, frame.projection).unwrap()
+    }
+
+    #[test]
+    fn reused_candidate_lists_give_the_lights_of_rebuilt_ones() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
+        let image = crate::capture::image_file::read_hdr_image(&path).unwrap();
+        let park =
+            HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).unwrap();
+        // Turning a pixel per frame, then back (a jump of 20 pixels).
+        let turning: Vec<HdrFrame> = (0..24).map(|i| turned(&park, i % 20)).collect();
+        let options = crate::capture::sky::SkyOptions {
+            width: 256,
+            height: 128,
+            ..Default::default()
+        };
+        let sky: Vec<HdrFrame> = (0..30)
+            .map(|i| crate::capture::sky::render_sky(&options, f64::from(i) / 30.0))
+            .collect();
+        for (name, frames, working_width, concentrated_lloyd) in [
+            ("rooitou turning", &turning, 256, false),
+            ("rooitou turning, Lloyd step", &turning, 256, true),
+            ("sky", &sky, 128, false),
+        ] {
+            let settings = DecomposeSettings {
+                working_width,
+                concentrated_lloyd,
+                ..raw_settings(256)
+            };
+            let mut reusing = Decomposer::new(settings.clone()).unwrap();
+            let mut rebuilding = Decomposer::new(settings).unwrap();
+            rebuilding.set_candidate_reuse(false);
+            for (i, frame) in frames.iter().enumerate() {
+                assert_eq!(
+                    light_bits(&reusing.decompose(frame)),
+                    light_bits(&rebuilding.decompose(frame)),
+                    "{name}: frame {i}"
+                );
+            }
+            let builds = reusing.candidate_builds();
+            assert_eq!(rebuilding.candidate_builds(), frames.len() as u64);
+            // Turning the map moves every point of the rows warp by more than the margin (the
+            // mass that crosses the seam shifts every row's CDF), so the lists are rebuilt every
+            // frame there; the sky's lights move slowly: both paths must run.
+            if name == "sky" {
+                assert!(
+                    builds > 1 && builds < frames.len() as u64,
+                    "{name}: {builds} builds in {} frames",
+                    frames.len()
                 );
             }
         }

@@ -12,11 +12,30 @@
 //! d_min is the angle to the nearest light and r the bucket's angular radius (triangle
 //! inequality) — so a pixel tests a handful of candidates instead of all N.
 //!
-//! Steps per frame: (1) candidate lists per bucket; (2) the input pixels of concentrated working
-//! pixels go to their nearest light one by one; (3) every other working pixel is labelled with
-//! its nearest light, a bucket at a time, with dot products computed from separable row and
-//! column terms (vectorised, eight pixels per vector); (4) each row is summed run by run
-//! (consecutive pixels of one light, in f64) and each run is added to its light's region.
+//! The candidate lists are built with a margin δ ([`REUSE_MARGIN`]): as if every light could
+//! move by up to δ, i.e. with bucket radius r + δ in both the reach and the bounds. By the
+//! triangle inequality, a light that has moved by at most δ from where the lists were built and
+//! is nearest to some point of the bucket is within d_min + 2r + 2δ of the centre, and no point
+//! of the bucket is nearer to it than a − r − δ (a: its built angle from the centre). So the
+//! lists stay valid, and the labels exact, while every light stays within δ of its direction at
+//! the last build: the lists are then reused (only their copies of the light directions are
+//! refreshed) and rebuilt in full as soon as one light has strayed further. A pixel's label is
+//! the candidate with the largest dot product whatever the list, so the lights do not depend on
+//! when the lists were built — except at an exact f32 tie of two lights' dot products, which
+//! goes to the one earlier in the list. The lists are ordered as lists without margin are, so a
+//! frame whose lists were built for it is labelled exactly as without the margin; a reused
+//! list keeps the order of its build, so a tie could go the other way than in a fresh build
+//! (none did in the tests' sequences; rooitou_park has one tied working pixel).
+//! Where the lights move further than δ every frame (the margin then only costs: about 6% more
+//! instructions per frame on rooitou_park), a build whose lists served one frame only is
+//! followed by builds without margin, with the margin tried again every 16th build.
+//!
+//! Steps per frame: (1) candidate lists per bucket (or the last frame's); (2) the input pixels
+//! of concentrated working pixels go to their nearest light one by one; (3) every other working
+//! pixel is labelled with its nearest light, a bucket at a time, with dot products computed from
+//! separable row and column terms (vectorised, eight pixels per vector); (4) each row is summed
+//! run by run (consecutive pixels of one light, in f64) and each run is added to its light's
+//! region.
 
 use super::working_map::WorkingMap;
 use super::{luminance_f64, Region};
@@ -26,6 +45,10 @@ const BUCKET_PIXELS: usize = 8;
 
 /// Working pixels per bucket.
 const CELLS: usize = BUCKET_PIXELS * BUCKET_PIXELS;
+
+/// Margin δ (radians, about 1°) of the candidate lists: they are reused while no light has
+/// moved further than this since they were built.
+pub(super) const REUSE_MARGIN: f32 = 0.0175;
 
 /// Buckets per super-bucket side: candidate lists are found for 4×4 buckets at once first.
 const SUPER_BUCKETS: usize = 4;
@@ -238,20 +261,79 @@ struct Candidates {
     dots: Vec<f32>,
     /// Per super-bucket candidate of the bucket at hand: its bound.
     bounds: Vec<f32>,
+    /// The same without the margin: they set the list's order.
+    order_bounds: Vec<f32>,
     /// Sort keys of a bucket's candidates: falling bound, then rising position.
     keys: Vec<u64>,
     /// Per bucket, the reach threshold of its candidates: a light whose dot product with the
     /// bucket's centre is below it cannot be nearest to any point of the bucket.
     thresholds: Vec<f32>,
+    /// The lights and the grid size (width, height) the lists were built for.
+    built_lights: Vec<Vec3>,
+    built_grid: (usize, usize),
+    /// Whether lists may be reused between frames (off: rebuilt every frame).
+    no_reuse: bool,
+    /// Full builds so far.
+    builds: u64,
+    /// The margin of the last build (0 or [`REUSE_MARGIN`]), the frames that reused it, and
+    /// the number of builds in a row without margin.
+    margin: f32,
+    reuses: u32,
+    bare_builds: u32,
 }
 
+/// After a build whose lists were not reused even once, the next lists are built without margin
+/// (the margin costs about 6% more instructions per frame in longer lists and looser bounds),
+/// and stay so for this many builds before the margin is tried again.
+const BARE_BUILDS: u32 = 15;
+
 impl Candidates {
+    /// Makes the lists valid for `lights`: the last frame's lists when every light is within
+    /// the margin of their build of where it was then (on the same grid), else new ones. Lists
+    /// built without margin are reused only for exactly the same lights. When lights move
+    /// further than the margin every frame (a turning map), the margin would only cost, so
+    /// after a build that served a single frame the lists are built without it for
+    /// [`BARE_BUILDS`] builds.
+    #[inline(always)]
+    fn update(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
+        // Checked with 90% of the margin: the f32 dot products of nearly equal directions are
+        // not exact.
+        let cos_check = if self.margin > 0.0 {
+            (0.9 * self.margin).cos()
+        } else {
+            f32::INFINITY
+        };
+        let valid = !self.no_reuse
+            && self.built_grid == (grid.width, grid.height)
+            && self.built_lights.len() == lights.len()
+            && lights
+                .iter()
+                .zip(&self.built_lights)
+                .all(|(l, b)| l == b || l.dot(*b) >= cos_check);
+        if valid {
+            for c in &mut self.list {
+                c.dir = lights[c.light as usize];
+            }
+            self.reuses += 1;
+            return;
+        }
+        let bare = self.builds > 0 && self.reuses == 0 && self.bare_builds < BARE_BUILDS;
+        self.bare_builds = if bare { self.bare_builds + 1 } else { 0 };
+        self.margin = if bare { 0.0 } else { REUSE_MARGIN };
+        self.build(grid, lights, self.margin);
+        self.built_lights.clear();
+        self.built_lights.extend_from_slice(lights);
+        self.built_grid = (grid.width, grid.height);
+        self.builds += 1;
+        self.reuses = 0;
+    }
+
     /// Candidate lists of every bucket: first per super-bucket among all lights, then per bucket
     /// among its super-bucket's candidates (a bucket lies inside its super-bucket, so its
     /// candidates are among those). Inlined into the region pass, so compiled for its vector
     /// unit.
     #[inline(always)]
-    fn build(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
+    fn build(&mut self, grid: &BucketGrid, lights: &[Vec3], margin: f32) {
         self.all.clear();
         for (i, &l) in lights.iter().enumerate() {
             self.all.push(i as u32, l);
@@ -259,7 +341,9 @@ impl Candidates {
         self.supers.clear();
         self.super_offsets.clear();
         self.super_offsets.push(0);
+        // Every radius is widened by the margin (see the module doc).
         for (&c, &r) in grid.super_centres.iter().zip(&grid.super_radii) {
+            let r = r + margin;
             let threshold = reach(c, r, &self.all, 0..self.all.len(), &mut self.dots);
             for (i, &d) in self.dots.iter().enumerate() {
                 if d >= threshold {
@@ -274,19 +358,24 @@ impl Candidates {
         self.offsets.push(0);
         for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
             let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
-            let threshold = self.bucket_list(c, r, Set::Supers(range), lights, None);
+            let threshold = self.bucket_list(c, r, margin, Set::Supers(range), lights, None);
             self.thresholds.push(threshold);
             self.offsets.push(self.list.len() as u32);
         }
     }
 
-    /// Appends the candidates of the cap (`centre`, `radius`) among `set` to `out` (or to
-    /// `self.list`), nearest to the centre first, and returns the reach threshold.
+    /// Appends the candidates of the cap (`centre`, `radius` + `margin`) among `set` to `out`
+    /// (or to `self.list`) and returns the reach threshold. Their bounds are those of the
+    /// widened cap; their order is that of falling bounds of the cap without the margin (the
+    /// same order of distance from the centre, so the widened bounds fall along the list too),
+    /// which is the order a list without margin has: an exact tie of two lights' dot products
+    /// at a pixel goes to the same light with or without the margin.
     #[inline(always)]
     fn bucket_list(
         &mut self,
         centre: Vec3,
         radius: f32,
+        margin: f32,
         set: Set<'_>,
         lights: &[Vec3],
         out: Option<&mut Vec<Candidate>>,
@@ -295,6 +384,7 @@ impl Candidates {
             supers,
             dots,
             bounds,
+            order_bounds,
             keys,
             list,
             ..
@@ -303,21 +393,26 @@ impl Candidates {
             Set::Supers(range) => (&*supers, range),
             Set::Other(set) => (set, 0..set.len()),
         };
-        let threshold = reach(centre, radius, set, range.clone(), dots);
-        let (sin_r, cos_r) = radius.sin_cos();
+        let threshold = reach(centre, radius + margin, set, range.clone(), dots);
         // Every bound at once (vectorised, branch-free), then the candidates that pass.
+        let bound = |radius: f32| {
+            let (sin_r, cos_r) = radius.sin_cos();
+            move |&d: &f32| {
+                let cos_a = d.clamp(-1.0, 1.0);
+                // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
+                let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
+                (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
+            }
+        };
         bounds.clear();
-        bounds.extend(dots.iter().map(|&d| {
-            let cos_a = d.clamp(-1.0, 1.0);
-            // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
-            let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
-            (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
-        }));
+        bounds.extend(dots.iter().map(bound(radius + margin)));
+        order_bounds.clear();
+        order_bounds.extend(dots.iter().map(bound(radius)));
         // Branch-free compaction: every key is written, the count moves on for those that
         // pass (which ones do is unpredictable).
         keys.resize(dots.len(), 0);
         let mut passing = 0;
-        for (k, (&d, &b)) in dots.iter().zip(bounds.iter()).enumerate() {
+        for (k, (&d, &b)) in dots.iter().zip(order_bounds.iter()).enumerate() {
             keys[passing] = falling_key(b, k);
             passing += usize::from(d >= threshold);
         }
@@ -405,6 +500,18 @@ pub(super) struct Scratch {
     local: Vec<u32>,
     local_offsets: Vec<u32>,
     local_list: Vec<Candidate>,
+}
+
+impl Scratch {
+    /// Allows (the default) or forbids reusing the candidate lists between frames.
+    pub(super) fn set_candidate_reuse(&mut self, on: bool) {
+        self.candidates.no_reuse = !on;
+    }
+
+    /// How many times the candidate lists have been built in full.
+    pub(super) fn candidate_builds(&self) -> u64 {
+        self.candidates.builds
+    }
 }
 
 /// Labels every pixel of bucket (`bx`, `by`) with its nearest light among the bucket's
@@ -538,7 +645,7 @@ fn accumulate(args: Accumulate<'_>) {
     scratch
         .lights
         .extend(sample_dirs.iter().map(|d| d.as_vec3()));
-    scratch.candidates.build(grid, &scratch.lights);
+    scratch.candidates.update(grid, &scratch.lights);
     let lookup = |bucket: usize| scratch.candidates.of(bucket);
     scratch.holds_concentrated.clear();
     scratch.holds_concentrated.resize(sample_dirs.len(), false);
@@ -599,6 +706,8 @@ fn accumulate(args: Accumulate<'_>) {
     local_list.clear();
     for b in 0..grid.centres.len() {
         let centre = grid.centres[b];
+        // Built with the margin, possibly frames ago: the reach it encodes (d_min + 2r + 2δ at
+        // the build) is at least today's d_min + 2r, so the test below stays conservative.
         let threshold = candidates.thresholds[b];
         let affected = candidates
             .of(b)
@@ -613,6 +722,7 @@ fn accumulate(args: Accumulate<'_>) {
             candidates.bucket_list(
                 centre,
                 grid.radii[b],
+                0.0,
                 Set::Other(new_set),
                 new_lights,
                 Some(local_list),
