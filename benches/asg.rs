@@ -13,7 +13,8 @@
 //! - `warm_frame_whole_1_thread`: the issue's ≤ 33.3 ms target as one number: a whole warm
 //!   frame through `AsgFitter::fit_frame` — the target of the new frame prepared (refilling
 //!   the previous frame's, tiles included) and refitted from the fitter's state after the
-//!   default first frame, on one thread.
+//!   default first frame, on one thread. The refits run with `FitSettings::warm_loss` off (the
+//!   default, as the daemon runs them): no whole-map loss of the result.
 //!
 //! Run: `cargo bench --bench asg` (or `-- --warm-up-time 1 --measurement-time 5`; the first-frame
 //! cases take seconds per sample: `-- warm` runs the refit alone).

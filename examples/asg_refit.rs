@@ -13,8 +13,10 @@
 //! fitting thread (`/proc/thread-self/schedstat`, read after a yield), so a loaded machine inflates them less than
 //! wall time: per frame, preparing the target (`AsgFitter::prepare`: resampling, diffuse
 //! ground truth, tiling, into the previous frame's buffers), the refit
-//! (`AsgFitter::fit_prepared`) and their sum, the whole frame; the medians and the largest are
-//! printed at the end with the load average.
+//! (`AsgFitter::fit_prepared`, with `FitSettings::warm_loss` off as the daemon runs it: the
+//! losses in the table are computed afterwards, untimed, by the exact `fit::loss`) and their
+//! sum, the whole frame; the medians and the largest are printed at the end with the load
+//! average.
 //!
 //! Run: `cargo run --release --example asg_refit -- [--height 256] [--frames 30] [--every 5]
 //! [--warm N] [--rate R] [--temporal W] [--subset S] [--first N] [--first-subset S] [--coarse ROWS]

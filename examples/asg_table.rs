@@ -149,7 +149,8 @@ fn main() {
                 .fit_target(&target);
             eprintln!(
                 "{name}: {label}: loss {:.4} -> {:.4}",
-                result.initial_loss.total, result.loss.total
+                result.initial_loss.total,
+                result.loss.map_or(f64::NAN, |l| l.total)
             );
             add(
                 label.to_string(),
@@ -230,6 +231,8 @@ fn temporal() {
         let mut fitter = AsgFitter::new(FitSettings {
             height: 64,
             temporal_weight: w,
+            // The mean loss below needs every frame's.
+            warm_loss: true,
             ..FitSettings::default()
         })
         .unwrap();
@@ -239,7 +242,8 @@ fn temporal() {
         for f in &frames {
             let target = FitTarget::from_frame(f, 64, 256).unwrap();
             let r = fitter.fit_target(&target);
-            loss += r.loss.reconstruction + r.loss.diffuse;
+            let l = r.loss.expect("warm_loss asks for every frame's loss");
+            loss += l.reconstruction + l.diffuse;
             let truth =
                 LatLongMap::new(target.width, target.height, target.radiance.clone()).unwrap();
             let tb = render_ball(&truth, alpha, res);

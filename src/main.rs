@@ -1290,6 +1290,8 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
         warm_iterations: args.warm_iterations,
         height: args.height,
         temporal_weight: args.temporal_weight,
+        // Every line reports its frame's loss.
+        warm_loss: true,
         ..FitSettings::default()
     };
     let mut fitter = AsgFitter::new(settings).context("invalid fit-asg options")?;
@@ -1319,13 +1321,13 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
             seq: u64,
             time: f64,
             lobes: &'a [envlight::asg::Asg],
-            loss: f64,
+            loss: Option<f64>,
         }
         let line = Line {
             seq: frame.seq,
             time: frame.time,
             lobes: &result.lobes,
-            loss: result.loss.total,
+            loss: result.loss.map(|l| l.total),
         };
         let line = serde_json::to_string(&line).context("cannot encode a frame")?;
         match writeln!(writer, "{line}") {

@@ -412,6 +412,87 @@ fn warm_refit_with_temporal_loss_follows_the_map() {
     assert!(after < before, "refit {after} vs previous lobes {before}");
 }
 
+/// Two fitters through the same first frame, then the same warm refit, one asking for the
+/// refit's loss.
+fn refit_with_and_without_loss(
+    settings: FitSettings,
+) -> (FitTarget, [envlight::asg::fit::FitResult; 2]) {
+    let options = SkyOptions::default();
+    let t0 = FitTarget::from_frame(&render_sky(&options, 0.0), 32, 128).unwrap();
+    let t1 = FitTarget::from_frame(&render_sky(&options, 0.1), 32, 128).unwrap();
+    let refit = |warm_loss| {
+        let mut fitter = AsgFitter::new(FitSettings {
+            warm_loss,
+            ..settings.clone()
+        })
+        .unwrap();
+        let first = fitter.fit_target(&t0);
+        assert!(
+            !first.warm && first.loss.is_some(),
+            "first frame: {first:?}"
+        );
+        fitter.fit_target(&t1)
+    };
+    (t1.clone(), [refit(false), refit(true)])
+}
+
+#[test]
+fn warm_refit_reports_its_loss_only_when_asked() {
+    // The default warm refit (L_T on, subsets of the tiles) returns its last iterate: without
+    // `warm_loss` the whole-map evaluation is skipped, the lobes are the same bits.
+    let settings = settings_small();
+    let (t1, [quiet, asked]) = refit_with_and_without_loss(settings.clone());
+    assert!(quiet.warm && asked.warm);
+    assert_eq!(quiet.loss, None);
+    assert_eq!(quiet.lobes, asked.lobes);
+    assert_eq!(quiet.initial_loss, asked.initial_loss);
+    // The reported loss is the returned lobes' whole-map L_R + w_D·L_D (fast kernel against
+    // the exact sums; L_T is measured from the centroid-moved start, not checked here).
+    let l = asked.loss.expect("warm_loss asks for the refit's loss");
+    let exact = loss(&t1, &asked.lobes, None, &settings);
+    for (what, a, b) in [
+        ("L_R", l.reconstruction, exact.reconstruction),
+        ("L_D", l.diffuse, exact.diffuse),
+    ] {
+        assert!(
+            (a - b).abs() <= 1e-4 * b.abs(),
+            "{what}: reported {a}, exact {b}"
+        );
+    }
+    assert!(l.temporal > 0.0 && l.total > l.reconstruction + l.diffuse);
+}
+
+#[test]
+fn warm_refit_without_temporal_loss_keeps_its_best_iterate() {
+    // Whole-map iterations without L_T return the best iterate, which needs the last loss:
+    // it is evaluated (and reported) whether asked or not, and both choose the same lobes.
+    let settings = FitSettings {
+        temporal_weight: 0.0,
+        warm_subset: 1,
+        ..settings_small()
+    };
+    let (t1, [quiet, asked]) = refit_with_and_without_loss(settings.clone());
+    assert_eq!(quiet.lobes, asked.lobes);
+    let l = quiet
+        .loss
+        .expect("the best-iterate choice evaluates the loss");
+    assert_eq!(Some(l), asked.loss);
+    let exact = loss(&t1, &quiet.lobes, None, &settings).total;
+    assert!(
+        (l.total - exact).abs() <= 1e-4 * exact,
+        "{l:?} vs exact {exact}"
+    );
+    // With subsets and no L_T only the last iterate has a whole-map loss: it is returned and
+    // the evaluation skipped unless asked.
+    let (_, [quiet, asked]) = refit_with_and_without_loss(FitSettings {
+        warm_subset: 4,
+        ..settings
+    });
+    assert_eq!(quiet.loss, None);
+    assert!(asked.loss.is_some());
+    assert_eq!(quiet.lobes, asked.lobes);
+}
+
 fn settings_small() -> FitSettings {
     FitSettings {
         lobes: 8,
@@ -443,10 +524,10 @@ fn fits_on_real_hdris_lower_the_loss_and_keep_energy() {
         let target = FitTarget::from_frame(&frame, 32, 128).unwrap();
         let result = fitter.fit_target(&target);
         assert_eq!(result.lobes.len(), 16);
+        let fitted = result.loss.expect("a first frame reports its loss");
         assert!(
-            result.loss.total < 0.8 * result.initial_loss.total,
-            "{name}: loss {:?} from {:?}",
-            result.loss,
+            fitted.total < 0.8 * result.initial_loss.total,
+            "{name}: loss {fitted:?} from {:?}",
             result.initial_loss
         );
         let mut e = [0.0; 3];
@@ -460,7 +541,7 @@ fn fits_on_real_hdris_lower_the_loss_and_keep_energy() {
         assert!(err < 0.02, "{name}: energy error {err}");
         eprintln!(
             "{name}: loss {:.4} -> {:.4}, energy error {err:.4}",
-            result.initial_loss.total, result.loss.total
+            result.initial_loss.total, fitted.total
         );
     }
 }
@@ -650,14 +731,18 @@ fn bad_inputs_give_errors_not_panics() {
             .lobes
             .iter()
             .all(|l| l.rgb.iter().all(|c| c.is_finite() && *c < 1e-6)));
-        assert!(r.loss.total.is_finite());
+        assert!(r.loss.is_some_and(|l| l.total.is_finite()));
+        // The second frame is a warm refit: it reports no loss unless asked.
+        let r = fitter.fit_frame(&frame).unwrap();
+        assert!(r.warm && r.lobes.iter().all(|l| l.rgb.iter().all(|c| c.is_finite())));
     }
     let tiny = HdrFrame::new(1, 1, vec![[5.0, 1.0, 0.0]], Projection::LatLong).unwrap();
     let r = AsgFitter::new(settings_small())
         .unwrap()
         .fit_frame(&tiny)
         .unwrap();
-    assert!(r.loss.total.is_finite() && r.loss.total < r.initial_loss.total.max(1e-9) + 1e-9);
+    let l = r.loss.expect("a first frame reports its loss");
+    assert!(l.total.is_finite() && l.total < r.initial_loss.total.max(1e-9) + 1e-9);
 }
 
 #[test]

@@ -13,8 +13,9 @@
 //!    away from slow subnormal floats). Narrow lobes (suns, lamps) then cost a few tiles instead of the whole map.
 //! 3. **Kernel**: per tile, a value pass accumulates the prediction of the active lobes, a
 //!    residual pass forms the loss and the per-pixel derivative of the norm, and a gradient
-//!    pass accumulates 14 sums per lobe. Loops run over blocks of 8 f32 lanes with a
-//!    branch-free exp (range reduction to 2^n · 2^f and a degree-6 polynomial, relative error
+//!    pass accumulates 14 sums per lobe. The residual pass takes the sign of the L1 residual
+//!    without a branch (two 0/1 selections), so it vectorises too. Loops run over blocks of 8
+//!    f32 lanes with a branch-free exp (range reduction to 2^n · 2^f and a degree-6 polynomial, relative error
 //!    ≈ 2·10⁻⁷), so the compiler vectorises them; on x86-64 with AVX2 the same code is compiled
 //!    a second time with AVX2 enabled and chosen at run time. No fused multiply-adds are used,
 //!    so both builds give identical bits.
@@ -370,27 +371,29 @@ fn run_groups(
                     s.g[base + bi] = gb;
                 }
             }
-            // Residual pass.
+            // Residual pass: branch-free, so it vectorises (the sign of d as the difference of
+            // two 0/1 selections: w·(±1) and w·0 are exact, so r is ±w or 0 as a branch gives).
             let mut lacc = [0.0f32; LANES];
             for bi in 0..nb {
                 let wb = &px.w[t0 + bi];
                 for c in 0..3 {
                     let (p, t) = (&s.pred[c][bi], &px.rad[c][t0 + bi]);
                     let r = &mut s.r[c][bi];
-                    for l in 0..LANES {
-                        let d = p[l] - t[l];
-                        match norm {
-                            Norm::L1 => {
-                                lacc[l] += wb[l] * d.abs();
-                                r[l] = if d > 0.0 {
-                                    wb[l]
-                                } else if d < 0.0 {
-                                    -wb[l]
-                                } else {
-                                    0.0
-                                };
+                    match norm {
+                        Norm::L1 => {
+                            let d: Block = std::array::from_fn(|l| p[l] - t[l]);
+                            for l in 0..LANES {
+                                lacc[l] += wb[l] * d[l].abs();
                             }
-                            Norm::L2 => {
+                            *r = std::array::from_fn(|l| {
+                                let pos = if d[l] > 0.0 { 1.0f32 } else { 0.0 };
+                                let neg = if d[l] < 0.0 { 1.0f32 } else { 0.0 };
+                                wb[l] * (pos - neg)
+                            });
+                        }
+                        Norm::L2 => {
+                            for l in 0..LANES {
+                                let d = p[l] - t[l];
                                 lacc[l] += wb[l] * d * d;
                                 r[l] = 2.0 * wb[l] * d;
                             }

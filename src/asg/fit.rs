@@ -36,7 +36,9 @@
 //!    diagonal class of the tile grid, [`super::fast::Subset`]) and 1/s of the diffuse
 //!    normals, scaled by s, the class rotating every iteration, so s iterations together see
 //!    every pixel once at the cost of one full evaluation (stochastic gradients, as in SGD).
-//!    The loss of the start and of the returned lobes are always evaluated on the whole map.
+//!    The loss of the first frame's start and of its returned lobes are evaluated on the whole
+//!    map; a warm refit's returned lobes only when asked ([`FitSettings::warm_loss`]) or
+//!    needed to pick the best iterate (whole-map iterations without L_T).
 //!    **First frame**: [`FitSettings::iterations`] (8,000) on subsets of
 //!    [`FitSettings::first_subset`] (1/4) of the tiles by default, costing about 2,000
 //!    whole-map iterations: on the built-in sky at 256×512 this reaches a point that 6,000
@@ -138,7 +140,8 @@ pub struct FitSettings {
     pub fine_share: f64,
     /// Warm-started frames: each iteration's gradient is taken on 1/`warm_subset` of the
     /// fit map's tiles and of the diffuse normals (stratified subsets, rotated every
-    /// iteration; 1 = all); the returned loss is always the whole map's. 1..=16.
+    /// iteration; 1 = all); the reported loss ([`FitSettings::warm_loss`]) is the whole
+    /// map's. 1..=16.
     pub warm_subset: usize,
     /// The same for the first frame (its gradients on rotating subsets of 1/`first_subset` of
     /// the tiles and normals; the start's and the returned loss are the whole map's). 1..=16.
@@ -148,6 +151,14 @@ pub struct FitSettings {
     /// move faster than Adam's small warm steps are followed; L_T is then measured from the
     /// moved lobes.
     pub warm_centroid: bool,
+    /// Warm-started frames: evaluate the whole-map loss of the returned lobes and report it in
+    /// [`FitResult::loss`]. Off by default: that evaluation costs about a fifth of a default
+    /// refit (it is one whole-map pass; the iterations each see 1/[`FitSettings::warm_subset`]
+    /// of the map) and, with L_T on or with subsets, the returned lobes are the last iterate
+    /// whatever it says. A warm refit that needs the loss to choose its result (whole-map
+    /// iterations without L_T, where the best iterate is returned) evaluates it anyway. The
+    /// first frame always does (the start competes with the last iterate).
+    pub warm_loss: bool,
 }
 
 impl Default for FitSettings {
@@ -170,6 +181,7 @@ impl Default for FitSettings {
             warm_subset: 4,
             first_subset: 4,
             warm_centroid: true,
+            warm_loss: false,
         }
     }
 }
@@ -306,8 +318,11 @@ pub struct FitResult {
     /// Loss of the initial (greedy or warm-start) lobes (with [`FitSettings::warm_subset`] > 1,
     /// a warm refit's is the estimate from the first iteration's subset of tiles).
     pub initial_loss: Loss,
-    /// Loss of the returned lobes.
-    pub loss: Loss,
+    /// Whole-map loss of the returned lobes; `None` where it was not evaluated: on a warm
+    /// refit that did not need it to choose its lobes, unless [`FitSettings::warm_loss`] asks
+    /// for it (or compute it afterwards with [`loss`], exact f64 sums). Always `Some` on a
+    /// first frame and on a refit without iterations.
+    pub loss: Option<Loss>,
     pub iterations: usize,
     /// Whether this frame was warm-started from the previous one.
     pub warm: bool,
@@ -1058,7 +1073,7 @@ fn run_stages(
         return FitResult {
             lobes: init.to_vec(),
             initial_loss: Loss::default(),
-            loss: Loss::default(),
+            loss: None,
             iterations: 0,
             warm: prev.is_some(),
         };
@@ -1086,13 +1101,13 @@ fn run_stages(
         return FitResult {
             lobes,
             initial_loss: Loss::default(),
-            loss: Loss::default(),
+            loss: Some(Loss::default()),
             iterations: 0,
             warm: prev.is_some(),
         };
     }
-    // Warm refits may take each gradient on a rotating subset of the tiles (the final loss is
-    // always the whole map's).
+    // Warm refits may take each gradient on a rotating subset of the tiles (a final loss, where
+    // evaluated, is the whole map's).
     let stride = if prev.is_some() {
         settings.warm_subset.max(1)
     } else {
@@ -1133,6 +1148,11 @@ fn run_stages(
         // The coarse levels can end worse than the start: the start stays a candidate.
         best = Some((l, clamped));
     }
+    // With L_T as a proximal step, the iterates descend L_R + w_D·L_D + a penalty on the
+    // change; the last one is returned (the best total seen would be the unchanged previous
+    // lobes, L_T being 0 there). Otherwise the best seen; with subsets only the whole-map
+    // losses (the start's, the last one) count.
+    let keep_last = prevs.is_some() && settings.temporal_weight > 0.0;
     let mut t = 0usize;
     for (si, &(stage, its)) in stages.iter().enumerate() {
         let last = si + 1 == stages.len();
@@ -1146,6 +1166,13 @@ fn run_stages(
             if !want && !last {
                 break;
             }
+            let skip_loss = !settings.warm_loss && prevs.is_some() && initial.is_some();
+            if !want && skip_loss && (keep_last || best.is_none()) {
+                // The last iterate is returned whatever its loss: the whole-map evaluation
+                // would only report it (`FitSettings::warm_loss`).
+                best = None;
+                break;
+            }
             let (loss, grads) = loss_and_grad(
                 stage,
                 &lobes,
@@ -1157,11 +1184,6 @@ fn run_stages(
                 if initial.is_none() {
                     initial = Some(loss);
                 }
-                // With L_T as a proximal step, the iterates descend L_R + w_D·L_D + a penalty
-                // on the change; the last one is returned (the best total seen would be the
-                // unchanged previous lobes, L_T being 0 there). Otherwise the best seen;
-                // with subsets only the whole-map losses (the start's, the last one) count.
-                let keep_last = prevs.is_some() && settings.temporal_weight > 0.0;
                 let exact = !want || stride == 1;
                 if exact && (keep_last || best.as_ref().is_none_or(|(b, _)| loss.total < b.total)) {
                     best = Some((loss, lobes.clone()));
@@ -1206,7 +1228,10 @@ fn run_stages(
             }
         }
     }
-    let (loss, best) = best.unwrap_or_default();
+    let (loss, best) = match best {
+        Some((l, b)) => (Some(l), b),
+        None => (None, lobes),
+    };
     FitResult {
         lobes: best.into_iter().map(Lobe::to_asg).collect(),
         initial_loss: initial.unwrap_or_default(),
