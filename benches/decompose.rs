@@ -65,17 +65,6 @@ fn upsample2(frame: &HdrFrame) -> HdrFrame {
     HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
 }
 
-/// `frame` turned about the zenith by `shift` pixels.
-fn turned(frame: &HdrFrame, shift: usize) -> HdrFrame {
-    let w = frame.width as usize;
-    let pixels = frame
-        .pixels
-        .chunks_exact(w)
-        .flat_map(|row| (0..w).map(move |x| row[(x + shift) % w]))
-        .collect();
-    HdrFrame::new(frame.width, frame.height, pixels, frame.projection).expect("same size")
-}
-
 /// Luminance × solid angle of `frame` box-downsampled by `factor`.
 fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
     let (w, h) = (frame.width / factor, frame.height / factor);
@@ -119,7 +108,7 @@ fn bench_frames(c: &mut Criterion) {
 
     // A pixel per frame, forwards and back: every light moves every frame.
     let turning: Vec<HdrFrame> = (0..14usize)
-        .map(|k| turned(full, if k <= 7 { k } else { 14 - k }))
+        .map(|k| full.turned_columns(if k <= 7 { k } else { 14 - k }))
         .collect();
     for (name, reuse) in [("turning_256", true), ("turning_256_no_reuse", false)] {
         let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");

@@ -55,7 +55,7 @@ fn main() -> anyhow::Result<()> {
         if turn {
             // 0, 1, …, 7, 6, …, 1 pixels: one pixel per frame, every frame.
             (0..14usize)
-                .map(|k| turned(&frame, if k <= 7 { k } else { 14 - k }))
+                .map(|k| frame.turned_columns(if k <= 7 { k } else { 14 - k }))
                 .collect()
         } else {
             vec![frame]
@@ -104,15 +104,4 @@ fn main() -> anyhow::Result<()> {
         decomposer.candidate_builds()
     );
     Ok(())
-}
-
-/// `frame` turned about the zenith by `shift` pixels.
-fn turned(frame: &HdrFrame, shift: usize) -> HdrFrame {
-    let w = frame.width as usize;
-    let pixels = frame
-        .pixels
-        .chunks_exact(w)
-        .flat_map(|row| (0..w).map(move |x| row[(x + shift) % w]))
-        .collect();
-    HdrFrame::new(frame.width, frame.height, pixels, frame.projection).expect("same size")
 }

@@ -74,19 +74,6 @@ fn with_concentrated_lloyd(settings: Option<DecomposeSettings>) -> Option<Decomp
     })
 }
 
-fn rotated(frame: &HdrFrame, shift: u32) -> HdrFrame {
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    let mut pixels = Vec::with_capacity(w * h);
-    for y in 0..h {
-        let row = &frame.pixels[y * w..(y + 1) * w];
-        let s = shift as usize % w;
-        pixels.extend_from_slice(&row[s..]);
-        pixels.extend_from_slice(&row[..s]);
-    }
-    HdrFrame::new(frame.width, frame.height, pixels, Projection::LatLong)
-        .unwrap_or_else(|| frame.clone())
-}
-
 /// Input pixels the sub-pixel pan turns per frame: not a whole pixel, so no method sees an exact
 /// copy of the previous frame shifted.
 const SUB_PIXEL_STEP: f64 = 0.37;
@@ -192,7 +179,7 @@ fn main() -> Result<()> {
     let image = read_hdr_image(std::path::Path::new(&path))?;
     let still = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
         .context("empty image")?;
-    let pan: Vec<HdrFrame> = (0..60).map(|t| rotated(&still, t)).collect();
+    let pan: Vec<HdrFrame> = (0..60).map(|t| still.turned_columns(t)).collect();
     let slow_pan: Vec<HdrFrame> = (0..60)
         .map(|t| rotated_by(&still, SUB_PIXEL_STEP * f64::from(t)))
         .collect();

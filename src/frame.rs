@@ -54,6 +54,27 @@ impl HdrFrame {
         self.pixels[y as usize * self.width as usize + x as usize]
     }
 
+    /// The frame with every row rotated left by `shift` columns: pixel x of the result is pixel
+    /// (x + shift) mod width of `self`. For a lat-long map that is the environment turned about
+    /// the vertical axis by `shift` pixels (what a camera panning by that much would see).
+    pub fn turned_columns(&self, shift: usize) -> HdrFrame {
+        let w = self.width as usize;
+        let s = shift % w;
+        let mut pixels = Vec::with_capacity(self.pixels.len());
+        for row in self.pixels.chunks_exact(w) {
+            pixels.extend_from_slice(&row[s..]);
+            pixels.extend_from_slice(&row[..s]);
+        }
+        HdrFrame {
+            width: self.width,
+            height: self.height,
+            pixels,
+            projection: self.projection.clone(),
+            time: self.time,
+            seq: self.seq,
+        }
+    }
+
     /// Replaces NaN, ±Inf and negative channel values by 0 and returns how many pixels had one.
     /// Radiance is non-negative and finite; callers report the count (one warning per frame).
     pub fn sanitize(&mut self) -> usize {
@@ -75,6 +96,19 @@ impl HdrFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn turned_columns_rotates_every_row() {
+        let pixels = (0..12).map(|i| [i as f32, 0.0, 0.0]).collect();
+        let mut frame = HdrFrame::new(4, 3, pixels, Projection::LatLong).unwrap();
+        frame.seq = 7;
+        let turned = frame.turned_columns(1);
+        let red: Vec<f32> = turned.pixels.iter().map(|p| p[0]).collect();
+        assert_eq!(red, [1., 2., 3., 0., 5., 6., 7., 4., 9., 10., 11., 8.]);
+        assert_eq!((turned.width, turned.height, turned.seq), (4, 3, 7));
+        assert_eq!(frame.turned_columns(4), frame);
+        assert_eq!(frame.turned_columns(5), turned);
+    }
 
     #[test]
     fn sanitize_zeroes_and_counts_bad_pixels() {

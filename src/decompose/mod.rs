@@ -697,17 +697,6 @@ mod tests {
             .collect()
     }
 
-    /// `frame` turned about the zenith by `shift` pixels.
-    fn turned(frame: &HdrFrame, shift: usize) -> HdrFrame {
-        let w = frame.width as usize;
-        let pixels = frame
-            .pixels
-            .chunks_exact(w)
-            .flat_map(|row| (0..w).map(move |x| row[(x + shift) % w]))
-            .collect();
-        HdrFrame::new(frame.width, frame.height, pixels, frame.projection).unwrap()
-    }
-
     #[test]
     fn reused_candidate_lists_give_the_lights_of_rebuilt_ones() {
         let path =
@@ -716,7 +705,7 @@ mod tests {
         let park =
             HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).unwrap();
         // Turning a pixel per frame, then back (a jump of 20 pixels).
-        let turning: Vec<HdrFrame> = (0..24).map(|i| turned(&park, i % 20)).collect();
+        let turning: Vec<HdrFrame> = (0..24).map(|i| park.turned_columns(i % 20)).collect();
         let options = crate::capture::sky::SkyOptions {
             width: 256,
             height: 128,
