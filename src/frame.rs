@@ -69,7 +69,7 @@ impl HdrFrame {
             width: self.width,
             height: self.height,
             pixels,
-            projection: self.projection.clone(),
+            projection: self.projection,
             time: self.time,
             seq: self.seq,
         }
