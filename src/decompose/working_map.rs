@@ -372,10 +372,7 @@ impl Resampler {
             concentrated: &mut map.concentrated,
             threshold,
         });
-        for idx in 0..map.concentrated.len() {
-            if !map.concentrated[idx] {
-                continue;
-            }
+        for idx in flagged(&map.concentrated) {
             let pixel = idx as u32;
             self.plan
                 .for_each_input(idx, map.width, sw, |i, solid_angle, dir| {
@@ -397,6 +394,27 @@ impl Resampler {
         }
         &self.map
     }
+}
+
+/// The indices of the set flags, in order; eight flags are tested at a time (almost none is
+/// set: a concentrated working pixel holds more than 1/(4n) of the map's energy).
+fn flagged(flags: &[bool]) -> impl Iterator<Item = usize> + '_ {
+    let bytes: &[u8] = bytemuck::cast_slice(flags);
+    bytes
+        .chunks(8)
+        .enumerate()
+        .filter(|(_, chunk)| {
+            let mut word = [0u8; 8];
+            word[..chunk.len()].copy_from_slice(chunk);
+            u64::from_ne_bytes(word) != 0
+        })
+        .flat_map(|(i, chunk)| {
+            chunk
+                .iter()
+                .enumerate()
+                .filter(|&(_, &flag)| flag != 0)
+                .map(move |(j, _)| 8 * i + j)
+        })
 }
 
 /// The box filter's arguments, run through [`pulp::Arch::dispatch`] so that it is compiled for
