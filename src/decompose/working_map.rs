@@ -6,7 +6,8 @@
 //! goes to the working pixel that contains its centre direction, so the working map's total
 //! equals the input's integral (to rounding; sums in f64). A lat-long input whose size is an
 //! integer multiple of the working size takes a fast box-filter path (f32 column sums, compiled
-//! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth); other
+//! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth; with AVX2
+//! the horizontal sums of a factor-4 filter take eight working pixels at a time); other
 //! inputs use a per-pixel index table built once per input geometry.
 //!
 //! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
