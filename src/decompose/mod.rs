@@ -706,6 +706,25 @@ mod tests {
             HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).unwrap();
         // Turning a pixel per frame, then back (a jump of 20 pixels).
         let turning: Vec<HdrFrame> = (0..24).map(|i| park.turned_columns(i % 20)).collect();
+        // Turning by a twentieth of a pixel per frame (blending with the map turned a pixel):
+        // the sun's lights move less than the margin, so the lists are reused, and the sun's
+        // concentrated pixels make the Lloyd step run on reused lists.
+        let next = park.turned_columns(1);
+        let creeping: Vec<HdrFrame> = (0..20)
+            .map(|i| {
+                let t = i as f32 / 20.0;
+                let pixels = park
+                    .pixels
+                    .iter()
+                    .zip(&next.pixels)
+                    .map(|(a, b)| std::array::from_fn(|c| (1.0 - t) * a[c] + t * b[c]))
+                    .collect();
+                HdrFrame {
+                    pixels,
+                    ..park.clone()
+                }
+            })
+            .collect();
         let options = crate::capture::sky::SkyOptions {
             width: 256,
             height: 128,
@@ -714,10 +733,14 @@ mod tests {
         let sky: Vec<HdrFrame> = (0..30)
             .map(|i| crate::capture::sky::render_sky(&options, f64::from(i) / 30.0))
             .collect();
-        for (name, frames, working_width, concentrated_lloyd) in [
-            ("rooitou turning", &turning, 256, false),
-            ("rooitou turning, Lloyd step", &turning, 256, true),
-            ("sky", &sky, 128, false),
+        // Turning the map moves every point of the rows warp by more than the margin (the mass
+        // that crosses the seam shifts every row's CDF), so its lists are rebuilt every frame;
+        // on the sky and the creeping map the lights move slowly, so both paths must run there.
+        for (name, frames, working_width, concentrated_lloyd, must_reuse) in [
+            ("rooitou turning", &turning, 256, false, false),
+            ("rooitou turning, Lloyd step", &turning, 256, true, false),
+            ("sky", &sky, 128, false, true),
+            ("rooitou creeping, Lloyd step", &creeping, 256, true, true),
         ] {
             let settings = DecomposeSettings {
                 working_width,
@@ -736,10 +759,7 @@ mod tests {
             }
             let builds = reusing.candidate_builds();
             assert_eq!(rebuilding.candidate_builds(), frames.len() as u64);
-            // Turning the map moves every point of the rows warp by more than the margin (the
-            // mass that crosses the seam shifts every row's CDF), so the lists are rebuilt every
-            // frame there; the sky's lights move slowly: both paths must run.
-            if name == "sky" {
+            if must_reuse {
                 assert!(
                     builds > 1 && builds < frames.len() as u64,
                     "{name}: {builds} builds in {} frames",
