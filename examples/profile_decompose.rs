@@ -4,13 +4,15 @@
 //! cargo run --release --example profile_decompose -- tests/data/rooitou_park_1k.hdr 2000
 //! cargo run --release --example profile_decompose -- sky 3000 128
 //! cargo run --release --example profile_decompose -- turn:tests/data/rooitou_park_1k.hdr 2000 - no-reuse
+//! cargo run --release --example profile_decompose -- tests/data/st_peters_square_night_1k.hdr 2000 - lloyd
 //! ```
 //!
 //! Arguments: the map (an .hdr file; `turn:` before it turns the map about the zenith by a
 //! pixel per frame, 8 frames forwards and back, so every light moves every frame; or `sky` for
 //! one second of the built-in sky at 256×128, 60 frames cycled, as the streaming bench uses),
 //! the number of frames, optionally the working width (`-` or nothing: the decomposition's
-//! default) and `no-reuse` (build the region pass's candidate lists afresh every frame).
+//! default), then any of `no-reuse` (build the region pass's candidate lists afresh every frame)
+//! and `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
@@ -30,11 +32,14 @@ fn main() -> anyhow::Result<()> {
     if let Some(width) = args.next().filter(|w| w != "-") {
         settings.working_width = width.parse()?;
     }
-    let reuse = match args.next().as_deref() {
-        None => true,
-        Some("no-reuse") => false,
-        Some(other) => anyhow::bail!("unknown option {other:?} (expected no-reuse)"),
-    };
+    let mut reuse = true;
+    for option in args {
+        match option.as_str() {
+            "no-reuse" => reuse = false,
+            "lloyd" => settings.concentrated_lloyd = true,
+            other => anyhow::bail!("unknown option {other:?} (expected no-reuse or lloyd)"),
+        }
+    }
     let frames: Vec<HdrFrame> = if path == "sky" {
         let options = SkyOptions {
             width: 256,
