@@ -259,10 +259,8 @@ struct Candidates {
     supers: DirSet,
     super_offsets: Vec<usize>,
     dots: Vec<f32>,
-    /// Per super-bucket candidate of the bucket at hand: its bound.
-    bounds: Vec<f32>,
-    /// The same without the margin: they set the list's order.
-    order_bounds: Vec<f32>,
+    /// Positions (in the set searched) of the bucket's candidates that pass the reach test.
+    passing: Vec<u32>,
     /// Sort keys of a bucket's candidates: falling bound, then rising position.
     keys: Vec<u64>,
     /// Per bucket, the reach threshold of its candidates: a light whose dot product with the
@@ -383,8 +381,7 @@ impl Candidates {
         let Candidates {
             supers,
             dots,
-            bounds,
-            order_bounds,
+            passing,
             keys,
             list,
             ..
@@ -394,29 +391,32 @@ impl Candidates {
             Set::Other(set) => (set, 0..set.len()),
         };
         let threshold = reach(centre, radius + margin, set, range.clone(), dots);
-        // Every bound at once (vectorised, branch-free), then the candidates that pass.
+        // The candidates that pass (branch-free compaction: every index is written, the count
+        // moves on for those that pass, which ones do being unpredictable), then their bounds:
+        // typically a third of the super-bucket's candidates pass.
+        passing.resize(dots.len(), 0);
+        let mut count = 0;
+        for (k, &d) in dots.iter().enumerate() {
+            passing[count] = k as u32;
+            count += usize::from(d >= threshold);
+        }
+        passing.truncate(count);
         let bound = |radius: f32| {
             let (sin_r, cos_r) = radius.sin_cos();
-            move |&d: &f32| {
+            move |d: f32| {
                 let cos_a = d.clamp(-1.0, 1.0);
                 // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
                 let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
                 (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
             }
         };
-        bounds.clear();
-        bounds.extend(dots.iter().map(bound(radius + margin)));
-        order_bounds.clear();
-        order_bounds.extend(dots.iter().map(bound(radius)));
-        // Branch-free compaction: every key is written, the count moves on for those that
-        // pass (which ones do is unpredictable).
-        keys.resize(dots.len(), 0);
-        let mut passing = 0;
-        for (k, (&d, &b)) in dots.iter().zip(order_bounds.iter()).enumerate() {
-            keys[passing] = falling_key(b, k);
-            passing += usize::from(d >= threshold);
-        }
-        keys.truncate(passing);
+        let (order_bound, bound) = (bound(radius), bound(radius + margin));
+        keys.clear();
+        keys.extend(
+            passing
+                .iter()
+                .map(|&k| falling_key(order_bound(dots[k as usize]), k as usize)),
+        );
         // Sorting the 8-byte keys (branch-free small-sort networks in the standard library)
         // gives the order of a stable sort by falling bound.
         keys.sort_unstable();
@@ -431,7 +431,7 @@ impl Candidates {
             out.push(Candidate {
                 dir: lights[i as usize],
                 light: i,
-                bound: bounds[k],
+                bound: bound(dots[k]),
             });
         }
         prune_dominated(out, start, centre, radius, margin);
