@@ -31,6 +31,8 @@
 //! library's decomposition of rooitou_park (centroid or sample-point placement).
 //!
 //! Errors in arguments end the program with a message; this is a tool for experiments.
+#[path = "../tests/test_data/mod.rs"]
+mod test_data;
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::decompose::point_set::progressive_points;
@@ -624,17 +626,7 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let variants = parse(&args)?;
-    let maps = [
-        "empty_warehouse_01_1k.hdr",
-        "noon_grass_1k.hdr",
-        "potsdamer_platz_1k.hdr",
-        "rooitou_park_1k.hdr",
-        "st_peters_square_night_1k.hdr",
-        "studio_small_03_1k.hdr",
-        "venice_sunset_1k.hdr",
-        "KernerEnvLatLong.exr",
-        "StageEnvLatLong.exr",
-    ];
+    let maps = test_data::QUALITY_MAPS;
     let verbose = std::env::var("V").is_ok();
     if std::env::var("SKY").is_ok() {
         use envlight::capture::sky::{render_sky, SkyOptions};

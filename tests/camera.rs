@@ -3,6 +3,8 @@
 //! fisheye frames rendered from them, the device-loss wrapper with a fake source, the
 //! `[camera]` config, and a real-device test that runs only where /dev/video* exists.
 
+mod test_data;
+
 use envlight::capture::bracket::{
     merge_brackets, recover_response, Bracket, MergeLimits, SolveSettings,
 };
@@ -15,26 +17,11 @@ use envlight::config::{RawConfig, SourceKind};
 use envlight::envmap::fisheye_detect::{detect_image_circle, render_fisheye};
 use envlight::envmap::{FisheyeCalibration, FisheyeModel, Projection};
 use envlight::frame::HdrFrame;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data")
-        .join(name)
-}
-
-const HDRIS: [&str; 7] = [
-    "empty_warehouse_01_1k.hdr",
-    "noon_grass_1k.hdr",
-    "potsdamer_platz_1k.hdr",
-    "rooitou_park_1k.hdr",
-    "st_peters_square_night_1k.hdr",
-    "studio_small_03_1k.hdr",
-    "venice_sunset_1k.hdr",
-];
+use test_data::{data, HDRIS};
 
 /// Small deterministic normal noise (xorshift64* + Box–Muller).
 struct Noise(u64);

@@ -1,6 +1,8 @@
 //! Integration tests of the capture module: reading the real files in tests/data, channel
 //! layouts of generated EXRs, bad input, and `SequenceSource` ordering, looping and pacing.
 
+mod test_data;
+
 use envlight::capture::image_file::{decode_hdr_image, read_hdr_image, ImageFormat, RgbImage};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource, NOMINAL_FPS};
 use envlight::capture::{CaptureError, FrameSource};
@@ -11,24 +13,9 @@ use exr::prelude::{
     ImageAttributes, IntegerBounds, Layer, LayerAttributes, LineOrder, SmallVec, Vec2,
     WritableImage,
 };
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
-
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data")
-        .join(name)
-}
-
-const HDR_FILES: [&str; 7] = [
-    "empty_warehouse_01_1k.hdr",
-    "noon_grass_1k.hdr",
-    "potsdamer_platz_1k.hdr",
-    "rooitou_park_1k.hdr",
-    "st_peters_square_night_1k.hdr",
-    "studio_small_03_1k.hdr",
-    "venice_sunset_1k.hdr",
-];
+use test_data::{data, HDRIS};
 
 /// Sanitises like a frame source does; returns the image as a frame and the count.
 fn sanitized(image: RgbImage) -> (HdrFrame, usize) {
@@ -65,7 +52,7 @@ fn assert_sane(name: &str, image: RgbImage, width: u32, height: u32) {
 
 #[test]
 fn every_radiance_file_reads() {
-    for name in HDR_FILES {
+    for name in HDRIS {
         let image = read_hdr_image(&data(name)).unwrap_or_else(|e| panic!("{e}"));
         assert_sane(name, image, 1024, 512);
     }

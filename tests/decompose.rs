@@ -17,6 +17,8 @@
 //!
 //! Angles and bounds are printed with `eprintln!` (run with `--nocapture` to see them).
 
+mod test_data;
+
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{
@@ -27,17 +29,11 @@ use envlight::envmap::Projection;
 use envlight::frame::luminance;
 use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, Light, LightFrame};
-use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
+use test_data::{data, QUALITY_MAPS};
 
 // ---------------------------------------------------------------------------------------------
 // Helpers
-
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data")
-        .join(name)
-}
 
 /// Reads a lat-long map with the crate's reader. The frame is not sanitised: the decomposition
 /// and `frame_integral` must both ignore non-finite and negative values on their own.
@@ -873,19 +869,6 @@ fn light_count_changes_keep_ids_and_energy() {
 
 // ---------------------------------------------------------------------------------------------
 // Quality against the classic peer
-
-/// The maps of docs/quality.md's table.
-const QUALITY_MAPS: [&str; 9] = [
-    "empty_warehouse_01_1k.hdr",
-    "noon_grass_1k.hdr",
-    "potsdamer_platz_1k.hdr",
-    "rooitou_park_1k.hdr",
-    "st_peters_square_night_1k.hdr",
-    "studio_small_03_1k.hdr",
-    "venice_sunset_1k.hdr",
-    "KernerEnvLatLong.exr",
-    "StageEnvLatLong.exr",
-];
 
 /// Issue 2's quality target, as far as it is met: the default decomposition's error against
 /// Debevec's median cut on the rows of docs/quality.md (diffuse, glossy-16, glossy-128 and

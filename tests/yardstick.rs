@@ -1,25 +1,12 @@
 //! Yardsticks and median cut on the real HDRIs in tests/data.
 
+mod test_data;
+
 use envlight::envmap::Projection;
 use envlight::yardstick::{diffuse_irradiance_error, evaluate, median_cut, ReferenceMap};
 use envlight::HdrFrame;
-use std::path::{Path, PathBuf};
-
-const MAPS: [&str; 7] = [
-    "empty_warehouse_01_1k.hdr",
-    "noon_grass_1k.hdr",
-    "potsdamer_platz_1k.hdr",
-    "rooitou_park_1k.hdr",
-    "st_peters_square_night_1k.hdr",
-    "studio_small_03_1k.hdr",
-    "venice_sunset_1k.hdr",
-];
-
-fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data")
-        .join(name)
-}
+use std::path::Path;
+use test_data::{data, HDRIS};
 
 /// Reads a Radiance .hdr lat-long map with the image crate (test-only reader).
 fn read_hdr(path: &Path) -> HdrFrame {
@@ -59,7 +46,7 @@ fn median_cut_lights_sum_to_the_integral_of_a_real_map() {
 
 #[test]
 fn more_median_cut_lights_are_better_on_real_maps() {
-    for name in MAPS {
+    for name in HDRIS {
         let frame = read_hdr(&data(name));
         let map = ReferenceMap::new(&frame, 256).unwrap();
         let coarse = median_cut(&frame, 16).unwrap();

@@ -320,7 +320,8 @@ pub struct FitResult {
     pub initial_loss: Loss,
     /// Whole-map loss of the returned lobes; `None` where it was not evaluated: on a warm
     /// refit that did not need it to choose its lobes, unless [`FitSettings::warm_loss`] asks
-    /// for it (or compute it afterwards with [`loss`], exact f64 sums). Always `Some` on a
+    /// for it (or compute it afterwards with [`loss`], exact f64 sums), and from
+    /// [`optimise_stages`] given no stage (no target to judge on). Otherwise `Some`: on a
     /// first frame and on a refit without iterations.
     pub loss: Option<Loss>,
     pub iterations: usize,
