@@ -268,6 +268,8 @@ struct Candidates {
     thresholds: Vec<f32>,
     /// The lights and the grid size (width, height) the lists were built for.
     built_lights: Vec<Vec3>,
+    /// The lights whose directions the candidates hold (those of the last frame).
+    dirs_of: Vec<Vec3>,
     built_grid: (usize, usize),
     /// Whether lists may be reused between frames (off: rebuilt every frame).
     no_reuse: bool,
@@ -309,8 +311,14 @@ impl Candidates {
                 .zip(&self.built_lights)
                 .all(|(l, b)| l == b || l.dot(*b) >= cos_check);
         if valid {
-            for c in &mut self.list {
-                c.dir = lights[c.light as usize];
+            // The lists' copies of the directions, unless they are this frame's already (a
+            // static scene: the same lights every frame).
+            if self.dirs_of != lights {
+                for c in &mut self.list {
+                    c.dir = lights[c.light as usize];
+                }
+                self.dirs_of.clear();
+                self.dirs_of.extend_from_slice(lights);
             }
             self.reuses += 1;
             return;
@@ -321,6 +329,8 @@ impl Candidates {
         self.build(grid, lights, self.margin);
         self.built_lights.clear();
         self.built_lights.extend_from_slice(lights);
+        self.dirs_of.clear();
+        self.dirs_of.extend_from_slice(lights);
         self.built_grid = (grid.width, grid.height);
         self.builds += 1;
         self.reuses = 0;
@@ -356,14 +366,14 @@ impl Candidates {
         self.offsets.push(0);
         for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
             let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
-            let threshold = self.bucket_list(c, r, margin, Set::Supers(range), lights, None);
+            let threshold = self.bucket_list(c, r, margin, range, lights, None);
             self.thresholds.push(threshold);
             self.offsets.push(self.list.len() as u32);
         }
     }
 
-    /// Appends the candidates of the cap (`centre`, `radius` + `margin`) among `set` to `out`
-    /// (or to `self.list`) and returns the reach threshold. Their bounds are those of the
+    /// Appends the candidates of the cap (`centre`, `radius` + `margin`) among the lights
+    /// `range` of `self.supers` to `out` (or to `self.list`) and returns the reach threshold. Their bounds are those of the
     /// widened cap; their order is that of falling bounds of the cap without the margin (the
     /// same order of distance from the centre, so the widened bounds fall along the list too),
     /// which is the order a list without margin has: an exact tie of two lights' dot products
@@ -374,7 +384,7 @@ impl Candidates {
         centre: Vec3,
         radius: f32,
         margin: f32,
-        set: Set<'_>,
+        range: std::ops::Range<usize>,
         lights: &[Vec3],
         out: Option<&mut Vec<Candidate>>,
     ) -> f32 {
@@ -386,10 +396,7 @@ impl Candidates {
             list,
             ..
         } = self;
-        let (set, range) = match set {
-            Set::Supers(range) => (&*supers, range),
-            Set::Other(set) => (set, 0..set.len()),
-        };
+        let set = &*supers;
         let threshold = reach(centre, radius + margin, set, range.clone(), dots);
         // The candidates that pass (branch-free compaction: every index is written, the count
         // moves on for those that pass, which ones do being unpredictable), then their bounds:
@@ -498,14 +505,6 @@ fn prune_dominated(
     list.truncate(write);
 }
 
-/// The lights a bucket's candidates are chosen from.
-enum Set<'a> {
-    /// A range of the super-buckets' candidates.
-    Supers(std::ops::Range<usize>),
-    /// Every light of another set.
-    Other(&'a DirSet),
-}
-
 /// Sort key of candidate `k` with bound `bound`: ascending keys are falling bounds, ties in
 /// rising `k`.
 #[inline(always)]
@@ -549,19 +548,25 @@ pub(super) struct Scratch {
     candidates: Candidates,
     /// Lights holding input pixels of concentrated sources.
     holds_concentrated: Vec<bool>,
-    /// The lights after the Lloyd step, as an array and as a set.
+    /// The light each concentrated input pixel (`WorkingMap::fine`) went to.
+    fine_labels: Vec<u32>,
+    /// Per light, how many working pixels and input pixels its region holds.
+    members: Vec<u32>,
+    /// The lights after the Lloyd step, and the moved ones.
     new_lights: Vec<Vec3>,
-    new_set: DirSet,
-    /// Per bucket, its index among the buckets relabelled by the Lloyd step (u32::MAX: not).
-    local: Vec<u32>,
-    local_offsets: Vec<u32>,
-    local_list: Vec<Candidate>,
+    moved: Vec<Vec3>,
+    /// Candidate lists for the lights after the Lloyd step (reused between frames as the
+    /// first pass's are: in a static scene the step moves the lights to the same places).
+    lloyd_candidates: Candidates,
+    /// Per bucket, whether the Lloyd step relabels it.
+    affected: Vec<bool>,
 }
 
 impl Scratch {
     /// Allows (the default) or forbids reusing the candidate lists between frames.
     pub(super) fn set_candidate_reuse(&mut self, on: bool) {
         self.candidates.no_reuse = !on;
+        self.lloyd_candidates.no_reuse = !on;
     }
 
     /// How many times the candidate lists have been built in full.
@@ -697,7 +702,11 @@ impl pulp::WithSimd for Accumulate<'_> {
 /// concentrated sources: each moves to its region's luminance centroid and the regions are
 /// redrawn. Only the buckets the moved lights can reach are labelled again (a bucket none of
 /// whose candidates moved, and which no moved light's new direction passes the bucket's reach
-/// threshold for, keeps its labels); the row sums are redone.
+/// threshold for, keeps its labels), with candidate lists of their own for the moved lights
+/// (kept between frames like the first pass's: a static scene moves the lights to the same
+/// places every frame). Only the working and input pixels whose light changed move, each from
+/// its old region to its new one; a region left with no pixel is emptied exactly (the
+/// subtractions would leave rounding), and no region keeps a negative energy.
 #[inline(always)]
 fn accumulate(args: Accumulate<'_>) {
     let Accumulate {
@@ -714,17 +723,12 @@ fn accumulate(args: Accumulate<'_>) {
         .lights
         .extend(sample_dirs.iter().map(|d| d.as_vec3()));
     scratch.candidates.update(grid, &scratch.lights);
-    let lookup = |bucket: usize| scratch.candidates.of(bucket);
     scratch.holds_concentrated.clear();
     scratch.holds_concentrated.resize(sample_dirs.len(), false);
-    assign_fine(
-        map,
-        grid,
-        lookup,
-        &scratch.lights,
-        regions,
-        &mut scratch.holds_concentrated,
-    );
+    scratch.members.clear();
+    scratch.members.resize(sample_dirs.len(), 0);
+    scratch.fine_labels.clear();
+    assign_fine(map, grid, scratch, regions);
 
     let labels = &mut scratch.labels;
     labels.resize(map.width * map.height, 0);
@@ -740,7 +744,7 @@ fn accumulate(args: Accumulate<'_>) {
             );
         }
     }
-    sum_runs(map, labels, regions);
+    sum_runs(map, labels, regions, &mut scratch.members);
     if !concentrated_lloyd || !scratch.holds_concentrated.contains(&true) {
         return;
     }
@@ -748,88 +752,148 @@ fn accumulate(args: Accumulate<'_>) {
     // The Lloyd step on the concentrated sources' lights.
     let Scratch {
         labels,
-        lights,
         candidates,
         holds_concentrated,
+        fine_labels,
+        members,
         new_lights,
-        new_set,
-        local,
-        local_offsets,
-        local_list,
+        moved,
+        lloyd_candidates,
+        affected,
+        ..
     } = scratch;
     new_lights.clear();
-    new_lights.extend_from_slice(lights);
-    new_set.clear();
+    new_lights.extend_from_slice(&scratch.lights);
+    moved.clear();
     for (i, l) in new_lights.iter_mut().enumerate() {
         if holds_concentrated[i] {
             if let Some(d) = DVec3::from(regions[i].weighted_dir).try_normalize() {
                 *l = d.as_vec3();
             }
+            moved.push(*l);
         }
-        new_set.push(i as u32, *l);
     }
-    local.clear();
-    local_offsets.clear();
-    local_offsets.push(0);
-    local_list.clear();
-    for b in 0..grid.centres.len() {
-        let centre = grid.centres[b];
+    affected.clear();
+    affected.extend((0..grid.centres.len()).map(|b| {
         // Built with the margin, possibly frames ago: the reach it encodes (d_min + 2r + 2δ at
-        // the build) is at least today's d_min + 2r, so the test below stays conservative.
-        let threshold = candidates.thresholds[b];
-        let affected = candidates
+        // the build) is at least today's d_min + 2r, so the test stays conservative. A light
+        // dropped from the list as dominated (`prune_dominated`) has a dominator in it that
+        // did not move, or the bucket is affected through that dominator.
+        let (centre, threshold) = (grid.centres[b], candidates.thresholds[b]);
+        candidates
             .of(b)
             .iter()
             .any(|c| holds_concentrated[c.light as usize])
-            || new_lights
-                .iter()
-                .zip(holds_concentrated.iter())
-                .any(|(l, &m)| m && centre.dot(*l) >= threshold);
-        if affected {
-            local.push(local_offsets.len() as u32 - 1);
-            candidates.bucket_list(
-                centre,
-                grid.radii[b],
-                0.0,
-                Set::Other(new_set),
-                new_lights,
-                Some(local_list),
-            );
-            local_offsets.push(local_list.len() as u32);
-        } else {
-            local.push(u32::MAX);
-        }
+            || moved.iter().any(|&l| centre.dot(l) >= threshold)
+    }));
+    if affected.contains(&true) {
+        lloyd_candidates.update(grid, new_lights);
     }
-    let list_of = |b: usize| match local[b] {
-        u32::MAX => candidates.of(b),
-        k => {
-            &local_list[local_offsets[k as usize] as usize..local_offsets[k as usize + 1] as usize]
-        }
-    };
+    let local_of = |b: usize| affected[b].then(|| lloyd_candidates.of(b));
+    // Only the pixels whose light changed move from one region to the other: elsewhere the
+    // nearest light is the same (no candidate moved and no moved light reaches the bucket).
+    let mut before = [0u32; CELLS];
     for by in 0..rows {
         for bx in 0..grid.cols {
-            let b = by * grid.cols + bx;
-            if local[b] != u32::MAX {
-                label_bucket(map, grid, list_of(b), (bx, by), labels);
+            let Some(list) = local_of(by * grid.cols + bx) else {
+                continue;
+            };
+            let (x0, y0) = (bx * BUCKET_PIXELS, by * BUCKET_PIXELS);
+            let (x1, y1) = (
+                (x0 + BUCKET_PIXELS).min(map.width),
+                (y0 + BUCKET_PIXELS).min(map.height),
+            );
+            for y in y0..y1 {
+                let row = y * map.width;
+                before[(y - y0) * BUCKET_PIXELS..][..x1 - x0]
+                    .copy_from_slice(&labels[row + x0..row + x1]);
+            }
+            label_bucket(map, grid, list, (bx, by), labels);
+            for y in y0..y1 {
+                let (sin_t, cos_t) = map.row_trig_f64[y];
+                let omega = map.row_solid_angle[y];
+                for x in x0..x1 {
+                    let p = y * map.width + x;
+                    let (from, to) = (before[(y - y0) * BUCKET_PIXELS + x - x0], labels[p]);
+                    if from == to || map.concentrated[p] {
+                        continue;
+                    }
+                    let lum = f64::from(map.luminance[p]);
+                    let (sin_p, cos_p) = map.column_trig_f64[x];
+                    let dir = [sin_t * (lum * sin_p), cos_t * lum, -(sin_t * (lum * cos_p))];
+                    move_member(regions, members, (from, to), map.energy[p], dir, omega);
+                }
             }
         }
     }
-    regions.fill(Region::default());
-    assign_fine(map, grid, list_of, new_lights, regions, holds_concentrated);
-    sum_runs(map, labels, regions);
+    let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
+    for (sample, from) in map.fine.iter().zip(fine_labels.iter()) {
+        let (x, y) = (
+            sample.pixel as usize % map.width,
+            sample.pixel as usize / map.width,
+        );
+        let Some(list) = local_of(bucket_of(x, y)) else {
+            continue;
+        };
+        let dir = Vec3::from(sample.dir);
+        let to = nearest(list, new_lights, dir, *from as usize) as u32;
+        if to != *from {
+            let energy = sample.energy.map(f64::from);
+            let lum = luminance_f64(energy);
+            let dir = dir.to_array().map(|d| lum * f64::from(d));
+            let omega = f64::from(sample.solid_angle);
+            move_member(regions, members, (*from, to), energy, dir, omega);
+        }
+    }
+    // A region that lost every pixel is empty, not the rounding left by the subtractions; one
+    // that kept some keeps no negative energy from them.
+    for (region, &count) in regions.iter_mut().zip(members.iter()) {
+        if count == 0 {
+            *region = Region::default();
+        } else {
+            region.rgb = region.rgb.map(|c| c.max(0.0));
+            region.solid_angle = region.solid_angle.max(0.0);
+        }
+    }
 }
 
-/// Assigns the input pixels of concentrated working pixels to their nearest lights (candidates
-/// per bucket from `lookup`), marking in `holds` the lights that receive any.
+/// Moves one pixel (its energy, luminance-weighted direction and solid angle) from region
+/// `from` to region `to`.
 #[inline(always)]
-fn assign_fine<'c>(
-    map: &WorkingMap,
-    grid: &BucketGrid,
-    lookup: impl Fn(usize) -> &'c [Candidate],
-    lights: &[Vec3],
+fn move_member(
     regions: &mut [Region],
-    holds: &mut [bool],
+    members: &mut [u32],
+    (from, to): (u32, u32),
+    energy: [f64; 3],
+    weighted_dir: [f64; 3],
+    solid_angle: f64,
 ) {
+    let (from, to) = (from as usize, to as usize);
+    for c in 0..3 {
+        regions[from].rgb[c] -= energy[c];
+        regions[from].weighted_dir[c] -= weighted_dir[c];
+        regions[to].rgb[c] += energy[c];
+        regions[to].weighted_dir[c] += weighted_dir[c];
+    }
+    regions[from].solid_angle -= solid_angle;
+    regions[to].solid_angle += solid_angle;
+    members[from] -= 1;
+    members[to] += 1;
+}
+
+/// Assigns the input pixels of concentrated working pixels to their nearest lights (among the
+/// first pass's candidates), marking the lights that receive any (`holds_concentrated`),
+/// recording each input pixel's light (`fine_labels`) and counting the regions' members.
+#[inline(always)]
+fn assign_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regions: &mut [Region]) {
+    let Scratch {
+        candidates,
+        lights,
+        holds_concentrated: holds,
+        fine_labels: labels,
+        members,
+        ..
+    } = scratch;
     let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
     let mut hint = 0;
     for sample in &map.fine {
@@ -838,8 +902,10 @@ fn assign_fine<'c>(
             sample.pixel as usize / map.width,
         );
         let dir = Vec3::from(sample.dir);
-        hint = nearest(lookup(bucket_of(x, y)), lights, dir, hint);
+        hint = nearest(candidates.of(bucket_of(x, y)), lights, dir, hint);
         holds[hint] = true;
+        labels.push(hint as u32);
+        members[hint] += 1;
         let r = &mut regions[hint];
         let energy = sample.energy.map(f64::from);
         let lum = luminance_f64(energy);
@@ -853,7 +919,7 @@ fn assign_fine<'c>(
 
 /// Sums each row of the labelled working map run by run into the regions.
 #[inline(always)]
-fn sum_runs(map: &WorkingMap, labels: &[u32], regions: &mut [Region]) {
+fn sum_runs(map: &WorkingMap, labels: &[u32], regions: &mut [Region], members: &mut [u32]) {
     for y in 0..map.height {
         let row = y * map.width..(y + 1) * map.width;
         let omega = map.row_solid_angle[y];
@@ -874,6 +940,7 @@ fn sum_runs(map: &WorkingMap, labels: &[u32], regions: &mut [Region]) {
             r.weighted_dir[1] += cos_t * sums[3];
             r.weighted_dir[2] -= sin_t * trig[1];
             r.solid_angle += f64::from(count) * omega;
+            members[light as usize] += count;
         };
         let pixels = map.energy[row.clone()]
             .iter()
@@ -962,22 +1029,28 @@ mod tests {
                 .map(|_| rng.near(Vec3::Y, std::f32::consts::PI))
                 .collect();
             lights.extend((0..150).map(|_| rng.near(group_axis, 0.15)));
-            let mut set = DirSet::default();
-            for (i, &l) in lights.iter().enumerate() {
-                set.push(i as u32, l);
-            }
             let mut candidates = Candidates::default();
+            for (i, &l) in lights.iter().enumerate() {
+                candidates.supers.push(i as u32, l);
+            }
             let mut list = Vec::new();
             candidates.bucket_list(
                 centre,
                 radius,
                 margin,
-                Set::Other(&set),
+                0..lights.len(),
                 &lights,
                 Some(&mut list),
             );
             // The unpruned list: every light passing the reach threshold.
-            let threshold = reach(centre, radius + margin, &set, 0..set.len(), &mut Vec::new());
+            let all = 0..lights.len();
+            let threshold = reach(
+                centre,
+                radius + margin,
+                &candidates.supers,
+                all,
+                &mut Vec::new(),
+            );
             let reached = lights
                 .iter()
                 .filter(|l| centre.dot(**l) >= threshold)
