@@ -632,6 +632,19 @@ impl Daemon {
             health.request_stop();
         }
         pipeline.stop();
+        // The pipeline decomposes what is queued and closes the stages' feeds; the stages fit
+        // what is waiting and publish it; then the server sends what was published and only
+        // then the goodbye, so nothing computed is lost to the clients. The channels stay open
+        // until the goodbye: a channel that closes tells its clients that the stream ended,
+        // not that the daemon is shutting down.
+        let channels_open = (
+            pipeline.stale_handle(),
+            asg.as_ref().map(AsgStage::stale_handle),
+            wavelet.as_ref().map(WaveletStage::stale_handle),
+        );
+        let stats = pipeline.join();
+        let asg_stats = asg.map(AsgStage::join).transpose();
+        let wavelet_stats = wavelet.map(WaveletStage::join).transpose();
         let clients_closed_in_time = runtime.block_on(async {
             if let Some((task, stop)) = http {
                 stop.send_replace(true);
@@ -641,10 +654,7 @@ impl Daemon {
                 .shutdown(SHUTDOWN_MESSAGE, config.daemon.shutdown_grace)
                 .await
         });
-        let stats = pipeline.join();
-        // The pipeline closed the feed: the stage fits what is waiting and ends.
-        let asg_stats = asg.map(AsgStage::join).transpose();
-        let wavelet_stats = wavelet.map(WaveletStage::join).transpose();
+        drop(channels_open);
         let recorded = recorder.map(Recorder::finish).transpose();
         runtime.shutdown_timeout(Duration::from_secs(1));
         let stats = stats?;

@@ -3,8 +3,9 @@
 //!
 //! Shaped like mini-redis: [`StreamServer::start`] binds the endpoints and spawns one accept
 //! loop per endpoint and one task per connection on the caller's tokio runtime;
-//! [`StreamServer::shutdown`] broadcasts the goodbye, waits (bounded) for the connections to
-//! send it, and removes the socket file.
+//! [`StreamServer::shutdown`] lets the fan-out threads pass what is still unsent, then
+//! broadcasts the goodbye, waits (bounded) for the connections to send it, and removes the
+//! socket file.
 //!
 //! A connection:
 //! 1. **Handshake.** The client sends one subscribe message within
@@ -163,7 +164,8 @@ const PUBLISHER_PASS_POLL: Duration = Duration::from_millis(20);
 /// publication to every client of [`Context::fanout`] that keeps up (`src/stream/fanout.rs`);
 /// while the publishing thread passes the live publications itself, it looks every
 /// [`PUBLISHER_PASS_POLL`] for the others instead.
-/// It ends at the shutdown broadcast, or once the channel has ended (then it tells the
+/// It ends when `stop` is set, after passing a publication it has not passed yet (so the last
+/// one goes out before the clients' goodbye), or once the channel has ended (then it tells the
 /// clients).
 fn spawn_fanout(
     ctx: &Arc<Context>,
@@ -184,9 +186,7 @@ fn spawn_fanout(
                     // first write: docs/performance.md "Round 4"); it only has to catch stale
                     // re-publications and the end, so it looks every `PUBLISHER_PASS_POLL`.
                     std::thread::sleep(PUBLISHER_PASS_POLL);
-                    if shutdown.borrow().is_some() {
-                        return;
-                    }
+                    let stopping = shutdown.borrow().is_some();
                     match feed.rx.has_changed() {
                         None => {
                             fanout.end();
@@ -203,6 +203,9 @@ fn spawn_fanout(
                             }
                         }
                     }
+                    if stopping {
+                        return;
+                    }
                     continue;
                 }
                 // No runtime here: the channels' futures need none, so a plain blocking
@@ -215,7 +218,18 @@ fn spawn_fanout(
                     }
                 });
                 match changed {
-                    None => return,
+                    None => {
+                        // Stopping: a publication not passed yet still goes out, before the
+                        // clients get their goodbye.
+                        if feed.rx.has_changed() == Some(true) {
+                            if let Some(published) = feed.rx.newest() {
+                                fanout.pass(&*published, &|cap, encoding| {
+                                    ctx.encoded(&feed, &*published, cap, encoding)
+                                });
+                            }
+                        }
+                        return;
+                    }
                     Some(false) => {
                         fanout.end();
                         return;
@@ -580,8 +594,9 @@ pub struct StreamServer {
     done_tx: mpsc::Sender<()>,
     done_rx: mpsc::Receiver<()>,
     accept_tasks: Vec<tokio::task::JoinHandle<()>>,
-    /// The fan-out threads; they end at the shutdown broadcast.
+    /// The fan-out threads, and their stop signal: set at shutdown before the clients' goodbye.
     fanout_threads: Vec<std::thread::JoinHandle<()>>,
+    fanout_stop: watch::Sender<Option<String>>,
     /// The light lists' pass on the publishing thread, if wired; removed at shutdown.
     publisher_pass: Option<PublisherPass>,
 }
@@ -612,6 +627,7 @@ impl StreamServer {
             sources: streams.sources,
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
+        let (fanout_stop, _) = watch::channel(None::<String>);
         let (done_tx, done_rx) = mpsc::channel(1);
         let mut bound = BoundAddresses::default();
         let mut accept_tasks = Vec::new();
@@ -635,10 +651,10 @@ impl StreamServer {
                 rx: served.rx.boxed_clone(),
                 source,
             };
-            match spawn_fanout(&ctx, feed, shutdown_tx.subscribe()) {
+            match spawn_fanout(&ctx, feed, fanout_stop.subscribe()) {
                 Ok(thread) => fanout_threads.push(thread),
                 Err(e) => {
-                    shutdown_tx.send_replace(Some(String::new()));
+                    fanout_stop.send_replace(Some(String::new()));
                     for thread in fanout_threads {
                         let _ = thread.join();
                     }
@@ -693,6 +709,7 @@ impl StreamServer {
             done_rx,
             accept_tasks,
             fanout_threads,
+            fanout_stop,
             publisher_pass,
         })
     }
@@ -713,18 +730,16 @@ impl StreamServer {
             mut done_rx,
             accept_tasks,
             fanout_threads,
+            fanout_stop,
             publisher_pass,
         } = self;
         if let Some(pass) = publisher_pass {
             *pass.lock() = None;
         }
-        shutdown_tx.send_replace(Some(message.to_owned()));
-        drop(done_tx);
-        let all_closed = tokio::time::timeout(grace, done_rx.recv()).await.is_ok();
-        for task in accept_tasks {
-            task.abort();
-        }
-        // The fan-out threads end at the broadcast (a pass takes well under a millisecond).
+        // The fan-out threads pass what is still unsent and end (within a pass, or their
+        // poll interval); only then do the clients get their goodbye, so that a publication
+        // made before the shutdown reaches every client that keeps up.
+        fanout_stop.send_replace(Some(message.to_owned()));
         let _ = tokio::task::spawn_blocking(move || {
             for thread in fanout_threads {
                 if thread.join().is_err() {
@@ -733,6 +748,12 @@ impl StreamServer {
             }
         })
         .await;
+        shutdown_tx.send_replace(Some(message.to_owned()));
+        drop(done_tx);
+        let all_closed = tokio::time::timeout(grace, done_rx.recv()).await.is_ok();
+        for task in accept_tasks {
+            task.abort();
+        }
         if let Some(path) = &bound.unix_socket {
             remove_socket_file(path);
         }
