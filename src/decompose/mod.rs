@@ -719,10 +719,7 @@ mod tests {
                     .zip(&next.pixels)
                     .map(|(a, b)| std::array::from_fn(|c| (1.0 - t) * a[c] + t * b[c]))
                     .collect();
-                HdrFrame {
-                    pixels,
-                    ..park.clone()
-                }
+                HdrFrame::new(park.width, park.height, pixels, park.projection).unwrap()
             })
             .collect();
         let options = crate::capture::sky::SkyOptions {

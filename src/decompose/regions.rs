@@ -135,6 +135,14 @@ impl BucketGrid {
     }
 }
 
+impl BucketGrid {
+    /// The bucket of working pixel `pixel` (row-major index).
+    fn bucket_of(&self, pixel: usize) -> usize {
+        let (x, y) = (pixel % self.width, pixel / self.width);
+        (y / BUCKET_PIXELS) * self.cols + x / BUCKET_PIXELS
+    }
+}
+
 /// Centre direction and angular radius (with a small safety margin) of the lat-long pixel
 /// rectangle [x0, x1) × [y0, y1). The farthest point of such a rectangle from its centre lies
 /// on its border, which is sampled densely.
@@ -366,15 +374,15 @@ impl Candidates {
         self.offsets.push(0);
         for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
             let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
-            let threshold = self.bucket_list(c, r, margin, range, lights, None);
+            let threshold = self.bucket_list(c, r, margin, range, lights);
             self.thresholds.push(threshold);
             self.offsets.push(self.list.len() as u32);
         }
     }
 
     /// Appends the candidates of the cap (`centre`, `radius` + `margin`) among the lights
-    /// `range` of `self.supers` to `out` (or to `self.list`) and returns the reach threshold. Their bounds are those of the
-    /// widened cap; their order is that of falling bounds of the cap without the margin (the
+    /// `range` of `self.supers` to `self.list` and returns the reach threshold. Their bounds are
+    /// those of the widened cap; their order is that of falling bounds of the cap without the margin (the
     /// same order of distance from the centre, so the widened bounds fall along the list too),
     /// which is the order a list without margin has: an exact tie of two lights' dot products
     /// at a pixel goes to the same light with or without the margin.
@@ -386,7 +394,6 @@ impl Candidates {
         margin: f32,
         range: std::ops::Range<usize>,
         lights: &[Vec3],
-        out: Option<&mut Vec<Candidate>>,
     ) -> f32 {
         let Candidates {
             supers,
@@ -427,21 +434,17 @@ impl Candidates {
         // Sorting the 8-byte keys (branch-free small-sort networks in the standard library)
         // gives the order of a stable sort by falling bound.
         keys.sort_unstable();
-        let out = match out {
-            Some(out) => out,
-            None => list,
-        };
-        let start = out.len();
+        let start = list.len();
         for &key in keys.iter() {
             let k = key as u32 as usize;
             let i = set.id[range.start + k];
-            out.push(Candidate {
+            list.push(Candidate {
                 dir: lights[i as usize],
                 light: i,
                 bound: bound(dots[k]),
             });
         }
-        prune_dominated(out, start, centre, radius, margin);
+        prune_dominated(list, start, centre, radius, margin);
         threshold
     }
 
@@ -826,13 +829,8 @@ fn accumulate(args: Accumulate<'_>) {
             }
         }
     }
-    let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
     for (sample, from) in map.fine.iter().zip(fine_labels.iter()) {
-        let (x, y) = (
-            sample.pixel as usize % map.width,
-            sample.pixel as usize / map.width,
-        );
-        let Some(list) = local_of(bucket_of(x, y)) else {
+        let Some(list) = local_of(grid.bucket_of(sample.pixel as usize)) else {
             continue;
         };
         let dir = Vec3::from(sample.dir);
@@ -894,15 +892,11 @@ fn assign_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
         members,
         ..
     } = scratch;
-    let bucket_of = |x: usize, y: usize| (y / BUCKET_PIXELS) * grid.cols + x / BUCKET_PIXELS;
     let mut hint = 0;
     for sample in &map.fine {
-        let (x, y) = (
-            sample.pixel as usize % map.width,
-            sample.pixel as usize / map.width,
-        );
         let dir = Vec3::from(sample.dir);
-        hint = nearest(candidates.of(bucket_of(x, y)), lights, dir, hint);
+        let bucket = grid.bucket_of(sample.pixel as usize);
+        hint = nearest(candidates.of(bucket), lights, dir, hint);
         holds[hint] = true;
         labels.push(hint as u32);
         members[hint] += 1;
@@ -1033,15 +1027,8 @@ mod tests {
             for (i, &l) in lights.iter().enumerate() {
                 candidates.supers.push(i as u32, l);
             }
-            let mut list = Vec::new();
-            candidates.bucket_list(
-                centre,
-                radius,
-                margin,
-                0..lights.len(),
-                &lights,
-                Some(&mut list),
-            );
+            candidates.bucket_list(centre, radius, margin, 0..lights.len(), &lights);
+            let list = &candidates.list;
             // The unpruned list: every light passing the reach threshold.
             let all = 0..lights.len();
             let threshold = reach(
@@ -1079,5 +1066,127 @@ mod tests {
             kept * 2 < total,
             "{kept} of {total} reached candidates kept"
         );
+    }
+
+    /// The concentrated Lloyd step updates the regions by moving only the pixels whose light
+    /// changed (`move_member`). Its regions must equal the plain sums, over the final labels,
+    /// of every working pixel and every input pixel of the concentrated ones (each to the
+    /// nearest light after the step), up to the rounding of the subtractions.
+    #[test]
+    fn lloyd_step_regions_are_the_sums_of_their_final_pixels() {
+        use crate::decompose::working_map::Resampler;
+        use crate::decompose::{DecomposeSettings, Decomposer};
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
+        let image = crate::capture::image_file::read_hdr_image(&path).unwrap();
+        let frame = crate::HdrFrame::new(
+            image.width,
+            image.height,
+            image.pixels,
+            crate::envmap::Projection::LatLong,
+        )
+        .unwrap();
+        let n = 256;
+        // Sample directions: the default decomposition's lights (some hold the sun).
+        let settings = DecomposeSettings {
+            lights: n,
+            filter_taps: None,
+            ..DecomposeSettings::default()
+        };
+        let working_width = settings.working_width;
+        let dirs: Vec<DVec3> = Decomposer::new(settings)
+            .unwrap()
+            .decompose(&frame)
+            .lights
+            .iter()
+            .map(|l| DVec3::from(l.dir.map(f64::from)))
+            .collect();
+        let mut resampler =
+            Resampler::new(frame.projection, frame.width, frame.height, working_width);
+        let map = resampler.resample(&frame, 0.25 / n as f64);
+        let grid = BucketGrid::new(map);
+        let run = |lloyd: bool| {
+            let (mut regions, mut scratch) = (vec![Region::default(); n], Scratch::default());
+            accumulate(Accumulate {
+                map,
+                grid: &grid,
+                sample_dirs: &dirs,
+                regions: &mut regions,
+                scratch: &mut scratch,
+                concentrated_lloyd: lloyd,
+            });
+            (regions, scratch)
+        };
+        let (_, first_pass) = run(false);
+        let (regions, scratch) = run(true);
+        let moved = scratch.holds_concentrated.iter().filter(|&&m| m).count();
+        let relabelled = first_pass
+            .labels
+            .iter()
+            .zip(&scratch.labels)
+            .zip(&map.concentrated)
+            .filter(|((a, b), &c)| a != b && !c)
+            .count();
+        assert!(
+            moved > 0 && relabelled > 0,
+            "{moved} lights moved, {relabelled} pixels relabelled"
+        );
+
+        let mut sums = vec![Region::default(); n];
+        let mut add = |light: usize, energy: [f64; 3], dir: [f64; 3], omega: f64| {
+            let lum = luminance_f64(energy);
+            for c in 0..3 {
+                sums[light].rgb[c] += energy[c];
+                sums[light].weighted_dir[c] += lum * dir[c];
+            }
+            sums[light].solid_angle += omega;
+        };
+        for y in 0..map.height {
+            let (sin_t, cos_t) = map.row_trig_f64[y];
+            for x in 0..map.width {
+                let p = y * map.width + x;
+                if !map.concentrated[p] {
+                    let (sin_p, cos_p) = map.column_trig_f64[x];
+                    let dir = [sin_t * sin_p, cos_t, -sin_t * cos_p];
+                    add(
+                        scratch.labels[p] as usize,
+                        map.energy[p],
+                        dir,
+                        map.row_solid_angle[y],
+                    );
+                }
+            }
+        }
+        for (sample, &first) in map.fine.iter().zip(&scratch.fine_labels) {
+            // The nearest light after the step; at an exact f32 tie with the light the first
+            // pass chose (rooitou_park has one such input pixel), that light, as the step keeps
+            // a pixel's light unless another is strictly nearer.
+            let d = Vec3::from(sample.dir);
+            let best = argmax(&scratch.new_lights, 0..n as u32, d) as usize;
+            let first = first as usize;
+            let tied = scratch.new_lights[first].dot(d) == scratch.new_lights[best].dot(d);
+            let nearest = if tied { first } else { best };
+            let energy = sample.energy.map(f64::from);
+            let dir = sample.dir.map(f64::from);
+            add(nearest, energy, dir, f64::from(sample.solid_angle));
+        }
+        let total: f64 = sums.iter().map(|r| luminance_f64(r.rgb)).sum();
+        let sphere: f64 = sums.iter().map(|r| r.solid_angle).sum();
+        for (i, (got, want)) in regions.iter().zip(&sums).enumerate() {
+            for c in 0..3 {
+                assert!(
+                    (got.rgb[c] - want.rgb[c]).abs() <= 1e-9 * total,
+                    "light {i} rgb: {:?}, sums {:?}",
+                    got.rgb,
+                    want.rgb
+                );
+                let dir_error = (got.weighted_dir[c] - want.weighted_dir[c]).abs();
+                assert!(dir_error <= 1e-9 * total, "light {i} direction");
+            }
+            assert!(
+                (got.solid_angle - want.solid_angle).abs() <= 1e-9 * sphere,
+                "light {i}"
+            );
+        }
     }
 }

@@ -170,13 +170,24 @@ const PUBLISHER_PASS_POLL: Duration = Duration::from_millis(20);
 fn spawn_fanout(
     ctx: &Arc<Context>,
     mut feed: Feed,
-    mut shutdown: watch::Receiver<Option<String>>,
+    mut stop: watch::Receiver<Option<String>>,
 ) -> Result<std::thread::JoinHandle<()>, ServerError> {
     let ctx = Arc::clone(ctx);
     std::thread::Builder::new()
         .name(FANOUT_THREAD_NAME.to_owned())
         .spawn(move || {
             let fanout = Arc::clone(ctx.fanout(&feed));
+            // Passes the newest publication, unless the publishing thread passes it itself
+            // (a live one while it runs the pass).
+            let pass_newest = |feed: &mut Feed| {
+                if let Some(published) = feed.rx.newest() {
+                    if !(published.live() && fanout.publisher_passes()) {
+                        fanout.pass(&*published, &|cap, encoding| {
+                            ctx.encoded(feed, &*published, cap, encoding)
+                        });
+                    }
+                }
+            };
             loop {
                 if fanout.publisher_passes() {
                     // The publishing thread passes every live publication. Waiting on the
@@ -186,22 +197,14 @@ fn spawn_fanout(
                     // first write: docs/performance.md "Round 4"); it only has to catch stale
                     // re-publications and the end, so it looks every `PUBLISHER_PASS_POLL`.
                     std::thread::sleep(PUBLISHER_PASS_POLL);
-                    let stopping = shutdown.borrow().is_some();
+                    let stopping = stop.borrow().is_some();
                     match feed.rx.has_changed() {
                         None => {
                             fanout.end();
                             return;
                         }
                         Some(false) => {}
-                        Some(true) => {
-                            if let Some(published) = feed.rx.newest() {
-                                if !published.live() {
-                                    fanout.pass(&*published, &|cap, encoding| {
-                                        ctx.encoded(&feed, &*published, cap, encoding)
-                                    });
-                                }
-                            }
-                        }
+                        Some(true) => pass_newest(&mut feed),
                     }
                     if stopping {
                         return;
@@ -213,7 +216,7 @@ fn spawn_fanout(
                 let changed = pollster::block_on(async {
                     tokio::select! {
                         biased;
-                        _ = shutdown.wait_for(Option::is_some) => None,
+                        _ = stop.wait_for(Option::is_some) => None,
                         changed = feed.rx.changed() => Some(changed),
                     }
                 });
@@ -222,11 +225,7 @@ fn spawn_fanout(
                         // Stopping: a publication not passed yet still goes out, before the
                         // clients get their goodbye.
                         if feed.rx.has_changed() == Some(true) {
-                            if let Some(published) = feed.rx.newest() {
-                                fanout.pass(&*published, &|cap, encoding| {
-                                    ctx.encoded(&feed, &*published, cap, encoding)
-                                });
-                            }
+                            pass_newest(&mut feed);
                         }
                         return;
                     }
@@ -234,17 +233,7 @@ fn spawn_fanout(
                         fanout.end();
                         return;
                     }
-                    Some(true) => {
-                        if let Some(published) = feed.rx.newest() {
-                            if published.live() && fanout.publisher_passes() {
-                                // The publishing thread runs (or has run) this one's pass.
-                                continue;
-                            }
-                            fanout.pass(&*published, &|cap, encoding| {
-                                ctx.encoded(&feed, &*published, cap, encoding)
-                            });
-                        }
-                    }
+                    Some(true) => pass_newest(&mut feed),
                 }
             }
         })
