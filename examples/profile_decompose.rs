@@ -12,7 +12,8 @@
 //! one second of the built-in sky at 256×128, 60 frames cycled, as the streaming bench uses),
 //! the number of frames, optionally the working width (`-` or nothing: the decomposition's
 //! default), then any of `no-reuse` (build the region pass's candidate lists afresh every frame)
-//! and `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`).
+//! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`) and `no-refine` (without the
+//! refinement of the concentrated sources' regions, `--no-refine-concentrated`).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
@@ -37,7 +38,10 @@ fn main() -> anyhow::Result<()> {
         match option.as_str() {
             "no-reuse" => reuse = false,
             "lloyd" => settings.concentrated_lloyd = true,
-            other => anyhow::bail!("unknown option {other:?} (expected no-reuse or lloyd)"),
+            "no-refine" => settings.refine_concentrated = false,
+            other => {
+                anyhow::bail!("unknown option {other:?} (expected no-reuse, lloyd or no-refine)")
+            }
         }
     }
     let frames: Vec<HdrFrame> = if path == "sky" {

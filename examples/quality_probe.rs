@@ -22,7 +22,10 @@
 //! with exact centroids; `cf=0`: without the concentrated pixels' input pixels); `fl=1`
 //! (diagnostic, more than N lights) every input pixel of a concentrated working pixel is a
 //! light of its own; `lib=1` the library's decomposition with `g`, `w` and `lc`
-//! (`lc=1`: [`DecomposeSettings::concentrated_lloyd`]).
+//! (`lc=1`: [`DecomposeSettings::concentrated_lloyd`], `lf=1`:
+//! [`DecomposeSettings::refine_concentrated`], off unless given); `lf=1` with `lloyd=1 lc=1`:
+//! after the Lloyd step only the concentrated input pixels are assigned again (the working
+//! pixels keep their first regions).
 //!
 //! Environment: `NS=128,512` other light counts; `V=1` every cell; `DIAG=MAP:N` the lights with
 //! the largest ground-shadow error of the first variant; `PNG=MAP:N` writes /tmp/probe.png with
@@ -79,6 +82,8 @@ struct Opts {
     gamma_conc: f64,
     /// Lloyd steps move only the lights whose regions hold concentrated input pixels.
     lloyd_conc: bool,
+    /// After a Lloyd step only the concentrated input pixels are assigned again.
+    lloyd_fine_only: bool,
 }
 
 impl Default for Opts {
@@ -105,6 +110,7 @@ impl Default for Opts {
             coarse_fine: true,
             gamma_conc: 0.0,
             lloyd_conc: false,
+            lloyd_fine_only: false,
         }
     }
 }
@@ -136,6 +142,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             pdf_exponent: o.gamma,
             working_width: o.width,
             concentrated_lloyd: o.lloyd_conc,
+            refine_concentrated: o.lloyd_fine_only,
             filter_taps: None,
             merge_spacing_fraction: None,
             ..DecomposeSettings::default()
@@ -394,7 +401,12 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             let mut best = 0;
             let mut bd = f64::NEG_INFINITY;
             let up = p.dir.y > 0.0;
-            for (i, s) in sample_dirs.iter().enumerate() {
+            let keep = it > 0 && o.lloyd_fine_only && pi < nwork;
+            if keep {
+                best = first_assign[pi];
+                bd = 1.0;
+            }
+            for (i, s) in sample_dirs.iter().enumerate().filter(|_| !keep) {
                 if o.horizon && (s.y > 0.0) != up {
                     continue;
                 }
@@ -615,6 +627,7 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                 "cf" => o.coarse_fine = v == "1",
                 "gc" => o.gamma_conc = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "lc" => o.lloyd_conc = v == "1",
+                "lf" => o.lloyd_fine_only = v == "1",
                 _ => anyhow::bail!("unknown switch {k}"),
             }
         }

@@ -72,6 +72,18 @@ fn main() {
             Box::new(|frame: &HdrFrame, n: usize| Ok(median_cut(frame, n)?)),
         ),
         ("envlight", envlight_method(centroid, false, gamma)),
+        (
+            "envlight, no refinement",
+            Box::new(move |frame: &HdrFrame, n: usize| {
+                let settings = DecomposeSettings {
+                    lights: n,
+                    filter_taps: None,
+                    refine_concentrated: false,
+                    ..DecomposeSettings::default()
+                };
+                Ok(Decomposer::new(settings)?.decompose(frame))
+            }),
+        ),
         ("envlight, γ=0.5", envlight_method(centroid, false, 0.5)),
         (
             "envlight, hierarchical warp",

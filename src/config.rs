@@ -226,6 +226,7 @@ pub struct RawDecompose {
     pub merge_spacing_fraction: Option<f64>,
     pub pdf_exponent: Option<f64>,
     pub concentrated_lloyd: Option<bool>,
+    pub refine_concentrated: Option<bool>,
 }
 
 impl RawConfig {
@@ -1123,6 +1124,7 @@ impl RawDecompose {
             pdf_exponent,
             warp,
             concentrated_lloyd: self.concentrated_lloyd.unwrap_or(d.concentrated_lloyd),
+            refine_concentrated: self.refine_concentrated.unwrap_or(d.refine_concentrated),
         })
     }
 }
@@ -1190,6 +1192,7 @@ mod tests {
             "pdf_exponent",
             "warp",
             "concentrated_lloyd",
+            "refine_concentrated",
             "enabled",
             "lobes",
             "fit_height",
@@ -1316,6 +1319,11 @@ mod tests {
                 "concentrated_lloyd",
                 "yes",
             ),
+            (
+                "[decompose]\nrefine_concentrated = 1",
+                "refine_concentrated",
+                "1",
+            ),
         ] {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");
@@ -1328,7 +1336,8 @@ mod tests {
             "[source]\nkind = \"sequence\"\npaths = [\"a/*.exr\"]\nloop = true\nfps = 30\n\
              projection = \"fisheye\"\n[source.fisheye]\nmodel = \"equisolid\"\nfov_deg = 190\n\
              center = [10.0, 12.0]\n[decompose]\nlights = 64\nfilter = false\nmerge = false\n\
-             placement = \"sample-point\"\nconcentrated_lloyd = true\n",
+             placement = \"sample-point\"\nconcentrated_lloyd = true\n\
+             refine_concentrated = false\n",
         )
         .unwrap();
         assert_eq!(c.source.kind, SourceKind::Sequence);
@@ -1345,6 +1354,7 @@ mod tests {
         assert_eq!(c.decompose.merge_spacing_fraction, None);
         assert_eq!(c.decompose.placement, LightPlacement::SamplePoint);
         assert!(c.decompose.concentrated_lloyd);
+        assert!(!c.decompose.refine_concentrated);
     }
 
     #[test]

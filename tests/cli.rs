@@ -187,6 +187,29 @@ fn options_are_accepted() {
         "{}",
         stderr(&o)
     );
+    assert!(
+        stderr(&o).contains("refinement of concentrated sources on"),
+        "{}",
+        stderr(&o)
+    );
+    check_frames(&stdout(&o), 8);
+
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "1",
+        "--lights",
+        "8",
+        "--no-refine-concentrated",
+        "--sky-size",
+        "64x32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("refinement of concentrated sources off"),
+        "{}",
+        stderr(&o)
+    );
     check_frames(&stdout(&o), 8);
 
     let o = envlight(&[

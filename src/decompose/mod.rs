@@ -115,6 +115,16 @@ pub struct DecomposeSettings {
     /// (the default 67) but costs about 35% more instructions per frame on rooitou_park.
     #[serde(default)]
     pub concentrated_lloyd: bool,
+    /// After the regions are drawn, the lights holding concentrated sources move to their
+    /// regions' luminance centroids and the sources' input pixels go again to their nearest
+    /// light (a k-means step at full resolution on the suns and lamps only; the working
+    /// pixels keep their regions). Implied by `concentrated_lloyd`.
+    #[serde(default = "default_true")]
+    pub refine_concentrated: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 impl Default for DecomposeSettings {
@@ -128,6 +138,7 @@ impl Default for DecomposeSettings {
             pdf_exponent: DEFAULT_PDF_EXPONENT,
             warp: Warp::Rows,
             concentrated_lloyd: false,
+            refine_concentrated: true,
         }
     }
 }
@@ -343,6 +354,7 @@ impl Decomposer {
             regions: &mut self.regions,
             scratch: &mut self.region_scratch,
             concentrated_lloyd: self.settings.concentrated_lloyd,
+            refine_concentrated: self.settings.refine_concentrated,
         });
 
         let placement = self.settings.placement;

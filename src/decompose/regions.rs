@@ -244,6 +244,19 @@ fn reach(
     }
 }
 
+/// The bound of a [`Candidate`] of a cap of angular radius `radius`, from its dot product `d`
+/// with the cap's centre: cos(max(0, a − r)) for a = acos d, plus a little slack.
+#[inline(always)]
+fn cap_bound(radius: f32) -> impl Fn(f32) -> f32 {
+    let (sin_r, cos_r) = radius.sin_cos();
+    move |d: f32| {
+        let cos_a = d.clamp(-1.0, 1.0);
+        // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
+        let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
+        (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
+    }
+}
+
 /// A light that may be nearest to some point of a bucket, with an upper bound of its dot
 /// product with any direction in the bucket.
 #[derive(Clone, Copy, Debug)]
@@ -415,16 +428,7 @@ impl Candidates {
             count += usize::from(d >= threshold);
         }
         passing.truncate(count);
-        let bound = |radius: f32| {
-            let (sin_r, cos_r) = radius.sin_cos();
-            move |d: f32| {
-                let cos_a = d.clamp(-1.0, 1.0);
-                // cos(a − r) = cos a cos r + sin a sin r for a ∈ [r, π]; 1 within the cap.
-                let b = cos_a * cos_r + (1.0 - cos_a * cos_a).max(0.0).sqrt() * sin_r;
-                (if cos_a >= cos_r { 1.0 } else { b }) + 1e-6
-            }
-        };
-        let (order_bound, bound) = (bound(radius), bound(radius + margin));
+        let (order_bound, bound) = (cap_bound(radius), cap_bound(radius + margin));
         keys.clear();
         keys.extend(
             passing
@@ -563,6 +567,13 @@ pub(super) struct Scratch {
     lloyd_candidates: Candidates,
     /// Per bucket, whether the Lloyd step relabels it.
     affected: Vec<bool>,
+    /// The candidates of one concentrated working pixel (see [`assign_fine`]).
+    pixel_candidates: PixelCandidates,
+    /// The refinement's lists of the buckets holding concentrated pixels among all lights
+    /// (only `supers`, `list` and the scratch buffers of [`Candidates::bucket_list`] are used;
+    /// see [`refine_fine`]), and per bucket the range of its list in `list` if it has one.
+    refine_candidates: Candidates,
+    refine_list_of: Vec<Option<(u32, u32)>>,
 }
 
 impl Scratch {
@@ -681,6 +692,10 @@ pub(super) struct Accumulate<'a> {
     pub scratch: &'a mut Scratch,
     /// One Lloyd step for the lights holding concentrated sources (see [`accumulate`]).
     pub concentrated_lloyd: bool,
+    /// The concentrated input pixels go again to their nearest light once the lights holding
+    /// them have moved to their regions' centroids (see [`accumulate`]); implied by
+    /// `concentrated_lloyd`.
+    pub refine_concentrated: bool,
 }
 
 impl pulp::WithSimd for Accumulate<'_> {
@@ -710,6 +725,13 @@ impl pulp::WithSimd for Accumulate<'_> {
 /// places every frame). Only the working and input pixels whose light changed move, each from
 /// its old region to its new one; a region left with no pixel is emptied exactly (the
 /// subtractions would leave rounding), and no region keeps a negative energy.
+///
+/// With `refine_concentrated` alone, the same step is taken by the concentrated input pixels
+/// only (a k-means step on the suns and lamps at full resolution): the lights holding them move
+/// to their regions' centroids, each concentrated input pixel goes to its nearest light after
+/// the move, and the working pixels keep their labels. The lights that share a sun then split
+/// it by their actual positions rather than by their sample points, at the cost of a few
+/// candidate lists (the buckets that hold concentrated pixels) per frame.
 #[inline(always)]
 fn accumulate(args: Accumulate<'_>) {
     let Accumulate {
@@ -719,6 +741,7 @@ fn accumulate(args: Accumulate<'_>) {
         regions,
         scratch,
         concentrated_lloyd,
+        refine_concentrated,
     } = args;
     debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
     scratch.lights.clear();
@@ -748,7 +771,12 @@ fn accumulate(args: Accumulate<'_>) {
         }
     }
     sum_runs(map, labels, regions, &mut scratch.members);
-    if !concentrated_lloyd || !scratch.holds_concentrated.contains(&true) {
+    if !(concentrated_lloyd || refine_concentrated) || !scratch.holds_concentrated.contains(&true) {
+        return;
+    }
+    if !concentrated_lloyd {
+        refine_fine(map, grid, scratch, regions);
+        empty_regions_exactly(regions, &scratch.members);
         return;
     }
 
@@ -843,14 +871,85 @@ fn accumulate(args: Accumulate<'_>) {
             move_member(regions, members, (*from, to), energy, dir, omega);
         }
     }
-    // A region that lost every pixel is empty, not the rounding left by the subtractions; one
-    // that kept some keeps no negative energy from them.
-    for (region, &count) in regions.iter_mut().zip(members.iter()) {
+    empty_regions_exactly(regions, members);
+}
+
+/// A region that lost every pixel is empty, not the rounding left by the subtractions of
+/// [`move_member`]; one that kept some keeps no negative energy from them.
+#[inline(always)]
+fn empty_regions_exactly(regions: &mut [Region], members: &[u32]) {
+    for (region, &count) in regions.iter_mut().zip(members) {
         if count == 0 {
             *region = Region::default();
         } else {
             region.rgb = region.rgb.map(|c| c.max(0.0));
             region.solid_angle = region.solid_angle.max(0.0);
+        }
+    }
+}
+
+/// The refinement of [`accumulate`] (`refine_concentrated`): the lights holding concentrated
+/// input pixels move to their regions' luminance centroids, then every concentrated input pixel
+/// goes to its nearest light (moved or not) and, if that changed, from its old region to its
+/// new one. The nearest light is found among exact candidate lists (no margin) built for this
+/// pixel's cap among all lights (see [`PixelCandidates`]).
+#[inline(always)]
+fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regions: &mut [Region]) {
+    let Scratch {
+        lights,
+        holds_concentrated,
+        fine_labels,
+        members,
+        new_lights,
+        pixel_candidates,
+        refine_candidates: candidates,
+        refine_list_of: list_of,
+        ..
+    } = scratch;
+    new_lights.clear();
+    new_lights.extend_from_slice(lights);
+    for (i, l) in new_lights.iter_mut().enumerate() {
+        if holds_concentrated[i] {
+            if let Some(d) = DVec3::from(regions[i].weighted_dir).try_normalize() {
+                *l = d.as_vec3();
+            }
+        }
+    }
+    // Two levels, as the first pass's lists: the buckets that hold concentrated pixels get
+    // exact lists among all lights (the vectorised reach test of `bucket_list`), then each
+    // concentrated pixel its own among its bucket's.
+    candidates.supers.clear();
+    for (i, &l) in new_lights.iter().enumerate() {
+        candidates.supers.push(i as u32, l);
+    }
+    candidates.list.clear();
+    list_of.clear();
+    list_of.resize(grid.centres.len(), None);
+    let mut first = 0;
+    for group in map.fine.chunk_by(|a, b| a.pixel == b.pixel) {
+        let pixel = group[0].pixel as usize;
+        let bucket = grid.bucket_of(pixel);
+        let (start, end) = *list_of[bucket].get_or_insert_with(|| {
+            let start = candidates.list.len();
+            let all = 0..candidates.supers.len();
+            let (centre, radius) = (grid.centres[bucket], grid.radii[bucket]);
+            candidates.bucket_list(centre, radius, 0.0, all, new_lights);
+            (start as u32, candidates.list.len() as u32)
+        });
+        let bucket_list = &candidates.list[start as usize..end as usize];
+        let list = pixel_candidates.of(map, pixel, bucket_list, new_lights);
+        let labels = &fine_labels[first..first + group.len()];
+        first += group.len();
+        for (sample, &from) in group.iter().zip(labels) {
+            let dir = Vec3::from(sample.dir);
+            let to = nearest(list, new_lights, dir, from as usize) as u32;
+            if to != from {
+                let energy = sample.energy.map(f64::from);
+                let lum = luminance_f64(energy);
+                let weighted_dir = dir.to_array().map(|d| lum * f64::from(d));
+                let omega = f64::from(sample.solid_angle);
+                move_member(regions, members, (from, to), energy, weighted_dir, omega);
+            }
         }
     }
 }
@@ -890,24 +989,117 @@ fn assign_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
         holds_concentrated: holds,
         fine_labels: labels,
         members,
+        pixel_candidates,
         ..
     } = scratch;
     let mut hint = 0;
-    for sample in &map.fine {
-        let dir = Vec3::from(sample.dir);
-        let bucket = grid.bucket_of(sample.pixel as usize);
-        hint = nearest(candidates.of(bucket), lights, dir, hint);
-        holds[hint] = true;
-        labels.push(hint as u32);
-        members[hint] += 1;
-        let r = &mut regions[hint];
-        let energy = sample.energy.map(f64::from);
-        let lum = luminance_f64(energy);
-        for c in 0..3 {
-            r.rgb[c] += energy[c];
-            r.weighted_dir[c] += lum * f64::from(dir[c]);
+    for group in map.fine.chunk_by(|a, b| a.pixel == b.pixel) {
+        let pixel = group[0].pixel as usize;
+        let bucket_list = candidates.of(grid.bucket_of(pixel));
+        let list = pixel_candidates.of(map, pixel, bucket_list, lights);
+        for sample in group {
+            let dir = Vec3::from(sample.dir);
+            hint = nearest(list, lights, dir, hint);
+            holds[hint] = true;
+            labels.push(hint as u32);
+            members[hint] += 1;
+            let r = &mut regions[hint];
+            let energy = sample.energy.map(f64::from);
+            let lum = luminance_f64(energy);
+            for c in 0..3 {
+                r.rgb[c] += energy[c];
+                r.weighted_dir[c] += lum * f64::from(dir[c]);
+            }
+            r.solid_angle += f64::from(sample.solid_angle);
         }
-        r.solid_angle += f64::from(sample.solid_angle);
+    }
+}
+
+/// Centre direction and angular radius of working pixel `pixel` (row-major). The radius bounds
+/// the distance from the centre to any direction of the pixel by the path along the centre's
+/// meridian (half the row's height in θ) and then along a parallel (half the column's width in
+/// φ times the largest sin θ of the row), with a little slack for f32 rounding.
+#[inline(always)]
+fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
+    let (x, y) = (pixel % map.width, pixel / map.width);
+    let (sin_t, cos_t) = map.row_trig[y];
+    let (sin_p, cos_p) = map.column_trig[x];
+    let half_theta = std::f32::consts::PI / (2 * map.height) as f32;
+    let half_phi = std::f32::consts::PI / map.width as f32;
+    // sin θ over the row: at most sin θc·cos h + |cos θc|·sin h ≤ sin θc + |cos θc|·h.
+    let max_sin = (sin_t + cos_t.abs() * half_theta).min(1.0);
+    let radius = (half_theta + half_phi * max_sin) * 1.001 + 1e-5;
+    (Vec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p), radius)
+}
+
+/// The candidate lights of one concentrated working pixel, for its input pixels' nearest-light
+/// searches. A bucket's list is drawn for a cap eight pixels wide; where a lamp's lights crowd
+/// inside it, their bounds are all 1 and a search scans the whole list. The pixel's own cap is
+/// an eighth as wide, so its list is short and its bounds end the searches early.
+#[derive(Default)]
+struct PixelCandidates {
+    ids: Vec<u32>,
+    dots: Vec<f32>,
+    list: Vec<Candidate>,
+}
+
+impl PixelCandidates {
+    /// The candidates of concentrated working pixel `pixel` among those of its bucket. Short
+    /// lists are searched as they are: the bounds of a bucket with few candidates end the
+    /// searches early enough.
+    #[inline(always)]
+    fn of<'a>(
+        &'a mut self,
+        map: &WorkingMap,
+        pixel: usize,
+        bucket_list: &'a [Candidate],
+        lights: &[Vec3],
+    ) -> &'a [Candidate] {
+        if bucket_list.len() <= PRUNE_FROM {
+            return bucket_list;
+        }
+        let (centre, radius) = pixel_cap(map, pixel);
+        let ids = bucket_list.iter().map(|c| c.light);
+        self.gather(centre, radius, ids, lights)
+    }
+
+    /// The lights among `ids` that can be nearest to some direction of the cap (`centre`,
+    /// `radius`) — those within d_min + 2·radius of the centre, as in [`reach`] — with their
+    /// bounds, in falling order of bound (ties by id).
+    #[inline(always)]
+    fn gather(
+        &mut self,
+        centre: Vec3,
+        radius: f32,
+        ids: impl Iterator<Item = u32>,
+        lights: &[Vec3],
+    ) -> &[Candidate] {
+        self.ids.clear();
+        self.ids.extend(ids);
+        self.dots.clear();
+        self.dots
+            .extend(self.ids.iter().map(|&i| centre.dot(lights[i as usize])));
+        let best = self.dots.iter().copied().fold(-1.0f32, f32::max);
+        let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
+        let threshold = if reach >= std::f32::consts::PI {
+            -2.0
+        } else {
+            reach.cos() - 1e-6
+        };
+        let bound = cap_bound(radius);
+        self.list.clear();
+        for (&light, &d) in self.ids.iter().zip(&self.dots) {
+            if d >= threshold {
+                self.list.push(Candidate {
+                    dir: lights[light as usize],
+                    light,
+                    bound: bound(d),
+                });
+            }
+        }
+        self.list
+            .sort_unstable_by(|a, b| b.bound.total_cmp(&a.bound).then(a.light.cmp(&b.light)));
+        &self.list
     }
 }
 
@@ -999,6 +1191,95 @@ mod tests {
             }
         }
         best.1
+    }
+
+    /// Every direction of a working pixel lies within [`pixel_cap`]'s radius of its centre
+    /// (the pixel's border sampled densely, on every row of a small map: the pole rows are the
+    /// widest), and the radius is not much larger than the farthest corner (so the lists stay
+    /// short).
+    #[test]
+    fn pixel_caps_hold_their_pixels() {
+        use crate::decompose::working_map::Resampler;
+        use crate::envmap::Projection;
+        let resampler = Resampler::new(Projection::LatLong, 64, 32, 64);
+        let map = resampler.map_for_tests();
+        let (w, h) = (map.width, map.height);
+        for y in 0..h {
+            for x in [0, 17, w - 1] {
+                let (centre, radius) = pixel_cap(map, y * w + x);
+                let mut farthest = 0.0f32;
+                for k in 0..=64 {
+                    let t = k as f64 / 64.0;
+                    for (u, v) in [(t, 0.0), (t, 1.0), (0.0, t), (1.0, t)] {
+                        let d = Projection::LatLong
+                            .pixel_to_direction(w as u32, h as u32, x as f64 + u, y as f64 + v)
+                            .unwrap()
+                            .as_vec3();
+                        let angle = centre.dot(d).clamp(-1.0, 1.0).acos();
+                        farthest = farthest.max(angle);
+                    }
+                }
+                assert!(
+                    farthest <= radius,
+                    "row {y} column {x}: {farthest} > {radius}"
+                );
+                assert!(
+                    radius <= 1.6 * farthest + 1e-4,
+                    "row {y}: {radius} for {farthest}"
+                );
+            }
+        }
+    }
+
+    /// A concentrated pixel's own list ([`PixelCandidates::of`]) gives every direction of the
+    /// pixel the same nearest light as its bucket's list and as all lights, with lights
+    /// crowding the pixel (a lamp's) and a sparse background.
+    #[test]
+    fn pixel_lists_keep_every_directions_nearest_light() {
+        use crate::decompose::working_map::Resampler;
+        use crate::envmap::Projection;
+        let resampler = Resampler::new(Projection::LatLong, 256, 128, 256);
+        let map = resampler.map_for_tests();
+        let grid = BucketGrid::new(map);
+        let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+        let (mut shorter, mut cases) = (0, 0);
+        for case in 0..60 {
+            let pixel = (rng.unit() * (map.width * map.height) as f32) as usize;
+            let (centre, radius) = pixel_cap(map, pixel);
+            let mut lights: Vec<Vec3> = (0..100)
+                .map(|_| rng.near(Vec3::Y, std::f32::consts::PI))
+                .collect();
+            lights.extend((0..40).map(|_| rng.near(centre, 8.0 * radius)));
+            let bucket = grid.bucket_of(pixel);
+            let mut candidates = Candidates::default();
+            for (i, &l) in lights.iter().enumerate() {
+                candidates.supers.push(i as u32, l);
+            }
+            let (bucket_centre, bucket_radius) = (grid.centres[bucket], grid.radii[bucket]);
+            candidates.bucket_list(bucket_centre, bucket_radius, 0.0, 0..lights.len(), &lights);
+            let bucket_list = candidates.list.clone();
+            let mut pixel_candidates = PixelCandidates::default();
+            let list = pixel_candidates
+                .of(map, pixel, &bucket_list, &lights)
+                .to_vec();
+            cases += 1;
+            shorter += usize::from(list.len() < bucket_list.len());
+            for trial in 0..100 {
+                let p = rng.near(centre, radius * 0.95);
+                let all = argmax(&lights, 0..lights.len() as u32, p) as usize;
+                let hint = (trial * 7) % lights.len();
+                let found = nearest(&list, &lights, p, hint);
+                assert_eq!(
+                    lights[all].dot(p),
+                    lights[found].dot(p),
+                    "case {case} trial {trial}: nearest light {all}, the pixel list's {found}"
+                );
+            }
+        }
+        assert!(
+            shorter * 2 > cases,
+            "{shorter} of {cases} pixel lists shorter"
+        );
     }
 
     /// Studio-like light sets — a dense group of lights just beyond the nearest one from a
@@ -1105,7 +1386,7 @@ mod tests {
             Resampler::new(frame.projection, frame.width, frame.height, working_width);
         let map = resampler.resample(&frame, 0.25 / n as f64);
         let grid = BucketGrid::new(map);
-        let run = |lloyd: bool| {
+        let run = |lloyd: bool, refine: bool| {
             let (mut regions, mut scratch) = (vec![Region::default(); n], Scratch::default());
             accumulate(Accumulate {
                 map,
@@ -1114,11 +1395,30 @@ mod tests {
                 regions: &mut regions,
                 scratch: &mut scratch,
                 concentrated_lloyd: lloyd,
+                refine_concentrated: refine,
             });
             (regions, scratch)
         };
-        let (_, first_pass) = run(false);
-        let (regions, scratch) = run(true);
+        let (_, first_pass) = run(false, false);
+        // The full step, then the refinement alone (which keeps the working pixels' labels).
+        for (lloyd, refine) in [(true, false), (false, true)] {
+            let (regions, scratch) = run(lloyd, refine);
+            check_sums(map, &first_pass, &regions, &scratch, lloyd);
+        }
+    }
+
+    /// The regions after a Lloyd step or a refinement equal plain sums over their final pixels:
+    /// the working pixels by their labels, the concentrated input pixels by their nearest
+    /// light after the move. Some lights must have moved and some pixels changed light (a
+    /// working pixel for the full step, an input pixel for the refinement).
+    fn check_sums(
+        map: &WorkingMap,
+        first_pass: &Scratch,
+        regions: &[Region],
+        scratch: &Scratch,
+        full_step: bool,
+    ) {
+        let n = regions.len();
         let moved = scratch.holds_concentrated.iter().filter(|&&m| m).count();
         let relabelled = first_pass
             .labels
@@ -1127,10 +1427,15 @@ mod tests {
             .zip(&map.concentrated)
             .filter(|((a, b), &c)| a != b && !c)
             .count();
-        assert!(
-            moved > 0 && relabelled > 0,
-            "{moved} lights moved, {relabelled} pixels relabelled"
-        );
+        if full_step {
+            assert!(
+                moved > 0 && relabelled > 0,
+                "{moved} lights moved, {relabelled} pixels relabelled"
+            );
+        } else {
+            assert!(moved > 0, "no light moved");
+            assert_eq!(relabelled, 0, "the refinement relabelled working pixels");
+        }
 
         let mut sums = vec![Region::default(); n];
         let mut add = |light: usize, energy: [f64; 3], dir: [f64; 3], omega: f64| {
@@ -1157,6 +1462,7 @@ mod tests {
                 }
             }
         }
+        let mut changed = 0;
         for (sample, &first) in map.fine.iter().zip(&scratch.fine_labels) {
             // The nearest light after the step; at an exact f32 tie with the light the first
             // pass chose (rooitou_park has one such input pixel), that light, as the step keeps
@@ -1166,10 +1472,12 @@ mod tests {
             let first = first as usize;
             let tied = scratch.new_lights[first].dot(d) == scratch.new_lights[best].dot(d);
             let nearest = if tied { first } else { best };
+            changed += usize::from(nearest != first);
             let energy = sample.energy.map(f64::from);
             let dir = sample.dir.map(f64::from);
             add(nearest, energy, dir, f64::from(sample.solid_angle));
         }
+        assert!(changed > 0, "no concentrated input pixel changed light");
         let total: f64 = sums.iter().map(|r| luminance_f64(r.rgb)).sum();
         let sphere: f64 = sums.iter().map(|r| r.solid_angle).sum();
         for (i, (got, want)) in regions.iter().zip(&sums).enumerate() {

@@ -269,6 +269,13 @@ impl Resampler {
         }
     }
 
+    /// The working map as last resampled (zeros before the first frame): its geometry serves
+    /// the region pass's tests.
+    #[cfg(test)]
+    pub(crate) fn map_for_tests(&self) -> &WorkingMap {
+        &self.map
+    }
+
     /// Whether this resampler was built for frames like `frame`.
     pub fn fits(&self, frame: &HdrFrame) -> bool {
         self.projection == frame.projection
