@@ -18,9 +18,11 @@
 //!    energy to its nearest light. So each light carries the energy and colour of its own
 //!    compact region, and the lights sum exactly to the map's integral. The light points at the
 //!    luminance-weighted centroid of its region ([`LightPlacement::Centroid`], default) or at its
-//!    sample direction (`SamplePoint`, the paper's). Optionally
-//!    ([`DecomposeSettings::concentrated_lloyd`]) the lights holding concentrated sources take
-//!    one Lloyd step (to their regions' centroids, regions redrawn where they can reach).
+//!    sample direction (`SamplePoint`, the paper's). The lights holding concentrated sources
+//!    then move to their regions' centroids and the sources' input pixels go again to their
+//!    nearest light ([`DecomposeSettings::refine_concentrated`], on by default: a k-means step
+//!    on the suns and lamps only). Optionally ([`DecomposeSettings::concentrated_lloyd`]) they
+//!    take a full Lloyd step instead (regions redrawn where they can reach).
 //! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's direction and power by
 //!    id; it restarts when the light count changes.
 //! 6. **Merge** ([`merge`], off by default): lights crowding a concentrated source become one
@@ -112,7 +114,7 @@ pub struct DecomposeSettings {
     /// One Lloyd step for the lights that hold input pixels of concentrated sources (lamps,
     /// suns): they move to their regions' luminance centroids and the regions they can reach
     /// are redrawn. Off by default: it wins 70 of docs/quality.md's 72 rows against median cut
-    /// (the default 67) but costs about 35% more instructions per frame on rooitou_park.
+    /// (the default 69) for 6–40% more instructions per frame (docs/performance.md, round 7).
     #[serde(default)]
     pub concentrated_lloyd: bool,
     /// After the regions are drawn, the lights holding concentrated sources move to their

@@ -31,11 +31,14 @@
 //! followed by builds without margin, with the margin tried again every 16th build.
 //!
 //! Steps per frame: (1) candidate lists per bucket (or the last frame's); (2) the input pixels
-//! of concentrated working pixels go to their nearest light one by one; (3) every other working
-//! pixel is labelled with its nearest light, a bucket at a time, with dot products computed from
-//! separable row and column terms (vectorised, eight pixels per vector); (4) each row is summed
-//! run by run (consecutive pixels of one light, in f64) and each run is added to its light's
-//! region.
+//! of concentrated working pixels go to their nearest light one by one (searching a list of
+//! their working pixel's own, drawn from the bucket's, where the bucket's is long); (3) every
+//! other working pixel is labelled with its nearest light, a bucket at a time, with dot products
+//! computed from separable row and column terms (vectorised, eight pixels per vector); (4) each
+//! row is summed run by run (consecutive pixels of one light, in f64) and each run is added to
+//! its light's region; (5) by default, the refinement: the lights holding concentrated input
+//! pixels move to their regions' centroids and those input pixels go again to their nearest
+//! light (a k-means step on the concentrated sources; [`accumulate`]).
 
 use super::working_map::WorkingMap;
 use super::{luminance_f64, Region};
