@@ -120,13 +120,11 @@ pub struct DecomposeSettings {
     /// After the regions are drawn, the lights holding concentrated sources move to their
     /// regions' luminance centroids and the sources' input pixels go again to their nearest
     /// light (a k-means step at full resolution on the suns and lamps only; the working
-    /// pixels keep their regions). Implied by `concentrated_lloyd`.
-    #[serde(default = "default_true")]
+    /// pixels keep their regions). Implied by `concentrated_lloyd`. On by default; a recording
+    /// whose stored settings lack it was made before it existed, so it reads as off and the
+    /// replay makes the recorded lights.
+    #[serde(default)]
     pub refine_concentrated: bool,
-}
-
-fn default_true() -> bool {
-    true
 }
 
 impl Default for DecomposeSettings {
@@ -466,6 +464,20 @@ pub fn frame_integral(frame: &HdrFrame) -> [f64; 3] {
 
 #[cfg(test)]
 mod tests {
+    /// Settings stored by a build without the refinement (a recording's session.json) read
+    /// with it off, so a replay makes the lights that were recorded; today's settings store it.
+    #[test]
+    fn stored_settings_without_the_refinement_read_as_off() {
+        let today = serde_json::to_value(DecomposeSettings::default()).unwrap();
+        assert_eq!(today["refine_concentrated"], serde_json::Value::Bool(true));
+        let mut old = today.clone();
+        old.as_object_mut().unwrap().remove("refine_concentrated");
+        let read: DecomposeSettings = serde_json::from_value(old).unwrap();
+        assert!(!read.refine_concentrated);
+        let read: DecomposeSettings = serde_json::from_value(today).unwrap();
+        assert_eq!(read, DecomposeSettings::default());
+    }
+
     use super::*;
 
     fn sky_with_sun(w: u32, h: u32, sun: (u32, u32), sun_power: f32) -> HdrFrame {
