@@ -51,7 +51,7 @@ use envlight::stream::{
 use envlight::{HdrFrame, LightFrame};
 use std::collections::HashMap;
 use std::io::{Read, Write};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -248,7 +248,7 @@ fn analyse(
 
 fn run(
     transport: Transport,
-    harness: Harness,
+    (harness, decode): (Harness, Decode),
     clients: usize,
     seconds: f64,
     pass_on: PassOn,
@@ -310,7 +310,7 @@ fn run(
         ..Request::default()
     };
     let deadline = Instant::now() + Duration::from_secs_f64(seconds + 1.0);
-    let handles = start_clients(harness, &endpoint, &request, clients, deadline);
+    let handles = start_clients(harness, decode, &endpoint, &request, clients, deadline);
     // Measure only while every client is connected: from one second in until the deadline.
     std::thread::sleep(Duration::from_secs(1));
     let newest = || {
@@ -347,7 +347,12 @@ fn run(
 /// The harness floor: one plain thread writes a pre-encoded 256-light frame to every client
 /// socket in turn (blocking writes, the daemon's socket options) at 60 frames/s. Publication
 /// and arrival are both the moment before the first write.
-fn run_floor(transport: Transport, harness: Harness, clients: usize, seconds: f64) -> Run {
+fn run_floor(
+    transport: Transport,
+    (harness, decode): (Harness, Decode),
+    clients: usize,
+    seconds: f64,
+) -> Run {
     let frame = sample_light_frame();
     let socket_dir = tempfile::tempdir().expect("socket dir");
     let defaults = ServerConfig::default();
@@ -426,7 +431,7 @@ fn run_floor(transport: Transport, harness: Harness, clients: usize, seconds: f6
         format: Format::Binary,
         ..Request::default()
     };
-    let handles = start_clients(harness, &endpoint, &request, clients, deadline);
+    let handles = start_clients(harness, decode, &endpoint, &request, clients, deadline);
     std::thread::sleep(Duration::from_secs(1));
     let first_seq = newest.load(Ordering::Acquire) + 2;
     let cpu_before = thread_stats();
@@ -474,19 +479,21 @@ fn bench_settings(lights: usize) -> DecomposeSettings {
 
 fn start_clients(
     harness: Harness,
+    decode: Decode,
     endpoint: &Endpoint,
     request: &Request,
     clients: usize,
     deadline: Instant,
 ) -> Vec<std::thread::JoinHandle<Vec<Received>>> {
     match harness {
-        Harness::Threads => thread_clients(endpoint, request, clients, deadline),
+        Harness::Threads => thread_clients(endpoint, request, clients, deadline, decode),
         Harness::EventLoop => {
             vec![event_loop_clients(
                 endpoint.clone(),
                 request,
                 clients,
                 deadline,
+                decode,
             )]
         }
     }
@@ -534,14 +541,25 @@ enum PassOn {
 /// Lights per frame.
 const LIGHTS: usize = 256;
 
-/// The clients of the next run copy each read into the decoder (`--decode=buffered`) instead of
-/// decoding in place.
-static BUFFERED_DECODE: AtomicBool = AtomicBool::new(false);
+/// How the clients decode what they read (`--decode=`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Decode {
+    /// In place from the read buffer, the light lists recycled (the default).
+    InPlace,
+    /// Each read copied into the decoder's buffer first.
+    Buffered,
+}
 
-/// Decodes the frames of one read as a client does (in place, recycling the light lists, or
-/// buffered); each frame's seq goes to `received` with the read's stamp `at`.
-fn decode_read(decoder: &mut Decoder, bytes: &[u8], at: Instant, received: &mut Received) {
-    if BUFFERED_DECODE.load(Ordering::Relaxed) {
+/// Decodes the frames of one read as a client does (`decode`); each frame's seq goes to
+/// `received` with the read's stamp `at`.
+fn decode_read(
+    decoder: &mut Decoder,
+    bytes: &[u8],
+    at: Instant,
+    received: &mut Received,
+    decode: Decode,
+) {
+    if decode == Decode::Buffered {
         decoder.push(bytes);
         while let Ok(Some(message)) = decoder.next_message() {
             if let Message::Frame(frame) = message {
@@ -629,6 +647,7 @@ fn thread_clients(
     request: &Request,
     clients: usize,
     deadline: Instant,
+    decode: Decode,
 ) -> Vec<std::thread::JoinHandle<Vec<Received>>> {
     let mut subscribe = Vec::new();
     encode_request(request, &mut subscribe);
@@ -665,7 +684,7 @@ fn thread_clients(
                             Ok(n) => n,
                         };
                         let at = Instant::now();
-                        decode_read(&mut decoder, &buf[..n], at, &mut received);
+                        decode_read(&mut decoder, &buf[..n], at, &mut received, decode);
                     }
                     vec![received]
                 })
@@ -679,6 +698,7 @@ fn event_loop_clients(
     request: &Request,
     clients: usize,
     deadline: Instant,
+    decode: Decode,
 ) -> std::thread::JoinHandle<Vec<Received>> {
     let mut subscribe = Vec::new();
     encode_request(request, &mut subscribe);
@@ -723,7 +743,7 @@ fn event_loop_clients(
                                     break;
                                 }
                                 let at = Instant::now();
-                                decode_read(&mut decoder, &buf[..n], at, &mut received);
+                                decode_read(&mut decoder, &buf[..n], at, &mut received, decode);
                             }
                             received
                         })
@@ -793,10 +813,10 @@ fn main() {
         None => 10.0,
     };
     let repeat: usize = option("--repeat=").map_or(1, |n| n.parse().expect("--repeat=N"));
-    let decodes: Vec<bool> = match option("--decode=").as_deref() {
-        Some("buffered") => vec![true],
-        Some("both") => vec![false, true],
-        _ => vec![false],
+    let decodes = match option("--decode=").as_deref() {
+        Some("buffered") => vec![Decode::Buffered],
+        Some("both") => vec![Decode::InPlace, Decode::Buffered],
+        _ => vec![Decode::InPlace],
     };
     println!("stream latency: sky 256x128 at 60 frames/s, 256 lights, binary frames");
     println!(
@@ -815,16 +835,16 @@ fn main() {
             );
             for &clients in &counts {
                 for _ in 0..repeat {
-                    for (&sender, &buffered) in senders
+                    for (&sender, &decode) in senders
                         .iter()
                         .flat_map(|s| decodes.iter().map(move |d| (s, d)))
                     {
-                        BUFFERED_DECODE.store(buffered, Ordering::Relaxed);
+                        let client_setup = (harness, decode);
                         let r = match sender {
                             Sender::Daemon(pass_on) => {
-                                run(transport, harness, clients, seconds, pass_on)
+                                run(transport, client_setup, clients, seconds, pass_on)
                             }
-                            Sender::Floor => run_floor(transport, harness, clients, seconds),
+                            Sender::Floor => run_floor(transport, client_setup, clients, seconds),
                         };
                         let lossy = r.missed.iter().filter(|&&m| m > 0).count();
                         let missed: u64 = r.missed.iter().sum();
@@ -832,7 +852,11 @@ fn main() {
                         println!(
                             "| {}{} | {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {} |",
                             sender.name(),
-                            if buffered { ", buffered decode" } else { "" },
+                            if decode == Decode::Buffered {
+                                ", buffered decode"
+                            } else {
+                                ""
+                            },
                             r.published,
                             ms(percentile(&r.decompose, 0.5)),
                             ms(percentile(&r.fan_out, 0.5)),
