@@ -1038,7 +1038,8 @@ fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
 /// The candidate lights of one concentrated working pixel, for its input pixels' nearest-light
 /// searches. A bucket's list is drawn for a cap eight pixels wide; where a lamp's lights crowd
 /// inside it, their bounds are all 1 and a search scans the whole list. The pixel's own cap is
-/// an eighth as wide, so its list is short and its bounds end the searches early.
+/// an eighth as wide, so its list is short: it is searched in full, in the bucket list's order
+/// (no bounds, no sort).
 #[derive(Default)]
 struct PixelCandidates {
     ids: Vec<u32>,
@@ -1067,8 +1068,8 @@ impl PixelCandidates {
     }
 
     /// The lights among `ids` that can be nearest to some direction of the cap (`centre`,
-    /// `radius`) — those within d_min + 2·radius of the centre, as in [`reach`] — with their
-    /// bounds, in falling order of bound (ties by id).
+    /// `radius`) — those within d_min + 2·radius of the centre, as in [`reach`] — in the order
+    /// of `ids`, with bounds that never stop a search.
     #[inline(always)]
     fn gather(
         &mut self,
@@ -1089,19 +1090,18 @@ impl PixelCandidates {
         } else {
             reach.cos() - 1e-6
         };
-        let bound = cap_bound(radius);
         self.list.clear();
         for (&light, &d) in self.ids.iter().zip(&self.dots) {
             if d >= threshold {
                 self.list.push(Candidate {
                     dir: lights[light as usize],
                     light,
-                    bound: bound(d),
+                    // Above any dot product: the list is not ordered by bound, so
+                    // [`nearest`] scans all of it (it is short).
+                    bound: 2.0,
                 });
             }
         }
-        self.list
-            .sort_unstable_by(|a, b| b.bound.total_cmp(&a.bound).then(a.light.cmp(&b.light)));
         &self.list
     }
 }
