@@ -152,83 +152,43 @@ fn options_are_accepted() {
         .iter()
         .all(|f| f["lights"].as_array().unwrap().len() == 8));
 
-    let o = envlight(&[
-        "decompose",
-        "--frames",
-        "2",
-        "--lights",
-        "8",
-        "--taps",
-        "1,2,1",
-        "--merge-fraction",
-        "0.5",
-        "--sky-size",
-        "64x32",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("delay: 1 frames"), "{}", stderr(&o));
+    let o = decompose_small_sky(2, 8, &["--taps", "1,2,1", "--merge-fraction", "0.5"]);
+    assert_logged(&o, "delay: 1 frames");
 
-    let o = envlight(&[
-        "decompose",
-        "--frames",
-        "1",
-        "--lights",
-        "8",
-        "--merge",
-        "--pdf-exponent",
-        "1",
-        "--sky-size",
-        "64x32",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("merge at 0.1"), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("concentrated Lloyd step off"),
-        "{}",
-        stderr(&o)
-    );
-    assert!(
-        stderr(&o).contains("refinement of concentrated sources on"),
-        "{}",
-        stderr(&o)
-    );
+    let o = decompose_small_sky(1, 8, &["--merge", "--pdf-exponent", "1"]);
+    assert_logged(&o, "merge at 0.1");
+    assert_logged(&o, "concentrated Lloyd step off");
+    assert_logged(&o, "refinement of concentrated sources on");
     check_frames(&stdout(&o), 8);
 
-    let o = envlight(&[
-        "decompose",
-        "--frames",
-        "1",
-        "--lights",
-        "8",
-        "--no-refine-concentrated",
-        "--sky-size",
-        "64x32",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("refinement of concentrated sources off"),
-        "{}",
-        stderr(&o)
-    );
+    let o = decompose_small_sky(1, 8, &["--no-refine-concentrated"]);
+    assert_logged(&o, "refinement of concentrated sources off");
     check_frames(&stdout(&o), 8);
 
-    let o = envlight(&[
-        "decompose",
-        "--frames",
-        "2",
-        "--lights",
-        "16",
-        "--concentrated-lloyd",
-        "--sky-size",
-        "64x32",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(
-        stderr(&o).contains("concentrated Lloyd step on"),
-        "{}",
-        stderr(&o)
-    );
+    let o = decompose_small_sky(2, 16, &["--concentrated-lloyd"]);
+    assert_logged(&o, "concentrated Lloyd step on");
     assert_eq!(check_frames(&stdout(&o), 16).len(), 2);
+}
+
+/// `envlight decompose` of `frames` frames of a 64×32 built-in sky into `lights` lights with
+/// `options`; it must succeed.
+fn decompose_small_sky(frames: u32, lights: u32, options: &[&str]) -> Output {
+    let (frames, lights) = (frames.to_string(), lights.to_string());
+    let mut args = vec!["decompose", "--frames", &frames, "--lights", &lights];
+    args.extend_from_slice(options);
+    args.extend_from_slice(&["--sky-size", "64x32"]);
+    let o = envlight(&args);
+    assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+    o
+}
+
+/// The run's log (stderr) contains `text`.
+fn assert_logged(o: &Output, text: &str) {
+    assert!(
+        stderr(o).contains(text),
+        "{text:?} not logged: {}",
+        stderr(o)
+    );
 }
 
 #[test]
