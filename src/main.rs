@@ -421,7 +421,7 @@ struct DecomposeArgs {
     /// Leave out the refinement of lamps and suns: by default the lights holding them move to
     /// their regions' centroids and the sources' full-resolution pixels go again to their
     /// nearest light (69 rows of docs/quality.md's 72 beat median cut instead of 67, for about
-    /// 5% more time per frame on the benchmark's map).
+    /// 7–10% more time per frame on the benchmark's map).
     #[arg(long)]
     no_refine_concentrated: bool,
 
@@ -747,21 +747,9 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
          Lloyd step {}, filter {}",
         config.decompose.lights,
         config.decompose.warp,
-        if config.decompose.refine_concentrated {
-            "on"
-        } else {
-            "off"
-        },
-        if config.decompose.concentrated_lloyd {
-            "on"
-        } else {
-            "off"
-        },
-        if config.decompose.filter_taps.is_some() {
-            "on"
-        } else {
-            "off"
-        }
+        on_off(config.decompose.refine_concentrated),
+        on_off(config.decompose.concentrated_lloyd),
+        on_off(config.decompose.filter_taps.is_some())
     );
     println!(
         "  stream: unix {}, tcp {}, websocket {}, at most {} clients",
@@ -1024,8 +1012,8 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         d.placement,
         d.warp,
         d.pdf_exponent,
-        if d.refine_concentrated { "on" } else { "off" },
-        if d.concentrated_lloyd { "on" } else { "off" },
+        on_off(d.refine_concentrated),
+        on_off(d.concentrated_lloyd),
         d.filter_taps
             .as_ref()
             .map_or("off".to_string(), |t| format!("{t:?}")),
@@ -1356,5 +1344,14 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
     match writer.flush() {
         Err(e) if is_broken_pipe(&e) => Ok(()),
         r => r.context("cannot write the output"),
+    }
+}
+
+/// "on" or "off", for the settings in log lines and `check-config`.
+fn on_off(on: bool) -> &'static str {
+    if on {
+        "on"
+    } else {
+        "off"
     }
 }

@@ -114,7 +114,7 @@ pub struct DecomposeSettings {
     /// One Lloyd step for the lights that hold input pixels of concentrated sources (lamps,
     /// suns): they move to their regions' luminance centroids and the regions they can reach
     /// are redrawn. Off by default: it wins 70 of docs/quality.md's 72 rows against median cut
-    /// (the default 69) for 6–40% more instructions per frame (docs/performance.md, round 7).
+    /// (the default 69) for 8–40% more instructions per frame (docs/performance.md, round 7).
     #[serde(default)]
     pub concentrated_lloyd: bool,
     /// After the regions are drawn, the lights holding concentrated sources move to their
@@ -464,6 +464,8 @@ pub fn frame_integral(frame: &HdrFrame) -> [f64; 3] {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     /// Settings stored by a build without the refinement (a recording's session.json) read
     /// with it off, so a replay makes the lights that were recorded; today's settings store it.
     #[test]
@@ -477,8 +479,6 @@ mod tests {
         let read: DecomposeSettings = serde_json::from_value(today).unwrap();
         assert_eq!(read, DecomposeSettings::default());
     }
-
-    use super::*;
 
     fn sky_with_sun(w: u32, h: u32, sun: (u32, u32), sun_power: f32) -> HdrFrame {
         let mut pixels = Vec::with_capacity((w * h) as usize);

@@ -40,7 +40,7 @@
 //! pixels move to their regions' centroids and those input pixels go again to their nearest
 //! light (a k-means step on the concentrated sources; [`accumulate`]).
 
-use super::working_map::WorkingMap;
+use super::working_map::{FineSample, WorkingMap};
 use super::{luminance_f64, Region};
 use glam::{DVec3, Vec3};
 
@@ -238,7 +238,14 @@ fn reach(
             *m = if d > *m { d } else { *m };
         }
     }
-    let best = m.into_iter().fold(-1.0f32, f32::max);
+    reach_threshold(m.into_iter().fold(-1.0f32, f32::max), radius)
+}
+
+/// The reach threshold of a cap of angular radius `radius` whose nearest light has dot product
+/// `best` with its centre: the dot product of a light at (nearest angle + 2·radius), with a
+/// little slack (−2 when that reaches the whole sphere).
+#[inline(always)]
+fn reach_threshold(best: f32, radius: f32) -> f32 {
     let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
     if reach >= std::f32::consts::PI {
         -2.0
@@ -398,8 +405,9 @@ impl Candidates {
 
     /// Appends the candidates of the cap (`centre`, `radius` + `margin`) among the lights
     /// `range` of `self.supers` to `self.list` and returns the reach threshold. Their bounds are
-    /// those of the widened cap; their order is that of falling bounds of the cap without the margin (the
-    /// same order of distance from the centre, so the widened bounds fall along the list too),
+    /// those of the widened cap; their order is that of falling bounds of the cap without the
+    /// margin (the same order of distance from the centre, so the widened bounds fall along the
+    /// list too),
     /// which is the order a list without margin has: an exact tie of two lights' dot products
     /// at a pixel goes to the same light with or without the margin.
     #[inline(always)]
@@ -796,17 +804,14 @@ fn accumulate(args: Accumulate<'_>) {
         affected,
         ..
     } = scratch;
-    new_lights.clear();
-    new_lights.extend_from_slice(&scratch.lights);
+    move_to_centroids(&scratch.lights, holds_concentrated, regions, new_lights);
     moved.clear();
-    for (i, l) in new_lights.iter_mut().enumerate() {
-        if holds_concentrated[i] {
-            if let Some(d) = DVec3::from(regions[i].weighted_dir).try_normalize() {
-                *l = d.as_vec3();
-            }
-            moved.push(*l);
-        }
-    }
+    moved.extend(
+        new_lights
+            .iter()
+            .zip(holds_concentrated.iter())
+            .filter_map(|(&l, &holds)| holds.then_some(l)),
+    );
     affected.clear();
     affected.extend((0..grid.centres.len()).map(|b| {
         // Built with the margin, possibly frames ago: the reach it encodes (d_min + 2r + 2δ at
@@ -864,14 +869,10 @@ fn accumulate(args: Accumulate<'_>) {
         let Some(list) = local_of(grid.bucket_of(sample.pixel as usize)) else {
             continue;
         };
-        let dir = Vec3::from(sample.dir);
-        let to = nearest(list, new_lights, dir, *from as usize) as u32;
+        let to = nearest(list, new_lights, Vec3::from(sample.dir), *from as usize) as u32;
         if to != *from {
-            let energy = sample.energy.map(f64::from);
-            let lum = luminance_f64(energy);
-            let dir = dir.to_array().map(|d| lum * f64::from(d));
-            let omega = f64::from(sample.solid_angle);
-            move_member(regions, members, (*from, to), energy, dir, omega);
+            let (energy, weighted_dir, omega) = fine_contribution(sample);
+            move_member(regions, members, (*from, to), energy, weighted_dir, omega);
         }
     }
     empty_regions_exactly(regions, members);
@@ -894,8 +895,9 @@ fn empty_regions_exactly(regions: &mut [Region], members: &[u32]) {
 /// The refinement of [`accumulate`] (`refine_concentrated`): the lights holding concentrated
 /// input pixels move to their regions' luminance centroids, then every concentrated input pixel
 /// goes to its nearest light (moved or not) and, if that changed, from its old region to its
-/// new one. The nearest light is found among exact candidate lists (no margin) built for this
-/// pixel's cap among all lights (see [`PixelCandidates`]).
+/// new one. The nearest light is found among exact candidate lists (no margin): per bucket that
+/// holds concentrated pixels among all lights, then per pixel among its bucket's
+/// ([`PixelCandidates`]).
 #[inline(always)]
 fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regions: &mut [Region]) {
     let Scratch {
@@ -909,15 +911,7 @@ fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
         refine_list_of: list_of,
         ..
     } = scratch;
-    new_lights.clear();
-    new_lights.extend_from_slice(lights);
-    for (i, l) in new_lights.iter_mut().enumerate() {
-        if holds_concentrated[i] {
-            if let Some(d) = DVec3::from(regions[i].weighted_dir).try_normalize() {
-                *l = d.as_vec3();
-            }
-        }
-    }
+    move_to_centroids(lights, holds_concentrated, regions, new_lights);
     // Two levels, as the first pass's lists: the buckets that hold concentrated pixels get
     // exact lists among all lights (the vectorised reach test of `bucket_list`), then each
     // concentrated pixel its own among its bucket's.
@@ -944,17 +938,45 @@ fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
         let labels = &fine_labels[first..first + group.len()];
         first += group.len();
         for (sample, &from) in group.iter().zip(labels) {
-            let dir = Vec3::from(sample.dir);
-            let to = nearest(list, new_lights, dir, from as usize) as u32;
+            let to = nearest(list, new_lights, Vec3::from(sample.dir), from as usize) as u32;
             if to != from {
-                let energy = sample.energy.map(f64::from);
-                let lum = luminance_f64(energy);
-                let weighted_dir = dir.to_array().map(|d| lum * f64::from(d));
-                let omega = f64::from(sample.solid_angle);
+                let (energy, weighted_dir, omega) = fine_contribution(sample);
                 move_member(regions, members, (from, to), energy, weighted_dir, omega);
             }
         }
     }
+}
+
+/// `new_lights` = `lights`, but the lights that hold concentrated input pixels (`holds`) at
+/// their regions' luminance centroids.
+#[inline(always)]
+fn move_to_centroids(
+    lights: &[Vec3],
+    holds: &[bool],
+    regions: &[Region],
+    new_lights: &mut Vec<Vec3>,
+) {
+    new_lights.clear();
+    new_lights.extend(
+        lights
+            .iter()
+            .zip(holds)
+            .zip(regions)
+            .map(|((&l, &holds), r)| {
+                let centroid = holds.then(|| DVec3::from(r.weighted_dir).try_normalize());
+                centroid.flatten().map_or(l, |d| d.as_vec3())
+            }),
+    );
+}
+
+/// What a concentrated input pixel adds to its light's region: energy, luminance-weighted
+/// direction and solid angle.
+#[inline(always)]
+fn fine_contribution(sample: &FineSample) -> ([f64; 3], [f64; 3], f64) {
+    let energy = sample.energy.map(f64::from);
+    let lum = luminance_f64(energy);
+    let weighted_dir = sample.dir.map(|d| lum * f64::from(d));
+    (energy, weighted_dir, f64::from(sample.solid_angle))
 }
 
 /// Moves one pixel (its energy, luminance-weighted direction and solid angle) from region
@@ -1001,19 +1023,17 @@ fn assign_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
         let bucket_list = candidates.of(grid.bucket_of(pixel));
         let list = pixel_candidates.of(map, pixel, bucket_list, lights);
         for sample in group {
-            let dir = Vec3::from(sample.dir);
-            hint = nearest(list, lights, dir, hint);
+            hint = nearest(list, lights, Vec3::from(sample.dir), hint);
             holds[hint] = true;
             labels.push(hint as u32);
             members[hint] += 1;
             let r = &mut regions[hint];
-            let energy = sample.energy.map(f64::from);
-            let lum = luminance_f64(energy);
+            let (energy, weighted_dir, omega) = fine_contribution(sample);
             for c in 0..3 {
                 r.rgb[c] += energy[c];
-                r.weighted_dir[c] += lum * f64::from(dir[c]);
+                r.weighted_dir[c] += weighted_dir[c];
             }
-            r.solid_angle += f64::from(sample.solid_angle);
+            r.solid_angle += omega;
         }
     }
 }
@@ -1084,12 +1104,7 @@ impl PixelCandidates {
         self.dots
             .extend(self.ids.iter().map(|&i| centre.dot(lights[i as usize])));
         let best = self.dots.iter().copied().fold(-1.0f32, f32::max);
-        let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
-        let threshold = if reach >= std::f32::consts::PI {
-            -2.0
-        } else {
-            reach.cos() - 1e-6
-        };
+        let threshold = reach_threshold(best, radius);
         self.list.clear();
         for (&light, &d) in self.ids.iter().zip(&self.dots) {
             if d >= threshold {
@@ -1267,8 +1282,16 @@ mod tests {
                 .to_vec();
             cases += 1;
             shorter += usize::from(list.len() < bucket_list.len());
+            let (x, y) = (pixel % map.width, pixel / map.width);
             for trial in 0..100 {
-                let p = rng.near(centre, radius * 0.95);
+                // A direction inside the pixel itself, not inside its cap: a cap too small
+                // would lose the nearest light of the pixel's corners.
+                let (u, v) = (f64::from(rng.unit()), f64::from(rng.unit()));
+                let (w, h) = (map.width as u32, map.height as u32);
+                let p = Projection::LatLong
+                    .pixel_to_direction(w, h, x as f64 + u, y as f64 + v)
+                    .unwrap()
+                    .as_vec3();
                 let all = argmax(&lights, 0..lights.len() as u32, p) as usize;
                 let hint = (trial * 7) % lights.len();
                 let found = nearest(&list, &lights, p, hint);

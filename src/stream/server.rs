@@ -170,7 +170,7 @@ const PUBLISHER_PASS_POLL: Duration = Duration::from_millis(20);
 fn spawn_fanout(
     ctx: &Arc<Context>,
     mut feed: Feed,
-    mut stop: watch::Receiver<Option<String>>,
+    mut stop: watch::Receiver<bool>,
 ) -> Result<std::thread::JoinHandle<()>, ServerError> {
     let ctx = Arc::clone(ctx);
     std::thread::Builder::new()
@@ -197,7 +197,7 @@ fn spawn_fanout(
                     // first write: docs/performance.md "Round 4"); it only has to catch stale
                     // re-publications and the end, so it looks every `PUBLISHER_PASS_POLL`.
                     std::thread::sleep(PUBLISHER_PASS_POLL);
-                    let stopping = stop.borrow().is_some();
+                    let stopping = *stop.borrow();
                     match feed.rx.has_changed() {
                         None => {
                             fanout.end();
@@ -216,7 +216,7 @@ fn spawn_fanout(
                 let changed = pollster::block_on(async {
                     tokio::select! {
                         biased;
-                        _ = stop.wait_for(Option::is_some) => None,
+                        _ = stop.wait_for(|&stop| stop) => None,
                         changed = feed.rx.changed() => Some(changed),
                     }
                 });
@@ -585,7 +585,7 @@ pub struct StreamServer {
     accept_tasks: Vec<tokio::task::JoinHandle<()>>,
     /// The fan-out threads, and their stop signal: set at shutdown before the clients' goodbye.
     fanout_threads: Vec<std::thread::JoinHandle<()>>,
-    fanout_stop: watch::Sender<Option<String>>,
+    fanout_stop: watch::Sender<bool>,
     /// The light lists' pass on the publishing thread, if wired; removed at shutdown.
     publisher_pass: Option<PublisherPass>,
 }
@@ -616,7 +616,7 @@ impl StreamServer {
             sources: streams.sources,
         });
         let (shutdown_tx, _) = watch::channel(None::<String>);
-        let (fanout_stop, _) = watch::channel(None::<String>);
+        let (fanout_stop, _) = watch::channel(false);
         let (done_tx, done_rx) = mpsc::channel(1);
         let mut bound = BoundAddresses::default();
         let mut accept_tasks = Vec::new();
@@ -643,7 +643,7 @@ impl StreamServer {
             match spawn_fanout(&ctx, feed, fanout_stop.subscribe()) {
                 Ok(thread) => fanout_threads.push(thread),
                 Err(e) => {
-                    fanout_stop.send_replace(Some(String::new()));
+                    fanout_stop.send_replace(true);
                     for thread in fanout_threads {
                         let _ = thread.join();
                     }
@@ -728,7 +728,7 @@ impl StreamServer {
         // The fan-out threads pass what is still unsent and end (within a pass, or their
         // poll interval); only then do the clients get their goodbye, so that a publication
         // made before the shutdown reaches every client that keeps up.
-        fanout_stop.send_replace(Some(message.to_owned()));
+        fanout_stop.send_replace(true);
         let _ = tokio::task::spawn_blocking(move || {
             for thread in fanout_threads {
                 if thread.join().is_err() {
