@@ -673,6 +673,46 @@ fn envlight() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
 }
 
+/// `envlight run` in a child process, killed if the test ends (fails) while it still runs, so
+/// that a failed test leaves no daemon behind holding its output pipes.
+struct RunningDaemon(std::process::Child);
+
+impl RunningDaemon {
+    fn start(config: &Path) -> Self {
+        Self(
+            envlight()
+                .arg("run")
+                .arg("--config")
+                .arg(config)
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap(),
+        )
+    }
+}
+
+impl std::ops::Deref for RunningDaemon {
+    type Target = std::process::Child;
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for RunningDaemon {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.0
+    }
+}
+
+impl Drop for RunningDaemon {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
 fn signal(child: &std::process::Child, name: &str) {
     let status = std::process::Command::new("kill")
         .args([&format!("-{name}"), &child.id().to_string()])
@@ -710,13 +750,7 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
         format!("{base}[decompose]\nlights = 16\nworking_width = 16\n"),
     )
     .unwrap();
-    let mut child = envlight()
-        .arg("run")
-        .arg("--config")
-        .arg(&config_path)
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = RunningDaemon::start(&config_path);
     wait_until("the socket file", || socket.exists());
     let mut client = Client::connect(
         &Endpoint::Unix(socket.clone()),
@@ -992,4 +1026,207 @@ fn the_render_thread_draws_every_new_light_list() {
     let image = image::open(&png).unwrap();
     assert_eq!((image.width(), image.height()), (48, 32));
     daemon.shutdown().unwrap();
+}
+
+/// A loopback port that was free a moment ago (bound and released), for a daemon in another
+/// process whose bound addresses this process cannot ask for.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Open file descriptors of process `pid`.
+fn open_fds(pid: u32) -> usize {
+    std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .map(Iterator::count)
+        .unwrap_or(0)
+}
+
+/// Resident memory of process `pid` in KiB (`VmRSS`).
+fn resident_kib(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("VmRSS:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// From the metrics text: clients connected over every endpoint, and how many per-client
+/// gauges exist.
+fn client_counts(metrics: std::net::SocketAddr) -> (f64, usize) {
+    let (status, text) = http_get(metrics, "/metrics");
+    assert_eq!(status, 200, "{text}");
+    let connected = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("envlight_clients_connected{"))
+        .filter_map(|l| l.rsplit_once(' ')?.1.parse::<f64>().ok())
+        .sum();
+    let gauges = text
+        .lines()
+        .filter(|l| l.starts_with("envlight_client_skipped_frames{"))
+        .count();
+    (connected, gauges)
+}
+
+/// Where a daemon in a child process serves.
+#[derive(Clone)]
+struct Served {
+    socket: PathBuf,
+    tcp: std::net::SocketAddr,
+    websocket: String,
+}
+
+/// One short-lived connection that leaves in the way numbered `kind` (mod 7): after reading
+/// frames (UDS binary, TCP JSON, WebSocket), in the middle of a frame, after garbage, with a
+/// full socket it never read, or before subscribing.
+fn come_and_go(served: &Served, kind: usize) {
+    let binary = Request {
+        format: Format::Binary,
+        max_lights: 0,
+        ..Request::default()
+    };
+    let read_frames = |endpoint: Endpoint, format: Format, frames: usize| {
+        let request = Request { format, ..binary };
+        let mut client = Client::connect(&endpoint, &request, Some(TIMEOUT)).unwrap();
+        for _ in 0..frames {
+            match client.next_message().unwrap() {
+                Some(Message::Frame(_)) => {}
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+    };
+    let mut subscribe = Vec::new();
+    encode_request(&binary, &mut subscribe);
+    match kind % 7 {
+        0 => read_frames(Endpoint::Unix(served.socket.clone()), Format::Binary, 2),
+        1 => read_frames(Endpoint::Tcp(served.tcp.to_string()), Format::Json, 1),
+        2 => read_frames(
+            Endpoint::WebSocket(served.websocket.clone()),
+            Format::Binary,
+            1,
+        ),
+        3 => {
+            // Vanishes in the middle of a frame.
+            let mut stream = TcpStream::connect(served.tcp).unwrap();
+            stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+            stream.write_all(&subscribe).unwrap();
+            let mut some = [0u8; 10];
+            stream.read_exact(&mut some).unwrap();
+        }
+        4 => {
+            let messages = raw_exchange(served.tcp, b"\x08\0\0\0GET / HTTP/1.1\r\n\r\n", false);
+            assert_eq!(error_code(&messages), Some(code::MALFORMED), "{messages:?}");
+        }
+        5 => {
+            // Never reads: its socket fills and the server's slow path takes over.
+            let mut stream = connect_small_buffer(served.tcp);
+            stream.write_all(&subscribe).unwrap();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        _ => {
+            // Connects and leaves before subscribing.
+            drop(TcpStream::connect(served.tcp).unwrap());
+        }
+    }
+}
+
+/// Connections that come and go in every way a client can leave leave nothing behind in a
+/// daemon that runs for days: after 280 of them, over every endpoint, the daemon process holds
+/// as many file descriptors as before, counts only the client that stayed connected
+/// throughout, and keeps no per-client gauge of the others; that client's stream stayed in
+/// order.
+#[test]
+fn connection_churn_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("envlight.sock");
+    let (tcp_port, ws_port, metrics_port) = (free_port(), free_port(), free_port());
+    let config_path = dir.path().join("envlight.toml");
+    std::fs::write(
+        &config_path,
+        format!(
+            "[source]\nfps = 60.0\nframes = 0\n[sky]\nwidth = 64\nheight = 32\n\
+             [decompose]\nlights = 64\nworking_width = 32\n\
+             [stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:{tcp_port}\"\n\
+             websocket = \"127.0.0.1:{ws_port}\"\nhandshake_timeout_s = 0.5\n\
+             [metrics]\nlisten = \"127.0.0.1:{metrics_port}\"\n",
+            socket.display()
+        ),
+    )
+    .unwrap();
+    let mut child = RunningDaemon::start(&config_path);
+    let pid = child.id();
+    let served = Served {
+        socket: socket.clone(),
+        tcp: ([127, 0, 0, 1], tcp_port).into(),
+        websocket: format!("ws://127.0.0.1:{ws_port}/"),
+    };
+    let metrics: std::net::SocketAddr = ([127, 0, 0, 1], metrics_port).into();
+    wait_until("the socket file", || socket.exists());
+    wait_until("the metrics endpoint", || {
+        TcpStream::connect(metrics).is_ok()
+    });
+
+    let stayer = Client::connect(
+        &Endpoint::Unix(socket.clone()),
+        &Request {
+            format: Format::Binary,
+            ..Request::default()
+        },
+        Some(TIMEOUT),
+    )
+    .unwrap();
+    let stayer = spawn("staying client", move || read_all(stayer));
+    // One of each first, so that what the daemon allocates once is there for the baseline.
+    for kind in 0..7 {
+        come_and_go(&served, kind);
+    }
+    let settled = || client_counts(metrics) == (1.0, 1);
+    wait_until("the first connections to be gone", settled);
+    std::thread::sleep(Duration::from_millis(200));
+    let (fds_before, rss_before) = (open_fds(pid), resident_kib(pid));
+
+    let churners: Vec<_> = (0..4)
+        .map(|t| {
+            let served = served.clone();
+            spawn("churning client", move || {
+                for i in 0..70 {
+                    come_and_go(&served, t + i);
+                }
+            })
+        })
+        .collect();
+    for churner in churners {
+        churner.join().unwrap();
+    }
+    wait_until("the churned connections to be gone", || {
+        settled() && open_fds(pid) <= fds_before
+    });
+    eprintln!(
+        "280 connections: {fds_before} → {} file descriptors, resident {rss_before} → {} KiB",
+        open_fds(pid),
+        resident_kib(pid)
+    );
+
+    signal(&child, "TERM");
+    let status = wait_exit(&mut child);
+    let mut log = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
+    assert!(status.success(), "exit {status:?}\n{log}");
+    let received = stayer.join().unwrap();
+    assert!(received.error.is_none(), "{:?}", received.error);
+    assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"));
+    let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
+    assert!(seqs.len() > 30, "{seqs:?}");
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
 }
