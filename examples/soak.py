@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+"""Soak run of `envlight run`: steady clients plus connections that come and go, for minutes.
+
+Starts the daemon on the built-in sky (default settings: 256 lights at 60 frames/s) with every
+endpoint, keeps --steady clients reading the Unix socket, and opens --rate short-lived
+connections per second that leave in seven ways (after reading frames over the Unix socket or
+TCP, in the middle of a frame, after garbage, with a full socket they never read, after a
+WebSocket handshake, before subscribing). Every --every seconds it prints a Markdown table
+row: the daemon's resident memory, open file descriptors and threads, the clients it counts
+as connected, frames decomposed and dropped, and the connections made so far. At the end it
+stops the daemon with SIGTERM and reports its exit status and what the steady clients got.
+Standard library only; docs/performance.md ("Soak") has a run.
+
+    cargo build --release
+    python3 examples/soak.py --envlight target/release/envlight --minutes 20
+"""
+
+import argparse
+import os
+import signal
+import socket
+import struct
+import subprocess
+import tempfile
+import threading
+import time
+
+MAGIC = b"ENVL"
+
+
+def subscribe_message():
+    body = struct.pack("<IBBH", 0, 0, 0, 0)
+    return struct.pack("<I4sHH", 8 + len(body), MAGIC, 1, 16) + body
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def read_exact(sock, n):
+    data = bytearray()
+    while len(data) < n:
+        chunk = sock.recv(n - len(data))
+        if not chunk:
+            raise EOFError("closed")
+        data += chunk
+    return bytes(data)
+
+
+def read_frame_seq(sock):
+    """Reads one message; returns its sequence number if it is a frame, else None."""
+    (length,) = struct.unpack("<I", read_exact(sock, 4))
+    body = read_exact(sock, length)
+    kind = struct.unpack_from("<H", body, 6)[0]
+    return struct.unpack_from("<Q", body, 8)[0] if kind == 1 else None
+
+
+def status_of(pid):
+    fields = {}
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            key, _, value = line.partition(":")
+            fields[key] = value.strip()
+    return fields
+
+
+def metrics(port):
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        text = b""
+        while chunk := s.recv(65536):
+            text += chunk
+    values = {}
+    for line in text.decode().partition("\r\n\r\n")[2].splitlines():
+        if line and not line.startswith("#"):
+            name, _, value = line.rpartition(" ")
+            values[name] = float(value)
+    return values
+
+
+def come_and_go(kind, sock_path, tcp_port, ws_port):
+    if kind == 0:
+        with socket.socket(socket.AF_UNIX) as s:
+            s.connect(sock_path)
+            s.sendall(subscribe_message())
+            read_frame_seq(s)
+            read_frame_seq(s)
+    elif kind == 1:
+        with socket.create_connection(("127.0.0.1", tcp_port)) as s:
+            s.sendall(subscribe_message())
+            read_frame_seq(s)
+    elif kind == 2:  # vanishes in the middle of a frame
+        with socket.create_connection(("127.0.0.1", tcp_port)) as s:
+            s.sendall(subscribe_message())
+            read_exact(s, 10)
+    elif kind == 3:  # garbage: the daemon answers with an error and closes
+        with socket.create_connection(("127.0.0.1", tcp_port)) as s:
+            s.sendall(b"\x08\0\0\0GET / HTTP/1.1\r\n\r\n")
+            while s.recv(4096):
+                pass
+    elif kind == 4:  # never reads: a tiny receive buffer fills and the slow path takes over
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.connect(("127.0.0.1", tcp_port))
+            s.sendall(subscribe_message())
+            time.sleep(0.2)
+    elif kind == 5:  # a WebSocket handshake, then gone
+        with socket.create_connection(("127.0.0.1", ws_port)) as s:
+            s.sendall(
+                b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+            )
+            s.recv(4096)
+    else:  # connects and leaves before subscribing
+        socket.create_connection(("127.0.0.1", tcp_port)).close()
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envlight", default="target/release/envlight")
+    parser.add_argument("--minutes", type=float, default=20.0)
+    parser.add_argument("--rate", type=float, default=20.0, help="short connections per second")
+    parser.add_argument("--steady", type=int, default=8, help="clients connected throughout")
+    parser.add_argument("--every", type=float, default=60.0, help="seconds between rows")
+    args = parser.parse_args()
+
+    tmp = tempfile.mkdtemp(prefix="envlight-soak-")
+    sock_path = os.path.join(tmp, "envlight.sock")
+    tcp_port, ws_port, metrics_port = free_port(), free_port(), free_port()
+    config = os.path.join(tmp, "envlight.toml")
+    with open(config, "w") as f:
+        f.write(
+            f'[source]\nframes = 0\n[stream]\nunix_socket = "{sock_path}"\n'
+            f'tcp = "127.0.0.1:{tcp_port}"\nwebsocket = "127.0.0.1:{ws_port}"\n'
+            f'[metrics]\nlisten = "127.0.0.1:{metrics_port}"\n'
+        )
+    log = open(os.path.join(tmp, "envlight.log"), "w")
+    daemon = subprocess.Popen([args.envlight, "run", "--config", config], stderr=log)
+    try:
+        deadline = time.time() + 30
+        while not os.path.exists(sock_path):
+            if time.time() > deadline or daemon.poll() is not None:
+                raise SystemExit(f"the daemon did not start; see {log.name}")
+            time.sleep(0.05)
+
+        stop = threading.Event()
+        steady = [{"frames": 0, "out_of_order": 0, "error": None} for _ in range(args.steady)]
+
+        def read_steadily(record):
+            try:
+                with socket.socket(socket.AF_UNIX) as s:
+                    s.connect(sock_path)
+                    s.sendall(subscribe_message())
+                    last = -1
+                    while True:
+                        seq = read_frame_seq(s)
+                        if seq is None:
+                            return  # the goodbye
+                        record["out_of_order"] += seq <= last
+                        record["frames"] += 1
+                        last = seq
+            except Exception as e:  # reported at the end
+                record["error"] = repr(e)
+
+        readers = [
+            threading.Thread(target=read_steadily, args=(r,), name=f"steady-{i}", daemon=True)
+            for i, r in enumerate(steady)
+        ]
+        for reader in readers:
+            reader.start()
+
+        made = [0]
+        churn_errors = []
+
+        def churn():
+            period = 1.0 / args.rate
+            kind = 0
+            while not stop.is_set():
+                started = time.time()
+                try:
+                    come_and_go(kind % 7, sock_path, tcp_port, ws_port)
+                except Exception as e:
+                    churn_errors.append(f"kind {kind % 7}: {e!r}")
+                made[0] += 1
+                kind += 1
+                time.sleep(max(0.0, period - (time.time() - started)))
+
+        churner = threading.Thread(target=churn, name="churn", daemon=True)
+        churner.start()
+
+        print("| minutes | resident MiB | fds | threads | clients | decomposed | dropped | connections |")
+        print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+        start = time.time()
+        end = start + args.minutes * 60
+        while True:
+            status = status_of(daemon.pid)
+            m = metrics(metrics_port)
+            connected = sum(v for k, v in m.items() if k.startswith("envlight_clients_connected"))
+            fds = len(os.listdir(f"/proc/{daemon.pid}/fd"))
+            print(
+                f"| {(time.time() - start) / 60:.1f} | {int(status['VmRSS'].split()[0]) / 1024:.1f} | {fds} "
+                f"| {status['Threads']} | {connected:.0f} | {m.get('envlight_frames_decomposed_total', 0):.0f} "
+                f"| {m.get('envlight_frames_dropped_total', 0):.0f} | {made[0]} |",
+                flush=True,
+            )
+            if time.time() >= end:
+                break
+            time.sleep(min(args.every, max(0.0, end - time.time())))
+
+        stop.set()
+        churner.join()
+        daemon.send_signal(signal.SIGTERM)
+        code = daemon.wait(timeout=30)
+        for reader in readers:
+            reader.join(timeout=10)
+        print(f"\nexit status {code}; short connections {made[0]}, failed {len(churn_errors)}")
+        for e in churn_errors[:5]:
+            print(f"  {e}")
+        for i, r in enumerate(steady):
+            print(f"steady client {i}: {r['frames']} frames, {r['out_of_order']} out of order, error {r['error']}")
+        print(f"log: {log.name}")
+    finally:
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait()
+
+
+if __name__ == "__main__":
+    main()
