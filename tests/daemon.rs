@@ -78,6 +78,26 @@ fn read_all(mut client: Client) -> Received {
     }
 }
 
+/// A binary client of `endpoint` with no cap, read by [`read_all`] on a thread named `name`.
+fn reading_client(endpoint: &Endpoint, name: &str) -> std::thread::JoinHandle<Received> {
+    let request = Request {
+        format: Format::Binary,
+        ..Request::default()
+    };
+    let client = Client::connect(endpoint, &request, Some(TIMEOUT)).unwrap();
+    spawn(name, move || read_all(client))
+}
+
+/// A client that stayed connected until the daemon shut down: no error, the goodbye, more
+/// than `at_least` frames, in order.
+fn assert_stayed_to_the_goodbye(received: &Received, at_least: usize) {
+    assert!(received.error.is_none(), "{:?}", received.error);
+    assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"));
+    let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
+    assert!(seqs.len() > at_least, "{seqs:?}");
+    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
+}
+
 /// The frame a client with cap `cap` must receive for `expected`.
 fn capped(expected: &LightFrame, cap: Option<usize>) -> Vec<envlight::Light> {
     let mut bytes = Vec::new();
@@ -420,16 +440,7 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
                  [decompose]\nlights = 32\nworking_width = 32\n";
     let mut daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let good = Client::connect(
-        &Endpoint::Tcp(tcp.to_string()),
-        &Request {
-            format: Format::Binary,
-            ..Request::default()
-        },
-        Some(TIMEOUT),
-    )
-    .unwrap();
-    let good = spawn("good client", move || read_all(good));
+    let good = reading_client(&Endpoint::Tcp(tcp.to_string()), "good client");
 
     // Garbage bytes: bad magic.
     let garbage = raw_exchange(tcp, b"\x08\0\0\0GET / HTTP/1.1\r\n\r\n", false);
@@ -488,12 +499,7 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
     let errors = daemon.metrics().encode();
     assert!(metric_value(&errors, "envlight_client_errors_total{endpoint=\"tcp\"}") >= 6.0);
     daemon.shutdown().unwrap();
-    let received = good.join().unwrap();
-    assert!(received.error.is_none(), "{:?}", received.error);
-    assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"));
-    let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
-    assert!(seqs.len() > 10, "{seqs:?}");
-    assert!(seqs.windows(2).all(|w| w[0] < w[1]));
+    assert_stayed_to_the_goodbye(&good.join().unwrap(), 10);
 }
 
 #[test]
@@ -1172,16 +1178,7 @@ fn connection_churn_leaves_nothing_behind() {
         TcpStream::connect(metrics).is_ok()
     });
 
-    let stayer = Client::connect(
-        &Endpoint::Unix(socket.clone()),
-        &Request {
-            format: Format::Binary,
-            ..Request::default()
-        },
-        Some(TIMEOUT),
-    )
-    .unwrap();
-    let stayer = spawn("staying client", move || read_all(stayer));
+    let stayer = reading_client(&Endpoint::Unix(socket.clone()), "staying client");
     // One of each first, so that what the daemon allocates once is there for the baseline.
     for kind in 0..7 {
         come_and_go(&served, kind);
@@ -1223,10 +1220,5 @@ fn connection_churn_leaves_nothing_behind() {
         .read_to_string(&mut log)
         .unwrap();
     assert!(status.success(), "exit {status:?}\n{log}");
-    let received = stayer.join().unwrap();
-    assert!(received.error.is_none(), "{:?}", received.error);
-    assert_eq!(received.goodbye.as_deref(), Some("envlight shutting down"));
-    let seqs: Vec<u64> = received.frames.iter().map(|f| f.seq).collect();
-    assert!(seqs.len() > 30, "{seqs:?}");
-    assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
+    assert_stayed_to_the_goodbye(&stayer.join().unwrap(), 30);
 }
