@@ -21,16 +21,19 @@ import signal
 import socket
 import struct
 import subprocess
+import sys
 import tempfile
 import threading
 import time
 
-MAGIC = b"ENVL"
+# The wire format's helpers are examples/client.py's.
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from client import TYPE_FRAME, read_exact, read_message  # noqa: E402
+from client import subscribe_message as subscribe  # noqa: E402
 
 
 def subscribe_message():
-    body = struct.pack("<IBBH", 0, 0, 0, 0)
-    return struct.pack("<I4sHH", 8 + len(body), MAGIC, 1, 16) + body
+    return subscribe(0)
 
 
 def free_port():
@@ -39,22 +42,10 @@ def free_port():
         return s.getsockname()[1]
 
 
-def read_exact(sock, n):
-    data = bytearray()
-    while len(data) < n:
-        chunk = sock.recv(n - len(data))
-        if not chunk:
-            raise EOFError("closed")
-        data += chunk
-    return bytes(data)
-
-
 def read_frame_seq(sock):
     """Reads one message; returns its sequence number if it is a frame, else None."""
-    (length,) = struct.unpack("<I", read_exact(sock, 4))
-    body = read_exact(sock, length)
-    kind = struct.unpack_from("<H", body, 6)[0]
-    return struct.unpack_from("<Q", body, 8)[0] if kind == 1 else None
+    kind, body = read_message(sock)
+    return struct.unpack_from("<Q", body)[0] if kind == TYPE_FRAME else None
 
 
 def status_of(pid):

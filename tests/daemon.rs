@@ -695,6 +695,16 @@ impl RunningDaemon {
                 .unwrap(),
         )
     }
+
+    /// Waits for the daemon to exit (failing after [`TIMEOUT`]); its status and its log.
+    fn exit_and_log(&mut self) -> (std::process::ExitStatus, String) {
+        let status = wait_exit(&mut self.0);
+        let mut log = String::new();
+        if let Some(mut stderr) = self.0.stderr.take() {
+            stderr.read_to_string(&mut log).unwrap();
+        }
+        (status, log)
+    }
 }
 
 impl std::ops::Deref for RunningDaemon {
@@ -798,14 +808,7 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
         }
     };
     assert_eq!(goodbye, "envlight shutting down");
-    let status = wait_exit(&mut child);
-    let mut log = String::new();
-    child
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut log)
-        .unwrap();
+    let (status, log) = child.exit_and_log();
     assert!(status.success(), "exit {status:?}\n{log}");
     assert!(!socket.exists(), "the socket file is left behind");
     assert!(log.contains("SIGHUP: config reload failed"), "{log}");
@@ -1211,14 +1214,7 @@ fn connection_churn_leaves_nothing_behind() {
     );
 
     signal(&child, "TERM");
-    let status = wait_exit(&mut child);
-    let mut log = String::new();
-    child
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut log)
-        .unwrap();
+    let (status, log) = child.exit_and_log();
     assert!(status.success(), "exit {status:?}\n{log}");
     assert_stayed_to_the_goodbye(&stayer.join().unwrap(), 30);
 }
