@@ -11,12 +11,15 @@
 //! envlight ÷ median cut per yardstick, and the rows lost. Switches: `g` density exponent γ;
 //! `a` mixture weight of the uniform density; `m`, `g2` mixture weight and exponent of a second
 //! density; `mx` every working pixel gets at least this × its energy share of the points (`mxc=1`:
-//! concentrated pixels only); `c` concentrated share (× 1/N); `w` working width; `p` centroid
-//! weighted by radiance^p; `hz=1` regions kept on one side of the horizon; `up` density factor
-//! of the upper hemisphere; `fw` fine warp inside concentrated pixels with this exponent; `gc` density
-//! exponent inside concentrated working pixels only; `lc=1` Lloyd steps move only the lights
-//! whose regions hold concentrated input pixels (`LCSTAT=1` in the environment prints how many
-//! lights move and how much of the sphere their regions cover);
+//! concentrated pixels only; `mxb=B`: per block of B×B working pixels instead of per pixel, and
+//! with `mxc=1` the blocks holding a concentrated pixel are left alone); `hw=1` the hierarchical
+//! warp instead of the row-by-row one (also with `lib=1`); `c` concentrated share (× 1/N); `w`
+//! working width; `p` centroid weighted by radiance^p; `hz=1` regions kept on one side of the
+//! horizon; `up` density factor of the upper hemisphere; `fw` fine warp inside concentrated
+//! pixels with this exponent; `gc` density exponent inside concentrated working pixels only;
+//! `lc=1` Lloyd steps move only the lights whose regions hold concentrated input pixels
+//! (`LCSTAT=1` in the environment prints how many lights move and how much of the sphere their
+//! regions cover);
 //! `lloyd` Lloyd steps on the working map; `cl` one Lloyd step on a map coarser by this factor
 //! (`cc=1`: coarse pixels at their luminance centroids, `cc=2`: assigned from their centres
 //! with exact centroids; `cf=0`: without the concentrated pixels' input pixels); `fl=1`
@@ -70,6 +73,11 @@ struct Opts {
     beta: f64,
     /// ... only concentrated pixels.
     beta_conc: bool,
+    /// Apply beta per block of this many working pixels square (0 = per pixel); with `mxc=1`,
+    /// blocks holding a concentrated pixel are left alone.
+    beta_block: usize,
+    /// The hierarchical warp instead of the row-by-row one.
+    hierarchical: bool,
     /// Second-level warp inside concentrated working pixels with this exponent (0 = off).
     fine_warp: f64,
     /// Lloyd step on a working map coarsened by this factor (0 = off).
@@ -104,6 +112,8 @@ impl Default for Opts {
             fine_lights: false,
             beta: 0.0,
             beta_conc: false,
+            beta_block: 0,
+            hierarchical: false,
             fine_warp: 0.0,
             coarse_lloyd: 0,
             coarse_centroid: 0,
@@ -143,6 +153,11 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             working_width: o.width,
             concentrated_lloyd: o.lloyd_conc,
             refine_concentrated: o.lloyd_fine_only,
+            warp: if o.hierarchical {
+                envlight::decompose::Warp::Hierarchical
+            } else {
+                envlight::decompose::Warp::Rows
+            },
             filter_taps: None,
             merge_spacing_fraction: None,
             ..DecomposeSettings::default()
@@ -261,7 +276,31 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
         }
         total = 1.0;
     }
-    if o.beta > 0.0 && total > 0.0 {
+    if o.beta > 0.0 && total > 0.0 && o.beta_block > 0 {
+        let etot: f64 = map.luminance.iter().map(|&l| f64::from(l)).sum();
+        let b = o.beta_block;
+        for by in (0..h).step_by(b) {
+            for bx in (0..w).step_by(b) {
+                let (mut ws, mut es, mut conc) = (0.0, 0.0, false);
+                for y in by..(by + b).min(h) {
+                    for x in bx..(bx + b).min(w) {
+                        ws += weights[y * w + x] / total;
+                        es += f64::from(map.luminance[y * w + x]) / etot;
+                        conc |= map.concentrated[y * w + x];
+                    }
+                }
+                if (o.beta_conc && conc) || ws <= 0.0 {
+                    continue;
+                }
+                let scale = (o.beta * es / ws).max(1.0);
+                for y in by..(by + b).min(h) {
+                    for x in bx..(bx + b).min(w) {
+                        weights[y * w + x] *= scale;
+                    }
+                }
+            }
+        }
+    } else if o.beta > 0.0 && total > 0.0 {
         let etot: f64 = map.luminance.iter().map(|&l| f64::from(l)).sum();
         for (i, v) in weights.iter_mut().enumerate() {
             if o.beta_conc && !map.concentrated[i] {
@@ -282,6 +321,9 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
         }
     }
     let dist = PiecewiseConstant2d::new(&weights, w, h);
+    let hier = o
+        .hierarchical
+        .then(|| envlight::decompose::HierarchicalWarp::new(&weights, w, h));
     let points = progressive_points(n);
     // Fine distributions of concentrated pixels.
     let mut fine_dist: std::collections::HashMap<usize, PiecewiseConstant2d> = Default::default();
@@ -304,7 +346,10 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
     let mut sample_dirs: Vec<DVec3> = points
         .iter()
         .map(|u| {
-            let p = dist.sample(*u).0;
+            let p = match &hier {
+                Some(hw) => hw.sample(*u),
+                None => dist.sample(*u).0,
+            };
             let (px, py) = (p[0] * w as f64, p[1] * h as f64);
             let (ix, iy) = ((px as usize).min(w - 1), (py as usize).min(h - 1));
             if let Some(fd) = fine_dist.get(&(iy * w + ix)) {
@@ -617,6 +662,8 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                 "fl" => o.fine_lights = v == "1",
                 "mx" => o.beta = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "mxc" => o.beta_conc = v == "1",
+                "hw" => o.hierarchical = v == "1",
+                "mxb" => o.beta_block = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "fw" => o.fine_warp = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "cl" => {
                     o.coarse_lloyd = v.parse().with_context(|| format!("{kv}: not a number"))?
