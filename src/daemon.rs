@@ -18,6 +18,10 @@
 //! lobes. The wavelet stage ([`crate::wavelet_stage`]) is fed the same way and serves
 //! representation `wavelet`. `/health` is about the lights only.
 //!
+//! - A daemon reads `[source]` as a service: the built-in sky, when the config leaves its frame
+//!   count unset, runs until stopped, at [`DAEMON_SKY_FPS`] frames per second unless `fps` says
+//!   otherwise, as a camera would ([`daemon_source_defaults`]); `envlight decompose` keeps the
+//!   one-shot defaults (60 frames, as fast as possible).
 //! - [`Daemon::start`] builds everything from a validated [`Config`]: a tokio runtime with
 //!   `daemon.serve_threads` workers named `envlight-serve` (tokio lives only in serving), the
 //!   pipeline ([`crate::pipeline`]), the stream server ([`crate::stream::server`]) and the HTTP
@@ -58,6 +62,26 @@ use tokio::sync::watch;
 
 /// Name of the serving runtime's worker threads.
 pub const SERVE_THREAD_NAME: &str = "envlight-serve";
+
+/// Frame rate of the built-in sky in a daemon whose config sets no `source.fps`: the rate the
+/// sky's frame times assume anyway ([`crate::capture::sky::UNPACED_FRAME_RATE`]), so the sun
+/// moves in real time.
+pub const DAEMON_SKY_FPS: f64 = crate::capture::sky::UNPACED_FRAME_RATE;
+
+/// The daemon's reading of `[source]`: a sky source whose `frames` is unset runs until stopped
+/// (`frames = 0`), and one that sets neither `frames` nor `fps` is also paced at
+/// [`DAEMON_SKY_FPS`]. Without this a service on the built-in sky would render its 60 default
+/// frames as fast as it could and exit within a second. A config that sets `frames` but not
+/// `fps` keeps the sky unpaced, so `frames = 0` alone still means "until stopped, as fast as
+/// possible". Other sources and explicit values are left as they are.
+pub fn daemon_source_defaults(mut config: Config) -> Config {
+    let source = &mut config.source;
+    if source.kind == crate::config::SourceKind::Sky && source.frames.is_none() {
+        source.frames = Some(0);
+        source.fps.get_or_insert(DAEMON_SKY_FPS);
+    }
+    config
+}
 
 /// What `envlight run` adds to the config.
 #[derive(Clone, Debug, Default)]
@@ -158,7 +182,9 @@ pub struct Daemon {
 
 impl Daemon {
     /// Opens the source, binds every endpoint and starts the threads.
+    /// A sky source gets the daemon's defaults ([`daemon_source_defaults`]).
     pub fn start(config: Config, options: DaemonOptions) -> Result<Daemon, DaemonError> {
+        let config = daemon_source_defaults(config);
         let (source, settings, policy): (Box<dyn FrameSource>, _, _) = match &options.replay {
             Some((dir, pacing)) => {
                 let replay = ReplaySource::open(dir, *pacing).map_err(DaemonError::Source)?;
@@ -185,6 +211,9 @@ impl Daemon {
         source: Box<dyn FrameSource>,
         record: Option<&Path>,
     ) -> Result<Daemon, DaemonError> {
+        // The source is the caller's; read [source] as `start` does all the same, so that a
+        // reload compares like with like.
+        let config = daemon_source_defaults(config);
         let settings = config.decompose.clone();
         Self::start_parts(config, source, settings, QueuePolicy::DropOldest, record)
     }
@@ -433,6 +462,8 @@ impl Daemon {
     /// frame; the temporal filter restarts); every other section that changed is reported as
     /// needing a restart and keeps its running value.
     pub fn reload(&mut self, new: Config) -> ReloadReport {
+        // Read as at start, so an unchanged file reports no change of [source].
+        let new = daemon_source_defaults(new);
         let mut report = ReloadReport::default();
         if new.decompose != self.config.decompose {
             if self.replaying {

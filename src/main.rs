@@ -178,7 +178,9 @@ lists are served to any number of clients over a Unix domain socket, TCP and Web
 
 Endpoints and every other setting come from --config (see config/envlight.toml); without it the
 built-in sky is served on the defaults: unix:/run/envlight/envlight.sock, tcp:127.0.0.1:7878,
-ws://127.0.0.1:7879/ and http://127.0.0.1:9898/metrics (and /health).
+ws://127.0.0.1:7879/ and http://127.0.0.1:9898/metrics (and /health). A daemon's sky runs until
+stopped, at 30 frames/s, unless [source] sets `frames` or `fps` (envlight decompose's sky: 60
+frames, as fast as possible).
 
 Signals: SIGTERM / SIGINT shut down gracefully (clients get a goodbye, the socket file is
 removed); SIGHUP reloads --config: [decompose] applies from the next frame, other changed

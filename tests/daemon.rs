@@ -752,6 +752,97 @@ fn wait_exit(child: &mut std::process::Child) -> std::process::ExitStatus {
 }
 
 #[test]
+fn a_daemon_reads_an_unset_sky_as_endless_and_paced() {
+    use envlight::config::SourceKind;
+    use envlight::daemon::{daemon_source_defaults, DAEMON_SKY_FPS};
+    let parse = |text: &str| {
+        RawConfig::parse(text, Path::new("t.toml"))
+            .unwrap()
+            .validate()
+            .unwrap()
+    };
+    let sky = daemon_source_defaults(parse(""));
+    assert_eq!(sky.source.kind, SourceKind::Sky);
+    assert_eq!((sky.source.frames, sky.source.fps), (Some(0), Some(30.0)));
+    assert_eq!(DAEMON_SKY_FPS, 30.0);
+    // What the config says is kept: a rate alone runs until stopped at that rate, a frame
+    // count alone (0 = no limit) as fast as possible.
+    let set = daemon_source_defaults(parse("[source]\nframes = 7\nfps = 12.5\n"));
+    assert_eq!((set.source.frames, set.source.fps), (Some(7), Some(12.5)));
+    let rate = daemon_source_defaults(parse("[source]\nfps = 12.5\n"));
+    assert_eq!((rate.source.frames, rate.source.fps), (Some(0), Some(12.5)));
+    let unpaced = daemon_source_defaults(parse("[source]\nframes = 0\n"));
+    assert_eq!((unpaced.source.frames, unpaced.source.fps), (Some(0), None));
+    // A sequence keeps its own defaults (every file once, as fast as possible).
+    let text = "[source]\nkind = \"sequence\"\npaths = [\"x/*.exr\"]\n";
+    assert_eq!(daemon_source_defaults(parse(text)), parse(text));
+}
+
+#[test]
+fn reloading_an_unchanged_sky_config_reports_no_change() {
+    let dir = tempfile::tempdir().unwrap();
+    // No frame count or rate: the daemon's defaults apply at start and at the reload alike.
+    let extra = "[sky]\nwidth = 32\nheight = 16\n[decompose]\nlights = 8\nworking_width = 16\n";
+    let mut daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let report = daemon.reload(config(dir.path(), extra));
+    assert!(report.applied.is_empty(), "{report:?}");
+    assert!(report.needs_restart.is_empty(), "{report:?}");
+    daemon.shutdown().unwrap();
+}
+
+/// `envlight run` with a config that leaves `[source]` out: the sky is served until SIGTERM at
+/// 30 frames/s, not 60 frames as fast as possible and an exit (`envlight decompose`'s default).
+#[test]
+fn run_serves_the_sky_until_stopped_at_the_camera_rate() {
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("envlight.sock");
+    let config_path = dir.path().join("envlight.toml");
+    // A small sky renders in well under a millisecond, so unpaced it would outrun 30 frames/s
+    // many times over.
+    std::fs::write(
+        &config_path,
+        format!(
+            "[sky]\nwidth = 32\nheight = 16\n[decompose]\nlights = 8\nworking_width = 16\n\
+             [stream]\nunix_socket = \"{}\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n",
+            socket.display()
+        ),
+    )
+    .unwrap();
+    let mut child = RunningDaemon::start(&config_path);
+    wait_until("the socket file", || socket.exists());
+    let mut client = Client::connect(
+        &Endpoint::Unix(socket.clone()),
+        &Request::default(),
+        Some(TIMEOUT),
+    )
+    .unwrap();
+    let mut next = || match client.next_message().unwrap() {
+        Some(Message::Frame(frame)) => (frame.seq, Instant::now()),
+        other => panic!("unexpected {other:?}"),
+    };
+    let (first_seq, first_at) = next();
+    // Past the 60 frames a one-shot sky would stop at.
+    let (seq, at) = loop {
+        let (seq, at) = next();
+        if seq >= first_seq + 75 {
+            break (seq, at);
+        }
+    };
+    // 75 frame periods at 30 frames/s are 2.5 s; the first frame may have been late.
+    let elapsed = at - first_at;
+    assert!(
+        elapsed >= Duration::from_millis(2_300),
+        "{} frames in {elapsed:?}: not paced at 30 frames/s",
+        seq - first_seq
+    );
+    assert!(child.try_wait().unwrap().is_none(), "the daemon stopped");
+    signal(&child, "TERM");
+    let (status, log) = child.exit_and_log();
+    assert!(status.success(), "{status:?}\n{log}");
+    assert!(log.contains("30 frames/s"), "{log}");
+}
+
+#[test]
 fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     let dir = tempfile::tempdir().unwrap();
     let socket = dir.path().join("envlight.sock");

@@ -993,8 +993,12 @@ impl FrameSource for SkySource {
         } else {
             "no clouds".to_string()
         };
+        let pacing = match o.fps {
+            Some(fps) => format!("{fps} frames/s"),
+            None => "unpaced".to_string(),
+        };
         format!(
-            "built-in sky {}x{} (Preetham, turbidity {}, {clouds})",
+            "built-in sky {}x{} (Preetham, turbidity {}, {clouds}, {pacing})",
             o.width, o.height, o.turbidity
         )
     }
@@ -1555,7 +1559,7 @@ mod tests {
         .unwrap();
         assert_eq!(
             source.describe(),
-            "built-in sky 16x8 (Preetham, turbidity 3, clouds 35%)"
+            "built-in sky 16x8 (Preetham, turbidity 3, clouds 35%, unpaced)"
         );
         for seq in 0..3u64 {
             let frame = source.next_frame().unwrap().unwrap();
@@ -1582,7 +1586,7 @@ mod tests {
         .unwrap();
         assert_eq!(
             source.describe(),
-            "built-in sky 8x4 (Preetham, turbidity 3, no clouds)"
+            "built-in sky 8x4 (Preetham, turbidity 3, no clouds, 100 frames/s)"
         );
         let start = Instant::now();
         let mut times = Vec::new();
