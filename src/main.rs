@@ -743,7 +743,26 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     };
     let off = |a: Option<String>| a.unwrap_or_else(|| "off".to_owned());
     println!("{name}: ok");
-    println!("  source: {:?}", config.source.kind);
+    // As `envlight run` reads it (check-config guards the service's config).
+    let daemon_source = envlight::daemon::daemon_source_defaults(config.clone()).source;
+    let frames = match (daemon_source.frames, daemon_source.kind) {
+        (Some(0), _) | (None, envlight::config::SourceKind::V4l2) => "until stopped".to_owned(),
+        (Some(n), _) => format!("{n} frames"),
+        (None, _) if daemon_source.looped => "looped until stopped".to_owned(),
+        (None, _) => "every file once".to_owned(),
+    };
+    let pacing = match (daemon_source.kind, daemon_source.fps) {
+        (envlight::config::SourceKind::V4l2, _) => match config.camera.fps {
+            Some(fps) => format!("{fps} frames/s requested from the camera"),
+            None => "at the camera driver's rate".to_owned(),
+        },
+        (_, Some(fps)) => format!("{fps} frames/s"),
+        (_, None) => "as fast as possible".to_owned(),
+    };
+    println!(
+        "  source: {:?}, in envlight run {frames}, {pacing}",
+        daemon_source.kind
+    );
     println!(
         "  decompose: {} lights, warp {:?}, refinement of concentrated sources {}, concentrated \
          Lloyd step {}, filter {}",

@@ -923,7 +923,13 @@ fn check_config_names_the_bad_key_and_value() {
         "{}",
         String::from_utf8_lossy(&good.stderr)
     );
-    assert!(String::from_utf8_lossy(&good.stdout).contains("config/envlight.toml: ok"));
+    let report = String::from_utf8_lossy(&good.stdout);
+    assert!(report.contains("config/envlight.toml: ok"), "{report}");
+    // The example config is the unit's: as a service its sky must run until stopped.
+    assert!(
+        report.contains("source: Sky, in envlight run until stopped, 30 frames/s"),
+        "{report}"
+    );
     for (text, needle) in [
         (
             "[stream]\ntcp = \"localhost\"\n",
