@@ -911,6 +911,36 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     assert!(log.contains("SIGTERM: shutting down"), "{log}");
 }
 
+/// systemd/envlight.service as systemd reads it (`systemd-analyze verify`, from the `systemd`
+/// package that .ci/run installs): every directive known, every command executable. The
+/// installed paths are replaced by this build's binary and the example config.
+#[test]
+fn the_systemd_unit_verifies() {
+    let dir = tempfile::tempdir().unwrap();
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let unit = std::fs::read_to_string(manifest.join("systemd/envlight.service")).unwrap();
+    assert!(
+        unit.contains("ExecStart=/usr/local/bin/envlight run --config /etc/envlight/envlight.toml")
+    );
+    let unit = unit
+        .replace("/usr/local/bin/envlight", env!("CARGO_BIN_EXE_envlight"))
+        .replace(
+            "/etc/envlight/envlight.toml",
+            &manifest.join("config/envlight.toml").display().to_string(),
+        );
+    let path = dir.path().join("envlight.service");
+    std::fs::write(&path, unit).unwrap();
+    let out = std::process::Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&path)
+        .output()
+        .expect("systemd-analyze (Debian package systemd) must be installed for this test");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    // Unknown or misspelt directives are only warned about; none is allowed.
+    assert!(stderr.trim().is_empty(), "{stderr}");
+}
+
 #[test]
 fn check_config_names_the_bad_key_and_value() {
     let dir = tempfile::tempdir().unwrap();
