@@ -729,6 +729,17 @@ impl Drop for RunningDaemon {
     }
 }
 
+/// Waits for a daemon's socket file and subscribes to all its lights there.
+fn unix_client_once_listening(socket: &Path) -> Client {
+    wait_until("the socket file", || socket.exists());
+    Client::connect(
+        &Endpoint::Unix(socket.to_path_buf()),
+        &Request::default(),
+        Some(TIMEOUT),
+    )
+    .unwrap()
+}
+
 fn signal(child: &std::process::Child, name: &str) {
     let status = std::process::Command::new("kill")
         .args([&format!("-{name}"), &child.id().to_string()])
@@ -809,13 +820,7 @@ fn run_serves_the_sky_until_stopped_at_the_camera_rate() {
     )
     .unwrap();
     let mut child = RunningDaemon::start(&config_path);
-    wait_until("the socket file", || socket.exists());
-    let mut client = Client::connect(
-        &Endpoint::Unix(socket.clone()),
-        &Request::default(),
-        Some(TIMEOUT),
-    )
-    .unwrap();
+    let mut client = unix_client_once_listening(&socket);
     let mut next = || match client.next_message().unwrap() {
         Some(Message::Frame(frame)) => (frame.seq, Instant::now()),
         other => panic!("unexpected {other:?}"),
@@ -858,13 +863,7 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     )
     .unwrap();
     let mut child = RunningDaemon::start(&config_path);
-    wait_until("the socket file", || socket.exists());
-    let mut client = Client::connect(
-        &Endpoint::Unix(socket.clone()),
-        &Request::default(),
-        Some(TIMEOUT),
-    )
-    .unwrap();
+    let mut client = unix_client_once_listening(&socket);
     let next_frame = |client: &mut Client| match client.next_message().unwrap() {
         Some(Message::Frame(frame)) => frame,
         other => panic!("unexpected {other:?}"),
