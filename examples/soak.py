@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Soak run of `envlight run`: steady clients plus connections that come and go, for minutes.
 
-Starts the daemon on the built-in sky (default settings, 256 lights; `frames = 0` without `fps`,
-so the sky runs as fast as it renders, about 63 frames/s here) with every endpoint, keeps --steady clients reading the Unix socket, and opens --rate short-lived
-connections per second that leave in seven ways (after reading frames over the Unix socket or
+Starts the daemon on the built-in sky (default settings, 256 lights; `frames = 0` without
+`fps`, so the sky runs as fast as it renders, about 63 frames/s here) with every endpoint,
+keeps --steady clients reading the Unix socket, and opens --rate short-lived connections per
+second that leave in seven ways (after reading frames over the Unix socket or
 TCP, in the middle of a frame, after garbage, with a full socket they never read, after a
 WebSocket handshake, before subscribing). Every --every seconds it prints a Markdown table
 row: the daemon's resident memory, open file descriptors and threads, the clients it counts
