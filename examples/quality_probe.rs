@@ -13,7 +13,11 @@
 //! density; `mx` every working pixel gets at least this × its energy share of the points (`mxc=1`:
 //! concentrated pixels only; `mxb=B`: per block of B×B working pixels instead of per pixel, and
 //! with `mxc=1` the blocks holding a concentrated pixel are left alone); `hw=1` the hierarchical
-//! warp instead of the row-by-row one (also with `lib=1`); `c` concentrated share (× 1/N); `w`
+//! warp instead of the row-by-row one (also with `lib=1`); `pw=K` after the regions, a power
+//! diagram (pixel → argmax d·s_i + w_i) whose weights shrink every light holding more than K ×
+//! the mean energy (`pwi` iterations, 8; `pws` step, 1 × 2/N per unit of log energy ratio;
+//! `pwc=1` leaves the lights holding concentrated input pixels alone); `c` concentrated share
+//! (× 1/N); `w`
 //! working width; `p` centroid weighted by radiance^p; `hz=1` regions kept on one side of the
 //! horizon; `up` density factor of the upper hemisphere; `fw` fine warp inside concentrated
 //! pixels with this exponent; `gc` density exponent inside concentrated working pixels only;
@@ -78,6 +82,14 @@ struct Opts {
     beta_block: usize,
     /// The hierarchical warp instead of the row-by-row one.
     hierarchical: bool,
+    /// Energy cap (× the mean light energy) of a power-diagram pass after the regions (0 = off).
+    power_cap: f64,
+    /// Iterations of that pass.
+    power_iterations: usize,
+    /// Step of that pass (× 2/N per unit of log energy ratio).
+    power_step: f64,
+    /// The pass leaves the lights that hold concentrated input pixels alone.
+    power_skip_conc: bool,
     /// Second-level warp inside concentrated working pixels with this exponent (0 = off).
     fine_warp: f64,
     /// Lloyd step on a working map coarsened by this factor (0 = off).
@@ -114,6 +126,10 @@ impl Default for Opts {
             beta_conc: false,
             beta_block: 0,
             hierarchical: false,
+            power_cap: 0.0,
+            power_iterations: 8,
+            power_step: 1.0,
+            power_skip_conc: false,
             fine_warp: 0.0,
             coarse_lloyd: 0,
             coarse_centroid: 0,
@@ -511,6 +527,70 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             })
             .collect();
     }
+    if o.power_cap > 0.0 {
+        // Power diagram: pixel → argmax(d·s_i + w_i); lights above the cap shrink (w_i falls)
+        // until their energy is at most cap × the mean, or the iterations run out.
+        let total: f64 = pixels.iter().map(|p| luminance_f64(p.energy)).sum();
+        let cap = o.power_cap * total / n as f64;
+        let mut wts = vec![0.0f64; n];
+        for it in 0..=o.power_iterations {
+            let mut e = vec![0.0f64; n];
+            let mut conc_light = vec![false; n];
+            for (pi, p) in pixels.iter().enumerate() {
+                let mut best = 0;
+                let mut bd = f64::NEG_INFINITY;
+                for (i, s) in sample_dirs.iter().enumerate() {
+                    let d = s.dot(p.dir) + wts[i];
+                    if d > bd {
+                        bd = d;
+                        best = i;
+                    }
+                }
+                assign[pi] = best;
+                e[best] += luminance_f64(p.energy);
+                conc_light[best] |= pi >= nwork;
+            }
+            if it == o.power_iterations {
+                break;
+            }
+            for i in 0..n {
+                if o.power_skip_conc && conc_light[i] {
+                    continue;
+                }
+                if e[i] > cap {
+                    wts[i] -= o.power_step * 2.0 / n as f64 * (e[i] / cap).ln();
+                } else if wts[i] < 0.0 {
+                    // Relax back toward the plain Voronoi cell where there is room.
+                    wts[i] = (wts[i]
+                        + o.power_step * 2.0 / n as f64 * (cap / e[i].max(1e-300)).ln().min(1.0))
+                    .min(0.0);
+                }
+            }
+        }
+        let mut rgb = vec![[0.0f64; 3]; n];
+        let mut wd = vec![DVec3::ZERO; n];
+        let mut sa = vec![0.0f64; n];
+        for (pi, p) in pixels.iter().enumerate() {
+            let best = assign[pi];
+            for (acc, v) in rgb[best].iter_mut().zip(p.energy) {
+                *acc += v;
+            }
+            wd[best] += p.dir * luminance_f64(p.energy);
+            sa[best] += p.omega;
+        }
+        lights = (0..n)
+            .map(|i| Light {
+                id: i as u32,
+                dir: wd[i]
+                    .try_normalize()
+                    .unwrap_or(sample_dirs[i])
+                    .as_vec3()
+                    .to_array(),
+                rgb: rgb[i].map(|c| c as f32),
+                solid_angle: sa[i] as f32,
+            })
+            .collect();
+    }
     if o.lloyd_conc && std::env::var("LCSTAT").is_ok() && !first_assign.is_empty() {
         // What a Lloyd step on the concentrated sources' lights would have to redraw: the
         // working pixels of the moved lights' old regions, and those whose light changed.
@@ -663,6 +743,12 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                 "mx" => o.beta = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "mxc" => o.beta_conc = v == "1",
                 "hw" => o.hierarchical = v == "1",
+                "pw" => o.power_cap = v.parse().with_context(|| format!("{kv}: not a number"))?,
+                "pwi" => {
+                    o.power_iterations = v.parse().with_context(|| format!("{kv}: not a number"))?
+                }
+                "pwc" => o.power_skip_conc = v == "1",
+                "pws" => o.power_step = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "mxb" => o.beta_block = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "fw" => o.fine_warp = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "cl" => {
