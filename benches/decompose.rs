@@ -6,6 +6,8 @@
 //!   so this is the steady per-frame cost. 512×256 is the map box-downsampled by 2, 2048×1024 the
 //!   map upsampled by pixel replication.
 //! - `frame/raw_256/1024x512`: the same without filter and merge.
+//! - `frame/filter_merge_256/1024x512`: the same with filter and merge (`--merge`, the default
+//!   merge spacing), the configuration the target names.
 //! - `frame/turning_256/1024x512` and `frame/turning_256_no_reuse/1024x512`: default settings on
 //!   rooitou_park turned about the zenith by one pixel per frame (0, 1, …, 7, 6, …, 1 pixels,
 //!   cycled), so every light moves every frame: the cost of a moving map, with the region pass's
@@ -103,6 +105,14 @@ fn bench_frames(c: &mut Criterion) {
     let mut decomposer = Decomposer::new(raw).expect("valid");
     let full = &frames[2].1;
     group.bench_function("raw_256/1024x512", |b| {
+        b.iter(|| decomposer.decompose(black_box(full)))
+    });
+    let merged = DecomposeSettings {
+        merge_spacing_fraction: Some(envlight::decompose::merge::DEFAULT_SPACING_FRACTION),
+        ..DecomposeSettings::default()
+    };
+    let mut decomposer = Decomposer::new(merged).expect("valid");
+    group.bench_function("filter_merge_256/1024x512", |b| {
         b.iter(|| decomposer.decompose(black_box(full)))
     });
 
