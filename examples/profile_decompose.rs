@@ -12,8 +12,9 @@
 //! one second of the built-in sky at 256×128, 60 frames cycled, as the streaming bench uses),
 //! the number of frames, optionally the working width (`-` or nothing: the decomposition's
 //! default), then any of `no-reuse` (build the region pass's candidate lists afresh every frame)
-//! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`) and `no-refine` (without the
-//! refinement of the concentrated sources' regions, `--no-refine-concentrated`).
+//! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`), `no-refine` (without the
+//! refinement of the concentrated sources' regions, `--no-refine-concentrated`) and `merge`
+//! (`--merge`, the default spacing).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
@@ -39,8 +40,14 @@ fn main() -> anyhow::Result<()> {
             "no-reuse" => reuse = false,
             "lloyd" => settings.concentrated_lloyd = true,
             "no-refine" => settings.refine_concentrated = false,
+            "merge" => {
+                settings.merge_spacing_fraction =
+                    Some(envlight::decompose::merge::DEFAULT_SPACING_FRACTION)
+            }
             other => {
-                anyhow::bail!("unknown option {other:?} (expected no-reuse, lloyd or no-refine)")
+                anyhow::bail!(
+                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine or merge)"
+                )
             }
         }
     }

@@ -6,7 +6,10 @@
 //! 1. The merge radius is `spacing_fraction` × the mean spacing of N uniformly spread lights,
 //!    √(4π/N) radians: lights that close together sit much denser than the map's average.
 //! 2. Visit lights by decreasing luminance (ties by id); each unvisited light seeds a cluster of
-//!    all unvisited lights within the radius of it.
+//!    all unvisited lights within the radius of it. The lights within the radius are found among
+//!    those whose y lies within the radius's chord of the seed's (lights sorted by y, a binary
+//!    search), not by a scan of all N, and are then taken in index order, so the sums are the
+//!    brute-force scan's bit for bit (`windowed_search_equals_the_full_scan`).
 //! 3. A cluster becomes one light: id = its smallest member id (stable while the membership is),
 //!    rgb = the sum (energy is kept), dir = the luminance-weighted mean direction, and
 //!    solid_angle = the sum of the members' regions — the spread of the merged source, which a
@@ -38,20 +41,53 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
             .total_cmp(&lights[a].luminance())
             .then(lights[a].id.cmp(&lights[b].id))
     });
+    // Lights by y: a light within the radius of the seed has its y within the chord of it. The
+    // slack covers directions a little off unit length (f32), which the dot test below can
+    // let in from a hair beyond the radius; the window only has to hold every light it passes.
+    let chord = 2.0 * (0.5 * radius.min(std::f64::consts::PI)).sin() + 1e-4;
+    let mut by_y: Vec<(f64, usize)> = Vec::with_capacity(n);
+    // A direction without a finite y compares as "not farther than the radius" in the test
+    // below (NaN < cos_radius is false), so it is a candidate of every seed.
+    let mut everywhere = Vec::new();
+    for (i, d) in dirs.iter().enumerate() {
+        if d.y.is_finite() {
+            by_y.push((d.y, i));
+        } else {
+            everywhere.push(i);
+        }
+    }
+    by_y.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut taken = vec![false; n];
+    let mut near = Vec::new();
     let mut out = Vec::with_capacity(n);
     for &seed in &order {
         if taken[seed] {
             continue;
         }
         taken[seed] = true;
+        near.clear();
+        near.extend_from_slice(&everywhere);
+        let y = dirs[seed].y;
+        if y.is_finite() {
+            let start = by_y.partition_point(|&(yj, _)| yj < y - chord);
+            near.extend(
+                by_y[start..]
+                    .iter()
+                    .take_while(|&&(yj, _)| yj <= y + chord)
+                    .map(|&(_, j)| j),
+            );
+        } else {
+            near.extend(0..n);
+        }
+        // Index order, as a scan of all lights would take them.
+        near.sort_unstable();
         let mut id = lights[seed].id;
         let mut rgb = lights[seed].rgb.map(f64::from);
         let mut solid_angle = f64::from(lights[seed].solid_angle);
         let seed_weight = f64::from(lights[seed].luminance()).max(0.0);
         let mut weighted_dir = dirs[seed] * seed_weight;
         let mut members = 1;
-        for j in 0..n {
+        for &j in &near {
             if taken[j] || dirs[seed].dot(dirs[j]) < cos_radius {
                 continue;
             }
@@ -126,6 +162,139 @@ mod tests {
         // The evenly spread lights are not merged with each other.
         assert!(merged.len() >= 195, "{} lights left", merged.len());
         assert!(merged.windows(2).all(|w| w[0].id < w[1].id));
+    }
+
+    /// The scan of every light that `merge_crowded` replaced, as the oracle.
+    fn merge_by_full_scan(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
+        let n = lights.len();
+        let radius = spacing_fraction * (4.0 * std::f64::consts::PI / n as f64).sqrt();
+        let cos_radius = radius.min(std::f64::consts::PI).cos();
+        let dirs: Vec<DVec3> = lights.iter().map(|l| dvec(l.dir)).collect();
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| {
+            lights[b]
+                .luminance()
+                .total_cmp(&lights[a].luminance())
+                .then(lights[a].id.cmp(&lights[b].id))
+        });
+        let mut taken = vec![false; n];
+        let mut out = Vec::new();
+        for &seed in &order {
+            if taken[seed] {
+                continue;
+            }
+            taken[seed] = true;
+            let mut id = lights[seed].id;
+            let mut rgb = lights[seed].rgb.map(f64::from);
+            let mut solid_angle = f64::from(lights[seed].solid_angle);
+            let mut weighted_dir = dirs[seed] * f64::from(lights[seed].luminance()).max(0.0);
+            let mut members = 1;
+            for j in 0..n {
+                if taken[j] || dirs[seed].dot(dirs[j]) < cos_radius {
+                    continue;
+                }
+                taken[j] = true;
+                members += 1;
+                id = id.min(lights[j].id);
+                for (c, v) in rgb.iter_mut().zip(lights[j].rgb) {
+                    *c += f64::from(v);
+                }
+                solid_angle += f64::from(lights[j].solid_angle);
+                weighted_dir += dirs[j] * f64::from(lights[j].luminance()).max(0.0);
+            }
+            let dir = if members == 1 {
+                dirs[seed]
+            } else {
+                weighted_dir.try_normalize().unwrap_or(dirs[seed])
+            };
+            out.push(Light {
+                id,
+                dir: [dir.x as f32, dir.y as f32, dir.z as f32],
+                rgb: rgb.map(|c| c as f32),
+                solid_angle: solid_angle as f32,
+            });
+        }
+        out.sort_by_key(|l| l.id);
+        out
+    }
+
+    fn bits(lights: &[Light]) -> Vec<[u32; 8]> {
+        lights
+            .iter()
+            .map(|l| {
+                let f = |v: f32| v.to_bits();
+                [
+                    l.id,
+                    f(l.dir[0]),
+                    f(l.dir[1]),
+                    f(l.dir[2]),
+                    f(l.rgb[0]),
+                    f(l.rgb[1]),
+                    f(l.rgb[2]),
+                    f(l.solid_angle),
+                ]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn windowed_search_equals_the_full_scan() {
+        // Seeded xorshift: clusters of crowded lights (suns, lamps, some at the poles, where y
+        // bunches up) among lights spread over the sphere, at several counts and radii.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut unit = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for case in 0..60 {
+            let n = [2, 7, 64, 256, 1024][case % 5];
+            let mut lights = Vec::with_capacity(n);
+            let centres: Vec<DVec3> = (0..4)
+                .map(|k| match k {
+                    0 => DVec3::Y,
+                    1 => DVec3::NEG_Y,
+                    _ => DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5),
+                })
+                .collect();
+            for i in 0..n {
+                let dir = if unit() < 0.3 {
+                    let c = centres[i % centres.len()];
+                    c + DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5) * 0.03
+                } else {
+                    DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5)
+                };
+                let power = if unit() < 0.1 {
+                    0.0
+                } else {
+                    (unit() * 50.0) as f32
+                };
+                lights.push(light(i as u32, dir, power));
+            }
+            for fraction in [0.05, 0.1, 0.5, 2.0] {
+                assert_eq!(
+                    bits(&merge_crowded(&lights, fraction)),
+                    bits(&merge_by_full_scan(&lights, fraction)),
+                    "case {case}, {n} lights, fraction {fraction}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_light_without_a_finite_direction_is_merged_as_before() {
+        let mut lights = vec![light(0, DVec3::X, 5.0), light(1, DVec3::Y, 1.0)];
+        lights.push(Light {
+            id: 2,
+            dir: [f32::NAN, 0.0, 0.0],
+            rgb: [1.0; 3],
+            solid_angle: 0.001,
+        });
+        assert_eq!(
+            bits(&merge_crowded(&lights, 0.1)),
+            bits(&merge_by_full_scan(&lights, 0.1))
+        );
     }
 
     #[test]
