@@ -34,13 +34,15 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
     let radius = spacing_fraction * (4.0 * std::f64::consts::PI / n as f64).sqrt();
     let cos_radius = radius.min(std::f64::consts::PI).cos();
     let dirs: Vec<DVec3> = lights.iter().map(|l| dvec(l.dir)).collect();
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| {
-        lights[b]
-            .luminance()
-            .total_cmp(&lights[a].luminance())
-            .then(lights[a].id.cmp(&lights[b].id))
-    });
+    // By decreasing luminance, then id, then index: the order a stable sort on (luminance, id)
+    // gives, with each key computed once.
+    let mut keyed: Vec<(f32, u32, usize)> = lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| (l.luminance(), l.id, i))
+        .collect();
+    keyed.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let order: Vec<usize> = keyed.iter().map(|k| k.2).collect();
     // Lights by y: a light within the radius of the seed has its y within the chord of it. The
     // slack covers directions a little off unit length (f32), which the dot test below can
     // let in from a hair beyond the radius; the window only has to hold every light it passes.
@@ -56,7 +58,8 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
             everywhere.push(i);
         }
     }
-    by_y.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Equal y in any order: the candidates are put in index order below.
+    by_y.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let mut taken = vec![false; n];
     let mut near = Vec::new();
     let mut out = Vec::with_capacity(n);
@@ -112,8 +115,11 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
             solid_angle: solid_angle as f32,
         });
     }
-    out.sort_by_key(|l| l.id);
-    out
+    // Ids are unique in a decomposition's lights; should they repeat, the clusters keep the
+    // order they were made in (what a stable sort gives).
+    let mut by_id: Vec<(u32, usize)> = out.iter().enumerate().map(|(k, l)| (l.id, k)).collect();
+    by_id.sort_unstable();
+    by_id.into_iter().map(|(_, k)| out[k]).collect()
 }
 
 #[cfg(test)]
@@ -265,12 +271,15 @@ mod tests {
                 } else {
                     DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5)
                 };
-                let power = if unit() < 0.1 {
-                    0.0
+                // Every third set has repeated ids and luminances, to pin the order of ties.
+                let (id, power) = if case % 3 == 0 {
+                    ((i % 7) as u32, (unit() * 4.0).floor() as f32)
+                } else if unit() < 0.1 {
+                    (i as u32, 0.0)
                 } else {
-                    (unit() * 50.0) as f32
+                    (i as u32, (unit() * 50.0) as f32)
                 };
-                lights.push(light(i as u32, dir, power));
+                lights.push(light(id, dir, power));
             }
             for fraction in [0.05, 0.1, 0.5, 2.0] {
                 assert_eq!(
