@@ -833,10 +833,13 @@ fn run_serves_the_sky_until_stopped_at_the_camera_rate() {
             break (seq, at);
         }
     };
-    // 75 frame periods at 30 frames/s are 2.5 s; the first frame may have been late.
+    // 75 frame periods at 30 frames/s are 2.5 s. The source never runs ahead of its schedule
+    // but catches up after a stall, so if the first frame seen was late by L the 75 can take
+    // 2.5 s − L; a loaded test machine gets a second of slack. Unpaced, this 32×16 sky gives
+    // 75 frames in well under 0.5 s.
     let elapsed = at - first_at;
     assert!(
-        elapsed >= Duration::from_millis(2_300),
+        elapsed >= Duration::from_millis(1_500),
         "{} frames in {elapsed:?}: not paced at 30 frames/s",
         seq - first_seq
     );
