@@ -48,11 +48,11 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
     // let in from a hair beyond the radius; the window only has to hold every light it passes.
     let chord = 2.0 * (0.5 * radius.min(std::f64::consts::PI)).sin() + 1e-4;
     let mut by_y: Vec<(f64, usize)> = Vec::with_capacity(n);
-    // A direction without a finite y compares as "not farther than the radius" in the test
+    // A direction that is not finite compares as "not farther than the radius" in the test
     // below (NaN < cos_radius is false), so it is a candidate of every seed.
     let mut everywhere = Vec::new();
     for (i, d) in dirs.iter().enumerate() {
-        if d.y.is_finite() {
+        if d.is_finite() {
             by_y.push((d.y, i));
         } else {
             everywhere.push(i);
@@ -71,7 +71,7 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
         near.clear();
         near.extend_from_slice(&everywhere);
         let y = dirs[seed].y;
-        if y.is_finite() {
+        if dirs[seed].is_finite() {
             let start = by_y.partition_point(|&(yj, _)| yj < y - chord);
             near.extend(
                 by_y[start..]
@@ -293,17 +293,33 @@ mod tests {
 
     #[test]
     fn a_light_without_a_finite_direction_is_merged_as_before() {
-        let mut lights = vec![light(0, DVec3::X, 5.0), light(1, DVec3::Y, 1.0)];
-        lights.push(Light {
-            id: 2,
-            dir: [f32::NAN, 0.0, 0.0],
-            rgb: [1.0; 3],
-            solid_angle: 0.001,
-        });
-        assert_eq!(
-            bits(&merge_crowded(&lights, 0.1)),
-            bits(&merge_by_full_scan(&lights, 0.1))
-        );
+        for bad in [
+            [f32::NAN, 0.0, 0.0],
+            [0.0, f32::NAN, 0.0],
+            [f32::INFINITY, 0.5, 0.5],
+        ] {
+            for (at, power) in [(0, 1.0), (2, 1.0), (2, 9.0)] {
+                let mut lights = vec![
+                    light(0, DVec3::X, 5.0),
+                    light(1, DVec3::Y, 1.0),
+                    light(3, DVec3::new(0.2, -0.9, 0.1), 2.0),
+                ];
+                lights.insert(
+                    at,
+                    Light {
+                        id: 2,
+                        dir: bad,
+                        rgb: [power; 3],
+                        solid_angle: 0.001,
+                    },
+                );
+                assert_eq!(
+                    bits(&merge_crowded(&lights, 0.1)),
+                    bits(&merge_by_full_scan(&lights, 0.1)),
+                    "{bad:?} at {at}, power {power}"
+                );
+            }
+        }
     }
 
     #[test]
