@@ -16,10 +16,10 @@
 //! warp instead of the row-by-row one (also with `lib=1`); `pw=K` after the regions, a power
 //! diagram (pixel → argmax d·s_i + w_i) whose weights shrink every light holding more than K ×
 //! the mean energy (`pwi` iterations, 8; `pws` step, 1 × 2/N per unit of log energy ratio;
-//! `pwc=1` leaves the lights holding concentrated input pixels alone); `c` concentrated share
-//! (× 1/N); `w`
-//! working width; `p` centroid weighted by radiance^p; `hz=1` regions kept on one side of the
-//! horizon; `up` density factor of the upper hemisphere; `fw` fine warp inside concentrated
+//! `pwc=1` leaves the lights holding concentrated input pixels alone; it redraws every region
+//! from scratch and places lights at plain luminance centroids, so it ignores `p` and `hz`); `c`
+//! concentrated share (× 1/N); `w` working width; `p` centroid weighted by radiance^p; `hz=1`
+//! regions kept on one side of the horizon; `up` density factor of the upper hemisphere; `fw` fine warp inside concentrated
 //! pixels with this exponent; `gc` density exponent inside concentrated working pixels only;
 //! `lc=1` Lloyd steps move only the lights whose regions hold concentrated input pixels
 //! (`LCSTAT=1` in the environment prints how many lights move and how much of the sphere their

@@ -69,9 +69,8 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
         }
         taken[seed] = true;
         near.clear();
-        near.extend_from_slice(&everywhere);
-        let y = dirs[seed].y;
         if dirs[seed].is_finite() {
+            let y = dirs[seed].y;
             let start = by_y.partition_point(|&(yj, _)| yj < y - chord);
             near.extend(
                 by_y[start..]
@@ -79,11 +78,13 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
                     .take_while(|&&(yj, _)| yj <= y + chord)
                     .map(|&(_, j)| j),
             );
+            near.extend_from_slice(&everywhere);
+            // Index order, as a scan of all lights would take them.
+            near.sort_unstable();
         } else {
+            // A non-finite seed has no window: it is tested against every light, as before.
             near.extend(0..n);
         }
-        // Index order, as a scan of all lights would take them.
-        near.sort_unstable();
         let mut id = lights[seed].id;
         let mut rgb = lights[seed].rgb.map(f64::from);
         let mut solid_angle = f64::from(lights[seed].solid_angle);
