@@ -461,6 +461,8 @@ fn sample_light_frame() -> LightFrame {
         &SkyOptions {
             width: 256,
             height: 128,
+            // The sky the documented figures were measured on (seed 0, the default until 2026-11-23).
+            seed: 0,
             ..SkyOptions::default()
         },
         0.0,
@@ -606,6 +608,8 @@ impl PrerenderedSky {
         let options = SkyOptions {
             width: 256,
             height: 128,
+            // The sky the documented figures were measured on (seed 0, the default until 2026-11-23).
+            seed: 0,
             ..SkyOptions::default()
         };
         let frames = (0..fps as usize)

@@ -1,7 +1,10 @@
 //! Prints a Markdown table of temporal stability (DESIGN.md's temporal yardsticks) for each
-//! light-generation method on two slowly changing sequences:
+//! light-generation method on slowly changing sequences:
 //!
-//! - **sky**: the built-in sky, 90 frames at 30 frames/s (sun moving, clouds drifting);
+//! - **sky**: the built-in sky, 90 frames at 30 frames/s from its start (sun moving in a clear
+//!   patch of sky, clouds drifting);
+//! - **cloud over the sun**: the built-in sky from 6 s to 9 s, 90 frames, while a cloud drifts
+//!   over the sun and its direct light falls to about a fifth;
 //! - **pan**: a real HDRI turned about the vertical axis by one input pixel (0.35°) per frame,
 //!   60 frames, as a camera panning slowly would see it;
 //! - **sub-pixel pan**: the same turned by 0.37 input pixel per frame (linear interpolation), so
@@ -17,7 +20,11 @@
 //!
 //! ```text
 //! cargo run --release --example temporal_table -- tests/data/rooitou_park_1k.hdr
+//! cargo run --release --example temporal_table -- tests/data/rooitou_park_1k.hdr sky,cloud
 //! ```
+//!
+//! The optional second argument picks sequences (comma-separated, of `sky`, `cloud`, `pan`,
+//! `subpixel`; default all).
 
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
@@ -30,6 +37,10 @@ use envlight::yardstick::{flicker, light_irradiance, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
 
 const LIGHTS: usize = 256;
+
+/// Start of the "cloud over the sun" sequence: the default sky's sun is clear until about 6 s,
+/// then a cloud passes it (src/capture/sky.rs, `the_default_sky_starts_with_a_clear_sun…`).
+const CLOUD_START_S: f64 = 6.0;
 
 /// A light-generation method over a sequence: `None` = median cut, else envlight settings.
 struct Method {
@@ -187,6 +198,27 @@ fn main() -> Result<()> {
     let sky: Vec<HdrFrame> = (0..90)
         .map(|t| render_sky(&options, f64::from(t) / 30.0))
         .collect();
+    let cloud: Vec<HdrFrame> = (0..90)
+        .map(|t| render_sky(&options, CLOUD_START_S + f64::from(t) / 30.0))
+        .collect();
+    let chosen: Vec<String> = match std::env::args().nth(2) {
+        Some(list) => list.split(',').map(str::to_owned).collect(),
+        None => ["sky", "cloud", "pan", "subpixel"]
+            .map(String::from)
+            .to_vec(),
+    };
+    let sequences = [
+        ("sky", "sky (90 frames)", &sky),
+        ("cloud", "cloud over the sun (90 frames)", &cloud),
+        ("pan", "pan of the map (60 frames)", &pan),
+        ("subpixel", "sub-pixel pan (60 frames)", &slow_pan),
+    ];
+    for key in &chosen {
+        anyhow::ensure!(
+            sequences.iter().any(|(k, _, _)| k == key),
+            "unknown sequence {key:?} (expected sky, cloud, pan or subpixel)"
+        );
+    }
 
     let methods = [
         Method {
@@ -246,11 +278,10 @@ fn main() -> Result<()> {
     ];
     println!("| sequence | method | diffuse flicker | ground flicker | ground flicker, lag removed | mean move/frame | p99 move | max move |");
     println!("|---|---|---:|---:|---:|---:|---:|---:|");
-    for (name, frames) in [
-        ("sky (90 frames)", &sky),
-        ("pan of the map (60 frames)", &pan),
-        ("sub-pixel pan (60 frames)", &slow_pan),
-    ] {
+    for (_, name, frames) in sequences
+        .iter()
+        .filter(|(key, _, _)| chosen.iter().any(|c| c == key))
+    {
         let truths = truths(frames)?;
         for method in &methods {
             println!("{}", row(name, frames, &truths, method)?);

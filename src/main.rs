@@ -437,7 +437,7 @@ struct DecomposeArgs {
     #[arg(long)]
     no_clouds: bool,
 
-    /// Seed of the sky's clouds. [default: 0]
+    /// Seed of the sky's clouds. [default: 2]
     #[arg(long)]
     seed: Option<u64>,
 

@@ -113,7 +113,9 @@ pub struct SkyOptions {
     pub wind_speed: f64,
     /// Albedo of the Lambertian ground, 0..=1.
     pub ground_albedo: f64,
-    /// Seed of the cloud noise and wind direction.
+    /// Seed of the cloud noise and wind direction. The default, 2, is chosen so that the sun is
+    /// clear of clouds at the start (for the first 7 s with the other defaults); a cloud then
+    /// passes over it (about 7–12 s).
     pub seed: u64,
     /// Pacing in frames per second (> 0); `None` = as fast as possible.
     pub fps: Option<f64>,
@@ -134,7 +136,7 @@ impl Default for SkyOptions {
             cloud_cover: 0.35,
             wind_speed: 15.0,
             ground_albedo: 0.2,
-            seed: 0,
+            seed: 2,
             fps: None,
             frames: None,
         }
@@ -1351,6 +1353,27 @@ mod tests {
             ..base.clone()
         };
         assert_eq!(render_sky(&none, 5.0), render_sky(&clear(base), 5.0));
+    }
+
+    /// The default sky is the demo of a fresh install (`envlight decompose`, `envlight run`), so
+    /// its sun must be in view at the start, and the default seed is chosen for that: clear for
+    /// the first 6 s, then a cloud passes over the sun (about 6–15 s) and leaves it clear again.
+    #[test]
+    fn the_default_sky_starts_with_a_clear_sun_and_a_cloud_passes_it() {
+        let options = SkyOptions::default();
+        let transmittance = |t: f64| sun_at(&options, t).cloud_transmittance;
+        let steps = |from: f64, to: f64| {
+            (0..)
+                .map(move |i| from + 0.25 * f64::from(i))
+                .take_while(move |t| *t <= to)
+        };
+        for t in steps(0.0, 6.0) {
+            assert!(transmittance(t) > 0.999, "sun covered at {t} s");
+        }
+        let darkest = steps(6.0, 15.0).map(transmittance).fold(1.0, f64::min);
+        assert!(darkest < 0.2, "no cloud over the sun: {darkest}");
+        assert!(transmittance(15.0) > 0.95, "{}", transmittance(15.0));
+        assert!(sun_at(&options, 0.0).elevation_deg > 30.0);
     }
 
     #[test]

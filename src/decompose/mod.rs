@@ -23,8 +23,9 @@
 //!    nearest light ([`DecomposeSettings::refine_concentrated`], on by default: a k-means step
 //!    on the suns and lamps only). Optionally ([`DecomposeSettings::concentrated_lloyd`]) they
 //!    take a full Lloyd step instead (regions redrawn where they can reach).
-//! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's direction and power by
-//!    id; it restarts when the light count changes.
+//! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's power and direction by
+//!    id (the direction as the power-weighted mean over the window); it restarts when the light
+//!    count changes.
 //! 6. **Merge** ([`merge`], off by default): lights crowding a concentrated source become one
 //!    light that records the source's spread (solid angle).
 
