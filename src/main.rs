@@ -1129,7 +1129,14 @@ fn render(args: &RenderArgs) -> Result<()> {
     let mut from_file = None;
     let mut source = None;
     if let Some(path) = &args.lights {
-        from_file = Some(envlight::light::read_json_lines(path)?.into_iter());
+        let frames = envlight::light::read_json_lines(path)?;
+        if frames.is_empty() {
+            bail!(
+                "{}: no light frames in it (expected the JSON Lines of `envlight decompose`)",
+                path.display()
+            );
+        }
+        from_file = Some(frames.into_iter());
     } else {
         let mut raw = RawConfig::default();
         if !args.inputs.is_empty() {

@@ -342,6 +342,20 @@ fn missing_file_is_named() {
     assert_eq!(o.status.code(), Some(1));
 }
 
+/// A light file without frames is an error naming it, before any GPU work (an empty render
+/// that exits 0 would look like success).
+#[test]
+fn render_of_an_empty_light_file_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let lights = dir.path().join("lights.jsonl");
+    std::fs::write(&lights, "\n  \n").unwrap();
+    let out = dir.path().join("out");
+    let o = envlight(&["render", "--lights", s(&lights), "--out", s(&out)]);
+    assert_fails_naming(&o, &[s(&lights), "no light frames"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!out.exists(), "nothing is written");
+}
+
 #[test]
 fn corrupt_exr_is_named() {
     let dir = tempfile::tempdir().unwrap();
