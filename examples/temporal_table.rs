@@ -4,7 +4,7 @@
 //! - **sky**: the built-in sky, 90 frames at 30 frames/s from its start (sun moving in a clear
 //!   patch of sky, clouds drifting);
 //! - **cloud over the sun**: the built-in sky from 6 s to 9 s, 90 frames, while a cloud drifts
-//!   over the sun and its direct light falls to about a fifth;
+//!   over the sun and its direct light falls to about a sixth;
 //! - **pan**: a real HDRI turned about the vertical axis by one input pixel (0.35°) per frame,
 //!   60 frames, as a camera panning slowly would see it;
 //! - **sub-pixel pan**: the same turned by 0.37 input pixel per frame (linear interpolation), so

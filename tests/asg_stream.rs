@@ -146,8 +146,8 @@ fn asg_subscribe_without_the_stage_is_unsupported() {
 fn the_live_stage_skips_frames_and_never_slows_the_lights() {
     let dir = tempfile::tempdir().unwrap();
     // A fit far slower than the 30 fps source: 800 first-frame iterations on a 64×128 map, then
-    // 1,500 per warm refit (about 0.1 s; how fast an iteration is depends on the sky, and 100
-    // warm iterations took only 10 ms once the sky's sun was in view).
+    // 1,500 per warm refit (about 0.12 s: 400 took 32 ms here). How fast an iteration is
+    // depends on the sky: 100 warm iterations took only 10 ms once the sky's sun was in view.
     // (30 fps rather than 60 leaves the tiny decomposition 60 ms of slack before the 2-frame
     // capture queue drops a frame, when tests running in parallel starve its thread on CI's
     // 2 cores.)

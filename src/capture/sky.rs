@@ -114,8 +114,8 @@ pub struct SkyOptions {
     /// Albedo of the Lambertian ground, 0..=1.
     pub ground_albedo: f64,
     /// Seed of the cloud noise and wind direction. The default, 2, is chosen so that the sun is
-    /// clear of clouds at the start (for the first 7 s with the other defaults); a cloud then
-    /// passes over it (about 7–12 s).
+    /// clear of clouds at the start (for the first 6 s with the other defaults); a cloud then
+    /// passes over it (about 6–15 s).
     pub seed: u64,
     /// Pacing in frames per second (> 0); `None` = as fast as possible.
     pub fps: Option<f64>,
