@@ -183,7 +183,20 @@ fn row(
     ))
 }
 
+/// The sequences' keys, in the table's order.
+const SEQUENCE_KEYS: [&str; 4] = ["sky", "cloud", "pan", "subpixel"];
+
 fn main() -> Result<()> {
+    let chosen: Vec<String> = match std::env::args().nth(2) {
+        Some(list) => list.split(',').map(str::to_owned).collect(),
+        None => SEQUENCE_KEYS.map(String::from).to_vec(),
+    };
+    for key in &chosen {
+        anyhow::ensure!(
+            SEQUENCE_KEYS.contains(&key.as_str()),
+            "unknown sequence {key:?} (expected sky, cloud, pan or subpixel)"
+        );
+    }
     let path = std::env::args()
         .nth(1)
         .unwrap_or_else(|| "tests/data/rooitou_park_1k.hdr".into());
@@ -201,24 +214,12 @@ fn main() -> Result<()> {
     let cloud: Vec<HdrFrame> = (0..90)
         .map(|t| render_sky(&options, CLOUD_START_S + f64::from(t) / 30.0))
         .collect();
-    let chosen: Vec<String> = match std::env::args().nth(2) {
-        Some(list) => list.split(',').map(str::to_owned).collect(),
-        None => ["sky", "cloud", "pan", "subpixel"]
-            .map(String::from)
-            .to_vec(),
-    };
     let sequences = [
         ("sky", "sky (90 frames)", &sky),
         ("cloud", "cloud over the sun (90 frames)", &cloud),
         ("pan", "pan of the map (60 frames)", &pan),
         ("subpixel", "sub-pixel pan (60 frames)", &slow_pan),
     ];
-    for key in &chosen {
-        anyhow::ensure!(
-            sequences.iter().any(|(k, _, _)| k == key),
-            "unknown sequence {key:?} (expected sky, cloud, pan or subpixel)"
-        );
-    }
 
     let methods = [
         Method {
