@@ -969,3 +969,50 @@ fn default_beats_median_cut_on_the_quality_table() {
     );
     assert!(wins >= 69, "only {wins} of 72 rows won: {losses:#?}");
 }
+
+/// While a cloud crosses the sun, the lights near the sun keep the sun's power there through the
+/// temporal filter: their filtered power follows the filtered power of the unfiltered lights
+/// near the sun. A light that leaves the sun takes part of its power along its path for as long
+/// as the sun's power is in its window, so this holds only because the filter weights each
+/// light's directions by power (src/decompose/filter.rs).
+///
+/// Measured (default sky, 6–7.5 s, 256 lights, lights within 3° of the sun, frames 7–44 so that
+/// the window is full): largest relative difference 1.3 % with the power-weighted directions,
+/// 20.2 % with a plain mean of them. Bound: 5 %.
+#[test]
+fn filtered_lights_keep_the_suns_power_at_the_sun_while_a_cloud_passes() {
+    let options = SkyOptions::default();
+    let times: Vec<f64> = (0..45).map(|i| 6.0 + f64::from(i) / 30.0).collect();
+    let mut raw = Decomposer::new(raw_settings(256)).unwrap();
+    let mut filtered = Decomposer::new(default_settings(256)).unwrap();
+    let near_sun = |lights: &LightFrame, t: f64| -> f64 {
+        let sun = envlight::capture::sky::sun_at(&options, t).direction;
+        let cos_max = 3f64.to_radians().cos();
+        lights
+            .lights
+            .iter()
+            .filter(|l| glam::DVec3::from(l.dir.map(f64::from)).dot(sun) > cos_max)
+            .map(|l| luminance(l.rgb) as f64)
+            .sum()
+    };
+    let (mut raw_near, mut filtered_near) = (vec![], vec![]);
+    for &t in &times {
+        let frame = render_sky(&options, t);
+        raw_near.push(near_sun(&raw.decompose(&frame), t));
+        filtered_near.push(near_sun(&filtered.decompose(&frame), t));
+    }
+    let taps = envlight::decompose::filter::DEFAULT_TAPS;
+    let sum: f64 = taps.iter().sum();
+    let mut worst = 0.0f64;
+    for t in taps.len()..times.len() {
+        let expected: f64 = taps
+            .iter()
+            .enumerate()
+            .map(|(k, w)| w / sum * raw_near[t - k])
+            .sum();
+        let rel = (filtered_near[t] - expected).abs() / expected;
+        worst = worst.max(rel);
+    }
+    eprintln!("sun's power near the sun, filtered against the filtered raw: worst {worst:.4}");
+    assert!(worst < 0.05, "the filter moved the sun's power: {worst}");
+}
