@@ -617,10 +617,11 @@ fn sky_frame_pairs() -> Vec<(&'static str, HdrFrame, HdrFrame)> {
 #[test]
 fn built_in_sky_lights_move_little_per_frame() {
     let settings = raw_settings(256);
-    for (what, a, b) in sky_frame_pairs() {
-        let la = Decomposer::new(settings.clone()).unwrap().decompose(&a);
-        let lb = Decomposer::new(settings.clone()).unwrap().decompose(&b);
-        for (frame, lights) in [(&a, &la), (&b, &lb)] {
+    let pairs = sky_frame_pairs();
+    for (what, a, b) in &pairs {
+        let la = Decomposer::new(settings.clone()).unwrap().decompose(a);
+        let lb = Decomposer::new(settings.clone()).unwrap().decompose(b);
+        for (frame, lights) in [(a, &la), (b, &lb)] {
             let rel = relative_error(lights.total_rgb(), frame_integral(frame));
             assert!(
                 rel.iter().all(|r| *r < 1e-3),
@@ -651,13 +652,13 @@ fn built_in_sky_lights_move_little_per_frame() {
         merge_spacing_fraction: Some(envlight::decompose::merge::DEFAULT_SPACING_FRACTION),
         ..DecomposeSettings::default()
     };
-    let (_, a, b) = sky_frame_pairs().swap_remove(0);
+    let (_, a, b) = &pairs[0];
     let mut decomposer = Decomposer::new(settings).unwrap();
     let taps = envlight::decompose::filter::DEFAULT_TAPS;
     let w0 = taps[0] / taps.iter().sum::<f64>();
-    let (ia, ib) = (frame_integral(&a), frame_integral(&b));
+    let (ia, ib) = (frame_integral(a), frame_integral(b));
     let expected_b: [f64; 3] = std::array::from_fn(|c| w0 * ib[c] + (1.0 - w0) * ia[c]);
-    for (frame, expected) in [(&a, ia), (&b, expected_b)] {
+    for (frame, expected) in [(a, ia), (b, expected_b)] {
         let lights = decomposer.decompose(frame);
         assert_finite(&lights, "sky, filter and merge");
         let rel = relative_error(lights.total_rgb(), expected);

@@ -46,6 +46,8 @@ struct Sample {
     dir: DVec3,
     rgb: [f64; 3],
     solid_angle: f64,
+    /// [`luminance`] of `rgb`, the weight of `dir`: computed once, when the sample arrives.
+    power: f64,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -120,14 +122,16 @@ impl FirFilter {
             if id >= self.histories.len() {
                 self.histories.resize_with(id + 1, History::default);
             }
+            let rgb = light.rgb.map(f64::from);
             let sample = Sample {
                 dir: DVec3::new(
                     light.dir[0].into(),
                     light.dir[1].into(),
                     light.dir[2].into(),
                 ),
-                rgb: light.rgb.map(f64::from),
+                rgb,
                 solid_angle: light.solid_angle.into(),
+                power: luminance(rgb),
             };
             let h = &mut self.histories[id];
             let continuing = frame > 0 && h.last_seen == Some(frame - 1);
@@ -141,24 +145,31 @@ impl FirFilter {
             }
             h.last_seen = Some(frame);
 
-            let mut dir = DVec3::ZERO;
             let mut power_weighted_dir = DVec3::ZERO;
             let mut rgb = [0.0f64; 3];
             let mut solid_angle = 0.0;
             // Newest first: head, head − 1, …, 0, then n − 1, …, head + 1.
             let (recent, earlier) = h.ring.split_at(h.head + 1);
-            let newest_first = recent.iter().rev().chain(earlier.iter().rev());
-            for (w, s) in self.taps.iter().zip(newest_first) {
-                dir += *w * s.dir;
-                power_weighted_dir += (*w * luminance(s.rgb)) * s.dir;
+            let newest_first = || recent.iter().rev().chain(earlier.iter().rev());
+            for (w, s) in self.taps.iter().zip(newest_first()) {
+                power_weighted_dir += (*w * s.power) * s.dir;
                 for c in 0..3 {
                     rgb[c] += w * s.rgb[c];
                 }
                 solid_angle += w * s.solid_angle;
             }
+            // Without power in the window (or with an overflow), the plain mean of directions.
             let dir = power_weighted_dir
                 .try_normalize()
-                .or_else(|| dir.try_normalize())
+                .or_else(|| {
+                    let plain: DVec3 = self
+                        .taps
+                        .iter()
+                        .zip(newest_first())
+                        .map(|(w, s)| *w * s.dir)
+                        .sum();
+                    plain.try_normalize()
+                })
                 .unwrap_or(sample.dir);
             light.dir = [dir.x as f32, dir.y as f32, dir.z as f32];
             light.rgb = rgb.map(|c| c.max(0.0) as f32);
