@@ -9,12 +9,53 @@
 //! `R_r` its mass and t ∈ [0, 1] the position of y between the centres of rows a and b. At a row
 //! centre the warp is exactly that row's inverse CDF, so `invert` of a pixel centre is O(1).
 //!
+//! **The seam.** Azimuth is periodic but a CDF needs an origin. With the origin at x = 0 (the
+//! lat-long map's seam), a bright source stepping across the seam moves its mass from the end of
+//! its rows' CDFs to their start, and every point of those rows jumps by that mass: a spot one
+//! pixel across the seam moved lights by up to 104°. So u₀ is taken on a circle: the point goes
+//! where F(x | y) = u₀ + c (mod 1), with the origin c the mean of the conditional CDF over a
+//! triangular window centred on the seam, F̃ read as F − 1 on the window's left side (x < 0,
+//! i.e. x near W), where it continues F across the seam. A source crossing the seam inside the
+//! window raises F everywhere else and c by the same mass, gradually as it crosses, so the
+//! points stay put; a change of the map outside the window does not touch c (as with a fixed
+//! origin). c is linear in the row's prefix sums, so it blends between rows like they do. A
+//! window over the whole circle also avoids the jump but couples every change of a row to all
+//! of its points, and it drifts points against the content under a pan; the half-width,
+//! [`SEAM_WINDOW_HALF_TURNS`], was chosen by the measurements in docs/quality.md ("The seam").
+//!
 //! Steps: `sample(u)`: invert the marginal row CDF at u₁ (continuous y), find the two rows whose
-//! centres bracket y, binary-search the blended prefix sums for u₀. `invert(p)` runs the same
-//! maps forwards. Naming follows pbrt-v4 (`sample(u) -> (p, pdf)`, `pdf(p)`, `invert(p)`); the
+//! centres bracket y, binary-search the blended prefix sums for u₀ + c (mod 1). `invert(p)` runs
+//! the same maps forwards. Naming follows pbrt-v4 (`sample(u) -> (p, pdf)`, `pdf(p)`, `invert(p)`); the
 //! domain is the unit square, p = (x/W, y/H).
 //!
 //! Masses are f64: a sun 10⁴× brighter than the sky must not vanish in rounding.
+
+/// Half-width of the window around the seam over which the rows' CDF origins are averaged,
+/// as a fraction of a turn (3/16: 67.5° on either side of the seam).
+pub const SEAM_WINDOW_HALF_TURNS: f64 = 3.0 / 16.0;
+
+/// The origin window of a row of `width` cells: the cells with non-zero weight and their
+/// weights (triangular, peak at the seam, summing to 1), and the total weight of the cells on the
+/// seam's left side (x ≥ W/2), where the CDF is read as F − 1. A row too narrow for the window
+/// gets the uniform window (every cell, equal weights).
+fn seam_window(width: usize) -> (Vec<(usize, f64)>, f64) {
+    let half_width = SEAM_WINDOW_HALF_TURNS * width as f64;
+    let mut cells: Vec<(usize, f64)> = (0..width)
+        .filter_map(|k| {
+            let centre = k as f64 + 0.5;
+            let distance = centre.min(width as f64 - centre);
+            let weight = 1.0 - distance / half_width;
+            (weight > 0.0).then_some((k, weight))
+        })
+        .collect();
+    if cells.is_empty() {
+        cells = (0..width).map(|k| (k, 1.0)).collect();
+    }
+    let total: f64 = cells.iter().map(|c| c.1).sum();
+    cells.iter_mut().for_each(|c| c.1 /= total);
+    let left_side = cells.iter().filter(|c| 2 * c.0 >= width).map(|c| c.1).sum();
+    (cells, left_side)
+}
 
 /// Continuous 2D distribution on [0,1]² from a non-negative W×H weight image.
 #[derive(Clone, Debug)]
@@ -25,6 +66,12 @@ pub struct PiecewiseConstant2d {
     prefix: Vec<f64>,
     /// H+1 prefix sums of the row masses, normalised to end at 1.
     marginal_cdf: Vec<f64>,
+    /// Per row, its CDF's origin times its mass: the window-weighted mean of S̃_r, the prefix
+    /// sum read as S_r − R_r on the seam's left side (see the module doc).
+    origin_mass: Vec<f64>,
+    /// [`seam_window`] of `window_width`.
+    window: (Vec<(usize, f64)>, f64),
+    window_width: usize,
     total: f64,
 }
 
@@ -38,6 +85,9 @@ impl PiecewiseConstant2d {
             height,
             prefix: Vec::new(),
             marginal_cdf: Vec::new(),
+            origin_mass: Vec::new(),
+            window: (Vec::new(), 0.0),
+            window_width: 0,
             total: 0.0,
         };
         dist.rebuild(weights, width, height);
@@ -113,6 +163,17 @@ impl PiecewiseConstant2d {
                 *p = sum;
             }
         }
+        // The origins: the window over the seam, its cells' mean prefix sums (S[k] + S[k+1]) / 2.
+        if self.window_width != width {
+            self.window = seam_window(width);
+            self.window_width = width;
+        }
+        self.origin_mass.resize(height, 0.0);
+        let (window, left_side) = (&self.window.0, self.window.1);
+        for (row, origin) in prefix.chunks_exact(width + 1).zip(&mut self.origin_mass) {
+            let mean: f64 = window.iter().map(|&(k, q)| q * (row[k] + row[k + 1])).sum();
+            *origin = 0.5 * mean - left_side * row[width];
+        }
         let mut running_total = 0.0f64;
         for (row, cdf) in prefix.chunks_exact(width + 1).zip(&mut marginal_cdf[1..]) {
             running_total += row[width];
@@ -176,6 +237,13 @@ impl PiecewiseConstant2d {
         (d > 0.0).then(|| ((1.0 - t) / d, t / d))
     }
 
+    /// The origin c ∈ [−1, 1] of the blended conditional CDF (weights from [`Self::blend`]):
+    /// u₀ goes where that CDF equals u₀ + c (mod 1).
+    #[inline]
+    fn origin(&self, a: usize, b: usize, (wa, wb): (f64, f64)) -> f64 {
+        (wa * self.origin_mass[a] + wb * self.origin_mass[b]).clamp(-1.0, 1.0)
+    }
+
     /// Continuous row coordinate y ∈ [0, H] for u₁.
     #[inline]
     fn sample_row(&self, u1: f64) -> (f64, f64) {
@@ -210,6 +278,7 @@ impl PiecewiseConstant2d {
                 let pa = self.row_prefix(a);
                 let pb = self.row_prefix(b);
                 let blended = |k: usize| wa * pa[k] + wb * pb[k];
+                let u0 = wrap_unit(u0 + self.origin(a, b, (wa, wb)));
                 // Largest k in [0, W) with blended(k) <= u0 and a non-empty cell.
                 let (mut lo, mut hi) = (0usize, w);
                 while hi - lo > 1 {
@@ -282,10 +351,22 @@ impl PiecewiseConstant2d {
                 let pb = self.row_prefix(b);
                 let lo = wa * pa[k] + wb * pb[k];
                 let hi = wa * pa[k + 1] + wb * pb[k + 1];
-                lo + frac_x * (hi - lo)
+                wrap_unit(lo + frac_x * (hi - lo) - self.origin(a, b, (wa, wb)))
             }
         };
         [u0.clamp(0.0, 1.0), u1.clamp(0.0, 1.0)]
+    }
+}
+
+/// `v` moved into [0, 1) by adding or subtracting 1 (for v ∈ [−1, 2)).
+#[inline]
+fn wrap_unit(v: f64) -> f64 {
+    if v < 0.0 {
+        v + 1.0
+    } else if v >= 1.0 {
+        v - 1.0
+    } else {
+        v
     }
 }
 
@@ -348,8 +429,10 @@ mod tests {
                     continue;
                 }
                 let v = dist.invert(p);
+                // u₀ lives on a circle (the origin c wraps it): compare it there.
+                let du0 = (u[0] - v[0]).abs();
                 assert!(
-                    (u[0] - v[0]).abs() < 1e-9 && (u[1] - v[1]).abs() < 1e-9,
+                    du0.min(1.0 - du0) < 1e-9 && (u[1] - v[1]).abs() < 1e-9,
                     "{u:?} -> {p:?} -> {v:?}"
                 );
             }
@@ -414,6 +497,73 @@ mod tests {
         assert!(
             fine < 0.3 * coarse,
             "largest step {fine} at 4x finer sweep vs {coarse}"
+        );
+    }
+
+    /// A map of `w`×4 cells: a dim background with a gentle slope along x (1 to 2) and, in rows
+    /// 1 and 2, a spot at column `spot` (wrapping) holding half of its row's mass.
+    fn map_with_spot(w: usize, spot: usize) -> Vec<f64> {
+        let mut weights: Vec<f64> = (0..w * 4)
+            .map(|i| 1.0 + (i % w) as f64 / w as f64)
+            .collect();
+        for row in 1..3 {
+            weights[row * w + spot % w] = 1.5 * w as f64;
+        }
+        weights
+    }
+
+    /// Largest distance on the circle (in turns) between the points that `before` and `after`
+    /// make of the same u, over a grid of u.
+    fn largest_azimuth_move(before: &PiecewiseConstant2d, after: &PiecewiseConstant2d) -> f64 {
+        let mut largest = 0.0f64;
+        for j in 0..64 {
+            for i in 0..64 {
+                let u = [(i as f64 + 0.5) / 64.0, (j as f64 + 0.5) / 64.0];
+                let (a, b) = (before.sample(u).0, after.sample(u).0);
+                let d = (a[0] - b[0]).abs();
+                largest = largest.max(d.min(1.0 - d));
+            }
+        }
+        largest
+    }
+
+    /// The largest point move of a one-cell step of the spot across the seam, and of steps
+    /// elsewhere (near the seam on either side, a quarter and half a turn away), at width `w`.
+    fn spot_step_moves(w: usize) -> (f64, f64) {
+        let step = |from: usize| {
+            let before = PiecewiseConstant2d::new(&map_with_spot(w, from), w, 4);
+            let after = PiecewiseConstant2d::new(&map_with_spot(w, from + 1), w, 4);
+            largest_azimuth_move(&before, &after)
+        };
+        let elsewhere = [w - 3, w - 2, 0, 1, 2, w / 8, w / 4, w / 2]
+            .into_iter()
+            .map(step)
+            .fold(0.0, f64::max);
+        (step(w - 1), elsewhere)
+    }
+
+    #[test]
+    fn a_spot_stepping_across_the_seam_moves_points_continuously() {
+        // With the CDFs' origin fixed at x = 0 (c held at 0), the spot's step from the last column
+        // to the first moves its rows' points by half a turn at both widths (a jump: measured
+        // 0.4999 and 0.5000 turn), steps elsewhere by 0.0155 and 0.0020. With the windowed origin
+        // the step across the seam moves them as far as steps elsewhere, and that shrinks with
+        // the cell (continuity): across / elsewhere 0.1123 / 0.1060 turn at width 64, 0.0153 /
+        // 0.0153 at 512. The price: while the spot is inside the window, each of its steps
+        // slides its rows' other points a little (0.106 against 0.0155 turn at width 64).
+        let (across_coarse, elsewhere_coarse) = spot_step_moves(64);
+        let (across_fine, elsewhere_fine) = spot_step_moves(512);
+        eprintln!(
+            "largest move (turns), across the seam / elsewhere: width 64 {across_coarse:.4} / \
+             {elsewhere_coarse:.4}, width 512 {across_fine:.4} / {elsewhere_fine:.4}"
+        );
+        assert!(
+            across_fine < 0.25 * across_coarse.max(elsewhere_coarse),
+            "across the seam: {across_fine} at 8× finer cells vs {across_coarse}"
+        );
+        assert!(
+            across_fine <= 1.5 * elsewhere_fine && across_coarse <= 1.5 * elsewhere_coarse,
+            "the step across the seam moves points more than 1.5× the steps elsewhere"
         );
     }
 
