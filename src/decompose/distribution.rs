@@ -34,27 +34,82 @@
 /// as a fraction of a turn (3/16: 67.5° on either side of the seam).
 pub const SEAM_WINDOW_HALF_TURNS: f64 = 3.0 / 16.0;
 
-/// The origin window of a row of `width` cells: the cells with non-zero weight and their
-/// weights (triangular, peak at the seam, summing to 1), and the total weight of the cells on the
-/// seam's left side (x ≥ W/2), where the CDF is read as F − 1. A row too narrow for the window
-/// gets the uniform window (every cell, equal weights).
-fn seam_window(width: usize) -> (Vec<(usize, f64)>, f64) {
-    let half_width = SEAM_WINDOW_HALF_TURNS * width as f64;
-    let mut cells: Vec<(usize, f64)> = (0..width)
-        .filter_map(|k| {
+/// The origin window of rows of `width` cells, as weights on a row's W + 1 prefix sums: a
+/// row's origin times its mass is `0.5 · Σ_j g_j · S[j]`, which is Σ_k q_k · (S[k] + S[k+1]) / 2
+/// − (the weight of the seam's left side) · S[W] for triangular cell weights q_k (peak at the
+/// seam, summing to 1), so g_j = q_j + q_{j−1}, less twice the left side's weight at j = W.
+/// The non-zero g are two runs: from the start of the row and up to its end.
+#[derive(Clone, Debug, Default)]
+struct SeamWindow {
+    width: usize,
+    /// g_j for j in 0..start.len().
+    start: Vec<f64>,
+    /// Index of the first weight in `end`.
+    end_from: usize,
+    /// g_j for j in end_from..=W.
+    end: Vec<f64>,
+}
+
+impl SeamWindow {
+    /// A row too narrow for the window gets the uniform window (every cell, equal weights).
+    fn new(width: usize) -> Self {
+        let half_width = SEAM_WINDOW_HALF_TURNS * width as f64;
+        let triangle = |k: usize| {
             let centre = k as f64 + 0.5;
-            let distance = centre.min(width as f64 - centre);
-            let weight = 1.0 - distance / half_width;
-            (weight > 0.0).then_some((k, weight))
-        })
-        .collect();
-    if cells.is_empty() {
-        cells = (0..width).map(|k| (k, 1.0)).collect();
+            (1.0 - centre.min(width as f64 - centre) / half_width).max(0.0)
+        };
+        let mut cells: Vec<f64> = (0..width).map(triangle).collect();
+        if cells.iter().all(|&q| q == 0.0) {
+            cells.iter_mut().for_each(|q| *q = 1.0);
+        }
+        let total: f64 = cells.iter().sum();
+        cells.iter_mut().for_each(|q| *q /= total);
+        let left_side: f64 = cells[width.div_ceil(2)..].iter().sum();
+        let mut g: Vec<f64> = (0..=width)
+            .map(|j| {
+                cells.get(j).copied().unwrap_or(0.0) + j.checked_sub(1).map_or(0.0, |k| cells[k])
+            })
+            .collect();
+        g[width] -= 2.0 * left_side;
+        // The gap of zero weights between the two runs (none in a narrow row).
+        let start_len = g.iter().position(|&w| w == 0.0).unwrap_or(width + 1);
+        let end_from = g[start_len..]
+            .iter()
+            .position(|&w| w != 0.0)
+            .map_or(width + 1, |i| start_len + i);
+        Self {
+            width,
+            start: g[..start_len].to_vec(),
+            end_from,
+            end: g[end_from..].to_vec(),
+        }
     }
-    let total: f64 = cells.iter().map(|c| c.1).sum();
-    cells.iter_mut().for_each(|c| c.1 /= total);
-    let left_side = cells.iter().filter(|c| 2 * c.0 >= width).map(|c| c.1).sum();
-    (cells, left_side)
+
+    /// The origin times the mass of the row with prefix sums `prefix` (W + 1 values).
+    #[inline]
+    fn origin_mass(&self, prefix: &[f64]) -> f64 {
+        0.5 * (dot(&self.start, &prefix[..self.start.len()])
+            + dot(&self.end, &prefix[self.end_from..]))
+    }
+}
+
+/// Σ aᵢ·bᵢ with four running sums (so the compiler can vectorise it).
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut sums = [0.0f64; 4];
+    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = a4
+        .remainder()
+        .iter()
+        .zip(b4.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in a4.zip(b4) {
+        for i in 0..4 {
+            sums[i] += x[i] * y[i];
+        }
+    }
+    (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
 }
 
 /// Continuous 2D distribution on [0,1]² from a non-negative W×H weight image.
@@ -69,9 +124,8 @@ pub struct PiecewiseConstant2d {
     /// Per row, its CDF's origin times its mass: the window-weighted mean of S̃_r, the prefix
     /// sum read as S_r − R_r on the seam's left side (see the module doc).
     origin_mass: Vec<f64>,
-    /// [`seam_window`] of `window_width`.
-    window: (Vec<(usize, f64)>, f64),
-    window_width: usize,
+    /// The window of the current width.
+    window: SeamWindow,
     total: f64,
 }
 
@@ -86,8 +140,7 @@ impl PiecewiseConstant2d {
             prefix: Vec::new(),
             marginal_cdf: Vec::new(),
             origin_mass: Vec::new(),
-            window: (Vec::new(), 0.0),
-            window_width: 0,
+            window: SeamWindow::default(),
             total: 0.0,
         };
         dist.rebuild(weights, width, height);
@@ -163,16 +216,13 @@ impl PiecewiseConstant2d {
                 *p = sum;
             }
         }
-        // The origins: the window over the seam, its cells' mean prefix sums (S[k] + S[k+1]) / 2.
-        if self.window_width != width {
-            self.window = seam_window(width);
-            self.window_width = width;
+        // The rows' origins, from the window over the seam.
+        if self.window.width != width || self.window.start.is_empty() {
+            self.window = SeamWindow::new(width);
         }
         self.origin_mass.resize(height, 0.0);
-        let (window, left_side) = (&self.window.0, self.window.1);
         for (row, origin) in prefix.chunks_exact(width + 1).zip(&mut self.origin_mass) {
-            let mean: f64 = window.iter().map(|&(k, q)| q * (row[k] + row[k + 1])).sum();
-            *origin = 0.5 * mean - left_side * row[width];
+            *origin = self.window.origin_mass(row);
         }
         let mut running_total = 0.0f64;
         for (row, cdf) in prefix.chunks_exact(width + 1).zip(&mut marginal_cdf[1..]) {
