@@ -516,12 +516,12 @@ const SPOT: (u32, u32) = (200, 80);
 /// Measured (raw decomposition, 256 lights, Centroid placement; the spot holds 1000× the sky's
 /// radiance, ~6% of the energy; max / p99):
 ///
-/// | density γ, warp | +1 px in x | +1 px in y | across the seam | onto the seam (510 → 511) |
-/// |---|---|---|---|---|
-/// | 0.75 (default), rows | 2.22° / 0.65° | 24.2° / 12.0° | 5.85° / 4.75° | 2.31° / 1.38° |
-/// | 0.5, rows | 0.64° / 0.09° | 3.47° / 1.47° | 1.52° / 0.95° | 0.63° / 0.34° |
-/// | 1.0 (Havran et al.), rows | — | 50.9° / — | — | — |
-/// | 0.75, hierarchical | 0.92° / 0.55° | 3.17° / 0.47° | 13.8° / 10.9° | — |
+/// | density γ, warp | +1 px in x | +1 px in y | across the seam |
+/// |---|---|---|---|
+/// | 0.75 (default), rows | 2.22° / 0.65° | 24.2° / 12.0° | 5.85° / 4.75° |
+/// | 0.5, rows | 0.64° / 0.09° | 3.47° / 1.47° | 1.52° / 0.95° |
+/// | 1.0 (Havran et al.), rows | — | 50.9° / — | — |
+/// | 0.75, hierarchical | 0.92° / 0.55° | 3.17° / 0.47° | 13.8° / 10.9° |
 ///
 /// The y step moves a third of the spot from one working row to the next. The inverse CDF of a
 /// row is shared by every point in its band, so when the spot's share of the row changes, points

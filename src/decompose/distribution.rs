@@ -216,8 +216,9 @@ impl PiecewiseConstant2d {
                 *p = sum;
             }
         }
-        // The rows' origins, from the window over the seam.
-        if self.window.width != width || self.window.start.is_empty() {
+        // The rows' origins, from the window over the seam (made again only when the width
+        // changes; the default window's width 0 is never a valid one).
+        if self.window.width != width {
             self.window = SeamWindow::new(width);
         }
         self.origin_mass.resize(height, 0.0);
@@ -408,7 +409,8 @@ impl PiecewiseConstant2d {
     }
 }
 
-/// `v` moved into [0, 1) by adding or subtracting 1 (for v ∈ [−1, 2)).
+/// `v` ∈ [−1, 2] moved into [0, 1] by adding or subtracting 1 (2 gives 1, which the callers
+/// treat as the end of the row).
 #[inline]
 fn wrap_unit(v: f64) -> f64 {
     if v < 0.0 {
