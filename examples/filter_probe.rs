@@ -1,0 +1,367 @@
+//! Where the per-light temporal filter's flicker comes from: the default FIR filter against
+//! other ways to low-pass the same light lists, on the temporal table's four sequences
+//! (docs/quality.md, "Temporal stability": "What the filter's flicker is").
+//!
+//! Every variant filters the same unfiltered light lists (256 lights, default settings) with the
+//! default taps, except `pixels`, which filters the input frames pixel by pixel and decomposes
+//! them unfiltered:
+//!
+//! - `none`: no filter;
+//! - `fir`: the library's per-id filter ([`FirFilter`]), one light per id;
+//! - `cluster A°`: per id, the window's samples are grouped into cones of A° (each sample joins
+//!   the first group whose power-weighted mean lies within A°); the group holding the newest
+//!   sample keeps the id and the others are emitted as extra, fading lights. Role changes (a
+//!   light jumping from the sun to the sky) are then never blended into one direction;
+//! - `union`: every sample of the window is its own light, scaled by its tap — the exact
+//!   linear filter of the light lists (≈ 7 × the lights);
+//! - `rebin`: each sample of the window goes to the current frame's nearest light, which takes
+//!   the sum and the power-weighted centroid (the energy is filtered per place, not per id);
+//! - `pixels`: the input frames filtered pixel by pixel, then decomposed without a filter.
+//!
+//! Columns: the ground-shadow flicker of the temporal table (against the truth; against the
+//! truth delayed by the filter's 3 frames), the same against the *equally filtered truth*
+//! (Σ_k w_k truth(t−k): what a perfect low-pass of the map would show, so a filter is not
+//! charged for smoothing the truth's own changes), the mean number of lights per frame, and the
+//! largest move per frame of a light that keeps its id.
+//!
+//! ```text
+//! cargo run --release --example filter_probe                 # all four sequences, ~3 min
+//! SEQ=sky cargo run --release --example filter_probe         # one of sky, cloud, pan, subpixel
+//! SEQ=sky TRACE=1 cargo run --release --example filter_probe # the sun's lights, frames 20–33
+//! ```
+//!
+//! `TRACE=1` prints, for the lights within 1° of the sun in frame 20, each one's offset from the
+//! sun's centroid (in tenths of a degree) and its luminance, frame by frame: it shows the sun's
+//! few input pixels changing hands between ids.
+use anyhow::{Context, Result};
+use envlight::capture::image_file::read_hdr_image;
+use envlight::capture::sky::{render_sky, SkyOptions};
+use envlight::decompose::filter::DEFAULT_TAPS;
+use envlight::decompose::{DecomposeSettings, Decomposer, FirFilter};
+use envlight::envmap::Projection;
+use envlight::light::Light;
+use envlight::yardstick::{flicker, light_irradiance, ReferenceMap};
+use envlight::HdrFrame;
+use glam::DVec3;
+
+const LIGHTS: usize = 256;
+/// Ids of the extra lights of the `cluster` variants start here (above any point-set index).
+const EXTRA_ID_BASE: usize = 1 << 24;
+
+/// Irradiance at the evaluation points of every frame.
+type Series = Vec<Vec<[f64; 3]>>;
+
+fn rotated_by(frame: &HdrFrame, shift: f64) -> Option<HdrFrame> {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let whole = shift.floor();
+    let t = (shift - whole) as f32;
+    let s = whole as usize % w;
+    let mut pixels = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let row = &frame.pixels[y * w..(y + 1) * w];
+        for x in 0..w {
+            let a = row[(x + s) % w];
+            let b = row[(x + s + 1) % w];
+            pixels.push(std::array::from_fn(|c| (1.0 - t) * a[c] + t * b[c]));
+        }
+    }
+    HdrFrame::new(frame.width, frame.height, pixels, Projection::LatLong)
+}
+
+fn lum(c: [f64; 3]) -> f64 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+fn direction(l: &Light) -> DVec3 {
+    DVec3::from_array(l.dir.map(f64::from))
+}
+
+fn light_at(id: usize, dir: DVec3, rgb: [f64; 3], solid_angle: f64) -> Light {
+    Light {
+        id: id as u32,
+        dir: dir.as_vec3().to_array(),
+        rgb: rgb.map(|v| v as f32),
+        solid_angle: solid_angle as f32,
+    }
+}
+
+/// Power-weighted direction, rgb and solid angle accumulated over samples.
+#[derive(Clone, Copy, Default)]
+struct Sum {
+    weighted_dir: DVec3,
+    rgb: [f64; 3],
+    solid_angle: f64,
+}
+
+impl Sum {
+    fn add(&mut self, w: f64, sample: &Light) {
+        let rgb = sample.rgb.map(f64::from);
+        self.weighted_dir += w * lum(rgb).max(1e-30) * direction(sample);
+        for c in 0..3 {
+            self.rgb[c] += w * rgb[c];
+        }
+        self.solid_angle += w * f64::from(sample.solid_angle);
+    }
+}
+
+/// Light `id`'s samples, newest first, one per tap: before the id's first frame, its oldest
+/// sample repeats (as [`FirFilter`] starts). Empty when the newest frame lacks the id.
+fn window_of(history: &[Vec<Light>], id: u32, taps: usize) -> Vec<Light> {
+    let t = history.len() - 1;
+    let mut out: Vec<Light> = Vec::with_capacity(taps);
+    for k in 0..taps {
+        let found = (k <= t)
+            .then(|| history[t - k].iter().find(|m| m.id == id).copied())
+            .flatten();
+        match (found, out.last()) {
+            (Some(s), _) => out.push(s),
+            (None, Some(&last)) => out.push(last),
+            (None, None) => break,
+        }
+    }
+    out
+}
+
+/// The `cluster` variant (`cos_max` = cos A) for the newest frame of `history`; A = 0 is `union`.
+fn cluster_filter(history: &[Vec<Light>], taps: &[f64], cos_max: f64) -> Vec<Light> {
+    let mut out = Vec::new();
+    for newest in &history[history.len() - 1] {
+        let mut groups: Vec<Sum> = Vec::new();
+        for (w, sample) in taps.iter().zip(window_of(history, newest.id, taps.len())) {
+            let d = direction(&sample);
+            let slot = groups
+                .iter()
+                .position(|g| g.weighted_dir.try_normalize().unwrap_or(d).dot(d) >= cos_max);
+            let i = slot.unwrap_or_else(|| {
+                groups.push(Sum::default());
+                groups.len() - 1
+            });
+            groups[i].add(*w, &sample);
+        }
+        for (i, g) in groups.iter().enumerate() {
+            let id = if i == 0 {
+                newest.id as usize
+            } else {
+                EXTRA_ID_BASE + newest.id as usize * 64 + i
+            };
+            let dir = g.weighted_dir.try_normalize().unwrap_or(direction(newest));
+            out.push(light_at(id, dir, g.rgb, g.solid_angle));
+        }
+    }
+    out
+}
+
+/// The `rebin` variant for the newest frame of `history`.
+fn rebin_filter(history: &[Vec<Light>], taps: &[f64]) -> Vec<Light> {
+    let t = history.len() - 1;
+    let current = &history[t];
+    let dirs: Vec<DVec3> = current.iter().map(direction).collect();
+    let mut sums = vec![Sum::default(); current.len()];
+    for (k, w) in taps.iter().enumerate() {
+        for sample in &history[t.saturating_sub(k)] {
+            let d = direction(sample);
+            let nearest = (0..dirs.len())
+                .max_by(|&a, &b| dirs[a].dot(d).total_cmp(&dirs[b].dot(d)))
+                .unwrap_or(0);
+            sums[nearest].add(*w, sample);
+        }
+    }
+    current
+        .iter()
+        .zip(&sums)
+        .map(|(l, s)| {
+            let dir = s.weighted_dir.try_normalize().unwrap_or(direction(l));
+            light_at(l.id as usize, dir, s.rgb, s.solid_angle)
+        })
+        .collect()
+}
+
+/// Σ_k w_k x(t−k) per evaluation point, the first value repeating before the start.
+fn filtered(series: &Series, taps: &[f64]) -> Series {
+    (0..series.len())
+        .map(|t| {
+            let mut acc = vec![[0.0; 3]; series[t].len()];
+            for (k, w) in taps.iter().enumerate() {
+                for (a, s) in acc.iter_mut().zip(&series[t.saturating_sub(k)]) {
+                    for c in 0..3 {
+                        a[c] += w * s[c];
+                    }
+                }
+            }
+            acc
+        })
+        .collect()
+}
+
+/// The frames filtered pixel by pixel with `taps` (the first frame repeating before the start).
+fn pixel_filtered(frames: &[HdrFrame], taps: &[f64]) -> Vec<HdrFrame> {
+    (0..frames.len())
+        .map(|t| {
+            let mut frame = frames[t].clone();
+            for (i, p) in frame.pixels.iter_mut().enumerate() {
+                let mut acc = [0.0f64; 3];
+                for (k, w) in taps.iter().enumerate() {
+                    let q = frames[t.saturating_sub(k)].pixels[i];
+                    for c in 0..3 {
+                        acc[c] += w * f64::from(q[c]);
+                    }
+                }
+                *p = acc.map(|v| v as f32);
+            }
+            frame
+        })
+        .collect()
+}
+
+fn unfiltered(frames: &[HdrFrame]) -> Result<Vec<Vec<Light>>> {
+    let mut decomposer = Decomposer::new(DecomposeSettings {
+        lights: LIGHTS,
+        filter_taps: None,
+        ..DecomposeSettings::default()
+    })?;
+    Ok(frames
+        .iter()
+        .map(|f| decomposer.decompose(f).lights)
+        .collect())
+}
+
+fn trace_sun(raw: &[Vec<Light>]) {
+    let brightest = |l: &[Light]| {
+        l.iter()
+            .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
+            .map(direction)
+            .unwrap_or(DVec3::Y)
+    };
+    let Some(first) = raw.get(20) else { return };
+    let sun0 = brightest(first);
+    let ids: Vec<u32> = first
+        .iter()
+        .filter(|x| direction(x).dot(sun0) > 1f64.to_radians().cos())
+        .map(|x| x.id)
+        .take(8)
+        .collect();
+    for (t, lights) in raw.iter().enumerate().skip(20).take(14) {
+        let centroid = lights
+            .iter()
+            .filter(|x| direction(x).dot(sun0) > 2f64.to_radians().cos())
+            .map(|x| f64::from(x.luminance()) * direction(x))
+            .sum::<DVec3>()
+            .normalize();
+        let e1 = DVec3::Y.cross(centroid).normalize();
+        let e2 = centroid.cross(e1);
+        let mut line = format!("frame {t}:");
+        for id in &ids {
+            if let Some(x) = lights.iter().find(|x| x.id == *id) {
+                let d = direction(x);
+                line += &format!(
+                    " {id}({:+.1},{:+.1}; {:.0})",
+                    d.dot(e1).asin().to_degrees() * 10.0,
+                    d.dot(e2).asin().to_degrees() * 10.0,
+                    x.luminance()
+                );
+            }
+        }
+        println!("{line}");
+    }
+}
+
+fn main() -> Result<()> {
+    let image = read_hdr_image(std::path::Path::new("tests/data/rooitou_park_1k.hdr"))?;
+    let still = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+        .context("empty image")?;
+    let sky = SkyOptions::default();
+    let sequences: Vec<(&str, Vec<HdrFrame>)> = vec![
+        (
+            "sky",
+            (0..90)
+                .map(|t| render_sky(&sky, f64::from(t) / 30.0))
+                .collect(),
+        ),
+        (
+            "cloud",
+            (0..90)
+                .map(|t| render_sky(&sky, 6.0 + f64::from(t) / 30.0))
+                .collect(),
+        ),
+        ("pan", (0..60).map(|t| still.turned_columns(t)).collect()),
+        (
+            "subpixel",
+            (0..60)
+                .map(|t| rotated_by(&still, 0.37 * f64::from(t)).context("empty image"))
+                .collect::<Result<_>>()?,
+        ),
+    ];
+    let only = std::env::var("SEQ").ok();
+    let sum: f64 = DEFAULT_TAPS.iter().sum();
+    let taps: Vec<f64> = DEFAULT_TAPS.iter().map(|t| t / sum).collect();
+    println!("| sequence | filter | ground flicker | lag removed | against the filtered truth | lights/frame | max move |");
+    println!("|---|---|---:|---:|---:|---:|---:|");
+    for (name, frames) in &sequences {
+        if only
+            .as_deref()
+            .is_some_and(|o| !o.split(',').any(|s| s == *name))
+        {
+            continue;
+        }
+        let mut truth: Series = vec![];
+        for frame in frames {
+            truth.push(ReferenceMap::new(frame, 256)?.truth().ground.clone());
+        }
+        let filtered_truth = filtered(&truth, &taps);
+        let raw = unfiltered(frames)?;
+        if std::env::var("TRACE").is_ok() {
+            trace_sun(&raw);
+        }
+        let mut fir = FirFilter::with_default_taps();
+        let fir_lights = raw
+            .iter()
+            .map(|l| {
+                let mut l = l.clone();
+                fir.apply(&mut l);
+                l
+            })
+            .collect();
+        let each_frame = |f: &dyn Fn(&[Vec<Light>]) -> Vec<Light>| {
+            (0..raw.len()).map(|t| f(&raw[..=t])).collect::<Vec<_>>()
+        };
+        let mut variants: Vec<(String, Vec<Vec<Light>>)> =
+            vec![("none".into(), raw.clone()), ("fir".into(), fir_lights)];
+        for angle in [2.0f64, 10.0, 30.0] {
+            let cos = angle.to_radians().cos();
+            variants.push((
+                format!("cluster {angle}°"),
+                each_frame(&|h| cluster_filter(h, &taps, cos)),
+            ));
+        }
+        variants.push((
+            "union".into(),
+            each_frame(&|h| cluster_filter(h, &taps, 1.0)),
+        ));
+        variants.push(("rebin".into(), each_frame(&|h| rebin_filter(h, &taps))));
+        variants.push(("pixels".into(), unfiltered(&pixel_filtered(frames, &taps))?));
+        for (variant, lists) in &variants {
+            let ground: Series = lists.iter().map(|l| light_irradiance(l).1).collect();
+            let mut max_move: f64 = 0.0;
+            for pair in lists.windows(2) {
+                for l in pair[1].iter().filter(|l| (l.id as usize) < EXTRA_ID_BASE) {
+                    if let Some(p) = pair[0].iter().find(|p| p.id == l.id) {
+                        let cos = direction(l).dot(direction(p)).clamp(-1.0, 1.0);
+                        max_move = max_move.max(cos.acos().to_degrees());
+                    }
+                }
+            }
+            let is_filtered = variant != "none";
+            let delay = if is_filtered { 3 } else { 0 };
+            let reference = if is_filtered { &filtered_truth } else { &truth };
+            let count: usize = lists.iter().map(Vec::len).sum();
+            println!(
+                "| {name} | {variant} | {:.4} | {:.4} | {:.4} | {:.0} | {max_move:.1}° |",
+                flicker(&ground, &truth),
+                flicker(&ground[delay..], &truth[..truth.len() - delay]),
+                flicker(&ground, reference),
+                count as f64 / lists.len() as f64,
+            );
+        }
+    }
+    Ok(())
+}
