@@ -97,8 +97,8 @@ impl Sum {
     fn add(&mut self, w: f64, sample: &Light) {
         let rgb = sample.rgb.map(f64::from);
         self.weighted_dir += w * lum(rgb).max(1e-30) * direction(sample);
-        for c in 0..3 {
-            self.rgb[c] += w * rgb[c];
+        for (sum, c) in self.rgb.iter_mut().zip(rgb) {
+            *sum += w * c;
         }
         self.solid_angle += w * f64::from(sample.solid_angle);
     }
@@ -183,8 +183,8 @@ fn filtered(series: &Series, taps: &[f64]) -> Series {
             let mut acc = vec![[0.0; 3]; series[t].len()];
             for (k, w) in taps.iter().enumerate() {
                 for (a, s) in acc.iter_mut().zip(&series[t.saturating_sub(k)]) {
-                    for c in 0..3 {
-                        a[c] += w * s[c];
+                    for (a, s) in a.iter_mut().zip(s) {
+                        *a += w * s;
                     }
                 }
             }
@@ -202,8 +202,8 @@ fn pixel_filtered(frames: &[HdrFrame], taps: &[f64]) -> Vec<HdrFrame> {
                 let mut acc = [0.0f64; 3];
                 for (k, w) in taps.iter().enumerate() {
                     let q = frames[t.saturating_sub(k)].pixels[i];
-                    for c in 0..3 {
-                        acc[c] += w * f64::from(q[c]);
+                    for (a, q) in acc.iter_mut().zip(q) {
+                        *a += w * f64::from(q);
                     }
                 }
                 *p = acc.map(|v| v as f32);
