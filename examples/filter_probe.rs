@@ -25,12 +25,11 @@
 //! *areal* truth, the mean number of lights per frame, and the largest move per frame of a
 //! light that keeps its id. (Unfiltered rows compare with the plain truths.)
 //!
-//! The areal truth: the yardstick's reference sums a bright pixel (a sun pixel) as one point at
-//! its centre, and an unfiltered light that holds exactly one sun pixel sits exactly there, so
-//! it matches the reference's hard shadow exactly; a light anywhere else inside the pixel (a
-//! filtered one, say) is charged for it. Here every pixel above 10⁻⁴ of the upper hemisphere's
-//! energy is split into 8 × 8 sub-pixels at their own centres, with exact solid angles (box
-//! reconstruction), as examples/reference_accuracy.rs does for the whole hemisphere.
+//! The areal truth ([`ReferenceMap::with_areal_bright_pixels`], 8 × 8 sub-pixels): the
+//! yardstick's reference sums a bright pixel (a sun pixel) as one point at its centre, and an
+//! unfiltered light that holds exactly one sun pixel sits exactly there, so it matches the
+//! reference's hard shadow exactly, while a light anywhere else inside the pixel (a filtered
+//! one, say) is charged for it. The areal truth reads the bright pixels as areas.
 //!
 //! ```text
 //! cargo run --release --example filter_probe                 # all four sequences, ~3 min
@@ -48,7 +47,7 @@ use envlight::decompose::filter::DEFAULT_TAPS;
 use envlight::decompose::{DecomposeSettings, Decomposer, FirFilter};
 use envlight::envmap::Projection;
 use envlight::light::Light;
-use envlight::yardstick::{flicker, ground_points, light_irradiance, ReferenceMap, SPHERE_CENTRE};
+use envlight::yardstick::{flicker, light_irradiance, ReferenceMap};
 use envlight::HdrFrame;
 use glam::DVec3;
 
@@ -56,7 +55,7 @@ const LIGHTS: usize = 256;
 /// Ids of the extra lights of the `cluster` variants start here (above any point-set index).
 const EXTRA_ID_BASE: usize = 1 << 24;
 /// Sub-pixels per side of the areal truth's bright pixels (4 and 8 agree to 0.0001 here).
-const AREAL_SPLIT: usize = 8;
+const AREAL_SPLIT: u32 = 8;
 
 /// Irradiance at the evaluation points of every frame.
 type Series = Vec<Vec<[f64; 3]>>;
@@ -223,82 +222,6 @@ fn pixel_filtered(frames: &[HdrFrame], taps: &[f64]) -> Vec<HdrFrame> {
         .collect()
 }
 
-/// The yardstick's ground truth with its bright pixels (each above 10⁻⁴ of the upper
-/// hemisphere's energy) read as areas: each split into `split` × `split` sub-pixels at their
-/// own centres with their exact solid angles, in place of one point at the pixel's centre.
-fn areal_ground_truth(frame: &HdrFrame, truth: &[[f64; 3]], split: usize) -> Vec<[f64; 3]> {
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    let omega = Projection::LatLong.solid_angles(frame.width, frame.height);
-    let points = ground_points();
-    let cones: Vec<(DVec3, f64)> = points
-        .iter()
-        .map(|&p| {
-            let to_centre = SPHERE_CENTRE - p;
-            let dist2 = to_centre.length_squared();
-            (
-                to_centre / dist2.sqrt(),
-                (1.0 - 1.0 / dist2.max(1.0)).sqrt(),
-            )
-        })
-        .collect();
-    let upper = h.div_ceil(2);
-    let pixel_lum = |y: usize, x: usize| {
-        let p = frame.pixels[y * w + x].map(|v| {
-            if v.is_finite() {
-                f64::from(v.max(0.0))
-            } else {
-                0.0
-            }
-        });
-        (p, lum(p) * omega[y * w])
-    };
-    let total: f64 = (0..upper)
-        .flat_map(|y| (0..w).map(move |x| (y, x)))
-        .map(|(y, x)| pixel_lum(y, x).1)
-        .sum();
-    let mut out = truth.to_vec();
-    let mut add = |d: DVec3, rgb: [f64; 3], scale: f64| {
-        if d.y <= 0.0 {
-            return;
-        }
-        for (g, (axis, cos_half)) in out.iter_mut().zip(&cones) {
-            if d.dot(*axis) <= *cos_half {
-                for c in 0..3 {
-                    g[c] += scale * rgb[c] * d.y;
-                }
-            }
-        }
-    };
-    let dir = |theta: f64, phi: f64| {
-        DVec3::new(
-            theta.sin() * phi.sin(),
-            theta.cos(),
-            -theta.sin() * phi.cos(),
-        )
-    };
-    for y in 0..upper {
-        for x in 0..w {
-            let (p, energy) = pixel_lum(y, x);
-            if energy <= 1e-4 * total {
-                continue;
-            }
-            let theta = |j: f64| std::f64::consts::PI * (y as f64 + j) / h as f64;
-            let phi = |i: f64| 2.0 * std::f64::consts::PI * (x as f64 + i) / w as f64;
-            add(dir(theta(0.5), phi(0.5)), p, -omega[y * w]);
-            for j in 0..split {
-                let (a, b) = (j as f64 / split as f64, (j + 1) as f64 / split as f64);
-                let sub_omega = 2.0 * std::f64::consts::PI / (w * split) as f64
-                    * (theta(a).cos() - theta(b).cos());
-                for i in 0..split {
-                    let u = (i as f64 + 0.5) / split as f64;
-                    add(dir(theta((a + b) / 2.0), phi(u)), p, sub_omega);
-                }
-            }
-        }
-    }
-    out
-}
-
 fn unfiltered(frames: &[HdrFrame]) -> Result<Vec<Vec<Light>>> {
     let mut decomposer = Decomposer::new(DecomposeSettings {
         lights: LIGHTS,
@@ -391,9 +314,9 @@ fn main() -> Result<()> {
         }
         let (mut truth, mut areal_truth): (Series, Series) = (vec![], vec![]);
         for frame in frames {
-            let ground = ReferenceMap::new(frame, 256)?.truth().ground.clone();
-            areal_truth.push(areal_ground_truth(frame, &ground, AREAL_SPLIT));
-            truth.push(ground);
+            truth.push(ReferenceMap::new(frame, 256)?.truth().ground.clone());
+            let areal = ReferenceMap::with_areal_bright_pixels(frame, 256, AREAL_SPLIT)?;
+            areal_truth.push(areal.truth().ground.clone());
         }
         let filtered_truth = filtered(&truth, &taps);
         let filtered_areal_truth = filtered(&areal_truth, &taps);

@@ -202,7 +202,28 @@ impl ReferenceMap {
     /// and points at the block's luminance centroid; blocks holding more than [`REFINE_SHARE`]
     /// of the luminance energy are kept as their full-resolution pixels.
     pub fn new(frame: &HdrFrame, max_width: u32) -> Result<Self, YardstickError> {
+        Self::with_areal_bright_pixels(frame, max_width, 1)
+    }
+
+    /// As [`ReferenceMap::new`], but the full-resolution pixels of the bright blocks are read
+    /// as areas rather than points: each is split into `split` × `split` sub-pixels at their
+    /// own centres, with their exact lat-long solid angles and the pixel's radiance (box
+    /// reconstruction). `split` 0 or 1 is [`ReferenceMap::new`].
+    ///
+    /// Why: the plain reference sums a sun pixel as one point at its centre, so its shadow is
+    /// hard-edged at exactly that direction, and an unfiltered light that holds exactly one sun
+    /// pixel sits there and matches it exactly, while a light anywhere else inside the pixel
+    /// (a temporally filtered one, say) is charged for the difference. The areal reference is
+    /// the better estimate of a real sun's penumbra (examples/reference_accuracy.rs splits the
+    /// whole hemisphere this way) and does not favour lights at pixel centres. The temporal
+    /// table (docs/quality.md) measures flicker against both.
+    pub fn with_areal_bright_pixels(
+        frame: &HdrFrame,
+        max_width: u32,
+        split: u32,
+    ) -> Result<Self, YardstickError> {
         check_latlong(frame)?;
+        let split = split.max(1) as usize;
         let (fw, fh) = (frame.width as usize, frame.height as usize);
         let factor = frame.width.div_ceil(max_width.max(1)).max(1);
         let f = factor as usize;
@@ -261,11 +282,34 @@ impl ReferenceMap {
                     for y in y0..y1 {
                         let omega = fine_omega[y * fw];
                         for x in x0..x1 {
-                            let mut e = [0.0; 3];
-                            add_scaled(&mut e, clean(frame.pixels[y * fw + x]), omega);
-                            map.dirs.push(fine_dir(x, y));
-                            map.energy.push(e);
-                            map.solid_angle.push(omega);
+                            let radiance = clean(frame.pixels[y * fw + x]);
+                            if split == 1 {
+                                let mut e = [0.0; 3];
+                                add_scaled(&mut e, radiance, omega);
+                                map.dirs.push(fine_dir(x, y));
+                                map.energy.push(e);
+                                map.solid_angle.push(omega);
+                                continue;
+                            }
+                            let s = split as f64;
+                            let theta = |j: f64| PI * (y as f64 + j / s) / fh as f64;
+                            for j in 0..split {
+                                let (top, bottom) = (theta(j as f64), theta(j as f64 + 1.0));
+                                let sub_omega =
+                                    2.0 * PI / (fw as f64 * s) * (top.cos() - bottom.cos());
+                                let (sin_t, cos_t) = theta(j as f64 + 0.5).sin_cos();
+                                for i in 0..split {
+                                    let phi =
+                                        2.0 * PI * (x as f64 + (i as f64 + 0.5) / s) / fw as f64;
+                                    let (sin_p, cos_p) = phi.sin_cos();
+                                    let mut e = [0.0; 3];
+                                    add_scaled(&mut e, radiance, sub_omega);
+                                    map.dirs
+                                        .push(DVec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p));
+                                    map.energy.push(e);
+                                    map.solid_angle.push(sub_omega);
+                                }
+                            }
                         }
                     }
                     continue;

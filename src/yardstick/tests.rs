@@ -348,3 +348,79 @@ fn coarse_reference_agrees_with_full_resolution_on_a_low_sun() {
         }
     }
 }
+
+#[test]
+fn areal_reference_splits_only_the_bright_pixels_and_keeps_their_energy() {
+    let frame = synthetic();
+    let plain = ReferenceMap::new(&frame, 64).unwrap();
+    assert_eq!(plain.factor(), 4);
+    assert!(plain.refined_blocks() >= 1, "the spot's blocks are kept");
+    let one = ReferenceMap::with_areal_bright_pixels(&frame, 64, 1).unwrap();
+    assert_eq!(one.directions(), plain.directions());
+    assert_eq!(one.energies(), plain.energies());
+
+    let areal = ReferenceMap::with_areal_bright_pixels(&frame, 64, 4).unwrap();
+    let fine_pixels = plain.refined_blocks() * 16;
+    assert_eq!(
+        areal.directions().len(),
+        plain.directions().len() + fine_pixels * 15,
+        "each full-resolution pixel of a bright block becomes 4 × 4 samples, nothing else"
+    );
+    let (a, p) = (areal.integral(), plain.integral());
+    for c in 0..3 {
+        assert!(
+            (a[c] - p[c]).abs() < 1e-12 * p[c],
+            "channel {c}: {a:?} vs {p:?}"
+        );
+    }
+    let total: f64 = areal.solid_angles().iter().sum();
+    assert!(
+        (total - 4.0 * PI).abs() < 1e-9,
+        "solid angles sum to {total}"
+    );
+    for d in areal.directions() {
+        assert!((d.length() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn areal_reference_gives_a_sun_pixel_a_penumbra() {
+    // One bright pixel (5.6° wide) and nothing else. As a point it lights each ground point
+    // fully or not at all; as an area, ground points near the sphere's shadow edge see part of
+    // it.
+    let frame = latlong(64, 32, |x, y| {
+        if (x, y) == (20, 10) {
+            [1e4, 1e4, 1e4]
+        } else {
+            [0.0; 3]
+        }
+    });
+    let sun_height = Projection::LatLong
+        .pixel_to_direction(64, 32, 20.5, 10.5)
+        .unwrap()
+        .y;
+    let full = lum([1e4; 3]) * Projection::LatLong.solid_angles(64, 32)[10 * 64] * sun_height;
+    let shares = |reference: &ReferenceMap| -> Vec<f64> {
+        reference
+            .truth()
+            .ground
+            .iter()
+            .map(|&g| lum(g) / full)
+            .collect()
+    };
+    let plain = shares(&ReferenceMap::new(&frame, 16).unwrap());
+    assert!(plain
+        .iter()
+        .all(|&s| s.abs() < 1e-9 || (s - 1.0).abs() < 1e-9));
+    let areal = shares(&ReferenceMap::with_areal_bright_pixels(&frame, 16, 8).unwrap());
+    let partial = areal.iter().filter(|&&s| s > 0.05 && s < 0.95).count();
+    assert!(partial >= 3, "{partial} ground points in the penumbra");
+    for (a, p) in areal.iter().zip(&plain) {
+        assert!(a.abs() < 1.1 && (a - p).abs() < 1.1, "{a} against {p}");
+    }
+    let (lit_a, lit_p): (f64, f64) = (areal.iter().sum(), plain.iter().sum());
+    assert!(
+        (lit_a - lit_p).abs() < 0.1 * lit_p,
+        "{lit_a} against {lit_p}"
+    );
+}
