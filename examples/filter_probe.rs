@@ -37,9 +37,10 @@
 //! SEQ=sky TRACE=1 cargo run --release --example filter_probe # the sun's lights, frames 20–33
 //! ```
 //!
-//! `TRACE=1` prints, for the lights within 1° of the sun in frame 20, each one's offset from the
-//! sun's centroid (in tenths of a degree) and its luminance, frame by frame: it shows the sun's
-//! few input pixels changing hands between ids.
+//! `TRACE=1` prints how many input pixels of frame 20 are above 1% of the brightest (the sun's
+//! size in pixels), then, for the lights within 1° of the sun in frame 20, each one's offset
+//! from the sun's centroid (in tenths of a degree) and its luminance, frame by frame: it shows
+//! the sun's few input pixels changing hands between ids.
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
@@ -322,6 +323,19 @@ fn main() -> Result<()> {
         let filtered_areal_truth = filtered(&areal_truth, &taps);
         let raw = unfiltered(frames)?;
         if std::env::var("TRACE").is_ok() {
+            if let Some(frame) = frames.get(20) {
+                let lums: Vec<f32> = frame
+                    .pixels
+                    .iter()
+                    .map(|&p| envlight::frame::luminance(p))
+                    .collect();
+                let brightest = lums.iter().copied().fold(0.0f32, f32::max);
+                let sun = lums.iter().filter(|&&l| l > 0.01 * brightest).count();
+                println!(
+                    "frame 20: {}×{}, {sun} pixels above 1% of the brightest",
+                    frame.width, frame.height
+                );
+            }
             trace_sun(&raw);
         }
         let mut fir = FirFilter::with_default_taps();
