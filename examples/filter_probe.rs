@@ -48,7 +48,7 @@ use envlight::decompose::filter::DEFAULT_TAPS;
 use envlight::decompose::{DecomposeSettings, Decomposer, FirFilter};
 use envlight::envmap::Projection;
 use envlight::light::Light;
-use envlight::yardstick::{flicker, light_irradiance, ReferenceMap};
+use envlight::yardstick::{flicker, light_irradiance, low_passed, ReferenceMap};
 use envlight::HdrFrame;
 use glam::DVec3;
 
@@ -60,23 +60,6 @@ const AREAL_SPLIT: u32 = 8;
 
 /// Irradiance at the evaluation points of every frame.
 type Series = Vec<Vec<[f64; 3]>>;
-
-fn rotated_by(frame: &HdrFrame, shift: f64) -> Option<HdrFrame> {
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    let whole = shift.floor();
-    let t = (shift - whole) as f32;
-    let s = whole as usize % w;
-    let mut pixels = Vec::with_capacity(w * h);
-    for y in 0..h {
-        let row = &frame.pixels[y * w..(y + 1) * w];
-        for x in 0..w {
-            let a = row[(x + s) % w];
-            let b = row[(x + s + 1) % w];
-            pixels.push(std::array::from_fn(|c| (1.0 - t) * a[c] + t * b[c]));
-        }
-    }
-    HdrFrame::new(frame.width, frame.height, pixels, Projection::LatLong)
-}
 
 fn lum(c: [f64; 3]) -> f64 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
@@ -186,23 +169,6 @@ fn rebin_filter(history: &[Vec<Light>], taps: &[f64]) -> Vec<Light> {
         .collect()
 }
 
-/// Σ_k w_k x(t−k) per evaluation point, the first value repeating before the start.
-fn filtered(series: &Series, taps: &[f64]) -> Series {
-    (0..series.len())
-        .map(|t| {
-            let mut acc = vec![[0.0; 3]; series[t].len()];
-            for (k, w) in taps.iter().enumerate() {
-                for (a, s) in acc.iter_mut().zip(&series[t.saturating_sub(k)]) {
-                    for (a, s) in a.iter_mut().zip(s) {
-                        *a += w * s;
-                    }
-                }
-            }
-            acc
-        })
-        .collect()
-}
-
 /// The frames filtered pixel by pixel with `taps` (the first frame repeating before the start).
 fn pixel_filtered(frames: &[HdrFrame], taps: &[f64]) -> Vec<HdrFrame> {
     (0..frames.len())
@@ -297,8 +263,8 @@ fn main() -> Result<()> {
         (
             "subpixel",
             (0..60)
-                .map(|t| rotated_by(&still, 0.37 * f64::from(t)).context("empty image"))
-                .collect::<Result<_>>()?,
+                .map(|t| still.turned_by(0.37 * f64::from(t)))
+                .collect(),
         ),
     ];
     let only = std::env::var("SEQ").ok();
@@ -319,8 +285,8 @@ fn main() -> Result<()> {
             let areal = ReferenceMap::with_areal_bright_pixels(frame, 256, AREAL_SPLIT)?;
             areal_truth.push(areal.truth().ground.clone());
         }
-        let filtered_truth = filtered(&truth, &taps);
-        let filtered_areal_truth = filtered(&areal_truth, &taps);
+        let filtered_truth = low_passed(&truth, &taps);
+        let filtered_areal_truth = low_passed(&areal_truth, &taps);
         let raw = unfiltered(frames)?;
         if std::env::var("TRACE").is_ok() {
             if let Some(frame) = frames.get(20) {

@@ -37,7 +37,7 @@ use envlight::decompose::{
     DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
 };
 use envlight::envmap::Projection;
-use envlight::yardstick::{flicker, light_irradiance, median_cut, ReferenceMap};
+use envlight::yardstick::{flicker, light_irradiance, low_passed, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
 
 const LIGHTS: usize = 256;
@@ -93,26 +93,6 @@ fn with_concentrated_lloyd(settings: Option<DecomposeSettings>) -> Option<Decomp
 /// copy of the previous frame shifted.
 const SUB_PIXEL_STEP: f64 = 0.37;
 
-/// The map turned about the vertical axis by `shift` input pixels (linear interpolation between
-/// columns, wrapping around).
-fn rotated_by(frame: &HdrFrame, shift: f64) -> HdrFrame {
-    let (w, h) = (frame.width as usize, frame.height as usize);
-    let whole = shift.floor();
-    let t = (shift - whole) as f32;
-    let s = whole as usize % w;
-    let mut pixels = Vec::with_capacity(w * h);
-    for y in 0..h {
-        let row = &frame.pixels[y * w..(y + 1) * w];
-        for x in 0..w {
-            let a = row[(x + s) % w];
-            let b = row[(x + s + 1) % w];
-            pixels.push(std::array::from_fn(|c| (1.0 - t) * a[c] + t * b[c]));
-        }
-    }
-    HdrFrame::new(frame.width, frame.height, pixels, Projection::LatLong)
-        .unwrap_or_else(|| frame.clone())
-}
-
 fn angle_deg(a: [f32; 3], b: [f32; 3]) -> f64 {
     let dot: f64 = a
         .iter()
@@ -151,25 +131,6 @@ fn truths(frames: &[HdrFrame]) -> Result<Truths> {
         truths.areal_ground.push(areal.truth().ground.clone());
     }
     Ok(truths)
-}
-
-/// Σ_k w_k x(t−k) per evaluation point with normalised `taps` (newest first), the first value
-/// repeating before the start, as the filter starts.
-fn low_passed(series: &Series, taps: &[f64]) -> Series {
-    let sum: f64 = taps.iter().sum();
-    (0..series.len())
-        .map(|t| {
-            let mut acc = vec![[0.0; 3]; series[t].len()];
-            for (k, w) in taps.iter().enumerate() {
-                for (a, s) in acc.iter_mut().zip(&series[t.saturating_sub(k)]) {
-                    for (a, s) in a.iter_mut().zip(s) {
-                        *a += w / sum * s;
-                    }
-                }
-            }
-            acc
-        })
-        .collect()
 }
 
 fn row(sequence: &str, frames: &[HdrFrame], truths: &Truths, method: &Method) -> Result<String> {
@@ -252,7 +213,7 @@ fn main() -> Result<()> {
         .context("empty image")?;
     let pan: Vec<HdrFrame> = (0..60).map(|t| still.turned_columns(t)).collect();
     let slow_pan: Vec<HdrFrame> = (0..60)
-        .map(|t| rotated_by(&still, SUB_PIXEL_STEP * f64::from(t)))
+        .map(|t| still.turned_by(SUB_PIXEL_STEP * f64::from(t)))
         .collect();
     let options = SkyOptions::default();
     let sky: Vec<HdrFrame> = (0..90)

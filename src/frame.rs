@@ -75,6 +75,30 @@ impl HdrFrame {
         }
     }
 
+    /// As [`HdrFrame::turned_columns`] for a shift that need not be whole: pixel x of the result
+    /// is (1 − t)·pixel(x + s) + t·pixel(x + s + 1) of `self`, with s = ⌊shift⌋ and
+    /// t = shift − s, columns wrapping around (linear interpolation). So no frame of a slow pan
+    /// is an exact pixel shift of another, as with a real camera. A shift that is not finite
+    /// is read as 0.
+    pub fn turned_by(&self, shift: f64) -> HdrFrame {
+        let shift = if shift.is_finite() { shift } else { 0.0 };
+        let w = self.width as usize;
+        let whole = shift.floor();
+        let t = (shift - whole) as f32;
+        let s = whole.rem_euclid(w as f64) as usize % w.max(1);
+        let mut pixels = Vec::with_capacity(self.pixels.len());
+        for row in self.pixels.chunks_exact(w) {
+            for x in 0..w {
+                let (a, b) = (row[(x + s) % w], row[(x + s + 1) % w]);
+                pixels.push(std::array::from_fn(|c| (1.0 - t) * a[c] + t * b[c]));
+            }
+        }
+        HdrFrame {
+            pixels,
+            ..self.clone()
+        }
+    }
+
     /// Replaces NaN, ±Inf and negative channel values by 0 and returns how many pixels had one.
     /// Radiance is non-negative and finite; callers report the count (one warning per frame).
     pub fn sanitize(&mut self) -> usize {
@@ -108,6 +132,22 @@ mod tests {
         assert_eq!((turned.width, turned.height, turned.seq), (4, 3, 7));
         assert_eq!(frame.turned_columns(4), frame);
         assert_eq!(frame.turned_columns(5), turned);
+    }
+
+    #[test]
+    fn turned_by_interpolates_between_whole_turns() {
+        let pixels = (0..12).map(|i| [i as f32, 1.0, 0.0]).collect();
+        let frame = HdrFrame::new(4, 3, pixels, Projection::LatLong).unwrap();
+        for whole in [0usize, 1, 3, 4, 7] {
+            assert_eq!(frame.turned_by(whole as f64), frame.turned_columns(whole));
+        }
+        assert_eq!(frame.turned_by(-1.0), frame.turned_columns(3));
+        let half = frame.turned_by(1.5);
+        let red: Vec<f32> = half.pixels.iter().map(|p| p[0]).collect();
+        // Row 0 turned by 1 is [1, 2, 3, 0], by 2 is [2, 3, 0, 1]: halfway between.
+        assert_eq!(red[..4], [1.5, 2.5, 1.5, 0.5]);
+        assert!(half.pixels.iter().all(|p| p[1] == 1.0));
+        assert_eq!(frame.turned_by(f64::NAN), frame);
     }
 
     #[test]

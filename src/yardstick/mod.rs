@@ -575,6 +575,30 @@ pub fn flicker(approx: &[Vec<[f64; 3]>], truth: &[Vec<[f64; 3]>]) -> f64 {
     ratio(num.sqrt(), den.sqrt())
 }
 
+/// A series of per-point values (one `Vec` per frame) passed through FIR `taps` (newest first,
+/// normalised to sum to 1): Σ_k w_k x(t−k), the first frame repeating before the start as
+/// [`crate::decompose::FirFilter`] starts. The truth a filtered light stream should be compared
+/// with when the filter is not to be charged for its lag or for smoothing the truth's own
+/// changes (docs/quality.md, "Temporal stability"). Taps that do not sum to a positive finite
+/// number leave the series as it is.
+pub fn low_passed(series: &[Vec<[f64; 3]>], taps: &[f64]) -> Vec<Vec<[f64; 3]>> {
+    let sum: f64 = taps.iter().sum();
+    if !(sum.is_finite() && sum > 0.0) {
+        return series.to_vec();
+    }
+    (0..series.len())
+        .map(|t| {
+            let mut acc = vec![[0.0; 3]; series[t].len()];
+            for (k, w) in taps.iter().enumerate() {
+                for (a, x) in acc.iter_mut().zip(&series[t.saturating_sub(k)]) {
+                    add_scaled(a, *x, w / sum);
+                }
+            }
+            acc
+        })
+        .collect()
+}
+
 /// All yardsticks of one light list (relative errors on luminance; 0 is perfect).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QualityReport {

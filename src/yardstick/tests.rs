@@ -424,3 +424,21 @@ fn areal_reference_gives_a_sun_pixel_a_penumbra() {
         "{lit_a} against {lit_p}"
     );
 }
+
+#[test]
+fn low_passed_keeps_a_constant_and_delays_a_step() {
+    let step: Vec<Vec<[f64; 3]>> = (0..6)
+        .map(|t| vec![if t < 2 { [1.0; 3] } else { [3.0, 5.0, 7.0] }])
+        .collect();
+    let out = low_passed(&step, &[1.0, 2.0, 1.0]);
+    let red: Vec<f64> = out.iter().map(|v| v[0][0]).collect();
+    assert_eq!(red, [1.0, 1.0, 1.5, 2.5, 3.0, 3.0]);
+    assert_eq!(out[3][0], [2.5, 4.0, 5.5]);
+    let constant = vec![vec![[2.0, 4.0, 8.0]; 3]; 4];
+    assert_eq!(
+        low_passed(&constant, &[1.0, 6.0, 15.0, 20.0, 15.0, 6.0, 1.0]),
+        constant
+    );
+    assert_eq!(low_passed(&step, &[0.0, 0.0]), step);
+    assert_eq!(low_passed(&step, &[f64::NAN]), step);
+}
