@@ -12,6 +12,8 @@
 //!   the first group whose power-weighted mean lies within A°); the group holding the newest
 //!   sample keeps the id and the others are emitted as extra, fading lights. Role changes (a
 //!   light jumping from the sun to the sky) are then never blended into one direction;
+//! - `fir, bright in cones`: `cluster 0.1°` for the lights brighter than 10 × the frame's mean
+//!   light (a sun's), the per-id filter for the others;
 //! - `union`: every sample of the window is its own light, scaled by its tap — the exact
 //!   linear filter of the light lists (≈ 7 × the lights);
 //! - `rebin`: each sample of the window goes to the current frame's nearest light, which takes
@@ -55,6 +57,10 @@ use glam::DVec3;
 const LIGHTS: usize = 256;
 /// Ids of the extra lights of the `cluster` variants start here (above any point-set index).
 const EXTRA_ID_BASE: usize = 1 << 24;
+/// `fir, bright in cones`: lights brighter than this × the frame's mean light are grouped…
+const BRIGHT_FACTOR: f64 = 10.0;
+/// … in cones of this angle (degrees).
+const BRIGHT_CONE_DEG: f64 = 0.1;
 /// Sub-pixels per side of the areal truth's bright pixels (4 and 8 agree to 0.0001 here).
 const AREAL_SPLIT: u32 = 8;
 
@@ -141,6 +147,38 @@ fn cluster_filter(history: &[Vec<Light>], taps: &[f64], cos_max: f64) -> Vec<Lig
             out.push(light_at(id, dir, g.rgb, g.solid_angle));
         }
     }
+    out
+}
+
+/// The `fir, bright in cones` variant for the newest frame of `history`: a light brighter than
+/// [`BRIGHT_FACTOR`] × the frame's mean light has its window grouped in cones of
+/// [`BRIGHT_CONE_DEG`] (smaller than an input pixel, so samples that held different pixels of
+/// a sun stay apart, and older groups fade out as extra lights); every other light is filtered
+/// as by the per-id filter (one group).
+fn bright_in_cones(history: &[Vec<Light>], taps: &[f64]) -> Vec<Light> {
+    let newest = &history[history.len() - 1];
+    let mean =
+        newest.iter().map(|l| f64::from(l.luminance())).sum::<f64>() / newest.len().max(1) as f64;
+    let bright_ids: std::collections::HashSet<u32> = newest
+        .iter()
+        .filter(|l| f64::from(l.luminance()) > BRIGHT_FACTOR * mean)
+        .map(|l| l.id)
+        .collect();
+    let parent = |id: u32| {
+        let id = id as usize;
+        if id >= EXTRA_ID_BASE {
+            ((id - EXTRA_ID_BASE) / 64) as u32
+        } else {
+            id as u32
+        }
+    };
+    let cones = cluster_filter(history, taps, BRIGHT_CONE_DEG.to_radians().cos());
+    let plain = cluster_filter(history, taps, -1.0);
+    let mut out: Vec<Light> = cones
+        .into_iter()
+        .filter(|l| bright_ids.contains(&parent(l.id)))
+        .collect();
+    out.extend(plain.into_iter().filter(|l| !bright_ids.contains(&l.id)));
     out
 }
 
@@ -325,6 +363,10 @@ fn main() -> Result<()> {
                 each_frame(&|h| cluster_filter(h, &taps, cos)),
             ));
         }
+        variants.push((
+            "fir, bright in cones".into(),
+            each_frame(&|h| bright_in_cones(h, &taps)),
+        ));
         variants.push((
             "union".into(),
             each_frame(&|h| cluster_filter(h, &taps, 1.0)),
