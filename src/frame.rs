@@ -83,9 +83,12 @@ impl HdrFrame {
     pub fn turned_by(&self, shift: f64) -> HdrFrame {
         let shift = if shift.is_finite() { shift } else { 0.0 };
         let w = self.width as usize;
+        if w == 0 {
+            return self.clone();
+        }
         let whole = shift.floor();
         let t = (shift - whole) as f32;
-        let s = whole.rem_euclid(w as f64) as usize % w.max(1);
+        let s = whole.rem_euclid(w as f64) as usize % w;
         let mut pixels = Vec::with_capacity(self.pixels.len());
         for row in self.pixels.chunks_exact(w) {
             for x in 0..w {

@@ -17,6 +17,9 @@
 //! with block centres and no refinement, 0.009 against a full-resolution reference.)
 //! All ground-truth quantities below are sums over these coarse pixels, computed once per map
 //! ([`ReferenceMap::truth`], cached) because a table evaluates several light lists per map.
+//! [`ReferenceMap::with_areal_bright_pixels`] reads the kept full-resolution pixels as areas
+//! (s × s sub-pixels each) instead of points: the temporal table's fairer truth for lights that
+//! do not sit at a sun pixel's centre.
 //!
 //! # Yardsticks
 //!
@@ -38,7 +41,9 @@
 //!   shadow and the lit ground around it.
 //! - [`energy_error`]: |Σ light luminance − ∫L dω luminance| / ∫L dω luminance.
 //!
-//! [`evaluate`] returns all of them as a [`QualityReport`].
+//! [`evaluate`] returns all of them as a [`QualityReport`]. Over a sequence, [`flicker`] measures
+//! how much a light stream's irradiance changes from frame to frame beyond the truth's change;
+//! [`low_passed`] gives the truth a temporal filter's stream should be compared with.
 
 mod median_cut;
 
