@@ -21,7 +21,7 @@
 //! - `pixels`: the input frames filtered pixel by pixel, then decomposed without a filter.
 //!
 //! Columns: the ground-shadow flicker of the temporal table (against the truth; against the
-//! truth delayed by the filter's 3 frames), the same against the *equally filtered truth*
+//! truth delayed by the filter's delay, 3 frames), the same against the *equally filtered truth*
 //! (Σ_k w_k truth(t−k): what a perfect low-pass of the map would show, so a filter is not
 //! charged for smoothing the truth's own changes), the same against the equally filtered
 //! *areal* truth, the mean number of lights per frame, and the largest move per frame of a
@@ -34,7 +34,7 @@
 //! one, say) is charged for it. The areal truth reads the bright pixels as areas.
 //!
 //! ```text
-//! cargo run --release --example filter_probe                 # all four sequences, ~3 min
+//! cargo run --release --example filter_probe                 # all four sequences, ~80 s
 //! SEQ=sky cargo run --release --example filter_probe         # one of sky, cloud, pan, subpixel
 //! SEQ=sky TRACE=1 cargo run --release --example filter_probe # the sun's lights, frames 20–33
 //! ```
@@ -46,8 +46,8 @@
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
-use envlight::decompose::filter::DEFAULT_TAPS;
-use envlight::decompose::{DecomposeSettings, Decomposer, FirFilter};
+use envlight::decompose::filter::{DEFAULT_TAPS, MAX_TAPS};
+use envlight::decompose::{luminance_f64 as lum, DecomposeSettings, Decomposer, FirFilter};
 use envlight::envmap::Projection;
 use envlight::light::Light;
 use envlight::yardstick::{flicker, light_irradiance, low_passed, ReferenceMap};
@@ -61,15 +61,12 @@ const EXTRA_ID_BASE: usize = 1 << 24;
 const BRIGHT_FACTOR: f64 = 10.0;
 /// … in cones of this angle (degrees).
 const BRIGHT_CONE_DEG: f64 = 0.1;
-/// Sub-pixels per side of the areal truth's bright pixels (4 and 8 agree to 0.0001 here).
+/// Sub-pixels per side of the areal truth's bright pixels (4 and 8 agreed to 0.0001 on the sky
+/// sequence, measured with a first version of the areal truth).
 const AREAL_SPLIT: u32 = 8;
 
 /// Irradiance at the evaluation points of every frame.
 type Series = Vec<Vec<[f64; 3]>>;
-
-fn lum(c: [f64; 3]) -> f64 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
-}
 
 fn direction(l: &Light) -> DVec3 {
     DVec3::from_array(l.dir.map(f64::from))
@@ -121,10 +118,17 @@ fn window_of(history: &[Vec<Light>], id: u32, taps: usize) -> Vec<Light> {
     out
 }
 
-/// The `cluster` variant (`cos_max` = cos A) for the newest frame of `history`; A = 0 is `union`.
-fn cluster_filter(history: &[Vec<Light>], taps: &[f64], cos_max: f64) -> Vec<Light> {
+/// The `cluster` variants for the newest frame of `history`: each light's window is grouped in
+/// cones whose cosine `cos_max` gives for that light (1: `union`; −1: one group, the per-id
+/// filter).
+fn cluster_filter(
+    history: &[Vec<Light>],
+    taps: &[f64],
+    cos_max: impl Fn(&Light) -> f64,
+) -> Vec<Light> {
     let mut out = Vec::new();
     for newest in &history[history.len() - 1] {
+        let cos_max = cos_max(newest);
         let mut groups: Vec<Sum> = Vec::new();
         for (w, sample) in taps.iter().zip(window_of(history, newest.id, taps.len())) {
             let d = direction(&sample);
@@ -141,7 +145,7 @@ fn cluster_filter(history: &[Vec<Light>], taps: &[f64], cos_max: f64) -> Vec<Lig
             let id = if i == 0 {
                 newest.id as usize
             } else {
-                EXTRA_ID_BASE + newest.id as usize * 64 + i
+                EXTRA_ID_BASE + newest.id as usize * MAX_TAPS + i
             };
             let dir = g.weighted_dir.try_normalize().unwrap_or(direction(newest));
             out.push(light_at(id, dir, g.rgb, g.solid_angle));
@@ -159,27 +163,14 @@ fn bright_in_cones(history: &[Vec<Light>], taps: &[f64]) -> Vec<Light> {
     let newest = &history[history.len() - 1];
     let mean =
         newest.iter().map(|l| f64::from(l.luminance())).sum::<f64>() / newest.len().max(1) as f64;
-    let bright_ids: std::collections::HashSet<u32> = newest
-        .iter()
-        .filter(|l| f64::from(l.luminance()) > BRIGHT_FACTOR * mean)
-        .map(|l| l.id)
-        .collect();
-    let parent = |id: u32| {
-        let id = id as usize;
-        if id >= EXTRA_ID_BASE {
-            ((id - EXTRA_ID_BASE) / 64) as u32
+    let cone = BRIGHT_CONE_DEG.to_radians().cos();
+    cluster_filter(history, taps, |l| {
+        if f64::from(l.luminance()) > BRIGHT_FACTOR * mean {
+            cone
         } else {
-            id as u32
+            -1.0
         }
-    };
-    let cones = cluster_filter(history, taps, BRIGHT_CONE_DEG.to_radians().cos());
-    let plain = cluster_filter(history, taps, -1.0);
-    let mut out: Vec<Light> = cones
-        .into_iter()
-        .filter(|l| bright_ids.contains(&parent(l.id)))
-        .collect();
-    out.extend(plain.into_iter().filter(|l| !bright_ids.contains(&l.id)));
-    out
+    })
 }
 
 /// The `rebin` variant for the newest frame of `history`.
@@ -343,6 +334,7 @@ fn main() -> Result<()> {
             trace_sun(&raw);
         }
         let mut fir = FirFilter::with_default_taps();
+        let delay_frames = fir.delay_frames().round() as usize;
         let fir_lights = raw
             .iter()
             .map(|l| {
@@ -360,7 +352,7 @@ fn main() -> Result<()> {
             let cos = angle.to_radians().cos();
             variants.push((
                 format!("cluster {angle}°"),
-                each_frame(&|h| cluster_filter(h, &taps, cos)),
+                each_frame(&|h| cluster_filter(h, &taps, |_| cos)),
             ));
         }
         variants.push((
@@ -369,7 +361,7 @@ fn main() -> Result<()> {
         ));
         variants.push((
             "union".into(),
-            each_frame(&|h| cluster_filter(h, &taps, 1.0)),
+            each_frame(&|h| cluster_filter(h, &taps, |_| 1.0)),
         ));
         variants.push(("rebin".into(), each_frame(&|h| rebin_filter(h, &taps))));
         variants.push(("pixels".into(), unfiltered(&pixel_filtered(frames, &taps))?));
@@ -385,7 +377,7 @@ fn main() -> Result<()> {
                 }
             }
             let is_filtered = variant != "none";
-            let delay = if is_filtered { 3 } else { 0 };
+            let delay = if is_filtered { delay_frames } else { 0 };
             let (reference, areal_reference) = if is_filtered {
                 (&filtered_truth, &filtered_areal_truth)
             } else {
