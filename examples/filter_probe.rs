@@ -7,13 +7,17 @@
 //! them unfiltered:
 //!
 //! - `none`: no filter;
-//! - `fir`: the library's per-id filter ([`FirFilter`]), one light per id;
+//! - `fir, blend`: the library's per-id filter ([`FirFilter`]) with [`BrightHistory::Blend`],
+//!   one light per id, a per-id mean for every light (the filter before 2026-12-01);
 //! - `cluster A°`: per id, the window's samples are grouped into cones of A° (each sample joins
 //!   the first group whose power-weighted mean lies within A°); the group holding the newest
 //!   sample keeps the id and the others are emitted as extra, fading lights. Role changes (a
 //!   light jumping from the sun to the sky) are then never blended into one direction;
-//! - `fir, bright in cones`: `cluster 0.1°` for the lights brighter than 10 × the frame's mean
-//!   light (a sun's), the per-id filter for the others;
+//! - `fir, fold` (the default) and `fir, fade`: the library's filter with
+//!   [`BrightHistory::Fold`] / [`BrightHistory::Fade`]: `cluster 0.1°` for the lights brighter
+//!   than 10 × the frame's mean light (a sun's), the per-id mean for the others; the older
+//!   groups go to the nearest light (`fold`) or are extra lights (`fade`). (The probe's own
+//!   version of both, before they were in the library, gave the same table to the last digit.)
 //! - `union`: every sample of the window is its own light, scaled by its tap — the exact
 //!   linear filter of the light lists (≈ 7 × the lights);
 //! - `rebin`: each sample of the window goes to the current frame's nearest light, which takes
@@ -47,7 +51,9 @@ use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::filter::{DEFAULT_TAPS, MAX_TAPS};
-use envlight::decompose::{luminance_f64 as lum, DecomposeSettings, Decomposer, FirFilter};
+use envlight::decompose::{
+    luminance_f64 as lum, BrightHistory, DecomposeSettings, Decomposer, FirFilter,
+};
 use envlight::envmap::Projection;
 use envlight::light::Light;
 use envlight::yardstick::{flicker, light_irradiance, low_passed, ReferenceMap};
@@ -57,10 +63,6 @@ use glam::DVec3;
 const LIGHTS: usize = 256;
 /// Ids of the extra lights of the `cluster` variants start here (above any point-set index).
 const EXTRA_ID_BASE: usize = 1 << 24;
-/// `fir, bright in cones`: lights brighter than this × the frame's mean light are grouped…
-const BRIGHT_FACTOR: f64 = 10.0;
-/// … in cones of this angle (degrees).
-const BRIGHT_CONE_DEG: f64 = 0.1;
 /// Sub-pixels per side of the areal truth's bright pixels (4 and 8 agreed to 0.0001 on the sky
 /// sequence, measured with a first version of the areal truth).
 const AREAL_SPLIT: u32 = 8;
@@ -152,25 +154,6 @@ fn cluster_filter(
         }
     }
     out
-}
-
-/// The `fir, bright in cones` variant for the newest frame of `history`: a light brighter than
-/// [`BRIGHT_FACTOR`] × the frame's mean light has its window grouped in cones of
-/// [`BRIGHT_CONE_DEG`] (smaller than an input pixel, so samples that held different pixels of
-/// a sun stay apart, and older groups fade out as extra lights); every other light is filtered
-/// as by the per-id filter (one group).
-fn bright_in_cones(history: &[Vec<Light>], taps: &[f64]) -> Vec<Light> {
-    let newest = &history[history.len() - 1];
-    let mean =
-        newest.iter().map(|l| f64::from(l.luminance())).sum::<f64>() / newest.len().max(1) as f64;
-    let cone = BRIGHT_CONE_DEG.to_radians().cos();
-    cluster_filter(history, taps, |l| {
-        if f64::from(l.luminance()) > BRIGHT_FACTOR * mean {
-            cone
-        } else {
-            -1.0
-        }
-    })
 }
 
 /// The `rebin` variant for the newest frame of `history`.
@@ -333,21 +316,25 @@ fn main() -> Result<()> {
             }
             trace_sun(&raw);
         }
-        let mut fir = FirFilter::with_default_taps();
-        let delay_frames = fir.delay_frames().round() as usize;
-        let fir_lights = raw
-            .iter()
-            .map(|l| {
-                let mut l = l.clone();
-                fir.apply(&mut l);
-                l
-            })
-            .collect();
+        let library = |bright: BrightHistory| -> Vec<Vec<Light>> {
+            let mut fir = FirFilter::with_default_taps().with_bright_history(bright);
+            raw.iter()
+                .map(|l| {
+                    let mut l = l.clone();
+                    fir.apply(&mut l);
+                    l
+                })
+                .collect()
+        };
+        let delay_frames = FirFilter::with_default_taps().delay_frames().round() as usize;
+        let fir_lights = library(BrightHistory::Blend);
         let each_frame = |f: &dyn Fn(&[Vec<Light>]) -> Vec<Light>| {
             (0..raw.len()).map(|t| f(&raw[..=t])).collect::<Vec<_>>()
         };
-        let mut variants: Vec<(String, Vec<Vec<Light>>)> =
-            vec![("none".into(), raw.clone()), ("fir".into(), fir_lights)];
+        let mut variants: Vec<(String, Vec<Vec<Light>>)> = vec![
+            ("none".into(), raw.clone()),
+            ("fir, blend".into(), fir_lights),
+        ];
         for angle in [2.0f64, 10.0, 30.0] {
             let cos = angle.to_radians().cos();
             variants.push((
@@ -355,10 +342,8 @@ fn main() -> Result<()> {
                 each_frame(&|h| cluster_filter(h, &taps, |_| cos)),
             ));
         }
-        variants.push((
-            "fir, bright in cones".into(),
-            each_frame(&|h| bright_in_cones(h, &taps)),
-        ));
+        variants.push(("fir, fold".into(), library(BrightHistory::Fold)));
+        variants.push(("fir, fade".into(), library(BrightHistory::Fade)));
         variants.push((
             "union".into(),
             each_frame(&|h| cluster_filter(h, &taps, |_| 1.0)),

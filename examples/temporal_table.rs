@@ -19,8 +19,10 @@
 //! method's own filter taps (unfiltered methods: the areal truth itself), so that a filter is
 //! charged neither for its lag nor for smoothing the truth's own changes, nor for lights that
 //! do not sit at a sun pixel's centre; and how far lights with the same id move per frame (mean,
-//! 99th percentile and maximum over ids and frames). Median cut has no stable ids, so its
-//! movement is not given. The truth is computed once per sequence.
+//! 99th percentile and maximum over ids and frames; with `fade`, its fading lights count too).
+//! Median cut has no stable ids, so its movement is not given. The truth is computed once per
+//! sequence. "envlight (filter on)" is the default, whose filter folds the windows of bright
+//! lights (`bright_history = "fold"`); the `fade` and `blend` rows are its alternatives.
 //!
 //! ```text
 //! cargo run --release --example temporal_table -- tests/data/rooitou_park_1k.hdr
@@ -34,7 +36,7 @@ use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{
-    DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
+    BrightHistory, DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
 };
 use envlight::envmap::Projection;
 use envlight::yardstick::{flicker, light_irradiance, low_passed, median_cut, ReferenceMap};
@@ -85,6 +87,14 @@ fn envlight_warp(
 fn with_concentrated_lloyd(settings: Option<DecomposeSettings>) -> Option<DecomposeSettings> {
     settings.map(|s| DecomposeSettings {
         concentrated_lloyd: true,
+        ..s
+    })
+}
+
+/// The default with the filter treating bright lights' windows as `bright` says.
+fn with_bright_history(bright: BrightHistory) -> Option<DecomposeSettings> {
+    envlight(true, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT).map(|s| DecomposeSettings {
+        bright_history: bright,
         ..s
     })
 }
@@ -237,6 +247,14 @@ fn main() -> Result<()> {
         Method {
             name: "envlight (filter on)",
             settings: envlight(true, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT),
+        },
+        Method {
+            name: "envlight, filter with `fade`",
+            settings: with_bright_history(BrightHistory::Fade),
+        },
+        Method {
+            name: "envlight, filter with `blend` (before 2026-12-01)",
+            settings: with_bright_history(BrightHistory::Blend),
         },
         Method {
             name: "envlight, no filter",

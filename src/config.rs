@@ -9,7 +9,9 @@
 
 use crate::capture::sky::SkyOptions;
 use crate::decompose::filter::FirFilter;
-use crate::decompose::{DecomposeSettings, LightPlacement, Warp, MAX_POINTS, WORKING_WIDTH_RANGE};
+use crate::decompose::{
+    BrightHistory, DecomposeSettings, LightPlacement, Warp, MAX_POINTS, WORKING_WIDTH_RANGE,
+};
 use crate::envmap::{FisheyeCalibration, FisheyeModel, Projection};
 use crate::stream::{FanoutOn, ServerConfig};
 use serde::Deserialize;
@@ -227,6 +229,7 @@ pub struct RawDecompose {
     pub pdf_exponent: Option<f64>,
     pub concentrated_lloyd: Option<bool>,
     pub refine_concentrated: Option<bool>,
+    pub bright_history: Option<String>,
 }
 
 impl RawConfig {
@@ -863,6 +866,11 @@ pub fn parse_warp(s: &str) -> Option<Warp> {
     }
 }
 
+/// Parses a `--bright-history` / `decompose.bright_history` value.
+pub fn parse_bright_history(s: &str) -> Option<BrightHistory> {
+    BrightHistory::ALL.into_iter().find(|b| b.name() == s)
+}
+
 /// Parses a fisheye model name (`equidistant`, `equisolid`, `stereographic`, `orthographic`).
 pub fn parse_fisheye_model(s: &str) -> Option<FisheyeModel> {
     FisheyeModel::ALL.into_iter().find(|m| m.name() == s)
@@ -1084,6 +1092,16 @@ impl RawDecompose {
                 invalid("decompose.warp", s, "must be \"rows\" or \"hierarchical\"")
             })?,
         };
+        let bright_history = match self.bright_history.as_deref() {
+            None => d.bright_history,
+            Some(s) => parse_bright_history(s).ok_or_else(|| {
+                invalid(
+                    "decompose.bright_history",
+                    s,
+                    "must be \"fold\", \"fade\" or \"blend\"",
+                )
+            })?,
+        };
         let taps = match &self.filter_taps {
             None => d.filter_taps.clone().unwrap_or_default(),
             Some(taps) => {
@@ -1125,6 +1143,7 @@ impl RawDecompose {
             warp,
             concentrated_lloyd: self.concentrated_lloyd.unwrap_or(d.concentrated_lloyd),
             refine_concentrated: self.refine_concentrated.unwrap_or(d.refine_concentrated),
+            bright_history,
         })
     }
 }
@@ -1193,6 +1212,7 @@ mod tests {
             "warp",
             "concentrated_lloyd",
             "refine_concentrated",
+            "bright_history",
             "enabled",
             "lobes",
             "fit_height",
@@ -1324,6 +1344,11 @@ mod tests {
                 "refine_concentrated",
                 "1",
             ),
+            (
+                "[decompose]\nbright_history = \"merge\"",
+                "decompose.bright_history",
+                "merge",
+            ),
         ] {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");
@@ -1337,7 +1362,7 @@ mod tests {
              projection = \"fisheye\"\n[source.fisheye]\nmodel = \"equisolid\"\nfov_deg = 190\n\
              center = [10.0, 12.0]\n[decompose]\nlights = 64\nfilter = false\nmerge = false\n\
              placement = \"sample-point\"\nconcentrated_lloyd = true\n\
-             refine_concentrated = false\n",
+             refine_concentrated = false\nbright_history = \"fade\"\n",
         )
         .unwrap();
         assert_eq!(c.source.kind, SourceKind::Sequence);
@@ -1355,6 +1380,7 @@ mod tests {
         assert_eq!(c.decompose.placement, LightPlacement::SamplePoint);
         assert!(c.decompose.concentrated_lloyd);
         assert!(!c.decompose.refine_concentrated);
+        assert_eq!(c.decompose.bright_history, BrightHistory::Fade);
     }
 
     #[test]

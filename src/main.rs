@@ -9,7 +9,7 @@ use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
 use envlight::config::{Config, ConfigError, RawConfig, SourceKind};
 use envlight::daemon::{Daemon, DaemonOptions};
-use envlight::decompose::Decomposer;
+use envlight::decompose::{BrightHistory, Decomposer};
 use envlight::envmap::Projection;
 use envlight::record::Pacing;
 use std::io::{IsTerminal, Write};
@@ -315,6 +315,18 @@ enum WarpArg {
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
+enum BrightHistoryArg {
+    /// Group the window in 0.1° cones; older groups go to the light nearest to them now
+    /// (default; ids and count stay those of the point set).
+    Fold,
+    /// Group the window in 0.1° cones; older groups are extra lights (ids from 2^24) that fade
+    /// out over the window.
+    Fade,
+    /// The plain per-id mean (the filter before 2026-12-01).
+    Blend,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum PlacementArg {
     /// Luminance-weighted centroid of the light's region (most accurate).
     Centroid,
@@ -428,6 +440,12 @@ struct DecomposeArgs {
     /// 7–10% more time per frame on the benchmark's map).
     #[arg(long)]
     no_refine_concentrated: bool,
+
+    /// What the filter does with the window of a light brighter than 10× the frame's mean light
+    /// (a sun's or a lamp's, whose few pixels change hands between lights): see
+    /// docs/quality.md, "Temporal stability". [default: fold]
+    #[arg(long, value_enum, value_name = "HOW")]
+    bright_history: Option<BrightHistoryArg>,
 
     /// Size of the built-in sky map in pixels. [default: 512x256]
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
@@ -612,6 +630,17 @@ impl DecomposeArgs {
         if self.no_refine_concentrated {
             dec.refine_concentrated = Some(false);
         }
+        if let Some(b) = self.bright_history {
+            dec.bright_history = Some(
+                match b {
+                    BrightHistoryArg::Fold => BrightHistory::Fold,
+                    BrightHistoryArg::Fade => BrightHistory::Fade,
+                    BrightHistoryArg::Blend => BrightHistory::Blend,
+                }
+                .name()
+                .into(),
+            );
+        }
         if let Some(p) = self.placement {
             dec.placement = Some(
                 match p {
@@ -767,12 +796,13 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     );
     println!(
         "  decompose: {} lights, warp {:?}, refinement of concentrated sources {}, concentrated \
-         Lloyd step {}, filter {}",
+         Lloyd step {}, filter {} (bright lights: {})",
         config.decompose.lights,
         config.decompose.warp,
         on_off(config.decompose.refine_concentrated),
         on_off(config.decompose.concentrated_lloyd),
-        on_off(config.decompose.filter_taps.is_some())
+        on_off(config.decompose.filter_taps.is_some()),
+        config.decompose.bright_history.name()
     );
     println!(
         "  stream: unix {}, tcp {}, websocket {}, at most {} clients",
@@ -1039,7 +1069,10 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         on_off(d.concentrated_lloyd),
         d.filter_taps
             .as_ref()
-            .map_or("off".to_string(), |t| format!("{t:?}")),
+            .map_or("off".to_string(), |t| format!(
+                "{t:?}, bright lights: {}",
+                d.bright_history.name()
+            )),
         d.merge_spacing_fraction
             .map_or("off".to_string(), |f| format!("at {f} of the spacing")),
     );

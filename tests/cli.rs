@@ -168,6 +168,23 @@ fn options_are_accepted() {
     let o = decompose_small_sky(2, 16, &["--concentrated-lloyd"]);
     assert_logged(&o, "concentrated Lloyd step on");
     assert_eq!(check_frames(&stdout(&o), 16).len(), 2);
+
+    let o = decompose_small_sky(2, 8, &[]);
+    assert_logged(&o, "bright lights: fold");
+    // `fade` may add fading lights (ids from 2^24); every other id is a point-set index.
+    let o = decompose_small_sky(12, 16, &["--bright-history", "fade"]);
+    assert_logged(&o, "bright lights: fade");
+    for frame in check_frames(&stdout(&o), 16 + 16 * 6 / 10) {
+        for l in frame["lights"].as_array().unwrap() {
+            let id = l["id"].as_u64().unwrap();
+            assert!(id < 16 || id >= 1 << 24, "{l}");
+        }
+    }
+    let o = decompose_small_sky(2, 8, &["--bright-history", "blend"]);
+    assert_logged(&o, "bright lights: blend");
+    let o = envlight(&["decompose", "--frames", "1", "--bright-history", "merge"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--bright-history"), "{}", stderr(&o));
 }
 
 /// `envlight decompose` of `frames` frames of a 64×32 built-in sky into `lights` lights with

@@ -26,6 +26,30 @@
 //!
 //! An id that is missing from a frame (a smaller light count, say) loses its history; when it
 //! returns, its history restarts from its first new value, so no stale position leaks in.
+//!
+//! **Bright lights** ([`BrightHistory`]). A sun or a lamp of a few input pixels is shared by a
+//! few lights, and its pixels change hands between them from frame to frame (light 12 holds
+//! pixel p in frame t, light 40 holds it in t+1). A per-id mean then blends two pixels into a
+//! direction where the map has nothing, and the hard shadows the lights cast flicker: on the
+//! built-in sky with the sun in view, the plain per-id filter flickered 1.8× more than no filter
+//! (docs/quality.md, "What the filter's flicker is"). So the window of a light brighter than
+//! [`BRIGHT_FACTOR`] × the frame's mean light is first grouped in cones of [`BRIGHT_CONE_DEG`]
+//! (less than an input pixel), newest sample first, each sample joining the first group whose
+//! power-weighted direction lies within the cone:
+//!
+//! 1. the group holding the newest sample is the light (its taps' share of rgb, solid angle and
+//!    power-weighted direction);
+//! 2. each older group — a place the light held before — is, with [`BrightHistory::Fold`] (the
+//!    default), added to the light that is nearest to it in this frame (power-weighted
+//!    direction, summed rgb and solid angle): the energy stays where it was, ids and count stay
+//!    those of the point set; with [`BrightHistory::Fade`] it is sent as an extra light of its
+//!    own, id [`FADING_ID_BASE`] + parent id × [`MAX_TAPS`] + (frame of its newest sample mod
+//!    [`MAX_TAPS`]), that fades out as its samples leave the window (steadier still, but a few
+//!    per cent more lights, with ids outside the point set).
+//!
+//! Lights at or below the threshold, and all lights with [`BrightHistory::Blend`] (the filter
+//! before 2026-12-01), take the per-id mean above. Energy is filtered exactly either way:
+//! Σ rgb of the output is Σ_k w_k Σ rgb(t−k) for ids present throughout the window.
 
 use crate::light::Light;
 use glam::DVec3;
@@ -35,6 +59,49 @@ pub const DEFAULT_TAPS: [f64; 7] = [1.0, 6.0, 15.0, 20.0, 15.0, 6.0, 1.0];
 
 /// Most taps accepted.
 pub const MAX_TAPS: usize = 64;
+
+/// A light brighter than this × the frame's mean light has its window grouped in cones
+/// ([`BrightHistory`]). Measured on the temporal table's four sequences, factors 4 to 30 gave the
+/// same flicker (docs/quality.md).
+pub const BRIGHT_FACTOR: f64 = 10.0;
+
+/// The cone of a bright light's groups, in degrees: less than an input pixel of a 1024-wide map
+/// (0.35°), so samples that held different pixels of a sun stay apart. 0.1° to 0.3° measured the
+/// same.
+pub const BRIGHT_CONE_DEG: f64 = 0.1;
+
+/// Ids of [`BrightHistory::Fade`]'s extra lights start here, above every point-set index.
+pub const FADING_ID_BASE: u32 = 1 << 24;
+
+/// What the filter does with the window of a light brighter than [`BRIGHT_FACTOR`] × the frame's
+/// mean light (the module doc has the steps).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BrightHistory {
+    /// The per-id power-weighted mean, as for every other light (the filter before
+    /// 2026-12-01; recordings made before then read as this).
+    Blend,
+    /// Grouped in cones; the light keeps the group of its newest sample and each older group
+    /// goes to the light nearest to it now. Ids and count stay those of the point set.
+    Fold,
+    /// Grouped in cones; the light keeps the group of its newest sample and each older group is
+    /// an extra light with an id from [`FADING_ID_BASE`] that fades out over the window.
+    Fade,
+}
+
+impl BrightHistory {
+    /// Every value, in the order of the docs.
+    pub const ALL: [BrightHistory; 3] = [Self::Blend, Self::Fold, Self::Fade];
+
+    /// The name used in configs and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Blend => "blend",
+            Self::Fold => "fold",
+            Self::Fade => "fade",
+        }
+    }
+}
 
 /// A light's power for weighting its direction: Rec. 709 luminance, negative parts as 0.
 fn luminance(rgb: [f64; 3]) -> f64 {
@@ -59,12 +126,79 @@ struct History {
     last_seen: Option<u64>,
 }
 
+/// Tap-weighted sums over some of a window's samples.
+#[derive(Clone, Copy, Debug, Default)]
+struct Group {
+    /// Σ w·max(P, tiny)·dir: with no power, the plain mean of the directions.
+    weighted_dir: DVec3,
+    rgb: [f64; 3],
+    solid_angle: f64,
+    /// Position in the window (0: this frame) of the group's newest sample.
+    newest: usize,
+}
+
+impl Group {
+    /// A direction's weight when its power is 0: tiny, so a group of dark samples still has a
+    /// direction (their plain mean) without moving one that has power.
+    const DARK_WEIGHT: f64 = 1e-30;
+
+    fn add(&mut self, w: f64, s: &Sample) {
+        self.weighted_dir += (w * s.power.max(Self::DARK_WEIGHT)) * s.dir;
+        for (sum, c) in self.rgb.iter_mut().zip(s.rgb) {
+            *sum += w * c;
+        }
+        self.solid_angle += w * s.solid_angle;
+    }
+
+    /// Adds another group's sums (its taps' weights already applied).
+    fn add_folded(&mut self, other: &Group) {
+        self.weighted_dir += other.weighted_dir;
+        for (sum, c) in self.rgb.iter_mut().zip(other.rgb) {
+            *sum += c;
+        }
+        self.solid_angle += other.solid_angle;
+    }
+
+    fn add_light(&mut self, l: &Light) {
+        let rgb = l.rgb.map(f64::from);
+        self.add(
+            1.0,
+            &Sample {
+                dir: light_dir(l),
+                rgb,
+                solid_angle: l.solid_angle.into(),
+                power: luminance(rgb),
+            },
+        );
+    }
+
+    /// The group as a light with `id` (`fallback` where its direction is undefined).
+    fn to_light(self, id: u32, fallback: DVec3) -> Light {
+        let dir = self.weighted_dir.try_normalize().unwrap_or(fallback);
+        Light {
+            id,
+            dir: [dir.x as f32, dir.y as f32, dir.z as f32],
+            rgb: self.rgb.map(|c| c.max(0.0) as f32),
+            solid_angle: self.solid_angle.max(0.0) as f32,
+        }
+    }
+}
+
+fn light_dir(l: &Light) -> DVec3 {
+    DVec3::new(l.dir[0].into(), l.dir[1].into(), l.dir[2].into())
+}
+
 /// Per-id FIR filter over light lists.
 #[derive(Clone, Debug)]
 pub struct FirFilter {
     taps: Vec<f64>,
     histories: Vec<History>,
     frame: u64,
+    bright: BrightHistory,
+    /// Scratch: the cone groups of one bright light's window.
+    groups: Vec<Group>,
+    /// Scratch: this frame's older groups, with the position of the light they came from.
+    older: Vec<(usize, Group)>,
 }
 
 impl FirFilter {
@@ -85,7 +219,22 @@ impl FirFilter {
             taps: taps.iter().map(|t| t / sum).collect(),
             histories: Vec::new(),
             frame: 0,
+            bright: BrightHistory::Fold,
+            groups: Vec::new(),
+            older: Vec::new(),
         })
+    }
+
+    /// The same filter treating bright lights' windows as `bright` says (default
+    /// [`BrightHistory::Fold`]).
+    pub fn with_bright_history(mut self, bright: BrightHistory) -> Self {
+        self.bright = bright;
+        self
+    }
+
+    /// How bright lights' windows are treated.
+    pub fn bright_history(&self) -> BrightHistory {
+        self.bright
     }
 
     /// The filter with [`DEFAULT_TAPS`].
@@ -112,28 +261,43 @@ impl FirFilter {
         self.histories.clear();
     }
 
-    /// Filters one frame's lights in place (matched by id).
-    pub fn apply(&mut self, lights: &mut [Light]) {
+    /// Filters one frame's lights (matched by id). With [`BrightHistory::Fade`], extra fading
+    /// lights are appended, in id order, after the others; otherwise the list keeps its ids and
+    /// length. Fading lights are only made when every id is below [`FADING_ID_BASE`] (always
+    /// so for a [`super::Decomposer`]'s lights); otherwise their groups are folded.
+    pub fn apply(&mut self, lights: &mut Vec<Light>) {
         let frame = self.frame;
         self.frame += 1;
         let n = self.taps.len();
-        for light in lights.iter_mut() {
+        let bright_above = match self.bright {
+            BrightHistory::Blend => f64::INFINITY,
+            BrightHistory::Fold | BrightHistory::Fade => {
+                let total: f64 = lights.iter().map(|l| luminance(l.rgb.map(f64::from))).sum();
+                BRIGHT_FACTOR * total / lights.len().max(1) as f64
+            }
+        };
+        let cone_cos = BRIGHT_CONE_DEG.to_radians().cos();
+        let Self {
+            taps,
+            histories,
+            groups,
+            older,
+            ..
+        } = self;
+        older.clear();
+        for (position, light) in lights.iter_mut().enumerate() {
             let id = light.id as usize;
-            if id >= self.histories.len() {
-                self.histories.resize_with(id + 1, History::default);
+            if id >= histories.len() {
+                histories.resize_with(id + 1, History::default);
             }
             let rgb = light.rgb.map(f64::from);
             let sample = Sample {
-                dir: DVec3::new(
-                    light.dir[0].into(),
-                    light.dir[1].into(),
-                    light.dir[2].into(),
-                ),
+                dir: light_dir(light),
                 rgb,
                 solid_angle: light.solid_angle.into(),
                 power: luminance(rgb),
             };
-            let h = &mut self.histories[id];
+            let h = &mut histories[id];
             let continuing = frame > 0 && h.last_seen == Some(frame - 1);
             if !continuing {
                 h.ring.clear();
@@ -145,13 +309,38 @@ impl FirFilter {
             }
             h.last_seen = Some(frame);
 
-            let mut power_weighted_dir = DVec3::ZERO;
-            let mut rgb = [0.0f64; 3];
-            let mut solid_angle = 0.0;
             // Newest first: head, head − 1, …, 0, then n − 1, …, head + 1.
             let (recent, earlier) = h.ring.split_at(h.head + 1);
             let newest_first = || recent.iter().rev().chain(earlier.iter().rev());
-            for (w, s) in self.taps.iter().zip(newest_first()) {
+
+            if sample.power > bright_above {
+                groups.clear();
+                for (k, (w, s)) in taps.iter().zip(newest_first()).enumerate() {
+                    let joins = groups.iter().position(|g| {
+                        g.weighted_dir.try_normalize().unwrap_or(s.dir).dot(s.dir) >= cone_cos
+                    });
+                    let g = match joins {
+                        Some(i) => &mut groups[i],
+                        None => {
+                            groups.push(Group {
+                                newest: k,
+                                ..Group::default()
+                            });
+                            let last = groups.len() - 1;
+                            &mut groups[last]
+                        }
+                    };
+                    g.add(*w, s);
+                }
+                *light = groups[0].to_light(light.id, sample.dir);
+                older.extend(groups[1..].iter().map(|g| (position, *g)));
+                continue;
+            }
+
+            let mut power_weighted_dir = DVec3::ZERO;
+            let mut rgb = [0.0f64; 3];
+            let mut solid_angle = 0.0;
+            for (w, s) in taps.iter().zip(newest_first()) {
                 power_weighted_dir += (*w * s.power) * s.dir;
                 for c in 0..3 {
                     rgb[c] += w * s.rgb[c];
@@ -162,8 +351,7 @@ impl FirFilter {
             let dir = power_weighted_dir
                 .try_normalize()
                 .or_else(|| {
-                    let plain: DVec3 = self
-                        .taps
+                    let plain: DVec3 = taps
                         .iter()
                         .zip(newest_first())
                         .map(|(w, s)| *w * s.dir)
@@ -174,6 +362,53 @@ impl FirFilter {
             light.dir = [dir.x as f32, dir.y as f32, dir.z as f32];
             light.rgb = rgb.map(|c| c.max(0.0) as f32);
             light.solid_angle = solid_angle.max(0.0) as f32;
+        }
+        if older.is_empty() {
+            return;
+        }
+        let fade =
+            self.bright == BrightHistory::Fade && lights.iter().all(|l| l.id < FADING_ID_BASE);
+        if fade {
+            let first = lights.len();
+            for &(parent, g) in older.iter() {
+                // The frame of the group's newest sample, mod MAX_TAPS: distinct for the groups
+                // of one window, and the same in every frame the group lives through.
+                let slot = frame.wrapping_sub(g.newest as u64) % MAX_TAPS as u64;
+                // parent id < 2^24, slot < 64: the id stays below 2^31.
+                let id = FADING_ID_BASE + lights[parent].id * MAX_TAPS as u32 + slot as u32;
+                let fallback = light_dir(&lights[parent]);
+                lights.push(g.to_light(id, fallback));
+            }
+            lights[first..].sort_unstable_by_key(|l| l.id);
+        } else {
+            // Fold: each older group joins the light nearest to it now.
+            let mut folded: Vec<(usize, Group)> = Vec::with_capacity(older.len());
+            for &(parent, ref g) in older.iter() {
+                // A group without a direction (its samples cancel) stays with its light.
+                let nearest = match g.weighted_dir.try_normalize() {
+                    None => parent,
+                    Some(d) => (0..lights.len())
+                        .max_by(|&a, &b| {
+                            light_dir(&lights[a])
+                                .dot(d)
+                                .total_cmp(&light_dir(&lights[b]).dot(d))
+                        })
+                        .unwrap_or(parent),
+                };
+                match folded.iter_mut().find(|(i, _)| *i == nearest) {
+                    Some((_, sum)) => sum.add_folded(g),
+                    None => {
+                        let mut sum = Group::default();
+                        sum.add_light(&lights[nearest]);
+                        sum.add_folded(g);
+                        folded.push((nearest, sum));
+                    }
+                }
+            }
+            for (i, sum) in folded {
+                let fallback = light_dir(&lights[i]);
+                lights[i] = sum.to_light(lights[i].id, fallback);
+            }
         }
     }
 }
@@ -232,10 +467,10 @@ mod tests {
     fn returning_id_restarts_from_its_new_value() {
         let mut f = FirFilter::with_default_taps();
         for _ in 0..10 {
-            f.apply(&mut [light(7, [1.0, 0.0, 0.0], 1.0)]);
+            f.apply(&mut vec![light(7, [1.0, 0.0, 0.0], 1.0)]);
         }
-        f.apply(&mut [light(2, [0.0, 1.0, 0.0], 1.0)]); // id 7 missing this frame
-        let mut back = [light(7, [0.0, 0.0, 1.0], 9.0)];
+        f.apply(&mut vec![light(2, [0.0, 1.0, 0.0], 1.0)]); // id 7 missing this frame
+        let mut back = vec![light(7, [0.0, 0.0, 1.0], 9.0)];
         f.apply(&mut back);
         assert_eq!(back[0].dir, [0.0, 0.0, 1.0]);
         assert_eq!(back[0].rgb, [9.0; 3]);
@@ -249,7 +484,7 @@ mod tests {
         for t in 0..30 {
             // The raw direction jitters by ±10° every frame.
             let a = if t % 2 == 0 { 0.17f32 } else { -0.17 };
-            let mut l = [light(0, [a.sin(), a.cos(), 0.0], 1.0)];
+            let mut l = vec![light(0, [a.sin(), a.cos(), 0.0], 1.0)];
             f.apply(&mut l);
             let d = l[0].dir;
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
@@ -271,11 +506,11 @@ mod tests {
         let sun = [0.0, 0.6, -0.8];
         let sky = [0.8, 0.6, 0.0];
         for _ in 0..10 {
-            f.apply(&mut [light(4, sun, 1000.0)]);
+            f.apply(&mut vec![light(4, sun, 1000.0)]);
         }
         let mut powers = Vec::new();
         for t in 0..7 {
-            let mut l = [light(4, sky, 1.0)];
+            let mut l = vec![light(4, sky, 1.0)];
             f.apply(&mut l);
             let cos_to_sun: f32 = l[0].dir.iter().zip(sun).map(|(a, b)| a * b).sum();
             powers.push(l[0].rgb[0]);
@@ -293,9 +528,193 @@ mod tests {
         assert!(powers.windows(2).all(|w| w[1] < w[0]), "{powers:?}");
         // All powers 0: the plain mean of the directions.
         let mut dark = FirFilter::with_default_taps();
-        let mut l = [light(1, sky, 0.0)];
+        let mut l = vec![light(1, sky, 0.0)];
         dark.apply(&mut l);
         assert_eq!(l[0].dir, sky);
+    }
+
+    /// A frame of a sun whose two pixels `a` and `b` (power 1000 each) are held by lights 0 and
+    /// 1, which trade them every frame, beside 30 dim lights (power 1) elsewhere.
+    fn traded_sun(t: usize, a: [f32; 3], b: [f32; 3]) -> Vec<Light> {
+        let (first, second) = if t.is_multiple_of(2) { (a, b) } else { (b, a) };
+        let mut lights = vec![light(0, first, 1000.0), light(1, second, 1000.0)];
+        for i in 0..30u32 {
+            let phi = i as f32 * 0.2;
+            lights.push(light(2 + i, [phi.cos() * 0.6, -0.8, phi.sin() * 0.6], 1.0));
+        }
+        lights
+    }
+
+    fn angle_deg(a: [f32; 3], b: [f32; 3]) -> f64 {
+        let dot: f64 = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| f64::from(*x) * f64::from(y))
+            .sum();
+        dot.clamp(-1.0, 1.0).acos().to_degrees()
+    }
+
+    /// Two pixels of a sun, 0.3° apart, trade hands every frame. The per-id mean (`blend`)
+    /// points both lights between them, where the map has nothing; `fold` keeps a light on each
+    /// pixel with exactly that pixel's power, frame after frame (the older group of each light
+    /// goes to the light that holds its pixel now); `fade` keeps the same directions and power
+    /// at each pixel, spread over the lights and their fading extras.
+    #[test]
+    fn sun_pixels_that_change_hands_are_not_blended() {
+        let half = 0.15f32.to_radians();
+        let a = [half.sin(), half.cos(), 0.0];
+        let b = [-half.sin(), half.cos(), 0.0];
+        let power_at = |lights: &[Light], p: [f32; 3]| -> f32 {
+            lights
+                .iter()
+                .filter(|l| angle_deg(l.dir, p) < 0.05)
+                .map(|l| l.rgb[0])
+                .sum()
+        };
+        for bright in BrightHistory::ALL {
+            let mut f = FirFilter::with_default_taps().with_bright_history(bright);
+            for t in 0..30 {
+                let mut lights = traded_sun(t, a, b);
+                f.apply(&mut lights);
+                if t < 7 {
+                    continue;
+                }
+                let total: f32 = lights.iter().map(|l| l.rgb[0]).sum();
+                assert!(
+                    (total - 2030.0).abs() < 0.01,
+                    "{bright:?} frame {t}: Σ {total}"
+                );
+                let off_sun = lights[..2]
+                    .iter()
+                    .map(|l| angle_deg(l.dir, a).min(angle_deg(l.dir, b)))
+                    .fold(0.0, f64::max);
+                match bright {
+                    BrightHistory::Blend => {
+                        // 15/64 of the window on the other pixel: 0.3° × (1 − 2·29/64)·½.
+                        assert!(off_sun > 0.01, "frame {t}: {off_sun}°");
+                        assert_eq!(lights.len(), 32);
+                    }
+                    BrightHistory::Fold | BrightHistory::Fade => {
+                        assert!(off_sun < 1e-4, "{bright:?} frame {t}: {off_sun}°");
+                        for p in [a, b] {
+                            let at = power_at(&lights, p);
+                            assert!((at - 1000.0).abs() < 0.01, "{bright:?} frame {t}: {at}");
+                        }
+                        let extra = if bright == BrightHistory::Fade { 2 } else { 0 };
+                        assert_eq!(lights.len(), 32 + extra, "{bright:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// `fade`: a light that moves from one sun pixel to another leaves an extra light at the old
+    /// pixel, with an id from FADING_ID_BASE that stays the same while it fades out over the
+    /// window and carries the old samples' taps; Σ power is the filtered Σ throughout.
+    #[test]
+    fn a_fading_light_keeps_its_id_and_fades_out() {
+        let half = 0.15f32.to_radians();
+        let a = [half.sin(), half.cos(), 0.0];
+        let b = [-half.sin(), half.cos(), 0.0];
+        let mut f = FirFilter::with_default_taps().with_bright_history(BrightHistory::Fade);
+        let mut fading = Vec::new();
+        for t in 0..20 {
+            // Light 0 holds pixel a until frame 9, pixel b from frame 10 on; light 1 the other.
+            let mut lights = traded_sun(if t < 10 { 0 } else { 1 }, a, b);
+            f.apply(&mut lights);
+            assert!(lights.windows(2).all(|w| w[0].id < w[1].id));
+            let extras: Vec<Light> = lights[32..].to_vec();
+            assert!(extras.iter().all(|l| l.id >= FADING_ID_BASE));
+            if (10..16).contains(&t) {
+                // Light 0's group at a and light 1's at b, both last seen in frame 9.
+                let ids: Vec<u32> = extras.iter().map(|l| l.id).collect();
+                let slot = 9 % MAX_TAPS as u32;
+                let want = vec![
+                    FADING_ID_BASE + slot,
+                    FADING_ID_BASE + MAX_TAPS as u32 + slot,
+                ];
+                assert_eq!(ids, want, "frame {t}");
+                assert!(angle_deg(extras[0].dir, a) < 1e-4 && angle_deg(extras[1].dir, b) < 1e-4);
+                fading.push(extras[0].rgb[0]);
+            } else {
+                assert!(extras.is_empty(), "frame {t}: {extras:?}");
+            }
+            let total: f32 = lights.iter().map(|l| l.rgb[0]).sum();
+            assert!((total - 2030.0).abs() < 0.01, "frame {t}: Σ {total}");
+        }
+        // The old pixel's share: the taps the old samples still hold, 63/64 down to 1/64.
+        let sum: f64 = DEFAULT_TAPS.iter().sum();
+        for (k, got) in fading.iter().enumerate() {
+            let want = 1000.0 * DEFAULT_TAPS[k + 1..].iter().sum::<f64>() / sum;
+            assert!(
+                (f64::from(*got) - want).abs() < 1e-3,
+                "{k}: {got} against {want}"
+            );
+        }
+    }
+
+    /// Whatever the bright lights do, every mode filters the frame's energy exactly: Σ rgb of the
+    /// output is Σ_k w_k Σ rgb(t − k), lights are finite and unit-length, and the ids of `fold`
+    /// and `blend` are the input's.
+    #[test]
+    fn every_mode_filters_the_energy_exactly() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let frames: Vec<Vec<Light>> = (0..40)
+            .map(|_| {
+                (0..43u32)
+                    .map(|id| {
+                        // Four sun pixels shared by ids 0–2 (bright: more than 10× the mean
+                        // light, about 70), sky for the rest.
+                        let (pick, power) = if id < 3 {
+                            (next() * 4.0, 500.0 + 1000.0 * next())
+                        } else {
+                            (100.0 + next() * 600.0, next() * 2.0)
+                        };
+                        let a = (pick.floor() * 0.003) as f32;
+                        light(id, [a.sin(), a.cos(), 0.0], power as f32)
+                    })
+                    .collect()
+            })
+            .collect();
+        let sum: f64 = DEFAULT_TAPS.iter().sum();
+        let totals: Vec<f64> = frames
+            .iter()
+            .map(|l| l.iter().map(|l| f64::from(l.rgb[0])).sum())
+            .collect();
+        for bright in BrightHistory::ALL {
+            let mut f = FirFilter::with_default_taps().with_bright_history(bright);
+            let mut most = 0;
+            for (t, frame) in frames.iter().enumerate() {
+                let mut lights = frame.clone();
+                f.apply(&mut lights);
+                most = most.max(lights.len());
+                let want: f64 = (0..7)
+                    .map(|k| DEFAULT_TAPS[k] / sum * totals[t.saturating_sub(k)])
+                    .sum();
+                let got: f64 = lights.iter().map(|l| f64::from(l.rgb[0])).sum();
+                assert!(
+                    (got - want).abs() < 1e-5 * want,
+                    "{bright:?} {t}: {got} {want}"
+                );
+                for l in &lights {
+                    let len = l.dir.iter().map(|c| c * c).sum::<f32>().sqrt();
+                    assert!((len - 1.0).abs() < 1e-5, "{bright:?} {l:?}");
+                }
+                if bright != BrightHistory::Fade {
+                    let ids: Vec<u32> = lights.iter().map(|l| l.id).collect();
+                    assert_eq!(ids, (0..43).collect::<Vec<_>>());
+                }
+            }
+            if bright == BrightHistory::Fade {
+                assert!(most > 43, "no fading light was made");
+            }
+        }
     }
 
     #[test]

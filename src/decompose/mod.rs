@@ -24,8 +24,10 @@
 //!    on the suns and lamps only). Optionally ([`DecomposeSettings::concentrated_lloyd`]) they
 //!    take a full Lloyd step instead (regions redrawn where they can reach).
 //! 5. **Temporal filter** ([`filter`]): a FIR low-pass on each light's power and direction by
-//!    id (the direction as the power-weighted mean over the window); it restarts when the light
-//!    count changes.
+//!    id (the direction as the power-weighted mean over the window); the windows of bright
+//!    lights (suns, lamps) are first grouped in 0.1° cones, so the pixels a sun's lights trade
+//!    between frames are not blended ([`DecomposeSettings::bright_history`]). It restarts when
+//!    the light count changes.
 //! 6. **Merge** ([`merge`], off by default): lights crowding a concentrated source become one
 //!    light that records the source's spread (solid angle).
 
@@ -38,7 +40,7 @@ mod regions;
 pub mod working_map;
 
 pub use distribution::PiecewiseConstant2d;
-pub use filter::FirFilter;
+pub use filter::{BrightHistory, FirFilter};
 pub use hierarchical::HierarchicalWarp;
 pub use point_set::MAX_POINTS;
 
@@ -126,6 +128,18 @@ pub struct DecomposeSettings {
     /// replay makes the recorded lights.
     #[serde(default)]
     pub refine_concentrated: bool,
+    /// What the temporal filter does with the window of a light brighter than
+    /// [`filter::BRIGHT_FACTOR`] × the frame's mean light (a sun's, a lamp's): the
+    /// [`filter`] module doc has the steps. [`BrightHistory::Fold`] by default; a recording
+    /// whose stored settings lack it was made before it existed and reads as
+    /// [`BrightHistory::Blend`], the filter of that time.
+    #[serde(default = "bright_history_before_it_existed")]
+    pub bright_history: BrightHistory,
+}
+
+/// The filter's treatment of bright lights before [`DecomposeSettings::bright_history`] existed.
+fn bright_history_before_it_existed() -> BrightHistory {
+    BrightHistory::Blend
 }
 
 impl Default for DecomposeSettings {
@@ -140,6 +154,7 @@ impl Default for DecomposeSettings {
             warp: Warp::Rows,
             concentrated_lloyd: false,
             refine_concentrated: true,
+            bright_history: BrightHistory::Fold,
         }
     }
 }
@@ -205,7 +220,11 @@ impl Decomposer {
             return Err(DecomposeError::PdfExponent(settings.pdf_exponent));
         }
         let filter = match &settings.filter_taps {
-            Some(taps) => Some(FirFilter::new(taps).map_err(DecomposeError::FilterTaps)?),
+            Some(taps) => Some(
+                FirFilter::new(taps)
+                    .map_err(DecomposeError::FilterTaps)?
+                    .with_bright_history(settings.bright_history),
+            ),
             None => None,
         };
         point_set::progressive_points(settings.lights);
@@ -248,14 +267,16 @@ impl Decomposer {
         self.filter.as_ref().map_or(0.0, FirFilter::delay_frames)
     }
 
-    /// Decomposes `frame` into `settings.lights` lights.
+    /// Decomposes `frame` into `settings.lights` lights (more with
+    /// [`BrightHistory::Fade`]: its fading lights follow, ids from [`filter::FADING_ID_BASE`]).
     pub fn decompose(&mut self, frame: &HdrFrame) -> LightFrame {
         let n = self.settings.lights;
         self.decompose_with_count(frame, n)
             .unwrap_or_else(|_| unreachable!("validated count"))
     }
 
-    /// Decomposes `frame` into `n` lights (the first n of the progressive set): the light count
+    /// Decomposes `frame` into `n` lights (the first n of the progressive set, and any fading
+    /// lights of [`BrightHistory::Fade`]): the light count
     /// may change every frame.
     pub fn decompose_with_count(
         &mut self,
@@ -479,6 +500,22 @@ mod tests {
         assert!(!read.refine_concentrated);
         let read: DecomposeSettings = serde_json::from_value(today).unwrap();
         assert_eq!(read, DecomposeSettings::default());
+    }
+
+    /// Likewise, stored settings from before the filter treated bright lights apart read as
+    /// `blend` (that filter); today's store `fold`.
+    #[test]
+    fn stored_settings_without_bright_history_read_as_blend() {
+        let today = serde_json::to_value(DecomposeSettings::default()).unwrap();
+        assert_eq!(today["bright_history"], serde_json::json!("fold"));
+        let mut old = today.clone();
+        old.as_object_mut().unwrap().remove("bright_history");
+        let read: DecomposeSettings = serde_json::from_value(old).unwrap();
+        assert_eq!(read.bright_history, BrightHistory::Blend);
+        let mut fade = today;
+        fade["bright_history"] = serde_json::json!("fade");
+        let read: DecomposeSettings = serde_json::from_value(fade).unwrap();
+        assert_eq!(read.bright_history, BrightHistory::Fade);
     }
 
     fn sky_with_sun(w: u32, h: u32, sun: (u32, u32), sun_power: f32) -> HdrFrame {
