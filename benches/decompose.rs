@@ -12,6 +12,10 @@
 //!   rooitou_park turned about the zenith by one pixel per frame (0, 1, …, 7, 6, …, 1 pixels,
 //!   cycled), so every light moves every frame: the cost of a moving map, with the region pass's
 //!   candidate lists reused while the lights stay within their margin, and built every frame.
+//! - `filter/{blend,fold,fade}_256`: the temporal filter alone (`FirFilter::apply`) on the raw
+//!   256-light lists of the built-in sky's first 30 frames, forwards and back (the sun in view,
+//!   its pixels changing hands between lights), with each `bright_history`: the filter's share
+//!   of a frame and what grouping the bright lights' windows costs.
 //! - `distribution/new_256x128`: `PiecewiseConstant2d::new` on 256×128 luminance × solid-angle
 //!   weights (the default working-map size).
 //!
@@ -19,7 +23,10 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use envlight::capture::image_file::read_hdr_image;
-use envlight::decompose::{DecomposeSettings, Decomposer, PiecewiseConstant2d};
+use envlight::capture::sky::{render_sky, SkyOptions};
+use envlight::decompose::{
+    BrightHistory, DecomposeSettings, Decomposer, FirFilter, PiecewiseConstant2d,
+};
 use envlight::envmap::Projection;
 use envlight::frame::luminance;
 use envlight::HdrFrame;
@@ -102,7 +109,7 @@ fn bench_frames(c: &mut Criterion) {
         merge_spacing_fraction: None,
         ..DecomposeSettings::default()
     };
-    let mut decomposer = Decomposer::new(raw).expect("valid");
+    let mut decomposer = Decomposer::new(raw.clone()).expect("valid");
     let full = &frames[2].1;
     group.bench_function("raw_256/1024x512", |b| {
         b.iter(|| decomposer.decompose(black_box(full)))
@@ -128,6 +135,31 @@ fn bench_frames(c: &mut Criterion) {
             b.iter(|| {
                 next = (next + 1) % turning.len();
                 decomposer.decompose(black_box(&turning[next]))
+            })
+        });
+    }
+    group.finish();
+
+    let mut unfiltered = Decomposer::new(raw.clone()).expect("valid");
+    let sky = SkyOptions::default();
+    let sky_lights: Vec<_> = (0..58usize)
+        .map(|k| {
+            let t = if k < 30 { k } else { 58 - k };
+            unfiltered
+                .decompose(&render_sky(&sky, t as f64 / 30.0))
+                .lights
+        })
+        .collect();
+    let mut group = c.benchmark_group("filter");
+    for bright in BrightHistory::ALL {
+        let mut filter = FirFilter::with_default_taps().with_bright_history(bright);
+        let mut next = 0;
+        let mut lights = Vec::new();
+        group.bench_function(format!("{}_256", bright.name()), |b| {
+            b.iter(|| {
+                next = (next + 1) % sky_lights.len();
+                lights.clone_from(&sky_lights[next]);
+                filter.apply(black_box(&mut lights));
             })
         });
     }

@@ -13,14 +13,15 @@
 //! the number of frames, optionally the working width (`-` or nothing: the decomposition's
 //! default), then any of `no-reuse` (build the region pass's candidate lists afresh every frame)
 //! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`), `no-refine` (without the
-//! refinement of the concentrated sources' regions, `--no-refine-concentrated`) and `merge`
-//! (`--merge`, the default spacing).
+//! refinement of the concentrated sources' regions, `--no-refine-concentrated`), `blend` and
+//! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`) and
+//! `merge` (`--merge`, the default spacing).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
-use envlight::decompose::{DecomposeSettings, Decomposer};
+use envlight::decompose::{BrightHistory, DecomposeSettings, Decomposer};
 use envlight::envmap::Projection;
 use envlight::HdrFrame;
 
@@ -40,13 +41,16 @@ fn main() -> anyhow::Result<()> {
             "no-reuse" => reuse = false,
             "lloyd" => settings.concentrated_lloyd = true,
             "no-refine" => settings.refine_concentrated = false,
+            "blend" => settings.bright_history = BrightHistory::Blend,
+            "fade" => settings.bright_history = BrightHistory::Fade,
             "merge" => {
                 settings.merge_spacing_fraction =
                     Some(envlight::decompose::merge::DEFAULT_SPACING_FRACTION)
             }
             other => {
                 anyhow::bail!(
-                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine or merge)"
+                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, blend, fade \
+                     or merge)"
                 )
             }
         }

@@ -387,13 +387,16 @@ impl FirFilter {
                 // A group without a direction (its samples cancel) stays with its light.
                 let nearest = match g.weighted_dir.try_normalize() {
                     None => parent,
-                    Some(d) => (0..lights.len())
-                        .max_by(|&a, &b| {
-                            light_dir(&lights[a])
-                                .dot(d)
-                                .total_cmp(&light_dir(&lights[b]).dot(d))
-                        })
-                        .unwrap_or(parent),
+                    Some(d) => {
+                        let mut nearest = (parent, f64::NEG_INFINITY);
+                        for (i, l) in lights.iter().enumerate() {
+                            let cos = light_dir(l).dot(d);
+                            if cos >= nearest.1 {
+                                nearest = (i, cos);
+                            }
+                        }
+                        nearest.0
+                    }
                 };
                 match folded.iter_mut().find(|(i, _)| *i == nearest) {
                     Some((_, sum)) => sum.add_folded(g),
