@@ -1,6 +1,7 @@
 //! Property tests (proptest): the decomposition never panics or produces NaN on arbitrary small
 //! maps — including NaN, ±Inf and negative pixels — and always conserves energy; the 2D warp
-//! inverts itself on arbitrary weight images.
+//! inverts itself on arbitrary weight images; the temporal filter keeps ids and energy on
+//! arbitrary light sequences.
 
 use envlight::decompose::{
     frame_integral, DecomposeSettings, Decomposer, PiecewiseConstant2d, Warp,
@@ -95,6 +96,102 @@ proptest! {
             let v = dist.invert(p);
             prop_assert!((u[0] - v[0]).abs() < 1e-9 && (u[1] - v[1]).abs() < 1e-9,
                 "{:?} -> {:?} -> {:?}", u, p, v);
+        }
+    }
+}
+
+/// One frame's raw lights for the filter property: ids 0..n with some left out, each at one of
+/// a few sun directions (0.2° apart) or elsewhere, with powers from 0 to huge; ids 0 and 1 are
+/// always there and hold a sun (bright lights, whose pixels change hands, once the frame has
+/// enough dim lights).
+fn light_list() -> impl Strategy<Value = Vec<envlight::Light>> {
+    prop::collection::vec(
+        (
+            any::<bool>(),
+            0u32..6,
+            prop_oneof![3 => 0.0f32..2.0, 1 => Just(0.0f32), 2 => 1e2f32..1e5],
+        ),
+        1..40,
+    )
+    .prop_map(|specs| {
+        specs
+            .into_iter()
+            .enumerate()
+            .filter(|(i, (present, _, _))| *present || *i < 2)
+            .map(|(i, (_, place, power))| {
+                let (place, power) = if i < 2 {
+                    (place % 4, 1e6 + 10.0 * power)
+                } else {
+                    (place, power)
+                };
+                let a = if place < 4 {
+                    f32::from(place as u8) * 0.2f32.to_radians()
+                } else {
+                    1.0 + i as f32 * 0.1
+                };
+                envlight::Light {
+                    id: i as u32,
+                    dir: [a.sin(), a.cos(), 0.0],
+                    rgb: [power, 0.5 * power, 0.25 * power],
+                    solid_angle: 1e-4,
+                }
+            })
+            .collect()
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The temporal filter, every `bright_history`, on arbitrary sequences (ids coming and
+    /// going, suns' pixels changing hands): lights stay finite with unit directions and
+    /// non-negative rgb, ids stay unique and in order, `blend` and `fold` keep exactly the
+    /// input's ids, `fade` adds only ids from FADING_ID_BASE; and where the id set holds for a
+    /// whole window, Σ rgb is the filtered Σ rgb.
+    #[test]
+    fn the_filter_keeps_ids_and_energy(
+        frames in prop::collection::vec(light_list(), 1..16),
+        taps in prop_oneof![
+            Just(envlight::decompose::filter::DEFAULT_TAPS.to_vec()),
+            prop::collection::vec(0.0f64..4.0, 1..6).prop_map(|mut t| { t[0] += 0.1; t }),
+        ],
+    ) {
+        use envlight::decompose::filter::FADING_ID_BASE;
+        use envlight::decompose::{BrightHistory, FirFilter};
+        let total = |l: &[envlight::Light]| -> f64 { l.iter().map(|l| f64::from(l.rgb[0])).sum() };
+        let ids = |l: &[envlight::Light]| -> Vec<u32> { l.iter().map(|l| l.id).collect() };
+        let weights: f64 = taps.iter().sum();
+        for bright in BrightHistory::ALL {
+            let mut filter = FirFilter::new(&taps).unwrap().with_bright_history(bright);
+            for (t, frame) in frames.iter().enumerate() {
+                let mut lights = frame.clone();
+                filter.apply(&mut lights);
+                prop_assert!(lights.windows(2).all(|w| w[0].id < w[1].id), "{:?}", ids(&lights));
+                for l in &lights {
+                    let len = l.dir.iter().map(|c| c * c).sum::<f32>().sqrt();
+                    prop_assert!((len - 1.0).abs() < 1e-4, "{bright:?}: {l:?}");
+                    prop_assert!(l.rgb.iter().all(|c| c.is_finite() && *c >= 0.0), "{l:?}");
+                }
+                let (kept, extra): (Vec<&envlight::Light>, Vec<&envlight::Light>) =
+                    lights.iter().partition(|l| l.id < FADING_ID_BASE);
+                prop_assert_eq!(kept.iter().map(|l| l.id).collect::<Vec<_>>(), ids(frame));
+                if bright != BrightHistory::Fade {
+                    prop_assert!(extra.is_empty());
+                }
+                let window = taps.len();
+                let steady = t + 1 >= window
+                    && (0..window).all(|k| ids(&frames[t - k]) == ids(frame));
+                if steady {
+                    let want: f64 = (0..window)
+                        .map(|k| taps[k] / weights * total(&frames[t - k]))
+                        .sum();
+                    let got = total(&lights);
+                    prop_assert!(
+                        (got - want).abs() <= 1e-5 * want.max(1.0),
+                        "{bright:?} frame {t}: {got} against {want}"
+                    );
+                }
+            }
         }
     }
 }
