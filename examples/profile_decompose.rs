@@ -15,7 +15,7 @@
 //! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`), `no-refine` (without the
 //! refinement of the concentrated sources' regions, `--no-refine-concentrated`), `blend` and
 //! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`) and
-//! `merge` (`--merge`, the default spacing).
+//! `merge` (`--merge`, the default spacing) and `lights=N` (default 256).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
@@ -42,6 +42,7 @@ fn main() -> anyhow::Result<()> {
             "lloyd" => settings.concentrated_lloyd = true,
             "no-refine" => settings.refine_concentrated = false,
             "blend" => settings.bright_history = BrightHistory::Blend,
+            other if other.starts_with("lights=") => settings.lights = other[7..].parse()?,
             "fade" => settings.bright_history = BrightHistory::Fade,
             "merge" => {
                 settings.merge_spacing_fraction =
@@ -49,8 +50,8 @@ fn main() -> anyhow::Result<()> {
             }
             other => {
                 anyhow::bail!(
-                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, blend, fade \
-                     or merge)"
+                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, blend, fade, \
+                     lights=N or merge)"
                 )
             }
         }

@@ -188,6 +188,71 @@ fn light_dir(l: &Light) -> DVec3 {
     DVec3::new(l.dir[0].into(), l.dir[1].into(), l.dir[2].into())
 }
 
+/// The nearest light to a direction, among one frame's lights: the largest dot product, ties
+/// to the later light. By a plain scan for a few queries; for many (a large light count with
+/// many bright lights) through the lights sorted by y, looking only as far from the query's y
+/// as the best match so far allows (|Δy| ≤ |d − l|, and |d − l|² = 2 − 2 d·l for unit
+/// vectors). Both give the same light.
+struct NearestLight {
+    dirs: Vec<DVec3>,
+    /// (y, position), sorted; empty for the plain scan.
+    by_y: Vec<(f64, usize)>,
+}
+
+impl NearestLight {
+    /// Queries × lights above which the lights are sorted by y.
+    const SORT_ABOVE: usize = 1 << 15;
+
+    /// Room for the f32 rounding of the lights' directions (|l|² = 1 ± 4·10⁻⁷) in the bound.
+    const SLACK: f64 = 1e-6;
+
+    fn new(lights: &[Light], queries: usize) -> Self {
+        let dirs: Vec<DVec3> = lights.iter().map(light_dir).collect();
+        let mut by_y = Vec::new();
+        if queries.saturating_mul(lights.len()) > Self::SORT_ABOVE {
+            by_y = dirs.iter().enumerate().map(|(i, d)| (d.y, i)).collect();
+            by_y.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        }
+        Self { dirs, by_y }
+    }
+
+    /// Position of the light nearest to the unit vector `d` (0 if there is none).
+    fn nearest(&self, d: DVec3) -> usize {
+        let mut best = (f64::NEG_INFINITY, 0usize);
+        let consider = |best: &mut (f64, usize), i: usize| {
+            let cos = self.dirs[i].dot(d);
+            if cos > best.0 || (cos == best.0 && i > best.1) {
+                *best = (cos, i);
+            }
+        };
+        if self.by_y.is_empty() {
+            for i in 0..self.dirs.len() {
+                consider(&mut best, i);
+            }
+            return best.1;
+        }
+        let start = self.by_y.partition_point(|(y, _)| *y < d.y);
+        let (mut up, mut down) = (start, start);
+        loop {
+            let reach = 2.0 - 2.0 * best.0 + Self::SLACK;
+            let open = |k: usize| (self.by_y[k].0 - d.y).powi(2) <= reach;
+            let go_up = up < self.by_y.len() && open(up);
+            let go_down = down > 0 && open(down - 1);
+            if !(go_up || go_down) {
+                return best.1;
+            }
+            if go_up {
+                consider(&mut best, self.by_y[up].1);
+                up += 1;
+            }
+            if go_down {
+                down -= 1;
+                consider(&mut best, self.by_y[down].1);
+            }
+        }
+    }
+}
+
 /// Per-id FIR filter over light lists.
 #[derive(Clone, Debug)]
 pub struct FirFilter {
@@ -382,33 +447,33 @@ impl FirFilter {
             lights[first..].sort_unstable_by_key(|l| l.id);
         } else {
             // Fold: each older group joins the light nearest to it now.
-            let mut folded: Vec<(usize, Group)> = Vec::with_capacity(older.len());
-            for &(parent, ref g) in older.iter() {
-                // A group without a direction (its samples cancel) stays with its light.
-                let nearest = match g.weighted_dir.try_normalize() {
-                    None => parent,
-                    Some(d) => {
-                        let mut nearest = (parent, f64::NEG_INFINITY);
-                        for (i, l) in lights.iter().enumerate() {
-                            let cos = light_dir(l).dot(d);
-                            if cos >= nearest.1 {
-                                nearest = (i, cos);
-                            }
-                        }
-                        nearest.0
-                    }
-                };
-                match folded.iter_mut().find(|(i, _)| *i == nearest) {
-                    Some((_, sum)) => sum.add_folded(g),
-                    None => {
+            let search = NearestLight::new(lights, older.len());
+            let mut folded: Vec<(usize, Group)> = older
+                .iter()
+                .map(|&(parent, g)| {
+                    // A group without a direction (its samples cancel) stays with its light.
+                    let nearest = g
+                        .weighted_dir
+                        .try_normalize()
+                        .map_or(parent, |d| search.nearest(d));
+                    (nearest, g)
+                })
+                .collect();
+            // Stable: a light's groups are added in the order they came.
+            folded.sort_by_key(|(i, _)| *i);
+            let mut sums: Vec<(usize, Group)> = Vec::new();
+            for (i, g) in folded {
+                match sums.last_mut() {
+                    Some((last, sum)) if *last == i => sum.add_folded(&g),
+                    _ => {
                         let mut sum = Group::default();
-                        sum.add_light(&lights[nearest]);
-                        sum.add_folded(g);
-                        folded.push((nearest, sum));
+                        sum.add_light(&lights[i]);
+                        sum.add_folded(&g);
+                        sums.push((i, sum));
                     }
                 }
             }
-            for (i, sum) in folded {
+            for (i, sum) in sums {
                 let fallback = light_dir(&lights[i]);
                 lights[i] = sum.to_light(lights[i].id, fallback);
             }
@@ -716,6 +781,52 @@ mod tests {
             }
             if bright == BrightHistory::Fade {
                 assert!(most > 43, "no fading light was made");
+            }
+        }
+    }
+
+    /// The y-sorted search finds the same light as the plain scan, ties (duplicate directions)
+    /// and the poles included.
+    #[test]
+    fn sorted_nearest_search_equals_the_plain_scan() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for n in [1usize, 2, 7, 300, 5000] {
+            let mut lights: Vec<Light> = (0..n)
+                .map(|i| {
+                    let z = 2.0 * next() - 1.0;
+                    let phi = std::f64::consts::TAU * next();
+                    let r = (1.0 - z * z).sqrt();
+                    let d = DVec3::new(r * phi.cos(), z, r * phi.sin()).as_vec3();
+                    light(i as u32, d.to_array(), 1.0)
+                })
+                .collect();
+            // Duplicates (ties go to the later light) and the poles.
+            for k in 0..n / 10 {
+                let copy = lights[k].dir;
+                lights[n - 1 - k].dir = copy;
+            }
+            if n > 2 {
+                lights[0].dir = [0.0, 1.0, 0.0];
+                lights[1].dir = [0.0, -1.0, 0.0];
+            }
+            let plain = NearestLight::new(&lights, 0);
+            let sorted = NearestLight::new(&lights, usize::MAX);
+            assert!(plain.by_y.is_empty() && sorted.by_y.len() == n);
+            let mut queries: Vec<DVec3> = lights.iter().take(50).map(light_dir).collect();
+            queries.extend([DVec3::Y, -DVec3::Y, DVec3::X]);
+            for _ in 0..200 {
+                let q = DVec3::new(2.0 * next() - 1.0, 2.0 * next() - 1.0, 2.0 * next() - 1.0);
+                queries.extend(q.try_normalize());
+            }
+            for q in queries {
+                let q = q.normalize();
+                assert_eq!(plain.nearest(q), sorted.nearest(q), "n {n}, query {q}");
             }
         }
     }
