@@ -62,12 +62,14 @@ pub const MAX_TAPS: usize = 64;
 
 /// A light brighter than this × the frame's mean light has its window grouped in cones
 /// ([`BrightHistory`]). Measured on the temporal table's four sequences, factors 4 to 30 gave the
-/// same flicker (docs/quality.md).
+/// same flicker, and 2 on the sky sequences too; 0.5 groups many sky lights, whose largest
+/// moves per frame then triple (docs/quality.md).
 pub const BRIGHT_FACTOR: f64 = 10.0;
 
 /// The cone of a bright light's groups, in degrees: less than an input pixel of a 1024-wide map
-/// (0.35°), so samples that held different pixels of a sun stay apart. 0.1° to 0.3° measured the
-/// same.
+/// (0.35°), so samples that held different pixels of a sun stay apart. On the built-in sky's
+/// sequences (512 wide, 0.70° pixels) 0.03° to 0.3° measured the same; 1° gives the per-id
+/// mean's flicker (docs/quality.md).
 pub const BRIGHT_CONE_DEG: f64 = 0.1;
 
 /// Ids of [`BrightHistory::Fade`]'s extra lights start here, above every point-set index.
