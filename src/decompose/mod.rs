@@ -276,8 +276,7 @@ impl Decomposer {
     }
 
     /// Decomposes `frame` into `n` lights (the first n of the progressive set, and any fading
-    /// lights of [`BrightHistory::Fade`]): the light count
-    /// may change every frame.
+    /// lights of [`BrightHistory::Fade`]): the light count may change every frame.
     pub fn decompose_with_count(
         &mut self,
         frame: &HdrFrame,
