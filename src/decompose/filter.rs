@@ -25,7 +25,9 @@
 //! delay Σ k·w_k of any taps.
 //!
 //! An id that is missing from a frame (a smaller light count, say) loses its history; when it
-//! returns, its history restarts from its first new value, so no stale position leaks in.
+//! returns, its history restarts from its first new value, so no stale position leaks in. Ids
+//! may be any u32: those of a decomposition index a table, larger ones (fading lights' ids fed
+//! back into a filter, say) a map that forgets the ids missing from the last frame.
 //!
 //! **Bright lights** ([`BrightHistory`]). A sun or a lamp of a few input pixels is shared by a
 //! few lights, and its pixels change hands between them from frame to frame (light 12 holds
@@ -59,6 +61,10 @@ pub const DEFAULT_TAPS: [f64; 7] = [1.0, 6.0, 15.0, 20.0, 15.0, 6.0, 1.0];
 
 /// Most taps accepted.
 pub const MAX_TAPS: usize = 64;
+
+/// Ids below this have their histories in a table indexed by id (a decomposition's ids are
+/// below [`super::MAX_POINTS`]); larger ones, in a map.
+const DENSE_IDS: usize = 1 << 20;
 
 /// A light brighter than this × the frame's mean light has its window grouped in cones
 /// ([`BrightHistory`]). Measured on the temporal table's four sequences, factors 4 to 30 gave the
@@ -259,7 +265,11 @@ impl NearestLight {
 #[derive(Clone, Debug)]
 pub struct FirFilter {
     taps: Vec<f64>,
+    /// Histories of ids below [`DENSE_IDS`], indexed by id (a decomposition's ids).
     histories: Vec<History>,
+    /// Histories of larger ids (fading lights' ids fed back, say): pruned of ids not seen in
+    /// the last frame, so memory stays bounded whatever ids arrive.
+    sparse: std::collections::HashMap<u32, History>,
     frame: u64,
     bright: BrightHistory,
     /// Scratch: the cone groups of one bright light's window.
@@ -285,6 +295,7 @@ impl FirFilter {
         Ok(Self {
             taps: taps.iter().map(|t| t / sum).collect(),
             histories: Vec::new(),
+            sparse: std::collections::HashMap::new(),
             frame: 0,
             bright: BrightHistory::Fold,
             groups: Vec::new(),
@@ -326,6 +337,7 @@ impl FirFilter {
     /// Forgets all histories.
     pub fn reset(&mut self) {
         self.histories.clear();
+        self.sparse.clear();
     }
 
     /// Filters one frame's lights (matched by id). With [`BrightHistory::Fade`], extra fading
@@ -347,6 +359,7 @@ impl FirFilter {
         let Self {
             taps,
             histories,
+            sparse,
             groups,
             older,
             ..
@@ -354,7 +367,7 @@ impl FirFilter {
         older.clear();
         for (position, light) in lights.iter_mut().enumerate() {
             let id = light.id as usize;
-            if id >= histories.len() {
+            if id < DENSE_IDS && id >= histories.len() {
                 histories.resize_with(id + 1, History::default);
             }
             let rgb = light.rgb.map(f64::from);
@@ -364,7 +377,10 @@ impl FirFilter {
                 solid_angle: light.solid_angle.into(),
                 power: luminance(rgb),
             };
-            let h = &mut histories[id];
+            let h = match histories.get_mut(id) {
+                Some(h) => h,
+                None => sparse.entry(light.id).or_default(),
+            };
             let continuing = frame > 0 && h.last_seen == Some(frame - 1);
             if !continuing {
                 h.ring.clear();
@@ -429,6 +445,9 @@ impl FirFilter {
             light.dir = [dir.x as f32, dir.y as f32, dir.z as f32];
             light.rgb = rgb.map(|c| c.max(0.0) as f32);
             light.solid_angle = solid_angle.max(0.0) as f32;
+        }
+        if sparse.len() > 2 * lights.len() {
+            sparse.retain(|_, h| h.last_seen == Some(frame));
         }
         if older.is_empty() {
             return;
@@ -831,6 +850,36 @@ mod tests {
                 assert_eq!(plain.nearest(q), sorted.nearest(q), "n {n}, query {q}");
             }
         }
+    }
+
+    /// Any u32 id is filtered as a small one (no table the size of the id), and the histories
+    /// of large ids that stop coming are dropped, so memory stays bounded.
+    #[test]
+    fn large_ids_are_filtered_like_small_ones_in_bounded_memory() {
+        let mut small = FirFilter::with_default_taps();
+        let mut large = FirFilter::with_default_taps();
+        for t in 0..20 {
+            let a = t as f32 * 0.05;
+            let frame = |ids: [u32; 3]| -> Vec<Light> {
+                ids.iter()
+                    .enumerate()
+                    .map(|(k, &id)| light(id, [a.sin(), a.cos(), 0.0], 1.0 + k as f32 + a))
+                    .collect()
+            };
+            let mut s = frame([1, 2, 3]);
+            let mut l = frame([5, 1 << 30, u32::MAX]);
+            small.apply(&mut s);
+            large.apply(&mut l);
+            for (a, b) in s.iter().zip(&l) {
+                assert_eq!((a.dir, a.rgb), (b.dir, b.rgb), "frame {t}");
+            }
+        }
+        assert!(large.histories.len() <= 6 && large.sparse.len() == 2);
+        // A stream of ever-new large ids (fading ids fed back, say).
+        for t in 0..1000u32 {
+            large.apply(&mut vec![light(DENSE_IDS as u32 + t, [0.0, 1.0, 0.0], 1.0)]);
+        }
+        assert!(large.sparse.len() <= 3, "{}", large.sparse.len());
     }
 
     #[test]
