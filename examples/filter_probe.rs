@@ -50,7 +50,7 @@
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
-use envlight::decompose::filter::{DEFAULT_TAPS, MAX_TAPS};
+use envlight::decompose::filter::{DEFAULT_TAPS, FADING_ID_BASE, MAX_TAPS};
 use envlight::decompose::{
     luminance_f64 as lum, BrightHistory, DecomposeSettings, Decomposer, FirFilter,
 };
@@ -61,8 +61,6 @@ use envlight::HdrFrame;
 use glam::DVec3;
 
 const LIGHTS: usize = 256;
-/// Ids of the extra lights of the `cluster` variants start here (above any point-set index).
-const EXTRA_ID_BASE: usize = 1 << 24;
 /// Sub-pixels per side of the areal truth's bright pixels (4 and 8 agreed to 0.0001 on the sky
 /// sequence, measured with a first version of the areal truth).
 const AREAL_SPLIT: u32 = 8;
@@ -147,7 +145,7 @@ fn cluster_filter(
             let id = if i == 0 {
                 newest.id as usize
             } else {
-                EXTRA_ID_BASE + newest.id as usize * MAX_TAPS + i
+                FADING_ID_BASE as usize + newest.id as usize * MAX_TAPS + i
             };
             let dir = g.weighted_dir.try_normalize().unwrap_or(direction(newest));
             out.push(light_at(id, dir, g.rgb, g.solid_angle));
@@ -354,7 +352,7 @@ fn main() -> Result<()> {
             let ground: Series = lists.iter().map(|l| light_irradiance(l).1).collect();
             let mut max_move: f64 = 0.0;
             for pair in lists.windows(2) {
-                for l in pair[1].iter().filter(|l| (l.id as usize) < EXTRA_ID_BASE) {
+                for l in pair[1].iter().filter(|l| l.id < FADING_ID_BASE) {
                     if let Some(p) = pair[0].iter().find(|p| p.id == l.id) {
                         let cos = direction(l).dot(direction(p)).clamp(-1.0, 1.0);
                         max_move = max_move.max(cos.acos().to_degrees());

@@ -98,7 +98,7 @@ pub enum BrightHistory {
 }
 
 impl BrightHistory {
-    /// Every value, in the order of the docs.
+    /// Every value.
     pub const ALL: [BrightHistory; 3] = [Self::Blend, Self::Fold, Self::Fade];
 
     /// The name used in configs and on the command line.
@@ -134,11 +134,14 @@ struct History {
     last_seen: Option<u64>,
 }
 
-/// Tap-weighted sums over some of a window's samples.
+/// Tap-weighted sums over some of a window's samples: a whole window for the per-id mean, one
+/// cone of it for a bright light.
 #[derive(Clone, Copy, Debug, Default)]
 struct Group {
-    /// Σ w·max(P, tiny)·dir: with no power, the plain mean of the directions.
-    weighted_dir: DVec3,
+    /// Σ w·P·dir.
+    power_weighted_dir: DVec3,
+    /// Σ w·dir: the direction where the group has no power.
+    plain_dir: DVec3,
     rgb: [f64; 3],
     solid_angle: f64,
     /// Position in the window (0: this frame) of the group's newest sample.
@@ -146,12 +149,9 @@ struct Group {
 }
 
 impl Group {
-    /// A direction's weight when its power is 0: tiny, so a group of dark samples still has a
-    /// direction (their plain mean) without moving one that has power.
-    const DARK_WEIGHT: f64 = 1e-30;
-
     fn add(&mut self, w: f64, s: &Sample) {
-        self.weighted_dir += (w * s.power.max(Self::DARK_WEIGHT)) * s.dir;
+        self.power_weighted_dir += (w * s.power) * s.dir;
+        self.plain_dir += w * s.dir;
         for (sum, c) in self.rgb.iter_mut().zip(s.rgb) {
             *sum += w * c;
         }
@@ -160,11 +160,20 @@ impl Group {
 
     /// Adds another group's sums (its taps' weights already applied).
     fn add_folded(&mut self, other: &Group) {
-        self.weighted_dir += other.weighted_dir;
+        self.power_weighted_dir += other.power_weighted_dir;
+        self.plain_dir += other.plain_dir;
         for (sum, c) in self.rgb.iter_mut().zip(other.rgb) {
             *sum += c;
         }
         self.solid_angle += other.solid_angle;
+    }
+
+    /// The power-weighted mean direction; without power in the group (or with an overflow),
+    /// the plain mean; `None` where the directions cancel.
+    fn direction(&self) -> Option<DVec3> {
+        self.power_weighted_dir
+            .try_normalize()
+            .or_else(|| self.plain_dir.try_normalize())
     }
 
     fn add_light(&mut self, l: &Light) {
@@ -182,7 +191,7 @@ impl Group {
 
     /// The group as a light with `id` (`fallback` where its direction is undefined).
     fn to_light(self, id: u32, fallback: DVec3) -> Light {
-        let dir = self.weighted_dir.try_normalize().unwrap_or(fallback);
+        let dir = self.direction().unwrap_or(fallback);
         Light {
             id,
             dir: [dir.x as f32, dir.y as f32, dir.z as f32],
@@ -396,55 +405,36 @@ impl FirFilter {
             let (recent, earlier) = h.ring.split_at(h.head + 1);
             let newest_first = || recent.iter().rev().chain(earlier.iter().rev());
 
-            if sample.power > bright_above {
-                groups.clear();
-                for (k, (w, s)) in taps.iter().zip(newest_first()).enumerate() {
-                    let joins = groups.iter().position(|g| {
-                        g.weighted_dir.try_normalize().unwrap_or(s.dir).dot(s.dir) >= cone_cos
-                    });
-                    let g = match joins {
-                        Some(i) => &mut groups[i],
-                        None => {
-                            groups.push(Group {
-                                newest: k,
-                                ..Group::default()
-                            });
-                            let last = groups.len() - 1;
-                            &mut groups[last]
-                        }
-                    };
-                    g.add(*w, s);
+            if sample.power <= bright_above {
+                // The per-id mean: the window as one group.
+                let mut window = Group::default();
+                for (w, s) in taps.iter().zip(newest_first()) {
+                    window.add(*w, s);
                 }
-                *light = groups[0].to_light(light.id, sample.dir);
-                older.extend(groups[1..].iter().map(|g| (position, *g)));
+                *light = window.to_light(light.id, sample.dir);
                 continue;
             }
-
-            let mut power_weighted_dir = DVec3::ZERO;
-            let mut rgb = [0.0f64; 3];
-            let mut solid_angle = 0.0;
-            for (w, s) in taps.iter().zip(newest_first()) {
-                power_weighted_dir += (*w * s.power) * s.dir;
-                for c in 0..3 {
-                    rgb[c] += w * s.rgb[c];
-                }
-                solid_angle += w * s.solid_angle;
+            // A bright light: one group per cone, the first holding the newest sample.
+            groups.clear();
+            for (k, (w, s)) in taps.iter().zip(newest_first()).enumerate() {
+                let joins = groups
+                    .iter()
+                    .position(|g| g.direction().unwrap_or(s.dir).dot(s.dir) >= cone_cos);
+                let g = match joins {
+                    Some(i) => &mut groups[i],
+                    None => {
+                        groups.push(Group {
+                            newest: k,
+                            ..Group::default()
+                        });
+                        let last = groups.len() - 1;
+                        &mut groups[last]
+                    }
+                };
+                g.add(*w, s);
             }
-            // Without power in the window (or with an overflow), the plain mean of directions.
-            let dir = power_weighted_dir
-                .try_normalize()
-                .or_else(|| {
-                    let plain: DVec3 = taps
-                        .iter()
-                        .zip(newest_first())
-                        .map(|(w, s)| *w * s.dir)
-                        .sum();
-                    plain.try_normalize()
-                })
-                .unwrap_or(sample.dir);
-            light.dir = [dir.x as f32, dir.y as f32, dir.z as f32];
-            light.rgb = rgb.map(|c| c.max(0.0) as f32);
-            light.solid_angle = solid_angle.max(0.0) as f32;
+            *light = groups[0].to_light(light.id, sample.dir);
+            older.extend(groups[1..].iter().map(|g| (position, *g)));
         }
         if sparse.len() > 2 * lights.len() {
             sparse.retain(|_, h| h.last_seen == Some(frame));
@@ -473,10 +463,7 @@ impl FirFilter {
                 .iter()
                 .map(|&(parent, g)| {
                     // A group without a direction (its samples cancel) stays with its light.
-                    let nearest = g
-                        .weighted_dir
-                        .try_normalize()
-                        .map_or(parent, |d| search.nearest(d));
+                    let nearest = g.direction().map_or(parent, |d| search.nearest(d));
                     (nearest, g)
                 })
                 .collect();
@@ -747,13 +734,7 @@ mod tests {
     /// and `blend` are the input's.
     #[test]
     fn every_mode_filters_the_energy_exactly() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = super::super::xorshift_unit(0x9e37_79b9_7f4a_7c15);
         let frames: Vec<Vec<Light>> = (0..40)
             .map(|_| {
                 (0..43u32)
@@ -810,13 +791,7 @@ mod tests {
     /// and the poles included.
     #[test]
     fn sorted_nearest_search_equals_the_plain_scan() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = super::super::xorshift_unit(0x2545_f491_4f6c_dd1d);
         for n in [1usize, 2, 7, 300, 5000] {
             let mut lights: Vec<Light> = (0..n)
                 .map(|i| {

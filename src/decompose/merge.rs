@@ -248,13 +248,7 @@ mod tests {
     fn windowed_search_equals_the_full_scan() {
         // Seeded xorshift: clusters of crowded lights (suns, lamps, some at the poles, where y
         // bunches up) among lights spread over the sphere, at several counts and radii.
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut unit = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = super::super::xorshift_unit(0x9e37_79b9_7f4a_7c15);
         for case in 0..60 {
             let n = [2, 7, 64, 256, 1024][case % 5];
             let mut lights = Vec::with_capacity(n);

@@ -483,6 +483,18 @@ pub fn frame_integral(frame: &HdrFrame) -> [f64; 3] {
     sum
 }
 
+/// The unit tests' seeded xorshift generator: uniform numbers in [0, 1), the same sequence for
+/// the same seed.
+#[cfg(test)]
+pub(crate) fn xorshift_unit(mut state: u64) -> impl FnMut() -> f64 {
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
