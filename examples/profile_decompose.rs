@@ -14,7 +14,8 @@
 //! default), then any of `no-reuse` (build the region pass's candidate lists afresh every frame)
 //! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`), `no-refine` (without the
 //! refinement of the concentrated sources' regions, `--no-refine-concentrated`), `blend` and
-//! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`) and
+//! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`),
+//! `no-split` (without the split of bright lights, `--no-split`) and
 //! `merge` (`--merge`, the default spacing) and `lights=N` (default 256).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
@@ -41,6 +42,7 @@ fn main() -> anyhow::Result<()> {
             "no-reuse" => reuse = false,
             "lloyd" => settings.concentrated_lloyd = true,
             "no-refine" => settings.refine_concentrated = false,
+            "no-split" => settings.split_factor = None,
             "blend" => settings.bright_history = BrightHistory::Blend,
             other if other.starts_with("lights=") => settings.lights = other[7..].parse()?,
             "fade" => settings.bright_history = BrightHistory::Fade,
@@ -50,8 +52,8 @@ fn main() -> anyhow::Result<()> {
             }
             other => {
                 anyhow::bail!(
-                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, blend, fade, \
-                     lights=N or merge)"
+                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, no-split, \
+                     blend, fade, lights=N or merge)"
                 )
             }
         }

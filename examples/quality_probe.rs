@@ -32,7 +32,13 @@
 //! (`lc=1`: [`DecomposeSettings::concentrated_lloyd`], `lf=1`:
 //! [`DecomposeSettings::refine_concentrated`], off unless given); `lf=1` with `lloyd=1 lc=1`:
 //! after the Lloyd step only the concentrated input pixels are assigned again (the working
-//! pixels keep their first regions).
+//! pixels keep their first regions); `sp=K` after the regions, lights holding concentrated
+//! input pixels and more than K × the mean energy split into up to `spm` (8) pieces by k-means,
+//! the weakest lights giving up their slots (`spa=1`: every light above K, concentrated or
+//! not; `spw=1`: only the concentrated input pixels are clustered, the working pixels go as one
+//! lump to the nearest piece; `spr=1`: a removed light goes whole to the nearest light; with
+//! `lib=1`, `sp=K` is [`DecomposeSettings::split_factor`]; `SPSTAT=1`, without `lib`, prints
+//! how many lights split).
 //!
 //! Environment: `NS=128,512` other light counts; `V=1` every cell; `DIAG=MAP:N` the lights with
 //! the largest ground-shadow error of the first variant; `PNG=MAP:N` writes /tmp/probe.png with
@@ -104,6 +110,18 @@ struct Opts {
     lloyd_conc: bool,
     /// After a Lloyd step only the concentrated input pixels are assigned again.
     lloyd_fine_only: bool,
+    /// Split lights holding concentrated input pixels and more than this × the mean energy,
+    /// taking their extra lights from the weakest ones (0 = off).
+    split: f64,
+    /// At most this many pieces per split light.
+    split_max: usize,
+    /// Split every light above the threshold, not only those holding concentrated pixels.
+    split_all: bool,
+    /// Only the concentrated input pixels of a split light are clustered; its working pixels
+    /// go as one lump to the piece nearest their centroid.
+    split_fine_only: bool,
+    /// A removed light goes whole to the light nearest its direction.
+    split_merge_whole: bool,
 }
 
 impl Default for Opts {
@@ -137,6 +155,11 @@ impl Default for Opts {
             gamma_conc: 0.0,
             lloyd_conc: false,
             lloyd_fine_only: false,
+            split: 0.0,
+            split_max: 8,
+            split_all: false,
+            split_fine_only: false,
+            split_merge_whole: false,
         }
     }
 }
@@ -176,6 +199,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             },
             filter_taps: None,
             merge_spacing_fraction: None,
+            split_factor: (o.split > 0.0).then_some(o.split),
             ..DecomposeSettings::default()
         };
         return (
@@ -612,8 +636,184 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             100.0 * changed / total
         );
     }
+    if o.split > 0.0 {
+        lights = split_heavy(&pixels, &mut assign, nwork, n, o);
+    }
     lights.extend(extra);
     (lights, pixels, assign)
+}
+
+/// The `sp` switch: lights above `o.split` × the mean energy (holding concentrated input
+/// pixels unless `spa=1`) split into up to ceil(E / (sp·mean)) pieces by weighted k-means on
+/// their region's pixels; as many of the weakest other lights give their regions to the
+/// nearest remaining lights, so the count stays n.
+fn split_heavy(
+    pixels: &[Px],
+    assign: &mut [usize],
+    nwork: usize,
+    n: usize,
+    o: &Opts,
+) -> Vec<Light> {
+    let lum: Vec<f64> = pixels.iter().map(|p| luminance_f64(p.energy)).collect();
+    let mut e = vec![0.0f64; n];
+    let mut conc = vec![false; n];
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (pi, &a) in assign.iter().enumerate() {
+        e[a] += lum[pi];
+        conc[a] |= pi >= nwork;
+        members[a].push(pi);
+    }
+    let total: f64 = e.iter().sum();
+    let mean = total / n as f64;
+    let mut pieces = vec![1usize; n];
+    let mut extra = 0;
+    for i in 0..n {
+        if (conc[i] || o.split_all) && e[i] > o.split * mean {
+            let k = ((e[i] / (o.split * mean)).ceil() as usize)
+                .min(o.split_max)
+                .min(members[i].len())
+                .max(1);
+            pieces[i] = k;
+            extra += k - 1;
+        }
+    }
+    if std::env::var("SPSTAT").is_ok() {
+        eprintln!(
+            "SPSTAT n={n} split {} lights into {} extra; largest share {:.4}",
+            pieces.iter().filter(|&&k| k > 1).count(),
+            extra,
+            e.iter().cloned().fold(0.0, f64::max) / total
+        );
+    }
+    // The weakest unsplit lights give up their slots.
+    let mut order: Vec<usize> = (0..n).filter(|&i| pieces[i] == 1).collect();
+    order.sort_by(|&a, &b| e[a].total_cmp(&e[b]));
+    let removed: std::collections::HashSet<usize> = order.into_iter().take(extra).collect();
+    let centroid = |idx: &[usize]| -> DVec3 {
+        let mut d = DVec3::ZERO;
+        for &pi in idx {
+            d += pixels[pi].dir * lum[pi].max(1e-300);
+        }
+        d.normalize_or(DVec3::Y)
+    };
+    let dirs: Vec<DVec3> = (0..n).map(|i| centroid(&members[i])).collect();
+    let keep: Vec<usize> = (0..n).filter(|i| !removed.contains(i)).collect();
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for &i in &keep {
+        if pieces[i] == 1 {
+            groups.push(members[i].clone());
+        }
+    }
+    for &r in &removed {
+        for &pi in &members[r] {
+            let mut best = 0;
+            let mut bd = f64::NEG_INFINITY;
+            let from = if o.split_merge_whole {
+                dirs[r]
+            } else {
+                pixels[pi].dir
+            };
+            for (gi, &i) in keep.iter().filter(|&&i| pieces[i] == 1).enumerate() {
+                let d = dirs[i].dot(from);
+                if d > bd {
+                    bd = d;
+                    best = gi;
+                }
+            }
+            groups[best].push(pi);
+        }
+    }
+    for &i in &keep {
+        let k = pieces[i];
+        if k == 1 {
+            continue;
+        }
+        // Seeds: the k brightest pixels spread by farthest-point choice, then Lloyd.
+        let all_idx = &members[i];
+        let fine_idx: Vec<usize> = all_idx.iter().copied().filter(|&pi| pi >= nwork).collect();
+        let idx = if o.split_fine_only {
+            &fine_idx
+        } else {
+            all_idx
+        };
+        let k = k.min(idx.len()).max(1);
+        let mut seeds = vec![*idx
+            .iter()
+            .max_by(|&&a, &&b| lum[a].total_cmp(&lum[b]))
+            .unwrap()];
+        while seeds.len() < k {
+            let next = *idx
+                .iter()
+                .max_by(|&&a, &&b| {
+                    let da = seeds
+                        .iter()
+                        .map(|&s| 1.0 - pixels[s].dir.dot(pixels[a].dir))
+                        .fold(f64::MAX, f64::min)
+                        * lum[a];
+                    let db = seeds
+                        .iter()
+                        .map(|&s| 1.0 - pixels[s].dir.dot(pixels[b].dir))
+                        .fold(f64::MAX, f64::min)
+                        * lum[b];
+                    da.total_cmp(&db)
+                })
+                .unwrap();
+            seeds.push(next);
+        }
+        let mut centres: Vec<DVec3> = seeds.iter().map(|&s| pixels[s].dir).collect();
+        let mut part = vec![Vec::new(); k];
+        for _ in 0..10 {
+            part = vec![Vec::new(); k];
+            for &pi in idx {
+                let mut best = 0;
+                let mut bd = f64::NEG_INFINITY;
+                for (c, cd) in centres.iter().enumerate() {
+                    let d = cd.dot(pixels[pi].dir);
+                    if d > bd {
+                        bd = d;
+                        best = c;
+                    }
+                }
+                part[best].push(pi);
+            }
+            for (c, p) in part.iter().enumerate() {
+                if !p.is_empty() {
+                    centres[c] = centroid(p);
+                }
+            }
+        }
+        if o.split_fine_only {
+            let work: Vec<usize> = all_idx.iter().copied().filter(|&pi| pi < nwork).collect();
+            if !work.is_empty() {
+                let c = centroid(&work);
+                let best = (0..k)
+                    .max_by(|&a, &b| centres[a].dot(c).total_cmp(&centres[b].dot(c)))
+                    .unwrap_or(0);
+                part[best].extend(work);
+            }
+        }
+        groups.extend(part.into_iter().filter(|p| !p.is_empty()));
+    }
+    groups
+        .iter()
+        .enumerate()
+        .map(|(gi, g)| {
+            let mut rgb = [0.0f64; 3];
+            let mut sa = 0.0;
+            for &pi in g {
+                for (acc, v) in rgb.iter_mut().zip(pixels[pi].energy) {
+                    *acc += v;
+                }
+                sa += pixels[pi].omega;
+            }
+            Light {
+                id: gi as u32,
+                dir: centroid(g).as_vec3().to_array(),
+                rgb: rgb.map(|c| c as f32),
+                solid_angle: sa as f32,
+            }
+        })
+        .collect()
 }
 
 fn ground_of(sources: &[(DVec3, f64)]) -> Vec<f64> {
@@ -761,6 +961,11 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                 "gc" => o.gamma_conc = v.parse().with_context(|| format!("{kv}: not a number"))?,
                 "lc" => o.lloyd_conc = v == "1",
                 "lf" => o.lloyd_fine_only = v == "1",
+                "sp" => o.split = v.parse().with_context(|| format!("{kv}: not a number"))?,
+                "spm" => o.split_max = v.parse().with_context(|| format!("{kv}: not a number"))?,
+                "spa" => o.split_all = v == "1",
+                "spw" => o.split_fine_only = v == "1",
+                "spr" => o.split_merge_whole = v == "1",
                 _ => anyhow::bail!("unknown switch {k}"),
             }
         }

@@ -11,6 +11,7 @@
 use anyhow::{bail, Context, Result};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::decompose::merge::DEFAULT_SPACING_FRACTION;
+use envlight::decompose::split::DEFAULT_SPLIT_FACTOR;
 use envlight::decompose::{
     DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
 };
@@ -79,6 +80,18 @@ fn main() {
                     lights: n,
                     filter_taps: None,
                     refine_concentrated: false,
+                    ..DecomposeSettings::default()
+                };
+                Ok(Decomposer::new(settings)?.decompose(frame))
+            }),
+        ),
+        (
+            "envlight, split",
+            Box::new(move |frame: &HdrFrame, n: usize| {
+                let settings = DecomposeSettings {
+                    lights: n,
+                    filter_taps: None,
+                    split_factor: Some(DEFAULT_SPLIT_FACTOR),
                     ..DecomposeSettings::default()
                 };
                 Ok(Decomposer::new(settings)?.decompose(frame))

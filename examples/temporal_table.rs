@@ -30,7 +30,8 @@
 //! ```
 //!
 //! The optional second argument picks sequences (comma-separated, of `sky`, `cloud`, `pan`,
-//! `subpixel`; default all).
+//! `subpixel`; default all). `METHODS="(filter on);split"` in the environment keeps only the
+//! methods whose names contain one of the `;`-separated strings (and median cut).
 
 use anyhow::{Context, Result};
 use envlight::capture::image_file::read_hdr_image;
@@ -95,6 +96,14 @@ fn with_concentrated_lloyd(settings: Option<DecomposeSettings>) -> Option<Decomp
 fn with_bright_history(bright: BrightHistory) -> Option<DecomposeSettings> {
     envlight(true, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT).map(|s| DecomposeSettings {
         bright_history: bright,
+        ..s
+    })
+}
+
+/// The default with the split of bright lights (`--split`).
+fn with_split(filter: bool) -> Option<DecomposeSettings> {
+    envlight(filter, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT).map(|s| DecomposeSettings {
+        split_factor: Some(envlight::decompose::split::DEFAULT_SPLIT_FACTOR),
         ..s
     })
 }
@@ -261,6 +270,14 @@ fn main() -> Result<()> {
             settings: envlight(false, LightPlacement::Centroid, DEFAULT_PDF_EXPONENT),
         },
         Method {
+            name: "envlight, split, filter on",
+            settings: with_split(true),
+        },
+        Method {
+            name: "envlight, split, no filter",
+            settings: with_split(false),
+        },
+        Method {
             name: "envlight, hierarchical warp, filter on",
             settings: envlight_warp(
                 true,
@@ -303,6 +320,19 @@ fn main() -> Result<()> {
             settings: envlight(true, LightPlacement::SamplePoint, 1.0),
         },
     ];
+    // METHODS="a;b": only the methods whose names contain one of these (median cut always).
+    let only: Option<Vec<String>> = std::env::var("METHODS")
+        .ok()
+        .map(|m| m.split(';').map(str::to_owned).collect());
+    let methods: Vec<&Method> = methods
+        .iter()
+        .filter(|m| {
+            m.settings.is_none()
+                || only
+                    .as_ref()
+                    .is_none_or(|o| o.iter().any(|k| m.name.contains(k.as_str())))
+        })
+        .collect();
     println!("| sequence | method | diffuse flicker | ground flicker | ground flicker, lag removed | ground flicker against the filtered areal truth | mean move/frame | p99 move | max move |");
     println!("|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for (_, name, frames) in sequences

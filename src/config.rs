@@ -230,6 +230,8 @@ pub struct RawDecompose {
     pub concentrated_lloyd: Option<bool>,
     pub refine_concentrated: Option<bool>,
     pub bright_history: Option<String>,
+    pub split: Option<bool>,
+    pub split_factor: Option<f64>,
 }
 
 impl RawConfig {
@@ -1133,6 +1135,19 @@ impl RawDecompose {
                 "must be a number in (0, 1]",
             ));
         }
+        let split_factor = self
+            .split_factor
+            .or(d.split_factor)
+            .or(Some(crate::decompose::split::DEFAULT_SPLIT_FACTOR))
+            .unwrap_or_default();
+        if !(split_factor.is_finite() && split_factor >= 1.0) {
+            return Err(invalid(
+                "decompose.split_factor",
+                split_factor,
+                "must be a number of at least 1",
+            ));
+        }
+        let split = self.split.unwrap_or(d.split_factor.is_some());
         Ok(DecomposeSettings {
             lights,
             working_width,
@@ -1144,6 +1159,7 @@ impl RawDecompose {
             concentrated_lloyd: self.concentrated_lloyd.unwrap_or(d.concentrated_lloyd),
             refine_concentrated: self.refine_concentrated.unwrap_or(d.refine_concentrated),
             bright_history,
+            split_factor: split.then_some(split_factor),
         })
     }
 }
@@ -1213,6 +1229,8 @@ mod tests {
             "concentrated_lloyd",
             "refine_concentrated",
             "bright_history",
+            "split",
+            "split_factor",
             "enabled",
             "lobes",
             "fit_height",

@@ -441,6 +441,22 @@ struct DecomposeArgs {
     #[arg(long)]
     no_refine_concentrated: bool,
 
+    /// Split the lights of bright lamps and suns: a light holding a concentrated source and
+    /// more than 3.5× the mean light's energy splits into up to 8 pieces, taken from the
+    /// weakest lights (sharper lamp shadows, 71 of docs/quality.md's 72 rows against 69; a
+    /// little more flicker with the filter on). Off by default.
+    #[arg(long)]
+    split: bool,
+
+    /// Do not split bright lights (overrides the config file).
+    #[arg(long, conflicts_with_all = ["split", "split_factor"])]
+    no_split: bool,
+
+    /// Energy, as a multiple (≥ 1) of the mean light's, above which a light holding a
+    /// concentrated source splits; implies --split. [default: 3.5]
+    #[arg(long, value_name = "F")]
+    split_factor: Option<f64>,
+
     /// What the filter does with the window of a light brighter than 10× the frame's mean light
     /// (a sun's or a lamp's, whose few pixels change hands between lights): see
     /// docs/quality.md, "Temporal stability". [default: fold]
@@ -630,6 +646,17 @@ impl DecomposeArgs {
         if self.no_refine_concentrated {
             dec.refine_concentrated = Some(false);
         }
+        if self.split {
+            dec.split = Some(true);
+        }
+        if self.no_split {
+            dec.split = Some(false);
+        }
+        if let Some(f) = self.split_factor {
+            dec.split = Some(true);
+            dec.split_factor = Some(f);
+            note("decompose.split_factor", "--split-factor");
+        }
         if let Some(b) = self.bright_history {
             dec.bright_history = Some(
                 match b {
@@ -796,11 +823,12 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     );
     println!(
         "  decompose: {} lights, warp {:?}, refinement of concentrated sources {}, concentrated \
-         Lloyd step {}, filter {} (bright lights: {})",
+         Lloyd step {}, split of bright lights {}, filter {} (bright lights: {})",
         config.decompose.lights,
         config.decompose.warp,
         on_off(config.decompose.refine_concentrated),
         on_off(config.decompose.concentrated_lloyd),
+        split_description(config.decompose.split_factor),
         on_off(config.decompose.filter_taps.is_some()),
         config.decompose.bright_history.name()
     );
@@ -1058,8 +1086,8 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
     let d = &config.decompose;
     tracing::info!(
         "decomposing into {} lights (working width {}, placement {:?}, warp {:?}, density \
-         exponent {}, refinement of concentrated sources {}, concentrated Lloyd step {}, filter \
-         {}, merge {})",
+         exponent {}, refinement of concentrated sources {}, concentrated Lloyd step {}, split \
+         of bright lights {}, filter {}, merge {})",
         d.lights,
         d.working_width,
         d.placement,
@@ -1067,6 +1095,7 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         d.pdf_exponent,
         on_off(d.refine_concentrated),
         on_off(d.concentrated_lloyd),
+        split_description(d.split_factor),
         d.filter_taps
             .as_ref()
             .map_or("off".to_string(), |t| format!(
@@ -1411,6 +1440,11 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
 }
 
 /// "on" or "off", for the settings in log lines and `check-config`.
+/// "above F× the mean light" or "off", for the split of bright lights.
+fn split_description(factor: Option<f64>) -> String {
+    factor.map_or("off".to_string(), |f| format!("above {f}× the mean light"))
+}
+
 fn on_off(on: bool) -> &'static str {
     if on {
         "on"

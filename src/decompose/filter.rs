@@ -210,7 +210,7 @@ fn light_dir(l: &Light) -> DVec3 {
 /// many bright lights) through the lights sorted by y, looking only as far from the query's y
 /// as the best match so far allows (|Δy| ≤ |d − l|, and |d − l|² = 2 − 2 d·l for unit
 /// vectors). Both give the same light.
-struct NearestLight {
+pub(super) struct NearestLight {
     dirs: Vec<DVec3>,
     /// (y, position), sorted; empty for the plain scan.
     by_y: Vec<(f64, usize)>,
@@ -223,7 +223,7 @@ impl NearestLight {
     /// Room for the f32 rounding of the lights' directions (|l|² = 1 ± 4·10⁻⁷) in the bound.
     const SLACK: f64 = 1e-6;
 
-    fn new(lights: &[Light], queries: usize) -> Self {
+    pub(super) fn new(lights: &[Light], queries: usize) -> Self {
         let dirs: Vec<DVec3> = lights.iter().map(light_dir).collect();
         let mut by_y = Vec::new();
         if queries.saturating_mul(lights.len()) > Self::SORT_ABOVE {
@@ -234,7 +234,7 @@ impl NearestLight {
     }
 
     /// Position of the light nearest to the unit vector `d` (0 if there is none).
-    fn nearest(&self, d: DVec3) -> usize {
+    pub(super) fn nearest(&self, d: DVec3) -> usize {
         let mut best = (f64::NEG_INFINITY, 0usize);
         let consider = |best: &mut (f64, usize), i: usize| {
             let cos = self.dirs[i].dot(d);

@@ -566,7 +566,8 @@ pub(super) struct Scratch {
     candidates: Candidates,
     /// Lights holding input pixels of concentrated sources.
     holds_concentrated: Vec<bool>,
-    /// The light each concentrated input pixel (`WorkingMap::fine`) went to.
+    /// The light each concentrated input pixel (`WorkingMap::fine`) went to (kept up to date
+    /// by the refinement and the Lloyd step).
     fine_labels: Vec<u32>,
     /// Per light, how many working pixels and input pixels its region holds.
     members: Vec<u32>,
@@ -597,6 +598,12 @@ impl Scratch {
     /// How many times the candidate lists have been built in full.
     pub(super) fn candidate_builds(&self) -> u64 {
         self.candidates.builds
+    }
+
+    /// The light each concentrated input pixel (`WorkingMap::fine`) holds after the last
+    /// region pass (after the refinement or Lloyd step, if any).
+    pub(super) fn fine_labels(&self) -> &[u32] {
+        &self.fine_labels
     }
 }
 
@@ -865,7 +872,7 @@ fn accumulate(args: Accumulate<'_>) {
             }
         }
     }
-    for (sample, from) in map.fine.iter().zip(fine_labels.iter()) {
+    for (sample, from) in map.fine.iter().zip(fine_labels.iter_mut()) {
         let Some(list) = local_of(grid.bucket_of(sample.pixel as usize)) else {
             continue;
         };
@@ -873,6 +880,7 @@ fn accumulate(args: Accumulate<'_>) {
         if to != *from {
             let (energy, weighted_dir, omega) = fine_contribution(sample);
             move_member(regions, members, (*from, to), energy, weighted_dir, omega);
+            *from = to;
         }
     }
     empty_regions_exactly(regions, members);
@@ -935,13 +943,15 @@ fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
         });
         let bucket_list = &candidates.list[start as usize..end as usize];
         let list = pixel_candidates.of(map, pixel, bucket_list, new_lights);
-        let labels = &fine_labels[first..first + group.len()];
+        let labels = &mut fine_labels[first..first + group.len()];
         first += group.len();
-        for (sample, &from) in group.iter().zip(labels) {
+        for (sample, label) in group.iter().zip(labels) {
+            let from = *label;
             let to = nearest(list, new_lights, Vec3::from(sample.dir), from as usize) as u32;
             if to != from {
                 let (energy, weighted_dir, omega) = fine_contribution(sample);
                 move_member(regions, members, (from, to), energy, weighted_dir, omega);
+                *label = to;
             }
         }
     }
@@ -1489,7 +1499,8 @@ mod tests {
             }
         }
         let mut changed = 0;
-        for (sample, &first) in map.fine.iter().zip(&scratch.fine_labels) {
+        let labels = first_pass.fine_labels.iter().zip(&scratch.fine_labels);
+        for (sample, (&first, &last)) in map.fine.iter().zip(labels) {
             // The nearest light after the step; at an exact f32 tie with the light the first
             // pass chose (rooitou_park has one such input pixel), that light, as the step keeps
             // a pixel's light unless another is strictly nearer.
@@ -1499,6 +1510,7 @@ mod tests {
             let tied = scratch.new_lights[first].dot(d) == scratch.new_lights[best].dot(d);
             let nearest = if tied { first } else { best };
             changed += usize::from(nearest != first);
+            assert_eq!(last as usize, nearest, "the input pixel's recorded light");
             let energy = sample.energy.map(f64::from);
             let dir = sample.dir.map(f64::from);
             add(nearest, energy, dir, f64::from(sample.solid_angle));
