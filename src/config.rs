@@ -1363,6 +1363,11 @@ mod tests {
                 "1",
             ),
             (
+                "[decompose]\nsplit_factor = 0.5",
+                "decompose.split_factor",
+                "0.5",
+            ),
+            (
                 "[decompose]\nbright_history = \"merge\"",
                 "decompose.bright_history",
                 "merge",

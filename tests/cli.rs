@@ -180,6 +180,17 @@ fn options_are_accepted() {
             assert!(!(16..1 << 24).contains(&id), "{l}");
         }
     }
+    let o = decompose_small_sky(2, 16, &[]);
+    assert_logged(&o, "split of bright lights off");
+    let o = decompose_small_sky(2, 16, &["--split"]);
+    assert_logged(&o, "split of bright lights above 3.5× the mean light");
+    check_frames(&stdout(&o), 16);
+    let o = decompose_small_sky(2, 16, &["--split-factor", "2"]);
+    assert_logged(&o, "split of bright lights above 2× the mean light");
+    check_frames(&stdout(&o), 16);
+    let o = envlight(&["decompose", "--frames", "1", "--split-factor", "0.5"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--split-factor"), "{}", stderr(&o));
     let o = decompose_small_sky(2, 8, &["--bright-history", "blend"]);
     assert_logged(&o, "bright lights: blend");
     let o = envlight(&["decompose", "--frames", "1", "--bright-history", "merge"]);
