@@ -15,7 +15,7 @@
 //! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`), `no-refine` (without the
 //! refinement of the concentrated sources' regions, `--no-refine-concentrated`), `blend` and
 //! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`),
-//! `no-split` (without the split of bright lights, `--no-split`) and
+//! `split` (the split of bright lights, `--split`) and
 //! `merge` (`--merge`, the default spacing) and `lights=N` (default 256).
 //! Prints the mean, median and minimum
 //! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
@@ -42,7 +42,9 @@ fn main() -> anyhow::Result<()> {
             "no-reuse" => reuse = false,
             "lloyd" => settings.concentrated_lloyd = true,
             "no-refine" => settings.refine_concentrated = false,
-            "no-split" => settings.split_factor = None,
+            "split" => {
+                settings.split_factor = Some(envlight::decompose::split::DEFAULT_SPLIT_FACTOR)
+            }
             "blend" => settings.bright_history = BrightHistory::Blend,
             other if other.starts_with("lights=") => settings.lights = other[7..].parse()?,
             "fade" => settings.bright_history = BrightHistory::Fade,
@@ -52,7 +54,7 @@ fn main() -> anyhow::Result<()> {
             }
             other => {
                 anyhow::bail!(
-                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, no-split, \
+                    "unknown option {other:?} (expected no-reuse, lloyd, no-refine, split, \
                      blend, fade, lights=N or merge)"
                 )
             }

@@ -310,53 +310,56 @@ fn merged(a: &Light, b: &Light) -> Light {
 /// Splits the concentrated input pixels `members` (indices into `fine`) into `k` regions by
 /// luminance-weighted k-means on their directions. Returns the non-empty parts (at least one).
 fn split_samples(fine: &[FineSample], members: &[usize], k: usize) -> Vec<Region> {
-    let dir = |j: usize| DVec3::from_array(fine[j].dir.map(f64::from));
-    let lum = |j: usize| luminance_f64(fine[j].energy.map(f64::from)).max(0.0);
-    // Seeds: the brightest input pixel, then the one farthest (× its luminance) from all seeds.
-    let mut centres: Vec<DVec3> = Vec::with_capacity(k);
-    let first = members
+    let points: Vec<(DVec3, f64)> = members
         .iter()
-        .copied()
-        .max_by(|&a, &b| lum(a).total_cmp(&lum(b)).then(b.cmp(&a)));
-    let Some(first) = first else {
+        .map(|&j| {
+            let s = &fine[j];
+            let lum = luminance_f64(s.energy.map(f64::from)).max(0.0);
+            (DVec3::from_array(s.dir.map(f64::from)), lum)
+        })
+        .collect();
+    // Seeds: the brightest input pixel, then the one farthest (× its luminance) from all seeds;
+    // ties go to the earlier pixel. `gap` is each pixel's 1 − cos to its nearest seed.
+    let Some(first) = argmax_first(points.iter().map(|p| p.1)) else {
         return vec![Region::default()];
     };
-    centres.push(dir(first));
-    while centres.len() < k {
-        let score = |j: usize| {
-            let d = dir(j);
-            let gap = centres
-                .iter()
-                .map(|c| 1.0 - c.dot(d))
-                .fold(f64::INFINITY, f64::min);
-            gap * lum(j)
-        };
-        let next = members
-            .iter()
-            .copied()
-            .max_by(|&a, &b| score(a).total_cmp(&score(b)).then(b.cmp(&a)));
-        match next {
-            Some(j) if score(j) > 0.0 => centres.push(dir(j)),
+    let mut centres: Vec<DVec3> = Vec::with_capacity(k);
+    let mut gap = vec![f64::INFINITY; points.len()];
+    let mut seed = first;
+    loop {
+        let c = points[seed].0;
+        centres.push(c);
+        for (g, p) in gap.iter_mut().zip(&points) {
+            *g = g.min(1.0 - c.dot(p.0));
+        }
+        if centres.len() == k {
+            break;
+        }
+        match argmax_first(gap.iter().zip(&points).map(|(g, p)| g * p.1)) {
+            Some(j) if gap[j] * points[j].1 > 0.0 => seed = j,
             _ => break,
         }
     }
-    let mut label = vec![0usize; members.len()];
-    for _ in 0..KMEANS_ITERATIONS {
-        for (slot, &j) in label.iter_mut().zip(members) {
-            *slot = nearest_dir(&centres, dir(j));
+    let mut label = vec![usize::MAX; points.len()];
+    for _ in 0..=KMEANS_ITERATIONS {
+        let mut changed = false;
+        for (slot, p) in label.iter_mut().zip(&points) {
+            let nearest = nearest_dir(&centres, p.0);
+            changed |= *slot != nearest;
+            *slot = nearest;
+        }
+        if !changed {
+            break;
         }
         let mut sums = vec![DVec3::ZERO; centres.len()];
-        for (&c, &j) in label.iter().zip(members) {
-            sums[c] += dir(j) * lum(j);
+        for (&c, p) in label.iter().zip(&points) {
+            sums[c] += p.0 * p.1;
         }
         for (c, s) in centres.iter_mut().zip(sums) {
             if let Some(d) = s.try_normalize() {
                 *c = d;
             }
         }
-    }
-    for (slot, &j) in label.iter_mut().zip(members) {
-        *slot = nearest_dir(&centres, dir(j));
     }
     let mut parts = vec![Region::default(); centres.len()];
     let mut counts = vec![0usize; centres.len()];
@@ -400,6 +403,17 @@ fn order_around(parts: &mut [Region], centre: DVec3) {
         d.dot(e2).atan2(d.dot(e1))
     };
     parts.sort_by(|a, b| azimuth(a).total_cmp(&azimuth(b)));
+}
+
+/// Position of the largest value, the first of equal ones (`None` if there is none).
+fn argmax_first(values: impl Iterator<Item = f64>) -> Option<usize> {
+    let mut best: Option<(usize, f64)> = None;
+    for (i, v) in values.enumerate() {
+        if best.is_none_or(|(_, b)| v > b) {
+            best = Some((i, v));
+        }
+    }
+    best.map(|(i, _)| i)
 }
 
 fn nearest_dir(centres: &[DVec3], d: DVec3) -> usize {
