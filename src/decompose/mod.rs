@@ -28,6 +28,9 @@
 //!    lights (suns, lamps) are first grouped in 0.1° cones, so the pixels a sun's lights trade
 //!    between frames are not blended ([`DecomposeSettings::bright_history`]). It restarts when
 //!    the light count changes.
+//! 5b. **Split** ([`split`], off by default): the lights of bright lamps and suns become several
+//!    pieces and the weakest lights merge into their neighbours ([`DecomposeSettings::split_factor`]);
+//!    planned on the unfiltered lights of step 4, applied to the filtered ones.
 //! 6. **Merge** ([`merge`], off by default): lights crowding a concentrated source become one
 //!    light that records the source's spread (solid angle).
 
@@ -140,7 +143,7 @@ pub struct DecomposeSettings {
     /// light's energy split into pieces, taken from the weakest lights, so the count stays N
     /// ([`split`] has the steps; [`split::DEFAULT_SPLIT_FACTOR`] is the measured choice).
     /// `None` (the default) leaves it out: it wins 71 of docs/quality.md's 72 rows against
-    /// the default's 69, but the filtered lights flicker up to 16% more on the temporal table's
+    /// the default's 69, but the filtered lights flicker up to 18% more on the temporal table's
     /// sequences. A recording whose stored settings lack it reads as off. Only with
     /// [`LightPlacement::Centroid`].
     #[serde(default)]

@@ -29,7 +29,7 @@
 //!
 //! So the lights still sum to the map's integral. Measured in docs/quality.md ("The split of
 //! bright lights, 2026-12-02"): 71 of the 72 rows against 69, but with the filter on, up to
-//! 16% more ground flicker on the temporal table's sequences (the merged lights), so it is off
+//! 18% more ground flicker on the temporal table's sequences (the merged lights), so it is off
 //! by default.
 
 use super::working_map::FineSample;
