@@ -22,7 +22,7 @@
 //!    take [`SPLIT_ID_BASE`] + id × [`MAX_PIECES`] + j (j = 1…7).
 //! 3. For every extra piece, the weakest of the unsplit lights (least energy, then lowest id)
 //!    is removed: it goes whole to the nearest remaining unsplit light.
-//! 4. After the filter ([`SplitPlan::apply`]): removed lights are added to their neighbours
+//! 4. After the filter (`SplitPlan::apply`): removed lights are added to their neighbours
 //!    (energy and solid angle add, the direction is the luminance-weighted mean), and a split
 //!    light's filtered energy and solid angle are shared among its pieces as the unfiltered
 //!    ones were, the pieces keeping their offsets from the light.
