@@ -27,10 +27,10 @@
 //!    id (the direction as the power-weighted mean over the window); the windows of bright
 //!    lights (suns, lamps) are first grouped in 0.1° cones, so the pixels a sun's lights trade
 //!    between frames are not blended ([`DecomposeSettings::bright_history`]). It restarts when
-//!    the light count changes.
-//! 5b. **Split** ([`split`], off by default): the lights of bright lamps and suns become several
-//!    pieces and the weakest lights merge into their neighbours ([`DecomposeSettings::split_factor`]);
-//!    planned on the unfiltered lights of step 4, applied to the filtered ones.
+//!    the light count changes. Optionally, the **split** ([`split`], off by default): the
+//!    lights of bright lamps and suns become several pieces and the weakest lights merge into
+//!    their neighbours ([`DecomposeSettings::split_factor`]), planned on the unfiltered lights
+//!    of step 4 and applied to the filtered ones.
 //! 6. **Merge** ([`merge`], off by default): lights crowding a concentrated source become one
 //!    light that records the source's spread (solid angle).
 
