@@ -1148,6 +1148,13 @@ impl RawDecompose {
             ));
         }
         let split = self.split.unwrap_or(d.split_factor.is_some());
+        if split && placement != LightPlacement::Centroid {
+            return Err(invalid(
+                "decompose.split",
+                true,
+                "needs placement = \"centroid\" (the pieces are centroids)",
+            ));
+        }
         Ok(DecomposeSettings {
             lights,
             working_width,
@@ -1361,6 +1368,11 @@ mod tests {
                 "[decompose]\nrefine_concentrated = 1",
                 "refine_concentrated",
                 "1",
+            ),
+            (
+                "[decompose]\nsplit = true\nplacement = \"sample-point\"",
+                "decompose.split",
+                "centroid",
             ),
             (
                 "[decompose]\nsplit_factor = 0.5",

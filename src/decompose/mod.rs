@@ -144,8 +144,8 @@ pub struct DecomposeSettings {
     /// ([`split`] has the steps; [`split::DEFAULT_SPLIT_FACTOR`] is the measured choice).
     /// `None` (the default) leaves it out: it wins 71 of docs/quality.md's 72 rows against
     /// the default's 69, but the filtered lights flicker up to 18% more on the temporal table's
-    /// sequences. A recording whose stored settings lack it reads as off. Only with
-    /// [`LightPlacement::Centroid`].
+    /// sequences. A recording whose stored settings lack it reads as off. Needs
+    /// [`LightPlacement::Centroid`] ([`DecomposeError::SplitPlacement`] otherwise).
     #[serde(default)]
     pub split_factor: Option<f64>,
 }
@@ -188,6 +188,8 @@ pub enum DecomposeError {
     PdfExponent(f64),
     #[error("split factor {0} must be a finite number of at least 1")]
     SplitFactor(f64),
+    #[error("the split of bright lights needs the centroid placement (its pieces are centroids)")]
+    SplitPlacement,
 }
 
 /// Per-light accumulator of a region's integrals.
@@ -240,6 +242,9 @@ impl Decomposer {
         if let Some(f) = settings.split_factor {
             if !(f.is_finite() && f >= 1.0) {
                 return Err(DecomposeError::SplitFactor(f));
+            }
+            if settings.placement != LightPlacement::Centroid {
+                return Err(DecomposeError::SplitPlacement);
             }
         }
         let filter = match &settings.filter_taps {
@@ -422,15 +427,15 @@ impl Decomposer {
                 }
             })
             .collect();
-        self.split_plan = match (self.settings.split_factor, placement) {
-            (Some(factor), LightPlacement::Centroid) => split::SplitPlan::new(
+        self.split_plan = match self.settings.split_factor {
+            Some(factor) => split::SplitPlan::new(
                 &lights,
                 &self.regions,
                 &map.fine,
                 self.region_scratch.fine_labels(),
                 factor,
             ),
-            _ => split::SplitPlan::default(),
+            None => split::SplitPlan::default(),
         };
         lights
     }

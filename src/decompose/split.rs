@@ -60,8 +60,8 @@ const KMEANS_ITERATIONS: usize = 8;
 /// every light of the point set by its id whatever the split does from frame to frame.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(super) struct SplitPlan {
-    /// Per split light: its unfiltered light and its pieces (final ids, largest first; the
-    /// first keeps the light's id). The pieces' energies sum to the light's.
+    /// Per split light: its unfiltered light and its pieces (final ids, in order of azimuth;
+    /// the first keeps the light's id). The pieces' energies sum to the light's.
     splits: Vec<(Light, Vec<Light>)>,
     /// (removed light's id, id of the light it goes to).
     merges: Vec<(u32, u32)>,
@@ -104,7 +104,9 @@ impl SplitPlan {
             return Self::default();
         }
         bright.sort_by(|&a, &b| energy[b].total_cmp(&energy[a]).then(a.cmp(&b)));
-        let mut budget = ((n as f64 * MAX_EXTRA_FRACTION) as usize).min(n - bright.len());
+        // At least one unsplit light stays to take the removed ones.
+        let mut budget =
+            ((n as f64 * MAX_EXTRA_FRACTION) as usize).min((n - bright.len()).saturating_sub(1));
         let mut pieces = vec![1usize; n];
         for &i in &bright {
             let wanted = (energy[i] / (factor * mean)).ceil() as usize;
@@ -641,6 +643,19 @@ mod tests {
         let second = d.decompose(&frame).lights;
         assert_eq!(first, second);
         assert_eq!(first, lights_of(&frame, 64, Some(DEFAULT_SPLIT_FACTOR)));
+    }
+
+    #[test]
+    fn the_split_needs_the_centroid_placement() {
+        let settings = DecomposeSettings {
+            split_factor: Some(DEFAULT_SPLIT_FACTOR),
+            placement: crate::decompose::LightPlacement::SamplePoint,
+            ..DecomposeSettings::default()
+        };
+        assert!(matches!(
+            Decomposer::new(settings),
+            Err(crate::decompose::DecomposeError::SplitPlacement)
+        ));
     }
 
     #[test]
