@@ -137,7 +137,7 @@ struct History {
 /// Tap-weighted sums over some of a window's samples: a whole window for the per-id mean, one
 /// cone of it for a bright light.
 #[derive(Clone, Copy, Debug, Default)]
-struct Group {
+pub(super) struct Group {
     /// Σ w·P·dir.
     power_weighted_dir: DVec3,
     /// Σ w·dir: the direction where the group has no power.
@@ -176,7 +176,7 @@ impl Group {
             .or_else(|| self.plain_dir.try_normalize())
     }
 
-    fn add_light(&mut self, l: &Light) {
+    pub(super) fn add_light(&mut self, l: &Light) {
         let rgb = l.rgb.map(f64::from);
         self.add(
             1.0,
@@ -190,7 +190,7 @@ impl Group {
     }
 
     /// The group as a light with `id` (`fallback` where its direction is undefined).
-    fn to_light(self, id: u32, fallback: DVec3) -> Light {
+    pub(super) fn to_light(self, id: u32, fallback: DVec3) -> Light {
         let dir = self.direction().unwrap_or(fallback);
         Light {
             id,
@@ -201,7 +201,7 @@ impl Group {
     }
 }
 
-fn light_dir(l: &Light) -> DVec3 {
+pub(super) fn light_dir(l: &Light) -> DVec3 {
     DVec3::new(l.dir[0].into(), l.dir[1].into(), l.dir[2].into())
 }
 

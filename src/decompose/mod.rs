@@ -201,6 +201,23 @@ struct Region {
     solid_angle: f64,
 }
 
+impl Region {
+    /// The luminance-weighted centroid direction; `None` where the weights cancel.
+    fn centroid(&self) -> Option<glam::DVec3> {
+        glam::DVec3::from(self.weighted_dir).try_normalize()
+    }
+
+    /// The region as light `id` pointing along `dir`.
+    fn to_light(self, id: u32, dir: glam::DVec3) -> Light {
+        Light {
+            id,
+            dir: [dir.x as f32, dir.y as f32, dir.z as f32],
+            rgb: self.rgb.map(|c| c as f32),
+            solid_angle: self.solid_angle as f32,
+        }
+    }
+}
+
 /// Turns frames into light lists; holds the point set, the per-geometry resampler and buckets,
 /// and the temporal filter state, so one `Decomposer` serves one stream of frames.
 pub struct Decomposer {
@@ -414,17 +431,11 @@ impl Decomposer {
             .zip(&self.regions)
             .enumerate()
             .map(|(id, (sample_dir, region))| {
-                let centroid = glam::DVec3::from(region.weighted_dir).try_normalize();
-                let dir = match (placement, centroid) {
-                    (LightPlacement::Centroid, Some(d)) => d,
-                    _ => *sample_dir,
+                let dir = match placement {
+                    LightPlacement::Centroid => region.centroid().unwrap_or(*sample_dir),
+                    LightPlacement::SamplePoint => *sample_dir,
                 };
-                Light {
-                    id: id as u32,
-                    dir: [dir.x as f32, dir.y as f32, dir.z as f32],
-                    rgb: region.rgb.map(|c| c as f32),
-                    solid_angle: region.solid_angle as f32,
-                }
+                region.to_light(id as u32, dir)
             })
             .collect();
         self.split_plan = match self.settings.split_factor {

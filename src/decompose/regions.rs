@@ -973,7 +973,7 @@ fn move_to_centroids(
             .zip(holds)
             .zip(regions)
             .map(|((&l, &holds), r)| {
-                let centroid = holds.then(|| DVec3::from(r.weighted_dir).try_normalize());
+                let centroid = holds.then(|| r.centroid());
                 centroid.flatten().map_or(l, |d| d.as_vec3())
             }),
     );

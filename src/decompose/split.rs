@@ -32,6 +32,7 @@
 //! 18% more ground flicker on the temporal table's sequences (the merged lights), so it is off
 //! by default.
 
+use super::filter::{light_dir, Group};
 use super::working_map::FineSample;
 use super::{luminance_f64, Region};
 use crate::light::Light;
@@ -145,9 +146,7 @@ impl SplitPlan {
             }
             rest.rgb = rest.rgb.map(|c| c.max(0.0));
             rest.solid_angle = rest.solid_angle.max(0.0);
-            let to = DVec3::from(rest.weighted_dir)
-                .try_normalize()
-                .map_or(0, |d| nearest_part(&parts, d));
+            let to = rest.centroid().map_or(0, |d| nearest_part(&parts, d));
             add_region(&mut parts[to], &rest);
             let parent = lights[i];
             let centre = light_dir(&parent);
@@ -161,7 +160,7 @@ impl SplitPlan {
                     } else {
                         SPLIT_ID_BASE + (parent.id as usize * MAX_PIECES + j) as u32
                     };
-                    region_light(id, p, centre)
+                    p.to_light(id, p.centroid().unwrap_or(centre))
                 })
                 .collect();
             splits.push((parent, lights_of_parts));
@@ -292,21 +291,12 @@ fn follow(raw_parent: &Light, raw_pieces: &[Light], now: &Light) -> Vec<Light> {
 }
 
 /// `a` and `b` as one light with `a`'s id: energies and solid angles add, the direction is
-/// the luminance-weighted mean (`a`'s where the weights cancel).
+/// the filter's luminance-weighted mean ([`super::filter::Group`]; `a`'s where it is undefined).
 fn merged(a: &Light, b: &Light) -> Light {
-    let (la, lb) = (
-        f64::from(a.luminance()).max(0.0),
-        f64::from(b.luminance()).max(0.0),
-    );
-    let dir = (light_dir(a) * la + light_dir(b) * lb)
-        .try_normalize()
-        .unwrap_or_else(|| light_dir(a));
-    Light {
-        id: a.id,
-        dir: [dir.x as f32, dir.y as f32, dir.z as f32],
-        rgb: [0, 1, 2].map(|c| a.rgb[c] + b.rgb[c]),
-        solid_angle: a.solid_angle + b.solid_angle,
-    }
+    let mut group = Group::default();
+    group.add_light(a);
+    group.add_light(b);
+    group.to_light(a.id, light_dir(a))
 }
 
 /// Splits the concentrated input pixels `members` (indices into `fine`) into `k` regions by
@@ -430,10 +420,7 @@ fn nearest_dir(centres: &[DVec3], d: DVec3) -> usize {
 }
 
 fn nearest_part(parts: &[Region], d: DVec3) -> usize {
-    let centres: Vec<DVec3> = parts
-        .iter()
-        .map(|p| DVec3::from(p.weighted_dir).try_normalize().unwrap_or(d))
-        .collect();
+    let centres: Vec<DVec3> = parts.iter().map(|p| p.centroid().unwrap_or(d)).collect();
     nearest_dir(&centres, d)
 }
 
@@ -451,24 +438,6 @@ fn sub_region(to: &mut Region, from: &Region) {
         to.weighted_dir[c] -= from.weighted_dir[c];
     }
     to.solid_angle -= from.solid_angle;
-}
-
-fn light_dir(light: &Light) -> DVec3 {
-    DVec3::from_array(light.dir.map(f64::from))
-}
-
-/// The light of a region: its energy, its luminance centroid (or `fallback` where the
-/// region's luminance-weighted directions cancel), its solid angle.
-fn region_light(id: u32, region: &Region, fallback: DVec3) -> Light {
-    let dir = DVec3::from(region.weighted_dir)
-        .try_normalize()
-        .unwrap_or(fallback);
-    Light {
-        id,
-        dir: [dir.x as f32, dir.y as f32, dir.z as f32],
-        rgb: region.rgb.map(|c| c as f32),
-        solid_angle: region.solid_angle as f32,
-    }
 }
 
 #[cfg(test)]
