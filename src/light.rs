@@ -14,7 +14,14 @@
 use serde::{Deserialize, Serialize};
 
 /// One directional light.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+///
+/// `repr(C)`: eight 4-byte fields, 32 bytes without padding, in the order of the binary
+/// protocol's light record (docs/protocol.md), so on a little-endian machine a light list is
+/// its records byte for byte and the stream encodes and decodes it with one copy.
+#[derive(
+    Clone, Copy, Debug, PartialEq, Serialize, Deserialize, bytemuck::Pod, bytemuck::Zeroable,
+)]
+#[repr(C)]
 pub struct Light {
     /// Index in the progressive point set; stable from frame to frame.
     pub id: u32,
