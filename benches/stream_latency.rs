@@ -593,9 +593,12 @@ enum Transport {
 }
 
 /// The built-in sky, 256×128, rendered once for one second of frames (the sun and clouds move)
-/// and replayed at `fps` from memory. Rendering the analytic sky live costs about a third of
-/// the 2 cores at 60 frames/s, which a camera's capture thread does not; replaying keeps the
-/// capture stage from competing with what is measured.
+/// and replayed at `fps` from memory, forwards and back (0, 1, …, 59, 58, …, 1), so the sky
+/// moves on continuously as a camera's would (jumping back from the last frame to the first
+/// moved the sun 2° in one frame, which made the decomposition rebuild its candidate lists in
+/// full once a second: docs/performance.md, "Staged rebuilds"). Rendering the analytic sky
+/// live costs about a third of the 2 cores at 60 frames/s, which a camera's capture thread
+/// does not; replaying keeps the capture stage from competing with what is measured.
 struct PrerenderedSky {
     frames: Vec<HdrFrame>,
     fps: f64,
@@ -632,7 +635,9 @@ impl FrameSource for PrerenderedSky {
         if due > elapsed {
             std::thread::sleep(due - elapsed);
         }
-        let mut frame = self.frames[self.seq as usize % self.frames.len()].clone();
+        let n = self.frames.len();
+        let k = self.seq as usize % (2 * n - 2).max(1);
+        let mut frame = self.frames[if k < n { k } else { 2 * n - 2 - k }].clone();
         frame.seq = self.seq;
         self.seq += 1;
         Ok(Some(frame))

@@ -9,7 +9,8 @@
 //!
 //! Arguments: the map (an .hdr file; `turn:` before it turns the map about the zenith by a
 //! pixel per frame, 8 frames forwards and back, so every light moves every frame; or `sky` for
-//! one second of the built-in sky at 256×128, 60 frames cycled, as the streaming bench uses),
+//! one second of the built-in sky at 256×128, 60 frames played forwards and back, as the
+//! streaming bench uses them),
 //! the number of frames, optionally the working width (`-` or nothing: the decomposition's
 //! default), then any of `no-reuse` (build the region pass's candidate lists afresh every frame)
 //! `lloyd` (the concentrated Lloyd step, `--concentrated-lloyd`), `no-refine` (without the
@@ -17,8 +18,8 @@
 //! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`),
 //! `split` (the split of bright lights, `--split`) and
 //! `merge` (`--merge`, the default spacing) and `lights=N` (default 256).
-//! Prints the mean, median and minimum
-//! time per frame, and a hash of the last frame's lights (every field's bits), so that two builds
+//! Prints the mean, median, minimum, 95th and 99th percentile and maximum time per frame, how
+//! often the region pass built its candidate lists (in full, and in stages), and a hash of the last frame's lights (every field's bits), so that two builds
 //! can be checked to give the same lights.
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
@@ -68,8 +69,10 @@ fn main() -> anyhow::Result<()> {
             seed: 0,
             ..SkyOptions::default()
         };
-        (0..60)
-            .map(|i| render_sky(&options, f64::from(i) / 60.0))
+        // Forwards and back (0, 1, …, 59, 58, …, 1): the sky moves on continuously, where
+        // jumping back from the last frame to the first would move the sun 2° in one frame.
+        (0..118)
+            .map(|k| render_sky(&options, f64::from(if k < 60 { k } else { 118 - k }) / 60.0))
             .collect()
     } else {
         let (turn, path) = match path.strip_prefix("turn:") {
@@ -124,11 +127,15 @@ fn main() -> anyhow::Result<()> {
             .unwrap_or(0.0)
     };
     println!(
-        "{mean:.3} ms per frame (median {:.3}, min {:.3}), {} lights per frame, lights hash {hash:016x}, candidate lists built {} times",
+        "{mean:.3} ms per frame (median {:.3}, min {:.3}, p95 {:.3}, p99 {:.3}, max {:.3}), {} lights per frame, lights hash {hash:016x}, candidate lists built {} times in full and {} in stages",
         at(0.5),
         at(0.0),
+        at(0.95),
+        at(0.99),
+        times.last().copied().unwrap_or(0.0),
         lights / n,
-        decomposer.candidate_builds()
+        decomposer.candidate_builds(),
+        decomposer.candidate_staged_builds()
     );
     Ok(())
 }

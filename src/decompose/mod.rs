@@ -303,9 +303,15 @@ impl Decomposer {
     }
 
     /// How many times the region pass has built its candidate lists in full (the other frames
-    /// reused the last ones).
+    /// reused the last ones, or built them in stages).
     pub fn candidate_builds(&self) -> u64 {
         self.region_scratch.candidate_builds()
+    }
+
+    /// How many times the region pass has begun building its candidate lists in stages (a few
+    /// buckets per frame, while the lights drift slowly: src/decompose/regions.rs).
+    pub fn candidate_staged_builds(&self) -> u64 {
+        self.region_scratch.candidate_staged_builds()
     }
 
     /// Delay of the temporal filter in frames (0 without filter).
@@ -895,12 +901,17 @@ mod tests {
                     "{name}: frame {i}"
                 );
             }
-            let builds = reusing.candidate_builds();
+            let (builds, staged) = (
+                reusing.candidate_builds(),
+                reusing.candidate_staged_builds(),
+            );
             assert_eq!(rebuilding.candidate_builds(), frames.len() as u64);
+            assert_eq!(rebuilding.candidate_staged_builds(), 0);
             if must_reuse {
+                // Built again after the first frame (in full or in stages), and reused.
                 assert!(
-                    builds > 1 && builds < frames.len() as u64,
-                    "{name}: {builds} builds in {} frames",
+                    builds + staged > 1 && builds < frames.len() as u64,
+                    "{name}: {builds} full and {staged} staged builds in {} frames",
                     frames.len()
                 );
             }

@@ -29,6 +29,11 @@
 //! Where the lights move further than δ every frame (the margin then only costs: about 6% more
 //! instructions per frame on rooitou_park), a build whose lists served one frame only is
 //! followed by builds without margin, with the margin tried again every 16th build.
+//! Where they drift slowly (a sun crossing the sky), the lists are rebuilt in stages rather
+//! than all in one frame: once a light has moved 0.7 δ, new lists are built for the lights'
+//! places then, a quarter of the buckets per frame, each bucket keeping its old list (valid for
+//! the old places) until its new one is built ([`Candidates::update`]); a full build costs
+//! about as much as the rest of the region pass, so this keeps it out of any single frame.
 //!
 //! Steps per frame: (1) candidate lists per bucket (or the last frame's); (2) the input pixels
 //! of concentrated working pixels go to their nearest light one by one (searching a list of
@@ -306,17 +311,37 @@ struct Candidates {
     no_reuse: bool,
     /// Full builds so far.
     builds: u64,
+    /// Staged rebuilds begun so far, and those whose last buckets had to be built at once
+    /// (the previous lists' lights strayed before the stages were through).
+    staged_builds: u64,
+    stages_cut_short: u64,
     /// The margin of the last build (0 or [`REUSE_MARGIN`]), the frames that reused it, and
     /// the number of builds in a row without margin.
     margin: f32,
     reuses: u32,
     bare_builds: u32,
+    /// During a staged rebuild: the buckets `0..converted` have lists in `list` (built for
+    /// `built_lights`), the others still those of the previous build in `prev_list` (built for
+    /// `prev_built_lights`). Otherwise every bucket's list is in `list` (`converted` is the
+    /// bucket count).
+    converted: usize,
+    prev_list: Vec<Candidate>,
+    prev_offsets: Vec<u32>,
+    prev_thresholds: Vec<f32>,
+    prev_built_lights: Vec<Vec3>,
 }
 
 /// After a build whose lists were not reused even once, the next lists are built without margin
 /// (the margin costs about 6% more instructions per frame in longer lists and looser bounds),
 /// and stay so for this many builds before the margin is tried again.
 const BARE_BUILDS: u32 = 15;
+
+/// A staged rebuild begins once some light has moved this share of the margin from where the
+/// lists were built (while every light is still within the margin of it).
+const STAGE_START: f32 = 0.7;
+
+/// A staged rebuild builds the buckets' lists in this many frames.
+const STAGES: usize = 4;
 
 impl Candidates {
     /// Makes the lists valid for `lights`: the last frame's lists when every light is within
@@ -325,6 +350,16 @@ impl Candidates {
     /// further than the margin every frame (a turning map), the margin would only cost, so
     /// after a build that served a single frame the lists are built without it for
     /// [`BARE_BUILDS`] builds.
+    ///
+    /// So that no single frame pays for a whole build while the lights drift slowly (a sun
+    /// crossing the sky; a full build costs about as much as the rest of the region pass), the
+    /// lists are rebuilt in stages: once some light has moved [`STAGE_START`] of the margin
+    /// from where the lists were built, new lists are built for the lights where they are
+    /// then, a [`STAGES`]th of the buckets per frame, while the other buckets keep their old
+    /// lists. Each list is valid while every light stays within the margin of the places it
+    /// was built for, which is checked for both sets of places every frame; if the old ones
+    /// fail first, the rest of the buckets are built at once; if the new ones fail (lights
+    /// moving fast), everything is built afresh.
     #[inline(always)]
     fn update(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
         // Checked with 90% of the margin: the f32 dot products of nearly equal directions are
@@ -334,18 +369,33 @@ impl Candidates {
         } else {
             f32::INFINITY
         };
-        let valid = !self.no_reuse
-            && self.built_grid == (grid.width, grid.height)
-            && self.built_lights.len() == lights.len()
-            && lights
+        let within = |built: &[Vec3], cos: f32| {
+            lights
                 .iter()
-                .zip(&self.built_lights)
-                .all(|(l, b)| l == b || l.dot(*b) >= cos_check);
-        if valid {
+                .zip(built)
+                .all(|(l, b)| l == b || l.dot(*b) >= cos)
+        };
+        let buckets = grid.centres.len();
+        let comparable = !self.no_reuse
+            && self.built_grid == (grid.width, grid.height)
+            && self.built_lights.len() == lights.len();
+        if comparable && within(&self.built_lights, cos_check) {
+            let staging = self.converted < buckets;
+            if staging && !within(&self.prev_built_lights, cos_check) {
+                self.build_stage(grid, buckets);
+                self.stages_cut_short += 1;
+            } else if staging {
+                self.build_stage(grid, self.converted + buckets.div_ceil(STAGES));
+            } else if self.margin > 0.0
+                && !within(&self.built_lights, (STAGE_START * self.margin).cos())
+            {
+                self.begin_stages(grid, lights);
+                self.build_stage(grid, buckets.div_ceil(STAGES));
+            }
             // The lists' copies of the directions, unless they are this frame's already (a
             // static scene: the same lights every frame).
             if self.dirs_of != lights {
-                for c in &mut self.list {
+                for c in self.list.iter_mut().chain(&mut self.prev_list) {
                     c.dir = lights[c.light as usize];
                 }
                 self.dirs_of.clear();
@@ -358,6 +408,8 @@ impl Candidates {
         self.bare_builds = if bare { self.bare_builds + 1 } else { 0 };
         self.margin = if bare { 0.0 } else { REUSE_MARGIN };
         self.build(grid, lights, self.margin);
+        self.converted = buckets;
+        self.prev_list.clear();
         self.built_lights.clear();
         self.built_lights.extend_from_slice(lights);
         self.dirs_of.clear();
@@ -367,12 +419,71 @@ impl Candidates {
         self.reuses = 0;
     }
 
+    /// Begins a staged rebuild for `lights`: the current lists become the previous ones and
+    /// the super-buckets' candidates are found for `lights` (they serve every stage).
+    fn begin_stages(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
+        std::mem::swap(&mut self.list, &mut self.prev_list);
+        std::mem::swap(&mut self.offsets, &mut self.prev_offsets);
+        std::mem::swap(&mut self.thresholds, &mut self.prev_thresholds);
+        std::mem::swap(&mut self.built_lights, &mut self.prev_built_lights);
+        self.built_lights.clear();
+        self.built_lights.extend_from_slice(lights);
+        self.list.clear();
+        self.offsets.clear();
+        self.thresholds.clear();
+        self.offsets.push(0);
+        self.converted = 0;
+        let built = std::mem::take(&mut self.built_lights);
+        self.build_supers(grid, &built, self.margin);
+        self.built_lights = built;
+        self.staged_builds += 1;
+    }
+
+    /// Builds the lists of the buckets `converted..until` (capped at the bucket count) for
+    /// `built_lights`; when the last bucket is built, the previous lists are dropped.
+    #[inline(always)]
+    fn build_stage(&mut self, grid: &BucketGrid, until: usize) {
+        let until = until.min(grid.centres.len());
+        let built = std::mem::take(&mut self.built_lights);
+        for b in self.converted..until {
+            let s = grid.super_of[b] as usize;
+            let range = self.super_offsets[s]..self.super_offsets[s + 1];
+            let threshold =
+                self.bucket_list(grid.centres[b], grid.radii[b], self.margin, range, &built);
+            self.thresholds.push(threshold);
+            self.offsets.push(self.list.len() as u32);
+        }
+        self.built_lights = built;
+        self.converted = until;
+        if until == grid.centres.len() {
+            self.prev_list.clear();
+        }
+        // The new lists hold the places they were built for: refresh every copy.
+        self.dirs_of.clear();
+    }
+
     /// Candidate lists of every bucket: first per super-bucket among all lights, then per bucket
     /// among its super-bucket's candidates (a bucket lies inside its super-bucket, so its
     /// candidates are among those). Inlined into the region pass, so compiled for its vector
     /// unit.
     #[inline(always)]
     fn build(&mut self, grid: &BucketGrid, lights: &[Vec3], margin: f32) {
+        self.build_supers(grid, lights, margin);
+        self.offsets.clear();
+        self.list.clear();
+        self.thresholds.clear();
+        self.offsets.push(0);
+        for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
+            let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
+            let threshold = self.bucket_list(c, r, margin, range, lights);
+            self.thresholds.push(threshold);
+            self.offsets.push(self.list.len() as u32);
+        }
+    }
+
+    /// The candidates of every super-bucket among all `lights` (with the margin).
+    #[inline(always)]
+    fn build_supers(&mut self, grid: &BucketGrid, lights: &[Vec3], margin: f32) {
         self.all.clear();
         for (i, &l) in lights.iter().enumerate() {
             self.all.push(i as u32, l);
@@ -390,16 +501,6 @@ impl Candidates {
                 }
             }
             self.super_offsets.push(self.supers.len());
-        }
-        self.offsets.clear();
-        self.list.clear();
-        self.thresholds.clear();
-        self.offsets.push(0);
-        for ((&c, &r), &s) in grid.centres.iter().zip(&grid.radii).zip(&grid.super_of) {
-            let range = self.super_offsets[s as usize]..self.super_offsets[s as usize + 1];
-            let threshold = self.bucket_list(c, r, margin, range, lights);
-            self.thresholds.push(threshold);
-            self.offsets.push(self.list.len() as u32);
         }
     }
 
@@ -465,7 +566,22 @@ impl Candidates {
 
     #[inline]
     fn of(&self, bucket: usize) -> &[Candidate] {
-        &self.list[self.offsets[bucket] as usize..self.offsets[bucket + 1] as usize]
+        let (list, offsets) = if bucket < self.converted || self.prev_list.is_empty() {
+            (&self.list, &self.offsets)
+        } else {
+            (&self.prev_list, &self.prev_offsets)
+        };
+        &list[offsets[bucket] as usize..offsets[bucket + 1] as usize]
+    }
+
+    /// The reach threshold of `bucket`'s list (see `thresholds`).
+    #[inline]
+    fn threshold(&self, bucket: usize) -> f32 {
+        if bucket < self.converted || self.prev_list.is_empty() {
+            self.thresholds[bucket]
+        } else {
+            self.prev_thresholds[bucket]
+        }
     }
 }
 
@@ -598,6 +714,11 @@ impl Scratch {
     /// How many times the candidate lists have been built in full.
     pub(super) fn candidate_builds(&self) -> u64 {
         self.candidates.builds
+    }
+
+    /// How many times the candidate lists have been begun in stages.
+    pub(super) fn candidate_staged_builds(&self) -> u64 {
+        self.candidates.staged_builds
     }
 
     /// The light each concentrated input pixel (`WorkingMap::fine`) holds after the last
@@ -825,7 +946,7 @@ fn accumulate(args: Accumulate<'_>) {
         // the build) is at least today's d_min + 2r, so the test stays conservative. A light
         // dropped from the list as dominated (`prune_dominated`) has a dominator in it that
         // did not move, or the bucket is affected through that dominator.
-        let (centre, threshold) = (grid.centres[b], candidates.thresholds[b]);
+        let (centre, threshold) = (grid.centres[b], candidates.threshold(b));
         candidates
             .of(b)
             .iter()
@@ -1534,5 +1655,83 @@ mod tests {
                 "light {i}"
             );
         }
+    }
+
+    /// Staged rebuilds keep every bucket's list exact: lights drifting on great circles at
+    /// speeds that let the stages finish, then at speeds that cut them short (the previous
+    /// lists' lights stray before the last stage), one light jumping further than the margin
+    /// in a frame (a full build, also mid-stage), and every light moving in two steps and then
+    /// standing still while the last stages are built; every frame, every pixel's nearest light
+    /// through its bucket's list (at the pixel's centre and four inner points) is the nearest
+    /// of all lights, and each path ran.
+    #[test]
+    fn staged_rebuilds_keep_every_list_exact() {
+        use crate::decompose::working_map::Resampler;
+        use crate::envmap::Projection;
+        let resampler = Resampler::new(Projection::LatLong, 96, 48, 96);
+        let map = resampler.map_for_tests();
+        let grid = BucketGrid::new(map);
+        let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+        let n = 150;
+        let start: Vec<Vec3> = (0..n)
+            .map(|_| rng.near(Vec3::Y, std::f32::consts::PI))
+            .collect();
+        let axes: Vec<Vec3> = start.iter().map(|s| s.any_orthonormal_vector()).collect();
+        let slow: Vec<f32> = (0..n).map(|_| 0.04 * REUSE_MARGIN * rng.unit()).collect();
+        let fast: Vec<f32> = (0..n).map(|_| 0.2 * REUSE_MARGIN * rng.unit()).collect();
+        let mut angles = vec![0.0f32; n];
+        let mut candidates = Candidates::default();
+        let (w, h) = (map.width as u32, map.height as u32);
+        for frame in 0..150 {
+            for (i, a) in angles.iter_mut().enumerate() {
+                *a += match frame {
+                    0..60 => slow[i],
+                    60..110 => fast[i],
+                    // Light 0 jumps 3 margins: a full build, also in the middle of stages.
+                    _ if i == 0 && frame % 20 == 0 => 3.0 * REUSE_MARGIN,
+                    110..120 => slow[i],
+                    // After a full build (light 0 at frame 120) and still frames, every light
+                    // 0.72 margins (a staged build begins), then 0.1 more (the next stage), then
+                    // still: the last stages are built, for places the lights have left, while
+                    // nothing moves.
+                    130 => 0.72 * REUSE_MARGIN,
+                    131 => 0.1 * REUSE_MARGIN,
+                    _ => 0.0,
+                };
+            }
+            let lights: Vec<Vec3> = (0..n)
+                .map(|i| glam::Quat::from_axis_angle(axes[i], angles[i]) * start[i])
+                .collect();
+            candidates.update(&grid, &lights);
+            for pixel in 0..map.width * map.height {
+                let list = candidates.of(grid.bucket_of(pixel));
+                let (x, y) = ((pixel % map.width) as f64, (pixel / map.width) as f64);
+                for (u, v) in [(0.5, 0.5), (0.1, 0.1), (0.9, 0.1), (0.1, 0.9), (0.9, 0.9)] {
+                    let p = Projection::LatLong
+                        .pixel_to_direction(w, h, x + u, y + v)
+                        .unwrap()
+                        .as_vec3();
+                    let all = argmax(&lights, 0..n as u32, p) as usize;
+                    let found = nearest(list, &lights, p, list[0].light as usize);
+                    assert_eq!(
+                        lights[all].dot(p),
+                        lights[found].dot(p),
+                        "frame {frame} pixel {pixel}: nearest light {all}, the list's {found}"
+                    );
+                }
+            }
+        }
+        let c = &candidates;
+        assert!(
+            c.staged_builds >= 3 && c.stages_cut_short >= 1 && c.builds >= 2,
+            "{} staged ({} cut short), {} full",
+            c.staged_builds,
+            c.stages_cut_short,
+            c.builds
+        );
+        assert!(
+            c.staged_builds > c.stages_cut_short,
+            "no staged build finished in stages"
+        );
     }
 }
