@@ -19,8 +19,9 @@
 //! `split` (the split of bright lights, `--split`) and
 //! `merge` (`--merge`, the default spacing) and `lights=N` (default 256).
 //! Prints the mean, median, minimum, 95th and 99th percentile and maximum time per frame, how
-//! often the region pass built its candidate lists (in full, and in stages), and a hash of the last frame's lights (every field's bits), so that two builds
-//! can be checked to give the same lights.
+//! often the region pass built its candidate lists (in full, and in stages), and a hash of the
+//! last frame's lights (every field's bits), so that two builds can be checked to give the
+//! same lights.
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{BrightHistory, DecomposeSettings, Decomposer};

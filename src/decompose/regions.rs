@@ -564,9 +564,17 @@ impl Candidates {
         threshold
     }
 
+    /// Whether `bucket`'s list is in `list` (built for `built_lights`), not in `prev_list`: it
+    /// is unless a staged rebuild has not reached it yet. (A `Candidates` whose lists are
+    /// only ever built by `bucket_list`, as the refinement's are, has no previous lists.)
+    #[inline]
+    fn is_current(&self, bucket: usize) -> bool {
+        bucket < self.converted || self.prev_list.is_empty()
+    }
+
     #[inline]
     fn of(&self, bucket: usize) -> &[Candidate] {
-        let (list, offsets) = if bucket < self.converted || self.prev_list.is_empty() {
+        let (list, offsets) = if self.is_current(bucket) {
             (&self.list, &self.offsets)
         } else {
             (&self.prev_list, &self.prev_offsets)
@@ -577,7 +585,7 @@ impl Candidates {
     /// The reach threshold of `bucket`'s list (see `thresholds`).
     #[inline]
     fn threshold(&self, bucket: usize) -> f32 {
-        if bucket < self.converted || self.prev_list.is_empty() {
+        if self.is_current(bucket) {
             self.thresholds[bucket]
         } else {
             self.prev_thresholds[bucket]
