@@ -10,8 +10,8 @@
 //! decompose thread right after publishing, as the daemon does by default, or the
 //! `envlight-fanout` thread), `--seconds=S`,
 //! `--decode=in-place|buffered|both` (how the clients decode, below),
-//! `--repeat=N` (each repeat runs every sender once, back to back); docs/performance.md
-//! "Streaming"). The whole chain runs in this process so one
+//! `--repeat=N` (each repeat runs every sender once, back to back),
+//! `--spin-idle=off|on|both` (below); docs/performance.md "Streaming"). The whole chain runs in this process so one
 //! clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
 //! server (UDS or TCP, binary frames) → N clients (one blocking thread each, or one event
 //! loop), each stamping the moment a frame's last byte has been read.
@@ -37,6 +37,15 @@
 //! threads were runnable but waiting for a CPU (schedstat) and how often the serving threads
 //! were preempted (`nonvoluntary_ctxt_switches`); and the load average when the row ended. On
 //! a shared machine the wall-clock figures are noisy, the CPU times much less so.
+//!
+//! `--spin-idle=on` keeps every CPU from going idle during the row: one thread per CPU, pinned
+//! to it, at the `SCHED_IDLE` policy (it runs only when nothing else wants that CPU and gives
+//! way at once to any woken thread), spinning. It is not something the daemon does; it measures
+//! how much of the latency is the wake-up of an idle (halted) CPU, which on a virtual machine
+//! is an exit to the hypervisor and a wait for the host to run the virtual CPU again (what
+//! `idle=poll`, or `/dev/cpu_dma_latency` where a cpuidle driver is loaded, avoids on a rig).
+//! Its threads' CPU time is counted nowhere in the row, but the load average includes them
+//! (about +1 per CPU). `both` runs each row without and then with them.
 
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::capture::{CaptureError, FrameSource};
@@ -543,6 +552,57 @@ enum PassOn {
 /// Lights per frame.
 const LIGHTS: usize = 256;
 
+/// One spinning `SCHED_IDLE` thread per CPU while it lives (`--spin-idle=on`, module doc).
+struct IdleSpinners {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl IdleSpinners {
+    /// Starts the spinners; panics (this is a bench) if the policy or the pinning is refused.
+    fn start() -> Self {
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let threads = (0..cpus)
+            .map(|cpu| {
+                let stop = Arc::clone(&stop);
+                std::thread::Builder::new()
+                    .name("bench idle spin".into())
+                    .spawn(move || {
+                        // SAFETY: plain libc calls on this thread (pid 0) with initialised
+                        // arguments; `set` is a valid cpu_set_t for CPU_SET.
+                        unsafe {
+                            let mut set: libc::cpu_set_t = std::mem::zeroed();
+                            libc::CPU_SET(cpu, &mut set);
+                            let pinned =
+                                libc::sched_setaffinity(0, std::mem::size_of_val(&set), &set);
+                            assert_eq!(pinned, 0, "pinning a spinner to CPU {cpu}");
+                            let param = libc::sched_param { sched_priority: 0 };
+                            let idle = libc::sched_setscheduler(0, libc::SCHED_IDLE, &param);
+                            assert_eq!(idle, 0, "SCHED_IDLE for the spinner of CPU {cpu}");
+                        }
+                        while !stop.load(Ordering::Relaxed) {
+                            std::hint::spin_loop();
+                        }
+                    })
+                    .expect("spinner thread")
+            })
+            .collect();
+        // Let them reach their CPUs before the row starts.
+        std::thread::sleep(Duration::from_millis(200));
+        IdleSpinners { stop, threads }
+    }
+}
+
+impl Drop for IdleSpinners {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
 /// How the clients decode what they read (`--decode=`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Decode {
@@ -827,6 +887,12 @@ fn main() {
         Some("both") => vec![Decode::InPlace, Decode::Buffered],
         _ => vec![Decode::InPlace],
     };
+    let spin_modes: Vec<bool> = match option("--spin-idle=").as_deref() {
+        Some("on") => vec![true],
+        Some("both") => vec![false, true],
+        None | Some("off") => vec![false],
+        Some(other) => panic!("--spin-idle=off|on|both, not {other}"),
+    };
     println!("stream latency: sky 256x128 at 60 frames/s, 256 lights, binary frames");
     println!(
         "arrival at the decomposition → last byte at a client (end to end), and its two parts; \
@@ -844,28 +910,32 @@ fn main() {
             );
             for &clients in &counts {
                 for _ in 0..repeat {
-                    for (&sender, &decode) in senders
+                    for ((&sender, &decode), &spin) in senders
                         .iter()
                         .flat_map(|s| decodes.iter().map(move |d| (s, d)))
+                        .flat_map(|sd| spin_modes.iter().map(move |m| (sd, m)))
                     {
                         let client_setup = (harness, decode);
+                        let spinners = spin.then(IdleSpinners::start);
                         let r = match sender {
                             Sender::Daemon(pass_on) => {
                                 run(transport, client_setup, clients, seconds, pass_on)
                             }
                             Sender::Floor => run_floor(transport, client_setup, clients, seconds),
                         };
+                        drop(spinners);
                         let lossy = r.missed.iter().filter(|&&m| m > 0).count();
                         let missed: u64 = r.missed.iter().sum();
                         let ms = |d: Duration| d.as_secs_f64() * 1e3;
                         println!(
-                            "| {}{} | {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {} |",
+                            "| {}{}{} | {clients} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {lossy} | {missed} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {} |",
                             sender.name(),
                             if decode == Decode::Buffered {
                                 ", buffered decode"
                             } else {
                                 ""
                             },
+                            if spin { ", idle CPUs spinning" } else { "" },
                             r.published,
                             ms(percentile(&r.decompose, 0.5)),
                             ms(percentile(&r.fan_out, 0.5)),
