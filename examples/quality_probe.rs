@@ -38,7 +38,9 @@
 //! not; `spw=1`: only the concentrated input pixels are clustered, the working pixels go as one
 //! lump to the nearest piece; `spr=1`: a removed light goes whole to the nearest light; with
 //! `lib=1`, `sp=K` is [`DecomposeSettings::split_factor`]; `SPSTAT=1`, without `lib`, prints
-//! how many lights split).
+//! how many lights split); `spb=D` a fixed budget instead: the decomposition into N − N/D
+//! lights, then N/D extra pieces given one at a time to the light of the largest energy per
+//! piece (holding concentrated input pixels unless `spa=1`), no light removed.
 //!
 //! Environment: `NS=128,512` other light counts; `V=1` every cell; `DIAG=MAP:N` the lights with
 //! the largest ground-shadow error of the first variant; `PNG=MAP:N` writes /tmp/probe.png with
@@ -122,6 +124,10 @@ struct Opts {
     split_fine_only: bool,
     /// A removed light goes whole to the light nearest its direction.
     split_merge_whole: bool,
+    /// `spb=D`: decompose into n − n/D lights, then split the brightest lights into exactly
+    /// n/D extra pieces (one at a time to the light of the largest energy per piece), none
+    /// removed (0: off).
+    split_budget: usize,
 }
 
 impl Default for Opts {
@@ -160,6 +166,7 @@ impl Default for Opts {
             split_all: false,
             split_fine_only: false,
             split_merge_whole: false,
+            split_budget: 0,
         }
     }
 }
@@ -214,6 +221,12 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             vec![],
         );
     }
+    let requested = n;
+    let n = if o.split_budget > 0 {
+        n - n / o.split_budget
+    } else {
+        n
+    };
     let mut rs = Resampler::new(Projection::LatLong, frame.width, frame.height, o.width);
     let map = rs.resample(frame, o.conc / n as f64).clone();
     let (w, h) = (map.width, map.height);
@@ -636,8 +649,9 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             100.0 * changed / total
         );
     }
-    if o.split > 0.0 {
-        lights = split_heavy(&pixels, &mut assign, nwork, n, o);
+    if o.split > 0.0 || o.split_budget > 0 {
+        let budget = (o.split_budget > 0).then_some(requested - n);
+        lights = split_heavy(&pixels, &mut assign, nwork, n, budget, o);
     }
     lights.extend(extra);
     (lights, pixels, assign)
@@ -652,6 +666,7 @@ fn split_heavy(
     assign: &mut [usize],
     nwork: usize,
     n: usize,
+    budget: Option<usize>,
     o: &Opts,
 ) -> Vec<Light> {
     let lum: Vec<f64> = pixels.iter().map(|p| luminance_f64(p.energy)).collect();
@@ -667,7 +682,23 @@ fn split_heavy(
     let mean = total / n as f64;
     let mut pieces = vec![1usize; n];
     let mut extra = 0;
-    for i in 0..n {
+    if let Some(budget) = budget {
+        let cap = |i: usize| o.split_max.min(members[i].len()).max(1);
+        for _ in 0..budget {
+            let pick = |eligible: &dyn Fn(usize) -> bool| {
+                (0..n)
+                    .filter(|&i| eligible(i) && pieces[i] < cap(i))
+                    .max_by(|&a, &b| {
+                        (e[a] / pieces[a] as f64).total_cmp(&(e[b] / pieces[b] as f64))
+                    })
+            };
+            let Some(i) = pick(&|i| conc[i] || o.split_all).or_else(|| pick(&|_| true)) else {
+                break;
+            };
+            pieces[i] += 1;
+        }
+    }
+    for i in (0..n).filter(|_| budget.is_none()) {
         if (conc[i] || o.split_all) && e[i] > o.split * mean {
             let k = ((e[i] / (o.split * mean)).ceil() as usize)
                 .min(o.split_max)
@@ -688,7 +719,10 @@ fn split_heavy(
     // The weakest unsplit lights give up their slots.
     let mut order: Vec<usize> = (0..n).filter(|&i| pieces[i] == 1).collect();
     order.sort_by(|&a, &b| e[a].total_cmp(&e[b]));
-    let removed: std::collections::HashSet<usize> = order.into_iter().take(extra).collect();
+    let removed: std::collections::HashSet<usize> = order
+        .into_iter()
+        .take(if budget.is_some() { 0 } else { extra })
+        .collect();
     let centroid = |idx: &[usize]| -> DVec3 {
         let mut d = DVec3::ZERO;
         for &pi in idx {
@@ -966,6 +1000,9 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                 "spa" => o.split_all = v == "1",
                 "spw" => o.split_fine_only = v == "1",
                 "spr" => o.split_merge_whole = v == "1",
+                "spb" => {
+                    o.split_budget = v.parse().with_context(|| format!("{kv}: not a number"))?
+                }
                 _ => anyhow::bail!("unknown switch {k}"),
             }
         }
