@@ -222,11 +222,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
         );
     }
     let requested = n;
-    let n = if o.split_budget > 0 {
-        n - n / o.split_budget
-    } else {
-        n
-    };
+    let n = n - n.checked_div(o.split_budget).unwrap_or(0);
     let mut rs = Resampler::new(Projection::LatLong, frame.width, frame.height, o.width);
     let map = rs.resample(frame, o.conc / n as f64).clone();
     let (w, h) = (map.width, map.height);

@@ -35,8 +35,8 @@
 pub const SEAM_WINDOW_HALF_TURNS: f64 = 3.0 / 16.0;
 
 /// The origin window of rows of `width` cells, as weights on a row's W + 1 prefix sums: a
-/// row's origin times its mass is `0.5 · Σ_j g_j · S[j]`, which is Σ_k q_k · (S[k] + S[k+1]) / 2
-/// − (the weight of the seam's left side) · S[W] for triangular cell weights q_k (peak at the
+/// row's origin times its mass is `0.5 · Σ_j g_j · S[j]`, which is Σ_k q_k · (S\[k\] + S\[k+1\]) / 2
+/// − (the weight of the seam's left side) · S\[W\] for triangular cell weights q_k (peak at the
 /// seam, summing to 1), so g_j = q_j + q_{j−1}, less twice the left side's weight at j = W.
 /// The non-zero g are two runs: from the start of the row and up to its end.
 #[derive(Clone, Debug, Default)]
@@ -112,7 +112,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
 }
 
-/// Continuous 2D distribution on [0,1]² from a non-negative W×H weight image.
+/// Continuous 2D distribution on \[0,1\]² from a non-negative W×H weight image.
 #[derive(Clone, Debug)]
 pub struct PiecewiseConstant2d {
     width: usize,
@@ -316,7 +316,7 @@ impl PiecewiseConstant2d {
         (r as f64 + frac, width * self.height as f64)
     }
 
-    /// Maps u ∈ [0,1]² to p ∈ [0,1]² and returns the density of p (per unit area of [0,1]²).
+    /// Maps u ∈ \[0,1\]² to p ∈ \[0,1\]² and returns the density of p (per unit area of \[0,1\]²).
     pub fn sample(&self, u: [f64; 2]) -> ([f64; 2], f64) {
         let u0 = u[0].clamp(0.0, 1.0);
         let u1 = u[1].clamp(0.0, 1.0);
@@ -359,7 +359,7 @@ impl PiecewiseConstant2d {
         ([x / w as f64, y / self.height as f64], pdf_x * pdf_y)
     }
 
-    /// Density at p ∈ [0,1]² (per unit area of [0,1]²), consistent with `sample`.
+    /// Density at p ∈ \[0,1\]² (per unit area of \[0,1\]²), consistent with `sample`.
     pub fn pdf(&self, p: [f64; 2]) -> f64 {
         let x = (p[0].clamp(0.0, 1.0) * self.width as f64).min(self.width as f64 - 1e-9);
         let y = (p[1].clamp(0.0, 1.0) * self.height as f64).min(self.height as f64 - 1e-9);
@@ -385,7 +385,7 @@ impl PiecewiseConstant2d {
         self.invert_pixel(x, y)
     }
 
-    /// Inverse of `sample` at continuous pixel coordinates (x ∈ [0,W], y ∈ [0,H]).
+    /// Inverse of `sample` at continuous pixel coordinates (x ∈ \[0,W\], y ∈ \[0,H\]).
     #[inline]
     pub fn invert_pixel(&self, x: f64, y: f64) -> [f64; 2] {
         let row = (y as usize).min(self.height - 1);

@@ -1,7 +1,7 @@
 //! A hierarchical warp from the unit square to an image: `HierarchicalWarp`.
 //!
 //! The image is split recursively in two along its longer side (a k-d tree down to single
-//! pixels). At each node a point u ∈ [0,1]² goes to the child whose share of the node's mass
+//! pixels). At each node a point u ∈ \[0,1\]² goes to the child whose share of the node's mass
 //! covers its coordinate along the split axis, and that coordinate is rescaled to the child
 //! (McCool & Harwood's probability trees; Clarberg et al. 2005's hierarchical warping). Masses
 //! come from a summed-area table in f64, so no tree is stored.
@@ -17,7 +17,7 @@
 pub struct HierarchicalWarp {
     width: usize,
     height: usize,
-    /// (H+1)×(W+1) summed-area table: sat[y][x] = Σ weights over [0,x)×[0,y).
+    /// (H+1)×(W+1) summed-area table: `sat[y][x]` = Σ weights over \[0,x)×\[0,y).
     sat: Vec<f64>,
 }
 
@@ -54,7 +54,7 @@ impl HierarchicalWarp {
         m.max(0.0)
     }
 
-    /// Maps u ∈ [0,1]² to p = (x/W, y/H) ∈ [0,1]².
+    /// Maps u ∈ \[0,1\]² to p = (x/W, y/H) ∈ \[0,1\]².
     pub fn sample(&self, u: [f64; 2]) -> [f64; 2] {
         let mut u = [u[0].clamp(0.0, 1.0), u[1].clamp(0.0, 1.0)];
         let (mut x0, mut y0, mut x1, mut y1) = (0, 0, self.width, self.height);

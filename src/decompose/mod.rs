@@ -13,7 +13,7 @@
 //! 3. **Fixed progressive point set** ([`point_set`]): Halton points, Lloyd-relaxed so that every
 //!    2^k prefix is well stratified, computed once and reused by every frame. Light i sits where
 //!    point i warps to, and a light count N uses the first N points.
-//! 4. **Regions and lights** ([`regions`]): light i owns the spherical Voronoi cell of its sample
+//! 4. **Regions and lights** (`regions`): light i owns the spherical Voronoi cell of its sample
 //!    direction; every working pixel (or, for concentrated ones, every input pixel) gives its
 //!    energy to its nearest light. So each light carries the energy and colour of its own
 //!    compact region, and the lights sum exactly to the map's integral. The light points at the
@@ -295,7 +295,7 @@ impl Decomposer {
     }
 
     /// Allows (the default) or forbids reusing the region pass's candidate lists between frames
-    /// while the lights stay within [`regions::REUSE_MARGIN`] of where the lists were built.
+    /// while the lights stay within `REUSE_MARGIN` (src/decompose/regions/candidates.rs) of where the lists were built.
     /// The lights are the same either way; forbidding it measures the cost of a full build
     /// every frame.
     pub fn set_candidate_reuse(&mut self, on: bool) {
@@ -309,7 +309,7 @@ impl Decomposer {
     }
 
     /// How many times the region pass has begun building its candidate lists in stages (a few
-    /// buckets per frame, while the lights drift slowly: src/decompose/regions.rs).
+    /// buckets per frame, while the lights drift slowly: src/decompose/regions/candidates.rs).
     pub fn candidate_staged_builds(&self) -> u64 {
         self.region_scratch.candidate_staged_builds()
     }

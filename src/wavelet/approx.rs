@@ -26,7 +26,7 @@ pub struct WaveletSet {
     /// Decomposition levels of the transform.
     pub levels: u32,
     /// (index into the `side × side` coefficient array in the layout of
-    /// [`transform`](super::transform), rgb coefficient), sorted by index; indices unique.
+    /// [`transform`], rgb coefficient), sorted by index; indices unique.
     pub coefficients: Vec<(u32, [f32; 3])>,
 }
 
@@ -46,7 +46,7 @@ pub enum ApproxError {
 }
 
 /// The coefficient planes of an RGB map: all `side²` coefficients per channel, layout of
-/// [`transform`](super::transform).
+/// [`transform`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct Coefficients {
     pub basis: Basis,

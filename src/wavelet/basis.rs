@@ -15,7 +15,7 @@
 //! [`Basis::lowpass`] and [`Basis::highpass`] are PyWavelets' decomposition filters `dec_lo` and
 //! `dec_hi` in PyWavelets' order (`dec_lo` is the time-reversed scaling filter; `dec_hi[k] =
 //! (−1)^(k+1)·dec_lo[F−1−k]`), generated once by `scripts/wavelet_taps.py` into `taps.rs`.
-//! They are orthonormal: Σ h = √2, Σ h[k]·h[k+2j] = δ_j (checked in the tests to 1e-14).
+//! They are orthonormal: Σ h = √2, Σ h\[k\]·h\[k+2j\] = δ_j (checked in the tests to 1e-14).
 //!
 //! # Wire code
 //!

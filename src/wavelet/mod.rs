@@ -8,7 +8,7 @@
 //!    periodic boundary, PyWavelets' `periodization` mode exactly), for the bases of [`basis`]:
 //!    Haar, Daubechies db2..db10, Coiflets coif1..coif5.
 //! 3. [`approx`]: non-linear approximation keeping the K largest coefficients, as a serialisable
-//!    [`WaveletSet`](approx::WaveletSet) that can be streamed and reconstructed.
+//!    [`WaveletSet`] that can be streamed and reconstructed.
 //!
 //! Because the texels have equal area, the discrete transform of the texel radiances is (up to
 //! the constant factor √(4π)/side) the expansion of L(ω) in an orthonormal basis of L²(S²) made

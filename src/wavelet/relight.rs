@@ -3,7 +3,7 @@
 //!
 //! # Basis and scale
 //!
-//! A [`Grid`] is the `side × side` equal-area octahedral map ([`sphere`](super::sphere)) with a
+//! A [`Grid`] is the `side × side` equal-area octahedral map ([`sphere`]) with a
 //! basis and a number of levels. A function f on the sphere is represented by its texel values
 //! f_t (piecewise constant on texels, solid angle dω = 4π/side² each); its coefficients are
 //! `c = W (f_t √dω)` with `W` the orthonormal 2-D transform ([`Grid::project`]). Then
@@ -448,7 +448,7 @@ impl Transport {
     }
 }
 
-/// Σ value[i] · table[index[i]] with four independent accumulators (RGBA lanes).
+/// Σ `value[i] · table[index[i]]` with four independent accumulators (RGBA lanes).
 #[inline]
 fn dot_row(index: &[u16], value: &[f32], table: &[[f32; 4]]) -> [f32; 4] {
     let mut acc = [[0.0f32; 4]; 2];

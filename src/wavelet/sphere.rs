@@ -4,7 +4,7 @@
 //!
 //! # Parameterisation
 //!
-//! The unit square [0,1]² (u right, v down; texel (x, y) covers [x, x+1)/side × [y, y+1)/side)
+//! The unit square \[0,1\]² (u right, v down; texel (x, y) covers [x, x+1)/side × [y, y+1)/side)
 //! maps onto the sphere with a constant Jacobian: every texel of a `side × side` grid has solid
 //! angle exactly 4π/side². The square's centre is the zenith (+Y), its four corners the nadir
 //! (−Y), the inscribed diamond |2u−1| + |2v−1| ≤ 1 the upper hemisphere. Seen from above: +X to
@@ -68,7 +68,7 @@ pub enum SphereError {
 /// Largest supported side (1024² texels).
 pub const MAX_SIDE: usize = 1024;
 
-/// Direction (unit vector) of the point (u, v) ∈ [0,1]² of the equal-area octahedral map.
+/// Direction (unit vector) of the point (u, v) ∈ \[0,1\]² of the equal-area octahedral map.
 pub fn square_to_sphere(u: f64, v: f64) -> DVec3 {
     let (a, b) = (2.0 * u - 1.0, 2.0 * v - 1.0);
     let (ap, bp) = (a.abs(), b.abs());
@@ -83,7 +83,7 @@ pub fn square_to_sphere(u: f64, v: f64) -> DVec3 {
     DVec3::new(px, z, py)
 }
 
-/// The point (u, v) ∈ [0,1]² of direction `d` (need not be normalised; the zero or a
+/// The point (u, v) ∈ \[0,1\]² of direction `d` (need not be normalised; the zero or a
 /// non-finite vector gives the zenith's (½, ½)).
 pub fn sphere_to_square(d: DVec3) -> (f64, f64) {
     let len = d.length();

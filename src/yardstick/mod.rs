@@ -1,5 +1,5 @@
 //! Quality yardsticks for light lists, measured against the environment map itself (DESIGN.md),
-//! and Debevec's median cut (2005) as the peer method ([`median_cut`]).
+//! and Debevec's median cut (2005) as the peer method ([`median_cut()`]).
 //!
 //! # Reference map
 //!

@@ -1,11 +1,5 @@
-//! Light regions: the spherical Voronoi cells of the lights' sample directions.
-//!
-//! Every working pixel gives its energy to the light whose sample direction is nearest on the
-//! sphere, so regions are compact (as median cut's are), every light carries its own region's
-//! energy and colour, and the lights sum to the map's integral exactly. Regions change
-//! continuously as the sample directions move. The input pixels of concentrated working pixels
-//! (a sun) are assigned one by one, so the several lights that share a sun split it at full
-//! resolution and keep its shape (and so its penumbra).
+//! Candidate lists for the region pass's nearest-light queries (the parent module has the
+//! pass).
 //!
 //! Nearest-light queries use buckets of B×B working pixels: per frame, each bucket keeps the
 //! lights that can be nearest to any point in it — those within d_min + 2r of its centre, where
@@ -35,51 +29,44 @@
 //! the old places) until its new one is built ([`Candidates::update`]); a full build costs
 //! about as much as the rest of the region pass, so this keeps it out of any single frame.
 //!
-//! Steps per frame: (1) candidate lists per bucket (or the last frame's); (2) the input pixels
-//! of concentrated working pixels go to their nearest light one by one (searching a list of
-//! their working pixel's own, drawn from the bucket's, where the bucket's is long); (3) every
-//! other working pixel is labelled with its nearest light, a bucket at a time, with dot products
-//! computed from separable row and column terms (vectorised, eight pixels per vector); (4) each
-//! row is summed run by run (consecutive pixels of one light, in f64) and each run is added to
-//! its light's region; (5) by default, the refinement: the lights holding concentrated input
-//! pixels move to their regions' centroids and those input pixels go again to their nearest
-//! light (a k-means step on the concentrated sources; [`accumulate`]).
+//! The input pixels of a concentrated working pixel search a list of that pixel's own
+//! ([`PixelCandidates`]), drawn from its bucket's where that is long. [`nearest`] is the scan
+//! of a list that the per-pixel searches share.
 
-use super::working_map::{FineSample, WorkingMap};
-use super::{luminance_f64, Region};
+use crate::decompose::working_map::WorkingMap;
 use glam::{DVec3, Vec3};
 
-const BUCKET_PIXELS: usize = 8;
+pub(super) const BUCKET_PIXELS: usize = 8;
 
 /// Working pixels per bucket.
-const CELLS: usize = BUCKET_PIXELS * BUCKET_PIXELS;
+pub(super) const CELLS: usize = BUCKET_PIXELS * BUCKET_PIXELS;
 
 /// Margin δ (radians, about 1°) of the candidate lists: they are reused while no light has
 /// moved further than this since they were built.
-pub(super) const REUSE_MARGIN: f32 = 0.0175;
+pub(in crate::decompose) const REUSE_MARGIN: f32 = 0.0175;
 
 /// Buckets per super-bucket side: candidate lists are found for 4×4 buckets at once first.
-const SUPER_BUCKETS: usize = 4;
+pub(super) const SUPER_BUCKETS: usize = 4;
 
 /// Per-geometry bucket layout of a working map.
 #[derive(Clone, Debug)]
 pub struct BucketGrid {
-    width: usize,
-    height: usize,
-    cols: usize,
-    centres: Vec<Vec3>,
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) cols: usize,
+    pub(super) centres: Vec<Vec3>,
     /// Angular radius of each bucket (radians), with a small safety margin.
-    radii: Vec<f32>,
+    pub(super) radii: Vec<f32>,
     /// Index of each bucket's super-bucket.
     super_of: Vec<u32>,
     super_centres: Vec<Vec3>,
     super_radii: Vec<f32>,
     /// Per bucket column, (sin φ, cos φ) of its pixels tiled over the bucket's 64 lanes (lane
     /// r·8 + k holds column k); columns past the map's edge repeat the last one.
-    column_tiles: Vec<[[f32; CELLS]; 2]>,
+    pub(super) column_tiles: Vec<[[f32; CELLS]; 2]>,
     /// Per bucket row, (sin θ, cos θ) of its pixels tiled over the 64 lanes (lane r·8 + k holds
     /// row r); rows past the map's edge repeat the last one.
-    row_tiles: Vec<[[f32; CELLS]; 2]>,
+    pub(super) row_tiles: Vec<[[f32; CELLS]; 2]>,
 }
 
 impl BucketGrid {
@@ -145,7 +132,7 @@ impl BucketGrid {
 
 impl BucketGrid {
     /// The bucket of working pixel `pixel` (row-major index).
-    fn bucket_of(&self, pixel: usize) -> usize {
+    pub(super) fn bucket_of(&self, pixel: usize) -> usize {
         let (x, y) = (pixel % self.width, pixel / self.width);
         (y / BUCKET_PIXELS) * self.cols + x / BUCKET_PIXELS
     }
@@ -154,7 +141,7 @@ impl BucketGrid {
 /// Centre direction and angular radius (with a small safety margin) of the lat-long pixel
 /// rectangle [x0, x1) × [y0, y1). The farthest point of such a rectangle from its centre lies
 /// on its border, which is sampled densely.
-fn bounding_cap(
+pub(super) fn bounding_cap(
     width: usize,
     height: usize,
     (x0, y0): (usize, usize),
@@ -186,7 +173,7 @@ fn bounding_cap(
 /// Directions as three coordinate arrays plus their light ids, so that the dot products of
 /// one direction with all of them vectorise.
 #[derive(Default)]
-struct DirSet {
+pub(super) struct DirSet {
     x: Vec<f32>,
     y: Vec<f32>,
     z: Vec<f32>,
@@ -194,21 +181,21 @@ struct DirSet {
 }
 
 impl DirSet {
-    fn clear(&mut self) {
+    pub(super) fn clear(&mut self) {
         self.x.clear();
         self.y.clear();
         self.z.clear();
         self.id.clear();
     }
 
-    fn push(&mut self, id: u32, d: Vec3) {
+    pub(super) fn push(&mut self, id: u32, d: Vec3) {
         self.x.push(d.x);
         self.y.push(d.y);
         self.z.push(d.z);
         self.id.push(id);
     }
 
-    fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         self.id.len()
     }
 }
@@ -217,7 +204,7 @@ impl DirSet {
 /// a light at (nearest angle + 2·radius), i.e. the smallest dot product of a light that can be
 /// nearest to some point of the cap (triangle inequality).
 #[inline(always)]
-fn reach(
+pub(super) fn reach(
     centre: Vec3,
     radius: f32,
     set: &DirSet,
@@ -250,7 +237,7 @@ fn reach(
 /// `best` with its centre: the dot product of a light at (nearest angle + 2·radius), with a
 /// little slack (−2 when that reaches the whole sphere).
 #[inline(always)]
-fn reach_threshold(best: f32, radius: f32) -> f32 {
+pub(super) fn reach_threshold(best: f32, radius: f32) -> f32 {
     let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
     if reach >= std::f32::consts::PI {
         -2.0
@@ -262,7 +249,7 @@ fn reach_threshold(best: f32, radius: f32) -> f32 {
 /// The bound of a [`Candidate`] of a cap of angular radius `radius`, from its dot product `d`
 /// with the cap's centre: cos(max(0, a − r)) for a = acos d, plus a little slack.
 #[inline(always)]
-fn cap_bound(radius: f32) -> impl Fn(f32) -> f32 {
+pub(super) fn cap_bound(radius: f32) -> impl Fn(f32) -> f32 {
     let (sin_r, cos_r) = radius.sin_cos();
     move |d: f32| {
         let cos_a = d.clamp(-1.0, 1.0);
@@ -275,24 +262,24 @@ fn cap_bound(radius: f32) -> impl Fn(f32) -> f32 {
 /// A light that may be nearest to some point of a bucket, with an upper bound of its dot
 /// product with any direction in the bucket.
 #[derive(Clone, Copy, Debug)]
-struct Candidate {
+pub(super) struct Candidate {
     /// The light's direction, kept inline so a scan touches one array.
-    dir: Vec3,
-    light: u32,
+    pub(super) dir: Vec3,
+    pub(super) light: u32,
     /// cos(max(0, a − r)) where a is the light's angle from the bucket centre and r the bucket's
     /// radius: no direction in the bucket is closer to the light than that.
-    bound: f32,
+    pub(super) bound: f32,
 }
 
 /// Per-bucket candidate lights for one frame, nearest to the bucket centre first. The buffers
 /// are kept between frames.
 #[derive(Default)]
-struct Candidates {
+pub(super) struct Candidates {
     offsets: Vec<u32>,
-    list: Vec<Candidate>,
+    pub(super) list: Vec<Candidate>,
     /// Every light, then the candidates of each super-bucket (`super_offsets`).
     all: DirSet,
-    supers: DirSet,
+    pub(super) supers: DirSet,
     super_offsets: Vec<usize>,
     dots: Vec<f32>,
     /// Positions (in the set searched) of the bucket's candidates that pass the reach test.
@@ -308,12 +295,12 @@ struct Candidates {
     dirs_of: Vec<Vec3>,
     built_grid: (usize, usize),
     /// Whether lists may be reused between frames (off: rebuilt every frame).
-    no_reuse: bool,
+    pub(super) no_reuse: bool,
     /// Full builds so far.
-    builds: u64,
+    pub(super) builds: u64,
     /// Staged rebuilds begun so far, and those whose last buckets had to be built at once
     /// (the previous lists' lights strayed before the stages were through).
-    staged_builds: u64,
+    pub(super) staged_builds: u64,
     stages_cut_short: u64,
     /// The margin of the last build (0 or [`REUSE_MARGIN`]), the frames that reused it, and
     /// the number of builds in a row without margin.
@@ -334,14 +321,14 @@ struct Candidates {
 /// After a build whose lists were not reused even once, the next lists are built without margin
 /// (the margin costs about 6% more instructions per frame in longer lists and looser bounds),
 /// and stay so for this many builds before the margin is tried again.
-const BARE_BUILDS: u32 = 15;
+pub(super) const BARE_BUILDS: u32 = 15;
 
 /// A staged rebuild begins once some light has moved this share of the margin from where the
 /// lists were built (while every light is still within the margin of it).
-const STAGE_START: f32 = 0.7;
+pub(super) const STAGE_START: f32 = 0.7;
 
 /// A staged rebuild builds the buckets' lists in this many frames.
-const STAGES: usize = 4;
+pub(super) const STAGES: usize = 4;
 
 impl Candidates {
     /// Makes the lists valid for `lights`: the last frame's lists when every light is within
@@ -361,7 +348,7 @@ impl Candidates {
     /// fail first, the rest of the buckets are built at once; if the new ones fail (lights
     /// moving fast), everything is built afresh.
     #[inline(always)]
-    fn update(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
+    pub(super) fn update(&mut self, grid: &BucketGrid, lights: &[Vec3]) {
         // Checked with 90% of the margin: the f32 dot products of nearly equal directions are
         // not exact.
         let cos_check = if self.margin > 0.0 {
@@ -512,7 +499,7 @@ impl Candidates {
     /// which is the order a list without margin has: an exact tie of two lights' dot products
     /// at a pixel goes to the same light with or without the margin.
     #[inline(always)]
-    fn bucket_list(
+    pub(super) fn bucket_list(
         &mut self,
         centre: Vec3,
         radius: f32,
@@ -573,7 +560,7 @@ impl Candidates {
     }
 
     #[inline]
-    fn of(&self, bucket: usize) -> &[Candidate] {
+    pub(super) fn of(&self, bucket: usize) -> &[Candidate] {
         let (list, offsets) = if self.is_current(bucket) {
             (&self.list, &self.offsets)
         } else {
@@ -584,7 +571,7 @@ impl Candidates {
 
     /// The reach threshold of `bucket`'s list (see `thresholds`).
     #[inline]
-    fn threshold(&self, bucket: usize) -> f32 {
+    pub(super) fn threshold(&self, bucket: usize) -> f32 {
         if self.is_current(bucket) {
             self.thresholds[bucket]
         } else {
@@ -595,10 +582,10 @@ impl Candidates {
 
 /// How many of a list's first candidates (those nearest the bucket's centre) are tried as
 /// dominators of the others in [`prune_dominated`].
-const DOMINATORS: usize = 8;
+pub(super) const DOMINATORS: usize = 8;
 
 /// Lists of at most this many candidates are not pruned: their labelling is cheap already.
-const PRUNE_FROM: usize = 16;
+pub(super) const PRUNE_FROM: usize = 16;
 
 /// Drops from `list[start..]` the candidates that cannot be nearest to any direction of the cap
 /// (`centre`, `radius`) because a candidate among the first [`DOMINATORS`] is nearer to every
@@ -616,7 +603,7 @@ const PRUNE_FROM: usize = 16;
 /// itself is dominated by an earlier one, which then dominates what it dominated (with 2T).
 /// Order is kept, so the lists still come in falling order of their bounds.
 #[inline(always)]
-fn prune_dominated(
+pub(super) fn prune_dominated(
     list: &mut Vec<Candidate>,
     start: usize,
     centre: Vec3,
@@ -650,7 +637,7 @@ fn prune_dominated(
 /// Sort key of candidate `k` with bound `bound`: ascending keys are falling bounds, ties in
 /// rising `k`.
 #[inline(always)]
-fn falling_key(bound: f32, k: usize) -> u64 {
+pub(super) fn falling_key(bound: f32, k: usize) -> u64 {
     let bits = bound.to_bits();
     // Unsigned order of the float's total order, then reversed.
     let rising = if bits & 0x8000_0000 != 0 {
@@ -665,7 +652,7 @@ fn falling_key(bound: f32, k: usize) -> u64 {
 /// the search; candidates come nearest-to-the-bucket-centre first, so the search stops once no
 /// remaining candidate's bound can beat the best dot product found.
 #[inline]
-fn nearest(candidates: &[Candidate], lights: &[Vec3], d: Vec3, hint: usize) -> usize {
+pub(super) fn nearest(candidates: &[Candidate], lights: &[Vec3], d: Vec3, hint: usize) -> usize {
     let mut best_dot = lights[hint].dot(d);
     let mut best = hint;
     for c in candidates {
@@ -681,508 +668,12 @@ fn nearest(candidates: &[Candidate], lights: &[Vec3], d: Vec3, hint: usize) -> u
     best
 }
 
-/// Scratch buffers of the region pass, kept between frames.
-#[derive(Default)]
-pub(super) struct Scratch {
-    /// The nearest light of every working pixel, row-major.
-    labels: Vec<u32>,
-    lights: Vec<Vec3>,
-    candidates: Candidates,
-    /// Lights holding input pixels of concentrated sources.
-    holds_concentrated: Vec<bool>,
-    /// The light each concentrated input pixel (`WorkingMap::fine`) went to (kept up to date
-    /// by the refinement and the Lloyd step).
-    fine_labels: Vec<u32>,
-    /// Per light, how many working pixels and input pixels its region holds.
-    members: Vec<u32>,
-    /// The lights after the Lloyd step, and the moved ones.
-    new_lights: Vec<Vec3>,
-    moved: Vec<Vec3>,
-    /// Candidate lists for the lights after the Lloyd step (reused between frames as the
-    /// first pass's are: in a static scene the step moves the lights to the same places).
-    lloyd_candidates: Candidates,
-    /// Per bucket, whether the Lloyd step relabels it.
-    affected: Vec<bool>,
-    /// The candidates of one concentrated working pixel (see [`assign_fine`]).
-    pixel_candidates: PixelCandidates,
-    /// The refinement's lists of the buckets holding concentrated pixels among all lights
-    /// (only `supers`, `list` and the scratch buffers of [`Candidates::bucket_list`] are used;
-    /// see [`refine_fine`]), and per bucket the range of its list in `list` if it has one.
-    refine_candidates: Candidates,
-    refine_list_of: Vec<Option<(u32, u32)>>,
-}
-
-impl Scratch {
-    /// Allows (the default) or forbids reusing the candidate lists between frames.
-    pub(super) fn set_candidate_reuse(&mut self, on: bool) {
-        self.candidates.no_reuse = !on;
-        self.lloyd_candidates.no_reuse = !on;
-    }
-
-    /// How many times the candidate lists have been built in full.
-    pub(super) fn candidate_builds(&self) -> u64 {
-        self.candidates.builds
-    }
-
-    /// How many times the candidate lists have been begun in stages.
-    pub(super) fn candidate_staged_builds(&self) -> u64 {
-        self.candidates.staged_builds
-    }
-
-    /// The light each concentrated input pixel (`WorkingMap::fine`) holds after the last
-    /// region pass (after the refinement or Lloyd step, if any).
-    pub(super) fn fine_labels(&self) -> &[u32] {
-        &self.fine_labels
-    }
-}
-
-/// Labels every pixel of bucket (`bx`, `by`) with its nearest light among the bucket's
-/// candidates. Directions are separable, d = (sin θ·sin φ, cos θ, −sin θ·cos φ), so a light's dot
-/// product with a pixel is sin θ·(Lx sin φ − Lz cos φ) + Ly cos θ: per candidate one column term
-/// per bucket column, then one multiply-add per pixel. Candidates come in falling order of their
-/// bound, so the scan stops once no remaining candidate can beat any pixel's best.
-#[inline(always)]
-fn label_bucket(
-    map: &WorkingMap,
-    grid: &BucketGrid,
-    candidates: &[Candidate],
-    (bx, by): (usize, usize),
-    labels: &mut [u32],
-) {
-    let x0 = bx * BUCKET_PIXELS;
-    let y0 = by * BUCKET_PIXELS;
-    let x1 = (x0 + BUCKET_PIXELS).min(map.width);
-    let y1 = (y0 + BUCKET_PIXELS).min(map.height);
-    let Some((first, rest)) = candidates.split_first() else {
-        return;
-    };
-    if rest.is_empty() {
-        for y in y0..y1 {
-            labels[y * map.width + x0..y * map.width + x1].fill(first.light);
-        }
-        return;
-    }
-    // Columns and rows past the map's edge repeat the last one; their labels are not stored.
-    // So every bucket is a full block of 64 lanes, and the loops below are one fixed-size loop
-    // that the compiler vectorises (eight lanes per AVX2 vector).
-    let [sin_phi, cos_phi] = &grid.column_tiles[bx];
-    let [sin_theta, cos_theta] = &grid.row_tiles[by];
-    // d·l = sin θ·(lx sin φ − lz cos φ) + ly cos θ.
-    let dot = |l: Vec3, i: usize| {
-        sin_theta[i] * (l.x * sin_phi[i] - l.z * cos_phi[i]) + l.y * cos_theta[i]
-    };
-    let mut best: [f32; CELLS] = std::array::from_fn(|i| dot(first.dir, i));
-    let mut best_id = [first.light; CELLS];
-    // A lower bound of the lanes' minimum: the lanes only rise, so a minimum found earlier
-    // stays a lower bound. Refreshed every fourth candidate only (a refresh costs about as
-    // much as a candidate), so the scan may stop up to three candidates later than it could.
-    let mut floor = -1.0f32;
-    for (k, c) in rest.iter().enumerate() {
-        // Every lane's best is at most 1, so a bound ≥ 1 cannot stop the scan: the lanes'
-        // minimum is only needed (and only computed) for a bound below 1.
-        if c.bound < 1.0 {
-            if c.bound < floor {
-                break;
-            }
-            if k % 4 == 0 {
-                floor = min_of(&best);
-                if c.bound < floor {
-                    break;
-                }
-            }
-        }
-        // Copied out first: selecting between a load from `c` and a lane makes the compiler
-        // select addresses and branch instead of blending.
-        let (dir, light) = (c.dir, c.light);
-        for i in 0..CELLS {
-            let d = dot(dir, i);
-            let closer = d > best[i];
-            best[i] = if closer { d } else { best[i] };
-            best_id[i] = if closer { light } else { best_id[i] };
-        }
-    }
-    for (r, ids) in best_id
-        .chunks_exact(BUCKET_PIXELS)
-        .enumerate()
-        .take(y1 - y0)
-    {
-        let start = (y0 + r) * map.width + x0;
-        labels[start..start + (x1 - x0)].copy_from_slice(&ids[..x1 - x0]);
-    }
-}
-
-/// Smallest value of the lanes (which are never NaN).
-#[inline(always)]
-fn min_of(lanes: &[f32; CELLS]) -> f32 {
-    // A select is one `vminps`; `f32::min` adds a NaN test and a blend per vector.
-    let min = |a: f32, b: f32| if b < a { b } else { a };
-    let mut m = [f32::INFINITY; BUCKET_PIXELS];
-    for row in lanes.chunks_exact(BUCKET_PIXELS) {
-        for (m, &v) in m.iter_mut().zip(row) {
-            *m = min(*m, v);
-        }
-    }
-    // Halving folds: vector minima, not a serial chain.
-    let m4: [f32; 4] = std::array::from_fn(|k| min(m[k], m[k + 4]));
-    let m2: [f32; 2] = std::array::from_fn(|k| min(m4[k], m4[k + 2]));
-    min(m2[0], m2[1])
-}
-
-/// The region pass's arguments, run through [`pulp::Arch::dispatch`] so that the pass is
-/// compiled for the CPU's vector unit (`with_simd` and everything it calls are inlined into the
-/// target-feature function).
-pub(super) struct Accumulate<'a> {
-    pub map: &'a WorkingMap,
-    pub grid: &'a BucketGrid,
-    pub sample_dirs: &'a [DVec3],
-    pub regions: &'a mut [Region],
-    pub scratch: &'a mut Scratch,
-    /// One Lloyd step for the lights holding concentrated sources (see [`accumulate`]).
-    pub concentrated_lloyd: bool,
-    /// The concentrated input pixels go again to their nearest light once the lights holding
-    /// them have moved to their regions' centroids (see [`accumulate`]); implied by
-    /// `concentrated_lloyd`.
-    pub refine_concentrated: bool,
-}
-
-impl pulp::WithSimd for Accumulate<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        accumulate(self);
-    }
-}
-
-/// Adds every working pixel's energy, luminance-weighted direction and solid angle to the
-/// region of its nearest light. A concentrated working pixel (a sun, a lamp; see
-/// [`WorkingMap::fine`]) is assigned input pixel by input pixel, by exact direction, so the
-/// lights that share a sun split it along their Voronoi borders at full resolution.
-///
-/// Two passes: every working pixel is labelled with its nearest light (bucket by bucket, see
-/// [`label_bucket`]); then each row is summed run by run (consecutive pixels of one light, f64)
-/// and each run is added to its light's region once.
-///
-/// With `concentrated_lloyd`, one Lloyd step follows for the lights that hold input pixels of
-/// concentrated sources: each moves to its region's luminance centroid and the regions are
-/// redrawn. Only the buckets the moved lights can reach are labelled again (a bucket none of
-/// whose candidates moved, and which no moved light's new direction passes the bucket's reach
-/// threshold for, keeps its labels), with candidate lists of their own for the moved lights
-/// (kept between frames like the first pass's: a static scene moves the lights to the same
-/// places every frame). Only the working and input pixels whose light changed move, each from
-/// its old region to its new one; a region left with no pixel is emptied exactly (the
-/// subtractions would leave rounding), and no region keeps a negative energy.
-///
-/// With `refine_concentrated` alone, the same step is taken by the concentrated input pixels
-/// only (a k-means step on the suns and lamps at full resolution): the lights holding them move
-/// to their regions' centroids, each concentrated input pixel goes to its nearest light after
-/// the move, and the working pixels keep their labels. The lights that share a sun then split
-/// it by their actual positions rather than by their sample points, at the cost of a few
-/// candidate lists (the buckets that hold concentrated pixels) per frame.
-#[inline(always)]
-fn accumulate(args: Accumulate<'_>) {
-    let Accumulate {
-        map,
-        grid,
-        sample_dirs,
-        regions,
-        scratch,
-        concentrated_lloyd,
-        refine_concentrated,
-    } = args;
-    debug_assert_eq!((grid.width, grid.height), (map.width, map.height));
-    scratch.lights.clear();
-    scratch
-        .lights
-        .extend(sample_dirs.iter().map(|d| d.as_vec3()));
-    scratch.candidates.update(grid, &scratch.lights);
-    scratch.holds_concentrated.clear();
-    scratch.holds_concentrated.resize(sample_dirs.len(), false);
-    scratch.members.clear();
-    scratch.members.resize(sample_dirs.len(), 0);
-    scratch.fine_labels.clear();
-    assign_fine(map, grid, scratch, regions);
-
-    let labels = &mut scratch.labels;
-    labels.resize(map.width * map.height, 0);
-    let rows = map.height.div_ceil(BUCKET_PIXELS);
-    for by in 0..rows {
-        for bx in 0..grid.cols {
-            label_bucket(
-                map,
-                grid,
-                scratch.candidates.of(by * grid.cols + bx),
-                (bx, by),
-                labels,
-            );
-        }
-    }
-    sum_runs(map, labels, regions, &mut scratch.members);
-    if !(concentrated_lloyd || refine_concentrated) || !scratch.holds_concentrated.contains(&true) {
-        return;
-    }
-    if !concentrated_lloyd {
-        refine_fine(map, grid, scratch, regions);
-        empty_regions_exactly(regions, &scratch.members);
-        return;
-    }
-
-    // The Lloyd step on the concentrated sources' lights.
-    let Scratch {
-        labels,
-        candidates,
-        holds_concentrated,
-        fine_labels,
-        members,
-        new_lights,
-        moved,
-        lloyd_candidates,
-        affected,
-        ..
-    } = scratch;
-    move_to_centroids(&scratch.lights, holds_concentrated, regions, new_lights);
-    moved.clear();
-    moved.extend(
-        new_lights
-            .iter()
-            .zip(holds_concentrated.iter())
-            .filter_map(|(&l, &holds)| holds.then_some(l)),
-    );
-    affected.clear();
-    affected.extend((0..grid.centres.len()).map(|b| {
-        // Built with the margin, possibly frames ago: the reach it encodes (d_min + 2r + 2δ at
-        // the build) is at least today's d_min + 2r, so the test stays conservative. A light
-        // dropped from the list as dominated (`prune_dominated`) has a dominator in it that
-        // did not move, or the bucket is affected through that dominator.
-        let (centre, threshold) = (grid.centres[b], candidates.threshold(b));
-        candidates
-            .of(b)
-            .iter()
-            .any(|c| holds_concentrated[c.light as usize])
-            || moved.iter().any(|&l| centre.dot(l) >= threshold)
-    }));
-    if affected.contains(&true) {
-        lloyd_candidates.update(grid, new_lights);
-    }
-    let local_of = |b: usize| affected[b].then(|| lloyd_candidates.of(b));
-    // Only the pixels whose light changed move from one region to the other: elsewhere the
-    // nearest light is the same (no candidate moved and no moved light reaches the bucket).
-    let mut before = [0u32; CELLS];
-    for by in 0..rows {
-        for bx in 0..grid.cols {
-            let Some(list) = local_of(by * grid.cols + bx) else {
-                continue;
-            };
-            let (x0, y0) = (bx * BUCKET_PIXELS, by * BUCKET_PIXELS);
-            let (x1, y1) = (
-                (x0 + BUCKET_PIXELS).min(map.width),
-                (y0 + BUCKET_PIXELS).min(map.height),
-            );
-            for y in y0..y1 {
-                let row = y * map.width;
-                before[(y - y0) * BUCKET_PIXELS..][..x1 - x0]
-                    .copy_from_slice(&labels[row + x0..row + x1]);
-            }
-            label_bucket(map, grid, list, (bx, by), labels);
-            for y in y0..y1 {
-                let (sin_t, cos_t) = map.row_trig_f64[y];
-                let omega = map.row_solid_angle[y];
-                for x in x0..x1 {
-                    let p = y * map.width + x;
-                    let (from, to) = (before[(y - y0) * BUCKET_PIXELS + x - x0], labels[p]);
-                    if from == to || map.concentrated[p] {
-                        continue;
-                    }
-                    let lum = f64::from(map.luminance[p]);
-                    let (sin_p, cos_p) = map.column_trig_f64[x];
-                    let dir = [sin_t * (lum * sin_p), cos_t * lum, -(sin_t * (lum * cos_p))];
-                    move_member(regions, members, (from, to), map.energy[p], dir, omega);
-                }
-            }
-        }
-    }
-    for (sample, from) in map.fine.iter().zip(fine_labels.iter_mut()) {
-        let Some(list) = local_of(grid.bucket_of(sample.pixel as usize)) else {
-            continue;
-        };
-        let to = nearest(list, new_lights, Vec3::from(sample.dir), *from as usize) as u32;
-        if to != *from {
-            let (energy, weighted_dir, omega) = fine_contribution(sample);
-            move_member(regions, members, (*from, to), energy, weighted_dir, omega);
-            *from = to;
-        }
-    }
-    empty_regions_exactly(regions, members);
-}
-
-/// A region that lost every pixel is empty, not the rounding left by the subtractions of
-/// [`move_member`]; one that kept some keeps no negative energy from them.
-#[inline(always)]
-fn empty_regions_exactly(regions: &mut [Region], members: &[u32]) {
-    for (region, &count) in regions.iter_mut().zip(members) {
-        if count == 0 {
-            *region = Region::default();
-        } else {
-            region.rgb = region.rgb.map(|c| c.max(0.0));
-            region.solid_angle = region.solid_angle.max(0.0);
-        }
-    }
-}
-
-/// The refinement of [`accumulate`] (`refine_concentrated`): the lights holding concentrated
-/// input pixels move to their regions' luminance centroids, then every concentrated input pixel
-/// goes to its nearest light (moved or not) and, if that changed, from its old region to its
-/// new one. The nearest light is found among exact candidate lists (no margin): per bucket that
-/// holds concentrated pixels among all lights, then per pixel among its bucket's
-/// ([`PixelCandidates`]).
-#[inline(always)]
-fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regions: &mut [Region]) {
-    let Scratch {
-        lights,
-        holds_concentrated,
-        fine_labels,
-        members,
-        new_lights,
-        pixel_candidates,
-        refine_candidates: candidates,
-        refine_list_of: list_of,
-        ..
-    } = scratch;
-    move_to_centroids(lights, holds_concentrated, regions, new_lights);
-    // Two levels, as the first pass's lists: the buckets that hold concentrated pixels get
-    // exact lists among all lights (the vectorised reach test of `bucket_list`), then each
-    // concentrated pixel its own among its bucket's.
-    candidates.supers.clear();
-    for (i, &l) in new_lights.iter().enumerate() {
-        candidates.supers.push(i as u32, l);
-    }
-    candidates.list.clear();
-    list_of.clear();
-    list_of.resize(grid.centres.len(), None);
-    let mut first = 0;
-    for group in map.fine.chunk_by(|a, b| a.pixel == b.pixel) {
-        let pixel = group[0].pixel as usize;
-        let bucket = grid.bucket_of(pixel);
-        let (start, end) = *list_of[bucket].get_or_insert_with(|| {
-            let start = candidates.list.len();
-            let all = 0..candidates.supers.len();
-            let (centre, radius) = (grid.centres[bucket], grid.radii[bucket]);
-            candidates.bucket_list(centre, radius, 0.0, all, new_lights);
-            (start as u32, candidates.list.len() as u32)
-        });
-        let bucket_list = &candidates.list[start as usize..end as usize];
-        let list = pixel_candidates.of(map, pixel, bucket_list, new_lights);
-        let labels = &mut fine_labels[first..first + group.len()];
-        first += group.len();
-        for (sample, label) in group.iter().zip(labels) {
-            let from = *label;
-            let to = nearest(list, new_lights, Vec3::from(sample.dir), from as usize) as u32;
-            if to != from {
-                let (energy, weighted_dir, omega) = fine_contribution(sample);
-                move_member(regions, members, (from, to), energy, weighted_dir, omega);
-                *label = to;
-            }
-        }
-    }
-}
-
-/// `new_lights` = `lights`, but the lights that hold concentrated input pixels (`holds`) at
-/// their regions' luminance centroids.
-#[inline(always)]
-fn move_to_centroids(
-    lights: &[Vec3],
-    holds: &[bool],
-    regions: &[Region],
-    new_lights: &mut Vec<Vec3>,
-) {
-    new_lights.clear();
-    new_lights.extend(
-        lights
-            .iter()
-            .zip(holds)
-            .zip(regions)
-            .map(|((&l, &holds), r)| {
-                let centroid = holds.then(|| r.centroid());
-                centroid.flatten().map_or(l, |d| d.as_vec3())
-            }),
-    );
-}
-
-/// What a concentrated input pixel adds to its light's region: energy, luminance-weighted
-/// direction and solid angle.
-#[inline(always)]
-fn fine_contribution(sample: &FineSample) -> ([f64; 3], [f64; 3], f64) {
-    let energy = sample.energy.map(f64::from);
-    let lum = luminance_f64(energy);
-    let weighted_dir = sample.dir.map(|d| lum * f64::from(d));
-    (energy, weighted_dir, f64::from(sample.solid_angle))
-}
-
-/// Moves one pixel (its energy, luminance-weighted direction and solid angle) from region
-/// `from` to region `to`.
-#[inline(always)]
-fn move_member(
-    regions: &mut [Region],
-    members: &mut [u32],
-    (from, to): (u32, u32),
-    energy: [f64; 3],
-    weighted_dir: [f64; 3],
-    solid_angle: f64,
-) {
-    let (from, to) = (from as usize, to as usize);
-    for c in 0..3 {
-        regions[from].rgb[c] -= energy[c];
-        regions[from].weighted_dir[c] -= weighted_dir[c];
-        regions[to].rgb[c] += energy[c];
-        regions[to].weighted_dir[c] += weighted_dir[c];
-    }
-    regions[from].solid_angle -= solid_angle;
-    regions[to].solid_angle += solid_angle;
-    members[from] -= 1;
-    members[to] += 1;
-}
-
-/// Assigns the input pixels of concentrated working pixels to their nearest lights (among the
-/// first pass's candidates), marking the lights that receive any (`holds_concentrated`),
-/// recording each input pixel's light (`fine_labels`) and counting the regions' members.
-#[inline(always)]
-fn assign_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regions: &mut [Region]) {
-    let Scratch {
-        candidates,
-        lights,
-        holds_concentrated: holds,
-        fine_labels: labels,
-        members,
-        pixel_candidates,
-        ..
-    } = scratch;
-    let mut hint = 0;
-    for group in map.fine.chunk_by(|a, b| a.pixel == b.pixel) {
-        let pixel = group[0].pixel as usize;
-        let bucket_list = candidates.of(grid.bucket_of(pixel));
-        let list = pixel_candidates.of(map, pixel, bucket_list, lights);
-        for sample in group {
-            hint = nearest(list, lights, Vec3::from(sample.dir), hint);
-            holds[hint] = true;
-            labels.push(hint as u32);
-            members[hint] += 1;
-            let r = &mut regions[hint];
-            let (energy, weighted_dir, omega) = fine_contribution(sample);
-            for c in 0..3 {
-                r.rgb[c] += energy[c];
-                r.weighted_dir[c] += weighted_dir[c];
-            }
-            r.solid_angle += omega;
-        }
-    }
-}
-
 /// Centre direction and angular radius of working pixel `pixel` (row-major). The radius bounds
 /// the distance from the centre to any direction of the pixel by the path along the centre's
 /// meridian (half the row's height in θ) and then along a parallel (half the column's width in
 /// φ times the largest sin θ of the row), with a little slack for f32 rounding.
 #[inline(always)]
-fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
+pub(super) fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
     let (x, y) = (pixel % map.width, pixel / map.width);
     let (sin_t, cos_t) = map.row_trig[y];
     let (sin_p, cos_p) = map.column_trig[x];
@@ -1200,7 +691,7 @@ fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
 /// an eighth as wide, so its list is short: it is searched in full, in the bucket list's order
 /// (no bounds, no sort).
 #[derive(Default)]
-struct PixelCandidates {
+pub(super) struct PixelCandidates {
     ids: Vec<u32>,
     dots: Vec<f32>,
     list: Vec<Candidate>,
@@ -1211,7 +702,7 @@ impl PixelCandidates {
     /// lists are searched as they are: the bounds of a bucket with few candidates end the
     /// searches early enough.
     #[inline(always)]
-    fn of<'a>(
+    pub(super) fn of<'a>(
         &'a mut self,
         map: &WorkingMap,
         pixel: usize,
@@ -1260,62 +751,8 @@ impl PixelCandidates {
     }
 }
 
-/// Sums each row of the labelled working map run by run into the regions.
-#[inline(always)]
-fn sum_runs(map: &WorkingMap, labels: &[u32], regions: &mut [Region], members: &mut [u32]) {
-    for y in 0..map.height {
-        let row = y * map.width..(y + 1) * map.width;
-        let omega = map.row_solid_angle[y];
-        let (sin_t, cos_t) = map.row_trig_f64[y];
-        // Per run: [Σ r, Σ g, Σ b, Σ lum], [Σ lum·sin φ, Σ lum·cos φ] and the pixel count, as
-        // short arrays whose adds the compiler does as one vector add each.
-        let mut run = ([0.0f64; 4], [0.0f64; 2], 0u32);
-        let mut current = labels[row.start];
-        let mut flush = |light: u32, (sums, trig, count): ([f64; 4], [f64; 2], u32)| {
-            if count == 0 {
-                return;
-            }
-            let r = &mut regions[light as usize];
-            for c in 0..3 {
-                r.rgb[c] += sums[c];
-            }
-            r.weighted_dir[0] += sin_t * trig[0];
-            r.weighted_dir[1] += cos_t * sums[3];
-            r.weighted_dir[2] -= sin_t * trig[1];
-            r.solid_angle += f64::from(count) * omega;
-            members[light as usize] += count;
-        };
-        let pixels = map.energy[row.clone()]
-            .iter()
-            .zip(&map.luminance[row.clone()])
-            .zip(&labels[row.clone()])
-            .zip(&map.concentrated[row])
-            .zip(&map.column_trig_f64);
-        for ((((energy, &lum), &label), &concentrated), &(sin_p, cos_p)) in pixels {
-            if label != current {
-                flush(current, std::mem::take(&mut run));
-                current = label;
-            }
-            if concentrated {
-                continue;
-            }
-            let lum = f64::from(lum);
-            let pixel = [energy[0], energy[1], energy[2], lum];
-            for (s, v) in run.0.iter_mut().zip(pixel) {
-                *s += v;
-            }
-            let trig = [lum * sin_p, lum * cos_p];
-            for (s, v) in run.1.iter_mut().zip(trig) {
-                *s += v;
-            }
-            run.2 += 1;
-        }
-        flush(current, run);
-    }
-}
-
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// A small deterministic generator (xorshift), for reproducible light sets.
@@ -1339,7 +776,11 @@ mod tests {
     }
 
     /// Index of the light with the largest dot product with `p` among `ids` (the first on a tie).
-    fn argmax(lights: &[Vec3], ids: impl Iterator<Item = u32>, p: Vec3) -> u32 {
+    pub(in crate::decompose::regions) fn argmax(
+        lights: &[Vec3],
+        ids: impl Iterator<Item = u32>,
+        p: Vec3,
+    ) -> u32 {
         let mut best = (f32::NEG_INFINITY, u32::MAX);
         for i in ids {
             let d = lights[i as usize].dot(p);
@@ -1512,157 +953,6 @@ mod tests {
             kept * 2 < total,
             "{kept} of {total} reached candidates kept"
         );
-    }
-
-    /// The concentrated Lloyd step updates the regions by moving only the pixels whose light
-    /// changed (`move_member`). Its regions must equal the plain sums, over the final labels,
-    /// of every working pixel and every input pixel of the concentrated ones (each to the
-    /// nearest light after the step), up to the rounding of the subtractions.
-    #[test]
-    fn lloyd_step_regions_are_the_sums_of_their_final_pixels() {
-        use crate::decompose::working_map::Resampler;
-        use crate::decompose::{DecomposeSettings, Decomposer};
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
-        let image = crate::capture::image_file::read_hdr_image(&path).unwrap();
-        let frame = crate::HdrFrame::new(
-            image.width,
-            image.height,
-            image.pixels,
-            crate::envmap::Projection::LatLong,
-        )
-        .unwrap();
-        let n = 256;
-        // Sample directions: the default decomposition's lights (some hold the sun).
-        let settings = DecomposeSettings {
-            lights: n,
-            filter_taps: None,
-            ..DecomposeSettings::default()
-        };
-        let working_width = settings.working_width;
-        let dirs: Vec<DVec3> = Decomposer::new(settings)
-            .unwrap()
-            .decompose(&frame)
-            .lights
-            .iter()
-            .map(|l| DVec3::from(l.dir.map(f64::from)))
-            .collect();
-        let mut resampler =
-            Resampler::new(frame.projection, frame.width, frame.height, working_width);
-        let map = resampler.resample(&frame, 0.25 / n as f64);
-        let grid = BucketGrid::new(map);
-        let run = |lloyd: bool, refine: bool| {
-            let (mut regions, mut scratch) = (vec![Region::default(); n], Scratch::default());
-            accumulate(Accumulate {
-                map,
-                grid: &grid,
-                sample_dirs: &dirs,
-                regions: &mut regions,
-                scratch: &mut scratch,
-                concentrated_lloyd: lloyd,
-                refine_concentrated: refine,
-            });
-            (regions, scratch)
-        };
-        let (_, first_pass) = run(false, false);
-        // The full step, then the refinement alone (which keeps the working pixels' labels).
-        for (lloyd, refine) in [(true, false), (false, true)] {
-            let (regions, scratch) = run(lloyd, refine);
-            check_sums(map, &first_pass, &regions, &scratch, lloyd);
-        }
-    }
-
-    /// The regions after a Lloyd step or a refinement equal plain sums over their final pixels:
-    /// the working pixels by their labels, the concentrated input pixels by their nearest
-    /// light after the move. Some lights must have moved and some pixels changed light (a
-    /// working pixel for the full step, an input pixel for the refinement).
-    fn check_sums(
-        map: &WorkingMap,
-        first_pass: &Scratch,
-        regions: &[Region],
-        scratch: &Scratch,
-        full_step: bool,
-    ) {
-        let n = regions.len();
-        let moved = scratch.holds_concentrated.iter().filter(|&&m| m).count();
-        let relabelled = first_pass
-            .labels
-            .iter()
-            .zip(&scratch.labels)
-            .zip(&map.concentrated)
-            .filter(|((a, b), &c)| a != b && !c)
-            .count();
-        if full_step {
-            assert!(
-                moved > 0 && relabelled > 0,
-                "{moved} lights moved, {relabelled} pixels relabelled"
-            );
-        } else {
-            assert!(moved > 0, "no light moved");
-            assert_eq!(relabelled, 0, "the refinement relabelled working pixels");
-        }
-
-        let mut sums = vec![Region::default(); n];
-        let mut add = |light: usize, energy: [f64; 3], dir: [f64; 3], omega: f64| {
-            let lum = luminance_f64(energy);
-            for c in 0..3 {
-                sums[light].rgb[c] += energy[c];
-                sums[light].weighted_dir[c] += lum * dir[c];
-            }
-            sums[light].solid_angle += omega;
-        };
-        for y in 0..map.height {
-            let (sin_t, cos_t) = map.row_trig_f64[y];
-            for x in 0..map.width {
-                let p = y * map.width + x;
-                if !map.concentrated[p] {
-                    let (sin_p, cos_p) = map.column_trig_f64[x];
-                    let dir = [sin_t * sin_p, cos_t, -sin_t * cos_p];
-                    add(
-                        scratch.labels[p] as usize,
-                        map.energy[p],
-                        dir,
-                        map.row_solid_angle[y],
-                    );
-                }
-            }
-        }
-        let mut changed = 0;
-        let labels = first_pass.fine_labels.iter().zip(&scratch.fine_labels);
-        for (sample, (&first, &last)) in map.fine.iter().zip(labels) {
-            // The nearest light after the step; at an exact f32 tie with the light the first
-            // pass chose (rooitou_park has one such input pixel), that light, as the step keeps
-            // a pixel's light unless another is strictly nearer.
-            let d = Vec3::from(sample.dir);
-            let best = argmax(&scratch.new_lights, 0..n as u32, d) as usize;
-            let first = first as usize;
-            let tied = scratch.new_lights[first].dot(d) == scratch.new_lights[best].dot(d);
-            let nearest = if tied { first } else { best };
-            changed += usize::from(nearest != first);
-            assert_eq!(last as usize, nearest, "the input pixel's recorded light");
-            let energy = sample.energy.map(f64::from);
-            let dir = sample.dir.map(f64::from);
-            add(nearest, energy, dir, f64::from(sample.solid_angle));
-        }
-        assert!(changed > 0, "no concentrated input pixel changed light");
-        let total: f64 = sums.iter().map(|r| luminance_f64(r.rgb)).sum();
-        let sphere: f64 = sums.iter().map(|r| r.solid_angle).sum();
-        for (i, (got, want)) in regions.iter().zip(&sums).enumerate() {
-            for c in 0..3 {
-                assert!(
-                    (got.rgb[c] - want.rgb[c]).abs() <= 1e-9 * total,
-                    "light {i} rgb: {:?}, sums {:?}",
-                    got.rgb,
-                    want.rgb
-                );
-                let dir_error = (got.weighted_dir[c] - want.weighted_dir[c]).abs();
-                assert!(dir_error <= 1e-9 * total, "light {i} direction");
-            }
-            assert!(
-                (got.solid_angle - want.solid_angle).abs() <= 1e-9 * sphere,
-                "light {i}"
-            );
-        }
     }
 
     /// Staged rebuilds keep every bucket's list exact: lights drifting on great circles at
