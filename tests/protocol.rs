@@ -1,4 +1,4 @@
-//! The wire format (src/stream/protocol.rs, docs/protocol.md): round trips through the
+//! The wire format (src/stream/protocol/, docs/protocol.md): round trips through the
 //! incremental decoder in any chunking, light caps, hostile input, the golden byte layout.
 
 use envlight::stream::protocol::{
