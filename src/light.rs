@@ -87,6 +87,18 @@ pub struct AsgLobe {
 }
 
 impl AsgLobe {
+    /// The lobe's twelve floats in the order of its binary record after the id (docs/protocol.md):
+    /// axis, tangent, λ, μ, rgb, integral.
+    pub fn record_floats(&self) -> impl Iterator<Item = f32> + '_ {
+        self.axis
+            .iter()
+            .chain(&self.tangent)
+            .chain([&self.lambda, &self.mu])
+            .chain(&self.rgb)
+            .chain([&self.integral])
+            .copied()
+    }
+
     /// The streamed form of a fitted lobe (f64 → f32, rounded to nearest).
     pub fn from_asg(id: u32, asg: &crate::asg::Asg) -> Self {
         let f = |v: [f64; 3]| v.map(|c| c as f32);

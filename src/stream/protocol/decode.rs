@@ -376,14 +376,7 @@ pub fn validate_wavelet_set(set: &WaveletSet) -> Result<(), ProtocolError> {
 /// bandwidths and integral, an orthonormal frame within [`ASG_FRAME_TOLERANCE`]. Decoders
 /// apply it to every received lobe; the daemon's ASG stage applies it before publishing.
 pub fn validate_lobe(index: usize, lobe: &AsgLobe) -> Result<(), ProtocolError> {
-    let values = lobe
-        .axis
-        .iter()
-        .chain(&lobe.tangent)
-        .chain([&lobe.lambda, &lobe.mu])
-        .chain(&lobe.rgb)
-        .chain([&lobe.integral]);
-    if values.into_iter().any(|v| !v.is_finite()) {
+    if lobe.record_floats().any(|v| !v.is_finite()) {
         return Err(ProtocolError::NonFinite {
             field: format!("lobe {index}"),
         });

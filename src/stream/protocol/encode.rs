@@ -99,14 +99,7 @@ pub fn encode_asg_frame(set: &AsgSet, max_lobes: Option<usize>, stale: bool, out
     );
     for lobe in lobes.iter() {
         out.extend_from_slice(&lobe.id.to_le_bytes());
-        let values = lobe
-            .axis
-            .iter()
-            .chain(&lobe.tangent)
-            .chain([&lobe.lambda, &lobe.mu])
-            .chain(&lobe.rgb)
-            .chain([&lobe.integral]);
-        for v in values {
+        for v in lobe.record_floats() {
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
