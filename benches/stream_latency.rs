@@ -562,8 +562,18 @@ impl IdleSpinners {
     /// Starts the spinners; panics (this is a bench) if the policy or the pinning is refused.
     fn start() -> Self {
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let threads = (0..cpus)
+        // The CPUs this process may run on (not necessarily 0..n).
+        // SAFETY: `allowed` is a zeroed cpu_set_t of the size passed; pid 0 is this thread.
+        let cpus: Vec<usize> = unsafe {
+            let mut allowed: libc::cpu_set_t = std::mem::zeroed();
+            let got = libc::sched_getaffinity(0, std::mem::size_of_val(&allowed), &mut allowed);
+            assert_eq!(got, 0, "sched_getaffinity");
+            (0..libc::CPU_SETSIZE as usize)
+                .filter(|&cpu| libc::CPU_ISSET(cpu, &allowed))
+                .collect()
+        };
+        let threads = cpus
+            .into_iter()
             .map(|cpu| {
                 let stop = Arc::clone(&stop);
                 std::thread::Builder::new()
