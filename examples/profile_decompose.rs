@@ -70,10 +70,13 @@ fn main() -> anyhow::Result<()> {
             seed: 0,
             ..SkyOptions::default()
         };
+        let second: Vec<HdrFrame> = (0..60)
+            .map(|i| render_sky(&options, f64::from(i) / 60.0))
+            .collect();
         // Forwards and back (0, 1, …, 59, 58, …, 1): the sky moves on continuously, where
         // jumping back from the last frame to the first would move the sun 2° in one frame.
         (0..118)
-            .map(|k| render_sky(&options, f64::from(if k < 60 { k } else { 118 - k }) / 60.0))
+            .map(|k| second[if k < 60 { k } else { 118 - k }].clone())
             .collect()
     } else {
         let (turn, path) = match path.strip_prefix("turn:") {

@@ -692,16 +692,18 @@ fn split_heavy(
                 break;
             };
             pieces[i] += 1;
+            extra += 1;
         }
-    }
-    for i in (0..n).filter(|_| budget.is_none()) {
-        if (conc[i] || o.split_all) && e[i] > o.split * mean {
-            let k = ((e[i] / (o.split * mean)).ceil() as usize)
-                .min(o.split_max)
-                .min(members[i].len())
-                .max(1);
-            pieces[i] = k;
-            extra += k - 1;
+    } else {
+        for i in 0..n {
+            if (conc[i] || o.split_all) && e[i] > o.split * mean {
+                let k = ((e[i] / (o.split * mean)).ceil() as usize)
+                    .min(o.split_max)
+                    .min(members[i].len())
+                    .max(1);
+                pieces[i] = k;
+                extra += k - 1;
+            }
         }
     }
     if std::env::var("SPSTAT").is_ok() {
@@ -712,13 +714,12 @@ fn split_heavy(
             e.iter().cloned().fold(0.0, f64::max) / total
         );
     }
-    // The weakest unsplit lights give up their slots.
+    // The weakest unsplit lights give up their slots (a budget's pieces have slots of their
+    // own: the lights left out of the decomposition).
+    let removals = if budget.is_some() { 0 } else { extra };
     let mut order: Vec<usize> = (0..n).filter(|&i| pieces[i] == 1).collect();
     order.sort_by(|&a, &b| e[a].total_cmp(&e[b]));
-    let removed: std::collections::HashSet<usize> = order
-        .into_iter()
-        .take(if budget.is_some() { 0 } else { extra })
-        .collect();
+    let removed: std::collections::HashSet<usize> = order.into_iter().take(removals).collect();
     let centroid = |idx: &[usize]| -> DVec3 {
         let mut d = DVec3::ZERO;
         for &pi in idx {

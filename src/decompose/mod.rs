@@ -295,9 +295,9 @@ impl Decomposer {
     }
 
     /// Allows (the default) or forbids reusing the region pass's candidate lists between frames
-    /// while the lights stay within `REUSE_MARGIN` (src/decompose/regions/candidates.rs) of where the lists were built.
-    /// The lights are the same either way; forbidding it measures the cost of a full build
-    /// every frame.
+    /// while the lights stay within `REUSE_MARGIN` (src/decompose/regions/candidates.rs) of
+    /// where the lists were built. The lights are the same either way; forbidding it measures
+    /// the cost of a full build every frame.
     pub fn set_candidate_reuse(&mut self, on: bool) {
         self.region_scratch.set_candidate_reuse(on);
     }

@@ -46,7 +46,7 @@ pub(super) const CELLS: usize = BUCKET_PIXELS * BUCKET_PIXELS;
 pub(in crate::decompose) const REUSE_MARGIN: f32 = 0.0175;
 
 /// Buckets per super-bucket side: candidate lists are found for 4×4 buckets at once first.
-pub(super) const SUPER_BUCKETS: usize = 4;
+const SUPER_BUCKETS: usize = 4;
 
 /// Per-geometry bucket layout of a working map.
 #[derive(Clone, Debug)]
@@ -141,7 +141,7 @@ impl BucketGrid {
 /// Centre direction and angular radius (with a small safety margin) of the lat-long pixel
 /// rectangle [x0, x1) × [y0, y1). The farthest point of such a rectangle from its centre lies
 /// on its border, which is sampled densely.
-pub(super) fn bounding_cap(
+fn bounding_cap(
     width: usize,
     height: usize,
     (x0, y0): (usize, usize),
@@ -173,7 +173,7 @@ pub(super) fn bounding_cap(
 /// Directions as three coordinate arrays plus their light ids, so that the dot products of
 /// one direction with all of them vectorise.
 #[derive(Default)]
-pub(super) struct DirSet {
+struct DirSet {
     x: Vec<f32>,
     y: Vec<f32>,
     z: Vec<f32>,
@@ -181,21 +181,21 @@ pub(super) struct DirSet {
 }
 
 impl DirSet {
-    pub(super) fn clear(&mut self) {
+    fn clear(&mut self) {
         self.x.clear();
         self.y.clear();
         self.z.clear();
         self.id.clear();
     }
 
-    pub(super) fn push(&mut self, id: u32, d: Vec3) {
+    fn push(&mut self, id: u32, d: Vec3) {
         self.x.push(d.x);
         self.y.push(d.y);
         self.z.push(d.z);
         self.id.push(id);
     }
 
-    pub(super) fn len(&self) -> usize {
+    fn len(&self) -> usize {
         self.id.len()
     }
 }
@@ -204,7 +204,7 @@ impl DirSet {
 /// a light at (nearest angle + 2·radius), i.e. the smallest dot product of a light that can be
 /// nearest to some point of the cap (triangle inequality).
 #[inline(always)]
-pub(super) fn reach(
+fn reach(
     centre: Vec3,
     radius: f32,
     set: &DirSet,
@@ -237,7 +237,7 @@ pub(super) fn reach(
 /// `best` with its centre: the dot product of a light at (nearest angle + 2·radius), with a
 /// little slack (−2 when that reaches the whole sphere).
 #[inline(always)]
-pub(super) fn reach_threshold(best: f32, radius: f32) -> f32 {
+fn reach_threshold(best: f32, radius: f32) -> f32 {
     let reach = best.clamp(-1.0, 1.0).acos() + 2.0 * radius;
     if reach >= std::f32::consts::PI {
         -2.0
@@ -249,7 +249,7 @@ pub(super) fn reach_threshold(best: f32, radius: f32) -> f32 {
 /// The bound of a [`Candidate`] of a cap of angular radius `radius`, from its dot product `d`
 /// with the cap's centre: cos(max(0, a − r)) for a = acos d, plus a little slack.
 #[inline(always)]
-pub(super) fn cap_bound(radius: f32) -> impl Fn(f32) -> f32 {
+fn cap_bound(radius: f32) -> impl Fn(f32) -> f32 {
     let (sin_r, cos_r) = radius.sin_cos();
     move |d: f32| {
         let cos_a = d.clamp(-1.0, 1.0);
@@ -276,10 +276,10 @@ pub(super) struct Candidate {
 #[derive(Default)]
 pub(super) struct Candidates {
     offsets: Vec<u32>,
-    pub(super) list: Vec<Candidate>,
+    list: Vec<Candidate>,
     /// Every light, then the candidates of each super-bucket (`super_offsets`).
     all: DirSet,
-    pub(super) supers: DirSet,
+    supers: DirSet,
     super_offsets: Vec<usize>,
     dots: Vec<f32>,
     /// Positions (in the set searched) of the bucket's candidates that pass the reach test.
@@ -321,14 +321,14 @@ pub(super) struct Candidates {
 /// After a build whose lists were not reused even once, the next lists are built without margin
 /// (the margin costs about 6% more instructions per frame in longer lists and looser bounds),
 /// and stay so for this many builds before the margin is tried again.
-pub(super) const BARE_BUILDS: u32 = 15;
+const BARE_BUILDS: u32 = 15;
 
 /// A staged rebuild begins once some light has moved this share of the margin from where the
 /// lists were built (while every light is still within the margin of it).
-pub(super) const STAGE_START: f32 = 0.7;
+const STAGE_START: f32 = 0.7;
 
 /// A staged rebuild builds the buckets' lists in this many frames.
-pub(super) const STAGES: usize = 4;
+const STAGES: usize = 4;
 
 impl Candidates {
     /// Makes the lists valid for `lights`: the last frame's lists when every light is within
@@ -499,7 +499,7 @@ impl Candidates {
     /// which is the order a list without margin has: an exact tie of two lights' dot products
     /// at a pixel goes to the same light with or without the margin.
     #[inline(always)]
-    pub(super) fn bucket_list(
+    fn bucket_list(
         &mut self,
         centre: Vec3,
         radius: f32,
@@ -578,14 +578,46 @@ impl Candidates {
             self.prev_thresholds[bucket]
         }
     }
+
+    /// Starts exact lists (no margin, not kept between frames) drawn among all of `lights` on
+    /// demand, one bucket at a time ([`Self::exact_list`]): the refinement's, which needs
+    /// lists only for the buckets that hold concentrated pixels.
+    pub(super) fn begin_exact(&mut self, lights: &[Vec3]) {
+        self.supers.clear();
+        for (i, &l) in lights.iter().enumerate() {
+            self.supers.push(i as u32, l);
+        }
+        self.list.clear();
+    }
+
+    /// Appends the exact list of `bucket` among the lights of [`Self::begin_exact`] (the same
+    /// `lights`) and returns where it lies, for [`Self::exact`].
+    #[inline(always)]
+    pub(super) fn exact_list(
+        &mut self,
+        grid: &BucketGrid,
+        bucket: usize,
+        lights: &[Vec3],
+    ) -> (u32, u32) {
+        let start = self.list.len();
+        let all = 0..self.supers.len();
+        self.bucket_list(grid.centres[bucket], grid.radii[bucket], 0.0, all, lights);
+        (start as u32, self.list.len() as u32)
+    }
+
+    /// An exact list made by [`Self::exact_list`].
+    #[inline]
+    pub(super) fn exact(&self, (start, end): (u32, u32)) -> &[Candidate] {
+        &self.list[start as usize..end as usize]
+    }
 }
 
 /// How many of a list's first candidates (those nearest the bucket's centre) are tried as
 /// dominators of the others in [`prune_dominated`].
-pub(super) const DOMINATORS: usize = 8;
+const DOMINATORS: usize = 8;
 
 /// Lists of at most this many candidates are not pruned: their labelling is cheap already.
-pub(super) const PRUNE_FROM: usize = 16;
+const PRUNE_FROM: usize = 16;
 
 /// Drops from `list[start..]` the candidates that cannot be nearest to any direction of the cap
 /// (`centre`, `radius`) because a candidate among the first [`DOMINATORS`] is nearer to every
@@ -603,7 +635,7 @@ pub(super) const PRUNE_FROM: usize = 16;
 /// itself is dominated by an earlier one, which then dominates what it dominated (with 2T).
 /// Order is kept, so the lists still come in falling order of their bounds.
 #[inline(always)]
-pub(super) fn prune_dominated(
+fn prune_dominated(
     list: &mut Vec<Candidate>,
     start: usize,
     centre: Vec3,
@@ -637,7 +669,7 @@ pub(super) fn prune_dominated(
 /// Sort key of candidate `k` with bound `bound`: ascending keys are falling bounds, ties in
 /// rising `k`.
 #[inline(always)]
-pub(super) fn falling_key(bound: f32, k: usize) -> u64 {
+fn falling_key(bound: f32, k: usize) -> u64 {
     let bits = bound.to_bits();
     // Unsigned order of the float's total order, then reversed.
     let rising = if bits & 0x8000_0000 != 0 {
@@ -673,7 +705,7 @@ pub(super) fn nearest(candidates: &[Candidate], lights: &[Vec3], d: Vec3, hint: 
 /// meridian (half the row's height in θ) and then along a parallel (half the column's width in
 /// φ times the largest sin θ of the row), with a little slack for f32 rounding.
 #[inline(always)]
-pub(super) fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
+fn pixel_cap(map: &WorkingMap, pixel: usize) -> (Vec3, f32) {
     let (x, y) = (pixel % map.width, pixel / map.width);
     let (sin_t, cos_t) = map.row_trig[y];
     let (sin_p, cos_p) = map.column_trig[x];
@@ -850,12 +882,9 @@ pub(super) mod tests {
             lights.extend((0..40).map(|_| rng.near(centre, 8.0 * radius)));
             let bucket = grid.bucket_of(pixel);
             let mut candidates = Candidates::default();
-            for (i, &l) in lights.iter().enumerate() {
-                candidates.supers.push(i as u32, l);
-            }
-            let (bucket_centre, bucket_radius) = (grid.centres[bucket], grid.radii[bucket]);
-            candidates.bucket_list(bucket_centre, bucket_radius, 0.0, 0..lights.len(), &lights);
-            let bucket_list = candidates.list.clone();
+            candidates.begin_exact(&lights);
+            let range = candidates.exact_list(&grid, bucket, &lights);
+            let bucket_list = candidates.exact(range).to_vec();
             let mut pixel_candidates = PixelCandidates::default();
             let list = pixel_candidates
                 .of(map, pixel, &bucket_list, &lights)

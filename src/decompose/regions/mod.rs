@@ -52,9 +52,9 @@ pub(super) struct Scratch {
     affected: Vec<bool>,
     /// The candidates of one concentrated working pixel (see [`assign_fine`]).
     pixel_candidates: PixelCandidates,
-    /// The refinement's lists of the buckets holding concentrated pixels among all lights
-    /// (only `supers`, `list` and the scratch buffers of [`Candidates::bucket_list`] are used;
-    /// see [`refine_fine`]), and per bucket the range of its list in `list` if it has one.
+    /// The refinement's exact lists of the buckets holding concentrated pixels among all
+    /// lights ([`Candidates::begin_exact`]; see [`refine_fine`]), and per bucket the range of
+    /// its list if it has one.
     refine_candidates: Candidates,
     refine_list_of: Vec<Option<(u32, u32)>>,
 }
@@ -397,27 +397,18 @@ fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
     } = scratch;
     move_to_centroids(lights, holds_concentrated, regions, new_lights);
     // Two levels, as the first pass's lists: the buckets that hold concentrated pixels get
-    // exact lists among all lights (the vectorised reach test of `bucket_list`), then each
+    // exact lists among all lights (the vectorised reach test of the first pass's lists), then each
     // concentrated pixel its own among its bucket's.
-    candidates.supers.clear();
-    for (i, &l) in new_lights.iter().enumerate() {
-        candidates.supers.push(i as u32, l);
-    }
-    candidates.list.clear();
+    candidates.begin_exact(new_lights);
     list_of.clear();
     list_of.resize(grid.centres.len(), None);
     let mut first = 0;
     for group in map.fine.chunk_by(|a, b| a.pixel == b.pixel) {
         let pixel = group[0].pixel as usize;
         let bucket = grid.bucket_of(pixel);
-        let (start, end) = *list_of[bucket].get_or_insert_with(|| {
-            let start = candidates.list.len();
-            let all = 0..candidates.supers.len();
-            let (centre, radius) = (grid.centres[bucket], grid.radii[bucket]);
-            candidates.bucket_list(centre, radius, 0.0, all, new_lights);
-            (start as u32, candidates.list.len() as u32)
-        });
-        let bucket_list = &candidates.list[start as usize..end as usize];
+        let range =
+            *list_of[bucket].get_or_insert_with(|| candidates.exact_list(grid, bucket, new_lights));
+        let bucket_list = candidates.exact(range);
         let list = pixel_candidates.of(map, pixel, bucket_list, new_lights);
         let labels = &mut fine_labels[first..first + group.len()];
         first += group.len();
