@@ -1,4 +1,5 @@
-//! Benchmarks of the camera conversions (single-threaded), per 1280×960 frame:
+//! Benchmarks of the camera conversions (single-threaded), per 1280×960 frame, and of reading
+//! recorded frame files:
 //!
 //! - `decode/{y16,yuyv,mjpeg}`: raw buffer → normalised code values
 //!   ([`pixel_format::decode_into`], output image reused as in the capture loop);
@@ -6,7 +7,13 @@
 //!   linear response for Y16, sRGB for YUYV and MJPEG), i.e. the whole conversion cost of a
 //!   frame;
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
-//! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame.
+//! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
+//! - `read/…`: reading a recorded frame file into linear RGB ([`read_hdr_image`]: the file
+//!   read, the decoding, the conversion to f32 RGB), for the test maps: an RLE Radiance `.hdr`
+//!   (1024×512), a frame as `envlight record` stores it (f32 RGB in RLE tiles, 1024×512), tiled
+//!   mip-mapped ZIP16 half-float EXRs (1024×512, 1000×500), a 10-part ZIP1 EXR (877×876; one
+//!   part is read) and a PIZ EXR holding every half bit pattern (256×256). Compressed blocks
+//!   are decompressed on several threads (`capture::image_file`).
 //!
 //! The frames are rooitou_park (tests/data) resampled to 1280×960: Y16 holds its luminance,
 //! YUYV its sRGB-encoded colours (BT.709), MJPEG the same encoded at quality 90.
@@ -200,6 +207,41 @@ fn bench_capture(c: &mut Criterion) {
             )
         })
     });
+    group.finish();
+
+    let mut group = c.benchmark_group("read");
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    // A frame as `envlight record` writes it: f32 RGB, RLE tiles (the exr crate's
+    // `write_rgb_file`), of rooitou_park.
+    let recorded = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let map = read_hdr_image(&data.join("rooitou_park_1k.hdr")).unwrap_or_else(|e| panic!("{e}"));
+    let width = map.width as usize;
+    exr::prelude::write_rgb_file(
+        recorded.path().join("recorded.exr"),
+        width,
+        map.height as usize,
+        |x, y| {
+            let p = map.pixels[y * width + x];
+            (p[0], p[1], p[2])
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    group.bench_function("exr_rle_tiled_f32_1024x512_recorded", |b| {
+        let path = recorded.path().join("recorded.exr");
+        b.iter(|| read_hdr_image(black_box(&path)).unwrap_or_else(|e| panic!("{e}")))
+    });
+    for (name, file) in [
+        ("hdr_rle_1024x512", "rooitou_park_1k.hdr"),
+        ("exr_zip16_tiled_1024x512", "KernerEnvLatLong.exr"),
+        ("exr_zip16_tiled_1000x500", "StageEnvLatLong.exr"),
+        ("exr_zip1_10_parts_877x876", "multipart.0001.exr"),
+        ("exr_piz_256x256", "AllHalfValues.exr"),
+    ] {
+        let path = data.join(file);
+        group.bench_function(name, |b| {
+            b.iter(|| read_hdr_image(black_box(&path)).unwrap_or_else(|e| panic!("{e}")))
+        });
+    }
     group.finish();
 }
 
