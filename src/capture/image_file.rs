@@ -24,8 +24,8 @@
 //! - Compressed blocks are decompressed on rayon's global pool and put in place as each one is
 //!   done (`decode_exr_part`, `par_iter`: a panic in a decoder unwinds into the caller, where
 //!   `catch_unwind` below turns it into an error); uncompressed and RLE ones on the calling
-//!   thread (`parallel_pays`). Not the `exr` crate's own parallel reader: it builds a thread pool per
-//!   file and spawns its jobs there, where a panic on corrupt data aborts the process.
+//!   thread (`parallel_pays`). Not the `exr` crate's own parallel reader: it builds a thread
+//!   pool per file and spawns its jobs there, where a panic on corrupt data aborts the process.
 //! - Half floats become f32 a block at a time (F16C where the CPU has it), straight into the
 //!   interleaved pixels.
 //!
@@ -563,7 +563,8 @@ mod tests {
         assert!(parallel_pays(&header("KernerEnvLatLong.exr"))); // ZIP16 tiles
         assert!(parallel_pays(&header("AllHalfValues.exr"))); // PIZ
         assert!(parallel_pays(&header("multipart.0001.exr"))); // ZIP1
-                                                               // The recorder's frames: RLE (which leaves f32 data at about its size).
+
+        // The recorder's frames: RLE (which leaves f32 data at about its size).
         let dir = tempfile::tempdir().unwrap();
         let recorded = dir.path().join("frame.exr");
         exr::prelude::write_rgb_file(&recorded, 4, 2, |x, y| (x as f32, y as f32, 1.0)).unwrap();
