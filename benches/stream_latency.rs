@@ -12,9 +12,9 @@
 //! `--decode=in-place|buffered|both` (how the clients decode, below),
 //! `--repeat=N` (each repeat runs every sender once, back to back),
 //! `--spin-idle=off|on|both` (below); docs/performance.md "Streaming"). The whole chain runs
-//! in this process so one clock serves both ends: the built-in sky at 60 frames/s → pipeline (256 lights) → stream
-//! server (UDS or TCP, binary frames) → N clients (one blocking thread each, or one event
-//! loop), each stamping the moment a frame's last byte has been read.
+//! in this process so one clock serves both ends: the built-in sky at 60 frames/s → pipeline
+//! (256 lights) → stream server (UDS or TCP, binary frames) → N clients (one blocking thread
+//! each, or one event loop), each stamping the moment a frame's last byte has been read.
 //!
 //! The clients decode every frame in full with the library's [`Decoder`], as a Rust client
 //! does: by default straight from the read buffer (`Decoder::feed`), handing each light list

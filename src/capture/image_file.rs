@@ -382,6 +382,13 @@ struct ReadPart<C> {
     part: usize,
 }
 
+/// The header of part `part`, or an error if the file has fewer parts.
+fn part_header(headers: &[Header], part: usize) -> exr::error::Result<&Header> {
+    headers
+        .get(part)
+        .ok_or_else(|| exr::error::Error::Invalid("part index beyond the file's parts".into()))
+}
+
 /// The reader behind [`ReadPart`]: that part's channels and size.
 struct PartReader<R> {
     channels: R,
@@ -397,9 +404,7 @@ impl<'s, C: ReadChannels<'s>> ReadLayers<'s> for ReadPart<C> {
     type Reader = PartReader<C::Reader>;
 
     fn create_layers_reader(&'s self, headers: &[Header]) -> exr::error::Result<Self::Reader> {
-        let header = headers.get(self.part).ok_or_else(|| {
-            exr::error::Error::Invalid("part index beyond the file's parts".into())
-        })?;
+        let header = part_header(headers, self.part)?;
         Ok(PartReader {
             channels: self.read_channels.create_channels_reader(header)?,
             part: self.part,
@@ -416,10 +421,8 @@ impl<R: ChannelsReader> LayersReader for PartReader<R> {
     }
 
     fn read_block(&mut self, headers: &[Header], block: UncompressedBlock) -> UnitResult {
-        let header = headers.get(self.part).ok_or_else(|| {
-            exr::error::Error::Invalid("part index beyond the file's parts".into())
-        })?;
-        self.channels.read_block(header, block)
+        self.channels
+            .read_block(part_header(headers, self.part)?, block)
     }
 
     fn into_layers(self) -> Self::Layers {
@@ -428,7 +431,7 @@ impl<R: ChannelsReader> LayersReader for PartReader<R> {
 }
 
 /// Whether decompressing `header`'s blocks on several threads pays: for ZIP, PIZ, PXR24, B44
-/// and DWA (a fifth to a half off a 1k frame on two cores, for 0–10% more CPU time), not for
+/// and DWA (a fifth to a half off the test maps on two cores, for 3–6% more CPU time), not for
 /// uncompressed or run-length-encoded data, where decoding is little more than a copy (the
 /// recorder's frames, RLE tiles of f32: 4–21% slower in parallel). docs/performance.md,
 /// "Reading recorded frames".
@@ -482,7 +485,6 @@ mod tests {
     /// this module read files before it read only the chosen part: the chosen part's R, G, B
     /// (or Y) channels per pixel.
     fn reference_exr(bytes: &[u8]) -> (usize, usize, Vec<[f32; 3]>) {
-        use exr::prelude::ReadLayers as _;
         let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).unwrap();
         let parts: Vec<Vec<String>> = meta
             .headers

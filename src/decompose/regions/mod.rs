@@ -397,8 +397,8 @@ fn refine_fine(map: &WorkingMap, grid: &BucketGrid, scratch: &mut Scratch, regio
     } = scratch;
     move_to_centroids(lights, holds_concentrated, regions, new_lights);
     // Two levels, as the first pass's lists: the buckets that hold concentrated pixels get
-    // exact lists among all lights (the vectorised reach test of the first pass's lists), then each
-    // concentrated pixel its own among its bucket's.
+    // exact lists among all lights (the vectorised reach test of the first pass's lists), then
+    // each concentrated pixel its own among its bucket's.
     candidates.begin_exact(new_lights);
     list_of.clear();
     list_of.resize(grid.centres.len(), None);
