@@ -264,7 +264,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             pixels.push(Px {
                 moment: None,
                 dir,
-                energy: map.energy[i],
+                energy: map.energy[i].map(f64::from),
                 omega: map.row_solid_angle[y],
             });
         }
@@ -431,10 +431,10 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
                         let (st, ct) = map.row_trig_f64[y];
                         let (sp, cp) = map.column_trig_f64[x];
                         let d = DVec3::new(st * sp, ct, -st * cp);
-                        for (acc, v) in e.iter_mut().zip(map.energy[i]) {
+                        for (acc, v) in e.iter_mut().zip(map.energy[i].map(f64::from)) {
                             *acc += v;
                         }
-                        ld += d * luminance_f64(map.energy[i]);
+                        ld += d * luminance_f64(map.energy[i].map(f64::from));
                     }
                 }
                 let centre = Projection::LatLong

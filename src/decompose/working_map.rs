@@ -31,13 +31,16 @@ pub struct FineSample {
     pub solid_angle: f32,
 }
 
-/// Lat-long map of energy (rgb · solid angle, f64) per working pixel.
+/// Lat-long map of energy (rgb · solid angle) per working pixel.
 #[derive(Clone, Debug)]
 pub struct WorkingMap {
     pub width: usize,
     pub height: usize,
-    /// Σ rgb·Ω of the input pixels that fall in each working pixel, row-major.
-    pub energy: Vec<[f64; 3]>,
+    /// Σ rgb·Ω of the input pixels that fall in each working pixel, row-major. Stored in f32,
+    /// the input's precision (the box filter's sums are f32; the table path's f64 sums are
+    /// rounded once): it halves the map's largest buffer, which the decomposition reads twice
+    /// per frame, and every sum over pixels (regions, totals) is taken in f64.
+    pub energy: Vec<[f32; 3]>,
     /// (sin θ, cos θ) of each row's centre: a working pixel's centre direction is
     /// (sin θ·sin φ, cos θ, −sin θ·cos φ).
     pub row_trig: Vec<(f32, f32)>,
@@ -134,6 +137,8 @@ pub struct Resampler {
     map: WorkingMap,
     /// Scratch row of the box filter.
     column_sums: Vec<f32>,
+    /// The table path's per-working-pixel sums in f64 (empty for the box filter).
+    table_sums: Vec<[f64; 3]>,
     arch: pulp::Arch,
 }
 
@@ -211,6 +216,7 @@ impl Resampler {
             plan,
             map,
             column_sums: Vec::new(),
+            table_sums: Vec::new(),
             arch: pulp::Arch::new(),
         }
     }
@@ -323,10 +329,12 @@ impl Resampler {
                 solid_angle,
                 ..
             } => {
-                map.energy.iter_mut().for_each(|e| *e = [0.0; 3]);
+                let sums = &mut self.table_sums;
+                sums.clear();
+                sums.resize(map.energy.len(), [0.0; 3]);
                 for ((p, &t), &omega) in frame.pixels.iter().zip(target).zip(solid_angle) {
                     if t != u32::MAX {
-                        let e = &mut map.energy[t as usize];
+                        let e = &mut sums[t as usize];
                         for c in 0..3 {
                             // A negative value poisons the sum (NaN) for the careful sum below.
                             e[c] += if p[c] < 0.0 {
@@ -337,10 +345,11 @@ impl Resampler {
                         }
                     }
                 }
-                for (l, e) in map.luminance.iter_mut().zip(&map.energy) {
+                for ((l, e), sum) in map.luminance.iter_mut().zip(&mut map.energy).zip(sums) {
                     // Not clamped: NaN or ∞ here must reach the careful sum below (f32::min
                     // would turn NaN into a finite value).
-                    *l = super::luminance_f64(*e) as f32;
+                    *l = super::luminance_f64(*sum) as f32;
+                    *e = sum.map(|c| c as f32);
                 }
             }
         }
@@ -367,7 +376,7 @@ impl Resampler {
                         }
                     }
                 });
-                map.energy[idx] = sum;
+                map.energy[idx] = sum.map(|c| (c as f32).min(f32::MAX));
                 map.luminance[idx] = (super::luminance_f64(sum) as f32).min(f32::MAX);
             }
             total = luminance_sum(&map.luminance);
@@ -434,7 +443,7 @@ struct BoxFilter<'a> {
     factor: usize,
     row_solid_angle: &'a [f64],
     column_sums: &'a mut [f32],
-    energy: &'a mut [[f64; 3]],
+    energy: &'a mut [[f32; 3]],
     luminance: &'a mut [f32],
     width: usize,
 }
@@ -565,14 +574,14 @@ fn box_filter(args: BoxFilter<'_>, avx2: Avx2) {
                         sum[1] += p[1];
                         sum[2] += p[2];
                     }
-                    *e = sum.map(f64::from);
+                    *e = sum;
                     *l = luminance_f32(sum);
                 }
             }
         }
         if bits & 0x8000_0000 != 0 {
             // Flag the whole working row for the careful sum.
-            out.iter_mut().for_each(|e| e[0] = f64::NAN);
+            out.iter_mut().for_each(|e| e[0] = f32::NAN);
             lum.fill(f32::NAN);
         }
     }
@@ -581,7 +590,7 @@ fn box_filter(args: BoxFilter<'_>, avx2: Avx2) {
 /// Sums each run of `F` rgb columns of `column_sums` (3·F·width values and one slack value)
 /// into one working pixel and its luminance, four lanes at a time.
 #[inline(always)]
-fn sum_columns<const F: usize>(column_sums: &[f32], out: &mut [[f64; 3]], lum: &mut [f32]) {
+fn sum_columns<const F: usize>(column_sums: &[f32], out: &mut [[f32; 3]], lum: &mut [f32]) {
     let lanes = |i: usize| -> [f32; 4] {
         let mut v = [0.0f32; 4];
         v.copy_from_slice(&column_sums[i..i + 4]);
@@ -597,7 +606,7 @@ fn sum_columns<const F: usize>(column_sums: &[f32], out: &mut [[f64; 3]], lum: &
             }
         }
         let rgb = [sum[0], sum[1], sum[2]];
-        *e = rgb.map(f64::from);
+        *e = rgb;
         *l = luminance_f32(rgb);
     }
 }
@@ -610,7 +619,7 @@ type Avx2 = Option<std::convert::Infallible>;
 
 /// [`sum_columns`]`::<4>`, with AVX2 where the CPU has it.
 #[inline(always)]
-fn sum_columns_4(avx2: Avx2, column_sums: &[f32], out: &mut [[f64; 3]], lum: &mut [f32]) {
+fn sum_columns_4(avx2: Avx2, column_sums: &[f32], out: &mut [[f32; 3]], lum: &mut [f32]) {
     match avx2 {
         #[cfg(target_arch = "x86_64")]
         Some(simd) => sum_columns_4_avx2(simd, column_sums, out, lum),
@@ -625,17 +634,17 @@ fn sum_columns_4(avx2: Avx2, column_sums: &[f32], out: &mut [[f64; 3]], lum: &mu
 /// one half of a 256-bit vector (two pixels per vector, rgb plus one ignored lane), four such
 /// vectors are transposed to r, g and b of eight pixels (seven shuffles) for the luminance
 /// (multiplies and adds as in [`crate::frame::luminance`], no fused multiply-add), and each
-/// half is widened to f64 for the energies. The pixels after the last multiple of eight go
+/// half's rgb lanes are the pixel's energy. The pixels after the last multiple of eight go
 /// through the scalar path.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn sum_columns_4_avx2(
     simd: pulp::x86::V3,
     column_sums: &[f32],
-    out: &mut [[f64; 3]],
+    out: &mut [[f32; 3]],
     lum: &mut [f32],
 ) {
-    use core::arch::x86_64::{__m128, __m256, __m256d};
+    use core::arch::x86_64::{__m128, __m256};
     use pulp::bytemuck::cast;
     const F: usize = 4;
     let avx = simd.avx;
@@ -699,8 +708,8 @@ fn sum_columns_4_avx2(
             avx._mm256_extractf128_ps::<1>(s37),
         ];
         for (e, half) in out.iter_mut().zip(halves) {
-            let wide = cast::<__m256d, [f64; 4]>(avx._mm256_cvtps_pd(half));
-            *e = [wide[0], wide[1], wide[2]];
+            let lanes = cast::<__m128, [f32; 4]>(half);
+            *e = [lanes[0], lanes[1], lanes[2]];
         }
     }
     let done = 8 * groups;
@@ -792,7 +801,7 @@ mod tests {
             let (mut e_plain, mut l_plain) = (vec![[0.0; 3]; width], vec![0.0; width]);
             simd.vectorize(|| sum_columns_4_avx2(simd, &sums, &mut e_simd, &mut l_simd));
             sum_columns::<4>(&sums, &mut e_plain, &mut l_plain);
-            let bits = |e: &[[f64; 3]]| e.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+            let bits = |e: &[[f32; 3]]| e.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&e_simd), bits(&e_plain), "energies, width {width}");
             let bits = |l: &[f32]| l.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&l_simd), bits(&l_plain), "luminances, width {width}");

@@ -343,7 +343,14 @@ fn accumulate(args: Accumulate<'_>) {
                     let lum = f64::from(map.luminance[p]);
                     let (sin_p, cos_p) = map.column_trig_f64[x];
                     let dir = [sin_t * (lum * sin_p), cos_t * lum, -(sin_t * (lum * cos_p))];
-                    move_member(regions, members, (from, to), map.energy[p], dir, omega);
+                    move_member(
+                        regions,
+                        members,
+                        (from, to),
+                        map.energy[p].map(f64::from),
+                        dir,
+                        omega,
+                    );
                 }
             }
         }
@@ -555,7 +562,8 @@ fn sum_runs(map: &WorkingMap, labels: &[u32], regions: &mut [Region], members: &
                 continue;
             }
             let lum = f64::from(lum);
-            let pixel = [energy[0], energy[1], energy[2], lum];
+            let pixel = [energy[0], energy[1], energy[2]].map(f64::from);
+            let pixel = [pixel[0], pixel[1], pixel[2], lum];
             for (s, v) in run.0.iter_mut().zip(pixel) {
                 *s += v;
             }
@@ -680,7 +688,7 @@ mod tests {
                     let dir = [sin_t * sin_p, cos_t, -sin_t * cos_p];
                     add(
                         scratch.labels[p] as usize,
-                        map.energy[p],
+                        map.energy[p].map(f64::from),
                         dir,
                         map.row_solid_angle[y],
                     );
