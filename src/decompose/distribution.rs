@@ -165,6 +165,23 @@ impl PiecewiseConstant2d {
             width * height,
             "weights must be width*height"
         );
+        self.rebuild_rows_inline(width, height, |y, row| {
+            row.copy_from_slice(&weights[y * width..(y + 1) * width]);
+        });
+    }
+
+    /// Rebuilds the distribution in place for the weights that `fill(y, row)` writes into each
+    /// row `y` (`row` has `width` cells), with no weight image in between: the caller's density
+    /// goes straight into the buffer that becomes the prefix sums. Negative or non-finite
+    /// weights count as 0, as in [`Self::new`]. Inlined into the caller, so that a caller
+    /// compiled for a vector unit (`pulp`) compiles `fill` and the sums for it too.
+    #[inline(always)]
+    pub(crate) fn rebuild_rows_inline(
+        &mut self,
+        width: usize,
+        height: usize,
+        mut fill: impl FnMut(usize, &mut [f64]),
+    ) {
         assert!(
             width > 0 && height > 0,
             "distribution needs a non-empty image"
@@ -176,15 +193,14 @@ impl PiecewiseConstant2d {
         prefix.resize(height * (width + 1), 0.0);
         marginal_cdf.resize(height + 1, 0.0);
         marginal_cdf[0] = 0.0;
-        // The clean-up (vectorised): NaN, ±∞ and negative weights count as 0.
-        for (row, out) in weights
-            .chunks_exact(width)
-            .zip(prefix.chunks_exact_mut(width + 1))
-        {
+        for (y, out) in prefix.chunks_exact_mut(width + 1).enumerate() {
             out[0] = 0.0;
-            for (&w, p) in row.iter().zip(&mut out[1..]) {
-                *p = if (w > 0.0) & (w < f64::INFINITY) {
-                    w
+            fill(y, &mut out[1..]);
+            // The clean-up (vectorised, while the row is in the L1 cache): NaN, ±∞ and negative
+            // weights count as 0.
+            for w in &mut out[1..] {
+                *w = if (*w > 0.0) & (*w < f64::INFINITY) {
+                    *w
                 } else {
                     0.0
                 };

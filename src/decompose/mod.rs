@@ -230,6 +230,8 @@ pub struct Decomposer {
     /// The CPU's vector unit, detected once: hot loops are compiled for it.
     arch: pulp::Arch,
     filter: Option<FirFilter>,
+    /// The density image of the hierarchical warp (the rows warp takes the density straight
+    /// into its prefix sums).
     weights: Vec<f64>,
     regions: Vec<Region>,
     last_count: Option<usize>,
@@ -377,21 +379,27 @@ impl Decomposer {
 
         // The sampling density: luminance radiance to the power γ, per solid angle. It only
         // places the lights (their energies are summed separately, in f64), so f32 suffices.
-        self.weights.resize(map.width * map.height, 0.0);
-        self.arch.dispatch(Density {
-            map,
-            gamma: self.settings.pdf_exponent,
-            weights: &mut self.weights,
-        });
+        // The rows warp takes it straight into its prefix sums (no weight image in between).
+        let (arch, gamma) = (self.arch, self.settings.pdf_exponent);
         let warp = match self.settings.warp {
             Warp::Rows => {
                 let dist = self
                     .rows_warp
                     .get_or_insert_with(|| PiecewiseConstant2d::new(&[0.0], 1, 1));
-                dist.rebuild(&self.weights, map.width, map.height);
+                arch.dispatch(Density {
+                    map,
+                    gamma,
+                    out: DensityOut::RowsWarp(dist),
+                });
                 Sampler::Rows(dist)
             }
             Warp::Hierarchical => {
+                self.weights.resize(map.width * map.height, 0.0);
+                arch.dispatch(Density {
+                    map,
+                    gamma,
+                    out: DensityOut::Weights(&mut self.weights),
+                });
                 Sampler::Hierarchical(HierarchicalWarp::new(&self.weights, map.width, map.height))
             }
         };
@@ -463,7 +471,15 @@ impl Decomposer {
 struct Density<'a> {
     map: &'a working_map::WorkingMap,
     gamma: f64,
-    weights: &'a mut [f64],
+    out: DensityOut<'a>,
+}
+
+/// Where the density goes.
+enum DensityOut<'a> {
+    /// Straight into the rows warp, which it rebuilds.
+    RowsWarp(&'a mut PiecewiseConstant2d),
+    /// A weight image (row-major, one weight per working pixel).
+    Weights(&'a mut [f64]),
 }
 
 impl pulp::WithSimd for Density<'_> {
@@ -471,43 +487,43 @@ impl pulp::WithSimd for Density<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Density {
-            map,
-            gamma,
-            weights,
-        } = self;
+        let Density { map, gamma, out } = self;
         let g = gamma as f32;
         // One branch per frame, not per pixel: the common exponents have cheap exact forms.
         if gamma == 1.0 {
-            density_rows(map, weights, |r| r);
+            density(map, out, |r| r);
         } else if gamma == 0.75 {
-            density_rows(map, weights, |r| {
+            density(map, out, |r| {
                 let root = r.sqrt();
                 root * root.sqrt()
             });
         } else if gamma == 0.5 {
-            density_rows(map, weights, f32::sqrt);
+            density(map, out, f32::sqrt);
         } else {
-            density_rows(map, weights, |r| r.powf(g));
+            density(map, out, |r| r.powf(g));
         }
     }
 }
 
-/// weight = power(luminance / Ω) · Ω for every working pixel.
+/// weight = power(luminance / Ω) · Ω for every working pixel, into `out`.
 #[inline(always)]
-fn density_rows(map: &working_map::WorkingMap, weights: &mut [f64], power: impl Fn(f32) -> f32) {
-    for ((row, out), &omega) in map
-        .luminance
-        .chunks_exact(map.width)
-        .zip(weights.chunks_exact_mut(map.width))
-        .zip(&map.row_solid_angle)
-    {
-        let inv_omega = (1.0 / omega) as f32;
-        let omega = omega as f32;
-        for (w, &lum) in out.iter_mut().zip(row) {
+fn density(map: &working_map::WorkingMap, out: DensityOut<'_>, power: impl Fn(f32) -> f32) {
+    let row = |y: usize, weights: &mut [f64]| {
+        let omega = map.row_solid_angle[y];
+        let (inv_omega, omega) = ((1.0 / omega) as f32, omega as f32);
+        let luminance = &map.luminance[y * map.width..(y + 1) * map.width];
+        for (w, &lum) in weights.iter_mut().zip(luminance) {
             // Clamped: a radiance at the edge of f32's range must not become ∞ (a weight of 0).
             let radiance = (lum * inv_omega).min(f32::MAX);
             *w = f64::from(power(radiance) * omega);
+        }
+    };
+    match out {
+        DensityOut::RowsWarp(dist) => dist.rebuild_rows_inline(map.width, map.height, row),
+        DensityOut::Weights(weights) => {
+            for (y, out) in weights.chunks_exact_mut(map.width).enumerate() {
+                row(y, out);
+            }
         }
     }
 }
