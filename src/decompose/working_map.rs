@@ -349,7 +349,16 @@ impl Resampler {
                     // Not clamped: NaN or ∞ here must reach the careful sum below (f32::min
                     // would turn NaN into a finite value).
                     *l = super::luminance_f64(*sum) as f32;
-                    *e = sum.map(|c| c as f32);
+                    // Clamped: a sum past f32's range must not become ∞ here, where nothing
+                    // would catch it (its luminance may still be finite).
+                    *e = sum.map(|c| {
+                        let c = c as f32;
+                        if c > f32::MAX {
+                            f32::MAX
+                        } else {
+                            c
+                        }
+                    });
                 }
             }
         }
@@ -808,5 +817,25 @@ mod tests {
             compared += width;
         }
         assert!(compared > 100);
+    }
+
+    /// A working pixel's f64 sum beyond f32's range is stored as f32::MAX, not ∞: on the table
+    /// path its luminance can stay finite (blue weighs 0.07), so the careful sum would not run.
+    #[test]
+    fn table_sums_beyond_f32_range_are_clamped() {
+        // 7×3 input onto a 2×1 map: not an integer factor, so the index table is used; each
+        // working pixel spans 2π sr, so 3e38 in blue sums past f32::MAX.
+        let pixels = vec![[0.0, 0.0, 3.0e38]; 7 * 3];
+        let frame = HdrFrame::new(7, 3, pixels, Projection::LatLong).unwrap();
+        let mut resampler = Resampler::new(Projection::LatLong, 7, 3, 2);
+        assert!(matches!(resampler.plan, Plan::Table { .. }));
+        let map = resampler.resample(&frame, 0.25);
+        assert!(map.luminance.iter().all(|l| l.is_finite()));
+        assert!(map
+            .energy
+            .iter()
+            .flatten()
+            .all(|c| c.is_finite() && *c >= 0.0));
+        assert!(map.energy.iter().any(|e| e[2] == f32::MAX));
     }
 }
