@@ -8,15 +8,36 @@
 //! 2. Visit lights by decreasing luminance (ties by id); each unvisited light seeds a cluster of
 //!    all unvisited lights within the radius of it. The lights within the radius are found among
 //!    those whose y lies within the radius's chord of the seed's (lights sorted by y, a binary
-//!    search), not by a scan of all N, and are then taken in index order, so the sums are the
-//!    brute-force scan's bit for bit (`windowed_search_equals_the_full_scan`).
-//! 3. A cluster becomes one light: id = its smallest member id (stable while the membership is),
+//!    search), not by a scan of all N; the members found are then taken in index order, so the
+//!    sums are the brute-force scan's bit for bit (`windowed_search_equals_the_full_scan`).
+//! 3. A cluster becomes one light: id = its smallest member id (stable while the membership is;
+//!    the result is ordered by id, with no sort where the ids rise along the input),
 //!    rgb = the sum (energy is kept), dir = the luminance-weighted mean direction, and
 //!    solid_angle = the sum of the members' regions — the spread of the merged source, which a
 //!    renderer turns into a softer shadow.
 
 use crate::light::Light;
 use glam::DVec3;
+
+/// An integer whose order is `f32::total_cmp`'s order of `x`.
+fn f32_order(x: f32) -> u32 {
+    let bits = x.to_bits();
+    if bits >> 31 == 1 {
+        !bits
+    } else {
+        bits | 1 << 31
+    }
+}
+
+/// An integer whose order is `f64::total_cmp`'s order of `x`.
+fn f64_order(x: f64) -> u64 {
+    let bits = x.to_bits();
+    if bits >> 63 == 1 {
+        !bits
+    } else {
+        bits | 1 << 63
+    }
+}
 
 /// Default merge radius as a fraction of the mean light spacing.
 pub const DEFAULT_SPACING_FRACTION: f64 = 0.1;
@@ -35,55 +56,70 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
     let cos_radius = radius.min(std::f64::consts::PI).cos();
     let dirs: Vec<DVec3> = lights.iter().map(|l| dvec(l.dir)).collect();
     // By decreasing luminance, then id, then index: the order a stable sort on (luminance, id)
-    // gives, with each key computed once.
-    let mut keyed: Vec<(f32, u32, usize)> = lights
+    // gives, with each key computed once and packed into integers (so the sort compares
+    // integers, not a chain of closures).
+    let mut keyed: Vec<(u64, u32)> = lights
         .iter()
         .enumerate()
-        .map(|(i, l)| (l.luminance(), l.id, i))
+        .map(|(i, l)| {
+            let descending = !f32_order(l.luminance());
+            ((u64::from(descending) << 32) | u64::from(l.id), i as u32)
+        })
         .collect();
-    keyed.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    let order: Vec<usize> = keyed.iter().map(|k| k.2).collect();
+    keyed.sort_unstable();
+    let order: Vec<usize> = keyed.iter().map(|k| k.1 as usize).collect();
     // Lights by y: a light within the radius of the seed has its y within the chord of it. The
     // slack covers directions a little off unit length (f32), which the dot test below can
     // let in from a hair beyond the radius; the window only has to hold every light it passes.
     let chord = 2.0 * (0.5 * radius.min(std::f64::consts::PI)).sin() + 1e-4;
-    let mut by_y: Vec<(f64, usize)> = Vec::with_capacity(n);
+    let mut by_y: Vec<(u64, f64, usize)> = Vec::with_capacity(n);
     // A direction that is not finite compares as "not farther than the radius" in the test
     // below (NaN < cos_radius is false), so it is a candidate of every seed.
     let mut everywhere = Vec::new();
     for (i, d) in dirs.iter().enumerate() {
         if d.is_finite() {
-            by_y.push((d.y, i));
+            by_y.push((f64_order(d.y), d.y, i));
         } else {
             everywhere.push(i);
         }
     }
     // Equal y in any order: the candidates are put in index order below.
-    by_y.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    by_y.sort_unstable_by_key(|&(key, _, _)| key);
     let mut taken = vec![false; n];
     let mut near = Vec::new();
     let mut out = Vec::with_capacity(n);
+    // With ids rising along the list (a decomposition's lights), a cluster's id is that of its
+    // lowest-index member, so the clusters come out in id order by that member's index: no
+    // sort. `cluster_at[i]`: the cluster whose lowest-index member is light i.
+    let ids_rise = lights.windows(2).all(|w| w[0].id < w[1].id);
+    let mut cluster_at = vec![usize::MAX; if ids_rise { n } else { 0 }];
     for &seed in &order {
         if taken[seed] {
             continue;
         }
         taken[seed] = true;
+        // The members: the untaken lights within the radius (a non-finite direction fails the
+        // `<` test and so joins, as in the scan). Whether a light joins does not depend on the
+        // others of this cluster, so the window is filtered first and only the members are put
+        // in index order, as a scan of all lights would take them: near a sun the window holds
+        // a hundred lights, and sorting it for every seed cost more than the rest of the merge.
+        let joins = |j: usize| !(taken[j] || dirs[seed].dot(dirs[j]) < cos_radius);
         near.clear();
         if dirs[seed].is_finite() {
             let y = dirs[seed].y;
-            let start = by_y.partition_point(|&(yj, _)| yj < y - chord);
+            let start = by_y.partition_point(|&(_, yj, _)| yj < y - chord);
             near.extend(
                 by_y[start..]
                     .iter()
-                    .take_while(|&&(yj, _)| yj <= y + chord)
-                    .map(|&(_, j)| j),
+                    .take_while(|&&(_, yj, _)| yj <= y + chord)
+                    .map(|&(_, _, j)| j)
+                    .filter(|&j| joins(j)),
             );
-            near.extend_from_slice(&everywhere);
-            // Index order, as a scan of all lights would take them.
+            near.extend(everywhere.iter().copied().filter(|&j| joins(j)));
             near.sort_unstable();
         } else {
             // A non-finite seed has no window: it is tested against every light, as before.
-            near.extend(0..n);
+            near.extend((0..n).filter(|&j| joins(j)));
         }
         let mut id = lights[seed].id;
         let mut rgb = lights[seed].rgb.map(f64::from);
@@ -91,10 +127,10 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
         let seed_weight = f64::from(lights[seed].luminance()).max(0.0);
         let mut weighted_dir = dirs[seed] * seed_weight;
         let mut members = 1;
+        if ids_rise {
+            cluster_at[near.first().map_or(seed, |&j| j.min(seed))] = out.len();
+        }
         for &j in &near {
-            if taken[j] || dirs[seed].dot(dirs[j]) < cos_radius {
-                continue;
-            }
             taken[j] = true;
             members += 1;
             id = id.min(lights[j].id);
@@ -115,6 +151,13 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
             rgb: rgb.map(|c| c as f32),
             solid_angle: solid_angle as f32,
         });
+    }
+    if ids_rise {
+        return cluster_at
+            .into_iter()
+            .filter(|&k| k != usize::MAX)
+            .map(|k| out[k])
+            .collect();
     }
     // Ids are unique in a decomposition's lights; should they repeat, the clusters keep the
     // order they were made in (what a stable sort gives).
