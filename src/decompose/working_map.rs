@@ -50,8 +50,8 @@ pub struct WorkingMap {
     pub column_trig_f64: Vec<(f64, f64)>,
     /// Exact solid angle of the working pixels of each row.
     pub row_solid_angle: Vec<f64>,
-    /// Rec. 709 luminance of each working pixel's energy (f32: it ranks and weights pixels; the
-    /// energies themselves stay f64).
+    /// Rec. 709 luminance of each working pixel's energy (f32: it ranks and weights pixels;
+    /// sums of it are taken in f64).
     pub luminance: Vec<f32>,
     /// Whether each working pixel is concentrated (its energy is given by `fine` instead).
     pub concentrated: Vec<bool>,
