@@ -8,6 +8,10 @@
 //! - `frame/raw_256/1024x512`: the same without filter and merge.
 //! - `frame/filter_merge_256/1024x512`: the same with filter and merge (`--merge`, the default
 //!   merge spacing), the configuration the target names.
+//! - `frame/read_only/1024x512`: a plain sum of the same frame's floats (nothing else): what
+//!   reading the frame costs at that moment, the floor of the decomposition's resampling and,
+//!   on a shared machine, a gauge of how fast its memory system is running (docs/performance.md,
+//!   "what a slow phase is").
 //! - `frame/turning_256/1024x512` and `frame/turning_256_no_reuse/1024x512`: default settings on
 //!   rooitou_park turned about the zenith by one pixel per frame (0, 1, …, 7, 6, …, 1 pixels,
 //!   cycled), so every light moves every frame: the cost of a moving map, with the region pass's
@@ -89,6 +93,21 @@ fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
     (weights, w as usize, h as usize)
 }
 
+/// Σ of every float of `frame`, with sixteen running sums so that the loop is bound by memory,
+/// not by the chain of adds.
+fn read_frame(frame: &HdrFrame) -> f32 {
+    let floats = frame.pixels.as_flattened();
+    let mut sums = [0.0f32; 16];
+    let chunks = floats.chunks_exact(16);
+    let tail: f32 = chunks.remainder().iter().sum();
+    for chunk in chunks {
+        for (s, &v) in sums.iter_mut().zip(chunk) {
+            *s += v;
+        }
+    }
+    sums.iter().sum::<f32>() + tail
+}
+
 fn bench_frames(c: &mut Criterion) {
     let full = rooitou();
     let frames = [
@@ -121,6 +140,9 @@ fn bench_frames(c: &mut Criterion) {
     let mut decomposer = Decomposer::new(merged).expect("valid");
     group.bench_function("filter_merge_256/1024x512", |b| {
         b.iter(|| decomposer.decompose(black_box(full)))
+    });
+    group.bench_function("read_only/1024x512", |b| {
+        b.iter(|| read_frame(black_box(full)))
     });
 
     // A pixel per frame, forwards and back: every light moves every frame.
