@@ -29,16 +29,6 @@ fn f32_order(x: f32) -> u32 {
     }
 }
 
-/// An integer whose order is `f64::total_cmp`'s order of `x`.
-fn f64_order(x: f64) -> u64 {
-    let bits = x.to_bits();
-    if bits >> 63 == 1 {
-        !bits
-    } else {
-        bits | 1 << 63
-    }
-}
-
 /// Default merge radius as a fraction of the mean light spacing.
 pub const DEFAULT_SPACING_FRACTION: f64 = 0.1;
 
@@ -72,19 +62,19 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
     // slack covers directions a little off unit length (f32), which the dot test below can
     // let in from a hair beyond the radius; the window only has to hold every light it passes.
     let chord = 2.0 * (0.5 * radius.min(std::f64::consts::PI)).sin() + 1e-4;
-    let mut by_y: Vec<(u64, f64, usize)> = Vec::with_capacity(n);
+    let mut by_y: Vec<(f64, usize)> = Vec::with_capacity(n);
     // A direction that is not finite compares as "not farther than the radius" in the test
     // below (NaN < cos_radius is false), so it is a candidate of every seed.
     let mut everywhere = Vec::new();
     for (i, d) in dirs.iter().enumerate() {
         if d.is_finite() {
-            by_y.push((f64_order(d.y), d.y, i));
+            by_y.push((d.y, i));
         } else {
             everywhere.push(i);
         }
     }
     // Equal y in any order: the candidates are put in index order below.
-    by_y.sort_unstable_by_key(|&(key, _, _)| key);
+    by_y.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let mut taken = vec![false; n];
     let mut near = Vec::new();
     let mut out = Vec::with_capacity(n);
@@ -107,12 +97,12 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
         near.clear();
         if dirs[seed].is_finite() {
             let y = dirs[seed].y;
-            let start = by_y.partition_point(|&(_, yj, _)| yj < y - chord);
+            let start = by_y.partition_point(|&(yj, _)| yj < y - chord);
             near.extend(
                 by_y[start..]
                     .iter()
-                    .take_while(|&&(_, yj, _)| yj <= y + chord)
-                    .map(|&(_, _, j)| j)
+                    .take_while(|&&(yj, _)| yj <= y + chord)
+                    .map(|&(_, j)| j)
                     .filter(|&j| joins(j)),
             );
             near.extend(everywhere.iter().copied().filter(|&j| joins(j)));
