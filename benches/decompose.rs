@@ -12,6 +12,10 @@
 //!   reading the frame costs at that moment, the floor of the decomposition's resampling and,
 //!   on a shared machine, a gauge of how fast its memory system is running (docs/performance.md,
 //!   "what a slow phase is").
+//! - `frame/filter_merge_256_uncached/1024x512` and `frame/read_only_uncached/1024x512`: the two
+//!   cases above on 12 copies of the frame (75 MB, more than a server CPU's last-level cache)
+//!   taken in turn, so every frame is read from memory, as a new frame of a live stream may be;
+//!   the lights are those of the cached case (the copies are equal).
 //! - `frame/turning_256/1024x512` and `frame/turning_256_no_reuse/1024x512`: default settings on
 //!   rooitou_park turned about the zenith by one pixel per frame (0, 1, …, 7, 6, …, 1 pixels,
 //!   cycled), so every light moves every frame: the cost of a moving map, with the region pass's
@@ -37,6 +41,9 @@ use envlight::HdrFrame;
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Duration;
+
+/// How many copies of the frame the uncached cases cycle through: 12 × 6.29 MB = 75 MB.
+const UNCACHED_COPIES: usize = 12;
 
 fn rooitou() -> HdrFrame {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
@@ -137,12 +144,31 @@ fn bench_frames(c: &mut Criterion) {
         merge_spacing_fraction: Some(envlight::decompose::merge::DEFAULT_SPACING_FRACTION),
         ..DecomposeSettings::default()
     };
-    let mut decomposer = Decomposer::new(merged).expect("valid");
+    let mut decomposer = Decomposer::new(merged.clone()).expect("valid");
     group.bench_function("filter_merge_256/1024x512", |b| {
         b.iter(|| decomposer.decompose(black_box(full)))
     });
     group.bench_function("read_only/1024x512", |b| {
         b.iter(|| read_frame(black_box(full)))
+    });
+
+    // Copies of the same frame, more bytes than any last-level cache, taken in turn: every frame
+    // comes from memory, as a new frame of a live stream may (same lights as the cached case).
+    let copies: Vec<HdrFrame> = (0..UNCACHED_COPIES).map(|_| full.clone()).collect();
+    let mut decomposer = Decomposer::new(merged.clone()).expect("valid");
+    let mut next = 0;
+    group.bench_function("filter_merge_256_uncached/1024x512", |b| {
+        b.iter(|| {
+            next = (next + 1) % copies.len();
+            decomposer.decompose(black_box(&copies[next]))
+        })
+    });
+    let mut next = 0;
+    group.bench_function("read_only_uncached/1024x512", |b| {
+        b.iter(|| {
+            next = (next + 1) % copies.len();
+            read_frame(black_box(&copies[next]))
+        })
     });
 
     // A pixel per frame, forwards and back: every light moves every frame.
