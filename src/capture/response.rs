@@ -268,13 +268,20 @@ impl Radiometry {
 /// Intervals of the per-channel look-up table.
 pub const LUT_INTERVALS: usize = 4096;
 
+/// A channel's look-up table: per interval, (value at the interval's start, slope over the
+/// interval). A fixed size, so that a look-up needs no bounds check.
+type Lut = [[f32; 2]; LUT_INTERVALS];
+
 /// Piecewise-linear table look-up of a normalised code (clamped to [0, 1]).
-#[inline]
-fn lookup(lut: &[[f32; 2]], v: f32) -> f32 {
+#[inline(always)]
+fn lookup(lut: &Lut, v: f32) -> f32 {
     const N: f32 = LUT_INTERVALS as f32;
     let p = (v * N).clamp(0.0, N);
-    // `as usize` saturates (NaN → 0); p = N lands at the end of the last interval
-    let i = (p as usize).min(LUT_INTERVALS - 1);
+    // The interval: p is in [0, N] (a NaN code takes interval 0 and stays NaN below), so a
+    // conversion to i32 is exact; it compiles to far fewer instructions than the saturating
+    // conversion to a 64-bit unsigned integer of `as usize`. p = N lands at the end of the
+    // last interval.
+    let i = if p >= 0.0 { p as i32 } else { 0 }.min(LUT_INTERVALS as i32 - 1) as usize;
     let [a, slope] = lut[i];
     a + (p - i as f32) * slope
 }
@@ -283,19 +290,19 @@ fn lookup(lut: &[[f32; 2]], v: f32) -> f32 {
 #[derive(Clone, Debug)]
 pub struct Linearizer {
     /// Per channel and interval: (value at the interval's start, slope over the interval).
-    luts: [Vec<[f32; 2]>; 3],
+    luts: [Box<Lut>; 3],
     /// For models that treat every channel alike (all but `Curve`): the table of X alone and
     /// the per-channel factors, so a grey pixel (R = G = B codes, as from GREY/Y10/Y12/Y16)
     /// costs one look-up.
-    shared: Option<(Vec<[f32; 2]>, [f32; 3])>,
+    shared: Option<(Box<Lut>, [f32; 3])>,
 }
 
 impl Linearizer {
     /// Tables for `model` on a format whose largest code is `code_max`.
     pub fn new(model: &ResponseModel, code_max: f32, radiometry: &Radiometry) -> Self {
         let factors = radiometry.factors();
-        let table = |c: usize, factor: f64| -> Vec<[f32; 2]> {
-            (0..=LUT_INTERVALS)
+        let table = |c: usize, factor: f64| -> Box<Lut> {
+            let knots: Vec<f32> = (0..=LUT_INTERVALS)
                 .map(|i| {
                     let v = i as f64 / LUT_INTERVALS as f64;
                     let x = model.relative_exposure(c, v, f64::from(code_max)) * factor;
@@ -305,10 +312,12 @@ impl Linearizer {
                         f32::MAX
                     }
                 })
-                .collect::<Vec<f32>>()
-                .windows(2)
-                .map(|k| [k[0], k[1] - k[0]])
-                .collect()
+                .collect();
+            let mut lut = Box::new([[0.0f32; 2]; LUT_INTERVALS]);
+            for (entry, k) in lut.iter_mut().zip(knots.windows(2)) {
+                *entry = [k[0], k[1] - k[0]];
+            }
+            lut
         };
         let luts = std::array::from_fn(|c| table(c, factors[c]));
         let shared = match model {
@@ -332,23 +341,30 @@ impl Linearizer {
     }
 
     /// [`Self::linearize`] into an existing buffer.
+    ///
+    /// The closures hold the tables as plain references to fixed-size arrays (no bounds checks,
+    /// no table address reloaded through its `Box` for every pixel).
     pub fn linearize_into(&self, image: &CodeImage, out: &mut Vec<[f32; 3]>) {
         let [r, g, b] = &self.luts;
+        let (r, g, b): (&Lut, &Lut, &Lut) = (r, g, b);
         out.clear();
         match &self.shared {
-            Some((x, [fr, fg, fb])) => out.extend(image.pixels.iter().map(|p| {
-                if p[0] == p[1] && p[1] == p[2] {
-                    let v = lookup(x, p[0]);
-                    [v * fr, v * fg, v * fb]
-                } else {
-                    [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]
-                }
-            })),
+            Some((x, [fr, fg, fb])) => {
+                let (x, fr, fg, fb): (&Lut, f32, f32, f32) = (x, *fr, *fg, *fb);
+                out.extend(image.pixels.iter().map(move |p| {
+                    if p[0] == p[1] && p[1] == p[2] {
+                        let v = lookup(x, p[0]);
+                        [v * fr, v * fg, v * fb]
+                    } else {
+                        [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]
+                    }
+                }));
+            }
             None => out.extend(
                 image
                     .pixels
                     .iter()
-                    .map(|p| [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]),
+                    .map(move |p| [lookup(r, p[0]), lookup(g, p[1]), lookup(b, p[2])]),
             ),
         }
     }
@@ -362,6 +378,49 @@ pub fn load_curve(path: &Path) -> Result<ResponseModel, CaptureError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The look-up as first written (a saturating `as usize`): [`lookup`] must give the same
+    /// bits for every code, out-of-range and non-finite ones included.
+    fn lookup_reference(lut: &Lut, v: f32) -> f32 {
+        const N: f32 = LUT_INTERVALS as f32;
+        let p = (v * N).clamp(0.0, N);
+        let i = (p as usize).min(LUT_INTERVALS - 1);
+        let [a, slope] = lut[i];
+        a + (p - i as f32) * slope
+    }
+
+    #[test]
+    fn lookup_equals_the_saturating_reference_bit_for_bit() {
+        let lin = Linearizer::new(&ResponseModel::Srgb, 255.0, &Radiometry::default());
+        let lut = &lin.luts[1];
+        let mut codes = vec![
+            0.0,
+            -0.0,
+            1.0,
+            1.0 - f32::EPSILON,
+            1.0 + f32::EPSILON,
+            -1.0,
+            2.0,
+            1e30,
+            -1e30,
+            f32::MIN_POSITIVE,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            f32::MAX,
+        ];
+        // Every interval's start and middle, and a sweep of bit patterns.
+        codes.extend((0..=LUT_INTERVALS).map(|i| i as f32 / LUT_INTERVALS as f32));
+        codes.extend((0..LUT_INTERVALS).map(|i| (i as f32 + 0.5) / LUT_INTERVALS as f32));
+        codes.extend((0..200_000u32).map(|k| f32::from_bits(k.wrapping_mul(2_654_435_761))));
+        for v in codes {
+            let (got, want) = (lookup(lut, v), lookup_reference(lut, v));
+            assert!(
+                got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                "code {v:e}: {got:e} against {want:e}"
+            );
+        }
+    }
 
     fn rel(a: f64, b: f64) -> f64 {
         (a - b).abs() / b.abs().max(1e-300)
