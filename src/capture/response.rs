@@ -399,8 +399,8 @@ impl Linearizer {
 
     /// [`Self::linearize`] into an existing buffer.
     ///
-    /// The closures hold the tables as plain references to fixed-size arrays (no bounds checks,
-    /// no table address reloaded through its `Box` for every pixel).
+    /// The closures hold the tables as plain references to fixed-size arrays, so the look-ups
+    /// need no bounds checks.
     pub fn linearize_into(&self, image: &CodeImage, out: &mut Vec<[f32; 3]>) {
         let [r, g, b] = &self.luts;
         let (r, g, b): (&Lut, &Lut, &Lut) = (r, g, b);
