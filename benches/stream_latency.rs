@@ -8,7 +8,8 @@
 //! `--harness=threads|events|both`, `--sender=daemon|floor|both`,
 //! `--fanout=publisher|thread|both` (which thread runs the daemon's fan-out pass: the
 //! decompose thread right after publishing, as the daemon does by default, or the
-//! `envlight-fanout` thread), `--seconds=S`,
+//! `envlight-fanout` thread), `--pass-threads=1,2,…` (the threads that write each pass:
+//! `stream.pass_threads`, the daemon's default 2 unless given), `--seconds=S`,
 //! `--decode=in-place|buffered|both` (how the clients decode, below),
 //! `--repeat=N` (each repeat runs every sender once, back to back),
 //! `--spin-idle=off|on|both` (below); docs/performance.md "Streaming"). The whole chain runs
@@ -109,7 +110,12 @@ const WINDOW_END: Duration = Duration::from_millis(300);
 /// Name (as the kernel keeps it, at most 15 bytes) of the decompose thread.
 const DECOMPOSE_THREADS: &[&str] = &["envlight-decomp"];
 /// Names (as the kernel keeps them, at most 15 bytes) of the threads counted as serving.
-const SERVING_THREADS: &[&str] = &["envlight-serve", "envlight-fanout", "bench sender"];
+const SERVING_THREADS: &[&str] = &[
+    "envlight-serve",
+    "envlight-fanout",
+    "envlight-pass",
+    "bench sender",
+];
 /// Name of the client threads (thread per client, or the one event loop).
 const CLIENT_THREADS: &[&str] = &["bench client", "bench clients"];
 
@@ -261,6 +267,7 @@ fn run(
     clients: usize,
     seconds: f64,
     pass_on: PassOn,
+    pass_threads: usize,
 ) -> Run {
     let sky = PrerenderedSky::new(60.0);
     let arrivals: Arc<Mutex<HashMap<u64, Stamps>>> = Arc::default();
@@ -297,6 +304,7 @@ fn run(
         tcp: (transport == Transport::Tcp).then(|| "127.0.0.1:0".parse().expect("address")),
         websocket: None,
         max_clients: 100_000,
+        pass_threads,
         ..ServerConfig::default()
     };
     let mut streams = Streams::new(pipeline.subscribe());
@@ -524,18 +532,24 @@ enum Harness {
 #[derive(Clone, Copy, Debug)]
 enum Sender {
     /// The pipeline and the stream server: what is measured, with the fan-out pass on this
-    /// thread.
-    Daemon(PassOn),
+    /// thread, shared by this many threads (`stream.pass_threads`).
+    Daemon(PassOn, usize),
     /// One plain thread writing a pre-encoded frame to every socket: the harness's floor.
     Floor,
 }
 
 impl Sender {
-    fn name(self) -> &'static str {
+    fn name(self) -> String {
+        let threads = |n: usize| match n {
+            1 => String::new(),
+            n => format!(", {n} pass threads"),
+        };
         match self {
-            Sender::Daemon(PassOn::Thread) => "daemon, fan-out thread",
-            Sender::Daemon(PassOn::Publisher) => "daemon, pass on publisher",
-            Sender::Floor => "floor",
+            Sender::Daemon(PassOn::Thread, n) => format!("daemon, fan-out thread{}", threads(n)),
+            Sender::Daemon(PassOn::Publisher, n) => {
+                format!("daemon, pass on publisher{}", threads(n))
+            }
+            Sender::Floor => "floor".to_owned(),
         }
     }
 }
@@ -871,7 +885,18 @@ fn main() {
         Some("both") => vec![PassOn::Thread, PassOn::Publisher],
         _ => vec![PassOn::Publisher],
     };
-    let daemons = daemon_passes.iter().map(|&p| Sender::Daemon(p));
+    let pass_threads: Vec<usize> = match option("--pass-threads=") {
+        Some(list) => list
+            .split(',')
+            .map(|n| n.parse().expect("--pass-threads=N,M,…"))
+            .collect(),
+        None => vec![ServerConfig::default().pass_threads],
+    };
+    let daemons = daemon_passes.iter().flat_map(|&p| {
+        pass_threads
+            .iter()
+            .map(move |&threads| Sender::Daemon(p, threads))
+    });
     // Each repeat runs every sender once, back to back (A/B pairs on a noisy machine).
     let senders: Vec<Sender> = match option("--sender=").as_deref() {
         Some("floor") => vec![Sender::Floor],
@@ -928,8 +953,8 @@ fn main() {
                         let client_setup = (harness, decode);
                         let spinners = spin.then(IdleSpinners::start);
                         let r = match sender {
-                            Sender::Daemon(pass_on) => {
-                                run(transport, client_setup, clients, seconds, pass_on)
+                            Sender::Daemon(pass_on, threads) => {
+                                run(transport, client_setup, clients, seconds, pass_on, threads)
                             }
                             Sender::Floor => run_floor(transport, client_setup, clients, seconds),
                         };

@@ -137,6 +137,7 @@ pub struct RawStream {
     pub write_timeout_s: Option<f64>,
     pub send_buffer_bytes: Option<usize>,
     pub fanout_on: Option<String>,
+    pub pass_threads: Option<usize>,
 }
 
 /// `[metrics]`: the HTTP endpoint for Prometheus metrics and the health check.
@@ -788,9 +789,18 @@ impl RawStream {
                      Unix-socket and TCP clients) or \"thread\" (an envlight-fanout thread does)",
                 )),
             };
+        let pass_threads = self.pass_threads.unwrap_or(d.pass_threads);
+        if !(1..=16).contains(&pass_threads) {
+            return Err(invalid(
+                "stream.pass_threads",
+                pass_threads,
+                "must be 1..=16 (threads that write each light list to the clients)",
+            ));
+        }
         Ok(ServerConfig {
             send_buffer_bytes,
             fanout_on,
+            pass_threads,
             unix_socket,
             unix_socket_mode,
             tcp: listen_address("stream.tcp", self.tcp.as_deref(), d.tcp)?,

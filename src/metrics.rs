@@ -23,6 +23,8 @@
 //! | `envlight_client_frames_skipped_total` | counter | frames a slow client skipped, by endpoint |
 //! | `envlight_client_skipped_frames` | gauge | frames skipped so far, per connected client |
 //! | `envlight_client_errors_total` | counter | connections closed for a protocol error or a timeout, by endpoint |
+//! | `envlight_pass_shares_total` | counter | shares of a pass written by an `envlight-pass` thread (`stream.pass_threads`) |
+//! | `envlight_pass_shares_returned_total` | counter | shares the passing thread wrote itself because their `envlight-pass` thread was still busy |
 //! | `envlight_frames_rendered_total` | counter | frames the render thread drew (`[render] enabled`) |
 //! | `envlight_render_seconds` | histogram | render time per frame |
 //! | `envlight_render_lights` | gauge | lights used by the newest rendered frame |
@@ -70,6 +72,10 @@ pub struct Metrics {
     pub frames_skipped: Family<EndpointLabel, Counter>,
     pub client_skipped: Family<ClientLabel, Gauge>,
     pub client_errors: Family<EndpointLabel, Counter>,
+    /// Shares of a pass written by the `envlight-pass` threads.
+    pub pass_shares: Counter,
+    /// Shares the passing thread wrote itself: their `envlight-pass` thread was still busy.
+    pub pass_shares_returned: Counter,
     pub frames_rendered: Counter,
     pub render_seconds: Histogram,
     pub render_lights: Gauge,
@@ -121,6 +127,8 @@ impl Metrics {
         let frames_skipped = Family::<EndpointLabel, Counter>::default();
         let client_skipped = Family::<ClientLabel, Gauge>::default();
         let client_errors = Family::<EndpointLabel, Counter>::default();
+        let pass_shares = Counter::default();
+        let pass_shares_returned = Counter::default();
         let frames_rendered = Counter::default();
         let render_seconds = Histogram::new(latency_buckets());
         let render_lights = Gauge::default();
@@ -174,6 +182,18 @@ impl Metrics {
             "asg_fit_seconds",
             "ASG fit time per frame",
             asg_fit_seconds.clone(),
+        );
+        registry.register(
+            "pass_shares",
+            "Shares of a pass (the clients one thread writes a light list to) written by the \
+             envlight-pass threads",
+            pass_shares.clone(),
+        );
+        registry.register(
+            "pass_shares_returned",
+            "Shares of a pass the passing thread wrote itself because their envlight-pass thread \
+             was still busy with the last one",
+            pass_shares_returned.clone(),
         );
         registry.register(
             "frames_rendered",
@@ -278,6 +298,8 @@ impl Metrics {
             frames_skipped,
             client_skipped,
             client_errors,
+            pass_shares,
+            pass_shares_returned,
             frames_rendered,
             render_seconds,
             render_lights,

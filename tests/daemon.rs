@@ -111,16 +111,26 @@ fn capped(expected: &LightFrame, cap: Option<usize>) -> Vec<envlight::Light> {
 #[test]
 fn every_endpoint_streams_what_decompose_computes() {
     // The decompose thread writes to the Unix-socket and TCP clients (the default) …
-    streams_what_decompose_computes("publisher");
+    streams_what_decompose_computes("publisher", 0);
 }
 
 #[test]
 fn every_endpoint_streams_what_decompose_computes_with_a_fanout_thread() {
     // … or an envlight-fanout thread does (`stream.fanout_on = "thread"`).
-    streams_what_decompose_computes("thread");
+    streams_what_decompose_computes("thread", 0);
 }
 
-fn streams_what_decompose_computes(fanout_on: &str) {
+#[test]
+fn many_clients_get_what_decompose_computes_from_a_shared_pass() {
+    // With 16 or more Unix-socket and TCP clients an envlight-pass thread writes to half of
+    // them (`stream.pass_threads = 2`, the default).
+    streams_what_decompose_computes("publisher", 24);
+}
+
+/// The daemon on a recorded sequence with clients on every endpoint (and `more_clients`
+/// more binary ones on the Unix socket and TCP, half of them capped): each gets the light
+/// lists `envlight decompose` computes, in order, then the goodbye.
+fn streams_what_decompose_computes(fanout_on: &str, more_clients: usize) {
     let dir = tempfile::tempdir().unwrap();
     const N: u64 = 24;
     write_sky_sequence(&dir.path().join("frames"), N);
@@ -129,7 +139,7 @@ fn streams_what_decompose_computes(fanout_on: &str) {
         "[source]\nkind = \"sequence\"\npaths = [\"{pattern}\"]\nfps = 15.0\n\
          [decompose]\nlights = 48\nworking_width = 64\n"
     );
-    let stream = format!("fanout_on = \"{fanout_on}\"\n");
+    let stream = format!("fanout_on = \"{fanout_on}\"\npass_threads = 2\n");
     let config = common::config_with_stream(dir.path(), 0.5, &stream, &extra);
     assert_eq!(
         format!("{:?}", config.stream.fanout_on).to_lowercase(),
@@ -155,7 +165,7 @@ fn streams_what_decompose_computes(fanout_on: &str) {
 
     let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
     let addrs = daemon.addresses().clone();
-    let endpoints = [
+    let mut endpoints = vec![
         (
             Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()),
             Format::Binary,
@@ -182,6 +192,13 @@ fn streams_what_decompose_computes(fanout_on: &str) {
             0,
         ),
     ];
+    for i in 0..more_clients {
+        let endpoint = match i % 2 {
+            0 => Endpoint::Unix(addrs.stream.unix_socket.clone().unwrap()),
+            _ => Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string()),
+        };
+        endpoints.push((endpoint, Format::Binary, if i % 4 < 2 { 0 } else { 7 }));
+    }
     let clients: Vec<_> = endpoints
         .iter()
         .map(|(endpoint, format, cap)| {
@@ -195,6 +212,17 @@ fn streams_what_decompose_computes(fanout_on: &str) {
         })
         .collect();
     wait_until("the end of the sequence", || daemon.source_finished());
+    let (_, metrics) = http_get(addrs.metrics.unwrap(), "/metrics");
+    let shares = metric_value(&metrics, "envlight_pass_shares_total")
+        + metric_value(&metrics, "envlight_pass_shares_returned_total");
+    let shared = more_clients > 0 && std::thread::available_parallelism().unwrap().get() >= 2;
+    // With the extra clients every pass is shared (one share for the envlight-pass thread);
+    // without them none is.
+    if shared {
+        assert!(shares >= N as f64 / 2.0, "{shares} shares for {N} frames");
+    } else {
+        assert_eq!(shares, 0.0);
+    }
     let summary = daemon.shutdown().unwrap();
     assert_eq!(summary.pipeline.frames_decomposed, N);
     assert!(summary.clients_closed_in_time);

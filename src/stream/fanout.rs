@@ -338,34 +338,36 @@ impl Slot {
         }
     }
 
-    /// The pass: writes `frame` if the fan-out writes for this client and has not sent it;
-    /// hands the slot to the task if the socket does not take all of it.
+    /// The pass: writes publication `index` (its bytes from `bytes`, in this client's cap and
+    /// form) if the fan-out writes for this client and has not sent it; hands the slot to the
+    /// task if the socket does not take all of it.
     fn offer(
         &self,
-        frame: &dyn Frame,
-        encoded: &mut dyn FnMut(Option<usize>, Encoding) -> Arc<Vec<u8>>,
+        index: u64,
+        delivery_start: Option<Instant>,
+        bytes: impl FnOnce(Option<usize>, Encoding) -> Arc<Vec<u8>>,
     ) {
         let mut state = self.lock();
-        if state.writer != Writer::Fanout || !self.claim(&mut state, frame.index()) {
+        if state.writer != Writer::Fanout || !self.claim(&mut state, index) {
             return;
         }
-        let bytes = encoded(self.cap, self.encoding);
+        let bytes = bytes(self.cap, self.encoding);
         match self.socket.try_write(&bytes) {
             Ok(n) if n == bytes.len() => {
                 drop(state);
-                self.delivered(frame.delivery_start());
+                self.delivered(delivery_start);
                 return;
             }
             Ok(n) if n > 0 => {
                 state.unfinished = Some(Unfinished {
                     bytes,
                     written: n,
-                    delivery_start: frame.delivery_start(),
+                    delivery_start,
                 });
             }
             // Nothing written (full buffer, or an error the task's write will meet again):
             // the task sends the newest publication when the socket has room.
-            _ => state.last_index = frame.index() - 1,
+            _ => state.last_index = index - 1,
         }
         state.writer = Writer::Task;
         drop(state);
@@ -410,6 +412,97 @@ impl Slot {
     }
 }
 
+/// Name of the threads that share each pass with the thread that runs it
+/// (`stream.pass_threads`).
+pub const PASS_THREAD_NAME: &str = "envlight-pass";
+
+/// A pass is shared out only so far that every thread writes to at least this many clients:
+/// waking a helper costs about as much as writing to a few clients (docs/performance.md, "The
+/// pass shared by two threads").
+pub(super) const MIN_CLIENTS_PER_PASS_THREAD: usize = 8;
+
+/// One helper's share of a pass: its clients, each with the publication's bytes in its form.
+struct Share {
+    index: u64,
+    delivery_start: Option<Instant>,
+    clients: Vec<(Arc<Slot>, Arc<Vec<u8>>)>,
+}
+
+impl Share {
+    fn run(self) {
+        for (slot, bytes) in self.clients {
+            slot.offer(self.index, self.delivery_start, |_, _| bytes);
+        }
+    }
+}
+
+/// A thread that writes a share of each pass ([`PASS_THREAD_NAME`]). Its mailbox holds at most
+/// one share: while it is still busy with the last one, the passing thread writes the new
+/// share itself, so a starved helper delays no client by more than one pass and holds no
+/// queue.
+#[derive(Default)]
+struct PassHelper {
+    mailbox: Mutex<Mailbox>,
+    wake: std::sync::Condvar,
+    /// Shares this helper wrote (`envlight_pass_shares_total`).
+    shares: Counter,
+    /// Shares given back because it was busy (`envlight_pass_shares_returned_total`).
+    returned: Counter,
+}
+
+#[derive(Default)]
+struct Mailbox {
+    share: Option<Share>,
+    closed: bool,
+}
+
+impl PassHelper {
+    fn mailbox(&self) -> MutexGuard<'_, Mailbox> {
+        self.mailbox
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Hands `share` to the helper, or gives it back if the helper is busy or stopped.
+    fn give(&self, share: Share) -> Result<(), Share> {
+        let mut mailbox = self.mailbox();
+        if mailbox.share.is_some() || mailbox.closed {
+            if !mailbox.closed {
+                self.returned.inc();
+            }
+            return Err(share);
+        }
+        mailbox.share = Some(share);
+        drop(mailbox);
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// The helper thread's loop: runs each share given to it until [`Self::close`].
+    fn serve(&self) {
+        loop {
+            let mut mailbox = self.mailbox();
+            while mailbox.share.is_none() && !mailbox.closed {
+                mailbox = self
+                    .wake
+                    .wait(mailbox)
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+            }
+            let Some(share) = mailbox.share.take() else {
+                return;
+            };
+            drop(mailbox);
+            share.run();
+            self.shares.inc();
+        }
+    }
+
+    fn close(&self) {
+        self.mailbox().closed = true;
+        self.wake.notify_one();
+    }
+}
+
 /// The clients of one channel's fan-out.
 #[derive(Default)]
 pub(super) struct Fanout {
@@ -417,6 +510,8 @@ pub(super) struct Fanout {
     /// The publishing thread runs the pass of each live publication itself
     /// ([`super::server::PublisherPass`]); the fan-out thread passes only the others.
     publisher_passes: std::sync::atomic::AtomicBool,
+    /// The threads that share each pass with the thread that runs it.
+    helpers: Mutex<Vec<Arc<PassHelper>>>,
 }
 
 #[derive(Default)]
@@ -480,12 +575,18 @@ impl Fanout {
 
     /// One pass: `frame` to every client the fan-out writes for; `encoded` gives the frame's
     /// bytes for a cap and form (encoded once each per publication).
+    ///
+    /// With helper threads ([`Fanout::start_helpers`]) and enough clients, the clients are
+    /// cut into consecutive shares, at least [`MIN_CLIENTS_PER_PASS_THREAD`] each: the first
+    /// is written here, each other one by a helper at the same time (or here, after the first,
+    /// if that helper is still busy with the last pass).
     pub fn pass(
         &self,
         frame: &dyn Frame,
         encoded: &dyn Fn(Option<usize>, Encoding) -> Arc<Vec<u8>>,
     ) {
         let slots = self.lock().slots.clone();
+        let helpers = self.helpers().clone();
         let mut forms: Vec<(Option<usize>, Encoding, Arc<Vec<u8>>)> = Vec::new();
         let mut memo = |cap: Option<usize>, encoding: Encoding| {
             if let Some((_, _, bytes)) = forms.iter().find(|(c, e, _)| *c == cap && *e == encoding)
@@ -496,8 +597,86 @@ impl Fanout {
             forms.push((cap, encoding, Arc::clone(&bytes)));
             bytes
         };
-        for slot in &slots {
-            slot.offer(frame, &mut memo);
+        let (index, delivery_start) = (frame.index(), frame.delivery_start());
+        let threads = (1 + helpers.len()).min(slots.len() / MIN_CLIENTS_PER_PASS_THREAD);
+        if threads <= 1 {
+            for slot in &slots {
+                slot.offer(index, delivery_start, &mut memo);
+            }
+            return;
+        }
+        let mut shares = slots.chunks(slots.len().div_ceil(threads));
+        let own = shares.next().unwrap_or_default();
+        let mut returned = Vec::new();
+        for (helper, clients) in helpers.iter().zip(shares) {
+            let share = Share {
+                index,
+                delivery_start,
+                clients: clients
+                    .iter()
+                    .map(|slot| (Arc::clone(slot), memo(slot.cap, slot.encoding)))
+                    .collect(),
+            };
+            if let Err(share) = helper.give(share) {
+                returned.push(share);
+            }
+        }
+        for slot in own {
+            slot.offer(index, delivery_start, &mut memo);
+        }
+        for share in returned {
+            share.run();
+        }
+    }
+
+    fn helpers(&self) -> MutexGuard<'_, Vec<Arc<PassHelper>>> {
+        self.helpers
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Starts `count` helper threads ([`PASS_THREAD_NAME`]) that share each pass from now on,
+    /// counting the shares they write and those given back in `shares` and `returned`;
+    /// [`Fanout::stop_helpers`] ends them (join the handles after it).
+    pub fn start_helpers(
+        &self,
+        count: usize,
+        shares: &Counter,
+        returned: &Counter,
+    ) -> io::Result<Vec<std::thread::JoinHandle<()>>> {
+        let mut threads = Vec::with_capacity(count);
+        for _ in 0..count {
+            let helper = Arc::new(PassHelper {
+                shares: shares.clone(),
+                returned: returned.clone(),
+                ..PassHelper::default()
+            });
+            let serving = Arc::clone(&helper);
+            match std::thread::Builder::new()
+                .name(PASS_THREAD_NAME.to_owned())
+                .spawn(move || serving.serve())
+            {
+                Ok(thread) => {
+                    self.helpers().push(helper);
+                    threads.push(thread);
+                }
+                Err(e) => {
+                    self.stop_helpers();
+                    for thread in threads {
+                        let _ = thread.join();
+                    }
+                    return Err(e);
+                }
+            }
+        }
+        Ok(threads)
+    }
+
+    /// Ends the helper threads (each after the share it is writing); passes from now on are
+    /// written by the passing thread alone.
+    pub fn stop_helpers(&self) {
+        for helper in std::mem::take(&mut *self.helpers()) {
+            helper.close();
         }
     }
 
@@ -623,6 +802,98 @@ mod tests {
     fn pass(fanout: &Fanout, index: u64) {
         let frame = TestFrame(index);
         fanout.pass(&frame, &encode(&frame));
+    }
+
+    /// A helper with no thread behind it: a share given to it stays in its mailbox.
+    fn idle_helper(fanout: &Fanout) -> Arc<PassHelper> {
+        let helper = Arc::new(PassHelper::default());
+        fanout.helpers().push(Arc::clone(&helper));
+        helper
+    }
+
+    #[test]
+    fn few_clients_are_not_shared_out() {
+        let fanout = Arc::new(Fanout::default());
+        let helper = idle_helper(&fanout);
+        let clients: Vec<_> = (0..2 * MIN_CLIENTS_PER_PASS_THREAD - 1)
+            .map(|_| client(&fanout))
+            .collect();
+        pass(&fanout, 1);
+        assert!(helper.mailbox().share.is_none(), "a share was given");
+        for c in &clients {
+            assert_eq!(c.socket.written(), bytes_of(1));
+        }
+    }
+
+    #[test]
+    fn a_busy_helpers_share_is_written_by_the_passing_thread() {
+        let fanout = Arc::new(Fanout::default());
+        let helper = idle_helper(&fanout);
+        let clients: Vec<_> = (0..2 * MIN_CLIENTS_PER_PASS_THREAD)
+            .map(|_| client(&fanout))
+            .collect();
+        // Frame 1: the second half goes to the helper, which does not run.
+        pass(&fanout, 1);
+        let share = helper
+            .mailbox()
+            .share
+            .take()
+            .expect("a share for the helper");
+        assert_eq!(share.clients.len(), MIN_CLIENTS_PER_PASS_THREAD);
+        let (own, shared) = clients.split_at(MIN_CLIENTS_PER_PASS_THREAD);
+        assert!(own.iter().all(|c| c.socket.written() == bytes_of(1)));
+        assert!(shared.iter().all(|c| c.socket.written().is_empty()));
+        // The helper is still busy (its mailbox full): frame 2 goes to every client from here.
+        helper.mailbox().share = Some(share);
+        pass(&fanout, 2);
+        assert_eq!(helper.returned.get(), 1);
+        for c in own {
+            assert_eq!(c.socket.written(), [bytes_of(1), bytes_of(2)].concat());
+        }
+        for c in shared {
+            assert_eq!(c.socket.written(), bytes_of(2));
+        }
+        // The late share of frame 1 finds frame 2 sent and writes nothing.
+        helper.mailbox().share.take().expect("the old share").run();
+        for c in shared {
+            assert_eq!(c.socket.written(), bytes_of(2));
+        }
+    }
+
+    #[test]
+    fn a_pass_shared_with_helper_threads_reaches_every_client_in_order() {
+        let fanout = Arc::new(Fanout::default());
+        let (shares, returned) = (Counter::default(), Counter::default());
+        let threads = fanout
+            .start_helpers(3, &shares, &returned)
+            .expect("helper threads");
+        let clients: Vec<_> = (0..50).map(|_| client(&fanout)).collect();
+        let frames = 30;
+        for index in 1..=frames {
+            pass(&fanout, index);
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        fanout.stop_helpers();
+        for thread in threads {
+            thread.join().expect("helper thread");
+        }
+        for c in &clients {
+            // Each frame at most once, in order, the last one always (a frame is skipped only
+            // if a helper fell a whole pass behind; then it is counted).
+            let written = c.socket.written();
+            let indices: Vec<u8> = written.chunks(4).map(|b| b[0]).collect();
+            assert!(indices.windows(2).all(|w| w[0] < w[1]), "{indices:?}");
+            assert_eq!(indices.last(), Some(&(frames as u8)));
+            assert_eq!(c.sent.get() as usize, indices.len());
+            assert_eq!(indices.len() as i64 + c.skipped.get(), frames as i64);
+        }
+        // 3 shares a pass, each written by its helper or, if it was busy, by the passing thread.
+        assert_eq!(shares.get() + returned.get(), 3 * frames);
+        // Stopped helpers take no more shares: the passing thread writes to everyone.
+        pass(&fanout, frames + 1);
+        for c in &clients {
+            assert!(c.socket.written().ends_with(&bytes_of(frames + 1)));
+        }
     }
 
     #[test]

@@ -14,7 +14,7 @@ mod fanout;
 pub mod protocol;
 pub mod server;
 
-pub use fanout::FANOUT_THREAD_NAME;
+pub use fanout::{FANOUT_THREAD_NAME, PASS_THREAD_NAME};
 pub use protocol::{
     AsgFrameMessage, Decoder, Format, FrameMessage, Message, Messages, ProtocolError,
     Representation, Request, WaveletFrame, WaveletFrameMessage,

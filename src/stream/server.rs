@@ -44,6 +44,7 @@
 
 use super::fanout::{
     Fanout, FdSocket, Shared, Slot, SlotMetrics, Socket, Stream, Writer, FANOUT_THREAD_NAME,
+    PASS_THREAD_NAME,
 };
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
@@ -98,7 +99,14 @@ pub struct ServerConfig {
     /// The daemon wires [`FanoutOn::Publisher`] with a [`PublisherPass`]; the server itself
     /// follows what its [`Streams`] were given.
     pub fanout_on: FanoutOn,
+    /// Threads that write each pass to the clients that keep up: the passing thread and
+    /// `pass_threads − 1` helpers (`envlight-pass`), each taking a share of at least 8 clients.
+    /// Capped at the CPUs the process may use; 1 = the passing thread alone.
+    pub pass_threads: usize,
 }
+
+/// Default [`ServerConfig::pass_threads`].
+pub const DEFAULT_PASS_THREADS: usize = 2;
 
 /// Which thread runs the light lists' fan-out pass (`stream.fanout_on`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -134,6 +142,7 @@ impl Default for ServerConfig {
             write_timeout: Duration::from_secs(10),
             send_buffer_bytes: Some(DEFAULT_SEND_BUFFER_BYTES),
             fanout_on: FanoutOn::default(),
+            pass_threads: DEFAULT_PASS_THREADS,
         }
     }
 }
@@ -154,6 +163,30 @@ pub enum ServerError {
     NotASocket { path: PathBuf },
     #[error("cannot start the {FANOUT_THREAD_NAME} thread: {0}")]
     Spawn(#[source] std::io::Error),
+    #[error("cannot start the {PASS_THREAD_NAME} threads: {0}")]
+    SpawnPass(#[source] std::io::Error),
+}
+
+/// The pass helper threads of every channel ([`ServerConfig::pass_threads`]); told to stop
+/// when dropped (joined only by [`StreamServer::shutdown`]).
+#[derive(Default)]
+struct PassHelpers {
+    fanouts: Vec<Arc<Fanout>>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl PassHelpers {
+    fn stop(&self) {
+        for fanout in &self.fanouts {
+            fanout.stop_helpers();
+        }
+    }
+}
+
+impl Drop for PassHelpers {
+    fn drop(&mut self) {
+        self.stop();
+    }
 }
 
 /// How often the fan-out thread of a channel whose publisher runs the pass looks for stale
@@ -586,6 +619,8 @@ pub struct StreamServer {
     /// The fan-out threads, and their stop signal: set at shutdown before the clients' goodbye.
     fanout_threads: Vec<std::thread::JoinHandle<()>>,
     fanout_stop: watch::Sender<bool>,
+    /// The threads that share the passes; stopped after the fan-out threads.
+    pass_helpers: PassHelpers,
     /// The light lists' pass on the publishing thread, if wired; removed at shutdown.
     publisher_pass: Option<PublisherPass>,
 }
@@ -652,6 +687,36 @@ impl StreamServer {
             }
         }
 
+        let helpers_per_channel = config
+            .pass_threads
+            .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
+            .saturating_sub(1);
+        let mut pass_helpers = PassHelpers::default();
+        if helpers_per_channel > 0 {
+            for served in &ctx.sources {
+                let threads = served.fanout.start_helpers(
+                    helpers_per_channel,
+                    &ctx.metrics.pass_shares,
+                    &ctx.metrics.pass_shares_returned,
+                );
+                pass_helpers.fanouts.push(Arc::clone(&served.fanout));
+                match threads {
+                    Ok(threads) => pass_helpers.threads.extend(threads),
+                    Err(e) => {
+                        fanout_stop.send_replace(true);
+                        pass_helpers.stop();
+                        for thread in fanout_threads
+                            .into_iter()
+                            .chain(pass_helpers.threads.drain(..))
+                        {
+                            let _ = thread.join();
+                        }
+                        return Err(ServerError::SpawnPass(e));
+                    }
+                }
+            }
+        }
+
         if let Some(pass) = &publisher_pass {
             if let Some(source) = ctx
                 .sources
@@ -699,6 +764,7 @@ impl StreamServer {
             accept_tasks,
             fanout_threads,
             fanout_stop,
+            pass_helpers,
             publisher_pass,
         })
     }
@@ -720,6 +786,7 @@ impl StreamServer {
             accept_tasks,
             fanout_threads,
             fanout_stop,
+            mut pass_helpers,
             publisher_pass,
         } = self;
         if let Some(pass) = publisher_pass {
@@ -728,11 +795,18 @@ impl StreamServer {
         // The fan-out threads pass what is still unsent and end (within a pass, or their
         // poll interval); only then do the clients get their goodbye, so that a publication
         // made before the shutdown reaches every client that keeps up.
+        // The helpers end after them, each after the share it is writing.
         fanout_stop.send_replace(true);
         let _ = tokio::task::spawn_blocking(move || {
             for thread in fanout_threads {
                 if thread.join().is_err() {
                     tracing::error!("a fan-out thread panicked");
+                }
+            }
+            pass_helpers.stop();
+            for thread in pass_helpers.threads.drain(..) {
+                if thread.join().is_err() {
+                    tracing::error!("a pass thread panicked");
                 }
             }
         })
