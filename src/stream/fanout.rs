@@ -10,7 +10,10 @@
 //! served channel (`envlight-fanout`), woken once per publication (or, for a channel whose
 //! publisher passes, looking every 20 ms), runs it for everything
 //! else (stale re-sends, the ASG and wavelet channels) and, with `fanout_on = "thread"`, for
-//! the light lists too.
+//! the light lists too. With 16 or more clients a pass is shared: the passing thread writes
+//! one share of the clients and each `envlight-pass` thread (`stream.pass_threads − 1` per
+//! channel) another at the same time ([`Fanout::pass`]; a busy one's share is written by the
+//! passing thread, so nothing queues).
 //!
 //! Each client has a [`Slot`] shared by the fan-out thread and the client's connection task,
 //! which says who writes to the socket now ([`Writer`]):
