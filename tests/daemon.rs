@@ -996,6 +996,7 @@ fn check_config_names_the_bad_key_and_value() {
             "stream.tcp = \"localhost\"",
         ),
         ("[stream]\nmax_clients = 0\n", "stream.max_clients = 0"),
+        ("[stream]\npass_threads = 0\n", "stream.pass_threads = 0"),
         (
             "[stream]\nfanout_on = \"gpu\"\n",
             "stream.fanout_on = \"gpu\"",
