@@ -589,7 +589,12 @@ impl Fanout {
         encoded: &dyn Fn(Option<usize>, Encoding) -> Arc<Vec<u8>>,
     ) {
         let slots = self.lock().slots.clone();
-        let helpers = self.helpers().clone();
+        // Too few clients to share: no helper list to look at (and no allocation).
+        let helpers = if slots.len() >= 2 * MIN_CLIENTS_PER_PASS_THREAD {
+            self.helpers().clone()
+        } else {
+            Vec::new()
+        };
         let mut forms: Vec<(Option<usize>, Encoding, Arc<Vec<u8>>)> = Vec::new();
         let mut memo = |cap: Option<usize>, encoding: Encoding| {
             if let Some((_, _, bytes)) = forms.iter().find(|(c, e, _)| *c == cap && *e == encoding)
