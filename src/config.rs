@@ -55,6 +55,30 @@ fn invalid(
     }
 }
 
+/// An integer from `key`: `default` when the key is absent, the value when it lies in `range`,
+/// otherwise an error naming the key, "must be LO..=HI" and then `note` (a unit or what the key
+/// counts; may be empty).
+fn integer_in<T>(
+    key: &'static str,
+    value: Option<T>,
+    default: T,
+    range: std::ops::RangeInclusive<T>,
+    note: &str,
+) -> Result<T, ConfigError>
+where
+    T: Copy + PartialOrd + std::fmt::Display + std::fmt::Debug,
+{
+    match value {
+        None => Ok(default),
+        Some(n) if range.contains(&n) => Ok(n),
+        Some(n) => Err(invalid(
+            key,
+            n,
+            format!("must be {}..={}{note}", range.start(), range.end()),
+        )),
+    }
+}
+
 // ------------------------------------------------------------------------------------------------
 // Raw stage
 
@@ -414,18 +438,7 @@ impl Default for AsgConfig {
 impl RawAsg {
     fn validate(&self) -> Result<AsgConfig, ConfigError> {
         let d = AsgConfig::default().fit;
-        let int = |key: &'static str,
-                   v: Option<usize>,
-                   default: usize,
-                   range: std::ops::RangeInclusive<usize>| match v {
-            None => Ok(default),
-            Some(n) if range.contains(&n) => Ok(n),
-            Some(n) => Err(invalid(
-                key,
-                n,
-                format!("must be {}..={}", range.start(), range.end()),
-            )),
-        };
+        let int = |key, v, default, range| integer_in(key, v, default, range, "");
         let real =
             |key: &'static str, v: Option<f64>, default: f64, positive: bool, max: f64| match v {
                 None => Ok(default),
@@ -444,17 +457,13 @@ impl RawAsg {
                     },
                 )),
             };
-        let fit_height = match self.fit_height {
-            None => d.height,
-            Some(h) if (4..=1024).contains(&h) => h,
-            Some(h) => {
-                return Err(invalid(
-                    "asg.fit_height",
-                    h,
-                    "must be 4..=1024 (the fit map is 2·fit_height wide)",
-                ))
-            }
-        };
+        let fit_height = integer_in(
+            "asg.fit_height",
+            self.fit_height,
+            d.height,
+            4..=1024,
+            " (the fit map is 2·fit_height wide)",
+        )?;
         let fit = crate::asg::fit::FitSettings {
             lobes: int(
                 "asg.lobes",
@@ -607,11 +616,7 @@ pub struct RenderConfig {
 impl RawRender {
     fn validate(&self) -> Result<RenderConfig, ConfigError> {
         let d = RenderConfig::default();
-        let size = |key: &'static str, v: Option<u32>, default: u32, max: u32| match v {
-            None => Ok(default),
-            Some(n) if (1..=max).contains(&n) => Ok(n),
-            Some(n) => Err(invalid(key, n, format!("must be 1..={max}"))),
-        };
+        let size = |key, v, default, max| integer_in(key, v, default, 1..=max, "");
         let settings = crate::render::RenderSettings {
             width: size("render.width", self.width, d.settings.width, 8192)?,
             height: size("render.height", self.height, d.settings.height, 8192)?,
@@ -719,14 +724,13 @@ fn listen_address(
 
 impl RawPipeline {
     fn validate(&self) -> Result<PipelineConfig, ConfigError> {
-        let queue_capacity = self.queue_capacity.unwrap_or(2);
-        if !(1..=64).contains(&queue_capacity) {
-            return Err(invalid(
-                "pipeline.queue_capacity",
-                queue_capacity,
-                "must be 1..=64 frames",
-            ));
-        }
+        let queue_capacity = integer_in(
+            "pipeline.queue_capacity",
+            self.queue_capacity,
+            2,
+            1..=64,
+            " frames",
+        )?;
         Ok(PipelineConfig { queue_capacity })
     }
 }
@@ -757,14 +761,13 @@ impl RawStream {
                 "must be permission bits, 0o000..=0o777 (write it as 0o666)",
             ));
         }
-        let max_clients = self.max_clients.unwrap_or(d.max_clients);
-        if !(1..=100_000).contains(&max_clients) {
-            return Err(invalid(
-                "stream.max_clients",
-                max_clients,
-                "must be 1..=100000",
-            ));
-        }
+        let max_clients = integer_in(
+            "stream.max_clients",
+            self.max_clients,
+            d.max_clients,
+            1..=100_000,
+            "",
+        )?;
         let send_buffer_bytes = match self.send_buffer_bytes {
             None => d.send_buffer_bytes,
             Some(0) => None,
@@ -789,14 +792,13 @@ impl RawStream {
                      Unix-socket and TCP clients) or \"thread\" (an envlight-fanout thread does)",
                 )),
             };
-        let pass_threads = self.pass_threads.unwrap_or(d.pass_threads);
-        if !(1..=16).contains(&pass_threads) {
-            return Err(invalid(
-                "stream.pass_threads",
-                pass_threads,
-                "must be 1..=16 (threads that write each light list to the clients)",
-            ));
-        }
+        let pass_threads = integer_in(
+            "stream.pass_threads",
+            self.pass_threads,
+            d.pass_threads,
+            1..=16,
+            " (threads that write each light list to the clients)",
+        )?;
         Ok(ServerConfig {
             send_buffer_bytes,
             fanout_on,
@@ -840,14 +842,13 @@ impl RawMetrics {
 impl RawDaemon {
     fn validate(&self) -> Result<DaemonConfig, ConfigError> {
         let d = DaemonConfig::default();
-        let serve_threads = self.serve_threads.unwrap_or(d.serve_threads);
-        if !(1..=64).contains(&serve_threads) {
-            return Err(invalid(
-                "daemon.serve_threads",
-                serve_threads,
-                "must be 1..=64",
-            ));
-        }
+        let serve_threads = integer_in(
+            "daemon.serve_threads",
+            self.serve_threads,
+            d.serve_threads,
+            1..=64,
+            "",
+        )?;
         Ok(DaemonConfig {
             shutdown_grace: seconds(
                 "daemon.shutdown_grace_s",
@@ -1284,6 +1285,62 @@ mod tests {
         assert!(e.contains("nonsense"), "{e}");
         let e = error("[source.fisheye]\nfocal = 3.0\n");
         assert!(e.contains("focal"), "{e}");
+    }
+
+    #[test]
+    fn integer_keys_out_of_range_name_the_key_the_value_and_the_range() {
+        for (text, expected) in [
+            (
+                "[pipeline]\nqueue_capacity = 0",
+                "pipeline.queue_capacity = 0: must be 1..=64 frames",
+            ),
+            (
+                "[pipeline]\nqueue_capacity = 65",
+                "pipeline.queue_capacity = 65: must be 1..=64 frames",
+            ),
+            (
+                "[stream]\nmax_clients = 100001",
+                "stream.max_clients = 100001: must be 1..=100000",
+            ),
+            (
+                "[stream]\npass_threads = 17",
+                "stream.pass_threads = 17: must be 1..=16 (threads",
+            ),
+            (
+                "[daemon]\nserve_threads = 0",
+                "daemon.serve_threads = 0: must be 1..=64",
+            ),
+            ("[render]\nwidth = 0", "render.width = 0: must be 1..=8192"),
+            (
+                "[render]\nshadow_resolution = 8193",
+                "render.shadow_resolution = 8193: must be 1..=8192",
+            ),
+            (
+                "[asg]\nfit_height = 1025",
+                "asg.fit_height = 1025: must be 4..=1024 (the fit map",
+            ),
+            (
+                "[asg]\niterations = 10000001",
+                "asg.iterations = 10000001: must be 0..=10000000",
+            ),
+            (
+                "[camera]\nheight = 16385",
+                "camera.height = 16385: must be 1..=16384 pixels",
+            ),
+        ] {
+            let e = error(text);
+            assert!(e.contains(expected), "{text}: {e}");
+        }
+        // The ends of each range are accepted.
+        for text in [
+            "[pipeline]\nqueue_capacity = 64",
+            "[stream]\npass_threads = 16",
+            "[daemon]\nserve_threads = 1",
+            "[asg]\nfit_height = 4",
+            "[camera]\nwidth = 16384",
+        ] {
+            parse(text).expect(text);
+        }
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! `[camera]`: the V4L2 camera (used when `source.kind = "v4l2"`), raw → validated
 //! [`CameraSettings`]. Every key is optional; errors name the key and the value.
 
-use super::{check_finite, invalid, ConfigError};
+use super::{check_finite, integer_in, invalid, ConfigError};
 use crate::capture::bracket::MergeLimits;
 use crate::capture::pixel_format::{PixelFormat, YuvMatrix};
 use crate::capture::resilient::RetryPolicy;
@@ -85,13 +85,8 @@ impl RawCamera {
                 })
                 .collect::<Result<_, _>>()?,
         };
-        let width = self.width.unwrap_or(d.width);
-        let height = self.height.unwrap_or(d.height);
-        for (key, v) in [("camera.width", width), ("camera.height", height)] {
-            if !(1..=16384).contains(&v) {
-                return Err(invalid(key, v, "must be 1..=16384 pixels"));
-            }
-        }
+        let width = integer_in("camera.width", self.width, d.width, 1..=16384, " pixels")?;
+        let height = integer_in("camera.height", self.height, d.height, 1..=16384, " pixels")?;
         let fps = self.fps.map(|f| positive("camera.fps", f)).transpose()?;
         let yuv_matrix = match self.yuv_matrix.as_deref().unwrap_or("auto") {
             "auto" => YuvMatrix::Auto,
