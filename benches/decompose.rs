@@ -26,6 +26,10 @@
 //!   of a frame and what grouping the bright lights' windows costs.
 //! - `distribution/new_256x128`: `PiecewiseConstant2d::new` on 256×128 luminance × solid-angle
 //!   weights (the default working-map size).
+//! - `solid_angles/{equidistant,equisolid,stereographic,orthographic,angular,latlong}_1280x960`:
+//!   the exact per-pixel solid angles of a 1280×960 camera image under each projection (default
+//!   calibration). Computed once per geometry and cached, so this is a start-up (and
+//!   calibration-change) cost, not a per-frame one.
 //!
 //! Run with `cargo bench --bench decompose`; quote the medians.
 
@@ -35,7 +39,7 @@ use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{
     BrightHistory, DecomposeSettings, Decomposer, FirFilter, PiecewiseConstant2d,
 };
-use envlight::envmap::Projection;
+use envlight::envmap::{FisheyeCalibration, FisheyeModel, Projection};
 use envlight::frame::luminance;
 use envlight::HdrFrame;
 use std::hint::black_box;
@@ -217,6 +221,27 @@ fn bench_frames(c: &mut Criterion) {
     c.bench_function("distribution/new_256x128", |b| {
         b.iter(|| PiecewiseConstant2d::new(black_box(&weights), w, h))
     });
+
+    let mut group = c.benchmark_group("solid_angles");
+    let projections = FisheyeModel::ALL
+        .into_iter()
+        .map(|model| {
+            let calibration = FisheyeCalibration {
+                model,
+                ..Default::default()
+            };
+            (model.name(), Projection::Fisheye(calibration))
+        })
+        .chain([
+            ("angular", Projection::AngularMap),
+            ("latlong", Projection::LatLong),
+        ]);
+    for (name, projection) in projections {
+        group.bench_function(format!("{name}_1280x960"), |b| {
+            b.iter(|| black_box(&projection).solid_angles(1280, 960))
+        });
+    }
+    group.finish();
 }
 
 criterion_group! {

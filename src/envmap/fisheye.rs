@@ -1384,29 +1384,4 @@ mod tests {
             Ok(())
         );
     }
-
-    /// Not a benchmark (DESIGN.md: speed is measured with criterion); prints the time of one
-    /// 1280×960 geometry. Run with `cargo test --lib envmap -- --ignored --nocapture`.
-    #[test]
-    #[ignore]
-    fn solid_angles_time_1280x960() {
-        for model in MODELS {
-            let c = FisheyeCalibration {
-                model,
-                ..Default::default()
-            };
-            let start = std::time::Instant::now();
-            let omega = c.solid_angles(1280, 960);
-            let dt = start.elapsed();
-            let total: f64 = omega.iter().sum();
-            eprintln!("{model:?}: {dt:?}, total error {:e}", relative(total, TAU));
-        }
-        let start = std::time::Instant::now();
-        let total: f64 = angular_solid_angles(1280, 960).iter().sum();
-        eprintln!(
-            "angular: {:?}, total error {:e}",
-            start.elapsed(),
-            relative(total, 4.0 * PI)
-        );
-    }
 }
