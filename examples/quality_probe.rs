@@ -128,6 +128,12 @@ struct Opts {
     /// n/D extra pieces (one at a time to the light of the largest energy per piece), none
     /// removed (0: off).
     split_budget: usize,
+    /// `spd=1`: an adaptive budget: the split rule (`sp=K`) run on an n-light decomposition
+    /// counts the extra pieces E it wants; then the decomposition into n − E lights (a prefix of
+    /// the point set) and E extra pieces as with `spb`, none removed.
+    split_adaptive: bool,
+    /// The budget of `spd=1`'s second pass (set internally).
+    split_budget_abs: usize,
 }
 
 impl Default for Opts {
@@ -167,6 +173,8 @@ impl Default for Opts {
             split_fine_only: false,
             split_merge_whole: false,
             split_budget: 0,
+            split_adaptive: false,
+            split_budget_abs: 0,
         }
     }
 }
@@ -221,8 +229,22 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
             vec![],
         );
     }
+    if o.split_adaptive {
+        let first = Opts {
+            split_adaptive: false,
+            ..o.clone()
+        };
+        let _ = decompose_full(frame, n, &first);
+        let extra = LAST_EXTRA.load(std::sync::atomic::Ordering::Relaxed);
+        let second = Opts {
+            split_adaptive: false,
+            split_budget_abs: extra,
+            ..o.clone()
+        };
+        return decompose_full(frame, n, &second);
+    }
     let requested = n;
-    let n = n - n.checked_div(o.split_budget).unwrap_or(0);
+    let n = n - n.checked_div(o.split_budget).unwrap_or(0) - o.split_budget_abs.min(n - 1);
     let mut rs = Resampler::new(Projection::LatLong, frame.width, frame.height, o.width);
     let map = rs.resample(frame, o.conc / n as f64).clone();
     let (w, h) = (map.width, map.height);
@@ -646,7 +668,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
         );
     }
     if o.split > 0.0 || o.split_budget > 0 {
-        let budget = (o.split_budget > 0).then_some(requested - n);
+        let budget = (o.split_budget > 0 || o.split_budget_abs > 0).then_some(requested - n);
         lights = split_heavy(&pixels, &mut assign, nwork, n, budget, o);
     }
     lights.extend(extra);
@@ -657,6 +679,9 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
 /// pixels unless `spa=1`) split into up to ceil(E / (sp·mean)) pieces by weighted k-means on
 /// their region's pixels; as many of the weakest other lights give their regions to the
 /// nearest remaining lights, so the count stays n.
+/// The extra pieces the last `split_heavy` made (for `spd=1`'s first pass).
+static LAST_EXTRA: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 fn split_heavy(
     pixels: &[Px],
     assign: &mut [usize],
@@ -706,6 +731,7 @@ fn split_heavy(
             }
         }
     }
+    LAST_EXTRA.store(extra, std::sync::atomic::Ordering::Relaxed);
     if std::env::var("SPSTAT").is_ok() {
         eprintln!(
             "SPSTAT n={n} split {} lights into {} extra; largest share {:.4}",
@@ -997,6 +1023,7 @@ fn parse(args: &[String]) -> Result<Vec<(String, Opts)>> {
                 "spa" => o.split_all = v == "1",
                 "spw" => o.split_fine_only = v == "1",
                 "spr" => o.split_merge_whole = v == "1",
+                "spd" => o.split_adaptive = v == "1",
                 "spb" => {
                     o.split_budget = v.parse().with_context(|| format!("{kv}: not a number"))?
                 }
