@@ -29,7 +29,8 @@
 //! - `solid_angles/{equidistant,equisolid,stereographic,orthographic,angular,latlong}_1280x960`:
 //!   the exact per-pixel solid angles of a 1280×960 camera image under each projection (default
 //!   calibration). Computed once per geometry and cached, so this is a start-up (and
-//!   calibration-change) cost, not a per-frame one.
+//!   calibration-change) cost, not a per-frame one. The fisheye and angular cases run on
+//!   rayon's threads (all cores; `RAYON_NUM_THREADS=1` for one).
 //!
 //! Run with `cargo bench --bench decompose`; quote the medians.
 
