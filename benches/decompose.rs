@@ -31,6 +31,10 @@
 //!   calibration). Computed once per geometry and cached, so this is a start-up (and
 //!   calibration-change) cost, not a per-frame one. The fisheye and angular cases run on
 //!   rayon's threads (all cores; `RAYON_NUM_THREADS=1` for one).
+//! - `first_frame/fisheye_1280x960`: a new `Decomposer` (default settings) and its first frame,
+//!   rooitou_park seen by a 1280×960 equidistant fisheye (default calibration): what a camera's
+//!   first frame, or the first after a calibration change, costs with the per-geometry tables
+//!   (solid angles on rayon's threads, the resampling plan on the calling one) built.
 //!
 //! Run with `cargo bench --bench decompose`; quote the medians.
 
@@ -118,6 +122,29 @@ fn read_frame(frame: &HdrFrame) -> f32 {
         }
     }
     sums.iter().sum::<f32>() + tail
+}
+
+/// The upper hemisphere of a lat-long `frame` as a `w`×`h` equidistant fisheye (default
+/// calibration) would see it: each pixel takes the nearest lat-long pixel; 0 outside the circle.
+fn fisheye_view(frame: &HdrFrame, w: u32, h: u32) -> HdrFrame {
+    let projection = Projection::Fisheye(FisheyeCalibration::default());
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let d = projection.pixel_to_direction(w, h, f64::from(x) + 0.5, f64::from(y) + 0.5);
+            let p = d
+                .and_then(|d| Projection::LatLong.direction_to_pixel(frame.width, frame.height, d));
+            pixels.push(match p {
+                Some((px, py)) => {
+                    let ix = (px as u32).min(frame.width - 1);
+                    let iy = (py as u32).min(frame.height - 1);
+                    frame.pixels[(iy * frame.width + ix) as usize]
+                }
+                None => [0.0; 3],
+            });
+        }
+    }
+    HdrFrame::new(w, h, pixels, projection).expect("valid size")
 }
 
 fn bench_frames(c: &mut Criterion) {
@@ -222,6 +249,17 @@ fn bench_frames(c: &mut Criterion) {
     c.bench_function("distribution/new_256x128", |b| {
         b.iter(|| PiecewiseConstant2d::new(black_box(&weights), w, h))
     });
+
+    let fisheye = fisheye_view(full, 1280, 960);
+    let mut group = c.benchmark_group("first_frame");
+    group.sample_size(10);
+    group.bench_function("fisheye_1280x960", |b| {
+        b.iter(|| {
+            let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
+            decomposer.decompose(black_box(&fisheye))
+        })
+    });
+    group.finish();
 
     let mut group = c.benchmark_group("solid_angles");
     let projections = FisheyeModel::ALL

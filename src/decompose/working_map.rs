@@ -17,6 +17,7 @@
 
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
+use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// One input pixel of a concentrated working pixel.
@@ -224,32 +225,36 @@ impl Resampler {
     fn table_plan(projection: Projection, sw: u32, sh: u32, width: usize, height: usize) -> Plan {
         let omegas = projection.solid_angles(sw, sh);
         let n = sw as usize * sh as usize;
-        let mut target = Vec::with_capacity(n);
-        let mut solid_angle = Vec::with_capacity(n);
-        let mut direction = Vec::with_capacity(n);
-        for y in 0..sh {
-            for x in 0..sw {
-                let omega = omegas[target.len()];
-                let dir = projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
-                let px = dir.and_then(|d| {
-                    Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
-                });
-                match (px, dir) {
-                    (Some((px, py)), Some(d)) if omega > 0.0 => {
-                        let ix = (px as usize).min(width - 1);
-                        let iy = (py as usize).min(height - 1);
-                        target.push((iy * width + ix) as u32);
-                        solid_angle.push(omega as f32);
-                        direction.push(d.as_vec3().to_array());
-                    }
-                    _ => {
-                        target.push(u32::MAX);
-                        solid_angle.push(0.0);
-                        direction.push([0.0; 3]);
+        let mut target = vec![u32::MAX; n];
+        let mut solid_angle = vec![0.0f32; n];
+        let mut direction = vec![[0.0f32; 3]; n];
+        // Rows in parallel on rayon's threads (a once-per-geometry cost; each pixel's entry is
+        // the same whatever the number of threads).
+        let row = sw as usize;
+        target
+            .par_chunks_mut(row)
+            .zip(solid_angle.par_chunks_mut(row))
+            .zip(direction.par_chunks_mut(row))
+            .zip(omegas.par_chunks(row))
+            .enumerate()
+            .for_each(|(y, (((target, solid_angle), direction), omegas))| {
+                for x in 0..row {
+                    let omega = omegas[x];
+                    let dir = projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
+                    let px = dir.and_then(|d| {
+                        Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
+                    });
+                    if let (Some((px, py)), Some(d)) = (px, dir) {
+                        if omega > 0.0 {
+                            let ix = (px as usize).min(width - 1);
+                            let iy = (py as usize).min(height - 1);
+                            target[x] = (iy * width + ix) as u32;
+                            solid_angle[x] = omega as f32;
+                            direction[x] = d.as_vec3().to_array();
+                        }
                     }
                 }
-            }
-        }
+            });
         // Working pixel → its input pixels (compressed rows).
         let mut counts = vec![0u32; width * height + 1];
         for &t in target.iter().filter(|&&t| t != u32::MAX) {
