@@ -31,6 +31,9 @@
 //!   calibration). Computed once per geometry and cached, so this is a start-up (and
 //!   calibration-change) cost, not a per-frame one. The fisheye and angular cases run on
 //!   rayon's threads (all cores; `RAYON_NUM_THREADS=1` for one).
+//! - `frame/fisheye_256/1280x960`: default settings on rooitou_park's upper hemisphere seen by a
+//!   1280×960 equidistant fisheye (a camera's frames; the resampling goes through the
+//!   per-geometry table instead of the lat-long box filter), one `Decomposer` reused.
 //! - `first_frame/fisheye_1280x960`: a new `Decomposer` (default settings) and its first frame,
 //!   rooitou_park seen by a 1280×960 equidistant fisheye (default calibration): what a camera's
 //!   first frame, or the first after a calibration change, costs with the per-geometry tables
@@ -251,6 +254,13 @@ fn bench_frames(c: &mut Criterion) {
     });
 
     let fisheye = fisheye_view(full, 1280, 960);
+    let mut group = c.benchmark_group("frame");
+    let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
+    group.bench_function("fisheye_256/1280x960", |b| {
+        b.iter(|| decomposer.decompose(black_box(&fisheye)))
+    });
+    group.finish();
+
     let mut group = c.benchmark_group("first_frame");
     group.sample_size(10);
     group.bench_function("fisheye_1280x960", |b| {
