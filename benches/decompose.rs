@@ -127,29 +127,6 @@ fn read_frame(frame: &HdrFrame) -> f32 {
     sums.iter().sum::<f32>() + tail
 }
 
-/// The upper hemisphere of a lat-long `frame` as a `w`×`h` equidistant fisheye (default
-/// calibration) would see it: each pixel takes the nearest lat-long pixel; 0 outside the circle.
-fn fisheye_view(frame: &HdrFrame, w: u32, h: u32) -> HdrFrame {
-    let projection = Projection::Fisheye(FisheyeCalibration::default());
-    let mut pixels = Vec::with_capacity((w * h) as usize);
-    for y in 0..h {
-        for x in 0..w {
-            let d = projection.pixel_to_direction(w, h, f64::from(x) + 0.5, f64::from(y) + 0.5);
-            let p = d
-                .and_then(|d| Projection::LatLong.direction_to_pixel(frame.width, frame.height, d));
-            pixels.push(match p {
-                Some((px, py)) => {
-                    let ix = (px as u32).min(frame.width - 1);
-                    let iy = (py as u32).min(frame.height - 1);
-                    frame.pixels[(iy * frame.width + ix) as usize]
-                }
-                None => [0.0; 3],
-            });
-        }
-    }
-    HdrFrame::new(w, h, pixels, projection).expect("valid size")
-}
-
 fn bench_frames(c: &mut Criterion) {
     let full = rooitou();
     let frames = [
@@ -253,7 +230,13 @@ fn bench_frames(c: &mut Criterion) {
         b.iter(|| PiecewiseConstant2d::new(black_box(&weights), w, h))
     });
 
-    let fisheye = fisheye_view(full, 1280, 960);
+    let fisheye = full
+        .reprojected(
+            Projection::Fisheye(FisheyeCalibration::default()),
+            1280,
+            960,
+        )
+        .expect("a valid size");
     let mut group = c.benchmark_group("frame");
     let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
     group.bench_function("fisheye_256/1280x960", |b| {

@@ -4,11 +4,13 @@
 //! cargo run --release --example profile_decompose -- tests/data/rooitou_park_1k.hdr 2000
 //! cargo run --release --example profile_decompose -- sky 3000 128
 //! cargo run --release --example profile_decompose -- turn:tests/data/rooitou_park_1k.hdr 2000 - no-reuse
+//! cargo run --release --example profile_decompose -- fisheye:tests/data/rooitou_park_1k.hdr 2000
 //! cargo run --release --example profile_decompose -- tests/data/st_peters_square_night_1k.hdr 2000 - lloyd
 //! ```
 //!
 //! Arguments: the map (an .hdr file; `turn:` before it turns the map about the zenith by a
-//! pixel per frame, 8 frames forwards and back, so every light moves every frame; or `sky` for
+//! pixel per frame, 8 frames forwards and back, so every light moves every frame; `fisheye:`
+//! before that sees the map through a 1280×960 equidistant fisheye, a camera's frames; or `sky` for
 //! one second of the built-in sky at 256×128, 60 frames played forwards and back, as the
 //! streaming bench uses them),
 //! the number of frames, optionally the working width (`-` or nothing: the decomposition's
@@ -25,7 +27,7 @@
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::sky::{render_sky, SkyOptions};
 use envlight::decompose::{BrightHistory, DecomposeSettings, Decomposer};
-use envlight::envmap::Projection;
+use envlight::envmap::{FisheyeCalibration, Projection};
 use envlight::HdrFrame;
 
 fn main() -> anyhow::Result<()> {
@@ -79,13 +81,23 @@ fn main() -> anyhow::Result<()> {
             .map(|k| second[if k < 60 { k } else { 118 - k }].clone())
             .collect()
     } else {
+        let (fisheye, path) = match path.strip_prefix("fisheye:") {
+            Some(path) => (true, path.to_string()),
+            None => (false, path),
+        };
         let (turn, path) = match path.strip_prefix("turn:") {
             Some(path) => (true, path),
             None => (false, path.as_str()),
         };
         let image = read_hdr_image(std::path::Path::new(path))?;
-        let frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
+        let mut frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
             .ok_or_else(|| anyhow::anyhow!("empty image"))?;
+        if fisheye {
+            let camera = Projection::Fisheye(FisheyeCalibration::default());
+            frame = frame
+                .reprojected(camera, 1280, 960)
+                .ok_or_else(|| anyhow::anyhow!("empty image"))?;
+        }
         if turn {
             // 0, 1, …, 7, 6, …, 1 pixels: one pixel per frame, every frame.
             (0..14usize)

@@ -102,6 +102,41 @@ impl HdrFrame {
         }
     }
 
+    /// What a `width`×`height` image in `projection` sees of this frame: each pixel takes the
+    /// pixel of `self` its centre's direction falls in (nearest sample, no filtering); pixels
+    /// with no direction (outside a fisheye's image circle) and directions `self` does not cover
+    /// are 0. Time and sequence number are kept. For tests, benchmarks and tools that need a
+    /// camera's view of a lat-long map; `None` for an empty size.
+    pub fn reprojected(&self, projection: Projection, width: u32, height: u32) -> Option<HdrFrame> {
+        let mut pixels = Vec::with_capacity(width as usize * height as usize);
+        for y in 0..height {
+            for x in 0..width {
+                let centre = (f64::from(x) + 0.5, f64::from(y) + 0.5);
+                let source = projection
+                    .pixel_to_direction(width, height, centre.0, centre.1)
+                    .and_then(|d| {
+                        self.projection
+                            .direction_to_pixel(self.width, self.height, d)
+                    });
+                pixels.push(match source {
+                    Some((sx, sy)) if sx >= 0.0 && sy >= 0.0 => {
+                        let sx = (sx as u32).min(self.width.saturating_sub(1));
+                        let sy = (sy as u32).min(self.height.saturating_sub(1));
+                        self.pixels
+                            .get(sy as usize * self.width as usize + sx as usize)
+                            .copied()
+                            .unwrap_or([0.0; 3])
+                    }
+                    _ => [0.0; 3],
+                });
+            }
+        }
+        let mut frame = HdrFrame::new(width, height, pixels, projection)?;
+        frame.time = self.time;
+        frame.seq = self.seq;
+        Some(frame)
+    }
+
     /// Replaces NaN, ±Inf and negative channel values by 0 and returns how many pixels had one.
     /// Radiance is non-negative and finite; callers report the count (one warning per frame).
     pub fn sanitize(&mut self) -> usize {
@@ -123,6 +158,39 @@ impl HdrFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reprojected_sees_the_same_sky() {
+        // A lat-long sky of radiance 1 above the horizon, 0 below, with a marked pixel.
+        let (w, h) = (64u32, 32u32);
+        let mut pixels: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| if i / w < h / 2 { [1.0; 3] } else { [0.0; 3] })
+            .collect();
+        pixels[5 * w as usize + 9] = [7.0, 0.0, 0.0];
+        let mut sky = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
+        sky.seq = 3;
+        // Onto itself: the same frame.
+        assert_eq!(sky.reprojected(Projection::LatLong, w, h).unwrap(), sky);
+        // Through a hemispherical fisheye: the sky's integral, 2π less the marked pixel's
+        // share, to the nearest-sample error at the rim; nothing outside the image circle.
+        let fisheye = Projection::Fisheye(crate::envmap::FisheyeCalibration::default());
+        let seen = sky.reprojected(fisheye, 200, 160).unwrap();
+        assert_eq!((seen.seq, seen.projection), (3, fisheye));
+        let omega = fisheye.solid_angles(200, 160);
+        let green: f64 = seen
+            .pixels
+            .iter()
+            .zip(&omega)
+            .map(|(p, o)| f64::from(p[1]) * o)
+            .sum();
+        assert!(
+            (green / std::f64::consts::TAU - 1.0).abs() < 0.01,
+            "{green}"
+        );
+        assert!(seen.pixels.iter().any(|p| p[0] == 7.0));
+        assert_eq!(seen.pixel(0, 0), [0.0; 3]);
+        assert!(sky.reprojected(fisheye, 0, 10).is_none());
+    }
 
     #[test]
     fn turned_columns_rotates_every_row() {
