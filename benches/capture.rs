@@ -1,11 +1,13 @@
-//! Benchmarks of the camera conversions (single-threaded), per 1280×960 frame, and of reading
-//! recorded frame files:
+//! Benchmarks of the camera conversions (on one thread unless the name says `pool2`), per
+//! 1280×960 frame, and of reading recorded frame files:
 //!
 //! - `decode/{y16,yuyv,mjpeg}`: raw buffer → normalised code values
 //!   ([`pixel_format::decode_into`], output image reused as in the capture loop);
 //! - `radiance/{y16,yuyv,mjpeg}`: the same plus linearisation to radiance ([`Linearizer`]:
 //!   linear response for Y16, sRGB for YUYV and MJPEG), i.e. the whole conversion cost of a
 //!   frame;
+//! - `radiance_pool2/…`: the same in bands of rows on a pool of two threads, as the camera
+//!   source converts with `camera.convert_threads = 2` (the default);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `read/…`: reading a recorded frame file into linear RGB ([`read_hdr_image`]: the file
@@ -141,6 +143,10 @@ fn bench_capture(c: &mut Criterion) {
         ..Radiometry::default()
     };
     let mut group = c.benchmark_group("capture");
+    let pool2 = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("a pool of two threads");
     for (name, format, data) in &buffers {
         let raw = RawFrame {
             data,
@@ -171,6 +177,18 @@ fn bench_capture(c: &mut Criterion) {
                 pixel_format::decode_into(black_box(&raw), YuvMatrix::Bt709, &mut codes)
                     .unwrap_or_else(|e| panic!("{e}"));
                 lin.linearize(&codes)
+            })
+        });
+        group.bench_function(format!("radiance_pool2/{name}_1280x960"), |b| {
+            b.iter(|| {
+                pixel_format::decode_into_on(
+                    black_box(&raw),
+                    YuvMatrix::Bt709,
+                    &mut codes,
+                    Some(&pool2),
+                )
+                .unwrap_or_else(|e| panic!("{e}"));
+                lin.linearize_on(&codes, Some(&pool2))
             })
         });
         let mut out = Vec::new();

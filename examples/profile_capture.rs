@@ -1,4 +1,4 @@
-//! Per-frame cost of the camera conversions as *thread CPU time*, for a busy machine where
+//! Per-frame cost of the camera conversions as *CPU time*, for a busy machine where
 //! criterion's wall-clock medians are inflated by other processes (docs/performance.md).
 //!
 //! ```text
@@ -6,8 +6,10 @@
 //! ```
 //!
 //! For each format a 1280×960 buffer of rooitou_park (as in `benches/capture.rs`) is converted to
-//! radiance `N` times; the thread's user + system time comes from `/proc/thread-self/stat`
-//! (clock ticks, 10 ms), so N should make each run last a second or more.
+//! radiance `N` times; the process's user + system time comes from `/proc/self/stat` (clock
+//! ticks, 10 ms), so N should make each run last a second or more. It counts every thread: the
+//! conversions run in bands of rows on rayon's pool (`RAYON_NUM_THREADS=1` for one thread), and
+//! an idle pool thread's brief spinning is counted too.
 
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::pixel_format::{self, BayerPattern, CodeImage, PixelFormat, RawFrame};
@@ -17,9 +19,9 @@ use std::time::Instant;
 const W: u32 = 1280;
 const H: u32 = 960;
 
-/// This thread's user + system CPU time in seconds (Linux).
-fn thread_cpu_s() -> f64 {
-    let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
+/// This process's user + system CPU time in seconds, all threads (Linux).
+fn process_cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     // fields after the parenthesised command name; utime and stime are fields 14 and 15
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
     let f: Vec<f64> = rest
@@ -112,18 +114,18 @@ fn main() -> anyhow::Result<()> {
             height: 0,
             pixels: Vec::new(),
         };
-        let c0 = thread_cpu_s();
+        let c0 = process_cpu_s();
         for _ in 0..n {
             pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
         }
-        let decode = (thread_cpu_s() - c0) / n as f64;
-        let (c0, t0) = (thread_cpu_s(), Instant::now());
+        let decode = (process_cpu_s() - c0) / n as f64;
+        let (c0, t0) = (process_cpu_s(), Instant::now());
         let mut sum = 0.0f32;
         for _ in 0..n {
             pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
             sum += lin.linearize(&codes)[0][0];
         }
-        let total = (thread_cpu_s() - c0) / n as f64;
+        let total = (process_cpu_s() - c0) / n as f64;
         let wall = t0.elapsed().as_secs_f64() / n as f64;
         std::hint::black_box(sum);
         println!(

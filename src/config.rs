@@ -1327,6 +1327,10 @@ mod tests {
                 "[camera]\nheight = 16385",
                 "camera.height = 16385: must be 1..=16384 pixels",
             ),
+            (
+                "[camera]\nconvert_threads = 0",
+                "camera.convert_threads = 0: must be 1..=64 (threads",
+            ),
         ] {
             let e = error(text);
             assert!(e.contains(expected), "{text}: {e}");

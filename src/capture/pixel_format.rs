@@ -34,6 +34,7 @@
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
 //! odd width for YUYV or Bayer, or a corrupt JPEG is a [`PixelError`], never a panic.
 
+use rayon::prelude::*;
 use std::fmt;
 
 /// Bayer colour-filter layout: the colours of the top-left 2×2 block, row by row.
@@ -354,6 +355,17 @@ pub fn decode_into(
     matrix: YuvMatrix,
     out: &mut CodeImage,
 ) -> Result<(), PixelError> {
+    decode_into_on(raw, matrix, out, None)
+}
+
+/// [`decode_into`] with bands of rows in parallel on `pool` (`None`: on the calling thread).
+/// Every pixel is converted by itself, so the result is the same to the bit either way.
+pub fn decode_into_on(
+    raw: &RawFrame<'_>,
+    matrix: YuvMatrix,
+    out: &mut CodeImage,
+    pool: Option<&rayon::ThreadPool>,
+) -> Result<(), PixelError> {
     let (format, w, h) = (raw.format, raw.width, raw.height);
     let geometry = |message: &str| PixelError::Geometry {
         format,
@@ -365,7 +377,7 @@ pub fn decode_into(
         return Err(geometry("frame size must be 1 to 16384² pixels"));
     }
     if format == PixelFormat::Mjpeg {
-        return decode_jpeg(raw.data, w, h, out);
+        return decode_jpeg(raw.data, w, h, out, pool);
     }
     if matches!(format, PixelFormat::Yuyv | PixelFormat::Bayer { .. }) && w % 2 != 0 {
         return Err(geometry("width must be even"));
@@ -399,16 +411,18 @@ pub fn decode_into(
     let (wu, hu) = (w as usize, h as usize);
     out.width = w;
     out.height = h;
-    out.pixels.clear();
-    out.pixels.resize(wu * hu, [0.0; 3]);
+    // Every pixel is written below: a buffer of the right size is reused as it is.
+    if out.pixels.len() != wu * hu {
+        out.pixels.clear();
+        out.pixels.resize(wu * hu, [0.0; 3]);
+    }
     let rows = |y: usize| &raw.data[y * stride..y * stride + row_bytes];
     match format {
         PixelFormat::Yuyv => {
             let (kr, kb) = matrix.resolve(w, h).coefficients();
             let (rv, bu) = (2.0 * (1.0 - kr), 2.0 * (1.0 - kb));
             let kg = 1.0 / (1.0 - kr - kb);
-            for y in 0..hu {
-                let dst = &mut out.pixels[y * wu..(y + 1) * wu];
+            each_row(pool, &mut out.pixels, wu, |y, dst| {
                 for (quad, pair) in rows(y).chunks_exact(4).zip(dst.chunks_exact_mut(2)) {
                     let u = (f32::from(quad[1]) - 128.0) / 224.0;
                     let v = (f32::from(quad[3]) - 128.0) / 224.0;
@@ -420,7 +434,7 @@ pub fn decode_into(
                         pair[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
                     }
                 }
-            }
+            });
         }
         PixelFormat::Rgb24 | PixelFormat::Bgr24 => {
             let (ri, bi) = if format == PixelFormat::Rgb24 {
@@ -428,8 +442,7 @@ pub fn decode_into(
             } else {
                 (2, 0)
             };
-            for y in 0..hu {
-                let dst = &mut out.pixels[y * wu..(y + 1) * wu];
+            each_row(pool, &mut out.pixels, wu, |y, dst| {
                 for (px, d) in rows(y).chunks_exact(3).zip(dst.iter_mut()) {
                     *d = [
                         f32::from(px[ri]) / 255.0,
@@ -437,13 +450,12 @@ pub fn decode_into(
                         f32::from(px[bi]) / 255.0,
                     ];
                 }
-            }
+            });
         }
         PixelFormat::Grey { .. } => {
             let max = format.code_max();
             let inv = 1.0 / max;
-            for y in 0..hu {
-                let dst = &mut out.pixels[y * wu..(y + 1) * wu];
+            each_row(pool, &mut out.pixels, wu, |y, dst| {
                 if format.bytes_per_pixel() == 1 {
                     for (&b, d) in rows(y).iter().zip(dst.iter_mut()) {
                         *d = [f32::from(b) * inv; 3];
@@ -454,14 +466,13 @@ pub fn decode_into(
                         *d = [v; 3];
                     }
                 }
-            }
+            });
         }
         PixelFormat::Bayer { pattern, .. } => {
             let max = format.code_max();
             let inv = 1.0 / max;
             let mut mosaic = vec![0.0f32; wu * hu];
-            for y in 0..hu {
-                let dst = &mut mosaic[y * wu..(y + 1) * wu];
+            each_row(pool, &mut mosaic, wu, |y, dst| {
                 if format.bytes_per_pixel() == 1 {
                     for (&b, d) in rows(y).iter().zip(dst.iter_mut()) {
                         *d = f32::from(b) * inv;
@@ -471,8 +482,8 @@ pub fn decode_into(
                         *d = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
                     }
                 }
-            }
-            demosaic_bilinear(&mosaic, wu, hu, pattern, &mut out.pixels);
+            });
+            demosaic_bilinear_on(&mosaic, wu, hu, pattern, &mut out.pixels, pool);
         }
         PixelFormat::Mjpeg => unreachable!("handled above"),
     }
@@ -505,15 +516,27 @@ pub fn demosaic_bilinear(
     pattern: BayerPattern,
     out: &mut [[f32; 3]],
 ) {
+    demosaic_bilinear_on(mosaic, w, h, pattern, out, None);
+}
+
+/// [`demosaic_bilinear`] with bands of rows in parallel on `pool` (`None`: the calling thread).
+fn demosaic_bilinear_on(
+    mosaic: &[f32],
+    w: usize,
+    h: usize,
+    pattern: BayerPattern,
+    out: &mut [[f32; 3]],
+    pool: Option<&rayon::ThreadPool>,
+) {
     if w == 0 || h == 0 || mosaic.len() < w * h || out.len() < w * h {
         return;
     }
     let left: Vec<usize> = (0..w).map(|x| mirror(x as isize - 1, w)).collect();
     let right: Vec<usize> = (0..w).map(|x| mirror(x as isize + 1, w)).collect();
-    for y in 0..h {
+    each_row(pool, &mut out[..w * h], w, |y, out_row| {
         let (up, down) = (mirror(y as isize - 1, h) * w, mirror(y as isize + 1, h) * w);
         let row = y * w;
-        for x in 0..w {
+        for (x, out_px) in out_row.iter_mut().enumerate() {
             let own = pattern.channel(x, y);
             let (l, r) = (left[x], right[x]);
             let m = |i: usize| mosaic[i];
@@ -527,8 +550,38 @@ pub fn demosaic_bilinear(
                 px[horizontal] = 0.5 * (m(row + l) + m(row + r));
                 px[2 - horizontal] = 0.5 * (m(up + x) + m(down + x));
             }
-            out[row + x] = px;
+            *out_px = px;
         }
+    });
+}
+
+/// Input rows per parallel task of the conversions: 32 rows of a 1280-wide frame are 41k pixels.
+const ROWS_PER_TASK: usize = 32;
+
+/// Calls `f(y, row)` for every row (`width` elements) of `image`: in order on the calling
+/// thread without a pool, else in bands of rows on `pool` (the camera source's conversion
+/// threads). Every pixel is converted by itself, so the result does not depend on which.
+fn each_row<T: Send>(
+    pool: Option<&rayon::ThreadPool>,
+    image: &mut [T],
+    width: usize,
+    f: impl Fn(usize, &mut [T]) + Sync,
+) {
+    if width == 0 {
+        return;
+    }
+    match pool {
+        None => image
+            .chunks_exact_mut(width)
+            .enumerate()
+            .for_each(|(y, row)| f(y, row)),
+        Some(pool) => pool.install(|| {
+            image
+                .par_chunks_mut(width)
+                .with_min_len(ROWS_PER_TASK)
+                .enumerate()
+                .for_each(|(y, row)| f(y, row))
+        }),
     }
 }
 
@@ -554,7 +607,13 @@ fn has_huffman_tables(data: &[u8]) -> bool {
     true
 }
 
-fn decode_jpeg(data: &[u8], w: u32, h: u32, out: &mut CodeImage) -> Result<(), PixelError> {
+fn decode_jpeg(
+    data: &[u8],
+    w: u32,
+    h: u32,
+    out: &mut CodeImage,
+    pool: Option<&rayon::ThreadPool>,
+) -> Result<(), PixelError> {
     // A frame without Huffman tables gets an "AVI1" APP0 segment after its SOI, which tells
     // zune-jpeg to use the standard Motion-JPEG tables.
     let patched;
@@ -600,14 +659,22 @@ fn decode_jpeg(data: &[u8], w: u32, h: u32, out: &mut CodeImage) -> Result<(), P
     }
     out.width = w;
     out.height = h;
-    out.pixels.clear();
-    out.pixels.extend(bytes.chunks_exact(3).take(n).map(|p| {
-        [
-            f32::from(p[0]) / 255.0,
-            f32::from(p[1]) / 255.0,
-            f32::from(p[2]) / 255.0,
-        ]
-    }));
+    // Every pixel is written below: a buffer of the right size is reused as it is.
+    if out.pixels.len() != n {
+        out.pixels.clear();
+        out.pixels.resize(n, [0.0; 3]);
+    }
+    let row_bytes = 3 * w as usize;
+    each_row(pool, &mut out.pixels, w as usize, |y, row| {
+        let src = &bytes[y * row_bytes..(y + 1) * row_bytes];
+        for (p, d) in src.chunks_exact(3).zip(row.iter_mut()) {
+            *d = [
+                f32::from(p[0]) / 255.0,
+                f32::from(p[1]) / 255.0,
+                f32::from(p[2]) / 255.0,
+            ];
+        }
+    });
     Ok(())
 }
 
@@ -878,6 +945,62 @@ mod tests {
         // a frame of the wrong size is an error naming both sizes
         let err = decode(&raw(&jpeg, PixelFormat::Mjpeg, 32, 8), YuvMatrix::Auto).unwrap_err();
         assert!(err.to_string().contains("16x8"), "{err}");
+    }
+
+    fn pool(threads: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("a thread pool")
+    }
+
+    /// Rows can be decoded in parallel: the code values must be the same to the bit on the
+    /// calling thread and on a pool, for every format (70×100 frames: several bands of rows).
+    #[test]
+    fn decoding_does_not_depend_on_the_number_of_threads() {
+        let (w, h) = (70u32, 100u32);
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut byte = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 56) as u8
+        };
+        let mut rgb = Vec::new();
+        for _ in 0..w * h * 3 {
+            rgb.push(byte() / 2 + 64);
+        }
+        let mut jpeg = Vec::new();
+        jpeg_encoder::Encoder::new(&mut jpeg, 90)
+            .encode(&rgb, w as u16, h as u16, jpeg_encoder::ColorType::Rgb)
+            .unwrap();
+        for format in PixelFormat::all() {
+            let data: Vec<u8> = if format == PixelFormat::Mjpeg {
+                jpeg.clone()
+            } else {
+                (0..w as usize * h as usize * format.bytes_per_pixel())
+                    .map(|_| byte())
+                    .collect()
+            };
+            let frame = raw(&data, format, w, h);
+            let one = decode(&frame, YuvMatrix::Auto).unwrap();
+            let mut three = CodeImage {
+                width: 0,
+                height: 0,
+                pixels: Vec::new(),
+            };
+            decode_into_on(&frame, YuvMatrix::Auto, &mut three, Some(&pool(3))).unwrap();
+            assert_eq!(one.pixels.len(), (w * h) as usize, "{format}");
+            assert!(
+                one.pixels
+                    .iter()
+                    .flatten()
+                    .zip(three.pixels.iter().flatten())
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{format}"
+            );
+            assert!(one.pixels.iter().flatten().any(|&v| v > 0.0), "{format}");
+        }
     }
 
     #[test]

@@ -30,6 +30,7 @@
 
 use super::pixel_format::CodeImage;
 use super::CaptureError;
+use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -398,26 +399,72 @@ impl Linearizer {
     }
 
     /// [`Self::linearize`] into an existing buffer.
+    pub fn linearize_into(&self, image: &CodeImage, out: &mut Vec<[f32; 3]>) {
+        self.linearize_into_on(image, out, None);
+    }
+
+    /// [`Self::linearize`] with blocks of pixels in parallel on `pool` (`None`: the calling
+    /// thread); each pixel by itself, so the result is the same to the bit either way.
+    pub fn linearize_on(
+        &self,
+        image: &CodeImage,
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Vec<[f32; 3]> {
+        let mut out = Vec::new();
+        self.linearize_into_on(image, &mut out, pool);
+        out
+    }
+
+    /// [`Self::linearize_into`] with blocks of pixels in parallel on `pool` (`None`: the
+    /// calling thread).
     ///
     /// The closures hold the tables as plain references to fixed-size arrays, so the look-ups
     /// need no bounds checks.
-    pub fn linearize_into(&self, image: &CodeImage, out: &mut Vec<[f32; 3]>) {
+    pub fn linearize_into_on(
+        &self,
+        image: &CodeImage,
+        out: &mut Vec<[f32; 3]>,
+        pool: Option<&rayon::ThreadPool>,
+    ) {
+        /// Pixels per parallel task (32 rows of a 1280-wide frame).
+        const PIXELS_PER_TASK: usize = 32 * 1280;
         let [r, g, b] = &self.luts;
         let (r, g, b): (&Lut, &Lut, &Lut) = (r, g, b);
-        out.clear();
-        match &self.shared {
+        let n = image.pixels.len();
+        if out.len() != n {
+            // Every element is written below; a new buffer comes zeroed from the allocator
+            // (fresh pages), a reused one of the right size is not cleared at all.
+            if out.capacity() >= n {
+                out.resize(n, [0.0; 3]);
+            } else {
+                *out = vec![[0.0; 3]; n];
+            }
+        }
+        let convert = |out: &mut [[f32; 3]], codes: &[[f32; 3]]| match &self.shared {
             Some((x, [fr, fg, fb])) => {
                 let (x, fr, fg, fb): (&Lut, f32, f32, f32) = (x, *fr, *fg, *fb);
-                out.extend(image.pixels.iter().map(move |p| {
-                    if p[0] == p[1] && p[1] == p[2] {
+                for (o, p) in out.iter_mut().zip(codes) {
+                    *o = if p[0] == p[1] && p[1] == p[2] {
                         let v = lookup(x, p[0]);
                         [v * fr, v * fg, v * fb]
                     } else {
                         lookup_rgb([r, g, b], *p)
-                    }
-                }));
+                    };
+                }
             }
-            None => out.extend(image.pixels.iter().map(move |p| lookup_rgb([r, g, b], *p))),
+            None => {
+                for (o, p) in out.iter_mut().zip(codes) {
+                    *o = lookup_rgb([r, g, b], *p);
+                }
+            }
+        };
+        match pool {
+            None => convert(out, &image.pixels),
+            Some(pool) => pool.install(|| {
+                out.par_chunks_mut(PIXELS_PER_TASK)
+                    .zip(image.pixels.par_chunks(PIXELS_PER_TASK))
+                    .for_each(|(out, codes)| convert(out, codes))
+            }),
         }
     }
 }
@@ -600,6 +647,67 @@ mod tests {
         assert!(e.to_string().contains("[0, 1]"), "{e}");
         let e = ResponseCurve::read(Path::new("/nonexistent/curve.txt")).unwrap_err();
         assert!(e.to_string().contains("/nonexistent/curve.txt"), "{e}");
+    }
+
+    /// Blocks of pixels can be linearised in parallel: the radiances must be the same to the bit
+    /// on the calling thread and on a pool, grey and colour pixels, with and without the shared
+    /// table.
+    #[test]
+    fn linearizing_does_not_depend_on_the_number_of_threads() {
+        let radiometry = Radiometry {
+            exposure_s: 0.01,
+            gain: 1.0,
+            white_balance: [1.1, 1.0, 0.9],
+            scale: 2.0,
+        };
+        let mut state = 7u64;
+        let mut code = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        // 300 × 400 pixels: several blocks of the parallel split; every fifth pixel grey.
+        let pixels: Vec<[f32; 3]> = (0..300 * 400)
+            .map(|i| {
+                let v = code();
+                if i % 5 == 0 {
+                    [v; 3]
+                } else {
+                    [v, code(), code()]
+                }
+            })
+            .collect();
+        let img = CodeImage {
+            width: 300,
+            height: 400,
+            pixels,
+        };
+        for model in [ResponseModel::Srgb, ResponseModel::Linear] {
+            let lin = Linearizer::new(&model, 4095.0, &radiometry);
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(3)
+                .build()
+                .expect("a thread pool");
+            let (one, three) = (lin.linearize(&img), lin.linearize_on(&img, Some(&pool)));
+            assert_eq!(one.len(), img.pixels.len());
+            assert!(
+                one.iter()
+                    .flatten()
+                    .zip(three.iter().flatten())
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{model:?}"
+            );
+            for (p, o) in img.pixels.iter().zip(&one).step_by(997) {
+                for c in 0..3 {
+                    let want = lin.apply(c, p[c]);
+                    assert!(
+                        (o[c] - want).abs() <= 1e-6 * want.abs().max(1e-6),
+                        "{p:?} {o:?}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

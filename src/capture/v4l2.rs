@@ -19,7 +19,10 @@
 //! the gain (from the config, or the gain control divided by `gain_unity`), white balance and
 //! scale → [`HdrFrame`] with the configured projection. The frame's time is the driver's
 //! timestamp (`v4l2_buffer.timestamp`, CLOCK_MONOTONIC on current drivers) relative to the
-//! first frame.
+//! first frame. With `convert_threads` > 1, decoding and linearisation convert bands of rows in
+//! parallel on the source's own pool of that many threads (`envlight-convert-N`, at most the
+//! machine's cores), so no other stage's rayon work can delay a frame; with 1 they run on the
+//! capture thread. The result is the same to the bit either way.
 //!
 //! With bracketing, each frame is a bracket set: for every configured exposure the control is
 //! set, `settle_frames` frames are dropped (drivers apply controls a frame or two late), one
@@ -89,7 +92,13 @@ pub struct CameraSettings {
     pub retry: super::resilient::RetryPolicy,
     /// How pixels map to directions.
     pub projection: Projection,
+    /// Threads that decode and linearise each frame (bands of rows in parallel; 1 = the
+    /// conversion runs on one pool thread).
+    pub convert_threads: usize,
 }
+
+/// Default [`CameraSettings::convert_threads`].
+pub const DEFAULT_CONVERT_THREADS: usize = 2;
 
 impl Default for CameraSettings {
     fn default() -> Self {
@@ -112,6 +121,7 @@ impl Default for CameraSettings {
             timeout: Duration::from_secs(2),
             retry: super::resilient::RetryPolicy::default(),
             projection: Projection::default(),
+            convert_threads: DEFAULT_CONVERT_THREADS,
         }
     }
 }
@@ -222,6 +232,9 @@ pub struct V4l2Source {
     card: String,
     /// Tables for the last (exposure, gain) bit patterns.
     linearizer: Option<((u64, u64), Linearizer)>,
+    /// The threads that convert each frame (decoding and linearisation); `None`: the capture
+    /// thread does.
+    convert_pool: Option<rayon::ThreadPool>,
 }
 
 impl V4l2Source {
@@ -307,7 +320,22 @@ impl V4l2Source {
             fmt.height,
             fmt.stride
         );
+        let convert_threads = settings.convert_threads.clamp(1, cores());
+        let convert_pool = if convert_threads > 1 {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(convert_threads)
+                .thread_name(|i| format!("envlight-convert-{i}"))
+                .build()
+                .map_err(|e| CaptureError::Io {
+                    path: path.clone(),
+                    source: io::Error::other(format!("starting the conversion threads: {e}")),
+                })?;
+            Some(pool)
+        } else {
+            None
+        };
         Ok(Self {
+            convert_pool,
             path,
             settings: CameraSettings {
                 yuv_matrix,
@@ -397,7 +425,12 @@ impl V4l2Source {
                     height: self.height,
                     stride: self.stride,
                 };
-                match pixel_format::decode_into(&raw, self.settings.yuv_matrix, &mut self.codes) {
+                match pixel_format::decode_into_on(
+                    &raw,
+                    self.settings.yuv_matrix,
+                    &mut self.codes,
+                    self.convert_pool.as_ref(),
+                ) {
                     Ok(()) => {
                         return Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
                     }
@@ -493,6 +526,11 @@ impl Drop for V4l2Source {
     }
 }
 
+/// The machine's cores (1 if unknown).
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 /// Exposure time in V4L2's 100 µs units (at least 1).
 pub fn exposure_units(seconds: f64) -> i64 {
     (seconds * 1e4).round().clamp(1.0, i32::MAX as f64) as i64
@@ -522,7 +560,8 @@ impl FrameSource for V4l2Source {
             }
             let lin = self.linearizer.as_ref().map(|(_, l)| l);
             (
-                lin.map(|l| l.linearize(&self.codes)).unwrap_or_default(),
+                lin.map(|l| l.linearize_on(&self.codes, self.convert_pool.as_ref()))
+                    .unwrap_or_default(),
                 ts,
             )
         } else {

@@ -40,6 +40,7 @@ pub struct RawCamera {
     pub timeout_s: Option<f64>,
     pub retry_initial_s: Option<f64>,
     pub retry_max_s: Option<f64>,
+    pub convert_threads: Option<usize>,
 }
 
 fn positive(key: &'static str, v: f64) -> Result<f64, ConfigError> {
@@ -226,6 +227,13 @@ impl RawCamera {
             timeout,
             retry,
             projection,
+            convert_threads: integer_in(
+                "camera.convert_threads",
+                self.convert_threads,
+                d.convert_threads,
+                1..=64,
+                " (threads that decode and linearise each frame)",
+            )?,
         })
     }
 }
