@@ -90,7 +90,8 @@ enum Plan {
 /// input pixels mostly share a working pixel (a 1280×960 fisheye has about 44 input pixels per
 /// working pixel of the upper hemisphere, runs of about 6), so the resampling sums a run in
 /// registers and touches the working pixel's sum once per run, not once per input pixel (a
-/// chain of loads and stores to the same address, about 9 cycles per pixel).
+/// chain of loads and stores to the same address; docs/performance.md, "A camera's frames",
+/// has the before and after).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Run {
     start: u32,
