@@ -31,13 +31,16 @@
 //!   calibration). Computed once per geometry and cached, so this is a start-up (and
 //!   calibration-change) cost, not a per-frame one. The fisheye and angular cases run on
 //!   rayon's threads (all cores; `RAYON_NUM_THREADS=1` for one).
-//! - `frame/fisheye_256/1280x960`: default settings on rooitou_park's upper hemisphere seen by a
-//!   1280×960 equidistant fisheye (a camera's frames; the resampling goes through the
-//!   per-geometry table instead of the lat-long box filter), one `Decomposer` reused.
+//! - `frame/fisheye_256/1280x960`: default settings but one thread on rooitou_park's upper
+//!   hemisphere seen by a 1280×960 equidistant fisheye (a camera's frames; the resampling goes
+//!   through the per-geometry table instead of the lat-long box filter), one `Decomposer`
+//!   reused. `frame/fisheye_256_2threads/1280x960`: the same with the default
+//!   `resample_threads` (2), the resampling's bands of input rows on two threads.
 //! - `first_frame/fisheye_1280x960`: a new `Decomposer` (default settings) and its first frame,
 //!   rooitou_park seen by a 1280×960 equidistant fisheye (default calibration): what a camera's
 //!   first frame, or the first after a calibration change, costs with the per-geometry tables
-//!   (solid angles on rayon's threads, the resampling plan on the calling one) built.
+//!   (solid angles and the resampling plan on rayon's threads) built and the resampling
+//!   threads started.
 //!
 //! Run with `cargo bench --bench decompose`; quote the medians.
 
@@ -238,8 +241,16 @@ fn bench_frames(c: &mut Criterion) {
         )
         .expect("a valid size");
     let mut group = c.benchmark_group("frame");
-    let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
+    let one_thread = DecomposeSettings {
+        resample_threads: 1,
+        ..DecomposeSettings::default()
+    };
+    let mut decomposer = Decomposer::new(one_thread).expect("valid");
     group.bench_function("fisheye_256/1280x960", |b| {
+        b.iter(|| decomposer.decompose(black_box(&fisheye)))
+    });
+    let mut decomposer = Decomposer::new(DecomposeSettings::default()).expect("valid");
+    group.bench_function("fisheye_256_2threads/1280x960", |b| {
         b.iter(|| decomposer.decompose(black_box(&fisheye)))
     });
     group.finish();

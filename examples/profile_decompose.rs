@@ -19,7 +19,8 @@
 //! refinement of the concentrated sources' regions, `--no-refine-concentrated`), `blend` and
 //! `fade` (`--bright-history`: the filter's treatment of bright lights; default `fold`),
 //! `split` (the split of bright lights, `--split`) and
-//! `merge` (`--merge`, the default spacing) and `lights=N` (default 256).
+//! `merge` (`--merge`, the default spacing), `lights=N` (default 256) and `threads=N` (the
+//! resampling threads of a fisheye frame, `decompose.resample_threads`; default 2).
 //! Prints the mean, median, minimum, 95th and 99th percentile and maximum time per frame, how
 //! often the region pass built its candidate lists (in full, and in stages), and a hash of the
 //! last frame's lights (every field's bits), so that two builds can be checked to give the
@@ -51,6 +52,9 @@ fn main() -> anyhow::Result<()> {
             }
             "blend" => settings.bright_history = BrightHistory::Blend,
             other if other.starts_with("lights=") => settings.lights = other[7..].parse()?,
+            other if other.starts_with("threads=") => {
+                settings.resample_threads = other[8..].parse()?
+            }
             "fade" => settings.bright_history = BrightHistory::Fade,
             "merge" => {
                 settings.merge_spacing_fraction =
@@ -59,7 +63,7 @@ fn main() -> anyhow::Result<()> {
             other => {
                 anyhow::bail!(
                     "unknown option {other:?} (expected no-reuse, lloyd, no-refine, split, \
-                     blend, fade, lights=N or merge)"
+                     blend, fade, lights=N, threads=N or merge)"
                 )
             }
         }

@@ -246,7 +246,7 @@ fn decompose_full(frame: &HdrFrame, n: usize, o: &Opts) -> (Vec<Light>, Vec<Px>,
     let requested = n;
     let n = n - n.checked_div(o.split_budget).unwrap_or(0) - o.split_budget_abs.min(n - 1);
     let mut rs = Resampler::new(Projection::LatLong, frame.width, frame.height, o.width);
-    let map = rs.resample(frame, o.conc / n as f64).clone();
+    let map = rs.resample(frame, o.conc / n as f64, None).clone();
     let (w, h) = (map.width, map.height);
     let f = frame.width as usize / w;
     // Pixels (working or fine) with directions.

@@ -257,6 +257,7 @@ pub struct RawDecompose {
     pub bright_history: Option<String>,
     pub split: Option<bool>,
     pub split_factor: Option<f64>,
+    pub resample_threads: Option<usize>,
 }
 
 impl RawConfig {
@@ -1178,6 +1179,13 @@ impl RawDecompose {
             refine_concentrated: self.refine_concentrated.unwrap_or(d.refine_concentrated),
             bright_history,
             split_factor: split.then_some(split_factor),
+            resample_threads: integer_in(
+                "decompose.resample_threads",
+                self.resample_threads,
+                d.resample_threads,
+                1..=crate::decompose::MAX_RESAMPLE_THREADS,
+                " (threads that resample a fisheye or other non-lat-long frame)",
+            )?,
         })
     }
 }
@@ -1249,6 +1257,7 @@ mod tests {
             "bright_history",
             "split",
             "split_factor",
+            "resample_threads",
             "enabled",
             "lobes",
             "fit_height",
@@ -1330,6 +1339,10 @@ mod tests {
             (
                 "[camera]\nconvert_threads = 0",
                 "camera.convert_threads = 0: must be 1..=64 (threads",
+            ),
+            (
+                "[decompose]\nresample_threads = 65",
+                "decompose.resample_threads = 65: must be 1..=64 (threads",
             ),
         ] {
             let e = error(text);

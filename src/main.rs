@@ -415,6 +415,12 @@ struct DecomposeArgs {
     #[arg(long, value_name = "W")]
     working_width: Option<u32>,
 
+    /// Threads that resample each frame that is not a lat-long map of a multiple of the working
+    /// size (a fisheye camera's, an angular map's) to the working map, 1..=64, at most the
+    /// machine's cores; the lights are the same with any number. [default: 2]
+    #[arg(long, value_name = "N")]
+    resample_threads: Option<usize>,
+
     /// Lights are placed with density ∝ luminance^γ, γ in (0, 1]; 1 is Havran et al.'s pure
     /// inverse-transform sampling. [default: 0.75]
     #[arg(long, value_name = "GAMMA")]
@@ -630,6 +636,10 @@ impl DecomposeArgs {
         if let Some(w) = self.working_width {
             dec.working_width = Some(w);
             note("decompose.working_width", "--working-width");
+        }
+        if let Some(n) = self.resample_threads {
+            dec.resample_threads = Some(n);
+            note("decompose.resample_threads", "--resample-threads");
         }
         if let Some(w) = self.warp {
             dec.warp = Some(

@@ -148,6 +148,26 @@ pub struct DecomposeSettings {
     /// [`LightPlacement::Centroid`] ([`DecomposeError::SplitPlacement`] otherwise).
     #[serde(default)]
     pub split_factor: Option<f64>,
+    /// Threads that resample a frame which is not a lat-long map of a multiple of the working
+    /// size (a camera's fisheye, the angular map, odd sizes), 1..=[`MAX_RESAMPLE_THREADS`],
+    /// at most the machine's cores; 1 resamples on the calling thread. The lights are the same
+    /// bits with any number (docs/performance.md, "A camera's frames"). A recording whose
+    /// stored settings lack it reads as the default.
+    #[serde(default = "default_resample_threads")]
+    pub resample_threads: usize,
+}
+
+/// Default of [`DecomposeSettings::resample_threads`]: two threads take a 1280×960 fisheye
+/// frame into 256 lights from 2.2–3.0 ms to 1.5–1.7 ms on the development VM
+/// (docs/performance.md, "A camera's frames"), as `camera.convert_threads` speeds its
+/// conversion.
+pub const DEFAULT_RESAMPLE_THREADS: usize = 2;
+
+/// Most threads [`DecomposeSettings::resample_threads`] may ask for.
+pub const MAX_RESAMPLE_THREADS: usize = 64;
+
+fn default_resample_threads() -> usize {
+    DEFAULT_RESAMPLE_THREADS
 }
 
 /// The filter's treatment of bright lights before [`DecomposeSettings::bright_history`] existed.
@@ -169,6 +189,7 @@ impl Default for DecomposeSettings {
             refine_concentrated: true,
             bright_history: BrightHistory::Fold,
             split_factor: None,
+            resample_threads: DEFAULT_RESAMPLE_THREADS,
         }
     }
 }
@@ -190,6 +211,10 @@ pub enum DecomposeError {
     SplitFactor(f64),
     #[error("the split of bright lights needs the centroid placement (its pieces are centroids)")]
     SplitPlacement,
+    #[error(
+        "resample threads {0} is out of range: it must be between 1 and {MAX_RESAMPLE_THREADS}"
+    )]
+    ResampleThreads(usize),
 }
 
 /// Per-light accumulator of a region's integrals.
@@ -223,6 +248,13 @@ impl Region {
 pub struct Decomposer {
     settings: DecomposeSettings,
     resampler: Option<Resampler>,
+    /// The helpers of the table path's resampling (`envlight-resample-N`,
+    /// `resample_threads` − 1 of them: the decomposition thread is the other); `None` with one
+    /// thread or before a frame needs them.
+    resample_pool: Option<rayon::ThreadPool>,
+    /// Whether `resample_pool` has been started (or found not to be needed, or failed to
+    /// start, with a warning): it is tried once per decomposer.
+    resample_pool_tried: bool,
     buckets: Option<regions::BucketGrid>,
     region_scratch: regions::Scratch,
     /// The rows warp of the last frame (its buffers are reused).
@@ -266,6 +298,9 @@ impl Decomposer {
                 return Err(DecomposeError::SplitPlacement);
             }
         }
+        if !(1..=MAX_RESAMPLE_THREADS).contains(&settings.resample_threads) {
+            return Err(DecomposeError::ResampleThreads(settings.resample_threads));
+        }
         let filter = match &settings.filter_taps {
             Some(taps) => Some(
                 FirFilter::new(taps)
@@ -278,6 +313,8 @@ impl Decomposer {
         Ok(Self {
             settings,
             resampler: None,
+            resample_pool: None,
+            resample_pool_tried: false,
             buckets: None,
             region_scratch: regions::Scratch::default(),
             rows_warp: None,
@@ -369,10 +406,40 @@ impl Decomposer {
             ));
             self.buckets = None;
         }
+        let table = self.resampler.as_ref().is_some_and(Resampler::uses_table);
+        if table && !self.resample_pool_tried {
+            // Started with the first frame that needs it (a lat-long map of a multiple of the
+            // working size never does). The decomposition thread sums bands too, so the pool
+            // holds the others. The cores are counted here, once (`available_parallelism`
+            // reads the cgroup's files: not a cost for every frame).
+            self.resample_pool_tried = true;
+            let helpers = self
+                .settings
+                .resample_threads
+                .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
+                - 1;
+            if helpers > 0 {
+                match rayon::ThreadPoolBuilder::new()
+                    .num_threads(helpers)
+                    .thread_name(|i| format!("envlight-resample-{i}"))
+                    .build()
+                {
+                    Ok(pool) => self.resample_pool = Some(pool),
+                    // The calling thread resamples alone: the same lights, only slower.
+                    Err(e) => tracing::warn!(
+                        "starting {helpers} resampling threads: {e}; resampling on one"
+                    ),
+                }
+            }
+        }
         let Some(resampler) = self.resampler.as_mut() else {
             unreachable!("set above")
         };
-        let map = resampler.resample(frame, CONCENTRATED_SHARE / n as f64);
+        let map = resampler.resample(
+            frame,
+            CONCENTRATED_SHARE / n as f64,
+            self.resample_pool.as_ref(),
+        );
         let buckets = self
             .buckets
             .get_or_insert_with(|| regions::BucketGrid::new(map));
@@ -947,5 +1014,50 @@ mod tests {
         assert!(d.decompose_with_count(&frame, 0).is_err());
         assert_eq!(d.decompose_with_count(&frame, 5).unwrap().lights.len(), 5);
         assert_eq!(d.decompose_with_count(&frame, 40).unwrap().lights.len(), 40);
+    }
+
+    #[test]
+    fn resample_thread_count_is_validated() {
+        for threads in [0, MAX_RESAMPLE_THREADS + 1] {
+            let settings = DecomposeSettings {
+                resample_threads: threads,
+                ..DecomposeSettings::default()
+            };
+            assert_eq!(
+                Decomposer::new(settings).err(),
+                Some(DecomposeError::ResampleThreads(threads))
+            );
+        }
+    }
+
+    /// A fisheye camera's frames (the table path) give the same lights, bit for bit, whether
+    /// they are resampled on the calling thread or on a pool of 2 or 3 threads (3 on a 2-core
+    /// machine is capped at 2: the pool then differs from 1 only where there are 2 cores).
+    #[test]
+    fn lights_do_not_depend_on_the_resample_threads() {
+        let projection = Projection::Fisheye(crate::envmap::FisheyeCalibration::default());
+        // A sun that moves by a few pixels a frame over a sky with structure, seen by a 200×150
+        // fisheye (a few bands of input rows).
+        let frames: Vec<HdrFrame> = (0..4)
+            .map(|t| {
+                sky_with_sun(128, 64, (40 + 3 * t, 12), 500.0)
+                    .reprojected(projection, 200, 150)
+                    .unwrap()
+            })
+            .collect();
+        let lights_with = |threads: usize| {
+            let settings = DecomposeSettings {
+                lights: 64,
+                resample_threads: threads,
+                ..DecomposeSettings::default()
+            };
+            let mut d = Decomposer::new(settings).unwrap();
+            let lights: Vec<_> = frames.iter().map(|f| light_bits(&d.decompose(f))).collect();
+            assert!(lights.iter().all(|l| l.len() == 64));
+            lights
+        };
+        let one = lights_with(1);
+        assert_eq!(lights_with(2), one);
+        assert_eq!(lights_with(3), one);
     }
 }

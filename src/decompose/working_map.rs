@@ -8,7 +8,10 @@
 //! integer multiple of the working size takes a fast box-filter path (f32 column sums, compiled
 //! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth; with AVX2
 //! the horizontal sums of a factor-4 filter take eight working pixels at a time); other
-//! inputs use a per-pixel index table built once per input geometry.
+//! inputs (a camera's fisheye, the angular map, odd sizes) use a per-pixel index table built
+//! once per input geometry, summed in bands of input rows that may run on a thread pool (the
+//! result does not depend on the number of threads: the bands are fixed and their partial
+//! sums are added in band order).
 //!
 //! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
 //! *concentrated*: their input pixels are also kept as [`FineSample`]s with exact directions,
@@ -20,6 +23,8 @@ use crate::frame::HdrFrame;
 use glam::Vec3A;
 use rayon::prelude::*;
 use std::f64::consts::PI;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, PoisonError};
 
 /// One input pixel of a concentrated working pixel.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -75,10 +80,10 @@ enum Plan {
         column_phi: Vec<(f32, f32)>,
     },
     /// Arbitrary projection: the runs of consecutive input pixels that go to one working pixel
-    /// (pixels outside the image circle are in none), per input pixel its solid angle and
-    /// direction, and per working pixel the list of its input pixels.
+    /// (pixels outside the image circle are in none) in bands of input rows, per input pixel
+    /// its solid angle and direction, and per working pixel the list of its input pixels.
     Table {
-        runs: Vec<Run>,
+        bands: Vec<TableBand>,
         solid_angle: Vec<f32>,
         direction: Vec<[f32; 3]>,
         member_offsets: Vec<u32>,
@@ -97,6 +102,186 @@ struct Run {
     start: u32,
     end: u32,
     target: u32,
+}
+
+/// Input rows per band of the table path. The bands are fixed by the input geometry, not by the
+/// number of threads, so the sums are the same bits on any pool. 32 rows of a 1280×960 frame
+/// make 30 bands (enough to keep a few threads busy though the image circle leaves the outer
+/// bands light) of about 0.5 MB of pixels each.
+const TABLE_BAND_ROWS: usize = 32;
+
+/// The runs of the working pixels that one band of input rows *owns*: those whose first input
+/// pixel lies in its rows. A working pixel that straddles two bands is summed whole by its
+/// owner (which reads a few rows of the next band), so every working pixel's sum is taken by
+/// one thread, over its runs in input order, exactly as one thread would take it alone. A
+/// run's `target` is a *slot* of the band: the band sums into small arrays of its own
+/// ([`BandSums`]), one entry per working pixel it owns (`targets[slot]`), which are then
+/// copied into the map.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+struct TableBand {
+    runs: Vec<Run>,
+    targets: Vec<u32>,
+}
+
+/// A band's sums: per slot the f64 Σ rgb·Ω, and the map's f32 energy and luminance of it.
+#[derive(Clone, Debug, Default)]
+struct BandSums {
+    sums: Vec<[f64; 3]>,
+    energy: Vec<[f32; 3]>,
+    luminance: Vec<f32>,
+}
+
+impl TableBand {
+    /// The bands of `runs` (in input order, of inputs `sw` pixels wide and `sh` high, onto
+    /// `pixels` working pixels).
+    fn split(runs: &[Run], sw: usize, sh: usize, pixels: usize) -> Vec<TableBand> {
+        let mut bands = vec![TableBand::default(); sh.div_ceil(TABLE_BAND_ROWS)];
+        // Per working pixel: its owner band and its slot there.
+        let mut owner = vec![(u32::MAX, 0u32); pixels];
+        for run in runs {
+            let t = run.target as usize;
+            if owner[t].0 == u32::MAX {
+                let b = run.start as usize / sw / TABLE_BAND_ROWS;
+                owner[t] = (b as u32, bands[b].targets.len() as u32);
+                bands[b].targets.push(run.target);
+            }
+            let (b, slot) = owner[t];
+            bands[b as usize].runs.push(Run {
+                target: slot,
+                ..*run
+            });
+        }
+        // Slots in the order of their working pixels, so that copying a band's sums into the
+        // map writes it front to back (in first-seen order the writes jump between the map's
+        // rows, a cache miss each).
+        for band in &mut bands {
+            let mut order: Vec<u32> = (0..band.targets.len() as u32).collect();
+            order.sort_unstable_by_key(|&slot| band.targets[slot as usize]);
+            let mut new_slot = vec![0u32; order.len()];
+            for (new, &old) in order.iter().enumerate() {
+                new_slot[old as usize] = new as u32;
+            }
+            band.targets = order
+                .iter()
+                .map(|&old| band.targets[old as usize])
+                .collect();
+            for run in &mut band.runs {
+                run.target = new_slot[run.target as usize];
+            }
+        }
+        bands
+    }
+
+    /// The map's energy and luminance of each slot into `out`.
+    fn sum(&self, pixels: &[[f32; 3]], solid_angle: &[f32], out: &mut BandSums) {
+        let n = self.targets.len();
+        out.sums.clear();
+        out.sums.resize(n, [0.0; 3]);
+        self.sum_runs(pixels, solid_angle, &mut out.sums, |slot| slot as usize);
+        out.energy.clear();
+        out.luminance.clear();
+        for sum in &out.sums {
+            let (energy, luminance) = map_entry(*sum);
+            out.energy.push(energy);
+            out.luminance.push(luminance);
+        }
+    }
+
+    /// Σ rgb·Ω of each run into `sums[index(slot)]`, added to what is there. A run with a
+    /// negative input poisons its sum with NaN, for the careful sum of
+    /// [`Resampler::resample`].
+    fn sum_runs(
+        &self,
+        pixels: &[[f32; 3]],
+        solid_angle: &[f32],
+        sums: &mut [[f64; 3]],
+        index: impl Fn(u32) -> usize,
+    ) {
+        for run in &self.runs {
+            let (start, end) = (run.start as usize, run.end as usize);
+            let (pixels, omegas) = (&pixels[start..end], &solid_angle[start..end]);
+            // The run's Σ rgb·Ω in f32 vectors (glam's Vec3A: SSE lanes), in two partial sums
+            // (even and odd pixels) so that a pixel's adds need not wait for the previous
+            // pixel's (a run holds a few dozen input pixels at most; the sums across runs are
+            // f64, as are all sums of the careful pass). `low` is the least input, to find a
+            // negative one.
+            let (mut even, mut odd, mut low) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
+            let mut pairs = pixels.chunks_exact(2).zip(omegas.chunks_exact(2));
+            for (p, w) in &mut pairs {
+                let (a, b) = (Vec3A::from_array(p[0]), Vec3A::from_array(p[1]));
+                even += a * w[0];
+                odd += b * w[1];
+                low = low.min(a.min(b));
+            }
+            if pixels.len() % 2 == 1 {
+                if let (Some(&p), Some(&w)) = (pixels.last(), omegas.last()) {
+                    let a = Vec3A::from_array(p);
+                    even += a * w;
+                    low = low.min(a);
+                }
+            }
+            let sum = (even + odd).to_array();
+            let negative = low.cmplt(Vec3A::ZERO).any();
+            let e = &mut sums[index(run.target)];
+            if negative {
+                e[0] = f64::NAN;
+            } else {
+                for c in 0..3 {
+                    e[c] += f64::from(sum[c]);
+                }
+            }
+        }
+    }
+}
+
+/// A working pixel's f32 energy and luminance from its f64 Σ rgb·Ω.
+fn map_entry(sum: [f64; 3]) -> ([f32; 3], f32) {
+    // Clamped: a sum past f32's range must not become ∞ here, where nothing would catch it
+    // (its luminance may still be finite).
+    let energy = sum.map(|c| {
+        let c = c as f32;
+        if c > f32::MAX {
+            f32::MAX
+        } else {
+            c
+        }
+    });
+    // Not clamped: NaN or ∞ here must reach the careful sum of `Resampler::resample`
+    // (f32::min would turn NaN into a finite value).
+    (energy, super::luminance_f64(sum) as f32)
+}
+
+/// Sums every band of `bands` into its entry of `band_sums`, with `pool`'s threads as helpers
+/// of the calling thread. The calling thread works too (it would otherwise only wait,
+/// and a helper woken from idle may start late: on a VM a halted virtual CPU takes a while to
+/// wake, docs/performance.md), and every thread takes the next band not yet taken until none
+/// is left, so a late or busy helper just sums fewer bands. Which thread sums a band does not
+/// change its sums.
+fn sum_bands(
+    bands: &[TableBand],
+    band_sums: &mut [BandSums],
+    pixels: &[[f32; 3]],
+    solid_angle: &[f32],
+    pool: &rayon::ThreadPool,
+) {
+    let outs: Vec<Mutex<&mut BandSums>> = band_sums.iter_mut().map(Mutex::new).collect();
+    let next = AtomicUsize::new(0);
+    let work = || loop {
+        let b = next.fetch_add(1, Ordering::Relaxed);
+        let (Some(band), Some(out)) = (bands.get(b), outs.get(b)) else {
+            break;
+        };
+        // Each band is taken once, so its lock is never contended (nor poisoned: `sum`
+        // does not panic on a plan made for this frame's size).
+        let mut out = out.lock().unwrap_or_else(PoisonError::into_inner);
+        band.sum(pixels, solid_angle, &mut out);
+    };
+    pool.in_place_scope(|scope| {
+        for _ in 0..pool.current_num_threads() {
+            scope.spawn(|_| work());
+        }
+        work();
+    });
 }
 
 /// The runs of equal targets in `target` (u32::MAX = none, left out).
@@ -173,8 +358,10 @@ pub struct Resampler {
     map: WorkingMap,
     /// Scratch row of the box filter.
     column_sums: Vec<f32>,
-    /// The table path's per-working-pixel sums in f64 (empty for the box filter).
+    /// The table path's per-working-pixel sums on one thread (empty otherwise).
     table_sums: Vec<[f64; 3]>,
+    /// The table path's sums of each band, with helper threads (empty otherwise).
+    band_sums: Vec<BandSums>,
     arch: pulp::Arch,
 }
 
@@ -253,6 +440,7 @@ impl Resampler {
             map,
             column_sums: Vec::new(),
             table_sums: Vec::new(),
+            band_sums: Vec::new(),
             arch: pulp::Arch::new(),
         }
     }
@@ -307,7 +495,7 @@ impl Resampler {
             }
         }
         Plan::Table {
-            runs: runs_of(&target),
+            bands: TableBand::split(&runs_of(&target), sw as usize, sh as usize, width * height),
             solid_angle,
             direction,
             member_offsets,
@@ -329,10 +517,24 @@ impl Resampler {
             && self.src_height == frame.height
     }
 
+    /// Whether frames go through the index table (not the lat-long box filter): only then can
+    /// a thread pool help [`Self::resample`].
+    pub fn uses_table(&self) -> bool {
+        matches!(self.plan, Plan::Table { .. })
+    }
+
     /// Resamples `frame` (which must fit) and returns the working map. Working pixels holding
     /// more than `concentrated_share` of the luminance energy keep their input pixels as fine
     /// samples. Non-finite or negative values count as 0 (sources sanitise them already).
-    pub fn resample(&mut self, frame: &HdrFrame, concentrated_share: f64) -> &WorkingMap {
+    /// The table path sums its bands of input rows with `pool`'s threads helping the calling
+    /// one if a pool is given (on the calling thread alone otherwise); the map is the same bits
+    /// either way.
+    pub fn resample(
+        &mut self,
+        frame: &HdrFrame,
+        concentrated_share: f64,
+        pool: Option<&rayon::ThreadPool>,
+    ) -> &WorkingMap {
         let map = &mut self.map;
         let sw = self.src_width as usize;
         match &self.plan {
@@ -365,60 +567,40 @@ impl Resampler {
                 self.arch.dispatch(args);
             }
             Plan::Table {
-                runs, solid_angle, ..
+                bands, solid_angle, ..
             } => {
-                let sums = &mut self.table_sums;
-                sums.clear();
-                sums.resize(map.energy.len(), [0.0; 3]);
-                for run in runs {
-                    let (start, end) = (run.start as usize, run.end as usize);
-                    let (pixels, omegas) = (&frame.pixels[start..end], &solid_angle[start..end]);
-                    // The run's Σ rgb·Ω in f32 vectors (glam's Vec3A: SSE lanes), in two partial
-                    // sums (even and odd pixels) so that a pixel's adds need not wait for the
-                    // previous pixel's (a run holds a few dozen input pixels at most; the sums
-                    // across runs are f64, as are all sums of the careful pass below). `low`
-                    // is the least input, to find a negative one.
-                    let (mut even, mut odd, mut low) = (Vec3A::ZERO, Vec3A::ZERO, Vec3A::ZERO);
-                    let mut pairs = pixels.chunks_exact(2).zip(omegas.chunks_exact(2));
-                    for (p, w) in &mut pairs {
-                        let (a, b) = (Vec3A::from_array(p[0]), Vec3A::from_array(p[1]));
-                        even += a * w[0];
-                        odd += b * w[1];
-                        low = low.min(a.min(b));
-                    }
-                    if pixels.len() % 2 == 1 {
-                        if let (Some(&p), Some(&w)) = (pixels.last(), omegas.last()) {
-                            let a = Vec3A::from_array(p);
-                            even += a * w;
-                            low = low.min(a);
+                let pixels = &frame.pixels;
+                if let Some(pool) = pool {
+                    let band_sums = &mut self.band_sums;
+                    band_sums.resize_with(bands.len(), BandSums::default);
+                    sum_bands(bands, band_sums, pixels, solid_angle, pool);
+                    // Each working pixel with input is owned by one band; the others stay 0,
+                    // as `new` made them.
+                    for (band, sums) in bands.iter().zip(band_sums.iter()) {
+                        for ((&target, e), l) in
+                            band.targets.iter().zip(&sums.energy).zip(&sums.luminance)
+                        {
+                            map.energy[target as usize] = *e;
+                            map.luminance[target as usize] = *l;
                         }
                     }
-                    let sum = (even + odd).to_array();
-                    let negative = low.cmplt(Vec3A::ZERO).any();
-                    let e = &mut sums[run.target as usize];
-                    if negative {
-                        // A negative input poisons the sum (NaN) for the careful sum below.
-                        e[0] = f64::NAN;
-                    } else {
-                        for c in 0..3 {
-                            e[c] += f64::from(sum[c]);
-                        }
+                } else {
+                    // One thread: the bands' runs straight into one f64 sum per working pixel,
+                    // then the map in one pass, front to back. A working pixel's runs are
+                    // summed in the same order as with helpers, so the bits are the same; this
+                    // only saves the copying of the bands' sums into the map (writes that jump
+                    // between the map's rows).
+                    let sums = &mut self.table_sums;
+                    sums.clear();
+                    sums.resize(map.energy.len(), [0.0; 3]);
+                    for band in bands {
+                        band.sum_runs(pixels, solid_angle, sums, |slot| {
+                            band.targets[slot as usize] as usize
+                        });
                     }
-                }
-                for ((l, e), sum) in map.luminance.iter_mut().zip(&mut map.energy).zip(sums) {
-                    // Not clamped: NaN or ∞ here must reach the careful sum below (f32::min
-                    // would turn NaN into a finite value).
-                    *l = super::luminance_f64(*sum) as f32;
-                    // Clamped: a sum past f32's range must not become ∞ here, where nothing
-                    // would catch it (its luminance may still be finite).
-                    *e = sum.map(|c| {
-                        let c = c as f32;
-                        if c > f32::MAX {
-                            f32::MAX
-                        } else {
-                            c
-                        }
-                    });
+                    for ((e, l), sum) in map.energy.iter_mut().zip(&mut map.luminance).zip(sums) {
+                        (*e, *l) = map_entry(*sum);
+                    }
                 }
             }
         }
@@ -914,7 +1096,7 @@ mod tests {
             panic!("a fisheye input uses the table");
         };
         let frame = HdrFrame::new(w, h, dirty, projection).unwrap();
-        let map = resampler.resample(&frame, 1.0).clone();
+        let map = resampler.resample(&frame, 1.0, None).clone();
         let mut touched = 0;
         for idx in 0..map.energy.len() {
             let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
@@ -938,6 +1120,79 @@ mod tests {
         assert!(touched > 100, "{touched} working pixels with input");
     }
 
+    /// The table path's working map is the same bits on the calling thread alone and with 2
+    /// and 5 helper threads (the bands are fixed by the input geometry; each working pixel is summed
+    /// by the band that owns it), including the concentrated pixels' fine samples, and equals
+    /// a plain sum over each working pixel's input pixels.
+    #[test]
+    fn table_path_does_not_depend_on_the_number_of_threads() {
+        let projection = Projection::Fisheye(crate::envmap::FisheyeCalibration::default());
+        // 150 rows: five bands of 32 rows, the last one short.
+        let (w, h) = (170u32, 150u32);
+        let pixels: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| {
+                let v = 0.05 + (i.wrapping_mul(2_654_435_761) >> 20) as f32 * 1e-3;
+                // A bright spot, so that some working pixels are concentrated.
+                let spot = if (i % w).abs_diff(60) < 4 && (i / w).abs_diff(40) < 4 {
+                    1e4
+                } else {
+                    1.0
+                };
+                [v * spot, 0.7 * v * spot, 1.3 * v]
+            })
+            .collect();
+        let frame = HdrFrame::new(w, h, pixels.clone(), projection).unwrap();
+        let mut resampler = Resampler::new(projection, w, h, 64);
+        let Plan::Table {
+            bands,
+            member_offsets,
+            members,
+            solid_angle,
+            ..
+        } = resampler.plan.clone()
+        else {
+            panic!("a fisheye input uses the table");
+        };
+        assert_eq!(bands.len(), 5);
+        let bits = |m: &WorkingMap| {
+            let mut v: Vec<u32> = m.energy.iter().flatten().map(|c| c.to_bits()).collect();
+            v.extend(m.luminance.iter().map(|l| l.to_bits()));
+            for f in &m.fine {
+                v.push(f.pixel);
+                v.extend(f.energy.map(f32::to_bits));
+                v.extend(f.dir.map(f32::to_bits));
+            }
+            v
+        };
+        let alone = resampler.resample(&frame, 0.002, None).clone();
+        assert!(!alone.fine.is_empty(), "the spot is concentrated");
+        for threads in [2, 5] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut fresh = Resampler::new(projection, w, h, 64);
+            let pooled = fresh.resample(&frame, 0.002, Some(&pool));
+            assert!(bits(pooled) == bits(&alone), "{threads} threads");
+        }
+        for idx in 0..alone.energy.len() {
+            let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
+            let mut sum = [0.0f64; 3];
+            for &i in &members[range] {
+                for c in 0..3 {
+                    sum[c] += f64::from(pixels[i as usize][c]) * f64::from(solid_angle[i as usize]);
+                }
+            }
+            for c in 0..3 {
+                let got = f64::from(alone.energy[idx][c]);
+                assert!(
+                    (got - sum[c]).abs() <= 1e-6 * sum[c],
+                    "{idx}/{c}: {got} against {sum:?}"
+                );
+            }
+        }
+    }
+
     /// A working pixel's f64 sum beyond f32's range is stored as f32::MAX, not ∞: on the table
     /// path its luminance can stay finite (blue weighs 0.07), so the careful sum would not run.
     #[test]
@@ -948,7 +1203,7 @@ mod tests {
         let frame = HdrFrame::new(7, 3, pixels, Projection::LatLong).unwrap();
         let mut resampler = Resampler::new(Projection::LatLong, 7, 3, 2);
         assert!(matches!(resampler.plan, Plan::Table { .. }));
-        let map = resampler.resample(&frame, 0.25);
+        let map = resampler.resample(&frame, 0.25, None);
         assert!(map.luminance.iter().all(|l| l.is_finite()));
         assert!(map
             .energy

@@ -617,7 +617,7 @@ mod tests {
             .collect();
         let mut resampler =
             Resampler::new(frame.projection, frame.width, frame.height, working_width);
-        let map = resampler.resample(&frame, 0.25 / n as f64);
+        let map = resampler.resample(&frame, 0.25 / n as f64, None);
         let grid = BucketGrid::new(map);
         let run = |lloyd: bool, refine: bool| {
             let (mut regions, mut scratch) = (vec![Region::default(); n], Scratch::default());
