@@ -1086,37 +1086,10 @@ mod tests {
         expected[nan][1] = 0.0;
         expected[infinite][2] = 0.0;
         let mut resampler = Resampler::new(projection, w, h, 32);
-        let Plan::Table {
-            member_offsets,
-            members,
-            solid_angle,
-            ..
-        } = resampler.plan.clone()
-        else {
-            panic!("a fisheye input uses the table");
-        };
+        assert!(matches!(resampler.plan, Plan::Table { .. }));
         let frame = HdrFrame::new(w, h, dirty, projection).unwrap();
         let map = resampler.resample(&frame, 1.0, None).clone();
-        let mut touched = 0;
-        for idx in 0..map.energy.len() {
-            let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
-            let mut sum = [0.0f64; 3];
-            for &i in &members[range] {
-                let i = i as usize;
-                for c in 0..3 {
-                    sum[c] += f64::from(expected[i][c]) * f64::from(solid_angle[i]);
-                }
-            }
-            for c in 0..3 {
-                let got = f64::from(map.energy[idx][c]);
-                assert!(
-                    (got - sum[c]).abs() <= 1e-6 * sum[c] + 1e-30,
-                    "working pixel {idx} channel {c}: {got} against {}",
-                    sum[c]
-                );
-            }
-            touched += usize::from(sum[0] > 0.0);
-        }
+        let touched = assert_plain_sums(&resampler.plan, &map, w, &expected);
         assert!(touched > 100, "{touched} working pixels with input");
     }
 
@@ -1143,14 +1116,7 @@ mod tests {
             .collect();
         let frame = HdrFrame::new(w, h, pixels.clone(), projection).unwrap();
         let mut resampler = Resampler::new(projection, w, h, 64);
-        let Plan::Table {
-            bands,
-            member_offsets,
-            members,
-            solid_angle,
-            ..
-        } = resampler.plan.clone()
-        else {
+        let Plan::Table { bands, .. } = &resampler.plan else {
             panic!("a fisheye input uses the table");
         };
         assert_eq!(bands.len(), 5);
@@ -1175,22 +1141,31 @@ mod tests {
             let pooled = fresh.resample(&frame, 0.002, Some(&pool));
             assert!(bits(pooled) == bits(&alone), "{threads} threads");
         }
-        for idx in 0..alone.energy.len() {
-            let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
+        assert!(assert_plain_sums(&resampler.plan, &alone, w, &pixels) > 100);
+    }
+
+    /// Checks each working pixel's energy against a plain f64 sum of rgb·Ω over its input
+    /// pixels (`pixels`, an input `w` wide); returns how many working pixels have input.
+    fn assert_plain_sums(plan: &Plan, map: &WorkingMap, w: u32, pixels: &[[f32; 3]]) -> usize {
+        let mut touched = 0;
+        for idx in 0..map.energy.len() {
             let mut sum = [0.0f64; 3];
-            for &i in &members[range] {
+            plan.for_each_input(idx, map.width, w as usize, |i, omega, _| {
                 for c in 0..3 {
-                    sum[c] += f64::from(pixels[i as usize][c]) * f64::from(solid_angle[i as usize]);
+                    sum[c] += f64::from(pixels[i][c]) * f64::from(omega);
                 }
-            }
+            });
             for c in 0..3 {
-                let got = f64::from(alone.energy[idx][c]);
+                let got = f64::from(map.energy[idx][c]);
                 assert!(
-                    (got - sum[c]).abs() <= 1e-6 * sum[c],
-                    "{idx}/{c}: {got} against {sum:?}"
+                    (got - sum[c]).abs() <= 1e-6 * sum[c] + 1e-30,
+                    "working pixel {idx} channel {c}: {got} against {}",
+                    sum[c]
                 );
             }
+            touched += usize::from(sum[0] > 0.0);
         }
+        touched
     }
 
     /// A working pixel's f64 sum beyond f32's range is stored as f32::MAX, not ∞: on the table
