@@ -6,8 +6,9 @@
 //! - `radiance/{y16,yuyv,mjpeg}`: the same plus linearisation to radiance ([`Linearizer`]:
 //!   linear response for Y16, sRGB for YUYV and MJPEG), i.e. the whole conversion cost of a
 //!   frame;
-//! - `radiance_pool2/…`: the same in bands of rows on a pool of two threads, as the camera
-//!   source converts with `camera.convert_threads = 2` (the default);
+//! - `radiance_pool2/…`: the same in bands of rows on two threads, the bench's and one helper
+//!   (src/parallel.rs), as the camera source converts with `camera.convert_threads = 2` (the
+//!   default; on a machine of one core, on one thread);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `read/…`: reading a recorded frame file into linear RGB ([`read_hdr_image`]: the file
@@ -143,10 +144,8 @@ fn bench_capture(c: &mut Criterion) {
         ..Radiometry::default()
     };
     let mut group = c.benchmark_group("capture");
-    let pool2 = rayon::ThreadPoolBuilder::new()
-        .num_threads(2)
-        .build()
-        .expect("a pool of two threads");
+    // Two threads in all, as the camera source converts: the bench's thread and one helper.
+    let pool2 = envlight::parallel::helper_pool(2, "bench-convert").expect("a helper thread");
     for (name, format, data) in &buffers {
         let raw = RawFrame {
             data,
@@ -185,10 +184,10 @@ fn bench_capture(c: &mut Criterion) {
                     black_box(&raw),
                     YuvMatrix::Bt709,
                     &mut codes,
-                    Some(&pool2),
+                    pool2.as_ref(),
                 )
                 .unwrap_or_else(|e| panic!("{e}"));
-                lin.linearize_on(&codes, Some(&pool2))
+                lin.linearize_on(&codes, pool2.as_ref())
             })
         });
         let mut out = Vec::new();

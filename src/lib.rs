@@ -21,6 +21,7 @@ pub mod frame;
 pub mod frame_feed;
 pub mod light;
 pub mod metrics;
+pub mod parallel;
 pub mod pipeline;
 pub mod publication;
 pub mod record;

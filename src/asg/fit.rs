@@ -251,7 +251,7 @@ impl FitSettings {
         if self.threads > 0 {
             self.threads.min(BANDS)
         } else {
-            std::thread::available_parallelism().map_or(1, |n| n.get().min(BANDS))
+            crate::parallel::cores().min(BANDS)
         }
     }
 }

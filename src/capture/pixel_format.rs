@@ -34,7 +34,6 @@
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
 //! odd width for YUYV or Bayer, or a corrupt JPEG is a [`PixelError`], never a panic.
 
-use rayon::prelude::*;
 use std::fmt;
 
 /// Bayer colour-filter layout: the colours of the top-left 2×2 block, row by row.
@@ -358,7 +357,8 @@ pub fn decode_into(
     decode_into_on(raw, matrix, out, None)
 }
 
-/// [`decode_into`] with bands of rows in parallel on `pool` (`None`: on the calling thread).
+/// [`decode_into`] with bands of rows on the calling thread and `pool`'s helper threads
+/// together (`None`: on the calling thread alone; src/parallel.rs).
 /// Every pixel is converted by itself, so the result is the same to the bit either way.
 pub fn decode_into_on(
     raw: &RawFrame<'_>,
@@ -559,8 +559,9 @@ fn demosaic_bilinear_on(
 const ROWS_PER_TASK: usize = 32;
 
 /// Calls `f(y, row)` for every row (`width` elements) of `image`: in order on the calling
-/// thread without a pool, else in bands of rows on `pool` (the camera source's conversion
-/// threads). Every pixel is converted by itself, so the result does not depend on which.
+/// thread without a pool, else in bands of rows on the calling thread and `pool`'s threads
+/// together (the camera source's conversion helpers; src/parallel.rs). Every pixel is
+/// converted by itself, so the result does not depend on which thread converts it.
 fn each_row<T: Send>(
     pool: Option<&rayon::ThreadPool>,
     image: &mut [T],
@@ -570,19 +571,17 @@ fn each_row<T: Send>(
     if width == 0 {
         return;
     }
-    match pool {
-        None => image
-            .chunks_exact_mut(width)
-            .enumerate()
-            .for_each(|(y, row)| f(y, row)),
-        Some(pool) => pool.install(|| {
-            image
-                .par_chunks_mut(width)
-                .with_min_len(ROWS_PER_TASK)
-                .enumerate()
-                .for_each(|(y, row)| f(y, row))
-        }),
-    }
+    let rows = image.len() / width;
+    crate::parallel::for_each_chunk_mut(
+        pool,
+        &mut image[..rows * width],
+        ROWS_PER_TASK * width,
+        |band, rows| {
+            for (r, row) in rows.chunks_exact_mut(width).enumerate() {
+                f(band * ROWS_PER_TASK + r, row);
+            }
+        },
+    );
 }
 
 /// Whether a JPEG stream defines Huffman tables (a DHT segment before the first scan). Many

@@ -30,7 +30,6 @@
 
 use super::pixel_format::CodeImage;
 use super::CaptureError;
-use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -403,8 +402,9 @@ impl Linearizer {
         self.linearize_into_on(image, out, None);
     }
 
-    /// [`Self::linearize`] with blocks of pixels in parallel on `pool` (`None`: the calling
-    /// thread); each pixel by itself, so the result is the same to the bit either way.
+    /// [`Self::linearize`] with blocks of pixels on the calling thread and `pool`'s helper
+    /// threads together (`None`: the calling thread alone; src/parallel.rs); each pixel by
+    /// itself, so the result is the same to the bit either way.
     pub fn linearize_on(
         &self,
         image: &CodeImage,
@@ -460,11 +460,13 @@ impl Linearizer {
         };
         match pool {
             None => convert(out, &image.pixels),
-            Some(pool) => pool.install(|| {
-                out.par_chunks_mut(PIXELS_PER_TASK)
-                    .zip(image.pixels.par_chunks(PIXELS_PER_TASK))
-                    .for_each(|(out, codes)| convert(out, codes))
-            }),
+            // The calling thread and the pool's helpers take chunks in turn (src/parallel.rs).
+            Some(pool) => {
+                crate::parallel::for_each_chunk_mut(Some(pool), out, PIXELS_PER_TASK, |i, out| {
+                    let codes = image.pixels.get(i * PIXELS_PER_TASK..).unwrap_or(&[]);
+                    convert(out, codes)
+                })
+            }
         }
     }
 }

@@ -20,9 +20,10 @@
 //! scale → [`HdrFrame`] with the configured projection. The frame's time is the driver's
 //! timestamp (`v4l2_buffer.timestamp`, CLOCK_MONOTONIC on current drivers) relative to the
 //! first frame. With `convert_threads` > 1, decoding and linearisation convert bands of rows in
-//! parallel on the source's own pool of that many threads (`envlight-convert-N`, at most the
-//! machine's cores), so no other stage's rayon work can delay a frame; with 1 they run on the
-//! capture thread. The result is the same to the bit either way.
+//! parallel: the capture thread and `convert_threads` − 1 helpers of the source's own
+//! (`envlight-convert-N`; at most the machine's cores in all; src/parallel.rs), so no other
+//! stage's rayon work can delay a frame; with 1 the capture thread converts alone. The result
+//! is the same to the bit either way.
 //!
 //! With bracketing, each frame is a bracket set: for every configured exposure the control is
 //! set, `settle_frames` frames are dropped (drivers apply controls a frame or two late), one
@@ -92,8 +93,8 @@ pub struct CameraSettings {
     pub retry: super::resilient::RetryPolicy,
     /// How pixels map to directions.
     pub projection: Projection,
-    /// Threads that decode and linearise each frame (bands of rows in parallel; 1 = the
-    /// conversion runs on one pool thread).
+    /// Threads that decode and linearise each frame, the capture thread included (bands of
+    /// rows in parallel; 1 = the capture thread converts alone; at most the machine's cores).
     pub convert_threads: usize,
 }
 
@@ -232,8 +233,8 @@ pub struct V4l2Source {
     card: String,
     /// Tables for the last (exposure, gain) bit patterns.
     linearizer: Option<((u64, u64), Linearizer)>,
-    /// The threads that convert each frame (decoding and linearisation); `None`: the capture
-    /// thread does.
+    /// The threads that help the capture thread convert each frame (decoding and
+    /// linearisation); `None`: the capture thread converts alone.
     convert_pool: Option<rayon::ThreadPool>,
 }
 
@@ -320,20 +321,13 @@ impl V4l2Source {
             fmt.height,
             fmt.stride
         );
-        let convert_threads = settings.convert_threads.clamp(1, cores());
-        let convert_pool = if convert_threads > 1 {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(convert_threads)
-                .thread_name(|i| format!("envlight-convert-{i}"))
-                .build()
-                .map_err(|e| CaptureError::Io {
+        let convert_pool =
+            crate::parallel::helper_pool(settings.convert_threads, "envlight-convert").map_err(
+                |e| CaptureError::Io {
                     path: path.clone(),
                     source: io::Error::other(format!("starting the conversion threads: {e}")),
-                })?;
-            Some(pool)
-        } else {
-            None
-        };
+                },
+            )?;
         Ok(Self {
             convert_pool,
             path,
@@ -524,11 +518,6 @@ impl Drop for V4l2Source {
             }
         }
     }
-}
-
-/// The machine's cores (1 if unknown).
-fn cores() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 /// Exposure time in V4L2's 100 µs units (at least 1).

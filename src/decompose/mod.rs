@@ -410,26 +410,15 @@ impl Decomposer {
         if table && !self.resample_pool_tried {
             // Started with the first frame that needs it (a lat-long map of a multiple of the
             // working size never does). The decomposition thread sums bands too, so the pool
-            // holds the others. The cores are counted here, once (`available_parallelism`
-            // reads the cgroup's files: not a cost for every frame).
+            // holds the others. The cores are counted here, once (not a cost for every frame).
             self.resample_pool_tried = true;
-            let helpers = self
-                .settings
-                .resample_threads
-                .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
-                - 1;
-            if helpers > 0 {
-                match rayon::ThreadPoolBuilder::new()
-                    .num_threads(helpers)
-                    .thread_name(|i| format!("envlight-resample-{i}"))
-                    .build()
-                {
-                    Ok(pool) => self.resample_pool = Some(pool),
-                    // The calling thread resamples alone: the same lights, only slower.
-                    Err(e) => tracing::warn!(
-                        "starting {helpers} resampling threads: {e}; resampling on one"
-                    ),
-                }
+            match crate::parallel::helper_pool(self.settings.resample_threads, "envlight-resample")
+            {
+                Ok(pool) => self.resample_pool = pool,
+                // The calling thread resamples alone: the same lights, only slower.
+                Err(e) => tracing::warn!(
+                    "starting the resampling threads: {e}; resampling on the decomposition thread"
+                ),
             }
         }
         let Some(resampler) = self.resampler.as_mut() else {

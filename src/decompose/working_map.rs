@@ -23,8 +23,6 @@ use crate::frame::HdrFrame;
 use glam::Vec3A;
 use rayon::prelude::*;
 use std::f64::consts::PI;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Mutex, PoisonError};
 
 /// One input pixel of a concentrated working pixel.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -249,39 +247,6 @@ fn map_entry(sum: [f64; 3]) -> ([f32; 3], f32) {
     // Not clamped: NaN or ∞ here must reach the careful sum of `Resampler::resample`
     // (f32::min would turn NaN into a finite value).
     (energy, super::luminance_f64(sum) as f32)
-}
-
-/// Sums every band of `bands` into its entry of `band_sums`, with `pool`'s threads as helpers
-/// of the calling thread. The calling thread works too (it would otherwise only wait,
-/// and a helper woken from idle may start late: on a VM a halted virtual CPU takes a while to
-/// wake, docs/performance.md), and every thread takes the next band not yet taken until none
-/// is left, so a late or busy helper just sums fewer bands. Which thread sums a band does not
-/// change its sums.
-fn sum_bands(
-    bands: &[TableBand],
-    band_sums: &mut [BandSums],
-    pixels: &[[f32; 3]],
-    solid_angle: &[f32],
-    pool: &rayon::ThreadPool,
-) {
-    let outs: Vec<Mutex<&mut BandSums>> = band_sums.iter_mut().map(Mutex::new).collect();
-    let next = AtomicUsize::new(0);
-    let work = || loop {
-        let b = next.fetch_add(1, Ordering::Relaxed);
-        let (Some(band), Some(out)) = (bands.get(b), outs.get(b)) else {
-            break;
-        };
-        // Each band is taken once, so its lock is never contended (nor poisoned: `sum`
-        // does not panic on a plan made for this frame's size).
-        let mut out = out.lock().unwrap_or_else(PoisonError::into_inner);
-        band.sum(pixels, solid_angle, &mut out);
-    };
-    pool.in_place_scope(|scope| {
-        for _ in 0..pool.current_num_threads() {
-            scope.spawn(|_| work());
-        }
-        work();
-    });
 }
 
 /// The runs of equal targets in `target` (u32::MAX = none, left out).
@@ -573,7 +538,13 @@ impl Resampler {
                 if let Some(pool) = pool {
                     let band_sums = &mut self.band_sums;
                     band_sums.resize_with(bands.len(), BandSums::default);
-                    sum_bands(bands, band_sums, pixels, solid_angle, pool);
+                    // The decomposition thread and the pool's helpers take bands in turn
+                    // (src/parallel.rs); which thread sums a band does not change its sums.
+                    crate::parallel::for_each_chunk_mut(Some(pool), band_sums, 1, |b, out| {
+                        if let (Some(band), [out]) = (bands.get(b), out) {
+                            band.sum(pixels, solid_angle, out);
+                        }
+                    });
                     // Each working pixel with input is owned by one band; the others stay 0,
                     // as `new` made them.
                     for (band, sums) in bands.iter().zip(band_sums.iter()) {

@@ -689,7 +689,7 @@ impl StreamServer {
 
         let helpers_per_channel = config
             .pass_threads
-            .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
+            .min(crate::parallel::cores())
             .saturating_sub(1);
         let mut pass_helpers = PassHelpers::default();
         if helpers_per_channel > 0 {
