@@ -9,9 +9,9 @@
 //! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth; with AVX2
 //! the horizontal sums of a factor-4 filter take eight working pixels at a time); other
 //! inputs (a camera's fisheye, the angular map, odd sizes) use a per-pixel index table built
-//! once per input geometry, summed in bands of input rows that may run on a thread pool (the
-//! result does not depend on the number of threads: the bands are fixed and their partial
-//! sums are added in band order).
+//! once per input geometry, summed in bands of input rows that helper threads may share with
+//! the calling one (src/parallel.rs; the result does not depend on the number of threads: each
+//! working pixel is summed whole, over its runs in input order, by the one band that owns it).
 //!
 //! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
 //! *concentrated*: their input pixels are also kept as [`FineSample`]s with exact directions,
