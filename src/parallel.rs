@@ -16,10 +16,12 @@
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Mutex, PoisonError};
 
-/// The machine's cores (1 if unknown). Counted afresh on each call (`available_parallelism`
-/// reads the cgroup's files): call it when a stage starts, not per frame.
+/// The machine's cores (1 if unknown), counted once per process: `available_parallelism`
+/// reads the cgroup's files, which cost 10–25% of a fisheye frame's decomposition when it was
+/// called every frame (docs/performance.md, "A camera's frames"); the ASG fit asks every frame.
 pub fn cores() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
+    static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
 }
 
 /// The helpers of a stage of `threads` threads, the calling one included: a pool of

@@ -458,16 +458,12 @@ impl Linearizer {
                 }
             }
         };
-        match pool {
-            None => convert(out, &image.pixels),
-            // The calling thread and the pool's helpers take chunks in turn (src/parallel.rs).
-            Some(pool) => {
-                crate::parallel::for_each_chunk_mut(Some(pool), out, PIXELS_PER_TASK, |i, out| {
-                    let codes = image.pixels.get(i * PIXELS_PER_TASK..).unwrap_or(&[]);
-                    convert(out, codes)
-                })
-            }
-        }
+        // The calling thread alone, or with the pool's helpers taking chunks in turn
+        // (src/parallel.rs).
+        crate::parallel::for_each_chunk_mut(pool, out, PIXELS_PER_TASK, |i, out| {
+            let codes = image.pixels.get(i * PIXELS_PER_TASK..).unwrap_or(&[]);
+            convert(out, codes)
+        });
     }
 }
 

@@ -158,7 +158,7 @@ pub struct DecomposeSettings {
 }
 
 /// Default of [`DecomposeSettings::resample_threads`]: two threads take a 1280×960 fisheye
-/// frame into 256 lights from 2.2–3.0 ms to 1.5–1.7 ms on the development VM
+/// frame into 256 lights from 2.2–2.8 ms to 1.5–1.7 ms on the development VM
 /// (docs/performance.md, "A camera's frames"), as `camera.convert_threads` speeds its
 /// conversion.
 pub const DEFAULT_RESAMPLE_THREADS: usize = 2;
@@ -410,7 +410,7 @@ impl Decomposer {
         if table && !self.resample_pool_tried {
             // Started with the first frame that needs it (a lat-long map of a multiple of the
             // working size never does). The decomposition thread sums bands too, so the pool
-            // holds the others. The cores are counted here, once (not a cost for every frame).
+            // holds the others.
             self.resample_pool_tried = true;
             match crate::parallel::helper_pool(self.settings.resample_threads, "envlight-resample")
             {
