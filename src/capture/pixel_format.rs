@@ -814,13 +814,15 @@ fn decode_jpeg(
         out.pixels.resize(n, [0.0; 3]);
     }
     let row_bytes = 3 * w as usize;
+    // b / 255 for every byte, looked up instead of divided (the same bits).
+    let codes: [f32; 256] = std::array::from_fn(|b| f32::from(b as u8) / 255.0);
     each_row(pool, &mut out.pixels, w as usize, |y, row| {
         let src = &bytes[y * row_bytes..(y + 1) * row_bytes];
         for (p, d) in src.chunks_exact(3).zip(row.iter_mut()) {
             *d = [
-                f32::from(p[0]) / 255.0,
-                f32::from(p[1]) / 255.0,
-                f32::from(p[2]) / 255.0,
+                codes[usize::from(p[0])],
+                codes[usize::from(p[1])],
+                codes[usize::from(p[2])],
             ];
         }
     });
