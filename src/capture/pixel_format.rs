@@ -1016,35 +1016,30 @@ mod tests {
         }
     }
 
-    /// The demosaic as it was written before the row kernels: every pixel through the
-    /// mirrored-index stencil. The kernels must give the same bits.
+    /// Every pixel through [`BayerRows::pixel`], the mirrored-index stencil (the demosaic as it
+    /// was before the row kernels), row by row. The kernels must give the same bits.
     fn demosaic_per_pixel(
         mosaic: &[f32],
         w: usize,
         h: usize,
         pattern: BayerPattern,
     ) -> Vec<[f32; 3]> {
-        let mut out = vec![[0.0f32; 3]; w * h];
-        for y in 0..h {
-            let (up, down) = (mirror(y as isize - 1, h) * w, mirror(y as isize + 1, h) * w);
-            let row = y * w;
-            for x in 0..w {
-                let own = pattern.channel(x, y);
-                let (l, r) = (mirror(x as isize - 1, w), mirror(x as isize + 1, w));
-                let m = |i: usize| mosaic[i];
-                let px = &mut out[row + x];
-                px[own] = m(row + x);
-                if own != 1 {
-                    px[1] = 0.25 * (m(row + l) + m(row + r) + m(up + x) + m(down + x));
-                    px[2 - own] = 0.25 * (m(up + l) + m(up + r) + m(down + l) + m(down + r));
-                } else {
-                    let horizontal = pattern.channel(x + 1, y);
-                    px[horizontal] = 0.5 * (m(row + l) + m(row + r));
-                    px[2 - horizontal] = 0.5 * (m(up + x) + m(down + x));
-                }
-            }
-        }
-        out
+        let row = |y: usize| &mosaic[y * w..][..w];
+        (0..h)
+            .flat_map(|y| {
+                let rows = BayerRows {
+                    up: row(mirror(y as isize - 1, h)),
+                    row: row(y),
+                    down: row(mirror(y as isize + 1, h)),
+                };
+                (0..w).map(move |x| rows.pixel(pattern, x, y))
+            })
+            .collect()
+    }
+
+    /// The bit patterns of an image's samples, to compare images bit for bit.
+    fn sample_bits(image: &[[f32; 3]]) -> Vec<[u32; 3]> {
+        image.iter().map(|p| p.map(f32::to_bits)).collect()
     }
 
     /// The row kernels (interior pixels in pairs of fixed colours, borders mirrored) give the
@@ -1083,10 +1078,7 @@ mod tests {
                 for helpers in [None, pool.as_ref()] {
                     let mut got = vec![[f32::NAN; 3]; w * h];
                     demosaic_bilinear_on(&mosaic, w, h, pattern, &mut got, helpers);
-                    let bits = |v: &[[f32; 3]]| -> Vec<[u32; 3]> {
-                        v.iter().map(|p| p.map(f32::to_bits)).collect()
-                    };
-                    assert_eq!(bits(&got), bits(&want), "{w}x{h} {pattern:?}");
+                    assert_eq!(sample_bits(&got), sample_bits(&want), "{w}x{h} {pattern:?}");
                 }
             }
         }
@@ -1122,19 +1114,15 @@ mod tests {
             }
             let mut frame = raw(&data, format, w as u32, h as u32);
             frame.stride = stride;
-            let want: Vec<[u32; 3]> = demosaic_per_pixel(&mosaic, w, h, pattern)
-                .iter()
-                .map(|p| p.map(f32::to_bits))
-                .collect();
+            let want = sample_bits(&demosaic_per_pixel(&mosaic, w, h, pattern));
             for helpers in [None, pool.as_ref()] {
-                let mut img =
-                    decode(&raw(&[], format, 0, 0), YuvMatrix::Auto).unwrap_or(CodeImage {
-                        width: 0,
-                        height: 0,
-                        pixels: Vec::new(),
-                    });
+                let mut img = CodeImage {
+                    width: 0,
+                    height: 0,
+                    pixels: Vec::new(),
+                };
                 decode_into_on(&frame, YuvMatrix::Auto, &mut img, helpers).unwrap();
-                let got: Vec<[u32; 3]> = img.pixels.iter().map(|p| p.map(f32::to_bits)).collect();
+                let got = sample_bits(&img.pixels);
                 let first_difference = got.iter().zip(&want).position(|(a, b)| a != b);
                 assert_eq!(got.len(), want.len(), "{format}");
                 assert_eq!(first_difference, None, "{format}");
