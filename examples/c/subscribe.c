@@ -1,0 +1,197 @@
+/* subscribe.c: a C client of the envlight daemon (envlight_client.h, docs/protocol.md).
+ *
+ * Connects over a Unix socket or TCP, subscribes, and prints one line per frame: a summary
+ * (as examples/client.py does), or with --json the frame in the protocol's JSON form (floats
+ * with 9 significant digits, which give back the exact f32; the time with 17).
+ *
+ *     cc -std=c99 -O2 -o subscribe examples/c/subscribe.c -lm
+ *     ./subscribe unix:/run/envlight/envlight.sock
+ *     ./subscribe 127.0.0.1:7878 --max-lights 16 --frames 10 --json
+ *     ./subscribe 127.0.0.1:7878 --representation asg       # needs [asg] enabled
+ *     ./subscribe 127.0.0.1:7878 --representation wavelet   # needs [wavelet] enabled
+ *
+ * Exit status: 0 after --frames frames or the daemon's goodbye, 1 on an error (the daemon's
+ * error message, a lost connection, bad bytes), 2 on a usage error.
+ */
+#define _POSIX_C_SOURCE 200112L
+#define ENVLIGHT_CLIENT_IMPLEMENTATION
+#include "envlight_client.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const char usage[] =
+    "usage: subscribe ADDRESS [--max-lights N] [--frames N] "
+    "[--representation lights|asg|wavelet] [--json]\n"
+    "  ADDRESS: unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT\n"
+    "  --max-lights N   at most N records per frame, the brightest (0 = all; default 0)\n"
+    "  --frames N       stop after N frames (0 = until the daemon's goodbye; default 0)\n"
+    "  --representation lights (default), asg (needs [asg] enabled) or wavelet ([wavelet])\n"
+    "  --json           print each frame as JSON (docs/protocol.md) instead of a summary\n";
+
+/* A non-negative decimal number that fits in 32 bits, or -1. */
+static long parse_count(const char *text) {
+    char *end = NULL;
+    unsigned long long v = strtoull(text, &end, 10);
+    if (text[0] < '0' || text[0] > '9' || end == NULL || *end != '\0' || v > 0xffffffffull)
+        return -1;
+    return (long)v;
+}
+
+static void print_vec(const float v[3]) {
+    printf("[%.9g,%.9g,%.9g]", (double)v[0], (double)v[1], (double)v[2]);
+}
+
+static const char *basis_name(int code, char *buf, size_t len) {
+    if (code == 1) return "haar";
+    if (code >= 2 && code <= 10) snprintf(buf, len, "db%d", code);
+    else snprintf(buf, len, "coif%d", code - 16);
+    return buf;
+}
+
+static void print_json(const envlight_message *m) {
+    static const char *const names[3] = {"lights", "asg", "wavelet"};
+    printf("{\"seq\":%llu,\"time\":%.17g,\"representation\":\"%s\",\"stale\":%s,",
+           (unsigned long long)m->seq, m->time, names[m->representation],
+           m->stale ? "true" : "false");
+    if (m->representation == ENVLIGHT_LIGHTS) {
+        printf("\"lights\":[");
+        for (uint32_t i = 0; i < m->count; i++) {
+            const envlight_light *l = &m->lights[i];
+            printf("%s{\"id\":%lu,\"dir\":", i ? "," : "", (unsigned long)l->id);
+            print_vec(l->dir);
+            printf(",\"rgb\":");
+            print_vec(l->rgb);
+            printf(",\"solid_angle\":%.9g}", (double)l->solid_angle);
+        }
+    } else if (m->representation == ENVLIGHT_ASG) {
+        printf("\"lobes\":[");
+        for (uint32_t i = 0; i < m->count; i++) {
+            const envlight_lobe *g = &m->lobes[i];
+            printf("%s{\"id\":%lu,\"axis\":", i ? "," : "", (unsigned long)g->id);
+            print_vec(g->axis);
+            printf(",\"tangent\":");
+            print_vec(g->tangent);
+            printf(",\"lambda\":%.9g,\"mu\":%.9g,\"rgb\":", (double)g->lambda, (double)g->mu);
+            print_vec(g->rgb);
+            printf(",\"integral\":%.9g}", (double)g->integral);
+        }
+    } else {
+        char buf[16];
+        printf("\"basis\":\"%s\",\"side\":%lu,\"levels\":%d,\"coefficients\":[",
+               basis_name(m->basis, buf, sizeof buf), (unsigned long)m->side, m->levels);
+        for (uint32_t i = 0; i < m->count; i++) {
+            printf("%s[%lu,", i ? "," : "", (unsigned long)m->coefficients[i].index);
+            print_vec(m->coefficients[i].rgb);
+            printf("]");
+        }
+    }
+    printf("]}\n");
+}
+
+static void print_summary(const envlight_message *m) {
+    double total[3] = {0, 0, 0};
+    const char *what = "lights";
+    char buf[16];
+    char wavelet_what[96];
+    for (uint32_t i = 0; i < m->count; i++)
+        for (int k = 0; k < 3; k++) {
+            if (m->representation == ENVLIGHT_LIGHTS) total[k] += m->lights[i].rgb[k];
+            else if (m->representation == ENVLIGHT_ASG)
+                total[k] += (double)m->lobes[i].rgb[k] * m->lobes[i].integral;
+        }
+    if (m->representation == ENVLIGHT_ASG) what = "ASG lobes";
+    if (m->representation == ENVLIGHT_WAVELET) {
+        /* Sum of texels = 2^levels * sum of the scaling coefficients (the top-left block of
+         * side / 2^levels); a texel is 4 pi / side^2 sr. */
+        uint32_t block = m->side >> m->levels;
+        double scale = (double)(1u << m->levels) * 4.0 * 3.14159265358979323846 /
+                       ((double)m->side * m->side);
+        for (uint32_t i = 0; i < m->count; i++) {
+            uint32_t row = m->coefficients[i].index / m->side;
+            uint32_t col = m->coefficients[i].index % m->side;
+            if (row < block && col < block)
+                for (int k = 0; k < 3; k++) total[k] += scale * m->coefficients[i].rgb[k];
+        }
+        snprintf(wavelet_what, sizeof wavelet_what, "wavelet coefficients (%s on %lu^2, %d levels)",
+                 basis_name(m->basis, buf, sizeof buf), (unsigned long)m->side, m->levels);
+        what = wavelet_what;
+    }
+    printf("seq %llu time %.3f s: %lu %s, total rgb [%.4f, %.4f, %.4f]%s\n",
+           (unsigned long long)m->seq, m->time, (unsigned long)m->count, what, total[0],
+           total[1], total[2], m->stale ? " (stale)" : "");
+}
+
+int main(int argc, char **argv) {
+    const char *address = NULL;
+    long max_lights = 0, frames = 0;
+    int representation = ENVLIGHT_LIGHTS, json = 0;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        const char *value = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(a, "--json") == 0) {
+            json = 1;
+        } else if (strcmp(a, "-h") == 0 || strcmp(a, "--help") == 0) {
+            fputs(usage, stdout);
+            return 0;
+        } else if (strcmp(a, "--max-lights") == 0 || strcmp(a, "--frames") == 0) {
+            long v = value ? parse_count(value) : -1;
+            if (v < 0) {
+                fprintf(stderr, "subscribe: %s needs a count (0..4294967295), got %s\n%s", a,
+                        value ? value : "nothing", usage);
+                return 2;
+            }
+            *(a[2] == 'm' ? &max_lights : &frames) = v;
+            i++;
+        } else if (strcmp(a, "--representation") == 0) {
+            if (value && strcmp(value, "lights") == 0) representation = ENVLIGHT_LIGHTS;
+            else if (value && strcmp(value, "asg") == 0) representation = ENVLIGHT_ASG;
+            else if (value && strcmp(value, "wavelet") == 0) representation = ENVLIGHT_WAVELET;
+            else {
+                fprintf(stderr, "subscribe: --representation is lights, asg or wavelet, got %s\n",
+                        value ? value : "nothing");
+                return 2;
+            }
+            i++;
+        } else if (a[0] == '-' || address != NULL) {
+            fprintf(stderr, "subscribe: unexpected argument %s\n%s", a, usage);
+            return 2;
+        } else {
+            address = a;
+        }
+    }
+    if (address == NULL) {
+        fputs(usage, stderr);
+        return 2;
+    }
+
+    char err[512];
+    envlight_client *c =
+        envlight_connect(address, (uint32_t)max_lights, representation, err, sizeof err);
+    if (c == NULL) {
+        fprintf(stderr, "subscribe: %s\n", err);
+        return 1;
+    }
+    long received = 0;
+    const envlight_message *m = NULL;
+    int status = 0;
+    while (frames == 0 || received < frames) {
+        int got = envlight_next(c, &m);
+        if (got == 0) {
+            fprintf(stderr, "goodbye: %s\n", envlight_error(c));
+            break;
+        }
+        if (got < 0) {
+            fprintf(stderr, "subscribe: %s: %s\n", address, envlight_error(c));
+            status = 1;
+            break;
+        }
+        if (json) print_json(m);
+        else print_summary(m);
+        fflush(stdout);
+        received++;
+    }
+    envlight_close(c);
+    return status;
+}
