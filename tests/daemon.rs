@@ -939,6 +939,14 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     );
     assert!(log.contains("SIGHUP: applied [decompose]"), "{log}");
     assert!(log.contains("SIGTERM: shutting down"), "{log}");
+    // The client's arrival and departure, with how long it stayed and what it skipped.
+    assert!(log.contains("client subscribed client=uds"), "{log}");
+    let left = log.lines().find(|l| l.contains("client left client=uds"));
+    let left = left.unwrap_or_else(|| panic!("no departure logged:\n{log}"));
+    assert!(
+        left.contains("connected_s=") && left.contains("skipped_frames="),
+        "{left}"
+    );
 }
 
 /// systemd/envlight.service as systemd reads it (`systemd-analyze verify`, from the `systemd`

@@ -662,6 +662,11 @@ envlight_client *envlight_connect(const char *address, uint32_t max_lights, int 
     }
     c->fd = -1;
     c->state = 1;
+    if (strncmp(address, "ws://", 5) == 0 || strncmp(address, "wss://", 6) == 0) {
+        snprintf(c->error, sizeof c->error, "%s: this client speaks to the Unix socket and TCP "
+                 "endpoints, not WebSocket", address);
+        return envlight_fail_connect_(c, err, err_len);
+    }
     int is_unix = strncmp(address, "unix:", 5) == 0 ||
                   (strncmp(address, "tcp:", 4) != 0 && strchr(address, '/') != NULL);
     if (is_unix) {

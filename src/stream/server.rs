@@ -60,7 +60,7 @@ use futures_util::future::BoxFuture;
 use futures_util::{SinkExt, StreamExt};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -972,6 +972,8 @@ impl Acceptor {
             label: ClientLabel {
                 client: name.clone(),
             },
+            since: Instant::now(),
+            subscribed: AtomicBool::new(false),
         };
         let label = EndpointLabel {
             endpoint: self.endpoint,
@@ -989,7 +991,7 @@ impl Acceptor {
             name,
             shutdown: self.shutdown.clone(),
             over_limit,
-            _guard: guard,
+            guard,
             _done: self.done.clone(),
         }
     }
@@ -1037,11 +1039,17 @@ enum HandshakeEvent<T> {
     Timeout,
 }
 
-/// Counts a client while it is connected.
+/// Counts a client while it is connected, and says when a subscribed one leaves.
 struct ClientGuard {
     ctx: Arc<Context>,
     endpoint: &'static str,
     label: ClientLabel,
+    /// When the connection was accepted.
+    since: Instant,
+    /// Whether the client subscribed: its leaving is then logged at info, with how long it
+    /// stayed and how many frames it skipped (a connection that never subscribed was logged
+    /// when it was closed, if at all).
+    subscribed: AtomicBool,
 }
 
 impl Drop for ClientGuard {
@@ -1055,8 +1063,18 @@ impl Drop for ClientGuard {
             .clients_connected
             .get_or_create(&label)
             .dec();
+        if self.subscribed.load(Ordering::Relaxed) {
+            let skipped = (self.ctx.metrics.client_skipped.get(&self.label)).map_or(0, |g| g.get());
+            tracing::info!(
+                client = %self.label.client,
+                connected_s = format_args!("{:.1}", self.since.elapsed().as_secs_f64()),
+                skipped_frames = skipped,
+                "client left"
+            );
+        } else {
+            tracing::debug!(client = %self.label.client, "client disconnected");
+        }
         self.ctx.metrics.client_skipped.remove(&self.label);
-        tracing::debug!(client = %self.label.client, "client disconnected");
     }
 }
 
@@ -1083,7 +1101,7 @@ struct Connection {
     name: String,
     shutdown: watch::Receiver<Option<String>>,
     over_limit: bool,
-    _guard: ClientGuard,
+    guard: ClientGuard,
     _done: mpsc::Sender<()>,
 }
 
@@ -1165,7 +1183,7 @@ impl Connection {
             self.ctx
                 .metrics
                 .client_skipped
-                .get_or_create(&self._guard.label)
+                .get_or_create(&self.guard.label)
                 .set(i64::try_from(progress.skipped).unwrap_or(i64::MAX));
         }
         progress.last_index = index;
@@ -1217,7 +1235,7 @@ impl Connection {
             skipped: metrics.frames_skipped.get_or_create(&self.label()).clone(),
             client_skipped: metrics
                 .client_skipped
-                .get_or_create(&self._guard.label)
+                .get_or_create(&self.guard.label)
                 .clone(),
             delivery: metrics.delivery_seconds.clone(),
         }
@@ -1314,6 +1332,7 @@ impl Connection {
             format = ?request.format,
             "client subscribed"
         );
+        self.guard.subscribed.store(true, Ordering::Relaxed);
         // Bytes that came with the subscribe are input after it.
         if subscribed_binary && decoder.buffered() > 0 {
             return self.unexpected_input(&mut decoder);
@@ -1618,6 +1637,7 @@ impl Connection {
             format = ?request.format,
             "client subscribed"
         );
+        self.guard.subscribed.store(true, Ordering::Relaxed);
         let mut progress = Progress::default();
         loop {
             let event = tokio::select! {
