@@ -250,6 +250,9 @@ impl Pipeline {
         let mut step: Step = Box::new(decompose);
         let shared = Arc::new(Shared::default());
         let (frame_tx, frame_rx) = crossbeam_channel::bounded::<HdrFrame>(options.queue_capacity);
+        // Pixel buffers going back to the source (FrameSource::recycle) from the decompose
+        // thread, when the decomposition was a frame's last use.
+        let (recycle_tx, recycle_rx) = crossbeam_channel::bounded::<Vec<[f32; 3]>>(2);
         let (lights_tx, lights_rx) = watch::channel::<LatestLights>(None);
         let lights_tx = Arc::new(lights_tx);
         tracing::info!(
@@ -314,11 +317,22 @@ impl Pipeline {
                             None => {}
                         }
                     }
-                    if let (Some(tx), Some(frame)) = (&tap, frame) {
-                        if tx.send(Tapped { frame, lights }).is_err() {
-                            tracing::warn!("the recorder is gone; frames are no longer recorded");
-                            tap = None;
+                    let unused = match (&tap, frame) {
+                        (Some(tx), Some(frame)) => {
+                            if tx.send(Tapped { frame, lights }).is_err() {
+                                tracing::warn!(
+                                    "the recorder is gone; frames are no longer recorded"
+                                );
+                                tap = None;
+                            }
+                            None
                         }
+                        (_, frame) => frame,
+                    };
+                    // Nothing else needs the frame: its buffer goes back to the source (or,
+                    // when two are waiting already, to the allocator).
+                    if let Some(frame) = unused {
+                        let _ = recycle_tx.try_send(frame.pixels);
                     }
                 }
             })
@@ -336,6 +350,7 @@ impl Pipeline {
                     source.as_mut(),
                     &frame_tx,
                     &frame_rx,
+                    &recycle_rx,
                     policy,
                     &capture_shared,
                 )
@@ -466,20 +481,29 @@ impl Drop for StopOnDrop {
     }
 }
 
-/// The body of the capture thread.
+/// The body of the capture thread. Before each frame the source gets back the pixel buffers
+/// the decompose thread is done with (`recycled`).
 fn capture_loop(
     source: &mut dyn FrameSource,
     tx: &Sender<HdrFrame>,
     oldest: &Receiver<HdrFrame>,
+    recycled: &Receiver<Vec<[f32; 3]>>,
     policy: QueuePolicy,
     shared: &Shared,
 ) {
     while !shared.shutdown.load(Ordering::Acquire) {
+        for pixels in recycled.try_iter() {
+            source.recycle(pixels);
+        }
         match source.next_frame() {
             Ok(Some(frame)) => {
                 shared.frames_captured.fetch_add(1, Ordering::AcqRel);
                 match policy {
-                    QueuePolicy::DropOldest => push_drop_oldest(tx, oldest, frame, shared),
+                    QueuePolicy::DropOldest => {
+                        if let Some(dropped) = push_drop_oldest(tx, oldest, frame, shared) {
+                            source.recycle(dropped.pixels);
+                        }
+                    }
                     QueuePolicy::Block => push_blocking(tx, frame, shared),
                 }
             }
@@ -522,28 +546,30 @@ fn push_blocking(tx: &Sender<HdrFrame>, mut frame: HdrFrame, shared: &Shared) {
 }
 
 /// Queues `frame` without blocking: while the queue is full, takes out the oldest frame and
-/// counts it as dropped.
+/// counts it as dropped. Returns the last frame dropped, if any (its buffer can be reused).
 fn push_drop_oldest(
     tx: &Sender<HdrFrame>,
     oldest: &Receiver<HdrFrame>,
     mut frame: HdrFrame,
     shared: &Shared,
-) {
+) -> Option<HdrFrame> {
+    let mut last_dropped = None;
     loop {
         match tx.try_send(frame) {
-            Ok(()) => return,
+            Ok(()) => return last_dropped,
             Err(TrySendError::Full(back)) => {
                 frame = back;
                 // The decompose thread may have emptied a slot meanwhile: then nothing is dropped.
                 if let Ok(dropped) = oldest.try_recv() {
                     shared.frames_dropped.fetch_add(1, Ordering::AcqRel);
                     tracing::debug!(seq = dropped.seq, "queue full: dropped the oldest frame");
+                    last_dropped = Some(dropped);
                 }
             }
             // Unreachable while `oldest` lives, but dropping is the only sensible answer.
             Err(TrySendError::Disconnected(_)) => {
                 shared.frames_dropped.fetch_add(1, Ordering::AcqRel);
-                return;
+                return last_dropped;
             }
         }
     }
@@ -574,6 +600,10 @@ mod tests {
         fail_at_end: bool,
         thread_name: Arc<Mutex<Option<String>>>,
         finished_at: Arc<Mutex<Option<Instant>>>,
+        /// A buffer handed back by the pipeline: the next frame is written into it.
+        spare: Option<Vec<[f32; 3]>>,
+        /// Lengths of the buffers handed back, in order.
+        recycled: Arc<Mutex<Vec<usize>>>,
     }
 
     impl FakeSource {
@@ -585,6 +615,8 @@ mod tests {
                 fail_at_end: false,
                 thread_name: Arc::default(),
                 finished_at: Arc::default(),
+                spare: None,
+                recycled: Arc::default(),
             }
         }
     }
@@ -618,14 +650,19 @@ mod tests {
         assert_eq!(calls, expected);
     }
 
-    fn tiny_frame(seq: u64) -> HdrFrame {
+    /// Pixel i of frame `seq`.
+    fn tiny_pixel(seq: u64, i: usize) -> [f32; 3] {
+        let v = 0.1 + (i % 7) as f32 + seq as f32 * 0.01;
+        [v, v * 0.5, v * 0.25]
+    }
+
+    /// A tiny 16×8 lat-long frame number `seq`, written into `pixels` (whatever it held).
+    fn tiny_frame_in(seq: u64, mut pixels: Vec<[f32; 3]>) -> HdrFrame {
         let (w, h) = (16u32, 8u32);
-        let pixels = (0..w * h)
-            .map(|i| {
-                let v = 0.1 + (i % 7) as f32 + seq as f32 * 0.01;
-                [v, v * 0.5, v * 0.25]
-            })
-            .collect();
+        pixels.resize((w * h) as usize, [0.0; 3]);
+        for (i, p) in pixels.iter_mut().enumerate() {
+            *p = tiny_pixel(seq, i);
+        }
         let mut frame = HdrFrame::new(w, h, pixels, Projection::LatLong).unwrap();
         frame.seq = seq;
         frame.time = seq as f64 / 60.0;
@@ -648,9 +685,14 @@ mod tests {
             if !self.pace.is_zero() {
                 std::thread::sleep(self.pace);
             }
-            let frame = tiny_frame(self.next_seq);
+            let frame = tiny_frame_in(self.next_seq, self.spare.take().unwrap_or_default());
             self.next_seq += 1;
             Ok(Some(frame))
+        }
+
+        fn recycle(&mut self, pixels: Vec<[f32; 3]>) {
+            self.recycled.lock().unwrap().push(pixels.len());
+            self.spare = Some(pixels);
         }
 
         fn describe(&self) -> String {
@@ -717,11 +759,69 @@ mod tests {
         assert_eq!(last.lights.len(), 16);
     }
 
+    /// A decomposition step that checks each frame holds its own pixels (a recycled buffer
+    /// is fully overwritten) and returns no lights.
+    fn checking_step(frame: &HdrFrame) -> LightFrame {
+        for (i, p) in frame.pixels.iter().enumerate() {
+            assert_eq!(
+                *p,
+                tiny_pixel(frame.seq, i),
+                "frame {} pixel {i}",
+                frame.seq
+            );
+        }
+        LightFrame {
+            seq: frame.seq,
+            time: frame.time,
+            lights: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn decomposed_frames_hand_their_buffers_back_to_the_source() {
+        const N: u64 = 30;
+        // Paced, so each frame's buffer is back before the next one is made.
+        let source = FakeSource::new(Some(N), Duration::from_millis(2));
+        let recycled = Arc::clone(&source.recycled);
+        let options = PipelineOptions {
+            queue_policy: QueuePolicy::Block,
+            ..PipelineOptions::new()
+        };
+        let pipeline = Pipeline::start_with(Box::new(source), options, checking_step).unwrap();
+        let stats = pipeline.join().unwrap();
+        assert_eq!(stats.frames_decomposed, N);
+        let recycled = recycled.lock().unwrap().clone();
+        assert!(recycled.len() >= 2, "{recycled:?}");
+        assert!(recycled.iter().all(|&n| n == 16 * 8), "{recycled:?}");
+    }
+
+    #[test]
+    fn a_frame_the_recorder_takes_is_not_handed_back() {
+        const N: u64 = 10;
+        let source = FakeSource::new(Some(N), Duration::from_millis(2));
+        let recycled = Arc::clone(&source.recycled);
+        let (tap_tx, tap_rx) = crossbeam_channel::bounded(N as usize);
+        let options = PipelineOptions {
+            queue_policy: QueuePolicy::Block,
+            tap: Some(tap_tx),
+            ..PipelineOptions::new()
+        };
+        let pipeline = Pipeline::start_with(Box::new(source), options, checking_step).unwrap();
+        pipeline.join().unwrap();
+        assert!(recycled.lock().unwrap().is_empty());
+        let tapped: Vec<Tapped> = tap_rx.try_iter().collect();
+        assert_eq!(tapped.len(), N as usize);
+        for t in &tapped {
+            checking_step(&t.frame);
+        }
+    }
+
     #[test]
     fn slow_decomposition_drops_oldest_without_blocking_capture() {
         const N: u64 = 200;
         let source = FakeSource::new(Some(N), Duration::ZERO);
         let finished_at = Arc::clone(&source.finished_at);
+        let recycled = Arc::clone(&source.recycled);
         let started = Instant::now();
         let pipeline = Pipeline::start_with(
             Box::new(source),
@@ -749,6 +849,8 @@ mod tests {
         );
         assert_eq!(stats.frames_captured, N);
         assert!(stats.frames_dropped > 0, "{stats:?}");
+        // Dropped frames' buffers went back to the source at once.
+        assert!(!recycled.lock().unwrap().is_empty());
         assert_eq!(
             stats.frames_captured,
             stats.frames_decomposed + stats.frames_dropped,

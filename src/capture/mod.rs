@@ -59,6 +59,15 @@ pub trait FrameSource: Send {
     fn health(&self) -> Option<Arc<SourceHealth>> {
         None
     }
+
+    /// The pixel buffer of a frame this source made, handed back once its consumer is done
+    /// with it (the pipeline does so when the decomposition was the frame's last use, and for
+    /// frames it drops from a full queue). A source that fills a new buffer every frame may
+    /// fill this one instead: its length is the frame's, its contents stale. The default
+    /// drops it.
+    fn recycle(&mut self, pixels: Vec<[f32; 3]>) {
+        drop(pixels);
+    }
 }
 
 /// Health of a live source, shared with the pipeline (stream and metrics) through an `Arc`.

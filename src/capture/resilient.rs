@@ -196,6 +196,12 @@ impl FrameSource for ResilientSource {
         }
     }
 
+    fn recycle(&mut self, pixels: Vec<[f32; 3]>) {
+        if let Some(src) = self.inner.as_mut() {
+            src.recycle(pixels);
+        }
+    }
+
     fn describe(&self) -> String {
         match &self.inner {
             Some(s) => format!("{} (reconnecting on loss)", s.describe()),

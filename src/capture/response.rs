@@ -729,14 +729,20 @@ mod tests {
                 .build()
                 .expect("a thread pool");
             let (one, three) = (lin.linearize(&img), lin.linearize_on(&img, Some(&pool)));
+            // A buffer handed back by the pipeline (FrameSource::recycle) holds an old frame:
+            // every pixel is written over.
+            let mut reused = vec![[f32::NAN; 3]; img.pixels.len()];
+            lin.linearize_into_on(&img, &mut reused, Some(&pool));
             assert_eq!(one.len(), img.pixels.len());
-            assert!(
-                one.iter()
-                    .flatten()
-                    .zip(three.iter().flatten())
-                    .all(|(a, b)| a.to_bits() == b.to_bits()),
-                "{model:?}"
-            );
+            for other in [&three, &reused] {
+                assert!(
+                    one.iter()
+                        .flatten()
+                        .zip(other.iter().flatten())
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "{model:?}"
+                );
+            }
             for (p, o) in img.pixels.iter().zip(&one).step_by(997) {
                 for c in 0..3 {
                     let want = lin.apply(c, p[c]);

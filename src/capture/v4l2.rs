@@ -236,6 +236,10 @@ pub struct V4l2Source {
     /// The threads that help the capture thread convert each frame (decoding and
     /// linearisation); `None`: the capture thread converts alone.
     convert_pool: Option<rayon::ThreadPool>,
+    /// A frame's radiance buffer handed back by the pipeline ([`FrameSource::recycle`]): the
+    /// next frame is written into it instead of a new one (a 1280×960 frame's 15 MB, whose
+    /// zeroing or first touch cost about as much as the linear conversion itself).
+    spare_pixels: Vec<[f32; 3]>,
 }
 
 impl V4l2Source {
@@ -353,6 +357,7 @@ impl V4l2Source {
             },
             card: caps.card,
             linearizer: None,
+            spare_pixels: Vec::new(),
         })
     }
 
@@ -547,12 +552,16 @@ impl FrameSource for V4l2Source {
                     Linearizer::new(&self.settings.response, code_max, &self.radiometry(t, g));
                 self.linearizer = Some((key, lin));
             }
-            let lin = self.linearizer.as_ref().map(|(_, l)| l);
-            (
-                lin.map(|l| l.linearize_on(&self.codes, self.convert_pool.as_ref()))
-                    .unwrap_or_default(),
-                ts,
-            )
+            // Every pixel of a recycled buffer is overwritten.
+            let mut pixels = std::mem::take(&mut self.spare_pixels);
+            match &self.linearizer {
+                Some((_, lin)) => {
+                    lin.linearize_into_on(&self.codes, &mut pixels, self.convert_pool.as_ref())
+                }
+                // Not reached (set just above); an empty frame is an error below.
+                None => pixels.clear(),
+            }
+            (pixels, ts)
         } else {
             let exposures = self.settings.bracket_exposures_s.clone();
             let (brackets, first_ts) = self.capture_brackets(&exposures)?;
@@ -589,6 +598,13 @@ impl FrameSource for V4l2Source {
             );
         }
         Ok(Some(frame))
+    }
+
+    fn recycle(&mut self, pixels: Vec<[f32; 3]>) {
+        // Only a buffer that holds a whole frame saves anything.
+        if pixels.capacity() >= self.width as usize * self.height as usize {
+            self.spare_pixels = pixels;
+        }
     }
 
     fn describe(&self) -> String {
