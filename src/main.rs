@@ -27,7 +27,8 @@ into a few hundred temporally stable directional lights per frame, by inverse-tr
 of the luminance (Havran et al. 2005).
 
 Coordinates: right-handed, +Y up. In a lat-long map row 0 is the zenith and the left edge
-(u = 0) looks along -Z, u = 0.25 along +X, u = 0.5 along +Z (Mitsuba 3's convention).
+(u = 0) looks along -Z, u = 0.25 along +X, u = 0.5 along +Z (Mitsuba 3's axes); pixel (x, y)
+is centred at u = (x + 0.5)/W, v = (y + 0.5)/H.
 
 Units: a light's `rgb` is the environment radiance integrated over the light's region of the
 sphere (W/m² at normal incidence, per channel), so the lights of a frame sum to the map's

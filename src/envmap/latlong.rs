@@ -1,4 +1,7 @@
-//! Lat-long (equirectangular) projection in DESIGN.md's (Mitsuba 3's) convention.
+//! Lat-long (equirectangular) projection in DESIGN.md's convention: pixel (x, y) is the patch
+//! around u = (x + 0.5)/W, v = (y + 0.5)/H, θ = πv, φ = 2πu, d = (sin θ sin φ, cos θ,
+//! −sin θ cos φ). The axes and column centres are Mitsuba 3's; Mitsuba puts row y at
+//! θ = πy/(H − 1) instead (docs/quality.md, "Cross-check with Mitsuba 3").
 
 use glam::DVec3;
 use std::f64::consts::PI;
