@@ -709,28 +709,42 @@ fn envlight() -> std::process::Command {
 
 /// `envlight run` in a child process, killed if the test ends (fails) while it still runs, so
 /// that a failed test leaves no daemon behind holding its output pipes.
-struct RunningDaemon(std::process::Child);
+/// `envlight run` in a child process. Its log (stderr) is read as it comes, on a thread of
+/// its own, so that a chatty daemon never blocks on a full pipe.
+struct RunningDaemon {
+    child: std::process::Child,
+    log: Option<std::thread::JoinHandle<String>>,
+}
 
 impl RunningDaemon {
     fn start(config: &Path) -> Self {
-        Self(
-            envlight()
-                .arg("run")
-                .arg("--config")
-                .arg(config)
-                .stderr(std::process::Stdio::piped())
-                .spawn()
-                .unwrap(),
-        )
+        let mut child = envlight()
+            .arg("run")
+            .arg("--config")
+            .arg(config)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut stderr = child.stderr.take().unwrap();
+        let log = spawn("daemon log", move || {
+            let mut log = String::new();
+            let _ = stderr.read_to_string(&mut log);
+            log
+        });
+        Self {
+            child,
+            log: Some(log),
+        }
     }
 
     /// Waits for the daemon to exit (failing after [`TIMEOUT`]); its status and its log.
     fn exit_and_log(&mut self) -> (std::process::ExitStatus, String) {
-        let status = wait_exit(&mut self.0);
-        let mut log = String::new();
-        if let Some(mut stderr) = self.0.stderr.take() {
-            stderr.read_to_string(&mut log).unwrap();
-        }
+        let status = wait_exit(&mut self.child);
+        let log = self
+            .log
+            .take()
+            .map(|t| t.join().unwrap())
+            .unwrap_or_default();
         (status, log)
     }
 }
@@ -738,21 +752,21 @@ impl RunningDaemon {
 impl std::ops::Deref for RunningDaemon {
     type Target = std::process::Child;
     fn deref(&self) -> &Self::Target {
-        &self.0
+        &self.child
     }
 }
 
 impl std::ops::DerefMut for RunningDaemon {
     fn deref_mut(&mut self) -> &mut Self::Target {
-        &mut self.0
+        &mut self.child
     }
 }
 
 impl Drop for RunningDaemon {
     fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
         }
     }
 }
