@@ -489,13 +489,20 @@ fn the_c_decoder_answers_every_message_as_envlight_does() {
     }
 }
 
-/// One subscription's frames from the C example (`--json`) as canonical lines, and its
-/// sequence numbers.
-fn c_frames(program: &Path, address: &str, representation: &str, cap: u32) -> Vec<(u64, String)> {
+/// One subscription's frames from the C example (`--json`, four frames, and `extra`
+/// arguments) as canonical lines, and its sequence numbers.
+fn c_frames(
+    program: &Path,
+    address: &str,
+    representation: &str,
+    cap: u32,
+    extra: &[&str],
+) -> Vec<(u64, String)> {
     let out = Command::new(program)
         .args([address, "--json", "--frames", "4", "--representation"])
         .arg(representation)
         .args(["--max-lights", &cap.to_string()])
+        .args(extra)
         .output()
         .unwrap();
     assert!(
@@ -528,11 +535,20 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
     let stream = &daemon.addresses().stream;
     let unix = format!("unix:{}", stream.unix_socket.clone().unwrap().display());
     let tcp = stream.tcp.unwrap().to_string();
-    for (address, name, representation, cap) in [
-        (&unix, "lights", Representation::Lights, 0),
-        (&tcp, "lights", Representation::Lights, 3),
-        (&unix, "asg", Representation::Asg, 2),
-        (&tcp, "wavelet", Representation::Wavelet, 5),
+    // The last one is a render loop that takes the newest frame every 200 ms without waiting
+    // (`--poll`, envlight_poll): at 30 frames/s it skips some.
+    for (address, name, representation, cap, extra) in [
+        (&unix, "lights", Representation::Lights, 0, &[][..]),
+        (&tcp, "lights", Representation::Lights, 3, &[]),
+        (&unix, "asg", Representation::Asg, 2, &[]),
+        (&tcp, "wavelet", Representation::Wavelet, 5, &[]),
+        (
+            &unix,
+            "lights",
+            Representation::Lights,
+            4,
+            &["--poll", "200"],
+        ),
     ] {
         // A Rust client with the same subscription reads alongside until it has passed the
         // last frame the C client printed.
@@ -561,7 +577,7 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
                 }
             }
         });
-        let c = c_frames(&program, address, name, cap);
+        let c = c_frames(&program, address, name, cap, extra);
         stop_after.store(c.last().map_or(0, |f| f.0), Ordering::Release);
         let rust = rust.join().unwrap();
         assert_eq!(c.len(), 4, "{address} {name}: {c:?}");
@@ -585,6 +601,12 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
             counts.iter().all(|n| *n == expected),
             "{address} {name}: {counts:?}"
         );
+        if !extra.is_empty() {
+            assert!(
+                c.windows(2).any(|w| w[1].0 > w[0].0 + 1),
+                "nothing skipped: {c:?}"
+            );
+        }
     }
     daemon.shutdown().unwrap();
 }

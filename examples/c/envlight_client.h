@@ -9,7 +9,9 @@
  *     UTF-8 text). No I/O: use it where the bytes arrive some other way, e.g. the binary
  *     messages of a WebSocket.
  *   - envlight_connect() / envlight_next(): a blocking client over a Unix domain socket or TCP
- *     that subscribes and hands back one frame (light list, ASG set or wavelet set) per call.
+ *     that subscribes and hands back one frame (light list, ASG set or wavelet set) per call;
+ *     or envlight_poll(), which never waits and hands back the newest frame that has arrived
+ *     (for a render loop that wants the current lighting once per frame).
  *
  * In exactly one C or C++ file of a program:
  *
@@ -185,13 +187,21 @@ envlight_client *envlight_connect(const char *address, uint32_t max_lights, int 
  * envlight_error() say which). After 0 or -1 every later call returns the same. */
 int envlight_next(envlight_client *c, const envlight_message **frame);
 
+/* Does not wait: reads what has arrived and returns 1 with the newest complete frame in
+ * *frame (older ones that arrived meanwhile are skipped: compare seq), 2 when no new frame is
+ * complete, 0 or -1 as envlight_next() does when the stream has ended (after handing back a
+ * frame that came before the end). For a loop that wants the current lighting once per
+ * rendered frame without blocking. */
+#define ENVLIGHT_NO_FRAME 2
+int envlight_poll(envlight_client *c, const envlight_message **frame);
+
 /* Code and text of why the stream ended (ENVLIGHT_OK and the goodbye's text after a goodbye,
  * "" while it runs). */
 int envlight_error_code(const envlight_client *c);
 const char *envlight_error(const envlight_client *c);
 
-/* The socket, for poll()/select() in an event loop (envlight_next() blocks until a whole
- * message is there once it has started reading one). */
+/* The socket, for poll()/select() in an event loop: when it is readable, envlight_poll()
+ * takes what arrived (envlight_next() would block until a whole message is there). */
 int envlight_fd(const envlight_client *c);
 
 /* Sets a receive timeout (milliseconds, 0 = none): envlight_next() then fails with
@@ -217,6 +227,7 @@ void envlight_close(envlight_client *c);
 #include <netdb.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <poll.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -759,8 +770,9 @@ static int envlight_client_fail_(envlight_client *c, int code, const char *fmt, 
 }
 
 /* Reads more bytes into the buffer, making room for at least `need` bytes from `start`.
- * Returns 1, 0 at the end of the stream, -1 on an error (recorded in c). */
-static int envlight_fill_(envlight_client *c, size_t need) {
+ * Returns 1, 0 at the end of the stream, -1 on an error (recorded in c), and without `wait`
+ * 2 when no byte is waiting. */
+static int envlight_fill_(envlight_client *c, size_t need, int wait) {
     /* The bytes not yet decoded (fewer than `need`) move to the front when the message would
      * not fit behind them or little room is left; the buffer grows only to hold `need` plus
      * a read's worth, so it stays below 1 MiB + 8 KiB or so. */
@@ -778,6 +790,19 @@ static int envlight_fill_(envlight_client *c, size_t need) {
                                          (unsigned long)want);
         c->buf = p;
         c->capacity = want;
+    }
+    if (!wait) {
+        struct pollfd p;
+        p.fd = c->fd;
+        p.events = POLLIN;
+        p.revents = 0;
+        int ready;
+        do ready = poll(&p, 1, 0);
+        while (ready < 0 && errno == EINTR);
+        if (ready == 0) return 2;
+        if (ready < 0)
+            return envlight_client_fail_(c, ENVLIGHT_E_IO, "poll on the daemon's socket failed: %s",
+                                         strerror(errno));
     }
     for (;;) {
         ssize_t r = recv(c->fd, c->buf + c->end, c->capacity - c->end, 0);
@@ -807,7 +832,7 @@ int envlight_next(envlight_client *c, const envlight_message **frame) {
         if (total == 0 || have < total) {
             /* Wait for the rest of the message (at most 1 MiB + 4 bytes: checked above). */
             size_t need = total > ENVLIGHT_HEADER_LEN_ ? total : ENVLIGHT_HEADER_LEN_;
-            int got = envlight_fill_(c, need);
+            int got = envlight_fill_(c, need, 1);
             if (got < 0) return -1;
             if (got == 0) {
                 if (have == 0)
@@ -841,6 +866,51 @@ int envlight_next(envlight_client *c, const envlight_message **frame) {
                                          "clients send", c->message.type);
         }
     }
+}
+
+int envlight_poll(envlight_client *c, const envlight_message **frame) {
+    if (frame) *frame = NULL;
+    if (c == NULL) return -1;
+    if (c->state != 1) return c->state;
+    int have_frame = 0;
+    for (;;) {
+        /* Every complete message in the buffer; a frame replaces the one before it. */
+        for (;;) {
+            size_t have = c->end - c->start, total = 0;
+            char why[256];
+            int rc = envlight_check_header(c->buf + c->start, have, &total, why, sizeof why);
+            if (rc != ENVLIGHT_OK)
+                return envlight_client_fail_(c, rc, "bad bytes from the daemon: %s", why);
+            if (total == 0 || have < total) break;
+            if (have_frame && envlight_u16_(c->buf + c->start + 10) != ENVLIGHT_TYPE_FRAME) {
+                /* A goodbye or an error after a frame: the frame first, the end next time. */
+                if (frame) *frame = &c->message;
+                return 1;
+            }
+            int got = envlight_next(c, NULL);
+            if (got != 1) return got;
+            have_frame = 1;
+        }
+        /* Then whatever the socket holds now. */
+        size_t have = c->end - c->start, total = 0;
+        envlight_check_header(c->buf + c->start, have, &total, NULL, 0);
+        size_t need = total > ENVLIGHT_HEADER_LEN_ ? total : ENVLIGHT_HEADER_LEN_;
+        int got = envlight_fill_(c, need, 0);
+        if (got < 0) return -1;
+        if (got == 2) break;
+        if (got == 0) {
+            if (have_frame) break; /* the end of the stream is reported next time */
+            if (have == 0)
+                return envlight_client_fail_(
+                    c, ENVLIGHT_E_IO, "the daemon closed the connection without a goodbye");
+            return envlight_client_fail_(c, ENVLIGHT_E_MALFORMED,
+                                         "the stream ended inside a message (%lu bytes of it)",
+                                         (unsigned long)have);
+        }
+    }
+    if (!have_frame) return ENVLIGHT_NO_FRAME;
+    if (frame) *frame = &c->message;
+    return 1;
 }
 
 int envlight_error_code(const envlight_client *c) {

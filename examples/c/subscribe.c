@@ -9,6 +9,7 @@
  *     ./subscribe 127.0.0.1:7878 --max-lights 16 --frames 10 --json
  *     ./subscribe 127.0.0.1:7878 --representation asg       # needs [asg] enabled
  *     ./subscribe 127.0.0.1:7878 --representation wavelet   # needs [wavelet] enabled
+ *     ./subscribe 127.0.0.1:7878 --poll 16   # a 60 Hz render loop that never waits
  *
  * Exit status: 0 after --frames frames or the daemon's goodbye, 1 on an error (the daemon's
  * error message, a lost connection, bad bytes), 2 on a usage error.
@@ -20,15 +21,18 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 static const char usage[] =
     "usage: subscribe ADDRESS [--max-lights N] [--frames N] "
-    "[--representation lights|asg|wavelet] [--json]\n"
+    "[--representation lights|asg|wavelet] [--json] [--poll MS]\n"
     "  ADDRESS: unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT\n"
     "  --max-lights N   at most N records per frame, the brightest (0 = all; default 0)\n"
     "  --frames N       stop after N frames (0 = until the daemon's goodbye; default 0)\n"
     "  --representation lights (default), asg (needs [asg] enabled) or wavelet ([wavelet])\n"
-    "  --json           print each frame as JSON (docs/protocol.md) instead of a summary\n";
+    "  --json           print each frame as JSON (docs/protocol.md) instead of a summary\n"
+    "  --poll MS        a render loop: every MS milliseconds take the newest frame, if a new\n"
+    "                   one came, without waiting (envlight_poll); older ones are skipped\n";
 
 /* A non-negative decimal number that fits in 32 bits, or -1. */
 static long parse_count(const char *text) {
@@ -125,7 +129,7 @@ static void print_summary(const envlight_message *m) {
 
 int main(int argc, char **argv) {
     const char *address = NULL;
-    long max_lights = 0, frames = 0;
+    long max_lights = 0, frames = 0, poll_ms = -1;
     int representation = ENVLIGHT_LIGHTS, json = 0;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
@@ -135,14 +139,15 @@ int main(int argc, char **argv) {
         } else if (strcmp(a, "-h") == 0 || strcmp(a, "--help") == 0) {
             fputs(usage, stdout);
             return 0;
-        } else if (strcmp(a, "--max-lights") == 0 || strcmp(a, "--frames") == 0) {
+        } else if (strcmp(a, "--max-lights") == 0 || strcmp(a, "--frames") == 0 ||
+                   strcmp(a, "--poll") == 0) {
             long v = value ? parse_count(value) : -1;
             if (v < 0) {
                 fprintf(stderr, "subscribe: %s needs a count (0..4294967295), got %s\n%s", a,
                         value ? value : "nothing", usage);
                 return 2;
             }
-            *(a[2] == 'm' ? &max_lights : &frames) = v;
+            *(a[2] == 'm' ? &max_lights : a[2] == 'f' ? &frames : &poll_ms) = v;
             i++;
         } else if (strcmp(a, "--representation") == 0) {
             if (value && strcmp(value, "lights") == 0) representation = ENVLIGHT_LIGHTS;
@@ -177,7 +182,19 @@ int main(int argc, char **argv) {
     const envlight_message *m = NULL;
     int status = 0;
     while (frames == 0 || received < frames) {
-        int got = envlight_next(c, &m);
+        int got;
+        if (poll_ms >= 0) {
+            /* A render loop's frame: the work of the frame, here a sleep, then the newest
+             * lighting if new lighting came. */
+            struct timespec pause;
+            pause.tv_sec = poll_ms / 1000;
+            pause.tv_nsec = (poll_ms % 1000) * 1000000L;
+            nanosleep(&pause, NULL);
+            got = envlight_poll(c, &m);
+            if (got == ENVLIGHT_NO_FRAME) continue;
+        } else {
+            got = envlight_next(c, &m);
+        }
         if (got == 0) {
             fprintf(stderr, "goodbye: %s\n", envlight_error(c));
             break;
