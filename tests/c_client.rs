@@ -610,3 +610,182 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
     }
     daemon.shutdown().unwrap();
 }
+
+/// How a served stream ends.
+#[derive(Clone, Copy, Debug)]
+enum Ending {
+    /// A goodbye with some text.
+    Goodbye,
+    /// The daemon's error message, code 5.
+    Error,
+    /// A message with a bad magic.
+    Garbage,
+    /// A frame whose light has a NaN direction (a body the decoder rejects).
+    BadBody,
+    /// The connection closes inside a message.
+    Truncated,
+    /// The connection closes between messages, without a goodbye.
+    Closed,
+}
+
+/// A stream of valid frames of every representation (a few large ones: 8,000 and 32,000
+/// lights, 256 KB and 1 MB), then `ending`. Returns the bytes, the canonical lines of the
+/// frames, and the lines the C client must end with.
+fn served_stream(seed: u64, ending: Ending) -> (Vec<u8>, Vec<String>, Vec<String>) {
+    let mut rng = Rng(seed);
+    let mut bytes = Vec::new();
+    let mut frames = Vec::new();
+    while frames.len() < 60 {
+        let m = match rng.below(4) {
+            0 => lights_frame(&mut rng),
+            1 => asg_frame(&mut rng),
+            2 => wavelet_frame(&mut rng),
+            _ => {
+                let count = if rng.chance(0.5) { 8000 } else { 32_000 };
+                let mut b = Vec::new();
+                b.extend(rng.next().to_le_bytes());
+                b.extend(1.5f64.to_le_bytes());
+                b.extend([0, 0, 0, 0]);
+                b.extend((count as u32).to_le_bytes());
+                for i in 0..count {
+                    b.extend((i as u32).to_le_bytes());
+                    let floats: Vec<f32> = (0..7).map(|_| rng.float(0.0)).collect();
+                    push_f32s(&mut b, &floats);
+                }
+                message(1, &b)
+            }
+        };
+        match decode_message(&m) {
+            Ok(decoded @ (Message::Frame(_) | Message::Asg(_) | Message::Wavelet(_))) => {
+                frames.push(canonical(Ok(decoded)));
+                bytes.extend(m);
+            }
+            _ => continue,
+        }
+    }
+    let text = "envlight shutting down ✓";
+    let end = match ending {
+        Ending::Goodbye => {
+            let mut b = Vec::new();
+            envlight::stream::protocol::encode_goodbye(text, &mut b);
+            bytes.extend(b);
+            vec![
+                "end 0".to_owned(),
+                format!("goodbye {}", hex(text.as_bytes())),
+            ]
+        }
+        Ending::Error => {
+            let mut b = Vec::new();
+            envlight::stream::protocol::encode_error(5, "bad request", &mut b);
+            bytes.extend(b);
+            vec!["end 5".to_owned()]
+        }
+        Ending::Garbage => {
+            bytes.extend(b"\x10\x00\x00\x00ENVX\x01\x00\x01\x00 more bytes after it");
+            vec!["end 1".to_owned()]
+        }
+        Ending::BadBody => {
+            let mut b = Vec::new();
+            b.extend(7u64.to_le_bytes());
+            b.extend(0.5f64.to_le_bytes());
+            b.extend([0, 0, 0, 0]);
+            b.extend(1u32.to_le_bytes());
+            b.extend(3u32.to_le_bytes());
+            push_f32s(&mut b, &[f32::NAN, 1.0, 0.0, 1.0, 1.0, 1.0, 0.1]);
+            bytes.extend(message(1, &b));
+            vec!["end 1".to_owned()]
+        }
+        Ending::Truncated => {
+            let last = lights_frame(&mut rng);
+            bytes.extend(&last[..last.len() / 2]);
+            vec!["end 1".to_owned()]
+        }
+        Ending::Closed => vec!["end 1000".to_owned()],
+    };
+    (bytes, frames, end)
+}
+
+/// Serves `bytes` to one client on a loopback port, in pieces of 1 byte to 100 KB with short
+/// pauses, after reading its 20-byte subscribe; then closes.
+fn serve_in_pieces(
+    bytes: Vec<u8>,
+    seed: u64,
+) -> (std::net::SocketAddr, std::thread::JoinHandle<()>) {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap();
+    let server = spawn("piece server", move || {
+        let (mut socket, _) = listener.accept().unwrap();
+        let mut subscribe = [0u8; 20];
+        socket.read_exact(&mut subscribe).unwrap();
+        assert_eq!(&subscribe[4..8], b"ENVL");
+        let mut rng = Rng(seed);
+        let mut rest = &bytes[..];
+        while !rest.is_empty() {
+            let size = match rng.below(4) {
+                0 => 1 + rng.below(16),
+                1 => 1 + rng.below(2000),
+                _ => 1 + rng.below(100_000),
+            } as usize;
+            let (piece, tail) = rest.split_at(size.min(rest.len()));
+            socket.write_all(piece).unwrap();
+            rest = tail;
+            if rng.chance(0.2) {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        }
+    });
+    (address, server)
+}
+
+#[test]
+fn the_c_client_reassembles_streams_in_any_pieces() {
+    let program = compile("tests/c/stream_cases.c", "c_stream_cases");
+    let endings = [
+        Ending::Goodbye,
+        Ending::Error,
+        Ending::Garbage,
+        Ending::BadBody,
+        Ending::Truncated,
+        Ending::Closed,
+    ];
+    for (k, ending) in endings.into_iter().enumerate() {
+        for mode in ["next", "poll"] {
+            let seed = 100 + k as u64;
+            let (bytes, frames, end) = served_stream(seed, ending);
+            let (address, server) = serve_in_pieces(bytes, seed + 1000);
+            let out = Command::new(&program)
+                .args([&address.to_string(), mode])
+                .output()
+                .unwrap();
+            server.join().unwrap();
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let text = String::from_utf8(out.stdout).unwrap();
+            let lines: Vec<&str> = text.lines().collect();
+            let at_end = lines.iter().position(|l| l.starts_with("end ")).unwrap();
+            let (got, tail) = lines.split_at(at_end);
+            assert_eq!(tail, end, "{ending:?} {mode}");
+            if mode == "next" {
+                // Every frame, in order.
+                assert_eq!(got.len(), frames.len(), "{ending:?} {mode}");
+                for (i, (a, b)) in got.iter().zip(&frames).enumerate() {
+                    assert_eq!(a, b, "{ending:?} {mode}: frame {i}");
+                }
+            } else {
+                // The newest at each call: frames in order, some skipped, the last one never.
+                let mut expected = frames.iter();
+                for line in got {
+                    assert!(
+                        expected.any(|f| f == line),
+                        "{ending:?} {mode}: a frame out of order or unknown"
+                    );
+                }
+                assert_eq!(got.last().copied(), frames.last().map(String::as_str));
+            }
+        }
+    }
+}

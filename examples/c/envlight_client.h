@@ -648,6 +648,7 @@ struct envlight_client {
     uint8_t *buf;     /* received bytes: [start, end) not yet decoded */
     size_t start, end, capacity;
     envlight_message message;
+    envlight_message spare; /* envlight_poll decodes here, then swaps with `message` */
     int state;        /* 1 running, 0 ended with a goodbye, -1 failed */
     int code;
     char error[512];
@@ -872,25 +873,43 @@ int envlight_poll(envlight_client *c, const envlight_message **frame) {
     if (frame) *frame = NULL;
     if (c == NULL) return -1;
     if (c->state != 1) return c->state;
-    int have_frame = 0;
-    for (;;) {
-        /* Every complete message in the buffer; a frame replaces the one before it. */
+    int have_frame = 0, held_at_end = 0;
+    while (!held_at_end) {
+        /* Every complete message in the buffer; a frame replaces the one before it. Whatever
+         * ends the stream (a goodbye, an error, bad bytes) is left in the buffer while a frame
+         * is held: the frame first, the end at the next call. */
         for (;;) {
             size_t have = c->end - c->start, total = 0;
             char why[256];
             int rc = envlight_check_header(c->buf + c->start, have, &total, why, sizeof why);
+            if (rc != ENVLIGHT_OK && have_frame) {
+                held_at_end = 1;
+                break;
+            }
             if (rc != ENVLIGHT_OK)
                 return envlight_client_fail_(c, rc, "bad bytes from the daemon: %s", why);
             if (total == 0 || have < total) break;
-            if (have_frame && envlight_u16_(c->buf + c->start + 10) != ENVLIGHT_TYPE_FRAME) {
-                /* A goodbye or an error after a frame: the frame first, the end next time. */
-                if (frame) *frame = &c->message;
-                return 1;
+            if (envlight_u16_(c->buf + c->start + 10) != ENVLIGHT_TYPE_FRAME) {
+                held_at_end = have_frame;
+                if (have_frame) break;
+                return envlight_next(c, NULL); /* the goodbye or error: 0 or -1 */
             }
-            int got = envlight_next(c, NULL);
-            if (got != 1) return got;
+            rc = envlight_decode(c->buf + c->start, total, &c->spare, why, sizeof why);
+            if (rc != ENVLIGHT_OK && have_frame) {
+                held_at_end = 1;
+                break;
+            }
+            if (rc != ENVLIGHT_OK) {
+                c->start += total;
+                return envlight_client_fail_(c, rc, "bad message from the daemon: %s", why);
+            }
+            c->start += total;
+            envlight_message newest = c->spare;
+            c->spare = c->message;
+            c->message = newest;
             have_frame = 1;
         }
+        if (held_at_end) break;
         /* Then whatever the socket holds now. */
         size_t have = c->end - c->start, total = 0;
         envlight_check_header(c->buf + c->start, have, &total, NULL, 0);
@@ -941,6 +960,7 @@ void envlight_close(envlight_client *c) {
     if (c->fd >= 0) close(c->fd);
     free(c->buf);
     envlight_message_free(&c->message);
+    envlight_message_free(&c->spare);
     free(c);
 }
 
