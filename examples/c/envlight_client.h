@@ -674,6 +674,11 @@ envlight_client *envlight_connect(const char *address, uint32_t max_lights, int 
     }
     c->fd = -1;
     c->state = 1;
+    if (representation < ENVLIGHT_LIGHTS || representation > ENVLIGHT_WAVELET) {
+        snprintf(c->error, sizeof c->error, "representation %d: expected ENVLIGHT_LIGHTS (0), "
+                 "ENVLIGHT_ASG (1) or ENVLIGHT_WAVELET (2)", representation);
+        return envlight_fail_connect_(c, err, err_len);
+    }
     if (strncmp(address, "ws://", 5) == 0 || strncmp(address, "wss://", 6) == 0) {
         snprintf(c->error, sizeof c->error, "%s: this client speaks to the Unix socket and TCP "
                  "endpoints, not WebSocket", address);
