@@ -1,8 +1,9 @@
 //! The C client (examples/c/envlight_client.h and examples/c/subscribe.c), built with the
-//! system's C compiler (`cc`, or `$CC`): its decoder gives the same answer as envlight's own on
-//! thousands of valid, damaged and random messages of every type and representation, and the
-//! example reads a running daemon's lights, ASG sets and wavelet sets bit for bit as a Rust
-//! client does.
+//! system's C compiler (`cc`, or `$CC`; the socket layer's harness also as C++, `c++` or
+//! `$CXX`): its decoder gives the same answer as envlight's own on thousands of valid, damaged
+//! and random messages of every type and representation; its socket layer reassembles streams
+//! served in pieces of any size and ends them as envlight would; and the example reads a
+//! running daemon's lights, ASG sets and wavelet sets bit for bit as a Rust client does.
 
 mod common;
 
@@ -18,14 +19,26 @@ use std::process::Command;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-/// Compiles one C file (strict C99, every warning an error) into the tests' scratch
-/// directory. A missing compiler fails the test: it is part of what is tested.
-fn compile(source: &str, name: &str) -> PathBuf {
+/// The language a C file is built as: the header is meant for both.
+#[derive(Clone, Copy, Debug)]
+enum Language {
+    C,
+    Cpp,
+}
+
+/// Compiles one C file (strict C99, or C++11 for [`Language::Cpp`]; every warning an error)
+/// into the tests' scratch directory, with `$CC` or `cc` (`$CXX` or `c++`). A missing
+/// compiler fails the test: it is part of what is tested.
+fn compile_as(source: &str, name: &str, language: Language) -> PathBuf {
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".to_owned());
+    let (variable, default, flags): (_, _, &[&str]) = match language {
+        Language::C => ("CC", "cc", &["-std=c99"]),
+        Language::Cpp => ("CXX", "c++", &["-x", "c++", "-std=c++11"]),
+    };
+    let cc = std::env::var(variable).unwrap_or_else(|_| default.to_owned());
     let result = Command::new(&cc)
+        .args(flags)
         .args([
-            "-std=c99",
             "-Wall",
             "-Wextra",
             "-pedantic",
@@ -38,13 +51,17 @@ fn compile(source: &str, name: &str) -> PathBuf {
         .arg(source)
         .arg("-lm")
         .output()
-        .unwrap_or_else(|e| panic!("cannot run the C compiler {cc:?}: {e}"));
+        .unwrap_or_else(|e| panic!("cannot run the compiler {cc:?}: {e}"));
     assert!(
         result.status.success(),
         "{cc} {source}:\n{}",
         String::from_utf8_lossy(&result.stderr)
     );
     out
+}
+
+fn compile(source: &str, name: &str) -> PathBuf {
+    compile_as(source, name, Language::C)
 }
 
 /// SplitMix64: a small deterministic generator for the cases.
@@ -740,7 +757,10 @@ fn serve_in_pieces(
 
 #[test]
 fn the_c_client_reassembles_streams_in_any_pieces() {
-    let program = compile("tests/c/stream_cases.c", "c_stream_cases");
+    let programs = [
+        compile("tests/c/stream_cases.c", "c_stream_cases"),
+        compile_as("tests/c/stream_cases.c", "cpp_stream_cases", Language::Cpp),
+    ];
     let endings = [
         Ending::Goodbye,
         Ending::Error,
@@ -750,11 +770,16 @@ fn the_c_client_reassembles_streams_in_any_pieces() {
         Ending::Closed,
     ];
     for (k, ending) in endings.into_iter().enumerate() {
-        for mode in ["next", "poll"] {
+        // The C build in both modes, the C++ build of the same file in one.
+        for (program, mode) in [
+            (&programs[0], "next"),
+            (&programs[0], "poll"),
+            (&programs[1], if k % 2 == 0 { "next" } else { "poll" }),
+        ] {
             let seed = 100 + k as u64;
             let (bytes, frames, end) = served_stream(seed, ending);
             let (address, server) = serve_in_pieces(bytes, seed + 1000);
-            let out = Command::new(&program)
+            let out = Command::new(program)
                 .args([&address.to_string(), mode])
                 .output()
                 .unwrap();

@@ -117,7 +117,8 @@ typedef struct envlight_coefficient {
     float rgb[3];
 } envlight_coefficient;
 
-/* A decoded message. Zero-initialise one before its first use (envlight_message m = {0};) and
+/* A decoded message. Zero-initialise one before its first use (C: envlight_message m = {0};,
+ * C++: envlight_message m = {};, or memset) and
  * release it with envlight_message_free() when decoding into it yourself; a client's messages
  * belong to the client. */
 typedef struct envlight_message {

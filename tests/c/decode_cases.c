@@ -14,7 +14,8 @@
 #include <string.h>
 
 int main(void) {
-    envlight_message m = {0};
+    envlight_message m;
+    memset(&m, 0, sizeof m);
     uint8_t *bytes = NULL;
     for (;;) {
         uint8_t head[4];
