@@ -64,6 +64,28 @@ fn compile(source: &str, name: &str) -> PathBuf {
     compile_as(source, name, Language::C)
 }
 
+/// Runs a compiled test program to its end; fails the test (with its stderr) unless it exits
+/// successfully; returns its stdout.
+fn run_ok(command: &mut Command, what: &str) -> String {
+    let out = command.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{what}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The sequence number of a frame of any representation.
+fn frame_seq(message: &Message) -> u64 {
+    match message {
+        Message::Frame(f) => f.seq,
+        Message::Asg(a) => a.seq,
+        Message::Wavelet(w) => w.seq,
+        other => panic!("not a frame: {other:?}"),
+    }
+}
+
 /// SplitMix64: a small deterministic generator for the cases.
 struct Rng(u64);
 
@@ -456,16 +478,10 @@ fn the_c_decoder_answers_every_message_as_envlight_does() {
     let dir = tempfile::tempdir().unwrap();
     let input_path = dir.path().join("cases.bin");
     std::fs::write(&input_path, &input).unwrap();
-    let out = Command::new(&program)
-        .stdin(std::fs::File::open(&input_path).unwrap())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "decode_cases: {}",
-        String::from_utf8_lossy(&out.stderr)
+    let text = run_ok(
+        Command::new(&program).stdin(std::fs::File::open(&input_path).unwrap()),
+        "decode_cases",
     );
-    let text = String::from_utf8(out.stdout).unwrap();
     let answers: Vec<&str> = text.lines().collect();
     assert_eq!(answers.len(), cases.len(), "one answer per case");
 
@@ -515,26 +531,19 @@ fn c_frames(
     cap: u32,
     extra: &[&str],
 ) -> Vec<(u64, String)> {
-    let out = Command::new(program)
-        .args([address, "--json", "--frames", "4", "--representation"])
-        .arg(representation)
-        .args(["--max-lights", &cap.to_string()])
-        .args(extra)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "subscribe {address} {representation}: {}",
-        String::from_utf8_lossy(&out.stderr)
+    let text = run_ok(
+        Command::new(program)
+            .args([address, "--json", "--frames", "4", "--representation"])
+            .arg(representation)
+            .args(["--max-lights", &cap.to_string()])
+            .args(extra),
+        &format!("subscribe {address} {representation}"),
     );
-    let text = String::from_utf8(out.stdout).unwrap();
     text.lines()
         .map(|line| {
-            let v: serde_json::Value =
-                serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"));
             let message = envlight::stream::protocol::parse_json_message(line)
                 .unwrap_or_else(|e| panic!("not a frame ({e}): {line}"));
-            (v["seq"].as_u64().unwrap(), canonical(Ok(message)))
+            (frame_seq(&message), canonical(Ok(message)))
         })
         .collect()
 }
@@ -582,12 +591,7 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
             let mut frames = BTreeMap::new();
             loop {
                 let message = client.next_message().unwrap().expect("a frame");
-                let seq = match &message {
-                    Message::Frame(f) => f.seq,
-                    Message::Asg(a) => a.seq,
-                    Message::Wavelet(w) => w.seq,
-                    other => panic!("unexpected {other:?}"),
-                };
+                let seq = frame_seq(&message);
                 frames.insert(seq, canonical(Ok(message)));
                 if seq >= stop.load(Ordering::Acquire) {
                     return frames;
@@ -779,17 +783,11 @@ fn the_c_client_reassembles_streams_in_any_pieces() {
             let seed = 100 + k as u64;
             let (bytes, frames, end) = served_stream(seed, ending);
             let (address, server) = serve_in_pieces(bytes, seed + 1000);
-            let out = Command::new(program)
-                .args([&address.to_string(), mode])
-                .output()
-                .unwrap();
-            server.join().unwrap();
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
+            let text = run_ok(
+                Command::new(program).args([&address.to_string(), mode]),
+                &format!("stream_cases {ending:?} {mode}"),
             );
-            let text = String::from_utf8(out.stdout).unwrap();
+            server.join().unwrap();
             let lines: Vec<&str> = text.lines().collect();
             let at_end = lines.iter().position(|l| l.starts_with("end ")).unwrap();
             let (got, tail) = lines.split_at(at_end);

@@ -418,35 +418,44 @@ static int envlight_lobe_valid_(const envlight_lobe *g, char *err, size_t err_le
     return 1;
 }
 
-/* The errors of envlight_decode_records_(). */
-static int envlight_bad_length_(const envlight_message *m, size_t rest, char *err,
-                                size_t err_len) {
-    envlight_say_(err, err_len, "malformed frame message: count %lu does not fit the %lu bytes "
-                  "of records of representation %d", (unsigned long)m->count, (unsigned long)rest,
-                  m->representation);
-    return ENVLIGHT_E_MALFORMED;
-}
-static int envlight_no_memory_(const envlight_message *m, char *err, size_t err_len) {
-    envlight_say_(err, err_len, "out of memory for %lu records", (unsigned long)m->count);
-    return ENVLIGHT_E_NO_MEMORY;
+/* The records of a frame of `m->count` records after a `prefix` of `rest` bytes: checks that
+ * they are exactly `record` bytes each, that the `floats` floats after each record's leading
+ * u32 are finite, and makes room in the message for as many structs of `size` bytes. */
+static int envlight_records_(envlight_message *m, const uint8_t *r, size_t rest, size_t prefix,
+                             size_t record, int floats, size_t size, const char *what,
+                             char *err, size_t err_len) {
+    uint32_t n = m->count;
+    if (rest < prefix || rest - prefix != (size_t)n * record) {
+        envlight_say_(err, err_len, "malformed frame message: count %lu does not fit the %lu "
+                      "bytes of records of representation %d", (unsigned long)n,
+                      (unsigned long)rest, m->representation);
+        return ENVLIGHT_E_MALFORMED;
+    }
+    r += prefix;
+    for (uint32_t i = 0; i < n; i++, r += record)
+        for (int k = 1; k <= floats; k++)
+            if (!envlight_finite_bits_(r + 4 * k)) {
+                envlight_say_(err, err_len, "non-finite value in %s %lu", what, (unsigned long)i);
+                return ENVLIGHT_E_MALFORMED;
+            }
+    if (!envlight_reserve_(m, (size_t)n * size)) {
+        envlight_say_(err, err_len, "out of memory for %lu records", (unsigned long)n);
+        return ENVLIGHT_E_NO_MEMORY;
+    }
+    return ENVLIGHT_OK;
 }
 
 /* The frame body after the 24 fixed bytes: `rest` bytes at `r`. */
 static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_t rest,
                                     char *err, size_t err_len) {
     uint32_t n = m->count;
+    int rc;
     if (m->representation == ENVLIGHT_LIGHTS) {
-        if (rest != (size_t)n * ENVLIGHT_LIGHT_RECORD_)
-            return envlight_bad_length_(m, rest, err, err_len);
-        if (!envlight_reserve_(m, (size_t)n * sizeof(envlight_light)))
-            return envlight_no_memory_(m, err, err_len);
+        rc = envlight_records_(m, r, rest, 0, ENVLIGHT_LIGHT_RECORD_, 7, sizeof(envlight_light),
+                               "light", err, err_len);
+        if (rc != ENVLIGHT_OK) return rc;
         envlight_light *lights = (envlight_light *)m->storage_;
         for (uint32_t i = 0; i < n; i++, r += ENVLIGHT_LIGHT_RECORD_) {
-            for (int k = 1; k < 8; k++)
-                if (!envlight_finite_bits_(r + 4 * k)) {
-                    envlight_say_(err, err_len, "non-finite value in light %lu", (unsigned long)i);
-                    return ENVLIGHT_E_MALFORMED;
-                }
             envlight_light *l = &lights[i];
             l->id = envlight_u32_(r);
             for (int k = 0; k < 3; k++) {
@@ -459,17 +468,11 @@ static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_
         return ENVLIGHT_OK;
     }
     if (m->representation == ENVLIGHT_ASG) {
-        if (rest != (size_t)n * ENVLIGHT_LOBE_RECORD_)
-            return envlight_bad_length_(m, rest, err, err_len);
-        if (!envlight_reserve_(m, (size_t)n * sizeof(envlight_lobe)))
-            return envlight_no_memory_(m, err, err_len);
+        rc = envlight_records_(m, r, rest, 0, ENVLIGHT_LOBE_RECORD_, 12, sizeof(envlight_lobe),
+                               "lobe", err, err_len);
+        if (rc != ENVLIGHT_OK) return rc;
         envlight_lobe *lobes = (envlight_lobe *)m->storage_;
         for (uint32_t i = 0; i < n; i++, r += ENVLIGHT_LOBE_RECORD_) {
-            for (int k = 1; k < 13; k++)
-                if (!envlight_finite_bits_(r + 4 * k)) {
-                    envlight_say_(err, err_len, "non-finite value in lobe %lu", (unsigned long)i);
-                    return ENVLIGHT_E_MALFORMED;
-                }
             envlight_lobe *g = &lobes[i];
             g->id = envlight_u32_(r);
             for (int k = 0; k < 3; k++) {
@@ -486,9 +489,9 @@ static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_
         return ENVLIGHT_OK;
     }
     /* ENVLIGHT_WAVELET: the 8-byte prefix, then 16-byte records */
-    if (rest < ENVLIGHT_WAVELET_PREFIX_ ||
-        rest - ENVLIGHT_WAVELET_PREFIX_ != (size_t)n * ENVLIGHT_WAVELET_RECORD_)
-        return envlight_bad_length_(m, rest, err, err_len);
+    rc = envlight_records_(m, r, rest, ENVLIGHT_WAVELET_PREFIX_, ENVLIGHT_WAVELET_RECORD_, 3,
+                           sizeof(envlight_coefficient), "coefficient", err, err_len);
+    if (rc != ENVLIGHT_OK) return rc;
     m->basis = r[0];
     m->levels = r[1];
     m->map = r[2];
@@ -518,17 +521,9 @@ static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_
         return ENVLIGHT_E_MALFORMED;
     }
     r += ENVLIGHT_WAVELET_PREFIX_;
-    if (!envlight_reserve_(m, (size_t)n * sizeof(envlight_coefficient)))
-        return envlight_no_memory_(m, err, err_len);
     envlight_coefficient *c = (envlight_coefficient *)m->storage_;
     uint64_t cells = (uint64_t)side * side;
     for (uint32_t i = 0; i < n; i++, r += ENVLIGHT_WAVELET_RECORD_) {
-        for (int k = 1; k < 4; k++)
-            if (!envlight_finite_bits_(r + 4 * k)) {
-                envlight_say_(err, err_len, "non-finite value in coefficient %lu",
-                              (unsigned long)i);
-                return ENVLIGHT_E_MALFORMED;
-            }
         c[i].index = envlight_u32_(r);
         for (int k = 0; k < 3; k++) c[i].rgb[k] = envlight_f32_(r + 4 + 4 * k);
         if (c[i].index >= cells || (i > 0 && c[i].index <= c[i - 1].index)) {

@@ -1064,7 +1064,12 @@ impl Drop for ClientGuard {
             .get_or_create(&label)
             .dec();
         if self.subscribed.load(Ordering::Relaxed) {
-            let skipped = (self.ctx.metrics.client_skipped.get(&self.label)).map_or(0, |g| g.get());
+            let skipped = self
+                .ctx
+                .metrics
+                .client_skipped
+                .get(&self.label)
+                .map_or(0, |g| g.get());
             tracing::info!(
                 client = %self.label.client,
                 connected_s = format_args!("{:.1}", self.since.elapsed().as_secs_f64()),
@@ -1124,6 +1129,19 @@ impl Connection {
         EndpointLabel {
             endpoint: self.endpoint,
         }
+    }
+
+    /// Logs the subscription and marks the client as subscribed, so that its leaving is
+    /// logged too ([`ClientGuard`]).
+    fn log_subscribed(&self, request: &Request) {
+        tracing::info!(
+            client = %self.name,
+            max_lights = request.max_lights,
+            representation = request.representation.name(),
+            format = ?request.format,
+            "client subscribed"
+        );
+        self.guard.subscribed.store(true, Ordering::Relaxed);
     }
 
     fn count_error(&self, why: &str) {
@@ -1325,14 +1343,7 @@ impl Connection {
             Ok(r) => r,
             Err(close) => return close,
         };
-        tracing::info!(
-            client = %self.name,
-            max_lights = request.max_lights,
-            representation = request.representation.name(),
-            format = ?request.format,
-            "client subscribed"
-        );
-        self.guard.subscribed.store(true, Ordering::Relaxed);
+        self.log_subscribed(&request);
         // Bytes that came with the subscribe are input after it.
         if subscribed_binary && decoder.buffered() > 0 {
             return self.unexpected_input(&mut decoder);
@@ -1630,14 +1641,7 @@ impl Connection {
             Ok(r) => r,
             Err(close) => return close,
         };
-        tracing::info!(
-            client = %self.name,
-            max_lights = request.max_lights,
-            representation = request.representation.name(),
-            format = ?request.format,
-            "client subscribed"
-        );
-        self.guard.subscribed.store(true, Ordering::Relaxed);
+        self.log_subscribed(&request);
         let mut progress = Progress::default();
         loop {
             let event = tokio::select! {
