@@ -9,6 +9,9 @@
 //! - `radiance_pool2/…`: the same in bands of rows on two threads, the bench's and one helper
 //!   (src/parallel.rs), as the camera source converts with `camera.convert_threads = 2` (the
 //!   default; on a machine of one core, on one thread);
+//! - `decode_bytes/mjpeg`, `radiance_bytes{,_pool2}/mjpeg`, `linearize_bytes_reused/mjpeg`:
+//!   the same for a frame kept as bytes and linearised through 256-entry tables, as the camera
+//!   source converts formats whose codes are bytes ([`Linearizer::linearize_bytes_into_on`]);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `read/…`: reading a recorded frame file into linear RGB ([`read_hdr_image`]: the file
@@ -26,7 +29,9 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use envlight::capture::bracket::{merge_brackets, Bracket, MergeLimits};
 use envlight::capture::image_file::read_hdr_image;
-use envlight::capture::pixel_format::{self, CodeImage, PixelFormat, RawFrame, YuvMatrix};
+use envlight::capture::pixel_format::{
+    self, ByteImage, CodeImage, PixelFormat, RawFrame, YuvMatrix,
+};
 use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
 use std::hint::black_box;
 use std::path::Path;
@@ -195,6 +200,38 @@ fn bench_capture(c: &mut Criterion) {
             .unwrap_or_else(|e| panic!("{e}"));
         group.bench_function(format!("linearize_reused/{name}_1280x960"), |b| {
             b.iter(|| lin.linearize_into(black_box(&codes), &mut out))
+        });
+        if !format.has_byte_codes() {
+            continue;
+        }
+        // The same frame kept as bytes, as the camera source keeps a one-byte-code format.
+        let mut bytes = ByteImage::default();
+        group.bench_function(format!("decode_bytes/{name}_1280x960"), |b| {
+            b.iter(|| {
+                pixel_format::decode_bytes_into_on(black_box(&raw), &mut bytes, None)
+                    .unwrap_or_else(|e| panic!("{e}"))
+            })
+        });
+        group.bench_function(format!("radiance_bytes/{name}_1280x960"), |b| {
+            b.iter(|| {
+                pixel_format::decode_bytes_into_on(black_box(&raw), &mut bytes, None)
+                    .unwrap_or_else(|e| panic!("{e}"));
+                let mut fresh = Vec::new();
+                lin.linearize_bytes_into_on(&bytes, &mut fresh, None);
+                fresh
+            })
+        });
+        group.bench_function(format!("radiance_bytes_pool2/{name}_1280x960"), |b| {
+            b.iter(|| {
+                pixel_format::decode_bytes_into_on(black_box(&raw), &mut bytes, pool2.as_ref())
+                    .unwrap_or_else(|e| panic!("{e}"));
+                let mut fresh = Vec::new();
+                lin.linearize_bytes_into_on(&bytes, &mut fresh, pool2.as_ref());
+                fresh
+            })
+        });
+        group.bench_function(format!("linearize_bytes_reused/{name}_1280x960"), |b| {
+            b.iter(|| lin.linearize_bytes_into_on(black_box(&bytes), &mut out, None))
         });
     }
     let raw = RawFrame {

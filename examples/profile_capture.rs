@@ -13,7 +13,9 @@
 //! an idle pool thread's brief spinning is counted too.
 
 use envlight::capture::image_file::read_hdr_image;
-use envlight::capture::pixel_format::{self, BayerPattern, CodeImage, PixelFormat, RawFrame};
+use envlight::capture::pixel_format::{
+    self, BayerPattern, ByteImage, CodeImage, PixelFormat, RawFrame,
+};
 use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
 use std::time::Instant;
 
@@ -88,18 +90,25 @@ fn main() -> anyhow::Result<()> {
         pattern: BayerPattern::Rggb,
         bits: 12,
     };
+    // (name, format, buffer, kept as bytes as the camera source keeps MJPEG frames)
     let cases = [
-        ("Y16", PixelFormat::Grey { bits: 16 }, &y16),
-        ("YUYV", PixelFormat::Yuyv, &yuyv),
-        ("MJPEG", PixelFormat::Mjpeg, &mjpeg),
-        ("Bayer RG12", rg12, &bayer),
+        ("Y16", PixelFormat::Grey { bits: 16 }, &y16, false),
+        ("YUYV", PixelFormat::Yuyv, &yuyv, false),
+        ("MJPEG via a code image", PixelFormat::Mjpeg, &mjpeg, false),
+        (
+            "MJPEG as bytes (the camera source)",
+            PixelFormat::Mjpeg,
+            &mjpeg,
+            true,
+        ),
+        ("Bayer RG12", rg12, &bayer, false),
     ];
     println!(
         "| format | decode CPU ms/frame | decode + linearise CPU ms/frame (new buffer) | \
          wall | decode + linearise into a recycled buffer | wall |"
     );
     println!("|---|---:|---:|---:|---:|---:|");
-    for (name, format, data) in cases {
+    for (name, format, data, as_bytes) in cases {
         let raw = RawFrame {
             data,
             format,
@@ -118,16 +127,35 @@ fn main() -> anyhow::Result<()> {
             height: 0,
             pixels: Vec::new(),
         };
+        let mut bytes = ByteImage::default();
+        let decode = |codes: &mut CodeImage,
+                      bytes: &mut ByteImage|
+         -> Result<(), pixel_format::PixelError> {
+            if as_bytes {
+                pixel_format::decode_bytes_into_on(&raw, bytes, None)
+            } else {
+                pixel_format::decode_into(&raw, Default::default(), codes)
+            }
+        };
         let c0 = process_cpu_s();
         for _ in 0..n {
-            pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
+            decode(&mut codes, &mut bytes)?;
         }
-        let decode = (process_cpu_s() - c0) / n as f64;
+        let decode_s = (process_cpu_s() - c0) / n as f64;
+        let linearize = |out: &mut Vec<[f32; 3]>, codes: &CodeImage, bytes: &ByteImage| {
+            if as_bytes {
+                lin.linearize_bytes_into_on(bytes, out, None);
+            } else {
+                lin.linearize_into(codes, out);
+            }
+        };
         let (c0, t0) = (process_cpu_s(), Instant::now());
         let mut sum = 0.0f32;
         for _ in 0..n {
-            pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
-            sum += lin.linearize(&codes)[0][0];
+            decode(&mut codes, &mut bytes)?;
+            let mut fresh = Vec::new();
+            linearize(&mut fresh, &codes, &bytes);
+            sum += fresh[0][0];
         }
         let total = (process_cpu_s() - c0) / n as f64;
         let wall = t0.elapsed().as_secs_f64() / n as f64;
@@ -136,8 +164,8 @@ fn main() -> anyhow::Result<()> {
         let mut pixels = Vec::new();
         let (c0, t0) = (process_cpu_s(), Instant::now());
         for _ in 0..n {
-            pixel_format::decode_into(&raw, Default::default(), &mut codes)?;
-            lin.linearize_into(&codes, &mut pixels);
+            decode(&mut codes, &mut bytes)?;
+            linearize(&mut pixels, &codes, &bytes);
             sum += pixels[0][0];
         }
         let recycled = (process_cpu_s() - c0) / n as f64;
@@ -145,7 +173,7 @@ fn main() -> anyhow::Result<()> {
         std::hint::black_box(sum);
         println!(
             "| {name} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
-            decode * 1e3,
+            decode_s * 1e3,
             total * 1e3,
             wall * 1e3,
             recycled * 1e3,

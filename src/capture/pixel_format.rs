@@ -34,6 +34,10 @@
 //! 10/12/16-bit formats are the unpacked V4L2 layouts: one little-endian 16-bit word per
 //! sample, the value in the low bits. Values above the format's largest code are clamped.
 //!
+//! Formats whose every code is one byte (MJPEG, RGB24, BGR24, 8-bit grey) can also be kept as
+//! bytes ([`ByteImage`], [`decode_bytes_into_on`]): a quarter of the memory, linearised through
+//! 256-entry tables to the same radiances as the code image gives (the camera source's path).
+//!
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
 //! odd width for YUYV or Bayer, or a corrupt JPEG is a [`PixelError`], never a panic.
 
@@ -258,6 +262,21 @@ impl PixelFormat {
     pub fn is_raw(self) -> bool {
         matches!(self, PixelFormat::Grey { .. } | PixelFormat::Bayer { .. })
     }
+
+    /// Whether every code value of a frame is one byte as sent (MJPEG once decoded, RGB24,
+    /// BGR24, 8-bit grey), so that [`decode_bytes_into_on`] can keep the frame as bytes and the
+    /// linearisation can look each byte up in a 256-entry table
+    /// ([`super::response::Linearizer::linearize_bytes_into_on`]). YUYV and Bayer codes are
+    /// computed from several bytes, so they are not.
+    pub fn has_byte_codes(self) -> bool {
+        matches!(
+            self,
+            PixelFormat::Mjpeg
+                | PixelFormat::Rgb24
+                | PixelFormat::Bgr24
+                | PixelFormat::Grey { bits: 8 }
+        )
+    }
 }
 
 impl fmt::Display for PixelFormat {
@@ -337,6 +356,117 @@ pub struct CodeImage {
     pub pixels: Vec<[f32; 3]>,
 }
 
+/// A frame of one-byte code values as the camera sent them (formats with
+/// [`PixelFormat::has_byte_codes`]): MJPEG once decoded, RGB24, BGR24 (reordered to RGB) or
+/// 8-bit grey. A quarter of the memory of a [`CodeImage`], and its linearisation is one
+/// 256-entry table look-up per byte
+/// ([`super::response::Linearizer::linearize_bytes_into_on`]), with the same radiances to the
+/// bit as [`Self::to_codes_into_on`] followed by [`super::response::Linearizer::linearize_into_on`].
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ByteImage {
+    pub width: u32,
+    pub height: u32,
+    /// Bytes per pixel: 3 (R, G, B) or 1 (grey, R = G = B).
+    pub channels: usize,
+    /// `channels` bytes per pixel, row-major, top row first.
+    pub bytes: Vec<u8>,
+}
+
+impl ByteImage {
+    /// The normalised code value of each byte, as [`decode_into_on`] computes it for the
+    /// format the image came from: b / 255 for colour, b · (1/255) for grey.
+    pub fn code_of_byte(&self) -> [f32; 256] {
+        if self.channels == 1 {
+            let inv = 1.0 / 255.0f32;
+            std::array::from_fn(|b| f32::from(b as u8) * inv)
+        } else {
+            std::array::from_fn(|b| f32::from(b as u8) / 255.0)
+        }
+    }
+
+    /// The normalised code values, as [`decode_into_on`] gives them for the same frame (to the
+    /// bit); `out`'s allocation is reused.
+    pub fn to_codes_into_on(&self, out: &mut CodeImage, pool: Option<&rayon::ThreadPool>) {
+        let n = self.width as usize * self.height as usize;
+        let codes = self.code_of_byte();
+        out.width = self.width;
+        out.height = self.height;
+        // Every pixel is written below: a buffer of the right size is reused as it is.
+        if out.pixels.len() != n {
+            out.pixels.clear();
+            out.pixels.resize(n, [0.0; 3]);
+        }
+        let (channels, w) = (self.channels.max(1), self.width as usize);
+        each_row(pool, &mut out.pixels, w, |y, row| {
+            let src = self
+                .bytes
+                .get(y * w * channels..(y + 1) * w * channels)
+                .unwrap_or(&[]);
+            // Pixels the image has no bytes for (it is shorter than its size says) are 0.
+            if src.len() < w * channels {
+                row.fill([0.0; 3]);
+            }
+            if channels == 1 {
+                for (&b, d) in src.iter().zip(row.iter_mut()) {
+                    *d = [codes[usize::from(b)]; 3];
+                }
+            } else {
+                for (p, d) in src.chunks_exact(3).zip(row.iter_mut()) {
+                    *d = [
+                        codes[usize::from(p[0])],
+                        codes[usize::from(p[1])],
+                        codes[usize::from(p[2])],
+                    ];
+                }
+            }
+        });
+    }
+}
+
+/// Keeps a frame of a one-byte-code format ([`PixelFormat::has_byte_codes`]) as bytes in
+/// `out` (its allocation reused): a JPEG is decoded to RGB, BGR24 is reordered to RGB, RGB24
+/// and 8-bit grey rows are copied without their padding. The buffer is checked as by
+/// [`decode_into_on`], with the same errors; a format without one-byte codes is a
+/// [`PixelError::Geometry`].
+pub fn decode_bytes_into_on(
+    raw: &RawFrame<'_>,
+    out: &mut ByteImage,
+    pool: Option<&rayon::ThreadPool>,
+) -> Result<(), PixelError> {
+    let (format, w, h) = (raw.format, raw.width, raw.height);
+    if !format.has_byte_codes() {
+        return Err(PixelError::Geometry {
+            format,
+            width: w,
+            height: h,
+            message: "codes are not one byte each".into(),
+        });
+    }
+    let layout = check_layout(raw)?;
+    out.width = w;
+    out.height = h;
+    let Layout::Packed { stride, row_bytes } = layout else {
+        out.channels = 3;
+        return decode_jpeg_rgb8(raw.data, w, h, &mut out.bytes);
+    };
+    out.channels = format.bytes_per_pixel();
+    if out.bytes.len() != row_bytes * h as usize {
+        out.bytes.clear();
+        out.bytes.resize(row_bytes * h as usize, 0);
+    }
+    let rows = |y: usize| &raw.data[y * stride..y * stride + row_bytes];
+    each_row(pool, &mut out.bytes, row_bytes, |y, dst| {
+        if format == PixelFormat::Bgr24 {
+            for (px, d) in rows(y).chunks_exact(3).zip(dst.chunks_exact_mut(3)) {
+                d.copy_from_slice(&[px[2], px[1], px[0]]);
+            }
+        } else {
+            dst.copy_from_slice(rows(y));
+        }
+    });
+    Ok(())
+}
+
 /// Largest frame accepted (pixels), so a corrupt size cannot allocate gigabytes.
 pub const MAX_PIXELS: u64 = 16384 * 16384;
 
@@ -370,47 +500,10 @@ pub fn decode_into_on(
     pool: Option<&rayon::ThreadPool>,
 ) -> Result<(), PixelError> {
     let (format, w, h) = (raw.format, raw.width, raw.height);
-    let geometry = |message: &str| PixelError::Geometry {
-        format,
-        width: w,
-        height: h,
-        message: message.to_string(),
+    let (stride, row_bytes) = match check_layout(raw)? {
+        Layout::Jpeg => return decode_jpeg(raw.data, w, h, out, pool),
+        Layout::Packed { stride, row_bytes } => (stride, row_bytes),
     };
-    if w == 0 || h == 0 || u64::from(w) * u64::from(h) > MAX_PIXELS {
-        return Err(geometry("frame size must be 1 to 16384² pixels"));
-    }
-    if format == PixelFormat::Mjpeg {
-        return decode_jpeg(raw.data, w, h, out, pool);
-    }
-    if matches!(format, PixelFormat::Yuyv | PixelFormat::Bayer { .. }) && w % 2 != 0 {
-        return Err(geometry("width must be even"));
-    }
-    let row_bytes = w as usize * format.bytes_per_pixel();
-    let stride = if raw.stride == 0 {
-        row_bytes
-    } else {
-        raw.stride
-    };
-    if stride < row_bytes {
-        return Err(geometry(&format!(
-            "stride {stride} is smaller than a row of {row_bytes} bytes"
-        )));
-    }
-    let Some(needed) = stride
-        .checked_mul(h as usize - 1)
-        .and_then(|v| v.checked_add(row_bytes))
-    else {
-        return Err(geometry(&format!("stride {stride} is too large")));
-    };
-    if raw.data.len() < needed {
-        return Err(PixelError::Short {
-            format,
-            width: w,
-            height: h,
-            got: raw.data.len(),
-            needed,
-        });
-    }
     let (wu, hu) = (w as usize, h as usize);
     out.width = w;
     out.height = h;
@@ -492,6 +585,61 @@ pub fn decode_into_on(
         PixelFormat::Mjpeg => unreachable!("handled above"),
     }
     Ok(())
+}
+
+/// Where a frame's codes are in its buffer.
+enum Layout {
+    /// A JPEG stream (its size is checked when it is decoded).
+    Jpeg,
+    /// `h` rows of `row_bytes` bytes, `stride` bytes apart.
+    Packed { stride: usize, row_bytes: usize },
+}
+
+/// Checks a raw frame's size, width and stride against its format and buffer.
+fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
+    let (format, w, h) = (raw.format, raw.width, raw.height);
+    let geometry = |message: &str| PixelError::Geometry {
+        format,
+        width: w,
+        height: h,
+        message: message.to_string(),
+    };
+    if w == 0 || h == 0 || u64::from(w) * u64::from(h) > MAX_PIXELS {
+        return Err(geometry("frame size must be 1 to 16384² pixels"));
+    }
+    if format == PixelFormat::Mjpeg {
+        return Ok(Layout::Jpeg);
+    }
+    if matches!(format, PixelFormat::Yuyv | PixelFormat::Bayer { .. }) && w % 2 != 0 {
+        return Err(geometry("width must be even"));
+    }
+    let row_bytes = w as usize * format.bytes_per_pixel();
+    let stride = if raw.stride == 0 {
+        row_bytes
+    } else {
+        raw.stride
+    };
+    if stride < row_bytes {
+        return Err(geometry(&format!(
+            "stride {stride} is smaller than a row of {row_bytes} bytes"
+        )));
+    }
+    let Some(needed) = stride
+        .checked_mul(h as usize - 1)
+        .and_then(|v| v.checked_add(row_bytes))
+    else {
+        return Err(geometry(&format!("stride {stride} is too large")));
+    };
+    if raw.data.len() < needed {
+        return Err(PixelError::Short {
+            format,
+            width: w,
+            height: h,
+            got: raw.data.len(),
+            needed,
+        });
+    }
+    Ok(Layout::Packed { stride, row_bytes })
 }
 
 /// Mirror index without repeating the edge: −1 → 1, n → n − 2 (n = 1: 0).
@@ -756,13 +904,10 @@ fn has_huffman_tables(data: &[u8]) -> bool {
     true
 }
 
-fn decode_jpeg(
-    data: &[u8],
-    w: u32,
-    h: u32,
-    out: &mut CodeImage,
-    pool: Option<&rayon::ThreadPool>,
-) -> Result<(), PixelError> {
+/// Decodes a JPEG stream of a `w`×`h` frame into 8-bit RGB: `3·w·h` bytes in `bytes`, whose
+/// allocation is reused. Every byte is written: zune-jpeg decodes every block even of a stream
+/// cut short (tested: `truncated_mjpeg_into_a_used_buffer_equals_a_fresh_decode`).
+fn decode_jpeg_rgb8(data: &[u8], w: u32, h: u32, bytes: &mut Vec<u8>) -> Result<(), PixelError> {
     // A frame without Huffman tables gets an "AVI1" APP0 segment after its SOI, which tells
     // zune-jpeg to use the standard Motion-JPEG tables.
     let patched;
@@ -785,47 +930,48 @@ fn decode_jpeg(
         .set_max_width(16384)
         .set_max_height(16384);
     let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(data), options);
+    let zune = |e: zune_jpeg::errors::DecodeErrors| PixelError::Jpeg(format!("{e:?}"));
     // zune-jpeg returns errors on corrupt data; a panic on some input is still caught.
-    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        decoder.decode().map(|bytes| (bytes, decoder.info()))
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        decoder.decode_headers().map_err(zune)?;
+        let (jw, jh) = decoder
+            .dimensions()
+            .ok_or_else(|| PixelError::Jpeg("no image header".into()))?;
+        if (jw, jh) != (w as usize, h as usize) {
+            return Err(PixelError::Jpeg(format!(
+                "image is {jw}x{jh}, the negotiated frame size is {w}x{h}"
+            )));
+        }
+        let n = 3 * w as usize * h as usize;
+        if decoder.output_buffer_size() != Some(n) {
+            return Err(PixelError::Jpeg(format!(
+                "decoder wants {:?} bytes for {n} RGB samples",
+                decoder.output_buffer_size()
+            )));
+        }
+        // Every byte is written by the decoder: a buffer of the right size is reused as it is.
+        bytes.resize(n, 0);
+        decoder.decode_into(bytes).map_err(zune)
     }))
     .map_err(|_| PixelError::Jpeg("the decoder panicked on corrupt data".into()))?
-    .map_err(|e| PixelError::Jpeg(format!("{e:?}")))?;
-    let (bytes, info) = decoded;
-    let info = info.ok_or_else(|| PixelError::Jpeg("no image header".into()))?;
-    if (u32::from(info.width), u32::from(info.height)) != (w, h) {
-        return Err(PixelError::Jpeg(format!(
-            "image is {}x{}, the negotiated frame size is {w}x{h}",
-            info.width, info.height
-        )));
-    }
-    let n = w as usize * h as usize;
-    if bytes.len() < 3 * n {
-        return Err(PixelError::Jpeg(format!(
-            "decoder returned {} bytes for {n} RGB pixels",
-            bytes.len()
-        )));
-    }
-    out.width = w;
-    out.height = h;
-    // Every pixel is written below: a buffer of the right size is reused as it is.
-    if out.pixels.len() != n {
-        out.pixels.clear();
-        out.pixels.resize(n, [0.0; 3]);
-    }
-    let row_bytes = 3 * w as usize;
-    // b / 255 for every byte, looked up instead of divided (the same bits).
-    let codes: [f32; 256] = std::array::from_fn(|b| f32::from(b as u8) / 255.0);
-    each_row(pool, &mut out.pixels, w as usize, |y, row| {
-        let src = &bytes[y * row_bytes..(y + 1) * row_bytes];
-        for (p, d) in src.chunks_exact(3).zip(row.iter_mut()) {
-            *d = [
-                codes[usize::from(p[0])],
-                codes[usize::from(p[1])],
-                codes[usize::from(p[2])],
-            ];
-        }
-    });
+}
+
+/// A JPEG stream → normalised codes: [`decode_jpeg_rgb8`], then b / 255 for every byte.
+fn decode_jpeg(
+    data: &[u8],
+    w: u32,
+    h: u32,
+    out: &mut CodeImage,
+    pool: Option<&rayon::ThreadPool>,
+) -> Result<(), PixelError> {
+    let mut image = ByteImage {
+        width: w,
+        height: h,
+        channels: 3,
+        bytes: Vec::new(),
+    };
+    decode_jpeg_rgb8(data, w, h, &mut image.bytes)?;
+    image.to_codes_into_on(out, pool);
     Ok(())
 }
 
@@ -1219,18 +1365,22 @@ mod tests {
             .expect("a thread pool")
     }
 
+    /// Pseudo-random bytes (the top byte of a 64-bit LCG) from `seed`.
+    fn byte_stream(mut state: u64) -> impl FnMut() -> u8 {
+        move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 56) as u8
+        }
+    }
+
     /// Rows can be decoded in parallel: the code values must be the same to the bit on the
     /// calling thread and on a pool, for every format (70×100 frames: several bands of rows).
     #[test]
     fn decoding_does_not_depend_on_the_number_of_threads() {
         let (w, h) = (70u32, 100u32);
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut byte = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 56) as u8
-        };
+        let mut byte = byte_stream(0x2545_f491_4f6c_dd1du64);
         let mut rgb = Vec::new();
         for _ in 0..w * h * 3 {
             rgb.push(byte() / 2 + 64);
@@ -1308,5 +1458,151 @@ mod tests {
         assert!(e.to_string().contains("even"), "{e}");
         let e = decode(&raw(&garbage, PixelFormat::Mjpeg, 4, 4), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().starts_with("MJPEG"), "{e}");
+    }
+
+    /// A frame kept as bytes gives the same code values to the bit as decoding it to floats,
+    /// for every one-byte-code format, padded rows included, on one thread and on a pool; a
+    /// used byte buffer is written over; other formats are refused by name.
+    #[test]
+    fn byte_frames_give_the_codes_of_the_float_decode() {
+        let (w, h) = (70u32, 100u32);
+        let mut byte = byte_stream(0x9e37_79b9_7f4a_7c15u64);
+        // every seventh pixel grey (R = G = B), so both kinds occur
+        let mut rgb = Vec::new();
+        for i in 0..w * h {
+            let v = byte();
+            if i % 7 == 0 {
+                rgb.extend_from_slice(&[v; 3]);
+            } else {
+                rgb.extend_from_slice(&[v, byte(), byte()]);
+            }
+        }
+        let mut jpeg = Vec::new();
+        jpeg_encoder::Encoder::new(&mut jpeg, 90)
+            .encode(&rgb, w as u16, h as u16, jpeg_encoder::ColorType::Rgb)
+            .unwrap();
+        // rows padded to a stride of 3·w + 5 bytes, the padding filled with 0xEE
+        let padded = |bpp: usize, src: &[u8]| -> Vec<u8> {
+            let row = bpp * w as usize;
+            src.chunks_exact(row)
+                .flat_map(|r| r.iter().copied().chain([0xEE; 5]))
+                .collect()
+        };
+        let grey: Vec<u8> = rgb.iter().step_by(3).copied().collect();
+        let rgb_padded = padded(3, &rgb);
+        let grey_padded = padded(1, &grey);
+        let cases: Vec<(PixelFormat, &[u8], usize)> = vec![
+            (PixelFormat::Mjpeg, &jpeg, 0),
+            (PixelFormat::Rgb24, &rgb, 0),
+            (PixelFormat::Bgr24, &rgb, 0),
+            (PixelFormat::Rgb24, &rgb_padded, 3 * w as usize + 5),
+            (PixelFormat::Bgr24, &rgb_padded, 3 * w as usize + 5),
+            (PixelFormat::Grey { bits: 8 }, &grey, 0),
+            (PixelFormat::Grey { bits: 8 }, &grey_padded, w as usize + 5),
+        ];
+        let helpers = pool(2);
+        for (format, data, stride) in cases {
+            let frame = RawFrame {
+                data,
+                format,
+                width: w,
+                height: h,
+                stride,
+            };
+            let want = decode(&frame, YuvMatrix::Auto).unwrap();
+            for threads in [None, Some(&helpers)] {
+                // a used buffer of the right size, and one of another size
+                for used in [
+                    vec![0xAB; data.len().max(3 * (w * h) as usize)],
+                    vec![7; 10],
+                ] {
+                    let mut bytes = ByteImage {
+                        bytes: used,
+                        ..ByteImage::default()
+                    };
+                    decode_bytes_into_on(&frame, &mut bytes, threads).unwrap();
+                    assert_eq!((bytes.width, bytes.height), (w, h));
+                    let channels = match format {
+                        PixelFormat::Grey { .. } => 1,
+                        _ => 3,
+                    };
+                    assert_eq!(bytes.channels, channels, "{format}");
+                    assert_eq!(bytes.bytes.len(), channels * (w * h) as usize, "{format}");
+                    let mut codes = CodeImage {
+                        width: 0,
+                        height: 0,
+                        pixels: vec![[f32::NAN; 3]; 3],
+                    };
+                    bytes.to_codes_into_on(&mut codes, threads);
+                    assert_eq!((codes.width, codes.height), (w, h));
+                    assert!(
+                        codes
+                            .pixels
+                            .iter()
+                            .flatten()
+                            .zip(want.pixels.iter().flatten())
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{format} stride {stride}"
+                    );
+                }
+            }
+        }
+        // BGR24 is reordered: its first pixel's bytes come back reversed
+        let mut bytes = ByteImage::default();
+        let frame = raw(&rgb, PixelFormat::Bgr24, w, h);
+        decode_bytes_into_on(&frame, &mut bytes, None).unwrap();
+        assert_eq!(bytes.bytes[..3], [rgb[2], rgb[1], rgb[0]]);
+        // formats whose codes are not bytes, and bad buffers, are errors
+        for format in PixelFormat::all()
+            .into_iter()
+            .filter(|f| !f.has_byte_codes())
+        {
+            let data = vec![0u8; 2 * (w * h) as usize * format.bytes_per_pixel().max(1)];
+            let e = decode_bytes_into_on(&raw(&data, format, w, h), &mut bytes, None).unwrap_err();
+            assert!(e.to_string().contains("not one byte"), "{format}: {e}");
+        }
+        let e = decode_bytes_into_on(
+            &raw(&rgb[..100], PixelFormat::Rgb24, w, h),
+            &mut bytes,
+            None,
+        )
+        .unwrap_err();
+        assert!(matches!(e, PixelError::Short { .. }), "{e}");
+        let e = decode_bytes_into_on(&raw(&jpeg, PixelFormat::Mjpeg, w, h + 1), &mut bytes, None)
+            .unwrap_err();
+        assert!(e.to_string().contains("negotiated frame size"), "{e}");
+    }
+
+    /// zune-jpeg writes every byte of its output even for a stream cut short, so a reused
+    /// buffer needs no clearing: a truncated frame decoded into a buffer full of another
+    /// frame's bytes equals the same frame decoded into a fresh one.
+    #[test]
+    fn truncated_mjpeg_into_a_used_buffer_equals_a_fresh_decode() {
+        let (w, h) = (48u16, 40u16);
+        let rgb: Vec<u8> = (0..u32::from(w) * u32::from(h) * 3)
+            .map(|i| (i * 37 % 251) as u8)
+            .collect();
+        let mut jpeg = Vec::new();
+        jpeg_encoder::Encoder::new(&mut jpeg, 85)
+            .encode(&rgb, w, h, jpeg_encoder::ColorType::Rgb)
+            .unwrap();
+        let mut decoded_cut = 0;
+        for cut in (jpeg.len() / 3..jpeg.len()).step_by(7) {
+            let frame = raw(&jpeg[..cut], PixelFormat::Mjpeg, w.into(), h.into());
+            let mut fresh = ByteImage::default();
+            let fresh_result = decode_bytes_into_on(&frame, &mut fresh, None);
+            let mut used = ByteImage {
+                bytes: vec![0xAB; 3 * usize::from(w) * usize::from(h)],
+                ..ByteImage::default()
+            };
+            let used_result = decode_bytes_into_on(&frame, &mut used, None);
+            assert_eq!(fresh_result.is_ok(), used_result.is_ok(), "cut at {cut}");
+            if fresh_result.is_ok() {
+                decoded_cut += 1;
+                assert!(fresh.bytes == used.bytes, "cut at {cut} of {}", jpeg.len());
+            }
+        }
+        // the test must have decoded truncated streams, not only rejected them
+        assert!(decoded_cut > 10, "{decoded_cut} truncated streams decoded");
     }
 }

@@ -28,9 +28,11 @@
 //! linearly, so a frame costs one table look-up per sample. The table's interpolation error is
 //! below 1e-4 relative for the smooth models (tested against [`ResponseModel::relative_exposure`]).
 //! The linear model needs no table: its samples are clamped and multiplied by the channel's
-//! factor (vectorised; a raw 1280×960 frame in about a third of the look-ups' time).
+//! factor (vectorised; a raw 1280×960 frame in about a third of the look-ups' time). A frame
+//! kept as bytes ([`ByteImage`]: MJPEG, RGB24, BGR24, 8-bit grey) takes one look-up per sample
+//! in 256-entry tables made from those look-ups, with the same radiances to the bit.
 
-use super::pixel_format::CodeImage;
+use super::pixel_format::{ByteImage, CodeImage};
 use super::CaptureError;
 use std::path::Path;
 use std::sync::Arc;
@@ -506,6 +508,74 @@ impl Linearizer {
             convert(out, codes)
         });
     }
+
+    /// What [`Self::linearize_into_on`] gives a grey pixel (R = G = B = `v`): the shared table
+    /// or the linear factors where the model has them, else the three channels' tables.
+    fn grey_radiance(&self, v: f32) -> [f32; 3] {
+        match (&self.linear, &self.shared) {
+            (Some(f), _) => f.map(|f| linear_radiance(v, f)),
+            (None, Some((x, f))) => {
+                let v = lookup(x, v);
+                f.map(|f| v * f)
+            }
+            (None, None) => std::array::from_fn(|c| lookup(&self.luts[c], v)),
+        }
+    }
+
+    /// [`Self::linearize_into_on`] of `image`'s codes ([`ByteImage::to_codes_into_on`]), to
+    /// the bit, straight from its bytes: the radiance of each of the 256 codes is computed once
+    /// per call, in each channel for colour pixels and for grey ones (R = G = B, which take the
+    /// shared table as above), and every sample is one look-up in those tables. No code
+    /// image is written or read: for a decoded MJPEG frame this saves more than half of the
+    /// conversion after the decoding (docs/performance.md, "Camera conversions").
+    pub fn linearize_bytes_into_on(
+        &self,
+        image: &ByteImage,
+        out: &mut Vec<[f32; 3]>,
+        pool: Option<&rayon::ThreadPool>,
+    ) {
+        /// Pixels per parallel task (32 rows of a 1280-wide frame).
+        const PIXELS_PER_TASK: usize = 32 * 1280;
+        let code = image.code_of_byte();
+        let colour: [[f32; 256]; 3] =
+            std::array::from_fn(|c| std::array::from_fn(|b| self.apply(c, code[b])));
+        let grey: [[f32; 3]; 256] = std::array::from_fn(|b| self.grey_radiance(code[b]));
+        let n = image.width as usize * image.height as usize;
+        if out.len() != n {
+            // Every element is written below (as in linearize_into_on).
+            if out.capacity() >= n {
+                out.resize(n, [0.0; 3]);
+            } else {
+                *out = vec![[0.0; 3]; n];
+            }
+        }
+        let channels = image.channels.max(1);
+        let [r, g, b] = &colour;
+        crate::parallel::for_each_chunk_mut(pool, out, PIXELS_PER_TASK, |i, out| {
+            let start = i * PIXELS_PER_TASK * channels;
+            let bytes = image.bytes.get(start..).unwrap_or(&[]);
+            let written = if channels == 1 {
+                for (o, &v) in out.iter_mut().zip(bytes) {
+                    *o = grey[usize::from(v)];
+                }
+                bytes.len()
+            } else {
+                for (o, p) in out.iter_mut().zip(bytes.chunks_exact(3)) {
+                    let (pr, pg, pb) = (usize::from(p[0]), usize::from(p[1]), usize::from(p[2]));
+                    // Both looked up and one kept, without a branch: grey pixels come in runs
+                    // (clipped highlights) or scattered (noise), which a branch mispredicts.
+                    let is_grey = pr == pg && pg == pb;
+                    let (c, gr) = ([r[pr], g[pg], b[pb]], grey[pr]);
+                    *o = std::array::from_fn(|k| if is_grey { gr[k] } else { c[k] });
+                }
+                bytes.len() / 3
+            };
+            // Pixels the image has no bytes for (it is shorter than its size says) are 0.
+            if let Some(missing) = out.get_mut(written..) {
+                missing.fill([0.0; 3]);
+            }
+        });
+    }
 }
 
 /// Reads a curve file for a `ResponseModel::Curve` (convenience for config and CLI).
@@ -865,5 +935,112 @@ mod tests {
         let lin = Linearizer::new(&ResponseModel::Linear, 4095.0, &huge);
         let out = lin.linearize(&image);
         assert_eq!(out[2], [0.0, f32::MAX, f32::MAX]);
+    }
+
+    /// A frame kept as bytes is linearised to the same radiances, to the bit, as its code
+    /// image: every response model (the shared grey table, the linear factors, per-channel
+    /// curves), every byte value grey and in colour, three- and one-channel images, on one
+    /// thread and on a pool, into a used buffer; an image shorter than its size gives 0 for the
+    /// pixels it lacks.
+    #[test]
+    fn byte_frames_linearise_as_their_codes_bit_for_bit() {
+        let radiometry = Radiometry {
+            exposure_s: 0.004,
+            gain: 2.0,
+            white_balance: [1.3, 1.0, 0.7],
+            scale: 3.0,
+        };
+        let curve = ResponseCurve::new(
+            vec![0.0, 0.3, 1.0],
+            [
+                vec![0.0, 0.2, 5.0],
+                vec![0.0, 0.5, 4.0],
+                vec![0.1, 0.4, 3.0],
+            ],
+        )
+        .unwrap();
+        let models = [
+            ResponseModel::Srgb,
+            ResponseModel::Linear,
+            ResponseModel::Gamma(2.2),
+            ResponseModel::Logarithmic { a: 20.0, b: 30.0 },
+            ResponseModel::Curve(Arc::new(curve)),
+        ];
+        // every byte value as a grey pixel, then pseudo-random colours, some of them grey
+        let (w, h) = (256u32, 200u32);
+        let mut state = 11u64;
+        let mut byte = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 56) as u8
+        };
+        let mut colour = Vec::new();
+        for i in 0..w * h {
+            if i < 256 {
+                colour.extend_from_slice(&[i as u8; 3]);
+            } else if i % 11 == 0 {
+                colour.extend_from_slice(&[byte(); 3]);
+            } else {
+                colour.extend_from_slice(&[byte(), byte(), byte()]);
+            }
+        }
+        let grey: Vec<u8> = (0..w * h).map(|i| (i * 7 % 256) as u8).collect();
+        let images = [
+            ByteImage {
+                width: w,
+                height: h,
+                channels: 3,
+                bytes: colour,
+            },
+            ByteImage {
+                width: w,
+                height: h,
+                channels: 1,
+                bytes: grey,
+            },
+        ];
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .expect("a thread pool");
+        let same = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+            a.len() == b.len()
+                && a.iter()
+                    .flatten()
+                    .zip(b.iter().flatten())
+                    .all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        for model in &models {
+            let lin = Linearizer::new(model, 255.0, &radiometry);
+            for image in &images {
+                let mut codes = CodeImage {
+                    width: 0,
+                    height: 0,
+                    pixels: Vec::new(),
+                };
+                image.to_codes_into_on(&mut codes, None);
+                let want = lin.linearize(&codes);
+                let mut one = Vec::new();
+                lin.linearize_bytes_into_on(image, &mut one, None);
+                let mut used = vec![[f32::NAN; 3]; want.len()];
+                lin.linearize_bytes_into_on(image, &mut used, Some(&pool));
+                assert!(same(&one, &want), "{model:?}, {} channels", image.channels);
+                assert!(
+                    same(&used, &want),
+                    "{model:?}, {} channels, pool",
+                    image.channels
+                );
+            }
+        }
+        // the last row missing: its pixels are 0, not what the buffer held
+        let lin = Linearizer::new(&ResponseModel::Srgb, 255.0, &radiometry);
+        let mut short = images[0].clone();
+        short.bytes.truncate(3 * (w * (h - 1)) as usize);
+        let mut out = vec![[f32::NAN; 3]; (w * h) as usize];
+        lin.linearize_bytes_into_on(&short, &mut out, Some(&pool));
+        let (head, tail) = out.split_at((w * (h - 1)) as usize);
+        assert!(tail.iter().flatten().all(|&v| v == 0.0));
+        assert!(head.iter().flatten().all(|v| v.is_finite()));
     }
 }

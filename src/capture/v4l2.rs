@@ -37,7 +37,7 @@
 //! some malformed driver answers; those calls run under `catch_unwind` and become errors.
 
 use super::bracket::{self, Bracket, MergeLimits};
-use super::pixel_format::{self, CodeImage, PixelFormat, RawFrame, YuvMatrix};
+use super::pixel_format::{self, ByteImage, CodeImage, PixelFormat, RawFrame, YuvMatrix};
 use super::response::{Linearizer, Radiometry, ResponseModel};
 use super::{CaptureError, FrameSource};
 use crate::envmap::Projection;
@@ -229,7 +229,10 @@ pub struct V4l2Source {
     has_gain: bool,
     first_timestamp: Option<f64>,
     seq: u64,
+    /// The last frame's codes: as bytes where the format's codes are bytes and no brackets are
+    /// merged ([`Self::keeps_bytes`]), else as normalised floats.
     codes: CodeImage,
+    bytes: ByteImage,
     card: String,
     /// Tables for the last (exposure, gain) bit patterns.
     linearizer: Option<((u64, u64), Linearizer)>,
@@ -355,6 +358,7 @@ impl V4l2Source {
                 height: 0,
                 pixels: Vec::new(),
             },
+            bytes: ByteImage::default(),
             card: caps.card,
             linearizer: None,
             spare_pixels: Vec::new(),
@@ -403,6 +407,7 @@ impl V4l2Source {
     fn grab(&mut self) -> Result<f64, CaptureError> {
         let p = self.path.clone();
         let mut last_problem = String::new();
+        let keeps_bytes = self.keeps_bytes();
         for _ in 0..MAX_BAD_FRAMES {
             let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
                 let stream = self.stream.as_mut().ok_or_else(|| {
@@ -424,12 +429,21 @@ impl V4l2Source {
                     height: self.height,
                     stride: self.stride,
                 };
-                match pixel_format::decode_into_on(
-                    &raw,
-                    self.settings.yuv_matrix,
-                    &mut self.codes,
-                    self.convert_pool.as_ref(),
-                ) {
+                let decoded = if keeps_bytes {
+                    pixel_format::decode_bytes_into_on(
+                        &raw,
+                        &mut self.bytes,
+                        self.convert_pool.as_ref(),
+                    )
+                } else {
+                    pixel_format::decode_into_on(
+                        &raw,
+                        self.settings.yuv_matrix,
+                        &mut self.codes,
+                        self.convert_pool.as_ref(),
+                    )
+                };
+                match decoded {
                     Ok(()) => {
                         return Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
                     }
@@ -481,6 +495,10 @@ impl V4l2Source {
             let ts = self.grab()?;
             first_ts.get_or_insert(ts);
             let (t_read, g) = self.exposure_and_gain();
+            if self.keeps_bytes() {
+                self.bytes
+                    .to_codes_into_on(&mut self.codes, self.convert_pool.as_ref());
+            }
             brackets.push(Bracket {
                 image: self.codes.clone(),
                 exposure_s: t_read,
@@ -488,6 +506,13 @@ impl V4l2Source {
             });
         }
         Ok((brackets, first_ts.unwrap_or(0.0)))
+    }
+
+    /// Whether frames are kept as bytes and linearised through byte tables
+    /// ([`Linearizer::linearize_bytes_into_on`]; the same radiances, in less time): formats whose
+    /// codes are bytes (MJPEG, RGB24, BGR24, GREY), when no brackets are merged.
+    fn keeps_bytes(&self) -> bool {
+        self.format.has_byte_codes() && self.settings.bracket_exposures_s.is_empty()
     }
 
     fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
@@ -555,6 +580,11 @@ impl FrameSource for V4l2Source {
             // Every pixel of a recycled buffer is overwritten.
             let mut pixels = std::mem::take(&mut self.spare_pixels);
             match &self.linearizer {
+                Some((_, lin)) if self.keeps_bytes() => lin.linearize_bytes_into_on(
+                    &self.bytes,
+                    &mut pixels,
+                    self.convert_pool.as_ref(),
+                ),
                 Some((_, lin)) => {
                     lin.linearize_into_on(&self.codes, &mut pixels, self.convert_pool.as_ref())
                 }
