@@ -9,6 +9,10 @@
 //! - `radiance_pool2/…`: the same in bands of rows on two threads, the bench's and one helper
 //!   (src/parallel.rs), as the camera source converts with `camera.convert_threads = 2` (the
 //!   default; on a machine of one core, on one thread);
+//! - `radiance_one_pass{,_pool2,_reused}/…` (Y16, YUYV, Bayer): decoded and linearised in one
+//!   pass over bands of rows ([`Linearizer::decode_linearize_into_on`]), as the camera source
+//!   converts the packed formats, into a new buffer (on one and two threads) and into a reused
+//!   one;
 //! - `decode_bytes/mjpeg`, `radiance_bytes{,_pool2}/mjpeg`, `linearize_bytes_reused/mjpeg`:
 //!   the same for a frame kept as bytes and linearised through 256-entry tables, as the camera
 //!   source converts formats whose codes are bytes ([`Linearizer::linearize_bytes_into_on`]);
@@ -202,6 +206,32 @@ fn bench_capture(c: &mut Criterion) {
             b.iter(|| lin.linearize_into(black_box(&codes), &mut out))
         });
         if !format.has_byte_codes() {
+            // Decoded and linearised band by band, as the camera source converts the packed
+            // formats (its copy of the driver's buffer left out).
+            let mut fresh = Vec::new();
+            for (bench, helpers) in [
+                ("radiance_one_pass", None),
+                ("radiance_one_pass_pool2", pool2.as_ref()),
+            ] {
+                group.bench_function(format!("{bench}/{name}_1280x960"), |b| {
+                    b.iter(|| {
+                        fresh = Vec::new();
+                        lin.decode_linearize_into_on(
+                            black_box(&raw),
+                            YuvMatrix::Bt709,
+                            &mut fresh,
+                            helpers,
+                        )
+                        .unwrap_or_else(|e| panic!("{e}"))
+                    })
+                });
+            }
+            group.bench_function(format!("radiance_one_pass_reused/{name}_1280x960"), |b| {
+                b.iter(|| {
+                    lin.decode_linearize_into_on(black_box(&raw), YuvMatrix::Bt709, &mut out, None)
+                        .unwrap_or_else(|e| panic!("{e}"))
+                })
+            });
             continue;
         }
         // The same frame kept as bytes, as the camera source keeps a one-byte-code format.

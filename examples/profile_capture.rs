@@ -7,8 +7,11 @@
 //!
 //! For each format a 1280×960 buffer of rooitou_park (as in `benches/capture.rs`) is converted to
 //! radiance `N` times, into a new buffer every frame and into one buffer reused (as the camera
-//! source does with the buffers the pipeline hands back); the process's user + system time comes from `/proc/self/stat` (clock
-//! ticks, 10 ms), so N should make each run last a second or more. It counts every thread: the
+//! source does with the buffers the pipeline hands back), two ways: through a whole-frame code
+//! image, and the camera source's way (MJPEG kept as bytes; the packed formats' buffer copied,
+//! then decoded and linearised in one pass; "decode" is then the check and the copy). The
+//! process's user + system time comes from `/proc/self/stat` (clock ticks, 10 ms), so N should
+//! make each run last a second or more. It counts every thread: the
 //! conversions run in bands of rows on rayon's pool (`RAYON_NUM_THREADS=1` for one thread), and
 //! an idle pool thread's brief spinning is counted too.
 
@@ -44,6 +47,26 @@ fn srgb(x: f32) -> f32 {
     } else {
         1.055 * x.powf(1.0 / 2.4) - 0.055
     }
+}
+
+/// How a frame is held between the driver's buffer and its linearisation.
+#[derive(Clone, Copy)]
+enum Path {
+    /// A whole-frame image of normalised codes (f32), then the look-up tables.
+    CodeImage,
+    /// One-byte codes kept as bytes, then 256-entry tables (the camera source's MJPEG path).
+    Bytes,
+    /// A copy of the buffer, decoded and linearised in one pass over bands of rows (the
+    /// camera source's path for the packed formats).
+    OnePass,
+}
+
+/// The buffers of [`Path`]'s three ways.
+#[derive(Default)]
+struct Kept {
+    codes: CodeImage,
+    bytes: ByteImage,
+    raw_copy: Vec<u8>,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -90,25 +113,43 @@ fn main() -> anyhow::Result<()> {
         pattern: BayerPattern::Rggb,
         bits: 12,
     };
-    // (name, format, buffer, kept as bytes as the camera source keeps MJPEG frames)
+    // (name, format, buffer, path); the second row of each format is the camera source's path
     let cases = [
-        ("Y16", PixelFormat::Grey { bits: 16 }, &y16, false),
-        ("YUYV", PixelFormat::Yuyv, &yuyv, false),
-        ("MJPEG via a code image", PixelFormat::Mjpeg, &mjpeg, false),
         (
-            "MJPEG as bytes (the camera source)",
+            "Y16 via a code image",
+            PixelFormat::Grey { bits: 16 },
+            &y16,
+            Path::CodeImage,
+        ),
+        (
+            "Y16 in one pass",
+            PixelFormat::Grey { bits: 16 },
+            &y16,
+            Path::OnePass,
+        ),
+        (
+            "YUYV via a code image",
+            PixelFormat::Yuyv,
+            &yuyv,
+            Path::CodeImage,
+        ),
+        ("YUYV in one pass", PixelFormat::Yuyv, &yuyv, Path::OnePass),
+        (
+            "MJPEG via a code image",
             PixelFormat::Mjpeg,
             &mjpeg,
-            true,
+            Path::CodeImage,
         ),
-        ("Bayer RG12", rg12, &bayer, false),
+        ("MJPEG as bytes", PixelFormat::Mjpeg, &mjpeg, Path::Bytes),
+        ("Bayer RG12 via a code image", rg12, &bayer, Path::CodeImage),
+        ("Bayer RG12 in one pass", rg12, &bayer, Path::OnePass),
     ];
     println!(
         "| format | decode CPU ms/frame | decode + linearise CPU ms/frame (new buffer) | \
          wall | decode + linearise into a recycled buffer | wall |"
     );
     println!("|---|---:|---:|---:|---:|---:|");
-    for (name, format, data, as_bytes) in cases {
+    for (name, format, data, path) in cases {
         let raw = RawFrame {
             data,
             format,
@@ -122,39 +163,49 @@ fn main() -> anyhow::Result<()> {
             ResponseModel::Srgb
         };
         let lin = Linearizer::new(&model, format.code_max(), &Radiometry::default());
-        let mut codes = CodeImage {
-            width: 0,
-            height: 0,
-            pixels: Vec::new(),
-        };
-        let mut bytes = ByteImage::default();
-        let decode = |codes: &mut CodeImage,
-                      bytes: &mut ByteImage|
-         -> Result<(), pixel_format::PixelError> {
-            if as_bytes {
-                pixel_format::decode_bytes_into_on(&raw, bytes, None)
-            } else {
-                pixel_format::decode_into(&raw, Default::default(), codes)
+        let mut kept = Kept::default();
+        // What the camera source does with the driver's buffer while it holds it.
+        let decode = |kept: &mut Kept| -> Result<(), pixel_format::PixelError> {
+            match path {
+                Path::CodeImage => {
+                    pixel_format::decode_into(&raw, Default::default(), &mut kept.codes)
+                }
+                Path::Bytes => pixel_format::decode_bytes_into_on(&raw, &mut kept.bytes, None),
+                Path::OnePass => pixel_format::check(&raw).map(|()| {
+                    kept.raw_copy.clear();
+                    kept.raw_copy.extend_from_slice(raw.data);
+                }),
             }
         };
         let c0 = process_cpu_s();
         for _ in 0..n {
-            decode(&mut codes, &mut bytes)?;
+            decode(&mut kept)?;
         }
         let decode_s = (process_cpu_s() - c0) / n as f64;
-        let linearize = |out: &mut Vec<[f32; 3]>, codes: &CodeImage, bytes: &ByteImage| {
-            if as_bytes {
-                lin.linearize_bytes_into_on(bytes, out, None);
-            } else {
-                lin.linearize_into(codes, out);
+        // What it does once the exposure is known.
+        let linearize = |out: &mut Vec<[f32; 3]>, kept: &Kept| match path {
+            Path::CodeImage => {
+                lin.linearize_into(&kept.codes, out);
+                Ok(())
+            }
+            Path::Bytes => {
+                lin.linearize_bytes_into_on(&kept.bytes, out, None);
+                Ok(())
+            }
+            Path::OnePass => {
+                let raw = RawFrame {
+                    data: &kept.raw_copy,
+                    ..raw
+                };
+                lin.decode_linearize_into_on(&raw, Default::default(), out, None)
             }
         };
         let (c0, t0) = (process_cpu_s(), Instant::now());
         let mut sum = 0.0f32;
         for _ in 0..n {
-            decode(&mut codes, &mut bytes)?;
+            decode(&mut kept)?;
             let mut fresh = Vec::new();
-            linearize(&mut fresh, &codes, &bytes);
+            linearize(&mut fresh, &kept)?;
             sum += fresh[0][0];
         }
         let total = (process_cpu_s() - c0) / n as f64;
@@ -164,8 +215,8 @@ fn main() -> anyhow::Result<()> {
         let mut pixels = Vec::new();
         let (c0, t0) = (process_cpu_s(), Instant::now());
         for _ in 0..n {
-            decode(&mut codes, &mut bytes)?;
-            linearize(&mut pixels, &codes, &bytes);
+            decode(&mut kept)?;
+            linearize(&mut pixels, &kept)?;
             sum += pixels[0][0];
         }
         let recycled = (process_cpu_s() - c0) / n as f64;

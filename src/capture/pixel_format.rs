@@ -37,6 +37,8 @@
 //! Formats whose every code is one byte (MJPEG, RGB24, BGR24, 8-bit grey) can also be kept as
 //! bytes ([`ByteImage`], [`decode_bytes_into_on`]): a quarter of the memory, linearised through
 //! 256-entry tables to the same radiances as the code image gives (the camera source's path).
+//! The other formats can be decoded a band of rows at a time ([`decode_each_band_on`]), so that
+//! the linearisation takes each band's codes from the cache instead of a whole-frame image.
 //!
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
 //! odd width for YUYV or Bayer, or a corrupt JPEG is a [`PixelError`], never a panic.
@@ -349,7 +351,7 @@ pub struct RawFrame<'a> {
 }
 
 /// An image of normalised code values in [0, 1], row-major, top row first.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct CodeImage {
     pub width: u32,
     pub height: u32,
@@ -499,92 +501,218 @@ pub fn decode_into_on(
     out: &mut CodeImage,
     pool: Option<&rayon::ThreadPool>,
 ) -> Result<(), PixelError> {
-    let (format, w, h) = (raw.format, raw.width, raw.height);
-    let (stride, row_bytes) = match check_layout(raw)? {
+    let (w, h) = (raw.width, raw.height);
+    let band_decoder = match check_layout(raw)? {
         Layout::Jpeg => return decode_jpeg(raw.data, w, h, out, pool),
-        Layout::Packed { stride, row_bytes } => (stride, row_bytes),
+        Layout::Packed { stride, row_bytes } => BandDecoder::new(raw, matrix, stride, row_bytes),
     };
-    let (wu, hu) = (w as usize, h as usize);
+    let n = w as usize * h as usize;
     out.width = w;
     out.height = h;
     // Every pixel is written below: a buffer of the right size is reused as it is.
-    if out.pixels.len() != wu * hu {
+    if out.pixels.len() != n {
         out.pixels.clear();
-        out.pixels.resize(wu * hu, [0.0; 3]);
+        out.pixels.resize(n, [0.0; 3]);
     }
-    let rows = |y: usize| &raw.data[y * stride..y * stride + row_bytes];
-    match format {
-        PixelFormat::Yuyv => {
-            let (kr, kb) = matrix.resolve(w, h).coefficients();
-            let (rv, bu) = (2.0 * (1.0 - kr), 2.0 * (1.0 - kb));
-            let kg = 1.0 / (1.0 - kr - kb);
-            each_row(pool, &mut out.pixels, wu, |y, dst| {
-                for (quad, pair) in rows(y).chunks_exact(4).zip(dst.chunks_exact_mut(2)) {
-                    let u = (f32::from(quad[1]) - 128.0) / 224.0;
-                    let v = (f32::from(quad[3]) - 128.0) / 224.0;
-                    for (k, luma) in [quad[0], quad[2]].into_iter().enumerate() {
-                        let l = (f32::from(luma) - 16.0) / 219.0;
-                        let r = l + rv * v;
-                        let b = l + bu * u;
-                        let g = (l - kr * r - kb * b) * kg;
-                        pair[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
-                    }
-                }
-            });
-        }
-        PixelFormat::Rgb24 | PixelFormat::Bgr24 => {
-            let (ri, bi) = if format == PixelFormat::Rgb24 {
-                (0, 2)
-            } else {
-                (2, 0)
-            };
-            each_row(pool, &mut out.pixels, wu, |y, dst| {
-                for (px, d) in rows(y).chunks_exact(3).zip(dst.iter_mut()) {
-                    *d = [
-                        f32::from(px[ri]) / 255.0,
-                        f32::from(px[1]) / 255.0,
-                        f32::from(px[bi]) / 255.0,
-                    ];
-                }
-            });
-        }
-        PixelFormat::Grey { .. } => {
-            let max = format.code_max();
-            let inv = 1.0 / max;
-            each_row(pool, &mut out.pixels, wu, |y, dst| {
-                if format.bytes_per_pixel() == 1 {
-                    for (&b, d) in rows(y).iter().zip(dst.iter_mut()) {
-                        *d = [f32::from(b) * inv; 3];
-                    }
-                } else {
-                    for (b, d) in rows(y).chunks_exact(2).zip(dst.iter_mut()) {
-                        let v = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
-                        *d = [v; 3];
-                    }
-                }
-            });
-        }
-        PixelFormat::Bayer { pattern, .. } => {
-            let max = format.code_max();
-            let inv = 1.0 / max;
-            // Each band of rows reads its codes (and one row above and below) into a small
-            // buffer of its own and demosaics from there: no whole-frame mosaic.
-            let read_row = |y: usize, dst: &mut [f32]| {
-                if format.bytes_per_pixel() == 1 {
-                    for (&b, d) in rows(y).iter().zip(dst.iter_mut()) {
-                        *d = f32::from(b) * inv;
-                    }
-                } else {
-                    for (b, d) in rows(y).chunks_exact(2).zip(dst.iter_mut()) {
-                        *d = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
-                    }
-                }
-            };
-            demosaic_rows(wu, hu, pattern, read_row, &mut out.pixels, pool);
-        }
-        PixelFormat::Mjpeg => unreachable!("handled above"),
-    }
+    crate::parallel::for_each_chunk_mut(
+        pool,
+        &mut out.pixels,
+        ROWS_PER_TASK * w as usize,
+        |band, rows| band_decoder.decode(band * ROWS_PER_TASK, rows),
+    );
     Ok(())
+}
+
+/// Decodes `raw` in bands of rows (32 each), each into a buffer of the band's size,
+/// and calls `f(codes, out_rows)` with a band's codes and the same rows of `out` (resized to
+/// width × height, every element left to `f`): a consumer of the codes (the linearisation,
+/// [`super::response::Linearizer::decode_linearize_into_on`]) works on them while they are in
+/// the cache, and no whole-frame code image is written or read. The bands run on the calling
+/// thread and `pool`'s helpers together (src/parallel.rs); each band's codes are those of
+/// [`decode_into_on`] to the bit. A JPEG is decoded whole first ([`decode_bytes_into_on`]).
+pub fn decode_each_band_on<T: Copy + Default + Send>(
+    raw: &RawFrame<'_>,
+    matrix: YuvMatrix,
+    out: &mut Vec<T>,
+    pool: Option<&rayon::ThreadPool>,
+    f: impl Fn(&[[f32; 3]], &mut [T]) + Sync,
+) -> Result<(), PixelError> {
+    let (w, h) = (raw.width as usize, raw.height as usize);
+    let mut jpeg = ByteImage::default();
+    let band_decoder = match check_layout(raw)? {
+        Layout::Jpeg => {
+            decode_bytes_into_on(raw, &mut jpeg, pool)?;
+            None
+        }
+        Layout::Packed { stride, row_bytes } => {
+            Some(BandDecoder::new(raw, matrix, stride, row_bytes))
+        }
+    };
+    if out.len() != w * h {
+        out.clear();
+        out.resize(w * h, T::default());
+    }
+    let codes_of_byte = jpeg.code_of_byte();
+    crate::parallel::for_each_chunk_mut(pool, out, ROWS_PER_TASK * w, |band, out_rows| {
+        let y0 = band * ROWS_PER_TASK;
+        with_scratch(&BAND_CODES, out_rows.len(), |codes| {
+            match &band_decoder {
+                Some(decoder) => decoder.decode(y0, codes),
+                None => {
+                    let bytes = jpeg.bytes.get(3 * y0 * w..).unwrap_or(&[]);
+                    for (d, p) in codes.iter_mut().zip(bytes.chunks_exact(3)) {
+                        *d = std::array::from_fn(|c| codes_of_byte[usize::from(p[c])]);
+                    }
+                }
+            }
+            f(codes, out_rows);
+        });
+    });
+    Ok(())
+}
+
+thread_local! {
+    /// A band's codes in [`decode_each_band_on`], kept by each thread between bands and frames.
+    static BAND_CODES: std::cell::RefCell<Vec<[f32; 3]>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// A band's mosaic rows in [`demosaic_band`], the same way.
+    static BAND_MOSAIC: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Calls `f` with `len` elements of this thread's scratch buffer `buffer`, grown when needed
+/// and never cleared: `f` must write every element before it reads it. Allocating and zeroing
+/// a band's buffer every time cost as much as writing a whole-frame image (1280×960: 15 MB of
+/// codes per frame). A nested use of the same buffer gets a new one.
+fn with_scratch<T: Copy + Default, R>(
+    buffer: &'static std::thread::LocalKey<std::cell::RefCell<Vec<T>>>,
+    len: usize,
+    f: impl FnOnce(&mut [T]) -> R,
+) -> R {
+    buffer.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut scratch) => {
+            if scratch.len() < len {
+                scratch.resize(len, T::default());
+            }
+            f(&mut scratch[..len])
+        }
+        Err(_) => f(&mut vec![T::default(); len]),
+    })
+}
+
+/// A packed frame whose layout is checked, decoded a band of rows at a time.
+struct BandDecoder<'a> {
+    raw: &'a RawFrame<'a>,
+    stride: usize,
+    row_bytes: usize,
+    /// YUYV's (Kr, Kb) for the frame's size.
+    yuv: (f32, f32),
+}
+
+impl<'a> BandDecoder<'a> {
+    fn new(raw: &'a RawFrame<'a>, matrix: YuvMatrix, stride: usize, row_bytes: usize) -> Self {
+        Self {
+            raw,
+            stride,
+            row_bytes,
+            yuv: matrix.resolve(raw.width, raw.height).coefficients(),
+        }
+    }
+
+    /// Row `y`'s bytes.
+    fn row(&self, y: usize) -> &[u8] {
+        &self.raw.data[y * self.stride..y * self.stride + self.row_bytes]
+    }
+
+    /// The codes of rows `y0`, `y0 + 1`, … into `dst` (whole rows of the frame's width).
+    fn decode(&self, y0: usize, dst: &mut [[f32; 3]]) {
+        let format = self.raw.format;
+        let (w, h) = (self.raw.width as usize, self.raw.height as usize);
+        if w == 0 {
+            return;
+        }
+        let rows = dst
+            .chunks_exact_mut(w)
+            .enumerate()
+            .map(|(r, d)| (y0 + r, d));
+        match format {
+            PixelFormat::Yuyv => {
+                let (kr, kb) = self.yuv;
+                let (rv, bu) = (2.0 * (1.0 - kr), 2.0 * (1.0 - kb));
+                let kg = 1.0 / (1.0 - kr - kb);
+                for (y, dst) in rows {
+                    for (quad, pair) in self.row(y).chunks_exact(4).zip(dst.chunks_exact_mut(2)) {
+                        let u = (f32::from(quad[1]) - 128.0) / 224.0;
+                        let v = (f32::from(quad[3]) - 128.0) / 224.0;
+                        for (k, luma) in [quad[0], quad[2]].into_iter().enumerate() {
+                            let l = (f32::from(luma) - 16.0) / 219.0;
+                            let r = l + rv * v;
+                            let b = l + bu * u;
+                            let g = (l - kr * r - kb * b) * kg;
+                            pair[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
+                        }
+                    }
+                }
+            }
+            PixelFormat::Rgb24 | PixelFormat::Bgr24 => {
+                let (ri, bi) = if format == PixelFormat::Rgb24 {
+                    (0, 2)
+                } else {
+                    (2, 0)
+                };
+                for (y, dst) in rows {
+                    for (px, d) in self.row(y).chunks_exact(3).zip(dst.iter_mut()) {
+                        *d = [
+                            f32::from(px[ri]) / 255.0,
+                            f32::from(px[1]) / 255.0,
+                            f32::from(px[bi]) / 255.0,
+                        ];
+                    }
+                }
+            }
+            PixelFormat::Grey { .. } => {
+                let max = format.code_max();
+                let inv = 1.0 / max;
+                for (y, dst) in rows {
+                    if format.bytes_per_pixel() == 1 {
+                        for (&b, d) in self.row(y).iter().zip(dst.iter_mut()) {
+                            *d = [f32::from(b) * inv; 3];
+                        }
+                    } else {
+                        for (b, d) in self.row(y).chunks_exact(2).zip(dst.iter_mut()) {
+                            let v = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
+                            *d = [v; 3];
+                        }
+                    }
+                }
+            }
+            PixelFormat::Bayer { pattern, .. } => {
+                let max = format.code_max();
+                let inv = 1.0 / max;
+                // The band reads its codes (and one row above and below) into a small buffer
+                // of its own and demosaics from there: no whole-frame mosaic.
+                let read_row = |y: usize, dst: &mut [f32]| {
+                    if format.bytes_per_pixel() == 1 {
+                        for (&b, d) in self.row(y).iter().zip(dst.iter_mut()) {
+                            *d = f32::from(b) * inv;
+                        }
+                    } else {
+                        for (b, d) in self.row(y).chunks_exact(2).zip(dst.iter_mut()) {
+                            *d = f32::from(u16::from_le_bytes([b[0], b[1]])).min(max) * inv;
+                        }
+                    }
+                };
+                demosaic_band(w, h, pattern, read_row, y0, dst);
+            }
+            // Not a packed format: its layout is `Layout::Jpeg`.
+            PixelFormat::Mjpeg => {}
+        }
+    }
+}
+
+/// Checks a raw buffer as [`decode_into_on`] does before it decodes: its size, width and
+/// stride against its format and length (a JPEG's header and size are checked when it is
+/// decoded). A packed buffer that passes decodes without error.
+pub fn check(raw: &RawFrame<'_>) -> Result<(), PixelError> {
+    check_layout(raw).map(|_| ())
 }
 
 /// Where a frame's codes are in its buffer.
@@ -706,44 +834,72 @@ fn demosaic_rows(
         pool,
         &mut out[..w * h],
         ROWS_PER_TASK * w,
-        |band, out_rows| {
-            let y0 = band * ROWS_PER_TASK;
-            let n = out_rows.len() / w;
-            // Local row k holds image row y0 + k − 1, mirrored at the top and bottom.
-            let mut local = vec![0.0f32; (n + 2) * w];
-            for (k, dst) in local.chunks_exact_mut(w).enumerate() {
-                read_row(mirror((y0 + k) as isize - 1, h), dst);
-            }
-            for (r, out_row) in out_rows.chunks_exact_mut(w).enumerate() {
-                let y = y0 + r;
-                let rows = BayerRows {
-                    up: &local[r * w..][..w],
-                    row: &local[(r + 1) * w..][..w],
-                    down: &local[(r + 2) * w..][..w],
-                };
-                // The row's red or blue colour, and whether its even columns are green.
-                let even = pattern.channel(0, y);
-                let green_first = even == 1;
-                let other = if green_first {
-                    pattern.channel(1, y)
-                } else {
-                    even
-                };
-                // Interior pixels: neighbours without mirroring, in pairs of fixed colours (one
-                // kernel per row kind, the colours as constants).
-                match (other, green_first) {
-                    (0, false) => rows.interior::<0, false>(out_row),
-                    (0, true) => rows.interior::<0, true>(out_row),
-                    (_, false) => rows.interior::<2, false>(out_row),
-                    (_, true) => rows.interior::<2, true>(out_row),
-                }
-                // The border columns, with mirrored neighbours.
-                for x in [0, w - 1] {
-                    out_row[x] = rows.pixel(pattern, x, y);
-                }
-            }
-        },
+        |band, out_rows| demosaic_band(w, h, pattern, &read_row, band * ROWS_PER_TASK, out_rows),
     );
+}
+
+/// The rows `y0`, `y0 + 1`, … of [`demosaic_rows`] into `out_rows` (whole rows of width `w`):
+/// the band's rows and the (mirrored) rows above and below it are read into a buffer of its
+/// own and each row is demosaiced from there.
+fn demosaic_band(
+    w: usize,
+    h: usize,
+    pattern: BayerPattern,
+    read_row: impl Fn(usize, &mut [f32]),
+    y0: usize,
+    out_rows: &mut [[f32; 3]],
+) {
+    if w == 0 || h == 0 {
+        return;
+    }
+    let n = out_rows.len() / w;
+    with_scratch(&BAND_MOSAIC, (n + 2) * w, |local| {
+        // Local row k holds image row y0 + k − 1, mirrored at the top and bottom; every row
+        // is read before it is used.
+        for (k, dst) in local.chunks_exact_mut(w).enumerate() {
+            read_row(mirror((y0 + k) as isize - 1, h), dst);
+        }
+        demosaic_band_rows(w, pattern, local, y0, out_rows);
+    });
+}
+
+/// [`demosaic_band`]'s rows from `local`, which holds the band's mosaic rows and the ones
+/// above and below it.
+fn demosaic_band_rows(
+    w: usize,
+    pattern: BayerPattern,
+    local: &[f32],
+    y0: usize,
+    out_rows: &mut [[f32; 3]],
+) {
+    for (r, out_row) in out_rows.chunks_exact_mut(w).enumerate() {
+        let y = y0 + r;
+        let rows = BayerRows {
+            up: &local[r * w..][..w],
+            row: &local[(r + 1) * w..][..w],
+            down: &local[(r + 2) * w..][..w],
+        };
+        // The row's red or blue colour, and whether its even columns are green.
+        let even = pattern.channel(0, y);
+        let green_first = even == 1;
+        let other = if green_first {
+            pattern.channel(1, y)
+        } else {
+            even
+        };
+        // Interior pixels: neighbours without mirroring, in pairs of fixed colours (one
+        // kernel per row kind, the colours as constants).
+        match (other, green_first) {
+            (0, false) => rows.interior::<0, false>(out_row),
+            (0, true) => rows.interior::<0, true>(out_row),
+            (_, false) => rows.interior::<2, false>(out_row),
+            (_, true) => rows.interior::<2, true>(out_row),
+        }
+        // The border columns, with mirrored neighbours.
+        for x in [0, w - 1] {
+            out_row[x] = rows.pixel(pattern, x, y);
+        }
+    }
 }
 
 /// The three mosaic rows one output row of the bilinear demosaic reads (mirrored at the top and

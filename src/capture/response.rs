@@ -32,7 +32,7 @@
 //! kept as bytes ([`ByteImage`]: MJPEG, RGB24, BGR24, 8-bit grey) takes one look-up per sample
 //! in 256-entry tables made from those look-ups, with the same radiances to the bit.
 
-use super::pixel_format::{ByteImage, CodeImage};
+use super::pixel_format::{self, ByteImage, CodeImage, PixelError, RawFrame, YuvMatrix};
 use super::CaptureError;
 use std::path::Path;
 use std::sync::Arc;
@@ -460,8 +460,6 @@ impl Linearizer {
     ) {
         /// Pixels per parallel task (32 rows of a 1280-wide frame).
         const PIXELS_PER_TASK: usize = 32 * 1280;
-        let [r, g, b] = &self.luts;
-        let (r, g, b): (&Lut, &Lut, &Lut) = (r, g, b);
         let n = image.pixels.len();
         if out.len() != n {
             // Every element is written below; a new buffer comes zeroed from the allocator
@@ -472,8 +470,39 @@ impl Linearizer {
                 *out = vec![[0.0; 3]; n];
             }
         }
-        let convert = |out: &mut [[f32; 3]], codes: &[[f32; 3]]| match (&self.linear, &self.shared)
-        {
+        // The calling thread alone, or with the pool's helpers taking chunks in turn
+        // (src/parallel.rs).
+        crate::parallel::for_each_chunk_mut(pool, out, PIXELS_PER_TASK, |i, out| {
+            let codes = image.pixels.get(i * PIXELS_PER_TASK..).unwrap_or(&[]);
+            self.linearize_slice(codes, out)
+        });
+    }
+
+    /// Decodes a raw camera buffer and linearises it in one pass over bands of rows
+    /// ([`pixel_format::decode_each_band_on`]): each band's codes are linearised while they are
+    /// in the cache, so no whole-frame code image is written and read again (15 MB each way
+    /// for 1280×960). The radiances are [`pixel_format::decode_into_on`] then
+    /// [`Self::linearize_into_on`], to the bit; `out`'s allocation is reused and every
+    /// element written.
+    pub fn decode_linearize_into_on(
+        &self,
+        raw: &RawFrame<'_>,
+        matrix: YuvMatrix,
+        out: &mut Vec<[f32; 3]>,
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), PixelError> {
+        pixel_format::decode_each_band_on(raw, matrix, out, pool, |codes, out| {
+            self.linearize_slice(codes, out)
+        })
+    }
+
+    /// The radiance of each code pixel of `codes` into the same element of `out` (as many as
+    /// the shorter has). The tables are taken as plain references to fixed-size arrays, so the
+    /// look-ups need no bounds checks.
+    fn linearize_slice(&self, codes: &[[f32; 3]], out: &mut [[f32; 3]]) {
+        let [r, g, b] = &self.luts;
+        let (r, g, b): (&Lut, &Lut, &Lut) = (r, g, b);
+        match (&self.linear, &self.shared) {
             (Some([fr, fg, fb]), _) => {
                 let (fr, fg, fb) = (*fr, *fg, *fb);
                 for (o, p) in out.iter_mut().zip(codes) {
@@ -500,13 +529,7 @@ impl Linearizer {
                     *o = lookup_rgb([r, g, b], *p);
                 }
             }
-        };
-        // The calling thread alone, or with the pool's helpers taking chunks in turn
-        // (src/parallel.rs).
-        crate::parallel::for_each_chunk_mut(pool, out, PIXELS_PER_TASK, |i, out| {
-            let codes = image.pixels.get(i * PIXELS_PER_TASK..).unwrap_or(&[]);
-            convert(out, codes)
-        });
+        }
     }
 
     /// What [`Self::linearize_into_on`] gives a grey pixel (R = G = B = `v`): the shared table
@@ -1042,5 +1065,116 @@ mod tests {
         let (head, tail) = out.split_at((w * (h - 1)) as usize);
         assert!(tail.iter().flatten().all(|&v| v == 0.0));
         assert!(head.iter().flatten().all(|v| v.is_finite()));
+    }
+
+    /// Decoding and linearising band by band gives the radiances of the two steps (a whole
+    /// code image, then its linearisation) to the bit: every pixel format, padded rows, several
+    /// bands with a short last one, the shared grey table, linear factors and per-channel
+    /// curves, on one thread and on a pool, into a used buffer; a bad buffer is the same error.
+    #[test]
+    fn decoding_and_linearising_in_one_pass_equals_the_two_steps() {
+        use crate::capture::pixel_format::{decode, PixelFormat};
+        let (w, h) = (70u32, 100u32);
+        let mut state = 0x1234_5678_9abc_def1u64;
+        let mut byte = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 56) as u8
+        };
+        let rgb: Vec<u8> = (0..3 * w * h).map(|_| byte() / 2 + 64).collect();
+        let mut jpeg = Vec::new();
+        jpeg_encoder::Encoder::new(&mut jpeg, 90)
+            .encode(&rgb, w as u16, h as u16, jpeg_encoder::ColorType::Rgb)
+            .unwrap();
+        let curve = ResponseCurve::new(
+            vec![0.0, 0.4, 1.0],
+            [
+                vec![0.0, 0.3, 6.0],
+                vec![0.0, 0.2, 5.0],
+                vec![0.0, 0.5, 2.0],
+            ],
+        )
+        .unwrap();
+        let models = [
+            ResponseModel::Srgb,
+            ResponseModel::Linear,
+            ResponseModel::Curve(Arc::new(curve)),
+        ];
+        let radiometry = Radiometry {
+            exposure_s: 0.02,
+            gain: 1.0,
+            white_balance: [1.2, 1.0, 0.8],
+            scale: 1.0,
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .expect("a thread pool");
+        for format in PixelFormat::all() {
+            // packed rows padded by 6 bytes; every fifth byte repeated, so grey runs occur
+            let stride = (w as usize * format.bytes_per_pixel() + 6)
+                * usize::from(format != PixelFormat::Mjpeg);
+            let data: Vec<u8> = if format == PixelFormat::Mjpeg {
+                jpeg.clone()
+            } else {
+                let mut last = 0;
+                (0..stride * h as usize)
+                    .map(|i| {
+                        if i % 5 != 0 {
+                            last = byte();
+                        }
+                        last
+                    })
+                    .collect()
+            };
+            let frame = RawFrame {
+                data: &data,
+                format,
+                width: w,
+                height: h,
+                stride,
+            };
+            let codes = decode(&frame, YuvMatrix::Bt601).unwrap();
+            for model in &models {
+                let lin = Linearizer::new(model, format.code_max(), &radiometry);
+                let want = lin.linearize(&codes);
+                for (threads, used) in [
+                    (None, Vec::new()),
+                    (Some(&pool), vec![[f32::NAN; 3]; want.len()]),
+                    (Some(&pool), vec![[1.0; 3]; 5]),
+                ] {
+                    let mut out = used;
+                    lin.decode_linearize_into_on(&frame, YuvMatrix::Bt601, &mut out, threads)
+                        .unwrap();
+                    assert_eq!(out.len(), want.len(), "{format}");
+                    assert!(
+                        out.iter()
+                            .flatten()
+                            .zip(want.iter().flatten())
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{format}, {model:?}, pool {}",
+                        threads.is_some()
+                    );
+                }
+            }
+            // a buffer one byte short of the last row (a JPEG cut inside its header): the
+            // decoder's own error
+            let cut = if format == PixelFormat::Mjpeg {
+                20
+            } else {
+                data.len() - 7
+            };
+            let short = RawFrame {
+                data: &data[..cut],
+                ..frame
+            };
+            let lin = Linearizer::new(&ResponseModel::Srgb, format.code_max(), &radiometry);
+            let mut out = Vec::new();
+            let e = lin
+                .decode_linearize_into_on(&short, YuvMatrix::Bt601, &mut out, None)
+                .unwrap_err();
+            assert_eq!(Err(e), decode(&short, YuvMatrix::Bt601), "{format}");
+        }
     }
 }

@@ -229,10 +229,12 @@ pub struct V4l2Source {
     has_gain: bool,
     first_timestamp: Option<f64>,
     seq: u64,
-    /// The last frame's codes: as bytes where the format's codes are bytes and no brackets are
-    /// merged ([`Self::keeps_bytes`]), else as normalised floats.
+    /// The last frame, in the form [`Self::kept`] says: normalised codes (for merging
+    /// brackets), bytes (one-byte-code formats) or a copy of the driver's buffer (decoded and
+    /// linearised in one pass).
     codes: CodeImage,
     bytes: ByteImage,
+    raw_copy: Vec<u8>,
     card: String,
     /// Tables for the last (exposure, gain) bit patterns.
     linearizer: Option<((u64, u64), Linearizer)>,
@@ -243,6 +245,19 @@ pub struct V4l2Source {
     /// next frame is written into it instead of a new one (a 1280×960 frame's 15 MB, whose
     /// zeroing or first touch cost about as much as the linear conversion itself).
     spare_pixels: Vec<[f32; 3]>,
+}
+
+/// How the camera source keeps a grabbed frame until its exposure is known and it is
+/// linearised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kept {
+    /// Normalised codes: the brackets of an exposure series are merged from these.
+    Codes,
+    /// Bytes ([`ByteImage`]; MJPEG, RGB24, BGR24, GREY), linearised through byte tables.
+    Bytes,
+    /// A copy of the driver's buffer (YUYV, 10- to 16-bit grey, Bayer), decoded and
+    /// linearised in one pass over bands of rows.
+    Raw,
 }
 
 impl V4l2Source {
@@ -353,12 +368,9 @@ impl V4l2Source {
             has_gain,
             first_timestamp: None,
             seq: 0,
-            codes: CodeImage {
-                width: 0,
-                height: 0,
-                pixels: Vec::new(),
-            },
+            codes: CodeImage::default(),
             bytes: ByteImage::default(),
+            raw_copy: Vec::new(),
             card: caps.card,
             linearizer: None,
             spare_pixels: Vec::new(),
@@ -407,7 +419,7 @@ impl V4l2Source {
     fn grab(&mut self) -> Result<f64, CaptureError> {
         let p = self.path.clone();
         let mut last_problem = String::new();
-        let keeps_bytes = self.keeps_bytes();
+        let kept = self.kept();
         for _ in 0..MAX_BAD_FRAMES {
             let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
                 let stream = self.stream.as_mut().ok_or_else(|| {
@@ -429,19 +441,24 @@ impl V4l2Source {
                     height: self.height,
                     stride: self.stride,
                 };
-                let decoded = if keeps_bytes {
-                    pixel_format::decode_bytes_into_on(
+                let decoded = match kept {
+                    Kept::Bytes => pixel_format::decode_bytes_into_on(
                         &raw,
                         &mut self.bytes,
                         self.convert_pool.as_ref(),
-                    )
-                } else {
-                    pixel_format::decode_into_on(
+                    ),
+                    // Checked now (a bad buffer is skipped like a corrupt one), converted once
+                    // the exposure is known; a packed buffer that passes the check decodes.
+                    Kept::Raw => pixel_format::check(&raw).map(|()| {
+                        self.raw_copy.clear();
+                        self.raw_copy.extend_from_slice(raw.data);
+                    }),
+                    Kept::Codes => pixel_format::decode_into_on(
                         &raw,
                         self.settings.yuv_matrix,
                         &mut self.codes,
                         self.convert_pool.as_ref(),
-                    )
+                    ),
                 };
                 match decoded {
                     Ok(()) => {
@@ -495,10 +512,7 @@ impl V4l2Source {
             let ts = self.grab()?;
             first_ts.get_or_insert(ts);
             let (t_read, g) = self.exposure_and_gain();
-            if self.keeps_bytes() {
-                self.bytes
-                    .to_codes_into_on(&mut self.codes, self.convert_pool.as_ref());
-            }
+            self.codes_of_last_frame()?;
             brackets.push(Bracket {
                 image: self.codes.clone(),
                 exposure_s: t_read,
@@ -508,11 +522,52 @@ impl V4l2Source {
         Ok((brackets, first_ts.unwrap_or(0.0)))
     }
 
-    /// Whether frames are kept as bytes and linearised through byte tables
-    /// ([`Linearizer::linearize_bytes_into_on`]; the same radiances, in less time): formats whose
-    /// codes are bytes (MJPEG, RGB24, BGR24, GREY), when no brackets are merged.
-    fn keeps_bytes(&self) -> bool {
-        self.format.has_byte_codes() && self.settings.bracket_exposures_s.is_empty()
+    /// How a grabbed frame is kept until it is linearised (the same radiances every way; the
+    /// last two in less time: docs/performance.md, "Camera conversions").
+    fn kept(&self) -> Kept {
+        if !self.settings.bracket_exposures_s.is_empty() {
+            Kept::Codes
+        } else if self.format.has_byte_codes() {
+            Kept::Bytes
+        } else {
+            Kept::Raw
+        }
+    }
+
+    /// The driver's buffer of the last grabbed frame, as a raw frame ([`Kept::Raw`]).
+    fn raw_copy(&self) -> RawFrame<'_> {
+        RawFrame {
+            data: &self.raw_copy,
+            format: self.format,
+            width: self.width,
+            height: self.height,
+            stride: self.stride,
+        }
+    }
+
+    /// Makes `self.codes` the last grabbed frame's codes, however it was kept.
+    fn codes_of_last_frame(&mut self) -> Result<(), CaptureError> {
+        match self.kept() {
+            Kept::Codes => {}
+            Kept::Bytes => self
+                .bytes
+                .to_codes_into_on(&mut self.codes, self.convert_pool.as_ref()),
+            Kept::Raw => {
+                let mut codes = std::mem::take(&mut self.codes);
+                let decoded = pixel_format::decode_into_on(
+                    &self.raw_copy(),
+                    self.settings.yuv_matrix,
+                    &mut codes,
+                    self.convert_pool.as_ref(),
+                );
+                self.codes = codes;
+                decoded.map_err(|e| CaptureError::Format {
+                    path: self.path.clone(),
+                    message: e.to_string(),
+                })?;
+            }
+        }
+        Ok(())
     }
 
     fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
@@ -579,17 +634,27 @@ impl FrameSource for V4l2Source {
             }
             // Every pixel of a recycled buffer is overwritten.
             let mut pixels = std::mem::take(&mut self.spare_pixels);
-            match &self.linearizer {
-                Some((_, lin)) if self.keeps_bytes() => lin.linearize_bytes_into_on(
-                    &self.bytes,
-                    &mut pixels,
-                    self.convert_pool.as_ref(),
-                ),
-                Some((_, lin)) => {
-                    lin.linearize_into_on(&self.codes, &mut pixels, self.convert_pool.as_ref())
+            let pool = self.convert_pool.as_ref();
+            match (&self.linearizer, self.kept()) {
+                (Some((_, lin)), Kept::Bytes) => {
+                    lin.linearize_bytes_into_on(&self.bytes, &mut pixels, pool)
+                }
+                (Some((_, lin)), Kept::Raw) => lin
+                    .decode_linearize_into_on(
+                        &self.raw_copy(),
+                        self.settings.yuv_matrix,
+                        &mut pixels,
+                        pool,
+                    )
+                    .map_err(|e| CaptureError::Format {
+                        path: self.path.clone(),
+                        message: e.to_string(),
+                    })?,
+                (Some((_, lin)), Kept::Codes) => {
+                    lin.linearize_into_on(&self.codes, &mut pixels, pool)
                 }
                 // Not reached (set just above); an empty frame is an error below.
-                None => pixels.clear(),
+                (None, _) => pixels.clear(),
             }
             (pixels, ts)
         } else {
