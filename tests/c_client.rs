@@ -6,12 +6,14 @@
 //! running daemon's lights, ASG sets and wavelet sets bit for bit as a Rust client does.
 
 mod common;
+mod splitmix;
 
 use common::{config, spawn, TIMEOUT};
 use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::stream::client::{Client, Endpoint};
 use envlight::stream::protocol::decode_message;
 use envlight::stream::{Format, Message, ProtocolError, Representation, Request};
+use splitmix::SplitMix64;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -86,50 +88,27 @@ fn frame_seq(message: &Message) -> u64 {
     }
 }
 
-/// SplitMix64: a small deterministic generator for the cases.
-struct Rng(u64);
+type Rng = SplitMix64;
 
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
+/// A float: usually an ordinary value; with probability `dirty` a special one (±0, subnormal,
+/// the largest, ±∞, NaN) or random bits.
+fn random_float(rng: &mut Rng, dirty: f64) -> f32 {
+    if !rng.chance(dirty) {
+        return rng.uniform_f32(-100.0, 100.0);
     }
-
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-
-    fn chance(&mut self, p: f64) -> bool {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-
-    fn uniform(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * ((self.next() >> 40) as f32 / (1u64 << 24) as f32)
-    }
-
-    /// A float: usually an ordinary value; with probability `dirty` a special one (±0,
-    /// subnormal, the largest, ±∞, NaN) or random bits.
-    fn float(&mut self, dirty: f64) -> f32 {
-        if !self.chance(dirty) {
-            return self.uniform(-100.0, 100.0);
-        }
-        let specials = [
-            0.0,
-            -0.0,
-            f32::from_bits(1),
-            f32::MAX,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            f32::NAN,
-        ];
-        if self.chance(0.5) {
-            specials[self.below(specials.len() as u64) as usize]
-        } else {
-            f32::from_bits(self.next() as u32)
-        }
+    let specials = [
+        0.0,
+        -0.0,
+        f32::from_bits(1),
+        f32::MAX,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+    ];
+    if rng.chance(0.5) {
+        specials[rng.below(specials.len() as u64) as usize]
+    } else {
+        f32::from_bits(rng.next_u64() as u32)
     }
 }
 
@@ -153,16 +132,16 @@ fn message(kind: u16, body: &[u8]) -> Vec<u8> {
 /// The 24 fixed bytes of a frame body.
 fn frame_head(rng: &mut Rng, representation: u8, count: usize) -> Vec<u8> {
     let mut b = Vec::new();
-    b.extend(rng.next().to_le_bytes());
+    b.extend(rng.next_u64().to_le_bytes());
     let time = if rng.chance(0.03) {
-        f64::from_bits(rng.next())
+        f64::from_bits(rng.next_u64())
     } else {
-        f64::from(rng.uniform(0.0, 1e4))
+        f64::from(rng.uniform_f32(0.0, 1e4))
     };
     b.extend(time.to_le_bytes());
     b.push(representation);
-    b.push(rng.next() as u8); // flags: only bit 0 means something
-    b.extend((rng.next() as u16).to_le_bytes()); // reserved: ignored
+    b.push(rng.next_u64() as u8); // flags: only bit 0 means something
+    b.extend((rng.next_u64() as u16).to_le_bytes()); // reserved: ignored
     let count = if rng.chance(0.05) {
         (count as u32)
             .wrapping_add(rng.below(3) as u32)
@@ -183,8 +162,8 @@ fn lights_frame(rng: &mut Rng) -> Vec<u8> {
     let dirty = if rng.chance(0.8) { 0.0 } else { 0.05 };
     let mut b = frame_head(rng, 0, count);
     for _ in 0..count {
-        b.extend((rng.next() as u32).to_le_bytes());
-        let floats: Vec<f32> = (0..7).map(|_| rng.float(dirty)).collect();
+        b.extend((rng.next_u64() as u32).to_le_bytes());
+        let floats: Vec<f32> = (0..7).map(|_| random_float(rng, dirty)).collect();
         push_f32s(&mut b, &floats);
     }
     message(1, &b)
@@ -206,12 +185,12 @@ fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 /// A lobe record: an orthonormal frame, sometimes bent or stretched around the 10⁻³
 /// tolerance, and bandwidths and integral that are sometimes not positive.
 fn lobe_record(rng: &mut Rng, out: &mut Vec<u8>) {
-    let mut random_vector = || [0; 3].map(|_: i32| rng.uniform(-1.0, 1.0));
+    let mut random_vector = || [0; 3].map(|_: i32| rng.uniform_f32(-1.0, 1.0));
     let axis = normalized(random_vector());
     let mut tangent = normalized(cross(axis, random_vector()));
     let mut axis = axis;
     if rng.chance(0.3) {
-        let stretch = 1.0 + rng.uniform(-2e-3, 2e-3);
+        let stretch = 1.0 + rng.uniform_f32(-2e-3, 2e-3);
         if rng.chance(0.5) {
             axis = axis.map(|x| x * stretch);
         } else {
@@ -219,19 +198,23 @@ fn lobe_record(rng: &mut Rng, out: &mut Vec<u8>) {
         }
     }
     if rng.chance(0.2) {
-        let bend = rng.uniform(-2e-3, 2e-3);
+        let bend = rng.uniform_f32(-2e-3, 2e-3);
         tangent = [0, 1, 2].map(|k| tangent[k] + bend * axis[k]);
     }
     let mut positive = || {
         if rng.chance(0.05) {
             [0.0, -1.0, f32::from_bits(1), -0.0][rng.below(4) as usize]
         } else {
-            rng.uniform(0.01, 50.0)
+            rng.uniform_f32(0.01, 50.0)
         }
     };
     let (lambda, mu, integral) = (positive(), positive(), positive());
-    let rgb = [rng.float(0.02), rng.float(0.02), rng.float(0.02)];
-    out.extend((rng.next() as u32).to_le_bytes());
+    let rgb = [
+        random_float(rng, 0.02),
+        random_float(rng, 0.02),
+        random_float(rng, 0.02),
+    ];
+    out.extend((rng.next_u64() as u32).to_le_bytes());
     push_f32s(out, &axis);
     push_f32s(out, &tangent);
     push_f32s(out, &[lambda, mu]);
@@ -255,7 +238,7 @@ fn wavelet_frame(rng: &mut Rng) -> Vec<u8> {
     let basis = if rng.chance(0.9) {
         bases[rng.below(bases.len() as u64) as usize]
     } else {
-        rng.next() as u8
+        rng.next_u64() as u8
     };
     let log_side = 1 + rng.below(15) as u32;
     let side: u32 = match rng.below(20) {
@@ -264,15 +247,15 @@ fn wavelet_frame(rng: &mut Rng) -> Vec<u8> {
     };
     let levels = match rng.below(20) {
         0 => log_side + 1,
-        1 => rng.next() as u8 as u32,
+        1 => rng.next_u64() as u8 as u32,
         _ => rng.below(u64::from(log_side) + 1) as u32,
     };
     let map = if rng.chance(0.95) {
         0
     } else {
-        rng.next() as u8
+        rng.next_u64() as u8
     };
-    b.extend([basis, levels as u8, map, rng.next() as u8]);
+    b.extend([basis, levels as u8, map, rng.next_u64() as u8]);
     b.extend(side.to_le_bytes());
     let cells = u64::from(side).pow(2).max(1);
     let mut index = rng.below(cells.min(8)) as u32;
@@ -284,7 +267,11 @@ fn wavelet_frame(rng: &mut Rng) -> Vec<u8> {
             _ => index,
         };
         b.extend(written.to_le_bytes());
-        let rgb = [rng.float(dirty), rng.float(dirty), rng.float(dirty)];
+        let rgb = [
+            random_float(rng, dirty),
+            random_float(rng, dirty),
+            random_float(rng, dirty),
+        ];
         push_f32s(&mut b, &rgb);
         index = index.saturating_add(1 + rng.below(cells / 16 + 1) as u32);
     }
@@ -318,7 +305,7 @@ fn text(rng: &mut Rng) -> Vec<u8> {
         t.extend(piece);
     }
     if rng.chance(0.05) {
-        t.push(rng.next() as u8);
+        t.push(rng.next_u64() as u8);
     }
     t
 }
@@ -341,10 +328,10 @@ fn closing(rng: &mut Rng) -> Vec<u8> {
 
 fn subscribe(rng: &mut Rng) -> Vec<u8> {
     let mut b = Vec::new();
-    b.extend((rng.next() as u32).to_le_bytes());
+    b.extend((rng.next_u64() as u32).to_le_bytes());
     b.push(rng.below(4) as u8);
     b.push(rng.below(3) as u8);
-    b.extend((rng.next() as u16).to_le_bytes());
+    b.extend((rng.next_u64() as u16).to_le_bytes());
     if rng.chance(0.05) {
         b.pop();
     }
@@ -357,13 +344,13 @@ fn damage(rng: &mut Rng, m: &mut Vec<u8>) {
     match rng.below(6) {
         0 if !m.is_empty() => {
             let at = rng.below(m.len() as u64) as usize;
-            m[at] = rng.next() as u8;
+            m[at] = rng.next_u64() as u8;
         }
         1 => m.truncate(rng.below(m.len() as u64 + 1) as usize),
-        2 => m.extend((0..1 + rng.below(8)).map(|_| rng.next() as u8)),
+        2 => m.extend((0..1 + rng.below(8)).map(|_| rng.next_u64() as u8)),
         3 if m.len() >= 4 => {
             let len = match rng.below(3) {
-                0 => rng.next() as u32,
+                0 => rng.next_u64() as u32,
                 1 => rng.below(16) as u32,
                 _ => (1 << 20) + 1,
             };
@@ -380,7 +367,7 @@ fn damage(rng: &mut Rng, m: &mut Vec<u8>) {
 }
 
 fn cases(seed: u64, n: usize) -> Vec<Vec<u8>> {
-    let mut rng = Rng(seed);
+    let mut rng = SplitMix64(seed);
     (0..n)
         .map(|_| {
             let mut m = match rng.below(12) {
@@ -389,7 +376,7 @@ fn cases(seed: u64, n: usize) -> Vec<Vec<u8>> {
                 6..=8 => wavelet_frame(&mut rng),
                 9 => closing(&mut rng),
                 10 => subscribe(&mut rng),
-                _ => (0..rng.below(48)).map(|_| rng.next() as u8).collect(),
+                _ => (0..rng.below(48)).map(|_| rng.next_u64() as u8).collect(),
             };
             if rng.chance(0.25) {
                 damage(&mut rng, &mut m);
@@ -653,7 +640,7 @@ enum Ending {
 /// lights, 256 KB and 1 MB), then `ending`. Returns the bytes, the canonical lines of the
 /// frames, and the lines the C client must end with.
 fn served_stream(seed: u64, ending: Ending) -> (Vec<u8>, Vec<String>, Vec<String>) {
-    let mut rng = Rng(seed);
+    let mut rng = SplitMix64(seed);
     let mut bytes = Vec::new();
     let mut frames = Vec::new();
     while frames.len() < 60 {
@@ -664,13 +651,13 @@ fn served_stream(seed: u64, ending: Ending) -> (Vec<u8>, Vec<String>, Vec<String
             _ => {
                 let count = if rng.chance(0.5) { 8000 } else { 32_000 };
                 let mut b = Vec::new();
-                b.extend(rng.next().to_le_bytes());
+                b.extend(rng.next_u64().to_le_bytes());
                 b.extend(1.5f64.to_le_bytes());
                 b.extend([0, 0, 0, 0]);
                 b.extend((count as u32).to_le_bytes());
                 for i in 0..count {
                     b.extend((i as u32).to_le_bytes());
-                    let floats: Vec<f32> = (0..7).map(|_| rng.float(0.0)).collect();
+                    let floats: Vec<f32> = (0..7).map(|_| random_float(&mut rng, 0.0)).collect();
                     push_f32s(&mut b, &floats);
                 }
                 message(1, &b)
@@ -740,7 +727,7 @@ fn serve_in_pieces(
         let mut subscribe = [0u8; 20];
         socket.read_exact(&mut subscribe).unwrap();
         assert_eq!(&subscribe[4..8], b"ENVL");
-        let mut rng = Rng(seed);
+        let mut rng = SplitMix64(seed);
         let mut rest = &bytes[..];
         while !rest.is_empty() {
             let size = match rng.below(4) {

@@ -19,6 +19,7 @@
 //!
 //! Angles and bounds are printed with `eprintln!` (run with `--nocapture` to see them).
 
+mod splitmix;
 mod test_data;
 
 use envlight::capture::image_file::read_hdr_image;
@@ -31,6 +32,7 @@ use envlight::envmap::Projection;
 use envlight::frame::luminance;
 use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, Light, LightFrame};
+use splitmix::SplitMix64;
 use std::sync::OnceLock;
 use test_data::{data, QUALITY_MAPS};
 
@@ -65,24 +67,6 @@ fn default_settings(n: usize) -> DecomposeSettings {
     DecomposeSettings {
         lights: n,
         ..DecomposeSettings::default()
-    }
-}
-
-/// SplitMix64: a small, fixed-seed, dependency-free generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
 }
 
@@ -280,11 +264,11 @@ fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
 
 /// A random map with exact zeros (`zero_fraction`) and a dynamic range of ~10⁴.
 fn random_weights(w: usize, h: usize, seed: u64, zero_fraction: f64) -> Vec<f64> {
-    let mut rng = Rng(seed);
+    let mut rng = SplitMix64(seed);
     (0..w * h)
         .map(|_| {
-            let z = rng.uniform();
-            let v = rng.uniform();
+            let z = rng.unit();
+            let v = rng.unit();
             if z < zero_fraction {
                 0.0
             } else {
@@ -381,10 +365,10 @@ fn chi_square_test(dist: &PiecewiseConstant2d, points: &[[f64; 2]], what: &str) 
 }
 
 fn draw(dist: &PiecewiseConstant2d, seed: u64, n: usize) -> Vec<[f64; 2]> {
-    let mut rng = Rng(seed);
+    let mut rng = SplitMix64(seed);
     (0..n)
         .map(|_| {
-            let (p, pdf) = dist.sample([rng.uniform(), rng.uniform()]);
+            let (p, pdf) = dist.sample([rng.unit(), rng.unit()]);
             assert!(pdf > 0.0, "sample {p:?} has pdf {pdf}");
             p
         })
@@ -401,9 +385,9 @@ fn chi_square_of_samples_on_a_real_map() {
     assert!(statistic < critical, "rooitou: {statistic} ≥ {critical}");
 
     // The test can fail: uniform points are rejected against the map's pdf.
-    let mut rng = Rng(2);
+    let mut rng = SplitMix64(2);
     let uniform: Vec<[f64; 2]> = (0..CHI2_SAMPLES)
-        .map(|_| [rng.uniform(), rng.uniform()])
+        .map(|_| [rng.unit(), rng.unit()])
         .collect();
     let (statistic, critical) =
         chi_square_test(&dist, &uniform, "uniform vs rooitou (must reject)");
@@ -437,10 +421,10 @@ fn invert_undoes_sample_on_a_real_map() {
     for factor in [16, 4] {
         let (weights, w, h) = energy_weights(rooitou(), factor);
         let dist = PiecewiseConstant2d::new(&weights, w, h);
-        let mut rng = Rng(factor.into());
+        let mut rng = SplitMix64(factor.into());
         let mut checked = 0;
         for _ in 0..10_000 {
-            let u = [rng.uniform(), rng.uniform()];
+            let u = [rng.unit(), rng.unit()];
             let (p, pdf) = dist.sample(u);
             if pdf <= 0.0 {
                 continue;

@@ -1,25 +1,19 @@
 //! Wavelet foundation (issue 7): transforms against PyWavelets, round trips, Parseval, the
 //! equal-area octahedral map and non-linear approximation.
 
+mod splitmix;
+
 use envlight::wavelet::approx::{ApproxError, Coefficients};
 use envlight::wavelet::transform::{
     forward_1d, forward_2d, inverse_1d, inverse_2d, max_levels, TransformError,
 };
 use envlight::wavelet::{approximate, Basis, WaveletSet};
+use splitmix::SplitMix64;
 
-/// Deterministic pseudo-random values in [-1, 1) (SplitMix64).
+/// Deterministic pseudo-random values in [-1, 1).
 fn noise(n: usize, seed: u64) -> Vec<f64> {
-    let mut state = seed;
-    (0..n)
-        .map(|_| {
-            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^= z >> 31;
-            (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-        })
-        .collect()
+    let mut rng = SplitMix64(seed);
+    (0..n).map(|_| rng.signed_unit()).collect()
 }
 
 fn max_abs(v: &[f64]) -> f64 {
