@@ -6,6 +6,7 @@
 //!   default when no input is given.
 
 pub mod bracket;
+pub mod convert;
 pub mod image_file;
 pub mod pixel_format;
 pub mod resilient;

@@ -14,8 +14,10 @@
 //!    `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units);
 //! 4. memory-mapped streaming with 4 buffers and a dequeue timeout.
 //!
-//! Every frame: dequeue → [`pixel_format::decode_into`] (code values) → [`Linearizer`] with the
-//! exposure time read back from the camera's exposure control (so auto exposure is folded in),
+//! Every frame: dequeue → the buffer checked and kept ([`FrameConverter::keep`]) → radiance
+//! ([`FrameConverter::radiance`]: decoding and the response's [`super::response::Linearizer`])
+//! with the exposure time read back from the camera's exposure control (so auto exposure is
+//! folded in),
 //! the gain (from the config, or the gain control divided by `gain_unity`), white balance and
 //! scale → [`HdrFrame`] with the configured projection. The frame's time is the driver's
 //! timestamp (`v4l2_buffer.timestamp`, CLOCK_MONOTONIC on current drivers) relative to the
@@ -37,8 +39,9 @@
 //! some malformed driver answers; those calls run under `catch_unwind` and become errors.
 
 use super::bracket::{self, Bracket, MergeLimits};
-use super::pixel_format::{self, ByteImage, CodeImage, PixelFormat, RawFrame, YuvMatrix};
-use super::response::{Linearizer, Radiometry, ResponseModel};
+use super::convert::{Calibration, FrameConverter, StreamFormat};
+use super::pixel_format::{self, PixelFormat, YuvMatrix};
+use super::response::ResponseModel;
 use super::{CaptureError, FrameSource};
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
@@ -217,7 +220,6 @@ pub struct V4l2Source {
     format: PixelFormat,
     width: u32,
     height: u32,
-    stride: usize,
     // The stream borrows nothing from the device (it holds its own handle); it is declared
     // before the device so it is dropped (streaming stopped, buffers unmapped) first.
     // `Option` so `Drop` can take it out and drop it under `catch_unwind`: the `v4l` crate
@@ -229,35 +231,10 @@ pub struct V4l2Source {
     has_gain: bool,
     first_timestamp: Option<f64>,
     seq: u64,
-    /// The last frame, in the form [`Self::kept`] says: normalised codes (for merging
-    /// brackets), bytes (one-byte-code formats) or a copy of the driver's buffer (decoded and
-    /// linearised in one pass).
-    codes: CodeImage,
-    bytes: ByteImage,
-    raw_copy: Vec<u8>,
     card: String,
-    /// Tables for the last (exposure, gain) bit patterns.
-    linearizer: Option<((u64, u64), Linearizer)>,
-    /// The threads that help the capture thread convert each frame (decoding and
-    /// linearisation); `None`: the capture thread converts alone.
-    convert_pool: Option<rayon::ThreadPool>,
-    /// A frame's radiance buffer handed back by the pipeline ([`FrameSource::recycle`]): the
-    /// next frame is written into it instead of a new one (a 1280×960 frame's 15 MB, whose
-    /// zeroing or first touch cost about as much as the linear conversion itself).
-    spare_pixels: Vec<[f32; 3]>,
-}
-
-/// How the camera source keeps a grabbed frame until its exposure is known and it is
-/// linearised.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kept {
-    /// Normalised codes: the brackets of an exposure series are merged from these.
-    Codes,
-    /// Bytes ([`ByteImage`]; MJPEG, RGB24, BGR24, GREY), linearised through byte tables.
-    Bytes,
-    /// A copy of the driver's buffer (YUYV, 10- to 16-bit grey, Bayer), decoded and
-    /// linearised in one pass over bands of rows.
-    Raw,
+    /// The last grabbed frame and its conversion to radiance, on the capture thread and the
+    /// helpers of `camera.convert_threads` (src/capture/convert.rs).
+    converter: FrameConverter,
 }
 
 impl V4l2Source {
@@ -350,8 +327,26 @@ impl V4l2Source {
                     source: io::Error::other(format!("starting the conversion threads: {e}")),
                 },
             )?;
+        let stream_format = StreamFormat {
+            format,
+            width: fmt.width,
+            height: fmt.height,
+            stride: fmt.stride as usize,
+        };
+        let calibration = Calibration {
+            response: settings.response.clone(),
+            yuv_matrix,
+            white_balance: settings.white_balance,
+            scale: settings.scale,
+        };
+        let merges_brackets = !settings.bracket_exposures_s.is_empty();
         Ok(Self {
-            convert_pool,
+            converter: FrameConverter::new(
+                stream_format,
+                calibration,
+                merges_brackets,
+                convert_pool,
+            ),
             path,
             settings: CameraSettings {
                 yuv_matrix,
@@ -360,7 +355,6 @@ impl V4l2Source {
             format,
             width: fmt.width,
             height: fmt.height,
-            stride: fmt.stride as usize,
             stream: Some(stream),
             device,
             has_exposure,
@@ -368,12 +362,7 @@ impl V4l2Source {
             has_gain,
             first_timestamp: None,
             seq: 0,
-            codes: CodeImage::default(),
-            bytes: ByteImage::default(),
-            raw_copy: Vec::new(),
             card: caps.card,
-            linearizer: None,
-            spare_pixels: Vec::new(),
         })
     }
 
@@ -419,7 +408,6 @@ impl V4l2Source {
     fn grab(&mut self) -> Result<f64, CaptureError> {
         let p = self.path.clone();
         let mut last_problem = String::new();
-        let kept = self.kept();
         for _ in 0..MAX_BAD_FRAMES {
             let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
                 let stream = self.stream.as_mut().ok_or_else(|| {
@@ -434,33 +422,9 @@ impl V4l2Source {
             } else if used == 0 {
                 "the buffer is empty".to_string()
             } else {
-                let raw = RawFrame {
-                    data: &data[..used],
-                    format: self.format,
-                    width: self.width,
-                    height: self.height,
-                    stride: self.stride,
-                };
-                let decoded = match kept {
-                    Kept::Bytes => pixel_format::decode_bytes_into_on(
-                        &raw,
-                        &mut self.bytes,
-                        self.convert_pool.as_ref(),
-                    ),
-                    // Checked now (a bad buffer is skipped like a corrupt one), converted once
-                    // the exposure is known; a packed buffer that passes the check decodes.
-                    Kept::Raw => pixel_format::check(&raw).map(|()| {
-                        self.raw_copy.clear();
-                        self.raw_copy.extend_from_slice(raw.data);
-                    }),
-                    Kept::Codes => pixel_format::decode_into_on(
-                        &raw,
-                        self.settings.yuv_matrix,
-                        &mut self.codes,
-                        self.convert_pool.as_ref(),
-                    ),
-                };
-                match decoded {
+                // Checked and kept while the driver lends the buffer; converted once the
+                // exposure is known.
+                match self.converter.keep(&data[..used]) {
                     Ok(()) => {
                         return Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
                     }
@@ -512,71 +476,21 @@ impl V4l2Source {
             let ts = self.grab()?;
             first_ts.get_or_insert(ts);
             let (t_read, g) = self.exposure_and_gain();
-            self.codes_of_last_frame()?;
+            let image = self
+                .converter
+                .codes()
+                .map_err(|e| CaptureError::Format {
+                    path: self.path.clone(),
+                    message: e.to_string(),
+                })?
+                .clone();
             brackets.push(Bracket {
-                image: self.codes.clone(),
+                image,
                 exposure_s: t_read,
                 gain: g,
             });
         }
         Ok((brackets, first_ts.unwrap_or(0.0)))
-    }
-
-    /// How a grabbed frame is kept until it is linearised (the same radiances every way; the
-    /// last two in less time: docs/performance.md, "Camera conversions").
-    fn kept(&self) -> Kept {
-        if !self.settings.bracket_exposures_s.is_empty() {
-            Kept::Codes
-        } else if self.format.has_byte_codes() {
-            Kept::Bytes
-        } else {
-            Kept::Raw
-        }
-    }
-
-    /// The driver's buffer of the last grabbed frame, as a raw frame ([`Kept::Raw`]).
-    fn raw_copy(&self) -> RawFrame<'_> {
-        RawFrame {
-            data: &self.raw_copy,
-            format: self.format,
-            width: self.width,
-            height: self.height,
-            stride: self.stride,
-        }
-    }
-
-    /// Makes `self.codes` the last grabbed frame's codes, however it was kept.
-    fn codes_of_last_frame(&mut self) -> Result<(), CaptureError> {
-        match self.kept() {
-            Kept::Codes => {}
-            Kept::Bytes => self
-                .bytes
-                .to_codes_into_on(&mut self.codes, self.convert_pool.as_ref()),
-            Kept::Raw => {
-                let mut codes = std::mem::take(&mut self.codes);
-                let decoded = pixel_format::decode_into_on(
-                    &self.raw_copy(),
-                    self.settings.yuv_matrix,
-                    &mut codes,
-                    self.convert_pool.as_ref(),
-                );
-                self.codes = codes;
-                decoded.map_err(|e| CaptureError::Format {
-                    path: self.path.clone(),
-                    message: e.to_string(),
-                })?;
-            }
-        }
-        Ok(())
-    }
-
-    fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
-        Radiometry {
-            exposure_s,
-            gain,
-            white_balance: self.settings.white_balance,
-            scale: self.settings.scale,
-        }
     }
 }
 
@@ -625,37 +539,15 @@ impl FrameSource for V4l2Source {
         let (pixels, timestamp) = if self.settings.bracket_exposures_s.is_empty() {
             let ts = self.grab()?;
             let (t, g) = self.exposure_and_gain();
-            // the tables are rebuilt only when the exposure or gain changes (auto exposure)
-            let key = (t.to_bits(), g.to_bits());
-            if self.linearizer.as_ref().is_none_or(|(k, _)| *k != key) {
-                let lin =
-                    Linearizer::new(&self.settings.response, code_max, &self.radiometry(t, g));
-                self.linearizer = Some((key, lin));
-            }
-            // Every pixel of a recycled buffer is overwritten.
-            let mut pixels = std::mem::take(&mut self.spare_pixels);
-            let pool = self.convert_pool.as_ref();
-            match (&self.linearizer, self.kept()) {
-                (Some((_, lin)), Kept::Bytes) => {
-                    lin.linearize_bytes_into_on(&self.bytes, &mut pixels, pool)
-                }
-                (Some((_, lin)), Kept::Raw) => lin
-                    .decode_linearize_into_on(
-                        &self.raw_copy(),
-                        self.settings.yuv_matrix,
-                        &mut pixels,
-                        pool,
-                    )
-                    .map_err(|e| CaptureError::Format {
-                        path: self.path.clone(),
-                        message: e.to_string(),
-                    })?,
-                (Some((_, lin)), Kept::Codes) => {
-                    lin.linearize_into_on(&self.codes, &mut pixels, pool)
-                }
-                // Not reached (set just above); an empty frame is an error below.
-                (None, _) => pixels.clear(),
-            }
+            // The tables are rebuilt only when the exposure or gain changes (auto exposure);
+            // every pixel of a recycled buffer is overwritten.
+            let pixels = self
+                .converter
+                .radiance(t, g)
+                .map_err(|e| CaptureError::Format {
+                    path: self.path.clone(),
+                    message: e.to_string(),
+                })?;
             (pixels, ts)
         } else {
             let exposures = self.settings.bracket_exposures_s.clone();
@@ -664,7 +556,7 @@ impl FrameSource for V4l2Source {
                 &brackets,
                 &self.settings.response,
                 code_max,
-                &self.radiometry(1.0, 1.0),
+                &self.converter.radiometry(1.0, 1.0),
                 self.settings.merge_limits,
             )
             .map_err(|e| CaptureError::Format {
@@ -696,10 +588,7 @@ impl FrameSource for V4l2Source {
     }
 
     fn recycle(&mut self, pixels: Vec<[f32; 3]>) {
-        // Only a buffer that holds a whole frame saves anything.
-        if pixels.capacity() >= self.width as usize * self.height as usize {
-            self.spare_pixels = pixels;
-        }
+        self.converter.recycle(pixels);
     }
 
     fn describe(&self) -> String {
