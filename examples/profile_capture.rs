@@ -15,9 +15,10 @@
 //! conversions run in bands of rows on rayon's pool (`RAYON_NUM_THREADS=1` for one thread), and
 //! an idle pool thread's brief spinning is counted too.
 
+use envlight::capture::convert::{Calibration, FrameConverter, StreamFormat};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::pixel_format::{
-    self, BayerPattern, ByteImage, CodeImage, PixelFormat, RawFrame,
+    self, BayerPattern, CodeImage, PixelError, PixelFormat, RawFrame, YuvMatrix,
 };
 use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
 use std::time::Instant;
@@ -49,24 +50,40 @@ fn srgb(x: f32) -> f32 {
     }
 }
 
-/// How a frame is held between the driver's buffer and its linearisation.
-#[derive(Clone, Copy)]
-enum Path {
+/// The two ways a frame goes from the driver's buffer to radiance.
+enum Way {
     /// A whole-frame image of normalised codes (f32), then the look-up tables.
-    CodeImage,
-    /// One-byte codes kept as bytes, then 256-entry tables (the camera source's MJPEG path).
-    Bytes,
-    /// A copy of the buffer, decoded and linearised in one pass over bands of rows (the
-    /// camera source's path for the packed formats).
-    OnePass,
+    CodeImage { lin: Linearizer, codes: CodeImage },
+    /// The camera source's way ([`FrameConverter`]: MJPEG kept as bytes, the packed formats'
+    /// buffer copied, then decoded and linearised in one pass).
+    Camera(Box<FrameConverter>),
 }
 
-/// The buffers of [`Path`]'s three ways.
-#[derive(Default)]
-struct Kept {
-    codes: CodeImage,
-    bytes: ByteImage,
-    raw_copy: Vec<u8>,
+impl Way {
+    /// What is done while the driver lends the buffer.
+    fn keep(&mut self, raw: &RawFrame<'_>) -> Result<(), PixelError> {
+        match self {
+            Way::CodeImage { codes, .. } => {
+                pixel_format::decode_into(raw, Default::default(), codes)
+            }
+            Way::Camera(converter) => converter.keep(raw.data),
+        }
+    }
+
+    /// What is done once the exposure is known, into `recycled` where it holds a frame.
+    fn radiance(&mut self, recycled: Vec<[f32; 3]>) -> Result<Vec<[f32; 3]>, PixelError> {
+        match self {
+            Way::CodeImage { lin, codes } => {
+                let mut out = recycled;
+                lin.linearize_into(codes, &mut out);
+                Ok(out)
+            }
+            Way::Camera(converter) => {
+                converter.recycle(recycled);
+                converter.radiance(1.0, 1.0)
+            }
+        }
+    }
 }
 
 fn main() -> anyhow::Result<()> {
@@ -114,42 +131,33 @@ fn main() -> anyhow::Result<()> {
         bits: 12,
     };
     // (name, format, buffer, path); the second row of each format is the camera source's path
+    // (name, format, buffer, the camera source's way or a code image)
     let cases = [
         (
             "Y16 via a code image",
             PixelFormat::Grey { bits: 16 },
             &y16,
-            Path::CodeImage,
+            false,
         ),
         (
             "Y16 in one pass",
             PixelFormat::Grey { bits: 16 },
             &y16,
-            Path::OnePass,
+            true,
         ),
-        (
-            "YUYV via a code image",
-            PixelFormat::Yuyv,
-            &yuyv,
-            Path::CodeImage,
-        ),
-        ("YUYV in one pass", PixelFormat::Yuyv, &yuyv, Path::OnePass),
-        (
-            "MJPEG via a code image",
-            PixelFormat::Mjpeg,
-            &mjpeg,
-            Path::CodeImage,
-        ),
-        ("MJPEG as bytes", PixelFormat::Mjpeg, &mjpeg, Path::Bytes),
-        ("Bayer RG12 via a code image", rg12, &bayer, Path::CodeImage),
-        ("Bayer RG12 in one pass", rg12, &bayer, Path::OnePass),
+        ("YUYV via a code image", PixelFormat::Yuyv, &yuyv, false),
+        ("YUYV in one pass", PixelFormat::Yuyv, &yuyv, true),
+        ("MJPEG via a code image", PixelFormat::Mjpeg, &mjpeg, false),
+        ("MJPEG as bytes", PixelFormat::Mjpeg, &mjpeg, true),
+        ("Bayer RG12 via a code image", rg12, &bayer, false),
+        ("Bayer RG12 in one pass", rg12, &bayer, true),
     ];
     println!(
         "| format | decode CPU ms/frame | decode + linearise CPU ms/frame (new buffer) | \
          wall | decode + linearise into a recycled buffer | wall |"
     );
     println!("|---|---:|---:|---:|---:|---:|");
-    for (name, format, data, path) in cases {
+    for (name, format, data, camera) in cases {
         let raw = RawFrame {
             data,
             format,
@@ -157,55 +165,46 @@ fn main() -> anyhow::Result<()> {
             height: H,
             stride: 0,
         };
-        let model = if format.is_raw() {
+        let response = if format.is_raw() {
             ResponseModel::Linear
         } else {
             ResponseModel::Srgb
         };
-        let lin = Linearizer::new(&model, format.code_max(), &Radiometry::default());
-        let mut kept = Kept::default();
-        // What the camera source does with the driver's buffer while it holds it.
-        let decode = |kept: &mut Kept| -> Result<(), pixel_format::PixelError> {
-            match path {
-                Path::CodeImage => {
-                    pixel_format::decode_into(&raw, Default::default(), &mut kept.codes)
-                }
-                Path::Bytes => pixel_format::decode_bytes_into_on(&raw, &mut kept.bytes, None),
-                Path::OnePass => pixel_format::check(&raw).map(|()| {
-                    kept.raw_copy.clear();
-                    kept.raw_copy.extend_from_slice(raw.data);
-                }),
+        let mut way = if camera {
+            let stream = StreamFormat {
+                format,
+                width: W,
+                height: H,
+                stride: 0,
+            };
+            let calibration = Calibration {
+                response,
+                yuv_matrix: YuvMatrix::default(),
+                white_balance: [1.0; 3],
+                scale: 1.0,
+            };
+            Way::Camera(Box::new(FrameConverter::new(
+                stream,
+                calibration,
+                false,
+                None,
+            )))
+        } else {
+            Way::CodeImage {
+                lin: Linearizer::new(&response, format.code_max(), &Radiometry::default()),
+                codes: CodeImage::default(),
             }
         };
         let c0 = process_cpu_s();
         for _ in 0..n {
-            decode(&mut kept)?;
+            way.keep(&raw)?;
         }
         let decode_s = (process_cpu_s() - c0) / n as f64;
-        // What it does once the exposure is known.
-        let linearize = |out: &mut Vec<[f32; 3]>, kept: &Kept| match path {
-            Path::CodeImage => {
-                lin.linearize_into(&kept.codes, out);
-                Ok(())
-            }
-            Path::Bytes => {
-                lin.linearize_bytes_into_on(&kept.bytes, out, None);
-                Ok(())
-            }
-            Path::OnePass => {
-                let raw = RawFrame {
-                    data: &kept.raw_copy,
-                    ..raw
-                };
-                lin.decode_linearize_into_on(&raw, Default::default(), out, None)
-            }
-        };
         let (c0, t0) = (process_cpu_s(), Instant::now());
         let mut sum = 0.0f32;
         for _ in 0..n {
-            decode(&mut kept)?;
-            let mut fresh = Vec::new();
-            linearize(&mut fresh, &kept)?;
+            way.keep(&raw)?;
+            let fresh = way.radiance(Vec::new())?;
             sum += fresh[0][0];
         }
         let total = (process_cpu_s() - c0) / n as f64;
@@ -215,8 +214,8 @@ fn main() -> anyhow::Result<()> {
         let mut pixels = Vec::new();
         let (c0, t0) = (process_cpu_s(), Instant::now());
         for _ in 0..n {
-            decode(&mut kept)?;
-            linearize(&mut pixels, &kept)?;
+            way.keep(&raw)?;
+            pixels = way.radiance(pixels)?;
             sum += pixels[0][0];
         }
         let recycled = (process_cpu_s() - c0) / n as f64;

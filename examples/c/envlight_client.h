@@ -771,6 +771,17 @@ static int envlight_client_fail_(envlight_client *c, int code, const char *fmt, 
     return -1;
 }
 
+/* The stream ended with `have` bytes of a message unread: a connection closed without a goodbye
+ * when there are none, else a message cut short. Fails the client; returns -1. */
+static int envlight_stream_ended_(envlight_client *c, size_t have) {
+    if (have == 0)
+        return envlight_client_fail_(c, ENVLIGHT_E_IO,
+                                     "the daemon closed the connection without a goodbye");
+    return envlight_client_fail_(c, ENVLIGHT_E_MALFORMED,
+                                 "the stream ended inside a message (%lu bytes of it)",
+                                 (unsigned long)have);
+}
+
 /* Reads more bytes into the buffer, making room for at least `need` bytes from `start`.
  * Returns 1, 0 at the end of the stream, -1 on an error (recorded in c), and without `wait`
  * 2 when no byte is waiting. */
@@ -836,14 +847,7 @@ int envlight_next(envlight_client *c, const envlight_message **frame) {
             size_t need = total > ENVLIGHT_HEADER_LEN_ ? total : ENVLIGHT_HEADER_LEN_;
             int got = envlight_fill_(c, need, 1);
             if (got < 0) return -1;
-            if (got == 0) {
-                if (have == 0)
-                    return envlight_client_fail_(
-                    c, ENVLIGHT_E_IO, "the daemon closed the connection without a goodbye");
-                return envlight_client_fail_(c, ENVLIGHT_E_MALFORMED,
-                                             "the stream ended inside a message (%lu bytes of it)",
-                                             (unsigned long)have);
-            }
+            if (got == 0) return envlight_stream_ended_(c, have);
             continue;
         }
         rc = envlight_decode(c->buf + c->start, total, &c->message, why, sizeof why);
@@ -920,12 +924,7 @@ int envlight_poll(envlight_client *c, const envlight_message **frame) {
         if (got == 2) break;
         if (got == 0) {
             if (have_frame) break; /* the end of the stream is reported next time */
-            if (have == 0)
-                return envlight_client_fail_(
-                    c, ENVLIGHT_E_IO, "the daemon closed the connection without a goodbye");
-            return envlight_client_fail_(c, ENVLIGHT_E_MALFORMED,
-                                         "the stream ended inside a message (%lu bytes of it)",
-                                         (unsigned long)have);
+            return envlight_stream_ended_(c, have);
         }
     }
     if (!have_frame) return ENVLIGHT_NO_FRAME;

@@ -69,6 +69,18 @@ pub struct Calibration {
     pub scale: f64,
 }
 
+impl Calibration {
+    /// This calibration with exposure time `exposure_s` and gain `gain`.
+    pub fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
+        Radiometry {
+            exposure_s,
+            gain,
+            white_balance: self.white_balance,
+            scale: self.scale,
+        }
+    }
+}
+
 /// Keeps the latest camera frame and converts it to radiance (see the module docs).
 pub struct FrameConverter {
     stream: StreamFormat,
@@ -128,12 +140,7 @@ impl FrameConverter {
 
     /// The calibration with exposure time `exposure_s` and gain `gain`.
     pub fn radiometry(&self, exposure_s: f64, gain: f64) -> Radiometry {
-        Radiometry {
-            exposure_s,
-            gain,
-            white_balance: self.calibration.white_balance,
-            scale: self.calibration.scale,
-        }
+        self.calibration.radiometry(exposure_s, gain)
     }
 
     /// How many times the linearisation tables were built (once per exposure and gain).
@@ -181,29 +188,44 @@ impl FrameConverter {
             return Err(self.no_frame());
         }
         let key = (exposure_s.to_bits(), gain.to_bits());
-        if self.linearizer.as_ref().is_none_or(|(k, _)| *k != key) {
-            let lin = Linearizer::new(
-                &self.calibration.response,
-                self.stream.format.code_max(),
-                &self.radiometry(exposure_s, gain),
-            );
-            self.linearizer = Some((key, lin));
-            self.tables_built += 1;
+        if self.linearizer.as_ref().is_some_and(|(k, _)| *k != key) {
+            self.linearizer = None;
         }
+        let (_, lin) = self.linearizer.get_or_insert_with(|| {
+            self.tables_built += 1;
+            let radiometry = self.calibration.radiometry(exposure_s, gain);
+            let code_max = self.stream.format.code_max();
+            (
+                key,
+                Linearizer::new(&self.calibration.response, code_max, &radiometry),
+            )
+        });
         let mut pixels = std::mem::take(&mut self.spare_pixels);
         let pool = self.pool.as_ref();
-        let Some((_, lin)) = &self.linearizer else {
-            return Err(self.no_frame());
-        };
-        match self.kept {
-            Kept::Bytes => lin.linearize_bytes_into_on(&self.bytes, &mut pixels, pool),
-            Kept::Raw => {
-                let raw = self.stream.raw(&self.raw_copy);
-                lin.decode_linearize_into_on(&raw, self.calibration.yuv_matrix, &mut pixels, pool)?
+        let converted = match self.kept {
+            Kept::Bytes => {
+                lin.linearize_bytes_into_on(&self.bytes, &mut pixels, pool);
+                Ok(())
             }
-            Kept::Codes => lin.linearize_into_on(&self.codes, &mut pixels, pool),
+            Kept::Raw => lin.decode_linearize_into_on(
+                &self.stream.raw(&self.raw_copy),
+                self.calibration.yuv_matrix,
+                &mut pixels,
+                pool,
+            ),
+            Kept::Codes => {
+                lin.linearize_into_on(&self.codes, &mut pixels, pool);
+                Ok(())
+            }
+        };
+        match converted {
+            Ok(()) => Ok(pixels),
+            Err(e) => {
+                // The buffer stays for the next frame.
+                self.spare_pixels = pixels;
+                Err(e)
+            }
         }
-        Ok(pixels)
     }
 
     /// The kept frame's normalised codes.
@@ -240,7 +262,7 @@ impl FrameConverter {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::capture::pixel_format::{decode, BayerPattern};
+    use crate::capture::pixel_format::{byte_stream, decode, BayerPattern};
 
     const W: u32 = 40;
     const H: u32 = 70;
@@ -256,13 +278,7 @@ mod tests {
 
     /// A frame of `format` (rows padded by 4 bytes) whose bytes come from `seed`.
     fn frame(format: PixelFormat, seed: u64) -> (StreamFormat, Vec<u8>) {
-        let mut state = seed;
-        let mut byte = move || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 56) as u8
-        };
+        let mut byte = byte_stream(seed);
         if format == PixelFormat::Mjpeg {
             let rgb: Vec<u8> = (0..3 * W * H).map(|_| byte()).collect();
             let mut jpeg = Vec::new();

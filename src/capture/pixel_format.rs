@@ -1131,6 +1131,18 @@ fn decode_jpeg(
     Ok(())
 }
 
+/// Pseudo-random bytes (the top byte of a 64-bit LCG) from `seed`: the test frames of the
+/// capture modules.
+#[cfg(test)]
+pub(crate) fn byte_stream(mut state: u64) -> impl FnMut() -> u8 {
+    move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1);
+        (state >> 56) as u8
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1519,16 +1531,6 @@ mod tests {
             .num_threads(threads)
             .build()
             .expect("a thread pool")
-    }
-
-    /// Pseudo-random bytes (the top byte of a 64-bit LCG) from `seed`.
-    fn byte_stream(mut state: u64) -> impl FnMut() -> u8 {
-        move || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 56) as u8
-        }
     }
 
     /// Rows can be decoded in parallel: the code values must be the same to the bit on the

@@ -609,6 +609,7 @@ pub fn load_curve(path: &Path) -> Result<ResponseModel, CaptureError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::capture::pixel_format::byte_stream;
 
     /// The look-up as first written (a saturating `as usize`): [`lookup`] must give the same
     /// bits for every code, out-of-range and non-finite ones included.
@@ -960,6 +961,20 @@ mod tests {
         assert_eq!(out[2], [0.0, f32::MAX, f32::MAX]);
     }
 
+    /// A measured-style curve that differs per channel (so no shared grey table).
+    fn per_channel_curve() -> ResponseModel {
+        let curve = ResponseCurve::new(
+            vec![0.0, 0.3, 1.0],
+            [
+                vec![0.0, 0.2, 5.0],
+                vec![0.0, 0.5, 4.0],
+                vec![0.1, 0.4, 3.0],
+            ],
+        )
+        .unwrap();
+        ResponseModel::Curve(Arc::new(curve))
+    }
+
     /// A frame kept as bytes is linearised to the same radiances, to the bit, as its code
     /// image: every response model (the shared grey table, the linear factors, per-channel
     /// curves), every byte value grey and in colour, three- and one-channel images, on one
@@ -973,31 +988,16 @@ mod tests {
             white_balance: [1.3, 1.0, 0.7],
             scale: 3.0,
         };
-        let curve = ResponseCurve::new(
-            vec![0.0, 0.3, 1.0],
-            [
-                vec![0.0, 0.2, 5.0],
-                vec![0.0, 0.5, 4.0],
-                vec![0.1, 0.4, 3.0],
-            ],
-        )
-        .unwrap();
         let models = [
             ResponseModel::Srgb,
             ResponseModel::Linear,
             ResponseModel::Gamma(2.2),
             ResponseModel::Logarithmic { a: 20.0, b: 30.0 },
-            ResponseModel::Curve(Arc::new(curve)),
+            per_channel_curve(),
         ];
         // every byte value as a grey pixel, then pseudo-random colours, some of them grey
         let (w, h) = (256u32, 200u32);
-        let mut state = 11u64;
-        let mut byte = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 56) as u8
-        };
+        let mut byte = byte_stream(11u64);
         let mut colour = Vec::new();
         for i in 0..w * h {
             if i < 256 {
@@ -1075,31 +1075,16 @@ mod tests {
     fn decoding_and_linearising_in_one_pass_equals_the_two_steps() {
         use crate::capture::pixel_format::{decode, PixelFormat};
         let (w, h) = (70u32, 100u32);
-        let mut state = 0x1234_5678_9abc_def1u64;
-        let mut byte = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 56) as u8
-        };
+        let mut byte = byte_stream(0x1234_5678_9abc_def1u64);
         let rgb: Vec<u8> = (0..3 * w * h).map(|_| byte() / 2 + 64).collect();
         let mut jpeg = Vec::new();
         jpeg_encoder::Encoder::new(&mut jpeg, 90)
             .encode(&rgb, w as u16, h as u16, jpeg_encoder::ColorType::Rgb)
             .unwrap();
-        let curve = ResponseCurve::new(
-            vec![0.0, 0.4, 1.0],
-            [
-                vec![0.0, 0.3, 6.0],
-                vec![0.0, 0.2, 5.0],
-                vec![0.0, 0.5, 2.0],
-            ],
-        )
-        .unwrap();
         let models = [
             ResponseModel::Srgb,
             ResponseModel::Linear,
-            ResponseModel::Curve(Arc::new(curve)),
+            per_channel_curve(),
         ];
         let radiometry = Radiometry {
             exposure_s: 0.02,
