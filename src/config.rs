@@ -932,9 +932,8 @@ impl RawSource {
             _ => {}
         }
         if let Some(fps) = self.fps {
-            if !(fps.is_finite() && fps > 0.0) {
-                return Err(invalid("source.fps", fps, "must be a positive number"));
-            }
+            crate::capture::check_fps(fps)
+                .map_err(|message| invalid("source.fps", fps, message))?;
         }
         let projection = match self.projection.as_deref().unwrap_or("latlong") {
             "latlong" => Projection::LatLong,
@@ -1413,6 +1412,7 @@ mod tests {
             ("[source]\nkind = \"camera\"", "source.kind", "camera"),
             ("[source]\nkind = \"sequence\"", "source.paths", "[]"),
             ("[source]\nfps = 0", "source.fps", "0"),
+            ("[source]\nfps = 1e-30", "source.fps", "1e-30"),
             (
                 "[source]\nprojection = \"cube\"",
                 "source.projection",

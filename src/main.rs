@@ -1,6 +1,7 @@
 //! envlight command line: parse arguments, build the configuration, call the library, and map
-//! errors to exit codes (2: usage error, reported by clap; 1: runtime error; 0: success, also
-//! when the reader of stdout goes away, as with `| head`).
+//! errors to exit codes (2: usage error, reported by clap or, for options that do not go
+//! together, as a [`UsageError`]; 1: runtime error; 0: success, also when the reader of stdout
+//! goes away, as with `| head`).
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -20,6 +21,20 @@ use std::time::{Duration, Instant};
 mod camera_cli;
 mod wavelet_cli;
 mod wavelet_transport_cli;
+
+/// A misuse of the command line that clap's parsing cannot see (options that do not go
+/// together, an option that the chosen mode would ignore): exit status 2, like clap's own.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub(crate) struct UsageError(pub(crate) String);
+
+/// Returns a [`UsageError`] from the enclosing function.
+macro_rules! usage_error {
+    ($($arg:tt)*) => {
+        return Err(crate::UsageError(format!($($arg)*)).into())
+    };
+}
+pub(crate) use usage_error;
 
 const LONG_ABOUT: &str = "\
 envlight turns HDR environment maps (a recorded .exr/.hdr sequence, or a built-in analytic sky)
@@ -76,9 +91,9 @@ struct RenderArgs {
     /// Output folder (created if missing). Required unless --window.
     #[arg(long, value_name = "DIR", required_unless_present = "window")]
     out: Option<PathBuf>,
-    /// Lights per frame when decomposing INPUT or the sky (1..=16384).
-    #[arg(long, short = 'n', value_name = "N", default_value_t = 256)]
-    light_count: usize,
+    /// Lights per frame when decomposing INPUT or the sky (1..=16384). [default: 256]
+    #[arg(long, short = 'n', value_name = "N")]
+    light_count: Option<usize>,
     /// Frames to render. [default: every frame of --lights or INPUT; 1 for the sky]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
@@ -107,15 +122,43 @@ struct RenderArgs {
     #[arg(long, conflicts_with = "background")]
     window: bool,
     /// Shade with the decomposed lights (shadow maps) or with ASG lobes fitted to each frame
-    /// (closed-form Lambert + GGX, no shadows; warm-started from frame to frame).
-    #[arg(long, value_enum, default_value = "lights", conflicts_with_all = ["lights", "window", "budget_ms"])]
+    /// (closed-form Lambert + GGX, no shadows; warm-started from frame to frame; not with
+    /// --lights, --window, --budget-ms or --light-count).
+    #[arg(long, value_enum, default_value = "lights")]
     lighting: LightingArg,
-    /// ASG lobes per frame with --lighting asg (1..=64).
-    #[arg(long, value_name = "K", default_value_t = envlight::asg::fit::DEFAULT_LOBES)]
-    lobes: usize,
-    /// Fit-map height with --lighting asg (width is twice; 4..=1024).
-    #[arg(long, value_name = "H", default_value_t = envlight::config::DEFAULT_ASG_FIT_HEIGHT)]
-    fit_height: u32,
+    /// ASG lobes per frame with --lighting asg (1..=64). [default: 16]
+    #[arg(long, value_name = "K")]
+    lobes: Option<usize>,
+    /// Fit-map height with --lighting asg (width is twice; 4..=1024). [default: 64]
+    #[arg(long, value_name = "H")]
+    fit_height: Option<u32>,
+}
+
+impl RenderArgs {
+    /// The options that the chosen lighting or light source would ignore are usage errors.
+    fn check_usage(&self) -> Result<()> {
+        if self.lighting == LightingArg::Asg {
+            let with = [
+                (self.lights.is_some(), "--lights"),
+                (self.window, "--window"),
+                (self.budget_ms.is_some(), "--budget-ms"),
+                (self.light_count.is_some(), "--light-count"),
+            ];
+            if let Some((_, flag)) = with.iter().find(|(given, _)| *given) {
+                usage_error!(
+                    "--lighting asg fits lobes to INPUT frames or the sky; {flag} applies to directional lights"
+                );
+            }
+        } else if self.lobes.is_some() || self.fit_height.is_some() {
+            usage_error!("--lobes and --fit-height apply to --lighting asg");
+        }
+        if self.lights.is_some() && self.light_count.is_some() {
+            usage_error!(
+                "--light-count sets the lights of frames decomposed here (INPUT or the sky); --lights renders every light of each frame in the file"
+            );
+        }
+        Ok(())
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -353,7 +396,7 @@ struct DecomposeArgs {
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
 
-    /// Pace frames at F frames per second. [default: as fast as possible]
+    /// Pace frames at F frames per second (at least 0.0001). [default: as fast as possible]
     #[arg(long, value_name = "F")]
     fps: Option<f64>,
 
@@ -553,7 +596,9 @@ impl DecomposeArgs {
         }
         if self.looped {
             if src.kind.as_deref().unwrap_or("sky") == "sky" {
-                bail!("--loop replays INPUT files; the built-in sky is endless with --frames 0");
+                usage_error!(
+                    "--loop replays INPUT files; the built-in sky is endless with --frames 0"
+                );
             }
             src.looped = Some(true);
         }
@@ -575,7 +620,7 @@ impl DecomposeArgs {
             || self.rotation.is_some();
         let is_fisheye = src.projection.as_deref() == Some("fisheye");
         if fisheye_flags && !is_fisheye {
-            bail!("--fisheye-model, --center, --radius, --fov and --rotation need --projection fisheye");
+            usage_error!("--fisheye-model, --center, --radius, --fov and --rotation need --projection fisheye");
         }
         let fe = &mut src.fisheye;
         if let Some(m) = self.fisheye_model {
@@ -608,7 +653,7 @@ impl DecomposeArgs {
 
         let sky_flags = self.sky_size.is_some() || self.no_clouds || self.seed.is_some();
         if sky_flags && !self.inputs.is_empty() {
-            bail!(
+            usage_error!(
                 "--sky-size, --no-clouds and --seed apply to the built-in sky, not to INPUT files"
             );
         }
@@ -748,6 +793,10 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(err) if err.downcast_ref::<UsageError>().is_some() => {
+            eprintln!("error: {err}\n\nFor more information, try '--help'.");
+            ExitCode::from(2)
+        }
         Err(err) => {
             tracing::debug!("{err:?}");
             eprintln!("error: {err}");
@@ -1174,6 +1223,7 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
 
 fn render(args: &RenderArgs) -> Result<()> {
     use envlight::render::{self, budget, output, scene::Scene, RenderSettings, Renderer};
+    args.check_usage()?;
     if let Some(b) = args.budget_ms.filter(|b| !(b.is_finite() && *b > 0.0)) {
         bail!("invalid --budget-ms {b}: must be a positive number of milliseconds");
     }
@@ -1187,8 +1237,10 @@ fn render(args: &RenderArgs) -> Result<()> {
     let asg_lighting = args.lighting == LightingArg::Asg;
     let mut fitter = if asg_lighting {
         let settings = envlight::asg::fit::FitSettings {
-            lobes: args.lobes,
-            height: args.fit_height,
+            lobes: args.lobes.unwrap_or(envlight::asg::fit::DEFAULT_LOBES),
+            height: args
+                .fit_height
+                .unwrap_or(envlight::config::DEFAULT_ASG_FIT_HEIGHT),
             ..envlight::asg::fit::FitSettings::default()
         };
         Some(
@@ -1217,7 +1269,7 @@ fn render(args: &RenderArgs) -> Result<()> {
             raw.source.paths = Some(args.inputs.clone());
         }
         raw.source.frames = Some(args.frames.unwrap_or(u64::from(args.inputs.is_empty())));
-        raw.decompose.lights = Some(args.light_count);
+        raw.decompose.lights = args.light_count;
         let config = raw
             .validate()
             .map_err(|e| anyhow!(e).context("invalid --light-count or INPUT"))?;
@@ -1383,9 +1435,10 @@ struct FitAsgArgs {
     /// Weight of the temporal loss L_T (0 disables it).
     #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().temporal_weight)]
     temporal_weight: f64,
-    /// Sky frames to fit when no INPUT is given.
-    #[arg(long, default_value_t = 10)]
-    frames: u64,
+    /// Frames to fit; 0 = every frame (the sky: endless). [default: 10 for the sky, every
+    /// file for INPUT]
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
     /// Output file (JSON Lines). [default: stdout]
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
@@ -1406,7 +1459,7 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
     let mut fitter = AsgFitter::new(settings).context("invalid fit-asg options")?;
     let mut source: Box<dyn FrameSource> = if args.inputs.is_empty() {
         let options = SkyOptions {
-            frames: Some(args.frames),
+            frames: args.frames.map_or(Some(10), |n| (n > 0).then_some(n)),
             ..SkyOptions::default()
         };
         Box::new(SkySource::new(options).context("cannot set up the built-in sky")?)
@@ -1416,9 +1469,11 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
             looped: false,
             projection: Projection::LatLong,
         };
-        Box::new(
-            SequenceSource::new(&args.inputs, options).context("cannot open the input frames")?,
-        )
+        Box::new(wavelet_cli::Limited {
+            inner: SequenceSource::new(&args.inputs, options)
+                .context("cannot open the input frames")?,
+            left: args.frames.filter(|&n| n > 0),
+        })
     };
     let mut writer = std::io::BufWriter::new(open_output(args.out.as_deref())?);
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {

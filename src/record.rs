@@ -33,7 +33,7 @@ use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Name of the recorder thread.
 pub const RECORD_THREAD_NAME: &str = "envlight-record";
@@ -41,6 +41,10 @@ pub const RECORD_THREAD_NAME: &str = "envlight-record";
 pub const FORMAT_NAME: &str = "envlight-recording";
 /// `version` of `session.json`.
 pub const FORMAT_VERSION: u32 = 1;
+/// The latest frame time a recording's index may hold, in seconds from the session's start
+/// (about 31.7 years): a later one is a corrupt index, and replaying it at the original timing
+/// would wait past what a clock can hold.
+pub const MAX_FRAME_TIME_S: f64 = 1e9;
 
 /// `session.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -280,8 +284,11 @@ impl ReplaySource {
                 path: index_path.clone(),
                 message: format!("line {}: {message}", number + 1),
             };
-            if !entry.time.is_finite() {
-                return Err(bad(format!("time {} is not finite", entry.time)));
+            if !(entry.time.is_finite() && (0.0..=MAX_FRAME_TIME_S).contains(&entry.time)) {
+                return Err(bad(format!(
+                    "time {} s is not in 0..={MAX_FRAME_TIME_S} s (frame times count from the session's start)",
+                    entry.time
+                )));
             }
             if let Some(previous) = entries.last() {
                 if entry.seq <= previous.seq || entry.time < previous.time {
@@ -350,11 +357,7 @@ impl FrameSource for ReplaySource {
         frame.time = entry.time;
         if self.pacing == Pacing::Original {
             let (start, first_time) = *self.started.get_or_insert((Instant::now(), entry.time));
-            let due = start + Duration::from_secs_f64((entry.time - first_time).max(0.0));
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
+            crate::capture::sleep_until(start, (entry.time - first_time).max(0.0));
         }
         Ok(Some(frame))
     }
@@ -370,5 +373,75 @@ impl FrameSource for ReplaySource {
                 Pacing::AsFastAsPossible => "as fast as possible",
             }
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recording directory with a valid `session.json` and the given `frames.jsonl`.
+    fn recording_with_index(index: &str) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        let session = Session {
+            format: FORMAT_NAME.into(),
+            version: FORMAT_VERSION,
+            source: "test".into(),
+            decompose: DecomposeSettings::default(),
+            envlight: env!("CARGO_PKG_VERSION").into(),
+            created_unix_s: 0,
+        };
+        std::fs::write(
+            dir.path().join("session.json"),
+            serde_json::to_string(&session).unwrap(),
+        )
+        .unwrap();
+        std::fs::write(dir.path().join("frames.jsonl"), index).unwrap();
+        dir
+    }
+
+    fn line(seq: u64, time: &str, file: &str) -> String {
+        format!(
+            "{{\"seq\":{seq},\"time\":{time},\"file\":\"{file}\",\"projection\":{}}}\n",
+            serde_json::to_string(&Projection::LatLong).unwrap()
+        )
+    }
+
+    #[test]
+    fn an_index_of_good_lines_opens() {
+        let index = line(0, "0.0", "frames/000000.exr") + &line(1, "1e8", "frames/000001.exr");
+        let dir = recording_with_index(&index);
+        let replay = ReplaySource::open(dir.path(), Pacing::Original).unwrap();
+        assert_eq!(replay.len(), 2);
+    }
+
+    #[test]
+    fn bad_index_lines_are_errors_naming_the_file_and_line() {
+        for (second, expected) in [
+            (
+                line(1, "1e20", "frames/1.exr"),
+                "time 100000000000000000000 s",
+            ),
+            (line(1, "-1", "frames/1.exr"), "time -1 s"),
+            (line(1, "1e9", "frames/1.exr"), ""),
+            (line(0, "1", "frames/1.exr"), "does not follow"),
+            (line(1, "1", "../1.exr"), "inside the recording"),
+            ("{\"seq\":1}\n".to_string(), "missing field"),
+        ] {
+            let index = line(0, "0.5", "frames/0.exr") + &second;
+            let dir = recording_with_index(&index);
+            match ReplaySource::open(dir.path(), Pacing::Original) {
+                Ok(_) => assert!(expected.is_empty(), "{second:?} was accepted"),
+                Err(e) => {
+                    let text = e.to_string();
+                    assert!(!expected.is_empty(), "{second:?}: {text}");
+                    assert!(
+                        text.contains("frames.jsonl") && text.contains("line 2"),
+                        "{text}"
+                    );
+                    assert!(text.contains(expected), "{second:?}: {text}");
+                }
+            }
+        }
     }
 }

@@ -74,17 +74,27 @@ pub struct FrameInput {
     /// .exr/.hdr files, directories or glob patterns (quote globs). None: the built-in sky.
     #[arg(value_name = "INPUT")]
     inputs: Vec<String>,
-    /// Projection of the INPUT files.
-    #[arg(long, value_enum, default_value_t = ProjectionArg::Latlong)]
-    projection: ProjectionArg,
+    /// Projection of the INPUT files. [default: latlong]
+    #[arg(long, value_enum)]
+    projection: Option<ProjectionArg>,
     /// Frames to process; 0 = every frame. [default: 1 for the sky, every file for INPUT]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
 }
 
 impl FrameInput {
+    /// Whether --frames was given.
+    pub fn frames_given(&self) -> bool {
+        self.frames.is_some()
+    }
+
     /// Opens the frames: a sequence of INPUT files, or the built-in sky.
     pub fn open(&self) -> Result<Box<dyn FrameSource>> {
+        if self.inputs.is_empty() && self.projection.is_some() {
+            crate::usage_error!(
+                "--projection describes INPUT files; the built-in sky is a lat-long map"
+            );
+        }
         if self.inputs.is_empty() {
             let frames = match self.frames {
                 Some(0) => None,
@@ -102,7 +112,7 @@ impl FrameInput {
         let options = SequenceOptions {
             fps: None,
             looped: false,
-            projection: self.projection.into(),
+            projection: self.projection.unwrap_or(ProjectionArg::Latlong).into(),
         };
         let source =
             SequenceSource::new(&self.inputs, options).context("cannot open the input frames")?;
@@ -114,9 +124,9 @@ impl FrameInput {
 }
 
 /// A source cut after `left` frames (`None`: no limit).
-struct Limited<S> {
-    inner: S,
-    left: Option<u64>,
+pub(crate) struct Limited<S> {
+    pub(crate) inner: S,
+    pub(crate) left: Option<u64>,
 }
 
 impl<S: FrameSource> FrameSource for Limited<S> {

@@ -103,21 +103,22 @@ pub struct RelightArgs {
     /// Side of the octahedral map (power of two, 2..=128): SIZE² directions per vertex.
     #[arg(long, value_name = "SIZE", default_value_t = 32)]
     size: usize,
-    /// Lighting coefficients kept per frame (K ≥ 1).
-    #[arg(long, short = 'k', value_name = "K", default_value_t = 1000)]
-    coefficients: usize,
+    /// Lighting coefficients kept per frame (1..=SIZE²). [default: 1000, or SIZE² when that is
+    /// less]
+    #[arg(long, short = 'k', value_name = "K")]
+    coefficients: Option<usize>,
     /// Transport coefficients kept per vertex.
     #[arg(long, value_name = "N", default_value_t = 256)]
     transport: usize,
     /// BRDF of every surface.
     #[arg(long, value_enum, default_value_t = BrdfArg::Lambert)]
     brdf: BrdfArg,
-    /// Phong exponent for --brdf phong.
-    #[arg(long, default_value_t = 32.0)]
-    exponent: f32,
-    /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1).
-    #[arg(long, default_value_t = 0.3)]
-    alpha: f32,
+    /// Phong exponent for --brdf phong. [default: 32]
+    #[arg(long)]
+    exponent: Option<f32>,
+    /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1). [default: 0.3]
+    #[arg(long)]
+    alpha: Option<f32>,
     /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
     eye: Option<Vec3>,
@@ -145,7 +146,7 @@ pub struct RecoverArgs {
     /// Observations used (evenly subsampled; 0: all, about 3,000 for --views 4).
     #[arg(long, value_name = "N", default_value_t = 0)]
     observations: usize,
-    /// Views of the glossy sphere (evenly around it, slightly above).
+    /// Views of the glossy sphere (evenly around it, slightly above; 1..=32).
     #[arg(long, value_name = "N", default_value_t = 4)]
     views: usize,
     /// Phong exponent of the observed sphere.
@@ -171,6 +172,11 @@ pub struct RecoverArgs {
     #[arg(long, value_name = "FILE.exr")]
     out: Option<PathBuf>,
 }
+
+/// The most views of the observed sphere `recover` accepts: each adds every sphere vertex's
+/// transport row (SIZE² values): 52 MB per view at SIZE 64 (measured, peak resident memory
+/// 130 MB with one view, 233 MB with three), so 32 views take about 1.8 GB.
+const MAX_VIEWS: usize = 32;
 
 fn check_size(size: usize, max: usize) -> Result<()> {
     if !(2..=max).contains(&size) || !size.is_power_of_two() {
@@ -200,8 +206,27 @@ struct RelightLine {
 /// Runs `envlight wavelet relight`.
 pub fn relight(args: &RelightArgs) -> Result<()> {
     check_size(args.size, 128)?;
-    if args.coefficients == 0 {
-        bail!("--coefficients must be at least 1");
+    let texels = args.size * args.size;
+    let coefficients = args.coefficients.unwrap_or(texels.min(1000));
+    if coefficients == 0 || coefficients > texels {
+        bail!(
+            "invalid --coefficients {coefficients}: expected 1..={texels} for --size {}",
+            args.size
+        );
+    }
+    match args.brdf {
+        BrdfArg::Lambert
+            if args.exponent.is_some() || args.alpha.is_some() || args.eye.is_some() =>
+        {
+            crate::usage_error!("--exponent, --alpha and --eye apply to --brdf phong or ggx")
+        }
+        BrdfArg::Phong if args.alpha.is_some() => {
+            crate::usage_error!("--alpha applies to --brdf ggx; --brdf phong takes --exponent")
+        }
+        BrdfArg::Ggx if args.exponent.is_some() => {
+            crate::usage_error!("--exponent applies to --brdf phong; --brdf ggx takes --alpha")
+        }
+        _ => {}
     }
     let scene = match &args.scene {
         Some(path) => Scene::load(path, args.ground)
@@ -226,9 +251,11 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
     let brdf = match args.brdf {
         BrdfArg::Lambert => Brdf::Lambert,
         BrdfArg::Phong => Brdf::Phong {
-            exponent: args.exponent,
+            exponent: args.exponent.unwrap_or(32.0),
         },
-        BrdfArg::Ggx => Brdf::Ggx { alpha: args.alpha },
+        BrdfArg::Ggx => Brdf::Ggx {
+            alpha: args.alpha.unwrap_or(0.3),
+        },
     };
     let view = View::Eye(args.eye.unwrap_or(scene.camera.eye));
     let transport = Transport::precompute(
@@ -263,7 +290,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         let map = OctahedralMap::from_frame(&frame, grid.side)
             .with_context(|| format!("cannot resample frame {}", frame.seq))?;
         let coeffs = Coefficients::analyze(map.texels(), grid.side, grid.basis, grid.levels)?;
-        let set = coeffs.truncate(args.coefficients);
+        let set = coeffs.truncate(coefficients);
         let t = Instant::now();
         light.set(&grid, &set)?;
         transport.relight(&light, &mut out)?;
@@ -350,8 +377,13 @@ struct RecoverReport {
 /// Runs `envlight wavelet recover`.
 pub fn recover(args: &RecoverArgs) -> Result<()> {
     check_size(args.size, 64)?;
-    if args.views == 0 {
-        bail!("--views must be at least 1");
+    if !(1..=MAX_VIEWS).contains(&args.views) {
+        bail!("invalid --views {}: expected 1..={MAX_VIEWS}", args.views);
+    }
+    if args.input.frames_given() {
+        crate::usage_error!(
+            "wavelet recover uses the first frame of INPUT (or the sky); --frames does not apply"
+        );
     }
     let mut source = args.input.open()?;
     let frame = source

@@ -579,3 +579,109 @@ fn latest_file_holds_only_the_newest_frame() {
         stderr(&o)
     );
 }
+
+/// Options that do not go together, or that the chosen mode would ignore, are usage errors
+/// (exit status 2, naming the options), never silently dropped.
+#[test]
+fn options_the_mode_would_ignore_are_usage_errors() {
+    let hdr = data("rooitou_park_1k.hdr");
+    let out = tempfile::tempdir().unwrap();
+    let out = s(out.path());
+    let lights = tempfile::NamedTempFile::new().unwrap();
+    let lights = s(lights.path());
+    for (args, needle) in [
+        (vec!["decompose", "--loop", "--frames", "2"], "--loop"),
+        (vec!["decompose", "--rotation", "5"], "--projection fisheye"),
+        (vec!["decompose", &hdr, "--sky-size", "8x4"], "--sky-size"),
+        (vec!["subscribe", "tcp:"], "HOST:PORT"),
+        (
+            vec!["render", "--out", out, "--lobes", "4"],
+            "--lighting asg",
+        ),
+        (
+            vec!["render", "--out", out, "--fit-height", "8"],
+            "--lighting asg",
+        ),
+        (
+            vec!["render", "--out", out, "--lights", lights, "-n", "5"],
+            "--light-count",
+        ),
+        (
+            vec![
+                "render",
+                "--out",
+                out,
+                "--lighting",
+                "asg",
+                "--budget-ms",
+                "5",
+            ],
+            "--budget-ms",
+        ),
+        (
+            vec![
+                "render",
+                "--out",
+                out,
+                "--lighting",
+                "asg",
+                "--lights",
+                lights,
+            ],
+            "--lights",
+        ),
+        (
+            vec!["wavelet", "approx", "--projection", "angular"],
+            "--projection",
+        ),
+        (vec!["wavelet", "relight", "--alpha", "0.2"], "--brdf"),
+        (
+            vec!["wavelet", "relight", "--brdf", "phong", "--alpha", "0.2"],
+            "--alpha",
+        ),
+        (
+            vec!["wavelet", "relight", "--brdf", "ggx", "--exponent", "8"],
+            "--exponent",
+        ),
+        (vec!["wavelet", "recover", "--frames", "2"], "--frames"),
+    ] {
+        let o = envlight(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
+    }
+    // The default of --lighting given explicitly goes with --lights (it was a clap conflict).
+    let o = envlight(&[
+        "render",
+        "--lights",
+        lights,
+        "--lighting",
+        "lights",
+        "--out",
+        out,
+    ]);
+    assert!(stderr(&o).contains("no light frames"), "{}", stderr(&o));
+    assert_eq!(o.status.code(), Some(1));
+}
+
+/// `fit-asg --frames` limits INPUT files too (it used to apply to the sky only).
+#[test]
+fn fit_asg_frames_limits_input_files() {
+    let hdr = data("rooitou_park_1k.hdr");
+    let o = envlight(&[
+        "fit-asg",
+        &hdr,
+        &hdr,
+        "--frames",
+        "1",
+        "--lobes",
+        "2",
+        "--iterations",
+        "4",
+        "--warm-iterations",
+        "2",
+        "--height",
+        "8",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(stdout(&o).lines().count(), 1, "{}", stdout(&o));
+}

@@ -133,6 +133,36 @@ impl SourceHealth {
     }
 }
 
+/// The slowest pace a paced source accepts: one frame every 10,000 s (2.8 hours), for time
+/// lapses. Slower rates are almost certainly a mistake (a period typed for a rate), and frame
+/// times beyond what a clock can hold would follow from absurd ones.
+pub const MIN_FPS: f64 = 1e-4;
+
+/// Checks a paced source's frame rate: finite and at least [`MIN_FPS`]. The error text says
+/// what is expected (the caller names the setting).
+pub fn check_fps(fps: f64) -> Result<(), String> {
+    if fps.is_finite() && fps >= MIN_FPS {
+        Ok(())
+    } else {
+        Err(format!(
+            "must be a frame rate of at least {MIN_FPS} frames/s (one frame every {:.0} s), got {fps}",
+            1.0 / MIN_FPS
+        ))
+    }
+}
+
+/// Sleeps until `time_s` seconds after `start` (no sleep when that has passed). A time that no
+/// [`Instant`](std::time::Instant) can hold — only reachable with a rate below [`MIN_FPS`] or
+/// after centuries of frames — is treated as due now rather than panicking.
+pub(crate) fn sleep_until(start: std::time::Instant, time_s: f64) {
+    let due = std::time::Duration::try_from_secs_f64(time_s)
+        .ok()
+        .and_then(|offset| start.checked_add(offset));
+    if let Some(wait) = due.and_then(|due| due.checked_duration_since(std::time::Instant::now())) {
+        std::thread::sleep(wait);
+    }
+}
+
 /// Opens the frame source a validated [`Config`](crate::config::Config) describes: the
 /// built-in sky (its `[source]` fps and frame count applied) or a recorded sequence, limited to
 /// `source.frames` frames and with a fisheye calibration checked against the frames' size.

@@ -30,7 +30,7 @@ use crate::frame::HdrFrame;
 use std::cmp::Ordering;
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Frame rate used for `HdrFrame::time` when a sequence is replayed as fast as possible.
 pub const NOMINAL_FPS: f64 = 30.0;
@@ -69,11 +69,8 @@ impl SequenceSource {
     /// was found.
     pub fn new(inputs: &[String], options: SequenceOptions) -> Result<Self, CaptureError> {
         if let Some(fps) = options.fps {
-            if !(fps.is_finite() && fps > 0.0) {
-                return Err(CaptureError::InvalidSettings(format!(
-                    "fps must be a positive number, got {fps}"
-                )));
-            }
+            super::check_fps(fps)
+                .map_err(|message| CaptureError::InvalidSettings(format!("fps {message}")))?;
         }
         let paths = collect_frames(inputs)?;
         if paths.is_empty() {
@@ -168,12 +165,8 @@ impl FrameSource for SequenceSource {
         let fps = self.options.fps.unwrap_or(NOMINAL_FPS);
         frame.time = seq as f64 / fps;
         if self.options.fps.is_some() {
-            let now = Instant::now();
-            let start = *self.start.get_or_insert(now);
-            let due = start + Duration::from_secs_f64(frame.time);
-            if due > now {
-                std::thread::sleep(due - now);
-            }
+            let start = *self.start.get_or_insert_with(Instant::now);
+            super::sleep_until(start, frame.time);
         }
         Ok(Some(frame))
     }
@@ -348,7 +341,7 @@ mod tests {
 
     #[test]
     fn rejects_bad_fps() {
-        for fps in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        for fps in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e-30, 0.99e-4] {
             let options = SequenceOptions {
                 fps: Some(fps),
                 ..Default::default()

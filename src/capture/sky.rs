@@ -63,7 +63,7 @@ use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Luminous efficacy used to turn photometric into radiometric-ish units (lm/W).
 pub const LUMENS_PER_WATT: f64 = 683.0;
@@ -212,11 +212,11 @@ impl SkyOptions {
         check_range("wind_speed", self.wind_speed, 0.0, 1000.0)?;
         check_range("ground_albedo", self.ground_albedo, 0.0, 1.0)?;
         if let Some(fps) = self.fps {
-            if !(fps.is_finite() && fps > 0.0) {
+            if super::check_fps(fps).is_err() {
                 return Err(InvalidSkyOption {
                     field: "fps",
                     value: fps.to_string(),
-                    expected: "finite and > 0".into(),
+                    expected: format!("a frame rate of at least {} frames/s", super::MIN_FPS),
                 });
             }
         }
@@ -975,12 +975,7 @@ impl FrameSource for SkySource {
         let time_s = self.seq as f64 / rate;
         if self.options.fps.is_some() {
             let start = *self.start.get_or_insert_with(Instant::now);
-            if let Ok(due) = Duration::try_from_secs_f64(time_s) {
-                let elapsed = start.elapsed();
-                if due > elapsed {
-                    std::thread::sleep(due - elapsed);
-                }
-            }
+            super::sleep_until(start, time_s);
         }
         let mut frame = render_with_geometry(&self.geometry, &self.options, time_s, true);
         frame.seq = self.seq;
@@ -1542,6 +1537,13 @@ mod tests {
             ),
             (
                 SkyOptions {
+                    fps: Some(1e-30),
+                    ..SkyOptions::default()
+                },
+                "fps",
+            ),
+            (
+                SkyOptions {
                     sun_start_elevation_deg: f64::NAN,
                     ..SkyOptions::default()
                 },
@@ -1617,6 +1619,6 @@ mod tests {
             times.push(frame.time);
         }
         assert_eq!(times, vec![0.0, 0.01, 0.02, 0.03]);
-        assert!(start.elapsed() >= Duration::from_millis(30));
+        assert!(start.elapsed() >= std::time::Duration::from_millis(30));
     }
 }

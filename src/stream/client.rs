@@ -47,15 +47,22 @@ impl std::str::FromStr for Endpoint {
                     .into(),
             );
         }
+        let host_and_port = |a: &str| {
+            a.rsplit_once(':')
+                .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
+        };
         if let Some(addr) = s.strip_prefix("tcp:") {
+            if !host_and_port(addr) {
+                return Err(format!(
+                    "tcp: needs HOST:PORT with a port from 0 to 65535, e.g. tcp:127.0.0.1:7878 (got {s:?})"
+                ));
+            }
             return Ok(Endpoint::Tcp(addr.to_owned()));
         }
         if s.contains('/') {
             return Ok(Endpoint::Unix(PathBuf::from(s)));
         }
-        if s.rsplit_once(':')
-            .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
-        {
+        if host_and_port(s) {
             return Ok(Endpoint::Tcp(s.to_owned()));
         }
         Err(format!(
@@ -290,7 +297,17 @@ mod tests {
             "ws://127.0.0.1:7879/".parse(),
             Ok(Endpoint::WebSocket("ws://127.0.0.1:7879/".into()))
         );
-        for bad in ["", "unix:", "localhost", "wss://x:1/", "host:port"] {
+        for bad in [
+            "",
+            "unix:",
+            "localhost",
+            "wss://x:1/",
+            "host:port",
+            "tcp:",
+            "tcp:host",
+            "tcp::7878",
+            "tcp:h:99999",
+        ] {
             assert!(bad.parse::<Endpoint>().is_err(), "{bad:?} parsed");
         }
     }
