@@ -622,11 +622,12 @@ impl RawRender {
         let settings = crate::render::RenderSettings {
             width: size("render.width", self.width, d.settings.width, 8192)?,
             height: size("render.height", self.height, d.settings.height, 8192)?,
-            shadow_resolution: size(
+            shadow_resolution: integer_in(
                 "render.shadow_resolution",
                 self.shadow_resolution,
                 d.settings.shadow_resolution,
-                8192,
+                16..=8192,
+                "",
             )?,
             shadows: true,
             culling: self.culling.unwrap_or(d.settings.culling),
@@ -1322,7 +1323,11 @@ mod tests {
             ("[render]\nwidth = 0", "render.width = 0: must be 1..=8192"),
             (
                 "[render]\nshadow_resolution = 8193",
-                "render.shadow_resolution = 8193: must be 1..=8192",
+                "render.shadow_resolution = 8193: must be 16..=8192",
+            ),
+            (
+                "[render]\nshadow_resolution = 1",
+                "render.shadow_resolution = 1: must be 16..=8192",
             ),
             (
                 "[asg]\nfit_height = 1025",

@@ -197,13 +197,50 @@ pub fn read_json_lines(path: &std::path::Path) -> Result<Vec<LightFrame>, LightL
     })
 }
 
-/// Parses JSON Lines text; the error gives the 1-based line number and the problem.
+/// Parses JSON Lines text; the error gives the 1-based line number and the problem. Every light
+/// must be usable as it stands: a finite, non-zero direction (a renderer normalises it), finite
+/// non-negative `rgb` and a finite non-negative `solid_angle`; a light that is not is an error
+/// naming its id, not a light dropped or clamped later.
 pub fn parse_json_lines(text: &str) -> Result<Vec<LightFrame>, (usize, String)> {
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).map_err(|e| (i + 1, e.to_string())))
+        .map(|(i, l)| {
+            let frame: LightFrame = serde_json::from_str(l).map_err(|e| (i + 1, e.to_string()))?;
+            match frame
+                .lights
+                .iter()
+                .find_map(|light| light_problem(light).map(|p| (light.id, p)))
+            {
+                Some((id, problem)) => Err((i + 1, format!("light {id}: {problem}"))),
+                None => Ok(frame),
+            }
+        })
         .collect()
+}
+
+/// What makes a light unusable, if anything (see [`parse_json_lines`]).
+fn light_problem(light: &Light) -> Option<String> {
+    let [x, y, z] = light.dir;
+    if !(x.is_finite() && y.is_finite() && z.is_finite()) || x * x + y * y + z * z < 1e-12 {
+        return Some(format!(
+            "dir {:?} is not a direction (expected a unit vector)",
+            light.dir
+        ));
+    }
+    if light.rgb.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+        return Some(format!(
+            "rgb {:?} must be finite and non-negative",
+            light.rgb
+        ));
+    }
+    if !(light.solid_angle.is_finite() && light.solid_angle >= 0.0) {
+        return Some(format!(
+            "solid_angle {} must be finite and non-negative",
+            light.solid_angle
+        ));
+    }
+    None
 }
 
 #[cfg(test)]
@@ -230,5 +267,38 @@ mod tests {
         assert_eq!(err.0, 2);
         let e = read_json_lines(std::path::Path::new("/no/such/lights.jsonl")).unwrap_err();
         assert!(e.to_string().contains("lights.jsonl"));
+    }
+
+    #[test]
+    fn unusable_lights_are_errors_naming_the_line_and_light() {
+        let good = r#"{"id":1,"dir":[0.0,1.0,0.0],"rgb":[1.0,2.0,3.0],"solid_angle":0.01}"#;
+        for (bad, needle) in [
+            (
+                r#"{"id":9,"dir":[0,0,0],"rgb":[1,1,1],"solid_angle":0}"#,
+                "dir",
+            ),
+            (
+                r#"{"id":9,"dir":[0,1,0],"rgb":[-5,1,1],"solid_angle":0}"#,
+                "rgb",
+            ),
+            (
+                r#"{"id":9,"dir":[0,1,0],"rgb":[1,1,1],"solid_angle":-1}"#,
+                "solid_angle",
+            ),
+        ] {
+            let text = format!(
+                "{{\"seq\":0,\"time\":0,\"lights\":[{good}]}}\n{{\"seq\":1,\"time\":0,\"lights\":[{good},{bad}]}}\n"
+            );
+            let (line, message) = parse_json_lines(&text).unwrap_err();
+            assert_eq!(line, 2, "{message}");
+            assert!(
+                message.starts_with("light 9: ") && message.contains(needle),
+                "{message}"
+            );
+        }
+        // Black lights and an unnormalised direction are fine.
+        let ok =
+            r#"{"seq":0,"time":0,"lights":[{"id":0,"dir":[0,2,0],"rgb":[0,0,0],"solid_angle":0}]}"#;
+        assert_eq!(parse_json_lines(ok).unwrap().len(), 1);
     }
 }

@@ -98,7 +98,8 @@ struct RenderArgs {
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
     /// Shadow-map side in texels (16..=8192).
-    #[arg(long, value_name = "N", default_value_t = 512)]
+    #[arg(long, value_name = "N", default_value_t = 512,
+          value_parser = clap::value_parser!(u32).range(16..=8192))]
     shadow_res: u32,
     /// No shadows.
     #[arg(long)]

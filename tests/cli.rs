@@ -644,6 +644,14 @@ fn options_the_mode_would_ignore_are_usage_errors() {
             "--exponent",
         ),
         (vec!["wavelet", "recover", "--frames", "2"], "--frames"),
+        (
+            vec!["render", "--out", out, "--shadow-res", "8193"],
+            "16..=8192",
+        ),
+        (
+            vec!["render", "--out", out, "--shadow-res", "8"],
+            "16..=8192",
+        ),
     ] {
         let o = envlight(&args);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
