@@ -432,6 +432,84 @@ fn a_slow_client_skips_to_the_newest_frame_without_holding_anyone_back() {
     daemon.shutdown().unwrap();
 }
 
+/// A client that reads a large frame slowly but steadily is not cut off by the write timeout:
+/// the timeout measures a write that makes no progress, not the time a whole frame takes.
+#[test]
+fn a_steady_slow_reader_of_large_frames_is_not_cut_off() {
+    let dir = tempfile::tempdir().unwrap();
+    // JSON frames of 4,096 lights (about half a megabyte) at 4 frames/s; a write timeout of
+    // 1 s, while the client below needs about 3 s to read one frame.
+    let extra = "[source]\nfps = 4.0\nframes = 0\n[sky]\nwidth = 256\nheight = 128\n\
+                 [decompose]\nlights = 4096\nworking_width = 128\n";
+    let config = common::config_with_stream(dir.path(), 0.5, "write_timeout_s = 1.0\n", extra);
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    let mut subscribe = Vec::new();
+    encode_request(
+        &Request {
+            format: Format::Json,
+            ..Request::default()
+        },
+        &mut subscribe,
+    );
+    let mut client = connect_small_buffer(tcp);
+    client.write_all(&subscribe).unwrap();
+    // A client that subscribes and never reads: its write stalls, and it is closed.
+    let mut stuck = connect_small_buffer(tcp);
+    stuck.write_all(&subscribe).unwrap();
+    let started = Instant::now();
+    let (mut bytes, mut lines) = (0usize, 0usize);
+    let mut buf = [0u8; 4096];
+    while started.elapsed() < Duration::from_millis(4500) {
+        let n = client.read(&mut buf).unwrap();
+        assert!(
+            n > 0,
+            "the daemon closed the connection after {bytes} bytes and {lines} frames in {:?}",
+            started.elapsed()
+        );
+        bytes += n;
+        lines += buf[..n].iter().filter(|&&b| b == b'\n').count();
+        // About 160 kB/s: every read takes bytes, so the server's writes keep progressing.
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    // The first frame took longer than the write timeout to read, and was read whole.
+    assert!(lines >= 1, "{bytes} bytes, no whole frame");
+    assert!(bytes > 300_000, "{bytes} bytes");
+    // The stuck client's socket holds what the kernel buffered, then ends (or is reset).
+    stuck
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let mut stuck_bytes = 0usize;
+    let reading = Instant::now();
+    let ended = loop {
+        // A connection still open keeps streaming once read: give up after 10 s.
+        if reading.elapsed() > Duration::from_secs(10) {
+            break false;
+        }
+        match stuck.read(&mut buf) {
+            Ok(0) => break true,
+            Ok(n) => stuck_bytes += n,
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => break true,
+            Err(e) => {
+                assert!(
+                    matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ),
+                    "{e}"
+                );
+                break false;
+            }
+        }
+    };
+    assert!(
+        ended,
+        "a client that never read was not closed ({stuck_bytes} bytes buffered)"
+    );
+    drop(client);
+    daemon.shutdown().unwrap();
+}
+
 /// Sends raw bytes and returns what the server answers before closing.
 fn raw_exchange(addr: std::net::SocketAddr, bytes: &[u8], close_write: bool) -> Vec<Message> {
     let mut stream = TcpStream::connect(addr).unwrap();

@@ -992,6 +992,7 @@ impl Acceptor {
             shutdown: self.shutdown.clone(),
             over_limit,
             guard,
+            written: Arc::new(WriteProgress::new()),
             _done: self.done.clone(),
         }
     }
@@ -1107,7 +1108,80 @@ struct Connection {
     shutdown: watch::Receiver<Option<String>>,
     over_limit: bool,
     guard: ClientGuard,
+    /// When the connection task last wrote bytes: the write timeout measures a stall from it.
+    written: Arc<WriteProgress>,
     _done: mpsc::Sender<()>,
+}
+
+/// When a connection task's writer last made progress (wrote at least one byte), so that the
+/// write timeout closes a connection that accepts nothing for that long, not one whose large
+/// frame takes longer than that to read at a steady pace.
+struct WriteProgress {
+    since: Instant,
+    /// Milliseconds from `since` to the last progress (or to the connection's start).
+    last_ms: AtomicU64,
+}
+
+impl WriteProgress {
+    fn new() -> Self {
+        Self {
+            since: Instant::now(),
+            last_ms: AtomicU64::new(0),
+        }
+    }
+
+    fn mark(&self) {
+        let ms = u64::try_from(self.since.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.last_ms.fetch_max(ms, Ordering::Relaxed);
+    }
+
+    fn last(&self) -> Instant {
+        self.since + Duration::from_millis(self.last_ms.load(Ordering::Relaxed))
+    }
+}
+
+/// A connection's reader-writer that stamps its [`WriteProgress`] whenever a write takes bytes.
+struct Stamped<T> {
+    inner: T,
+    progress: Arc<WriteProgress>,
+}
+
+impl<T: AsyncRead + Unpin> AsyncRead for Stamped<T> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
+    }
+}
+
+impl<T: AsyncWrite + Unpin> AsyncWrite for Stamped<T> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        let polled = std::pin::Pin::new(&mut self.inner).poll_write(cx, buf);
+        if matches!(polled, std::task::Poll::Ready(Ok(n)) if n > 0) {
+            self.progress.mark();
+        }
+        polled
+    }
+
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_flush(cx)
+    }
+
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
 }
 
 /// How a stream client speaks: binary messages or JSON lines.
@@ -1223,24 +1297,34 @@ impl Connection {
         close
     }
 
-    /// Writes within the write timeout, giving up at shutdown. `None`: written; otherwise why
-    /// the connection ends.
+    /// Writes through the connection's [`Stamped`] writer, giving up at shutdown or when the
+    /// write makes no progress (not a byte taken) for the write timeout; a client that reads a
+    /// large frame slowly but steadily is not cut off. `None`: written; otherwise why the
+    /// connection ends.
     async fn write_timed<E>(
         &self,
         write: impl std::future::Future<Output = Result<(), E>>,
         shutdown: &mut watch::Receiver<Option<String>>,
     ) -> Option<Close> {
-        let write = tokio::time::timeout(self.ctx.config.write_timeout, write);
-        let written = tokio::select! {
-            written = write => written,
-            _ = shutdown.wait_for(Option::is_some) => return Some(Close::Quiet),
-        };
-        match written {
-            Ok(Ok(())) => None,
-            Ok(Err(_)) => Some(Close::Quiet),
-            Err(_) => {
-                self.count_error("write stalled");
-                Some(Close::Quiet)
+        let timeout = self.ctx.config.write_timeout;
+        let started = Instant::now();
+        tokio::pin!(write);
+        loop {
+            let deadline = started.max(self.written.last()) + timeout;
+            tokio::select! {
+                written = &mut write => {
+                    return match written {
+                        Ok(()) => None,
+                        Err(_) => Some(Close::Quiet),
+                    };
+                }
+                _ = tokio::time::sleep_until(deadline.into()) => {
+                    if started.max(self.written.last()) + timeout <= Instant::now() {
+                        self.count_error("write stalled");
+                        return Some(Close::Quiet);
+                    }
+                }
+                _ = shutdown.wait_for(Option::is_some) => return Some(Close::Quiet),
             }
         }
     }
@@ -1280,7 +1364,10 @@ impl Connection {
         // The task reads and writes through one clone, the fan-out thread writes through
         // another.
         let mut reader = Shared(Arc::clone(&socket));
-        let mut writer = Shared(Arc::clone(&socket));
+        let mut writer = Stamped {
+            inner: Shared(Arc::clone(&socket)),
+            progress: Arc::clone(&self.written),
+        };
         let mut dialect = Dialect::Binary;
         let close = self
             .stream_session(&mut reader, &mut writer, &socket, &mut dialect)
@@ -1542,7 +1629,13 @@ impl Connection {
         config.max_frame_size = Some(protocol::MAX_MESSAGE_LEN);
         let accepted = tokio::time::timeout(
             self.ctx.config.handshake_timeout,
-            tokio_tungstenite::accept_async_with_config(stream, Some(config)),
+            tokio_tungstenite::accept_async_with_config(
+                Stamped {
+                    inner: stream,
+                    progress: Arc::clone(&self.written),
+                },
+                Some(config),
+            ),
         )
         .await;
         let ws = match accepted {
