@@ -995,13 +995,27 @@ impl HttpState {
     }
 }
 
+/// The most HTTP connections the metrics endpoint serves at once; more are closed as they
+/// come (a scraper and a few people need a handful), so the endpoint cannot use up the file
+/// descriptors the light stream's endpoints need.
+pub const MAX_HTTP_CONNECTIONS: usize = 64;
+
+/// How long an HTTP client has to send a request's headers before it is cut off (the whole
+/// connection is cut off after [`HTTP_CONNECTION_TIMEOUT`]).
+pub const HTTP_HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The longest an HTTP connection is kept, keep-alive included.
+pub const HTTP_CONNECTION_TIMEOUT: Duration = Duration::from_secs(30);
+
 async fn serve_http(
     listener: tokio::net::TcpListener,
     state: Arc<HttpState>,
     mut stop: watch::Receiver<bool>,
 ) {
     use hyper::service::service_fn;
-    use hyper_util::rt::TokioIo;
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    let slots = Arc::new(tokio::sync::Semaphore::new(MAX_HTTP_CONNECTIONS));
+    let mut refused: u64 = 0;
     loop {
         let accepted = tokio::select! {
             _ = stop.wait_for(|s| *s) => break,
@@ -1015,6 +1029,18 @@ async fn serve_http(
                 continue;
             }
         };
+        let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
+            // Closed at once; the first refusal and every 1,000th after it are logged.
+            if refused.is_multiple_of(1000) {
+                tracing::warn!(
+                    refused = refused + 1,
+                    "metrics endpoint: {MAX_HTTP_CONNECTIONS} connections open, closing new ones"
+                );
+            }
+            refused += 1;
+            drop(stream);
+            continue;
+        };
         let state = Arc::clone(&state);
         tokio::spawn(async move {
             let service = service_fn(move |request| {
@@ -1022,9 +1048,12 @@ async fn serve_http(
                 async move { Ok::<_, std::convert::Infallible>(respond(&state, &request)) }
             });
             let connection = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(HTTP_HEADER_TIMEOUT)
                 .serve_connection(TokioIo::new(stream), service);
             // A client that neither finishes nor closes its request is cut off.
-            let _ = tokio::time::timeout(Duration::from_secs(30), connection).await;
+            let _ = tokio::time::timeout(HTTP_CONNECTION_TIMEOUT, connection).await;
+            drop(slot);
         });
     }
 }

@@ -678,6 +678,66 @@ fn metrics_and_health_over_http() {
     daemon.shutdown().unwrap();
 }
 
+/// The metrics endpoint serves at most `MAX_HTTP_CONNECTIONS` connections at once and cuts off
+/// a client that does not send its headers, so idle or slow HTTP clients cannot use up the
+/// daemon's file descriptors; the light stream is served meanwhile.
+#[test]
+fn idle_http_connections_are_bounded_and_cut_off() {
+    use envlight::daemon::{HTTP_HEADER_TIMEOUT, MAX_HTTP_CONNECTIONS};
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let http = daemon.addresses().metrics.unwrap();
+    let started = Instant::now();
+    // Slow clients: each sends half a request line and nothing more.
+    let mut idle: Vec<TcpStream> = (0..MAX_HTTP_CONNECTIONS)
+        .map(|_| {
+            let mut s = TcpStream::connect(http).unwrap();
+            s.write_all(b"GET /metrics HTTP/1.1\r\n").unwrap();
+            s
+        })
+        .collect();
+    // One more is closed at once, without an answer: its read ends (or is reset).
+    let mut extra_client = TcpStream::connect(http).unwrap();
+    extra_client.set_read_timeout(Some(TIMEOUT)).unwrap();
+    let _ = extra_client.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n");
+    let mut answer = Vec::new();
+    let _ = extra_client.read_to_end(&mut answer);
+    assert!(
+        answer.is_empty(),
+        "answered: {}",
+        String::from_utf8_lossy(&answer)
+    );
+    // The stream is served meanwhile.
+    let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
+    let mut client =
+        Client::connect(&Endpoint::Unix(uds), &Request::default(), Some(TIMEOUT)).unwrap();
+    assert!(matches!(client.next_message(), Ok(Some(Message::Frame(_)))));
+    // The slow clients are cut off once their headers are overdue …
+    for s in &mut idle {
+        s.set_read_timeout(Some(TIMEOUT)).unwrap();
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+    }
+    let waited = started.elapsed();
+    assert!(
+        waited >= HTTP_HEADER_TIMEOUT && waited < TIMEOUT,
+        "idle connections ended after {waited:?}"
+    );
+    drop(idle);
+    // … and the endpoint answers again.
+    wait_until("the metrics endpoint to answer", || {
+        let mut s = TcpStream::connect(http).unwrap();
+        s.set_read_timeout(Some(TIMEOUT)).unwrap();
+        let _ = s.write_all(b"GET /health HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        let mut text = String::new();
+        let _ = s.read_to_string(&mut text);
+        text.starts_with("HTTP/1.1 200")
+    });
+    daemon.shutdown().unwrap();
+}
+
 #[test]
 fn a_recording_replays_to_the_same_light_stream() {
     let dir = tempfile::tempdir().unwrap();
