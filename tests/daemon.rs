@@ -510,6 +510,85 @@ fn a_steady_slow_reader_of_large_frames_is_not_cut_off() {
     daemon.shutdown().unwrap();
 }
 
+/// WebSocket input that breaks the size limit or the WebSocket rules is answered with an error
+/// message (4: too large, 1: a broken frame) before the close frame, and counted; a client's
+/// close frame is answered with the server's (RFC 6455 5.5.1); the daemon serves on.
+#[test]
+fn websocket_errors_are_answered_and_close_frames_echoed() {
+    use tokio_tungstenite::tungstenite::{self, Message as WsMessage};
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
+    let ws = daemon.addresses().stream.websocket.unwrap();
+    let url = format!("ws://{ws}/");
+    let connect = || {
+        let (mut socket, _) = tungstenite::connect(url.as_str()).unwrap();
+        if let tungstenite::stream::MaybeTlsStream::Plain(s) = socket.get_mut() {
+            s.set_read_timeout(Some(TIMEOUT)).unwrap();
+        }
+        socket.send(WsMessage::text("{\"subscribe\":{}}")).unwrap();
+        assert!(matches!(socket.read().unwrap(), WsMessage::Text(_)));
+        socket
+    };
+    // The error message that ends a connection (frames before it are skipped), then the close.
+    let error_code_then_close = |socket: &mut tungstenite::WebSocket<_>| -> Option<u16> {
+        loop {
+            match socket.read() {
+                Ok(WsMessage::Text(text)) => {
+                    if let Ok(Message::Error { code, .. }) = protocol::parse_json_message(&text) {
+                        return Some(code);
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => panic!("no error message before {e}"),
+            }
+        }
+    };
+
+    // Too large: a message over the 1 MiB limit.
+    let mut socket = connect();
+    let big = vec![b'x'; protocol::MAX_MESSAGE_LEN + 10];
+    socket.send(WsMessage::binary(big)).unwrap();
+    assert_eq!(error_code_then_close(&mut socket), Some(code::TOO_LARGE));
+    assert!(matches!(socket.read(), Ok(WsMessage::Close(_))));
+
+    // A broken frame: a data frame with a reserved opcode (3), masked as a client's must be.
+    let mut socket = connect();
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = socket.get_mut() {
+        s.write_all(&[0x83, 0x80, 1, 2, 3, 4]).unwrap();
+    }
+    assert_eq!(error_code_then_close(&mut socket), Some(code::MALFORMED));
+
+    // The client closes: the server answers with its close frame, so the close is clean.
+    let mut socket = connect();
+    socket.close(None).unwrap();
+    let clean = loop {
+        match socket.read() {
+            Ok(_) => continue,
+            Err(tungstenite::Error::ConnectionClosed) => break true,
+            Err(e) => {
+                eprintln!("close ended with {e}");
+                break false;
+            }
+        }
+    };
+    assert!(clean, "the server did not answer the close frame");
+
+    let text = daemon.metrics().encode();
+    assert!(
+        metric_value(
+            &text,
+            "envlight_client_errors_total{endpoint=\"websocket\"}"
+        ) >= 2.0,
+        "{text}"
+    );
+    // Still serving.
+    let mut socket = connect();
+    assert!(matches!(socket.read(), Ok(WsMessage::Text(_))));
+    daemon.shutdown().unwrap();
+}
+
 /// Sends raw bytes and returns what the server answers before closing.
 fn raw_exchange(addr: std::net::SocketAddr, bytes: &[u8], close_write: bool) -> Vec<Message> {
     let mut stream = TcpStream::connect(addr).unwrap();

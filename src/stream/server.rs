@@ -1088,6 +1088,9 @@ impl Drop for ClientGuard {
 enum Close {
     /// Quietly: the client went away, or the write stalled.
     Quiet,
+    /// The WebSocket client sent a close frame: the server's reply (queued by tungstenite)
+    /// is flushed, nothing else is sent.
+    ClosedByPeer,
     /// With an error message.
     Error(u16, String),
     /// With a goodbye.
@@ -1374,7 +1377,7 @@ impl Connection {
             .await;
         let mut out = Vec::new();
         match (&close, dialect) {
-            (Close::Quiet, _) => {}
+            (Close::Quiet | Close::ClosedByPeer, _) => {}
             (Close::Error(code, text), Dialect::Binary) => encode_error(*code, text, &mut out),
             (Close::Goodbye(text), Dialect::Binary) => encode_goodbye(text, &mut out),
             (Close::Error(code, text), Dialect::JsonLines) => {
@@ -1654,8 +1657,14 @@ impl Connection {
         let close = self
             .websocket_session(&mut sink, &mut source, &mut json)
             .await;
+        if matches!(close, Close::ClosedByPeer) {
+            // Sends the close frame tungstenite queued in reply to the client's (RFC 6455
+            // 5.5.1); a close of our own would be refused after the client's.
+            let _ = tokio::time::timeout(Duration::from_secs(1), sink.flush()).await;
+            return;
+        }
         let message = match close {
-            Close::Quiet => None,
+            Close::Quiet | Close::ClosedByPeer => None,
             Close::Error(code, text) if json => Some(tungstenite::Message::text(
                 protocol::error_to_json(code, &text),
             )),
@@ -1682,6 +1691,31 @@ impl Connection {
         .await;
     }
 
+    /// A WebSocket read error: a message over the size limit is answered with error 4, a
+    /// broken frame (reserved bits or opcodes, a bad close frame, invalid UTF-8 in a text
+    /// message) with error 1, each counted and logged as on the other endpoints; a connection
+    /// that is already gone ends quietly.
+    fn websocket_error(&self, error: tungstenite::Error) -> Close {
+        use tungstenite::error::ProtocolError as WsProtocol;
+        use tungstenite::Error as Ws;
+        let (code, text) = match error {
+            Ws::ConnectionClosed
+            | Ws::AlreadyClosed
+            | Ws::Io(_)
+            | Ws::Protocol(WsProtocol::ResetWithoutClosingHandshake) => return Close::Quiet,
+            Ws::Capacity(e) => (
+                error_code::TOO_LARGE,
+                format!(
+                    "websocket message too large ({e}; the limit is {} bytes)",
+                    protocol::MAX_MESSAGE_LEN
+                ),
+            ),
+            e => (error_code::MALFORMED, format!("websocket: {e}")),
+        };
+        self.count_error(&text);
+        Close::Error(code, text)
+    }
+
     async fn websocket_session<K, S>(&self, sink: &mut K, source: &mut S, json: &mut bool) -> Close
     where
         K: futures_util::Sink<tungstenite::Message, Error = tungstenite::Error> + Unpin,
@@ -1704,9 +1738,9 @@ impl Connection {
                 HandshakeEvent::Shutdown(message) => return Close::Goodbye(message),
             };
             let parsed = match next {
-                None | Some(Err(_)) | Some(Ok(tungstenite::Message::Close(_))) => {
-                    return Close::Quiet
-                }
+                None => return Close::Quiet,
+                Some(Err(e)) => return self.websocket_error(e),
+                Some(Ok(tungstenite::Message::Close(_))) => return Close::ClosedByPeer,
                 Some(Ok(tungstenite::Message::Text(text))) => {
                     *json = true;
                     protocol::parse_json_message(text.as_str())
@@ -1786,9 +1820,9 @@ impl Connection {
                 }
                 Event::Shutdown(message) => return Close::Goodbye(message),
                 Event::Input(next) => match next {
-                    None | Some(Err(_)) | Some(Ok(tungstenite::Message::Close(_))) => {
-                        return Close::Quiet
-                    }
+                    None => return Close::Quiet,
+                    Some(Err(e)) => return self.websocket_error(e),
+                    Some(Ok(tungstenite::Message::Close(_))) => return Close::ClosedByPeer,
                     Some(Ok(tungstenite::Message::Ping(_) | tungstenite::Message::Pong(_))) => {}
                     Some(Ok(_)) => {
                         let text =
