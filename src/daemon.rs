@@ -333,13 +333,20 @@ impl Daemon {
             if let Some(pass) = publisher_pass {
                 streams = streams.with_publisher_pass(pass);
             }
+            // The metrics endpoint is bound first: a port in use fails the start before the
+            // stream server has bound (and would have to remove) its socket file.
+            let metrics_listener = match config.metrics.listen {
+                Some(address) => Some(
+                    tokio::net::TcpListener::bind(address)
+                        .await
+                        .map_err(|source| DaemonError::Metrics { address, source })?,
+                ),
+                None => None,
+            };
             let server =
                 StreamServer::start_streams(&config.stream, streams, Arc::clone(&metrics)).await?;
-            let http = match config.metrics.listen {
-                Some(address) => {
-                    let listener = tokio::net::TcpListener::bind(address)
-                        .await
-                        .map_err(|source| DaemonError::Metrics { address, source })?;
+            let http = match metrics_listener {
+                Some(listener) => {
                     let bound = listener.local_addr().ok();
                     let (stop_tx, stop_rx) = watch::channel(false);
                     let state = Arc::new(HttpState {

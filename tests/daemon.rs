@@ -1279,6 +1279,43 @@ fn a_socket_in_use_is_not_stolen() {
     assert!(!socket.exists());
 }
 
+/// A daemon that cannot start (a TCP or metrics port in use) leaves no socket file behind.
+#[test]
+fn a_failed_start_leaves_no_socket_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let socket = dir.path().join("envlight.sock");
+    for (stream, metrics, what) in [
+        (
+            format!("tcp = \"127.0.0.1:{port}\""),
+            "listen = \"127.0.0.1:0\"".to_owned(),
+            "tcp",
+        ),
+        (
+            "tcp = \"127.0.0.1:0\"".to_owned(),
+            format!("listen = \"127.0.0.1:{port}\""),
+            "metrics",
+        ),
+    ] {
+        let text = format!(
+            "[stream]\nunix_socket = \"{}\"\n{stream}\nwebsocket = \"\"\n[metrics]\n{metrics}\n\
+             [source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n",
+            socket.display()
+        );
+        let config = RawConfig::parse(&text, Path::new("test.toml"))
+            .unwrap()
+            .validate()
+            .unwrap();
+        let error = Daemon::start(config, DaemonOptions::default())
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(error.contains(what) && error.contains("in use"), "{error}");
+        assert!(!socket.exists(), "{what}: the socket file was left behind");
+    }
+}
+
 /// A sky that "unplugs" once: after `fail_after` frames its next call fails like a lost device.
 struct FlakySky {
     sky: SkySource,

@@ -656,11 +656,13 @@ impl StreamServer {
         let mut bound = BoundAddresses::default();
         let mut accept_tasks = Vec::new();
 
-        // Bind everything first, so a failure leaves nothing running.
+        // Bind everything first, so a failure leaves nothing running (and no socket file:
+        // the guard removes the one bound here unless the server starts).
         let unix = match &config.unix_socket {
             Some(path) => Some((bind_unix(path, config.unix_socket_mode)?, path.clone())),
             None => None,
         };
+        let mut socket_file = SocketFileGuard(unix.as_ref().map(|(_, path)| path.clone()));
         let tcp = match config.tcp {
             Some(addr) => Some(bind_tcp("tcp", addr).await?),
             None => None,
@@ -736,6 +738,7 @@ impl StreamServer {
             }
         }
 
+        socket_file.keep();
         if let Some((listener, path)) = unix {
             tracing::info!(path = %path.display(), "serving light lists on a unix socket");
             bound.unix_socket = Some(path.clone());
@@ -821,6 +824,24 @@ impl StreamServer {
             remove_socket_file(path);
         }
         all_closed
+    }
+}
+
+/// Removes the socket file it holds when dropped, unless [`keep`](Self::keep) was called: a
+/// server that fails to start after binding its Unix socket leaves no file behind.
+struct SocketFileGuard(Option<PathBuf>);
+
+impl SocketFileGuard {
+    fn keep(&mut self) {
+        self.0 = None;
+    }
+}
+
+impl Drop for SocketFileGuard {
+    fn drop(&mut self) {
+        if let Some(path) = &self.0 {
+            remove_socket_file(path);
+        }
     }
 }
 
