@@ -151,6 +151,26 @@ fn guarded<T>(
     }
 }
 
+/// VIDIOC_QUERYCAP. A file that does not know the ioctl (ENOTTY: `/dev/null`, a regular file)
+/// is no V4L2 device and never will be: that is a settings error, which the device-loss
+/// wrapper does not retry, where other errors may be a camera that comes back.
+fn query_caps(path: &Path, device: &v4l::Device) -> Result<v4l::Capabilities, CaptureError> {
+    let mut not_v4l2 = false;
+    let caps = guarded(path, "VIDIOC_QUERYCAP", || {
+        device.query_caps().inspect_err(|e| {
+            not_v4l2 = e.raw_os_error() == Some(libc::ENOTTY);
+        })
+    });
+    if not_v4l2 {
+        return Err(CaptureError::InvalidSettings(format!(
+            "{} is not a V4L2 device (it does not answer VIDIOC_QUERYCAP); cameras are \
+             /dev/videoN (`envlight devices` lists them)",
+            path.display()
+        )));
+    }
+    caps
+}
+
 /// The `/dev/video*` nodes, sorted.
 pub fn device_nodes() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir("/dev")
@@ -243,7 +263,7 @@ impl V4l2Source {
         let path = resolve_device(&settings.device)?;
         let p = path.as_path();
         let device = v4l::Device::with_path(p).map_err(|e| io_err(p, e))?;
-        let caps = guarded(p, "VIDIOC_QUERYCAP", || device.query_caps())?;
+        let caps = query_caps(p, &device)?;
         let offered: Vec<[u8; 4]> = guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
             .iter()
             .map(|d| d.fourcc.repr)
@@ -646,7 +666,7 @@ pub struct DeviceInfo {
 /// Queries one device.
 pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
     let device = v4l::Device::with_path(path).map_err(|e| io_err(path, e))?;
-    let caps = guarded(path, "VIDIOC_QUERYCAP", || device.query_caps())?;
+    let caps = query_caps(path, &device)?;
     let mut formats = Vec::new();
     for d in guarded(path, "VIDIOC_ENUM_FMT", || device.enum_formats())? {
         let mut sizes = Vec::new();
@@ -822,5 +842,22 @@ mod tests {
         .map(|e| e.to_string())
         .unwrap_or_default();
         assert!(e.contains("/nonexistent/video9"), "{e}");
+    }
+
+    /// A file that is not a V4L2 device (`/dev/null`, a regular file) is a settings error,
+    /// which the device-loss wrapper does not retry, not an I/O error to wait out.
+    #[test]
+    fn a_file_that_is_no_v4l2_device_is_a_settings_error() {
+        let file = tempfile::NamedTempFile::new().unwrap();
+        for path in [Path::new("/dev/null"), file.path()] {
+            let e = V4l2Source::open(&CameraSettings {
+                device: path.display().to_string(),
+                ..Default::default()
+            })
+            .err()
+            .unwrap();
+            assert!(matches!(e, CaptureError::InvalidSettings(_)), "{e}");
+            assert!(e.to_string().contains("not a V4L2 device"), "{e}");
+        }
     }
 }
