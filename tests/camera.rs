@@ -190,6 +190,64 @@ fn bracket_merge_recovers_the_hdri_radiance_within_2_percent() {
     }
 }
 
+/// A region clipped in every bracket (a window, a lamp) carries no data; the recovery ignores
+/// it instead of failing on a singular system, and finds the same curve. A scene that is
+/// clipped or black everywhere is an error that says so.
+#[test]
+fn response_recovery_ignores_pixels_clipped_in_every_bracket() {
+    let mut noise = Noise(7);
+    let (w, h, mut e) = small_hdri("rooitou_park_1k.hdr", 8);
+    let mut lum: Vec<f64> = e.iter().map(|p| f64::from(p[1])).collect();
+    lum.sort_by(f64::total_cmp);
+    let median = lum[lum.len() / 2];
+    // The top eighth of the rows: far brighter than the longest exposure can hold.
+    let clipped_rows = (h / 8) as usize;
+    for p in &mut e[..clipped_rows * w as usize] {
+        *p = [1e9; 3];
+    }
+    let times: Vec<f64> = (-4..=1).map(|k| 0.3 / median * 4f64.powi(k)).collect();
+    let brackets: Vec<Bracket> = times
+        .iter()
+        .map(|&t| Bracket {
+            image: expose(&e, w, h, t, &curve_encode, &mut noise),
+            exposure_s: t,
+            gain: 1.0,
+        })
+        .collect();
+    let clipped_everywhere = brackets.iter().all(|b| {
+        b.image.pixels[..clipped_rows * w as usize]
+            .iter()
+            .all(|p| p.iter().all(|&v| v >= 1.0))
+    });
+    assert!(
+        clipped_everywhere,
+        "the bright rows are not clipped in every bracket"
+    );
+    let curve = recover_response(&brackets, SolveSettings::default()).unwrap();
+    let mid = 128;
+    let mut worst: f64 = 0.0;
+    for c in 0..3 {
+        for z in 64..=240 {
+            let g = curve.values[c][z].ln() - curve.values[c][mid].ln();
+            let truth = curve_decode(z as f64 / 255.0).ln() - curve_decode(mid as f64 / 255.0).ln();
+            worst = worst.max((g - truth).abs());
+        }
+    }
+    assert!(worst < 0.05, "worst ln difference {worst}");
+
+    // Everything clipped: an error naming the cause.
+    let white: Vec<Bracket> = brackets
+        .iter()
+        .map(|b| {
+            let mut b = b.clone();
+            b.image.pixels.iter_mut().for_each(|p| *p = [1.0; 3]);
+            b
+        })
+        .collect();
+    let e = recover_response(&white, SolveSettings::default()).unwrap_err();
+    assert!(e.to_string().contains("clipped"), "{e}");
+}
+
 /// A made-up camera curve with a shoulder: code v = (1 + k)·y/(y + k) with y = X^0.45.
 const K: f64 = 0.6;
 fn curve_encode(x: f64) -> f64 {

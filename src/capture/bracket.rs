@@ -298,8 +298,26 @@ pub fn recover_response(
     // Debevec & Malik's hat: 0 at both ends, so clipped and black samples carry no data
     let weight = |z: usize| z.min(n - 1 - z) as f64;
     let mut values: [Vec<f64>; 3] = Default::default();
+    let code = |b: &Bracket, p: usize, c: usize| {
+        let v = f64::from(b.image.pixels[p][c]).clamp(0.0, 1.0);
+        (v * top).round() as usize
+    };
     for c in 0..3 {
-        let m = n + picks.len();
+        // A sample clipped or black in every bracket carries no data in this channel (all its
+        // weights are 0) and would leave its unknown log irradiance free: the system singular.
+        let samples: Vec<usize> = picks
+            .iter()
+            .copied()
+            .filter(|&p| brackets.iter().any(|b| weight(code(b, p, c)) > 0.0))
+            .collect();
+        if samples.len() < 2 {
+            return Err(BracketError::Solve(format!(
+                "the {} channel has fewer than 2 sample pixels that are neither black nor \
+                 clipped in some bracket: the brackets need a wider range of exposures",
+                ["red", "green", "blue"][c]
+            )));
+        }
+        let m = n + samples.len();
         let mut ata = vec![0.0f64; m * m];
         let mut atb = vec![0.0f64; m];
         let mut add_row = |entries: &[(usize, f64)], rhs: f64| {
@@ -310,10 +328,9 @@ pub fn recover_response(
                 }
             }
         };
-        for (s, &p) in picks.iter().enumerate() {
+        for (s, &p) in samples.iter().enumerate() {
             for (b, &lt) in brackets.iter().zip(&ln_t) {
-                let v = f64::from(b.image.pixels[p][c]).clamp(0.0, 1.0);
-                let z = (v * top).round() as usize;
+                let z = code(b, p, c);
                 let w = weight(z);
                 add_row(&[(z, w), (n + s, -w)], w * lt);
             }
