@@ -424,6 +424,10 @@ pub struct AsgConfig {
 /// fitter's own default (256×512, the paper's); the daemon trades detail for rate.
 pub const DEFAULT_ASG_FIT_HEIGHT: u32 = 64;
 
+/// Why an orthographic fisheye calibration may not have a field of view above 180°.
+pub const ORTHOGRAPHIC_FOV_LIMIT: &str =
+    "an orthographic lens images at most 180° (r = f·sin θ turns back at θ = 90°); use fov_deg ≤ 180 or another model";
+
 impl Default for AsgConfig {
     fn default() -> Self {
         Self {
@@ -989,6 +993,13 @@ impl RawFisheye {
                 "must be in (0, 360) degrees",
             ));
         }
+        if model == FisheyeModel::Orthographic && fov_deg > 180.0 {
+            return Err(invalid(
+                "source.fisheye.fov_deg",
+                fov_deg,
+                ORTHOGRAPHIC_FOV_LIMIT,
+            ));
+        }
         if let Some(r) = self.radius {
             if !(r.is_finite() && r > 0.0) {
                 return Err(invalid(
@@ -1418,6 +1429,11 @@ mod tests {
             ("[source]\nkind = \"sequence\"", "source.paths", "[]"),
             ("[source]\nfps = 0", "source.fps", "0"),
             ("[source]\nfps = 1e-30", "source.fps", "1e-30"),
+            (
+                "[source.fisheye]\nmodel = \"orthographic\"\nfov_deg = 200",
+                "source.fisheye.fov_deg",
+                "200",
+            ),
             (
                 "[source]\nprojection = \"cube\"",
                 "source.projection",

@@ -16,10 +16,10 @@
 //! | stereographic  | 2f·tan(θ/2)   | 2·atan(ρ/2)         |
 //! | orthographic   | f·sin θ       | asin(ρ)             |
 //!
-//! The orthographic model cannot image beyond θ = 90° (r(θ) turns back). For fov > 180° it is
-//! clamped: it behaves exactly as fov = 180° (f = R, the circle is θ = 90°) and directions below
-//! the horizon give `None`. [`FisheyeCalibration::validate`] accepts it (the clamp is the
-//! documented behaviour).
+//! The orthographic model cannot image beyond θ = 90° (r(θ) turns back). For fov > 180° the
+//! mapping is clamped: it behaves exactly as fov = 180° (f = R, the circle is θ = 90°) and
+//! directions below the horizon give `None`; but [`FisheyeCalibration::validate`] and the config
+//! reject such a calibration, so a user's field of view is never silently changed.
 //!
 //! Azimuth: with `rotation_deg` = 0 the image offset (dx, dy) = (x − cx, y − cy) (dy grows down
 //! the image) looks along the horizontal unit vector h₀ = (dx, 0, dy)/r: image right = +X, image
@@ -524,6 +524,13 @@ impl FisheyeCalibration {
     /// Besides invalid values it rejects an image circle that does not overlap the image.
     pub fn validate(&self, w: u32, h: u32) -> Result<(), String> {
         let map = self.resolve(w, h).map_err(|e| e.to_string())?;
+        if self.model == FisheyeModel::Orthographic && self.fov_deg > 180.0 {
+            return Err(format!(
+                "fov_deg = {}: {}",
+                self.fov_deg,
+                crate::config::ORTHOGRAPHIC_FOV_LIMIT
+            ));
+        }
         // distance from the centre to the image rectangle
         let gap_x = (0.0 - map.cx).max(map.cx - f64::from(w)).max(0.0);
         let gap_y = (0.0 - map.cy).max(map.cy - f64::from(h)).max(0.0);
@@ -1356,7 +1363,8 @@ mod tests {
         let below = DVec3::new(1.0, -0.1, 0.0);
         assert_eq!(wide.direction_to_pixel(64, 48, below), None);
         assert_eq!(wide.solid_angles(64, 48), half.solid_angles(64, 48));
-        assert_eq!(wide.validate(64, 48), Ok(()));
+        // The mapping clamps, but a user's calibration is not silently changed: rejected.
+        assert!(wide.validate(64, 48).is_err());
     }
 
     #[test]
@@ -1482,6 +1490,20 @@ mod tests {
             ..ok
         });
         assert!(m.contains("rotation_deg") && m.contains("NaN"), "{m}");
+        let m = msg(FisheyeCalibration {
+            model: FisheyeModel::Orthographic,
+            fov_deg: 200.0,
+            ..ok
+        });
+        assert!(m.contains("fov_deg") && m.contains("orthographic"), "{m}");
+        assert_eq!(
+            FisheyeCalibration {
+                model: FisheyeModel::Orthographic,
+                ..ok
+            }
+            .validate(64, 48),
+            Ok(())
+        );
         let m = msg(FisheyeCalibration {
             center: Some([200.0, 24.0]),
             radius: Some(10.0),
