@@ -1588,21 +1588,41 @@ fn come_and_go(served: &Served, kind: usize) {
 fn connection_churn_leaves_nothing_behind() {
     let dir = tempfile::tempdir().unwrap();
     let socket = dir.path().join("envlight.sock");
-    let (tcp_port, ws_port, metrics_port) = (free_port(), free_port(), free_port());
     let config_path = dir.path().join("envlight.toml");
-    std::fs::write(
-        &config_path,
-        format!(
-            "[source]\nfps = 60.0\nframes = 0\n[sky]\nwidth = 64\nheight = 32\n\
-             [decompose]\nlights = 64\nworking_width = 32\n\
-             [stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:{tcp_port}\"\n\
-             websocket = \"127.0.0.1:{ws_port}\"\nhandshake_timeout_s = 0.5\n\
-             [metrics]\nlisten = \"127.0.0.1:{metrics_port}\"\n",
-            socket.display()
-        ),
-    )
-    .unwrap();
-    let mut child = RunningDaemon::start(&config_path);
+    // A port found free may be taken before the daemon binds it (other tests open and bind
+    // ports meanwhile): a daemon that exits at once is started again on other ports.
+    let (mut child, tcp_port, ws_port, metrics_port) = (0..5)
+        .find_map(|_| {
+            let (tcp_port, ws_port, metrics_port) = (free_port(), free_port(), free_port());
+            std::fs::write(
+                &config_path,
+                format!(
+                    "[source]\nfps = 60.0\nframes = 0\n[sky]\nwidth = 64\nheight = 32\n\
+                     [decompose]\nlights = 64\nworking_width = 32\n\
+                     [stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:{tcp_port}\"\n\
+                     websocket = \"127.0.0.1:{ws_port}\"\nhandshake_timeout_s = 0.5\n\
+                     [metrics]\nlisten = \"127.0.0.1:{metrics_port}\"\n",
+                    socket.display()
+                ),
+            )
+            .unwrap();
+            let mut child = RunningDaemon::start(&config_path);
+            let metrics: std::net::SocketAddr = ([127, 0, 0, 1], metrics_port).into();
+            let deadline = Instant::now() + TIMEOUT;
+            loop {
+                if child.child.try_wait().unwrap().is_some() {
+                    let (_, log) = child.exit_and_log();
+                    eprintln!("the daemon did not start, trying other ports: {log}");
+                    return None;
+                }
+                if socket.exists() && TcpStream::connect(metrics).is_ok() {
+                    return Some((child, tcp_port, ws_port, metrics_port));
+                }
+                assert!(Instant::now() < deadline, "the daemon did not start");
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        })
+        .expect("the daemon did not start on free ports in 5 tries");
     let pid = child.id();
     let served = Served {
         socket: socket.clone(),

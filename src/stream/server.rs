@@ -1684,6 +1684,7 @@ impl Connection {
             let _ = tokio::time::timeout(Duration::from_secs(1), sink.flush()).await;
             return;
         }
+        let lingering = matches!(close, Close::Error(..));
         let message = match close {
             Close::Quiet | Close::ClosedByPeer => None,
             Close::Error(code, text) if json => Some(tungstenite::Message::text(
@@ -1710,6 +1711,28 @@ impl Connection {
             sink.send(tungstenite::Message::Close(None)).await
         })
         .await;
+        if lingering {
+            // A lingering close: a client closed for its input (a message over the limit, a
+            // broken frame) may still be sending. Closing with its bytes unread would reset
+            // the connection and could discard the error message before the client reads it;
+            // so the write side is shut and the input read and dropped, for at most 1 s or
+            // 4 MiB.
+            if let Ok(mut ws) = sink.reunite(source) {
+                let socket = &mut ws.get_mut().inner;
+                let _ = tokio::time::timeout(Duration::from_secs(1), async {
+                    let _ = socket.shutdown().await;
+                    let mut buf = vec![0u8; 16384];
+                    let mut left: usize = 4 << 20;
+                    while left > 0 {
+                        match socket.read(&mut buf).await {
+                            Ok(0) | Err(_) => break,
+                            Ok(n) => left = left.saturating_sub(n),
+                        }
+                    }
+                })
+                .await;
+            }
+        }
     }
 
     /// A WebSocket read error: a message over the size limit is answered with error 4, a
