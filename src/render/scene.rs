@@ -31,7 +31,13 @@ pub enum SceneError {
     Empty { path: PathBuf },
     #[error("scene {path}: unknown format (expected .gltf, .glb or .obj)")]
     UnknownFormat { path: PathBuf },
+    #[error("scene {path}: its vertices span a sphere of radius {radius}, more than the {MAX_SCENE_RADIUS:e} that can be drawn (f32 depth and shadow maps); scale the model down")]
+    TooLarge { path: PathBuf, radius: f32 },
 }
+
+/// The largest bounding-sphere radius of a loaded scene (in its own units): beyond it the
+/// camera distance and the shadow cameras' depth ranges lose all precision in f32.
+pub const MAX_SCENE_RADIUS: f32 = 1e15;
 
 /// One vertex as the GPU reads it (world space).
 #[repr(C)]
@@ -325,17 +331,45 @@ fn bounding_sphere(vertices: &[Vertex]) -> Sphere {
     Sphere { center, radius }
 }
 
-/// Smooth vertex normals (area-weighted face normals), for meshes that have none.
+/// Smooth vertex normals (area-weighted face normals, unit length), for meshes that have
+/// none. The sums are in f64, so large but finite coordinates do not overflow.
 fn smooth_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
-    let mut n = vec![Vec3::ZERO; positions.len()];
+    let mut n = vec![glam::DVec3::ZERO; positions.len()];
     for t in indices.chunks_exact(3) {
         let [a, b, c] = [t[0] as usize, t[1] as usize, t[2] as usize];
-        let f = (positions[b] - positions[a]).cross(positions[c] - positions[a]);
+        let [pa, pb, pc] = [positions[a], positions[b], positions[c]].map(|p| p.as_dvec3());
+        let f = (pb - pa).cross(pc - pa);
         n[a] += f;
         n[b] += f;
         n[c] += f;
     }
-    n
+    n.into_iter()
+        .map(|v| v.normalize_or_zero().as_vec3())
+        .collect()
+}
+
+/// The matrix that carries normals through `world`: the cofactor matrix of its linear part,
+/// which is det · (M⁻¹)ᵀ, with the sign of the determinant taken out. Unlike the inverse
+/// transpose it exists for a singular transform (a node scaled by 0 flattens its mesh; the
+/// normals of the flat mesh are still defined).
+///
+/// Computed in f64 and scaled so that its largest entry is 1 (the normals are normalised
+/// later), so that large scales do not overflow f32.
+fn normal_matrix(world: Mat4) -> Mat3 {
+    let m = Mat3::from_mat4(world).as_dmat3();
+    let (a, b, c) = (m.x_axis, m.y_axis, m.z_axis);
+    let cofactor = glam::DMat3::from_cols(b.cross(c), c.cross(a), a.cross(b));
+    let largest = cofactor
+        .to_cols_array()
+        .iter()
+        .fold(0.0f64, |l, v| l.max(v.abs()));
+    let scale = if largest > 0.0 && largest.is_finite() {
+        largest.recip()
+    } else {
+        1.0
+    };
+    let sign = if m.determinant() < 0.0 { -1.0 } else { 1.0 };
+    (cofactor * (sign * scale)).as_mat3()
 }
 
 impl Scene {
@@ -423,6 +457,12 @@ impl Scene {
             });
         }
         let bounds = bounding_sphere(&b.vertices);
+        if !(bounds.radius.is_finite() && bounds.radius <= MAX_SCENE_RADIUS) {
+            return Err(SceneError::TooLarge {
+                path: path.to_path_buf(),
+                radius: bounds.radius,
+            });
+        }
         let low = b
             .vertices
             .iter()
@@ -480,18 +520,34 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
         return Err(err("no scene".into()));
     };
     let mut stack: Vec<(gltf::Node, Mat4)> = scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
-    let mut visited = 0usize;
+    // glTF's node hierarchy is a forest: a node reached twice sits in a cycle or has several
+    // parents (flattening such a graph could multiply the meshes without bound).
+    let mut reached = vec![false; gltf.document.nodes().len()];
     while let Some((node, parent)) = stack.pop() {
-        visited += 1;
-        if visited > 1_000_000 {
-            return Err(err("node hierarchy too deep or cyclic".into()));
+        match reached.get_mut(node.index()) {
+            Some(seen) if !*seen => *seen = true,
+            _ => {
+                return Err(err(format!(
+                    "node {} is reached twice: the node hierarchy has a cycle or a node with \
+                     several parents (glTF requires disjoint trees)",
+                    node.index()
+                )))
+            }
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
             stack.push((child, world));
         }
         let Some(mesh) = node.mesh() else { continue };
-        let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
+        let normal_matrix = normal_matrix(world);
+        let mesh_name = |prim: &gltf::Primitive| {
+            format!(
+                "mesh {} ({:?}) primitive {}",
+                mesh.index(),
+                mesh.name().unwrap_or(""),
+                prim.index()
+            )
+        };
         for prim in mesh.primitives() {
             if prim.mode() != gltf::mesh::Mode::Triangles {
                 tracing::warn!(
@@ -503,14 +559,32 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
             }
             let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
             let Some(positions) = reader.read_positions() else {
-                continue;
+                if prim.get(&gltf::Semantic::Positions).is_none() {
+                    // The spec's advice for a primitive without positions: skip it.
+                    tracing::warn!(
+                        "{}: skipping {}: it has no POSITION attribute",
+                        path.display(),
+                        mesh_name(&prim)
+                    );
+                    continue;
+                }
+                return Err(err(format!(
+                    "{}: its POSITION accessor cannot be read (out of range of its buffer?)",
+                    mesh_name(&prim)
+                )));
             };
             let positions: Vec<Vec3> = positions
                 .map(|p| world.transform_point3(Vec3::from_array(p)))
                 .collect();
-            let indices: Vec<u32> = match reader.read_indices() {
-                Some(i) => i.into_u32().collect(),
-                None => (0..positions.len() as u32).collect(),
+            let indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
+                (Some(i), _) => i.into_u32().collect(),
+                (None, None) => (0..positions.len() as u32).collect(),
+                (None, Some(_)) => {
+                    return Err(err(format!(
+                        "{}: its indices accessor cannot be read (out of range of its buffer?)",
+                        mesh_name(&prim)
+                    )))
+                }
             };
             if !indices.len().is_multiple_of(3)
                 || indices.iter().any(|&i| i as usize >= positions.len())
@@ -524,6 +598,12 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                 Some(n) => n
                     .map(|n| normal_matrix * Vec3::from_array(n))
                     .collect::<Vec<_>>(),
+                None if prim.get(&gltf::Semantic::Normals).is_some() => {
+                    return Err(err(format!(
+                        "{}: its NORMAL accessor cannot be read (out of range of its buffer?)",
+                        mesh_name(&prim)
+                    )))
+                }
                 None => smooth_normals(&positions, &indices),
             };
             if normals.len() != positions.len() {
@@ -537,6 +617,13 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                 None => {
                     let pbr = mat.pbr_metallic_roughness();
                     let c = pbr.base_color_factor();
+                    if !c.iter().all(|v| (0.0..=1.0).contains(v)) {
+                        return Err(err(format!(
+                            "material {} ({:?}): baseColorFactor {c:?} must lie in [0, 1]",
+                            mat.index().map_or("default".to_string(), |i| i.to_string()),
+                            mat.name().unwrap_or("")
+                        )));
+                    }
                     let id = b.material(Material {
                         base_color: [c[0], c[1], c[2]],
                         roughness: pbr.roughness_factor().clamp(0.0, 1.0),
@@ -564,11 +651,26 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
             source,
         });
     }
+    // Lines and points are not drawn: tobj would turn them into zero-area triangles, so they
+    // are left out, and said so.
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
-        ..Default::default()
+        ignore_lines: true,
+        ignore_points: true,
     };
+    if let Ok(text) = std::fs::read(path) {
+        let elements = text
+            .split(|&c| c == b'\n')
+            .filter(|l| l.starts_with(b"l ") || l.starts_with(b"p "))
+            .count();
+        if elements > 0 {
+            tracing::warn!(
+                "{}: skipping {elements} line and point elements (only faces are drawn)",
+                path.display()
+            );
+        }
+    }
     let (models, materials) = tobj::load_obj(path, &options).map_err(|e| err(e.to_string()))?;
     let materials = materials.unwrap_or_else(|e| {
         tracing::warn!("{}: materials not loaded ({e}); using grey", path.display());
@@ -605,6 +707,12 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                 None => {
                     let mat = &materials[i];
                     let d = mat.diffuse.unwrap_or([0.8, 0.8, 0.8]);
+                    if !d.iter().all(|v| (0.0..=1.0).contains(v)) {
+                        return Err(err(format!(
+                            "material {:?}: Kd {d:?} must lie in [0, 1]",
+                            mat.name
+                        )));
+                    }
                     // Blinn-Phong exponent → roughness (α² ≈ 2 / (Ns + 2)).
                     let roughness = mat
                         .shininess
@@ -761,6 +869,141 @@ mod tests {
         assert_eq!(s.materials[0].roughness, 0.25);
         assert_eq!(s.materials[0].metallic, 1.0);
         assert!(s.ground_material.is_none());
+    }
+
+    /// A one-triangle glTF (optionally with NORMALs and indices in the buffer), with the
+    /// given nodes, accessor counts and material; written to `dir/name`.
+    fn write_gltf(dir: &Path, name: &str, nodes: &str, counts: [u32; 3], color: &str) -> PathBuf {
+        let positions: [f32; 9] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let normals: [f32; 9] = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0];
+        let mut bytes: Vec<u8> = positions
+            .iter()
+            .chain(&normals)
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
+        bytes.extend([0u16, 1, 2].iter().flat_map(|i| i.to_le_bytes()));
+        let b64 = base64_encode(&bytes);
+        let [p, n, i] = counts;
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+            "nodes":{nodes},
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"NORMAL":1}},"indices":2,"material":0}}]}}],
+            "materials":[{{"pbrMetallicRoughness":{{"baseColorFactor":{color}}}}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":{p},"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":{n},"type":"VEC3"}},
+                         {{"bufferView":2,"componentType":5123,"count":{i},"type":"SCALAR"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":36}},
+                           {{"buffer":0,"byteOffset":72,"byteLength":6}}],
+            "buffers":[{{"byteLength":78,"uri":"data:application/octet-stream;base64,{b64}"}}]}}"#
+        );
+        let path = dir.join(name);
+        std::fs::write(&path, json).unwrap();
+        path
+    }
+
+    /// Hostile scene files are errors naming the file and the problem — nothing of what the
+    /// file holds is dropped, replaced or clamped silently — and a valid but unusual one (a
+    /// node scaled by 0) loads.
+    #[test]
+    fn hostile_scene_files_are_errors_naming_the_problem() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let one = r#"[{"mesh":0}]"#;
+        let ok = "[0.5,0.5,0.5,1]";
+        assert!(Scene::load(&write_gltf(d, "ok.gltf", one, [3, 3, 3], ok), false).is_ok());
+        for (path, needle) in [
+            (
+                write_gltf(
+                    d,
+                    "cycle.gltf",
+                    r#"[{"mesh":0,"children":[0]}]"#,
+                    [3, 3, 3],
+                    ok,
+                ),
+                "reached twice",
+            ),
+            (
+                write_gltf(
+                    d,
+                    "shared.gltf",
+                    r#"[{"children":[1,2]},{"children":[3]},{"children":[3]},{"mesh":0}]"#,
+                    [3, 3, 3],
+                    ok,
+                ),
+                "reached twice",
+            ),
+            (
+                write_gltf(d, "pos.gltf", one, [1000, 3, 3], ok),
+                "POSITION accessor",
+            ),
+            (
+                write_gltf(d, "nor.gltf", one, [3, 500, 3], ok),
+                "NORMAL accessor",
+            ),
+            (
+                write_gltf(d, "idx.gltf", one, [3, 3, 3_000_000], ok),
+                "indices accessor",
+            ),
+            (
+                write_gltf(d, "neg.gltf", one, [3, 3, 3], "[-1,0,0,1]"),
+                "baseColorFactor",
+            ),
+            (
+                write_gltf(d, "big.gltf", one, [3, 3, 3], "[1e38,0,0,1]"),
+                "baseColorFactor",
+            ),
+            (
+                write_gltf(
+                    d,
+                    "far.gltf",
+                    r#"[{"mesh":0,"scale":[1e30,1e30,1]}]"#,
+                    [3, 3, 3],
+                    ok,
+                ),
+                "radius",
+            ),
+        ] {
+            let e = Scene::load(&path, false).err().map(|e| e.to_string());
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            let e = e.unwrap_or_else(|| panic!("{name} loaded"));
+            assert!(e.contains(&name) && e.contains(needle), "{e}");
+        }
+        // A node scaled by 0 in y flattens the triangle; its normals stay defined.
+        let flat = write_gltf(
+            d,
+            "flat.gltf",
+            r#"[{"mesh":0,"scale":[1,0,1]}]"#,
+            [3, 3, 3],
+            ok,
+        );
+        let s = Scene::load(&flat, false).unwrap();
+        assert!(s
+            .vertices
+            .iter()
+            .all(|v| v.normal.iter().all(|c| c.is_finite())));
+
+        // OBJ: a bad Kd names the material; lines and points are not drawn as triangles.
+        std::fs::write(d.join("bad.mtl"), "newmtl red\nKd nan 5 -1\n").unwrap();
+        let obj = d.join("kd.obj");
+        std::fs::write(
+            &obj,
+            "mtllib bad.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl red\nf 1 2 3\n",
+        )
+        .unwrap();
+        let e = Scene::load(&obj, false).unwrap_err().to_string();
+        assert!(e.contains("kd.obj") && e.contains("Kd"), "{e}");
+        let lines = d.join("lines.obj");
+        std::fs::write(&lines, "v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2\np 3\nf 1 2\n").unwrap();
+        let e = Scene::load(&lines, false).unwrap_err().to_string();
+        assert!(e.contains("no triangles"), "{e}");
+        let mixed = d.join("mixed.obj");
+        std::fs::write(&mixed, "v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2\nf 1 2 3\n").unwrap();
+        assert_eq!(Scene::load(&mixed, false).unwrap().caster_indices, 3);
+        // Large but finite coordinates: the computed normals do not overflow.
+        let large = d.join("large.obj");
+        std::fs::write(&large, "v 0 0 0\nv 1e14 0 0\nv 0 1e14 0\nf 1 2 3\n").unwrap();
+        let s = Scene::load(&large, false).unwrap();
+        assert!(s.vertices[0].normal[2] > 0.99, "{:?}", s.vertices[0].normal);
     }
 
     fn base64_encode(data: &[u8]) -> String {
