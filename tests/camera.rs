@@ -190,30 +190,39 @@ fn bracket_merge_recovers_the_hdri_radiance_within_2_percent() {
     }
 }
 
+/// The median green radiance of a map.
+fn median_green(e: &[[f32; 3]]) -> f64 {
+    let mut lum: Vec<f64> = e.iter().map(|p| f64::from(p[1])).collect();
+    lum.sort_by(f64::total_cmp);
+    lum[lum.len() / 2]
+}
+
+/// Six exposures of the map through the made-up curve, two stops apart, from the median pixel
+/// near black to it near clipping, so that the samples cover every part of the code range.
+fn six_brackets(e: &[[f32; 3]], w: u32, h: u32, median: f64, noise: &mut Noise) -> Vec<Bracket> {
+    (-4..=1)
+        .map(|k| 0.3 / median * 4f64.powi(k))
+        .map(|t| Bracket {
+            image: expose(e, w, h, t, &curve_encode, noise),
+            exposure_s: t,
+            gain: 1.0,
+        })
+        .collect()
+}
+
 /// A region clipped in every bracket (a window, a lamp) carries no data; the recovery ignores
 /// it instead of failing on a singular system, and finds the same curve. A scene that is
 /// clipped or black everywhere is an error that says so.
 #[test]
 fn response_recovery_ignores_pixels_clipped_in_every_bracket() {
-    let mut noise = Noise(7);
     let (w, h, mut e) = small_hdri("rooitou_park_1k.hdr", 8);
-    let mut lum: Vec<f64> = e.iter().map(|p| f64::from(p[1])).collect();
-    lum.sort_by(f64::total_cmp);
-    let median = lum[lum.len() / 2];
+    let median = median_green(&e);
     // The top eighth of the rows: far brighter than the longest exposure can hold.
     let clipped_rows = (h / 8) as usize;
     for p in &mut e[..clipped_rows * w as usize] {
         *p = [1e9; 3];
     }
-    let times: Vec<f64> = (-4..=1).map(|k| 0.3 / median * 4f64.powi(k)).collect();
-    let brackets: Vec<Bracket> = times
-        .iter()
-        .map(|&t| Bracket {
-            image: expose(&e, w, h, t, &curve_encode, &mut noise),
-            exposure_s: t,
-            gain: 1.0,
-        })
-        .collect();
+    let brackets = six_brackets(&e, w, h, median, &mut Noise(7));
     let clipped_everywhere = brackets.iter().all(|b| {
         b.image.pixels[..clipped_rows * w as usize]
             .iter()
@@ -263,20 +272,7 @@ fn curve_decode(v: f64) -> f64 {
 fn response_recovery_finds_a_known_curve() {
     let mut noise = Noise(42);
     let (w, h, e) = small_hdri("rooitou_park_1k.hdr", 8);
-    let mut lum: Vec<f64> = e.iter().map(|p| f64::from(p[1])).collect();
-    lum.sort_by(f64::total_cmp);
-    let median = lum[lum.len() / 2];
-    // six exposures two stops apart, from the median pixel near black to it near clipping,
-    // so that the samples cover every part of the code range
-    let times: Vec<f64> = (-4..=1).map(|k| 0.3 / median * 4f64.powi(k)).collect();
-    let brackets: Vec<Bracket> = times
-        .iter()
-        .map(|&t| Bracket {
-            image: expose(&e, w, h, t, &curve_encode, &mut noise),
-            exposure_s: t,
-            gain: 1.0,
-        })
-        .collect();
+    let brackets = six_brackets(&e, w, h, median_green(&e), &mut noise);
     let curve = recover_response(&brackets, SolveSettings::default()).unwrap();
     let mid = 128;
     // Codes whose exposure is below 10× the read noise (SNR < 10) carry no information about
