@@ -173,6 +173,11 @@ pub struct RecoverArgs {
     out: Option<PathBuf>,
 }
 
+/// `wavelet relight --exponent` when not given (with --brdf phong).
+const DEFAULT_PHONG_EXPONENT: f32 = 32.0;
+/// `wavelet relight --alpha` when not given (with --brdf ggx).
+const DEFAULT_GGX_ALPHA: f32 = 0.3;
+
 /// The most views of the observed sphere `recover` accepts: each adds every sphere vertex's
 /// transport row (SIZE² values): 52 MB per view at SIZE 64 (measured, peak resident memory
 /// 130 MB with one view, 233 MB with three), so 32 views take about 1.8 GB.
@@ -251,10 +256,10 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
     let brdf = match args.brdf {
         BrdfArg::Lambert => Brdf::Lambert,
         BrdfArg::Phong => Brdf::Phong {
-            exponent: args.exponent.unwrap_or(32.0),
+            exponent: args.exponent.unwrap_or(DEFAULT_PHONG_EXPONENT),
         },
         BrdfArg::Ggx => Brdf::Ggx {
-            alpha: args.alpha.unwrap_or(0.3),
+            alpha: args.alpha.unwrap_or(DEFAULT_GGX_ALPHA),
         },
     };
     let view = View::Eye(args.eye.unwrap_or(scene.camera.eye));

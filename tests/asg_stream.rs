@@ -133,8 +133,7 @@ fn asg_clients_receive_what_the_fitter_computes() {
 #[test]
 fn asg_subscribe_without_the_stage_is_unsupported() {
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     assert!(daemon.asg().is_none());
     let tcp = daemon.addresses().stream.tcp.unwrap();

@@ -517,8 +517,7 @@ fn a_steady_slow_reader_of_large_frames_is_not_cut_off() {
 fn websocket_errors_are_answered_and_close_frames_echoed() {
     use tokio_tungstenite::tungstenite::{self, Message as WsMessage};
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let ws = daemon.addresses().stream.websocket.unwrap();
     let url = format!("ws://{ws}/");
@@ -690,8 +689,7 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
 #[test]
 fn json_lines_clients_on_tcp_get_json_errors() {
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     let mut stream = TcpStream::connect(tcp).unwrap();
@@ -727,8 +725,7 @@ fn json_lines_clients_on_tcp_get_json_errors() {
 #[test]
 fn metrics_and_health_over_http() {
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let http = daemon.addresses().metrics.unwrap();
     let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
@@ -764,8 +761,7 @@ fn metrics_and_health_over_http() {
 fn idle_http_connections_are_bounded_and_cut_off() {
     use envlight::daemon::{HTTP_HEADER_TIMEOUT, MAX_HTTP_CONNECTIONS};
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let http = daemon.addresses().metrics.unwrap();
     let started = Instant::now();
@@ -1263,8 +1259,7 @@ fn check_config_names_the_bad_key_and_value() {
 #[test]
 fn a_socket_in_use_is_not_stolen() {
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let first = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let second = Daemon::start(config(dir.path(), extra), DaemonOptions::default());
     let error = second.err().unwrap().to_string();
@@ -1433,8 +1428,7 @@ fn the_python_example_client_reads_the_stream() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let extra = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
     let socket = daemon.addresses().stream.unix_socket.clone().unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();

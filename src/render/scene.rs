@@ -645,12 +645,11 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
         path: path.to_path_buf(),
         message,
     };
-    if let Err(source) = std::fs::metadata(path) {
-        return Err(SceneError::Io {
-            path: path.to_path_buf(),
-            source,
-        });
-    }
+    // Read once: the text is scanned for lines and points here and parsed by tobj from memory.
+    let text = std::fs::read(path).map_err(|source| SceneError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
     // Lines and points are not drawn: tobj would turn them into zero-area triangles, so they
     // are left out, and said so.
     let options = tobj::LoadOptions {
@@ -659,19 +658,22 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
         ignore_lines: true,
         ignore_points: true,
     };
-    if let Ok(text) = std::fs::read(path) {
-        let elements = text
-            .split(|&c| c == b'\n')
-            .filter(|l| l.starts_with(b"l ") || l.starts_with(b"p "))
-            .count();
-        if elements > 0 {
-            tracing::warn!(
-                "{}: skipping {elements} line and point elements (only faces are drawn)",
-                path.display()
-            );
-        }
+    let elements = text
+        .split(|&c| c == b'\n')
+        .filter(|l| l.starts_with(b"l ") || l.starts_with(b"p "))
+        .count();
+    if elements > 0 {
+        tracing::warn!(
+            "{}: skipping {elements} line and point elements (only faces are drawn)",
+            path.display()
+        );
     }
-    let (models, materials) = tobj::load_obj(path, &options).map_err(|e| err(e.to_string()))?;
+    // Material libraries are found next to the OBJ file, as `tobj::load_obj` does.
+    let base = path.parent().unwrap_or(Path::new("."));
+    let (models, materials) = tobj::load_obj_buf(&mut &text[..], &options, |mtl| {
+        tobj::load_mtl(base.join(mtl))
+    })
+    .map_err(|e| err(e.to_string()))?;
     let materials = materials.unwrap_or_else(|e| {
         tracing::warn!("{}: materials not loaded ({e}); using grey", path.display());
         Vec::new()

@@ -12,6 +12,11 @@ use std::net::TcpStream;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// A cheap live source for the daemon tests: the built-in sky at 32×16, endless at 30
+/// frames/s, decomposed into 8 lights.
+pub const SMALL_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                             [decompose]\nlights = 8\nworking_width = 16\n";
+
 /// How long a test waits for anything (a frame, a thread, an HTTP answer) before failing.
 pub const TIMEOUT: Duration = Duration::from_secs(30);
 
