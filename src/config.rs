@@ -1001,11 +1001,11 @@ impl RawFisheye {
             ));
         }
         if let Some(r) = self.radius {
-            if !(r.is_finite() && r > 0.0) {
+            if !(r > 0.0 && r <= crate::envmap::MAX_RADIUS_PX) {
                 return Err(invalid(
                     "source.fisheye.radius",
                     r,
-                    "must be a positive number of pixels",
+                    "must be a number of pixels in (0, 1e6]",
                 ));
             }
         }

@@ -2,6 +2,11 @@
 
 use crate::envmap::Projection;
 
+/// The largest radiance a frame keeps ([`HdrFrame::sanitize`] clamps larger finite values to
+/// it): some twenty orders of magnitude above the sun's, and small enough that the whole
+/// sphere's integral, 4π × 10³⁰, is far inside f32's range, so no light's power overflows.
+pub const MAX_RADIANCE: f32 = 1e30;
+
 /// Rec. 709 / sRGB-primaries luminance weights.
 pub const LUMINANCE_WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
@@ -137,15 +142,22 @@ impl HdrFrame {
         Some(frame)
     }
 
-    /// Replaces NaN, ±Inf and negative channel values by 0 and returns how many pixels had one.
-    /// Radiance is non-negative and finite; callers report the count (one warning per frame).
+    /// Replaces NaN, ±Inf and negative channel values by 0, clamps finite values above
+    /// [`MAX_RADIANCE`] to it, and returns how many pixels had one of these. Radiance is
+    /// non-negative and finite, and the clamp keeps every sum of a frame's radiance over solid
+    /// angle (a light's power, the map's integral: at most 4π × [`MAX_RADIANCE`]) finite in
+    /// f32; callers report the count (one warning per frame).
     pub fn sanitize(&mut self) -> usize {
         let mut bad = 0;
         for p in &mut self.pixels {
             let mut pixel_bad = false;
             for c in p.iter_mut() {
-                if !c.is_finite() || *c < 0.0 {
-                    *c = 0.0;
+                if !(*c >= 0.0 && *c <= MAX_RADIANCE) {
+                    *c = if c.is_finite() && *c > 0.0 {
+                        MAX_RADIANCE
+                    } else {
+                        0.0
+                    };
                     pixel_bad = true;
                 }
             }
@@ -234,6 +246,17 @@ mod tests {
         assert_eq!(frame.pixels[1], [0.0, 1.0, 1.0]);
         assert_eq!(frame.pixels[2], [0.0, 0.0, 0.0]);
         assert_eq!(frame.pixels[3], [0.5; 3]);
+    }
+
+    #[test]
+    fn sanitize_clamps_huge_finite_values() {
+        let pixels = vec![[1e35, 1.0, f32::MAX], [MAX_RADIANCE; 3]];
+        let mut frame = HdrFrame::new(2, 1, pixels, Projection::LatLong).unwrap();
+        assert_eq!(frame.sanitize(), 1);
+        assert_eq!(frame.pixels[0], [MAX_RADIANCE, 1.0, MAX_RADIANCE]);
+        assert_eq!(frame.pixels[1], [MAX_RADIANCE; 3]);
+        // The whole sphere at the clamp stays far inside f32.
+        assert!((4.0 * std::f64::consts::PI * f64::from(MAX_RADIANCE)) < f64::from(f32::MAX));
     }
 
     #[test]

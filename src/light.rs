@@ -33,6 +33,18 @@ pub struct Light {
     pub solid_angle: f32,
 }
 
+/// `v` as f32, saturating at `f32::MAX` instead of overflowing to ∞: a light's power summed in
+/// f64 beyond f32's range stays finite (the wire and JSON forms carry finite floats only). NaN
+/// stays NaN, so a bug that makes one is not hidden.
+pub fn saturating_f32(v: f64) -> f32 {
+    let x = v as f32;
+    if x == f32::INFINITY {
+        f32::MAX
+    } else {
+        x
+    }
+}
+
 impl Light {
     /// Rec. 709 luminance of the light's power.
     pub fn luminance(&self) -> f32 {

@@ -340,6 +340,153 @@ fn truncated_files_are_format_errors_naming_the_file() {
     }
 }
 
+/// The byte position of a single-part file's offset table: the one place whose first entry
+/// points just past a table of `chunks` entries.
+fn offset_table_at(bytes: &[u8], chunks: usize) -> usize {
+    let entry = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+    let found: Vec<usize> = (0..bytes.len() - 8 * chunks)
+        .filter(|&at| entry(at) == (at + 8 * chunks) as u64)
+        .collect();
+    assert_eq!(found.len(), 1, "offset table of {chunks} chunks: {found:?}");
+    found[0]
+}
+
+fn scanline_exr(w: usize, h: usize, compression: Compression) -> Vec<u8> {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("f.exr");
+    let encoding = Encoding {
+        compression,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
+    let n = w * h;
+    let smooth: Vec<f32> = (0..n)
+        .map(|i| 1.0 + ((i % w) as f32 * 0.05).sin())
+        .collect();
+    write_exr(
+        &path,
+        w,
+        h,
+        encoding,
+        vec![(
+            None,
+            vec![
+                channel("R", half(&smooth)),
+                channel("G", half(&smooth)),
+                channel("B", half(&smooth)),
+            ],
+        )],
+    );
+    std::fs::read(path).unwrap()
+}
+
+/// A DWA block opens with counters the decoder allocates by: one that declares far more
+/// coefficients than the block has pixels is an error, not a terabyte allocation that aborts
+/// the process (a 506-byte damaged file once asked for 1.7 TB).
+#[test]
+fn dwa_block_counters_beyond_the_block_are_errors() {
+    let (w, h) = (64, 32);
+    for compression in [Compression::DWAA(None), Compression::DWAB(None)] {
+        let bytes = scanline_exr(w, h, compression);
+        let name = Path::new("dwa.exr");
+        assert!(decode_hdr_image(&bytes, ImageFormat::OpenExr, name).is_ok());
+        let chunks = h.div_ceil(compression.scan_lines_per_block());
+        let table = offset_table_at(&bytes, chunks);
+        let chunk = u64::from_le_bytes(bytes[table..table + 8].try_into().unwrap()) as usize;
+        // The chunk: y (i32), data size (i32), then the data; its counters are u64s, the DC
+        // count the tenth, the AC count the ninth.
+        let size = i32::from_le_bytes(bytes[chunk + 4..chunk + 8].try_into().unwrap());
+        assert!((size as usize) < w * h * 6, "{compression:?} stored raw");
+        for (counter, what) in [(9, "DC coefficient count"), (8, "AC coefficient count")] {
+            let mut damaged = bytes.clone();
+            let at = chunk + 8 + 8 * counter;
+            damaged[at..at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
+            let err = decode_hdr_image(&damaged, ImageFormat::OpenExr, name).unwrap_err();
+            assert!(
+                err.to_string().contains(what) && err.to_string().contains("dwa.exr"),
+                "{compression:?}: {err}"
+            );
+        }
+    }
+}
+
+/// A block that names the wrong rows (here the last block claims row 0, which already has
+/// one) leaves rows no block stores: an error, not a black band.
+#[test]
+fn rows_no_block_stores_are_errors() {
+    let (w, h) = (16, 8);
+    let bytes = scanline_exr(w, h, Compression::Uncompressed);
+    let table = offset_table_at(&bytes, h);
+    let last = u64::from_le_bytes(
+        bytes[table + 8 * (h - 1)..table + 8 * h]
+            .try_into()
+            .unwrap(),
+    );
+    let mut damaged = bytes.clone();
+    let at = last as usize;
+    assert_eq!(
+        i32::from_le_bytes(damaged[at..at + 4].try_into().unwrap()),
+        h as i32 - 1
+    );
+    damaged[at..at + 4].copy_from_slice(&0i32.to_le_bytes());
+    let err = decode_hdr_image(&damaged, ImageFormat::OpenExr, Path::new("rows.exr")).unwrap_err();
+    let text = err.to_string();
+    assert!(
+        text.contains("16 of the 128 pixels are in no block"),
+        "{text}"
+    );
+    assert!(text.contains("rows.exr"), "{text}");
+}
+
+/// A file too short for the offset tables its header declares fails before the tables are
+/// read (a 405-byte file declaring 1x1 tiles over 16384x8192 made 800 MB of tables).
+#[test]
+fn offset_tables_longer_than_the_file_are_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tiles.exr");
+    let (w, h) = (64, 64);
+    let encoding = Encoding {
+        compression: Compression::Uncompressed,
+        blocks: Blocks::Tiles(Vec2(1, 1)),
+        line_order: LineOrder::Increasing,
+    };
+    let grey = FlatSamples::F32(vec![0.5; w * h]);
+    write_exr(
+        &path,
+        w,
+        h,
+        encoding,
+        vec![(None, vec![channel("Y", grey)])],
+    );
+    let bytes = std::fs::read(&path).unwrap();
+    let table = offset_table_at(&bytes, w * h);
+    let cut = &bytes[..table + 100];
+    let err = decode_hdr_image(cut, ImageFormat::OpenExr, Path::new("tiles.exr")).unwrap_err();
+    let text = err.to_string();
+    assert!(
+        text.contains("declare 4096 blocks") && text.contains("offset tables"),
+        "{text}"
+    );
+}
+
+/// Radiance headers: rows the file is too short to hold fail before the image is allocated;
+/// an EXPOSURE that is not a positive number is an error, not silently 1.
+#[test]
+fn radiance_headers_that_cannot_be_right_are_errors() {
+    let name = Path::new("bad.hdr");
+    let header = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8192 +X 16384\n".to_vec();
+    let err = decode_hdr_image(&header, ImageFormat::RadianceHdr, name).unwrap_err();
+    assert!(err.to_string().contains("file is truncated"), "{err}");
+    for exposure in ["0", "-2", "nan"] {
+        let mut file =
+            format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nEXPOSURE={exposure}\n\n-Y 2 +X 1\n")
+                .into_bytes();
+        file.extend_from_slice(&[128, 64, 32, 129, 128, 64, 32, 129]);
+        let err = decode_hdr_image(&file, ImageFormat::RadianceHdr, name).unwrap_err();
+        assert!(err.to_string().contains("EXPOSURE"), "{exposure}: {err}");
+    }
+}
+
 #[test]
 fn garbage_bytes_are_errors() {
     let dir = tempfile::tempdir().unwrap();
@@ -470,6 +617,23 @@ fn glob_files_and_duplicates() {
     let hdr_glob = s(&dir.path().join("*.hdr"));
     let source = SequenceSource::new(&[hdr_glob], SequenceOptions::default()).unwrap();
     assert_eq!(file_names(&source), ["b_9.hdr"]);
+}
+
+/// A frame file in a directory that cannot be read as a file (a broken link) is an error
+/// naming it, not a frame silently left out; two names of one file are one frame.
+#[test]
+fn broken_links_are_errors_and_links_to_a_frame_are_one_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    write_frame(&dir.path().join("f_1.exr"), 2, 2, 1.0);
+    std::os::unix::fs::symlink("f_1.exr", dir.path().join("f_2.exr")).unwrap();
+    let inputs = [s(dir.path())];
+    let source = SequenceSource::new(&inputs, SequenceOptions::default()).unwrap();
+    assert_eq!(file_names(&source).len(), 1, "{:?}", file_names(&source));
+    std::os::unix::fs::symlink("/nonexistent/f.exr", dir.path().join("f_3.exr")).unwrap();
+    let err = SequenceSource::new(&inputs, SequenceOptions::default())
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("f_3.exr"), "{err}");
 }
 
 #[test]

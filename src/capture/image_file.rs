@@ -10,7 +10,8 @@
 //! - half, f32 and u32 samples (u32 is converted to f32); scan-line or tiled; every compression
 //!   the `exr` crate reads; of a mip- or rip-mapped file only the largest resolution level.
 //! - Channels: `R`,`G`,`B` (any further channel such as `A` is ignored) or, failing that,
-//!   luminance-only `Y` (returned as grey RGB). Names may carry a layer/view prefix
+//!   luminance-only `Y` (returned as grey RGB; a luminance/chroma image's `RY` and `BY` are not
+//!   read, with a warning naming the file). Names may carry a layer/view prefix
 //!   (`left.R`, `diffuse.R`). In a multi-part or multi-layer file the first part, and within it
 //!   the first channel group (the unprefixed channels first, then prefixes in the file's
 //!   alphabetical channel order), that has R, G and B is used; only if none has, the first with
@@ -32,14 +33,20 @@
 //! Radiance `.hdr`: RLE or flat RGBE with the usual `-Y H +X W` orientation (the decoder rejects
 //! others); comment lines in the header (including a repeated `#?RADIANCE` magic line) are
 //! skipped. Values are divided by the header's cumulative `EXPOSURE` if there is one, so they are
-//! the radiance the file describes.
+//! the radiance the file describes; an `EXPOSURE` that is not positive (or so small that its
+//! reciprocal overflows) is an error.
 //!
 //! Robustness: the decoders should return errors on bad input, but they do not always (the
 //! corruption test in `tests/capture.rs` hits an arithmetic-overflow panic in `exr`'s B44
 //! decoder when overflow checks are on), so decoding runs inside [`std::panic::catch_unwind`]
 //! and a panic becomes a `Format` error (the default panic hook still prints the panic message
 //! to stderr). Images of more than
-//! [`MAX_PIXELS`] pixels are rejected before pixel data is allocated.
+//! [`MAX_PIXELS`] pixels are rejected before pixel data is allocated, and so are files too short
+//! for what their headers declare (an EXR's offset tables, an HDR's rows). What a decoder cannot
+//! catch is an allocation that fails, which aborts: a DWA block's counters are checked against
+//! the block's size before it is decompressed (`check_dwa_counters`). An EXR part is read only
+//! if its blocks store every pixel (`check_every_pixel_stored`): the lenient block reader skips
+//! blocks it cannot place, which would leave rows black.
 
 use super::CaptureError;
 use exr::block::reader::ChunksReader;
@@ -119,7 +126,7 @@ pub fn decode_hdr_image(
     path: &Path,
 ) -> Result<RgbImage, CaptureError> {
     let decoded = catch_unwind(AssertUnwindSafe(|| match format {
-        ImageFormat::OpenExr => decode_exr(bytes),
+        ImageFormat::OpenExr => decode_exr(bytes, path),
         ImageFormat::RadianceHdr => decode_hdr(bytes),
     }));
     let result = match decoded {
@@ -163,15 +170,33 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
         .map_err(|e| format!("not a valid Radiance HDR file: {e}"))?;
     let (width, height) = decoder.dimensions();
     check_size(u64::from(width), u64::from(height))?;
-    let exposure = decoder
-        .metadata()
-        .exposure
-        .filter(|e| e.is_finite() && *e > 0.0)
-        .unwrap_or(1.0);
+    // Every scan line takes at least 4 bytes (one pixel) and, wider than one pixel, 8 (a
+    // pixel and a run): a file too short for its declared rows fails here, before the decoder
+    // allocates the whole image.
+    let least_bytes = u64::from(height) * if width == 1 { 4 } else { 8 };
+    if (bytes.len() as u64) < least_bytes {
+        return Err(format!(
+            "file is truncated: {} bytes cannot hold the {width}x{height} pixels its header \
+             declares (at least {least_bytes})",
+            bytes.len()
+        ));
+    }
+    let scale = match decoder.metadata().exposure {
+        None => 1.0,
+        Some(exposure) => {
+            let scale = 1.0 / exposure;
+            if !(exposure > 0.0 && scale.is_finite()) {
+                return Err(format!(
+                    "header's EXPOSURE ({exposure}) is not a positive number whose reciprocal \
+                     is finite"
+                ));
+            }
+            scale
+        }
+    };
     let image = image::DynamicImage::from_decoder(decoder)
         .map_err(|e| format!("cannot decode Radiance HDR pixels: {e}"))?
         .into_rgb32f();
-    let scale = 1.0 / exposure;
     let pixels: Vec<[f32; 3]> = image
         .pixels()
         .map(|p| [p.0[0] * scale, p.0[1] * scale, p.0[2] * scale])
@@ -245,10 +270,40 @@ fn choose_channels(parts: &[Vec<String>]) -> Option<ChannelChoice> {
     })
 }
 
-fn decode_exr(bytes: &[u8]) -> Result<RgbImage, String> {
+/// A chroma channel (`RY` or `BY` beside a luminance `Y`) of `names` that a luminance-only read
+/// of channel `luminance` leaves out, if there is one.
+fn dropped_chroma(names: &[String], luminance: usize) -> Option<&str> {
+    let (prefix, base) = split_channel_name(names.get(luminance)?);
+    if base != "Y" {
+        return None;
+    }
+    names
+        .iter()
+        .find(|n| {
+            let (p, b) = split_channel_name(n);
+            p == prefix && (b == "RY" || b == "BY")
+        })
+        .map(String::as_str)
+}
+
+fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
     // The header first: reject deep data and absurd sizes before any pixel is allocated.
     let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
         .map_err(|e| format!("not a valid OpenEXR file: {e}"))?;
+    // Each block has an 8-byte entry in the offset tables, which are read (and allocated)
+    // before any block: a file too short for its tables fails here.
+    let blocks = meta
+        .headers
+        .iter()
+        .fold(0u64, |sum, h| sum.saturating_add(h.chunk_count as u64));
+    if blocks.saturating_mul(8) > bytes.len() as u64 {
+        return Err(format!(
+            "file is truncated: its headers declare {blocks} blocks, whose offset tables alone \
+             take {} bytes, and the file has {}",
+            blocks.saturating_mul(8),
+            bytes.len()
+        ));
+    }
     let mut total_samples: u64 = 0;
     for header in meta.headers.iter() {
         let size = header.layer_size;
@@ -283,6 +338,14 @@ fn decode_exr(bytes: &[u8]) -> Result<RgbImage, String> {
     })?;
     if meta.headers.iter().any(|h| h.deep) {
         return Err("deep OpenEXR data is not supported".to_string());
+    }
+    if let Some(chroma) = dropped_chroma(&parts[choice.part], choice.channels[0]) {
+        tracing::warn!(
+            "{}: read as grey from its luminance channel {}; its chroma channel {chroma} is \
+             not read (luminance/chroma images are not supported)",
+            path.display(),
+            parts[choice.part][choice.channels[0]]
+        );
     }
 
     let parallel = parallel_pays(&meta.headers[choice.part]);
@@ -355,23 +418,116 @@ fn decode_exr_part(
         reader.filter_block(meta, tile, block)
     })?;
     let meta = chunks.meta_data().clone();
+    let mut covered: Vec<(exr::math::Vec2<usize>, usize)> = Vec::new();
     if parallel {
         let compressed = chunks.collect::<exr::error::Result<Vec<_>>>()?;
-        let reader_lock = std::sync::Mutex::new(&mut reader);
+        let reader_lock = std::sync::Mutex::new((&mut reader, &mut covered));
         compressed.into_par_iter().try_for_each(|chunk| {
+            check_dwa_counters(&chunk, &meta)?;
             let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)?;
-            let mut reader = reader_lock
+            let mut guard = reader_lock
                 .lock()
                 .unwrap_or_else(|poisoned| poisoned.into_inner());
+            let (reader, covered) = &mut *guard;
+            covered.push((block.index.pixel_position, block.index.pixel_size.area()));
             reader.read_block(&meta.headers, block)
         })?;
     } else {
         for chunk in chunks {
-            let block = UncompressedBlock::decompress_chunk(chunk?, &meta, false)?;
+            let chunk = chunk?;
+            check_dwa_counters(&chunk, &meta)?;
+            let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)?;
+            covered.push((block.index.pixel_position, block.index.pixel_size.area()));
             reader.read_block(&meta.headers, block)?;
         }
     }
-    Ok(reader.into_layers())
+    let (channels, size) = reader.into_layers();
+    check_every_pixel_stored(covered, size.area())?;
+    Ok((channels, size))
+}
+
+/// Fails unless the blocks read (`covered`: each block's first pixel and pixel count) store
+/// every one of the part's `total` pixels. The `exr` crate's lenient reader skips a block its
+/// offset table cannot place and keeps the last of two blocks at one place, leaving the
+/// missing rows zero: a truncated or damaged file would otherwise read as a black band.
+fn check_every_pixel_stored(
+    mut covered: Vec<(exr::math::Vec2<usize>, usize)>,
+    total: usize,
+) -> UnitResult {
+    covered.sort_unstable_by_key(|&(position, _)| (position.y(), position.x()));
+    covered.dedup_by_key(|&mut (position, _)| position);
+    let stored: usize = covered.iter().map(|&(_, pixels)| pixels).sum();
+    if stored < total {
+        return Err(exr::error::Error::Invalid(
+            format!(
+                "{} of the {total} pixels are in no block (a truncated file or a damaged \
+                 offset table)",
+                total - stored
+            )
+            .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Checks the eleven counters that open a DWAA or DWAB block against the block's own size
+/// before it is decompressed: the `exr` crate allocates what they declare before inflating
+/// anything, so a 506-byte damaged file asked for 1.7 TB and aborted the process (an allocation
+/// failure cannot be caught). A genuine block's counts are bounded by its pixels: raw bytes
+/// (the unknown and RLE sections) by its decoded size, DCT coefficients (AC and DC counts) by
+/// its samples padded to whole 8×8 blocks. Other compressions size their buffers from the
+/// block's decoded size already.
+fn check_dwa_counters(chunk: &exr::block::chunk::Chunk, meta: &MetaData) -> UnitResult {
+    use exr::block::chunk::CompressedBlock;
+    use exr::compression::Compression;
+    let invalid = |what: &str| exr::error::Error::Invalid(what.to_string().into());
+    let header = part_header(&meta.headers, chunk.layer_index)?;
+    if !matches!(
+        header.compression,
+        Compression::DWAA(_) | Compression::DWAB(_)
+    ) {
+        return Ok(());
+    }
+    let data = match &chunk.compressed_block {
+        CompressedBlock::ScanLine(block) => &block.compressed_pixels_le,
+        CompressedBlock::Tile(block) => &block.compressed_pixels_le,
+        _ => return Ok(()),
+    };
+    let tile = header.get_block_data_indices(&chunk.compressed_block)?;
+    let bounds = header.get_absolute_block_pixel_coordinates(tile)?;
+    let decoded_bytes = bounds.size.area() * header.channels.bytes_per_pixel;
+    if data.is_empty() || data.len() == decoded_bytes {
+        return Ok(()); // stored raw: no counters
+    }
+    let counter = |index: usize| -> exr::error::Result<u64> {
+        let bytes = data
+            .get(index * 8..index * 8 + 8)
+            .ok_or_else(|| invalid("truncated DWA block header"))?;
+        Ok(u64::from_le_bytes(bytes.try_into().unwrap_or_default()))
+    };
+    let padded = bounds.size.x().div_ceil(8) * 8 * (bounds.size.y().div_ceil(8) * 8);
+    let samples = (padded * header.channels.list.len()) as u64;
+    let bytes = decoded_bytes as u64;
+    // (counter index, what it counts, its bound): RLE tokens expand by at most 1/128, plus a
+    // little room for the deflate and token framing.
+    let slack = 4096;
+    for (index, what, bound) in [
+        (1, "unknown section size", bytes + slack),
+        (6, "RLE section size", 2 * bytes + slack),
+        (7, "RLE raw size", bytes + slack),
+        (8, "AC coefficient count", samples),
+        (9, "DC coefficient count", samples),
+    ] {
+        let value = counter(index)?;
+        if value > bound {
+            return Err(invalid(&format!(
+                "DWA block declares a {what} of {value}, more than its {}x{} pixels can hold",
+                bounds.size.x(),
+                bounds.size.y()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Reads one part of an OpenEXR file (the chosen RGB or Y part): the other parts' blocks are
@@ -481,6 +637,19 @@ mod tests {
         list.iter().map(|s| s.to_string()).collect()
     }
 
+    #[test]
+    fn dropped_chroma_is_found_beside_its_luminance() {
+        let yc = names(&["BY", "RY", "Y"]);
+        assert_eq!(dropped_chroma(&yc, 2), Some("BY"));
+        assert_eq!(dropped_chroma(&names(&["A", "Y"]), 1), None);
+        // Another layer's chroma is not this luminance's.
+        assert_eq!(dropped_chroma(&names(&["left.RY", "Y"]), 1), None);
+        assert_eq!(
+            dropped_chroma(&names(&["left.RY", "left.Y"]), 1),
+            Some("left.RY")
+        );
+    }
+
     /// The exr crate's own reading of a file (every part, sequential, sample by sample), as
     /// this module read files before it read only the chosen part: the chosen part's R, G, B
     /// (or Y) channels per pixel.
@@ -532,7 +701,7 @@ mod tests {
         ] {
             let bytes = std::fs::read(dir.join(name)).unwrap();
             let (width, height, expected) = reference_exr(&bytes);
-            let image = decode_exr(&bytes).unwrap();
+            let image = decode_exr(&bytes, Path::new("t.exr")).unwrap();
             assert_eq!(
                 (image.width as usize, image.height as usize),
                 (width, height),
@@ -573,7 +742,7 @@ mod tests {
         let bytes = std::fs::read(&recorded).unwrap();
         let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(&bytes[..]), false).unwrap();
         assert!(!parallel_pays(&meta.headers[0]));
-        let image = decode_exr(&bytes).unwrap();
+        let image = decode_exr(&bytes, Path::new("t.exr")).unwrap();
         assert_eq!(image.pixels[5], [1.0, 1.0, 1.0]);
     }
 
@@ -658,7 +827,7 @@ mod tests {
 
     #[test]
     fn garbage_is_format_error() {
-        assert!(decode_exr(b"not an exr file at all").is_err());
+        assert!(decode_exr(b"not an exr file at all", Path::new("t.exr")).is_err());
         assert!(decode_hdr(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 2\n\x01").is_err());
         assert!(decode_hdr(b"").is_err());
     }

@@ -1,8 +1,11 @@
 //! Recorded EXR/HDR sequences as a frame source ([`SequenceSource`]).
 //!
 //! Inputs are files, directories (every `.exr`/`.hdr` file directly in them, not recursive) and
-//! glob patterns (`frames/*.exr`, `take_[12]/*.hdr`). The frames found are deduplicated (by
-//! canonical path) and put in natural order: by the last run of digits in the file name (without
+//! glob patterns (`frames/*.exr`, `take_[12]/*.hdr`). An entry of a directory or a glob with a
+//! frame extension that is no readable regular file (a broken or looping link, a pipe) is an
+//! error naming it. The frames found are deduplicated (by canonical path; two names of one file,
+//! such as a link and its target, are read once with a warning naming both) and put in natural
+//! order: by the last run of digits in the file name (without
 //! extension), so `frame_2.exr` comes before `frame_10.exr`; files without a number come after
 //! the numbered ones, and ties are broken by file name and then full path.
 //!
@@ -28,7 +31,7 @@ use super::{CaptureError, FrameSource};
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use std::cmp::Ordering;
-use std::collections::HashSet;
+use std::collections::hash_map::{Entry, HashMap};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -134,7 +137,9 @@ impl SequenceSource {
             tracing::warn!(
                 file = %path.display(),
                 pixels = bad,
-                "replaced NaN, infinite or negative values in {bad} pixels of {}",
+                "replaced NaN, infinite or negative values by 0 (and clamped values above \
+                 {:e} to it) in {bad} pixels of {}",
+                crate::frame::MAX_RADIANCE,
                 path.display()
             );
         }
@@ -143,6 +148,10 @@ impl SequenceSource {
 }
 
 impl FrameSource for SequenceSource {
+    fn files(&self) -> &[PathBuf] {
+        &self.paths
+    }
+
     fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
         if self.finished {
             return Ok(None);
@@ -197,6 +206,24 @@ fn has_supported_extension(path: &Path) -> bool {
     ImageFormat::from_path(path).is_some()
 }
 
+/// A directory's or a glob's entry as a frame file: `None` for entries without a frame
+/// extension and for directories; an error for one with a frame extension that cannot be read
+/// as a file (a broken or looping link: it names a frame that would be silently missing).
+fn frame_file(path: PathBuf) -> Result<Option<PathBuf>, CaptureError> {
+    if !has_supported_extension(&path) {
+        return Ok(None);
+    }
+    match std::fs::metadata(&path) {
+        Ok(meta) if meta.is_file() => Ok(Some(path)),
+        Ok(meta) if meta.is_dir() => Ok(None),
+        Ok(_) => Err(CaptureError::Format {
+            path,
+            message: "not a regular file (a pipe, socket or device)".to_string(),
+        }),
+        Err(source) => Err(CaptureError::Io { path, source }),
+    }
+}
+
 fn is_glob_pattern(input: &str) -> bool {
     input.contains(['*', '?', '['])
 }
@@ -214,8 +241,8 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
                 };
                 for entry in std::fs::read_dir(path).map_err(io_err)? {
                     let entry_path = entry.map_err(io_err)?.path();
-                    if entry_path.is_file() && has_supported_extension(&entry_path) {
-                        found.push(entry_path);
+                    if let Some(frame) = frame_file(entry_path)? {
+                        found.push(frame);
                     }
                 }
             }
@@ -238,8 +265,8 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
                         path: e.path().to_path_buf(),
                         source: e.into(),
                     })?;
-                    if entry_path.is_file() && has_supported_extension(&entry_path) {
-                        found.push(entry_path);
+                    if let Some(frame) = frame_file(entry_path)? {
+                        found.push(frame);
                     }
                 }
             }
@@ -252,12 +279,21 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
         }
     }
 
-    let mut seen = HashSet::new();
+    let mut seen = HashMap::new();
     let mut unique = Vec::with_capacity(found.len());
     for path in found {
         let key = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
-        if seen.insert(key) {
-            unique.push(path);
+        match seen.entry(key) {
+            Entry::Vacant(entry) => {
+                entry.insert(path.clone());
+                unique.push(path);
+            }
+            Entry::Occupied(first) if *first.get() != path => tracing::warn!(
+                "{} is the same file as {}: read once",
+                path.display(),
+                first.get().display()
+            ),
+            Entry::Occupied(_) => {}
         }
     }
     unique.sort_by(|a, b| compare_frame_paths(a, b));

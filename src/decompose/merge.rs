@@ -138,7 +138,7 @@ pub fn merge_crowded(lights: &[Light], spacing_fraction: f64) -> Vec<Light> {
         out.push(Light {
             id,
             dir: [dir.x as f32, dir.y as f32, dir.z as f32],
-            rgb: rgb.map(|c| c as f32),
+            rgb: rgb.map(crate::light::saturating_f32),
             solid_angle: solid_angle as f32,
         });
     }
@@ -250,7 +250,7 @@ mod tests {
             out.push(Light {
                 id,
                 dir: [dir.x as f32, dir.y as f32, dir.z as f32],
-                rgb: rgb.map(|c| c as f32),
+                rgb: rgb.map(crate::light::saturating_f32),
                 solid_angle: solid_angle as f32,
             });
         }

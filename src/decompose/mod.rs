@@ -237,7 +237,7 @@ impl Region {
         Light {
             id,
             dir: [dir.x as f32, dir.y as f32, dir.z as f32],
-            rgb: self.rgb.map(|c| c as f32),
+            rgb: self.rgb.map(crate::light::saturating_f32),
             solid_angle: self.solid_angle as f32,
         }
     }
@@ -868,6 +868,35 @@ mod tests {
                     (sum[c] - truth[c]).abs() < 1e-5 * truth[c],
                     "{w}x{h} channel {c}"
                 );
+            }
+        }
+    }
+
+    /// Finite pixels near f32::MAX in a frame that was not sanitised: the lights' f64 sums
+    /// pass f32's range, and each light saturates at f32::MAX instead of becoming ∞ (written
+    /// as `null` in JSON), with the filter and the merge on as well.
+    #[test]
+    fn huge_finite_pixels_give_finite_lights() {
+        let (w, h) = (32u32, 16u32);
+        let frame =
+            HdrFrame::new(w, h, vec![[3e38; 3]; (w * h) as usize], Projection::LatLong).unwrap();
+        let with_filter_and_merge = DecomposeSettings {
+            lights: 4,
+            working_width: 16,
+            ..DecomposeSettings::default()
+        };
+        for settings in [raw_settings(4), with_filter_and_merge] {
+            let mut decomposer = Decomposer::new(settings).unwrap();
+            for _ in 0..3 {
+                let lights = decomposer.decompose(&frame);
+                assert!(!lights.lights.is_empty());
+                for light in &lights.lights {
+                    assert!(
+                        light.rgb.iter().all(|c| c.is_finite() && *c > 0.0),
+                        "{light:?}"
+                    );
+                }
+                assert!(lights.lights.iter().any(|l| l.rgb[0] == f32::MAX));
             }
         }
     }

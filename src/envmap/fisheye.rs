@@ -232,7 +232,7 @@ enum CalibrationError {
     EmptyImage { width: u32, height: u32 },
     #[error("fisheye fov_deg = {0} must be in (0, 360) degrees")]
     FieldOfView(f64),
-    #[error("fisheye radius = {0} must be a finite number of pixels > 0")]
+    #[error("fisheye radius = {0} must be a number of pixels in (0, 1e6]")]
     Radius(f64),
     #[error("fisheye center = [{0}, {1}] must be finite pixel coordinates")]
     Center(f64, f64),
@@ -490,6 +490,10 @@ fn integrate(f: impl Fn(f64) -> f64) -> f64 {
     adapt(&f, 0.0, 1.0, k, g, 1e-13 * k.abs() + 1e-300, 40)
 }
 
+/// The largest image-circle radius accepted, in pixels: no sensor is two million pixels wide,
+/// and far beyond it (about 1e150) every pixel's solid angle underflows to 0.
+pub const MAX_RADIUS_PX: f64 = 1e6;
+
 impl FisheyeCalibration {
     /// The circle and lens resolved for a `w`×`h` image.
     fn resolve(&self, w: u32, h: u32) -> Result<RadialMap, CalibrationError> {
@@ -506,7 +510,7 @@ impl FisheyeCalibration {
             return Err(CalibrationError::Rotation(self.rotation_deg));
         }
         let radius = self.radius.unwrap_or(0.5 * f64::from(w.min(h)));
-        if !(radius > 0.0 && radius.is_finite()) {
+        if !(radius > 0.0 && radius <= MAX_RADIUS_PX) {
             return Err(CalibrationError::Radius(radius));
         }
         let [cx, cy] = self
@@ -537,6 +541,17 @@ impl FisheyeCalibration {
         if gap_x.hypot(gap_y) >= map.radius {
             return Err(format!(
                 "fisheye image circle (center [{}, {}], radius {}) does not overlap the {w}x{h} image",
+                map.cx, map.cy, map.radius
+            ));
+        }
+        // A circle between pixel centres sees nothing: every pixel's solid angle is 0.
+        let nearest_centre =
+            |c: f64, size: u32| (c.floor() + 0.5).clamp(0.5, f64::from(size) - 0.5);
+        let (px, py) = (nearest_centre(map.cx, w), nearest_centre(map.cy, h));
+        if (px - map.cx).hypot(py - map.cy) > map.radius {
+            return Err(format!(
+                "fisheye image circle (center [{}, {}], radius {}) contains no pixel centre of \
+                 the {w}x{h} image",
                 map.cx, map.cy, map.radius
             ));
         }
@@ -1510,6 +1525,29 @@ mod tests {
             ..ok
         });
         assert!(m.contains("does not overlap"), "{m}");
+        // Inside the image but between pixel centres: every pixel's solid angle would be 0.
+        let m = msg(FisheyeCalibration {
+            center: Some([32.0, 24.0]),
+            radius: Some(0.6),
+            ..ok
+        });
+        assert!(m.contains("contains no pixel centre"), "{m}");
+        for radius in [0.71, 1e6] {
+            let fits = FisheyeCalibration {
+                center: Some([32.0, 24.0]),
+                radius: Some(radius),
+                ..ok
+            };
+            assert_eq!(fits.validate(64, 48), Ok(()), "radius {radius}");
+        }
+        // Far beyond any sensor (and at 1e300 every solid angle underflowed to 0).
+        for radius in [1.1e6, 1e300] {
+            let m = msg(FisheyeCalibration {
+                radius: Some(radius),
+                ..ok
+            });
+            assert!(m.contains("radius") && m.contains("1e6"), "{m}");
+        }
         let m = ok.validate(0, 48).err().unwrap_or_default();
         assert!(m.contains("0x48"), "{m}");
         // circle partly outside the image is fine

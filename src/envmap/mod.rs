@@ -13,7 +13,7 @@ mod fisheye;
 pub mod fisheye_detect;
 mod latlong;
 
-pub use fisheye::{FisheyeCalibration, FisheyeModel};
+pub use fisheye::{FisheyeCalibration, FisheyeModel, MAX_RADIUS_PX};
 
 use glam::DVec3;
 
