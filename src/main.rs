@@ -19,6 +19,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 mod camera_cli;
+mod cli_output;
 mod wavelet_cli;
 mod wavelet_transport_cli;
 
@@ -417,7 +418,7 @@ struct DecomposeArgs {
     #[arg(long, value_name = "X,Y", value_parser = parse_pair)]
     center: Option<[f64; 2]>,
 
-    /// Fisheye image-circle radius in pixels. [default: half the shorter side]
+    /// Fisheye image-circle radius in pixels, in (0, 1e6]. [default: half the shorter side]
     #[arg(long, value_name = "R")]
     radius: Option<f64>,
 
@@ -433,7 +434,8 @@ struct DecomposeArgs {
     #[arg(long, conflicts_with = "taps")]
     no_filter: bool,
 
-    /// FIR filter taps, newest frame first (normalised). [default: 1,6,15,20,15,6,1]
+    /// FIR filter taps, newest frame first: non-negative weights, normalised to sum to 1.
+    /// [default: 1,6,15,20,15,6,1]
     #[arg(
         long,
         value_name = "W,W,…",
@@ -860,8 +862,10 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         Some(path) => (Config::from_file(path)?, path.display().to_string()),
         None => (Config::default(), "the built-in defaults".to_owned()),
     };
+    use std::fmt::Write as _;
     let off = |a: Option<String>| a.unwrap_or_else(|| "off".to_owned());
-    println!("{name}: ok");
+    let mut text = String::new();
+    writeln!(text, "{name}: ok")?;
     // As `envlight run` reads it (check-config guards the service's config).
     let daemon_source = envlight::daemon::daemon_source_defaults(config.clone()).source;
     let frames = match (daemon_source.frames, daemon_source.kind) {
@@ -878,11 +882,13 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         (_, Some(fps)) => format!("{fps} frames/s"),
         (_, None) => "as fast as possible".to_owned(),
     };
-    println!(
+    writeln!(
+        text,
         "  source: {:?}, in envlight run {frames}, {pacing}",
         daemon_source.kind
-    );
-    println!(
+    )?;
+    writeln!(
+        text,
         "  decompose: {} lights, warp {:?}, refinement of concentrated sources {}, concentrated \
          Lloyd step {}, split of bright lights {}, filter {} (bright lights: {})",
         config.decompose.lights,
@@ -892,8 +898,9 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         split_description(config.decompose.split_factor),
         on_off(config.decompose.filter_taps.is_some()),
         config.decompose.bright_history.name()
-    );
-    println!(
+    )?;
+    writeln!(
+        text,
         "  stream: unix {}, tcp {}, websocket {}, at most {} clients",
         off(config
             .stream
@@ -903,13 +910,15 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         off(config.stream.tcp.map(|a| a.to_string())),
         off(config.stream.websocket.map(|a| a.to_string())),
         config.stream.max_clients
-    );
-    println!(
+    )?;
+    writeln!(
+        text,
         "  metrics: {}",
         off(config.metrics.listen.map(|a| format!("http://{a}/metrics")))
-    );
+    )?;
     if config.asg.enabled {
-        println!(
+        writeln!(
+            text,
             "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {} thread(s)",
             config.asg.fit.lobes,
             2 * config.asg.fit.height,
@@ -917,24 +926,25 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
             config.asg.fit.iterations,
             config.asg.fit.warm_iterations,
             config.asg.fit.threads
-        );
+        )?;
     } else {
-        println!("  asg: off");
+        writeln!(text, "  asg: off")?;
     }
     if config.wavelet.enabled {
         let w = &config.wavelet.settings;
-        println!(
+        writeln!(
+            text,
             "  wavelet: {} largest {} coefficients of a {}x{} octahedral map ({} levels)",
             w.coefficients,
             w.basis,
             w.side,
             w.side,
             w.levels()
-        );
+        )?;
     } else {
-        println!("  wavelet: off");
+        writeln!(text, "  wavelet: off")?;
     }
-    Ok(())
+    cli_output::print(&text)
 }
 
 fn subscribe(args: &SubscribeArgs) -> Result<()> {
@@ -1052,7 +1062,7 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
         };
         let written = writeln!(stdout, "{line}").and_then(|()| stdout.flush());
         match written {
-            Err(e) if is_broken_pipe(&e) => return Ok(()),
+            Err(e) if cli_output::is_broken_pipe(&e) => return Ok(()),
             r => r.context("cannot write to stdout")?,
         }
     }
@@ -1079,10 +1089,6 @@ fn init_tracing() {
 }
 
 /// Whether an error chain ends in a broken pipe (the reader of our output went away).
-fn is_broken_pipe(err: &std::io::Error) -> bool {
-    err.kind() == std::io::ErrorKind::BrokenPipe
-}
-
 fn decompose(args: &DecomposeArgs) -> Result<()> {
     let (mut raw, config_name) = match &args.config {
         Some(path) => (
@@ -1126,21 +1132,15 @@ fn replace_file(path: &Path, contents: &[u8]) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
-fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
-    Ok(match out {
-        Some(path) => Box::new(
-            std::fs::File::create(path)
-                .with_context(|| format!("cannot create output file {}", path.display()))?,
-        ),
-        None => Box::new(std::io::stdout().lock()),
-    })
-}
-
 fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> Result<()> {
     let mut source = open_source(config)?;
     let mut decomposer =
         Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
-    let mut writer = std::io::BufWriter::new(open_output(out)?);
+    if let Some(path) = latest {
+        cli_output::refuse_input(path, "--latest", source.files())?;
+    }
+    let mut writer =
+        std::io::BufWriter::new(cli_output::open_output(out, "--out", source.files())?);
     let out_name = out.map_or("stdout".to_string(), |p| p.display().to_string());
 
     tracing::info!("source: {}", source.describe());
@@ -1195,7 +1195,7 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         // Flush every frame: a consumer tailing the output sees whole frames as they come.
         let written = writer.write_all(&line).and_then(|()| writer.flush());
         match written {
-            Err(e) if out.is_none() && is_broken_pipe(&e) => {
+            Err(e) if out.is_none() && cli_output::is_broken_pipe(&e) => {
                 tracing::debug!("stdout closed after {frames} frames; stopping");
                 return Ok(());
             }
@@ -1203,7 +1203,7 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         }
     }
     match writer.flush() {
-        Err(e) if out.is_none() && is_broken_pipe(&e) => return Ok(()),
+        Err(e) if out.is_none() && cli_output::is_broken_pipe(&e) => return Ok(()),
         r => r.with_context(|| format!("cannot write to {out_name}"))?,
     }
 
@@ -1476,7 +1476,11 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
             left: args.frames.filter(|&n| n > 0),
         })
     };
-    let mut writer = std::io::BufWriter::new(open_output(args.out.as_deref())?);
+    let mut writer = std::io::BufWriter::new(cli_output::open_output(
+        args.out.as_deref(),
+        "--out",
+        source.files(),
+    )?);
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
         let result = fitter
             .fit_frame(&frame)
@@ -1496,12 +1500,12 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
         };
         let line = serde_json::to_string(&line).context("cannot encode a frame")?;
         match writeln!(writer, "{line}") {
-            Err(e) if is_broken_pipe(&e) => return Ok(()),
+            Err(e) if cli_output::is_broken_pipe(&e) => return Ok(()),
             r => r.context("cannot write the output")?,
         }
     }
     match writer.flush() {
-        Err(e) if is_broken_pipe(&e) => Ok(()),
+        Err(e) if cli_output::is_broken_pipe(&e) => Ok(()),
         r => r.context("cannot write the output"),
     }
 }

@@ -146,6 +146,10 @@ impl<S: FrameSource> FrameSource for Limited<S> {
     fn describe(&self) -> String {
         self.inner.describe()
     }
+
+    fn files(&self) -> &[PathBuf] {
+        self.inner.files()
+    }
 }
 
 fn parse_basis(s: &str) -> Result<Basis, String> {
@@ -159,9 +163,9 @@ pub struct ApproxArgs {
     /// Wavelet basis: haar, db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
     #[arg(long, value_parser = parse_basis, default_value = "db4")]
     basis: Basis,
-    /// Coefficients to keep per frame (K ≥ 1; at most SIZE²).
-    #[arg(long, short = 'k', value_name = "K", default_value_t = 1024)]
-    coefficients: usize,
+    /// Coefficients to keep per frame (1..=SIZE²). [default: 1024, or SIZE² when that is less]
+    #[arg(long, short = 'k', value_name = "K")]
+    coefficients: Option<usize>,
     /// Side of the octahedral map, a power of two in 2..=1024.
     #[arg(long, value_name = "SIZE", default_value_t = 128)]
     size: usize,
@@ -208,16 +212,27 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             args.size
         );
     }
-    if args.coefficients == 0 || args.coefficients > args.size * args.size {
+    let coefficients = args
+        .coefficients
+        .unwrap_or((args.size * args.size).min(1024));
+    if coefficients == 0 || coefficients > args.size * args.size {
         bail!(
-            "invalid --coefficients {}: expected 1..={} for --size {}",
-            args.coefficients,
+            "invalid --coefficients {coefficients}: expected 1..={} for --size {}",
             args.size * args.size,
             args.size
         );
     }
     let mut source = args.input.open()?;
-    let mut writer = std::io::BufWriter::new(open_output(args.out.as_deref())?);
+    let inputs = source.files().to_vec();
+    let mut writer = std::io::BufWriter::new(crate::cli_output::open_output(
+        args.out.as_deref(),
+        "--out",
+        &inputs,
+    )?);
+    let out_name = args
+        .out
+        .as_ref()
+        .map_or("stdout".to_string(), |p| p.display().to_string());
     let mut ws = Workspace::new();
     let mut resampler: Option<Resampler> = None;
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
@@ -234,7 +249,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         let coeffs =
             Coefficients::analyze_with(map.texels(), args.size, args.basis, levels, &mut ws)
                 .with_context(|| format!("cannot transform frame {}", frame.seq))?;
-        let set = coeffs.truncate(args.coefficients);
+        let set = coeffs.truncate(coefficients);
         let total = coeffs.energy();
         let kept: f64 = set
             .coefficients
@@ -251,7 +266,13 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             let rec = set
                 .reconstruct()
                 .with_context(|| format!("cannot reconstruct frame {}", frame.seq))?;
-            write_rgb_exr(&path, args.size, &rec)?;
+            crate::cli_output::write_rgb_exr(
+                &path,
+                "--reconstruct",
+                &inputs,
+                (args.size, args.size),
+                |x, y| rec[y * args.size + x].map(|c| c as f32),
+            )?;
         }
         let line = ApproxLine {
             seq: frame.seq,
@@ -262,8 +283,8 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         };
         let line = serde_json::to_string(&line).context("cannot encode a frame")?;
         match writeln!(writer, "{line}") {
-            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
-            r => r.context("cannot write the output")?,
+            Err(e) if args.out.is_none() && crate::cli_output::is_broken_pipe(&e) => return Ok(()),
+            r => r.with_context(|| format!("cannot write to {out_name}"))?,
         }
         tracing::info!(
             "frame {}: {} of {} coefficients ({}), relative L2 error {:.4}",
@@ -275,8 +296,8 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         );
     }
     match writer.flush() {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        r => r.context("cannot write the output"),
+        Err(e) if args.out.is_none() && crate::cli_output::is_broken_pipe(&e) => Ok(()),
+        r => r.with_context(|| format!("cannot write to {out_name}")),
     }
 }
 
@@ -288,23 +309,4 @@ fn expand_seq(path: &Path, seq: u64) -> PathBuf {
     } else {
         path.to_path_buf()
     }
-}
-
-fn open_output(out: Option<&Path>) -> Result<Box<dyn Write>> {
-    Ok(match out {
-        Some(path) => Box::new(
-            std::fs::File::create(path)
-                .with_context(|| format!("cannot create output file {}", path.display()))?,
-        ),
-        None => Box::new(std::io::stdout().lock()),
-    })
-}
-
-/// Writes a `side × side` linear RGB map as a 32-bit float EXR.
-fn write_rgb_exr(path: &Path, side: usize, pixels: &[[f64; 3]]) -> Result<()> {
-    exr::prelude::write_rgb_file(path, side, side, |x, y| {
-        let p = pixels[y * side + x];
-        (p[0] as f32, p[1] as f32, p[2] as f32)
-    })
-    .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -107,9 +107,10 @@ pub struct RelightArgs {
     /// less]
     #[arg(long, short = 'k', value_name = "K")]
     coefficients: Option<usize>,
-    /// Transport coefficients kept per vertex.
-    #[arg(long, value_name = "N", default_value_t = 256)]
-    transport: usize,
+    /// Transport coefficients kept per vertex (1..=SIZE²). [default: 256, or SIZE² when that is
+    /// less]
+    #[arg(long, value_name = "N")]
+    transport: Option<usize>,
     /// BRDF of every surface.
     #[arg(long, value_enum, default_value_t = BrdfArg::Lambert)]
     brdf: BrdfArg,
@@ -155,9 +156,9 @@ pub struct RecoverArgs {
     /// Gaussian noise, as a fraction of the RMS observed radiance.
     #[arg(long, default_value_t = 0.01)]
     noise: f64,
-    /// Seed of the noise.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
+    /// Seed of the noise (needs --noise above 0). [default: 1]
+    #[arg(long)]
+    seed: Option<u64>,
     /// Rank test: minimum norm of a new column orthogonal to the others, relative to the
     /// largest column norm.
     #[arg(long, default_value_t = RefineOptions::default().rank_tol)]
@@ -219,6 +220,18 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
             args.size
         );
     }
+    let transport_kept = args.transport.unwrap_or(texels.min(256));
+    if transport_kept == 0 || transport_kept > texels {
+        bail!(
+            "invalid --transport {transport_kept}: expected 1..={texels} for --size {}",
+            args.size
+        );
+    }
+    if args.ground && args.scene.is_none() {
+        crate::usage_error!(
+            "--ground adds a ground plane under a --scene file; the built-in scene has one"
+        );
+    }
     match args.brdf {
         BrdfArg::Lambert
             if args.exponent.is_some() || args.alpha.is_some() || args.eye.is_some() =>
@@ -270,7 +283,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         &vis,
         brdf,
         view,
-        args.transport,
+        transport_kept,
     )?;
     tracing::info!(
         vertices = mesh.positions.len(),
@@ -279,12 +292,15 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         "visibility and transport precomputed"
     );
     let mut source = args.input.open()?;
-    let mut json: Box<dyn Write> = match &args.json {
-        Some(p) => Box::new(
-            std::fs::File::create(p).with_context(|| format!("cannot create {}", p.display()))?,
-        ),
-        None => Box::new(std::io::stdout().lock()),
-    };
+    let inputs = source.files().to_vec();
+    if let Some(path) = &args.out {
+        crate::cli_output::refuse_input(path, "--out", &inputs)?;
+    }
+    let mut json = crate::cli_output::open_output(args.json.as_deref(), "--json", &inputs)?;
+    let json_name = args
+        .json
+        .as_ref()
+        .map_or("stdout".to_string(), |p| p.display().to_string());
     let mut light = DenseLighting::new(&grid);
     let mut out = vec![[0.0f32; 3]; mesh.positions.len()];
     let lambert = args.brdf == BrdfArg::Lambert;
@@ -347,20 +363,23 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
             relight_ms,
             check,
         };
-        serde_json::to_writer(&mut json, &line)?;
-        writeln!(json)?;
+        let mut text = serde_json::to_string(&line).context("cannot encode a frame")?;
+        text.push('\n');
+        match json.write_all(text.as_bytes()).and_then(|()| json.flush()) {
+            Err(e) if args.json.is_none() && crate::cli_output::is_broken_pipe(&e) => break,
+            r => r.with_context(|| format!("cannot write to {json_name}"))?,
+        }
     }
     if let Some(path) = &args.out {
-        let mut w = std::io::BufWriter::new(
-            std::fs::File::create(path)
-                .with_context(|| format!("cannot create {}", path.display()))?,
-        );
-        writeln!(w, "x,y,z,r,g,b")?;
-        for (p, o) in mesh.positions.iter().zip(&out) {
-            writeln!(w, "{},{},{},{},{},{}", p.x, p.y, p.z, o[0], o[1], o[2])?;
-        }
-        w.flush()
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        let mut w = std::io::BufWriter::new(crate::cli_output::create(path, "--out", &inputs)?);
+        let written = (|| -> std::io::Result<()> {
+            writeln!(w, "x,y,z,r,g,b")?;
+            for (p, o) in mesh.positions.iter().zip(&out) {
+                writeln!(w, "{},{},{},{},{},{}", p.x, p.y, p.z, o[0], o[1], o[2])?;
+            }
+            w.flush()
+        })();
+        written.with_context(|| format!("cannot write {}", path.display()))?;
     }
     Ok(())
 }
@@ -390,7 +409,21 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
             "wavelet recover uses the first frame of INPUT (or the sky); --frames does not apply"
         );
     }
+    if args.seed.is_some() && args.noise == 0.0 {
+        crate::usage_error!("--seed seeds the noise; with --noise 0 there is none");
+    }
     let mut source = args.input.open()?;
+    let inputs = source.files().to_vec();
+    if inputs.len() > 1 {
+        crate::usage_error!(
+            "wavelet recover uses one frame; INPUT names {} files ({} first)",
+            inputs.len(),
+            inputs[0].display()
+        );
+    }
+    if let Some(path) = &args.out {
+        crate::cli_output::refuse_input(path, "--out", &inputs)?;
+    }
     let frame = source
         .next_frame()
         .with_context(|| format!("cannot read a frame from {}", source.describe()))?
@@ -435,7 +468,7 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
             .map(|i| std::mem::take(&mut rows[i]))
             .collect();
     }
-    let obs = synthesize(&rows, &truth, args.noise, args.seed)?;
+    let obs = synthesize(&rows, &truth, args.noise, args.seed.unwrap_or(1))?;
     let opts = RefineOptions {
         rank_tol: args.rank_tol,
         split_fraction: args.split,
@@ -468,22 +501,27 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
             })
             .collect(),
     };
-    println!("{}", serde_json::to_string(&report)?);
+    crate::cli_output::print(&(serde_json::to_string(&report)? + "\n"))?;
     if let Some(path) = &args.out {
         let planes: Vec<Vec<f64>> = rec
             .planes
             .iter()
             .map(|p| grid.reconstruct(p))
             .collect::<Result<_, _>>()?;
-        exr::prelude::write_rgb_file(path, grid.side, grid.side, |x, y| {
-            let t = y * grid.side + x;
-            (
-                planes[0][t] as f32,
-                planes[1][t] as f32,
-                planes[2][t] as f32,
-            )
-        })
-        .with_context(|| format!("cannot write {}", path.display()))?;
+        crate::cli_output::write_rgb_exr(
+            path,
+            "--out",
+            &inputs,
+            (grid.side, grid.side),
+            |x, y| {
+                let t = y * grid.side + x;
+                [
+                    planes[0][t] as f32,
+                    planes[1][t] as f32,
+                    planes[2][t] as f32,
+                ]
+            },
+        )?;
     }
     Ok(())
 }

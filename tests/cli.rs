@@ -644,6 +644,15 @@ fn options_the_mode_would_ignore_are_usage_errors() {
             "--exponent",
         ),
         (vec!["wavelet", "recover", "--frames", "2"], "--frames"),
+        (vec!["wavelet", "relight", "--ground"], "--scene"),
+        (
+            vec!["wavelet", "recover", "--seed", "3", "--noise", "0"],
+            "--noise 0",
+        ),
+        (
+            vec!["wavelet", "recover", &hdr, &data("noon_grass_1k.hdr")],
+            "INPUT names 2 files",
+        ),
         (
             vec!["render", "--out", out, "--shadow-res", "8193"],
             "16..=8192",
@@ -692,4 +701,80 @@ fn fit_asg_frames_limits_input_files() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(stdout(&o).lines().count(), 1, "{}", stdout(&o));
+}
+
+/// An output path that is one of the command's input files is refused before it is created
+/// (creating it truncated the input: `decompose f.exr -o f.exr` left an empty f.exr), under
+/// any name that leads to it.
+#[test]
+fn outputs_that_are_inputs_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("frame.exr");
+    write_rgb(&input, 16, 8, 1.0);
+    let link = dir.path().join("link.exr");
+    std::os::unix::fs::symlink(&input, &link).unwrap();
+    let original = std::fs::read(&input).unwrap();
+    let (input, link) = (s(&input), s(&link));
+    for (args, option) in [
+        (vec!["decompose", input, "-o", input], "--out"),
+        (vec!["decompose", input, "--latest", link], "--latest"),
+        (vec!["fit-asg", input, "--out", link], "--out"),
+        (vec!["wavelet", "approx", input, "--out", input], "--out"),
+        (
+            vec![
+                "wavelet",
+                "approx",
+                input,
+                "--size",
+                "8",
+                "--reconstruct",
+                link,
+            ],
+            "--reconstruct",
+        ),
+        (
+            vec!["wavelet", "recover", input, "--size", "2", "--out", input],
+            "--out",
+        ),
+        (
+            vec!["wavelet", "relight", input, "--size", "2", "--json", link],
+            "--json",
+        ),
+    ] {
+        let o = envlight(&args);
+        assert_fails_naming(&o, &[option, "is the input file", "frame.exr"]);
+        assert_eq!(std::fs::read(input).unwrap(), original, "{args:?}");
+    }
+}
+
+/// Commands that print one result end quietly (status 0, no panic) when stdout is closed;
+/// `println!` panicked on the broken pipe.
+#[test]
+fn one_shot_printers_survive_a_closed_stdout() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("c.toml");
+    std::fs::write(&config, "").unwrap();
+    for args in [
+        vec!["wavelet", "recover", "--size", "2"],
+        vec!["check-config", s(&config)],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(&args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"), "{args:?}: {}", stderr(&o));
+    }
+}
+
+#[test]
+fn relight_transport_count_is_checked() {
+    for n in ["0", "65"] {
+        let o = envlight(&["wavelet", "relight", "--size", "8", "--transport", n]);
+        assert_fails_naming(&o, &["--transport", n, "1..=64"]);
+    }
 }

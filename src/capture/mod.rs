@@ -69,6 +69,12 @@ pub trait FrameSource: Send {
     fn recycle(&mut self, pixels: Vec<[f32; 3]>) {
         drop(pixels);
     }
+
+    /// The files this source reads frames from (a recorded sequence's), so that a command can
+    /// refuse to write its output over one of them; empty for sources that read no files.
+    fn files(&self) -> &[std::path::PathBuf] {
+        &[]
+    }
 }
 
 /// Health of a live source, shared with the pipeline (stream and metrics) through an `Arc`.
@@ -217,6 +223,10 @@ struct Checked {
 }
 
 impl FrameSource for Checked {
+    fn files(&self) -> &[std::path::PathBuf] {
+        self.inner.files()
+    }
+
     fn next_frame(&mut self) -> Result<Option<HdrFrame>, CaptureError> {
         if self.remaining == Some(0) {
             return Ok(None);
