@@ -43,6 +43,52 @@ pub enum ConfigError {
     },
 }
 
+/// Fails when two of the TCP, WebSocket and metrics endpoints would listen on one port of one
+/// address (an unspecified address such as 0.0.0.0 takes the port on every address): the
+/// second would fail to bind at start.
+fn check_endpoints_apart(config: &Config) -> Result<(), ConfigError> {
+    let endpoints = [
+        ("stream.tcp", config.stream.tcp),
+        ("stream.websocket", config.stream.websocket),
+        ("metrics.listen", config.metrics.listen),
+    ];
+    for (i, &(key_a, a)) in endpoints.iter().enumerate() {
+        for &(key_b, b) in &endpoints[i + 1..] {
+            let (Some(a), Some(b)) = (a, b) else {
+                continue;
+            };
+            let same_ip = a.ip() == b.ip() || a.ip().is_unspecified() || b.ip().is_unspecified();
+            if a.port() != 0 && a.port() == b.port() && same_ip {
+                return Err(invalid(
+                    key_b,
+                    b.to_string(),
+                    format!("takes the port of {key_a} = \"{a}\"; give each endpoint its own"),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The largest config file read: 1 MiB (the documented config with every key is under 20 KB).
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
+/// Deserialises an optional array of exactly `N` numbers: serde's fixed-size arrays stop after
+/// `N` values and silently drop the rest, so `[1, 2, 3]` for a centre read as `[1, 2]`.
+pub(crate) fn exactly<'de, D, const N: usize>(deserializer: D) -> Result<Option<[f64; N]>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    use serde::de::Error;
+    let values: Option<Vec<f64>> = Option::deserialize(deserializer)?;
+    values
+        .map(|v| {
+            <[f64; N]>::try_from(v.as_slice())
+                .map_err(|_| D::Error::custom(format!("expected {N} numbers, got {}", v.len())))
+        })
+        .transpose()
+}
+
 fn invalid(
     key: &'static str,
     value: impl std::fmt::Debug,
@@ -216,6 +262,7 @@ pub struct RawSource {
 #[serde(deny_unknown_fields)]
 pub struct RawFisheye {
     pub model: Option<String>,
+    #[serde(default, deserialize_with = "exactly")]
     pub center: Option<[f64; 2]>,
     pub radius: Option<f64>,
     pub fov_deg: Option<f64>,
@@ -269,12 +316,24 @@ impl RawConfig {
         })
     }
 
-    /// Reads and parses a file (not yet validated).
+    /// Reads and parses a file (not yet validated). A file over [`MAX_CONFIG_BYTES`] (or one
+    /// that never ends, such as `/dev/zero`) is an error.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        use std::io::Read;
+        let read_error = |source| ConfigError::Read {
             path: path.to_path_buf(),
             source,
-        })?;
+        };
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .and_then(|file| file.take(MAX_CONFIG_BYTES + 1).read_to_string(&mut text))
+            .map_err(read_error)?;
+        if text.len() as u64 > MAX_CONFIG_BYTES {
+            return Err(read_error(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("larger than {MAX_CONFIG_BYTES} bytes; a config file is a few kilobytes"),
+            )));
+        }
         Self::parse(&text, path)
     }
 
@@ -295,6 +354,7 @@ impl RawConfig {
             wavelet: self.wavelet.validate()?,
         })
         .and_then(|config: Config| {
+            check_endpoints_apart(&config)?;
             if config.render.enabled
                 && config.render.lighting == Lighting::Asg
                 && !config.asg.enabled
@@ -757,6 +817,13 @@ impl RawStream {
                         "is longer than the 107 bytes a Unix socket path may have",
                     ));
                 }
+                if path.contains('\0') {
+                    return Err(invalid(
+                        "stream.unix_socket",
+                        path.escape_default(),
+                        "a path cannot hold a NUL character",
+                    ));
+                }
                 Some(PathBuf::from(path))
             }
         };
@@ -954,6 +1021,13 @@ impl RawSource {
         };
         // Check the fisheye section even when it is not used, so a typo does not hide.
         self.fisheye.validate()?;
+        if kind == SourceKind::Sky && self.looped == Some(true) {
+            return Err(invalid(
+                "source.loop",
+                true,
+                "the built-in sky never ends; loop applies to a sequence of files",
+            ));
+        }
         if kind == SourceKind::Sky && projection != Projection::LatLong {
             return Err(invalid(
                 "source.projection",
@@ -1306,6 +1380,63 @@ mod tests {
         assert!(e.contains("nonsense"), "{e}");
         let e = error("[source.fisheye]\nfocal = 3.0\n");
         assert!(e.contains("focal"), "{e}");
+    }
+
+    #[test]
+    fn arrays_of_the_wrong_length_are_errors() {
+        // serde's fixed-size arrays read the first N values and dropped the rest.
+        for (text, key) in [
+            ("[source.fisheye]\ncenter = [1.0, 2.0, 3.0]", "center"),
+            ("[source.fisheye]\ncenter = [1.0]", "center"),
+            (
+                "[camera]\nwhite_balance = [1.0, 1.0, 1.0, 5.0]",
+                "white_balance",
+            ),
+        ] {
+            let e = error(text);
+            assert!(e.contains(key) && e.contains("expected"), "{text}: {e}");
+        }
+        let e = error("[source.fisheye]\ncenter = [1.0, 2.0, \"x\"]");
+        assert!(e.contains("center"), "{e}");
+        parse("[source.fisheye]\ncenter = [1.0, 2.0]").unwrap();
+    }
+
+    #[test]
+    fn settings_that_would_be_ignored_or_collide_are_errors() {
+        for (text, expected) in [
+            ("[source]\nloop = true", "source.loop = true"),
+            // Checked even when another response is used, like [source.fisheye].
+            ("[camera]\ngamma = nan", "camera.gamma"),
+            (
+                "[stream]\ntcp = \"127.0.0.1:7000\"\nwebsocket = \"127.0.0.1:7000\"",
+                "stream.websocket = \"127.0.0.1:7000\": takes the port of stream.tcp",
+            ),
+            (
+                "[stream]\ntcp = \"0.0.0.0:7000\"\n[metrics]\nlisten = \"127.0.0.1:7000\"",
+                "metrics.listen = \"127.0.0.1:7000\": takes the port of stream.tcp",
+            ),
+            ("[stream]\nunix_socket = \"/tmp/a\\u0000b\"", "NUL"),
+        ] {
+            let e = error(text);
+            assert!(e.contains(expected), "{text}: {e}");
+        }
+        // Port 0 (any free port) twice, and one port on two addresses, are fine.
+        for text in [
+            "[stream]\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"",
+            "[stream]\ntcp = \"127.0.0.1:7000\"\nwebsocket = \"127.0.0.2:7000\"",
+        ] {
+            parse(text).expect(text);
+        }
+    }
+
+    #[test]
+    fn a_config_file_past_the_size_limit_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.toml");
+        let comment = "#".repeat(MAX_CONFIG_BYTES as usize + 1);
+        std::fs::write(&path, comment).unwrap();
+        let e = RawConfig::from_file(&path).err().unwrap().to_string();
+        assert!(e.contains("big.toml") && e.contains("larger than"), "{e}");
     }
 
     #[test]

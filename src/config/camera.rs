@@ -31,6 +31,7 @@ pub struct RawCamera {
     pub exposure_s: Option<f64>,
     pub gain: Option<f64>,
     pub gain_unity: Option<f64>,
+    #[serde(default, deserialize_with = "super::exactly")]
     pub white_balance: Option<[f64; 3]>,
     pub scale: Option<f64>,
     pub bracket_exposures_s: Option<Vec<f64>>,
@@ -101,10 +102,12 @@ impl RawCamera {
                 ))
             }
         };
+        // Checked even when another response is used, so a typo does not hide.
+        let gamma = positive("camera.gamma", self.gamma.unwrap_or(2.2))?;
         let response = match self.response.as_deref().unwrap_or("srgb") {
             "srgb" => ResponseModel::Srgb,
             "linear" => ResponseModel::Linear,
-            "gamma" => ResponseModel::Gamma(positive("camera.gamma", self.gamma.unwrap_or(2.2))?),
+            "gamma" => ResponseModel::Gamma(gamma),
             "logarithmic" => {
                 let (Some(a), Some(b)) = (self.log_a, self.log_b) else {
                     return Err(invalid(
