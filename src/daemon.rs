@@ -90,6 +90,27 @@ pub struct DaemonOptions {
     pub replay: Option<(PathBuf, Pacing)>,
     /// Record the session into this (new or empty) directory.
     pub record: Option<PathBuf>,
+    /// Frame files given on the command line (INPUT): they replace `[source]` with a sequence
+    /// of these paths when the config is read, at start and on every reload
+    /// ([`read_config`]).
+    pub source_paths: Option<Vec<String>>,
+}
+
+/// Reads and validates the daemon's config: the file at `path` (the defaults without one), its
+/// `[source]` replaced by a sequence of `source_paths` when INPUT files were given.
+pub fn read_config(
+    path: Option<&Path>,
+    source_paths: Option<&[String]>,
+) -> Result<Config, ConfigError> {
+    let mut raw = match path {
+        Some(path) => RawConfig::from_file(path)?,
+        None => RawConfig::default(),
+    };
+    if let Some(paths) = source_paths {
+        raw.source.kind = Some("sequence".to_owned());
+        raw.source.paths = Some(paths.to_vec());
+    }
+    raw.validate()
 }
 
 /// Errors of the daemon.
@@ -163,6 +184,8 @@ pub struct DaemonSummary {
 pub struct Daemon {
     config: Config,
     replaying: bool,
+    /// INPUT files that replace `[source]` on every reload ([`DaemonOptions::source_paths`]).
+    source_paths: Option<Vec<String>>,
     runtime: tokio::runtime::Runtime,
     pipeline: Pipeline,
     server: StreamServer,
@@ -201,7 +224,10 @@ impl Daemon {
                 QueuePolicy::DropOldest,
             ),
         };
-        Self::start_parts(config, source, settings, policy, options.record.as_deref())
+        let mut daemon =
+            Self::start_parts(config, source, settings, policy, options.record.as_deref())?;
+        daemon.source_paths = options.source_paths;
+        Ok(daemon)
     }
 
     /// Starts the daemon on a frame source of the caller's (a custom camera, a test source)
@@ -246,15 +272,6 @@ impl Daemon {
         let on_publish = match &publisher_pass {
             Some(pass) => pass.hook().then(observe),
             None => observe,
-        };
-        let (tap, recorder) = match record {
-            Some(dir) => {
-                let (tx, rx) = crossbeam_channel::bounded(4);
-                let recorder = Recorder::start(dir, &description, &settings, rx)?;
-                tracing::info!(dir = %dir.display(), "recording the session");
-                (Some(tx), Some(recorder))
-            }
-            None => (None, None),
         };
         // The renderer is built before anything starts, so a missing GPU adapter or a bad scene
         // is a clear start-up error.
@@ -303,6 +320,29 @@ impl Daemon {
             .into_iter()
             .chain(wavelet.as_ref().map(WaveletStage::feed))
             .collect();
+        // The recording is started last before the pipeline, and removed again if the start
+        // fails, so a failed start leaves the directory as it was.
+        let (tap, recorder) = match record {
+            Some(dir) => {
+                let (tx, rx) = crossbeam_channel::bounded(4);
+                match Recorder::start(dir, &description, &settings, rx) {
+                    Ok(recorder) => {
+                        tracing::info!(dir = %dir.display(), "recording the session");
+                        (Some(tx), Some(recorder))
+                    }
+                    Err(error) => {
+                        if let Some(asg) = asg {
+                            let _ = asg.join();
+                        }
+                        if let Some(wavelet) = wavelet {
+                            let _ = wavelet.join();
+                        }
+                        return Err(error.into());
+                    }
+                }
+            }
+            None => (None, None),
+        };
         let pipeline_options = PipelineOptions {
             queue_capacity: config.pipeline.queue_capacity,
             queue_policy: policy,
@@ -318,6 +358,9 @@ impl Daemon {
                 }
                 if let Some(wavelet) = wavelet {
                     let _ = wavelet.join();
+                }
+                if let Some(recorder) = recorder {
+                    recorder.discard();
                 }
                 return Err(error.into());
             }
@@ -386,7 +429,7 @@ impl Daemon {
                     let _ = wavelet.join();
                 }
                 if let Some(recorder) = recorder {
-                    let _ = recorder.finish();
+                    recorder.discard();
                 }
                 return Err(error);
             }
@@ -418,6 +461,7 @@ impl Daemon {
         Ok(Daemon {
             config,
             replaying,
+            source_paths: None,
             runtime,
             pipeline,
             server,
@@ -477,6 +521,12 @@ impl Daemon {
                 report
                     .needs_restart
                     .push("[decompose] (a replay uses the recording's settings)".to_owned());
+            } else if self.recorder.is_some() {
+                report.needs_restart.push(
+                    "[decompose] (not changed while recording: the recording keeps one set of \
+                     settings, so that its replay makes the recorded lights)"
+                        .to_owned(),
+                );
             } else {
                 match self.pipeline.reconfigure(new.decompose.clone()) {
                     Ok(()) => {
@@ -525,6 +575,7 @@ impl Daemon {
         let sections = [
             ("[source]", new.source != old.source),
             ("[source] / [sky]", new.sky != old.sky),
+            ("[camera]", new.camera != old.camera),
             ("[pipeline]", new.pipeline != old.pipeline),
             ("[stream]", new.stream != old.stream),
             ("[metrics]", new.metrics != old.metrics),
@@ -543,7 +594,7 @@ impl Daemon {
 
     /// Reads, validates and applies a config file; a bad file changes nothing.
     pub fn reload_file(&mut self, path: &Path) -> Result<ReloadReport, ConfigError> {
-        let config = RawConfig::from_file(path)?.validate()?;
+        let config = read_config(Some(path), self.source_paths.as_deref())?;
         Ok(self.reload(config))
     }
 

@@ -776,6 +776,7 @@ fn main() -> ExitCode {
                     (dir, pacing)
                 }),
                 record: args.record,
+                source_paths: source_paths(&args.daemon),
             },
         ),
         Command::Record(args) => run_daemon(
@@ -783,6 +784,7 @@ fn main() -> ExitCode {
             DaemonOptions {
                 replay: None,
                 record: Some(args.out),
+                source_paths: source_paths(&args.daemon),
             },
         ),
         Command::CheckConfig(args) => check_config(&args),
@@ -819,18 +821,20 @@ fn main() -> ExitCode {
 }
 
 /// Loads the config (defaults without --config) with INPUT as the source.
+/// INPUT files of `envlight run`/`record`, which replace `[source]`.
+fn source_paths(args: &DaemonArgs) -> Option<Vec<String>> {
+    (!args.inputs.is_empty()).then(|| args.inputs.clone())
+}
+
 fn daemon_config(args: &DaemonArgs) -> Result<Config> {
-    let mut raw = match &args.config {
-        Some(path) => RawConfig::from_file(path)?,
-        None => RawConfig::default(),
-    };
-    if !args.inputs.is_empty() {
-        raw.source.kind = Some("sequence".to_owned());
-        raw.source.paths = Some(args.inputs.clone());
-    }
-    raw.validate().map_err(|e| match &args.config {
-        Some(path) => anyhow!(e).context(format!("invalid setting in {}", path.display())),
-        None => anyhow!(e),
+    let paths = source_paths(args);
+    envlight::daemon::read_config(args.config.as_deref(), paths.as_deref()).map_err(|e| {
+        match (&args.config, &e) {
+            (Some(path), ConfigError::Invalid { .. }) => {
+                anyhow!(e).context(format!("invalid setting in {}", path.display()))
+            }
+            _ => anyhow!(e),
+        }
     })
 }
 

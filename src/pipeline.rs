@@ -346,6 +346,10 @@ impl Pipeline {
         let capture_handle = std::thread::Builder::new()
             .name(CAPTURE_THREAD_NAME.to_owned())
             .spawn(move || {
+                let stop_flag = Arc::clone(&capture_shared);
+                crate::capture::interrupt_sleeps_when(move || {
+                    stop_flag.shutdown.load(Ordering::Acquire)
+                });
                 capture_loop(
                     source.as_mut(),
                     &frame_tx,

@@ -182,6 +182,20 @@ impl Recorder {
     pub fn finish(self) -> Result<RecordSummary, RecordError> {
         self.thread.join().unwrap_or(Err(RecordError::Panicked))
     }
+
+    /// Ends a recording of a session that failed to start: once the tap is closed, removes
+    /// what [`Recorder::start`] created if no frame was recorded, so the directory is empty
+    /// again and the same command can be retried. A recording with frames is kept.
+    pub fn discard(self) {
+        let dir = self.dir.clone();
+        if matches!(self.finish(), Ok(summary) if summary.frames > 0) {
+            return;
+        }
+        for name in ["session.json", "frames.jsonl", "lights.jsonl"] {
+            let _ = std::fs::remove_file(dir.join(name));
+        }
+        let _ = std::fs::remove_dir(dir.join("frames"));
+    }
 }
 
 fn write_frame(
@@ -260,13 +274,20 @@ impl ReplaySource {
         })?;
         if session.format != FORMAT_NAME || session.version != FORMAT_VERSION {
             return Err(CaptureError::Format {
-                path: session_path,
+                path: session_path.clone(),
                 message: format!(
                     "format {:?} version {} (this envlight reads {FORMAT_NAME:?} version {FORMAT_VERSION})",
                     session.format, session.version
                 ),
             });
         }
+        session
+            .decompose
+            .validate()
+            .map_err(|e| CaptureError::Format {
+                path: session_path,
+                message: format!("invalid decomposition settings: {e}"),
+            })?;
         let index_path = dir.join("frames.jsonl");
         let file = std::fs::File::open(&index_path).map_err(io(&index_path))?;
         let mut entries: Vec<FrameEntry> = Vec::new();

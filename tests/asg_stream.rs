@@ -66,6 +66,7 @@ fn asg_clients_receive_what_the_fitter_computes() {
         DaemonOptions {
             replay: Some((recording.clone(), Pacing::Original)),
             record: None,
+            source_paths: None,
         },
     )
     .unwrap();

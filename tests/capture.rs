@@ -636,6 +636,20 @@ fn broken_links_are_errors_and_links_to_a_frame_are_one_frame() {
     assert!(err.to_string().contains("f_3.exr"), "{err}");
 }
 
+/// A frame path that is a pipe is refused before it is opened (opening it blocked forever).
+#[test]
+fn a_pipe_is_no_frame_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("frame.exr");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let err = read_hdr_image(&fifo).unwrap_err();
+    assert!(err.to_string().contains("not a regular file"), "{err}");
+}
+
 #[test]
 fn no_frames_names_inputs() {
     let dir = tempfile::tempdir().unwrap();

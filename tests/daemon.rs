@@ -832,6 +832,7 @@ fn a_recording_replays_to_the_same_light_stream() {
         DaemonOptions {
             replay: None,
             record: Some(recording.clone()),
+            source_paths: None,
         },
     )
     .unwrap();
@@ -847,6 +848,7 @@ fn a_recording_replays_to_the_same_light_stream() {
         DaemonOptions {
             replay: None,
             record: Some(recording.clone()),
+            source_paths: None,
         },
     );
     assert!(again.err().unwrap().to_string().contains("not empty"));
@@ -861,6 +863,7 @@ fn a_recording_replays_to_the_same_light_stream() {
         DaemonOptions {
             replay: Some((recording.clone(), Pacing::AsFastAsPossible)),
             record: Some(replayed.clone()),
+            source_paths: None,
         },
     )
     .unwrap();
@@ -893,6 +896,7 @@ fn replay_keeps_the_original_timing() {
     let options = DaemonOptions {
         replay: None,
         record: Some(recording.clone()),
+        source_paths: None,
     };
     let daemon = Daemon::start(config.clone(), options).unwrap();
     wait_until("the recording", || daemon.source_finished());
@@ -901,6 +905,7 @@ fn replay_keeps_the_original_timing() {
     let options = DaemonOptions {
         replay: Some((recording, Pacing::Original)),
         record: None,
+        source_paths: None,
     };
     let daemon = Daemon::start(config, options).unwrap();
     wait_until("the replay", || daemon.source_finished());
@@ -1054,6 +1059,148 @@ fn reloading_an_unchanged_sky_config_reports_no_change() {
     assert!(report.applied.is_empty(), "{report:?}");
     assert!(report.needs_restart.is_empty(), "{report:?}");
     daemon.shutdown().unwrap();
+}
+
+/// The config text of [`config`], to reload from a file.
+fn config_text(dir: &Path, extra: &str) -> String {
+    format!(
+        "[stream]\nunix_socket = \"{}\"\ntcp = \"127.0.0.1:0\"\nwebsocket = \"127.0.0.1:0\"\n\
+         [metrics]\nlisten = \"127.0.0.1:0\"\n{extra}",
+        dir.join("envlight.sock").display()
+    )
+}
+
+/// A daemon started with INPUT files reads its config on SIGHUP as at start: the files replace
+/// `[source]` (an unchanged file was reported as a `[source]` change, and one that set a
+/// projection failed every reload); `[camera]` changes are reported as needing a restart.
+#[test]
+fn reloads_keep_the_input_files_and_report_camera_changes() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    for i in 0..3 {
+        let path = frames.join(format!("f_{i}.exr"));
+        exr::prelude::write_rgb_file(&path, 16, 8, |_, _| (1.0f32, 1.0f32, 1.0f32)).unwrap();
+    }
+    let inputs = vec![frames.display().to_string()];
+    let extra = "[source]\nprojection = \"angular\"\nloop = true\nfps = 30.0\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n";
+    let path = dir.path().join("envlight.toml");
+    std::fs::write(&path, config_text(dir.path(), extra)).unwrap();
+    let config = envlight::daemon::read_config(Some(&path), Some(&inputs)).unwrap();
+    let options = DaemonOptions {
+        source_paths: Some(inputs),
+        ..DaemonOptions::default()
+    };
+    let mut daemon = Daemon::start(config, options).unwrap();
+    let report = daemon.reload_file(&path).unwrap();
+    assert!(
+        report.applied.is_empty() && report.needs_restart.is_empty(),
+        "{report:?}"
+    );
+    let changed = extra.replace("lights = 8", "lights = 6") + "[camera]\nexposure_s = 0.01\n";
+    std::fs::write(&path, config_text(dir.path(), &changed)).unwrap();
+    let report = daemon.reload_file(&path).unwrap();
+    assert_eq!(report.applied, ["[decompose]"], "{report:?}");
+    assert_eq!(report.needs_restart.len(), 1, "{report:?}");
+    assert!(
+        report.needs_restart[0].starts_with("[camera]"),
+        "{report:?}"
+    );
+    daemon.shutdown().unwrap();
+}
+
+/// While recording, a `[decompose]` change is not applied live (the recording's one set of
+/// settings could not replay it) and is reported.
+#[test]
+fn decompose_changes_wait_for_a_restart_while_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = common::SMALL_SKY;
+    let options = DaemonOptions {
+        record: Some(dir.path().join("recording")),
+        ..DaemonOptions::default()
+    };
+    let mut daemon = Daemon::start(config(dir.path(), extra), options).unwrap();
+    let report = daemon.reload(config(
+        dir.path(),
+        &extra.replace("lights = 8", "lights = 6"),
+    ));
+    assert!(report.applied.is_empty(), "{report:?}");
+    assert!(
+        report
+            .needs_restart
+            .iter()
+            .any(|r| r.contains("while recording")),
+        "{report:?}"
+    );
+    daemon.shutdown().unwrap();
+}
+
+/// A start that fails after the recording was created (here the stream's TCP port is taken)
+/// leaves the recording directory empty, so the same command can be retried.
+#[test]
+fn a_failed_start_removes_its_empty_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let text = config_text(dir.path(), common::SMALL_SKY).replace(
+        "tcp = \"127.0.0.1:0\"",
+        &format!("tcp = \"127.0.0.1:{port}\""),
+    );
+    let config = RawConfig::parse(&text, Path::new("t.toml"))
+        .unwrap()
+        .validate()
+        .unwrap();
+    let recording = dir.path().join("recording");
+    let options = DaemonOptions {
+        record: Some(recording.clone()),
+        ..DaemonOptions::default()
+    };
+    assert!(Daemon::start(config, options).is_err());
+    let left: Vec<_> = std::fs::read_dir(&recording).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+/// A shutdown while the source waits for its next frame (a sky at one frame per 1,000 s) ends
+/// the wait: the capture thread once slept through SIGTERM until the frame was due.
+#[test]
+fn a_shutdown_ends_the_wait_for_a_slow_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let slow = common::SMALL_SKY.replace("fps = 30.0", "fps = 0.001");
+    let daemon = Daemon::start(config(dir.path(), &slow), DaemonOptions::default()).unwrap();
+    wait_until("the first frame", || {
+        daemon.pipeline().stats().frames_decomposed >= 1
+    });
+    let (done_tx, done_rx) = std::sync::mpsc::sync_channel(1);
+    let _stopper = spawn("stopper", move || {
+        let _ = done_tx.send(daemon.shutdown().is_ok());
+    });
+    assert_eq!(
+        done_rx.recv_timeout(TIMEOUT),
+        Ok(true),
+        "the shutdown waited for the frame"
+    );
+}
+
+/// A replay whose session.json holds settings no decomposer accepts names the file.
+#[test]
+fn a_recordings_bad_settings_name_its_session_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("recording");
+    common::record_sky(&recording, 3);
+    let session = recording.join("session.json");
+    let text = std::fs::read_to_string(&session).unwrap();
+    let text = text.replacen("\"lights\": 16", "\"lights\": 0", 1);
+    assert!(text.contains("\"lights\": 0"), "{text}");
+    std::fs::write(&session, text).unwrap();
+    let err = envlight::record::ReplaySource::open(&recording, Pacing::AsFastAsPossible)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("session.json") && err.contains("light count 0"),
+        "{err}"
+    );
 }
 
 /// `envlight run` with a config that leaves `[source]` out: the sky is served until SIGTERM at

@@ -82,6 +82,7 @@ fn wavelet_clients_receive_what_the_library_computes() {
         DaemonOptions {
             replay: Some((recording.clone(), Pacing::Original)),
             record: None,
+            source_paths: None,
         },
     )
     .unwrap();

@@ -111,10 +111,18 @@ pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
                 .join(", ")
         ),
     })?;
-    let bytes = std::fs::read(path).map_err(|source| CaptureError::Io {
+    let io_error = |source| CaptureError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
+    // A pipe or a device would block the open or never end: only regular files are frames.
+    if !std::fs::metadata(path).map_err(io_error)?.is_file() {
+        return Err(format_error(
+            path,
+            "not a regular file (a directory, pipe, socket or device)".to_string(),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(io_error)?;
     decode_hdr_image(&bytes, format, path)
 }
 

@@ -157,16 +157,44 @@ pub fn check_fps(fps: f64) -> Result<(), String> {
     }
 }
 
-/// Sleeps until `time_s` seconds after `start` (no sleep when that has passed). A time that no
+std::thread_local! {
+    /// The calling thread's stop test for [`sleep_until`] ([`interrupt_sleeps_when`]).
+    static SLEEP_STOP: std::cell::RefCell<Option<Box<dyn Fn() -> bool>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Makes every later [`sleep_until`] on the calling thread return early once `stop()` is true
+/// (checked every [`SLEEP_SLICE`]). The pipeline's capture thread sets this to its shutdown
+/// flag, so a paced source waiting long for its next frame (a slow sky, a replay's gap) does
+/// not hold up a shutdown.
+pub fn interrupt_sleeps_when(stop: impl Fn() -> bool + 'static) {
+    SLEEP_STOP.with(|slot| *slot.borrow_mut() = Some(Box::new(stop)));
+}
+
+/// The longest single sleep of [`sleep_until`] on a thread with a stop test.
+pub const SLEEP_SLICE: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Sleeps until `time_s` seconds after `start` (no sleep when that has passed), or until the
+/// thread's stop test ([`interrupt_sleeps_when`]) is true. A time that no
 /// [`Instant`](std::time::Instant) can hold — only reachable with a rate below [`MIN_FPS`] or
 /// after centuries of frames — is treated as due now rather than panicking.
 pub(crate) fn sleep_until(start: std::time::Instant, time_s: f64) {
     let due = std::time::Duration::try_from_secs_f64(time_s)
         .ok()
         .and_then(|offset| start.checked_add(offset));
-    if let Some(wait) = due.and_then(|due| due.checked_duration_since(std::time::Instant::now())) {
-        std::thread::sleep(wait);
-    }
+    let Some(due) = due else {
+        return;
+    };
+    SLEEP_STOP.with(|slot| {
+        let stop = slot.borrow();
+        while let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+            match stop.as_ref() {
+                None => return std::thread::sleep(wait),
+                Some(stop) if stop() => return,
+                Some(_) => std::thread::sleep(wait.min(SLEEP_SLICE)),
+            }
+        }
+    });
 }
 
 /// Opens the frame source a validated [`Config`](crate::config::Config) describes: the

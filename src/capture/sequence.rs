@@ -231,7 +231,9 @@ fn is_glob_pattern(input: &str) -> bool {
 /// Files named by `inputs`, deduplicated and in natural order.
 fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
     let mut found: Vec<PathBuf> = Vec::new();
+    let mut matched_nothing: Vec<&str> = Vec::new();
     for input in inputs {
+        let before = found.len();
         let path = Path::new(input);
         match std::fs::metadata(path) {
             Ok(meta) if meta.is_dir() => {
@@ -276,6 +278,15 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
                     source,
                 })
             }
+        }
+        if found.len() == before {
+            matched_nothing.push(input);
+        }
+    }
+    // With frames from other inputs, an input with none would be lost without a word.
+    if !found.is_empty() {
+        for input in matched_nothing {
+            tracing::warn!("{input}: no .exr or .hdr frames (an empty directory or a pattern that matches none)");
         }
     }
 

@@ -243,6 +243,41 @@ impl Region {
     }
 }
 
+impl DecomposeSettings {
+    /// Checks every setting as [`Decomposer::new`] does, without building anything: the error
+    /// names the first bad one.
+    pub fn validate(&self) -> Result<(), DecomposeError> {
+        let settings = self;
+        validate_light_count(settings.lights)?;
+        if !WORKING_WIDTH_RANGE.contains(&settings.working_width) {
+            return Err(DecomposeError::WorkingWidth(settings.working_width));
+        }
+        if let Some(f) = settings.merge_spacing_fraction {
+            if !(f > 0.0 && f <= 2.0) {
+                return Err(DecomposeError::MergeFraction(f));
+            }
+        }
+        if !(settings.pdf_exponent > 0.0 && settings.pdf_exponent <= 1.0) {
+            return Err(DecomposeError::PdfExponent(settings.pdf_exponent));
+        }
+        if let Some(f) = settings.split_factor {
+            if !(f.is_finite() && f >= 1.0) {
+                return Err(DecomposeError::SplitFactor(f));
+            }
+            if settings.placement != LightPlacement::Centroid {
+                return Err(DecomposeError::SplitPlacement);
+            }
+        }
+        if !(1..=MAX_RESAMPLE_THREADS).contains(&settings.resample_threads) {
+            return Err(DecomposeError::ResampleThreads(settings.resample_threads));
+        }
+        if let Some(taps) = &settings.filter_taps {
+            FirFilter::new(taps).map_err(DecomposeError::FilterTaps)?;
+        }
+        Ok(())
+    }
+}
+
 /// Turns frames into light lists; holds the point set, the per-geometry resampler and buckets,
 /// and the temporal filter state, so one `Decomposer` serves one stream of frames.
 pub struct Decomposer {
@@ -278,29 +313,7 @@ pub struct Decomposer {
 impl Decomposer {
     /// Validates `settings` and prepares the point set for `settings.lights` lights.
     pub fn new(settings: DecomposeSettings) -> Result<Self, DecomposeError> {
-        validate_light_count(settings.lights)?;
-        if !WORKING_WIDTH_RANGE.contains(&settings.working_width) {
-            return Err(DecomposeError::WorkingWidth(settings.working_width));
-        }
-        if let Some(f) = settings.merge_spacing_fraction {
-            if !(f > 0.0 && f <= 2.0) {
-                return Err(DecomposeError::MergeFraction(f));
-            }
-        }
-        if !(settings.pdf_exponent > 0.0 && settings.pdf_exponent <= 1.0) {
-            return Err(DecomposeError::PdfExponent(settings.pdf_exponent));
-        }
-        if let Some(f) = settings.split_factor {
-            if !(f.is_finite() && f >= 1.0) {
-                return Err(DecomposeError::SplitFactor(f));
-            }
-            if settings.placement != LightPlacement::Centroid {
-                return Err(DecomposeError::SplitPlacement);
-            }
-        }
-        if !(1..=MAX_RESAMPLE_THREADS).contains(&settings.resample_threads) {
-            return Err(DecomposeError::ResampleThreads(settings.resample_threads));
-        }
+        settings.validate()?;
         let filter = match &settings.filter_taps {
             Some(taps) => Some(
                 FirFilter::new(taps)

@@ -110,6 +110,7 @@ pub fn record_sky(dir: &Path, frames: u64) -> u64 {
         DaemonOptions {
             replay: None,
             record: Some(dir.to_path_buf()),
+            source_paths: None,
         },
     )
     .unwrap();
