@@ -8,6 +8,7 @@ use envlight::capture::bracket::{read_bracket_image, recover_response, Bracket, 
 use envlight::capture::image_file::{read_hdr_image, ImageFormat};
 use envlight::capture::v4l2::{list_devices, CameraSettings, V4l2Source};
 use envlight::envmap::fisheye_detect::detect_image_circle;
+use envlight::envmap::{FisheyeCalibration, FisheyeModel};
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
@@ -38,7 +39,7 @@ pub struct CalibrateResponseArgs {
     #[arg(long, value_name = "N")]
     levels: Option<usize>,
 
-    /// Smoothness weight λ. [default: 100]
+    /// Smoothness weight λ, in (0, 1e6]. [default: 100]
     #[arg(long, value_name = "L")]
     lambda: Option<f64>,
 
@@ -75,13 +76,14 @@ pub fn devices() -> Result<()> {
     if devices.is_empty() {
         eprintln!("no /dev/video* devices found");
     }
+    let mut text = String::new();
     for (path, info) in devices {
         match info {
-            Ok(info) => print!("{info}"),
-            Err(e) => println!("{}: cannot query: {e}", path.display()),
+            Ok(info) => text += &info.to_string(),
+            Err(e) => text += &format!("{}: cannot query: {e}\n", path.display()),
         }
     }
-    Ok(())
+    crate::cli_output::print(&text)
 }
 
 pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
@@ -154,32 +156,40 @@ pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
     let (w, h, pixels) = read_any_image(&args.image)?;
     let circle = detect_image_circle(&pixels, w, h)
         .with_context(|| format!("{}: no image circle found", args.image.display()))?;
-    let model = match args.model.unwrap_or(ModelArg::Equidistant) {
-        ModelArg::Equidistant => "equidistant",
-        ModelArg::Equisolid => "equisolid",
-        ModelArg::Stereographic => "stereographic",
-        ModelArg::Orthographic => "orthographic",
+    let (model, model_kind) = match args.model.unwrap_or(ModelArg::Equidistant) {
+        ModelArg::Equidistant => ("equidistant", FisheyeModel::Equidistant),
+        ModelArg::Equisolid => ("equisolid", FisheyeModel::Equisolid),
+        ModelArg::Stereographic => ("stereographic", FisheyeModel::Stereographic),
+        ModelArg::Orthographic => ("orthographic", FisheyeModel::Orthographic),
     };
     let fov = args.fov.unwrap_or(180.0);
-    if !(fov.is_finite() && fov > 0.0 && fov < 360.0) {
-        bail!("invalid --fov {fov}: must be in (0, 360) degrees");
-    }
-    println!(
-        "# envlight calibrate-fisheye {}: {w}x{h}, {} edge points, rms residual {:.3} px",
+    // The lines printed must pass check-config: the same checks as a config's [source.fisheye].
+    let calibration = FisheyeCalibration {
+        model: model_kind,
+        center: Some(circle.center),
+        radius: Some(circle.radius),
+        fov_deg: fov,
+        rotation_deg: 0.0,
+    };
+    calibration
+        .validate(w, h)
+        .map_err(|e| anyhow::anyhow!("invalid --fov or --model: {e}"))?;
+    let text = format!(
+        "# envlight calibrate-fisheye {}: {w}x{h}, {} edge points, rms residual {:.3} px\n\
+         # model and fov_deg are as given (--model, --fov); rotation_deg is not detected:\n\
+         # set it so that a known direction (the sun, a landmark) lands where it should.\n\
+         [source.fisheye]\n\
+         model = \"{model}\"\n\
+         center = [{:.3}, {:.3}]\n\
+         radius = {:.3}\n\
+         fov_deg = {fov:?}\n\
+         rotation_deg = 0.0\n",
         args.image.display(),
         circle.points,
-        circle.rms_residual
+        circle.rms_residual,
+        circle.center[0],
+        circle.center[1],
+        circle.radius,
     );
-    println!("# model and fov_deg are as given (--model, --fov); rotation_deg is not detected:");
-    println!("# set it so that a known direction (the sun, a landmark) lands where it should.");
-    println!("[source.fisheye]");
-    println!("model = \"{model}\"");
-    println!(
-        "center = [{:.3}, {:.3}]",
-        circle.center[0], circle.center[1]
-    );
-    println!("radius = {:.3}", circle.radius);
-    println!("fov_deg = {fov:?}");
-    println!("rotation_deg = 0.0");
-    Ok(())
+    crate::cli_output::print(&text)
 }

@@ -198,12 +198,22 @@ pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::Ca
         path: path.to_path_buf(),
         source,
     })?;
-    let img = reader
+    let decoder = reader
         .with_guessed_format()
         .map_err(|e| err(e.to_string()))?
-        .decode()
+        .into_decoder()
+        .map_err(|e| err(e.to_string()))?;
+    // The size first: a small file can declare a huge image.
+    let (width, height) = image::ImageDecoder::dimensions(&decoder);
+    if u64::from(width) * u64::from(height) > super::image_file::MAX_PIXELS {
+        return Err(err(format!(
+            "image is too large ({width}x{height}; at most {} pixels are read)",
+            super::image_file::MAX_PIXELS
+        )));
+    }
+    let img = image::DynamicImage::from_decoder(decoder)
         .map_err(|e| err(e.to_string()))?
-        .to_rgb32f();
+        .into_rgb32f();
     let (width, height) = img.dimensions();
     let pixels = img
         .pixels()
@@ -215,6 +225,9 @@ pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::Ca
         pixels,
     })
 }
+
+/// The largest smoothness weight λ of [`recover_response`].
+pub const MAX_LAMBDA: f64 = 1e6;
 
 /// Settings of [`recover_response`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -255,10 +268,22 @@ pub fn recover_response(
             "levels = {n} must be in 4..=4096"
         )));
     }
-    if !(settings.lambda.is_finite() && settings.lambda >= 0.0) {
+    // λ = 0 leaves the curve free at codes no sample has (a singular system); past 10⁶ the
+    // smoothness rows swamp the data rows in f64 (1e300 made the system singular too).
+    if !(settings.lambda > 0.0 && settings.lambda <= MAX_LAMBDA) {
         return Err(BracketError::Settings(format!(
-            "lambda = {} must be a non-negative number",
+            "lambda = {} must be in (0, {MAX_LAMBDA:e}]",
             settings.lambda
+        )));
+    }
+    let first_exposure = brackets[0].exposure_s * brackets[0].gain;
+    if brackets
+        .iter()
+        .all(|b| (b.exposure_s * b.gain - first_exposure).abs() <= 1e-9 * first_exposure)
+    {
+        return Err(BracketError::Settings(format!(
+            "response recovery needs brackets with different exposures; every bracket's \
+             exposure × gain is {first_exposure} s"
         )));
     }
     if !(2..=5000).contains(&settings.samples) {
@@ -313,7 +338,8 @@ pub fn recover_response(
         if samples.len() < 2 {
             return Err(BracketError::Solve(format!(
                 "the {} channel has fewer than 2 sample pixels that are neither black nor \
-                 clipped in some bracket: the brackets need a wider range of exposures",
+                 clipped in some bracket: the brackets need a wider range of exposures, or \
+                 more sample pixels",
                 ["red", "green", "blue"][c]
             )));
         }
@@ -342,7 +368,8 @@ pub fn recover_response(
         }
         let g = cholesky_solve(&mut ata, &atb, m).ok_or_else(|| {
             BracketError::Solve(format!(
-                "the {} channel's system is singular (are the exposures all equal?)",
+                "the {} channel's system is singular (too little data: more sample pixels or \
+                 a wider range of exposures)",
                 ["red", "green", "blue"][c]
             ))
         })?;
@@ -475,7 +502,60 @@ mod tests {
         assert!(merge_brackets(std::slice::from_ref(&ok), &m, 255.0, &r, bad_limits).is_err());
         let e = recover_response(std::slice::from_ref(&ok), SolveSettings::default()).unwrap_err();
         assert!(e.to_string().contains("at least 2"), "{e}");
-        // identical exposures of a flat image cannot determine a curve, but must not panic
-        let _ = recover_response(&[ok.clone(), ok], SolveSettings::default());
+        // Identical exposures cannot determine a curve (one wrote a flat curve).
+        let e = recover_response(&[ok.clone(), ok.clone()], SolveSettings::default()).unwrap_err();
+        assert!(e.to_string().contains("different exposures"), "{e}");
+        let longer = Bracket {
+            exposure_s: 4.0,
+            ..ok.clone()
+        };
+        for lambda in [0.0, 2e6, f64::NAN] {
+            let settings = SolveSettings {
+                lambda,
+                ..SolveSettings::default()
+            };
+            let e = recover_response(&[ok.clone(), longer.clone()], settings).unwrap_err();
+            assert!(e.to_string().contains("lambda"), "{lambda}: {e}");
+        }
+    }
+
+    /// CRC-32 (PNG's) of `bytes`.
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = if crc & 1 == 1 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+
+    /// A PNG that declares more pixels than are read is refused from its header, before the
+    /// image is allocated (an 11000×11000 black PNG of 353 KB took 2.8 GB).
+    #[test]
+    fn oversized_bracket_images_are_refused_from_the_header() {
+        let mut ihdr = b"IHDR".to_vec();
+        ihdr.extend_from_slice(&20_000u32.to_be_bytes());
+        ihdr.extend_from_slice(&20_000u32.to_be_bytes());
+        ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+        let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+        png.extend_from_slice(&13u32.to_be_bytes());
+        png.extend_from_slice(&ihdr);
+        png.extend_from_slice(&crc32(&ihdr).to_be_bytes());
+        for chunk in [&b"IDAT"[..], b"IEND"] {
+            png.extend_from_slice(&0u32.to_be_bytes());
+            png.extend_from_slice(chunk);
+            png.extend_from_slice(&crc32(chunk).to_be_bytes());
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("huge.png");
+        std::fs::write(&path, png).unwrap();
+        let e = read_bracket_image(&path).unwrap_err().to_string();
+        assert!(e.contains("huge.png") && e.contains("too large"), "{e}");
     }
 }

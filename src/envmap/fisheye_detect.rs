@@ -16,6 +16,13 @@
 //! 4. Robust fit: algebraic (Kåsa) circle fit, then Gauss–Newton on the geometric residuals
 //!    |p − c| − R, rejecting points whose residual exceeds max(3·1.4826·MAD, 0.25 px), five
 //!    rounds, the point selection of step 3 redone with each new centre.
+//! 5. Plausibility: the centre must lie in the frame, the radius be at most the frame's diagonal
+//!    and the RMS residual at most 2% of the radius (0.5 px for small circles); otherwise the
+//!    edge is no image circle (a half-lit frame, a bright rectangle) and detection fails.
+//!
+//! When the circle covers less than 40% of the frame, the 60th percentile of step 1 is the
+//! surround's level; the inside level is then the 60th percentile of the pixels above
+//! b + 0.05·(99th percentile − b).
 //!
 //! On the synthetic frames of `tests/camera.rs` (rendered with 4×4 super-sampling from the
 //! shared HDRIs, with noise) the centre and radius come out well within a pixel.
@@ -44,6 +51,17 @@ pub enum DetectError {
     NoContrast,
     #[error("no image circle: only {0} edge points found (is the circle inside the frame?)")]
     TooFewPoints(usize),
+    /// The edge found is no image circle of this frame.
+    #[error(
+        "no image circle: the edge found is not one (centre [{:.1}, {:.1}], radius {:.1} px, rms \
+         residual {:.2} px); {reason}", center[0], center[1], radius, rms_residual
+    )]
+    NotACircle {
+        center: [f64; 2],
+        radius: f64,
+        rms_residual: f64,
+        reason: &'static str,
+    },
 }
 
 fn percentile(sorted: &[f32], q: f64) -> f32 {
@@ -74,7 +92,17 @@ pub fn detect_image_circle(
     let mut sorted = lum.clone();
     sorted.sort_by(f32::total_cmp);
     let bg = percentile(&sorted, 0.05);
-    let level = percentile(&sorted, 0.60);
+    let mut level = percentile(&sorted, 0.60);
+    if !(level > bg && level.is_finite()) {
+        // A circle covering less than 40% of the frame: the 60th percentile is surround. Take
+        // the level among the pixels clearly above it (5% of the way to the 99th percentile).
+        let top = percentile(&sorted, 0.99);
+        let above = bg + 0.05 * (top - bg);
+        let start = sorted.partition_point(|&y| y <= above);
+        if start < sorted.len() {
+            level = percentile(&sorted[start..], 0.60);
+        }
+    }
     if !(level > bg && level.is_finite()) {
         return Err(DetectError::NoContrast);
     }
@@ -171,6 +199,27 @@ pub fn detect_image_circle(
     }
     if !(circle.0.is_finite() && circle.1.is_finite() && circle.2.is_finite() && circle.2 > 0.0) {
         return Err(DetectError::TooFewPoints(0));
+    }
+    // A half-bright frame fits a huge circle far outside it, a bright rectangle a circle its
+    // corners miss by pixels: a fisheye's circle is centred in the frame, no larger than its
+    // diagonal, and its edge points lie on it to within 2% of the radius (half a pixel for
+    // small circles).
+    let not_a_circle = |reason| DetectError::NotACircle {
+        center: [circle.0, circle.1],
+        radius: circle.2,
+        rms_residual: rms,
+        reason,
+    };
+    if !((0.0..=w as f64).contains(&circle.0) && (0.0..=h as f64).contains(&circle.1)) {
+        return Err(not_a_circle("its centre is outside the frame"));
+    }
+    if circle.2 > (w as f64).hypot(h as f64) {
+        return Err(not_a_circle("it is larger than the frame's diagonal"));
+    }
+    if rms.is_nan() || rms > (0.02 * circle.2).max(0.5) {
+        return Err(not_a_circle(
+            "the edge points are not on a circle (more than 2% of the radius off it)",
+        ));
     }
     Ok(ImageCircle {
         center: [circle.0, circle.1],
@@ -379,5 +428,52 @@ mod tests {
         assert!((c.center[0] - 40.3).abs() < 0.05, "{c:?}");
         assert!((c.center[1] - 33.6).abs() < 0.05, "{c:?}");
         assert!((c.radius - 27.7).abs() < 0.05, "{c:?}");
+    }
+
+    /// A disc of 0.7 on a 0.01 surround, `w`×`h`, pixel centres within `radius` of `centre`.
+    fn disc(w: u32, h: u32, centre: (f64, f64), radius: f64) -> Vec<[f32; 3]> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = (f64::from(i % w) + 0.5, f64::from(i / w) + 0.5);
+                let inside = (x - centre.0).hypot(y - centre.1) <= radius;
+                [if inside { 0.7 } else { 0.01 }; 3]
+            })
+            .collect()
+    }
+
+    /// A circle covering less than 40% of the frame is found (the 60th percentile was the
+    /// surround, and detection said "no contrast").
+    #[test]
+    fn small_circles_are_found() {
+        for radius in [20.0, 30.0, 38.0] {
+            let img = disc(128, 96, (64.0, 48.0), radius);
+            let c = detect_image_circle(&img, 128, 96).unwrap();
+            assert!((c.radius - radius).abs() < 1.0, "{radius}: {c:?}");
+            assert!((c.center[0] - 64.0).abs() < 0.5 && (c.center[1] - 48.0).abs() < 0.5);
+        }
+    }
+
+    /// Edges that are no image circle: a half-lit frame (its straight edge fitted a circle of
+    /// radius 139,000 centred far outside) and a bright rectangle.
+    #[test]
+    fn edges_that_are_no_circle_are_errors() {
+        let (w, h) = (64u32, 48u32);
+        let half: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| [if i % w < w / 2 { 1.0 } else { 0.0 }; 3])
+            .collect();
+        let e = detect_image_circle(&half, w, h).unwrap_err();
+        assert!(matches!(e, DetectError::NotACircle { .. }), "{e}");
+        let rect: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                [if (16..48).contains(&x) && (8..40).contains(&y) {
+                    1.0
+                } else {
+                    0.0
+                }; 3]
+            })
+            .collect();
+        let e = detect_image_circle(&rect, w, h).unwrap_err();
+        assert!(e.to_string().contains("not on a circle"), "{e}");
     }
 }
