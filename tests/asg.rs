@@ -799,3 +799,46 @@ fn fit_asg_command_prints_one_json_line_per_frame() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("lobe count 65"));
 }
+
+/// The fit does not depend on the map's scale: a map and the same map times 2^50 (about 1e15)
+/// or 2^−100 (about 8e−31) give the same loss, and lobes scaled by the same factor. The
+/// amplitude bounds were absolute: at 1e15 every lobe stuck at e^25 (loss 2, worse than black),
+/// at 1e−30 at e^−60.
+#[test]
+fn the_fit_does_not_depend_on_the_maps_scale() {
+    let frame = read_hdr("rooitou_park_1k.hdr");
+    let settings = FitSettings {
+        lobes: 4,
+        height: 16,
+        iterations: 200,
+        threads: 1,
+        ..FitSettings::default()
+    };
+    let fit = |scale: f32| {
+        let mut scaled = frame.clone();
+        scaled
+            .pixels
+            .iter_mut()
+            .for_each(|p| *p = p.map(|c| c * scale));
+        let mut fitter = AsgFitter::new(settings.clone()).unwrap();
+        fitter.fit_frame(&scaled).unwrap()
+    };
+    let unit = fit(1.0);
+    let unit_loss = unit.loss.unwrap().total;
+    for exponent in [50, -100] {
+        let scale = 2f32.powi(exponent);
+        let scaled = fit(scale);
+        let loss = scaled.loss.unwrap().total;
+        assert!(
+            (loss - unit_loss).abs() <= 1e-3 * unit_loss,
+            "scale 2^{exponent}: loss {loss} vs {unit_loss}"
+        );
+        for (a, b) in unit.lobes.iter().zip(&scaled.lobes) {
+            let ratio = b.rgb[1] / (a.rgb[1] * f64::from(scale));
+            assert!(
+                (ratio - 1.0).abs() < 1e-2,
+                "scale 2^{exponent}: {a:?} vs {b:?}"
+            );
+        }
+    }
+}

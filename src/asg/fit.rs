@@ -87,8 +87,12 @@ pub const DEFAULT_LOBES: usize = 16;
 pub const DEFAULT_HEIGHT: u32 = 256;
 /// Row bands the pixel sums are split into (fixed, so results do not depend on threads).
 const BANDS: usize = 32;
-/// Log-amplitude bounds: c ∈ [e^−60, e^25].
-const SIGMA_RANGE: (f64, f64) = (-60.0, 25.0);
+/// Log-amplitude bounds: c ∈ [e^−120, e^80] ≈ [8e−53, 6e34], past every radiance a frame holds
+/// (f32's smallest positive value, 1.4e−45, up to [`crate::frame::MAX_RADIANCE`], 1e30), so the
+/// fit does not depend on the map's scale: the loss is normalised by the map's mean, and the
+/// bounds were the one absolute quantity (at [e^−60, e^25] a uniform map of 1e15 was fitted
+/// with loss 2, worse than black, and one of 1e−30 with loss 2,588).
+const SIGMA_RANGE: (f64, f64) = (-120.0, 80.0);
 
 /// Reconstruction norm.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
