@@ -160,7 +160,7 @@ fn parse_basis(s: &str) -> Result<Basis, String> {
 pub struct ApproxArgs {
     #[command(flatten)]
     input: FrameInput,
-    /// Wavelet basis: haar, db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
+    /// Wavelet basis: haar (= db1 = d2), db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
     #[arg(long, value_parser = parse_basis, default_value = "db4")]
     basis: Basis,
     /// Coefficients to keep per frame (1..=SIZE²). [default: 1024, or SIZE² when that is less]

@@ -97,7 +97,7 @@ pub struct RelightArgs {
     /// Add a ground plane under a --scene file (it casts shadows and is relit too).
     #[arg(long)]
     ground: bool,
-    /// Wavelet basis: haar, db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
+    /// Wavelet basis: haar (= db1 = d2), db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
     #[arg(long, value_parser = parse_basis, default_value = "coif1")]
     basis: Basis,
     /// Side of the octahedral map (power of two, 2..=128): SIZE² directions per vertex.
@@ -138,7 +138,7 @@ pub struct RelightArgs {
 pub struct RecoverArgs {
     #[command(flatten)]
     input: FrameInput,
-    /// Wavelet basis: haar, db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
+    /// Wavelet basis: haar (= db1 = d2), db2..db10, coif1..coif5 (or d4..d20, c6..c30 by filter length).
     #[arg(long, value_parser = parse_basis, default_value = "coif1")]
     basis: Basis,
     /// Side of the octahedral map (power of two, 2..=64): SIZE² unknowns.

@@ -357,7 +357,16 @@ mod sphere {
 
     #[test]
     fn constant_map_stays_constant_and_a_point_source_lands_in_place() {
-        for (w, h, side) in [(1024u32, 512u32, 128usize), (64, 32, 128), (512, 256, 32)] {
+        // Also frames far from 2:1, whose pixels are not square on the sphere (4000×40 came
+        // out 7.7% off the constant, 2000×2 58%, before their sub-pixels followed the aspect).
+        for (w, h, side) in [
+            (1024u32, 512u32, 128usize),
+            (64, 32, 128),
+            (512, 256, 32),
+            (4000, 40, 64),
+            (2000, 2, 8),
+            (40, 400, 32),
+        ] {
             let frame =
                 HdrFrame::new(w, h, vec![[2.0; 3]; (w * h) as usize], Projection::LatLong).unwrap();
             let map = OctahedralMap::from_frame(&frame, side).unwrap();
@@ -395,6 +404,31 @@ mod sphere {
             }
         }
         assert!((near - energy).abs() < 1e-6 * energy, "{near} vs {energy}");
+    }
+
+    /// A fisheye frame whose calibration gives its circle in pixels resamples as the same
+    /// frame with the default (implied) circle: the sub-pixels' solid angles are the
+    /// calibration's at the frame's own size, split, not a finer image's with the same pixel
+    /// radius.
+    #[test]
+    fn an_explicit_fisheye_circle_resamples_as_the_implied_one() {
+        use envlight::envmap::FisheyeCalibration;
+        let (w, h) = (96u32, 80u32);
+        let implied = FisheyeCalibration::default();
+        let explicit = FisheyeCalibration {
+            center: Some([48.0, 40.0]),
+            radius: Some(40.0),
+            ..implied
+        };
+        let pixels: Vec<[f32; 3]> = (0..w * h).map(|i| [1.0 + (i % 7) as f32; 3]).collect();
+        let map = |cal| {
+            let frame = HdrFrame::new(w, h, pixels.clone(), Projection::Fisheye(cal)).unwrap();
+            OctahedralMap::from_frame(&frame, 32).unwrap()
+        };
+        let (a, b) = (map(implied), map(explicit));
+        let (ia, ib) = (a.integral()[0], b.integral()[0]);
+        assert!((ia - ib).abs() < 1e-9 * ia, "{ia} vs {ib}");
+        assert_eq!(a.texels(), b.texels());
     }
 
     #[test]

@@ -163,15 +163,15 @@ std::thread_local! {
         const { std::cell::RefCell::new(None) };
 }
 
-/// Makes every later [`sleep_until`] on the calling thread return early once `stop()` is true
-/// (checked every [`SLEEP_SLICE`]). The pipeline's capture thread sets this to its shutdown
-/// flag, so a paced source waiting long for its next frame (a slow sky, a replay's gap) does
-/// not hold up a shutdown.
+/// Makes every later wait of a paced source (`sleep_until`) on the calling thread end early
+/// once `stop()` is true (checked every [`SLEEP_SLICE`]). The pipeline's capture thread sets
+/// this to its shutdown flag, so a paced source waiting long for its next frame (a slow sky, a
+/// replay's gap) does not hold up a shutdown.
 pub fn interrupt_sleeps_when(stop: impl Fn() -> bool + 'static) {
     SLEEP_STOP.with(|slot| *slot.borrow_mut() = Some(Box::new(stop)));
 }
 
-/// The longest single sleep of [`sleep_until`] on a thread with a stop test.
+/// The longest single sleep of `sleep_until` on a thread with a stop test.
 pub const SLEEP_SLICE: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// Sleeps until `time_s` seconds after `start` (no sleep when that has passed), or until the

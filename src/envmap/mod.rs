@@ -61,6 +61,22 @@ impl Projection {
         }
     }
 
+    /// The same projection for the image magnified `n` times in each direction (its sub-pixel
+    /// grid): a fisheye calibration's centre and radius, given in pixels, scale with it; the
+    /// lat-long and angular maps depend on no pixel size.
+    pub fn magnified(&self, n: u32) -> Projection {
+        match self {
+            Projection::Fisheye(cal) => Projection::Fisheye(FisheyeCalibration {
+                center: cal
+                    .center
+                    .map(|[x, y]| [x * f64::from(n), y * f64::from(n)]),
+                radius: cal.radius.map(|r| r * f64::from(n)),
+                ..*cal
+            }),
+            other => *other,
+        }
+    }
+
     /// Short name used in logs and on the command line.
     pub fn name(&self) -> &'static str {
         match self {

@@ -25,7 +25,8 @@
 //! # Resampling ([`Resampler`], [`OctahedralMap::from_frame`])
 //!
 //! Energy-preserving splatting: every source pixel with solid angle Ω > 0 is split into n × n
-//! sub-pixels (n chosen so that about 16 sub-pixels land on an average texel: n = ⌈4·side/√P⌉
+//! sub-pixels (n chosen so that about 16 sub-pixels land on an average texel: n = ⌈4·side/√P⌉;
+//! a lat-long frame of another aspect than 2:1 gets n/√r × n·√r, r = (w/h)/2, `sub_pixels`)
 //! for P covered pixels, at least 1, the sub-pixel grid capped at 2^25), each carrying energy
 //! rgb·Ω_sub at its centre direction, Ω_sub being the projection's solid angle of the sub-pixel
 //! (its `solid_angles` at n× the resolution; they sum to the pixel's Ω). That
@@ -281,16 +282,33 @@ impl OctahedralMap {
     }
 }
 
-/// Sub-pixels per pixel side for resampling: enough for about 16 sub-pixels per texel
-/// (n = ⌈4·side/√covered⌉), at least 1, and at most what keeps the sub-pixel grid under
-/// [`MAX_SUB_PIXELS`].
-fn sub_pixels(side: usize, covered: usize, w: u32, h: u32) -> usize {
-    let want = (4.0 * side as f64 / (covered as f64).sqrt())
-        .ceil()
-        .max(1.0) as usize;
+/// Sub-pixels per pixel (across, down) for resampling: enough for about 16 sub-pixels per
+/// texel (n = ⌈4·side/√covered⌉ on each side of a pixel), at least 1, and at most what keeps
+/// the sub-pixel grid under [`MAX_SUB_PIXELS`]. A lat-long frame whose aspect `r` = (w/h)/2 is
+/// not 1 has pixels that are not square on the sphere: n/√r across and n·√r down, so a frame
+/// of 4000×40 pixels gets rows of sub-pixels closer than a texel (with n × n its rows were
+/// 4.5° apart, more than a 64-side map's texels, and a constant map came out 7.7% off).
+fn sub_pixels(side: usize, covered: usize, w: u32, h: u32, latlong: bool) -> (usize, usize) {
+    let n = 4.0 * side as f64 / (covered as f64).sqrt();
+    let aspect = if latlong {
+        (f64::from(w) / f64::from(h.max(1)) / 2.0).sqrt()
+    } else {
+        1.0
+    };
+    let (mut across, mut down) = (n / aspect, n * aspect);
     let pixels = (w as usize * h as usize).max(1);
-    let cap = ((MAX_SUB_PIXELS / pixels) as f64).sqrt().floor().max(1.0) as usize;
-    want.min(cap).min(64)
+    let room = (MAX_SUB_PIXELS / pixels) as f64;
+    let want = across.ceil().max(1.0) * down.ceil().max(1.0);
+    if want > room {
+        let shrink = (room / want).sqrt();
+        (across, down) = (across * shrink, down * shrink);
+    }
+    let count = |v: f64| (v.ceil().max(1.0) as usize).min(64);
+    let (across, down) = (count(across), count(down));
+    if across * down > room.max(1.0) as usize {
+        return (1, 1);
+    }
+    (across, down)
 }
 
 /// Upper bound on the sub-pixel grid of one resampling (its solid angles are held in memory).
@@ -383,38 +401,43 @@ impl Resampler {
         }
         let omegas = projection.solid_angles(w, h);
         let covered = omegas.iter().filter(|&&o| o > 0.0).count().max(1);
-        let n = sub_pixels(side, covered, w, h);
-        // Sub-pixel solid angles: the projection's own at n× the resolution, so the energy of a
-        // pixel is shared as the sphere is (near a lat-long pole the sub-pixels differ a lot).
-        let fine = if n > 1 {
-            projection.solid_angles(w * n as u32, h * n as u32)
+        let latlong = projection == Projection::LatLong;
+        let (nx, ny) = sub_pixels(side, covered, w, h, latlong);
+        let split = nx * ny > 1;
+        // Sub-pixel solid angles: the projection's own at nx × ny the resolution, so the energy
+        // of a pixel is shared as the sphere is (near a lat-long pole the sub-pixels differ a
+        // lot).
+        let fine = if split {
+            // nx = ny but for lat-long frames, whose solid angles depend on no pixel size.
+            projection
+                .magnified(nx as u32)
+                .solid_angles(w * nx as u32, h * ny as u32)
         } else {
             Vec::new()
         };
-        let fine_w = w as usize * n;
+        let fine_w = w as usize * nx;
         let s = side as f64;
-        let latlong = projection == Projection::LatLong;
         let mut offsets = Vec::with_capacity(pixels + 1);
         let mut entries: Vec<(u32, f32)> = Vec::with_capacity(pixels * 4);
-        let mut local: Vec<(u32, f64)> = Vec::with_capacity(4 * n * n);
+        let mut local: Vec<(u32, f64)> = Vec::with_capacity(4 * nx * ny);
         offsets.push(0u32);
         for py in 0..h {
             for px in 0..w {
                 let idx = py as usize * w as usize + px as usize;
                 local.clear();
                 if omegas[idx] > 0.0 {
-                    for j in 0..n {
-                        for i in 0..n {
-                            let omega = if n > 1 {
-                                fine[(py as usize * n + j) * fine_w + px as usize * n + i]
+                    for j in 0..ny {
+                        for i in 0..nx {
+                            let omega = if split {
+                                fine[(py as usize * ny + j) * fine_w + px as usize * nx + i]
                             } else {
                                 omegas[idx]
                             };
                             if omega <= 0.0 {
                                 continue;
                             }
-                            let sx = f64::from(px) + (i as f64 + 0.5) / n as f64;
-                            let sy = f64::from(py) + (j as f64 + 0.5) / n as f64;
+                            let sx = f64::from(px) + (i as f64 + 0.5) / nx as f64;
+                            let sy = f64::from(py) + (j as f64 + 0.5) / ny as f64;
                             let d = if latlong {
                                 Some(latlong_direction(w, h, sx, sy))
                             } else {
