@@ -33,13 +33,13 @@ pub struct Light {
     pub solid_angle: f32,
 }
 
-/// `v` as f32, saturating at `f32::MAX` instead of overflowing to ∞: a light's power summed in
-/// f64 beyond f32's range stays finite (the wire and JSON forms carry finite floats only). NaN
-/// stays NaN, so a bug that makes one is not hidden.
+/// `v` as f32, saturating at ±`f32::MAX` instead of overflowing to ±∞: a light's power (or a
+/// wavelet coefficient) summed in f64 beyond f32's range stays finite (the wire and JSON forms
+/// carry finite floats only). NaN stays NaN, so a bug that makes one is not hidden.
 pub fn saturating_f32(v: f64) -> f32 {
     let x = v as f32;
-    if x == f32::INFINITY {
-        f32::MAX
+    if x.is_infinite() {
+        f32::MAX.copysign(x)
     } else {
         x
     }
@@ -258,6 +258,14 @@ fn light_problem(light: &Light) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn saturating_f32_keeps_sums_finite_and_nan_visible() {
+        assert_eq!(saturating_f32(1e39), f32::MAX);
+        assert_eq!(saturating_f32(-1e39), -f32::MAX);
+        assert_eq!(saturating_f32(1.5), 1.5);
+        assert!(saturating_f32(f64::NAN).is_nan());
+    }
 
     #[test]
     fn json_lines_round_trip_and_errors_name_the_line() {

@@ -879,7 +879,19 @@ fn bind_unix(path: &Path, mode: u32) -> Result<UnixListener, ServerError> {
         std::fs::remove_file(path).map_err(bind_error)?;
     }
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(bind_error)?;
+        std::fs::create_dir_all(dir).map_err(|error| {
+            // "File exists" when a regular file stands where a directory should: name it.
+            let blocker = dir
+                .ancestors()
+                .find(|a| std::fs::metadata(a).is_ok_and(|m| !m.is_dir()));
+            bind_error(match blocker {
+                Some(file) => std::io::Error::new(
+                    std::io::ErrorKind::NotADirectory,
+                    format!("{} is not a directory", file.display()),
+                ),
+                None => error,
+            })
+        })?;
     }
     let listener = UnixListener::bind(path).map_err(bind_error)?;
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).map_err(bind_error)?;
@@ -1878,5 +1890,36 @@ impl Connection {
                 },
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bind(path: &Path) -> Result<UnixListener, ServerError> {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        runtime.block_on(async { bind_unix(path, 0o600) })
+    }
+
+    /// What stands in a socket path's way is named: a file at the path, or a file where a
+    /// directory above it should be (that was "File exists").
+    #[test]
+    fn files_in_a_sockets_way_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("plain");
+        std::fs::write(&file, b"x").unwrap();
+        let e = bind(&file).unwrap_err().to_string();
+        assert!(e.contains("not a socket is in the way"), "{e}");
+        let below = file.join("sub").join("envlight.sock");
+        let e = bind(&below).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{} is not a directory", file.display())),
+            "{e}"
+        );
+        assert!(bind(&dir.path().join("new").join("envlight.sock")).is_ok());
     }
 }

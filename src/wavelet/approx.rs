@@ -137,11 +137,7 @@ impl Coefficients {
                 let u = i as usize;
                 (
                     i,
-                    [
-                        self.planes[0][u] as f32,
-                        self.planes[1][u] as f32,
-                        self.planes[2][u] as f32,
-                    ],
+                    [0, 1, 2].map(|c| crate::light::saturating_f32(self.planes[c][u])),
                 )
             })
             .collect();
