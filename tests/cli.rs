@@ -778,3 +778,24 @@ fn relight_transport_count_is_checked() {
         assert_fails_naming(&o, &["--transport", n, "1..=64"]);
     }
 }
+
+/// An input that adds no frame beside others that do (a pattern matching nothing, an empty
+/// directory) is named in a warning instead of being dropped without a word.
+#[test]
+fn inputs_without_frames_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = dir.path().join("f_1.exr");
+    write_rgb(&frame, 8, 4, 1.0);
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let pattern = dir.path().join("nomatch_*.exr");
+    let o = envlight(&["decompose", "-n", "4", s(&frame), s(&pattern), s(&empty)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    for input in [s(&pattern), s(&empty)] {
+        assert!(
+            err.contains(&format!("{input}: no .exr or .hdr frames")),
+            "{input}: {err}"
+        );
+    }
+}
