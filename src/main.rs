@@ -86,7 +86,7 @@ struct RenderArgs {
     /// Scene file (.gltf, .glb, .obj). [default: built-in spheres on a ground plane]
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
-    /// Image size. [default: 640x360]
+    /// Image size.
     #[arg(long, value_name = "WxH", value_parser = parse_size, default_value = "640x360")]
     size: (u32, u32),
     /// Output folder (created if missing). Required unless --window.
@@ -454,7 +454,8 @@ struct DecomposeArgs {
     #[arg(long, conflicts_with_all = ["merge_fraction", "merge"])]
     no_merge: bool,
 
-    /// Merge radius as a fraction of the mean light spacing, in (0, 2]. [default: 0.1]
+    /// Merge radius as a fraction of the mean light spacing, in (0, 2]; implies --merge.
+    /// [default: 0.1]
     #[arg(long, value_name = "F")]
     merge_fraction: Option<f64>,
 
@@ -886,22 +887,30 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         (_, Some(fps)) => format!("{fps} frames/s"),
         (_, None) => "as fast as possible".to_owned(),
     };
+    let paths = match daemon_source.kind {
+        envlight::config::SourceKind::Sequence => format!(" {:?}", daemon_source.paths),
+        _ => String::new(),
+    };
     writeln!(
         text,
-        "  source: {:?}, in envlight run {frames}, {pacing}",
+        "  source: {:?}{paths}, in envlight run {frames}, {pacing}",
         daemon_source.kind
     )?;
     writeln!(
         text,
         "  decompose: {} lights, warp {:?}, refinement of concentrated sources {}, concentrated \
-         Lloyd step {}, split of bright lights {}, filter {} (bright lights: {})",
+         Lloyd step {}, split of bright lights {}, filter {} (bright lights: {}), merge {}",
         config.decompose.lights,
         config.decompose.warp,
         on_off(config.decompose.refine_concentrated),
         on_off(config.decompose.concentrated_lloyd),
         split_description(config.decompose.split_factor),
         on_off(config.decompose.filter_taps.is_some()),
-        config.decompose.bright_history.name()
+        config.decompose.bright_history.name(),
+        config
+            .decompose
+            .merge_spacing_fraction
+            .map_or("off".to_string(), |f| format!("at {f} of the spacing")),
     )?;
     writeln!(
         text,
@@ -923,13 +932,16 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     if config.asg.enabled {
         writeln!(
             text,
-            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {} thread(s)",
+            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {}",
             config.asg.fit.lobes,
             2 * config.asg.fit.height,
             config.asg.fit.height,
             config.asg.fit.iterations,
             config.asg.fit.warm_iterations,
-            config.asg.fit.threads
+            match config.asg.fit.threads {
+                0 => "a thread per core".to_string(),
+                n => format!("{n} thread(s)"),
+            }
         )?;
     } else {
         writeln!(text, "  asg: off")?;
@@ -1092,7 +1104,6 @@ fn init_tracing() {
     }
 }
 
-/// Whether an error chain ends in a broken pipe (the reader of our output went away).
 fn decompose(args: &DecomposeArgs) -> Result<()> {
     let (mut raw, config_name) = match &args.config {
         Some(path) => (
@@ -1275,9 +1286,14 @@ fn render(args: &RenderArgs) -> Result<()> {
         }
         raw.source.frames = Some(args.frames.unwrap_or(u64::from(args.inputs.is_empty())));
         raw.decompose.lights = args.light_count;
-        let config = raw
-            .validate()
-            .map_err(|e| anyhow!(e).context("invalid --light-count or INPUT"))?;
+        let config = raw.validate().map_err(|e| match &e {
+            ConfigError::Invalid {
+                key: "decompose.lights",
+                value,
+                message,
+            } => anyhow!("invalid --light-count {value}: {message}"),
+            _ => anyhow!(e).context("invalid INPUT"),
+        })?;
         let src = open_source(&config)?;
         let dec =
             Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;

@@ -53,7 +53,7 @@ enum WaveletCommand {
 /// Projection of INPUT files.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum ProjectionArg {
-    /// Equirectangular (DESIGN.md's convention).
+    /// Equirectangular (lat-long), row 0 = zenith; axes as `envlight --help` gives them.
     Latlong,
     /// Debevec's angular map.
     Angular,
@@ -77,7 +77,8 @@ pub struct FrameInput {
     /// Projection of the INPUT files. [default: latlong]
     #[arg(long, value_enum)]
     projection: Option<ProjectionArg>,
-    /// Frames to process; 0 = every frame. [default: 1 for the sky, every file for INPUT]
+    /// Frames to process; 0 = every frame (approx, relight; recover reads one frame and takes no
+    /// --frames). [default: 1 for the sky, every file for INPUT]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
 }
@@ -90,7 +91,11 @@ impl FrameInput {
 
     /// Opens the frames: a sequence of INPUT files, or the built-in sky.
     pub fn open(&self) -> Result<Box<dyn FrameSource>> {
-        if self.inputs.is_empty() && self.projection.is_some() {
+        if self.inputs.is_empty()
+            && self
+                .projection
+                .is_some_and(|p| !matches!(p, ProjectionArg::Latlong))
+        {
             crate::usage_error!(
                 "--projection describes INPUT files; the built-in sky is a lat-long map"
             );

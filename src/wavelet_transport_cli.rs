@@ -32,7 +32,9 @@ outgoing radiance as a sparse dot product (all cores). Prints one JSON line per 
    \"relight_ms\":3.1,\"check\":{\"vertices\":200,\"rms_relative\":0.012,\"max_relative\":0.08}}
 
 `check` compares --check vertices (evenly spread) with brute-force integration over all texels
-(Σ V·L·ρ·dω of the full-resolution map), relative to each vertex's radiance. Radiance is per
+(Σ V·L·ρ·dω of the full-resolution map), relative to each vertex's radiance; a vertex that
+receives no light (in shadow, or facing away from every lit direction) has no relative error
+and is left out, so `check.vertices` counts those compared. Radiance is per
 channel; the Lambertian result is multiplied by the vertex's material albedo. Without INPUT the
 built-in sky is used. --out writes the last frame's per-vertex radiance as CSV (x,y,z,r,g,b).";
 
@@ -41,8 +43,9 @@ Recover lighting from synthetic observations of a known object by hierarchical r
 (Michiels et al. 2013). The object: a unit sphere on a subdivided ground plane; observations:
 the ground vertices (Lambertian, they see the sphere's shadow) and the sphere's vertices as a
 glossy Phong surface seen from --views directions around it, evenly subsampled to
---observations. Their radiance is rendered from the first INPUT frame (the truth, resampled to
-SIZE x SIZE) plus Gaussian noise of --noise times the RMS radiance. The refinement starts at the
+--observations. Their radiance is rendered from the INPUT frame (one file, or the built-in sky
+without INPUT: the truth, resampled to SIZE x SIZE) plus Gaussian noise of --noise times the
+RMS radiance. The refinement starts at the
 root of the wavelet tree, adds the children of significant nodes only while the least-squares
 system stays full rank (rank-revealing QR, --rank-tol) and, unless --no-bic, while a level lowers
 the Bayesian information criterion; it solves the system at every level. Prints one JSON object:
@@ -123,7 +126,8 @@ pub struct RelightArgs {
     /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
     eye: Option<Vec3>,
-    /// Vertices compared with brute-force integration per frame (0: no check).
+    /// Vertices compared with brute-force integration per frame (0: no check); unlit ones are
+    /// left out of the comparison.
     #[arg(long, value_name = "N", default_value_t = 200)]
     check: usize,
     /// Output file (JSON Lines). [default: stdout]

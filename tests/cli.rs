@@ -799,3 +799,24 @@ fn inputs_without_frames_are_named() {
         );
     }
 }
+
+/// Stated defaults given explicitly are accepted, and flag errors name the flag: wavelet
+/// commands took `--projection latlong` (the default) as a usage error with the sky, and
+/// `render -n 0` named the config key decompose.lights.
+#[test]
+fn explicit_defaults_work_and_flag_errors_name_the_flag() {
+    let o = envlight(&[
+        "wavelet",
+        "approx",
+        "--projection",
+        "latlong",
+        "--size",
+        "8",
+        "-k",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let dir = tempfile::tempdir().unwrap();
+    let o = envlight(&["render", "-n", "0", "--out", s(dir.path()), "--size", "8x8"]);
+    assert_fails_naming(&o, &["invalid --light-count 0"]);
+}
