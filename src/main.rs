@@ -95,13 +95,13 @@ struct RenderArgs {
     /// Lights per frame when decomposing INPUT or the sky (1..=16384). [default: 256]
     #[arg(long, short = 'n', value_name = "N")]
     light_count: Option<usize>,
-    /// Frames to render. [default: every frame of --lights or INPUT; 1 for the sky]
+    /// Frames to render; 0 = every frame (the sky: until stopped). [default: every frame of
+    /// --lights or INPUT; 1 for the sky]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
-    /// Shadow-map side in texels (16..=8192).
-    #[arg(long, value_name = "N", default_value_t = 512,
-          value_parser = clap::value_parser!(u32).range(16..=8192))]
-    shadow_res: u32,
+    /// Shadow-map side in texels (16..=8192). [default: 512]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(16..=8192))]
+    shadow_res: Option<u32>,
     /// No shadows.
     #[arg(long)]
     no_shadows: bool,
@@ -136,6 +136,9 @@ struct RenderArgs {
     fit_height: Option<u32>,
 }
 
+/// `render --shadow-res` when not given.
+const DEFAULT_SHADOW_RES: u32 = 512;
+
 impl RenderArgs {
     /// The options that the chosen lighting or light source would ignore are usage errors.
     fn check_usage(&self) -> Result<()> {
@@ -145,6 +148,9 @@ impl RenderArgs {
                 (self.window, "--window"),
                 (self.budget_ms.is_some(), "--budget-ms"),
                 (self.light_count.is_some(), "--light-count"),
+                (self.shadow_res.is_some(), "--shadow-res"),
+                (self.no_shadows, "--no-shadows"),
+                (self.no_culling, "--no-culling"),
             ];
             if let Some((_, flag)) = with.iter().find(|(given, _)| *given) {
                 usage_error!(
@@ -153,6 +159,9 @@ impl RenderArgs {
             }
         } else if self.lobes.is_some() || self.fit_height.is_some() {
             usage_error!("--lobes and --fit-height apply to --lighting asg");
+        }
+        if self.no_shadows && self.shadow_res.is_some() {
+            usage_error!("--shadow-res sizes the shadow maps; with --no-shadows there are none");
         }
         if self.lights.is_some() && self.light_count.is_some() {
             usage_error!(
@@ -1269,6 +1278,8 @@ fn render(args: &RenderArgs) -> Result<()> {
     // Lights: a JSON Lines file, or frames decomposed here (INPUT or the sky).
     let mut from_file = None;
     let mut source = None;
+    // The files read, which no output may overwrite.
+    let mut inputs: Vec<PathBuf> = args.lights.iter().cloned().collect();
     if let Some(path) = &args.lights {
         let frames = envlight::light::read_json_lines(path)?;
         if frames.is_empty() {
@@ -1295,6 +1306,7 @@ fn render(args: &RenderArgs) -> Result<()> {
             _ => anyhow!(e).context("invalid INPUT"),
         })?;
         let src = open_source(&config)?;
+        inputs.extend_from_slice(src.files());
         let dec =
             Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
         source = Some((src, dec));
@@ -1302,7 +1314,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     let settings = RenderSettings {
         width: args.size.0,
         height: args.size.1,
-        shadow_resolution: args.shadow_res,
+        shadow_resolution: args.shadow_res.unwrap_or(DEFAULT_SHADOW_RES),
         shadows: !args.no_shadows,
         culling: !args.no_culling,
         shadow_catcher: args.catcher,
@@ -1352,10 +1364,8 @@ fn render(args: &RenderArgs) -> Result<()> {
     std::fs::create_dir_all(out)
         .with_context(|| format!("cannot create output folder {}", out.display()))?;
     let stats_path = out.join("stats.jsonl");
-    let mut stats_file = std::io::BufWriter::new(
-        std::fs::File::create(&stats_path)
-            .with_context(|| format!("cannot create {}", stats_path.display()))?,
-    );
+    let mut stats_file =
+        std::io::BufWriter::new(cli_output::create(&stats_path, "--out", &inputs)?);
     let mut controller = None;
     let mut exposure = args.exposure;
     let limit = args.frames.filter(|&n| n > 0);
@@ -1365,9 +1375,12 @@ fn render(args: &RenderArgs) -> Result<()> {
             break;
         };
         let all = render::light_prefix(&lights.lights, usize::MAX);
+        // The controller's range is every light a list can hold, not the first frame's count
+        // (which capped every later frame: a first frame of one light left one of 70 at one).
         let ctl = controller.get_or_insert_with(|| {
             args.budget_ms.map(|ms| {
-                budget::BudgetController::new(budget::BudgetSettings::new(ms, all.len()), all.len())
+                let settings = budget::BudgetSettings::new(ms, envlight::decompose::MAX_POINTS);
+                budget::BudgetController::new(settings, all.len())
             })
         });
         let count = ctl.as_ref().map_or(all.len(), |c| c.count());
@@ -1401,8 +1414,19 @@ fn render(args: &RenderArgs) -> Result<()> {
                     })
             });
         }
+        let saturated = output::saturate(&mut image);
+        if saturated > 0 {
+            tracing::warn!(
+                "frame {}: {saturated} pixel values beyond f32's range (lights too bright to \
+                 sum) written as the largest f32",
+                lights.seq
+            );
+        }
         let exp = *exposure.get_or_insert_with(|| output::auto_exposure(&image));
         let stem = out.join(format!("frame_{:05}", lights.seq));
+        for extension in ["png", "exr"] {
+            cli_output::refuse_input(&stem.with_extension(extension), "--out", &inputs)?;
+        }
         output::write_png(&stem.with_extension("png"), &image, exp)?;
         output::write_exr(&stem.with_extension("exr"), &image)?;
         let line = serde_json::json!({

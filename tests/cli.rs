@@ -646,6 +646,19 @@ fn options_the_mode_would_ignore_are_usage_errors() {
         (vec!["wavelet", "recover", "--frames", "2"], "--frames"),
         (vec!["wavelet", "relight", "--ground"], "--scene"),
         (
+            vec!["render", "--out", out, "--lighting", "asg", "--no-culling"],
+            "--no-culling",
+        ),
+        (
+            vec!["render", "--out", out, "--no-shadows", "--shadow-res", "64"],
+            "--no-shadows",
+        ),
+        (vec!["subscribe", "ws://127.0.0.1"], "HOST:PORT"),
+        (
+            vec!["subscribe", "http://127.0.0.1:7879/"],
+            "not an envlight endpoint",
+        ),
+        (
             vec!["wavelet", "recover", "--seed", "3", "--noise", "0"],
             "--noise 0",
         ),

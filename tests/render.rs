@@ -648,6 +648,69 @@ fn cli_renders_png_and_exr_per_frame() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("bad.glb"));
 }
 
+/// `envlight render` with a budget: a frame's light count follows the budget, not the first
+/// frame's count (a first frame of one light held every later frame at one); and an output
+/// that would overwrite the light list read is refused.
+#[test]
+fn cli_budget_follows_each_frame_and_inputs_are_not_overwritten() {
+    let dir = tempfile::tempdir().unwrap();
+    let lights = dir.path().join("lights.jsonl");
+    let frame = |seq: u64, n: usize| {
+        serde_json::json!({"seq": seq, "time": 0.0, "lights": sky_lights(n)}).to_string()
+    };
+    let text: Vec<String> = [1, 40, 40, 40, 40, 40, 40, 40]
+        .iter()
+        .enumerate()
+        .map(|(seq, &n)| frame(seq as u64, n))
+        .collect();
+    std::fs::write(&lights, text.join("\n") + "\n").unwrap();
+    let out = dir.path().join("out");
+    let run = |out: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["render", "--size", "16x12", "--shadow-res", "16"])
+            .args(["--budget-ms", "100000", "--lights"])
+            .arg(&lights)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let o = run(&out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
+    let counts: Vec<u64> = stats
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["lights"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    // Far under budget the count doubles each frame (the controller's largest step) until it
+    // holds every light of the frame.
+    assert_eq!(counts, [1, 2, 4, 8, 16, 32, 40, 40], "{stats}");
+    // The output folder holding the light list as stats.jsonl: refused, the list kept.
+    std::fs::copy(&lights, out.join("stats.jsonl")).unwrap();
+    let before = std::fs::read(out.join("stats.jsonl")).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--size",
+            "16x12",
+            "--shadow-res",
+            "16",
+            "--lights",
+        ])
+        .arg(out.join("stats.jsonl"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("is the input file"));
+    assert_eq!(std::fs::read(out.join("stats.jsonl")).unwrap(), before);
+}
+
 /// Lobes for the ASG tests: a sharp sun-like lobe, a wide sky, an anisotropic streak, a lobe
 /// from behind the sphere.
 fn test_lobes() -> Vec<envlight::asg::Asg> {
@@ -862,4 +925,32 @@ fn cli_renders_with_asg_lighting() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+}
+
+/// An error the device reports outside an error scope (here a texture past the adapter's size
+/// limit; on a real run, shadow maps the GPU has no memory for) is kept for the renderer to
+/// return, not a panic in wgpu's default handler (`render --shadow-res 8192` with 128 lights
+/// exited 101 on "Out of Memory").
+#[test]
+fn device_errors_are_kept_not_panicked() {
+    let gpu = envlight::render::device::Gpu::new().expect("a wgpu adapter (lavapipe on CI)");
+    assert_eq!(gpu.take_error(), None);
+    let too_wide = gpu.device.limits().max_texture_dimension_2d + 1;
+    let _texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("too wide"),
+        size: wgpu::Extent3d {
+            width: too_wide,
+            height: 1,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::R32Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING,
+        view_formats: &[],
+    });
+    let error = gpu.take_error().expect("the device reported the texture");
+    assert!(!error.is_empty());
+    assert_eq!(gpu.take_error(), None);
 }

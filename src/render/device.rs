@@ -36,6 +36,9 @@ pub struct Gpu {
     pub timestamps: bool,
     /// Largest number of layers of the shadow-map array.
     pub max_array_layers: u32,
+    /// The first error the device reported outside an error scope (an allocation the GPU could
+    /// not make: wgpu's default handler panicked on it), taken by [`Gpu::take_error`].
+    errors: std::sync::Arc<std::sync::Mutex<Option<String>>>,
 }
 
 impl std::fmt::Debug for Gpu {
@@ -122,6 +125,12 @@ impl Gpu {
                 adapter: info.name.clone(),
                 message: e.to_string(),
             })?;
+        let errors = std::sync::Arc::new(std::sync::Mutex::new(None));
+        let slot = std::sync::Arc::clone(&errors);
+        device.on_uncaptured_error(std::sync::Arc::new(move |error: wgpu::Error| {
+            let mut first = slot.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            first.get_or_insert_with(|| error.to_string());
+        }));
         Ok(Self {
             instance,
             adapter,
@@ -130,7 +139,17 @@ impl Gpu {
             info,
             timestamps,
             max_array_layers,
+            errors,
         })
+    }
+
+    /// The first error the device has reported since the last call (an out-of-memory
+    /// allocation, a resource too large), if any.
+    pub fn take_error(&self) -> Option<String> {
+        self.errors
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+            .take()
     }
 
     /// "name (type, backend)", for logs and reports.

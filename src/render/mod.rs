@@ -491,6 +491,11 @@ impl Renderer {
         let shadow_cam_bind_group =
             Self::make_cam_bind_group(device, &shadow_cam_layout, &light_cam_buffer);
         let facing = shadow::facing_normals(&scene);
+        if let Some(error) = gpu.take_error() {
+            return Err(RenderError::Gpu(format!(
+                "{error} (a smaller --size or --shadow-res needs less GPU memory)"
+            )));
+        }
         Ok(Self {
             gpu,
             scene,
@@ -718,7 +723,7 @@ impl Renderer {
 
     /// Writes the frame's lights and shadow cameras; returns the GPU lights and the number of
     /// shadow maps.
-    fn prepare(&mut self, lights: &[Light]) -> (Vec<GpuLight>, usize) {
+    fn prepare(&mut self, lights: &[Light]) -> Result<(Vec<GpuLight>, usize), RenderError> {
         let device = &self.gpu.device;
         let mut gpu_lights: Vec<GpuLight> =
             lights.iter().filter_map(GpuLight::from_light).collect();
@@ -812,7 +817,20 @@ impl Renderer {
             0,
             bytemuck::bytes_of(&globals.to_raw()),
         );
-        (gpu_lights, maps as usize)
+        self.check_gpu()?;
+        Ok((gpu_lights, maps as usize))
+    }
+
+    /// Fails with the first error the device reported (an allocation it could not make, such
+    /// as shadow maps of a huge --shadow-res or targets of a huge --size) instead of rendering
+    /// with the resource missing.
+    fn check_gpu(&self) -> Result<(), RenderError> {
+        match self.gpu.take_error() {
+            Some(error) => Err(RenderError::Gpu(format!(
+                "{error} (a smaller --size or --shadow-res needs less GPU memory)"
+            ))),
+            None => Ok(()),
+        }
     }
 
     fn encode(&self, maps: usize, readback: bool) -> wgpu::CommandEncoder {
@@ -992,7 +1010,7 @@ impl Renderer {
     /// display-less budget runs).
     pub fn render_timed(&mut self, lights: &[Light]) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
-        let (gl, maps) = self.prepare(lights);
+        let (gl, maps) = self.prepare(lights)?;
         let cmd = self.encode(maps, false).finish();
         self.gpu.queue.submit([cmd]);
         self.wait()?;
@@ -1014,7 +1032,7 @@ impl Renderer {
         then: impl FnOnce(&wgpu::Device, &mut wgpu::CommandEncoder, &wgpu::TextureView),
     ) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
-        let (gl, maps) = self.prepare(lights);
+        let (gl, maps) = self.prepare(lights)?;
         let mut enc = self.encode(maps, false);
         then(&self.gpu.device, &mut enc, &self.color_view);
         self.gpu.queue.submit([enc.finish()]);
@@ -1031,7 +1049,7 @@ impl Renderer {
     /// Renders one frame and reads the image back.
     pub fn render(&mut self, lights: &[Light]) -> Result<(Image, FrameStats), RenderError> {
         let start = Instant::now();
-        let (gl, maps) = self.prepare(lights);
+        let (gl, maps) = self.prepare(lights)?;
         let cmd = self.encode(maps, true).finish();
         self.gpu.queue.submit([cmd]);
         self.wait()?;

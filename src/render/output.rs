@@ -87,6 +87,24 @@ pub fn write_png(path: &Path, image: &Image, exposure: f32) -> Result<(), Output
     })
 }
 
+/// Replaces the values a render cannot hold — +∞ where very bright lights summed past f32's
+/// range, NaN — by `f32::MAX` (−∞ by `-f32::MAX`) and 0, and returns how many there were, so
+/// the EXR and PNG written hold finite numbers only.
+pub fn saturate(image: &mut Image) -> usize {
+    let mut count = 0;
+    for v in &mut image.rgba {
+        if !v.is_finite() {
+            *v = if v.is_nan() {
+                0.0
+            } else {
+                f32::MAX.copysign(*v)
+            };
+            count += 1;
+        }
+    }
+    count
+}
+
 /// Writes the linear image as a 32-bit float RGBA EXR (premultiplied, as EXR expects).
 pub fn write_exr(path: &Path, image: &Image) -> Result<(), OutputError> {
     let w = image.width as usize;
@@ -122,6 +140,29 @@ pub fn composite_background(image: &mut Image, mut background: impl FnMut(u32, u
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn saturate_leaves_finite_values_and_counts_the_rest() {
+        let mut image = Image {
+            width: 2,
+            height: 1,
+            rgba: vec![
+                1.0,
+                f32::INFINITY,
+                f32::NAN,
+                1.0,
+                f32::NEG_INFINITY,
+                0.5,
+                0.25,
+                1.0,
+            ],
+        };
+        assert_eq!(saturate(&mut image), 3);
+        assert_eq!(
+            image.rgba,
+            [1.0, f32::MAX, 0.0, 1.0, -f32::MAX, 0.5, 0.25, 1.0]
+        );
+    }
 
     #[test]
     fn tone_curve_is_monotone_and_bounded() {

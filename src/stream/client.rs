@@ -38,7 +38,18 @@ impl std::str::FromStr for Endpoint {
             }
             return Ok(Endpoint::Unix(PathBuf::from(path)));
         }
-        if s.starts_with("ws://") {
+        let host_and_port = |a: &str| {
+            a.rsplit_once(':')
+                .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
+        };
+        if let Some(rest) = s.strip_prefix("ws://") {
+            let authority = rest.split_once('/').map_or(rest, |(a, _)| a);
+            if !host_and_port(authority) {
+                return Err(format!(
+                    "ws:// needs HOST:PORT with a port from 0 to 65535, e.g. ws://127.0.0.1:7879/ \
+                     (got {s:?})"
+                ));
+            }
             return Ok(Endpoint::WebSocket(s.to_owned()));
         }
         if s.starts_with("wss://") {
@@ -47,10 +58,12 @@ impl std::str::FromStr for Endpoint {
                     .into(),
             );
         }
-        let host_and_port = |a: &str| {
-            a.rsplit_once(':')
-                .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
-        };
+        if let Some((scheme, _)) = s.split_once("://") {
+            return Err(format!(
+                "{scheme}:// is not an envlight endpoint: use unix:PATH, tcp:HOST:PORT, HOST:PORT \
+                 or ws://HOST:PORT/"
+            ));
+        }
         if let Some(addr) = s.strip_prefix("tcp:") {
             if !host_and_port(addr) {
                 return Err(format!(
@@ -233,9 +246,20 @@ impl Client {
                 *unread = 0..n;
             },
             Transport::JsonLines { reader } => {
+                // A line is one message: at most MAX_MESSAGE_LEN bytes and its newline, so a
+                // server that never ends its line cannot grow this buffer without bound.
+                let limit = protocol::MAX_MESSAGE_LEN as u64 + 2;
                 let mut line = String::new();
-                if reader.read_line(&mut line).map_err(io)? == 0 {
+                let read = reader
+                    .by_ref()
+                    .take(limit)
+                    .read_line(&mut line)
+                    .map_err(io)?;
+                if read == 0 {
                     return Ok(None);
+                }
+                if read as u64 == limit && !line.ends_with('\n') {
+                    return Err(protocol_error(ProtocolError::Oversized { len: limit }));
                 }
                 protocol::parse_json_message(line.trim_end())
                     .map(Some)
@@ -277,6 +301,54 @@ impl Client {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn malformed_urls_are_refused_when_parsed() {
+        for bad in [
+            "ws://",
+            "ws://127.0.0.1",
+            "ws://127.0.0.1:99999/",
+            "http://127.0.0.1:7879/",
+        ] {
+            assert!(bad.parse::<Endpoint>().is_err(), "{bad}");
+        }
+        assert_eq!(
+            "ws://127.0.0.1:7879".parse(),
+            Ok(Endpoint::WebSocket("ws://127.0.0.1:7879".into()))
+        );
+    }
+
+    /// A JSON Lines server whose line never ends: the client stops at one message's size
+    /// instead of buffering without bound (it reached 2.2 GB in 4.5 s).
+    #[test]
+    fn an_endless_json_line_is_an_error() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let address = listener.local_addr().unwrap().to_string();
+        let server = std::thread::Builder::new()
+            .name("endless-line".into())
+            .spawn(move || {
+                let (mut stream, _) = listener.accept().unwrap();
+                let chunk = vec![b'a'; 64 * 1024];
+                // Until the client goes away (at most 4 MiB).
+                for _ in 0..64 {
+                    if stream.write_all(&chunk).is_err() {
+                        break;
+                    }
+                }
+            })
+            .unwrap();
+        let request = Request {
+            format: Format::Json,
+            ..Request::default()
+        };
+        let endpoint = Endpoint::Tcp(address);
+        let mut client =
+            Client::connect(&endpoint, &request, Some(Duration::from_secs(30))).unwrap();
+        let e = client.next_message().unwrap_err().to_string();
+        assert!(e.contains("exceeds the maximum message size"), "{e}");
+        drop(client);
+        server.join().unwrap();
+    }
 
     #[test]
     fn endpoints_parse_in_every_form() {
