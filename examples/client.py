@@ -13,6 +13,7 @@ with --representation wavelet). The wire format is docs/protocol.md.
 
 import argparse
 import math
+import os
 import socket
 import struct
 import sys
@@ -25,16 +26,40 @@ REPRESENTATIONS = {"lights": 0, "asg": 1, "wavelet": 2}
 BASES = {1: "haar", **{n: f"db{n}" for n in range(2, 11)}, **{16 + n: f"coif{n}" for n in range(1, 6)}}
 
 
-def connect(address):
+def parse_address(address):
+    """("unix", path) or ("tcp", (host, port)); ValueError with the reason for anything else."""
+    if "://" in address:
+        raise ValueError("this client speaks the binary protocol over unix: or TCP; "
+                         "for ws:// use `envlight subscribe`")
     if address.startswith("unix:") or "/" in address:
         path = address[5:] if address.startswith("unix:") else address
+        if not path:
+            raise ValueError("unix: needs a socket path")
+        return "unix", path
+    host, _, port = address.removeprefix("tcp:").rpartition(":")
+    if not host or not port.isdigit() or int(port) > 65535:
+        raise ValueError("expected unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT")
+    return "tcp", (host.strip("[]"), int(port))
+
+
+def connect(kind, target):
+    if kind == "unix":
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.connect(path)
+        sock.connect(target)
     else:
-        host, _, port = address.removeprefix("tcp:").rpartition(":")
-        sock = socket.create_connection((host.strip("[]"), int(port)))
+        sock = socket.create_connection(target)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     return sock
+
+
+def count(limit):
+    """An argparse type: an integer in 0..=limit."""
+    def parse(text):
+        value = int(text)
+        if not 0 <= value <= limit:
+            raise argparse.ArgumentTypeError(f"{value} is not in 0..={limit}")
+        return value
+    return parse
 
 
 def subscribe_message(max_lights, representation=0):
@@ -98,14 +123,31 @@ def parse_frame(body):
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("address", help="unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT")
-    parser.add_argument("--max-lights", type=int, default=0, help="at most N lights per frame (0 = all)")
-    parser.add_argument("--frames", type=int, default=0, help="stop after N frames (0 = until goodbye)")
+    parser.add_argument("--max-lights", type=count(2**32 - 1), default=0,
+                        help="at most N lights per frame (0 = all)")
+    parser.add_argument("--frames", type=count(2**63), default=0,
+                        help="stop after N frames (0 = until goodbye)")
     parser.add_argument("--representation", choices=sorted(REPRESENTATIONS), default="lights",
                         help="directional lights, ASG lobes or wavelet coefficients "
                              "(--max-lights then caps the lobes or coefficients)")
     args = parser.parse_args()
+    try:
+        kind, target = parse_address(args.address)
+    except ValueError as e:
+        parser.error(f"{args.address}: {e}")
+    try:
+        return stream(connect(kind, target), args)
+    except BrokenPipeError:
+        # The reader of our output went away (| head): not an error. Point stdout at
+        # /dev/null so the interpreter's final flush does not fail again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except (OSError, EOFError, ValueError, struct.error) as e:
+        print(f"error: {args.address}: {e}", file=sys.stderr)
+        return 1
 
-    sock = connect(args.address)
+
+def stream(sock, args):
     sock.sendall(subscribe_message(args.max_lights, REPRESENTATIONS[args.representation]))
     frames = 0
     while args.frames == 0 or frames < args.frames:

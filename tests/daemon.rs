@@ -1584,6 +1584,39 @@ fn the_python_example_client_reads_the_stream() {
         assert_eq!(lines.len(), 3, "{lines:?}");
         assert!(lines.iter().all(|l| l.contains(": 4 lights")), "{lines:?}");
     }
+    // Bad addresses and options, a refused connection and a closed stdout end with a message
+    // and a status, not a Python traceback.
+    for (args, status) in [
+        (vec!["ws://127.0.0.1:7879/"], 2),
+        (vec!["unix:"], 2),
+        (vec!["127.0.0.1"], 2),
+        (vec!["--max-lights", "-1", "127.0.0.1:1"], 2),
+        (vec!["127.0.0.1:1"], 1),
+    ] {
+        let out = std::process::Command::new("python3")
+            .arg("examples/client.py")
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(status), "{args:?}: {err}");
+        assert!(
+            err.contains("error") && !err.contains("Traceback"),
+            "{args:?}: {err}"
+        );
+    }
+    let mut child = std::process::Command::new("python3")
+        .arg("examples/client.py")
+        .arg(tcp.to_string())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = [0u8; 8];
+    child.stdout.take().unwrap().read_exact(&mut first).unwrap();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && !err.contains("Traceback"), "{err}");
     daemon.shutdown().unwrap();
 }
 
