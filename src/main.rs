@@ -1288,6 +1288,16 @@ fn render(args: &RenderArgs) -> Result<()> {
                 path.display()
             );
         }
+        // Each frame's images are named by its seq: a repeated seq would overwrite them.
+        let mut seen = std::collections::HashSet::new();
+        if let Some(repeated) = frames.iter().find(|f| !seen.insert(f.seq)) {
+            bail!(
+                "{}: frame seq {} appears more than once; the images of a frame are named by \
+                 its seq (frame_NNNNN), so a repeat would overwrite them",
+                path.display(),
+                repeated.seq
+            );
+        }
         from_file = Some(frames.into_iter());
     } else {
         let mut raw = RawConfig::default();

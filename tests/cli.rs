@@ -816,6 +816,20 @@ fn inputs_without_frames_are_named() {
 /// Stated defaults given explicitly are accepted, and flag errors name the flag: wavelet
 /// commands took `--projection latlong` (the default) as a usage error with the sky, and
 /// `render -n 0` named the config key decompose.lights.
+/// A light list whose frames repeat a seq is refused before rendering: the images are named by
+/// seq, so the first frame's would be overwritten.
+#[test]
+fn render_refuses_repeated_seqs() {
+    let dir = tempfile::tempdir().unwrap();
+    let lights = dir.path().join("lights.jsonl");
+    let frame = "{\"seq\":7,\"time\":0.0,\"lights\":[{\"id\":0,\"dir\":[0.0,1.0,0.0],\
+                 \"rgb\":[1.0,1.0,1.0],\"solid_angle\":0.1}]}";
+    std::fs::write(&lights, format!("{frame}\n{frame}\n")).unwrap();
+    let out = dir.path().join("out");
+    let o = envlight(&["render", "--lights", s(&lights), "--out", s(&out)]);
+    assert_fails_naming(&o, &["lights.jsonl", "seq 7 appears more than once"]);
+}
+
 #[test]
 fn explicit_defaults_work_and_flag_errors_name_the_flag() {
     let o = envlight(&[
