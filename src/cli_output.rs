@@ -1,7 +1,7 @@
 //! Output files and stdout for the one-shot commands (`decompose`, `fit-asg`, `wavelet …`,
 //! `calibrate-fisheye`):
 //! - an output path that names one of the command's input files is refused before it is
-//!   created ([`refuse_input`]): creating it would truncate the input before it is read;
+//!   created ([`InputFiles::refuse`]): creating it would truncate the input before it is read;
 //! - EXR maps are encoded in memory and then written to the path ([`write_rgb_exr`]), so a
 //!   failed write reports the path and leaves it in place (the `exr` crate's own file writer
 //!   deletes the path on a write error, which removed a symbolic link, or a device node when
@@ -10,6 +10,7 @@
 //!   other write error names what was written to ([`print`], [`is_broken_pipe`]).
 
 use anyhow::{Context, Result};
+use std::collections::HashMap;
 use std::io::Write;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
@@ -20,17 +21,36 @@ pub fn is_broken_pipe(err: &std::io::Error) -> bool {
     err.kind() == std::io::ErrorKind::BrokenPipe
 }
 
-/// Fails when `output` (given with `option`) is one of `inputs`: the same file (device and
-/// inode), whatever names or links lead to it. A path that does not exist yet is no input.
-pub fn refuse_input(output: &Path, option: &str, inputs: &[PathBuf]) -> Result<()> {
-    let Ok(out) = std::fs::metadata(output) else {
-        return Ok(());
-    };
-    for input in inputs {
-        let Ok(meta) = std::fs::metadata(input) else {
-            continue;
+/// The files a command reads, identified by device and inode once (at construction), so that
+/// checking an output against them costs one `stat` of the output, however many inputs a
+/// sequence has (`render` checks two outputs per frame).
+pub struct InputFiles {
+    by_id: HashMap<(u64, u64), PathBuf>,
+}
+
+impl InputFiles {
+    /// The inputs `paths`; a path that cannot be read is left out (it cannot be overwritten
+    /// through another name either).
+    pub fn new(paths: &[PathBuf]) -> Self {
+        let mut by_id = HashMap::with_capacity(paths.len());
+        for path in paths {
+            if let Ok(meta) = std::fs::metadata(path) {
+                by_id
+                    .entry((meta.dev(), meta.ino()))
+                    .or_insert_with(|| path.clone());
+            }
+        }
+        Self { by_id }
+    }
+
+    /// Fails when `output` (given with `option`) is one of the inputs: the same file (device
+    /// and inode), whatever names or links lead to it. A path that does not exist yet is no
+    /// input.
+    pub fn refuse(&self, output: &Path, option: &str) -> Result<()> {
+        let Ok(out) = std::fs::metadata(output) else {
+            return Ok(());
         };
-        if (meta.dev(), meta.ino()) == (out.dev(), out.ino()) {
+        if let Some(input) = self.by_id.get(&(out.dev(), out.ino())) {
             anyhow::bail!(
                 "{option} {} is the input file {}: writing it would destroy the input; choose \
                  another output path",
@@ -38,21 +58,25 @@ pub fn refuse_input(output: &Path, option: &str, inputs: &[PathBuf]) -> Result<(
                 input.display()
             );
         }
+        Ok(())
     }
-    Ok(())
 }
 
 /// Creates (or truncates) the output file `path` given with `option`, after checking it is none
 /// of `inputs`.
-pub fn create(path: &Path, option: &str, inputs: &[PathBuf]) -> Result<std::fs::File> {
-    refuse_input(path, option, inputs)?;
+pub fn create(path: &Path, option: &str, inputs: &InputFiles) -> Result<std::fs::File> {
+    inputs.refuse(path, option)?;
     std::fs::File::create(path)
         .with_context(|| format!("cannot create output file {} ({option})", path.display()))
 }
 
 /// The output stream: the file `out` (given with `option`, checked against `inputs`), or
 /// stdout.
-pub fn open_output(out: Option<&Path>, option: &str, inputs: &[PathBuf]) -> Result<Box<dyn Write>> {
+pub fn open_output(
+    out: Option<&Path>,
+    option: &str,
+    inputs: &InputFiles,
+) -> Result<Box<dyn Write>> {
     Ok(match out {
         Some(path) => Box::new(create(path, option, inputs)?),
         None => Box::new(std::io::stdout().lock()),
@@ -78,12 +102,12 @@ pub fn print(text: &str) -> Result<()> {
 pub fn write_rgb_exr(
     path: &Path,
     option: &str,
-    inputs: &[PathBuf],
+    inputs: &InputFiles,
     (width, height): (usize, usize),
     pixel: impl Sync + Fn(usize, usize) -> [f32; 3],
 ) -> Result<()> {
     use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage};
-    refuse_input(path, option, inputs)?;
+    inputs.refuse(path, option)?;
     let channels = SpecificChannels::rgb(|Vec2(x, y)| {
         let [r, g, b] = pixel(x, y);
         (r, g, b)
@@ -95,4 +119,38 @@ pub fn write_rgb_exr(
         .with_context(|| format!("cannot encode the EXR image for {}", path.display()))?;
     std::fs::write(path, bytes.into_inner())
         .with_context(|| format!("cannot write {} ({option})", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An output is refused under every name that leads to an input (the path itself, a
+    /// symbolic link, a hard link), the input named in the message; other files and paths that
+    /// do not exist yet pass.
+    #[test]
+    fn inputs_are_found_under_any_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("frame_0001.exr");
+        let other = dir.path().join("other.exr");
+        std::fs::write(&input, b"input").unwrap();
+        std::fs::write(&other, b"other").unwrap();
+        let symlink = dir.path().join("symlink.exr");
+        std::os::unix::fs::symlink(&input, &symlink).unwrap();
+        let hard_link = dir.path().join("hard.exr");
+        std::fs::hard_link(&input, &hard_link).unwrap();
+        let missing = dir.path().join("missing.exr");
+        let inputs = InputFiles::new(&[missing.clone(), input.clone()]);
+        for output in [&input, &symlink, &hard_link] {
+            let err = inputs.refuse(output, "--out").unwrap_err().to_string();
+            let names_input = format!("is the input file {}", input.display());
+            assert!(
+                err.starts_with("--out") && err.contains(&names_input),
+                "{err}"
+            );
+        }
+        inputs.refuse(&other, "--out").unwrap();
+        inputs.refuse(&dir.path().join("new.exr"), "--out").unwrap();
+        assert_eq!(std::fs::read(&input).unwrap(), b"input");
+    }
 }

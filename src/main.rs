@@ -1160,11 +1160,11 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
     let mut source = open_source(config)?;
     let mut decomposer =
         Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
+    let inputs = cli_output::InputFiles::new(source.files());
     if let Some(path) = latest {
-        cli_output::refuse_input(path, "--latest", source.files())?;
+        inputs.refuse(path, "--latest")?;
     }
-    let mut writer =
-        std::io::BufWriter::new(cli_output::open_output(out, "--out", source.files())?);
+    let mut writer = std::io::BufWriter::new(cli_output::open_output(out, "--out", &inputs)?);
     let out_name = out.map_or("stdout".to_string(), |p| p.display().to_string());
 
     tracing::info!("source: {}", source.describe());
@@ -1369,6 +1369,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         #[cfg(not(feature = "window"))]
         bail!("--window needs envlight built with `--features window`");
     };
+    let inputs = cli_output::InputFiles::new(&inputs);
     let mut renderer = Renderer::new(scene, settings)?;
     tracing::info!("adapter: {}", renderer.gpu().describe());
     std::fs::create_dir_all(out)
@@ -1435,7 +1436,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         let exp = *exposure.get_or_insert_with(|| output::auto_exposure(&image));
         let stem = out.join(format!("frame_{:05}", lights.seq));
         for extension in ["png", "exr"] {
-            cli_output::refuse_input(&stem.with_extension(extension), "--out", &inputs)?;
+            inputs.refuse(&stem.with_extension(extension), "--out")?;
         }
         output::write_png(&stem.with_extension("png"), &image, exp)?;
         output::write_exr(&stem.with_extension("exr"), &image)?;
@@ -1533,7 +1534,7 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
     let mut writer = std::io::BufWriter::new(cli_output::open_output(
         args.out.as_deref(),
         "--out",
-        source.files(),
+        &cli_output::InputFiles::new(source.files()),
     )?);
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
         let result = fitter

@@ -228,7 +228,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         );
     }
     let mut source = args.input.open()?;
-    let inputs = source.files().to_vec();
+    let inputs = crate::cli_output::InputFiles::new(source.files());
     let mut writer = std::io::BufWriter::new(crate::cli_output::open_output(
         args.out.as_deref(),
         "--out",

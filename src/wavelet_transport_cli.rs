@@ -296,9 +296,9 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         "visibility and transport precomputed"
     );
     let mut source = args.input.open()?;
-    let inputs = source.files().to_vec();
+    let inputs = crate::cli_output::InputFiles::new(source.files());
     if let Some(path) = &args.out {
-        crate::cli_output::refuse_input(path, "--out", &inputs)?;
+        inputs.refuse(path, "--out")?;
     }
     let mut json = crate::cli_output::open_output(args.json.as_deref(), "--json", &inputs)?;
     let json_name = args
@@ -417,16 +417,17 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
         crate::usage_error!("--seed seeds the noise; with --noise 0 there is none");
     }
     let mut source = args.input.open()?;
-    let inputs = source.files().to_vec();
-    if inputs.len() > 1 {
+    let files = source.files();
+    if files.len() > 1 {
         crate::usage_error!(
             "wavelet recover uses one frame; INPUT names {} files ({} first)",
-            inputs.len(),
-            inputs[0].display()
+            files.len(),
+            files[0].display()
         );
     }
+    let inputs = crate::cli_output::InputFiles::new(files);
     if let Some(path) = &args.out {
-        crate::cli_output::refuse_input(path, "--out", &inputs)?;
+        inputs.refuse(path, "--out")?;
     }
     let frame = source
         .next_frame()

@@ -126,8 +126,14 @@ impl ResilientSource {
             }
         }
         let wait = self.policy.backoff(self.failures);
+        // Before the first frame there are no lights to serve: the source is awaited.
+        let meanwhile = if self.next_seq > 0 {
+            "serving the last lights (stale)"
+        } else {
+            "no frame yet, waiting for it"
+        };
         tracing::warn!(
-            "{}: {err}; serving the last lights (stale), retry {} in {:.1} s",
+            "{}: {err}; {meanwhile}, retry {} in {:.1} s",
             self.name,
             self.failures,
             wait.as_secs_f64()
