@@ -732,9 +732,9 @@ fn bad_inputs_give_errors_not_panics() {
             .iter()
             .all(|l| l.rgb.iter().all(|c| c.is_finite() && *c < 1e-6)));
         assert!(r.loss.is_some_and(|l| l.total.is_finite()));
-        // The second frame is a warm refit: it reports no loss unless asked.
+        // A black frame left nothing to warm-start from: the next one is fitted afresh.
         let r = fitter.fit_frame(&frame).unwrap();
-        assert!(r.warm && r.lobes.iter().all(|l| l.rgb.iter().all(|c| c.is_finite())));
+        assert!(!r.warm && r.lobes.iter().all(|l| l.rgb.iter().all(|c| c.is_finite())));
     }
     let tiny = HdrFrame::new(1, 1, vec![[5.0, 1.0, 0.0]], Projection::LatLong).unwrap();
     let r = AsgFitter::new(settings_small())
@@ -840,5 +840,53 @@ fn the_fit_does_not_depend_on_the_maps_scale() {
                 "scale 2^{exponent}: {a:?} vs {b:?}"
             );
         }
+    }
+}
+
+/// A warm chain recovers from a frame that gives it nothing to follow: after an all-black
+/// frame (lobes of zero amplitude) and across a jump of the map's scale by 2^±30 (an exposure
+/// change), the next fit's loss and integral match a fit of that frame from scratch. The warm
+/// refit started from the zero lobes, whose log-amplitudes sat at the bound and never climbed
+/// back: every later frame came out black (loss 2) in `fit-asg` and the daemon's ASG stream.
+#[test]
+fn a_warm_chain_recovers_from_a_black_frame_and_a_scale_jump() {
+    let frame = read_hdr("rooitou_park_1k.hdr");
+    let settings = FitSettings {
+        lobes: 4,
+        height: 16,
+        iterations: 200,
+        threads: 1,
+        ..FitSettings::default()
+    };
+    let scaled = |scale: f32| {
+        let mut f = frame.clone();
+        f.pixels.iter_mut().for_each(|p| *p = p.map(|c| c * scale));
+        f
+    };
+    let green = |r: &envlight::asg::fit::FitResult| -> f64 {
+        r.lobes.iter().map(|l| l.integral()[1]).sum()
+    };
+    for (before, after) in [(0.0, 1.0), (1.0, 2f32.powi(30)), (1.0, 2f32.powi(-30))] {
+        let mut fitter = AsgFitter::new(settings.clone()).unwrap();
+        fitter.fit_frame(&frame).unwrap();
+        fitter.fit_frame(&scaled(before)).unwrap();
+        let warm = fitter.fit_frame(&scaled(after)).unwrap();
+        let mut cold_fitter = AsgFitter::new(settings.clone()).unwrap();
+        let cold = cold_fitter.fit_frame(&scaled(after)).unwrap();
+        // The map term alone (no temporal term) of each fit, on the same target.
+        let map_loss =
+            |lobes: &[Asg]| loss(cold_fitter.target().unwrap(), lobes, None, &settings).total;
+        let (warm_loss, cold_loss) = (map_loss(&warm.lobes), map_loss(&cold.lobes));
+        assert!(
+            warm_loss <= 1.5 * cold_loss,
+            "{before} then {after}: loss {warm_loss} after the change, {cold_loss} from scratch"
+        );
+        let ratio = green(&warm) / green(&cold);
+        assert!(
+            (ratio - 1.0).abs() < 0.05,
+            "{before} then {after}: integral {} vs {} from scratch",
+            green(&warm),
+            green(&cold)
+        );
     }
 }

@@ -72,6 +72,11 @@
 //!    preconditioned metric taken as the identity in the scaled units of u). The last iterate
 //!    is returned (the lowest total loss is, with L_T's kink at "no change", the previous
 //!    lobes themselves, which is what the subgradient version returned).
+//!    When the map's mean radiance changed by more than [`WARM_RESCALE`] (4×) either way (an
+//!    exposure change), the previous amplitudes are first scaled by that change: the warm steps
+//!    move a log-amplitude by little, and a 2^30 jump left the lobes at the old scale (loss 2).
+//!    After a frame that left no lobe with power (a black one) the next frame is fitted from
+//!    scratch: zero lobes sat at the amplitude bound and every later frame came out black.
 
 pub use super::target::{fibonacci_sphere, resample_latlong, resample_latlong_into, FitTarget};
 use super::{integral_with_derivatives, rotate, Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
@@ -1350,11 +1355,23 @@ pub fn centroid_step(target: &FitTarget, lobes: &[Asg]) -> Vec<Asg> {
     out
 }
 
-/// Fits frame after frame, warm-starting each from the previous result.
+/// A warm refit scales the previous amplitudes by the change of the map's mean radiance when
+/// that change exceeds this factor either way (an exposure change; [`AsgFitter::fit_target`]).
+pub const WARM_RESCALE: f64 = 4.0;
+
+/// Whether any lobe has a positive amplitude in some channel.
+fn has_power(lobes: &[Asg]) -> bool {
+    lobes.iter().any(|l| l.rgb.iter().any(|&c| c > 0.0))
+}
+
+/// Fits frame after frame, warm-starting each from the previous result (from scratch after a
+/// frame that left no lobe with power: a black one).
 #[derive(Clone, Debug)]
 pub struct AsgFitter {
     settings: FitSettings,
     previous: Option<Vec<Asg>>,
+    /// The mean radiance of the map `previous` was fitted to.
+    previous_mean: f64,
     adam: AdamState,
     /// The last frame's target, refilled by the next frame of the same size
     /// ([`FitTarget::refill`]: the size-dependent parts and the buffers are reused).
@@ -1368,6 +1385,7 @@ impl AsgFitter {
         Ok(Self {
             settings,
             previous: None,
+            previous_mean: 0.0,
             adam: AdamState::default(),
             target: None,
         })
@@ -1446,9 +1464,37 @@ impl AsgFitter {
 
     /// Fits one prepared target.
     pub fn fit_target(&mut self, target: &FitTarget) -> FitResult {
+        // Lobes without power (those of a black frame) give a warm refit nothing to follow:
+        // their log-amplitudes sit at the bound and the warm steps never bring them back.
+        if self
+            .previous
+            .as_deref()
+            .is_some_and(|prev| !has_power(prev))
+        {
+            self.reset();
+        }
         let s = &self.settings;
         let result = match &self.previous {
             Some(prev) => {
+                // A map whose scale jumped (an exposure change) is followed by scaling the
+                // previous amplitudes with it: the warm steps move a log-amplitude by little.
+                let ratio = target.mean / self.previous_mean;
+                let scaled: Vec<Asg>;
+                let prev = if ratio.is_finite()
+                    && ratio > 0.0
+                    && !(1.0 / WARM_RESCALE..=WARM_RESCALE).contains(&ratio)
+                {
+                    scaled = prev
+                        .iter()
+                        .map(|l| Asg {
+                            rgb: l.rgb.map(|c| c * ratio),
+                            ..*l
+                        })
+                        .collect();
+                    &scaled
+                } else {
+                    prev
+                };
                 // L_T is measured from the previous lobes as the centroid step moved them: the
                 // step says where a moving light went, L_T damps the rest of the change.
                 let start = if s.warm_centroid {
@@ -1479,6 +1525,7 @@ impl AsgFitter {
             }
         };
         self.previous = Some(result.lobes.clone());
+        self.previous_mean = target.mean;
         result
     }
 }
