@@ -91,13 +91,26 @@ fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, l: vec3<f32>, layer: i32, full
     return sum / f32(PCF_TAPS);
 }
 
-// GGX normal distribution × height-correlated Smith visibility × Schlick Fresnel.
+// The half vector of v and l. Opposite v and l have none (normalize(0) is NaN, and one NaN
+// pixel blackened the image's sum): n stands in.
+fn half_vector(v: vec3<f32>, l: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let s = v + l;
+    let len2 = dot(s, s);
+    if len2 < 1e-12 {
+        return n;
+    }
+    return s * inverseSqrt(len2);
+}
+
+// GGX normal distribution × height-correlated Smith visibility × Schlick Fresnel. The cosines
+// are clamped to [0, 1]: v·h rounds to just above 1 where the light lies along the view ray,
+// and pow(1 − v·h, 5) of a negative base is NaN.
 fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha: f32, f0: vec3<f32>) -> vec3<f32> {
-    let h = normalize(v + l);
-    let ndl = max(dot(n, l), 0.0);
-    let ndv = max(dot(n, v), 1e-4);
-    let ndh = max(dot(n, h), 0.0);
-    let vdh = max(dot(v, h), 0.0);
+    let h = half_vector(v, l, n);
+    let ndl = clamp(dot(n, l), 0.0, 1.0);
+    let ndv = clamp(dot(n, v), 1e-4, 1.0);
+    let ndh = clamp(dot(n, h), 0.0, 1.0);
+    let vdh = clamp(dot(v, h), 0.0, 1.0);
     let a2 = alpha * alpha;
     let dd = ndh * ndh * (a2 - 1.0) + 1.0;
     let d = a2 / (PI * dd * dd);
@@ -139,7 +152,7 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
             // The GGX lobe is below ~1% of its peak beyond tan θ_h = 3α′ (θ_h: the half vector's
             // angle to n), i.e. outside a cone of half-angle ≈ 2θ_h around the mirror direction.
             // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light.
-            let nh = max(dot(n, normalize(v + l)), 0.0);
+            let nh = max(dot(n, half_vector(v, l, n)), 0.0);
             full = nh * nh * (1.0 + 9.0 * alpha_l * alpha_l) >= 1.0;
         }
         let vis = visibility(i, in.world, n, l, i32(rgb.w), full);

@@ -210,7 +210,7 @@ pub fn read_json_lines(path: &std::path::Path) -> Result<Vec<LightFrame>, LightL
 }
 
 /// Parses JSON Lines text; the error gives the 1-based line number and the problem. Every light
-/// must be usable as it stands: a finite, non-zero direction (a renderer normalises it), finite
+/// must be usable as it stands: a finite, non-zero direction (scaled to unit length here), finite
 /// non-negative `rgb` and a finite non-negative `solid_angle`; a light that is not is an error
 /// naming its id, not a light dropped or clamped later.
 pub fn parse_json_lines(text: &str) -> Result<Vec<LightFrame>, (usize, String)> {
@@ -218,22 +218,29 @@ pub fn parse_json_lines(text: &str) -> Result<Vec<LightFrame>, (usize, String)> 
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            let frame: LightFrame = serde_json::from_str(l).map_err(|e| (i + 1, e.to_string()))?;
-            match frame
-                .lights
-                .iter()
-                .find_map(|light| light_problem(light).map(|p| (light.id, p)))
-            {
-                Some((id, problem)) => Err((i + 1, format!("light {id}: {problem}"))),
-                None => Ok(frame),
+            let mut frame: LightFrame =
+                serde_json::from_str(l).map_err(|e| (i + 1, e.to_string()))?;
+            for light in &mut frame.lights {
+                if let Some(problem) = light_problem(light) {
+                    return Err((i + 1, format!("light {}: {problem}", light.id)));
+                }
+                light.dir = unit(light.dir);
             }
+            Ok(frame)
         })
         .collect()
 }
 
+/// `dir` scaled to unit length, in f64 (squaring f32 components of 1e20 overflows).
+fn unit(dir: [f32; 3]) -> [f32; 3] {
+    let d = dir.map(f64::from);
+    let length = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    d.map(|c| (c / length) as f32)
+}
+
 /// What makes a light unusable, if anything (see [`parse_json_lines`]).
 fn light_problem(light: &Light) -> Option<String> {
-    let [x, y, z] = light.dir;
+    let [x, y, z] = light.dir.map(f64::from);
     if !(x.is_finite() && y.is_finite() && z.is_finite()) || x * x + y * y + z * z < 1e-12 {
         return Some(format!(
             "dir {:?} is not a direction (expected a unit vector)",
@@ -316,9 +323,18 @@ mod tests {
                 "{message}"
             );
         }
-        // Black lights and an unnormalised direction are fine.
-        let ok =
-            r#"{"seq":0,"time":0,"lights":[{"id":0,"dir":[0,2,0],"rgb":[0,0,0],"solid_angle":0}]}"#;
-        assert_eq!(parse_json_lines(ok).unwrap().len(), 1);
+        // Black lights and an unnormalised direction are fine; the direction comes back as a
+        // unit vector, also from components whose squares overflow f32.
+        for (dir, unit) in [
+            ("[0,2,0]", [0.0, 1.0, 0.0]),
+            ("[1e30,1e30,0]", [0.70710677, 0.70710677, 0.0]),
+            ("[0,0,-1e-5]", [0.0, 0.0, -1.0]),
+        ] {
+            let ok = format!(
+                r#"{{"seq":0,"time":0,"lights":[{{"id":0,"dir":{dir},"rgb":[0,0,0],"solid_angle":0}}]}}"#
+            );
+            let frames = parse_json_lines(&ok).unwrap();
+            assert_eq!(frames[0].lights[0].dir, unit, "{dir}");
+        }
     }
 }

@@ -1426,11 +1426,20 @@ fn render(args: &RenderArgs) -> Result<()> {
             });
         }
         let saturated = output::saturate(&mut image);
-        if saturated > 0 {
+        if saturated.infinite > 0 {
             tracing::warn!(
-                "frame {}: {saturated} pixel values beyond f32's range (lights too bright to \
-                 sum) written as the largest f32",
-                lights.seq
+                "frame {}: {} pixel values beyond f32's range (lights too bright to sum) \
+                 written as the largest f32",
+                lights.seq,
+                saturated.infinite
+            );
+        }
+        if saturated.nan > 0 {
+            tracing::warn!(
+                "frame {}: {} pixel values not a number (a shading fault; please report it \
+                 with the light list) written as 0",
+                lights.seq,
+                saturated.nan
             );
         }
         let exp = *exposure.get_or_insert_with(|| output::auto_exposure(&image));

@@ -954,3 +954,40 @@ fn device_errors_are_kept_not_panicked() {
     assert!(!error.is_empty());
     assert_eq!(gpu.take_error(), None);
 }
+
+/// A light along the view ray of a visible point (v = l there) shades finitely. v·h rounded
+/// to just above 1 and pow(1 − v·h, 5) was NaN: one black pixel, reported as "beyond f32's
+/// range" (found with the first light below at 160×90 on lavapipe).
+#[test]
+fn lights_along_the_view_ray_shade_finitely() {
+    let scene = Scene::default_scene();
+    let camera = scene.camera;
+    let mut r = renderer(
+        scene,
+        RenderSettings {
+            width: 160,
+            height: 90,
+            shadows: false,
+            ..Default::default()
+        },
+    );
+    let mut lights = vec![light(
+        0,
+        Vec3::new(0.076_702_76, 0.221_502_82, 0.972_138_5),
+        [5.0; 3],
+        0.001,
+    )];
+    // And lights towards the camera from points around the view's centre.
+    for (i, offset) in [[0.0, 0.0], [0.3, 0.1], [-0.2, 0.4], [0.1, -0.3]]
+        .iter()
+        .enumerate()
+    {
+        let point = camera.target + Vec3::new(offset[0], offset[1], 0.0);
+        lights.push(light(i as u32 + 1, camera.eye - point, [5.0; 3], 0.001));
+    }
+    for one in &lights {
+        let (img, _) = r.render(std::slice::from_ref(one)).unwrap();
+        let bad = img.rgba.iter().filter(|c| !c.is_finite()).count();
+        assert_eq!(bad, 0, "light {:?}: {bad} non-finite pixel values", one.dir);
+    }
+}

@@ -293,6 +293,28 @@ impl Renderer {
         if scene.indices.is_empty() {
             return Err(RenderError::Settings("the scene has no triangles".into()));
         }
+        // A buffer past the device's limit is a validation error, and wgpu's buffer
+        // initialisation then panicked on the invalid buffer's mapping.
+        let max_buffer = gpu.device.limits().max_buffer_size;
+        for (what, count, bytes) in [
+            (
+                "vertices",
+                scene.vertices.len(),
+                std::mem::size_of_val(scene.vertices.as_slice()),
+            ),
+            (
+                "triangle indices",
+                scene.indices.len(),
+                std::mem::size_of_val(scene.indices.as_slice()),
+            ),
+        ] {
+            if bytes as u64 > max_buffer {
+                return Err(RenderError::Settings(format!(
+                    "the scene's {count} {what} take {bytes} bytes, more than the largest \
+                     buffer the adapter allows ({max_buffer} bytes); simplify the model"
+                )));
+            }
+        }
         let device = &gpu.device;
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),

@@ -87,19 +87,27 @@ pub fn write_png(path: &Path, image: &Image, exposure: f32) -> Result<(), Output
     })
 }
 
+/// The non-finite values [`saturate`] replaced.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Saturated {
+    /// ±∞: very bright lights summed past f32's range; written as ±`f32::MAX`.
+    pub infinite: usize,
+    /// NaN (a shading fault); written as 0.
+    pub nan: usize,
+}
+
 /// Replaces the values a render cannot hold — +∞ where very bright lights summed past f32's
-/// range, NaN — by `f32::MAX` (−∞ by `-f32::MAX`) and 0, and returns how many there were, so
-/// the EXR and PNG written hold finite numbers only.
-pub fn saturate(image: &mut Image) -> usize {
-    let mut count = 0;
+/// range, NaN — by `f32::MAX` (−∞ by `-f32::MAX`) and 0, and counts each kind, so the EXR and
+/// PNG written hold finite numbers only.
+pub fn saturate(image: &mut Image) -> Saturated {
+    let mut count = Saturated::default();
     for v in &mut image.rgba {
-        if !v.is_finite() {
-            *v = if v.is_nan() {
-                0.0
-            } else {
-                f32::MAX.copysign(*v)
-            };
-            count += 1;
+        if v.is_nan() {
+            *v = 0.0;
+            count.nan += 1;
+        } else if v.is_infinite() {
+            *v = f32::MAX.copysign(*v);
+            count.infinite += 1;
         }
     }
     count
@@ -157,7 +165,13 @@ mod tests {
                 1.0,
             ],
         };
-        assert_eq!(saturate(&mut image), 3);
+        assert_eq!(
+            saturate(&mut image),
+            Saturated {
+                infinite: 2,
+                nan: 1
+            }
+        );
         assert_eq!(
             image.rgba,
             [1.0, f32::MAX, 0.0, 1.0, -f32::MAX, 0.5, 0.25, 1.0]

@@ -33,11 +33,29 @@ pub enum SceneError {
     UnknownFormat { path: PathBuf },
     #[error("scene {path}: its vertices span a sphere of radius {radius}, more than the {MAX_SCENE_RADIUS:e} that can be drawn (f32 depth and shadow maps); scale the model down")]
     TooLarge { path: PathBuf, radius: f32 },
+    #[error("scene {path}: its vertices lie {distance:.3e} from the origin, {ratio:.1e} times their bounding radius {radius:.3e} (at most {MAX_SCENE_OFFSET:e}): f32 positions that far out lose the model's detail; move the model near the origin")]
+    TooFar {
+        path: PathBuf,
+        distance: f64,
+        radius: f32,
+        ratio: f64,
+    },
 }
 
 /// The largest bounding-sphere radius of a loaded scene (in its own units): beyond it the
 /// camera distance and the shadow cameras' depth ranges lose all precision in f32.
 pub const MAX_SCENE_RADIUS: f32 = 1e15;
+
+/// The most elements a glTF accessor or an OBJ file may hold (vertices or indices): 2^26, a
+/// 1.8 GiB vertex buffer. A file of a few bytes can declare billions (a sparse accessor needs
+/// no buffer), and reading them aborted the process on a failed allocation.
+pub const MAX_SCENE_ELEMENTS: usize = 1 << 26;
+
+/// How far from the origin a scene may lie, in units of its bounding radius: vertices are
+/// f32, whose rounding at a distance d is about 6e-8·d, so at 10^5 radii a vertex moves by
+/// 0.6 % of the model's size (and beyond, the camera fitted to it lost the model altogether:
+/// a 10-unit model at x = 1e10 drew nothing).
+pub const MAX_SCENE_OFFSET: f32 = 1e5;
 
 /// One vertex as the GPU reads it (world space).
 #[repr(C)]
@@ -463,6 +481,15 @@ impl Scene {
                 radius: bounds.radius,
             });
         }
+        let distance = bounds.center.as_dvec3().length();
+        if distance > f64::from(MAX_SCENE_OFFSET * bounds.radius) {
+            return Err(SceneError::TooFar {
+                path: path.to_path_buf(),
+                distance,
+                radius: bounds.radius,
+                ratio: distance / f64::from(bounds.radius),
+            });
+        }
         let low = b
             .vertices
             .iter()
@@ -493,6 +520,85 @@ fn check_finite(path: &Path, positions: &[Vec3], normals: &[Vec3]) -> Result<(),
             path: path.to_path_buf(),
             message: "non-finite vertex position or normal".into(),
         });
+    }
+    Ok(())
+}
+
+/// Checks what the `gltf` crate's reader takes on trust (it panics or aborts otherwise): the
+/// type and component type (`dimensions` and one of `types`: POSITION and NORMAL are VEC3
+/// floats, indices SCALAR unsigned integers), a count of
+/// at most [`MAX_SCENE_ELEMENTS`], a buffer view's stride no smaller than an element, and a
+/// sparse accessor's indices within its count. Returns the problem, worded to follow the
+/// accessor's name.
+fn check_accessor(
+    accessor: &gltf::Accessor,
+    buffers: &[gltf::buffer::Data],
+    dimensions: gltf::accessor::Dimensions,
+    types: &[gltf::accessor::DataType],
+) -> Result<(), String> {
+    let index = accessor.index();
+    if accessor.dimensions() != dimensions {
+        return Err(format!(
+            "accessor {index} has type {:?}; expected {dimensions:?}",
+            accessor.dimensions()
+        ));
+    }
+    if !types.contains(&accessor.data_type()) {
+        return Err(format!(
+            "accessor {index} has component type {:?}; expected {}",
+            accessor.data_type(),
+            types
+                .iter()
+                .map(|t| format!("{t:?}"))
+                .collect::<Vec<_>>()
+                .join(" or ")
+        ));
+    }
+    if accessor.count() > MAX_SCENE_ELEMENTS {
+        return Err(format!(
+            "accessor {index} holds {} elements, more than the {MAX_SCENE_ELEMENTS} a scene \
+             may have",
+            accessor.count()
+        ));
+    }
+    if let Some(view) = accessor.view() {
+        if let Some(stride) = view.stride() {
+            if stride < accessor.size() {
+                return Err(format!(
+                    "accessor {index}: buffer view {} has a byteStride of {stride} bytes, less \
+                     than one element ({} bytes)",
+                    view.index(),
+                    accessor.size()
+                ));
+            }
+        }
+    }
+    if let Some(sparse) = accessor.sparse() {
+        let indices = sparse.indices();
+        let view = indices.view();
+        let width = match indices.index_type() {
+            gltf::accessor::sparse::IndexType::U8 => 1,
+            gltf::accessor::sparse::IndexType::U16 => 2,
+            gltf::accessor::sparse::IndexType::U32 => 4,
+        };
+        let start = view.offset() + indices.offset();
+        let bytes = buffers
+            .get(view.buffer().index())
+            .and_then(|data| data.0.get(start..start + sparse.count() * width))
+            .ok_or_else(|| {
+                format!("accessor {index}: its sparse indices lie outside their buffer")
+            })?;
+        for chunk in bytes.chunks_exact(width) {
+            let mut le = [0u8; 4];
+            le[..width].copy_from_slice(chunk);
+            let i = u32::from_le_bytes(le) as usize;
+            if i >= accessor.count() {
+                return Err(format!(
+                    "accessor {index}: sparse index {i} out of range of its count {}",
+                    accessor.count()
+                ));
+            }
+        }
     }
     Ok(())
 }
@@ -557,6 +663,26 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                 );
                 continue;
             }
+            for (semantic, accessor) in prim.attributes() {
+                let semantic = match semantic {
+                    gltf::Semantic::Positions => "POSITION",
+                    gltf::Semantic::Normals => "NORMAL",
+                    _ => continue,
+                };
+                {
+                    use gltf::accessor::{DataType::F32, Dimensions::Vec3};
+                    check_accessor(&accessor, &buffers, Vec3, &[F32])
+                        .map_err(|m| err(format!("{}: {semantic} {m}", mesh_name(&prim))))?;
+                }
+            }
+            if let Some(accessor) = prim.indices() {
+                use gltf::accessor::{
+                    DataType::{U16, U32, U8},
+                    Dimensions::Scalar,
+                };
+                check_accessor(&accessor, &buffers, Scalar, &[U8, U16, U32])
+                    .map_err(|m| err(format!("{}: indices {m}", mesh_name(&prim))))?;
+            }
             let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
             let Some(positions) = reader.read_positions() else {
                 if prim.get(&gltf::Semantic::Positions).is_none() {
@@ -586,12 +712,18 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                     )))
                 }
             };
-            if !indices.len().is_multiple_of(3)
-                || indices.iter().any(|&i| i as usize >= positions.len())
-            {
+            if !indices.len().is_multiple_of(3) {
                 return Err(err(format!(
-                    "mesh {:?}: triangle indices out of range or not a multiple of 3",
-                    mesh.name().unwrap_or("")
+                    "{}: {} indices, not a multiple of 3 (triangles)",
+                    mesh_name(&prim),
+                    indices.len()
+                )));
+            }
+            if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+                return Err(err(format!(
+                    "{}: index {i} out of range of its {} vertices",
+                    mesh_name(&prim),
+                    positions.len()
                 )));
             }
             let normals: Vec<Vec3> = match reader.read_normals() {
@@ -624,10 +756,22 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                             mat.name().unwrap_or("")
                         )));
                     }
+                    let (roughness, metallic) = (pbr.roughness_factor(), pbr.metallic_factor());
+                    for (name, value) in
+                        [("roughnessFactor", roughness), ("metallicFactor", metallic)]
+                    {
+                        if !(0.0..=1.0).contains(&value) {
+                            return Err(err(format!(
+                                "material {} ({:?}): {name} {value} must lie in [0, 1]",
+                                mat.index().map_or("default".to_string(), |i| i.to_string()),
+                                mat.name().unwrap_or("")
+                            )));
+                        }
+                    }
                     let id = b.material(Material {
                         base_color: [c[0], c[1], c[2]],
-                        roughness: pbr.roughness_factor().clamp(0.0, 1.0),
-                        metallic: pbr.metallic_factor().clamp(0.0, 1.0),
+                        roughness,
+                        metallic,
                         specular: 0.5,
                     });
                     material_ids.insert(key, id);
@@ -638,6 +782,25 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
         }
     }
     Ok(b)
+}
+
+/// Reads an MTL file, checking what `tobj` would panic on: a colour (`Ka`, `Kd`, `Ks`, `Ke`)
+/// with fewer than three numbers. The error carries tobj's kind and the problem in words.
+fn read_mtl(path: &Path) -> Result<Vec<u8>, (tobj::LoadError, String)> {
+    let bytes =
+        std::fs::read(path).map_err(|e| (tobj::LoadError::OpenFileFailed, e.to_string()))?;
+    for (number, line) in String::from_utf8_lossy(&bytes).lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
+            if words.take(3).count() < 3 {
+                return Err((
+                    tobj::LoadError::MaterialParseError,
+                    format!("line {}: {key} needs three numbers (r g b)", number + 1),
+                ));
+            }
+        }
+    }
+    Ok(bytes)
 }
 
 fn load_obj(path: &Path) -> Result<Builder, SceneError> {
@@ -670,14 +833,43 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
     }
     // Material libraries are found next to the OBJ file, as `tobj::load_obj` does.
     let base = path.parent().unwrap_or(Path::new("."));
+    // tobj's own errors say only "open file failed": the library's path and the problem are
+    // kept here for the warning.
+    let mtl_problem = std::cell::RefCell::new(None);
     let (models, materials) = tobj::load_obj_buf(&mut &text[..], &options, |mtl| {
-        tobj::load_mtl(base.join(mtl))
+        let mtl_path = base.join(mtl);
+        let loaded = read_mtl(&mtl_path)
+            .and_then(|bytes| tobj::load_mtl_buf(&mut &bytes[..]).map_err(|e| (e, e.to_string())));
+        loaded.map_err(|(e, problem)| {
+            *mtl_problem.borrow_mut() = Some(format!("{}: {problem}", mtl_path.display()));
+            e
+        })
     })
     .map_err(|e| err(e.to_string()))?;
+    let mut warned = false;
     let materials = materials.unwrap_or_else(|e| {
-        tracing::warn!("{}: materials not loaded ({e}); using grey", path.display());
+        let problem = mtl_problem.take().unwrap_or_else(|| e.to_string());
+        tracing::warn!(
+            "{}: materials not loaded ({problem}); using grey",
+            path.display()
+        );
+        warned = true;
         Vec::new()
     });
+    // `usemtl` of a name no library defines: drawn grey, and said so.
+    let unknown: std::collections::BTreeSet<String> = text
+        .split(|&c| c == b'\n')
+        .filter_map(|l| l.strip_prefix(b"usemtl"))
+        .map(|name| String::from_utf8_lossy(name).trim().to_string())
+        .filter(|name| !name.is_empty() && !materials.iter().any(|m| &m.name == name))
+        .collect();
+    if !unknown.is_empty() && !warned {
+        tracing::warn!(
+            "{}: usemtl of materials its libraries do not define ({}); drawn grey",
+            path.display(),
+            unknown.into_iter().collect::<Vec<_>>().join(", ")
+        );
+    }
     let mut b = Builder::default();
     let mut ids: Vec<Option<u32>> = vec![None; materials.len()];
     let mut default_id = None;
@@ -1006,6 +1198,143 @@ mod tests {
         std::fs::write(&large, "v 0 0 0\nv 1e14 0 0\nv 0 1e14 0\nf 1 2 3\n").unwrap();
         let s = Scene::load(&large, false).unwrap();
         assert!(s.vertices[0].normal[2] > 0.99, "{:?}", s.vertices[0].normal);
+    }
+
+    /// The one-triangle glTF of [`write_gltf`] with `from` replaced by `to` in its text.
+    fn edited_gltf(dir: &Path, name: &str, from: &str, to: &str) -> PathBuf {
+        let path = write_gltf(dir, name, r#"[{"mesh":0}]"#, [3, 3, 3], "[0.5,0.5,0.5,1]");
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains(from), "{from}");
+        std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+        path
+    }
+
+    /// What the `gltf` crate's reader takes on trust is checked first: an index accessor of
+    /// floats, a stride shorter than an element, a sparse accessor declaring 80 million
+    /// vertices in a few bytes, a sparse index past the count (these panicked, aborted on a
+    /// 36 GB allocation, or were ignored); material factors outside [0, 1] (clamped silently);
+    /// a model 10^7 radii from the origin (f32 lost it: an empty image); an MTL colour of two
+    /// numbers (tobj panicked) and a `usemtl` of an undefined material (grey) are warnings
+    /// that say so.
+    #[test]
+    fn accessors_materials_and_placement_are_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        for (path, needle) in [
+            (
+                edited_gltf(
+                    d,
+                    "float_idx.gltf",
+                    r#""componentType":5123"#,
+                    r#""componentType":5126"#,
+                ),
+                "indices accessor 2 has component type F32",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "vec2_pos.gltf",
+                    r#""count":3,"type":"VEC3","min""#,
+                    r#""count":3,"type":"VEC2","min""#,
+                ),
+                "POSITION accessor 0 has type Vec2",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "stride.gltf",
+                    r#"{"buffer":0,"byteLength":36}"#,
+                    r#"{"buffer":0,"byteLength":36,"byteStride":4}"#,
+                ),
+                "byteStride of 4 bytes, less than one element (12 bytes)",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "sparse_huge.gltf",
+                    r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
+                    r#"{"componentType":5126,"count":80000001,"type":"VEC3","min":[0,0,0],"max":[1,1,0],
+                        "sparse":{"count":3,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
+                ),
+                "holds 80000001 elements",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "sparse_oob.gltf",
+                    r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
+                    r#"{"componentType":5126,"count":2,"type":"VEC3","min":[0,0,0],"max":[1,1,0],
+                        "sparse":{"count":3,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
+                ),
+                "sparse index 2 out of range of its count 2",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "rough.gltf",
+                    r#""baseColorFactor""#,
+                    r#""roughnessFactor":5,"baseColorFactor""#,
+                ),
+                "roughnessFactor 5 must lie in [0, 1]",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "metal.gltf",
+                    r#""baseColorFactor""#,
+                    r#""metallicFactor":-2,"baseColorFactor""#,
+                ),
+                "metallicFactor -2 must lie in [0, 1]",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "far.gltf",
+                    r#"{"mesh":0}"#,
+                    r#"{"mesh":0,"translation":[1e7,0,0]}"#,
+                ),
+                "from the origin",
+            ),
+        ] {
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            let e = Scene::load(&path, false).err().map(|e| e.to_string());
+            let e = e.unwrap_or_else(|| panic!("{name} loaded"));
+            assert!(e.contains(&name) && e.contains(needle), "{e}");
+        }
+        // Near the origin, or moved by a few radii, the same triangle loads.
+        let near = edited_gltf(
+            d,
+            "near.gltf",
+            r#"{"mesh":0}"#,
+            r#"{"mesh":0,"translation":[1e3,0,0]}"#,
+        );
+        assert!(Scene::load(&near, false).is_ok());
+
+        // OBJ: a two-number Kd and an undefined material load (grey), without a panic.
+        std::fs::write(d.join("short.mtl"), "newmtl red\nKd 1 0\n").unwrap();
+        std::fs::write(d.join("ok.mtl"), "newmtl red\nKd 1 0 0\n").unwrap();
+        for (mtl, material) in [
+            ("short.mtl", "red"),
+            ("ok.mtl", "blue"),
+            ("missing.mtl", "red"),
+        ] {
+            let obj = d.join(format!("{material}_{mtl}.obj"));
+            std::fs::write(
+                &obj,
+                format!("mtllib {mtl}\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl {material}\nf 1 2 3\n"),
+            )
+            .unwrap();
+            let s = Scene::load(&obj, false).unwrap();
+            assert_eq!(
+                s.materials[0].base_color,
+                Material::default().base_color,
+                "{mtl}"
+            );
+        }
+        assert_eq!(
+            read_mtl(&d.join("short.mtl")).unwrap_err().1,
+            "line 2: Kd needs three numbers (r g b)"
+        );
     }
 
     fn base64_encode(data: &[u8]) -> String {
