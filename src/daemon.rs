@@ -113,6 +113,15 @@ pub fn read_config(
     raw.validate()
 }
 
+/// `text` on one line: its lines trimmed, the empty ones dropped, joined by " | ".
+pub fn one_line(text: &str) -> String {
+    text.lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
 /// Errors of the daemon.
 #[derive(Debug, thiserror::Error)]
 pub enum DaemonError {
@@ -677,7 +686,13 @@ impl Daemon {
         }
         match self.reload_file(path) {
             Err(error) => {
-                tracing::error!(%error, "SIGHUP: config reload failed; keeping the running configuration")
+                // One line per event (journald): TOML's caret snippets span several.
+                let error = one_line(&error.to_string());
+                tracing::error!(
+                    path = %path.display(),
+                    %error,
+                    "SIGHUP: config reload failed; keeping the running configuration"
+                )
             }
             Ok(report) => {
                 if report.applied.is_empty() && report.needs_restart.is_empty() {
@@ -1120,8 +1135,15 @@ fn respond<B>(
     state: &HttpState,
     request: &hyper::Request<B>,
 ) -> hyper::Response<http_body_util::Full<hyper::body::Bytes>> {
-    let (status, content_type, body) = if request.method() != hyper::Method::GET {
-        (405, "text/plain", "only GET is served\n".to_owned())
+    // HEAD is GET without the body (RFC 9110 §9.3.2: servers support both; `curl -I` health
+    // checks use it); anything else is 405 with the methods that are allowed.
+    let head = request.method() == hyper::Method::HEAD;
+    let (status, content_type, body) = if request.method() != hyper::Method::GET && !head {
+        (
+            405,
+            "text/plain",
+            "only GET and HEAD are served\n".to_owned(),
+        )
     } else {
         match request.uri().path() {
             "/metrics" => (
@@ -1140,13 +1162,24 @@ fn respond<B>(
             ),
         }
     };
+    let length = body.len();
+    let body = if head { String::new() } else { body };
     let mut response = hyper::Response::new(http_body_util::Full::new(body.into()));
     *response.status_mut() =
         hyper::StatusCode::from_u16(status).unwrap_or(hyper::StatusCode::INTERNAL_SERVER_ERROR);
+    let headers = response.headers_mut();
     if let Ok(value) = hyper::header::HeaderValue::from_str(content_type) {
-        response
-            .headers_mut()
-            .insert(hyper::header::CONTENT_TYPE, value);
+        headers.insert(hyper::header::CONTENT_TYPE, value);
+    }
+    if head {
+        // The length the GET would have sent.
+        headers.insert(hyper::header::CONTENT_LENGTH, length.into());
+    }
+    if status == 405 {
+        headers.insert(
+            hyper::header::ALLOW,
+            hyper::header::HeaderValue::from_static("GET, HEAD"),
+        );
     }
     response
 }

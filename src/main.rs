@@ -873,7 +873,15 @@ fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
 
 fn check_config(args: &CheckConfigArgs) -> Result<()> {
     let (config, name) = match &args.file {
-        Some(path) => (Config::from_file(path)?, path.display().to_string()),
+        Some(path) => (
+            Config::from_file(path).map_err(|e| match e {
+                ConfigError::Invalid { .. } => {
+                    anyhow!(e).context(format!("invalid setting in {}", path.display()))
+                }
+                _ => anyhow!(e),
+            })?,
+            path.display().to_string(),
+        ),
         None => (Config::default(), "the built-in defaults".to_owned()),
     };
     use std::fmt::Write as _;

@@ -30,7 +30,7 @@ use crate::frame::HdrFrame;
 use crate::pipeline::Tapped;
 use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
-use std::io::{BufRead, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use std::time::Instant;
@@ -105,7 +105,76 @@ pub struct RecordSummary {
 /// A running recorder. See the module docs.
 pub struct Recorder {
     dir: PathBuf,
+    /// Whether [`Recorder::start`] created `dir` (then [`Recorder::discard`] removes it).
+    created_dir: bool,
     thread: JoinHandle<Result<RecordSummary, RecordError>>,
+}
+
+/// Removes what [`Recorder::start`] and its thread wrote into `dir`: `session.json`, the two
+/// JSON Lines files, the recorded `frames/NNNNNN.exr` and the `frames` folder — and `dir`
+/// itself when the recorder created it. Anything else found there is left.
+fn remove_recording(dir: &Path, created_dir: bool) {
+    for name in ["session.json", "frames.jsonl", "lights.jsonl"] {
+        let _ = std::fs::remove_file(dir.join(name));
+    }
+    let frames = dir.join("frames");
+    if let Ok(entries) = std::fs::read_dir(&frames) {
+        for entry in entries.flatten() {
+            let name = entry.file_name();
+            let name = name.to_string_lossy();
+            let recorded = name
+                .strip_suffix(".exr")
+                .is_some_and(|stem| stem.len() >= 6 && stem.bytes().all(|b| b.is_ascii_digit()));
+            if recorded {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+    }
+    let _ = std::fs::remove_dir(&frames);
+    if created_dir {
+        let _ = std::fs::remove_dir(dir);
+    }
+}
+
+/// One of the recording's JSON Lines files. A line is written with one `write_all` on the
+/// file (no buffer that a later drop could flush), and a failed write is cut back to the last
+/// whole line, so a recording stopped by a full disk still reads to its last whole frame.
+struct LinesFile {
+    file: std::fs::File,
+    path: PathBuf,
+    /// Bytes of whole lines written.
+    len: u64,
+}
+
+impl LinesFile {
+    fn create(path: PathBuf) -> Result<Self, RecordError> {
+        let file = std::fs::File::create(&path).map_err(io_error(&path))?;
+        Ok(Self { file, path, len: 0 })
+    }
+
+    fn append(&mut self, line: &[u8]) -> Result<(), RecordError> {
+        match self.file.write_all(line) {
+            Ok(()) => {
+                self.len += line.len() as u64;
+                Ok(())
+            }
+            Err(source) => {
+                self.cut_to(self.len);
+                Err(RecordError::Io {
+                    path: self.path.clone(),
+                    source,
+                })
+            }
+        }
+    }
+
+    /// Cuts the file back to `len` bytes (best effort: the write already failed).
+    fn cut_to(&mut self, len: u64) {
+        use std::io::Seek;
+        if self.file.set_len(len).is_ok() && self.file.seek(std::io::SeekFrom::Start(len)).is_ok() {
+            self.len = len;
+        }
+    }
 }
 
 impl Recorder {
@@ -117,6 +186,7 @@ impl Recorder {
         settings: &DecomposeSettings,
         frames: Receiver<Tapped>,
     ) -> Result<Recorder, RecordError> {
+        let created_dir = !dir.exists();
         std::fs::create_dir_all(dir).map_err(io_error(dir))?;
         if std::fs::read_dir(dir)
             .map_err(io_error(dir))?
@@ -127,6 +197,20 @@ impl Recorder {
                 path: dir.to_path_buf(),
             });
         }
+        // From here on a failure removes what was created (a full disk leaves the directory
+        // as it was, and the same command can be run again).
+        Self::start_in(dir, source, settings, frames, created_dir).inspect_err(|_| {
+            remove_recording(dir, created_dir);
+        })
+    }
+
+    fn start_in(
+        dir: &Path,
+        source: &str,
+        settings: &DecomposeSettings,
+        frames: Receiver<Tapped>,
+        created_dir: bool,
+    ) -> Result<Recorder, RecordError> {
         let frames_dir = dir.join("frames");
         std::fs::create_dir(&frames_dir).map_err(io_error(&frames_dir))?;
         let session = Session {
@@ -142,14 +226,8 @@ impl Recorder {
         let session_path = dir.join("session.json");
         let text = serde_json::to_string_pretty(&session).unwrap_or_default();
         std::fs::write(&session_path, text + "\n").map_err(io_error(&session_path))?;
-        let open = |name: &str| {
-            let path = dir.join(name);
-            std::fs::File::create(&path)
-                .map(std::io::BufWriter::new)
-                .map_err(io_error(&path))
-        };
-        let mut index = open("frames.jsonl")?;
-        let mut lights = open("lights.jsonl")?;
+        let mut index = LinesFile::create(dir.join("frames.jsonl"))?;
+        let mut lights = LinesFile::create(dir.join("lights.jsonl"))?;
         let root = dir.to_path_buf();
         let thread = std::thread::Builder::new()
             .name(RECORD_THREAD_NAME.to_owned())
@@ -168,6 +246,7 @@ impl Recorder {
             .map_err(io_error(dir))?;
         Ok(Recorder {
             dir: dir.to_path_buf(),
+            created_dir,
             thread,
         })
     }
@@ -184,25 +263,29 @@ impl Recorder {
     }
 
     /// Ends a recording of a session that failed to start: once the tap is closed, removes
-    /// what [`Recorder::start`] created if no frame was recorded, so the directory is empty
-    /// again and the same command can be retried. A recording with frames is kept.
+    /// what [`Recorder::start`] created — the frames recorded in the moments before the
+    /// failure included (they are logged) — so the directory is as it was and the same
+    /// command can be run again.
     pub fn discard(self) {
-        let dir = self.dir.clone();
-        if matches!(self.finish(), Ok(summary) if summary.frames > 0) {
-            return;
+        let (dir, created_dir) = (self.dir.clone(), self.created_dir);
+        if let Ok(summary) = self.finish() {
+            if summary.frames > 0 {
+                tracing::warn!(
+                    dir = %dir.display(),
+                    "the session failed to start; removing the {} frames recorded meanwhile",
+                    summary.frames
+                );
+            }
         }
-        for name in ["session.json", "frames.jsonl", "lights.jsonl"] {
-            let _ = std::fs::remove_file(dir.join(name));
-        }
-        let _ = std::fs::remove_dir(dir.join("frames"));
+        remove_recording(&dir, created_dir);
     }
 }
 
 fn write_frame(
     root: &Path,
     tapped: &Tapped,
-    index: &mut impl Write,
-    lights: &mut impl Write,
+    index: &mut LinesFile,
+    lights: &mut LinesFile,
 ) -> Result<(), RecordError> {
     let frame = &tapped.frame;
     let file = format!("frames/{:06}.exr", frame.seq);
@@ -224,18 +307,14 @@ fn write_frame(
     };
     let mut line = serde_json::to_vec(&entry).unwrap_or_default();
     line.push(b'\n');
-    let index_path = root.join("frames.jsonl");
-    index
-        .write_all(&line)
-        .and_then(|()| index.flush())
-        .map_err(io_error(&index_path))?;
+    let index_len = index.len;
+    index.append(&line)?;
     let mut line = serde_json::to_vec(tapped.lights.as_ref()).unwrap_or_default();
     line.push(b'\n');
-    let lights_path = root.join("lights.jsonl");
+    // A frame is in both files or in neither.
     lights
-        .write_all(&line)
-        .and_then(|()| lights.flush())
-        .map_err(io_error(&lights_path))
+        .append(&line)
+        .inspect_err(|_| index.cut_to(index_len))
 }
 
 /// How a replay is paced.
@@ -289,18 +368,34 @@ impl ReplaySource {
                 message: format!("invalid decomposition settings: {e}"),
             })?;
         let index_path = dir.join("frames.jsonl");
-        let file = std::fs::File::open(&index_path).map_err(io(&index_path))?;
+        let text = std::fs::read_to_string(&index_path).map_err(io(&index_path))?;
+        // A last line without its newline was cut short (the recorder stopped mid-write, e.g.
+        // killed): the recording is read up to its last whole frame.
+        let cut_short = !text.is_empty() && !text.ends_with('\n');
+        let line_count = text.lines().count();
         let mut entries: Vec<FrameEntry> = Vec::new();
-        for (number, line) in std::io::BufReader::new(file).lines().enumerate() {
-            let line = line.map_err(io(&index_path))?;
+        for (number, line) in text.lines().enumerate() {
             if line.trim().is_empty() {
                 continue;
             }
-            let entry: FrameEntry =
-                serde_json::from_str(&line).map_err(|e| CaptureError::Format {
-                    path: index_path.clone(),
-                    message: format!("line {}: {e}", number + 1),
-                })?;
+            let entry: FrameEntry = match serde_json::from_str(line) {
+                Ok(entry) => entry,
+                Err(e) if cut_short && number + 1 == line_count => {
+                    tracing::warn!(
+                        "{}: line {} is cut short ({e}); replaying the {} whole frames before it",
+                        index_path.display(),
+                        number + 1,
+                        entries.len()
+                    );
+                    break;
+                }
+                Err(e) => {
+                    return Err(CaptureError::Format {
+                        path: index_path.clone(),
+                        message: format!("line {}: {e}", number + 1),
+                    })
+                }
+            };
             let bad = |message: String| CaptureError::Format {
                 path: index_path.clone(),
                 message: format!("line {}: {message}", number + 1),
@@ -374,6 +469,19 @@ impl FrameSource for ReplaySource {
                 path: path.clone(),
                 message: "empty image".to_owned(),
             })?;
+        // The index's projection was not checked against a size until now: a fisheye
+        // calibration edited to radius 0 made every light black without a word.
+        if let Projection::Fisheye(calibration) = &entry.projection {
+            calibration
+                .validate(image.width, image.height)
+                .map_err(|problem| CaptureError::Format {
+                    path: self.dir.join("frames.jsonl"),
+                    message: format!(
+                        "frame seq {}: invalid fisheye projection for its {}x{} image: {problem}",
+                        entry.seq, image.width, image.height
+                    ),
+                })?;
+        }
         frame.seq = entry.seq;
         frame.time = entry.time;
         if self.pacing == Pacing::Original {
@@ -462,6 +570,90 @@ mod tests {
                     );
                     assert!(text.contains(expected), "{second:?}: {text}");
                 }
+            }
+        }
+    }
+
+    /// A last line without its newline (the recorder stopped mid-write: killed, a full disk)
+    /// is left out with a warning, and the whole frames before it replay; the same broken
+    /// text on a line that ends is an error as before.
+    #[test]
+    fn an_index_cut_short_replays_its_whole_frames() {
+        let whole = line(0, "0.0", "frames/000000.exr") + &line(1, "0.1", "frames/000001.exr");
+        let cut = r#"{"seq":2,"time":0.2,"file":"fr"#;
+        let dir = recording_with_index(&(whole.clone() + cut));
+        assert_eq!(
+            ReplaySource::open(dir.path(), Pacing::Original)
+                .unwrap()
+                .len(),
+            2
+        );
+        let dir = recording_with_index(&(whole + cut + "\n"));
+        let e = ReplaySource::open(dir.path(), Pacing::Original)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("line 3"), "{e}");
+        // Nothing but a cut line: no frames.
+        let dir = recording_with_index(cut);
+        assert!(ReplaySource::open(dir.path(), Pacing::Original).is_err());
+    }
+
+    /// A fisheye calibration in the index is checked against its frame's size: radius 0
+    /// replayed as black lights without a word.
+    #[test]
+    fn an_invalid_projection_in_the_index_is_an_error() {
+        let projection = Projection::Fisheye(crate::envmap::FisheyeCalibration {
+            radius: Some(0.0),
+            ..Default::default()
+        });
+        let index = format!(
+            "{{\"seq\":0,\"time\":0,\"file\":\"frames/000000.exr\",\"projection\":{}}}\n",
+            serde_json::to_string(&projection).unwrap()
+        );
+        let dir = recording_with_index(&index);
+        std::fs::create_dir(dir.path().join("frames")).unwrap();
+        exr::prelude::write_rgb_file(dir.path().join("frames/000000.exr"), 8, 8, |_, _| {
+            (1.0f32, 1.0f32, 1.0f32)
+        })
+        .unwrap();
+        let mut replay = ReplaySource::open(dir.path(), Pacing::AsFastAsPossible).unwrap();
+        let e = replay.next_frame().err().unwrap().to_string();
+        assert!(
+            e.contains("frames.jsonl") && e.contains("frame seq 0") && e.contains("radius"),
+            "{e}"
+        );
+    }
+
+    /// A session that failed to start leaves its directory as it was: the frames recorded
+    /// meanwhile are removed with the rest (they were kept, and the same command then failed
+    /// on a directory that was not empty), and a directory the recorder created goes too.
+    #[test]
+    fn a_discarded_recording_leaves_the_directory_as_it_was() {
+        let parent = tempfile::tempdir().unwrap();
+        for existed in [true, false] {
+            let dir = parent.path().join(format!("rec_{existed}"));
+            if existed {
+                std::fs::create_dir(&dir).unwrap();
+            }
+            let (tx, rx) = crossbeam_channel::bounded(4);
+            let recorder =
+                Recorder::start(&dir, "test", &DecomposeSettings::default(), rx).unwrap();
+            for seq in 0..2 {
+                let mut frame =
+                    HdrFrame::new(4, 2, vec![[1.0; 3]; 8], Projection::LatLong).unwrap();
+                frame.seq = seq;
+                let lights = std::sync::Arc::new(crate::light::LightFrame {
+                    seq,
+                    time: 0.0,
+                    lights: Vec::new(),
+                });
+                tx.send(Tapped { frame, lights }).unwrap();
+            }
+            drop(tx);
+            recorder.discard();
+            assert_eq!(dir.exists(), existed);
+            if existed {
+                assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
             }
         }
     }
