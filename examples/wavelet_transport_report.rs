@@ -282,8 +282,9 @@ fn inverse() {
                 for noise in [0.0, 0.01, 0.05, 0.2] {
                     let obs = synthesize(&rows, truth, noise, 3).expect("synth");
                     let rec = refine(&grid, &obs, RefineOptions::default()).expect("refine");
-                    let upper =
-                        upper_hemisphere_error(&grid, &rec.planes, truth).expect("upper error");
+                    let upper = upper_hemisphere_error(&grid, &rec.planes, truth)
+                        .expect("upper error")
+                        .expect("texels above the horizon");
                     let predicted = prediction_error(&all_rows, &rec.planes, truth);
                     row += &format!(" {upper:.3} / {predicted:.4} / {} |", rec.active.len());
                 }

@@ -23,9 +23,12 @@ pub fn is_broken_pipe(err: &std::io::Error) -> bool {
 
 /// The files a command reads, identified by device and inode once (at construction), so that
 /// checking an output against them costs one `stat` of the output, however many inputs a
-/// sequence has (`render` checks two outputs per frame).
+/// sequence has (`render` checks two outputs per frame). Outputs already opened can be added
+/// ([`InputFiles::protect_output`]): a second output on the same file would overwrite the
+/// first.
 pub struct InputFiles {
-    by_id: HashMap<(u64, u64), PathBuf>,
+    /// (device, inode) → the path and, for an output, its option.
+    by_id: HashMap<(u64, u64), (PathBuf, Option<String>)>,
 }
 
 impl InputFiles {
@@ -37,29 +40,65 @@ impl InputFiles {
             if let Ok(meta) = std::fs::metadata(path) {
                 by_id
                     .entry((meta.dev(), meta.ino()))
-                    .or_insert_with(|| path.clone());
+                    .or_insert_with(|| (path.clone(), None));
             }
         }
         Self { by_id }
     }
 
-    /// Fails when `output` (given with `option`) is one of the inputs: the same file (device
-    /// and inode), whatever names or links lead to it. A path that does not exist yet is no
-    /// input.
+    /// Adds the output `path` (given with `option`), once created, to the files no later
+    /// output may be.
+    pub fn protect_output(&mut self, path: &Path, option: &str) {
+        if let Ok(meta) = std::fs::metadata(path) {
+            self.by_id
+                .entry((meta.dev(), meta.ino()))
+                .or_insert_with(|| (path.to_path_buf(), Some(option.to_owned())));
+        }
+    }
+
+    /// Fails when `output` (given with `option`) is one of the inputs (or a protected output):
+    /// the same file (device and inode), whatever names or links lead to it. A path that does
+    /// not exist yet is no input.
     pub fn refuse(&self, output: &Path, option: &str) -> Result<()> {
         let Ok(out) = std::fs::metadata(output) else {
             return Ok(());
         };
-        if let Some(input) = self.by_id.get(&(out.dev(), out.ino())) {
-            anyhow::bail!(
+        match self.by_id.get(&(out.dev(), out.ino())) {
+            Some((input, None)) => anyhow::bail!(
                 "{option} {} is the input file {}: writing it would destroy the input; choose \
                  another output path",
                 output.display(),
                 input.display()
-            );
+            ),
+            Some((other, Some(other_option))) => anyhow::bail!(
+                "{option} {} is also the {other_option} output {}: the two outputs would \
+                 overwrite each other; choose another output path",
+                output.display(),
+                other.display()
+            ),
+            None => Ok(()),
         }
-        Ok(())
     }
+}
+
+/// Fails early, before the work whose result it will hold, when the output file `path` (given
+/// with `option`) cannot be written there: it is a directory, or its folder does not exist.
+pub fn check_output_path(path: &Path, option: &str) -> Result<()> {
+    if path.is_dir() {
+        anyhow::bail!(
+            "{option} {} is a directory; give a file path",
+            path.display()
+        );
+    }
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    if let Some(parent) = parent.filter(|p| !p.is_dir()) {
+        anyhow::bail!(
+            "{option} {}: the folder {} does not exist",
+            path.display(),
+            parent.display()
+        );
+    }
+    Ok(())
 }
 
 /// Creates (or truncates) the output file `path` given with `option`, after checking it is none

@@ -1495,11 +1495,13 @@ struct FitAsgArgs {
     #[arg(long, default_value_t = envlight::asg::fit::DEFAULT_LOBES)]
     lobes: usize,
     /// Adam iterations of the first frame at full size, each taking its gradient on a rotating
-    /// quarter of the map (the default, about 2,000 whole-map iterations, converges).
+    /// quarter of the map (the default, about 2,000 whole-map iterations, converges); at most
+    /// 10^7.
     #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().iterations)]
     iterations: usize,
     /// Adam iterations of each warm-started frame (after a centroid step for narrow lobes;
-    /// continuing the previous frame's Adam state; L_T applied as a proximal step).
+    /// continuing the previous frame's Adam state; L_T applied as a proximal step); at most
+    /// 10^7.
     #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().warm_iterations)]
     warm_iterations: usize,
     /// Fit-map height (width is twice), 4..=1024.

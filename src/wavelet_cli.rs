@@ -228,12 +228,15 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         );
     }
     let mut source = args.input.open()?;
-    let inputs = crate::cli_output::InputFiles::new(source.files());
+    let mut inputs = crate::cli_output::InputFiles::new(source.files());
     let mut writer = std::io::BufWriter::new(crate::cli_output::open_output(
         args.out.as_deref(),
         "--out",
         &inputs,
     )?);
+    if let Some(path) = &args.out {
+        inputs.protect_output(path, "--out");
+    }
     let out_name = args
         .out
         .as_ref()

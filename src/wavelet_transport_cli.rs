@@ -56,7 +56,8 @@ the Bayesian information criterion; it solves the system at every level. Prints 
 
 `relative_error` is the RGB L2 error of the recovered map against the truth on the whole sphere
 (the ground plane hides the lower hemisphere from every observation, so that part cannot be
-recovered), `upper_hemisphere_error` the same over the upper hemisphere, `best_error_same_nodes`
+recovered), `upper_hemisphere_error` the same over the upper hemisphere (null where no texel lies
+above the horizon: --size 2), `best_error_same_nodes`
 the error of the truth restricted to the recovered nodes (the floor for that tree) and
 `prediction_error` the relative RMS error of the radiance the recovered lighting gives every
 observable (vertex, view), noise-free, against the truth's. --out writes the recovered map (SIZE x SIZE octahedral, linear RGB EXR).";
@@ -296,11 +297,20 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         "visibility and transport precomputed"
     );
     let mut source = args.input.open()?;
-    let inputs = crate::cli_output::InputFiles::new(source.files());
+    // The frames and the mesh: no output may overwrite them, nor --out the --json output.
+    let mut read = source.files().to_vec();
+    read.extend(args.scene.iter().cloned());
+    let mut inputs = crate::cli_output::InputFiles::new(&read);
     if let Some(path) = &args.out {
         inputs.refuse(path, "--out")?;
     }
     let mut json = crate::cli_output::open_output(args.json.as_deref(), "--json", &inputs)?;
+    if let Some(path) = &args.json {
+        inputs.protect_output(path, "--json");
+    }
+    if let Some(path) = &args.out {
+        inputs.refuse(path, "--out")?;
+    }
     let json_name = args
         .json
         .as_ref()
@@ -396,7 +406,7 @@ struct RecoverReport {
     noise: f64,
     active: usize,
     relative_error: f64,
-    upper_hemisphere_error: f64,
+    upper_hemisphere_error: Option<f64>,
     best_error_same_nodes: f64,
     prediction_error: f64,
     steps: Vec<serde_json::Value>,
@@ -428,6 +438,7 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
     let inputs = crate::cli_output::InputFiles::new(files);
     if let Some(path) = &args.out {
         inputs.refuse(path, "--out")?;
+        crate::cli_output::check_output_path(path, "--out")?;
     }
     let frame = source
         .next_frame()

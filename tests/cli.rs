@@ -760,6 +760,87 @@ fn outputs_that_are_inputs_are_refused() {
     }
 }
 
+/// Two outputs on one file, or an output on the mesh `wavelet relight` reads, are refused
+/// before anything is written (the second output overwrote the first, or the mesh, with exit
+/// status 0); `wavelet recover --out` a directory fails before the work.
+#[test]
+fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("frame.exr");
+    write_rgb(&input, 16, 8, 1.0);
+    let mesh = dir.path().join("tri.obj");
+    let mesh_text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+    std::fs::write(&mesh, mesh_text).unwrap();
+    let same = dir.path().join("same.out");
+    let (input, mesh_path, same_path) = (s(&input), s(&mesh), s(&same));
+    for (args, needles) in [
+        (
+            vec![
+                "wavelet", "relight", input, "--size", "2", "--scene", mesh_path, "--out",
+                mesh_path,
+            ],
+            vec!["--out", "is the input file", "tri.obj"],
+        ),
+        (
+            vec![
+                "wavelet", "relight", input, "--size", "2", "--scene", mesh_path, "--json",
+                mesh_path,
+            ],
+            vec!["--json", "is the input file", "tri.obj"],
+        ),
+        (
+            vec![
+                "wavelet", "relight", input, "--size", "2", "--json", same_path, "--out", same_path,
+            ],
+            vec!["--out", "is also the --json output", "same.out"],
+        ),
+        (
+            vec![
+                "wavelet",
+                "approx",
+                input,
+                "--size",
+                "8",
+                "--out",
+                same_path,
+                "--reconstruct",
+                same_path,
+            ],
+            vec!["--reconstruct", "is also the --out output", "same.out"],
+        ),
+    ] {
+        let _ = std::fs::remove_file(&same);
+        let o = envlight(&args);
+        assert_fails_naming(&o, &needles);
+        assert_eq!(
+            std::fs::read_to_string(&mesh).unwrap(),
+            mesh_text,
+            "{args:?}"
+        );
+    }
+    let o = envlight(&[
+        "wavelet",
+        "recover",
+        input,
+        "--size",
+        "4",
+        "--out",
+        s(dir.path()),
+    ]);
+    assert_fails_naming(&o, &["--out", "is a directory"]);
+    assert!(
+        stdout(&o).is_empty(),
+        "the work was done first: {}",
+        stdout(&o)
+    );
+    // A 2×2 grid has no texel above the horizon: its upper-hemisphere error is null, not 0.
+    let o = envlight(&["wavelet", "recover", input, "--size", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert!(report["upper_hemisphere_error"].is_null(), "{report}");
+    assert!(report["relative_error"].is_f64(), "{report}");
+}
+
 /// Commands that print one result end quietly (status 0, no panic) when stdout is closed;
 /// `println!` panicked on the broken pipe.
 #[test]

@@ -246,12 +246,13 @@ impl FitSettings {
                 "must be in 16..=4096",
             ));
         }
-        if self.iterations > 10_000_000 || self.warm_iterations > 10_000_000 {
-            return Err(bad(
-                "iterations",
-                self.iterations.max(self.warm_iterations) as f64,
-                "must be at most 10^7",
-            ));
+        for (name, v) in [
+            ("iterations", self.iterations),
+            ("warm_iterations", self.warm_iterations),
+        ] {
+            if v > 10_000_000 {
+                return Err(bad(name, v as f64, "must be at most 10^7"));
+            }
         }
         Ok(())
     }

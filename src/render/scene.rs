@@ -31,8 +31,8 @@ pub enum SceneError {
     Empty { path: PathBuf },
     #[error("scene {path}: unknown format (expected .gltf, .glb or .obj)")]
     UnknownFormat { path: PathBuf },
-    #[error("scene {path}: its vertices span a sphere of radius {radius}, more than the {MAX_SCENE_RADIUS:e} that can be drawn (f32 depth and shadow maps); scale the model down")]
-    TooLarge { path: PathBuf, radius: f32 },
+    #[error("scene {path}: its vertices span a sphere of radius {radius:.3e}, more than the {MAX_SCENE_RADIUS:e} that can be drawn (f32 depth and shadow maps); scale the model down")]
+    TooLarge { path: PathBuf, radius: f64 },
     #[error("scene {path}: its vertices lie {distance:.3e} from the origin, {ratio:.1e} times their bounding radius {radius:.3e} (at most {MAX_SCENE_OFFSET:e}): f32 positions that far out lose the model's detail; move the model near the origin")]
     TooFar {
         path: PathBuf,
@@ -476,9 +476,23 @@ impl Scene {
         }
         let bounds = bounding_sphere(&b.vertices);
         if !(bounds.radius.is_finite() && bounds.radius <= MAX_SCENE_RADIUS) {
+            // f32 sums overflow for coordinates near 1e38: the size is then measured in f64
+            // (half the bounding box's diagonal).
+            let radius = if bounds.radius.is_finite() {
+                f64::from(bounds.radius)
+            } else {
+                let (low, high) = b.vertices.iter().fold(
+                    (glam::DVec3::splat(f64::MAX), glam::DVec3::splat(f64::MIN)),
+                    |(low, high), v| {
+                        let p = Vec3::from_array(v.position).as_dvec3();
+                        (low.min(p), high.max(p))
+                    },
+                );
+                0.5 * (high - low).length()
+            };
             return Err(SceneError::TooLarge {
                 path: path.to_path_buf(),
-                radius: bounds.radius,
+                radius,
             });
         }
         let distance = bounds.center.as_dvec3().length();

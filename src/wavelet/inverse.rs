@@ -562,12 +562,17 @@ pub fn relative_error(recovered: &[Vec<f64>; 3], truth: &[Vec<f64>; 3]) -> f64 {
 }
 
 /// Relative L2 error of the recovered lighting over the upper hemisphere only (texels with
-/// direction y > 0): the directions an object standing on the ground can see.
+/// direction y > 0): the directions an object standing on the ground can see. `None` when no
+/// texel centre lies above the horizon (a 2×2 grid): there is nothing to measure, which is no
+/// error of 0.
 pub fn upper_hemisphere_error(
     grid: &Grid,
     recovered: &[Vec<f64>; 3],
     truth: &[Vec<f64>; 3],
-) -> Result<f64, TransportError> {
+) -> Result<Option<f64>, TransportError> {
+    if !grid.dirs.iter().any(|d| d.y > 0.0) {
+        return Ok(None);
+    }
     let mut num = 0.0;
     let mut den = 0.0;
     for c in 0..3 {
@@ -580,11 +585,11 @@ pub fn upper_hemisphere_error(
             }
         }
     }
-    Ok(if den == 0.0 {
+    Ok(Some(if den == 0.0 {
         num.sqrt()
     } else {
         (num / den).sqrt()
-    })
+    }))
 }
 
 /// Relative RMS error of the radiance that `recovered` predicts for transport `rows` against
