@@ -686,6 +686,75 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
     assert_stayed_to_the_goodbye(&good.join().unwrap(), 10);
 }
 
+/// Sends `bytes` to a JSON Lines client connection and returns the error the server closes
+/// with (after any frames).
+fn json_error(addr: std::net::SocketAddr, bytes: &[u8]) -> (u16, String) {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream.write_all(bytes).unwrap();
+    let mut text = String::new();
+    let _ = stream.read_to_string(&mut text);
+    let last = text.lines().last().unwrap_or_default();
+    match protocol::parse_json_message(last) {
+        Ok(Message::Error { code, message }) => (code, message),
+        other => panic!("{other:?} from {text:?}"),
+    }
+}
+
+/// A JSON Lines client's errors name its real problem: a second line after the subscribe is
+/// error 7 (it was decoded as a binary header: "length prefix 1970479739"), a line over 4096
+/// bytes is error 4 also when its newline comes in the same read (it was accepted), a line
+/// that is not UTF-8 is error 1 (it was replaced by U+FFFD), and an extra or a missing key is
+/// named. An HTTP request on the TCP port is error 1, not "length prefix 542393671".
+#[test]
+fn json_lines_and_stray_clients_get_errors_naming_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::start(
+        config(dir.path(), common::SMALL_SKY),
+        DaemonOptions::default(),
+    )
+    .unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    // The second line is sent once frames flow.
+    let mut stream = TcpStream::connect(tcp).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream.write_all(b"{\"subscribe\":{}}\n").unwrap();
+    let mut reader = std::io::BufReader::new(stream.try_clone().unwrap());
+    let mut line = String::new();
+    std::io::BufRead::read_line(&mut reader, &mut line).unwrap();
+    assert!(line.contains("\"lights\""), "{line}");
+    stream.write_all(b"{\"subscribe\":{}}\n").unwrap();
+    let mut rest = String::new();
+    let _ = reader.read_to_string(&mut rest);
+    let last = rest.lines().last().unwrap_or_default();
+    match protocol::parse_json_message(last) {
+        Ok(Message::Error { code: c, message }) => {
+            assert_eq!(c, code::UNEXPECTED_MESSAGE, "{message}");
+            assert!(message.contains("after the subscribe"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    let mut long = b"{\"subscribe\":{}}".to_vec();
+    long.resize(5000, b' ');
+    long.push(b'\n');
+    assert_eq!(json_error(tcp, &long).0, code::TOO_LARGE);
+    let (c, message) = json_error(tcp, b"{\"subscribe\":{\"x\xff\":1}}\n");
+    assert_eq!(c, code::MALFORMED, "{message}");
+    assert!(message.contains("UTF-8"), "{message}");
+    let (c, message) = json_error(tcp, b"{\"subscribe\":{},\"x\":1}\n");
+    assert_eq!(c, code::BAD_REQUEST);
+    assert!(
+        message.contains("unknown keys beside \"subscribe\": x"),
+        "{message}"
+    );
+    let (c, message) = json_error(tcp, b"{}\n");
+    assert_eq!(c, code::BAD_REQUEST);
+    assert!(message.contains("expected {\"subscribe\""), "{message}");
+    let http = raw_exchange(tcp, b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", false);
+    assert_eq!(error_code(&http), Some(code::MALFORMED), "{http:?}");
+    daemon.shutdown().unwrap();
+}
+
 #[test]
 fn json_lines_clients_on_tcp_get_json_errors() {
     let dir = tempfile::tempdir().unwrap();

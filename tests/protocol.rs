@@ -336,7 +336,14 @@ fn garbage_is_an_error_not_a_panic() {
     let mut d = Decoder::new();
     d.push(b"GET / HTTP/1.1\r\nHost: envlight\r\n\r\n");
     let e = d.next_message().unwrap_err();
-    assert_eq!(e.code(), code::TOO_LARGE, "{e}"); // "GET " read as a length
+    // The magic is checked before the length ("GET " read as one is absurd): an HTTP request
+    // is named as no envlight stream.
+    assert_eq!(e.code(), code::MALFORMED, "{e}");
+    assert!(e.to_string().contains("not an envlight stream"), "{e}");
+    // Only the length has arrived: an absurd one is refused at once.
+    let mut d = Decoder::new();
+    d.push(b"GET ");
+    assert_eq!(d.next_message().unwrap_err().code(), code::TOO_LARGE);
     let mut d = Decoder::new();
     d.push(b"\x10\x00\x00\x00HTTP/1.1 200 OK");
     assert_eq!(d.next_message().unwrap_err().code(), code::MALFORMED);

@@ -301,18 +301,20 @@ int envlight_check_header(const uint8_t *b, size_t n, size_t *message_len, char 
                           size_t err_len) {
     if (message_len) *message_len = 0;
     if (n < 4) return ENVLIGHT_OK;
+    /* The magic first where it has arrived: bytes that are no envlight stream are named as
+       such, not as an absurd length. */
+    if (n >= 8 && memcmp(b + 4, "ENVL", 4) != 0) {
+        envlight_say_(err, err_len,
+                      "bad magic %02x %02x %02x %02x (expected \"ENVL\"): not an envlight stream, "
+                      "or the stream lost its framing", b[4], b[5], b[6], b[7]);
+        return ENVLIGHT_E_MALFORMED;
+    }
     uint32_t len = envlight_u32_(b);
     if (len > ENVLIGHT_MAX_MESSAGE_LEN) {
         envlight_say_(err, err_len,
                       "length prefix %lu exceeds the maximum message size of %u bytes",
                       (unsigned long)len, ENVLIGHT_MAX_MESSAGE_LEN);
         return ENVLIGHT_E_TOO_LARGE;
-    }
-    if (n >= 8 && memcmp(b + 4, "ENVL", 4) != 0) {
-        envlight_say_(err, err_len,
-                      "bad magic %02x %02x %02x %02x (expected \"ENVL\"): not an envlight stream, "
-                      "or the stream lost its framing", b[4], b[5], b[6], b[7]);
-        return ENVLIGHT_E_MALFORMED;
     }
     if (n >= 10 && envlight_u16_(b + 8) != ENVLIGHT_PROTOCOL_VERSION) {
         envlight_say_(err, err_len, "unsupported protocol version %u; this client speaks version 1",

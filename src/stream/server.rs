@@ -1533,6 +1533,14 @@ impl Connection {
                 StreamEvent::Shutdown(message) => return Close::Goodbye(message),
                 StreamEvent::Input(Ok(0)) => reading = false, // half-closed: keep sending
                 StreamEvent::Input(Ok(n)) => {
+                    if !subscribed_binary {
+                        // A JSON client's bytes are no binary header to decode.
+                        let text = "unexpected bytes after the subscribe line; clients send \
+                                    nothing more"
+                            .to_owned();
+                        self.count_error(&text);
+                        return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
+                    }
                     decoder.push(&buf[..n]);
                     return self.unexpected_input(&mut decoder);
                 }
@@ -1616,28 +1624,29 @@ impl Connection {
                 }
             }
             if *dialect == Dialect::JsonLines {
-                if let Some(end) = bytes.iter().position(|&b| b == b'\n') {
-                    line.extend_from_slice(&bytes[..end]);
-                    if end + 1 < bytes.len() {
-                        let text = "unexpected bytes after the subscribe line".to_owned();
-                        self.count_error(&text);
-                        return Err(Close::Error(error_code::UNEXPECTED_MESSAGE, text));
-                    }
-                    let text = String::from_utf8_lossy(&line);
-                    return protocol::parse_json_request(text.trim_end_matches('\r')).map_err(
-                        |e| {
-                            self.count_error(&e.to_string());
-                            e.into()
-                        },
-                    );
-                }
-                line.extend_from_slice(bytes);
+                let end = bytes.iter().position(|&b| b == b'\n');
+                line.extend_from_slice(&bytes[..end.unwrap_or(bytes.len())]);
+                // The limit holds however the line arrives (with its newline in one read).
                 if line.len() > MAX_JSON_LINE {
                     let text = format!("subscribe line longer than {MAX_JSON_LINE} bytes");
                     self.count_error(&text);
                     return Err(Close::Error(error_code::TOO_LARGE, text));
                 }
-                continue;
+                let Some(end) = end else { continue };
+                if end + 1 < bytes.len() {
+                    let text = "unexpected bytes after the subscribe line".to_owned();
+                    self.count_error(&text);
+                    return Err(Close::Error(error_code::UNEXPECTED_MESSAGE, text));
+                }
+                let Ok(text) = std::str::from_utf8(&line) else {
+                    let text = "the subscribe line is not UTF-8".to_owned();
+                    self.count_error(&text);
+                    return Err(Close::Error(error_code::MALFORMED, text));
+                };
+                return protocol::parse_json_request(text.trim_end_matches('\r')).map_err(|e| {
+                    self.count_error(&e.to_string());
+                    e.into()
+                });
             }
             decoder.push(bytes);
             match decoder.next_message() {
@@ -1663,8 +1672,11 @@ impl Connection {
         let mut config = tungstenite::protocol::WebSocketConfig::default();
         config.max_message_size = Some(protocol::MAX_MESSAGE_LEN);
         config.max_frame_size = Some(protocol::MAX_MESSAGE_LEN);
-        let accepted = tokio::time::timeout(
-            self.ctx.config.handshake_timeout,
+        // One deadline for the HTTP upgrade and the subscribe together, as on the other
+        // endpoints (each had its own, doubling the time a silent client was kept).
+        let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
+        let accepted = tokio::time::timeout_at(
+            deadline,
             tokio_tungstenite::accept_async_with_config(
                 Stamped {
                     inner: stream,
@@ -1688,7 +1700,7 @@ impl Connection {
         let (mut sink, mut source) = ws.split();
         let mut json = true;
         let close = self
-            .websocket_session(&mut sink, &mut source, &mut json)
+            .websocket_session(&mut sink, &mut source, &mut json, deadline)
             .await;
         if matches!(close, Close::ClosedByPeer) {
             // Sends the close frame tungstenite queued in reply to the client's (RFC 6455
@@ -1772,7 +1784,13 @@ impl Connection {
         Close::Error(code, text)
     }
 
-    async fn websocket_session<K, S>(&self, sink: &mut K, source: &mut S, json: &mut bool) -> Close
+    async fn websocket_session<K, S>(
+        &self,
+        sink: &mut K,
+        source: &mut S,
+        json: &mut bool,
+        deadline: tokio::time::Instant,
+    ) -> Close
     where
         K: futures_util::Sink<tungstenite::Message, Error = tungstenite::Error> + Unpin,
         S: futures_util::Stream<Item = Result<tungstenite::Message, tungstenite::Error>> + Unpin,
@@ -1780,7 +1798,6 @@ impl Connection {
         if self.over_limit {
             return self.too_many_clients();
         }
-        let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
         let mut shutdown = self.shutdown.clone();
         let request = loop {
             let event = tokio::select! {

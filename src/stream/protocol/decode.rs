@@ -37,15 +37,17 @@ pub(super) fn check_header(b: &[u8]) -> Result<Option<usize>, ProtocolError> {
     if b.len() < 4 {
         return Ok(None);
     }
-    let len = u32_at(b, 0) as usize;
-    if len > MAX_MESSAGE_LEN {
-        return Err(ProtocolError::Oversized { len: len as u64 });
-    }
+    // The magic first where it has arrived: bytes that are no envlight stream (an HTTP request
+    // on the TCP port) are named as such, not as an absurd length.
     if b.len() >= 8 {
         let found = [b[4], b[5], b[6], b[7]];
         if found != MAGIC {
             return Err(ProtocolError::BadMagic { found });
         }
+    }
+    let len = u32_at(b, 0) as usize;
+    if len > MAX_MESSAGE_LEN {
+        return Err(ProtocolError::Oversized { len: len as u64 });
     }
     if b.len() >= 10 {
         let version = u16_at(b, 8);
@@ -55,7 +57,7 @@ pub(super) fn check_header(b: &[u8]) -> Result<Option<usize>, ProtocolError> {
     }
     if len < 8 {
         return Err(ProtocolError::Inconsistent {
-            kind: "any",
+            kind: "binary",
             reason: format!("length prefix {len} is shorter than the 8-byte header after it"),
         });
     }
@@ -412,7 +414,7 @@ pub fn decode_message(bytes: &[u8]) -> Result<Message, ProtocolError> {
     let mut input = bytes;
     match decoder.next_from(&mut input)? {
         Some(_) if !input.is_empty() => Err(ProtocolError::Inconsistent {
-            kind: "any",
+            kind: "binary",
             reason: format!("{} bytes after the end of the message", input.len()),
         }),
         Some(message) => Ok(message),

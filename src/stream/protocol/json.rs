@@ -170,8 +170,40 @@ pub fn parse_json_request(text: &str) -> Result<Request, ProtocolError> {
     check_json_len(text)?;
     match serde_json::from_str::<JsonRequest>(text) {
         Ok(JsonRequest::Subscribe(request)) => Ok(request),
-        Err(e) => Err(ProtocolError::Json(e.to_string())),
+        Err(e) => Err(ProtocolError::Json(
+            request_problem(text).unwrap_or(e.to_string()),
+        )),
     }
+}
+
+/// What is wrong with a JSON object that is no request, in words serde's message for the
+/// tagged enum lacks ("expected value at line 1 column 15" for an extra key): a missing
+/// `subscribe`, or keys beside it. `None` when the text is no object (serde's message stands).
+fn request_problem(text: &str) -> Option<String> {
+    let serde_json::Value::Object(object) = serde_json::from_str(text).ok()? else {
+        return None;
+    };
+    let others: Vec<&str> = object
+        .keys()
+        .map(String::as_str)
+        .filter(|k| *k != "subscribe")
+        .collect();
+    if !object.contains_key("subscribe") {
+        return Some(format!(
+            "expected {{\"subscribe\": {{…}}}}, found {}",
+            if others.is_empty() {
+                "an empty object".to_owned()
+            } else {
+                format!("the keys {}", others.join(", "))
+            }
+        ));
+    }
+    (!others.is_empty()).then(|| {
+        format!(
+            "unknown keys beside \"subscribe\": {} (a request is {{\"subscribe\": {{…}}}} alone)",
+            others.join(", ")
+        )
+    })
 }
 
 /// Parses any JSON message (what a JSON client receives, or a request): a light frame (has
