@@ -588,6 +588,45 @@ fn websocket_errors_are_answered_and_close_frames_echoed() {
     daemon.shutdown().unwrap();
 }
 
+/// A request to the WebSocket port that is no upgrade gets an HTTP answer saying why (400,
+/// or 426 naming version 13); the endpoint was silent ("Empty reply from server"). Real
+/// WebSocket clients are served meanwhile.
+#[test]
+fn websocket_port_answers_requests_that_are_no_upgrade() {
+    use tokio_tungstenite::tungstenite::{self, Message as WsMessage};
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::start(
+        config(dir.path(), common::SMALL_SKY),
+        DaemonOptions::default(),
+    )
+    .unwrap();
+    let ws = daemon.addresses().stream.websocket.unwrap();
+    let answer = |request: &str| {
+        let mut stream = TcpStream::connect(ws).unwrap();
+        stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+        stream.write_all(request.as_bytes()).unwrap();
+        let mut text = String::new();
+        let _ = stream.read_to_string(&mut text);
+        text
+    };
+    let plain = answer("GET / HTTP/1.1\r\nHost: x\r\n\r\n");
+    assert!(plain.starts_with("HTTP/1.1 400 Bad Request\r\n"), "{plain}");
+    assert!(plain.contains("Upgrade: websocket"), "{plain}");
+    let old = answer(
+        "GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 8\r\n\r\n",
+    );
+    assert!(
+        old.starts_with("HTTP/1.1 426 Upgrade Required\r\n"),
+        "{old}"
+    );
+    assert!(old.contains("Sec-WebSocket-Version: 13\r\n"), "{old}");
+    let (mut socket, _) = tungstenite::connect(format!("ws://{ws}/")).unwrap();
+    socket.send(WsMessage::text("{\"subscribe\":{}}")).unwrap();
+    assert!(matches!(socket.read().unwrap(), WsMessage::Text(_)));
+    daemon.shutdown().unwrap();
+}
+
 /// Sends raw bytes and returns what the server answers before closing.
 fn raw_exchange(addr: std::net::SocketAddr, bytes: &[u8], close_write: bool) -> Vec<Message> {
     let mut stream = TcpStream::connect(addr).unwrap();

@@ -1176,10 +1176,23 @@ impl WriteProgress {
     }
 }
 
-/// A connection's reader-writer that stamps its [`WriteProgress`] whenever a write takes bytes.
+/// A connection's reader-writer that stamps its [`WriteProgress`] whenever a write takes bytes,
+/// and that reads `replay` (bytes already read from `inner`: a WebSocket upgrade request that
+/// was checked first) before `inner`.
 struct Stamped<T> {
     inner: T,
     progress: Arc<WriteProgress>,
+    replay: std::collections::VecDeque<u8>,
+}
+
+impl<T> Stamped<T> {
+    fn new(inner: T, progress: Arc<WriteProgress>) -> Self {
+        Self {
+            inner,
+            progress,
+            replay: std::collections::VecDeque::new(),
+        }
+    }
 }
 
 impl<T: AsyncRead + Unpin> AsyncRead for Stamped<T> {
@@ -1188,7 +1201,92 @@ impl<T: AsyncRead + Unpin> AsyncRead for Stamped<T> {
         cx: &mut std::task::Context<'_>,
         buf: &mut tokio::io::ReadBuf<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
+        if !self.replay.is_empty() {
+            let n = buf.remaining().min(self.replay.len());
+            let bytes: Vec<u8> = self.replay.drain(..n).collect();
+            buf.put_slice(&bytes);
+            return std::task::Poll::Ready(Ok(()));
+        }
         std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
+    }
+}
+
+/// Reads an HTTP request's head (through the blank line) and whatever followed it in the same
+/// reads; errors when the peer closes first or the head exceeds [`MAX_UPGRADE_REQUEST`].
+async fn read_upgrade_request<R: AsyncRead + Unpin>(reader: &mut R) -> Result<Vec<u8>, String> {
+    let mut request = Vec::new();
+    let mut buf = [0u8; 2048];
+    loop {
+        let n = reader
+            .read(&mut buf)
+            .await
+            .map_err(|e| format!("reading the upgrade request: {e}"))?;
+        if n == 0 {
+            return Err("the client closed before its upgrade request ended".to_owned());
+        }
+        let searched_from = request.len().saturating_sub(3);
+        request.extend_from_slice(&buf[..n]);
+        if request[searched_from..]
+            .windows(4)
+            .any(|w| w == b"\r\n\r\n")
+        {
+            return Ok(request);
+        }
+        if request.len() > MAX_UPGRADE_REQUEST {
+            return Err(format!(
+                "upgrade request longer than {MAX_UPGRADE_REQUEST} bytes"
+            ));
+        }
+    }
+}
+
+/// The longest WebSocket upgrade request read (request line and headers).
+const MAX_UPGRADE_REQUEST: usize = 16 * 1024;
+
+/// Why an HTTP request is no WebSocket upgrade this server accepts (RFC 6455 §4.2.1), as the
+/// status to answer with and the reason; `None` when it is one (tungstenite then completes
+/// the handshake). Version mismatches get 426 with the version spoken (§4.2.2).
+fn upgrade_problem(request: &str) -> Option<(u16, String)> {
+    // The head only: bytes after the blank line are the client's first WebSocket frames.
+    let head = request.split("\r\n\r\n").next().unwrap_or_default();
+    let mut lines = head.split("\r\n");
+    let request_line = lines.next().unwrap_or_default();
+    let mut parts = request_line.split(' ');
+    let (method, version) = (parts.next().unwrap_or_default(), parts.nth(1));
+    if method != "GET" || version != Some("HTTP/1.1") {
+        return Some((
+            400,
+            format!("expected a GET HTTP/1.1 WebSocket upgrade, got {request_line:?}"),
+        ));
+    }
+    let header = |name: &str| {
+        head.split("\r\n").skip(1).find_map(|line| {
+            let (key, value) = line.split_once(':')?;
+            key.trim()
+                .eq_ignore_ascii_case(name)
+                .then(|| value.trim().to_owned())
+        })
+    };
+    let has_token = |name: &str, token: &str| {
+        header(name).is_some_and(|v| v.split(',').any(|t| t.trim().eq_ignore_ascii_case(token)))
+    };
+    if !has_token("Upgrade", "websocket") || !has_token("Connection", "upgrade") {
+        return Some((
+            400,
+            "this is envlight's WebSocket endpoint: send an upgrade (Upgrade: websocket, \
+             Connection: Upgrade); metrics and health are served on [metrics] listen"
+                .to_owned(),
+        ));
+    }
+    if header("Sec-WebSocket-Key").is_none() {
+        return Some((400, "the upgrade has no Sec-WebSocket-Key".to_owned()));
+    }
+    match header("Sec-WebSocket-Version") {
+        Some(v) if v == "13" => None,
+        other => Some((
+            426,
+            format!("WebSocket version {other:?} is not spoken here; use 13"),
+        )),
     }
 }
 
@@ -1400,10 +1498,7 @@ impl Connection {
         // The task reads and writes through one clone, the fan-out thread writes through
         // another.
         let mut reader = Shared(Arc::clone(&socket));
-        let mut writer = Stamped {
-            inner: Shared(Arc::clone(&socket)),
-            progress: Arc::clone(&self.written),
-        };
+        let mut writer = Stamped::new(Shared(Arc::clone(&socket)), Arc::clone(&self.written));
         let mut dialect = Dialect::Binary;
         let close = self
             .stream_session(&mut reader, &mut writer, &socket, &mut dialect)
@@ -1675,15 +1770,48 @@ impl Connection {
         // One deadline for the HTTP upgrade and the subscribe together, as on the other
         // endpoints (each had its own, doubling the time a silent client was kept).
         let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
+        let mut stamped = Stamped::new(stream, Arc::clone(&self.written));
+        // The upgrade request is read and checked here, then replayed to tungstenite: a
+        // request that is no upgrade gets an HTTP answer saying why (tungstenite closed it
+        // without a word, so `curl` or a browser saw an empty reply).
+        match tokio::time::timeout_at(deadline, read_upgrade_request(&mut stamped.inner)).await {
+            Ok(Ok(request)) => {
+                if let Some((status, reason)) = upgrade_problem(&String::from_utf8_lossy(&request))
+                {
+                    self.count_error(&format!("websocket upgrade refused: {reason}"));
+                    let phrase = if status == 426 {
+                        "Upgrade Required\r\nSec-WebSocket-Version: 13"
+                    } else {
+                        "Bad Request"
+                    };
+                    let body = format!("{reason}\n");
+                    let response = format!(
+                        "HTTP/1.1 {status} {phrase}\r\nContent-Type: text/plain; charset=utf-8\r\n\
+                         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                        body.len()
+                    );
+                    let _ = tokio::time::timeout(
+                        Duration::from_secs(1),
+                        stamped.write_all(response.as_bytes()),
+                    )
+                    .await;
+                    let _ = stamped.shutdown().await;
+                    return;
+                }
+                stamped.replay.extend(request);
+            }
+            Ok(Err(problem)) => {
+                self.count_error(&format!("websocket handshake failed: {problem}"));
+                return;
+            }
+            Err(_) => {
+                self.count_error("websocket handshake timed out");
+                return;
+            }
+        }
         let accepted = tokio::time::timeout_at(
             deadline,
-            tokio_tungstenite::accept_async_with_config(
-                Stamped {
-                    inner: stream,
-                    progress: Arc::clone(&self.written),
-                },
-                Some(config),
-            ),
+            tokio_tungstenite::accept_async_with_config(stamped, Some(config)),
         )
         .await;
         let ws = match accepted {
