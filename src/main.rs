@@ -322,6 +322,11 @@ struct SubscribeArgs {
     /// Stop after N frames.
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
+    /// Fail when the daemon sends nothing for this many seconds (the connection and its
+    /// upgrade included). [default: wait for ever: a daemon paced slowly, replaying a pause or
+    /// waiting for its camera may be silent for long]
+    #[arg(long, value_name = "SECONDS", value_parser = parse_timeout)]
+    timeout: Option<f64>,
     /// What to receive: directional lights, ASG sets (the daemon needs [asg] enabled) or
     /// wavelet coefficient sets (needs [wavelet] enabled); --max-lights then caps the lobes or
     /// the coefficients (the largest are kept).
@@ -980,6 +985,18 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     cli_output::print(&text)
 }
 
+/// `--timeout SECONDS` of `subscribe`: from a millisecond to a day.
+fn parse_timeout(text: &str) -> Result<f64, String> {
+    let seconds: f64 = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if (0.001..=86_400.0).contains(&seconds) {
+        Ok(seconds)
+    } else {
+        Err(format!("{text} s: must be in 0.001..=86400"))
+    }
+}
+
 fn subscribe(args: &SubscribeArgs) -> Result<()> {
     use envlight::stream::client::Client;
     use envlight::stream::{Format, Message, Representation, Request};
@@ -996,11 +1013,23 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
             RepresentationArg::Wavelet => Representation::Wavelet,
         },
     };
-    let mut client = Client::connect(&args.address, &request, None)?;
+    let timeout = args.timeout.map(std::time::Duration::from_secs_f64);
+    let timed_out = |e: envlight::stream::client::ClientError| {
+        if e.is_timeout() {
+            anyhow!(
+                "{}: no message within {} s (--timeout)",
+                args.address,
+                args.timeout.unwrap_or_default()
+            )
+        } else {
+            anyhow!(e)
+        }
+    };
+    let mut client = Client::connect(&args.address, &request, timeout).map_err(timed_out)?;
     let mut stdout = std::io::stdout().lock();
     let mut frames = 0u64;
     while args.frames.is_none_or(|n| frames < n) {
-        let Some(message) = client.next_message()? else {
+        let Some(message) = client.next_message().map_err(timed_out)? else {
             bail!("{}: the daemon closed the connection", args.address);
         };
         let line = match message {

@@ -841,6 +841,36 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
     assert!(report["relative_error"].is_f64(), "{report}");
 }
 
+/// `subscribe --timeout` gives up on a server that accepts and sends nothing, over TCP and
+/// over WebSocket (whose upgrade then never completes): exit 1 naming the address and the
+/// timeout (it waited for ever). Out-of-range values are usage errors.
+#[test]
+fn subscribe_times_out_on_a_silent_server() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap();
+    let _silent = std::thread::Builder::new()
+        .name("silent-server".into())
+        .spawn(move || {
+            let held: Vec<_> = listener.incoming().take(2).collect();
+            std::thread::sleep(std::time::Duration::from_secs(10));
+            drop(held);
+        })
+        .unwrap();
+    for target in [address.to_string(), format!("ws://{address}/")] {
+        let started = std::time::Instant::now();
+        let o = envlight(&["subscribe", &target, "--timeout", "0.3"]);
+        assert_fails_naming(&o, &[&target, "no message within 0.3 s (--timeout)"]);
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(8),
+            "{target}"
+        );
+    }
+    for bad in ["0", "-1", "nan", "1e9", "x"] {
+        let o = envlight(&["subscribe", "127.0.0.1:1", "--timeout", bad]);
+        assert_eq!(o.status.code(), Some(2), "{bad}: {}", stderr(&o));
+    }
+}
+
 /// Commands that print one result end quietly (status 0, no panic) when stdout is closed;
 /// `println!` panicked on the broken pipe.
 #[test]

@@ -113,6 +113,15 @@ pub enum ClientError {
     },
 }
 
+impl ClientError {
+    /// Whether a read timed out (the `read_timeout` of [`Client::connect`] passed without a
+    /// message).
+    pub fn is_timeout(&self) -> bool {
+        matches!(self, ClientError::Io { source, .. }
+            if matches!(source.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut))
+    }
+}
+
 trait ReadWrite: Read + Write + Send {}
 impl<T: Read + Write + Send> ReadWrite for T {}
 
@@ -168,11 +177,24 @@ impl Client {
                     endpoint: name.clone(),
                     message: e.to_string(),
                 };
-                let (mut ws, _) = tungstenite::connect(url.as_str()).map_err(ws_error)?;
-                if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_mut() {
-                    s.set_read_timeout(read_timeout).map_err(io)?;
-                    let _ = s.set_nodelay(true);
-                }
+                // The TCP connection is made here so that `read_timeout` bounds the HTTP
+                // upgrade too (a server that accepts and never answers hung the client).
+                let authority = url
+                    .strip_prefix("ws://")
+                    .and_then(|rest| rest.split('/').next())
+                    .unwrap_or_default();
+                let tcp = TcpStream::connect(authority).map_err(io)?;
+                tcp.set_read_timeout(read_timeout).map_err(io)?;
+                let _ = tcp.set_nodelay(true);
+                let plain = tungstenite::stream::MaybeTlsStream::Plain(tcp);
+                let (mut ws, _) =
+                    tungstenite::client::client(url.as_str(), plain).map_err(|e| match e {
+                        tungstenite::HandshakeError::Interrupted(_) => io(std::io::Error::new(
+                            std::io::ErrorKind::TimedOut,
+                            "no answer to the WebSocket upgrade",
+                        )),
+                        tungstenite::HandshakeError::Failure(e) => ws_error(e),
+                    })?;
                 let message = match request.format {
                     Format::Json => tungstenite::Message::text(protocol::request_to_json(request)),
                     Format::Binary => tungstenite::Message::binary(subscribe),
