@@ -350,6 +350,10 @@ mod tests {
             .name("endless-line".into())
             .spawn(move || {
                 let (mut stream, _) = listener.accept().unwrap();
+                // The (binary) subscribe is read first: closing with it unread would reset
+                // the connection, and the reset could overtake the bytes written.
+                let mut subscribe = [0u8; protocol::HEADER_LEN + protocol::SUBSCRIBE_BODY_LEN];
+                stream.read_exact(&mut subscribe).unwrap();
                 let chunk = vec![b'a'; 64 * 1024];
                 // Until the client goes away (at most 4 MiB).
                 for _ in 0..64 {
