@@ -800,13 +800,8 @@ fn fit_asg_command_prints_one_json_line_per_frame() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("lobe count 65"));
 }
 
-/// The fit does not depend on the map's scale: a map and the same map times 2^50 (about 1e15)
-/// or 2^−100 (about 8e−31) give the same loss, and lobes scaled by the same factor. The
-/// amplitude bounds were absolute: at 1e15 every lobe stuck at e^25 (loss 2, worse than black),
-/// at 1e−30 at e^−60.
-#[test]
-fn the_fit_does_not_depend_on_the_maps_scale() {
-    let frame = read_hdr("rooitou_park_1k.hdr");
+/// rooitou_park and a small, quick fit of it (4 lobes, 16 rows, 200 iterations, one thread).
+fn small_rooitou_fit() -> (HdrFrame, FitSettings) {
     let settings = FitSettings {
         lobes: 4,
         height: 16,
@@ -814,14 +809,29 @@ fn the_fit_does_not_depend_on_the_maps_scale() {
         threads: 1,
         ..FitSettings::default()
     };
+    (read_hdr("rooitou_park_1k.hdr"), settings)
+}
+
+/// `frame` with every pixel times `scale`.
+fn scaled(frame: &HdrFrame, scale: f32) -> HdrFrame {
+    let mut scaled = frame.clone();
+    scaled
+        .pixels
+        .iter_mut()
+        .for_each(|p| *p = p.map(|c| c * scale));
+    scaled
+}
+
+/// The fit does not depend on the map's scale: a map and the same map times 2^50 (about 1e15)
+/// or 2^−100 (about 8e−31) give the same loss, and lobes scaled by the same factor. The
+/// amplitude bounds were absolute: at 1e15 every lobe stuck at e^25 (loss 2, worse than black),
+/// at 1e−30 at e^−60.
+#[test]
+fn the_fit_does_not_depend_on_the_maps_scale() {
+    let (frame, settings) = small_rooitou_fit();
     let fit = |scale: f32| {
-        let mut scaled = frame.clone();
-        scaled
-            .pixels
-            .iter_mut()
-            .for_each(|p| *p = p.map(|c| c * scale));
         let mut fitter = AsgFitter::new(settings.clone()).unwrap();
-        fitter.fit_frame(&scaled).unwrap()
+        fitter.fit_frame(&scaled(&frame, scale)).unwrap()
     };
     let unit = fit(1.0);
     let unit_loss = unit.loss.unwrap().total;
@@ -850,19 +860,8 @@ fn the_fit_does_not_depend_on_the_maps_scale() {
 /// back: every later frame came out black (loss 2) in `fit-asg` and the daemon's ASG stream.
 #[test]
 fn a_warm_chain_recovers_from_a_black_frame_and_a_scale_jump() {
-    let frame = read_hdr("rooitou_park_1k.hdr");
-    let settings = FitSettings {
-        lobes: 4,
-        height: 16,
-        iterations: 200,
-        threads: 1,
-        ..FitSettings::default()
-    };
-    let scaled = |scale: f32| {
-        let mut f = frame.clone();
-        f.pixels.iter_mut().for_each(|p| *p = p.map(|c| c * scale));
-        f
-    };
+    let (frame, settings) = small_rooitou_fit();
+    let scaled = |scale: f32| scaled(&frame, scale);
     let green = |r: &envlight::asg::fit::FitResult| -> f64 {
         r.lobes.iter().map(|l| l.integral()[1]).sum()
     };

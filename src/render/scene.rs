@@ -1223,6 +1223,18 @@ mod tests {
         path
     }
 
+    /// The POSITION accessor of [`write_gltf`]'s file.
+    const POSITIONS: &str = r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#;
+
+    /// A sparse POSITION accessor of `count` elements without a buffer view, its three sparse
+    /// indices (0, 1, 2) and values taken from [`write_gltf`]'s buffer.
+    fn sparse_positions(count: usize) -> String {
+        format!(
+            r#"{{"componentType":5126,"count":{count},"type":"VEC3","min":[0,0,0],"max":[1,1,0],
+            "sparse":{{"count":3,"indices":{{"bufferView":2,"componentType":5123}},"values":{{"bufferView":0}}}}}}"#
+        )
+    }
+
     /// What the `gltf` crate's reader takes on trust is checked first: an index accessor of
     /// floats, a stride shorter than an element, a sparse accessor declaring 80 million
     /// vertices in a few bytes, a sparse index past the count (these panicked, aborted on a
@@ -1266,20 +1278,13 @@ mod tests {
                 edited_gltf(
                     d,
                     "sparse_huge.gltf",
-                    r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
-                    r#"{"componentType":5126,"count":80000001,"type":"VEC3","min":[0,0,0],"max":[1,1,0],
-                        "sparse":{"count":3,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
+                    POSITIONS,
+                    &sparse_positions(80_000_001),
                 ),
                 "holds 80000001 elements",
             ),
             (
-                edited_gltf(
-                    d,
-                    "sparse_oob.gltf",
-                    r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#,
-                    r#"{"componentType":5126,"count":2,"type":"VEC3","min":[0,0,0],"max":[1,1,0],
-                        "sparse":{"count":3,"indices":{"bufferView":2,"componentType":5123},"values":{"bufferView":0}}}"#,
-                ),
+                edited_gltf(d, "sparse_oob.gltf", POSITIONS, &sparse_positions(2)),
                 "sparse index 2 out of range of its count 2",
             ),
             (
