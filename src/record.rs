@@ -105,15 +105,17 @@ pub struct RecordSummary {
 /// A running recorder. See the module docs.
 pub struct Recorder {
     dir: PathBuf,
-    /// Whether [`Recorder::start`] created `dir` (then [`Recorder::discard`] removes it).
-    created_dir: bool,
+    /// The outermost folder [`Recorder::start`] created for `dir` (`dir` or one of its
+    /// parents), which [`Recorder::discard`] removes again with the folders below it.
+    created_dir: Option<PathBuf>,
     thread: JoinHandle<Result<RecordSummary, RecordError>>,
 }
 
 /// Removes what [`Recorder::start`] and its thread wrote into `dir`: `session.json`, the two
-/// JSON Lines files, the recorded `frames/NNNNNN.exr` and the `frames` folder — and `dir`
-/// itself when the recorder created it. Anything else found there is left.
-fn remove_recording(dir: &Path, created_dir: bool) {
+/// JSON Lines files, the recorded `frames/NNNNNN.exr` and the `frames` folder — and the
+/// folders from `dir` up to `created_dir` when the recorder created them (each only if empty).
+/// Anything else found there is left.
+fn remove_recording(dir: &Path, created_dir: Option<&Path>) {
     for name in ["session.json", "frames.jsonl", "lights.jsonl"] {
         let _ = std::fs::remove_file(dir.join(name));
     }
@@ -131,8 +133,12 @@ fn remove_recording(dir: &Path, created_dir: bool) {
         }
     }
     let _ = std::fs::remove_dir(&frames);
-    if created_dir {
-        let _ = std::fs::remove_dir(dir);
+    if let Some(top) = created_dir {
+        for folder in dir.ancestors() {
+            if std::fs::remove_dir(folder).is_err() || folder == top {
+                break;
+            }
+        }
     }
 }
 
@@ -186,7 +192,13 @@ impl Recorder {
         settings: &DecomposeSettings,
         frames: Receiver<Tapped>,
     ) -> Result<Recorder, RecordError> {
-        let created_dir = !dir.exists();
+        // The outermost folder of `dir` that does not exist yet: create_dir_all makes it and
+        // everything below, all of which a discard removes again.
+        let created_dir = dir
+            .ancestors()
+            .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+            .last()
+            .map(Path::to_path_buf);
         std::fs::create_dir_all(dir).map_err(io_error(dir))?;
         if std::fs::read_dir(dir)
             .map_err(io_error(dir))?
@@ -199,8 +211,8 @@ impl Recorder {
         }
         // From here on a failure removes what was created (a full disk leaves the directory
         // as it was, and the same command can be run again).
-        Self::start_in(dir, source, settings, frames, created_dir).inspect_err(|_| {
-            remove_recording(dir, created_dir);
+        Self::start_in(dir, source, settings, frames, created_dir.clone()).inspect_err(|_| {
+            remove_recording(dir, created_dir.as_deref());
         })
     }
 
@@ -209,7 +221,7 @@ impl Recorder {
         source: &str,
         settings: &DecomposeSettings,
         frames: Receiver<Tapped>,
-        created_dir: bool,
+        created_dir: Option<PathBuf>,
     ) -> Result<Recorder, RecordError> {
         let frames_dir = dir.join("frames");
         std::fs::create_dir(&frames_dir).map_err(io_error(&frames_dir))?;
@@ -267,7 +279,7 @@ impl Recorder {
     /// failure included (they are logged) — so the directory is as it was and the same
     /// command can be run again.
     pub fn discard(self) {
-        let (dir, created_dir) = (self.dir.clone(), self.created_dir);
+        let (dir, created_dir) = (self.dir.clone(), self.created_dir.clone());
         if let Ok(summary) = self.finish() {
             if summary.frames > 0 {
                 tracing::warn!(
@@ -277,7 +289,7 @@ impl Recorder {
                 );
             }
         }
-        remove_recording(&dir, created_dir);
+        remove_recording(&dir, created_dir.as_deref());
     }
 }
 
@@ -626,12 +638,18 @@ mod tests {
 
     /// A session that failed to start leaves its directory as it was: the frames recorded
     /// meanwhile are removed with the rest (they were kept, and the same command then failed
-    /// on a directory that was not empty), and a directory the recorder created goes too.
+    /// on a directory that was not empty), and the folders the recorder created go too.
     #[test]
     fn a_discarded_recording_leaves_the_directory_as_it_was() {
         let parent = tempfile::tempdir().unwrap();
         for existed in [true, false] {
-            let dir = parent.path().join(format!("rec_{existed}"));
+            // A new recording goes two folders deep: all three are the recorder's.
+            let top = parent.path().join(format!("rec_{existed}"));
+            let dir = if existed {
+                top.clone()
+            } else {
+                top.join("a/b")
+            };
             if existed {
                 std::fs::create_dir(&dir).unwrap();
             }
@@ -651,7 +669,7 @@ mod tests {
             }
             drop(tx);
             recorder.discard();
-            assert_eq!(dir.exists(), existed);
+            assert_eq!(top.exists(), existed);
             if existed {
                 assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
             }

@@ -297,12 +297,21 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         "visibility and transport precomputed"
     );
     let mut source = args.input.open()?;
-    // The frames and the mesh: no output may overwrite them, nor --out the --json output.
+    // The frames and the mesh with the files it references (glTF buffers, MTL libraries): no
+    // output may overwrite them, nor --out the --json output.
     let mut read = source.files().to_vec();
-    read.extend(args.scene.iter().cloned());
+    if let Some(scene) = &args.scene {
+        read.extend(envlight::render::scene::scene_files(scene));
+    }
     let mut inputs = crate::cli_output::InputFiles::new(&read);
     if let Some(path) = &args.out {
         inputs.refuse(path, "--out")?;
+    }
+    // Two names of one existing file are refused before --json truncates it.
+    if let (Some(json), Some(out)) = (&args.json, &args.out) {
+        let mut json_only = crate::cli_output::InputFiles::new(&[]);
+        json_only.protect_output(json, "--json");
+        json_only.refuse(out, "--out")?;
     }
     let mut json = crate::cli_output::open_output(args.json.as_deref(), "--json", &inputs)?;
     if let Some(path) = &args.json {

@@ -854,8 +854,9 @@ fn the_fit_does_not_depend_on_the_maps_scale() {
 }
 
 /// A warm chain recovers from a frame that gives it nothing to follow: after an all-black
-/// frame (lobes of zero amplitude) and across a jump of the map's scale by 2^±30 (an exposure
-/// change), the next fit's loss and integral match a fit of that frame from scratch. The warm
+/// frame (lobes of zero amplitude), across a jump of the map's scale by 2^±30 (an exposure
+/// change) and up a ramp of 3× steps, the next fit's loss and integral match a fit of that
+/// frame from scratch. The warm
 /// refit started from the zero lobes, whose log-amplitudes sat at the bound and never climbed
 /// back: every later frame came out black (loss 2) in `fit-asg` and the daemon's ASG stream.
 #[test]
@@ -865,10 +866,21 @@ fn a_warm_chain_recovers_from_a_black_frame_and_a_scale_jump() {
     let green = |r: &envlight::asg::fit::FitResult| -> f64 {
         r.lobes.iter().map(|l| l.integral()[1]).sum()
     };
-    for (before, after) in [(0.0, 1.0), (1.0, 2f32.powi(30)), (1.0, 2f32.powi(-30))] {
+    // The scales of the frames before the last (after a first frame at 1), and the last.
+    let chains: [(&[f32], f32); 4] = [
+        (&[0.0], 1.0),
+        (&[1.0], 2f32.powi(30)),
+        (&[1.0], 2f32.powi(-30)),
+        // A ramp whose steps are each below the old 4× trigger (compared map to map).
+        (&[3.0, 9.0, 27.0], 81.0),
+    ];
+    for (between, after) in chains {
+        let before = between[between.len() - 1];
         let mut fitter = AsgFitter::new(settings.clone()).unwrap();
         fitter.fit_frame(&frame).unwrap();
-        fitter.fit_frame(&scaled(before)).unwrap();
+        for &scale in between {
+            fitter.fit_frame(&scaled(scale)).unwrap();
+        }
         let warm = fitter.fit_frame(&scaled(after)).unwrap();
         let mut cold_fitter = AsgFitter::new(settings.clone()).unwrap();
         let cold = cold_fitter.fit_frame(&scaled(after)).unwrap();

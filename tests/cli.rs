@@ -818,6 +818,41 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
             "{args:?}"
         );
     }
+    // The files the mesh references (its material library) are inputs too, and two names of
+    // one existing file are refused before --json truncates it.
+    let with_mtl = dir.path().join("mtl.obj");
+    let mtl = dir.path().join("grey.mtl");
+    std::fs::write(&with_mtl, format!("mtllib grey.mtl\n{mesh_text}")).unwrap();
+    std::fs::write(&mtl, "newmtl grey\nKd 0.5 0.5 0.5\n").unwrap();
+    let o = envlight(&[
+        "wavelet",
+        "relight",
+        input,
+        "--size",
+        "2",
+        "--scene",
+        s(&with_mtl),
+        "--out",
+        s(&mtl),
+    ]);
+    assert_fails_naming(&o, &["--out", "is the input file", "grey.mtl"]);
+    let json = dir.path().join("o.json");
+    let linked = dir.path().join("o.csv");
+    std::fs::write(&json, "{}").unwrap();
+    std::fs::hard_link(&json, &linked).unwrap();
+    let o = envlight(&[
+        "wavelet",
+        "relight",
+        input,
+        "--size",
+        "2",
+        "--json",
+        s(&json),
+        "--out",
+        s(&linked),
+    ]);
+    assert_fails_naming(&o, &["--out", "is also the --json output"]);
+    assert_eq!(std::fs::read_to_string(&json).unwrap(), "{}");
     let o = envlight(&[
         "wavelet",
         "recover",

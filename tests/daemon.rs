@@ -621,6 +621,18 @@ fn websocket_port_answers_requests_that_are_no_upgrade() {
         "{old}"
     );
     assert!(old.contains("Sec-WebSocket-Version: 13\r\n"), "{old}");
+    // Bare-LF line ends are accepted (as tungstenite accepts them): the upgrade completes.
+    let mut stream = TcpStream::connect(ws).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream
+        .write_all(
+            b"GET / HTTP/1.1\nHost: x\nUpgrade: websocket\nConnection: Upgrade\n\
+              Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\nSec-WebSocket-Version: 13\n\n",
+        )
+        .unwrap();
+    let mut answer = [0u8; 12];
+    stream.read_exact(&mut answer).unwrap();
+    assert_eq!(&answer, b"HTTP/1.1 101");
     let (mut socket, _) = tungstenite::connect(format!("ws://{ws}/")).unwrap();
     socket.send(WsMessage::text("{\"subscribe\":{}}")).unwrap();
     assert!(matches!(socket.read().unwrap(), WsMessage::Text(_)));
@@ -777,6 +789,17 @@ fn json_lines_and_stray_clients_get_errors_naming_the_problem() {
     long.resize(5000, b' ');
     long.push(b'\n');
     assert_eq!(json_error(tcp, &long).0, code::TOO_LARGE);
+    // 4096 bytes and a CRLF line end: within the limit (the CR is the line end's).
+    let mut longest = b"{\"subscribe\":{\"max_lights\":1}}".to_vec();
+    longest.resize(4096, b' ');
+    longest.extend(b"\r\n");
+    let mut stream = TcpStream::connect(tcp).unwrap();
+    stream.set_read_timeout(Some(TIMEOUT)).unwrap();
+    stream.write_all(&longest).unwrap();
+    let mut reader = std::io::BufReader::new(stream);
+    let mut line = String::new();
+    std::io::BufRead::read_line(&mut reader, &mut line).unwrap();
+    assert!(line.contains("\"lights\""), "{line}");
     let (c, message) = json_error(tcp, b"{\"subscribe\":{\"x\xff\":1}}\n");
     assert_eq!(c, code::MALFORMED, "{message}");
     assert!(message.contains("UTF-8"), "{message}");

@@ -72,9 +72,11 @@
 //!    preconditioned metric taken as the identity in the scaled units of u). The last iterate
 //!    is returned (the lowest total loss is, with L_T's kink at "no change", the previous
 //!    lobes themselves, which is what the subgradient version returned).
-//!    When the map's mean radiance changed by more than [`WARM_RESCALE`] (4×) either way (an
-//!    exposure change), the previous amplitudes are first scaled by that change: the warm steps
-//!    move a log-amplitude by little, and a 2^30 jump left the lobes at the old scale (loss 2).
+//!    When the map's mean radiance differs from the previous lobes' (their integral over 4π)
+//!    by more than [`WARM_RESCALE`] (2×) either way (an exposure change, in one jump or in
+//!    steps), the previous amplitudes are first scaled by that ratio: the warm steps move a
+//!    log-amplitude by little, and a 2^30 jump (or a ramp of 3× steps, each compared with the
+//!    previous map only) left the lobes at the old scale (loss 2).
 //!    After a frame that left no lobe with power (a black one) the next frame is fitted from
 //!    scratch: zero lobes sat at the amplitude bound and every later frame came out black.
 
@@ -1356,9 +1358,10 @@ pub fn centroid_step(target: &FitTarget, lobes: &[Asg]) -> Vec<Asg> {
     out
 }
 
-/// A warm refit scales the previous amplitudes by the change of the map's mean radiance when
-/// that change exceeds this factor either way (an exposure change; [`AsgFitter::fit_target`]).
-pub const WARM_RESCALE: f64 = 4.0;
+/// A warm refit scales the previous amplitudes by the ratio of the map's mean radiance to the
+/// previous lobes' (their integral over 4π) when it exceeds this factor either way (an
+/// exposure change, in one jump or in steps; [`AsgFitter::fit_target`]).
+pub const WARM_RESCALE: f64 = 2.0;
 
 /// Whether any lobe has a positive amplitude in some channel.
 fn has_power(lobes: &[Asg]) -> bool {
@@ -1371,8 +1374,6 @@ fn has_power(lobes: &[Asg]) -> bool {
 pub struct AsgFitter {
     settings: FitSettings,
     previous: Option<Vec<Asg>>,
-    /// The mean radiance of the map `previous` was fitted to.
-    previous_mean: f64,
     adam: AdamState,
     /// The last frame's target, refilled by the next frame of the same size
     /// ([`FitTarget::refill`]: the size-dependent parts and the buffers are reused).
@@ -1386,7 +1387,6 @@ impl AsgFitter {
         Ok(Self {
             settings,
             previous: None,
-            previous_mean: 0.0,
             adam: AdamState::default(),
             target: None,
         })
@@ -1479,7 +1479,14 @@ impl AsgFitter {
             Some(prev) => {
                 // A map whose scale jumped (an exposure change) is followed by scaling the
                 // previous amplitudes with it: the warm steps move a log-amplitude by little.
-                let ratio = target.mean / self.previous_mean;
+                // Against the scale the lobes hold (their integral), not the previous map's:
+                // a ramp of steps each too small to trigger was otherwise never followed.
+                let lobes_mean = prev
+                    .iter()
+                    .map(|l| l.integral().iter().sum::<f64>())
+                    .sum::<f64>()
+                    / (4.0 * PI);
+                let ratio = target.mean / lobes_mean;
                 let scaled: Vec<Asg>;
                 let prev = if ratio.is_finite()
                     && ratio > 0.0
@@ -1526,7 +1533,6 @@ impl AsgFitter {
             }
         };
         self.previous = Some(result.lobes.clone());
-        self.previous_mean = target.mean;
         result
     }
 }

@@ -798,6 +798,43 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
     Ok(b)
 }
 
+/// The files loading the scene at `path` reads: the file itself and, for glTF, its external
+/// buffers, for OBJ, its material libraries — the files no output of a command that reads the
+/// scene may overwrite. Best effort: references that cannot be worked out are left out.
+pub fn scene_files(path: &Path) -> Vec<PathBuf> {
+    let mut files = vec![path.to_path_buf()];
+    let base = path.parent().unwrap_or(Path::new("."));
+    let Ok(bytes) = std::fs::read(path) else {
+        return files;
+    };
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("gltf" | "glb") => {
+            if let Ok(gltf) = gltf::Gltf::from_slice(&bytes) {
+                for buffer in gltf.document.buffers() {
+                    if let gltf::buffer::Source::Uri(uri) = buffer.source() {
+                        if !uri.starts_with("data:") {
+                            files.push(base.join(uri));
+                        }
+                    }
+                }
+            }
+        }
+        Some("obj") => {
+            for line in String::from_utf8_lossy(&bytes).lines() {
+                if let Some(names) = line.trim_start().strip_prefix("mtllib") {
+                    files.extend(names.split_whitespace().map(|name| base.join(name)));
+                }
+            }
+        }
+        _ => {}
+    }
+    files
+}
+
 /// Reads an MTL file, checking what `tobj` would panic on: a colour (`Ka`, `Kd`, `Ks`, `Ke`)
 /// with fewer than three numbers. The error carries tobj's kind and the problem in words.
 fn read_mtl(path: &Path) -> Result<Vec<u8>, (tobj::LoadError, String)> {
@@ -873,7 +910,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
     // `usemtl` of a name no library defines: drawn grey, and said so.
     let unknown: std::collections::BTreeSet<String> = text
         .split(|&c| c == b'\n')
-        .filter_map(|l| l.strip_prefix(b"usemtl"))
+        .filter_map(|l| l.trim_ascii_start().strip_prefix(b"usemtl"))
         .map(|name| String::from_utf8_lossy(name).trim().to_string())
         .filter(|name| !name.is_empty() && !materials.iter().any(|m| &m.name == name))
         .collect();

@@ -1224,12 +1224,12 @@ async fn read_upgrade_request<R: AsyncRead + Unpin>(reader: &mut R) -> Result<Ve
         if n == 0 {
             return Err("the client closed before its upgrade request ended".to_owned());
         }
-        let searched_from = request.len().saturating_sub(3);
+        let searched_from = request.len().saturating_sub(2);
         request.extend_from_slice(&buf[..n]);
-        if request[searched_from..]
-            .windows(4)
-            .any(|w| w == b"\r\n\r\n")
-        {
+        // The head ends at an empty line; bare-LF line ends are accepted, as httparse (and
+        // so tungstenite) accepts them.
+        let tail = &request[searched_from..];
+        if tail.windows(2).any(|w| w == b"\n\n") || tail.windows(3).any(|w| w == b"\n\r\n") {
             return Ok(request);
         }
         if request.len() > MAX_UPGRADE_REQUEST {
@@ -1247,10 +1247,13 @@ const MAX_UPGRADE_REQUEST: usize = 16 * 1024;
 /// status to answer with and the reason; `None` when it is one (tungstenite then completes
 /// the handshake). Version mismatches get 426 with the version spoken (§4.2.2).
 fn upgrade_problem(request: &str) -> Option<(u16, String)> {
-    // The head only: bytes after the blank line are the client's first WebSocket frames.
-    let head = request.split("\r\n\r\n").next().unwrap_or_default();
-    let mut lines = head.split("\r\n");
-    let request_line = lines.next().unwrap_or_default();
+    // The head only, up to the empty line (CRLF or bare-LF line ends).
+    let head: Vec<&str> = request
+        .split('\n')
+        .map(|line| line.strip_suffix('\r').unwrap_or(line))
+        .take_while(|line| !line.is_empty())
+        .collect();
+    let request_line = head.first().copied().unwrap_or_default();
     let mut parts = request_line.split(' ');
     let (method, version) = (parts.next().unwrap_or_default(), parts.nth(1));
     if method != "GET" || version != Some("HTTP/1.1") {
@@ -1260,7 +1263,7 @@ fn upgrade_problem(request: &str) -> Option<(u16, String)> {
         ));
     }
     let header = |name: &str| {
-        head.split("\r\n").skip(1).find_map(|line| {
+        head.iter().skip(1).find_map(|line| {
             let (key, value) = line.split_once(':')?;
             key.trim()
                 .eq_ignore_ascii_case(name)
@@ -1721,8 +1724,10 @@ impl Connection {
             if *dialect == Dialect::JsonLines {
                 let end = bytes.iter().position(|&b| b == b'\n');
                 line.extend_from_slice(&bytes[..end.unwrap_or(bytes.len())]);
-                // The limit holds however the line arrives (with its newline in one read).
-                if line.len() > MAX_JSON_LINE {
+                // The limit holds however the line arrives (with its newline in one read); a
+                // CR at the end may be the line end's, not the line's.
+                let content = line.len() - usize::from(line.last() == Some(&b'\r'));
+                if content > MAX_JSON_LINE {
                     let text = format!("subscribe line longer than {MAX_JSON_LINE} bytes");
                     self.count_error(&text);
                     return Err(Close::Error(error_code::TOO_LARGE, text));
