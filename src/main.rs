@@ -843,14 +843,19 @@ fn source_paths(args: &DaemonArgs) -> Option<Vec<String>> {
 
 fn daemon_config(args: &DaemonArgs) -> Result<Config> {
     let paths = source_paths(args);
-    envlight::daemon::read_config(args.config.as_deref(), paths.as_deref()).map_err(|e| {
-        match (&args.config, &e) {
-            (Some(path), ConfigError::Invalid { .. }) => {
-                anyhow!(e).context(format!("invalid setting in {}", path.display()))
-            }
-            _ => anyhow!(e),
+    envlight::daemon::read_config(args.config.as_deref(), paths.as_deref())
+        .map_err(|e| naming_the_file(e, args.config.as_deref()))
+}
+
+/// A config error that names `path`: an invalid value names only its key (read and parse
+/// errors name the file already).
+fn naming_the_file(e: ConfigError, path: Option<&Path>) -> anyhow::Error {
+    match (path, &e) {
+        (Some(path), ConfigError::Invalid { .. }) => {
+            anyhow!(e).context(format!("invalid setting in {}", path.display()))
         }
-    })
+        _ => anyhow!(e),
+    }
 }
 
 fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
@@ -879,12 +884,7 @@ fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
 fn check_config(args: &CheckConfigArgs) -> Result<()> {
     let (config, name) = match &args.file {
         Some(path) => (
-            Config::from_file(path).map_err(|e| match e {
-                ConfigError::Invalid { .. } => {
-                    anyhow!(e).context(format!("invalid setting in {}", path.display()))
-                }
-                _ => anyhow!(e),
-            })?,
+            Config::from_file(path).map_err(|e| naming_the_file(e, Some(path)))?,
             path.display().to_string(),
         ),
         None => (Config::default(), "the built-in defaults".to_owned()),

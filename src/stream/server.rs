@@ -1182,7 +1182,7 @@ impl WriteProgress {
 struct Stamped<T> {
     inner: T,
     progress: Arc<WriteProgress>,
-    replay: std::collections::VecDeque<u8>,
+    replay: Vec<u8>,
 }
 
 impl<T> Stamped<T> {
@@ -1190,7 +1190,7 @@ impl<T> Stamped<T> {
         Self {
             inner,
             progress,
-            replay: std::collections::VecDeque::new(),
+            replay: Vec::new(),
         }
     }
 }
@@ -1203,8 +1203,8 @@ impl<T: AsyncRead + Unpin> AsyncRead for Stamped<T> {
     ) -> std::task::Poll<std::io::Result<()>> {
         if !self.replay.is_empty() {
             let n = buf.remaining().min(self.replay.len());
-            let bytes: Vec<u8> = self.replay.drain(..n).collect();
-            buf.put_slice(&bytes);
+            buf.put_slice(&self.replay[..n]);
+            self.replay.drain(..n);
             return std::task::Poll::Ready(Ok(()));
         }
         std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
@@ -1238,6 +1238,34 @@ async fn read_upgrade_request<R: AsyncRead + Unpin>(reader: &mut R) -> Result<Ve
             ));
         }
     }
+}
+
+/// How a WebSocket upgrade ended: accepted, or refused with an HTTP status and the reason.
+enum Upgrade<S> {
+    Accepted(Box<tokio_tungstenite::WebSocketStream<S>>),
+    Refused(S, u16, String),
+}
+
+/// Answers a refused upgrade with its status and the reason as a plain-text body (426 names
+/// the WebSocket version spoken), then closes the connection.
+async fn answer_refused_upgrade<S: AsyncWrite + Unpin>(mut stream: S, status: u16, reason: &str) {
+    let phrase = if status == 426 {
+        "Upgrade Required\r\nSec-WebSocket-Version: 13"
+    } else {
+        "Bad Request"
+    };
+    let body = format!("{reason}\n");
+    let response = format!(
+        "HTTP/1.1 {status} {phrase}\r\nContent-Type: text/plain; charset=utf-8\r\n\
+         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    let _ = tokio::time::timeout(
+        Duration::from_secs(1),
+        stream.write_all(response.as_bytes()),
+    )
+    .await;
+    let _ = stream.shutdown().await;
 }
 
 /// The longest WebSocket upgrade request read (request line and headers).
@@ -1364,13 +1392,18 @@ impl Connection {
             .inc();
     }
 
+    /// Counts and logs the error `text` and closes the connection with it (`code`).
+    fn refused(&self, code: u16, text: String) -> Close {
+        self.count_error(&text);
+        Close::Error(code, text)
+    }
+
     fn too_many_clients(&self) -> Close {
         let message = format!(
             "too many clients (limit {}); try again later",
             self.ctx.config.max_clients
         );
-        self.count_error(&message);
-        Close::Error(error_code::INTERNAL, message)
+        self.refused(error_code::INTERNAL, message)
     }
 
     /// The request if this daemon produces its representation, with the feed to follow.
@@ -1390,8 +1423,7 @@ impl Connection {
              needs [{name}] enabled = true)",
             produced.join(", ")
         );
-        self.count_error(&text);
-        Err(Close::Error(error_code::UNSUPPORTED_REPRESENTATION, text))
+        Err(self.refused(error_code::UNSUPPORTED_REPRESENTATION, text))
     }
 
     /// Takes the newest publication if it is new to this client, counting skipped ones.
@@ -1636,8 +1668,7 @@ impl Connection {
                         let text = "unexpected bytes after the subscribe line; clients send \
                                     nothing more"
                             .to_owned();
-                        self.count_error(&text);
-                        return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
+                        return self.refused(error_code::UNEXPECTED_MESSAGE, text);
                     }
                     decoder.push(&buf[..n]);
                     return self.unexpected_input(&mut decoder);
@@ -1652,8 +1683,7 @@ impl Connection {
             "no subscribe message within {:.1} s",
             self.ctx.config.handshake_timeout.as_secs_f64()
         );
-        self.count_error(&text);
-        Close::Error(error_code::BAD_REQUEST, text)
+        self.refused(error_code::BAD_REQUEST, text)
     }
 
     /// Input after the subscribe: an error for whatever it is.
@@ -1673,8 +1703,7 @@ impl Connection {
                 };
                 let text =
                     format!("unexpected {what} after the subscribe; clients send nothing more");
-                self.count_error(&text);
-                Close::Error(error_code::UNEXPECTED_MESSAGE, text)
+                self.refused(error_code::UNEXPECTED_MESSAGE, text)
             }
         }
     }
@@ -1729,19 +1758,16 @@ impl Connection {
                 let content = line.len() - usize::from(line.last() == Some(&b'\r'));
                 if content > MAX_JSON_LINE {
                     let text = format!("subscribe line longer than {MAX_JSON_LINE} bytes");
-                    self.count_error(&text);
-                    return Err(Close::Error(error_code::TOO_LARGE, text));
+                    return Err(self.refused(error_code::TOO_LARGE, text));
                 }
                 let Some(end) = end else { continue };
                 if end + 1 < bytes.len() {
                     let text = "unexpected bytes after the subscribe line".to_owned();
-                    self.count_error(&text);
-                    return Err(Close::Error(error_code::UNEXPECTED_MESSAGE, text));
+                    return Err(self.refused(error_code::UNEXPECTED_MESSAGE, text));
                 }
                 let Ok(text) = std::str::from_utf8(&line) else {
                     let text = "the subscribe line is not UTF-8".to_owned();
-                    self.count_error(&text);
-                    return Err(Close::Error(error_code::MALFORMED, text));
+                    return Err(self.refused(error_code::MALFORMED, text));
                 };
                 return protocol::parse_json_request(text.trim_end_matches('\r')).map_err(|e| {
                     self.count_error(&e.to_string());
@@ -1754,8 +1780,7 @@ impl Connection {
                 Ok(Some(Message::Subscribe(request))) => return Ok(request),
                 Ok(Some(_)) => {
                     let text = "the first message must be a subscribe".to_owned();
-                    self.count_error(&text);
-                    return Err(Close::Error(error_code::UNEXPECTED_MESSAGE, text));
+                    return Err(self.refused(error_code::UNEXPECTED_MESSAGE, text));
                 }
                 Err(e) => {
                     self.count_error(&e.to_string());
@@ -1779,50 +1804,26 @@ impl Connection {
         // The upgrade request is read and checked here, then replayed to tungstenite: a
         // request that is no upgrade gets an HTTP answer saying why (tungstenite closed it
         // without a word, so `curl` or a browser saw an empty reply).
-        match tokio::time::timeout_at(deadline, read_upgrade_request(&mut stamped.inner)).await {
-            Ok(Ok(request)) => {
-                if let Some((status, reason)) = upgrade_problem(&String::from_utf8_lossy(&request))
-                {
-                    self.count_error(&format!("websocket upgrade refused: {reason}"));
-                    let phrase = if status == 426 {
-                        "Upgrade Required\r\nSec-WebSocket-Version: 13"
-                    } else {
-                        "Bad Request"
-                    };
-                    let body = format!("{reason}\n");
-                    let response = format!(
-                        "HTTP/1.1 {status} {phrase}\r\nContent-Type: text/plain; charset=utf-8\r\n\
-                         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
-                        body.len()
-                    );
-                    let _ = tokio::time::timeout(
-                        Duration::from_secs(1),
-                        stamped.write_all(response.as_bytes()),
-                    )
-                    .await;
-                    let _ = stamped.shutdown().await;
-                    return;
-                }
-                stamped.replay.extend(request);
+        let handshake = async {
+            let request = read_upgrade_request(&mut stamped.inner).await?;
+            if let Some((status, reason)) = upgrade_problem(&String::from_utf8_lossy(&request)) {
+                return Ok(Upgrade::Refused(stamped, status, reason));
+            }
+            stamped.replay.extend(request);
+            tokio_tungstenite::accept_async_with_config(stamped, Some(config))
+                .await
+                .map(|ws| Upgrade::Accepted(Box::new(ws)))
+                .map_err(|e| e.to_string())
+        };
+        let ws = match tokio::time::timeout_at(deadline, handshake).await {
+            Ok(Ok(Upgrade::Accepted(ws))) => *ws,
+            Ok(Ok(Upgrade::Refused(stamped, status, reason))) => {
+                self.count_error(&format!("websocket upgrade refused: {reason}"));
+                answer_refused_upgrade(stamped, status, &reason).await;
+                return;
             }
             Ok(Err(problem)) => {
                 self.count_error(&format!("websocket handshake failed: {problem}"));
-                return;
-            }
-            Err(_) => {
-                self.count_error("websocket handshake timed out");
-                return;
-            }
-        }
-        let accepted = tokio::time::timeout_at(
-            deadline,
-            tokio_tungstenite::accept_async_with_config(stamped, Some(config)),
-        )
-        .await;
-        let ws = match accepted {
-            Ok(Ok(ws)) => ws,
-            Ok(Err(e)) => {
-                self.count_error(&format!("websocket handshake failed: {e}"));
                 return;
             }
             Err(_) => {
@@ -1913,8 +1914,7 @@ impl Connection {
             ),
             e => (error_code::MALFORMED, format!("websocket: {e}")),
         };
-        self.count_error(&text);
-        Close::Error(code, text)
+        self.refused(code, text)
     }
 
     async fn websocket_session<K, S>(
@@ -1961,8 +1961,7 @@ impl Connection {
                 Ok(Message::Subscribe(request)) => break request,
                 Ok(_) => {
                     let text = "the first message must be a subscribe".to_owned();
-                    self.count_error(&text);
-                    return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
+                    return self.refused(error_code::UNEXPECTED_MESSAGE, text);
                 }
                 Err(e) => {
                     self.count_error(&e.to_string());
@@ -2034,8 +2033,7 @@ impl Connection {
                         let text =
                             "unexpected message after the subscribe; clients send nothing more"
                                 .to_owned();
-                        self.count_error(&text);
-                        return Close::Error(error_code::UNEXPECTED_MESSAGE, text);
+                        return self.refused(error_code::UNEXPECTED_MESSAGE, text);
                     }
                 },
             }
