@@ -23,6 +23,36 @@ mod cli_output;
 mod wavelet_cli;
 mod wavelet_transport_cli;
 
+/// Parses an INPUT argument (a file, directory or glob pattern), refusing one that is not
+/// UTF-8 with its name (glob patterns and config paths are UTF-8 text; clap's own message
+/// did not say which argument it was). A file with such a name is still read when its
+/// directory is given.
+#[derive(Clone)]
+struct Utf8Input;
+
+impl clap::builder::TypedValueParser for Utf8Input {
+    type Value = String;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        _arg: Option<&clap::Arg>,
+        value: &std::ffi::OsStr,
+    ) -> std::result::Result<String, clap::Error> {
+        value.to_str().map(str::to_owned).ok_or_else(|| {
+            clap::Error::raw(
+                clap::error::ErrorKind::InvalidUtf8,
+                format!(
+                    "INPUT {:?} is not valid UTF-8; rename the file or give its directory \
+                     (every .exr/.hdr in it is read)\n",
+                    value.to_string_lossy()
+                ),
+            )
+            .with_cmd(cmd)
+        })
+    }
+}
+
 /// A misuse of the command line that clap's parsing cannot see (options that do not go
 /// together, an option that the chosen mode would ignore): exit status 2, like clap's own.
 #[derive(Debug, thiserror::Error)]
@@ -78,7 +108,7 @@ form (Lambert + GGX, no shadows; --lobes, --fit-height).";
 #[derive(Args, Debug)]
 struct RenderArgs {
     /// .exr/.hdr frames to decompose in-process. None (and no --lights): the built-in sky.
-    #[arg(value_name = "INPUT", conflicts_with = "lights")]
+    #[arg(value_name = "INPUT", conflicts_with = "lights", value_parser = Utf8Input)]
     inputs: Vec<String>,
     /// Light list: JSON Lines as written by `envlight decompose`.
     #[arg(long, value_name = "FILE")]
@@ -273,7 +303,7 @@ struct DaemonArgs {
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
     /// Input frames instead of the configured source: .exr/.hdr files, directories or globs.
-    #[arg(value_name = "INPUT")]
+    #[arg(value_name = "INPUT", value_parser = Utf8Input)]
     inputs: Vec<String>,
 }
 
@@ -397,7 +427,7 @@ enum PlacementArg {
 #[derive(Args, Debug)]
 struct DecomposeArgs {
     /// .exr/.hdr files, directories or glob patterns (quote globs). None: the built-in sky.
-    #[arg(value_name = "INPUT")]
+    #[arg(value_name = "INPUT", value_parser = Utf8Input)]
     inputs: Vec<String>,
 
     /// TOML config file (see config/envlight.toml); flags override its values.
@@ -1518,7 +1548,7 @@ fn render(args: &RenderArgs) -> Result<()> {
 #[derive(Args, Debug)]
 struct FitAsgArgs {
     /// .exr/.hdr lat-long files, directories or glob patterns. None: the built-in sky.
-    #[arg(value_name = "INPUT")]
+    #[arg(value_name = "INPUT", value_parser = Utf8Input)]
     inputs: Vec<String>,
     /// Number of lobes K (1..=64).
     #[arg(long, default_value_t = envlight::asg::fit::DEFAULT_LOBES)]

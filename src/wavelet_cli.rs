@@ -72,7 +72,7 @@ impl From<ProjectionArg> for Projection {
 #[derive(Args, Debug)]
 pub struct FrameInput {
     /// .exr/.hdr files, directories or glob patterns (quote globs). None: the built-in sky.
-    #[arg(value_name = "INPUT")]
+    #[arg(value_name = "INPUT", value_parser = crate::Utf8Input)]
     inputs: Vec<String>,
     /// Projection of the INPUT files. [default: latlong]
     #[arg(long, value_enum)]

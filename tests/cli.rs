@@ -370,6 +370,43 @@ fn missing_file_is_named() {
     assert_eq!(o.status.code(), Some(1));
 }
 
+/// An INPUT that is not UTF-8 is a usage error that names it (clap's own message did not say
+/// which argument), for every command that takes INPUT; the same file is read through its
+/// directory.
+#[test]
+fn non_utf8_input_is_named_and_read_through_its_directory() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = tempfile::tempdir().unwrap();
+    let frame = dir
+        .path()
+        .join(std::ffi::OsStr::from_bytes(b"take_\xff_1.exr"));
+    write_rgb(&frame, 8, 4, 1.0);
+    for command in [
+        &["decompose"][..],
+        &["run"],
+        &["record", "--out", "unused"],
+        &["fit-asg"],
+        &["render"],
+        &["wavelet", "approx"],
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(command)
+            .arg(&frame)
+            .env_remove("RUST_LOG")
+            .output()
+            .expect("run envlight");
+        assert_eq!(o.status.code(), Some(2), "{command:?}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert!(
+            err.contains("take_\u{fffd}_1.exr") && err.contains("not valid UTF-8"),
+            "{command:?}: {err}"
+        );
+    }
+    let o = envlight(&["decompose", "-n", "4", s(dir.path())]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(check_frames(&stdout(&o), 4).len(), 1);
+}
+
 /// A light file without frames is an error naming it, before any GPU work (an empty render
 /// that exits 0 would look like success).
 #[test]
