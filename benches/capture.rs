@@ -18,6 +18,8 @@
 //!   source converts formats whose codes are bytes ([`Linearizer::linearize_bytes_into_on`]);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
+//! - `response_recovery/levels_L_samples_S`: recovering a response curve from four 200×150
+//!   brackets (Debevec & Malik's gsolve, three channels) at L levels and S sample pixels;
 //! - `read/…`: reading a recorded frame file into linear RGB ([`read_hdr_image`]: the file
 //!   read, the decoding, the conversion to f32 RGB), for the test maps: an RLE Radiance `.hdr`
 //!   (1024×512), a frame as `envlight record` stores it (f32 RGB in RLE tiles, 1024×512), tiled
@@ -31,7 +33,9 @@
 //! Run with `cargo bench --bench capture`; quote the medians.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use envlight::capture::bracket::{merge_brackets, Bracket, MergeLimits};
+use envlight::capture::bracket::{
+    merge_brackets, recover_response, Bracket, MergeLimits, SolveSettings,
+};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::pixel_format::{
     self, ByteImage, CodeImage, PixelFormat, RawFrame, YuvMatrix,
@@ -329,12 +333,56 @@ fn bench_capture(c: &mut Criterion) {
     group.finish();
 }
 
+/// Response recovery (`envlight calibrate-response`): four brackets, two stops apart, of the
+/// scene resampled to 200×150 and encoded through a gamma-2.2 curve, solved at the default
+/// settings (256 levels, 300 samples), at 1024 levels and 2000 samples, and at the largest
+/// (4096 levels, 5000 samples; seconds per solve: filter it out with
+/// `-- 'response_recovery/levels_(256|1024)'` for a quick run).
+fn bench_response_recovery(c: &mut Criterion) {
+    let scene = scene();
+    let (w, h) = (200u32, 150u32);
+    let small: Vec<[f32; 3]> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| scene[((y * H / h) * W + x * W / w) as usize])
+        .collect();
+    let brackets: Vec<Bracket> = [0.25f32, 1.0, 4.0, 16.0]
+        .iter()
+        .map(|&t| Bracket {
+            image: CodeImage {
+                width: w,
+                height: h,
+                pixels: small
+                    .iter()
+                    .map(|p| p.map(|v| (v * t).clamp(0.0, 1.0).powf(1.0 / 2.2)))
+                    .collect(),
+            },
+            exposure_s: f64::from(t),
+            gain: 1.0,
+        })
+        .collect();
+    let mut group = c.benchmark_group("response_recovery");
+    group.sample_size(10);
+    for (levels, samples) in [(256, 300), (1024, 2000), (4096, 5000)] {
+        let settings = SolveSettings {
+            levels,
+            samples,
+            ..SolveSettings::default()
+        };
+        group.bench_function(format!("levels_{levels}_samples_{samples}"), |b| {
+            b.iter(|| {
+                recover_response(black_box(&brackets), settings).unwrap_or_else(|e| panic!("{e}"))
+            })
+        });
+    }
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default()
         .sample_size(30)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(4));
-    targets = bench_capture
+    targets = bench_capture, bench_response_recovery
 }
 criterion_main!(benches);
