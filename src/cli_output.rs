@@ -81,6 +81,27 @@ impl InputFiles {
     }
 }
 
+/// Whether the paths `a` and `b` name the same file, whether or not it exists yet: the same
+/// device and inode if both exist, else the same name in the same folder (by device and
+/// inode: `.`, `..` and links to the folder are seen through).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    let id = |p: &Path| std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+    match (id(a), id(b)) {
+        (Some(a), Some(b)) => a == b,
+        (None, None) => {
+            let folder = |p: &Path| {
+                let parent = p.parent().filter(|p| !p.as_os_str().is_empty());
+                id(parent.unwrap_or(Path::new(".")))
+            };
+            a.file_name().is_some()
+                && a.file_name() == b.file_name()
+                && folder(a).is_some()
+                && folder(a) == folder(b)
+        }
+        _ => false,
+    }
+}
+
 /// Fails early, before the work whose result it will hold, when the output file `path` (given
 /// with `option`) cannot be written there: it is a directory, or its folder does not exist.
 pub fn check_output_path(path: &Path, option: &str) -> Result<()> {

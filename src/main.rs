@@ -1217,10 +1217,16 @@ fn open_source(config: &Config) -> Result<Box<dyn FrameSource>> {
 
 /// Replaces `path` with `contents` atomically: readers see the old or the new file, never half.
 fn replace_file(path: &Path, contents: &[u8]) -> std::io::Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
+    let tmp = latest_tmp(path);
     std::fs::write(&tmp, contents)?;
     std::fs::rename(&tmp, path)
+}
+
+/// The temporary file `path` + `.tmp` through which [`replace_file`] replaces `path`.
+fn latest_tmp(path: &Path) -> PathBuf {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    PathBuf::from(tmp)
 }
 
 fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> Result<()> {
@@ -1229,7 +1235,24 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
         Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
     let inputs = cli_output::InputFiles::new(source.files());
     if let Some(path) = latest {
+        cli_output::check_output_path(path, "--latest")?;
         inputs.refuse(path, "--latest")?;
+        // --latest is replaced through LATEST.tmp: neither may be the --out file.
+        if let Some(out) = out {
+            for (file, what) in [
+                (path.to_path_buf(), "--latest"),
+                (latest_tmp(path), "--latest's temporary file"),
+            ] {
+                if cli_output::same_file(out, &file) {
+                    bail!(
+                        "--out {} is also {what} {}: the newest frame would replace the \
+                         stream; choose another output path",
+                        out.display(),
+                        file.display()
+                    );
+                }
+            }
+        }
     }
     let mut writer = std::io::BufWriter::new(cli_output::open_output(out, "--out", &inputs)?);
     let out_name = out.map_or("stdout".to_string(), |p| p.display().to_string());

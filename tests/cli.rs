@@ -615,6 +615,61 @@ fn latest_file_holds_only_the_newest_frame() {
         "{}",
         stderr(&o)
     );
+
+    // --out on --latest or on its temporary file (also through `..`, or when it exists
+    // already) is refused before anything is written: the newest frame would replace the
+    // stream. A directory as --latest is refused before the first frame, leaving no DIR.tmp.
+    let sub = dir.path().join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    std::fs::write(dir.path().join("kept.json"), "kept\n").unwrap();
+    for (out, latest) in [
+        ("a.json", "a.json"),
+        ("b.json.tmp", "b.json"),
+        ("sub/../c.json", "c.json"),
+        ("kept.json", "kept.json"),
+    ] {
+        let (out, latest) = (dir.path().join(out), dir.path().join(latest));
+        let o = envlight(&[
+            "decompose",
+            "--frames",
+            "2",
+            "--lights",
+            "4",
+            "--sky-size",
+            "64x32",
+            "--out",
+            s(&out),
+            "--latest",
+            s(&latest),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{out:?} {latest:?}");
+        assert!(
+            stderr(&o).contains("the newest frame would replace the stream"),
+            "{}",
+            stderr(&o)
+        );
+    }
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("kept.json")).unwrap(),
+        "kept\n"
+    );
+    for name in ["a.json", "b.json", "b.json.tmp", "c.json"] {
+        assert!(!dir.path().join(name).exists(), "{name} was written");
+    }
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "1",
+        "--lights",
+        "4",
+        "--sky-size",
+        "64x32",
+        "--latest",
+        s(&sub),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
+    assert!(!dir.path().join("sub.tmp").exists());
 }
 
 /// Options that do not go together, or that the chosen mode would ignore, are usage errors
