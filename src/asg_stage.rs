@@ -39,6 +39,7 @@ use crate::frame_feed::FrameFeed;
 use crate::light::AsgSet;
 use crate::publication::{Latest, Publication};
 use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
+use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::watch;
 
@@ -129,6 +130,10 @@ impl StageWorker for AsgWorker {
         }
         Ok(set)
     }
+
+    fn watch_abandon(&mut self, flag: Arc<std::sync::atomic::AtomicBool>) {
+        self.0.watch_cancel(flag);
+    }
 }
 
 /// The running ASG stage. See the module documentation.
@@ -202,6 +207,13 @@ impl AsgStage {
     /// Closes the feed (the stage fits the frame still waiting, then ends).
     pub fn stop(&self) {
         self.0.stop();
+    }
+
+    /// Closes the feed and gives up the fit in progress (within one iteration) and the frame
+    /// still waiting: a signal's shutdown, which a first fit of many iterations would hold
+    /// up ([`SlowStage::abandon`]).
+    pub fn abandon(&self) {
+        self.0.abandon();
     }
 
     /// Closes the feed, waits for the thread and returns the final counters.

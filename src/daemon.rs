@@ -622,6 +622,8 @@ impl Daemon {
             ))
         });
         let (mut term, mut int, mut hup) = signals.map_err(DaemonError::Signals)?;
+        // Signals that came during the start ([`hold_stop_signals`]) are handled from here.
+        set_stop_signal_mask(libc::SIG_UNBLOCK);
         notify(&[
             sd_notify::NotifyState::Ready,
             sd_notify::NotifyState::Status("serving light lists"),
@@ -648,6 +650,15 @@ impl Daemon {
             match wake {
                 Wake::Stop(signal) => {
                     tracing::info!("{signal}: shutting down");
+                    // A signal's shutdown does not wait for slow work: a first ASG fit of
+                    // many iterations held it up for seconds (or minutes), clients without a
+                    // frame or a goodbye meanwhile.
+                    if let Some(asg) = &self.asg {
+                        asg.abandon();
+                    }
+                    if let Some(wavelet) = &self.wavelet {
+                        wavelet.abandon();
+                    }
                     break StopReason::Signal;
                 }
                 Wake::Reload => self.handle_reload(config_path),
@@ -782,6 +793,30 @@ impl Daemon {
             recorded,
             clients_closed_in_time,
         })
+    }
+}
+
+/// Holds SIGTERM, SIGINT and SIGHUP pending on the calling thread and every thread it starts
+/// from now on, until [`Daemon::run`] handles them: call it before [`Daemon::start`], on the
+/// main thread. Without it a signal that came while the daemon started (seconds, with many
+/// lights) killed it with the default action: no goodbye, the socket file and a half-made
+/// recording left behind, a SIGHUP fatal.
+pub fn hold_stop_signals() {
+    set_stop_signal_mask(libc::SIG_BLOCK);
+}
+
+/// Blocks (`SIG_BLOCK`) or unblocks (`SIG_UNBLOCK`) SIGTERM, SIGINT and SIGHUP on the calling
+/// thread.
+fn set_stop_signal_mask(how: libc::c_int) {
+    // SAFETY: the set is initialised by sigemptyset before use and pthread_sigmask only reads
+    // it; neither call keeps the pointer.
+    unsafe {
+        let mut set: libc::sigset_t = std::mem::zeroed();
+        libc::sigemptyset(&mut set);
+        for signal in [libc::SIGTERM, libc::SIGINT, libc::SIGHUP] {
+            libc::sigaddset(&mut set, signal);
+        }
+        libc::pthread_sigmask(how, &set, std::ptr::null_mut());
     }
 }
 

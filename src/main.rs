@@ -890,6 +890,7 @@ fn naming_the_file(e: ConfigError, path: Option<&Path>) -> anyhow::Error {
 
 fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
     let config = daemon_config(args)?;
+    envlight::daemon::hold_stop_signals();
     let daemon = Daemon::start(config, options)?;
     let addresses = daemon.addresses().clone();
     if let Some(path) = &addresses.stream.unix_socket {

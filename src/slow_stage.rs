@@ -20,7 +20,9 @@
 //! ([`StageCounters::errors`]); the stage goes on with the next one. Frames replaced in the feed
 //! before the thread took them are counted by the feed ([`StageCounters::skipped`]); a lossless
 //! feed (replay) makes every frame processed in order. Closing the feed lets the thread process
-//! the frame still waiting and end; [`SlowStage::join`] waits for it and turns a panic on the
+//! the frame still waiting and end; [`SlowStage::abandon`] (a signal's shutdown) ends it
+//! without: the waiting frame is dropped and a worker that watches the flag gives up the
+//! frame in progress; [`SlowStage::join`] waits for it and turns a panic on the
 //! thread into an error, never a panic in the caller. If the thread dies, its feed is closed, so
 //! a lossless sender is never left waiting.
 
@@ -28,7 +30,7 @@ use crate::frame::HdrFrame;
 pub use crate::frame_feed::CloseOnDrop;
 use crate::frame_feed::FrameFeed;
 use crate::publication::{publish, Latest, Publication, StaleHandle};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -47,6 +49,11 @@ pub trait StageWorker: Send + 'static {
     fn plans(&self) -> u64 {
         0
     }
+    /// Gives the worker the stage's abandon flag ([`SlowStage::abandon`]): a worker whose
+    /// computation is long (an ASG fit of many iterations) checks it and gives up early,
+    /// returning an error (which the stage, seeing the flag, neither logs nor counts as one).
+    /// The default ignores it: the computation in progress runs to its end.
+    fn watch_abandon(&mut self, _flag: Arc<AtomicBool>) {}
 }
 
 /// Called on the stage's thread after each publication (metrics).
@@ -75,6 +82,8 @@ struct Shared<W> {
     plans: AtomicU64,
     last_nanos: AtomicU64,
     pending: Mutex<Option<W>>,
+    /// Set by [`SlowStage::abandon`]: no further frame is processed.
+    abandon: Arc<AtomicBool>,
 }
 
 /// Reads a stage's counters from anywhere (the metrics endpoint); valid after the stage ended.
@@ -132,6 +141,7 @@ impl<W: StageWorker> SlowStage<W> {
             plans: AtomicU64::new(0),
             last_nanos: AtomicU64::new(0),
             pending: Mutex::new(None),
+            abandon: Arc::new(AtomicBool::new(false)),
         });
         let (tx, rx) = watch::channel::<Latest<W::Output>>(None);
         let tx = Arc::new(tx);
@@ -203,6 +213,15 @@ impl<W: StageWorker> SlowStage<W> {
         self.counters.feed.close();
     }
 
+    /// Closes the feed and gives up the work in progress (a signal's shutdown, which must not
+    /// wait for a long fit): the frame still waiting is not processed, the computation in
+    /// progress ends early where the worker watches for it ([`StageWorker::watch_abandon`];
+    /// a result finished all the same is still published).
+    pub fn abandon(&self) {
+        self.counters.shared.abandon.store(true, Ordering::Release);
+        self.counters.feed.close();
+    }
+
     /// Closes the feed, waits for the thread and returns the final counters, or the message
     /// of the panic that ended the thread.
     pub fn join(self) -> Result<StageCounters, String> {
@@ -229,6 +248,8 @@ fn run<W: StageWorker>(
 ) {
     // If this thread dies, the feed must not make a lossless sender wait forever.
     let _close = CloseOnDrop(feed.clone());
+    worker.watch_abandon(Arc::clone(&shared.abandon));
+    let abandoned = || shared.abandon.load(Ordering::Acquire);
     let mut plans_counted = worker.plans();
     shared.plans.fetch_add(plans_counted, Ordering::AcqRel);
     while let Some((frame, arrived)) = feed.take() {
@@ -239,7 +260,16 @@ fn run<W: StageWorker>(
             .take();
         if let Some(new) = replacement {
             worker = new;
+            worker.watch_abandon(Arc::clone(&shared.abandon));
             plans_counted = 0;
+        }
+        if abandoned() {
+            tracing::info!(
+                stage = name,
+                seq = frame.seq,
+                "shutting down: frame not processed"
+            );
+            break;
         }
         let started = Instant::now();
         let result = worker.process(&frame);
@@ -251,6 +281,14 @@ fn run<W: StageWorker>(
         plans_counted = plans;
         let output = match result {
             Ok(output) => Arc::new(output),
+            Err(_) if abandoned() => {
+                tracing::info!(
+                    stage = name,
+                    seq = frame.seq,
+                    "shutting down: frame abandoned"
+                );
+                break;
+            }
             Err(error) => {
                 shared.errors.fetch_add(1, Ordering::AcqRel);
                 tracing::warn!(stage = name, seq = frame.seq, %error, "skipping the frame");

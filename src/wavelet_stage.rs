@@ -345,6 +345,12 @@ impl WaveletStage {
         self.0.is_finished()
     }
 
+    /// Closes the feed and drops the frame still waiting (a signal's shutdown; the transform
+    /// in progress, a few milliseconds, is finished and published).
+    pub fn abandon(&self) {
+        self.0.abandon();
+    }
+
     /// Closes the feed, waits for the thread and returns the final counters.
     pub fn join(self) -> Result<WaveletStats, WaveletStageError> {
         self.0

@@ -1492,6 +1492,70 @@ fn sighup_reloads_and_sigterm_shuts_down_cleanly() {
     );
 }
 
+/// SIGTERM while the ASG stage runs a long first fit (10⁷ iterations: hours) shuts down at
+/// once: the fit is abandoned, the lights client gets its goodbye and the daemon exits 0 (it
+/// waited for the fit, the clients without frame or goodbye meanwhile).
+#[test]
+fn sigterm_abandons_a_long_asg_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("envlight.sock");
+    let config_path = dir.path().join("envlight.toml");
+    std::fs::write(
+        &config_path,
+        format!(
+            "{}[stream]\nunix_socket = \"{}\"\ntcp = \"\"\nwebsocket = \"\"\n\
+             [metrics]\nlisten = \"\"\n[asg]\nenabled = true\niterations = 10000000\n",
+            common::SMALL_SKY,
+            socket.display()
+        ),
+    )
+    .unwrap();
+    let mut child = RunningDaemon::start(&config_path);
+    let mut client = unix_client_once_listening(&socket);
+    assert!(matches!(client.next_message(), Ok(Some(Message::Frame(_)))));
+    signal(&child, "TERM");
+    let goodbye = loop {
+        match client.next_message().unwrap() {
+            Some(Message::Frame(_)) => continue,
+            Some(Message::Goodbye { message }) => break message,
+            other => panic!("unexpected {other:?}"),
+        }
+    };
+    assert_eq!(goodbye, "envlight shutting down");
+    let (status, log) = child.exit_and_log();
+    assert!(status.success(), "exit {status:?}\n{log}");
+    assert!(log.contains("shutting down: frame abandoned"), "{log}");
+    assert!(!socket.exists(), "the socket file is left behind");
+}
+
+/// SIGTERM or SIGHUP while the daemon starts (16,384 lights: the point set takes a while)
+/// waits for the start and is then handled: SIGHUP reloads, SIGTERM shuts down with exit
+/// status 0 and removes the socket file (the default action killed the process: 143, 129).
+#[test]
+fn signals_during_the_start_are_handled_once_it_is_done() {
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("envlight.sock");
+    let config_path = dir.path().join("envlight.toml");
+    std::fs::write(
+        &config_path,
+        format!(
+            "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+             [stream]\nunix_socket = \"{}\"\ntcp = \"\"\nwebsocket = \"\"\n\
+             [metrics]\nlisten = \"\"\n[decompose]\nlights = 16384\n",
+            socket.display()
+        ),
+    )
+    .unwrap();
+    let mut child = RunningDaemon::start(&config_path);
+    std::thread::sleep(Duration::from_millis(50));
+    signal(&child, "HUP");
+    signal(&child, "TERM");
+    let (status, log) = child.exit_and_log();
+    assert!(status.success(), "exit {status:?}\n{log}");
+    assert!(log.contains("SIGTERM: shutting down"), "{log}");
+    assert!(!socket.exists(), "the socket file is left behind");
+}
+
 /// systemd/envlight.service as systemd reads it (`systemd-analyze verify`, from the `systemd`
 /// package that .ci/run installs): every directive known, every command executable. The
 /// installed paths are replaced by this build's binary and the example config.

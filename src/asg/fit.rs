@@ -85,6 +85,8 @@ use super::{integral_with_derivatives, rotate, Asg, AsgError, MAX_BANDWIDTH, MIN
 use crate::frame::HdrFrame;
 use glam::DVec3;
 use std::f64::consts::PI;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 
 /// Largest number of lobes.
 pub const MAX_LOBES: usize = 64;
@@ -444,6 +446,17 @@ struct Moments {
 pub struct AdamState {
     moments: Vec<Moments>,
     steps: usize,
+    /// Once set, the iterations stop early ([`AsgFitter::watch_cancel`]: a daemon shutting
+    /// down); the result is then not a fit.
+    cancel: Option<Arc<AtomicBool>>,
+}
+
+impl AdamState {
+    fn cancelled(&self) -> bool {
+        self.cancel
+            .as_ref()
+            .is_some_and(|c| c.load(std::sync::atomic::Ordering::Acquire))
+    }
 }
 
 /// Evaluation context: derived per-lobe quantities.
@@ -1139,10 +1152,8 @@ fn run_stages(
     };
     let (b1, b2, eps) = (0.9, 0.999, 1e-12);
     if state.moments.len() != lobes.len() {
-        *state = AdamState {
-            moments: vec![Moments::default(); lobes.len()],
-            steps: 0,
-        };
+        state.moments = vec![Moments::default(); lobes.len()];
+        state.steps = 0;
     }
     let mut best: Option<(Loss, Vec<Lobe>)> = None;
     let mut initial = None;
@@ -1167,7 +1178,7 @@ fn run_stages(
     // losses (the start's, the last one) count.
     let keep_last = prevs.is_some() && settings.temporal_weight > 0.0;
     let mut t = 0usize;
-    for (si, &(stage, its)) in stages.iter().enumerate() {
+    'stages: for (si, &(stage, its)) in stages.iter().enumerate() {
         let last = si + 1 == stages.len();
         let amax = (stage.max_bandwidth() - MIN_BANDWIDTH).ln();
         for l in &mut lobes {
@@ -1175,6 +1186,9 @@ fn run_stages(
             l.beta = l.beta.min(amax);
         }
         for it in 0..=its {
+            if state.cancelled() {
+                break 'stages;
+            }
             let want = it < its;
             if !want && !last {
                 break;
@@ -1411,7 +1425,17 @@ impl AsgFitter {
     /// Forgets the previous frame: the next one is fitted from scratch.
     pub fn reset(&mut self) {
         self.previous = None;
-        self.adam = AdamState::default();
+        self.adam = AdamState {
+            cancel: self.adam.cancel.take(),
+            ..AdamState::default()
+        };
+    }
+
+    /// Watches `flag`: once it is set, a fit in progress stops within one iteration and
+    /// [`AsgFitter::fit_frame`] returns [`AsgError::Cancelled`] (the daemon's shutdown on a
+    /// signal does not wait for a long first fit).
+    pub fn watch_cancel(&mut self, flag: Arc<AtomicBool>) {
+        self.adam.cancel = Some(flag);
     }
 
     /// The lobes of the last fitted frame.
@@ -1460,6 +1484,9 @@ impl AsgFitter {
         let target = self.take_prepared(frame)?;
         let result = self.fit_target(&target);
         self.target = Some(target);
+        if self.adam.cancelled() {
+            return Err(AsgError::Cancelled);
+        }
         Ok(result)
     }
 
@@ -1532,7 +1559,9 @@ impl AsgFitter {
                 )
             }
         };
-        self.previous = Some(result.lobes.clone());
+        if !self.adam.cancelled() {
+            self.previous = Some(result.lobes.clone());
+        }
         result
     }
 }

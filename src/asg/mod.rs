@@ -429,6 +429,8 @@ pub enum AsgError {
     WarmStart { got: usize, expected: usize },
     #[error("lobe {index} is invalid: {message}")]
     Lobe { index: usize, message: &'static str },
+    #[error("the fit was cancelled (shutting down)")]
+    Cancelled,
 }
 
 #[cfg(test)]
