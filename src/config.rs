@@ -334,7 +334,49 @@ impl RawConfig {
                 format!("larger than {MAX_CONFIG_BYTES} bytes; a config file is a few kilobytes"),
             )));
         }
-        Self::parse(&text, path)
+        let mut raw = Self::parse(&text, path)?;
+        if let Some(folder) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            raw.resolve_relative_paths(folder);
+        }
+        Ok(raw)
+    }
+
+    /// Makes the relative paths of the file (`source.paths`, `camera.curve`,
+    /// `stream.unix_socket`, `render.scene`, `render.latest_png`) relative to `folder`, the
+    /// file's own: a config means the same from any working directory (a service runs from
+    /// `/`). A glob pattern in `source.paths` stays a pattern under `folder` (the folder's own
+    /// `*?[` escaped).
+    pub fn resolve_relative_paths(&mut self, folder: &Path) {
+        let Some(folder_text) = folder.to_str() else {
+            // Not expressible as the UTF-8 text the keys hold: left as written.
+            return;
+        };
+        let resolve = |value: &mut String, pattern: bool| {
+            if value.is_empty() || Path::new(value.as_str()).is_absolute() {
+                return;
+            }
+            let is_pattern = pattern && value.contains(['*', '?', '[']);
+            let base = if is_pattern && folder_text.contains(['*', '?', '[']) {
+                glob::Pattern::escape(folder_text)
+            } else {
+                folder_text.to_owned()
+            };
+            *value = Path::new(&base).join(value.as_str()).display().to_string();
+        };
+        for value in self.source.paths.iter_mut().flatten() {
+            resolve(value, true);
+        }
+        for value in [
+            &mut self.camera.curve,
+            &mut self.stream.unix_socket,
+            &mut self.render.scene,
+            &mut self.render.latest_png,
+        ]
+        .into_iter()
+        .flatten()
+        {
+            resolve(value, false);
+        }
     }
 
     /// Checks every value and fills in the defaults.

@@ -534,7 +534,7 @@ struct DecomposeArgs {
 
     /// Leave out the refinement of lamps and suns: by default the lights holding them move to
     /// their regions' centroids and the sources' full-resolution pixels go again to their
-    /// nearest light (69 rows of docs/quality.md's 72 beat median cut instead of 67, for about
+    /// nearest light (69 rows of docs/quality.md's 72 beat median cut instead of 68, for about
     /// 7–10% more time per frame on the benchmark's map).
     #[arg(long)]
     no_refine_concentrated: bool,

@@ -314,6 +314,56 @@ fn config_file_is_used_and_flags_override_it() {
     assert_fails_naming(&o, &["source.fisheye.fov_deg", "400"]);
 }
 
+/// Relative paths in a config file are the file's folder's: the same config works from any
+/// working directory (a service runs from `/`), for files, patterns and a folder whose name
+/// holds glob characters; a path given on the command line stays the working directory's.
+#[test]
+fn relative_paths_in_a_config_file_are_its_folders() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = dir.path().join("rig [a]");
+    std::fs::create_dir_all(folder.join("takes")).unwrap();
+    write_rgb(&folder.join("takes/f_1.exr"), 8, 4, 1.0);
+    write_rgb(&folder.join("takes/f_2.exr"), 8, 4, 2.0);
+    std::fs::write(folder.join("response.txt"), "0 0 0 0\n1 1 1 1\n").unwrap();
+    let config = folder.join("envlight.toml");
+    let elsewhere = dir.path();
+    for paths in [
+        r#"["takes/f_1.exr", "takes/f_2.exr"]"#,
+        r#"["takes/*.exr"]"#,
+        r#"["takes"]"#,
+    ] {
+        std::fs::write(
+            &config,
+            format!(
+                "[source]\nkind = \"sequence\"\npaths = {paths}\n[camera]\n\
+                 response = \"curve\"\ncurve = \"response.txt\"\n[decompose]\nlights = 4\n"
+            ),
+        )
+        .unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["decompose", "--config", s(&config)])
+            .current_dir(elsewhere)
+            .env_remove("RUST_LOG")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{paths}: {}", stderr(&o));
+        assert_eq!(check_frames(&stdout(&o), 4).len(), 2, "{paths}");
+        let o = Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["check-config", s(&config)])
+            .current_dir(elsewhere)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{paths}: {}", stderr(&o));
+    }
+    // INPUT on the command line is the working directory's (here: no such file).
+    let o = Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["decompose", "--config", s(&config), "takes/f_1.exr"])
+        .current_dir(elsewhere)
+        .output()
+        .unwrap();
+    assert_fails_naming(&o, &["takes/f_1.exr"]);
+}
+
 #[test]
 fn broken_pipe_ends_quietly() {
     use std::io::Read;
