@@ -805,6 +805,7 @@ impl DecomposeArgs {
 }
 
 fn main() -> ExitCode {
+    quiet_vulkan_device_select();
     let cli = Cli::parse();
     init_tracing();
     let result = match cli.command {
@@ -1214,6 +1215,20 @@ fn open_source(config: &Config) -> Result<Box<dyn FrameSource>> {
         SourceKind::V4l2 => "cannot open the camera",
     };
     envlight::capture::open(config).context(context)
+}
+
+/// Turns off Mesa's Vulkan device-selection layer where there is no session (no
+/// `XDG_RUNTIME_DIR`: a service, a container, ssh without a login session): the layer probes
+/// for a Wayland display and libwayland printed `error: XDG_RUNTIME_DIR is invalid or not set
+/// in the environment.` twice on every render, which read as a failure. envlight chooses its
+/// adapter itself (`ENVLIGHT_ADAPTER`, docs/rendering.md). An explicit `NODEVICE_SELECT` is
+/// kept. Called first in `main`, before any thread exists.
+fn quiet_vulkan_device_select() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none()
+        && std::env::var_os("NODEVICE_SELECT").is_none()
+    {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
 }
 
 /// Replaces `path` with `contents` atomically: readers see the old or the new file, never half.
