@@ -459,7 +459,7 @@ struct DecomposeArgs {
     fisheye_model: Option<FisheyeModelArg>,
 
     /// Fisheye image-circle centre in pixels. [default: image centre]
-    #[arg(long, value_name = "X,Y", value_parser = parse_pair)]
+    #[arg(long, value_name = "X,Y", value_parser = parse_pair, allow_hyphen_values = true)]
     center: Option<[f64; 2]>,
 
     /// Fisheye image-circle radius in pixels, in (0, 1e6]. [default: half the shorter side]

@@ -267,6 +267,23 @@ fn fisheye_options_decompose() {
     ]);
     assert_fails_naming(&o, &["--center", "32x32"]);
     assert_eq!(o.status.code(), Some(1));
+
+    // A centre left of or above the image (a circle cut by the border) is a value, not an
+    // unknown option `-1`.
+    let o = envlight(&[
+        "decompose",
+        s(&path),
+        "--lights",
+        "8",
+        "--projection",
+        "fisheye",
+        "--center",
+        "-4,16",
+        "--radius",
+        "20",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    check_frames(&stdout(&o), 8);
 }
 
 #[test]

@@ -33,8 +33,8 @@
 //! Radiance `.hdr`: RLE or flat RGBE with the usual `-Y H +X W` orientation (the decoder rejects
 //! others); comment lines in the header (including a repeated `#?RADIANCE` magic line) are
 //! skipped. Values are divided by the header's cumulative `EXPOSURE` if there is one, so they are
-//! the radiance the file describes; an `EXPOSURE` that is not positive (or so small that its
-//! reciprocal overflows) is an error.
+//! the radiance the file describes (in f64, clamped to f32's range); an `EXPOSURE` that is not
+//! finite and positive (or so small that its reciprocal overflows) is an error.
 //!
 //! Robustness: the decoders should return errors on bad input, but they do not always (the
 //! corruption test in `tests/capture.rs` hits an arithmetic-overflow panic in `exr`'s B44
@@ -192,11 +192,11 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
     let scale = match decoder.metadata().exposure {
         None => 1.0,
         Some(exposure) => {
-            let scale = 1.0 / exposure;
-            if !(exposure > 0.0 && scale.is_finite()) {
+            let scale = 1.0 / f64::from(exposure);
+            if !(exposure.is_finite() && exposure > 0.0 && scale.is_finite() && scale > 0.0) {
                 return Err(format!(
-                    "header's EXPOSURE ({exposure}) is not a positive number whose reciprocal \
-                     is finite"
+                    "header's EXPOSURE ({exposure}) is not a finite positive number whose \
+                     reciprocal is finite"
                 ));
             }
             scale
@@ -207,7 +207,11 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
         .into_rgb32f();
     let pixels: Vec<[f32; 3]> = image
         .pixels()
-        .map(|p| [p.0[0] * scale, p.0[1] * scale, p.0[2] * scale])
+        // In f64 and clamped to f32's range: a bright pixel divided by a small EXPOSURE overflowed
+        // f32 to infinity, which the frame's sanitising then set to 0 (a sun turned black).
+        .map(|p| {
+            p.0.map(|v| (f64::from(v) * scale).min(f64::from(f32::MAX)) as f32)
+        })
         .collect();
     if pixels.len() != width as usize * height as usize {
         return Err("decoder returned the wrong number of pixels".to_string());
@@ -849,5 +853,31 @@ mod tests {
         assert_eq!((image.width, image.height), (1, 2));
         assert_eq!(image.pixels[0], [0.5, 0.25, 0.125]);
         assert_eq!(image.pixels[1], [0.0, 0.0, 0.0]);
+    }
+
+    /// An EXPOSURE that is infinite (or beyond f32: it reads as infinite) is an error, not a
+    /// black frame; a tiny one makes a bright pixel huge, never infinite (which the frame's
+    /// sanitising would set to 0: a sun turned black).
+    #[test]
+    fn radiance_exposure_extremes() {
+        let file = |exposure: &str| {
+            let mut file =
+                format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nEXPOSURE={exposure}\n\n-Y 2 +X 1\n")
+                    .into_bytes();
+            // 1.0 and 2^100 (mantissa 128, exponent 128 + 101)
+            file.extend_from_slice(&[128, 128, 128, 129, 128, 128, 128, 229]);
+            file
+        };
+        for exposure in ["inf", "1e39", "0", "-1"] {
+            let e = decode_hdr(&file(exposure)).unwrap_err();
+            assert!(e.contains("EXPOSURE"), "{exposure}: {e}");
+        }
+        let image = decode_hdr(&file("1e-30")).unwrap();
+        assert!(
+            (image.pixels[0][0] / 1e30 - 1.0).abs() < 1e-6,
+            "{:?}",
+            image.pixels[0]
+        );
+        assert_eq!(image.pixels[1], [f32::MAX; 3]);
     }
 }

@@ -262,7 +262,19 @@ impl V4l2Source {
     pub fn open(settings: &CameraSettings) -> Result<Self, CaptureError> {
         let path = resolve_device(&settings.device)?;
         let p = path.as_path();
-        let device = v4l::Device::with_path(p).map_err(|e| io_err(p, e))?;
+        let device = v4l::Device::with_path(p).map_err(|e| {
+            // A directory (or a path through a file) is no camera and never will be: a
+            // settings error, not retried as a camera that may come back.
+            if matches!(e.raw_os_error(), Some(libc::EISDIR | libc::ENOTDIR)) {
+                CaptureError::InvalidSettings(format!(
+                    "{} is not a V4L2 device ({e}); cameras are /dev/videoN (`envlight \
+                     devices` lists them)",
+                    p.display()
+                ))
+            } else {
+                io_err(p, e)
+            }
+        })?;
         let caps = query_caps(p, &device)?;
         let offered: Vec<[u8; 4]> = guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
             .iter()
@@ -844,12 +856,20 @@ mod tests {
         assert!(e.contains("/nonexistent/video9"), "{e}");
     }
 
-    /// A file that is not a V4L2 device (`/dev/null`, a regular file) is a settings error,
-    /// which the device-loss wrapper does not retry, not an I/O error to wait out.
+    /// A file that is not a V4L2 device (`/dev/null`, a regular file, a directory, a path
+    /// through a file) is a settings error, which the device-loss wrapper does not retry, not
+    /// an I/O error to wait out.
     #[test]
     fn a_file_that_is_no_v4l2_device_is_a_settings_error() {
         let file = tempfile::NamedTempFile::new().unwrap();
-        for path in [Path::new("/dev/null"), file.path()] {
+        let dir = tempfile::tempdir().unwrap();
+        let through_file = file.path().join("video0");
+        for path in [
+            Path::new("/dev/null"),
+            file.path(),
+            dir.path(),
+            through_file.as_path(),
+        ] {
             let e = V4l2Source::open(&CameraSettings {
                 device: path.display().to_string(),
                 ..Default::default()
