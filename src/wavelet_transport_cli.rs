@@ -251,6 +251,31 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         }
         _ => {}
     }
+    let mut source = args.input.open()?;
+    // The frames and the mesh with the files it references (glTF buffers, MTL libraries): no
+    // output may overwrite them, nor --out the --json output. Checked before the
+    // precomputation, whose work a late refusal would throw away.
+    let mut read = source.files().to_vec();
+    if let Some(scene) = &args.scene {
+        read.extend(envlight::render::scene::scene_files(scene));
+    }
+    let inputs = crate::cli_output::InputFiles::new(&read);
+    for (path, option) in [(&args.json, "--json"), (&args.out, "--out")] {
+        if let Some(path) = path {
+            inputs.refuse(path, option)?;
+            crate::cli_output::check_output_path(path, option)?;
+        }
+    }
+    if let (Some(json), Some(out)) = (&args.json, &args.out) {
+        if crate::cli_output::same_file(json, out) {
+            bail!(
+                "--out {} is also the --json output {}: the two outputs would overwrite each \
+                 other; choose another output path",
+                out.display(),
+                json.display()
+            );
+        }
+    }
     let scene = match &args.scene {
         Some(path) => Scene::load(path, args.ground)
             .with_context(|| format!("cannot load scene {}", path.display()))?,
@@ -296,30 +321,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         seconds = t0.elapsed().as_secs_f64(),
         "visibility and transport precomputed"
     );
-    let mut source = args.input.open()?;
-    // The frames and the mesh with the files it references (glTF buffers, MTL libraries): no
-    // output may overwrite them, nor --out the --json output.
-    let mut read = source.files().to_vec();
-    if let Some(scene) = &args.scene {
-        read.extend(envlight::render::scene::scene_files(scene));
-    }
-    let mut inputs = crate::cli_output::InputFiles::new(&read);
-    if let Some(path) = &args.out {
-        inputs.refuse(path, "--out")?;
-    }
-    // Two names of one existing file are refused before --json truncates it.
-    if let (Some(json), Some(out)) = (&args.json, &args.out) {
-        let mut json_only = crate::cli_output::InputFiles::new(&[]);
-        json_only.protect_output(json, "--json");
-        json_only.refuse(out, "--out")?;
-    }
     let mut json = crate::cli_output::open_output(args.json.as_deref(), "--json", &inputs)?;
-    if let Some(path) = &args.json {
-        inputs.protect_output(path, "--json");
-    }
-    if let Some(path) = &args.out {
-        inputs.refuse(path, "--out")?;
-    }
     let json_name = args
         .json
         .as_ref()

@@ -1012,6 +1012,22 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
     ]);
     assert_fails_naming(&o, &["--out", "is also the --json output"]);
     assert_eq!(std::fs::read_to_string(&json).unwrap(), "{}");
+    // --out in a folder that does not exist fails before the work (and before --json is
+    // written): the precomputation and every frame ran first, then the output failed.
+    let fresh_json = dir.path().join("fresh.json");
+    let o = envlight(&[
+        "wavelet",
+        "relight",
+        input,
+        "--size",
+        "2",
+        "--json",
+        s(&fresh_json),
+        "--out",
+        s(&dir.path().join("nodir/a.csv")),
+    ]);
+    assert_fails_naming(&o, &["--out", "nodir", "does not exist"]);
+    assert!(!fresh_json.exists(), "--json was written first");
     let o = envlight(&[
         "wavelet",
         "recover",

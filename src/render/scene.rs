@@ -366,6 +366,32 @@ fn smooth_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
         .collect()
 }
 
+/// Replaces the zero normals a file gives (`vn 0 0 0`, a zero NORMAL) by the vertex's smooth
+/// normal from its triangles, and says how many there were (they were drawn facing +Y: lit as
+/// if facing up, whatever their triangle's orientation). Returns the count.
+fn repair_zero_normals(
+    path: &Path,
+    positions: &[Vec3],
+    normals: &mut [Vec3],
+    indices: &[u32],
+) -> usize {
+    let zero = |n: &Vec3| n.is_finite() && n.length_squared() == 0.0;
+    let count = normals.iter().filter(|n| zero(n)).count();
+    if count > 0 {
+        let smooth = smooth_normals(positions, indices);
+        for (n, s) in normals.iter_mut().zip(smooth) {
+            if zero(n) {
+                *n = s;
+            }
+        }
+        tracing::warn!(
+            "{}: {count} vertices have a zero normal; using their triangles' normal instead",
+            path.display()
+        );
+    }
+    count
+}
+
 /// The matrix that carries normals through `world`: the cofactor matrix of its linear part,
 /// which is det · (M⁻¹)ᵀ, with the sign of the determinant taken out. Unlike the inverse
 /// transpose it exists for a singular transform (a node scaled by 0 flattens its mesh; the
@@ -740,7 +766,7 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
                     positions.len()
                 )));
             }
-            let normals: Vec<Vec3> = match reader.read_normals() {
+            let mut normals: Vec<Vec3> = match reader.read_normals() {
                 Some(n) => n
                     .map(|n| normal_matrix * Vec3::from_array(n))
                     .collect::<Vec<_>>(),
@@ -755,6 +781,7 @@ fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
             if normals.len() != positions.len() {
                 return Err(err("normal count differs from position count".into()));
             }
+            repair_zero_normals(path, &positions, &mut normals, &indices);
             check_finite(path, &positions, &normals)?;
             let mat = prim.material();
             let key = mat.index();
@@ -935,7 +962,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
         if indices.iter().any(|&i| i as usize >= positions.len()) {
             return Err(err(format!("object {:?}: index out of range", model.name)));
         }
-        let normals: Vec<Vec3> = if m.normals.len() == m.positions.len() {
+        let mut normals: Vec<Vec3> = if m.normals.len() == m.positions.len() {
             m.normals
                 .chunks_exact(3)
                 .map(|n| Vec3::new(n[0], n[1], n[2]))
@@ -946,6 +973,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
         if positions.iter().chain(&normals).any(|p| !p.is_finite()) {
             return Err(err("non-finite vertex position or normal".into()));
         }
+        repair_zero_normals(path, &positions, &mut normals, &indices);
         let id = match m.material_id.filter(|&i| i < materials.len()) {
             Some(i) => match ids[i] {
                 Some(id) => id,
@@ -1087,6 +1115,23 @@ mod tests {
         assert!(s.materials[0].roughness < 0.5);
         // Computed normals face +Z (counter-clockwise faces).
         assert!(s.vertices[0].normal[2] > 0.99);
+    }
+
+    /// A zero normal in the file (`vn 0 0 0`) becomes its triangles' normal, not +Y (which lit
+    /// a wall as if it faced up); the given ones are kept.
+    #[test]
+    fn zero_normals_take_their_triangles_normal() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("wall.obj");
+        std::fs::write(
+            &p,
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 0\nvn 1 0 0\nf 1//1 2//1 3//2\n",
+        )
+        .unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        assert_eq!(s.vertices.len(), 3);
+        assert_eq!(s.vertices[0].normal, [0.0, 0.0, 1.0]);
+        assert_eq!(s.vertices[2].normal, [1.0, 0.0, 0.0]);
     }
 
     #[test]
