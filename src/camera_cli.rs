@@ -2,7 +2,7 @@
 //! `calibrate-fisheye`, and opening the camera for `decompose`. Only argument handling and
 //! printing; the work is in `envlight::capture` and `envlight::envmap::fisheye_detect`.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
 use envlight::capture::bracket::{read_bracket_image, recover_response, Bracket, SolveSettings};
 use envlight::capture::image_file::{read_hdr_image, ImageFormat};
@@ -122,7 +122,17 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
         lambda: args.lambda.unwrap_or(d.lambda),
         samples: args.samples.unwrap_or(d.samples),
     };
-    let curve = recover_response(&brackets, settings)?;
+    let curve = recover_response(&brackets, settings).map_err(|e| {
+        // The error numbers the brackets; name their files.
+        let files: Vec<String> = (args.images.iter().enumerate())
+            .map(|(i, p)| format!("{} = {}", i + 1, p.display()))
+            .collect();
+        if files.is_empty() {
+            anyhow!(e)
+        } else {
+            anyhow!("{e} (brackets {})", files.join(", "))
+        }
+    })?;
     let comment = format!(
         "recovered by envlight calibrate-response from {} brackets (exposures {:?} s), \
          levels {}, lambda {}, samples {}",

@@ -257,6 +257,44 @@ fn response_recovery_ignores_pixels_clipped_in_every_bracket() {
     assert!(e.to_string().contains("clipped"), "{e}");
 }
 
+/// Exposures that cannot be the images' are refused before a curve is written: listed in
+/// another order than the images (a decreasing curve), or nearly equal (a flat one).
+#[test]
+fn exposures_out_of_order_or_too_close_are_refused() {
+    let (w, h, e) = small_hdri("rooitou_park_1k.hdr", 8);
+    let brackets = six_brackets(&e, w, h, median_green(&e), &mut Noise(7));
+    let mut reversed = brackets.clone();
+    let times: Vec<f64> = brackets.iter().rev().map(|b| b.exposure_s).collect();
+    for (b, t) in reversed.iter_mut().zip(times) {
+        b.exposure_s = t;
+    }
+    let err = recover_response(&reversed, SolveSettings::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("darker than") && err.contains("order"),
+        "{err}"
+    );
+    let mut close = brackets[..2].to_vec();
+    close[1].exposure_s = close[0].exposure_s * 1.000_000_1;
+    let err = recover_response(&close, SolveSettings::default())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("span only"), "{err}");
+    // One swapped pair is found too.
+    let mut swapped = brackets.clone();
+    let (a, b) = (swapped[2].exposure_s, swapped[3].exposure_s);
+    swapped[2].exposure_s = b;
+    swapped[3].exposure_s = a;
+    let err = recover_response(&swapped, SolveSettings::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("bracket 3") && err.contains("bracket 4"),
+        "{err}"
+    );
+}
+
 /// A made-up camera curve with a shoulder: code v = (1 + k)·y/(y + k) with y = X^0.45.
 const K: f64 = 0.6;
 fn curve_encode(x: f64) -> f64 {
@@ -811,6 +849,38 @@ fn calibrate_response_writes_a_curve_file_from_png_brackets() {
         String::from_utf8_lossy(&o.stderr).contains("2 images but 1"),
         "{}",
         String::from_utf8_lossy(&o.stderr)
+    );
+    // Errors about a bracket name its file; exposures in reverse order are refused and no
+    // curve is written.
+    let mut reversed: Vec<&str> = argv.clone();
+    let rev_exposures: Vec<String> = times.iter().rev().map(|t| t.to_string()).collect();
+    let rev_exposures = rev_exposures.join(",");
+    let n = times.len();
+    reversed[n + 2] = &rev_exposures;
+    reversed[n + 4] = unused.to_str().unwrap();
+    let o = envlight(&reversed);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("darker than") && err.contains("1 = ") && err.contains("b0.png"),
+        "{err}"
+    );
+    assert!(!unused.exists());
+    // A floating-point image is no bracket: refused, named (values above 1 were clamped).
+    let hdr = data("rooitou_park_1k.hdr");
+    let o = envlight(&[
+        "calibrate-response",
+        hdr.to_str().unwrap(),
+        argv[1],
+        "--exposures",
+        "0.1,0.4",
+        "-o",
+        unused.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("rooitou_park_1k.hdr") && err.contains("floating-point"),
+        "{err}"
     );
 }
 

@@ -58,6 +58,19 @@ pub enum BracketError {
         "bracket {index}: exposure {exposure} (exposure time × gain) must be a positive number"
     )]
     Exposure { index: usize, exposure: f64 },
+    #[error(
+        "bracket {longer} (exposure {longer_exposure} s) is darker than bracket {shorter} \
+         ({shorter_exposure} s): mean code {longer_mean:.4} against {shorter_mean:.4}; are \
+         the exposures listed in the order of the images?"
+    )]
+    Order {
+        shorter: usize,
+        shorter_exposure: f64,
+        shorter_mean: f64,
+        longer: usize,
+        longer_exposure: f64,
+        longer_mean: f64,
+    },
     #[error("{0}")]
     Settings(String),
     #[error("response recovery failed: {0}")]
@@ -210,6 +223,15 @@ pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::Ca
         .map_err(|e| err(e.to_string()))?;
     // The size first: a small file can declare a huge image.
     let (width, height) = image::ImageDecoder::dimensions(&decoder);
+    // Codes are what a camera wrote; a floating-point image (Radiance .hdr, float TIFF) is
+    // radiance already, and its values above 1 were clamped to 1 without a word.
+    let colour = image::ImageDecoder::color_type(&decoder);
+    if matches!(colour, image::ColorType::Rgb32F | image::ColorType::Rgba32F) {
+        return Err(err(format!(
+            "is a floating-point image ({colour:?}): brackets are the camera's 8- or 16-bit \
+             codes (PNG); an HDR image needs no response recovery"
+        )));
+    }
     if u64::from(width) * u64::from(height) > super::image_file::MAX_PIXELS {
         return Err(err(format!(
             "image is too large ({width}x{height}; at most {} pixels are read)",
@@ -301,6 +323,7 @@ pub fn recover_response(
     if pixels == 0 {
         return Err(BracketError::Settings("the brackets have no pixels".into()));
     }
+    check_exposure_order(brackets)?;
     // sample positions: evenly spaced quantiles of each bracket's mean code
     let per = settings.samples.div_ceil(brackets.len()).max(1);
     let mut picks: Vec<usize> = Vec::new();
@@ -412,6 +435,56 @@ pub fn recover_response(
     let values: [Vec<f64>; 3] = std::array::from_fn(|_| solved.next().unwrap_or_default());
     let codes = (0..n).map(|z| z as f64 / top).collect();
     ResponseCurve::new(codes, values).map_err(BracketError::Solve)
+}
+
+/// The smallest ratio of the longest to the shortest exposure (× gain) that says anything
+/// about a response curve: brackets closer than this (about 1/7 stop) are the same picture.
+pub const MIN_EXPOSURE_SPAN: f64 = 1.1;
+
+/// Checks that the brackets can be what their exposures say: they span at least
+/// [`MIN_EXPOSURE_SPAN`], and a longer exposure is never darker (its mean code lower by more
+/// than half a code of 8 bits) than a shorter one. Exposures listed in another order than the
+/// images gave a decreasing curve, and two nearly equal ones a flat curve, both written without
+/// a word.
+fn check_exposure_order(brackets: &[Bracket]) -> Result<(), BracketError> {
+    let exposure = |b: &Bracket| b.exposure_s * b.gain;
+    let mut order: Vec<usize> = (0..brackets.len()).collect();
+    order.sort_by(|&a, &b| exposure(&brackets[a]).total_cmp(&exposure(&brackets[b])));
+    let (shortest, longest) = (order[0], order[order.len() - 1]);
+    let span = exposure(&brackets[longest]) / exposure(&brackets[shortest]);
+    if span < MIN_EXPOSURE_SPAN {
+        return Err(BracketError::Settings(format!(
+            "the exposures span only {span:.6}× (bracket {} at {} s to bracket {} at {} s): \
+             brackets this close say nothing about the curve; shoot them 1–2 stops apart",
+            shortest + 1,
+            exposure(&brackets[shortest]),
+            longest + 1,
+            exposure(&brackets[longest])
+        )));
+    }
+    let mean_code = |b: &Bracket| {
+        let sum: f64 = (b.image.pixels.iter())
+            .map(|p| f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2]))
+            .sum();
+        sum / (3 * b.image.pixels.len()) as f64
+    };
+    let means: Vec<f64> = brackets.iter().map(mean_code).collect();
+    for pair in order.windows(2) {
+        let (shorter, longer) = (pair[0], pair[1]);
+        if exposure(&brackets[longer]) > exposure(&brackets[shorter])
+            && means[longer] < means[shorter] - 0.5 / 255.0
+        {
+            return Err(BracketError::Order {
+                shorter: shorter + 1,
+                shorter_exposure: exposure(&brackets[shorter]),
+                shorter_mean: means[shorter],
+                longer: longer + 1,
+                longer_exposure: exposure(&brackets[longer]),
+                longer_mean: means[longer],
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Solves A x = b for symmetric positive definite A (row-major m×m, its lower triangle
