@@ -268,9 +268,9 @@ impl Client {
                 *unread = 0..n;
             },
             Transport::JsonLines { reader } => {
-                // A line is one message: at most MAX_MESSAGE_LEN bytes and its newline, so a
-                // server that never ends its line cannot grow this buffer without bound.
-                let limit = protocol::MAX_MESSAGE_LEN as u64 + 2;
+                // A line is one message: at most MAX_JSON_MESSAGE_LEN bytes and its newline, so
+                // a server that never ends its line cannot grow this buffer without bound.
+                let limit = protocol::MAX_JSON_MESSAGE_LEN as u64 + 2;
                 let mut line = String::new();
                 let read = reader
                     .by_ref()
@@ -281,7 +281,10 @@ impl Client {
                     return Ok(None);
                 }
                 if read as u64 == limit && !line.ends_with('\n') {
-                    return Err(protocol_error(ProtocolError::Oversized { len: limit }));
+                    return Err(protocol_error(ProtocolError::OversizedJson {
+                        len: limit,
+                        limit: protocol::MAX_JSON_MESSAGE_LEN,
+                    }));
                 }
                 protocol::parse_json_message(line.trim_end())
                     .map(Some)

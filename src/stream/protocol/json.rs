@@ -155,10 +155,11 @@ pub fn request_to_json(request: &Request) -> String {
     to_json(&JsonEnvelope::Subscribe(request))
 }
 
-pub(super) fn check_json_len(text: &str) -> Result<(), ProtocolError> {
-    if text.len() > MAX_MESSAGE_LEN {
-        return Err(ProtocolError::Oversized {
+pub(super) fn check_json_len(text: &str, limit: usize) -> Result<(), ProtocolError> {
+    if text.len() > limit {
+        return Err(ProtocolError::OversizedJson {
             len: text.len() as u64,
+            limit,
         });
     }
     Ok(())
@@ -167,7 +168,7 @@ pub(super) fn check_json_len(text: &str) -> Result<(), ProtocolError> {
 /// Parses a client's JSON request, `{"subscribe": {...}}`. Unknown fields, unknown
 /// representation or format names, and text longer than [`MAX_MESSAGE_LEN`] are errors.
 pub fn parse_json_request(text: &str) -> Result<Request, ProtocolError> {
-    check_json_len(text)?;
+    check_json_len(text, MAX_MESSAGE_LEN)?;
     match serde_json::from_str::<JsonRequest>(text) {
         Ok(JsonRequest::Subscribe(request)) => Ok(request),
         Err(e) => Err(ProtocolError::Json(
@@ -210,7 +211,7 @@ fn request_problem(text: &str) -> Option<String> {
 /// `lights`), an ASG frame (has `lobes`), `{"error":…}`, `{"goodbye":…}` or
 /// `{"subscribe":…}`. Frame values must be finite (and lobes valid, as in binary frames).
 pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
-    check_json_len(text)?;
+    check_json_len(text, MAX_JSON_MESSAGE_LEN)?;
     let value: serde_json::Value =
         serde_json::from_str(text).map_err(|e| ProtocolError::Json(e.to_string()))?;
     let json_err = |e: serde_json::Error| ProtocolError::Json(e.to_string());

@@ -87,6 +87,13 @@ pub const ASG_RECORD_LEN: usize = 52;
 pub const SUBSCRIBE_BODY_LEN: usize = 8;
 /// The largest accepted value of the length prefix (bytes after it): 1 MiB.
 pub const MAX_MESSAGE_LEN: usize = 1 << 20;
+/// The longest JSON message a server sends (one text message or JSON line), and so the longest
+/// a client accepts: 8 MiB. JSON spends about four times the bytes of the binary form, so a
+/// frame of [`MAX_FRAME_LIGHTS`] lights, [`MAX_FRAME_LOBES`] lobes or
+/// [`MAX_FRAME_COEFFICIENTS`] coefficients, at their longest numbers, takes 3.9–4.6 MB (tested);
+/// under 1 MiB (what a client may send) a daemon of more than about 8,000 lights sent JSON
+/// frames its own client refused.
+pub const MAX_JSON_MESSAGE_LEN: usize = 8 << 20;
 /// The most lights one frame message can carry within [`MAX_MESSAGE_LEN`] (32767).
 pub const MAX_FRAME_LIGHTS: usize = (MAX_MESSAGE_LEN - 8 - FRAME_FIXED_LEN) / LIGHT_RECORD_LEN;
 // The largest frame fits in a message, one more light would not.
@@ -433,6 +440,15 @@ pub enum ProtocolError {
         /// The length found.
         len: u64,
     },
+    /// JSON text longer than its limit ([`MAX_MESSAGE_LEN`] from a client,
+    /// [`MAX_JSON_MESSAGE_LEN`] from a server).
+    #[error("JSON message of {len} bytes or more exceeds the maximum of {limit} bytes")]
+    OversizedJson {
+        /// The length found (at least).
+        len: u64,
+        /// The limit.
+        limit: usize,
+    },
     /// The lengths inside a message disagree with each other or with the message type.
     #[error("malformed {kind} message: {reason}")]
     Inconsistent {
@@ -514,7 +530,9 @@ impl ProtocolError {
             | ProtocolError::Truncated { .. } => code::MALFORMED,
             ProtocolError::UnsupportedVersion { .. } => code::UNSUPPORTED_VERSION,
             ProtocolError::UnknownType { .. } => code::UNKNOWN_TYPE,
-            ProtocolError::Oversized { .. } => code::TOO_LARGE,
+            ProtocolError::Oversized { .. } | ProtocolError::OversizedJson { .. } => {
+                code::TOO_LARGE
+            }
             ProtocolError::UnknownRepresentation { .. }
             | ProtocolError::UnknownFormat { .. }
             | ProtocolError::Json(_) => code::BAD_REQUEST,
@@ -615,6 +633,73 @@ mod tests {
             rgb: [power, power * 0.5, power * 0.25],
             solid_angle: 0.01,
         }
+    }
+
+    /// The largest frames a server may send, at their longest numbers (f32's longest
+    /// shortest-round-trip forms, the largest ids, seq and time), fit [`MAX_JSON_MESSAGE_LEN`]
+    /// in JSON, and parse back: a client accepts whatever a server sends.
+    #[test]
+    fn the_largest_frames_fit_the_json_limit() {
+        let long = -1.175_494_4e-38_f32; // "-1.1754944e-38"
+                                         // unit vectors with two such components
+        let (axis, tangent) = ([long, long, -1.0], [-1.0, long, -long]);
+        let longest = |text: String| {
+            assert!(text.len() <= MAX_JSON_MESSAGE_LEN, "{} bytes", text.len());
+            if let Err(e) = parse_json_message(&text) {
+                panic!("{e}");
+            }
+            text.len()
+        };
+        let lights = LightFrame {
+            seq: u64::MAX,
+            time: f64::MAX,
+            lights: (0..MAX_FRAME_LIGHTS as u32)
+                .map(|i| Light {
+                    id: u32::MAX - i,
+                    dir: axis,
+                    rgb: [f32::MAX / 3.0; 3],
+                    solid_angle: long.abs(),
+                })
+                .rev()
+                .collect(),
+        };
+        let lobes = AsgSet {
+            seq: u64::MAX,
+            time: f64::MAX,
+            lobes: (0..MAX_FRAME_LOBES as u32)
+                .map(|i| AsgLobe {
+                    id: u32::MAX - i,
+                    axis,
+                    tangent,
+                    lambda: long.abs(),
+                    mu: long.abs(),
+                    rgb: [long.abs(); 3],
+                    integral: long.abs(),
+                })
+                .rev()
+                .collect(),
+        };
+        let coefficients = WaveletFrame {
+            seq: u64::MAX,
+            time: f64::MAX,
+            set: WaveletSet {
+                basis: Basis::Daubechies(4),
+                side: 1 << 15,
+                levels: 15,
+                coefficients: (0..MAX_FRAME_COEFFICIENTS as u32)
+                    .map(|i| ((1 << 30) - 1 - i, [long; 3]))
+                    .rev()
+                    .collect(),
+            },
+        };
+        let sizes = [
+            longest(frame_to_json(&lights, None, false)),
+            longest(asg_frame_to_json(&lobes, None, false)),
+            longest(wavelet_frame_to_json(&coefficients, None, false)),
+        ];
+        eprintln!("largest JSON frames (lights, ASG, wavelet): {sizes:?} bytes");
+        // Well past what a client may send (1 MiB), so the limit is needed.
+        assert!(sizes.iter().all(|&n| n > 2 * MAX_MESSAGE_LEN), "{sizes:?}");
     }
 
     fn decode_all(bytes: &[u8]) -> Vec<Message> {
