@@ -814,6 +814,21 @@ fn json_lines_and_stray_clients_get_errors_naming_the_problem() {
     assert!(message.contains("expected {\"subscribe\""), "{message}");
     let http = raw_exchange(tcp, b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", false);
     assert_eq!(error_code(&http), Some(code::MALFORMED), "{http:?}");
+    // Bytes after the subscribe line in the same packet are answered in the format the line
+    // asks for, as when they come later (a binary-asking client got a JSON error 7).
+    let binary = raw_exchange(
+        tcp,
+        b"{\"subscribe\":{\"format\":\"binary\"}}\nextra",
+        false,
+    );
+    assert_eq!(
+        error_code(&binary),
+        Some(code::UNEXPECTED_MESSAGE),
+        "{binary:?}"
+    );
+    let (c, message) = json_error(tcp, b"{\"subscribe\":{}}\nextra\n");
+    assert_eq!(c, code::UNEXPECTED_MESSAGE, "{message}");
+    assert!(message.contains("after the subscribe"), "{message}");
     daemon.shutdown().unwrap();
 }
 

@@ -1578,11 +1578,11 @@ impl Connection {
         }
         let mut decoder = Decoder::new();
         let mut buf = vec![0u8; 4096];
-        let request = match self
+        let (request, followed) = match self
             .stream_handshake(reader, &mut decoder, &mut buf, dialect)
             .await
         {
-            Ok(request) => request,
+            Ok(subscribe) => subscribe,
             Err(close) => return close,
         };
         // Frames and the closing message (an error 6 for the representation included) follow
@@ -1598,8 +1598,12 @@ impl Connection {
         };
         self.log_subscribed(&request);
         // Bytes that came with the subscribe are input after it.
-        if subscribed_binary && decoder.buffered() > 0 {
-            return self.unexpected_input(&mut decoder);
+        if followed {
+            if subscribed_binary {
+                return self.unexpected_input(&mut decoder);
+            }
+            let text = "unexpected bytes after the subscribe line; clients send nothing more";
+            return self.refused(error_code::UNEXPECTED_MESSAGE, text.to_owned());
         }
         let encoding = match request.format {
             Format::Binary => Encoding::Binary,
@@ -1708,14 +1712,15 @@ impl Connection {
         }
     }
 
-    /// Reads the subscribe: a binary message, or one JSON line.
+    /// Reads the subscribe: a binary message, or one JSON line; with whether more bytes came
+    /// with it (a binary subscribe leaves them in `decoder`).
     async fn stream_handshake<R: AsyncRead + Unpin>(
         &self,
         reader: &mut R,
         decoder: &mut Decoder,
         buf: &mut [u8],
         dialect: &mut Dialect,
-    ) -> Result<Request, Close> {
+    ) -> Result<(Request, bool), Close> {
         let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
         let mut shutdown = self.shutdown.clone();
         let mut line: Vec<u8> = Vec::new();
@@ -1761,23 +1766,26 @@ impl Connection {
                     return Err(self.refused(error_code::TOO_LARGE, text));
                 }
                 let Some(end) = end else { continue };
-                if end + 1 < bytes.len() {
-                    let text = "unexpected bytes after the subscribe line".to_owned();
-                    return Err(self.refused(error_code::UNEXPECTED_MESSAGE, text));
-                }
+                // Bytes after the line are input after the subscribe, answered in the format
+                // it asks for (as when they come in a later packet): the caller is told.
+                let followed = end + 1 < bytes.len();
                 let Ok(text) = std::str::from_utf8(&line) else {
                     let text = "the subscribe line is not UTF-8".to_owned();
                     return Err(self.refused(error_code::MALFORMED, text));
                 };
-                return protocol::parse_json_request(text.trim_end_matches('\r')).map_err(|e| {
-                    self.count_error(&e.to_string());
-                    e.into()
-                });
+                return protocol::parse_json_request(text.trim_end_matches('\r'))
+                    .map(|request| (request, followed))
+                    .map_err(|e| {
+                        self.count_error(&e.to_string());
+                        e.into()
+                    });
             }
             decoder.push(bytes);
             match decoder.next_message() {
                 Ok(None) => continue,
-                Ok(Some(Message::Subscribe(request))) => return Ok(request),
+                Ok(Some(Message::Subscribe(request))) => {
+                    return Ok((request, decoder.buffered() > 0))
+                }
                 Ok(Some(_)) => {
                     let text = "the first message must be a subscribe".to_owned();
                     return Err(self.refused(error_code::UNEXPECTED_MESSAGE, text));
