@@ -498,7 +498,10 @@ impl FrameSource for ReplaySource {
         frame.time = entry.time;
         if self.pacing == Pacing::Original {
             let (start, first_time) = *self.started.get_or_insert((Instant::now(), entry.time));
-            crate::capture::sleep_until(start, (entry.time - first_time).max(0.0));
+            if !crate::capture::sleep_until(start, (entry.time - first_time).max(0.0)) {
+                // Stopped while waiting: the frame is not due yet and is not replayed.
+                return Ok(None);
+            }
         }
         Ok(Some(frame))
     }

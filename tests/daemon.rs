@@ -1337,12 +1337,14 @@ fn a_shutdown_ends_the_wait_for_a_slow_frame() {
     });
     let (done_tx, done_rx) = std::sync::mpsc::sync_channel(1);
     let _stopper = spawn("stopper", move || {
-        let _ = done_tx.send(daemon.shutdown().is_ok());
+        let _ = done_tx.send(daemon.shutdown().map(|s| s.pipeline.frames_captured).ok());
     });
+    // The frame waited for is not delivered: its capture time is 1,000 s ahead (it was
+    // released at once, with that time).
     assert_eq!(
         done_rx.recv_timeout(TIMEOUT),
-        Ok(true),
-        "the shutdown waited for the frame"
+        Ok(Some(1)),
+        "the shutdown waited for the frame, or delivered it"
     );
 }
 

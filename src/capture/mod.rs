@@ -177,24 +177,28 @@ pub const SLEEP_SLICE: std::time::Duration = std::time::Duration::from_millis(50
 /// Sleeps until `time_s` seconds after `start` (no sleep when that has passed), or until the
 /// thread's stop test ([`interrupt_sleeps_when`]) is true. A time that no
 /// [`Instant`](std::time::Instant) can hold — only reachable with a rate below [`MIN_FPS`] or
-/// after centuries of frames — is treated as due now rather than panicking.
-pub(crate) fn sleep_until(start: std::time::Instant, time_s: f64) {
+/// after centuries of frames — is treated as due now rather than panicking. Returns whether
+/// the time came: `false` when the stop test ended the wait first, and the frame waited for
+/// is then not to be delivered (it would carry a capture time still in the future).
+#[must_use]
+pub(crate) fn sleep_until(start: std::time::Instant, time_s: f64) -> bool {
     let due = std::time::Duration::try_from_secs_f64(time_s)
         .ok()
         .and_then(|offset| start.checked_add(offset));
     let Some(due) = due else {
-        return;
+        return true;
     };
     SLEEP_STOP.with(|slot| {
         let stop = slot.borrow();
         while let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
             match stop.as_ref() {
-                None => return std::thread::sleep(wait),
-                Some(stop) if stop() => return,
+                None => std::thread::sleep(wait),
+                Some(stop) if stop() => return false,
                 Some(_) => std::thread::sleep(wait.min(SLEEP_SLICE)),
             }
         }
-    });
+        true
+    })
 }
 
 /// Opens the frame source a validated [`Config`](crate::config::Config) describes: the

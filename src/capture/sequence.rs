@@ -175,7 +175,9 @@ impl FrameSource for SequenceSource {
         frame.time = seq as f64 / fps;
         if self.options.fps.is_some() {
             let start = *self.start.get_or_insert_with(Instant::now);
-            super::sleep_until(start, frame.time);
+            if !super::sleep_until(start, frame.time) {
+                return Ok(None);
+            }
         }
         Ok(Some(frame))
     }

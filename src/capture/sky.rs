@@ -975,7 +975,9 @@ impl FrameSource for SkySource {
         let time_s = self.seq as f64 / rate;
         if self.options.fps.is_some() {
             let start = *self.start.get_or_insert_with(Instant::now);
-            super::sleep_until(start, time_s);
+            if !super::sleep_until(start, time_s) {
+                return Ok(None);
+            }
         }
         let mut frame = render_with_geometry(&self.geometry, &self.options, time_s, true);
         frame.seq = self.seq;
