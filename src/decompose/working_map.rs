@@ -20,7 +20,7 @@
 
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
-use glam::{Vec3A, Vec4};
+use glam::{DVec3, Vec3A, Vec4};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
@@ -435,7 +435,11 @@ impl Resampler {
             .for_each(|(y, (((target, solid_angle), direction), omegas))| {
                 for x in 0..row {
                     let omega = omegas[x];
-                    let dir = projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
+                    let mut dir =
+                        projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
+                    if dir.is_none() && omega > 0.0 {
+                        dir = rim_direction(projection, sw, sh, x, y);
+                    }
                     let px = dir.and_then(|d| {
                         Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
                     });
@@ -998,6 +1002,33 @@ fn luminance_sum(luminance: &[f32]) -> f64 {
         }
     }
     partial.iter().sum::<f64>() + rest.iter().map(|&l| f64::from(l)).sum::<f64>()
+}
+
+/// The direction of the part of pixel (x, y) inside the image circle (or the field of view)
+/// when its centre is outside: the normalised mean of the directions of the sub-pixel points
+/// that are inside, on grids of 4×4, 16×16 and 64×64 points until one is. A rim pixel whose
+/// centre is just outside still has a solid angle; without a direction it was left out, and
+/// with it its energy (a sun on the rim vanished; 1.5% of a uniform orthographic 180° frame).
+/// `None` only for a sliver no 64×64 point falls in.
+fn rim_direction(projection: Projection, sw: u32, sh: u32, x: usize, y: usize) -> Option<DVec3> {
+    for n in [4u32, 16, 64] {
+        let mut sum = DVec3::ZERO;
+        for j in 0..n {
+            for i in 0..n {
+                let (u, v) = (
+                    x as f64 + (f64::from(i) + 0.5) / f64::from(n),
+                    y as f64 + (f64::from(j) + 0.5) / f64::from(n),
+                );
+                if let Some(d) = projection.pixel_to_direction(sw, sh, u, v) {
+                    sum += d;
+                }
+            }
+        }
+        if let Some(d) = sum.try_normalize() {
+            return Some(d);
+        }
+    }
+    None
 }
 
 #[cfg(test)]
