@@ -1484,6 +1484,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     let mut stats_file =
         std::io::BufWriter::new(cli_output::create(&stats_path, "--out", &inputs)?);
     let mut controller = None;
+    let mut warned_budget_cap = false;
     let mut exposure = args.exposure;
     let limit = args.frames.filter(|&n| n > 0);
     let mut done = 0u64;
@@ -1501,6 +1502,16 @@ fn render(args: &RenderArgs) -> Result<()> {
             })
         });
         let count = ctl.as_ref().map_or(all.len(), |c| c.count());
+        if ctl.is_some() && all.len() > envlight::decompose::MAX_POINTS && !warned_budget_cap {
+            warned_budget_cap = true;
+            tracing::warn!(
+                "frame {} has {} lights; --budget-ms draws at most {} of them (the first by id, \
+                 a prefix of the progressive set; without --budget-ms every light is drawn)",
+                lights.seq,
+                all.len(),
+                envlight::decompose::MAX_POINTS
+            );
+        }
         let (mut image, stats) = match (&mut fitter, &env) {
             (Some(fitter), Some(frame)) => {
                 let fit = fitter
