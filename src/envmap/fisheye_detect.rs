@@ -106,7 +106,22 @@ pub fn detect_image_circle(
     if !(level > bg && level.is_finite()) {
         return Err(DetectError::NoContrast);
     }
-    let thr = bg + 0.05 * (level - bg);
+    // 5% of the way from the surround to the image, but clear of the surround's noise: with a
+    // sensor's 1–3 codes of dark noise, 5% of the way lay within it and the first and last
+    // pixels above it on a row were noise, not the rim. The noise is measured on the pixels
+    // below half way (the surround, and dark parts of the image): their median plus six
+    // robust standard deviations (1.4826 × the median absolute deviation).
+    let half = bg + 0.5 * (level - bg);
+    let dark = &sorted[..sorted.partition_point(|&y| y < half)];
+    let noise_floor = if dark.len() >= 16 {
+        let median = percentile(dark, 0.5);
+        let mut deviations: Vec<f32> = dark.iter().map(|&y| (y - median).abs()).collect();
+        deviations.sort_by(f32::total_cmp);
+        median + 6.0 * 1.4826 * percentile(&deviations, 0.5)
+    } else {
+        bg
+    };
+    let thr = (bg + 0.05 * (level - bg)).max(noise_floor.min(half));
     // coarse circle from the mask
     let (mut sx, mut sy, mut n) = (0.0f64, 0.0f64, 0usize);
     for y in 0..h {
@@ -428,6 +443,53 @@ mod tests {
         assert!((c.center[0] - 40.3).abs() < 0.05, "{c:?}");
         assert!((c.center[1] - 33.6).abs() < 0.05, "{c:?}");
         assert!((c.radius - 27.7).abs() < 0.05, "{c:?}");
+    }
+
+    /// A surround with a sensor's dark noise (black level 16 of 255, σ = 1, 2 and 3 codes,
+    /// quantised; the image circle at 100 codes) is found within 0.1 pixel: the threshold
+    /// lay inside the noise, and rows began and ended at noise pixels (rms residual 5 px).
+    #[test]
+    fn a_noisy_surround_is_not_the_rim() {
+        let (w, h, centre, radius) = (320u32, 240u32, (161.3, 118.7), 100.2);
+        let mut state = 3u64;
+        let mut gauss = || {
+            // Box–Muller on a SplitMix-like generator
+            let mut uniform = || {
+                state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+                let mut z = state;
+                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+                ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let (u, v) = (uniform().max(1e-12), uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        for sigma in [1.0, 2.0, 3.0] {
+            let img: Vec<[f32; 3]> = (0..w * h)
+                .map(|i| {
+                    let (x, y) = (f64::from(i % w), f64::from(i / w));
+                    // coverage of the pixel by the disc, 4×4 samples
+                    let inside = (0..16)
+                        .filter(|k| {
+                            let (sx, sy) = (
+                                x + (f64::from(k % 4) + 0.5) / 4.0,
+                                y + (f64::from(k / 4) + 0.5) / 4.0,
+                            );
+                            (sx - centre.0).hypot(sy - centre.1) < radius
+                        })
+                        .count() as f64
+                        / 16.0;
+                    let code = (16.0 + inside * 84.0 + sigma * gauss())
+                        .round()
+                        .clamp(0.0, 255.0);
+                    [(code / 255.0) as f32; 3]
+                })
+                .collect();
+            let c = detect_image_circle(&img, w, h).unwrap_or_else(|e| panic!("σ {sigma}: {e}"));
+            assert!((c.center[0] - centre.0).abs() < 0.1, "σ {sigma}: {c:?}");
+            assert!((c.center[1] - centre.1).abs() < 0.1, "σ {sigma}: {c:?}");
+            assert!((c.radius - radius).abs() < 0.1, "σ {sigma}: {c:?}");
+        }
     }
 
     /// A disc of 0.7 on a 0.01 surround, `w`×`h`, pixel centres within `radius` of `centre`.
