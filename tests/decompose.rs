@@ -1163,13 +1163,7 @@ fn fisheye_rim_pixels_keep_their_energy() {
         let (w, h) = (320u32, 240u32);
         let frame = HdrFrame::new(w, h, vec![[1.0; 3]; (w * h) as usize], projection).unwrap();
         let integral = frame_integral(&frame)[0];
-        let sum: f64 = Decomposer::new(raw_settings(256))
-            .unwrap()
-            .decompose(&frame)
-            .lights
-            .iter()
-            .map(|l| f64::from(l.rgb[0]))
-            .sum();
+        let sum = red_sum(&frame, 256);
         let two_pi = 2.0 * std::f64::consts::PI;
         assert!(
             (integral - two_pi).abs() < 1e-3 * two_pi,
@@ -1192,16 +1186,21 @@ fn fisheye_rim_pixels_keep_their_energy() {
     )
     .unwrap();
     let integral = frame_integral(&frame)[0];
-    let sum: f64 = Decomposer::new(raw_settings(64))
-        .unwrap()
-        .decompose(&frame)
-        .lights
-        .iter()
-        .map(|l| f64::from(l.rgb[0]))
-        .sum();
+    let sum = red_sum(&frame, 64);
     assert!(integral > 10.0, "{integral}");
     assert!(
         (sum - integral).abs() < 1e-3 * integral,
         "{sum} of {integral}"
     );
+}
+
+/// The red power of `frame`'s `n` lights (no filter, no merge).
+fn red_sum(frame: &HdrFrame, n: usize) -> f64 {
+    Decomposer::new(raw_settings(n))
+        .unwrap()
+        .decompose(frame)
+        .lights
+        .iter()
+        .map(|l| f64::from(l.rgb[0]))
+        .sum()
 }

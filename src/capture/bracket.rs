@@ -490,8 +490,8 @@ fn check_exposure_order(brackets: &[Bracket]) -> Result<(), BracketError> {
 /// Solves A x = b for symmetric positive definite A (row-major m×m, its lower triangle
 /// overwritten by the Cholesky factor L). `None` if A is not positive definite.
 ///
-/// Row-oriented (Cholesky–Crout): column j of L is L[i][j] = (A[i][j] − L[i][..j]·L[j][..j]) /
-/// L[j][j] for the rows i below j, each a dot product of two contiguous row prefixes; the rows
+/// Row-oriented (Cholesky–Crout): column j of L is `L[i][j] = (A[i][j] − L[i][..j]·L[j][..j]) /
+/// L[j][j]` for the rows i below j, each a dot product of two contiguous row prefixes; the rows
 /// of a column are independent, so a large column's rows are shared out over rayon's threads
 /// (the result does not depend on how: each entry is one thread's dot product).
 fn cholesky_solve(a: &mut [f64], b: &[f64], m: usize) -> Option<Vec<f64>> {
