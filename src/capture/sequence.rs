@@ -23,8 +23,9 @@
 //! not skipped). Looped mode starts again at the first file forever; otherwise the source
 //! returns `Ok(None)` after the last file (and on every call after that).
 //!
-//! A file that fails to read or has the wrong size returns its error and is skipped: the next
-//! call goes on with the following file (and `seq` is not used up by the failed one).
+//! A file that fails to read or has the wrong size returns its error; a caller that calls again
+//! goes on with the following file (`seq` is not used up by the failed one). `envlight
+//! decompose` does not: a bad frame is fatal there (README.md).
 
 use super::image_file::{read_hdr_image, ImageFormat};
 use super::{CaptureError, FrameSource};
