@@ -201,13 +201,19 @@ fn options_are_accepted() {
 /// `envlight decompose` of `frames` frames of a 64×32 built-in sky into `lights` lights with
 /// `options`; it must succeed.
 fn decompose_small_sky(frames: u32, lights: u32, options: &[&str]) -> Output {
+    let o = run_small_sky(frames, lights, options);
+    assert!(o.status.success(), "{options:?}: {}", stderr(&o));
+    o
+}
+
+/// `envlight decompose` of `frames` frames of a 64×32 sky into `lights` lights, with
+/// `options`; success or not.
+fn run_small_sky(frames: u32, lights: u32, options: &[&str]) -> Output {
     let (frames, lights) = (frames.to_string(), lights.to_string());
     let mut args = vec!["decompose", "--frames", &frames, "--lights", &lights];
     args.extend_from_slice(options);
     args.extend_from_slice(&["--sky-size", "64x32"]);
-    let o = envlight(&args);
-    assert!(o.status.success(), "{args:?}: {}", stderr(&o));
-    o
+    envlight(&args)
 }
 
 /// The run's log (stderr) contains `text`.
@@ -665,17 +671,7 @@ fn latest_file_holds_only_the_newest_frame() {
     assert_eq!(frames[0]["seq"].as_u64(), Some(2));
     assert!(!dir.path().join("lights.json.tmp").exists());
 
-    let o = envlight(&[
-        "decompose",
-        "--frames",
-        "1",
-        "--lights",
-        "4",
-        "--sky-size",
-        "64x32",
-        "--latest",
-        "/nonexistent-dir/lights.json",
-    ]);
+    let o = run_small_sky(1, 4, &["--latest", "/nonexistent-dir/lights.json"]);
     assert_eq!(o.status.code(), Some(1));
     assert!(
         stderr(&o).contains("/nonexistent-dir/lights.json"),
@@ -696,19 +692,7 @@ fn latest_file_holds_only_the_newest_frame() {
         ("kept.json", "kept.json"),
     ] {
         let (out, latest) = (dir.path().join(out), dir.path().join(latest));
-        let o = envlight(&[
-            "decompose",
-            "--frames",
-            "2",
-            "--lights",
-            "4",
-            "--sky-size",
-            "64x32",
-            "--out",
-            s(&out),
-            "--latest",
-            s(&latest),
-        ]);
+        let o = run_small_sky(2, 4, &["--out", s(&out), "--latest", s(&latest)]);
         assert_eq!(o.status.code(), Some(1), "{out:?} {latest:?}");
         assert!(
             stderr(&o).contains("the newest frame would replace the stream"),
@@ -723,17 +707,7 @@ fn latest_file_holds_only_the_newest_frame() {
     for name in ["a.json", "b.json", "b.json.tmp", "c.json"] {
         assert!(!dir.path().join(name).exists(), "{name} was written");
     }
-    let o = envlight(&[
-        "decompose",
-        "--frames",
-        "1",
-        "--lights",
-        "4",
-        "--sky-size",
-        "64x32",
-        "--latest",
-        s(&sub),
-    ]);
+    let o = run_small_sky(1, 4, &["--latest", s(&sub)]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
     assert!(!dir.path().join("sub.tmp").exists());

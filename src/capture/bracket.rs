@@ -319,30 +319,11 @@ pub fn recover_response(
             settings.samples
         )));
     }
-    let pixels = brackets[0].image.pixels.len();
-    if pixels == 0 {
+    if brackets[0].image.pixels.is_empty() {
         return Err(BracketError::Settings("the brackets have no pixels".into()));
     }
     check_exposure_order(brackets)?;
-    // sample positions: evenly spaced quantiles of each bracket's mean code
-    let per = settings.samples.div_ceil(brackets.len()).max(1);
-    let mut picks: Vec<usize> = Vec::new();
-    for b in brackets {
-        let mut order: Vec<(f32, usize)> = b
-            .image
-            .pixels
-            .iter()
-            .enumerate()
-            .map(|(i, p)| ((p[0] + p[1] + p[2]) / 3.0, i))
-            .collect();
-        order.sort_by(|a, b| a.0.total_cmp(&b.0));
-        for k in 0..per {
-            let q = (k as f64 + 0.5) / per as f64;
-            picks.push(order[((q * pixels as f64) as usize).min(pixels - 1)].1);
-        }
-    }
-    picks.sort_unstable();
-    picks.dedup();
+    let picks = sample_pixels(brackets, settings.samples);
     let ln_t: Vec<f64> = brackets
         .iter()
         .map(|b| (b.exposure_s * b.gain).ln())
@@ -435,6 +416,28 @@ pub fn recover_response(
     let values: [Vec<f64>; 3] = std::array::from_fn(|_| solved.next().unwrap_or_default());
     let codes = (0..n).map(|z| z as f64 / top).collect();
     ResponseCurve::new(codes, values).map_err(BracketError::Solve)
+}
+
+/// The sample pixels of [`recover_response`]: `samples` spread over the brackets, each
+/// bracket's at evenly spaced quantiles of its mean code; sorted, without repeats.
+fn sample_pixels(brackets: &[Bracket], samples: usize) -> Vec<usize> {
+    let pixels = brackets[0].image.pixels.len();
+    let per = samples.div_ceil(brackets.len()).max(1);
+    let mut picks: Vec<usize> = Vec::new();
+    for b in brackets {
+        let mut order: Vec<(f32, usize)> = (b.image.pixels.iter())
+            .enumerate()
+            .map(|(i, p)| ((p[0] + p[1] + p[2]) / 3.0, i))
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for k in 0..per {
+            let q = (k as f64 + 0.5) / per as f64;
+            picks.push(order[((q * pixels as f64) as usize).min(pixels - 1)].1);
+        }
+    }
+    picks.sort_unstable();
+    picks.dedup();
+    picks
 }
 
 /// The smallest ratio of the longest to the shortest exposure (× gain) that says anything
@@ -629,25 +632,10 @@ mod tests {
         };
         let curve = recover_response(&brackets, settings).unwrap();
 
-        // The same samples as recover_response picks (evenly spaced quantiles per bracket).
+        // The same samples as recover_response.
         let n = settings.levels;
         let top = (n - 1) as f64;
-        let pixels = (w * h) as usize;
-        let per = settings.samples.div_ceil(brackets.len());
-        let mut picks = Vec::new();
-        for b in &brackets {
-            let mut order: Vec<(f32, usize)> = (b.image.pixels.iter())
-                .map(|p| (p[0] + p[1] + p[2]) / 3.0)
-                .zip(0..)
-                .collect();
-            order.sort_by(|a, b| a.0.total_cmp(&b.0));
-            for k in 0..per {
-                let q = (k as f64 + 0.5) / per as f64;
-                picks.push(order[((q * pixels as f64) as usize).min(pixels - 1)].1);
-            }
-        }
-        picks.sort_unstable();
-        picks.dedup();
+        let picks = sample_pixels(&brackets, settings.samples);
         let weight = |z: usize| z.min(n - 1 - z) as f64;
         let code = |b: &Bracket, p: usize, c: usize| {
             (f64::from(b.image.pixels[p][c]).clamp(0.0, 1.0) * top).round() as usize
