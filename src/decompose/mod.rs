@@ -1091,4 +1091,78 @@ mod tests {
         assert_eq!(lights_with(2), one);
         assert_eq!(lights_with(3), one);
     }
+
+    /// Inputs whose pixels are larger than a working pixel (tiny frames, the rim of a
+    /// stereographic lens near 360°): the lights' regions still tile the sphere (solid angles
+    /// summing to 4π, not more), every light of a uniform map gets its share of power (none is
+    /// left empty beside a lump), the lights sum to the integral, and a sun in such a frame
+    /// keeps the sums. Large pixels are cut into sub-pixels (`working_map::PixelPart`) and a
+    /// concentrated working pixel's input pixels share its solid angle.
+    #[test]
+    fn large_input_pixels_keep_solid_angles_and_power() {
+        use crate::envmap::{FisheyeCalibration, FisheyeModel};
+        let stereo = Projection::Fisheye(FisheyeCalibration {
+            model: FisheyeModel::Stereographic,
+            fov_deg: 350.0,
+            ..FisheyeCalibration::default()
+        });
+        let fisheye = Projection::Fisheye(FisheyeCalibration::default());
+        let cases = [
+            (Projection::AngularMap, 16),
+            (fisheye, 16),
+            (fisheye, 50),
+            (fisheye, 200),
+            (stereo, 16),
+            (stereo, 64),
+            (stereo, 200),
+        ];
+        for (projection, side) in cases {
+            let uniform = HdrFrame::new(
+                side,
+                side,
+                vec![[1.0, 0.5, 0.25]; (side * side) as usize],
+                projection,
+            )
+            .unwrap();
+            // Suns at the zenith (where the working pixels are narrow wedges) and on the
+            // horizon (a fisheye's rim).
+            let sun = |row: u32| {
+                sky_with_sun(64, 32, (20, row), 1e5)
+                    .reprojected(projection, side, side)
+                    .unwrap()
+            };
+            let frames = [
+                ("uniform", uniform),
+                ("zenith sun", sun(0)),
+                ("rim sun", sun(15)),
+            ];
+            for (name, frame) in &frames {
+                let what = format!("{name} {projection:?} {side}x{side}");
+                let mut d = Decomposer::new(DecomposeSettings {
+                    lights: 256,
+                    filter_taps: None,
+                    ..DecomposeSettings::default()
+                })
+                .unwrap();
+                let lights = d.decompose(frame).lights;
+                let solid_angle: f64 = lights.iter().map(|l| f64::from(l.solid_angle)).sum();
+                assert!(
+                    (solid_angle - 4.0 * std::f64::consts::PI).abs() < 1e-5,
+                    "{what}: solid angles sum to {solid_angle}"
+                );
+                let truth = frame_integral(frame);
+                for c in 0..3 {
+                    let sum: f64 = lights.iter().map(|l| f64::from(l.rgb[c])).sum();
+                    assert!(
+                        (sum - truth[c]).abs() <= 1e-5 * truth[c],
+                        "{what}: {sum} {truth:?}"
+                    );
+                }
+                if *name == "uniform" {
+                    let dark = lights.iter().filter(|l| l.rgb[0] <= 0.0).count();
+                    assert_eq!(dark, 0, "{what}: {dark} lights without power");
+                }
+            }
+        }
+    }
 }

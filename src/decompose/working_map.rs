@@ -86,8 +86,35 @@ enum Plan {
         direction: Vec<[f32; 3]>,
         member_offsets: Vec<u32>,
         members: Vec<u32>,
+        /// The parts of the input pixels larger than a working pixel, sorted by working pixel
+        /// (those input pixels are in no run and have no members entry).
+        parts: Vec<PixelPart>,
     },
 }
+
+/// The share of one large input pixel that falls in one working pixel. An input pixel wider
+/// than a working pixel (a tiny image, the rim of a stereographic or orthographic lens) would
+/// put all its energy in the working pixel of its centre and leave its neighbours empty: the
+/// energy lumps, lights that land in the empty ones get none, and a lump big enough to be
+/// concentrated adds the input pixel's whole solid angle to a working pixel whose neighbours
+/// count theirs again. So such a pixel is cut into `s`×`s` sub-pixels (`s` from its angular
+/// size, [`split_factor`]) whose centres are binned like any pixel's, and its solid angle is
+/// shared equally among the sub-pixels inside the image; the sub-pixels of one working pixel
+/// make one part.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PixelPart {
+    /// Row-major index of the input pixel.
+    input: u32,
+    /// The working pixel.
+    target: u32,
+    solid_angle: f32,
+    /// A direction inside the working pixel: the normalised mean of the sub-pixel centres'
+    /// directions, or the first one's where the mean leaves the working pixel.
+    direction: [f32; 3],
+}
+
+/// Largest number of sub-pixels across one input pixel (64² sub-pixels).
+const MAX_SPLIT: usize = 64;
 
 /// Input pixels `start..end` (row-major indices) all go to working pixel `target`. Neighbouring
 /// input pixels mostly share a working pixel (a 1280×960 fisheye has about 44 input pixels per
@@ -308,12 +335,20 @@ impl Plan {
                 direction,
                 member_offsets,
                 members,
+                parts,
                 ..
             } => {
                 let range = member_offsets[idx] as usize..member_offsets[idx + 1] as usize;
                 for &i in &members[range] {
                     let i = i as usize;
                     f(i, solid_angle[i], direction[i]);
+                }
+                let first = parts.partition_point(|p| (p.target as usize) < idx);
+                for part in parts[first..]
+                    .iter()
+                    .take_while(|p| p.target as usize == idx)
+                {
+                    f(part.input as usize, part.solid_angle, part.direction);
                 }
             }
         }
@@ -423,37 +458,59 @@ impl Resampler {
         let mut target = vec![u32::MAX; n];
         let mut solid_angle = vec![0.0f32; n];
         let mut direction = vec![[0.0f32; 3]; n];
+        // A working pixel's height in θ: input pixels wider than half of it are split.
+        let step = PI / height as f64;
         // Rows in parallel on rayon's threads (a once-per-geometry cost; each pixel's entry is
         // the same whatever the number of threads).
         let row = sw as usize;
-        target
+        let parts_of_rows: Vec<Vec<PixelPart>> = target
             .par_chunks_mut(row)
             .zip(solid_angle.par_chunks_mut(row))
             .zip(direction.par_chunks_mut(row))
             .zip(omegas.par_chunks(row))
             .enumerate()
-            .for_each(|(y, (((target, solid_angle), direction), omegas))| {
+            .map(|(y, (((target, solid_angle), direction), omegas))| {
+                let mut parts = Vec::new();
                 for x in 0..row {
                     let omega = omegas[x];
+                    if omega.is_nan() || omega <= 0.0 {
+                        continue;
+                    }
+                    let split = split_factor(projection, (sw, sh), (x, y), omega, step);
+                    if split > 1 {
+                        let pixel = SplitPixel {
+                            projection,
+                            source: (sw, sh),
+                            working: (width, height),
+                            at: (x, y),
+                            solid_angle: omega,
+                            split,
+                        };
+                        let before = parts.len();
+                        pixel.parts(&mut parts);
+                        if parts.len() > before {
+                            continue;
+                        }
+                    }
                     let mut dir =
                         projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
-                    if dir.is_none() && omega > 0.0 {
+                    if dir.is_none() {
                         dir = rim_direction(projection, sw, sh, x, y);
                     }
-                    let px = dir.and_then(|d| {
-                        Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
-                    });
-                    if let (Some((px, py)), Some(d)) = (px, dir) {
-                        if omega > 0.0 {
-                            let ix = (px as usize).min(width - 1);
-                            let iy = (py as usize).min(height - 1);
-                            target[x] = (iy * width + ix) as u32;
+                    if let Some(d) = dir {
+                        if let Some(t) = working_pixel_of(d, width, height) {
+                            target[x] = t;
                             solid_angle[x] = omega as f32;
                             direction[x] = d.as_vec3().to_array();
                         }
                     }
                 }
-            });
+                parts
+            })
+            .collect();
+        let mut parts: Vec<PixelPart> = parts_of_rows.into_iter().flatten().collect();
+        // Stable: a working pixel's parts stay in input order.
+        parts.sort_by_key(|p| p.target);
         // Working pixel → its input pixels (compressed rows).
         let mut counts = vec![0u32; width * height + 1];
         for &t in target.iter().filter(|&&t| t != u32::MAX) {
@@ -476,6 +533,7 @@ impl Resampler {
             direction,
             member_offsets,
             members,
+            parts,
         }
     }
 
@@ -543,7 +601,10 @@ impl Resampler {
                 self.arch.dispatch(args);
             }
             Plan::Table {
-                bands, solid_angle, ..
+                bands,
+                solid_angle,
+                parts,
+                ..
             } => {
                 let pixels = &frame.pixels;
                 if let Some(pool) = pool {
@@ -557,7 +618,12 @@ impl Resampler {
                         }
                     });
                     // Each working pixel with input is owned by one band; the others stay 0,
-                    // as `new` made them.
+                    // as `new` made them, but those that only the parts of split pixels reach
+                    // (added below, to what is there).
+                    for part in parts {
+                        map.energy[part.target as usize] = [0.0; 3];
+                        map.luminance[part.target as usize] = 0.0;
+                    }
                     for (band, sums) in bands.iter().zip(band_sums.iter()) {
                         for ((&target, e), l) in
                             band.targets.iter().zip(&sums.energy).zip(&sums.luminance)
@@ -584,6 +650,8 @@ impl Resampler {
                         (*e, *l) = map_entry(*sum);
                     }
                 }
+                // After the runs' sums on either path, in one fixed order: the same bits.
+                add_parts(parts, pixels, &mut map.energy, &mut map.luminance);
             }
         }
         // Bad pixels (NaN, ±Inf, negative) should have been sanitised by the source. If any
@@ -622,8 +690,10 @@ impl Resampler {
             concentrated: &mut map.concentrated,
             threshold,
         });
+        let is_table = matches!(self.plan, Plan::Table { .. });
         for idx in flagged(&map.concentrated) {
             let pixel = idx as u32;
+            let first = map.fine.len();
             self.plan
                 .for_each_input(idx, map.width, sw, |i, solid_angle, dir| {
                     let clean = |v: f32| {
@@ -641,6 +711,14 @@ impl Resampler {
                         solid_angle,
                     });
                 });
+            // The input pixels binned by their centres cover their working pixel only roughly
+            // (more where they are large, less at an image circle's rim), and the working
+            // pixels beside it count their own solid angles: so its input pixels share its
+            // solid angle, in proportion to theirs, and the regions tile the sphere (their
+            // solid angles sum to 4π). The box filter's blocks are the working pixels exactly.
+            if is_table {
+                rescale_solid_angles(&mut map.fine[first..], map.row_solid_angle[idx / map.width]);
+            }
         }
         &self.map
     }
@@ -1002,6 +1080,140 @@ fn luminance_sum(luminance: &[f32]) -> f64 {
         }
     }
     partial.iter().sum::<f64>() + rest.iter().map(|&l| f64::from(l)).sum::<f64>()
+}
+
+/// The working pixel (row-major, of a `width`×`height` map) that direction `d` falls in.
+fn working_pixel_of(d: DVec3, width: usize, height: usize) -> Option<u32> {
+    let (px, py) = Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)?;
+    let ix = (px as usize).min(width - 1);
+    let iy = (py as usize).min(height - 1);
+    Some((iy * width + ix) as u32)
+}
+
+/// Into how many sub-pixels across input pixel (x, y) of solid angle `omega` is cut so that
+/// each is at most half a working pixel (`step` radians) across: 1 for pixels already that
+/// small. Its size is the larger of √Ω and its extents along its two axes (the angles between
+/// the directions at the midpoints of opposite edges, where both are in the image), so the
+/// long pixels at the rim of an orthographic lens are caught too.
+fn split_factor(
+    projection: Projection,
+    (sw, sh): (u32, u32),
+    (x, y): (usize, usize),
+    omega: f64,
+    step: f64,
+) -> usize {
+    let mean_size = omega.sqrt();
+    // Most pixels of camera frames are far smaller than a working pixel: no directions needed
+    // (this lets through pixels up to 3:1 elongated whose mean size is under step/6; a 1280×960
+    // equidistant frame's are step/7.5 at the default working size).
+    if mean_size < step / 6.0 {
+        return 1;
+    }
+    let (x0, y0) = (x as f64, y as f64);
+    let angle = |a: (f64, f64), b: (f64, f64)| match (
+        projection.pixel_to_direction(sw, sh, a.0, a.1),
+        projection.pixel_to_direction(sw, sh, b.0, b.1),
+    ) {
+        (Some(p), Some(q)) => p.angle_between(q),
+        _ => 0.0,
+    };
+    let across = angle((x0, y0 + 0.5), (x0 + 1.0, y0 + 0.5));
+    let down = angle((x0 + 0.5, y0), (x0 + 0.5, y0 + 1.0));
+    let size = mean_size.max(across).max(down);
+    let split = (2.0 * size / step).ceil();
+    if split.is_finite() {
+        (split as usize).clamp(1, MAX_SPLIT)
+    } else {
+        1
+    }
+}
+
+/// An input pixel to cut into `split`×`split` sub-pixels ([`PixelPart`]).
+struct SplitPixel {
+    projection: Projection,
+    source: (u32, u32),
+    working: (usize, usize),
+    at: (usize, usize),
+    solid_angle: f64,
+    split: usize,
+}
+
+impl SplitPixel {
+    /// Appends the pixel's parts, one per working pixel its sub-pixels' centres fall in, in
+    /// the order of the working pixels. The sub-pixels inside the image share the pixel's
+    /// solid angle equally; nothing is appended if none is inside.
+    fn parts(&self, parts: &mut Vec<PixelPart>) {
+        let ((sw, sh), (width, height), (x, y)) = (self.source, self.working, self.at);
+        let n = self.split as f64;
+        let mut subs: Vec<(u32, DVec3)> = Vec::with_capacity(self.split * self.split);
+        for j in 0..self.split {
+            for i in 0..self.split {
+                let u = x as f64 + (i as f64 + 0.5) / n;
+                let v = y as f64 + (j as f64 + 0.5) / n;
+                let Some(d) = self.projection.pixel_to_direction(sw, sh, u, v) else {
+                    continue;
+                };
+                if let Some(t) = working_pixel_of(d, width, height) {
+                    subs.push((t, d));
+                }
+            }
+        }
+        if subs.is_empty() {
+            return;
+        }
+        let share = self.solid_angle / subs.len() as f64;
+        // Stable: each working pixel's sub-pixels stay in scan order.
+        subs.sort_by_key(|&(t, _)| t);
+        for group in subs.chunk_by(|a, b| a.0 == b.0) {
+            let target = group[0].0;
+            let mean = group.iter().map(|&(_, d)| d).sum::<DVec3>().try_normalize();
+            let inside = mean.filter(|&m| working_pixel_of(m, width, height) == Some(target));
+            let direction = inside.unwrap_or(group[0].1);
+            parts.push(PixelPart {
+                input: (y * sw as usize + x) as u32,
+                target,
+                solid_angle: (share * group.len() as f64) as f32,
+                direction: direction.as_vec3().to_array(),
+            });
+        }
+    }
+}
+
+/// Adds the parts of the split input pixels to their working pixels' energies (in f64, from
+/// the runs' sums) and luminances. A negative input poisons its sum with NaN, as in
+/// [`TableBand::sum_runs`], for the careful sum of [`Resampler::resample`].
+fn add_parts(
+    parts: &[PixelPart],
+    pixels: &[[f32; 3]],
+    energy: &mut [[f32; 3]],
+    luminance: &mut [f32],
+) {
+    for group in parts.chunk_by(|a, b| a.target == b.target) {
+        let t = group[0].target as usize;
+        let mut sum = energy[t].map(f64::from);
+        for part in group {
+            let p = pixels[part.input as usize];
+            if p.iter().any(|&c| c < 0.0) {
+                sum[0] = f64::NAN;
+            }
+            for c in 0..3 {
+                sum[c] += f64::from(p[c]) * f64::from(part.solid_angle);
+            }
+        }
+        (energy[t], luminance[t]) = map_entry(sum);
+    }
+}
+
+/// Scales the solid angles of `samples` (the input pixels of one working pixel) so that they
+/// sum to `total`, the working pixel's.
+fn rescale_solid_angles(samples: &mut [FineSample], total: f64) {
+    let sum: f64 = samples.iter().map(|s| f64::from(s.solid_angle)).sum();
+    if sum > 0.0 {
+        let scale = total / sum;
+        for s in samples {
+            s.solid_angle = (f64::from(s.solid_angle) * scale) as f32;
+        }
+    }
 }
 
 /// The direction of the part of pixel (x, y) inside the image circle (or the field of view)
