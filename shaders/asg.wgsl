@@ -6,8 +6,10 @@
 //  * irradiance: E(n) = c · ∫G · H(n·z, ν), ν = 2√(λμ), with H the normalised cosine convolution
 //    of an isotropic lobe, tabulated on the CPU (129 values of t = n·z × 72 of ln ν, exactly the
 //    table of `asg::cosine_convolution`) and interpolated bilinearly here;
-//  * specular: the GGX lobe as a spherical Gaussian of sharpness 1/(2α²) around the mirror
-//    direction r, its product with the ASG integrated in r's tangent plane, times Smith's
+//  * specular: the GGX lobe warped to light directions as an anisotropic Gaussian around the
+//    mirror direction r (bandwidth 1/(4α²) in the plane of incidence, 1/(4α²(n·v)²) across
+//    it), its product with the ASG integrated in the ASG's tangent plane (where the warped
+//    lobe is foreshortened), times Smith's
 //    height-correlated G2 / (4 n·v) and F = f0 (`Asg::ggx_specular`).
 // A shadow-catcher material outputs (0, 0, 0, 0): without shadows there is nothing to catch.
 // Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
@@ -77,19 +79,47 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
     let alpha = max(alpha_in, 1e-3);
     let a2 = alpha * alpha;
     let r = normalize(2.0 * n_v * n - v);
-    let nu = 1.0 / (2.0 * a2);
     let lobe = lobes[k];
-    let s = dot(r, lobe.z.xyz);
-    if s <= 0.0 {
+    let x = lobe.x.xyz;
+    let y = lobe.y.xyz;
+    let z = lobe.z.xyz;
+    // Below this cosine between r and the lobe's axis the lobe reflects nothing
+    // (`asg::MIN_PRODUCT_COSINE`).
+    let s = dot(r, z);
+    if s < 1e-4 {
         return 0.0;
     }
+    // The GGX lobe warped around r (`asg::ggx_warp`): bandwidth 1/(4α²) in the plane of
+    // incidence, 1/(4α²(n·v)²) across it (n·v at least `asg::MIN_WARP_COSINE`).
+    var across = cross(n, r);
+    let across_len2 = dot(across, across);
+    if across_len2 > 1e-12 {
+        across = across * inverseSqrt(across_len2);
+    } else {
+        // n = v: the lobe is isotropic and any frame will do.
+        across = normalize(select(vec3<f32>(0.0, -r.z, r.y), vec3<f32>(-r.y, r.x, 0.0), abs(r.z) < 0.9));
+    }
+    let along = cross(r, across);
+    let b_along = 1.0 / (4.0 * a2);
+    let n_v_warp = max(n_v, 1e-3);
+    let b_across = b_along / (n_v_warp * n_v_warp);
+    // Its product with the lobe in the lobe's tangent plane (`asg::product_integral`): the
+    // gradients g = (e·x, e·y) − (e·z / s)·a of the warped lobe's coordinates there.
     let l = lobe.x.w;
     let m = lobe.y.w;
-    let a = dot(r, lobe.x.xyz);
-    let b = dot(r, lobe.y.xyz);
-    let lp = l * nu / (2.0 * l + nu);
-    let mp = m * nu / (2.0 * m + nu);
-    let conv = s * PI / sqrt((l + 0.5 * nu) * (m + 0.5 * nu)) * exp(-lp * a * a - mp * b * b);
+    let ax = dot(r, x);
+    let ay = dot(r, y);
+    let ez = vec2<f32>(dot(across, z), dot(along, z)) / s;
+    let gx = vec2<f32>(dot(across, x), dot(along, x)) - ez * ax;
+    let gy = vec2<f32>(dot(across, y), dot(along, y)) - ez * ay;
+    let bw = vec2<f32>(b_across, b_along);
+    let b_xx = dot(bw, gx * gx);
+    let b_yy = dot(bw, gy * gy);
+    let b_zz = dot(bw, ez * ez);
+    let det_b = b_across * b_along / (s * s);
+    let det = l * m + l * b_yy + m * b_xx + det_b;
+    let quad = (l * m * b_zz + det_b * (l * ax * ax + m * ay * ay)) / det;
+    let conv = PI / sqrt(det) * exp(-quad);
     let lambda_v = (sqrt(1.0 + a2 * (1.0 / (n_v * n_v) - 1.0)) - 1.0) * 0.5;
     let g2 = 1.0 / (1.0 + 2.0 * lambda_v);
     return conv / (PI * a2) * g2 / (4.0 * n_v);

@@ -7,7 +7,8 @@ use envlight::asg::fit::{
     FitSettings, FitTarget, Norm,
 };
 use envlight::asg::{
-    integral, integral_approx, Asg, AsgError, GGX_TOLERANCE, IRRADIANCE_TOLERANCE,
+    integral, integral_approx, Asg, AsgError, GGX_OFF_NORMAL_TOLERANCE, GGX_TOLERANCE,
+    IRRADIANCE_TOLERANCE, MIN_BANDWIDTH,
 };
 use envlight::capture::sky::{render_sky, SkyOptions, SkySource};
 use envlight::capture::FrameSource;
@@ -140,6 +141,127 @@ fn ggx_approximation_matches_numerical_integration() {
         }
     }
     eprintln!("worst GGX error / on-axis response: {worst:.4}");
+}
+
+/// Views away from the normal: the GGX lobe warps into an anisotropic lobe that narrows across
+/// the plane of incidence as n·v falls (module doc of `envlight::asg`). Same lobes and α as at
+/// normal incidence, lobes on the mirror direction and tilted off it, n·v down to 0.25.
+#[test]
+fn ggx_approximation_holds_off_normal_incidence() {
+    let mut worst: f64 = 0.0;
+    let n = DVec3::Y;
+    for &alpha in &[0.1, 0.3, 0.6, 1.0] {
+        for &n_v in &[0.8f64, 0.5, 0.25] {
+            let view = DVec3::new((1.0 - n_v * n_v).sqrt(), n_v, 0.0);
+            let r = 2.0 * n_v * n - view;
+            for &(l, m) in &[(2.0, 2.0), (10.0, 40.0), (100.0, 100.0)] {
+                for &tilt in &[0.0f64, 0.2] {
+                    // Tilted across the plane of incidence, where the warped lobe is narrow.
+                    let axis = (r + DVec3::Z * tilt).normalize();
+                    let g = Asg::new(axis, DVec3::Z, l, m, [1.0; 3]).unwrap();
+                    let map = LatLongMap::from_fn(1024, 512, |d| g.eval(d));
+                    let reference = ggx_reference(&map, n, view, alpha)[0];
+                    let approx = g.ggx_specular(n, view, alpha, 1.0)[0];
+                    let on_axis = Asg::new(r, DVec3::Z, l, m, [1.0; 3]).unwrap();
+                    let head_map = LatLongMap::from_fn(1024, 512, |d| on_axis.eval(d));
+                    let head = ggx_reference(&head_map, n, view, alpha)[0];
+                    let err = (approx - reference).abs() / head;
+                    worst = worst.max(err);
+                    assert!(
+                        err <= GGX_OFF_NORMAL_TOLERANCE,
+                        "α={alpha} n·v={n_v} λ={l} μ={m} tilt={tilt}: {approx} vs {reference} \
+                         (on-axis {head})"
+                    );
+                }
+            }
+        }
+    }
+    eprintln!("worst off-normal GGX error / on-axis response: {worst:.4}");
+}
+
+/// A smooth environment made of wide, overlapping lobes (as a fit to a sky or an overcast frame
+/// gives): each lobe is also seen from far off its axis, where its tangent-plane product with
+/// the GGX lobe must follow the lobe's own fall-off (the GGX lobe is foreshortened there). The
+/// sum over the lobes matches the exact reflection of their sum, at every normal and view tried,
+/// within 25 %. Measured (2026-12-04): worst 5.5 % for α = 0.05, 10 % for α = 0.12, 20 % for
+/// α = 0.3 (too little: a lobe whose axis is 90° or more from the mirror direction reflects
+/// nothing in the tangent-plane product, though a rough surface sees part of it). The isotropic
+/// GGX lobe of Xu et al.'s formula, used before, reflected up to 2.5 times the exact value
+/// here.
+#[test]
+fn ggx_specular_of_an_environment_of_wide_lobes() {
+    const WIDE_LOBES_TOLERANCE: f64 = 0.25;
+    let axes = [
+        DVec3::X,
+        -DVec3::X,
+        DVec3::Y,
+        -DVec3::Y,
+        DVec3::Z,
+        -DVec3::Z,
+        DVec3::new(1.0, 1.0, 1.0),
+        DVec3::new(-1.0, 1.0, -1.0),
+    ];
+    let lobes: Vec<Asg> = axes
+        .iter()
+        .zip([0.5, 0.8, 1.0, 0.6, 0.7, 0.9, 3.0, 2.0])
+        .map(|(&axis, lambda)| Asg::new(axis, DVec3::Z, lambda, 1.2, [0.6; 3]).unwrap())
+        .collect();
+    let map = LatLongMap::from_fn(1024, 512, |d| {
+        [lobes.iter().map(|g| g.eval(d)[0]).sum::<f64>(); 3]
+    });
+    let mut worst: f64 = 0.0;
+    for n in [DVec3::Y, DVec3::Z, DVec3::new(0.3, 0.8, 0.5).normalize()] {
+        let t = n.any_orthonormal_vector();
+        for &alpha in &[0.05, 0.12, 0.3] {
+            for &n_v in &[1.0f64, 0.7, 0.4] {
+                let view = n * n_v + t * (1.0 - n_v * n_v).sqrt();
+                let approx: f64 = lobes
+                    .iter()
+                    .map(|g| g.ggx_specular(n, view, alpha, 1.0)[0])
+                    .sum();
+                let reference = ggx_reference(&map, n, view, alpha)[0];
+                let err = (approx - reference).abs() / reference;
+                worst = worst.max(err);
+                assert!(
+                    err <= WIDE_LOBES_TOLERANCE,
+                    "n={n} α={alpha} n·v={n_v}: {approx} vs {reference}"
+                );
+            }
+        }
+    }
+    eprintln!("worst error of the lobes' sum: {worst:.4}");
+}
+
+/// A surface reflects at most what a mirror would: under a lobe of peak radiance c the specular
+/// radiance is at most f0·c, at every view down to grazing, for sharp and wide lobes and
+/// rough and smooth surfaces (the isotropic lobe used before reflected up to 7.5 times that).
+#[test]
+fn ggx_specular_never_reflects_more_than_a_mirror() {
+    let n = DVec3::Y;
+    let mut worst: f64 = 0.0;
+    for &alpha in &[0.002, 0.05, 0.3, 1.0] {
+        for &n_v in &[1.0f64, 0.5, 0.1, 0.03, 0.01] {
+            let view = DVec3::new((1.0 - n_v * n_v).sqrt(), n_v, 0.0);
+            let r = 2.0 * n_v * n - view;
+            for &(l, m) in &[
+                (MIN_BANDWIDTH, MIN_BANDWIDTH),
+                (0.5, 3.0),
+                (50.0, 5.0),
+                (1e4, 1e4),
+            ] {
+                for axis in [r, n, (r + n).normalize(), DVec3::new(0.3, 0.2, 0.9)] {
+                    let g = Asg::new(axis, DVec3::Z, l, m, [1.0; 3]).unwrap();
+                    let s = g.ggx_specular(n, view, alpha, 1.0)[0];
+                    worst = worst.max(s);
+                    assert!(
+                        (0.0..=1.0 + 1e-9).contains(&s),
+                        "α={alpha} n·v={n_v} λ={l} μ={m} axis={axis}: {s}"
+                    );
+                }
+            }
+        }
+    }
+    eprintln!("largest specular response to a unit lobe: {worst:.4}");
 }
 
 fn small_target(name: &str, height: u32) -> FitTarget {

@@ -758,7 +758,9 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
         target: Vec3::ZERO,
         fov_y: 35f32.to_radians(),
     };
-    let scene = Scene::sphere(Vec3::ZERO, 1.0, 160, material, None, camera);
+    // 320 segments: the warped GGX lobe is narrow across the plane of incidence at grazing
+    // views, where a coarser sphere's interpolated normals alone move a pixel by 2%.
+    let scene = Scene::sphere(Vec3::ZERO, 1.0, 320, material, None, camera);
     let lobes = test_lobes();
     let mut r = renderer(
         scene,
