@@ -128,10 +128,10 @@ fn relight() {
             let texels: Vec<[f64; 3]> = map.texels().iter().map(|t| t.map(f64::from)).collect();
             let want: Vec<[f64; 3]> = (0..sc.mesh.positions.len())
                 .map(|v| {
-                    let slice = brdf.slice(
+                    let slice = sc.vis_grid.brdf_slice(
+                        brdf,
                         sc.mesh.normals[v],
                         View::Eye(eye).at(sc.mesh.positions[v]),
-                        &sc.vis_grid.dirs,
                     );
                     brute_force(&grid, &sc.vis, v, &slice, &texels)
                 })

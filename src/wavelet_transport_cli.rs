@@ -354,7 +354,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
             let step = mesh.positions.len() / n;
             let (mut sq, mut max, mut count) = (0.0f64, 0.0f64, 0usize);
             for v in (0..n).map(|i| i * step) {
-                let slice = brdf.slice(mesh.normals[v], view.at(mesh.positions[v]), &grid.dirs);
+                let slice = grid.brdf_slice(brdf, mesh.normals[v], view.at(mesh.positions[v]));
                 let mut b = brute_force(&grid, &vis, v, &slice, &texels);
                 if lambert {
                     for c in 0..3 {

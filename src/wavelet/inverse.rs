@@ -475,7 +475,7 @@ pub fn transport_rows(
     jobs.par_iter()
         .map(|&(brdf, view, v)| {
             let p = mesh.positions[v];
-            let slice = brdf.slice(mesh.normals[v], view.at(p), &grid.dirs);
+            let slice = grid.brdf_slice(brdf, mesh.normals[v], view.at(p));
             let values: Vec<f64> = slice
                 .iter()
                 .enumerate()
