@@ -198,15 +198,103 @@ pub enum LightListError {
 
 /// Reads the JSON Lines written by `envlight decompose` (one [`LightFrame`] per non-empty line).
 pub fn read_json_lines(path: &std::path::Path) -> Result<Vec<LightFrame>, LightListError> {
-    let text = std::fs::read_to_string(path).map_err(|source| LightListError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    parse_json_lines(&text).map_err(|(line, message)| LightListError::Parse {
-        path: path.to_path_buf(),
-        line,
-        message,
-    })
+    JsonLinesReader::open(path)?.collect()
+}
+
+/// Longest line [`JsonLinesReader`] accepts: 64 MiB (a frame of the most lights the
+/// decomposition makes, 16,384, is about 2.5 MB of JSON).
+pub const MAX_JSON_LINE_BYTES: usize = 64 << 20;
+
+/// The frames of a JSON Lines light list, read one line at a time (a session of hours is
+/// gigabytes of JSON; only one frame is in memory at a time). Each item is a frame or the error
+/// of its line (I/O, not UTF-8, longer than [`MAX_JSON_LINE_BYTES`], or what
+/// [`parse_json_lines`] refuses); blank lines are skipped.
+pub struct JsonLinesReader {
+    path: std::path::PathBuf,
+    reader: std::io::BufReader<std::fs::File>,
+    line: usize,
+    buffer: Vec<u8>,
+    failed: bool,
+    max_line: usize,
+}
+
+impl JsonLinesReader {
+    /// Opens `path`; the error names it.
+    pub fn open(path: &std::path::Path) -> Result<Self, LightListError> {
+        let file = std::fs::File::open(path).map_err(|source| LightListError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            reader: std::io::BufReader::new(file),
+            line: 0,
+            buffer: Vec::new(),
+            failed: false,
+            max_line: MAX_JSON_LINE_BYTES,
+        })
+    }
+
+    /// The file's path.
+    pub fn path(&self) -> &std::path::Path {
+        &self.path
+    }
+
+    fn parse_error(&self, message: String) -> LightListError {
+        LightListError::Parse {
+            path: self.path.clone(),
+            line: self.line,
+            message,
+        }
+    }
+
+    /// The next non-blank line's frame, `None` at the end of the file.
+    fn next_frame(&mut self) -> Option<Result<LightFrame, LightListError>> {
+        use std::io::{BufRead, Read};
+        loop {
+            self.buffer.clear();
+            self.line += 1;
+            let limit = self.max_line as u64 + 1;
+            let read = (&mut self.reader)
+                .take(limit)
+                .read_until(b'\n', &mut self.buffer);
+            match read {
+                Err(source) => {
+                    return Some(Err(LightListError::Io {
+                        path: self.path.clone(),
+                        source,
+                    }))
+                }
+                Ok(0) => return None,
+                Ok(_) => {}
+            }
+            if self.buffer.last() != Some(&b'\n') && self.buffer.len() > self.max_line {
+                let message = format!("the line is longer than {} bytes", self.max_line);
+                return Some(Err(self.parse_error(message)));
+            }
+            let Ok(text) = std::str::from_utf8(&self.buffer) else {
+                return Some(Err(self.parse_error("the line is not UTF-8 text".into())));
+            };
+            if text.trim().is_empty() {
+                continue;
+            }
+            return Some(parse_line(text).map_err(|message| self.parse_error(message)));
+        }
+    }
+}
+
+impl Iterator for JsonLinesReader {
+    type Item = Result<LightFrame, LightListError>;
+
+    /// After an error the reader yields nothing more.
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        let item = self.next_frame();
+        self.failed = matches!(item, Some(Err(_)));
+        item
+    }
 }
 
 /// Parses JSON Lines text; the error gives the 1-based line number and the problem. Every light
@@ -217,18 +305,20 @@ pub fn parse_json_lines(text: &str) -> Result<Vec<LightFrame>, (usize, String)> 
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            let mut frame: LightFrame =
-                serde_json::from_str(l).map_err(|e| (i + 1, e.to_string()))?;
-            for light in &mut frame.lights {
-                if let Some(problem) = light_problem(light) {
-                    return Err((i + 1, format!("light {}: {problem}", light.id)));
-                }
-                light.dir = unit(light.dir);
-            }
-            Ok(frame)
-        })
+        .map(|(i, l)| parse_line(l).map_err(|message| (i + 1, message)))
         .collect()
+}
+
+/// One line's frame (see [`parse_json_lines`]).
+fn parse_line(line: &str) -> Result<LightFrame, String> {
+    let mut frame: LightFrame = serde_json::from_str(line).map_err(|e| e.to_string())?;
+    for light in &mut frame.lights {
+        if let Some(problem) = light_problem(light) {
+            return Err(format!("light {}: {problem}", light.id));
+        }
+        light.dir = unit(light.dir);
+    }
+    Ok(frame)
 }
 
 /// `dir` scaled to unit length, in f64 (squaring f32 components of 1e20 overflows).
@@ -272,6 +362,51 @@ mod tests {
         assert_eq!(saturating_f32(-1e39), -f32::MAX);
         assert_eq!(saturating_f32(1.5), 1.5);
         assert!(saturating_f32(f64::NAN).is_nan());
+    }
+
+    #[test]
+    fn json_lines_reader_streams_frames_and_names_bad_lines() {
+        let dir = tempfile::tempdir().unwrap();
+        let frame = |seq: u64| {
+            format!(
+                "{{\"seq\":{seq},\"time\":0.5,\"lights\":[{{\"id\":3,\"dir\":[0.0,2.0,0.0],\
+                 \"rgb\":[1.0,0.5,0.25],\"solid_angle\":0.1}}]}}"
+            )
+        };
+        let path = dir.path().join("lights.jsonl");
+        let text = format!("{}\n\n  \r\n{}\r\n{}", frame(0), frame(1), frame(2));
+        std::fs::write(&path, &text).unwrap();
+        let read: Vec<LightFrame> = JsonLinesReader::open(&path)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(read, parse_json_lines(&text).unwrap());
+        assert_eq!(read.iter().map(|f| f.seq).collect::<Vec<_>>(), [0, 1, 2]);
+        assert_eq!(read[0].lights[0].dir, [0.0, 1.0, 0.0]);
+        // A line that is not UTF-8, then a good one: the error names line 2 and the reader
+        // stops there.
+        let mut bytes = format!("{}\n", frame(0)).into_bytes();
+        bytes.extend_from_slice(b"{\"seq\":\xff}\n");
+        bytes.extend_from_slice(format!("{}\n", frame(1)).as_bytes());
+        std::fs::write(&path, &bytes).unwrap();
+        let items: Vec<_> = JsonLinesReader::open(&path).unwrap().collect();
+        assert_eq!(items.len(), 2);
+        let err = items[1].as_ref().unwrap_err().to_string();
+        assert!(err.contains("line 2: the line is not UTF-8"), "{err}");
+        // A line longer than the limit is refused without reading it whole.
+        std::fs::write(&path, format!("{}\n{}\n", frame(0), frame(1))).unwrap();
+        let mut reader = JsonLinesReader::open(&path).unwrap();
+        reader.max_line = frame(0).len() + 1;
+        assert!(reader.next().unwrap().is_ok());
+        reader.max_line = 20;
+        let err = reader.next().unwrap().unwrap_err().to_string();
+        assert!(
+            err.contains("line 2: the line is longer than 20 bytes"),
+            "{err}"
+        );
+        assert!(reader.next().is_none());
+        let missing = JsonLinesReader::open(&dir.path().join("missing.jsonl"));
+        assert!(missing.is_err());
     }
 
     #[test]

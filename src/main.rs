@@ -1352,6 +1352,38 @@ fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> 
     Ok(())
 }
 
+/// The frames of `render --lights`, read as they are rendered.
+struct LightFileFrames {
+    /// The first frame, read before rendering starts.
+    first: Option<envlight::LightFrame>,
+    reader: envlight::light::JsonLinesReader,
+    /// The seqs rendered so far.
+    seen: std::collections::HashSet<u64>,
+}
+
+impl LightFileFrames {
+    /// The next frame, or the error of its line; a seq seen before is an error (each frame's
+    /// images are named by its seq, so a repeat would overwrite them).
+    fn next_frame(&mut self) -> Result<Option<envlight::LightFrame>> {
+        let frame = match self.first.take() {
+            Some(frame) => frame,
+            None => match self.reader.next().transpose()? {
+                Some(frame) => frame,
+                None => return Ok(None),
+            },
+        };
+        if !self.seen.insert(frame.seq) {
+            bail!(
+                "{}: frame seq {} appears more than once; the images of a frame are named by \
+                 its seq (frame_NNNNN), so a repeat would overwrite them",
+                self.reader.path().display(),
+                frame.seq
+            );
+        }
+        Ok(Some(frame))
+    }
+}
+
 fn render(args: &RenderArgs) -> Result<()> {
     use envlight::render::{self, budget, output, scene::Scene, RenderSettings, Renderer};
     args.check_usage()?;
@@ -1387,24 +1419,20 @@ fn render(args: &RenderArgs) -> Result<()> {
     // The files read, which no output may overwrite.
     let mut inputs: Vec<PathBuf> = args.lights.iter().cloned().collect();
     if let Some(path) = &args.lights {
-        let frames = envlight::light::read_json_lines(path)?;
-        if frames.is_empty() {
+        // Read a frame at a time (a long session is gigabytes of JSON); the first frame is read
+        // here, so an empty or unreadable file is refused before the GPU is set up.
+        let mut reader = envlight::light::JsonLinesReader::open(path)?;
+        let Some(first) = reader.next().transpose()? else {
             bail!(
                 "{}: no light frames in it (expected the JSON Lines of `envlight decompose`)",
                 path.display()
             );
-        }
-        // Each frame's images are named by its seq: a repeated seq would overwrite them.
-        let mut seen = std::collections::HashSet::new();
-        if let Some(repeated) = frames.iter().find(|f| !seen.insert(f.seq)) {
-            bail!(
-                "{}: frame seq {} appears more than once; the images of a frame are named by \
-                 its seq (frame_NNNNN), so a repeat would overwrite them",
-                path.display(),
-                repeated.seq
-            );
-        }
-        from_file = Some(frames.into_iter());
+        };
+        from_file = Some(LightFileFrames {
+            first: Some(first),
+            reader,
+            seen: std::collections::HashSet::new(),
+        });
     } else {
         let mut raw = RawConfig::default();
         if !args.inputs.is_empty() {
@@ -1438,7 +1466,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     let mut next_frame =
         move || -> Result<Option<(envlight::LightFrame, Option<envlight::HdrFrame>)>> {
             if let Some(frames) = &mut from_file {
-                return Ok(frames.next().map(|f| (f, None)));
+                return Ok(frames.next_frame()?.map(|f| (f, None)));
             }
             let Some((src, dec)) = &mut source else {
                 return Ok(None);

@@ -1108,11 +1108,10 @@ fn inputs_without_frames_are_named() {
     }
 }
 
-/// Stated defaults given explicitly are accepted, and flag errors name the flag: wavelet
-/// commands took `--projection latlong` (the default) as a usage error with the sky, and
-/// `render -n 0` named the config key decompose.lights.
-/// A light list whose frames repeat a seq is refused before rendering: the images are named by
-/// seq, so the first frame's would be overwritten.
+/// A light list whose frames repeat a seq is refused before the repeat is rendered: the images
+/// are named by seq, so the first frame's would be overwritten. The list is read a frame at a
+/// time, so a bad line later in it stops the render there, naming the file and the line, with
+/// the frames before it rendered.
 #[test]
 fn render_refuses_repeated_seqs() {
     let dir = tempfile::tempdir().unwrap();
@@ -1123,7 +1122,29 @@ fn render_refuses_repeated_seqs() {
     let out = dir.path().join("out");
     let o = envlight(&["render", "--lights", s(&lights), "--out", s(&out)]);
     assert_fails_naming(&o, &["lights.jsonl", "seq 7 appears more than once"]);
+    assert!(out.join("frame_00007.png").is_file());
+    let bad_frame = frame.replace("[0.0,1.0,0.0]", "[0.0,0.0,0.0]");
+    std::fs::write(
+        &lights,
+        format!("{frame}\n{}\n", bad_frame.replace("7", "8")),
+    )
+    .unwrap();
+    let out = dir.path().join("out2");
+    let o = envlight(&["render", "--lights", s(&lights), "--out", s(&out)]);
+    assert_fails_naming(
+        &o,
+        &["lights.jsonl", "line 2", "light 0", "not a direction"],
+    );
+    assert!(out.join("frame_00007.png").is_file());
+    let empty = dir.path().join("empty.jsonl");
+    std::fs::write(&empty, "\n\n").unwrap();
+    let o = envlight(&["render", "--lights", s(&empty), "--out", s(&out)]);
+    assert_fails_naming(&o, &["empty.jsonl", "no light frames"]);
 }
+
+/// Stated defaults given explicitly are accepted, and flag errors name the flag: wavelet
+/// commands took `--projection latlong` (the default) as a usage error with the sky, and
+/// `render -n 0` named the config key decompose.lights.
 
 #[test]
 fn explicit_defaults_work_and_flag_errors_name_the_flag() {
