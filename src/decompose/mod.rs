@@ -1107,7 +1107,14 @@ mod tests {
             ..FisheyeCalibration::default()
         });
         let fisheye = Projection::Fisheye(FisheyeCalibration::default());
+        let stereo_359 = Projection::Fisheye(FisheyeCalibration {
+            model: FisheyeModel::Stereographic,
+            fov_deg: 359.0,
+            ..FisheyeCalibration::default()
+        });
         let cases = [
+            (Projection::AngularMap, 1),
+            (stereo_359, 64),
             (Projection::AngularMap, 16),
             (fisheye, 16),
             (fisheye, 50),

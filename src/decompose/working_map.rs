@@ -113,8 +113,9 @@ struct PixelPart {
     direction: [f32; 3],
 }
 
-/// Largest number of sub-pixels across one input pixel (64² sub-pixels).
-const MAX_SPLIT: usize = 64;
+/// Largest number of sub-pixels across one input pixel (256² sub-pixels: only a pixel of a
+/// tiny image, seeing much of the sphere, gets that many).
+const MAX_SPLIT: usize = 256;
 
 /// Input pixels `start..end` (row-major indices) all go to working pixel `target`. Neighbouring
 /// input pixels mostly share a working pixel (a 1280×960 fisheye has about 44 input pixels per
@@ -1145,37 +1146,83 @@ impl SplitPixel {
     fn parts(&self, parts: &mut Vec<PixelPart>) {
         let ((sw, sh), (width, height), (x, y)) = (self.source, self.working, self.at);
         let n = self.split as f64;
-        let mut subs: Vec<(u32, DVec3)> = Vec::with_capacity(self.split * self.split);
+        let direction = |u: f64, v: f64| self.projection.pixel_to_direction(sw, sh, u, v);
+        // (working pixel, direction, weight ∝ the sub-pixel's solid angle).
+        let mut subs: Vec<(u32, DVec3, f64)> = Vec::with_capacity(self.split * self.split);
         for j in 0..self.split {
             for i in 0..self.split {
                 let u = x as f64 + (i as f64 + 0.5) / n;
                 let v = y as f64 + (j as f64 + 0.5) / n;
-                let Some(d) = self.projection.pixel_to_direction(sw, sh, u, v) else {
+                let Some(d) = direction(u, v) else {
                     continue;
                 };
                 if let Some(t) = working_pixel_of(d, width, height) {
-                    subs.push((t, d));
+                    subs.push((t, d, sub_pixel_weight(&direction, (u, v), d, 0.25 / n)));
                 }
             }
         }
         if subs.is_empty() {
             return;
         }
-        let share = self.solid_angle / subs.len() as f64;
+        // Sub-pixels evenly spaced in the image are far from even on the sphere where the
+        // projection stretches (a stereographic rim): each gets the share of its own solid
+        // angle, so the pixel's energy is spread as it is on the sphere.
+        let known: Vec<f64> = subs.iter().map(|s| s.2).filter(|w| *w > 0.0).collect();
+        let fallback = if known.is_empty() {
+            1.0
+        } else {
+            known.iter().sum::<f64>() / known.len() as f64
+        };
+        for sub in &mut subs {
+            if sub.2.is_nan() || sub.2 <= 0.0 {
+                sub.2 = fallback;
+            }
+        }
+        let total: f64 = subs.iter().map(|s| s.2).sum();
+        let share = self.solid_angle / total;
         // Stable: each working pixel's sub-pixels stay in scan order.
-        subs.sort_by_key(|&(t, _)| t);
+        subs.sort_by_key(|&(t, _, _)| t);
         for group in subs.chunk_by(|a, b| a.0 == b.0) {
             let target = group[0].0;
-            let mean = group.iter().map(|&(_, d)| d).sum::<DVec3>().try_normalize();
+            let mean = group
+                .iter()
+                .map(|&(_, d, _)| d)
+                .sum::<DVec3>()
+                .try_normalize();
             let inside = mean.filter(|&m| working_pixel_of(m, width, height) == Some(target));
             let direction = inside.unwrap_or(group[0].1);
+            let weight: f64 = group.iter().map(|s| s.2).sum();
             parts.push(PixelPart {
                 input: (y * sw as usize + x) as u32,
                 target,
-                solid_angle: (share * group.len() as f64) as f32,
+                solid_angle: (share * weight) as f32,
                 direction: direction.as_vec3().to_array(),
             });
         }
+    }
+}
+
+/// A weight proportional to the solid angle of the sub-pixel centred at image position (u, v)
+/// with direction `d`: the area of the parallelogram of the direction's differences over ±`h`
+/// in u and in v (one-sided, from the centre, where a point is outside the image); 0 where
+/// neither side of an axis is inside.
+fn sub_pixel_weight(
+    direction: &impl Fn(f64, f64) -> Option<DVec3>,
+    (u, v): (f64, f64),
+    d: DVec3,
+    h: f64,
+) -> f64 {
+    let difference = |plus: Option<DVec3>, minus: Option<DVec3>| match (plus, minus) {
+        (Some(p), Some(m)) => Some((p - m) / 2.0),
+        (Some(p), None) => Some(p - d),
+        (None, Some(m)) => Some(d - m),
+        (None, None) => None,
+    };
+    let du = difference(direction(u + h, v), direction(u - h, v));
+    let dv = difference(direction(u, v + h), direction(u, v - h));
+    match (du, dv) {
+        (Some(a), Some(b)) => a.cross(b).length(),
+        _ => 0.0,
     }
 }
 
