@@ -175,7 +175,7 @@ impl Grid {
     /// The BRDF slice of a vertex (normal, view) on this grid: one value per texel, the
     /// slice's *average* over the texel (so `Σ_t value_t · dω` is the slice's integral, the
     /// surface's directional albedo for F = 1). Lobes at least [`POINT_SAMPLED_LOBE_TEXELS`]
-    /// texels wide are sampled at the texel centres ([`Brdf::slice`]), which is accurate there.
+    /// texels wide where narrowest ([`Brdf::lobe_width`]) are sampled at the texel centres ([`Brdf::slice`]), which is accurate there.
     /// A narrower lobe would fall between the centres and lose its energy (GGX α = 0.01 at side
     /// 32 kept 22 % of its albedo, Phong 10000 almost nothing), so its texel integrals are
     /// estimated by importance sampling instead: [`LOBE_SAMPLES`] directions per texel² of the
@@ -183,7 +183,7 @@ impl Grid {
     /// (the same for every vertex and run), each adding f_r·cos / pdf to the texel it falls in.
     pub fn brdf_slice(&self, brdf: Brdf, normal: Vec3, view: Vec3) -> Vec<f64> {
         let texel = self.d_omega().sqrt();
-        match brdf.lobe_width() {
+        match brdf.lobe_width(f64::from(normal.dot(view))) {
             Some(width) if width < POINT_SAMPLED_LOBE_TEXELS * texel => {
                 let mut values = vec![0.0f64; self.len()];
                 let texels = (width / texel).max(1.0);
@@ -306,22 +306,24 @@ impl Brdf {
         dirs.iter().map(|d| self.eval(normal, view, *d)).collect()
     }
 
-    /// The angular width of the lobe in radians (about its half-maximum diameter; for GGX in
-    /// the plane of incidence, where the lobe is widest): `None` for Lambert.
-    pub fn lobe_width(self) -> Option<f64> {
+    /// The angular width of the lobe in radians for a view at `n_v` = n·ω_o (about its
+    /// half-maximum diameter where it is narrowest): `None` for Lambert.
+    pub fn lobe_width(self, n_v: f64) -> Option<f64> {
         match self {
             Brdf::Lambert => None,
             // cos^s θ = 1/2 at θ ≈ √(2 ln 2 / s).
             Brdf::Phong { exponent } => {
                 Some(2.0 * (2.0 * std::f64::consts::LN_2 / f64::from(exponent).max(1e-6)).sqrt())
             }
-            // D(h) halves at tan θ_h ≈ 0.64 α; reflected directions turn twice as far.
-            Brdf::Ggx { alpha } => Some(4.0 * 0.64 * f64::from(alpha)),
+            // D(h) halves at tan θ_h ≈ 0.64 α; reflected directions turn twice as far in the
+            // plane of incidence and 2·n·v times as far across it, where a grazing view's lobe
+            // is narrow.
+            Brdf::Ggx { alpha } => Some(4.0 * 0.64 * f64::from(alpha) * n_v.clamp(0.0, 1.0)),
         }
     }
 
     /// Draws `n` directions from the lobe (Hammersley points; Phong: cos^s around the mirror
-    /// direction; GGX: half vectors from D(h)·n·h) and calls `f(direction, f_r·cos / pdf)` for
+    /// direction; GGX: visible normals) and calls `f(direction, f_r·cos / pdf)` for
     /// each; directions below the surface, or with a view below it, get weight 0 and are
     /// skipped. The weights' mean estimates the slice's integral. Lambert draws nothing.
     pub fn sample_lobe(self, normal: Vec3, view: Vec3, n: usize, mut f: impl FnMut(DVec3, f64)) {
@@ -349,17 +351,39 @@ impl Brdf {
                 }
             }
             Brdf::Ggx { alpha } => {
-                let a2 = f64::from(alpha).powi(2);
+                // Visible normals (Heitz 2018, "Sampling the GGX distribution of visible
+                // normals"): pdf(l) = G1(v)·D(h) / (4 n·v), so f_r·cos / pdf = G2 / G1(v) ≤ 1,
+                // an estimate that never exceeds 1 even at grazing views.
+                let alpha = f64::from(alpha);
+                let a2 = alpha * alpha;
                 let lambda = |c: f64| ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5;
                 let (t, b, z) = frame_around(normal);
+                let local = |d: DVec3| DVec3::new(d.dot(t), d.dot(b), d.dot(z));
+                let v = local(view);
+                // The view in the hemisphere configuration of a unit-roughness surface.
+                let vh = DVec3::new(alpha * v.x, alpha * v.y, v.z).normalize();
+                let len2 = vh.x * vh.x + vh.y * vh.y;
+                let t1 = if len2 > 0.0 {
+                    DVec3::new(-vh.y, vh.x, 0.0) / len2.sqrt()
+                } else {
+                    DVec3::X
+                };
+                let t2 = vh.cross(t1);
+                let lambda_v = lambda(n_v);
                 for i in 0..n {
                     let (u1, u2) = hammersley(i, n);
-                    // tan² θ_h = α² u / (1 − u): D(h)·n·h sampling.
-                    let tan2 = a2 * u1 / (1.0 - u1);
-                    let cos_h = 1.0 / (1.0 + tan2).sqrt();
-                    let sin_h = (1.0 - cos_h * cos_h).max(0.0).sqrt();
+                    let r = u1.sqrt();
                     let phi = std::f64::consts::TAU * u2;
-                    let h = z * cos_h + (t * phi.cos() + b * phi.sin()) * sin_h;
+                    let p1 = r * phi.cos();
+                    let s = 0.5 * (1.0 + vh.z);
+                    let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * r * phi.sin();
+                    let nh = t1 * p1 + t2 * p2 + vh * (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
+                    let Some(m) =
+                        DVec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(0.0)).try_normalize()
+                    else {
+                        continue;
+                    };
+                    let h = t * m.x + b * m.y + z * m.z;
                     let h_v = h.dot(view);
                     if h_v <= 0.0 {
                         continue;
@@ -369,10 +393,7 @@ impl Brdf {
                     if n_l <= 0.0 {
                         continue;
                     }
-                    // pdf(l) = D·n·h / (4 h·v), f_r·cos = D·G2 / (4 n·v): the ratio is
-                    // G2 · h·v / (n·v · n·h).
-                    let g2 = 1.0 / (1.0 + lambda(n_v) + lambda(n_l));
-                    f(dir, g2 * h_v / (n_v * cos_h));
+                    f(dir, (1.0 + lambda_v) / (1.0 + lambda_v + lambda(n_l)));
                 }
             }
         }
@@ -719,6 +740,7 @@ mod tests {
         let n = Vec3::new(0.3, 0.9, 0.1).normalize();
         let tangent = n.any_orthonormal_vector();
         let oblique = (n * 0.5 + tangent * 0.75f32.sqrt()).normalize();
+        let fine_128 = Grid::new(128, Basis::Haar, None).unwrap();
         for side in [16usize, 32, 64] {
             let grid = Grid::new(side, Basis::Haar, None).unwrap();
             let albedo = |brdf: Brdf, view: Vec3| {
@@ -741,6 +763,25 @@ mod tests {
                 let mirror = (2.0 * n.dot(oblique) * n - oblique).as_dvec3();
                 let (x, y) = sphere::texel_of(side, mirror);
                 assert_eq!(brightest, y * side + x, "side {side} {brdf:?}");
+            }
+            // A grazing view: the GGX lobe is narrow across the plane of incidence and is
+            // sampled, so the surface reflects no more than it receives (centre samples of a
+            // lobe judged by its width in the plane of incidence gave 1.44 at side 128).
+            for (normal, tangent) in [(n, tangent), (Vec3::Y, Vec3::Z)] {
+                for n_v in [0.1f32, 0.01, 0.0001, 0.00002] {
+                    let view = (normal * n_v + tangent * (1.0 - n_v * n_v).sqrt()).normalize();
+                    for alpha in [0.05f32, 0.1, 0.2] {
+                        for grid in [&grid, &fine_128] {
+                            let slice = grid.brdf_slice(Brdf::Ggx { alpha }, normal, view);
+                            let a = slice.iter().sum::<f64>() * grid.d_omega();
+                            assert!(
+                                a <= 1.0,
+                                "side {} GGX α={alpha} n·v={n_v}: albedo {a}",
+                                grid.side
+                            );
+                        }
+                    }
+                }
             }
             // Either side of the switch from sampling the lobe to sampling the texel centres,
             // the albedo is that of a fine grid's centres (side 256: lobes ≥ 18 texels wide).
