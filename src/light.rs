@@ -272,7 +272,12 @@ impl JsonLinesReader {
                 let message = format!("the line is longer than {} bytes", self.max_line);
                 return Some(Err(self.parse_error(message)));
             }
-            let Ok(text) = std::str::from_utf8(&self.buffer) else {
+            // A byte-order mark some editors write at the start of a file is not JSON.
+            let bytes = match self.buffer.strip_prefix(b"\xef\xbb\xbf") {
+                Some(rest) if self.line == 1 => rest,
+                _ => &self.buffer[..],
+            };
+            let Ok(text) = std::str::from_utf8(bytes) else {
                 return Some(Err(self.parse_error("the line is not UTF-8 text".into())));
             };
             if text.trim().is_empty() {
@@ -383,6 +388,13 @@ mod tests {
         assert_eq!(read, parse_json_lines(&text).unwrap());
         assert_eq!(read.iter().map(|f| f.seq).collect::<Vec<_>>(), [0, 1, 2]);
         assert_eq!(read[0].lights[0].dir, [0.0, 1.0, 0.0]);
+        // A byte-order mark at the start of the file is skipped.
+        std::fs::write(&path, format!("\u{feff}{text}")).unwrap();
+        let with_bom: Vec<LightFrame> = JsonLinesReader::open(&path)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(with_bom, read);
         // A line that is not UTF-8, then a good one: the error names line 2 and the reader
         // stops there.
         let mut bytes = format!("{}\n", frame(0)).into_bytes();
