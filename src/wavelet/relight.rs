@@ -242,6 +242,12 @@ pub const LOBE_SAMPLES: usize = 4096;
 /// Most directions drawn per vertex from one lobe.
 pub const MAX_LOBE_SAMPLES: usize = 65536;
 
+/// Smith's Λ of a direction at cosine `c` to the normal, for GGX with α² = `a2`: G1 = 1/(1 + Λ),
+/// height-correlated G2 = 1/(1 + Λ(v) + Λ(l)).
+fn smith_lambda(c: f64, a2: f64) -> f64 {
+    ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5
+}
+
 /// Point `i` of the `n`-point Hammersley set in the unit square.
 fn hammersley(i: usize, n: usize) -> (f64, f64) {
     let radical_inverse = (i as u32).reverse_bits() as f64 / 4_294_967_296.0;
@@ -292,7 +298,7 @@ impl Brdf {
                 let d = n_h * n_h * (a2 - 1.0) + 1.0;
                 let ndf = a2 / (std::f64::consts::PI * d * d);
                 // Smith height-correlated: G2 = 1 / (1 + Λ(v) + Λ(l)).
-                let lambda = |c: f64| ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5;
+                let lambda = |c: f64| smith_lambda(c, a2);
                 let g2 = 1.0 / (1.0 + lambda(n_v) + lambda(cos));
                 // f_r · cos = D G2 / (4 n·ω n·ω_o) · n·ω.
                 ndf * g2 / (4.0 * n_v)
@@ -356,7 +362,7 @@ impl Brdf {
                 // an estimate that never exceeds 1 even at grazing views.
                 let alpha = f64::from(alpha);
                 let a2 = alpha * alpha;
-                let lambda = |c: f64| ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5;
+                let lambda = |c: f64| smith_lambda(c, a2);
                 let (t, b, z) = frame_around(normal);
                 let local = |d: DVec3| DVec3::new(d.dot(t), d.dot(b), d.dot(z));
                 let v = local(view);
@@ -370,12 +376,12 @@ impl Brdf {
                 };
                 let t2 = vh.cross(t1);
                 let lambda_v = lambda(n_v);
+                let s = 0.5 * (1.0 + vh.z);
                 for i in 0..n {
                     let (u1, u2) = hammersley(i, n);
                     let r = u1.sqrt();
                     let phi = std::f64::consts::TAU * u2;
                     let p1 = r * phi.cos();
-                    let s = 0.5 * (1.0 + vh.z);
                     let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * r * phi.sin();
                     let nh = t1 * p1 + t2 * p2 + vh * (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
                     let Some(m) =
@@ -740,7 +746,6 @@ mod tests {
         let n = Vec3::new(0.3, 0.9, 0.1).normalize();
         let tangent = n.any_orthonormal_vector();
         let oblique = (n * 0.5 + tangent * 0.75f32.sqrt()).normalize();
-        let fine_128 = Grid::new(128, Basis::Haar, None).unwrap();
         for side in [16usize, 32, 64] {
             let grid = Grid::new(side, Basis::Haar, None).unwrap();
             let albedo = |brdf: Brdf, view: Vec3| {
@@ -763,25 +768,6 @@ mod tests {
                 let mirror = (2.0 * n.dot(oblique) * n - oblique).as_dvec3();
                 let (x, y) = sphere::texel_of(side, mirror);
                 assert_eq!(brightest, y * side + x, "side {side} {brdf:?}");
-            }
-            // A grazing view: the GGX lobe is narrow across the plane of incidence and is
-            // sampled, so the surface reflects no more than it receives (centre samples of a
-            // lobe judged by its width in the plane of incidence gave 1.44 at side 128).
-            for (normal, tangent) in [(n, tangent), (Vec3::Y, Vec3::Z)] {
-                for n_v in [0.1f32, 0.01, 0.0001, 0.00002] {
-                    let view = (normal * n_v + tangent * (1.0 - n_v * n_v).sqrt()).normalize();
-                    for alpha in [0.05f32, 0.1, 0.2] {
-                        for grid in [&grid, &fine_128] {
-                            let slice = grid.brdf_slice(Brdf::Ggx { alpha }, normal, view);
-                            let a = slice.iter().sum::<f64>() * grid.d_omega();
-                            assert!(
-                                a <= 1.0,
-                                "side {} GGX α={alpha} n·v={n_v}: albedo {a}",
-                                grid.side
-                            );
-                        }
-                    }
-                }
             }
             // Either side of the switch from sampling the lobe to sampling the texel centres,
             // the albedo is that of a fine grid's centres (side 256: lobes ≥ 18 texels wide).
@@ -813,6 +799,22 @@ mod tests {
                     "side {side} GGX α={alpha}: albedo {got}, {want} on a fine grid"
                 );
                 assert!(l1 < 0.04 * want, "side {side} GGX α={alpha}: texel L1 {l1}");
+            }
+        }
+        // A grazing view: the GGX lobe is narrow across the plane of incidence and is sampled,
+        // so the surface reflects no more than it receives (centre samples of a lobe judged by
+        // its width in the plane of incidence gave 1.44 at side 128).
+        for side in [16usize, 32, 64, 128] {
+            let grid = Grid::new(side, Basis::Haar, None).unwrap();
+            for (normal, tangent) in [(n, tangent), (Vec3::Y, Vec3::Z)] {
+                for n_v in [0.1f32, 0.01, 0.0001, 0.00002] {
+                    let view = (normal * n_v + tangent * (1.0 - n_v * n_v).sqrt()).normalize();
+                    for alpha in [0.05f32, 0.1, 0.2] {
+                        let slice = grid.brdf_slice(Brdf::Ggx { alpha }, normal, view);
+                        let a = slice.iter().sum::<f64>() * grid.d_omega();
+                        assert!(a <= 1.0, "side {side} GGX α={alpha} n·v={n_v}: albedo {a}");
+                    }
+                }
             }
         }
     }
