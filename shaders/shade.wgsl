@@ -1,5 +1,12 @@
-// Main pass: Lambertian diffuse + GGX specular (metallic-roughness) under N directional lights,
-// each with its own PCF-filtered shadow map layer, in linear HDR (rgba32float target).
+// Main passes: Lambertian diffuse + GGX specular (metallic-roughness) under N directional lights,
+// each with its own PCF-filtered shadow map layer, in linear HDR, shaded deferred:
+//  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into two Rgba32Float
+//    targets, world position with material index + 1 (0: no surface) and the interpolated normal.
+//  * Shading (compute pass: cs_shade, 8×8 workgroups): one invocation per pixel reads the
+//    G-buffer, sums the lights and writes the frame (rgba32float storage texture).
+// So every pixel is shaded once whatever the overdraw, and the light loop runs as compute work,
+// on every multiprocessor of a GPU (on a compute part such as the H200 the graphics pipeline has
+// a small part of the chip; docs/performance.md).
 //
 // Per-pixel light culling (src/render/mod.rs documents the scheme and its tolerance):
 //  * n·l ≤ 0: the light adds nothing; with culling on it costs no shading and no shadow lookup.
@@ -42,6 +49,9 @@ struct Light {
 @group(0) @binding(2) var<storage, read> materials: array<Material>;
 @group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
 @group(0) @binding(4) var shadow_sampler: sampler_comparison;
+@group(1) @binding(0) var gbuffer_position: texture_2d<f32>;
+@group(1) @binding(1) var gbuffer_normal: texture_2d<f32>;
+@group(1) @binding(2) var frame: texture_storage_2d<rgba32float, write>;
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
@@ -119,9 +129,41 @@ fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha: f32, f0: vec3<f
     return d * vis * f;
 }
 
+struct GBuffer {
+    // xyz: world position; w: material index + 1 (cleared to 0 where no surface is).
+    @location(0) position: vec4<f32>,
+    // xyz: the interpolated vertex normal.
+    @location(1) normal: vec4<f32>,
+};
+
 @fragment
-fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
-    let s = surface_at(in, materials[in.material], globals.camera_pos.xyz);
+fn fs_gbuffer(in: VertexOut) -> GBuffer {
+    var out: GBuffer;
+    out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
+    out.normal = vec4<f32>(in.normal, 0.0);
+    return out;
+}
+
+@compute @workgroup_size(8, 8)
+fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
+    let size = textureDimensions(frame);
+    if id.x >= size.x || id.y >= size.y {
+        return;
+    }
+    let texel = vec2<i32>(id.xy);
+    let g = textureLoad(gbuffer_position, texel, 0);
+    if g.w < 0.5 {
+        textureStore(frame, texel, vec4<f32>(0.0));
+        return;
+    }
+    let normal = textureLoad(gbuffer_normal, texel, 0).xyz;
+    textureStore(frame, texel, shade_point(g.xyz, normal, u32(g.w) - 1u));
+}
+
+// The shaded colour (premultiplied RGBA) of the surface point `world` with interpolated normal
+// `normal` and material `material`.
+fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32) -> vec4<f32> {
+    let s = surface_at(world, normal, materials[material], globals.camera_pos.xyz);
     let n = s.n;
     let v = s.v;
     let alpha = s.alpha;
@@ -155,7 +197,7 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
             let nh = max(dot(n, half_vector(v, l, n)), 0.0);
             full = nh * nh * (1.0 + 9.0 * alpha_l * alpha_l) >= 1.0;
         }
-        let vis = visibility(i, in.world, n, l, i32(rgb.w), full);
+        let vis = visibility(i, world, n, l, i32(rgb.w), full);
         let e = rgb.rgb * ndl;
         var brdf = diffuse;
         if has_specular {

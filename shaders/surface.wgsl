@@ -1,4 +1,4 @@
-// Shared by the main pass (shade.wgsl) and the ASG pass (asg.wgsl): the vertex layout, the
+// Shared by the main passes (shade.wgsl) and the ASG pass (asg.wgsl): the vertex layout, the
 // material table and the metallic-roughness set-up of a shaded point. Not a pipeline of its own:
 // src/render prepends it to each of those files (`render::SHADERS` lists the composed sources).
 // Each pass declares its own `Globals` and bindings and calls `surface_vertex` from `vs_main`.
@@ -47,10 +47,11 @@ struct Surface {
     catcher: bool,
 };
 
-fn surface_at(in: VertexOut, mat: Material, camera_pos: vec3<f32>) -> Surface {
+// `world`: the point; `normal`: the interpolated vertex normal (any length).
+fn surface_at(world: vec3<f32>, normal: vec3<f32>, mat: Material, camera_pos: vec3<f32>) -> Surface {
     var s: Surface;
-    s.n = normalize(in.normal);
-    s.v = normalize(camera_pos - in.world);
+    s.n = normalize(normal);
+    s.v = normalize(camera_pos - world);
     let roughness = clamp(mat.params.x, 0.0, 1.0);
     let metallic = clamp(mat.params.y, 0.0, 1.0);
     let spec_level = mat.params.z;

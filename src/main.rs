@@ -1596,7 +1596,8 @@ fn render(args: &RenderArgs) -> Result<()> {
         output::write_exr(&stem.with_extension("exr"), &image)?;
         let line = serde_json::json!({
             "seq": lights.seq, "lights": stats.lights, "shadow_maps": stats.shadow_maps,
-            "gpu_ms": stats.gpu_ms, "cpu_ms": stats.cpu_ms, "frame_ms": stats.frame_ms(),
+            "gpu_ms": stats.gpu_ms, "shadow_gpu_ms": stats.shadow_gpu_ms,
+            "cpu_ms": stats.cpu_ms, "frame_ms": stats.frame_ms(),
         });
         writeln!(stats_file, "{line}")
             .with_context(|| format!("cannot write {}", stats_path.display()))?;

@@ -403,6 +403,86 @@ fn merged_light_spread_softens_its_shadow() {
     );
 }
 
+/// Shading is a sum over lights, each with the shadow map it was given: in a set of 20 lights
+/// the wide light X (half a steradian: a PCF kernel 0.12 of its map wide) gets layer 17. X's
+/// contribution — the image of all 20 lights minus the image without X — must equal the image
+/// of X alone (layer 0 of a one-layer array), to float rounding: a light reading another's
+/// layer, or a pass writing the wrong one, breaks it.
+#[test]
+fn each_light_reads_its_own_shadow_layer() {
+    let camera = Camera {
+        eye: Vec3::new(0.0, 5.0, 3.0),
+        target: Vec3::new(0.0, 0.3, 0.0),
+        fov_y: 50f32.to_radians(),
+    };
+    let scene = || {
+        Scene::sphere(
+            Vec3::new(0.0, 0.8, 0.0),
+            0.5,
+            32,
+            Material::default(),
+            Some(Ground {
+                height: 0.0,
+                half_size: 4.0,
+                material: Material::lambertian([0.5; 3]),
+            }),
+            camera,
+        )
+    };
+    let settings = RenderSettings {
+        width: 96,
+        height: 72,
+        shadow_resolution: 512,
+        ..Default::default()
+    };
+    let wide = 17;
+    let lights: Vec<Light> = (0..20u32)
+        .map(|i| {
+            let a = i as f32 * 2.4;
+            let dir = Vec3::new(a.cos(), 1.2 + 0.05 * i as f32, a.sin());
+            if i == wide {
+                light(i, Vec3::new(0.4, 1.0, 0.5), [60.0, 55.0, 50.0], 0.5)
+            } else {
+                light(i, dir, [10.0, 11.0, 12.0], 1e-4)
+            }
+        })
+        .collect();
+    let without: Vec<Light> = lights.iter().filter(|l| l.id != wide).cloned().collect();
+    let alone = vec![lights[wide as usize]];
+    let mut r = renderer(scene(), settings);
+    let (all_img, stats) = r.render(&lights).unwrap();
+    assert_eq!(stats.shadow_maps, 20, "every light needs a map");
+    let (without_img, _) = r.render(&without).unwrap();
+    let mut r_alone = renderer(scene(), settings);
+    let (alone_img, _) = r_alone.render(&alone).unwrap();
+    let peak = alone_img.rgba.iter().fold(0.0f32, |m, v| m.max(*v));
+    let mut failures = Vec::new();
+    let mut shadowed = 0;
+    for i in 0..alone_img.rgba.len() / 4 {
+        if alone_img.rgba[4 * i + 3] == 0.0 {
+            continue;
+        }
+        let lum_alone = alone_img.rgba[4 * i + 1];
+        shadowed += usize::from(lum_alone < 0.9 * peak && lum_alone > 0.0);
+        for c in 0..3 {
+            let k = 4 * i + c;
+            let contribution = all_img.rgba[k] - without_img.rgba[k];
+            let tolerance = 1e-3 * peak + 1e-5 * all_img.rgba[k];
+            if (contribution - alone_img.rgba[k]).abs() > tolerance {
+                failures.push(format!(
+                    "pixel {i} channel {c}: X adds {contribution} among 20 lights, {} alone",
+                    alone_img.rgba[k]
+                ));
+            }
+        }
+    }
+    fail_with_image("own_shadow_layer", &all_img, &failures);
+    assert!(
+        peak > 0.0 && shadowed > 100,
+        "X casts a visible shadow: {shadowed} pixels"
+    );
+}
+
 #[test]
 fn shadow_catcher_output_composites_over_a_camera_image() {
     let mut r = renderer(

@@ -164,7 +164,7 @@ impl AsgPass {
             &module,
             &attrs,
             wgpu::DepthBiasState::default(),
-            true,
+            Some(("fs_main", 1)),
         );
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("asg globals"),
@@ -287,6 +287,7 @@ impl Renderer {
             lights: n,
             shadow_maps: 0,
             gpu_ms: None,
+            shadow_gpu_ms: None,
             cpu_ms: start.elapsed().as_secs_f64() * 1e3,
         })
     }
@@ -306,6 +307,7 @@ impl Renderer {
                 lights: n,
                 shadow_maps: 0,
                 gpu_ms: None,
+                shadow_gpu_ms: None,
                 cpu_ms,
             },
         ))

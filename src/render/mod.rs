@@ -6,14 +6,24 @@
 //!    ([`shadow::reaches_visible`]), one depth-only pass of the shadow casters into its layer of
 //!    a `Depth32Float` texture array, with an orthographic projection fitted to the casters'
 //!    bounding sphere ([`shadow::light_view_proj`]). Lights that reach nothing visible render
-//!    no map.
-//! 2. **Main pass** (`shaders/shade.wgsl`): one draw of the whole scene into an `Rgba32Float`
-//!    target (linear HDR, premultiplied alpha over a transparent background). Per pixel it sums
+//!    no map. (An atlas, one pass per 8192² layer of 256 tiles set by viewport and scissor, was
+//!    tried on 2026-12-04 and was slower on an H200, 15.5 ms against 13.1 for 256 maps:
+//!    there the time is the depth fill, the clear included, which a pass count does not change;
+//!    docs/performance.md.)
+//! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
+//!    into two `Rgba32Float` targets, world position with material and normal.
+//! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
 //!    Lambertian diffuse + GGX specular (metallic-roughness) over the lights, each times its
 //!    PCF-filtered shadow visibility; a light's solid angle widens both its PCF kernel (softer
-//!    shadows for merged lights) and its specular lobe.
-//! 3. Read-back (for files and tests) and timing: GPU timestamps around the passes where the
-//!    adapter has them, CPU wall time from submit to completion otherwise.
+//!    shadows for merged lights) and its specular lobe. It writes an `Rgba32Float` frame (linear
+//!    HDR, premultiplied alpha over a transparent background). Deferred, each pixel is shaded
+//!    once whatever the overdraw, and the light loop is compute work, which every
+//!    multiprocessor of a GPU runs: on an H200, whose graphics pipeline has a small part of the
+//!    chip, the frame without shadows went from 20.8 ms as a fragment shader to 1.66 ms
+//!    (1280×720, 256 lights; docs/performance.md).
+//! 4. Read-back (for files and tests) and timing: GPU timestamps around the shadow passes and
+//!    the shading where the adapter has them, CPU wall time from submit to completion
+//!    otherwise.
 //!
 //! **Per-pixel light culling** (Havran et al. 2005 cull lights below a pixel's horizon; this
 //! renderer also culls by the specular lobe): a light with n·l ≤ 0 is skipped before any
@@ -79,6 +89,11 @@ pub const CULLING_TOLERANCE: (f32, f32) = (0.0005, 0.01);
 
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// GPU timestamps per frame: start of the shadow passes, start of the G-buffer pass, end of the
+/// shading pass.
+const TIMESTAMPS: u32 = 3;
+/// `cs_shade`'s workgroup is 8×8 pixels.
+const SHADE_WORKGROUP: u32 = 8;
 
 /// Renderer errors.
 #[derive(Debug, Error)]
@@ -147,6 +162,9 @@ pub struct FrameStats {
     pub shadow_maps: usize,
     /// GPU time of the passes (timestamp queries), if the adapter has them.
     pub gpu_ms: Option<f64>,
+    /// GPU time of the shadow passes alone (part of `gpu_ms`), where measured and some map
+    /// was rendered.
+    pub shadow_gpu_ms: Option<f64>,
     /// CPU wall time from the start of encoding to completion on the GPU.
     pub cpu_ms: f64,
 }
@@ -193,11 +211,15 @@ pub struct Renderer {
     shadow_cam_layout: wgpu::BindGroupLayout,
     shade_bind_group: wgpu::BindGroup,
     shadow_cam_bind_group: wgpu::BindGroup,
-    shade_pipeline: wgpu::RenderPipeline,
+    /// The G-buffer's textures (position + material, normal) and the frame, for `cs_shade`.
+    gbuffer_bind_group: wgpu::BindGroup,
+    gbuffer_pipeline: wgpu::RenderPipeline,
+    shade_pipeline: wgpu::ComputePipeline,
     shadow_pipeline: wgpu::RenderPipeline,
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
     depth_view: wgpu::TextureView,
+    gbuffer_views: [wgpu::TextureView; 2],
     readback: wgpu::Buffer,
     padded_row: u32,
     timestamps: Option<Timestamps>,
@@ -215,8 +237,8 @@ fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayo
 }
 
 /// A triangle pipeline over the scene's vertices (`vs_main`), depth-tested with `Less` and
-/// depth writes, no culling; with `color`, `fs_main` writes the colour target unblended, without
-/// it the pass is depth-only (shadow maps).
+/// depth writes, no culling; with `fragment = Some((entry, n))`, that fragment entry point
+/// writes `n` `Rgba32Float` targets unblended, without it the pass is depth-only (shadow maps).
 fn depth_tested_pipeline(
     device: &wgpu::Device,
     label: &str,
@@ -224,13 +246,14 @@ fn depth_tested_pipeline(
     module: &wgpu::ShaderModule,
     attributes: &[wgpu::VertexAttribute],
     bias: wgpu::DepthBiasState,
-    color: bool,
+    fragment: Option<(&str, usize)>,
 ) -> wgpu::RenderPipeline {
-    let targets = [Some(wgpu::ColorTargetState {
+    let target = Some(wgpu::ColorTargetState {
         format: COLOR_FORMAT,
         blend: None,
         write_mask: wgpu::ColorWrites::ALL,
-    })];
+    });
+    let targets = vec![target; fragment.map_or(0, |(_, n)| n)];
     device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
         label: Some(label),
         layout: Some(layout),
@@ -252,9 +275,9 @@ fn depth_tested_pipeline(
             bias,
         }),
         multisample: Default::default(),
-        fragment: color.then(|| wgpu::FragmentState {
+        fragment: fragment.map(|(entry, _)| wgpu::FragmentState {
             module,
-            entry_point: Some("fs_main"),
+            entry_point: Some(entry),
             compilation_options: Default::default(),
             targets: &targets,
         }),
@@ -369,7 +392,7 @@ impl Renderer {
             entries: &[
                 wgpu::BindGroupLayoutEntry {
                     binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    visibility: wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
@@ -379,7 +402,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Storage { read_only: true },
                         has_dynamic_offset: false,
@@ -389,7 +412,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Storage { read_only: true },
                         has_dynamic_offset: false,
@@ -399,7 +422,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Depth,
                         view_dimension: wgpu::TextureViewDimension::D2Array,
@@ -409,7 +432,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 4,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                     count: None,
                 },
@@ -429,6 +452,34 @@ impl Renderer {
             }],
         });
 
+        let gbuffer_texture = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let gbuffer_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("g-buffer and frame"),
+            entries: &[
+                gbuffer_texture(0),
+                gbuffer_texture(1),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: COLOR_FORMAT,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
+                    count: None,
+                },
+            ],
+        });
+
         let shade_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shade.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADE_WGSL.into()),
@@ -437,9 +488,14 @@ impl Renderer {
             label: Some("shadow.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADOW_WGSL.into()),
         });
+        let gbuffer_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("g-buffer"),
+            bind_group_layouts: &[Some(&shade_layout)],
+            immediate_size: 0,
+        });
         let shade_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shade"),
-            bind_group_layouts: &[Some(&shade_layout)],
+            bind_group_layouts: &[Some(&shade_layout), Some(&gbuffer_layout)],
             immediate_size: 0,
         });
         let shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -449,15 +505,23 @@ impl Renderer {
         });
         let shade_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
         let shadow_attrs = wgpu::vertex_attr_array![0 => Float32x3];
-        let shade_pipeline = depth_tested_pipeline(
+        let gbuffer_pipeline = depth_tested_pipeline(
             device,
-            "shade",
-            &shade_pl,
+            "g-buffer",
+            &gbuffer_pl,
             &shade_module,
             &shade_attrs,
             wgpu::DepthBiasState::default(),
-            true,
+            Some(("fs_gbuffer", 2)),
         );
+        let shade_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("shade"),
+            layout: Some(&shade_pl),
+            module: &shade_module,
+            entry_point: Some("cs_shade"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
         let shadow_pipeline = depth_tested_pipeline(
             device,
             "shadow",
@@ -469,11 +533,30 @@ impl Renderer {
                 slope_scale: 1.5,
                 clamp: 0.0,
             },
-            false,
+            None,
         );
 
         let (color_texture, color_view, depth_view) =
             Self::make_targets(device, settings.width, settings.height);
+        let gbuffer_views = Self::make_gbuffer(device, settings.width, settings.height);
+        let gbuffer_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("g-buffer and frame"),
+            layout: &gbuffer_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(&gbuffer_views[0]),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&gbuffer_views[1]),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&color_view),
+                },
+            ],
+        });
         let padded_row = (settings.width * 16).div_ceil(256) * 256;
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
@@ -485,17 +568,17 @@ impl Renderer {
             set: device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("frame timestamps"),
                 ty: wgpu::QueryType::Timestamp,
-                count: 2,
+                count: TIMESTAMPS,
             }),
             resolve: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamp resolve"),
-                size: 16,
+                size: 8 * u64::from(TIMESTAMPS),
                 usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
                 mapped_at_creation: false,
             }),
             read: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("timestamp read"),
-                size: 16,
+                size: 8 * u64::from(TIMESTAMPS),
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),
@@ -538,11 +621,14 @@ impl Renderer {
             shadow_cam_layout,
             shade_bind_group,
             shadow_cam_bind_group,
+            gbuffer_bind_group,
+            gbuffer_pipeline,
             shade_pipeline,
             shadow_pipeline,
             color_view,
             color_texture,
             depth_view,
+            gbuffer_views,
             readback,
             padded_row,
             timestamps,
@@ -608,6 +694,29 @@ impl Renderer {
         }
     }
 
+    /// The G-buffer's targets: world position + material, normal (`Rgba32Float`).
+    fn make_gbuffer(device: &wgpu::Device, width: u32, height: u32) -> [wgpu::TextureView; 2] {
+        ["g-buffer position", "g-buffer normal"].map(|label| {
+            device
+                .create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: wgpu::Extent3d {
+                        width,
+                        height,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format: COLOR_FORMAT,
+                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                        | wgpu::TextureUsages::TEXTURE_BINDING,
+                    view_formats: &[],
+                })
+                .create_view(&Default::default())
+        })
+    }
+
     fn make_targets(
         device: &wgpu::Device,
         width: u32,
@@ -627,7 +736,8 @@ impl Renderer {
             format: COLOR_FORMAT,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT
                 | wgpu::TextureUsages::COPY_SRC
-                | wgpu::TextureUsages::TEXTURE_BINDING,
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::STORAGE_BINDING,
             view_formats: &[],
         });
         let depth = device.create_texture(&wgpu::TextureDescriptor {
@@ -751,27 +861,27 @@ impl Renderer {
             lights.iter().filter_map(GpuLight::from_light).collect();
         let res = self.settings.shadow_resolution;
         let bounds = self.scene.bounds;
-        let mut maps = 0u32;
-        let max_layers = self.gpu.max_array_layers;
+        // Shadow maps: one layer each, at most as many as the adapter's texture arrays allow.
+        let max_maps = self.gpu.max_array_layers;
+        let mut mapped: Vec<usize> = Vec::new();
         let mut skipped = 0usize;
         if self.settings.shadows {
-            for l in &mut gpu_lights {
+            for (i, l) in gpu_lights.iter().enumerate() {
                 if !shadow::reaches_visible(&self.facing, l.dir) {
                     continue;
                 }
-                if maps >= max_layers {
+                if mapped.len() as u32 >= max_maps {
                     skipped += 1;
                     continue;
                 }
-                l.layer = Some(maps);
-                l.view_proj = shadow::light_view_proj(l.dir, bounds);
-                l.pcf_radius = shadow::pcf_radius_uv(l.solid_angle, res);
-                maps += 1;
+                mapped.push(i);
             }
         }
+        let maps = mapped.len() as u32;
         if skipped > 0 && !self.warned_layers {
             tracing::warn!(
-                "{skipped} lights drawn without shadows: the adapter allows {max_layers} shadow-map layers"
+                "{skipped} lights drawn without shadows: at most {max_maps} shadow maps (the \
+                 adapter's texture-array layer limit)"
             );
             self.warned_layers = true;
         }
@@ -782,9 +892,15 @@ impl Renderer {
             rebind = true;
         }
         if maps > self.shadow.layers {
-            let layers = maps.next_power_of_two().min(max_layers);
+            let layers = maps.next_power_of_two().min(max_maps);
             self.shadow = Self::make_shadow_array(device, res, layers);
             rebind = true;
+        }
+        for (k, &i) in mapped.iter().enumerate() {
+            let l = &mut gpu_lights[i];
+            l.layer = Some(k as u32);
+            l.view_proj = shadow::light_view_proj(l.dir, bounds);
+            l.pcf_radius = shadow::pcf_radius_uv(l.solid_angle, res);
         }
         if maps as usize > self.light_cam_capacity {
             self.light_cam_capacity = (maps as usize).next_power_of_two();
@@ -811,14 +927,13 @@ impl Renderer {
                 .write_buffer(&self.light_buffer, 0, bytemuck::cast_slice(&raw));
         }
         if maps > 0 {
+            // Camera k is map (layer) k's: at the k-th dynamic offset.
             let stride = self.light_cam_stride as usize;
             let mut cams = vec![0u8; stride * maps as usize];
-            for l in &gpu_lights {
-                if let Some(layer) = l.layer {
-                    let m = l.view_proj.to_cols_array();
-                    let at = stride * layer as usize;
-                    cams[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m));
-                }
+            for (k, &i) in mapped.iter().enumerate() {
+                let m = gpu_lights[i].view_proj.to_cols_array();
+                let at = stride * k;
+                cams[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m));
             }
             self.gpu
                 .queue
@@ -895,26 +1010,78 @@ impl Renderer {
             pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..self.scene.caster_indices, 0, 0..1);
         }
-        let timestamps = ts.map(|t| wgpu::RenderPassTimestampWrites {
-            query_set: &t.set,
-            beginning_of_pass_write_index: (maps == 0).then_some(0),
-            end_of_pass_write_index: Some(1),
-        });
-        self.encode_scene_pass(
-            &mut enc,
-            "shade",
-            &self.shade_pipeline,
-            &self.shade_bind_group,
-            timestamps,
-        );
+        self.encode_gbuffer_pass(&mut enc);
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("shade"),
+                timestamp_writes: ts.map(|t| wgpu::ComputePassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: None,
+                    end_of_pass_write_index: Some(2),
+                }),
+            });
+            pass.set_pipeline(&self.shade_pipeline);
+            pass.set_bind_group(0, &self.shade_bind_group, &[]);
+            pass.set_bind_group(1, &self.gbuffer_bind_group, &[]);
+            pass.dispatch_workgroups(
+                self.settings.width.div_ceil(SHADE_WORKGROUP),
+                self.settings.height.div_ceil(SHADE_WORKGROUP),
+                1,
+            );
+        }
         if let Some(t) = ts {
-            enc.resolve_query_set(&t.set, 0..2, &t.resolve, 0);
-            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 16);
+            enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
+            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(TIMESTAMPS));
         }
         if readback {
             self.encode_readback(&mut enc);
         }
         enc
+    }
+
+    /// Rasterises the scene into the G-buffer (cleared to zero: no surface).
+    fn encode_gbuffer_pass(&self, enc: &mut wgpu::CommandEncoder) {
+        let target = |view| {
+            Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        };
+        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("g-buffer"),
+            color_attachments: &[
+                target(&self.gbuffer_views[0]),
+                target(&self.gbuffer_views[1]),
+            ],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &self.depth_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(1.0),
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: self
+                .timestamps
+                .as_ref()
+                .map(|t| wgpu::RenderPassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: Some(1),
+                    end_of_pass_write_index: None,
+                }),
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(&self.gbuffer_pipeline);
+        pass.set_bind_group(0, &self.shade_bind_group, &[]);
+        pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
+        pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+        pass.draw_indexed(0..self.scene.indices.len() as u32, 0, 0..1);
     }
 
     /// Draws the whole scene with `pipeline` and `bind_group` into the colour target (cleared to
@@ -1017,15 +1184,24 @@ impl Renderer {
         Ok(out)
     }
 
-    fn gpu_time(&self) -> Result<Option<f64>, RenderError> {
+    /// GPU time of the last frame and of its shadow passes (`None` without timestamps, or
+    /// for the shadows without `shadow_passes`), in ms.
+    fn gpu_time(&self, shadow_passes: bool) -> Result<(Option<f64>, Option<f64>), RenderError> {
         let Some(t) = &self.timestamps else {
-            return Ok(None);
+            return Ok((None, None));
         };
-        let ticks = self.read_buffer(&t.read, |b| {
+        let [shadows, shading, end] = self.read_buffer(&t.read, |b| {
             let v: &[u64] = bytemuck::cast_slice(b);
-            (v[0], v[1])
+            [v[0], v[1], v[2]]
         })?;
-        Ok((ticks.1 > ticks.0).then(|| (ticks.1 - ticks.0) as f64 * f64::from(t.period_ns) * 1e-6))
+        let ms = |from: u64, to: u64| {
+            (to >= from).then(|| (to - from) as f64 * f64::from(t.period_ns) * 1e-6)
+        };
+        Ok(if shadow_passes {
+            (ms(shadows, end), ms(shadows, shading))
+        } else {
+            (ms(shading, end), None)
+        })
     }
 
     /// Renders one frame and waits for it, without reading the image back (benchmarks,
@@ -1037,10 +1213,12 @@ impl Renderer {
         self.gpu.queue.submit([cmd]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
         Ok(FrameStats {
             lights: gl.len(),
             shadow_maps: maps,
-            gpu_ms: self.gpu_time()?,
+            gpu_ms,
+            shadow_gpu_ms,
             cpu_ms,
         })
     }
@@ -1060,10 +1238,12 @@ impl Renderer {
         self.gpu.queue.submit([enc.finish()]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
         Ok(FrameStats {
             lights: gl.len(),
             shadow_maps: maps,
-            gpu_ms: self.gpu_time()?,
+            gpu_ms,
+            shadow_gpu_ms,
             cpu_ms,
         })
     }
@@ -1077,10 +1257,12 @@ impl Renderer {
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
         let image = self.read_image()?;
+        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
         let stats = FrameStats {
             lights: gl.len(),
             shadow_maps: maps,
-            gpu_ms: self.gpu_time()?,
+            gpu_ms,
+            shadow_gpu_ms,
             cpu_ms,
         };
         Ok((image, stats))
