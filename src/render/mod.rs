@@ -62,7 +62,7 @@ use shading::{Globals, GpuLight};
 use std::time::Instant;
 use thiserror::Error;
 
-/// WGSL source of the main pass (`surface.wgsl` prepended).
+/// WGSL source of the G-buffer and shading passes (`surface.wgsl` prepended).
 pub const SHADE_WGSL: &str = concat!(
     include_str!("../../shaders/surface.wgsl"),
     include_str!("../../shaders/shade.wgsl")

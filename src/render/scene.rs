@@ -1,7 +1,7 @@
 //! Scenes: triangle meshes with PBR materials, a camera and a ground plane.
 //!
 //! All meshes are flattened into one world-space vertex and index buffer (node transforms
-//! applied on the CPU), with a material index per vertex, so the main pass is one draw call and
+//! applied on the CPU), with a material index per vertex, so the G-buffer pass is one draw call and
 //! the shadow pass one draw of the shadow casters. The ground plane comes last in the index
 //! buffer: it receives shadows (or catches them, for mixed reality) but casts none, so the
 //! shadow maps are fitted to the casters' bounding sphere alone.

@@ -1,12 +1,13 @@
-//! GPU-side data of the main pass: each CPU struct beside its `#[repr(C)]` `…Raw` twin (as in
-//! the wgpu examples), made by `to_raw()`. The layouts match `shaders/shade.wgsl`.
+//! GPU-side data of the G-buffer and shading passes: each CPU struct beside its `#[repr(C)]`
+//! `…Raw` twin (as in the wgpu examples), made by `to_raw()`. The layouts match
+//! `shaders/shade.wgsl`.
 
 use super::scene::Material;
 use super::shadow;
 use crate::light::Light;
 use glam::{Mat4, Vec3};
 
-/// Per-frame constants of the main pass.
+/// Per-frame constants of the G-buffer and shading passes.
 #[derive(Clone, Copy, Debug)]
 pub struct Globals {
     pub view_proj: Mat4,
@@ -46,7 +47,7 @@ impl Globals {
     }
 }
 
-/// One light as the main pass sees it.
+/// One light as the shading pass sees it.
 #[derive(Clone, Copy, Debug)]
 pub struct GpuLight {
     /// Unit direction towards the light.
