@@ -266,7 +266,14 @@ impl Renderer {
                 label: Some("asg frame"),
             });
         if let Some(asg) = &self.asg_pass {
-            self.encode_scene_pass(&mut enc, "asg shade", &asg.pipeline, &asg.bind_group, None);
+            self.encode_scene_pass(
+                &mut enc,
+                "asg shade",
+                &[&self.color_view],
+                &asg.pipeline,
+                &asg.bind_group,
+                None,
+            );
         }
         if readback {
             self.encode_readback(&mut enc);

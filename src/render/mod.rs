@@ -1041,70 +1041,53 @@ impl Renderer {
 
     /// Rasterises the scene into the G-buffer (cleared to zero: no surface).
     fn encode_gbuffer_pass(&self, enc: &mut wgpu::CommandEncoder) {
-        let target = |view| {
-            Some(wgpu::RenderPassColorAttachment {
-                view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })
-        };
-        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("g-buffer"),
-            color_attachments: &[
-                target(&self.gbuffer_views[0]),
-                target(&self.gbuffer_views[1]),
-            ],
-            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &self.depth_view,
-                depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(1.0),
-                    store: wgpu::StoreOp::Discard,
-                }),
-                stencil_ops: None,
-            }),
-            timestamp_writes: self
-                .timestamps
-                .as_ref()
-                .map(|t| wgpu::RenderPassTimestampWrites {
-                    query_set: &t.set,
-                    beginning_of_pass_write_index: Some(1),
-                    end_of_pass_write_index: None,
-                }),
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        pass.set_pipeline(&self.gbuffer_pipeline);
-        pass.set_bind_group(0, &self.shade_bind_group, &[]);
-        pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
-        pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-        pass.draw_indexed(0..self.scene.indices.len() as u32, 0, 0..1);
+        let timestamps = self
+            .timestamps
+            .as_ref()
+            .map(|t| wgpu::RenderPassTimestampWrites {
+                query_set: &t.set,
+                beginning_of_pass_write_index: Some(1),
+                end_of_pass_write_index: None,
+            });
+        self.encode_scene_pass(
+            enc,
+            "g-buffer",
+            &[&self.gbuffer_views[0], &self.gbuffer_views[1]],
+            &self.gbuffer_pipeline,
+            &self.shade_bind_group,
+            timestamps,
+        );
     }
 
-    /// Draws the whole scene with `pipeline` and `bind_group` into the colour target (cleared to
-    /// transparent) over a fresh depth buffer: the shading pass of both lighting modes.
+    /// Draws the whole scene with `pipeline` and `bind_group` into `targets` (cleared to
+    /// transparent) over a fresh depth buffer: the G-buffer pass, and the ASG pass into the
+    /// colour target.
     fn encode_scene_pass(
         &self,
         enc: &mut wgpu::CommandEncoder,
         label: &str,
+        targets: &[&wgpu::TextureView],
         pipeline: &wgpu::RenderPipeline,
         bind_group: &wgpu::BindGroup,
         timestamp_writes: Option<wgpu::RenderPassTimestampWrites<'_>>,
     ) {
+        let color_attachments: Vec<_> = targets
+            .iter()
+            .map(|view| {
+                Some(wgpu::RenderPassColorAttachment {
+                    view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })
+            })
+            .collect();
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some(label),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &self.color_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
+            color_attachments: &color_attachments,
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: &self.depth_view,
                 depth_ops: Some(wgpu::Operations {
