@@ -7,7 +7,7 @@
 //!    a `Depth32Float` texture array, with an orthographic projection fitted to the casters'
 //!    bounding sphere ([`shadow::light_view_proj`]). Lights that reach nothing visible render
 //!    no map. (An atlas, one pass per 8192² layer of 256 tiles set by viewport and scissor, was
-//!    tried on 2026-12-04 and was slower on an H200, 15.5 ms against 13.1 for 256 maps:
+//!    tried on 2026-12-04 and was slower on an H200, 15.5 ms against 11.4 for 256 maps:
 //!    there the time is the depth fill, the clear included, which a pass count does not change;
 //!    docs/performance.md.)
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
