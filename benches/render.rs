@@ -5,12 +5,14 @@
 //!
 //! `cargo bench --bench render`; `ENVLIGHT_BENCH_LIGHTS=16,64` and `ENVLIGHT_BENCH_SIZE=1280x720`
 //! and `ENVLIGHT_BENCH_SHADOW_RES=1024` change the grid (e.g. for the real-GPU target of 256
-//! shadowed lights at 1280×720 under 8 ms).
+//! shadowed lights at 1280×720 under 8 ms); `ENVLIGHT_BENCH_RASTER=compute` (or `pipeline`, or
+//! both, comma-separated: the default) picks how the shadow maps are drawn, one benchmark group
+//! each.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
 use envlight::light::Light;
 use envlight::render::scene::Scene;
-use envlight::render::{RenderSettings, Renderer};
+use envlight::render::{RenderSettings, Renderer, ShadowRaster};
 use std::f32::consts::PI;
 use std::time::Duration;
 
@@ -51,34 +53,61 @@ fn bench(c: &mut Criterion) {
         .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
         .expect("ENVLIGHT_BENCH_SIZE is WxH");
     let shadow_res = env_list("ENVLIGHT_BENCH_SHADOW_RES", &[512])[0];
+    let rasters: Vec<ShadowRaster> = std::env::var("ENVLIGHT_BENCH_RASTER")
+        .unwrap_or_else(|_| "pipeline,compute".into())
+        .split(',')
+        .map(|s| {
+            ShadowRaster::parse(s.trim()).unwrap_or_else(|| {
+                panic!("ENVLIGHT_BENCH_RASTER: {s:?} is not auto, pipeline or compute")
+            })
+        })
+        .collect();
+    for raster in rasters {
+        bench_raster(c, &counts, (w, h), shadow_res, raster);
+    }
+}
+
+fn bench_raster(
+    c: &mut Criterion,
+    counts: &[u32],
+    (w, h): (u32, u32),
+    shadow_res: u32,
+    raster: ShadowRaster,
+) {
     let settings = RenderSettings {
         width: w,
         height: h,
         shadow_resolution: shadow_res,
+        shadow_raster: raster,
         ..Default::default()
     };
     let mut renderer = Renderer::new(Scene::default_scene(), settings)
         .unwrap_or_else(|e| panic!("the render benchmark needs a graphics adapter: {e}"));
     eprintln!("adapter: {}", renderer.gpu().describe());
-    let mut group = c.benchmark_group(format!("render_{w}x{h}_shadow{shadow_res}"));
+    let mut group = c.benchmark_group(format!(
+        "render_{w}x{h}_shadow{shadow_res}_{}",
+        raster.name()
+    ));
     // Frames take seconds on lavapipe: one frame per sample, 10 samples.
     group.sampling_mode(SamplingMode::Flat);
     group.sample_size(10);
     group.warm_up_time(Duration::from_millis(100));
     group.measurement_time(Duration::from_secs(1));
-    for &n in &counts {
+    for &n in counts {
         let set = lights(n as usize);
         for culling in [true, false] {
             renderer.set_culling(culling);
             // One untimed frame: allocates the shadow array for this count.
             let first = renderer.render_timed(&set).expect("render");
+            let ms = |v: Option<f64>| v.map_or("n/a".to_string(), |ms| format!("{ms:.2} ms"));
             eprintln!(
-                "{n} lights, culling {}: {} shadow maps, GPU timestamps {}",
+                "{} maps, {n} lights, culling {}: {} shadow maps, GPU timestamps {} (shadow \
+                 maps {})",
+                raster.name(),
                 if culling { "on" } else { "off" },
                 first.shadow_maps,
-                first
-                    .gpu_ms
-                    .map_or("n/a".to_string(), |ms| format!("{ms:.2} ms")),
+                ms(first.gpu_ms),
+                ms(first.shadow_gpu_ms),
             );
             let id = BenchmarkId::new(if culling { "culling_on" } else { "culling_off" }, n);
             group.bench_with_input(id, &set, |b, set| {

@@ -29,8 +29,11 @@ struct Globals {
     light_count: u32,
     culling: u32,
     shadows: u32,
-    _pad0: u32,
-    // x: normal offset (world units), y: depth bias (NDC depth), z, w: unused.
+    // Where the maps are: 0 the depth texture array (render passes), 1 the compute
+    // rasteriser's buffer (shadow_raster.wgsl).
+    shadow_source: u32,
+    // x: normal offset (world units), y: depth bias (NDC depth), z: map side in texels,
+    // w: unused.
     shadow_params: vec4<f32>,
 };
 
@@ -49,6 +52,8 @@ struct Light {
 @group(0) @binding(2) var<storage, read> materials: array<Material>;
 @group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
 @group(0) @binding(4) var shadow_sampler: sampler_comparison;
+// The compute rasteriser's maps: map k's texel (x, y) at k·res² + y·res + x, f32 depth bits.
+@group(0) @binding(5) var<storage, read> shadow_depths: array<u32>;
 @group(1) @binding(0) var gbuffer_position: texture_2d<f32>;
 @group(1) @binding(1) var gbuffer_normal: texture_2d<f32>;
 @group(1) @binding(2) var frame: texture_storage_2d<rgba32float, write>;
@@ -65,6 +70,33 @@ var<private> POISSON: array<vec2<f32>, 12> = array<vec2<f32>, 12>(
     vec2<f32>(0.519, 0.767), vec2<f32>(0.185, -0.893), vec2<f32>(0.507, 0.064),
     vec2<f32>(0.896, 0.412), vec2<f32>(-0.322, -0.933), vec2<f32>(-0.792, -0.598),
 );
+
+// One bilinear depth comparison of map `layer` at `uv` against `depth`: the fraction of the
+// 2×2 texels around uv with depth ≤ the stored one, weighted bilinearly, with the edge texels
+// clamped — what the LessEqual comparison sampler gives on the texture array, done by hand on
+// the compute rasteriser's buffer.
+fn compare_tap(uv: vec2<f32>, layer: i32, depth: f32) -> f32 {
+    if globals.shadow_source == 0u {
+        return textureSampleCompareLevel(shadow_maps, shadow_sampler, uv, layer, depth);
+    }
+    let res = i32(globals.shadow_params.z);
+    let t = uv * globals.shadow_params.z - vec2<f32>(0.5);
+    let cell = floor(t);
+    let f = t - cell;
+    let last = res - 1;
+    let x0 = clamp(i32(cell.x), 0, last);
+    let x1 = clamp(i32(cell.x) + 1, 0, last);
+    let y0 = clamp(i32(cell.y), 0, last);
+    let y1 = clamp(i32(cell.y) + 1, 0, last);
+    let base = u32(layer) * u32(res) * u32(res);
+    let r0 = base + u32(y0 * res);
+    let r1 = base + u32(y1 * res);
+    let s00 = select(0.0, 1.0, depth <= bitcast<f32>(shadow_depths[r0 + u32(x0)]));
+    let s10 = select(0.0, 1.0, depth <= bitcast<f32>(shadow_depths[r0 + u32(x1)]));
+    let s01 = select(0.0, 1.0, depth <= bitcast<f32>(shadow_depths[r1 + u32(x0)]));
+    let s11 = select(0.0, 1.0, depth <= bitcast<f32>(shadow_depths[r1 + u32(x1)]));
+    return mix(mix(s00, s10, f.x), mix(s01, s11, f.x), f.y);
+}
 
 // Visibility of light `i` at world point `p` with normal `n`: 1 lit, 0 shadowed.
 fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, l: vec3<f32>, layer: i32, full: bool) -> f32 {
@@ -87,16 +119,15 @@ fn visibility(i: u32, p: vec3<f32>, n: vec3<f32>, l: vec3<f32>, layer: i32, full
     if !full {
         // Cheap path: 4 bilinear taps on the kernel's half radius.
         let h = 0.5 * radius;
-        var cheap = textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(h, h), layer, depth);
-        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(-h, h), layer, depth);
-        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(h, -h), layer, depth);
-        cheap = cheap + textureSampleCompareLevel(shadow_maps, shadow_sampler, uv + vec2<f32>(-h, -h), layer, depth);
+        var cheap = compare_tap(uv + vec2<f32>(h, h), layer, depth);
+        cheap = cheap + compare_tap(uv + vec2<f32>(-h, h), layer, depth);
+        cheap = cheap + compare_tap(uv + vec2<f32>(h, -h), layer, depth);
+        cheap = cheap + compare_tap(uv + vec2<f32>(-h, -h), layer, depth);
         return 0.25 * cheap;
     }
     var sum = 0.0;
     for (var k = 0u; k < PCF_TAPS; k = k + 1u) {
-        sum = sum + textureSampleCompareLevel(
-            shadow_maps, shadow_sampler, uv + POISSON[k] * radius, layer, depth);
+        sum = sum + compare_tap(uv + POISSON[k] * radius, layer, depth);
     }
     return sum / f32(PCF_TAPS);
 }

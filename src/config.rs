@@ -229,6 +229,7 @@ pub struct RawRender {
     pub shadow_resolution: Option<u32>,
     pub culling: Option<bool>,
     pub shadow_catcher: Option<bool>,
+    pub shadow_raster: Option<String>,
     pub budget_ms: Option<f64>,
     pub latest_png: Option<String>,
     pub lighting: Option<String>,
@@ -738,6 +739,16 @@ impl RawRender {
             shadows: true,
             culling: self.culling.unwrap_or(d.settings.culling),
             shadow_catcher: self.shadow_catcher.unwrap_or(d.settings.shadow_catcher),
+            shadow_raster: match self.shadow_raster.as_deref() {
+                None => d.settings.shadow_raster,
+                Some(s) => crate::render::ShadowRaster::parse(s).ok_or_else(|| {
+                    invalid(
+                        "render.shadow_raster",
+                        s,
+                        "must be \"auto\", \"pipeline\" or \"compute\"",
+                    )
+                })?,
+            },
         };
         if let Some(ms) = self.budget_ms {
             if !(ms.is_finite() && ms > 0.0) {
@@ -1401,6 +1412,7 @@ mod tests {
             "warm_subset",
             "warm_centroid",
             "lighting",
+            "shadow_raster",
             "basis",
             "side",
             "coefficients",
@@ -1623,6 +1635,11 @@ mod tests {
             ("[asg]\nfirst_subset = 17", "asg.first_subset", "17"),
             ("[asg]\nthreads = 1000", "asg.threads", "1000"),
             ("[render]\nlighting = \"sh\"", "render.lighting", "sh"),
+            (
+                "[render]\nshadow_raster = \"raster\"",
+                "render.shadow_raster",
+                "raster",
+            ),
             (
                 "[render]\nenabled = true\nlighting = \"asg\"",
                 "render.lighting",

@@ -843,6 +843,7 @@ fn build_renderer(
         adapter = %renderer.gpu().describe(),
         width = config.settings.width,
         height = config.settings.height,
+        shadow_maps = renderer.settings().shadow_raster.name(),
         "render thread enabled"
     );
     Ok(renderer)

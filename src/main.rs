@@ -132,6 +132,12 @@ struct RenderArgs {
     /// Shadow-map side in texels (16..=8192). [default: 512]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(16..=8192))]
     shadow_res: Option<u32>,
+    /// How the shadow maps are drawn: `pipeline`, a depth-only render pass per light, or
+    /// `compute`, compute shaders (faster where the raster pipeline is a small part of the GPU,
+    /// as on an H200), or `auto`: compute on a GPU, pipeline on a CPU rasteriser such as
+    /// lavapipe (docs/rendering.md). [default: auto]
+    #[arg(long, value_name = "HOW", value_parser = parse_shadow_raster)]
+    shadow_raster: Option<envlight::render::ShadowRaster>,
     /// No shadows.
     #[arg(long)]
     no_shadows: bool,
@@ -180,6 +186,7 @@ impl RenderArgs {
                 (self.light_count.is_some(), "--light-count"),
                 (self.shadow_res.is_some(), "--shadow-res"),
                 (self.no_shadows, "--no-shadows"),
+                (self.shadow_raster.is_some(), "--shadow-raster"),
                 (self.no_culling, "--no-culling"),
             ];
             if let Some((_, flag)) = with.iter().find(|(given, _)| *given) {
@@ -192,6 +199,9 @@ impl RenderArgs {
         }
         if self.no_shadows && self.shadow_res.is_some() {
             usage_error!("--shadow-res sizes the shadow maps; with --no-shadows there are none");
+        }
+        if self.no_shadows && self.shadow_raster.is_some() {
+            usage_error!("--shadow-raster draws the shadow maps; with --no-shadows there are none");
         }
         if self.lights.is_some() && self.light_count.is_some() {
             usage_error!(
@@ -598,6 +608,11 @@ fn parse_pair(s: &str) -> Result<[f64; 2], String> {
             .map_err(|e| format!("{v:?} is not a number: {e}"))
     };
     Ok([num(x)?, num(y)?])
+}
+
+fn parse_shadow_raster(s: &str) -> Result<envlight::render::ShadowRaster, String> {
+    envlight::render::ShadowRaster::parse(s)
+        .ok_or_else(|| format!("expected \"auto\", \"pipeline\" or \"compute\", got {s:?}"))
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -1462,6 +1477,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         shadows: !args.no_shadows,
         culling: !args.no_culling,
         shadow_catcher: args.catcher,
+        shadow_raster: args.shadow_raster.unwrap_or_default(),
     };
     let mut next_frame =
         move || -> Result<Option<(envlight::LightFrame, Option<envlight::HdrFrame>)>> {
@@ -1505,7 +1521,11 @@ fn render(args: &RenderArgs) -> Result<()> {
     };
     let inputs = cli_output::InputFiles::new(&inputs);
     let mut renderer = Renderer::new(scene, settings)?;
-    tracing::info!("adapter: {}", renderer.gpu().describe());
+    tracing::info!(
+        "adapter: {}; shadow maps: {}",
+        renderer.gpu().describe(),
+        renderer.settings().shadow_raster.name()
+    );
     std::fs::create_dir_all(out)
         .with_context(|| format!("cannot create output folder {}", out.display()))?;
     let stats_path = out.join("stats.jsonl");

@@ -2,14 +2,16 @@
 //! light, per-pixel light culling and a fixed frame budget.
 //!
 //! Passes, per frame:
-//! 1. **Shadow passes** (`shaders/shadow.wgsl`): for every light that reaches a visible surface
-//!    ([`shadow::reaches_visible`]), one depth-only pass of the shadow casters into its layer of
-//!    a `Depth32Float` texture array, with an orthographic projection fitted to the casters'
-//!    bounding sphere ([`shadow::light_view_proj`]). Lights that reach nothing visible render
-//!    no map. (An atlas, one pass per 8192² layer of 256 tiles set by viewport and scissor, was
-//!    tried on 2026-12-04 and was slower on an H200, 15.5 ms against 11.4 for 256 maps:
-//!    there the time is the depth fill, the clear included, which a pass count does not change;
-//!    docs/performance.md.)
+//! 1. **Shadow maps**: for every light that reaches a visible surface
+//!    ([`shadow::reaches_visible`]), a depth map of the shadow casters with an orthographic
+//!    projection fitted to the casters' bounding sphere ([`shadow::light_view_proj`]); lights
+//!    that reach nothing visible get no map. [`RenderSettings::shadow_raster`] says how:
+//!    one depth-only render pass per map into its layer of a `Depth32Float` texture array
+//!    (`shaders/shadow.wgsl`), or one compute pass that rasterises every map into a storage
+//!    buffer ([`shadow_raster`]) — on an H200 0.71 ms for 256 maps of 512² against 11.4 ms as
+//!    render passes, whose depth fill runs on the small graphics part of that chip. (An atlas,
+//!    one render pass per 8192² layer of 256 tiles set by viewport and scissor, was tried on
+//!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.)
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
 //!    into two `Rgba32Float` targets, world position with material and normal.
 //! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
@@ -51,6 +53,7 @@ pub mod output;
 pub mod scene;
 pub mod shading;
 pub mod shadow;
+pub mod shadow_raster;
 #[cfg(feature = "window")]
 pub mod window;
 
@@ -59,6 +62,8 @@ use device::{DeviceError, Gpu};
 use glam::{Mat4, Vec3};
 use scene::Scene;
 use shading::{Globals, GpuLight};
+use shadow_raster::ComputeShadows;
+pub use shadow_raster::ShadowRaster;
 use std::time::Instant;
 use thiserror::Error;
 
@@ -78,6 +83,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("present.wgsl", PRESENT_WGSL),
     ("shade.wgsl", SHADE_WGSL),
     ("shadow.wgsl", SHADOW_WGSL),
+    ("shadow_raster.wgsl", shadow_raster::SHADOW_RASTER_WGSL),
 ];
 /// The shared prelude prepended to `shade.wgsl` and `asg.wgsl`: vertex layout, materials, the
 /// shaded point's set-up.
@@ -118,6 +124,9 @@ pub struct RenderSettings {
     pub culling: bool,
     /// The ground plane is a shadow catcher (mixed-reality output).
     pub shadow_catcher: bool,
+    /// How the shadow maps are drawn: render passes or compute shaders ([`shadow_raster`]);
+    /// a renderer's [`Renderer::settings`] hold the way it resolved `Auto` to.
+    pub shadow_raster: ShadowRaster,
 }
 
 impl Default for RenderSettings {
@@ -129,6 +138,7 @@ impl Default for RenderSettings {
             shadows: true,
             culling: true,
             shadow_catcher: false,
+            shadow_raster: ShadowRaster::default(),
         }
     }
 }
@@ -226,6 +236,10 @@ pub struct Renderer {
     warned_layers: bool,
     /// The ASG lighting pass, built on first use.
     asg_pass: Option<asg::AsgPass>,
+    /// The compute rasteriser, with [`ShadowRaster::Compute`].
+    compute_shadows: Option<ComputeShadows>,
+    /// Bound in its place otherwise.
+    no_shadow_depths: wgpu::Buffer,
 }
 
 fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
@@ -294,8 +308,13 @@ impl Renderer {
     }
 
     /// Builds a renderer on an open device.
-    pub fn with_gpu(gpu: Gpu, scene: Scene, settings: RenderSettings) -> Result<Self, RenderError> {
+    pub fn with_gpu(
+        gpu: Gpu,
+        scene: Scene,
+        mut settings: RenderSettings,
+    ) -> Result<Self, RenderError> {
         use wgpu::util::DeviceExt;
+        settings.shadow_raster = settings.shadow_raster.resolve(gpu.info.device_type);
         let max_dim = gpu.device.limits().max_texture_dimension_2d;
         if settings.width == 0
             || settings.height == 0
@@ -342,12 +361,13 @@ impl Renderer {
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
             contents: bytemuck::cast_slice(&scene.vertices),
-            usage: wgpu::BufferUsages::VERTEX,
+            // Storage: the compute rasteriser reads the positions.
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::STORAGE,
         });
         let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("indices"),
             contents: bytemuck::cast_slice(&scene.indices),
-            usage: wgpu::BufferUsages::INDEX,
+            usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::STORAGE,
         });
         let materials: Vec<shading::MaterialRaw> = scene
             .materials
@@ -434,6 +454,16 @@ impl Renderer {
                     binding: 4,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
                     count: None,
                 },
             ],
@@ -584,6 +614,22 @@ impl Renderer {
             }),
             period_ns: gpu.queue.get_timestamp_period(),
         });
+        // The compute rasteriser and its depth buffer, or a placeholder for binding 5.
+        let compute_shadows = (settings.shadow_raster == ShadowRaster::Compute).then(|| {
+            ComputeShadows::new(
+                device,
+                &vertex_buffer,
+                &index_buffer,
+                scene.caster_indices,
+                settings.shadow_resolution,
+            )
+        });
+        let no_shadow_depths = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("no compute shadow maps"),
+            size: 4,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         let shade_bind_group = Self::make_shade_bind_group(
             device,
             &shade_layout,
@@ -592,6 +638,9 @@ impl Renderer {
             &material_buffer,
             &shadow.array_view,
             &shadow_sampler,
+            compute_shadows
+                .as_ref()
+                .map_or(&no_shadow_depths, ComputeShadows::depths),
         );
         let shadow_cam_bind_group =
             Self::make_cam_bind_group(device, &shadow_cam_layout, &light_cam_buffer);
@@ -634,6 +683,8 @@ impl Renderer {
             timestamps,
             warned_layers: false,
             asg_pass: None,
+            compute_shadows,
+            no_shadow_depths,
         })
     }
 
@@ -764,6 +815,7 @@ impl Renderer {
         materials: &wgpu::Buffer,
         shadow_view: &wgpu::TextureView,
         sampler: &wgpu::Sampler,
+        shadow_depths: &wgpu::Buffer,
     ) -> wgpu::BindGroup {
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("shade"),
@@ -788,6 +840,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 4,
                     resource: wgpu::BindingResource::Sampler(sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: shadow_depths.as_entire_binding(),
                 },
             ],
         })
@@ -861,8 +917,19 @@ impl Renderer {
             lights.iter().filter_map(GpuLight::from_light).collect();
         let res = self.settings.shadow_resolution;
         let bounds = self.scene.bounds;
-        // Shadow maps: one layer each, at most as many as the adapter's texture arrays allow.
-        let max_maps = self.gpu.max_array_layers;
+        // Shadow maps: one layer each, at most as many as the adapter's texture arrays allow
+        // (render passes) or its largest storage buffer holds (compute).
+        let (max_maps, limit) = if self.compute_shadows.is_some() {
+            (
+                ComputeShadows::max_maps(device, res),
+                "what the adapter's largest storage buffer holds",
+            )
+        } else {
+            (
+                self.gpu.max_array_layers,
+                "the adapter's texture-array layer limit",
+            )
+        };
         let mut mapped: Vec<usize> = Vec::new();
         let mut skipped = 0usize;
         if self.settings.shadows {
@@ -880,8 +947,8 @@ impl Renderer {
         let maps = mapped.len() as u32;
         if skipped > 0 && !self.warned_layers {
             tracing::warn!(
-                "{skipped} lights drawn without shadows: at most {max_maps} shadow maps (the \
-                 adapter's texture-array layer limit)"
+                "{skipped} lights drawn without shadows: at most {max_maps} shadow maps \
+                 ({limit})"
             );
             self.warned_layers = true;
         }
@@ -891,7 +958,7 @@ impl Renderer {
             self.light_buffer = Self::make_light_buffer(device, self.light_capacity);
             rebind = true;
         }
-        if maps > self.shadow.layers {
+        if self.compute_shadows.is_none() && maps > self.shadow.layers {
             let layers = maps.next_power_of_two().min(max_maps);
             self.shadow = Self::make_shadow_array(device, res, layers);
             rebind = true;
@@ -902,7 +969,12 @@ impl Renderer {
             l.view_proj = shadow::light_view_proj(l.dir, bounds);
             l.pcf_radius = shadow::pcf_radius_uv(l.solid_angle, res);
         }
-        if maps as usize > self.light_cam_capacity {
+        if let Some(compute) = self.compute_shadows.as_mut() {
+            let cameras: Vec<Mat4> = mapped.iter().map(|&i| gpu_lights[i].view_proj).collect();
+            rebind |=
+                compute.prepare(&self.gpu, &self.vertex_buffer, &self.index_buffer, &cameras)?;
+        }
+        if self.compute_shadows.is_none() && maps as usize > self.light_cam_capacity {
             self.light_cam_capacity = (maps as usize).next_power_of_two();
             self.light_cam_buffer =
                 Self::make_light_cam_buffer(device, self.light_cam_stride, self.light_cam_capacity);
@@ -918,6 +990,9 @@ impl Renderer {
                 &self.material_buffer,
                 &self.shadow.array_view,
                 &self.shadow_sampler,
+                self.compute_shadows
+                    .as_ref()
+                    .map_or(&self.no_shadow_depths, ComputeShadows::depths),
             );
         }
         let raw: Vec<shading::LightRaw> = gpu_lights.iter().map(GpuLight::to_raw).collect();
@@ -926,7 +1001,7 @@ impl Renderer {
                 .queue
                 .write_buffer(&self.light_buffer, 0, bytemuck::cast_slice(&raw));
         }
-        if maps > 0 {
+        if self.compute_shadows.is_none() && maps > 0 {
             // Camera k is map (layer) k's: at the k-th dynamic offset.
             let stride = self.light_cam_stride as usize;
             let mut cams = vec![0u8; stride * maps as usize];
@@ -946,6 +1021,8 @@ impl Renderer {
             light_count: gpu_lights.len() as u32,
             culling: self.settings.culling,
             shadows: self.settings.shadows,
+            shadow_raster: self.settings.shadow_raster,
+            shadow_resolution: res,
             normal_offset: 2.0 * texel_world,
             depth_bias: 1.0 / res as f32,
         };
@@ -978,7 +1055,23 @@ impl Renderer {
                 label: Some("frame"),
             });
         let ts = self.timestamps.as_ref();
-        for layer in 0..maps {
+        if let Some(compute) = self.compute_shadows.as_ref().filter(|_| maps > 0) {
+            compute.encode(
+                &mut enc,
+                maps as u32,
+                ts.map(|t| wgpu::ComputePassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: Some(0),
+                    end_of_pass_write_index: None,
+                }),
+            );
+        }
+        let render_pass_maps = if self.compute_shadows.is_some() {
+            0
+        } else {
+            maps
+        };
+        for layer in 0..render_pass_maps {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("shadow"),
                 color_attachments: &[],

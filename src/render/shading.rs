@@ -4,6 +4,7 @@
 
 use super::scene::Material;
 use super::shadow;
+use super::shadow_raster::ShadowRaster;
 use crate::light::Light;
 use glam::{Mat4, Vec3};
 
@@ -15,6 +16,10 @@ pub struct Globals {
     pub light_count: u32,
     pub culling: bool,
     pub shadows: bool,
+    /// Where the shading pass reads the maps.
+    pub shadow_raster: ShadowRaster,
+    /// Side of each shadow map in texels.
+    pub shadow_resolution: u32,
     /// Normal offset of shadow lookups, world units.
     pub normal_offset: f32,
     /// Depth bias of shadow lookups, in shadow-map depth units.
@@ -29,7 +34,7 @@ pub struct GlobalsRaw {
     light_count: u32,
     culling: u32,
     shadows: u32,
-    _pad0: u32,
+    shadow_source: u32,
     shadow_params: [f32; 4],
 }
 
@@ -41,8 +46,13 @@ impl Globals {
             light_count: self.light_count,
             culling: u32::from(self.culling),
             shadows: u32::from(self.shadows),
-            _pad0: 0,
-            shadow_params: [self.normal_offset, self.depth_bias, 0.0, 0.0],
+            shadow_source: u32::from(self.shadow_raster == ShadowRaster::Compute),
+            shadow_params: [
+                self.normal_offset,
+                self.depth_bias,
+                self.shadow_resolution as f32,
+                0.0,
+            ],
         }
     }
 }

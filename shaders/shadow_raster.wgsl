@@ -1,0 +1,136 @@
+// Shadow maps rasterised by compute shaders (`ShadowRaster::Compute`, src/render/shadow_raster.rs):
+// the same maps as shadow.wgsl's depth-only render passes, written into one storage buffer of
+// u32 depths (map k's texel (x, y) at k·res² + y·res + x), with no raster pipeline involved.
+//
+//  * cs_clear: every texel of the frame's maps to the far plane (depth 1.0).
+//  * cs_rasterize: one invocation per (shadow-casting triangle, map). It transforms the
+//    triangle by the map's orthographic view-projection (shadow.rs: `light_view_proj`; no
+//    perspective divide, w = 1), then walks the rows of its bounding box in texel space: on each
+//    row the three edge functions bound the covered span exactly, so the loop visits only texel
+//    centres inside the triangle (both windings: casters are drawn without culling, as in the
+//    render pass). Each covered texel gets the plane's depth at its centre plus the render
+//    pass's bias (2 units of the depth's last place + 1.5 × the plane's largest slope per
+//    texel) by atomicMin on the depth's bits — non-negative f32s order as their bit patterns.
+//
+// Why: a depth-only render pass is bounded by the raster pipeline's fill rate, which on a
+// compute part such as the H200 is a small part of the chip (docs/performance.md); these
+// invocations run on every multiprocessor, and the clear is a plain buffer write.
+
+struct Params {
+    // Side of each map in texels.
+    resolution: u32,
+    // Shadow-casting triangles (the first `caster_triangles` of the index buffer).
+    caster_triangles: u32,
+    // Maps this frame.
+    maps: u32,
+    // Workgroups along x of cs_rasterize's dispatch (its triangle stride is 64× this).
+    groups_x: u32,
+};
+
+@group(0) @binding(0) var<uniform> params: Params;
+// The scene's vertices as words: position at 7·i .. 7·i + 2 (src/render/scene.rs `Vertex`:
+// position, normal, material; 28 bytes).
+@group(0) @binding(1) var<storage, read> vertex_words: array<f32>;
+@group(0) @binding(2) var<storage, read> indices: array<u32>;
+// Map k's view-projection.
+@group(0) @binding(3) var<storage, read> light_cameras: array<mat4x4<f32>>;
+@group(0) @binding(4) var<storage, read_write> depths: array<atomic<u32>>;
+
+const VERTEX_WORDS: u32 = 7u;
+// The render pass's DepthBiasState: constant 2, slope scale 1.5 (src/render/mod.rs). One unit
+// of the constant is the depth's last place near its largest value (< 1): 2^-24.
+const BIAS_CONSTANT: f32 = 5.9604645e-8;
+const BIAS_SLOPE: f32 = 1.5;
+const FAR_DEPTH_BITS: u32 = 0x3f800000u;
+
+@compute @workgroup_size(256)
+fn cs_clear(@builtin(global_invocation_id) id: vec3<u32>,
+            @builtin(num_workgroups) groups: vec3<u32>) {
+    let total = params.maps * params.resolution * params.resolution;
+    let stride = groups.x * 256u;
+    for (var i = id.x; i < total; i = i + stride) {
+        atomicStore(&depths[i], FAR_DEPTH_BITS);
+    }
+}
+
+fn texel_space(p: vec3<f32>, m: mat4x4<f32>, res: f32) -> vec3<f32> {
+    let c = m * vec4<f32>(p, 1.0);
+    // Texel space: x right, y down (as the shading pass's uv), texel centres at i + 0.5.
+    return vec3<f32>((c.x * 0.5 + 0.5) * res, (0.5 - c.y * 0.5) * res, c.z);
+}
+
+fn position(i: u32) -> vec3<f32> {
+    let w = VERTEX_WORDS * i;
+    return vec3<f32>(vertex_words[w], vertex_words[w + 1u], vertex_words[w + 2u]);
+}
+
+@compute @workgroup_size(64)
+fn cs_rasterize(@builtin(global_invocation_id) id: vec3<u32>) {
+    let map = id.y;
+    if map >= params.maps {
+        return;
+    }
+    let res = params.resolution;
+    let resf = f32(res);
+    let m = light_cameras[map];
+    let base = map * res * res;
+    for (var tri = id.x; tri < params.caster_triangles; tri = tri + params.groups_x * 64u) {
+        let a = texel_space(position(indices[3u * tri]), m, resf);
+        let b = texel_space(position(indices[3u * tri + 1u]), m, resf);
+        let c = texel_space(position(indices[3u * tri + 2u]), m, resf);
+        // Twice the signed area; the edge functions are made positive inside.
+        let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
+        if !(abs(area) > 1e-12) {
+            continue;
+        }
+        let s = sign(area);
+        // Edge i is opposite vertex i: e_i(x, y) = s·(A_i·x + B_i·y + C_i) ≥ 0 inside, and
+        // equals s·area at vertex i.
+        let ea = s * vec3<f32>(b.y - c.y, c.x - b.x, b.x * c.y - b.y * c.x);
+        let eb = s * vec3<f32>(c.y - a.y, a.x - c.x, c.x * a.y - c.y * a.x);
+        let ec = s * vec3<f32>(a.y - b.y, b.x - a.x, a.x * b.y - a.y * b.x);
+        // Depth plane z = zx·x + zy·y + z0 from the barycentrics e_i / |area|.
+        let inv = 1.0 / abs(area);
+        let zx = (ea.x * a.z + eb.x * b.z + ec.x * c.z) * inv;
+        let zy = (ea.y * a.z + eb.y * b.z + ec.y * c.z) * inv;
+        let z0 = (ea.z * a.z + eb.z * b.z + ec.z * c.z) * inv;
+        let bias = 2.0 * BIAS_CONSTANT + BIAS_SLOPE * max(abs(zx), abs(zy));
+        let lo = min(a.xy, min(b.xy, c.xy));
+        let hi = max(a.xy, max(b.xy, c.xy));
+        // Texel rows and columns whose centres (i + 0.5) may lie inside.
+        let y_first = i32(max(ceil(lo.y - 0.5), 0.0));
+        let y_last = i32(min(floor(hi.y - 0.5), resf - 1.0));
+        let x_min = max(ceil(lo.x - 0.5), 0.0);
+        let x_max = min(floor(hi.x - 0.5), resf - 1.0);
+        for (var y = y_first; y <= y_last; y = y + 1) {
+            let yc = f32(y) + 0.5;
+            // Each edge e = A·x + (B·yc + C) ≥ 0 bounds x on one side (or excludes the row).
+            var x0 = x_min;
+            var x1 = x_max;
+            for (var k = 0; k < 3; k = k + 1) {
+                var e = ea;
+                if k == 1 {
+                    e = eb;
+                } else if k == 2 {
+                    e = ec;
+                }
+                let rest = e.y * yc + e.z;
+                if e.x > 0.0 {
+                    x0 = max(x0, ceil(-rest / e.x - 0.5));
+                } else if e.x < 0.0 {
+                    x1 = min(x1, floor(-rest / e.x - 0.5));
+                } else if rest < 0.0 {
+                    x1 = -1.0;
+                }
+            }
+            if x0 > x1 {
+                continue;
+            }
+            let row = base + u32(y) * res;
+            for (var x = x0; x <= x1; x = x + 1.0) {
+                let z = clamp(zx * (x + 0.5) + zy * yc + z0 + bias, 0.0, 1.0);
+                atomicMin(&depths[row + u32(x)], bitcast<u32>(z));
+            }
+        }
+    }
+}
