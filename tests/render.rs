@@ -476,6 +476,15 @@ fn each_light_reads_its_own_map(raster: ShadowRaster) {
     let (without_img, _) = r.render(&without).unwrap();
     let mut r_alone = renderer(scene(), settings);
     let (alone_img, _) = r_alone.render(&alone).unwrap();
+    // X's shadow is in the image: rendered without shadows, X alone lights more pixels.
+    let mut r_unshadowed = renderer(
+        scene(),
+        RenderSettings {
+            shadows: false,
+            ..settings
+        },
+    );
+    let (unshadowed_img, _) = r_unshadowed.render(&alone).unwrap();
     let peak = alone_img.rgba.iter().fold(0.0f32, |m, v| m.max(*v));
     let mut failures = Vec::new();
     let mut shadowed = 0;
@@ -483,8 +492,7 @@ fn each_light_reads_its_own_map(raster: ShadowRaster) {
         if alone_img.rgba[4 * i + 3] == 0.0 {
             continue;
         }
-        let lum_alone = alone_img.rgba[4 * i + 1];
-        shadowed += usize::from(lum_alone < 0.9 * peak && lum_alone > 0.0);
+        shadowed += usize::from(alone_img.rgba[4 * i + 1] < 0.8 * unshadowed_img.rgba[4 * i + 1]);
         for c in 0..3 {
             let k = 4 * i + c;
             let contribution = all_img.rgba[k] - without_img.rgba[k];
@@ -503,8 +511,8 @@ fn each_light_reads_its_own_map(raster: ShadowRaster) {
         &failures,
     );
     assert!(
-        peak > 0.0 && shadowed > 100,
-        "{raster:?}: X casts a visible shadow: {shadowed} pixels"
+        peak > 0.0 && shadowed > 25,
+        "{raster:?}: pixels X lights at under 80% of its unshadowed value: {shadowed}"
     );
 }
 
