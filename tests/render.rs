@@ -718,7 +718,7 @@ fn golden_mixed_reality() {
 /// lights: the same texel centres and bias, so only penumbra texels (and the comparison's
 /// filter weights: the sampler's fixed point against f32) differ. Bound: mean ≤ 5·10⁻⁵ and
 /// 99.9th percentile ≤ 5·10⁻³ of the mean opaque value (measured on lavapipe: 2·10⁻⁶ and
-/// 5.6·10⁻⁴; the shadows themselves change the image by 0.040 on average).
+/// 6.0·10⁻⁴; the shadows themselves change the image by 0.039 on average).
 #[test]
 fn compute_shadow_maps_match_the_render_passes() {
     let lights = sky_lights(64);
@@ -728,7 +728,8 @@ fn compute_shadow_maps_match_the_render_passes() {
             RenderSettings {
                 width: 128,
                 height: 80,
-                shadow_resolution: 256,
+                // Not a power of two, not a multiple of 64.
+                shadow_resolution: 200,
                 shadows,
                 shadow_raster: raster,
                 ..Default::default()
