@@ -675,10 +675,10 @@ fn check_golden(name: &str, img: &Image, exposure: f32) {
     }
 }
 
-/// The golden images were drawn with render-pass shadow maps; the compute rasteriser's must
-/// match them within the same tolerance.
-#[test]
-fn golden_default_scene() {
+/// The default scene at 128×80 under 24 sky lights against golden image `name`, with both
+/// ways of drawing the shadow maps: the goldens were drawn with render passes, and the compute
+/// rasteriser's images must match them within the same tolerance.
+fn check_golden_default_scene(name: &str, shadow_catcher: bool) {
     for raster in RASTERS {
         let mut r = renderer(
             Scene::default_scene(),
@@ -686,32 +686,24 @@ fn golden_default_scene() {
                 width: 128,
                 height: 80,
                 shadow_resolution: 256,
+                shadow_catcher,
                 shadow_raster: raster,
                 ..Default::default()
             },
         );
         let (img, _) = r.render(&sky_lights(24)).unwrap();
-        check_golden("default_scene", &img, 0.003);
+        check_golden(name, &img, 0.003);
     }
 }
 
 #[test]
+fn golden_default_scene() {
+    check_golden_default_scene("default_scene", false);
+}
+
+#[test]
 fn golden_mixed_reality() {
-    for raster in RASTERS {
-        let mut r = renderer(
-            Scene::default_scene(),
-            RenderSettings {
-                width: 128,
-                height: 80,
-                shadow_resolution: 256,
-                shadow_catcher: true,
-                shadow_raster: raster,
-                ..Default::default()
-            },
-        );
-        let (img, _) = r.render(&sky_lights(24)).unwrap();
-        check_golden("mixed_reality", &img, 0.003);
-    }
+    check_golden_default_scene("mixed_reality", true);
 }
 
 /// Compute-rasterised shadow maps against the render passes' on the default scene under 64 sky

@@ -11,7 +11,7 @@
 //! H200 is a small part of the chip; the compute path runs on every multiprocessor
 //! (docs/performance.md gives both).
 
-use super::RenderError;
+use super::{compute_storage_entry, RenderError};
 
 /// How the shadow maps are drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -137,16 +137,6 @@ impl ComputeShadows {
             label: Some("shadow_raster.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADOW_RASTER_WGSL.into()),
         });
-        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("shadow raster"),
             entries: &[
@@ -160,10 +150,10 @@ impl ComputeShadows {
                     },
                     count: None,
                 },
-                storage(1, true),
-                storage(2, true),
-                storage(3, true),
-                storage(4, false),
+                compute_storage_entry(1, true),
+                compute_storage_entry(2, true),
+                compute_storage_entry(3, true),
+                compute_storage_entry(4, false),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
