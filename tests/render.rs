@@ -713,6 +713,13 @@ fn golden_mixed_reality() {
 /// 6.0·10⁻⁴; the shadows themselves change the image by 0.039 on average).
 #[test]
 fn compute_shadow_maps_match_the_render_passes() {
+    // Both compute kernels are in play: the box's faces are large triangles, the spheres' small.
+    let (ids, small) = envlight::render::shadow_raster::split_by_size(&Scene::default_scene(), 200);
+    assert!(
+        small > 0 && (small as usize) < ids.len(),
+        "{small} of {}",
+        ids.len()
+    );
     let lights = sky_lights(64);
     let render = |raster, shadows| {
         let mut r = renderer(

@@ -605,9 +605,9 @@ impl Renderer {
         let compute_shadows = (settings.shadow_raster == ShadowRaster::Compute).then(|| {
             ComputeShadows::new(
                 device,
+                &scene,
                 &vertex_buffer,
                 &index_buffer,
-                scene.caster_indices,
                 settings.shadow_resolution,
             )
         });

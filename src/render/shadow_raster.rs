@@ -11,7 +11,9 @@
 //! H200 is a small part of the chip; the compute path runs on every multiprocessor
 //! (docs/performance.md gives both).
 
+use super::scene::Scene;
 use super::{compute_storage_entry, RenderError};
+use glam::Vec3;
 
 /// How the shadow maps are drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -86,13 +88,60 @@ mod tests {
         let compute = ShadowRaster::Compute;
         assert_eq!(compute.resolve(wgpu::DeviceType::Cpu), compute);
     }
+    #[test]
+    fn casters_split_by_their_longest_edge_in_texels() {
+        let scene = Scene::default_scene();
+        let casters = scene.caster_indices / 3;
+        for resolution in [16, 256, 2048] {
+            let (ids, small) = split_by_size(&scene, resolution);
+            let mut sorted = ids.clone();
+            sorted.sort_unstable();
+            assert_eq!(
+                sorted,
+                (0..casters).collect::<Vec<_>>(),
+                "every caster once"
+            );
+            let texel = 2.0 * scene.bounds.radius / resolution as f32;
+            for (k, &t) in ids.iter().enumerate() {
+                let i = 3 * t as usize;
+                let p = |j: usize| {
+                    Vec3::from_array(scene.vertices[scene.indices[i + j] as usize].position)
+                };
+                let longest = p(0)
+                    .distance(p(1))
+                    .max(p(1).distance(p(2)))
+                    .max(p(2).distance(p(0)));
+                assert_eq!(
+                    k < small as usize,
+                    longest <= LARGE_TEXELS * texel,
+                    "triangle {t}"
+                );
+            }
+        }
+        // The default scene's box faces are large at 256² maps, its sphere triangles small.
+        let (ids, small) = split_by_size(&scene, 256);
+        assert!(
+            small > 0 && (small as usize) < ids.len(),
+            "{small} of {}",
+            ids.len()
+        );
+        assert_eq!(
+            split_by_size(&scene, 16).1,
+            casters,
+            "nothing is large at 16²"
+        );
+    }
 }
 
 /// WGSL source of the compute rasteriser.
 pub const SHADOW_RASTER_WGSL: &str = include_str!("../../shaders/shadow_raster.wgsl");
 
-/// `cs_rasterize`'s workgroup (triangles per group).
+/// `cs_rasterize_small`'s workgroup (triangles per group).
 const RASTER_WORKGROUP: u32 = 64;
+/// A caster triangle is large (rasterised by a workgroup, not one invocation) if its bounding
+/// box in a map may be wider than this many texels. An orthographic projection keeps lengths,
+/// so its longest edge in texels bounds that for every light.
+pub const LARGE_TEXELS: f32 = 16.0;
 /// `cs_clear`'s workgroup (texels per group and step).
 const CLEAR_WORKGROUP: u32 = 256;
 
@@ -101,15 +150,37 @@ const CLEAR_WORKGROUP: u32 = 256;
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct ParamsRaw {
     resolution: u32,
-    caster_triangles: u32,
     maps: u32,
-    groups_x: u32,
+    small_triangles: u32,
+    large_triangles: u32,
+}
+
+/// The shadow casters' triangle indices (into `scene.indices`, by threes), the small ones first,
+/// and how many are small: large ones have an edge longer than [`LARGE_TEXELS`] texels of a
+/// map of side `resolution` over the light window (2 × the scene's bounding radius).
+pub fn split_by_size(scene: &Scene, resolution: u32) -> (Vec<u32>, u32) {
+    let texel = 2.0 * scene.bounds.radius.max(1e-3) / resolution.max(1) as f32;
+    let position = |i: u32| {
+        scene
+            .vertices
+            .get(i as usize)
+            .map_or(Vec3::ZERO, |v| Vec3::from_array(v.position))
+    };
+    let (small, large): (Vec<u32>, Vec<u32>) = (0..scene.caster_indices / 3).partition(|&t| {
+        let k = 3 * t as usize;
+        let [a, b, c] = [k, k + 1, k + 2].map(|i| position(scene.indices[i]));
+        let longest = a.distance(b).max(b.distance(c)).max(c.distance(a));
+        !(longest / texel > LARGE_TEXELS)
+    });
+    let count = small.len() as u32;
+    (small.into_iter().chain(large).collect(), count)
 }
 
 /// The compute rasteriser's pipelines and buffers.
 pub struct ComputeShadows {
     clear: wgpu::ComputePipeline,
-    rasterize: wgpu::ComputePipeline,
+    rasterize_small: wgpu::ComputePipeline,
+    rasterize_large: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     bind_group: wgpu::BindGroup,
     params: wgpu::Buffer,
@@ -117,22 +188,26 @@ pub struct ComputeShadows {
     cameras: wgpu::Buffer,
     /// The maps' depths, `capacity` maps of `resolution²` texels.
     depths: wgpu::Buffer,
+    /// The casters' triangles, small first ([`split_by_size`]).
+    triangle_ids: wgpu::Buffer,
     capacity: u32,
     resolution: u32,
-    caster_triangles: u32,
+    small_triangles: u32,
+    large_triangles: u32,
     max_workgroups: u32,
 }
 
 impl ComputeShadows {
-    /// Builds the pipelines over the scene's vertex and index buffers (which need `STORAGE`
+    /// Builds the pipelines over `scene` and its vertex and index buffers (which need `STORAGE`
     /// usage), with room for one map.
     pub fn new(
         device: &wgpu::Device,
+        scene: &Scene,
         vertices: &wgpu::Buffer,
         indices: &wgpu::Buffer,
-        caster_indices: u32,
         resolution: u32,
     ) -> Self {
+        use wgpu::util::DeviceExt;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shadow_raster.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADOW_RASTER_WGSL.into()),
@@ -154,6 +229,7 @@ impl ComputeShadows {
                 compute_storage_entry(2, true),
                 compute_storage_entry(3, true),
                 compute_storage_entry(4, false),
+                compute_storage_entry(5, true),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -172,7 +248,19 @@ impl ComputeShadows {
             })
         };
         let clear = pipeline("cs_clear");
-        let rasterize = pipeline("cs_rasterize");
+        let rasterize_small = pipeline("cs_rasterize_small");
+        let rasterize_large = pipeline("cs_rasterize_large");
+        let (mut ids, small_triangles) = split_by_size(scene, resolution);
+        let large_triangles = ids.len() as u32 - small_triangles;
+        if ids.is_empty() {
+            // A binding needs a byte; the counts say there is nothing.
+            ids.push(0);
+        }
+        let triangle_ids = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("shadow caster triangles"),
+            contents: bytemuck::cast_slice(&ids),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow raster params"),
             size: std::mem::size_of::<ParamsRaw>() as u64,
@@ -182,19 +270,24 @@ impl ComputeShadows {
         let cameras = Self::make_cameras(device, 1);
         let depths = Self::make_depths(device, resolution, 1);
         let bind_group = Self::make_bind_group(
-            device, &layout, &params, vertices, indices, &cameras, &depths,
+            device,
+            &layout,
+            [&params, vertices, indices, &cameras, &depths, &triangle_ids],
         );
         Self {
             clear,
-            rasterize,
+            rasterize_small,
+            rasterize_large,
             layout,
             bind_group,
             params,
             cameras,
             depths,
+            triangle_ids,
             capacity: 1,
             resolution,
-            caster_triangles: caster_indices / 3,
+            small_triangles,
+            large_triangles,
             max_workgroups: device.limits().max_compute_workgroups_per_dimension,
         }
     }
@@ -232,16 +325,13 @@ impl ComputeShadows {
         })
     }
 
+    /// Bindings 0–5 in order: params, vertices, indices, cameras, depths, triangle ids.
     fn make_bind_group(
         device: &wgpu::Device,
         layout: &wgpu::BindGroupLayout,
-        params: &wgpu::Buffer,
-        vertices: &wgpu::Buffer,
-        indices: &wgpu::Buffer,
-        cameras: &wgpu::Buffer,
-        depths: &wgpu::Buffer,
+        buffers: [&wgpu::Buffer; 6],
     ) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = [params, vertices, indices, cameras, depths]
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry {
@@ -282,11 +372,14 @@ impl ComputeShadows {
             self.bind_group = Self::make_bind_group(
                 device,
                 &self.layout,
-                &self.params,
-                vertices,
-                indices,
-                &self.cameras,
-                &self.depths,
+                [
+                    &self.params,
+                    vertices,
+                    indices,
+                    &self.cameras,
+                    &self.depths,
+                    &self.triangle_ids,
+                ],
             );
             grown = true;
         }
@@ -295,15 +388,11 @@ impl ComputeShadows {
             gpu.queue
                 .write_buffer(&self.cameras, 0, bytemuck::cast_slice(&flat));
         }
-        let groups_x = self
-            .caster_triangles
-            .div_ceil(RASTER_WORKGROUP)
-            .clamp(1, self.max_workgroups);
         let params = ParamsRaw {
             resolution: self.resolution,
-            caster_triangles: self.caster_triangles,
             maps,
-            groups_x,
+            small_triangles: self.small_triangles,
+            large_triangles: self.large_triangles,
         };
         gpu.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
@@ -329,11 +418,17 @@ impl ComputeShadows {
             .clamp(1, u64::from(self.max_workgroups)) as u32;
         pass.set_pipeline(&self.clear);
         pass.dispatch_workgroups(clear_groups, 1, 1);
-        let groups_x = self
-            .caster_triangles
-            .div_ceil(RASTER_WORKGROUP)
-            .clamp(1, self.max_workgroups);
-        pass.set_pipeline(&self.rasterize);
-        pass.dispatch_workgroups(groups_x, maps, 1);
+        if self.small_triangles > 0 {
+            pass.set_pipeline(&self.rasterize_small);
+            let groups = self
+                .small_triangles
+                .div_ceil(RASTER_WORKGROUP)
+                .min(self.max_workgroups);
+            pass.dispatch_workgroups(groups, maps, 1);
+        }
+        if self.large_triangles > 0 {
+            pass.set_pipeline(&self.rasterize_large);
+            pass.dispatch_workgroups(self.large_triangles.min(self.max_workgroups), maps, 1);
+        }
     }
 }
