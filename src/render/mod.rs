@@ -8,7 +8,7 @@
 //!    that reach nothing visible get no map. [`RenderSettings::shadow_raster`] says how:
 //!    one depth-only render pass per map into its layer of a `Depth32Float` texture array
 //!    (`shaders/shadow.wgsl`), or one compute pass that rasterises every map into a storage
-//!    buffer ([`shadow_raster`]) — on an H200 0.71 ms for 256 maps of 512² against 11.4 ms as
+//!    buffer ([`shadow_raster`]) — on an H200 0.37 ms for 256 maps of 512² against 11.4 ms as
 //!    render passes, whose depth fill runs on the small graphics part of that chip. (An atlas,
 //!    one render pass per 8192² layer of 256 tiles set by viewport and scissor, was tried on
 //!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.)
