@@ -170,7 +170,9 @@ pub fn split_by_size(scene: &Scene, resolution: u32) -> (Vec<u32>, u32) {
         let k = 3 * t as usize;
         let [a, b, c] = [k, k + 1, k + 2].map(|i| position(scene.indices[i]));
         let longest = a.distance(b).max(b.distance(c)).max(c.distance(a));
-        !(longest / texel > LARGE_TEXELS)
+        // Small unless surely long (a NaN coordinate leaves it to one invocation).
+        let texels = longest / texel;
+        texels.is_nan() || texels <= LARGE_TEXELS
     });
     let count = small.len() as u32;
     (small.into_iter().chain(large).collect(), count)
