@@ -1120,6 +1120,44 @@ fn device_errors_are_kept_not_panicked() {
     assert_eq!(gpu.take_error(), None);
 }
 
+/// Compute shadow maps of a side whose one map exceeds the adapter's largest storage binding
+/// (8192² on lavapipe, 128 MiB) are refused with a settings error, before any allocation.
+#[test]
+fn compute_maps_larger_than_a_storage_binding_are_refused() {
+    let gpu = envlight::render::device::Gpu::new().expect("a wgpu adapter (lavapipe on CI)");
+    let limits = gpu.device.limits();
+    let binding = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size);
+    let too_big = (4..32)
+        .map(|k| 1u32 << k)
+        .take_while(|&r| r <= limits.max_texture_dimension_2d)
+        .find(|&r| 4 * u64::from(r) * u64::from(r) > binding);
+    let Some(resolution) = too_big else {
+        eprintln!(
+            "every map side up to {} fits one binding here",
+            limits.max_texture_dimension_2d
+        );
+        return;
+    };
+    let settings = RenderSettings {
+        width: 16,
+        height: 16,
+        shadow_resolution: resolution,
+        shadow_raster: ShadowRaster::Compute,
+        ..Default::default()
+    };
+    let error = Renderer::with_gpu(gpu, Scene::default_scene(), settings)
+        .err()
+        .expect("refused");
+    let text = error.to_string();
+    assert!(
+        text.contains(&format!("{resolution}² texels"))
+            && text.contains("--shadow-raster pipeline"),
+        "{text}"
+    );
+}
+
 /// A light along the view ray of a visible point (v = l there) shades finitely. v·h rounded
 /// to just above 1 and pow(1 − v·h, 5) was NaN: one black pixel, reported as "beyond f32's
 /// range" (found with the first light below at 160×90 on lavapipe).

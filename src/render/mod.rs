@@ -328,7 +328,6 @@ impl Renderer {
         mut settings: RenderSettings,
     ) -> Result<Self, RenderError> {
         use wgpu::util::DeviceExt;
-        settings.shadow_raster = settings.shadow_raster.resolve(gpu.info.device_type);
         let max_dim = gpu.device.limits().max_texture_dimension_2d;
         if settings.width == 0
             || settings.height == 0
@@ -349,6 +348,14 @@ impl Renderer {
         if scene.indices.is_empty() {
             return Err(RenderError::Settings("the scene has no triangles".into()));
         }
+        settings.shadow_raster = settings
+            .shadow_raster
+            .resolve_for(
+                gpu.info.device_type,
+                ComputeShadows::max_maps(&gpu.device, settings.shadow_resolution),
+                settings.shadow_resolution,
+            )
+            .map_err(RenderError::Settings)?;
         // A buffer past the device's limit is a validation error, and wgpu's buffer
         // initialisation then panicked on the invalid buffer's mapping.
         let max_buffer = gpu.device.limits().max_buffer_size;

@@ -57,6 +57,33 @@ impl ShadowRaster {
             (other, _) => other,
         }
     }
+
+    /// The way used on an adapter of type `device_type` whose storage bindings hold
+    /// `compute_maps` maps ([`ComputeShadows::max_maps`]): as [`Self::resolve`], except that
+    /// with no room for even one map `Auto` falls back to render passes and an explicit
+    /// `Compute` is an error that says why.
+    pub fn resolve_for(
+        self,
+        device_type: wgpu::DeviceType,
+        compute_maps: u32,
+        resolution: u32,
+    ) -> Result<Self, String> {
+        match self.resolve(device_type) {
+            Self::Compute if compute_maps == 0 => {
+                if self == Self::Auto {
+                    Ok(Self::Pipeline)
+                } else {
+                    Err(format!(
+                        "a compute shadow map of {resolution}² texels ({} MiB) is larger than \
+                         the adapter's largest storage buffer binding; use a smaller \
+                         --shadow-res or --shadow-raster pipeline",
+                        (4 * u64::from(resolution) * u64::from(resolution)) >> 20
+                    ))
+                }
+            }
+            way => Ok(way),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -87,6 +114,13 @@ mod tests {
         assert_eq!(pipeline.resolve(wgpu::DeviceType::DiscreteGpu), pipeline);
         let compute = ShadowRaster::Compute;
         assert_eq!(compute.resolve(wgpu::DeviceType::Cpu), compute);
+        // No room for one compute map: auto falls back, an explicit compute is refused.
+        let gpu = wgpu::DeviceType::DiscreteGpu;
+        assert_eq!(auto.resolve_for(gpu, 0, 8192), Ok(ShadowRaster::Pipeline));
+        assert_eq!(auto.resolve_for(gpu, 3, 8192), Ok(ShadowRaster::Compute));
+        let refused = compute.resolve_for(gpu, 0, 8192).unwrap_err();
+        assert!(refused.contains("8192² texels (256 MiB)"), "{refused}");
+        assert_eq!(pipeline.resolve_for(gpu, 0, 8192), Ok(pipeline));
     }
     #[test]
     fn casters_split_by_their_longest_edge_in_texels() {
