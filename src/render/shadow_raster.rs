@@ -1,8 +1,9 @@
 //! Shadow maps rasterised by compute shaders ([`ShadowRaster::Compute`]): the frame's maps as
 //! one storage buffer of `u32` depths, written by `shaders/shadow_raster.wgsl` (a clear, then
-//! one invocation per shadow-casting triangle and map, atomicMin of the depth's bits; the
-//! shader's header gives the steps) and read by the shading pass with a hand-made bilinear
-//! depth comparison (`shaders/shade.wgsl`, `compare_tap`).
+//! one invocation per small shadow-casting triangle and map, one workgroup per large one
+//! ([`split_by_size`]), atomicMin of the depth's bits; the shader's header gives the steps) and
+//! read by the shading pass with a hand-made bilinear depth comparison (`shaders/shade.wgsl`,
+//! `compare_tap`).
 //!
 //! The maps are the render pass's: the same orthographic light cameras, texel centres, depth
 //! bias and two-sided casters, so the images of the two paths agree to the penumbra's last
