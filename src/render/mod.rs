@@ -250,6 +250,20 @@ fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayo
     }
 }
 
+/// A uniform-buffer binding (no dynamic offset) seen by the `visibility` stages.
+fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
 /// A storage-buffer binding read (or, without `read_only`, written) by compute shaders.
 fn compute_storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
@@ -431,16 +445,7 @@ impl Renderer {
         let shade_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("shade"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                uniform_entry(0, wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE),
                 compute_storage_entry(1, true),
                 compute_storage_entry(2, true),
                 wgpu::BindGroupLayoutEntry {
@@ -913,16 +918,15 @@ impl Renderer {
         let bounds = self.scene.bounds;
         // Shadow maps: one layer each, at most as many as the adapter's texture arrays allow
         // (render passes) or its largest storage buffer holds (compute).
-        let (max_maps, limit) = if self.compute_shadows.is_some() {
-            (
-                ComputeShadows::max_maps(device, res),
+        let (max_maps, limit) = match &self.compute_shadows {
+            Some(compute) => (
+                compute.map_limit(),
                 "what the adapter's largest storage buffer holds",
-            )
-        } else {
-            (
+            ),
+            None => (
                 self.gpu.max_array_layers,
                 "the adapter's texture-array layer limit",
-            )
+            ),
         };
         let mut mapped: Vec<usize> = Vec::new();
         let mut skipped = 0usize;
@@ -952,29 +956,18 @@ impl Renderer {
             self.light_buffer = Self::make_light_buffer(device, self.light_capacity);
             rebind = true;
         }
-        if self.compute_shadows.is_none() && maps > self.shadow.layers {
-            let layers = maps.next_power_of_two().min(max_maps);
-            self.shadow = Self::make_shadow_array(device, res, layers);
-            rebind = true;
-        }
         for (k, &i) in mapped.iter().enumerate() {
             let l = &mut gpu_lights[i];
             l.layer = Some(k as u32);
             l.view_proj = shadow::light_view_proj(l.dir, bounds);
             l.pcf_radius = shadow::pcf_radius_uv(l.solid_angle, res);
         }
-        if let Some(compute) = self.compute_shadows.as_mut() {
-            let cameras: Vec<Mat4> = mapped.iter().map(|&i| gpu_lights[i].view_proj).collect();
-            rebind |=
-                compute.prepare(&self.gpu, &self.vertex_buffer, &self.index_buffer, &cameras)?;
-        }
-        if self.compute_shadows.is_none() && maps as usize > self.light_cam_capacity {
-            self.light_cam_capacity = (maps as usize).next_power_of_two();
-            self.light_cam_buffer =
-                Self::make_light_cam_buffer(device, self.light_cam_stride, self.light_cam_capacity);
-            self.shadow_cam_bind_group =
-                Self::make_cam_bind_group(device, &self.shadow_cam_layout, &self.light_cam_buffer);
-        }
+        let cameras = mapped.iter().map(|&i| gpu_lights[i].view_proj);
+        rebind |= match self.compute_shadows.as_mut() {
+            Some(compute) => compute.prepare(&self.gpu, cameras),
+            None => self.prepare_shadow_passes(cameras),
+        };
+        let device = &self.gpu.device;
         if rebind {
             self.shade_bind_group = Self::make_shade_bind_group(
                 device,
@@ -994,19 +987,6 @@ impl Renderer {
             self.gpu
                 .queue
                 .write_buffer(&self.light_buffer, 0, bytemuck::cast_slice(&raw));
-        }
-        if self.compute_shadows.is_none() && maps > 0 {
-            // Camera k is map (layer) k's: at the k-th dynamic offset.
-            let stride = self.light_cam_stride as usize;
-            let mut cams = vec![0u8; stride * maps as usize];
-            for (k, &i) in mapped.iter().enumerate() {
-                let m = gpu_lights[i].view_proj.to_cols_array();
-                let at = stride * k;
-                cams[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m));
-            }
-            self.gpu
-                .queue
-                .write_buffer(&self.light_cam_buffer, 0, &cams);
         }
         let texel_world = 2.0 * bounds.radius / res as f32;
         let globals = Globals {
@@ -1029,6 +1009,41 @@ impl Renderer {
         Ok((gpu_lights, maps as usize))
     }
 
+    /// The render passes' part of [`Self::prepare`]: grows the depth array and the light-camera
+    /// buffer to hold the frame's maps and writes their cameras (map k's at the k-th dynamic
+    /// offset); returns whether the array was replaced (the shading pass must bind the new one).
+    fn prepare_shadow_passes(&mut self, cameras: impl ExactSizeIterator<Item = Mat4>) -> bool {
+        let device = &self.gpu.device;
+        let maps = cameras.len();
+        let mut grown = false;
+        if maps as u32 > self.shadow.layers {
+            let layers = (maps as u32)
+                .next_power_of_two()
+                .min(self.gpu.max_array_layers);
+            self.shadow = Self::make_shadow_array(device, self.settings.shadow_resolution, layers);
+            grown = true;
+        }
+        if maps > self.light_cam_capacity {
+            self.light_cam_capacity = maps.next_power_of_two();
+            self.light_cam_buffer =
+                Self::make_light_cam_buffer(device, self.light_cam_stride, self.light_cam_capacity);
+            self.shadow_cam_bind_group =
+                Self::make_cam_bind_group(device, &self.shadow_cam_layout, &self.light_cam_buffer);
+        }
+        if maps > 0 {
+            let stride = self.light_cam_stride as usize;
+            let mut cams = vec![0u8; stride * maps];
+            for (k, m) in cameras.enumerate() {
+                let at = stride * k;
+                cams[at..at + 64].copy_from_slice(bytemuck::cast_slice(&m.to_cols_array()));
+            }
+            self.gpu
+                .queue
+                .write_buffer(&self.light_cam_buffer, 0, &cams);
+        }
+        grown
+    }
+
     /// Fails with the first error the device reported (an allocation it could not make, such
     /// as shadow maps of a huge --shadow-res or targets of a huge --size) instead of rendering
     /// with the resource missing.
@@ -1049,8 +1064,8 @@ impl Renderer {
                 label: Some("frame"),
             });
         let ts = self.timestamps.as_ref();
-        if let Some(compute) = self.compute_shadows.as_ref().filter(|_| maps > 0) {
-            compute.encode(
+        match &self.compute_shadows {
+            Some(compute) if maps > 0 => compute.encode(
                 &mut enc,
                 maps as u32,
                 ts.map(|t| wgpu::ComputePassTimestampWrites {
@@ -1058,14 +1073,44 @@ impl Renderer {
                     beginning_of_pass_write_index: Some(0),
                     end_of_pass_write_index: None,
                 }),
+            ),
+            Some(_) => {}
+            None => self.encode_shadow_passes(&mut enc, maps),
+        }
+        self.encode_gbuffer_pass(&mut enc);
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("shade"),
+                timestamp_writes: ts.map(|t| wgpu::ComputePassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: None,
+                    end_of_pass_write_index: Some(2),
+                }),
+            });
+            pass.set_pipeline(&self.shade_pipeline);
+            pass.set_bind_group(0, &self.shade_bind_group, &[]);
+            pass.set_bind_group(1, &self.gbuffer_bind_group, &[]);
+            pass.dispatch_workgroups(
+                self.settings.width.div_ceil(SHADE_WORKGROUP),
+                self.settings.height.div_ceil(SHADE_WORKGROUP),
+                1,
             );
         }
-        let render_pass_maps = if self.compute_shadows.is_some() {
-            0
-        } else {
-            maps
-        };
-        for layer in 0..render_pass_maps {
+        if let Some(t) = ts {
+            enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
+            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(TIMESTAMPS));
+        }
+        if readback {
+            self.encode_readback(&mut enc);
+        }
+        enc
+    }
+
+    /// One depth-only render pass per map into its layer of the depth array (the GPU timestamp
+    /// of the frame's start at the first).
+    fn encode_shadow_passes(&self, enc: &mut wgpu::CommandEncoder, maps: usize) {
+        let ts = self.timestamps.as_ref();
+        for layer in 0..maps {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("shadow"),
                 color_attachments: &[],
@@ -1097,33 +1142,6 @@ impl Renderer {
             pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..self.scene.caster_indices, 0, 0..1);
         }
-        self.encode_gbuffer_pass(&mut enc);
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("shade"),
-                timestamp_writes: ts.map(|t| wgpu::ComputePassTimestampWrites {
-                    query_set: &t.set,
-                    beginning_of_pass_write_index: None,
-                    end_of_pass_write_index: Some(2),
-                }),
-            });
-            pass.set_pipeline(&self.shade_pipeline);
-            pass.set_bind_group(0, &self.shade_bind_group, &[]);
-            pass.set_bind_group(1, &self.gbuffer_bind_group, &[]);
-            pass.dispatch_workgroups(
-                self.settings.width.div_ceil(SHADE_WORKGROUP),
-                self.settings.height.div_ceil(SHADE_WORKGROUP),
-                1,
-            );
-        }
-        if let Some(t) = ts {
-            enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
-            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(TIMESTAMPS));
-        }
-        if readback {
-            self.encode_readback(&mut enc);
-        }
-        enc
     }
 
     /// Rasterises the scene into the G-buffer (cleared to zero: no surface).

@@ -13,8 +13,8 @@
 //! (docs/performance.md gives both).
 
 use super::scene::Scene;
-use super::{compute_storage_entry, RenderError};
-use glam::Vec3;
+use super::{compute_storage_entry, uniform_entry};
+use glam::{Mat4, Vec3};
 
 /// How the shadow maps are drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -227,7 +227,12 @@ pub struct ComputeShadows {
     depths: wgpu::Buffer,
     /// The casters' triangles, small first ([`split_by_size`]).
     triangle_ids: wgpu::Buffer,
+    /// The scene's vertex and index buffers (bound again when the maps' buffers grow).
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
     capacity: u32,
+    /// [`Self::max_maps`] of this device and resolution.
+    max_maps: u32,
     resolution: u32,
     small_triangles: u32,
     large_triangles: u32,
@@ -252,16 +257,7 @@ impl ComputeShadows {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("shadow raster"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                uniform_entry(0, wgpu::ShaderStages::COMPUTE),
                 compute_storage_entry(1, true),
                 compute_storage_entry(2, true),
                 compute_storage_entry(3, true),
@@ -321,7 +317,10 @@ impl ComputeShadows {
             cameras,
             depths,
             triangle_ids,
+            vertices: vertices.clone(),
+            indices: indices.clone(),
             capacity: 1,
+            max_maps: Self::max_maps(device, resolution),
             resolution,
             small_triangles,
             large_triangles,
@@ -388,22 +387,24 @@ impl ComputeShadows {
         &self.depths
     }
 
-    /// Writes the frame's light cameras (map k's at k) and grows the buffers to hold them;
-    /// returns whether the depth buffer was replaced (the shading pass must bind the new one).
+    /// The most maps a frame can hold here ([`Self::max_maps`]).
+    pub fn map_limit(&self) -> u32 {
+        self.max_maps
+    }
+
+    /// Writes the frame's light cameras (map k's at k; at most [`Self::map_limit`]) and grows
+    /// the buffers to hold them; returns whether the depth buffer was replaced (the shading pass
+    /// must bind the new one).
     pub fn prepare(
         &mut self,
         gpu: &super::device::Gpu,
-        vertices: &wgpu::Buffer,
-        indices: &wgpu::Buffer,
-        cameras: &[glam::Mat4],
-    ) -> Result<bool, RenderError> {
+        cameras: impl ExactSizeIterator<Item = Mat4>,
+    ) -> bool {
         let device = &gpu.device;
-        let maps = u32::try_from(cameras.len())
-            .map_err(|_| RenderError::Settings(format!("{} shadow maps", cameras.len())))?;
+        let maps = cameras.len() as u32;
         let mut grown = false;
         if maps > self.capacity {
-            let most = Self::max_maps(device, self.resolution).max(1);
-            self.capacity = maps.next_power_of_two().min(most).max(maps);
+            self.capacity = maps.next_power_of_two().min(self.max_maps.max(1)).max(maps);
             self.cameras = Self::make_cameras(device, self.capacity);
             self.depths = Self::make_depths(device, self.resolution, self.capacity);
             self.bind_group = Self::make_bind_group(
@@ -411,8 +412,8 @@ impl ComputeShadows {
                 &self.layout,
                 [
                     &self.params,
-                    vertices,
-                    indices,
+                    &self.vertices,
+                    &self.indices,
                     &self.cameras,
                     &self.depths,
                     &self.triangle_ids,
@@ -421,7 +422,7 @@ impl ComputeShadows {
             grown = true;
         }
         if maps > 0 {
-            let flat: Vec<f32> = cameras.iter().flat_map(|m| m.to_cols_array()).collect();
+            let flat: Vec<f32> = cameras.flat_map(|m| m.to_cols_array()).collect();
             gpu.queue
                 .write_buffer(&self.cameras, 0, bytemuck::cast_slice(&flat));
         }
@@ -433,7 +434,7 @@ impl ComputeShadows {
         };
         gpu.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        Ok(grown)
+        grown
     }
 
     /// Encodes the clear and the rasterisation of `maps` maps (as [`Self::prepare`] set them
