@@ -6,10 +6,11 @@
 //  * irradiance: E(n) = c · ∫G · H(n·z, ν), ν = 2√(λμ), with H the normalised cosine convolution
 //    of an isotropic lobe, tabulated on the CPU (129 values of t = n·z × 72 of ln ν, exactly the
 //    table of `asg::cosine_convolution`) and interpolated bilinearly here;
-//  * specular: the GGX lobe warped to light directions as an anisotropic Gaussian around the
-//    mirror direction r (bandwidth 1/(4α²) in the plane of incidence, 1/(4α²(n·v)²) across
-//    it), its product with the ASG integrated in the ASG's tangent plane (where the warped
-//    lobe is foreshortened), times Smith's
+//  * specular: the GGX NDF as two Gaussians, each warped to light directions as an anisotropic
+//    Gaussian around the mirror direction r (bandwidth 1/(4α²) in the plane of incidence,
+//    1/(4α²(n·v)²) across it, scaled per Gaussian), its product with the ASG integrated in the
+//    ASG's tangent plane (where the warped lobe is foreshortened) and in r's tangent plane
+//    (where the ASG is linearised), the two blended by the lobes' widths, times Smith's
 //    height-correlated G2 / (4 n·v) and F = f0 (`Asg::ggx_specular`).
 // A shadow-catcher material outputs (0, 0, 0, 0): without shadows there is nothing to catch.
 // Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
@@ -69,6 +70,81 @@ fn cosine_h(t: f32, nu: f32) -> f32 {
     return h0 + (h1 - h0) * fv;
 }
 
+// The GGX NDF's profile 1/(1 + x)², x = tan²θ_h/α², as two Gaussians: (weight, bandwidth
+// scale), `asg::GGX_NDF_MIXTURE`.
+const NDF_MIXTURE = array<vec2<f32>, 2>(
+    vec2<f32>(0.81578931, 1.77638657),
+    vec2<f32>(0.14377074, 0.26586835),
+);
+
+// Φ(t) by Abramowitz and Stegun 7.1.26 (`asg::normal_cdf`).
+fn normal_cdf(t: f32) -> f32 {
+    let u = abs(t) * 0.70710678;
+    let k = 1.0 / (1.0 + 0.3275911 * u);
+    let poly = ((((1.061405429 * k - 1.453152027) * k + 1.421413741) * k - 0.284496736) * k
+        + 0.254829592) * k;
+    let erf_u = 1.0 - poly * exp(-u * u);
+    return 0.5 * (1.0 + select(-erf_u, erf_u, t >= 0.0));
+}
+
+// E[max(X, 0)] for X normal (mean, spread), at most 1 (`asg::ramp_mean`).
+fn ramp_mean(mean: f32, spread: f32) -> f32 {
+    var value = mean;
+    if spread > 0.0 {
+        let t = mean / spread;
+        value = mean * normal_cdf(t) + spread * exp(-0.5 * t * t) * 0.39894228;
+    }
+    return clamp(value, 0.0, 1.0);
+}
+
+// The warped GGX lobe (orthonormal axes `across`, `along` ⟂ r with bandwidths `bw`) times the
+// ASG (frame x, y, z; bandwidths l, m), integrated in the ASG's tangent plane
+// (`asg::product_integral`): the gradients g = (e·x, e·y) − (e·z / s)·a of the warped lobe's
+// coordinates there.
+fn product_in_lobe_plane(l: f32, m: f32, x: vec3<f32>, y: vec3<f32>, z: vec3<f32>,
+                         r: vec3<f32>, across: vec3<f32>, along: vec3<f32>, bw: vec2<f32>) -> f32 {
+    // Below this cosine between r and the lobe's axis the product is zero here
+    // (`asg::MIN_PRODUCT_COSINE`).
+    let s = dot(r, z);
+    if s < 1e-4 {
+        return 0.0;
+    }
+    let ax = dot(r, x);
+    let ay = dot(r, y);
+    let ez = vec2<f32>(dot(across, z), dot(along, z)) / s;
+    let gx = vec2<f32>(dot(across, x), dot(along, x)) - ez * ax;
+    let gy = vec2<f32>(dot(across, y), dot(along, y)) - ez * ay;
+    let b_xx = dot(bw, gx * gx);
+    let b_yy = dot(bw, gy * gy);
+    let b_zz = dot(bw, ez * ez);
+    let det_b = bw.x * bw.y / (s * s);
+    let det = l * m + l * b_yy + m * b_xx + det_b;
+    let quad = (l * m * b_zz + det_b * (l * ax * ax + m * ay * ay)) / det;
+    return PI / sqrt(det) * exp(-quad);
+}
+
+// The same product in the mirror direction's tangent plane, the ASG linearised there
+// (`asg::product_integral_at_mirror`).
+fn product_at_mirror(l: f32, m: f32, x: vec3<f32>, y: vec3<f32>, z: vec3<f32>,
+                     r: vec3<f32>, across: vec3<f32>, along: vec3<f32>, bw: vec2<f32>) -> f32 {
+    let gx = vec2<f32>(dot(across, x), dot(along, x));
+    let gy = vec2<f32>(dot(across, y), dot(along, y));
+    let gz = vec2<f32>(dot(across, z), dot(along, z));
+    let ax = dot(r, x);
+    let ay = dot(r, y);
+    let m00 = bw.x + l * gx.x * gx.x + m * gy.x * gy.x;
+    let m11 = bw.y + l * gx.y * gx.y + m * gy.y * gy.y;
+    let m01 = l * gx.x * gx.y + m * gy.x * gy.y;
+    let det = max(m00 * m11 - m01 * m01, bw.x * bw.y);
+    let h = l * ax * gx + m * ay * gy;
+    let m_inv_h = vec2<f32>(m11 * h.x - m01 * h.y, m00 * h.y - m01 * h.x) / det;
+    let exponent = min(dot(h, m_inv_h) - (l * ax * ax + m * ay * ay), 0.0);
+    let m_inv_g = vec2<f32>(m11 * gz.x - m01 * gz.y, m00 * gz.y - m01 * gz.x) / det;
+    let spread = sqrt(max(0.5 * dot(gz, m_inv_g), 0.0));
+    let mean = dot(r, z) - dot(gz, m_inv_h);
+    return PI / sqrt(det) * exp(exponent) * ramp_mean(mean, spread);
+}
+
 // Specular response to lobe `k` per unit f0 (`Asg::ggx_specular` with f0 = 1), without the
 // lobe's colour.
 fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
@@ -83,12 +159,6 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
     let x = lobe.x.xyz;
     let y = lobe.y.xyz;
     let z = lobe.z.xyz;
-    // Below this cosine between r and the lobe's axis the lobe reflects nothing
-    // (`asg::MIN_PRODUCT_COSINE`).
-    let s = dot(r, z);
-    if s < 1e-4 {
-        return 0.0;
-    }
     // The GGX lobe warped around r (`asg::ggx_warp`): bandwidth 1/(4α²) in the plane of
     // incidence, 1/(4α²(n·v)²) across it (n·v at least `asg::MIN_WARP_COSINE`).
     var across = cross(n, r);
@@ -103,23 +173,18 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
     let b_along = 1.0 / (4.0 * a2);
     let n_v_warp = max(n_v, 1e-3);
     let b_across = b_along / (n_v_warp * n_v_warp);
-    // Its product with the lobe in the lobe's tangent plane (`asg::product_integral`): the
-    // gradients g = (e·x, e·y) − (e·z / s)·a of the warped lobe's coordinates there.
     let l = lobe.x.w;
     let m = lobe.y.w;
-    let ax = dot(r, x);
-    let ay = dot(r, y);
-    let ez = vec2<f32>(dot(across, z), dot(along, z)) / s;
-    let gx = vec2<f32>(dot(across, x), dot(along, x)) - ez * ax;
-    let gy = vec2<f32>(dot(across, y), dot(along, y)) - ez * ay;
-    let bw = vec2<f32>(b_across, b_along);
-    let b_xx = dot(bw, gx * gx);
-    let b_yy = dot(bw, gy * gy);
-    let b_zz = dot(bw, ez * ez);
-    let det_b = b_across * b_along / (s * s);
-    let det = l * m + l * b_yy + m * b_xx + det_b;
-    let quad = (l * m * b_zz + det_b * (l * ax * ax + m * ay * ay)) / det;
-    let conv = PI / sqrt(det) * exp(-quad);
+    let lobe_width = sqrt(l * m);
+    var conv = 0.0;
+    for (var i = 0u; i < 2u; i = i + 1u) {
+        let term = NDF_MIXTURE[i];
+        let bw = vec2<f32>(b_across, b_along) * term.y;
+        // The plane of the narrower lobe is the better one; blend by the widths.
+        let in_lobe_plane = lobe_width / (lobe_width + sqrt(bw.x * bw.y));
+        conv = conv + term.x * (in_lobe_plane * product_in_lobe_plane(l, m, x, y, z, r, across, along, bw)
+            + (1.0 - in_lobe_plane) * product_at_mirror(l, m, x, y, z, r, across, along, bw));
+    }
     let lambda_v = (sqrt(1.0 + a2 * (1.0 / (n_v * n_v) - 1.0)) - 1.0) * 0.5;
     let g2 = 1.0 / (1.0 + 2.0 * lambda_v);
     return conv / (PI * a2) * g2 / (4.0 * n_v);
