@@ -143,18 +143,21 @@ fn half_vector(v: vec3<f32>, l: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     return s * inverseSqrt(len2);
 }
 
-// GGX normal distribution × height-correlated Smith visibility × Schlick Fresnel. The cosines
-// are clamped to [0, 1]: v·h rounds to just above 1 where the light lies along the view ray,
-// and pow(1 − v·h, 5) of a negative base is NaN.
-fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha: f32, f0: vec3<f32>) -> vec3<f32> {
+// GGX normal distribution (of roughness `alpha_d`, the surface's widened by the light's size)
+// × height-correlated Smith visibility (of the surface's own `alpha`: a light's size blurs
+// where the half vector falls, not the surface's masking) × Schlick Fresnel. The cosines are
+// clamped to [0, 1]: v·h rounds to just above 1 where the light lies along the view ray, and
+// pow(1 − v·h, 5) of a negative base is NaN.
+fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32, f0: vec3<f32>) -> vec3<f32> {
     let h = half_vector(v, l, n);
     let ndl = clamp(dot(n, l), 0.0, 1.0);
     let ndv = clamp(dot(n, v), 1e-4, 1.0);
     let ndh = clamp(dot(n, h), 0.0, 1.0);
     let vdh = clamp(dot(v, h), 0.0, 1.0);
+    let ad2 = alpha_d * alpha_d;
+    let dd = ndh * ndh * (ad2 - 1.0) + 1.0;
+    let d = ad2 / (PI * dd * dd);
     let a2 = alpha * alpha;
-    let dd = ndh * ndh * (a2 - 1.0) + 1.0;
-    let d = a2 / (PI * dd * dd);
     let vis = 0.5 / max(ndl * sqrt(ndv * ndv * (1.0 - a2) + a2) + ndv * sqrt(ndl * ndl * (1.0 - a2) + a2), 1e-6);
     let f = f0 + (vec3<f32>(1.0) - f0) * pow(1.0 - vdh, 5.0);
     return d * vis * f;
@@ -218,7 +221,10 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32) -> vec4<f32> 
         let rgb = lights[i].rgb;
         let ndl = max(ndl_raw, 0.0);
         let rho = dir.w;
-        // The light's own size widens the lobe (Karis 2013), energy kept by (α/α')².
+        // The light's own size widens the lobe (after Karis 2013): its light spread over a cone
+        // of half-angle ρ moves the half vector by up to ρ/2. The widened lobe is GGX's own
+        // distribution and so keeps the energy; Karis's (α/α')² belongs to his representative-
+        // point method, which keeps the narrow lobe, and here took that much energy away.
         let alpha_l = min(alpha + 0.5 * rho, 1.0);
         var full = true;
         if culling && has_specular {
@@ -232,8 +238,7 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32) -> vec4<f32> 
         let e = rgb.rgb * ndl;
         var brdf = diffuse;
         if has_specular {
-            let norm = (alpha / alpha_l) * (alpha / alpha_l);
-            brdf = brdf + ggx_specular(n, v, l, alpha_l, f0) * norm;
+            brdf = brdf + ggx_specular(n, v, l, alpha_l, alpha, f0);
         }
         radiance = radiance + brdf * e * vis;
         let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));
