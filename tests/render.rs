@@ -106,6 +106,25 @@ fn hit_sphere(o: Vec3, d: Vec3, c: Vec3, r: f32) -> Option<f32> {
     (t > 0.0).then_some(t)
 }
 
+/// The pixels of a `size`×`size` render that see the unit sphere at the origin from `eye`, away
+/// from its silhouette (n·v ≥ 0.3): (x, y, the exact normal, the unit direction to the eye).
+fn sphere_pixels(r: &Renderer, eye: Vec3, size: u32) -> Vec<(u32, u32, Vec3, Vec3)> {
+    let mut pixels = Vec::new();
+    for y in 0..size {
+        for x in 0..size {
+            let d = r.pixel_ray(x as f32, y as f32);
+            let Some(t) = hit_sphere(eye, d, Vec3::ZERO, 1.0) else {
+                continue;
+            };
+            let n = (eye + d * t).normalize();
+            if n.dot(-d) >= 0.3 {
+                pixels.push((x, y, n, -d));
+            }
+        }
+    }
+    pixels
+}
+
 #[test]
 fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
     let albedo = [0.8, 0.6, 0.4];
@@ -143,39 +162,28 @@ fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
     let mut failures = Vec::new();
     let mut checked = 0;
     let mut worst = 0.0f32;
-    for y in 0..96 {
-        for x in 0..96 {
-            let d = r.pixel_ray(x as f32, y as f32);
-            let Some(t) = hit_sphere(camera.eye, d, Vec3::ZERO, 1.0) else {
-                continue;
-            };
-            let n = (camera.eye + d * t).normalize();
-            // Away from the silhouette.
-            if n.dot(-d) < 0.3 {
-                continue;
-            }
-            let mut e = [0.0f32; 3];
-            for l in &lights {
-                let cos = n.dot(Vec3::from_array(l.dir)).max(0.0);
-                for c in 0..3 {
-                    e[c] += l.rgb[c] * cos;
-                }
-            }
-            let px = img.pixel(x, y);
+    for (x, y, n, _) in sphere_pixels(&r, camera.eye, 96) {
+        let mut e = [0.0f32; 3];
+        for l in &lights {
+            let cos = n.dot(Vec3::from_array(l.dir)).max(0.0);
             for c in 0..3 {
-                let want = albedo[c] / PI * e[c];
-                let rel = (px[c] - want).abs() / want.max(1e-3);
-                worst = worst.max(rel);
-                if rel > 0.01 {
-                    failures.push(format!(
-                        "pixel ({x},{y}) channel {c}: GPU {} vs CPU {want} ({:.3}% off)",
-                        px[c],
-                        rel * 100.0
-                    ));
-                }
+                e[c] += l.rgb[c] * cos;
             }
-            checked += 1;
         }
+        let px = img.pixel(x, y);
+        for c in 0..3 {
+            let want = albedo[c] / PI * e[c];
+            let rel = (px[c] - want).abs() / want.max(1e-3);
+            worst = worst.max(rel);
+            if rel > 0.01 {
+                failures.push(format!(
+                    "pixel ({x},{y}) channel {c}: GPU {} vs CPU {want} ({:.3}% off)",
+                    px[c],
+                    rel * 100.0
+                ));
+            }
+        }
+        checked += 1;
     }
     fail_with_image("diffuse_sphere", &img, &failures);
     assert!(checked > 2500, "only {checked} pixels checked");
@@ -944,27 +952,17 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
         .base_color
         .map(|c| f64::from(c) * f64::from(1.0 - material.metallic));
     let mut pixels = Vec::new();
-    for y in 0..96 {
-        for x in 0..96 {
-            let d = r.pixel_ray(x as f32, y as f32);
-            let Some(t) = hit_sphere(camera.eye, d, Vec3::ZERO, 1.0) else {
-                continue;
-            };
-            let n = (camera.eye + d * t).normalize();
-            if n.dot(-d) < 0.3 {
-                continue;
+    for (x, y, n, v) in sphere_pixels(&r, camera.eye, 96) {
+        let (n64, v64) = (n.as_dvec3(), v.as_dvec3());
+        let mut want = [0.0f64; 3];
+        for lobe in &lobes {
+            let e = lobe.irradiance(n64);
+            let s = lobe.ggx_specular(n64, v64, alpha, 1.0);
+            for c in 0..3 {
+                want[c] += albedo[c] / std::f64::consts::PI * e[c] + f0[c] * s[c];
             }
-            let (n64, v64) = (n.as_dvec3(), (-d).as_dvec3());
-            let mut want = [0.0f64; 3];
-            for lobe in &lobes {
-                let e = lobe.irradiance(n64);
-                let s = lobe.ggx_specular(n64, v64, alpha, 1.0);
-                for c in 0..3 {
-                    want[c] += albedo[c] / std::f64::consts::PI * e[c] + f0[c] * s[c];
-                }
-            }
-            pixels.push((x, y, want.map(|w| w as f32), img.pixel(x, y)));
         }
+        pixels.push((x, y, want.map(|w| w as f32), img.pixel(x, y)));
     }
     assert!(pixels.len() > 2500, "only {} pixels checked", pixels.len());
     let peak = pixels.iter().flat_map(|p| p.2).fold(0.0f32, f32::max);
@@ -1286,23 +1284,16 @@ fn specular_of_a_uniform_environment_keeps_its_energy() {
         );
         let (img, _) = r.render(&lights).unwrap();
         let alpha = f64::from(roughness * roughness);
-        let (mut sum, mut count) = (0.0f64, 0usize);
-        for y in 0..64 {
-            for x in 0..64 {
-                let d = r.pixel_ray(x as f32, y as f32);
-                let Some(t) = hit_sphere(camera.eye, d, Vec3::ZERO, 1.0) else {
-                    continue;
-                };
-                let n = (camera.eye + d * t).normalize();
-                if n.dot(-d) < 0.3 {
-                    continue;
-                }
-                let want = ggx_reference(&uniform, n.as_dvec3(), (-d).as_dvec3(), alpha)[1];
-                sum += f64::from(img.pixel(x, y)[1]) / want;
-                count += 1;
-            }
-        }
+        let pixels = sphere_pixels(&r, camera.eye, 64);
+        let count = pixels.len();
         assert!(count > 1000, "only {count} pixels checked");
+        let sum: f64 = pixels
+            .iter()
+            .map(|&(x, y, n, v)| {
+                let want = ggx_reference(&uniform, n.as_dvec3(), v.as_dvec3(), alpha)[1];
+                f64::from(img.pixel(x, y)[1]) / want
+            })
+            .sum();
         let mean = sum / count as f64;
         eprintln!("roughness {roughness}: mean ratio to the directional albedo {mean:.4} ({count} pixels)");
         assert!(

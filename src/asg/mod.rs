@@ -118,7 +118,7 @@ pub mod fast;
 pub mod fit;
 pub mod target;
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
 
 /// Smallest bandwidth λ, μ of a lobe: a λ = 0.25 lobe is flat within 25 % over its hemisphere.
@@ -381,33 +381,21 @@ fn product_integral_at_mirror(
     second: [(DVec3, f64); 2],
 ) -> f64 {
     let [(e1, b1), (e2, b2)] = second;
-    let tangent = |w: DVec3| [e1.dot(w), e2.dot(w)];
+    let tangent = |w: DVec3| DVec2::new(e1.dot(w), e2.dot(w));
     let (gx, gy, gz) = (tangent(x), tangent(y), tangent(z));
     let (ax, ay) = (r.dot(x), r.dot(y));
-    let m00 = b1 + lambda * gx[0] * gx[0] + mu * gy[0] * gy[0];
-    let m11 = b2 + lambda * gx[1] * gx[1] + mu * gy[1] * gy[1];
-    let m01 = lambda * gx[0] * gx[1] + mu * gy[0] * gy[1];
+    let m00 = b1 + lambda * gx.x * gx.x + mu * gy.x * gy.x;
+    let m11 = b2 + lambda * gx.y * gx.y + mu * gy.y * gy.y;
+    let m01 = lambda * gx.x * gx.y + mu * gy.x * gy.y;
     // det M ≥ b₁b₂ (M is diag(b₁, b₂) plus a positive semi-definite part); the bound keeps
     // the shader's f32 cancellation from reaching zero when the lobe is sharp.
     let det = (m00 * m11 - m01 * m01).max(b1 * b2);
-    let solve = |v: [f64; 2]| {
-        [
-            (m11 * v[0] - m01 * v[1]) / det,
-            (m00 * v[1] - m01 * v[0]) / det,
-        ]
-    };
-    let h = [
-        lambda * ax * gx[0] + mu * ay * gy[0],
-        lambda * ax * gx[1] + mu * ay * gy[1],
-    ];
+    let solve = |v: DVec2| DVec2::new(m11 * v.x - m01 * v.y, m00 * v.y - m01 * v.x) / det;
+    let h = lambda * ax * gx + mu * ay * gy;
     let m_inv_h = solve(h);
-    let exponent =
-        (h[0] * m_inv_h[0] + h[1] * m_inv_h[1] - (lambda * ax * ax + mu * ay * ay)).min(0.0);
-    let g_inv_g = solve(gz);
-    let spread = (0.5 * (gz[0] * g_inv_g[0] + gz[1] * g_inv_g[1]))
-        .max(0.0)
-        .sqrt();
-    let mean = r.dot(z) - (gz[0] * m_inv_h[0] + gz[1] * m_inv_h[1]);
+    let exponent = (h.dot(m_inv_h) - (lambda * ax * ax + mu * ay * ay)).min(0.0);
+    let spread = (0.5 * gz.dot(solve(gz))).max(0.0).sqrt();
+    let mean = r.dot(z) - gz.dot(m_inv_h);
     PI / det.sqrt() * exponent.exp() * ramp_mean(mean, spread)
 }
 
