@@ -198,14 +198,6 @@ proptest! {
     }
 }
 
-/// A unit vector from two numbers in [0, 1) (uniform on the sphere).
-fn unit(u: f64, v: f64) -> glam::DVec3 {
-    let z = 1.0 - 2.0 * u;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = 2.0 * std::f64::consts::PI * v;
-    glam::DVec3::new(r * phi.cos(), r * phi.sin(), z)
-}
-
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
 
@@ -223,6 +215,8 @@ proptest! {
         alpha in prop_oneof![Just(0.0f64), 0.0f64..1.0, Just(1.0f64)],
     ) {
         use envlight::asg::{Asg, MAX_BANDWIDTH, MIN_BANDWIDTH};
+        // Uniform on the sphere: the equal-area octahedral map of the unit square.
+        use envlight::wavelet::sphere::square_to_sphere as unit;
         let span = (MAX_BANDWIDTH / MIN_BANDWIDTH).ln();
         let lambda = MIN_BANDWIDTH * (span * log_bandwidths.0).exp();
         let mu = MIN_BANDWIDTH * (span * log_bandwidths.1).exp();
