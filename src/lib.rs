@@ -24,6 +24,7 @@ pub mod metrics;
 pub mod parallel;
 pub mod pipeline;
 pub mod publication;
+pub mod read_file;
 pub mod record;
 pub mod render;
 pub mod slow_stage;

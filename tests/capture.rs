@@ -650,6 +650,23 @@ fn a_pipe_is_no_frame_file() {
     assert!(err.to_string().contains("not a regular file"), "{err}");
 }
 
+/// A frame file larger than any frame envlight reads (here a sparse terabyte) is refused from
+/// its size: reading it asked for a terabyte at once, and a failed allocation aborts.
+#[test]
+fn a_frame_file_of_a_terabyte_is_refused_unread() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("huge.exr");
+    std::fs::File::create(&path)
+        .unwrap()
+        .set_len(1 << 40)
+        .unwrap();
+    let err = read_hdr_image(&path).unwrap_err().to_string();
+    assert!(
+        err.contains("huge.exr") && err.contains("1099511627776 bytes, more than the"),
+        "{err}"
+    );
+}
+
 #[test]
 fn no_frames_names_inputs() {
     let dir = tempfile::tempdir().unwrap();

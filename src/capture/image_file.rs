@@ -40,7 +40,8 @@
 //! corruption test in `tests/capture.rs` hits an arithmetic-overflow panic in `exr`'s B44
 //! decoder when overflow checks are on), so decoding runs inside [`std::panic::catch_unwind`]
 //! and a panic becomes a `Format` error (the default panic hook still prints the panic message
-//! to stderr). Images of more than
+//! to stderr). Files over [`MAX_FILE_BYTES`] are refused before they are read (a sparse file of
+//! a terabyte made `std::fs::read` ask for a terabyte at once). Images of more than
 //! [`MAX_PIXELS`] pixels are rejected before pixel data is allocated, and so are files too short
 //! for what their headers declare (an EXR's offset tables, an HDR's rows). What a decoder cannot
 //! catch is an allocation that fails, which aborts: a DWA block's counters are checked against
@@ -65,6 +66,11 @@ use std::path::{Path, PathBuf};
 
 /// Largest image (in pixels, summed over all parts of an EXR file) that is decoded: 16384×8192.
 pub const MAX_PIXELS: u64 = 16384 * 8192;
+
+/// Largest file [`read_hdr_image`] reads: 4 GiB, eight uncompressed 32-bit channels of
+/// [`MAX_PIXELS`] pixels. Larger files (and anything that is not a regular file: a pipe, a
+/// device) are errors before they are read.
+pub const MAX_FILE_BYTES: u64 = 32 * MAX_PIXELS;
 
 /// The file extensions [`read_hdr_image`] reads (compared case-insensitively).
 pub const SUPPORTED_EXTENSIONS: [&str; 2] = ["exr", "hdr"];
@@ -122,7 +128,8 @@ pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
             "not a regular file (a directory, pipe, socket or device)".to_string(),
         ));
     }
-    let bytes = std::fs::read(path).map_err(io_error)?;
+    let bytes =
+        crate::read_file::read_regular_file(path, MAX_FILE_BYTES, "an image").map_err(io_error)?;
     decode_hdr_image(&bytes, format, path)
 }
 

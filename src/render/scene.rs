@@ -566,9 +566,9 @@ fn check_finite(path: &Path, positions: &[Vec3], normals: &[Vec3]) -> Result<(),
 
 /// Checks what the `gltf` crate's reader takes on trust (it panics or aborts otherwise): the
 /// type and component type (`dimensions` and one of `types`: POSITION and NORMAL are VEC3
-/// floats, indices SCALAR unsigned integers), a count of
-/// at most [`MAX_SCENE_ELEMENTS`], a buffer view's stride no smaller than an element, and a
-/// sparse accessor's indices within its count. Returns the problem, worded to follow the
+/// floats, indices SCALAR unsigned integers), a count between 1 and [`MAX_SCENE_ELEMENTS`],
+/// the elements, sparse values and sparse indices within their buffer views and the views
+/// within their buffers ([`check_span`]), and a sparse accessor's indices within its count. Returns the problem, worded to follow the
 /// accessor's name.
 fn check_accessor(
     accessor: &gltf::Accessor,
@@ -601,19 +601,40 @@ fn check_accessor(
             accessor.count()
         ));
     }
+    if accessor.count() == 0 {
+        return Err(format!(
+            "accessor {index} has a count of 0 (glTF requires at least 1)"
+        ));
+    }
     if let Some(view) = accessor.view() {
-        if let Some(stride) = view.stride() {
-            if stride < accessor.size() {
-                return Err(format!(
-                    "accessor {index}: buffer view {} has a byteStride of {stride} bytes, less \
-                     than one element ({} bytes)",
-                    view.index(),
-                    accessor.size()
-                ));
-            }
-        }
+        let stride = view.stride().unwrap_or(accessor.size());
+        check_span(
+            &view,
+            accessor.offset(),
+            stride,
+            accessor.count(),
+            accessor.size(),
+            buffers,
+        )
+        .map_err(|m| format!("accessor {index}: {m}"))?;
     }
     if let Some(sparse) = accessor.sparse() {
+        if sparse.count() == 0 {
+            return Err(format!(
+                "accessor {index}: its sparse count is 0 (glTF requires at least 1)"
+            ));
+        }
+        let values = sparse.values();
+        let value_stride = values.view().stride().unwrap_or(accessor.size());
+        check_span(
+            &values.view(),
+            values.offset(),
+            value_stride,
+            sparse.count(),
+            accessor.size(),
+            buffers,
+        )
+        .map_err(|m| format!("accessor {index}: its sparse values: {m}"))?;
         let indices = sparse.indices();
         let view = indices.view();
         let width = match indices.index_type() {
@@ -621,16 +642,21 @@ fn check_accessor(
             gltf::accessor::sparse::IndexType::U16 => 2,
             gltf::accessor::sparse::IndexType::U32 => 4,
         };
-        let start = view.offset() + indices.offset();
-        let bytes = buffers
-            .get(view.buffer().index())
-            .and_then(|data| data.0.get(start..start + sparse.count() * width))
-            .ok_or_else(|| {
-                format!("accessor {index}: its sparse indices lie outside their buffer")
-            })?;
-        for chunk in bytes.chunks_exact(width) {
+        let stride = view.stride().unwrap_or(width);
+        check_span(
+            &view,
+            indices.offset(),
+            stride,
+            sparse.count(),
+            width,
+            buffers,
+        )
+        .map_err(|m| format!("accessor {index}: its sparse indices: {m}"))?;
+        // Within the view, which lies within its buffer: the sums below cannot overflow.
+        let data = &buffers[view.buffer().index()].0[view.offset() + indices.offset()..];
+        for k in 0..sparse.count() {
             let mut le = [0u8; 4];
-            le[..width].copy_from_slice(chunk);
+            le[..width].copy_from_slice(&data[k * stride..k * stride + width]);
             let i = u32::from_le_bytes(le) as usize;
             if i >= accessor.count() {
                 return Err(format!(
@@ -643,6 +669,154 @@ fn check_accessor(
     Ok(())
 }
 
+/// Checks that `count` elements of `size` bytes, `stride` bytes apart from byte `offset` of
+/// `view`, lie within the view, and the view within its buffer, in checked arithmetic: the
+/// `gltf` crate's reader adds and multiplies these unchecked (offsets near 2⁶⁴ overflow, a
+/// panic with overflow checks on) and reads a view past its buffer as no data.
+fn check_span(
+    view: &gltf::buffer::View,
+    offset: usize,
+    stride: usize,
+    count: usize,
+    size: usize,
+    buffers: &[gltf::buffer::Data],
+) -> Result<(), String> {
+    if stride < size {
+        return Err(format!(
+            "buffer view {} has a byteStride of {stride} bytes, less than one element ({size} \
+             bytes)",
+            view.index()
+        ));
+    }
+    let buffer_bytes = buffers.get(view.buffer().index()).map_or(0, |d| d.0.len());
+    if view
+        .offset()
+        .checked_add(view.length())
+        .is_none_or(|end| end > buffer_bytes)
+    {
+        return Err(format!(
+            "buffer view {} ({} bytes from byte {}) lies outside buffer {} of {buffer_bytes} bytes",
+            view.index(),
+            view.length(),
+            view.offset(),
+            view.buffer().index()
+        ));
+    }
+    let end = count
+        .checked_sub(1)
+        .and_then(|last| last.checked_mul(stride))
+        .and_then(|bytes| bytes.checked_add(offset))
+        .and_then(|bytes| bytes.checked_add(size));
+    if end.is_none_or(|end| end > view.length()) {
+        return Err(format!(
+            "{count} elements of {size} bytes, {stride} apart from byte {offset}, reach past \
+             the end of buffer view {} ({} bytes)",
+            view.index(),
+            view.length()
+        ));
+    }
+    Ok(())
+}
+
+/// The largest scene file (OBJ, glTF, GLB) or external glTF buffer that is read: 4 GiB, more
+/// than [`MAX_SCENE_ELEMENTS`] vertices and indices need.
+pub const MAX_SCENE_FILE_BYTES: u64 = 1 << 32;
+
+/// The largest OBJ material library that is read.
+pub const MAX_MTL_BYTES: u64 = 64 << 20;
+
+/// Reads a scene file: a regular file of at most [`MAX_SCENE_FILE_BYTES`].
+fn read_scene_file(path: &Path) -> Result<Vec<u8>, SceneError> {
+    crate::read_file::read_regular_file(path, MAX_SCENE_FILE_BYTES, "a scene file").map_err(
+        |source| SceneError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+    )
+}
+
+/// A binary glTF's header declares the file's length, which the `gltf` crate takes on trust
+/// (a length under the header's own 12 bytes underflows its subtraction, a panic with overflow
+/// checks on).
+fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
+    if let Some(length) = bytes
+        .strip_prefix(b"glTF")
+        .and_then(|rest| rest.get(4..8))
+        .map(|l| u32::from_le_bytes([l[0], l[1], l[2], l[3]]))
+    {
+        if length < 12 {
+            return Err(format!(
+                "its GLB header declares a length of {length} bytes, less than the header's own 12"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Where a glTF buffer's data is: embedded (`data:` URIs, the GLB blob) or in a file, as the
+/// `gltf` crate resolves URIs: `file:` and `file://` as written, a relative URI
+/// percent-decoded under `base`.
+enum BufferSource {
+    Embedded,
+    File(PathBuf),
+}
+
+/// Resolves a buffer URI (see [`BufferSource`]). A relative URI whose percent-decoding is not
+/// UTF-8 is an error (the `gltf` crate panics on it); a scheme it does not know is left to it.
+fn buffer_source(base: &Path, uri: &str) -> Result<BufferSource, String> {
+    if uri.contains(':') {
+        return Ok(
+            match uri.strip_prefix("file://").or(uri.strip_prefix("file:")) {
+                Some(file) => BufferSource::File(PathBuf::from(file)),
+                None => BufferSource::Embedded,
+            },
+        );
+    }
+    let decoded = urlencoding::decode(uri)
+        .map_err(|e| format!("the URI {uri:?} does not percent-decode to UTF-8 text ({e})"))?;
+    Ok(BufferSource::File(base.join(&*decoded)))
+}
+
+/// Loads a glTF document's buffers: the files with [`crate::read_file::read_regular_file`]
+/// (regular files of at most [`MAX_SCENE_FILE_BYTES`]; the `gltf` crate would read a device
+/// without end, or allocate a sparse file's whole size at once), the embedded ones with the
+/// `gltf` crate. Each must hold at least its declared `byteLength`. Errors name the buffer.
+fn load_gltf_buffers(gltf: &gltf::Gltf, base: &Path) -> Result<Vec<gltf::buffer::Data>, String> {
+    let mut blob = gltf.blob.clone();
+    let mut buffers = Vec::new();
+    for buffer in gltf.document.buffers() {
+        let index = buffer.index();
+        let source = match buffer.source() {
+            gltf::buffer::Source::Uri(uri) => {
+                buffer_source(base, uri).map_err(|m| format!("buffer {index}: {m}"))?
+            }
+            gltf::buffer::Source::Bin => BufferSource::Embedded,
+        };
+        let mut data = match source {
+            BufferSource::File(file) => {
+                crate::read_file::read_regular_file(&file, MAX_SCENE_FILE_BYTES, "a glTF buffer")
+                    .map_err(|e| format!("buffer {index} ({}): {e}", file.display()))?
+            }
+            BufferSource::Embedded => {
+                gltf::buffer::Data::from_source_and_blob(buffer.source(), None, &mut blob)
+                    .map_err(|e| format!("buffer {index}: {e}"))?
+                    .0
+            }
+        };
+        if data.len() < buffer.length() {
+            return Err(format!(
+                "buffer {index} holds {} bytes, less than its byteLength {}",
+                data.len(),
+                buffer.length()
+            ));
+        }
+        // As the gltf crate does: buffers are padded to four bytes.
+        data.resize(data.len().next_multiple_of(4), 0);
+        buffers.push(gltf::buffer::Data(data));
+    }
+    Ok(buffers)
+}
+
 fn load_gltf(path: &Path) -> Result<Builder, SceneError> {
     load_gltf_within(path, MAX_SCENE_ELEMENTS)
 }
@@ -653,34 +827,11 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
         path: path.to_path_buf(),
         message,
     };
-    let bytes = std::fs::read(path).map_err(|source| SceneError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = read_scene_file(path)?;
+    check_glb_header(&bytes).map_err(err)?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
     let base = path.parent().unwrap_or(Path::new("."));
-    let buffers =
-        gltf::import_buffers(&gltf.document, Some(base), gltf.blob.clone()).map_err(|e| {
-            // The gltf crate's error names no file: name the buffers that are not there.
-            let missing: Vec<String> = (gltf.document.buffers())
-                .filter_map(|buffer| match buffer.source() {
-                    gltf::buffer::Source::Uri(uri) if !uri.starts_with("data:") => {
-                        let file = base.join(uri.strip_prefix("file://").unwrap_or(uri));
-                        (!file.is_file())
-                            .then(|| format!("buffer {} ({})", buffer.index(), file.display()))
-                    }
-                    _ => None,
-                })
-                .collect();
-            if missing.is_empty() {
-                err(format!("cannot load its buffers: {e}"))
-            } else {
-                err(format!(
-                    "cannot load its buffers: {e}: {} not found",
-                    missing.join(", ")
-                ))
-            }
-        })?;
+    let buffers = load_gltf_buffers(&gltf, base).map_err(err)?;
     let mut b = Builder::default();
     let mut material_ids = std::collections::HashMap::new();
     let scene = gltf
@@ -875,7 +1026,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
 pub fn scene_files(path: &Path) -> Vec<PathBuf> {
     let mut files = vec![path.to_path_buf()];
     let base = path.parent().unwrap_or(Path::new("."));
-    let Ok(bytes) = std::fs::read(path) else {
+    let Ok(bytes) = read_scene_file(path) else {
         return files;
     };
     let ext = path
@@ -887,8 +1038,8 @@ pub fn scene_files(path: &Path) -> Vec<PathBuf> {
             if let Ok(gltf) = gltf::Gltf::from_slice(&bytes) {
                 for buffer in gltf.document.buffers() {
                     if let gltf::buffer::Source::Uri(uri) = buffer.source() {
-                        if !uri.starts_with("data:") {
-                            files.push(base.join(uri));
+                        if let Ok(BufferSource::File(file)) = buffer_source(base, uri) {
+                            files.push(file);
                         }
                     }
                 }
@@ -909,8 +1060,8 @@ pub fn scene_files(path: &Path) -> Vec<PathBuf> {
 /// Reads an MTL file, checking what `tobj` would panic on: a colour (`Ka`, `Kd`, `Ks`, `Ke`)
 /// with fewer than three numbers. The error carries tobj's kind and the problem in words.
 fn read_mtl(path: &Path) -> Result<Vec<u8>, (tobj::LoadError, String)> {
-    let bytes =
-        std::fs::read(path).map_err(|e| (tobj::LoadError::OpenFileFailed, e.to_string()))?;
+    let bytes = crate::read_file::read_regular_file(path, MAX_MTL_BYTES, "a material library")
+        .map_err(|e| (tobj::LoadError::OpenFileFailed, e.to_string()))?;
     for (number, line) in String::from_utf8_lossy(&bytes).lines().enumerate() {
         let mut words = line.split_whitespace();
         if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
@@ -925,16 +1076,69 @@ fn read_mtl(path: &Path) -> Result<Vec<u8>, (tobj::LoadError, String)> {
     Ok(bytes)
 }
 
+/// Checks that every index of every face (`f v/vt/vn …`, negative ones counting back) is no
+/// larger in magnitude than the number of positions, texture coordinates or normals in the
+/// file, and not 0: `tobj` multiplies the texture-coordinate and normal indices unchecked (an index near
+/// 2⁶³ overflows, a panic with overflow checks on, and wraps past its bounds check without).
+/// Indices that are not numbers are left to `tobj`'s parse error.
+fn check_obj_face_indices(text: &[u8]) -> Result<(), String> {
+    let lines = || text.split(|&c| c == b'\n').map(<[u8]>::trim_ascii_start);
+    let mut counts = [0usize; 3];
+    for line in lines() {
+        let kind = match line.split(u8::is_ascii_whitespace).next() {
+            Some(b"v") => 0,
+            Some(b"vt") => 1,
+            Some(b"vn") => 2,
+            _ => continue,
+        };
+        counts[kind] += 1;
+    }
+    const KINDS: [&str; 3] = ["positions", "texture coordinates", "normals"];
+    for (number, line) in lines().enumerate() {
+        let Some(corners) = line.strip_prefix(b"f") else {
+            continue;
+        };
+        if !corners.first().is_some_and(u8::is_ascii_whitespace) {
+            continue;
+        }
+        let corners = corners
+            .split(u8::is_ascii_whitespace)
+            .filter(|c| !c.is_empty());
+        for corner in corners {
+            for (kind, index) in corner.split(|&c| c == b'/').enumerate().take(3) {
+                let Some(index) = std::str::from_utf8(index)
+                    .ok()
+                    .and_then(|i| i.parse::<i128>().ok())
+                else {
+                    continue;
+                };
+                if index == 0 {
+                    return Err(format!(
+                        "line {}: face index 0 (OBJ indices start at 1)",
+                        number + 1
+                    ));
+                }
+                if index.unsigned_abs() > counts[kind] as u128 {
+                    return Err(format!(
+                        "line {}: face index {index} out of range of the file's {} {}",
+                        number + 1,
+                        counts[kind],
+                        KINDS[kind]
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 fn load_obj(path: &Path) -> Result<Builder, SceneError> {
     let err = |message: String| SceneError::Obj {
         path: path.to_path_buf(),
         message,
     };
     // Read once: the text is scanned for lines and points here and parsed by tobj from memory.
-    let text = std::fs::read(path).map_err(|source| SceneError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let text = read_scene_file(path)?;
     // Lines and points are not drawn: tobj would turn them into zero-area triangles, so they
     // are left out, and said so.
     let options = tobj::LoadOptions {
@@ -953,6 +1157,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
             path.display()
         );
     }
+    check_obj_face_indices(&text).map_err(err)?;
     // Material libraries are found next to the OBJ file, as `tobj::load_obj` does.
     let base = path.parent().unwrap_or(Path::new("."));
     // tobj's own errors say only "open file failed": the library's path and the problem are
@@ -1376,6 +1581,118 @@ mod tests {
         std::fs::write(&large, "v 0 0 0\nv 1e14 0 0\nv 0 1e14 0\nf 1 2 3\n").unwrap();
         let s = Scene::load(&large, false).unwrap();
         assert!(s.vertices[0].normal[2] > 0.99, "{:?}", s.vertices[0].normal);
+    }
+
+    /// What the `gltf` and `tobj` crates would panic on, abort on or read without end is an
+    /// error naming the file and the problem: a relative buffer URI that percent-decodes to
+    /// bytes that are not UTF-8 (a panic in release builds), buffers that are a device or a
+    /// sparse terabyte, a GLB header declaring a length under its own size, an accessor of
+    /// count 0 and offsets near 2⁶⁴ (overflows), OBJ face indices of 0 or near 2⁶³, and an OBJ
+    /// or material library that is a device.
+    #[test]
+    fn files_the_scene_crates_trust_are_checked_first() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let uri = r#""uri":"data:application/octet-stream;base64,"#;
+        std::fs::File::create(d.join("tera.bin"))
+            .unwrap()
+            .set_len(1 << 40)
+            .unwrap();
+        for (path, needle) in [
+            (
+                edited_gltf(d, "percent.gltf", uri, r#""uri":"%ff","name":""#),
+                "does not percent-decode to UTF-8",
+            ),
+            (
+                edited_gltf(d, "device.gltf", uri, r#""uri":"file:/dev/zero","name":""#),
+                "not a regular file",
+            ),
+            (
+                edited_gltf(d, "tera.gltf", uri, r#""uri":"tera.bin","name":""#),
+                "1099511627776 bytes",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "count0.gltf",
+                    r#""count":3,"type":"VEC3","min""#,
+                    r#""count":0,"type":"VEC3","min""#,
+                ),
+                "POSITION accessor 0 has a count of 0",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "offset.gltf",
+                    r#"{"bufferView":0,"componentType":5126"#,
+                    r#"{"bufferView":0,"byteOffset":18446744073709551000,"componentType":5126"#,
+                ),
+                "reach past the end of buffer view 0",
+            ),
+            (
+                edited_gltf(
+                    d,
+                    "view.gltf",
+                    r#"{"buffer":0,"byteLength":36}"#,
+                    r#"{"buffer":0,"byteOffset":18446744073709551000,"byteLength":36}"#,
+                ),
+                "lies outside buffer 0",
+            ),
+        ] {
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            let e = Scene::load(&path, false).err().map(|e| e.to_string());
+            let e = e.unwrap_or_else(|| panic!("{name} loaded"));
+            assert!(e.contains(&name) && e.contains(needle), "{e}");
+        }
+        let mut glb = b"glTF".to_vec();
+        glb.extend(2u32.to_le_bytes());
+        glb.extend(0u32.to_le_bytes());
+        std::fs::write(d.join("short.glb"), &glb).unwrap();
+        let e = Scene::load(&d.join("short.glb"), false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("short.glb") && e.contains("length of 0 bytes"),
+            "{e}"
+        );
+
+        let triangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\n";
+        for (name, faces, needle) in [
+            (
+                "normal.obj",
+                "f 1//6148914691236517207 2//1 3//1\n",
+                "line 5: face index 6148914691236517207 out of range of the file's 1 normals",
+            ),
+            ("zero.obj", "f 1/0 2 3\n", "line 5: face index 0"),
+            (
+                "back.obj",
+                "f -4 -2 -1\n",
+                "face index -4 out of range of the file's 3 positions",
+            ),
+        ] {
+            let obj = d.join(name);
+            std::fs::write(&obj, format!("{triangle}{faces}")).unwrap();
+            let e = Scene::load(&obj, false).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains(needle), "{e}");
+        }
+        let relative = d.join("relative.obj");
+        std::fs::write(&relative, format!("{triangle}f -3//-1 -2//1 -1//1\n")).unwrap();
+        assert_eq!(Scene::load(&relative, false).unwrap().caster_indices, 3);
+
+        // A material library that is a device: the scene loads grey, with a warning.
+        let mtl = d.join("device.obj");
+        std::fs::write(&mtl, format!("mtllib /dev/zero\n{triangle}f 1 2 3\n")).unwrap();
+        assert_eq!(Scene::load(&mtl, false).unwrap().caster_indices, 3);
+        let e = read_mtl(Path::new("/dev/zero")).unwrap_err().1;
+        assert!(e.contains("not a regular file"), "{e}");
+        // A scene that is a device.
+        let link = d.join("link.obj");
+        std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
+        let e = Scene::load(&link, false).unwrap_err().to_string();
+        assert!(
+            e.contains("link.obj") && e.contains("not a regular file"),
+            "{e}"
+        );
     }
 
     /// The one-triangle glTF of [`write_gltf`] with `from` replaced by `to` in its text.

@@ -1,0 +1,116 @@
+//! Reading a whole file a user named — a frame, a scene and its buffers or material libraries,
+//! a response curve, a recording's index — without trusting it to be a file of sane size.
+//!
+//! `std::fs::read` follows a path to anything: a FIFO blocks the process forever, a device such
+//! as `/dev/zero` never ends and grows memory until the process is killed, and a sparse file of
+//! a terabyte makes it ask for a terabyte at once (an allocation failure aborts, it does not
+//! return an error). [`read_regular_file`] reads only regular files (after following links) of
+//! at most a given size, and says which of those it was in an [`std::io::Error`] that the
+//! callers' errors wrap with the path.
+
+use std::io::{Error, ErrorKind, Read};
+use std::path::Path;
+
+/// Reads the regular file at `path` if it holds at most `max_bytes` bytes; `what` names the
+/// kind of file in the error ("a scene", "a response curve", …). Also an error if the file
+/// grows past the limit while it is read.
+pub fn read_regular_file(path: &Path, max_bytes: u64, what: &str) -> std::io::Result<Vec<u8>> {
+    // Stat before opening: opening a FIFO blocks until something writes to it.
+    if !std::fs::metadata(path)?.is_file() {
+        return Err(Error::new(
+            ErrorKind::InvalidInput,
+            format!(
+                "not a regular file (a directory, pipe, socket or device); {what} must be a file"
+            ),
+        ));
+    }
+    let too_large = |size: u64| {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!("{size} bytes, more than the {max_bytes} that {what} may have"),
+        )
+    };
+    let file = std::fs::File::open(path)?;
+    let metadata = file.metadata()?;
+    if metadata.len() > max_bytes {
+        return Err(too_large(metadata.len()));
+    }
+    let mut bytes = Vec::with_capacity(metadata.len() as usize);
+    file.take(max_bytes + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// [`read_regular_file`] for a text file: an error also if it is not UTF-8.
+pub fn read_regular_text(path: &Path, max_bytes: u64, what: &str) -> std::io::Result<String> {
+    String::from_utf8(read_regular_file(path, max_bytes, what)?).map_err(|e| {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!(
+                "not UTF-8 text (byte {} is not valid UTF-8); {what} is text",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_a_file_within_the_limit_and_refuses_one_beyond_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.txt");
+        std::fs::write(&path, b"12345").unwrap();
+        assert_eq!(read_regular_file(&path, 5, "a test").unwrap(), b"12345");
+        let e = read_regular_file(&path, 4, "a test").unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::InvalidData);
+        assert!(e.to_string().contains("5 bytes, more than the 4"), "{e}");
+    }
+
+    #[test]
+    fn a_sparse_terabyte_is_refused_before_it_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.bin");
+        let file = std::fs::File::create(&path).unwrap();
+        file.set_len(1 << 40).unwrap();
+        let e = read_regular_file(&path, 1 << 30, "a buffer").unwrap_err();
+        assert!(e.to_string().contains("1099511627776 bytes"), "{e}");
+    }
+
+    #[test]
+    fn devices_directories_and_fifos_are_not_read() {
+        let dir = tempfile::tempdir().unwrap();
+        for path in [Path::new("/dev/zero"), dir.path()] {
+            let e = read_regular_file(path, 1 << 20, "a scene").unwrap_err();
+            assert!(
+                e.to_string().contains("not a regular file"),
+                "{}: {e}",
+                path.display()
+            );
+        }
+        let fifo = dir.path().join("pipe.hdr");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let e = read_regular_file(&fifo, 1 << 20, "a frame").unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        let link = dir.path().join("zero.obj");
+        std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
+        assert!(read_regular_file(&link, 1 << 20, "a scene").is_err());
+    }
+
+    #[test]
+    fn text_must_be_utf8() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.txt");
+        std::fs::write(&path, b"ab\xffcd").unwrap();
+        let e = read_regular_text(&path, 100, "a curve").unwrap_err();
+        assert!(e.to_string().contains("byte 2"), "{e}");
+    }
+}
