@@ -87,6 +87,9 @@ pub fn devices() -> Result<()> {
 }
 
 pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
+    // Checked before the brackets are read and solved: --out replaced an input image.
+    crate::cli_output::check_output_path(&args.out, "--out")?;
+    crate::cli_output::InputFiles::new(&args.images).refuse(&args.out, "--out")?;
     let brackets: Vec<Bracket> = if let Some(dev) = &args.device {
         let settings = CameraSettings {
             device: dev.clone(),

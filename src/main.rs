@@ -1218,7 +1218,11 @@ fn decompose(args: &DecomposeArgs) -> Result<()> {
         },
         _ => anyhow!(e),
     })?;
-    run_decompose(&config, args.out.as_deref(), args.latest.as_deref())
+    // The config file and the response curve it names are inputs too: no output may be them.
+    let read: Vec<PathBuf> = (args.config.iter().cloned())
+        .chain(raw.camera.curve.iter().map(PathBuf::from))
+        .collect();
+    run_decompose(&config, &read, args.out.as_deref(), args.latest.as_deref())
 }
 
 /// The configured frame source (sky, sequence or camera), limited to `source.frames` and with a
@@ -1260,11 +1264,19 @@ fn latest_tmp(path: &Path) -> PathBuf {
     PathBuf::from(tmp)
 }
 
-fn run_decompose(config: &Config, out: Option<&Path>, latest: Option<&Path>) -> Result<()> {
+/// Decomposes `config`'s source into `out` (stdout when `None`) and `latest`; `read` lists the
+/// files other than the frames that the command read (the config file, a response curve),
+/// which no output may overwrite either.
+fn run_decompose(
+    config: &Config,
+    read: &[PathBuf],
+    out: Option<&Path>,
+    latest: Option<&Path>,
+) -> Result<()> {
     let mut source = open_source(config)?;
     let mut decomposer =
         Decomposer::new(config.decompose.clone()).context("invalid decomposition settings")?;
-    let inputs = cli_output::InputFiles::new(source.files());
+    let inputs = cli_output::InputFiles::new(&[source.files(), read].concat());
     if let Some(path) = latest {
         cli_output::check_output_path(path, "--latest")?;
         inputs.refuse(path, "--latest")?;

@@ -45,6 +45,11 @@ pub const FORMAT_VERSION: u32 = 1;
 /// (about 31.7 years): a later one is a corrupt index, and replaying it at the original timing
 /// would wait past what a clock can hold.
 pub const MAX_FRAME_TIME_S: f64 = 1e9;
+/// The largest `session.json` a replay reads (the recorder writes about a kilobyte).
+pub const MAX_SESSION_FILE_BYTES: u64 = 1 << 20;
+/// The largest `frames.jsonl` a replay reads: 4 GiB, about 20 million frames (three days at
+/// 60 frames per second).
+pub const MAX_INDEX_FILE_BYTES: u64 = 1 << 32;
 
 /// `session.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -358,7 +363,12 @@ impl ReplaySource {
             let path = path.to_path_buf();
             move |source| CaptureError::Io { path, source }
         };
-        let text = std::fs::read_to_string(&session_path).map_err(io(&session_path))?;
+        let text = crate::read_file::read_regular_text(
+            &session_path,
+            MAX_SESSION_FILE_BYTES,
+            "a session file",
+        )
+        .map_err(io(&session_path))?;
         let session: Session = serde_json::from_str(&text).map_err(|e| CaptureError::Format {
             path: session_path.clone(),
             message: format!("not an envlight session file: {e}"),
@@ -380,7 +390,9 @@ impl ReplaySource {
                 message: format!("invalid decomposition settings: {e}"),
             })?;
         let index_path = dir.join("frames.jsonl");
-        let text = std::fs::read_to_string(&index_path).map_err(io(&index_path))?;
+        let text =
+            crate::read_file::read_regular_text(&index_path, MAX_INDEX_FILE_BYTES, "a frame index")
+                .map_err(io(&index_path))?;
         // A last line without its newline was cut short (the recorder stopped mid-write, e.g.
         // killed): the recording is read up to its last whole frame.
         let cut_short = !text.is_empty() && !text.ends_with('\n');
@@ -587,6 +599,39 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A recording's `session.json` or `frames.jsonl` that is a device or a pipe is an error
+    /// naming it (read whole, `/dev/zero` grew memory without end and a pipe blocked).
+    #[test]
+    fn an_index_or_session_that_is_no_file_is_an_error() {
+        let dir = recording_with_index(&line(0, "0.0", "frames/000000.exr"));
+        let index = dir.path().join("frames.jsonl");
+        std::fs::remove_file(&index).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", &index).unwrap();
+        let e = ReplaySource::open(dir.path(), Pacing::Original)
+            .err()
+            .unwrap();
+        let text = e.to_string();
+        assert!(
+            text.contains("frames.jsonl") && text.contains("not a regular file"),
+            "{text}"
+        );
+        let session = dir.path().join("session.json");
+        std::fs::remove_file(&session).unwrap();
+        let made = std::process::Command::new("mkfifo")
+            .arg(&session)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let e = ReplaySource::open(dir.path(), Pacing::Original)
+            .err()
+            .unwrap();
+        let text = e.to_string();
+        assert!(
+            text.contains("session.json") && text.contains("not a regular file"),
+            "{text}"
+        );
     }
 
     /// A last line without its newline (the recorder stopped mid-write: killed, a full disk)

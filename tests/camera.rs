@@ -850,6 +850,20 @@ fn calibrate_response_writes_a_curve_file_from_png_brackets() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+    // -o on one of the brackets is refused before anything is read or written (it replaced
+    // the image with the curve's text).
+    let last = argv[times.len()];
+    let before = std::fs::read(last).unwrap();
+    let mut onto_input = argv.clone();
+    *onto_input.last_mut().unwrap() = last;
+    let o = envlight(&onto_input);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("is the input file") && err.contains("b4.png"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(last).unwrap(), before);
     // Errors about a bracket name its file; exposures in reverse order are refused and no
     // curve is written.
     let mut reversed: Vec<&str> = argv.clone();

@@ -893,6 +893,31 @@ fn outputs_that_are_inputs_are_refused() {
     }
 }
 
+/// `decompose --out` or `--latest` on its own `--config` file, or on the response curve that
+/// file names, is refused before anything is written (the config was truncated).
+#[test]
+fn decompose_outputs_may_not_overwrite_its_config_or_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("c.toml");
+    let curve = dir.path().join("curve.txt");
+    let text = "[camera]\nresponse = \"curve\"\ncurve = \"curve.txt\"\n";
+    std::fs::write(&config, text).unwrap();
+    std::fs::write(&curve, "0 0.01 0.01 0.01\n1 1 1 1\n").unwrap();
+    let (c, k) = (config.to_str().unwrap(), curve.to_str().unwrap());
+    for (option, output, name) in [
+        ("--out", c, "c.toml"),
+        ("--latest", c, "c.toml"),
+        ("--out", k, "curve.txt"),
+    ] {
+        let o = envlight(&["decompose", "--config", c, "--frames", "1", option, output]);
+        assert_fails_naming(&o, &[option, "is the input file", name]);
+    }
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), text);
+    assert!(std::fs::read_to_string(&curve)
+        .unwrap()
+        .starts_with("0 0.01"));
+}
+
 /// Two outputs on one file, or an output on the mesh `wavelet relight` reads, are refused
 /// before anything is written (the second output overwrote the first, or the mesh, with exit
 /// status 0); `wavelet recover --out` a directory fails before the work.

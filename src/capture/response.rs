@@ -126,12 +126,14 @@ impl ResponseCurve {
         Self::new(codes, values).map_err(|m| format_err(path, format!("response curve {m}")))
     }
 
-    /// Reads a curve file.
+    /// Reads a curve file: a regular text file of at most [`MAX_CURVE_FILE_BYTES`].
     pub fn read(path: &Path) -> Result<Self, CaptureError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CaptureError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            crate::read_file::read_regular_text(path, MAX_CURVE_FILE_BYTES, "a response curve")
+                .map_err(|source| CaptureError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
         Self::parse(&text, path)
     }
 
@@ -268,6 +270,10 @@ impl Radiometry {
         self.white_balance.map(|w| w * k)
     }
 }
+
+/// The largest response-curve file that is read (one written by `calibrate-response` is about
+/// 20 kB).
+pub const MAX_CURVE_FILE_BYTES: u64 = 16 << 20;
 
 /// Intervals of the per-channel look-up table.
 pub const LUT_INTERVALS: usize = 4096;
@@ -780,6 +786,9 @@ mod tests {
         assert!(e.to_string().contains("[0, 1]"), "{e}");
         let e = ResponseCurve::read(Path::new("/nonexistent/curve.txt")).unwrap_err();
         assert!(e.to_string().contains("/nonexistent/curve.txt"), "{e}");
+        // A device (read whole, /dev/zero ran out of memory, even in check-config).
+        let e = ResponseCurve::read(Path::new("/dev/zero")).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
     }
 
     /// Blocks of pixels can be linearised in parallel: the radiances must be the same to the bit
