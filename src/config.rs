@@ -1625,6 +1625,16 @@ mod tests {
                 "cube",
             ),
             ("[sky]\nwidth = 0", "sky.width", "0"),
+            (
+                "[sky]\nwidth = 16384\nheight = 16384",
+                "sky.width",
+                "16384 (height 16384)",
+            ),
+            (
+                "[camera]\nsettle_frames = 4294967295",
+                "camera.settle_frames",
+                "4294967295",
+            ),
             ("[asg]\nlobes = 0", "asg.lobes", "0"),
             ("[asg]\nlobes = 65", "asg.lobes", "65"),
             ("[asg]\nfit_height = 2", "asg.fit_height", "2"),

@@ -571,7 +571,8 @@ struct DecomposeArgs {
     #[arg(long, value_enum, value_name = "HOW")]
     bright_history: Option<BrightHistoryArg>,
 
-    /// Size of the built-in sky map in pixels. [default: 512x256]
+    /// Size of the built-in sky map in pixels, at most 16384 a side and 16384x8192 in all
+    /// (about 68 bytes a pixel). [default: 512x256]
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
     sky_size: Option<(u32, u32)>,
 

@@ -307,6 +307,20 @@ fn write_frame(
     let frame = &tapped.frame;
     let file = format!("frames/{:06}.exr", frame.seq);
     let path = root.join(&file);
+    // A frame the replay could not read is not stored: the recording would end there.
+    let pixels = u64::from(frame.width) * u64::from(frame.height);
+    if pixels > crate::capture::image_file::MAX_PIXELS {
+        return Err(RecordError::Exr {
+            path,
+            message: format!(
+                "the frame is {}x{}, more than the {} pixels a replay reads; record at a \
+                 smaller size",
+                frame.width,
+                frame.height,
+                crate::capture::image_file::MAX_PIXELS
+            ),
+        });
+    }
     let width = frame.width as usize;
     exr::prelude::write_rgb_file(&path, width, frame.height as usize, |x, y| {
         let [r, g, b] = frame.pixels[y * width + x];
@@ -599,6 +613,32 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A frame larger than a replay reads is not stored (the recording could not be replayed
+    /// past it): an error naming its size, and nothing written. (Its fields are set directly:
+    /// the check comes before the pixels are read.)
+    #[test]
+    fn a_frame_too_large_to_replay_is_not_recorded() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("frames")).unwrap();
+        let tapped = Tapped {
+            frame: HdrFrame {
+                width: 16384,
+                height: 16384,
+                pixels: Vec::new(),
+                projection: Projection::LatLong,
+                time: 0.0,
+                seq: 0,
+            },
+            lights: std::sync::Arc::new(crate::light::LightFrame::default()),
+        };
+        let mut index = LinesFile::create(dir.path().join("frames.jsonl")).unwrap();
+        let mut lights = LinesFile::create(dir.path().join("lights.jsonl")).unwrap();
+        let e = write_frame(dir.path(), &tapped, &mut index, &mut lights).unwrap_err();
+        assert!(e.to_string().contains("16384x16384"), "{e}");
+        assert_eq!((index.len, lights.len), (0, 0));
+        assert!(!dir.path().join("frames/000000.exr").exists());
     }
 
     /// A recording's `session.json` or `frames.jsonl` that is a device or a pipe is an error

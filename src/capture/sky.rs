@@ -77,6 +77,8 @@ const SUN_COLOUR: [f64; 3] = [1.06, 0.99, 0.93];
 const CHANNEL_WAVELENGTHS_UM: [f64; 3] = [0.680, 0.550, 0.440];
 /// Largest accepted image side.
 pub const MAX_SIDE: u32 = 16384;
+/// Fastest sun, degrees per second either way: a day in a tenth of a second.
+pub const MAX_SUN_SPEED_DEG_PER_S: f64 = 3600.0;
 /// Below this sun elevation (degrees) the Preetham model is evaluated at this elevation and the
 /// sky fades out.
 const MODEL_MIN_ELEVATION_DEG: f64 = 1.0;
@@ -199,6 +201,19 @@ impl SkyOptions {
                 });
             }
         }
+        // As many pixels as a frame file may hold, so that a recording of the sky replays
+        // (about 68 bytes a pixel: 9 GB at the limit).
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        if pixels > super::image_file::MAX_PIXELS {
+            return Err(InvalidSkyOption {
+                field: "width",
+                value: format!("{} (height {})", self.width, self.height),
+                expected: format!(
+                    "at most {} pixels in all (16384x8192)",
+                    super::image_file::MAX_PIXELS
+                ),
+            });
+        }
         check_range("turbidity", self.turbidity, 1.7, 10.0)?;
         check_range(
             "sun_start_elevation_deg",
@@ -207,7 +222,14 @@ impl SkyOptions {
             90.0,
         )?;
         check_finite("sun_start_azimuth_deg", self.sun_start_azimuth_deg)?;
-        check_finite("sun_speed_deg_per_s", self.sun_speed_deg_per_s)?;
+        // Finite is not enough: speed × time overflowed to infinity (1e308 after 2 s) and
+        // every later frame was black.
+        check_range(
+            "sun_speed_deg_per_s",
+            self.sun_speed_deg_per_s,
+            -MAX_SUN_SPEED_DEG_PER_S,
+            MAX_SUN_SPEED_DEG_PER_S,
+        )?;
         check_range("cloud_cover", self.cloud_cover, 0.0, 1.0)?;
         check_range("wind_speed", self.wind_speed, 0.0, 1000.0)?;
         check_range("ground_albedo", self.ground_albedo, 0.0, 1.0)?;
@@ -1560,11 +1582,19 @@ mod tests {
             ),
             (
                 SkyOptions {
+                    sun_speed_deg_per_s: 1e308,
+                    ..SkyOptions::default()
+                },
+                "sun_speed_deg_per_s must be in -3600..=3600",
+            ),
+            (
+                SkyOptions {
                     wind_speed: -1.0,
                     ..SkyOptions::default()
                 },
                 "wind_speed",
             ),
+            (small(MAX_SIDE, MAX_SIDE), "at most 134217728 pixels"),
         ];
         for (options, needle) in cases {
             let err = options.validate().unwrap_err();
@@ -1575,6 +1605,7 @@ mod tests {
         }
         SkyOptions::default().validate().unwrap();
         small(MAX_SIDE, 1).validate().unwrap();
+        small(MAX_SIDE, MAX_SIDE / 2).validate().unwrap();
     }
 
     #[test]

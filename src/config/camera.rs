@@ -11,6 +11,10 @@ use crate::envmap::Projection;
 use serde::Deserialize;
 use std::path::Path;
 use std::sync::Arc;
+
+/// Most frames `camera.settle_frames` may drop after an exposure change (at 30 frames/s, over
+/// three seconds per bracket): a larger value stalled bracketed capture without end.
+pub const MAX_SETTLE_FRAMES: u32 = 100;
 use std::time::Duration;
 
 /// `[camera]` as written.
@@ -225,7 +229,13 @@ impl RawCamera {
             white_balance,
             scale,
             bracket_exposures_s,
-            settle_frames: self.settle_frames.unwrap_or(d.settle_frames),
+            settle_frames: integer_in(
+                "camera.settle_frames",
+                self.settle_frames,
+                d.settle_frames,
+                0..=MAX_SETTLE_FRAMES,
+                " (frames dropped after each exposure change)",
+            )?,
             merge_limits,
             timeout,
             retry,

@@ -530,7 +530,17 @@ impl Transport {
                 index.push(k);
                 value.push(c);
             }
-            offsets.push(index.len() as u32);
+            // u32 offsets: more entries would wrap them, and a wrapped row would be read
+            // backwards (a panic) or as another vertex's.
+            let end = u32::try_from(index.len()).map_err(|_| {
+                TransportError::Invalid(format!(
+                    "transport of more than {} stored coefficients (at row {}); keep fewer \
+                     coefficients per vertex or use a smaller mesh",
+                    u32::MAX,
+                    offsets.len() - 1
+                ))
+            })?;
+            offsets.push(end);
         }
         Ok(Self {
             side: grid.side,
