@@ -486,15 +486,29 @@ impl Scene {
             .extension()
             .and_then(|e| e.to_str())
             .map(|e| e.to_ascii_lowercase());
-        let b = match ext.as_deref() {
-            Some("gltf" | "glb") => load_gltf(path)?,
-            Some("obj") => load_obj(path)?,
+        let load = match ext.as_deref() {
+            Some("gltf" | "glb") => load_gltf,
+            Some("obj") => load_obj,
             _ => {
                 return Err(SceneError::UnknownFormat {
                     path: path.to_path_buf(),
                 })
             }
         };
+        // The checks before the gltf and tobj crates cover what they were found to panic on;
+        // a panic still left in them becomes an error naming the file (the default panic hook
+        // prints its message to stderr too).
+        let b = std::panic::catch_unwind(|| load(path)).unwrap_or_else(|panic| {
+            let what = (panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".to_string());
+            let (path, message) = (path.to_path_buf(), format!("the reader panicked: {what}"));
+            Err(if ext.as_deref() == Some("obj") {
+                SceneError::Obj { path, message }
+            } else {
+                SceneError::Gltf { path, message }
+            })
+        })?;
         if b.indices.is_empty() {
             return Err(SceneError::Empty {
                 path: path.to_path_buf(),
@@ -753,6 +767,32 @@ fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
+/// Parses and validates a glTF or GLB file as `gltf::Gltf::from_slice` does, but checks first
+/// that every primitive attribute names an accessor the file has: gltf-json's validation
+/// indexes the accessors with the POSITION attribute's index unchecked (a panic, found by
+/// `mutated_gltf_and_glb_files_never_panic`).
+fn parse_gltf(bytes: &[u8]) -> Result<gltf::Gltf, String> {
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
+    let root = document.into_json();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            for index in primitive.attributes.values() {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {m} primitive {p}: an attribute names accessor {}, but the file \
+                         has {} accessors",
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    let document = gltf::Document::from_json(root).map_err(|e| e.to_string())?;
+    Ok(gltf::Gltf { document, blob })
+}
+
 /// Where a glTF buffer's data is: embedded (`data:` URIs, the GLB blob) or in a file, as the
 /// `gltf` crate resolves URIs: `file:` and `file://` as written, a relative URI
 /// percent-decoded under `base`.
@@ -829,7 +869,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     };
     let bytes = read_scene_file(path)?;
     check_glb_header(&bytes).map_err(err)?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
+    let gltf = parse_gltf(&bytes).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new("."));
     let buffers = load_gltf_buffers(&gltf, base).map_err(err)?;
     let mut b = Builder::default();
@@ -1693,6 +1733,177 @@ mod tests {
             e.contains("link.obj") && e.contains("not a regular file"),
             "{e}"
         );
+    }
+
+    /// Every number of a valid glTF replaced by hostile values (0, -1, 2³² − 1, 2⁶⁴ − 1, 1e308,
+    /// …), and a GLB of the same scene with every byte inverted and cut at every length: each
+    /// load returns, an error or a scene, and never panics. (Overflow panics need overflow
+    /// checks, which release tests lack; the checks before the crates make those cases
+    /// errors in any build, as `files_the_scene_crates_trust_are_checked_first` shows.)
+    #[test]
+    fn mutated_gltf_and_glb_files_never_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let text = std::fs::read_to_string(write_gltf(
+            d,
+            "base.gltf",
+            r#"[{"mesh":0}]"#,
+            [3, 3, 3],
+            "[0.5,0.5,0.5,1]",
+        ))
+        .unwrap();
+        let numbers: Vec<(usize, usize)> = {
+            let bytes = text.as_bytes();
+            let mut spans = Vec::new();
+            let mut i = 0;
+            while i < bytes.len() {
+                let starts = bytes[i].is_ascii_digit()
+                    && !bytes[i - 1].is_ascii_alphanumeric()
+                    && bytes[i - 1] != b'+'
+                    && bytes[i - 1] != b'/';
+                if starts {
+                    let end = (i..bytes.len())
+                        .find(|&j| !(bytes[j].is_ascii_digit() || b".eE-".contains(&bytes[j])))
+                        .unwrap_or(bytes.len());
+                    spans.push((i, end));
+                    i = end;
+                } else {
+                    i += 1;
+                }
+            }
+            spans
+        };
+        assert!(numbers.len() > 30, "{}", numbers.len());
+        let hostile = [
+            "0",
+            "-1",
+            "1",
+            "255",
+            "65535",
+            "4294967295",
+            "4294967296",
+            "18446744073709551615",
+            "9007199254740993",
+            "1e308",
+            "-1e308",
+            "0.5",
+        ];
+        let path = d.join("mutated.gltf");
+        let mut loaded = 0;
+        for &(start, end) in &numbers {
+            for value in hostile {
+                let mutated = format!("{}{value}{}", &text[..start], &text[end..]);
+                std::fs::write(&path, mutated).unwrap();
+                loaded += usize::from(Scene::load(&path, false).is_ok());
+            }
+        }
+        assert!(loaded > 0);
+
+        // The same scene as a GLB: the buffer as its BIN chunk.
+        let document: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let uri = document["buffers"][0]["uri"].as_str().unwrap();
+        let b64 = uri.rsplit(',').next().unwrap();
+        let bin = base64_decode(b64);
+        let mut json = document.clone();
+        json["buffers"][0].as_object_mut().unwrap().remove("uri");
+        let glb = gltf::binary::Glb {
+            header: gltf::binary::Header {
+                magic: *b"glTF",
+                version: 2,
+                length: 0,
+            },
+            json: serde_json::to_vec(&json).unwrap().into(),
+            bin: Some(bin.into()),
+        }
+        .to_vec()
+        .unwrap();
+        let path = d.join("mutated.glb");
+        std::fs::write(&path, &glb).unwrap();
+        Scene::load(&path, false).expect("the unmutated GLB loads");
+        for i in 0..glb.len() {
+            let mut bytes = glb.clone();
+            bytes[i] ^= 0xff;
+            std::fs::write(&path, &bytes).unwrap();
+            let _ = Scene::load(&path, false);
+            std::fs::write(&path, &glb[..i]).unwrap();
+            assert!(Scene::load(&path, false).is_err(), "cut at {i}");
+        }
+    }
+
+    /// Every number of a small OBJ (positions, texture coordinates, normals, face indices) and
+    /// of its material library replaced by hostile values: each load returns and never panics.
+    #[test]
+    fn mutated_obj_files_never_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nusemtl red\n\
+                   f 1/1/1 2/1/1 3/1/1\nf -3 -2 -1\n";
+        let mtl = "newmtl red\nKd 1 0.5 0\nNs 10\nd 1\n";
+        let hostile = [
+            "0",
+            "-1",
+            "2",
+            "-4",
+            "9223372036854775807",
+            "-9223372036854775808",
+            "18446744073709551616",
+            "6148914691236517207",
+            "1e308",
+            "nan",
+            "inf",
+            "x",
+        ];
+        let words = |text: &str| -> Vec<(usize, usize)> {
+            let mut spans = Vec::new();
+            let mut start = None;
+            for (i, c) in text.char_indices().chain([(text.len(), ' ')]) {
+                let part = c.is_ascii_digit() || c == '.' || c == '-';
+                match (part, start) {
+                    (true, None) => start = Some(i),
+                    (false, Some(s)) => {
+                        spans.push((s, i));
+                        start = None;
+                    }
+                    _ => {}
+                }
+            }
+            spans
+        };
+        let path = d.join("mutated.obj");
+        let mut loaded = 0;
+        for (file, other) in [(obj, mtl), (mtl, obj)] {
+            for (start, end) in words(file) {
+                for value in hostile {
+                    let mutated = format!("{}{value}{}", &file[..start], &file[end..]);
+                    let (o, m) = if file == obj {
+                        (mutated.as_str(), other)
+                    } else {
+                        (other, mutated.as_str())
+                    };
+                    std::fs::write(&path, o).unwrap();
+                    std::fs::write(d.join("m.mtl"), m).unwrap();
+                    loaded += usize::from(Scene::load(&path, false).is_ok());
+                }
+            }
+        }
+        assert!(loaded > 0);
+    }
+
+    fn base64_decode(text: &str) -> Vec<u8> {
+        const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let digits: Vec<u32> = (text.bytes())
+            .filter(|&c| c != b'=')
+            .map(|c| A.iter().position(|&a| a == c).unwrap() as u32)
+            .collect();
+        let mut out = Vec::new();
+        for chunk in digits.chunks(4) {
+            let n = chunk
+                .iter()
+                .enumerate()
+                .fold(0, |n, (k, d)| n | d << (18 - 6 * k));
+            out.extend(&n.to_be_bytes()[1..chunk.len()]);
+        }
+        out
     }
 
     /// The one-triangle glTF of [`write_gltf`] with `from` replaced by `to` in its text.
