@@ -1,10 +1,12 @@
 //! Benchmarks of the light decomposition (single-threaded: one core).
 //!
-//! - `frame/default_256/{512x256,1024x512,2048x1024}`: one frame of rooitou_park (lat-long)
-//!   decomposed with the default settings (256 lights, filter on, merge off). One `Decomposer` is
-//!   reused across iterations, as in the daemon: its filter state and per-geometry tables persist,
-//!   so this is the steady per-frame cost. 512×256 is the map box-downsampled by 2, 2048×1024 the
-//!   map upsampled by pixel replication.
+//! - `frame/default_256/{128x64,256x128,512x256,1024x512,2048x1024}`: one frame of rooitou_park
+//!   (lat-long) decomposed with the default settings (256 lights, filter on, merge off). One
+//!   `Decomposer` is reused across iterations, as in the daemon: its filter state and
+//!   per-geometry tables persist, so this is the steady per-frame cost. 512×256, 256×128 and
+//!   128×64 are the map box-downsampled by 2, 4 and 8, 2048×1024 the map upsampled by pixel
+//!   replication. 256×128 is the working map's own width; 128×64, narrower, goes through the
+//!   table path with its pixels cut into sub-pixels.
 //! - `frame/raw_256/1024x512`: the same without filter and merge.
 //! - `frame/filter_merge_256/1024x512`: the same with filter and merge (`--merge`, the default
 //!   merge spacing), the configuration the target names.
@@ -132,8 +134,12 @@ fn read_frame(frame: &HdrFrame) -> f32 {
 
 fn bench_frames(c: &mut Criterion) {
     let full = rooitou();
+    let half = downsample2(&full);
+    let quarter = downsample2(&half);
     let frames = [
-        ("512x256", downsample2(&full)),
+        ("128x64", downsample2(&quarter)),
+        ("256x128", quarter),
+        ("512x256", half),
         ("2048x1024", upsample2(&full)),
         ("1024x512", full),
     ];

@@ -1137,6 +1137,10 @@ mod tests {
             (Projection::LatLong, 17, 9),
             (Projection::LatLong, 64, 32),
             (Projection::LatLong, 200, 100),
+            // Pixels long one way only: cut along that axis (split_factor).
+            (Projection::LatLong, 2048, 1),
+            (Projection::LatLong, 1024, 2),
+            (Projection::LatLong, 1, 512),
         ];
         for (projection, width, height) in cases {
             let uniform = HdrFrame::new(

@@ -97,8 +97,8 @@ enum Plan {
 /// put all its energy in the working pixel of its centre and leave its neighbours empty: the
 /// energy lumps, lights that land in the empty ones get none, and a lump big enough to be
 /// concentrated adds the input pixel's whole solid angle to a working pixel whose neighbours
-/// count theirs again. So such a pixel is cut into `s`×`s` sub-pixels (`s` from its angular
-/// size, [`split_factor`]) whose centres are binned like any pixel's, and its solid angle is
+/// count theirs again. So such a pixel is cut into sub-pixels (as many along each image axis as
+/// its angular extent there needs, [`split_factor`]) whose centres are binned like any pixel's, and its solid angle is
 /// shared equally among the sub-pixels inside the image; the sub-pixels of one working pixel
 /// make one part.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -481,7 +481,7 @@ impl Resampler {
                         continue;
                     }
                     let split = split_factor(projection, (sw, sh), (x, y), omega, step);
-                    if split > 1 {
+                    if split != (1, 1) {
                         let pixel = SplitPixel {
                             projection,
                             source: (sw, sh),
@@ -1094,24 +1094,26 @@ fn working_pixel_of(d: DVec3, width: usize, height: usize) -> Option<u32> {
     Some((iy * width + ix) as u32)
 }
 
-/// Into how many sub-pixels across input pixel (x, y) of solid angle `omega` is cut so that
-/// each is at most half a working pixel (`step` radians) across: 1 for pixels already that
-/// small. Its size is the larger of √Ω and its extents along its two axes (the angles between
-/// the directions at the midpoints of opposite edges, where both are in the image), so the
-/// long pixels at the rim of an orthographic lens are caught too.
+/// Into how many sub-pixels across × down input pixel (x, y) of solid angle `omega` is cut so
+/// that each is at most half a working pixel (`step` radians) along each image axis: (1, 1)
+/// for pixels with √Ω under a sixth of a working pixel. Along an axis its size is the larger
+/// of its extent there (the angle between the directions at the midpoints of opposite edges,
+/// where both are in the image) and Ω over the other axis' extent (its mean width), so the
+/// long pixels at the rim of an orthographic lens are caught too, and a pixel long along one
+/// axis only is cut along that one.
 fn split_factor(
     projection: Projection,
     (sw, sh): (u32, u32),
     (x, y): (usize, usize),
     omega: f64,
     step: f64,
-) -> usize {
+) -> (usize, usize) {
     let mean_size = omega.sqrt();
     // Most pixels of camera frames are far smaller than a working pixel: no directions needed
     // (this lets through pixels up to 3:1 elongated whose mean size is under step/6; a 1280×960
     // equidistant frame's are step/7.5 at the default working size).
     if mean_size < step / 6.0 {
-        return 1;
+        return (1, 1);
     }
     let (x0, y0) = (x as f64, y as f64);
     let angle = |a: (f64, f64), b: (f64, f64)| match (
@@ -1123,23 +1125,39 @@ fn split_factor(
     };
     let across = angle((x0, y0 + 0.5), (x0 + 1.0, y0 + 0.5));
     let down = angle((x0 + 0.5, y0), (x0 + 0.5, y0 + 1.0));
-    let size = mean_size.max(across).max(down);
-    let split = (2.0 * size / step).ceil();
-    if split.is_finite() {
-        (split as usize).clamp(1, MAX_SPLIT)
-    } else {
-        1
-    }
+    // Each axis is cut by its own extent: a pixel of a 2048×1 map spans 180° down and 0.18°
+    // across, and cutting it 256 × 256 (by its largest extent both ways) took 35 s a frame
+    // geometry. An extent the middle lines miss (0 where both ends are one direction, as
+    // across a 1-pixel-wide lat-long map) is the solid angle over the other extent; each axis
+    // is then at least the solid angle over the other (a mean width).
+    let guess = |along: f64, other: f64| match (along > 0.0, other > 0.0) {
+        (true, _) => along,
+        (false, true) => omega / other,
+        (false, false) => mean_size,
+    };
+    let (width, height) = (guess(across, down), guess(down, across));
+    let count = |size: f64| {
+        let split = (2.0 * size / step).ceil();
+        if split.is_finite() {
+            (split as usize).clamp(1, MAX_SPLIT)
+        } else {
+            1
+        }
+    };
+    (
+        count(width.max(omega / height)),
+        count(height.max(omega / width)),
+    )
 }
 
-/// An input pixel to cut into `split`×`split` sub-pixels ([`PixelPart`]).
+/// An input pixel to cut into `split.0` × `split.1` sub-pixels (across × down, [`PixelPart`]).
 struct SplitPixel {
     projection: Projection,
     source: (u32, u32),
     working: (usize, usize),
     at: (usize, usize),
     solid_angle: f64,
-    split: usize,
+    split: (usize, usize),
 }
 
 impl SplitPixel {
@@ -1148,19 +1166,20 @@ impl SplitPixel {
     /// solid angle equally; nothing is appended if none is inside.
     fn parts(&self, parts: &mut Vec<PixelPart>) {
         let ((sw, sh), (width, height), (x, y)) = (self.source, self.working, self.at);
-        let n = self.split as f64;
+        let (nx, ny) = self.split;
         let direction = |u: f64, v: f64| self.projection.pixel_to_direction(sw, sh, u, v);
         // (working pixel, direction, weight ∝ the sub-pixel's solid angle).
-        let mut subs: Vec<(u32, DVec3, f64)> = Vec::with_capacity(self.split * self.split);
-        for j in 0..self.split {
-            for i in 0..self.split {
-                let u = x as f64 + (i as f64 + 0.5) / n;
-                let v = y as f64 + (j as f64 + 0.5) / n;
+        let mut subs: Vec<(u32, DVec3, f64)> = Vec::with_capacity(nx * ny);
+        let half_step = (0.25 / nx as f64, 0.25 / ny as f64);
+        for j in 0..ny {
+            for i in 0..nx {
+                let u = x as f64 + (i as f64 + 0.5) / nx as f64;
+                let v = y as f64 + (j as f64 + 0.5) / ny as f64;
                 let Some(d) = direction(u, v) else {
                     continue;
                 };
                 if let Some(t) = working_pixel_of(d, width, height) {
-                    subs.push((t, d, sub_pixel_weight(&direction, (u, v), d, 0.25 / n)));
+                    subs.push((t, d, sub_pixel_weight(&direction, (u, v), d, half_step)));
                 }
             }
         }
@@ -1206,14 +1225,14 @@ impl SplitPixel {
 }
 
 /// A weight proportional to the solid angle of the sub-pixel centred at image position (u, v)
-/// with direction `d`: the area of the parallelogram of the direction's differences over ±`h`
-/// in u and in v (one-sided, from the centre, where a point is outside the image); 0 where
+/// with direction `d`: the area of the parallelogram of the direction's differences over ±`hu`
+/// in u and ±`hv` in v (one-sided, from the centre, where a point is outside the image); 0 where
 /// neither side of an axis is inside.
 fn sub_pixel_weight(
     direction: &impl Fn(f64, f64) -> Option<DVec3>,
     (u, v): (f64, f64),
     d: DVec3,
-    h: f64,
+    (hu, hv): (f64, f64),
 ) -> f64 {
     let difference = |plus: Option<DVec3>, minus: Option<DVec3>| match (plus, minus) {
         (Some(p), Some(m)) => Some((p - m) / 2.0),
@@ -1221,8 +1240,8 @@ fn sub_pixel_weight(
         (None, Some(m)) => Some(d - m),
         (None, None) => None,
     };
-    let du = difference(direction(u + h, v), direction(u - h, v));
-    let dv = difference(direction(u, v + h), direction(u, v - h));
+    let du = difference(direction(u + hu, v), direction(u - hu, v));
+    let dv = difference(direction(u, v + hv), direction(u, v - hv));
     match (du, dv) {
         (Some(a), Some(b)) => a.cross(b).length(),
         _ => 0.0,
@@ -1300,6 +1319,27 @@ mod tests {
     /// The AVX2 horizontal sums give the portable path's energies and luminances bit for bit,
     /// on row widths with and without a remainder after the groups of eight.
     #[cfg(target_arch = "x86_64")]
+    /// A pixel long along one image axis only is cut along that axis only: a 2048×1 lat-long
+    /// map's pixels (180° down, 0.18° across) into 1 × 256 sub-pixels, not 256 × 256 (which
+    /// took 35 s to plan); a 1×512 map's (360° across) into 256 × 1; a square-ish pixel of a
+    /// 17×9 map both ways alike.
+    #[test]
+    fn pixels_are_cut_along_their_long_axis_only() {
+        let step = PI / 128.0;
+        let split = |(w, h): (u32, u32), at: (usize, usize)| {
+            let omega = Projection::LatLong.solid_angles(w, h)[at.1 * w as usize + at.0];
+            split_factor(Projection::LatLong, (w, h), at, omega, step)
+        };
+        assert_eq!(split((2048, 1), (5, 0)), (1, MAX_SPLIT));
+        assert_eq!(split((1, 512), (0, 256)), (MAX_SPLIT, 1));
+        let (across, down) = split((17, 9), (3, 4));
+        assert!(
+            across > 1 && down > 1 && across.abs_diff(down) <= 2,
+            "{across} {down}"
+        );
+        assert_eq!(split((1024, 512), (7, 200)), (1, 1));
+    }
+
     #[test]
     fn avx2_horizontal_sums_equal_the_portable_ones() {
         let Some(simd) = pulp::x86::V3::try_new() else {
