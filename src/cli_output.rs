@@ -122,6 +122,23 @@ pub fn check_output_path(path: &Path, option: &str) -> Result<()> {
     Ok(())
 }
 
+/// Fails when the output `path` (given with `option`), which receives OpenEXR data, does not
+/// end in `.exr`: a `.png` or `.hdr` name would hold EXR data that later readers (envlight's own
+/// among them) take for the format the name says.
+pub fn require_exr_name(path: &Path, option: &str) -> Result<()> {
+    let exr = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if !exr {
+        anyhow::bail!(
+            "{option} {}: the file is written as OpenEXR; give a path ending in .exr",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// Creates (or truncates) the output file `path` given with `option`, after checking it is none
 /// of `inputs`.
 pub fn create(path: &Path, option: &str, inputs: &InputFiles) -> Result<std::fs::File> {

@@ -765,12 +765,39 @@ impl RawRender {
             Some(s) => parse_lighting(s)
                 .ok_or_else(|| invalid("render.lighting", s, "must be \"lights\" or \"asg\""))?,
         };
+        let enabled = self.enabled.unwrap_or(false);
+        let (scene, latest_png) = (path(&self.scene), path(&self.latest_png));
+        // The paths are checked where the render thread will use them (when it is enabled), so
+        // that check-config and a reload catch them rather than the thread after start-up.
+        if enabled {
+            if let Some(scene) = &scene {
+                if !scene.is_file() {
+                    return Err(invalid(
+                        "render.scene",
+                        scene.display(),
+                        "must be an existing .gltf, .glb or .obj file",
+                    ));
+                }
+            }
+            if let Some(png) = &latest_png {
+                let folder = png.parent().filter(|p| !p.as_os_str().is_empty());
+                if folder.is_some_and(|f| !f.is_dir()) {
+                    return Err(invalid(
+                        "render.latest_png",
+                        png.display(),
+                        "its folder does not exist",
+                    ));
+                }
+                crate::read_file::check_replaceable(png, "render.latest_png")
+                    .map_err(|e| invalid("render.latest_png", png.display(), e.to_string()))?;
+            }
+        }
         Ok(RenderConfig {
-            enabled: self.enabled.unwrap_or(false),
+            enabled,
             settings,
-            scene: path(&self.scene),
+            scene,
             budget_ms: self.budget_ms,
-            latest_png: path(&self.latest_png),
+            latest_png,
             lighting,
         })
     }
@@ -1689,6 +1716,21 @@ mod tests {
                 "[decompose]\nbright_history = \"merge\"",
                 "decompose.bright_history",
                 "merge",
+            ),
+            (
+                "[render]\nenabled = true\nlatest_png = \"/nonexistent/x.png\"",
+                "render.latest_png",
+                "its folder does not exist",
+            ),
+            (
+                "[render]\nenabled = true\nlatest_png = \"/dev/null\"",
+                "render.latest_png",
+                "a device, pipe or socket",
+            ),
+            (
+                "[render]\nenabled = true\nscene = \"/nonexistent/s.glb\"",
+                "render.scene",
+                "must be an existing",
             ),
         ] {
             let e = error(text);

@@ -986,14 +986,16 @@ fn write_latest_png(
     image: &crate::render::Image,
 ) -> Result<(), crate::render::RenderError> {
     use crate::render::output;
+    crate::read_file::check_replaceable(path, "render.latest_png")
+        .map_err(|e| crate::render::RenderError::Output(format!("{}: {e}", path.display())))?;
     let exposure = output::auto_exposure(image);
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp.png");
     let tmp = PathBuf::from(tmp);
     output::write_png(&tmp, image, exposure)
-        .map_err(|e| crate::render::RenderError::Gpu(e.to_string()))?;
+        .map_err(|e| crate::render::RenderError::Output(e.to_string()))?;
     std::fs::rename(&tmp, path)
-        .map_err(|e| crate::render::RenderError::Gpu(format!("{}: {e}", path.display())))
+        .map_err(|e| crate::render::RenderError::Output(format!("{}: {e}", path.display())))
 }
 
 /// Sends a systemd notification; a no-op outside systemd, a logged warning on failure.

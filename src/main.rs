@@ -359,7 +359,7 @@ struct SubscribeArgs {
     /// Ask for at most N lights per frame (the brightest); 0 = all.
     #[arg(long, value_name = "N", default_value_t = 0)]
     max_lights: u32,
-    /// Stop after N frames.
+    /// Stop after N frames (0: no limit, as without it).
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
     /// Fail when the daemon sends nothing for this many seconds (the connection and its
@@ -1076,7 +1076,9 @@ fn subscribe(args: &SubscribeArgs) -> Result<()> {
     let mut client = Client::connect(&args.address, &request, timeout).map_err(timed_out)?;
     let mut stdout = std::io::stdout().lock();
     let mut frames = 0u64;
-    while args.frames.is_none_or(|n| frames < n) {
+    // --frames 0 is no limit, as for every command (it stopped at once, printing nothing).
+    let limit = args.frames.filter(|&n| n > 0);
+    while limit.is_none_or(|n| frames < n) {
         let Some(message) = client.next_message().map_err(timed_out)? else {
             bail!("{}: the daemon closed the connection", args.address);
         };
@@ -1253,6 +1255,8 @@ fn quiet_vulkan_device_select() {
 
 /// Replaces `path` with `contents` atomically: readers see the old or the new file, never half.
 fn replace_file(path: &Path, contents: &[u8]) -> std::io::Result<()> {
+    // Again at each frame: a device or pipe may have taken the path since the start.
+    envlight::read_file::check_replaceable(path, "--latest")?;
     let tmp = latest_tmp(path);
     std::fs::write(&tmp, contents)?;
     std::fs::rename(&tmp, path)
@@ -1280,6 +1284,8 @@ fn run_decompose(
     let inputs = cli_output::InputFiles::new(&[source.files(), read].concat());
     if let Some(path) = latest {
         cli_output::check_output_path(path, "--latest")?;
+        envlight::read_file::check_replaceable(path, "--latest")
+            .with_context(|| format!("--latest {}", path.display()))?;
         inputs.refuse(path, "--latest")?;
         // --latest is replaced through LATEST.tmp: neither may be the --out file.
         if let Some(out) = out {

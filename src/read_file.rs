@@ -7,6 +7,11 @@
 //! return an error). [`read_regular_file`] reads only regular files (after following links) of
 //! at most a given size, and says which of those it was in an [`std::io::Error`] that the
 //! callers' errors wrap with the path.
+//!
+//! The outputs replaced whole every frame (`--latest`, `render.latest_png`) are written to a
+//! temporary file and renamed over the path: [`check_replaceable`] refuses a path that is a
+//! device, a pipe, a socket or a directory, which the rename would replace (run as root,
+//! `--latest /dev/null` turned `/dev/null` into a regular file).
 
 use std::io::{Error, ErrorKind, Read};
 use std::path::Path;
@@ -56,6 +61,29 @@ pub fn read_regular_text(path: &Path, max_bytes: u64, what: &str) -> std::io::Re
     })
 }
 
+/// Fails if `path` exists and is neither a regular file nor a symbolic link (which a rename
+/// replaces, leaving its target alone): renaming a new file over it would replace a device,
+/// a pipe or a socket; a directory cannot be renamed over at all. `what` names the output.
+pub fn check_replaceable(path: &Path, what: &str) -> std::io::Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(e),
+        Ok(m) if m.is_file() || m.file_type().is_symlink() => Ok(()),
+        Ok(m) => Err(Error::new(
+            ErrorKind::InvalidInput,
+            format!(
+                "{what} is replaced by renaming a new file over it, but this path is {}; give \
+                 the path of a regular file",
+                if m.is_dir() {
+                    "a directory"
+                } else {
+                    "a device, pipe or socket"
+                }
+            ),
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -103,6 +131,22 @@ mod tests {
         let link = dir.path().join("zero.obj");
         std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
         assert!(read_regular_file(&link, 1 << 20, "a scene").is_err());
+    }
+
+    #[test]
+    fn only_regular_files_links_and_new_paths_are_replaceable() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("a.json");
+        assert!(check_replaceable(&file, "--latest").is_ok());
+        std::fs::write(&file, b"{}").unwrap();
+        assert!(check_replaceable(&file, "--latest").is_ok());
+        let link = dir.path().join("link.json");
+        std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+        assert!(check_replaceable(&link, "--latest").is_ok());
+        for path in [Path::new("/dev/null"), dir.path()] {
+            let e = check_replaceable(path, "--latest").unwrap_err().to_string();
+            assert!(e.contains("--latest is replaced by renaming"), "{e}");
+        }
     }
 
     #[test]

@@ -227,6 +227,9 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             args.size
         );
     }
+    if let Some(path) = &args.reconstruct {
+        crate::cli_output::require_exr_name(path, "--reconstruct")?;
+    }
     let mut source = args.input.open()?;
     let mut inputs = crate::cli_output::InputFiles::new(source.files());
     let mut writer = std::io::BufWriter::new(crate::cli_output::open_output(

@@ -450,6 +450,7 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
     if let Some(path) = &args.out {
         inputs.refuse(path, "--out")?;
         crate::cli_output::check_output_path(path, "--out")?;
+        crate::cli_output::require_exr_name(path, "--out")?;
     }
     let frame = source
         .next_frame()

@@ -918,6 +918,28 @@ fn decompose_outputs_may_not_overwrite_its_config_or_curve() {
         .starts_with("0 0.01"));
 }
 
+/// `--latest` on a pipe (or a device: as root, `--latest /dev/null` replaced /dev/null with a
+/// regular file) is refused before anything is written: the path is replaced by a rename.
+#[test]
+fn latest_refuses_paths_a_rename_would_destroy() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("pipe.json");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let o = envlight(&[
+        "decompose",
+        "--frames",
+        "1",
+        "--sky-size",
+        "64x32",
+        "--latest",
+        fifo.to_str().unwrap(),
+    ]);
+    assert_fails_naming(&o, &["--latest", "pipe.json", "a device, pipe or socket"]);
+    assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+}
+
 /// Two outputs on one file, or an output on the mesh `wavelet relight` reads, are refused
 /// before anything is written (the second output overwrote the first, or the mesh, with exit
 /// status 0); `wavelet recover --out` a directory fails before the work.
@@ -930,7 +952,9 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
     let mesh_text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
     std::fs::write(&mesh, mesh_text).unwrap();
     let same = dir.path().join("same.out");
+    let same_exr = dir.path().join("same.exr");
     let (input, mesh_path, same_path) = (s(&input), s(&mesh), s(&same));
+    let same_exr_path = s(&same_exr);
     for (args, needles) in [
         (
             vec![
@@ -960,14 +984,33 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
                 "--size",
                 "8",
                 "--out",
-                same_path,
+                same_exr_path,
+                "--reconstruct",
+                same_exr_path,
+            ],
+            vec!["--reconstruct", "is also the --out output", "same.exr"],
+        ),
+        (
+            vec![
+                "wavelet",
+                "approx",
+                input,
+                "--size",
+                "8",
                 "--reconstruct",
                 same_path,
             ],
-            vec!["--reconstruct", "is also the --out output", "same.out"],
+            vec!["--reconstruct", "same.out", "give a path ending in .exr"],
+        ),
+        (
+            vec![
+                "wavelet", "recover", input, "--size", "2", "--out", same_path,
+            ],
+            vec!["--out", "same.out", "give a path ending in .exr"],
         ),
     ] {
         let _ = std::fs::remove_file(&same);
+        let _ = std::fs::remove_file(&same_exr);
         let o = envlight(&args);
         assert_fails_naming(&o, &needles);
         assert_eq!(
@@ -1052,7 +1095,7 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
 
 /// `subscribe --timeout` gives up on a server that accepts and sends nothing, over TCP and
 /// over WebSocket (whose upgrade then never completes): exit 1 naming the address and the
-/// timeout (it waited for ever). Out-of-range values are usage errors.
+/// timeout (it waited for ever), with `--frames 0` too. Out-of-range values are usage errors.
 #[test]
 fn subscribe_times_out_on_a_silent_server() {
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
@@ -1060,7 +1103,7 @@ fn subscribe_times_out_on_a_silent_server() {
     let _silent = std::thread::Builder::new()
         .name("silent-server".into())
         .spawn(move || {
-            let held: Vec<_> = listener.incoming().take(2).collect();
+            let held: Vec<_> = listener.incoming().take(3).collect();
             std::thread::sleep(std::time::Duration::from_secs(10));
             drop(held);
         })
@@ -1074,6 +1117,16 @@ fn subscribe_times_out_on_a_silent_server() {
             "{target}"
         );
     }
+    // --frames 0 is no limit: it waits for frames like the others (it exited 0 at once).
+    let o = envlight(&[
+        "subscribe",
+        &address.to_string(),
+        "--frames",
+        "0",
+        "--timeout",
+        "0.3",
+    ]);
+    assert_fails_naming(&o, &["no message within 0.3 s (--timeout)"]);
     for bad in ["0", "-1", "nan", "1e9", "x"] {
         let o = envlight(&["subscribe", "127.0.0.1:1", "--timeout", bad]);
         assert_eq!(o.status.code(), Some(2), "{bad}: {}", stderr(&o));

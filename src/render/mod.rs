@@ -110,6 +110,9 @@ pub enum RenderError {
     Settings(String),
     #[error("GPU failure: {0}")]
     Gpu(String),
+    /// An output file (the daemon's `render.latest_png`) could not be written.
+    #[error("cannot write the rendered image: {0}")]
+    Output(String),
 }
 
 /// What to render and how.
