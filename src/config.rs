@@ -1066,6 +1066,13 @@ impl RawSource {
             }
         };
         let paths = self.paths.clone().unwrap_or_default();
+        if paths.iter().any(|p| p.trim().is_empty()) {
+            return Err(invalid(
+                "source.paths",
+                &paths,
+                "an empty path names no file (it read the config file's own folder)",
+            ));
+        }
         match kind {
             SourceKind::Sequence if paths.is_empty() => {
                 return Err(invalid(
@@ -1639,6 +1646,23 @@ mod tests {
             ),
             ("[source]\nkind = \"camera\"", "source.kind", "camera"),
             ("[source]\nkind = \"sequence\"", "source.paths", "[]"),
+            (
+                "[source]\nkind = \"sequence\"\npaths = [\"\"]",
+                "source.paths",
+                "an empty path",
+            ),
+            (
+                "[camera]\nretry_initial_s = 100\nretry_max_s = 1",
+                "camera.retry_initial_s",
+                "must not exceed camera.retry_max_s",
+            ),
+            ("[camera]\nfps = 1e-300", "camera.fps", "1e-300"),
+            ("[camera]\nexposure_s = 1e308", "camera.exposure_s", "1e308"),
+            ("[camera]\ngain = 1e-300", "camera.gain", "1e-300"),
+            ("[camera]\nscale = 1e308", "camera.scale", "1e308"),
+            ("[camera]\ngamma = 1e-300", "camera.gamma", "1e-300"),
+            ("[camera]\ntimeout_s = 1e-300", "camera.timeout_s", "1e-300"),
+            ("[camera]\ndevice = \"\"", "camera.device", "device path"),
             ("[source]\nfps = 0", "source.fps", "0"),
             ("[source]\nfps = 1e-30", "source.fps", "1e-30"),
             (

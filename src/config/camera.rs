@@ -48,20 +48,21 @@ pub struct RawCamera {
     pub convert_threads: Option<usize>,
 }
 
-fn positive(key: &'static str, v: f64) -> Result<f64, ConfigError> {
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(invalid(key, v, "must be a positive number"))
-    }
+fn seconds(key: &'static str, v: f64) -> Result<Duration, ConfigError> {
+    // At least a millisecond: a timeout of 1e-300 s timed every frame out.
+    in_range(key, v, 0.001, 86_400.0, " seconds")?;
+    Ok(Duration::from_secs_f64(v))
 }
 
-fn seconds(key: &'static str, v: f64) -> Result<Duration, ConfigError> {
-    let v = positive(key, v)?;
-    if v > 86_400.0 {
-        return Err(invalid(key, v, "must be at most 86400 seconds"));
+/// `v` within `lo..=hi` (`unit` follows the bounds in the message): the camera's factors are
+/// bounded so that radiance = X · scale / (exposure · gain) stays finite (1e308 / 1e-300
+/// overflowed to infinity).
+fn in_range(key: &'static str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<f64, ConfigError> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(invalid(key, v, format!("must be {lo:e}..={hi:e}{unit}")))
     }
-    Ok(Duration::from_secs_f64(v))
 }
 
 impl RawCamera {
@@ -93,7 +94,9 @@ impl RawCamera {
         };
         let width = integer_in("camera.width", self.width, d.width, 1..=16384, " pixels")?;
         let height = integer_in("camera.height", self.height, d.height, 1..=16384, " pixels")?;
-        let fps = self.fps.map(|f| positive("camera.fps", f)).transpose()?;
+        let fps = (self.fps)
+            .map(|f| in_range("camera.fps", f, 1e-4, 1e4, " frames per second"))
+            .transpose()?;
         let yuv_matrix = match self.yuv_matrix.as_deref().unwrap_or("auto") {
             "auto" => YuvMatrix::Auto,
             "bt601" => YuvMatrix::Bt601,
@@ -107,7 +110,7 @@ impl RawCamera {
             }
         };
         // Checked even when another response is used, so a typo does not hide.
-        let gamma = positive("camera.gamma", self.gamma.unwrap_or(2.2))?;
+        let gamma = in_range("camera.gamma", self.gamma.unwrap_or(2.2), 0.05, 20.0, "")?;
         let response = match self.response.as_deref().unwrap_or("srgb") {
             "srgb" => ResponseModel::Srgb,
             "linear" => ResponseModel::Linear,
@@ -149,14 +152,14 @@ impl RawCamera {
                 ))
             }
         };
-        let exposure_s = self
-            .exposure_s
-            .map(|v| positive("camera.exposure_s", v))
+        let exposure_s = (self.exposure_s)
+            .map(|v| in_range("camera.exposure_s", v, 1e-9, 3600.0, " seconds"))
             .transpose()?;
-        let gain = self.gain.map(|v| positive("camera.gain", v)).transpose()?;
-        let gain_unity = self
-            .gain_unity
-            .map(|v| positive("camera.gain_unity", v))
+        let gain = (self.gain)
+            .map(|v| in_range("camera.gain", v, 1e-6, 1e6, ""))
+            .transpose()?;
+        let gain_unity = (self.gain_unity)
+            .map(|v| in_range("camera.gain_unity", v, 1e-6, 1e6, ""))
             .transpose()?;
         let white_balance = self.white_balance.unwrap_or(d.white_balance);
         if !white_balance.iter().all(|v| v.is_finite() && *v > 0.0) {
@@ -166,7 +169,13 @@ impl RawCamera {
                 "must be three positive numbers [r, g, b]",
             ));
         }
-        let scale = positive("camera.scale", self.scale.unwrap_or(d.scale))?;
+        let scale = in_range(
+            "camera.scale",
+            self.scale.unwrap_or(d.scale),
+            1e-12,
+            1e12,
+            "",
+        )?;
         let bracket_exposures_s = self.bracket_exposures_s.clone().unwrap_or_default();
         if let Some(bad) = bracket_exposures_s
             .iter()
@@ -215,8 +224,26 @@ impl RawCamera {
             )?,
             max_attempts: None,
         };
+        if retry.initial_backoff > retry.max_backoff {
+            return Err(invalid(
+                "camera.retry_initial_s",
+                retry.initial_backoff.as_secs_f64(),
+                format!(
+                    "must not exceed camera.retry_max_s ({} s)",
+                    retry.max_backoff.as_secs_f64()
+                ),
+            ));
+        }
+        let device = self.device.clone().unwrap_or(d.device);
+        if device.trim().is_empty() || device.contains('\0') {
+            return Err(invalid(
+                "camera.device",
+                &device,
+                "must be a device path or a camera name",
+            ));
+        }
         Ok(CameraSettings {
-            device: self.device.clone().unwrap_or(d.device),
+            device,
             formats,
             width,
             height,
