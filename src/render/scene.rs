@@ -1580,10 +1580,7 @@ mod tests {
                 "radius",
             ),
         ] {
-            let e = Scene::load(&path, false).err().map(|e| e.to_string());
-            let name = path.file_name().unwrap().to_string_lossy().into_owned();
-            let e = e.unwrap_or_else(|| panic!("{name} loaded"));
-            assert!(e.contains(&name) && e.contains(needle), "{e}");
+            assert_load_fails_naming(&path, needle);
         }
         // A node scaled by 0 in y flattens the triangle; its normals stay defined.
         let flat = write_gltf(
@@ -1679,22 +1676,13 @@ mod tests {
                 "lies outside buffer 0",
             ),
         ] {
-            let name = path.file_name().unwrap().to_string_lossy().into_owned();
-            let e = Scene::load(&path, false).err().map(|e| e.to_string());
-            let e = e.unwrap_or_else(|| panic!("{name} loaded"));
-            assert!(e.contains(&name) && e.contains(needle), "{e}");
+            assert_load_fails_naming(&path, needle);
         }
         let mut glb = b"glTF".to_vec();
         glb.extend(2u32.to_le_bytes());
         glb.extend(0u32.to_le_bytes());
         std::fs::write(d.join("short.glb"), &glb).unwrap();
-        let e = Scene::load(&d.join("short.glb"), false)
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("short.glb") && e.contains("length of 0 bytes"),
-            "{e}"
-        );
+        assert_load_fails_naming(&d.join("short.glb"), "length of 0 bytes");
 
         let triangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\n";
         for (name, faces, needle) in [
@@ -1712,8 +1700,7 @@ mod tests {
         ] {
             let obj = d.join(name);
             std::fs::write(&obj, format!("{triangle}{faces}")).unwrap();
-            let e = Scene::load(&obj, false).unwrap_err().to_string();
-            assert!(e.contains(name) && e.contains(needle), "{e}");
+            assert_load_fails_naming(&obj, needle);
         }
         let relative = d.join("relative.obj");
         std::fs::write(&relative, format!("{triangle}f -3//-1 -2//1 -1//1\n")).unwrap();
@@ -1728,11 +1715,7 @@ mod tests {
         // A scene that is a device.
         let link = d.join("link.obj");
         std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
-        let e = Scene::load(&link, false).unwrap_err().to_string();
-        assert!(
-            e.contains("link.obj") && e.contains("not a regular file"),
-            "{e}"
-        );
+        assert_load_fails_naming(&link, "not a regular file");
     }
 
     /// Every number of a valid glTF replaced by hostile values (0, -1, 2³² − 1, 2⁶⁴ − 1, 1e308,
@@ -1906,6 +1889,14 @@ mod tests {
         out
     }
 
+    /// Loading `path` fails with an error naming the file and containing `needle`.
+    fn assert_load_fails_naming(path: &Path, needle: &str) {
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let e = Scene::load(path, false).err().map(|e| e.to_string());
+        let e = e.unwrap_or_else(|| panic!("{name} loaded"));
+        assert!(e.contains(&name) && e.contains(needle), "{e}");
+    }
+
     /// The one-triangle glTF of [`write_gltf`] with `from` replaced by `to` in its text.
     fn edited_gltf(dir: &Path, name: &str, from: &str, to: &str) -> PathBuf {
         let path = write_gltf(dir, name, r#"[{"mesh":0}]"#, [3, 3, 3], "[0.5,0.5,0.5,1]");
@@ -2007,10 +1998,7 @@ mod tests {
                 "from the origin",
             ),
         ] {
-            let name = path.file_name().unwrap().to_string_lossy().into_owned();
-            let e = Scene::load(&path, false).err().map(|e| e.to_string());
-            let e = e.unwrap_or_else(|| panic!("{name} loaded"));
-            assert!(e.contains(&name) && e.contains(needle), "{e}");
+            assert_load_fails_naming(&path, needle);
         }
         // Near the origin, or moved by a few radii, the same triangle loads.
         let near = edited_gltf(
