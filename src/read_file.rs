@@ -21,7 +21,8 @@ use std::path::Path;
 /// grows past the limit while it is read.
 pub fn read_regular_file(path: &Path, max_bytes: u64, what: &str) -> std::io::Result<Vec<u8>> {
     // Stat before opening: opening a FIFO blocks until something writes to it.
-    if !std::fs::metadata(path)?.is_file() {
+    let metadata = std::fs::metadata(path)?;
+    if !metadata.is_file() {
         return Err(Error::new(
             ErrorKind::InvalidInput,
             format!(
@@ -35,13 +36,14 @@ pub fn read_regular_file(path: &Path, max_bytes: u64, what: &str) -> std::io::Re
             format!("{size} bytes, more than the {max_bytes} that {what} may have"),
         )
     };
-    let file = std::fs::File::open(path)?;
-    let metadata = file.metadata()?;
     if metadata.len() > max_bytes {
         return Err(too_large(metadata.len()));
     }
     let mut bytes = Vec::with_capacity(metadata.len() as usize);
-    file.take(max_bytes + 1).read_to_end(&mut bytes)?;
+    // At most one byte past the limit, should the file grow after the stat.
+    (std::fs::File::open(path)?)
+        .take(max_bytes + 1)
+        .read_to_end(&mut bytes)?;
     if bytes.len() as u64 > max_bytes {
         return Err(too_large(bytes.len() as u64));
     }

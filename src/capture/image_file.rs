@@ -121,13 +121,8 @@ pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
         path: path.to_path_buf(),
         source,
     };
-    // A pipe or a device would block the open or never end: only regular files are frames.
-    if !std::fs::metadata(path).map_err(io_error)?.is_file() {
-        return Err(format_error(
-            path,
-            "not a regular file (a directory, pipe, socket or device)".to_string(),
-        ));
-    }
+    // Only regular files of bounded size are frames: a pipe or a device would block the open
+    // or never end.
     let bytes =
         crate::read_file::read_regular_file(path, MAX_FILE_BYTES, "an image").map_err(io_error)?;
     decode_hdr_image(&bytes, format, path)

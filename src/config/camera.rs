@@ -1,7 +1,7 @@
 //! `[camera]`: the V4L2 camera (used when `source.kind = "v4l2"`), raw → validated
 //! [`CameraSettings`]. Every key is optional; errors name the key and the value.
 
-use super::{check_finite, integer_in, invalid, ConfigError};
+use super::{check_finite, integer_in, invalid, seconds, ConfigError};
 use crate::capture::bracket::MergeLimits;
 use crate::capture::pixel_format::{PixelFormat, YuvMatrix};
 use crate::capture::resilient::RetryPolicy;
@@ -15,7 +15,6 @@ use std::sync::Arc;
 /// Most frames `camera.settle_frames` may drop after an exposure change (at 30 frames/s, over
 /// three seconds per bracket): a larger value stalled bracketed capture without end.
 pub const MAX_SETTLE_FRAMES: u32 = 100;
-use std::time::Duration;
 
 /// `[camera]` as written.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -48,11 +47,9 @@ pub struct RawCamera {
     pub convert_threads: Option<usize>,
 }
 
-fn seconds(key: &'static str, v: f64) -> Result<Duration, ConfigError> {
-    // At least a millisecond: a timeout of 1e-300 s timed every frame out.
-    in_range(key, v, 0.001, 86_400.0, " seconds")?;
-    Ok(Duration::from_secs_f64(v))
-}
+/// The camera's times (timeout, retry backoff), in seconds: at least a millisecond (a timeout
+/// of 1e-300 s timed every frame out), at most a day.
+const CAMERA_SECONDS: std::ops::RangeInclusive<f64> = 0.001..=86_400.0;
 
 /// `v` within `lo..=hi` (`unit` follows the bounds in the message): the camera's factors are
 /// bounded so that radiance = X · scale / (exposure · gain) stays finite (1e308 / 1e-300
@@ -209,18 +206,23 @@ impl RawCamera {
         })?;
         let timeout = seconds(
             "camera.timeout_s",
-            self.timeout_s.unwrap_or(d.timeout.as_secs_f64()),
+            self.timeout_s,
+            d.timeout,
+            CAMERA_SECONDS,
         )?;
         let r = RetryPolicy::default();
         let retry = RetryPolicy {
             initial_backoff: seconds(
                 "camera.retry_initial_s",
-                self.retry_initial_s
-                    .unwrap_or(r.initial_backoff.as_secs_f64()),
+                self.retry_initial_s,
+                r.initial_backoff,
+                CAMERA_SECONDS,
             )?,
             max_backoff: seconds(
                 "camera.retry_max_s",
-                self.retry_max_s.unwrap_or(r.max_backoff.as_secs_f64()),
+                self.retry_max_s,
+                r.max_backoff,
+                CAMERA_SECONDS,
             )?,
             max_attempts: None,
         };

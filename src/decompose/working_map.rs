@@ -98,9 +98,9 @@ enum Plan {
 /// energy lumps, lights that land in the empty ones get none, and a lump big enough to be
 /// concentrated adds the input pixel's whole solid angle to a working pixel whose neighbours
 /// count theirs again. So such a pixel is cut into sub-pixels (as many along each image axis as
-/// its angular extent there needs, [`split_factor`]) whose centres are binned like any pixel's, and its solid angle is
-/// shared equally among the sub-pixels inside the image; the sub-pixels of one working pixel
-/// make one part.
+/// its angular extent there needs, [`split_factor`]) whose centres are binned like any pixel's,
+/// and its solid angle is shared among the sub-pixels inside the image in proportion to their
+/// own (`sub_pixel_weight`); the sub-pixels of one working pixel make one part.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct PixelPart {
     /// Row-major index of the input pixel.
@@ -1163,7 +1163,7 @@ struct SplitPixel {
 impl SplitPixel {
     /// Appends the pixel's parts, one per working pixel its sub-pixels' centres fall in, in
     /// the order of the working pixels. The sub-pixels inside the image share the pixel's
-    /// solid angle equally; nothing is appended if none is inside.
+    /// solid angle in proportion to their own; nothing is appended if none is inside.
     fn parts(&self, parts: &mut Vec<PixelPart>) {
         let ((sw, sh), (width, height), (x, y)) = (self.source, self.working, self.at);
         let (nx, ny) = self.split;
