@@ -363,7 +363,6 @@ pub fn recover_response(
                 }
             }
         };
-        add_row(&[(n / 2, 1.0)], 0.0);
         for z in 1..n - 1 {
             let w = settings.lambda * (weight(z) + 1.0);
             add_row(&[(z - 1, w), (z, -2.0 * w), (z + 1, w)], 0.0);
@@ -395,7 +394,28 @@ pub fn recover_response(
                 }
             }
         }
-        let g = cholesky_solve(&mut ata, &atb, n).ok_or_else(|| {
+        // g(n/2) = 0 fixes the scale (the rest of the system does not change when a constant
+        // is added to g and every ln E): dropping that unknown fixes it exactly, where a row
+        // of weight 1 beside smoothness rows of weight λ²·n² was lost in rounding.
+        let fixed = n / 2;
+        let keep = |i: usize| i != fixed;
+        let mut reduced: Vec<f64> = Vec::with_capacity((n - 1) * (n - 1));
+        for (_, row) in ata.chunks_exact(n).enumerate().filter(|&(i, _)| keep(i)) {
+            reduced.extend(
+                row.iter()
+                    .enumerate()
+                    .filter(|&(j, _)| keep(j))
+                    .map(|(_, &v)| v),
+            );
+        }
+        let reduced_b: Vec<f64> = (atb.iter().enumerate().filter(|&(i, _)| keep(i)))
+            .map(|(_, &v)| v)
+            .collect();
+        let g = cholesky_solve(&mut reduced, &reduced_b, n - 1).map(|mut g| {
+            g.insert(fixed, 0.0);
+            g
+        });
+        let g = g.ok_or_else(|| {
             BracketError::Solve(format!(
                 "the {channel} channel's system is singular (too little data: more sample \
                  pixels or a wider range of exposures)"
@@ -754,6 +774,49 @@ mod tests {
             };
             let e = recover_response(&[ok.clone(), longer.clone()], settings).unwrap_err();
             assert!(e.to_string().contains("lambda"), "{lambda}: {e}");
+        }
+    }
+
+    /// Every λ in the documented range (0, 10⁶] solves at any level count: with the scale
+    /// fixed by a row of weight 1, λ = 10⁶ at 256 levels and λ = 10⁵ at 1024 reported a
+    /// singular system (the row was lost in rounding beside smoothness rows of λ²·n²).
+    #[test]
+    fn the_largest_smoothness_weights_still_solve() {
+        let (w, h) = (64u32, 48u32);
+        let scene: Vec<f64> = (0..w * h)
+            .map(|i| 0.02 + 3.0 * f64::from(i % 97) / 97.0 * f64::from(i % 13 + 1) / 13.0)
+            .collect();
+        let brackets: Vec<Bracket> = [0.05, 0.2, 0.8, 3.2]
+            .iter()
+            .map(|&t| Bracket {
+                image: CodeImage {
+                    width: w,
+                    height: h,
+                    pixels: (scene.iter())
+                        .map(|&x| [((x * t).min(1.0).powf(1.0 / 2.2)) as f32; 3])
+                        .collect(),
+                },
+                exposure_s: t,
+                gain: 1.0,
+            })
+            .collect();
+        for (levels, lambda) in [(16, 1e6), (256, 1e5), (256, MAX_LAMBDA), (1024, 1e5)] {
+            let settings = SolveSettings {
+                levels,
+                lambda,
+                samples: 300,
+            };
+            let curve = recover_response(&brackets, settings)
+                .unwrap_or_else(|e| panic!("{levels} levels, λ = {lambda:e}: {e}"));
+            for values in &curve.values {
+                assert!((values[levels / 2] - 1.0).abs() < 1e-12, "scale not fixed");
+                assert!(values.iter().all(|v| v.is_finite() && *v > 0.0));
+                // So smooth a curve is a straight line in log space: increasing, as the data.
+                assert!(
+                    values[levels - 1] > values[0],
+                    "{levels} levels, λ = {lambda:e}"
+                );
+            }
         }
     }
 
