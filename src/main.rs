@@ -820,9 +820,28 @@ impl DecomposeArgs {
     }
 }
 
+/// The command line, parsed with every option that takes a value accepting one that starts
+/// with '-' and a digit: `--fps -5` then reports the option's own range (clap would otherwise
+/// take `-5` for an unknown flag and suggest `-- -5`, which does not help).
+fn parse_command_line() -> Cli {
+    fn allow_negative_values(command: clap::Command) -> clap::Command {
+        command
+            .mut_args(|arg| {
+                if arg.is_positional() || !arg.get_action().takes_values() {
+                    arg
+                } else {
+                    arg.allow_negative_numbers(true)
+                }
+            })
+            .mut_subcommands(allow_negative_values)
+    }
+    let matches = allow_negative_values(<Cli as clap::CommandFactory>::command()).get_matches();
+    <Cli as clap::FromArgMatches>::from_arg_matches(&matches).unwrap_or_else(|err| err.exit())
+}
+
 fn main() -> ExitCode {
     quiet_vulkan_device_select();
-    let cli = Cli::parse();
+    let cli = parse_command_line();
     init_tracing();
     let result = match cli.command {
         Command::Decompose(args) => decompose(&args),

@@ -568,6 +568,29 @@ fn bad_light_counts_name_the_flag() {
     assert_eq!(o.status.code(), Some(2));
 }
 
+/// A negative number given to an option is that option's value, checked like any other
+/// (clap alone took `-5` for an unknown flag and suggested `-- -5`, which does not help).
+#[test]
+fn negative_values_are_checked_as_values() {
+    let o = envlight(&["decompose", "--fps", "-5", "--frames", "1"]);
+    assert_fails_naming(&o, &["--fps", "-5", "at least"]);
+    for (option, value) in [("--lights", "-3"), ("--frames", "-1")] {
+        let o = envlight(&["decompose", option, value]);
+        assert_fails_naming(&o, &[option, value]);
+        assert!(
+            !stderr(&o).contains("unexpected argument"),
+            "{}",
+            stderr(&o)
+        );
+    }
+    let o = envlight(&["fit-asg", "--temporal-weight", "-1", "--frames", "1"]);
+    assert_fails_naming(&o, &["temporal_weight", "-1"]);
+    // Positional arguments are unchanged: `-5` there is still an unknown flag.
+    let o = envlight(&["decompose", "-5"]);
+    assert_fails_naming(&o, &["-5"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
 #[test]
 fn bad_taps_name_the_flag() {
     let o = envlight(&["decompose", "--taps", "1,x,1"]);
