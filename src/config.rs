@@ -317,24 +317,19 @@ impl RawConfig {
         })
     }
 
-    /// Reads and parses a file (not yet validated). A file over [`MAX_CONFIG_BYTES`] (or one
-    /// that never ends, such as `/dev/zero`) is an error.
+    /// Reads and parses a file (not yet validated). A file over [`MAX_CONFIG_BYTES`] or one
+    /// that is not a regular file (a FIFO, which would block; `/dev/zero`, which never ends)
+    /// is an error.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        use std::io::Read;
-        let read_error = |source| ConfigError::Read {
+        let text = crate::read_file::read_regular_text(
+            path,
+            MAX_CONFIG_BYTES,
+            "a config file (a few kilobytes)",
+        )
+        .map_err(|source| ConfigError::Read {
             path: path.to_path_buf(),
             source,
-        };
-        let mut text = String::new();
-        std::fs::File::open(path)
-            .and_then(|file| file.take(MAX_CONFIG_BYTES + 1).read_to_string(&mut text))
-            .map_err(read_error)?;
-        if text.len() as u64 > MAX_CONFIG_BYTES {
-            return Err(read_error(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                format!("larger than {MAX_CONFIG_BYTES} bytes; a config file is a few kilobytes"),
-            )));
-        }
+        })?;
         let mut raw = Self::parse(&text, path)?;
         if let Some(folder) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
             raw.resolve_relative_paths(folder);
@@ -1524,7 +1519,16 @@ mod tests {
         let comment = "#".repeat(MAX_CONFIG_BYTES as usize + 1);
         std::fs::write(&path, comment).unwrap();
         let e = RawConfig::from_file(&path).err().unwrap().to_string();
-        assert!(e.contains("big.toml") && e.contains("larger than"), "{e}");
+        assert!(e.contains("big.toml") && e.contains("more than the"), "{e}");
+        // Nor is one that is not a regular file: a FIFO without a writer would block.
+        let fifo = dir.path().join("pipe.toml");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(made.unwrap().success());
+        let e = RawConfig::from_file(&fifo).err().unwrap().to_string();
+        assert!(
+            e.contains("pipe.toml") && e.contains("not a regular file"),
+            "{e}"
+        );
     }
 
     #[test]

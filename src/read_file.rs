@@ -20,16 +20,7 @@ use std::path::Path;
 /// kind of file in the error ("a scene", "a response curve", …). Also an error if the file
 /// grows past the limit while it is read.
 pub fn read_regular_file(path: &Path, max_bytes: u64, what: &str) -> std::io::Result<Vec<u8>> {
-    // Stat before opening: opening a FIFO blocks until something writes to it.
-    let metadata = std::fs::metadata(path)?;
-    if !metadata.is_file() {
-        return Err(Error::new(
-            ErrorKind::InvalidInput,
-            format!(
-                "not a regular file (a directory, pipe, socket or device); {what} must be a file"
-            ),
-        ));
-    }
+    let metadata = regular_file_metadata(path, what)?;
     let too_large = |size: u64| {
         Error::new(
             ErrorKind::InvalidData,
@@ -48,6 +39,29 @@ pub fn read_regular_file(path: &Path, max_bytes: u64, what: &str) -> std::io::Re
         return Err(too_large(bytes.len() as u64));
     }
     Ok(bytes)
+}
+
+/// The metadata of `path` (links followed) if it is a regular file; else an error that says
+/// `what` must be one. Stat before opening: opening a FIFO blocks until something writes to it.
+fn regular_file_metadata(path: &Path, what: &str) -> std::io::Result<std::fs::Metadata> {
+    let metadata = std::fs::metadata(path)?;
+    if !metadata.is_file() {
+        return Err(Error::new(
+            ErrorKind::InvalidInput,
+            format!(
+                "not a regular file (a directory, pipe, socket or device); {what} must be a file"
+            ),
+        ));
+    }
+    Ok(metadata)
+}
+
+/// Opens `path` for reading if it is a regular file (links followed), for readers that stream
+/// a file and bound what they read themselves (an image decoder that checks the declared size
+/// first). `what` names the kind of file in the error.
+pub fn open_regular_file(path: &Path, what: &str) -> std::io::Result<std::fs::File> {
+    regular_file_metadata(path, what)?;
+    std::fs::File::open(path)
 }
 
 /// [`read_regular_file`] for a text file: an error also if it is not UTF-8.
@@ -130,6 +144,9 @@ mod tests {
         assert!(made.success());
         let e = read_regular_file(&fifo, 1 << 20, "a frame").unwrap_err();
         assert!(e.to_string().contains("not a regular file"), "{e}");
+        let e = open_regular_file(&fifo, "a bracket").unwrap_err();
+        assert!(e.to_string().contains("a bracket must be a file"), "{e}");
+        assert!(open_regular_file(Path::new("/dev/zero"), "an image").is_err());
         let link = dir.path().join("zero.obj");
         std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
         assert!(read_regular_file(&link, 1 << 20, "a scene").is_err());

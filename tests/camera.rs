@@ -896,6 +896,32 @@ fn calibrate_response_writes_a_curve_file_from_png_brackets() {
         err.contains("rooitou_park_1k.hdr") && err.contains("floating-point"),
         "{err}"
     );
+    // A FIFO is refused, not waited on (nothing will write to it); so by calibrate-fisheye.
+    let fifo = dir.path().join("pipe.png");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    assert!(made.unwrap().success());
+    let fifo = fifo.to_str().unwrap();
+    let o = envlight(&[
+        "calibrate-response",
+        fifo,
+        argv[1],
+        "--exposures",
+        "0.1,0.4",
+        "-o",
+        unused.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("pipe.png") && err.contains("not a regular file"),
+        "{err}"
+    );
+    let o = envlight(&["calibrate-fisheye", fifo]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("pipe.png") && err.contains("not a regular file"),
+        "{err}"
+    );
+    assert!(!unused.exists());
 }
 
 #[test]

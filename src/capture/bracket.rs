@@ -212,10 +212,13 @@ pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::Ca
         path: path.to_path_buf(),
         message,
     };
-    let reader = image::ImageReader::open(path).map_err(|source| super::CaptureError::Io {
-        path: path.to_path_buf(),
-        source,
+    let file = crate::read_file::open_regular_file(path, "an image").map_err(|source| {
+        super::CaptureError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     })?;
+    let reader = image::ImageReader::new(std::io::BufReader::new(file));
     let decoder = reader
         .with_guessed_format()
         .map_err(|e| err(e.to_string()))?
