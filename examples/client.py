@@ -92,8 +92,20 @@ def read_message(sock):
     return kind, payload[8:]
 
 
+# Per representation code: the bytes of its fields after `count`, and of each record.
+LAYOUTS = {0: (0, 32), 1: (0, 52), 2: (8, 16)}
+
+
 def parse_frame(body):
+    """The frame in `body` (the message after its type) with every check docs/protocol.md asks
+    of a decoder; ValueError naming the problem."""
     seq, time, representation, flags, _reserved, count = struct.unpack_from("<QdBBHI", body)
+    if representation not in LAYOUTS:
+        raise ValueError(f"frame of unknown representation {representation} (error 5)")
+    prefix, record = LAYOUTS[representation]
+    if len(body) != 24 + prefix + record * count:
+        raise ValueError(f"frame of {count} records is {len(body) + 12} bytes, "
+                         f"not {36 + prefix + record * count} (error 1)")
     frame = {"seq": seq, "time": time, "stale": bool(flags & 1), "representation": representation}
     if representation == 2:
         # Prefix: basis code, levels, map (0 = equal-area octahedral), reserved, side; then
@@ -102,8 +114,8 @@ def parse_frame(body):
         coefficients = [struct.unpack_from("<I3f", body, 32 + 16 * i) for i in range(count)]
         frame.update(basis=BASES.get(basis, f"code {basis}"), levels=levels, side=side,
                      coefficients=[(c[0], c[1:4]) for c in coefficients])
-        return frame
-    if representation == 1:
+        floats = [x for c in coefficients for x in c[1:4]]
+    elif representation == 1:
         # ASG lobe: id, axis, tangent (bitangent = axis x tangent), lambda, mu, rgb, integral.
         lobes = []
         for i in range(count):
@@ -111,12 +123,18 @@ def parse_frame(body):
             lobes.append({"id": f[0], "axis": f[1:4], "tangent": f[4:7], "lambda": f[7], "mu": f[8],
                           "rgb": f[9:12], "integral": f[12]})
         frame["lobes"] = lobes
-        return frame
-    lights = []
-    for i in range(count):
-        fields = struct.unpack_from("<I3f3ff", body, 24 + 32 * i)
-        lights.append({"id": fields[0], "dir": fields[1:4], "rgb": fields[4:7], "solid_angle": fields[7]})
-    frame["lights"] = lights
+        floats = [x for g in lobes for k in ("axis", "tangent", "rgb") for x in g[k]]
+        floats += [x for g in lobes for x in (g["lambda"], g["mu"], g["integral"])]
+    else:
+        lights = []
+        for i in range(count):
+            fields = struct.unpack_from("<I3f3ff", body, 24 + 32 * i)
+            lights.append({"id": fields[0], "dir": fields[1:4], "rgb": fields[4:7],
+                           "solid_angle": fields[7]})
+        frame["lights"] = lights
+        floats = [x for field in lights for x in (*field["dir"], *field["rgb"], field["solid_angle"])]
+    if not all(math.isfinite(x) for x in [time, *floats]):
+        raise ValueError(f"frame {seq} holds a NaN or an infinity (error 1)")
     return frame
 
 

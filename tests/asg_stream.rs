@@ -11,9 +11,8 @@
 mod common;
 
 use common::{
-    assert_ordered_to_the_end, assert_unsupported, every_transport, has_python3, http_get,
-    metric_value, python_client, read_until_goodbye, record_sky, spawn, subscribe_all, wait_until,
-    TIMEOUT,
+    assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
+    python_client, read_until_goodbye, record_sky, spawn, subscribe_all, wait_until, TIMEOUT,
 };
 use envlight::asg::fit::AsgFitter;
 use envlight::capture::FrameSource;
@@ -257,9 +256,7 @@ fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
 
 #[test]
 fn the_python_example_client_reads_asg_sets() {
-    if !has_python3() {
-        return;
-    }
+    common::require_python3();
     let dir = tempfile::tempdir().unwrap();
     let extra = format!(
         "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\

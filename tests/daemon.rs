@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{has_python3, http_get, metric_value, python_client, spawn, wait_until, TIMEOUT};
+use common::{http_get, metric_value, python_client, spawn, wait_until, TIMEOUT};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
@@ -864,6 +864,79 @@ fn json_lines_clients_on_tcp_get_json_errors() {
     match protocol::parse_json_message(line.trim_end()).unwrap() {
         Message::Frame(frame) => assert_eq!(frame.lights.len(), 2),
         other => panic!("{other:?}"),
+    }
+    daemon.shutdown().unwrap();
+}
+
+/// Past `stream.max_clients` a client is refused with error 100 in the form it subscribed in:
+/// a JSON Lines client gets a JSON line (the refusal used to come before the subscribe was
+/// read, in binary, which a JSON client read as "trailing characters"), a binary one a binary
+/// error, a WebSocket text subscribe a text message; the client already served keeps its
+/// frames.
+#[test]
+fn clients_past_the_limit_are_refused_in_their_own_form() {
+    use tokio_tungstenite::tungstenite::{self, Message as WsMessage};
+    let dir = tempfile::tempdir().unwrap();
+    let config =
+        common::config_with_stream(dir.path(), 5.0, "max_clients = 1\n", common::SMALL_SKY);
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
+    let addresses = daemon.addresses();
+    let tcp = addresses.stream.tcp.unwrap();
+    let mut served = TcpStream::connect(tcp).unwrap();
+    served.set_read_timeout(Some(TIMEOUT)).unwrap();
+    served.write_all(b"{\"subscribe\":{}}\n").unwrap();
+    let mut served = std::io::BufReader::new(served);
+    let mut line = String::new();
+    std::io::BufRead::read_line(&mut served, &mut line).unwrap();
+    assert!(
+        matches!(
+            protocol::parse_json_message(line.trim_end()),
+            Ok(Message::Frame(_))
+        ),
+        "{line}"
+    );
+
+    let (c, message) = json_error(tcp, b"{\"subscribe\":{}}\n");
+    assert_eq!(c, code::INTERNAL);
+    assert!(message.contains("too many clients (limit 1)"), "{message}");
+
+    let binary = Request {
+        format: Format::Binary,
+        ..Request::default()
+    };
+    let mut subscribe = Vec::new();
+    encode_request(&binary, &mut subscribe);
+    let messages = raw_exchange(tcp, &subscribe, false);
+    assert_eq!(error_code(&messages), Some(code::INTERNAL), "{messages:?}");
+
+    let url = format!("ws://{}/", addresses.stream.websocket.unwrap());
+    let (mut socket, _) = tungstenite::connect(url.as_str()).unwrap();
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = socket.get_mut() {
+        s.set_read_timeout(Some(TIMEOUT)).unwrap();
+    }
+    socket.send(WsMessage::text("{\"subscribe\":{}}")).unwrap();
+    match socket.read().unwrap() {
+        WsMessage::Text(text) => match protocol::parse_json_message(&text) {
+            Ok(Message::Error { code: c, message }) => {
+                assert_eq!(c, code::INTERNAL);
+                assert!(message.contains("too many clients"), "{message}");
+            }
+            other => panic!("{other:?}"),
+        },
+        other => panic!("{other:?}"),
+    }
+
+    // The first client is still served.
+    for _ in 0..3 {
+        line.clear();
+        std::io::BufRead::read_line(&mut served, &mut line).unwrap();
+        assert!(
+            matches!(
+                protocol::parse_json_message(line.trim_end()),
+                Ok(Message::Frame(_))
+            ),
+            "{line}"
+        );
     }
     daemon.shutdown().unwrap();
 }
@@ -1821,9 +1894,7 @@ fn a_lost_source_is_served_stale_until_it_returns() {
 
 #[test]
 fn the_python_example_client_reads_the_stream() {
-    if !has_python3() {
-        return;
-    }
+    common::require_python3();
     let dir = tempfile::tempdir().unwrap();
     let extra = common::SMALL_SKY;
     let daemon = Daemon::start(config(dir.path(), extra), DaemonOptions::default()).unwrap();
@@ -1855,6 +1926,40 @@ fn the_python_example_client_reads_the_stream() {
             "{args:?}: {err}"
         );
     }
+    // Its decoder makes the checks docs/protocol.md asks of every decoder: the length against
+    // the representation's layout, a known representation, finite floats.
+    let script = r#"
+import struct, sys
+sys.path.insert(0, "examples")
+import client
+header = struct.pack("<QdBBHI", 5, 0.5, 0, 0, 0, 2)
+light = struct.pack("<I3f3ff", 0, 0, 1, 0, 1, 2, 3, 0.1)
+assert client.parse_frame(header + light * 2)["lights"][1]["rgb"] == (1, 2, 3)
+nan = light[:-4] + struct.pack("<f", float("nan"))
+for bad in (header + light * 2 + b"x", header + light, struct.pack("<QdBBHI", 5, 0.5, 3, 0, 0, 0),
+            header + light + nan):
+    try:
+        client.parse_frame(bad)
+    except ValueError as e:
+        print(e)
+    else:
+        sys.exit("accepted a bad frame")
+"#;
+    let out = std::process::Command::new("python3")
+        .args(["-c", script])
+        .output()
+        .unwrap();
+    let (text, err) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{text}{err}");
+    assert_eq!(text.matches("error 1").count(), 3, "{text}");
+    assert_eq!(
+        text.matches("unknown representation 3").count(),
+        1,
+        "{text}"
+    );
     let mut child = std::process::Command::new("python3")
         .arg("examples/client.py")
         .arg(tcp.to_string())

@@ -13,9 +13,8 @@
 mod common;
 
 use common::{
-    assert_ordered_to_the_end, assert_unsupported, every_transport, has_python3, http_get,
-    metric_value, python_client, read_until_goodbye, record_sky, subscribe_all, wait_until,
-    TIMEOUT,
+    assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
+    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, TIMEOUT,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -264,9 +263,7 @@ fn sighup_reload_applies_new_wavelet_settings_from_the_next_frame() {
 
 #[test]
 fn the_python_example_client_reads_wavelet_sets() {
-    if !has_python3() {
-        return;
-    }
+    common::require_python3();
     let dir = tempfile::tempdir().unwrap();
     let extra = format!("{LIVE_SKY}[wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n");
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();

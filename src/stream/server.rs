@@ -1573,9 +1573,6 @@ impl Connection {
         R: AsyncRead + Unpin,
         W: AsyncWrite + Unpin,
     {
-        if self.over_limit {
-            return self.too_many_clients();
-        }
         let mut decoder = Decoder::new();
         let mut buf = vec![0u8; 4096];
         let (request, followed) = match self
@@ -1592,6 +1589,11 @@ impl Connection {
             Format::Binary => Dialect::Binary,
             Format::Json => Dialect::JsonLines,
         };
+        // Refused after the subscribe, so that the refusal comes in the client's form (a JSON
+        // Lines client could not read a binary error 100).
+        if self.over_limit {
+            return self.too_many_clients();
+        }
         let (request, mut feed) = match self.check_request(request) {
             Ok(r) => r,
             Err(close) => return close,
@@ -1936,9 +1938,6 @@ impl Connection {
         K: futures_util::Sink<tungstenite::Message, Error = tungstenite::Error> + Unpin,
         S: futures_util::Stream<Item = Result<tungstenite::Message, tungstenite::Error>> + Unpin,
     {
-        if self.over_limit {
-            return self.too_many_clients();
-        }
         let mut shutdown = self.shutdown.clone();
         let request = loop {
             let event = tokio::select! {
@@ -1977,6 +1976,10 @@ impl Connection {
                 }
             }
         };
+        // After the subscribe, so that the refusal comes in its form (as on the stream ports).
+        if self.over_limit {
+            return self.too_many_clients();
+        }
         let (request, mut feed) = match self.check_request(request) {
             Ok(r) => r,
             Err(close) => return close,

@@ -122,16 +122,18 @@ pub fn record_sky(dir: &Path, frames: u64) -> u64 {
     summary.recorded.unwrap().frames
 }
 
-/// Whether python3 is installed (the example-client tests skip without it).
-pub fn has_python3() -> bool {
+/// Fails the test with an install hint when python3 is missing (the example client is tested,
+/// not skipped).
+pub fn require_python3() {
     let found = std::process::Command::new("python3")
         .arg("--version")
         .output()
-        .is_ok();
-    if !found {
-        eprintln!("skipped: python3 is not installed");
-    }
-    found
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        found,
+        "python3 is not installed; the example client's tests need it \
+         (Debian: apt-get install python3, as .ci/run does)"
+    );
 }
 
 /// Runs `examples/client.py` with `args`, asserts it exited successfully and returns its
