@@ -188,13 +188,13 @@ impl AsgStage {
         Ok(())
     }
 
-    /// Marks the newest set stale (the source is lost) or live again, re-publishing it on a
-    /// change. Returns whether anything was published.
-    pub fn set_stale(&self, stale: bool) -> bool {
-        self.stale_handle().set_stale(stale)
+    /// Marks the newest set stale (the source is lost), re-publishing it unless it is stale
+    /// already; the next fitted set is live. Returns whether anything was published.
+    pub fn mark_stale(&self) -> bool {
+        self.stale_handle().mark_stale()
     }
 
-    /// A handle for [`AsgStage::set_stale`] from another thread.
+    /// A handle for [`AsgStage::mark_stale`] from another thread.
     pub fn stale_handle(&self) -> AsgStaleHandle {
         self.0.stale_handle()
     }
@@ -236,7 +236,7 @@ impl AsgStatsHandle {
     }
 }
 
-/// Marks the newest ASG set stale or live; see [`AsgStage::set_stale`].
+/// Marks the newest ASG set stale; see [`AsgStage::mark_stale`].
 pub type AsgStaleHandle = crate::publication::StaleHandle<AsgSet>;
 
 #[cfg(test)]
@@ -332,13 +332,13 @@ mod tests {
         ));
         let stage = AsgStage::start(settings(), false, None).unwrap();
         assert!(stage.reconfigure(bad).is_err());
-        assert!(!stage.set_stale(true), "nothing published yet");
+        assert!(!stage.mark_stale(), "nothing published yet");
         stage.feed().offer(frame(0));
         while stage.stats().fits == 0 {
             std::thread::sleep(Duration::from_millis(1));
         }
         let live = stage.subscribe().borrow().clone().unwrap();
-        assert!(stage.set_stale(true));
+        assert!(stage.mark_stale());
         let stale = stage.subscribe().borrow().clone().unwrap();
         assert!(stale.stale && Arc::ptr_eq(&stale.payload, &live.payload));
         assert_eq!(stale.index, live.index + 1);

@@ -1005,7 +1005,8 @@ fn notify(states: &[sd_notify::NotifyState]) {
     }
 }
 
-/// Marks the lights stale while the source is lost and live again when it is back.
+/// Marks the lights (and ASG and wavelet sets) stale while the source is lost; the first ones
+/// computed after it is back are live (with a higher seq), and logs both changes.
 async fn monitor_health(
     health: Arc<SourceHealth>,
     stale: StaleHandle,
@@ -1013,25 +1014,29 @@ async fn monitor_health(
     wavelet_stale: Option<WaveletStaleHandle>,
 ) {
     let mut interval = tokio::time::interval(Duration::from_millis(50));
+    let mut was_lost = false;
     loop {
         interval.tick().await;
         let lost = health.is_stale();
-        if let Some(asg) = &asg_stale {
-            asg.set_stale(lost);
-        }
-        if let Some(wavelet) = &wavelet_stale {
-            wavelet.set_stale(lost);
-        }
-        if stale.set_stale(lost) {
-            if lost {
-                tracing::warn!(
-                    error = %health.last_error(),
-                    "the source is lost; serving the last lights marked stale while it reconnects"
-                );
-            } else {
-                tracing::info!("the source is back; serving fresh lights");
+        if lost {
+            // Every tick: a slow stage may publish a set fitted to a frame from before the loss.
+            if let Some(asg) = &asg_stale {
+                asg.mark_stale();
             }
+            if let Some(wavelet) = &wavelet_stale {
+                wavelet.mark_stale();
+            }
+            stale.mark_stale();
         }
+        if lost && !was_lost {
+            tracing::warn!(
+                error = %health.last_error(),
+                "the source is lost; serving the last lights marked stale while it reconnects"
+            );
+        } else if was_lost && !lost {
+            tracing::info!("the source is back; fresh lights follow its next frame");
+        }
+        was_lost = lost;
     }
 }
 

@@ -33,8 +33,8 @@
 //!   wins, so a slow stage never delays the lights (lossless in replay) — and closes the feeds
 //!   when it ends.
 //! - **Live changes.** [`Pipeline::reconfigure`] swaps in a new [`Decomposer`] before the next
-//!   frame (SIGHUP); [`Pipeline::set_stale`] re-publishes the newest lights marked stale while a
-//!   lost camera is being reconnected.
+//!   frame (SIGHUP); [`Pipeline::mark_stale`] re-publishes the newest lights marked stale while
+//!   a lost camera is being reconnected (the next decomposed frame is live again).
 //! - **Source errors.** A [`CaptureError`] is logged (`tracing::warn`), counted in
 //!   [`PipelineStats::capture_errors`] and ends the capture: the error is kept and
 //!   [`Pipeline::join`] returns it as [`PipelineError::Capture`], so nothing is lost silently.
@@ -216,7 +216,7 @@ impl Shared {
 /// A running capture → decompose pipeline. See the module documentation.
 pub struct Pipeline {
     shared: Arc<Shared>,
-    /// The sending side, also used by [`Pipeline::set_stale`].
+    /// The sending side, also used by [`Pipeline::mark_stale`].
     lights_tx: Arc<watch::Sender<LatestLights>>,
     /// Never marked as seen, so each clone handed out starts with the newest value unseen.
     lights: watch::Receiver<LatestLights>,
@@ -413,14 +413,14 @@ impl Pipeline {
         Ok(())
     }
 
-    /// Marks the newest light list stale (the source is lost) or live again. On a change, the
-    /// newest lights are published again with the flag, so every consumer learns of it; a
-    /// newly decomposed frame is always live. Returns whether anything was published.
-    pub fn set_stale(&self, stale: bool) -> bool {
-        self.stale_handle().set_stale(stale)
+    /// Marks the newest light list stale (the source is lost): the newest lights are published
+    /// again with the flag, so every consumer learns of it; a newly decomposed frame is always
+    /// live. Returns whether anything was published (not when already stale).
+    pub fn mark_stale(&self) -> bool {
+        self.stale_handle().mark_stale()
     }
 
-    /// A handle that marks the lights stale or live from another thread (the daemon's source
+    /// A handle that marks the lights stale from another thread (the daemon's source
     /// health monitor; the capture thread itself is busy reconnecting).
     pub fn stale_handle(&self) -> StaleHandle {
         StaleHandle::new(Arc::clone(&self.lights_tx))
@@ -462,7 +462,7 @@ impl Pipeline {
     }
 }
 
-/// Marks a pipeline's newest lights stale or live; see [`Pipeline::set_stale`].
+/// Marks a pipeline's newest lights stale; see [`Pipeline::mark_stale`].
 pub type StaleHandle = crate::publication::StaleHandle<LightFrame>;
 
 /// Reads a pipeline's counters; cheap to clone, valid after the pipeline has ended.
@@ -939,18 +939,13 @@ mod tests {
         }
         let live = rx.borrow_and_update().clone().unwrap();
         assert!(!live.stale);
-        assert!(
-            !pipeline.set_stale(false),
-            "already live: nothing to publish"
-        );
-        assert!(pipeline.set_stale(true));
+        assert!(pipeline.mark_stale());
         let stale = rx.borrow_and_update().clone().unwrap();
         assert!(stale.stale);
         assert_eq!(stale.index, live.index + 1);
         assert!(Arc::ptr_eq(&stale.payload, &live.payload));
-        assert!(!pipeline.set_stale(true));
-        assert!(pipeline.set_stale(false));
-        assert!(!rx.borrow().as_ref().unwrap().stale);
+        assert!(!pipeline.mark_stale(), "already stale: nothing to publish");
+        assert!(!rx.has_changed().unwrap());
         pipeline.join().unwrap();
     }
 

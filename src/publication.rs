@@ -7,7 +7,8 @@
 //! one more than the previous one, under the channel's lock, so a consumer that last handled
 //! index `i` and now reads `j` knows it skipped `j − i − 1`. Consumers always read the newest
 //! publication; a slow one skips and never holds the stage back. [`StaleHandle`] re-publishes
-//! the newest payload marked stale (or live again) while a lost source is being reconnected.
+//! the newest payload marked stale while a lost source is being reconnected; the next newly
+//! computed payload is live again.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -88,8 +89,8 @@ pub fn publish<T>(
     });
 }
 
-/// Marks the newest publication of a channel stale (the source is lost) or live again, from any
-/// thread. Cheap to clone.
+/// Marks the newest publication of a channel stale (the source is lost), from any thread.
+/// Cheap to clone.
 pub struct StaleHandle<T>(Arc<watch::Sender<Latest<T>>>);
 
 impl<T> Clone for StaleHandle<T> {
@@ -104,18 +105,23 @@ impl<T> StaleHandle<T> {
         Self(tx)
     }
 
-    /// On a change of the flag, publishes the newest payload again with it, so every consumer
-    /// learns of it; nothing happens before the first publication. Returns whether anything
-    /// was published.
-    pub fn set_stale(&self, stale: bool) -> bool {
+    /// Publishes the newest payload again marked stale, so every consumer learns that the
+    /// source is lost; nothing happens before the first publication or when it is stale
+    /// already. Returns whether anything was published.
+    ///
+    /// There is no way back but a newly computed payload ([`publish`]), numbered after the
+    /// stale one: publishing the old payload again as live when the source comes back would
+    /// pass old results off as fresh, with the same seq as the stale frame, before the fresh
+    /// ones (a slow stage such as the ASG fits would do so every time).
+    pub fn mark_stale(&self) -> bool {
         let mut changed = false;
         self.0.send_if_modified(|latest| match latest {
-            Some(p) if p.stale != stale => {
+            Some(p) if !p.stale => {
                 let payload = Arc::clone(&p.payload);
                 *latest = Some(Publication::after(
                     Some(p),
                     payload,
-                    stale,
+                    true,
                     None,
                     Duration::ZERO,
                 ));
@@ -137,7 +143,7 @@ mod tests {
         let (tx, mut rx) = watch::channel::<Latest<u32>>(None);
         let tx = Arc::new(tx);
         let stale = StaleHandle::new(Arc::clone(&tx));
-        assert!(!stale.set_stale(true), "nothing published yet");
+        assert!(!stale.mark_stale(), "nothing published yet");
         publish(
             &tx,
             Arc::new(7),
@@ -147,8 +153,8 @@ mod tests {
         let first = rx.borrow_and_update().clone().unwrap();
         assert_eq!((first.index, *first.payload, first.stale), (1, 7, false));
         assert_eq!(first.compute_time, Duration::from_millis(2));
-        assert!(stale.set_stale(true));
-        assert!(!stale.set_stale(true), "already stale");
+        assert!(stale.mark_stale());
+        assert!(!stale.mark_stale(), "already stale");
         let second = rx.borrow_and_update().clone().unwrap();
         assert_eq!(second.index, 2);
         assert!(second.stale && second.arrived.is_none());

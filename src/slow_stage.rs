@@ -198,7 +198,7 @@ impl<W: StageWorker> SlowStage<W> {
             .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(worker);
     }
 
-    /// A handle that marks the newest result stale (the source is lost) or live again.
+    /// A handle that marks the newest result stale (the source is lost).
     pub fn stale_handle(&self) -> StaleHandle<W::Output> {
         StaleHandle::new(Arc::clone(&self.tx))
     }
@@ -444,7 +444,7 @@ mod tests {
         let live = second.last().unwrap().clone();
         assert_eq!((live.index, live.payload.1), (2, 104.0));
         let stale = stage.stale_handle();
-        assert!(stale.set_stale(true));
+        assert!(stale.mark_stale());
         let republished = stage.subscribe().borrow().clone().unwrap();
         assert!(republished.stale && Arc::ptr_eq(&republished.payload, &live.payload));
         assert_eq!(republished.index, 3);

@@ -241,7 +241,7 @@ pub type PublishedWavelet = crate::publication::Publication<WaveletFrame>;
 /// What wavelet consumers receive: the newest publication, `None` until the first one.
 pub type LatestWavelet = Latest<WaveletFrame>;
 
-/// Marks the newest wavelet set stale or live; see [`WaveletStage::set_stale`].
+/// Marks the newest wavelet set stale; see [`WaveletStage::mark_stale`].
 pub type WaveletStaleHandle = StaleHandle<WaveletFrame>;
 
 /// Called on the wavelet thread after each published set (metrics).
@@ -329,13 +329,13 @@ impl WaveletStage {
         Ok(())
     }
 
-    /// Marks the newest set stale (the source is lost) or live again, re-publishing it on a
-    /// change. Returns whether anything was published.
-    pub fn set_stale(&self, stale: bool) -> bool {
-        self.stale_handle().set_stale(stale)
+    /// Marks the newest set stale (the source is lost), re-publishing it unless it is stale
+    /// already; the next transformed set is live. Returns whether anything was published.
+    pub fn mark_stale(&self) -> bool {
+        self.stale_handle().mark_stale()
     }
 
-    /// A handle for [`WaveletStage::set_stale`] from another thread.
+    /// A handle for [`WaveletStage::mark_stale`] from another thread.
     pub fn stale_handle(&self) -> WaveletStaleHandle {
         self.0.stale_handle()
     }
@@ -493,7 +493,7 @@ mod tests {
         });
         sender.join().unwrap();
         let live = stage.subscribe().borrow().clone().unwrap();
-        assert!(stage.set_stale(true));
+        assert!(stage.mark_stale());
         let stale = stage.subscribe().borrow().clone().unwrap();
         assert!(stale.stale && Arc::ptr_eq(&stale.payload, &live.payload));
         let stats = stage.join().unwrap();

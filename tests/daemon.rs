@@ -1887,6 +1887,11 @@ fn a_lost_source_is_served_stale_until_it_returns() {
     assert_eq!(frames[stale_at].seq, before.seq);
     assert_eq!(frames[stale_at].lights, before.lights);
     assert!(after.seq > before.seq);
+    // Live frames' seqs increase strictly: the old lights are never sent again as live when
+    // the source is back (they were, with the stale frame's seq, when the health monitor
+    // noticed the return before the first fresh frame was decomposed).
+    let live: Vec<u64> = frames.iter().filter(|f| !f.stale).map(|f| f.seq).collect();
+    assert!(live.windows(2).all(|w| w[1] > w[0]), "{live:?}");
     let (status, _) = http_get(http, "/health");
     assert_eq!(status, 200);
     daemon.shutdown().unwrap();
