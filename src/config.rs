@@ -1010,21 +1010,59 @@ impl RawDaemon {
     }
 }
 
+/// The spellings of `--placement` / `decompose.placement`.
+const PLACEMENTS: [(&str, LightPlacement); 2] = [
+    ("centroid", LightPlacement::Centroid),
+    ("sample-point", LightPlacement::SamplePoint),
+];
+
+/// The spellings of `--warp` / `decompose.warp`.
+const WARPS: [(&str, Warp); 2] = [("rows", Warp::Rows), ("hierarchical", Warp::Hierarchical)];
+
+/// The spellings of `source.kind`.
+const SOURCE_KINDS: [(&str, SourceKind); 3] = [
+    ("sky", SourceKind::Sky),
+    ("sequence", SourceKind::Sequence),
+    ("v4l2", SourceKind::V4l2),
+];
+
+/// The value spelled `s` in `table`.
+fn spelled<T: Copy>(table: &[(&str, T)], s: &str) -> Option<T> {
+    table.iter().find(|(name, _)| *name == s).map(|&(_, v)| v)
+}
+
+/// How `value` is spelled in `table` (every variant is in its table).
+fn spelling<T: PartialEq>(table: &[(&'static str, T)], value: &T) -> &'static str {
+    table
+        .iter()
+        .find(|(_, v)| v == value)
+        .map_or("?", |(name, _)| name)
+}
+
 /// Parses a `--placement` / `decompose.placement` value.
 pub fn parse_placement(s: &str) -> Option<LightPlacement> {
-    match s {
-        "centroid" => Some(LightPlacement::Centroid),
-        "sample-point" => Some(LightPlacement::SamplePoint),
-        _ => None,
-    }
+    spelled(&PLACEMENTS, s)
+}
+
+/// How a placement is spelled in the config and on the command line.
+pub fn placement_name(placement: LightPlacement) -> &'static str {
+    spelling(&PLACEMENTS, &placement)
 }
 
 /// Parses a `--warp` / `decompose.warp` value.
 pub fn parse_warp(s: &str) -> Option<Warp> {
-    match s {
-        "rows" => Some(Warp::Rows),
-        "hierarchical" => Some(Warp::Hierarchical),
-        _ => None,
+    spelled(&WARPS, s)
+}
+
+/// How a warp is spelled in the config and on the command line.
+pub fn warp_name(warp: Warp) -> &'static str {
+    spelling(&WARPS, &warp)
+}
+
+impl SourceKind {
+    /// How the kind is spelled in `source.kind`.
+    pub fn name(self) -> &'static str {
+        spelling(&SOURCE_KINDS, &self)
     }
 }
 
@@ -1048,18 +1086,14 @@ fn check_finite(key: &'static str, v: f64) -> Result<f64, ConfigError> {
 
 impl RawSource {
     fn validate(&self) -> Result<SourceConfig, ConfigError> {
-        let kind = match self.kind.as_deref().unwrap_or("sky") {
-            "sky" => SourceKind::Sky,
-            "sequence" => SourceKind::Sequence,
-            "v4l2" => SourceKind::V4l2,
-            other => {
-                return Err(invalid(
-                    "source.kind",
-                    other,
-                    "must be \"sky\", \"sequence\" or \"v4l2\"",
-                ))
-            }
-        };
+        let kind = self.kind.as_deref().unwrap_or("sky");
+        let kind = spelled(&SOURCE_KINDS, kind).ok_or_else(|| {
+            invalid(
+                "source.kind",
+                kind,
+                "must be \"sky\", \"sequence\" or \"v4l2\"",
+            )
+        })?;
         let paths = self.paths.clone().unwrap_or_default();
         if paths.iter().any(|p| p.trim().is_empty()) {
             return Err(invalid(
@@ -1764,6 +1798,26 @@ mod tests {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");
         }
+    }
+
+    /// Every placement, warp and source kind is spelled as its parser reads it (check-config
+    /// and the logs print these names).
+    #[test]
+    fn names_are_the_spellings_the_parsers_read() {
+        for (name, placement) in PLACEMENTS {
+            assert_eq!(
+                parse_placement(placement_name(placement)),
+                Some(placement),
+                "{name}"
+            );
+        }
+        for (name, warp) in WARPS {
+            assert_eq!(parse_warp(warp_name(warp)), Some(warp), "{name}");
+        }
+        for kind in [SourceKind::Sky, SourceKind::Sequence, SourceKind::V4l2] {
+            assert_eq!(spelled(&SOURCE_KINDS, kind.name()), Some(kind));
+        }
+        assert_eq!(warp_name(Warp::Hierarchical), "hierarchical");
     }
 
     #[test]

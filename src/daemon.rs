@@ -410,7 +410,10 @@ impl Daemon {
                         asg: asg.as_ref().map(AsgStage::stats_handle),
                         wavelet: wavelet.as_ref().map(WaveletStage::stats_handle),
                     });
-                    tracing::info!(address = ?bound, "serving metrics and health over http");
+                    tracing::info!(
+                        address = %crate::stream::server::shown(bound),
+                        "serving metrics and health over http"
+                    );
                     let task = tokio::spawn(serve_http(listener, state, stop_rx));
                     Some((task, stop_tx, bound))
                 }

@@ -759,18 +759,23 @@ impl DecomposeArgs {
                 }
                 .into(),
             );
+            note("decompose.warp", "--warp");
         }
         if self.concentrated_lloyd {
             dec.concentrated_lloyd = Some(true);
+            note("decompose.concentrated_lloyd", "--concentrated-lloyd");
         }
         if self.no_refine_concentrated {
             dec.refine_concentrated = Some(false);
+            note("decompose.refine_concentrated", "--no-refine-concentrated");
         }
         if self.split {
             dec.split = Some(true);
+            note("decompose.split", "--split");
         }
         if self.no_split {
             dec.split = Some(false);
+            note("decompose.split", "--no-split");
         }
         if let Some(f) = self.split_factor {
             dec.split = Some(true);
@@ -796,6 +801,7 @@ impl DecomposeArgs {
                 }
                 .into(),
             );
+            note("decompose.placement", "--placement");
         }
         if self.no_filter {
             dec.filter = Some(false);
@@ -976,21 +982,30 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
         (_, Some(fps)) => format!("{fps} frames/s"),
         (_, None) => "as fast as possible".to_owned(),
     };
+    // The files are looked up as `envlight run` will (a pattern that matches nothing, a
+    // missing file or a folder without frames is an error here too).
     let paths = match daemon_source.kind {
-        envlight::config::SourceKind::Sequence => format!(" {:?}", daemon_source.paths),
+        envlight::config::SourceKind::Sequence => {
+            let found = envlight::capture::sequence::SequenceSource::new(
+                &daemon_source.paths,
+                envlight::capture::sequence::SequenceOptions::default(),
+            )
+            .with_context(|| format!("{name}: source.paths"))?;
+            format!(" {:?} ({} files)", daemon_source.paths, found.frame_count())
+        }
         _ => String::new(),
     };
     writeln!(
         text,
-        "  source: {:?}{paths}, in envlight run {frames}, {pacing}",
-        daemon_source.kind
+        "  source: {}{paths}, in envlight run {frames}, {pacing}",
+        daemon_source.kind.name()
     )?;
     writeln!(
         text,
-        "  decompose: {} lights, warp {:?}, refinement of concentrated sources {}, concentrated \
+        "  decompose: {} lights, warp {}, refinement of concentrated sources {}, concentrated \
          Lloyd step {}, split of bright lights {}, filter {} (bright lights: {}), merge {}",
         config.decompose.lights,
-        config.decompose.warp,
+        envlight::config::warp_name(config.decompose.warp),
         on_off(config.decompose.refine_concentrated),
         on_off(config.decompose.concentrated_lloyd),
         split_description(config.decompose.split_factor),
@@ -1225,7 +1240,7 @@ fn decompose(args: &DecomposeArgs) -> Result<()> {
             RawConfig::from_file(path)?,
             format!("config file {}", path.display()),
         ),
-        None => (RawConfig::default(), "defaults".to_string()),
+        None => (RawConfig::default(), "the built-in defaults".to_string()),
     };
     let flags = args.apply(&mut raw)?;
     let config = raw.validate().map_err(|e| match &e {
@@ -1235,6 +1250,10 @@ fn decompose(args: &DecomposeArgs) -> Result<()> {
             value,
             message,
         } => match flags.iter().find(|(k, _)| k == key) {
+            // A switch (--split) has no value to show.
+            Some((_, flag)) if value == "true" || value == "false" => {
+                anyhow!("invalid {flag}: {message}")
+            }
             Some((_, flag)) => anyhow!("invalid {flag} {value}: {message}"),
             None => anyhow!(e).context(format!("invalid setting in {config_name}")),
         },
@@ -1329,13 +1348,13 @@ fn run_decompose(
     tracing::info!("source: {}", source.describe());
     let d = &config.decompose;
     tracing::info!(
-        "decomposing into {} lights (working width {}, placement {:?}, warp {:?}, density \
+        "decomposing into {} lights (working width {}, placement {}, warp {}, density \
          exponent {}, refinement of concentrated sources {}, concentrated Lloyd step {}, split \
          of bright lights {}, filter {}, merge {})",
         d.lights,
         d.working_width,
-        d.placement,
-        d.warp,
+        envlight::config::placement_name(d.placement),
+        envlight::config::warp_name(d.warp),
         d.pdf_exponent,
         on_off(d.refine_concentrated),
         on_off(d.concentrated_lloyd),

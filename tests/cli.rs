@@ -591,6 +591,22 @@ fn negative_values_are_checked_as_values() {
     assert_eq!(o.status.code(), Some(2));
 }
 
+/// A setting that two flags make invalid together names the flag, not a config key of a file
+/// that was never given ("invalid setting in defaults").
+#[test]
+fn conflicting_flags_are_named() {
+    let o = envlight(&[
+        "decompose",
+        "--split",
+        "--placement",
+        "sample-point",
+        "--frames",
+        "1",
+    ]);
+    assert_fails_naming(&o, &["invalid --split:", "centroid"]);
+    assert!(!stderr(&o).contains("defaults"), "{}", stderr(&o));
+}
+
 #[test]
 fn bad_taps_name_the_flag() {
     let o = envlight(&["decompose", "--taps", "1,x,1"]);

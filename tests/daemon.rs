@@ -1688,7 +1688,7 @@ fn check_config_names_the_bad_key_and_value() {
     assert!(report.contains("config/envlight.toml: ok"), "{report}");
     // The example config is the unit's: as a service its sky must run until stopped.
     assert!(
-        report.contains("source: Sky, in envlight run until stopped, 30 frames/s"),
+        report.contains("source: sky, in envlight run until stopped, 30 frames/s"),
         "{report}"
     );
     for (text, needle) in [
@@ -1712,6 +1712,11 @@ fn check_config_names_the_bad_key_and_value() {
             "[pipeline]\nqueue_capacity = 0\n",
             "pipeline.queue_capacity = 0",
         ),
+        // The frames are looked up as `run` will (this passed, and `run` then failed).
+        (
+            "[source]\nkind = \"sequence\"\npaths = [\"nothing-here/*.exr\"]\n",
+            "no .exr or .hdr frames found in",
+        ),
     ] {
         let path = dir.path().join("bad.toml");
         std::fs::write(&path, text).unwrap();
@@ -1724,6 +1729,36 @@ fn check_config_names_the_bad_key_and_value() {
             "the file is not named: {stderr}"
         );
     }
+    let path = dir.path().join("good.toml");
+    let frames = format!("{}/tests/data/*.hdr", env!("CARGO_MANIFEST_DIR"));
+    std::fs::write(
+        &path,
+        format!("[source]\nkind = \"sequence\"\npaths = [\"{frames}\"]\n"),
+    )
+    .unwrap();
+    let out = envlight().arg("check-config").arg(&path).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let hdr_files = std::fs::read_dir("tests/data")
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .path()
+                .extension()
+                .is_some_and(|x| x == "hdr")
+        })
+        .count();
+    assert!(
+        stdout.contains(&format!(
+            "source: sequence [\"{frames}\"] ({hdr_files} files)"
+        )),
+        "{stdout}"
+    );
 }
 
 #[test]

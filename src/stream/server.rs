@@ -747,14 +747,14 @@ impl StreamServer {
         }
         if let Some(listener) = tcp {
             let addr = listener.local_addr().ok();
-            tracing::info!(address = ?addr, "serving light lists over tcp");
+            tracing::info!(address = %shown(addr), "serving light lists over tcp");
             bound.tcp = addr;
             let accept = Acceptor::new(&ctx, "tcp", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.tcp(listener, false)));
         }
         if let Some(listener) = websocket {
             let addr = listener.local_addr().ok();
-            tracing::info!(address = ?addr, "serving light lists over websocket");
+            tracing::info!(address = %shown(addr), "serving light lists over websocket");
             bound.websocket = addr;
             let accept = Acceptor::new(&ctx, "websocket", &shutdown_tx, &done_tx);
             accept_tasks.push(tokio::spawn(accept.tcp(listener, true)));
@@ -1029,6 +1029,11 @@ impl Acceptor {
             _done: self.done.clone(),
         }
     }
+}
+
+/// A bound address as logs show it (`127.0.0.1:7878`; `unknown` if the socket could not say).
+pub(crate) fn shown(address: Option<std::net::SocketAddr>) -> String {
+    address.map_or_else(|| "unknown".to_owned(), |a| a.to_string())
 }
 
 /// An accept error (out of file descriptors, typically): logged, and a short pause so a
@@ -1377,7 +1382,7 @@ impl Connection {
             client = %self.name,
             max_lights = request.max_lights,
             representation = request.representation.name(),
-            format = ?request.format,
+            format = request.format.name(),
             "client subscribed"
         );
         self.guard.subscribed.store(true, Ordering::Relaxed);

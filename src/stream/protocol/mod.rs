@@ -235,6 +235,14 @@ pub enum Format {
 }
 
 impl Format {
+    /// The name used in JSON and messages: `binary`, `json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Binary => "binary",
+            Format::Json => "json",
+        }
+    }
+
     /// The wire code.
     pub fn code(self) -> u8 {
         match self {
