@@ -275,6 +275,13 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
                     }
                 }
             }
+            Err(_) if input.starts_with("v4l2:") => {
+                return Err(CaptureError::InvalidSettings(format!(
+                    "{input}: a camera is INPUT v4l2:DEVICE only as the one INPUT of envlight \
+                     decompose (or its --device); envlight run and record take it from the \
+                     config (source.kind = \"v4l2\", camera.device)"
+                )))
+            }
             Err(source) => {
                 return Err(CaptureError::Io {
                     path: path.to_path_buf(),
@@ -295,6 +302,7 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
 
     let mut seen = HashMap::new();
     let mut unique = Vec::with_capacity(found.len());
+    let (mut repeated, mut first_repeated) = (0usize, None);
     for path in found {
         let key = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
         match seen.entry(key) {
@@ -307,8 +315,24 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
                 path.display(),
                 first.get().display()
             ),
-            Entry::Occupied(_) => {}
+            Entry::Occupied(_) => {
+                repeated += 1;
+                first_repeated.get_or_insert(path);
+            }
         }
+    }
+    // Named twice (the same file twice, or a directory and a pattern that overlap): a frame
+    // is read once, and the user hears of it, since `a.hdr a.hdr` might mean two frames.
+    if let Some(first) = first_repeated {
+        tracing::warn!(
+            "{} named more than once (among them {}): each file is read once",
+            if repeated == 1 {
+                "1 frame file was".to_owned()
+            } else {
+                format!("{repeated} frame files were")
+            },
+            first.display()
+        );
     }
     unique.sort_by(|a, b| compare_frame_paths(a, b));
     Ok(unique)
@@ -416,6 +440,35 @@ mod tests {
         .unwrap_err();
         assert!(matches!(err, CaptureError::Io { .. }), "{err}");
         assert!(err.to_string().contains("/nonexistent/dir/frame_1.exr"));
+    }
+
+    /// `v4l2:DEVICE` among sequence inputs (any command but decompose's one INPUT) says where
+    /// a camera is chosen instead of "No such file or directory".
+    #[test]
+    fn a_camera_input_outside_decompose_says_where_cameras_are_chosen() {
+        let err = SequenceSource::new(
+            &["v4l2:/dev/video7".to_string()],
+            SequenceOptions::default(),
+        )
+        .unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("v4l2:/dev/video7") && text.contains("camera.device"),
+            "{text}"
+        );
+    }
+
+    /// A file named twice (directly, or through a directory and a pattern) is one frame.
+    #[test]
+    fn a_file_named_twice_is_read_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("f1.hdr");
+        std::fs::write(&file, b"not read here").unwrap();
+        let name = file.to_str().unwrap().to_owned();
+        let folder = dir.path().to_str().unwrap().to_owned();
+        let source =
+            SequenceSource::new(&[name.clone(), name, folder], SequenceOptions::default()).unwrap();
+        assert_eq!(source.frame_count(), 1);
     }
 
     #[test]
