@@ -73,6 +73,10 @@ fn check_endpoints_apart(config: &Config) -> Result<(), ConfigError> {
 /// The largest config file read: 1 MiB (the documented config with every key is under 20 KB).
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
+/// The largest rendered image side, in `render.width` / `render.height` and `render --size`
+/// (a GPU may allow less; the renderer then says so).
+pub const MAX_RENDER_SIDE: u32 = 16384;
+
 /// Deserialises an optional array of exactly `N` numbers: serde's fixed-size arrays stop after
 /// `N` values and silently drop the rest, so `[1, 2, 3]` for a centre read as `[1, 2]`.
 pub(crate) fn exactly<'de, D, const N: usize>(deserializer: D) -> Result<Option<[f64; N]>, D::Error>
@@ -720,10 +724,11 @@ pub struct RenderConfig {
 impl RawRender {
     fn validate(&self) -> Result<RenderConfig, ConfigError> {
         let d = RenderConfig::default();
-        let size = |key, v, default, max| integer_in(key, v, default, 1..=max, "");
+        // As `render --size`; the GPU's own limit applies too (16384 on lavapipe and most).
+        let size = |key, v, default| integer_in(key, v, default, 1..=MAX_RENDER_SIDE, "");
         let settings = crate::render::RenderSettings {
-            width: size("render.width", self.width, d.settings.width, 8192)?,
-            height: size("render.height", self.height, d.settings.height, 8192)?,
+            width: size("render.width", self.width, d.settings.width)?,
+            height: size("render.height", self.height, d.settings.height)?,
             shadow_resolution: integer_in(
                 "render.shadow_resolution",
                 self.shadow_resolution,
@@ -1588,7 +1593,11 @@ mod tests {
                 "[daemon]\nserve_threads = 0",
                 "daemon.serve_threads = 0: must be 1..=64",
             ),
-            ("[render]\nwidth = 0", "render.width = 0: must be 1..=8192"),
+            ("[render]\nwidth = 0", "render.width = 0: must be 1..=16384"),
+            (
+                "[render]\nheight = 16385",
+                "render.height = 16385: must be 1..=16384",
+            ),
             (
                 "[render]\nshadow_resolution = 8193",
                 "render.shadow_resolution = 8193: must be 16..=8192",

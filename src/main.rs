@@ -116,8 +116,8 @@ struct RenderArgs {
     /// Scene file (.gltf, .glb, .obj). [default: built-in spheres on a ground plane]
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
-    /// Image size.
-    #[arg(long, value_name = "WxH", value_parser = parse_size, default_value = "640x360")]
+    /// Image size, 1..=16384 a side (the GPU's own limit applies too: 16384 on most).
+    #[arg(long, value_name = "WxH", value_parser = parse_render_size, default_value = "640x360")]
     size: (u32, u32),
     /// Output folder (created if missing). Required unless --window.
     #[arg(long, value_name = "DIR", required_unless_present = "window")]
@@ -626,6 +626,18 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
             .map_err(|e| format!("{v:?} is not a pixel count: {e}"))
     };
     Ok((num(w)?, num(h)?))
+}
+
+/// `render --size`: [`parse_size`] within 1..=[`envlight::config::MAX_RENDER_SIDE`] a side, as
+/// `render.width` and `render.height` are.
+fn parse_render_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = parse_size(s)?;
+    let max = envlight::config::MAX_RENDER_SIDE;
+    if (1..=max).contains(&w) && (1..=max).contains(&h) {
+        Ok((w, h))
+    } else {
+        Err(format!("{w}x{h}: each side must be 1..={max} pixels"))
+    }
 }
 
 impl DecomposeArgs {
@@ -1576,6 +1588,18 @@ fn render(args: &RenderArgs) -> Result<()> {
         #[cfg(not(feature = "window"))]
         bail!("--window needs envlight built with `--features window`");
     };
+    // --out is a folder of frame_NNNNN.png/.exr and stats.jsonl; `--out frame.png` would make
+    // a folder of that name.
+    let image_extension = out.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+        ["png", "exr", "hdr", "jpg", "jpeg"].contains(&e.to_ascii_lowercase().as_str())
+    });
+    if image_extension && !out.is_dir() {
+        usage_error!(
+            "--out {} looks like an image file, but --out is the folder the frames \
+             (frame_00000.png, .exr) and stats.jsonl are written to; give a folder",
+            out.display()
+        );
+    }
     let inputs = cli_output::InputFiles::new(&inputs);
     let mut renderer = Renderer::new(scene, settings)?;
     tracing::info!(

@@ -607,6 +607,22 @@ fn conflicting_flags_are_named() {
     assert!(!stderr(&o).contains("defaults"), "{}", stderr(&o));
 }
 
+/// `render --out` is a folder: an image file name is refused before anything is created, and
+/// --size has the range of render.width / render.height.
+#[test]
+fn render_out_and_size_are_checked_before_rendering() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("frame.png");
+    let o = envlight(&["render", "--out", s(&png), "--size", "8x4", "--frames", "1"]);
+    assert_fails_naming(&o, &["frame.png", "folder"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!png.exists());
+    for size in ["0x4", "16385x2"] {
+        let o = envlight(&["render", "--out", s(dir.path()), "--size", size]);
+        assert_fails_naming(&o, &["--size", size, "1..=16384"]);
+    }
+}
+
 #[test]
 fn bad_taps_name_the_flag() {
     let o = envlight(&["decompose", "--taps", "1,x,1"]);
