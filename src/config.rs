@@ -73,6 +73,18 @@ fn check_endpoints_apart(config: &Config) -> Result<(), ConfigError> {
 /// The largest config file read: 1 MiB (the documented config with every key is under 20 KB).
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
+/// `x` as a message shows it: plain when that is short (`30`, `0.5`), in scientific notation
+/// when it is very large or small (`1e300`, not three hundred digits; `1e-300`, not three
+/// hundred zeros).
+pub fn shown_number(x: f64) -> String {
+    let magnitude = x.abs();
+    if x.is_finite() && x != 0.0 && !(1e-5..1e16).contains(&magnitude) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
 /// The largest rendered image side, in `render.width` / `render.height` and `render --size`
 /// (a GPU may allow less; the renderer then says so).
 pub const MAX_RENDER_SIDE: u32 = 16384;
@@ -1807,6 +1819,16 @@ mod tests {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");
         }
+    }
+
+    #[test]
+    fn numbers_are_shown_short() {
+        assert_eq!(shown_number(30.0), "30");
+        assert_eq!(shown_number(0.5), "0.5");
+        assert_eq!(shown_number(1e300), "1e300");
+        assert_eq!(shown_number(-2.5e-300), "-2.5e-300");
+        assert_eq!(shown_number(f64::NAN), "NaN");
+        assert_eq!(shown_number(0.0), "0");
     }
 
     /// Every placement, warp and source kind is spelled as its parser reads it (check-config

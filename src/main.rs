@@ -154,7 +154,7 @@ struct RenderArgs {
     #[arg(long, value_name = "MS")]
     budget_ms: Option<f64>,
     /// Exposure scale before tone mapping. [default: from the first frame's median]
-    #[arg(long, value_name = "X")]
+    #[arg(long, value_name = "X", value_parser = parse_finite_f32)]
     exposure: Option<f32>,
     /// Show the frames in a window instead of writing files (needs the `window` feature).
     #[arg(long, conflicts_with = "background")]
@@ -628,6 +628,19 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((num(w)?, num(h)?))
 }
 
+/// A number an option holds as f32: one beyond f32's range (`1e39`) is an error naming it,
+/// not infinity (which later checks reported as "got inf", without the value given).
+pub(crate) fn parse_finite_f32(s: &str) -> Result<f32, String> {
+    let x: f64 = (s.trim().parse()).map_err(|_| format!("{s:?} is not a number"))?;
+    if x.is_finite() && x.abs() <= f64::from(f32::MAX) {
+        Ok(x as f32)
+    } else {
+        Err(format!(
+            "{s} is not a finite number of single precision (at most 3.4e38)"
+        ))
+    }
+}
+
 /// `render --size`: [`parse_size`] within 1..=[`envlight::config::MAX_RENDER_SIDE`] a side, as
 /// `render.width` and `render.height` are.
 fn parse_render_size(s: &str) -> Result<(u32, u32), String> {
@@ -988,10 +1001,13 @@ fn check_config(args: &CheckConfigArgs) -> Result<()> {
     };
     let pacing = match (daemon_source.kind, daemon_source.fps) {
         (envlight::config::SourceKind::V4l2, _) => match config.camera.fps {
-            Some(fps) => format!("{fps} frames/s requested from the camera"),
+            Some(fps) => format!(
+                "{} frames/s requested from the camera",
+                envlight::config::shown_number(fps)
+            ),
             None => "at the camera driver's rate".to_owned(),
         },
-        (_, Some(fps)) => format!("{fps} frames/s"),
+        (_, Some(fps)) => format!("{} frames/s", envlight::config::shown_number(fps)),
         (_, None) => "as fast as possible".to_owned(),
     };
     // The files are looked up as `envlight run` will (a pattern that matches nothing, a

@@ -118,11 +118,11 @@ pub struct RelightArgs {
     /// BRDF of every surface.
     #[arg(long, value_enum, default_value_t = BrdfArg::Lambert)]
     brdf: BrdfArg,
-    /// Phong exponent for --brdf phong. [default: 32]
-    #[arg(long)]
+    /// Phong exponent for --brdf phong (≥ 0). [default: 32]
+    #[arg(long, value_parser = crate::parse_finite_f32)]
     exponent: Option<f32>,
     /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1). [default: 0.3]
-    #[arg(long)]
+    #[arg(long, value_parser = crate::parse_finite_f32)]
     alpha: Option<f32>,
     /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
@@ -155,10 +155,10 @@ pub struct RecoverArgs {
     /// Views of the glossy sphere (evenly around it, slightly above; 1..=32).
     #[arg(long, value_name = "N", default_value_t = 4)]
     views: usize,
-    /// Phong exponent of the observed sphere.
-    #[arg(long, default_value_t = 32.0)]
+    /// Phong exponent of the observed sphere (≥ 0).
+    #[arg(long, default_value_t = 32.0, value_parser = crate::parse_finite_f32)]
     exponent: f32,
-    /// Gaussian noise, as a fraction of the RMS observed radiance.
+    /// Gaussian noise, as a fraction of the RMS observed radiance (0..=100).
     #[arg(long, default_value_t = 0.01)]
     noise: f64,
     /// Seed of the noise (needs --noise above 0). [default: 1]
@@ -432,6 +432,13 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
     if args.input.frames_given() {
         crate::usage_error!(
             "wavelet recover uses the first frame of INPUT (or the sky); --frames does not apply"
+        );
+    }
+    let max_noise = envlight::wavelet::inverse::MAX_NOISE;
+    if !(0.0..=max_noise).contains(&args.noise) {
+        bail!(
+            "invalid --noise {}: must be in 0..={max_noise} (a fraction of the RMS radiance)",
+            envlight::config::shown_number(args.noise)
         );
     }
     if args.seed.is_some() && args.noise == 0.0 {

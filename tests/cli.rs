@@ -623,6 +623,32 @@ fn render_out_and_size_are_checked_before_rendering() {
     }
 }
 
+/// Numbers are checked where they are given and shown short: an f32 option past f32's range
+/// names the option and the value (it became inf: "got inf"), a frame rate of 1e-300 is shown
+/// as such (it was three hundred zeros), noise past 100× the signal is refused (1e300 left
+/// every error NaN).
+#[test]
+fn extreme_numbers_name_the_option_and_are_shown_short() {
+    let o = envlight(&[
+        "wavelet",
+        "relight",
+        "--brdf",
+        "phong",
+        "--exponent",
+        "1e39",
+    ]);
+    assert_fails_naming(&o, &["--exponent", "1e39", "3.4e38"]);
+    let o = envlight(&["render", "--exposure", "1e39", "--out", "unused-folder"]);
+    assert_fails_naming(&o, &["--exposure", "1e39"]);
+    let o = envlight(&["decompose", "--fps", "1e-300", "--frames", "1"]);
+    assert_fails_naming(&o, &["--fps", "got 1e-300"]);
+    assert!(stderr(&o).len() < 400, "{}", stderr(&o));
+    for noise in ["1e300", "-1"] {
+        let o = envlight(&["wavelet", "recover", "--noise", noise, "--size", "4"]);
+        assert_fails_naming(&o, &["--noise", noise, "0..=100"]);
+    }
+}
+
 #[test]
 fn bad_taps_name_the_flag() {
     let o = envlight(&["decompose", "--taps", "1,x,1"]);

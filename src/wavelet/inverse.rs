@@ -486,8 +486,11 @@ pub fn transport_rows(
         .collect()
 }
 
+/// The most noise [`synthesize`] adds: 100 × the RMS clean radiance.
+pub const MAX_NOISE: f64 = 100.0;
+
 /// Observations of a lighting `truth` (coefficient planes) through `rows`, with Gaussian noise
-/// of standard deviation `noise` times the RMS clean radiance.
+/// of standard deviation `noise` (0..=[`MAX_NOISE`]) times the RMS clean radiance.
 pub fn synthesize(
     rows: &[Vec<f64>],
     truth: &[Vec<f64>; 3],
@@ -500,9 +503,12 @@ pub fn synthesize(
             "lighting planes differ in length".into(),
         ));
     }
-    if !(noise.is_finite() && noise >= 0.0) {
+    // Above 100 × the signal the observations are noise (and 1e300 overflowed the sums,
+    // leaving every error NaN).
+    if !(0.0..=MAX_NOISE).contains(&noise) {
         return Err(TransportError::Invalid(format!(
-            "noise must be finite and ≥ 0, got {noise}"
+            "noise must be in 0..={MAX_NOISE} (a fraction of the RMS radiance), got {}",
+            crate::config::shown_number(noise)
         )));
     }
     let clean: Vec<[f64; 3]> = rows
