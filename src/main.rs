@@ -248,7 +248,7 @@ enum Command {
     CheckConfig(CheckConfigArgs),
     /// Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
     FitAsg(FitAsgArgs),
-    /// Connect to a running daemon and print its light stream (or ASG sets).
+    /// Connect to a running daemon and print its light stream (or ASG or wavelet sets).
     #[command(long_about = SUBSCRIBE_LONG_ABOUT)]
     Subscribe(SubscribeArgs),
     /// List V4L2 cameras with their formats, frame sizes, rates and controls.
@@ -495,7 +495,8 @@ struct DecomposeArgs {
         value_name = "W,W,…",
         value_delimiter = ',',
         num_args = 1,
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        value_parser = parse_tap
     )]
     taps: Option<Vec<f64>>,
 
@@ -641,6 +642,13 @@ pub(crate) fn parse_finite_f32(s: &str) -> Result<f32, String> {
     }
 }
 
+/// One weight of `--taps` (spaces around it allowed, as in `--taps "1, 2, 1"`).
+fn parse_tap(s: &str) -> Result<f64, String> {
+    s.trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))
+}
+
 /// `render --size`: [`parse_size`] within 1..=[`envlight::config::MAX_RENDER_SIDE`] a side, as
 /// `render.width` and `render.height` are.
 fn parse_render_size(s: &str) -> Result<(u32, u32), String> {
@@ -690,6 +698,19 @@ impl DecomposeArgs {
                 );
             }
             src.looped = Some(true);
+        }
+        if let Some(p) = self
+            .projection
+            .filter(|p| !matches!(p, ProjectionArg::Latlong))
+        {
+            if src.kind.as_deref().unwrap_or("sky") == "sky" {
+                usage_error!(
+                    "--projection {} maps INPUT files or a camera; the built-in sky is always \
+                     lat-long",
+                    p.to_possible_value()
+                        .map_or_else(|| "?".to_owned(), |v| v.get_name().to_owned())
+                );
+            }
         }
         if let Some(p) = self.projection {
             src.projection = Some(

@@ -80,7 +80,7 @@ pub struct FrameEntry {
 /// Errors of recording.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
-    #[error("recording directory {}: {source}", path.display())]
+    #[error("{}: {source}", path.display())]
     Io {
         path: PathBuf,
         #[source]
@@ -204,6 +204,15 @@ impl Recorder {
             .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
             .last()
             .map(Path::to_path_buf);
+        if dir.exists() && !dir.is_dir() {
+            return Err(RecordError::Io {
+                path: dir.to_path_buf(),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::AlreadyExists,
+                    "a file, not a directory; a recording is a new or empty directory",
+                ),
+            });
+        }
         std::fs::create_dir_all(dir).map_err(io_error(dir))?;
         if std::fs::read_dir(dir)
             .map_err(io_error(dir))?
@@ -377,6 +386,17 @@ impl ReplaySource {
             let path = path.to_path_buf();
             move |source| CaptureError::Io { path, source }
         };
+        if !dir.is_dir() || !session_path.exists() {
+            return Err(CaptureError::Format {
+                path: dir.to_path_buf(),
+                message: if dir.is_dir() {
+                    "not a recording (no session.json); envlight record --out DIR makes one"
+                        .to_owned()
+                } else {
+                    "not a recording directory (made by envlight record --out DIR)".to_owned()
+                },
+            });
+        }
         let text = crate::read_file::read_regular_text(
             &session_path,
             MAX_SESSION_FILE_BYTES,
@@ -639,6 +659,36 @@ mod tests {
         assert!(e.to_string().contains("16384x16384"), "{e}");
         assert_eq!((index.len, lights.len), (0, 0));
         assert!(!dir.path().join("frames/000000.exr").exists());
+    }
+
+    /// A folder that is no recording, or no folder, says so (it said "session.json: No such
+    /// file or directory"); recording into a file says the file is in the way (it said
+    /// "recording directory …: File exists").
+    #[test]
+    fn what_is_no_recording_is_named_as_such() {
+        let dir = tempfile::tempdir().unwrap();
+        for (path, needle) in [
+            (
+                dir.path().to_path_buf(),
+                "not a recording (no session.json)",
+            ),
+            (dir.path().join("missing"), "not a recording directory"),
+        ] {
+            let e = ReplaySource::open(&path, Pacing::Original).err().unwrap();
+            let text = e.to_string();
+            assert!(
+                text.contains(needle) && text.contains(&*path.to_string_lossy()),
+                "{text}"
+            );
+        }
+        let file = dir.path().join("f1.hdr");
+        std::fs::write(&file, b"x").unwrap();
+        let (_tx, rx) = crossbeam_channel::bounded(1);
+        let e = Recorder::start(&file, "test", &DecomposeSettings::default(), rx)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("a file, not a directory"), "{e}");
+        assert_eq!(std::fs::read(&file).unwrap(), b"x");
     }
 
     /// A recording's `session.json` or `frames.jsonl` that is a device or a pipe is an error

@@ -649,8 +649,29 @@ fn extreme_numbers_name_the_option_and_are_shown_short() {
     }
 }
 
+/// `subscribe` to a path that is a file or a folder says so (it said "Connection refused").
+#[test]
+fn subscribe_to_a_file_says_it_is_no_socket() {
+    let o = envlight(&["subscribe", &data("rooitou_park_1k.hdr")]);
+    assert_fails_naming(&o, &["rooitou_park_1k.hdr", "a file, not a socket"]);
+    let dir = tempfile::tempdir().unwrap();
+    let o = envlight(&["subscribe", &format!("unix:{}", s(dir.path()))]);
+    assert_fails_naming(&o, &["a directory, not a socket"]);
+}
+
 #[test]
 fn bad_taps_name_the_flag() {
+    // Spaces after the commas are fine.
+    let o = envlight(&[
+        "decompose",
+        "--taps",
+        "1, 2, 1",
+        "--frames",
+        "1",
+        "--lights",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
     let o = envlight(&["decompose", "--taps", "1,x,1"]);
     assert_fails_naming(&o, &["--taps"]);
     assert_eq!(o.status.code(), Some(2));
@@ -806,6 +827,10 @@ fn options_the_mode_would_ignore_are_usage_errors() {
     for (args, needle) in [
         (vec!["decompose", "--loop", "--frames", "2"], "--loop"),
         (vec!["decompose", "--rotation", "5"], "--projection fisheye"),
+        (
+            vec!["decompose", "--projection", "fisheye", "--frames", "1"],
+            "the built-in sky is always lat-long",
+        ),
         (vec!["decompose", &hdr, "--sky-size", "8x4"], "--sky-size"),
         (vec!["subscribe", "tcp:"], "HOST:PORT"),
         (

@@ -162,7 +162,30 @@ impl Client {
         protocol::encode_request(request, &mut subscribe);
         let stream: Box<dyn ReadWrite> = match endpoint {
             Endpoint::Unix(path) => {
-                let s = UnixStream::connect(path).map_err(io)?;
+                let s = UnixStream::connect(path).map_err(|e| {
+                    // A path that exists but is no socket (a frame file, a folder) refuses the
+                    // connection; say what it is instead.
+                    let what = std::fs::metadata(path).ok().and_then(|m| {
+                        use std::os::unix::fs::FileTypeExt;
+                        if m.file_type().is_socket() {
+                            None
+                        } else if m.is_dir() {
+                            Some("a directory")
+                        } else {
+                            Some("a file")
+                        }
+                    });
+                    match what {
+                        Some(what) => io(std::io::Error::new(
+                            e.kind(),
+                            format!(
+                                "{what}, not a socket; give the daemon's socket \
+                                 (stream.unix_socket), HOST:PORT or ws://HOST:PORT/"
+                            ),
+                        )),
+                        None => io(e),
+                    }
+                })?;
                 s.set_read_timeout(read_timeout).map_err(io)?;
                 Box::new(s)
             }
