@@ -1807,7 +1807,26 @@ fn fit_asg(args: &FitAsgArgs) -> Result<()> {
         warm_loss: true,
         ..FitSettings::default()
     };
-    let mut fitter = AsgFitter::new(settings).context("invalid fit-asg options")?;
+    // Name the option a setting came from (the fitter names its field).
+    let mut fitter = AsgFitter::new(settings).map_err(|e| {
+        use envlight::asg::AsgError;
+        let flag = match &e {
+            AsgError::LobeCount(_) => "--lobes",
+            AsgError::MapSize { .. } => "--height",
+            AsgError::Setting { name, .. } => match *name {
+                "iterations" => "--iterations",
+                "warm_iterations" => "--warm-iterations",
+                "temporal_weight" => "--temporal-weight",
+                _ => "",
+            },
+            _ => "",
+        };
+        if flag.is_empty() {
+            anyhow!(e).context("invalid fit-asg options")
+        } else {
+            anyhow!("invalid {flag}: {e}")
+        }
+    })?;
     let mut source: Box<dyn FrameSource> = if args.inputs.is_empty() {
         let options = SkyOptions {
             frames: args.frames.map_or(Some(10), |n| (n > 0).then_some(n)),
