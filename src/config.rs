@@ -375,7 +375,8 @@ impl RawConfig {
             };
             *value = Path::new(&base).join(value.as_str()).display().to_string();
         };
-        for value in self.source.paths.iter_mut().flatten() {
+        // A `v4l2:` entry stays as written, for validation to name it.
+        for value in (self.source.paths.iter_mut().flatten()).filter(|v| !v.starts_with("v4l2:")) {
             resolve(value, true);
         }
         for value in [
@@ -1119,6 +1120,13 @@ impl RawSource {
                 "an empty path names no file (it read the config file's own folder)",
             ));
         }
+        if let Some(camera) = paths.iter().find(|p| p.starts_with("v4l2:")) {
+            return Err(invalid(
+                "source.paths",
+                camera,
+                "a camera is not a path: set source.kind = \"v4l2\" and camera.device",
+            ));
+        }
         match kind {
             SourceKind::Sequence if paths.is_empty() => {
                 return Err(invalid(
@@ -1819,6 +1827,21 @@ mod tests {
             let e = error(text);
             assert!(e.contains(key) && e.contains(value), "{text}: {e}");
         }
+    }
+
+    /// A camera among a config file's `source.paths` is named as such (it was made relative to
+    /// the config's folder and reported as a missing file).
+    #[test]
+    fn a_camera_in_source_paths_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cam.toml");
+        let text = "[source]\nkind = \"sequence\"\npaths = [\"v4l2:/dev/video0\"]\n";
+        std::fs::write(&path, text).unwrap();
+        let e = Config::from_file(&path).err().unwrap().to_string();
+        assert!(
+            e.contains("source.paths = \"v4l2:/dev/video0\"") && e.contains("camera.device"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -1023,13 +1023,16 @@ async fn monitor_health(
         let lost = health.is_stale();
         if lost {
             // Every tick: a slow stage may publish a set fitted to a frame from before the loss.
+            // The source is tested again under each channel's lock: it is marked healthy
+            // before its first fresh frame is published, so that frame is never marked stale.
+            let still_lost = || health.is_stale();
             if let Some(asg) = &asg_stale {
-                asg.mark_stale();
+                asg.mark_stale_if(still_lost);
             }
             if let Some(wavelet) = &wavelet_stale {
-                wavelet.mark_stale();
+                wavelet.mark_stale_if(still_lost);
             }
-            stale.mark_stale();
+            stale.mark_stale_if(still_lost);
         }
         if lost && !was_lost {
             tracing::warn!(
@@ -1228,4 +1231,55 @@ fn respond<B>(
         );
     }
     response
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::light::LightFrame;
+    use crate::publication::{publish, Latest};
+
+    /// The health monitor marks the newest lights stale when the source is lost and, when it
+    /// is back, leaves them stale until a fresh frame is published: the old lights are never
+    /// published again as live (they were, with the stale frame's seq, before the fresh ones).
+    #[test]
+    fn a_source_that_comes_back_is_not_served_its_old_lights_as_live() {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        runtime.block_on(async {
+            let (tx, rx) = watch::channel::<Latest<LightFrame>>(None);
+            let tx = Arc::new(tx);
+            let health = Arc::new(SourceHealth::default());
+            let newest = || rx.borrow().clone().unwrap();
+            publish(&tx, Arc::new(LightFrame::default()), None, Duration::ZERO);
+            let monitor = tokio::spawn(monitor_health(
+                Arc::clone(&health),
+                StaleHandle::new(Arc::clone(&tx)),
+                None,
+                None,
+            ));
+            health.mark_failure("unplugged");
+            let deadline = Instant::now() + Duration::from_secs(10);
+            while !newest().stale {
+                assert!(Instant::now() < deadline, "never marked stale");
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+            let stale = newest();
+            assert_eq!(stale.index, 2);
+            health.mark_ok();
+            // Six ticks of the monitor: nothing is published until a fresh frame is.
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            assert!(
+                Arc::ptr_eq(&newest(), &stale),
+                "the stale lights were re-published"
+            );
+            publish(&tx, Arc::new(LightFrame::default()), None, Duration::ZERO);
+            tokio::time::sleep(Duration::from_millis(150)).await;
+            let fresh = newest();
+            assert_eq!((fresh.index, fresh.stale), (3, false));
+            monitor.abort();
+        });
+    }
 }

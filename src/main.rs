@@ -495,7 +495,7 @@ struct DecomposeArgs {
         value_name = "W,W,…",
         value_delimiter = ',',
         num_args = 1,
-        allow_negative_numbers = true,
+        allow_hyphen_values = true,
         value_parser = parse_tap
     )]
     taps: Option<Vec<f64>>,
@@ -826,6 +826,7 @@ impl DecomposeArgs {
         if let Some(f) = self.split_factor {
             dec.split = Some(true);
             dec.split_factor = Some(f);
+            note("decompose.split", "--split-factor");
             note("decompose.split_factor", "--split-factor");
         }
         if let Some(b) = self.bright_history {
@@ -872,9 +873,11 @@ impl DecomposeArgs {
     }
 }
 
-/// The command line, parsed with every option that takes a value accepting one that starts
-/// with '-' and a digit: `--fps -5` then reports the option's own range (clap would otherwise
-/// take `-5` for an unknown flag and suggest `-- -5`, which does not help).
+/// The command line, parsed with every option that takes a value accepting a negative number
+/// (clap's test: `-` then digits, a point and an exponent, as in `-5`, `-0.5`, `-1e3`): `--fps
+/// -5` then reports the option's own range (clap would otherwise take `-5` for an unknown flag
+/// and suggest `-- -5`, which does not help). The comma lists that may hold negative numbers
+/// (`--taps`, `--eye`, `--center`) take any value that starts with '-'.
 fn parse_command_line() -> Cli {
     fn allow_negative_values(command: clap::Command) -> clap::Command {
         command

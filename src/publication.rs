@@ -114,9 +114,17 @@ impl<T> StaleHandle<T> {
     /// pass old results off as fresh, with the same seq as the stale frame, before the fresh
     /// ones (a slow stage such as the ASG fits would do so every time).
     pub fn mark_stale(&self) -> bool {
+        self.mark_stale_if(|| true)
+    }
+
+    /// [`StaleHandle::mark_stale`] if `lost` still holds when tested under the channel's lock:
+    /// a source that came back and whose fresh payload was published between a caller's own
+    /// test and this call leaves that payload live (a fresh frame marked stale would stay so
+    /// until the next one, at a slow source's rate).
+    pub fn mark_stale_if(&self, lost: impl FnOnce() -> bool) -> bool {
         let mut changed = false;
         self.0.send_if_modified(|latest| match latest {
-            Some(p) if !p.stale => {
+            Some(p) if !p.stale && lost() => {
                 let payload = Arc::clone(&p.payload);
                 *latest = Some(Publication::after(
                     Some(p),
@@ -153,6 +161,8 @@ mod tests {
         let first = rx.borrow_and_update().clone().unwrap();
         assert_eq!((first.index, *first.payload, first.stale), (1, 7, false));
         assert_eq!(first.compute_time, Duration::from_millis(2));
+        assert!(!stale.mark_stale_if(|| false), "the source is back");
+        assert!(!rx.has_changed().unwrap());
         assert!(stale.mark_stale());
         assert!(!stale.mark_stale(), "already stale");
         let second = rx.borrow_and_update().clone().unwrap();

@@ -605,6 +605,22 @@ fn conflicting_flags_are_named() {
     ]);
     assert_fails_naming(&o, &["invalid --split:", "centroid"]);
     assert!(!stderr(&o).contains("defaults"), "{}", stderr(&o));
+    let o = envlight(&[
+        "decompose",
+        "--split-factor",
+        "2",
+        "--placement",
+        "sample-point",
+    ]);
+    assert_fails_naming(&o, &["invalid --split-factor", "centroid"]);
+    // A comma list that starts with a negative number is the option's value, checked as such.
+    let o = envlight(&["decompose", "--taps", "-1,2,1", "--frames", "1"]);
+    assert_fails_naming(&o, &["--taps"]);
+    assert!(
+        !stderr(&o).contains("unexpected argument"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// `render --out` is a folder: an image file name is refused before anything is created, and

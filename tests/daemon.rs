@@ -926,6 +926,17 @@ fn clients_past_the_limit_are_refused_in_their_own_form() {
         other => panic!("{other:?}"),
     }
 
+    // One past the limit that never subscribes is cut off after 1 s, not the 5 s handshake
+    // timeout of clients within the limit (so a flood of silent connections holds little).
+    let silent = raw_exchange(tcp, b"", false);
+    match silent.last() {
+        Some(Message::Error { code: c, message }) => {
+            assert_eq!(*c, code::BAD_REQUEST);
+            assert!(message.contains("within 1.0 s"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+
     // The first client is still served.
     for _ in 0..3 {
         line.clear();

@@ -354,8 +354,8 @@ pub fn recover_response(
                  more sample pixels"
             )));
         }
-        // The normal equations of g alone: the rows that hold only g (the one fixing the
-        // scale, the smoothness rows) ...
+        // The normal equations of g alone: the rows that hold only g (the smoothness rows;
+        // the scale is fixed below by dropping g(n/2)) ...
         let mut ata = vec![0.0f64; n * n];
         let mut atb = vec![0.0f64; n];
         let mut add_row = |entries: &[(usize, f64)], rhs: f64| {

@@ -1016,7 +1016,13 @@ impl Acceptor {
             .clients_connected
             .get_or_create(&label)
             .inc();
-        let over_limit = previous >= self.ctx.config.max_clients;
+        let max = self.ctx.config.max_clients;
+        let over_limit = previous >= max;
+        let handshake_timeout = if over_limit {
+            self.ctx.config.handshake_timeout.min(OVER_LIMIT_HANDSHAKE)
+        } else {
+            self.ctx.config.handshake_timeout
+        };
         tracing::debug!(client = %name, "client connected");
         Connection {
             ctx: Arc::clone(&self.ctx),
@@ -1024,6 +1030,8 @@ impl Acceptor {
             name,
             shutdown: self.shutdown.clone(),
             over_limit,
+            refuse_unread: previous >= refused_unread(max),
+            handshake_timeout,
             guard,
             written: Arc::new(WriteProgress::new()),
             _done: self.done.clone(),
@@ -1034,6 +1042,16 @@ impl Acceptor {
 /// A bound address as logs show it (`127.0.0.1:7878`; `unknown` if the socket could not say).
 pub(crate) fn shown(address: Option<std::net::SocketAddr>) -> String {
     address.map_or_else(|| "unknown".to_owned(), |a| a.to_string())
+}
+
+/// How long a client past `max_clients` has to send its subscribe (to be refused in its form).
+const OVER_LIMIT_HANDSHAKE: Duration = Duration::from_secs(1);
+
+/// From how many connections on a new one is refused without reading its subscribe: twice
+/// `max_clients` and 16 more (clients past the limit are waited for at most
+/// [`OVER_LIMIT_HANDSHAKE`] each, so only a flood gets this far).
+fn refused_unread(max_clients: usize) -> usize {
+    max_clients.saturating_mul(2).saturating_add(16)
 }
 
 /// An accept error (out of file descriptors, typically): logged, and a short pause so a
@@ -1147,7 +1165,14 @@ struct Connection {
     endpoint: &'static str,
     name: String,
     shutdown: watch::Receiver<Option<String>>,
+    /// Past `max_clients`: refused after its subscribe (in the subscribe's form).
     over_limit: bool,
+    /// So far past `max_clients` ([`refused_unread`]) that it is refused at once, in binary,
+    /// without reading anything: a flood of silent connections holds nothing for long.
+    refuse_unread: bool,
+    /// How long the client has to subscribe: `handshake_timeout`, at most
+    /// [`OVER_LIMIT_HANDSHAKE`] past the limit.
+    handshake_timeout: Duration,
     guard: ClientGuard,
     /// When the connection task last wrote bytes: the write timeout measures a stall from it.
     written: Arc<WriteProgress>,
@@ -1578,6 +1603,9 @@ impl Connection {
         R: AsyncRead + Unpin,
         W: AsyncWrite + Unpin,
     {
+        if self.refuse_unread {
+            return self.too_many_clients();
+        }
         let mut decoder = Decoder::new();
         let mut buf = vec![0u8; 4096];
         let (request, followed) = match self
@@ -1692,7 +1720,7 @@ impl Connection {
     fn handshake_timed_out(&self) -> Close {
         let text = format!(
             "no subscribe message within {:.1} s",
-            self.ctx.config.handshake_timeout.as_secs_f64()
+            self.handshake_timeout.as_secs_f64()
         );
         self.refused(error_code::BAD_REQUEST, text)
     }
@@ -1728,7 +1756,7 @@ impl Connection {
         buf: &mut [u8],
         dialect: &mut Dialect,
     ) -> Result<(Request, bool), Close> {
-        let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
+        let deadline = tokio::time::Instant::now() + self.handshake_timeout;
         let mut shutdown = self.shutdown.clone();
         let mut line: Vec<u8> = Vec::new();
         let mut first = true;
@@ -1814,7 +1842,7 @@ impl Connection {
         config.max_frame_size = Some(protocol::MAX_MESSAGE_LEN);
         // One deadline for the HTTP upgrade and the subscribe together, as on the other
         // endpoints (each had its own, doubling the time a silent client was kept).
-        let deadline = tokio::time::Instant::now() + self.ctx.config.handshake_timeout;
+        let deadline = tokio::time::Instant::now() + self.handshake_timeout;
         let mut stamped = Stamped::new(stream, Arc::clone(&self.written));
         // The upgrade request is read and checked here, then replayed to tungstenite: a
         // request that is no upgrade gets an HTTP answer saying why (tungstenite closed it
@@ -1943,6 +1971,9 @@ impl Connection {
         K: futures_util::Sink<tungstenite::Message, Error = tungstenite::Error> + Unpin,
         S: futures_util::Stream<Item = Result<tungstenite::Message, tungstenite::Error>> + Unpin,
     {
+        if self.refuse_unread {
+            return self.too_many_clients();
+        }
         let mut shutdown = self.shutdown.clone();
         let request = loop {
             let event = tokio::select! {

@@ -269,9 +269,11 @@ pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
     if value.get("lights").is_some() {
         let frame: JsonFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
         if frame.representation != Representation::Lights {
-            return Err(ProtocolError::UnsupportedRepresentation {
-                representation: frame.representation,
-            });
+            // A bad request (5), as for lobes or coefficients under another representation.
+            return Err(ProtocolError::Json(format!(
+                "a frame with lights must have representation \"lights\", not {:?}",
+                frame.representation.name()
+            )));
         }
         // JSON has no NaN, but a huge number parsed as f32 becomes infinite.
         let lights = frame.lights.into_owned();
