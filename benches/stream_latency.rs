@@ -4,7 +4,7 @@
 //!
 //! Not a criterion benchmark (latency percentiles under a paced load are not what criterion
 //! measures); run it with `cargo bench --bench stream_latency` (add `-- --quick` for a short
-//! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp`,
+//! run; other options after `--`: `--clients=1,64,…`, `--transport=uds|tcp|both`,
 //! `--harness=threads|events|both`, `--sender=daemon|floor|both`,
 //! `--fanout=publisher|thread|both` (which thread runs the daemon's fan-out pass: the
 //! decompose thread right after publishing, as the daemon does by default, or the
@@ -12,7 +12,8 @@
 //! `stream.pass_threads`, the daemon's default 2 unless given), `--seconds=S`,
 //! `--decode=in-place|buffered|both` (how the clients decode, below),
 //! `--repeat=N` (each repeat runs every sender once, back to back),
-//! `--spin-idle=off|on|both` (below); docs/performance.md "Streaming"). The whole chain runs
+//! `--spin-idle=off|on|both` (below); an unknown value stops the run; docs/performance.md
+//! "Streaming"). The whole chain runs
 //! in this process so one clock serves both ends: the built-in sky at 60 frames/s → pipeline
 //! (256 lights) → stream server (UDS or TCP, binary frames) → N clients (one blocking thread
 //! each, or one event loop), each stamping the moment a frame's last byte has been read.
@@ -872,18 +873,21 @@ fn main() {
     let harnesses: Vec<Harness> = match option("--harness=").as_deref() {
         Some("events") => vec![Harness::EventLoop],
         Some("both") => vec![Harness::Threads, Harness::EventLoop],
-        _ => vec![Harness::Threads],
+        None | Some("threads") => vec![Harness::Threads],
+        Some(other) => panic!("--harness=threads|events|both, not {other}"),
     };
     let transports: Vec<Transport> = match option("--transport=").as_deref() {
         Some("uds") => vec![Transport::Unix],
         Some("tcp") => vec![Transport::Tcp],
-        _ => vec![Transport::Unix, Transport::Tcp],
+        None | Some("both") => vec![Transport::Unix, Transport::Tcp],
+        Some(other) => panic!("--transport=uds|tcp|both, not {other}"),
     };
     // As the daemon by default: the pass on the decompose thread.
     let daemon_passes: Vec<PassOn> = match option("--fanout=").as_deref() {
         Some("thread") => vec![PassOn::Thread],
         Some("both") => vec![PassOn::Thread, PassOn::Publisher],
-        _ => vec![PassOn::Publisher],
+        None | Some("publisher") => vec![PassOn::Publisher],
+        Some(other) => panic!("--fanout=publisher|thread|both, not {other}"),
     };
     let pass_threads: Vec<usize> = match option("--pass-threads=") {
         Some(list) => list
@@ -901,7 +905,8 @@ fn main() {
     let senders: Vec<Sender> = match option("--sender=").as_deref() {
         Some("floor") => vec![Sender::Floor],
         Some("both") => daemons.chain([Sender::Floor]).collect(),
-        _ => daemons.collect(),
+        None | Some("daemon") => daemons.collect(),
+        Some(other) => panic!("--sender=daemon|floor|both, not {other}"),
     };
     let counts: Vec<usize> = match option("--clients=") {
         Some(list) => list
@@ -920,7 +925,8 @@ fn main() {
     let decodes = match option("--decode=").as_deref() {
         Some("buffered") => vec![Decode::Buffered],
         Some("both") => vec![Decode::InPlace, Decode::Buffered],
-        _ => vec![Decode::InPlace],
+        None | Some("in-place") => vec![Decode::InPlace],
+        Some(other) => panic!("--decode=in-place|buffered|both, not {other}"),
     };
     let spin_modes: Vec<bool> = match option("--spin-idle=").as_deref() {
         Some("on") => vec![true],

@@ -890,8 +890,11 @@ fn parse_command_line() -> Cli {
             })
             .mut_subcommands(allow_negative_values)
     }
-    let matches = allow_negative_values(<Cli as clap::CommandFactory>::command()).get_matches();
-    <Cli as clap::FromArgMatches>::from_arg_matches(&matches).unwrap_or_else(|err| err.exit())
+    let mut command = allow_negative_values(<Cli as clap::CommandFactory>::command());
+    let matches = command.get_matches_mut();
+    // As `Cli::parse` does: an error is formatted with the command's usage before it exits.
+    <Cli as clap::FromArgMatches>::from_arg_matches(&matches)
+        .unwrap_or_else(|err| err.format(&mut command).exit())
 }
 
 fn main() -> ExitCode {
