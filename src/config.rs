@@ -1201,11 +1201,11 @@ impl RawFisheye {
             })?,
         };
         let fov_deg = self.fov_deg.unwrap_or(d.fov_deg);
-        if !(fov_deg.is_finite() && fov_deg > 0.0 && fov_deg < 360.0) {
+        if !(crate::envmap::MIN_FOV_DEG..360.0).contains(&fov_deg) {
             return Err(invalid(
                 "source.fisheye.fov_deg",
                 fov_deg,
-                "must be in (0, 360) degrees",
+                "must be in [1, 360) degrees",
             ));
         }
         if model == FisheyeModel::Orthographic && fov_deg > 180.0 {

@@ -476,7 +476,7 @@ struct DecomposeArgs {
     #[arg(long, value_name = "R")]
     radius: Option<f64>,
 
-    /// Fisheye full field of view in degrees, in (0, 360). [default: 180]
+    /// Fisheye full field of view in degrees, in [1, 360). [default: 180]
     #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
     fov: Option<f64>,
 
@@ -873,17 +873,37 @@ impl DecomposeArgs {
     }
 }
 
-/// The command line, parsed with every option that takes a value accepting a negative number
-/// (clap's test: `-` then digits, a point and an exponent, as in `-5`, `-0.5`, `-1e3`): `--fps
-/// -5` then reports the option's own range (clap would otherwise take `-5` for an unknown flag
-/// and suggest `-- -5`, which does not help). The comma lists that may hold negative numbers
-/// (`--taps`, `--eye`, `--center`) take any value that starts with '-'.
+/// The command line, parsed so that a value starting with '-' reaches its option's parser and
+/// checks: `--fps -5` then reports the option's own range (clap would otherwise take `-5` for
+/// an unknown flag and suggest `-- -5`, which does not help). An option whose values are
+/// numbers (or pairs, sizes or lists of them) takes any value that starts with '-' (`-inf`,
+/// `-1x-1`, `-0.01,0.1`; a flag given where its value should be is then a value its parser
+/// refuses, naming the option); the other options take negative numbers (clap's test: `-5`,
+/// `-0.5`, `-1e3`), so a missing path value is still reported as missing.
 fn parse_command_line() -> Cli {
     fn allow_negative_values(command: clap::Command) -> clap::Command {
+        use std::any::TypeId;
+        let numeric = [
+            TypeId::of::<f64>(),
+            TypeId::of::<f32>(),
+            TypeId::of::<u64>(),
+            TypeId::of::<u32>(),
+            TypeId::of::<u16>(),
+            TypeId::of::<u8>(),
+            TypeId::of::<usize>(),
+            TypeId::of::<(u32, u32)>(),
+            TypeId::of::<[f64; 2]>(),
+            TypeId::of::<glam::Vec3>(),
+        ];
         command
             .mut_args(|arg| {
                 if arg.is_positional() || !arg.get_action().takes_values() {
                     arg
+                } else if numeric
+                    .iter()
+                    .any(|&t| arg.get_value_parser().type_id() == t)
+                {
+                    arg.allow_hyphen_values(true)
                 } else {
                     arg.allow_negative_numbers(true)
                 }

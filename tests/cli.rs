@@ -583,6 +583,24 @@ fn negative_values_are_checked_as_values() {
             stderr(&o)
         );
     }
+    // Numeric options take any value that starts with '-': -inf, negative sizes, a flag given
+    // in the value's place (refused by the option's parser, naming the option).
+    for (option, value) in [
+        ("--fps", "-inf"),
+        ("--sky-size", "-1x-1"),
+        ("--fps", "--frames"),
+    ] {
+        let o = envlight(&["decompose", option, value, "--frames", "1"]);
+        assert_fails_naming(&o, &[option, value]);
+        assert!(
+            !stderr(&o).contains("unexpected argument"),
+            "{}",
+            stderr(&o)
+        );
+    }
+    // Others keep clap's check: a path option followed by a flag is missing its value.
+    let o = envlight(&["decompose", "--out", "--frames", "1"]);
+    assert_fails_naming(&o, &["--out", "a value is required"]);
     let o = envlight(&["fit-asg", "--temporal-weight", "-1", "--frames", "1"]);
     assert_fails_naming(&o, &["temporal_weight", "-1"]);
     // Positional arguments are unchanged: `-5` there is still an unknown flag.
@@ -698,16 +716,19 @@ fn bad_taps_name_the_flag() {
 
 #[test]
 fn bad_fov_names_the_flag() {
-    let o = envlight(&[
-        "decompose",
-        &data("rooitou_park_1k.hdr"),
-        "--projection",
-        "fisheye",
-        "--fov",
-        "400",
-    ]);
-    assert_fails_naming(&o, &["--fov", "400"]);
-    assert_eq!(o.status.code(), Some(1));
+    // Below a degree is no fisheye (1e-308 was accepted).
+    for fov in ["400", "0.5", "1e-308"] {
+        let o = envlight(&[
+            "decompose",
+            &data("rooitou_park_1k.hdr"),
+            "--projection",
+            "fisheye",
+            "--fov",
+            fov,
+        ]);
+        assert_fails_naming(&o, &["--fov", fov, "[1, 360)"]);
+        assert_eq!(o.status.code(), Some(1));
+    }
 }
 
 #[test]

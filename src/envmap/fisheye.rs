@@ -225,12 +225,16 @@ impl Default for FisheyeCalibration {
     }
 }
 
+/// The narrowest field of view a fisheye calibration accepts, degrees: a lens of under a degree
+/// is no fisheye (1e-308 was accepted and mapped the image circle onto a point).
+pub const MIN_FOV_DEG: f64 = 1.0;
+
 /// Why a calibration cannot be used for an image.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 enum CalibrationError {
     #[error("image size {width}x{height} has no pixels")]
     EmptyImage { width: u32, height: u32 },
-    #[error("fisheye fov_deg = {0} must be in (0, 360) degrees")]
+    #[error("fisheye fov_deg = {0} must be in [1, 360) degrees")]
     FieldOfView(f64),
     #[error("fisheye radius = {0} must be a number of pixels in (0, 1e6]")]
     Radius(f64),
@@ -503,7 +507,7 @@ impl FisheyeCalibration {
                 height: h,
             });
         }
-        if !(self.fov_deg > 0.0 && self.fov_deg < 360.0) {
+        if !(MIN_FOV_DEG..360.0).contains(&self.fov_deg) {
             return Err(CalibrationError::FieldOfView(self.fov_deg));
         }
         if !self.rotation_deg.is_finite() {

@@ -13,7 +13,7 @@ mod fisheye;
 pub mod fisheye_detect;
 mod latlong;
 
-pub use fisheye::{FisheyeCalibration, FisheyeModel, MAX_RADIUS_PX};
+pub use fisheye::{FisheyeCalibration, FisheyeModel, MAX_RADIUS_PX, MIN_FOV_DEG};
 
 use glam::DVec3;
 
