@@ -886,15 +886,13 @@ fn clients_past_the_limit_are_refused_in_their_own_form() {
     served.set_read_timeout(Some(TIMEOUT)).unwrap();
     served.write_all(b"{\"subscribe\":{}}\n").unwrap();
     let mut served = std::io::BufReader::new(served);
-    let mut line = String::new();
-    std::io::BufRead::read_line(&mut served, &mut line).unwrap();
-    assert!(
-        matches!(
-            protocol::parse_json_message(line.trim_end()),
-            Ok(Message::Frame(_))
-        ),
-        "{line}"
-    );
+    let mut read_a_frame = || {
+        let mut line = String::new();
+        std::io::BufRead::read_line(&mut served, &mut line).unwrap();
+        let message = protocol::parse_json_message(line.trim_end());
+        assert!(matches!(message, Ok(Message::Frame(_))), "{line}");
+    };
+    read_a_frame();
 
     let (c, message) = json_error(tcp, b"{\"subscribe\":{}}\n");
     assert_eq!(c, code::INTERNAL);
@@ -939,15 +937,7 @@ fn clients_past_the_limit_are_refused_in_their_own_form() {
 
     // The first client is still served.
     for _ in 0..3 {
-        line.clear();
-        std::io::BufRead::read_line(&mut served, &mut line).unwrap();
-        assert!(
-            matches!(
-                protocol::parse_json_message(line.trim_end()),
-                Ok(Message::Frame(_))
-            ),
-            "{line}"
-        );
+        read_a_frame();
     }
     daemon.shutdown().unwrap();
 }
