@@ -1316,9 +1316,6 @@ fn rim_direction(projection: Projection, sw: u32, sh: u32, x: usize, y: usize) -
 mod tests {
     use super::*;
 
-    /// The AVX2 horizontal sums give the portable path's energies and luminances bit for bit,
-    /// on row widths with and without a remainder after the groups of eight.
-    #[cfg(target_arch = "x86_64")]
     /// A pixel long along one image axis only is cut along that axis only: a 2048×1 lat-long
     /// map's pixels (180° down, 0.18° across) into 1 × 256 sub-pixels, not 256 × 256 (which
     /// took 35 s to plan); a 1×512 map's (360° across) into 256 × 1; a square-ish pixel of a
@@ -1340,6 +1337,9 @@ mod tests {
         assert_eq!(split((1024, 512), (7, 200)), (1, 1));
     }
 
+    /// The AVX2 horizontal sums give the portable path's energies and luminances bit for bit,
+    /// on row widths with and without a remainder after the groups of eight.
+    #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_horizontal_sums_equal_the_portable_ones() {
         let Some(simd) = pulp::x86::V3::try_new() else {
