@@ -354,15 +354,25 @@ pub fn recover_response(
                  more sample pixels"
             )));
         }
-        // The normal equations of g alone: the rows that hold only g (the smoothness rows;
-        // the scale is fixed below by dropping g(n/2)) ...
-        let mut ata = vec![0.0f64; n * n];
-        let mut atb = vec![0.0f64; n];
+        // g(n/2) = 0 fixes the scale (the rest of the system does not change when a constant
+        // is added to g and every ln E): that unknown is left out of the normal equations,
+        // which fixes it exactly, where gsolve's row of weight 1 for it was lost in rounding
+        // beside smoothness rows of weight λ²·n². Code z's unknown is row `unknown(z)` of the
+        // m = n − 1 left; terms of g(n/2) are 0 and dropped.
+        let (fixed, m) = (n / 2, n - 1);
+        let unknown = |z: usize| match z.cmp(&fixed) {
+            std::cmp::Ordering::Less => Some(z),
+            std::cmp::Ordering::Equal => None,
+            std::cmp::Ordering::Greater => Some(z - 1),
+        };
+        // The normal equations of g alone: the rows that hold only g (the smoothness rows) ...
+        let mut ata = vec![0.0f64; m * m];
+        let mut atb = vec![0.0f64; m];
         let mut add_row = |entries: &[(usize, f64)], rhs: f64| {
-            for &(i, a) in entries {
+            for (i, a) in entries.iter().filter_map(|&(z, a)| Some((unknown(z)?, a))) {
                 atb[i] += a * rhs;
-                for &(j, b) in entries {
-                    ata[i * n + j] += a * b;
+                for (j, b) in entries.iter().filter_map(|&(z, b)| Some((unknown(z)?, b))) {
+                    ata[i * m + j] += a * b;
                 }
             }
         };
@@ -384,37 +394,22 @@ pub fn recover_response(
                 if w2 == 0.0 {
                     continue;
                 }
-                ata[z * n + z] += w2;
-                atb[z] += w2 * lt;
                 d += w2;
                 rhs_e -= w2 * lt;
-                coupling.push((z, -w2));
+                if let Some(k) = unknown(z) {
+                    ata[k * m + k] += w2;
+                    atb[k] += w2 * lt;
+                    coupling.push((k, -w2));
+                }
             }
             for &(i, bi) in &coupling {
                 atb[i] -= bi * rhs_e / d;
                 for &(j, bj) in &coupling {
-                    ata[i * n + j] -= bi * bj / d;
+                    ata[i * m + j] -= bi * bj / d;
                 }
             }
         }
-        // g(n/2) = 0 fixes the scale (the rest of the system does not change when a constant
-        // is added to g and every ln E): dropping that unknown fixes it exactly, where a row
-        // of weight 1 beside smoothness rows of weight λ²·n² was lost in rounding.
-        let fixed = n / 2;
-        let keep = |i: usize| i != fixed;
-        let mut reduced: Vec<f64> = Vec::with_capacity((n - 1) * (n - 1));
-        for (_, row) in ata.chunks_exact(n).enumerate().filter(|&(i, _)| keep(i)) {
-            reduced.extend(
-                row.iter()
-                    .enumerate()
-                    .filter(|&(j, _)| keep(j))
-                    .map(|(_, &v)| v),
-            );
-        }
-        let reduced_b: Vec<f64> = (atb.iter().enumerate().filter(|&(i, _)| keep(i)))
-            .map(|(_, &v)| v)
-            .collect();
-        let g = cholesky_solve(&mut reduced, &reduced_b, n - 1).map(|mut g| {
+        let g = cholesky_solve(&mut ata, &atb, m).map(|mut g| {
             g.insert(fixed, 0.0);
             g
         });
@@ -620,24 +615,18 @@ mod tests {
         assert!(worst < 1e-9, "residual {worst}");
     }
 
-    /// The log irradiances eliminated from the normal equations (what `recover_response`
-    /// solves) give the curve of the full system of g and ln E (Debevec & Malik's gsolve
-    /// as written), assembled and solved here directly.
-    #[test]
-    fn eliminating_the_log_irradiances_gives_the_full_systems_curve() {
-        let (w, h) = (40u32, 30u32);
+    /// Brackets of a synthetic scene of `w`×`h` radiances from 0.02 to 3 taken at `exposures`
+    /// through a gamma-2.2 curve, its green and blue channels bent a little differently.
+    fn graded_brackets((w, h): (u32, u32), exposures: &[f64]) -> Vec<Bracket> {
         let scene: Vec<f64> = (0..w * h)
             .map(|i| 0.02 + 3.0 * f64::from(i % 97) / 97.0 * f64::from(i % 13 + 1) / 13.0)
             .collect();
-        let exposures = [0.1, 0.4, 1.6];
-        let brackets: Vec<Bracket> = exposures
-            .iter()
+        (exposures.iter())
             .map(|&t| Bracket {
                 image: CodeImage {
                     width: w,
                     height: h,
-                    pixels: scene
-                        .iter()
+                    pixels: (scene.iter())
                         .map(|&x| {
                             let v = ((x * t).min(1.0).powf(1.0 / 2.2)) as f32;
                             [v, (v * 0.9).min(1.0), v.powf(1.1)]
@@ -647,7 +636,15 @@ mod tests {
                 exposure_s: t,
                 gain: 1.0,
             })
-            .collect();
+            .collect()
+    }
+
+    /// The log irradiances eliminated from the normal equations (what `recover_response`
+    /// solves) give the curve of the full system of g and ln E (Debevec & Malik's gsolve
+    /// as written), assembled and solved here directly.
+    #[test]
+    fn eliminating_the_log_irradiances_gives_the_full_systems_curve() {
+        let brackets = graded_brackets((40, 30), &[0.1, 0.4, 1.6]);
         let settings = SolveSettings {
             levels: 64,
             lambda: 10.0,
@@ -785,24 +782,7 @@ mod tests {
     /// singular system (the row was lost in rounding beside smoothness rows of λ²·n²).
     #[test]
     fn the_largest_smoothness_weights_still_solve() {
-        let (w, h) = (64u32, 48u32);
-        let scene: Vec<f64> = (0..w * h)
-            .map(|i| 0.02 + 3.0 * f64::from(i % 97) / 97.0 * f64::from(i % 13 + 1) / 13.0)
-            .collect();
-        let brackets: Vec<Bracket> = [0.05, 0.2, 0.8, 3.2]
-            .iter()
-            .map(|&t| Bracket {
-                image: CodeImage {
-                    width: w,
-                    height: h,
-                    pixels: (scene.iter())
-                        .map(|&x| [((x * t).min(1.0).powf(1.0 / 2.2)) as f32; 3])
-                        .collect(),
-                },
-                exposure_s: t,
-                gain: 1.0,
-            })
-            .collect();
+        let brackets = graded_brackets((64, 48), &[0.05, 0.2, 0.8, 3.2]);
         for (levels, lambda) in [(16, 1e6), (256, 1e5), (256, MAX_LAMBDA), (1024, 1e5)] {
             let settings = SolveSettings {
                 levels,
