@@ -1167,8 +1167,9 @@ struct Connection {
     shutdown: watch::Receiver<Option<String>>,
     /// Past `max_clients`: refused after its subscribe (in the subscribe's form).
     over_limit: bool,
-    /// So far past `max_clients` ([`refused_unread`]) that it is refused at once, in binary,
-    /// without reading anything: a flood of silent connections holds nothing for long.
+    /// So far past `max_clients` ([`refused_unread`]) that it is refused at once without
+    /// reading anything (in binary; on the WebSocket port with HTTP 503): a flood of silent
+    /// connections holds nothing for long.
     refuse_unread: bool,
     /// How long the client has to subscribe: `handshake_timeout`, at most
     /// [`OVER_LIMIT_HANDSHAKE`] past the limit.
@@ -1277,12 +1278,13 @@ enum Upgrade<S> {
 }
 
 /// Answers a refused upgrade with its status and the reason as a plain-text body (426 names
-/// the WebSocket version spoken), then closes the connection.
+/// the WebSocket version spoken; 503 is a server past its client limit), then closes the
+/// connection.
 async fn answer_refused_upgrade<S: AsyncWrite + Unpin>(mut stream: S, status: u16, reason: &str) {
-    let phrase = if status == 426 {
-        "Upgrade Required\r\nSec-WebSocket-Version: 13"
-    } else {
-        "Bad Request"
+    let phrase = match status {
+        426 => "Upgrade Required\r\nSec-WebSocket-Version: 13",
+        503 => "Service Unavailable",
+        _ => "Bad Request",
     };
     let body = format!("{reason}\n");
     let response = format!(
@@ -1837,6 +1839,13 @@ impl Connection {
     // WebSocket
 
     async fn serve_websocket(self, stream: tokio::net::TcpStream) {
+        if self.refuse_unread {
+            // Before reading anything, so no WebSocket message can carry it: HTTP 503.
+            if let Close::Error(_, text) = self.too_many_clients() {
+                answer_refused_upgrade(stream, 503, &text).await;
+            }
+            return;
+        }
         let mut config = tungstenite::protocol::WebSocketConfig::default();
         config.max_message_size = Some(protocol::MAX_MESSAGE_LEN);
         config.max_frame_size = Some(protocol::MAX_MESSAGE_LEN);
@@ -1971,9 +1980,6 @@ impl Connection {
         K: futures_util::Sink<tungstenite::Message, Error = tungstenite::Error> + Unpin,
         S: futures_util::Stream<Item = Result<tungstenite::Message, tungstenite::Error>> + Unpin,
     {
-        if self.refuse_unread {
-            return self.too_many_clients();
-        }
         let mut shutdown = self.shutdown.clone();
         let request = loop {
             let event = tokio::select! {
