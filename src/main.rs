@@ -469,7 +469,7 @@ struct DecomposeArgs {
     fisheye_model: Option<FisheyeModelArg>,
 
     /// Fisheye image-circle centre in pixels. [default: image centre]
-    #[arg(long, value_name = "X,Y", value_parser = parse_pair, allow_hyphen_values = true)]
+    #[arg(long, value_name = "X,Y", value_parser = parse_pair)]
     center: Option<[f64; 2]>,
 
     /// Fisheye image-circle radius in pixels, in (0, 1e6]. [default: half the shorter side]
@@ -477,11 +477,11 @@ struct DecomposeArgs {
     radius: Option<f64>,
 
     /// Fisheye full field of view in degrees, in [1, 360). [default: 180]
-    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    #[arg(long, value_name = "DEG")]
     fov: Option<f64>,
 
     /// Fisheye rotation about the zenith in degrees. [default: 0]
-    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    #[arg(long, value_name = "DEG")]
     rotation: Option<f64>,
 
     /// Disable the temporal FIR filter.
@@ -495,7 +495,6 @@ struct DecomposeArgs {
         value_name = "W,W,…",
         value_delimiter = ',',
         num_args = 1,
-        allow_hyphen_values = true,
         value_parser = parse_tap
     )]
     taps: Option<Vec<f64>>,
@@ -699,28 +698,19 @@ impl DecomposeArgs {
             }
             src.looped = Some(true);
         }
-        if let Some(p) = self
-            .projection
-            .filter(|p| !matches!(p, ProjectionArg::Latlong))
-        {
-            if src.kind.as_deref().unwrap_or("sky") == "sky" {
+        if let Some(p) = self.projection {
+            let name = match p {
+                ProjectionArg::Latlong => "latlong",
+                ProjectionArg::Fisheye => "fisheye",
+                ProjectionArg::Angular => "angular",
+            };
+            if name != "latlong" && src.kind.as_deref().unwrap_or("sky") == "sky" {
                 usage_error!(
-                    "--projection {} maps INPUT files or a camera; the built-in sky is always \
-                     lat-long",
-                    p.to_possible_value()
-                        .map_or_else(|| "?".to_owned(), |v| v.get_name().to_owned())
+                    "--projection {name} maps INPUT files or a camera; the built-in sky is always \
+                     lat-long"
                 );
             }
-        }
-        if let Some(p) = self.projection {
-            src.projection = Some(
-                match p {
-                    ProjectionArg::Latlong => "latlong",
-                    ProjectionArg::Fisheye => "fisheye",
-                    ProjectionArg::Angular => "angular",
-                }
-                .into(),
-            );
+            src.projection = Some(name.into());
             note("source.projection", "--projection");
         }
         let fisheye_flags = self.fisheye_model.is_some()

@@ -386,7 +386,7 @@ impl ReplaySource {
             let path = path.to_path_buf();
             move |source| CaptureError::Io { path, source }
         };
-        if !dir.is_dir() || !session_path.exists() {
+        if !session_path.exists() {
             return Err(CaptureError::Format {
                 path: dir.to_path_buf(),
                 message: if dir.is_dir() {

@@ -125,7 +125,7 @@ pub struct RelightArgs {
     #[arg(long, value_parser = crate::parse_finite_f32)]
     alpha: Option<f32>,
     /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
-    #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
     eye: Option<Vec3>,
     /// Vertices compared with brute-force integration per frame (0: no check); unlit ones are
     /// left out of the comparison.
