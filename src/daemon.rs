@@ -1244,8 +1244,11 @@ mod tests {
     /// published again as live (they were, with the stale frame's seq, before the fresh ones).
     #[test]
     fn a_source_that_comes_back_is_not_served_its_old_lights_as_live() {
+        // A paused clock: each sleep below lets the monitor's interval tick exactly as often
+        // as it says, however loaded the machine.
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
+            .start_paused(true)
             .build()
             .unwrap();
         runtime.block_on(async {
