@@ -1788,12 +1788,13 @@ struct FitAsgArgs {
     lobes: usize,
     /// Adam iterations of the first frame at full size, each taking its gradient on a rotating
     /// quarter of the map (the default, about 2,000 whole-map iterations, converges); at most
-    /// 10^7.
+    /// 10^7. 0 keeps the greedy peak-picking initialisation as the fit.
     #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().iterations)]
     iterations: usize,
     /// Adam iterations of each warm-started frame (after a centroid step for narrow lobes;
     /// continuing the previous frame's Adam state; L_T applied as a proximal step); at most
-    /// 10^7.
+    /// 10^7. 0 keeps the previous frame's lobes, only narrow ones (min(λ, μ) ≥ 100) moved by
+    /// the centroid step.
     #[arg(long, default_value_t = envlight::asg::fit::FitSettings::default().warm_iterations)]
     warm_iterations: usize,
     /// Fit-map height (width is twice), 4..=1024.
