@@ -942,6 +942,57 @@ fn clients_past_the_limit_are_refused_in_their_own_form() {
     daemon.shutdown().unwrap();
 }
 
+/// A flood: from 2 × `max_clients` + 16 connections on, a new one is refused at once without
+/// reading anything: error 100 in binary on the TCP port (where a client past the limit but
+/// under the flood mark would wait 1 s for a subscribe and get error 5), HTTP 503 before any
+/// upgrade on the WebSocket port. Silent connections count for 1 s each, so the test opens
+/// them back to back and tries again if a stall on a loaded machine let them expire first.
+#[test]
+fn a_flood_of_connections_is_refused_unread() {
+    let dir = tempfile::tempdir().unwrap();
+    let config =
+        common::config_with_stream(dir.path(), 5.0, "max_clients = 1\n", common::SMALL_SKY);
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
+    let addresses = daemon.addresses();
+    let tcp = addresses.stream.tcp.unwrap();
+    let websocket = addresses.stream.websocket.unwrap();
+    let served = reading_client(&Endpoint::Tcp(tcp.to_string()), "served client");
+
+    let mut outcome = String::new();
+    for _attempt in 0..3 {
+        // With the served client, 2 × 1 + 16 = 18 connections: the next ones are the flood.
+        let silent: Vec<TcpStream> = (0..17).map(|_| TcpStream::connect(tcp).unwrap()).collect();
+        let started = Instant::now();
+        let refused = raw_exchange(tcp, b"", false);
+        let mut ws = TcpStream::connect(websocket).unwrap();
+        ws.set_read_timeout(Some(TIMEOUT)).unwrap();
+        let mut answer = String::new();
+        let _ = ws.read_to_string(&mut answer);
+        let in_time = started.elapsed() < Duration::from_millis(900);
+        drop(silent);
+        match refused.as_slice() {
+            [Message::Error { code: c, message }]
+                if *c == code::INTERNAL && answer.starts_with("HTTP/1.1 503") =>
+            {
+                assert!(message.contains("too many clients (limit 1)"), "{message}");
+                assert!(answer.contains("too many clients"), "{answer}");
+                // The served client keeps receiving after the flood.
+                let after = daemon.pipeline().stats().frames_decomposed + 3;
+                wait_until("frames after the flood", || {
+                    daemon.pipeline().stats().frames_decomposed >= after
+                });
+                daemon.shutdown().unwrap();
+                assert_stayed_to_the_goodbye(&served.join().unwrap(), 3);
+                return;
+            }
+            _ => outcome = format!("{refused:?} / {answer:?} (within 0.9 s: {in_time})"),
+        }
+        // Let the silent connections' count drain before the next attempt.
+        std::thread::sleep(Duration::from_millis(1200));
+    }
+    panic!("a flood was not refused unread: {outcome}");
+}
+
 #[test]
 fn metrics_and_health_over_http() {
     let dir = tempfile::tempdir().unwrap();
