@@ -5,7 +5,8 @@
 //! (Havran et al. 2005). See `DESIGN.md` in the shared folder for the whole pipeline.
 //!
 //! The CPU math (`envmap`, `decompose`, `yardstick`) has no async, no GPU and no I/O; `capture`
-//! reads frames; `stream` holds the wire format for light lists; `main.rs` is only the command line.
+//! reads frames; `stream` holds the wire format for light lists; the binary (`main.rs` and `cli/`) is only
+//! the command line.
 
 // Per-channel loops `for c in 0..3` over rgb triples read better than zipped iterators.
 #![allow(clippy::needless_range_loop)]

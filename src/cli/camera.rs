@@ -83,13 +83,13 @@ pub fn devices() -> Result<()> {
             Err(e) => text += &format!("{}: cannot query: {e}\n", path.display()),
         }
     }
-    crate::cli_output::print(&text)
+    crate::cli::output::print(&text)
 }
 
 pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
     // Checked before the brackets are read and solved: --out replaced an input image.
-    crate::cli_output::check_output_path(&args.out, "--out")?;
-    crate::cli_output::InputFiles::new(&args.images).refuse(&args.out, "--out")?;
+    crate::cli::output::check_output_path(&args.out, "--out")?;
+    crate::cli::output::InputFiles::new(&args.images).refuse(&args.out, "--out")?;
     let brackets: Vec<Bracket> = if let Some(dev) = &args.device {
         let settings = CameraSettings {
             device: dev.clone(),
@@ -204,5 +204,5 @@ pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
         circle.center[1],
         circle.radius,
     );
-    crate::cli_output::print(&text)
+    crate::cli::output::print(&text)
 }

@@ -1,5 +1,6 @@
 //! The `envlight wavelet …` subcommands of the command line: `approx` (sparse wavelet sets of
-//! HDR frames); `relight` and `recover` are in `wavelet_transport_cli.rs`. Only argument handling, I/O and printing; the work is in `envlight::wavelet`.
+//! HDR frames); `relight` and `recover` are in [`super::wavelet_transport`]. Only argument
+//! handling, I/O and printing; the work is in `envlight::wavelet`.
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -43,11 +44,11 @@ enum WaveletCommand {
     #[command(long_about = APPROX_LONG_ABOUT)]
     Approx(ApproxArgs),
     /// Relight a static mesh with wavelet lighting, frame by frame (precomputed transport).
-    #[command(long_about = crate::wavelet_transport_cli::RELIGHT_LONG_ABOUT)]
-    Relight(crate::wavelet_transport_cli::RelightArgs),
+    #[command(long_about = crate::cli::wavelet_transport::RELIGHT_LONG_ABOUT)]
+    Relight(crate::cli::wavelet_transport::RelightArgs),
     /// Recover lighting from synthetic observations of a known object (hierarchical refinement).
-    #[command(long_about = crate::wavelet_transport_cli::RECOVER_LONG_ABOUT)]
-    Recover(crate::wavelet_transport_cli::RecoverArgs),
+    #[command(long_about = crate::cli::wavelet_transport::RECOVER_LONG_ABOUT)]
+    Recover(crate::cli::wavelet_transport::RecoverArgs),
 }
 
 /// Projection of INPUT files.
@@ -72,7 +73,7 @@ impl From<ProjectionArg> for Projection {
 #[derive(Args, Debug)]
 pub struct FrameInput {
     /// .exr/.hdr files, directories or glob patterns (quote globs). None: the built-in sky.
-    #[arg(value_name = "INPUT", value_parser = crate::Utf8Input)]
+    #[arg(value_name = "INPUT", value_parser = crate::cli::Utf8Input)]
     inputs: Vec<String>,
     /// Projection of the INPUT files. [default: latlong]
     #[arg(long, value_enum)]
@@ -96,7 +97,7 @@ impl FrameInput {
                 .projection
                 .is_some_and(|p| !matches!(p, ProjectionArg::Latlong))
         {
-            crate::usage_error!(
+            crate::cli::usage_error!(
                 "--projection describes INPUT files; the built-in sky is a lat-long map"
             );
         }
@@ -191,8 +192,8 @@ pub struct ApproxArgs {
 pub fn run(args: &WaveletArgs) -> Result<()> {
     match &args.command {
         WaveletCommand::Approx(a) => approx(a),
-        WaveletCommand::Relight(a) => crate::wavelet_transport_cli::relight(a),
-        WaveletCommand::Recover(a) => crate::wavelet_transport_cli::recover(a),
+        WaveletCommand::Relight(a) => crate::cli::wavelet_transport::relight(a),
+        WaveletCommand::Recover(a) => crate::cli::wavelet_transport::recover(a),
     }
 }
 
@@ -228,11 +229,11 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         );
     }
     if let Some(path) = &args.reconstruct {
-        crate::cli_output::require_exr_name(path, "--reconstruct")?;
+        crate::cli::output::require_exr_name(path, "--reconstruct")?;
     }
     let mut source = args.input.open()?;
-    let mut inputs = crate::cli_output::InputFiles::new(source.files());
-    let mut writer = std::io::BufWriter::new(crate::cli_output::open_output(
+    let mut inputs = crate::cli::output::InputFiles::new(source.files());
+    let mut writer = std::io::BufWriter::new(crate::cli::output::open_output(
         args.out.as_deref(),
         "--out",
         &inputs,
@@ -277,7 +278,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             let rec = set
                 .reconstruct()
                 .with_context(|| format!("cannot reconstruct frame {}", frame.seq))?;
-            crate::cli_output::write_rgb_exr(
+            crate::cli::output::write_rgb_exr(
                 &path,
                 "--reconstruct",
                 &inputs,
@@ -294,7 +295,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         };
         let line = serde_json::to_string(&line).context("cannot encode a frame")?;
         match writeln!(writer, "{line}") {
-            Err(e) if args.out.is_none() && crate::cli_output::is_broken_pipe(&e) => return Ok(()),
+            Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => return Ok(()),
             r => r.with_context(|| format!("cannot write to {out_name}"))?,
         }
         tracing::info!(
@@ -307,7 +308,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         );
     }
     match writer.flush() {
-        Err(e) if args.out.is_none() && crate::cli_output::is_broken_pipe(&e) => Ok(()),
+        Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => Ok(()),
         r => r.with_context(|| format!("cannot write to {out_name}")),
     }
 }

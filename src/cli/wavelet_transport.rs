@@ -2,7 +2,7 @@
 //! printing for wavelet relighting and hierarchical lighting recovery. The work is in
 //! `envlight::wavelet::{visibility, relight, triple, inverse}`.
 
-use crate::wavelet_cli::FrameInput;
+use crate::cli::wavelet::FrameInput;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use envlight::render::scene::Scene;
@@ -119,10 +119,10 @@ pub struct RelightArgs {
     #[arg(long, value_enum, default_value_t = BrdfArg::Lambert)]
     brdf: BrdfArg,
     /// Phong exponent for --brdf phong (≥ 0). [default: 32]
-    #[arg(long, value_parser = crate::parse_finite_f32)]
+    #[arg(long, value_parser = crate::cli::parse_finite_f32)]
     exponent: Option<f32>,
     /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1). [default: 0.3]
-    #[arg(long, value_parser = crate::parse_finite_f32)]
+    #[arg(long, value_parser = crate::cli::parse_finite_f32)]
     alpha: Option<f32>,
     /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
@@ -156,7 +156,7 @@ pub struct RecoverArgs {
     #[arg(long, value_name = "N", default_value_t = 4)]
     views: usize,
     /// Phong exponent of the observed sphere (≥ 0).
-    #[arg(long, default_value_t = 32.0, value_parser = crate::parse_finite_f32)]
+    #[arg(long, default_value_t = 32.0, value_parser = crate::cli::parse_finite_f32)]
     exponent: f32,
     /// Gaussian noise, as a fraction of the RMS observed radiance (0..=100).
     #[arg(long, default_value_t = 0.01)]
@@ -233,7 +233,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         );
     }
     if args.ground && args.scene.is_none() {
-        crate::usage_error!(
+        crate::cli::usage_error!(
             "--ground adds a ground plane under a --scene file; the built-in scene has one"
         );
     }
@@ -241,13 +241,13 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         BrdfArg::Lambert
             if args.exponent.is_some() || args.alpha.is_some() || args.eye.is_some() =>
         {
-            crate::usage_error!("--exponent, --alpha and --eye apply to --brdf phong or ggx")
+            crate::cli::usage_error!("--exponent, --alpha and --eye apply to --brdf phong or ggx")
         }
         BrdfArg::Phong if args.alpha.is_some() => {
-            crate::usage_error!("--alpha applies to --brdf ggx; --brdf phong takes --exponent")
+            crate::cli::usage_error!("--alpha applies to --brdf ggx; --brdf phong takes --exponent")
         }
         BrdfArg::Ggx if args.exponent.is_some() => {
-            crate::usage_error!("--exponent applies to --brdf phong; --brdf ggx takes --alpha")
+            crate::cli::usage_error!("--exponent applies to --brdf phong; --brdf ggx takes --alpha")
         }
         _ => {}
     }
@@ -259,15 +259,15 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
     if let Some(scene) = &args.scene {
         read.extend(envlight::render::scene::scene_files(scene));
     }
-    let inputs = crate::cli_output::InputFiles::new(&read);
+    let inputs = crate::cli::output::InputFiles::new(&read);
     for (path, option) in [(&args.json, "--json"), (&args.out, "--out")] {
         if let Some(path) = path {
             inputs.refuse(path, option)?;
-            crate::cli_output::check_output_path(path, option)?;
+            crate::cli::output::check_output_path(path, option)?;
         }
     }
     if let (Some(json), Some(out)) = (&args.json, &args.out) {
-        if crate::cli_output::same_file(json, out) {
+        if crate::cli::output::same_file(json, out) {
             bail!(
                 "--out {} is also the --json output {}: the two outputs would overwrite each \
                  other; choose another output path",
@@ -321,7 +321,7 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         seconds = t0.elapsed().as_secs_f64(),
         "visibility and transport precomputed"
     );
-    let mut json = crate::cli_output::open_output(args.json.as_deref(), "--json", &inputs)?;
+    let mut json = crate::cli::output::open_output(args.json.as_deref(), "--json", &inputs)?;
     let json_name = args
         .json
         .as_ref()
@@ -391,12 +391,12 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         let mut text = serde_json::to_string(&line).context("cannot encode a frame")?;
         text.push('\n');
         match json.write_all(text.as_bytes()).and_then(|()| json.flush()) {
-            Err(e) if args.json.is_none() && crate::cli_output::is_broken_pipe(&e) => break,
+            Err(e) if args.json.is_none() && crate::cli::output::is_broken_pipe(&e) => break,
             r => r.with_context(|| format!("cannot write to {json_name}"))?,
         }
     }
     if let Some(path) = &args.out {
-        let mut w = std::io::BufWriter::new(crate::cli_output::create(path, "--out", &inputs)?);
+        let mut w = std::io::BufWriter::new(crate::cli::output::create(path, "--out", &inputs)?);
         let written = (|| -> std::io::Result<()> {
             writeln!(w, "x,y,z,r,g,b")?;
             for (p, o) in mesh.positions.iter().zip(&out) {
@@ -430,7 +430,7 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
         bail!("invalid --views {}: expected 1..={MAX_VIEWS}", args.views);
     }
     if args.input.frames_given() {
-        crate::usage_error!(
+        crate::cli::usage_error!(
             "wavelet recover uses the first frame of INPUT (or the sky); --frames does not apply"
         );
     }
@@ -442,22 +442,22 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
         );
     }
     if args.seed.is_some() && args.noise == 0.0 {
-        crate::usage_error!("--seed seeds the noise; with --noise 0 there is none");
+        crate::cli::usage_error!("--seed seeds the noise; with --noise 0 there is none");
     }
     let mut source = args.input.open()?;
     let files = source.files();
     if files.len() > 1 {
-        crate::usage_error!(
+        crate::cli::usage_error!(
             "wavelet recover uses one frame; INPUT names {} files ({} first)",
             files.len(),
             files[0].display()
         );
     }
-    let inputs = crate::cli_output::InputFiles::new(files);
+    let inputs = crate::cli::output::InputFiles::new(files);
     if let Some(path) = &args.out {
         inputs.refuse(path, "--out")?;
-        crate::cli_output::check_output_path(path, "--out")?;
-        crate::cli_output::require_exr_name(path, "--out")?;
+        crate::cli::output::check_output_path(path, "--out")?;
+        crate::cli::output::require_exr_name(path, "--out")?;
     }
     let frame = source
         .next_frame()
@@ -536,14 +536,14 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
             })
             .collect(),
     };
-    crate::cli_output::print(&(serde_json::to_string(&report)? + "\n"))?;
+    crate::cli::output::print(&(serde_json::to_string(&report)? + "\n"))?;
     if let Some(path) = &args.out {
         let planes: Vec<Vec<f64>> = rec
             .planes
             .iter()
             .map(|p| grid.reconstruct(p))
             .collect::<Result<_, _>>()?;
-        crate::cli_output::write_rgb_exr(
+        crate::cli::output::write_rgb_exr(
             path,
             "--out",
             &inputs,

@@ -1,0 +1,271 @@
+//! `envlight run`, `envlight record` and `envlight check-config`: the daemon's command line
+//! (the daemon itself is `envlight::daemon`).
+
+use super::{on_off, split_description, Utf8Input};
+use anyhow::{anyhow, Context, Result};
+use clap::Args;
+use envlight::config::{Config, ConfigError};
+use envlight::daemon::{Daemon, DaemonOptions};
+use envlight::record::Pacing;
+use std::path::{Path, PathBuf};
+
+pub(crate) const RUN_LONG_ABOUT: &str = "\
+Run envlight as a daemon: a capture thread feeds frames to a decomposition thread, whose light
+lists are served to any number of clients over a Unix domain socket, TCP and WebSocket
+(docs/protocol.md), with Prometheus metrics and a health check over HTTP.
+
+Endpoints and every other setting come from --config (see config/envlight.toml); without it the
+built-in sky is served on the defaults: unix:/run/envlight/envlight.sock, tcp:127.0.0.1:7878,
+ws://127.0.0.1:7879/ and http://127.0.0.1:9898/metrics (and /health). A daemon's sky runs until
+stopped, at 30 frames/s, unless [source] sets `frames` or `fps` (envlight decompose's sky: 60
+frames, as fast as possible).
+
+Signals: SIGTERM / SIGINT shut down gracefully (clients get a goodbye, the socket file is
+removed); SIGHUP reloads --config: [decompose] applies from the next frame, other changed
+sections are reported as needing a restart, and a bad file changes nothing. Under systemd
+(Type=notify) it reports READY, RELOADING and STOPPING and feeds the watchdog.
+
+--replay DIR plays a recording (envlight record) at its original timing (--fast: as fast as
+possible) with the recording's decomposition settings and no dropped frames, reproducing the
+recorded light stream. A finite source ends the daemon once it has been served.";
+
+pub(crate) const RECORD_LONG_ABOUT: &str = "\
+Run the daemon (as `envlight run`) and record the session into --out DIR, which must be new or
+empty: session.json (source, decomposition settings), frames.jsonl (seq, capture time, file and
+projection of every frame that reached the decomposition), frames/NNNNNN.exr (32-bit float
+linear RGB, 12 bytes per pixel: 47 MB/s for the 512x256 sky at 30 frames/s) and lights.jsonl
+(the emitted light stream, as `envlight decompose` prints it). It records until SIGINT/SIGTERM
+(Ctrl-C) or the end of a finite source; the built-in sky, unless [source] sets `frames`, runs
+until stopped. Replay with `envlight run --replay DIR`.";
+
+#[derive(Args, Debug)]
+pub(crate) struct DaemonArgs {
+    /// Config file (TOML; see config/envlight.toml). Reloaded on SIGHUP.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Input frames instead of the configured source: .exr/.hdr files, directories or globs.
+    #[arg(value_name = "INPUT", value_parser = Utf8Input)]
+    inputs: Vec<String>,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct RunArgs {
+    #[command(flatten)]
+    daemon: DaemonArgs,
+    /// Replay a recording made by `envlight record` instead of the configured source.
+    #[arg(long, value_name = "DIR", conflicts_with = "inputs")]
+    replay: Option<PathBuf>,
+    /// With --replay: as fast as possible instead of at the original timing.
+    #[arg(long, requires = "replay")]
+    fast: bool,
+    /// Also record the session into DIR (new or empty).
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct RecordArgs {
+    #[command(flatten)]
+    daemon: DaemonArgs,
+    /// The recording directory (created; must be new or empty).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct CheckConfigArgs {
+    /// The config file; without it the built-in defaults are checked and shown.
+    #[arg(value_name = "FILE")]
+    file: Option<PathBuf>,
+}
+
+/// INPUT files of `envlight run`/`record`, which replace `[source]`.
+fn source_paths(args: &DaemonArgs) -> Option<Vec<String>> {
+    (!args.inputs.is_empty()).then(|| args.inputs.clone())
+}
+
+/// Loads the config (defaults without --config) with INPUT as the source.
+fn daemon_config(args: &DaemonArgs) -> Result<Config> {
+    let paths = source_paths(args);
+    envlight::daemon::read_config(args.config.as_deref(), paths.as_deref())
+        .map_err(|e| naming_the_file(e, args.config.as_deref()))
+}
+
+/// A config error that names `path`: an invalid value names only its key (read and parse
+/// errors name the file already).
+fn naming_the_file(e: ConfigError, path: Option<&Path>) -> anyhow::Error {
+    match (path, &e) {
+        (Some(path), ConfigError::Invalid { .. }) => {
+            anyhow!(e).context(format!("invalid setting in {}", path.display()))
+        }
+        _ => anyhow!(e),
+    }
+}
+
+fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
+    let config = daemon_config(args)?;
+    envlight::daemon::hold_stop_signals();
+    let daemon = Daemon::start(config, options)?;
+    let addresses = daemon.addresses().clone();
+    if let Some(path) = &addresses.stream.unix_socket {
+        tracing::info!("clients: envlight subscribe unix:{}", path.display());
+    }
+    if let Some(addr) = addresses.stream.tcp {
+        tracing::info!("clients: envlight subscribe tcp:{addr}");
+    }
+    if let Some(addr) = addresses.stream.websocket {
+        tracing::info!("clients: envlight subscribe ws://{addr}/");
+    }
+    if let Some(addr) = addresses.metrics {
+        tracing::info!("metrics: http://{addr}/metrics, health: http://{addr}/health");
+    }
+    let (_reason, summary) = daemon.run(args.config.as_deref())?;
+    if let Some(recorded) = summary.recorded {
+        tracing::info!("recorded {} frames", recorded.frames);
+    }
+    Ok(())
+}
+
+pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
+    let (config, name) = match &args.file {
+        Some(path) => (
+            Config::from_file(path).map_err(|e| naming_the_file(e, Some(path)))?,
+            path.display().to_string(),
+        ),
+        None => (Config::default(), "the built-in defaults".to_owned()),
+    };
+    use std::fmt::Write as _;
+    let off = |a: Option<String>| a.unwrap_or_else(|| "off".to_owned());
+    let mut text = String::new();
+    writeln!(text, "{name}: ok")?;
+    // As `envlight run` reads it (check-config guards the service's config).
+    let daemon_source = envlight::daemon::daemon_source_defaults(config.clone()).source;
+    let frames = match (daemon_source.frames, daemon_source.kind) {
+        (Some(0), _) | (None, envlight::config::SourceKind::V4l2) => "until stopped".to_owned(),
+        (Some(n), _) => format!("{n} frames"),
+        (None, _) if daemon_source.looped => "looped until stopped".to_owned(),
+        (None, _) => "every file once".to_owned(),
+    };
+    let pacing = match (daemon_source.kind, daemon_source.fps) {
+        (envlight::config::SourceKind::V4l2, _) => match config.camera.fps {
+            Some(fps) => format!(
+                "{} frames/s requested from the camera",
+                envlight::config::shown_number(fps)
+            ),
+            None => "at the camera driver's rate".to_owned(),
+        },
+        (_, Some(fps)) => format!("{} frames/s", envlight::config::shown_number(fps)),
+        (_, None) => "as fast as possible".to_owned(),
+    };
+    // The files are looked up as `envlight run` will (a pattern that matches nothing, a
+    // missing file or a folder without frames is an error here too).
+    let paths = match daemon_source.kind {
+        envlight::config::SourceKind::Sequence => {
+            let found = envlight::capture::sequence::SequenceSource::new(
+                &daemon_source.paths,
+                envlight::capture::sequence::SequenceOptions::default(),
+            )
+            .with_context(|| format!("{name}: source.paths"))?;
+            format!(" {:?} ({} files)", daemon_source.paths, found.frame_count())
+        }
+        _ => String::new(),
+    };
+    writeln!(
+        text,
+        "  source: {}{paths}, in envlight run {frames}, {pacing}",
+        daemon_source.kind.name()
+    )?;
+    writeln!(
+        text,
+        "  decompose: {} lights, warp {}, refinement of concentrated sources {}, concentrated \
+         Lloyd step {}, split of bright lights {}, filter {} (bright lights: {}), merge {}",
+        config.decompose.lights,
+        envlight::config::warp_name(config.decompose.warp),
+        on_off(config.decompose.refine_concentrated),
+        on_off(config.decompose.concentrated_lloyd),
+        split_description(config.decompose.split_factor),
+        on_off(config.decompose.filter_taps.is_some()),
+        config.decompose.bright_history.name(),
+        config
+            .decompose
+            .merge_spacing_fraction
+            .map_or("off".to_string(), |f| format!("at {f} of the spacing")),
+    )?;
+    writeln!(
+        text,
+        "  stream: unix {}, tcp {}, websocket {}, at most {} clients",
+        off(config
+            .stream
+            .unix_socket
+            .as_ref()
+            .map(|p| p.display().to_string())),
+        off(config.stream.tcp.map(|a| a.to_string())),
+        off(config.stream.websocket.map(|a| a.to_string())),
+        config.stream.max_clients
+    )?;
+    writeln!(
+        text,
+        "  metrics: {}",
+        off(config.metrics.listen.map(|a| format!("http://{a}/metrics")))
+    )?;
+    if config.asg.enabled {
+        writeln!(
+            text,
+            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {}",
+            config.asg.fit.lobes,
+            2 * config.asg.fit.height,
+            config.asg.fit.height,
+            config.asg.fit.iterations,
+            config.asg.fit.warm_iterations,
+            match config.asg.fit.threads {
+                0 => "a thread per core".to_string(),
+                n => format!("{n} thread(s)"),
+            }
+        )?;
+    } else {
+        writeln!(text, "  asg: off")?;
+    }
+    if config.wavelet.enabled {
+        let w = &config.wavelet.settings;
+        writeln!(
+            text,
+            "  wavelet: {} largest {} coefficients of a {}x{} octahedral map ({} levels)",
+            w.coefficients,
+            w.basis,
+            w.side,
+            w.side,
+            w.levels()
+        )?;
+    } else {
+        writeln!(text, "  wavelet: off")?;
+    }
+    crate::cli::output::print(&text)
+}
+
+/// `envlight run`: the daemon, or the replay of a recording (`--replay DIR`).
+pub(crate) fn run(args: RunArgs) -> Result<()> {
+    let replay = args.replay.map(|dir| {
+        let pacing = if args.fast {
+            Pacing::AsFastAsPossible
+        } else {
+            Pacing::Original
+        };
+        (dir, pacing)
+    });
+    let options = DaemonOptions {
+        replay,
+        record: args.record,
+        source_paths: source_paths(&args.daemon),
+    };
+    run_daemon(&args.daemon, options)
+}
+
+/// `envlight record`: the daemon, recording its session into `--out DIR`.
+pub(crate) fn record(args: RecordArgs) -> Result<()> {
+    let options = DaemonOptions {
+        replay: None,
+        record: Some(args.out),
+        source_paths: source_paths(&args.daemon),
+    };
+    run_daemon(&args.daemon, options)
+}
