@@ -771,10 +771,82 @@ fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
 /// that every primitive attribute names an accessor the file has: gltf-json's validation
 /// indexes the accessors with the POSITION attribute's index unchecked (a panic, found by
 /// `mutated_gltf_and_glb_files_never_panic`).
-fn parse_gltf(bytes: &[u8]) -> Result<gltf::Gltf, String> {
+/// How far from 1 a node's rotation quaternion may be in length before the warning that it was
+/// normalised (glTF requires unit quaternions; files written with few digits miss by ~10⁻⁴).
+const UNIT_QUATERNION_TOLERANCE: f64 = 1e-3;
+
+/// A node's transform as glTF 2.0 allows it (section 5.25): a matrix or translation, rotation
+/// and scale, not both; a matrix that is affine (its last row 0 0 0 1: decomposable into TRS);
+/// finite numbers; a rotation of non-zero length (normalised by the caller).
+fn check_node_transform(node: &gltf::json::Node) -> Result<(), String> {
+    let trs = node.translation.is_some() || node.rotation.is_some() || node.scale.is_some();
+    if let Some(m) = node.matrix {
+        if trs {
+            return Err(
+                "has both a matrix and translation/rotation/scale (glTF allows one \
+                        or the other)"
+                    .into(),
+            );
+        }
+        if !m.iter().all(|v| v.is_finite()) {
+            return Err(format!(
+                "matrix {m:?} has a value that is not a finite number"
+            ));
+        }
+        // Column-major: the last row is elements 3, 7, 11 and 15.
+        if [m[3], m[7], m[11], m[15]] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(format!(
+                "matrix's last row is [{}, {}, {}, {}], not [0, 0, 0, 1]: a projective \
+                 matrix is not a node transform (glTF requires one that decomposes into \
+                 translation, rotation and scale)",
+                m[3], m[7], m[11], m[15]
+            ));
+        }
+    }
+    let vectors = [
+        ("translation", node.translation.map(|v| v.to_vec())),
+        ("rotation", node.rotation.map(|r| r.0.to_vec())),
+        ("scale", node.scale.map(|v| v.to_vec())),
+    ];
+    for (name, value) in vectors {
+        if let Some(v) = value.filter(|v| !v.iter().all(|x| x.is_finite())) {
+            return Err(format!(
+                "{name} {v:?} has a value that is not a finite number"
+            ));
+        }
+    }
+    if let Some(r) = node.rotation {
+        if glam::DVec4::from_array(r.0.map(f64::from)).length() < 1e-6 {
+            return Err(format!(
+                "rotation {:?} is not a rotation (a unit quaternion x, y, z, w)",
+                r.0
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn parse_gltf(bytes: &[u8], path: &Path) -> Result<gltf::Gltf, String> {
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
-    let root = document.into_json();
+    let mut root = document.into_json();
+    for (n, node) in root.nodes.iter_mut().enumerate() {
+        check_node_transform(node).map_err(|m| format!("node {n}: {m}"))?;
+        if let Some(rotation) = &mut node.rotation {
+            // In f64: the length of a quaternion of huge components overflows f32.
+            let q = glam::DVec4::from_array(rotation.0.map(f64::from));
+            if (q.length() - 1.0).abs() > UNIT_QUATERNION_TOLERANCE {
+                tracing::warn!(
+                    "{}: node {n}: rotation {:?} is not a unit quaternion (length {}); \
+                     normalised",
+                    path.display(),
+                    rotation.0,
+                    q.length()
+                );
+            }
+            rotation.0 = q.normalize().to_array().map(|c| c as f32);
+        }
+    }
     for (m, mesh) in root.meshes.iter().enumerate() {
         for (p, primitive) in mesh.primitives.iter().enumerate() {
             for index in primitive.attributes.values() {
@@ -869,7 +941,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     };
     let bytes = read_scene_file(path)?;
     check_glb_header(&bytes).map_err(err)?;
-    let gltf = parse_gltf(&bytes).map_err(err)?;
+    let gltf = parse_gltf(&bytes, path).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new("."));
     let buffers = load_gltf_buffers(&gltf, base).map_err(err)?;
     let mut b = Builder::default();
@@ -1116,60 +1188,116 @@ fn read_mtl(path: &Path) -> Result<Vec<u8>, (tobj::LoadError, String)> {
     Ok(bytes)
 }
 
-/// Checks that every index of every face (`f v/vt/vn …`, negative ones counting back) is no
-/// larger in magnitude than the number of positions, texture coordinates or normals in the
-/// file, and not 0: `tobj` multiplies the texture-coordinate and normal indices unchecked (an
-/// index near 2⁶³ overflows, a panic with overflow checks on, and wraps past its bounds check
-/// without). Indices that are not numbers are left to `tobj`'s parse error.
-fn check_obj_face_indices(text: &[u8]) -> Result<(), String> {
-    let lines = || text.split(|&c| c == b'\n').map(<[u8]>::trim_ascii_start);
+/// What [`scan_obj`] found that is not drawn, for the warnings.
+#[derive(Debug, Default, PartialEq)]
+struct ObjScan {
+    /// `l` and `p` elements (tobj would turn them into zero-area triangles).
+    lines_and_points: usize,
+    /// Faces of fewer than three corners (tobj drops them).
+    short_faces: usize,
+}
+
+/// Checks an OBJ file's text before `tobj` parses it, with the line number of each problem
+/// (tobj's own errors name neither line nor problem: "position parse error", "read error"):
+/// every line UTF-8; `v x y z [w | r g b]` with numbers (w not 0, vertex colours on every
+/// vertex or on none), `vt u v`, `vn x y z`; face corners `v`, `v/vt`, `v//vn` or `v/vt/vn`
+/// with integer indices, each no larger in magnitude than the number of positions, texture
+/// coordinates or normals in the file, and not 0 (`tobj` multiplies the texture-coordinate and
+/// normal indices unchecked: an index near 2⁶³ overflows, a panic with overflow checks on, and
+/// wraps past its bounds check without). Counts what will not be drawn ([`ObjScan`]).
+fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
+    let number = |word: &str| word.parse::<f32>().is_ok();
+    let mut scan = ObjScan::default();
     let mut counts = [0usize; 3];
-    for line in lines() {
-        let kind = match line.split(u8::is_ascii_whitespace).next() {
-            Some(b"v") => 0,
-            Some(b"vt") => 1,
-            Some(b"vn") => 2,
+    // The first vertex line with a colour and the first without.
+    let (mut coloured, mut plain) = (None, None);
+    let lines = || text.split(|&c| c == b'\n').zip(1usize..);
+    for (line, n) in lines() {
+        let line = std::str::from_utf8(line)
+            .map_err(|_| format!("line {n} is not UTF-8 text (an OBJ file is text)"))?;
+        let mut words = line.split_whitespace();
+        let (kind, rest): (usize, Vec<&str>) = match words.next() {
+            Some("v") => (0, words.collect()),
+            Some("vt") => (1, words.collect()),
+            Some("vn") => (2, words.collect()),
+            Some("l" | "p") => {
+                scan.lines_and_points += 1;
+                continue;
+            }
             _ => continue,
         };
+        let needed = [3, 2, 3][kind];
+        if rest.len() < needed || !rest[..needed].iter().all(|w| number(w)) {
+            let form = ["v x y z", "vt u v", "vn x y z"][kind];
+            return Err(format!(
+                "line {n}: expected {needed} numbers ({form}), got {:?}",
+                line.trim()
+            ));
+        }
+        if kind == 0 {
+            match rest[3..] {
+                [] => plain = plain.or(Some(n)),
+                [w] if w.parse::<f32>().is_ok_and(|w| w != 0.0) => plain = plain.or(Some(n)),
+                [w] => {
+                    return Err(format!(
+                        "line {n}: the homogeneous w {w:?} must be a number other than 0"
+                    ))
+                }
+                [r, g, b] if [r, g, b].iter().all(|w| number(w)) => coloured = coloured.or(Some(n)),
+                _ => {
+                    return Err(format!(
+                        "line {n}: a vertex is v x y z, v x y z w or v x y z r g b, got {:?}",
+                        line.trim()
+                    ))
+                }
+            }
+            if let (Some(c), Some(p)) = (coloured, plain) {
+                return Err(format!(
+                    "line {c} gives a vertex colour and line {p} does not: vertex colours must \
+                     be on every vertex or on none"
+                ));
+            }
+        }
         counts[kind] += 1;
     }
     const KINDS: [&str; 3] = ["positions", "texture coordinates", "normals"];
-    for (number, line) in lines().enumerate() {
-        let Some(corners) = line.strip_prefix(b"f") else {
-            continue;
-        };
-        if !corners.first().is_some_and(u8::is_ascii_whitespace) {
+    for (line, n) in lines() {
+        // UTF-8: checked above.
+        let line = std::str::from_utf8(line).unwrap_or_default();
+        let mut words = line.split_whitespace();
+        if words.next() != Some("f") {
             continue;
         }
-        let corners = corners
-            .split(u8::is_ascii_whitespace)
-            .filter(|c| !c.is_empty());
+        let corners: Vec<&str> = words.collect();
+        if corners.len() < 3 {
+            scan.short_faces += 1;
+        }
         for corner in corners {
-            for (kind, index) in corner.split(|&c| c == b'/').enumerate().take(3) {
-                let Some(index) = std::str::from_utf8(index)
-                    .ok()
-                    .and_then(|i| i.parse::<i128>().ok())
-                else {
-                    continue;
+            let parts: Vec<&str> = corner.split('/').collect();
+            if parts.len() > 3 || parts[0].is_empty() {
+                return Err(format!(
+                    "line {n}: face corner {corner:?} is not v, v/vt, v//vn or v/vt/vn"
+                ));
+            }
+            for (kind, index) in parts.iter().enumerate().filter(|(_, i)| !i.is_empty()) {
+                let Ok(index) = index.parse::<i128>() else {
+                    return Err(format!(
+                        "line {n}: face corner {corner:?}: {index:?} is not an integer index"
+                    ));
                 };
                 if index == 0 {
-                    return Err(format!(
-                        "line {}: face index 0 (OBJ indices start at 1)",
-                        number + 1
-                    ));
+                    return Err(format!("line {n}: face index 0 (OBJ indices start at 1)"));
                 }
                 if index.unsigned_abs() > counts[kind] as u128 {
                     return Err(format!(
-                        "line {}: face index {index} out of range of the file's {} {}",
-                        number + 1,
-                        counts[kind],
-                        KINDS[kind]
+                        "line {n}: face index {index} out of range of the file's {} {}",
+                        counts[kind], KINDS[kind]
                     ));
                 }
             }
         }
     }
-    Ok(())
+    Ok(scan)
 }
 
 fn load_obj(path: &Path) -> Result<Builder, SceneError> {
@@ -1187,17 +1315,21 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
         ignore_lines: true,
         ignore_points: true,
     };
-    let elements = text
-        .split(|&c| c == b'\n')
-        .filter(|l| l.starts_with(b"l ") || l.starts_with(b"p "))
-        .count();
-    if elements > 0 {
+    let scan = scan_obj(&text).map_err(err)?;
+    if scan.lines_and_points > 0 {
         tracing::warn!(
-            "{}: skipping {elements} line and point elements (only faces are drawn)",
-            path.display()
+            "{}: skipping {} line and point elements (only faces are drawn)",
+            path.display(),
+            scan.lines_and_points
         );
     }
-    check_obj_face_indices(&text).map_err(err)?;
+    if scan.short_faces > 0 {
+        tracing::warn!(
+            "{}: skipping {} faces of fewer than 3 corners",
+            path.display(),
+            scan.short_faces
+        );
+    }
     // Material libraries are found next to the OBJ file, as `tobj::load_obj` does.
     let base = path.parent().unwrap_or(Path::new("."));
     // tobj's own errors say only "open file failed": the library's path and the problem are
@@ -1478,6 +1610,94 @@ mod tests {
         let path = dir.join(name);
         std::fs::write(&path, json).unwrap();
         path
+    }
+
+    /// Node transforms as glTF allows them: a rotation that is not of unit length is
+    /// normalised (it scaled and sheared the mesh: (0, 1, 0) came out at (0, -1, 2)); a zero
+    /// rotation, a projective matrix and a matrix given with translation/rotation/scale are
+    /// errors naming the node (the zero rotation was read as the identity, the matrix's last
+    /// row and the translation were dropped).
+    #[test]
+    fn node_transforms_are_read_as_gltf_defines_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let colour = "[0.5,0.5,0.5,1]";
+        // 90° about x, written with length √2: (0, 1, 0) turns to (0, 0, 1).
+        let p = write_gltf(
+            d,
+            "q.gltf",
+            r#"[{"mesh":0,"rotation":[1,0,0,1]}]"#,
+            [3, 3, 3],
+            colour,
+        );
+        let s = Scene::load(&p, false).unwrap();
+        let top = Vec3::from_array(s.vertices[2].position);
+        assert!(top.distance(Vec3::Z) < 1e-6, "{top}");
+        let refused = [
+            (r#"[{"mesh":0,"rotation":[0,0,0,0]}]"#, "node 0: rotation"),
+            (
+                r#"[{"mesh":0,"matrix":[1,0,0,1, 0,1,0,0, 0,0,1,0, 0,0,0,1]}]"#,
+                "node 0: matrix's last row is [1, 0, 0, 1]",
+            ),
+            (
+                r#"[{"mesh":0,"matrix":[2,0,0,0, 0,2,0,0, 0,0,2,0, 0,0,0,1],"translation":[5,0,0]}]"#,
+                "node 0: has both a matrix and translation",
+            ),
+        ];
+        for (i, (nodes, needle)) in refused.into_iter().enumerate() {
+            let p = write_gltf(d, &format!("n{i}.gltf"), nodes, [3, 3, 3], colour);
+            assert_load_fails_naming(&p, needle);
+        }
+    }
+
+    /// The OBJ pre-scan names the line of a malformed vertex, normal, texture coordinate or
+    /// face corner, of text that is not UTF-8 and of vertex colours on some vertices only
+    /// (tobj said "position parse error", "read error" or "face vertex color index out of
+    /// bounds"), and counts the elements that are not drawn: `l`/`p` also when indented or
+    /// followed by a tab, faces of fewer than 3 corners (dropped without a word before).
+    #[test]
+    fn obj_scan_names_the_line_and_counts_what_is_not_drawn() {
+        let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+        let scan = scan_obj(format!("{tri}f 1 2 3\nf 1 2\nf 3\nl\t1 2\n  p 3\np 1\n").as_bytes());
+        assert_eq!(
+            scan,
+            Ok(ObjScan {
+                lines_and_points: 3,
+                short_faces: 2
+            })
+        );
+        let bad = [
+            (
+                "v a b c\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+                "line 1: expected 3 numbers (v x y z)",
+            ),
+            ("v 1\n", "line 1: expected 3 numbers"),
+            ("v 0 0 0 1 0\n", "line 1: a vertex is v x y z"),
+            ("v 0 0 0 0\n", "line 1: the homogeneous w \"0\""),
+            ("v 0 0 0\nvn 0 1\n", "line 2: expected 3 numbers (vn x y z)"),
+            ("v 0 0 0\nvt x 0\n", "line 2: expected 2 numbers (vt u v)"),
+            (
+                "v 0 0 0 1 0 0\nv 1 0 0\n",
+                "line 1 gives a vertex colour and line 2 does not",
+            ),
+            (
+                "v 0 0 0\nf 1 1/x 1\n",
+                "line 2: face corner \"1/x\": \"x\" is not an integer",
+            ),
+            ("v 0 0 0\nf 1 /1 1\n", "line 2: face corner \"/1\" is not v"),
+            (
+                "v 0 0 0\nf 1 1 4\n",
+                "line 2: face index 4 out of range of the file's 1 positions",
+            ),
+        ];
+        for (text, needle) in bad {
+            let e = scan_obj(text.as_bytes()).unwrap_err();
+            assert!(e.contains(needle), "{text:?}: {e}");
+        }
+        let e = scan_obj(b"v 0 0 0\n\xff\xfe\n").unwrap_err();
+        assert!(e.contains("line 2 is not UTF-8"), "{e}");
+        // Vertex colours on every vertex are accepted.
+        assert!(scan_obj(b"v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n").is_ok());
     }
 
     /// A buffer file that is not there is named (the gltf crate's error named none).
