@@ -338,11 +338,16 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
     Ok(unique)
 }
 
-/// The last run of ASCII digits in `stem`, without leading zeros ("" for zero).
+/// The last run of ASCII digits in `stem`, without leading zeros ("" for zero). Found in the
+/// bytes: the byte before the run may end a character of several bytes (`é1`, `frame—2`, the
+/// U+FFFD of a name that is not UTF-8), where the index of that character's start plus one
+/// was not a character boundary (slicing there panicked).
 fn last_number(stem: &str) -> Option<&str> {
-    let end = stem.rfind(|c: char| c.is_ascii_digit())? + 1;
-    let start = stem[..end]
-        .rfind(|c: char| !c.is_ascii_digit())
+    let bytes = stem.as_bytes();
+    let end = bytes.iter().rposition(u8::is_ascii_digit)? + 1;
+    let start = bytes[..end]
+        .iter()
+        .rposition(|b| !b.is_ascii_digit())
         .map_or(0, |i| i + 1);
     Some(stem[start..end].trim_start_matches('0'))
 }
@@ -379,6 +384,10 @@ mod tests {
         assert_eq!(last_number("f000"), Some(""));
         assert_eq!(last_number("sky"), None);
         assert_eq!(last_number("12"), Some("12"));
+        assert_eq!(last_number("é1"), Some("1"));
+        assert_eq!(last_number("frame—02"), Some("2"));
+        assert_eq!(last_number("f_\u{fffd}5"), Some("5"));
+        assert_eq!(last_number("7日"), Some("7"));
     }
 
     #[test]
