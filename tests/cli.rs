@@ -478,6 +478,23 @@ fn non_utf8_input_is_named_and_read_through_its_directory() {
     let o = envlight(&["decompose", "-n", "4", s(dir.path())]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(check_frames(&stdout(&o), 4).len(), 1);
+
+    // With more frames: a character of several bytes before a name's number (its sorting
+    // panicked), and a pattern, which cannot match the name that is not UTF-8, says so.
+    write_rgb(&dir.path().join("take_é2.exr"), 8, 4, 1.0);
+    write_rgb(&dir.path().join("take_—3.exr"), 8, 4, 1.0);
+    let o = envlight(&["decompose", "-n", "4", s(dir.path())]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(check_frames(&stdout(&o), 4).len(), 3);
+    let pattern = format!("{}/*.exr", s(dir.path()));
+    let o = envlight(&["decompose", "-n", "4", &pattern]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(check_frames(&stdout(&o), 4).len(), 2);
+    let err = stderr(&o);
+    assert!(
+        err.contains("1 frame file(s) in") && err.contains("give the directory to read them"),
+        "{err}"
+    );
 }
 
 /// A light file without frames is an error naming it, before any GPU work (an empty render

@@ -231,6 +231,43 @@ fn is_glob_pattern(input: &str) -> bool {
     input.contains(['*', '?', '['])
 }
 
+/// A glob pattern matches names as UTF-8 text, so frame files whose names are not UTF-8 are
+/// left out by `dir/*.exr` although `dir` itself reads them: said in a warning, per directory
+/// the pattern's directory part names, with the way to read them.
+fn warn_of_names_a_pattern_cannot_match(pattern: &str) {
+    let parent = match Path::new(pattern).parent() {
+        Some(p) if p.as_os_str().is_empty() => Path::new("."),
+        Some(p) => p,
+        None => return,
+    };
+    let directories: Vec<PathBuf> = match parent.to_str() {
+        Some(p) if is_glob_pattern(p) => glob::glob(p)
+            .map(|paths| paths.flatten().filter(|d| d.is_dir()).collect())
+            .unwrap_or_default(),
+        _ => vec![parent.to_path_buf()],
+    };
+    for directory in directories {
+        let Ok(entries) = std::fs::read_dir(&directory) else {
+            continue;
+        };
+        let unmatched: Vec<PathBuf> = entries
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.file_name().is_some_and(|n| n.to_str().is_none()))
+            .filter(|p| has_supported_extension(p))
+            .collect();
+        if let Some(first) = unmatched.first() {
+            tracing::warn!(
+                "{pattern}: {} frame file(s) in {} have names that are not UTF-8, which a \
+                 pattern cannot match (among them {}); give the directory to read them",
+                unmatched.len(),
+                directory.display(),
+                first.display()
+            );
+        }
+    }
+}
+
 /// Files named by `inputs`, deduplicated and in natural order.
 fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
     let mut found: Vec<PathBuf> = Vec::new();
@@ -274,6 +311,7 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
                         found.push(frame);
                     }
                 }
+                warn_of_names_a_pattern_cannot_match(input);
             }
             Err(_) if input.starts_with("v4l2:") => {
                 return Err(CaptureError::InvalidSettings(format!(
