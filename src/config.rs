@@ -455,6 +455,11 @@ pub struct SourceConfig {
     pub looped: bool,
     /// How the sequence's pixels map to directions (the sky is always lat-long).
     pub projection: Projection,
+    /// The `[source.fisheye]` keys set to other than their defaults while the projection is
+    /// not "fisheye": a calibration that is not used, said in a warning when the source opens
+    /// and by `check-config` (not an error: the shipped config sets the section's defaults,
+    /// and a calibration may stay in a file while another projection is tried).
+    pub ignored_fisheye: Vec<&'static str>,
 }
 
 /// Number of sky frames when neither the config nor the command line says.
@@ -1176,6 +1181,11 @@ impl RawSource {
                 "the built-in sky is always \"latlong\"; projections apply to sequences",
             ));
         }
+        let ignored_fisheye = if matches!(projection, Projection::Fisheye(_)) {
+            Vec::new()
+        } else {
+            self.fisheye.set_apart_from_defaults()
+        };
         Ok(SourceConfig {
             kind,
             paths,
@@ -1183,11 +1193,34 @@ impl RawSource {
             frames: self.frames,
             looped: self.looped.unwrap_or(false),
             projection,
+            ignored_fisheye,
         })
     }
 }
 
 impl RawFisheye {
+    /// The keys (full names) whose values differ from the defaults.
+    fn set_apart_from_defaults(&self) -> Vec<&'static str> {
+        let d = FisheyeCalibration::default();
+        let model = self.model.as_deref().and_then(parse_fisheye_model);
+        [
+            ("source.fisheye.model", model.is_some_and(|m| m != d.model)),
+            ("source.fisheye.center", self.center.is_some()),
+            ("source.fisheye.radius", self.radius.is_some()),
+            (
+                "source.fisheye.fov_deg",
+                self.fov_deg.is_some_and(|f| f != d.fov_deg),
+            ),
+            (
+                "source.fisheye.rotation_deg",
+                self.rotation_deg.is_some_and(|r| r != d.rotation_deg),
+            ),
+        ]
+        .into_iter()
+        .filter_map(|(key, set)| set.then_some(key))
+        .collect()
+    }
+
     fn validate(&self) -> Result<FisheyeCalibration, ConfigError> {
         let d = FisheyeCalibration::default();
         let model = match self.model.as_deref() {
@@ -1429,6 +1462,30 @@ mod tests {
 
     fn error(text: &str) -> String {
         parse(text).expect_err(text).to_string()
+    }
+
+    /// A fisheye calibration under another projection is kept in the config's note of what is
+    /// not used (it was checked and then dropped without a word); the defaults the shipped
+    /// config writes out are not a calibration.
+    #[test]
+    fn a_fisheye_calibration_under_another_projection_is_noted() {
+        let section = "[source.fisheye]\nmodel = \"equidistant\"\nradius = 20.0\nfov_deg = 200.0\n";
+        for projection in ["", "projection = \"angular\"\n"] {
+            let text = format!(
+                "[source]\nkind = \"sequence\"\npaths = [\"a.exr\"]\n{projection}{section}"
+            );
+            assert_eq!(
+                parse(&text).unwrap().source.ignored_fisheye,
+                ["source.fisheye.radius", "source.fisheye.fov_deg"]
+            );
+        }
+        let text = format!(
+            "[source]\nkind = \"sequence\"\npaths = [\"a.exr\"]\nprojection = \"fisheye\"\n{section}"
+        );
+        assert!(parse(&text).unwrap().source.ignored_fisheye.is_empty());
+        let defaults =
+            "[source.fisheye]\nmodel = \"equidistant\"\nfov_deg = 180.0\nrotation_deg = 0.0\n";
+        assert!(parse(defaults).unwrap().source.ignored_fisheye.is_empty());
     }
 
     #[test]

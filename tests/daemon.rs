@@ -1740,7 +1740,9 @@ fn check_config_names_the_bad_key_and_value() {
     assert!(report.contains("config/envlight.toml: ok"), "{report}");
     // The example config is the unit's: as a service its sky must run until stopped.
     assert!(
-        report.contains("source: sky, in envlight run until stopped, 30 frames/s"),
+        report.contains(
+            "source: sky, projection latlong, in envlight run until stopped, 30 frames/s"
+        ),
         "{report}"
     );
     for (text, needle) in [
@@ -1807,10 +1809,53 @@ fn check_config_names_the_bad_key_and_value() {
         .count();
     assert!(
         stdout.contains(&format!(
-            "source: sequence [\"{frames}\"] ({hdr_files} files)"
+            "source: sequence [\"{frames}\"] ({hdr_files} files), projection latlong, in \
+             envlight run every file once, as fast as possible"
         )),
         "{stdout}"
     );
+    // `frames = 0` lifts the limit, but a sequence not looped still ends (this said "until
+    // stopped"); a fisheye calibration under another projection is noted as not used, and a
+    // fisheye projection is shown with its calibration.
+    let report = |text: String| {
+        std::fs::write(&path, text).unwrap();
+        let out = envlight().arg("check-config").arg(&path).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let source = format!("[source]\nkind = \"sequence\"\npaths = [\"{frames}\"]\nframes = 0\n");
+    let calibration = "[source.fisheye]\nmodel = \"equisolid\"\nradius = 400.0\n";
+    let stdout = report(format!("{source}{calibration}"));
+    assert!(
+        stdout.contains("in envlight run every file once"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(
+            "note: source.fisheye.model, source.fisheye.radius set, but the projection is not \
+             \"fisheye\": the calibration is not used"
+        ),
+        "{stdout}"
+    );
+    let stdout = report(format!(
+        "{source}loop = true\nprojection = \"fisheye\"\n{calibration}"
+    ));
+    assert!(
+        stdout.contains("in envlight run looped until stopped"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(
+            "projection fisheye (equisolid, field of view 180°, centre the image centre, radius \
+             400 px, rotation 0°)"
+        ),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("note:"), "{stdout}");
 }
 
 #[test]

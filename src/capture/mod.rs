@@ -208,6 +208,13 @@ pub(crate) fn sleep_until(start: std::time::Instant, time_s: f64) -> bool {
 pub fn open(config: &crate::config::Config) -> Result<Box<dyn FrameSource>, CaptureError> {
     use crate::config::{SourceKind, DEFAULT_SKY_FRAMES};
     let src = &config.source;
+    if !src.ignored_fisheye.is_empty() {
+        tracing::warn!(
+            "{} set, but source.projection is \"{}\": the fisheye calibration is not used",
+            src.ignored_fisheye.join(", "),
+            src.projection.name()
+        );
+    }
     let inner: Box<dyn FrameSource> = match src.kind {
         SourceKind::Sky => {
             let frames = match src.frames {

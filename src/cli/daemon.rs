@@ -140,11 +140,16 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
     writeln!(text, "{name}: ok")?;
     // As `envlight run` reads it (check-config guards the service's config).
     let daemon_source = envlight::daemon::daemon_source_defaults(config.clone()).source;
-    let frames = match (daemon_source.frames, daemon_source.kind) {
-        (Some(0), _) | (None, envlight::config::SourceKind::V4l2) => "until stopped".to_owned(),
-        (Some(n), _) => format!("{n} frames"),
-        (None, _) if daemon_source.looped => "looped until stopped".to_owned(),
-        (None, _) => "every file once".to_owned(),
+    let frames = {
+        use envlight::config::SourceKind::{Sequence, V4l2};
+        match (daemon_source.frames, daemon_source.kind) {
+            // `frames = 0` lifts the limit; a sequence not looped still ends with its files.
+            (Some(0) | None, Sequence) if daemon_source.looped => "looped until stopped".to_owned(),
+            (Some(0) | None, Sequence) => "every file once".to_owned(),
+            (Some(0), _) | (None, V4l2) => "until stopped".to_owned(),
+            (Some(n), _) => format!("{n} frames"),
+            (None, _) => "until stopped".to_owned(),
+        }
     };
     let pacing = match (daemon_source.kind, daemon_source.fps) {
         (envlight::config::SourceKind::V4l2, _) => match config.camera.fps {
@@ -166,15 +171,28 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
                 envlight::capture::sequence::SequenceOptions::default(),
             )
             .with_context(|| format!("{name}: source.paths"))?;
-            format!(" {:?} ({} files)", daemon_source.paths, found.frame_count())
+            let n = found.frame_count();
+            format!(
+                " {:?} ({n} file{})",
+                daemon_source.paths,
+                if n == 1 { "" } else { "s" }
+            )
         }
         _ => String::new(),
     };
     writeln!(
         text,
-        "  source: {}{paths}, in envlight run {frames}, {pacing}",
-        daemon_source.kind.name()
+        "  source: {}{paths}, projection {}, in envlight run {frames}, {pacing}",
+        daemon_source.kind.name(),
+        projection_description(&daemon_source.projection)
     )?;
+    if !daemon_source.ignored_fisheye.is_empty() {
+        writeln!(
+            text,
+            "  note: {} set, but the projection is not \"fisheye\": the calibration is not used",
+            daemon_source.ignored_fisheye.join(", ")
+        )?;
+    }
     writeln!(
         text,
         "  decompose: {} lights, warp {}, refinement of concentrated sources {}, concentrated \
@@ -268,4 +286,26 @@ pub(crate) fn record(args: RecordArgs) -> Result<()> {
         source_paths: source_paths(&args.daemon),
     };
     run_daemon(&args.daemon, options)
+}
+
+/// A projection as `check-config` shows it: its config name, and a fisheye's calibration.
+fn projection_description(projection: &envlight::envmap::Projection) -> String {
+    use envlight::config::shown_number;
+    match projection {
+        envlight::envmap::Projection::Fisheye(c) => {
+            let center = c.center.map_or("the image centre".to_owned(), |[x, y]| {
+                format!("[{}, {}]", shown_number(x), shown_number(y))
+            });
+            let radius = c.radius.map_or("half the shorter side".to_owned(), |r| {
+                format!("{} px", shown_number(r))
+            });
+            format!(
+                "fisheye ({}, field of view {}°, centre {center}, radius {radius}, rotation {}°)",
+                c.model.name(),
+                shown_number(c.fov_deg),
+                shown_number(c.rotation_deg)
+            )
+        }
+        other => other.name().to_owned(),
+    }
 }
