@@ -4,7 +4,9 @@
 //! stdout goes away, as with `| head`).
 
 use clap::{Parser, Subcommand};
-use cli::{camera, daemon, decompose, fit_asg, render, subscribe, wavelet, UsageError};
+use cli::{
+    camera, daemon, decompose, fit_asg, print_to_stderr, render, subscribe, wavelet, UsageError,
+};
 use std::io::IsTerminal;
 use std::process::ExitCode;
 
@@ -133,19 +135,21 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) if err.downcast_ref::<UsageError>().is_some() => {
-            eprintln!("error: {err}\n\nFor more information, try '--help'.");
+            print_to_stderr(format_args!(
+                "error: {err}\n\nFor more information, try '--help'."
+            ));
             ExitCode::from(2)
         }
         Err(err) => {
             tracing::debug!("{err:?}");
-            eprintln!("error: {err}");
+            print_to_stderr(format_args!("error: {err}"));
             // Library errors often show their source in their own message too; print each
             // cause only when it adds something.
             let mut previous = err.to_string();
             for cause in err.chain().skip(1) {
                 let text = cause.to_string();
                 if !previous.contains(&text) {
-                    eprintln!("  caused by: {text}");
+                    print_to_stderr(format_args!("  caused by: {text}"));
                 }
                 previous = text;
             }
@@ -165,6 +169,9 @@ fn init_tracing() {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())
+        // A write error is dropped: by default the subscriber reported it with `eprintln!`,
+        // which panicked on the same broken stderr (`envlight run 2>&1 | head` exited 101).
+        .log_internal_errors(false)
         .compact();
     if std::env::var_os("JOURNAL_STREAM").is_some() {
         builder.without_time().init();

@@ -1401,3 +1401,27 @@ fn explicit_defaults_work_and_flag_errors_name_the_flag() {
     let o = envlight(&["render", "-n", "0", "--out", s(dir.path()), "--size", "8x8"]);
     assert_fails_naming(&o, &["invalid --light-count 0"]);
 }
+
+/// stderr whose reader has gone away (`2>&1 | head`, a journald stream that closed) ends a
+/// command with its own exit status, not a panic: the log subscriber reported its failed write
+/// with `eprintln!`, which panicked on the same stderr (status 101), and so did the final
+/// error message.
+#[test]
+fn a_closed_stderr_is_not_a_panic() {
+    for (args, code) in [
+        (&["decompose", "--frames", "2", "-n", "4"][..], 0),
+        (&["decompose", "/nonexistent/frame_1.exr"][..], 1),
+        (&["render", "--lobes", "4"][..], 2),
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(args)
+            .env_remove("RUST_LOG")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("run envlight");
+        drop(child.stderr.take());
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(code), "{args:?}");
+    }
+}

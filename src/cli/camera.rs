@@ -74,7 +74,7 @@ pub struct CalibrateFisheyeArgs {
 pub fn devices() -> Result<()> {
     let devices = list_devices();
     if devices.is_empty() {
-        eprintln!("no /dev/video* devices found");
+        super::print_to_stderr(format_args!("no /dev/video* devices found"));
     }
     let mut text = String::new();
     for (path, info) in devices {
@@ -146,12 +146,12 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
         settings.samples
     );
     curve.write(&args.out, &comment)?;
-    eprintln!(
+    super::print_to_stderr(format_args!(
         "wrote {} ({} levels); use it with [camera] response = \"curve\", curve = {:?}",
         args.out.display(),
         settings.levels,
         args.out.display().to_string()
-    );
+    ));
     Ok(())
 }
 

@@ -157,3 +157,11 @@ fn on_off(on: bool) -> &'static str {
         "off"
     }
 }
+
+/// Writes a line to stderr, ignoring a failure: stderr whose reader went away (`2>&1 | head`,
+/// a journald stream that closed) must not turn into a panic (`eprintln!` panics on a write
+/// error) and exit status 101.
+pub(crate) fn print_to_stderr(line: std::fmt::Arguments) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "{line}");
+}
