@@ -1425,3 +1425,17 @@ fn a_closed_stderr_is_not_a_panic() {
         assert_eq!(status.code(), Some(code), "{args:?}");
     }
 }
+
+/// `run --fast` paces a replay: without --replay it is a usage error, also with INPUT (clap's
+/// `requires` let it pass there, and the flag was ignored).
+#[test]
+fn run_fast_without_replay_is_a_usage_error() {
+    for args in [
+        &["run", "--fast"][..],
+        &["run", "--fast", &data("rooitou_park_1k.hdr")],
+    ] {
+        let o = envlight(args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("--replay"), "{}", stderr(&o));
+    }
+}

@@ -1,7 +1,7 @@
 //! `envlight run`, `envlight record` and `envlight check-config`: the daemon's command line
 //! (the daemon itself is `envlight::daemon`).
 
-use super::{on_off, split_description, Utf8Input};
+use super::{on_off, split_description, usage_error, Utf8Input};
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
 use envlight::config::{Config, ConfigError};
@@ -262,6 +262,10 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
 
 /// `envlight run`: the daemon, or the replay of a recording (`--replay DIR`).
 pub(crate) fn run(args: RunArgs) -> Result<()> {
+    // clap's `requires` on --fast is not enforced once INPUT is given.
+    if args.fast && args.replay.is_none() {
+        usage_error!("--fast paces a replay (--replay DIR); INPUT files are paced by [source] fps");
+    }
     let replay = args.replay.map(|dir| {
         let pacing = if args.fast {
             Pacing::AsFastAsPossible
