@@ -212,6 +212,28 @@ pub struct Daemon {
     wavelet: Option<WaveletStage>,
 }
 
+/// How [`Daemon::start_parts`] runs its source: the decomposition settings, what a full
+/// capture queue does, and whether it is a replay (its settings fixed, its slower stages
+/// waited for).
+struct StartParts {
+    settings: crate::decompose::DecomposeSettings,
+    policy: QueuePolicy,
+    replaying: bool,
+}
+
+/// What a full capture queue does with the configured source's frames: a file sequence read
+/// as fast as possible (no `source.fps`) has no clock to keep, so capture waits for the
+/// decomposition and every file is decomposed, served and recorded (dropping the oldest lost
+/// most of a recorded take: 13 of 16 files); a paced sequence, the sky and a camera keep
+/// their rate and drop the oldest frame.
+fn live_source_policy(source: &crate::config::SourceConfig) -> QueuePolicy {
+    if source.kind == crate::config::SourceKind::Sequence && source.fps.is_none() {
+        QueuePolicy::Block
+    } else {
+        QueuePolicy::DropOldest
+    }
+}
+
 impl Daemon {
     /// Opens the source, binds every endpoint and starts the threads.
     /// A sky source gets the daemon's defaults ([`daemon_source_defaults`]).
@@ -230,11 +252,16 @@ impl Daemon {
             None => (
                 capture::open(&config).map_err(DaemonError::Source)?,
                 config.decompose.clone(),
-                QueuePolicy::DropOldest,
+                live_source_policy(&config.source),
             ),
         };
-        let mut daemon =
-            Self::start_parts(config, source, settings, policy, options.record.as_deref())?;
+        let replaying = options.replay.is_some();
+        let parts = StartParts {
+            settings,
+            policy,
+            replaying,
+        };
+        let mut daemon = Self::start_parts(config, source, parts, options.record.as_deref())?;
         daemon.source_paths = options.source_paths;
         Ok(daemon)
     }
@@ -249,18 +276,25 @@ impl Daemon {
         // The source is the caller's; read [source] as `start` does all the same, so that a
         // reload compares like with like.
         let config = daemon_source_defaults(config);
-        let settings = config.decompose.clone();
-        Self::start_parts(config, source, settings, QueuePolicy::DropOldest, record)
+        let parts = StartParts {
+            settings: config.decompose.clone(),
+            policy: QueuePolicy::DropOldest,
+            replaying: false,
+        };
+        Self::start_parts(config, source, parts, record)
     }
 
     fn start_parts(
         config: Config,
         source: Box<dyn FrameSource>,
-        settings: crate::decompose::DecomposeSettings,
-        policy: QueuePolicy,
+        parts: StartParts,
         record: Option<&Path>,
     ) -> Result<Daemon, DaemonError> {
-        let replaying = policy == QueuePolicy::Block;
+        let StartParts {
+            settings,
+            policy,
+            replaying,
+        } = parts;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(config.daemon.serve_threads)
             .thread_name(SERVE_THREAD_NAME)

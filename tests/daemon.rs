@@ -1168,6 +1168,47 @@ fn a_recording_replays_to_the_same_light_stream() {
     assert!(index.lines().next().unwrap().contains("\"file\":\"frames/"));
 }
 
+/// A file sequence read as fast as possible has no clock to keep: capture waits for the
+/// decomposition, so every file is decomposed and recorded (dropping the oldest frame lost 13
+/// of 16 files of a recorded take). A paced sequence still drops when the decomposition is
+/// behind (not tested here: whether it falls behind depends on the machine).
+#[test]
+fn an_unpaced_file_sequence_reaches_the_decomposition_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = dir.path().join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    let files = 24;
+    for i in 0..files {
+        let path = frames.join(format!("f_{i}.exr"));
+        let level = 1.0 + i as f32;
+        exr::prelude::write_rgb_file(&path, 64, 32, |_, _| (level, level, level)).unwrap();
+    }
+    let inputs = vec![frames.display().to_string()];
+    let none =
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let text = format!("{none}[decompose]\nlights = 64\n[pipeline]\nqueue_capacity = 1\n");
+    let path = dir.path().join("envlight.toml");
+    std::fs::write(&path, text).unwrap();
+    let config = envlight::daemon::read_config(Some(&path), Some(&inputs)).unwrap();
+    let recording = dir.path().join("session");
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: None,
+            record: Some(recording.clone()),
+            source_paths: Some(inputs),
+        },
+    )
+    .unwrap();
+    wait_until("the sequence's end", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    assert_eq!(summary.pipeline.frames_dropped, 0);
+    assert_eq!(summary.pipeline.frames_decomposed, files);
+    assert_eq!(summary.recorded.unwrap().frames, files);
+    let lights = std::fs::read_to_string(recording.join("lights.jsonl")).unwrap();
+    assert_eq!(lights.lines().count() as u64, files);
+}
+
 #[test]
 fn replay_keeps_the_original_timing() {
     let dir = tempfile::tempdir().unwrap();
