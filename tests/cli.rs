@@ -570,6 +570,39 @@ fn unsupported_channels_are_named() {
     assert_eq!(o.status.code(), Some(1));
 }
 
+/// A data window other than the display window is read as the whole map (docs in
+/// capture/image_file.rs), and a warning says so: it shifts every direction.
+#[test]
+fn a_cropped_data_window_is_read_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("crop.exr");
+    let (w, h) = (16usize, 8usize);
+    let channels = ["R", "G", "B"]
+        .map(|name| AnyChannel::new(name, FlatSamples::F32(vec![1.0; w * h])))
+        .to_vec();
+    let mut attributes = LayerAttributes::default();
+    attributes.layer_position = exr::math::Vec2(4, 2);
+    let layer = Layer::new(
+        (w, h),
+        attributes,
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(SmallVec::from_vec(channels)),
+    );
+    let image = Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions((32, 16))),
+        vec![layer],
+    );
+    image.write().to_file(&path).unwrap();
+    let o = envlight(&["decompose", "-n", "4", s(&path)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(check_frames(&stdout(&o), 4).len(), 1);
+    let err = stderr(&o);
+    assert!(
+        err.contains("its data window (16x8 at 4, 2) is not its display window (32x16 at 0, 0)"),
+        "{err}"
+    );
+}
+
 #[test]
 fn bad_light_counts_name_the_flag() {
     for n in ["0", "100000000"] {

@@ -19,7 +19,8 @@
 //! - **Data window**: the image returned is the size of the chosen part's *data window*, not of
 //!   its display window; an offset or smaller data window is not padded or cropped to the
 //!   display window. (Environment maps have data window = display window; for the rest this is
-//!   the simplest honest answer: every pixel returned is one the file stores.)
+//!   the simplest honest answer: every pixel returned is one the file stores.) A warning says
+//!   so, once per process, when the windows differ.
 //! - Only the chosen part is read and decompressed (`ReadPart`): the other parts' blocks are
 //!   skipped, so a multi-part file (views, passes) costs what its one part does.
 //! - Compressed blocks are decompressed on rayon's global pool and put in place as each one is
@@ -346,7 +347,7 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
             .map(|(i, names)| format!("part {i}: [{}]", names.join(", ")))
             .collect();
         format!(
-            "no R,G,B or Y channels (channels found: {})",
+            "no part has all of R, G and B, or a Y channel (channels found: {})",
             found.join("; ")
         )
     })?;
@@ -362,6 +363,7 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
         );
     }
 
+    warn_of_a_cropped_data_window(&meta.headers[choice.part], path);
     let parallel = parallel_pays(&meta.headers[choice.part]);
     let (channel_data, size) = decode_exr_part(bytes, choice.part, parallel)
         .map_err(|e| format!("cannot decode OpenEXR pixels: {e}"))?;
@@ -406,6 +408,33 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
         height: u32::try_from(height).map_err(|_| "image too high".to_string())?,
         pixels,
     })
+}
+
+/// The module doc's data-window rule, said once per process when it applies: a data window
+/// other than the display window is read as the whole map, so its directions are not those
+/// the display window would give (once: a sequence of such frames would say it every frame).
+fn warn_of_a_cropped_data_window(header: &exr::meta::header::Header, path: &Path) {
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let window = header.shared_attributes.display_window;
+    let (position, size) = (header.own_attributes.layer_position, header.layer_size);
+    if window.position == position && window.size == size {
+        return;
+    }
+    if !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        tracing::warn!(
+            "{}: its data window ({}x{} at {}, {}) is not its display window ({}x{} at {}, {}); \
+             the data window is read as the whole map (said once)",
+            path.display(),
+            size.width(),
+            size.height(),
+            position.x(),
+            position.y(),
+            window.size.width(),
+            window.size.height(),
+            window.position.x(),
+            window.position.y()
+        );
+    }
 }
 
 /// Decodes part `part` of an OpenEXR file (its largest resolution level, every channel). Only
