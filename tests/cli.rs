@@ -580,8 +580,10 @@ fn a_cropped_data_window_is_read_with_a_warning() {
     let channels = ["R", "G", "B"]
         .map(|name| AnyChannel::new(name, FlatSamples::F32(vec![1.0; w * h])))
         .to_vec();
-    let mut attributes = LayerAttributes::default();
-    attributes.layer_position = exr::math::Vec2(4, 2);
+    let attributes = LayerAttributes {
+        layer_position: exr::math::Vec2(4, 2),
+        ..LayerAttributes::default()
+    };
     let layer = Layer::new(
         (w, h),
         attributes,
