@@ -91,3 +91,27 @@ fn recover_reports_errors_and_rejects_bad_arguments() {
     assert!(!ok);
     assert!(stderr.contains("nonexistent"), "{stderr}");
 }
+
+/// A black map lights no vertex, so none is compared: the check's errors are null, not 0 (a
+/// perfect score for nothing measured).
+#[test]
+fn relight_check_of_no_lit_vertex_has_no_error_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let black = dir.path().join("black.exr");
+    exr::prelude::write_rgb_file(&black, 32, 16, |_, _| (0.0f32, 0.0f32, 0.0f32)).unwrap();
+    let (ok, stdout, stderr) = envlight(&[
+        "wavelet",
+        "relight",
+        "--size",
+        "4",
+        "--check",
+        "10",
+        black.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let line: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap()).unwrap();
+    let check = &line["check"];
+    assert_eq!(check["vertices"], 0, "{line}");
+    assert!(check["rms_relative"].is_null(), "{line}");
+    assert!(check["max_relative"].is_null(), "{line}");
+}

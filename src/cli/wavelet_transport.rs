@@ -34,7 +34,8 @@ outgoing radiance as a sparse dot product (all cores). Prints one JSON line per 
 `check` compares --check vertices (evenly spread) with brute-force integration over all texels
 (Σ V·L·ρ·dω of the full-resolution map), relative to each vertex's radiance; a vertex that
 receives no light (in shadow, or facing away from every lit direction) has no relative error
-and is left out, so `check.vertices` counts those compared. Radiance is per
+and is left out, so `check.vertices` counts those compared (with none, the errors are null).
+Radiance is per
 channel; the Lambertian result is multiplied by the vertex's material albedo. Without INPUT the
 built-in sky is used. --out writes the last frame's per-vertex radiance as CSV (x,y,z,r,g,b).";
 
@@ -199,8 +200,9 @@ fn check_size(size: usize, max: usize) -> Result<()> {
 #[derive(serde::Serialize)]
 struct Check {
     vertices: usize,
-    rms_relative: f64,
-    max_relative: f64,
+    /// `None` (null) when no vertex was compared: no error is not a zero error.
+    rms_relative: Option<f64>,
+    max_relative: Option<f64>,
 }
 
 #[derive(serde::Serialize)]
@@ -376,8 +378,8 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
             }
             Check {
                 vertices: count,
-                rms_relative: (sq / count.max(1) as f64).sqrt(),
-                max_relative: max,
+                rms_relative: (count > 0).then(|| (sq / count as f64).sqrt()),
+                max_relative: (count > 0).then_some(max),
             }
         });
         let line = RelightLine {

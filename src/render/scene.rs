@@ -490,9 +490,13 @@ impl Scene {
             Some("gltf" | "glb") => load_gltf,
             Some("obj") => load_obj,
             _ => {
+                // What is not a file (missing, a directory) is said as such before its name.
+                if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+                    read_scene_file(path)?;
+                }
                 return Err(SceneError::UnknownFormat {
                     path: path.to_path_buf(),
-                })
+                });
             }
         };
         // The checks before the gltf and tobj crates cover what they were found to panic on;
@@ -1698,6 +1702,22 @@ mod tests {
         assert!(e.contains("line 2 is not UTF-8"), "{e}");
         // Vertex colours on every vertex are accepted.
         assert!(scan_obj(b"v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n").is_ok());
+    }
+
+    /// A scene path without a scene extension that is not a file says so (a directory was
+    /// reported as of "unknown format"); a file of another extension is of unknown format.
+    #[test]
+    fn a_scene_path_that_is_no_file_is_named_as_such() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = Scene::load(dir.path(), false).err().unwrap().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        let missing = dir.path().join("nothing");
+        let e = Scene::load(&missing, false).err().unwrap().to_string();
+        assert!(e.contains("No such file"), "{e}");
+        let text = dir.path().join("notes.txt");
+        std::fs::write(&text, "x").unwrap();
+        let e = Scene::load(&text, false).err().unwrap().to_string();
+        assert!(e.contains("unknown format"), "{e}");
     }
 
     /// A buffer file that is not there is named (the gltf crate's error named none).
