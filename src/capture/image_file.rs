@@ -33,9 +33,10 @@
 //!
 //! Radiance `.hdr`: RLE or flat RGBE with the usual `-Y H +X W` orientation (the decoder rejects
 //! others); comment lines in the header (including a repeated `#?RADIANCE` magic line) are
-//! skipped. Values are divided by the header's cumulative `EXPOSURE` if there is one, so they are
-//! the radiance the file describes (in f64, clamped to f32's range); an `EXPOSURE` that is not
-//! finite and positive (or so small that its reciprocal overflows) is an error.
+//! skipped. Values are divided by the header's cumulative `EXPOSURE` and per-channel
+//! `COLORCORR` if there are any, so they are the radiance the file describes (in f64, clamped to
+//! f32's range); a factor that is not positive and within f32's range, its reciprocal included,
+//! is an error. A header whose lines end in CR LF is named as such.
 //!
 //! Robustness: the decoders should return errors on bad input, but they do not always (the
 //! corruption test in `tests/capture.rs` hits an arithmetic-overflow panic in `exr`'s B44
@@ -177,8 +178,19 @@ fn check_size(width: u64, height: u64) -> Result<(), String> {
 // Radiance HDR
 
 fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
-    let decoder = image::codecs::hdr::HdrDecoder::new(Cursor::new(bytes))
-        .map_err(|e| format!("not a valid Radiance HDR file: {e}"))?;
+    let decoder = image::codecs::hdr::HdrDecoder::new(Cursor::new(bytes)).map_err(|e| {
+        // A header whose lines end in CR LF reads as one that never ends ("EOF in header").
+        let head = &bytes[..bytes.len().min(4096)];
+        if head.windows(2).any(|w| w == b"\r\n") {
+            format!(
+                "not a valid Radiance HDR file: its header's lines end in CR LF (Windows line \
+                 ends; Radiance uses LF alone), as when a file is copied as text, which \
+                 corrupts its pixels too ({e})"
+            )
+        } else {
+            format!("not a valid Radiance HDR file: {e}")
+        }
+    })?;
     let (width, height) = decoder.dimensions();
     check_size(u64::from(width), u64::from(height))?;
     // Every scan line takes at least 4 bytes (one pixel) and, wider than one pixel, 8 (a
@@ -192,19 +204,7 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
             bytes.len()
         ));
     }
-    let scale = match decoder.metadata().exposure {
-        None => 1.0,
-        Some(exposure) => {
-            let scale = 1.0 / f64::from(exposure);
-            if !(exposure.is_finite() && exposure > 0.0 && scale.is_finite() && scale > 0.0) {
-                return Err(format!(
-                    "header's EXPOSURE ({exposure}) is not a finite positive number whose \
-                     reciprocal is finite"
-                ));
-            }
-            scale
-        }
-    };
+    let scale = radiance_scale(&decoder.metadata().custom_attributes)?;
     let image = image::DynamicImage::from_decoder(decoder)
         .map_err(|e| format!("cannot decode Radiance HDR pixels: {e}"))?
         .into_rgb32f();
@@ -213,7 +213,9 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
         // In f64 and clamped to f32's range: a bright pixel divided by a small EXPOSURE overflowed
         // f32 to infinity, which the frame's sanitising then set to 0 (a sun turned black).
         .map(|p| {
-            p.0.map(|v| (f64::from(v) * scale).min(f64::from(f32::MAX)) as f32)
+            let [r, g, b] = p.0;
+            [(r, scale[0]), (g, scale[1]), (b, scale[2])]
+                .map(|(v, s)| (f64::from(v) * s).min(f64::from(f32::MAX)) as f32)
         })
         .collect();
     if pixels.len() != width as usize * height as usize {
@@ -224,6 +226,50 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
         height,
         pixels,
     })
+}
+
+/// What a Radiance file's values are multiplied by to be the radiance it describes, per
+/// channel: 1 / (EXPOSURE × COLORCORR), each header line of them cumulative (Radiance's
+/// definitions). From the lines as written, in f64: the decoder's f32 product turned
+/// `EXPOSURE=1e-300` into 0 and reported it as such. A factor that is not positive, or whose
+/// reciprocal or itself is beyond f32's range, is an error quoting the lines.
+fn radiance_scale(header: &[(String, String)]) -> Result<[f64; 3], String> {
+    let mut factor = [1.0f64; 3];
+    let mut lines = Vec::new();
+    for (key, value) in header {
+        let numbers: Vec<f64> = match key.as_str() {
+            "EXPOSURE" | "COLORCORR" => value
+                .split_whitespace()
+                .map(str::parse)
+                .collect::<Result<_, _>>()
+                .map_err(|_| format!("header line {key}={value} is not numbers"))?,
+            _ => continue,
+        };
+        lines.push(format!("{key}={}", value.trim()));
+        match (key.as_str(), numbers.as_slice()) {
+            ("EXPOSURE", [e, ..]) => factor.iter_mut().for_each(|f| *f *= e),
+            ("COLORCORR", [r, g, b, ..]) => {
+                for (f, c) in factor.iter_mut().zip([r, g, b]) {
+                    *f *= c;
+                }
+            }
+            _ => return Err(format!("header line {key}={value} has too few numbers")),
+        }
+    }
+    let limit = f64::from(f32::MAX);
+    if factor
+        .iter()
+        .all(|&f| f > 0.0 && f <= limit && 1.0 / f <= limit)
+    {
+        Ok(factor.map(|f| 1.0 / f))
+    } else {
+        Err(format!(
+            "header's {} make a factor of {:?} per channel: not positive numbers within f32's \
+             range (reciprocals included)",
+            lines.join(", "),
+            factor
+        ))
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -910,5 +956,33 @@ mod tests {
             image.pixels[0]
         );
         assert_eq!(image.pixels[1], [f32::MAX; 3]);
+        // Quoted as written (the decoder's f32 product showed 1e-300 as 0).
+        let e = decode_hdr(&file("1e-300")).unwrap_err();
+        assert!(e.contains("EXPOSURE=1e-300"), "{e}");
+    }
+
+    /// COLORCORR divides each channel, cumulatively, with EXPOSURE (it was ignored).
+    #[test]
+    fn radiance_colour_correction_divides_each_channel() {
+        let mut file = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nCOLORCORR=2 1 0.5\nEXPOSURE=2\n\
+                         COLORCORR=1 4 1\n\n-Y 1 +X 1\n"
+            .to_vec();
+        file.extend_from_slice(&[128, 128, 128, 129]);
+        let image = decode_hdr(&file).unwrap();
+        assert_eq!(image.pixels[0], [0.25, 0.125, 1.0]);
+        let mut bad =
+            b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\nCOLORCORR=1 0 1\n\n-Y 1 +X 1\n".to_vec();
+        bad.extend_from_slice(&[128, 128, 128, 129]);
+        let e = decode_hdr(&bad).unwrap_err();
+        assert!(e.contains("COLORCORR=1 0 1"), "{e}");
+    }
+
+    /// A header whose lines end in CR LF is named as such (it read as "EOF in header").
+    #[test]
+    fn radiance_header_with_crlf_is_named() {
+        let mut file = b"#?RADIANCE\r\nFORMAT=32-bit_rle_rgbe\r\n\r\n-Y 1 +X 1\r\n".to_vec();
+        file.extend_from_slice(&[128, 128, 128, 129]);
+        let e = decode_hdr(&file).unwrap_err();
+        assert!(e.contains("CR LF"), "{e}");
     }
 }
