@@ -912,6 +912,31 @@ fn calibrate_response_writes_a_curve_file_from_png_brackets() {
         err.contains("pipe.png") && err.contains("not a regular file"),
         "{err}"
     );
+    // A solver setting out of range names its option, before any image is read (the FIFO
+    // would be refused otherwise): it named the field and blamed the bracket files.
+    for (option, value, needle) in [
+        (
+            "--levels",
+            "65536",
+            "invalid --levels 65536: must be in 4..=4096",
+        ),
+        ("--lambda", "0", "invalid --lambda 0: must be in (0, 1e6]"),
+        ("--samples", "1", "invalid --samples 1: must be in 2..=5000"),
+    ] {
+        let o = envlight(&[
+            "calibrate-response",
+            fifo,
+            argv[1],
+            "--exposures",
+            "0.1,0.4",
+            option,
+            value,
+            "-o",
+            unused.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(needle) && !err.contains("pipe.png"), "{err}");
+    }
     assert!(!unused.exists());
 }
 

@@ -280,6 +280,57 @@ impl Default for SolveSettings {
     }
 }
 
+/// A [`SolveSettings`] field out of its range: the field's name (that of its
+/// `calibrate-response` option too), its value and the range.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SettingProblem {
+    pub field: &'static str,
+    pub value: String,
+    pub requirement: String,
+}
+
+impl std::fmt::Display for SettingProblem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} = {} {}", self.field, self.value, self.requirement)
+    }
+}
+
+impl SolveSettings {
+    /// The ranges [`recover_response`] needs, checked without brackets (so a command can
+    /// refuse them before it reads any image).
+    pub fn check(&self) -> Result<(), SettingProblem> {
+        let problem = |field, value: String, requirement: String| SettingProblem {
+            field,
+            value,
+            requirement,
+        };
+        if !(4..=4096).contains(&self.levels) {
+            return Err(problem(
+                "levels",
+                self.levels.to_string(),
+                "must be in 4..=4096".into(),
+            ));
+        }
+        // λ = 0 leaves the curve free at codes no sample has (a singular system); past 10⁶ the
+        // smoothness rows swamp the data rows in f64 (1e300 made the system singular too).
+        if !(self.lambda > 0.0 && self.lambda <= MAX_LAMBDA) {
+            return Err(problem(
+                "lambda",
+                self.lambda.to_string(),
+                format!("must be in (0, {MAX_LAMBDA:e}]"),
+            ));
+        }
+        if !(2..=5000).contains(&self.samples) {
+            return Err(problem(
+                "samples",
+                self.samples.to_string(),
+                "must be in 2..=5000".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Recovers a camera's response curve from brackets of a static scene (Debevec & Malik's
 /// gsolve per channel). Gains are folded into the exposures.
 pub fn recover_response(
@@ -292,20 +343,10 @@ pub fn recover_response(
             "response recovery needs at least 2 brackets with different exposures".into(),
         ));
     }
+    settings
+        .check()
+        .map_err(|p| BracketError::Settings(p.to_string()))?;
     let n = settings.levels;
-    if !(4..=4096).contains(&n) {
-        return Err(BracketError::Settings(format!(
-            "levels = {n} must be in 4..=4096"
-        )));
-    }
-    // λ = 0 leaves the curve free at codes no sample has (a singular system); past 10⁶ the
-    // smoothness rows swamp the data rows in f64 (1e300 made the system singular too).
-    if !(settings.lambda > 0.0 && settings.lambda <= MAX_LAMBDA) {
-        return Err(BracketError::Settings(format!(
-            "lambda = {} must be in (0, {MAX_LAMBDA:e}]",
-            settings.lambda
-        )));
-    }
     let first_exposure = brackets[0].exposure_s * brackets[0].gain;
     if brackets
         .iter()
@@ -314,12 +355,6 @@ pub fn recover_response(
         return Err(BracketError::Settings(format!(
             "response recovery needs brackets with different exposures; every bracket's \
              exposure × gain is {first_exposure} s"
-        )));
-    }
-    if !(2..=5000).contains(&settings.samples) {
-        return Err(BracketError::Settings(format!(
-            "samples = {} must be in 2..=5000",
-            settings.samples
         )));
     }
     if brackets[0].image.pixels.is_empty() {
@@ -416,7 +451,9 @@ pub fn recover_response(
         let g = g.ok_or_else(|| {
             BracketError::Solve(format!(
                 "the {channel} channel's system is singular (too little data: more sample \
-                 pixels or a wider range of exposures)"
+                 pixels or a wider range of exposures; or a smoothness weight lambda above \
+                 its {})",
+                settings.lambda
             ))
         })?;
         let values: Vec<f64> = g.iter().map(|&g| g.exp()).collect();

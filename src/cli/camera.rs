@@ -90,6 +90,16 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
     // Checked before the brackets are read and solved: --out replaced an input image.
     crate::cli::output::check_output_path(&args.out, "--out")?;
     crate::cli::output::InputFiles::new(&args.images).refuse(&args.out, "--out")?;
+    // Checked before the images are read (each option's name is its field's).
+    let d = SolveSettings::default();
+    let settings = SolveSettings {
+        levels: args.levels.unwrap_or(d.levels),
+        lambda: args.lambda.unwrap_or(d.lambda),
+        samples: args.samples.unwrap_or(d.samples),
+    };
+    settings
+        .check()
+        .map_err(|p| anyhow!("invalid --{} {}: {}", p.field, p.value, p.requirement))?;
     let brackets: Vec<Bracket> = if let Some(dev) = &args.device {
         let settings = CameraSettings {
             device: dev.clone(),
@@ -118,12 +128,6 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
                 })
             })
             .collect::<Result<_>>()?
-    };
-    let d = SolveSettings::default();
-    let settings = SolveSettings {
-        levels: args.levels.unwrap_or(d.levels),
-        lambda: args.lambda.unwrap_or(d.lambda),
-        samples: args.samples.unwrap_or(d.samples),
     };
     let curve = recover_response(&brackets, settings).map_err(|e| {
         // The error numbers the brackets; name their files.
