@@ -24,6 +24,7 @@
 
 use crate::capture::image_file::read_hdr_image;
 use crate::capture::{CaptureError, FrameSource};
+use crate::config::shown_number;
 use crate::decompose::DecomposeSettings;
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
@@ -448,10 +449,17 @@ impl ReplaySource {
                     break;
                 }
                 Err(e) => {
+                    // serde names the projection's enum variants only in its own terms.
+                    let hint = if e.to_string().contains("variant") {
+                        " (a projection is \"lat-long\", \"angular-map\" or {\"fisheye\": \
+                         {\"model\", \"center\", \"radius\", \"fov_deg\", \"rotation_deg\"}})"
+                    } else {
+                        ""
+                    };
                     return Err(CaptureError::Format {
                         path: index_path.clone(),
-                        message: format!("line {}: {e}", number + 1),
-                    })
+                        message: format!("line {}: {e}{hint}", number + 1),
+                    });
                 }
             };
             let bad = |message: String| CaptureError::Format {
@@ -461,14 +469,17 @@ impl ReplaySource {
             if !(entry.time.is_finite() && (0.0..=MAX_FRAME_TIME_S).contains(&entry.time)) {
                 return Err(bad(format!(
                     "time {} s is not in 0..={MAX_FRAME_TIME_S} s (frame times count from the session's start)",
-                    entry.time
+                    shown_number(entry.time)
                 )));
             }
             if let Some(previous) = entries.last() {
                 if entry.seq <= previous.seq || entry.time < previous.time {
                     return Err(bad(format!(
                         "frame seq {} at {} s does not follow seq {} at {} s",
-                        entry.seq, entry.time, previous.seq, previous.time
+                        entry.seq,
+                        shown_number(entry.time),
+                        previous.seq,
+                        shown_number(previous.time)
                     )));
                 }
             }
@@ -608,10 +619,7 @@ mod tests {
     #[test]
     fn bad_index_lines_are_errors_naming_the_file_and_line() {
         for (second, expected) in [
-            (
-                line(1, "1e20", "frames/1.exr"),
-                "time 100000000000000000000 s",
-            ),
+            (line(1, "1e20", "frames/1.exr"), "time 1e20 s"),
             (line(1, "-1", "frames/1.exr"), "time -1 s"),
             (line(1, "1e9", "frames/1.exr"), ""),
             (line(0, "1", "frames/1.exr"), "does not follow"),
@@ -750,6 +758,39 @@ mod tests {
 
     /// A fisheye calibration in the index is checked against its frame's size: radius 0
     /// replayed as black lights without a word.
+    /// A fisheye projection without its calibration, and a projection of another name, say
+    /// what a projection is (serde said "invalid type: unit variant, expected newtype
+    /// variant"); a time out of range is shown as a number of a few digits.
+    #[test]
+    fn index_lines_with_a_bad_projection_or_time_say_what_is_expected() {
+        for (index, needle) in [
+            (
+                "{\"seq\":0,\"time\":0,\"file\":\"frames/000000.exr\",\"projection\":\"fisheye\"}\n",
+                "line 1: ",
+            ),
+            (
+                "{\"seq\":0,\"time\":0,\"file\":\"frames/000000.exr\",\"projection\":\"mercator\"}\n",
+                "line 1: ",
+            ),
+        ] {
+            let dir = recording_with_index(index);
+            let e = ReplaySource::open(dir.path(), Pacing::AsFastAsPossible)
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(
+                e.contains(needle) && e.contains("a projection is \"lat-long\""),
+                "{e}"
+            );
+        }
+        let dir = recording_with_index(&line(0, "1e300", "frames/000000.exr"));
+        let e = ReplaySource::open(dir.path(), Pacing::AsFastAsPossible)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("time 1e300 s is not in"), "{e}");
+    }
+
     #[test]
     fn an_invalid_projection_in_the_index_is_an_error() {
         let projection = Projection::Fisheye(crate::envmap::FisheyeCalibration {

@@ -73,6 +73,7 @@
 //! square root, no sine, [`sinc_of_square`]): 230–260 → 139–156 ms on one thread, measured
 //! side by side (docs/performance.md, "A camera's frames").
 
+use crate::config::shown_number;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
@@ -234,13 +235,13 @@ pub const MIN_FOV_DEG: f64 = 1.0;
 enum CalibrationError {
     #[error("image size {width}x{height} has no pixels")]
     EmptyImage { width: u32, height: u32 },
-    #[error("fisheye fov_deg = {0} must be in [1, 360) degrees")]
+    #[error("fisheye fov_deg = {} must be in [1, 360) degrees", shown_number(*.0))]
     FieldOfView(f64),
-    #[error("fisheye radius = {0} must be a number of pixels in (0, 1e6]")]
+    #[error("fisheye radius = {} must be a number of pixels in (0, 1e6]", shown_number(*.0))]
     Radius(f64),
-    #[error("fisheye center = [{0}, {1}] must be finite pixel coordinates")]
+    #[error("fisheye center = [{}, {}] must be finite pixel coordinates", shown_number(*.0), shown_number(*.1))]
     Center(f64, f64),
-    #[error("fisheye rotation_deg = {0} must be finite")]
+    #[error("fisheye rotation_deg = {} must be finite", shown_number(*.0))]
     Rotation(f64),
 }
 
@@ -535,7 +536,7 @@ impl FisheyeCalibration {
         if self.model == FisheyeModel::Orthographic && self.fov_deg > 180.0 {
             return Err(format!(
                 "fov_deg = {}: {}",
-                self.fov_deg,
+                shown_number(self.fov_deg),
                 crate::config::ORTHOGRAPHIC_FOV_LIMIT
             ));
         }
