@@ -55,7 +55,7 @@ pub enum BracketError {
         first_height: u32,
     },
     #[error(
-        "bracket {index}: exposure {exposure} (exposure time × gain) must be a positive number"
+        "bracket {index}: exposure {exposure} (exposure time × gain) must be a finite positive number"
     )]
     Exposure { index: usize, exposure: f64 },
     #[error(

@@ -151,7 +151,7 @@ pub fn check_fps(fps: f64) -> Result<(), String> {
         Ok(())
     } else {
         Err(format!(
-            "must be a frame rate of at least {MIN_FPS} frames/s (one frame every {:.0} s), got {}",
+            "must be a finite frame rate of at least {MIN_FPS} frames/s (one frame every {:.0} s), got {}",
             1.0 / MIN_FPS,
             crate::config::shown_number(fps)
         ))

@@ -181,7 +181,7 @@ impl RawCamera {
             return Err(invalid(
                 "camera.bracket_exposures_s",
                 bad,
-                "every exposure must be a positive number of seconds",
+                "every exposure must be a finite positive number of seconds",
             ));
         }
         if bracket_exposures_s.len() == 1 {
