@@ -20,7 +20,8 @@ Writes OUT/frame_NNNNN.png (tone-mapped sRGB, RGBA), OUT/frame_NNNNN.exr (linear
 RGBA) and OUT/stats.jsonl (lights, shadow maps and time of every frame).
 --catcher makes the ground a shadow catcher (RGBA to composite over a camera image);
 --background composites over the environment map (not with --lights).
---budget-ms holds a frame time by rendering a prefix of the progressive light set.
+--budget-ms holds a frame time by rendering a prefix of the progressive light set (the other
+lights' power merged into their nearest prefix light).
 --lighting asg shades instead with ASG lobes fitted to each INPUT frame (or sky frame), in closed
 form (Lambert + GGX, no shadows; --lobes, --fit-height).";
 
@@ -351,7 +352,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                     .with_context(|| format!("cannot fit ASG lobes to frame {}", frame.seq))?;
                 renderer.render_asg(&fit.lobes)?
             }
-            _ => renderer.render(&all[..count.min(all.len())])?,
+            _ => renderer.render(&render::light_prefix(&all, count))?,
         };
         if let Some(c) = ctl.as_mut() {
             c.update(stats.frame_ms());

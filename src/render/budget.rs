@@ -1,7 +1,8 @@
 //! Fixed frame budget: choose how many lights to render so a frame takes the configured time.
 //!
 //! The lights of a frame are used as a prefix of the progressive set (sorted by id), so fewer
-//! lights still cover the sphere evenly (Havran et al. 2005 adapt the count the same way). The
+//! lights still cover the sphere evenly (Havran et al. 2005 adapt the count the same way); the
+//! dropped lights' power is merged into the prefix ([`super::light_prefix`]). The
 //! controller is pure CPU logic, fed one measured frame time per frame (GPU timestamps, or CPU
 //! wall time where the adapter has none), so it is tested with a simulated timer.
 //!

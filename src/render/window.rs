@@ -260,29 +260,30 @@ impl App<'_> {
             bytemuck::cast_slice(&params),
         );
         let present = &state.present;
-        let stats = state
-            .renderer
-            .render_then(&self.lights[..count], |_, enc, _| {
-                let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                    label: Some("present"),
-                    color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                        view: &target,
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    })],
-                    depth_stencil_attachment: None,
-                    timestamp_writes: None,
-                    occlusion_query_set: None,
-                    multiview_mask: None,
-                });
-                pass.set_pipeline(&present.pipeline);
-                pass.set_bind_group(0, &present.bind_group, &[]);
-                pass.draw(0..3, 0..1);
-            })?;
+        let stats =
+            state
+                .renderer
+                .render_then(&light_prefix(&self.lights, count), |_, enc, _| {
+                    let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                        label: Some("present"),
+                        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                            view: &target,
+                            depth_slice: None,
+                            resolve_target: None,
+                            ops: wgpu::Operations {
+                                load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                                store: wgpu::StoreOp::Store,
+                            },
+                        })],
+                        depth_stencil_attachment: None,
+                        timestamp_writes: None,
+                        occlusion_query_set: None,
+                        multiview_mask: None,
+                    });
+                    pass.set_pipeline(&present.pipeline);
+                    pass.set_bind_group(0, &present.bind_group, &[]);
+                    pass.draw(0..3, 0..1);
+                })?;
         state.renderer.gpu().queue.present(frame);
         if let Some(c) = &mut self.controller {
             c.update(stats.frame_ms());
