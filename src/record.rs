@@ -332,14 +332,21 @@ fn write_frame(
         });
     }
     let width = frame.width as usize;
-    exr::prelude::write_rgb_file(&path, width, frame.height as usize, |x, y| {
+    let channels = exr::prelude::SpecificChannels::rgb(|exr::prelude::Vec2(x, y)| {
         let [r, g, b] = frame.pixels[y * width + x];
         (r, g, b)
-    })
-    .map_err(|e| RecordError::Exr {
-        path: path.clone(),
-        message: e.to_string(),
-    })?;
+    });
+    let image = exr::prelude::Image::from_encoded_channels(
+        (width, frame.height as usize),
+        crate::capture::image_file::WRITE_ENCODING,
+        channels,
+    );
+    exr::prelude::WritableImage::write(&image)
+        .to_file(&path)
+        .map_err(|e| RecordError::Exr {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
     let entry = FrameEntry {
         seq: frame.seq,
         time: frame.time,

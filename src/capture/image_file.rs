@@ -106,6 +106,15 @@ impl ImageFormat {
     }
 }
 
+/// How envlight writes EXR files (recorded frames, rendered frames, wavelet reconstructions):
+/// the `exr` crate's fast lossless default (RLE in 64×64 tiles), with the tiles in increasing
+/// order, so the same image gives the same bytes (in the crate's unspecified order its parallel
+/// writer stored the tiles as they were done: files differed from run to run).
+pub const WRITE_ENCODING: exr::prelude::Encoding = exr::prelude::Encoding {
+    line_order: exr::prelude::LineOrder::Increasing,
+    ..exr::prelude::Encoding::FAST_LOSSLESS
+};
+
 /// Reads an `.exr` or `.hdr` file into linear RGB. See the module docs for what is supported.
 pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
     let format = ImageFormat::from_path(path).ok_or_else(|| CaptureError::Format {

@@ -190,10 +190,14 @@ pub fn write_rgb_exr(
         (r, g, b)
     });
     let mut bytes = std::io::Cursor::new(Vec::new());
-    Image::from_channels((width, height), channels)
-        .write()
-        .to_buffered(&mut bytes)
-        .with_context(|| format!("cannot encode the EXR image for {}", path.display()))?;
+    Image::from_encoded_channels(
+        (width, height),
+        envlight::capture::image_file::WRITE_ENCODING,
+        channels,
+    )
+    .write()
+    .to_buffered(&mut bytes)
+    .with_context(|| format!("cannot encode the EXR image for {}", path.display()))?;
     std::fs::write(path, bytes.into_inner())
         .with_context(|| format!("cannot write {} ({option})", path.display()))
 }
