@@ -935,7 +935,8 @@ impl RenderThread {
             let used = light_prefix(&published.payload.lights, count);
             let result = if let Some(path) = &self.config.latest_png {
                 self.renderer.render(&used).and_then(|(image, stats)| {
-                    let exposure = output::auto_exposure(&image);
+                    // Per frame; a frame without lit pixels is black at any exposure.
+                    let exposure = output::auto_exposure(&image).unwrap_or(1.0);
                     let mut tmp = path.as_os_str().to_owned();
                     tmp.push(".tmp.png");
                     let tmp = std::path::PathBuf::from(tmp);
@@ -1025,7 +1026,8 @@ fn write_latest_png(
     use crate::render::output;
     crate::read_file::check_replaceable(path, "render.latest_png")
         .map_err(|e| crate::render::RenderError::Output(format!("{}: {e}", path.display())))?;
-    let exposure = output::auto_exposure(image);
+    // A frame without lit pixels is black at any exposure.
+    let exposure = output::auto_exposure(image).unwrap_or(1.0);
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp.png");
     let tmp = PathBuf::from(tmp);

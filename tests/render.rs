@@ -795,6 +795,38 @@ fn compute_shadow_maps_match_the_render_passes() {
     assert!(p999 <= 5e-3, "99.9th percentile {p999} > 5e-3");
 }
 
+/// The automatic exposure is fixed from the first frame with lit pixels: a first frame
+/// without lights (black) used to fix it at 1, and every later frame came out nearly white.
+/// Frame 1's PNG is the same with and without a black frame before it.
+#[test]
+fn cli_exposure_comes_from_the_first_lit_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = |seq: u64, n: usize| {
+        let lights: Vec<Light> = sky_lights(8).into_iter().take(n).collect();
+        serde_json::json!({"seq": seq, "time": 0.0, "lights": lights}).to_string()
+    };
+    let render = |name: &str, text: String| {
+        let lights = dir.path().join(format!("{name}.jsonl"));
+        std::fs::write(&lights, text).unwrap();
+        let out = dir.path().join(name);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["render", "--size", "48x32", "--no-shadows", "--lights"])
+            .arg(&lights)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(out.join("frame_00001.png")).unwrap()
+    };
+    let after_black = render("after_black", format!("{}\n{}\n", frame(0, 0), frame(1, 8)));
+    let alone = render("alone", format!("{}\n", frame(1, 8)));
+    assert!(
+        after_black == alone,
+        "frame 1 is exposed differently after a black frame"
+    );
+}
+
 #[test]
 fn cli_renders_png_and_exr_per_frame() {
     let dir = tempfile::tempdir().unwrap();

@@ -73,7 +73,8 @@ pub(crate) struct RenderArgs {
     /// Frame-time budget in ms: render the prefix of the light set (by id) that holds it.
     #[arg(long, value_name = "MS")]
     budget_ms: Option<f64>,
-    /// Exposure scale before tone mapping. [default: from the first frame's median]
+    /// Exposure scale before tone mapping. [default: from the median luminance of the first
+    /// frame with lit pixels]
     #[arg(long, value_name = "X", value_parser = parse_finite_f32)]
     exposure: Option<f32>,
     /// Show the frames in a window instead of writing files (needs the `window` feature).
@@ -392,7 +393,12 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 saturated.nan
             );
         }
-        let exp = *exposure.get_or_insert_with(|| output::auto_exposure(&image));
+        // Fixed from the first frame with lit pixels (one with no lights tells nothing: its
+        // fallback of 1 was kept for every later frame, which came out nearly white).
+        if exposure.is_none() {
+            exposure = output::auto_exposure(&image);
+        }
+        let exp = exposure.unwrap_or(1.0);
         let stem = out.join(format!("frame_{:05}", lights.seq));
         for extension in ["png", "exr"] {
             inputs.refuse(&stem.with_extension(extension), "--out")?;

@@ -35,8 +35,9 @@ pub fn tone_map(x: f32, exposure: f32) -> u8 {
     (srgb_oetf(aces(v * exposure)) * 255.0 + 0.5) as u8
 }
 
-/// Exposure that maps the median luminance of the opaque pixels to 0.18 (1 if none).
-pub fn auto_exposure(image: &Image) -> f32 {
+/// Exposure that maps the median luminance of the opaque lit pixels to 0.18; `None` for an
+/// image without one (a frame with no lights), from which no exposure can be told.
+pub fn auto_exposure(image: &Image) -> Option<f32> {
     let mut lum: Vec<f32> = image
         .rgba
         .chunks_exact(4)
@@ -45,11 +46,11 @@ pub fn auto_exposure(image: &Image) -> f32 {
         .filter(|l| l.is_finite() && *l > 0.0)
         .collect();
     if lum.is_empty() {
-        return 1.0;
+        return None;
     }
     let mid = lum.len() / 2;
     let (_, m, _) = lum.select_nth_unstable_by(mid, f32::total_cmp);
-    0.18 / *m
+    Some(0.18 / *m)
 }
 
 /// 8-bit RGBA after tone mapping (colour un-premultiplied by alpha).
