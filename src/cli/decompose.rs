@@ -179,7 +179,8 @@ pub(crate) struct DecomposeArgs {
     warp: Option<WarpArg>,
 
     /// One Lloyd step for the lights holding lamps and suns (sharper shadows of small bright
-    /// sources, about a third more time per frame; docs/quality.md). Off by default.
+    /// sources, 8-40% more instructions per frame than the default; docs/quality.md). Off by
+    /// default.
     #[arg(long)]
     concentrated_lloyd: bool,
 

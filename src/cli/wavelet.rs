@@ -47,7 +47,14 @@ enum WaveletCommand {
     #[command(long_about = crate::cli::wavelet_transport::RELIGHT_LONG_ABOUT)]
     Relight(crate::cli::wavelet_transport::RelightArgs),
     /// Recover lighting from synthetic observations of a known object (hierarchical refinement).
-    #[command(long_about = crate::cli::wavelet_transport::RECOVER_LONG_ABOUT)]
+    // One frame: --frames is not shown (given, it is a usage error that says so).
+    #[command(
+        long_about = crate::cli::wavelet_transport::RECOVER_LONG_ABOUT,
+        mut_arg("frames", |a| a.hide(true)),
+        mut_arg("inputs", |a| a.help(
+            "One .exr/.hdr file (or a directory or glob pattern naming one). None: the built-in sky."
+        ))
+    )]
     Recover(crate::cli::wavelet_transport::RecoverArgs),
 }
 
@@ -78,8 +85,7 @@ pub struct FrameInput {
     /// Projection of the INPUT files. [default: latlong]
     #[arg(long, value_enum)]
     projection: Option<ProjectionArg>,
-    /// Frames to process; 0 = every frame (approx, relight; recover reads one frame and takes no
-    /// --frames). [default: 1 for the sky, every file for INPUT]
+    /// Frames to process; 0 = every frame. [default: 1 for the sky, every file for INPUT]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
 }
