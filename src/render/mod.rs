@@ -1399,7 +1399,7 @@ impl Renderer {
 /// it dropped (a frame-time budget that kept 16 of 64 lights under a uniform sky rendered it at
 /// 0.22 of its brightness), and a sun among the dropped lights went missing.
 ///
-/// The nearest prefix light is found in a uniform grid over the unit cube ([`DirectionGrid`]).
+/// The nearest prefix light is found in a uniform grid over the unit cube (`DirectionGrid`).
 /// Measured (one core, Fibonacci-sphere directions, ids a random permutation, as spread as a
 /// progressive prefix): 1024 lights to 512 in 0.16 ms, 4096 to 2048 in 1.0 ms, 16384 to 8192 in
 /// 5.2 ms, against 0.60, 9.5 and 149 ms by brute force; ids in the order of the directions (a
