@@ -85,7 +85,8 @@ pub struct FrameInput {
     /// Projection of the INPUT files. [default: latlong]
     #[arg(long, value_enum)]
     projection: Option<ProjectionArg>,
-    /// Frames to process; 0 = every frame. [default: 1 for the sky, every file for INPUT]
+    /// Frames to process; 0 = every frame (the sky: endless). [default: 1 for the sky, every
+    /// file for INPUT]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
 }
