@@ -293,10 +293,6 @@ impl DecomposeArgs {
             }
             src.projection = Some(name.into());
             note("source.projection", "--projection");
-            if name != "fisheye" {
-                // A config's [source.fisheye] calibrates the projection the flag replaces.
-                src.fisheye = Default::default();
-            }
         }
         let fisheye_flags = self.fisheye_model.is_some()
             || self.center.is_some()

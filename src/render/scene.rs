@@ -1205,10 +1205,12 @@ struct ObjScan {
 /// (tobj's own errors name neither line nor problem: "position parse error", "read error"):
 /// every line UTF-8; `v x y z [w | r g b]` with numbers (w not 0, vertex colours on every
 /// vertex or on none), `vt u v`, `vn x y z`; face corners `v`, `v/vt`, `v//vn` or `v/vt/vn`
-/// with integer indices, each no larger in magnitude than the number of positions, texture
-/// coordinates or normals in the file, and not 0 (`tobj` multiplies the texture-coordinate and
-/// normal indices unchecked: an index near 2⁶³ overflows, a panic with overflow checks on, and
-/// wraps past its bounds check without). Counts what will not be drawn ([`ObjScan`]).
+/// with integer indices (in `l` lines too, which tobj parses as it does faces), each no larger
+/// in magnitude than the number of positions, texture coordinates or normals in the file (a
+/// negative one: than those defined above its line, which it counts back from), and not 0
+/// (`tobj` multiplies the texture-coordinate and normal indices unchecked: an index near 2⁶³
+/// overflows, a panic with overflow checks on, and wraps past its bounds check without); no
+/// byte-order mark. Counts what will not be drawn ([`ObjScan`]).
 fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
     let number = |word: &str| word.parse::<f32>().is_ok();
     let mut scan = ObjScan::default();
@@ -1216,6 +1218,13 @@ fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
     // The first vertex line with a colour and the first without.
     let (mut coloured, mut plain) = (None, None);
     let lines = || text.split(|&c| c == b'\n').zip(1usize..);
+    if text.starts_with("\u{feff}".as_bytes()) {
+        return Err(
+            "the file begins with a UTF-8 byte-order mark, which OBJ readers do not \
+                    expect (its first line would be lost); remove it"
+                .into(),
+        );
+    }
     for (line, n) in lines() {
         let line = std::str::from_utf8(line)
             .map_err(|_| format!("line {n} is not UTF-8 text (an OBJ file is text)"))?;
@@ -1265,15 +1274,25 @@ fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
         counts[kind] += 1;
     }
     const KINDS: [&str; 3] = ["positions", "texture coordinates", "normals"];
+    // Defined so far: a negative index counts back from the elements above its line.
+    let mut defined = [0usize; 3];
     for (line, n) in lines() {
         // UTF-8: checked above.
         let line = std::str::from_utf8(line).unwrap_or_default();
         let mut words = line.split_whitespace();
-        if words.next() != Some("f") {
+        let keyword = words.next();
+        match keyword {
+            Some("v") => defined[0] += 1,
+            Some("vt") => defined[1] += 1,
+            Some("vn") => defined[2] += 1,
+            _ => {}
+        }
+        // tobj parses `l` lines as it does faces (and then leaves them out).
+        if !matches!(keyword, Some("f" | "l")) {
             continue;
         }
         let corners: Vec<&str> = words.collect();
-        if corners.len() < 3 {
+        if keyword == Some("f") && corners.len() < 3 {
             scan.short_faces += 1;
         }
         for corner in corners {
@@ -1296,6 +1315,13 @@ fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
                     return Err(format!(
                         "line {n}: face index {index} out of range of the file's {} {}",
                         counts[kind], KINDS[kind]
+                    ));
+                }
+                if index < 0 && index.unsigned_abs() > defined[kind] as u128 {
+                    return Err(format!(
+                        "line {n}: face index {index} counts back past the {} {} defined \
+                         above it",
+                        defined[kind], KINDS[kind]
                     ));
                 }
             }
@@ -1693,6 +1719,14 @@ mod tests {
                 "v 0 0 0\nf 1 1 4\n",
                 "line 2: face index 4 out of range of the file's 1 positions",
             ),
+            // Negative indices count back from the line (tobj's bare "face vertex index out
+            // of bounds" before); `l` lines are parsed too ("face parse error").
+            (
+                "v 0 0 0\nf -1 -2 -3\nv 1 0 0\nv 0 1 0\n",
+                "line 2: face index -2 counts back past the 1 positions defined above it",
+            ),
+            ("v 0 0 0\nv 1 0 0\nl 1 abc\n", "line 3: face corner \"abc\""),
+            ("\u{feff}v 0 0 0\n", "byte-order mark"),
         ];
         for (text, needle) in bad {
             let e = scan_obj(text.as_bytes()).unwrap_err();
