@@ -39,7 +39,7 @@ linear RGB, 12 bytes per pixel: 47 MB/s for the 512x256 sky at 30 frames/s) and 
 until stopped. Replay with `envlight run --replay DIR`.";
 
 #[derive(Args, Debug)]
-pub(crate) struct DaemonArgs {
+struct DaemonArgs {
     /// Config file (TOML; see config/envlight.toml). Reloaded on SIGHUP.
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -140,16 +140,14 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
     writeln!(text, "{name}: ok")?;
     // As `envlight run` reads it (check-config guards the service's config).
     let daemon_source = envlight::daemon::daemon_source_defaults(config.clone()).source;
-    let frames = {
-        use envlight::config::SourceKind::{Sequence, V4l2};
-        match (daemon_source.frames, daemon_source.kind) {
-            // `frames = 0` lifts the limit; a sequence not looped still ends with its files.
-            (Some(0) | None, Sequence) if daemon_source.looped => "looped until stopped".to_owned(),
-            (Some(0) | None, Sequence) => "every file once".to_owned(),
-            (Some(0), _) | (None, V4l2) => "until stopped".to_owned(),
-            (Some(n), _) => format!("{n} frames"),
-            (None, _) => "until stopped".to_owned(),
+    let frames = match (daemon_source.frames, daemon_source.kind) {
+        // `frames = 0` lifts the limit; a sequence not looped still ends with its files.
+        (Some(0) | None, envlight::config::SourceKind::Sequence) if daemon_source.looped => {
+            "looped until stopped".to_owned()
         }
+        (Some(0) | None, envlight::config::SourceKind::Sequence) => "every file once".to_owned(),
+        (Some(0) | None, _) => "until stopped".to_owned(),
+        (Some(n), _) => format!("{n} frames"),
     };
     let pacing = match (daemon_source.kind, daemon_source.fps) {
         (envlight::config::SourceKind::V4l2, _) => match config.camera.fps {

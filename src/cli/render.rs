@@ -142,7 +142,7 @@ enum LightingArg {
 }
 
 /// The frames of `render --lights`, read as they are rendered.
-pub(crate) struct LightFileFrames {
+struct LightFileFrames {
     /// The first frame, read before rendering starts.
     first: Option<envlight::LightFrame>,
     reader: envlight::light::JsonLinesReader,
