@@ -1330,6 +1330,36 @@ fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
     Ok(scan)
 }
 
+/// The OBJ text with comments that follow the data on a geometry line (`f 1 2 3 # back`,
+/// `v 0 0 0 # origin`) cut off. Exporters write them and most readers accept them; tobj reads
+/// the `#` as one more number or corner and fails. Only geometry lines are cut (`v`, `vt`,
+/// `vn`, `vp`, `f`, `l`, `p`, `s`): a name after `o`, `g`, `usemtl` or `mtllib` may hold a `#`.
+/// Every line keeps its place, so line numbers in errors stay those of the file.
+fn strip_trailing_comments(text: &[u8]) -> std::borrow::Cow<'_, [u8]> {
+    const GEOMETRY: [&[u8]; 8] = [b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"s"];
+    let cut = |line: &[u8]| -> Option<usize> {
+        let keyword = line
+            .trim_ascii_start()
+            .split(u8::is_ascii_whitespace)
+            .next()?;
+        if !GEOMETRY.contains(&keyword) {
+            return None;
+        }
+        line.iter().position(|&c| c == b'#')
+    };
+    if !text.split(|&c| c == b'\n').any(|line| cut(line).is_some()) {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = Vec::with_capacity(text.len());
+    for (i, line) in text.split(|&c| c == b'\n').enumerate() {
+        if i > 0 {
+            out.push(b'\n');
+        }
+        out.extend_from_slice(&line[..cut(line).unwrap_or(line.len())]);
+    }
+    std::borrow::Cow::Owned(out)
+}
+
 fn load_obj(path: &Path) -> Result<Builder, SceneError> {
     let err = |message: String| SceneError::Obj {
         path: path.to_path_buf(),
@@ -1337,6 +1367,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
     };
     // Read once: the text is scanned for lines and points here and parsed by tobj from memory.
     let text = read_scene_file(path)?;
+    let text = strip_trailing_comments(&text);
     // Lines and points are not drawn: tobj would turn them into zero-area triangles, so they
     // are left out, and said so.
     let options = tobj::LoadOptions {
@@ -1736,6 +1767,37 @@ mod tests {
         assert!(e.contains("line 2 is not UTF-8"), "{e}");
         // Vertex colours on every vertex are accepted.
         assert!(scan_obj(b"v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n").is_ok());
+    }
+
+    /// A comment after the data of a geometry line is cut off (it was refused: "face corner
+    /// \"#\" is not an integer index"); names, which may hold a `#`, are kept; the lines keep
+    /// their numbers.
+    #[test]
+    fn trailing_comments_on_geometry_lines_are_cut() {
+        let text =
+            "o part#2\nv 0 0 0 # origin\nv 1 0 0\nv 0 1 0#up\n  f 1 2 3 # front\nusemtl a#b\n";
+        let cut = strip_trailing_comments(text.as_bytes());
+        assert_eq!(
+            std::str::from_utf8(&cut).unwrap(),
+            "o part#2\nv 0 0 0 \nv 1 0 0\nv 0 1 0\n  f 1 2 3 \nusemtl a#b\n"
+        );
+        assert_eq!(scan_obj(&cut), Ok(ObjScan::default()));
+        // Nothing to cut: the text itself.
+        let plain = b"v 0 0 0\n# a whole-line comment\nf 1 1 1\n";
+        assert!(matches!(
+            strip_trailing_comments(plain),
+            std::borrow::Cow::Borrowed(_)
+        ));
+        // Errors still name the line of the file.
+        let e = scan_obj(&strip_trailing_comments(b"# c\nv 0 0 0 # c\nf 1 1 9 # c\n")).unwrap_err();
+        assert!(e.starts_with("line 3: face index 9"), "{e}");
+        // And tobj reads what is left.
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("commented.obj");
+        std::fs::write(&file, text).unwrap();
+        if let Err(e) = Scene::load(&file, false) {
+            panic!("{e}");
+        }
     }
 
     /// A scene path without a scene extension that is not a file says so (a directory was
