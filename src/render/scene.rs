@@ -572,16 +572,6 @@ impl Scene {
     }
 }
 
-fn check_finite(path: &Path, positions: &[Vec3], normals: &[Vec3]) -> Result<(), SceneError> {
-    if positions.iter().chain(normals).any(|p| !p.is_finite()) {
-        return Err(SceneError::Gltf {
-            path: path.to_path_buf(),
-            message: "non-finite vertex position or normal".into(),
-        });
-    }
-    Ok(())
-}
-
 /// Checks what the `gltf` crate's reader takes on trust (it panics or aborts otherwise): the
 /// type and component type (`dimensions` and one of `types`: POSITION and NORMAL are VEC3
 /// floats, indices SCALAR unsigned integers), a count between 1 and [`MAX_SCENE_ELEMENTS`],
@@ -973,6 +963,13 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             }
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let node_name = format!("node {} ({:?})", node.index(), node.name().unwrap_or(""));
+        if !world.is_finite() {
+            return Err(err(format!(
+                "{node_name}: its transform combined with its parents' overflows f32 (scales \
+                 or translations whose product exceeds 3.4e38)"
+            )));
+        }
         for child in node.children() {
             stack.push((child, world));
         }
@@ -1092,8 +1089,14 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             if normals.len() != positions.len() {
                 return Err(err("normal count differs from position count".into()));
             }
+            if positions.iter().chain(&normals).any(|p| !p.is_finite()) {
+                return Err(err(format!(
+                    "{node_name}, {}: a vertex position or normal is not finite in world space \
+                     (a vertex times the node's transform overflows f32?)",
+                    mesh_name(&prim)
+                )));
+            }
             repair_zero_normals(path, &positions, &mut normals, &indices);
-            check_finite(path, &positions, &normals)?;
             let mat = prim.material();
             let key = mat.index();
             let id = match material_ids.get(&key) {
@@ -1212,7 +1215,8 @@ struct ObjScan {
 /// overflows, a panic with overflow checks on, and wraps past its bounds check without); no
 /// byte-order mark. Counts what will not be drawn ([`ObjScan`]).
 fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
-    let number = |word: &str| word.parse::<f32>().is_ok();
+    // Finite in f32: "1e39" and "nan" parse, as infinity and NaN.
+    let number = |word: &str| word.parse::<f32>().is_ok_and(f32::is_finite);
     let mut scan = ObjScan::default();
     let mut counts = [0usize; 3];
     // The first vertex line with a colour and the first without.
@@ -1243,14 +1247,16 @@ fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
         if rest.len() < needed || !rest[..needed].iter().all(|w| number(w)) {
             let form = ["v x y z", "vt u v", "vn x y z"][kind];
             return Err(format!(
-                "line {n}: expected {needed} numbers ({form}), got {:?}",
+                "line {n}: expected {needed} finite numbers ({form}), got {:?}",
                 line.trim()
             ));
         }
         if kind == 0 {
             match rest[3..] {
                 [] => plain = plain.or(Some(n)),
-                [w] if w.parse::<f32>().is_ok_and(|w| w != 0.0) => plain = plain.or(Some(n)),
+                [w] if number(w) && w.parse::<f32>().is_ok_and(|w| w != 0.0) => {
+                    plain = plain.or(Some(n))
+                }
                 [w] => {
                     return Err(format!(
                         "line {n}: the homogeneous w {w:?} must be a number other than 0"
@@ -1677,7 +1683,8 @@ mod tests {
     /// normalised (it scaled and sheared the mesh: (0, 1, 0) came out at (0, -1, 2)); a zero
     /// rotation, a projective matrix and a matrix given with translation/rotation/scale are
     /// errors naming the node (the zero rotation was read as the identity, the matrix's last
-    /// row and the translation were dropped).
+    /// row and the translation were dropped); so is a transform that overflows f32 with its
+    /// parents' or applied to a vertex.
     #[test]
     fn node_transforms_are_read_as_gltf_defines_them() {
         let dir = tempfile::tempdir().unwrap();
@@ -1703,6 +1710,17 @@ mod tests {
             (
                 r#"[{"mesh":0,"matrix":[2,0,0,0, 0,2,0,0, 0,0,2,0, 0,0,0,1],"translation":[5,0,0]}]"#,
                 "node 0: has both a matrix and translation",
+            ),
+            // Finite on their own, not together (it was "non-finite vertex position or
+            // normal", after a warning about zero normals).
+            (
+                r#"[{"mesh":0,"name":"root","children":[1],"scale":[1e30,1e30,1e30]},
+                    {"name":"leaf","mesh":0,"scale":[1e30,1e30,1e30]}]"#,
+                "node 1 (\"leaf\"): its transform combined with its parents' overflows f32",
+            ),
+            (
+                r#"[{"mesh":0,"scale":[3e38,3e38,3e38],"translation":[3e38,0,0]}]"#,
+                "node 0 (\"\"), mesh 0 (\"\") primitive 0: a vertex position or normal is not finite",
             ),
         ];
         for (i, (nodes, needle)) in refused.into_iter().enumerate() {
@@ -1730,13 +1748,25 @@ mod tests {
         let bad = [
             (
                 "v a b c\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
-                "line 1: expected 3 numbers (v x y z)",
+                "line 1: expected 3 finite numbers (v x y z)",
             ),
-            ("v 1\n", "line 1: expected 3 numbers"),
+            ("v 1\n", "line 1: expected 3 finite numbers"),
+            // Parsed as infinity and NaN ("non-finite vertex position or normal", no line).
+            ("v 0 1e39 0\n", "line 1: expected 3 finite numbers"),
+            (
+                "v 0 0 0\nvn nan 0 1\n",
+                "line 2: expected 3 finite numbers (vn x y z)",
+            ),
             ("v 0 0 0 1 0\n", "line 1: a vertex is v x y z"),
             ("v 0 0 0 0\n", "line 1: the homogeneous w \"0\""),
-            ("v 0 0 0\nvn 0 1\n", "line 2: expected 3 numbers (vn x y z)"),
-            ("v 0 0 0\nvt x 0\n", "line 2: expected 2 numbers (vt u v)"),
+            (
+                "v 0 0 0\nvn 0 1\n",
+                "line 2: expected 3 finite numbers (vn x y z)",
+            ),
+            (
+                "v 0 0 0\nvt x 0\n",
+                "line 2: expected 2 finite numbers (vt u v)",
+            ),
             (
                 "v 0 0 0 1 0 0\nv 1 0 0\n",
                 "line 1 gives a vertex colour and line 2 does not",
