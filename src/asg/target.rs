@@ -3,10 +3,13 @@
 //! fitting, `fit` module doc; Clausen et al. 2024).
 //!
 //! Steps for a frame:
-//! 1. **Resample** ([`resample_latlong`]) to a `2h × h` lat-long map by averaging `s × s`
-//!    sub-samples per pixel, weighted by their solid angle (an exact box filter when the source
-//!    is lat-long and an integer multiple of the size). Non-finite and negative values count
-//!    as 0.
+//! 1. **Resample** ([`resample_latlong`]) to a `2h × h` lat-long map that keeps the frame's
+//!    integral: an exact box filter when the source is lat-long and an integer multiple of the
+//!    size; otherwise each source pixel's energy (radiance × exact solid angle) goes to the fit
+//!    pixel of its centre, through the decomposition's index table
+//!    ([`crate::decompose::working_map::Resampler::with_exact_width`], built once per frame
+//!    geometry and kept by the target), and each fit pixel's radiance is its energy over its
+//!    solid angle. Non-finite and negative values count as 0.
 //! 2. **Integral and mean** radiance: ∫L dω per channel over the pixels' exact solid angles.
 //! 3. **Diffuse ground truth** D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p, by direct convolution of a
 //!    ≤ 64×128 box-downsampled copy (cells: the solid-angle-weighted sums of the pixels' radiance,
@@ -26,6 +29,7 @@
 
 use super::fast::Pixels;
 use super::{Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
+use crate::decompose::working_map::Resampler;
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use glam::DVec3;
@@ -65,6 +69,8 @@ pub struct FitTarget {
     /// energy as (direction, energy) rows.
     energy: Vec<[f64; 3]>,
     cells: Vec<[f64; 6]>,
+    /// The index table of the frames' geometry when it is not an exact multiple of the map.
+    table: TableCache,
 }
 
 /// The parts of a target that depend only on its size and number of normals (module doc,
@@ -161,6 +167,20 @@ pub fn resample_latlong_into(
     height: u32,
     out: &mut Vec<[f64; 3]>,
 ) -> Result<(), AsgError> {
+    resample_latlong_cached(frame, height, out, &mut None)
+}
+
+/// The index table of a frame geometry that is not an exact multiple of the fit map, kept
+/// from frame to frame by [`FitTarget`]: (fit-map height, resampler).
+type TableCache = Option<(u32, Box<Resampler>)>;
+
+/// [`resample_latlong_into`], keeping the index table of an inexact geometry in `cache`.
+fn resample_latlong_cached(
+    frame: &HdrFrame,
+    height: u32,
+    out: &mut Vec<[f64; 3]>,
+    cache: &mut TableCache,
+) -> Result<(), AsgError> {
     let (sw, sh) = (frame.width, frame.height);
     if sw == 0 || sh == 0 || frame.pixels.len() != sw as usize * sh as usize {
         return Err(AsgError::PixelCount {
@@ -216,33 +236,23 @@ pub fn resample_latlong_into(
         }
         return Ok(());
     }
-    let s = sh.div_ceil(h).clamp(1, 8);
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = [0.0; 3];
-            let mut wsum = 0.0;
-            for j in 0..s {
-                let py = f64::from(y) + (f64::from(j) + 0.5) / f64::from(s);
-                for i in 0..s {
-                    let px = f64::from(x) + (f64::from(i) + 0.5) / f64::from(s);
-                    let d = Projection::LatLong
-                        .pixel_to_direction(w, h, px, py)
-                        .unwrap_or(DVec3::Y);
-                    let wt = (PI * py / f64::from(h)).sin();
-                    wsum += wt;
-                    if let Some((qx, qy)) = frame.projection.direction_to_pixel(sw, sh, d) {
-                        let (ix, iy) = (qx.floor(), qy.floor());
-                        if ix >= 0.0 && iy >= 0.0 && ix < f64::from(sw) && iy < f64::from(sh) {
-                            let p = frame.pixel(ix as u32, iy as u32);
-                            for c in 0..3 {
-                                acc[c] += clean(p[c]) * wt;
-                            }
-                        }
-                    }
-                }
-            }
-            out.push(acc.map(|a| if wsum > 0.0 { a / wsum } else { 0.0 }));
+    // Any other geometry: each source pixel's energy (radiance × its exact solid angle) goes
+    // to the fit pixel of its centre, cut into sub-pixels where source pixels are the larger
+    // (the decomposition's index table, src/decompose/working_map.rs), and each fit pixel's
+    // radiance is its energy over its solid angle: the map keeps the frame's integral. (Point
+    // samples, at most 8 × 8 per fit pixel, did not: a one-pixel sun in a 2000 × 1000 map was
+    // missed or counted several times over, by where it lay.)
+    let resampler = match cache {
+        Some((cached_height, r)) if *cached_height == height && r.fits(frame) => r,
+        _ => {
+            let r = Resampler::with_exact_width(frame.projection, sw, sh, w);
+            &mut cache.insert((height, Box::new(r))).1
         }
+    };
+    let map = resampler.resample(frame, f64::INFINITY, None);
+    debug_assert_eq!((map.width, map.height), (w as usize, h as usize));
+    for (row, omega) in map.energy.chunks_exact(map.width).zip(&map.row_solid_angle) {
+        out.extend(row.iter().map(|e| e.map(|c| f64::from(c) / omega)));
     }
     Ok(())
 }
@@ -302,8 +312,12 @@ fn diffuse_sums_dispatch(
 impl FitTarget {
     /// The target of `frame` at fit-map height `height` with `normals` diffuse normals.
     pub fn from_frame(frame: &HdrFrame, height: u32, normals: usize) -> Result<Self, AsgError> {
-        let radiance = resample_latlong(frame, height)?;
-        Self::from_latlong(2 * height, height, radiance, normals)
+        let mut radiance = Vec::new();
+        let mut table = None;
+        resample_latlong_cached(frame, height, &mut radiance, &mut table)?;
+        let mut target = Self::from_latlong(2 * height, height, radiance, normals)?;
+        target.table = table;
+        Ok(target)
     }
 
     /// The target of a `width × height` lat-long radiance map (width = 2 × height).
@@ -359,6 +373,7 @@ impl FitTarget {
             geometry: Arc::new(geometry),
             energy: Vec::new(),
             cells: Vec::new(),
+            table: None,
         };
         target.update();
         Ok(target)
@@ -371,7 +386,7 @@ impl FitTarget {
     /// unchanged.
     pub fn refill(&mut self, frame: &HdrFrame) -> Result<(), AsgError> {
         // The resampled radiance is finite and ≥ 0 already: no cleaning pass.
-        resample_latlong_into(frame, self.height, &mut self.radiance)?;
+        resample_latlong_cached(frame, self.height, &mut self.radiance, &mut self.table)?;
         self.update();
         Ok(())
     }
@@ -475,6 +490,7 @@ impl FitTarget {
             geometry: Arc::new(geometry),
             energy: Vec::new(),
             cells: Vec::new(),
+            table: None,
         })
     }
 

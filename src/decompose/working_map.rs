@@ -421,6 +421,35 @@ impl Resampler {
                 Self::table_plan(projection, src_width, src_height, width, height),
             )
         };
+        Self::with_plan(projection, src_width, src_height, width, height, plan)
+    }
+
+    /// A resampler whose working map is exactly `working_width` × `working_width / 2` (at
+    /// least 2 × 1) whatever the input, through the index table: each input pixel's energy
+    /// goes to the working pixel of its centre (cut into sub-pixels where input pixels are
+    /// larger than working ones), so the map's total is the input's integral. For callers that
+    /// need that size (the ASG fit's target) where [`Self::new`] would box-filter a lat-long
+    /// input to a size of its own.
+    pub fn with_exact_width(
+        projection: Projection,
+        src_width: u32,
+        src_height: u32,
+        working_width: u32,
+    ) -> Self {
+        let width = working_width.max(2) as usize;
+        let height = width / 2;
+        let plan = Self::table_plan(projection, src_width, src_height, width, height);
+        Self::with_plan(projection, src_width, src_height, width, height, plan)
+    }
+
+    fn with_plan(
+        projection: Projection,
+        src_width: u32,
+        src_height: u32,
+        width: usize,
+        height: usize,
+        plan: Plan,
+    ) -> Self {
         let omegas = Projection::LatLong.solid_angles(width as u32, height as u32);
         let trig = |n: usize, scale: f64| -> Vec<(f64, f64)> {
             (0..n)
