@@ -1057,8 +1057,8 @@ fn the_fit_target_of_an_inexact_size_keeps_a_one_pixel_sun() {
             None => reused.insert(fresh.clone()),
         };
         for t in [&fresh, target] {
-            for c in 0..3 {
-                let e = (t.integral[c] - expected[c]).abs() / expected[c];
+            for (c, (got, want)) in t.integral.iter().zip(expected).enumerate() {
+                let e = (got - want).abs() / want;
                 assert!(e < 1e-6, "sun at ({sx}, {sy}), channel {c}: {e}");
             }
         }
