@@ -145,6 +145,8 @@ pub enum DaemonError {
     Signals(#[source] std::io::Error),
     #[error("render thread: {0}")]
     Render(String),
+    #[error("render.latest_png: {0}")]
+    LatestPng(#[source] std::io::Error),
     #[error("ASG stage: {0}")]
     Asg(#[from] AsgStageError),
     #[error("wavelet stage: {0}")]
@@ -255,6 +257,13 @@ impl Daemon {
                 live_source_policy(&config.source),
             ),
         };
+        if config.render.enabled {
+            if let Some(png) = &config.render.latest_png {
+                let scene = config.render.scene.iter().cloned();
+                let inputs: Vec<PathBuf> = source.files().iter().cloned().chain(scene).collect();
+                refuse_latest_png_over(png, &inputs)?;
+            }
+        }
         let replaying = options.replay.is_some();
         let parts = StartParts {
             settings,
@@ -904,7 +913,7 @@ impl RenderThread {
     /// Renders until stopped or the stream ends; returns the number of frames drawn, or the
     /// first GPU or output error (which also ends the thread, logged).
     fn run(mut self) -> Result<u64, String> {
-        use crate::render::{budget, light_prefix, output};
+        use crate::render::{budget, light_prefix};
         if self.config.lighting == crate::config::Lighting::Asg {
             return self.run_asg();
         }
@@ -933,22 +942,12 @@ impl RenderThread {
                 None => all,
             };
             let used = light_prefix(&published.payload.lights, count);
-            let result = if let Some(path) = &self.config.latest_png {
-                self.renderer.render(&used).and_then(|(image, stats)| {
-                    // Per frame; a frame without lit pixels is black at any exposure.
-                    let exposure = output::auto_exposure(&image).unwrap_or(1.0);
-                    let mut tmp = path.as_os_str().to_owned();
-                    tmp.push(".tmp.png");
-                    let tmp = std::path::PathBuf::from(tmp);
-                    output::write_png(&tmp, &image, exposure)
-                        .map_err(|e| crate::render::RenderError::Gpu(e.to_string()))?;
-                    std::fs::rename(&tmp, path).map_err(|e| {
-                        crate::render::RenderError::Gpu(format!("{}: {e}", path.display()))
-                    })?;
-                    Ok(stats)
-                })
-            } else {
-                self.renderer.render_timed(&used)
+            let result = match &self.config.latest_png {
+                Some(path) => self
+                    .renderer
+                    .render(&used)
+                    .and_then(|(image, stats)| write_latest_png(path, &image).map(|()| stats)),
+                None => self.renderer.render_timed(&used),
             };
             let stats = match result {
                 Ok(stats) => stats,
@@ -1018,6 +1017,28 @@ impl RenderThread {
     }
 }
 
+/// The temporary file through which `[render] latest_png` is replaced.
+fn latest_png_tmp(path: &Path) -> PathBuf {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp.png");
+    PathBuf::from(tmp)
+}
+
+/// Fails when `[render] latest_png` or its temporary file is one of `inputs` (the frames, the
+/// scene, the config file): each frame's PNG would replace it. `run --config rd.toml` with
+/// `latest_png` naming rd.toml turned the config into a PNG (found by an audit).
+pub fn refuse_latest_png_over(png: &Path, inputs: &[PathBuf]) -> Result<(), DaemonError> {
+    crate::read_file::refuse_input(png, "render.latest_png", inputs)
+        .and_then(|()| {
+            crate::read_file::refuse_input(
+                &latest_png_tmp(png),
+                "render.latest_png's temporary file",
+                inputs,
+            )
+        })
+        .map_err(DaemonError::LatestPng)
+}
+
 /// Writes a tone-mapped PNG next to `path` and renames it into place.
 fn write_latest_png(
     path: &Path,
@@ -1028,9 +1049,7 @@ fn write_latest_png(
         .map_err(|e| crate::render::RenderError::Output(format!("{}: {e}", path.display())))?;
     // A frame without lit pixels is black at any exposure.
     let exposure = output::auto_exposure(image).unwrap_or(1.0);
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp.png");
-    let tmp = PathBuf::from(tmp);
+    let tmp = latest_png_tmp(path);
     output::write_png(&tmp, image, exposure)
         .map_err(|e| crate::render::RenderError::Output(e.to_string()))?;
     std::fs::rename(&tmp, path)

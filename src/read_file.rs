@@ -77,6 +77,35 @@ pub fn read_regular_text(path: &Path, max_bytes: u64, what: &str) -> std::io::Re
     })
 }
 
+/// Fails when `output` (named `what` in the error) is one of `inputs`: the same file by device
+/// and inode, whatever names or links lead to it, so that writing it would destroy that
+/// input. A path that does not exist yet is no input.
+pub fn refuse_input<P: AsRef<Path>>(
+    output: &Path,
+    what: &str,
+    inputs: &[P],
+) -> std::io::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(out) = std::fs::metadata(output) else {
+        return Ok(());
+    };
+    for input in inputs {
+        let input = input.as_ref();
+        if std::fs::metadata(input).is_ok_and(|m| (m.dev(), m.ino()) == (out.dev(), out.ino())) {
+            return Err(Error::new(
+                ErrorKind::InvalidInput,
+                format!(
+                    "{what} {} is the input file {}: writing it would destroy the input; choose \
+                     another path",
+                    output.display(),
+                    input.display()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Fails if `path` exists and is neither a regular file nor a symbolic link (which a rename
 /// replaces, leaving its target alone): renaming a new file over it would replace a device,
 /// a pipe or a socket; a directory cannot be renamed over at all. `what` names the output.

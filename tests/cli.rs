@@ -902,6 +902,21 @@ fn latest_file_holds_only_the_newest_frame() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
     assert!(!dir.path().join("sub.tmp").exists());
+
+    // An input named as --latest's temporary file (here the config file) is refused and
+    // kept: it was overwritten with the first frame and renamed to --latest (an audit).
+    let config = dir.path().join("lt.tmp");
+    std::fs::write(&config, "# mine\n").unwrap();
+    let latest = dir.path().join("lt");
+    let o = run_small_sky(1, 4, &["--config", s(&config), "--latest", s(&latest)]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--latest's temporary file") && stderr(&o).contains("lt.tmp"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), "# mine\n");
+    assert!(!latest.exists());
 }
 
 /// Options that do not go together, or that the chosen mode would ignore, are usage errors

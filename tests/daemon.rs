@@ -2178,6 +2178,51 @@ fn the_render_thread_draws_every_new_light_list() {
     daemon.shutdown().unwrap();
 }
 
+/// `[render] latest_png` naming an input — a frame of the sequence, or for `envlight run` the
+/// config file — is refused at start and the file kept (so is one whose temporary file
+/// `X.tmp.png` does): each frame's PNG replaced it (`run --config rd.toml` turned rd.toml into a PNG; found
+/// by an audit). Refused before the renderer is made: no GPU is needed.
+#[test]
+fn latest_png_may_not_replace_an_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = dir.path().join("in1.hdr");
+    std::fs::copy("tests/data/rooitou_park_1k.hdr", &frame).unwrap();
+    let original = std::fs::read(&frame).unwrap();
+    let extra = format!(
+        "[source]\nkind = \"sequence\"\npaths = [\"{0}\"]\n\
+         [render]\nenabled = true\nwidth = 16\nheight = 8\nlatest_png = \"{0}\"\n",
+        frame.display()
+    );
+    let e = Daemon::start(config(dir.path(), &extra), DaemonOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        e.contains("render.latest_png") && e.contains("would destroy the input"),
+        "{e}"
+    );
+    assert_eq!(std::fs::read(&frame).unwrap(), original);
+    // The config file, through the command.
+    let config_file = dir.path().join("rd.toml");
+    let text = format!(
+        "[render]\nenabled = true\nwidth = 16\nheight = 8\nlatest_png = \"{}\"\n",
+        config_file.display()
+    );
+    std::fs::write(&config_file, &text).unwrap();
+    let o = std::process::Command::new("timeout")
+        .arg("60")
+        .arg(env!("CARGO_BIN_EXE_envlight"))
+        .arg("run")
+        .arg("--config")
+        .arg(&config_file)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("is the input file"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&config_file).unwrap(), text);
+}
+
 /// A loopback port that was free a moment ago (bound and released), for a daemon in another
 /// process whose bound addresses this process cannot ask for.
 fn free_port() -> u16 {

@@ -104,6 +104,14 @@ fn naming_the_file(e: ConfigError, path: Option<&Path>) -> anyhow::Error {
 
 fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
     let config = daemon_config(args)?;
+    // The config file is an input too (the daemon checks the frames and the scene).
+    if let (true, Some(png), Some(file)) = (
+        config.render.enabled,
+        &config.render.latest_png,
+        &args.config,
+    ) {
+        envlight::daemon::refuse_latest_png_over(png, std::slice::from_ref(file))?;
+    }
     envlight::daemon::hold_stop_signals();
     let daemon = Daemon::start(config, options)?;
     let addresses = daemon.addresses().clone();

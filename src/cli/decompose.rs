@@ -511,6 +511,8 @@ fn run_decompose(
         envlight::read_file::check_replaceable(path, "--latest")
             .with_context(|| format!("--latest {}", path.display()))?;
         inputs.refuse(path, "--latest")?;
+        // Written before each rename: an input of that name would be destroyed too.
+        inputs.refuse(&latest_tmp(path), "--latest's temporary file")?;
         // --latest is replaced through LATEST.tmp: neither may be the --out file.
         if let Some(out) = out {
             for (file, what) in [
