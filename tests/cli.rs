@@ -1229,6 +1229,25 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
             "{args:?}"
         );
     }
+    // An existing file named by both --out and --reconstruct is kept: the conflict is found
+    // before --out is created (it was emptied first; an audit).
+    std::fs::write(&same_exr, "kept").unwrap();
+    let o = envlight(&[
+        "wavelet",
+        "approx",
+        input,
+        "--size",
+        "8",
+        "--out",
+        same_exr_path,
+        "--reconstruct",
+        same_exr_path,
+    ]);
+    assert_fails_naming(
+        &o,
+        &["--reconstruct", "is also the --out output", "same.exr"],
+    );
+    assert_eq!(std::fs::read_to_string(&same_exr).unwrap(), "kept");
     // The files the mesh references (its material library) are inputs too, and two names of
     // one existing file are refused before --json truncates it.
     let with_mtl = dir.path().join("mtl.obj");

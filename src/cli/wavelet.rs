@@ -237,6 +237,20 @@ fn approx(args: &ApproxArgs) -> Result<()> {
     }
     if let Some(path) = &args.reconstruct {
         crate::cli::output::require_exr_name(path, "--reconstruct")?;
+        // Before --out is created (truncated): the same path for both was refused only at the
+        // first reconstruction, after an existing file of that name had been emptied.
+        if let Some(out) = &args.out {
+            if crate::cli::output::same_file(out, &expand_seq(path, 0))
+                && !path.to_string_lossy().contains("{seq}")
+            {
+                bail!(
+                    "--reconstruct {} is also the --out output {}: the two outputs would \
+                     overwrite each other; choose another output path",
+                    path.display(),
+                    out.display()
+                );
+            }
+        }
     }
     let mut source = args.input.open()?;
     let mut inputs = crate::cli::output::InputFiles::new(source.files());
@@ -269,17 +283,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             Coefficients::analyze_with(map.texels(), args.size, args.basis, levels, &mut ws)
                 .with_context(|| format!("cannot transform frame {}", frame.seq))?;
         let set = coeffs.truncate(coefficients);
-        let total = coeffs.energy();
-        let kept: f64 = set
-            .coefficients
-            .iter()
-            .map(|&(i, _)| coeffs.norm2(i as usize))
-            .sum();
-        let relative_l2 = if total > 0.0 {
-            ((total - kept).max(0.0) / total).sqrt()
-        } else {
-            0.0
-        };
+        let relative_l2 = coeffs.relative_l2_error(set.coefficients.iter().map(|&(i, _)| i));
         if let Some(path) = &args.reconstruct {
             let path = expand_seq(path, frame.seq);
             let rec = set
