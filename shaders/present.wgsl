@@ -25,7 +25,10 @@ fn vs_main(@builtin(vertex_index) i: u32) -> VertexOut {
     return out;
 }
 
-fn aces(x: vec3<f32>) -> vec3<f32> {
+// Narkowicz's ACES fit, its input held at 1e4 (where it is 1 already): past about 1e19 the
+// products overflow to inf/inf = NaN (src/render/output.rs does the same).
+fn aces(v: vec3<f32>) -> vec3<f32> {
+    let x = min(v, vec3<f32>(1.0e4));
     return clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), vec3<f32>(0.0), vec3<f32>(1.0));
 }
 

@@ -16,10 +16,18 @@ pub enum OutputError {
     Write { path: PathBuf, message: String },
 }
 
+/// Narkowicz's ACES fit, clamped to [0, 1]. Its input is held at [`ACES_INPUT_MAX`], where it
+/// is 1 already: above about 10¹⁹ the products overflowed to ∞/∞ = NaN, and NaN cast to u8 is 0,
+/// so the brightest pixels came out black (found by an audit; `present.wgsl` does the same).
 fn aces(x: f32) -> f32 {
+    let x = x.min(ACES_INPUT_MAX);
     let (a, b, c, d, e) = (2.51, 0.03, 2.43, 0.59, 0.14);
     ((x * (a * x + b)) / (x * (c * x + d) + e)).clamp(0.0, 1.0)
 }
+
+/// Where the tone curve is held: 1 there (2.51/2.43 > 1 before the clamp), and far from f32's
+/// overflow.
+const ACES_INPUT_MAX: f32 = 1.0e4;
 
 fn srgb_oetf(x: f32) -> f32 {
     if x <= 0.003_130_8 {
@@ -227,6 +235,10 @@ mod tests {
         assert_eq!(tone_map(0.0, 1.0), 0);
         assert_eq!(tone_map(1e6, 1.0), 255);
         assert_eq!(tone_map(f32::NAN, 1.0), 0);
+        // Exposure × radiance past 10¹⁹ (and past f32's range) is white, not black.
+        assert_eq!(tone_map(1.0, 1e20), 255);
+        assert_eq!(tone_map(f32::MAX, 10.0), 255);
+        assert_eq!(tone_map(f32::INFINITY, 1.0), 0);
     }
 
     #[test]
