@@ -112,10 +112,32 @@ fn invalid(
 ) -> ConfigError {
     ConfigError::Invalid {
         key,
-        value: format!("{value:?}"),
+        value: shortened(format!("{value:?}")),
         message: message.into(),
     }
 }
+
+/// A value as an error shows it: whole up to [`SHOWN_VALUE_CHARS`] characters, else its start
+/// and its length (`--taps` of 10,001 numbers put 50 KB before the reason).
+fn shortened(value: String) -> String {
+    let chars = value.chars().count();
+    if chars <= SHOWN_VALUE_CHARS {
+        return value;
+    }
+    let start: String = value.chars().take(SHOWN_VALUE_CHARS / 2).collect();
+    format!("{start}… ({chars} characters)")
+}
+
+/// `line` whole up to `max` characters, else its first `max` and "…".
+fn shortened_line(line: &str, max: usize) -> String {
+    match line.char_indices().nth(max) {
+        Some((cut, _)) => format!("{}…", &line[..cut]),
+        None => line.to_string(),
+    }
+}
+
+/// The longest value an error shows whole.
+const SHOWN_VALUE_CHARS: usize = 80;
 
 /// An integer from `key`: `default` when the key is absent, the value when it lies in `range`,
 /// otherwise an error naming the key, "must be LO..=HI" and then `note` (a unit or what the key
@@ -329,7 +351,14 @@ impl RawConfig {
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
         toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
+            // The parser quotes the line at fault: a long one is cut, like a long value.
+            message: e
+                .to_string()
+                .trim_end()
+                .lines()
+                .map(|line| shortened_line(line, 2 * SHOWN_VALUE_CHARS))
+                .collect::<Vec<_>>()
+                .join("\n"),
         })
     }
 
@@ -1458,6 +1487,32 @@ mod tests {
 
     fn parse(text: &str) -> Result<Config, ConfigError> {
         RawConfig::parse(text, Path::new("test.toml"))?.validate()
+    }
+
+    /// A long value is shown by its start and length, so the reason is not lost behind it
+    /// (`--taps` of 10,001 numbers printed 50 KB first).
+    #[test]
+    fn long_values_are_shortened_in_errors() {
+        let taps = vec![1.0; 10_001];
+        let e = parse(&format!("[decompose]\nfilter_taps = {taps:?}\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.len() < 200, "{}", &e[..e.len().min(2000)]);
+        assert!(
+            e.contains("… (50005 characters)") && e.ends_with("need 1..=64 taps, got 10001"),
+            "{e}"
+        );
+        // The parser's quote of a long line at fault is cut too.
+        let e = parse(&format!("[decompose]\nfilter_taps = {taps:?}x\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.len() < 1000 && e.contains("line 2"),
+            "{}",
+            &e[..e.len().min(2000)]
+        );
+        let short = parse("[decompose]\nlights = 0\n").unwrap_err().to_string();
+        assert!(short.starts_with("decompose.lights = 0:"), "{short}");
     }
 
     fn error(text: &str) -> String {

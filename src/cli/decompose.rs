@@ -129,7 +129,7 @@ pub(crate) struct DecomposeArgs {
     #[arg(long, conflicts_with = "taps")]
     no_filter: bool,
 
-    /// FIR filter taps, newest frame first: non-negative weights, normalised to sum to 1.
+    /// FIR filter taps, newest frame first: 1 to 64 non-negative weights, normalised to sum to 1.
     /// [default: 1,6,15,20,15,6,1]
     #[arg(
         long,
