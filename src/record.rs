@@ -375,6 +375,10 @@ pub enum Pacing {
     AsFastAsPossible,
 }
 
+/// A gap between recorded frames longer than this is warned of when a replay at the original
+/// timing opens.
+const LONG_REPLAY_GAP_S: f64 = 10.0;
+
 /// A recording played back as a frame source. See the module docs.
 pub struct ReplaySource {
     dir: PathBuf,
@@ -505,6 +509,23 @@ impl ReplaySource {
         }
         if entries.is_empty() {
             return Err(CaptureError::NoFrames(index_path.display().to_string()));
+        }
+        // At the original timing a long gap is a long silent wait (a time edited to 10⁹ s
+        // waited 31 years without a word; an audit): the longest is said at the start.
+        let longest_gap = entries
+            .windows(2)
+            .map(|w| (w[1].time - w[0].time, w[1].seq))
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        if let (Pacing::Original, Some((gap, seq))) = (pacing, longest_gap) {
+            if gap > LONG_REPLAY_GAP_S {
+                tracing::warn!(
+                    "{}: frame seq {seq} is due {} s after the frame before it; at the \
+                     original timing the replay waits that long (--fast replays as fast as \
+                     possible)",
+                    index_path.display(),
+                    shown_number(gap)
+                );
+            }
         }
         Ok(ReplaySource {
             dir: dir.to_path_buf(),

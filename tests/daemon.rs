@@ -1209,6 +1209,43 @@ fn an_unpaced_file_sequence_reaches_the_decomposition_whole() {
     assert_eq!(lights.lines().count() as u64, files);
 }
 
+/// A replay at the original timing says at the start when a gap between recorded frames is
+/// long (a time edited to 10⁹ s waited 31 years without a word; an audit). The daemon is
+/// stopped by `timeout` once it has said so.
+#[test]
+fn a_long_gap_in_a_replay_is_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("rec");
+    assert_eq!(common::record_sky(&recording, 2), 2);
+    let index = recording.join("frames.jsonl");
+    let text = std::fs::read_to_string(&index).unwrap();
+    let mut lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    lines[1]["time"] = serde_json::json!(1e9);
+    let edited: String = lines.iter().map(|l| format!("{l}\n")).collect();
+    std::fs::write(&index, edited).unwrap();
+    let config = dir.path().join("rp.toml");
+    std::fs::write(
+        &config,
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n",
+    )
+    .unwrap();
+    let o = std::process::Command::new("timeout")
+        .args(["5", env!("CARGO_BIN_EXE_envlight"), "run", "--config"])
+        .arg(&config)
+        .arg("--replay")
+        .arg(&recording)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("frame seq 1 is due 1000000000 s after the frame before it"),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn replay_keeps_the_original_timing() {
     let dir = tempfile::tempdir().unwrap();
