@@ -1508,3 +1508,36 @@ fn run_fast_without_replay_is_a_usage_error() {
         assert!(stderr(&o).contains("--replay"), "{}", stderr(&o));
     }
 }
+
+/// Range errors of the wavelet commands' numeric flags name the flag and come as usage errors
+/// (exit 2) before any input is read (they named no flag, and came after the frames were
+/// read); a number too small for f32 is refused as such, not as 0 (found by an audit).
+#[test]
+fn wavelet_flag_ranges_name_the_flag() {
+    for (args, needles) in [
+        (
+            vec!["wavelet", "recover", "--size", "4", "--rank-tol", "0"],
+            vec!["--rank-tol", "(0, 1)"],
+        ),
+        (
+            vec!["wavelet", "recover", "--size", "4", "--split", "2"],
+            vec!["--split", "[0, 1]"],
+        ),
+        (
+            vec!["wavelet", "recover", "--size", "4", "--exponent", "-1"],
+            vec!["--exponent", "≥ 0"],
+        ),
+        (
+            vec!["wavelet", "relight", "--brdf", "ggx", "--alpha", "0"],
+            vec!["--alpha", "[0.001, 1]"],
+        ),
+        (
+            vec!["render", "--exposure", "1e-300", "--out", "unused"],
+            vec!["--exposure", "too small for single precision"],
+        ),
+    ] {
+        let o = envlight(&args);
+        assert_fails_naming(&o, &needles);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+    }
+}

@@ -102,10 +102,18 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 /// A number an option holds as f32: one beyond f32's range (`1e39`) is an error naming it,
-/// not infinity (which later checks reported as "got inf", without the value given).
+/// not infinity (which later checks reported as "got inf", without the value given), and so is
+/// a non-zero one too small to be other than 0 (`1e-300`).
 pub(crate) fn parse_finite_f32(s: &str) -> Result<f32, String> {
     let x: f64 = (s.trim().parse()).map_err(|_| format!("{s:?} is not a number"))?;
     if x.is_finite() && x.abs() <= f64::from(f32::MAX) {
+        // Below f32's smallest subnormal a number given as non-zero would become 0, and be
+        // refused as such ("must be a positive number") without the value given.
+        if x != 0.0 && x as f32 == 0.0 {
+            return Err(format!(
+                "{s} is too small for single precision (not 0 and under 1.4e-45)"
+            ));
+        }
         Ok(x as f32)
     } else {
         Err(format!(

@@ -120,10 +120,10 @@ pub struct RelightArgs {
     #[arg(long, value_enum, default_value_t = BrdfArg::Lambert)]
     brdf: BrdfArg,
     /// Phong exponent for --brdf phong (≥ 0). [default: 32]
-    #[arg(long, value_parser = crate::cli::parse_finite_f32)]
+    #[arg(long, value_parser = parse_phong_exponent)]
     exponent: Option<f32>,
     /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1). [default: 0.3]
-    #[arg(long, value_parser = crate::cli::parse_finite_f32)]
+    #[arg(long, value_parser = parse_ggx_alpha)]
     alpha: Option<f32>,
     /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
@@ -157,7 +157,7 @@ pub struct RecoverArgs {
     #[arg(long, value_name = "N", default_value_t = 4)]
     views: usize,
     /// Phong exponent of the observed sphere (≥ 0).
-    #[arg(long, default_value_t = 32.0, value_parser = crate::cli::parse_finite_f32)]
+    #[arg(long, default_value_t = 32.0, value_parser = parse_phong_exponent)]
     exponent: f32,
     /// Gaussian noise, as a fraction of the RMS observed radiance (0..=100).
     #[arg(long, default_value_t = 0.01)]
@@ -166,11 +166,12 @@ pub struct RecoverArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Rank test: minimum norm of a new column orthogonal to the others, relative to the
-    /// largest column norm.
-    #[arg(long, default_value_t = RefineOptions::default().rank_tol)]
+    /// largest column norm, in (0, 1).
+    #[arg(long, default_value_t = RefineOptions::default().rank_tol, value_parser = parse_rank_tol)]
     rank_tol: f64,
-    /// Split nodes whose coefficient is at least this fraction of the largest at their level.
-    #[arg(long, default_value_t = RefineOptions::default().split_fraction)]
+    /// Split nodes whose coefficient is at least this fraction of the largest at their level
+    /// (0..=1).
+    #[arg(long, default_value_t = RefineOptions::default().split_fraction, value_parser = parse_split_fraction)]
     split: f64,
     /// Do not stop at the level that stops lowering the Bayesian information criterion.
     #[arg(long)]
@@ -178,6 +179,44 @@ pub struct RecoverArgs {
     /// Write the recovered map (SIZE x SIZE octahedral, linear RGB EXR).
     #[arg(long, value_name = "FILE.exr")]
     out: Option<PathBuf>,
+}
+
+/// `--exponent`: a finite f32 ≥ 0 (checked when the flag is read, so the error names it and
+/// comes before any input is read).
+fn parse_phong_exponent(s: &str) -> Result<f32, String> {
+    let x = crate::cli::parse_finite_f32(s)?;
+    if x < 0.0 {
+        return Err(format!("the Phong exponent must be ≥ 0, got {s}"));
+    }
+    Ok(x)
+}
+
+/// `--alpha`: GGX roughness in [`envlight::wavelet::relight::MIN_GGX_ALPHA`], 1].
+fn parse_ggx_alpha(s: &str) -> Result<f32, String> {
+    let x = crate::cli::parse_finite_f32(s)?;
+    let min = envlight::wavelet::relight::MIN_GGX_ALPHA;
+    if !(min..=1.0).contains(&x) {
+        return Err(format!("GGX roughness α must be in [{min}, 1], got {s}"));
+    }
+    Ok(x)
+}
+
+/// `--rank-tol`: a number in (0, 1).
+fn parse_rank_tol(s: &str) -> Result<f64, String> {
+    let x: f64 = (s.trim().parse()).map_err(|_| format!("{s:?} is not a number"))?;
+    if !(x > 0.0 && x < 1.0) {
+        return Err(format!("the rank tolerance must be in (0, 1), got {s}"));
+    }
+    Ok(x)
+}
+
+/// `--split`: a fraction in [0, 1].
+fn parse_split_fraction(s: &str) -> Result<f64, String> {
+    let x: f64 = (s.trim().parse()).map_err(|_| format!("{s:?} is not a number"))?;
+    if !(0.0..=1.0).contains(&x) {
+        return Err(format!("the split fraction must be in [0, 1], got {s}"));
+    }
+    Ok(x)
 }
 
 /// `wavelet relight --exponent` when not given (with --brdf phong).
