@@ -1367,3 +1367,30 @@ fn specular_of_a_uniform_environment_keeps_its_energy() {
         );
     }
 }
+
+/// A frame of more lights than the adapter's storage buffers hold is an error that says so
+/// (it was a validation error about "buffer binding 1" from the GPU); the renderer still
+/// draws the next frame of fewer lights.
+#[test]
+fn more_lights_than_the_adapter_binds_are_refused_in_words() {
+    let mut r = renderer(
+        Scene::default_scene(),
+        RenderSettings {
+            width: 16,
+            height: 8,
+            shadows: false,
+            ..Default::default()
+        },
+    );
+    // 112 bytes a light against lavapipe's (and wgpu's default) 128 MiB: 1,198,372 lights.
+    let too_many: Vec<Light> = (0..1_300_000u32)
+        .map(|i| light(i, Vec3::new(0.3, 1.0, 0.2), [1e-6; 3], 1e-6))
+        .collect();
+    let e = r.render(&too_many).err().expect("refused").to_string();
+    assert!(
+        e.contains("a frame of 1300000 lights") && e.contains("give fewer lights"),
+        "{e}"
+    );
+    let (_, stats) = r.render(&too_many[..64]).unwrap();
+    assert_eq!(stats.lights, 64);
+}

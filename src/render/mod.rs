@@ -955,7 +955,19 @@ impl Renderer {
         }
         let mut rebind = false;
         if gpu_lights.len() > self.light_capacity {
-            self.light_capacity = gpu_lights.len().next_power_of_two();
+            // The adapter binds a storage buffer of at most so many bytes: a frame of more
+            // lights is an error that says so (it was a validation error about "buffer binding
+            // 1", after the frame had been drawn; found by an audit).
+            let light_bytes = std::mem::size_of::<shading::LightRaw>() as u64;
+            let most = device.limits().max_storage_buffer_binding_size / light_bytes;
+            if gpu_lights.len() as u64 > most {
+                return Err(RenderError::Settings(format!(
+                    "a frame of {} lights is more than this adapter can shade in one pass \
+                     (its storage buffers hold at most {most} lights); give fewer lights",
+                    gpu_lights.len()
+                )));
+            }
+            self.light_capacity = gpu_lights.len().next_power_of_two().min(most as usize);
             self.light_buffer = Self::make_light_buffer(device, self.light_capacity);
             rebind = true;
         }
