@@ -245,10 +245,20 @@ pub fn read_bracket_image(path: &std::path::Path) -> Result<CodeImage, super::Ca
         .map_err(|e| err(e.to_string()))?
         .into_rgb32f();
     let (width, height) = img.dimensions();
-    let pixels = img
-        .pixels()
-        .map(|p| p.0.map(|v| v.clamp(0.0, 1.0)))
-        .collect();
+    let mut values = img.into_raw();
+    for v in &mut values {
+        *v = v.clamp(0.0, 1.0);
+    }
+    // The f32 image's own buffer as RGB triples, not a copy of it (a copy took another
+    // 1.6 GB for a 16384 × 8192 PNG; an audit); copied only should its allocation not be
+    // whole triples.
+    let pixels: Vec<[f32; 3]> = bytemuck::allocation::try_cast_vec(values)
+        .unwrap_or_else(|(_, values)| values.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect());
+    if pixels.len() != width as usize * height as usize {
+        return Err(err(
+            "decoder returned the wrong number of pixels".to_string()
+        ));
+    }
     Ok(CodeImage {
         width,
         height,

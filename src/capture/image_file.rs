@@ -214,21 +214,21 @@ fn decode_hdr(bytes: &[u8]) -> Result<RgbImage, String> {
         ));
     }
     let scale = radiance_scale(&decoder.metadata().custom_attributes)?;
-    let image = image::DynamicImage::from_decoder(decoder)
-        .map_err(|e| format!("cannot decode Radiance HDR pixels: {e}"))?
-        .into_rgb32f();
-    let pixels: Vec<[f32; 3]> = image
-        .pixels()
-        // In f64 and clamped to f32's range: a bright pixel divided by a small EXPOSURE overflowed
-        // f32 to infinity, which the frame's sanitising then set to 0 (a sun turned black).
-        .map(|p| {
-            let [r, g, b] = p.0;
-            [(r, scale[0]), (g, scale[1]), (b, scale[2])]
-                .map(|(v, s)| (f64::from(v) * s).min(f64::from(f32::MAX)) as f32)
-        })
-        .collect();
-    if pixels.len() != width as usize * height as usize {
-        return Err("decoder returned the wrong number of pixels".to_string());
+    if image::ImageDecoder::color_type(&decoder) != image::ColorType::Rgb32F {
+        return Err("decoder returned pixels that are not RGB floats".to_string());
+    }
+    // Decoded straight into the frame's pixels: through an image of the decoder's and a copy
+    // of it, a 16384 × 8192 file took twice its 1.6 GB (an audit).
+    let mut pixels = vec![[0.0f32; 3]; width as usize * height as usize];
+    image::ImageDecoder::read_image(decoder, bytemuck::cast_slice_mut(&mut pixels))
+        .map_err(|e| format!("cannot decode Radiance HDR pixels: {e}"))?;
+    for p in &mut pixels {
+        // In f64 and clamped to f32's range: a bright pixel divided by a small EXPOSURE
+        // overflowed f32 to infinity, which the frame's sanitising then set to 0 (a sun turned
+        // black).
+        for (v, s) in p.iter_mut().zip(scale) {
+            *v = (f64::from(*v) * s).min(f64::from(f32::MAX)) as f32;
+        }
     }
     Ok(RgbImage {
         width,
