@@ -99,7 +99,7 @@
 //! little; 31 % with one Gaussian, too much, at α = 0.3 and n·v = 0.5): at n·v ≥ 0.5 the errors
 //! are within −12 % to +10 % (one Gaussian: −5 % to +31 %). At grazing views rough surfaces
 //! (α ≥ 0.6) reflect too little (the lobe is cut by the horizon and n·l is taken as n·v): at
-//! n·v = 0.25 up to 34 %; at n·v = 0.1 up to about half (measured with one Gaussian).
+//! n·v = 0.25 up to 34 %; at n·v = 0.1 up to 71 % (two corrections tried: docs/asg.md).
 //!
 //! # Parameterisation for optimisation (`src/asg/fit.rs`)
 //!
