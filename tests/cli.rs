@@ -1362,6 +1362,47 @@ fn subscribe_times_out_on_a_silent_server() {
     }
 }
 
+/// `subscribe --representation asg` refuses a server that sends a light frame instead (it
+/// printed it as if asked for; an audit): exit 1 naming the address and both representations.
+#[test]
+fn subscribe_refuses_frames_of_another_representation() {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = listener.local_addr().unwrap();
+    let server = std::thread::Builder::new()
+        .name("wrong-server".into())
+        .spawn(move || {
+            let (mut stream, _) = listener.accept().unwrap();
+            let mut request = [0u8; 64];
+            let _ = stream.read(&mut request);
+            let frame = envlight::light::LightFrame {
+                seq: 1,
+                time: 0.5,
+                lights: Vec::new(),
+            };
+            let mut out = Vec::new();
+            envlight::stream::protocol::encode_frame(&frame, None, false, &mut out);
+            let _ = stream.write_all(&out);
+            std::thread::sleep(std::time::Duration::from_secs(2));
+        })
+        .unwrap();
+    let target = address.to_string();
+    let o = envlight(&[
+        "subscribe",
+        &target,
+        "--representation",
+        "asg",
+        "--timeout",
+        "5",
+    ]);
+    assert_fails_naming(
+        &o,
+        &[&target, "representation Lights", "subscription to Asg"],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    server.join().unwrap();
+}
+
 /// Commands that print one result end quietly (status 0, no panic) when stdout is closed;
 /// `println!` panicked on the broken pipe.
 #[test]

@@ -102,6 +102,22 @@ pub(crate) fn run(args: &SubscribeArgs) -> Result<()> {
         let Some(message) = client.next_message().map_err(timed_out)? else {
             bail!("{}: the daemon closed the connection", args.address);
         };
+        // A frame of another representation than the one asked for is the server's fault, and
+        // printing it as if it were asked for would mislead (it was printed; an audit).
+        let sent = match &message {
+            Message::Frame(_) => Some(Representation::Lights),
+            Message::Asg(_) => Some(Representation::Asg),
+            Message::Wavelet(_) => Some(Representation::Wavelet),
+            _ => None,
+        };
+        if let Some(sent) = sent.filter(|&sent| sent != request.representation) {
+            bail!(
+                "{}: the server sent a frame of representation {sent:?} on a subscription to \
+                 {:?}; it does not follow the protocol (docs/protocol.md)",
+                args.address,
+                request.representation
+            );
+        }
         let line = match message {
             Message::Frame(frame) => {
                 frames += 1;
