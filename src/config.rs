@@ -356,7 +356,21 @@ impl RawConfig {
                 .to_string()
                 .trim_end()
                 .lines()
-                .map(|line| shortened_line(line, 2 * SHOWN_VALUE_CHARS))
+                .map(|line| {
+                    // Only the quote of the file ("2 | taps = …") and its caret line: the
+                    // reason (with the list of valid keys) is kept whole.
+                    let quote = line
+                        .trim_start()
+                        .split_once('|')
+                        .is_some_and(|(number, _)| {
+                            number.trim().chars().all(|c| c.is_ascii_digit())
+                        });
+                    if quote {
+                        shortened_line(line, 2 * SHOWN_VALUE_CHARS)
+                    } else {
+                        line.to_string()
+                    }
+                })
                 .collect::<Vec<_>>()
                 .join("\n"),
         })
@@ -1511,6 +1525,9 @@ mod tests {
             "{}",
             &e[..e.len().min(2000)]
         );
+        // The reason, with the valid keys, is whole (it was cut at 160 characters).
+        let e = parse("[decompose]\nlightz = 1\n").unwrap_err().to_string();
+        assert!(e.contains("lightz") && e.contains("filter_taps"), "{e}");
         let short = parse("[decompose]\nlights = 0\n").unwrap_err().to_string();
         assert!(short.starts_with("decompose.lights = 0:"), "{short}");
     }

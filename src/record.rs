@@ -384,6 +384,9 @@ pub struct ReplaySource {
     dir: PathBuf,
     session: Session,
     entries: Vec<FrameEntry>,
+    /// The recording's files (the frames, the index and the session), which no output may
+    /// replace ([`FrameSource::files`]).
+    files: Vec<PathBuf>,
     next: usize,
     pacing: Pacing,
     started: Option<(Instant, f64)>,
@@ -527,10 +530,16 @@ impl ReplaySource {
                 );
             }
         }
+        let files = entries
+            .iter()
+            .map(|e| dir.join(&e.file))
+            .chain([index_path.clone(), dir.join("session.json")])
+            .collect();
         Ok(ReplaySource {
             dir: dir.to_path_buf(),
             session,
             entries,
+            files,
             next: 0,
             pacing,
             started: None,
@@ -589,6 +598,10 @@ impl FrameSource for ReplaySource {
             }
         }
         Ok(Some(frame))
+    }
+
+    fn files(&self) -> &[PathBuf] {
+        &self.files
     }
 
     fn describe(&self) -> String {

@@ -1248,6 +1248,23 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
         &["--reconstruct", "is also the --out output", "same.exr"],
     );
     assert_eq!(std::fs::read_to_string(&same_exr).unwrap(), "kept");
+    // And with {seq}, the file of the frame whose number --out's name holds.
+    let r0 = dir.path().join("r0.exr");
+    std::fs::write(&r0, "kept").unwrap();
+    let pattern = dir.path().join("r{seq}.exr");
+    let o = envlight(&[
+        "wavelet",
+        "approx",
+        input,
+        "--size",
+        "8",
+        "--out",
+        s(&r0),
+        "--reconstruct",
+        s(&pattern),
+    ]);
+    assert_fails_naming(&o, &["--reconstruct", "is also the --out output"]);
+    assert_eq!(std::fs::read_to_string(&r0).unwrap(), "kept");
     // The files the mesh references (its material library) are inputs too, and two names of
     // one existing file are refused before --json truncates it.
     let with_mtl = dir.path().join("mtl.obj");

@@ -2239,6 +2239,25 @@ fn latest_png_may_not_replace_an_input() {
         "{e}"
     );
     assert_eq!(std::fs::read(&frame).unwrap(), original);
+    // A replayed recording's frames are inputs too (a replay source listed none).
+    let recording = dir.path().join("rec");
+    common::record_sky(&recording, 2);
+    let recorded = recording.join("frames").join("000001.exr");
+    let before = std::fs::read(&recorded).unwrap();
+    let extra = format!(
+        "[render]\nenabled = true\nwidth = 16\nheight = 8\nlatest_png = \"{}\"\n",
+        recorded.display()
+    );
+    let options = DaemonOptions {
+        replay: Some((recording.clone(), Pacing::AsFastAsPossible)),
+        ..DaemonOptions::default()
+    };
+    let e = Daemon::start(config(dir.path(), &extra), options)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("would destroy the input"), "{e}");
+    assert_eq!(std::fs::read(&recorded).unwrap(), before);
     // The config file, through the command.
     let config_file = dir.path().join("rd.toml");
     let text = format!(

@@ -240,9 +240,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         // Before --out is created (truncated): the same path for both was refused only at the
         // first reconstruction, after an existing file of that name had been emptied.
         if let Some(out) = &args.out {
-            if crate::cli::output::same_file(out, &expand_seq(path, 0))
-                && !path.to_string_lossy().contains("{seq}")
-            {
+            if reconstruct_may_be(out, path) {
                 bail!(
                     "--reconstruct {} is also the --out output {}: the two outputs would \
                      overwrite each other; choose another output path",
@@ -322,6 +320,26 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => Ok(()),
         r => r.with_context(|| format!("cannot write to {out_name}")),
     }
+}
+
+/// Whether `--reconstruct pattern` names `out` for some frame: the same file, or with `{seq}`
+/// the file of the number that `out`'s name holds in its place (`--out r0.exr --reconstruct
+/// 'r{seq}.exr'` emptied r0.exr before the first frame was refused).
+fn reconstruct_may_be(out: &Path, pattern: &Path) -> bool {
+    let text = pattern.to_string_lossy();
+    let Some((before, after)) = text.split_once("{seq}") else {
+        return crate::cli::output::same_file(out, pattern);
+    };
+    let out_text = out.to_string_lossy();
+    let Some(digits) = out_text
+        .strip_prefix(before)
+        .and_then(|rest| rest.strip_suffix(after))
+    else {
+        return false;
+    };
+    digits
+        .parse::<u64>()
+        .is_ok_and(|seq| crate::cli::output::same_file(out, &expand_seq(pattern, seq)))
 }
 
 /// `path` with `{seq}` replaced by `seq`.

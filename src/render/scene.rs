@@ -963,6 +963,11 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             }
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        for child in node.children() {
+            stack.push((child, world));
+        }
+        let Some(mesh) = node.mesh() else { continue };
+        // Only where a mesh is drawn: a helper node without one may overflow harmlessly.
         let node_name = format!("node {} ({:?})", node.index(), node.name().unwrap_or(""));
         if !world.is_finite() {
             return Err(err(format!(
@@ -970,10 +975,6 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                  or translations whose product exceeds 3.4e38)"
             )));
         }
-        for child in node.children() {
-            stack.push((child, world));
-        }
-        let Some(mesh) = node.mesh() else { continue };
         let normal_matrix = normal_matrix(world);
         let mesh_name = |prim: &gltf::Primitive| {
             format!(
@@ -1298,6 +1299,16 @@ fn scan_obj(text: &[u8]) -> Result<ObjScan, String> {
             continue;
         }
         let corners: Vec<&str> = words.collect();
+        if corners.is_empty() {
+            return Err(format!(
+                "line {n}: {} without vertices",
+                if keyword == Some("f") {
+                    "a face"
+                } else {
+                    "a line"
+                }
+            ));
+        }
         if keyword == Some("f") && corners.len() < 3 {
             scan.short_faces += 1;
         }
@@ -1727,6 +1738,19 @@ mod tests {
             let p = write_gltf(d, &format!("n{i}.gltf"), nodes, [3, 3, 3], colour);
             assert_load_fails_naming(&p, needle);
         }
+        // Helper nodes without a mesh may overflow: nothing of theirs is drawn (an audit
+        // found such a scene refused).
+        let p = write_gltf(
+            d,
+            "helpers.gltf",
+            r#"[{"children":[1,3]},{"children":[2],"scale":[1e30,1e30,1e30]},
+                {"scale":[1e30,1e30,1e30]},{"mesh":0}]"#,
+            [3, 3, 3],
+            colour,
+        );
+        if let Err(e) = Scene::load(&p, false) {
+            panic!("{e}");
+        }
     }
 
     /// The OBJ pre-scan names the line of a malformed vertex, normal, texture coordinate or
@@ -1788,6 +1812,8 @@ mod tests {
             ),
             ("v 0 0 0\nv 1 0 0\nl 1 abc\n", "line 3: face corner \"abc\""),
             ("\u{feff}v 0 0 0\n", "byte-order mark"),
+            // tobj's "invalid polygon", without a line, before.
+            ("v 0 0 0\nf\n", "line 2: a face without vertices"),
         ];
         for (text, needle) in bad {
             let e = scan_obj(text.as_bytes()).unwrap_err();
