@@ -8,7 +8,7 @@
 //! - `prepare_refill_256x512`: the same target refilled in place for a new frame, tiles
 //!   included (what `AsgFitter` does from the second frame on);
 //!   `prepare_refill_256x512_from_2000x1000` from a frame of a size that is no multiple of the
-//!   map (the index-table resampling);
+//!   map (the resampling by area overlap);
 //! - `warm_refit_default_1_thread`: one warm-started refit of the next frame's prepared target
 //!   with the default `warm_iterations` on 1/`warm_subset` of the tiles, continuing Adam's
 //!   state as `AsgFitter` does, after a default first frame;
@@ -72,8 +72,7 @@ fn bench(c: &mut Criterion) {
         let _ = t.tiled();
         b.iter(|| t.refill(black_box(&frame)))
     });
-    // A frame of a size that is no multiple of the map: the index-table path (the table
-    // built once, by the first refill before the timing).
+    // A frame of a size that is no multiple of the map: the resampling by area overlap.
     group.bench_function("prepare_refill_256x512_from_2000x1000", |b| {
         let large = SkyOptions {
             width: 2000,
