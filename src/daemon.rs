@@ -1028,14 +1028,10 @@ fn latest_png_tmp(path: &Path) -> PathBuf {
 /// scene, the config file): each frame's PNG would replace it. `run --config rd.toml` with
 /// `latest_png` naming rd.toml turned the config into a PNG (found by an audit).
 pub fn refuse_latest_png_over(png: &Path, inputs: &[PathBuf]) -> Result<(), DaemonError> {
-    crate::read_file::refuse_input(png, "render.latest_png", inputs)
-        .and_then(|()| {
-            crate::read_file::refuse_input(
-                &latest_png_tmp(png),
-                "render.latest_png's temporary file",
-                inputs,
-            )
-        })
+    let inputs = crate::read_file::InputFiles::new(inputs);
+    inputs
+        .refuse(png, "render.latest_png")
+        .and_then(|()| inputs.refuse(&latest_png_tmp(png), "render.latest_png's temporary file"))
         .map_err(DaemonError::LatestPng)
 }
 

@@ -12,9 +12,13 @@
 //! temporary file and renamed over the path: [`check_replaceable`] refuses a path that is a
 //! device, a pipe, a socket or a directory, which the rename would replace (run as root,
 //! `--latest /dev/null` turned `/dev/null` into a regular file).
+//!
+//! No output may be one of the inputs ([`InputFiles`], used by the one-shot commands and the
+//! daemon alike): creating or replacing it would destroy the input before or while it is read.
 
 use std::io::{Error, ErrorKind, Read};
-use std::path::Path;
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
 
 /// Reads the regular file at `path` if it holds at most `max_bytes` bytes; `what` names the
 /// kind of file in the error ("a scene", "a response curve", …). Also an error if the file
@@ -77,33 +81,70 @@ pub fn read_regular_text(path: &Path, max_bytes: u64, what: &str) -> std::io::Re
     })
 }
 
-/// Fails when `output` (named `what` in the error) is one of `inputs`: the same file by device
-/// and inode, whatever names or links lead to it, so that writing it would destroy that
-/// input. A path that does not exist yet is no input.
-pub fn refuse_input<P: AsRef<Path>>(
-    output: &Path,
-    what: &str,
-    inputs: &[P],
-) -> std::io::Result<()> {
-    use std::os::unix::fs::MetadataExt;
-    let Ok(out) = std::fs::metadata(output) else {
-        return Ok(());
-    };
-    for input in inputs {
-        let input = input.as_ref();
-        if std::fs::metadata(input).is_ok_and(|m| (m.dev(), m.ino()) == (out.dev(), out.ino())) {
-            return Err(Error::new(
+/// The files a command reads, identified by device and inode once (at construction), so that
+/// checking an output against them costs one `stat` of the output, however many inputs a
+/// sequence has (`render` checks two outputs per frame). Outputs already opened can be added
+/// ([`InputFiles::protect_output`]): a second output on the same file would overwrite the
+/// first.
+pub struct InputFiles {
+    /// (device, inode) → the path and, for an output, its option.
+    by_id: std::collections::HashMap<(u64, u64), (PathBuf, Option<String>)>,
+}
+
+impl InputFiles {
+    /// The inputs `paths`; a path that cannot be read is left out (it cannot be overwritten
+    /// through another name either).
+    pub fn new(paths: &[PathBuf]) -> Self {
+        let mut by_id = std::collections::HashMap::with_capacity(paths.len());
+        for path in paths {
+            if let Ok(meta) = std::fs::metadata(path) {
+                by_id
+                    .entry((meta.dev(), meta.ino()))
+                    .or_insert_with(|| (path.clone(), None));
+            }
+        }
+        Self { by_id }
+    }
+
+    /// Adds the output `path` (given with `option`), once created, to the files no later
+    /// output may be.
+    pub fn protect_output(&mut self, path: &Path, option: &str) {
+        if let Ok(meta) = std::fs::metadata(path) {
+            self.by_id
+                .entry((meta.dev(), meta.ino()))
+                .or_insert_with(|| (path.to_path_buf(), Some(option.to_owned())));
+        }
+    }
+
+    /// Fails when `output` (given with `option`) is one of the inputs (or a protected output):
+    /// the same file (device and inode), whatever names or links lead to it. A path that does
+    /// not exist yet is no input.
+    pub fn refuse(&self, output: &Path, option: &str) -> std::io::Result<()> {
+        let Ok(out) = std::fs::metadata(output) else {
+            return Ok(());
+        };
+        match self.by_id.get(&(out.dev(), out.ino())) {
+            Some((input, None)) => Err(Error::new(
                 ErrorKind::InvalidInput,
                 format!(
-                    "{what} {} is the input file {}: writing it would destroy the input; choose \
-                     another path",
+                    "{option} {} is the input file {}: writing it would destroy the input; \
+                     choose another output path",
                     output.display(),
                     input.display()
                 ),
-            ));
+            )),
+            Some((other, Some(other_option))) => Err(Error::new(
+                ErrorKind::InvalidInput,
+                format!(
+                    "{option} {} is also the {other_option} output {}: the two outputs would \
+                     overwrite each other; choose another output path",
+                    output.display(),
+                    other.display()
+                ),
+            )),
+            None => Ok(()),
         }
     }
-    Ok(())
 }
 
 /// Fails if `path` exists and is neither a regular file nor a symbolic link (which a rename
@@ -132,6 +173,35 @@ pub fn check_replaceable(path: &Path, what: &str) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An output is refused under every name that leads to an input (the path itself, a
+    /// symbolic link, a hard link), the input named in the message; other files and paths that
+    /// do not exist yet pass.
+    #[test]
+    fn inputs_are_found_under_any_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("frame_0001.exr");
+        let other = dir.path().join("other.exr");
+        std::fs::write(&input, b"input").unwrap();
+        std::fs::write(&other, b"other").unwrap();
+        let symlink = dir.path().join("symlink.exr");
+        std::os::unix::fs::symlink(&input, &symlink).unwrap();
+        let hard_link = dir.path().join("hard.exr");
+        std::fs::hard_link(&input, &hard_link).unwrap();
+        let missing = dir.path().join("missing.exr");
+        let inputs = InputFiles::new(&[missing.clone(), input.clone()]);
+        for output in [&input, &symlink, &hard_link] {
+            let err = inputs.refuse(output, "--out").unwrap_err().to_string();
+            let names_input = format!("is the input file {}", input.display());
+            assert!(
+                err.starts_with("--out") && err.contains(&names_input),
+                "{err}"
+            );
+        }
+        inputs.refuse(&other, "--out").unwrap();
+        inputs.refuse(&dir.path().join("new.exr"), "--out").unwrap();
+        assert_eq!(std::fs::read(&input).unwrap(), b"input");
+    }
 
     #[test]
     fn reads_a_file_within_the_limit_and_refuses_one_beyond_it() {

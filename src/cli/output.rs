@@ -1,7 +1,8 @@
 //! Output files and stdout for the one-shot commands (`decompose`, `fit-asg`, `wavelet …`,
 //! `calibrate-fisheye`):
 //! - an output path that names one of the command's input files is refused before it is
-//!   created ([`InputFiles::refuse`]): creating it would truncate the input before it is read;
+//!   created ([`InputFiles::refuse`], shared with the daemon): creating it would truncate the
+//!   input before it is read;
 //! - EXR maps are encoded in memory and then written to the path ([`write_rgb_exr`]), so a
 //!   failed write reports the path and leaves it in place (the `exr` crate's own file writer
 //!   deletes the path on a write error, which removed a symbolic link, or a device node when
@@ -10,75 +11,16 @@
 //!   other write error names what was written to ([`print`], [`is_broken_pipe`]).
 
 use anyhow::{Context, Result};
-use std::collections::HashMap;
 use std::io::Write;
 use std::os::unix::fs::MetadataExt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+pub use envlight::read_file::InputFiles;
 
 /// Whether a write failed because the reader went away (`| head`): not an error for a command
 /// whose output is a stream.
 pub fn is_broken_pipe(err: &std::io::Error) -> bool {
     err.kind() == std::io::ErrorKind::BrokenPipe
-}
-
-/// The files a command reads, identified by device and inode once (at construction), so that
-/// checking an output against them costs one `stat` of the output, however many inputs a
-/// sequence has (`render` checks two outputs per frame). Outputs already opened can be added
-/// ([`InputFiles::protect_output`]): a second output on the same file would overwrite the
-/// first.
-pub struct InputFiles {
-    /// (device, inode) → the path and, for an output, its option.
-    by_id: HashMap<(u64, u64), (PathBuf, Option<String>)>,
-}
-
-impl InputFiles {
-    /// The inputs `paths`; a path that cannot be read is left out (it cannot be overwritten
-    /// through another name either).
-    pub fn new(paths: &[PathBuf]) -> Self {
-        let mut by_id = HashMap::with_capacity(paths.len());
-        for path in paths {
-            if let Ok(meta) = std::fs::metadata(path) {
-                by_id
-                    .entry((meta.dev(), meta.ino()))
-                    .or_insert_with(|| (path.clone(), None));
-            }
-        }
-        Self { by_id }
-    }
-
-    /// Adds the output `path` (given with `option`), once created, to the files no later
-    /// output may be.
-    pub fn protect_output(&mut self, path: &Path, option: &str) {
-        if let Ok(meta) = std::fs::metadata(path) {
-            self.by_id
-                .entry((meta.dev(), meta.ino()))
-                .or_insert_with(|| (path.to_path_buf(), Some(option.to_owned())));
-        }
-    }
-
-    /// Fails when `output` (given with `option`) is one of the inputs (or a protected output):
-    /// the same file (device and inode), whatever names or links lead to it. A path that does
-    /// not exist yet is no input.
-    pub fn refuse(&self, output: &Path, option: &str) -> Result<()> {
-        let Ok(out) = std::fs::metadata(output) else {
-            return Ok(());
-        };
-        match self.by_id.get(&(out.dev(), out.ino())) {
-            Some((input, None)) => anyhow::bail!(
-                "{option} {} is the input file {}: writing it would destroy the input; choose \
-                 another output path",
-                output.display(),
-                input.display()
-            ),
-            Some((other, Some(other_option))) => anyhow::bail!(
-                "{option} {} is also the {other_option} output {}: the two outputs would \
-                 overwrite each other; choose another output path",
-                output.display(),
-                other.display()
-            ),
-            None => Ok(()),
-        }
-    }
 }
 
 /// Whether the paths `a` and `b` name the same file, whether or not it exists yet: the same
@@ -200,38 +142,4 @@ pub fn write_rgb_exr(
     .with_context(|| format!("cannot encode the EXR image for {}", path.display()))?;
     std::fs::write(path, bytes.into_inner())
         .with_context(|| format!("cannot write {} ({option})", path.display()))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// An output is refused under every name that leads to an input (the path itself, a
-    /// symbolic link, a hard link), the input named in the message; other files and paths that
-    /// do not exist yet pass.
-    #[test]
-    fn inputs_are_found_under_any_name() {
-        let dir = tempfile::tempdir().unwrap();
-        let input = dir.path().join("frame_0001.exr");
-        let other = dir.path().join("other.exr");
-        std::fs::write(&input, b"input").unwrap();
-        std::fs::write(&other, b"other").unwrap();
-        let symlink = dir.path().join("symlink.exr");
-        std::os::unix::fs::symlink(&input, &symlink).unwrap();
-        let hard_link = dir.path().join("hard.exr");
-        std::fs::hard_link(&input, &hard_link).unwrap();
-        let missing = dir.path().join("missing.exr");
-        let inputs = InputFiles::new(&[missing.clone(), input.clone()]);
-        for output in [&input, &symlink, &hard_link] {
-            let err = inputs.refuse(output, "--out").unwrap_err().to_string();
-            let names_input = format!("is the input file {}", input.display());
-            assert!(
-                err.starts_with("--out") && err.contains(&names_input),
-                "{err}"
-            );
-        }
-        inputs.refuse(&other, "--out").unwrap();
-        inputs.refuse(&dir.path().join("new.exr"), "--out").unwrap();
-        assert_eq!(std::fs::read(&input).unwrap(), b"input");
-    }
 }
