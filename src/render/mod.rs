@@ -1481,8 +1481,10 @@ impl DirectionGrid {
             order: Vec::new(),
         };
         let index: Vec<usize> = grid.points.iter().map(|&p| grid.cell_index(p)).collect();
+        let mut most = 0;
         for &c in &index {
             grid.start[c + 1] += 1;
+            most = most.max(grid.start[c + 1]);
         }
         for c in 0..grid.cells.pow(3) {
             grid.start[c + 1] += grid.start[c];
@@ -1493,26 +1495,28 @@ impl DirectionGrid {
             grid.order[next[c]] = i;
             next[c] += 1;
         }
-        grid.drop_repeated_points();
+        if most > DirectionGrid::CROWDED {
+            grid.drop_repeated_points();
+        }
         grid
     }
 
+    /// Points in a cell past which [`DirectionGrid::drop_repeated_points`] runs.
+    const CROWDED: usize = 32;
+
     /// A point at the very place of a lower-indexed one is never the answer (ties go to the
-    /// lower index): in a crowded cell such points are left out. A light file of 900,000
-    /// lights in one direction put them all in one cell, which every query then scanned (33 s
-    /// a frame; found by an audit). Cells of a spread prefix hold a few points and are left as
-    /// they are.
+    /// lower index): in a crowded cell (more than [`DirectionGrid::CROWDED`] points; the
+    /// caller knows from binning whether there is one) such points are left out. A light file
+    /// of 900,000 lights in one direction put them all in one cell, which every query then
+    /// scanned (33 s a frame; found by an audit). Cells of a spread prefix hold a few points
+    /// and are left as they are.
     fn drop_repeated_points(&mut self) {
-        const CROWDED: usize = 32;
-        if !self.start.windows(2).any(|w| w[1] - w[0] > CROWDED) {
-            return;
-        }
         let mut start = Vec::with_capacity(self.start.len());
         let mut order = Vec::with_capacity(self.order.len());
         start.push(0);
         for c in 0..self.start.len() - 1 {
             let cell = &self.order[self.start[c]..self.start[c + 1]];
-            if cell.len() > CROWDED {
+            if cell.len() > Self::CROWDED {
                 let bits = |i: usize| self.points[i].to_array().map(f32::to_bits);
                 let mut kept: Vec<usize> = cell.to_vec();
                 kept.sort_unstable_by_key(|&i| (bits(i), i));
