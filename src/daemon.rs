@@ -145,7 +145,8 @@ pub enum DaemonError {
     Signals(#[source] std::io::Error),
     #[error("render thread: {0}")]
     Render(String),
-    #[error("render.latest_png: {0}")]
+    /// `render.latest_png` would replace an input (the message names the key).
+    #[error("{0}")]
     LatestPng(#[source] std::io::Error),
     #[error("ASG stage: {0}")]
     Asg(#[from] AsgStageError),

@@ -1802,6 +1802,87 @@ fn the_systemd_unit_verifies() {
     assert!(stderr.trim().is_empty(), "{stderr}");
 }
 
+/// `check-config` makes the render thread's start checks (these configs passed it, and `run`
+/// then refused them; found by an audit): `latest_png` over the config file or a frame, a
+/// scene of an unknown format or that does not parse. A good one is described.
+#[test]
+fn check_config_checks_the_render_thread_as_run_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("r.toml");
+    let frame = dir.path().join("frame_1.hdr");
+    std::fs::copy("tests/data/rooitou_park_1k.hdr", &frame).unwrap();
+    let bad_obj = dir.path().join("bad.obj");
+    std::fs::write(&bad_obj, "v 0 0 0\nf 1 2 3\n").unwrap();
+    let good_obj = dir.path().join("tri.obj");
+    std::fs::write(&good_obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let source = format!(
+        "[source]\nkind = \"sequence\"\npaths = [\"{}\"]\n",
+        frame.display()
+    );
+    let check = |render: &str| {
+        std::fs::write(
+            &config,
+            format!("{source}[render]\nenabled = true\n{render}"),
+        )
+        .unwrap();
+        envlight()
+            .arg("check-config")
+            .arg(&config)
+            .output()
+            .unwrap()
+    };
+    for (render, needles) in [
+        (
+            "latest_png = \"r.toml\"\n".to_owned(),
+            vec!["render.latest_png", "is the input file", "r.toml"],
+        ),
+        (
+            "latest_png = \"frame_1.hdr\"\n".to_owned(),
+            vec!["render.latest_png", "is the input file", "frame_1.hdr"],
+        ),
+        (
+            "scene = \"r.toml\"\n".to_owned(),
+            vec!["render.scene", "unknown format"],
+        ),
+        (
+            format!("scene = \"{}\"\n", bad_obj.display()),
+            vec!["render.scene", "bad.obj"],
+        ),
+    ] {
+        let out = check(&render);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{render} passed: {stderr}");
+        for needle in needles {
+            assert!(
+                stderr.contains(needle),
+                "{render}: no {needle:?} in {stderr}"
+            );
+        }
+        assert!(stderr.contains("r.toml"), "the file is not named: {stderr}");
+    }
+    let out = check(&format!(
+        "scene = \"{}\"\nlatest_png = \"out.png\"\nwidth = 64\nheight = 32\n",
+        good_obj.display()
+    ));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains(&format!(
+            "render: 64x32, scene {} (1 triangle casting shadows)",
+            good_obj.display()
+        )) && stdout.contains("newest image to"),
+        "{stdout}"
+    );
+    assert!(
+        !dir.path().join("out.png").exists(),
+        "check-config wrote the image"
+    );
+}
+
 #[test]
 fn check_config_names_the_bad_key_and_value() {
     let dir = tempfile::tempdir().unwrap();

@@ -170,13 +170,16 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
     };
     // The files are looked up as `envlight run` will (a pattern that matches nothing, a
     // missing file or a folder without frames is an error here too).
+    let mut source_files: Vec<PathBuf> = Vec::new();
     let paths = match daemon_source.kind {
         envlight::config::SourceKind::Sequence => {
+            use envlight::capture::FrameSource as _;
             let found = envlight::capture::sequence::SequenceSource::new(
                 &daemon_source.paths,
                 envlight::capture::sequence::SequenceOptions::default(),
             )
             .with_context(|| format!("{name}: source.paths"))?;
+            source_files = found.files().to_vec();
             let n = found.frame_count();
             format!(
                 " {:?} ({n} file{})",
@@ -232,6 +235,16 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
         "  metrics: {}",
         off(config.metrics.listen.map(|a| format!("http://{a}/metrics")))
     )?;
+    if config.render.enabled {
+        writeln!(
+            text,
+            "  render: {}",
+            render_description(&config, args.file.as_deref(), &source_files)
+                .with_context(|| name.clone())?
+        )?;
+    } else {
+        writeln!(text, "  render: off")?;
+    }
     if config.asg.enabled {
         writeln!(
             text,
@@ -264,6 +277,58 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
         writeln!(text, "  wavelet: off")?;
     }
     crate::cli::output::print(&text)
+}
+
+/// `check-config`'s line for an enabled `[render]`, after the checks `envlight run` makes
+/// when the render thread starts: the scene is loaded (a file of an unknown format or that
+/// does not parse fails here, not at start), and `latest_png` may be none of the inputs (the
+/// source's files, the scene, the config file).
+fn render_description(
+    config: &Config,
+    config_file: Option<&Path>,
+    source_files: &[PathBuf],
+) -> Result<String> {
+    let render = &config.render;
+    let scene = match &render.scene {
+        Some(path) => {
+            let scene = envlight::render::scene::Scene::load(path, true)
+                .with_context(|| "render.scene".to_owned())?;
+            let triangles = scene.caster_indices / 3;
+            format!(
+                "scene {} ({triangles} triangle{} casting shadows)",
+                path.display(),
+                if triangles == 1 { "" } else { "s" }
+            )
+        }
+        None => "the built-in scene".to_owned(),
+    };
+    let png = match &render.latest_png {
+        Some(png) => {
+            let inputs: Vec<PathBuf> = source_files
+                .iter()
+                .chain(&render.scene)
+                .chain(config_file.map(Path::to_path_buf).as_ref())
+                .cloned()
+                .collect();
+            envlight::daemon::refuse_latest_png_over(png, &inputs)?;
+            format!("newest image to {}", png.display())
+        }
+        None => "no image file".to_owned(),
+    };
+    let lighting = match render.lighting {
+        envlight::config::Lighting::Lights => "the lights with shadows".to_owned(),
+        envlight::config::Lighting::Asg => "the ASG lobes".to_owned(),
+    };
+    let budget = render.budget_ms.map_or("every light".to_owned(), |ms| {
+        format!(
+            "light count held to {} ms a frame",
+            envlight::config::shown_number(ms)
+        )
+    });
+    Ok(format!(
+        "{}x{}, {scene}, lit by {lighting}, {budget}, {png}",
+        render.settings.width, render.settings.height
+    ))
 }
 
 /// `envlight run`: the daemon, or the replay of a recording (`--replay DIR`).
