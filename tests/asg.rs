@@ -927,7 +927,7 @@ fn fit_asg_command_prints_one_json_line_per_frame() {
         .args(["fit-asg", "--lobes", "65"])
         .output()
         .unwrap();
-    assert_eq!(bad.status.code(), Some(1));
+    assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("lobe count 65"));
 }
 

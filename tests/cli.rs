@@ -230,7 +230,7 @@ fn merge_flags_conflict_and_exponent_is_checked() {
     let o = envlight(&["decompose", "--frames", "1", "--merge", "--no-merge"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     let o = envlight(&["decompose", "--frames", "1", "--pdf-exponent", "0"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--pdf-exponent"), "{}", stderr(&o));
 }
 
@@ -611,7 +611,8 @@ fn bad_light_counts_name_the_flag() {
         let o = envlight(&["decompose", "--lights", n, "--frames", "1"]);
         let max = envlight::decompose::MAX_POINTS.to_string();
         assert_fails_naming(&o, &["--lights", n, &max]);
-        assert_eq!(o.status.code(), Some(1));
+        // A value out of range is a usage error, as clap's own range checks are.
+        assert_eq!(o.status.code(), Some(2));
     }
     let o = envlight(&["decompose", "--loop"]);
     assert_fails_naming(&o, &["--loop"]);
@@ -763,7 +764,7 @@ fn bad_taps_name_the_flag() {
     assert_eq!(o.status.code(), Some(2));
     let o = envlight(&["decompose", "--taps", "0,0", "--frames", "1"]);
     assert_fails_naming(&o, &["--taps"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
 }
 
 #[test]
@@ -779,7 +780,7 @@ fn bad_fov_names_the_flag() {
             fov,
         ]);
         assert_fails_naming(&o, &["--fov", fov, "[1, 360)"]);
-        assert_eq!(o.status.code(), Some(1));
+        assert_eq!(o.status.code(), Some(2));
     }
 }
 

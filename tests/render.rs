@@ -1147,7 +1147,7 @@ fn cli_renders_with_asg_lighting() {
         .arg(&out)
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2), "a value out of range is a usage error");
     assert!(
         String::from_utf8_lossy(&o.stderr).contains("--lobes"),
         "{}",

@@ -2,7 +2,7 @@
 //! `calibrate-fisheye`, and opening the camera for `decompose`. Only argument handling and
 //! printing; the work is in `envlight::capture` and `envlight::envmap::fisheye_detect`.
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use clap::{Args, ValueEnum};
 use envlight::capture::bracket::{read_bracket_image, recover_response, Bracket, SolveSettings};
 use envlight::capture::image_file::{read_hdr_image, ImageFormat};
@@ -97,9 +97,12 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
         lambda: args.lambda.unwrap_or(d.lambda),
         samples: args.samples.unwrap_or(d.samples),
     };
-    settings
-        .check()
-        .map_err(|p| anyhow!("invalid --{} {}: {}", p.field, p.value, p.requirement))?;
+    settings.check().map_err(|p| {
+        crate::cli::usage(format!(
+            "invalid --{} {}: {}",
+            p.field, p.value, p.requirement
+        ))
+    })?;
     let brackets: Vec<Bracket> = if let Some(dev) = &args.device {
         let settings = CameraSettings {
             device: dev.clone(),
@@ -111,7 +114,7 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
             .0
     } else {
         if args.images.len() != args.exposures.len() {
-            bail!(
+            crate::cli::usage_error!(
                 "{} images but {} --exposures: give one exposure time per image",
                 args.images.len(),
                 args.exposures.len()
@@ -190,7 +193,7 @@ pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
     };
     calibration
         .validate(w, h)
-        .map_err(|e| anyhow::anyhow!("invalid --fov or --model: {e}"))?;
+        .map_err(|e| crate::cli::usage(format!("invalid --fov or --model: {e}")))?;
     let text = format!(
         "# envlight calibrate-fisheye {}: {w}x{h}, {} edge points, rms residual {:.3} px\n\
          # model and fov_deg are as given (--model, --fov); rotation_deg is not detected:\n\

@@ -463,9 +463,9 @@ pub(crate) fn run(args: &DecomposeArgs) -> Result<()> {
         } => match flags.iter().find(|(k, _)| k == key) {
             // A switch (--split) has no value to show.
             Some((_, flag)) if value == "true" || value == "false" => {
-                anyhow!("invalid {flag}: {message}")
+                crate::cli::usage(format!("invalid {flag}: {message}"))
             }
-            Some((_, flag)) => anyhow!("invalid {flag} {value}: {message}"),
+            Some((_, flag)) => crate::cli::usage(format!("invalid {flag} {value}: {message}")),
             None => anyhow!(e).context(format!("invalid setting in {config_name}")),
         },
         _ => anyhow!(e),

@@ -75,7 +75,7 @@ pub(crate) fn run(args: &FitAsgArgs) -> Result<()> {
         if flag.is_empty() {
             anyhow!(e).context("invalid fit-asg options")
         } else {
-            anyhow!("invalid {flag}: {e}")
+            crate::cli::usage(format!("invalid {flag}: {e}"))
         }
     })?;
     let mut source: Box<dyn FrameSource> = if args.inputs.is_empty() {

@@ -58,11 +58,17 @@ impl clap::builder::TypedValueParser for Utf8Input {
     }
 }
 
-/// A misuse of the command line that clap's parsing cannot see (options that do not go
-/// together, an option that the chosen mode would ignore): exit status 2, like clap's own.
+/// A misuse of the command line that clap's parsing cannot see (a flag's value out of its
+/// range, options that do not go together, an option that the chosen mode would ignore): exit
+/// status 2, like clap's own. (An invalid value in a config file is a runtime error, 1.)
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
 pub(crate) struct UsageError(pub(crate) String);
+
+/// A [`UsageError`] as an error to return or map to (a flag's value out of its range).
+pub(crate) fn usage(message: impl Into<String>) -> anyhow::Error {
+    UsageError(message.into()).into()
+}
 
 /// Returns a [`UsageError`] from the enclosing function.
 macro_rules! usage_error {

@@ -177,10 +177,12 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
     use envlight::render::{self, budget, output, scene::Scene, RenderSettings, Renderer};
     args.check_usage()?;
     if let Some(b) = args.budget_ms.filter(|b| !(b.is_finite() && *b > 0.0)) {
-        bail!("invalid --budget-ms {b}: must be a positive number of milliseconds");
+        crate::cli::usage_error!(
+            "invalid --budget-ms {b}: must be a positive number of milliseconds"
+        );
     }
     if args.exposure.is_some_and(|e| !(e.is_finite() && e > 0.0)) {
-        bail!("invalid --exposure: must be a positive number");
+        crate::cli::usage_error!("invalid --exposure: must be a positive number");
     }
     let scene = match &args.scene {
         Some(path) => Scene::load(path, true)?,
@@ -197,7 +199,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         };
         Some(
             envlight::asg::fit::AsgFitter::new(settings)
-                .context("invalid --lobes or --fit-height")?,
+                .map_err(|e| crate::cli::usage(format!("invalid --lobes or --fit-height: {e}")))?,
         )
     } else {
         None
@@ -235,7 +237,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 key: "decompose.lights",
                 value,
                 message,
-            } => anyhow!("invalid --light-count {value}: {message}"),
+            } => crate::cli::usage(format!("invalid --light-count {value}: {message}")),
             _ => anyhow!(e).context("invalid INPUT"),
         })?;
         let src = open_source(&config)?;

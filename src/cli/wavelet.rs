@@ -216,11 +216,12 @@ struct ApproxLine<'a> {
 }
 
 fn approx(args: &ApproxArgs) -> Result<()> {
-    envlight::wavelet::sphere::check_side(args.size).context("invalid --size")?;
+    envlight::wavelet::sphere::check_side(args.size)
+        .map_err(|e| crate::cli::usage(format!("invalid --size: {e}")))?;
     let max = max_levels(args.size);
     let levels = args.levels.unwrap_or(max);
     if levels == 0 || levels > max {
-        bail!(
+        crate::cli::usage_error!(
             "invalid --levels {levels}: a map of side {} allows 1..={max}",
             args.size
         );
@@ -229,7 +230,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
         .coefficients
         .unwrap_or((args.size * args.size).min(1024));
     if coefficients == 0 || coefficients > args.size * args.size {
-        bail!(
+        crate::cli::usage_error!(
             "invalid --coefficients {coefficients}: expected 1..={} for --size {}",
             args.size * args.size,
             args.size

@@ -231,7 +231,7 @@ const MAX_VIEWS: usize = 32;
 
 fn check_size(size: usize, max: usize) -> Result<()> {
     if !(2..=max).contains(&size) || !size.is_power_of_two() {
-        bail!("--size must be a power of two in 2..={max}, got {size}");
+        crate::cli::usage_error!("invalid --size {size}: must be a power of two in 2..={max}");
     }
     Ok(())
 }
@@ -261,14 +261,14 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
     let texels = args.size * args.size;
     let coefficients = args.coefficients.unwrap_or(texels.min(1000));
     if coefficients == 0 || coefficients > texels {
-        bail!(
+        crate::cli::usage_error!(
             "invalid --coefficients {coefficients}: expected 1..={texels} for --size {}",
             args.size
         );
     }
     let transport_kept = args.transport.unwrap_or(texels.min(256));
     if transport_kept == 0 || transport_kept > texels {
-        bail!(
+        crate::cli::usage_error!(
             "invalid --transport {transport_kept}: expected 1..={texels} for --size {}",
             args.size
         );
@@ -468,7 +468,7 @@ struct RecoverReport {
 pub fn recover(args: &RecoverArgs) -> Result<()> {
     check_size(args.size, 64)?;
     if !(1..=MAX_VIEWS).contains(&args.views) {
-        bail!("invalid --views {}: expected 1..={MAX_VIEWS}", args.views);
+        crate::cli::usage_error!("invalid --views {}: expected 1..={MAX_VIEWS}", args.views);
     }
     if args.input.frames_given() {
         crate::cli::usage_error!(
@@ -477,7 +477,7 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
     }
     let max_noise = envlight::wavelet::inverse::MAX_NOISE;
     if !(0.0..=max_noise).contains(&args.noise) {
-        bail!(
+        crate::cli::usage_error!(
             "invalid --noise {}: must be in 0..={max_noise} (a fraction of the RMS radiance)",
             envlight::config::shown_number(args.noise)
         );
