@@ -937,6 +937,26 @@ fn options_the_mode_would_ignore_are_usage_errors() {
             "the built-in sky is always lat-long",
         ),
         (vec!["decompose", &hdr, "--sky-size", "8x4"], "--sky-size"),
+        // A camera is no sky and no file sequence (these were accepted and ignored; the
+        // device need not exist: the usage is checked before it is opened).
+        (
+            vec![
+                "decompose",
+                "--device",
+                "/nonexistent/video9",
+                "--seed",
+                "3",
+            ],
+            "not to INPUT files or a camera",
+        ),
+        (
+            vec!["decompose", "--device", "/nonexistent/video9", "--loop"],
+            "not a camera",
+        ),
+        (
+            vec!["decompose", "--no-filter", "--bright-history", "fade"],
+            "--bright-history",
+        ),
         (vec!["subscribe", "tcp:"], "HOST:PORT"),
         (
             vec!["render", "--out", out, "--lobes", "4"],

@@ -1147,7 +1147,11 @@ fn cli_renders_with_asg_lighting() {
         .arg(&out)
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(2), "a value out of range is a usage error");
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "a value out of range is a usage error"
+    );
     assert!(
         String::from_utf8_lossy(&o.stderr).contains("--lobes"),
         "{}",

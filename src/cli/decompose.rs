@@ -126,7 +126,7 @@ pub(crate) struct DecomposeArgs {
     rotation: Option<f64>,
 
     /// Disable the temporal FIR filter.
-    #[arg(long, conflicts_with = "taps")]
+    #[arg(long, conflicts_with_all = ["taps", "bright_history"])]
     no_filter: bool,
 
     /// FIR filter taps, newest frame first: 1 to 64 non-negative weights, normalised to sum to 1.
@@ -272,10 +272,12 @@ impl DecomposeArgs {
             note("source.fps", "--fps");
         }
         if self.looped {
-            if src.kind.as_deref().unwrap_or("sky") == "sky" {
-                usage_error!(
+            match src.kind.as_deref().unwrap_or("sky") {
+                "sky" => usage_error!(
                     "--loop replays INPUT files; the built-in sky is endless with --frames 0"
-                );
+                ),
+                "v4l2" => usage_error!("--loop replays INPUT files, not a camera (--device)"),
+                _ => {}
             }
             src.looped = Some(true);
         }
@@ -333,9 +335,10 @@ impl DecomposeArgs {
         }
 
         let sky_flags = self.sky_size.is_some() || self.no_clouds || self.seed.is_some();
-        if sky_flags && !self.inputs.is_empty() {
+        if sky_flags && src.kind.as_deref().unwrap_or("sky") != "sky" {
             usage_error!(
-                "--sky-size, --no-clouds and --seed apply to the built-in sky, not to INPUT files"
+                "--sky-size, --no-clouds and --seed apply to the built-in sky, not to INPUT files \
+                 or a camera"
             );
         }
         if let Some((w, h)) = self.sky_size {

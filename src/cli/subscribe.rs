@@ -9,7 +9,8 @@ pub(crate) const LONG_ABOUT: &str = "\
 Connect to a running envlight daemon and print the light lists it streams, until the daemon
 says goodbye (or --frames have arrived).
 
-ADDR is unix:PATH (or a path), tcp:HOST:PORT (or HOST:PORT), or ws://HOST:PORT/.
+ADDR is unix:PATH (or a path: one with a `/`, or an existing file), tcp:HOST:PORT (or
+HOST:PORT), or ws://HOST:PORT/.
 With --json every frame is printed as one JSON line (docs/protocol.md's JSON form); otherwise
 one summary line per frame. --representation asg prints the ASG sets of a daemon whose [asg]
 stage is enabled (--max-lights then caps the lobes); --representation wavelet the wavelet

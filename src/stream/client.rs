@@ -78,8 +78,13 @@ impl std::str::FromStr for Endpoint {
         if host_and_port(s) {
             return Ok(Endpoint::Tcp(s.to_owned()));
         }
+        // A bare name in the current folder (`envlight.sock`) is a path if something is there.
+        if std::fs::symlink_metadata(s).is_ok() {
+            return Ok(Endpoint::Unix(PathBuf::from(s)));
+        }
         Err(format!(
-            "cannot tell what {s:?} is: use unix:PATH, tcp:HOST:PORT, HOST:PORT or ws://HOST:PORT/"
+            "cannot tell what {s:?} is (no file of that name here): use unix:PATH, \
+             tcp:HOST:PORT, HOST:PORT or ws://HOST:PORT/"
         ))
     }
 }
@@ -412,6 +417,12 @@ mod tests {
             Ok(Endpoint::Unix("/run/envlight/envlight.sock".into()))
         );
         assert_eq!("./x.sock".parse(), Ok(Endpoint::Unix("./x.sock".into())));
+        // A bare name is a path when a file of that name is there (tests run in the crate's
+        // folder); `localhost` below is not.
+        assert_eq!(
+            "Cargo.toml".parse(),
+            Ok(Endpoint::Unix("Cargo.toml".into()))
+        );
         assert_eq!(
             "127.0.0.1:7878".parse(),
             Ok(Endpoint::Tcp("127.0.0.1:7878".into()))
