@@ -1086,6 +1086,10 @@ fn the_fit_target_of_a_uniform_frame_of_any_size_is_uniform() {
         (1, 1),
         (2, 1),
         (130, 65),
+        // Wider than a row of sums per source column is kept for (columns first), and fewer
+        // source rows than fit rows.
+        (70_000, 70),
+        (100_000, 1),
     ] {
         let frame = HdrFrame::new(
             w,
