@@ -954,9 +954,10 @@ fn scaled(frame: &HdrFrame, scale: f32) -> HdrFrame {
 }
 
 /// The fit does not depend on the map's scale: a map and the same map times 2^50 (about 1e15)
-/// or 2^−100 (about 8e−31) give the same loss, and lobes scaled by the same factor. The
-/// amplitude bounds were absolute: at 1e15 every lobe stuck at e^25 (loss 2, worse than black),
-/// at 1e−30 at e^−60.
+/// or 2^−100 (about 8e−31) or 2^−130 (about 7e−40, f32 subnormals) give the same loss, and
+/// lobes scaled by the same factor. The amplitude bounds were absolute: at 1e15 every lobe
+/// stuck at e^25 (loss 2, worse than black), at 1e−30 at e^−60; and the seeds' floor was
+/// absolute (1e−36), so a map of 1e−45 was seeded at 29,000 times its energy (an audit).
 #[test]
 fn the_fit_does_not_depend_on_the_maps_scale() {
     let (frame, settings) = small_rooitou_fit();
@@ -966,7 +967,7 @@ fn the_fit_does_not_depend_on_the_maps_scale() {
     };
     let unit = fit(1.0);
     let unit_loss = unit.loss.unwrap().total;
-    for exponent in [50, -100] {
+    for exponent in [50, -100, -130] {
         let scale = 2f32.powi(exponent);
         let scaled = fit(scale);
         let loss = scaled.loss.unwrap().total;

@@ -274,7 +274,9 @@ impl FitSettings {
 pub fn initial_lobes(target: &FitTarget, k: usize) -> Vec<Asg> {
     let lum = |p: &[f64; 3]| crate::decompose::luminance_f64(*p);
     let mut residual = target.radiance.clone();
-    let floor = target.mean.max(1e-30) * 1e-6;
+    // Relative to the mean: an absolute floor (1e-36) made every seed of a map of 1e-45
+    // radiance that floor, 29,000 times the map (an audit).
+    let floor = target.mean * 1e-6;
     let max_init = target.max_bandwidth();
     let spare = fibonacci_sphere(k);
     let mut lobes = Vec::with_capacity(k);
