@@ -1795,6 +1795,9 @@ mod tests {
     fn invalid_values_name_the_key() {
         for (text, key, value) in [
             ("[decompose]\nlights = 0", "decompose.lights", "0"),
+            // The merge limits are checked together; the error names the key that was set.
+            ("[camera]\nsaturated = 1.5", "camera.saturated", "1.5"),
+            ("[camera]\ndark = 0.99", "camera.dark", "0.99"),
             (
                 "[decompose]\nlights = 100000000",
                 "decompose.lights",

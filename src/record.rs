@@ -407,6 +407,10 @@ impl ReplaySource {
                 message: if dir.is_dir() {
                     "not a recording (no session.json); envlight record --out DIR makes one"
                         .to_owned()
+                } else if std::fs::symlink_metadata(dir).is_err() {
+                    "no such directory (a recording is a directory made by envlight record --out \
+                     DIR)"
+                        .to_owned()
                 } else {
                     "not a recording directory (made by envlight record --out DIR)".to_owned()
                 },
@@ -721,7 +725,15 @@ mod tests {
                 dir.path().to_path_buf(),
                 "not a recording (no session.json)",
             ),
-            (dir.path().join("missing"), "not a recording directory"),
+            (dir.path().join("missing"), "no such directory"),
+            (
+                {
+                    let file = dir.path().join("file");
+                    std::fs::write(&file, b"x").unwrap();
+                    file
+                },
+                "not a recording directory",
+            ),
         ] {
             let e = ReplaySource::open(&path, Pacing::Original).err().unwrap();
             let text = e.to_string();

@@ -293,6 +293,17 @@ fn exposures_out_of_order_or_too_close_are_refused() {
         err.contains("bracket 3") && err.contains("bracket 4"),
         "{err}"
     );
+    // One image given for two exposures (the solve said "singular … or a smoothness weight
+    // lambda above its 100"; found by an audit).
+    let mut twice = brackets.clone();
+    twice[4].image = twice[1].image.clone();
+    let err = recover_response(&twice, SolveSettings::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("brackets 2 and 5") && err.contains("same pixels"),
+        "{err}"
+    );
 }
 
 /// A made-up camera curve with a shoulder: code v = (1 + k)·y/(y + k) with y = X^0.45.

@@ -370,6 +370,25 @@ pub fn recover_response(
     if brackets[0].image.pixels.is_empty() {
         return Err(BracketError::Settings("the brackets have no pixels".into()));
     }
+    // Two brackets of different exposures with the same pixels cannot both be right (one
+    // image given twice) unless none of them is between black and clipped: the solve found no
+    // consistent curve and blamed the data or λ.
+    let has_data =
+        |b: &Bracket| (b.image.pixels.iter()).any(|p| p.iter().any(|&c| c > 0.0 && c < 1.0));
+    for (i, a) in brackets.iter().enumerate().filter(|(_, b)| has_data(b)) {
+        if let Some(j) =
+            (i + 1..brackets.len()).find(|&j| brackets[j].image.pixels == a.image.pixels)
+        {
+            return Err(BracketError::Settings(format!(
+                "brackets {} and {} (exposures {} s and {} s) have the same pixels: the same \
+                 image given twice? Each exposure needs its own image",
+                i + 1,
+                j + 1,
+                a.exposure_s,
+                brackets[j].exposure_s
+            )));
+        }
+    }
     check_exposure_order(brackets)?;
     let picks = sample_pixels(brackets, settings.samples);
     let ln_t: Vec<f64> = brackets

@@ -35,7 +35,7 @@ pub struct CalibrateResponseArgs {
     #[arg(long, short = 'o', value_name = "FILE")]
     out: PathBuf,
 
-    /// Code levels of the curve (256 for 8-bit data). [default: 256]
+    /// Code levels of the curve (256 for 8-bit data), 4..=4096. [default: 256]
     #[arg(long, value_name = "N")]
     levels: Option<usize>,
 
@@ -43,7 +43,7 @@ pub struct CalibrateResponseArgs {
     #[arg(long, value_name = "L")]
     lambda: Option<f64>,
 
-    /// Number of sample pixels. [default: 300]
+    /// Number of sample pixels, 2..=5000. [default: 300]
     #[arg(long, value_name = "N")]
     samples: Option<usize>,
 }

@@ -198,11 +198,13 @@ impl RawCamera {
                 .unwrap_or(f64::from(d.merge_limits.saturated)) as f32,
         };
         merge_limits.check().map_err(|m| {
-            invalid(
-                "camera.dark",
-                [merge_limits.dark, merge_limits.saturated],
-                m,
-            )
+            // The key the file set (the other has its default), or both.
+            let key = match (self.dark, self.saturated) {
+                (Some(_), None) => "camera.dark",
+                (None, Some(_)) => "camera.saturated",
+                _ => "camera.dark and camera.saturated",
+            };
+            invalid(key, [merge_limits.dark, merge_limits.saturated], m)
         })?;
         let timeout = seconds(
             "camera.timeout_s",
