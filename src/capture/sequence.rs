@@ -3,9 +3,10 @@
 //! Inputs are files, directories (every `.exr`/`.hdr` file directly in them, not recursive) and
 //! glob patterns (`frames/*.exr`, `take_[12]/*.hdr`). An entry of a directory or a glob with a
 //! frame extension that is no readable regular file (a broken or looping link, a pipe) is an
-//! error naming it. The frames found are deduplicated (by canonical path; two names of one file,
-//! such as a link and its target, are read once with a warning naming both) and put in natural
-//! order: by the last run of digits in the file name (without
+//! error naming it. The frames found are put in natural order and deduplicated (by canonical
+//! path; two names of one file, such as a link and its target, are one frame, at the place of
+//! the first name in that order, with a warning naming both). Natural order: by the last run
+//! of digits in the file name (without
 //! extension), so `frame_2.exr` comes before `frame_10.exr`; files without a number come after
 //! the numbered ones, and ties are broken by file name and then full path.
 //!
@@ -338,6 +339,9 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
         }
     }
 
+    // In natural order first, so that of two names of one file the first in the sequence is
+    // kept (the directory's listing order kept `f2` of links f1, f2, f3, f10 to one file).
+    found.sort_by(|a, b| compare_frame_paths(a, b));
     let mut seen = HashMap::new();
     let mut unique = Vec::with_capacity(found.len());
     let (mut repeated, mut first_repeated) = (0usize, None);
@@ -372,7 +376,6 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
             first.display()
         );
     }
-    unique.sort_by(|a, b| compare_frame_paths(a, b));
     Ok(unique)
 }
 
