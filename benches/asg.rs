@@ -8,7 +8,8 @@
 //! - `prepare_refill_256x512`: the same target refilled in place for a new frame, tiles
 //!   included (what `AsgFitter` does from the second frame on);
 //!   `prepare_refill_256x512_from_2000x1000` from a frame of a size that is no multiple of the
-//!   map (the resampling by area overlap);
+//!   map (the resampling by area overlap); `prepare_refill_256x512_from_fisheye_2048` from a
+//!   2048 × 2048 fisheye frame (bilinear splatting, `src/asg/splat.rs`);
 //! - `warm_refit_default_1_thread`: one warm-started refit of the next frame's prepared target
 //!   with the default `warm_iterations` on 1/`warm_subset` of the tiles, continuing Adam's
 //!   state as `AsgFitter` does, after a default first frame;
@@ -83,6 +84,28 @@ fn bench(c: &mut Criterion) {
         let mut t = target(0.0);
         let _ = t.tiled();
         t.refill(&frame).expect("sky frame");
+        b.iter(|| t.refill(black_box(&frame)))
+    });
+    // A 2048 × 2048 fisheye frame of the sky (the rig's camera): bilinear splatting through
+    // the table built by the first refill (src/asg/splat.rs).
+    group.bench_function("prepare_refill_256x512_from_fisheye_2048", |b| {
+        use envlight::envmap::{fisheye_detect::render_fisheye, FisheyeCalibration, Projection};
+        let sky = render_sky(&options, 0.5);
+        let calibration = FisheyeCalibration::default();
+        let pixels = render_fisheye(
+            &sky.pixels,
+            sky.width,
+            sky.height,
+            &calibration,
+            2048,
+            2048,
+            1,
+        );
+        let frame = envlight::HdrFrame::new(2048, 2048, pixels, Projection::Fisheye(calibration))
+            .expect("fisheye frame");
+        let mut t = target(0.0);
+        let _ = t.tiled();
+        t.refill(&frame).expect("fisheye frame");
         b.iter(|| t.refill(black_box(&frame)))
     });
     let init = initial_lobes(&t0, 16);

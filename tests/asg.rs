@@ -1112,3 +1112,74 @@ fn the_fit_target_of_a_uniform_frame_of_any_size_is_uniform() {
         );
     }
 }
+
+/// A fisheye or angular frame: a uniform frame stays uniform in the fit target wherever the
+/// frame sees (binning each source pixel whole to the fit pixel of its centre made a uniform
+/// 1001 × 1001 angular frame range 0 to 54.5 at height 256, and the fit grew needle lobes on
+/// the stripes; an audit), and a one-pixel sun keeps its energy within 5 % (measured: 0.980 to
+/// 1.007 at these places, the worst within a few rows of a pole).
+#[test]
+fn the_fit_target_of_a_fisheye_or_angular_frame_is_uniform_and_keeps_a_sun() {
+    use envlight::envmap::FisheyeCalibration;
+    for (projection, side, height) in [
+        (Projection::AngularMap, 1001u32, 64u32),
+        (Projection::AngularMap, 1001, 256),
+        (Projection::AngularMap, 257, 64),
+        (Projection::Fisheye(FisheyeCalibration::default()), 1001, 64),
+        (
+            Projection::Fisheye(FisheyeCalibration::default()),
+            1001,
+            256,
+        ),
+    ] {
+        let what = format!("{} {side}x{side} at height {height}", projection.name());
+        let frame = HdrFrame::new(
+            side,
+            side,
+            vec![[1.0, 0.5, 2.0]; (side * side) as usize],
+            projection,
+        )
+        .unwrap();
+        let target = FitTarget::from_frame(&frame, height, 16).unwrap();
+        let mut seen = 0;
+        for (p, d) in target.radiance.iter().zip(&target.directions) {
+            if *p == [0.0; 3] {
+                // Only a fisheye's lower hemisphere is unseen.
+                assert!(
+                    matches!(projection, Projection::Fisheye(_)) && d.y < 0.0,
+                    "{what}: a fit pixel at {d} is 0"
+                );
+                continue;
+            }
+            seen += 1;
+            for (got, want) in p.iter().zip([1.0, 0.5, 2.0]) {
+                assert!((got - want).abs() < 1e-6, "{what}: {p:?} at {d}");
+            }
+        }
+        assert!(
+            seen >= target.radiance.len() / 2,
+            "{what}: {seen} pixels seen"
+        );
+        // A one-pixel sun at a few places: the target's integral against the frame's.
+        let omegas = projection.solid_angles(side, side);
+        for (sx, sy) in [
+            (side / 2, side / 2),
+            (side / 3, side / 5),
+            (side / 2 + 7, side / 4),
+        ] {
+            let sun = (sy * side + sx) as usize;
+            if omegas[sun] == 0.0 {
+                continue;
+            }
+            let mut pixels = vec![[0.0f32; 3]; (side * side) as usize];
+            pixels[sun] = [1e6; 3];
+            let frame = HdrFrame::new(side, side, pixels, projection).unwrap();
+            let target = FitTarget::from_frame(&frame, height, 16).unwrap();
+            let ratio = target.integral[0] / (1e6 * omegas[sun]);
+            assert!(
+                (ratio - 1.0).abs() < 0.05,
+                "{what}: sun at ({sx}, {sy}) kept {ratio} of its energy"
+            );
+        }
+    }
+}

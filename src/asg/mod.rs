@@ -116,6 +116,7 @@
 pub mod eval;
 pub mod fast;
 pub mod fit;
+mod splat;
 pub mod target;
 
 use glam::{DVec2, DVec3};

@@ -4,13 +4,12 @@
 //!
 //! Steps for a frame:
 //! 1. **Resample** ([`resample_latlong`]) to a `2h × h` lat-long map that keeps the frame's
-//!    integral: an exact box filter when the source is lat-long and an integer multiple of the
-//!    size; another lat-long size by exact area overlap (`latlong_by_overlap`); another
-//!    projection by sending each source pixel's energy (radiance × exact solid angle) to the
-//!    fit pixel of its centre, through the decomposition's index table
-//!    ([`crate::decompose::working_map::Resampler::with_exact_width`], built once per frame
-//!    geometry and kept by the target), each fit pixel's radiance its energy over its solid
-//!    angle. Non-finite and negative values count as 0.
+//!    integral (exactly for a lat-long frame; a fisheye or angular frame's locally to a few
+//!    per cent, uniform areas staying uniform): an exact box filter when the source is lat-long and an integer multiple of the
+//!    size; another lat-long size by exact area overlap (`latlong_by_overlap`); a fisheye or
+//!    angular frame by bilinear splatting of sub-pixels with coverage normalisation
+//!    (`src/asg/splat.rs`; its table built once per frame geometry and kept by the target).
+//!    Non-finite and negative values count as 0.
 //! 2. **Integral and mean** radiance: ∫L dω per channel over the pixels' exact solid angles.
 //! 3. **Diffuse ground truth** D_GT(n) = Σ_p L_p max(n·d_p, 0) Ω_p, by direct convolution of a
 //!    ≤ 64×128 box-downsampled copy (cells: the solid-angle-weighted sums of the pixels' radiance,
@@ -29,8 +28,8 @@
 //!    made from scratch from the same frame (`tests/asg.rs`).
 
 use super::fast::Pixels;
+use super::splat::SplatTable;
 use super::{Asg, AsgError, MAX_BANDWIDTH, MIN_BANDWIDTH};
-use crate::decompose::working_map::Resampler;
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use glam::DVec3;
@@ -145,7 +144,7 @@ pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
 }
 
 #[inline]
-fn clean(c: f32) -> f64 {
+pub(super) fn clean(c: f32) -> f64 {
     if c.is_finite() && c > 0.0 {
         f64::from(c)
     } else {
@@ -171,11 +170,12 @@ pub fn resample_latlong_into(
     resample_latlong_cached(frame, height, out, &mut None)
 }
 
-/// The index table of a frame geometry that is not an exact multiple of the fit map, kept
-/// from frame to frame by [`FitTarget`]: (fit-map height, resampler).
-type TableCache = Option<(u32, Box<Resampler>)>;
+/// The splat table of a fisheye or angular frame geometry, kept from frame to frame by
+/// [`FitTarget`].
+type TableCache = Option<Box<SplatTable>>;
 
-/// [`resample_latlong_into`], keeping the index table of an inexact geometry in `cache`.
+/// [`resample_latlong_into`], keeping the splat table of a fisheye or angular geometry in
+/// `cache`.
 fn resample_latlong_cached(
     frame: &HdrFrame,
     height: u32,
@@ -241,24 +241,15 @@ fn resample_latlong_cached(
         latlong_by_overlap(frame, w, h, out);
         return Ok(());
     }
-    // Another projection: each source pixel's energy (radiance × its exact solid angle) goes
-    // to the fit pixel of its centre, cut into sub-pixels where source pixels are the larger
-    // (the decomposition's index table, src/decompose/working_map.rs), and each fit pixel's
-    // radiance is its energy over its solid angle: the map keeps the frame's integral. (Point
-    // samples, at most 8 × 8 per fit pixel, did not: a one-pixel sun in a 2000 × 1000 map was
-    // missed or counted several times over, by where it lay.)
-    let resampler = match cache {
-        Some((cached_height, r)) if *cached_height == height && r.fits(frame) => r,
-        _ => {
-            let r = Resampler::with_exact_width(frame.projection, sw, sh, w);
-            &mut cache.insert((height, Box::new(r))).1
-        }
+    // Another projection: bilinear splatting of sub-pixels with coverage normalisation
+    // (src/asg/splat.rs). (Point samples, at most 8 × 8 per fit pixel, missed a one-pixel sun
+    // or counted it several times over, by where it lay; each source pixel whole to the fit
+    // pixel of its centre striped the map.)
+    let table = match cache {
+        Some(table) if table.fits(frame, height) => table,
+        _ => cache.insert(Box::new(SplatTable::new(frame.projection, sw, sh, height))),
     };
-    let map = resampler.resample(frame, f64::INFINITY, None);
-    debug_assert_eq!((map.width, map.height), (w as usize, h as usize));
-    for (row, omega) in map.energy.chunks_exact(map.width).zip(&map.row_solid_angle) {
-        out.extend(row.iter().map(|e| e.map(|c| f64::from(c) / omega)));
-    }
+    table.resample(frame, out);
     Ok(())
 }
 
