@@ -682,6 +682,26 @@ fn a_frame_file_of_a_terabyte_is_refused_unread() {
     );
 }
 
+/// An image whose header declares more than the pixels envlight reads is refused from its
+/// header, before the file is read (a 20000 × 10000 EXR was read whole, 2.3 GB resident, before
+/// its header refused it; an audit). Here the header of a 20000 × 10000 Radiance file at the
+/// start of a sparse terabyte: its size is what the error names, not the file's.
+#[test]
+fn an_oversized_image_is_refused_from_its_header() {
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("big.hdr");
+    let mut file = std::fs::File::create(&path).unwrap();
+    file.write_all(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 10000 +X 20000\n")
+        .unwrap();
+    file.set_len(1 << 40).unwrap();
+    let err = read_hdr_image(&path).unwrap_err().to_string();
+    assert!(
+        err.contains("big.hdr") && err.contains("image is too large (20000x10000"),
+        "{err}"
+    );
+}
+
 #[test]
 fn no_frames_names_inputs() {
     let dir = tempfile::tempdir().unwrap();

@@ -587,7 +587,10 @@ pub fn rotate(v: DVec3, w: DVec3) -> DVec3 {
 pub enum AsgError {
     #[error("lobe count {0} is outside 1..=64")]
     LobeCount(usize),
-    #[error("fit map size {width}x{height} is invalid (height 4..=1024, width = 2 × height)")]
+    #[error(
+        "fit map size {width}x{height} is invalid (a fit takes heights 4..=1024, a fit target \
+         1..=4096; width = 2 × height)"
+    )]
     MapSize { width: u32, height: u32 },
     #[error("frame claims {width}x{height} pixels but holds {len}")]
     PixelCount { width: u32, height: u32, len: usize },

@@ -44,12 +44,13 @@
 //! and a panic becomes a `Format` error (the default panic hook still prints the panic message
 //! to stderr). Files over [`MAX_FILE_BYTES`] are refused before they are read (a sparse file of
 //! a terabyte made `std::fs::read` ask for a terabyte at once). Images of more than
-//! [`MAX_PIXELS`] pixels are rejected before pixel data is allocated, and so are files too short
-//! for what their headers declare (an EXR's offset tables, an HDR's rows). What a decoder cannot
-//! catch is an allocation that fails, which aborts: a DWA block's counters are checked against
-//! the block's size before it is decompressed (`check_dwa_counters`). An EXR part is read only
-//! if its blocks store every pixel (`check_every_pixel_stored`): the lenient block reader skips
-//! blocks it cannot place, which would leave rows black.
+//! [`MAX_PIXELS`] pixels are rejected from a header found in the file's first MiB before the
+//! file is read (`oversized_by_header`), else before pixel data is allocated, and so are files
+//! too short for what their headers declare (an EXR's offset tables, an HDR's rows). What a
+//! decoder cannot catch is an allocation that fails, which aborts: a DWA block's counters are
+//! checked against the block's size before it is decompressed (`check_dwa_counters`). An EXR
+//! part is read only if its blocks store every pixel (`check_every_pixel_stored`): the lenient
+//! block reader skips blocks it cannot place, which would leave rows black.
 
 use super::CaptureError;
 use exr::block::reader::ChunksReader;
@@ -134,9 +135,52 @@ pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
     };
     // Only regular files of bounded size are frames: a pipe or a device would block the open
     // or never end.
+    if std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        if let Some(message) = oversized_by_header(path, format) {
+            return Err(format_error(path, message));
+        }
+    }
     let bytes =
         crate::read_file::read_regular_file(path, MAX_FILE_BYTES, "an image").map_err(io_error)?;
     decode_hdr_image(&bytes, format, path)
+}
+
+/// Bytes of a file's start in which [`oversized_by_header`] looks for its header.
+const HEADER_PEEK_BYTES: u64 = 1 << 20;
+
+/// The size check of an image's header, made on the file's first MiB before the whole file is
+/// read: a 20000 × 10000 EXR (2.4 GB) was read whole, 2.3 GB resident, before its header
+/// refused it (an audit). `None` when the header is within the limits or is not found there
+/// (the whole file's decoding then says what is wrong).
+fn oversized_by_header(path: &Path, format: ImageFormat) -> Option<String> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .ok()?
+        .take(HEADER_PEEK_BYTES)
+        .read_to_end(&mut head)
+        .ok()?;
+    let sizes: Vec<(u64, u64)> = catch_unwind(AssertUnwindSafe(|| match format {
+        ImageFormat::OpenExr => exr::meta::MetaData::read_from_buffered(Cursor::new(&head), false)
+            .ok()
+            .map(|meta| {
+                let sizes = meta.headers.iter().map(|h| h.layer_size);
+                sizes
+                    .map(|s| (s.width() as u64, s.height() as u64))
+                    .collect()
+            }),
+        ImageFormat::RadianceHdr => image::codecs::hdr::HdrDecoder::new(Cursor::new(&head))
+            .ok()
+            .map(|d| {
+                let (w, h) = d.dimensions();
+                vec![(u64::from(w), u64::from(h))]
+            }),
+    }))
+    .ok()
+    .flatten()?;
+    sizes
+        .iter()
+        .find_map(|&(w, h)| check_size(w, h).err().filter(|_| w > 0 && h > 0))
 }
 
 /// Decodes the contents of an `.exr` or `.hdr` file held in memory; `path` only names the data

@@ -14,7 +14,10 @@ use std::path::PathBuf;
 /// {"seq","time","lobes":[{"axis","tangent","bitangent","lambda","mu","rgb"}],"loss"}.
 #[derive(Args, Debug)]
 pub(crate) struct FitAsgArgs {
-    /// .exr/.hdr lat-long files, directories or glob patterns. None: the built-in sky.
+    /// .exr/.hdr lat-long files, directories or glob patterns. None: the built-in sky. Every
+    /// file is read as a lat-long map covering the whole sphere, whatever its aspect ratio (a
+    /// frame that is not 2:1 is stretched to it; a fisheye image is not detected: its
+    /// projection is set in the daemon's [source], not here).
     #[arg(value_name = "INPUT", value_parser = Utf8Input)]
     inputs: Vec<String>,
     /// Number of lobes K (1..=64).
