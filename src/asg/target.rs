@@ -5,8 +5,8 @@
 //! Steps for a frame:
 //! 1. **Resample** ([`resample_latlong`]) to a `2h × h` lat-long map that keeps the frame's
 //!    integral (exactly for a lat-long frame; a fisheye or angular frame's locally to a few
-//!    per cent, uniform areas staying uniform): an exact box filter when the source is lat-long and an integer multiple of the
-//!    size; another lat-long size by exact area overlap (`latlong_by_overlap`); a fisheye or
+//!    per cent, uniform areas staying uniform): an exact box filter when the source is
+//!    lat-long and an integer multiple of the size; another lat-long size by exact area overlap (`latlong_by_overlap`); a fisheye or
 //!    angular frame by bilinear splatting of sub-pixels with coverage normalisation
 //!    (`src/asg/splat.rs`; its table built once per frame geometry and kept by the target).
 //!    Non-finite and negative values count as 0.
@@ -69,7 +69,7 @@ pub struct FitTarget {
     /// energy as (direction, energy) rows.
     energy: Vec<[f64; 3]>,
     cells: Vec<[f64; 6]>,
-    /// The index table of the frames' geometry when it is not an exact multiple of the map.
+    /// The splat table of the frames' geometry when they are fisheye or angular frames.
     table: TableCache,
 }
 
@@ -141,6 +141,17 @@ pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
             DVec3::new(r * c, y, r * s)
         })
         .collect()
+}
+
+/// [`clean`] kept in f32 (for sums of a few values before they go to f64).
+#[inline]
+pub(super) fn clean_f32(c: f32) -> f32 {
+    // NaN and +∞ fail the comparison; −∞ and negative values go to 0 by the max.
+    if c < f32::INFINITY {
+        c.max(0.0)
+    } else {
+        0.0
+    }
 }
 
 #[inline]
@@ -302,7 +313,7 @@ fn latlong_by_overlap(frame: &HdrFrame, w: u32, h: u32, out: &mut Vec<[f64; 3]>)
         .collect();
     let radiance = |s: &[f64; 3], own: f64| s.map(|v| if own > 0.0 { v / own } else { 0.0 });
     if sh >= h && sw as usize <= ROWS_FIRST_MAX_WIDTH {
-        overlap_rows_first(frame, &columns, &rows, w as usize, out, |fy, sums, out| {
+        overlap_rows_first(frame, &columns, &rows, w as usize, |fy, sums| {
             out.extend(sums.iter().map(|s| radiance(s, own[fy])));
         });
     } else {
@@ -328,13 +339,12 @@ fn overlap_rows_first(
     columns: &[(usize, usize, f64)],
     rows: &[(usize, usize, f64)],
     w: usize,
-    out: &mut Vec<[f64; 3]>,
-    mut emit: impl FnMut(usize, &[[f64; 3]], &mut Vec<[f64; 3]>),
+    mut emit: impl FnMut(usize, &[[f64; 3]]),
 ) {
     let sw = frame.width as usize;
     let mut band = vec![[0.0f64; 3]; sw];
     let mut sums = vec![[0.0f64; 3]; w];
-    let mut flush = |fy: usize, band: &mut [[f64; 3]], out: &mut Vec<[f64; 3]>| {
+    let mut flush = |fy: usize, band: &mut [[f64; 3]]| {
         sums.fill([0.0; 3]);
         for &(sx, fx, share) in columns {
             for c in 0..3 {
@@ -342,12 +352,12 @@ fn overlap_rows_first(
             }
         }
         band.fill([0.0; 3]);
-        emit(fy, &sums, out);
+        emit(fy, &sums);
     };
     let mut current = 0usize;
     for &(sy, fy, weight) in rows {
         if fy != current {
-            flush(current, &mut band, out);
+            flush(current, &mut band);
             current = fy;
         }
         let row: &[f32] = bytemuck::cast_slice(&frame.pixels[sy * sw..(sy + 1) * sw]);
@@ -356,7 +366,7 @@ fn overlap_rows_first(
             *acc += clean(p) * weight;
         }
     }
-    flush(current, &mut band, out);
+    flush(current, &mut band);
 }
 
 /// Area overlap when source rows are fewer than fit rows, or too wide to be held as a row of
@@ -680,14 +690,9 @@ mod tests {
             // Rows weighted by their share of the latitude range (the orders do not care).
             let rows = interval_overlaps(sh, h);
             let mut by_rows = Vec::new();
-            overlap_rows_first(
-                &frame,
-                &columns,
-                &rows,
-                w as usize,
-                &mut Vec::new(),
-                |_, s, _| by_rows.extend_from_slice(s),
-            );
+            overlap_rows_first(&frame, &columns, &rows, w as usize, |_, s| {
+                by_rows.extend_from_slice(s)
+            });
             let by_columns = overlap_columns_first(&frame, &columns, &rows, w as usize, h as usize);
             assert_eq!(by_rows.len(), by_columns.len());
             for (a, b) in by_rows.iter().zip(&by_columns) {

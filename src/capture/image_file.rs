@@ -45,9 +45,9 @@
 //! to stderr). Files over [`MAX_FILE_BYTES`] are refused before they are read (a sparse file of
 //! a terabyte made `std::fs::read` ask for a terabyte at once). Images of more than
 //! [`MAX_PIXELS`] pixels are rejected from a header found in the file's first MiB before the
-//! file is read (`oversized_by_header`), else before pixel data is allocated, and so are files
-//! too short for what their headers declare (an EXR's offset tables, an HDR's rows). What a
-//! decoder cannot catch is an allocation that fails, which aborts: a DWA block's counters are
+//! file is read when it is over 256 MiB (`oversized_by_header`), else before pixel data is
+//! allocated, and so are files too short for what their headers declare (an EXR's offset
+//! tables, an HDR's rows). What a decoder cannot catch is an allocation that fails, which aborts: a DWA block's counters are
 //! checked against the block's size before it is decompressed (`check_dwa_counters`). An EXR
 //! part is read only if its blocks store every pixel (`check_every_pixel_stored`): the lenient
 //! block reader skips blocks it cannot place, which would leave rows black.
@@ -135,7 +135,9 @@ pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
     };
     // Only regular files of bounded size are frames: a pipe or a device would block the open
     // or never end.
-    if std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+    // A file too large to read cheaply is first judged by its header (smaller ones, every
+    // ordinary frame, are read once, not opened twice).
+    if std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() > PEEK_FILES_OVER_BYTES) {
         if let Some(message) = oversized_by_header(path, format) {
             return Err(format_error(path, message));
         }
@@ -144,6 +146,10 @@ pub fn read_hdr_image(path: &Path) -> Result<RgbImage, CaptureError> {
         crate::read_file::read_regular_file(path, MAX_FILE_BYTES, "an image").map_err(io_error)?;
     decode_hdr_image(&bytes, format, path)
 }
+
+/// Files larger than this are judged by their header before they are read (256 MiB: a
+/// 16384 × 8192 half-float RGBA EXR, the largest image read, is about 1 GiB uncompressed).
+const PEEK_FILES_OVER_BYTES: u64 = 256 << 20;
 
 /// Bytes of a file's start in which [`oversized_by_header`] looks for its header.
 const HEADER_PEEK_BYTES: u64 = 1 << 20;
