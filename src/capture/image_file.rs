@@ -47,10 +47,11 @@
 //! [`MAX_PIXELS`] pixels are rejected from a header found in the file's first MiB before the
 //! file is read when it is over 256 MiB (`oversized_by_header`), else before pixel data is
 //! allocated, and so are files too short for what their headers declare (an EXR's offset
-//! tables, an HDR's rows). What a decoder cannot catch is an allocation that fails, which aborts: a DWA block's counters are
-//! checked against the block's size before it is decompressed (`check_dwa_counters`). An EXR
-//! part is read only if its blocks store every pixel (`check_every_pixel_stored`): the lenient
-//! block reader skips blocks it cannot place, which would leave rows black.
+//! tables, an HDR's rows). What a decoder cannot catch is an allocation that fails, which
+//! aborts: a DWA block's counters are checked against the block's size before it is
+//! decompressed (`check_dwa_counters`). An EXR part is read only if its blocks store every
+//! pixel (`check_every_pixel_stored`): the lenient block reader skips blocks it cannot place,
+//! which would leave rows black.
 
 use super::CaptureError;
 use exr::block::reader::ChunksReader;
