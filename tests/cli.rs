@@ -1009,6 +1009,15 @@ fn options_the_mode_would_ignore_are_usage_errors() {
         ),
         (vec!["wavelet", "recover", "--frames", "2"], "--frames"),
         (vec!["wavelet", "relight", "--ground"], "--scene"),
+        // The outputs' former names: --json (now --out) and a CSV --out (now --radiance).
+        (
+            vec!["wavelet", "relight", "--json", "lines.json"],
+            "--json is now --out",
+        ),
+        (
+            vec!["wavelet", "relight", "--out", "radiance.CSV"],
+            "--radiance FILE.csv",
+        ),
         (
             vec!["render", "--out", out, "--lighting", "asg", "--no-culling"],
             "--no-culling",
@@ -1114,8 +1123,8 @@ fn outputs_that_are_inputs_are_refused() {
             "--out",
         ),
         (
-            vec!["wavelet", "relight", input, "--size", "2", "--json", link],
-            "--json",
+            vec!["wavelet", "relight", input, "--size", "2", "--out", link],
+            "--out",
         ),
     ] {
         let o = envlight(&args);
@@ -1189,6 +1198,20 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
     for (args, needles) in [
         (
             vec![
+                "wavelet",
+                "relight",
+                input,
+                "--size",
+                "2",
+                "--scene",
+                mesh_path,
+                "--radiance",
+                mesh_path,
+            ],
+            vec!["--radiance", "is the input file", "tri.obj"],
+        ),
+        (
+            vec![
                 "wavelet", "relight", input, "--size", "2", "--scene", mesh_path, "--out",
                 mesh_path,
             ],
@@ -1196,16 +1219,17 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
         ),
         (
             vec![
-                "wavelet", "relight", input, "--size", "2", "--scene", mesh_path, "--json",
-                mesh_path,
+                "wavelet",
+                "relight",
+                input,
+                "--size",
+                "2",
+                "--out",
+                same_path,
+                "--radiance",
+                same_path,
             ],
-            vec!["--json", "is the input file", "tri.obj"],
-        ),
-        (
-            vec![
-                "wavelet", "relight", input, "--size", "2", "--json", same_path, "--out", same_path,
-            ],
-            vec!["--out", "is also the --json output", "same.out"],
+            vec!["--radiance", "is also the --out output", "same.out"],
         ),
         (
             vec![
@@ -1287,7 +1311,7 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
     assert_fails_naming(&o, &["--reconstruct", "is also the --out output"]);
     assert_eq!(std::fs::read_to_string(&r0).unwrap(), "kept");
     // The files the mesh references (its material library) are inputs too, and two names of
-    // one existing file are refused before --json truncates it.
+    // one existing file are refused before --out truncates it.
     let with_mtl = dir.path().join("mtl.obj");
     let mtl = dir.path().join("grey.mtl");
     std::fs::write(&with_mtl, format!("mtllib grey.mtl\n{mesh_text}")).unwrap();
@@ -1300,10 +1324,10 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
         "2",
         "--scene",
         s(&with_mtl),
-        "--out",
+        "--radiance",
         s(&mtl),
     ]);
-    assert_fails_naming(&o, &["--out", "is the input file", "grey.mtl"]);
+    assert_fails_naming(&o, &["--radiance", "is the input file", "grey.mtl"]);
     let json = dir.path().join("o.json");
     let linked = dir.path().join("o.csv");
     std::fs::write(&json, "{}").unwrap();
@@ -1314,14 +1338,14 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
         input,
         "--size",
         "2",
-        "--json",
-        s(&json),
         "--out",
+        s(&json),
+        "--radiance",
         s(&linked),
     ]);
-    assert_fails_naming(&o, &["--out", "is also the --json output"]);
+    assert_fails_naming(&o, &["--radiance", "is also the --out output"]);
     assert_eq!(std::fs::read_to_string(&json).unwrap(), "{}");
-    // --out in a folder that does not exist fails before the work (and before --json is
+    // --radiance in a folder that does not exist fails before the work (and before --out is
     // written): the precomputation and every frame ran first, then the output failed.
     let fresh_json = dir.path().join("fresh.json");
     let o = envlight(&[
@@ -1330,13 +1354,13 @@ fn outputs_that_overwrite_each_other_or_the_mesh_are_refused() {
         input,
         "--size",
         "2",
-        "--json",
-        s(&fresh_json),
         "--out",
+        s(&fresh_json),
+        "--radiance",
         s(&dir.path().join("nodir/a.csv")),
     ]);
-    assert_fails_naming(&o, &["--out", "nodir", "does not exist"]);
-    assert!(!fresh_json.exists(), "--json was written first");
+    assert_fails_naming(&o, &["--radiance", "nodir", "does not exist"]);
+    assert!(!fresh_json.exists(), "--out was written first");
     let o = envlight(&[
         "wavelet",
         "recover",

@@ -19,6 +19,7 @@ fn envlight(args: &[&str]) -> (bool, String, String) {
 fn relight_with_every_coefficient_matches_brute_force() {
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("radiance.csv");
+    let json = dir.path().join("lines.json");
     let (ok, stdout, stderr) = envlight(&[
         "wavelet",
         "relight",
@@ -33,10 +34,15 @@ fn relight_with_every_coefficient_matches_brute_force() {
         "--check",
         "100",
         "--out",
+        json.to_str().unwrap(),
+        "--radiance",
         csv.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
-    let line: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap()).unwrap();
+    assert_eq!(stdout, "", "--out takes the JSON lines");
+    let lines = std::fs::read_to_string(&json).unwrap();
+    assert_eq!(lines.lines().count(), 1, "{lines}");
+    let line: serde_json::Value = serde_json::from_str(lines.lines().next().unwrap()).unwrap();
     assert_eq!(line["light_coefficients"], 64);
     let check = &line["check"];
     assert!(check["vertices"].as_u64().unwrap() > 50, "{line}");

@@ -37,7 +37,8 @@ receives no light (in shadow, or facing away from every lit direction) has no re
 and is left out, so `check.vertices` counts those compared (with none, the errors are null).
 Radiance is per
 channel; the Lambertian result is multiplied by the vertex's material albedo. Without INPUT the
-built-in sky is used. --out writes the last frame's per-vertex radiance as CSV (x,y,z,r,g,b).";
+built-in sky is used. --out writes the JSON lines to a file (as decompose, fit-asg and wavelet
+approx do); --radiance writes the last frame's per-vertex radiance as CSV (x,y,z,r,g,b).";
 
 pub const RECOVER_LONG_ABOUT: &str = "\
 Recover lighting from synthetic observations of a known object by hierarchical refinement
@@ -134,10 +135,14 @@ pub struct RelightArgs {
     check: usize,
     /// Output file (JSON Lines). [default: stdout]
     #[arg(long, value_name = "FILE")]
-    json: Option<PathBuf>,
+    out: Option<PathBuf>,
     /// Write the last frame's per-vertex radiance as CSV (x,y,z,r,g,b).
     #[arg(long, value_name = "FILE.csv")]
-    out: Option<PathBuf>,
+    radiance: Option<PathBuf>,
+    /// The JSON Lines output's former name (until 2026-12-05; `--out` was then the CSV): refused
+    /// with the new names, so an old command line does not write JSON where it meant CSV.
+    #[arg(long, value_name = "FILE", hide = true)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -292,28 +297,46 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         }
         _ => {}
     }
+    if args.json.is_some() {
+        crate::cli::usage_error!(
+            "--json is now --out (the JSON lines, as in decompose, fit-asg and wavelet approx); \
+             the per-vertex CSV, formerly --out, is --radiance FILE.csv"
+        );
+    }
+    if let Some(out) = &args.out {
+        if out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
+        {
+            crate::cli::usage_error!(
+                "--out {} would hold JSON lines: the per-vertex CSV (formerly --out) is \
+                 --radiance FILE.csv",
+                out.display()
+            );
+        }
+    }
     let mut source = args.input.open()?;
     // The frames and the mesh with the files it references (glTF buffers, MTL libraries): no
-    // output may overwrite them, nor --out the --json output. Checked before the
+    // output may overwrite them, nor --radiance the --out output. Checked before the
     // precomputation, whose work a late refusal would throw away.
     let mut read = source.files().to_vec();
     if let Some(scene) = &args.scene {
         read.extend(envlight::render::scene::scene_files(scene));
     }
     let inputs = crate::cli::output::InputFiles::new(&read);
-    for (path, option) in [(&args.json, "--json"), (&args.out, "--out")] {
+    for (path, option) in [(&args.out, "--out"), (&args.radiance, "--radiance")] {
         if let Some(path) = path {
             inputs.refuse(path, option)?;
             crate::cli::output::check_output_path(path, option)?;
         }
     }
-    if let (Some(json), Some(out)) = (&args.json, &args.out) {
-        if crate::cli::output::same_file(json, out) {
+    if let (Some(out), Some(radiance)) = (&args.out, &args.radiance) {
+        if crate::cli::output::same_file(out, radiance) {
             bail!(
-                "--out {} is also the --json output {}: the two outputs would overwrite each \
-                 other; choose another output path",
-                out.display(),
-                json.display()
+                "--radiance {} is also the --out output {}: the two outputs would overwrite \
+                 each other; choose another output path",
+                radiance.display(),
+                out.display()
             );
         }
     }
@@ -362,9 +385,9 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         seconds = t0.elapsed().as_secs_f64(),
         "visibility and transport precomputed"
     );
-    let mut json = crate::cli::output::open_output(args.json.as_deref(), "--json", &inputs)?;
+    let mut json = crate::cli::output::open_output(args.out.as_deref(), "--out", &inputs)?;
     let json_name = args
-        .json
+        .out
         .as_ref()
         .map_or("stdout".to_string(), |p| p.display().to_string());
     let mut light = DenseLighting::new(&grid);
@@ -432,12 +455,13 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         let mut text = serde_json::to_string(&line).context("cannot encode a frame")?;
         text.push('\n');
         match json.write_all(text.as_bytes()).and_then(|()| json.flush()) {
-            Err(e) if args.json.is_none() && crate::cli::output::is_broken_pipe(&e) => break,
+            Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => break,
             r => r.with_context(|| format!("cannot write to {json_name}"))?,
         }
     }
-    if let Some(path) = &args.out {
-        let mut w = std::io::BufWriter::new(crate::cli::output::create(path, "--out", &inputs)?);
+    if let Some(path) = &args.radiance {
+        let mut w =
+            std::io::BufWriter::new(crate::cli::output::create(path, "--radiance", &inputs)?);
         let written = (|| -> std::io::Result<()> {
             writeln!(w, "x,y,z,r,g,b")?;
             for (p, o) in mesh.positions.iter().zip(&out) {
