@@ -11,7 +11,9 @@ use envlight::wavelet::inverse::{
     prediction_error, refine, relative_error, synthesize, transport_rows, upper_hemisphere_error,
     ObservationSetup, RefineOptions,
 };
-use envlight::wavelet::relight::{brute_force, Brdf, DenseLighting, Grid, Transport, View};
+use envlight::wavelet::relight::{
+    brute_force, check_precompute_memory, Brdf, DenseLighting, Grid, Transport, View,
+};
 use envlight::wavelet::sphere::OctahedralMap;
 use envlight::wavelet::visibility::{vertex_visibility, Bvh, Mesh};
 use envlight::wavelet::Basis;
@@ -37,7 +39,9 @@ receives no light (in shadow, or facing away from every lit direction) has no re
 and is left out, so `check.vertices` counts those compared (with none, the errors are null).
 Radiance is per
 channel; the Lambertian result is multiplied by the vertex's material albedo. Without INPUT the
-built-in sky is used. --out writes the JSON lines to a file (as decompose, fit-asg and wavelet
+built-in sky is used. A precomputation that would need more memory than the machine has
+available (an upper bound: per vertex a bit per texel and 14 bytes per kept coefficient) is
+refused before it starts. --out writes the JSON lines to a file (as decompose, fit-asg and wavelet
 approx do); --radiance writes the last frame's per-vertex radiance as CSV (x,y,z,r,g,b).";
 
 pub const RECOVER_LONG_ABOUT: &str = "\
@@ -260,6 +264,14 @@ struct RelightLine {
     check: Option<Check>,
 }
 
+/// Bytes of memory available for new allocations (`MemAvailable` in /proc/meminfo).
+fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kib.checked_mul(1024)
+}
+
 /// Runs `envlight wavelet relight`.
 pub fn relight(args: &RelightArgs) -> Result<()> {
     check_size(args.size, 128)?;
@@ -357,6 +369,21 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         })
         .collect();
     let grid = Grid::new(args.size, args.basis, None)?;
+    // Before the ray casting: a precomputation past the machine's memory would abort the process
+    // when its allocation failed (a mesh of tens of millions of vertices loads).
+    check_precompute_memory(
+        mesh.positions.len(),
+        grid.len(),
+        transport_kept,
+        available_memory(),
+    )
+    .with_context(|| {
+        format!(
+            "--size {} and --transport {transport_kept} on this mesh: use a smaller mesh, \
+             --size or --transport",
+            args.size
+        )
+    })?;
     let bvh = Bvh::build(&mesh).context("scene mesh")?;
     let t0 = Instant::now();
     let vis = vertex_visibility(&mesh, &bvh, &grid.dirs);
