@@ -1,12 +1,13 @@
 //! Benchmarks of the light decomposition (single-threaded: one core).
 //!
-//! - `frame/default_256/{128x64,256x128,512x256,1024x512,2048x1024}`: one frame of rooitou_park
-//!   (lat-long) decomposed with the default settings (256 lights, filter on, merge off). One
-//!   `Decomposer` is reused across iterations, as in the daemon: its filter state and
-//!   per-geometry tables persist, so this is the steady per-frame cost. 512×256, 256×128 and
-//!   128×64 are the map box-downsampled by 2, 4 and 8, 2048×1024 the map upsampled by pixel
-//!   replication. 256×128 is the working map's own width; 128×64, narrower, goes through the
-//!   table path with its pixels cut into sub-pixels.
+//! - `frame/default_256/{128x64,256x128,512x256,1024x512,2048x1024,1000x500,1920x960}`: one
+//!   frame of rooitou_park (lat-long) decomposed with the default settings (256 lights, filter
+//!   on, merge off). One `Decomposer` is reused across iterations, as in the daemon: its filter
+//!   state and per-geometry tables persist, so this is the steady per-frame cost. 512×256,
+//!   256×128 and 128×64 are the map box-downsampled by 2, 4 and 8, 2048×1024 the map upsampled
+//!   by pixel replication, 1000×500 and 1920×960 resampled by nearest pixel: sizes that are no
+//!   multiple of the working map's, resampled by exact overlap, as is 128×64, narrower than
+//!   the working map.
 //! - `frame/raw_256/1024x512`: the same without filter and merge.
 //! - `frame/filter_merge_256/1024x512`: the same with filter and merge (`--merge`, the default
 //!   merge spacing), the configuration the target names.
@@ -102,6 +103,20 @@ fn upsample2(frame: &HdrFrame) -> HdrFrame {
     HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
 }
 
+/// Resamples to `w`×`h` by nearest pixel (a frame of a size that is no multiple of the working
+/// map's).
+fn resize_nearest(frame: &HdrFrame, w: u32, h: u32) -> HdrFrame {
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let sx = (u64::from(x) * u64::from(frame.width) / u64::from(w)) as u32;
+            let sy = (u64::from(y) * u64::from(frame.height) / u64::from(h)) as u32;
+            pixels.push(frame.pixel(sx, sy));
+        }
+    }
+    HdrFrame::new(w, h, pixels, Projection::LatLong).expect("valid size")
+}
+
 /// Luminance × solid angle of `frame` box-downsampled by `factor`.
 fn energy_weights(frame: &HdrFrame, factor: u32) -> (Vec<f64>, usize, usize) {
     let (w, h) = (frame.width / factor, frame.height / factor);
@@ -141,6 +156,8 @@ fn bench_frames(c: &mut Criterion) {
         ("256x128", quarter),
         ("512x256", half),
         ("2048x1024", upsample2(&full)),
+        ("1000x500", resize_nearest(&full, 1000, 500)),
+        ("1920x960", resize_nearest(&full, 1920, 960)),
         ("1024x512", full),
     ];
     let mut group = c.benchmark_group("frame");
@@ -157,7 +174,13 @@ fn bench_frames(c: &mut Criterion) {
         ..DecomposeSettings::default()
     };
     let mut decomposer = Decomposer::new(raw.clone()).expect("valid");
-    let full = &frames[2].1;
+    // By name: frames added to the list above moved the index (from 2026-12-04 20:39 to
+    // 2026-12-05 the cases below named 1024x512 decomposed the 512×256 frame).
+    let full = &frames
+        .iter()
+        .find(|(size, _)| *size == "1024x512")
+        .expect("the 1024x512 frame")
+        .1;
     group.bench_function("raw_256/1024x512", |b| {
         b.iter(|| decomposer.decompose(black_box(full)))
     });

@@ -2,16 +2,25 @@
 //! the input pixels of concentrated sources at full resolution.
 //!
 //! The decomposition works on a lat-long grid of a few hundred pixels across, whatever the
-//! input's projection and size. Each input pixel's energy (radiance × its exact solid angle)
-//! goes to the working pixel that contains its centre direction, so the working map's total
-//! equals the input's integral (to rounding; sums in f64). A lat-long input whose size is an
-//! integer multiple of the working size takes a fast box-filter path (f32 column sums, compiled
-//! for the CPU's widest vector unit by runtime detection; bound by memory bandwidth; with AVX2
-//! the horizontal sums of a factor-4 filter take eight working pixels at a time); other
-//! inputs (a camera's fisheye, the angular map, odd sizes) use a per-pixel index table built
-//! once per input geometry, summed in bands of input rows that helper threads may share with
-//! the calling one (src/parallel.rs; the result does not depend on the number of threads: each
-//! working pixel is summed whole, over its runs in input order, by the one band that owns it).
+//! input's projection and size; the working map's total equals the input's integral (to
+//! rounding). Three paths, chosen once per input geometry:
+//! - a lat-long input whose size is an integer multiple of the working size: a box filter (f32
+//!   column sums, compiled for the CPU's widest vector unit by runtime detection; bound by
+//!   memory bandwidth; with AVX2 the horizontal sums of a factor-4 filter take eight working
+//!   pixels at a time);
+//! - any other lat-long input (1000 × 500, 1920 × 960, a map narrower than the working one):
+//!   exact area overlap. An input pixel's energy (radiance × solid angle) is shared among the
+//!   working pixels it overlaps in proportion to the overlaps' solid angles, which separate
+//!   into a φ extent and a cos θ extent: per working row its input rows weighted by their cos θ
+//!   extents, then per working column its input columns weighted by their φ extents. A
+//!   uniform map stays uniform;
+//! - other projections (a camera's fisheye, the angular map): each input pixel's energy goes
+//!   to the working pixel that contains its centre direction, through a per-pixel index table
+//!   built once per input geometry and summed in f64 in bands of input rows that helper
+//!   threads may share with the calling one (src/parallel.rs; the result does not depend on
+//!   the number of threads: each working pixel is summed whole, over its runs in input order,
+//!   by the one band that owns it). Binning whole pixels aliases where input pixels are not
+//!   much smaller than working ones (docs/performance.md, "Lat-long frames of other sizes").
 //!
 //! Working pixels that hold more than a given share of the energy (a sun, a lamp) are
 //! *concentrated*: their input pixels are also kept as [`FineSample`]s with exact directions,
@@ -76,6 +85,27 @@ enum Plan {
         row_theta: Vec<(f32, f32)>,
         /// (sin φ, cos φ) of each input column's centre.
         column_phi: Vec<(f32, f32)>,
+    },
+    /// Lat-long input whose sides are not multiples of the working map's: each input pixel's
+    /// energy is shared among the working pixels it overlaps in proportion to the solid angle
+    /// of each overlap, which is separable (its φ extent times its cos θ extent). Exact: a
+    /// uniform map stays uniform to rounding. Binning whole input pixels by their centres (the
+    /// table) gave a working pixel 3 or 4 input columns by turns when the input is 3.9 working
+    /// widths wide: stripes of ±13 % energy by longitude, and lights of a uniform 1000 × 500
+    /// map with 0.89–1.05 of their regions' energy (an audit).
+    Overlap {
+        /// Per working column, its first overlapping input column and how many it overlaps.
+        columns: Vec<(u32, u32)>,
+        /// The φ extents of those overlaps, working column by working column (f32: a row's
+        /// sums per working column are taken in f32, as the box filter's, and the rows are
+        /// summed in f64).
+        column_extents: Vec<f32>,
+        /// Every (input row, working row) pair that overlaps, working row by working row: the
+        /// cos θ extent of the overlap.
+        rows: Vec<Overlap>,
+        /// Input rows (the input's height) and working rows.
+        input_rows: usize,
+        working_rows: usize,
     },
     /// Arbitrary projection: the runs of consecutive input pixels that go to one working pixel
     /// (pixels outside the image circle are in none) in bands of input rows, per input pixel
@@ -331,6 +361,27 @@ impl Plan {
                     }
                 }
             }
+            Plan::Overlap {
+                input_rows: sh,
+                working_rows: height,
+                ..
+            } => {
+                let (sh, height) = (*sh, *height);
+                let (j, i) = (idx % width, idx / width);
+                for y in overlapping_cells(i, height, sh) {
+                    let (cos_extent, theta) = row_overlap(y, sh, i, height);
+                    let (sin_t, cos_t) = theta.sin_cos();
+                    for x in overlapping_cells(j, width, sw) {
+                        let (phi_extent, phi) = column_overlap(x, sw, j, width);
+                        let omega = phi_extent * cos_extent;
+                        if omega > 0.0 {
+                            let (sin_p, cos_p) = phi.sin_cos();
+                            let d = [sin_t * sin_p, cos_t, -sin_t * cos_p].map(|c| c as f32);
+                            f(y * sw + x, omega as f32, d);
+                        }
+                    }
+                }
+            }
             Plan::Table {
                 solid_angle,
                 direction,
@@ -356,6 +407,75 @@ impl Plan {
     }
 }
 
+/// One overlap of an input column (row) with a working column (row) of [`Plan::Overlap`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Overlap {
+    input: u32,
+    working: u32,
+    /// The overlap's φ extent (columns) or cos θ extent (rows), in radians or as a difference
+    /// of cosines.
+    extent: f64,
+}
+
+/// The overlap of cell `a` of a division of [0, 1] into `na` cells with cell `b` of a division
+/// into `nb`, in units of 1/(na·nb) (integers: exact): `(start, end)`, empty when end ≤ start.
+fn cell_overlap(a: usize, na: usize, b: usize, nb: usize) -> (u64, u64) {
+    let (a, na, b, nb) = (a as u64, na as u64, b as u64, nb as u64);
+    ((a * nb).max(b * na), ((a + 1) * nb).min((b + 1) * na))
+}
+
+/// The cells of a division into `nb` cells that cell `a` of a division into `na` overlaps.
+fn overlapping_cells(a: usize, na: usize, nb: usize) -> std::ops::Range<usize> {
+    let (a, na, nb) = (a as u64, na as u64, nb as u64);
+    let first = a * nb / na;
+    let end = ((a + 1) * nb).div_ceil(na);
+    first as usize..(end as usize).min(nb as usize)
+}
+
+/// The φ extent of the overlap of input column `x` of `sw` with working column `j` of `w`,
+/// and the φ of its centre.
+fn column_overlap(x: usize, sw: usize, j: usize, w: usize) -> (f64, f64) {
+    let (lo, hi) = cell_overlap(x, sw, j, w);
+    let unit = 2.0 * PI / (sw as f64 * w as f64);
+    let extent = hi.saturating_sub(lo) as f64 * unit;
+    (extent, 0.5 * (lo + hi) as f64 * unit)
+}
+
+/// The cos θ extent (the solid angle per radian of φ) of the overlap of input row `y` of `sh`
+/// with working row `i` of `h`, and the θ of its centre.
+fn row_overlap(y: usize, sh: usize, i: usize, h: usize) -> (f64, f64) {
+    let (lo, hi) = cell_overlap(y, sh, i, h);
+    let unit = PI / (sh as f64 * h as f64);
+    if hi <= lo {
+        return (0.0, 0.5 * (lo + hi) as f64 * unit);
+    }
+    let (a, b) = (lo as f64 * unit, hi as f64 * unit);
+    // cos a − cos b without the cancellation of two close cosines.
+    (
+        2.0 * (0.5 * (a + b)).sin() * (0.5 * (b - a)).sin(),
+        0.5 * (a + b),
+    )
+}
+
+/// Every overlap of the `n_in` input cells with the `n_out` working cells, input cell by input
+/// cell (`extent` of the pair).
+fn overlaps(n_in: usize, n_out: usize, extent: impl Fn(usize, usize) -> f64) -> Vec<Overlap> {
+    let mut list = Vec::with_capacity(n_in + n_out);
+    for a in 0..n_in {
+        for b in overlapping_cells(a, n_in, n_out) {
+            let e = extent(a, b);
+            if e > 0.0 {
+                list.push(Overlap {
+                    input: a as u32,
+                    working: b as u32,
+                    extent: e,
+                });
+            }
+        }
+    }
+    list
+}
+
 /// Resamples frames of one geometry (projection and size) to a working map.
 #[derive(Clone, Debug)]
 pub struct Resampler {
@@ -364,7 +484,7 @@ pub struct Resampler {
     src_height: u32,
     plan: Plan,
     map: WorkingMap,
-    /// Scratch row of the box filter.
+    /// Scratch row of the box filter and the overlap path.
     column_sums: Vec<f32>,
     /// The table path's per-working-pixel sums on one thread (empty otherwise).
     table_sums: Vec<[f64; 3]>,
@@ -412,6 +532,25 @@ impl Resampler {
                 column_phi: angle_table(sw, 2.0 * PI),
             };
             (sw / box_factor, sh / box_factor, plan)
+        } else if projection == Projection::LatLong {
+            let width = target;
+            let height = (width / 2).max(1);
+            let mut by_column = overlaps(sw, width, |x, j| column_overlap(x, sw, j, width).0);
+            by_column.sort_by_key(|o| (o.working, o.input));
+            let mut columns = vec![(0u32, 0u32); width];
+            for group in by_column.chunk_by(|a, b| a.working == b.working) {
+                columns[group[0].working as usize] = (group[0].input, group.len() as u32);
+            }
+            let mut rows = overlaps(sh, height, |y, i| row_overlap(y, sh, i, height).0);
+            rows.sort_by_key(|o| (o.working, o.input));
+            let plan = Plan::Overlap {
+                columns,
+                column_extents: by_column.iter().map(|o| o.extent as f32).collect(),
+                rows,
+                input_rows: sh,
+                working_rows: height,
+            };
+            (width, height, plan)
         } else {
             let width = target;
             let height = (width / 2).max(1);
@@ -633,6 +772,50 @@ impl Resampler {
                 #[cfg(not(target_arch = "x86_64"))]
                 self.arch.dispatch(args);
             }
+            Plan::Overlap {
+                columns,
+                column_extents,
+                rows,
+                ..
+            } => {
+                // As the box filter: per working row, its input rows weighted by the cos θ
+                // extents of their overlaps and summed column by column (f32, contiguous,
+                // vectorised), then each working column's input columns weighted by their φ
+                // extents.
+                let width = map.width;
+                let sums = &mut self.column_sums;
+                sums.resize(3 * sw, 0.0);
+                for rows_of_i in rows.chunk_by(|a, b| a.working == b.working) {
+                    let i = rows_of_i[0].working as usize;
+                    let bits = self.arch.dispatch(WeightedRows {
+                        pixels: &frame.pixels,
+                        sw,
+                        rows: rows_of_i,
+                        sums,
+                    });
+                    let out = &mut map.energy[i * width..(i + 1) * width];
+                    let lum = &mut map.luminance[i * width..(i + 1) * width];
+                    let mut extents = column_extents.iter();
+                    for ((e, l), &(first, count)) in out.iter_mut().zip(lum.iter_mut()).zip(columns)
+                    {
+                        let mut acc = Vec3A::ZERO;
+                        let first = first as usize;
+                        for (p, &w) in sums[3 * first..3 * (first + count as usize)]
+                            .chunks_exact(3)
+                            .zip(extents.by_ref())
+                        {
+                            acc += Vec3A::new(p[0], p[1], p[2]) * w;
+                        }
+                        (*e, *l) = map_entry(acc.to_array().map(f64::from));
+                    }
+                    if bits & 0x8000_0000 != 0 {
+                        // A negative input (or a NaN with its sign bit set) flags the whole
+                        // working row for the careful sum, as on the box path.
+                        out.iter_mut().for_each(|e| e[0] = f32::NAN);
+                        lum.fill(f32::NAN);
+                    }
+                }
+            }
             Plan::Table {
                 bands,
                 solid_angle,
@@ -776,6 +959,68 @@ fn flagged(flags: &[bool]) -> impl Iterator<Item = usize> + '_ {
                 .filter(|&(_, &flag)| flag != 0)
                 .map(move |(j, _)| 8 * i + j)
         })
+}
+
+/// The overlap path's vertical pass for one working row: `sums` (3·sw floats) becomes the
+/// sum of the input rows `rows` weighted by their extents, two rows per pass over the sums;
+/// returns the OR of the input floats' bits (its sign bit: a negative input). Run through
+/// [`pulp::Arch::dispatch`], compiled for the CPU's vector unit.
+struct WeightedRows<'a> {
+    pixels: &'a [[f32; 3]],
+    sw: usize,
+    rows: &'a [Overlap],
+    sums: &'a mut [f32],
+}
+
+impl pulp::WithSimd for WeightedRows<'_> {
+    type Output = u32;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> u32 {
+        let WeightedRows {
+            pixels,
+            sw,
+            rows,
+            sums,
+        } = self;
+        let row = |r: &Overlap| {
+            let y = r.input as usize;
+            (pixels[y * sw..(y + 1) * sw].as_flattened(), r.extent as f32)
+        };
+        let mut bits = 0u32;
+        let mut pairs = rows.chunks_exact(2);
+        let mut first = true;
+        for pair in pairs.by_ref() {
+            let ((p0, w0), (p1, w1)) = (row(&pair[0]), row(&pair[1]));
+            if first {
+                for ((a, p), q) in sums.iter_mut().zip(p0).zip(p1) {
+                    *a = p * w0 + q * w1;
+                    bits |= p.to_bits() | q.to_bits();
+                }
+            } else {
+                for ((a, p), q) in sums.iter_mut().zip(p0).zip(p1) {
+                    *a += p * w0 + q * w1;
+                    bits |= p.to_bits() | q.to_bits();
+                }
+            }
+            first = false;
+        }
+        if let [last] = pairs.remainder() {
+            let (p0, w0) = row(last);
+            if first {
+                for (a, p) in sums.iter_mut().zip(p0) {
+                    *a = p * w0;
+                    bits |= p.to_bits();
+                }
+            } else {
+                for (a, p) in sums.iter_mut().zip(p0) {
+                    *a += p * w0;
+                    bits |= p.to_bits();
+                }
+            }
+        }
+        bits
+    }
 }
 
 /// The box filter's arguments, run through [`pulp::Arch::dispatch`] so that it is compiled for
@@ -1509,22 +1754,114 @@ mod tests {
     }
 
     /// A working pixel's f64 sum beyond f32's range is stored as f32::MAX, not ∞: on the table
-    /// path its luminance can stay finite (blue weighs 0.07), so the careful sum would not run.
+    /// and overlap paths its luminance can stay finite (blue weighs 0.07), so the careful sum
+    /// would not run.
     #[test]
-    fn table_sums_beyond_f32_range_are_clamped() {
-        // 7×3 input onto a 2×1 map: not an integer factor, so the index table is used; each
-        // working pixel spans 2π sr, so 3e38 in blue sums past f32::MAX.
-        let pixels = vec![[0.0, 0.0, 3.0e38]; 7 * 3];
-        let frame = HdrFrame::new(7, 3, pixels, Projection::LatLong).unwrap();
-        let mut resampler = Resampler::new(Projection::LatLong, 7, 3, 2);
-        assert!(matches!(resampler.plan, Plan::Table { .. }));
-        let map = resampler.resample(&frame, 0.25, None);
-        assert!(map.luminance.iter().all(|l| l.is_finite()));
-        assert!(map
-            .energy
-            .iter()
-            .flatten()
-            .all(|c| c.is_finite() && *c >= 0.0));
-        assert!(map.energy.iter().any(|e| e[2] == f32::MAX));
+    fn table_and_overlap_sums_beyond_f32_range_are_clamped() {
+        // 7×3 inputs onto a 2×1 map: not an integer factor, so a lat-long input takes the
+        // overlap path and a fisheye the index table; each working pixel spans 2π sr, so 3e38
+        // in blue sums past f32::MAX.
+        let fisheye = Projection::Fisheye(crate::envmap::FisheyeCalibration::default());
+        for projection in [Projection::LatLong, fisheye] {
+            let pixels = vec![[0.0, 0.0, 3.0e38]; 7 * 3];
+            let frame = HdrFrame::new(7, 3, pixels, projection).unwrap();
+            let mut resampler = Resampler::new(projection, 7, 3, 2);
+            assert_eq!(
+                matches!(resampler.plan, Plan::Overlap { .. }),
+                projection == Projection::LatLong
+            );
+            let map = resampler.resample(&frame, 0.25, None);
+            assert!(map.luminance.iter().all(|l| l.is_finite()));
+            assert!(map
+                .energy
+                .iter()
+                .flatten()
+                .all(|c| c.is_finite() && *c >= 0.0));
+            assert!(
+                map.energy.iter().any(|e| e[2] == f32::MAX),
+                "{projection:?}"
+            );
+        }
+    }
+
+    /// A lat-long input whose sides are not multiples of the working map's is resampled by
+    /// exact overlap: a uniform map gives every working pixel its own solid angle (to f32
+    /// rounding) at every size, down (1000 × 500, 1920 × 960: 3.9 and 3.75 input pixels per
+    /// working pixel, where binning by centres made stripes of ±13 %) and up (255 × 128,
+    /// 3 × 2, 1 × 1, 2000 × 2); a working pixel's input parts tile it (their solid angles sum to
+    /// its own, their directions lie in it); and a negative, NaN or infinite input counts as 0
+    /// for the working pixels it overlaps only.
+    #[test]
+    fn overlap_path_keeps_a_uniform_map_uniform_and_tiles_each_working_pixel() {
+        for (sw, sh) in [
+            (1000, 500),
+            (1920, 960),
+            (255, 128),
+            (3, 2),
+            (1, 1),
+            (2000, 2),
+        ] {
+            let mut resampler = Resampler::new(Projection::LatLong, sw, sh, 256);
+            assert!(matches!(resampler.plan, Plan::Overlap { .. }), "{sw}×{sh}");
+            let frame = HdrFrame::new(
+                sw,
+                sh,
+                vec![[2.0; 3]; (sw * sh) as usize],
+                Projection::LatLong,
+            )
+            .unwrap();
+            let map = resampler.resample(&frame, 1.0, None).clone();
+            assert_eq!((map.width, map.height), (256, 128));
+            for (idx, e) in map.energy.iter().enumerate() {
+                let omega = map.row_solid_angle[idx / map.width];
+                let ratio = f64::from(e[1]) / (2.0 * omega);
+                assert!((ratio - 1.0).abs() < 2e-6, "{sw}×{sh} pixel {idx}: {ratio}");
+            }
+            for idx in [0, 300, 128 * 64 + 17, 256 * 128 - 1] {
+                let (row, column) = (idx / map.width, idx % map.width);
+                let theta = |r: usize| PI * r as f64 / map.height as f64;
+                let phi = |c: usize| 2.0 * PI * c as f64 / map.width as f64;
+                let mut omega = 0.0;
+                resampler
+                    .plan
+                    .for_each_input(idx, map.width, sw as usize, |_, o, d| {
+                        omega += f64::from(o);
+                        let d = DVec3::from(d.map(f64::from));
+                        let t = d.y.clamp(-1.0, 1.0).acos();
+                        let p = (d.x.atan2(-d.z)).rem_euclid(2.0 * PI);
+                        assert!(t >= theta(row) - 1e-6 && t <= theta(row + 1) + 1e-6, "{t}");
+                        assert!(
+                            p >= phi(column) - 1e-6 && p <= phi(column + 1) + 1e-6,
+                            "{p}"
+                        );
+                    });
+                let expected = map.row_solid_angle[row];
+                assert!(
+                    (omega / expected - 1.0).abs() < 1e-5,
+                    "{sw}×{sh} {idx}: {omega}"
+                );
+            }
+        }
+        let (sw, sh) = (1000u32, 500u32);
+        let clean: Vec<[f32; 3]> = (0..sw * sh)
+            .map(|i| {
+                let v = 0.1 + (i % 23) as f32 * 0.29;
+                [v, 0.5 * v, 2.0 - 0.05 * v]
+            })
+            .collect();
+        let (negative, nan, infinite) = (123_456, 250_777, 400_001);
+        let mut dirty = clean.clone();
+        dirty[negative][0] = -1.0;
+        dirty[nan][1] = f32::NAN;
+        dirty[infinite][2] = f32::INFINITY;
+        let mut expected = clean;
+        expected[negative][0] = 0.0;
+        expected[nan][1] = 0.0;
+        expected[infinite][2] = 0.0;
+        let mut resampler = Resampler::new(Projection::LatLong, sw, sh, 256);
+        let frame = HdrFrame::new(sw, sh, dirty, Projection::LatLong).unwrap();
+        let map = resampler.resample(&frame, 1.0, None).clone();
+        let touched = assert_plain_sums(&resampler.plan, &map, sw, &expected);
+        assert_eq!(touched, 256 * 128);
     }
 }
