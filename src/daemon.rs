@@ -224,13 +224,16 @@ struct StartParts {
     replaying: bool,
 }
 
-/// What a full capture queue does with the configured source's frames: a file sequence read
-/// as fast as possible (no `source.fps`) has no clock to keep, so capture waits for the
-/// decomposition and every file is decomposed, served and recorded (dropping the oldest lost
-/// most of a recorded take: 13 of 16 files); a paced sequence, the sky and a camera keep
+/// What a full capture queue does with the configured source's frames: a file sequence or a
+/// sky made as fast as possible (no `source.fps`, after [`daemon_source_defaults`]) has no
+/// clock to keep, so capture waits for the decomposition and every frame is decomposed,
+/// served and recorded (dropping the oldest lost most of a recorded take: 13 of 16 files, and
+/// 7 of the 10 frames of a `frames = 10` sky); a paced sequence or sky and a camera keep
 /// their rate and drop the oldest frame.
 fn live_source_policy(source: &crate::config::SourceConfig) -> QueuePolicy {
-    if source.kind == crate::config::SourceKind::Sequence && source.fps.is_none() {
+    use crate::config::SourceKind;
+    let clockless = matches!(source.kind, SourceKind::Sequence | SourceKind::Sky);
+    if clockless && source.fps.is_none() {
         QueuePolicy::Block
     } else {
         QueuePolicy::DropOldest

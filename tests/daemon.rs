@@ -1209,6 +1209,40 @@ fn an_unpaced_file_sequence_reaches_the_decomposition_whole() {
     assert_eq!(lights.lines().count() as u64, files);
 }
 
+/// The built-in sky made as fast as possible (a config that sets `frames` but no `fps`) has no
+/// clock to keep either: every frame is decomposed and recorded (a `frames = 10` sky of 64×32
+/// recorded 3 of its 10 frames, with exit status 0; an audit). The queue of one frame and a
+/// wavelet stage make the decomposition the slower side.
+#[test]
+fn an_unpaced_sky_reaches_the_decomposition_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let none =
+        "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n";
+    let frames = 30u64;
+    let text = format!(
+        "{none}[source]\nkind = \"sky\"\nframes = {frames}\n[sky]\nwidth = 64\nheight = 32\n\
+         [decompose]\nlights = 256\n[pipeline]\nqueue_capacity = 1\n[wavelet]\nenabled = true\n"
+    );
+    let path = dir.path().join("envlight.toml");
+    std::fs::write(&path, text).unwrap();
+    let config = envlight::daemon::read_config(Some(&path), None).unwrap();
+    let recording = dir.path().join("session");
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: None,
+            record: Some(recording.clone()),
+            source_paths: None,
+        },
+    )
+    .unwrap();
+    wait_until("the sky's end", || daemon.source_finished());
+    let summary = daemon.shutdown().unwrap();
+    assert_eq!(summary.pipeline.frames_dropped, 0);
+    assert_eq!(summary.pipeline.frames_decomposed, frames);
+    assert_eq!(summary.recorded.unwrap().frames, frames);
+}
+
 /// A replay at the original timing says at the start when a gap between recorded frames is
 /// long (a time edited to 10⁹ s waited 31 years without a word; an audit). The daemon is
 /// stopped by `timeout` once it has said so.
