@@ -1644,3 +1644,63 @@ fn wavelet_flag_ranges_name_the_flag() {
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
     }
 }
+
+/// A flag at fault is named alone: `render --fit-height 3` named "--lobes or --fit-height";
+/// `render --out FILE` said "File exists" without naming --out, after starting the GPU;
+/// `wavelet recover --observations` past what the views give was all of them, silently.
+#[test]
+fn render_and_recover_name_the_one_flag_at_fault() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("afile");
+    std::fs::write(&file, "kept").unwrap();
+    let folder = dir.path().join("frames");
+    let cases: [(Vec<&str>, &str); 4] = [
+        (
+            vec![
+                "render",
+                "--lighting",
+                "asg",
+                "--fit-height",
+                "3",
+                "--out",
+                s(&folder),
+            ],
+            "invalid --fit-height",
+        ),
+        (
+            vec![
+                "render",
+                "--lighting",
+                "asg",
+                "--lobes",
+                "65",
+                "--out",
+                s(&folder),
+            ],
+            "invalid --lobes",
+        ),
+        (
+            vec!["render", "--frames", "1", "--out", s(&file)],
+            "is a file, but --out is the folder",
+        ),
+        (
+            vec![
+                "wavelet",
+                "recover",
+                "--size",
+                "2",
+                "--observations",
+                "100000",
+            ],
+            "the object gives",
+        ),
+    ];
+    for (args, needle) in cases {
+        let o = envlight(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains(" or --"), "{args:?}: {}", stderr(&o));
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "kept");
+    assert!(!folder.exists());
+}

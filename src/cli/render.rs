@@ -197,10 +197,15 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 .unwrap_or(envlight::config::DEFAULT_ASG_FIT_HEIGHT),
             ..envlight::asg::fit::FitSettings::default()
         };
-        Some(
-            envlight::asg::fit::AsgFitter::new(settings)
-                .map_err(|e| crate::cli::usage(format!("invalid --lobes or --fit-height: {e}")))?,
-        )
+        // Name the flag at fault (both were named whichever it was).
+        Some(envlight::asg::fit::AsgFitter::new(settings).map_err(|e| {
+            let flag = match &e {
+                envlight::asg::AsgError::MapSize { .. } => "--fit-height",
+                envlight::asg::AsgError::LobeCount(_) => "--lobes",
+                _ => "--lobes or --fit-height",
+            };
+            crate::cli::usage(format!("invalid {flag}: {e}"))
+        })?)
     } else {
         None
     };
@@ -307,6 +312,15 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
             out.display()
         );
     }
+    // Before the GPU starts: an existing file was found only when the folder was created
+    // ("File exists", without the option).
+    if out.exists() && !out.is_dir() {
+        usage_error!(
+            "--out {} is a file, but --out is the folder the frames (frame_00000.png, .exr) \
+             and stats.jsonl are written to; give a folder",
+            out.display()
+        );
+    }
     let inputs = crate::cli::output::InputFiles::new(&inputs);
     let mut renderer = Renderer::new(scene, settings)?;
     tracing::info!(
@@ -315,7 +329,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         renderer.settings().shadow_raster.name()
     );
     std::fs::create_dir_all(out)
-        .with_context(|| format!("cannot create output folder {}", out.display()))?;
+        .with_context(|| format!("cannot create the --out folder {}", out.display()))?;
     let stats_path = out.join("stats.jsonl");
     let mut stats_file =
         std::io::BufWriter::new(crate::cli::output::create(&stats_path, "--out", &inputs)?);

@@ -159,7 +159,8 @@ pub struct RecoverArgs {
     /// Side of the octahedral map (power of two, 2..=64): SIZE² unknowns.
     #[arg(long, value_name = "SIZE", default_value_t = 16)]
     size: usize,
-    /// Observations used (evenly subsampled; 0: all, about 3,000 for --views 4).
+    /// Observations used (evenly subsampled; 0: all, about 3,000 for --views 4; more than the
+    /// views give is an error).
     #[arg(long, value_name = "N", default_value_t = 0)]
     observations: usize,
     /// Views of the glossy sphere (evenly around it, slightly above; 1..=32).
@@ -584,6 +585,16 @@ pub fn recover(args: &RecoverArgs) -> Result<()> {
         });
     }
     let mut rows = transport_rows(&grid, &mesh, &vis, &setups)?;
+    // More than there are was silently all of them (an audit).
+    if args.observations > rows.len() {
+        crate::cli::usage_error!(
+            "invalid --observations {}: the object gives {} observations with --views {} \
+             (0: all of them)",
+            args.observations,
+            rows.len(),
+            args.views
+        );
+    }
     let every_row = rows.clone();
     if args.observations > 0 && args.observations < rows.len() {
         let n = rows.len();
