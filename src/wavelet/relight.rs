@@ -801,6 +801,42 @@ mod tests {
         assert!(grid.project(&f[1..]).is_err());
     }
 
+    /// A mirror-like floor seen at a grazing angle reflects its whole albedo: the texels that
+    /// hold its reflection straddle the horizon with their centres below it, and were left
+    /// invisible (0.33 of a flat quad's albedo at eye height 0.3 of 5, 0.003 at 0.1; an audit).
+    #[test]
+    fn a_grazing_reflection_is_not_lost_below_the_horizon_texel_centres() {
+        let quad = Mesh::ground_grid(0.0, 1.0, 1);
+        let bvh = Bvh::build(&quad).unwrap();
+        for (side, eye_height) in [(32usize, 0.3f32), (32, 0.1), (8, 1.5)] {
+            let grid = Grid::new(side, Basis::Haar, None).unwrap();
+            let vis = vertex_visibility(&quad, &bvh, &grid.dirs);
+            let one = grid.project(&vec![1.0; grid.len()]).unwrap();
+            let light =
+                DenseLighting::from_planes(&grid, &[one.clone(), one.clone(), one]).unwrap();
+            let view = View::Eye(Vec3::new(5.0, eye_height, 0.0));
+            let tr = Transport::precompute(
+                &grid,
+                &quad.positions,
+                &quad.normals,
+                &vis,
+                Brdf::Ggx { alpha: 0.001 },
+                view,
+                usize::MAX,
+            )
+            .unwrap();
+            let mut out = vec![[0.0f32; 3]; quad.positions.len()];
+            tr.relight(&light, &mut out).unwrap();
+            for (v, o) in out.iter().enumerate() {
+                assert!(
+                    (o[0] - 1.0).abs() < 0.02,
+                    "side {side}, eye height {eye_height}, vertex {v}: {}",
+                    o[0]
+                );
+            }
+        }
+    }
+
     /// Lobes narrower than a texel keep their energy on coarse grids (texel integrals by
     /// importance sampling, [`Grid::brdf_slice`]): at normal incidence normalised Phong reflects
     /// exactly 1 and smooth GGX just under 1; the brightest texel holds the mirror direction
