@@ -1704,3 +1704,83 @@ fn render_and_recover_name_the_one_flag_at_fault() {
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "kept");
     assert!(!folder.exists());
 }
+
+/// The wavelet commands read fisheye frames as `decompose` does (`--projection fisheye` with
+/// its calibration flags; only lat-long and angular were offered): a uniform 180° frame of
+/// radiance 2 holds 2 × 2π; calibration flags without the projection, and a bad value, are
+/// usage errors naming the flag; a circle off the image is named at the first frame.
+#[test]
+fn wavelet_commands_read_fisheye_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = dir.path().join("fisheye.exr");
+    write_rgb(&frame, 96, 64, 2.0);
+    let input = s(&frame);
+    let o = envlight(&[
+        "wavelet",
+        "approx",
+        input,
+        "--projection",
+        "fisheye",
+        "--size",
+        "16",
+        "-k",
+        "256",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let line: Value = serde_json::from_str(stdout(&o).lines().next().unwrap()).unwrap();
+    for c in 0..3 {
+        let integral = line["integral"][c].as_f64().unwrap();
+        let expected = 2.0 * std::f64::consts::TAU;
+        assert!((integral / expected - 1.0).abs() < 0.01, "{line}");
+    }
+    // The radius halves the circle: a quarter of the pixels, the same hemisphere.
+    let o = envlight(&[
+        "wavelet",
+        "approx",
+        input,
+        "--projection",
+        "fisheye",
+        "--radius",
+        "16",
+        "--size",
+        "8",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for (args, needle, code) in [
+        (
+            vec!["wavelet", "approx", input, "--radius", "16"],
+            "need --projection fisheye",
+            2,
+        ),
+        (
+            vec![
+                "wavelet",
+                "relight",
+                input,
+                "--projection",
+                "fisheye",
+                "--fov",
+                "0.5",
+            ],
+            "invalid --fov 0.5",
+            2,
+        ),
+        (
+            vec![
+                "wavelet",
+                "approx",
+                input,
+                "--projection",
+                "fisheye",
+                "--center",
+                "900,900",
+            ],
+            "does not overlap the 96x64 image",
+            1,
+        ),
+    ] {
+        let o = envlight(&args);
+        assert_eq!(o.status.code(), Some(code), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
+    }
+}

@@ -1,13 +1,13 @@
 //! `envlight decompose`: frames (files, a camera or the built-in sky) to JSON Lines of
 //! lights, optionally also the newest frame kept in a file (`--latest`).
 
+use super::fisheye_flags::{validate_with_flags, FisheyeFlags};
 use super::{
-    on_off, open_source, parse_pair, parse_size, parse_tap, split_description, usage_error,
-    Utf8Input,
+    on_off, open_source, parse_size, parse_tap, split_description, usage_error, Utf8Input,
 };
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use envlight::config::{Config, ConfigError, RawConfig};
+use envlight::config::{Config, RawConfig};
 use envlight::decompose::{BrightHistory, Decomposer};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -33,18 +33,6 @@ enum ProjectionArg {
     Fisheye,
     /// Light-probe angular map.
     Angular,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum FisheyeModelArg {
-    /// r = f·θ
-    Equidistant,
-    /// r = 2f·sin(θ/2)
-    Equisolid,
-    /// r = 2f·tan(θ/2)
-    Stereographic,
-    /// r = f·sin θ
-    Orthographic,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -105,25 +93,8 @@ pub(crate) struct DecomposeArgs {
     #[arg(long, value_enum)]
     projection: Option<ProjectionArg>,
 
-    /// Fisheye lens model. [default: equidistant]
-    #[arg(long, value_enum, value_name = "MODEL")]
-    fisheye_model: Option<FisheyeModelArg>,
-
-    /// Fisheye image-circle centre in pixels. [default: image centre]
-    #[arg(long, value_name = "X,Y", value_parser = parse_pair)]
-    center: Option<[f64; 2]>,
-
-    /// Fisheye image-circle radius in pixels, in (0, 1e6]. [default: half the shorter side]
-    #[arg(long, value_name = "R")]
-    radius: Option<f64>,
-
-    /// Fisheye full field of view in degrees, in [1, 360). [default: 180]
-    #[arg(long, value_name = "DEG")]
-    fov: Option<f64>,
-
-    /// Fisheye rotation about the zenith in degrees. [default: 0]
-    #[arg(long, value_name = "DEG")]
-    rotation: Option<f64>,
+    #[command(flatten)]
+    fisheye: FisheyeFlags,
 
     /// Disable the temporal FIR filter.
     #[arg(long, conflicts_with_all = ["taps", "bright_history"])]
@@ -296,43 +267,7 @@ impl DecomposeArgs {
             src.projection = Some(name.into());
             note("source.projection", "--projection");
         }
-        let fisheye_flags = self.fisheye_model.is_some()
-            || self.center.is_some()
-            || self.radius.is_some()
-            || self.fov.is_some()
-            || self.rotation.is_some();
-        let is_fisheye = src.projection.as_deref() == Some("fisheye");
-        if fisheye_flags && !is_fisheye {
-            usage_error!("--fisheye-model, --center, --radius, --fov and --rotation need --projection fisheye");
-        }
-        let fe = &mut src.fisheye;
-        if let Some(m) = self.fisheye_model {
-            fe.model = Some(
-                match m {
-                    FisheyeModelArg::Equidistant => "equidistant",
-                    FisheyeModelArg::Equisolid => "equisolid",
-                    FisheyeModelArg::Stereographic => "stereographic",
-                    FisheyeModelArg::Orthographic => "orthographic",
-                }
-                .into(),
-            );
-        }
-        if let Some(c) = self.center {
-            fe.center = Some(c);
-            note("source.fisheye.center", "--center");
-        }
-        if let Some(r) = self.radius {
-            fe.radius = Some(r);
-            note("source.fisheye.radius", "--radius");
-        }
-        if let Some(f) = self.fov {
-            fe.fov_deg = Some(f);
-            note("source.fisheye.fov_deg", "--fov");
-        }
-        if let Some(r) = self.rotation {
-            fe.rotation_deg = Some(r);
-            note("source.fisheye.rotation_deg", "--rotation");
-        }
+        self.fisheye.apply(src, &mut note)?;
 
         let sky_flags = self.sky_size.is_some() || self.no_clouds || self.seed.is_some();
         if sky_flags && src.kind.as_deref().unwrap_or("sky") != "sky" {
@@ -457,22 +392,7 @@ pub(crate) fn run(args: &DecomposeArgs) -> Result<()> {
         None => (RawConfig::default(), "the built-in defaults".to_string()),
     };
     let flags = args.apply(&mut raw)?;
-    let config = raw.validate().map_err(|e| match &e {
-        // A value from a flag: name the flag, not the config key.
-        ConfigError::Invalid {
-            key,
-            value,
-            message,
-        } => match flags.iter().find(|(k, _)| k == key) {
-            // A switch (--split) has no value to show.
-            Some((_, flag)) if value == "true" || value == "false" => {
-                crate::cli::usage(format!("invalid {flag}: {message}"))
-            }
-            Some((_, flag)) => crate::cli::usage(format!("invalid {flag} {value}: {message}")),
-            None => anyhow!(e).context(format!("invalid setting in {config_name}")),
-        },
-        _ => anyhow!(e),
-    })?;
+    let config = validate_with_flags(&raw, &flags, &config_name)?;
     // The config file and the response curve it names are inputs too: no output may be them.
     let read: Vec<PathBuf> = (args.config.iter().cloned())
         .chain(raw.camera.curve.iter().map(PathBuf::from))

@@ -9,7 +9,8 @@
 //! - [`fit_asg`]: `fit-asg`, anisotropic spherical Gaussians;
 //! - [`camera`]: `devices`, `calibrate-response`, `calibrate-fisheye`;
 //! - [`wavelet`] and [`wavelet_transport`]: `wavelet approx`, `relight` and `recover`;
-//! - [`output`]: output files and stdout shared by the one-shot commands.
+//! - [`output`]: output files and stdout shared by the one-shot commands;
+//! - [`fisheye_flags`]: the fisheye calibration flags of `decompose` and `wavelet`.
 //!
 //! Here: what several subcommands share (value parsers, [`UsageError`], the frame source a
 //! config names).
@@ -17,6 +18,7 @@
 pub(crate) mod camera;
 pub(crate) mod daemon;
 pub(crate) mod decompose;
+pub(crate) mod fisheye_flags;
 pub(crate) mod fit_asg;
 pub(crate) mod output;
 pub(crate) mod render;

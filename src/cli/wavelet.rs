@@ -4,10 +4,9 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
-use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
-use envlight::envmap::Projection;
+use envlight::config::RawConfig;
 use envlight::wavelet::approx::Coefficients;
 use envlight::wavelet::sphere::Resampler;
 use envlight::wavelet::transform::{max_levels, Workspace};
@@ -65,13 +64,18 @@ pub enum ProjectionArg {
     Latlong,
     /// Debevec's angular map.
     Angular,
+    /// Zenith-looking fisheye (the upper hemisphere); see --fisheye-model, --center,
+    /// --radius, --fov, --rotation.
+    Fisheye,
 }
 
-impl From<ProjectionArg> for Projection {
-    fn from(p: ProjectionArg) -> Self {
-        match p {
-            ProjectionArg::Latlong => Projection::LatLong,
-            ProjectionArg::Angular => Projection::AngularMap,
+impl ProjectionArg {
+    /// The name `[source] projection` takes.
+    fn config_name(self) -> &'static str {
+        match self {
+            ProjectionArg::Latlong => "latlong",
+            ProjectionArg::Angular => "angular",
+            ProjectionArg::Fisheye => "fisheye",
         }
     }
 }
@@ -89,6 +93,8 @@ pub struct FrameInput {
     /// file for INPUT]
     #[arg(long, value_name = "N")]
     frames: Option<u64>,
+    #[command(flatten)]
+    fisheye: crate::cli::fisheye_flags::FisheyeFlags,
 }
 
 impl FrameInput {
@@ -122,17 +128,24 @@ impl FrameInput {
                 SkySource::new(options).context("cannot set up the built-in sky")?,
             ));
         }
-        let options = SequenceOptions {
-            fps: None,
-            looped: false,
-            projection: self.projection.unwrap_or(ProjectionArg::Latlong).into(),
-        };
-        let source =
-            SequenceSource::new(&self.inputs, options).context("cannot open the input frames")?;
-        Ok(Box::new(Limited {
-            inner: source,
-            left: self.frames.filter(|&n| n > 0),
-        }))
+        // As `decompose` opens INPUT files: the projection and calibration checked as a
+        // config's (a bad flag named), the calibration against the frames' size.
+        let mut raw = RawConfig::default();
+        let mut flags = Vec::new();
+        let src = &mut raw.source;
+        src.kind = Some("sequence".into());
+        src.paths = Some(self.inputs.clone());
+        src.frames = self.frames;
+        src.projection = Some(
+            self.projection
+                .unwrap_or(ProjectionArg::Latlong)
+                .config_name()
+                .into(),
+        );
+        self.fisheye
+            .apply(src, |key, flag| flags.push((key, flag)))?;
+        let config = crate::cli::fisheye_flags::validate_with_flags(&raw, &flags, "the flags")?;
+        crate::cli::open_source(&config)
     }
 }
 
