@@ -1116,17 +1116,7 @@ fn a_recording_replays_to_the_same_light_stream() {
         .validate()
         .unwrap();
     let recording = dir.path().join("session");
-    let daemon = Daemon::start(
-        config.clone(),
-        DaemonOptions {
-            replay: None,
-            record: Some(recording.clone()),
-            source_paths: None,
-        },
-    )
-    .unwrap();
-    wait_until("the recording", || daemon.source_finished());
-    let summary = daemon.shutdown().unwrap();
+    let summary = common::record_to_the_end(config.clone(), &recording, None);
     let recorded = summary.recorded.unwrap().frames;
     assert_eq!(recorded, summary.pipeline.frames_decomposed);
     assert!(recorded >= 1);
@@ -1191,17 +1181,7 @@ fn an_unpaced_file_sequence_reaches_the_decomposition_whole() {
     std::fs::write(&path, text).unwrap();
     let config = envlight::daemon::read_config(Some(&path), Some(&inputs)).unwrap();
     let recording = dir.path().join("session");
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: None,
-            record: Some(recording.clone()),
-            source_paths: Some(inputs),
-        },
-    )
-    .unwrap();
-    wait_until("the sequence's end", || daemon.source_finished());
-    let summary = daemon.shutdown().unwrap();
+    let summary = common::record_to_the_end(config, &recording, Some(inputs));
     assert_eq!(summary.pipeline.frames_dropped, 0);
     assert_eq!(summary.pipeline.frames_decomposed, files);
     assert_eq!(summary.recorded.unwrap().frames, files);
@@ -1226,18 +1206,7 @@ fn an_unpaced_sky_reaches_the_decomposition_whole() {
     let path = dir.path().join("envlight.toml");
     std::fs::write(&path, text).unwrap();
     let config = envlight::daemon::read_config(Some(&path), None).unwrap();
-    let recording = dir.path().join("session");
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: None,
-            record: Some(recording.clone()),
-            source_paths: None,
-        },
-    )
-    .unwrap();
-    wait_until("the sky's end", || daemon.source_finished());
-    let summary = daemon.shutdown().unwrap();
+    let summary = common::record_to_the_end(config, &dir.path().join("session"), None);
     assert_eq!(summary.pipeline.frames_dropped, 0);
     assert_eq!(summary.pipeline.frames_decomposed, frames);
     assert_eq!(summary.recorded.unwrap().frames, frames);

@@ -108,18 +108,30 @@ pub fn record_sky(dir: &Path, frames: u64) -> u64 {
         .unwrap()
         .validate()
         .unwrap();
+    record_to_the_end(config, dir, None)
+        .recorded
+        .unwrap()
+        .frames
+}
+
+/// Runs a daemon on `config` (its source replaced by the INPUT files `source_paths`, if
+/// given), recording into `recording`, until its source ends; returns its summary.
+pub fn record_to_the_end(
+    config: Config,
+    recording: &Path,
+    source_paths: Option<Vec<String>>,
+) -> envlight::daemon::DaemonSummary {
     let daemon = Daemon::start(
         config,
         DaemonOptions {
             replay: None,
-            record: Some(dir.to_path_buf()),
-            source_paths: None,
+            record: Some(recording.to_path_buf()),
+            source_paths,
         },
     )
     .unwrap();
-    wait_until("the recording", || daemon.source_finished());
-    let summary = daemon.shutdown().unwrap();
-    summary.recorded.unwrap().frames
+    wait_until("the source's end", || daemon.source_finished());
+    daemon.shutdown().unwrap()
 }
 
 /// Fails the test with an install hint when python3 is missing (the example client is tested,
