@@ -366,6 +366,12 @@ mod sphere {
             (4000, 40, 64),
             (2000, 2, 8),
             (40, 400, 32),
+            // Tiny frames at the default side (sub-pixels were capped at 64 a side: a 1×1
+            // frame left empty texels, 2000×2 went 4 % off).
+            (2000, 2, 128),
+            (1, 1, 128),
+            (2, 1, 128),
+            (4, 64, 128),
         ] {
             let frame =
                 HdrFrame::new(w, h, vec![[2.0; 3]; (w * h) as usize], Projection::LatLong).unwrap();

@@ -464,7 +464,7 @@ fn horizon_ray(normal: Vec3, d: Vec3, lift: f32) -> Option<Vec3> {
 
 /// Casts one shadow ray per vertex and texel direction, in parallel. A direction's bit stands
 /// for its texel: a texel above the tangent plane is tested along its centre direction; one
-/// whose centre is below the plane but which reaches above it (within [`cell_reach`] of
+/// whose centre is below the plane but which reaches above it (within `cell_reach` of
 /// `dirs.len()` texels) along its direction turned up to just above the horizon (it was left
 /// unset: a narrow glossy lobe seen at a grazing angle, whose reflection lies in such a texel,
 /// was lost: 0.33 of a mirror-like quad's albedo at side 32, 0.003 nearer grazing; an audit);
