@@ -212,7 +212,45 @@ impl Grid {
                 });
                 values
             }
-            _ => brdf.slice(normal, view, &self.dirs),
+            _ => {
+                let mut values = brdf.slice(normal, view, &self.dirs);
+                self.average_over_horizon_texels(brdf, normal, view, &mut values);
+                values
+            }
+        }
+    }
+
+    /// Replaces the centre samples of the texels that the tangent plane of `normal` cuts
+    /// (those within 1.5·√dω of it, the visibility's reach) by the slice's average over
+    /// [`horizon_subsamples`]² equal-area points of the texel. The cosine's cut at the horizon
+    /// is no linear function over such a texel, and its centre sample was far off on coarse
+    /// grids: a quad of albedo 0.8 under a uniform environment came out 0 at side 2 (every
+    /// centre on the horizon), 0.600 at 4, 0.750 at 8, 0.788 at 16 and 0.797 at 32 (an audit).
+    fn average_over_horizon_texels(
+        &self,
+        brdf: Brdf,
+        normal: Vec3,
+        view: Vec3,
+        values: &mut [f64],
+    ) {
+        let reach = (1.5 * self.d_omega().sqrt())
+            .min(std::f64::consts::FRAC_PI_2)
+            .sin();
+        let (s, k) = (self.side as f64, horizon_subsamples(self.side));
+        for (t, (d, value)) in self.dirs.iter().zip(values.iter_mut()).enumerate() {
+            if f64::from(normal.dot(*d)).abs() >= reach {
+                continue;
+            }
+            let (x, y) = ((t % self.side) as f64, (t / self.side) as f64);
+            let mut sum = 0.0;
+            for j in 0..k {
+                for i in 0..k {
+                    let u = (x + (i as f64 + 0.5) / k as f64) / s;
+                    let v = (y + (j as f64 + 0.5) / k as f64) / s;
+                    sum += brdf.eval(normal, view, sphere::square_to_sphere(u, v).as_vec3());
+                }
+            }
+            *value = sum / (k * k) as f64;
         }
     }
 
@@ -250,6 +288,17 @@ pub const MIN_GGX_ALPHA: f32 = 1e-3;
 /// Lobes at least this many texels wide are point-sampled at the texel centres
 /// ([`Grid::brdf_slice`]); narrower ones are importance-sampled.
 pub const POINT_SAMPLED_LOBE_TEXELS: f64 = 3.0;
+
+/// Points along each side of a texel that the tangent plane cuts, averaged for the
+/// point-sampled slices ([`Grid::brdf_slice`]) of a `side × side` grid: 32/side, at least 4 and
+/// at most 16 (the map is equal-area, so equal sub-squares are equal solid angles). A quad of
+/// albedo 0.8 under a uniform environment: 0.797 at sides 2 and 4, 0.803 at 8, 0.802 at 16,
+/// 0.801 at 32. The built-in scene's precomputation (with the visibility's horizon rays) takes
+/// 0.65 s at side 32 (0.4 s before; 8 × 8 points there took 1.1–1.3 s) and 1.9 s at side 64
+/// (1.35 s).
+pub fn horizon_subsamples(side: usize) -> usize {
+    (32 / side.max(1)).clamp(4, 16)
+}
 
 /// Directions drawn per vertex from a lobe narrower than [`POINT_SAMPLED_LOBE_TEXELS`] texels,
 /// per texel² of the lobe's width (at least this many; [`MAX_LOBE_SAMPLES`] at most): the
@@ -799,6 +848,27 @@ mod tests {
             assert!((a - b).abs() < 1e-12);
         }
         assert!(grid.project(&f[1..]).is_err());
+    }
+
+    /// The point-sampled slices average the texels the horizon cuts: Lambert's albedo is 1 to
+    /// within 2 % on every grid, the coarsest included (its centre samples gave 0 at side 2,
+    /// 0.75 at 4, 0.94 at 8; an audit measured the same on a quad), for any normal.
+    #[test]
+    fn the_lambert_slice_integrates_the_cosine_on_coarse_grids() {
+        for normal in [Vec3::Y, Vec3::new(0.3, 0.9, 0.1).normalize(), Vec3::X] {
+            for side in [2usize, 4, 8, 16, 32, 64] {
+                let grid = Grid::new(side, Basis::Haar, None).unwrap();
+                let albedo = grid
+                    .brdf_slice(Brdf::Lambert, normal, normal)
+                    .iter()
+                    .sum::<f64>()
+                    * grid.d_omega();
+                assert!(
+                    (albedo - 1.0).abs() < 0.02,
+                    "side {side}, {normal}: {albedo}"
+                );
+            }
+        }
     }
 
     /// A mirror-like floor seen at a grazing angle reflects its whole albedo: the texels that
