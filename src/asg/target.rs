@@ -264,28 +264,6 @@ fn resample_latlong_cached(
     Ok(())
 }
 
-/// The intervals two partitions of [0, 1) into `from` and `to` equal parts share, as
-/// (source part, target part, overlap length).
-fn interval_overlaps(from: u32, to: u32) -> Vec<(usize, usize, f64)> {
-    let (from, to) = (from as usize, to as usize);
-    let mut pairs = Vec::with_capacity(from + to);
-    let (mut i, mut j) = (0usize, 0usize);
-    // Exact in integers: part i is [i·to, (i + 1)·to) in units of 1/(from·to).
-    while i < from && j < to {
-        let lo = (i * to).max(j * from);
-        let hi = ((i + 1) * to).min((j + 1) * from);
-        if hi > lo {
-            pairs.push((i, j, (hi - lo) as f64 / (from * to) as f64));
-        }
-        if (i + 1) * to <= (j + 1) * from {
-            i += 1;
-        } else {
-            j += 1;
-        }
-    }
-    pairs
-}
-
 /// A lat-long frame of any size resampled to the `w × h` lat-long map by exact area overlap:
 /// each fit pixel's radiance is the mean of the source pixels over it, each weighted by the
 /// solid angle it shares with the fit pixel (separable: a longitude interval times a
@@ -295,10 +273,10 @@ fn interval_overlaps(from: u32, to: u32) -> Vec<(usize, usize, f64)> {
 /// 300 × 150 frame ranged 0.62 to 1.64 at 128 × 64; an audit.)
 fn latlong_by_overlap(frame: &HdrFrame, w: u32, h: u32, out: &mut Vec<[f64; 3]>) {
     let (sw, sh) = (frame.width, frame.height);
-    let columns = interval_overlaps(sw, w);
+    let columns = crate::envmap::interval_overlaps(sw, w);
     // Rows: the overlap of two bands in cos θ (the solid angle per radian of longitude).
     let band_edge = |k: u32, n: u32| (PI * f64::from(k) / f64::from(n)).cos();
-    let rows: Vec<(usize, usize, f64)> = interval_overlaps(sh, h)
+    let rows: Vec<(usize, usize, f64)> = crate::envmap::interval_overlaps(sh, h)
         .into_iter()
         .map(|(sy, fy, _)| {
             let (sy32, fy32) = (sy as u32, fy as u32);
@@ -686,9 +664,9 @@ mod tests {
                 .collect();
             let frame = HdrFrame::new(sw, sh, pixels, Projection::LatLong).unwrap();
             let w = 2 * h;
-            let columns = interval_overlaps(sw, w);
+            let columns = crate::envmap::interval_overlaps(sw, w);
             // Rows weighted by their share of the latitude range (the orders do not care).
-            let rows = interval_overlaps(sh, h);
+            let rows = crate::envmap::interval_overlaps(sh, h);
             let mut by_rows = Vec::new();
             overlap_rows_first(&frame, &columns, &rows, w as usize, |_, s| {
                 by_rows.extend_from_slice(s)

@@ -457,23 +457,19 @@ fn row_overlap(y: usize, sh: usize, i: usize, h: usize) -> (f64, f64) {
     )
 }
 
-/// Every overlap of the `n_in` input cells with the `n_out` working cells, input cell by input
-/// cell (`extent` of the pair).
+/// Every overlap of the `n_in` input cells with the `n_out` working cells
+/// ([`crate::envmap::interval_overlaps`]), input cell by input cell, with its
+/// `extent` (of the pair).
 fn overlaps(n_in: usize, n_out: usize, extent: impl Fn(usize, usize) -> f64) -> Vec<Overlap> {
-    let mut list = Vec::with_capacity(n_in + n_out);
-    for a in 0..n_in {
-        for b in overlapping_cells(a, n_in, n_out) {
-            let e = extent(a, b);
-            if e > 0.0 {
-                list.push(Overlap {
-                    input: a as u32,
-                    working: b as u32,
-                    extent: e,
-                });
-            }
-        }
-    }
-    list
+    crate::envmap::interval_overlaps(n_in as u32, n_out as u32)
+        .into_iter()
+        .map(|(a, b, _)| Overlap {
+            input: a as u32,
+            working: b as u32,
+            extent: extent(a, b),
+        })
+        .filter(|o| o.extent > 0.0)
+        .collect()
 }
 
 /// Resamples frames of one geometry (projection and size) to a working map.

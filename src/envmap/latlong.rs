@@ -45,6 +45,30 @@ pub fn solid_angles(width: u32, height: u32) -> Vec<f64> {
     out
 }
 
+/// The intervals two partitions of [0, 1) into `from` and `to` equal parts share, as
+/// (source part, target part, overlap length), in order of both parts. A lat-long map's
+/// columns (and, by their θ, its rows) are such a partition: the ASG fit's target and the
+/// decomposition's working map resample by exact area overlap with it.
+pub(crate) fn interval_overlaps(from: u32, to: u32) -> Vec<(usize, usize, f64)> {
+    let (from, to) = (from as usize, to as usize);
+    let mut pairs = Vec::with_capacity(from + to);
+    let (mut i, mut j) = (0usize, 0usize);
+    // Exact in integers: part i is [i·to, (i + 1)·to) in units of 1/(from·to).
+    while i < from && j < to {
+        let lo = (i * to).max(j * from);
+        let hi = ((i + 1) * to).min((j + 1) * from);
+        if hi > lo {
+            pairs.push((i, j, (hi - lo) as f64 / (from * to) as f64));
+        }
+        if (i + 1) * to <= (j + 1) * from {
+            i += 1;
+        } else {
+            j += 1;
+        }
+    }
+    pairs
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,6 +14,7 @@ pub mod fisheye_detect;
 mod latlong;
 
 pub use fisheye::{FisheyeCalibration, FisheyeModel, MAX_RADIUS_PX, MIN_FOV_DEG};
+pub(crate) use latlong::interval_overlaps;
 
 use glam::DVec3;
 
