@@ -1244,3 +1244,47 @@ fn lights_of_a_uniform_map_of_any_lat_long_size_have_its_radiance() {
         }
     }
 }
+
+/// Lights of a uniform fisheye or angular frame carry their regions' energy: each light's rgb
+/// over its solid angle is the frame's radiance, within 0.5 %. The input pixels that straddle
+/// working pixels are shared among them by the solid angles of their pieces, not binned whole
+/// by their centres (which gave a 1280×960 fisheye's lights 0.97–1.03 and a 512² angular map's
+/// 0.92–1.09 at 1024 lights).
+/// Fisheye lights below 8.6° elevation are left out: their regions reach under the horizon,
+/// which the lens does not see.
+#[test]
+fn lights_of_a_uniform_fisheye_or_angular_frame_have_its_radiance() {
+    use envlight::envmap::FisheyeCalibration;
+    let fisheye = Projection::Fisheye(FisheyeCalibration::default());
+    for (projection, w, h) in [
+        (fisheye, 1280u32, 960u32),
+        (Projection::AngularMap, 512, 512),
+        (Projection::AngularMap, 1024, 1024),
+    ] {
+        let frame =
+            HdrFrame::new(w, h, vec![[0.5, 1.0, 2.0]; (w * h) as usize], projection).unwrap();
+        for n in [256, 1024] {
+            let mut decomposer = Decomposer::new(raw_settings(n)).unwrap();
+            let lights = decomposer.decompose(&frame);
+            let (mut low, mut high) = (f64::MAX, f64::MIN);
+            for l in &lights.lights {
+                if matches!(projection, Projection::Fisheye(_))
+                    && l.dir[1] < 8.6f32.to_radians().sin()
+                {
+                    continue;
+                }
+                let omega = f64::from(l.solid_angle);
+                for (c, radiance) in [0.5, 1.0, 2.0].into_iter().enumerate() {
+                    let ratio = f64::from(l.rgb[c]) / (radiance * omega);
+                    low = low.min(ratio);
+                    high = high.max(ratio);
+                }
+            }
+            eprintln!("{projection:?} {w}×{h}, {n} lights: {low:.5}–{high:.5}");
+            assert!(
+                (low - 1.0).abs() < 5e-3 && (high - 1.0).abs() < 5e-3,
+                "{projection:?} {w}×{h}, {n} lights: {low}–{high} of their regions' energy"
+            );
+        }
+    }
+}
