@@ -1247,15 +1247,19 @@ fn a_long_gap_in_a_replay_is_said() {
         .spawn()
         .unwrap();
     let stderr = child.stderr.take().unwrap();
-    let (sender, lines) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stderr).lines() {
-            let Ok(line) = line else { break };
-            if sender.send(line).is_err() {
-                break;
+    // Bounded: the reader waits while the test reads (the daemon says a few lines).
+    let (sender, lines) = std::sync::mpsc::sync_channel(64);
+    let reader = std::thread::Builder::new()
+        .name("stderr-reader".into())
+        .spawn(move || {
+            for line in std::io::BufReader::new(stderr).lines() {
+                let Ok(line) = line else { break };
+                if sender.send(line).is_err() {
+                    break;
+                }
             }
-        }
-    });
+        })
+        .unwrap();
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
     let mut said = Vec::new();
     let mut found = false;
