@@ -44,9 +44,10 @@ use std::f64::consts::PI;
 pub struct FineSample {
     /// Index of the working pixel it falls in.
     pub pixel: u32,
-    /// Exact direction of the input pixel's centre.
+    /// Exact direction of the input pixel's centre (of a piece of one that straddles working
+    /// pixels: of the piece's centroid, inside this working pixel).
     pub dir: [f32; 3],
-    /// rgb · solid angle of the input pixel.
+    /// rgb · solid angle of the input pixel (of its piece).
     pub energy: [f32; 3],
     pub solid_angle: f32,
 }
