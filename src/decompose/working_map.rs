@@ -255,10 +255,7 @@ fn small_pixel_shares(
         ..
     } = *pixel;
     let position = |u: f64, v: f64| {
-        projection
-            .pixel_to_direction(sw, sh, u, v)
-            .and_then(|d| Projection::LatLong.direction_to_pixel(width as u32, height as u32, d))
-            .map_or([f64::NAN; 2], |(a, b)| [a, b])
+        working_position(projection.pixel_to_direction(sw, sh, u, v), (width, height))
     };
     let StraddleScratch { pieces, stack } = scratch;
     pieces.clear();
@@ -357,20 +354,22 @@ fn corner_positions(
         .enumerate()
         .for_each(|(y, out)| {
             for (x, c) in out.iter_mut().enumerate() {
-                let position = projection
-                    .pixel_to_direction(sw, sh, x as f64, y as f64)
-                    .and_then(|d| {
-                        Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
-                    });
-                if let Some((a, b)) = position {
-                    *c = [a, b];
-                }
+                let d = projection.pixel_to_direction(sw, sh, x as f64, y as f64);
+                *c = working_position(d, (width, height));
             }
         });
     corners
 }
 
-/// The working pixel at working-map position `p` (as [`working_pixel_of`]).
+/// The working-map position (continuous column, row) of direction `d`: NaN where there is none
+/// (outside the image).
+fn working_position(d: Option<DVec3>, (width, height): (usize, usize)) -> [f64; 2] {
+    d.and_then(|d| Projection::LatLong.direction_to_pixel(width as u32, height as u32, d))
+        .map_or([f64::NAN; 2], |(a, b)| [a, b])
+}
+
+/// The working pixel at working-map position `p` (column, row; the last column and row take
+/// their far edges).
 fn cell_of(p: [f64; 2], width: usize, height: usize) -> u32 {
     let ix = (p[0].max(0.0) as usize).min(width - 1);
     let iy = (p[1].max(0.0) as usize).min(height - 1);
@@ -1054,11 +1053,7 @@ impl Resampler {
                     let centre_dir =
                         projection.pixel_to_direction(sw, sh, x as f64 + 0.5, y as f64 + 0.5);
                     // The centre's working-map position (NaN outside the image).
-                    let centre = centre_dir
-                        .and_then(|d| {
-                            Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)
-                        })
-                        .map_or([f64::NAN; 2], |(a, b)| [a, b]);
+                    let centre = working_position(centre_dir, (width, height));
                     let Some(d) = centre_dir.or_else(|| rim_direction(projection, sw, sh, x, y))
                     else {
                         continue;
@@ -1091,18 +1086,14 @@ impl Resampler {
                             let input = (y * row + x) as u32;
                             for &(target, share, weighted) in &shares {
                                 let [a, b] = weighted.map(|c| c / share);
-                                let (theta, phi) = (
-                                    PI * b / height as f64,
-                                    2.0 * PI * a.rem_euclid(width as f64) / width as f64,
-                                );
-                                let (sin_t, cos_t) = theta.sin_cos();
-                                let (sin_p, cos_p) = phi.sin_cos();
+                                let direction = Projection::LatLong
+                                    .pixel_to_direction(width as u32, height as u32, a, b)
+                                    .unwrap_or(DVec3::Y);
                                 entries.push(PixelPart {
                                     input,
                                     target,
                                     solid_angle: (omega * share) as f32,
-                                    direction: [sin_t * sin_p, cos_t, -sin_t * cos_p]
-                                        .map(|c| c as f32),
+                                    direction: direction.as_vec3().to_array(),
                                 });
                             }
                             continue;
@@ -1827,9 +1818,7 @@ fn luminance_sum(luminance: &[f32]) -> f64 {
 /// The working pixel (row-major, of a `width`×`height` map) that direction `d` falls in.
 fn working_pixel_of(d: DVec3, width: usize, height: usize) -> Option<u32> {
     let (px, py) = Projection::LatLong.direction_to_pixel(width as u32, height as u32, d)?;
-    let ix = (px as usize).min(width - 1);
-    let iy = (py as usize).min(height - 1);
-    Some((iy * width + ix) as u32)
+    Some(cell_of([px, py], width, height))
 }
 
 /// Into how many sub-pixels across × down input pixel (x, y) of solid angle `omega` is cut so
