@@ -271,6 +271,7 @@ fn run<W: StageWorker>(
             );
             break;
         }
+        tracing::debug!(stage = name, seq = frame.seq, "processing the frame");
         let started = Instant::now();
         let result = worker.process(&frame);
         let elapsed = started.elapsed();

@@ -1218,7 +1218,6 @@ fn an_unpaced_sky_reaches_the_decomposition_whole() {
 /// test fails if it has not said so within 30 s.
 #[test]
 fn a_long_gap_in_a_replay_is_said() {
-    use std::io::BufRead;
     let dir = tempfile::tempdir().unwrap();
     let recording = dir.path().join("rec");
     assert_eq!(common::record_sky(&recording, 2), 2);
@@ -1237,49 +1236,17 @@ fn a_long_gap_in_a_replay_is_said() {
         "[stream]\nunix_socket = \"\"\ntcp = \"\"\nwebsocket = \"\"\n[metrics]\nlisten = \"\"\n",
     )
     .unwrap();
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
-        .args(["run", "--config"])
-        .arg(&config)
-        .arg("--replay")
-        .arg(&recording)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    // Bounded: the reader waits while the test reads (the daemon says a few lines).
-    let (sender, lines) = std::sync::mpsc::sync_channel(64);
-    let reader = std::thread::Builder::new()
-        .name("stderr-reader".into())
-        .spawn(move || {
-            for line in std::io::BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
-                if sender.send(line).is_err() {
-                    break;
-                }
-            }
-        })
-        .unwrap();
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
-    let mut said = Vec::new();
-    let mut found = false;
-    while let Some(left) = deadline.checked_duration_since(std::time::Instant::now()) {
-        match lines.recv_timeout(left) {
-            Ok(line) => {
-                found = line.contains("frame seq 1 is due 1000000000 s after the frame before it");
-                said.push(line);
-                if found {
-                    break;
-                }
-            }
-            Err(_) => break,
-        }
-    }
+    let mut child = RunningDaemon::spawn(
+        envlight()
+            .args(["run", "--config"])
+            .arg(&config)
+            .arg("--replay")
+            .arg(&recording),
+    );
+    let said = child.wait_for_log("frame seq 1 is due 1000000000 s after the frame before it");
     child.kill().unwrap();
     child.wait().unwrap();
-    drop(lines);
-    reader.join().unwrap();
-    assert!(found, "{}", said.join("\n"));
+    said.unwrap();
 }
 
 #[test]
@@ -1329,33 +1296,66 @@ fn envlight() -> std::process::Command {
 }
 
 /// `envlight run` in a child process, killed if the test ends (fails) while it still runs, so
-/// that a failed test leaves no daemon behind holding its output pipes.
-/// `envlight run` in a child process. Its log (stderr) is read as it comes, on a thread of
-/// its own, so that a chatty daemon never blocks on a full pipe.
+/// that a failed test leaves no daemon behind holding its output pipes. Its log (stderr) is
+/// read as it comes, on a thread of its own, so that a chatty daemon never blocks on a full
+/// pipe; the test may watch it line by line ([`RunningDaemon::wait_for_log`]).
 struct RunningDaemon {
     child: std::process::Child,
     log: Option<std::thread::JoinHandle<String>>,
+    lines: std::sync::mpsc::Receiver<String>,
 }
 
 impl RunningDaemon {
+    /// `envlight run --config CONFIG`.
     fn start(config: &Path) -> Self {
-        let mut child = envlight()
-            .arg("run")
-            .arg("--config")
-            .arg(config)
+        Self::spawn(envlight().arg("run").arg("--config").arg(config))
+    }
+
+    /// Runs `command` (an `envlight run …`) with its stderr piped to the log reader.
+    fn spawn(command: &mut std::process::Command) -> Self {
+        use std::io::BufRead;
+        let mut child = command
+            .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap();
-        let mut stderr = child.stderr.take().unwrap();
+        let stderr = child.stderr.take().unwrap();
+        // The whole log is kept; a copy of each line goes to `lines` while there is room (a
+        // test that does not watch just lets them pile up to the bound, then drop).
+        let (sender, lines) = std::sync::mpsc::sync_channel(1024);
         let log = spawn("daemon log", move || {
             let mut log = String::new();
-            let _ = stderr.read_to_string(&mut log);
+            for line in std::io::BufReader::new(stderr).lines() {
+                let Ok(line) = line else { break };
+                let _ = sender.try_send(line.clone());
+                log.push_str(&line);
+                log.push('\n');
+            }
             log
         });
         Self {
             child,
             log: Some(log),
+            lines,
         }
+    }
+
+    /// Waits (up to [`TIMEOUT`]) for a log line containing `needle`; the lines read meanwhile
+    /// are the error when none comes.
+    fn wait_for_log(&self, needle: &str) -> Result<String, String> {
+        let deadline = Instant::now() + TIMEOUT;
+        let mut said = Vec::new();
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            match self.lines.recv_timeout(left) {
+                Ok(line) if line.contains(needle) => return Ok(line),
+                Ok(line) => said.push(line),
+                Err(_) => break,
+            }
+        }
+        Err(format!(
+            "no log line with {needle:?}; it said:\n{}",
+            said.join("\n")
+        ))
     }
 
     /// Waits for the daemon to exit (failing after [`TIMEOUT`]); its status and its log.
@@ -1761,7 +1761,9 @@ fn write_uds_only_config(dir: &Path, extra: &str) -> (PathBuf, PathBuf) {
 
 /// SIGTERM while the ASG stage runs a long first fit (10⁷ iterations: hours) shuts down at
 /// once: the fit is abandoned, the lights client gets its goodbye and the daemon exits 0 (it
-/// waited for the fit, the clients without frame or goodbye meanwhile).
+/// waited for the fit, the clients without frame or goodbye meanwhile). The signal waits for
+/// the stage's debug line that the fit began: sent earlier, on a loaded machine, it found the
+/// frame still queued ("not processed", a CI failure on 2026-12-05).
 #[test]
 fn sigterm_abandons_a_long_asg_fit() {
     let dir = tempfile::tempdir().unwrap();
@@ -1772,9 +1774,17 @@ fn sigterm_abandons_a_long_asg_fit() {
             common::SMALL_SKY
         ),
     );
-    let mut child = RunningDaemon::start(&config_path);
+    // The stage says at debug level when it starts on a frame: the signal must come after.
+    let mut child = RunningDaemon::spawn(
+        envlight()
+            .env("RUST_LOG", "info,envlight::slow_stage=debug")
+            .arg("run")
+            .arg("--config")
+            .arg(&config_path),
+    );
     let mut client = unix_client_once_listening(&socket);
     assert!(matches!(client.next_message(), Ok(Some(Message::Frame(_)))));
+    child.wait_for_log("processing the frame").unwrap();
     signal(&child, "TERM");
     let (_, goodbye) = common::read_until_goodbye(client, |m| match m {
         Message::Frame(_) => Ok(()),
