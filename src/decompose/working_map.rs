@@ -24,7 +24,9 @@
 //!   working-map positions make two triangles, clipped to each working pixel, and the pieces
 //!   share the pixel's solid angle in proportion to their own (exact for a lat-long input;
 //!   pixels the projection bends, around a pole, are quartered first, `small_pixel_shares`);
-//!   a pixel larger than a working pixel is cut into sub-pixels (`SplitPixel`). A uniform
+//!   a pixel wider than half a working pixel (a frame coarser than the working map, the rim
+//!   of a stereographic or orthographic lens) is cut into sub-pixels of their own exact solid
+//!   angles (`SplitPixel`, [`RectangleSolidAngles`]), each shared the same way. A uniform
 //!   frame stays uniform (within 0.2 % at a lens's zenith, 0.5 % at the angular map's
 //!   singular rim, 1.7 % in its pole rows; docs/performance.md, "A camera's frames, by area").
 //!
@@ -33,7 +35,7 @@
 //! so the lights that share a sun keep its shape and full-resolution position (and so its
 //! penumbra).
 
-use crate::envmap::Projection;
+use crate::envmap::{Projection, RectangleSolidAngles};
 use crate::frame::HdrFrame;
 use glam::{DVec3, Vec3A, Vec4};
 use rayon::prelude::*;
@@ -142,12 +144,12 @@ enum Plan {
 /// lumps, lights that land in the empty ones get none, and a lump big enough to be concentrated
 /// adds the input pixel's whole solid angle to a working pixel whose neighbours count theirs
 /// again. So such a pixel is cut into sub-pixels (as many along each image axis as its angular
-/// extent there needs, [`split_factor`]) whose centres are binned like any pixel's, and its
-/// solid angle is shared among the sub-pixels inside the image in proportion to their own
-/// (`sub_pixel_weight`); the sub-pixels of one working pixel make one part. A small input pixel
-/// that straddles working pixels is cut along their edges ([`small_pixel_shares`]): binned whole
-/// by its centre it gave its neighbour nothing, and the working pixels got whole input pixels by
-/// turns (lights of a uniform frame with 0.92–1.09 of their regions' energy).
+/// extent there needs, [`split_factor`]), each with its own exact solid angle, and each shared
+/// among the working pixels it covers as a small pixel is. A small input pixel that straddles
+/// working pixels is cut along their edges ([`small_pixel_shares`]): binned whole by its
+/// centre it gave its neighbour nothing, and the working pixels got whole input pixels by
+/// turns (lights of a uniform frame with 0.92–1.09 of their regions' energy; sub-pixels binned
+/// by their centres gave a coarse 340 × 255 fisheye's 0.64–1.31).
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct PixelPart {
     /// Row-major index of the input pixel.
@@ -155,8 +157,8 @@ struct PixelPart {
     /// The working pixel.
     target: u32,
     solid_angle: f32,
-    /// A direction inside the working pixel: the normalised mean of the sub-pixel centres'
-    /// directions, or the first one's where the mean leaves the working pixel.
+    /// A direction inside the working pixel: that of the centroid (on the working map) of
+    /// the input pixel's pieces in it, or of its centre where it lies in one working pixel.
     direction: [f32; 3],
 }
 
@@ -205,13 +207,13 @@ fn nearly_affine(corners: [[f64; 2]; 4], middle: [f64; 2], width: usize) -> bool
 }
 
 /// The buffers of [`small_pixel_shares`], kept from pixel to pixel: the pieces (working pixel,
-/// solid angle, solid angle × centroid) and the squares still to do ((left, top, side),
-/// corners, share of the pixel's area, levels left).
+/// solid angle, solid angle × centroid) and the rectangles still to do ((left, top, width,
+/// height), corners, share of the patch's area, levels left).
 #[derive(Default)]
 struct StraddleScratch {
     pieces: Vec<(u32, f64, [f64; 2])>,
     #[allow(clippy::type_complexity)]
-    stack: Vec<((f64, f64, f64), [[f64; 2]; 4], f64, u32)>,
+    stack: Vec<((f64, f64, f64, f64), [[f64; 2]; 4], f64, u32)>,
 }
 
 /// The largest part of its working pixel's solid angle that a square of a straddling pixel
@@ -229,47 +231,60 @@ fn row_solid_angle(cell: u32, width: usize, height: usize) -> f64 {
 /// squares of 1/8 of a pixel a side (where their centres take them).
 const RIM_DEPTH: u32 = 3;
 
-/// The shares of a small input pixel (`pixel`: its position, solid angle and geometry; its
-/// `split` is not used) among the working pixels it covers, from the working-map positions of
-/// its corners (top-left, top-right, bottom-left, bottom-right; NaN outside the image) and of
-/// its centre: (working pixel, share, share × centroid), the shares summing to 1, the working
-/// pixels in no particular order. The pixel's corners give its pieces' solid angles where they
-/// can ([`straddle_pieces`]); elsewhere (and where the projection bends the pixel,
+/// A rectangle of an input image (a pixel, or a sub-pixel of a large one) and its solid angle.
+#[derive(Clone, Copy, Debug)]
+struct ImagePatch {
+    /// Top-left corner, in pixels.
+    origin: (f64, f64),
+    /// Width and height, in pixels.
+    size: (f64, f64),
+    solid_angle: f64,
+}
+
+/// The shares of a small patch of an input image (`patch`: a pixel, or a sub-pixel of a large
+/// one; the geometry is `pixel`'s, its `at`, `solid_angle` and `split` are not used) among the
+/// working pixels it covers, from the working-map positions of its corners (top-left,
+/// top-right, bottom-left, bottom-right; NaN outside the image) and of its centre: (working
+/// pixel, share, share × centroid), the shares summing to 1, the working pixels in no
+/// particular order. The patch's corners give its pieces' solid angles where they can
+/// ([`straddle_pieces`]); elsewhere (and where the projection bends the patch,
 /// [`nearly_affine`]) it is quartered, and each quarter tried the same way, down
-/// [`STRADDLE_DEPTH`] levels, where a square's centre takes the square (with its share of the
-/// pixel's area of its solid angle). Squares whose corners are all outside the image are left
-/// out, and the shares of the rest scaled to sum to 1 (the pixel's solid angle is that of its
-/// part inside). Nothing where no part is inside.
+/// [`STRADDLE_DEPTH`] levels, where a rectangle's centre takes it (with its own exact solid
+/// angle). Rectangles whose corners are all outside the image are
+/// left out, and the shares of the rest scaled to sum to 1 (the patch's solid angle is that of
+/// its part inside). Nothing where no part is inside.
 fn small_pixel_shares(
     pixel: &SplitPixel,
+    patch: ImagePatch,
     (corners, centre): ([[f64; 2]; 4], [f64; 2]),
     scratch: &mut StraddleScratch,
     out: &mut Vec<(u32, f64, [f64; 2])>,
 ) {
     let SplitPixel {
         projection,
+        rectangles,
         source: (sw, sh),
         working: (width, height),
-        at: (x, y),
-        solid_angle: omega,
         ..
     } = *pixel;
+    let omega = patch.solid_angle;
     let position = |u: f64, v: f64| {
         working_position(projection.pixel_to_direction(sw, sh, u, v), (width, height))
     };
     let StraddleScratch { pieces, stack } = scratch;
     pieces.clear();
     stack.clear();
-    stack.push(((x as f64, y as f64, 1.0), corners, 1.0, STRADDLE_DEPTH));
-    while let Some(((u0, v0, size), corners, weight, depth)) = stack.pop() {
+    let ((u0, v0), (su, sv)) = (patch.origin, patch.size);
+    stack.push(((u0, v0, su, sv), corners, 1.0, STRADDLE_DEPTH));
+    while let Some(((u0, v0, su, sv), corners, weight, depth)) = stack.pop() {
         if corners.iter().all(|c| c[0].is_nan()) {
             continue;
         }
-        let h = size / 2.0;
+        let (hu, hv) = (su / 2.0, sv / 2.0);
         let middle = if depth == STRADDLE_DEPTH {
             centre
         } else {
-            position(u0 + h, v0 + h)
+            position(u0 + hu, v0 + hv)
         };
         if (depth == 0 || nearly_affine(corners, middle, width))
             && straddle_pieces(corners, (width, height), pieces)
@@ -290,8 +305,10 @@ fn small_pixel_shares(
                     * row_solid_angle(cell_of(middle, width, height), width, height);
         if depth == 0 || negligible || (rim && STRADDLE_DEPTH - depth >= RIM_DEPTH) {
             if !middle[0].is_nan() {
-                // Its solid angle as its share of the pixel's area.
-                let solid_angle = weight * omega;
+                // Its own solid angle: across the rim of an orthographic lens it is far from
+                // its share of the patch's area (the solid angle per pixel area grows without
+                // bound there).
+                let solid_angle = rectangles.of((u0, v0), (u0 + su, v0 + sv));
                 pieces.push((
                     cell_of(middle, width, height),
                     solid_angle,
@@ -301,17 +318,22 @@ fn small_pixel_shares(
             continue;
         }
         let [c00, c10, c01, c11] = corners;
-        let top = position(u0 + h, v0);
-        let left = position(u0, v0 + h);
-        let right = position(u0 + size, v0 + h);
-        let bottom = position(u0 + h, v0 + size);
+        let top = position(u0 + hu, v0);
+        let left = position(u0, v0 + hv);
+        let right = position(u0 + su, v0 + hv);
+        let bottom = position(u0 + hu, v0 + sv);
         for (origin, corners) in [
             ((u0, v0), [c00, top, left, middle]),
-            ((u0 + h, v0), [top, c10, middle, right]),
-            ((u0, v0 + h), [left, middle, c01, bottom]),
-            ((u0 + h, v0 + h), [middle, right, bottom, c11]),
+            ((u0 + hu, v0), [top, c10, middle, right]),
+            ((u0, v0 + hv), [left, middle, c01, bottom]),
+            ((u0 + hu, v0 + hv), [middle, right, bottom, c11]),
         ] {
-            stack.push(((origin.0, origin.1, h), corners, weight / 4.0, depth - 1));
+            stack.push((
+                (origin.0, origin.1, hu, hv),
+                corners,
+                weight / 4.0,
+                depth - 1,
+            ));
         }
     }
     let total: f64 = pieces.iter().map(|p| p.1).sum();
@@ -1018,6 +1040,7 @@ impl Resampler {
 
     fn table_plan(projection: Projection, sw: u32, sh: u32, width: usize, height: usize) -> Plan {
         let omegas = projection.solid_angles(sw, sh);
+        let rectangles = projection.rectangle_solid_angles(sw, sh);
         // A working pixel's height in θ: input pixels wider than half of it are split.
         let step = PI / height as f64;
         let row = sw as usize;
@@ -1031,12 +1054,14 @@ impl Resampler {
             .map(|(y, omegas)| {
                 let mut entries = Vec::with_capacity(row);
                 let (mut shares, mut scratch) = (Vec::new(), StraddleScratch::default());
+                let mut split_scratch = SplitScratch::default();
                 for (x, &omega) in omegas.iter().enumerate() {
                     if omega.is_nan() || omega <= 0.0 {
                         continue;
                     }
                     let pixel = SplitPixel {
                         projection,
+                        rectangles: &rectangles,
                         source: (sw, sh),
                         working: (width, height),
                         at: (x, y),
@@ -1045,7 +1070,7 @@ impl Resampler {
                     };
                     if pixel.split != (1, 1) {
                         let before = entries.len();
-                        pixel.parts(&mut entries);
+                        pixel.parts(&mut split_scratch, &mut entries);
                         if entries.len() > before {
                             continue;
                         }
@@ -1081,7 +1106,18 @@ impl Resampler {
                         .any(|&c| c[0].is_nan() || cell_of(c, width, height) != t);
                     if straddles {
                         shares.clear();
-                        small_pixel_shares(&pixel, (four, centre), &mut scratch, &mut shares);
+                        let patch = ImagePatch {
+                            origin: (x as f64, y as f64),
+                            size: (1.0, 1.0),
+                            solid_angle: omega,
+                        };
+                        small_pixel_shares(
+                            &pixel,
+                            patch,
+                            (four, centre),
+                            &mut scratch,
+                            &mut shares,
+                        );
                         if shares.len() > 1 {
                             let input = (y * row + x) as u32;
                             for &(target, share, weighted) in &shares {
@@ -1878,8 +1914,10 @@ fn split_factor(
 }
 
 /// An input pixel to cut into `split.0` × `split.1` sub-pixels (across × down, [`PixelPart`]).
-struct SplitPixel {
+struct SplitPixel<'a> {
     projection: Projection,
+    /// Exact solid angles of the input image's rectangles (sub-pixels, pieces of pixels).
+    rectangles: &'a RectangleSolidAngles,
     source: (u32, u32),
     working: (usize, usize),
     at: (usize, usize),
@@ -1887,92 +1925,130 @@ struct SplitPixel {
     split: (usize, usize),
 }
 
-impl SplitPixel {
-    /// Appends the pixel's parts, one per working pixel its sub-pixels' centres fall in, in
-    /// the order of the working pixels. The sub-pixels inside the image share the pixel's
-    /// solid angle in proportion to their own; nothing is appended if none is inside.
-    fn parts(&self, parts: &mut Vec<PixelPart>) {
+impl SplitPixel<'_> {
+    /// Appends the pixel's parts, one per working pixel it covers, in the order of the working
+    /// pixels. Each sub-pixel that sees anything has its own exact solid angle
+    /// ([`RectangleSolidAngles`]; they sum to the pixel's) and is shared among the working
+    /// pixels it covers as a small pixel is ([`small_pixel_shares`]: binned whole by their
+    /// centres, sub-pixels half a working pixel wide gave a uniform 340 × 255 fisheye's lights
+    /// 0.64–1.31 of their regions' energy at 4096 lights). A part's direction is that of its
+    /// pieces' centroid. Nothing is appended if no piece of any sub-pixel is inside.
+    fn parts(&self, scratch: &mut SplitScratch, parts: &mut Vec<PixelPart>) {
         let ((sw, sh), (width, height), (x, y)) = (self.source, self.working, self.at);
         let (nx, ny) = self.split;
         let direction = |u: f64, v: f64| self.projection.pixel_to_direction(sw, sh, u, v);
-        // (working pixel, direction, weight ∝ the sub-pixel's solid angle).
-        let mut subs: Vec<(u32, DVec3, f64)> = Vec::with_capacity(nx * ny);
-        let half_step = (0.25 / nx as f64, 0.25 / ny as f64);
+        let sub_corner = |i: usize, j: usize| {
+            (
+                x as f64 + i as f64 / nx as f64,
+                y as f64 + j as f64 / ny as f64,
+            )
+        };
+        // The working-map positions of the sub-pixels' corners, (nx + 1) × (ny + 1).
+        let SplitScratch {
+            corners,
+            shares,
+            pieces,
+            straddle,
+        } = scratch;
+        corners.clear();
+        for j in 0..=ny {
+            for i in 0..=nx {
+                let (u, v) = sub_corner(i, j);
+                corners.push(working_position(direction(u, v), (width, height)));
+            }
+        }
+        // Each sub-pixel with its own solid angle (evenly spaced in the image, they are far
+        // from even on the sphere where the projection stretches: a stereographic rim), shared
+        // among the working pixels it covers; one whose centre is outside the image (a rim
+        // sub-pixel) by the parts of it inside.
+        pieces.clear();
+        let mut covered = 0.0;
         for j in 0..ny {
             for i in 0..nx {
-                let u = x as f64 + (i as f64 + 0.5) / nx as f64;
-                let v = y as f64 + (j as f64 + 0.5) / ny as f64;
-                let Some(d) = direction(u, v) else {
+                let (u0, v0) = sub_corner(i, j);
+                let size = (1.0 / nx as f64, 1.0 / ny as f64);
+                let solid_angle = self.rectangles.of((u0, v0), (u0 + size.0, v0 + size.1));
+                if solid_angle.is_nan() || solid_angle <= 0.0 {
                     continue;
-                };
-                if let Some(t) = working_pixel_of(d, width, height) {
-                    subs.push((t, d, sub_pixel_weight(&direction, (u, v), d, half_step)));
                 }
+                let centre = working_position(
+                    direction(u0 + size.0 / 2.0, v0 + size.1 / 2.0),
+                    (width, height),
+                );
+                let corner = |i: usize, j: usize| corners[j * (nx + 1) + i];
+                let four = [
+                    corner(i, j),
+                    corner(i + 1, j),
+                    corner(i, j + 1),
+                    corner(i + 1, j + 1),
+                ];
+                let target = (!centre[0].is_nan()).then(|| cell_of(centre, width, height));
+                let straddles = four
+                    .iter()
+                    .any(|&c| c[0].is_nan() || Some(cell_of(c, width, height)) != target);
+                shares.clear();
+                if straddles {
+                    let patch = ImagePatch {
+                        origin: (u0, v0),
+                        size,
+                        solid_angle,
+                    };
+                    small_pixel_shares(self, patch, (four, centre), straddle, shares);
+                }
+                if shares.is_empty() {
+                    let Some(target) = target else { continue };
+                    pieces.push((target, solid_angle, centre.map(|c| c * solid_angle)));
+                }
+                for &(target, share, weighted) in shares.iter() {
+                    pieces.push((
+                        target,
+                        share * solid_angle,
+                        weighted.map(|c| c * solid_angle),
+                    ));
+                }
+                covered += solid_angle;
             }
         }
-        if subs.is_empty() {
+        if pieces.is_empty() {
             return;
         }
-        // Sub-pixels evenly spaced in the image are far from even on the sphere where the
-        // projection stretches (a stereographic rim): each gets the share of its own solid
-        // angle, so the pixel's energy is spread as it is on the sphere.
-        let known: Vec<f64> = subs.iter().map(|s| s.2).filter(|w| *w > 0.0).collect();
-        let fallback = if known.is_empty() {
-            1.0
-        } else {
-            known.iter().sum::<f64>() / known.len() as f64
-        };
-        for sub in &mut subs {
-            if sub.2.is_nan() || sub.2 <= 0.0 {
-                sub.2 = fallback;
-            }
+        // The sub-pixels' solid angles sum to the pixel's (exactly but for rounding, and for
+        // rim sub-pixels no piece of which took: their share goes to the rest).
+        let scale = self.solid_angle / covered;
+        for piece in pieces.iter_mut() {
+            piece.1 *= scale;
+            piece.2 = piece.2.map(|c| c * scale);
         }
-        let total: f64 = subs.iter().map(|s| s.2).sum();
-        let share = self.solid_angle / total;
-        // Stable: each working pixel's sub-pixels stay in scan order.
-        subs.sort_by_key(|&(t, _, _)| t);
-        for group in subs.chunk_by(|a, b| a.0 == b.0) {
+        // Stable: each working pixel's pieces stay in scan order.
+        pieces.sort_by_key(|p| p.0);
+        let input = (y * sw as usize + x) as u32;
+        for group in pieces.chunk_by(|a, b| a.0 == b.0) {
             let target = group[0].0;
-            let mean = group
+            let solid_angle: f64 = group.iter().map(|p| p.1).sum();
+            let weighted = group
                 .iter()
-                .map(|&(_, d, _)| d)
-                .sum::<DVec3>()
-                .try_normalize();
-            let inside = mean.filter(|&m| working_pixel_of(m, width, height) == Some(target));
-            let direction = inside.unwrap_or(group[0].1);
-            let weight: f64 = group.iter().map(|s| s.2).sum();
+                .fold([0.0; 2], |m, p| [m[0] + p.2[0], m[1] + p.2[1]]);
+            let [a, b] = weighted.map(|c| c / solid_angle);
+            let direction = Projection::LatLong
+                .pixel_to_direction(width as u32, height as u32, a, b)
+                .unwrap_or(DVec3::Y);
             parts.push(PixelPart {
-                input: (y * sw as usize + x) as u32,
+                input,
                 target,
-                solid_angle: (share * weight) as f32,
+                solid_angle: solid_angle as f32,
                 direction: direction.as_vec3().to_array(),
             });
         }
     }
 }
 
-/// A weight proportional to the solid angle of the sub-pixel centred at image position (u, v)
-/// with direction `d`: the area of the parallelogram of the direction's differences over ±`hu`
-/// in u and ±`hv` in v (one-sided, from the centre, where a point is outside the image); 0 where
-/// neither side of an axis is inside.
-fn sub_pixel_weight(
-    direction: &impl Fn(f64, f64) -> Option<DVec3>,
-    (u, v): (f64, f64),
-    d: DVec3,
-    (hu, hv): (f64, f64),
-) -> f64 {
-    let difference = |plus: Option<DVec3>, minus: Option<DVec3>| match (plus, minus) {
-        (Some(p), Some(m)) => Some((p - m) / 2.0),
-        (Some(p), None) => Some(p - d),
-        (None, Some(m)) => Some(d - m),
-        (None, None) => None,
-    };
-    let du = difference(direction(u + hu, v), direction(u - hu, v));
-    let dv = difference(direction(u, v + hv), direction(u, v - hv));
-    match (du, dv) {
-        (Some(a), Some(b)) => a.cross(b).length(),
-        _ => 0.0,
-    }
+/// The buffers of [`SplitPixel::parts`], kept from pixel to pixel.
+#[derive(Default)]
+struct SplitScratch {
+    corners: Vec<[f64; 2]>,
+    shares: Vec<(u32, f64, [f64; 2])>,
+    pieces: Vec<(u32, f64, [f64; 2])>,
+    straddle: StraddleScratch,
 }
 
 /// Scales the solid angles of `samples` (the input pixels of one working pixel) so that they

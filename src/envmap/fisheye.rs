@@ -247,7 +247,7 @@ enum CalibrationError {
 
 /// A radially symmetric map resolved for one image size.
 #[derive(Clone, Copy, Debug)]
-struct RadialMap {
+pub(super) struct RadialMap {
     model: FisheyeModel,
     cx: f64,
     cy: f64,
@@ -295,8 +295,13 @@ impl RadialMap {
     }
 
     /// Flux of H(r)(x, y) through the part of the segment A→B (relative to the centre) inside the
-    /// disc, and the angle that part subtends at the centre.
+    /// disc, and the angle that part subtends at the centre; the flux to [`PIXEL_TOLERANCE`].
     fn edge(&self, ax: f64, ay: f64, bx: f64, by: f64) -> Edge {
+        self.edge_to(ax, ay, bx, by, PIXEL_TOLERANCE)
+    }
+
+    /// [`RadialMap::edge`] with the flux to `tolerance` (relative).
+    fn edge_to(&self, ax: f64, ay: f64, bx: f64, by: f64, tolerance: f64) -> Edge {
         let (dx, dy) = (bx - ax, by - ay);
         // |A + tD|² − R² = a t² + 2 b t + c
         let a = dx * dx + dy * dy;
@@ -342,7 +347,7 @@ impl RadialMap {
                 let (x, y) = (ax + t * dx, ay + t * dy);
                 jac * self.cap_density(x * x + y * y)
             };
-            cross_ab * integrate(integrand)
+            cross_ab * integrate(integrand, tolerance)
         };
         Edge {
             flux,
@@ -366,7 +371,6 @@ impl RadialMap {
             return out;
         }
         let xs: Vec<f64> = (i0..=i1).map(|i| i as f64 - self.cx).collect();
-        let r2 = r * r;
         let horizontal =
             |y: f64| -> Vec<Edge> { xs.windows(2).map(|p| self.edge(p[0], y, p[1], y)).collect() };
         // Bands of rows in parallel: a band computes its own first bottom edges, so every edge
@@ -388,18 +392,8 @@ impl RadialMap {
                         let (x0, x1) = (xs[n], xs[n + 1]);
                         // counter-clockwise in the (dx, dy) plane: y_lo (+x), x1 (+y), y_hi (−x),
                         // x0 (−y)
-                        let (bottom, right, top, left) =
-                            (edges_lo[n], verticals[n + 1], edges_hi[n], verticals[n]);
-                        let mut omega = bottom.flux + right.flux - top.flux - left.flux;
-                        let far =
-                            x0.abs().max(x1.abs()).powi(2) + y_lo.abs().max(y_hi.abs()).powi(2);
-                        if far > r2 {
-                            let pieces =
-                                bottom.angle() + right.angle() - top.angle() - left.angle();
-                            let sweep = subtended_by_square(x0, x1, y_lo, y_hi) - pieces;
-                            omega += self.g_max * sweep;
-                        }
-                        row[i0 + n] = omega.max(0.0);
+                        let edges = [edges_lo[n], verticals[n + 1], edges_hi[n], verticals[n]];
+                        row[i0 + n] = self.omega_from_edges(edges, (x0, x1), (y_lo, y_hi));
                     }
                     edges_lo = edges_hi;
                     y_lo = y_hi;
@@ -407,6 +401,62 @@ impl RadialMap {
             });
         out
     }
+}
+
+impl RadialMap {
+    /// The solid angle of the rectangle [x0, x1] × [y0, y1] (relative to the centre) from its
+    /// edges (bottom y0, right x1, top y1, left x0; [`RadialMap::edge`]): the flux through
+    /// them, plus G(R) times the angle the rim sweeps inside the rectangle where it reaches it.
+    fn omega_from_edges(
+        &self,
+        edges: [Edge; 4],
+        (x0, x1): (f64, f64),
+        (y0, y1): (f64, f64),
+    ) -> f64 {
+        let [bottom, right, top, left] = edges;
+        let mut omega = bottom.flux + right.flux - top.flux - left.flux;
+        let far = x0.abs().max(x1.abs()).powi(2) + y0.abs().max(y1.abs()).powi(2);
+        if far > self.radius * self.radius {
+            let pieces = bottom.angle() + right.angle() - top.angle() - left.angle();
+            let sweep = subtended_by_square(x0, x1, y0, y1) - pieces;
+            omega += self.g_max * sweep;
+        }
+        omega.max(0.0)
+    }
+
+    /// Exact solid angle of the image rectangle [x0, x1] × [y0, y1] (pixels; any size, inside
+    /// the image circle or not): what [`RadialMap::solid_angles`] gives a pixel.
+    pub(super) fn rectangle_solid_angle(&self, (x0, y0): (f64, f64), (x1, y1): (f64, f64)) -> f64 {
+        let (x0, x1, y0, y1) = (x0 - self.cx, x1 - self.cx, y0 - self.cy, y1 - self.cy);
+        if !(x0 < x1 && y0 < y1) {
+            return 0.0;
+        }
+        let edges = [
+            self.edge_to(x0, y0, x1, y0, RECTANGLE_TOLERANCE),
+            self.edge_to(x1, y0, x1, y1, RECTANGLE_TOLERANCE),
+            self.edge_to(x0, y1, x1, y1, RECTANGLE_TOLERANCE),
+            self.edge_to(x0, y0, x0, y1, RECTANGLE_TOLERANCE),
+        ];
+        self.omega_from_edges(edges, (x0, x1), (y0, y1))
+    }
+}
+
+/// The resolved map of a fisheye calibration for a `w`×`h` image (exact solid angles of its
+/// rectangles, [`crate::envmap::RectangleSolidAngles`]): `None` where it does not resolve.
+pub(super) fn fisheye_map(cal: &FisheyeCalibration, w: u32, h: u32) -> Option<RadialMap> {
+    cal.resolve(w, h).ok()
+}
+
+/// The same for the angular map.
+pub(super) fn angular_map(w: u32, h: u32) -> Option<RadialMap> {
+    let (cx, cy, radius) = angular_disc(w, h)?;
+    Some(RadialMap::new(
+        FisheyeModel::Equidistant,
+        cx,
+        cy,
+        radius,
+        PI,
+    ))
 }
 
 /// Rows of pixels one parallel task computes in [`RadialMap::solid_angles`]; a band computes
@@ -480,8 +530,19 @@ fn gauss_kronrod7(f: &impl Fn(f64) -> f64, a: f64, b: f64) -> (f64, f64) {
     (kronrod * half, gauss * half)
 }
 
-/// ∫₀¹ f for a non-negative f, adaptive bisection to ≈1e-13 relative.
-fn integrate(f: impl Fn(f64) -> f64) -> f64 {
+/// How closely (relative) the fluxes of pixels' edges are integrated: their solid angles sum
+/// to the image's to rounding.
+const PIXEL_TOLERANCE: f64 = 1e-13;
+
+/// How closely (relative) the fluxes of [`RadialMap::rectangle_solid_angle`]'s edges are
+/// integrated: the rectangles (sub-pixels, pieces of pixels) share their pixel's exact solid
+/// angle in proportion to theirs, which needs no more. Near an orthographic lens's rim, where
+/// the solid angle per pixel area grows without bound, 1e-13 took the rectangles of a 1280×960
+/// frame's rim 1 s.
+const RECTANGLE_TOLERANCE: f64 = 1e-9;
+
+/// ∫₀¹ f for a non-negative f, adaptive bisection to ≈`tolerance` relative.
+fn integrate(f: impl Fn(f64) -> f64, tolerance: f64) -> f64 {
     fn adapt(f: &impl Fn(f64) -> f64, a: f64, b: f64, k: f64, g: f64, tol: f64, depth: u32) -> f64 {
         if (k - g).abs() <= tol || depth == 0 || !k.is_finite() {
             return k;
@@ -492,7 +553,7 @@ fn integrate(f: impl Fn(f64) -> f64) -> f64 {
         adapt(f, a, m, k0, g0, 0.5 * tol, depth - 1) + adapt(f, m, b, k1, g1, 0.5 * tol, depth - 1)
     }
     let (k, g) = gauss_kronrod7(&f, 0.0, 1.0);
-    adapt(&f, 0.0, 1.0, k, g, 1e-13 * k.abs() + 1e-300, 40)
+    adapt(&f, 0.0, 1.0, k, g, tolerance * k.abs() + 1e-300, 40)
 }
 
 /// The largest image-circle radius accepted, in pixels: no sensor is two million pixels wide,
@@ -672,12 +733,7 @@ pub fn angular_direction_to_pixel(w: u32, h: u32, d: DVec3) -> Option<(f64, f64)
 
 /// Debevec angular map: exact solid angle of every pixel, row-major (0 outside the disc).
 pub fn angular_solid_angles(w: u32, h: u32) -> Vec<f64> {
-    match angular_disc(w, h) {
-        Some((cx, cy, radius)) => {
-            RadialMap::new(FisheyeModel::Equidistant, cx, cy, radius, PI).solid_angles(w, h)
-        }
-        None => Vec::new(),
-    }
+    angular_map(w, h).map_or_else(Vec::new, |map| map.solid_angles(w, h))
 }
 
 #[cfg(test)]
@@ -801,7 +857,7 @@ mod tests {
                 );
             }
         }
-        let v = integrate(|t: f64| t.sqrt());
+        let v = integrate(|t: f64| t.sqrt(), PIXEL_TOLERANCE);
         assert!((v - 2.0 / 3.0).abs() < 1e-12, "adaptive sqrt: {v}");
     }
 

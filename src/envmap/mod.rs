@@ -62,6 +62,19 @@ impl Projection {
         }
     }
 
+    /// Exact solid angles of rectangles of a `width`×`height` image (sub-pixels, pieces of
+    /// pixels): [`RectangleSolidAngles::of`].
+    pub fn rectangle_solid_angles(&self, width: u32, height: u32) -> RectangleSolidAngles {
+        let radial = match self {
+            Projection::LatLong => {
+                return RectangleSolidAngles(Rectangles::LatLong { width, height });
+            }
+            Projection::Fisheye(cal) => fisheye::fisheye_map(cal, width, height),
+            Projection::AngularMap => fisheye::angular_map(width, height),
+        };
+        RectangleSolidAngles(radial.map_or(Rectangles::Nothing, Rectangles::Radial))
+    }
+
     /// The same projection for the image magnified `n` times in each direction (its sub-pixel
     /// grid): a fisheye calibration's centre and radius, given in pixels, scale with it; the
     /// lat-long and angular maps depend on no pixel size.
@@ -85,5 +98,105 @@ impl Projection {
             Projection::Fisheye(_) => "fisheye",
             Projection::AngularMap => "angular",
         }
+    }
+}
+
+/// Exact solid angles of rectangles of one image ([`Projection::rectangle_solid_angles`]).
+#[derive(Clone, Debug)]
+pub struct RectangleSolidAngles(Rectangles);
+
+#[derive(Clone, Debug)]
+enum Rectangles {
+    LatLong {
+        width: u32,
+        height: u32,
+    },
+    Radial(fisheye::RadialMap),
+    /// An image that sees nothing (a calibration that does not resolve for it).
+    Nothing,
+}
+
+impl RectangleSolidAngles {
+    /// The solid angle (steradians) of the part of the image rectangle from `top_left` to
+    /// `bottom_right` (continuous pixel positions) that sees directions: of a whole pixel,
+    /// what [`Projection::solid_angles`] gives it (a lens's to about 1e-9 relative: the
+    /// integrals along its edges are taken to that); 0 for an empty or non-finite rectangle.
+    pub fn of(&self, top_left: (f64, f64), bottom_right: (f64, f64)) -> f64 {
+        let ((x0, y0), (x1, y1)) = (top_left, bottom_right);
+        if ![x0, y0, x1, y1].iter().all(|v| v.is_finite()) {
+            return 0.0;
+        }
+        match &self.0 {
+            Rectangles::LatLong { width, height } => {
+                let (w, h) = (f64::from(*width), f64::from(*height));
+                let (x0, x1) = (x0.clamp(0.0, w), x1.clamp(0.0, w));
+                let (y0, y1) = (y0.clamp(0.0, h), y1.clamp(0.0, h));
+                let theta = |y: f64| std::f64::consts::PI * y / h;
+                let omega = 2.0 * std::f64::consts::PI * (x1 - x0) / w
+                    * (theta(y0).cos() - theta(y1).cos());
+                omega.max(0.0)
+            }
+            Rectangles::Radial(map) => map.rectangle_solid_angle(top_left, bottom_right),
+            Rectangles::Nothing => 0.0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A rectangle's solid angle is what `solid_angles` gives a pixel, the sub-rectangles of
+    /// a pixel sum to it, and the whole image's is the image's total, for every projection
+    /// (rim pixels of the lenses included, where the circle cuts the rectangle).
+    #[test]
+    fn rectangle_solid_angles_agree_with_the_pixels_and_add_up() {
+        let lens = |model, fov_deg| {
+            Projection::Fisheye(FisheyeCalibration {
+                model,
+                fov_deg,
+                rotation_deg: 30.0,
+                ..FisheyeCalibration::default()
+            })
+        };
+        let mut projections = vec![Projection::LatLong, Projection::AngularMap];
+        for model in FisheyeModel::ALL {
+            projections.push(lens(model, 180.0));
+        }
+        projections.push(lens(FisheyeModel::Equisolid, 300.0));
+        projections.push(lens(FisheyeModel::Stereographic, 250.0));
+        let (w, h) = (23u32, 17u32);
+        for projection in projections {
+            let pixels = projection.solid_angles(w, h);
+            let rectangles = projection.rectangle_solid_angles(w, h);
+            let whole = rectangles.of((0.0, 0.0), (f64::from(w), f64::from(h)));
+            let total: f64 = pixels.iter().sum();
+            assert!((whole - total).abs() <= 1e-12 * total, "{projection:?}");
+            for y in 0..h {
+                for x in 0..w {
+                    let (x0, y0) = (f64::from(x), f64::from(y));
+                    let pixel = pixels[(y * w + x) as usize];
+                    let omega = rectangles.of((x0, y0), (x0 + 1.0, y0 + 1.0));
+                    assert!(
+                        (omega - pixel).abs() <= 1e-12 * total / f64::from(w * h),
+                        "{projection:?} ({x}, {y}): {omega} vs {pixel}"
+                    );
+                    let mut sum = 0.0;
+                    for j in 0..5 {
+                        for i in 0..3 {
+                            let (u, v) = (x0 + f64::from(i) / 3.0, y0 + f64::from(j) / 5.0);
+                            sum += rectangles.of((u, v), (u + 1.0 / 3.0, v + 0.2));
+                        }
+                    }
+                    assert!(
+                        (sum - pixel).abs() <= 1e-11 * total / f64::from(w * h),
+                        "{projection:?} ({x}, {y}): sub-rectangles {sum} vs {pixel}"
+                    );
+                }
+            }
+        }
+        let nothing = Projection::LatLong.rectangle_solid_angles(4, 2);
+        assert_eq!(nothing.of((1.0, 1.0), (1.0, 2.0)), 0.0);
+        assert_eq!(nothing.of((f64::NAN, 0.0), (1.0, 2.0)), 0.0);
     }
 }
