@@ -128,7 +128,7 @@ enum Plan {
         /// pixel's share.
         weights: Vec<f32>,
         /// Per entry: a direction inside its working pixel (the input pixel's centre, or the
-        /// mean direction of its share).
+        /// centroid of its pieces there).
         directions: Vec<[f32; 3]>,
         /// Per working pixel, its first member (`members[member_offsets[i]..member_offsets[i +
         /// 1]]`).
@@ -381,6 +381,18 @@ fn corner_positions(
             }
         });
     corners
+}
+
+/// The corners (top-left, top-right, bottom-left, bottom-right) of cell (x, y) of a grid of
+/// corner positions `row` wide, row-major ([`corner_positions`]).
+fn cell_corners(corners: &[[f64; 2]], row: usize, (x, y): (usize, usize)) -> [[f64; 2]; 4] {
+    let corner = |cx: usize, cy: usize| corners[cy * row + cx];
+    [
+        corner(x, y),
+        corner(x + 1, y),
+        corner(x, y + 1),
+        corner(x + 1, y + 1),
+    ]
 }
 
 /// The working-map position (continuous column, row) of direction `d`: NaN where there is none
@@ -1094,13 +1106,7 @@ impl Resampler {
                     // A pixel whose corners are not all in its centre's working pixel (or in
                     // the image) straddles working pixels: shared among them by area, unless
                     // it all lies in one.
-                    let corner = |cx: usize, cy: usize| corners[cy * (row + 1) + cx];
-                    let four = [
-                        corner(x, y),
-                        corner(x + 1, y),
-                        corner(x, y + 1),
-                        corner(x + 1, y + 1),
-                    ];
+                    let four = cell_corners(&corners, row + 1, (x, y));
                     let straddles = four
                         .iter()
                         .any(|&c| c[0].is_nan() || cell_of(c, width, height) != t);
@@ -1975,13 +1981,7 @@ impl SplitPixel<'_> {
                     direction(u0 + size.0 / 2.0, v0 + size.1 / 2.0),
                     (width, height),
                 );
-                let corner = |i: usize, j: usize| corners[j * (nx + 1) + i];
-                let four = [
-                    corner(i, j),
-                    corner(i + 1, j),
-                    corner(i, j + 1),
-                    corner(i + 1, j + 1),
-                ];
+                let four = cell_corners(corners, nx + 1, (i, j));
                 let target = (!centre[0].is_nan()).then(|| cell_of(centre, width, height));
                 let straddles = four
                     .iter()
