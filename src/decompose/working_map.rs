@@ -220,13 +220,6 @@ struct StraddleScratch {
 /// may hold and still go whole to the working pixel of its centre ([`small_pixel_shares`]).
 const NEGLIGIBLE_SHARE: f64 = 1e-3;
 
-/// The solid angle of working pixel `cell` of a `width` × `height` lat-long working map.
-fn row_solid_angle(cell: u32, width: usize, height: usize) -> f64 {
-    let row = (cell as usize / width) as f64;
-    let theta = |r: f64| PI * r / height as f64;
-    2.0 * PI / width as f64 * (theta(row).cos() - theta(row + 1.0).cos())
-}
-
 /// How many times a square across the image's edge (a corner outside) is quartered: down to
 /// squares of 1/8 of a pixel a side (where their centres take them).
 const RIM_DEPTH: u32 = 3;
@@ -263,6 +256,7 @@ fn small_pixel_shares(
     let SplitPixel {
         projection,
         rectangles,
+        working_row_solid_angles,
         source: (sw, sh),
         working: (width, height),
         ..
@@ -302,7 +296,7 @@ fn small_pixel_shares(
             && !middle[0].is_nan()
             && weight * omega
                 <= NEGLIGIBLE_SHARE
-                    * row_solid_angle(cell_of(middle, width, height), width, height);
+                    * working_row_solid_angles[cell_of(middle, width, height) as usize / width];
         if depth == 0 || negligible || (rim && STRADDLE_DEPTH - depth >= RIM_DEPTH) {
             if !middle[0].is_nan() {
                 // Its own solid angle: across the rim of an orthographic lens it is far from
@@ -1053,6 +1047,10 @@ impl Resampler {
     fn table_plan(projection: Projection, sw: u32, sh: u32, width: usize, height: usize) -> Plan {
         let omegas = projection.solid_angles(sw, sh);
         let rectangles = projection.rectangle_solid_angles(sw, sh);
+        let working_cells = Projection::LatLong.rectangle_solid_angles(width as u32, height as u32);
+        let working_row_solid_angles: Vec<f64> = (0..height)
+            .map(|row| working_cells.of((0.0, row as f64), (1.0, row as f64 + 1.0)))
+            .collect();
         // A working pixel's height in θ: input pixels wider than half of it are split.
         let step = PI / height as f64;
         let row = sw as usize;
@@ -1074,6 +1072,7 @@ impl Resampler {
                     let pixel = SplitPixel {
                         projection,
                         rectangles: &rectangles,
+                        working_row_solid_angles: &working_row_solid_angles,
                         source: (sw, sh),
                         working: (width, height),
                         at: (x, y),
@@ -1924,6 +1923,8 @@ struct SplitPixel<'a> {
     projection: Projection,
     /// Exact solid angles of the input image's rectangles (sub-pixels, pieces of pixels).
     rectangles: &'a RectangleSolidAngles,
+    /// The solid angle of a working pixel of each row of the working map.
+    working_row_solid_angles: &'a [f64],
     source: (u32, u32),
     working: (usize, usize),
     at: (usize, usize),
