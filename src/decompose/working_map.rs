@@ -194,13 +194,21 @@ const STRADDLE_DEPTH: u32 = 8;
 /// the pixel is quartered instead (from 0.15 % off to 0.0x % off, a uniform frame's working pixels).
 const AFFINE_TOLERANCE: f64 = 1e-3;
 
+/// Working-map column `a` moved by whole turns to within half a turn of column `reference`:
+/// the columns wrap at φ = 2π, and a pixel across the seam has corners at both ends.
+fn column_near(a: f64, reference: f64, width: usize) -> f64 {
+    let w = width as f64;
+    a - ((a - reference) / w).round() * w
+}
+
 /// Whether the square with corners `corners` and centre `middle` (working-map positions) is
 /// close enough to its affine view ([`AFFINE_TOLERANCE`]); not where a point is outside.
 fn nearly_affine(corners: [[f64; 2]; 4], middle: [f64; 2], width: usize) -> bool {
-    let w = width as f64;
-    let unwrap = |a: f64| a - ((a - middle[0]) / w).round() * w;
     let mean = corners.iter().fold([0.0; 2], |m, c| {
-        [m[0] + unwrap(c[0]) / 4.0, m[1] + c[1] / 4.0]
+        [
+            m[0] + column_near(c[0], middle[0], width) / 4.0,
+            m[1] + c[1] / 4.0,
+        ]
     });
     let d = [mean[0] - middle[0], mean[1] - middle[1]];
     d[0].hypot(d[1]) <= AFFINE_TOLERANCE
@@ -340,8 +348,7 @@ fn small_pixel_shares(
     for (target, share, weighted) in pieces {
         let (share, mut weighted) = (share / total, weighted.map(|c| c / total));
         let column = (target as usize % width) as f64;
-        let a = weighted[0] / share;
-        weighted[0] = share * (a - ((a - column) / width as f64).round() * width as f64);
+        weighted[0] = share * column_near(weighted[0] / share, column, width);
         match out.iter_mut().find(|e| e.0 == target) {
             Some(e) => {
                 e.1 += share;
@@ -426,15 +433,10 @@ fn straddle_pieces(
         return false;
     }
     // Columns wrap at φ = 2π: take them all on the first corner's side.
-    let w = width as f64;
     let mut corners = corners;
     let a0 = corners[0][0];
     for c in &mut corners[1..] {
-        if c[0] - a0 > w / 2.0 {
-            c[0] -= w;
-        } else if a0 - c[0] > w / 2.0 {
-            c[0] += w;
-        }
+        c[0] = column_near(c[0], a0, width);
     }
     let span = |k: usize| {
         let (lo, hi) = corners.iter().fold((f64::MAX, f64::MIN), |(lo, hi), c| {
