@@ -234,3 +234,96 @@ proptest! {
         }
     }
 }
+
+/// A lens calibration of any model, field of view (from the narrowest accepted to almost
+/// 360°), image circle (centre anywhere near the image, radius from a pixel to twice the
+/// image) and rotation, or the angular map.
+fn lens() -> impl Strategy<Value = Projection> {
+    use envlight::envmap::{FisheyeCalibration, FisheyeModel, MIN_FOV_DEG};
+    let model = prop_oneof![
+        Just(FisheyeModel::Equidistant),
+        Just(FisheyeModel::Equisolid),
+        Just(FisheyeModel::Stereographic),
+        Just(FisheyeModel::Orthographic),
+    ];
+    let fisheye = (
+        model,
+        prop_oneof![Just(180.0f64), MIN_FOV_DEG..359.9],
+        prop::option::of((-0.25f64..1.25, -0.25f64..1.25)),
+        prop::option::of(1.0f64..2.0),
+        0.0f64..360.0,
+    );
+    prop_oneof![
+        1 => Just(Projection::AngularMap),
+        4 => fisheye.prop_map(|(model, fov_deg, center, radius, rotation_deg)| {
+            Projection::Fisheye(FisheyeCalibration {
+                model,
+                // Relative to a 1 × 1 image; scaled to the frame's size below.
+                center: center.map(|(x, y)| [x, y]),
+                radius,
+                fov_deg,
+                rotation_deg,
+            })
+        }),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// Uniform frames through any lens on small images (pixels far larger than a working
+    /// pixel, straddling many, cut across the image circle's edge; the resampling's table
+    /// path): the lights are finite, their solid angles sum to 4π and their rgb to the frame's
+    /// integral, and where the image sees the whole sphere (the angular map) no light is
+    /// without power.
+    #[test]
+    fn lenses_on_small_frames_conserve_solid_angle_and_energy(
+        projection in lens(),
+        (w, h) in (1u32..40, 1u32..40),
+        n in prop_oneof![Just(16usize), Just(256), 1usize..600],
+    ) {
+        use envlight::envmap::FisheyeCalibration;
+        let projection = match projection {
+            Projection::Fisheye(cal) => Projection::Fisheye(FisheyeCalibration {
+                center: cal.center.map(|[x, y]| [x * f64::from(w), y * f64::from(h)]),
+                radius: cal.radius.map(|r| r * f64::from(w.max(h))),
+                ..cal
+            }),
+            other => other,
+        };
+        if let Projection::Fisheye(cal) = projection {
+            if cal.validate(w, h).is_err() {
+                return Ok(()); // refused with an error (the circle holds no pixel centre)
+            }
+        }
+        let frame = HdrFrame::new(w, h, vec![[1.0, 0.5, 0.25]; (w * h) as usize], projection)
+            .expect("size matches");
+        let mut decomposer = Decomposer::new(DecomposeSettings {
+            lights: n,
+            filter_taps: None,
+            ..DecomposeSettings::default()
+        })
+        .unwrap();
+        let lights = decomposer.decompose(&frame).lights;
+        let what = format!("{projection:?} {w}x{h}, {n} lights");
+        for l in &lights {
+            prop_assert!(
+                l.rgb.iter().chain(&l.dir).all(|c| c.is_finite()) && l.solid_angle.is_finite(),
+                "{what}: {l:?}"
+            );
+        }
+        let truth = frame_integral(&frame);
+        if truth[0] > 0.0 {
+            let solid_angle: f64 = lights.iter().map(|l| f64::from(l.solid_angle)).sum();
+            prop_assert!((solid_angle - 4.0 * std::f64::consts::PI).abs() < 1e-4, "{what}: {solid_angle}");
+            for (c, want) in truth.iter().enumerate() {
+                let sum: f64 = lights.iter().map(|l| f64::from(l.rgb[c])).sum();
+                prop_assert!((sum - want).abs() <= 1e-4 * want, "{what}: {sum} against {want}");
+            }
+        }
+        if projection == Projection::AngularMap {
+            let dark = lights.iter().filter(|l| l.rgb[0] <= 0.0).count();
+            prop_assert_eq!(dark, 0, "{}: lights without power", what);
+        }
+    }
+}

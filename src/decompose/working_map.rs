@@ -306,15 +306,23 @@ fn small_pixel_shares(
                 <= NEGLIGIBLE_SHARE
                     * working_row_solid_angles[cell_of(middle, width, height) as usize / width];
         if depth == 0 || negligible || (rim && STRADDLE_DEPTH - depth >= RIM_DEPTH) {
-            if !middle[0].is_nan() {
+            // Where its centre is outside the image, a corner inside stands for it: at an
+            // orthographic lens's rim a sliver no centre reaches can hold a good part of a
+            // pixel's solid angle (0.0018 sr, the whole of one, was lost; a property test).
+            let at = if middle[0].is_nan() {
+                corners.iter().copied().find(|c| !c[0].is_nan())
+            } else {
+                Some(middle)
+            };
+            if let Some(at) = at {
                 // Its own solid angle: across the rim of an orthographic lens it is far from
                 // its share of the patch's area (the solid angle per pixel area grows without
                 // bound there).
                 let solid_angle = rectangles.of((u0, v0), (u0 + su, v0 + sv));
                 pieces.push((
-                    cell_of(middle, width, height),
+                    cell_of(at, width, height),
                     solid_angle,
-                    middle.map(|c| c * solid_angle),
+                    at.map(|c| c * solid_angle),
                 ));
             }
             continue;
