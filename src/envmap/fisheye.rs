@@ -424,6 +424,17 @@ impl RadialMap {
         omega.max(0.0)
     }
 
+    /// The point of the image rectangle [x0, x1] × [y0, y1] nearest the circle's centre, where
+    /// it is inside the circle (it is wherever any point of the rectangle is).
+    pub(super) fn nearest_point_inside(
+        &self,
+        (x0, y0): (f64, f64),
+        (x1, y1): (f64, f64),
+    ) -> Option<(f64, f64)> {
+        let p = (self.cx.clamp(x0, x1), self.cy.clamp(y0, y1));
+        ((p.0 - self.cx).hypot(p.1 - self.cy) <= self.radius).then_some(p)
+    }
+
     /// Exact solid angle of the image rectangle [x0, x1] × [y0, y1] (pixels; any size, inside
     /// the image circle or not): what [`RadialMap::solid_angles`] gives a pixel.
     pub(super) fn rectangle_solid_angle(&self, (x0, y0): (f64, f64), (x1, y1): (f64, f64)) -> f64 {

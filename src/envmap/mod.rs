@@ -140,6 +140,27 @@ impl RectangleSolidAngles {
             Rectangles::Nothing => 0.0,
         }
     }
+
+    /// A point of the image rectangle from `top_left` to `bottom_right` that sees a direction,
+    /// if any does (and the rectangle is valid): for a lens or the angular map, the point
+    /// nearest the image circle's centre, which is inside the circle wherever any point of
+    /// the rectangle is (a sliver of the circle through a pixel's side, between two corners
+    /// outside it, has one); for a lat-long map, the rectangle's centre.
+    pub fn point_inside(
+        &self,
+        top_left: (f64, f64),
+        bottom_right: (f64, f64),
+    ) -> Option<(f64, f64)> {
+        let ((x0, y0), (x1, y1)) = (top_left, bottom_right);
+        if ![x0, y0, x1, y1].iter().all(|v| v.is_finite()) || x0 > x1 || y0 > y1 {
+            return None;
+        }
+        match &self.0 {
+            Rectangles::LatLong { .. } => Some(((x0 + x1) / 2.0, (y0 + y1) / 2.0)),
+            Rectangles::Radial(map) => map.nearest_point_inside(top_left, bottom_right),
+            Rectangles::Nothing => None,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -195,6 +216,21 @@ mod tests {
                 }
             }
         }
+        // A sliver of the image circle through a pixel's side, both of the side's corners
+        // outside it: the point found is inside, and in the pixel.
+        let lens = Projection::Fisheye(FisheyeCalibration {
+            model: FisheyeModel::Stereographic,
+            center: Some([0.005, 1.175]),
+            ..FisheyeCalibration::default()
+        });
+        let rectangles = lens.rectangle_solid_angles(2, 5);
+        assert!(lens.pixel_to_direction(2, 5, 1.0, 1.0).is_none());
+        assert!(lens.pixel_to_direction(2, 5, 1.0, 2.0).is_none());
+        assert!(rectangles.of((1.0, 1.0), (2.0, 2.0)) > 0.0);
+        let (u, v) = rectangles.point_inside((1.0, 1.0), (2.0, 2.0)).unwrap();
+        assert!((1.0..=2.0).contains(&u) && (1.0..=2.0).contains(&v));
+        assert!(lens.pixel_to_direction(2, 5, u, v).is_some());
+        assert_eq!(rectangles.point_inside((1.5, 3.0), (2.0, 5.0)), None);
         let nothing = Projection::LatLong.rectangle_solid_angles(4, 2);
         assert_eq!(nothing.of((1.0, 1.0), (1.0, 2.0)), 0.0);
         assert_eq!(nothing.of((f64::NAN, 0.0), (1.0, 2.0)), 0.0);
