@@ -250,10 +250,10 @@ struct ImagePatch {
 /// particular order. The patch's corners give its pieces' solid angles where they can
 /// ([`straddle_pieces`]); elsewhere (and where the projection bends the patch,
 /// [`nearly_affine`]) it is quartered, and each quarter tried the same way, down
-/// [`STRADDLE_DEPTH`] levels, where a rectangle's centre takes it (with its own exact solid
-/// angle). Rectangles whose corners are all outside the image are
-/// left out, and the shares of the rest scaled to sum to 1 (the patch's solid angle is that of
-/// its part inside). Nothing where no part is inside.
+/// [`STRADDLE_DEPTH`] levels, where a rectangle's centre takes it, or where that is outside the
+/// image a corner of it inside (with its own exact solid angle). Rectangles whose corners are
+/// all outside the image are left out, and the shares of the rest scaled to sum to 1 (the
+/// patch's solid angle is that of its part inside). Nothing where no part is inside.
 fn small_pixel_shares(
     pixel: &SplitPixel,
     patch: ImagePatch,
