@@ -853,6 +853,7 @@ impl Daemon {
 /// recording left behind, a SIGHUP fatal.
 pub fn hold_stop_signals() {
     set_stop_signal_mask(libc::SIG_BLOCK);
+    tracing::debug!("stop signals held until the start is done");
 }
 
 /// Blocks (`SIG_BLOCK`) or unblocks (`SIG_UNBLOCK`) SIGTERM, SIGINT and SIGHUP on the calling

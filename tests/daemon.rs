@@ -1799,7 +1799,9 @@ fn sigterm_abandons_a_long_asg_fit() {
 
 /// SIGHUP and SIGTERM while the daemon starts (16,384 lights: the point set takes a while)
 /// wait for the start and are then handled: neither kills the process (the default actions
-/// did: 129, 143); the shutdown exits 0 and removes the socket file.
+/// did: 129, 143); the shutdown exits 0 and removes the socket file. The signals wait for the
+/// debug line that says they are held (sent a fixed 50 ms after the spawn, on a loaded machine
+/// they could come while the config was still read, which no daemon survives).
 #[test]
 fn signals_during_the_start_are_handled_once_it_is_done() {
     let dir = tempfile::tempdir().unwrap();
@@ -1808,8 +1810,16 @@ fn signals_during_the_start_are_handled_once_it_is_done() {
         "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
          [decompose]\nlights = 16384\n",
     );
-    let mut child = RunningDaemon::start(&config_path);
-    std::thread::sleep(Duration::from_millis(50));
+    let mut child = RunningDaemon::spawn(
+        envlight()
+            .env("RUST_LOG", "info,envlight::daemon=debug")
+            .arg("run")
+            .arg("--config")
+            .arg(&config_path),
+    );
+    child
+        .wait_for_log("stop signals held until the start is done")
+        .unwrap();
     signal(&child, "HUP");
     signal(&child, "TERM");
     let (status, log) = child.exit_and_log();
