@@ -162,6 +162,29 @@ struct PixelPart {
     direction: [f32; 3],
 }
 
+impl PixelPart {
+    /// The share `solid_angle` of input pixel `input` in working pixel `target`, its direction
+    /// that of the working-map position `centroid` (of its pieces there) on a `width` ×
+    /// `height` working map.
+    fn at_centroid(
+        (input, target): (u32, u32),
+        solid_angle: f64,
+        centroid: [f64; 2],
+        (width, height): (usize, usize),
+    ) -> Self {
+        let [a, b] = centroid;
+        let direction = Projection::LatLong
+            .pixel_to_direction(width as u32, height as u32, a, b)
+            .unwrap_or(DVec3::Y);
+        Self {
+            input,
+            target,
+            solid_angle: solid_angle as f32,
+            direction: direction.as_vec3().to_array(),
+        }
+    }
+}
+
 /// Largest number of sub-pixels across one input pixel (256² sub-pixels: only a pixel of a
 /// tiny image, seeing much of the sphere, gets that many).
 const MAX_SPLIT: usize = 256;
@@ -1147,16 +1170,12 @@ impl Resampler {
                         if shares.len() > 1 {
                             let input = (y * row + x) as u32;
                             for &(target, share, weighted) in &shares {
-                                let [a, b] = weighted.map(|c| c / share);
-                                let direction = Projection::LatLong
-                                    .pixel_to_direction(width as u32, height as u32, a, b)
-                                    .unwrap_or(DVec3::Y);
-                                entries.push(PixelPart {
-                                    input,
-                                    target,
-                                    solid_angle: (omega * share) as f32,
-                                    direction: direction.as_vec3().to_array(),
-                                });
+                                entries.push(PixelPart::at_centroid(
+                                    (input, target),
+                                    omega * share,
+                                    weighted.map(|c| c / share),
+                                    (width, height),
+                                ));
                             }
                             continue;
                         }
@@ -1991,10 +2010,10 @@ impl SplitPixel<'_> {
         // sub-pixel) by the parts of it inside.
         pieces.clear();
         let mut covered = 0.0;
+        let size = (1.0 / nx as f64, 1.0 / ny as f64);
         for j in 0..ny {
             for i in 0..nx {
                 let (u0, v0) = sub_corner(i, j);
-                let size = (1.0 / nx as f64, 1.0 / ny as f64);
                 let solid_angle = self.rectangles.of((u0, v0), (u0 + size.0, v0 + size.1));
                 if solid_angle.is_nan() || solid_angle <= 0.0 {
                     continue;
@@ -2037,29 +2056,20 @@ impl SplitPixel<'_> {
         // The sub-pixels' solid angles sum to the pixel's (exactly but for rounding, and for
         // rim sub-pixels no piece of which took: their share goes to the rest).
         let scale = self.solid_angle / covered;
-        for piece in pieces.iter_mut() {
-            piece.1 *= scale;
-            piece.2 = piece.2.map(|c| c * scale);
-        }
         // Stable: each working pixel's pieces stay in scan order.
         pieces.sort_by_key(|p| p.0);
         let input = (y * sw as usize + x) as u32;
         for group in pieces.chunk_by(|a, b| a.0 == b.0) {
-            let target = group[0].0;
             let solid_angle: f64 = group.iter().map(|p| p.1).sum();
             let weighted = group
                 .iter()
                 .fold([0.0; 2], |m, p| [m[0] + p.2[0], m[1] + p.2[1]]);
-            let [a, b] = weighted.map(|c| c / solid_angle);
-            let direction = Projection::LatLong
-                .pixel_to_direction(width as u32, height as u32, a, b)
-                .unwrap_or(DVec3::Y);
-            parts.push(PixelPart {
-                input,
-                target,
-                solid_angle: solid_angle as f32,
-                direction: direction.as_vec3().to_array(),
-            });
+            parts.push(PixelPart::at_centroid(
+                (input, group[0].0),
+                solid_angle * scale,
+                weighted.map(|c| c / solid_angle),
+                (width, height),
+            ));
         }
     }
 }

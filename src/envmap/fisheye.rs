@@ -453,7 +453,8 @@ impl RadialMap {
 }
 
 /// The resolved map of a fisheye calibration for a `w`×`h` image (exact solid angles of its
-/// rectangles, [`crate::envmap::RectangleSolidAngles`]): `None` where it does not resolve.
+/// rectangles, [`crate::envmap::RectangleSolidAngles`]): `None` where it does not resolve
+/// (its error type stays private to this module).
 pub(super) fn fisheye_map(cal: &FisheyeCalibration, w: u32, h: u32) -> Option<RadialMap> {
     cal.resolve(w, h).ok()
 }

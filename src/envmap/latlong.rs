@@ -34,15 +34,29 @@ pub fn direction_to_pixel(width: u32, height: u32, d: DVec3) -> Option<(f64, f64
 /// Exact per-pixel solid angles: (2π/W)(cos θ_top − cos θ_bottom). To second order this is
 /// DESIGN.md's (2π/W)(π/H) sin θ_centre; the exact form sums to 4π.
 pub fn solid_angles(width: u32, height: u32) -> Vec<f64> {
-    let dphi = 2.0 * PI / f64::from(width);
     let mut out = Vec::with_capacity(width as usize * height as usize);
     for y in 0..height {
-        let t0 = PI * f64::from(y) / f64::from(height);
-        let t1 = PI * f64::from(y + 1) / f64::from(height);
-        let omega = dphi * (t0.cos() - t1.cos());
+        let (x0, y0) = (0.0, f64::from(y));
+        let omega = rectangle_solid_angle(width, height, (x0, y0), (x0 + 1.0, y0 + 1.0));
         out.extend(std::iter::repeat_n(omega, width as usize));
     }
     out
+}
+
+/// Exact solid angle of the image rectangle from `(x0, y0)` to `(x1, y1)` (continuous pixel
+/// positions, clamped to the image): (2π·Δx/W)(cos θ(y0) − cos θ(y1)).
+pub fn rectangle_solid_angle(
+    width: u32,
+    height: u32,
+    (x0, y0): (f64, f64),
+    (x1, y1): (f64, f64),
+) -> f64 {
+    let (w, h) = (f64::from(width), f64::from(height));
+    let (x0, x1) = (x0.clamp(0.0, w), x1.clamp(0.0, w));
+    let (y0, y1) = (y0.clamp(0.0, h), y1.clamp(0.0, h));
+    let theta = |y: f64| PI * y / h;
+    let omega = 2.0 * PI * (x1 - x0) / w * (theta(y0).cos() - theta(y1).cos());
+    omega.max(0.0)
 }
 
 /// The intervals two partitions of [0, 1) into `from` and `to` equal parts share, as

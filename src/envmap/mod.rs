@@ -128,13 +128,7 @@ impl RectangleSolidAngles {
         }
         match &self.0 {
             Rectangles::LatLong { width, height } => {
-                let (w, h) = (f64::from(*width), f64::from(*height));
-                let (x0, x1) = (x0.clamp(0.0, w), x1.clamp(0.0, w));
-                let (y0, y1) = (y0.clamp(0.0, h), y1.clamp(0.0, h));
-                let theta = |y: f64| std::f64::consts::PI * y / h;
-                let omega = 2.0 * std::f64::consts::PI * (x1 - x0) / w
-                    * (theta(y0).cos() - theta(y1).cos());
-                omega.max(0.0)
+                latlong::rectangle_solid_angle(*width, *height, top_left, bottom_right)
             }
             Rectangles::Radial(map) => map.rectangle_solid_angle(top_left, bottom_right),
             Rectangles::Nothing => 0.0,
