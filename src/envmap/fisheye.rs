@@ -450,6 +450,39 @@ impl RadialMap {
         ];
         self.omega_from_edges(edges, (x0, x1), (y0, y1))
     }
+
+    /// [`RadialMap::rectangle_solid_angle`] of every cell of the grid with column edges `xs`
+    /// and row edges `ys` (image pixels, finite), row-major, appended to `out`: the same
+    /// numbers, each edge integrated once for the two cells that share it.
+    pub(super) fn grid_solid_angles(&self, xs: &[f64], ys: &[f64], out: &mut Vec<f64>) {
+        let xs: Vec<f64> = xs.iter().map(|x| x - self.cx).collect();
+        let ys: Vec<f64> = ys.iter().map(|y| y - self.cy).collect();
+        let horizontal = |y: f64| -> Vec<Edge> {
+            xs.windows(2)
+                .map(|p| self.edge_to(p[0], y, p[1], y, RECTANGLE_TOLERANCE))
+                .collect()
+        };
+        let Some(&first) = ys.first() else { return };
+        let mut edges_lo = horizontal(first);
+        for band in ys.windows(2) {
+            let (y0, y1) = (band[0], band[1]);
+            let edges_hi = horizontal(y1);
+            let verticals: Vec<Edge> = xs
+                .iter()
+                .map(|&x| self.edge_to(x, y0, x, y1, RECTANGLE_TOLERANCE))
+                .collect();
+            for (n, x) in xs.windows(2).enumerate() {
+                let (x0, x1) = (x[0], x[1]);
+                out.push(if x0 < x1 && y0 < y1 {
+                    let edges = [edges_lo[n], verticals[n + 1], edges_hi[n], verticals[n]];
+                    self.omega_from_edges(edges, (x0, x1), (y0, y1))
+                } else {
+                    0.0
+                });
+            }
+            edges_lo = edges_hi;
+        }
+    }
 }
 
 /// The resolved map of a fisheye calibration for a `w`×`h` image (exact solid angles of its

@@ -135,6 +135,28 @@ impl RectangleSolidAngles {
         }
     }
 
+    /// The solid angles of the cells of the grid with column edges `xs` and row edges `ys`
+    /// (increasing, continuous pixel positions), row-major into `out` ((`xs.len()` − 1) ×
+    /// (`ys.len()` − 1) values): each what [`RectangleSolidAngles::of`] gives its cell, to the
+    /// bit, but a lens's edges shared by two cells are integrated once (about half the work of
+    /// asking cell by cell; the sub-pixels of a coarse frame's pixels, `SplitPixel::parts`).
+    pub fn grid(&self, xs: &[f64], ys: &[f64], out: &mut Vec<f64>) {
+        out.clear();
+        let cells = xs.len().saturating_sub(1) * ys.len().saturating_sub(1);
+        let finite = xs.iter().chain(ys).all(|v| v.is_finite());
+        match &self.0 {
+            Rectangles::Radial(map) if finite => map.grid_solid_angles(xs, ys, out),
+            _ => {
+                for y in ys.windows(2) {
+                    for x in xs.windows(2) {
+                        out.push(self.of((x[0], y[0]), (x[1], y[1])));
+                    }
+                }
+            }
+        }
+        debug_assert_eq!(out.len(), cells);
+    }
+
     /// A point of the image rectangle from `top_left` to `bottom_right` that sees a direction,
     /// if any does (and the rectangle is valid): for a lens or the angular map, the point
     /// nearest the image circle's centre, which is inside the circle wherever any point of
@@ -209,6 +231,28 @@ mod tests {
                     );
                 }
             }
+            // The grid's cells are what `of` gives each, to the bit (uneven cells, some
+            // across the image circle, one empty).
+            let xs: Vec<f64> = (0..=3 * w)
+                .map(|i| f64::from(i) / 3.0 + 0.01 * f64::from(i % 2))
+                .chain([f64::from(w) + 0.5, f64::from(w) + 0.5])
+                .collect();
+            let ys: Vec<f64> = (0..=2 * h + 1).map(|j| f64::from(j) / 2.0 - 0.3).collect();
+            let mut grid = Vec::new();
+            rectangles.grid(&xs, &ys, &mut grid);
+            assert_eq!(grid.len(), (xs.len() - 1) * (ys.len() - 1));
+            for (j, y) in ys.windows(2).enumerate() {
+                for (i, x) in xs.windows(2).enumerate() {
+                    let cell = grid[j * (xs.len() - 1) + i];
+                    let expected = rectangles.of((x[0], y[0]), (x[1], y[1]));
+                    assert_eq!(cell.to_bits(), expected.to_bits(), "{projection:?} {i} {j}");
+                }
+            }
+            let sum: f64 = grid.iter().sum();
+            assert!(
+                (sum - total).abs() <= 1e-11 * total,
+                "{projection:?}: {sum} vs {total}"
+            );
         }
         // A sliver of the image circle through a pixel's side, both of the side's corners
         // outside it: the point found is inside, and in the pixel.
