@@ -9,7 +9,7 @@
 //! - `radiance_pool2/…`: the same in bands of rows on two threads, the bench's and one helper
 //!   (src/parallel.rs), as the camera source converts with `camera.convert_threads = 2` (the
 //!   default; on a machine of one core, on one thread);
-//! - `radiance_one_pass{,_pool2,_reused}/…` (Y16, YUYV, Bayer): decoded and linearised in one
+//! - `radiance_one_pass{,_pool2,_reused}/…` (Y16, YUYV, NV12, Bayer): decoded and linearised in one
 //!   pass over bands of rows ([`Linearizer::decode_linearize_into_on`]), as the camera source
 //!   converts the packed formats, into a new buffer (on one and two threads) and into a reused
 //!   one;
@@ -17,6 +17,7 @@
 //!   the same for a frame kept as bytes and linearised through 256-entry tables, as the camera
 //!   source converts formats whose codes are bytes ([`Linearizer::linearize_bytes_into_on`]);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
+//! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `response_recovery/levels_L_samples_S`: recovering a response curve from four 200×150
 //!   brackets (Debevec & Malik's gsolve, three channels) at L levels and S sample pixels;
@@ -113,6 +114,35 @@ fn yuyv(scene: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// NV12 (4:2:0): the luma plane, then each 2 × 2 block's mean Cb and Cr interleaved.
+fn nv12(scene: &[[f32; 3]]) -> Vec<u8> {
+    let (kr, kb) = (0.2126f32, 0.0722f32);
+    let (w, h) = (W as usize, H as usize);
+    let enc = |p: [f32; 3]| {
+        let (r, g, b) = (srgb(p[0]), srgb(p[1]), srgb(p[2]));
+        let y = kr * r + (1.0 - kr - kb) * g + kb * b;
+        (
+            y,
+            (b - y) / (2.0 * (1.0 - kb)),
+            (r - y) / (2.0 * (1.0 - kr)),
+        )
+    };
+    let q = |v: f32| v.round().clamp(0.0, 255.0) as u8;
+    let mut out: Vec<u8> = scene.iter().map(|&p| q(16.0 + 219.0 * enc(p).0)).collect();
+    for y in (0..h).step_by(2) {
+        for x in (0..w).step_by(2) {
+            let (mut u, mut v) = (0.0, 0.0);
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let (_, cb, cr) = enc(scene[(y + dy) * w + x + dx]);
+                u += cb / 4.0;
+                v += cr / 4.0;
+            }
+            out.extend_from_slice(&[q(128.0 + 224.0 * u), q(128.0 + 224.0 * v)]);
+        }
+    }
+    out
+}
+
 /// An RGGB mosaic with 12-bit codes in little-endian 16-bit words.
 fn bayer12(scene: &[[f32; 3]]) -> Vec<u8> {
     let mut out = Vec::with_capacity(scene.len() * 2);
@@ -142,6 +172,11 @@ fn bench_capture(c: &mut Criterion) {
     let buffers = [
         ("y16", PixelFormat::Grey { bits: 16 }, y16(&scene)),
         ("yuyv", PixelFormat::Yuyv, yuyv(&scene)),
+        (
+            "nv12",
+            PixelFormat::Yuv420(pixel_format::Yuv420::Nv12),
+            nv12(&scene),
+        ),
         ("mjpeg", PixelFormat::Mjpeg, mjpeg(&scene)),
         (
             "bayer_rg12",

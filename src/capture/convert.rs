@@ -294,7 +294,8 @@ mod tests {
             return (stream, jpeg);
         }
         let stride = W as usize * format.bytes_per_pixel() + 4;
-        let data = (0..stride * H as usize).map(|_| byte()).collect();
+        let len = format.buffer_len(W, H, stride).expect("a valid test frame");
+        let data = (0..len).map(|_| byte()).collect();
         let stream = StreamFormat {
             format,
             width: W,

@@ -7,6 +7,8 @@
 //! | format             | V4L2 fourcc                 | conversion                                        |
 //! |--------------------|-----------------------------|---------------------------------------------------|
 //! | YUYV 4:2:2         | `YUYV`                      | limited-range Y'CbCr → R'G'B', BT.601 or BT.709   |
+//! | UYVY 4:2:2         | `UYVY`                      | the same, bytes U Y0 V Y1                         |
+//! | Y'CbCr 4:2:0, planar | `NV12`, `NV21`, `YU12`, `YV12` | the same, one chroma pair per 2×2 pixels       |
 //! | Motion JPEG        | `MJPG`, `JPEG`              | `zune-jpeg` (JFIF full-range BT.601) → RGB        |
 //! | grey 8/10/12/16    | `GREY`, `Y10 `, `Y12 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
@@ -22,6 +24,14 @@
 //! (Kr, Kb) = (0.299, 0.114) for BT.601 and (0.2126, 0.0722) for BT.709 (ITU-R BT.601-7 and
 //! BT.709-6). [`YuvMatrix::Auto`] picks BT.709 from 1280×720 up and BT.601 below (the usual HD/SD
 //! convention); the V4L2 source first tries the colorspace the driver reports.
+//!
+//! 4:2:0 (single-planar V4L2: the planes follow each other in one buffer): `stride` is the luma
+//! plane's bytes per row; its `height` rows are followed by the chroma. `NV12` (Cb, Cr) and
+//! `NV21` (Cr, Cb) interleave the two chroma channels in one plane of height/2 rows of the same
+//! stride; `YU12` (also called I420: Cb plane, then Cr) and `YV12` (Cr, then Cb) have two
+//! planes of height/2 rows, each row stride/2 bytes. Each chroma pair is that of the 2×2 luma
+//! pixels it covers (no interpolation, as YUYV's pair is its two pixels'). Width and height
+//! must be even, and for the three-plane layouts the stride too.
 //!
 //! Bayer demosaic (bilinear): each pixel keeps its own colour; a missing colour is the mean of
 //! the pixels of that colour in its 3×3 neighbourhood (the 2 or 4 nearest samples). Borders are
@@ -41,7 +51,8 @@
 //! the linearisation takes each band's codes from the cache instead of a whole-frame image.
 //!
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
-//! odd width for YUYV or Bayer, or a corrupt JPEG is a [`PixelError`], never a panic.
+//! odd width for YUYV or Bayer (or an odd size for 4:2:0), or a corrupt JPEG is a
+//! [`PixelError`], never a panic.
 
 use std::fmt;
 
@@ -68,10 +79,86 @@ impl BayerPattern {
     }
 }
 
+/// The order of the planes of a planar Y'CbCr 4:2:0 format (module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Yuv420 {
+    /// `NV12`: luma, then one plane of interleaved Cb, Cr.
+    Nv12,
+    /// `NV21`: luma, then one plane of interleaved Cr, Cb.
+    Nv21,
+    /// `YU12` (I420): luma, Cb plane, Cr plane.
+    Yu12,
+    /// `YV12`: luma, Cr plane, Cb plane.
+    Yv12,
+}
+
+impl Yuv420 {
+    pub const ALL: [Yuv420; 4] = [Yuv420::Nv12, Yuv420::Nv21, Yuv420::Yu12, Yuv420::Yv12];
+
+    fn fourcc(self) -> [u8; 4] {
+        match self {
+            Yuv420::Nv12 => *b"NV12",
+            Yuv420::Nv21 => *b"NV21",
+            Yuv420::Yu12 => *b"YU12",
+            Yuv420::Yv12 => *b"YV12",
+        }
+    }
+
+    /// Where the chroma of a frame of this layout is, from the luma plane's `stride` and the
+    /// frame's `height` (even; for the three-plane layouts the stride too).
+    fn chroma(self, stride: usize, height: usize) -> Option<ChromaPlanes> {
+        let luma = stride.checked_mul(height)?;
+        let half = height / 2;
+        Some(match self {
+            Yuv420::Nv12 | Yuv420::Nv21 => {
+                let (cb, cr) = if self == Yuv420::Nv12 {
+                    (luma, luma + 1)
+                } else {
+                    (luma + 1, luma)
+                };
+                ChromaPlanes {
+                    cb,
+                    cr,
+                    stride,
+                    step: 2,
+                }
+            }
+            Yuv420::Yu12 | Yuv420::Yv12 => {
+                let second = luma.checked_add((stride / 2).checked_mul(half)?)?;
+                let (cb, cr) = if self == Yuv420::Yu12 {
+                    (luma, second)
+                } else {
+                    (second, luma)
+                };
+                ChromaPlanes {
+                    cb,
+                    cr,
+                    stride: stride / 2,
+                    step: 1,
+                }
+            }
+        })
+    }
+}
+
+/// Where a 4:2:0 frame's chroma samples are in its buffer: the Cb and Cr of chroma pixel
+/// (cx, cy) are at `cb` and `cr` + cy·`stride` + cx·`step`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct ChromaPlanes {
+    cb: usize,
+    cr: usize,
+    stride: usize,
+    step: usize,
+}
+
 /// The pixel formats envlight converts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum PixelFormat {
     Yuyv,
+    /// YUYV's samples in the order U Y0 V Y1.
+    Uyvy,
+    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`).
+    Yuv420(Yuv420),
     Mjpeg,
     /// Grey with 8, 10, 12 or 16 significant bits.
     Grey {
@@ -87,7 +174,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 15] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 20] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -125,6 +212,11 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 15] = {
         Rgb24,
         Bgr24,
         Yuyv,
+        Uyvy,
+        Yuv420(self::Yuv420::Nv12),
+        Yuv420(self::Yuv420::Yu12),
+        Yuv420(self::Yuv420::Nv21),
+        Yuv420(self::Yuv420::Yv12),
         Grey { bits: 8 },
         Mjpeg,
     ]
@@ -157,6 +249,7 @@ impl PixelFormat {
     pub fn all() -> Vec<PixelFormat> {
         let mut v = vec![
             PixelFormat::Yuyv,
+            PixelFormat::Uyvy,
             PixelFormat::Mjpeg,
             PixelFormat::Grey { bits: 8 },
             PixelFormat::Grey { bits: 10 },
@@ -165,6 +258,7 @@ impl PixelFormat {
             PixelFormat::Rgb24,
             PixelFormat::Bgr24,
         ];
+        v.extend(Yuv420::ALL.map(PixelFormat::Yuv420));
         v.extend(
             BAYER_FOURCCS
                 .iter()
@@ -177,6 +271,8 @@ impl PixelFormat {
     pub fn fourcc(self) -> [u8; 4] {
         match self {
             PixelFormat::Yuyv => *b"YUYV",
+            PixelFormat::Uyvy => *b"UYVY",
+            PixelFormat::Yuv420(layout) => layout.fourcc(),
             PixelFormat::Mjpeg => *b"MJPG",
             PixelFormat::Grey { bits: 10 } => *b"Y10 ",
             PixelFormat::Grey { bits: 12 } => *b"Y12 ",
@@ -195,6 +291,11 @@ impl PixelFormat {
     pub fn from_fourcc(code: [u8; 4]) -> Option<Self> {
         Some(match &code {
             b"YUYV" => PixelFormat::Yuyv,
+            b"UYVY" => PixelFormat::Uyvy,
+            b"NV12" => PixelFormat::Yuv420(Yuv420::Nv12),
+            b"NV21" => PixelFormat::Yuv420(Yuv420::Nv21),
+            b"YU12" => PixelFormat::Yuv420(Yuv420::Yu12),
+            b"YV12" => PixelFormat::Yuv420(Yuv420::Yv12),
             b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
             b"GREY" => PixelFormat::Grey { bits: 8 },
             b"Y10 " => PixelFormat::Grey { bits: 10 },
@@ -209,8 +310,9 @@ impl PixelFormat {
         })
     }
 
-    /// Parses a config/CLI name: a fourcc (`"Y16"`, `"MJPG"`, `"RG10"`; trailing spaces may be
-    /// left out) or one of `yuyv`, `mjpeg`, `grey`, `rgb24`, `bgr24` (case-insensitive).
+    /// Parses a config/CLI name, case-insensitively: a fourcc (`"Y16"`, `"MJPG"`, `"RG10"`,
+    /// `"NV12"`; trailing spaces may be left out) or one of `yuyv`, `mjpeg`, `grey`, `rgb24`,
+    /// `bgr24`, `i420` (`YU12`).
     pub fn parse(name: &str) -> Option<Self> {
         let lower = name.trim().to_ascii_lowercase();
         match lower.as_str() {
@@ -219,6 +321,7 @@ impl PixelFormat {
             "grey" | "gray" => return Some(PixelFormat::Grey { bits: 8 }),
             "rgb24" => return Some(PixelFormat::Rgb24),
             "bgr24" => return Some(PixelFormat::Bgr24),
+            "i420" => return Some(PixelFormat::Yuv420(Yuv420::Yu12)),
             _ => {}
         }
         let bytes = name.trim().as_bytes();
@@ -227,7 +330,8 @@ impl PixelFormat {
         }
         let mut code = [b' '; 4];
         code[..bytes.len()].copy_from_slice(bytes);
-        Self::from_fourcc(code)
+        // Every fourcc envlight converts is upper case: "nv12" is NV12.
+        Self::from_fourcc(code.map(|b| b.to_ascii_uppercase()))
     }
 
     /// Significant bits per sample.
@@ -243,10 +347,12 @@ impl PixelFormat {
         ((1u32 << self.bits()) - 1) as f32
     }
 
-    /// Bytes per pixel of a packed row (0 for the compressed MJPEG).
+    /// Bytes per pixel of a packed row (0 for the compressed MJPEG; for 4:2:0, of the luma
+    /// plane's rows: [`PixelFormat::buffer_len`] gives a whole frame's).
     pub fn bytes_per_pixel(self) -> usize {
         match self {
-            PixelFormat::Yuyv => 2,
+            PixelFormat::Yuyv | PixelFormat::Uyvy => 2,
+            PixelFormat::Yuv420(_) => 1,
             PixelFormat::Mjpeg => 0,
             PixelFormat::Rgb24 | PixelFormat::Bgr24 => 3,
             PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => {
@@ -259,8 +365,25 @@ impl PixelFormat {
         }
     }
 
+    /// The bytes a `width`×`height` frame with rows `stride` bytes apart (0: packed) takes, the
+    /// chroma planes of 4:2:0 included (the last row without its padding); `None` for MJPEG
+    /// (any length) and for a size or stride the format does not allow
+    /// ([`check`] says why).
+    pub fn buffer_len(self, width: u32, height: u32, stride: usize) -> Option<usize> {
+        match check_layout(&RawFrame {
+            data: &[],
+            format: self,
+            width,
+            height,
+            stride,
+        }) {
+            Err(PixelError::Short { needed, .. }) => Some(needed),
+            _ => None,
+        }
+    }
+
     /// Whether code values are proportional to sensor exposure (raw grey and Bayer data) rather
-    /// than gamma-encoded for display (YUYV, MJPEG, RGB24 usually are).
+    /// than gamma-encoded for display (YUYV, UYVY, 4:2:0, MJPEG, RGB24 usually are).
     pub fn is_raw(self) -> bool {
         matches!(self, PixelFormat::Grey { .. } | PixelFormat::Bayer { .. })
     }
@@ -268,8 +391,8 @@ impl PixelFormat {
     /// Whether every code value of a frame is one byte as sent (MJPEG once decoded, RGB24,
     /// BGR24, 8-bit grey), so that [`decode_bytes_into_on`] can keep the frame as bytes and the
     /// linearisation can look each byte up in a 256-entry table
-    /// ([`super::response::Linearizer::linearize_bytes_into_on`]). YUYV and Bayer codes are
-    /// computed from several bytes, so they are not.
+    /// ([`super::response::Linearizer::linearize_bytes_into_on`]). YUYV, 4:2:0 and Bayer codes
+    /// are computed from several bytes, so they are not.
     pub fn has_byte_codes(self) -> bool {
         matches!(
             self,
@@ -289,7 +412,7 @@ impl fmt::Display for PixelFormat {
     }
 }
 
-/// Y'CbCr → R'G'B' matrix for YUYV.
+/// Y'CbCr → R'G'B' matrix for YUYV and 4:2:0.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum YuvMatrix {
     /// BT.709 from 1280×720 up, BT.601 below.
@@ -447,7 +570,10 @@ pub fn decode_bytes_into_on(
     let layout = check_layout(raw)?;
     out.width = w;
     out.height = h;
-    let Layout::Packed { stride, row_bytes } = layout else {
+    let Layout::Packed {
+        stride, row_bytes, ..
+    } = layout
+    else {
         out.channels = 3;
         return decode_jpeg_rgb8(raw.data, w, h, &mut out.bytes);
     };
@@ -472,7 +598,8 @@ pub fn decode_bytes_into_on(
 /// Largest frame accepted (pixels), so a corrupt size cannot allocate gigabytes.
 pub const MAX_PIXELS: u64 = 16384 * 16384;
 
-/// Converts a raw buffer into normalised code values. `matrix` is used for YUYV only.
+/// Converts a raw buffer into normalised code values. `matrix` is used for YUYV and 4:2:0
+/// only.
 pub fn decode(raw: &RawFrame<'_>, matrix: YuvMatrix) -> Result<CodeImage, PixelError> {
     let mut out = CodeImage {
         width: 0,
@@ -504,7 +631,11 @@ pub fn decode_into_on(
     let (w, h) = (raw.width, raw.height);
     let band_decoder = match check_layout(raw)? {
         Layout::Jpeg => return decode_jpeg(raw.data, w, h, out, pool),
-        Layout::Packed { stride, row_bytes } => BandDecoder::new(raw, matrix, stride, row_bytes),
+        Layout::Packed {
+            stride,
+            row_bytes,
+            chroma,
+        } => BandDecoder::new(raw, matrix, (stride, row_bytes), chroma),
     };
     let n = w as usize * h as usize;
     out.width = w;
@@ -544,9 +675,11 @@ pub fn decode_each_band_on<T: Copy + Default + Send>(
             decode_bytes_into_on(raw, &mut jpeg, pool)?;
             None
         }
-        Layout::Packed { stride, row_bytes } => {
-            Some(BandDecoder::new(raw, matrix, stride, row_bytes))
-        }
+        Layout::Packed {
+            stride,
+            row_bytes,
+            chroma,
+        } => Some(BandDecoder::new(raw, matrix, (stride, row_bytes), chroma)),
     };
     if out.len() != w * h {
         out.clear();
@@ -603,16 +736,24 @@ struct BandDecoder<'a> {
     raw: &'a RawFrame<'a>,
     stride: usize,
     row_bytes: usize,
-    /// YUYV's (Kr, Kb) for the frame's size.
+    /// A 4:2:0 frame's chroma planes.
+    chroma: Option<ChromaPlanes>,
+    /// YUYV's and 4:2:0's (Kr, Kb) for the frame's size.
     yuv: (f32, f32),
 }
 
 impl<'a> BandDecoder<'a> {
-    fn new(raw: &'a RawFrame<'a>, matrix: YuvMatrix, stride: usize, row_bytes: usize) -> Self {
+    fn new(
+        raw: &'a RawFrame<'a>,
+        matrix: YuvMatrix,
+        (stride, row_bytes): (usize, usize),
+        chroma: Option<ChromaPlanes>,
+    ) -> Self {
         Self {
             raw,
             stride,
             row_bytes,
+            chroma,
             yuv: matrix.resolve(raw.width, raw.height).coefficients(),
         }
     }
@@ -634,20 +775,47 @@ impl<'a> BandDecoder<'a> {
             .enumerate()
             .map(|(r, d)| (y0 + r, d));
         match format {
-            PixelFormat::Yuyv => {
-                let (kr, kb) = self.yuv;
-                let (rv, bu) = (2.0 * (1.0 - kr), 2.0 * (1.0 - kb));
-                let kg = 1.0 / (1.0 - kr - kb);
+            PixelFormat::Yuyv | PixelFormat::Uyvy => {
+                let to_rgb = YcbcrToRgb::new(self.yuv);
+                // Where Y0, U, Y1 and V are in a group of four bytes.
+                let [y0, u, y1, v] = if format == PixelFormat::Yuyv {
+                    [0, 1, 2, 3]
+                } else {
+                    [1, 0, 3, 2]
+                };
                 for (y, dst) in rows {
                     for (quad, pair) in self.row(y).chunks_exact(4).zip(dst.chunks_exact_mut(2)) {
-                        let u = (f32::from(quad[1]) - 128.0) / 224.0;
-                        let v = (f32::from(quad[3]) - 128.0) / 224.0;
-                        for (k, luma) in [quad[0], quad[2]].into_iter().enumerate() {
-                            let l = (f32::from(luma) - 16.0) / 219.0;
-                            let r = l + rv * v;
-                            let b = l + bu * u;
-                            let g = (l - kr * r - kb * b) * kg;
-                            pair[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
+                        to_rgb.pair([quad[y0], quad[y1]], quad[u], quad[v], pair);
+                    }
+                }
+            }
+            PixelFormat::Yuv420(_) => {
+                let to_rgb = YcbcrToRgb::new(self.yuv);
+                let Some(chroma) = self.chroma else { return };
+                let data = self.raw.data;
+                // Checked by `check_layout`: every chroma sample of the frame is in `data`.
+                let chroma_row = |start: usize, y: usize, len: usize| {
+                    let from = start + (y / 2) * chroma.stride;
+                    &data[from..from + len]
+                };
+                for (y, dst) in rows {
+                    let luma = self.row(y).chunks_exact(2);
+                    let pairs = dst.chunks_exact_mut(2);
+                    if chroma.step == 2 {
+                        // One plane of interleaved pairs: Cb first (NV12) or Cr first (NV21).
+                        let cb_first = chroma.cb < chroma.cr;
+                        let cbcr = chroma_row(chroma.cb.min(chroma.cr), y, w).chunks_exact(2);
+                        for ((l, c), pair) in luma.zip(cbcr).zip(pairs) {
+                            let (u, v) = if cb_first { (c[0], c[1]) } else { (c[1], c[0]) };
+                            to_rgb.pair([l[0], l[1]], u, v, pair);
+                        }
+                    } else {
+                        let (cb, cr) = (
+                            chroma_row(chroma.cb, y, w / 2),
+                            chroma_row(chroma.cr, y, w / 2),
+                        );
+                        for (((l, &u), &v), pair) in luma.zip(cb).zip(cr).zip(pairs) {
+                            to_rgb.pair([l[0], l[1]], u, v, pair);
                         }
                     }
                 }
@@ -708,6 +876,41 @@ impl<'a> BandDecoder<'a> {
     }
 }
 
+/// Limited-range Y'CbCr → R'G'B' (module doc) for one matrix's (Kr, Kb).
+struct YcbcrToRgb {
+    kr: f32,
+    kb: f32,
+    rv: f32,
+    bu: f32,
+    kg: f32,
+}
+
+impl YcbcrToRgb {
+    fn new((kr, kb): (f32, f32)) -> Self {
+        Self {
+            kr,
+            kb,
+            rv: 2.0 * (1.0 - kr),
+            bu: 2.0 * (1.0 - kb),
+            kg: 1.0 / (1.0 - kr - kb),
+        }
+    }
+
+    /// Two pixels that share one chroma pair: their luma codes, Cb and Cr.
+    #[inline]
+    fn pair(&self, luma: [u8; 2], cb: u8, cr: u8, out: &mut [[f32; 3]]) {
+        let u = (f32::from(cb) - 128.0) / 224.0;
+        let v = (f32::from(cr) - 128.0) / 224.0;
+        for (k, luma) in luma.into_iter().enumerate() {
+            let l = (f32::from(luma) - 16.0) / 219.0;
+            let r = l + self.rv * v;
+            let b = l + self.bu * u;
+            let g = (l - self.kr * r - self.kb * b) * self.kg;
+            out[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
+        }
+    }
+}
+
 /// Checks a raw buffer as [`decode_into_on`] does before it decodes: its size, width and
 /// stride against its format and length (a JPEG's header and size are checked when it is
 /// decoded). A packed buffer that passes decodes without error.
@@ -719,8 +922,13 @@ pub fn check(raw: &RawFrame<'_>) -> Result<(), PixelError> {
 enum Layout {
     /// A JPEG stream (its size is checked when it is decoded).
     Jpeg,
-    /// `h` rows of `row_bytes` bytes, `stride` bytes apart.
-    Packed { stride: usize, row_bytes: usize },
+    /// `h` rows of `row_bytes` bytes, `stride` bytes apart (for 4:2:0 the luma plane's, and
+    /// where the chroma is).
+    Packed {
+        stride: usize,
+        row_bytes: usize,
+        chroma: Option<ChromaPlanes>,
+    },
 }
 
 /// Checks a raw frame's size, width and stride against its format and buffer.
@@ -738,8 +946,17 @@ fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
     if format == PixelFormat::Mjpeg {
         return Ok(Layout::Jpeg);
     }
-    if matches!(format, PixelFormat::Yuyv | PixelFormat::Bayer { .. }) && w % 2 != 0 {
+    if matches!(
+        format,
+        PixelFormat::Yuyv | PixelFormat::Uyvy | PixelFormat::Yuv420(_) | PixelFormat::Bayer { .. }
+    ) && w % 2 != 0
+    {
         return Err(geometry("width must be even"));
+    }
+    if matches!(format, PixelFormat::Yuv420(_)) && h % 2 != 0 {
+        return Err(geometry(
+            "height must be even (4:2:0 chroma covers 2×2 pixels)",
+        ));
     }
     let row_bytes = w as usize * format.bytes_per_pixel();
     let stride = if raw.stride == 0 {
@@ -752,10 +969,32 @@ fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
             "stride {stride} is smaller than a row of {row_bytes} bytes"
         )));
     }
-    let Some(needed) = stride
+    let chroma = match format {
+        PixelFormat::Yuv420(layout @ (Yuv420::Yu12 | Yuv420::Yv12)) if stride % 2 != 0 => {
+            return Err(geometry(&format!(
+                "stride {stride} must be even ({layout:?}: the chroma rows are half as long)"
+            )));
+        }
+        PixelFormat::Yuv420(layout) => match layout.chroma(stride, h as usize) {
+            Some(chroma) => Some(chroma),
+            None => return Err(geometry(&format!("stride {stride} is too large"))),
+        },
+        _ => None,
+    };
+    let luma = stride
         .checked_mul(h as usize - 1)
-        .and_then(|v| v.checked_add(row_bytes))
-    else {
+        .and_then(|v| v.checked_add(row_bytes));
+    // The last chroma sample of each plane, one past it.
+    let chroma_end = |c: ChromaPlanes| {
+        let last = (h as usize / 2 - 1).checked_mul(c.stride)?;
+        let last = last.checked_add((w as usize / 2 - 1) * c.step)?;
+        c.cb.max(c.cr).checked_add(last)?.checked_add(1)
+    };
+    let needed = match chroma {
+        Some(c) => luma.zip(chroma_end(c)).map(|(a, b)| a.max(b)),
+        None => luma,
+    };
+    let Some(needed) = needed else {
         return Err(geometry(&format!("stride {stride} is too large")));
     };
     if raw.data.len() < needed {
@@ -767,7 +1006,11 @@ fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
             needed,
         });
     }
-    Ok(Layout::Packed { stride, row_bytes })
+    Ok(Layout::Packed {
+        stride,
+        row_bytes,
+        chroma,
+    })
 }
 
 /// Mirror index without repeating the edge: −1 → 1, n → n − 2 (n = 1: 0).
@@ -1172,10 +1415,163 @@ mod tests {
             Some(PixelFormat::Grey { bits: 16 })
         );
         assert_eq!(PixelFormat::parse("mjpeg"), Some(PixelFormat::Mjpeg));
-        assert_eq!(PixelFormat::parse("NV12"), None);
+        assert_eq!(
+            PixelFormat::parse("nv12"),
+            Some(PixelFormat::Yuv420(Yuv420::Nv12))
+        );
+        assert_eq!(
+            PixelFormat::parse("I420"),
+            Some(PixelFormat::Yuv420(Yuv420::Yu12))
+        );
+        assert_eq!(PixelFormat::parse("NV16"), None);
+        assert_eq!(
+            PixelFormat::parse("rg12"),
+            Some(PixelFormat::Bayer {
+                pattern: BayerPattern::Rggb,
+                bits: 12
+            })
+        );
         assert_eq!(PixelFormat::parse(""), None);
         assert_eq!(PixelFormat::parse("TOOLONG"), None);
         assert_eq!(PixelFormat::Grey { bits: 12 }.code_max(), 4095.0);
+    }
+
+    /// UYVY and the four 4:2:0 layouts of one image (with and without row padding) decode to
+    /// the same bits as YUYV carrying the same samples (each chroma pair repeated on the two rows it
+    /// covers), which the known-value test below pins; known values for black, white and
+    /// BT.601 red; and their buffers are checked.
+    #[test]
+    fn uyvy_and_yuv420_layouts_equal_yuyv_with_the_same_samples() {
+        let (w, h) = (6usize, 4usize);
+        let mut byte = byte_stream(0x5eed_4200);
+        let luma: Vec<u8> = (0..w * h).map(|_| byte()).collect();
+        let cb: Vec<u8> = (0..w * h / 4).map(|_| byte()).collect();
+        let cr: Vec<u8> = (0..w * h / 4).map(|_| byte()).collect();
+        let chroma_at = |plane: &[u8], x: usize, y: usize| plane[(y / 2) * (w / 2) + x / 2];
+        let mut yuyv = Vec::new();
+        for y in 0..h {
+            for x in (0..w).step_by(2) {
+                yuyv.extend([
+                    luma[y * w + x],
+                    chroma_at(&cb, x, y),
+                    luma[y * w + x + 1],
+                    chroma_at(&cr, x, y),
+                ]);
+            }
+        }
+        let (w32, h32) = (w as u32, h as u32);
+        let expected = decode(&raw(&yuyv, PixelFormat::Yuyv, w32, h32), YuvMatrix::Bt601).unwrap();
+        let bits = |img: &CodeImage| -> Vec<u32> {
+            img.pixels.iter().flatten().map(|v| v.to_bits()).collect()
+        };
+        // UYVY: the same samples in the order U Y0 V Y1.
+        let uyvy: Vec<u8> = yuyv
+            .chunks(4)
+            .flat_map(|q| [q[1], q[0], q[3], q[2]])
+            .collect();
+        let got = decode(&raw(&uyvy, PixelFormat::Uyvy, w32, h32), YuvMatrix::Bt601).unwrap();
+        assert_eq!(bits(&got), bits(&expected), "UYVY");
+        // A layout's buffer with luma rows `stride` bytes apart (padding bytes 0xEE).
+        let buffer = |layout: Yuv420, stride: usize| {
+            let mut data = Vec::new();
+            for row in luma.chunks(w) {
+                data.extend(row);
+                data.resize(data.len() + stride - w, 0xEE);
+            }
+            let plane = |samples: &[u8], row_stride: usize| {
+                let mut out = Vec::new();
+                for row in samples.chunks(w / 2) {
+                    out.extend(row);
+                    out.resize(out.len() + row_stride - w / 2, 0xEE);
+                }
+                out
+            };
+            let interleave = |first: &[u8], second: &[u8]| {
+                let pairs: Vec<u8> = first
+                    .iter()
+                    .zip(second)
+                    .flat_map(|(&a, &b)| [a, b])
+                    .collect();
+                let mut out = Vec::new();
+                for row in pairs.chunks(w) {
+                    out.extend(row);
+                    out.resize(out.len() + stride - w, 0xEE);
+                }
+                out
+            };
+            match layout {
+                Yuv420::Nv12 => data.extend(interleave(&cb, &cr)),
+                Yuv420::Nv21 => data.extend(interleave(&cr, &cb)),
+                Yuv420::Yu12 => {
+                    data.extend([plane(&cb, stride / 2), plane(&cr, stride / 2)].concat())
+                }
+                Yuv420::Yv12 => {
+                    data.extend([plane(&cr, stride / 2), plane(&cb, stride / 2)].concat())
+                }
+            }
+            data
+        };
+        for layout in Yuv420::ALL {
+            let format = PixelFormat::Yuv420(layout);
+            for stride in [w, w + 4] {
+                let data = buffer(layout, stride);
+                let frame = RawFrame {
+                    stride,
+                    ..raw(&data, format, w32, h32)
+                };
+                let got = decode(&frame, YuvMatrix::Bt601).unwrap();
+                assert_eq!(bits(&got), bits(&expected), "{format} stride {stride}");
+                // The last row's padding is not needed.
+                let needed = format.buffer_len(w32, h32, stride).unwrap();
+                let last_padding = match layout {
+                    Yuv420::Nv12 | Yuv420::Nv21 => stride - w,
+                    Yuv420::Yu12 | Yuv420::Yv12 => (stride - w) / 2,
+                };
+                assert_eq!(
+                    needed,
+                    data.len() - last_padding,
+                    "{format} stride {stride}"
+                );
+                let short = RawFrame {
+                    data: &data[..needed - 1],
+                    ..frame
+                };
+                let e = decode(&short, YuvMatrix::Bt601).unwrap_err();
+                assert!(e.to_string().contains(&format!("needs {needed}")), "{e}");
+            }
+        }
+        // Black, white and 100% red (BT.601: Y 81, Cb 90, Cr 240) in NV12, 2 × 2 each.
+        for (y, cb, cr, rgb) in [
+            (16, 128, 128, [0.0; 3]),
+            (235, 128, 128, [1.0; 3]),
+            (81, 90, 240, [1.0, 0.0, 0.0]),
+        ] {
+            let data = [y, y, y, y, cb, cr];
+            let format = PixelFormat::Yuv420(Yuv420::Nv12);
+            let img = decode(&raw(&data, format, 2, 2), YuvMatrix::Bt601).unwrap();
+            for p in &img.pixels {
+                assert!(close(*p, rgb, 0.006), "{p:?} for {rgb:?}");
+            }
+        }
+        // Odd sizes and an odd stride of the three-plane layouts are errors.
+        let data = [0u8; 64];
+        let nv12 = PixelFormat::Yuv420(Yuv420::Nv12);
+        let e = decode(&raw(&data, nv12, 4, 3), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("height must be even"), "{e}");
+        let e = decode(&raw(&data, nv12, 3, 4), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("width must be even"), "{e}");
+        let frame = RawFrame {
+            stride: 5,
+            ..raw(&data, PixelFormat::Yuv420(Yuv420::Yu12), 4, 4)
+        };
+        let e = decode(&frame, YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("stride 5 must be even"), "{e}");
+        let frame = RawFrame {
+            stride: usize::MAX / 2,
+            ..raw(&data, nv12, 4, 4)
+        };
+        let e = decode(&frame, YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("too large"), "{e}");
     }
 
     #[test]
@@ -1551,7 +1947,7 @@ mod tests {
             let data: Vec<u8> = if format == PixelFormat::Mjpeg {
                 jpeg.clone()
             } else {
-                (0..w as usize * h as usize * format.bytes_per_pixel())
+                (0..format.buffer_len(w, h, 0).unwrap())
                     .map(|_| byte())
                     .collect()
             };

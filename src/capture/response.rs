@@ -1113,7 +1113,7 @@ mod tests {
                 jpeg.clone()
             } else {
                 let mut last = 0;
-                (0..stride * h as usize)
+                (0..format.buffer_len(w, h, stride).expect("a valid test frame"))
                     .map(|i| {
                         if i % 5 != 0 {
                             last = byte();

@@ -6,7 +6,7 @@
 //! 2. format negotiation: the first format of the preference list that the device enumerates is
 //!    requested at the configured size (`VIDIOC_S_FMT`); the driver's answer (size, stride) is
 //!    used as it comes, and a driver that substitutes another pixel format is rejected;
-//!    With `yuv_matrix = "auto"`, YUYV uses the matrix V4L2 implies for the colorspace the
+//!    With `yuv_matrix = "auto"`, YUYV and 4:2:0 use the matrix V4L2 implies for the colorspace the
 //!    driver reports ([`yuv_matrix_for`]: BT.709 for Rec. 709, BT.601 for sRGB/SMPTE 170M/JPEG,
 //!    which covers most UVC webcams), and the frame-size rule only if it reports none;
 //! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
@@ -823,7 +823,17 @@ mod tests {
             Some(PixelFormat::Mjpeg)
         );
         assert_eq!(choose_format(&[PixelFormat::Rgb24], &offered), None);
-        assert_eq!(choose_format(&pref, &[*b"NV12"]), None);
+        // 4:2:0 comes after YUYV and before MJPEG; a fourcc envlight does not convert is
+        // never chosen.
+        assert_eq!(
+            choose_format(&pref, &[*b"MJPG", *b"NV12", *b"YU12"]),
+            Some(PixelFormat::Yuv420(pixel_format::Yuv420::Nv12))
+        );
+        assert_eq!(
+            choose_format(&pref, &[*b"NV12", *b"YUYV"]),
+            Some(PixelFormat::Yuyv)
+        );
+        assert_eq!(choose_format(&pref, &[*b"NV16"]), None);
     }
 
     #[test]

@@ -82,8 +82,9 @@ impl RawCamera {
                         invalid(
                             "camera.formats",
                             n,
-                            "is not a supported format (YUYV, MJPG, GREY, Y10, Y12, Y16, RGB3, \
-                             BGR3, Bayer RGGB/BA81/GBRG/GRBG and their 10/12/16-bit codes)",
+                            "is not a supported format (YUYV, UYVY, NV12, NV21, YU12/I420, YV12, \
+                             MJPG, GREY, Y10, Y12, Y16, RGB3, BGR3, Bayer RGGB/BA81/GBRG/GRBG and \
+                             their 10/12/16-bit codes)",
                         )
                     })
                 })
