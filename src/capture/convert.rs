@@ -60,7 +60,7 @@ impl StreamFormat {
 }
 
 /// What turns a code into radiance apart from the exposure: the response model, the Y'CbCr
-/// matrix of YUYV, white balance and absolute scale (docs/camera.md).
+/// matrix of YUYV, UYVY and 4:2:0, white balance and absolute scale (docs/camera.md).
 #[derive(Clone, Debug)]
 pub struct Calibration {
     pub response: ResponseModel,
