@@ -9,7 +9,7 @@
 //! - `radiance_pool2/…`: the same in bands of rows on two threads, the bench's and one helper
 //!   (src/parallel.rs), as the camera source converts with `camera.convert_threads = 2` (the
 //!   default; on a machine of one core, on one thread);
-//! - `radiance_one_pass{,_pool2,_reused}/…` (Y16, YUYV, NV12, Bayer): decoded and linearised in one
+//! - `radiance_one_pass{,_pool2,_reused}/…` (Y16, YUYV, NV12, Bayer, packed Bayer): decoded and linearised in one
 //!   pass over bands of rows ([`Linearizer::decode_linearize_into_on`]), as the camera source
 //!   converts the packed formats, into a new buffer (on one and two threads) and into a reused
 //!   one;
@@ -17,6 +17,7 @@
 //!   the same for a frame kept as bytes and linearised through 256-entry tables, as the camera
 //!   source converts formats whose codes are bytes ([`Linearizer::linearize_bytes_into_on`]);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
+//! - `…/bayer_rg12_csi2`: the same mosaic in the MIPI CSI-2 12-bit packing (`pRCC`);
 //! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `response_recovery/levels_L_samples_S`: recovering a response curve from four 200×150
@@ -155,6 +156,26 @@ fn bayer12(scene: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// The same mosaic in the MIPI CSI-2 12-bit packing (`pRCC`): two samples' high bytes, then
+/// their low nibbles.
+fn bayer12_packed(scene: &[[f32; 3]]) -> Vec<u8> {
+    let words = bayer12(scene);
+    let samples: Vec<u16> = words
+        .chunks_exact(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    samples
+        .chunks_exact(2)
+        .flat_map(|s| {
+            [
+                (s[0] >> 4) as u8,
+                (s[1] >> 4) as u8,
+                (s[0] & 0xF) as u8 | (((s[1] & 0xF) as u8) << 4),
+            ]
+        })
+        .collect()
+}
+
 fn mjpeg(scene: &[[f32; 3]]) -> Vec<u8> {
     let rgb: Vec<u8> = scene
         .iter()
@@ -185,6 +206,14 @@ fn bench_capture(c: &mut Criterion) {
                 bits: 12,
             },
             bayer12(&scene),
+        ),
+        (
+            "bayer_rg12_csi2",
+            PixelFormat::Csi2Packed {
+                pattern: Some(pixel_format::BayerPattern::Rggb),
+                bits: 12,
+            },
+            bayer12_packed(&scene),
         ),
     ];
     let radiometry = Radiometry {

@@ -293,7 +293,7 @@ mod tests {
             };
             return (stream, jpeg);
         }
-        let stride = W as usize * format.bytes_per_pixel() + 4;
+        let stride = format.row_bytes(W) + 4;
         let len = format.buffer_len(W, H, stride).expect("a valid test frame");
         let data = (0..len).map(|_| byte()).collect();
         let stream = StreamFormat {

@@ -13,6 +13,7 @@
 //! | grey 8/10/12/16    | `GREY`, `Y10 `, `Y12 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
 //! | Bayer 8/10/12/16   | `RGGB` `BA81` …, `RG10` …, `RG12` …, `RG16` `BYR2` … | bilinear demosaic |
+//! | MIPI CSI-2 packed raw | `pRAA` `pBAA` `pGAA` `pgAA`, `pRCC` … `pgCC`, `Y10P`, `Y12P` | unpacked, then as Bayer or grey |
 //!
 //! MJPEG frames without Huffman tables (many UVC cameras leave them out, as Motion-JPEG in AVI
 //! does) get an `AVI1` APP0 segment, which makes zune-jpeg use the standard tables of JPEG
@@ -43,6 +44,13 @@
 //!
 //! 10/12/16-bit formats are the unpacked V4L2 layouts: one little-endian 16-bit word per
 //! sample, the value in the low bits. Values above the format's largest code are clamped.
+//! The MIPI CSI-2 packed layouts (what a Raspberry Pi's or another CSI-2 receiver's raw
+//! capture gives) hold 10-bit samples four in five bytes (the high 8 bits of each, then a byte
+//! of their low 2 bits, the first sample's in bits 0–1) and 12-bit samples two in three bytes
+//! (the high 8 bits of each, then a byte of their low 4 bits, the first sample's in bits 0–3);
+//! a row is width × 5/4 or × 3/2 bytes (the width a multiple of 4 or of 2), then padding to the
+//! stride. They decode to the same codes, to the bit, as the unpacked layouts of the same
+//! samples.
 //!
 //! Formats whose every code is one byte (MJPEG, RGB24, BGR24, 8-bit grey) can also be kept as
 //! bytes ([`ByteImage`], [`decode_bytes_into_on`]): a quarter of the memory, linearised through
@@ -171,10 +179,15 @@ pub enum PixelFormat {
         pattern: BayerPattern,
         bits: u8,
     },
+    /// MIPI CSI-2 packed raw, 10 or 12 bits: Bayer, or grey where `pattern` is `None`.
+    Csi2Packed {
+        pattern: Option<BayerPattern>,
+        bits: u8,
+    },
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 20] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 26] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -188,9 +201,25 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 20] = {
             pattern: Rggb,
             bits: 12,
         },
+        Csi2Packed {
+            pattern: None,
+            bits: 12,
+        },
+        Csi2Packed {
+            pattern: Some(Rggb),
+            bits: 12,
+        },
         Grey { bits: 10 },
         Bayer {
             pattern: Rggb,
+            bits: 10,
+        },
+        Csi2Packed {
+            pattern: None,
+            bits: 10,
+        },
+        Csi2Packed {
+            pattern: Some(Rggb),
             bits: 10,
         },
         Bayer {
@@ -201,8 +230,16 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 20] = {
             pattern: Bggr,
             bits: 12,
         },
+        Csi2Packed {
+            pattern: Some(Bggr),
+            bits: 12,
+        },
         Bayer {
             pattern: Bggr,
+            bits: 10,
+        },
+        Csi2Packed {
+            pattern: Some(Bggr),
             bits: 10,
         },
         Bayer {
@@ -219,6 +256,23 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 20] = {
         Yuv420(self::Yuv420::Yv12),
         Grey { bits: 8 },
         Mjpeg,
+    ]
+};
+
+/// The MIPI CSI-2 packed layouts' fourccs (`V4L2_PIX_FMT_S….10P`, `….12P`, `Y10P`, `Y12P`).
+const CSI2_FOURCCS: [(Option<BayerPattern>, u8, &[u8; 4]); 10] = {
+    use BayerPattern::*;
+    [
+        (None, 10, b"Y10P"),
+        (None, 12, b"Y12P"),
+        (Some(Bggr), 10, b"pBAA"),
+        (Some(Gbrg), 10, b"pGAA"),
+        (Some(Grbg), 10, b"pgAA"),
+        (Some(Rggb), 10, b"pRAA"),
+        (Some(Bggr), 12, b"pBCC"),
+        (Some(Gbrg), 12, b"pGCC"),
+        (Some(Grbg), 12, b"pgCC"),
+        (Some(Rggb), 12, b"pRCC"),
     ]
 };
 
@@ -264,6 +318,11 @@ impl PixelFormat {
                 .iter()
                 .map(|&(pattern, bits, _)| PixelFormat::Bayer { pattern, bits }),
         );
+        v.extend(
+            CSI2_FOURCCS
+                .iter()
+                .map(|&(pattern, bits, _)| PixelFormat::Csi2Packed { pattern, bits }),
+        );
         v
     }
 
@@ -284,6 +343,10 @@ impl PixelFormat {
                 .iter()
                 .find(|&&(p, b, _)| p == pattern && b == bits)
                 .map_or(*b"RGGB", |&(_, _, f)| *f),
+            PixelFormat::Csi2Packed { pattern, bits } => CSI2_FOURCCS
+                .iter()
+                .find(|&&(p, b, _)| p == pattern && b == bits)
+                .map_or(*b"pRAA", |&(_, _, f)| *f),
         }
     }
 
@@ -304,15 +367,20 @@ impl PixelFormat {
             b"RGB3" => PixelFormat::Rgb24,
             b"BGR3" => PixelFormat::Bgr24,
             _ => {
+                if let Some(&(pattern, bits, _)) = CSI2_FOURCCS.iter().find(|(_, _, f)| **f == code)
+                {
+                    return Some(PixelFormat::Csi2Packed { pattern, bits });
+                }
                 let &(pattern, bits, _) = BAYER_FOURCCS.iter().find(|(_, _, f)| **f == code)?;
                 PixelFormat::Bayer { pattern, bits }
             }
         })
     }
 
-    /// Parses a config/CLI name, case-insensitively: a fourcc (`"Y16"`, `"MJPG"`, `"RG10"`,
-    /// `"NV12"`; trailing spaces may be left out) or one of `yuyv`, `mjpeg`, `grey`, `rgb24`,
-    /// `bgr24`, `i420` (`YU12`).
+    /// Parses a config/CLI name: a fourcc (`"Y16"`, `"MJPG"`, `"RG10"`, `"NV12"`, `"pRAA"`;
+    /// trailing spaces may be left out; matched exactly, else in upper case, since the CSI-2
+    /// packed codes `pGAA` and `pgAA` differ in case only) or one of `yuyv`, `mjpeg`, `grey`,
+    /// `rgb24`, `bgr24`, `i420` (`YU12`) (case-insensitive).
     pub fn parse(name: &str) -> Option<Self> {
         let lower = name.trim().to_ascii_lowercase();
         match lower.as_str() {
@@ -330,14 +398,15 @@ impl PixelFormat {
         }
         let mut code = [b' '; 4];
         code[..bytes.len()].copy_from_slice(bytes);
-        // Every fourcc envlight converts is upper case: "nv12" is NV12.
-        Self::from_fourcc(code.map(|b| b.to_ascii_uppercase()))
+        Self::from_fourcc(code).or_else(|| Self::from_fourcc(code.map(|b| b.to_ascii_uppercase())))
     }
 
     /// Significant bits per sample.
     pub fn bits(self) -> u8 {
         match self {
-            PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => bits,
+            PixelFormat::Grey { bits }
+            | PixelFormat::Bayer { bits, .. }
+            | PixelFormat::Csi2Packed { bits, .. } => bits,
             _ => 8,
         }
     }
@@ -347,13 +416,14 @@ impl PixelFormat {
         ((1u32 << self.bits()) - 1) as f32
     }
 
-    /// Bytes per pixel of a packed row (0 for the compressed MJPEG; for 4:2:0, of the luma
-    /// plane's rows: [`PixelFormat::buffer_len`] gives a whole frame's).
+    /// Bytes per pixel of a packed row (0 for the compressed MJPEG and for the CSI-2 packed
+    /// layouts, whose pixels are not whole bytes: [`PixelFormat::row_bytes`]; for 4:2:0, of the
+    /// luma plane's rows: [`PixelFormat::buffer_len`] gives a whole frame's).
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             PixelFormat::Yuyv | PixelFormat::Uyvy => 2,
             PixelFormat::Yuv420(_) => 1,
-            PixelFormat::Mjpeg => 0,
+            PixelFormat::Mjpeg | PixelFormat::Csi2Packed { .. } => 0,
             PixelFormat::Rgb24 | PixelFormat::Bgr24 => 3,
             PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => {
                 if bits > 8 {
@@ -362,6 +432,18 @@ impl PixelFormat {
                     1
                 }
             }
+        }
+    }
+
+    /// The bytes of one row of `width` pixels without padding (of the luma plane for 4:2:0; 0
+    /// for MJPEG); for the CSI-2 packed layouts, width × 5/4 (10 bits) or × 3/2 (12 bits),
+    /// rounded up (a width they do not allow is an error of [`check`]).
+    pub fn row_bytes(self, width: u32) -> usize {
+        let w = width as usize;
+        match self {
+            PixelFormat::Csi2Packed { bits: 10, .. } => w.div_ceil(4) * 5,
+            PixelFormat::Csi2Packed { .. } => w.div_ceil(2) * 3,
+            other => w * other.bytes_per_pixel(),
         }
     }
 
@@ -385,7 +467,10 @@ impl PixelFormat {
     /// Whether code values are proportional to sensor exposure (raw grey and Bayer data) rather
     /// than gamma-encoded for display (YUYV, UYVY, 4:2:0, MJPEG, RGB24 usually are).
     pub fn is_raw(self) -> bool {
-        matches!(self, PixelFormat::Grey { .. } | PixelFormat::Bayer { .. })
+        matches!(
+            self,
+            PixelFormat::Grey { .. } | PixelFormat::Bayer { .. } | PixelFormat::Csi2Packed { .. }
+        )
     }
 
     /// Whether every code value of a frame is one byte as sent (MJPEG once decoded, RGB24,
@@ -870,8 +955,45 @@ impl<'a> BandDecoder<'a> {
                 };
                 demosaic_band(w, h, pattern, read_row, y0, dst);
             }
+            PixelFormat::Csi2Packed { pattern, bits } => {
+                let inv = 1.0 / format.code_max();
+                let read_row =
+                    |y: usize, dst: &mut [f32]| unpack_csi2_row(bits, self.row(y), inv, dst);
+                match pattern {
+                    Some(pattern) => demosaic_band(w, h, pattern, read_row, y0, dst),
+                    None => with_scratch(&BAND_MOSAIC, w, |row| {
+                        for (y, dst) in rows {
+                            read_row(y, row);
+                            for (&v, d) in row.iter().zip(dst.iter_mut()) {
+                                *d = [v; 3];
+                            }
+                        }
+                    }),
+                }
+            }
             // Not a packed format: its layout is `Layout::Jpeg`.
             PixelFormat::Mjpeg => {}
+        }
+    }
+}
+
+/// One row of MIPI CSI-2 packed `bits`-bit samples (module doc) as normalised codes
+/// (code × `inv`) into `out` (as many as the row holds).
+#[inline]
+fn unpack_csi2_row(bits: u8, row: &[u8], inv: f32, out: &mut [f32]) {
+    if bits == 10 {
+        for (group, d) in row.chunks_exact(5).zip(out.chunks_exact_mut(4)) {
+            let low = group[4];
+            for k in 0..4 {
+                let code = (u16::from(group[k]) << 2) | u16::from((low >> (2 * k)) & 0b11);
+                d[k] = f32::from(code) * inv;
+            }
+        }
+    } else {
+        for (group, d) in row.chunks_exact(3).zip(out.chunks_exact_mut(2)) {
+            let low = group[2];
+            d[0] = f32::from((u16::from(group[0]) << 4) | u16::from(low & 0xF)) * inv;
+            d[1] = f32::from((u16::from(group[1]) << 4) | u16::from(low >> 4)) * inv;
         }
     }
 }
@@ -953,12 +1075,22 @@ fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
     {
         return Err(geometry("width must be even"));
     }
+    if matches!(format, PixelFormat::Csi2Packed { bits: 10, .. }) && w % 4 != 0 {
+        return Err(geometry(
+            "width must be a multiple of 4 (10-bit packed: 4 samples in 5 bytes)",
+        ));
+    }
+    if matches!(format, PixelFormat::Csi2Packed { .. }) && w % 2 != 0 {
+        return Err(geometry(
+            "width must be even (12-bit packed: 2 samples in 3 bytes)",
+        ));
+    }
     if matches!(format, PixelFormat::Yuv420(_)) && h % 2 != 0 {
         return Err(geometry(
             "height must be even (4:2:0 chroma covers 2×2 pixels)",
         ));
     }
-    let row_bytes = w as usize * format.bytes_per_pixel();
+    let row_bytes = format.row_bytes(w);
     let stride = if raw.stride == 0 {
         row_bytes
     } else {
@@ -1434,6 +1566,109 @@ mod tests {
         assert_eq!(PixelFormat::parse(""), None);
         assert_eq!(PixelFormat::parse("TOOLONG"), None);
         assert_eq!(PixelFormat::Grey { bits: 12 }.code_max(), 4095.0);
+    }
+
+    /// Every MIPI CSI-2 packed layout decodes to the same codes, to the bit, as the unpacked
+    /// layout of the same samples (Bayer `RG10` …, grey `Y10 `/`Y12 `), packed rows or padded;
+    /// the bit order of a packed group; the width rules.
+    #[test]
+    fn csi2_packed_raw_equals_the_unpacked_layout() {
+        let (w, h) = (12usize, 6usize);
+        let mut byte = byte_stream(0xc512_0a0a);
+        for &(pattern, bits, _) in &CSI2_FOURCCS {
+            let max = (1u16 << bits) - 1;
+            let samples: Vec<u16> = (0..w * h)
+                .map(|_| u16::from_le_bytes([byte(), byte()]) & max)
+                .collect();
+            let unpacked: Vec<u8> = samples.iter().flat_map(|v| v.to_le_bytes()).collect();
+            let unpacked_format = match pattern {
+                Some(pattern) => PixelFormat::Bayer { pattern, bits },
+                None => PixelFormat::Grey { bits },
+            };
+            let (w32, h32) = (w as u32, h as u32);
+            let expected =
+                decode(&raw(&unpacked, unpacked_format, w32, h32), YuvMatrix::Auto).unwrap();
+            let format = PixelFormat::Csi2Packed { pattern, bits };
+            let row_bytes = format.row_bytes(w32);
+            for padding in [0, 7] {
+                let mut data = Vec::new();
+                for row in samples.chunks(w) {
+                    if bits == 10 {
+                        for s in row.chunks(4) {
+                            data.extend(s.iter().map(|v| (v >> 2) as u8));
+                            data.push(
+                                s.iter()
+                                    .enumerate()
+                                    .fold(0u8, |low, (k, v)| low | (((v & 0b11) as u8) << (2 * k))),
+                            );
+                        }
+                    } else {
+                        for s in row.chunks(2) {
+                            data.extend([(s[0] >> 4) as u8, (s[1] >> 4) as u8]);
+                            data.push((s[0] & 0xF) as u8 | (((s[1] & 0xF) as u8) << 4));
+                        }
+                    }
+                    data.resize(data.len() + padding, 0xA5);
+                }
+                assert_eq!(data.len(), h * (row_bytes + padding), "{format}");
+                let frame = RawFrame {
+                    stride: row_bytes + padding,
+                    ..raw(&data, format, w32, h32)
+                };
+                let got = decode(&frame, YuvMatrix::Auto).unwrap();
+                assert!(
+                    got.pixels.iter().flatten().map(|v| v.to_bits()).eq(expected
+                        .pixels
+                        .iter()
+                        .flatten()
+                        .map(|v| v.to_bits())),
+                    "{format} padding {padding}"
+                );
+            }
+        }
+        // Bit order: 10-bit samples 0x3FF, 0x001, 0x200, 0x155 and 12-bit 0xABC, 0x123.
+        let y10p = PixelFormat::Csi2Packed {
+            pattern: None,
+            bits: 10,
+        };
+        let group = [0xFF, 0x00, 0x80, 0x55, 0b01_00_01_11];
+        let img = decode(&raw(&group, y10p, 4, 1), YuvMatrix::Auto).unwrap();
+        let codes: Vec<f32> = img.pixels.iter().map(|p| p[0] * 1023.0).collect();
+        for (got, want) in codes.iter().zip([0x3FF, 0x001, 0x200, 0x155]) {
+            assert!((got - f32::from(want as u16)).abs() < 1e-3, "{codes:?}");
+        }
+        let y12p = PixelFormat::Csi2Packed {
+            pattern: None,
+            bits: 12,
+        };
+        let img = decode(&raw(&[0xAB, 0x12, 0x3C], y12p, 2, 1), YuvMatrix::Auto).unwrap();
+        let codes: Vec<f32> = img.pixels.iter().map(|p| p[0] * 4095.0).collect();
+        for (got, want) in codes.iter().zip([0xABC, 0x123]) {
+            assert!((got - f32::from(want as u16)).abs() < 1e-3, "{codes:?}");
+        }
+        // Widths the packing does not allow.
+        let e = decode(&raw(&[0; 64], y10p, 6, 2), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("multiple of 4"), "{e}");
+        let e = decode(&raw(&[0; 64], y12p, 3, 2), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("even"), "{e}");
+        let e = decode(&raw(&[0; 9], y12p, 4, 2), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("needs 12"), "{e}");
+        // The codes that differ in case only are two layouts.
+        assert_eq!(
+            PixelFormat::parse("pgAA"),
+            Some(PixelFormat::Csi2Packed {
+                pattern: Some(BayerPattern::Grbg),
+                bits: 10
+            })
+        );
+        assert_eq!(
+            PixelFormat::parse("pGAA"),
+            Some(PixelFormat::Csi2Packed {
+                pattern: Some(BayerPattern::Gbrg),
+                bits: 10
+            })
+        );
+        assert_eq!(PixelFormat::parse("y10p"), Some(y10p));
     }
 
     /// UYVY and the four 4:2:0 layouts of one image (with and without row padding) decode to
@@ -1930,10 +2165,10 @@ mod tests {
     }
 
     /// Rows can be decoded in parallel: the code values must be the same to the bit on the
-    /// calling thread and on a pool, for every format (70×100 frames: several bands of rows).
+    /// calling thread and on a pool, for every format (72×100 frames: several bands of rows).
     #[test]
     fn decoding_does_not_depend_on_the_number_of_threads() {
-        let (w, h) = (70u32, 100u32);
+        let (w, h) = (72u32, 100u32);
         let mut byte = byte_stream(0x2545_f491_4f6c_dd1du64);
         let mut rgb = Vec::new();
         for _ in 0..w * h * 3 {

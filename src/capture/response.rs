@@ -1083,7 +1083,7 @@ mod tests {
     #[test]
     fn decoding_and_linearising_in_one_pass_equals_the_two_steps() {
         use crate::capture::pixel_format::{decode, PixelFormat};
-        let (w, h) = (70u32, 100u32);
+        let (w, h) = (72u32, 100u32);
         let mut byte = byte_stream(0x1234_5678_9abc_def1u64);
         let rgb: Vec<u8> = (0..3 * w * h).map(|_| byte() / 2 + 64).collect();
         let mut jpeg = Vec::new();
@@ -1107,8 +1107,7 @@ mod tests {
             .expect("a thread pool");
         for format in PixelFormat::all() {
             // packed rows padded by 6 bytes; every fifth byte repeated, so grey runs occur
-            let stride = (w as usize * format.bytes_per_pixel() + 6)
-                * usize::from(format != PixelFormat::Mjpeg);
+            let stride = (format.row_bytes(w) + 6) * usize::from(format != PixelFormat::Mjpeg);
             let data: Vec<u8> = if format == PixelFormat::Mjpeg {
                 jpeg.clone()
             } else {

@@ -83,8 +83,9 @@ impl RawCamera {
                             "camera.formats",
                             n,
                             "is not a supported format (YUYV, UYVY, NV12, NV21, YU12/I420, YV12, \
-                             MJPG, GREY, Y10, Y12, Y16, RGB3, BGR3, Bayer RGGB/BA81/GBRG/GRBG and \
-                             their 10/12/16-bit codes)",
+                             MJPG, GREY, Y10, Y12, Y16, Y10P, Y12P, RGB3, BGR3, Bayer \
+                             RGGB/BA81/GBRG/GRBG and their 10/12/16-bit codes, CSI-2 packed \
+                             pRAA/pBAA/pGAA/pgAA and pRCC/pBCC/pGCC/pgCC)",
                         )
                     })
                 })
