@@ -11,6 +11,7 @@
 //!
 //! The set is computed once per process and extended on demand (`progressive_points`).
 
+use rayon::prelude::*;
 use std::sync::{Arc, Mutex, OnceLock};
 
 /// Largest supported light count.
@@ -99,19 +100,33 @@ impl<'a> NearestGrid<'a> {
 fn relax_level(points: &mut [[f64; 2]], fixed: usize) {
     let n = points.len();
     let res = ((n * SAMPLES_PER_CELL) as f64).sqrt().ceil() as usize;
+    let sample =
+        |i: usize, j: usize| [(i as f64 + 0.5) / res as f64, (j as f64 + 0.5) / res as f64];
+    let mut nearest = vec![0u32; res * res];
     for _ in 0..LLOYD_ITERATIONS {
-        let mut sums = vec![[0.0f64; 3]; n];
+        // The nearest point of every sample, rows in parallel (the searches are the work: 98%
+        // of perf's samples of a 16384-point set), then the sums in raster order on one
+        // thread, so the points are the same bits with any number of threads.
         {
             let grid = NearestGrid::new(points);
-            for j in 0..res {
-                for i in 0..res {
-                    let q = [(i as f64 + 0.5) / res as f64, (j as f64 + 0.5) / res as f64];
-                    let k = grid.nearest(q);
-                    if k >= fixed {
-                        sums[k][0] += q[0];
-                        sums[k][1] += q[1];
-                        sums[k][2] += 1.0;
+            nearest
+                .par_chunks_mut(res)
+                .enumerate()
+                .for_each(|(j, row)| {
+                    for (i, k) in row.iter_mut().enumerate() {
+                        *k = grid.nearest(sample(i, j)) as u32;
                     }
+                });
+        }
+        let mut sums = vec![[0.0f64; 3]; n];
+        for (j, row) in nearest.chunks_exact(res).enumerate() {
+            for (i, &k) in row.iter().enumerate() {
+                let k = k as usize;
+                if k >= fixed {
+                    let q = sample(i, j);
+                    sums[k][0] += q[0];
+                    sums[k][1] += q[1];
+                    sums[k][2] += 1.0;
                 }
             }
         }
@@ -158,6 +173,31 @@ pub fn progressive_points(n: usize) -> Arc<[[f64; 2]]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The relaxation searches in parallel but sums on one thread: the same points, to the
+    /// bit, on one thread and on three.
+    #[test]
+    fn relaxation_does_not_depend_on_the_number_of_threads() {
+        let relaxed = |threads: usize| {
+            let mut points: Vec<[f64; 2]> = (1..=128u64)
+                .map(|i| [radical_inverse(i, 2), radical_inverse(i, 3)])
+                .collect();
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a thread pool")
+                .install(|| relax_level(&mut points, 64));
+            points
+        };
+        let (one, three) = (relaxed(1), relaxed(3));
+        assert!(one
+            .iter()
+            .flatten()
+            .map(|v| v.to_bits())
+            .eq(three.iter().flatten().map(|v| v.to_bits())));
+        // and the relaxation moved the new points
+        assert_ne!(one[100], [radical_inverse(101, 2), radical_inverse(101, 3)]);
+    }
 
     /// Mean squared distance from the square to the nearest point (Lloyd's objective).
     fn quantization_error(points: &[[f64; 2]]) -> f64 {
