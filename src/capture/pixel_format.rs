@@ -58,8 +58,9 @@
 //! The other formats can be decoded a band of rows at a time ([`decode_each_band_on`]), so that
 //! the linearisation takes each band's codes from the cache instead of a whole-frame image.
 //!
-//! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, an
-//! odd width for YUYV or Bayer (or an odd size for 4:2:0), or a corrupt JPEG is a
+//! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, a
+//! width the format does not allow (odd for YUYV, UYVY, 4:2:0 and Bayer; not a multiple of 4
+//! for the 10-bit CSI-2 packing), an odd height for 4:2:0, or a corrupt JPEG is a
 //! [`PixelError`], never a panic.
 
 use std::fmt;
