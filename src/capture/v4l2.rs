@@ -171,6 +171,26 @@ fn query_caps(path: &Path, device: &v4l::Device) -> Result<v4l::Capabilities, Ca
     caps
 }
 
+/// Why a node whose capabilities (`device_caps`) are `caps` cannot be captured from, if it
+/// cannot: it must be a single-planar video capture node. A driver that reports no
+/// per-node capabilities (very old ones) is given the benefit of the doubt.
+fn capture_node_problem(caps: v4l::capability::Flags) -> Option<&'static str> {
+    use v4l::capability::Flags;
+    if caps.is_empty() || caps.contains(Flags::VIDEO_CAPTURE) {
+        None
+    } else if caps.contains(Flags::VIDEO_CAPTURE_MPLANE) {
+        Some(
+            "captures through the multi-planar API (V4L2_CAP_VIDEO_CAPTURE_MPLANE), which \
+             envlight does not support yet (docs/camera.md, \"Limitations\")",
+        )
+    } else {
+        Some(
+            "is not a video capture node (a UVC camera's second node carries its metadata); \
+             `envlight devices` lists the nodes and their formats",
+        )
+    }
+}
+
 /// The `/dev/video*` nodes, sorted.
 pub fn device_nodes() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir("/dev")
@@ -276,6 +296,13 @@ impl V4l2Source {
             }
         })?;
         let caps = query_caps(p, &device)?;
+        if let Some(problem) = capture_node_problem(caps.capabilities) {
+            return Err(CaptureError::InvalidSettings(format!(
+                "{} ({}) {problem}",
+                p.display(),
+                caps.card
+            )));
+        }
         let offered: Vec<[u8; 4]> = guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
             .iter()
             .map(|d| d.fourcc.repr)
@@ -834,6 +861,18 @@ mod tests {
             Some(PixelFormat::Yuyv)
         );
         assert_eq!(choose_format(&pref, &[*b"NV16"]), None);
+    }
+
+    #[test]
+    fn only_single_planar_capture_nodes_are_opened() {
+        use v4l::capability::Flags;
+        let streaming = Flags::STREAMING;
+        assert_eq!(capture_node_problem(Flags::VIDEO_CAPTURE | streaming), None);
+        assert_eq!(capture_node_problem(Flags::empty()), None);
+        let mplane = capture_node_problem(Flags::VIDEO_CAPTURE_MPLANE | streaming).unwrap();
+        assert!(mplane.contains("multi-planar"), "{mplane}");
+        let metadata = capture_node_problem(Flags::META_CAPTURE | streaming).unwrap();
+        assert!(metadata.contains("not a video capture node"), "{metadata}");
     }
 
     #[test]

@@ -893,10 +893,41 @@ fn bind_unix(path: &Path, mode: u32) -> Result<UnixListener, ServerError> {
             })
         })?;
     }
+    // Bound under a temporary name beside `path`, given its mode, and linked to `path` only
+    // then: a client that finds the file can connect, and never while the file still has the
+    // umask's mode. (bind() makes the file before listen() makes it accept; a test that
+    // connected in between, on a loaded machine, was refused.) link() fails where `path`
+    // exists, so a daemon that bound it meanwhile is not replaced. Where the temporary name
+    // does not fit a socket address, or the file system cannot link, `path` is bound directly.
+    let temporary = path.with_file_name(format!(".envlight-{}.sock", std::process::id()));
+    if temporary.as_os_str().len() < SOCKET_PATH_MAX {
+        let _ = std::fs::remove_file(&temporary);
+        if let Ok(listener) = UnixListener::bind(&temporary) {
+            let mode_set =
+                std::fs::set_permissions(&temporary, std::fs::Permissions::from_mode(mode));
+            let linked = mode_set.and_then(|()| std::fs::hard_link(&temporary, path));
+            let _ = std::fs::remove_file(&temporary);
+            match linked {
+                Ok(()) => return Ok(listener),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    return Err(ServerError::SocketInUse {
+                        path: path.to_path_buf(),
+                    });
+                }
+                Err(e) => {
+                    tracing::debug!(error = %e, "cannot link the socket into place; binding it directly")
+                }
+            }
+        }
+    }
     let listener = UnixListener::bind(path).map_err(bind_error)?;
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).map_err(bind_error)?;
     Ok(listener)
 }
+
+/// The longest path a Unix socket address holds (`sun_path` is 108 bytes on Linux, with its
+/// terminating NUL).
+const SOCKET_PATH_MAX: usize = 108;
 
 async fn bind_tcp(endpoint: &'static str, addr: SocketAddr) -> Result<TcpListener, ServerError> {
     TcpListener::bind(addr)
@@ -2122,5 +2153,31 @@ mod tests {
             "{e}"
         );
         assert!(bind(&dir.path().join("new").join("envlight.sock")).is_ok());
+    }
+
+    /// The socket file appears already listening and with its mode, and nothing else is left
+    /// beside it; a second daemon on the same path is refused.
+    #[test]
+    fn the_socket_file_appears_listening_with_its_mode() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("envlight.sock");
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let _listener = runtime.block_on(async { bind_unix(&path, 0o640) }).unwrap();
+        let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o640);
+        assert!(std::os::unix::net::UnixStream::connect(&path).is_ok());
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["envlight.sock"]);
+        let e = runtime
+            .block_on(async { bind_unix(&path, 0o640) })
+            .unwrap_err();
+        assert!(matches!(e, ServerError::SocketInUse { .. }), "{e}");
     }
 }
