@@ -184,10 +184,7 @@ fn capture_node_problem(caps: v4l::capability::Flags) -> Option<&'static str> {
              envlight does not support yet (docs/camera.md, \"Limitations\")",
         )
     } else {
-        Some(
-            "is not a video capture node (a UVC camera's second node carries its metadata); \
-             `envlight devices` lists the nodes and their formats",
-        )
+        Some("is not a video capture node (a UVC camera's second node carries its metadata)")
     }
 }
 
@@ -298,7 +295,7 @@ impl V4l2Source {
         let caps = query_caps(p, &device)?;
         if let Some(problem) = capture_node_problem(caps.capabilities) {
             return Err(CaptureError::InvalidSettings(format!(
-                "{} ({}) {problem}",
+                "{} ({}) {problem}; `envlight devices` lists the nodes and what they offer",
                 p.display(),
                 caps.card
             )));
@@ -698,6 +695,9 @@ pub struct DeviceInfo {
     pub card: String,
     pub driver: String,
     pub bus: String,
+    /// Why envlight cannot capture from this node, if it cannot (a multi-planar or a metadata
+    /// node).
+    pub unusable: Option<String>,
     pub formats: Vec<FormatInfo>,
     pub controls: Vec<ControlInfo>,
 }
@@ -773,6 +773,7 @@ pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
         card: caps.card,
         driver: caps.driver,
         bus: caps.bus,
+        unusable: capture_node_problem(caps.capabilities).map(str::to_string),
         formats,
         controls,
     })
@@ -799,7 +800,9 @@ impl fmt::Display for DeviceInfo {
             self.driver,
             self.bus
         )?;
-        if self.formats.is_empty() {
+        if let Some(problem) = &self.unusable {
+            writeln!(f, "  not usable: this node {problem}")?;
+        } else if self.formats.is_empty() {
             writeln!(f, "  no capture formats (metadata or output node)")?;
         }
         for fm in &self.formats {
@@ -873,6 +876,22 @@ mod tests {
         assert!(mplane.contains("multi-planar"), "{mplane}");
         let metadata = capture_node_problem(Flags::META_CAPTURE | streaming).unwrap();
         assert!(metadata.contains("not a video capture node"), "{metadata}");
+        // `envlight devices` says why such a node is of no use.
+        let info = DeviceInfo {
+            path: PathBuf::from("/dev/video1"),
+            card: "Cam".into(),
+            driver: "uvcvideo".into(),
+            bus: "usb-1".into(),
+            unusable: Some(metadata.to_string()),
+            formats: Vec::new(),
+            controls: Vec::new(),
+        };
+        let text = info.to_string();
+        assert!(
+            text.contains("not usable: this node is not a video capture node"),
+            "{text}"
+        );
+        assert!(!text.contains("no capture formats"), "{text}");
     }
 
     #[test]
