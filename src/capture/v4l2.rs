@@ -188,7 +188,7 @@ fn capture_node_problem(caps: v4l::capability::Flags) -> Option<&'static str> {
     }
 }
 
-/// The `/dev/video*` nodes, sorted.
+/// The `/dev/video*` nodes, by number (`video2` before `video10`).
 pub fn device_nodes() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir("/dev")
         .map(|d| {
@@ -198,8 +198,30 @@ pub fn device_nodes() -> Vec<PathBuf> {
                 .collect()
         })
         .unwrap_or_default();
-    v.sort();
+    sort_nodes(&mut v);
     v
+}
+
+/// Sorts `/dev/videoN` paths by N (names without a number last, by name).
+fn sort_nodes(nodes: &mut [PathBuf]) {
+    let number = |p: &PathBuf| -> Option<u64> {
+        p.file_name()?.to_str()?.strip_prefix("video")?.parse().ok()
+    };
+    nodes.sort_by(|a, b| {
+        let (na, nb) = (number(a), number(b));
+        (na.is_none(), na, a).cmp(&(nb.is_none(), nb, b))
+    });
+}
+
+/// Whether the node at `path` can be captured from ([`capture_node_problem`]); `false` where
+/// it cannot be opened or queried.
+fn is_capture_node(path: &Path) -> bool {
+    catch_unwind(AssertUnwindSafe(|| {
+        v4l::Device::with_path(path)
+            .and_then(|d| d.query_caps())
+            .is_ok_and(|caps| capture_node_problem(caps.capabilities).is_none())
+    }))
+    .unwrap_or(false)
 }
 
 /// The sysfs name of a `/dev/videoN` node.
@@ -221,10 +243,18 @@ pub fn resolve_device(spec: &str) -> Result<PathBuf, CaptureError> {
         .iter()
         .filter_map(|p| node_name(p).map(|n| (p.clone(), n)))
         .collect();
-    named
+    // A camera's nodes share its name (a UVC camera's second node carries metadata): the first
+    // matching node that captures video, else the first match (whose error then says why).
+    let matching: Vec<&PathBuf> = named
         .iter()
-        .find(|(_, n)| n.to_lowercase().contains(&want))
-        .map(|(p, _)| p.clone())
+        .filter(|(_, n)| n.to_lowercase().contains(&want))
+        .map(|(p, _)| p)
+        .collect();
+    matching
+        .iter()
+        .find(|p| is_capture_node(p))
+        .or(matching.first())
+        .map(|p| (*p).clone())
         .ok_or_else(|| {
             let have: Vec<String> = named
                 .iter()
@@ -864,6 +894,19 @@ mod tests {
             Some(PixelFormat::Yuyv)
         );
         assert_eq!(choose_format(&pref, &[*b"NV16"]), None);
+    }
+
+    #[test]
+    fn nodes_sort_by_number() {
+        let mut nodes: Vec<PathBuf> = ["/dev/video10", "/dev/video2", "/dev/videox", "/dev/video0"]
+            .iter()
+            .map(PathBuf::from)
+            .collect();
+        sort_nodes(&mut nodes);
+        assert_eq!(
+            nodes,
+            ["/dev/video0", "/dev/video2", "/dev/video10", "/dev/videox"].map(PathBuf::from)
+        );
     }
 
     #[test]
