@@ -255,6 +255,9 @@ const NEGLIGIBLE_SHARE: f64 = 1e-3;
 /// squares of 1/8 of a pixel a side (where their centres take them).
 const RIM_DEPTH: u32 = 3;
 
+/// How long building the index table may take before it is logged ([`Resampler::table_plan`]).
+const SLOW_TABLE_S: f64 = 2.0;
+
 /// A rectangle of an input image (a pixel, or a sub-pixel of a large one) and its solid angle.
 #[derive(Clone, Copy, Debug)]
 struct ImagePatch {
@@ -1094,6 +1097,32 @@ impl Resampler {
     }
 
     fn table_plan(projection: Projection, sw: u32, sh: u32, width: usize, height: usize) -> Plan {
+        let started = std::time::Instant::now();
+        let plan = Self::build_table_plan(projection, sw, sh, width, height);
+        let seconds = started.elapsed().as_secs_f64();
+        // A frame with far fewer pixels than the working map has its pixels cut into many
+        // sub-pixels (a 64² angular map at `--working-width 4096`: 67 million, 15–30 s): said,
+        // so that a long first frame is not taken for a hang.
+        if seconds >= SLOW_TABLE_S {
+            tracing::info!(
+                "the resampling table of {sw}×{sh} {} frames onto the {width}×{height} working \
+                 map took {seconds:.1} s (once per frame size and projection; a working map \
+                 with far more pixels than the frame, here {:.0}×, is slow to build: a smaller \
+                 working width is faster)",
+                projection.name(),
+                (width * height) as f64 / (f64::from(sw) * f64::from(sh)).max(1.0)
+            );
+        }
+        plan
+    }
+
+    fn build_table_plan(
+        projection: Projection,
+        sw: u32,
+        sh: u32,
+        width: usize,
+        height: usize,
+    ) -> Plan {
         let omegas = projection.solid_angles(sw, sh);
         let rectangles = projection.rectangle_solid_angles(sw, sh);
         let working_cells = Projection::LatLong.rectangle_solid_angles(width as u32, height as u32);
