@@ -89,27 +89,33 @@ fn y16(scene: &[[f32; 3]]) -> Vec<u8> {
         .collect()
 }
 
-fn yuyv(scene: &[[f32; 3]]) -> Vec<u8> {
+/// A linear colour's sRGB-encoded BT.709 Y', Cb, Cr (Y' in [0, 1], Cb and Cr in ±0.5).
+fn ycbcr709(p: [f32; 3]) -> (f32, f32, f32) {
     let (kr, kb) = (0.2126f32, 0.0722f32);
+    let (r, g, b) = (srgb(p[0]), srgb(p[1]), srgb(p[2]));
+    let y = kr * r + (1.0 - kr - kb) * g + kb * b;
+    (
+        y,
+        (b - y) / (2.0 * (1.0 - kb)),
+        (r - y) / (2.0 * (1.0 - kr)),
+    )
+}
+
+/// A limited-range 8-bit code: Y' as 16 + 219·Y', a chroma as 128 + 224·C.
+fn code8(v: f32) -> u8 {
+    v.round().clamp(0.0, 255.0) as u8
+}
+
+fn yuyv(scene: &[[f32; 3]]) -> Vec<u8> {
     let mut out = Vec::with_capacity(scene.len() * 2);
     for pair in scene.chunks_exact(2) {
-        let enc = |p: [f32; 3]| {
-            let (r, g, b) = (srgb(p[0]), srgb(p[1]), srgb(p[2]));
-            let y = kr * r + (1.0 - kr - kb) * g + kb * b;
-            (
-                y,
-                (b - y) / (2.0 * (1.0 - kb)),
-                (r - y) / (2.0 * (1.0 - kr)),
-            )
-        };
-        let (y0, u0, v0) = enc(pair[0]);
-        let (y1, u1, v1) = enc(pair[1]);
-        let q = |v: f32| v.round().clamp(0.0, 255.0) as u8;
+        let (y0, u0, v0) = ycbcr709(pair[0]);
+        let (y1, u1, v1) = ycbcr709(pair[1]);
         out.extend_from_slice(&[
-            q(16.0 + 219.0 * y0),
-            q(128.0 + 112.0 * (u0 + u1)),
-            q(16.0 + 219.0 * y1),
-            q(128.0 + 112.0 * (v0 + v1)),
+            code8(16.0 + 219.0 * y0),
+            code8(128.0 + 112.0 * (u0 + u1)),
+            code8(16.0 + 219.0 * y1),
+            code8(128.0 + 112.0 * (v0 + v1)),
         ]);
     }
     out
@@ -117,28 +123,20 @@ fn yuyv(scene: &[[f32; 3]]) -> Vec<u8> {
 
 /// NV12 (4:2:0): the luma plane, then each 2 × 2 block's mean Cb and Cr interleaved.
 fn nv12(scene: &[[f32; 3]]) -> Vec<u8> {
-    let (kr, kb) = (0.2126f32, 0.0722f32);
     let (w, h) = (W as usize, H as usize);
-    let enc = |p: [f32; 3]| {
-        let (r, g, b) = (srgb(p[0]), srgb(p[1]), srgb(p[2]));
-        let y = kr * r + (1.0 - kr - kb) * g + kb * b;
-        (
-            y,
-            (b - y) / (2.0 * (1.0 - kb)),
-            (r - y) / (2.0 * (1.0 - kr)),
-        )
-    };
-    let q = |v: f32| v.round().clamp(0.0, 255.0) as u8;
-    let mut out: Vec<u8> = scene.iter().map(|&p| q(16.0 + 219.0 * enc(p).0)).collect();
+    let mut out: Vec<u8> = scene
+        .iter()
+        .map(|&p| code8(16.0 + 219.0 * ycbcr709(p).0))
+        .collect();
     for y in (0..h).step_by(2) {
         for x in (0..w).step_by(2) {
             let (mut u, mut v) = (0.0, 0.0);
             for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                let (_, cb, cr) = enc(scene[(y + dy) * w + x + dx]);
+                let (_, cb, cr) = ycbcr709(scene[(y + dy) * w + x + dx]);
                 u += cb / 4.0;
                 v += cr / 4.0;
             }
-            out.extend_from_slice(&[q(128.0 + 224.0 * u), q(128.0 + 224.0 * v)]);
+            out.extend_from_slice(&[code8(128.0 + 224.0 * u), code8(128.0 + 224.0 * v)]);
         }
     }
     out

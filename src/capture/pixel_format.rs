@@ -453,14 +453,8 @@ impl PixelFormat {
     /// (any length) and for a size or stride the format does not allow
     /// ([`check`] says why).
     pub fn buffer_len(self, width: u32, height: u32, stride: usize) -> Option<usize> {
-        match check_layout(&RawFrame {
-            data: &[],
-            format: self,
-            width,
-            height,
-            stride,
-        }) {
-            Err(PixelError::Short { needed, .. }) => Some(needed),
+        match frame_layout(self, width, height, stride) {
+            Ok((Layout::Packed { .. }, needed)) => Some(needed),
             _ => None,
         }
     }
@@ -1056,7 +1050,28 @@ enum Layout {
 
 /// Checks a raw frame's size, width and stride against its format and buffer.
 fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
-    let (format, w, h) = (raw.format, raw.width, raw.height);
+    let (layout, needed) = frame_layout(raw.format, raw.width, raw.height, raw.stride)?;
+    if raw.data.len() < needed {
+        return Err(PixelError::Short {
+            format: raw.format,
+            width: raw.width,
+            height: raw.height,
+            got: raw.data.len(),
+            needed,
+        });
+    }
+    Ok(layout)
+}
+
+/// Where the codes of a `w`×`h` frame of `format` with rows `stride` bytes apart (0: packed)
+/// are, and how many bytes its buffer needs (0 for a JPEG, whose size is checked when it is
+/// decoded); an error for a size or stride the format does not allow.
+fn frame_layout(
+    format: PixelFormat,
+    w: u32,
+    h: u32,
+    stride: usize,
+) -> Result<(Layout, usize), PixelError> {
     let geometry = |message: &str| PixelError::Geometry {
         format,
         width: w,
@@ -1067,36 +1082,34 @@ fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
         return Err(geometry("frame size must be 1 to 16384² pixels"));
     }
     if format == PixelFormat::Mjpeg {
-        return Ok(Layout::Jpeg);
+        return Ok((Layout::Jpeg, 0));
     }
-    if matches!(
-        format,
-        PixelFormat::Yuyv | PixelFormat::Uyvy | PixelFormat::Yuv420(_) | PixelFormat::Bayer { .. }
-    ) && w % 2 != 0
-    {
-        return Err(geometry("width must be even"));
-    }
-    if matches!(format, PixelFormat::Csi2Packed { bits: 10, .. }) && w % 4 != 0 {
-        return Err(geometry(
+    // Pixels grouped in a row: a YUYV pair, a Bayer pair, a packed group of samples.
+    let (group, why) = match format {
+        PixelFormat::Csi2Packed { bits: 10, .. } => (
+            4,
             "width must be a multiple of 4 (10-bit packed: 4 samples in 5 bytes)",
-        ));
-    }
-    if matches!(format, PixelFormat::Csi2Packed { .. }) && w % 2 != 0 {
-        return Err(geometry(
+        ),
+        PixelFormat::Csi2Packed { .. } => (
+            2,
             "width must be even (12-bit packed: 2 samples in 3 bytes)",
-        ));
+        ),
+        PixelFormat::Yuyv
+        | PixelFormat::Uyvy
+        | PixelFormat::Yuv420(_)
+        | PixelFormat::Bayer { .. } => (2, "width must be even"),
+        _ => (1, ""),
+    };
+    if !w.is_multiple_of(group) {
+        return Err(geometry(why));
     }
-    if matches!(format, PixelFormat::Yuv420(_)) && h % 2 != 0 {
+    if matches!(format, PixelFormat::Yuv420(_)) && !h.is_multiple_of(2) {
         return Err(geometry(
             "height must be even (4:2:0 chroma covers 2×2 pixels)",
         ));
     }
     let row_bytes = format.row_bytes(w);
-    let stride = if raw.stride == 0 {
-        row_bytes
-    } else {
-        raw.stride
-    };
+    let stride = if stride == 0 { row_bytes } else { stride };
     if stride < row_bytes {
         return Err(geometry(&format!(
             "stride {stride} is smaller than a row of {row_bytes} bytes"
@@ -1130,20 +1143,12 @@ fn check_layout(raw: &RawFrame<'_>) -> Result<Layout, PixelError> {
     let Some(needed) = needed else {
         return Err(geometry(&format!("stride {stride} is too large")));
     };
-    if raw.data.len() < needed {
-        return Err(PixelError::Short {
-            format,
-            width: w,
-            height: h,
-            got: raw.data.len(),
-            needed,
-        });
-    }
-    Ok(Layout::Packed {
+    let layout = Layout::Packed {
         stride,
         row_bytes,
         chroma,
-    })
+    };
+    Ok((layout, needed))
 }
 
 /// Mirror index without repeating the edge: −1 → 1, n → n − 2 (n = 1: 0).

@@ -216,12 +216,10 @@ fn sort_nodes(nodes: &mut [PathBuf]) {
 /// Whether the node at `path` can be captured from ([`capture_node_problem`]); `false` where
 /// it cannot be opened or queried.
 fn is_capture_node(path: &Path) -> bool {
-    catch_unwind(AssertUnwindSafe(|| {
-        v4l::Device::with_path(path)
-            .and_then(|d| d.query_caps())
+    v4l::Device::with_path(path).is_ok_and(|device| {
+        query_caps(path, &device)
             .is_ok_and(|caps| capture_node_problem(caps.capabilities).is_none())
-    }))
-    .unwrap_or(false)
+    })
 }
 
 /// The sysfs name of a `/dev/videoN` node.

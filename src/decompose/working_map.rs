@@ -2052,11 +2052,10 @@ impl SplitPixel<'_> {
             }
         }
         // Each sub-pixel with its own solid angle (evenly spaced in the image, they are far
-        // from even on the sphere where the projection stretches: a stereographic rim), shared
-        // among the working pixels it covers; one whose centre is outside the image (a rim
-        // sub-pixel) by the parts of it inside.
-        // Their solid angles, the grid's edges shared: the same numbers as sub-pixel by
-        // sub-pixel ([`RectangleSolidAngles::grid`]).
+        // from even on the sphere where the projection stretches: a stereographic rim; from
+        // one grid whose shared edges are integrated once, [`RectangleSolidAngles::grid`]),
+        // shared among the working pixels it covers; one whose centre is outside the image (a
+        // rim sub-pixel) by the parts of it inside.
         let (xs, ys) = edges;
         xs.clear();
         xs.extend((0..=nx).map(|i| sub_corner(i, 0).0));

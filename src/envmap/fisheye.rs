@@ -295,13 +295,8 @@ impl RadialMap {
     }
 
     /// Flux of H(r)(x, y) through the part of the segment A→B (relative to the centre) inside the
-    /// disc, and the angle that part subtends at the centre; the flux to [`PIXEL_TOLERANCE`].
-    fn edge(&self, ax: f64, ay: f64, bx: f64, by: f64) -> Edge {
-        self.edge_to(ax, ay, bx, by, PIXEL_TOLERANCE)
-    }
-
-    /// [`RadialMap::edge`] with the flux to `tolerance` (relative).
-    fn edge_to(&self, ax: f64, ay: f64, bx: f64, by: f64, tolerance: f64) -> Edge {
+    /// disc, to `tolerance` (relative), and the angle that part subtends at the centre.
+    fn edge(&self, ax: f64, ay: f64, bx: f64, by: f64, tolerance: f64) -> Edge {
         let (dx, dy) = (bx - ax, by - ay);
         // |A + tD|² − R² = a t² + 2 b t + c
         let a = dx * dx + dy * dy;
@@ -371,8 +366,6 @@ impl RadialMap {
             return out;
         }
         let xs: Vec<f64> = (i0..=i1).map(|i| i as f64 - self.cx).collect();
-        let horizontal =
-            |y: f64| -> Vec<Edge> { xs.windows(2).map(|p| self.edge(p[0], y, p[1], y)).collect() };
         // Bands of rows in parallel: a band computes its own first bottom edges, so every edge
         // is the same function of the same numbers as in one pass, and the result does not
         // depend on the number of threads.
@@ -381,25 +374,52 @@ impl RadialMap {
             .enumerate()
             .for_each(|(band, rows)| {
                 let first = j0 + band * ROWS_PER_BAND;
-                let mut y_lo = first as f64 - self.cy;
-                let mut edges_lo = horizontal(y_lo);
-                for (j, row) in (first..).zip(rows.chunks_exact_mut(wu)) {
-                    let y_hi = (j + 1) as f64 - self.cy;
-                    let edges_hi = horizontal(y_hi);
-                    let verticals: Vec<Edge> =
-                        xs.iter().map(|&x| self.edge(x, y_lo, x, y_hi)).collect();
-                    for n in 0..xs.len() - 1 {
-                        let (x0, x1) = (xs[n], xs[n + 1]);
-                        // counter-clockwise in the (dx, dy) plane: y_lo (+x), x1 (+y), y_hi (−x),
-                        // x0 (−y)
-                        let edges = [edges_lo[n], verticals[n + 1], edges_hi[n], verticals[n]];
-                        row[i0 + n] = self.omega_from_edges(edges, (x0, x1), (y_lo, y_hi));
-                    }
-                    edges_lo = edges_hi;
-                    y_lo = y_hi;
-                }
+                let ys: Vec<f64> = (first..=first + rows.len() / wu)
+                    .map(|j| j as f64 - self.cy)
+                    .collect();
+                let cells = rows.chunks_exact_mut(wu).map(|row| &mut row[i0..i1]);
+                self.grid_cells(&xs, &ys, PIXEL_TOLERANCE, cells);
             });
         out
+    }
+
+    /// The solid angles of the cells of the grid with column edges `xs` and row edges `ys`
+    /// (relative to the centre, increasing), row by row into `rows` (one slice of
+    /// `xs.len()` − 1 cells each); each edge is integrated once, to `tolerance`, for the two
+    /// cells that share it.
+    fn grid_cells<'r>(
+        &self,
+        xs: &[f64],
+        ys: &[f64],
+        tolerance: f64,
+        rows: impl IntoIterator<Item = &'r mut [f64]>,
+    ) {
+        let horizontal = |y: f64| -> Vec<Edge> {
+            xs.windows(2)
+                .map(|p| self.edge(p[0], y, p[1], y, tolerance))
+                .collect()
+        };
+        let Some(&first) = ys.first() else { return };
+        let mut edges_lo = horizontal(first);
+        for (band, row) in ys.windows(2).zip(rows) {
+            let (y0, y1) = (band[0], band[1]);
+            let edges_hi = horizontal(y1);
+            let verticals: Vec<Edge> = xs
+                .iter()
+                .map(|&x| self.edge(x, y0, x, y1, tolerance))
+                .collect();
+            for ((n, x), cell) in xs.windows(2).enumerate().zip(row.iter_mut()) {
+                let (x0, x1) = (x[0], x[1]);
+                // counter-clockwise in the (dx, dy) plane: y0 (+x), x1 (+y), y1 (−x), x0 (−y)
+                *cell = if x0 < x1 && y0 < y1 {
+                    let edges = [edges_lo[n], verticals[n + 1], edges_hi[n], verticals[n]];
+                    self.omega_from_edges(edges, (x0, x1), (y0, y1))
+                } else {
+                    0.0
+                };
+            }
+            edges_lo = edges_hi;
+        }
     }
 }
 
@@ -443,10 +463,10 @@ impl RadialMap {
             return 0.0;
         }
         let edges = [
-            self.edge_to(x0, y0, x1, y0, RECTANGLE_TOLERANCE),
-            self.edge_to(x1, y0, x1, y1, RECTANGLE_TOLERANCE),
-            self.edge_to(x0, y1, x1, y1, RECTANGLE_TOLERANCE),
-            self.edge_to(x0, y0, x0, y1, RECTANGLE_TOLERANCE),
+            self.edge(x0, y0, x1, y0, RECTANGLE_TOLERANCE),
+            self.edge(x1, y0, x1, y1, RECTANGLE_TOLERANCE),
+            self.edge(x0, y1, x1, y1, RECTANGLE_TOLERANCE),
+            self.edge(x0, y0, x0, y1, RECTANGLE_TOLERANCE),
         ];
         self.omega_from_edges(edges, (x0, x1), (y0, y1))
     }
@@ -455,33 +475,16 @@ impl RadialMap {
     /// and row edges `ys` (image pixels, finite), row-major, appended to `out`: the same
     /// numbers, each edge integrated once for the two cells that share it.
     pub(super) fn grid_solid_angles(&self, xs: &[f64], ys: &[f64], out: &mut Vec<f64>) {
+        let columns = xs.len().saturating_sub(1);
+        if columns == 0 {
+            return;
+        }
         let xs: Vec<f64> = xs.iter().map(|x| x - self.cx).collect();
         let ys: Vec<f64> = ys.iter().map(|y| y - self.cy).collect();
-        let horizontal = |y: f64| -> Vec<Edge> {
-            xs.windows(2)
-                .map(|p| self.edge_to(p[0], y, p[1], y, RECTANGLE_TOLERANCE))
-                .collect()
-        };
-        let Some(&first) = ys.first() else { return };
-        let mut edges_lo = horizontal(first);
-        for band in ys.windows(2) {
-            let (y0, y1) = (band[0], band[1]);
-            let edges_hi = horizontal(y1);
-            let verticals: Vec<Edge> = xs
-                .iter()
-                .map(|&x| self.edge_to(x, y0, x, y1, RECTANGLE_TOLERANCE))
-                .collect();
-            for (n, x) in xs.windows(2).enumerate() {
-                let (x0, x1) = (x[0], x[1]);
-                out.push(if x0 < x1 && y0 < y1 {
-                    let edges = [edges_lo[n], verticals[n + 1], edges_hi[n], verticals[n]];
-                    self.omega_from_edges(edges, (x0, x1), (y0, y1))
-                } else {
-                    0.0
-                });
-            }
-            edges_lo = edges_hi;
-        }
+        let start = out.len();
+        out.resize(start + columns * ys.len().saturating_sub(1), 0.0);
+        let rows = out[start..].chunks_exact_mut(columns);
+        self.grid_cells(&xs, &ys, RECTANGLE_TOLERANCE, rows);
     }
 }
 
