@@ -138,7 +138,7 @@ impl RectangleSolidAngles {
     /// The solid angles of the cells of the grid with column edges `xs` and row edges `ys`
     /// (increasing, continuous pixel positions), row-major into `out` ((`xs.len()` − 1) ×
     /// (`ys.len()` − 1) values): each what [`RectangleSolidAngles::of`] gives its cell, to the
-    /// bit, but a lens's edges shared by two cells are integrated once (about half the work of
+    /// bit, but a lens's edges shared by two cells are integrated once (half the edge integrals of
     /// asking cell by cell; the sub-pixels of a coarse frame's pixels, `SplitPixel::parts`).
     pub fn grid(&self, xs: &[f64], ys: &[f64], out: &mut Vec<f64>) {
         out.clear();
