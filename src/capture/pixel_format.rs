@@ -381,7 +381,9 @@ impl PixelFormat {
     /// Parses a config/CLI name: a fourcc (`"Y16"`, `"MJPG"`, `"RG10"`, `"NV12"`, `"pRAA"`;
     /// trailing spaces may be left out; matched exactly, else in upper case, since the CSI-2
     /// packed codes `pGAA` and `pgAA` differ in case only) or one of `yuyv`, `mjpeg`, `grey`,
-    /// `rgb24`, `bgr24`, `i420` (`YU12`) (case-insensitive).
+    /// `rgb24`, `bgr24`, `i420` (`YU12`) (case-insensitive). A multi-planar node's
+    /// separate-plane codes name the same formats as their one-buffer twins (`NM12` is
+    /// `NV12`; [`super::v4l2_mplane::pixel_format`]).
     pub fn parse(name: &str) -> Option<Self> {
         let lower = name.trim().to_ascii_lowercase();
         match lower.as_str() {
@@ -399,7 +401,8 @@ impl PixelFormat {
         }
         let mut code = [b' '; 4];
         code[..bytes.len()].copy_from_slice(bytes);
-        Self::from_fourcc(code).or_else(|| Self::from_fourcc(code.map(|b| b.to_ascii_uppercase())))
+        let read = super::v4l2_mplane::pixel_format;
+        read(code).or_else(|| read(code.map(|b| b.to_ascii_uppercase())))
     }
 
     /// Significant bits per sample.
@@ -1562,6 +1565,15 @@ mod tests {
             Some(PixelFormat::Yuv420(Yuv420::Yu12))
         );
         assert_eq!(PixelFormat::parse("NV16"), None);
+        // The separate-plane codes of multi-planar nodes, as `envlight devices` shows them.
+        assert_eq!(
+            PixelFormat::parse("NM12"),
+            Some(PixelFormat::Yuv420(Yuv420::Nv12))
+        );
+        assert_eq!(
+            PixelFormat::parse("ym21"),
+            Some(PixelFormat::Yuv420(Yuv420::Yv12))
+        );
         assert_eq!(
             PixelFormat::parse("rg12"),
             Some(PixelFormat::Bayer {

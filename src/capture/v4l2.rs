@@ -14,6 +14,10 @@
 //!    `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units);
 //! 4. memory-mapped streaming with 4 buffers and a dequeue timeout.
 //!
+//! A node that captures only through the multi-planar API ([`CaptureApi::MultiPlanar`]: SoC
+//! camera pipelines) takes the same steps through [`super::v4l2_mplane`], which hands each
+//! frame on in the one-buffer layout, so everything after the dequeue is shared.
+//!
 //! Every frame: dequeue → the buffer checked and kept ([`FrameConverter::keep`]) → radiance
 //! ([`FrameConverter::radiance`]: decoding and the response's [`super::response::Linearizer`])
 //! with the exposure time read back from the camera's exposure control (so auto exposure is
@@ -42,6 +46,7 @@ use super::bracket::{self, Bracket, MergeLimits};
 use super::convert::{Calibration, FrameConverter, StreamFormat};
 use super::pixel_format::{self, PixelFormat, YuvMatrix};
 use super::response::ResponseModel;
+use super::v4l2_mplane;
 use super::{CaptureError, FrameSource};
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
@@ -171,20 +176,39 @@ fn query_caps(path: &Path, device: &v4l::Device) -> Result<v4l::Capabilities, Ca
     caps
 }
 
-/// Why a node whose capabilities (`device_caps`) are `caps` cannot be captured from, if it
-/// cannot: it must be a single-planar video capture node. A driver that reports no
-/// per-node capabilities (very old ones) is given the benefit of the doubt.
-fn capture_node_problem(caps: v4l::capability::Flags) -> Option<&'static str> {
+/// Which of V4L2's two video capture APIs a node streams through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CaptureApi {
+    /// `V4L2_BUF_TYPE_VIDEO_CAPTURE`: a frame is one buffer (UVC webcams, most USB cameras).
+    SinglePlanar,
+    /// `V4L2_BUF_TYPE_VIDEO_CAPTURE_MPLANE`: a frame is a buffer of planes (SoC camera
+    /// pipelines; [`super::v4l2_mplane`]).
+    MultiPlanar,
+}
+
+impl CaptureApi {
+    /// The pixel format a fourcc the node enumerates stands for (on a multi-planar node the
+    /// separate-plane codes, such as `NM12`, stand for their one-buffer twins).
+    pub fn pixel_format(self, code: [u8; 4]) -> Option<PixelFormat> {
+        match self {
+            CaptureApi::SinglePlanar => PixelFormat::from_fourcc(code),
+            CaptureApi::MultiPlanar => v4l2_mplane::pixel_format(code),
+        }
+    }
+}
+
+/// How a node whose capabilities (`device_caps`) are `caps` captures video, or why it cannot:
+/// single-planar where it offers that (also alongside the multi-planar API), multi-planar
+/// where that is all it offers. A driver that reports no per-node capabilities (very old ones)
+/// is given the benefit of the doubt (single-planar).
+fn capture_api(caps: v4l::capability::Flags) -> Result<CaptureApi, &'static str> {
     use v4l::capability::Flags;
     if caps.is_empty() || caps.contains(Flags::VIDEO_CAPTURE) {
-        None
+        Ok(CaptureApi::SinglePlanar)
     } else if caps.contains(Flags::VIDEO_CAPTURE_MPLANE) {
-        Some(
-            "captures through the multi-planar API (V4L2_CAP_VIDEO_CAPTURE_MPLANE), which \
-             envlight does not support yet (docs/camera.md, \"Limitations\")",
-        )
+        Ok(CaptureApi::MultiPlanar)
     } else {
-        Some("is not a video capture node (a UVC camera's second node carries its metadata)")
+        Err("is not a video capture node (a UVC camera's second node carries its metadata)")
     }
 }
 
@@ -213,12 +237,11 @@ fn sort_nodes(nodes: &mut [PathBuf]) {
     });
 }
 
-/// Whether the node at `path` can be captured from ([`capture_node_problem`]); `false` where
+/// Whether the node at `path` can be captured from ([`capture_api`]); `false` where
 /// it cannot be opened or queried.
 fn is_capture_node(path: &Path) -> bool {
     v4l::Device::with_path(path).is_ok_and(|device| {
-        query_caps(path, &device)
-            .is_ok_and(|caps| capture_node_problem(caps.capabilities).is_none())
+        query_caps(path, &device).is_ok_and(|caps| capture_api(caps.capabilities).is_ok())
     })
 }
 
@@ -269,13 +292,58 @@ pub fn resolve_device(spec: &str) -> Result<PathBuf, CaptureError> {
         })
 }
 
-/// Picks the first preferred format the device offers.
-pub fn choose_format(preference: &[PixelFormat], offered: &[[u8; 4]]) -> Option<PixelFormat> {
-    preference.iter().copied().find(|f| {
+/// Picks the first preferred format the device offers, with the code the device offers it
+/// under (the first such code).
+pub fn choose_format(
+    preference: &[PixelFormat],
+    offered: &[[u8; 4]],
+    api: CaptureApi,
+) -> Option<(PixelFormat, [u8; 4])> {
+    preference.iter().find_map(|&f| {
         offered
             .iter()
-            .any(|o| PixelFormat::from_fourcc(*o) == Some(*f))
+            .find(|&&o| api.pixel_format(o) == Some(f))
+            .map(|&o| (f, o))
     })
+}
+
+/// A node's memory-mapped stream, through the API the node has.
+enum Stream {
+    Single(v4l::io::mmap::Stream<'static>),
+    Multi(v4l2_mplane::MplaneStream),
+}
+
+impl Stream {
+    /// Waits for the next buffer: its bytes, or why it holds no frame (flagged corrupt by the
+    /// driver, empty, planes too short), with its metadata.
+    fn next(&mut self) -> io::Result<(Result<&[u8], String>, v4l::buffer::Metadata)> {
+        match self {
+            Stream::Single(stream) => {
+                let (data, meta) = stream.next()?;
+                let used = (meta.bytesused as usize).min(data.len());
+                let bytes = if meta.flags.contains(v4l::buffer::Flags::ERROR) {
+                    Err("the driver flagged the buffer as corrupt".to_string())
+                } else if used == 0 {
+                    Err("the buffer is empty".to_string())
+                } else {
+                    Ok(&data[..used])
+                };
+                Ok((bytes, *meta))
+            }
+            Stream::Multi(stream) => stream.next_frame(),
+        }
+    }
+}
+
+/// What the driver set: the format and its geometry.
+struct Negotiated {
+    width: u32,
+    height: u32,
+    /// Bytes between rows of the buffers the stream hands on.
+    stride: usize,
+    colorspace: v4l::format::Colorspace,
+    /// The planes, on a multi-planar node.
+    planes: Option<v4l2_mplane::MplaneFormat>,
 }
 
 /// A streaming V4L2 camera (see the module docs).
@@ -289,7 +357,7 @@ pub struct V4l2Source {
     // before the device so it is dropped (streaming stopped, buffers unmapped) first.
     // `Option` so `Drop` can take it out and drop it under `catch_unwind`: the `v4l` crate
     // panics when stopping the stream fails with anything but ENODEV (an EIO after an unplug).
-    stream: Option<v4l::io::mmap::Stream<'static>>,
+    stream: Option<Stream>,
     device: v4l::Device,
     has_exposure: bool,
     has_exposure_auto: bool,
@@ -321,18 +389,26 @@ impl V4l2Source {
             }
         })?;
         let caps = query_caps(p, &device)?;
-        if let Some(problem) = capture_node_problem(caps.capabilities) {
-            return Err(CaptureError::InvalidSettings(format!(
+        let api = capture_api(caps.capabilities).map_err(|problem| {
+            CaptureError::InvalidSettings(format!(
                 "{} ({}) {problem}; `envlight devices` lists the nodes and what they offer",
                 p.display(),
                 caps.card
-            )));
-        }
-        let offered: Vec<[u8; 4]> = guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
-            .iter()
-            .map(|d| d.fourcc.repr)
-            .collect();
-        let format = choose_format(&settings.formats, &offered).ok_or_else(|| {
+            ))
+        })?;
+        let offered: Vec<[u8; 4]> = match api {
+            CaptureApi::SinglePlanar => guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
+                .iter()
+                .map(|d| d.fourcc.repr)
+                .collect(),
+            CaptureApi::MultiPlanar => guarded(p, "capture formats", || {
+                v4l2_mplane::enum_formats(&device.handle())
+            })?
+            .into_iter()
+            .map(|(code, _)| code)
+            .collect(),
+        };
+        let (format, code) = choose_format(&settings.formats, &offered, api).ok_or_else(|| {
             let names: Vec<String> = offered
                 .iter()
                 .map(|c| String::from_utf8_lossy(c).trim_end().to_string())
@@ -343,28 +419,25 @@ impl V4l2Source {
                 names.join(", ")
             ))
         })?;
-        let mut fmt = guarded(p, "VIDIOC_G_FMT", || device.format())?;
-        fmt.width = settings.width;
-        fmt.height = settings.height;
-        fmt.fourcc = v4l::FourCC::new(&format.fourcc());
-        let fmt = guarded(p, "VIDIOC_S_FMT", || device.set_format(&fmt))?;
-        if PixelFormat::from_fourcc(fmt.fourcc.repr) != Some(format) {
-            return Err(CaptureError::InvalidSettings(format!(
-                "{}: asked for {format}, the driver chose {}",
-                p.display(),
-                fmt.fourcc
-            )));
-        }
+        let negotiated = Self::set_format(p, &device, api, format, code, settings)?;
         let yuv_matrix = match settings.yuv_matrix {
-            YuvMatrix::Auto => yuv_matrix_for(fmt.colorspace),
+            YuvMatrix::Auto => yuv_matrix_for(negotiated.colorspace),
             m => m,
         };
         if let Some(fps) = settings.fps {
-            let params = v4l::video::capture::Parameters::new(v4l::Fraction::new(
-                1000,
-                (fps * 1000.0).round().clamp(1.0, u32::MAX as f64) as u32,
-            ));
-            if let Err(e) = guarded(p, "VIDIOC_S_PARM", || device.set_params(&params)) {
+            let set = match api {
+                CaptureApi::SinglePlanar => {
+                    let params = v4l::video::capture::Parameters::new(v4l::Fraction::new(
+                        1000,
+                        (fps * 1000.0).round().clamp(1.0, u32::MAX as f64) as u32,
+                    ));
+                    guarded(p, "VIDIOC_S_PARM", || device.set_params(&params)).map(drop)
+                }
+                CaptureApi::MultiPlanar => guarded(p, "frame rate", || {
+                    v4l2_mplane::set_frame_rate(&device.handle(), fps)
+                }),
+            };
+            if let Err(e) = set {
                 tracing::warn!("{e} (keeping the driver's frame rate)");
             }
         }
@@ -392,17 +465,41 @@ impl V4l2Source {
                 p.display()
             )));
         }
-        let mut stream = guarded(p, "VIDIOC_REQBUFS", || {
-            v4l::io::mmap::Stream::with_buffers(&device, Type::VideoCapture, 4)
-        })?;
-        stream.set_timeout(settings.timeout);
+        let stream = match &negotiated.planes {
+            None => {
+                let mut stream = guarded(p, "VIDIOC_REQBUFS", || {
+                    v4l::io::mmap::Stream::with_buffers(&device, Type::VideoCapture, 4)
+                })?;
+                stream.set_timeout(settings.timeout);
+                Stream::Single(stream)
+            }
+            Some(planes) => {
+                let mut stream = guarded(p, "buffers", || {
+                    v4l2_mplane::MplaneStream::new(device.handle(), planes, format, 4)
+                })?;
+                stream.set_timeout(settings.timeout);
+                Stream::Multi(stream)
+            }
+        };
+        let Negotiated {
+            width,
+            height,
+            stride,
+            ..
+        } = negotiated;
         tracing::info!(
-            "{} ({}): {format} {}x{} stride {}",
+            "{} ({}): {format}{} {width}x{height} stride {stride}",
             p.display(),
             caps.card,
-            fmt.width,
-            fmt.height,
-            fmt.stride
+            match &negotiated.planes {
+                Some(planes) if planes.planes.len() > 1 => format!(
+                    " in {} planes ({})",
+                    planes.planes.len(),
+                    String::from_utf8_lossy(&code)
+                ),
+                Some(_) => " (multi-planar API)".to_string(),
+                None => String::new(),
+            }
         );
         let convert_pool =
             crate::parallel::helper_pool(settings.convert_threads, "envlight-convert").map_err(
@@ -413,9 +510,9 @@ impl V4l2Source {
             )?;
         let stream_format = StreamFormat {
             format,
-            width: fmt.width,
-            height: fmt.height,
-            stride: fmt.stride as usize,
+            width,
+            height,
+            stride,
         };
         let calibration = Calibration {
             response: settings.response.clone(),
@@ -437,8 +534,8 @@ impl V4l2Source {
                 ..settings.clone()
             },
             format,
-            width: fmt.width,
-            height: fmt.height,
+            width,
+            height,
             stream: Some(stream),
             device,
             has_exposure,
@@ -448,6 +545,57 @@ impl V4l2Source {
             seq: 0,
             card: caps.card,
         })
+    }
+
+    /// Sets `format`, offered as `code`, at the configured size through the node's API; a
+    /// driver that substitutes another pixel format is an error.
+    fn set_format(
+        p: &Path,
+        device: &v4l::Device,
+        api: CaptureApi,
+        format: PixelFormat,
+        code: [u8; 4],
+        settings: &CameraSettings,
+    ) -> Result<Negotiated, CaptureError> {
+        let (chosen, negotiated) = match api {
+            CaptureApi::SinglePlanar => {
+                let mut fmt = guarded(p, "VIDIOC_G_FMT", || device.format())?;
+                fmt.width = settings.width;
+                fmt.height = settings.height;
+                fmt.fourcc = v4l::FourCC::new(&code);
+                let fmt = guarded(p, "VIDIOC_S_FMT", || device.set_format(&fmt))?;
+                let negotiated = Negotiated {
+                    width: fmt.width,
+                    height: fmt.height,
+                    stride: fmt.stride as usize,
+                    colorspace: fmt.colorspace,
+                    planes: None,
+                };
+                (fmt.fourcc.repr, negotiated)
+            }
+            CaptureApi::MultiPlanar => {
+                let fmt = guarded(p, "format", || {
+                    v4l2_mplane::set_format(&device.handle(), code, settings.width, settings.height)
+                })?;
+                let negotiated = Negotiated {
+                    width: fmt.width,
+                    height: fmt.height,
+                    stride: fmt.stride(format),
+                    colorspace: v4l::format::Colorspace::try_from(fmt.colorspace)
+                        .unwrap_or(v4l::format::Colorspace::Default),
+                    planes: Some(fmt.clone()),
+                };
+                (fmt.fourcc, negotiated)
+            }
+        };
+        if api.pixel_format(chosen) != Some(format) {
+            return Err(CaptureError::InvalidSettings(format!(
+                "{}: asked for {format}, the driver chose {}",
+                p.display(),
+                String::from_utf8_lossy(&chosen)
+            )));
+        }
+        Ok(negotiated)
     }
 
     /// The negotiated format and size.
@@ -493,27 +641,26 @@ impl V4l2Source {
         let p = self.path.clone();
         let mut last_problem = String::new();
         for _ in 0..MAX_BAD_FRAMES {
-            let (data, meta) = guarded(&p, "VIDIOC_DQBUF", || {
+            let what = match self.stream {
+                Some(Stream::Multi(_)) => "capture",
+                _ => "VIDIOC_DQBUF",
+            };
+            let (data, meta) = guarded(&p, what, || {
                 let stream = self.stream.as_mut().ok_or_else(|| {
                     io::Error::new(io::ErrorKind::NotConnected, "the stream is closed")
                 })?;
-                let (buf, meta) = stream.next()?;
-                Ok((buf, *meta))
+                stream.next()
             })?;
-            let used = (meta.bytesused as usize).min(data.len());
-            let problem = if meta.flags.contains(v4l::buffer::Flags::ERROR) {
-                "the driver flagged the buffer as corrupt".to_string()
-            } else if used == 0 {
-                "the buffer is empty".to_string()
-            } else {
+            let problem = match data {
                 // Checked and kept while the driver lends the buffer; converted once the
                 // exposure is known.
-                match self.converter.keep(&data[..used]) {
+                Ok(bytes) => match self.converter.keep(bytes) {
                     Ok(()) => {
                         return Ok(meta.timestamp.sec as f64 + meta.timestamp.usec as f64 * 1e-6)
                     }
                     Err(e) => e.to_string(),
-                }
+                },
+                Err(problem) => problem,
             };
             tracing::warn!(
                 "{}: frame {} skipped: {problem}",
@@ -723,8 +870,9 @@ pub struct DeviceInfo {
     pub card: String,
     pub driver: String,
     pub bus: String,
-    /// Why envlight cannot capture from this node, if it cannot (a multi-planar or a metadata
-    /// node).
+    /// Whether it captures through the multi-planar API only.
+    pub multi_planar: bool,
+    /// Why envlight cannot capture from this node, if it cannot (a metadata node).
     pub unusable: Option<String>,
     pub formats: Vec<FormatInfo>,
     pub controls: Vec<ControlInfo>,
@@ -734,18 +882,29 @@ pub struct DeviceInfo {
 pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
     let device = v4l::Device::with_path(path).map_err(|e| io_err(path, e))?;
     let caps = query_caps(path, &device)?;
+    let api = capture_api(caps.capabilities);
+    let offered: Vec<([u8; 4], String)> = match api {
+        Ok(CaptureApi::MultiPlanar) => guarded(path, "capture formats", || {
+            v4l2_mplane::enum_formats(&device.handle())
+        })?,
+        _ => guarded(path, "VIDIOC_ENUM_FMT", || device.enum_formats())?
+            .into_iter()
+            .map(|d| (d.fourcc.repr, d.description))
+            .collect(),
+    };
     let mut formats = Vec::new();
-    for d in guarded(path, "VIDIOC_ENUM_FMT", || device.enum_formats())? {
+    for (code, description) in offered {
+        let fourcc = v4l::FourCC::new(&code);
         let mut sizes = Vec::new();
         let sz = guarded(path, "VIDIOC_ENUM_FRAMESIZES", || {
-            device.enum_framesizes(d.fourcc)
+            device.enum_framesizes(fourcc)
         })
         .unwrap_or_default();
         for s in sz {
             match s.size {
                 v4l::framesize::FrameSizeEnum::Discrete(ds) => {
                     let rates = guarded(path, "VIDIOC_ENUM_FRAMEINTERVALS", || {
-                        device.enum_frameintervals(d.fourcc, ds.width, ds.height)
+                        device.enum_frameintervals(fourcc, ds.width, ds.height)
                     })
                     .unwrap_or_default()
                     .iter()
@@ -765,11 +924,12 @@ pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
             }
         }
         formats.push(FormatInfo {
-            fourcc: String::from_utf8_lossy(&d.fourcc.repr)
-                .trim_end()
-                .to_string(),
-            description: d.description.clone(),
-            supported: PixelFormat::from_fourcc(d.fourcc.repr).is_some(),
+            fourcc: String::from_utf8_lossy(&code).trim_end().to_string(),
+            description,
+            supported: api
+                .unwrap_or(CaptureApi::SinglePlanar)
+                .pixel_format(code)
+                .is_some(),
             sizes,
         });
     }
@@ -801,7 +961,8 @@ pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
         card: caps.card,
         driver: caps.driver,
         bus: caps.bus,
-        unusable: capture_node_problem(caps.capabilities).map(str::to_string),
+        multi_planar: api == Ok(CaptureApi::MultiPlanar),
+        unusable: api.err().map(str::to_string),
         formats,
         controls,
     })
@@ -822,11 +983,16 @@ impl fmt::Display for DeviceInfo {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{}: {} (driver {}, bus {})",
+            "{}: {} (driver {}, bus {}{})",
             self.path.display(),
             self.card,
             self.driver,
-            self.bus
+            self.bus,
+            if self.multi_planar {
+                ", multi-planar"
+            } else {
+                ""
+            }
         )?;
         if let Some(problem) = &self.unusable {
             writeln!(f, "  not usable: this node {problem}")?;
@@ -870,28 +1036,37 @@ mod tests {
 
     #[test]
     fn format_choice_follows_the_preference() {
+        let single = |pref: &[PixelFormat], offered: &[[u8; 4]]| {
+            choose_format(pref, offered, CaptureApi::SinglePlanar).map(|(f, _)| f)
+        };
         let offered = [*b"YUYV", *b"MJPG", *b"Y16 "];
         let pref = pixel_format::DEFAULT_PREFERENCE;
         assert_eq!(
-            choose_format(&pref, &offered),
+            single(&pref, &offered),
             Some(PixelFormat::Grey { bits: 16 })
         );
         assert_eq!(
-            choose_format(&[PixelFormat::Mjpeg, PixelFormat::Yuyv], &offered),
+            single(&[PixelFormat::Mjpeg, PixelFormat::Yuyv], &offered),
             Some(PixelFormat::Mjpeg)
         );
-        assert_eq!(choose_format(&[PixelFormat::Rgb24], &offered), None);
+        assert_eq!(single(&[PixelFormat::Rgb24], &offered), None);
         // 4:2:0 comes after YUYV and before MJPEG; a fourcc envlight does not convert is
         // never chosen.
+        let nv12 = PixelFormat::Yuv420(pixel_format::Yuv420::Nv12);
+        assert_eq!(single(&pref, &[*b"MJPG", *b"NV12", *b"YU12"]), Some(nv12));
         assert_eq!(
-            choose_format(&pref, &[*b"MJPG", *b"NV12", *b"YU12"]),
-            Some(PixelFormat::Yuv420(pixel_format::Yuv420::Nv12))
-        );
-        assert_eq!(
-            choose_format(&pref, &[*b"NV12", *b"YUYV"]),
+            single(&pref, &[*b"NV12", *b"YUYV"]),
             Some(PixelFormat::Yuyv)
         );
-        assert_eq!(choose_format(&pref, &[*b"NV16"]), None);
+        assert_eq!(single(&pref, &[*b"NV16"]), None);
+        // A multi-planar node offers NV12 in two planes as NM12: chosen for NV12, and asked
+        // for under its own code. A single-planar node knows no NM12.
+        let mplane = [*b"NM16", *b"NM12"];
+        assert_eq!(
+            choose_format(&pref, &mplane, CaptureApi::MultiPlanar),
+            Some((nv12, *b"NM12"))
+        );
+        assert_eq!(single(&pref, &mplane), None);
     }
 
     #[test]
@@ -908,14 +1083,19 @@ mod tests {
     }
 
     #[test]
-    fn only_single_planar_capture_nodes_are_opened() {
+    fn video_capture_nodes_are_opened_through_their_api() {
         use v4l::capability::Flags;
         let streaming = Flags::STREAMING;
-        assert_eq!(capture_node_problem(Flags::VIDEO_CAPTURE | streaming), None);
-        assert_eq!(capture_node_problem(Flags::empty()), None);
-        let mplane = capture_node_problem(Flags::VIDEO_CAPTURE_MPLANE | streaming).unwrap();
-        assert!(mplane.contains("multi-planar"), "{mplane}");
-        let metadata = capture_node_problem(Flags::META_CAPTURE | streaming).unwrap();
+        let single = Ok(CaptureApi::SinglePlanar);
+        assert_eq!(capture_api(Flags::VIDEO_CAPTURE | streaming), single);
+        assert_eq!(capture_api(Flags::empty()), single);
+        let both = Flags::VIDEO_CAPTURE | Flags::VIDEO_CAPTURE_MPLANE | streaming;
+        assert_eq!(capture_api(both), single);
+        assert_eq!(
+            capture_api(Flags::VIDEO_CAPTURE_MPLANE | streaming),
+            Ok(CaptureApi::MultiPlanar)
+        );
+        let metadata = capture_api(Flags::META_CAPTURE | streaming).unwrap_err();
         assert!(metadata.contains("not a video capture node"), "{metadata}");
         // `envlight devices` says why such a node is of no use.
         let info = DeviceInfo {
@@ -923,6 +1103,7 @@ mod tests {
             card: "Cam".into(),
             driver: "uvcvideo".into(),
             bus: "usb-1".into(),
+            multi_planar: false,
             unusable: Some(metadata.to_string()),
             formats: Vec::new(),
             controls: Vec::new(),
@@ -933,6 +1114,28 @@ mod tests {
             "{text}"
         );
         assert!(!text.contains("no capture formats"), "{text}");
+        // A multi-planar node says so, and its separate-plane formats are usable.
+        let isp = DeviceInfo {
+            path: PathBuf::from("/dev/video3"),
+            card: "rkisp_mainpath".into(),
+            driver: "rkisp1".into(),
+            bus: "platform:rkisp1".into(),
+            multi_planar: true,
+            unusable: None,
+            formats: vec![FormatInfo {
+                fourcc: "NM12".into(),
+                description: "Y/UV 4:2:0 (N-C)".into(),
+                supported: CaptureApi::MultiPlanar.pixel_format(*b"NM12").is_some(),
+                sizes: Vec::new(),
+            }],
+            controls: Vec::new(),
+        };
+        let text = isp.to_string();
+        assert!(
+            text.contains("bus platform:rkisp1, multi-planar)"),
+            "{text}"
+        );
+        assert!(text.contains("format NM12 (Y/UV 4:2:0 (N-C))\n"), "{text}");
     }
 
     #[test]
