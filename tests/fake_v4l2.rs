@@ -1,0 +1,774 @@
+//! envlight's camera code against a fake V4L2 driver in user space: the `v4l` crate's
+//! single-planar stream and envlight's own multi-planar calls (src/capture/v4l2_mplane.rs) run
+//! through real `ioctl`, `mmap` and `poll` system calls, with no camera and no kernel module.
+//!
+//! How the fake works:
+//! 1. the "device" is a regular temporary file: `open`, `poll` (a file is always readable) and
+//!    the `mmap` of buffers at the offsets the fake hands out are the kernel's own;
+//! 2. the test thread installs a seccomp filter that turns every `ioctl` of V4L2's type `'V'`
+//!    into a user notification (`SECCOMP_RET_USER_NOTIF`, Linux 5.0 and later); the filter is
+//!    the thread's own, so other tests are not affected;
+//! 3. a driver thread, started before the filter and so outside it, receives each
+//!    notification, reads and writes the caller's structure as a driver does (the caller is a
+//!    thread of this process, blocked in the call, so its memory is at the same address), and
+//!    answers with a return value or an errno;
+//! 4. at `VIDIOC_DQBUF` the driver writes the next frame into the buffer's planes in the file,
+//!    which the caller's mapping shows.
+//!
+//! The tests stream the same frames through both APIs and compare the radiance envlight makes
+//! of them, bit for bit: NV12 in one buffer against NM12 in two planes (padded rows, a
+//! payload after a `data_offset`), YU12 against YM12 in three, and CSI-2 packed raw in one
+//! plane of a multi-planar node; with a frame the driver flags corrupt and one whose chroma
+//! plane comes short, both skipped.
+
+use envlight::capture::pixel_format::PixelFormat;
+use envlight::capture::v4l2::{CameraSettings, V4l2Source};
+use envlight::capture::FrameSource;
+use envlight::frame::HdrFrame;
+use std::collections::VecDeque;
+use std::fs::File;
+use std::os::raw::c_void;
+use std::os::unix::fs::FileExt;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use v4l::v4l2::vidioc;
+use v4l::v4l_sys::{
+    v4l2_buffer, v4l2_capability, v4l2_fmtdesc, v4l2_format, v4l2_requestbuffers, v4l2_streamparm,
+};
+
+const CAPTURE: u32 = 1;
+const CAPTURE_MPLANE: u32 = 9;
+const CAP_VIDEO_CAPTURE: u32 = 0x1;
+const CAP_VIDEO_CAPTURE_MPLANE: u32 = 0x1000;
+const CAP_STREAMING: u32 = 0x0400_0000;
+const CAP_DEVICE_CAPS: u32 = 0x8000_0000;
+const BUF_FLAG_ERROR: u32 = 0x40;
+const PAGE: usize = 4096;
+
+/// One plane of image content: rows of bytes, the same whichever API carries them.
+#[derive(Clone, Debug)]
+struct ContentPlane {
+    row_bytes: usize,
+    rows: usize,
+}
+
+/// How the fake carries a frame.
+#[derive(Clone, Debug)]
+enum Carriage {
+    /// One buffer; the content planes one after another, each at its stride.
+    Single {
+        fourcc: [u8; 4],
+        strides: Vec<usize>,
+    },
+    /// One plane per content plane (or all content in one plane), each with its stride and
+    /// a header of `data_offset` bytes before the payload.
+    Multi {
+        fourcc: [u8; 4],
+        strides: Vec<usize>,
+        data_offsets: Vec<usize>,
+    },
+}
+
+/// What the fake camera is.
+#[derive(Clone, Debug)]
+struct Camera {
+    width: u32,
+    height: u32,
+    content: Vec<ContentPlane>,
+    carriage: Carriage,
+    /// Sequence numbers the driver flags `V4L2_BUF_FLAG_ERROR`.
+    corrupt: Vec<u32>,
+    /// Sequence numbers whose last plane comes with half its payload.
+    short: Vec<u32>,
+}
+
+impl Camera {
+    fn multi(&self) -> bool {
+        matches!(self.carriage, Carriage::Multi { .. })
+    }
+
+    fn fourcc(&self) -> [u8; 4] {
+        match &self.carriage {
+            Carriage::Single { fourcc, .. } | Carriage::Multi { fourcc, .. } => *fourcc,
+        }
+    }
+
+    /// The driver's planes: (bytes per line, payload bytes, data offset).
+    fn planes(&self) -> Vec<(usize, usize, usize)> {
+        let span = |c: &ContentPlane, stride: usize| (c.rows - 1) * stride + c.row_bytes;
+        match &self.carriage {
+            Carriage::Single { strides, .. } => {
+                let last = self.content.len() - 1;
+                let bytes = self
+                    .content
+                    .iter()
+                    .zip(strides)
+                    .enumerate()
+                    .map(|(i, (c, &s))| if i == last { span(c, s) } else { c.rows * s })
+                    .sum();
+                vec![(strides[0], bytes, 0)]
+            }
+            Carriage::Multi {
+                strides,
+                data_offsets,
+                ..
+            } if strides.len() == 1 => {
+                // Everything in one plane, packed as the one-buffer layout.
+                let bytes = self.content.iter().map(|c| c.rows * strides[0]).sum();
+                vec![(strides[0], bytes, data_offsets[0])]
+            }
+            Carriage::Multi {
+                strides,
+                data_offsets,
+                ..
+            } => self
+                .content
+                .iter()
+                .zip(strides)
+                .zip(data_offsets)
+                .map(|((c, &s), &o)| (s, span(c, s), o))
+                .collect(),
+        }
+    }
+
+    /// Byte `x` of row `row` of content plane `p` in frame `seq`: varied, and different from
+    /// frame to frame.
+    fn byte(seq: u32, p: usize, row: usize, x: usize) -> u8 {
+        ((x * 7 + row * 13 + p * 61 + seq as usize * 29) % 239 + 8) as u8
+    }
+
+    /// Frame `seq` as the driver's planes hold it (headers and padding filled with 0xEE).
+    fn frame(&self, seq: u32) -> Vec<Vec<u8>> {
+        let rows_into = |out: &mut Vec<u8>, p: usize, c: &ContentPlane, stride: usize| {
+            for row in 0..c.rows {
+                for x in 0..stride {
+                    out.push(if x < c.row_bytes {
+                        Self::byte(seq, p, row, x)
+                    } else {
+                        0xEE
+                    });
+                }
+            }
+        };
+        let planes = self.planes();
+        match &self.carriage {
+            Carriage::Single { strides, .. } => {
+                let mut out = Vec::new();
+                for (p, (c, &s)) in self.content.iter().zip(strides).enumerate() {
+                    rows_into(&mut out, p, c, s);
+                }
+                out.truncate(planes[0].1);
+                vec![out]
+            }
+            Carriage::Multi {
+                strides,
+                data_offsets,
+                ..
+            } if strides.len() == 1 => {
+                let mut out = vec![0xEE; data_offsets[0]];
+                for (p, c) in self.content.iter().enumerate() {
+                    rows_into(&mut out, p, c, strides[0]);
+                }
+                vec![out]
+            }
+            Carriage::Multi {
+                strides,
+                data_offsets,
+                ..
+            } => self
+                .content
+                .iter()
+                .zip(strides)
+                .zip(data_offsets)
+                .enumerate()
+                .map(|(p, ((c, &s), &o))| {
+                    let mut out = vec![0xEE; o];
+                    rows_into(&mut out, p, c, s);
+                    out.truncate(o + planes[p].1);
+                    out
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The fake driver's state.
+struct Driver {
+    camera: Camera,
+    file: File,
+    /// Per buffer, per plane: its offset in the file and its length.
+    buffers: Vec<Vec<(usize, usize)>>,
+    queued: VecDeque<u32>,
+    streaming: bool,
+    sequence: u32,
+    /// The requests it answered, by name, for the tests to check the order of calls.
+    log: Arc<Mutex<Vec<String>>>,
+}
+
+fn copy_name(dst: &mut [u8], name: &str) {
+    dst[..name.len()].copy_from_slice(name.as_bytes());
+}
+
+impl Driver {
+    fn buffer_type(&self) -> u32 {
+        if self.camera.multi() {
+            CAPTURE_MPLANE
+        } else {
+            CAPTURE
+        }
+    }
+
+    fn note(&self, what: String) {
+        self.log.lock().unwrap().push(what);
+    }
+
+    /// Answers one ioctl: `Ok(())` or an errno.
+    ///
+    /// # Safety
+    /// `arg` is the caller's argument for `request`, in this process, with the caller blocked.
+    unsafe fn handle(&mut self, request: u64, arg: *mut c_void) -> Result<(), i32> {
+        // The request type is 64 bits wide on 64-bit targets, 32 on others.
+        #[allow(clippy::unnecessary_cast)]
+        let is = |r: vidioc::_IOC_TYPE| request & 0xffff_ffff == (r as u64) & 0xffff_ffff;
+        let (w, h) = (self.camera.width, self.camera.height);
+        let fourcc = u32::from_le_bytes(self.camera.fourcc());
+        unsafe {
+            if is(vidioc::VIDIOC_QUERYCAP) {
+                let caps = &mut *(arg as *mut v4l2_capability);
+                copy_name(&mut caps.driver, "fakecam");
+                copy_name(&mut caps.card, "Fake camera");
+                copy_name(&mut caps.bus_info, "platform:fake");
+                caps.device_caps = CAP_STREAMING
+                    | if self.camera.multi() {
+                        CAP_VIDEO_CAPTURE_MPLANE
+                    } else {
+                        CAP_VIDEO_CAPTURE
+                    };
+                caps.capabilities = caps.device_caps | CAP_DEVICE_CAPS;
+                self.note("QUERYCAP".into());
+            } else if is(vidioc::VIDIOC_ENUM_FMT) {
+                let desc = &mut *(arg as *mut v4l2_fmtdesc);
+                if desc.type_ != self.buffer_type() || desc.index > 0 {
+                    return Err(libc::EINVAL);
+                }
+                desc.pixelformat = fourcc;
+                copy_name(&mut desc.description, "fake format");
+                self.note(format!("ENUM_FMT type {}", desc.type_));
+            } else if is(vidioc::VIDIOC_G_FMT) || is(vidioc::VIDIOC_S_FMT) {
+                let f = &mut *(arg as *mut v4l2_format);
+                if f.type_ != self.buffer_type() {
+                    return Err(libc::EINVAL);
+                }
+                let planes = self.camera.planes();
+                if self.camera.multi() {
+                    let pix = &mut f.fmt.pix_mp;
+                    pix.width = w;
+                    pix.height = h;
+                    pix.pixelformat = fourcc;
+                    pix.colorspace = 3; // V4L2_COLORSPACE_REC709
+                    pix.num_planes = planes.len() as u8;
+                    for (slot, &(stride, bytes, offset)) in pix.plane_fmt.iter_mut().zip(&planes) {
+                        slot.bytesperline = stride as u32;
+                        slot.sizeimage = (bytes + offset) as u32;
+                    }
+                } else {
+                    let pix = &mut f.fmt.pix;
+                    pix.width = w;
+                    pix.height = h;
+                    pix.pixelformat = fourcc;
+                    pix.bytesperline = planes[0].0 as u32;
+                    pix.sizeimage = planes[0].1 as u32;
+                    pix.colorspace = 3;
+                }
+                self.note(
+                    if is(vidioc::VIDIOC_S_FMT) {
+                        "S_FMT"
+                    } else {
+                        "G_FMT"
+                    }
+                    .into(),
+                );
+            } else if is(vidioc::VIDIOC_G_PARM) || is(vidioc::VIDIOC_S_PARM) {
+                let parm = &mut *(arg as *mut v4l2_streamparm);
+                if parm.type_ != self.buffer_type() {
+                    return Err(libc::EINVAL);
+                }
+                parm.parm.capture.capability = 0x1000; // V4L2_CAP_TIMEPERFRAME
+                if is(vidioc::VIDIOC_S_PARM) {
+                    let t = parm.parm.capture.timeperframe;
+                    self.note(format!("S_PARM {}/{}", t.numerator, t.denominator));
+                }
+            } else if is(vidioc::VIDIOC_REQBUFS) {
+                let req = &mut *(arg as *mut v4l2_requestbuffers);
+                if req.type_ != self.buffer_type() || req.memory != 1 {
+                    return Err(libc::EINVAL);
+                }
+                self.note(format!("REQBUFS {}", req.count));
+                self.buffers.clear();
+                self.queued.clear();
+                let planes = self.camera.planes();
+                let mut at = 0;
+                for _ in 0..req.count.min(8) {
+                    let mut buffer = Vec::new();
+                    for &(_, bytes, offset) in &planes {
+                        let len = bytes + offset;
+                        buffer.push((at, len));
+                        at += len.div_ceil(PAGE) * PAGE;
+                    }
+                    self.buffers.push(buffer);
+                }
+                self.file.set_len(at as u64).map_err(|_| libc::EIO)?;
+                req.count = self.buffers.len() as u32;
+            } else if is(vidioc::VIDIOC_QUERYBUF)
+                || is(vidioc::VIDIOC_QBUF)
+                || is(vidioc::VIDIOC_DQBUF)
+            {
+                let buf = &mut *(arg as *mut v4l2_buffer);
+                if buf.type_ != self.buffer_type() || buf.memory != 1 {
+                    return Err(libc::EINVAL);
+                }
+                if self.camera.multi() && (buf.length as usize) < self.camera.planes().len() {
+                    return Err(libc::EINVAL);
+                }
+                if is(vidioc::VIDIOC_DQBUF) {
+                    return self.dequeue(buf);
+                }
+                let index = buf.index;
+                let Some(planes) = self.buffers.get(index as usize) else {
+                    return Err(libc::EINVAL);
+                };
+                if is(vidioc::VIDIOC_QBUF) {
+                    self.queued.push_back(index);
+                    return Ok(());
+                }
+                if self.camera.multi() {
+                    let out = std::slice::from_raw_parts_mut(buf.m.planes, planes.len());
+                    for (slot, &(offset, len)) in out.iter_mut().zip(planes) {
+                        slot.length = len as u32;
+                        slot.m.mem_offset = offset as u32;
+                    }
+                } else {
+                    buf.m.offset = planes[0].0 as u32;
+                    buf.length = planes[0].1 as u32;
+                }
+            } else if is(vidioc::VIDIOC_STREAMON) || is(vidioc::VIDIOC_STREAMOFF) {
+                if *(arg as *const i32) as u32 != self.buffer_type() {
+                    return Err(libc::EINVAL);
+                }
+                self.streaming = is(vidioc::VIDIOC_STREAMON);
+                self.note(
+                    if self.streaming {
+                        "STREAMON"
+                    } else {
+                        "STREAMOFF"
+                    }
+                    .into(),
+                );
+            } else {
+                // Controls and everything else: not implemented, as a driver without them.
+                return Err(libc::EINVAL);
+            }
+        }
+        Ok(())
+    }
+
+    /// # Safety
+    /// `buf` (and for multi-planar its plane array) is the caller's, as in `handle`.
+    unsafe fn dequeue(&mut self, buf: &mut v4l2_buffer) -> Result<(), i32> {
+        if !self.streaming {
+            return Err(libc::EINVAL);
+        }
+        let Some(index) = self.queued.pop_front() else {
+            return Err(libc::EAGAIN);
+        };
+        let seq = self.sequence;
+        self.sequence += 1;
+        let frame = self.camera.frame(seq);
+        let planes = &self.buffers[index as usize];
+        let mut used: Vec<usize> = frame.iter().map(Vec::len).collect();
+        if self.camera.short.contains(&seq) {
+            let last = used.len() - 1;
+            let header = self.camera.planes()[last].2;
+            used[last] = header + (used[last] - header) / 2;
+        }
+        for (bytes, &(offset, _)) in frame.iter().zip(planes) {
+            self.file
+                .write_at(bytes, offset as u64)
+                .map_err(|_| libc::EIO)?;
+        }
+        buf.index = index;
+        buf.sequence = seq;
+        buf.flags = if self.camera.corrupt.contains(&seq) {
+            BUF_FLAG_ERROR
+        } else {
+            0
+        };
+        buf.timestamp.tv_sec = 1000 + (seq / 30) as libc::time_t;
+        buf.timestamp.tv_usec = (seq % 30 * 33_333) as libc::suseconds_t;
+        if self.camera.multi() {
+            let header: Vec<usize> = self.camera.planes().iter().map(|p| p.2).collect();
+            // SAFETY: the caller's array of `buf.length` planes.
+            let out = unsafe { std::slice::from_raw_parts_mut(buf.m.planes, used.len()) };
+            for ((slot, &n), &o) in out.iter_mut().zip(&used).zip(&header) {
+                slot.bytesused = n as u32;
+                slot.data_offset = o as u32;
+            }
+        } else {
+            buf.bytesused = used[0] as u32;
+        }
+        Ok(())
+    }
+}
+
+/// The seccomp filter: user notification for `ioctl(_, request of type 'V', _)`.
+fn v4l2_ioctl_filter() -> Vec<libc::sock_filter> {
+    let stmt = |code: u32, k: u32| libc::sock_filter {
+        code: code as u16,
+        jt: 0,
+        jf: 0,
+        k,
+    };
+    let jump = |code: u32, k: u32, jt: u8, jf: u8| libc::sock_filter {
+        code: code as u16,
+        jt,
+        jf,
+        k,
+    };
+    let (ld, jeq, ret, and) = (
+        libc::BPF_LD | libc::BPF_W | libc::BPF_ABS,
+        libc::BPF_JMP | libc::BPF_JEQ | libc::BPF_K,
+        libc::BPF_RET | libc::BPF_K,
+        libc::BPF_ALU | libc::BPF_AND | libc::BPF_K,
+    );
+    // seccomp_data: nr at 0, arch at 4, ip at 8, args at 16 (u64 each).
+    let request_low = if cfg!(target_endian = "little") {
+        24
+    } else {
+        28
+    };
+    vec![
+        stmt(ld, 0),
+        jump(jeq, libc::SYS_ioctl as u32, 0, 4),
+        stmt(ld, request_low),
+        stmt(and, 0xff00),
+        jump(jeq, u32::from(b'V') << 8, 0, 1),
+        stmt(ret, libc::SECCOMP_RET_USER_NOTIF),
+        stmt(ret, libc::SECCOMP_RET_ALLOW),
+    ]
+}
+
+/// A running fake driver; its V4L2 calls are those of the thread that made it.
+struct FakeDevice {
+    path: tempfile::TempPath,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    log: Arc<Mutex<Vec<String>>>,
+}
+
+impl FakeDevice {
+    /// Starts the driver thread, then puts the calling thread under the filter.
+    fn start(camera: Camera) -> FakeDevice {
+        let file = tempfile::NamedTempFile::new().unwrap();
+        let (file, path) = file.into_parts();
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (send_fd, receive_fd) = std::sync::mpsc::sync_channel::<i32>(1);
+        let mut driver = Driver {
+            camera,
+            file,
+            buffers: Vec::new(),
+            queued: VecDeque::new(),
+            streaming: false,
+            sequence: 0,
+            log: log.clone(),
+        };
+        let stopping = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("fake-v4l2".into())
+            .spawn(move || {
+                let listener = receive_fd.recv().unwrap();
+                serve(listener, &mut driver, &stopping);
+                unsafe { libc::close(listener) };
+            })
+            .unwrap();
+        // SAFETY: plain system calls with valid arguments; the filter applies to this thread.
+        let listener = unsafe {
+            assert_eq!(libc::prctl(libc::PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), 0);
+            let mut filter = v4l2_ioctl_filter();
+            let program = libc::sock_fprog {
+                len: filter.len() as u16,
+                filter: filter.as_mut_ptr(),
+            };
+            libc::syscall(
+                libc::SYS_seccomp,
+                libc::SECCOMP_SET_MODE_FILTER,
+                libc::SECCOMP_FILTER_FLAG_NEW_LISTENER,
+                &program as *const libc::sock_fprog,
+            ) as i32
+        };
+        assert!(
+            listener >= 0,
+            "seccomp user notification (Linux 5.0+) is needed for the fake V4L2 driver: {}",
+            std::io::Error::last_os_error()
+        );
+        send_fd.send(listener).unwrap();
+        FakeDevice {
+            path,
+            stop,
+            thread: Some(thread),
+            log,
+        }
+    }
+
+    fn settings(&self, format: PixelFormat, width: u32, height: u32) -> CameraSettings {
+        CameraSettings {
+            device: self.path.display().to_string(),
+            formats: vec![format],
+            width,
+            height,
+            fps: Some(30.0),
+            timeout: Duration::from_secs(5),
+            ..Default::default()
+        }
+    }
+
+    /// Stops the driver; its log.
+    fn finish(mut self) -> Vec<String> {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            t.join().unwrap();
+        }
+        self.log.lock().unwrap().clone()
+    }
+}
+
+impl Drop for FakeDevice {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The driver thread: answers notifications until told to stop.
+fn serve(listener: i32, driver: &mut Driver, stop: &AtomicBool) {
+    while !stop.load(Ordering::Relaxed) {
+        let mut poll = libc::pollfd {
+            fd: listener,
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        // SAFETY: one valid pollfd.
+        if unsafe { libc::poll(&mut poll, 1, 20) } <= 0 || poll.revents & libc::POLLIN == 0 {
+            continue;
+        }
+        // SAFETY: all-zero is a valid seccomp_notif, which NOTIF_RECV fills.
+        let mut notification: libc::seccomp_notif = unsafe { std::mem::zeroed() };
+        if unsafe { libc::ioctl(listener, libc::SECCOMP_IOCTL_NOTIF_RECV, &mut notification) } != 0
+        {
+            continue;
+        }
+        let [_, request, arg, ..] = notification.data.args;
+        // SAFETY: the notifying thread is of this process and blocked in this ioctl.
+        let result = unsafe { driver.handle(request, arg as *mut c_void) };
+        let mut response = libc::seccomp_notif_resp {
+            id: notification.id,
+            val: 0,
+            error: 0,
+            flags: 0,
+        };
+        if let Err(errno) = result {
+            response.val = -1;
+            response.error = -errno;
+        }
+        // SAFETY: a filled response for the notification just received.
+        unsafe { libc::ioctl(listener, libc::SECCOMP_IOCTL_NOTIF_SEND, &mut response) };
+    }
+}
+
+/// Opens the fake camera, reads `count` frames and closes it; the frames and the driver's log.
+fn stream(camera: Camera, format: PixelFormat, count: usize) -> (Vec<HdrFrame>, Vec<String>) {
+    let (w, h) = (camera.width, camera.height);
+    let device = FakeDevice::start(camera);
+    let mut source = V4l2Source::open(&device.settings(format, w, h)).unwrap();
+    assert_eq!(source.format(), (format, w, h));
+    let frames = (0..count)
+        .map(|_| source.next_frame().unwrap().unwrap())
+        .collect();
+    drop(source);
+    (frames, device.finish())
+}
+
+/// The content planes of a 4:2:0 frame: luma, then one plane of interleaved chroma pairs
+/// (`chroma_planes` = 1) or a Cb and a Cr plane (2).
+fn yuv420(width: usize, height: usize, chroma_planes: usize) -> Vec<ContentPlane> {
+    let luma = ContentPlane {
+        row_bytes: width,
+        rows: height,
+    };
+    let chroma = ContentPlane {
+        row_bytes: width / chroma_planes,
+        rows: height / 2,
+    };
+    let mut planes = vec![luma];
+    planes.extend(std::iter::repeat_n(chroma, chroma_planes));
+    planes
+}
+
+fn assert_same_frames(a: &[HdrFrame], b: &[HdrFrame]) {
+    assert_eq!(a.len(), b.len());
+    for (fa, fb) in a.iter().zip(b) {
+        assert_eq!((fa.width, fa.height), (fb.width, fb.height));
+        assert_eq!((fa.seq, fa.time), (fb.seq, fb.time));
+        assert!(fa.pixels == fb.pixels, "frame {} differs", fa.seq);
+    }
+    // Not a constant picture, and not the same picture twice.
+    let first = &a[0].pixels;
+    assert!(first.iter().any(|p| p != &first[0]), "a flat frame");
+    assert!(a[1].pixels != a[0].pixels, "frames do not change");
+}
+
+#[test]
+fn two_plane_nv12_streams_as_one_buffer_nv12_does() {
+    let (w, h) = (64u32, 48u32);
+    let content = yuv420(64, 48, 1);
+    let single = Camera {
+        width: w,
+        height: h,
+        content: content.clone(),
+        carriage: Carriage::Single {
+            fourcc: *b"NV12",
+            strides: vec![80, 80],
+        },
+        corrupt: vec![1],
+        short: vec![3],
+    };
+    let multi = Camera {
+        carriage: Carriage::Multi {
+            fourcc: *b"NM12",
+            strides: vec![96, 128],
+            data_offsets: vec![0, 256],
+        },
+        ..single.clone()
+    };
+    let nv12 = PixelFormat::parse("NV12").unwrap();
+    let (one_buffer, _) = stream(single, nv12, 3);
+    let (planes, log) = stream(multi, nv12, 3);
+    // Frames 1 (flagged corrupt) and 3 (chroma plane cut short) are skipped by both.
+    let seqs: Vec<u64> = planes.iter().map(|f| f.seq).collect();
+    assert_eq!(seqs, [0, 1, 2]);
+    let times: Vec<f64> = planes.iter().map(|f| f.time).collect();
+    assert!((times[1] - 2.0 * 0.033_333).abs() < 1e-9, "{times:?}");
+    assert!((times[2] - 4.0 * 0.033_333).abs() < 1e-9, "{times:?}");
+    assert_same_frames(&planes, &one_buffer);
+    // The multi-planar calls, in order, and the stream closed and its buffers freed.
+    let expected = [
+        "QUERYCAP",
+        "ENUM_FMT type 9",
+        "G_FMT",
+        "S_FMT",
+        "S_PARM 1000/30000",
+        "REQBUFS 4",
+        "STREAMON",
+        "STREAMOFF",
+        "REQBUFS 0",
+    ];
+    let calls: Vec<&str> = log
+        .iter()
+        .map(String::as_str)
+        .filter(|c| expected.contains(c))
+        .collect();
+    assert_eq!(calls, expected, "{log:?}");
+}
+
+#[test]
+fn three_plane_yu12_streams_as_one_buffer_yu12_does() {
+    let (w, h) = (64u32, 48u32);
+    let single = Camera {
+        width: w,
+        height: h,
+        content: yuv420(64, 48, 2),
+        carriage: Carriage::Single {
+            fourcc: *b"YU12",
+            strides: vec![72, 36, 36],
+        },
+        corrupt: vec![],
+        short: vec![],
+    };
+    let multi = Camera {
+        carriage: Carriage::Multi {
+            fourcc: *b"YM12",
+            strides: vec![64, 40, 48],
+            data_offsets: vec![16, 0, 8],
+        },
+        ..single.clone()
+    };
+    let yu12 = PixelFormat::parse("YU12").unwrap();
+    let (one_buffer, _) = stream(single, yu12, 2);
+    let (planes, _) = stream(multi, yu12, 2);
+    assert_same_frames(&planes, &one_buffer);
+}
+
+#[test]
+fn packed_raw_in_one_plane_of_a_multi_planar_node_streams_as_on_a_single_planar_one() {
+    let (w, h) = (64u32, 32u32);
+    let single = Camera {
+        width: w,
+        height: h,
+        content: vec![ContentPlane {
+            row_bytes: 80, // 64 samples of 10 bits
+            rows: 32,
+        }],
+        carriage: Carriage::Single {
+            fourcc: *b"pRAA",
+            strides: vec![96],
+        },
+        corrupt: vec![],
+        short: vec![],
+    };
+    let multi = Camera {
+        carriage: Carriage::Multi {
+            fourcc: *b"pRAA",
+            strides: vec![128],
+            data_offsets: vec![64],
+        },
+        ..single.clone()
+    };
+    let raw = PixelFormat::parse("pRAA").unwrap();
+    let (one_buffer, _) = stream(single, raw, 2);
+    let (planes, _) = stream(multi, raw, 2);
+    assert_same_frames(&planes, &one_buffer);
+}
+
+#[test]
+fn a_multi_planar_node_is_listed_with_its_formats() {
+    use envlight::capture::v4l2::device_info;
+    let camera = Camera {
+        width: 64,
+        height: 48,
+        content: yuv420(64, 48, 1),
+        carriage: Carriage::Multi {
+            fourcc: *b"NM12",
+            strides: vec![64, 64],
+            data_offsets: vec![0, 0],
+        },
+        corrupt: vec![],
+        short: vec![],
+    };
+    let device = FakeDevice::start(camera);
+    let info = device_info(&device.path).unwrap();
+    drop(device.finish());
+    assert!(info.multi_planar);
+    assert_eq!(info.unusable, None);
+    assert_eq!(info.card, "Fake camera");
+    assert_eq!(info.formats.len(), 1);
+    assert_eq!(info.formats[0].fourcc, "NM12");
+    assert!(info.formats[0].supported);
+    let text = info.to_string();
+    assert!(
+        text.contains("(driver fakecam, bus platform:fake, multi-planar)"),
+        "{text}"
+    );
+}
