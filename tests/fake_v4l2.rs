@@ -9,9 +9,10 @@
 //!    into a user notification (`SECCOMP_RET_USER_NOTIF`, Linux 5.0 and later); the filter is
 //!    the thread's own, so other tests are not affected;
 //! 3. a driver thread, started before the filter and so outside it, receives each
-//!    notification, reads and writes the caller's structure as a driver does (the caller is a
-//!    thread of this process, blocked in the call, so its memory is at the same address), and
-//!    answers with a return value or an errno;
+//!    notification, reads and writes the caller's structure as a driver does (with
+//!    `process_vm_readv` / `process_vm_writev`: the caller, blocked in the call, is a thread of
+//!    this process or of a child that inherited the filter, such as the `envlight` binary),
+//!    and answers with a return value or an errno;
 //! 4. at `VIDIOC_DQBUF` the driver writes the next frame into the buffer's planes in the file,
 //!    which the caller's mapping shows.
 //!
@@ -19,7 +20,9 @@
 //! of them, bit for bit: NV12 in one buffer against NM12 in two planes (padded rows, a
 //! payload after a `data_offset`), YU12 against YM12 in three, and CSI-2 packed raw in one
 //! plane of a multi-planar node; with a frame the driver flags corrupt and one whose chroma
-//! plane comes short, both skipped.
+//! plane comes short, both skipped. Behind the exposure and gain controls the fake has a
+//! sensor, for auto exposure and bracketing; it can lose the device mid-stream; and
+//! `envlight decompose --device` runs against it end to end.
 
 use envlight::capture::pixel_format::PixelFormat;
 use envlight::capture::v4l2::{CameraSettings, V4l2Source};
@@ -34,7 +37,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use v4l::v4l2::vidioc;
 use v4l::v4l_sys::{
-    v4l2_buffer, v4l2_capability, v4l2_fmtdesc, v4l2_format, v4l2_requestbuffers, v4l2_streamparm,
+    v4l2_buffer, v4l2_capability, v4l2_ext_control, v4l2_ext_controls, v4l2_fmtdesc, v4l2_format,
+    v4l2_plane, v4l2_query_ext_ctrl, v4l2_requestbuffers, v4l2_streamparm,
 };
 
 const CAPTURE: u32 = 1;
@@ -293,6 +297,65 @@ impl Camera {
     }
 }
 
+/// The memory of the thread that made a call: of this process, or of a child process that
+/// inherited the filter (read and written with `process_vm_readv` / `process_vm_writev`).
+struct Caller {
+    pid: libc::pid_t,
+}
+
+impl Caller {
+    fn transfer(&self, local: *mut c_void, addr: u64, len: usize, write: bool) -> Result<(), i32> {
+        let local = libc::iovec {
+            iov_base: local,
+            iov_len: len,
+        };
+        let remote = libc::iovec {
+            iov_base: addr as *mut c_void,
+            iov_len: len,
+        };
+        // SAFETY: `local` is `len` bytes of ours; the kernel checks the caller's range.
+        let done = unsafe {
+            if write {
+                libc::process_vm_writev(self.pid, &local, 1, &remote, 1, 0)
+            } else {
+                libc::process_vm_readv(self.pid, &local, 1, &remote, 1, 0)
+            }
+        };
+        if done == len as isize {
+            Ok(())
+        } else {
+            Err(libc::EFAULT)
+        }
+    }
+
+    /// `n` values of `T` at `addr` (kernel structures: plain data).
+    fn read_array<T: Copy>(&self, addr: u64, n: usize) -> Result<Vec<T>, i32> {
+        let mut out: Vec<T> = Vec::with_capacity(n);
+        self.transfer(
+            out.as_mut_ptr().cast(),
+            addr,
+            n * std::mem::size_of::<T>(),
+            false,
+        )?;
+        // SAFETY: the kernel structures read are plain data, all `n` filled.
+        unsafe { out.set_len(n) };
+        Ok(out)
+    }
+
+    fn read<T: Copy>(&self, addr: u64) -> Result<T, i32> {
+        Ok(self.read_array(addr, 1)?[0])
+    }
+
+    fn write_array<T: Copy>(&self, addr: u64, values: &[T]) -> Result<(), i32> {
+        let len = std::mem::size_of_val(values);
+        self.transfer(values.as_ptr() as *mut c_void, addr, len, true)
+    }
+
+    fn write<T: Copy>(&self, addr: u64, value: &T) -> Result<(), i32> {
+        self.write_array(addr, std::slice::from_ref(value))
+    }
+}
+
 /// The fake driver's state.
 struct Driver {
     camera: Camera,
@@ -338,44 +401,44 @@ impl Driver {
         self.log.lock().unwrap().push(what);
     }
 
-    /// Answers one ioctl: `Ok(())` or an errno.
-    ///
-    /// # Safety
-    /// `arg` is the caller's argument for `request`, in this process, with the caller blocked.
-    unsafe fn handle(&mut self, request: u64, arg: *mut c_void) -> Result<(), i32> {
+    /// Answers one ioctl of `caller`: `Ok(())` or an errno.
+    fn handle(&mut self, caller: &Caller, request: u64, arg: u64) -> Result<(), i32> {
         // The request type is 64 bits wide on 64-bit targets, 32 on others.
         #[allow(clippy::unnecessary_cast)]
         let is = |r: vidioc::_IOC_TYPE| request & 0xffff_ffff == (r as u64) & 0xffff_ffff;
         let (w, h) = (self.camera.width, self.camera.height);
         let fourcc = u32::from_le_bytes(self.camera.fourcc());
-        unsafe {
-            if is(vidioc::VIDIOC_QUERYCAP) {
-                let caps = &mut *(arg as *mut v4l2_capability);
-                copy_name(&mut caps.driver, "fakecam");
-                copy_name(&mut caps.card, "Fake camera");
-                copy_name(&mut caps.bus_info, "platform:fake");
-                caps.device_caps = CAP_STREAMING
-                    | if self.camera.multi() {
-                        CAP_VIDEO_CAPTURE_MPLANE
-                    } else {
-                        CAP_VIDEO_CAPTURE
-                    };
-                caps.capabilities = caps.device_caps | CAP_DEVICE_CAPS;
-                self.note("QUERYCAP".into());
-            } else if is(vidioc::VIDIOC_ENUM_FMT) {
-                let desc = &mut *(arg as *mut v4l2_fmtdesc);
-                if desc.type_ != self.buffer_type() || desc.index > 0 {
-                    return Err(libc::EINVAL);
-                }
-                desc.pixelformat = fourcc;
-                copy_name(&mut desc.description, "fake format");
-                self.note(format!("ENUM_FMT type {}", desc.type_));
-            } else if is(vidioc::VIDIOC_G_FMT) || is(vidioc::VIDIOC_S_FMT) {
-                let f = &mut *(arg as *mut v4l2_format);
-                if f.type_ != self.buffer_type() {
-                    return Err(libc::EINVAL);
-                }
-                let planes = self.camera.planes();
+        if is(vidioc::VIDIOC_QUERYCAP) {
+            let mut caps: v4l2_capability = caller.read(arg)?;
+            copy_name(&mut caps.driver, "fakecam");
+            copy_name(&mut caps.card, "Fake camera");
+            copy_name(&mut caps.bus_info, "platform:fake");
+            caps.device_caps = CAP_STREAMING
+                | if self.camera.multi() {
+                    CAP_VIDEO_CAPTURE_MPLANE
+                } else {
+                    CAP_VIDEO_CAPTURE
+                };
+            caps.capabilities = caps.device_caps | CAP_DEVICE_CAPS;
+            self.note("QUERYCAP".into());
+            caller.write(arg, &caps)
+        } else if is(vidioc::VIDIOC_ENUM_FMT) {
+            let mut desc: v4l2_fmtdesc = caller.read(arg)?;
+            if desc.type_ != self.buffer_type() || desc.index > 0 {
+                return Err(libc::EINVAL);
+            }
+            desc.pixelformat = fourcc;
+            copy_name(&mut desc.description, "fake format");
+            self.note(format!("ENUM_FMT type {}", desc.type_));
+            caller.write(arg, &desc)
+        } else if is(vidioc::VIDIOC_G_FMT) || is(vidioc::VIDIOC_S_FMT) {
+            let mut f: v4l2_format = caller.read(arg)?;
+            if f.type_ != self.buffer_type() {
+                return Err(libc::EINVAL);
+            }
+            let planes = self.camera.planes();
+            // SAFETY: the union member of the buffer type checked above.
+            unsafe {
                 if self.camera.multi() {
                     let pix = &mut f.fmt.pix_mp;
                     pix.width = w;
@@ -396,151 +459,161 @@ impl Driver {
                     pix.sizeimage = planes[0].1 as u32;
                     pix.colorspace = 3;
                 }
-                self.note(
-                    if is(vidioc::VIDIOC_S_FMT) {
-                        "S_FMT"
-                    } else {
-                        "G_FMT"
-                    }
-                    .into(),
-                );
-            } else if is(vidioc::VIDIOC_G_PARM) || is(vidioc::VIDIOC_S_PARM) {
-                let parm = &mut *(arg as *mut v4l2_streamparm);
-                if parm.type_ != self.buffer_type() {
-                    return Err(libc::EINVAL);
-                }
-                parm.parm.capture.capability = 0x1000; // V4L2_CAP_TIMEPERFRAME
-                if is(vidioc::VIDIOC_S_PARM) {
-                    let t = parm.parm.capture.timeperframe;
-                    self.note(format!("S_PARM {}/{}", t.numerator, t.denominator));
-                }
-            } else if is(vidioc::VIDIOC_REQBUFS) {
-                let req = &mut *(arg as *mut v4l2_requestbuffers);
-                if req.type_ != self.buffer_type() || req.memory != 1 {
-                    return Err(libc::EINVAL);
-                }
-                self.note(format!("REQBUFS {}", req.count));
-                self.buffers.clear();
-                self.queued.clear();
-                let planes = self.camera.planes();
-                let mut at = 0;
-                for _ in 0..req.count.min(8) {
-                    let mut buffer = Vec::new();
-                    for &(_, bytes, offset) in &planes {
-                        let len = bytes + offset;
-                        buffer.push((at, len));
-                        at += len.div_ceil(PAGE) * PAGE;
-                    }
-                    self.buffers.push(buffer);
-                }
-                self.file.set_len(at as u64).map_err(|_| libc::EIO)?;
-                req.count = self.buffers.len() as u32;
-            } else if is(vidioc::VIDIOC_QUERYBUF)
-                || is(vidioc::VIDIOC_QBUF)
-                || is(vidioc::VIDIOC_DQBUF)
-            {
-                let buf = &mut *(arg as *mut v4l2_buffer);
-                if buf.type_ != self.buffer_type() || buf.memory != 1 {
-                    return Err(libc::EINVAL);
-                }
-                if self.camera.multi() && (buf.length as usize) < self.camera.planes().len() {
-                    return Err(libc::EINVAL);
-                }
-                if is(vidioc::VIDIOC_DQBUF) {
-                    return self.dequeue(buf);
-                }
-                let index = buf.index;
-                let Some(planes) = self.buffers.get(index as usize) else {
-                    return Err(libc::EINVAL);
-                };
-                if is(vidioc::VIDIOC_QBUF) {
-                    self.queued.push_back(index);
-                    return Ok(());
-                }
-                if self.camera.multi() {
-                    let out = std::slice::from_raw_parts_mut(buf.m.planes, planes.len());
-                    for (slot, &(offset, len)) in out.iter_mut().zip(planes) {
-                        slot.length = len as u32;
-                        slot.m.mem_offset = offset as u32;
-                    }
-                } else {
-                    buf.m.offset = planes[0].0 as u32;
-                    buf.length = planes[0].1 as u32;
-                }
-            } else if is(vidioc::VIDIOC_STREAMON) || is(vidioc::VIDIOC_STREAMOFF) {
-                if *(arg as *const i32) as u32 != self.buffer_type() {
-                    return Err(libc::EINVAL);
-                }
-                if self.camera.lost_at.is_some_and(|at| self.sequence >= at) {
-                    self.note("STREAMOFF failed: EIO".into());
-                    return Err(libc::EIO);
-                }
-                self.streaming = is(vidioc::VIDIOC_STREAMON);
-                self.note(
-                    if self.streaming {
-                        "STREAMON"
-                    } else {
-                        "STREAMOFF"
-                    }
-                    .into(),
-                );
-            } else if is(vidioc::VIDIOC_QUERY_EXT_CTRL) {
-                let query = &mut *(arg as *mut v4l::v4l_sys::v4l2_query_ext_ctrl);
-                let next = query.id & 0x8000_0000 != 0;
-                let id = query.id & 0x0fff_ffff;
-                let mut sorted = self.camera.controls.clone();
-                sorted.sort_by_key(|c| c.id);
-                let found = if next {
-                    sorted.into_iter().find(|c| c.id > id)
-                } else {
-                    sorted.into_iter().find(|c| c.id == id)
-                };
-                let Some(c) = found else {
-                    return Err(libc::EINVAL);
-                };
-                *query = std::mem::zeroed();
-                query.id = c.id;
-                query.type_ = c.kind;
-                for (dst, src) in query.name.iter_mut().zip(c.name.bytes()) {
-                    *dst = src as std::os::raw::c_char;
-                }
-                query.minimum = c.minimum;
-                query.maximum = c.maximum;
-                query.step = 1;
-                query.default_value = c.default;
-                query.elem_size = 4;
-                query.elems = 1;
-            } else if is(vidioc::VIDIOC_G_EXT_CTRLS) || is(vidioc::VIDIOC_S_EXT_CTRLS) {
-                let list = &mut *(arg as *mut v4l::v4l_sys::v4l2_ext_controls);
-                let controls = std::slice::from_raw_parts_mut(list.controls, list.count as usize);
-                for control in controls {
-                    let Some(c) = self.camera.controls.iter().find(|c| c.id == control.id) else {
-                        return Err(libc::EINVAL);
-                    };
-                    if is(vidioc::VIDIOC_G_EXT_CTRLS) {
-                        let value = value_of(&self.values, c.id).unwrap_or(c.default);
-                        control.__bindgen_anon_1.value = value as i32;
-                    } else {
-                        let value = i64::from(control.__bindgen_anon_1.value);
-                        if !(c.minimum..=c.maximum).contains(&value) {
-                            return Err(libc::ERANGE);
-                        }
-                        set_value(&mut self.values, c.id, value);
-                        let lag = self.camera.sensor.as_ref().map_or(0, |s| s.lag);
-                        self.pending.push((self.sequence + lag, c.id, value));
-                        self.note(format!(
-                            "S_CTRL {} {value} at frame {}",
-                            c.name, self.sequence
-                        ));
-                    }
-                }
+            }
+            let name = if is(vidioc::VIDIOC_S_FMT) {
+                "S_FMT"
             } else {
-                // Everything else (menus, selections, …): not implemented, as a driver
-                // without them.
+                "G_FMT"
+            };
+            self.note(name.into());
+            caller.write(arg, &f)
+        } else if is(vidioc::VIDIOC_G_PARM) || is(vidioc::VIDIOC_S_PARM) {
+            let mut parm: v4l2_streamparm = caller.read(arg)?;
+            if parm.type_ != self.buffer_type() {
                 return Err(libc::EINVAL);
             }
+            // SAFETY: a capture buffer type: the union holds `capture`.
+            let capture = unsafe { &mut parm.parm.capture };
+            capture.capability = 0x1000; // V4L2_CAP_TIMEPERFRAME
+            if is(vidioc::VIDIOC_S_PARM) {
+                let t = capture.timeperframe;
+                self.note(format!("S_PARM {}/{}", t.numerator, t.denominator));
+            }
+            caller.write(arg, &parm)
+        } else if is(vidioc::VIDIOC_REQBUFS) {
+            let mut req: v4l2_requestbuffers = caller.read(arg)?;
+            if req.type_ != self.buffer_type() || req.memory != 1 {
+                return Err(libc::EINVAL);
+            }
+            self.note(format!("REQBUFS {}", req.count));
+            self.buffers.clear();
+            self.queued.clear();
+            let planes = self.camera.planes();
+            let mut at = 0;
+            for _ in 0..req.count.min(8) {
+                let mut buffer = Vec::new();
+                for &(_, bytes, offset) in &planes {
+                    let len = bytes + offset;
+                    buffer.push((at, len));
+                    at += len.div_ceil(PAGE) * PAGE;
+                }
+                self.buffers.push(buffer);
+            }
+            self.file.set_len(at as u64).map_err(|_| libc::EIO)?;
+            req.count = self.buffers.len() as u32;
+            caller.write(arg, &req)
+        } else if is(vidioc::VIDIOC_QUERYBUF) || is(vidioc::VIDIOC_QBUF) || is(vidioc::VIDIOC_DQBUF)
+        {
+            let mut buf: v4l2_buffer = caller.read(arg)?;
+            if buf.type_ != self.buffer_type() || buf.memory != 1 {
+                return Err(libc::EINVAL);
+            }
+            if self.camera.multi() && (buf.length as usize) < self.camera.planes().len() {
+                return Err(libc::EINVAL);
+            }
+            if is(vidioc::VIDIOC_DQBUF) {
+                self.dequeue(caller, &mut buf)?;
+                return caller.write(arg, &buf);
+            }
+            let index = buf.index;
+            let Some(planes) = self.buffers.get(index as usize) else {
+                return Err(libc::EINVAL);
+            };
+            if is(vidioc::VIDIOC_QBUF) {
+                self.queued.push_back(index);
+                return Ok(());
+            }
+            if self.camera.multi() {
+                // SAFETY: a multi-planar buffer: the union holds the plane array's address.
+                let array = unsafe { buf.m.planes } as u64;
+                let mut out: Vec<v4l2_plane> = caller.read_array(array, planes.len())?;
+                for (slot, &(offset, len)) in out.iter_mut().zip(planes) {
+                    slot.length = len as u32;
+                    slot.m.mem_offset = offset as u32;
+                }
+                caller.write_array(array, &out)?;
+            } else {
+                buf.m.offset = planes[0].0 as u32;
+                buf.length = planes[0].1 as u32;
+            }
+            caller.write(arg, &buf)
+        } else if is(vidioc::VIDIOC_STREAMON) || is(vidioc::VIDIOC_STREAMOFF) {
+            if caller.read::<i32>(arg)? as u32 != self.buffer_type() {
+                return Err(libc::EINVAL);
+            }
+            if self.camera.lost_at.is_some_and(|at| self.sequence >= at) {
+                self.note("STREAMOFF failed: EIO".into());
+                return Err(libc::EIO);
+            }
+            self.streaming = is(vidioc::VIDIOC_STREAMON);
+            let name = if self.streaming {
+                "STREAMON"
+            } else {
+                "STREAMOFF"
+            };
+            self.note(name.into());
+            Ok(())
+        } else if is(vidioc::VIDIOC_QUERY_EXT_CTRL) {
+            let mut query: v4l2_query_ext_ctrl = caller.read(arg)?;
+            let next = query.id & 0x8000_0000 != 0;
+            let id = query.id & 0x0fff_ffff;
+            let mut sorted = self.camera.controls.clone();
+            sorted.sort_by_key(|c| c.id);
+            let found = if next {
+                sorted.into_iter().find(|c| c.id > id)
+            } else {
+                sorted.into_iter().find(|c| c.id == id)
+            };
+            let Some(c) = found else {
+                return Err(libc::EINVAL);
+            };
+            // SAFETY: all-zero is a valid v4l2_query_ext_ctrl.
+            query = unsafe { std::mem::zeroed() };
+            query.id = c.id;
+            query.type_ = c.kind;
+            for (dst, src) in query.name.iter_mut().zip(c.name.bytes()) {
+                *dst = src as std::os::raw::c_char;
+            }
+            query.minimum = c.minimum;
+            query.maximum = c.maximum;
+            query.step = 1;
+            query.default_value = c.default;
+            query.elem_size = 4;
+            query.elems = 1;
+            caller.write(arg, &query)
+        } else if is(vidioc::VIDIOC_G_EXT_CTRLS) || is(vidioc::VIDIOC_S_EXT_CTRLS) {
+            let list: v4l2_ext_controls = caller.read(arg)?;
+            let array = list.controls as u64;
+            let mut controls: Vec<v4l2_ext_control> =
+                caller.read_array(array, list.count as usize)?;
+            for control in &mut controls {
+                let Some(c) = self.camera.controls.iter().find(|c| c.id == control.id) else {
+                    return Err(libc::EINVAL);
+                };
+                if is(vidioc::VIDIOC_G_EXT_CTRLS) {
+                    let value = value_of(&self.values, c.id).unwrap_or(c.default);
+                    control.__bindgen_anon_1.value = value as i32;
+                } else {
+                    // SAFETY: an integer or menu control carries its value in `value`.
+                    let value = i64::from(unsafe { control.__bindgen_anon_1.value });
+                    if !(c.minimum..=c.maximum).contains(&value) {
+                        return Err(libc::ERANGE);
+                    }
+                    set_value(&mut self.values, c.id, value);
+                    let lag = self.camera.sensor.as_ref().map_or(0, |s| s.lag);
+                    self.pending.push((self.sequence + lag, c.id, value));
+                    self.note(format!(
+                        "S_CTRL {} {value} at frame {}",
+                        c.name, self.sequence
+                    ));
+                }
+            }
+            caller.write_array(array, &controls)
+        } else {
+            // Everything else (menus, selections, …): not implemented, as a driver without
+            // them.
+            Err(libc::EINVAL)
         }
-        Ok(())
     }
 
     /// Frame `seq` of the sensor, in 8-bit grey codes, with the controls in force.
@@ -577,9 +650,9 @@ impl Driver {
             .collect()
     }
 
-    /// # Safety
-    /// `buf` (and for multi-planar its plane array) is the caller's, as in `handle`.
-    unsafe fn dequeue(&mut self, buf: &mut v4l2_buffer) -> Result<(), i32> {
+    /// Fills the next frame into the first queued buffer and describes it in `buf` (and the
+    /// caller's plane array).
+    fn dequeue(&mut self, caller: &Caller, buf: &mut v4l2_buffer) -> Result<(), i32> {
         if !self.streaming {
             return Err(libc::EINVAL);
         }
@@ -618,12 +691,14 @@ impl Driver {
         buf.timestamp.tv_usec = (seq % 30 * 33_333) as libc::suseconds_t;
         if self.camera.multi() {
             let header: Vec<usize> = self.camera.planes().iter().map(|p| p.2).collect();
-            // SAFETY: the caller's array of `buf.length` planes.
-            let out = unsafe { std::slice::from_raw_parts_mut(buf.m.planes, used.len()) };
+            // SAFETY: a multi-planar buffer: the union holds the plane array's address.
+            let array = unsafe { buf.m.planes } as u64;
+            let mut out: Vec<v4l2_plane> = caller.read_array(array, used.len())?;
             for ((slot, &n), &o) in out.iter_mut().zip(&used).zip(&header) {
                 slot.bytesused = n as u32;
                 slot.data_offset = o as u32;
             }
+            caller.write_array(array, &out)?;
         } else {
             buf.bytesused = used[0] as u32;
         }
@@ -784,8 +859,10 @@ fn serve(listener: i32, driver: &mut Driver, stop: &AtomicBool) {
             continue;
         }
         let [_, request, arg, ..] = notification.data.args;
-        // SAFETY: the notifying thread is of this process and blocked in this ioctl.
-        let result = unsafe { driver.handle(request, arg as *mut c_void) };
+        let caller = Caller {
+            pid: notification.pid as libc::pid_t,
+        };
+        let result = driver.handle(&caller, request, arg);
         let mut response = libc::seccomp_notif_resp {
             id: notification.id,
             val: 0,
@@ -1154,6 +1231,58 @@ fn a_lost_device_is_an_error_naming_it_and_closing_it_does_not_panic() {
         assert!(
             log.contains(&"STREAMOFF failed: EIO".to_string()),
             "{log:?}"
+        );
+    }
+}
+
+/// The filter is inherited by child processes, and the driver reads and writes their memory
+/// too: the command line's camera path, end to end.
+#[test]
+fn envlight_decompose_captures_from_the_camera_end_to_end() {
+    let (w, h) = (64u32, 32u32);
+    // Code 100 everywhere at the camera's 1 ms.
+    let sensor = Sensor {
+        radiance: vec![100_000.0; (w * h) as usize],
+        lag: 0,
+        auto_exposure: None,
+    };
+    let device = FakeDevice::start(Camera::grey(w, h, sensor));
+    let path = device.path.display().to_string();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "decompose",
+            "--device",
+            &path,
+            "--frames",
+            "3",
+            "--lights",
+            "16",
+        ])
+        .args(["--projection", "latlong", "--no-filter"])
+        .output()
+        .unwrap();
+    let log = device.finish();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("GREY 64x32"), "{stderr}");
+    assert!(log.contains(&"STREAMON".to_string()), "{log:?}");
+    let lines: Vec<serde_json::Value> = String::from_utf8(output.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 3);
+    // sRGB code 100 over 1 ms, the same in every direction: the lights sum to 4π times it.
+    let code = 100.0 / 255.0;
+    let radiance = ((code + 0.055) / 1.055f64).powf(2.4) / 0.001;
+    let expected = 4.0 * std::f64::consts::PI * radiance;
+    for line in &lines {
+        let lights = line["lights"].as_array().unwrap();
+        assert_eq!(lights.len(), 16);
+        let sum: f64 = lights.iter().map(|l| l["rgb"][1].as_f64().unwrap()).sum();
+        assert!(
+            (sum / expected - 1.0).abs() < 1e-3,
+            "Σ {sum} against {expected}"
         );
     }
 }
