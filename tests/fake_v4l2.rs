@@ -91,8 +91,11 @@ struct Camera {
     /// (8-bit grey in one plane) instead of the test pattern.
     sensor: Option<Sensor>,
     /// From this frame on the device is gone: `VIDIOC_DQBUF` fails with ENODEV, and stopping
-    /// the stream with EIO (as after an unplug).
+    /// the stream with EIO (as after an unplug) …
     lost_at: Option<u32>,
+    /// … and this many attempts to open it again fail (`VIDIOC_QUERYCAP`: ENODEV) before it
+    /// is back.
+    unplugged_opens: u32,
 }
 
 /// A control of the fake driver.
@@ -166,6 +169,7 @@ impl Camera {
             controls: Vec::new(),
             sensor: None,
             lost_at: None,
+            unplugged_opens: 0,
         }
     }
 
@@ -409,6 +413,18 @@ impl Driver {
         let (w, h) = (self.camera.width, self.camera.height);
         let fourcc = u32::from_le_bytes(self.camera.fourcc());
         if is(vidioc::VIDIOC_QUERYCAP) {
+            if self.camera.lost_at.is_some_and(|at| self.sequence >= at) {
+                if self.camera.unplugged_opens > 0 {
+                    self.camera.unplugged_opens -= 1;
+                    self.note("QUERYCAP failed: ENODEV".into());
+                    return Err(libc::ENODEV);
+                }
+                // Plugged in again.
+                self.camera.lost_at = None;
+                self.streaming = false;
+                self.queued.clear();
+                self.note("back".into());
+            }
             let mut caps: v4l2_capability = caller.read(arg)?;
             copy_name(&mut caps.driver, "fakecam");
             copy_name(&mut caps.card, "Fake camera");
@@ -1284,5 +1300,80 @@ fn envlight_decompose_captures_from_the_camera_end_to_end() {
             (sum / expected - 1.0).abs() < 1e-3,
             "Σ {sum} against {expected}"
         );
+    }
+}
+
+#[test]
+fn a_camera_unplugged_and_plugged_in_again_is_reopened_and_streams_on() {
+    use envlight::capture::resilient::{ResilientSource, RetryPolicy};
+    let camera = Camera {
+        lost_at: Some(3),
+        unplugged_opens: 4,
+        ..Camera::new(
+            64,
+            48,
+            yuv420(64, 48, 1),
+            Carriage::Multi {
+                fourcc: *b"NM12",
+                strides: vec![64, 64],
+                data_offsets: vec![0, 0],
+            },
+        )
+    };
+    let device = FakeDevice::start(camera);
+    let nv12 = PixelFormat::parse("NV12").unwrap();
+    let settings = device.settings(nv12, 64, 48);
+    let policy = RetryPolicy {
+        initial_backoff: Duration::from_millis(1),
+        max_backoff: Duration::from_millis(8),
+        max_attempts: None,
+    };
+    let mut source = ResilientSource::new("camera", policy, move || {
+        Ok(Box::new(V4l2Source::open(&settings)?) as Box<dyn FrameSource>)
+    });
+    let health = source.health().unwrap();
+    let frames: Vec<HdrFrame> = (0..6)
+        .map(|_| source.next_frame().unwrap().unwrap())
+        .collect();
+    drop(source);
+    let log = device.finish();
+    // Three frames, the loss, four failed opens, then the camera again from its frame 3.
+    let failed = log
+        .iter()
+        .filter(|l| *l == "QUERYCAP failed: ENODEV")
+        .count();
+    assert_eq!(failed, 4, "{log:?}");
+    assert!(log.contains(&"back".to_string()), "{log:?}");
+    assert_eq!(
+        log.iter().filter(|l| *l == "STREAMON").count(),
+        2,
+        "{log:?}"
+    );
+    let seqs: Vec<u64> = frames.iter().map(|f| f.seq).collect();
+    assert_eq!(seqs, [0, 1, 2, 3, 4, 5], "sequence numbers continue");
+    assert!(frames.windows(2).all(|w| w[1].time >= w[0].time));
+    assert!(!health.is_stale());
+    assert_eq!(health.reconnect_attempts(), 0);
+    assert_eq!(health.failures_total(), 5, "the loss and four failed opens");
+    assert!(
+        health.last_error().contains("No such device"),
+        "{}",
+        health.last_error()
+    );
+    // The frames after the reconnect are the camera's frames 3, 4, 5.
+    let direct = {
+        let camera = Camera::new(
+            64,
+            48,
+            yuv420(64, 48, 1),
+            Carriage::Single {
+                fourcc: *b"NV12",
+                strides: vec![64, 64],
+            },
+        );
+        stream(camera, nv12, 6).0
+    };
+    for (a, b) in frames.iter().zip(&direct) {
+        assert!(a.pixels == b.pixels, "frame {}", a.seq);
     }
 }
