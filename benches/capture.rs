@@ -19,6 +19,7 @@
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `…/bayer_rg12_csi2`: the same mosaic in the MIPI CSI-2 12-bit packing (`pRCC`);
 //! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
+//! - `…/nv16`: the scene as NV16 (planar 4:2:2: YUYV's samples in a luma and a chroma plane);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `response_recovery/levels_L_samples_S`: recovering a response curve from four 200×150
 //!   brackets (Debevec & Malik's gsolve, three channels) at L levels and S sample pixels;
@@ -142,6 +143,14 @@ fn nv12(scene: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// NV16 (4:2:2): the luma plane, then every row's interleaved Cb and Cr (YUYV's samples).
+fn nv16(scene: &[[f32; 3]]) -> Vec<u8> {
+    let yuyv = yuyv(scene);
+    let luma = yuyv.chunks_exact(4).flat_map(|q| [q[0], q[2]]);
+    let chroma = yuyv.chunks_exact(4).flat_map(|q| [q[1], q[3]]);
+    luma.chain(chroma).collect()
+}
+
 /// An RGGB mosaic with 12-bit codes in little-endian 16-bit words.
 fn bayer12(scene: &[[f32; 3]]) -> Vec<u8> {
     let mut out = Vec::with_capacity(scene.len() * 2);
@@ -193,8 +202,13 @@ fn bench_capture(c: &mut Criterion) {
         ("yuyv", PixelFormat::Yuyv, yuyv(&scene)),
         (
             "nv12",
-            PixelFormat::Yuv420(pixel_format::Yuv420::Nv12),
+            PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv12),
             nv12(&scene),
+        ),
+        (
+            "nv16",
+            PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv16),
+            nv16(&scene),
         ),
         ("mjpeg", PixelFormat::Mjpeg, mjpeg(&scene)),
         (

@@ -1377,3 +1377,31 @@ fn a_camera_unplugged_and_plugged_in_again_is_reopened_and_streams_on() {
         assert!(a.pixels == b.pixels, "frame {}", a.seq);
     }
 }
+
+#[test]
+fn two_plane_nv16_streams_as_one_buffer_nv16_does() {
+    let (w, h) = (64u32, 48u32);
+    // Luma, then a row of interleaved Cb Cr for every luma row.
+    let row = ContentPlane {
+        row_bytes: 64,
+        rows: 48,
+    };
+    let content = vec![row.clone(), row];
+    let carriage = Carriage::Single {
+        fourcc: *b"NV16",
+        strides: vec![72, 72],
+    };
+    let single = Camera::new(w, h, content, carriage);
+    let multi = Camera {
+        carriage: Carriage::Multi {
+            fourcc: *b"NM16",
+            strides: vec![64, 96],
+            data_offsets: vec![0, 128],
+        },
+        ..single.clone()
+    };
+    let nv16 = PixelFormat::parse("NV16").unwrap();
+    let (one_buffer, _) = stream(single, nv16, 2);
+    let (planes, _) = stream(multi, nv16, 2);
+    assert_same_frames(&planes, &one_buffer);
+}

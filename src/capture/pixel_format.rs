@@ -9,6 +9,7 @@
 //! | YUYV 4:2:2         | `YUYV`                      | limited-range Y'CbCr → R'G'B', BT.601 or BT.709   |
 //! | UYVY 4:2:2         | `UYVY`                      | the same, bytes U Y0 V Y1                         |
 //! | Y'CbCr 4:2:0, planar | `NV12`, `NV21`, `YU12`, `YV12` | the same, one chroma pair per 2×2 pixels       |
+//! | Y'CbCr 4:2:2, planar | `NV16`, `NV61`, `422P`    | the same, one chroma pair per 2×1 pixels (as YUYV) |
 //! | Motion JPEG        | `MJPG`, `JPEG`              | `zune-jpeg` (JFIF full-range BT.601) → RGB        |
 //! | grey 8/10/12/16    | `GREY`, `Y10 `, `Y12 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
@@ -32,7 +33,11 @@
 //! stride; `YU12` (also called I420: Cb plane, then Cr) and `YV12` (Cr, then Cb) have two
 //! planes of height/2 rows, each row stride/2 bytes. Each chroma pair is that of the 2×2 luma
 //! pixels it covers (no interpolation, as YUYV's pair is its two pixels'). Width and height
-//! must be even, and for the three-plane layouts the stride too.
+//! must be even, and for the three-plane layouts the stride too. The 4:2:2 layouts are the
+//! same with a chroma row for every luma row: `NV16` (Cb, Cr) and `NV61` (Cr, Cb) interleaved
+//! in one plane of `height` rows, `422P` a Cb then a Cr plane of `height` rows of stride/2
+//! bytes; each chroma pair is that of the two pixels it covers, as in YUYV. Their height may
+//! be odd.
 //!
 //! Bayer demosaic (bilinear): each pixel keeps its own colour; a missing colour is the mean of
 //! the pixels of that colour in its 3×3 neighbourhood (the 2 or 4 nearest samples). Borders are
@@ -88,76 +93,105 @@ impl BayerPattern {
     }
 }
 
-/// The order of the planes of a planar Y'CbCr 4:2:0 format (module doc).
+/// The layout of a planar Y'CbCr format, 4:2:0 or 4:2:2 (module doc).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Yuv420 {
-    /// `NV12`: luma, then one plane of interleaved Cb, Cr.
+pub enum PlanarYuv {
+    /// `NV12`: luma, then one plane of interleaved Cb, Cr (4:2:0).
     Nv12,
-    /// `NV21`: luma, then one plane of interleaved Cr, Cb.
+    /// `NV21`: luma, then one plane of interleaved Cr, Cb (4:2:0).
     Nv21,
-    /// `YU12` (I420): luma, Cb plane, Cr plane.
+    /// `YU12` (I420): luma, Cb plane, Cr plane (4:2:0).
     Yu12,
-    /// `YV12`: luma, Cr plane, Cb plane.
+    /// `YV12`: luma, Cr plane, Cb plane (4:2:0).
     Yv12,
+    /// `NV16`: luma, then one plane of interleaved Cb, Cr (4:2:2).
+    Nv16,
+    /// `NV61`: luma, then one plane of interleaved Cr, Cb (4:2:2).
+    Nv61,
+    /// `422P`: luma, Cb plane, Cr plane (4:2:2).
+    Yuv422p,
 }
 
-impl Yuv420 {
-    pub const ALL: [Yuv420; 4] = [Yuv420::Nv12, Yuv420::Nv21, Yuv420::Yu12, Yuv420::Yv12];
+impl PlanarYuv {
+    pub const ALL: [PlanarYuv; 7] = [
+        PlanarYuv::Nv12,
+        PlanarYuv::Nv21,
+        PlanarYuv::Yu12,
+        PlanarYuv::Yv12,
+        PlanarYuv::Nv16,
+        PlanarYuv::Nv61,
+        PlanarYuv::Yuv422p,
+    ];
 
     fn fourcc(self) -> [u8; 4] {
         match self {
-            Yuv420::Nv12 => *b"NV12",
-            Yuv420::Nv21 => *b"NV21",
-            Yuv420::Yu12 => *b"YU12",
-            Yuv420::Yv12 => *b"YV12",
+            PlanarYuv::Nv12 => *b"NV12",
+            PlanarYuv::Nv21 => *b"NV21",
+            PlanarYuv::Yu12 => *b"YU12",
+            PlanarYuv::Yv12 => *b"YV12",
+            PlanarYuv::Nv16 => *b"NV16",
+            PlanarYuv::Nv61 => *b"NV61",
+            PlanarYuv::Yuv422p => *b"422P",
         }
     }
 
+    /// Luma rows per chroma row: 2 for 4:2:0, 1 for 4:2:2.
+    pub fn rows_per_chroma_row(self) -> usize {
+        match self {
+            PlanarYuv::Nv12 | PlanarYuv::Nv21 | PlanarYuv::Yu12 | PlanarYuv::Yv12 => 2,
+            PlanarYuv::Nv16 | PlanarYuv::Nv61 | PlanarYuv::Yuv422p => 1,
+        }
+    }
+
+    /// Whether Cb and Cr are interleaved in one plane (else each has a plane of its own, of
+    /// half the luma's row length).
+    pub fn interleaved(self) -> bool {
+        matches!(
+            self,
+            PlanarYuv::Nv12 | PlanarYuv::Nv21 | PlanarYuv::Nv16 | PlanarYuv::Nv61
+        )
+    }
+
     /// Where the chroma of a frame of this layout is, from the luma plane's `stride` and the
-    /// frame's `height` (even; for the three-plane layouts the stride too).
+    /// frame's `height` (even for 4:2:0; for the three-plane layouts the stride too).
     fn chroma(self, stride: usize, height: usize) -> Option<ChromaPlanes> {
         let luma = stride.checked_mul(height)?;
-        let half = height / 2;
-        Some(match self {
-            Yuv420::Nv12 | Yuv420::Nv21 => {
-                let (cb, cr) = if self == Yuv420::Nv12 {
-                    (luma, luma + 1)
-                } else {
-                    (luma + 1, luma)
-                };
-                ChromaPlanes {
-                    cb,
-                    cr,
-                    stride,
-                    step: 2,
-                }
-            }
-            Yuv420::Yu12 | Yuv420::Yv12 => {
-                let second = luma.checked_add((stride / 2).checked_mul(half)?)?;
-                let (cb, cr) = if self == Yuv420::Yu12 {
-                    (luma, second)
-                } else {
-                    (second, luma)
-                };
-                ChromaPlanes {
-                    cb,
-                    cr,
-                    stride: stride / 2,
-                    step: 1,
-                }
-            }
+        let rows = height / self.rows_per_chroma_row();
+        let cb_first = matches!(
+            self,
+            PlanarYuv::Nv12 | PlanarYuv::Nv16 | PlanarYuv::Yu12 | PlanarYuv::Yuv422p
+        );
+        let (first, second, stride, step) = if self.interleaved() {
+            (luma, luma + 1, stride, 2)
+        } else {
+            let second = luma.checked_add((stride / 2).checked_mul(rows)?)?;
+            (luma, second, stride / 2, 1)
+        };
+        let (cb, cr) = if cb_first {
+            (first, second)
+        } else {
+            (second, first)
+        };
+        Some(ChromaPlanes {
+            cb,
+            cr,
+            stride,
+            step,
+            rows_per: self.rows_per_chroma_row(),
         })
     }
 }
 
-/// Where a 4:2:0 frame's chroma samples are in its buffer: the Cb and Cr of chroma pixel
-/// (cx, cy) are at `cb` and `cr` + cy·`stride` + cx·`step`.
+/// Where a planar frame's chroma samples are in its buffer: the Cb and Cr of chroma pixel
+/// (cx, cy) are at `cb` and `cr` + cy·`stride` + cx·`step`; chroma row cy covers the
+/// `rows_per` luma rows from cy·`rows_per`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct ChromaPlanes {
     cb: usize,
     cr: usize,
     stride: usize,
     step: usize,
+    rows_per: usize,
 }
 
 /// The pixel formats envlight converts.
@@ -166,8 +200,9 @@ pub enum PixelFormat {
     Yuyv,
     /// YUYV's samples in the order U Y0 V Y1.
     Uyvy,
-    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`).
-    Yuv420(Yuv420),
+    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`) or 4:2:2 (`NV16`, `NV61`,
+    /// `422P`).
+    PlanarYuv(PlanarYuv),
     Mjpeg,
     /// Grey with 8, 10, 12 or 16 significant bits.
     Grey {
@@ -188,7 +223,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 26] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 29] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -251,10 +286,13 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 26] = {
         Bgr24,
         Yuyv,
         Uyvy,
-        Yuv420(self::Yuv420::Nv12),
-        Yuv420(self::Yuv420::Yu12),
-        Yuv420(self::Yuv420::Nv21),
-        Yuv420(self::Yuv420::Yv12),
+        PlanarYuv(self::PlanarYuv::Nv16),
+        PlanarYuv(self::PlanarYuv::Yuv422p),
+        PlanarYuv(self::PlanarYuv::Nv61),
+        PlanarYuv(self::PlanarYuv::Nv12),
+        PlanarYuv(self::PlanarYuv::Yu12),
+        PlanarYuv(self::PlanarYuv::Nv21),
+        PlanarYuv(self::PlanarYuv::Yv12),
         Grey { bits: 8 },
         Mjpeg,
     ]
@@ -313,7 +351,7 @@ impl PixelFormat {
             PixelFormat::Rgb24,
             PixelFormat::Bgr24,
         ];
-        v.extend(Yuv420::ALL.map(PixelFormat::Yuv420));
+        v.extend(PlanarYuv::ALL.map(PixelFormat::PlanarYuv));
         v.extend(
             BAYER_FOURCCS
                 .iter()
@@ -332,7 +370,7 @@ impl PixelFormat {
         match self {
             PixelFormat::Yuyv => *b"YUYV",
             PixelFormat::Uyvy => *b"UYVY",
-            PixelFormat::Yuv420(layout) => layout.fourcc(),
+            PixelFormat::PlanarYuv(layout) => layout.fourcc(),
             PixelFormat::Mjpeg => *b"MJPG",
             PixelFormat::Grey { bits: 10 } => *b"Y10 ",
             PixelFormat::Grey { bits: 12 } => *b"Y12 ",
@@ -356,10 +394,13 @@ impl PixelFormat {
         Some(match &code {
             b"YUYV" => PixelFormat::Yuyv,
             b"UYVY" => PixelFormat::Uyvy,
-            b"NV12" => PixelFormat::Yuv420(Yuv420::Nv12),
-            b"NV21" => PixelFormat::Yuv420(Yuv420::Nv21),
-            b"YU12" => PixelFormat::Yuv420(Yuv420::Yu12),
-            b"YV12" => PixelFormat::Yuv420(Yuv420::Yv12),
+            b"NV12" => PixelFormat::PlanarYuv(PlanarYuv::Nv12),
+            b"NV21" => PixelFormat::PlanarYuv(PlanarYuv::Nv21),
+            b"NV16" => PixelFormat::PlanarYuv(PlanarYuv::Nv16),
+            b"NV61" => PixelFormat::PlanarYuv(PlanarYuv::Nv61),
+            b"422P" => PixelFormat::PlanarYuv(PlanarYuv::Yuv422p),
+            b"YU12" => PixelFormat::PlanarYuv(PlanarYuv::Yu12),
+            b"YV12" => PixelFormat::PlanarYuv(PlanarYuv::Yv12),
             b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
             b"GREY" => PixelFormat::Grey { bits: 8 },
             b"Y10 " => PixelFormat::Grey { bits: 10 },
@@ -392,7 +433,7 @@ impl PixelFormat {
             "grey" | "gray" => return Some(PixelFormat::Grey { bits: 8 }),
             "rgb24" => return Some(PixelFormat::Rgb24),
             "bgr24" => return Some(PixelFormat::Bgr24),
-            "i420" => return Some(PixelFormat::Yuv420(Yuv420::Yu12)),
+            "i420" => return Some(PixelFormat::PlanarYuv(PlanarYuv::Yu12)),
             _ => {}
         }
         let bytes = name.trim().as_bytes();
@@ -426,7 +467,7 @@ impl PixelFormat {
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             PixelFormat::Yuyv | PixelFormat::Uyvy => 2,
-            PixelFormat::Yuv420(_) => 1,
+            PixelFormat::PlanarYuv(_) => 1,
             PixelFormat::Mjpeg | PixelFormat::Csi2Packed { .. } => 0,
             PixelFormat::Rgb24 | PixelFormat::Bgr24 => 3,
             PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => {
@@ -872,13 +913,13 @@ impl<'a> BandDecoder<'a> {
                     }
                 }
             }
-            PixelFormat::Yuv420(_) => {
+            PixelFormat::PlanarYuv(_) => {
                 let to_rgb = YcbcrToRgb::new(self.yuv);
                 let Some(chroma) = self.chroma else { return };
                 let data = self.raw.data;
                 // Checked by `check_layout`: every chroma sample of the frame is in `data`.
                 let chroma_row = |start: usize, y: usize, len: usize| {
-                    let from = start + (y / 2) * chroma.stride;
+                    let from = start + (y / chroma.rows_per) * chroma.stride;
                     &data[from..from + len]
                 };
                 for (y, dst) in rows {
@@ -1099,14 +1140,16 @@ fn frame_layout(
         ),
         PixelFormat::Yuyv
         | PixelFormat::Uyvy
-        | PixelFormat::Yuv420(_)
+        | PixelFormat::PlanarYuv(_)
         | PixelFormat::Bayer { .. } => (2, "width must be even"),
         _ => (1, ""),
     };
     if !w.is_multiple_of(group) {
         return Err(geometry(why));
     }
-    if matches!(format, PixelFormat::Yuv420(_)) && !h.is_multiple_of(2) {
+    if matches!(format, PixelFormat::PlanarYuv(l) if l.rows_per_chroma_row() == 2)
+        && !h.is_multiple_of(2)
+    {
         return Err(geometry(
             "height must be even (4:2:0 chroma covers 2×2 pixels)",
         ));
@@ -1119,12 +1162,12 @@ fn frame_layout(
         )));
     }
     let chroma = match format {
-        PixelFormat::Yuv420(layout @ (Yuv420::Yu12 | Yuv420::Yv12)) if stride % 2 != 0 => {
+        PixelFormat::PlanarYuv(layout) if !layout.interleaved() && stride % 2 != 0 => {
             return Err(geometry(&format!(
                 "stride {stride} must be even ({layout:?}: the chroma rows are half as long)"
             )));
         }
-        PixelFormat::Yuv420(layout) => match layout.chroma(stride, h as usize) {
+        PixelFormat::PlanarYuv(layout) => match layout.chroma(stride, h as usize) {
             Some(chroma) => Some(chroma),
             None => return Err(geometry(&format!("stride {stride} is too large"))),
         },
@@ -1135,7 +1178,7 @@ fn frame_layout(
         .and_then(|v| v.checked_add(row_bytes));
     // The last chroma sample of each plane, one past it.
     let chroma_end = |c: ChromaPlanes| {
-        let last = (h as usize / 2 - 1).checked_mul(c.stride)?;
+        let last = (h as usize / c.rows_per - 1).checked_mul(c.stride)?;
         let last = last.checked_add((w as usize / 2 - 1) * c.step)?;
         c.cb.max(c.cr).checked_add(last)?.checked_add(1)
     };
@@ -1558,21 +1601,25 @@ mod tests {
         assert_eq!(PixelFormat::parse("mjpeg"), Some(PixelFormat::Mjpeg));
         assert_eq!(
             PixelFormat::parse("nv12"),
-            Some(PixelFormat::Yuv420(Yuv420::Nv12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv12))
         );
         assert_eq!(
             PixelFormat::parse("I420"),
-            Some(PixelFormat::Yuv420(Yuv420::Yu12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Yu12))
         );
-        assert_eq!(PixelFormat::parse("NV16"), None);
+        assert_eq!(PixelFormat::parse("NV24"), None);
+        assert_eq!(
+            PixelFormat::parse("422p"),
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Yuv422p))
+        );
         // The separate-plane codes of multi-planar nodes, as `envlight devices` shows them.
         assert_eq!(
             PixelFormat::parse("NM12"),
-            Some(PixelFormat::Yuv420(Yuv420::Nv12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv12))
         );
         assert_eq!(
             PixelFormat::parse("ym21"),
-            Some(PixelFormat::Yuv420(Yuv420::Yv12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Yv12))
         );
         assert_eq!(
             PixelFormat::parse("rg12"),
@@ -1689,34 +1736,41 @@ mod tests {
         assert_eq!(PixelFormat::parse("y10p"), Some(y10p));
     }
 
-    /// UYVY and the four 4:2:0 layouts of one image (with and without row padding) decode to
-    /// the same bits as YUYV carrying the same samples (each chroma pair repeated on the two rows it
-    /// covers), which the known-value test below pins; known values for black, white and
-    /// BT.601 red; and their buffers are checked.
+    /// UYVY and the seven planar layouts (4:2:0 and 4:2:2) of one image (with and without row
+    /// padding) decode to the same bits as YUYV carrying the same samples (for 4:2:0 each
+    /// chroma pair repeated on the two rows it covers), which the known-value test below pins;
+    /// known values for black, white and BT.601 red; and their buffers are checked.
     #[test]
-    fn uyvy_and_yuv420_layouts_equal_yuyv_with_the_same_samples() {
+    fn uyvy_and_planar_layouts_equal_yuyv_with_the_same_samples() {
         let (w, h) = (6usize, 4usize);
         let mut byte = byte_stream(0x5eed_4200);
         let luma: Vec<u8> = (0..w * h).map(|_| byte()).collect();
-        let cb: Vec<u8> = (0..w * h / 4).map(|_| byte()).collect();
-        let cr: Vec<u8> = (0..w * h / 4).map(|_| byte()).collect();
-        let chroma_at = |plane: &[u8], x: usize, y: usize| plane[(y / 2) * (w / 2) + x / 2];
-        let mut yuyv = Vec::new();
-        for y in 0..h {
-            for x in (0..w).step_by(2) {
-                yuyv.extend([
-                    luma[y * w + x],
-                    chroma_at(&cb, x, y),
-                    luma[y * w + x + 1],
-                    chroma_at(&cr, x, y),
-                ]);
-            }
-        }
+        // Chroma samples for a chroma row per luma row; 4:2:0 uses the first h/2 rows.
+        let cb_all: Vec<u8> = (0..w * h / 2).map(|_| byte()).collect();
+        let cr_all: Vec<u8> = (0..w * h / 2).map(|_| byte()).collect();
         let (w32, h32) = (w as u32, h as u32);
-        let expected = decode(&raw(&yuyv, PixelFormat::Yuyv, w32, h32), YuvMatrix::Bt601).unwrap();
         let bits = |img: &CodeImage| -> Vec<u32> {
             img.pixels.iter().flatten().map(|v| v.to_bits()).collect()
         };
+        // YUYV carrying the samples of chroma subsampled by `rows_per` rows.
+        let yuyv_of = |rows_per: usize| {
+            let chroma_at =
+                |plane: &[u8], x: usize, y: usize| plane[(y / rows_per) * (w / 2) + x / 2];
+            let mut yuyv = Vec::new();
+            for y in 0..h {
+                for x in (0..w).step_by(2) {
+                    yuyv.extend([
+                        luma[y * w + x],
+                        chroma_at(&cb_all, x, y),
+                        luma[y * w + x + 1],
+                        chroma_at(&cr_all, x, y),
+                    ]);
+                }
+            }
+            yuyv
+        };
+        let yuyv = yuyv_of(2);
+        let expected = decode(&raw(&yuyv, PixelFormat::Yuyv, w32, h32), YuvMatrix::Bt601).unwrap();
         // UYVY: the same samples in the order U Y0 V Y1.
         let uyvy: Vec<u8> = yuyv
             .chunks(4)
@@ -1725,7 +1779,9 @@ mod tests {
         let got = decode(&raw(&uyvy, PixelFormat::Uyvy, w32, h32), YuvMatrix::Bt601).unwrap();
         assert_eq!(bits(&got), bits(&expected), "UYVY");
         // A layout's buffer with luma rows `stride` bytes apart (padding bytes 0xEE).
-        let buffer = |layout: Yuv420, stride: usize| {
+        let buffer = |layout: PlanarYuv, stride: usize| {
+            let rows = h / layout.rows_per_chroma_row();
+            let (cb, cr) = (&cb_all[..rows * w / 2], &cr_all[..rows * w / 2]);
             let mut data = Vec::new();
             for row in luma.chunks(w) {
                 data.extend(row);
@@ -1753,19 +1809,29 @@ mod tests {
                 out
             };
             match layout {
-                Yuv420::Nv12 => data.extend(interleave(&cb, &cr)),
-                Yuv420::Nv21 => data.extend(interleave(&cr, &cb)),
-                Yuv420::Yu12 => {
-                    data.extend([plane(&cb, stride / 2), plane(&cr, stride / 2)].concat())
+                PlanarYuv::Nv12 | PlanarYuv::Nv16 => data.extend(interleave(cb, cr)),
+                PlanarYuv::Nv21 | PlanarYuv::Nv61 => data.extend(interleave(cr, cb)),
+                PlanarYuv::Yu12 | PlanarYuv::Yuv422p => {
+                    data.extend([plane(cb, stride / 2), plane(cr, stride / 2)].concat())
                 }
-                Yuv420::Yv12 => {
-                    data.extend([plane(&cr, stride / 2), plane(&cb, stride / 2)].concat())
+                PlanarYuv::Yv12 => {
+                    data.extend([plane(cr, stride / 2), plane(cb, stride / 2)].concat())
                 }
             }
             data
         };
-        for layout in Yuv420::ALL {
-            let format = PixelFormat::Yuv420(layout);
+        for layout in PlanarYuv::ALL {
+            let format = PixelFormat::PlanarYuv(layout);
+            let expected = decode(
+                &raw(
+                    &yuyv_of(layout.rows_per_chroma_row()),
+                    PixelFormat::Yuyv,
+                    w32,
+                    h32,
+                ),
+                YuvMatrix::Bt601,
+            )
+            .unwrap();
             for stride in [w, w + 4] {
                 let data = buffer(layout, stride);
                 let frame = RawFrame {
@@ -1776,9 +1842,10 @@ mod tests {
                 assert_eq!(bits(&got), bits(&expected), "{format} stride {stride}");
                 // The last row's padding is not needed.
                 let needed = format.buffer_len(w32, h32, stride).unwrap();
-                let last_padding = match layout {
-                    Yuv420::Nv12 | Yuv420::Nv21 => stride - w,
-                    Yuv420::Yu12 | Yuv420::Yv12 => (stride - w) / 2,
+                let last_padding = if layout.interleaved() {
+                    stride - w
+                } else {
+                    (stride - w) / 2
                 };
                 assert_eq!(
                     needed,
@@ -1793,6 +1860,21 @@ mod tests {
                 assert!(e.to_string().contains(&format!("needs {needed}")), "{e}");
             }
         }
+        // 4:2:2 has a chroma row for every row: an odd height is fine (a 6 × 3 NV16 frame
+        // decodes as the YUYV frame of its samples).
+        let nv16 = PixelFormat::PlanarYuv(PlanarYuv::Nv16);
+        let (y3, c3) = (
+            &luma[..w * 3],
+            (0..w * 3).map(|i| 100 + i as u8).collect::<Vec<u8>>(),
+        );
+        let data = [y3, &c3[..]].concat();
+        let yuyv3: Vec<u8> = (0..w * 3)
+            .step_by(2)
+            .flat_map(|i| [y3[i], c3[i], y3[i + 1], c3[i + 1]])
+            .collect();
+        let got = decode(&raw(&data, nv16, w32, 3), YuvMatrix::Bt601).unwrap();
+        let want = decode(&raw(&yuyv3, PixelFormat::Yuyv, w32, 3), YuvMatrix::Bt601).unwrap();
+        assert_eq!(bits(&got), bits(&want), "NV16 of odd height");
         // Black, white and 100% red (BT.601: Y 81, Cb 90, Cr 240) in NV12, 2 × 2 each.
         for (y, cb, cr, rgb) in [
             (16, 128, 128, [0.0; 3]),
@@ -1800,7 +1882,7 @@ mod tests {
             (81, 90, 240, [1.0, 0.0, 0.0]),
         ] {
             let data = [y, y, y, y, cb, cr];
-            let format = PixelFormat::Yuv420(Yuv420::Nv12);
+            let format = PixelFormat::PlanarYuv(PlanarYuv::Nv12);
             let img = decode(&raw(&data, format, 2, 2), YuvMatrix::Bt601).unwrap();
             for p in &img.pixels {
                 assert!(close(*p, rgb, 0.006), "{p:?} for {rgb:?}");
@@ -1808,14 +1890,14 @@ mod tests {
         }
         // Odd sizes and an odd stride of the three-plane layouts are errors.
         let data = [0u8; 64];
-        let nv12 = PixelFormat::Yuv420(Yuv420::Nv12);
+        let nv12 = PixelFormat::PlanarYuv(PlanarYuv::Nv12);
         let e = decode(&raw(&data, nv12, 4, 3), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("height must be even"), "{e}");
         let e = decode(&raw(&data, nv12, 3, 4), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("width must be even"), "{e}");
         let frame = RawFrame {
             stride: 5,
-            ..raw(&data, PixelFormat::Yuv420(Yuv420::Yu12), 4, 4)
+            ..raw(&data, PixelFormat::PlanarYuv(PlanarYuv::Yu12), 4, 4)
         };
         let e = decode(&frame, YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("stride 5 must be even"), "{e}");

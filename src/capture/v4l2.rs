@@ -1052,16 +1052,21 @@ mod tests {
         assert_eq!(single(&[PixelFormat::Rgb24], &offered), None);
         // 4:2:0 comes after YUYV and before MJPEG; a fourcc envlight does not convert is
         // never chosen.
-        let nv12 = PixelFormat::Yuv420(pixel_format::Yuv420::Nv12);
+        let nv12 = PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv12);
         assert_eq!(single(&pref, &[*b"MJPG", *b"NV12", *b"YU12"]), Some(nv12));
         assert_eq!(
             single(&pref, &[*b"NV12", *b"YUYV"]),
             Some(PixelFormat::Yuyv)
         );
-        assert_eq!(single(&pref, &[*b"NV16"]), None);
+        assert_eq!(single(&pref, &[*b"NV24"]), None);
+        // 4:2:2 (a chroma row per row) comes before 4:2:0.
+        assert_eq!(
+            single(&pref, &[*b"NV12", *b"NV16"]),
+            Some(PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv16))
+        );
         // A multi-planar node offers NV12 in two planes as NM12: chosen for NV12, and asked
         // for under its own code. A single-planar node knows no NM12.
-        let mplane = [*b"NM16", *b"NM12"];
+        let mplane = [*b"YM61", *b"NM12"];
         assert_eq!(
             choose_format(&pref, &mplane, CaptureApi::MultiPlanar),
             Some((nv12, *b"NM12"))

@@ -24,7 +24,7 @@
 //! device gone) are logged, never a panic. Retried on `EINTR`: `poll` and `VIDIOC_DQBUF`, which
 //! a signal to the daemon (SIGHUP) may interrupt.
 
-use super::pixel_format::{PixelFormat, Yuv420};
+use super::pixel_format::PixelFormat;
 use std::io;
 use std::os::raw::c_void;
 use std::ptr::NonNull;
@@ -48,11 +48,14 @@ const MAX_PLANES: usize = 8;
 const CAP_TIMEPERFRAME: u32 = 0x1000;
 
 /// Formats whose planes are separate buffers, with the code of their one-buffer twin.
-pub const SEPARATE_PLANE_FOURCCS: [([u8; 4], [u8; 4]); 4] = [
+pub const SEPARATE_PLANE_FOURCCS: [([u8; 4], [u8; 4]); 7] = [
     (*b"NM12", *b"NV12"),
     (*b"NM21", *b"NV21"),
     (*b"YM12", *b"YU12"),
     (*b"YM21", *b"YV12"),
+    (*b"NM16", *b"NV16"),
+    (*b"NM61", *b"NV61"),
+    (*b"YM16", *b"422P"),
 ];
 
 /// The pixel format that `code` names on a multi-planar node: a separate-plane code as its
@@ -227,9 +230,12 @@ fn plane_rows(
     let (w, h) = (width as usize, height as usize);
     match (format, planes) {
         (_, 1) => Some(vec![(format.row_bytes(width), h)]),
-        (PixelFormat::Yuv420(Yuv420::Nv12 | Yuv420::Nv21), 2) => Some(vec![(w, h), (w, h / 2)]),
-        (PixelFormat::Yuv420(Yuv420::Yu12 | Yuv420::Yv12), 3) => {
-            Some(vec![(w, h), (w / 2, h / 2), (w / 2, h / 2)])
+        (PixelFormat::PlanarYuv(layout), 2) if layout.interleaved() => {
+            Some(vec![(w, h), (w, h / layout.rows_per_chroma_row())])
+        }
+        (PixelFormat::PlanarYuv(layout), 3) if !layout.interleaved() => {
+            let chroma = (w / 2, h / layout.rows_per_chroma_row());
+            Some(vec![(w, h), chroma, chroma])
         }
         _ => None,
     }
@@ -561,30 +567,30 @@ impl Drop for MplaneStream {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::capture::pixel_format::BayerPattern;
+    use crate::capture::pixel_format::{BayerPattern, PlanarYuv};
 
     #[test]
     fn separate_plane_codes_name_their_one_buffer_twins() {
         assert_eq!(
             pixel_format(*b"NM12"),
-            Some(PixelFormat::Yuv420(Yuv420::Nv12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv12))
         );
         assert_eq!(
             pixel_format(*b"NM21"),
-            Some(PixelFormat::Yuv420(Yuv420::Nv21))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv21))
         );
         assert_eq!(
             pixel_format(*b"YM12"),
-            Some(PixelFormat::Yuv420(Yuv420::Yu12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Yu12))
         );
         assert_eq!(
             pixel_format(*b"YM21"),
-            Some(PixelFormat::Yuv420(Yuv420::Yv12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Yv12))
         );
         // Codes a multi-planar node offers in one plane are read as on any node.
         assert_eq!(
             pixel_format(*b"NV12"),
-            Some(PixelFormat::Yuv420(Yuv420::Nv12))
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv12))
         );
         assert_eq!(
             pixel_format(*b"pRAA"),
@@ -593,7 +599,16 @@ mod tests {
                 bits: 10
             })
         );
-        assert_eq!(pixel_format(*b"NM16"), None);
+        assert_eq!(
+            pixel_format(*b"NM16"),
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv16))
+        );
+        assert_eq!(
+            pixel_format(*b"YM16"),
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Yuv422p))
+        );
+        // YVU 4:2:2 in three planes has no one-buffer twin in V4L2: not converted.
+        assert_eq!(pixel_format(*b"YM61"), None);
     }
 
     /// Spreads a one-buffer frame with packed rows over padded planes, as a driver would.
@@ -623,12 +638,15 @@ mod tests {
         use crate::capture::pixel_format::{decode_into, CodeImage, RawFrame, YuvMatrix};
         let (w, h) = (6u32, 4u32);
         for (layout, rows) in [
-            (Yuv420::Nv12, vec![(6, 4), (6, 2)]),
-            (Yuv420::Nv21, vec![(6, 4), (6, 2)]),
-            (Yuv420::Yu12, vec![(6, 4), (3, 2), (3, 2)]),
-            (Yuv420::Yv12, vec![(6, 4), (3, 2), (3, 2)]),
+            (PlanarYuv::Nv12, vec![(6, 4), (6, 2)]),
+            (PlanarYuv::Nv21, vec![(6, 4), (6, 2)]),
+            (PlanarYuv::Yu12, vec![(6, 4), (3, 2), (3, 2)]),
+            (PlanarYuv::Yv12, vec![(6, 4), (3, 2), (3, 2)]),
+            (PlanarYuv::Nv16, vec![(6, 4), (6, 4)]),
+            (PlanarYuv::Nv61, vec![(6, 4), (6, 4)]),
+            (PlanarYuv::Yuv422p, vec![(6, 4), (3, 4), (3, 4)]),
         ] {
-            let format = PixelFormat::Yuv420(layout);
+            let format = PixelFormat::PlanarYuv(layout);
             let len = format.buffer_len(w, h, 0).unwrap();
             let packed: Vec<u8> = (0..len).map(|i| (i * 37 % 251) as u8).collect();
             let pads = [2, 10, 4];
@@ -675,7 +693,7 @@ mod tests {
 
     #[test]
     fn short_or_miscounted_planes_are_errors_that_say_which() {
-        let format = PixelFormat::Yuv420(Yuv420::Nv12);
+        let format = PixelFormat::PlanarYuv(PlanarYuv::Nv12);
         let luma = vec![0u8; 8 * 4];
         let chroma = vec![0u8; 8 * 2 - 3];
         let mut out = Vec::new();
@@ -747,7 +765,7 @@ mod tests {
                 2
             ],
         };
-        let nv12 = PixelFormat::Yuv420(Yuv420::Nv12);
+        let nv12 = PixelFormat::PlanarYuv(PlanarYuv::Nv12);
         let e = MplaneStream::new(handle.clone(), &format, nv12, 4)
             .err()
             .unwrap();
@@ -792,6 +810,6 @@ mod tests {
             ],
             ..one
         };
-        assert_eq!(two.stride(PixelFormat::Yuv420(Yuv420::Nv12)), 640);
+        assert_eq!(two.stride(PixelFormat::PlanarYuv(PlanarYuv::Nv12)), 640);
     }
 }
