@@ -96,6 +96,10 @@ struct Camera {
     /// … and this many attempts to open it again fail (`VIDIOC_QUERYCAP`: ENODEV) before it
     /// is back.
     unplugged_opens: u32,
+    /// With payloads, frame `seq` is payload `seq` mod their count as it is, in one buffer of
+    /// the largest payload's size (`bytesperline` 0): compressed frames of varying length, or
+    /// packed rows.
+    payloads: Vec<Vec<u8>>,
 }
 
 /// A control of the fake driver.
@@ -170,6 +174,7 @@ impl Camera {
             sensor: None,
             lost_at: None,
             unplugged_opens: 0,
+            payloads: Vec::new(),
         }
     }
 
@@ -204,6 +209,9 @@ impl Camera {
 
     /// The driver's planes: (bytes per line, payload bytes, data offset).
     fn planes(&self) -> Vec<(usize, usize, usize)> {
+        if let Some(largest) = self.payloads.iter().map(Vec::len).max() {
+            return vec![(0, largest, 0)];
+        }
         let span = |c: &ContentPlane, stride: usize| (c.rows - 1) * stride + c.row_bytes;
         match &self.carriage {
             Carriage::Single { strides, .. } => {
@@ -248,6 +256,9 @@ impl Camera {
 
     /// Frame `seq` as the driver's planes hold it (headers and padding filled with 0xEE).
     fn frame(&self, seq: u32) -> Vec<Vec<u8>> {
+        if !self.payloads.is_empty() {
+            return vec![self.payloads[seq as usize % self.payloads.len()].clone()];
+        }
         let rows_into = |out: &mut Vec<u8>, p: usize, c: &ContentPlane, stride: usize| {
             for row in 0..c.rows {
                 for x in 0..stride {
@@ -1404,4 +1415,76 @@ fn two_plane_nv16_streams_as_one_buffer_nv16_does() {
     let (one_buffer, _) = stream(single, nv16, 2);
     let (planes, _) = stream(multi, nv16, 2);
     assert_same_frames(&planes, &one_buffer);
+}
+
+/// Motion JPEG as UVC webcams send it: frames of varying length in buffers of a fixed size
+/// (`bytesused` below the length), decoded to the same radiance as RGB24 frames of the decoded
+/// pixels; a frame cut short in transfer is skipped.
+#[test]
+fn mjpeg_frames_of_varying_length_decode_as_their_pixels_do() {
+    use envlight::capture::pixel_format::{decode, RawFrame, YuvMatrix};
+    let (w, h) = (64u32, 48u32);
+    let jpegs: Vec<Vec<u8>> = (0..3u32)
+        .map(|k| {
+            let rgb: Vec<u8> = (0..w * h)
+                .flat_map(|i| {
+                    let (x, y) = (i % w, i / w);
+                    [
+                        (x * 4 + k * 40) as u8,
+                        (y * 5) as u8,
+                        ((x + y) * 2 + k * 70) as u8,
+                    ]
+                })
+                .collect();
+            let mut out = Vec::new();
+            jpeg_encoder::Encoder::new(&mut out, 80 + 5 * k as u8)
+                .encode(&rgb, w as u16, h as u16, jpeg_encoder::ColorType::Rgb)
+                .unwrap();
+            out
+        })
+        .collect();
+    let lengths: Vec<usize> = jpegs.iter().map(Vec::len).collect();
+    assert!(lengths.windows(2).all(|p| p[0] != p[1]), "{lengths:?}");
+    // Their pixels as the decoder makes them, as RGB24 frames.
+    let rgb24: Vec<Vec<u8>> = jpegs
+        .iter()
+        .map(|jpeg| {
+            let raw = RawFrame {
+                data: jpeg,
+                format: PixelFormat::Mjpeg,
+                width: w,
+                height: h,
+                stride: 0,
+            };
+            let codes = decode(&raw, YuvMatrix::Auto).unwrap();
+            codes
+                .pixels
+                .iter()
+                .flatten()
+                .map(|v| (v * 255.0).round() as u8)
+                .collect()
+        })
+        .collect();
+    let grey_content = vec![ContentPlane {
+        row_bytes: 1,
+        rows: 1,
+    }];
+    let camera = |fourcc: &[u8; 4], payloads: Vec<Vec<u8>>| Camera {
+        payloads,
+        short: vec![1],
+        ..Camera::new(
+            w,
+            h,
+            grey_content.clone(),
+            Carriage::Single {
+                fourcc: *fourcc,
+                strides: vec![0],
+            },
+        )
+    };
+    let (mjpeg, _) = stream(camera(b"MJPG", jpegs), PixelFormat::Mjpeg, 3);
+    let (rgb, _) = stream(camera(b"RGB3", rgb24), PixelFormat::Rgb24, 3);
+    // Frames 0, 2 and 3 (frame 1 came short), and the pictures differ.
+    assert_same_frames(&mjpeg, &rgb);
+    assert!((mjpeg[1].time - 2.0 * 0.033_333).abs() < 1e-9);
 }
