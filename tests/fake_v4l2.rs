@@ -24,6 +24,8 @@
 //! sensor, for auto exposure and bracketing; it can lose the device mid-stream; and
 //! `envlight decompose --device` runs against it end to end.
 
+mod common;
+
 use envlight::capture::pixel_format::PixelFormat;
 use envlight::capture::v4l2::{CameraSettings, V4l2Source};
 use envlight::capture::FrameSource;
@@ -100,6 +102,9 @@ struct Camera {
     /// the largest payload's size (`bytesperline` 0): compressed frames of varying length, or
     /// packed rows.
     payloads: Vec<Vec<u8>>,
+    /// A frame is ready this long after the one before (`VIDIOC_DQBUF` waits), as a camera's
+    /// frame rate; none: at once.
+    frame_interval: Option<Duration>,
 }
 
 /// A control of the fake driver.
@@ -175,6 +180,7 @@ impl Camera {
             lost_at: None,
             unplugged_opens: 0,
             payloads: Vec::new(),
+            frame_interval: None,
         }
     }
 
@@ -388,6 +394,10 @@ struct Driver {
     pending: Vec<(u32, u32, i64)>,
     /// The values the sensor works with now.
     applied: Vec<(u32, i64)>,
+    /// See [`FakeDevice::present`].
+    present: Arc<AtomicBool>,
+    /// With a frame interval, when the next frame is ready.
+    next_frame_at: Option<std::time::Instant>,
 }
 
 fn value_of(values: &[(u32, i64)], id: u32) -> Option<i64> {
@@ -424,6 +434,10 @@ impl Driver {
         let (w, h) = (self.camera.width, self.camera.height);
         let fourcc = u32::from_le_bytes(self.camera.fourcc());
         if is(vidioc::VIDIOC_QUERYCAP) {
+            if !self.present.load(Ordering::SeqCst) {
+                self.note("QUERYCAP failed: ENODEV".into());
+                return Err(libc::ENODEV);
+            }
             if self.camera.lost_at.is_some_and(|at| self.sequence >= at) {
                 if self.camera.unplugged_opens > 0 {
                     self.camera.unplugged_opens -= 1;
@@ -683,8 +697,16 @@ impl Driver {
         if !self.streaming {
             return Err(libc::EINVAL);
         }
-        if self.camera.lost_at.is_some_and(|at| self.sequence >= at) {
+        if self.camera.lost_at.is_some_and(|at| self.sequence >= at)
+            || !self.present.load(Ordering::SeqCst)
+        {
             return Err(libc::ENODEV);
+        }
+        if let Some(interval) = self.camera.frame_interval {
+            let now = std::time::Instant::now();
+            let at = self.next_frame_at.unwrap_or(now).max(now);
+            std::thread::sleep(at - now);
+            self.next_frame_at = Some(at + interval);
         }
         let Some(index) = self.queued.pop_front() else {
             return Err(libc::EAGAIN);
@@ -776,6 +798,9 @@ struct FakeDevice {
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
     log: Arc<Mutex<Vec<String>>>,
+    /// Cleared, the camera is unplugged (`VIDIOC_DQBUF` and `VIDIOC_QUERYCAP` fail with
+    /// ENODEV) until it is set again.
+    present: Arc<AtomicBool>,
 }
 
 impl FakeDevice {
@@ -785,6 +810,7 @@ impl FakeDevice {
         let (file, path) = file.into_parts();
         let log = Arc::new(Mutex::new(Vec::new()));
         let stop = Arc::new(AtomicBool::new(false));
+        let present = Arc::new(AtomicBool::new(true));
         let (send_fd, receive_fd) = std::sync::mpsc::sync_channel::<i32>(1);
         let mut driver = Driver {
             camera,
@@ -797,6 +823,8 @@ impl FakeDevice {
             values: Vec::new(),
             pending: Vec::new(),
             applied: Vec::new(),
+            present: present.clone(),
+            next_frame_at: None,
         };
         let stopping = stop.clone();
         let thread = std::thread::Builder::new()
@@ -833,6 +861,7 @@ impl FakeDevice {
             stop,
             thread: Some(thread),
             log,
+            present,
         }
     }
 
@@ -1487,4 +1516,97 @@ fn mjpeg_frames_of_varying_length_decode_as_their_pixels_do() {
     // Frames 0, 2 and 3 (frame 1 came short), and the pictures differ.
     assert_same_frames(&mjpeg, &rgb);
     assert!((mjpeg[1].time - 2.0 * 0.033_333).abs() < 1e-9);
+}
+
+/// The daemon on a camera: the lights of its frames reach a client; unplugged, the last
+/// lights are served marked stale (and the metrics say so); plugged in again, fresh lights
+/// follow.
+#[test]
+fn the_daemon_serves_a_cameras_lights_stale_while_it_is_unplugged() {
+    use envlight::daemon::{Daemon, DaemonOptions};
+    use envlight::stream::client::{Client, Endpoint};
+    use envlight::stream::{FrameMessage, Message, Request};
+    let (w, h) = (32u32, 16u32);
+    let sensor = Sensor {
+        radiance: vec![100_000.0; (w * h) as usize],
+        lag: 0,
+        auto_exposure: None,
+    };
+    let camera = Camera {
+        frame_interval: Some(Duration::from_millis(20)),
+        ..Camera::grey(w, h, sensor)
+    };
+    let device = FakeDevice::start(camera);
+    let dir = tempfile::tempdir().unwrap();
+    let extra = format!(
+        "[source]\nkind = \"v4l2\"\nprojection = \"latlong\"\n[camera]\ndevice = \"{}\"\n\
+         formats = [\"GREY\"]\nresponse = \"linear\"\nretry_initial_s = 0.01\n\
+         retry_max_s = 0.02\n[decompose]\nlights = 8\nworking_width = 16\n",
+        device.path.display()
+    );
+    let config = common::config(dir.path(), 0.5, &extra);
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap();
+    let uds = daemon.addresses().stream.unix_socket.clone().unwrap();
+    let metrics = daemon.addresses().metrics.unwrap();
+    let mut client = Client::connect(
+        &Endpoint::Unix(uds),
+        &Request::default(),
+        Some(common::TIMEOUT),
+    )
+    .unwrap();
+    let mut next_frame = || -> FrameMessage {
+        match client.next_message() {
+            Ok(Some(Message::Frame(frame))) => frame,
+            other => panic!("{other:?}"),
+        }
+    };
+    // Linear code 100 over 1 ms everywhere: the lights sum to 4π times that.
+    let expected = 4.0 * std::f64::consts::PI * (100.0 / 255.0) / 0.001;
+    let sum = |f: &FrameMessage| f.lights.iter().map(|l| f64::from(l.rgb[1])).sum::<f64>();
+    for _ in 0..3 {
+        let frame = next_frame();
+        assert!(!frame.stale);
+        assert_eq!(frame.lights.len(), 8);
+        assert!(
+            (sum(&frame) / expected - 1.0).abs() < 1e-3,
+            "{}",
+            sum(&frame)
+        );
+    }
+    device.present.store(false, Ordering::SeqCst);
+    let stale = loop {
+        let frame = next_frame();
+        if frame.stale {
+            break frame;
+        }
+    };
+    assert!(
+        (sum(&stale) / expected - 1.0).abs() < 1e-3,
+        "the last lights, marked stale"
+    );
+    let (_, text) = common::http_get(metrics, "/metrics");
+    assert_eq!(
+        common::metric_value(&text, "envlight_source_stale"),
+        1.0,
+        "{text}"
+    );
+    device.present.store(true, Ordering::SeqCst);
+    let fresh = loop {
+        let frame = next_frame();
+        if !frame.stale {
+            break frame;
+        }
+    };
+    assert!(fresh.seq > stale.seq, "{} after {}", fresh.seq, stale.seq);
+    assert!((sum(&fresh) / expected - 1.0).abs() < 1e-3);
+    common::wait_until("fresh metrics", || {
+        let (_, text) = common::http_get(metrics, "/metrics");
+        common::metric_value(&text, "envlight_source_stale") == 0.0
+    });
+    daemon.shutdown().unwrap();
+    let log = device.finish();
+    assert!(
+        log.iter().any(|l| l == "QUERYCAP failed: ENODEV"),
+        "reopened while away: {log:?}"
+    );
 }
