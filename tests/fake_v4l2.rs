@@ -976,6 +976,25 @@ fn assert_same_frames(a: &[HdrFrame], b: &[HdrFrame]) {
     assert!(a[1].pixels != a[0].pixels, "frames do not change");
 }
 
+/// Streams `count` frames of `single` (a single-planar camera) and of the same camera with its
+/// frames carried as `multi`, and requires the same frames of both; the multi-planar frames
+/// and the driver's log of that stream.
+fn stream_both_ways(
+    single: Camera,
+    multi: Carriage,
+    format: PixelFormat,
+    count: usize,
+) -> (Vec<HdrFrame>, Vec<String>) {
+    let multi = Camera {
+        carriage: multi,
+        ..single.clone()
+    };
+    let (one_buffer, _) = stream(single, format, count);
+    let (planes, log) = stream(multi, format, count);
+    assert_same_frames(&planes, &one_buffer);
+    (planes, log)
+}
+
 #[test]
 fn two_plane_nv12_streams_as_one_buffer_nv12_does() {
     let (w, h) = (64u32, 48u32);
@@ -989,24 +1008,19 @@ fn two_plane_nv12_streams_as_one_buffer_nv12_does() {
         short: vec![3],
         ..Camera::new(w, h, content, carriage)
     };
-    let multi = Camera {
-        carriage: Carriage::Multi {
-            fourcc: *b"NM12",
-            strides: vec![96, 128],
-            data_offsets: vec![0, 256],
-        },
-        ..single.clone()
-    };
     let nv12 = PixelFormat::parse("NV12").unwrap();
-    let (one_buffer, _) = stream(single, nv12, 3);
-    let (planes, log) = stream(multi, nv12, 3);
+    let multi = Carriage::Multi {
+        fourcc: *b"NM12",
+        strides: vec![96, 128],
+        data_offsets: vec![0, 256],
+    };
+    let (planes, log) = stream_both_ways(single, multi, nv12, 3);
     // Frames 1 (flagged corrupt) and 3 (chroma plane cut short) are skipped by both.
     let seqs: Vec<u64> = planes.iter().map(|f| f.seq).collect();
     assert_eq!(seqs, [0, 1, 2]);
     let times: Vec<f64> = planes.iter().map(|f| f.time).collect();
     assert!((times[1] - 2.0 * 0.033_333).abs() < 1e-9, "{times:?}");
     assert!((times[2] - 4.0 * 0.033_333).abs() < 1e-9, "{times:?}");
-    assert_same_frames(&planes, &one_buffer);
     // The multi-planar calls, in order, and the stream closed and its buffers freed.
     let expected = [
         "QUERYCAP",
@@ -1035,18 +1049,13 @@ fn three_plane_yu12_streams_as_one_buffer_yu12_does() {
         strides: vec![72, 36, 36],
     };
     let single = Camera::new(w, h, yuv420(64, 48, 2), carriage);
-    let multi = Camera {
-        carriage: Carriage::Multi {
-            fourcc: *b"YM12",
-            strides: vec![64, 40, 48],
-            data_offsets: vec![16, 0, 8],
-        },
-        ..single.clone()
-    };
     let yu12 = PixelFormat::parse("YU12").unwrap();
-    let (one_buffer, _) = stream(single, yu12, 2);
-    let (planes, _) = stream(multi, yu12, 2);
-    assert_same_frames(&planes, &one_buffer);
+    let multi = Carriage::Multi {
+        fourcc: *b"YM12",
+        strides: vec![64, 40, 48],
+        data_offsets: vec![16, 0, 8],
+    };
+    stream_both_ways(single, multi, yu12, 2);
 }
 
 #[test]
@@ -1061,18 +1070,13 @@ fn packed_raw_in_one_plane_of_a_multi_planar_node_streams_as_on_a_single_planar_
         strides: vec![96],
     };
     let single = Camera::new(w, h, content, carriage);
-    let multi = Camera {
-        carriage: Carriage::Multi {
-            fourcc: *b"pRAA",
-            strides: vec![128],
-            data_offsets: vec![64],
-        },
-        ..single.clone()
-    };
     let raw = PixelFormat::parse("pRAA").unwrap();
-    let (one_buffer, _) = stream(single, raw, 2);
-    let (planes, _) = stream(multi, raw, 2);
-    assert_same_frames(&planes, &one_buffer);
+    let multi = Carriage::Multi {
+        fourcc: *b"pRAA",
+        strides: vec![128],
+        data_offsets: vec![64],
+    };
+    stream_both_ways(single, multi, raw, 2);
 }
 
 #[test]
@@ -1432,18 +1436,13 @@ fn two_plane_nv16_streams_as_one_buffer_nv16_does() {
         strides: vec![72, 72],
     };
     let single = Camera::new(w, h, content, carriage);
-    let multi = Camera {
-        carriage: Carriage::Multi {
-            fourcc: *b"NM16",
-            strides: vec![64, 96],
-            data_offsets: vec![0, 128],
-        },
-        ..single.clone()
-    };
     let nv16 = PixelFormat::parse("NV16").unwrap();
-    let (one_buffer, _) = stream(single, nv16, 2);
-    let (planes, _) = stream(multi, nv16, 2);
-    assert_same_frames(&planes, &one_buffer);
+    let multi = Carriage::Multi {
+        fourcc: *b"NM16",
+        strides: vec![64, 96],
+        data_offsets: vec![0, 128],
+    };
+    stream_both_ways(single, multi, nv16, 2);
 }
 
 /// Motion JPEG as UVC webcams send it: frames of varying length in buffers of a fixed size
