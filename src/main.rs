@@ -56,8 +56,9 @@ enum Command {
     /// Connect to a running daemon and print its light stream (or ASG or wavelet sets).
     #[command(long_about = subscribe::LONG_ABOUT)]
     Subscribe(subscribe::SubscribeArgs),
-    /// List V4L2 cameras with their formats, frame sizes, rates and controls.
-    Devices,
+    /// List V4L2 cameras (all, or the ones named) with their formats, frame sizes, rates and
+    /// controls.
+    Devices(camera::DevicesArgs),
     /// Recover a camera's response curve from bracketed exposures (Debevec & Malik 1997) and
     /// write the curve file for `[camera] response = "curve"`.
     CalibrateResponse(camera::CalibrateResponseArgs),
@@ -125,7 +126,7 @@ fn main() -> ExitCode {
         Command::Record(args) => daemon::record(args),
         Command::CheckConfig(args) => daemon::check_config(&args),
         Command::Subscribe(args) => subscribe::run(&args),
-        Command::Devices => camera::devices(),
+        Command::Devices(args) => camera::devices(&args),
         Command::CalibrateResponse(args) => camera::calibrate_response(&args),
         Command::CalibrateFisheye(args) => camera::calibrate_fisheye(&args),
         Command::Render(args) => render::run(&args),

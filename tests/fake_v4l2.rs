@@ -1609,3 +1609,51 @@ fn the_daemon_serves_a_cameras_lights_stale_while_it_is_unplugged() {
         "reopened while away: {log:?}"
     );
 }
+
+/// `envlight devices DEVICE` lists the named camera (a child process under the filter).
+#[test]
+fn envlight_devices_lists_a_named_multi_planar_camera() {
+    let carriage = Carriage::Multi {
+        fourcc: *b"NM12",
+        strides: vec![64, 64],
+        data_offsets: vec![0, 0],
+    };
+    let camera = Camera {
+        controls: exposure_controls(),
+        ..Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+    };
+    let device = FakeDevice::start(camera);
+    let path = device.path.display().to_string();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["devices", &path])
+        .output()
+        .unwrap();
+    let missing = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["devices", &path, "/no/such/camera"])
+        .output()
+        .unwrap();
+    drop(device.finish());
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        stdout.starts_with(&format!(
+            "{path}: Fake camera (driver fakecam, bus platform:fake, multi-planar)\n"
+        )),
+        "{stdout}"
+    );
+    assert!(stdout.contains("  format NM12 (fake format)\n"), "{stdout}");
+    assert!(
+        stdout.contains("Exposure Time, Absolute: 10 (min 1, max 10000"),
+        "{stdout}"
+    );
+    // A camera that is not there: the others are listed, the exit status is 1 and the error
+    // names it.
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&missing.stdout).contains("format NM12"));
+    let stderr = String::from_utf8_lossy(&missing.stderr);
+    assert!(stderr.contains("/no/such/camera: No such file"), "{stderr}");
+}

@@ -6,7 +6,9 @@ use anyhow::{anyhow, Context, Result};
 use clap::{Args, ValueEnum};
 use envlight::capture::bracket::{read_bracket_image, recover_response, Bracket, SolveSettings};
 use envlight::capture::image_file::{read_hdr_image, ImageFormat};
-use envlight::capture::v4l2::{list_devices, CameraSettings, V4l2Source};
+use envlight::capture::v4l2::{
+    device_info, list_devices, resolve_device, CameraSettings, V4l2Source,
+};
 use envlight::envmap::fisheye_detect::detect_image_circle;
 use envlight::envmap::{FisheyeCalibration, FisheyeModel};
 use std::path::{Path, PathBuf};
@@ -71,19 +73,45 @@ pub struct CalibrateFisheyeArgs {
     fov: Option<f64>,
 }
 
-pub fn devices() -> Result<()> {
-    let devices = list_devices();
-    if devices.is_empty() {
-        super::print_to_stderr(format_args!("no /dev/video* devices found"));
+#[derive(Args, Debug)]
+pub struct DevicesArgs {
+    /// Only these cameras: paths (/dev/video3) or names matched case-insensitively, as
+    /// `[camera] device` takes them. Without any, every /dev/video* node is listed.
+    #[arg(value_name = "DEVICE")]
+    devices: Vec<String>,
+}
+
+pub fn devices(args: &DevicesArgs) -> Result<()> {
+    if args.devices.is_empty() {
+        let devices = list_devices();
+        if devices.is_empty() {
+            super::print_to_stderr(format_args!("no /dev/video* devices found"));
+        }
+        let mut text = String::new();
+        for (path, info) in devices {
+            match info {
+                Ok(info) => text += &info.to_string(),
+                Err(e) => text += &format!("{}: cannot query: {e}\n", path.display()),
+            }
+        }
+        return crate::cli::output::print(&text);
     }
+    // Named cameras: each one listed if it can be, and the exit status says whether all could.
     let mut text = String::new();
-    for (path, info) in devices {
-        match info {
+    let mut failed = Vec::new();
+    for spec in &args.devices {
+        match resolve_device(spec).and_then(|path| device_info(&path)) {
             Ok(info) => text += &info.to_string(),
-            Err(e) => text += &format!("{}: cannot query: {e}\n", path.display()),
+            // The error names the path, or the name that matched nothing.
+            Err(e) => failed.push(e.to_string()),
         }
     }
-    crate::cli::output::print(&text)
+    crate::cli::output::print(&text)?;
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(anyhow!("cannot query {}", failed.join("; ")))
+    }
 }
 
 pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
