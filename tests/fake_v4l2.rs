@@ -1657,3 +1657,91 @@ fn envlight_devices_lists_a_named_multi_planar_camera() {
     let stderr = String::from_utf8_lossy(&missing.stderr);
     assert!(stderr.contains("/no/such/camera: No such file"), "{stderr}");
 }
+
+/// `envlight calibrate-fisheye --device` finds the image circle of a live frame.
+#[test]
+fn calibrate_fisheye_measures_the_circle_of_a_live_frame() {
+    let (w, h) = (96u32, 80u32);
+    let (cx, cy, r) = (47.3, 40.6, 33.2);
+    // A bright disc (code ~200 at 1 ms) on a dark surround (code ~2), its edge anti-aliased
+    // by 8 × 8 supersampling.
+    let radiance: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (f64::from(i % w), f64::from(i / w));
+            let mut inside = 0;
+            for sy in 0..8 {
+                for sx in 0..8 {
+                    let px = x + (f64::from(sx) + 0.5) / 8.0;
+                    let py = y + (f64::from(sy) + 0.5) / 8.0;
+                    inside += i32::from((px - cx).hypot(py - cy) <= r);
+                }
+            }
+            2_000.0 + 198_000.0 * f64::from(inside) / 64.0
+        })
+        .collect();
+    let sensor = Sensor {
+        radiance,
+        lag: 0,
+        auto_exposure: None,
+    };
+    let device = FakeDevice::start(Camera::grey(w, h, sensor));
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("camera.toml");
+    std::fs::write(
+        &config,
+        "[camera]\nformats = [\"GREY\"]\nwidth = 96\nheight = 80\n",
+    )
+    .unwrap();
+    let path = device.path.display().to_string();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "calibrate-fisheye",
+            "--device",
+            &path,
+            "--model",
+            "equisolid",
+        ])
+        .args([
+            "--fov".as_ref(),
+            "185".as_ref(),
+            "--config".as_ref(),
+            config.as_os_str(),
+        ])
+        .output()
+        .unwrap();
+    let log = device.finish();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    // The fifth frame was measured.
+    assert!(
+        log.iter().any(|l| l.starts_with("frame 4 taken")),
+        "{log:?}"
+    );
+    assert!(
+        stdout.contains(&format!("# envlight calibrate-fisheye {path} (V4L2 camera")),
+        "{stdout}"
+    );
+    let value = |key: &str| -> Vec<f64> {
+        let line = stdout.lines().find(|l| l.starts_with(key)).unwrap();
+        line.split('=')
+            .nth(1)
+            .unwrap()
+            .trim_matches(|c: char| c == ' ' || c == '[' || c == ']')
+            .split(',')
+            .map(|v| v.trim().parse().unwrap())
+            .collect()
+    };
+    let center = value("center");
+    let radius = value("radius")[0];
+    println!("center {center:?} radius {radius}");
+    assert!(
+        (center[0] - cx).abs() < 0.5 && (center[1] - cy).abs() < 0.5,
+        "{stdout}"
+    );
+    assert!((radius - r).abs() < 0.5, "{stdout}");
+    assert!(stdout.contains("model = \"equisolid\"") && stdout.contains("fov_deg = 185.0"));
+}

@@ -9,6 +9,7 @@ use envlight::capture::image_file::{read_hdr_image, ImageFormat};
 use envlight::capture::v4l2::{
     device_info, list_devices, resolve_device, CameraSettings, V4l2Source,
 };
+use envlight::capture::FrameSource;
 use envlight::envmap::fisheye_detect::detect_image_circle;
 use envlight::envmap::{FisheyeCalibration, FisheyeModel};
 use std::path::{Path, PathBuf};
@@ -32,6 +33,11 @@ pub struct CalibrateResponseArgs {
     /// Capture the brackets from this V4L2 camera instead of reading IMAGEs.
     #[arg(long, value_name = "DEVICE", conflicts_with = "images")]
     device: Option<String>,
+
+    /// With --device: the config file whose [camera] table opens the camera (formats, size,
+    /// rate; the device is --device's). [default: the built-in [camera] defaults]
+    #[arg(long, value_name = "FILE", requires = "device")]
+    config: Option<PathBuf>,
 
     /// Where to write the curve file.
     #[arg(long, short = 'o', value_name = "FILE")]
@@ -61,8 +67,18 @@ pub enum ModelArg {
 #[derive(Args, Debug)]
 pub struct CalibrateFisheyeArgs {
     /// A frame of the fisheye camera (.exr, .hdr or .png), the surround dark.
-    #[arg(value_name = "IMAGE")]
-    image: PathBuf,
+    #[arg(value_name = "IMAGE", required_unless_present = "device")]
+    image: Option<PathBuf>,
+
+    /// Capture the frame from this V4L2 camera instead of reading IMAGE (its fifth frame, so
+    /// that the camera's auto exposure has settled).
+    #[arg(long, value_name = "DEVICE", conflicts_with = "image")]
+    device: Option<String>,
+
+    /// With --device: the config file whose [camera] table opens the camera (formats, size,
+    /// response, exposure; the device is --device's). [default: the built-in [camera] defaults]
+    #[arg(long, value_name = "FILE", requires = "device")]
+    config: Option<PathBuf>,
 
     /// Lens model to write (not detectable from the circle). [default: equidistant]
     #[arg(long, value_enum)]
@@ -132,10 +148,7 @@ pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
         ))
     })?;
     let brackets: Vec<Bracket> = if let Some(dev) = &args.device {
-        let settings = CameraSettings {
-            device: dev.clone(),
-            ..Default::default()
-        };
+        let settings = camera_settings(dev, args.config.as_deref())?;
         let mut cam = V4l2Source::open(&settings).context("cannot open the camera")?;
         cam.capture_brackets(&args.exposures)
             .context("cannot capture the brackets")?
@@ -200,10 +213,49 @@ fn read_any_image(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
     }
 }
 
+/// The frame of a camera that `calibrate-fisheye --device` measures: the first frames of a
+/// camera are often still dark or bright while its auto exposure settles.
+const FISHEYE_SETTLE_FRAMES: usize = 5;
+
+/// The `[camera]` settings of `config` (the built-in defaults without one) with `device`.
+fn camera_settings(device: &str, config: Option<&Path>) -> Result<CameraSettings> {
+    let camera = match config {
+        Some(path) => {
+            envlight::daemon::read_config(Some(path), None)
+                .map_err(|e| super::daemon::naming_the_file(e, Some(path)))?
+                .camera
+        }
+        None => CameraSettings::default(),
+    };
+    Ok(CameraSettings {
+        device: device.to_string(),
+        ..camera
+    })
+}
+
 pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
-    let (w, h, pixels) = read_any_image(&args.image)?;
+    let (source, (w, h, pixels)) = match (&args.device, &args.image) {
+        (Some(device), _) => {
+            let settings = camera_settings(device, args.config.as_deref())?;
+            let mut camera = V4l2Source::open(&settings).context("cannot open the camera")?;
+            let mut frame = None;
+            for _ in 0..FISHEYE_SETTLE_FRAMES {
+                frame = Some(
+                    camera
+                        .next_frame()
+                        .context("cannot capture a frame")?
+                        .ok_or_else(|| anyhow!("{device}: the camera gave no frame"))?,
+                );
+            }
+            let frame = frame.ok_or_else(|| anyhow!("{device}: no frame captured"))?;
+            let name = format!("{} ({})", device, camera.describe());
+            (name, (frame.width, frame.height, frame.pixels))
+        }
+        (None, Some(image)) => (image.display().to_string(), read_any_image(image)?),
+        (None, None) => crate::cli::usage_error!("give a fisheye IMAGE or --device"),
+    };
     let circle = detect_image_circle(&pixels, w, h)
-        .with_context(|| format!("{}: no image circle found", args.image.display()))?;
+        .with_context(|| format!("{source}: no image circle found"))?;
     let (model, model_kind) = match args.model.unwrap_or(ModelArg::Equidistant) {
         ModelArg::Equidistant => ("equidistant", FisheyeModel::Equidistant),
         ModelArg::Equisolid => ("equisolid", FisheyeModel::Equisolid),
@@ -232,7 +284,7 @@ pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
          radius = {:.3}\n\
          fov_deg = {fov:?}\n\
          rotation_deg = 0.0\n",
-        args.image.display(),
+        source,
         circle.points,
         circle.rms_residual,
         circle.center[0],

@@ -93,7 +93,7 @@ fn daemon_config(args: &DaemonArgs) -> Result<Config> {
 
 /// A config error that names `path`: an invalid value names only its key (read and parse
 /// errors name the file already).
-fn naming_the_file(e: ConfigError, path: Option<&Path>) -> anyhow::Error {
+pub(crate) fn naming_the_file(e: ConfigError, path: Option<&Path>) -> anyhow::Error {
     match (path, &e) {
         (Some(path), ConfigError::Invalid { .. }) => {
             anyhow!(e).context(format!("invalid setting in {}", path.display()))
