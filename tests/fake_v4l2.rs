@@ -1,5 +1,6 @@
-//! envlight's camera code against a fake V4L2 driver in user space: the `v4l` crate's
-//! single-planar stream and envlight's own multi-planar calls (src/capture/v4l2_mplane.rs) run
+//! envlight's camera code against a fake V4L2 driver in user space: its stream of single- and
+//! multi-planar buffers (src/capture/v4l2_stream.rs), its multi-planar format calls
+//! (src/capture/v4l2_mplane.rs) and the `v4l` crate's capability, format and control calls run
 //! through real `ioctl`, `mmap` and `poll` system calls, with no camera and no kernel module.
 //!
 //! How the fake works:
@@ -525,6 +526,11 @@ impl Driver {
             let mut req: v4l2_requestbuffers = caller.read(arg)?;
             if req.type_ != self.buffer_type() || req.memory != 1 {
                 return Err(libc::EINVAL);
+            }
+            if self.streaming {
+                // As videobuf2: the buffers of a streaming queue cannot be changed.
+                self.note("REQBUFS failed: EBUSY".into());
+                return Err(libc::EBUSY);
             }
             self.note(format!("REQBUFS {}", req.count));
             self.buffers.clear();
@@ -1284,8 +1290,8 @@ fn a_lost_device_is_an_error_naming_it_and_closing_it_does_not_panic() {
         let e = source.next_frame().unwrap_err().to_string();
         assert!(e.contains(&device.path.display().to_string()), "{e}");
         assert!(e.contains("No such device"), "{e}");
-        // Stopping the stream fails with EIO (the `v4l` crate panics on that; the source
-        // catches it): a warning, not a crash.
+        // Stopping the stream fails with EIO, and so freeing its buffers with EBUSY: a
+        // warning, not a crash (the `v4l` crate's stream aborted the process here).
         drop(source);
         let log = device.finish();
         assert!(

@@ -15,6 +15,7 @@ pub mod sequence;
 pub mod sky;
 pub mod v4l2;
 pub mod v4l2_mplane;
+pub mod v4l2_stream;
 
 use crate::frame::HdrFrame;
 use std::path::PathBuf;

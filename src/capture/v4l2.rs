@@ -12,7 +12,9 @@
 //! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
 //!    configured time when the config gives one (`V4L2_CID_EXPOSURE_AUTO` = manual,
 //!    `V4L2_CID_EXPOSURE_ABSOLUTE` in 100 µs units);
-//! 4. memory-mapped streaming with 4 buffers and a dequeue timeout.
+//! 4. memory-mapped streaming with 4 buffers and a dequeue timeout
+//!    ([`super::v4l2_stream::MmapStream`], envlight's own: it never panics when the device
+//!    goes away).
 //!
 //! A node that captures only through the multi-planar API ([`CaptureApi::MultiPlanar`]: SoC
 //! camera pipelines) takes the same steps through [`super::v4l2_mplane`], which hands each
@@ -47,6 +49,7 @@ use super::convert::{Calibration, FrameConverter, StreamFormat};
 use super::pixel_format::{self, PixelFormat, YuvMatrix};
 use super::response::ResponseModel;
 use super::v4l2_mplane;
+use super::v4l2_stream::MmapStream;
 use super::{CaptureError, FrameSource};
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
@@ -55,8 +58,6 @@ use std::io;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use v4l::buffer::Type;
-use v4l::io::traits::CaptureStream;
 use v4l::video::Capture;
 
 /// Consecutive corrupt or undecodable frames tolerated before the source reports an error.
@@ -307,34 +308,6 @@ pub fn choose_format(
     })
 }
 
-/// A node's memory-mapped stream, through the API the node has.
-enum Stream {
-    Single(v4l::io::mmap::Stream<'static>),
-    Multi(v4l2_mplane::MplaneStream),
-}
-
-impl Stream {
-    /// Waits for the next buffer: its bytes, or why it holds no frame (flagged corrupt by the
-    /// driver, empty, planes too short), with its metadata.
-    fn next(&mut self) -> io::Result<(Result<&[u8], String>, v4l::buffer::Metadata)> {
-        match self {
-            Stream::Single(stream) => {
-                let (data, meta) = stream.next()?;
-                let used = (meta.bytesused as usize).min(data.len());
-                let bytes = if meta.flags.contains(v4l::buffer::Flags::ERROR) {
-                    Err("the driver flagged the buffer as corrupt".to_string())
-                } else if used == 0 {
-                    Err("the buffer is empty".to_string())
-                } else {
-                    Ok(&data[..used])
-                };
-                Ok((bytes, *meta))
-            }
-            Stream::Multi(stream) => stream.next_frame(),
-        }
-    }
-}
-
 /// What the driver set: the format and its geometry.
 struct Negotiated {
     width: u32,
@@ -355,9 +328,7 @@ pub struct V4l2Source {
     height: u32,
     // The stream borrows nothing from the device (it holds its own handle); it is declared
     // before the device so it is dropped (streaming stopped, buffers unmapped) first.
-    // `Option` so `Drop` can take it out and drop it under `catch_unwind`: the `v4l` crate
-    // panics when stopping the stream fails with anything but ENODEV (an EIO after an unplug).
-    stream: Option<Stream>,
+    stream: MmapStream,
     device: v4l::Device,
     has_exposure: bool,
     has_exposure_auto: bool,
@@ -465,22 +436,17 @@ impl V4l2Source {
                 p.display()
             )));
         }
-        let stream = match &negotiated.planes {
-            None => {
-                let mut stream = guarded(p, "VIDIOC_REQBUFS", || {
-                    v4l::io::mmap::Stream::with_buffers(&device, Type::VideoCapture, 4)
-                })?;
-                stream.set_timeout(settings.timeout);
-                Stream::Single(stream)
-            }
-            Some(planes) => {
-                let mut stream = guarded(p, "buffers", || {
-                    v4l2_mplane::MplaneStream::new(device.handle(), planes, format, 4)
-                })?;
-                stream.set_timeout(settings.timeout);
-                Stream::Multi(stream)
-            }
+        let strides = match &negotiated.planes {
+            None => vec![negotiated.stride],
+            Some(planes) => (planes.planes.iter())
+                .map(|plane| plane.bytes_per_line as usize)
+                .collect(),
         };
+        let size = (negotiated.width, negotiated.height);
+        let mut stream = guarded(p, "buffers", || {
+            MmapStream::new(device.handle(), api, format, size, strides, 4)
+        })?;
+        stream.set_timeout(settings.timeout);
         let Negotiated {
             width,
             height,
@@ -536,7 +502,7 @@ impl V4l2Source {
             format,
             width,
             height,
-            stream: Some(stream),
+            stream,
             device,
             has_exposure,
             has_exposure_auto,
@@ -641,16 +607,7 @@ impl V4l2Source {
         let p = self.path.clone();
         let mut last_problem = String::new();
         for _ in 0..MAX_BAD_FRAMES {
-            let what = match self.stream {
-                Some(Stream::Multi(_)) => "capture",
-                _ => "VIDIOC_DQBUF",
-            };
-            let (data, meta) = guarded(&p, what, || {
-                let stream = self.stream.as_mut().ok_or_else(|| {
-                    io::Error::new(io::ErrorKind::NotConnected, "the stream is closed")
-                })?;
-                stream.next()
-            })?;
+            let (data, meta) = guarded(&p, "capture", || self.stream.next_frame())?;
             let problem = match data {
                 // Checked and kept while the driver lends the buffer; converted once the
                 // exposure is known.
@@ -734,19 +691,6 @@ pub fn yuv_matrix_for(colorspace: v4l::format::Colorspace) -> YuvMatrix {
         C::Rec709 | C::DCIP3 => YuvMatrix::Bt709,
         C::SMPTE170M | C::NTSC | C::EBUTech3212 | C::SRGB | C::JPEG | C::OPRGB => YuvMatrix::Bt601,
         _ => YuvMatrix::Auto,
-    }
-}
-
-impl Drop for V4l2Source {
-    fn drop(&mut self) {
-        if let Some(stream) = self.stream.take() {
-            if catch_unwind(AssertUnwindSafe(move || drop(stream))).is_err() {
-                tracing::warn!(
-                    "{}: stopping the stream failed (device gone?)",
-                    self.path.display()
-                );
-            }
-        }
     }
 }
 
