@@ -1298,6 +1298,10 @@ fn a_lost_device_is_an_error_naming_it_and_closing_it_does_not_panic() {
             log.contains(&"STREAMOFF failed: EIO".to_string()),
             "{log:?}"
         );
+        assert!(
+            log.contains(&"REQBUFS failed: EBUSY".to_string()),
+            "{log:?}"
+        );
     }
 }
 
