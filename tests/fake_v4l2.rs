@@ -106,6 +106,11 @@ struct Camera {
     /// A frame is ready this long after the one before (`VIDIOC_DQBUF` waits), as a camera's
     /// frame rate; none: at once.
     frame_interval: Option<Duration>,
+    /// The first attempt to dequeue frame `seq` fails with `errno` (EINTR: a signal; EAGAIN:
+    /// woken with no buffer ready), once each.
+    dequeue_hiccups: Vec<(u32, i32)>,
+    /// From this frame on no frame is ready any more: `VIDIOC_DQBUF` fails with EAGAIN.
+    stalled_from: Option<u32>,
 }
 
 /// A control of the fake driver.
@@ -182,6 +187,8 @@ impl Camera {
             unplugged_opens: 0,
             payloads: Vec::new(),
             frame_interval: None,
+            dequeue_hiccups: Vec::new(),
+            stalled_from: None,
         }
     }
 
@@ -707,6 +714,20 @@ impl Driver {
             || !self.present.load(Ordering::SeqCst)
         {
             return Err(libc::ENODEV);
+        }
+        if self
+            .camera
+            .stalled_from
+            .is_some_and(|at| self.sequence >= at)
+        {
+            return Err(libc::EAGAIN);
+        }
+        let hiccup =
+            (self.camera.dequeue_hiccups.iter()).position(|&(seq, _)| seq == self.sequence);
+        if let Some(i) = hiccup {
+            let (seq, errno) = self.camera.dequeue_hiccups.remove(i);
+            self.note(format!("DQBUF {seq} failed once: errno {errno}"));
+            return Err(errno);
         }
         if let Some(interval) = self.camera.frame_interval {
             let now = std::time::Instant::now();
@@ -1806,5 +1827,59 @@ fn calibrate_response_recovers_a_linear_sensor_from_live_brackets() {
             (ratio / (b / a) - 1.0).abs() < 0.05,
             "X({b}) / X({a}) = {ratio}"
         );
+    }
+}
+
+/// A signal during the wait (EINTR) or a wake-up with no buffer ready (EAGAIN) is waited out
+/// without losing a frame, through either API; a camera that stops delivering is a timeout
+/// error after the configured time, naming the device.
+#[test]
+fn interrupted_or_empty_dequeues_are_retried_and_a_stalled_camera_times_out() {
+    for carriage in [
+        Carriage::Single {
+            fourcc: *b"NV12",
+            strides: vec![64, 64],
+        },
+        Carriage::Multi {
+            fourcc: *b"NM12",
+            strides: vec![64, 64],
+            data_offsets: vec![0, 0],
+        },
+    ] {
+        let camera = Camera {
+            dequeue_hiccups: vec![(1, libc::EINTR), (2, libc::EAGAIN), (3, libc::EINTR)],
+            stalled_from: Some(4),
+            ..Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+        };
+        let device = FakeDevice::start(camera);
+        let path = device.path.display().to_string();
+        let nv12 = PixelFormat::parse("NV12").unwrap();
+        let settings = CameraSettings {
+            timeout: Duration::from_millis(300),
+            ..device.settings(nv12, 64, 48)
+        };
+        let mut source = V4l2Source::open(&settings).unwrap();
+        let times: Vec<f64> = (0..4)
+            .map(|_| source.next_frame().unwrap().unwrap().time)
+            .collect();
+        // Frames 0–3 in order, none skipped.
+        for (k, t) in times.iter().enumerate() {
+            assert!((t - k as f64 * 0.033_333).abs() < 1e-9, "{times:?}");
+        }
+        let started = std::time::Instant::now();
+        let e = source.next_frame().unwrap_err().to_string();
+        let waited = started.elapsed();
+        drop(source);
+        let log = device.finish();
+        assert_eq!(
+            log.iter().filter(|l| l.starts_with("DQBUF ")).count(),
+            3,
+            "{log:?}"
+        );
+        assert!(e.contains("no frame within the timeout"), "{e}");
+        assert!(e.contains(&path), "{e}");
+        // Not before the timeout, and not long after it (a loop bounded by the timeout).
+        assert!(waited >= Duration::from_millis(300), "{waited:?}");
+        assert!(waited < Duration::from_secs(5), "{waited:?}");
     }
 }

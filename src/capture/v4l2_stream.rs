@@ -11,7 +11,8 @@
 //! 2. the first [`MmapStream::next_frame`] queues every buffer and starts the stream
 //!    (`VIDIOC_STREAMON`); each later call queues the buffer handed out before;
 //! 3. `poll` waits for a frame (with the timeout), `VIDIOC_DQBUF` takes it; a signal
-//!    (`EINTR`) retries the call, a wake-up with no buffer ready (`EAGAIN`) polls again;
+//!    (`EINTR`) retries the call, a wake-up with no buffer ready (`EAGAIN`) polls again, all
+//!    within the one timeout;
 //! 4. the payload is each plane's bytes from its `data_offset` to its `bytesused` (a
 //!    single-planar buffer's from 0 to `bytesused`): a frame in one plane is handed on where the
 //!    driver wrote it, a frame in several planes is copied into the one-buffer layout of its
@@ -27,7 +28,7 @@ use std::io;
 use std::os::raw::c_void;
 use std::ptr::NonNull;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use v4l::buffer::Metadata;
 use v4l::device::Handle;
 use v4l::v4l2;
@@ -257,20 +258,30 @@ impl MmapStream {
         Ok(())
     }
 
-    /// Waits for a buffer and dequeues it into `buffer` (and `planes`).
+    /// Waits for a buffer (at most the timeout in all) and dequeues it into `buffer` (and
+    /// `planes`).
     fn dequeue(
         &self,
         buffer: &mut v4l2_buffer,
         planes: &mut [v4l2_plane; MAX_PLANES],
     ) -> io::Result<()> {
+        let start = Instant::now();
+        let timed_out = || {
+            self.named(
+                "VIDIOC_DQBUF",
+                io::Error::new(io::ErrorKind::TimedOut, "no frame within the timeout"),
+            )
+        };
         loop {
-            match self.handle.poll(libc::POLLIN, self.timeout_ms) {
-                Ok(0) => {
-                    return Err(self.named(
-                        "VIDIOC_DQBUF",
-                        io::Error::new(io::ErrorKind::TimedOut, "no frame within the timeout"),
-                    ))
-                }
+            // What is left of the timeout (-1: none).
+            let wait_ms = if self.timeout_ms < 0 {
+                -1
+            } else {
+                let spent = start.elapsed().as_millis().min(i32::MAX as u128) as i32;
+                self.timeout_ms.saturating_sub(spent).max(0)
+            };
+            match self.handle.poll(libc::POLLIN, wait_ms) {
+                Ok(0) => return Err(timed_out()),
                 Ok(_) => {}
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 Err(e) => return Err(named("poll", e)),
@@ -281,8 +292,17 @@ impl MmapStream {
                 match unsafe { ioctl(&self.handle, vidioc::VIDIOC_DQBUF, buffer) } {
                     Ok(()) => return Ok(()),
                     Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-                    // Woken with no buffer ready: wait again.
-                    Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+                    // Woken with no buffer ready: wait again, within the timeout (and not in
+                    // a busy loop, should the node keep waking us).
+                    Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                        if self.timeout_ms >= 0
+                            && start.elapsed() >= Duration::from_millis(self.timeout_ms as u64)
+                        {
+                            return Err(timed_out());
+                        }
+                        std::thread::sleep(Duration::from_millis(1));
+                        break;
+                    }
                     Err(e) => return Err(self.named("VIDIOC_DQBUF", e)),
                 }
             }
