@@ -111,6 +111,9 @@ struct Camera {
     dequeue_hiccups: Vec<(u32, i32)>,
     /// From this frame on no frame is ready any more: `VIDIOC_DQBUF` fails with EAGAIN.
     stalled_from: Option<u32>,
+    /// The driver sets this pixel format whatever is asked for (as drivers substitute one
+    /// they have).
+    substitute: Option<[u8; 4]>,
 }
 
 /// A control of the fake driver.
@@ -189,6 +192,7 @@ impl Camera {
             frame_interval: None,
             dequeue_hiccups: Vec::new(),
             stalled_from: None,
+            substitute: None,
         }
     }
 
@@ -485,6 +489,7 @@ impl Driver {
             if f.type_ != self.buffer_type() {
                 return Err(libc::EINVAL);
             }
+            let set_fourcc = self.camera.substitute.map_or(fourcc, u32::from_le_bytes);
             let planes = self.camera.planes();
             // SAFETY: the union member of the buffer type checked above.
             unsafe {
@@ -492,7 +497,7 @@ impl Driver {
                     let pix = &mut f.fmt.pix_mp;
                     pix.width = w;
                     pix.height = h;
-                    pix.pixelformat = fourcc;
+                    pix.pixelformat = set_fourcc;
                     pix.colorspace = 3; // V4L2_COLORSPACE_REC709
                     pix.num_planes = planes.len() as u8;
                     for (slot, &(stride, bytes, offset)) in pix.plane_fmt.iter_mut().zip(&planes) {
@@ -503,7 +508,7 @@ impl Driver {
                     let pix = &mut f.fmt.pix;
                     pix.width = w;
                     pix.height = h;
-                    pix.pixelformat = fourcc;
+                    pix.pixelformat = set_fourcc;
                     pix.bytesperline = planes[0].0 as u32;
                     pix.sizeimage = planes[0].1 as u32;
                     pix.colorspace = 3;
@@ -1881,5 +1886,87 @@ fn interrupted_or_empty_dequeues_are_retried_and_a_stalled_camera_times_out() {
         // Not before the timeout, and not long after it (a loop bounded by the timeout).
         assert!(waited >= Duration::from_millis(300), "{waited:?}");
         assert!(waited < Duration::from_secs(5), "{waited:?}");
+    }
+}
+
+/// A camera that offers none of the configured formats, or that sets another format than the
+/// one asked for, is refused with an error that names what it has or chose.
+#[test]
+fn a_format_the_camera_does_not_give_is_an_error_naming_what_it_has() {
+    let nv12_camera = || {
+        Camera::new(
+            64,
+            48,
+            yuv420(64, 48, 1),
+            Carriage::Single {
+                fourcc: *b"NV12",
+                strides: vec![64, 64],
+            },
+        )
+    };
+    let device = FakeDevice::start(nv12_camera());
+    let e = V4l2Source::open(&device.settings(PixelFormat::Yuyv, 64, 48))
+        .err()
+        .unwrap()
+        .to_string();
+    drop(device.finish());
+    assert!(
+        e.contains("none of the configured formats is offered; the camera has NV12"),
+        "{e}"
+    );
+    let device = FakeDevice::start(Camera {
+        substitute: Some(*b"YUYV"),
+        ..nv12_camera()
+    });
+    let nv12 = PixelFormat::parse("NV12").unwrap();
+    let e = V4l2Source::open(&device.settings(nv12, 64, 48))
+        .err()
+        .unwrap()
+        .to_string();
+    drop(device.finish());
+    assert!(e.contains("asked for NV12, the driver chose YUYV"), "{e}");
+}
+
+/// A configured exposure time turns the camera's auto exposure off and sets the time; the
+/// radiance follows it.
+#[test]
+fn a_configured_exposure_is_set_manual_and_used() {
+    let (w, h) = (16u32, 8u32);
+    let sensor = Sensor {
+        radiance: vec![50_000.0; (w * h) as usize],
+        lag: 0,
+        // The camera's auto exposure would change the time at frame 1: not in manual mode.
+        auto_exposure: Some((1, 7)),
+    };
+    let device = FakeDevice::start(Camera::grey(w, h, sensor));
+    let settings = CameraSettings {
+        exposure_s: Some(0.002),
+        ..linear_settings(&device, w, h)
+    };
+    let mut source = V4l2Source::open(&settings).unwrap();
+    let frames: Vec<HdrFrame> = (0..3)
+        .map(|_| source.next_frame().unwrap().unwrap())
+        .collect();
+    drop(source);
+    let log = device.finish();
+    let sets: Vec<&str> = (log.iter().map(String::as_str))
+        .filter(|l| l.starts_with("S_CTRL"))
+        .collect();
+    assert_eq!(
+        sets,
+        [
+            "S_CTRL Auto Exposure 1 at frame 0",
+            "S_CTRL Exposure Time, Absolute 20 at frame 0"
+        ]
+    );
+    assert!(
+        log.contains(&"frame 2 taken at 0.002 s, gain 1".to_string()),
+        "{log:?}"
+    );
+    // Code 100 at 2 ms and unity gain.
+    let expected = 100.0 / 255.0 / 0.002;
+    for f in &frames {
+        let v = f64::from(f.pixels[0][1]);
+        assert!((v / expected - 1.0).abs() < 1e-6, "frame {}: {v}", f.seq);
     }
 }
