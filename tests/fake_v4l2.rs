@@ -160,6 +160,17 @@ fn exposure_controls() -> Vec<FakeControl> {
             maximum: 10_000,
             default: 10,
         },
+        // A compound control of a type newer than the `v4l` crate
+        // (`V4L2_CTRL_TYPE_RECT`, 0x0107), as UVC cameras have since Linux 6.15 (2025)
+        // (`V4L2_CID_UVC_REGION_OF_INTEREST_RECT`).
+        FakeControl {
+            id: 0x0a04_6901,
+            kind: 0x0107,
+            name: "Region Of Interest Rectangle",
+            minimum: 0,
+            maximum: 0,
+            default: 0,
+        },
     ]
 }
 
@@ -1143,7 +1154,9 @@ fn a_multi_planar_node_is_listed_with_its_formats() {
         [
             ("Gain", Some(16)),
             ("Auto Exposure", Some(3)),
-            ("Exposure Time, Absolute", Some(10))
+            ("Exposure Time, Absolute", Some(10)),
+            // Listed, with no single value to show.
+            ("Region Of Interest Rectangle", None)
         ]
     );
     let text = info.to_string();

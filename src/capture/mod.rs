@@ -14,6 +14,7 @@ pub mod response;
 pub mod sequence;
 pub mod sky;
 pub mod v4l2;
+pub mod v4l2_controls;
 pub mod v4l2_mplane;
 pub mod v4l2_stream;
 

@@ -48,6 +48,7 @@ use super::bracket::{self, Bracket, MergeLimits};
 use super::convert::{Calibration, FrameConverter, StreamFormat};
 use super::pixel_format::{self, PixelFormat, YuvMatrix};
 use super::response::ResponseModel;
+use super::v4l2_controls::{self, ControlDesc};
 use super::v4l2_mplane;
 use super::v4l2_stream::MmapStream;
 use super::{CaptureError, FrameSource};
@@ -333,6 +334,8 @@ pub struct V4l2Source {
     has_exposure: bool,
     has_exposure_auto: bool,
     has_gain: bool,
+    /// The node's controls, for reading back exposure and gain.
+    controls: Vec<ControlDesc>,
     first_timestamp: Option<f64>,
     seq: u64,
     card: String,
@@ -412,8 +415,10 @@ impl V4l2Source {
                 tracing::warn!("{e} (keeping the driver's frame rate)");
             }
         }
-        let controls =
-            guarded(p, "VIDIOC_QUERY_EXT_CTRL", || device.query_controls()).unwrap_or_default();
+        let controls = v4l2_controls::query_controls(&device.handle()).unwrap_or_else(|e| {
+            tracing::warn!("{}: {e}; the camera's controls are not used", p.display());
+            Vec::new()
+        });
         let has = |id: u32| controls.iter().any(|c| c.id == id);
         let (has_exposure, has_gain) = (has(CID_EXPOSURE_ABSOLUTE), has(CID_GAIN));
         let has_exposure_auto = has(CID_EXPOSURE_AUTO);
@@ -507,6 +512,7 @@ impl V4l2Source {
             has_exposure,
             has_exposure_auto,
             has_gain,
+            controls,
             first_timestamp: None,
             seq: 0,
             card: caps.card,
@@ -570,11 +576,10 @@ impl V4l2Source {
     }
 
     fn control(&self, id: u32) -> Option<i64> {
-        let r = catch_unwind(AssertUnwindSafe(|| self.device.control(id))).ok()?;
-        match r.ok()?.value {
-            v4l::control::Value::Integer(v) => Some(v),
-            _ => None,
-        }
+        let control = self.controls.iter().find(|c| c.id == id)?;
+        v4l2_controls::read_control(&self.device.handle(), control)
+            .ok()
+            .flatten()
     }
 
     /// Exposure (s) and gain in force, for the radiometry.
@@ -877,18 +882,12 @@ pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
             sizes,
         });
     }
-    let controls = guarded(path, "VIDIOC_QUERY_EXT_CTRL", || device.query_controls())
+    let handle = device.handle();
+    let controls = v4l2_controls::query_controls(&handle)
         .unwrap_or_default()
         .into_iter()
         .map(|c| {
-            let value = catch_unwind(AssertUnwindSafe(|| device.control(c.id)))
-                .ok()
-                .and_then(Result::ok)
-                .and_then(|v| match v.value {
-                    v4l::control::Value::Integer(i) => Some(i),
-                    v4l::control::Value::Boolean(b) => Some(i64::from(b)),
-                    _ => None,
-                });
+            let value = v4l2_controls::read_control(&handle, &c).ok().flatten();
             ControlInfo {
                 id: c.id,
                 name: c.name,
