@@ -114,6 +114,8 @@ struct Camera {
     /// The driver sets this pixel format whatever is asked for (as drivers substitute one
     /// they have).
     substitute: Option<[u8; 4]>,
+    /// The card name `VIDIOC_QUERYCAP` gives (at most 31 bytes).
+    card: Vec<u8>,
 }
 
 /// A control of the fake driver.
@@ -204,6 +206,7 @@ impl Camera {
             dequeue_hiccups: Vec::new(),
             stalled_from: None,
             substitute: None,
+            card: b"Fake camera".to_vec(),
         }
     }
 
@@ -475,7 +478,7 @@ impl Driver {
             }
             let mut caps: v4l2_capability = caller.read(arg)?;
             copy_name(&mut caps.driver, "fakecam");
-            copy_name(&mut caps.card, "Fake camera");
+            caps.card[..self.camera.card.len()].copy_from_slice(&self.camera.card);
             copy_name(&mut caps.bus_info, "platform:fake");
             caps.device_caps = CAP_STREAMING
                 | if self.camera.multi() {
@@ -1982,4 +1985,41 @@ fn a_configured_exposure_is_set_manual_and_used() {
         let v = f64::from(f.pixels[0][1]);
         assert!((v / expected - 1.0).abs() < 1e-6, "frame {}: {v}", f.seq);
     }
+}
+
+/// A card name the driver cut in the middle of a UTF-8 sequence (a USB camera's product name
+/// in Chinese, 32 bytes at most) is read lossily: the camera opens and streams.
+#[test]
+fn a_camera_whose_name_is_cut_mid_character_opens() {
+    let name = "USB 高清广角鱼眼摄像头 HDR Camera".as_bytes();
+    let card = name[..30].to_vec();
+    assert!(
+        std::str::from_utf8(&card).is_err(),
+        "the cut splits a character"
+    );
+    let camera = Camera {
+        card,
+        ..Camera::new(
+            64,
+            48,
+            yuv420(64, 48, 1),
+            Carriage::Single {
+                fourcc: *b"NV12",
+                strides: vec![64, 64],
+            },
+        )
+    };
+    let device = FakeDevice::start(camera);
+    let nv12 = PixelFormat::parse("NV12").unwrap();
+    let mut source = V4l2Source::open(&device.settings(nv12, 64, 48)).unwrap();
+    source.next_frame().unwrap().unwrap();
+    let described = source.describe();
+    drop(source);
+    let info = envlight::capture::v4l2::device_info(&device.path).unwrap();
+    drop(device.finish());
+    assert!(
+        described.contains("(USB 高清广角鱼眼摄像\u{fffd})"),
+        "{described}"
+    );
+    assert_eq!(info.card, "USB 高清广角鱼眼摄像\u{fffd}");
 }

@@ -158,24 +158,64 @@ fn guarded<T>(
     }
 }
 
+/// What `VIDIOC_QUERYCAP` says about a node.
+struct NodeCaps {
+    driver: String,
+    card: String,
+    bus: String,
+    /// The node's own capabilities (`device_caps`; the device's where the driver gives no
+    /// per-node ones).
+    capabilities: v4l::capability::Flags,
+}
+
+/// A fixed-size string of a kernel structure, up to its NUL, read lossily: drivers cut names at
+/// the field's length in the middle of a UTF-8 sequence (a USB camera's product name in
+/// Chinese, say), which the `v4l` crate's `query_caps` unwrapped into a panic, so such a
+/// camera could not be opened.
+fn kernel_string(bytes: &[u8]) -> String {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    String::from_utf8_lossy(&bytes[..end]).into_owned()
+}
+
 /// VIDIOC_QUERYCAP. A file that does not know the ioctl (ENOTTY: `/dev/null`, a regular file)
 /// is no V4L2 device and never will be: that is a settings error, which the device-loss
 /// wrapper does not retry, where other errors may be a camera that comes back.
-fn query_caps(path: &Path, device: &v4l::Device) -> Result<v4l::Capabilities, CaptureError> {
-    let mut not_v4l2 = false;
-    let caps = guarded(path, "VIDIOC_QUERYCAP", || {
-        device.query_caps().inspect_err(|e| {
-            not_v4l2 = e.raw_os_error() == Some(libc::ENOTTY);
-        })
-    });
-    if not_v4l2 {
-        return Err(CaptureError::InvalidSettings(format!(
-            "{} is not a V4L2 device (it does not answer VIDIOC_QUERYCAP); cameras are \
-             /dev/videoN (`envlight devices` lists them)",
-            path.display()
-        )));
+fn query_caps(path: &Path, device: &v4l::Device) -> Result<NodeCaps, CaptureError> {
+    /// `V4L2_CAP_DEVICE_CAPS`: `device_caps` is filled in.
+    const DEVICE_CAPS: u32 = 0x8000_0000;
+    // SAFETY: all-zero is a valid v4l2_capability (bytes and integers).
+    let mut caps: v4l::v4l_sys::v4l2_capability = unsafe { std::mem::zeroed() };
+    // SAFETY: VIDIOC_QUERYCAP writes a v4l2_capability.
+    let answer = unsafe {
+        super::v4l2_stream::ioctl(
+            &device.handle(),
+            v4l::v4l2::vidioc::VIDIOC_QUERYCAP,
+            &mut caps,
+        )
+    };
+    match answer {
+        Ok(()) => Ok(NodeCaps {
+            driver: kernel_string(&caps.driver),
+            card: kernel_string(&caps.card),
+            bus: kernel_string(&caps.bus_info),
+            capabilities: v4l::capability::Flags::from(if caps.capabilities & DEVICE_CAPS != 0 {
+                caps.device_caps
+            } else {
+                caps.capabilities
+            }),
+        }),
+        Err(e) if e.raw_os_error() == Some(libc::ENOTTY) => {
+            Err(CaptureError::InvalidSettings(format!(
+                "{} is not a V4L2 device (it does not answer VIDIOC_QUERYCAP); cameras are \
+                 /dev/videoN (`envlight devices` lists them)",
+                path.display()
+            )))
+        }
+        Err(e) => Err(io_err(
+            path,
+            io::Error::new(e.kind(), format!("VIDIOC_QUERYCAP: {e}")),
+        )),
     }
-    caps
 }
 
 /// Which of V4L2's two video capture APIs a node streams through.
