@@ -287,11 +287,12 @@ fn is_capture_node(path: &Path) -> bool {
     })
 }
 
-/// The sysfs name of a `/dev/videoN` node.
+/// The sysfs name of a `/dev/videoN` node (read lossily: the kernel cuts it at 32 bytes, which
+/// may split a character of a name that is not ASCII).
 fn node_name(path: &Path) -> Option<String> {
     let file = path.file_name()?.to_str()?;
-    let text = std::fs::read_to_string(format!("/sys/class/video4linux/{file}/name")).ok()?;
-    Some(text.trim().to_string())
+    let bytes = std::fs::read(format!("/sys/class/video4linux/{file}/name")).ok()?;
+    Some(String::from_utf8_lossy(&bytes).trim().to_string())
 }
 
 /// Resolves a device spec (a path, or a name matched case-insensitively) to a node path.
