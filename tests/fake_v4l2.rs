@@ -116,6 +116,8 @@ struct Camera {
     substitute: Option<[u8; 4]>,
     /// The card name `VIDIOC_QUERYCAP` gives (at most 31 bytes).
     card: Vec<u8>,
+    /// The format's description `VIDIOC_ENUM_FMT` gives (at most 31 bytes).
+    format_description: Vec<u8>,
 }
 
 /// A control of the fake driver.
@@ -207,6 +209,7 @@ impl Camera {
             stalled_from: None,
             substitute: None,
             card: b"Fake camera".to_vec(),
+            format_description: b"fake format".to_vec(),
         }
     }
 
@@ -495,7 +498,8 @@ impl Driver {
                 return Err(libc::EINVAL);
             }
             desc.pixelformat = fourcc;
-            copy_name(&mut desc.description, "fake format");
+            let text = &self.camera.format_description;
+            desc.description[..text.len()].copy_from_slice(text);
             self.note(format!("ENUM_FMT type {}", desc.type_));
             caller.write(arg, &desc)
         } else if is(vidioc::VIDIOC_G_FMT) || is(vidioc::VIDIOC_S_FMT) {
@@ -1987,8 +1991,9 @@ fn a_configured_exposure_is_set_manual_and_used() {
     }
 }
 
-/// A card name the driver cut in the middle of a UTF-8 sequence (a USB camera's product name
-/// in Chinese, 32 bytes at most) is read lossily: the camera opens and streams.
+/// A card name (and a format description) the driver cut in the middle of a UTF-8 sequence (a
+/// USB camera's product name in Chinese, 32 bytes at most) is read lossily: the camera opens
+/// and streams.
 #[test]
 fn a_camera_whose_name_is_cut_mid_character_opens() {
     let name = "USB 高清广角鱼眼摄像头 HDR Camera".as_bytes();
@@ -1998,7 +2003,8 @@ fn a_camera_whose_name_is_cut_mid_character_opens() {
         "the cut splits a character"
     );
     let camera = Camera {
-        card,
+        card: card.clone(),
+        format_description: card,
         ..Camera::new(
             64,
             48,
@@ -2022,4 +2028,5 @@ fn a_camera_whose_name_is_cut_mid_character_opens() {
         "{described}"
     );
     assert_eq!(info.card, "USB 高清广角鱼眼摄像\u{fffd}");
+    assert_eq!(info.formats[0].description, "USB 高清广角鱼眼摄像\u{fffd}");
 }

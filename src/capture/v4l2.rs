@@ -411,18 +411,11 @@ impl V4l2Source {
                 caps.card
             ))
         })?;
-        let offered: Vec<[u8; 4]> = match api {
-            CaptureApi::SinglePlanar => guarded(p, "VIDIOC_ENUM_FMT", || device.enum_formats())?
-                .iter()
-                .map(|d| d.fourcc.repr)
-                .collect(),
-            CaptureApi::MultiPlanar => guarded(p, "capture formats", || {
-                v4l2_mplane::enum_formats(&device.handle())
-            })?
+        let offered: Vec<[u8; 4]> = offered_formats(&device, Ok(api))
+            .map_err(|e| io_err(p, e))?
             .into_iter()
             .map(|(code, _)| code)
-            .collect(),
-        };
+            .collect();
         let (format, code) = choose_format(&settings.formats, &offered, api).ok_or_else(|| {
             let names: Vec<String> = offered
                 .iter()
@@ -868,20 +861,25 @@ pub struct DeviceInfo {
     pub controls: Vec<ControlInfo>,
 }
 
+/// The formats a node offers through its API (a node that is no capture node is asked as a
+/// single-planar one), with their descriptions.
+fn offered_formats(
+    device: &v4l::Device,
+    api: Result<CaptureApi, &str>,
+) -> io::Result<Vec<([u8; 4], String)>> {
+    let buffer_type = match api {
+        Ok(CaptureApi::MultiPlanar) => super::v4l2_stream::CAPTURE_MPLANE,
+        _ => super::v4l2_stream::CAPTURE,
+    };
+    v4l2_mplane::enum_formats_of(&device.handle(), buffer_type)
+}
+
 /// Queries one device.
 pub fn device_info(path: &Path) -> Result<DeviceInfo, CaptureError> {
     let device = v4l::Device::with_path(path).map_err(|e| io_err(path, e))?;
     let caps = query_caps(path, &device)?;
     let api = capture_api(caps.capabilities);
-    let offered: Vec<([u8; 4], String)> = match api {
-        Ok(CaptureApi::MultiPlanar) => guarded(path, "capture formats", || {
-            v4l2_mplane::enum_formats(&device.handle())
-        })?,
-        _ => guarded(path, "VIDIOC_ENUM_FMT", || device.enum_formats())?
-            .into_iter()
-            .map(|d| (d.fourcc.repr, d.description))
-            .collect(),
-    };
+    let offered = offered_formats(&device, api).map_err(|e| io_err(path, e))?;
     let mut formats = Vec::new();
     for (code, description) in offered {
         let fourcc = v4l::FourCC::new(&code);

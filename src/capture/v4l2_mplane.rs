@@ -85,18 +85,28 @@ fn fourcc_u32(code: [u8; 4]) -> u32 {
 
 /// The formats of a multi-planar capture node: its fourcc and the driver's description.
 pub fn enum_formats(handle: &Handle) -> io::Result<Vec<([u8; 4], String)>> {
+    enum_formats_of(handle, CAPTURE_MPLANE)
+}
+
+/// The formats a node offers for `buffer_type` (`V4L2_BUF_TYPE_VIDEO_CAPTURE` or `_MPLANE`),
+/// with the driver's descriptions read lossily (the `v4l` crate's enumeration unwraps them into
+/// UTF-8, a panic on a description cut in the middle of a character).
+pub fn enum_formats_of(handle: &Handle, buffer_type: u32) -> io::Result<Vec<([u8; 4], String)>> {
     let mut formats = Vec::new();
     // A driver lists a few dozen at most; the bound keeps a broken one from looping forever.
     for index in 0..256 {
         // SAFETY: all-zero is a valid v4l2_fmtdesc (plain integers and bytes).
         let mut desc: v4l2_fmtdesc = unsafe { std::mem::zeroed() };
         desc.index = index;
-        desc.type_ = CAPTURE_MPLANE;
+        desc.type_ = buffer_type;
         // SAFETY: VIDIOC_ENUM_FMT reads and writes a v4l2_fmtdesc.
         match unsafe { ioctl(handle, vidioc::VIDIOC_ENUM_FMT, &mut desc) } {
             Ok(()) => {}
             Err(e) if e.raw_os_error() == Some(libc::EINVAL) => break,
-            Err(e) => return Err(named("VIDIOC_ENUM_FMT (multi-planar)", e)),
+            Err(e) if buffer_type == CAPTURE_MPLANE => {
+                return Err(named("VIDIOC_ENUM_FMT (multi-planar)", e))
+            }
+            Err(e) => return Err(named("VIDIOC_ENUM_FMT", e)),
         }
         let text = desc.description;
         let end = text.iter().position(|&b| b == 0).unwrap_or(text.len());
