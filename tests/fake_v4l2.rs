@@ -44,6 +44,8 @@ use v4l::v4l_sys::{
     v4l2_plane, v4l2_query_ext_ctrl, v4l2_requestbuffers, v4l2_streamparm,
 };
 
+// The kernel's constants, written out here rather than taken from envlight's modules, so that
+// a wrong one there disagrees with the fake instead of agreeing with it.
 const CAPTURE: u32 = 1;
 const CAPTURE_MPLANE: u32 = 9;
 const CAP_VIDEO_CAPTURE: u32 = 0x1;
@@ -984,6 +986,11 @@ fn serve(listener: i32, driver: &mut Driver, stop: &AtomicBool) {
     }
 }
 
+/// The `envlight` binary, to run as a child of a thread under the filter (it inherits it).
+fn envlight() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+}
+
 /// Opens the fake camera, reads `count` frames and closes it; the frames and the driver's log.
 fn stream(camera: Camera, format: PixelFormat, count: usize) -> (Vec<HdrFrame>, Vec<String>) {
     let (w, h) = (camera.width, camera.height);
@@ -1011,6 +1018,25 @@ fn yuv420(width: usize, height: usize, chroma_planes: usize) -> Vec<ContentPlane
     let mut planes = vec![luma];
     planes.extend(std::iter::repeat_n(chroma, chroma_planes));
     planes
+}
+
+/// A 64×48 NV12 camera in one buffer of packed rows (single-planar).
+fn nv12_camera() -> Camera {
+    let carriage = Carriage::Single {
+        fourcc: *b"NV12",
+        strides: vec![64, 64],
+    };
+    Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+}
+
+/// The same camera as a multi-planar node, NM12 in two planes of packed rows.
+fn nm12_camera() -> Camera {
+    let carriage = Carriage::Multi {
+        fourcc: *b"NM12",
+        strides: vec![64, 64],
+        data_offsets: vec![0, 0],
+    };
+    Camera::new(64, 48, yuv420(64, 48, 1), carriage)
 }
 
 fn assert_same_frames(a: &[HdrFrame], b: &[HdrFrame]) {
@@ -1132,14 +1158,9 @@ fn packed_raw_in_one_plane_of_a_multi_planar_node_streams_as_on_a_single_planar_
 #[test]
 fn a_multi_planar_node_is_listed_with_its_formats() {
     use envlight::capture::v4l2::device_info;
-    let carriage = Carriage::Multi {
-        fourcc: *b"NM12",
-        strides: vec![64, 64],
-        data_offsets: vec![0, 0],
-    };
     let camera = Camera {
         controls: exposure_controls(),
-        ..Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+        ..nm12_camera()
     };
     let device = FakeDevice::start(camera);
     let info = device_info(&device.path).unwrap();
@@ -1312,20 +1333,10 @@ fn brackets_are_taken_through_the_exposure_control_and_merged() {
 
 #[test]
 fn a_lost_device_is_an_error_naming_it_and_closing_it_does_not_panic() {
-    for carriage in [
-        Carriage::Single {
-            fourcc: *b"NV12",
-            strides: vec![64, 64],
-        },
-        Carriage::Multi {
-            fourcc: *b"NM12",
-            strides: vec![64, 64],
-            data_offsets: vec![0, 0],
-        },
-    ] {
+    for camera in [nv12_camera(), nm12_camera()] {
         let camera = Camera {
             lost_at: Some(2),
-            ..Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+            ..camera
         };
         let device = FakeDevice::start(camera);
         let nv12 = PixelFormat::parse("NV12").unwrap();
@@ -1364,7 +1375,7 @@ fn envlight_decompose_captures_from_the_camera_end_to_end() {
     };
     let device = FakeDevice::start(Camera::grey(w, h, sensor));
     let path = device.path.display().to_string();
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+    let output = envlight()
         .args([
             "decompose",
             "--device",
@@ -1409,16 +1420,7 @@ fn a_camera_unplugged_and_plugged_in_again_is_reopened_and_streams_on() {
     let camera = Camera {
         lost_at: Some(3),
         unplugged_opens: 4,
-        ..Camera::new(
-            64,
-            48,
-            yuv420(64, 48, 1),
-            Carriage::Multi {
-                fourcc: *b"NM12",
-                strides: vec![64, 64],
-                data_offsets: vec![0, 0],
-            },
-        )
+        ..nm12_camera()
     };
     let device = FakeDevice::start(camera);
     let nv12 = PixelFormat::parse("NV12").unwrap();
@@ -1461,18 +1463,7 @@ fn a_camera_unplugged_and_plugged_in_again_is_reopened_and_streams_on() {
         health.last_error()
     );
     // The frames after the reconnect are the camera's frames 3, 4, 5.
-    let direct = {
-        let camera = Camera::new(
-            64,
-            48,
-            yuv420(64, 48, 1),
-            Carriage::Single {
-                fourcc: *b"NV12",
-                strides: vec![64, 64],
-            },
-        );
-        stream(camera, nv12, 6).0
-    };
+    let direct = stream(nv12_camera(), nv12, 6).0;
     for (a, b) in frames.iter().zip(&direct) {
         assert!(a.pixels == b.pixels, "frame {}", a.seq);
     }
@@ -1669,22 +1660,14 @@ fn the_daemon_serves_a_cameras_lights_stale_while_it_is_unplugged() {
 /// `envlight devices DEVICE` lists the named camera (a child process under the filter).
 #[test]
 fn envlight_devices_lists_a_named_multi_planar_camera() {
-    let carriage = Carriage::Multi {
-        fourcc: *b"NM12",
-        strides: vec![64, 64],
-        data_offsets: vec![0, 0],
-    };
     let camera = Camera {
         controls: exposure_controls(),
-        ..Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+        ..nm12_camera()
     };
     let device = FakeDevice::start(camera);
     let path = device.path.display().to_string();
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
-        .args(["devices", &path])
-        .output()
-        .unwrap();
-    let missing = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+    let output = envlight().args(["devices", &path]).output().unwrap();
+    let missing = envlight()
         .args(["devices", &path, "/no/such/camera"])
         .output()
         .unwrap();
@@ -1749,7 +1732,7 @@ fn calibrate_fisheye_measures_the_circle_of_a_live_frame() {
     )
     .unwrap();
     let path = device.path.display().to_string();
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+    let output = envlight()
         .args([
             "calibrate-fisheye",
             "--device",
@@ -1823,7 +1806,7 @@ fn calibrate_response_recovers_a_linear_sensor_from_live_brackets() {
     .unwrap();
     let curve_path = dir.path().join("curve.txt");
     let path = device.path.display().to_string();
-    let output = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+    let output = envlight()
         .args(["calibrate-response", "--device", &path])
         .args(["--exposures", "0.001,0.004,0.016", "--levels", "256"])
         .args(["--config".as_ref(), config.as_os_str()])
@@ -1860,21 +1843,11 @@ fn calibrate_response_recovers_a_linear_sensor_from_live_brackets() {
 /// error after the configured time, naming the device.
 #[test]
 fn interrupted_or_empty_dequeues_are_retried_and_a_stalled_camera_times_out() {
-    for carriage in [
-        Carriage::Single {
-            fourcc: *b"NV12",
-            strides: vec![64, 64],
-        },
-        Carriage::Multi {
-            fourcc: *b"NM12",
-            strides: vec![64, 64],
-            data_offsets: vec![0, 0],
-        },
-    ] {
+    for camera in [nv12_camera(), nm12_camera()] {
         let camera = Camera {
             dequeue_hiccups: vec![(1, libc::EINTR), (2, libc::EAGAIN), (3, libc::EINTR)],
             stalled_from: Some(4),
-            ..Camera::new(64, 48, yuv420(64, 48, 1), carriage)
+            ..camera
         };
         let device = FakeDevice::start(camera);
         let path = device.path.display().to_string();
@@ -1913,17 +1886,6 @@ fn interrupted_or_empty_dequeues_are_retried_and_a_stalled_camera_times_out() {
 /// one asked for, is refused with an error that names what it has or chose.
 #[test]
 fn a_format_the_camera_does_not_give_is_an_error_naming_what_it_has() {
-    let nv12_camera = || {
-        Camera::new(
-            64,
-            48,
-            yuv420(64, 48, 1),
-            Carriage::Single {
-                fourcc: *b"NV12",
-                strides: vec![64, 64],
-            },
-        )
-    };
     let device = FakeDevice::start(nv12_camera());
     let e = V4l2Source::open(&device.settings(PixelFormat::Yuyv, 64, 48))
         .err()
@@ -2005,15 +1967,7 @@ fn a_camera_whose_name_is_cut_mid_character_opens() {
     let camera = Camera {
         card: card.clone(),
         format_description: card,
-        ..Camera::new(
-            64,
-            48,
-            yuv420(64, 48, 1),
-            Carriage::Single {
-                fourcc: *b"NV12",
-                strides: vec![64, 64],
-            },
-        )
+        ..nv12_camera()
     };
     let device = FakeDevice::start(camera);
     let nv12 = PixelFormat::parse("NV12").unwrap();
