@@ -50,7 +50,7 @@ use super::pixel_format::{self, PixelFormat, YuvMatrix};
 use super::response::ResponseModel;
 use super::v4l2_controls::{self, ControlDesc};
 use super::v4l2_mplane;
-use super::v4l2_stream::MmapStream;
+use super::v4l2_stream::{kernel_string, MmapStream};
 use super::{CaptureError, FrameSource};
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
@@ -168,16 +168,9 @@ struct NodeCaps {
     capabilities: v4l::capability::Flags,
 }
 
-/// A fixed-size string of a kernel structure, up to its NUL, read lossily: drivers cut names at
-/// the field's length in the middle of a UTF-8 sequence (a USB camera's product name in
-/// Chinese, say), which the `v4l` crate's `query_caps` unwrapped into a panic, so such a
-/// camera could not be opened.
-fn kernel_string(bytes: &[u8]) -> String {
-    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
-    String::from_utf8_lossy(&bytes[..end]).into_owned()
-}
-
-/// VIDIOC_QUERYCAP. A file that does not know the ioctl (ENOTTY: `/dev/null`, a regular file)
+/// VIDIOC_QUERYCAP, with the names read lossily ([`kernel_string`]: the `v4l` crate's
+/// `query_caps` unwrapped a name cut in the middle of a character into a panic, so such a
+/// camera could not be opened). A file that does not know the ioctl (ENOTTY: `/dev/null`, a regular file)
 /// is no V4L2 device and never will be: that is a settings error, which the device-loss
 /// wrapper does not retry, where other errors may be a camera that comes back.
 fn query_caps(path: &Path, device: &v4l::Device) -> Result<NodeCaps, CaptureError> {
@@ -213,7 +206,7 @@ fn query_caps(path: &Path, device: &v4l::Device) -> Result<NodeCaps, CaptureErro
         }
         Err(e) => Err(io_err(
             path,
-            io::Error::new(e.kind(), format!("VIDIOC_QUERYCAP: {e}")),
+            super::v4l2_stream::named("VIDIOC_QUERYCAP", e),
         )),
     }
 }
@@ -229,6 +222,14 @@ pub enum CaptureApi {
 }
 
 impl CaptureApi {
+    /// Its buffer type: `V4L2_BUF_TYPE_VIDEO_CAPTURE` or `_CAPTURE_MPLANE`.
+    pub fn buffer_type(self) -> u32 {
+        match self {
+            CaptureApi::SinglePlanar => super::v4l2_stream::CAPTURE,
+            CaptureApi::MultiPlanar => super::v4l2_stream::CAPTURE_MPLANE,
+        }
+    }
+
     /// The pixel format a fourcc the node enumerates stands for (on a multi-planar node the
     /// separate-plane codes, such as `NM12`, stand for their one-buffer twins).
     pub fn pixel_format(self, code: [u8; 4]) -> Option<PixelFormat> {
@@ -357,8 +358,8 @@ struct Negotiated {
     /// Bytes between rows of the buffers the stream hands on.
     stride: usize,
     colorspace: v4l::format::Colorspace,
-    /// The planes, on a multi-planar node.
-    planes: Option<v4l2_mplane::MplaneFormat>,
+    /// Bytes per line of each plane the driver fills (one on a single-planar node).
+    plane_strides: Vec<usize>,
 }
 
 /// A streaming V4L2 camera (see the module docs).
@@ -433,20 +434,8 @@ impl V4l2Source {
             m => m,
         };
         if let Some(fps) = settings.fps {
-            let set = match api {
-                CaptureApi::SinglePlanar => {
-                    let params = v4l::video::capture::Parameters::new(v4l::Fraction::new(
-                        1000,
-                        (fps * 1000.0).round().clamp(1.0, u32::MAX as f64) as u32,
-                    ));
-                    guarded(p, "VIDIOC_S_PARM", || device.set_params(&params)).map(drop)
-                }
-                CaptureApi::MultiPlanar => guarded(p, "frame rate", || {
-                    v4l2_mplane::set_frame_rate(&device.handle(), fps)
-                }),
-            };
-            if let Err(e) = set {
-                tracing::warn!("{e} (keeping the driver's frame rate)");
+            if let Err(e) = v4l2_mplane::set_frame_rate(&device.handle(), api, fps) {
+                tracing::warn!("{}: {e} (keeping the driver's frame rate)", p.display());
             }
         }
         let controls = v4l2_controls::query_controls(&device.handle()).unwrap_or_else(|e| {
@@ -475,16 +464,10 @@ impl V4l2Source {
                 p.display()
             )));
         }
-        let strides = match &negotiated.planes {
-            None => vec![negotiated.stride],
-            Some(planes) => (planes.planes.iter())
-                .map(|plane| plane.bytes_per_line as usize)
-                .collect(),
-        };
         let size = (negotiated.width, negotiated.height);
-        let mut stream = guarded(p, "buffers", || {
-            MmapStream::new(device.handle(), api, format, size, strides, 4)
-        })?;
+        let strides = negotiated.plane_strides.clone();
+        let mut stream = MmapStream::new(device.handle(), api, format, size, strides, 4)
+            .map_err(|e| io_err(p, e))?;
         stream.set_timeout(settings.timeout);
         let Negotiated {
             width,
@@ -496,14 +479,12 @@ impl V4l2Source {
             "{} ({}): {format}{} {width}x{height} stride {stride}",
             p.display(),
             caps.card,
-            match &negotiated.planes {
-                Some(planes) if planes.planes.len() > 1 => format!(
-                    " in {} planes ({})",
-                    planes.planes.len(),
-                    String::from_utf8_lossy(&code)
-                ),
-                Some(_) => " (multi-planar API)".to_string(),
-                None => String::new(),
+            match (api, negotiated.plane_strides.len()) {
+                (_, planes @ 2..) => {
+                    format!(" in {planes} planes ({})", String::from_utf8_lossy(&code))
+                }
+                (CaptureApi::MultiPlanar, _) => " (multi-planar API)".to_string(),
+                (CaptureApi::SinglePlanar, _) => String::new(),
             }
         );
         let convert_pool =
@@ -575,21 +556,25 @@ impl V4l2Source {
                     height: fmt.height,
                     stride: fmt.stride as usize,
                     colorspace: fmt.colorspace,
-                    planes: None,
+                    plane_strides: vec![fmt.stride as usize],
                 };
                 (fmt.fourcc.repr, negotiated)
             }
             CaptureApi::MultiPlanar => {
-                let fmt = guarded(p, "format", || {
-                    v4l2_mplane::set_format(&device.handle(), code, settings.width, settings.height)
-                })?;
+                let fmt = v4l2_mplane::set_format(
+                    &device.handle(),
+                    code,
+                    settings.width,
+                    settings.height,
+                )
+                .map_err(|e| io_err(p, e))?;
                 let negotiated = Negotiated {
                     width: fmt.width,
                     height: fmt.height,
                     stride: fmt.stride(format),
                     colorspace: v4l::format::Colorspace::try_from(fmt.colorspace)
                         .unwrap_or(v4l::format::Colorspace::Default),
-                    planes: Some(fmt.clone()),
+                    plane_strides: fmt.strides,
                 };
                 (fmt.fourcc, negotiated)
             }
@@ -646,7 +631,7 @@ impl V4l2Source {
         let p = self.path.clone();
         let mut last_problem = String::new();
         for _ in 0..MAX_BAD_FRAMES {
-            let (data, meta) = guarded(&p, "capture", || self.stream.next_frame())?;
+            let (data, meta) = self.stream.next_frame().map_err(|e| io_err(&p, e))?;
             let problem = match data {
                 // Checked and kept while the driver lends the buffer; converted once the
                 // exposure is known.
@@ -867,11 +852,7 @@ fn offered_formats(
     device: &v4l::Device,
     api: Result<CaptureApi, &str>,
 ) -> io::Result<Vec<([u8; 4], String)>> {
-    let buffer_type = match api {
-        Ok(CaptureApi::MultiPlanar) => super::v4l2_stream::CAPTURE_MPLANE,
-        _ => super::v4l2_stream::CAPTURE,
-    };
-    v4l2_mplane::enum_formats_of(&device.handle(), buffer_type)
+    v4l2_mplane::enum_formats(&device.handle(), api.unwrap_or(CaptureApi::SinglePlanar))
 }
 
 /// Queries one device.

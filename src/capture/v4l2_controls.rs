@@ -8,7 +8,7 @@
 //! control of such a camera: the exposure and gain it reads back each frame for the radiance,
 //! and bracketing. Here a type is kept as its number and a name is read lossily.
 
-use super::v4l2_stream::ioctl;
+use super::v4l2_stream::{ioctl, kernel_string, named};
 use std::io;
 use v4l::device::Handle;
 use v4l::v4l2::vidioc;
@@ -62,28 +62,17 @@ pub fn query_controls(handle: &Handle) -> io::Result<Vec<ControlDesc>> {
             Ok(()) => {}
             // The end of the list (or a node without controls).
             Err(e) if e.raw_os_error() == Some(libc::EINVAL) => break,
-            Err(e) => {
-                return Err(io::Error::new(
-                    e.kind(),
-                    format!("VIDIOC_QUERY_EXT_CTRL: {e}"),
-                ))
-            }
+            Err(e) => return Err(named("VIDIOC_QUERY_EXT_CTRL", e)),
         }
         if query.id <= id {
             // A driver that does not move on: stop rather than loop.
             break;
         }
         id = query.id;
-        let name: Vec<u8> = query
-            .name
-            .iter()
-            .take_while(|&&c| c != 0)
-            .map(|&c| c as u8)
-            .collect();
         controls.push(ControlDesc {
             id: query.id,
             kind: query.type_,
-            name: String::from_utf8_lossy(&name).into_owned(),
+            name: kernel_string(&query.name.map(|c| c as u8)),
             minimum: query.minimum,
             maximum: query.maximum,
             step: query.step,
@@ -107,12 +96,8 @@ pub fn read_control(handle: &Handle, control: &ControlDesc) -> io::Result<Option
     list.controls = &mut value;
     // SAFETY: VIDIOC_G_EXT_CTRLS reads the list and writes its one control, which outlives the
     // call.
-    unsafe { ioctl(handle, vidioc::VIDIOC_G_EXT_CTRLS, &mut list) }.map_err(|e| {
-        io::Error::new(
-            e.kind(),
-            format!("VIDIOC_G_EXT_CTRLS {:#x}: {e}", control.id),
-        )
-    })?;
+    unsafe { ioctl(handle, vidioc::VIDIOC_G_EXT_CTRLS, &mut list) }
+        .map_err(|e| named(&format!("VIDIOC_G_EXT_CTRLS {:#x}", control.id), e))?;
     // SAFETY: a 64-bit control carries its value in `value64`, the others in `value`.
     Ok(Some(unsafe {
         if control.kind == INTEGER64 {

@@ -17,14 +17,12 @@
 //!    bytes), so everything after the buffer is the same code as for a single-planar camera.
 
 use super::pixel_format::PixelFormat;
-use super::v4l2_stream::{ioctl, named, CAPTURE_MPLANE};
+use super::v4l2::CaptureApi;
+use super::v4l2_stream::{ioctl, kernel_string, named, named_on, CAPTURE_MPLANE, MAX_PLANES};
 use std::io;
 use v4l::device::Handle;
 use v4l::v4l2::vidioc;
 use v4l::v4l_sys::{v4l2_fmtdesc, v4l2_format, v4l2_streamparm};
-
-/// The number of planes of a format at most (`VIDEO_MAX_PLANES`).
-const MAX_PLANES: usize = 8;
 /// `V4L2_CAP_TIMEPERFRAME`: the driver takes a frame interval.
 const CAP_TIMEPERFRAME: u32 = 0x1000;
 
@@ -49,13 +47,6 @@ pub fn pixel_format(code: [u8; 4]) -> Option<PixelFormat> {
     PixelFormat::from_fourcc(twin)
 }
 
-/// One plane of a negotiated format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct PlaneFormat {
-    pub bytes_per_line: u32,
-    pub size_image: u32,
-}
-
 /// A format the driver set on a multi-planar node.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct MplaneFormat {
@@ -64,7 +55,8 @@ pub struct MplaneFormat {
     pub height: u32,
     /// `V4L2_COLORSPACE_*`.
     pub colorspace: u32,
-    pub planes: Vec<PlaneFormat>,
+    /// Bytes per line of each plane.
+    pub strides: Vec<usize>,
 }
 
 impl MplaneFormat {
@@ -72,47 +64,33 @@ impl MplaneFormat {
     /// hands it on: the driver's for a one-plane format, packed rows (the row's bytes) for a
     /// gathered one.
     pub fn stride(&self, format: PixelFormat) -> usize {
-        match self.planes.as_slice() {
-            [one] => one.bytes_per_line as usize,
+        match self.strides.as_slice() {
+            [one] => *one,
             _ => format.row_bytes(self.width),
         }
     }
 }
 
-fn fourcc_u32(code: [u8; 4]) -> u32 {
-    u32::from_le_bytes(code)
-}
-
-/// The formats of a multi-planar capture node: its fourcc and the driver's description.
-pub fn enum_formats(handle: &Handle) -> io::Result<Vec<([u8; 4], String)>> {
-    enum_formats_of(handle, CAPTURE_MPLANE)
-}
-
-/// The formats a node offers for `buffer_type` (`V4L2_BUF_TYPE_VIDEO_CAPTURE` or `_MPLANE`),
-/// with the driver's descriptions read lossily (the `v4l` crate's enumeration unwraps them into
-/// UTF-8, a panic on a description cut in the middle of a character).
-pub fn enum_formats_of(handle: &Handle, buffer_type: u32) -> io::Result<Vec<([u8; 4], String)>> {
+/// The formats a node offers through `api`: each fourcc with the driver's description, read
+/// lossily (the `v4l` crate's enumeration unwraps it into UTF-8, a panic on a description cut
+/// in the middle of a character).
+pub fn enum_formats(handle: &Handle, api: CaptureApi) -> io::Result<Vec<([u8; 4], String)>> {
     let mut formats = Vec::new();
     // A driver lists a few dozen at most; the bound keeps a broken one from looping forever.
     for index in 0..256 {
         // SAFETY: all-zero is a valid v4l2_fmtdesc (plain integers and bytes).
         let mut desc: v4l2_fmtdesc = unsafe { std::mem::zeroed() };
         desc.index = index;
-        desc.type_ = buffer_type;
+        desc.type_ = api.buffer_type();
         // SAFETY: VIDIOC_ENUM_FMT reads and writes a v4l2_fmtdesc.
         match unsafe { ioctl(handle, vidioc::VIDIOC_ENUM_FMT, &mut desc) } {
             Ok(()) => {}
             Err(e) if e.raw_os_error() == Some(libc::EINVAL) => break,
-            Err(e) if buffer_type == CAPTURE_MPLANE => {
-                return Err(named("VIDIOC_ENUM_FMT (multi-planar)", e))
-            }
-            Err(e) => return Err(named("VIDIOC_ENUM_FMT", e)),
+            Err(e) => return Err(named_on(api, "VIDIOC_ENUM_FMT", e)),
         }
-        let text = desc.description;
-        let end = text.iter().position(|&b| b == 0).unwrap_or(text.len());
         formats.push((
             desc.pixelformat.to_le_bytes(),
-            String::from_utf8_lossy(&text[..end]).into_owned(),
+            kernel_string(&desc.description),
         ));
     }
     Ok(formats)
@@ -135,7 +113,7 @@ pub fn set_format(
             .map_err(|e| named("VIDIOC_G_FMT (multi-planar)", e))?;
         format.fmt.pix_mp.width = width;
         format.fmt.pix_mp.height = height;
-        format.fmt.pix_mp.pixelformat = fourcc_u32(fourcc);
+        format.fmt.pix_mp.pixelformat = u32::from_le_bytes(fourcc);
         // The driver fills in the planes for the new format.
         format.fmt.pix_mp.num_planes = 0;
         format.fmt.pix_mp.plane_fmt = std::mem::zeroed();
@@ -158,38 +136,36 @@ fn mplane_format(pix: &v4l::v4l_sys::v4l2_pix_format_mplane) -> io::Result<Mplan
         width: pix.width,
         height: pix.height,
         colorspace: pix.colorspace,
-        planes: pix.plane_fmt[..count]
+        strides: pix.plane_fmt[..count]
             .iter()
-            .map(|p| PlaneFormat {
-                bytes_per_line: p.bytesperline,
-                size_image: p.sizeimage,
-            })
+            .map(|p| p.bytesperline as usize)
             .collect(),
     })
 }
 
-/// Asks for `fps` frames a second (`VIDIOC_S_PARM`); an error where the driver takes no frame
-/// interval.
-pub fn set_frame_rate(handle: &Handle, fps: f64) -> io::Result<()> {
+/// Asks for `fps` frames a second through `api` (`VIDIOC_S_PARM`); an error where the driver
+/// takes no frame interval.
+pub fn set_frame_rate(handle: &Handle, api: CaptureApi, fps: f64) -> io::Result<()> {
     // SAFETY: all-zero is a valid v4l2_streamparm.
     let mut parm: v4l2_streamparm = unsafe { std::mem::zeroed() };
-    parm.type_ = CAPTURE_MPLANE;
+    parm.type_ = api.buffer_type();
     // SAFETY: VIDIOC_G_PARM / VIDIOC_S_PARM read and write a v4l2_streamparm; for a capture
     // buffer type the union holds `capture`.
     unsafe {
         ioctl(handle, vidioc::VIDIOC_G_PARM, &mut parm)
-            .map_err(|e| named("VIDIOC_G_PARM (multi-planar)", e))?;
+            .map_err(|e| named_on(api, "VIDIOC_G_PARM", e))?;
         if parm.parm.capture.capability & CAP_TIMEPERFRAME == 0 {
-            return Err(io::Error::new(
+            let e = io::Error::new(
                 io::ErrorKind::Unsupported,
-                "VIDIOC_S_PARM (multi-planar): the driver sets no frame interval",
-            ));
+                "the driver sets no frame interval",
+            );
+            return Err(named_on(api, "VIDIOC_S_PARM", e));
         }
         parm.parm.capture.timeperframe.numerator = 1000;
         parm.parm.capture.timeperframe.denominator =
             (fps * 1000.0).round().clamp(1.0, f64::from(u32::MAX)) as u32;
         ioctl(handle, vidioc::VIDIOC_S_PARM, &mut parm)
-            .map_err(|e| named("VIDIOC_S_PARM (multi-planar)", e))
+            .map_err(|e| named_on(api, "VIDIOC_S_PARM", e))
     }
 }
 
@@ -367,13 +343,7 @@ mod tests {
                 width: w,
                 height: h,
                 colorspace: 0,
-                planes: vec![
-                    PlaneFormat {
-                        bytes_per_line: 8,
-                        size_image: 0
-                    };
-                    rows.len()
-                ],
+                strides: vec![8; rows.len()],
             }
             .stride(format);
             assert_eq!(stride, 6);
@@ -436,18 +406,20 @@ mod tests {
     fn calls_on_a_file_that_is_no_v4l2_node_fail_naming_the_request() {
         let device = v4l::Device::with_path("/dev/null").unwrap();
         let handle = device.handle();
-        let e = enum_formats(&handle).unwrap_err();
+        let e = enum_formats(&handle, CaptureApi::MultiPlanar).unwrap_err();
         assert!(
             e.to_string()
                 .starts_with("VIDIOC_ENUM_FMT (multi-planar): "),
             "{e}"
         );
+        let e = enum_formats(&handle, CaptureApi::SinglePlanar).unwrap_err();
+        assert!(e.to_string().starts_with("VIDIOC_ENUM_FMT: "), "{e}");
         let e = set_format(&handle, *b"NM12", 640, 480).unwrap_err();
         assert!(
             e.to_string().starts_with("VIDIOC_G_FMT (multi-planar): "),
             "{e}"
         );
-        let e = set_frame_rate(&handle, 30.0).unwrap_err();
+        let e = set_frame_rate(&handle, CaptureApi::MultiPlanar, 30.0).unwrap_err();
         assert!(
             e.to_string().starts_with("VIDIOC_G_PARM (multi-planar): "),
             "{e}"
@@ -461,10 +433,7 @@ mod tests {
             width: 640,
             height: 480,
             colorspace: 0,
-            planes: vec![PlaneFormat {
-                bytes_per_line: 832,
-                size_image: 832 * 480,
-            }],
+            strides: vec![832],
         };
         let raw10 = PixelFormat::Csi2Packed {
             pattern: Some(BayerPattern::Rggb),
@@ -473,13 +442,7 @@ mod tests {
         assert_eq!(one.stride(raw10), 832);
         let two = MplaneFormat {
             fourcc: *b"NM12",
-            planes: vec![
-                PlaneFormat {
-                    bytes_per_line: 704,
-                    size_image: 0
-                };
-                2
-            ],
+            strides: vec![704, 704],
             ..one
         };
         assert_eq!(two.stride(PixelFormat::PlanarYuv(PlanarYuv::Nv12)), 640);

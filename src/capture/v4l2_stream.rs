@@ -41,8 +41,9 @@ pub const CAPTURE: u32 = 1;
 pub const CAPTURE_MPLANE: u32 = 9;
 /// `V4L2_MEMORY_MMAP`.
 const MEMORY_MMAP: u32 = 1;
-/// `VIDEO_MAX_PLANES`: the length of every plane array the kernel reads or writes.
-const MAX_PLANES: usize = 8;
+/// `VIDEO_MAX_PLANES`: the most planes of a format, and the length of every plane array the
+/// kernel reads or writes.
+pub const MAX_PLANES: usize = 8;
 
 /// # Safety
 /// `arg` must be the structure that `request` reads and writes.
@@ -58,6 +59,22 @@ pub(super) unsafe fn ioctl<T>(
 /// `e` with `what` (the request) in front.
 pub(super) fn named(what: &str, e: io::Error) -> io::Error {
     io::Error::new(e.kind(), format!("{what}: {e}"))
+}
+
+/// `e` named by `request` made through `api` (which is said where it is the multi-planar one).
+pub(super) fn named_on(api: CaptureApi, request: &str, e: io::Error) -> io::Error {
+    match api {
+        CaptureApi::SinglePlanar => named(request, e),
+        CaptureApi::MultiPlanar => named(&format!("{request} (multi-planar)"), e),
+    }
+}
+
+/// A fixed-size string of a kernel structure, up to its NUL, read lossily: drivers cut names
+/// at the field's length, in the middle of a UTF-8 sequence where a name is not ASCII (a USB
+/// camera's product name in Chinese, say).
+pub(super) fn kernel_string(bytes: &[u8]) -> String {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    String::from_utf8_lossy(&bytes[..end]).into_owned()
 }
 
 /// One memory-mapped plane.
@@ -97,8 +114,6 @@ pub struct MmapStream {
     streaming: bool,
     /// The buffer handed out last, queued again on the next call.
     lent: Option<usize>,
-    /// Per plane of the last buffer: (payload start, payload end, bytes per line).
-    payload: Vec<(usize, usize, usize)>,
     gathered: Vec<u8>,
 }
 
@@ -133,7 +148,6 @@ impl MmapStream {
             timeout_ms: -1,
             streaming: false,
             lent: None,
-            payload: Vec::new(),
             gathered: Vec::new(),
         };
         let mut request = stream.request_desc(count);
@@ -201,18 +215,11 @@ impl MmapStream {
     }
 
     fn buffer_type(&self) -> u32 {
-        match self.api {
-            CaptureApi::SinglePlanar => CAPTURE,
-            CaptureApi::MultiPlanar => CAPTURE_MPLANE,
-        }
+        self.api.buffer_type()
     }
 
-    /// `e` named by `request`, and the API where it is the multi-planar one.
     fn named(&self, request: &str, e: io::Error) -> io::Error {
-        match self.api {
-            CaptureApi::SinglePlanar => named(request, e),
-            CaptureApi::MultiPlanar => named(&format!("{request} (multi-planar)"), e),
-        }
+        named_on(self.api, request, e)
     }
 
     fn request_desc(&self, count: u32) -> v4l2_requestbuffers {
@@ -336,20 +343,26 @@ impl MmapStream {
             return Err(self.named("VIDIOC_DQBUF", e));
         };
         self.lent = Some(index);
-        self.payload.clear();
-        match self.api {
+        // Each plane's payload, with the bytes between its rows.
+        let payload: Vec<PlaneData<'_>> = match self.api {
             CaptureApi::SinglePlanar => {
                 let end = (buffer.bytesused as usize).min(mapped[0].len);
-                self.payload.push((0, end, self.strides[0]));
+                vec![PlaneData {
+                    bytes: &mapped[0].bytes()[..end],
+                    stride: self.strides[0],
+                }]
             }
-            CaptureApi::MultiPlanar => {
-                for ((plane, mapping), &stride) in planes.iter().zip(mapped).zip(&self.strides) {
+            CaptureApi::MultiPlanar => (planes.iter().zip(mapped).zip(&self.strides))
+                .map(|((plane, mapping), &stride)| {
                     let end = (plane.bytesused as usize).min(mapping.len);
                     let start = (plane.data_offset as usize).min(end);
-                    self.payload.push((start, end, stride));
-                }
-            }
-        }
+                    PlaneData {
+                        bytes: &mapping.bytes()[start..end],
+                        stride,
+                    }
+                })
+                .collect(),
+        };
         let mut meta = Metadata {
             bytesused: 0,
             flags: buffer.flags.into(),
@@ -359,28 +372,19 @@ impl MmapStream {
         };
         let data = if meta.flags.contains(v4l::buffer::Flags::ERROR) {
             Err("the driver flagged the buffer as corrupt".to_string())
-        } else if let Some(i) = self.payload.iter().position(|&(s, e, _)| s == e) {
+        } else if let Some(i) = payload.iter().position(|plane| plane.bytes.is_empty()) {
             Err(match self.api {
                 CaptureApi::SinglePlanar => "the buffer is empty".to_string(),
                 CaptureApi::MultiPlanar => format!("plane {i} of the buffer is empty"),
             })
-        } else if let [(start, end, _)] = self.payload[..] {
-            Ok(&mapped[0].bytes()[start..end])
+        } else if let [one] = payload[..] {
+            Ok(one.bytes)
         } else {
-            let planes: Vec<PlaneData<'_>> = self
-                .payload
-                .iter()
-                .zip(mapped)
-                .map(|(&(start, end, stride), mapping)| PlaneData {
-                    bytes: &mapping.bytes()[start..end],
-                    stride,
-                })
-                .collect();
             gather_planes(
                 self.format,
                 self.width,
                 self.height,
-                &planes,
+                &payload,
                 &mut self.gathered,
             )
             .map(|()| self.gathered.as_slice())
