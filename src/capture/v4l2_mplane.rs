@@ -4,7 +4,8 @@
 //! its own. The `v4l` crate knows single-planar formats only, so this module makes the calls
 //! itself, with the crate's ioctl wrapper and the kernel's structures (`v4l::v4l_sys`):
 //!
-//! 1. [`enum_formats`]: `VIDIOC_ENUM_FMT` for the multi-planar buffer type. Formats whose planes
+//! 1. [`enum_formats`]: `VIDIOC_ENUM_FMT` for the node's buffer type (it and
+//!    [`set_frame_rate`] serve single-planar nodes too). Formats whose planes
 //!    are separate buffers have their own codes (`NM12` is NV12 with the luma and the chroma in
 //!    two planes, `YM12` YUV 4:2:0 in three); [`pixel_format`] names each by the pixel format of
 //!    its one-buffer twin, so `formats = ["NV12"]` in the config takes `NM12` too;

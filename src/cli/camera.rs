@@ -213,8 +213,8 @@ fn read_any_image(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
     }
 }
 
-/// The frame of a camera that `calibrate-fisheye --device` measures: the first frames of a
-/// camera are often still dark or bright while its auto exposure settles.
+/// The frame of a camera (counting from 1) that `calibrate-fisheye --device` measures: the
+/// first frames of a camera are often still dark or bright while its auto exposure settles.
 const FISHEYE_SETTLE_FRAMES: usize = 5;
 
 /// The `[camera]` settings of `config` (the built-in defaults without one) with `device`.
@@ -238,16 +238,16 @@ pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
         (Some(device), _) => {
             let settings = camera_settings(device, args.config.as_deref())?;
             let mut camera = V4l2Source::open(&settings).context("cannot open the camera")?;
-            let mut frame = None;
-            for _ in 0..FISHEYE_SETTLE_FRAMES {
-                frame = Some(
-                    camera
-                        .next_frame()
-                        .context("cannot capture a frame")?
-                        .ok_or_else(|| anyhow!("{device}: the camera gave no frame"))?,
-                );
+            let mut next_frame = || -> Result<_> {
+                camera
+                    .next_frame()
+                    .context("cannot capture a frame")?
+                    .ok_or_else(|| anyhow!("{device}: the camera gave no frame"))
+            };
+            for _ in 1..FISHEYE_SETTLE_FRAMES {
+                next_frame()?;
             }
-            let frame = frame.ok_or_else(|| anyhow!("{device}: no frame captured"))?;
+            let frame = next_frame()?;
             let name = format!("{} ({})", device, camera.describe());
             (name, (frame.width, frame.height, frame.pixels))
         }
