@@ -1,7 +1,8 @@
 // Main passes: Lambertian diffuse + GGX specular (metallic-roughness) under N directional lights,
 // each with its own PCF-filtered shadow map layer, in linear HDR, shaded deferred:
-//  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into two Rgba32Float
-//    targets, world position with material index + 1 (0: no surface) and the interpolated normal.
+//  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into three Rgba32Float
+//    targets: world position with material index + 1 (0: no surface), the interpolated normal
+//    with the roughness, and the base colour with the metallic (factors times textures).
 //  * Shading (compute pass: cs_shade, 8×8 workgroups): one invocation per pixel reads the
 //    G-buffer, sums the lights and writes the frame (rgba32float storage texture).
 // So every pixel is shaded once whatever the overdraw, and the light loop runs as compute work,
@@ -57,6 +58,7 @@ struct Light {
 @group(1) @binding(0) var gbuffer_position: texture_2d<f32>;
 @group(1) @binding(1) var gbuffer_normal: texture_2d<f32>;
 @group(1) @binding(2) var frame: texture_storage_2d<rgba32float, write>;
+@group(1) @binding(3) var gbuffer_surface: texture_2d<f32>;
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
@@ -166,15 +168,19 @@ fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f
 struct GBuffer {
     // xyz: world position; w: material index + 1 (cleared to 0 where no surface is).
     @location(0) position: vec4<f32>,
-    // xyz: the interpolated vertex normal.
+    // xyz: the interpolated vertex normal; w: roughness.
     @location(1) normal: vec4<f32>,
+    // rgb: base colour; a: metallic.
+    @location(2) surface: vec4<f32>,
 };
 
 @fragment
 fn fs_gbuffer(in: VertexOut) -> GBuffer {
+    let p = surface_params(materials[in.material], in.uv);
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
-    out.normal = vec4<f32>(in.normal, 0.0);
+    out.normal = vec4<f32>(in.normal, p.roughness);
+    out.surface = vec4<f32>(p.base_color, p.metallic);
     return out;
 }
 
@@ -190,14 +196,19 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
         textureStore(frame, texel, vec4<f32>(0.0));
         return;
     }
-    let normal = textureLoad(gbuffer_normal, texel, 0).xyz;
-    textureStore(frame, texel, shade_point(g.xyz, normal, u32(g.w) - 1u));
+    let normal = textureLoad(gbuffer_normal, texel, 0);
+    let surface = textureLoad(gbuffer_surface, texel, 0);
+    var p: SurfaceParams;
+    p.base_color = surface.rgb;
+    p.roughness = normal.w;
+    p.metallic = surface.a;
+    textureStore(frame, texel, shade_point(g.xyz, normal.xyz, u32(g.w) - 1u, p));
 }
 
 // The shaded colour (premultiplied RGBA) of the surface point `world` with interpolated normal
-// `normal` and material `material`.
-fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32) -> vec4<f32> {
-    let s = surface_at(world, normal, materials[material], globals.camera_pos.xyz);
+// `normal`, material `material` and its parameters there `p`.
+fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfaceParams) -> vec4<f32> {
+    let s = surface_at(world, normal, p, materials[material], globals.camera_pos.xyz);
     let n = s.n;
     let v = s.v;
     let alpha = s.alpha;

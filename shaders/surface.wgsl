@@ -1,5 +1,5 @@
 // Shared by the main passes (shade.wgsl) and the ASG pass (asg.wgsl): the vertex layout, the
-// material table and the metallic-roughness set-up of a shaded point. Not a pipeline of its own:
+// material table and its textures, and the metallic-roughness set-up of a shaded point. Not a pipeline of its own:
 // src/render prepends it to each of those files (`render::SHADERS` lists the composed sources).
 // Each pass declares its own `Globals` and bindings and calls `surface_vertex` from `vs_main`.
 
@@ -10,12 +10,25 @@ struct Material {
     base_color: vec4<f32>,
     // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
     params: vec4<f32>,
+    // x: base-colour layer, y: metallic-roughness layer (negative: none); z: wrap modes,
+    // u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat); w: unused
+    // (src/render/textures.rs, `material_layers`).
+    textures: vec4<f32>,
 };
+
+// The materials' textures (src/render/textures.rs): sRGB base colours, and linear
+// metallic-roughness data (roughness in G, metallic in B), one layer per image, all layers of
+// one square side with full mip chains. The sampler repeats; clamping and mirroring are done by
+// `wrap_coordinate`. Bound by the fragment passes (G-buffer, ASG) only.
+@group(2) @binding(0) var base_color_textures: texture_2d_array<f32>;
+@group(2) @binding(1) var data_textures: texture_2d_array<f32>;
+@group(2) @binding(2) var texture_sampler: sampler;
 
 struct VertexIn {
     @location(0) position: vec3<f32>,
     @location(1) normal: vec3<f32>,
     @location(2) material: u32,
+    @location(3) uv: vec2<f32>,
 };
 
 struct VertexOut {
@@ -23,6 +36,7 @@ struct VertexOut {
     @location(0) world: vec3<f32>,
     @location(1) normal: vec3<f32>,
     @location(2) @interpolate(flat) material: u32,
+    @location(3) uv: vec2<f32>,
 };
 
 // World-space geometry is passed through; only the clip position is transformed.
@@ -32,7 +46,61 @@ fn surface_vertex(view_proj: mat4x4<f32>, v: VertexIn) -> VertexOut {
     out.world = v.position;
     out.normal = v.normal;
     out.material = v.material;
+    out.uv = v.uv;
     return out;
+}
+
+// A material's parameters at a point: its factors times its textures.
+struct SurfaceParams {
+    base_color: vec3<f32>,
+    roughness: f32,
+    metallic: f32,
+};
+
+// A texture coordinate wrapped by `mode` for a layer of `texels` a side, for the repeating
+// sampler: clamping and mirroring stop at the edge texels' centres, so that bilinear filtering
+// does not reach around to the opposite edge (at the full-resolution level).
+fn wrap_coordinate(t: f32, mode: u32, texels: f32) -> f32 {
+    let edge = 0.5 / texels;
+    if mode == 1u {
+        return clamp(t, edge, 1.0 - edge);
+    }
+    if mode == 2u {
+        let m = t - 2.0 * floor(t * 0.5);
+        return clamp(select(m, 2.0 - m, m > 1.0), edge, 1.0 - edge);
+    }
+    return t;
+}
+
+fn wrapped(uv: vec2<f32>, mode: u32, texels: f32) -> vec2<f32> {
+    return vec2<f32>(wrap_coordinate(uv.x, mode % 4u, texels), wrap_coordinate(uv.y, mode / 4u, texels));
+}
+
+// The material's parameters at texture coordinate `uv`. Fragment stages only, called outside any
+// branch: the mip level follows the screen derivatives of the unwrapped uv, taken first, and
+// the samples use them explicitly so that they may sit inside the per-material branches.
+fn surface_params(mat: Material, uv: vec2<f32>) -> SurfaceParams {
+    let ddx = dpdx(uv);
+    let ddy = dpdy(uv);
+    var p: SurfaceParams;
+    p.base_color = mat.base_color.rgb;
+    p.roughness = mat.params.x;
+    p.metallic = mat.params.y;
+    let mode = u32(mat.textures.z);
+    if mat.textures.x >= 0.0 {
+        let texels = f32(textureDimensions(base_color_textures).x);
+        let st = wrapped(uv, mode, texels);
+        p.base_color = p.base_color * textureSampleGrad(base_color_textures, texture_sampler, st,
+            i32(mat.textures.x), ddx, ddy).rgb;
+    }
+    if mat.textures.y >= 0.0 {
+        let texels = f32(textureDimensions(data_textures).x);
+        let st = wrapped(uv, mode, texels);
+        let mr = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.y), ddx, ddy);
+        p.roughness = p.roughness * mr.g;
+        p.metallic = p.metallic * mr.b;
+    }
+    return p;
 }
 
 // A shaded point: unit normal n, unit direction to the camera v, GGX α = roughness² (floored),
@@ -47,17 +115,19 @@ struct Surface {
     catcher: bool,
 };
 
-// `world`: the point; `normal`: the interpolated vertex normal (any length).
-fn surface_at(world: vec3<f32>, normal: vec3<f32>, mat: Material, camera_pos: vec3<f32>) -> Surface {
+// `world`: the point; `normal`: the interpolated vertex normal (any length); `p`: the material's
+// parameters there (`surface_params`); `mat`: the material (specular level and flags).
+fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Material,
+              camera_pos: vec3<f32>) -> Surface {
     var s: Surface;
     s.n = normalize(normal);
     s.v = normalize(camera_pos - world);
-    let roughness = clamp(mat.params.x, 0.0, 1.0);
-    let metallic = clamp(mat.params.y, 0.0, 1.0);
+    let roughness = clamp(p.roughness, 0.0, 1.0);
+    let metallic = clamp(p.metallic, 0.0, 1.0);
     let spec_level = mat.params.z;
     s.alpha = max(roughness * roughness, 0.002);
-    s.diffuse = mat.base_color.rgb * (1.0 - metallic) / PI;
-    s.f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), mat.base_color.rgb, metallic);
+    s.diffuse = p.base_color * (1.0 - metallic) / PI;
+    s.f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), p.base_color, metallic);
     s.has_specular = any(s.f0 > vec3<f32>(0.0));
     s.catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
     return s;

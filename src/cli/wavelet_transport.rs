@@ -38,7 +38,8 @@ outgoing radiance as a sparse dot product (all cores). Prints one JSON line per 
 receives no light (in shadow, or facing away from every lit direction) has no relative error
 and is left out, so `check.vertices` counts those compared (with none, the errors are null).
 Radiance is per
-channel; the Lambertian result is multiplied by the vertex's material albedo. Without INPUT the
+channel; the Lambertian result is multiplied by the vertex's material albedo (its base colour
+times its base-colour texture at the vertex's texture coordinates). Without INPUT the
 built-in sky is used. A precomputation that would need more memory than the machine has
 available (an upper bound: per vertex a bit per texel and 14 bytes per kept coefficient) is
 refused before it starts. --out writes the JSON lines to a file (as decompose, fit-asg and wavelet
@@ -359,15 +360,8 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         None => Scene::default_scene(),
     };
     let mesh = Mesh::from_scene(&scene).context("scene mesh")?;
-    let albedo: Vec<[f32; 3]> = scene
-        .vertices
-        .iter()
-        .map(|v| {
-            scene
-                .materials
-                .get(v.material as usize)
-                .map_or([1.0; 3], |m| m.base_color)
-        })
+    let albedo: Vec<[f32; 3]> = (0..scene.vertices.len())
+        .map(|i| scene.vertex_base_color(i))
         .collect();
     let grid = Grid::new(args.size, args.basis, None)?;
     // Before the ray casting: a precomputation past the machine's memory would abort the process

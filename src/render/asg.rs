@@ -153,16 +153,15 @@ impl AsgPass {
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("asg"),
-            bind_group_layouts: &[Some(&layout)],
+            bind_group_layouts: &[Some(&layout), None, Some(&renderer.surface_textures.layout)],
             immediate_size: 0,
         });
-        let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
         let pipeline = super::depth_tested_pipeline(
             device,
             "asg",
             &pipeline_layout,
             &module,
-            &attrs,
+            &super::SURFACE_ATTRIBUTES,
             wgpu::DepthBiasState::default(),
             Some(("fs_main", 1)),
         );

@@ -13,7 +13,9 @@
 //!    one render pass per 8192² layer of 256 tiles set by viewport and scissor, was tried on
 //!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.)
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
-//!    into two `Rgba32Float` targets, world position with material and normal.
+//!    into three `Rgba32Float` targets: world position with material, normal with roughness,
+//!    and base colour with metallic — the material's factors times its textures ([`textures`]),
+//!    sampled here where the screen derivatives that choose their mip level exist.
 //! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
 //!    Lambertian diffuse + GGX specular (metallic-roughness) over the lights, each times its
 //!    PCF-filtered shadow visibility; a light's solid angle widens both its PCF kernel (softer
@@ -54,6 +56,7 @@ pub mod scene;
 pub mod shading;
 pub mod shadow;
 pub mod shadow_raster;
+pub mod textures;
 #[cfg(feature = "window")]
 pub mod window;
 
@@ -224,7 +227,8 @@ pub struct Renderer {
     shadow_cam_layout: wgpu::BindGroupLayout,
     shade_bind_group: wgpu::BindGroup,
     shadow_cam_bind_group: wgpu::BindGroup,
-    /// The G-buffer's textures (position + material, normal) and the frame, for `cs_shade`.
+    /// The G-buffer's textures (position + material, normal + roughness, base colour +
+    /// metallic) and the frame, for `cs_shade`.
     gbuffer_bind_group: wgpu::BindGroup,
     gbuffer_pipeline: wgpu::RenderPipeline,
     shade_pipeline: wgpu::ComputePipeline,
@@ -232,7 +236,9 @@ pub struct Renderer {
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
     depth_view: wgpu::TextureView,
-    gbuffer_views: [wgpu::TextureView; 2],
+    gbuffer_views: [wgpu::TextureView; GBUFFER_TARGETS],
+    /// The materials' texture arrays (group 2 of the G-buffer and ASG passes).
+    surface_textures: textures::SurfaceTextures,
     readback: wgpu::Buffer,
     padded_row: u32,
     timestamps: Option<Timestamps>,
@@ -244,6 +250,14 @@ pub struct Renderer {
     /// Bound in its place otherwise.
     no_shadow_depths: wgpu::Buffer,
 }
+
+/// The G-buffer's targets: position + material, normal + roughness, base colour + metallic.
+const GBUFFER_TARGETS: usize = 3;
+
+/// The vertex attributes the surface passes (G-buffer, ASG) read: position, normal, material,
+/// texture coordinates (`shaders/surface.wgsl`, `VertexIn`).
+const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 4] =
+    wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2];
 
 fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
     wgpu::VertexBufferLayout {
@@ -407,13 +421,18 @@ impl Renderer {
             contents: bytemuck::cast_slice(&scene.indices),
             usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::STORAGE,
         });
+        let texture_plan = textures::plan_layers(&scene, max_dim);
+        let surface_textures =
+            textures::SurfaceTextures::new(&gpu.device, &gpu.queue, &scene, &texture_plan)
+                .map_err(|e| RenderError::Settings(e.to_string()))?;
         let materials: Vec<shading::MaterialRaw> = scene
             .materials
             .iter()
+            .zip(textures::material_layers(&scene, &texture_plan))
             .enumerate()
-            .map(|(i, m)| {
+            .map(|(i, (m, layers))| {
                 let catcher = settings.shadow_catcher && scene.ground_material == Some(i as u32);
-                m.to_raw(if catcher { shading::FLAG_CATCHER } else { 0 })
+                m.to_raw(if catcher { shading::FLAG_CATCHER } else { 0 }, layers)
             })
             .collect();
         let material_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -450,7 +469,11 @@ impl Renderer {
             entries: &[
                 uniform_entry(0, wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE),
                 compute_storage_entry(1, true),
-                compute_storage_entry(2, true),
+                // The materials: the G-buffer pass reads their factors and texture layers.
+                wgpu::BindGroupLayoutEntry {
+                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
+                    ..compute_storage_entry(2, true)
+                },
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -499,6 +522,7 @@ impl Renderer {
             entries: &[
                 gbuffer_texture(0),
                 gbuffer_texture(1),
+                gbuffer_texture(3),
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -522,7 +546,7 @@ impl Renderer {
         });
         let gbuffer_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("g-buffer"),
-            bind_group_layouts: &[Some(&shade_layout)],
+            bind_group_layouts: &[Some(&shade_layout), None, Some(&surface_textures.layout)],
             immediate_size: 0,
         });
         let shade_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -535,7 +559,7 @@ impl Renderer {
             bind_group_layouts: &[Some(&shadow_cam_layout)],
             immediate_size: 0,
         });
-        let shade_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32];
+        let shade_attrs = SURFACE_ATTRIBUTES;
         let shadow_attrs = wgpu::vertex_attr_array![0 => Float32x3];
         let gbuffer_pipeline = depth_tested_pipeline(
             device,
@@ -544,7 +568,7 @@ impl Renderer {
             &shade_module,
             &shade_attrs,
             wgpu::DepthBiasState::default(),
-            Some(("fs_gbuffer", 2)),
+            Some(("fs_gbuffer", GBUFFER_TARGETS)),
         );
         let shade_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("shade"),
@@ -586,6 +610,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 2,
                     resource: wgpu::BindingResource::TextureView(&color_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: wgpu::BindingResource::TextureView(&gbuffer_views[2]),
                 },
             ],
         });
@@ -680,6 +708,7 @@ impl Renderer {
             color_texture,
             depth_view,
             gbuffer_views,
+            surface_textures,
             readback,
             padded_row,
             timestamps,
@@ -747,9 +776,14 @@ impl Renderer {
         }
     }
 
-    /// The G-buffer's targets: world position + material, normal (`Rgba32Float`).
-    fn make_gbuffer(device: &wgpu::Device, width: u32, height: u32) -> [wgpu::TextureView; 2] {
-        ["g-buffer position", "g-buffer normal"].map(|label| {
+    /// The G-buffer's targets (`Rgba32Float`): world position + material, normal + roughness,
+    /// base colour + metallic.
+    fn make_gbuffer(
+        device: &wgpu::Device,
+        width: u32,
+        height: u32,
+    ) -> [wgpu::TextureView; GBUFFER_TARGETS] {
+        ["g-buffer position", "g-buffer normal", "g-buffer surface"].map(|label| {
             device
                 .create_texture(&wgpu::TextureDescriptor {
                     label: Some(label),
@@ -1172,7 +1206,11 @@ impl Renderer {
         self.encode_scene_pass(
             enc,
             "g-buffer",
-            &[&self.gbuffer_views[0], &self.gbuffer_views[1]],
+            &[
+                &self.gbuffer_views[0],
+                &self.gbuffer_views[1],
+                &self.gbuffer_views[2],
+            ],
             &self.gbuffer_pipeline,
             &self.shade_bind_group,
             timestamps,
@@ -1222,6 +1260,7 @@ impl Renderer {
         });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, bind_group, &[]);
+        pass.set_bind_group(2, &self.surface_textures.bind_group, &[]);
         pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
         pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
         pass.draw_indexed(0..self.scene.indices.len() as u32, 0, 0..1);

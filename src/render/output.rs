@@ -29,11 +29,21 @@ fn aces(x: f32) -> f32 {
 /// overflow.
 const ACES_INPUT_MAX: f32 = 1.0e4;
 
-fn srgb_oetf(x: f32) -> f32 {
+/// The sRGB encoding (IEC 61966-2-1) of a linear value in [0, 1].
+pub(crate) fn srgb_oetf(x: f32) -> f32 {
     if x <= 0.003_130_8 {
         12.92 * x
     } else {
         1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Its inverse: an sRGB-encoded value in [0, 1] to linear.
+pub(crate) fn srgb_eotf(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
     }
 }
 

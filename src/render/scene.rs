@@ -64,6 +64,96 @@ pub struct Vertex {
     pub position: [f32; 3],
     pub normal: [f32; 3],
     pub material: u32,
+    /// Texture coordinates (glTF's `TEXCOORD_0`, OBJ's `vt` with v flipped): (0, 0) is the
+    /// image's top-left corner. (0, 0) where the mesh has none.
+    pub uv: [f32; 2],
+}
+
+/// How a texture coordinate outside [0, 1] is read (glTF's sampler wrap modes).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Wrap {
+    #[default]
+    Repeat,
+    ClampToEdge,
+    MirroredRepeat,
+}
+
+/// A material's use of a texture image: which image of [`Scene::textures`] and how its
+/// coordinates wrap (u, v).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TextureRef {
+    pub image: u32,
+    pub wrap: [Wrap; 2],
+}
+
+/// The textures of a material, each multiplying its factor (glTF's metallic-roughness model).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MaterialTextures {
+    /// sRGB-encoded base colour (RGB; alpha is not used).
+    pub base_color: Option<TextureRef>,
+    /// Linear; roughness in G, metallic in B.
+    pub metallic_roughness: Option<TextureRef>,
+}
+
+/// A texture image of a scene, decoded to 8-bit RGBA (still in its own encoding: sRGB for base
+/// colours, linear for metallic-roughness).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TextureImage {
+    /// Where it came from, for messages ("image 2 (bricks.png)").
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    /// Row-major RGBA, `width × height × 4` bytes.
+    pub rgba: Vec<u8>,
+}
+
+impl TextureImage {
+    /// The linear RGB of an sRGB-encoded image at texture coordinates `uv` (texel centres at
+    /// (i + 0.5)/width), filtered bilinearly with the wrap modes applied texel by texel. Black
+    /// for an image whose bytes do not match its size.
+    pub fn sample_srgb(&self, uv: [f32; 2], wrap: [Wrap; 2]) -> [f32; 3] {
+        let (w, h) = (self.width as usize, self.height as usize);
+        if w == 0 || h == 0 || self.rgba.len() != w * h * 4 {
+            return [0.0; 3];
+        }
+        let texel_index = |i: i64, n: usize, mode: Wrap| -> usize {
+            let n = n as i64;
+            (match mode {
+                Wrap::Repeat => i.rem_euclid(n),
+                Wrap::ClampToEdge => i.clamp(0, n - 1),
+                Wrap::MirroredRepeat => {
+                    let m = i.rem_euclid(2 * n);
+                    if m < n {
+                        m
+                    } else {
+                        2 * n - 1 - m
+                    }
+                }
+            }) as usize
+        };
+        let decode = |byte: u8| super::output::srgb_eotf(f32::from(byte) / 255.0);
+        // Texel-space position, centres at integers; far-out coordinates are reduced first
+        // (f32 texel positions past 2^24 have no fraction left).
+        let axis = |t: f32, n: usize| {
+            let x = f64::from(t) * n as f64 - 0.5;
+            let base = x.floor();
+            (base as i64, (x - base) as f32)
+        };
+        let (x0, fx) = axis(uv[0], w);
+        let (y0, fy) = axis(uv[1], h);
+        let mut out = [0.0f32; 3];
+        for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
+            for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
+                let x = texel_index(x0.saturating_add(dx), w, wrap[0]);
+                let y = texel_index(y0.saturating_add(dy), h, wrap[1]);
+                let p = &self.rgba[(y * w + x) * 4..][..3];
+                for c in 0..3 {
+                    out[c] += wx * wy * decode(p[c]);
+                }
+            }
+        }
+        out
+    }
 }
 
 /// A metallic-roughness material (glTF's model).
@@ -78,6 +168,8 @@ pub struct Material {
     /// Dielectric specular level (Filament's): F0 = 0.16 · specular²; 0.5 gives F0 = 0.04.
     /// 0 makes a dielectric purely Lambertian.
     pub specular: f32,
+    /// Textures multiplying `base_color`, `roughness` and `metallic`.
+    pub textures: MaterialTextures,
 }
 
 impl Default for Material {
@@ -87,6 +179,7 @@ impl Default for Material {
             roughness: 0.5,
             metallic: 0.0,
             specular: 0.5,
+            textures: MaterialTextures::default(),
         }
     }
 }
@@ -99,6 +192,7 @@ impl Material {
             roughness: 1.0,
             metallic: 0.0,
             specular: 0.0,
+            textures: MaterialTextures::default(),
         }
     }
 }
@@ -193,6 +287,8 @@ pub struct Scene {
     /// Indices `0..caster_indices` are shadow casters; the rest (the ground) only receive.
     pub caster_indices: u32,
     pub materials: Vec<Material>,
+    /// The texture images the materials use ([`TextureRef::image`] indexes them).
+    pub textures: Vec<TextureImage>,
     /// Index of the ground's material, if the scene has a ground plane.
     pub ground_material: Option<u32>,
     pub camera: Camera,
@@ -206,6 +302,7 @@ struct Builder {
     vertices: Vec<Vertex>,
     indices: Vec<u32>,
     materials: Vec<Material>,
+    textures: Vec<TextureImage>,
 }
 
 impl Builder {
@@ -214,13 +311,22 @@ impl Builder {
         (self.materials.len() - 1) as u32
     }
 
-    fn mesh(&mut self, positions: &[Vec3], normals: &[Vec3], indices: &[u32], material: u32) {
+    /// Adds a mesh; `uvs` holds one texture coordinate per position, or none.
+    fn mesh(
+        &mut self,
+        positions: &[Vec3],
+        normals: &[Vec3],
+        uvs: &[[f32; 2]],
+        indices: &[u32],
+        material: u32,
+    ) {
         let base = self.vertices.len() as u32;
-        for (p, n) in positions.iter().zip(normals) {
+        for (i, (p, n)) in positions.iter().zip(normals).enumerate() {
             self.vertices.push(Vertex {
                 position: p.to_array(),
                 normal: n.normalize_or(Vec3::Y).to_array(),
                 material,
+                uv: uvs.get(i).copied().unwrap_or([0.0; 2]),
             });
         }
         self.indices.extend(indices.iter().map(|i| base + i));
@@ -252,7 +358,7 @@ impl Builder {
                 idx.extend_from_slice(&[a, b, a + 1, a + 1, b, b + 1]);
             }
         }
-        self.mesh(&pos, &nor, &idx, material);
+        self.mesh(&pos, &nor, &[], &idx, material);
     }
 
     fn cuboid(&mut self, center: Vec3, half: Vec3, material: u32) {
@@ -280,7 +386,7 @@ impl Builder {
                 idx.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
             }
         }
-        self.mesh(&pos, &nor, &idx, material);
+        self.mesh(&pos, &nor, &[], &idx, material);
     }
 
     /// Finishes the casters, adds the ground (if any) and fits the camera when none is given.
@@ -297,7 +403,7 @@ impl Builder {
                 Vec3::new(h, y, h),
                 Vec3::new(h, y, -h),
             ];
-            self.mesh(&pos, &[Vec3::Y; 4], &[0, 1, 2, 0, 2, 3], m);
+            self.mesh(&pos, &[Vec3::Y; 4], &[], &[0, 1, 2, 0, 2, 3], m);
             m
         });
         let camera = camera.unwrap_or_else(|| fit_camera(bounds));
@@ -306,6 +412,7 @@ impl Builder {
             indices: self.indices,
             caster_indices,
             materials: self.materials,
+            textures: self.textures,
             ground_material,
             camera,
             bounds,
@@ -425,18 +532,21 @@ impl Scene {
             roughness: 0.15,
             metallic: 0.0,
             specular: 0.5,
+            textures: MaterialTextures::default(),
         });
         let metal = b.material(Material {
             base_color: [0.95, 0.8, 0.5],
             roughness: 0.35,
             metallic: 1.0,
             specular: 0.5,
+            textures: MaterialTextures::default(),
         });
         let rough = b.material(Material {
             base_color: [0.2, 0.5, 0.85],
             roughness: 0.8,
             metallic: 0.0,
             specular: 0.5,
+            textures: MaterialTextures::default(),
         });
         let matte = b.material(Material::lambertian([0.75, 0.75, 0.7]));
         b.uv_sphere(Vec3::new(-1.15, 0.5, 0.0), 0.5, 48, glossy);
@@ -457,6 +567,7 @@ impl Scene {
                     roughness: 0.9,
                     metallic: 0.0,
                     specular: 0.5,
+                    textures: MaterialTextures::default(),
                 },
             }),
             Some(camera),
@@ -561,9 +672,28 @@ impl Scene {
                 roughness: 0.9,
                 metallic: 0.0,
                 specular: 0.5,
+                textures: MaterialTextures::default(),
             },
         });
         Ok(b.finish(g, None))
+    }
+
+    /// The base colour (linear) at vertex `index`: its material's factor times its texture
+    /// sampled bilinearly at the vertex's texture coordinates — for per-vertex shading (the
+    /// wavelet relighting's albedo). White past the vertex list.
+    pub fn vertex_base_color(&self, index: usize) -> [f32; 3] {
+        let Some(v) = self.vertices.get(index) else {
+            return [1.0; 3];
+        };
+        let Some(m) = self.materials.get(v.material as usize) else {
+            return [1.0; 3];
+        };
+        let texel = m
+            .textures
+            .base_color
+            .and_then(|t| Some((self.textures.get(t.image as usize)?, t.wrap)))
+            .map_or([1.0; 3], |(image, wrap)| image.sample_srgb(v.uv, wrap));
+        [0, 1, 2].map(|c| m.base_color[c] * texel[c])
     }
 
     /// Number of triangles that cast shadows.
@@ -940,6 +1070,12 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     let buffers = load_gltf_buffers(&gltf, base).map_err(err)?;
     let mut b = Builder::default();
     let mut material_ids = std::collections::HashMap::new();
+    let mut images = std::collections::HashMap::new();
+    let mut ignored = std::collections::BTreeSet::<String>::new();
+    for extension in gltf.document.extensions_used() {
+        // None is drawn (KHR_texture_transform, KHR_materials_*, …).
+        ignored.insert(format!("extension {extension}"));
+    }
     let scene = gltf
         .document
         .default_scene()
@@ -993,17 +1129,27 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 );
                 continue;
             }
+            let mat = prim.material();
+            let uv_set = texture_coordinate_set(&mat, path);
             for (semantic, accessor) in prim.attributes() {
-                let semantic = match semantic {
-                    gltf::Semantic::Positions => "POSITION",
-                    gltf::Semantic::Normals => "NORMAL",
+                use gltf::accessor::{
+                    DataType::{F32, U16, U8},
+                    Dimensions::{Vec2, Vec3},
+                };
+                let (name, dimensions, types) = match semantic {
+                    gltf::Semantic::Positions => ("POSITION".to_string(), Vec3, &[F32][..]),
+                    gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32][..]),
+                    gltf::Semantic::TexCoords(set) if Some(set) == uv_set => {
+                        (format!("TEXCOORD_{set}"), Vec2, &[F32, U8, U16][..])
+                    }
+                    gltf::Semantic::Colors(_) => {
+                        ignored.insert("vertex colours (COLOR_n)".into());
+                        continue;
+                    }
                     _ => continue,
                 };
-                {
-                    use gltf::accessor::{DataType::F32, Dimensions::Vec3};
-                    check_accessor(&accessor, &buffers, Vec3, &[F32])
-                        .map_err(|m| err(format!("{}: {semantic} {m}", mesh_name(&prim))))?;
-                }
+                check_accessor(&accessor, &buffers, dimensions, types)
+                    .map_err(|m| err(format!("{}: {name} {m}", mesh_name(&prim))))?;
             }
             if let Some(accessor) = prim.indices() {
                 use gltf::accessor::{
@@ -1098,7 +1244,32 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 )));
             }
             repair_zero_normals(path, &positions, &mut normals, &indices);
-            let mat = prim.material();
+            let uvs: Vec<[f32; 2]> = match uv_set {
+                Some(set) => match reader.read_tex_coords(set) {
+                    Some(uv) => uv.into_f32().collect(),
+                    None => {
+                        return Err(err(format!(
+                            "{}: its material is textured, but it has no readable TEXCOORD_{set}",
+                            mesh_name(&prim)
+                        )))
+                    }
+                },
+                None => Vec::new(),
+            };
+            if !uvs.is_empty() && uvs.len() != positions.len() {
+                return Err(err(format!(
+                    "{}: {} texture coordinates for {} positions",
+                    mesh_name(&prim),
+                    uvs.len(),
+                    positions.len()
+                )));
+            }
+            if uvs.iter().flatten().any(|c| !c.is_finite()) {
+                return Err(err(format!(
+                    "{}: a texture coordinate is not finite",
+                    mesh_name(&prim)
+                )));
+            }
             let key = mat.index();
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
@@ -1124,20 +1295,218 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                             )));
                         }
                     }
+                    note_ignored_material_features(&mat, &mut ignored);
+                    let mut texture = |info: Option<gltf::texture::Info>| {
+                        info.map(|info| {
+                            gltf_texture(&info.texture(), &buffers, base, &mut b, &mut images)
+                                .map_err(|m| {
+                                    err(format!(
+                                        "material {} ({:?}): {m}",
+                                        mat.index()
+                                            .map_or("default".to_string(), |i| i.to_string()),
+                                        mat.name().unwrap_or("")
+                                    ))
+                                })
+                        })
+                        .transpose()
+                    };
+                    let textures = MaterialTextures {
+                        base_color: texture(pbr.base_color_texture())?,
+                        metallic_roughness: texture(pbr.metallic_roughness_texture())?,
+                    };
                     let id = b.material(Material {
                         base_color: [c[0], c[1], c[2]],
                         roughness,
                         metallic,
                         specular: 0.5,
+                        textures,
                     });
                     material_ids.insert(key, id);
                     id
                 }
             };
-            b.mesh(&positions, &normals, &indices, id);
+            b.mesh(&positions, &normals, &uvs, &indices, id);
         }
     }
+    if !ignored.is_empty() {
+        tracing::warn!(
+            "{}: not drawn (envlight renders base colour, metallic and roughness, with their \
+             textures): {}",
+            path.display(),
+            ignored.into_iter().collect::<Vec<_>>().join(", ")
+        );
+    }
     Ok(b)
+}
+
+/// The texture-coordinate set a glTF material's textures read (base colour first), if it has
+/// any. A metallic-roughness texture on another set than the base colour's is read with the
+/// base colour's, with a warning.
+fn texture_coordinate_set(material: &gltf::Material, path: &Path) -> Option<u32> {
+    let pbr = material.pbr_metallic_roughness();
+    let sets = [
+        pbr.base_color_texture().map(|t| t.tex_coord()),
+        pbr.metallic_roughness_texture().map(|t| t.tex_coord()),
+    ];
+    if let [Some(a), Some(b)] = sets {
+        if a != b {
+            tracing::warn!(
+                "{}: material {:?}: its metallic-roughness texture reads TEXCOORD_{b}, its base \
+                 colour TEXCOORD_{a}; both are read with TEXCOORD_{a}",
+                path.display(),
+                material.name().unwrap_or("")
+            );
+        }
+    }
+    sets[0].or(sets[1])
+}
+
+/// Adds to `ignored` what a glTF material asks for that the renderer does not draw.
+fn note_ignored_material_features(
+    material: &gltf::Material,
+    ignored: &mut std::collections::BTreeSet<String>,
+) {
+    if material.normal_texture().is_some() {
+        ignored.insert("normal textures".into());
+    }
+    if material.occlusion_texture().is_some() {
+        ignored.insert("occlusion textures".into());
+    }
+    if material.emissive_texture().is_some() || material.emissive_factor() != [0.0; 3] {
+        ignored.insert("emission".into());
+    }
+    if material.alpha_mode() != gltf::material::AlphaMode::Opaque {
+        ignored.insert("alpha modes (drawn opaque)".into());
+    }
+}
+
+/// The largest side of a scene's texture image, in pixels.
+pub const MAX_TEXTURE_SIDE: u32 = 8192;
+
+/// A glTF texture: its image (loaded once per scene, see [`gltf_image`]) and its sampler's wrap
+/// modes.
+fn gltf_texture(
+    texture: &gltf::Texture,
+    buffers: &[gltf::buffer::Data],
+    base: &Path,
+    b: &mut Builder,
+    images: &mut std::collections::HashMap<usize, u32>,
+) -> Result<TextureRef, String> {
+    use gltf::texture::WrappingMode;
+    let wrap = |mode| match mode {
+        WrappingMode::Repeat => Wrap::Repeat,
+        WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+        WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+    };
+    let sampler = texture.sampler();
+    let image = texture.source();
+    let index = match images.get(&image.index()) {
+        Some(&index) => index,
+        None => {
+            let decoded = gltf_image(&image, buffers, base)
+                .map_err(|m| format!("texture {}: {m}", texture.index()))?;
+            b.textures.push(decoded);
+            let index = (b.textures.len() - 1) as u32;
+            images.insert(image.index(), index);
+            index
+        }
+    };
+    Ok(TextureRef {
+        image: index,
+        wrap: [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())],
+    })
+}
+
+/// Reads and decodes a glTF image: a buffer view (a `.glb`'s embedded images), a `data:` URI
+/// or a file next to the scene (read as the buffers are, a regular file of bounded size).
+fn gltf_image(
+    image: &gltf::Image,
+    buffers: &[gltf::buffer::Data],
+    base: &Path,
+) -> Result<TextureImage, String> {
+    let index = image.index();
+    let (bytes, name) = match image.source() {
+        gltf::image::Source::View { view, .. } => {
+            let data = buffers
+                .get(view.buffer().index())
+                .map_or(&[][..], |d| &d.0[..]);
+            let bytes = view
+                .offset()
+                .checked_add(view.length())
+                .and_then(|end| data.get(view.offset()..end))
+                .ok_or_else(|| {
+                    format!(
+                        "image {index}: buffer view {} ({} bytes from byte {}) lies outside \
+                         buffer {} of {} bytes",
+                        view.index(),
+                        view.length(),
+                        view.offset(),
+                        view.buffer().index(),
+                        data.len()
+                    )
+                })?;
+            (
+                bytes.to_vec(),
+                format!("image {index} (buffer view {})", view.index()),
+            )
+        }
+        gltf::image::Source::Uri { uri, .. } => {
+            match buffer_source(base, uri).map_err(|m| format!("image {index}: {m}"))? {
+                BufferSource::File(file) => {
+                    let name = format!("image {index} ({})", file.display());
+                    let bytes = crate::read_file::read_regular_file(
+                        &file,
+                        MAX_SCENE_FILE_BYTES,
+                        "a glTF image",
+                    )
+                    .map_err(|e| format!("{name}: {e}"))?;
+                    (bytes, name)
+                }
+                BufferSource::Embedded => {
+                    let name = format!("image {index} (a data URI)");
+                    let bytes = gltf::buffer::Data::from_source_and_blob(
+                        gltf::buffer::Source::Uri(uri),
+                        None,
+                        &mut None,
+                    )
+                    .map_err(|e| format!("{name}: {e}"))?
+                    .0;
+                    (bytes, name)
+                }
+            }
+        }
+    };
+    decode_texture(&bytes, name)
+}
+
+/// Decodes a PNG or JPEG texture image to RGBA8, at most [`MAX_TEXTURE_SIDE`] a side. Errors
+/// begin with `name`.
+fn decode_texture(bytes: &[u8], name: String) -> Result<TextureImage, String> {
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("{name}: {e}"))?;
+    if !matches!(
+        reader.format(),
+        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)
+    ) {
+        return Err(format!(
+            "{name}: not a PNG or JPEG image (the formats a glTF core texture may have)"
+        ));
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+    // A 16-bit RGBA image of the largest size, decoded and converted.
+    limits.max_alloc = Some(u64::from(MAX_TEXTURE_SIDE).pow(2) * 12);
+    reader.limits(limits);
+    let decoded = reader.decode().map_err(|e| format!("{name}: {e}"))?;
+    let rgba = decoded.to_rgba8();
+    Ok(TextureImage {
+        name,
+        width: rgba.width(),
+        height: rgba.height(),
+        rgba: rgba.into_raw(),
+    })
 }
 
 /// The files loading the scene at `path` reads: the file itself and, for glTF, its external
@@ -1163,12 +1532,35 @@ pub fn scene_files(path: &Path) -> Vec<PathBuf> {
                         }
                     }
                 }
+                for image in gltf.document.images() {
+                    if let gltf::image::Source::Uri { uri, .. } = image.source() {
+                        if let Ok(BufferSource::File(file)) = buffer_source(base, uri) {
+                            files.push(file);
+                        }
+                    }
+                }
             }
         }
         Some("obj") => {
             for line in String::from_utf8_lossy(&bytes).lines() {
                 if let Some(names) = line.trim_start().strip_prefix("mtllib") {
-                    files.extend(names.split_whitespace().map(|name| base.join(name)));
+                    for library in names.split_whitespace().map(|name| base.join(name)) {
+                        // Its diffuse maps.
+                        let maps = crate::read_file::read_regular_file(
+                            &library,
+                            MAX_MTL_BYTES,
+                            "a material library",
+                        )
+                        .map(|text| {
+                            String::from_utf8_lossy(&text)
+                                .lines()
+                                .filter_map(|l| l.trim_start().strip_prefix("map_Kd"))
+                                .map(|m| base.join(map_file_name(m)))
+                                .collect::<Vec<_>>()
+                        });
+                        files.push(library);
+                        files.extend(maps.unwrap_or_default());
+                    }
                 }
             }
         }
@@ -1448,6 +1840,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
         );
     }
     let mut b = Builder::default();
+    let mut ignored = std::collections::BTreeSet::new();
     let mut ids: Vec<Option<u32>> = vec![None; materials.len()];
     let mut default_id = None;
     for model in &models {
@@ -1473,6 +1866,21 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
             return Err(err("non-finite vertex position or normal".into()));
         }
         repair_zero_normals(path, &positions, &mut normals, &indices);
+        // OBJ's v runs up the image, glTF's (and the renderer's) down.
+        let uvs: Vec<[f32; 2]> = if m.texcoords.len() == 2 * positions.len() {
+            m.texcoords
+                .chunks_exact(2)
+                .map(|t| [t[0], 1.0 - t[1]])
+                .collect()
+        } else {
+            Vec::new()
+        };
+        if uvs.iter().flatten().any(|c| !c.is_finite()) {
+            return Err(err(format!(
+                "object {:?}: a texture coordinate is not finite",
+                model.name
+            )));
+        }
         let id = match m.material_id.filter(|&i| i < materials.len()) {
             Some(i) => match ids[i] {
                 Some(id) => id,
@@ -1489,11 +1897,37 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                     let roughness = mat
                         .shininess
                         .map_or(0.5, |ns| (2.0 / (ns.max(0.0) + 2.0)).sqrt().sqrt());
+                    for (kind, texture) in [
+                        ("map_Ka", &mat.ambient_texture),
+                        ("map_Ks", &mat.specular_texture),
+                        ("bump/norm", &mat.normal_texture),
+                        ("map_Ns", &mat.shininess_texture),
+                        ("map_d", &mat.dissolve_texture),
+                    ] {
+                        if texture.is_some() {
+                            ignored.insert(kind);
+                        }
+                    }
+                    let base_color = match &mat.diffuse_texture {
+                        Some(map) => {
+                            let image = obj_texture(map, base, &mut b)
+                                .map_err(|m| err(format!("material {:?}: map_Kd {m}", mat.name)))?;
+                            Some(TextureRef {
+                                image,
+                                wrap: [Wrap::Repeat; 2],
+                            })
+                        }
+                        None => None,
+                    };
                     let id = b.material(Material {
                         base_color: d,
                         roughness: roughness.clamp(0.0, 1.0),
                         metallic: 0.0,
                         specular: 0.5,
+                        textures: MaterialTextures {
+                            base_color,
+                            metallic_roughness: None,
+                        },
                     });
                     ids[i] = Some(id);
                     id
@@ -1501,9 +1935,58 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
             },
             None => *default_id.get_or_insert_with(|| b.material(Material::default())),
         };
-        b.mesh(&positions, &normals, &indices, id);
+        if uvs.is_empty() && b.materials[id as usize].textures.base_color.is_some() {
+            tracing::warn!(
+                "{}: object {:?} has a textured material but no texture coordinates (vt); \
+                 drawn with the texture's top-left texel",
+                path.display(),
+                model.name
+            );
+        }
+        b.mesh(&positions, &normals, &uvs, &indices, id);
+    }
+    if !ignored.is_empty() {
+        tracing::warn!(
+            "{}: material maps not drawn (envlight renders map_Kd only): {}",
+            path.display(),
+            ignored.into_iter().collect::<Vec<_>>().join(", ")
+        );
     }
     Ok(b)
+}
+
+/// The file an MTL map statement (`map_Kd …`, the words after the keyword) names: all of it,
+/// or, when options come first (`-s 1 1 1 file.png`), its last word.
+fn map_file_name(map: &str) -> &str {
+    let map = map.trim();
+    if map.starts_with('-') {
+        map.split_whitespace().last().unwrap_or(map)
+    } else {
+        map
+    }
+}
+
+/// Loads an MTL texture (`map_Kd`) named relative to the OBJ file's directory. Options before
+/// the file name (`-s 1 1 1 file.png`) are not applied, with a warning.
+fn obj_texture(map: &str, base: &Path, b: &mut Builder) -> Result<u32, String> {
+    let file_name = map_file_name(map);
+    if file_name != map.trim() {
+        tracing::warn!("map_Kd {map:?}: its options are not applied; reading {file_name:?}");
+    }
+    let file = base.join(file_name);
+    if let Some(i) = b
+        .textures
+        .iter()
+        .position(|t| t.name == file.display().to_string())
+    {
+        return Ok(i as u32);
+    }
+    let bytes = crate::read_file::read_regular_file(&file, MAX_SCENE_FILE_BYTES, "a texture")
+        .map_err(|e| format!("{}: {e}", file.display()))?;
+    let mut image = decode_texture(&bytes, file.display().to_string())?;
+    image.name = file.display().to_string();
+    b.textures.push(image);
+    Ok((b.textures.len() - 1) as u32)
 }
 
 #[cfg(test)]
@@ -1658,6 +2141,160 @@ mod tests {
         assert_eq!(s.materials[0].roughness, 0.25);
         assert_eq!(s.materials[0].metallic, 1.0);
         assert!(s.ground_material.is_none());
+    }
+
+    /// A 2 × 1 PNG: a red and a blue texel.
+    fn two_texel_png() -> Vec<u8> {
+        let mut png = Vec::new();
+        image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 0, 0, 255, 255])
+            .unwrap()
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        png
+    }
+
+    /// A one-triangle glTF with TEXCOORD_0 and a base-colour and a metallic-roughness texture
+    /// of the image at `image_uri`, its sampler clamping u and mirroring v.
+    fn textured_gltf(dir: &Path, name: &str, image_uri: &str) -> PathBuf {
+        let positions: [f32; 9] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let uvs: [f32; 6] = [0.0, 0.0, 1.0, 0.0, 0.0, 2.0];
+        let bytes: Vec<u8> = positions
+            .iter()
+            .chain(&uvs)
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
+        let b64 = base64_encode(&bytes);
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":1}},"material":0}}]}}],
+            "materials":[{{"pbrMetallicRoughness":{{"baseColorTexture":{{"index":0}},"metallicRoughnessTexture":{{"index":0}}}},
+                          "normalTexture":{{"index":0}}}}],
+            "textures":[{{"source":0,"sampler":0}}],
+            "samplers":[{{"wrapS":33071,"wrapT":33648}}],
+            "images":[{{"uri":"{image_uri}"}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":24}}],
+            "buffers":[{{"byteLength":60,"uri":"data:application/octet-stream;base64,{b64}"}}]}}"#
+        );
+        let path = dir.join(name);
+        std::fs::write(&path, json).unwrap();
+        path
+    }
+
+    /// glTF textures load from a data URI or a file beside the scene, once per image, with
+    /// their sampler's wrap modes and the primitive's TEXCOORD_0; the scene's files include
+    /// the image file; an image that is missing, corrupt or neither PNG nor JPEG is an error
+    /// naming the image and the problem.
+    #[test]
+    fn gltf_textures_load_with_their_coordinates_and_wrap_modes() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let png = two_texel_png();
+        let data_uri = format!("data:image/png;base64,{}", base64_encode(&png));
+        std::fs::write(d.join("tex.png"), &png).unwrap();
+        for uri in [data_uri.as_str(), "tex.png"] {
+            let p = textured_gltf(d, "t.gltf", uri);
+            let s = Scene::load(&p, false).unwrap();
+            assert_eq!(s.textures.len(), 1, "{uri}: one image, used twice");
+            assert_eq!((s.textures[0].width, s.textures[0].height), (2, 1));
+            assert_eq!(s.textures[0].rgba, [255, 0, 0, 255, 0, 0, 255, 255]);
+            let t = s.materials[0].textures;
+            let want = TextureRef {
+                image: 0,
+                wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
+            };
+            assert_eq!(
+                (t.base_color, t.metallic_roughness),
+                (Some(want), Some(want))
+            );
+            let uvs: Vec<_> = s.vertices.iter().map(|v| v.uv).collect();
+            assert_eq!(uvs, [[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]]);
+            if uri == "tex.png" {
+                assert!(scene_files(&p).contains(&d.join("tex.png")));
+            }
+        }
+        std::fs::write(d.join("bad.png"), &png[..png.len() / 2]).unwrap();
+        std::fs::write(d.join("pic.gif"), b"GIF89a\x01\x00\x01\x00").unwrap();
+        for (uri, needle) in [
+            ("missing.png", "missing.png"),
+            ("bad.png", "bad.png"),
+            ("pic.gif", "not a PNG or JPEG"),
+        ] {
+            let p = textured_gltf(d, "t.gltf", uri);
+            let e = Scene::load(&p, false).unwrap_err().to_string();
+            assert!(
+                e.contains("t.gltf") && e.contains("image 0") && e.contains(needle),
+                "{uri}: {e}"
+            );
+        }
+    }
+
+    /// The CPU sampler (per-vertex albedo) filters bilinearly between texel centres and wraps
+    /// as the GPU's sampler does; a vertex's base colour is its factor times the texture there.
+    #[test]
+    fn textures_sample_bilinearly_with_their_wrap_modes() {
+        // Texels: sRGB 0 and 255 (linear 0 and 1).
+        let image = TextureImage {
+            name: "t".into(),
+            width: 2,
+            height: 1,
+            rgba: vec![0, 0, 0, 255, 255, 255, 255, 255],
+        };
+        let at = |u: f32, wrap: Wrap| image.sample_srgb([u, 0.5], [wrap; 2])[0];
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-6;
+        // Texel centres at u = 0.25 and 0.75; halfway between them, half of each.
+        assert!(close(at(0.25, Wrap::Repeat), 0.0));
+        assert!(close(at(0.75, Wrap::Repeat), 1.0));
+        assert!(close(at(0.5, Wrap::Repeat), 0.5));
+        // Past the right edge: repeat reaches the first texel again, clamp stays on the last,
+        // mirror reads the last twice.
+        assert!(close(at(1.0, Wrap::Repeat), 0.5));
+        assert!(close(at(1.0, Wrap::ClampToEdge), 1.0));
+        assert!(close(at(1.0, Wrap::MirroredRepeat), 1.0));
+        assert!(close(at(1.25, Wrap::MirroredRepeat), 1.0));
+        assert!(close(at(1.75, Wrap::MirroredRepeat), 0.0));
+        assert!(close(at(-0.25, Wrap::ClampToEdge), 0.0));
+        assert!(close(at(1e30, Wrap::Repeat), at(1e30, Wrap::Repeat)));
+        let mut scene = Scene::default_scene();
+        scene.textures = vec![image];
+        scene.materials[0].base_color = [0.5, 0.5, 0.5];
+        scene.materials[0].textures.base_color = Some(TextureRef {
+            image: 0,
+            wrap: [Wrap::Repeat; 2],
+        });
+        let v = scene.vertices.iter().position(|v| v.material == 0).unwrap();
+        scene.vertices[v].uv = [0.75, 0.5];
+        assert_eq!(scene.vertex_base_color(v), [0.5; 3]);
+        scene.vertices[v].uv = [0.25, 0.5];
+        assert_eq!(scene.vertex_base_color(v), [0.0; 3]);
+        let untextured = scene.vertices.iter().position(|v| v.material == 1).unwrap();
+        assert_eq!(
+            scene.vertex_base_color(untextured),
+            scene.materials[1].base_color
+        );
+    }
+
+    /// An MTL's map_Kd loads (relative to the OBJ's folder), with the OBJ's vt flipped to
+    /// glTF's v (down the image); a missing map_Kd file is an error naming it.
+    #[test]
+    fn obj_diffuse_maps_load_with_flipped_coordinates() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        std::fs::write(d.join("m.mtl"), "newmtl t\nKd 1 1 1\nmap_Kd tex.png\n").unwrap();
+        let obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 0.25\nusemtl t\nf 1/1 2/2 3/3\n";
+        let p = d.join("t.obj");
+        std::fs::write(&p, obj).unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        assert_eq!(s.textures.len(), 1);
+        assert_eq!(s.materials[0].textures.base_color.map(|t| t.image), Some(0));
+        let uvs: Vec<_> = s.vertices.iter().map(|v| v.uv).collect();
+        assert_eq!(uvs, [[0.0, 1.0], [1.0, 1.0], [0.0, 0.75]]);
+        assert!(scene_files(&p).contains(&d.join("tex.png")));
+        std::fs::write(d.join("m.mtl"), "newmtl t\nmap_Kd gone.png\n").unwrap();
+        let e = Scene::load(&p, false).unwrap_err().to_string();
+        assert!(e.contains("map_Kd") && e.contains("gone.png"), "{e}");
     }
 
     /// A one-triangle glTF (optionally with NORMALs and indices in the buffer), with the
@@ -2123,6 +2760,46 @@ mod tests {
         }
     }
 
+    /// The spans of the numbers in a JSON text (not those inside names such as `TEXCOORD_0`
+    /// or in base64 data).
+    fn number_spans(text: &str) -> Vec<(usize, usize)> {
+        let bytes = text.as_bytes();
+        let mut spans = Vec::new();
+        let mut i = 0;
+        while i < bytes.len() {
+            let starts = bytes[i].is_ascii_digit()
+                && !bytes[i - 1].is_ascii_alphanumeric()
+                && bytes[i - 1] != b'+'
+                && bytes[i - 1] != b'/';
+            if starts {
+                let end = (i..bytes.len())
+                    .find(|&j| !(bytes[j].is_ascii_digit() || b".eE-".contains(&bytes[j])))
+                    .unwrap_or(bytes.len());
+                spans.push((i, end));
+                i = end;
+            } else {
+                i += 1;
+            }
+        }
+        spans
+    }
+
+    /// Values that overflow, wrap or misplace what a glTF number counts or indexes.
+    const HOSTILE_NUMBERS: [&str; 12] = [
+        "0",
+        "-1",
+        "1",
+        "255",
+        "65535",
+        "4294967295",
+        "4294967296",
+        "18446744073709551615",
+        "9007199254740993",
+        "1e308",
+        "-1e308",
+        "0.5",
+    ];
+
     /// Every number of a valid glTF replaced by hostile values (0, -1, 2³² − 1, 2⁶⁴ − 1, 1e308,
     /// …), and a GLB of the same scene with every byte inverted and cut at every length: each
     /// load returns, an error or a scene, and no reader panics, caught or not
@@ -2141,52 +2818,30 @@ mod tests {
             "[0.5,0.5,0.5,1]",
         ))
         .unwrap();
-        let numbers: Vec<(usize, usize)> = {
-            let bytes = text.as_bytes();
-            let mut spans = Vec::new();
-            let mut i = 0;
-            while i < bytes.len() {
-                let starts = bytes[i].is_ascii_digit()
-                    && !bytes[i - 1].is_ascii_alphanumeric()
-                    && bytes[i - 1] != b'+'
-                    && bytes[i - 1] != b'/';
-                if starts {
-                    let end = (i..bytes.len())
-                        .find(|&j| !(bytes[j].is_ascii_digit() || b".eE-".contains(&bytes[j])))
-                        .unwrap_or(bytes.len());
-                    spans.push((i, end));
-                    i = end;
-                } else {
-                    i += 1;
-                }
-            }
-            spans
-        };
+        let numbers = number_spans(&text);
         assert!(numbers.len() > 30, "{}", numbers.len());
-        let hostile = [
-            "0",
-            "-1",
-            "1",
-            "255",
-            "65535",
-            "4294967295",
-            "4294967296",
-            "18446744073709551615",
-            "9007199254740993",
-            "1e308",
-            "-1e308",
-            "0.5",
-        ];
         let path = d.join("mutated.gltf");
         let mut loaded = 0;
         for &(start, end) in &numbers {
-            for value in hostile {
+            for value in HOSTILE_NUMBERS {
                 let mutated = format!("{}{value}{}", &text[..start], &text[end..]);
                 std::fs::write(&path, mutated).unwrap();
                 loaded += usize::from(loads_without_panic(&path));
             }
         }
         assert!(loaded > 0);
+
+        // A textured scene (sampler, texture and image indices, TEXCOORD_0), its image a file.
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "textured.gltf", "tex.png")).unwrap();
+        Scene::load(&d.join("textured.gltf"), false).expect("the unmutated textured scene loads");
+        for (start, end) in number_spans(&text) {
+            for value in HOSTILE_NUMBERS {
+                let mutated = format!("{}{value}{}", &text[..start], &text[end..]);
+                std::fs::write(&path, mutated).unwrap();
+                loads_without_panic(&path);
+            }
+        }
 
         // The same scene as a GLB: the buffer as its BIN chunk.
         let document: serde_json::Value = serde_json::from_str(&text).unwrap();

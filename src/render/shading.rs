@@ -131,13 +131,17 @@ impl GpuLight {
 pub struct MaterialRaw {
     base_color: [f32; 4],
     params: [f32; 4],
+    /// Base-colour layer, metallic-roughness layer (−1: none), wrap modes
+    /// ([`super::textures::material_layers`]).
+    textures: [f32; 4],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
 pub const FLAG_CATCHER: u32 = 1;
 
 impl Material {
-    pub fn to_raw(&self, flags: u32) -> MaterialRaw {
+    /// The shaders' form, with its texture layers from [`super::textures::material_layers`].
+    pub fn to_raw(&self, flags: u32, textures: [f32; 4]) -> MaterialRaw {
         MaterialRaw {
             base_color: [
                 self.base_color[0],
@@ -146,6 +150,7 @@ impl Material {
                 1.0,
             ],
             params: [self.roughness, self.metallic, self.specular, flags as f32],
+            textures,
         }
     }
 }
@@ -159,7 +164,7 @@ mod tests {
         // WGSL: Globals = mat4 + vec4 + 4×u32 + vec4; Light = 2×vec4 + mat4 + vec4.
         assert_eq!(std::mem::size_of::<GlobalsRaw>(), 112);
         assert_eq!(std::mem::size_of::<LightRaw>(), 112);
-        assert_eq!(std::mem::size_of::<MaterialRaw>(), 32);
+        assert_eq!(std::mem::size_of::<MaterialRaw>(), 48);
     }
 
     #[test]

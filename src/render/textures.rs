@@ -1,0 +1,453 @@
+//! The scene's texture images on the GPU.
+//!
+//! The scene is drawn in one draw call, so a material's textures cannot be bound per draw:
+//! they are layers of two 2D array textures, one of sRGB base colours (`Rgba8UnormSrgb`,
+//! filtered in linear light by the sampler) and one of linear data (`Rgba8Unorm`:
+//! metallic-roughness, roughness in G and metallic in B), each layer one image resampled to
+//! the arrays' common square side. The materials' table carries each material's layers and
+//! wrap modes ([`material_layers`]); `shaders/surface.wgsl` (`surface_params`) samples them in
+//! the fragment stages (the G-buffer and ASG passes), with explicit gradients so that the
+//! mip level follows the screen footprint whatever the material.
+//!
+//! Steps, once per scene:
+//! 1. [`plan_layers`]: which images each array needs (an image used both as a base colour and
+//!    as data gets a layer in each) and the side: the largest image's longer side rounded up
+//!    to a power of two, at most [`MAX_LAYER_SIDE`] and the device's limit, halved until all
+//!    layers with their mip chains fit [`MAX_TEXTURE_BYTES`] (logged when it shrinks).
+//! 2. Each image is decoded to linear light (sRGB for base colours), resampled to the side
+//!    with a triangle filter (`image::imageops`, which widens the filter when shrinking), and
+//!    its mip chain built by 2 × 2 box averages, all in linear light; then encoded back to
+//!    8 bits and uploaded.
+//!
+//! A scene without textures binds 1 × 1 placeholder arrays that no material reads.
+
+use super::output::{srgb_eotf, srgb_oetf};
+use super::scene::{Scene, TextureImage, Wrap};
+
+/// The largest side of a texture layer, in texels (a 2048² layer and its mips take 21 MiB).
+pub const MAX_LAYER_SIDE: u32 = 2048;
+
+/// The most memory the texture arrays may take, mip chains included: 1 GiB.
+pub const MAX_TEXTURE_BYTES: u64 = 1 << 30;
+
+/// Which scene images go into which array, and the layers' side.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LayerPlan {
+    /// Images of [`Scene::textures`] in the base-colour array, layer by layer.
+    pub base_color: Vec<u32>,
+    /// The same for the data (metallic-roughness) array.
+    pub data: Vec<u32>,
+    /// The layers' side in texels (1 when there are no textures).
+    pub side: u32,
+}
+
+/// Why the textures could not be put on the GPU.
+#[derive(Debug, thiserror::Error)]
+pub enum TextureError {
+    #[error(
+        "the scene's materials use {layers} texture layers in one array, more than the \
+         {limit} this GPU allows"
+    )]
+    TooManyLayers { layers: usize, limit: u32 },
+}
+
+/// Step 1 of the module doc: the arrays' images and side for `scene`, on a device whose 2D
+/// textures are at most `max_side` a side.
+pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
+    let mut base_color = Vec::new();
+    let mut data = Vec::new();
+    for m in &scene.materials {
+        if let Some(t) = m.textures.base_color {
+            if !base_color.contains(&t.image) {
+                base_color.push(t.image);
+            }
+        }
+        if let Some(t) = m.textures.metallic_roughness {
+            if !data.contains(&t.image) {
+                data.push(t.image);
+            }
+        }
+    }
+    let largest = base_color
+        .iter()
+        .chain(&data)
+        .filter_map(|&i| scene.textures.get(i as usize))
+        .map(|t| t.width.max(t.height))
+        .max()
+        .unwrap_or(1);
+    let cap = MAX_LAYER_SIDE.min(max_side).max(1);
+    // The largest power of two within the cap.
+    let mut side = largest.next_power_of_two().min(1 << cap.ilog2());
+    let layers = (base_color.len() + data.len()) as u64;
+    let bytes = |side: u32| layers * u64::from(side).pow(2) * 4 * 4 / 3;
+    let wanted = side;
+    while side > 1 && bytes(side) > MAX_TEXTURE_BYTES {
+        side /= 2;
+    }
+    if side < wanted {
+        tracing::info!(
+            "{layers} texture layers of {wanted}² would take {} MiB: drawn at {side}² ({} MiB)",
+            bytes(wanted) >> 20,
+            bytes(side) >> 20
+        );
+    }
+    LayerPlan {
+        base_color,
+        data,
+        side,
+    }
+}
+
+/// Per material: the base-colour and data layers (−1: none) and the wrap modes packed as
+/// u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat), as `MaterialRaw::textures` holds
+/// them. The wrap modes are the base colour's where it has one.
+pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<[f32; 4]> {
+    let code = |w: Wrap| match w {
+        Wrap::Repeat => 0.0,
+        Wrap::ClampToEdge => 1.0,
+        Wrap::MirroredRepeat => 2.0,
+    };
+    let layer = |list: &[u32], image: u32| {
+        list.iter()
+            .position(|&i| i == image)
+            .map_or(-1.0, |p| p as f32)
+    };
+    scene
+        .materials
+        .iter()
+        .map(|m| {
+            let base = m.textures.base_color;
+            let data = m.textures.metallic_roughness;
+            let wrap = base.or(data).map_or([Wrap::Repeat; 2], |t| t.wrap);
+            [
+                base.map_or(-1.0, |t| layer(&plan.base_color, t.image)),
+                data.map_or(-1.0, |t| layer(&plan.data, t.image)),
+                code(wrap[0]) + 4.0 * code(wrap[1]),
+                0.0,
+            ]
+        })
+        .collect()
+}
+
+/// The texture arrays and their sampler, bound as group 2 of the G-buffer and ASG passes.
+pub struct SurfaceTextures {
+    pub layout: wgpu::BindGroupLayout,
+    pub bind_group: wgpu::BindGroup,
+}
+
+impl SurfaceTextures {
+    /// Step 2 of the module doc: resamples and uploads the planned layers.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        scene: &Scene,
+        plan: &LayerPlan,
+    ) -> Result<Self, TextureError> {
+        let limit = device.limits().max_texture_array_layers;
+        for list in [&plan.base_color, &plan.data] {
+            if list.len() > limit as usize {
+                return Err(TextureError::TooManyLayers {
+                    layers: list.len(),
+                    limit,
+                });
+            }
+        }
+        let images = |list: &[u32]| -> Vec<&TextureImage> {
+            list.iter()
+                .filter_map(|&i| scene.textures.get(i as usize))
+                .collect()
+        };
+        let base_color = upload_array(
+            device,
+            queue,
+            "base colour textures",
+            &images(&plan.base_color),
+            plan.side,
+            true,
+        );
+        let data = upload_array(
+            device,
+            queue,
+            "metallic-roughness textures",
+            &images(&plan.data),
+            plan.side,
+            false,
+        );
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("surface textures"),
+            // Clamping and mirroring are done in the shader (surface.wgsl, `wrap_coordinate`).
+            address_mode_u: wgpu::AddressMode::Repeat,
+            address_mode_v: wgpu::AddressMode::Repeat,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            ..Default::default()
+        });
+        let texture_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("surface textures"),
+            entries: &[
+                texture_entry(0),
+                texture_entry(1),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("surface textures"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(&base_color),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&data),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(&sampler),
+                },
+            ],
+        });
+        Ok(Self { layout, bind_group })
+    }
+}
+
+/// One array of `images` (at least one placeholder layer), each resampled to `side`² with
+/// its mip chain; `srgb`: the bytes are sRGB-encoded (and the array's format says so).
+fn upload_array(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    label: &str,
+    images: &[&TextureImage],
+    side: u32,
+    srgb: bool,
+) -> wgpu::TextureView {
+    let (side, layers) = if images.is_empty() {
+        (1, 1)
+    } else {
+        (side, images.len() as u32)
+    };
+    let mip_level_count = side.ilog2() + 1;
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: side,
+            height: side,
+            depth_or_array_layers: layers,
+        },
+        mip_level_count,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: if srgb {
+            wgpu::TextureFormat::Rgba8UnormSrgb
+        } else {
+            wgpu::TextureFormat::Rgba8Unorm
+        },
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let placeholder = TextureImage {
+        name: "placeholder".into(),
+        width: 1,
+        height: 1,
+        rgba: vec![255; 4],
+    };
+    let images = if images.is_empty() {
+        vec![&placeholder]
+    } else {
+        images.to_vec()
+    };
+    for (layer, image) in images.iter().enumerate() {
+        for (level, mip) in mip_chain(image, side, srgb).iter().enumerate() {
+            let mip_side = side >> level;
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: level as u32,
+                    origin: wgpu::Origin3d {
+                        x: 0,
+                        y: 0,
+                        z: layer as u32,
+                    },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                mip,
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(4 * mip_side),
+                    rows_per_image: Some(mip_side),
+                },
+                wgpu::Extent3d {
+                    width: mip_side,
+                    height: mip_side,
+                    depth_or_array_layers: 1,
+                },
+            );
+        }
+    }
+    texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    })
+}
+
+/// Step 2 of the module doc for one image: its levels from `side`² down to 1², each as RGBA8
+/// bytes in the image's encoding (alpha is always linear).
+pub fn mip_chain(image: &TextureImage, side: u32, srgb: bool) -> Vec<Vec<u8>> {
+    let decode = |channel: usize, byte: u8| {
+        let v = f32::from(byte) / 255.0;
+        if srgb && channel < 3 {
+            srgb_eotf(v)
+        } else {
+            v
+        }
+    };
+    let encode = |channel: usize, v: f32| {
+        let v = v.clamp(0.0, 1.0);
+        let v = if srgb && channel < 3 { srgb_oetf(v) } else { v };
+        (v * 255.0).round() as u8
+    };
+    let linear: Vec<f32> = image
+        .rgba
+        .iter()
+        .enumerate()
+        .map(|(i, &b)| decode(i % 4, b))
+        .collect();
+    let mut level = match image::Rgba32FImage::from_raw(image.width, image.height, linear) {
+        Some(full) if image.width == side && image.height == side => full,
+        Some(full) => {
+            image::imageops::resize(&full, side, side, image::imageops::FilterType::Triangle)
+        }
+        // A malformed image (its bytes do not match its size): a flat mid-grey layer.
+        None => image::Rgba32FImage::from_pixel(side, side, image::Rgba([0.5, 0.5, 0.5, 1.0])),
+    };
+    let mut chain = Vec::new();
+    loop {
+        chain.push(
+            level
+                .as_raw()
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| encode(i % 4, v))
+                .collect(),
+        );
+        let s = level.width();
+        if s <= 1 {
+            return chain;
+        }
+        let half = s / 2;
+        level = image::Rgba32FImage::from_fn(half, half, |x, y| {
+            let mut sum = [0.0f32; 4];
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let p = level.get_pixel(2 * x + dx, 2 * y + dy).0;
+                for c in 0..4 {
+                    sum[c] += p[c];
+                }
+            }
+            image::Rgba(sum.map(|v| v * 0.25))
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::scene::{MaterialTextures, TextureRef};
+
+    fn image(width: u32, height: u32, rgba: [u8; 4]) -> TextureImage {
+        TextureImage {
+            name: "test".into(),
+            width,
+            height,
+            rgba: rgba.repeat((width * height) as usize),
+        }
+    }
+
+    #[test]
+    fn mip_chains_average_in_linear_light() {
+        // Half black, half white columns: the 1×1 level is the linear mean, 0.5, which sRGB
+        // encodes as 188, not the 128 an average of the codes would give.
+        let mut half = image(2, 2, [0, 0, 0, 255]);
+        for y in 0..2 {
+            half.rgba[(y * 2 + 1) * 4..(y * 2 + 2) * 4].copy_from_slice(&[255; 4]);
+        }
+        let chain = mip_chain(&half, 2, true);
+        assert_eq!(chain.len(), 2);
+        assert_eq!(chain[0], half.rgba);
+        assert_eq!(&chain[1][..3], &[188, 188, 188]);
+        // Linear data averages its codes.
+        let chain = mip_chain(&half, 2, false);
+        assert_eq!(&chain[1][..3], &[128, 128, 128]);
+        // A flat image stays flat at every level, resampled to a larger side.
+        let flat = image(3, 5, [200, 100, 50, 255]);
+        let chain = mip_chain(&flat, 8, true);
+        assert_eq!(chain.len(), 4);
+        for level in &chain {
+            for px in level.chunks_exact(4) {
+                assert_eq!(px, [200, 100, 50, 255]);
+            }
+        }
+    }
+
+    #[test]
+    fn layers_are_planned_per_array_within_the_limits() {
+        let mut scene = Scene::default_scene();
+        scene.textures = vec![image(300, 100, [0; 4]), image(40, 40, [0; 4])];
+        let r = |image| TextureRef {
+            image,
+            wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
+        };
+        scene.materials[0].textures = MaterialTextures {
+            base_color: Some(r(1)),
+            metallic_roughness: Some(r(0)),
+        };
+        scene.materials[1].textures.base_color = Some(r(0));
+        let plan = plan_layers(&scene, 16384);
+        assert_eq!(plan.base_color, vec![1, 0]);
+        assert_eq!(plan.data, vec![0]);
+        assert_eq!(plan.side, 512);
+        assert_eq!(plan_layers(&scene, 256).side, 256);
+        assert_eq!(plan_layers(&scene, 300).side, 256);
+        let layers = material_layers(&scene, &plan);
+        assert_eq!(layers[0], [0.0, 0.0, 1.0 + 4.0 * 2.0, 0.0]);
+        assert_eq!(layers[1], [1.0, -1.0, 9.0, 0.0]);
+        assert_eq!(layers[2], [-1.0, -1.0, 0.0, 0.0]);
+        // Many large images: the side shrinks until the arrays fit the memory bound.
+        scene.textures = vec![image(4096, 4096, [0; 4])];
+        for m in &mut scene.materials {
+            m.textures.base_color = Some(r(0));
+        }
+        assert_eq!(plan_layers(&scene, 16384).side, MAX_LAYER_SIDE);
+        let textures: Vec<_> = (0..100).map(|_| image(2048, 2048, [0; 4])).collect();
+        scene.textures = textures;
+        scene.materials = (0..100)
+            .map(|i| crate::render::scene::Material {
+                textures: MaterialTextures {
+                    base_color: Some(r(i)),
+                    metallic_roughness: None,
+                },
+                ..Default::default()
+            })
+            .collect();
+        let plan = plan_layers(&scene, 16384);
+        assert_eq!(plan.base_color.len(), 100);
+        assert!(100 * u64::from(plan.side).pow(2) * 4 * 4 / 3 <= MAX_TEXTURE_BYTES);
+        assert_eq!(plan.side, 1024);
+    }
+}
