@@ -168,7 +168,8 @@ fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f
 struct GBuffer {
     // xyz: world position; w: material index + 1 (cleared to 0 where no surface is).
     @location(0) position: vec4<f32>,
-    // xyz: the interpolated vertex normal; w: roughness.
+    // xyz: the shading normal (the interpolated vertex normal, turned by the normal texture);
+    // w: roughness.
     @location(1) normal: vec4<f32>,
     // rgb: base colour; a: metallic.
     @location(2) surface: vec4<f32>,
@@ -176,10 +177,10 @@ struct GBuffer {
 
 @fragment
 fn fs_gbuffer(in: VertexOut) -> GBuffer {
-    let p = surface_params(materials[in.material], in.uv);
+    let p = surface_params(materials[in.material], in.uv, in.normal, in.tangent);
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
-    out.normal = vec4<f32>(in.normal, p.roughness);
+    out.normal = vec4<f32>(p.normal, p.roughness);
     out.surface = vec4<f32>(p.base_color, p.metallic);
     return out;
 }
@@ -202,6 +203,7 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
     p.base_color = surface.rgb;
     p.roughness = normal.w;
     p.metallic = surface.a;
+    p.normal = normal.xyz;
     textureStore(frame, texel, shade_point(g.xyz, normal.xyz, u32(g.w) - 1u, p));
 }
 

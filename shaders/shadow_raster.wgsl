@@ -31,8 +31,8 @@ struct Params {
 };
 
 @group(0) @binding(0) var<uniform> params: Params;
-// The scene's vertices as words: position at 9·i .. 9·i + 2 (src/render/scene.rs `Vertex`:
-// position, normal, material, uv; 36 bytes).
+// The scene's vertices as words: position at 13·i .. 13·i + 2 (src/render/scene.rs `Vertex`:
+// position, normal, material, uv, tangent; 52 bytes).
 @group(0) @binding(1) var<storage, read> vertex_words: array<f32>;
 @group(0) @binding(2) var<storage, read> indices: array<u32>;
 // Map k's view-projection.
@@ -42,7 +42,7 @@ struct Params {
 // large ones.
 @group(0) @binding(5) var<storage, read> triangle_ids: array<u32>;
 
-const VERTEX_WORDS: u32 = 9u;
+const VERTEX_WORDS: u32 = 13u;
 // The render pass's DepthBiasState: constant 2, slope scale 1.5 (src/render/mod.rs). One unit
 // of the constant is the depth's last place near its largest value (< 1): 2^-24.
 const BIAS_CONSTANT: f32 = 5.9604645e-8;

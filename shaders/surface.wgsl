@@ -10,14 +10,17 @@ struct Material {
     base_color: vec4<f32>,
     // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
     params: vec4<f32>,
-    // x: base-colour layer, y: metallic-roughness layer (negative: none); z: wrap modes,
-    // u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat); w: unused
+    // x: base-colour layer, y: metallic-roughness layer, w: normal layer (negative: none);
+    // z: wrap modes, u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat)
     // (src/render/textures.rs, `material_layers`).
     textures: vec4<f32>,
+    // x: the normal texture's scale; y, z, w: unused.
+    extra: vec4<f32>,
 };
 
 // The materials' textures (src/render/textures.rs): sRGB base colours, and linear
-// metallic-roughness data (roughness in G, metallic in B), one layer per image, all layers of
+// data (metallic-roughness: roughness in G, metallic in B; tangent-space normals), one layer per
+// image, all layers of
 // one square side with full mip chains. The sampler repeats; clamping and mirroring are done by
 // `wrap_coordinate`. Bound by the fragment passes (G-buffer, ASG) only.
 @group(2) @binding(0) var base_color_textures: texture_2d_array<f32>;
@@ -29,6 +32,9 @@ struct VertexIn {
     @location(1) normal: vec3<f32>,
     @location(2) material: u32,
     @location(3) uv: vec2<f32>,
+    // xyz: tangent along increasing u; w: handedness (bitangent = cross(normal, tangent) · w).
+    // Zero without a normal texture.
+    @location(4) tangent: vec4<f32>,
 };
 
 struct VertexOut {
@@ -37,6 +43,7 @@ struct VertexOut {
     @location(1) normal: vec3<f32>,
     @location(2) @interpolate(flat) material: u32,
     @location(3) uv: vec2<f32>,
+    @location(4) tangent: vec4<f32>,
 };
 
 // World-space geometry is passed through; only the clip position is transformed.
@@ -47,14 +54,17 @@ fn surface_vertex(view_proj: mat4x4<f32>, v: VertexIn) -> VertexOut {
     out.normal = v.normal;
     out.material = v.material;
     out.uv = v.uv;
+    out.tangent = v.tangent;
     return out;
 }
 
-// A material's parameters at a point: its factors times its textures.
+// A material's parameters at a point: its factors times its textures, and the shading normal.
 struct SurfaceParams {
     base_color: vec3<f32>,
     roughness: f32,
     metallic: f32,
+    // The interpolated normal, turned by the normal texture where there is one (any length).
+    normal: vec3<f32>,
 };
 
 // A texture coordinate wrapped by `mode` for a layer of `texels` a side, for the repeating
@@ -76,16 +86,18 @@ fn wrapped(uv: vec2<f32>, mode: u32, texels: f32) -> vec2<f32> {
     return vec2<f32>(wrap_coordinate(uv.x, mode % 4u, texels), wrap_coordinate(uv.y, mode / 4u, texels));
 }
 
-// The material's parameters at texture coordinate `uv`. Fragment stages only, called outside any
-// branch: the mip level follows the screen derivatives of the unwrapped uv, taken first, and
-// the samples use them explicitly so that they may sit inside the per-material branches.
-fn surface_params(mat: Material, uv: vec2<f32>) -> SurfaceParams {
+// The material's parameters at texture coordinate `uv` of a point with interpolated `normal` and
+// `tangent`. Fragment stages only, called outside any branch: the mip level follows the screen
+// derivatives of the unwrapped uv, taken first, and the samples use them explicitly so that
+// they may sit inside the per-material branches.
+fn surface_params(mat: Material, uv: vec2<f32>, normal: vec3<f32>, tangent: vec4<f32>) -> SurfaceParams {
     let ddx = dpdx(uv);
     let ddy = dpdy(uv);
     var p: SurfaceParams;
     p.base_color = mat.base_color.rgb;
     p.roughness = mat.params.x;
     p.metallic = mat.params.y;
+    p.normal = normal;
     let mode = u32(mat.textures.z);
     if mat.textures.x >= 0.0 {
         let texels = f32(textureDimensions(base_color_textures).x);
@@ -99,6 +111,22 @@ fn surface_params(mat: Material, uv: vec2<f32>) -> SurfaceParams {
         let mr = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.y), ddx, ddy);
         p.roughness = p.roughness * mr.g;
         p.metallic = p.metallic * mr.b;
+    }
+    // The tangent frame: the tangent made perpendicular to the normal (Gram-Schmidt), the
+    // bitangent cross(n, t) · w (glTF); a tangent along the normal leaves the normal as it is.
+    let n = normalize(normal);
+    let t_perp = tangent.xyz - n * dot(n, tangent.xyz);
+    if mat.textures.w >= 0.0 && dot(t_perp, t_perp) > 1e-12 {
+        let texels = f32(textureDimensions(data_textures).x);
+        let st = wrapped(uv, mode, texels);
+        let texel = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.w), ddx, ddy).xyz;
+        let m = texel * 2.0 - 1.0;
+        let t = normalize(t_perp);
+        let b = cross(n, t) * select(1.0, -1.0, tangent.w < 0.0);
+        let turned = t * (m.x * mat.extra.x) + b * (m.y * mat.extra.x) + n * m.z;
+        if dot(turned, turned) > 1e-12 {
+            p.normal = turned;
+        }
     }
     return p;
 }

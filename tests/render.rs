@@ -1416,7 +1416,8 @@ fn srgb_code_to_linear(code: u8) -> f32 {
 }
 
 /// A 2 × 2 quad in the plane z = 0 facing +Z, seen head-on from z = 3, with texture
-/// coordinates u = u_span·(x + 1)/2 and v = (1 − y)/2, one material, no ground.
+/// coordinates u = u_span·(x + 1)/2 and v = (1 − y)/2 and tangents along +x, one material, no
+/// ground.
 fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -> Scene {
     use envlight::render::scene::{Sphere, Vertex};
     let corner = |x: f32, y: f32| Vertex {
@@ -1424,6 +1425,8 @@ fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -
         normal: [0.0, 0.0, 1.0],
         material: 0,
         uv: [u_span * (x + 1.0) / 2.0, (1.0 - y) / 2.0],
+        // u grows along +x, v down (−y): up the image is +y = cross(+z, +x), so w = +1.
+        tangent: [1.0, 0.0, 0.0, 1.0],
     };
     Scene {
         vertices: vec![
@@ -1666,4 +1669,53 @@ fn asg_lighting_reads_base_colour_textures() {
         grey_right,
         0.005,
     );
+}
+
+/// A normal texture turns the shading normal in the tangent frame: x along the tangent
+/// (increasing u), y up the image (the bitangent cross(n, t)·w), scaled by the material's
+/// normal scale. Each tilted half of the quad is compared with the exact Lambertian ratio
+/// n·l / n_flat·l of its decoded texel under a light tilted the same way, and the other way.
+#[test]
+fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
+    use envlight::render::scene::{TextureRef, Wrap};
+    let settings = RenderSettings {
+        width: 96,
+        height: 96,
+        shadows: false,
+        ..Default::default()
+    };
+    const FLAT: [u8; 4] = [128, 128, 255, 255];
+    // 30° towards +x (red) and towards +y (green) in tangent space.
+    const TILT_X: [u8; 4] = [191, 128, 238, 255];
+    const TILT_Y: [u8; 4] = [128, 191, 238, 255];
+    let decode = |code: [u8; 4], scale: f32| {
+        let m = [0, 1, 2].map(|c| f32::from(code[c]) / 255.0 * 2.0 - 1.0);
+        Vec3::new(m[0] * scale, m[1] * scale, m[2]).normalize()
+    };
+    for (tilt, axis) in [(TILT_X, Vec3::X), (TILT_Y, Vec3::Y)] {
+        for scale in [1.0f32, 0.5] {
+            for toward in [1.0f32, -1.0] {
+                let l = (Vec3::Z + toward * axis).normalize();
+                let lights = [light(0, l, [3.0, 3.0, 3.0], 0.0)];
+                let mut material = Material::lambertian([0.8; 3]);
+                material.textures.normal = Some(TextureRef {
+                    image: 0,
+                    wrap: [Wrap::Repeat; 2],
+                });
+                material.textures.normal_scale = scale;
+                let halves = texture_row(4, |x| if x < 2 { tilt } else { FLAT });
+                let mut r = renderer(textured_quad(material, vec![halves], 1.0), settings);
+                let (img, _) = r.render(&lights).unwrap();
+                let tilted = mean_over(&r, &img, -0.7..-0.3);
+                let flat = mean_over(&r, &img, 0.3..0.7);
+                let want = decode(tilt, scale).dot(l) / decode(FLAT, scale).dot(l);
+                let got = tilted[1] / flat[1];
+                assert!(
+                    (got - want).abs() <= 0.005 * want,
+                    "tilt along {axis}, scale {scale}, light {l}: tilted / flat {got}, expected \
+                     {want}"
+                );
+            }
+        }
+    }
 }

@@ -13,9 +13,10 @@
 //!    one render pass per 8192² layer of 256 tiles set by viewport and scissor, was tried on
 //!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.)
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
-//!    into three `Rgba32Float` targets: world position with material, normal with roughness,
-//!    and base colour with metallic — the material's factors times its textures ([`textures`]),
-//!    sampled here where the screen derivatives that choose their mip level exist.
+//!    into three `Rgba32Float` targets: world position with material, shading normal (turned by
+//!    a normal texture) with roughness, and base colour with metallic — the material's factors
+//!    times its textures ([`textures`]), sampled here where the screen derivatives that choose
+//!    their mip level exist.
 //! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
 //!    Lambertian diffuse + GGX specular (metallic-roughness) over the lights, each times its
 //!    PCF-filtered shadow visibility; a light's solid angle widens both its PCF kernel (softer
@@ -255,9 +256,10 @@ pub struct Renderer {
 const GBUFFER_TARGETS: usize = 3;
 
 /// The vertex attributes the surface passes (G-buffer, ASG) read: position, normal, material,
-/// texture coordinates (`shaders/surface.wgsl`, `VertexIn`).
-const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 4] =
-    wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2];
+/// texture coordinates, tangent (`shaders/surface.wgsl`, `VertexIn`).
+const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 5] = wgpu::vertex_attr_array![
+    0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2, 4 => Float32x4
+];
 
 fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
     wgpu::VertexBufferLayout {

@@ -67,6 +67,10 @@ pub struct Vertex {
     /// Texture coordinates (glTF's `TEXCOORD_0`, OBJ's `vt` with v flipped): (0, 0) is the
     /// image's top-left corner. (0, 0) where the mesh has none.
     pub uv: [f32; 2],
+    /// Tangent (xyz, world space, along increasing u) and handedness w (±1): the bitangent is
+    /// cross(normal, tangent) · w, towards the top of the image (glTF's `TANGENT`). Zero where
+    /// the material has no normal texture.
+    pub tangent: [f32; 4],
 }
 
 /// How a texture coordinate outside [0, 1] is read (glTF's sampler wrap modes).
@@ -86,13 +90,30 @@ pub struct TextureRef {
     pub wrap: [Wrap; 2],
 }
 
-/// The textures of a material, each multiplying its factor (glTF's metallic-roughness model).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// The textures of a material, each multiplying its factor (glTF's metallic-roughness model),
+/// and its tangent-space normal texture.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MaterialTextures {
     /// sRGB-encoded base colour (RGB; alpha is not used).
     pub base_color: Option<TextureRef>,
     /// Linear; roughness in G, metallic in B.
     pub metallic_roughness: Option<TextureRef>,
+    /// Linear; a tangent-space normal (x right, y up the image, z out of the surface) as
+    /// RGB = (n + 1)/2.
+    pub normal: Option<TextureRef>,
+    /// Scales the normal's x and y (glTF's `normalTexture.scale`).
+    pub normal_scale: f32,
+}
+
+impl Default for MaterialTextures {
+    fn default() -> Self {
+        Self {
+            base_color: None,
+            metallic_roughness: None,
+            normal: None,
+            normal_scale: 1.0,
+        }
+    }
 }
 
 /// A texture image of a scene, decoded to 8-bit RGBA (still in its own encoding: sRGB for base
@@ -327,9 +348,18 @@ impl Builder {
                 normal: n.normalize_or(Vec3::Y).to_array(),
                 material,
                 uv: uvs.get(i).copied().unwrap_or([0.0; 2]),
+                tangent: [0.0; 4],
             });
         }
         self.indices.extend(indices.iter().map(|i| base + i));
+    }
+
+    /// Sets the tangents of the vertices from `first` on (one per vertex of the mesh added
+    /// there).
+    fn set_tangents(&mut self, first: usize, tangents: &[[f32; 4]]) {
+        for (v, t) in self.vertices[first..].iter_mut().zip(tangents) {
+            v.tangent = *t;
+        }
     }
 
     fn uv_sphere(&mut self, center: Vec3, radius: f32, segments: u32, material: u32) {
@@ -1134,13 +1164,16 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             for (semantic, accessor) in prim.attributes() {
                 use gltf::accessor::{
                     DataType::{F32, U16, U8},
-                    Dimensions::{Vec2, Vec3},
+                    Dimensions::{Vec2, Vec3, Vec4},
                 };
                 let (name, dimensions, types) = match semantic {
                     gltf::Semantic::Positions => ("POSITION".to_string(), Vec3, &[F32][..]),
                     gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32][..]),
                     gltf::Semantic::TexCoords(set) if Some(set) == uv_set => {
                         (format!("TEXCOORD_{set}"), Vec2, &[F32, U8, U16][..])
+                    }
+                    gltf::Semantic::Tangents if mat.normal_texture().is_some() => {
+                        ("TANGENT".to_string(), Vec4, &[F32][..])
                     }
                     gltf::Semantic::Colors(_) => {
                         ignored.insert("vertex colours (COLOR_n)".into());
@@ -1270,6 +1303,57 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     mesh_name(&prim)
                 )));
             }
+            // Tangents where a normal texture needs them: the file's, turned with the node
+            // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
+            let tangents: Vec<[f32; 4]> = match (mat.normal_texture(), reader.read_tangents()) {
+                (None, _) => Vec::new(),
+                (Some(_), _) if uvs.is_empty() => Vec::new(),
+                (Some(_), Some(t)) => {
+                    let handedness = world.determinant().signum();
+                    t.map(|[x, y, z, w]| {
+                        let t = world
+                            .transform_vector3(Vec3::new(x, y, z))
+                            .normalize_or_zero();
+                        [
+                            t.x,
+                            t.y,
+                            t.z,
+                            if w < 0.0 { -handedness } else { handedness },
+                        ]
+                    })
+                    .collect()
+                }
+                (Some(_), None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
+                    return Err(err(format!(
+                        "{}: its TANGENT accessor cannot be read (out of range of its buffer?)",
+                        mesh_name(&prim)
+                    )))
+                }
+                (Some(_), None) => generate_tangents(&positions, &normals, &uvs, &indices)
+                    .unwrap_or_else(|| {
+                        tracing::warn!(
+                            "{}: {}: no tangents could be made for its normal texture (degenerate \
+                             texture coordinates?); drawn without it",
+                            path.display(),
+                            mesh_name(&prim)
+                        );
+                        Vec::new()
+                    }),
+            };
+            if !tangents.is_empty() && tangents.len() != positions.len() {
+                return Err(err(format!(
+                    "{}: {} tangents for {} positions",
+                    mesh_name(&prim),
+                    tangents.len(),
+                    positions.len()
+                )));
+            }
+            if tangents.iter().flatten().any(|c| !c.is_finite()) {
+                return Err(err(format!(
+                    "{}: a tangent is not finite",
+                    mesh_name(&prim)
+                )));
+            }
             let key = mat.index();
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
@@ -1310,9 +1394,36 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                         })
                         .transpose()
                     };
+                    let base_color = texture(pbr.base_color_texture())?;
+                    let metallic_roughness = texture(pbr.metallic_roughness_texture())?;
+                    let normal = mat.normal_texture();
+                    let normal_scale = normal.as_ref().map_or(1.0, |n| n.scale());
+                    if !normal_scale.is_finite() {
+                        return Err(err(format!(
+                            "material {} ({:?}): normalTexture.scale {normal_scale} is not finite",
+                            mat.index().map_or("default".to_string(), |i| i.to_string()),
+                            mat.name().unwrap_or("")
+                        )));
+                    }
+                    let normal = match normal {
+                        Some(n) => Some(
+                            gltf_texture(&n.texture(), &buffers, base, &mut b, &mut images)
+                                .map_err(|m| {
+                                    err(format!(
+                                        "material {} ({:?}): normal {m}",
+                                        mat.index()
+                                            .map_or("default".to_string(), |i| i.to_string()),
+                                        mat.name().unwrap_or("")
+                                    ))
+                                })?,
+                        ),
+                        None => None,
+                    };
                     let textures = MaterialTextures {
-                        base_color: texture(pbr.base_color_texture())?,
-                        metallic_roughness: texture(pbr.metallic_roughness_texture())?,
+                        base_color,
+                        metallic_roughness,
+                        normal,
+                        normal_scale,
                     };
                     let id = b.material(Material {
                         base_color: [c[0], c[1], c[2]],
@@ -1325,13 +1436,15 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     id
                 }
             };
+            let first = b.vertices.len();
             b.mesh(&positions, &normals, &uvs, &indices, id);
+            b.set_tangents(first, &tangents);
         }
     }
     if !ignored.is_empty() {
         tracing::warn!(
             "{}: not drawn (envlight renders base colour, metallic and roughness, with their \
-             textures): {}",
+             textures, and normal textures): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -1339,26 +1452,35 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     Ok(b)
 }
 
-/// The texture-coordinate set a glTF material's textures read (base colour first), if it has
-/// any. A metallic-roughness texture on another set than the base colour's is read with the
-/// base colour's, with a warning.
+/// The texture-coordinate set a glTF material's textures read (the base colour's, else the
+/// metallic-roughness', else the normal texture's), if it has any. A texture on another set is
+/// read with that one, with a warning.
 fn texture_coordinate_set(material: &gltf::Material, path: &Path) -> Option<u32> {
     let pbr = material.pbr_metallic_roughness();
     let sets = [
-        pbr.base_color_texture().map(|t| t.tex_coord()),
-        pbr.metallic_roughness_texture().map(|t| t.tex_coord()),
+        (
+            "base colour",
+            pbr.base_color_texture().map(|t| t.tex_coord()),
+        ),
+        (
+            "metallic-roughness",
+            pbr.metallic_roughness_texture().map(|t| t.tex_coord()),
+        ),
+        ("normal", material.normal_texture().map(|t| t.tex_coord())),
     ];
-    if let [Some(a), Some(b)] = sets {
-        if a != b {
+    let mut used = sets.iter().filter_map(|&(name, set)| Some((name, set?)));
+    let (first_name, first) = used.next()?;
+    for (name, set) in used {
+        if set != first {
             tracing::warn!(
-                "{}: material {:?}: its metallic-roughness texture reads TEXCOORD_{b}, its base \
-                 colour TEXCOORD_{a}; both are read with TEXCOORD_{a}",
+                "{}: material {:?}: its {name} texture reads TEXCOORD_{set}, its {first_name} \
+                 texture TEXCOORD_{first}; all are read with TEXCOORD_{first}",
                 path.display(),
                 material.name().unwrap_or("")
             );
         }
     }
-    sets[0].or(sets[1])
+    Some(first)
 }
 
 /// Adds to `ignored` what a glTF material asks for that the renderer does not draw.
@@ -1366,9 +1488,6 @@ fn note_ignored_material_features(
     material: &gltf::Material,
     ignored: &mut std::collections::BTreeSet<String>,
 ) {
-    if material.normal_texture().is_some() {
-        ignored.insert("normal textures".into());
-    }
     if material.occlusion_texture().is_some() {
         ignored.insert("occlusion textures".into());
     }
@@ -1378,6 +1497,67 @@ fn note_ignored_material_features(
     if material.alpha_mode() != gltf::material::AlphaMode::Opaque {
         ignored.insert("alpha modes (drawn opaque)".into());
     }
+}
+
+/// MikkTSpace tangents (the `mikktspace` crate) of an indexed triangle mesh, one per vertex, in
+/// glTF's convention: xyz along increasing u, w the handedness that makes cross(n, t)·w point
+/// up the image (towards decreasing v: MikkTSpace's bitangent follows increasing v, so it is
+/// given 1 − v). `None` where the crate fails or panics (degenerate input), or a tangent is not
+/// finite.
+fn generate_tangents(
+    positions: &[Vec3],
+    normals: &[Vec3],
+    uvs: &[[f32; 2]],
+    indices: &[u32],
+) -> Option<Vec<[f32; 4]>> {
+    struct Mesh<'a> {
+        positions: &'a [Vec3],
+        normals: &'a [Vec3],
+        uvs: &'a [[f32; 2]],
+        indices: &'a [u32],
+        tangents: Vec<[f32; 4]>,
+    }
+    impl Mesh<'_> {
+        fn vertex(&self, face: usize, vert: usize) -> usize {
+            self.indices[face * 3 + vert] as usize
+        }
+    }
+    impl mikktspace::Geometry for Mesh<'_> {
+        fn num_faces(&self) -> usize {
+            self.indices.len() / 3
+        }
+        fn num_vertices_of_face(&self, _face: usize) -> usize {
+            3
+        }
+        fn position(&self, face: usize, vert: usize) -> [f32; 3] {
+            self.positions[self.vertex(face, vert)].to_array()
+        }
+        fn normal(&self, face: usize, vert: usize) -> [f32; 3] {
+            self.normals[self.vertex(face, vert)]
+                .normalize_or(Vec3::Y)
+                .to_array()
+        }
+        fn tex_coord(&self, face: usize, vert: usize) -> [f32; 2] {
+            let [u, v] = self.uvs[self.vertex(face, vert)];
+            [u, 1.0 - v]
+        }
+        fn set_tangent_encoded(&mut self, tangent: [f32; 4], face: usize, vert: usize) {
+            let i = self.vertex(face, vert);
+            self.tangents[i] = tangent;
+        }
+    }
+    let mut mesh = Mesh {
+        positions,
+        normals,
+        uvs,
+        indices,
+        tangents: vec![[0.0; 4]; positions.len()],
+    };
+    let made = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        mikktspace::generate_tangents(&mut mesh)
+    }));
+    (matches!(made, Ok(true)) && mesh.tangents.iter().flatten().all(|c| c.is_finite()))
+        .then_some(mesh.tangents)
 }
 
 /// The largest side of a scene's texture image, in pixels.
@@ -1926,7 +2106,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         specular: 0.5,
                         textures: MaterialTextures {
                             base_color,
-                            metallic_roughness: None,
+                            ..Default::default()
                         },
                     });
                     ids[i] = Some(id);
@@ -2273,6 +2453,63 @@ mod tests {
             scene.vertex_base_color(untextured),
             scene.materials[1].base_color
         );
+    }
+
+    /// A normal texture's tangents: MikkTSpace's where the file has none, in glTF's convention
+    /// (xyz along increasing u, cross(n, t)·w up the image, towards decreasing v); the file's
+    /// turned with the node, whose mirroring flips w.
+    #[test]
+    fn normal_textures_get_tangents_in_gltf_convention() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        // textured_gltf: u grows along +x, v along +y (v = 2 at y = 1), the normal is +z; up
+        // the image is −y = cross(+z, +x)·(−1).
+        let s = Scene::load(&textured_gltf(d, "t.gltf", "tex.png"), false).unwrap();
+        assert!(s.materials[0].textures.normal.is_some());
+        for v in &s.vertices {
+            let t = v.tangent;
+            assert!(
+                (t[0] - 1.0).abs() < 1e-5 && t[1].abs() < 1e-5 && t[2].abs() < 1e-5,
+                "{t:?}"
+            );
+            assert_eq!(t[3], -1.0);
+        }
+        // The file's tangents (+x, w = +1) under a node mirrored in x: −x, w = −1.
+        let positions: [f32; 9] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let uvs: [f32; 6] = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0];
+        let tangents: [f32; 12] = [1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0];
+        let bytes: Vec<u8> = positions
+            .iter()
+            .chain(&uvs)
+            .chain(&tangents)
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"scale":[-1,1,1]}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":1,"TANGENT":2}},"material":0}}]}}],
+            "materials":[{{"normalTexture":{{"index":0,"scale":0.5}}}}],
+            "textures":[{{"source":0}}],"images":[{{"uri":"tex.png"}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}},
+                         {{"bufferView":2,"componentType":5126,"count":3,"type":"VEC4"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":24}},
+                           {{"buffer":0,"byteOffset":60,"byteLength":48}}],
+            "buffers":[{{"byteLength":108,"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
+            base64_encode(&bytes)
+        );
+        let p = d.join("mirrored.gltf");
+        std::fs::write(&p, json).unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        assert_eq!(s.materials[0].textures.normal_scale, 0.5);
+        for v in &s.vertices {
+            assert_eq!(v.tangent, [-1.0, 0.0, 0.0, -1.0]);
+        }
+        // An untextured scene has no tangents.
+        assert!(Scene::default_scene()
+            .vertices
+            .iter()
+            .all(|v| v.tangent == [0.0; 4]));
     }
 
     /// An MTL's map_Kd loads (relative to the OBJ's folder), with the OBJ's vt flipped to

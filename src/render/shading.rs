@@ -131,9 +131,11 @@ impl GpuLight {
 pub struct MaterialRaw {
     base_color: [f32; 4],
     params: [f32; 4],
-    /// Base-colour layer, metallic-roughness layer (−1: none), wrap modes
+    /// Base-colour layer, metallic-roughness layer (−1: none), wrap modes, normal layer
     /// ([`super::textures::material_layers`]).
     textures: [f32; 4],
+    /// x: the normal texture's scale; y, z, w: unused.
+    extra: [f32; 4],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -151,6 +153,7 @@ impl Material {
             ],
             params: [self.roughness, self.metallic, self.specular, flags as f32],
             textures,
+            extra: [self.textures.normal_scale, 0.0, 0.0, 0.0],
         }
     }
 }
@@ -164,7 +167,7 @@ mod tests {
         // WGSL: Globals = mat4 + vec4 + 4×u32 + vec4; Light = 2×vec4 + mat4 + vec4.
         assert_eq!(std::mem::size_of::<GlobalsRaw>(), 112);
         assert_eq!(std::mem::size_of::<LightRaw>(), 112);
-        assert_eq!(std::mem::size_of::<MaterialRaw>(), 48);
+        assert_eq!(std::mem::size_of::<MaterialRaw>(), 64);
     }
 
     #[test]

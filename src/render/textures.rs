@@ -3,7 +3,8 @@
 //! The scene is drawn in one draw call, so a material's textures cannot be bound per draw:
 //! they are layers of two 2D array textures, one of sRGB base colours (`Rgba8UnormSrgb`,
 //! filtered in linear light by the sampler) and one of linear data (`Rgba8Unorm`:
-//! metallic-roughness, roughness in G and metallic in B), each layer one image resampled to
+//! metallic-roughness, roughness in G and metallic in B; tangent-space normals), each layer one
+//! image resampled to
 //! the arrays' common square side. The materials' table carries each material's layers and
 //! wrap modes ([`material_layers`]); `shaders/surface.wgsl` (`surface_params`) samples them in
 //! the fragment stages (the G-buffer and ASG passes), with explicit gradients so that the
@@ -62,7 +63,10 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
                 base_color.push(t.image);
             }
         }
-        if let Some(t) = m.textures.metallic_roughness {
+        for t in [m.textures.metallic_roughness, m.textures.normal]
+            .into_iter()
+            .flatten()
+        {
             if !data.contains(&t.image) {
                 data.push(t.image);
             }
@@ -98,9 +102,11 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
     }
 }
 
-/// Per material: the base-colour and data layers (−1: none) and the wrap modes packed as
-/// u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat), as `MaterialRaw::textures` holds
-/// them. The wrap modes are the base colour's where it has one.
+/// Per material: the base-colour, metallic-roughness and normal layers (−1: none) and the wrap
+/// modes packed as u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat), as
+/// `MaterialRaw::textures` holds them: [base colour, metallic-roughness, wrap, normal]. The wrap
+/// modes are the base colour's where it has one, else the metallic-roughness', else the
+/// normal texture's.
 pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<[f32; 4]> {
     let code = |w: Wrap| match w {
         Wrap::Repeat => 0.0,
@@ -118,12 +124,16 @@ pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<[f32; 4]> {
         .map(|m| {
             let base = m.textures.base_color;
             let data = m.textures.metallic_roughness;
-            let wrap = base.or(data).map_or([Wrap::Repeat; 2], |t| t.wrap);
+            let normal = m.textures.normal;
+            let wrap = base
+                .or(data)
+                .or(normal)
+                .map_or([Wrap::Repeat; 2], |t| t.wrap);
             [
                 base.map_or(-1.0, |t| layer(&plan.base_color, t.image)),
                 data.map_or(-1.0, |t| layer(&plan.data, t.image)),
                 code(wrap[0]) + 4.0 * code(wrap[1]),
-                0.0,
+                normal.map_or(-1.0, |t| layer(&plan.data, t.image)),
             ]
         })
         .collect()
@@ -416,6 +426,8 @@ mod tests {
         scene.materials[0].textures = MaterialTextures {
             base_color: Some(r(1)),
             metallic_roughness: Some(r(0)),
+            normal: Some(r(0)),
+            normal_scale: 1.0,
         };
         scene.materials[1].textures.base_color = Some(r(0));
         let plan = plan_layers(&scene, 16384);
@@ -426,8 +438,8 @@ mod tests {
         assert_eq!(plan_layers(&scene, 300).side, 256);
         let layers = material_layers(&scene, &plan);
         assert_eq!(layers[0], [0.0, 0.0, 1.0 + 4.0 * 2.0, 0.0]);
-        assert_eq!(layers[1], [1.0, -1.0, 9.0, 0.0]);
-        assert_eq!(layers[2], [-1.0, -1.0, 0.0, 0.0]);
+        assert_eq!(layers[1], [1.0, -1.0, 9.0, -1.0]);
+        assert_eq!(layers[2], [-1.0, -1.0, 0.0, -1.0]);
         // Many large images: the side shrinks until the arrays fit the memory bound.
         scene.textures = vec![image(4096, 4096, [0; 4])];
         for m in &mut scene.materials {
@@ -440,7 +452,7 @@ mod tests {
             .map(|i| crate::render::scene::Material {
                 textures: MaterialTextures {
                     base_color: Some(r(i)),
-                    metallic_roughness: None,
+                    ..Default::default()
                 },
                 ..Default::default()
             })
