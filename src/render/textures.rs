@@ -18,11 +18,12 @@
 //! 2. Each image is decoded to linear light (sRGB for base colours), resampled to the side
 //!    with a triangle filter (`image::imageops`, which widens the filter when shrinking), and
 //!    its mip chain built by 2 × 2 box averages, all in linear light; then encoded back to
-//!    8 bits and uploaded.
+//!    8 bits and uploaded. The chains are made on rayon's threads, as many images at a time as
+//!    there are threads; the layers, their side, their memory and the time are logged.
 //!
 //! A scene without textures binds 1 × 1 placeholder arrays that no material reads.
 
-use super::output::{srgb_eotf, srgb_oetf};
+use super::output::srgb_eotf;
 use super::scene::{Scene, TextureImage, Wrap};
 
 /// The largest side of a texture layer, in texels (a 2048² layer and its mips take 21 MiB).
@@ -162,6 +163,7 @@ impl SurfaceTextures {
                 });
             }
         }
+        let start = std::time::Instant::now();
         let images = |list: &[u32]| -> Vec<&TextureImage> {
             list.iter()
                 .filter_map(|&i| scene.textures.get(i as usize))
@@ -183,6 +185,15 @@ impl SurfaceTextures {
             plan.side,
             false,
         );
+        let layers = plan.base_color.len() + plan.data.len();
+        if layers > 0 {
+            tracing::info!(
+                "textures: {layers} layers of {side}² ({} MiB with mips) made in {:.0} ms",
+                (layers as u64 * u64::from(plan.side).pow(2) * 4 * 4 / 3) >> 20,
+                start.elapsed().as_secs_f64() * 1e3,
+                side = plan.side
+            );
+        }
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("surface textures"),
             // Clamping and mirroring are done in the shader (surface.wgsl, `wrap_coordinate`).
@@ -283,8 +294,18 @@ fn upload_array(
     } else {
         images.to_vec()
     };
-    for (layer, image) in images.iter().enumerate() {
-        for (level, mip) in mip_chain(image, side, srgb).iter().enumerate() {
+    // The chains are made on rayon's threads, a few images at a time (at most one chain per
+    // thread is held before its upload).
+    use rayon::prelude::*;
+    let batch = rayon::current_num_threads().max(1);
+    let chains = images.chunks(batch).flat_map(|chunk| {
+        chunk
+            .par_iter()
+            .map(|image| mip_chain(image, side, srgb))
+            .collect::<Vec<_>>()
+    });
+    for (layer, chain) in chains.enumerate() {
+        for (level, mip) in chain.iter().enumerate() {
             let mip_side = side >> level;
             queue.write_texture(
                 wgpu::TexelCopyTextureInfo {
@@ -317,21 +338,47 @@ fn upload_array(
     })
 }
 
+/// 8-bit sRGB by table: the 256 powers of the decoding, and 255 for the encoding instead of a
+/// power per texel.
+struct SrgbTables {
+    /// Per code, its linear value.
+    to_linear: [f32; 256],
+    /// The linear values at which the code rounds up: eotf((k + ½)/255).
+    rounds_up: [f32; 255],
+}
+
+impl SrgbTables {
+    fn new() -> Self {
+        Self {
+            to_linear: std::array::from_fn(|c| srgb_eotf(c as f32 / 255.0)),
+            rounds_up: std::array::from_fn(|k| srgb_eotf((k as f32 + 0.5) / 255.0)),
+        }
+    }
+
+    /// round(oetf(v)·255), clamped to [0, 255] (NaN: 0): how many rounding points lie at or
+    /// below v.
+    fn code(&self, v: f32) -> u8 {
+        self.rounds_up.partition_point(|&t| t <= v) as u8
+    }
+}
+
 /// Step 2 of the module doc for one image: its levels from `side`² down to 1², each as RGBA8
 /// bytes in the image's encoding (alpha is always linear).
 pub fn mip_chain(image: &TextureImage, side: u32, srgb: bool) -> Vec<Vec<u8>> {
+    let tables = SrgbTables::new();
     let decode = |channel: usize, byte: u8| {
-        let v = f32::from(byte) / 255.0;
         if srgb && channel < 3 {
-            srgb_eotf(v)
+            tables.to_linear[usize::from(byte)]
         } else {
-            v
+            f32::from(byte) / 255.0
         }
     };
     let encode = |channel: usize, v: f32| {
-        let v = v.clamp(0.0, 1.0);
-        let v = if srgb && channel < 3 { srgb_oetf(v) } else { v };
-        (v * 255.0).round() as u8
+        if srgb && channel < 3 {
+            tables.code(v)
+        } else {
+            (v.clamp(0.0, 1.0) * 255.0).round() as u8
+        }
     };
     let linear: Vec<f32> = image
         .rgba
@@ -387,6 +434,27 @@ mod tests {
             height,
             rgba: rgba.repeat((width * height) as usize),
         }
+    }
+
+    /// The table encoding gives every code back from its own linear value and is
+    /// round(oetf(v)·255) across [0, 1] (off by one only where v sits on a rounding point to
+    /// f32's precision), clamped outside it (NaN to 0).
+    #[test]
+    fn srgb_tables_round_as_the_transfer_function() {
+        let t = SrgbTables::new();
+        for c in 0..=255u8 {
+            assert_eq!(t.code(t.to_linear[usize::from(c)]), c);
+        }
+        let mut off = 0;
+        for i in 0..=100_000 {
+            let v = i as f32 / 100_000.0;
+            let want = (crate::render::output::srgb_oetf(v) * 255.0).round() as u8;
+            let got = t.code(v);
+            assert!(got.abs_diff(want) <= 1, "{v}: {got} against {want}");
+            off += usize::from(got != want);
+        }
+        assert!(off <= 10, "{off} of 100001 values off by one");
+        assert_eq!((t.code(-1.0), t.code(2.0), t.code(f32::NAN)), (0, 255, 0));
     }
 
     #[test]
