@@ -1719,3 +1719,47 @@ fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
         }
     }
 }
+
+/// More texture layers in one array than the GPU allows is refused with the counts, not a
+/// validation panic; one fewer renders.
+#[test]
+fn more_texture_layers_than_the_gpu_allows_are_refused_in_words() {
+    use envlight::render::scene::{TextureRef, Wrap};
+    let settings = RenderSettings {
+        width: 16,
+        height: 16,
+        shadows: false,
+        ..Default::default()
+    };
+    let limit = renderer(Scene::default_scene(), settings)
+        .gpu()
+        .device
+        .limits()
+        .max_texture_array_layers;
+    let scene = |layers: u32| {
+        let textures = (0..layers)
+            .map(|i| texture_row(1, |_| [i as u8, 0, 0, 255]))
+            .collect();
+        let mut scene = textured_quad(Material::lambertian([1.0; 3]), textures, 1.0);
+        scene.materials = (0..layers)
+            .map(|image| {
+                let mut m = Material::lambertian([1.0; 3]);
+                m.textures.base_color = Some(TextureRef {
+                    image,
+                    wrap: [Wrap::Repeat; 2],
+                });
+                m
+            })
+            .collect();
+        scene
+    };
+    let e = Renderer::new(scene(limit + 1), settings)
+        .err()
+        .expect("more layers than the limit")
+        .to_string();
+    assert!(
+        e.contains(&format!("{} texture layers", limit + 1)) && e.contains(&limit.to_string()),
+        "{e}"
+    );
+    renderer(scene(limit), settings).render(&[]).unwrap();
+}

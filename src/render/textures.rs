@@ -4,8 +4,7 @@
 //! they are layers of two 2D array textures, one of sRGB base colours (`Rgba8UnormSrgb`,
 //! filtered in linear light by the sampler) and one of linear data (`Rgba8Unorm`:
 //! metallic-roughness, roughness in G and metallic in B; tangent-space normals), each layer one
-//! image resampled to
-//! the arrays' common square side. The materials' table carries each material's layers and
+//! image resampled to the arrays' common square side. The materials' table carries each material's layers and
 //! wrap modes ([`material_layers`]); `shaders/surface.wgsl` (`surface_params`) samples them in
 //! the fragment stages (the G-buffer and ASG passes), with explicit gradients so that the
 //! mip level follows the screen footprint whatever the material.
@@ -37,7 +36,7 @@ pub const MAX_TEXTURE_BYTES: u64 = 1 << 30;
 pub struct LayerPlan {
     /// Images of [`Scene::textures`] in the base-colour array, layer by layer.
     pub base_color: Vec<u32>,
-    /// The same for the data (metallic-roughness) array.
+    /// The same for the data array (metallic-roughness and normal textures).
     pub data: Vec<u32>,
     /// The layers' side in texels (1 when there are no textures).
     pub side: u32,
