@@ -1763,3 +1763,83 @@ fn more_texture_layers_than_the_gpu_allows_are_refused_in_words() {
     );
     renderer(scene(limit), settings).render(&[]).unwrap();
 }
+
+/// `envlight render --scene` on a textured glTF (a quad with a base-colour and a normal
+/// texture in a PNG beside it, and features the renderer does not draw): it renders, logs the
+/// texture layers it made and names in one warning what it leaves out; without the PNG it
+/// fails naming it.
+#[test]
+fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    image::RgbaImage::from_fn(8, 8, |x, y| {
+        image::Rgba(if (x + y) % 2 == 0 {
+            [230, 200, 40, 255]
+        } else {
+            [128, 128, 255, 255]
+        })
+    })
+    .save(d.join("tex.png"))
+    .unwrap();
+    let positions: [f32; 12] = [-1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.0, -1.0, 2.0, 0.0];
+    let uvs: [f32; 8] = [0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+    let mut bin: Vec<u8> = positions
+        .iter()
+        .chain(&uvs)
+        .flat_map(|f| f.to_le_bytes())
+        .collect();
+    bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
+    std::fs::write(d.join("quad.bin"), &bin).unwrap();
+    let gltf = r#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_materials_emissive_strength"],
+        "scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
+        "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,"material":0}]}],
+        "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":1},
+                      "emissiveFactor":[1,0,0],"alphaMode":"MASK"}],
+        "textures":[{"source":0},{"source":1}],"images":[{"uri":"tex.png"},{"uri":"tex.png"}],
+        "accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[-1,0,0],"max":[1,2,0]},
+                     {"bufferView":1,"componentType":5126,"count":4,"type":"VEC2"},
+                     {"bufferView":2,"componentType":5123,"count":6,"type":"SCALAR"}],
+        "bufferViews":[{"buffer":0,"byteLength":48},{"buffer":0,"byteOffset":48,"byteLength":32},
+                       {"buffer":0,"byteOffset":80,"byteLength":12}],
+        "buffers":[{"byteLength":92,"uri":"quad.bin"}]}"#;
+    std::fs::write(d.join("quad.gltf"), gltf).unwrap();
+    let render = || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["render", "--size", "32x24", "--scene"])
+            .arg(d.join("quad.gltf"))
+            .arg("--out")
+            .arg(d.join("out"))
+            .output()
+            .unwrap()
+    };
+    let o = render();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    for needle in [
+        "textures: 2 layers of 8²",
+        "not drawn",
+        "emission",
+        "alpha modes (drawn opaque)",
+        "extension KHR_materials_emissive_strength",
+    ] {
+        assert!(
+            stderr.contains(needle),
+            "{needle:?} missing from:\n{stderr}"
+        );
+    }
+    let left_out = stderr.split("textures): ").nth(1).unwrap_or("");
+    assert!(
+        !left_out.lines().next().unwrap_or("").contains("normal"),
+        "{stderr}"
+    );
+    let png = image::open(d.join("out/frame_00000.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (32, 24));
+    std::fs::remove_file(d.join("tex.png")).unwrap();
+    let o = render();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("quad.gltf") && stderr.contains("image 0") && stderr.contains("tex.png"),
+        "{stderr}"
+    );
+}

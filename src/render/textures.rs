@@ -186,9 +186,10 @@ impl SurfaceTextures {
         );
         let layers = plan.base_color.len() + plan.data.len();
         if layers > 0 {
+            let bytes = layers as f64 * f64::from(plan.side).powi(2) * 4.0 * 4.0 / 3.0;
             tracing::info!(
-                "textures: {layers} layers of {side}² ({} MiB with mips) made in {:.0} ms",
-                (layers as u64 * u64::from(plan.side).pow(2) * 4 * 4 / 3) >> 20,
+                "textures: {layers} layers of {side}² ({:.1} MiB with mips) made in {:.0} ms",
+                bytes / f64::from(1 << 20),
                 start.elapsed().as_secs_f64() * 1e3,
                 side = plan.side
             );
