@@ -16,6 +16,10 @@ struct Material {
     textures: vec4<f32>,
     // x: the normal texture's scale; y, z, w: unused.
     extra: vec4<f32>,
+    // The texture-coordinate transforms (KHR_texture_transform) of the base-colour,
+    // metallic-roughness and normal textures, two rows each: the image is read at
+    // (dot(row0.xyz, (u, v, 1)), dot(row1.xyz, (u, v, 1))).
+    uv_transforms: array<vec4<f32>, 6>,
 };
 
 // The materials' textures (src/render/textures.rs): sRGB base colours, and linear
@@ -82,6 +86,24 @@ fn wrap_coordinate(t: f32, mode: u32, texels: f32) -> f32 {
     return t;
 }
 
+// Texture `k`'s (0 base colour, 1 metallic-roughness, 2 normal) coordinates at `uv`, and its
+// screen derivatives from uv's (`ddx`, `ddy`): the affine map and its linear part.
+struct TexturePoint {
+    uv: vec2<f32>,
+    ddx: vec2<f32>,
+    ddy: vec2<f32>,
+};
+
+fn texture_point(mat: Material, k: u32, uv: vec2<f32>, ddx: vec2<f32>, ddy: vec2<f32>) -> TexturePoint {
+    let r0 = mat.uv_transforms[2u * k];
+    let r1 = mat.uv_transforms[2u * k + 1u];
+    var t: TexturePoint;
+    t.uv = vec2<f32>(dot(r0.xy, uv) + r0.z, dot(r1.xy, uv) + r1.z);
+    t.ddx = vec2<f32>(dot(r0.xy, ddx), dot(r1.xy, ddx));
+    t.ddy = vec2<f32>(dot(r0.xy, ddy), dot(r1.xy, ddy));
+    return t;
+}
+
 fn wrapped(uv: vec2<f32>, mode: u32, texels: f32) -> vec2<f32> {
     return vec2<f32>(wrap_coordinate(uv.x, mode % 4u, texels), wrap_coordinate(uv.y, mode / 4u, texels));
 }
@@ -101,14 +123,16 @@ fn surface_params(mat: Material, uv: vec2<f32>, normal: vec3<f32>, tangent: vec4
     let mode = u32(mat.textures.z);
     if mat.textures.x >= 0.0 {
         let texels = f32(textureDimensions(base_color_textures).x);
-        let st = wrapped(uv, mode, texels);
+        let tp = texture_point(mat, 0u, uv, ddx, ddy);
+        let st = wrapped(tp.uv, mode, texels);
         p.base_color = p.base_color * textureSampleGrad(base_color_textures, texture_sampler, st,
-            i32(mat.textures.x), ddx, ddy).rgb;
+            i32(mat.textures.x), tp.ddx, tp.ddy).rgb;
     }
     if mat.textures.y >= 0.0 {
         let texels = f32(textureDimensions(data_textures).x);
-        let st = wrapped(uv, mode, texels);
-        let mr = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.y), ddx, ddy);
+        let tp = texture_point(mat, 1u, uv, ddx, ddy);
+        let st = wrapped(tp.uv, mode, texels);
+        let mr = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.y), tp.ddx, tp.ddy);
         p.roughness = p.roughness * mr.g;
         p.metallic = p.metallic * mr.b;
     }
@@ -118,8 +142,9 @@ fn surface_params(mat: Material, uv: vec2<f32>, normal: vec3<f32>, tangent: vec4
     let t_perp = tangent.xyz - n * dot(n, tangent.xyz);
     if mat.textures.w >= 0.0 && dot(t_perp, t_perp) > 1e-12 {
         let texels = f32(textureDimensions(data_textures).x);
-        let st = wrapped(uv, mode, texels);
-        let texel = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.w), ddx, ddy).xyz;
+        let tp = texture_point(mat, 2u, uv, ddx, ddy);
+        let st = wrapped(tp.uv, mode, texels);
+        let texel = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.w), tp.ddx, tp.ddy).xyz;
         let m = texel * 2.0 - 1.0;
         let t = normalize(t_perp);
         let b = cross(n, t) * select(1.0, -1.0, tangent.w < 0.0);

@@ -1558,6 +1558,7 @@ fn textured_materials_shade_as_their_texels() {
         material.textures.base_color = Some(TextureRef {
             image: 0,
             wrap: [wrap; 2],
+            transform: envlight::render::scene::NO_UV_TRANSFORM,
         });
         let (r, img) = render(textured_quad(material, vec![halves.clone()], u_span));
         for (x_range, want) in regions {
@@ -1603,6 +1604,7 @@ fn textured_materials_shade_as_their_texels() {
     textured.textures.metallic_roughness = Some(TextureRef {
         image: 0,
         wrap: [Wrap::Repeat; 2],
+        transform: envlight::render::scene::NO_UV_TRANSFORM,
     });
     let (r, img) = render(textured_quad(textured, vec![metallic_halves], 1.0));
     assert_close(
@@ -1654,6 +1656,7 @@ fn asg_lighting_reads_base_colour_textures() {
     material.textures.base_color = Some(TextureRef {
         image: 0,
         wrap: [Wrap::Repeat; 2],
+        transform: envlight::render::scene::NO_UV_TRANSFORM,
     });
     let halves = texture_row(4, |x| if x < 2 { GREEN } else { GREY });
     let (r, img) = render(textured_quad(material, vec![halves], 1.0));
@@ -1701,6 +1704,7 @@ fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
                 material.textures.normal = Some(TextureRef {
                     image: 0,
                     wrap: [Wrap::Repeat; 2],
+                    transform: envlight::render::scene::NO_UV_TRANSFORM,
                 });
                 material.textures.normal_scale = scale;
                 let halves = texture_row(4, |x| if x < 2 { tilt } else { FLAT });
@@ -1747,6 +1751,7 @@ fn more_texture_layers_than_the_gpu_allows_are_refused_in_words() {
                 m.textures.base_color = Some(TextureRef {
                     image,
                     wrap: [Wrap::Repeat; 2],
+                    transform: envlight::render::scene::NO_UV_TRANSFORM,
                 });
                 m
             })
@@ -1842,4 +1847,60 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
         stderr.contains("quad.gltf") && stderr.contains("image 0") && stderr.contains("tex.png"),
         "{stderr}"
     );
+}
+
+/// A base-colour texture's KHR_texture_transform moves, turns and scales where the image is
+/// read: an offset of half the image swaps the quad's halves, and a quarter turn
+/// counter-clockwise reads a texture that varies down the image (v) along the quad's u (as the
+/// extension's matrix R = [[cos, −sin], [sin, cos]] does; the other sense would swap the halves).
+#[test]
+fn texture_transforms_move_and_turn_the_image() {
+    use envlight::render::scene::{TextureRef, Wrap};
+    const RED: [u8; 4] = [200, 60, 40, 255];
+    const BLUE: [u8; 4] = [40, 90, 210, 255];
+    let settings = RenderSettings {
+        width: 96,
+        height: 96,
+        shadows: false,
+        ..Default::default()
+    };
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let render = |scene: Scene| {
+        let mut r = renderer(scene, settings);
+        let (img, _) = r.render(&lights).unwrap();
+        (
+            mean_over(&r, &img, -0.7..-0.3),
+            mean_over(&r, &img, 0.3..0.7),
+        )
+    };
+    let plain = |code: [u8; 4]| {
+        let colour = [0, 1, 2].map(|c| srgb_code_to_linear(code[c]));
+        render(textured_quad(Material::lambertian(colour), vec![], 1.0)).0
+    };
+    let (red, blue) = (plain(RED), plain(BLUE));
+    let textured = |image: TextureImage, transform: [[f32; 3]; 2]| {
+        let mut material = Material::lambertian([1.0; 3]);
+        material.textures.base_color = Some(TextureRef {
+            image: 0,
+            wrap: [Wrap::Repeat; 2],
+            transform,
+        });
+        render(textured_quad(material, vec![image], 1.0))
+    };
+    // Red on the left half of the image, blue on the right; offset u by ½.
+    let halves = texture_row(4, |x| if x < 2 { RED } else { BLUE });
+    let (left, right) = textured(halves, [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0]]);
+    assert_close("offset ½: left", left, blue, 0.005);
+    assert_close("offset ½: right", right, red, 0.005);
+    // Red on the top half, blue on the bottom (a 1 × 4 column); a quarter turn reads v' = u.
+    let column = TextureImage {
+        name: "column".into(),
+        width: 1,
+        height: 4,
+        rgba: [RED, RED, BLUE, BLUE].concat(),
+    };
+    let (c, s) = (0.0f32, 1.0f32);
+    let (left, right) = textured(column, [[c, -s, 0.0], [s, c, 0.0]]);
+    assert_close("quarter turn: left", left, red, 0.005);
+    assert_close("quarter turn: right", right, blue, 0.005);
 }

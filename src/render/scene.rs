@@ -82,12 +82,74 @@ pub enum Wrap {
     MirroredRepeat,
 }
 
-/// A material's use of a texture image: which image of [`Scene::textures`] and how its
-/// coordinates wrap (u, v).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// A material's use of a texture image: which image of [`Scene::textures`], how its
+/// coordinates wrap (u, v), and the affine map from the vertex's texture coordinates to the
+/// image's (glTF's `KHR_texture_transform`).
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TextureRef {
     pub image: u32,
     pub wrap: [Wrap; 2],
+    /// Rows of the 2 × 3 matrix M: the image is read at M · (u, v, 1).
+    pub transform: [[f32; 3]; 2],
+}
+
+/// The glTF extension that transforms texture coordinates, read from each texture's extensions.
+const TEXTURE_TRANSFORM: &str = "KHR_texture_transform";
+
+/// The identity [`TextureRef::transform`].
+pub const NO_UV_TRANSFORM: [[f32; 3]; 2] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+
+/// A `KHR_texture_transform` object (offset, rotation in radians counter-clockwise, scale, and
+/// an optional texture-coordinate set that overrides the texture's) as its matrix
+/// T(offset) · R(rotation) · S(scale) (the extension's definition, column-major there:
+/// R = [[cos, −sin], [sin, cos]]) and that set. Errors name the property.
+fn uv_transform(value: &serde_json::Value) -> Result<([[f32; 3]; 2], Option<u32>), String> {
+    let pair = |name: &str, default: [f32; 2]| -> Result<[f32; 2], String> {
+        match value.get(name) {
+            None => Ok(default),
+            Some(v) => {
+                let items = v.as_array().filter(|a| a.len() == 2);
+                let numbers: Option<Vec<f32>> = items.map(|a| {
+                    a.iter()
+                        .filter_map(|x| x.as_f64().map(|x| x as f32))
+                        .filter(|x| x.is_finite())
+                        .collect()
+                });
+                match numbers.as_deref() {
+                    Some(&[a, b]) => Ok([a, b]),
+                    _ => Err(format!(
+                        "KHR_texture_transform.{name} {v} is not two finite numbers"
+                    )),
+                }
+            }
+        }
+    };
+    let offset = pair("offset", [0.0, 0.0])?;
+    let scale = pair("scale", [1.0, 1.0])?;
+    let rotation = match value.get("rotation") {
+        None => 0.0,
+        Some(v) => v
+            .as_f64()
+            .map(|r| r as f32)
+            .filter(|r| r.is_finite())
+            .ok_or_else(|| format!("KHR_texture_transform.rotation {v} is not a finite number"))?,
+    };
+    let set = match value.get("texCoord") {
+        None => None,
+        Some(v) => Some(
+            v.as_u64()
+                .and_then(|s| u32::try_from(s).ok())
+                .ok_or_else(|| format!("KHR_texture_transform.texCoord {v} is not a set index"))?,
+        ),
+    };
+    let (s, c) = rotation.sin_cos();
+    Ok((
+        [
+            [c * scale[0], -s * scale[1], offset[0]],
+            [s * scale[0], c * scale[1], offset[1]],
+        ],
+        set,
+    ))
 }
 
 /// The textures of a material, each multiplying its factor (glTF's metallic-roughness model),
@@ -1103,8 +1165,10 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     let mut images = std::collections::HashMap::new();
     let mut ignored = std::collections::BTreeSet::<String>::new();
     for extension in gltf.document.extensions_used() {
-        // None is drawn (KHR_texture_transform, KHR_materials_*, …).
-        ignored.insert(format!("extension {extension}"));
+        // None is drawn (KHR_materials_*, …) but the texture transform.
+        if extension != TEXTURE_TRANSFORM {
+            ignored.insert(format!("extension {extension}"));
+        }
     }
     let scene = gltf
         .document
@@ -1382,15 +1446,21 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     note_ignored_material_features(&mat, &mut ignored);
                     let mut texture = |info: Option<gltf::texture::Info>| {
                         info.map(|info| {
-                            gltf_texture(&info.texture(), &buffers, base, &mut b, &mut images)
-                                .map_err(|m| {
-                                    err(format!(
-                                        "material {} ({:?}): {m}",
-                                        mat.index()
-                                            .map_or("default".to_string(), |i| i.to_string()),
-                                        mat.name().unwrap_or("")
-                                    ))
-                                })
+                            gltf_texture(
+                                &info.texture(),
+                                info.extension_value(TEXTURE_TRANSFORM),
+                                &buffers,
+                                base,
+                                &mut b,
+                                &mut images,
+                            )
+                            .map_err(|m| {
+                                err(format!(
+                                    "material {} ({:?}): {m}",
+                                    mat.index().map_or("default".to_string(), |i| i.to_string()),
+                                    mat.name().unwrap_or("")
+                                ))
+                            })
                         })
                         .transpose()
                     };
@@ -1407,15 +1477,21 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     }
                     let normal = match normal {
                         Some(n) => Some(
-                            gltf_texture(&n.texture(), &buffers, base, &mut b, &mut images)
-                                .map_err(|m| {
-                                    err(format!(
-                                        "material {} ({:?}): normal {m}",
-                                        mat.index()
-                                            .map_or("default".to_string(), |i| i.to_string()),
-                                        mat.name().unwrap_or("")
-                                    ))
-                                })?,
+                            gltf_texture(
+                                &n.texture(),
+                                n.extension_value(TEXTURE_TRANSFORM),
+                                &buffers,
+                                base,
+                                &mut b,
+                                &mut images,
+                            )
+                            .map_err(|m| {
+                                err(format!(
+                                    "material {} ({:?}): normal {m}",
+                                    mat.index().map_or("default".to_string(), |i| i.to_string()),
+                                    mat.name().unwrap_or("")
+                                ))
+                            })?,
                         ),
                         None => None,
                     };
@@ -1457,16 +1533,20 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
 /// read with that one, with a warning.
 fn texture_coordinate_set(material: &gltf::Material, path: &Path) -> Option<u32> {
     let pbr = material.pbr_metallic_roughness();
+    let info_set =
+        |t: gltf::texture::Info| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM));
     let sets = [
-        (
-            "base colour",
-            pbr.base_color_texture().map(|t| t.tex_coord()),
-        ),
+        ("base colour", pbr.base_color_texture().map(info_set)),
         (
             "metallic-roughness",
-            pbr.metallic_roughness_texture().map(|t| t.tex_coord()),
+            pbr.metallic_roughness_texture().map(info_set),
         ),
-        ("normal", material.normal_texture().map(|t| t.tex_coord())),
+        (
+            "normal",
+            material
+                .normal_texture()
+                .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
+        ),
     ];
     let mut used = sets.iter().filter_map(|&(name, set)| Some((name, set?)));
     let (first_name, first) = used.next()?;
@@ -1563,10 +1643,11 @@ fn generate_tangents(
 /// The largest side of a scene's texture image, in pixels.
 pub const MAX_TEXTURE_SIDE: u32 = 8192;
 
-/// A glTF texture: its image (loaded once per scene, see [`gltf_image`]) and its sampler's wrap
-/// modes.
+/// A glTF texture: its image (loaded once per scene, see [`gltf_image`]), its sampler's wrap
+/// modes and its `KHR_texture_transform` (`transform`, the extension's object).
 fn gltf_texture(
     texture: &gltf::Texture,
+    transform: Option<&serde_json::Value>,
     buffers: &[gltf::buffer::Data],
     base: &Path,
     b: &mut Builder,
@@ -1591,10 +1672,24 @@ fn gltf_texture(
             index
         }
     };
+    let transform = match transform {
+        Some(value) => uv_transform(value)?.0,
+        None => NO_UV_TRANSFORM,
+    };
     Ok(TextureRef {
         image: index,
         wrap: [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())],
+        transform,
     })
+}
+
+/// The texture-coordinate set a texture reads: its `texCoord`, or its `KHR_texture_transform`'s
+/// where that gives one.
+fn texture_set(tex_coord: u32, transform: Option<&serde_json::Value>) -> u32 {
+    transform
+        .and_then(|t| uv_transform(t).ok())
+        .and_then(|(_, set)| set)
+        .unwrap_or(tex_coord)
 }
 
 /// Reads and decodes a glTF image: a buffer view (a `.glb`'s embedded images), a `data:` URI
@@ -2095,6 +2190,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                             Some(TextureRef {
                                 image,
                                 wrap: [Wrap::Repeat; 2],
+                                transform: NO_UV_TRANSFORM,
                             })
                         }
                         None => None,
@@ -2383,6 +2479,7 @@ mod tests {
             let want = TextureRef {
                 image: 0,
                 wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
+                transform: NO_UV_TRANSFORM,
             };
             assert_eq!(
                 (t.base_color, t.metallic_roughness),
@@ -2442,6 +2539,7 @@ mod tests {
         scene.materials[0].textures.base_color = Some(TextureRef {
             image: 0,
             wrap: [Wrap::Repeat; 2],
+            transform: NO_UV_TRANSFORM,
         });
         let v = scene.vertices.iter().position(|v| v.material == 0).unwrap();
         scene.vertices[v].uv = [0.75, 0.5];
@@ -2510,6 +2608,65 @@ mod tests {
             .vertices
             .iter()
             .all(|v| v.tangent == [0.0; 4]));
+    }
+
+    /// KHR_texture_transform: T(offset) · R(rotation) · S(scale) as the extension defines it,
+    /// read for the base colour (a textureInfo) and the normal texture alike, its texCoord
+    /// overriding the texture's; bad values are errors naming the property; the extension is
+    /// not among those named as not drawn.
+    #[test]
+    fn texture_transforms_are_read_as_the_extension_defines_them() {
+        let (m, set) = uv_transform(&serde_json::json!({})).unwrap();
+        assert_eq!((m, set), (NO_UV_TRANSFORM, None));
+        let (m, set) = uv_transform(&serde_json::json!({
+            "offset": [0.5, -1], "rotation": std::f64::consts::FRAC_PI_2, "scale": [2, 3],
+            "texCoord": 1
+        }))
+        .unwrap();
+        // R(90°) maps u to v: (u, v) → (−3v + 0.5, 2u − 1).
+        let close = |a: [[f32; 3]; 2], b: [[f32; 3]; 2]| {
+            a.iter()
+                .flatten()
+                .zip(b.iter().flatten())
+                .all(|(x, y)| (x - y).abs() < 1e-6)
+        };
+        assert!(close(m, [[0.0, -3.0, 0.5], [2.0, 0.0, -1.0]]), "{m:?}");
+        assert_eq!(set, Some(1));
+        for (bad, needle) in [
+            (serde_json::json!({"offset": [1]}), "offset"),
+            (serde_json::json!({"scale": "big"}), "scale"),
+            (serde_json::json!({"rotation": [1]}), "rotation"),
+            (serde_json::json!({"texCoord": -1}), "texCoord"),
+        ] {
+            let e = uv_transform(&bad).unwrap_err();
+            assert!(e.contains(needle), "{e}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let ext = r#""extensions":{"KHR_texture_transform":{"offset":[0.25,0],"scale":[2,2]}}"#;
+        let text = text
+            .replace(
+                r#""baseColorTexture":{"index":0}"#,
+                &format!(r#""baseColorTexture":{{"index":0,{ext}}}"#),
+            )
+            .replace(
+                r#""normalTexture":{"index":0}"#,
+                &format!(r#""normalTexture":{{"index":0,{ext}}}"#),
+            )
+            .replacen("{", r#"{"extensionsUsed":["KHR_texture_transform"],"#, 1);
+        let p = d.join("transformed.gltf");
+        std::fs::write(&p, &text).unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        let t = s.materials[0].textures;
+        let want = [[2.0, 0.0, 0.25], [0.0, 2.0, 0.0]];
+        assert_eq!(t.base_color.unwrap().transform, want);
+        assert_eq!(t.normal.unwrap().transform, want);
+        assert_eq!(t.metallic_roughness.unwrap().transform, NO_UV_TRANSFORM);
+        std::fs::write(&p, text.replace("[2,2]", "[2]")).unwrap();
+        let e = Scene::load(&p, false).unwrap_err().to_string();
+        assert!(e.contains("KHR_texture_transform.scale"), "{e}");
     }
 
     /// An MTL's map_Kd loads (relative to the OBJ's folder), with the OBJ's vt flipped to

@@ -136,6 +136,9 @@ pub struct MaterialRaw {
     textures: [f32; 4],
     /// x: the normal texture's scale; y, z, w: unused.
     extra: [f32; 4],
+    /// The texture-coordinate transforms of the base-colour, metallic-roughness and normal
+    /// textures, two rows (m0, m1, m2, unused) each ([`super::scene::TextureRef::transform`]).
+    uv_transforms: [[f32; 4]; 6],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -154,6 +157,16 @@ impl Material {
             params: [self.roughness, self.metallic, self.specular, flags as f32],
             textures,
             extra: [self.textures.normal_scale, 0.0, 0.0, 0.0],
+            uv_transforms: {
+                let t = &self.textures;
+                let rows = [t.base_color, t.metallic_roughness, t.normal].map(|r| {
+                    let m = r.map_or(super::scene::NO_UV_TRANSFORM, |r| r.transform);
+                    m.map(|[a, b, c]| [a, b, c, 0.0])
+                });
+                [
+                    rows[0][0], rows[0][1], rows[1][0], rows[1][1], rows[2][0], rows[2][1],
+                ]
+            },
         }
     }
 }
@@ -167,7 +180,7 @@ mod tests {
         // WGSL: Globals = mat4 + vec4 + 4×u32 + vec4; Light = 2×vec4 + mat4 + vec4.
         assert_eq!(std::mem::size_of::<GlobalsRaw>(), 112);
         assert_eq!(std::mem::size_of::<LightRaw>(), 112);
-        assert_eq!(std::mem::size_of::<MaterialRaw>(), 64);
+        assert_eq!(std::mem::size_of::<MaterialRaw>(), 160);
     }
 
     #[test]

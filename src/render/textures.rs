@@ -490,6 +490,7 @@ mod tests {
         let r = |image| TextureRef {
             image,
             wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
+            transform: crate::render::scene::NO_UV_TRANSFORM,
         };
         scene.materials[0].textures = MaterialTextures {
             base_color: Some(r(1)),
