@@ -1502,6 +1502,39 @@ fn assert_close(what: &str, got: [f32; 3], want: [f32; 3], tolerance: f32) {
     }
 }
 
+/// The textured-quad tests' colours (sRGB codes).
+const TEXEL_RED: [u8; 4] = [200, 60, 40, 255];
+const TEXEL_BLUE: [u8; 4] = [40, 90, 210, 255];
+
+/// The textured-quad tests' frame: 96 × 96, no shadows.
+fn quad_settings() -> RenderSettings {
+    RenderSettings {
+        width: 96,
+        height: 96,
+        shadows: false,
+        ..Default::default()
+    }
+}
+
+/// Renders a [`textured_quad`] scene under `lights`: the renderer (for [`mean_over`]) and
+/// the image.
+fn render_quad(scene: Scene, lights: &[Light]) -> (Renderer, Image) {
+    let mut r = renderer(scene, quad_settings());
+    let (img, _) = r.render(lights).unwrap();
+    (r, img)
+}
+
+/// The mean colour of the untextured Lambertian quad in the (sRGB-decoded) colour `code`
+/// under one frontal light of 3 W/m², over its middle.
+fn plain_quad(code: [u8; 4]) -> [f32; 3] {
+    let colour = [0, 1, 2].map(|c| srgb_code_to_linear(code[c]));
+    let (r, img) = render_quad(
+        textured_quad(Material::lambertian(colour), vec![], 1.0),
+        &[light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)],
+    );
+    mean_over(&r, &img, -0.5..0.5)
+}
+
 /// A base-colour texture shades as a plain material of its texels' (sRGB-decoded) colour;
 /// the sampler's wrap modes repeat, clamp and mirror it; a metallic-roughness texture's blue
 /// channel scales the metallic factor. Each textured region is compared with the same quad
@@ -1509,27 +1542,12 @@ fn assert_close(what: &str, got: [f32; 3], want: [f32; 3], tolerance: f32) {
 #[test]
 fn textured_materials_shade_as_their_texels() {
     use envlight::render::scene::{MaterialTextures, TextureRef, Wrap};
-    const RED: [u8; 4] = [200, 60, 40, 255];
-    const BLUE: [u8; 4] = [40, 90, 210, 255];
-    let settings = RenderSettings {
-        width: 96,
-        height: 96,
-        shadows: false,
-        ..Default::default()
-    };
+    const RED: [u8; 4] = TEXEL_RED;
+    const BLUE: [u8; 4] = TEXEL_BLUE;
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let lambertian = |base_color: [f32; 3]| Material::lambertian(base_color);
-    let render = |scene: Scene| {
-        let mut r = renderer(scene, settings);
-        let (img, _) = r.render(&lights).unwrap();
-        (r, img)
-    };
-    let plain = |code: [u8; 4]| {
-        let colour = [0, 1, 2].map(|c| srgb_code_to_linear(code[c]));
-        let (r, img) = render(textured_quad(lambertian(colour), vec![], 1.0));
-        mean_over(&r, &img, -0.5..0.5)
-    };
-    let (red, blue) = (plain(RED), plain(BLUE));
+    let render = |scene: Scene| render_quad(scene, &lights);
+    let (red, blue) = (plain_quad(RED), plain_quad(BLUE));
     // Texels 0–1 red, 2–3 blue: u in [0.125, 0.375] reads only red texel centres, [0.625, 0.875]
     // only blue ones, whatever the filtering.
     let halves = texture_row(4, |x| if x < 2 { RED } else { BLUE });
@@ -1630,12 +1648,7 @@ fn asg_lighting_reads_base_colour_textures() {
     use glam::DVec3;
     const GREEN: [u8; 4] = [30, 180, 70, 255];
     const GREY: [u8; 4] = [128, 128, 128, 255];
-    let settings = RenderSettings {
-        width: 96,
-        height: 96,
-        shadows: false,
-        ..Default::default()
-    };
+    let settings = quad_settings();
     let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
     let render = |scene: Scene| {
         let mut r = renderer(scene, settings);
@@ -1681,12 +1694,6 @@ fn asg_lighting_reads_base_colour_textures() {
 #[test]
 fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
     use envlight::render::scene::{TextureRef, Wrap};
-    let settings = RenderSettings {
-        width: 96,
-        height: 96,
-        shadows: false,
-        ..Default::default()
-    };
     const FLAT: [u8; 4] = [128, 128, 255, 255];
     // 30° towards +x (red) and towards +y (green) in tangent space.
     const TILT_X: [u8; 4] = [191, 128, 238, 255];
@@ -1708,8 +1715,7 @@ fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
                 });
                 material.textures.normal_scale = scale;
                 let halves = texture_row(4, |x| if x < 2 { tilt } else { FLAT });
-                let mut r = renderer(textured_quad(material, vec![halves], 1.0), settings);
-                let (img, _) = r.render(&lights).unwrap();
+                let (r, img) = render_quad(textured_quad(material, vec![halves], 1.0), &lights);
                 let tilted = mean_over(&r, &img, -0.7..-0.3);
                 let flat = mean_over(&r, &img, 0.3..0.7);
                 let want = decode(tilt, scale).dot(l) / decode(FLAT, scale).dot(l);
@@ -1856,28 +1862,17 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
 #[test]
 fn texture_transforms_move_and_turn_the_image() {
     use envlight::render::scene::{TextureRef, Wrap};
-    const RED: [u8; 4] = [200, 60, 40, 255];
-    const BLUE: [u8; 4] = [40, 90, 210, 255];
-    let settings = RenderSettings {
-        width: 96,
-        height: 96,
-        shadows: false,
-        ..Default::default()
-    };
+    const RED: [u8; 4] = TEXEL_RED;
+    const BLUE: [u8; 4] = TEXEL_BLUE;
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let render = |scene: Scene| {
-        let mut r = renderer(scene, settings);
-        let (img, _) = r.render(&lights).unwrap();
+        let (r, img) = render_quad(scene, &lights);
         (
             mean_over(&r, &img, -0.7..-0.3),
             mean_over(&r, &img, 0.3..0.7),
         )
     };
-    let plain = |code: [u8; 4]| {
-        let colour = [0, 1, 2].map(|c| srgb_code_to_linear(code[c]));
-        render(textured_quad(Material::lambertian(colour), vec![], 1.0)).0
-    };
-    let (red, blue) = (plain(RED), plain(BLUE));
+    let (red, blue) = (plain_quad(RED), plain_quad(BLUE));
     let textured = |image: TextureImage, transform: [[f32; 3]; 2]| {
         let mut material = Material::lambertian([1.0; 3]);
         material.textures.base_color = Some(TextureRef {
