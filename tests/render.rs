@@ -1503,8 +1503,8 @@ fn assert_close(what: &str, got: [f32; 3], want: [f32; 3], tolerance: f32) {
 }
 
 /// The textured-quad tests' colours (sRGB codes).
-const TEXEL_RED: [u8; 4] = [200, 60, 40, 255];
-const TEXEL_BLUE: [u8; 4] = [40, 90, 210, 255];
+const RED: [u8; 4] = [200, 60, 40, 255];
+const BLUE: [u8; 4] = [40, 90, 210, 255];
 
 /// The textured-quad tests' frame: 96 × 96, no shadows.
 fn quad_settings() -> RenderSettings {
@@ -1522,6 +1522,12 @@ fn render_quad(scene: Scene, lights: &[Light]) -> (Renderer, Image) {
     let mut r = renderer(scene, quad_settings());
     let (img, _) = r.render(lights).unwrap();
     (r, img)
+}
+
+/// The mean colours of a [`textured_quad`] render's left and right regions (x in −0.7…−0.3
+/// and 0.3…0.7): the image's first and last quarter at u ≤ 1.
+fn quad_halves(r: &Renderer, img: &Image) -> ([f32; 3], [f32; 3]) {
+    (mean_over(r, img, -0.7..-0.3), mean_over(r, img, 0.3..0.7))
 }
 
 /// The mean colour of the untextured Lambertian quad in the (sRGB-decoded) colour `code`
@@ -1542,8 +1548,6 @@ fn plain_quad(code: [u8; 4]) -> [f32; 3] {
 #[test]
 fn textured_materials_shade_as_their_texels() {
     use envlight::render::scene::{MaterialTextures, TextureRef, Wrap};
-    const RED: [u8; 4] = TEXEL_RED;
-    const BLUE: [u8; 4] = TEXEL_BLUE;
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let lambertian = |base_color: [f32; 3]| Material::lambertian(base_color);
     let render = |scene: Scene| render_quad(scene, &lights);
@@ -1600,10 +1604,7 @@ fn textured_materials_shade_as_their_texels() {
     };
     let reference = |metallic: f32| {
         let (r, img) = render(textured_quad(Material { metallic, ..metal }, vec![], 1.0));
-        (
-            mean_over(&r, &img, -0.7..-0.3),
-            mean_over(&r, &img, 0.3..0.7),
-        )
+        quad_halves(&r, &img)
     };
     let (metal_left, _) = reference(1.0);
     let (_, dielectric_right) = reference(0.0);
@@ -1619,21 +1620,13 @@ fn textured_materials_shade_as_their_texels() {
         }
     });
     let mut textured = metal;
-    textured.textures.metallic_roughness = Some(TextureRef {
-        image: 0,
-        wrap: [Wrap::Repeat; 2],
-        transform: envlight::render::scene::NO_UV_TRANSFORM,
-    });
+    textured.textures.metallic_roughness = Some(TextureRef::repeating(0));
     let (r, img) = render(textured_quad(textured, vec![metallic_halves], 1.0));
-    assert_close(
-        "metallic 1 from the texture",
-        mean_over(&r, &img, -0.7..-0.3),
-        metal_left,
-        0.005,
-    );
+    let (left, right) = quad_halves(&r, &img);
+    assert_close("metallic 1 from the texture", left, metal_left, 0.005);
     assert_close(
         "metallic 0 from the texture",
-        mean_over(&r, &img, 0.3..0.7),
+        right,
         dielectric_right,
         0.005,
     );
@@ -1644,7 +1637,7 @@ fn textured_materials_shade_as_their_texels() {
 #[test]
 fn asg_lighting_reads_base_colour_textures() {
     use envlight::asg::Asg;
-    use envlight::render::scene::{TextureRef, Wrap};
+    use envlight::render::scene::TextureRef;
     use glam::DVec3;
     const GREEN: [u8; 4] = [30, 180, 70, 255];
     const GREY: [u8; 4] = [128, 128, 128, 255];
@@ -1658,33 +1651,17 @@ fn asg_lighting_reads_base_colour_textures() {
     let plain = |code: [u8; 4]| {
         let colour = [0, 1, 2].map(|c| srgb_code_to_linear(code[c]));
         let (r, img) = render(textured_quad(Material::lambertian(colour), vec![], 1.0));
-        (
-            mean_over(&r, &img, -0.7..-0.3),
-            mean_over(&r, &img, 0.3..0.7),
-        )
+        quad_halves(&r, &img)
     };
     let (green_left, _) = plain(GREEN);
     let (_, grey_right) = plain(GREY);
     let mut material = Material::lambertian([1.0; 3]);
-    material.textures.base_color = Some(TextureRef {
-        image: 0,
-        wrap: [Wrap::Repeat; 2],
-        transform: envlight::render::scene::NO_UV_TRANSFORM,
-    });
+    material.textures.base_color = Some(TextureRef::repeating(0));
     let halves = texture_row(4, |x| if x < 2 { GREEN } else { GREY });
     let (r, img) = render(textured_quad(material, vec![halves], 1.0));
-    assert_close(
-        "ASG, green texels",
-        mean_over(&r, &img, -0.7..-0.3),
-        green_left,
-        0.005,
-    );
-    assert_close(
-        "ASG, grey texels",
-        mean_over(&r, &img, 0.3..0.7),
-        grey_right,
-        0.005,
-    );
+    let (left, right) = quad_halves(&r, &img);
+    assert_close("ASG, green texels", left, green_left, 0.005);
+    assert_close("ASG, grey texels", right, grey_right, 0.005);
 }
 
 /// A normal texture turns the shading normal in the tangent frame: x along the tangent
@@ -1693,7 +1670,7 @@ fn asg_lighting_reads_base_colour_textures() {
 /// n·l / n_flat·l of its decoded texel under a light tilted the same way, and the other way.
 #[test]
 fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
-    use envlight::render::scene::{TextureRef, Wrap};
+    use envlight::render::scene::TextureRef;
     const FLAT: [u8; 4] = [128, 128, 255, 255];
     // 30° towards +x (red) and towards +y (green) in tangent space.
     const TILT_X: [u8; 4] = [191, 128, 238, 255];
@@ -1708,16 +1685,11 @@ fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
                 let l = (Vec3::Z + toward * axis).normalize();
                 let lights = [light(0, l, [3.0, 3.0, 3.0], 0.0)];
                 let mut material = Material::lambertian([0.8; 3]);
-                material.textures.normal = Some(TextureRef {
-                    image: 0,
-                    wrap: [Wrap::Repeat; 2],
-                    transform: envlight::render::scene::NO_UV_TRANSFORM,
-                });
+                material.textures.normal = Some(TextureRef::repeating(0));
                 material.textures.normal_scale = scale;
                 let halves = texture_row(4, |x| if x < 2 { tilt } else { FLAT });
                 let (r, img) = render_quad(textured_quad(material, vec![halves], 1.0), &lights);
-                let tilted = mean_over(&r, &img, -0.7..-0.3);
-                let flat = mean_over(&r, &img, 0.3..0.7);
+                let (tilted, flat) = quad_halves(&r, &img);
                 let want = decode(tilt, scale).dot(l) / decode(FLAT, scale).dot(l);
                 let got = tilted[1] / flat[1];
                 assert!(
@@ -1734,7 +1706,7 @@ fn normal_textures_turn_the_shading_normal_in_the_tangent_frame() {
 /// validation panic; one fewer renders.
 #[test]
 fn more_texture_layers_than_the_gpu_allows_are_refused_in_words() {
-    use envlight::render::scene::{TextureRef, Wrap};
+    use envlight::render::scene::TextureRef;
     let settings = RenderSettings {
         width: 16,
         height: 16,
@@ -1754,11 +1726,7 @@ fn more_texture_layers_than_the_gpu_allows_are_refused_in_words() {
         scene.materials = (0..layers)
             .map(|image| {
                 let mut m = Material::lambertian([1.0; 3]);
-                m.textures.base_color = Some(TextureRef {
-                    image,
-                    wrap: [Wrap::Repeat; 2],
-                    transform: envlight::render::scene::NO_UV_TRANSFORM,
-                });
+                m.textures.base_color = Some(TextureRef::repeating(image));
                 m
             })
             .collect();
@@ -1862,15 +1830,10 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
 #[test]
 fn texture_transforms_move_and_turn_the_image() {
     use envlight::render::scene::{TextureRef, Wrap};
-    const RED: [u8; 4] = TEXEL_RED;
-    const BLUE: [u8; 4] = TEXEL_BLUE;
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let render = |scene: Scene| {
         let (r, img) = render_quad(scene, &lights);
-        (
-            mean_over(&r, &img, -0.7..-0.3),
-            mean_over(&r, &img, 0.3..0.7),
-        )
+        quad_halves(&r, &img)
     };
     let (red, blue) = (plain_quad(RED), plain_quad(BLUE));
     let textured = |image: TextureImage, transform: [[f32; 3]; 2]| {

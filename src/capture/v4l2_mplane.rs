@@ -248,44 +248,33 @@ mod tests {
 
     #[test]
     fn separate_plane_codes_name_their_one_buffer_twins() {
-        assert_eq!(
-            pixel_format(*b"NM12"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv12))
-        );
-        assert_eq!(
-            pixel_format(*b"NM21"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv21))
-        );
-        assert_eq!(
-            pixel_format(*b"YM12"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Yu12))
-        );
-        assert_eq!(
-            pixel_format(*b"YM21"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Yv12))
-        );
-        // Codes a multi-planar node offers in one plane are read as on any node.
-        assert_eq!(
-            pixel_format(*b"NV12"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv12))
-        );
-        assert_eq!(
-            pixel_format(*b"pRAA"),
-            Some(PixelFormat::Csi2Packed {
-                pattern: Some(BayerPattern::Rggb),
-                bits: 10
-            })
-        );
-        assert_eq!(
-            pixel_format(*b"NM16"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv16))
-        );
-        assert_eq!(
-            pixel_format(*b"YM16"),
-            Some(PixelFormat::PlanarYuv(PlanarYuv::Yuv422p))
-        );
-        // YVU 4:2:2 in three planes has no one-buffer twin in V4L2: not converted.
-        assert_eq!(pixel_format(*b"YM61"), None);
+        let yuv = |layout| Some(PixelFormat::PlanarYuv(layout));
+        for (code, want) in [
+            (*b"NM12", yuv(PlanarYuv::Nv12)),
+            (*b"NM21", yuv(PlanarYuv::Nv21)),
+            (*b"YM12", yuv(PlanarYuv::Yu12)),
+            (*b"YM21", yuv(PlanarYuv::Yv12)),
+            (*b"NM16", yuv(PlanarYuv::Nv16)),
+            (*b"YM16", yuv(PlanarYuv::Yuv422p)),
+            // Codes a multi-planar node offers in one plane are read as on any node.
+            (*b"NV12", yuv(PlanarYuv::Nv12)),
+            (
+                *b"pRAA",
+                Some(PixelFormat::Csi2Packed {
+                    pattern: Some(BayerPattern::Rggb),
+                    bits: 10,
+                }),
+            ),
+            // YVU 4:2:2 in three planes has no one-buffer twin in V4L2: not converted.
+            (*b"YM61", None),
+        ] {
+            assert_eq!(
+                pixel_format(code),
+                want,
+                "{}",
+                String::from_utf8_lossy(&code)
+            );
+        }
     }
 
     /// Spreads a one-buffer frame with packed rows over padded planes, as a driver would.

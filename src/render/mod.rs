@@ -561,14 +561,13 @@ impl Renderer {
             bind_group_layouts: &[Some(&shadow_cam_layout)],
             immediate_size: 0,
         });
-        let shade_attrs = SURFACE_ATTRIBUTES;
         let shadow_attrs = wgpu::vertex_attr_array![0 => Float32x3];
         let gbuffer_pipeline = depth_tested_pipeline(
             device,
             "g-buffer",
             &gbuffer_pl,
             &shade_module,
-            &shade_attrs,
+            &SURFACE_ATTRIBUTES,
             wgpu::DepthBiasState::default(),
             Some(("fs_gbuffer", GBUFFER_TARGETS)),
         );
@@ -1208,11 +1207,7 @@ impl Renderer {
         self.encode_scene_pass(
             enc,
             "g-buffer",
-            &[
-                &self.gbuffer_views[0],
-                &self.gbuffer_views[1],
-                &self.gbuffer_views[2],
-            ],
+            &self.gbuffer_views.each_ref(),
             &self.gbuffer_pipeline,
             &self.shade_bind_group,
             timestamps,

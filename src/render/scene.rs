@@ -93,6 +93,17 @@ pub struct TextureRef {
     pub transform: [[f32; 3]; 2],
 }
 
+impl TextureRef {
+    /// Image `image` repeating both ways, untransformed (an OBJ map's, glTF's defaults).
+    pub fn repeating(image: u32) -> Self {
+        Self {
+            image,
+            wrap: [Wrap::Repeat; 2],
+            transform: NO_UV_TRANSFORM,
+        }
+    }
+}
+
 /// The glTF extension that transforms texture coordinates, read from each texture's extensions.
 const TEXTURE_TRANSFORM: &str = "KHR_texture_transform";
 
@@ -1422,92 +1433,16 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
                 None => {
-                    let pbr = mat.pbr_metallic_roughness();
-                    let c = pbr.base_color_factor();
-                    if !c.iter().all(|v| (0.0..=1.0).contains(v)) {
-                        return Err(err(format!(
-                            "material {} ({:?}): baseColorFactor {c:?} must lie in [0, 1]",
-                            mat.index().map_or("default".to_string(), |i| i.to_string()),
-                            mat.name().unwrap_or("")
-                        )));
-                    }
-                    let (roughness, metallic) = (pbr.roughness_factor(), pbr.metallic_factor());
-                    for (name, value) in
-                        [("roughnessFactor", roughness), ("metallicFactor", metallic)]
-                    {
-                        if !(0.0..=1.0).contains(&value) {
-                            return Err(err(format!(
-                                "material {} ({:?}): {name} {value} must lie in [0, 1]",
+                    note_ignored_material_features(&mat, &mut ignored);
+                    let material = gltf_material(&mat, &buffers, base, &mut b, &mut images)
+                        .map_err(|m| {
+                            err(format!(
+                                "material {} ({:?}): {m}",
                                 mat.index().map_or("default".to_string(), |i| i.to_string()),
                                 mat.name().unwrap_or("")
-                            )));
-                        }
-                    }
-                    note_ignored_material_features(&mat, &mut ignored);
-                    let mut texture = |info: Option<gltf::texture::Info>| {
-                        info.map(|info| {
-                            gltf_texture(
-                                &info.texture(),
-                                info.extension_value(TEXTURE_TRANSFORM),
-                                &buffers,
-                                base,
-                                &mut b,
-                                &mut images,
-                            )
-                            .map_err(|m| {
-                                err(format!(
-                                    "material {} ({:?}): {m}",
-                                    mat.index().map_or("default".to_string(), |i| i.to_string()),
-                                    mat.name().unwrap_or("")
-                                ))
-                            })
-                        })
-                        .transpose()
-                    };
-                    let base_color = texture(pbr.base_color_texture())?;
-                    let metallic_roughness = texture(pbr.metallic_roughness_texture())?;
-                    let normal = mat.normal_texture();
-                    let normal_scale = normal.as_ref().map_or(1.0, |n| n.scale());
-                    if !normal_scale.is_finite() {
-                        return Err(err(format!(
-                            "material {} ({:?}): normalTexture.scale {normal_scale} is not finite",
-                            mat.index().map_or("default".to_string(), |i| i.to_string()),
-                            mat.name().unwrap_or("")
-                        )));
-                    }
-                    let normal = match normal {
-                        Some(n) => Some(
-                            gltf_texture(
-                                &n.texture(),
-                                n.extension_value(TEXTURE_TRANSFORM),
-                                &buffers,
-                                base,
-                                &mut b,
-                                &mut images,
-                            )
-                            .map_err(|m| {
-                                err(format!(
-                                    "material {} ({:?}): normal {m}",
-                                    mat.index().map_or("default".to_string(), |i| i.to_string()),
-                                    mat.name().unwrap_or("")
-                                ))
-                            })?,
-                        ),
-                        None => None,
-                    };
-                    let textures = MaterialTextures {
-                        base_color,
-                        metallic_roughness,
-                        normal,
-                        normal_scale,
-                    };
-                    let id = b.material(Material {
-                        base_color: [c[0], c[1], c[2]],
-                        roughness,
-                        metallic,
-                        specular: 0.5,
-                        textures,
-                    });
+                            ))
+                        })?;
+                    let id = b.material(material);
                     material_ids.insert(key, id);
                     id
                 }
@@ -1526,6 +1461,63 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
         );
     }
     Ok(b)
+}
+
+/// A glTF material as the renderer's: its factors, checked to lie in [0, 1], and its base
+/// colour, metallic-roughness and normal textures (loaded into `b` once per image, see
+/// [`gltf_texture`]). Errors name the property; the caller names the material.
+fn gltf_material(
+    material: &gltf::Material,
+    buffers: &[gltf::buffer::Data],
+    base: &Path,
+    b: &mut Builder,
+    images: &mut std::collections::HashMap<usize, u32>,
+) -> Result<Material, String> {
+    let pbr = material.pbr_metallic_roughness();
+    let c = pbr.base_color_factor();
+    if !c.iter().all(|v| (0.0..=1.0).contains(v)) {
+        return Err(format!("baseColorFactor {c:?} must lie in [0, 1]"));
+    }
+    let (roughness, metallic) = (pbr.roughness_factor(), pbr.metallic_factor());
+    for (name, value) in [("roughnessFactor", roughness), ("metallicFactor", metallic)] {
+        if !(0.0..=1.0).contains(&value) {
+            return Err(format!("{name} {value} must lie in [0, 1]"));
+        }
+    }
+    let mut load = |texture: gltf::Texture, transform: Option<&serde_json::Value>| {
+        gltf_texture(&texture, transform, buffers, base, b, images)
+    };
+    let base_color = pbr
+        .base_color_texture()
+        .map(|t| load(t.texture(), t.extension_value(TEXTURE_TRANSFORM)))
+        .transpose()?;
+    let metallic_roughness = pbr
+        .metallic_roughness_texture()
+        .map(|t| load(t.texture(), t.extension_value(TEXTURE_TRANSFORM)))
+        .transpose()?;
+    let normal = material.normal_texture();
+    let normal_scale = normal.as_ref().map_or(1.0, |n| n.scale());
+    if !normal_scale.is_finite() {
+        return Err(format!("normalTexture.scale {normal_scale} is not finite"));
+    }
+    let normal = normal
+        .map(|n| {
+            load(n.texture(), n.extension_value(TEXTURE_TRANSFORM))
+                .map_err(|m| format!("normal {m}"))
+        })
+        .transpose()?;
+    Ok(Material {
+        base_color: [c[0], c[1], c[2]],
+        roughness,
+        metallic,
+        specular: 0.5,
+        textures: MaterialTextures {
+            base_color,
+            metallic_roughness,
+            normal,
+            normal_scale,
+        },
+    })
 }
 
 /// The texture-coordinate set a glTF material's textures read (the base colour's, else the
@@ -2187,11 +2179,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         Some(map) => {
                             let image = obj_texture(map, base, &mut b)
                                 .map_err(|m| err(format!("material {:?}: map_Kd {m}", mat.name)))?;
-                            Some(TextureRef {
-                                image,
-                                wrap: [Wrap::Repeat; 2],
-                                transform: NO_UV_TRANSFORM,
-                            })
+                            Some(TextureRef::repeating(image))
                         }
                         None => None,
                     };
@@ -2259,9 +2247,8 @@ fn obj_texture(map: &str, base: &Path, b: &mut Builder) -> Result<u32, String> {
     }
     let bytes = crate::read_file::read_regular_file(&file, MAX_SCENE_FILE_BYTES, "a texture")
         .map_err(|e| format!("{}: {e}", file.display()))?;
-    let mut image = decode_texture(&bytes, file.display().to_string())?;
-    image.name = file.display().to_string();
-    b.textures.push(image);
+    b.textures
+        .push(decode_texture(&bytes, file.display().to_string())?);
     Ok((b.textures.len() - 1) as u32)
 }
 
@@ -2532,15 +2519,13 @@ mod tests {
         assert!(close(at(1.25, Wrap::MirroredRepeat), 1.0));
         assert!(close(at(1.75, Wrap::MirroredRepeat), 0.0));
         assert!(close(at(-0.25, Wrap::ClampToEdge), 0.0));
-        assert!(close(at(1e30, Wrap::Repeat), at(1e30, Wrap::Repeat)));
+        // Far-out coordinates (no fraction left in f32) still read a texel.
+        let far = at(1e30, Wrap::Repeat);
+        assert!((0.0..=1.0).contains(&far), "{far}");
         let mut scene = Scene::default_scene();
         scene.textures = vec![image];
         scene.materials[0].base_color = [0.5, 0.5, 0.5];
-        scene.materials[0].textures.base_color = Some(TextureRef {
-            image: 0,
-            wrap: [Wrap::Repeat; 2],
-            transform: NO_UV_TRANSFORM,
-        });
+        scene.materials[0].textures.base_color = Some(TextureRef::repeating(0));
         let v = scene.vertices.iter().position(|v| v.material == 0).unwrap();
         scene.vertices[v].uv = [0.75, 0.5];
         assert_eq!(scene.vertex_base_color(v), [0.5; 3]);

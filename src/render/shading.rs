@@ -138,7 +138,7 @@ pub struct MaterialRaw {
     extra: [f32; 4],
     /// The texture-coordinate transforms of the base-colour, metallic-roughness and normal
     /// textures, two rows (m0, m1, m2, unused) each ([`super::scene::TextureRef::transform`]).
-    uv_transforms: [[f32; 4]; 6],
+    uv_transforms: [[[f32; 4]; 2]; 3],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -157,16 +157,15 @@ impl Material {
             params: [self.roughness, self.metallic, self.specular, flags as f32],
             textures,
             extra: [self.textures.normal_scale, 0.0, 0.0, 0.0],
-            uv_transforms: {
-                let t = &self.textures;
-                let rows = [t.base_color, t.metallic_roughness, t.normal].map(|r| {
-                    let m = r.map_or(super::scene::NO_UV_TRANSFORM, |r| r.transform);
-                    m.map(|[a, b, c]| [a, b, c, 0.0])
-                });
-                [
-                    rows[0][0], rows[0][1], rows[1][0], rows[1][1], rows[2][0], rows[2][1],
-                ]
-            },
+            uv_transforms: [
+                self.textures.base_color,
+                self.textures.metallic_roughness,
+                self.textures.normal,
+            ]
+            .map(|t| {
+                let m = t.map_or(super::scene::NO_UV_TRANSFORM, |t| t.transform);
+                m.map(|[a, b, c]| [a, b, c, 0.0])
+            }),
         }
     }
 }
