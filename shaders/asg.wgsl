@@ -1,6 +1,7 @@
 // ASG lighting pass: Lambertian diffuse + GGX specular (metallic-roughness) under a set of
 // anisotropic spherical Gaussians, in closed form, in linear HDR (rgba32float target). No shadows
-// and no occlusion: every lobe lights every surface facing it.
+// and no occlusion but the material's occlusion texture: every lobe lights every surface facing
+// it. Emission is added as in shade.wgsl.
 //
 // The same maths as src/asg/mod.rs (docs/asg.md; Xu et al. 2013):
 //  * irradiance: E(n) = c · ∫G · H(n·z, ν), ν = 2√(λμ), with H the normalised cosine convolution
@@ -215,5 +216,5 @@ fn fs_main(in: VertexOut) -> @location(0) vec4<f32> {
             specular = specular + c.rgb * ggx_response(k, n, v, alpha);
         }
     }
-    return vec4<f32>(diffuse * irradiance + f0 * specular, 1.0);
+    return vec4<f32>((diffuse * irradiance + f0 * specular) * p.occlusion + p.emission, 1.0);
 }

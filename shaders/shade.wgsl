@@ -1,8 +1,9 @@
 // Main passes: Lambertian diffuse + GGX specular (metallic-roughness) under N directional lights,
 // each with its own PCF-filtered shadow map layer, in linear HDR, shaded deferred:
-//  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into three Rgba32Float
-//    targets: world position with material index + 1 (0: no surface), the interpolated normal
-//    with the roughness, and the base colour with the metallic (factors times textures).
+//  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into four Rgba32Float
+//    targets: world position with material index + 1 (0: no surface), the shading normal with
+//    the roughness, the base colour with the metallic, and the emission with the occlusion
+//    (factors times textures).
 //  * Shading (compute pass: cs_shade, 8×8 workgroups): one invocation per pixel reads the
 //    G-buffer, sums the lights and writes the frame (rgba32float storage texture).
 // So every pixel is shaded once whatever the overdraw, and the light loop runs as compute work,
@@ -59,6 +60,7 @@ struct Light {
 @group(1) @binding(1) var gbuffer_normal: texture_2d<f32>;
 @group(1) @binding(2) var frame: texture_storage_2d<rgba32float, write>;
 @group(1) @binding(3) var gbuffer_surface: texture_2d<f32>;
+@group(1) @binding(4) var gbuffer_emission: texture_2d<f32>;
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
@@ -173,6 +175,8 @@ struct GBuffer {
     @location(1) normal: vec4<f32>,
     // rgb: base colour; a: metallic.
     @location(2) surface: vec4<f32>,
+    // rgb: emitted radiance; a: occlusion.
+    @location(3) emission: vec4<f32>,
 };
 
 @fragment
@@ -182,6 +186,7 @@ fn fs_gbuffer(in: VertexOut) -> GBuffer {
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);
     out.surface = vec4<f32>(p.base_color, p.metallic);
+    out.emission = vec4<f32>(p.emission, p.occlusion);
     return out;
 }
 
@@ -199,11 +204,14 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let normal = textureLoad(gbuffer_normal, texel, 0);
     let surface = textureLoad(gbuffer_surface, texel, 0);
+    let emission = textureLoad(gbuffer_emission, texel, 0);
     var p: SurfaceParams;
     p.base_color = surface.rgb;
     p.roughness = normal.w;
     p.metallic = surface.a;
     p.normal = normal.xyz;
+    p.emission = emission.rgb;
+    p.occlusion = emission.a;
     textureStore(frame, texel, shade_point(g.xyz, normal.xyz, u32(g.w) - 1u, p));
 }
 
@@ -265,5 +273,7 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         }
         return vec4<f32>(0.0, 0.0, 0.0, shadow);
     }
-    return vec4<f32>(radiance, 1.0);
+    // The occlusion texture darkens the light from the environment (the lights), not the
+    // surface's own emission.
+    return vec4<f32>(radiance * p.occlusion + p.emission, 1.0);
 }

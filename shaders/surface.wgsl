@@ -6,27 +6,37 @@
 const PI: f32 = 3.14159265358979;
 const FLAG_CATCHER: u32 = 1u;
 
+// A material's texture slots (src/render/textures.rs, `texture_slots`).
+const TEX_BASE_COLOR: u32 = 0u;
+const TEX_METALLIC_ROUGHNESS: u32 = 1u;
+const TEX_NORMAL: u32 = 2u;
+const TEX_OCCLUSION: u32 = 3u;
+const TEX_EMISSIVE: u32 = 4u;
+
 struct Material {
     base_color: vec4<f32>,
     // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
     params: vec4<f32>,
-    // x: base-colour layer, y: metallic-roughness layer, w: normal layer (negative: none);
-    // z: wrap modes, u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat)
-    // (src/render/textures.rs, `material_layers`).
-    textures: vec4<f32>,
-    // x: the normal texture's scale; y, z, w: unused.
+    // Slot k's layer at layers[k / 4][k % 4] (negative: none): of the base-colour array for
+    // the base-colour and emissive slots, of the data array for the others. layers[1].y: the
+    // wrap modes, slot k's at bits 4k..4k+4 as u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored
+    // repeat). src/render/textures.rs, `MaterialLayers`.
+    layers: array<vec4<f32>, 2>,
+    // x: the normal texture's scale; y: the occlusion texture's strength; z, w: unused.
     extra: vec4<f32>,
-    // The texture-coordinate transforms (KHR_texture_transform) of the base-colour,
-    // metallic-roughness and normal textures, two rows each: the image is read at
-    // (dot(row0.xyz, (u, v, 1)), dot(row1.xyz, (u, v, 1))).
-    uv_transforms: array<vec4<f32>, 6>,
+    // rgb: emitted radiance, times the emissive texture; w: unused.
+    emission: vec4<f32>,
+    // The texture-coordinate transforms (KHR_texture_transform) of the slots, two rows each:
+    // slot k's image is read at (dot(row0.xyz, (u, v, 1)), dot(row1.xyz, (u, v, 1))) with
+    // row0 = uv_transforms[2k], row1 = uv_transforms[2k + 1].
+    uv_transforms: array<vec4<f32>, 10>,
 };
 
-// The materials' textures (src/render/textures.rs): sRGB base colours, and linear
-// data (metallic-roughness: roughness in G, metallic in B; tangent-space normals), one layer per
-// image, all layers of
-// one square side with full mip chains. The sampler repeats; clamping and mirroring are done by
-// `wrap_coordinate`. Bound by the fragment passes (G-buffer, ASG) only.
+// The materials' textures (src/render/textures.rs): sRGB colours (base colours, emission),
+// and linear data (metallic-roughness: roughness in G, metallic in B; tangent-space normals;
+// occlusion in R), one layer per image, all layers of one square side with full mip chains.
+// The sampler repeats; clamping and mirroring are done by `wrap_coordinate`. Bound by the
+// fragment passes (G-buffer, ASG) only.
 @group(2) @binding(0) var base_color_textures: texture_2d_array<f32>;
 @group(2) @binding(1) var data_textures: texture_2d_array<f32>;
 @group(2) @binding(2) var texture_sampler: sampler;
@@ -69,6 +79,11 @@ struct SurfaceParams {
     metallic: f32,
     // The interpolated normal, turned by the normal texture where there is one (any length).
     normal: vec3<f32>,
+    // The fraction of the environment's light that reaches the point (the occlusion texture
+    // at its strength; 1 without one).
+    occlusion: f32,
+    // Emitted radiance.
+    emission: vec3<f32>,
 };
 
 // A texture coordinate wrapped by `mode` for a layer of `texels` a side, for the repeating
@@ -86,26 +101,30 @@ fn wrap_coordinate(t: f32, mode: u32, texels: f32) -> f32 {
     return t;
 }
 
-// Texture `k`'s (0 base colour, 1 metallic-roughness, 2 normal) coordinates at `uv`, and its
-// screen derivatives from uv's (`ddx`, `ddy`): the affine map and its linear part.
-struct TexturePoint {
-    uv: vec2<f32>,
-    ddx: vec2<f32>,
-    ddy: vec2<f32>,
-};
-
-fn texture_point(mat: Material, k: u32, uv: vec2<f32>, ddx: vec2<f32>, ddy: vec2<f32>) -> TexturePoint {
-    let r0 = mat.uv_transforms[2u * k];
-    let r1 = mat.uv_transforms[2u * k + 1u];
-    var t: TexturePoint;
-    t.uv = vec2<f32>(dot(r0.xy, uv) + r0.z, dot(r1.xy, uv) + r1.z);
-    t.ddx = vec2<f32>(dot(r0.xy, ddx), dot(r1.xy, ddx));
-    t.ddy = vec2<f32>(dot(r0.xy, ddy), dot(r1.xy, ddy));
-    return t;
+// Slot `k`'s layer (negative: none).
+fn texture_layer(mat: Material, k: u32) -> f32 {
+    return mat.layers[k / 4u][k % 4u];
 }
 
-fn wrapped(uv: vec2<f32>, mode: u32, texels: f32) -> vec2<f32> {
-    return vec2<f32>(wrap_coordinate(uv.x, mode % 4u, texels), wrap_coordinate(uv.y, mode / 4u, texels));
+// Slot `k`'s texel at texture coordinates `uv` whose screen derivatives are `ddx`, `ddy`: its
+// transform applied to all three, wrapped by its modes, read from the base-colour array
+// (`srgb`) or the data array with explicit gradients. The slot must have a layer.
+fn sample_slot(mat: Material, k: u32, srgb: bool, uv: vec2<f32>, ddx: vec2<f32>, ddy: vec2<f32>) -> vec4<f32> {
+    let r0 = mat.uv_transforms[2u * k];
+    let r1 = mat.uv_transforms[2u * k + 1u];
+    let t = vec2<f32>(dot(r0.xy, uv) + r0.z, dot(r1.xy, uv) + r1.z);
+    let tdx = vec2<f32>(dot(r0.xy, ddx), dot(r1.xy, ddx));
+    let tdy = vec2<f32>(dot(r0.xy, ddy), dot(r1.xy, ddy));
+    let mode = (u32(mat.layers[1].y) >> (4u * k)) & 15u;
+    let layer = i32(texture_layer(mat, k));
+    if srgb {
+        let texels = f32(textureDimensions(base_color_textures).x);
+        let st = vec2<f32>(wrap_coordinate(t.x, mode % 4u, texels), wrap_coordinate(t.y, mode / 4u, texels));
+        return textureSampleGrad(base_color_textures, texture_sampler, st, layer, tdx, tdy);
+    }
+    let texels = f32(textureDimensions(data_textures).x);
+    let st = vec2<f32>(wrap_coordinate(t.x, mode % 4u, texels), wrap_coordinate(t.y, mode / 4u, texels));
+    return textureSampleGrad(data_textures, texture_sampler, st, layer, tdx, tdy);
 }
 
 // The material's parameters at texture coordinate `uv` of a point with interpolated `normal` and
@@ -120,31 +139,29 @@ fn surface_params(mat: Material, uv: vec2<f32>, normal: vec3<f32>, tangent: vec4
     p.roughness = mat.params.x;
     p.metallic = mat.params.y;
     p.normal = normal;
-    let mode = u32(mat.textures.z);
-    if mat.textures.x >= 0.0 {
-        let texels = f32(textureDimensions(base_color_textures).x);
-        let tp = texture_point(mat, 0u, uv, ddx, ddy);
-        let st = wrapped(tp.uv, mode, texels);
-        p.base_color = p.base_color * textureSampleGrad(base_color_textures, texture_sampler, st,
-            i32(mat.textures.x), tp.ddx, tp.ddy).rgb;
+    p.occlusion = 1.0;
+    p.emission = mat.emission.rgb;
+    if texture_layer(mat, TEX_BASE_COLOR) >= 0.0 {
+        p.base_color = p.base_color * sample_slot(mat, TEX_BASE_COLOR, true, uv, ddx, ddy).rgb;
     }
-    if mat.textures.y >= 0.0 {
-        let texels = f32(textureDimensions(data_textures).x);
-        let tp = texture_point(mat, 1u, uv, ddx, ddy);
-        let st = wrapped(tp.uv, mode, texels);
-        let mr = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.y), tp.ddx, tp.ddy);
+    if texture_layer(mat, TEX_METALLIC_ROUGHNESS) >= 0.0 {
+        let mr = sample_slot(mat, TEX_METALLIC_ROUGHNESS, false, uv, ddx, ddy);
         p.roughness = p.roughness * mr.g;
         p.metallic = p.metallic * mr.b;
+    }
+    if texture_layer(mat, TEX_OCCLUSION) >= 0.0 {
+        let ao = sample_slot(mat, TEX_OCCLUSION, false, uv, ddx, ddy).r;
+        p.occlusion = 1.0 + mat.extra.y * (ao - 1.0);
+    }
+    if texture_layer(mat, TEX_EMISSIVE) >= 0.0 && any(p.emission > vec3<f32>(0.0)) {
+        p.emission = p.emission * sample_slot(mat, TEX_EMISSIVE, true, uv, ddx, ddy).rgb;
     }
     // The tangent frame: the tangent made perpendicular to the normal (Gram-Schmidt), the
     // bitangent cross(n, t) · w (glTF); a tangent along the normal leaves the normal as it is.
     let n = normalize(normal);
     let t_perp = tangent.xyz - n * dot(n, tangent.xyz);
-    if mat.textures.w >= 0.0 && dot(t_perp, t_perp) > 1e-12 {
-        let texels = f32(textureDimensions(data_textures).x);
-        let tp = texture_point(mat, 2u, uv, ddx, ddy);
-        let st = wrapped(tp.uv, mode, texels);
-        let texel = textureSampleGrad(data_textures, texture_sampler, st, i32(mat.textures.w), tp.ddx, tp.ddy).xyz;
+    if texture_layer(mat, TEX_NORMAL) >= 0.0 && dot(t_perp, t_perp) > 1e-12 {
+        let texel = sample_slot(mat, TEX_NORMAL, false, uv, ddx, ddy).xyz;
         let m = texel * 2.0 - 1.0;
         let t = normalize(t_perp);
         let b = cross(n, t) * select(1.0, -1.0, tangent.w < 0.0);

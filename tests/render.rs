@@ -1547,7 +1547,7 @@ fn plain_quad(code: [u8; 4]) -> [f32; 3] {
 /// rendered untextured (Lambertian under one frontal light: diffuse = albedo/π · E).
 #[test]
 fn textured_materials_shade_as_their_texels() {
-    use envlight::render::scene::{MaterialTextures, TextureRef, Wrap};
+    use envlight::render::scene::{TextureRef, Wrap};
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let lambertian = |base_color: [f32; 3]| Material::lambertian(base_color);
     let render = |scene: Scene| render_quad(scene, &lights);
@@ -1600,7 +1600,7 @@ fn textured_materials_shade_as_their_texels() {
         roughness: 0.6,
         metallic: 1.0,
         specular: 0.5,
-        textures: MaterialTextures::default(),
+        ..Default::default()
     };
     let reference = |metallic: f32| {
         let (r, img) = render(textured_quad(Material { metallic, ..metal }, vec![], 1.0));
@@ -1662,6 +1662,112 @@ fn asg_lighting_reads_base_colour_textures() {
     let (left, right) = quad_halves(&r, &img);
     assert_close("ASG, green texels", left, green_left, 0.005);
     assert_close("ASG, grey texels", right, grey_right, 0.005);
+}
+
+/// An occlusion texture scales the light a surface reflects by 1 + strength · (R − 1), and an
+/// emissive texture's (sRGB-decoded) texels times the material's emission are added to it —
+/// alone under no lights — in the lit and the ASG passes. Each texture keeps its own wrap
+/// modes: a clamped base colour beside a mirrored occlusion texture.
+#[test]
+fn occlusion_and_emissive_textures_darken_and_glow() {
+    use envlight::asg::Asg;
+    use envlight::render::scene::{TextureRef, Wrap};
+    use glam::DVec3;
+    // Occlusion in R: 64 (0.251 open) on the left texels, 255 (open) on the right.
+    const DARK: [u8; 4] = [64, 0, 0, 255];
+    const OPEN: [u8; 4] = [255, 0, 0, 255];
+    let ao = 64.0 / 255.0;
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let occlusion_row = texture_row(4, |x| if x < 2 { DARK } else { OPEN });
+    let colour_row = texture_row(4, |x| if x < 2 { RED } else { BLUE });
+    let white = Material::lambertian([1.0; 3]);
+    let (plain_r, plain_img) = render_quad(textured_quad(white, vec![], 1.0), &lights);
+    let (plain_left, plain_right) = quad_halves(&plain_r, &plain_img);
+    let plain_asg = {
+        let mut r = renderer(textured_quad(white, vec![], 1.0), quad_settings());
+        let (img, _) = r.render_asg(&lobes).unwrap();
+        quad_halves(&r, &img)
+    };
+    let scaled = |c: [f32; 3], k: f32| c.map(|v| v * k);
+    for strength in [1.0, 0.5] {
+        let mut material = white;
+        material.textures.occlusion = Some(TextureRef::repeating(0));
+        material.textures.occlusion_strength = strength;
+        let k = 1.0 + strength * (ao - 1.0);
+        let scene = textured_quad(material, vec![occlusion_row.clone()], 1.0);
+        let (r, img) = render_quad(scene.clone(), &lights);
+        let (left, right) = quad_halves(&r, &img);
+        assert_close(
+            &format!("occluded texels, strength {strength}"),
+            left,
+            scaled(plain_left, k),
+            0.01,
+        );
+        assert_close("open texels", right, plain_right, 0.01);
+        let mut r = renderer(scene, quad_settings());
+        let (img, _) = r.render_asg(&lobes).unwrap();
+        let (left, right) = quad_halves(&r, &img);
+        assert_close(
+            &format!("ASG, occluded texels, strength {strength}"),
+            left,
+            scaled(plain_asg.0, k),
+            0.01,
+        );
+        assert_close("ASG, open texels", right, plain_asg.1, 0.01);
+    }
+    // Emission: factor × decoded texel, added to what is reflected.
+    let emission = [2.0, 1.0, 0.5];
+    let mut glowing = white;
+    glowing.emission = emission;
+    glowing.textures.emissive = Some(TextureRef::repeating(0));
+    let glow = |code: [u8; 4]| [0, 1, 2].map(|c| emission[c] * srgb_code_to_linear(code[c]));
+    let scene = textured_quad(glowing, vec![colour_row.clone()], 1.0);
+    let (r, img) = render_quad(scene.clone(), &[]);
+    let (left, right) = quad_halves(&r, &img);
+    assert_close("emission alone, red texels", left, glow(RED), 0.01);
+    assert_close("emission alone, blue texels", right, glow(BLUE), 0.01);
+    let (r, img) = render_quad(scene.clone(), &lights);
+    let (left, _) = quad_halves(&r, &img);
+    let sum = |a: [f32; 3], b: [f32; 3]| [0, 1, 2].map(|c| a[c] + b[c]);
+    assert_close("emission and light", left, sum(plain_left, glow(RED)), 0.01);
+    let mut r = renderer(scene, quad_settings());
+    let (img, _) = r.render_asg(&lobes).unwrap();
+    let (left, _) = quad_halves(&r, &img);
+    assert_close(
+        "ASG, emission and light",
+        left,
+        sum(plain_asg.0, glow(RED)),
+        0.01,
+    );
+    // Wrap modes per texture, u from 0 to 2: the base colour clamps (blue beyond u = 1), the
+    // occlusion texture mirrors (open at u = 1.15…1.35, occluded at u = 1.65…1.85).
+    let mut material = white;
+    material.textures.base_color = Some(TextureRef {
+        wrap: [Wrap::ClampToEdge; 2],
+        ..TextureRef::repeating(0)
+    });
+    material.textures.occlusion = Some(TextureRef {
+        wrap: [Wrap::MirroredRepeat; 2],
+        ..TextureRef::repeating(1)
+    });
+    let (r, img) = render_quad(
+        textured_quad(material, vec![colour_row, occlusion_row], 2.0),
+        &lights,
+    );
+    let blue = plain_quad(BLUE);
+    assert_close(
+        "clamped blue, mirrored open",
+        mean_over(&r, &img, 0.15..0.35),
+        blue,
+        0.01,
+    );
+    assert_close(
+        "clamped blue, mirrored occluded",
+        mean_over(&r, &img, 0.65..0.85),
+        scaled(blue, ao),
+        0.01,
+    );
 }
 
 /// A normal texture turns the shading normal in the tangent frame: x along the tangent
@@ -1769,7 +1875,8 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
         .collect();
     bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
     std::fs::write(d.join("quad.bin"), &bin).unwrap();
-    let gltf = r#"{"asset":{"version":"2.0"},"extensionsUsed":["KHR_materials_emissive_strength"],
+    let gltf = r#"{"asset":{"version":"2.0"},
+        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_clearcoat"],
         "scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
         "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,"material":0}]}],
         "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":1},
@@ -1797,20 +1904,20 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     for needle in [
         "textures: 2 layers of 8²",
         "not drawn",
-        "emission",
         "alpha modes (drawn opaque)",
-        "extension KHR_materials_emissive_strength",
+        "extension KHR_materials_clearcoat",
     ] {
         assert!(
             stderr.contains(needle),
             "{needle:?} missing from:\n{stderr}"
         );
     }
+    // What is drawn is not named: the normal texture, the emission and its strength.
     let left_out = stderr.split("textures): ").nth(1).unwrap_or("");
-    assert!(
-        !left_out.lines().next().unwrap_or("").contains("normal"),
-        "{stderr}"
-    );
+    let left_out = left_out.lines().next().unwrap_or("");
+    for drawn in ["normal", "emissi"] {
+        assert!(!left_out.contains(drawn), "{drawn}: {stderr}");
+    }
     let png = image::open(d.join("out/frame_00000.png")).unwrap();
     assert_eq!((png.width(), png.height()), (32, 24));
     std::fs::remove_file(d.join("tex.png")).unwrap();

@@ -363,6 +363,10 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
     let albedo: Vec<[f32; 3]> = (0..scene.vertices.len())
         .map(|i| scene.vertex_base_color(i))
         .collect();
+    // What the materials emit (glTF's emission), added to the reflected light.
+    let emission: Vec<[f32; 3]> = (0..scene.vertices.len())
+        .map(|i| scene.vertex_emission(i))
+        .collect();
     let grid = Grid::new(args.size, args.basis, None)?;
     // Before the ray casting: a precomputation past the machine's memory would abort the process
     // when its allocation failed (a mesh of tens of millions of vertices loads).
@@ -427,11 +431,12 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
         light.set(&grid, &set)?;
         transport.relight(&light, &mut out)?;
         let relight_ms = t.elapsed().as_secs_f64() * 1e3;
-        if lambert {
-            for (o, a) in out.iter_mut().zip(&albedo) {
-                for c in 0..3 {
+        for ((o, a), e) in out.iter_mut().zip(&albedo).zip(&emission) {
+            for c in 0..3 {
+                if lambert {
                     o[c] *= a[c];
                 }
+                o[c] += e[c];
             }
         }
         let check = (args.check > 0).then(|| {
@@ -442,10 +447,11 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
             for v in (0..n).map(|i| i * step) {
                 let slice = grid.brdf_slice(brdf, mesh.normals[v], view.at(mesh.positions[v]));
                 let mut b = brute_force(&grid, &vis, v, &slice, &texels);
-                if lambert {
-                    for c in 0..3 {
+                for c in 0..3 {
+                    if lambert {
                         b[c] *= f64::from(albedo[v][c]);
                     }
+                    b[c] += f64::from(emission[v][c]);
                 }
                 let norm = (b.iter().map(|x| x * x).sum::<f64>()).sqrt();
                 if norm <= 0.0 {

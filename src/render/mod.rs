@@ -13,14 +13,15 @@
 //!    one render pass per 8192² layer of 256 tiles set by viewport and scissor, was tried on
 //!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.)
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
-//!    into three `Rgba32Float` targets: world position with material, shading normal (turned by
-//!    a normal texture) with roughness, and base colour with metallic — the material's factors
-//!    times its textures ([`textures`]), sampled here where the screen derivatives that choose
-//!    their mip level exist.
+//!    into four `Rgba32Float` targets: world position with material, shading normal (turned by
+//!    a normal texture) with roughness, base colour with metallic, and emission with occlusion
+//!    — the material's factors times its textures ([`textures`]), sampled here where the
+//!    screen derivatives that choose their mip level exist.
 //! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
 //!    Lambertian diffuse + GGX specular (metallic-roughness) over the lights, each times its
 //!    PCF-filtered shadow visibility; a light's solid angle widens both its PCF kernel (softer
-//!    shadows for merged lights) and its specular lobe. It writes an `Rgba32Float` frame (linear
+//!    shadows for merged lights) and its specular lobe. The sum is scaled by the occlusion
+//!    texture's value and the emission added. It writes an `Rgba32Float` frame (linear
 //!    HDR, premultiplied alpha over a transparent background). Deferred, each pixel is shaded
 //!    once whatever the overdraw, and the light loop is compute work, which every
 //!    multiprocessor of a GPU runs: on an H200, whose graphics pipeline has a small part of the
@@ -43,7 +44,7 @@
 //!
 //! **ASG lighting** ([`Renderer::render_asg`], module [`asg`], `shaders/asg.wgsl`): the same
 //! scene shaded in closed form under anisotropic spherical Gaussians instead of lights — one
-//! pass, no shadow maps, no occlusion.
+//! pass, no shadow maps, no occlusion but the materials' occlusion textures.
 //!
 //! Mixed reality: with [`RenderSettings::shadow_catcher`], the ground outputs (0, 0, 0, α) with
 //! α = 1 − E_shadowed/E_unshadowed, so the RGBA image composites over the camera picture (or
@@ -229,7 +230,7 @@ pub struct Renderer {
     shade_bind_group: wgpu::BindGroup,
     shadow_cam_bind_group: wgpu::BindGroup,
     /// The G-buffer's textures (position + material, normal + roughness, base colour +
-    /// metallic) and the frame, for `cs_shade`.
+    /// metallic, emission + occlusion) and the frame, for `cs_shade`.
     gbuffer_bind_group: wgpu::BindGroup,
     gbuffer_pipeline: wgpu::RenderPipeline,
     shade_pipeline: wgpu::ComputePipeline,
@@ -252,8 +253,9 @@ pub struct Renderer {
     no_shadow_depths: wgpu::Buffer,
 }
 
-/// The G-buffer's targets: position + material, normal + roughness, base colour + metallic.
-const GBUFFER_TARGETS: usize = 3;
+/// The G-buffer's targets: position + material, normal + roughness, base colour + metallic,
+/// emission + occlusion.
+const GBUFFER_TARGETS: usize = 4;
 
 /// The vertex attributes the surface passes (G-buffer, ASG) read: position, normal, material,
 /// texture coordinates, tangent (`shaders/surface.wgsl`, `VertexIn`).
@@ -525,6 +527,7 @@ impl Renderer {
                 gbuffer_texture(0),
                 gbuffer_texture(1),
                 gbuffer_texture(3),
+                gbuffer_texture(4),
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility: wgpu::ShaderStages::COMPUTE,
@@ -615,6 +618,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 3,
                     resource: wgpu::BindingResource::TextureView(&gbuffer_views[2]),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::TextureView(&gbuffer_views[3]),
                 },
             ],
         });
@@ -778,13 +785,19 @@ impl Renderer {
     }
 
     /// The G-buffer's targets (`Rgba32Float`): world position + material, normal + roughness,
-    /// base colour + metallic.
+    /// base colour + metallic, emission + occlusion.
     fn make_gbuffer(
         device: &wgpu::Device,
         width: u32,
         height: u32,
     ) -> [wgpu::TextureView; GBUFFER_TARGETS] {
-        ["g-buffer position", "g-buffer normal", "g-buffer surface"].map(|label| {
+        [
+            "g-buffer position",
+            "g-buffer normal",
+            "g-buffer surface",
+            "g-buffer emission",
+        ]
+        .map(|label| {
             device
                 .create_texture(&wgpu::TextureDescriptor {
                     label: Some(label),

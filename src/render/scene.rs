@@ -102,6 +102,11 @@ impl TextureRef {
             transform: NO_UV_TRANSFORM,
         }
     }
+
+    /// Where the image is read for texture coordinates `uv`: [`TextureRef::transform`] applied.
+    pub fn image_coordinates(&self, uv: [f32; 2]) -> [f32; 2] {
+        self.transform.map(|[a, b, c]| a * uv[0] + b * uv[1] + c)
+    }
 }
 
 /// The glTF extension that transforms texture coordinates, read from each texture's extensions.
@@ -164,7 +169,7 @@ fn uv_transform(value: &serde_json::Value) -> Result<([[f32; 3]; 2], Option<u32>
 }
 
 /// The textures of a material, each multiplying its factor (glTF's metallic-roughness model),
-/// and its tangent-space normal texture.
+/// its tangent-space normal texture, its ambient-occlusion texture and its emission texture.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MaterialTextures {
     /// sRGB-encoded base colour (RGB; alpha is not used).
@@ -176,6 +181,14 @@ pub struct MaterialTextures {
     pub normal: Option<TextureRef>,
     /// Scales the normal's x and y (glTF's `normalTexture.scale`).
     pub normal_scale: f32,
+    /// Linear; in R, the fraction of the environment's light that reaches the surface (glTF's
+    /// `occlusionTexture`: 0 fully occluded, 1 open).
+    pub occlusion: Option<TextureRef>,
+    /// How much of the occlusion applies (glTF's `occlusionTexture.strength`, in [0, 1]): the
+    /// light is scaled by 1 + strength · (R − 1).
+    pub occlusion_strength: f32,
+    /// sRGB-encoded emission (RGB), multiplying [`Material::emission`].
+    pub emissive: Option<TextureRef>,
 }
 
 impl Default for MaterialTextures {
@@ -185,6 +198,9 @@ impl Default for MaterialTextures {
             metallic_roughness: None,
             normal: None,
             normal_scale: 1.0,
+            occlusion: None,
+            occlusion_strength: 1.0,
+            emissive: None,
         }
     }
 }
@@ -262,7 +278,12 @@ pub struct Material {
     /// Dielectric specular level (Filament's): F0 = 0.16 · specular²; 0.5 gives F0 = 0.04.
     /// 0 makes a dielectric purely Lambertian.
     pub specular: f32,
-    /// Textures multiplying `base_color`, `roughness` and `metallic`.
+    /// Emitted radiance (linear RGB, W·sr⁻¹·m⁻² in the lights' units), added to the light the
+    /// surface reflects: glTF's `emissiveFactor` times `KHR_materials_emissive_strength`.
+    /// Zero for a surface that does not glow.
+    pub emission: [f32; 3],
+    /// Textures multiplying `base_color`, `roughness`, `metallic` and `emission`, the normal
+    /// texture and the occlusion texture.
     pub textures: MaterialTextures,
 }
 
@@ -273,6 +294,7 @@ impl Default for Material {
             roughness: 0.5,
             metallic: 0.0,
             specular: 0.5,
+            emission: [0.0; 3],
             textures: MaterialTextures::default(),
         }
     }
@@ -286,7 +308,7 @@ impl Material {
             roughness: 1.0,
             metallic: 0.0,
             specular: 0.0,
-            textures: MaterialTextures::default(),
+            ..Self::default()
         }
     }
 }
@@ -635,21 +657,21 @@ impl Scene {
             roughness: 0.15,
             metallic: 0.0,
             specular: 0.5,
-            textures: MaterialTextures::default(),
+            ..Material::default()
         });
         let metal = b.material(Material {
             base_color: [0.95, 0.8, 0.5],
             roughness: 0.35,
             metallic: 1.0,
             specular: 0.5,
-            textures: MaterialTextures::default(),
+            ..Material::default()
         });
         let rough = b.material(Material {
             base_color: [0.2, 0.5, 0.85],
             roughness: 0.8,
             metallic: 0.0,
             specular: 0.5,
-            textures: MaterialTextures::default(),
+            ..Material::default()
         });
         let matte = b.material(Material::lambertian([0.75, 0.75, 0.7]));
         b.uv_sphere(Vec3::new(-1.15, 0.5, 0.0), 0.5, 48, glossy);
@@ -670,7 +692,7 @@ impl Scene {
                     roughness: 0.9,
                     metallic: 0.0,
                     specular: 0.5,
-                    textures: MaterialTextures::default(),
+                    ..Material::default()
                 },
             }),
             Some(camera),
@@ -775,7 +797,7 @@ impl Scene {
                 roughness: 0.9,
                 metallic: 0.0,
                 specular: 0.5,
-                textures: MaterialTextures::default(),
+                ..Material::default()
             },
         });
         Ok(b.finish(g, None))
@@ -785,18 +807,33 @@ impl Scene {
     /// sampled bilinearly at the vertex's texture coordinates — for per-vertex shading (the
     /// wavelet relighting's albedo). White past the vertex list.
     pub fn vertex_base_color(&self, index: usize) -> [f32; 3] {
-        let Some(v) = self.vertices.get(index) else {
-            return [1.0; 3];
-        };
-        let Some(m) = self.materials.get(v.material as usize) else {
-            return [1.0; 3];
-        };
-        let texel = m
-            .textures
-            .base_color
-            .and_then(|t| Some((self.textures.get(t.image as usize)?, t.wrap)))
-            .map_or([1.0; 3], |(image, wrap)| image.sample_srgb(v.uv, wrap));
-        [0, 1, 2].map(|c| m.base_color[c] * texel[c])
+        self.vertex_color(index, |m| (m.base_color, m.textures.base_color))
+            .unwrap_or([1.0; 3])
+    }
+
+    /// The emitted radiance (linear) at vertex `index`: its material's emission times its
+    /// emissive texture, as [`Scene::vertex_base_color`] reads the base colour. Zero past the
+    /// vertex list.
+    pub fn vertex_emission(&self, index: usize) -> [f32; 3] {
+        self.vertex_color(index, |m| (m.emission, m.textures.emissive))
+            .unwrap_or([0.0; 3])
+    }
+
+    /// A factor of vertex `index`'s material times its sRGB texture (`pick` chooses both) at
+    /// the vertex's texture coordinates; `None` past the vertex or material list.
+    fn vertex_color(
+        &self,
+        index: usize,
+        pick: impl Fn(&Material) -> ([f32; 3], Option<TextureRef>),
+    ) -> Option<[f32; 3]> {
+        let v = self.vertices.get(index)?;
+        let (factor, texture) = pick(self.materials.get(v.material as usize)?);
+        let texel = texture
+            .and_then(|t| Some((self.textures.get(t.image as usize)?, t)))
+            .map_or([1.0; 3], |(image, t)| {
+                image.sample_srgb(t.image_coordinates(v.uv), t.wrap)
+            });
+        Some([0, 1, 2].map(|c| factor[c] * texel[c]))
     }
 
     /// Number of triangles that cast shadows.
@@ -1176,8 +1213,9 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     let mut images = std::collections::HashMap::new();
     let mut ignored = std::collections::BTreeSet::<String>::new();
     for extension in gltf.document.extensions_used() {
-        // None is drawn (KHR_materials_*, …) but the texture transform.
-        if extension != TEXTURE_TRANSFORM {
+        // None is drawn (KHR_materials_*, …) but the texture transform and the emissive
+        // strength.
+        if extension != TEXTURE_TRANSFORM && extension != EMISSIVE_STRENGTH {
             ignored.insert(format!("extension {extension}"));
         }
     }
@@ -1454,8 +1492,8 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     }
     if !ignored.is_empty() {
         tracing::warn!(
-            "{}: not drawn (envlight renders base colour, metallic and roughness, with their \
-             textures, and normal textures): {}",
+            "{}: not drawn (envlight renders base colour, metallic, roughness and emission, \
+             with their textures, and normal and occlusion textures): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -1506,18 +1544,69 @@ fn gltf_material(
                 .map_err(|m| format!("normal {m}"))
         })
         .transpose()?;
+    let occlusion = material.occlusion_texture();
+    let occlusion_strength = occlusion.as_ref().map_or(1.0, |o| o.strength());
+    if !(0.0..=1.0).contains(&occlusion_strength) {
+        return Err(format!(
+            "occlusionTexture.strength {occlusion_strength} must lie in [0, 1]"
+        ));
+    }
+    let occlusion = occlusion
+        .map(|o| {
+            load(o.texture(), o.extension_value(TEXTURE_TRANSFORM))
+                .map_err(|m| format!("occlusion {m}"))
+        })
+        .transpose()?;
+    let emissive = material
+        .emissive_texture()
+        .map(|t| {
+            load(t.texture(), t.extension_value(TEXTURE_TRANSFORM))
+                .map_err(|m| format!("emissive {m}"))
+        })
+        .transpose()?;
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
         roughness,
         metallic,
         specular: 0.5,
+        emission: gltf_emission(material)?,
         textures: MaterialTextures {
             base_color,
             metallic_roughness,
             normal,
             normal_scale,
+            occlusion,
+            occlusion_strength,
+            emissive,
         },
     })
+}
+
+/// The glTF extension that scales a material's emission past 1.
+const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
+
+/// A glTF material's emitted radiance: `emissiveFactor` (each in [0, 1]) times its
+/// `KHR_materials_emissive_strength.emissiveStrength` (finite, ≥ 0; 1 without the extension).
+/// Errors name the property.
+fn gltf_emission(material: &gltf::Material) -> Result<[f32; 3], String> {
+    let factor = material.emissive_factor();
+    if !factor.iter().all(|v| (0.0..=1.0).contains(v)) {
+        return Err(format!("emissiveFactor {factor:?} must lie in [0, 1]"));
+    }
+    let strength = match material
+        .extension_value(EMISSIVE_STRENGTH)
+        .and_then(|e| e.get("emissiveStrength"))
+    {
+        None => 1.0,
+        Some(v) => v
+            .as_f64()
+            .map(|x| x as f32)
+            .filter(|x| x.is_finite() && *x >= 0.0)
+            .ok_or_else(|| {
+                format!("{EMISSIVE_STRENGTH}.emissiveStrength {v} is not a finite number ≥ 0")
+            })?,
+    };
+    Ok(factor.map(|f| f * strength))
 }
 
 /// The texture-coordinate set a glTF material's textures read (the base colour's, else the
@@ -1539,6 +1628,13 @@ fn texture_coordinate_set(material: &gltf::Material, path: &Path) -> Option<u32>
                 .normal_texture()
                 .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
         ),
+        (
+            "occlusion",
+            material
+                .occlusion_texture()
+                .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
+        ),
+        ("emissive", material.emissive_texture().map(info_set)),
     ];
     let mut used = sets.iter().filter_map(|&(name, set)| Some((name, set?)));
     let (first_name, first) = used.next()?;
@@ -1560,12 +1656,6 @@ fn note_ignored_material_features(
     material: &gltf::Material,
     ignored: &mut std::collections::BTreeSet<String>,
 ) {
-    if material.occlusion_texture().is_some() {
-        ignored.insert("occlusion textures".into());
-    }
-    if material.emissive_texture().is_some() || material.emissive_factor() != [0.0; 3] {
-        ignored.insert("emission".into());
-    }
     if material.alpha_mode() != gltf::material::AlphaMode::Opaque {
         ignored.insert("alpha modes (drawn opaque)".into());
     }
@@ -2188,6 +2278,7 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         roughness: roughness.clamp(0.0, 1.0),
                         metallic: 0.0,
                         specular: 0.5,
+                        emission: [0.0; 3],
                         textures: MaterialTextures {
                             base_color,
                             ..Default::default()
@@ -2652,6 +2743,62 @@ mod tests {
         std::fs::write(&p, text.replace("[2,2]", "[2]")).unwrap();
         let e = Scene::load(&p, false).unwrap_err().to_string();
         assert!(e.contains("KHR_texture_transform.scale"), "{e}");
+    }
+
+    /// glTF's occlusion texture (with its strength) and emission (factor × the emissive
+    /// strength extension, times the emissive texture) load, and the vertex emission samples
+    /// them; out-of-range values are errors naming the property; the extension is not named as
+    /// not drawn.
+    #[test]
+    fn occlusion_and_emission_load_with_their_strengths() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let with = |occlusion: &str, emissive: &str, strength: &str| {
+            text.replace(
+                r#""normalTexture":{"index":0}"#,
+                &format!(
+                    r#""normalTexture":{{"index":0}},
+                    "occlusionTexture":{{"index":0,"strength":{occlusion}}},
+                    "emissiveTexture":{{"index":0}},"emissiveFactor":{emissive},
+                    "extensions":{{"KHR_materials_emissive_strength":{{"emissiveStrength":{strength}}}}}"#
+                ),
+            )
+            .replacen(
+                "{",
+                r#"{"extensionsUsed":["KHR_materials_emissive_strength"],"#,
+                1,
+            )
+        };
+        let p = d.join("glowing.gltf");
+        std::fs::write(&p, with("0.25", "[1,0.5,0]", "4")).unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        let m = s.materials[0];
+        let want = TextureRef {
+            image: 0,
+            wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
+            transform: NO_UV_TRANSFORM,
+        };
+        assert_eq!(m.textures.occlusion, Some(want));
+        assert_eq!(m.textures.occlusion_strength, 0.25);
+        assert_eq!(m.textures.emissive, Some(want));
+        assert_eq!(m.emission, [4.0, 2.0, 0.0]);
+        // Vertex 0 sits at uv (0, 0): the red texel's centre is at u = 0.25, clamped left of
+        // it; vertex 1 at u = 1, clamped to the blue texel.
+        assert_eq!(s.vertex_emission(0), [4.0, 0.0, 0.0]);
+        assert_eq!(s.vertex_emission(1), [0.0; 3]);
+        assert_eq!(s.vertex_emission(99), [0.0; 3]);
+        for (bad, needle) in [
+            (with("1.5", "[1,0,0]", "1"), "occlusionTexture.strength 1.5"),
+            (with("1", "[2,0,0]", "1"), "emissiveFactor"),
+            (with("1", "[1,0,0]", "-1"), "emissiveStrength -1"),
+            (with("1", "[1,0,0]", "\"big\""), "emissiveStrength"),
+        ] {
+            std::fs::write(&p, bad).unwrap();
+            let e = Scene::load(&p, false).unwrap_err().to_string();
+            assert!(e.contains("glowing.gltf") && e.contains(needle), "{e}");
+        }
     }
 
     /// An MTL's map_Kd loads (relative to the OBJ's folder), with the OBJ's vt flipped to

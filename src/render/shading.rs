@@ -5,6 +5,7 @@
 use super::scene::Material;
 use super::shadow;
 use super::shadow_raster::ShadowRaster;
+use super::textures::{texture_slots, MaterialLayers, TEXTURE_SLOTS};
 use crate::light::Light;
 use glam::{Mat4, Vec3};
 
@@ -131,14 +132,17 @@ impl GpuLight {
 pub struct MaterialRaw {
     base_color: [f32; 4],
     params: [f32; 4],
-    /// Base-colour layer, metallic-roughness layer (−1: none), wrap modes, normal layer
-    /// ([`super::textures::material_layers`]).
-    textures: [f32; 4],
-    /// x: the normal texture's scale; y, z, w: unused.
+    /// The layers of the base-colour, metallic-roughness, normal and occlusion textures, then
+    /// of the emissive texture, the wrap modes and (unused) zeros
+    /// ([`super::textures::MaterialLayers`]); −1: no texture.
+    layers: [[f32; 4]; 2],
+    /// x: the normal texture's scale; y: the occlusion texture's strength; z, w: unused.
     extra: [f32; 4],
-    /// The texture-coordinate transforms of the base-colour, metallic-roughness and normal
-    /// textures, two rows (m0, m1, m2, unused) each ([`super::scene::TextureRef::transform`]).
-    uv_transforms: [[[f32; 4]; 2]; 3],
+    /// rgb: emitted radiance (the emissive texture multiplies it); w: unused.
+    emission: [f32; 4],
+    /// The texture-coordinate transforms of the textures in slot order, two rows
+    /// (m0, m1, m2, unused) each ([`super::scene::TextureRef::transform`]).
+    uv_transforms: [[[f32; 4]; 2]; TEXTURE_SLOTS],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -146,7 +150,9 @@ pub const FLAG_CATCHER: u32 = 1;
 
 impl Material {
     /// The shaders' form, with its texture layers from [`super::textures::material_layers`].
-    pub fn to_raw(&self, flags: u32, textures: [f32; 4]) -> MaterialRaw {
+    pub fn to_raw(&self, flags: u32, textures: MaterialLayers) -> MaterialRaw {
+        let [l0, l1, l2, l3, l4] = textures.layers;
+        let [r, g, b] = self.emission;
         MaterialRaw {
             base_color: [
                 self.base_color[0],
@@ -155,14 +161,16 @@ impl Material {
                 1.0,
             ],
             params: [self.roughness, self.metallic, self.specular, flags as f32],
-            textures,
-            extra: [self.textures.normal_scale, 0.0, 0.0, 0.0],
-            uv_transforms: [
-                self.textures.base_color,
-                self.textures.metallic_roughness,
-                self.textures.normal,
-            ]
-            .map(|t| {
+            // The wrap modes use 4 · TEXTURE_SLOTS = 20 bits: exact in an f32.
+            layers: [[l0, l1, l2, l3], [l4, textures.wrap_modes as f32, 0.0, 0.0]],
+            extra: [
+                self.textures.normal_scale,
+                self.textures.occlusion_strength,
+                0.0,
+                0.0,
+            ],
+            emission: [r, g, b, 0.0],
+            uv_transforms: texture_slots(&self.textures).map(|t| {
                 let m = t.map_or(super::scene::NO_UV_TRANSFORM, |t| t.transform);
                 m.map(|[a, b, c]| [a, b, c, 0.0])
             }),
@@ -179,7 +187,7 @@ mod tests {
         // WGSL: Globals = mat4 + vec4 + 4×u32 + vec4; Light = 2×vec4 + mat4 + vec4.
         assert_eq!(std::mem::size_of::<GlobalsRaw>(), 112);
         assert_eq!(std::mem::size_of::<LightRaw>(), 112);
-        assert_eq!(std::mem::size_of::<MaterialRaw>(), 160);
+        assert_eq!(std::mem::size_of::<MaterialRaw>(), 256);
     }
 
     #[test]

@@ -1,20 +1,21 @@
 //! The scene's texture images on the GPU.
 //!
 //! The scene is drawn in one draw call, so a material's textures cannot be bound per draw:
-//! they are layers of two 2D array textures, one of sRGB base colours (`Rgba8UnormSrgb`,
-//! filtered in linear light by the sampler) and one of linear data (`Rgba8Unorm`:
-//! metallic-roughness, roughness in G and metallic in B; tangent-space normals), each layer one
-//! image resampled to the arrays' common square side. The materials' table carries each material's layers and
-//! wrap modes ([`material_layers`]); `shaders/surface.wgsl` (`surface_params`) samples them in
-//! the fragment stages (the G-buffer and ASG passes), with explicit gradients so that the
-//! mip level follows the screen footprint whatever the material.
+//! they are layers of two 2D array textures, one of sRGB colours (`Rgba8UnormSrgb`, filtered
+//! in linear light by the sampler: base colours and emission) and one of linear data
+//! (`Rgba8Unorm`: metallic-roughness, roughness in G and metallic in B; tangent-space normals;
+//! occlusion in R), each layer one image resampled to the arrays' common square side. A
+//! material has up to [`TEXTURE_SLOTS`] textures; the materials' table carries each one's
+//! layer and wrap modes ([`material_layers`]); `shaders/surface.wgsl` (`surface_params`)
+//! samples them in the fragment stages (the G-buffer and ASG passes), with explicit gradients
+//! so that the mip level follows the screen footprint whatever the material.
 //!
 //! Steps, once per scene:
-//! 1. [`plan_layers`]: which images each array needs (an image used both as a base colour and
-//!    as data gets a layer in each) and the side: the largest image's longer side rounded up
+//! 1. [`plan_layers`]: which images each array needs (an image used both as a colour and as
+//!    data gets a layer in each) and the side: the largest image's longer side rounded up
 //!    to a power of two, at most [`MAX_LAYER_SIDE`] and the device's limit, halved until all
 //!    layers with their mip chains fit [`MAX_TEXTURE_BYTES`] (logged when it shrinks).
-//! 2. Each image is decoded to linear light (sRGB for base colours), resampled to the side
+//! 2. Each image is decoded to linear light (sRGB for colours), resampled to the side
 //!    with a triangle filter (`image::imageops`, which widens the filter when shrinking), and
 //!    its mip chain built by 2 × 2 box averages, all in linear light; then encoded back to
 //!    8 bits and uploaded. The chains are made on rayon's threads, as many images at a time as
@@ -23,7 +24,7 @@
 //! A scene without textures binds 1 × 1 placeholder arrays that no material reads.
 
 use super::output::srgb_eotf;
-use super::scene::{Scene, TextureImage, Wrap};
+use super::scene::{MaterialTextures, Scene, TextureImage, TextureRef, Wrap};
 
 /// The largest side of a texture layer, in texels (a 2048² layer and its mips take 21 MiB).
 pub const MAX_LAYER_SIDE: u32 = 2048;
@@ -34,9 +35,10 @@ pub const MAX_TEXTURE_BYTES: u64 = 1 << 30;
 /// Which scene images go into which array, and the layers' side.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LayerPlan {
-    /// Images of [`Scene::textures`] in the base-colour array, layer by layer.
+    /// Images of [`Scene::textures`] in the sRGB colour array (base colour and emissive
+    /// textures), layer by layer.
     pub base_color: Vec<u32>,
-    /// The same for the data array (metallic-roughness and normal textures).
+    /// The same for the data array (metallic-roughness, normal and occlusion textures).
     pub data: Vec<u32>,
     /// The layers' side in texels (1 when there are no textures).
     pub side: u32,
@@ -58,17 +60,15 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
     let mut base_color = Vec::new();
     let mut data = Vec::new();
     for m in &scene.materials {
-        if let Some(t) = m.textures.base_color {
-            if !base_color.contains(&t.image) {
-                base_color.push(t.image);
-            }
-        }
-        for t in [m.textures.metallic_roughness, m.textures.normal]
-            .into_iter()
-            .flatten()
-        {
-            if !data.contains(&t.image) {
-                data.push(t.image);
+        for (slot, texture) in texture_slots(&m.textures).into_iter().enumerate() {
+            let Some(t) = texture else { continue };
+            let list = if SRGB_SLOTS[slot] {
+                &mut base_color
+            } else {
+                &mut data
+            };
+            if !list.contains(&t.image) {
+                list.push(t.image);
             }
         }
     }
@@ -102,39 +102,66 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
     }
 }
 
-/// Per material: the base-colour, metallic-roughness and normal layers (−1: none) and the wrap
-/// modes packed as u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored repeat), as
-/// `MaterialRaw::textures` holds them: [base colour, metallic-roughness, wrap, normal]. The wrap
-/// modes are the base colour's where it has one, else the metallic-roughness', else the
-/// normal texture's.
-pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<[f32; 4]> {
+/// How many textures a material may have: base colour, metallic-roughness, normal,
+/// occlusion and emissive, in that order (the slots of `shaders/surface.wgsl`, `TEX_*`).
+pub const TEXTURE_SLOTS: usize = 5;
+
+/// Which slots hold sRGB colours (the base-colour array); the others hold linear data.
+const SRGB_SLOTS: [bool; TEXTURE_SLOTS] = [true, false, false, false, true];
+
+/// A material's textures in slot order.
+pub fn texture_slots(t: &MaterialTextures) -> [Option<TextureRef>; TEXTURE_SLOTS] {
+    [
+        t.base_color,
+        t.metallic_roughness,
+        t.normal,
+        t.occlusion,
+        t.emissive,
+    ]
+}
+
+/// Where a material's textures are on the GPU, as `MaterialRaw::layers` holds them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MaterialLayers {
+    /// Per slot, the layer of its array (the base-colour array for sRGB slots, the data array
+    /// for the others); −1: none.
+    pub layers: [f32; TEXTURE_SLOTS],
+    /// Per slot k, its wrap modes at bits 4k..4k+4, as u + 4·v with 0 repeat, 1 clamp to edge,
+    /// 2 mirrored repeat (`surface.wgsl`, `wrap_coordinate`).
+    pub wrap_modes: u32,
+}
+
+/// Per material: its textures' layers and wrap modes.
+pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
     let code = |w: Wrap| match w {
-        Wrap::Repeat => 0.0,
-        Wrap::ClampToEdge => 1.0,
-        Wrap::MirroredRepeat => 2.0,
-    };
-    let layer = |list: &[u32], image: u32| {
-        list.iter()
-            .position(|&i| i == image)
-            .map_or(-1.0, |p| p as f32)
+        Wrap::Repeat => 0,
+        Wrap::ClampToEdge => 1,
+        Wrap::MirroredRepeat => 2,
     };
     scene
         .materials
         .iter()
         .map(|m| {
-            let base = m.textures.base_color;
-            let data = m.textures.metallic_roughness;
-            let normal = m.textures.normal;
-            let wrap = base
-                .or(data)
-                .or(normal)
-                .map_or([Wrap::Repeat; 2], |t| t.wrap);
-            [
-                base.map_or(-1.0, |t| layer(&plan.base_color, t.image)),
-                data.map_or(-1.0, |t| layer(&plan.data, t.image)),
-                code(wrap[0]) + 4.0 * code(wrap[1]),
-                normal.map_or(-1.0, |t| layer(&plan.data, t.image)),
-            ]
+            let slots = texture_slots(&m.textures);
+            let mut wrap_modes = 0;
+            for (slot, t) in slots.iter().enumerate() {
+                if let Some(t) = t {
+                    wrap_modes |= (code(t.wrap[0]) + 4 * code(t.wrap[1])) << (4 * slot);
+                }
+            }
+            MaterialLayers {
+                layers: std::array::from_fn(|slot| {
+                    let list = if SRGB_SLOTS[slot] {
+                        &plan.base_color
+                    } else {
+                        &plan.data
+                    };
+                    slots[slot]
+                        .and_then(|t| list.iter().position(|&i| i == t.image))
+                        .map_or(-1.0, |p| p as f32)
+                }),
+                wrap_modes,
+            }
         })
         .collect()
 }
@@ -171,7 +198,7 @@ impl SurfaceTextures {
         let base_color = upload_array(
             device,
             queue,
-            "base colour textures",
+            "colour textures",
             &images(&plan.base_color),
             plan.side,
             true,
@@ -179,7 +206,7 @@ impl SurfaceTextures {
         let data = upload_array(
             device,
             queue,
-            "metallic-roughness textures",
+            "data textures",
             &images(&plan.data),
             plan.side,
             false,
@@ -425,7 +452,6 @@ pub fn mip_chain(image: &TextureImage, side: u32, srgb: bool) -> Vec<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::scene::{MaterialTextures, TextureRef};
 
     fn image(width: u32, height: u32, rgba: [u8; 4]) -> TextureImage {
         TextureImage {
@@ -492,23 +518,47 @@ mod tests {
             wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
             transform: crate::render::scene::NO_UV_TRANSFORM,
         };
+        let repeating = TextureRef::repeating;
         scene.materials[0].textures = MaterialTextures {
             base_color: Some(r(1)),
             metallic_roughness: Some(r(0)),
-            normal: Some(r(0)),
-            normal_scale: 1.0,
+            normal: Some(repeating(0)),
+            occlusion: Some(repeating(2)),
+            emissive: Some(r(1)),
+            ..Default::default()
         };
         scene.materials[1].textures.base_color = Some(r(0));
+        scene.textures.push(image(8, 8, [0; 4]));
         let plan = plan_layers(&scene, 16384);
         assert_eq!(plan.base_color, vec![1, 0]);
-        assert_eq!(plan.data, vec![0]);
+        assert_eq!(plan.data, vec![0, 2]);
         assert_eq!(plan.side, 512);
         assert_eq!(plan_layers(&scene, 256).side, 256);
         assert_eq!(plan_layers(&scene, 300).side, 256);
         let layers = material_layers(&scene, &plan);
-        assert_eq!(layers[0], [0.0, 0.0, 1.0 + 4.0 * 2.0, 0.0]);
-        assert_eq!(layers[1], [1.0, -1.0, 9.0, -1.0]);
-        assert_eq!(layers[2], [-1.0, -1.0, 0.0, -1.0]);
+        // Clamp-to-edge u, mirrored v: 1 + 4·2 = 9, in each slot's four bits.
+        let clamp_mirror = 9;
+        assert_eq!(
+            layers[0],
+            MaterialLayers {
+                layers: [0.0, 0.0, 0.0, 1.0, 0.0],
+                wrap_modes: clamp_mirror | clamp_mirror << 4 | clamp_mirror << 16,
+            }
+        );
+        assert_eq!(
+            layers[1],
+            MaterialLayers {
+                layers: [1.0, -1.0, -1.0, -1.0, -1.0],
+                wrap_modes: clamp_mirror,
+            }
+        );
+        assert_eq!(
+            layers[2],
+            MaterialLayers {
+                layers: [-1.0; TEXTURE_SLOTS],
+                wrap_modes: 0,
+            }
+        );
         // Many large images: the side shrinks until the arrays fit the memory bound.
         scene.textures = vec![image(4096, 4096, [0; 4])];
         for m in &mut scene.materials {
