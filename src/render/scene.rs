@@ -2586,7 +2586,8 @@ mod tests {
     }
 
     /// The CPU sampler (per-vertex albedo) filters bilinearly between texel centres and wraps
-    /// as the GPU's sampler does; a vertex's base colour is its factor times the texture there.
+    /// as the GPU's sampler does; a vertex's base colour is its factor times the texture there,
+    /// read through the texture's transform.
     #[test]
     fn textures_sample_bilinearly_with_their_wrap_modes() {
         // Texels: sRGB 0 and 255 (linear 0 and 1).
@@ -2622,6 +2623,12 @@ mod tests {
         assert_eq!(scene.vertex_base_color(v), [0.5; 3]);
         scene.vertices[v].uv = [0.25, 0.5];
         assert_eq!(scene.vertex_base_color(v), [0.0; 3]);
+        // The texture's transform applies: an offset of half the image reads the other texel.
+        scene.materials[0].textures.base_color = Some(TextureRef {
+            transform: [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0]],
+            ..TextureRef::repeating(0)
+        });
+        assert_eq!(scene.vertex_base_color(v), [0.5; 3]);
         let untextured = scene.vertices.iter().position(|v| v.material == 1).unwrap();
         assert_eq!(
             scene.vertex_base_color(untextured),
