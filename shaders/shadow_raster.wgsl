@@ -42,7 +42,8 @@ struct Params {
 // large ones.
 @group(0) @binding(5) var<storage, read> triangle_ids: array<u32>;
 
-const VERTEX_WORDS: u32 = 13u;
+// The words of a vertex (src/render/scene.rs, `Vertex`); its position is the first three.
+const VERTEX_WORDS: u32 = 15u;
 // The render pass's DepthBiasState: constant 2, slope scale 1.5 (src/render/mod.rs). One unit
 // of the constant is the depth's last place near its largest value (< 1): 2^-24.
 const BIAS_CONSTANT: f32 = 5.9604645e-8;

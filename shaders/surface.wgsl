@@ -20,7 +20,8 @@ struct Material {
     // Slot k's layer at layers[k / 4][k % 4] (negative: none): of the base-colour array for
     // the base-colour and emissive slots, of the data array for the others. layers[1].y: the
     // wrap modes, slot k's at bits 4k..4k+4 as u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored
-    // repeat). src/render/textures.rs, `MaterialLayers`.
+    // repeat); layers[1].z: bit k set, slot k reads the second texture coordinates.
+    // src/render/textures.rs, `MaterialLayers`.
     layers: array<vec4<f32>, 2>,
     // x: the normal texture's scale; y: the occlusion texture's strength; z, w: unused.
     extra: vec4<f32>,
@@ -49,6 +50,8 @@ struct VertexIn {
     // xyz: tangent along increasing u; w: handedness (bitangent = cross(normal, tangent) · w).
     // Zero without a normal texture.
     @location(4) tangent: vec4<f32>,
+    // The second texture coordinates (zero where the material has no second set).
+    @location(5) uv1: vec2<f32>,
 };
 
 struct VertexOut {
@@ -58,6 +61,7 @@ struct VertexOut {
     @location(2) @interpolate(flat) material: u32,
     @location(3) uv: vec2<f32>,
     @location(4) tangent: vec4<f32>,
+    @location(5) uv1: vec2<f32>,
 };
 
 // World-space geometry is passed through; only the clip position is transformed.
@@ -68,6 +72,7 @@ fn surface_vertex(view_proj: mat4x4<f32>, v: VertexIn) -> VertexOut {
     out.normal = v.normal;
     out.material = v.material;
     out.uv = v.uv;
+    out.uv1 = v.uv1;
     out.tangent = v.tangent;
     return out;
 }
@@ -106,10 +111,25 @@ fn texture_layer(mat: Material, k: u32) -> f32 {
     return mat.layers[k / 4u][k % 4u];
 }
 
-// Slot `k`'s texel at texture coordinates `uv` whose screen derivatives are `ddx`, `ddy`: its
-// transform applied to all three, wrapped by its modes, read from the base-colour array
-// (`srgb`) or the data array with explicit gradients. The slot must have a layer.
-fn sample_slot(mat: Material, k: u32, srgb: bool, uv: vec2<f32>, ddx: vec2<f32>, ddy: vec2<f32>) -> vec4<f32> {
+// A point's texture coordinates, both sets, with their screen derivatives.
+struct TextureCoordinates {
+    uv0: vec2<f32>,
+    ddx0: vec2<f32>,
+    ddy0: vec2<f32>,
+    uv1: vec2<f32>,
+    ddx1: vec2<f32>,
+    ddy1: vec2<f32>,
+};
+
+// Slot `k`'s texel at its texture coordinates in `tc` (the set its channel bit picks): its
+// transform applied to them and their derivatives, wrapped by its modes, read from the
+// base-colour array (`srgb`) or the data array with explicit gradients. The slot must have a
+// layer.
+fn sample_slot(mat: Material, k: u32, srgb: bool, tc: TextureCoordinates) -> vec4<f32> {
+    let second = ((u32(mat.layers[1].z) >> k) & 1u) == 1u;
+    let uv = select(tc.uv0, tc.uv1, second);
+    let ddx = select(tc.ddx0, tc.ddx1, second);
+    let ddy = select(tc.ddy0, tc.ddy1, second);
     let r0 = mat.uv_transforms[2u * k];
     let r1 = mat.uv_transforms[2u * k + 1u];
     let t = vec2<f32>(dot(r0.xy, uv) + r0.z, dot(r1.xy, uv) + r1.z);
@@ -127,13 +147,12 @@ fn sample_slot(mat: Material, k: u32, srgb: bool, uv: vec2<f32>, ddx: vec2<f32>,
     return textureSampleGrad(data_textures, texture_sampler, st, layer, tdx, tdy);
 }
 
-// The material's parameters at texture coordinate `uv` of a point with interpolated `normal` and
-// `tangent`. Fragment stages only, called outside any branch: the mip level follows the screen
-// derivatives of the unwrapped uv, taken first, and the samples use them explicitly so that
-// they may sit inside the per-material branches.
-fn surface_params(mat: Material, uv: vec2<f32>, normal: vec3<f32>, tangent: vec4<f32>) -> SurfaceParams {
-    let ddx = dpdx(uv);
-    let ddy = dpdy(uv);
+// The material's parameters at texture coordinates `uv` and `uv1` of a point with interpolated
+// `normal` and `tangent`. Fragment stages only, called outside any branch: the mip level follows
+// the screen derivatives of the unwrapped coordinates, taken first, and the samples use them
+// explicitly so that they may sit inside the per-material branches.
+fn surface_params(mat: Material, uv: vec2<f32>, uv1: vec2<f32>, normal: vec3<f32>, tangent: vec4<f32>) -> SurfaceParams {
+    let tc = TextureCoordinates(uv, dpdx(uv), dpdy(uv), uv1, dpdx(uv1), dpdy(uv1));
     var p: SurfaceParams;
     p.base_color = mat.base_color.rgb;
     p.roughness = mat.params.x;
@@ -142,26 +161,26 @@ fn surface_params(mat: Material, uv: vec2<f32>, normal: vec3<f32>, tangent: vec4
     p.occlusion = 1.0;
     p.emission = mat.emission.rgb;
     if texture_layer(mat, TEX_BASE_COLOR) >= 0.0 {
-        p.base_color = p.base_color * sample_slot(mat, TEX_BASE_COLOR, true, uv, ddx, ddy).rgb;
+        p.base_color = p.base_color * sample_slot(mat, TEX_BASE_COLOR, true, tc).rgb;
     }
     if texture_layer(mat, TEX_METALLIC_ROUGHNESS) >= 0.0 {
-        let mr = sample_slot(mat, TEX_METALLIC_ROUGHNESS, false, uv, ddx, ddy);
+        let mr = sample_slot(mat, TEX_METALLIC_ROUGHNESS, false, tc);
         p.roughness = p.roughness * mr.g;
         p.metallic = p.metallic * mr.b;
     }
     if texture_layer(mat, TEX_OCCLUSION) >= 0.0 {
-        let ao = sample_slot(mat, TEX_OCCLUSION, false, uv, ddx, ddy).r;
+        let ao = sample_slot(mat, TEX_OCCLUSION, false, tc).r;
         p.occlusion = 1.0 + mat.extra.y * (ao - 1.0);
     }
     if texture_layer(mat, TEX_EMISSIVE) >= 0.0 && any(p.emission > vec3<f32>(0.0)) {
-        p.emission = p.emission * sample_slot(mat, TEX_EMISSIVE, true, uv, ddx, ddy).rgb;
+        p.emission = p.emission * sample_slot(mat, TEX_EMISSIVE, true, tc).rgb;
     }
     // The tangent frame: the tangent made perpendicular to the normal (Gram-Schmidt), the
     // bitangent cross(n, t) · w (glTF); a tangent along the normal leaves the normal as it is.
     let n = normalize(normal);
     let t_perp = tangent.xyz - n * dot(n, tangent.xyz);
     if texture_layer(mat, TEX_NORMAL) >= 0.0 && dot(t_perp, t_perp) > 1e-12 {
-        let texel = sample_slot(mat, TEX_NORMAL, false, uv, ddx, ddy).xyz;
+        let texel = sample_slot(mat, TEX_NORMAL, false, tc).xyz;
         let m = texel * 2.0 - 1.0;
         let t = normalize(t_perp);
         let b = cross(n, t) * select(1.0, -1.0, tangent.w < 0.0);

@@ -1416,8 +1416,8 @@ fn srgb_code_to_linear(code: u8) -> f32 {
 }
 
 /// A 2 × 2 quad in the plane z = 0 facing +Z, seen head-on from z = 3, with texture
-/// coordinates u = u_span·(x + 1)/2 and v = (1 − y)/2 and tangents along +x, one material, no
-/// ground.
+/// coordinates u = u_span·(x + 1)/2 and v = (1 − y)/2 (the second set: u = u_span·(1 − x)/2)
+/// and tangents along +x, one material, no ground.
 fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -> Scene {
     use envlight::render::scene::{Sphere, Vertex};
     let corner = |x: f32, y: f32| Vertex {
@@ -1425,6 +1425,8 @@ fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -
         normal: [0.0, 0.0, 1.0],
         material: 0,
         uv: [u_span * (x + 1.0) / 2.0, (1.0 - y) / 2.0],
+        // The second set runs the other way along x.
+        uv1: [u_span * (1.0 - x) / 2.0, (1.0 - y) / 2.0],
         // u grows along +x, v down (−y): up the image is +y = cross(+z, +x), so w = +1.
         tangent: [1.0, 0.0, 0.0, 1.0],
     };
@@ -1578,9 +1580,8 @@ fn textured_materials_shade_as_their_texels() {
     ] {
         let mut material = lambertian([1.0; 3]);
         material.textures.base_color = Some(TextureRef {
-            image: 0,
             wrap: [wrap; 2],
-            transform: envlight::render::scene::NO_UV_TRANSFORM,
+            ..TextureRef::repeating(0)
         });
         let (r, img) = render(textured_quad(material, vec![halves.clone()], u_span));
         for (x_range, want) in regions {
@@ -1667,9 +1668,10 @@ fn asg_lighting_reads_base_colour_textures() {
 /// An occlusion texture scales the light a surface reflects by 1 + strength · (R − 1), and an
 /// emissive texture's (sRGB-decoded) texels times the material's emission are added to it —
 /// alone under no lights — in the lit and the ASG passes. Each texture keeps its own wrap
-/// modes: a clamped base colour beside a mirrored occlusion texture.
+/// modes (a clamped base colour beside a mirrored occlusion texture) and its own texture
+/// coordinates (the base colour on the second set, the occlusion on the first).
 #[test]
-fn occlusion_and_emissive_textures_darken_and_glow() {
+fn occlusion_and_emissive_textures_darken_glow_and_keep_their_own_modes() {
     use envlight::asg::Asg;
     use envlight::render::scene::{TextureRef, Wrap};
     use glam::DVec3;
@@ -1752,7 +1754,11 @@ fn occlusion_and_emissive_textures_darken_and_glow() {
         ..TextureRef::repeating(1)
     });
     let (r, img) = render_quad(
-        textured_quad(material, vec![colour_row, occlusion_row], 2.0),
+        textured_quad(
+            material,
+            vec![colour_row.clone(), occlusion_row.clone()],
+            2.0,
+        ),
         &lights,
     );
     let blue = plain_quad(BLUE);
@@ -1768,6 +1774,21 @@ fn occlusion_and_emissive_textures_darken_and_glow() {
         scaled(blue, ao),
         0.01,
     );
+    // Two coordinate sets: the base colour reads the second (u reversed along x), the
+    // occlusion texture the first.
+    let mut material = white;
+    material.textures.base_color = Some(TextureRef {
+        channel: 1,
+        ..TextureRef::repeating(0)
+    });
+    material.textures.occlusion = Some(TextureRef::repeating(1));
+    let (r, img) = render_quad(
+        textured_quad(material, vec![colour_row, occlusion_row], 1.0),
+        &lights,
+    );
+    let (left, right) = quad_halves(&r, &img);
+    assert_close("second set blue, occluded", left, scaled(blue, ao), 0.01);
+    assert_close("second set red, open", right, plain_quad(RED), 0.01);
 }
 
 /// A normal texture turns the shading normal in the tangent frame: x along the tangent
@@ -1936,7 +1957,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
 /// extension's matrix R = [[cos, −sin], [sin, cos]] does; the other sense would swap the halves).
 #[test]
 fn texture_transforms_move_and_turn_the_image() {
-    use envlight::render::scene::{TextureRef, Wrap};
+    use envlight::render::scene::TextureRef;
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let render = |scene: Scene| {
         let (r, img) = render_quad(scene, &lights);
@@ -1946,9 +1967,8 @@ fn texture_transforms_move_and_turn_the_image() {
     let textured = |image: TextureImage, transform: [[f32; 3]; 2]| {
         let mut material = Material::lambertian([1.0; 3]);
         material.textures.base_color = Some(TextureRef {
-            image: 0,
-            wrap: [Wrap::Repeat; 2],
             transform,
+            ..TextureRef::repeating(0)
         });
         render(textured_quad(material, vec![image], 1.0))
     };

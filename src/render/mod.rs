@@ -258,9 +258,10 @@ pub struct Renderer {
 const GBUFFER_TARGETS: usize = 4;
 
 /// The vertex attributes the surface passes (G-buffer, ASG) read: position, normal, material,
-/// texture coordinates, tangent (`shaders/surface.wgsl`, `VertexIn`).
-const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 5] = wgpu::vertex_attr_array![
-    0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2, 4 => Float32x4
+/// the two texture coordinates, tangent (`shaders/surface.wgsl`, `VertexIn`), in
+/// [`scene::Vertex`]'s order.
+const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
+    0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2, 5 => Float32x2, 4 => Float32x4
 ];
 
 fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
@@ -1680,6 +1681,53 @@ mod tests {
             .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
         }
         assert_eq!(files.len(), SHADERS.len() + 1);
+    }
+
+    /// The Rust twins of the shaders' structs have the WGSL layouts' sizes (naga's), and the
+    /// compute rasteriser steps through the vertex buffer by `Vertex`'s size.
+    #[test]
+    fn shader_layouts_match_their_rust_twins() {
+        use std::mem::size_of;
+        let parse = |name: &str| {
+            let (_, text) = SHADERS.iter().find(|(n, _)| *n == name).unwrap();
+            naga::front::wgsl::parse_str(text).unwrap()
+        };
+        let struct_size = |module: &naga::Module, name: &str| {
+            let mut layouter = naga::proc::Layouter::default();
+            layouter.update(module.to_ctx()).unwrap();
+            let (handle, _) = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap_or_else(|| panic!("no struct {name}"));
+            layouter[handle].size as usize
+        };
+        let shade = parse("shade.wgsl");
+        assert_eq!(
+            struct_size(&shade, "Material"),
+            size_of::<shading::MaterialRaw>()
+        );
+        assert_eq!(struct_size(&shade, "Light"), size_of::<shading::LightRaw>());
+        assert_eq!(
+            struct_size(&shade, "Globals"),
+            size_of::<shading::GlobalsRaw>()
+        );
+        let asg = parse("asg.wgsl");
+        assert_eq!(struct_size(&asg, "Lobe"), size_of::<asg::LobeRaw>());
+        assert_eq!(
+            struct_size(&asg, "Globals"),
+            size_of::<asg::AsgGlobalsRaw>()
+        );
+        let raster = parse("shadow_raster.wgsl");
+        let (_, words) = raster
+            .constants
+            .iter()
+            .find(|(_, c)| c.name.as_deref() == Some("VERTEX_WORDS"))
+            .unwrap();
+        assert_eq!(
+            raster.global_expressions[words.init],
+            naga::Expression::Literal(naga::Literal::U32((size_of::<scene::Vertex>() / 4) as u32))
+        );
     }
 
     #[test]

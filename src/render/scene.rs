@@ -64,9 +64,13 @@ pub struct Vertex {
     pub position: [f32; 3],
     pub normal: [f32; 3],
     pub material: u32,
-    /// Texture coordinates (glTF's `TEXCOORD_0`, OBJ's `vt` with v flipped): (0, 0) is the
-    /// image's top-left corner. (0, 0) where the mesh has none.
+    /// Texture coordinates (glTF's `TEXCOORD_n` of the material's first set, OBJ's `vt` with v
+    /// flipped): (0, 0) is the image's top-left corner. (0, 0) where the mesh has none.
     pub uv: [f32; 2],
+    /// A second set of texture coordinates (glTF's `TEXCOORD_n` of the material's second set,
+    /// often a light map's for the occlusion texture), read by textures whose
+    /// [`TextureRef::channel`] is 1. (0, 0) where the material has no second set.
+    pub uv1: [f32; 2],
     /// Tangent (xyz, world space, along increasing u) and handedness w (±1): the bitangent is
     /// cross(normal, tangent) · w, towards the top of the image (glTF's `TANGENT`). Zero where
     /// the material has no normal texture.
@@ -83,14 +87,16 @@ pub enum Wrap {
 }
 
 /// A material's use of a texture image: which image of [`Scene::textures`], how its
-/// coordinates wrap (u, v), and the affine map from the vertex's texture coordinates to the
-/// image's (glTF's `KHR_texture_transform`).
+/// coordinates wrap (u, v), the affine map from the vertex's texture coordinates to the
+/// image's (glTF's `KHR_texture_transform`), and which of the vertex's coordinates it reads.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TextureRef {
     pub image: u32,
     pub wrap: [Wrap; 2],
     /// Rows of the 2 × 3 matrix M: the image is read at M · (u, v, 1).
     pub transform: [[f32; 3]; 2],
+    /// 0: [`Vertex::uv`]; 1: [`Vertex::uv1`].
+    pub channel: u32,
 }
 
 impl TextureRef {
@@ -100,6 +106,7 @@ impl TextureRef {
             image,
             wrap: [Wrap::Repeat; 2],
             transform: NO_UV_TRANSFORM,
+            channel: 0,
         }
     }
 
@@ -443,6 +450,7 @@ impl Builder {
                 normal: n.normalize_or(Vec3::Y).to_array(),
                 material,
                 uv: uvs.get(i).copied().unwrap_or([0.0; 2]),
+                uv1: [0.0; 2],
                 tangent: [0.0; 4],
             });
         }
@@ -454,6 +462,13 @@ impl Builder {
     fn set_tangents(&mut self, first: usize, tangents: &[[f32; 4]]) {
         for (v, t) in self.vertices[first..].iter_mut().zip(tangents) {
             v.tangent = *t;
+        }
+    }
+
+    /// Sets the second texture coordinates ([`Vertex::uv1`]) of the vertices from `first` on.
+    fn set_second_uvs(&mut self, first: usize, uvs: &[[f32; 2]]) {
+        for (v, uv) in self.vertices[first..].iter_mut().zip(uvs) {
+            v.uv1 = *uv;
         }
     }
 
@@ -831,7 +846,8 @@ impl Scene {
         let texel = texture
             .and_then(|t| Some((self.textures.get(t.image as usize)?, t)))
             .map_or([1.0; 3], |(image, t)| {
-                image.sample_srgb(t.image_coordinates(v.uv), t.wrap)
+                let uv = if t.channel == 1 { v.uv1 } else { v.uv };
+                image.sample_srgb(t.image_coordinates(uv), t.wrap)
             });
         Some([0, 1, 2].map(|c| factor[c] * texel[c]))
     }
@@ -1273,7 +1289,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 continue;
             }
             let mat = prim.material();
-            let uv_set = texture_coordinate_set(&mat, path);
+            let channels = texture_channels(&mat);
             for (semantic, accessor) in prim.attributes() {
                 use gltf::accessor::{
                     DataType::{F32, U16, U8},
@@ -1282,7 +1298,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 let (name, dimensions, types) = match semantic {
                     gltf::Semantic::Positions => ("POSITION".to_string(), Vec3, &[F32][..]),
                     gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32][..]),
-                    gltf::Semantic::TexCoords(set) if Some(set) == uv_set => {
+                    gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => {
                         (format!("TEXCOORD_{set}"), Vec2, &[F32, U8, U16][..])
                     }
                     gltf::Semantic::Tangents if mat.normal_texture().is_some() => {
@@ -1390,37 +1406,40 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 )));
             }
             repair_zero_normals(path, &positions, &mut normals, &indices);
-            let uvs: Vec<[f32; 2]> = match uv_set {
-                Some(set) => match reader.read_tex_coords(set) {
-                    Some(uv) => uv.into_f32().collect(),
-                    None => {
-                        return Err(err(format!(
-                            "{}: its material is textured, but it has no readable TEXCOORD_{set}",
-                            mesh_name(&prim)
-                        )))
-                    }
-                },
-                None => Vec::new(),
-            };
-            if !uvs.is_empty() && uvs.len() != positions.len() {
-                return Err(err(format!(
-                    "{}: {} texture coordinates for {} positions",
-                    mesh_name(&prim),
-                    uvs.len(),
-                    positions.len()
-                )));
+            // The texture coordinates of each channel (none where the material has no set for
+            // it).
+            let mut uvs: [Vec<[f32; 2]>; 2] = Default::default();
+            for (channel, &set) in channels.sets.iter().enumerate() {
+                let Some(read) = reader.read_tex_coords(set) else {
+                    return Err(err(format!(
+                        "{}: its material is textured, but it has no readable TEXCOORD_{set}",
+                        mesh_name(&prim)
+                    )));
+                };
+                let read: Vec<[f32; 2]> = read.into_f32().collect();
+                if read.len() != positions.len() {
+                    return Err(err(format!(
+                        "{}: {} texture coordinates (TEXCOORD_{set}) for {} positions",
+                        mesh_name(&prim),
+                        read.len(),
+                        positions.len()
+                    )));
+                }
+                if read.iter().flatten().any(|c| !c.is_finite()) {
+                    return Err(err(format!(
+                        "{}: a texture coordinate (TEXCOORD_{set}) is not finite",
+                        mesh_name(&prim)
+                    )));
+                }
+                uvs[channel] = read;
             }
-            if uvs.iter().flatten().any(|c| !c.is_finite()) {
-                return Err(err(format!(
-                    "{}: a texture coordinate is not finite",
-                    mesh_name(&prim)
-                )));
-            }
+            // MikkTSpace's tangents follow the normal texture's coordinates.
+            let normal_uvs = &uvs[channels.channel[2] as usize];
             // Tangents where a normal texture needs them: the file's, turned with the node
             // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
             let tangents: Vec<[f32; 4]> = match (mat.normal_texture(), reader.read_tangents()) {
                 (None, _) => Vec::new(),
-                (Some(_), _) if uvs.is_empty() => Vec::new(),
+                (Some(_), _) if normal_uvs.is_empty() => Vec::new(),
                 (Some(_), Some(t)) => {
                     let handedness = world.determinant().signum();
                     t.map(|[x, y, z, w]| {
@@ -1442,7 +1461,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                         mesh_name(&prim)
                     )))
                 }
-                (Some(_), None) => generate_tangents(&positions, &normals, &uvs, &indices)
+                (Some(_), None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
                     .unwrap_or_else(|| {
                         tracing::warn!(
                             "{}: {}: no tangents could be made for its normal texture (degenerate \
@@ -1472,6 +1491,18 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 Some(&id) => id,
                 None => {
                     note_ignored_material_features(&mat, &mut ignored);
+                    for &(slot, set) in &channels.unplaced {
+                        tracing::warn!(
+                            "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
+                             set (envlight reads two: TEXCOORD_{} and TEXCOORD_{}); read with \
+                             TEXCOORD_{}",
+                            path.display(),
+                            mat.name().unwrap_or(""),
+                            channels.sets[0],
+                            channels.sets[1],
+                            channels.sets[0]
+                        );
+                    }
                     let material = gltf_material(&mat, &buffers, base, &mut b, &mut images)
                         .map_err(|m| {
                             err(format!(
@@ -1486,7 +1517,8 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 }
             };
             let first = b.vertices.len();
-            b.mesh(&positions, &normals, &uvs, &indices, id);
+            b.mesh(&positions, &normals, &uvs[0], &indices, id);
+            b.set_second_uvs(first, &uvs[1]);
             b.set_tangents(first, &tangents);
         }
     }
@@ -1564,21 +1596,37 @@ fn gltf_material(
                 .map_err(|m| format!("emissive {m}"))
         })
         .transpose()?;
+    let mut textures = MaterialTextures {
+        base_color,
+        metallic_roughness,
+        normal,
+        normal_scale,
+        occlusion,
+        occlusion_strength,
+        emissive,
+    };
+    let channels = texture_channels(material);
+    for (slot, texture) in [
+        &mut textures.base_color,
+        &mut textures.metallic_roughness,
+        &mut textures.normal,
+        &mut textures.occlusion,
+        &mut textures.emissive,
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        if let Some(t) = texture {
+            t.channel = channels.channel[slot];
+        }
+    }
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
         roughness,
         metallic,
         specular: 0.5,
         emission: gltf_emission(material)?,
-        textures: MaterialTextures {
-            base_color,
-            metallic_roughness,
-            normal,
-            normal_scale,
-            occlusion,
-            occlusion_strength,
-            emissive,
-        },
+        textures,
     })
 }
 
@@ -1609,46 +1657,59 @@ fn gltf_emission(material: &gltf::Material) -> Result<[f32; 3], String> {
     Ok(factor.map(|f| f * strength))
 }
 
-/// The texture-coordinate set a glTF material's textures read (the base colour's, else the
-/// metallic-roughness', else the normal texture's), if it has any. A texture on another set is
-/// read with that one, with a warning.
-fn texture_coordinate_set(material: &gltf::Material, path: &Path) -> Option<u32> {
+/// The names of a material's texture slots (`textures::texture_slots`' order), for messages.
+const SLOT_NAMES: [&str; 5] = [
+    "base colour",
+    "metallic-roughness",
+    "normal",
+    "occlusion",
+    "emissive",
+];
+
+/// Which of a glTF material's texture-coordinate sets fill the vertex's two channels
+/// ([`Vertex::uv`], [`Vertex::uv1`]), and the channel each texture slot reads.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct TextureChannels {
+    /// The `TEXCOORD_n` set of channel 0, then of channel 1 (at most two).
+    sets: Vec<u32>,
+    /// Per slot (base colour, metallic-roughness, normal, occlusion, emissive): its channel.
+    channel: [u32; 5],
+    /// Textures on a third set, read with channel 0: (slot name, set).
+    unplaced: Vec<(&'static str, u32)>,
+}
+
+/// The channels of a glTF material's textures: channel 0 is the set of its first textured
+/// slot (in [`SLOT_NAMES`]' order), channel 1 the first other set; a texture on a third set
+/// is read with channel 0 (the caller warns). Each texture's set is its `texCoord`, or its
+/// `KHR_texture_transform`'s where that gives one.
+fn texture_channels(material: &gltf::Material) -> TextureChannels {
     let pbr = material.pbr_metallic_roughness();
     let info_set =
         |t: gltf::texture::Info| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM));
-    let sets = [
-        ("base colour", pbr.base_color_texture().map(info_set)),
-        (
-            "metallic-roughness",
-            pbr.metallic_roughness_texture().map(info_set),
-        ),
-        (
-            "normal",
-            material
-                .normal_texture()
-                .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
-        ),
-        (
-            "occlusion",
-            material
-                .occlusion_texture()
-                .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
-        ),
-        ("emissive", material.emissive_texture().map(info_set)),
+    let slot_sets = [
+        pbr.base_color_texture().map(info_set),
+        pbr.metallic_roughness_texture().map(info_set),
+        material
+            .normal_texture()
+            .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
+        material
+            .occlusion_texture()
+            .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
+        material.emissive_texture().map(info_set),
     ];
-    let mut used = sets.iter().filter_map(|&(name, set)| Some((name, set?)));
-    let (first_name, first) = used.next()?;
-    for (name, set) in used {
-        if set != first {
-            tracing::warn!(
-                "{}: material {:?}: its {name} texture reads TEXCOORD_{set}, its {first_name} \
-                 texture TEXCOORD_{first}; all are read with TEXCOORD_{first}",
-                path.display(),
-                material.name().unwrap_or("")
-            );
+    let mut channels = TextureChannels::default();
+    for (slot, set) in slot_sets.into_iter().enumerate() {
+        let Some(set) = set else { continue };
+        match channels.sets.iter().position(|&s| s == set) {
+            Some(c) => channels.channel[slot] = c as u32,
+            None if channels.sets.len() < 2 => {
+                channels.sets.push(set);
+                channels.channel[slot] = (channels.sets.len() - 1) as u32;
+            }
+            None => channels.unplaced.push((SLOT_NAMES[slot], set)),
         }
     }
-    Some(first)
+    channels
 }
 
 /// Adds to `ignored` what a glTF material asks for that the renderer does not draw.
@@ -1762,6 +1823,8 @@ fn gltf_texture(
         image: index,
         wrap: [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())],
         transform,
+        // Set by the caller, which knows the material's sets.
+        channel: 0,
     })
 }
 
@@ -2558,6 +2621,7 @@ mod tests {
                 image: 0,
                 wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
                 transform: NO_UV_TRANSFORM,
+                channel: 0,
             };
             assert_eq!(
                 (t.base_color, t.metallic_roughness),
@@ -2786,6 +2850,7 @@ mod tests {
             image: 0,
             wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
             transform: NO_UV_TRANSFORM,
+            channel: 0,
         };
         assert_eq!(m.textures.occlusion, Some(want));
         assert_eq!(m.textures.occlusion_strength, 0.25);
@@ -2806,6 +2871,61 @@ mod tests {
             let e = Scene::load(&p, false).unwrap_err().to_string();
             assert!(e.contains("glowing.gltf") && e.contains(needle), "{e}");
         }
+    }
+
+    /// A material's textures read up to two texture-coordinate sets: the first textured
+    /// slot's set fills `Vertex::uv`, the first other set `Vertex::uv1`, and each texture
+    /// reads its own; a third set is read with the first; a material whose only set is
+    /// TEXCOORD_1 reads it as its first.
+    #[test]
+    fn textures_read_their_own_coordinate_sets() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        // TEXCOORD_1 reads the same accessor as TEXCOORD_0.
+        let text = text.replace(r#""TEXCOORD_0":1"#, r#""TEXCOORD_0":1,"TEXCOORD_1":1"#);
+        let p = d.join("sets.gltf");
+        std::fs::write(
+            &p,
+            text.replace(
+                r#""normalTexture":{"index":0}"#,
+                r#""normalTexture":{"index":0},"occlusionTexture":{"index":0,"texCoord":1},
+                   "emissiveTexture":{"index":0,"texCoord":2},"emissiveFactor":[1,1,1]"#,
+            ),
+        )
+        .unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        let t = s.materials[0].textures;
+        let channel = |t: Option<TextureRef>| t.unwrap().channel;
+        assert_eq!(channel(t.base_color), 0);
+        assert_eq!(channel(t.normal), 0);
+        assert_eq!(channel(t.occlusion), 1);
+        assert_eq!(channel(t.emissive), 0, "a third set reads the first");
+        let uv1: Vec<_> = s.vertices.iter().map(|v| v.uv1).collect();
+        assert_eq!(uv1, [[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]]);
+        // Only TEXCOORD_1: it is the first channel, and no second is read.
+        let only_second =
+            r#""pbrMetallicRoughness":{"baseColorTexture":{"index":0,"texCoord":1}}}],"#;
+        let start = text.find(r#""pbrMetallicRoughness""#).unwrap();
+        let end = text.find(r#""textures""#).unwrap();
+        let text = format!("{}{only_second}\n{}", &text[..start], &text[end..]);
+        std::fs::write(&p, &text).unwrap();
+        let s = Scene::load(&p, false).unwrap();
+        assert_eq!(channel(s.materials[0].textures.base_color), 0);
+        let uvs: Vec<_> = s.vertices.iter().map(|v| (v.uv, v.uv1)).collect();
+        assert_eq!(
+            uvs,
+            [
+                ([0.0, 0.0], [0.0; 2]),
+                ([1.0, 0.0], [0.0; 2]),
+                ([0.0, 2.0], [0.0; 2])
+            ]
+        );
+        // A set the primitive lacks is an error naming it.
+        std::fs::write(&p, text.replace(r#""texCoord":1"#, r#""texCoord":3"#)).unwrap();
+        let e = Scene::load(&p, false).unwrap_err().to_string();
+        assert!(e.contains("TEXCOORD_3"), "{e}");
     }
 
     /// An MTL's map_Kd loads (relative to the OBJ's folder), with the OBJ's vt flipped to

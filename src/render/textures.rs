@@ -129,9 +129,11 @@ pub struct MaterialLayers {
     /// Per slot k, its wrap modes at bits 4k..4k+4, as u + 4·v with 0 repeat, 1 clamp to edge,
     /// 2 mirrored repeat (`surface.wgsl`, `wrap_coordinate`).
     pub wrap_modes: u32,
+    /// Bit k set: slot k reads the vertex's second texture coordinates ([`TextureRef::channel`]).
+    pub channels: u32,
 }
 
-/// Per material: its textures' layers and wrap modes.
+/// Per material: its textures' layers, wrap modes and texture-coordinate channels.
 pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
     let code = |w: Wrap| match w {
         Wrap::Repeat => 0,
@@ -143,10 +145,11 @@ pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
         .iter()
         .map(|m| {
             let slots = texture_slots(&m.textures);
-            let mut wrap_modes = 0;
+            let (mut wrap_modes, mut channels) = (0, 0);
             for (slot, t) in slots.iter().enumerate() {
                 if let Some(t) = t {
                     wrap_modes |= (code(t.wrap[0]) + 4 * code(t.wrap[1])) << (4 * slot);
+                    channels |= u32::from(t.channel == 1) << slot;
                 }
             }
             MaterialLayers {
@@ -161,6 +164,7 @@ pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
                         .map_or(-1.0, |p| p as f32)
                 }),
                 wrap_modes,
+                channels,
             }
         })
         .collect()
@@ -517,13 +521,17 @@ mod tests {
             image,
             wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
             transform: crate::render::scene::NO_UV_TRANSFORM,
+            channel: 0,
         };
         let repeating = TextureRef::repeating;
         scene.materials[0].textures = MaterialTextures {
             base_color: Some(r(1)),
             metallic_roughness: Some(r(0)),
             normal: Some(repeating(0)),
-            occlusion: Some(repeating(2)),
+            occlusion: Some(TextureRef {
+                channel: 1,
+                ..repeating(2)
+            }),
             emissive: Some(r(1)),
             ..Default::default()
         };
@@ -543,6 +551,7 @@ mod tests {
             MaterialLayers {
                 layers: [0.0, 0.0, 0.0, 1.0, 0.0],
                 wrap_modes: clamp_mirror | clamp_mirror << 4 | clamp_mirror << 16,
+                channels: 1 << 3,
             }
         );
         assert_eq!(
@@ -550,6 +559,7 @@ mod tests {
             MaterialLayers {
                 layers: [1.0, -1.0, -1.0, -1.0, -1.0],
                 wrap_modes: clamp_mirror,
+                channels: 0,
             }
         );
         assert_eq!(
@@ -557,6 +567,7 @@ mod tests {
             MaterialLayers {
                 layers: [-1.0; TEXTURE_SLOTS],
                 wrap_modes: 0,
+                channels: 0,
             }
         );
         // Many large images: the side shrinks until the arrays fit the memory bound.
