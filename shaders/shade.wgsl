@@ -181,7 +181,12 @@ struct GBuffer {
 
 @fragment
 fn fs_gbuffer(in: VertexOut) -> GBuffer {
-    let p = surface_params(materials[in.material], in.uv, in.uv1, in.normal, in.tangent);
+    let mat = materials[in.material];
+    let tc = fragment_coordinates(in.uv, in.uv1);
+    if cut_out(mat, tc) {
+        discard;
+    }
+    let p = surface_params(mat, tc, in.normal, in.tangent);
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);

@@ -14,6 +14,12 @@
 //  * cs_rasterize_large: the same for the triangles that may cover many texels (a floor, a
 //    wall), one workgroup per (triangle, map) whose 64 invocations share its rows and columns,
 //    so one big triangle is not one invocation's long serial loop.
+//  * A triangle whose material is cut out by its alpha (glTF's MASK) skips the texels where
+//    the alpha at the texel centre (texture coordinates interpolated by the barycentrics, mip
+//    level from their derivatives across the map) is below the cutoff, as the render pass's
+//    fs_masked discards them.
+//
+// Prepended: surface.wgsl (materials and their textures, `cut_out`).
 //
 // Why: a depth-only render pass is bounded by the raster pipeline's fill rate, which on a
 // compute part such as the H200 is a small part of the chip (docs/performance.md); these
@@ -31,8 +37,8 @@ struct Params {
 };
 
 @group(0) @binding(0) var<uniform> params: Params;
-// The scene's vertices as words: position at 13·i .. 13·i + 2 (src/render/scene.rs `Vertex`:
-// position, normal, material, uv, tangent; 52 bytes).
+// The scene's vertices as words, VERTEX_WORDS each (src/render/scene.rs `Vertex`: position,
+// normal, material, uv, uv1, tangent).
 @group(0) @binding(1) var<storage, read> vertex_words: array<f32>;
 @group(0) @binding(2) var<storage, read> indices: array<u32>;
 // Map k's view-projection.
@@ -41,9 +47,14 @@ struct Params {
 // Shadow-casting triangles (indices into the index buffer's triangles): the small ones, then the
 // large ones.
 @group(0) @binding(5) var<storage, read> triangle_ids: array<u32>;
+@group(0) @binding(6) var<storage, read> raster_materials: array<Material>;
 
-// The words of a vertex (src/render/scene.rs, `Vertex`); its position is the first three.
+// The words of a vertex (src/render/scene.rs, `Vertex`): its position is the first three, its
+// material the seventh, its texture coordinates the next two pairs.
 const VERTEX_WORDS: u32 = 15u;
+const MATERIAL_WORD: u32 = 6u;
+const UV_WORD: u32 = 7u;
+const UV1_WORD: u32 = 9u;
 // The render pass's DepthBiasState: constant 2, slope scale 1.5 (src/render/mod.rs). One unit
 // of the constant is the depth's last place near its largest value (< 1): 2^-24.
 const BIAS_CONSTANT: f32 = 5.9604645e-8;
@@ -69,6 +80,11 @@ fn texel_space(p: vec3<f32>, m: mat4x4<f32>, res: f32) -> vec3<f32> {
 fn position(i: u32) -> vec3<f32> {
     let w = VERTEX_WORDS * i;
     return vec3<f32>(vertex_words[w], vertex_words[w + 1u], vertex_words[w + 2u]);
+}
+
+fn vertex_pair(i: u32, word: u32) -> vec2<f32> {
+    let w = VERTEX_WORDS * i + word;
+    return vec2<f32>(vertex_words[w], vertex_words[w + 1u]);
 }
 
 // Rasterises triangle `tri` into map `map`: the rows y_first + row_lane, + row_lanes, … of its
@@ -106,6 +122,27 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
     let x_min = max(ceil(lo.x - 0.5), 0.0);
     let x_max = min(floor(hi.x - 0.5), resf - 1.0);
     let base = map * res * res;
+    // A cut-out caster: its texture coordinates as planes over the map, like the depth.
+    let ia = indices[3u * tri];
+    let ib = indices[3u * tri + 1u];
+    let ic = indices[3u * tri + 2u];
+    let material = bitcast<u32>(vertex_words[VERTEX_WORDS * ia + MATERIAL_WORD]);
+    let masked = raster_materials[material].extra.z > 0.0;
+    var mat: Material;
+    var uv_plane: array<vec2<f32>, 6>;
+    if masked {
+        mat = raster_materials[material];
+        // Per channel: d/dx, d/dy, the value at (0, 0).
+        for (var channel = 0u; channel < 2u; channel = channel + 1u) {
+            let word = select(UV_WORD, UV1_WORD, channel == 1u);
+            let ua = vertex_pair(ia, word);
+            let ub = vertex_pair(ib, word);
+            let uc = vertex_pair(ic, word);
+            uv_plane[3u * channel] = (ea.x * ua + eb.x * ub + ec.x * uc) * inv;
+            uv_plane[3u * channel + 1u] = (ea.y * ua + eb.y * ub + ec.y * uc) * inv;
+            uv_plane[3u * channel + 2u] = (ea.z * ua + eb.z * ub + ec.z * uc) * inv;
+        }
+    }
     for (var y = y_first + row_lane; y <= y_last; y = y + row_lanes) {
         let yc = f32(y) + 0.5;
         // Each edge e = A·x + (B·yc + C) ≥ 0 bounds x on one side (or excludes the row).
@@ -129,6 +166,15 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
         }
         let row = base + u32(y) * res;
         for (var x = x0 + col_lane; x <= x1; x = x + col_lanes) {
+            if masked {
+                let xc = x + 0.5;
+                let tc = TextureCoordinates(
+                    uv_plane[0] * xc + uv_plane[1] * yc + uv_plane[2], uv_plane[0], uv_plane[1],
+                    uv_plane[3] * xc + uv_plane[4] * yc + uv_plane[5], uv_plane[3], uv_plane[4]);
+                if cut_out(mat, tc) {
+                    continue;
+                }
+            }
             let z = clamp(zx * (x + 0.5) + zy * yc + z0 + bias, 0.0, 1.0);
             atomicMin(&depths[row + u32(x)], bitcast<u32>(z));
         }

@@ -14,6 +14,7 @@ const TEX_OCCLUSION: u32 = 3u;
 const TEX_EMISSIVE: u32 = 4u;
 
 struct Material {
+    // rgb: base colour; a: its alpha.
     base_color: vec4<f32>,
     // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
     params: vec4<f32>,
@@ -23,7 +24,8 @@ struct Material {
     // repeat); layers[1].z: bit k set, slot k reads the second texture coordinates.
     // src/render/textures.rs, `MaterialLayers`.
     layers: array<vec4<f32>, 2>,
-    // x: the normal texture's scale; y: the occlusion texture's strength; z, w: unused.
+    // x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff
+    // (glTF's MASK; negative: opaque); w: unused.
     extra: vec4<f32>,
     // rgb: emitted radiance, times the emissive texture; w: unused.
     emission: vec4<f32>,
@@ -147,12 +149,30 @@ fn sample_slot(mat: Material, k: u32, srgb: bool, tc: TextureCoordinates) -> vec
     return textureSampleGrad(data_textures, texture_sampler, st, layer, tdx, tdy);
 }
 
-// The material's parameters at texture coordinates `uv` and `uv1` of a point with interpolated
-// `normal` and `tangent`. Fragment stages only, called outside any branch: the mip level follows
-// the screen derivatives of the unwrapped coordinates, taken first, and the samples use them
+// A fragment's texture coordinates with their screen derivatives. Fragment stages only, called
+// outside any branch (the derivatives need uniform control flow); the samples use them
 // explicitly so that they may sit inside the per-material branches.
-fn surface_params(mat: Material, uv: vec2<f32>, uv1: vec2<f32>, normal: vec3<f32>, tangent: vec4<f32>) -> SurfaceParams {
-    let tc = TextureCoordinates(uv, dpdx(uv), dpdy(uv), uv1, dpdx(uv1), dpdy(uv1));
+fn fragment_coordinates(uv: vec2<f32>, uv1: vec2<f32>) -> TextureCoordinates {
+    return TextureCoordinates(uv, dpdx(uv), dpdy(uv), uv1, dpdx(uv1), dpdy(uv1));
+}
+
+// Whether the material is cut out at `tc` (glTF's alpha mode MASK): its alpha — the factor's
+// times the base-colour texture's — is below its cutoff. Always false for an opaque material.
+fn cut_out(mat: Material, tc: TextureCoordinates) -> bool {
+    if mat.extra.z < 0.0 {
+        return false;
+    }
+    var alpha = mat.base_color.a;
+    if texture_layer(mat, TEX_BASE_COLOR) >= 0.0 {
+        alpha = alpha * sample_slot(mat, TEX_BASE_COLOR, true, tc).a;
+    }
+    return alpha < mat.extra.z;
+}
+
+// The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point
+// with interpolated `normal` and `tangent`; the mip levels follow the coordinates' screen
+// derivatives.
+fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tangent: vec4<f32>) -> SurfaceParams {
     var p: SurfaceParams;
     p.base_color = mat.base_color.rgb;
     p.roughness = mat.params.x;

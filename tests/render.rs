@@ -1791,6 +1791,91 @@ fn occlusion_and_emissive_textures_darken_glow_and_keep_their_own_modes() {
     assert_close("second set red, open", right, plain_quad(RED), 0.01);
 }
 
+/// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour
+/// texture's) is not there where the alpha is below the cutoff: not drawn (light and ASG
+/// passes) and casting no shadow, with either shadow raster; an opaque material ignores its
+/// alpha.
+#[test]
+fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
+    use envlight::asg::Asg;
+    use envlight::render::scene::{TextureRef, Vertex};
+    use glam::DVec3;
+    // White; alpha 0 on the left texels, 1 on the right.
+    let holes = texture_row(4, |x| [255, 255, 255, if x < 2 { 0 } else { 255 }]);
+    let mut cut = Material::lambertian([1.0; 3]);
+    cut.textures.base_color = Some(TextureRef::repeating(0));
+    cut.alpha_cutoff = Some(0.5);
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let lit_white = 3.0 / std::f32::consts::PI;
+    let opaque = |img: &Image, r: &Renderer, x_range| mean_over(r, img, x_range);
+    // Alone: the left half is empty (transparent black), the right half drawn.
+    let (r, img) = render_quad(textured_quad(cut, vec![holes.clone()], 1.0), &lights);
+    let (left, right) = quad_halves(&r, &img);
+    assert_close("cut-out half", left, [0.0; 3], 1e-6);
+    assert_close("kept half", right, [lit_white; 3], 0.01);
+    let mut asg_renderer = renderer(
+        textured_quad(cut, vec![holes.clone()], 1.0),
+        quad_settings(),
+    );
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let (img, _) = asg_renderer.render_asg(&lobes).unwrap();
+    let (left, right) = quad_halves(&asg_renderer, &img);
+    assert_close("ASG, cut-out half", left, [0.0; 3], 1e-6);
+    assert!(right[0] > 0.1, "ASG, kept half: {right:?}");
+    // An opaque material ignores its alpha.
+    let mut opaque_material = cut;
+    opaque_material.alpha_cutoff = None;
+    let (r, img) = render_quad(
+        textured_quad(opaque_material, vec![holes.clone()], 1.0),
+        &lights,
+    );
+    assert_close("opaque", opaque(&img, &r, -0.7..-0.3), [lit_white; 3], 0.01);
+    // Before a white receiver 0.5 behind, under a frontal light: through the hole the receiver
+    // is lit (the cut-out part casts no shadow); beside it, the kept half is drawn.
+    for raster in [ShadowRaster::Pipeline, ShadowRaster::Compute] {
+        let mut scene = textured_quad(cut, vec![holes.clone()], 1.0);
+        scene.materials.push(Material::lambertian([1.0; 3]));
+        let first = scene.vertices.len() as u32;
+        for (x, y) in [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)] {
+            scene.vertices.push(Vertex {
+                position: [x, y, -0.5],
+                normal: [0.0, 0.0, 1.0],
+                material: 1,
+                uv: [0.0; 2],
+                uv1: [0.0; 2],
+                tangent: [0.0; 4],
+            });
+        }
+        scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
+        scene.caster_indices = scene.indices.len() as u32;
+        scene.bounds.radius = 8f32.sqrt();
+        let mut r = renderer(
+            scene,
+            RenderSettings {
+                shadows: true,
+                shadow_resolution: 256,
+                shadow_raster: raster,
+                ..quad_settings()
+            },
+        );
+        let (img, stats) = r.render(&lights).unwrap();
+        assert_eq!(stats.shadow_maps, 1);
+        let (through, kept) = quad_halves(&r, &img);
+        assert_close(
+            &format!("{raster:?}: receiver through the hole"),
+            through,
+            [lit_white; 3],
+            0.02,
+        );
+        assert_close(
+            &format!("{raster:?}: kept half"),
+            kept,
+            [lit_white; 3],
+            0.02,
+        );
+    }
+}
+
 /// A normal texture turns the shading normal in the tangent frame: x along the tangent
 /// (increasing u), y up the image (the bitangent cross(n, t)·w), scaled by the material's
 /// normal scale. Each tilted half of the quad is compared with the exact Lambertian ratio
@@ -1901,7 +1986,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
         "scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
         "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,"material":0}]}],
         "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":1},
-                      "emissiveFactor":[1,0,0],"alphaMode":"MASK"}],
+                      "emissiveFactor":[1,0,0],"alphaMode":"BLEND"}],
         "textures":[{"source":0},{"source":1}],"images":[{"uri":"tex.png"},{"uri":"tex.png"}],
         "accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[-1,0,0],"max":[1,2,0]},
                      {"bufferView":1,"componentType":5126,"count":4,"type":"VEC2"},
@@ -1925,7 +2010,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     for needle in [
         "textures: 2 layers of 8²",
         "not drawn",
-        "alpha modes (drawn opaque)",
+        "alpha blending (drawn opaque)",
         "extension KHR_materials_clearcoat",
     ] {
         assert!(

@@ -161,7 +161,7 @@ impl AsgPass {
             "asg",
             &pipeline_layout,
             &module,
-            &super::SURFACE_ATTRIBUTES,
+            ("vs_main", &super::SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
             Some(("fs_main", 1)),
         );

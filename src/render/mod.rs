@@ -11,7 +11,8 @@
 //!    buffer ([`shadow_raster`]) — on an H200 0.37 ms for 256 maps of 512² against 11.4 ms as
 //!    render passes, whose depth fill runs on the small graphics part of that chip. (An atlas,
 //!    one render pass per 8192² layer of 256 tiles set by viewport and scissor, was tried on
-//!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.)
+//!    2026-12-04 and was slower still, 15.5 ms; docs/performance.md.) Casters cut out by
+//!    their alpha (glTF's MASK) write no depth where it is below the cutoff, in both ways.
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
 //!    into four `Rgba32Float` targets: world position with material, shading normal (turned by
 //!    a normal texture) with roughness, base colour with metallic, and emission with occlusion
@@ -77,8 +78,11 @@ pub const SHADE_WGSL: &str = concat!(
     include_str!("../../shaders/surface.wgsl"),
     include_str!("../../shaders/shade.wgsl")
 );
-/// WGSL source of the shadow pass.
-pub const SHADOW_WGSL: &str = include_str!("../../shaders/shadow.wgsl");
+/// WGSL source of the shadow pass (`surface.wgsl` prepended, for the cut-out casters).
+pub const SHADOW_WGSL: &str = concat!(
+    include_str!("../../shaders/surface.wgsl"),
+    include_str!("../../shaders/shadow.wgsl")
+);
 /// WGSL source of the windowed mode's present pass.
 pub const PRESENT_WGSL: &str = include_str!("../../shaders/present.wgsl");
 /// Every shader module the renderer builds, by the file that defines its entry points, as
@@ -90,8 +94,8 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("shadow.wgsl", SHADOW_WGSL),
     ("shadow_raster.wgsl", shadow_raster::SHADOW_RASTER_WGSL),
 ];
-/// The shared prelude prepended to `shade.wgsl` and `asg.wgsl`: vertex layout, materials, the
-/// shaded point's set-up.
+/// The shared prelude prepended to `shade.wgsl`, `asg.wgsl`, `shadow.wgsl` and
+/// `shadow_raster.wgsl`: vertex layout, materials and their textures, the shaded point's set-up.
 pub const SURFACE_WGSL: &str = include_str!("../../shaders/surface.wgsl");
 
 /// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
@@ -235,6 +239,11 @@ pub struct Renderer {
     gbuffer_pipeline: wgpu::RenderPipeline,
     shade_pipeline: wgpu::ComputePipeline,
     shadow_pipeline: wgpu::RenderPipeline,
+    /// The shadow pass of the cut-out casters (alpha mode MASK).
+    masked_shadow_pipeline: wgpu::RenderPipeline,
+    /// Where the cut-out casters start in the index buffer: casters `0..this` are opaque,
+    /// `this..caster_indices` cut out ([`order_casters_by_cutout`]).
+    cutout_casters_start: u32,
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
     depth_view: wgpu::TextureView,
@@ -263,6 +272,31 @@ const GBUFFER_TARGETS: usize = 4;
 const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
     0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2, 5 => Float32x2, 4 => Float32x4
 ];
+
+/// The vertex attributes the cut-out casters' shadow pass reads (`shaders/shadow.wgsl`,
+/// `MaskedIn`): position, material and the two texture coordinates, at their offsets in
+/// [`scene::Vertex`].
+const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 4] = {
+    use std::mem::offset_of;
+    use wgpu::VertexFormat::{Float32x2, Float32x3, Uint32};
+    const fn at(
+        format: wgpu::VertexFormat,
+        offset: usize,
+        shader_location: u32,
+    ) -> wgpu::VertexAttribute {
+        wgpu::VertexAttribute {
+            format,
+            offset: offset as u64,
+            shader_location,
+        }
+    }
+    [
+        at(Float32x3, offset_of!(scene::Vertex, position), 0),
+        at(Uint32, offset_of!(scene::Vertex, material), 2),
+        at(Float32x2, offset_of!(scene::Vertex, uv), 3),
+        at(Float32x2, offset_of!(scene::Vertex, uv1), 5),
+    ]
+};
 
 fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
     wgpu::VertexBufferLayout {
@@ -308,7 +342,7 @@ fn depth_tested_pipeline(
     label: &str,
     layout: &wgpu::PipelineLayout,
     module: &wgpu::ShaderModule,
-    attributes: &[wgpu::VertexAttribute],
+    (vertex_entry, attributes): (&str, &[wgpu::VertexAttribute]),
     bias: wgpu::DepthBiasState,
     fragment: Option<(&str, usize)>,
 ) -> wgpu::RenderPipeline {
@@ -323,7 +357,7 @@ fn depth_tested_pipeline(
         layout: Some(layout),
         vertex: wgpu::VertexState {
             module,
-            entry_point: Some("vs_main"),
+            entry_point: Some(vertex_entry),
             compilation_options: Default::default(),
             buffers: &[Some(vertex_layout(attributes))],
         },
@@ -350,6 +384,35 @@ fn depth_tested_pipeline(
     })
 }
 
+/// Orders the shadow casters' triangles of `scene` opaque first, then those whose material is
+/// cut out by its alpha (a cutoff above 0), each group in its order; returns the index at which
+/// the cut-out ones start. The shadow pass draws each group with its own pipeline, so that the
+/// opaque casters keep the depth-only one.
+fn order_casters_by_cutout(scene: &mut Scene) -> u32 {
+    let casters = (scene.caster_indices as usize).min(scene.indices.len());
+    let cut_out = |triangle: &[u32]| {
+        let material = triangle
+            .first()
+            .and_then(|&i| scene.vertices.get(i as usize))
+            .and_then(|v| scene.materials.get(v.material as usize));
+        material.is_some_and(|m| m.alpha_cutoff.is_some_and(|c| c > 0.0))
+    };
+    let (cutout, opaque): (Vec<&[u32]>, Vec<&[u32]>) =
+        scene.indices[..casters].chunks(3).partition(|t| cut_out(t));
+    if cutout.is_empty() {
+        return casters as u32;
+    }
+    let start = opaque.len() * 3;
+    let ordered: Vec<u32> = opaque
+        .into_iter()
+        .chain(cutout)
+        .flatten()
+        .copied()
+        .collect();
+    scene.indices[..casters].copy_from_slice(&ordered);
+    start as u32
+}
+
 impl Renderer {
     /// Opens the preferred adapter ([`Gpu::new`]) and builds a renderer.
     pub fn new(scene: Scene, settings: RenderSettings) -> Result<Self, RenderError> {
@@ -360,7 +423,7 @@ impl Renderer {
     /// Builds a renderer on an open device.
     pub fn with_gpu(
         gpu: Gpu,
-        scene: Scene,
+        mut scene: Scene,
         mut settings: RenderSettings,
     ) -> Result<Self, RenderError> {
         use wgpu::util::DeviceExt;
@@ -414,6 +477,7 @@ impl Renderer {
                 )));
             }
         }
+        let cutout_casters_start = order_casters_by_cutout(&mut scene);
         let device = &gpu.device;
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
@@ -500,16 +564,29 @@ impl Renderer {
         });
         let shadow_cam_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light camera"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: true,
-                    min_binding_size: wgpu::BufferSize::new(64),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: true,
+                        min_binding_size: wgpu::BufferSize::new(64),
+                    },
+                    count: None,
                 },
-                count: None,
-            }],
+                // The materials, for the cut-out casters' alpha.
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
         });
 
         let gbuffer_texture = |binding| wgpu::BindGroupLayoutEntry {
@@ -571,7 +648,7 @@ impl Renderer {
             "g-buffer",
             &gbuffer_pl,
             &shade_module,
-            &SURFACE_ATTRIBUTES,
+            ("vs_main", &SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
             Some(("fs_gbuffer", GBUFFER_TARGETS)),
         );
@@ -583,18 +660,39 @@ impl Renderer {
             compilation_options: Default::default(),
             cache: None,
         });
+        let shadow_bias = wgpu::DepthBiasState {
+            constant: 2,
+            slope_scale: 1.5,
+            clamp: 0.0,
+        };
         let shadow_pipeline = depth_tested_pipeline(
             device,
             "shadow",
             &shadow_pl,
             &shadow_module,
-            &shadow_attrs,
-            wgpu::DepthBiasState {
-                constant: 2,
-                slope_scale: 1.5,
-                clamp: 0.0,
-            },
+            ("vs_main", &shadow_attrs),
+            shadow_bias,
             None,
+        );
+        // The cut-out casters: the same maps, with the materials and their textures, and a
+        // fragment stage that discards where the alpha is below the cutoff (no colour target).
+        let masked_shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("masked shadow"),
+            bind_group_layouts: &[
+                Some(&shadow_cam_layout),
+                None,
+                Some(&surface_textures.layout),
+            ],
+            immediate_size: 0,
+        });
+        let masked_shadow_pipeline = depth_tested_pipeline(
+            device,
+            "masked shadow",
+            &masked_shadow_pl,
+            &shadow_module,
+            ("vs_masked", &MASKED_SHADOW_ATTRIBUTES),
+            shadow_bias,
+            Some(("fs_masked", 0)),
         );
 
         let (color_texture, color_view, depth_view) =
@@ -658,8 +756,8 @@ impl Renderer {
             ComputeShadows::new(
                 device,
                 &scene,
-                &vertex_buffer,
-                &index_buffer,
+                (&vertex_buffer, &index_buffer, &material_buffer),
+                &surface_textures,
                 settings.shadow_resolution,
             )
         });
@@ -681,8 +779,12 @@ impl Renderer {
                 .as_ref()
                 .map_or(&no_shadow_depths, ComputeShadows::depths),
         );
-        let shadow_cam_bind_group =
-            Self::make_cam_bind_group(device, &shadow_cam_layout, &light_cam_buffer);
+        let shadow_cam_bind_group = Self::make_cam_bind_group(
+            device,
+            &shadow_cam_layout,
+            &light_cam_buffer,
+            &material_buffer,
+        );
         let facing = shadow::facing_normals(&scene);
         if let Some(error) = gpu.take_error() {
             return Err(RenderError::Gpu(format!(
@@ -713,6 +815,8 @@ impl Renderer {
             gbuffer_pipeline,
             shade_pipeline,
             shadow_pipeline,
+            masked_shadow_pipeline,
+            cutout_casters_start,
             color_view,
             color_texture,
             depth_view,
@@ -904,18 +1008,25 @@ impl Renderer {
         device: &wgpu::Device,
         layout: &wgpu::BindGroupLayout,
         buffer: &wgpu::Buffer,
+        materials: &wgpu::Buffer,
     ) -> wgpu::BindGroup {
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("light camera"),
             layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(64),
-                }),
-            }],
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer,
+                        offset: 0,
+                        size: wgpu::BufferSize::new(64),
+                    }),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: materials.as_entire_binding(),
+                },
+            ],
         })
     }
 
@@ -1091,8 +1202,12 @@ impl Renderer {
             self.light_cam_capacity = maps.next_power_of_two();
             self.light_cam_buffer =
                 Self::make_light_cam_buffer(device, self.light_cam_stride, self.light_cam_capacity);
-            self.shadow_cam_bind_group =
-                Self::make_cam_bind_group(device, &self.shadow_cam_layout, &self.light_cam_buffer);
+            self.shadow_cam_bind_group = Self::make_cam_bind_group(
+                device,
+                &self.shadow_cam_layout,
+                &self.light_cam_buffer,
+                &self.material_buffer,
+            );
         }
         if maps > 0 {
             let stride = self.light_cam_stride as usize;
@@ -1204,7 +1319,16 @@ impl Renderer {
             );
             pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
             pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(0..self.scene.caster_indices, 0, 0..1);
+            pass.draw_indexed(0..self.cutout_casters_start, 0, 0..1);
+            if self.cutout_casters_start < self.scene.caster_indices {
+                pass.set_pipeline(&self.masked_shadow_pipeline);
+                pass.set_bind_group(2, &self.surface_textures.bind_group, &[]);
+                pass.draw_indexed(
+                    self.cutout_casters_start..self.scene.caster_indices,
+                    0,
+                    0..1,
+                );
+            }
         }
     }
 

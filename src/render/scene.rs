@@ -179,7 +179,8 @@ fn uv_transform(value: &serde_json::Value) -> Result<([[f32; 3]; 2], Option<u32>
 /// its tangent-space normal texture, its ambient-occlusion texture and its emission texture.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MaterialTextures {
-    /// sRGB-encoded base colour (RGB; alpha is not used).
+    /// sRGB-encoded base colour (RGB), and in A a linear alpha (read with
+    /// [`Material::alpha_cutoff`] only).
     pub base_color: Option<TextureRef>,
     /// Linear; roughness in G, metallic in B.
     pub metallic_roughness: Option<TextureRef>,
@@ -289,6 +290,12 @@ pub struct Material {
     /// surface reflects: glTF's `emissiveFactor` times `KHR_materials_emissive_strength`.
     /// Zero for a surface that does not glow.
     pub emission: [f32; 3],
+    /// The base colour's alpha (glTF's `baseColorFactor[3]`), times the base-colour texture's
+    /// A where there is one.
+    pub alpha: f32,
+    /// glTF's `alphaMode` MASK with its `alphaCutoff`: where the alpha is below it the surface
+    /// is not there — not drawn, and casting no shadow. `None`: opaque (alpha not read).
+    pub alpha_cutoff: Option<f32>,
     /// Textures multiplying `base_color`, `roughness`, `metallic` and `emission`, the normal
     /// texture and the occlusion texture.
     pub textures: MaterialTextures,
@@ -302,6 +309,8 @@ impl Default for Material {
             metallic: 0.0,
             specular: 0.5,
             emission: [0.0; 3],
+            alpha: 1.0,
+            alpha_cutoff: None,
             textures: MaterialTextures::default(),
         }
     }
@@ -1620,12 +1629,24 @@ fn gltf_material(
             t.channel = channels.channel[slot];
         }
     }
+    let alpha_cutoff = match material.alpha_mode() {
+        gltf::material::AlphaMode::Mask => {
+            let cutoff = material.alpha_cutoff().unwrap_or(0.5);
+            if !(cutoff.is_finite() && cutoff >= 0.0) {
+                return Err(format!("alphaCutoff {cutoff} is not a finite number ≥ 0"));
+            }
+            Some(cutoff)
+        }
+        _ => None,
+    };
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
         roughness,
         metallic,
         specular: 0.5,
         emission: gltf_emission(material)?,
+        alpha: c[3],
+        alpha_cutoff,
         textures,
     })
 }
@@ -1717,8 +1738,8 @@ fn note_ignored_material_features(
     material: &gltf::Material,
     ignored: &mut std::collections::BTreeSet<String>,
 ) {
-    if material.alpha_mode() != gltf::material::AlphaMode::Opaque {
-        ignored.insert("alpha modes (drawn opaque)".into());
+    if material.alpha_mode() == gltf::material::AlphaMode::Blend {
+        ignored.insert("alpha blending (drawn opaque)".into());
     }
 }
 
@@ -2341,11 +2362,11 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         roughness: roughness.clamp(0.0, 1.0),
                         metallic: 0.0,
                         specular: 0.5,
-                        emission: [0.0; 3],
                         textures: MaterialTextures {
                             base_color,
                             ..Default::default()
                         },
+                        ..Material::default()
                     });
                     ids[i] = Some(id);
                     id
@@ -2871,6 +2892,44 @@ mod tests {
             let e = Scene::load(&p, false).unwrap_err().to_string();
             assert!(e.contains("glowing.gltf") && e.contains(needle), "{e}");
         }
+    }
+
+    /// glTF's alpha mode MASK gives a cutoff (0.5 by default) and the base colour factor's
+    /// alpha; OPAQUE and BLEND none (BLEND is drawn opaque, named in the warning); a negative
+    /// cutoff is an error naming it.
+    #[test]
+    fn alpha_masks_load_with_their_cutoff() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let p = d.join("masked.gltf");
+        let with = |mode: &str| {
+            text.replace(
+                r#""baseColorTexture":{"index":0}"#,
+                r#""baseColorFactor":[1,1,1,0.25],"baseColorTexture":{"index":0}"#,
+            )
+            .replace(
+                r#""normalTexture":{"index":0}"#,
+                &format!(r#""normalTexture":{{"index":0}}{mode}"#),
+            )
+        };
+        for (mode, cutoff) in [
+            (r#","alphaMode":"MASK""#, Some(0.5)),
+            (r#","alphaMode":"MASK","alphaCutoff":0.75"#, Some(0.75)),
+            (r#","alphaMode":"BLEND""#, None),
+            ("", None),
+        ] {
+            std::fs::write(&p, with(mode)).unwrap();
+            let m = Scene::load(&p, false).unwrap().materials[0];
+            assert_eq!((m.alpha, m.alpha_cutoff), (0.25, cutoff), "{mode}");
+        }
+        std::fs::write(&p, with(r#","alphaMode":"MASK","alphaCutoff":-1"#)).unwrap();
+        let e = Scene::load(&p, false).unwrap_err().to_string();
+        assert!(
+            e.contains("masked.gltf") && e.contains("alphaCutoff -1"),
+            "{e}"
+        );
     }
 
     /// A material's textures read up to two texture-coordinate sets: the first textured

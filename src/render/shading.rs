@@ -136,7 +136,8 @@ pub struct MaterialRaw {
     /// of the emissive texture, the wrap modes, the texture-coordinate channels and an unused
     /// zero ([`super::textures::MaterialLayers`]); −1: no texture.
     layers: [[f32; 4]; 2],
-    /// x: the normal texture's scale; y: the occlusion texture's strength; z, w: unused.
+    /// x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff
+    /// (negative: opaque); w: unused.
     extra: [f32; 4],
     /// rgb: emitted radiance (the emissive texture multiplies it); w: unused.
     emission: [f32; 4],
@@ -158,7 +159,7 @@ impl Material {
                 self.base_color[0],
                 self.base_color[1],
                 self.base_color[2],
-                1.0,
+                self.alpha,
             ],
             params: [self.roughness, self.metallic, self.specular, flags as f32],
             // The wrap modes use 4 · TEXTURE_SLOTS = 20 bits: exact in an f32.
@@ -174,7 +175,7 @@ impl Material {
             extra: [
                 self.textures.normal_scale,
                 self.textures.occlusion_strength,
-                0.0,
+                self.alpha_cutoff.unwrap_or(-1.0),
                 0.0,
             ],
             emission: [r, g, b, 0.0],

@@ -168,8 +168,11 @@ mod tests {
     }
 }
 
-/// WGSL source of the compute rasteriser.
-pub const SHADOW_RASTER_WGSL: &str = include_str!("../../shaders/shadow_raster.wgsl");
+/// WGSL source of the compute rasteriser (`surface.wgsl` prepended, for the cut-out casters).
+pub const SHADOW_RASTER_WGSL: &str = concat!(
+    include_str!("../../shaders/surface.wgsl"),
+    include_str!("../../shaders/shadow_raster.wgsl")
+);
 
 /// `cs_rasterize_small`'s workgroup (triangles per group).
 const RASTER_WORKGROUP: u32 = 64;
@@ -227,9 +230,13 @@ pub struct ComputeShadows {
     depths: wgpu::Buffer,
     /// The casters' triangles, small first ([`split_by_size`]).
     triangle_ids: wgpu::Buffer,
-    /// The scene's vertex and index buffers (bound again when the maps' buffers grow).
+    /// The scene's vertex, index and material buffers (bound again when the maps' buffers
+    /// grow).
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
+    materials: wgpu::Buffer,
+    /// The materials' textures (group 2), for the cut-out casters' alpha.
+    textures: wgpu::BindGroup,
     capacity: u32,
     /// [`Self::max_maps`] of this device and resolution.
     max_maps: u32,
@@ -240,13 +247,13 @@ pub struct ComputeShadows {
 }
 
 impl ComputeShadows {
-    /// Builds the pipelines over `scene` and its vertex and index buffers (which need `STORAGE`
-    /// usage), with room for one map.
+    /// Builds the pipelines over `scene` and its vertex, index and material buffers (which
+    /// need `STORAGE` usage) and its textures, with room for one map.
     pub fn new(
         device: &wgpu::Device,
         scene: &Scene,
-        vertices: &wgpu::Buffer,
-        indices: &wgpu::Buffer,
+        (vertices, indices, materials): (&wgpu::Buffer, &wgpu::Buffer, &wgpu::Buffer),
+        textures: &super::textures::SurfaceTextures,
         resolution: u32,
     ) -> Self {
         use wgpu::util::DeviceExt;
@@ -263,11 +270,12 @@ impl ComputeShadows {
                 compute_storage_entry(3, true),
                 compute_storage_entry(4, false),
                 compute_storage_entry(5, true),
+                compute_storage_entry(6, true),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shadow raster"),
-            bind_group_layouts: &[Some(&layout)],
+            bind_group_layouts: &[Some(&layout), None, Some(&textures.layout)],
             immediate_size: 0,
         });
         let pipeline = |entry: &str| {
@@ -305,7 +313,15 @@ impl ComputeShadows {
         let bind_group = Self::make_bind_group(
             device,
             &layout,
-            [&params, vertices, indices, &cameras, &depths, &triangle_ids],
+            [
+                &params,
+                vertices,
+                indices,
+                &cameras,
+                &depths,
+                &triangle_ids,
+                materials,
+            ],
         );
         Self {
             clear,
@@ -319,6 +335,8 @@ impl ComputeShadows {
             triangle_ids,
             vertices: vertices.clone(),
             indices: indices.clone(),
+            materials: materials.clone(),
+            textures: textures.bind_group.clone(),
             capacity: 1,
             max_maps: Self::max_maps(device, resolution),
             resolution,
@@ -361,11 +379,12 @@ impl ComputeShadows {
         })
     }
 
-    /// Bindings 0–5 in order: params, vertices, indices, cameras, depths, triangle ids.
+    /// Bindings 0–6 in order: params, vertices, indices, cameras, depths, triangle ids,
+    /// materials.
     fn make_bind_group(
         device: &wgpu::Device,
         layout: &wgpu::BindGroupLayout,
-        buffers: [&wgpu::Buffer; 6],
+        buffers: [&wgpu::Buffer; 7],
     ) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
@@ -417,6 +436,7 @@ impl ComputeShadows {
                     &self.cameras,
                     &self.depths,
                     &self.triangle_ids,
+                    &self.materials,
                 ],
             );
             grown = true;
@@ -450,6 +470,7 @@ impl ComputeShadows {
             timestamp_writes,
         });
         pass.set_bind_group(0, &self.bind_group, &[]);
+        pass.set_bind_group(2, &self.textures, &[]);
         let texels = u64::from(maps) * u64::from(self.resolution) * u64::from(self.resolution);
         let clear_groups = texels
             .div_ceil(u64::from(CLEAR_WORKGROUP))

@@ -170,7 +170,8 @@ pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
         .collect()
 }
 
-/// The texture arrays and their sampler, bound as group 2 of the G-buffer and ASG passes.
+/// The texture arrays and their sampler, bound as group 2 of the G-buffer, ASG and shadow
+/// passes.
 pub struct SurfaceTextures {
     pub layout: wgpu::BindGroupLayout,
     pub bind_group: wgpu::BindGroup,
@@ -235,9 +236,11 @@ impl SurfaceTextures {
             mipmap_filter: wgpu::MipmapFilterMode::Linear,
             ..Default::default()
         });
+        // The compute rasteriser reads them too (the cut-out casters' alpha).
+        let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let texture_entry = |binding| wgpu::BindGroupLayoutEntry {
             binding,
-            visibility: wgpu::ShaderStages::FRAGMENT,
+            visibility,
             ty: wgpu::BindingType::Texture {
                 sample_type: wgpu::TextureSampleType::Float { filterable: true },
                 view_dimension: wgpu::TextureViewDimension::D2Array,
@@ -252,7 +255,7 @@ impl SurfaceTextures {
                 texture_entry(1),
                 wgpu::BindGroupLayoutEntry {
                     binding: 2,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
