@@ -1986,7 +1986,7 @@ pub fn scene_files(path: &Path) -> Vec<PathBuf> {
             for line in String::from_utf8_lossy(&bytes).lines() {
                 if let Some(names) = line.trim_start().strip_prefix("mtllib") {
                     for library in names.split_whitespace().map(|name| base.join(name)) {
-                        // Its diffuse maps.
+                        // Its maps that are drawn.
                         let maps = crate::read_file::read_regular_file(
                             &library,
                             MAX_MTL_BYTES,
@@ -1995,7 +1995,13 @@ pub fn scene_files(path: &Path) -> Vec<PathBuf> {
                         .map(|text| {
                             String::from_utf8_lossy(&text)
                                 .lines()
-                                .filter_map(|l| l.trim_start().strip_prefix("map_Kd"))
+                                .filter_map(|l| {
+                                    let l = l.trim_start();
+                                    ["map_Kd", "map_Ke", "map_d"]
+                                        .iter()
+                                        .find_map(|kind| l.strip_prefix(kind))
+                                        .filter(|rest| rest.starts_with([' ', '\t']))
+                                })
                                 .map(|m| base.join(map_file_name(m)))
                                 .collect::<Vec<_>>()
                         });
@@ -2343,27 +2349,58 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         ("map_Ks", &mat.specular_texture),
                         ("bump/norm", &mat.normal_texture),
                         ("map_Ns", &mat.shininess_texture),
-                        ("map_d", &mat.dissolve_texture),
                     ] {
                         if texture.is_some() {
                             ignored.insert(kind);
                         }
                     }
-                    let base_color = match &mat.diffuse_texture {
+                    if mat.dissolve.is_some_and(|d| d < 1.0) && mat.dissolve_texture.is_none() {
+                        ignored.insert("d below 1 (translucency; drawn opaque)");
+                    }
+                    let named =
+                        |kind: &str, m: String| err(format!("material {:?}: {kind} {m}", mat.name));
+                    let diffuse_map = mat
+                        .diffuse_texture
+                        .as_deref()
+                        .map(|map| obj_texture("map_Kd", map, base, &mut b))
+                        .transpose()
+                        .map_err(|m| named("map_Kd", m))?;
+                    // map_d: a cut-out mask, joined to the base colour's alpha.
+                    let base_color = match mat.dissolve_texture.as_deref() {
                         Some(map) => {
-                            let image = obj_texture(map, base, &mut b)
-                                .map_err(|m| err(format!("material {:?}: map_Kd {m}", mat.name)))?;
-                            Some(TextureRef::repeating(image))
+                            let mask = obj_texture("map_d", map, base, &mut b)
+                                .map_err(|m| named("map_d", m))?;
+                            Some(with_mask(&mut b, diffuse_map, mask))
                         }
-                        None => None,
+                        None => diffuse_map,
+                    };
+                    let emissive_map = mat.unknown_param.get("map_Ke");
+                    let emissive = emissive_map
+                        .map(|map| obj_texture("map_Ke", map, base, &mut b))
+                        .transpose()
+                        .map_err(|m| named("map_Ke", m))?;
+                    // Ke scales map_Ke; a map_Ke without Ke glows at its texels' colour.
+                    let emission = match mat.emissive {
+                        Some(ke) if ke.iter().all(|v| v.is_finite() && *v >= 0.0) => ke,
+                        Some(ke) => {
+                            return Err(err(format!(
+                                "material {:?}: Ke {ke:?} must be finite and ≥ 0",
+                                mat.name
+                            )))
+                        }
+                        None if emissive.is_some() => [1.0; 3],
+                        None => [0.0; 3],
                     };
                     let id = b.material(Material {
                         base_color: d,
                         roughness: roughness.clamp(0.0, 1.0),
                         metallic: 0.0,
                         specular: 0.5,
+                        emission,
+                        alpha_cutoff: mat.dissolve_texture.is_some().then_some(OBJ_ALPHA_CUTOFF),
                         textures: MaterialTextures {
-                            base_color,
+                            base_color: base_color.map(TextureRef::repeating),
+                            emissive: emissive.map(TextureRef::repeating),
                             ..Default::default()
                         },
                         ..Material::default()
@@ -2386,7 +2423,8 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
     }
     if !ignored.is_empty() {
         tracing::warn!(
-            "{}: material maps not drawn (envlight renders map_Kd only): {}",
+            "{}: material maps not drawn (envlight renders map_Kd, map_Ke and map_d, as a \
+             cut-out): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -2405,12 +2443,58 @@ fn map_file_name(map: &str) -> &str {
     }
 }
 
+/// The alpha below which an OBJ material with a `map_d` is cut out (as glTF's MASK default).
+pub const OBJ_ALPHA_CUTOFF: f32 = 0.5;
+
+/// A base-colour image for an OBJ material with a `map_d` mask (image `mask` of the scene's
+/// textures): the `map_Kd` image `diffuse` (white without one) with its alpha replaced by the
+/// mask's — its A channel where any texel is not opaque, else its R (a grey mask), read at the
+/// same texture coordinates (nearest texel where the sizes differ). The joined image is added
+/// to the scene; its index is returned.
+fn with_mask(b: &mut Builder, diffuse: Option<u32>, mask: u32) -> u32 {
+    let mask = &b.textures[mask as usize];
+    let colour = diffuse.map(|i| &b.textures[i as usize]);
+    let (width, height) = colour.map_or((mask.width, mask.height), |c| (c.width, c.height));
+    let masked_alpha = mask.rgba.chunks_exact(4).any(|p| p[3] < 255);
+    let mut rgba = Vec::with_capacity(width as usize * height as usize * 4);
+    for y in 0..height {
+        for x in 0..width {
+            let rgb = colour.map_or([255; 3], |c| {
+                let i = (y as usize * c.width as usize + x as usize) * 4;
+                c.rgba
+                    .get(i..i + 3)
+                    .map_or([255; 3], |p| [p[0], p[1], p[2]])
+            });
+            // The mask's texel whose area holds this texel's centre.
+            let mx = (u64::from(x) * u64::from(mask.width) / u64::from(width)) as usize;
+            let my = (u64::from(y) * u64::from(mask.height) / u64::from(height)) as usize;
+            let m = (my * mask.width as usize + mx) * 4;
+            let alpha = mask
+                .rgba
+                .get(m..m + 4)
+                .map_or(255, |p| if masked_alpha { p[3] } else { p[0] });
+            rgba.extend_from_slice(&[rgb[0], rgb[1], rgb[2], alpha]);
+        }
+    }
+    let name = match colour {
+        Some(c) => format!("{} masked by {}", c.name, mask.name),
+        None => format!("mask {}", mask.name),
+    };
+    b.textures.push(TextureImage {
+        name,
+        width,
+        height,
+        rgba,
+    });
+    (b.textures.len() - 1) as u32
+}
+
 /// Loads an MTL texture (`map_Kd`) named relative to the OBJ file's directory. Options before
 /// the file name (`-s 1 1 1 file.png`) are not applied, with a warning.
-fn obj_texture(map: &str, base: &Path, b: &mut Builder) -> Result<u32, String> {
+fn obj_texture(kind: &str, map: &str, base: &Path, b: &mut Builder) -> Result<u32, String> {
     let file_name = map_file_name(map);
     if file_name != map.trim() {
-        tracing::warn!("map_Kd {map:?}: its options are not applied; reading {file_name:?}");
+        tracing::warn!("{kind} {map:?}: its options are not applied; reading {file_name:?}");
     }
     let file = base.join(file_name);
     if let Some(i) = b
@@ -2584,7 +2668,7 @@ mod tests {
     /// A 2 × 1 PNG: a red and a blue texel.
     fn two_texel_png() -> Vec<u8> {
         let mut png = Vec::new();
-        image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 0, 0, 255, 255])
+        image::RgbaImage::from_raw(2, 1, two_texel_png_rgba())
             .unwrap()
             .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .unwrap();
@@ -3007,6 +3091,85 @@ mod tests {
         std::fs::write(d.join("m.mtl"), "newmtl t\nmap_Kd gone.png\n").unwrap();
         let e = Scene::load(&p, false).unwrap_err().to_string();
         assert!(e.contains("map_Kd") && e.contains("gone.png"), "{e}");
+    }
+
+    /// An MTL's `Ke` and `map_Ke` make the emission, and its `map_d` a cut-out: the mask (its
+    /// R where it has no alpha, its A where it has) joined to the `map_Kd` image's alpha, at
+    /// the cutoff 0.5; the scene's files include both maps; a missing map or a negative `Ke` is
+    /// an error naming it; `d` below 1 without a map loads (drawn opaque, with a warning).
+    #[test]
+    fn obj_emission_and_dissolve_maps_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let png = |image: image::DynamicImage| {
+            let mut bytes = Vec::new();
+            image
+                .write_to(
+                    &mut std::io::Cursor::new(&mut bytes),
+                    image::ImageFormat::Png,
+                )
+                .unwrap();
+            bytes
+        };
+        // A grey mask, 4 × 1: 0, 0, 255, 255 (nearest to the 2-texel colour image: 0, 255).
+        let grey = image::GrayImage::from_raw(4, 1, vec![0, 0, 255, 255]).unwrap();
+        std::fs::write(d.join("mask.png"), png(grey.into())).unwrap();
+        // A mask with alpha: its A counts, not its R.
+        let alpha = image::RgbaImage::from_raw(2, 1, vec![0, 0, 0, 200, 255, 255, 255, 10]);
+        std::fs::write(d.join("alpha.png"), png(alpha.unwrap().into())).unwrap();
+        let obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl t\nf 1/1 2/2 3/3\n";
+        let p = d.join("t.obj");
+        std::fs::write(&p, obj).unwrap();
+        let load = |mtl: &str| {
+            std::fs::write(d.join("m.mtl"), mtl).unwrap();
+            Scene::load(&p, false)
+        };
+        let s = load(
+            "newmtl t\nKd 1 1 1\nKe 2 1 0.5\nmap_Ke tex.png\nmap_Kd tex.png\nmap_d mask.png\n",
+        )
+        .unwrap();
+        let m = s.materials[0];
+        assert_eq!(m.emission, [2.0, 1.0, 0.5]);
+        assert_eq!(m.alpha_cutoff, Some(OBJ_ALPHA_CUTOFF));
+        let emissive = m.textures.emissive.unwrap();
+        assert_eq!(
+            s.textures[emissive.image as usize].rgba,
+            two_texel_png_rgba()
+        );
+        let joined = &s.textures[m.textures.base_color.unwrap().image as usize];
+        assert_eq!((joined.width, joined.height), (2, 1));
+        assert_eq!(joined.rgba, [255, 0, 0, 0, 0, 0, 255, 255]);
+        let files = scene_files(&p);
+        for name in ["tex.png", "mask.png", "m.mtl"] {
+            assert!(files.contains(&d.join(name)), "{name}: {files:?}");
+        }
+        // No map_Kd: a white image of the mask's size; an alpha mask's A; no Ke: map_Ke's
+        // texels at full strength.
+        let s = load("newmtl t\nmap_d alpha.png\nmap_Ke tex.png\n").unwrap();
+        let m = s.materials[0];
+        assert_eq!(m.emission, [1.0; 3]);
+        let joined = &s.textures[m.textures.base_color.unwrap().image as usize];
+        assert_eq!(joined.rgba, [255, 255, 255, 200, 255, 255, 255, 10]);
+        // No maps: no cut-out, no glow; a translucent d is drawn opaque.
+        let m = load("newmtl t\nd 0.5\n").unwrap().materials[0];
+        assert_eq!((m.alpha_cutoff, m.emission), (None, [0.0; 3]));
+        for (mtl, needle) in [
+            ("newmtl t\nmap_d gone.png\n", "map_d"),
+            ("newmtl t\nmap_Ke gone.png\n", "map_Ke"),
+            ("newmtl t\nKe -1 0 0\n", "Ke [-1.0, 0.0, 0.0]"),
+        ] {
+            let e = load(mtl).unwrap_err().to_string();
+            assert!(
+                e.contains(needle) && e.contains("material \"t\""),
+                "{mtl}: {e}"
+            );
+        }
+    }
+
+    /// [`two_texel_png`]'s pixels: red, then blue.
+    fn two_texel_png_rgba() -> Vec<u8> {
+        vec![255, 0, 0, 255, 0, 0, 255, 255]
     }
 
     /// A one-triangle glTF (optionally with NORMALs and indices in the buffer), with the
