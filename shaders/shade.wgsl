@@ -180,13 +180,13 @@ struct GBuffer {
 };
 
 @fragment
-fn fs_gbuffer(in: VertexOut) -> GBuffer {
+fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
     let mat = materials[in.material];
     let tc = fragment_coordinates(in.uv, in.uv1);
-    if cut_out(mat, tc) {
+    if !fragment_drawn(mat, front, tc) {
         discard;
     }
-    let p = surface_params(mat, tc, in.normal, in.tangent);
+    let p = surface_params(mat, tc, in.normal, in.tangent, front);
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);

@@ -5,6 +5,7 @@
 
 const PI: f32 = 3.14159265358979;
 const FLAG_CATCHER: u32 = 1u;
+const FLAG_DOUBLE_SIDED: u32 = 2u;
 
 // A material's texture slots (src/render/textures.rs, `texture_slots`).
 const TEX_BASE_COLOR: u32 = 0u;
@@ -16,7 +17,8 @@ const TEX_EMISSIVE: u32 = 4u;
 struct Material {
     // rgb: base colour; a: its alpha.
     base_color: vec4<f32>,
-    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher).
+    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher, bit 1:
+    // double-sided).
     params: vec4<f32>,
     // Slot k's layer at layers[k / 4][k % 4] (negative: none): of the base-colour array for
     // the base-colour and emissive slots, of the data array for the others. layers[1].y: the
@@ -156,6 +158,15 @@ fn fragment_coordinates(uv: vec2<f32>, uv1: vec2<f32>) -> TextureCoordinates {
     return TextureCoordinates(uv, dpdx(uv), dpdy(uv), uv1, dpdx(uv1), dpdy(uv1));
 }
 
+// Whether a fragment is drawn: not where a single-sided material is seen from behind
+// (`front` false: wound clockwise on screen), nor where it is cut out (`cut_out`).
+fn fragment_drawn(mat: Material, front: bool, tc: TextureCoordinates) -> bool {
+    if !front && (u32(mat.params.w) & FLAG_DOUBLE_SIDED) == 0u {
+        return false;
+    }
+    return !cut_out(mat, tc);
+}
+
 // Whether the material is cut out at `tc` (glTF's alpha mode MASK): its alpha — the factor's
 // times the base-colour texture's — is below its cutoff. Always false for an opaque material.
 fn cut_out(mat: Material, tc: TextureCoordinates) -> bool {
@@ -170,9 +181,10 @@ fn cut_out(mat: Material, tc: TextureCoordinates) -> bool {
 }
 
 // The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point
-// with interpolated `normal` and `tangent`; the mip levels follow the coordinates' screen
-// derivatives.
-fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tangent: vec4<f32>) -> SurfaceParams {
+// with interpolated `normal` and `tangent`, seen from the front or (`front` false) from behind,
+// where the shading normal is reversed (glTF's double-sided materials: the whole tangent frame
+// turned); the mip levels follow the coordinates' screen derivatives.
+fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tangent: vec4<f32>, front: bool) -> SurfaceParams {
     var p: SurfaceParams;
     p.base_color = mat.base_color.rgb;
     p.roughness = mat.params.x;
@@ -208,6 +220,9 @@ fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tang
         if dot(turned, turned) > 1e-12 {
             p.normal = turned;
         }
+    }
+    if !front {
+        p.normal = -p.normal;
     }
     return p;
 }

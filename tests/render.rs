@@ -1876,6 +1876,53 @@ fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
     }
 }
 
+/// glTF's doubleSided: a quad seen from behind (wound clockwise on screen, its normals away
+/// from the camera) is shaded with its normal reversed — lit by a light on the viewer's side as
+/// its front is — when double-sided, and not drawn when single-sided, in the light and ASG
+/// passes; seen from the front both are drawn.
+#[test]
+fn back_faces_are_reversed_when_double_sided_and_not_drawn_when_single_sided() {
+    use envlight::asg::Asg;
+    use glam::DVec3;
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let lit_white = [3.0 / std::f32::consts::PI; 3];
+    let asg_mean = |scene: Scene| {
+        let mut r = renderer(scene, quad_settings());
+        let (img, _) = r.render_asg(&lobes).unwrap();
+        mean_over(&r, &img, -0.5..0.5)
+    };
+    for double_sided in [true, false] {
+        let material = Material {
+            double_sided,
+            ..Material::lambertian([1.0; 3])
+        };
+        let front = textured_quad(material, vec![], 1.0);
+        let mut back = front.clone();
+        for triangle in back.indices.chunks_exact_mut(3) {
+            triangle.swap(1, 2);
+        }
+        for v in &mut back.vertices {
+            v.normal = [0.0, 0.0, -1.0];
+        }
+        let (r, img) = render_quad(front.clone(), &lights);
+        let what = |side: &str| format!("{side}, double-sided {double_sided}");
+        assert_close(
+            &what("front"),
+            mean_over(&r, &img, -0.5..0.5),
+            lit_white,
+            0.01,
+        );
+        let (r, img) = render_quad(back.clone(), &lights);
+        let want = if double_sided { lit_white } else { [0.0; 3] };
+        assert_close(&what("back"), mean_over(&r, &img, -0.5..0.5), want, 0.01);
+        let front_asg = asg_mean(front);
+        assert!(front_asg[0] > 0.1, "{}: {front_asg:?}", what("ASG, front"));
+        let want = if double_sided { front_asg } else { [0.0; 3] };
+        assert_close(&what("ASG, back"), asg_mean(back), want, 0.01);
+    }
+}
+
 /// A normal texture turns the shading normal in the tangent frame: x along the tangent
 /// (increasing u), y up the image (the bitangent cross(n, t)·w), scaled by the material's
 /// normal scale. Each tilted half of the quad is compared with the exact Lambertian ratio

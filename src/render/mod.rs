@@ -334,9 +334,10 @@ fn compute_storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayout
     }
 }
 
-/// A triangle pipeline over the scene's vertices (`vs_main`), depth-tested with `Less` and
-/// depth writes, no culling; with `fragment = Some((entry, n))`, that fragment entry point
-/// writes `n` `Rgba32Float` targets unblended, without it the pass is depth-only (shadow maps).
+/// A triangle pipeline over the scene's vertices (the vertex entry point reading the given
+/// attributes), depth-tested with `Less` and depth writes, no culling; with
+/// `fragment = Some((entry, n))`, that fragment entry point writes `n` `Rgba32Float` targets
+/// unblended (none: it only discards), without it the pass is depth-only (shadow maps).
 fn depth_tested_pipeline(
     device: &wgpu::Device,
     label: &str,
@@ -577,14 +578,8 @@ impl Renderer {
                 },
                 // The materials, for the cut-out casters' alpha.
                 wgpu::BindGroupLayoutEntry {
-                    binding: 1,
                     visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
+                    ..compute_storage_entry(1, true)
                 },
             ],
         });

@@ -296,6 +296,10 @@ pub struct Material {
     /// glTF's `alphaMode` MASK with its `alphaCutoff`: where the alpha is below it the surface
     /// is not there — not drawn, and casting no shadow. `None`: opaque (alpha not read).
     pub alpha_cutoff: Option<f32>,
+    /// glTF's `doubleSided`: seen from behind (its triangles winding clockwise on screen), the
+    /// surface is shaded with its normal reversed; single-sided, its back is not drawn (it
+    /// still casts shadows). OBJ and built-in materials are double-sided.
+    pub double_sided: bool,
     /// Textures multiplying `base_color`, `roughness`, `metallic` and `emission`, the normal
     /// texture and the occlusion texture.
     pub textures: MaterialTextures,
@@ -311,6 +315,7 @@ impl Default for Material {
             emission: [0.0; 3],
             alpha: 1.0,
             alpha_cutoff: None,
+            double_sided: true,
             textures: MaterialTextures::default(),
         }
     }
@@ -1119,6 +1124,17 @@ fn parse_gltf(bytes: &[u8], path: &Path) -> Result<gltf::Gltf, String> {
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
     let mut root = document.into_json();
+    // The crate refuses a required extension that none of its features enables, those drawn
+    // here included: each is checked here, by name, and the list cleared.
+    for extension in std::mem::take(&mut root.extensions_required) {
+        if !DRAWN_EXTENSIONS.contains(&extension.as_str()) {
+            return Err(format!(
+                "the file requires extension {extension}, which envlight does not implement \
+                 (it draws {})",
+                DRAWN_EXTENSIONS.join(" and ")
+            ));
+        }
+    }
     for (n, node) in root.nodes.iter_mut().enumerate() {
         check_node_transform(node).map_err(|m| format!("node {n}: {m}"))?;
         if let Some(rotation) = &mut node.rotation {
@@ -1238,9 +1254,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     let mut images = std::collections::HashMap::new();
     let mut ignored = std::collections::BTreeSet::<String>::new();
     for extension in gltf.document.extensions_used() {
-        // None is drawn (KHR_materials_*, …) but the texture transform and the emissive
-        // strength.
-        if extension != TEXTURE_TRANSFORM && extension != EMISSIVE_STRENGTH {
+        if !DRAWN_EXTENSIONS.contains(&extension) {
             ignored.insert(format!("extension {extension}"));
         }
     }
@@ -1368,7 +1382,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let positions: Vec<Vec3> = positions
                 .map(|p| world.transform_point3(Vec3::from_array(p)))
                 .collect();
-            let indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
+            let mut indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
                 (Some(i), _) => i.into_u32().collect(),
                 (None, None) => (0..positions.len() as u32).collect(),
                 (None, Some(_)) => {
@@ -1391,6 +1405,14 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     mesh_name(&prim),
                     positions.len()
                 )));
+            }
+            // A mirroring node reverses the triangles' winding (glTF): turned back, so that
+            // front faces wind counter-clockwise in world space (single-sided materials, the
+            // normals made from the winding).
+            if world.determinant() < 0.0 {
+                for triangle in indices.chunks_exact_mut(3) {
+                    triangle.swap(1, 2);
+                }
             }
             let mut normals: Vec<Vec3> = match reader.read_normals() {
                 Some(n) => n
@@ -1426,20 +1448,8 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     )));
                 };
                 let read: Vec<[f32; 2]> = read.into_f32().collect();
-                if read.len() != positions.len() {
-                    return Err(err(format!(
-                        "{}: {} texture coordinates (TEXCOORD_{set}) for {} positions",
-                        mesh_name(&prim),
-                        read.len(),
-                        positions.len()
-                    )));
-                }
-                if read.iter().flatten().any(|c| !c.is_finite()) {
-                    return Err(err(format!(
-                        "{}: a texture coordinate (TEXCOORD_{set}) is not finite",
-                        mesh_name(&prim)
-                    )));
-                }
+                check_per_vertex(&read, positions.len(), &format!("TEXCOORD_{set}"))
+                    .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
                 uvs[channel] = read;
             }
             // MikkTSpace's tangents follow the normal texture's coordinates.
@@ -1481,19 +1491,9 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                         Vec::new()
                     }),
             };
-            if !tangents.is_empty() && tangents.len() != positions.len() {
-                return Err(err(format!(
-                    "{}: {} tangents for {} positions",
-                    mesh_name(&prim),
-                    tangents.len(),
-                    positions.len()
-                )));
-            }
-            if tangents.iter().flatten().any(|c| !c.is_finite()) {
-                return Err(err(format!(
-                    "{}: a tangent is not finite",
-                    mesh_name(&prim)
-                )));
+            if !tangents.is_empty() {
+                check_per_vertex(&tangents, positions.len(), "TANGENT")
+                    .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
             }
             let key = mat.index();
             let id = match material_ids.get(&key) {
@@ -1647,12 +1647,16 @@ fn gltf_material(
         emission: gltf_emission(material)?,
         alpha: c[3],
         alpha_cutoff,
+        double_sided: material.double_sided(),
         textures,
     })
 }
 
 /// The glTF extension that scales a material's emission past 1.
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
+
+/// The glTF extensions the renderer draws (a file may require them).
+const DRAWN_EXTENSIONS: [&str; 2] = [TEXTURE_TRANSFORM, EMISSIVE_STRENGTH];
 
 /// A glTF material's emitted radiance: `emissiveFactor` (each in [0, 1]) times its
 /// `KHR_materials_emissive_strength.emissiveStrength` (finite, ≥ 0; 1 without the extension).
@@ -1676,6 +1680,24 @@ fn gltf_emission(material: &gltf::Material) -> Result<[f32; 3], String> {
             })?,
     };
     Ok(factor.map(|f| f * strength))
+}
+
+/// A primitive's per-vertex attribute `name`: one value per position, every component finite.
+fn check_per_vertex<const N: usize>(
+    values: &[[f32; N]],
+    positions: usize,
+    name: &str,
+) -> Result<(), String> {
+    if values.len() != positions {
+        return Err(format!(
+            "{} {name} values for {positions} positions",
+            values.len()
+        ));
+    }
+    if values.iter().flatten().any(|c| !c.is_finite()) {
+        return Err(format!("a {name} value is not finite"));
+    }
+    Ok(())
 }
 
 /// The names of a material's texture slots (`textures::texture_slots`' order), for messages.
@@ -3012,6 +3034,75 @@ mod tests {
         let e = Scene::load(&p, false).unwrap_err().to_string();
         assert!(
             e.contains("masked.gltf") && e.contains("alphaCutoff -1"),
+            "{e}"
+        );
+    }
+
+    /// A mirroring node reverses the winding back (glTF), so that the triangle still faces
+    /// the way its normals do: made from the winding where the file has none (they pointed
+    /// inwards before), or the file's own turned by the node; glTF's doubleSided is read
+    /// (false by default; OBJ and built-in materials are double-sided).
+    #[test]
+    fn mirrored_nodes_keep_their_triangles_facing_their_normals() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let p = d.join("mirrored.gltf");
+        for (node, double) in [
+            (r#""nodes":[{"mesh":0}]"#, ""),
+            (
+                r#""nodes":[{"mesh":0,"scale":[-1,1,1]}]"#,
+                r#","doubleSided":true"#,
+            ),
+        ] {
+            let mirrored = text.replace(r#""nodes":[{"mesh":0}]"#, node).replace(
+                r#""normalTexture":{"index":0}"#,
+                &format!(r#""normalTexture":{{"index":0}}{double}"#),
+            );
+            std::fs::write(&p, mirrored).unwrap();
+            let s = Scene::load(&p, false).unwrap();
+            let at = |k: usize| Vec3::from_array(s.vertices[s.indices[k] as usize].position);
+            let facing = (at(1) - at(0)).cross(at(2) - at(0));
+            for v in &s.vertices {
+                assert!(
+                    facing.dot(Vec3::from_array(v.normal)) > 0.0 && v.normal[2] > 0.99,
+                    "{node}: normal {:?}, triangle facing {facing}",
+                    v.normal
+                );
+            }
+            assert_eq!(s.materials[0].double_sided, !double.is_empty(), "{node}");
+        }
+        assert!(Material::default().double_sided);
+    }
+
+    /// A file may require the extensions the renderer draws (the `gltf` crate refused them,
+    /// none of its features being enabled); another required extension is an error naming it.
+    #[test]
+    fn required_extensions_load_when_drawn_and_are_named_otherwise() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
+        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let p = d.join("required.gltf");
+        let requiring = |list: &str| {
+            text.replacen(
+                "{",
+                &format!(r#"{{"extensionsUsed":{list},"extensionsRequired":{list},"#),
+                1,
+            )
+        };
+        std::fs::write(
+            &p,
+            requiring(r#"["KHR_texture_transform","KHR_materials_emissive_strength"]"#),
+        )
+        .unwrap();
+        Scene::load(&p, false).unwrap();
+        std::fs::write(&p, requiring(r#"["KHR_draco_mesh_compression"]"#)).unwrap();
+        let e = Scene::load(&p, false).unwrap_err().to_string();
+        assert!(
+            e.contains("required.gltf")
+                && e.contains("requires extension KHR_draco_mesh_compression"),
             "{e}"
         );
     }

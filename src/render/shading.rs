@@ -148,6 +148,8 @@ pub struct MaterialRaw {
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
 pub const FLAG_CATCHER: u32 = 1;
+/// Material flag: the surface is double-sided (set by [`Material::to_raw`] from the material).
+pub const FLAG_DOUBLE_SIDED: u32 = 2;
 
 impl Material {
     /// The shaders' form, with its texture layers from [`super::textures::material_layers`].
@@ -161,7 +163,17 @@ impl Material {
                 self.base_color[2],
                 self.alpha,
             ],
-            params: [self.roughness, self.metallic, self.specular, flags as f32],
+            params: [
+                self.roughness,
+                self.metallic,
+                self.specular,
+                (flags
+                    | if self.double_sided {
+                        FLAG_DOUBLE_SIDED
+                    } else {
+                        0
+                    }) as f32,
+            ],
             // The wrap modes use 4 · TEXTURE_SLOTS = 20 bits: exact in an f32.
             layers: [
                 [l0, l1, l2, l3],
