@@ -810,6 +810,7 @@ impl RawRender {
                     )
                 })?,
             },
+            ..crate::render::RenderSettings::default()
         };
         if let Some(ms) = self.budget_ms {
             if !(ms.is_finite() && ms > 0.0) {

@@ -261,6 +261,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         culling: !args.no_culling,
         shadow_catcher: args.catcher,
         shadow_raster: args.shadow_raster.unwrap_or_default(),
+        ..RenderSettings::default()
     };
     let mut next_frame =
         move || -> Result<Option<(envlight::LightFrame, Option<envlight::HdrFrame>)>> {

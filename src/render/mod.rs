@@ -139,6 +139,9 @@ pub struct RenderSettings {
     /// How the shadow maps are drawn: render passes or compute shaders ([`shadow_raster`]);
     /// a renderer's [`Renderer::settings`] hold the way it resolved `Auto` to.
     pub shadow_raster: ShadowRaster,
+    /// The most samples of anisotropic texture filtering, 1 (off) to
+    /// [`textures::MAX_ANISOTROPY`] (the default; where the adapter has it).
+    pub texture_anisotropy: u16,
 }
 
 impl Default for RenderSettings {
@@ -151,6 +154,7 @@ impl Default for RenderSettings {
             culling: true,
             shadow_catcher: false,
             shadow_raster: ShadowRaster::default(),
+            texture_anisotropy: textures::MAX_ANISOTROPY,
         }
     }
 }
@@ -448,6 +452,13 @@ impl Renderer {
         if scene.indices.is_empty() {
             return Err(RenderError::Settings("the scene has no triangles".into()));
         }
+        if !(1..=textures::MAX_ANISOTROPY).contains(&settings.texture_anisotropy) {
+            return Err(RenderError::Settings(format!(
+                "texture anisotropy {} outside 1..={}",
+                settings.texture_anisotropy,
+                textures::MAX_ANISOTROPY
+            )));
+        }
         settings.shadow_raster = settings
             .shadow_raster
             .resolve_for(
@@ -492,9 +503,14 @@ impl Renderer {
             usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::STORAGE,
         });
         let texture_plan = textures::plan_layers(&scene, max_dim);
-        let surface_textures =
-            textures::SurfaceTextures::new(&gpu.device, &gpu.queue, &scene, &texture_plan)
-                .map_err(|e| RenderError::Settings(e.to_string()))?;
+        let surface_textures = textures::SurfaceTextures::new(
+            &gpu.device,
+            &gpu.queue,
+            &scene,
+            &texture_plan,
+            settings.texture_anisotropy,
+        )
+        .map_err(|e| RenderError::Settings(e.to_string()))?;
         let materials: Vec<shading::MaterialRaw> = scene
             .materials
             .iter()

@@ -31,6 +31,9 @@ use super::scene::{MaterialTextures, Scene, TextureImage, TextureRef, Wrap};
 /// The largest side of a texture layer, in texels (a 2048² layer and its mips take 21 MiB).
 pub const MAX_LAYER_SIDE: u32 = 2048;
 
+/// The sampler's anisotropy clamp (wgpu's, and most GPUs', largest).
+pub const MAX_ANISOTROPY: u16 = 16;
+
 /// The most memory the texture arrays may take, mip chains included: 1 GiB.
 pub const MAX_TEXTURE_BYTES: u64 = 1 << 30;
 
@@ -193,12 +196,14 @@ pub struct SurfaceTextures {
 }
 
 impl SurfaceTextures {
-    /// Step 2 of the module doc: resamples and uploads the planned layers.
+    /// Step 2 of the module doc: resamples and uploads the planned layers; the sampler
+    /// filters with up to `anisotropy` samples (1..=[`MAX_ANISOTROPY`]).
     pub fn new(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         scene: &Scene,
         plan: &LayerPlan,
+        anisotropy: u16,
     ) -> Result<Self, TextureError> {
         let limit = device.limits().max_texture_array_layers;
         for list in [&plan.base_color, &plan.data] {
@@ -253,6 +258,9 @@ impl SurfaceTextures {
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
             mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            // Up to 16 samples along a footprint stretched by a grazing view, where the
+            // adapter filters anisotropically (wgpu sets 1 where it does not).
+            anisotropy_clamp: anisotropy.clamp(1, MAX_ANISOTROPY),
             ..Default::default()
         });
         // The compute rasteriser reads them too (the cut-out casters' alpha).
