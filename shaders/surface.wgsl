@@ -1,7 +1,9 @@
-// Shared by the main passes (shade.wgsl) and the ASG pass (asg.wgsl): the vertex layout, the
-// material table and its textures, and the metallic-roughness set-up of a shaded point. Not a pipeline of its own:
-// src/render prepends it to each of those files (`render::SHADERS` lists the composed sources).
-// Each pass declares its own `Globals` and bindings and calls `surface_vertex` from `vs_main`.
+// Shared by the main passes (shade.wgsl), the ASG pass (asg.wgsl) and the shadow passes
+// (shadow.wgsl, shadow_raster.wgsl, for the cut-out casters' alpha): the vertex layout, the
+// material table and its textures, their sampling (`sample_slot`, `cut_out`), and the
+// metallic-roughness set-up of a shaded point. Not a pipeline of its own: src/render prepends
+// it to each of those files (`render::SHADERS` lists the composed sources). Each pass declares
+// its own `Globals` and bindings; the surface passes call `surface_vertex` from `vs_main`.
 
 const PI: f32 = 3.14159265358979;
 const FLAG_CATCHER: u32 = 1u;
