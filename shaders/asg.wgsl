@@ -195,10 +195,10 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
 fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
     let mat = materials[in.material];
     let tc = fragment_coordinates(in.uv, in.uv1);
-    if !fragment_drawn(mat, front, tc) {
+    if !fragment_drawn(mat, front, tc, in.color.a) {
         discard;
     }
-    let p = surface_params(mat, tc, in.normal, in.tangent, front);
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
     let s = surface_at(in.world, p.normal, p, mat, globals.camera_pos.xyz);
     if s.catcher {
         return vec4<f32>(0.0);

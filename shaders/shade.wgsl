@@ -183,10 +183,10 @@ struct GBuffer {
 fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
     let mat = materials[in.material];
     let tc = fragment_coordinates(in.uv, in.uv1);
-    if !fragment_drawn(mat, front, tc) {
+    if !fragment_drawn(mat, front, tc, in.color.a) {
         discard;
     }
-    let p = surface_params(mat, tc, in.normal, in.tangent, front);
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);

@@ -26,6 +26,7 @@ struct MaskedIn {
     @location(2) material: u32,
     @location(3) uv: vec2<f32>,
     @location(5) uv1: vec2<f32>,
+    @location(6) color: vec4<f32>,
 };
 
 struct MaskedOut {
@@ -33,6 +34,8 @@ struct MaskedOut {
     @location(0) @interpolate(flat) material: u32,
     @location(1) uv: vec2<f32>,
     @location(2) uv1: vec2<f32>,
+    // The vertex colour's alpha.
+    @location(3) alpha: f32,
 };
 
 @vertex
@@ -42,13 +45,14 @@ fn vs_masked(v: MaskedIn) -> MaskedOut {
     out.material = v.material;
     out.uv = v.uv;
     out.uv1 = v.uv1;
+    out.alpha = v.color.a;
     return out;
 }
 
 @fragment
 fn fs_masked(in: MaskedOut) {
     let tc = fragment_coordinates(in.uv, in.uv1);
-    if cut_out(shadow_materials[in.material], tc) {
+    if cut_out(shadow_materials[in.material], tc, in.alpha) {
         discard;
     }
 }

@@ -39,7 +39,9 @@ struct Params {
 @group(0) @binding(0) var<uniform> params: Params;
 // The scene's vertices as words, VERTEX_WORDS each (src/render/scene.rs `Vertex`: position,
 // normal, material, uv, uv1, tangent).
-@group(0) @binding(1) var<storage, read> vertex_words: array<f32>;
+// As u32 words (the colour's and material's bits are no f32s: read as floats, a NaN pattern
+// might not survive the load).
+@group(0) @binding(1) var<storage, read> vertex_words: array<u32>;
 @group(0) @binding(2) var<storage, read> indices: array<u32>;
 // Map k's view-projection.
 @group(0) @binding(3) var<storage, read> light_cameras: array<mat4x4<f32>>;
@@ -50,11 +52,13 @@ struct Params {
 @group(0) @binding(6) var<storage, read> raster_materials: array<Material>;
 
 // The words of a vertex (src/render/scene.rs, `Vertex`): its position is the first three, its
-// material the seventh, its texture coordinates the next two pairs.
-const VERTEX_WORDS: u32 = 15u;
+// material the seventh, its texture coordinates the next two pairs, its colour the last two.
+const VERTEX_WORDS: u32 = 17u;
 const MATERIAL_WORD: u32 = 6u;
 const UV_WORD: u32 = 7u;
 const UV1_WORD: u32 = 9u;
+// The colour: RGBA as four 16-bit unorms in two words, alpha in the second's high half.
+const COLOR_BA_WORD: u32 = 16u;
 // The render pass's DepthBiasState: constant 2, slope scale 1.5 (src/render/mod.rs). One unit
 // of the constant is the depth's last place near its largest value (< 1): 2^-24.
 const BIAS_CONSTANT: f32 = 5.9604645e-8;
@@ -79,12 +83,16 @@ fn texel_space(p: vec3<f32>, m: mat4x4<f32>, res: f32) -> vec3<f32> {
 
 fn position(i: u32) -> vec3<f32> {
     let w = VERTEX_WORDS * i;
-    return vec3<f32>(vertex_words[w], vertex_words[w + 1u], vertex_words[w + 2u]);
+    return bitcast<vec3<f32>>(vec3<u32>(vertex_words[w], vertex_words[w + 1u], vertex_words[w + 2u]));
+}
+
+fn vertex_alpha(i: u32) -> f32 {
+    return unpack2x16unorm(vertex_words[VERTEX_WORDS * i + COLOR_BA_WORD]).y;
 }
 
 fn vertex_pair(i: u32, word: u32) -> vec2<f32> {
     let w = VERTEX_WORDS * i + word;
-    return vec2<f32>(vertex_words[w], vertex_words[w + 1u]);
+    return bitcast<vec2<f32>>(vec2<u32>(vertex_words[w], vertex_words[w + 1u]));
 }
 
 // Rasterises triangle `tri` into map `map`: the rows y_first + row_lane, + row_lanes, … of its
@@ -126,10 +134,12 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
     let ia = indices[3u * tri];
     let ib = indices[3u * tri + 1u];
     let ic = indices[3u * tri + 2u];
-    let material = bitcast<u32>(vertex_words[VERTEX_WORDS * ia + MATERIAL_WORD]);
+    let material = vertex_words[VERTEX_WORDS * ia + MATERIAL_WORD];
     let masked = raster_materials[material].extra.z > 0.0;
     var mat: Material;
     var uv_plane: array<vec2<f32>, 6>;
+    // The vertex colours' alpha: d/dx, d/dy, the value at (0, 0).
+    var alpha_plane = vec3<f32>(0.0, 0.0, 1.0);
     if masked {
         mat = raster_materials[material];
         // Per channel: d/dx, d/dy, the value at (0, 0).
@@ -142,6 +152,11 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
             uv_plane[3u * channel + 1u] = (ea.y * ua + eb.y * ub + ec.y * uc) * inv;
             uv_plane[3u * channel + 2u] = (ea.z * ua + eb.z * ub + ec.z * uc) * inv;
         }
+        let aa = vertex_alpha(ia);
+        let ab = vertex_alpha(ib);
+        let ac = vertex_alpha(ic);
+        alpha_plane = vec3<f32>(ea.x * aa + eb.x * ab + ec.x * ac, ea.y * aa + eb.y * ab + ec.y * ac,
+                                ea.z * aa + eb.z * ab + ec.z * ac) * inv;
     }
     for (var y = y_first + row_lane; y <= y_last; y = y + row_lanes) {
         let yc = f32(y) + 0.5;
@@ -171,7 +186,7 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
                 let tc = TextureCoordinates(
                     uv_plane[0] * xc + uv_plane[1] * yc + uv_plane[2], uv_plane[0], uv_plane[1],
                     uv_plane[3] * xc + uv_plane[4] * yc + uv_plane[5], uv_plane[3], uv_plane[4]);
-                if cut_out(mat, tc) {
+                if cut_out(mat, tc, dot(alpha_plane, vec3<f32>(xc, yc, 1.0))) {
                     continue;
                 }
             }

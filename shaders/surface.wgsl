@@ -58,6 +58,8 @@ struct VertexIn {
     @location(4) tangent: vec4<f32>,
     // The second texture coordinates (zero where the material has no second set).
     @location(5) uv1: vec2<f32>,
+    // Linear RGBA multiplying the base colour and its alpha (glTF's COLOR_0; white without).
+    @location(6) color: vec4<f32>,
 };
 
 struct VertexOut {
@@ -68,6 +70,7 @@ struct VertexOut {
     @location(3) uv: vec2<f32>,
     @location(4) tangent: vec4<f32>,
     @location(5) uv1: vec2<f32>,
+    @location(6) color: vec4<f32>,
 };
 
 // World-space geometry is passed through; only the clip position is transformed.
@@ -79,6 +82,7 @@ fn surface_vertex(view_proj: mat4x4<f32>, v: VertexIn) -> VertexOut {
     out.material = v.material;
     out.uv = v.uv;
     out.uv1 = v.uv1;
+    out.color = v.color;
     out.tangent = v.tangent;
     return out;
 }
@@ -161,21 +165,23 @@ fn fragment_coordinates(uv: vec2<f32>, uv1: vec2<f32>) -> TextureCoordinates {
 }
 
 // Whether a fragment is drawn: not where a single-sided material is seen from behind
-// (`front` false: wound clockwise on screen), nor where it is cut out (`cut_out`).
-fn fragment_drawn(mat: Material, front: bool, tc: TextureCoordinates) -> bool {
+// (`front` false: wound clockwise on screen), nor where it is cut out (`cut_out`, with the
+// vertex colour's alpha `vertex_alpha`).
+fn fragment_drawn(mat: Material, front: bool, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
     if !front && (u32(mat.params.w) & FLAG_DOUBLE_SIDED) == 0u {
         return false;
     }
-    return !cut_out(mat, tc);
+    return !cut_out(mat, tc, vertex_alpha);
 }
 
 // Whether the material is cut out at `tc` (glTF's alpha mode MASK): its alpha — the factor's
-// times the base-colour texture's — is below its cutoff. Always false for an opaque material.
-fn cut_out(mat: Material, tc: TextureCoordinates) -> bool {
+// times the base-colour texture's times the vertex colour's `vertex_alpha` — is below its
+// cutoff. Always false for an opaque material.
+fn cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
     if mat.extra.z < 0.0 {
         return false;
     }
-    var alpha = mat.base_color.a;
+    var alpha = mat.base_color.a * vertex_alpha;
     if texture_layer(mat, TEX_BASE_COLOR) >= 0.0 {
         alpha = alpha * sample_slot(mat, TEX_BASE_COLOR, true, tc).a;
     }
@@ -183,12 +189,14 @@ fn cut_out(mat: Material, tc: TextureCoordinates) -> bool {
 }
 
 // The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point
-// with interpolated `normal` and `tangent`, seen from the front or (`front` false) from behind,
+// with interpolated `normal`, `tangent` and vertex colour `color` (multiplying the base colour),
+// seen from the front or (`front` false) from behind,
 // where the shading normal is reversed (glTF's double-sided materials: the whole tangent frame
 // turned); the mip levels follow the coordinates' screen derivatives.
-fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tangent: vec4<f32>, front: bool) -> SurfaceParams {
+fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tangent: vec4<f32>,
+                  color: vec3<f32>, front: bool) -> SurfaceParams {
     var p: SurfaceParams;
-    p.base_color = mat.base_color.rgb;
+    p.base_color = mat.base_color.rgb * color;
     p.roughness = mat.params.x;
     p.metallic = mat.params.y;
     p.normal = normal;

@@ -1429,6 +1429,7 @@ fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -
         uv1: [u_span * (1.0 - x) / 2.0, (1.0 - y) / 2.0],
         // u grows along +x, v down (−y): up the image is +y = cross(+z, +x), so w = +1.
         tangent: [1.0, 0.0, 0.0, 1.0],
+        color: envlight::render::scene::WHITE,
     };
     Scene {
         vertices: vec![
@@ -1847,6 +1848,7 @@ fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
                 uv: [0.0; 2],
                 uv1: [0.0; 2],
                 tangent: [0.0; 4],
+                color: envlight::render::scene::WHITE,
             });
         }
         scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
@@ -1955,6 +1957,7 @@ fn grazing_textures_are_filtered_anisotropically() {
         uv: [(x + 1.0) / 2.0, (2.0 - z) / 2.0],
         uv1: [0.0; 2],
         tangent: [0.0; 4],
+        color: envlight::render::scene::WHITE,
     };
     let scene = Scene {
         vertices: vec![
@@ -2044,6 +2047,84 @@ fn grazing_textures_are_filtered_anisotropically() {
     );
     for c in far {
         assert!(c > 0.5, "far stripes averaged away: contrast {c}");
+    }
+}
+
+/// glTF's COLOR_0: the vertex colour, interpolated, multiplies the base colour (a quad red on
+/// its left edge and blue on its right shades at x = −0.5 as the albedo ¾ red + ¼ blue), and its
+/// alpha the cut-out's (alpha 0 on the left edge, 1 on the right: the left half is gone and
+/// casts no shadow, with both shadow rasters).
+#[test]
+fn vertex_colours_multiply_the_base_colour_and_its_alpha() {
+    use envlight::render::scene::Vertex;
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let unorm = |c: [f32; 4]| c.map(|v| (v * 65535.0).round() as u16);
+    let (red, blue) = ([0.8, 0.2, 0.1], [0.1, 0.3, 0.9]);
+    let coloured = |scene: &mut Scene, left: [f32; 4], right: [f32; 4]| {
+        for v in &mut scene.vertices[..4] {
+            v.color = unorm(if v.position[0] < 0.0 { left } else { right });
+        }
+    };
+    let mut scene = textured_quad(Material::lambertian([1.0; 3]), vec![], 1.0);
+    coloured(
+        &mut scene,
+        [red[0], red[1], red[2], 1.0],
+        [blue[0], blue[1], blue[2], 1.0],
+    );
+    let (r, img) = render_quad(scene, &lights);
+    let albedo = [0, 1, 2].map(|c| 0.75 * red[c] + 0.25 * blue[c]);
+    let (plain_r, plain_img) = render_quad(
+        textured_quad(Material::lambertian(albedo), vec![], 1.0),
+        &lights,
+    );
+    assert_close(
+        "vertex colour at x = -0.5",
+        mean_over(&r, &img, -0.7..-0.3),
+        mean_over(&plain_r, &plain_img, -0.7..-0.3),
+        0.01,
+    );
+    let cut = Material {
+        alpha_cutoff: Some(0.5),
+        ..Material::lambertian([1.0; 3])
+    };
+    let lit_white = [3.0 / PI; 3];
+    for raster in [ShadowRaster::Pipeline, ShadowRaster::Compute] {
+        let mut scene = textured_quad(cut, vec![], 1.0);
+        coloured(&mut scene, [1.0, 1.0, 1.0, 0.0], [1.0; 4]);
+        scene.materials.push(Material::lambertian([1.0; 3]));
+        let first = scene.vertices.len() as u32;
+        for (x, y) in [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)] {
+            scene.vertices.push(Vertex {
+                position: [x, y, -0.5],
+                normal: [0.0, 0.0, 1.0],
+                material: 1,
+                uv: [0.0; 2],
+                uv1: [0.0; 2],
+                tangent: [0.0; 4],
+                color: envlight::render::scene::WHITE,
+            });
+        }
+        scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
+        scene.caster_indices = scene.indices.len() as u32;
+        scene.bounds.radius = 8f32.sqrt();
+        let mut r = renderer(
+            scene,
+            RenderSettings {
+                shadows: true,
+                shadow_resolution: 256,
+                shadow_raster: raster,
+                ..quad_settings()
+            },
+        );
+        let (img, _) = r.render(&lights).unwrap();
+        let (through, kept) = quad_halves(&r, &img);
+        assert_close(
+            &format!("{raster:?}: through the cut half"),
+            through,
+            lit_white,
+            0.02,
+        );
+        assert_close(&format!("{raster:?}: kept half"), kept, lit_white, 0.02);
     }
 }
 

@@ -271,18 +271,19 @@ pub struct Renderer {
 const GBUFFER_TARGETS: usize = 4;
 
 /// The vertex attributes the surface passes (G-buffer, ASG) read: position, normal, material,
-/// the two texture coordinates, tangent (`shaders/surface.wgsl`, `VertexIn`), in
+/// the two texture coordinates, tangent, colour (`shaders/surface.wgsl`, `VertexIn`), in
 /// [`scene::Vertex`]'s order.
-const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
-    0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2, 5 => Float32x2, 4 => Float32x4
+const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 7] = wgpu::vertex_attr_array![
+    0 => Float32x3, 1 => Float32x3, 2 => Uint32, 3 => Float32x2, 5 => Float32x2, 4 => Float32x4,
+    6 => Unorm16x4
 ];
 
 /// The vertex attributes the cut-out casters' shadow pass reads (`shaders/shadow.wgsl`,
-/// `MaskedIn`): position, material and the two texture coordinates, at their offsets in
-/// [`scene::Vertex`].
-const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 4] = {
+/// `MaskedIn`): position, material, the two texture coordinates and the colour (its alpha), at
+/// their offsets in [`scene::Vertex`].
+const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 5] = {
     use std::mem::offset_of;
-    use wgpu::VertexFormat::{Float32x2, Float32x3, Uint32};
+    use wgpu::VertexFormat::{Float32x2, Float32x3, Uint32, Unorm16x4};
     const fn at(
         format: wgpu::VertexFormat,
         offset: usize,
@@ -299,6 +300,7 @@ const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 4] = {
         at(Uint32, offset_of!(scene::Vertex, material), 2),
         at(Float32x2, offset_of!(scene::Vertex, uv), 3),
         at(Float32x2, offset_of!(scene::Vertex, uv1), 5),
+        at(Unorm16x4, offset_of!(scene::Vertex, color), 6),
     ]
 };
 

@@ -75,7 +75,13 @@ pub struct Vertex {
     /// cross(normal, tangent) · w, towards the top of the image (glTF's `TANGENT`). Zero where
     /// the material has no normal texture.
     pub tangent: [f32; 4],
+    /// Linear RGBA (0..=65535 for 0..1) multiplying the base colour and its alpha (glTF's
+    /// `COLOR_0`). White where the mesh has none.
+    pub color: [u16; 4],
 }
+
+/// [`Vertex::color`] of a vertex without colour.
+pub const WHITE: [u16; 4] = [u16::MAX; 4];
 
 /// How a texture coordinate outside [0, 1] is read (glTF's sampler wrap modes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -466,6 +472,7 @@ impl Builder {
                 uv: uvs.get(i).copied().unwrap_or([0.0; 2]),
                 uv1: [0.0; 2],
                 tangent: [0.0; 4],
+                color: WHITE,
             });
         }
         self.indices.extend(indices.iter().map(|i| base + i));
@@ -476,6 +483,13 @@ impl Builder {
     fn set_tangents(&mut self, first: usize, tangents: &[[f32; 4]]) {
         for (v, t) in self.vertices[first..].iter_mut().zip(tangents) {
             v.tangent = *t;
+        }
+    }
+
+    /// Sets the colours ([`Vertex::color`]) of the vertices from `first` on.
+    fn set_colors(&mut self, first: usize, colors: &[[u16; 4]]) {
+        for (v, c) in self.vertices[first..].iter_mut().zip(colors) {
+            v.color = *c;
         }
     }
 
@@ -833,11 +847,16 @@ impl Scene {
     }
 
     /// The base colour (linear) at vertex `index`: its material's factor times its texture
-    /// sampled bilinearly at the vertex's texture coordinates — for per-vertex shading (the
-    /// wavelet relighting's albedo). White past the vertex list.
+    /// sampled bilinearly at the vertex's texture coordinates times its colour — for per-vertex
+    /// shading (the wavelet relighting's albedo). White past the vertex list.
     pub fn vertex_base_color(&self, index: usize) -> [f32; 3] {
-        self.vertex_color(index, |m| (m.base_color, m.textures.base_color))
-            .unwrap_or([1.0; 3])
+        let Some(v) = self.vertices.get(index) else {
+            return [1.0; 3];
+        };
+        let c = self
+            .vertex_color(index, |m| (m.base_color, m.textures.base_color))
+            .unwrap_or([1.0; 3]);
+        [0, 1, 2].map(|k| c[k] * f32::from(v.color[k]) / f32::from(u16::MAX))
     }
 
     /// The emitted radiance (linear) at vertex `index`: its material's emission times its
@@ -1327,8 +1346,16 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     gltf::Semantic::Tangents if mat.normal_texture().is_some() => {
                         ("TANGENT".to_string(), Vec4, &[F32][..])
                     }
+                    gltf::Semantic::Colors(0) => {
+                        // VEC3 or VEC4.
+                        let dimensions = match accessor.dimensions() {
+                            Vec3 => Vec3,
+                            _ => Vec4,
+                        };
+                        ("COLOR_0".to_string(), dimensions, &[F32, U8, U16][..])
+                    }
                     gltf::Semantic::Colors(_) => {
-                        ignored.insert("vertex colours (COLOR_n)".into());
+                        ignored.insert("vertex colours past COLOR_0".into());
                         continue;
                     }
                     _ => continue,
@@ -1525,9 +1552,32 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     id
                 }
             };
+            let colors: Vec<[u16; 4]> = match reader.read_colors(0) {
+                // Through f32: the crate widens bytes by a shift (255 became 65280, not 1).
+                Some(c) => c
+                    .into_rgba_f32()
+                    .map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
+                    .collect(),
+                None if prim.get(&gltf::Semantic::Colors(0)).is_some() => {
+                    return Err(err(format!(
+                        "{}: its COLOR_0 accessor cannot be read (out of range of its buffer?)",
+                        mesh_name(&prim)
+                    )))
+                }
+                None => Vec::new(),
+            };
+            if !colors.is_empty() && colors.len() != positions.len() {
+                return Err(err(format!(
+                    "{}: {} COLOR_0 values for {} positions",
+                    mesh_name(&prim),
+                    colors.len(),
+                    positions.len()
+                )));
+            }
             let first = b.vertices.len();
             b.mesh(&positions, &normals, &uvs[0], &indices, id);
             b.set_second_uvs(first, &uvs[1]);
+            b.set_colors(first, &colors);
             b.set_tangents(first, &tangents);
         }
     }
@@ -3074,6 +3124,53 @@ mod tests {
             assert_eq!(s.materials[0].double_sided, !double.is_empty(), "{node}");
         }
         assert!(Material::default().double_sided);
+    }
+
+    /// glTF's COLOR_0 loads as float VEC3 (alpha 1) or normalised-byte VEC4, into
+    /// `Vertex::color`, and multiplies the per-vertex base colour; other sets are named as not
+    /// drawn; a COLOR_0 of another type is an error naming it.
+    #[test]
+    fn vertex_colours_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let positions: [f32; 9] = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let colors: [f32; 9] = [1.0, 0.5, 0.0, 0.0, 1.0, 0.25, 0.5, 0.5, 0.5];
+        let mut bytes: Vec<u8> = positions
+            .iter()
+            .chain(&colors)
+            .flat_map(|f| f.to_le_bytes())
+            .collect();
+        bytes.extend([255u8, 0, 51, 102, 0, 255, 0, 255, 0, 0, 255, 0]);
+        let b64 = base64_encode(&bytes);
+        let write = |color: &str| {
+            let json = format!(
+                r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+                "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,{color}}}}}]}}],
+                "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                             {{"bufferView":1,"componentType":5126,"count":3,"type":"VEC3"}},
+                             {{"bufferView":2,"componentType":5121,"normalized":true,"count":3,"type":"VEC4"}},
+                             {{"bufferView":1,"componentType":5126,"count":3,"type":"SCALAR"}}],
+                "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":36}},
+                               {{"buffer":0,"byteOffset":72,"byteLength":12}}],
+                "buffers":[{{"byteLength":84,"uri":"data:application/octet-stream;base64,{b64}"}}]}}"#
+            );
+            let path = dir.path().join("coloured.gltf");
+            std::fs::write(&path, json).unwrap();
+            Scene::load(&path, false)
+        };
+        let s = write(r#""COLOR_0":1"#).unwrap();
+        let unorm = |c: [f32; 4]| c.map(|v| (v * 65535.0).round() as u16);
+        assert_eq!(s.vertices[0].color, unorm([1.0, 0.5, 0.0, 1.0]));
+        assert_eq!(s.vertices[1].color, unorm([0.0, 1.0, 0.25, 1.0]));
+        // The default material's base colour (glTF's: white) times the vertex colour.
+        let c = s.vertex_base_color(0);
+        assert!(
+            (c[0] - 1.0).abs() < 1e-4 && (c[1] - 0.5).abs() < 1e-4 && c[2] == 0.0,
+            "{c:?}"
+        );
+        let s = write(r#""COLOR_0":2,"COLOR_1":1"#).unwrap();
+        assert_eq!(s.vertices[0].color, [65535, 0, 13107, 26214]);
+        let e = write(r#""COLOR_0":3"#).unwrap_err().to_string();
+        assert!(e.contains("COLOR_0") && e.contains("Scalar"), "{e}");
     }
 
     /// A file may require the extensions the renderer draws (the `gltf` crate refused them,
