@@ -1795,6 +1795,38 @@ fn occlusion_and_emissive_textures_darken_glow_and_keep_their_own_modes() {
     assert_close("second set red, open", right, plain_quad(RED), 0.01);
 }
 
+/// A renderer of a [`textured_quad`] scene with a white Lambertian receiver, 4 × 4, 0.5
+/// behind the quad (a caster too), shadowed with `raster` at 256² (the cut-out tests: through
+/// a hole the receiver is lit).
+fn before_receiver(mut scene: Scene, raster: ShadowRaster) -> Renderer {
+    use envlight::render::scene::Vertex;
+    scene.materials.push(Material::lambertian([1.0; 3]));
+    let first = scene.vertices.len() as u32;
+    for (x, y) in [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)] {
+        scene.vertices.push(Vertex {
+            position: [x, y, -0.5],
+            normal: [0.0, 0.0, 1.0],
+            material: scene.materials.len() as u32 - 1,
+            uv: [0.0; 2],
+            uv1: [0.0; 2],
+            tangent: [0.0; 4],
+            color: envlight::render::scene::WHITE,
+        });
+    }
+    scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
+    scene.caster_indices = scene.indices.len() as u32;
+    scene.bounds.radius = 8f32.sqrt();
+    renderer(
+        scene,
+        RenderSettings {
+            shadows: true,
+            shadow_resolution: 256,
+            shadow_raster: raster,
+            ..quad_settings()
+        },
+    )
+}
+
 /// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour
 /// texture's) is not there where the alpha is below the cutoff: not drawn (light and ASG
 /// passes) and casting no shadow, with either shadow raster; an opaque material ignores its
@@ -1802,7 +1834,7 @@ fn occlusion_and_emissive_textures_darken_glow_and_keep_their_own_modes() {
 #[test]
 fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
     use envlight::asg::Asg;
-    use envlight::render::scene::{TextureRef, Vertex};
+    use envlight::render::scene::TextureRef;
     use glam::DVec3;
     // White; alpha 0 on the left texels, 1 on the right.
     let holes = texture_row(4, |x| [255, 255, 255, if x < 2 { 0 } else { 255 }]);
@@ -1837,32 +1869,8 @@ fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
     // Before a white receiver 0.5 behind, under a frontal light: through the hole the receiver
     // is lit (the cut-out part casts no shadow); beside it, the kept half is drawn.
     for raster in [ShadowRaster::Pipeline, ShadowRaster::Compute] {
-        let mut scene = textured_quad(cut, vec![holes.clone()], 1.0);
-        scene.materials.push(Material::lambertian([1.0; 3]));
-        let first = scene.vertices.len() as u32;
-        for (x, y) in [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)] {
-            scene.vertices.push(Vertex {
-                position: [x, y, -0.5],
-                normal: [0.0, 0.0, 1.0],
-                material: 1,
-                uv: [0.0; 2],
-                uv1: [0.0; 2],
-                tangent: [0.0; 4],
-                color: envlight::render::scene::WHITE,
-            });
-        }
-        scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
-        scene.caster_indices = scene.indices.len() as u32;
-        scene.bounds.radius = 8f32.sqrt();
-        let mut r = renderer(
-            scene,
-            RenderSettings {
-                shadows: true,
-                shadow_resolution: 256,
-                shadow_raster: raster,
-                ..quad_settings()
-            },
-        );
+        let scene = textured_quad(cut, vec![holes.clone()], 1.0);
+        let mut r = before_receiver(scene, raster);
         let (img, stats) = r.render(&lights).unwrap();
         assert_eq!(stats.shadow_maps, 1);
         let (through, kept) = quad_halves(&r, &img);
@@ -2056,7 +2064,6 @@ fn grazing_textures_are_filtered_anisotropically() {
 /// casts no shadow, with both shadow rasters).
 #[test]
 fn vertex_colours_multiply_the_base_colour_and_its_alpha() {
-    use envlight::render::scene::Vertex;
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let unorm = |c: [f32; 4]| c.map(|v| (v * 65535.0).round() as u16);
     let (red, blue) = ([0.8, 0.2, 0.1], [0.1, 0.3, 0.9]);
@@ -2091,31 +2098,7 @@ fn vertex_colours_multiply_the_base_colour_and_its_alpha() {
     for raster in [ShadowRaster::Pipeline, ShadowRaster::Compute] {
         let mut scene = textured_quad(cut, vec![], 1.0);
         coloured(&mut scene, [1.0, 1.0, 1.0, 0.0], [1.0; 4]);
-        scene.materials.push(Material::lambertian([1.0; 3]));
-        let first = scene.vertices.len() as u32;
-        for (x, y) in [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)] {
-            scene.vertices.push(Vertex {
-                position: [x, y, -0.5],
-                normal: [0.0, 0.0, 1.0],
-                material: 1,
-                uv: [0.0; 2],
-                uv1: [0.0; 2],
-                tangent: [0.0; 4],
-                color: envlight::render::scene::WHITE,
-            });
-        }
-        scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
-        scene.caster_indices = scene.indices.len() as u32;
-        scene.bounds.radius = 8f32.sqrt();
-        let mut r = renderer(
-            scene,
-            RenderSettings {
-                shadows: true,
-                shadow_resolution: 256,
-                shadow_raster: raster,
-                ..quad_settings()
-            },
-        );
+        let mut r = before_receiver(scene, raster);
         let (img, _) = r.render(&lights).unwrap();
         let (through, kept) = quad_halves(&r, &img);
         assert_close(

@@ -205,6 +205,31 @@ pub struct MaterialTextures {
     pub emissive: Option<TextureRef>,
 }
 
+impl MaterialTextures {
+    /// The textures in slot order: base colour, metallic-roughness, normal, occlusion,
+    /// emissive ([`SLOT_NAMES`]; the shaders' `TEX_*` slots, `textures::TEXTURE_SLOTS`).
+    pub fn slots(&self) -> [Option<TextureRef>; 5] {
+        [
+            self.base_color,
+            self.metallic_roughness,
+            self.normal,
+            self.occlusion,
+            self.emissive,
+        ]
+    }
+
+    /// [`MaterialTextures::slots`], to change.
+    pub fn slots_mut(&mut self) -> [&mut Option<TextureRef>; 5] {
+        [
+            &mut self.base_color,
+            &mut self.metallic_roughness,
+            &mut self.normal,
+            &mut self.occlusion,
+            &mut self.emissive,
+        ]
+    }
+}
+
 impl Default for MaterialTextures {
     fn default() -> Self {
         Self {
@@ -1539,14 +1564,15 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                             channels.sets[0]
                         );
                     }
-                    let material = gltf_material(&mat, &buffers, base, &mut b, &mut images)
-                        .map_err(|m| {
-                            err(format!(
-                                "material {} ({:?}): {m}",
-                                mat.index().map_or("default".to_string(), |i| i.to_string()),
-                                mat.name().unwrap_or("")
-                            ))
-                        })?;
+                    let material =
+                        gltf_material(&mat, &channels, &buffers, base, &mut b, &mut images)
+                            .map_err(|m| {
+                                err(format!(
+                                    "material {} ({:?}): {m}",
+                                    mat.index().map_or("default".to_string(), |i| i.to_string()),
+                                    mat.name().unwrap_or("")
+                                ))
+                            })?;
                     let id = b.material(material);
                     material_ids.insert(key, id);
                     id
@@ -1592,11 +1618,13 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     Ok(b)
 }
 
-/// A glTF material as the renderer's: its factors, checked to lie in [0, 1], and its base
-/// colour, metallic-roughness and normal textures (loaded into `b` once per image, see
-/// [`gltf_texture`]). Errors name the property; the caller names the material.
+/// A glTF material as the renderer's: its factors, checked to lie in [0, 1], its alpha mode,
+/// emission and sidedness, and its textures (loaded into `b` once per image, see
+/// [`gltf_texture`]), each reading the vertex channel `channels` gives it
+/// ([`texture_channels`]). Errors name the property; the caller names the material.
 fn gltf_material(
     material: &gltf::Material,
+    channels: &TextureChannels,
     buffers: &[gltf::buffer::Data],
     base: &Path,
     b: &mut Builder,
@@ -1664,17 +1692,7 @@ fn gltf_material(
         occlusion_strength,
         emissive,
     };
-    let channels = texture_channels(material);
-    for (slot, texture) in [
-        &mut textures.base_color,
-        &mut textures.metallic_roughness,
-        &mut textures.normal,
-        &mut textures.occlusion,
-        &mut textures.emissive,
-    ]
-    .into_iter()
-    .enumerate()
-    {
+    for (slot, texture) in textures.slots_mut().into_iter().enumerate() {
         if let Some(t) = texture {
             t.channel = channels.channel[slot];
         }
@@ -1750,8 +1768,8 @@ fn check_per_vertex<const N: usize>(
     Ok(())
 }
 
-/// The names of a material's texture slots (`textures::texture_slots`' order), for messages.
-const SLOT_NAMES: [&str; 5] = [
+/// The names of a material's texture slots ([`MaterialTextures::slots`]' order), for messages.
+pub const SLOT_NAMES: [&str; 5] = [
     "base colour",
     "metallic-roughness",
     "normal",
@@ -2776,6 +2794,13 @@ mod tests {
         path
     }
 
+    /// The text of a [`textured_gltf`] whose image is the [`two_texel_png`] `tex.png`, both
+    /// written to `dir`, for tests that edit the file.
+    fn textured_gltf_text(dir: &Path) -> String {
+        std::fs::write(dir.join("tex.png"), two_texel_png()).unwrap();
+        std::fs::read_to_string(textured_gltf(dir, "t.gltf", "tex.png")).unwrap()
+    }
+
     /// glTF textures load from a data URI or a file beside the scene, once per image, with
     /// their sampler's wrap modes and the primitive's TEXCOORD_0; the scene's files include
     /// the image file; an image that is missing, corrupt or neither PNG nor JPEG is an error
@@ -2967,8 +2992,7 @@ mod tests {
         }
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
-        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let text = textured_gltf_text(d);
         let ext = r#""extensions":{"KHR_texture_transform":{"offset":[0.25,0],"scale":[2,2]}}"#;
         let text = text
             .replace(
@@ -3001,8 +3025,7 @@ mod tests {
     fn occlusion_and_emission_load_with_their_strengths() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
-        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let text = textured_gltf_text(d);
         let with = |occlusion: &str, emissive: &str, strength: &str| {
             text.replace(
                 r#""normalTexture":{"index":0}"#,
@@ -3057,8 +3080,7 @@ mod tests {
     fn alpha_masks_load_with_their_cutoff() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
-        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let text = textured_gltf_text(d);
         let p = d.join("masked.gltf");
         let with = |mode: &str| {
             text.replace(
@@ -3096,8 +3118,7 @@ mod tests {
     fn mirrored_nodes_keep_their_triangles_facing_their_normals() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
-        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let text = textured_gltf_text(d);
         let p = d.join("mirrored.gltf");
         for (node, double) in [
             (r#""nodes":[{"mesh":0}]"#, ""),
@@ -3179,8 +3200,7 @@ mod tests {
     fn required_extensions_load_when_drawn_and_are_named_otherwise() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
-        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let text = textured_gltf_text(d);
         let p = d.join("required.gltf");
         let requiring = |list: &str| {
             text.replacen(
@@ -3212,8 +3232,7 @@ mod tests {
     fn textures_read_their_own_coordinate_sets() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("tex.png"), two_texel_png()).unwrap();
-        let text = std::fs::read_to_string(textured_gltf(d, "t.gltf", "tex.png")).unwrap();
+        let text = textured_gltf_text(d);
         // TEXCOORD_1 reads the same accessor as TEXCOORD_0.
         let text = text.replace(r#""TEXCOORD_0":1"#, r#""TEXCOORD_0":1,"TEXCOORD_1":1"#);
         let p = d.join("sets.gltf");

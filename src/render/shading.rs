@@ -5,7 +5,7 @@
 use super::scene::Material;
 use super::shadow;
 use super::shadow_raster::ShadowRaster;
-use super::textures::{texture_slots, MaterialLayers, TEXTURE_SLOTS};
+use super::textures::{MaterialLayers, TEXTURE_SLOTS};
 use crate::light::Light;
 use glam::{Mat4, Vec3};
 
@@ -191,7 +191,7 @@ impl Material {
                 0.0,
             ],
             emission: [r, g, b, 0.0],
-            uv_transforms: texture_slots(&self.textures).map(|t| {
+            uv_transforms: self.textures.slots().map(|t| {
                 let m = t.map_or(super::scene::NO_UV_TRANSFORM, |t| t.transform);
                 m.map(|[a, b, c]| [a, b, c, 0.0])
             }),

@@ -26,7 +26,7 @@
 //! A scene without textures binds 1 × 1 placeholder arrays that no material reads.
 
 use super::output::srgb_eotf;
-use super::scene::{MaterialTextures, Scene, TextureImage, TextureRef, Wrap};
+use super::scene::{Scene, TextureImage, Wrap};
 
 /// The largest side of a texture layer, in texels (a 2048² layer and its mips take 21 MiB).
 pub const MAX_LAYER_SIDE: u32 = 2048;
@@ -69,7 +69,7 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
     let mut data = Vec::new();
     let mut cutoffs = Vec::new();
     for m in &scene.materials {
-        for (slot, texture) in texture_slots(&m.textures).into_iter().enumerate() {
+        for (slot, texture) in m.textures.slots().into_iter().enumerate() {
             let Some(t) = texture else { continue };
             let list = if SRGB_SLOTS[slot] {
                 &mut base_color
@@ -121,22 +121,12 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
 }
 
 /// How many textures a material may have: base colour, metallic-roughness, normal,
-/// occlusion and emissive, in that order (the slots of `shaders/surface.wgsl`, `TEX_*`).
+/// occlusion and emissive, in that order ([`super::scene::MaterialTextures::slots`]; the slots of
+/// `shaders/surface.wgsl`, `TEX_*`).
 pub const TEXTURE_SLOTS: usize = 5;
 
 /// Which slots hold sRGB colours (the base-colour array); the others hold linear data.
 const SRGB_SLOTS: [bool; TEXTURE_SLOTS] = [true, false, false, false, true];
-
-/// A material's textures in slot order.
-pub fn texture_slots(t: &MaterialTextures) -> [Option<TextureRef>; TEXTURE_SLOTS] {
-    [
-        t.base_color,
-        t.metallic_roughness,
-        t.normal,
-        t.occlusion,
-        t.emissive,
-    ]
-}
 
 /// Where a material's textures are on the GPU, as `MaterialRaw::layers` holds them.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -147,7 +137,7 @@ pub struct MaterialLayers {
     /// Per slot k, its wrap modes at bits 4k..4k+4, as u + 4·v with 0 repeat, 1 clamp to edge,
     /// 2 mirrored repeat (`surface.wgsl`, `wrap_coordinate`).
     pub wrap_modes: u32,
-    /// Bit k set: slot k reads the vertex's second texture coordinates ([`TextureRef::channel`]).
+    /// Bit k set: slot k reads the vertex's second texture coordinates ([`super::scene::TextureRef::channel`]).
     pub channels: u32,
 }
 
@@ -162,7 +152,7 @@ pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
         .materials
         .iter()
         .map(|m| {
-            let slots = texture_slots(&m.textures);
+            let slots = m.textures.slots();
             let (mut wrap_modes, mut channels) = (0, 0);
             for (slot, t) in slots.iter().enumerate() {
                 if let Some(t) = t {
@@ -529,6 +519,7 @@ fn coverage_scale(level: &image::Rgba32FImage, cutoff: f32, coverage: f32) -> f3
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::scene::{MaterialTextures, TextureRef};
 
     fn image(width: u32, height: u32, rgba: [u8; 4]) -> TextureImage {
         TextureImage {
