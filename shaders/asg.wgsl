@@ -14,6 +14,8 @@
 //    (where the ASG is linearised), the two blended by the lobes' widths, times Smith's
 //    height-correlated G2 / (4 n·v) and F = f0 (`Asg::ggx_specular`).
 // A shadow-catcher material outputs (0, 0, 0, 0): without shadows there is nothing to catch.
+// Blended materials (glTF's BLEND): fs_blended, drawn after the opaque surfaces in the same
+// pass, back to front, over them (premultiplied alpha).
 // Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
 
 const TABLE_T: u32 = 129u;
@@ -198,6 +200,26 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) ve
     if !fragment_drawn(mat, front, tc, in.color.a) {
         discard;
     }
+    return asg_shaded(in, front, mat, tc);
+}
+
+// A blended surface (glTF's BLEND), drawn after the opaque ones back to front without writing
+// depth: shaded as fs_main shades, premultiplied by its alpha for the over operator.
+@fragment
+fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let mat = materials[in.material];
+    let tc = fragment_coordinates(in.uv, in.uv1);
+    if !side_drawn(mat, front) {
+        discard;
+    }
+    let a = clamp(surface_alpha(mat, tc, in.color.a), 0.0, 1.0);
+    let c = asg_shaded(in, front, mat, tc);
+    return vec4<f32>(c.rgb * a, a);
+}
+
+// The radiance (RGBA, opaque; transparent black on a shadow catcher) of the fragment `in` of
+// material `mat` at texture coordinates `tc`, seen from the front or from behind.
+fn asg_shaded(in: VertexOut, front: bool, mat: Material, tc: TextureCoordinates) -> vec4<f32> {
     let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
     let s = surface_at(in.world, p.normal, p, mat, globals.camera_pos.xyz);
     if s.catcher {

@@ -6,6 +6,10 @@
 //    (factors times textures).
 //  * Shading (compute pass: cs_shade, 8×8 workgroups): one invocation per pixel reads the
 //    G-buffer, sums the lights and writes the frame (rgba32float storage texture).
+//  * Blended surfaces (glTF's alpha mode BLEND; render pass: vs_main + fs_blended), after the
+//    shading: drawn over the frame back to front (the renderer sorts their triangles),
+//    depth-tested against the G-buffer pass's depth without writing it, each fragment shaded
+//    as cs_shade shades a pixel and premultiplied by its alpha for the over operator.
 // So every pixel is shaded once whatever the overdraw, and the light loop runs as compute work,
 // on every multiprocessor of a GPU (on a compute part such as the H200 the graphics pipeline has
 // a small part of the chip; docs/performance.md).
@@ -193,6 +197,19 @@ fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
     out.surface = vec4<f32>(p.base_color, p.metallic);
     out.emission = vec4<f32>(p.emission, p.occlusion);
     return out;
+}
+
+@fragment
+fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let mat = materials[in.material];
+    let tc = fragment_coordinates(in.uv, in.uv1);
+    if !side_drawn(mat, front) {
+        discard;
+    }
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
+    let a = clamp(surface_alpha(mat, tc, in.color.a), 0.0, 1.0);
+    let c = shade_point(in.world, p.normal, in.material, p);
+    return vec4<f32>(c.rgb * a, a);
 }
 
 @compute @workgroup_size(8, 8)

@@ -28,8 +28,10 @@ struct Material {
     // repeat); layers[1].z: bit k set, slot k reads the second texture coordinates.
     // src/render/textures.rs, `MaterialLayers`.
     layers: array<vec4<f32>, 2>,
-    // x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff
-    // (glTF's MASK; negative: opaque); w: unused.
+    // x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff,
+    // below which the surface casts no shadow and (glTF's MASK) is not drawn: MASK's cutoff,
+    // 0.5 for BLEND (whose surfaces the blended passes draw without testing it), negative for
+    // an opaque material; w: unused.
     extra: vec4<f32>,
     // rgb: emitted radiance, times the emissive texture; w: unused.
     emission: vec4<f32>,
@@ -165,27 +167,36 @@ fn fragment_coordinates(uv: vec2<f32>, uv1: vec2<f32>) -> TextureCoordinates {
 }
 
 // Whether a fragment is drawn: not where a single-sided material is seen from behind
-// (`front` false: wound clockwise on screen), nor where it is cut out (`cut_out`, with the
-// vertex colour's alpha `vertex_alpha`).
+// (`side_drawn`), nor where it is cut out (`cut_out`, with the vertex colour's alpha
+// `vertex_alpha`).
 fn fragment_drawn(mat: Material, front: bool, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
-    if !front && (u32(mat.params.w) & FLAG_DOUBLE_SIDED) == 0u {
-        return false;
-    }
-    return !cut_out(mat, tc, vertex_alpha);
+    return side_drawn(mat, front) && !cut_out(mat, tc, vertex_alpha);
 }
 
-// Whether the material is cut out at `tc` (glTF's alpha mode MASK): its alpha — the factor's
-// times the base-colour texture's times the vertex colour's `vertex_alpha` — is below its
-// cutoff. Always false for an opaque material.
-fn cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
-    if mat.extra.z < 0.0 {
-        return false;
-    }
+// Whether the side of the surface the fragment shows is drawn: the front (`front`: wound
+// counter-clockwise on screen) always, the back only for a double-sided material.
+fn side_drawn(mat: Material, front: bool) -> bool {
+    return front || (u32(mat.params.w) & FLAG_DOUBLE_SIDED) != 0u;
+}
+
+// The material's alpha at `tc`: the factor's times the base-colour texture's times the vertex
+// colour's `vertex_alpha`.
+fn surface_alpha(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> f32 {
     var alpha = mat.base_color.a * vertex_alpha;
     if texture_layer(mat, TEX_BASE_COLOR) >= 0.0 {
         alpha = alpha * sample_slot(mat, TEX_BASE_COLOR, true, tc).a;
     }
-    return alpha < mat.extra.z;
+    return alpha;
+}
+
+// Whether the material is cut out at `tc` (glTF's alpha mode MASK; a blended material in the
+// shadow maps): its alpha (`surface_alpha`) is below its cutoff. Always false for an opaque
+// material.
+fn cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
+    if mat.extra.z < 0.0 {
+        return false;
+    }
+    return surface_alpha(mat, tc, vertex_alpha) < mat.extra.z;
 }
 
 // The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point

@@ -9,7 +9,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use envlight::light::Light;
-use envlight::render::scene::{Camera, Ground, Material, Scene, TextureImage};
+use envlight::render::scene::{AlphaMode, Camera, Ground, Material, Scene, TextureImage};
 use envlight::render::{
     light_prefix, output, Image, RenderSettings, Renderer, ShadowRaster, CULLING_TOLERANCE,
 };
@@ -1799,22 +1799,7 @@ fn occlusion_and_emissive_textures_darken_glow_and_keep_their_own_modes() {
 /// behind the quad (a caster too), shadowed with `raster` at 256² (the cut-out tests: through
 /// a hole the receiver is lit).
 fn before_receiver(mut scene: Scene, raster: ShadowRaster) -> Renderer {
-    use envlight::render::scene::Vertex;
-    scene.materials.push(Material::lambertian([1.0; 3]));
-    let first = scene.vertices.len() as u32;
-    for (x, y) in [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)] {
-        scene.vertices.push(Vertex {
-            position: [x, y, -0.5],
-            normal: [0.0, 0.0, 1.0],
-            material: scene.materials.len() as u32 - 1,
-            uv: [0.0; 2],
-            uv1: [0.0; 2],
-            tangent: [0.0; 4],
-            color: envlight::render::scene::WHITE,
-        });
-    }
-    scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
-    scene.caster_indices = scene.indices.len() as u32;
+    add_quad(&mut scene, 2.0, -0.5, Material::lambertian([1.0; 3]));
     scene.bounds.radius = 8f32.sqrt();
     renderer(
         scene,
@@ -1825,6 +1810,127 @@ fn before_receiver(mut scene: Scene, raster: ShadowRaster) -> Renderer {
             ..quad_settings()
         },
     )
+}
+
+/// Adds to `scene` a square of half-side `half` in the plane z = `z`, facing +Z, a caster of
+/// `material` (its own), with no texture coordinates.
+fn add_quad(scene: &mut Scene, half: f32, z: f32, material: Material) {
+    use envlight::render::scene::Vertex;
+    scene.materials.push(material);
+    let first = scene.vertices.len() as u32;
+    for (x, y) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+        scene.vertices.push(Vertex {
+            position: [half * x, half * y, z],
+            normal: [0.0, 0.0, 1.0],
+            material: scene.materials.len() as u32 - 1,
+            uv: [0.0; 2],
+            uv1: [0.0; 2],
+            tangent: [0.0; 4],
+            color: envlight::render::scene::WHITE,
+        });
+    }
+    scene.indices.extend([0, 1, 2, 0, 2, 3].map(|i| first + i));
+    scene.caster_indices = scene.indices.len() as u32;
+}
+
+/// The mean alpha of the pixels [`mean_over`] averages.
+fn mean_alpha_over(r: &Renderer, img: &Image, x_range: std::ops::Range<f32>) -> f32 {
+    let eye = Vec3::new(0.0, 0.0, 3.0);
+    let (mut sum, mut n) = (0.0f32, 0);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let d = r.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+            let hit = eye + d * (-eye.z / d.z);
+            if x_range.contains(&hit.x) && hit.y.abs() < 0.5 {
+                sum += img.pixel(x, y)[3];
+                n += 1;
+            }
+        }
+    }
+    assert!(n > 0, "no pixel over x in {x_range:?}");
+    sum / n as f32
+}
+
+/// glTF's BLEND: a blended surface is drawn over what lies behind it by the over operator
+/// (premultiplied: colour · α + behind · (1 − α), alpha α + behind's · (1 − α)), after the
+/// opaque surfaces and back to front whatever the order of its triangles in the scene; hidden
+/// behind an opaque one; casting a shadow where its alpha is at least 0.5. In the light pass
+/// (either shadow raster) and the ASG pass.
+#[test]
+fn blended_materials_are_drawn_over_what_lies_behind_them() {
+    use envlight::asg::Asg;
+    use glam::DVec3;
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let lit = |albedo: [f32; 3]| albedo.map(|c| 3.0 * c / PI);
+    let blend = |albedo: [f32; 3], alpha: f32| Material {
+        alpha,
+        alpha_mode: AlphaMode::Blend,
+        ..Material::lambertian(albedo)
+    };
+    let over = |front: [f32; 3], alpha: f32, behind: [f32; 3]| {
+        [0, 1, 2].map(|c| front[c] * alpha + behind[c] * (1.0 - alpha))
+    };
+    let (red, blue) = ([1.0, 0.2, 0.1], [0.1, 0.3, 1.0]);
+    // Alone: premultiplied colour and alpha over the empty background.
+    let (r, img) = render_quad(textured_quad(blend(red, 0.25), vec![], 1.0), &lights);
+    assert_close(
+        "alone",
+        mean_over(&r, &img, -0.5..0.5),
+        lit(red).map(|c| 0.25 * c),
+        0.01,
+    );
+    let alpha = mean_alpha_over(&r, &img, -0.5..0.5);
+    assert!((alpha - 0.25).abs() < 1e-3, "alone: alpha {alpha}");
+    for raster in RASTERS {
+        // Before a white receiver under a frontal light: at α 0.25 no shadow (the receiver is
+        // lit behind it), at 0.75 a full one.
+        for (alpha, behind) in [(0.25, lit([1.0; 3])), (0.75, [0.0; 3])] {
+            let mut r = before_receiver(textured_quad(blend(red, alpha), vec![], 1.0), raster);
+            let (img, _) = r.render(&lights).unwrap();
+            let what = format!("{raster:?}, α {alpha} before the receiver");
+            let got = mean_over(&r, &img, -0.5..0.5);
+            assert_close(&what, got, over(lit(red), alpha, behind), 0.02);
+            let a = mean_alpha_over(&r, &img, -0.5..0.5);
+            assert!((a - 1.0).abs() < 1e-3, "{what}: alpha {a}");
+        }
+        // Two blended squares, the near one (red, z = 0) listed first: drawn far to near.
+        let mut scene = textured_quad(blend(red, 0.4), vec![], 1.0);
+        add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.4));
+        let mut r = before_receiver(scene, raster);
+        let (img, _) = r.render(&lights).unwrap();
+        let want = over(lit(red), 0.4, over(lit(blue), 0.4, lit([1.0; 3])));
+        let got = mean_over(&r, &img, -0.5..0.5);
+        assert_close(&format!("{raster:?}, two layers"), got, want, 0.02);
+        // Behind an opaque square: hidden.
+        let mut scene = textured_quad(Material::lambertian([0.5; 3]), vec![], 1.0);
+        add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.4));
+        let mut r = before_receiver(scene, raster);
+        let (img, _) = r.render(&lights).unwrap();
+        let got = mean_over(&r, &img, -0.5..0.5);
+        assert_close(&format!("{raster:?}, hidden"), got, lit([0.5; 3]), 0.02);
+    }
+    // ASG lighting (no shadows): the blended square over the receiver is the over operator of
+    // the square drawn opaque and the receiver alone.
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let asg_mean = |scene: Scene| {
+        let mut r = before_receiver(scene, ShadowRaster::Pipeline);
+        let (img, _) = r.render_asg(&lobes).unwrap();
+        mean_over(&r, &img, -0.5..0.5)
+    };
+    let front = asg_mean(textured_quad(Material::lambertian(red), vec![], 1.0));
+    let mut behind_only = textured_quad(Material::lambertian(red), vec![], 1.0);
+    behind_only.indices.clear();
+    let behind = asg_mean(behind_only);
+    let mut scene = textured_quad(blend(red, 0.4), vec![], 1.0);
+    add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.4));
+    let blended = asg_mean(scene);
+    let mut blue_only = textured_quad(Material::lambertian(blue), vec![], 1.0);
+    blue_only.indices.clear();
+    add_quad(&mut blue_only, 1.5, -0.25, Material::lambertian(blue));
+    let blue_front = asg_mean(blue_only);
+    assert!(front[0] > 0.1 && behind[0] > 0.1, "{front:?} {behind:?}");
+    let want = over(front, 0.4, over(blue_front, 0.4, behind));
+    assert_close("ASG, two layers", blended, want, 0.02);
 }
 
 /// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour
@@ -1840,7 +1946,7 @@ fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
     let holes = texture_row(4, |x| [255, 255, 255, if x < 2 { 0 } else { 255 }]);
     let mut cut = Material::lambertian([1.0; 3]);
     cut.textures.base_color = Some(TextureRef::repeating(0));
-    cut.alpha_cutoff = Some(0.5);
+    cut.alpha_mode = AlphaMode::Mask(0.5);
     let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
     let lit_white = 3.0 / std::f32::consts::PI;
     let opaque = |img: &Image, r: &Renderer, x_range| mean_over(r, img, x_range);
@@ -1860,7 +1966,7 @@ fn cut_out_materials_are_not_drawn_and_cast_no_shadow() {
     assert!(right[0] > 0.1, "ASG, kept half: {right:?}");
     // An opaque material ignores its alpha.
     let mut opaque_material = cut;
-    opaque_material.alpha_cutoff = None;
+    opaque_material.alpha_mode = AlphaMode::Opaque;
     let (r, img) = render_quad(
         textured_quad(opaque_material, vec![holes.clone()], 1.0),
         &lights,
@@ -2091,7 +2197,7 @@ fn vertex_colours_multiply_the_base_colour_and_its_alpha() {
         0.01,
     );
     let cut = Material {
-        alpha_cutoff: Some(0.5),
+        alpha_mode: AlphaMode::Mask(0.5),
         ..Material::lambertian([1.0; 3])
     };
     let lit_white = [3.0 / PI; 3];
@@ -2245,7 +2351,6 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     for needle in [
         "textures: 2 layers of 8²",
         "not drawn",
-        "alpha blending (drawn opaque)",
         "extension KHR_materials_clearcoat",
     ] {
         assert!(
@@ -2253,10 +2358,11 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
             "{needle:?} missing from:\n{stderr}"
         );
     }
-    // What is drawn is not named: the normal texture, the emission and its strength.
+    // What is drawn is not named: the normal texture, the emission and its strength, the
+    // blending.
     let left_out = stderr.split("textures): ").nth(1).unwrap_or("");
     let left_out = left_out.lines().next().unwrap_or("");
-    for drawn in ["normal", "emissi"] {
+    for drawn in ["normal", "emissi", "blend"] {
         assert!(!left_out.contains(drawn), "{drawn}: {stderr}");
     }
     let png = image::open(d.join("out/frame_00000.png")).unwrap();

@@ -34,9 +34,9 @@ pub(crate) struct RenderArgs {
     #[arg(long, value_name = "FILE")]
     lights: Option<PathBuf>,
     /// Scene file (.gltf, .glb, .obj; glTF base-colour, metallic-roughness, normal, occlusion
-    /// and emissive textures, vertex colours, emission and alpha cut-outs, and an MTL's
-    /// map_Kd, Ke, map_Ke and map_d are drawn; PNG or JPEG). [default: built-in spheres on a
-    /// ground plane]
+    /// and emissive textures, vertex colours, emission, alpha cut-outs and blending, and an
+    /// MTL's map_Kd, Ke, map_Ke, map_d and d are drawn; PNG or JPEG). [default: built-in
+    /// spheres on a ground plane]
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
     /// Image size, 1..=16384 a side (the GPU's own limit applies too: 16384 on most).

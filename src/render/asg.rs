@@ -95,6 +95,8 @@ pub fn cosine_table() -> Vec<f32> {
 /// GPU objects of the ASG pass.
 pub(super) struct AsgPass {
     pipeline: wgpu::RenderPipeline,
+    /// The blended surfaces' (`fs_blended`), where the scene has any.
+    blended_pipeline: Option<wgpu::RenderPipeline>,
     layout: wgpu::BindGroupLayout,
     globals: wgpu::Buffer,
     lobes: wgpu::Buffer,
@@ -164,7 +166,20 @@ impl AsgPass {
             ("vs_main", &super::SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
             Some(("fs_main", 1)),
+            None,
         );
+        let blended_pipeline = renderer.blended_pipeline.is_some().then(|| {
+            super::depth_tested_pipeline(
+                device,
+                "asg blended",
+                &pipeline_layout,
+                &module,
+                ("vs_main", &super::SURFACE_ATTRIBUTES),
+                wgpu::DepthBiasState::default(),
+                Some(("fs_blended", 1)),
+                Some(wgpu::BlendState::PREMULTIPLIED_ALPHA_BLENDING),
+            )
+        });
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("asg globals"),
             size: std::mem::size_of::<AsgGlobalsRaw>() as u64,
@@ -181,6 +196,7 @@ impl AsgPass {
         let bind_group = Self::bind(renderer, &layout, &globals, &lobes, &table);
         Self {
             pipeline,
+            blended_pipeline,
             layout,
             globals,
             lobes,
@@ -272,6 +288,7 @@ impl Renderer {
                 &asg.pipeline,
                 &asg.bind_group,
                 None,
+                asg.blended_pipeline.as_ref(),
             );
         }
         if readback {

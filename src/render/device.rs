@@ -7,7 +7,9 @@
 //! install. `ENVLIGHT_ADAPTER=substring` picks the first adapter whose name contains it.
 //!
 //! Timestamp queries are requested where the adapter has them; the renderer falls back to CPU
-//! timing otherwise (see [`super::budget`]).
+//! timing otherwise (see [`super::budget`]). So is blending on `Rgba32Float` targets
+//! (`FLOAT32_BLENDABLE`), which draws glTF's blended materials over the HDR frame; without it
+//! they are drawn opaque.
 
 use thiserror::Error;
 
@@ -34,6 +36,8 @@ pub struct Gpu {
     pub info: wgpu::AdapterInfo,
     /// Whether GPU timestamp queries are enabled on the device.
     pub timestamps: bool,
+    /// Whether `Rgba32Float` targets can be blended (blended materials over the HDR frame).
+    pub float32_blendable: bool,
     /// Largest number of layers of the shadow-map array.
     pub max_array_layers: u32,
     /// The first error the device reported outside an error scope (an allocation the GPU could
@@ -111,6 +115,12 @@ impl Gpu {
         if timestamps {
             required_features |= wgpu::Features::TIMESTAMP_QUERY;
         }
+        let float32_blendable = adapter
+            .features()
+            .contains(wgpu::Features::FLOAT32_BLENDABLE);
+        if float32_blendable {
+            required_features |= wgpu::Features::FLOAT32_BLENDABLE;
+        }
         let limits = adapter.limits();
         let max_array_layers = limits.max_texture_array_layers;
         let (device, queue) = adapter
@@ -138,6 +148,7 @@ impl Gpu {
             queue,
             info,
             timestamps,
+            float32_blendable,
             max_array_layers,
             errors,
         })

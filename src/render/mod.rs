@@ -245,9 +245,12 @@ pub struct Renderer {
     shadow_pipeline: wgpu::RenderPipeline,
     /// The shadow pass of the cut-out casters (alpha mode MASK).
     masked_shadow_pipeline: wgpu::RenderPipeline,
-    /// Where the cut-out casters start in the index buffer: casters `0..this` are opaque,
-    /// `this..caster_indices` cut out ([`order_casters_by_cutout`]).
-    cutout_casters_start: u32,
+    /// Where the cut-out and the blended casters start in the index buffer
+    /// ([`order_triangles`]).
+    groups: TriangleGroups,
+    /// The blended surfaces' pass over the shaded frame (`fs_blended`), where the scene has
+    /// any.
+    blended_pipeline: Option<wgpu::RenderPipeline>,
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
     depth_view: wgpu::TextureView,
@@ -341,9 +344,11 @@ fn compute_storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayout
 }
 
 /// A triangle pipeline over the scene's vertices (the vertex entry point reading the given
-/// attributes), depth-tested with `Less` and depth writes, no culling; with
-/// `fragment = Some((entry, n))`, that fragment entry point writes `n` `Rgba32Float` targets
-/// unblended (none: it only discards), without it the pass is depth-only (shadow maps).
+/// attributes), depth-tested with `Less`, no culling; with `fragment = Some((entry, n))`, that
+/// fragment entry point writes `n` `Rgba32Float` targets (none: it only discards), without it
+/// the pass is depth-only (shadow maps). Unblended, it writes depth; with `blend` (the blended
+/// surfaces' passes) its targets are blended so and depth is only tested.
+#[allow(clippy::too_many_arguments)]
 fn depth_tested_pipeline(
     device: &wgpu::Device,
     label: &str,
@@ -352,10 +357,11 @@ fn depth_tested_pipeline(
     (vertex_entry, attributes): (&str, &[wgpu::VertexAttribute]),
     bias: wgpu::DepthBiasState,
     fragment: Option<(&str, usize)>,
+    blend: Option<wgpu::BlendState>,
 ) -> wgpu::RenderPipeline {
     let target = Some(wgpu::ColorTargetState {
         format: COLOR_FORMAT,
-        blend: None,
+        blend,
         write_mask: wgpu::ColorWrites::ALL,
     });
     let targets = vec![target; fragment.map_or(0, |(_, n)| n)];
@@ -374,7 +380,7 @@ fn depth_tested_pipeline(
         },
         depth_stencil: Some(wgpu::DepthStencilState {
             format: DEPTH_FORMAT,
-            depth_write_enabled: Some(true),
+            depth_write_enabled: Some(blend.is_none()),
             depth_compare: Some(wgpu::CompareFunction::Less),
             stencil: Default::default(),
             bias,
@@ -391,33 +397,80 @@ fn depth_tested_pipeline(
     })
 }
 
-/// Orders the shadow casters' triangles of `scene` opaque first, then those whose material is
-/// cut out by its alpha (a cutoff above 0), each group in its order; returns the index at which
-/// the cut-out ones start. The shadow pass draws each group with its own pipeline, so that the
-/// opaque casters keep the depth-only one.
-fn order_casters_by_cutout(scene: &mut Scene) -> u32 {
+/// Where the groups of shadow casters start in the scene's index list, as
+/// [`order_triangles`] leaves it: opaque casters `0..cutout_start`, then those cut out by their
+/// alpha in the shadow maps (masked or blended) up to `caster_indices`, of which the blended
+/// ones are `blended_start..caster_indices`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct TriangleGroups {
+    cutout_start: u32,
+    blended_start: u32,
+}
+
+/// Orders the shadow casters' triangles of `scene` (the ground, after them, is left as it is):
+/// opaque first, then masked (a cutoff above 0), each in its order, then blended (glTF's BLEND)
+/// back to front from the camera, by the distance of their centroids. The shadow pass draws
+/// the opaque group with the depth-only pipeline and the other two with the alpha-testing one;
+/// the G-buffer pass draws all but the blended group, which the blended pass draws over the
+/// frame in this order. (Sorting triangles rather than objects orders intersecting and nested
+/// blended surfaces too, except where two triangles overlap in depth.)
+fn order_triangles(scene: &mut Scene) -> TriangleGroups {
+    use scene::AlphaMode;
     let casters = (scene.caster_indices as usize).min(scene.indices.len());
-    let cut_out = |triangle: &[u32]| {
-        let material = triangle
+    let mode = |triangle: &[u32]| {
+        triangle
             .first()
             .and_then(|&i| scene.vertices.get(i as usize))
-            .and_then(|v| scene.materials.get(v.material as usize));
-        material.is_some_and(|m| m.alpha_cutoff.is_some_and(|c| c > 0.0))
+            .and_then(|v| scene.materials.get(v.material as usize))
+            .map_or(AlphaMode::Opaque, |m| m.alpha_mode)
     };
-    let (cutout, opaque): (Vec<&[u32]>, Vec<&[u32]>) =
-        scene.indices[..casters].chunks(3).partition(|t| cut_out(t));
-    if cutout.is_empty() {
-        return casters as u32;
+    let (mut opaque, mut masked, mut blended) = (Vec::new(), Vec::new(), Vec::new());
+    for triangle in scene.indices[..casters].chunks(3) {
+        match mode(triangle) {
+            AlphaMode::Mask(cutoff) if cutoff > 0.0 => masked.push(triangle),
+            AlphaMode::Blend => blended.push(triangle),
+            _ => opaque.push(triangle),
+        }
     }
-    let start = opaque.len() * 3;
-    let ordered: Vec<u32> = opaque
+    let eye = scene.camera.eye;
+    let distance = |triangle: &[u32]| {
+        let sum: Vec3 = triangle
+            .iter()
+            .filter_map(|&i| scene.vertices.get(i as usize))
+            .map(|v| Vec3::from(v.position))
+            .sum();
+        eye.distance(sum / 3.0)
+    };
+    blended.sort_by(|a, b| distance(b).total_cmp(&distance(a)));
+    let groups = TriangleGroups {
+        cutout_start: (opaque.len() * 3) as u32,
+        blended_start: ((opaque.len() + masked.len()) * 3) as u32,
+    };
+    let ordered: Vec<u32> = [opaque, masked, blended]
         .into_iter()
-        .chain(cutout)
+        .flatten()
         .flatten()
         .copied()
         .collect();
-    scene.indices[..casters].copy_from_slice(&ordered);
-    start as u32
+    scene.indices[..ordered.len()].copy_from_slice(&ordered);
+    groups
+}
+
+/// Makes the blended materials of `scene` opaque (an adapter that cannot blend `Rgba32Float`
+/// targets), with a warning that says how many.
+fn draw_blended_opaque(scene: &mut Scene) {
+    let blended = scene
+        .materials
+        .iter_mut()
+        .filter(|m| m.alpha_mode == scene::AlphaMode::Blend)
+        .map(|m| m.alpha_mode = scene::AlphaMode::Opaque)
+        .count();
+    if blended > 0 {
+        tracing::warn!(
+            "{blended} blended material(s) drawn opaque: the adapter cannot blend Rgba32Float \
+             targets (wgpu's FLOAT32_BLENDABLE)"
+        );
+    }
 }
 
 impl Renderer {
@@ -491,7 +544,10 @@ impl Renderer {
                 )));
             }
         }
-        let cutout_casters_start = order_casters_by_cutout(&mut scene);
+        if !gpu.float32_blendable {
+            draw_blended_opaque(&mut scene);
+        }
+        let groups = order_triangles(&mut scene);
         let device = &gpu.device;
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
@@ -555,16 +611,23 @@ impl Renderer {
         let shade_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("shade"),
             entries: &[
-                uniform_entry(0, wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::COMPUTE),
-                compute_storage_entry(1, true),
-                // The materials: the G-buffer pass reads their factors and texture layers.
+                // The fragment stages: the G-buffer pass reads the materials' factors and
+                // texture layers, the blended pass shades as the compute pass does.
+                uniform_entry(
+                    0,
+                    wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE,
+                ),
+                wgpu::BindGroupLayoutEntry {
+                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
+                    ..compute_storage_entry(1, true)
+                },
                 wgpu::BindGroupLayoutEntry {
                     visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
                     ..compute_storage_entry(2, true)
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
-                    visibility: wgpu::ShaderStages::COMPUTE,
+                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Depth,
                         view_dimension: wgpu::TextureViewDimension::D2Array,
@@ -574,11 +637,14 @@ impl Renderer {
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 4,
-                    visibility: wgpu::ShaderStages::COMPUTE,
+                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                     count: None,
                 },
-                compute_storage_entry(5, true),
+                wgpu::BindGroupLayoutEntry {
+                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
+                    ..compute_storage_entry(5, true)
+                },
             ],
         });
         let shadow_cam_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -664,7 +730,20 @@ impl Renderer {
             ("vs_main", &SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
             Some(("fs_gbuffer", GBUFFER_TARGETS)),
+            None,
         );
+        let blended_pipeline = (groups.blended_start < scene.caster_indices).then(|| {
+            depth_tested_pipeline(
+                device,
+                "blended",
+                &gbuffer_pl,
+                &shade_module,
+                ("vs_main", &SURFACE_ATTRIBUTES),
+                wgpu::DepthBiasState::default(),
+                Some(("fs_blended", 1)),
+                Some(wgpu::BlendState::PREMULTIPLIED_ALPHA_BLENDING),
+            )
+        });
         let shade_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("shade"),
             layout: Some(&shade_pl),
@@ -686,6 +765,7 @@ impl Renderer {
             ("vs_main", &shadow_attrs),
             shadow_bias,
             None,
+            None,
         );
         // The cut-out casters: the same maps, with the materials and their textures, and a
         // fragment stage that discards where the alpha is below the cutoff (no colour target).
@@ -706,6 +786,7 @@ impl Renderer {
             ("vs_masked", &MASKED_SHADOW_ATTRIBUTES),
             shadow_bias,
             Some(("fs_masked", 0)),
+            None,
         );
 
         let (color_texture, color_view, depth_view) =
@@ -829,7 +910,8 @@ impl Renderer {
             shade_pipeline,
             shadow_pipeline,
             masked_shadow_pipeline,
-            cutout_casters_start,
+            groups,
+            blended_pipeline,
             color_view,
             color_texture,
             depth_view,
@@ -1270,13 +1352,19 @@ impl Renderer {
             None => self.encode_shadow_passes(&mut enc, maps),
         }
         self.encode_gbuffer_pass(&mut enc);
+        // The frame's end: after the blended surfaces where there are any.
+        let frame_end = ts.map(|t| (t, 2));
+        let (shade_end, blended_end) = match &self.blended_pipeline {
+            Some(_) => (None, frame_end),
+            None => (frame_end, None),
+        };
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("shade"),
-                timestamp_writes: ts.map(|t| wgpu::ComputePassTimestampWrites {
+                timestamp_writes: shade_end.map(|(t, end)| wgpu::ComputePassTimestampWrites {
                     query_set: &t.set,
                     beginning_of_pass_write_index: None,
-                    end_of_pass_write_index: Some(2),
+                    end_of_pass_write_index: Some(end),
                 }),
             });
             pass.set_pipeline(&self.shade_pipeline);
@@ -1287,6 +1375,9 @@ impl Renderer {
                 self.settings.height.div_ceil(SHADE_WORKGROUP),
                 1,
             );
+        }
+        if let Some(pipeline) = &self.blended_pipeline {
+            self.encode_blended_pass(&mut enc, pipeline, blended_end);
         }
         if let Some(t) = ts {
             enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
@@ -1332,20 +1423,65 @@ impl Renderer {
             );
             pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
             pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(0..self.cutout_casters_start, 0, 0..1);
-            if self.cutout_casters_start < self.scene.caster_indices {
+            pass.draw_indexed(0..self.groups.cutout_start, 0, 0..1);
+            if self.groups.cutout_start < self.scene.caster_indices {
                 pass.set_pipeline(&self.masked_shadow_pipeline);
                 pass.set_bind_group(2, &self.surface_textures.bind_group, &[]);
-                pass.draw_indexed(
-                    self.cutout_casters_start..self.scene.caster_indices,
-                    0,
-                    0..1,
-                );
+                pass.draw_indexed(self.groups.cutout_start..self.scene.caster_indices, 0, 0..1);
             }
         }
     }
 
-    /// Rasterises the scene into the G-buffer (cleared to zero: no surface).
+    /// Draws the blended surfaces over the shaded frame (`fs_blended`, back to front as
+    /// [`order_triangles`] sorted them), depth-tested against the G-buffer pass's depth;
+    /// `frame_end`: the timestamp to write at its end.
+    fn encode_blended_pass(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::RenderPipeline,
+        frame_end: Option<(&Timestamps, u32)>,
+    ) {
+        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("blended"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &self.color_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Load,
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &self.depth_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Load,
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: frame_end.map(|(t, end)| wgpu::RenderPassTimestampWrites {
+                query_set: &t.set,
+                beginning_of_pass_write_index: None,
+                end_of_pass_write_index: Some(end),
+            }),
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &self.shade_bind_group, &[]);
+        pass.set_bind_group(2, &self.surface_textures.bind_group, &[]);
+        pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
+        pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+        pass.draw_indexed(
+            self.groups.blended_start..self.scene.caster_indices,
+            0,
+            0..1,
+        );
+    }
+
+    /// Rasterises the scene into the G-buffer (cleared to zero: no surface), all but the
+    /// blended surfaces; their pass reads its depth afterwards.
     fn encode_gbuffer_pass(&self, enc: &mut wgpu::CommandEncoder) {
         let timestamps = self
             .timestamps
@@ -1362,12 +1498,15 @@ impl Renderer {
             &self.gbuffer_pipeline,
             &self.shade_bind_group,
             timestamps,
+            None,
         );
     }
 
-    /// Draws the whole scene with `pipeline` and `bind_group` into `targets` (cleared to
-    /// transparent) over a fresh depth buffer: the G-buffer pass, and the ASG pass into the
-    /// colour target.
+    /// Draws the scene but its blended surfaces with `pipeline` and `bind_group` into
+    /// `targets` (cleared to transparent) over a fresh depth buffer, then the blended ones with
+    /// `blended` where given: the G-buffer pass (whose depth is kept for the blended pass where
+    /// the scene has blended surfaces), and the ASG pass into the colour target.
+    #[allow(clippy::too_many_arguments)]
     fn encode_scene_pass(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -1376,6 +1515,7 @@ impl Renderer {
         pipeline: &wgpu::RenderPipeline,
         bind_group: &wgpu::BindGroup,
         timestamp_writes: Option<wgpu::RenderPassTimestampWrites<'_>>,
+        blended: Option<&wgpu::RenderPipeline>,
     ) {
         let color_attachments: Vec<_> = targets
             .iter()
@@ -1398,7 +1538,11 @@ impl Renderer {
                 view: &self.depth_view,
                 depth_ops: Some(wgpu::Operations {
                     load: wgpu::LoadOp::Clear(1.0),
-                    store: wgpu::StoreOp::Discard,
+                    store: if self.blended_pipeline.is_some() {
+                        wgpu::StoreOp::Store
+                    } else {
+                        wgpu::StoreOp::Discard
+                    },
                 }),
                 stencil_ops: None,
             }),
@@ -1411,7 +1555,13 @@ impl Renderer {
         pass.set_bind_group(2, &self.surface_textures.bind_group, &[]);
         pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
         pass.set_index_buffer(self.index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-        pass.draw_indexed(0..self.scene.indices.len() as u32, 0, 0..1);
+        let blended_range = self.groups.blended_start..self.scene.caster_indices;
+        pass.draw_indexed(0..blended_range.start, 0, 0..1);
+        pass.draw_indexed(blended_range.end..self.scene.indices.len() as u32, 0, 0..1);
+        if let Some(pipeline) = blended.filter(|_| !blended_range.is_empty()) {
+            pass.set_pipeline(pipeline);
+            pass.draw_indexed(blended_range, 0, 0..1);
+        }
     }
 
     /// Copies the colour target into the read-back buffer.
@@ -1778,6 +1928,72 @@ impl DirectionGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The casters are ordered opaque, masked, then blended back to front from the camera;
+    /// the ground stays after them; no triangle is lost or changed.
+    #[test]
+    fn triangles_are_ordered_opaque_masked_then_blended_back_to_front() {
+        use scene::AlphaMode;
+        let mut scene = Scene::default_scene();
+        scene.materials[0].alpha_mode = AlphaMode::Blend;
+        scene.materials[1].alpha_mode = AlphaMode::Mask(0.5);
+        let before = scene.clone();
+        let groups = order_triangles(&mut scene);
+        let triangle_mode =
+            |t: &[u32]| scene.materials[scene.vertices[t[0] as usize].material as usize].alpha_mode;
+        let casters = scene.caster_indices as usize;
+        let (cutout, blended) = (groups.cutout_start as usize, groups.blended_start as usize);
+        assert!(
+            0 < cutout && cutout < blended && blended < casters,
+            "{groups:?}"
+        );
+        let modes = |range: std::ops::Range<usize>| -> Vec<AlphaMode> {
+            scene.indices[range].chunks(3).map(triangle_mode).collect()
+        };
+        assert!(modes(0..cutout).iter().all(|m| *m == AlphaMode::Opaque));
+        assert!(modes(cutout..blended)
+            .iter()
+            .all(|m| *m == AlphaMode::Mask(0.5)));
+        assert!(modes(blended..casters)
+            .iter()
+            .all(|m| *m == AlphaMode::Blend));
+        let distance = |t: &[u32]| {
+            let centroid: Vec3 = t
+                .iter()
+                .map(|&i| Vec3::from(scene.vertices[i as usize].position))
+                .sum();
+            scene.camera.eye.distance(centroid / 3.0)
+        };
+        let distances: Vec<f32> = scene.indices[blended..casters]
+            .chunks(3)
+            .map(distance)
+            .collect();
+        assert!(
+            distances.windows(2).all(|w| w[0] >= w[1]),
+            "not back to front"
+        );
+        assert!(distances[0] > distances[distances.len() - 1]);
+        assert_eq!(scene.indices[casters..], before.indices[casters..]);
+        let sorted = |indices: &[u32]| {
+            let mut t: Vec<&[u32]> = indices.chunks(3).collect();
+            t.sort();
+            t.concat()
+        };
+        assert_eq!(sorted(&scene.indices), sorted(&before.indices));
+        // Without blended or masked materials nothing moves.
+        let mut plain = Scene::default_scene();
+        let groups = order_triangles(&mut plain);
+        assert_eq!(plain.indices, Scene::default_scene().indices);
+        assert_eq!(
+            (groups.cutout_start, groups.blended_start),
+            (plain.caster_indices, plain.caster_indices)
+        );
+        // An adapter that cannot blend draws them opaque.
+        let mut fallback = before;
+        draw_blended_opaque(&mut fallback);
+        assert_eq!(fallback.materials[0].alpha_mode, AlphaMode::Opaque);
+        assert_eq!(fallback.materials[1].alpha_mode, AlphaMode::Mask(0.5));
+    }
 
     #[test]
     fn every_wgsl_file_parses_and_validates() {

@@ -185,8 +185,8 @@ fn uv_transform(value: &serde_json::Value) -> Result<([[f32; 3]; 2], Option<u32>
 /// its tangent-space normal texture, its ambient-occlusion texture and its emission texture.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MaterialTextures {
-    /// sRGB-encoded base colour (RGB), and in A a linear alpha (read with
-    /// [`Material::alpha_cutoff`] only).
+    /// sRGB-encoded base colour (RGB), and in A a linear alpha (read where
+    /// [`Material::alpha_mode`] is not opaque).
     pub base_color: Option<TextureRef>,
     /// Linear; roughness in G, metallic in B.
     pub metallic_roughness: Option<TextureRef>,
@@ -324,9 +324,9 @@ pub struct Material {
     /// The base colour's alpha (glTF's `baseColorFactor[3]`), times the base-colour texture's
     /// A where there is one.
     pub alpha: f32,
-    /// glTF's `alphaMode` MASK with its `alphaCutoff`: where the alpha is below it the surface
-    /// is not there — not drawn, and casting no shadow. `None`: opaque (alpha not read).
-    pub alpha_cutoff: Option<f32>,
+    /// What the alpha does (glTF's `alphaMode`): nothing, cut the surface out, or blend it
+    /// over what lies behind.
+    pub alpha_mode: AlphaMode,
     /// glTF's `doubleSided`: seen from behind (its triangles winding clockwise on screen), the
     /// surface is shaded with its normal reversed; single-sided, its back is not drawn (it
     /// still casts shadows). OBJ and built-in materials are double-sided.
@@ -345,7 +345,7 @@ impl Default for Material {
             specular: 0.5,
             emission: [0.0; 3],
             alpha: 1.0,
-            alpha_cutoff: None,
+            alpha_mode: AlphaMode::Opaque,
             double_sided: true,
             textures: MaterialTextures::default(),
         }
@@ -361,6 +361,37 @@ impl Material {
             metallic: 0.0,
             specular: 0.0,
             ..Self::default()
+        }
+    }
+}
+
+/// What a material's alpha does (glTF's `alphaMode`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum AlphaMode {
+    /// The alpha is not read: the surface is opaque.
+    #[default]
+    Opaque,
+    /// glTF's MASK with its `alphaCutoff`: where the alpha is below the cutoff the surface is
+    /// not there — not drawn, and casting no shadow.
+    Mask(f32),
+    /// glTF's BLEND: the surface is drawn over what lies behind it by the over operator
+    /// (colour · α + behind · (1 − α)), after the opaque surfaces, back to front. It casts
+    /// shadows as a cut-out at [`BLEND_SHADOW_CUTOFF`] (a shadow map holds one depth, not a
+    /// transmittance).
+    Blend,
+}
+
+/// The alpha at or above which a blended surface ([`AlphaMode::Blend`]) casts a shadow.
+pub const BLEND_SHADOW_CUTOFF: f32 = 0.5;
+
+impl AlphaMode {
+    /// The alpha below which the surface casts no shadow: a mask's cutoff,
+    /// [`BLEND_SHADOW_CUTOFF`] for a blended surface, none for an opaque one.
+    pub fn shadow_cutoff(self) -> Option<f32> {
+        match self {
+            AlphaMode::Opaque => None,
+            AlphaMode::Mask(cutoff) => Some(cutoff),
+            AlphaMode::Blend => Some(BLEND_SHADOW_CUTOFF),
         }
     }
 }
@@ -1551,7 +1582,6 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
                 None => {
-                    note_ignored_material_features(&mat, &mut ignored);
                     for &(slot, set) in &channels.unplaced {
                         tracing::warn!(
                             "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
@@ -1697,15 +1727,16 @@ fn gltf_material(
             t.channel = channels.channel[slot];
         }
     }
-    let alpha_cutoff = match material.alpha_mode() {
+    let alpha_mode = match material.alpha_mode() {
         gltf::material::AlphaMode::Mask => {
             let cutoff = material.alpha_cutoff().unwrap_or(0.5);
             if !(cutoff.is_finite() && cutoff >= 0.0) {
                 return Err(format!("alphaCutoff {cutoff} is not a finite number ≥ 0"));
             }
-            Some(cutoff)
+            AlphaMode::Mask(cutoff)
         }
-        _ => None,
+        gltf::material::AlphaMode::Blend => AlphaMode::Blend,
+        gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
     };
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
@@ -1714,7 +1745,7 @@ fn gltf_material(
         specular: 0.5,
         emission: gltf_emission(material)?,
         alpha: c[3],
-        alpha_cutoff,
+        alpha_mode,
         double_sided: material.double_sided(),
         textures,
     })
@@ -1821,16 +1852,6 @@ fn texture_channels(material: &gltf::Material) -> TextureChannels {
         }
     }
     channels
-}
-
-/// Adds to `ignored` what a glTF material asks for that the renderer does not draw.
-fn note_ignored_material_features(
-    material: &gltf::Material,
-    ignored: &mut std::collections::BTreeSet<String>,
-) {
-    if material.alpha_mode() == gltf::material::AlphaMode::Blend {
-        ignored.insert("alpha blending (drawn opaque)".into());
-    }
 }
 
 /// MikkTSpace tangents (the `mikktspace` crate) of an indexed triangle mesh, one per vertex, in
@@ -2444,9 +2465,9 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                             ignored.insert(kind);
                         }
                     }
-                    if mat.dissolve.is_some_and(|d| d < 1.0) && mat.dissolve_texture.is_none() {
-                        ignored.insert("d below 1 (translucency; drawn opaque)");
-                    }
+                    // d (or Tr = 1 − d) below 1: the surface is blended with that alpha.
+                    let dissolve = obj_dissolve(mat)
+                        .map_err(|m| err(format!("material {:?}: {m}", mat.name)))?;
                     let named =
                         |kind: &str, m: String| err(format!("material {:?}: {kind} {m}", mat.name));
                     let diffuse_map = mat
@@ -2487,7 +2508,14 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         metallic: 0.0,
                         specular: 0.5,
                         emission,
-                        alpha_cutoff: mat.dissolve_texture.is_some().then_some(OBJ_ALPHA_CUTOFF),
+                        alpha: dissolve,
+                        alpha_mode: if mat.dissolve_texture.is_some() {
+                            AlphaMode::Mask(OBJ_ALPHA_CUTOFF)
+                        } else if dissolve < 1.0 {
+                            AlphaMode::Blend
+                        } else {
+                            AlphaMode::Opaque
+                        },
                         textures: MaterialTextures {
                             base_color: base_color.map(TextureRef::repeating),
                             emissive: emissive.map(TextureRef::repeating),
@@ -2531,6 +2559,25 @@ fn map_file_name(map: &str) -> &str {
     } else {
         map
     }
+}
+
+/// An MTL material's opacity: its `d` (dissolve), or 1 − its `Tr` (transparency) where it has
+/// no `d`, or 1. A value outside [0, 1] or not a number is an error naming the statement.
+fn obj_dissolve(mat: &tobj::Material) -> Result<f32, String> {
+    let (statement, opacity) = match (mat.dissolve, mat.unknown_param.get("Tr")) {
+        (Some(d), _) => ("d", d),
+        (None, Some(tr)) => match tr.trim().parse::<f32>() {
+            Ok(t) => ("Tr", 1.0 - t),
+            Err(_) => return Err(format!("Tr {tr:?} is not a number")),
+        },
+        (None, None) => return Ok(1.0),
+    };
+    if !(0.0..=1.0).contains(&opacity) {
+        return Err(format!(
+            "{statement} gives an opacity of {opacity}, outside [0, 1]"
+        ));
+    }
+    Ok(opacity)
 }
 
 /// The alpha below which an OBJ material with a `map_d` is cut out (as glTF's MASK default).
@@ -3073,11 +3120,10 @@ mod tests {
         }
     }
 
-    /// glTF's alpha mode MASK gives a cutoff (0.5 by default) and the base colour factor's
-    /// alpha; OPAQUE and BLEND none (BLEND is drawn opaque, named in the warning); a negative
-    /// cutoff is an error naming it.
+    /// glTF's alpha mode MASK gives a cutoff (0.5 by default), BLEND blending, and each the
+    /// base colour factor's alpha; a negative cutoff is an error naming it.
     #[test]
-    fn alpha_masks_load_with_their_cutoff() {
+    fn alpha_modes_load_with_their_cutoff() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
         let text = textured_gltf_text(d);
@@ -3093,14 +3139,18 @@ mod tests {
             )
         };
         for (mode, cutoff) in [
-            (r#","alphaMode":"MASK""#, Some(0.5)),
-            (r#","alphaMode":"MASK","alphaCutoff":0.75"#, Some(0.75)),
-            (r#","alphaMode":"BLEND""#, None),
-            ("", None),
+            (r#","alphaMode":"MASK""#, AlphaMode::Mask(0.5)),
+            (
+                r#","alphaMode":"MASK","alphaCutoff":0.75"#,
+                AlphaMode::Mask(0.75),
+            ),
+            (r#","alphaMode":"BLEND""#, AlphaMode::Blend),
+            (r#","alphaMode":"OPAQUE""#, AlphaMode::Opaque),
+            ("", AlphaMode::Opaque),
         ] {
             std::fs::write(&p, with(mode)).unwrap();
             let m = Scene::load(&p, false).unwrap().materials[0];
-            assert_eq!((m.alpha, m.alpha_cutoff), (0.25, cutoff), "{mode}");
+            assert_eq!((m.alpha, m.alpha_mode), (0.25, cutoff), "{mode}");
         }
         std::fs::write(&p, with(r#","alphaMode":"MASK","alphaCutoff":-1"#)).unwrap();
         let e = Scene::load(&p, false).unwrap_err().to_string();
@@ -3302,8 +3352,9 @@ mod tests {
 
     /// An MTL's `Ke` and `map_Ke` make the emission, and its `map_d` a cut-out: the mask (its
     /// R where it has no alpha, its A where it has) joined to the `map_Kd` image's alpha, at
-    /// the cutoff 0.5; the scene's files include both maps; a missing map or a negative `Ke` is
-    /// an error naming it; `d` below 1 without a map loads (drawn opaque, with a warning).
+    /// the cutoff 0.5; the scene's files include both maps; a missing map, a negative `Ke` or an
+    /// opacity outside [0, 1] is an error naming it; `d` (or `Tr` = 1 − d) below 1 without a
+    /// map blends the surface with that opacity.
     #[test]
     fn obj_emission_and_dissolve_maps_load() {
         let dir = tempfile::tempdir().unwrap();
@@ -3338,7 +3389,7 @@ mod tests {
         .unwrap();
         let m = s.materials[0];
         assert_eq!(m.emission, [2.0, 1.0, 0.5]);
-        assert_eq!(m.alpha_cutoff, Some(OBJ_ALPHA_CUTOFF));
+        assert_eq!(m.alpha_mode, AlphaMode::Mask(OBJ_ALPHA_CUTOFF));
         let emissive = m.textures.emissive.unwrap();
         assert_eq!(
             s.textures[emissive.image as usize].rgba,
@@ -3358,13 +3409,28 @@ mod tests {
         assert_eq!(m.emission, [1.0; 3]);
         let joined = &s.textures[m.textures.base_color.unwrap().image as usize];
         assert_eq!(joined.rgba, [255, 255, 255, 200, 255, 255, 255, 10]);
-        // No maps: no cut-out, no glow; a translucent d is drawn opaque.
-        let m = load("newmtl t\nd 0.5\n").unwrap().materials[0];
-        assert_eq!((m.alpha_cutoff, m.emission), (None, [0.0; 3]));
+        // No maps: no cut-out, no glow; a translucent d (or Tr) is blended with its opacity.
+        let m = load("newmtl t\n").unwrap().materials[0];
+        assert_eq!(
+            (m.alpha, m.alpha_mode, m.emission),
+            (1.0, AlphaMode::Opaque, [0.0; 3])
+        );
+        for (mtl, opacity) in [("d 0.25", 0.25), ("Tr 0.25", 0.75), ("d 0.5\nTr 0.9", 0.5)] {
+            let m = load(&format!("newmtl t\n{mtl}\n")).unwrap().materials[0];
+            assert_eq!(
+                (m.alpha, m.alpha_mode),
+                (opacity, AlphaMode::Blend),
+                "{mtl}"
+            );
+        }
+        let m = load("newmtl t\nd 1\n").unwrap().materials[0];
+        assert_eq!((m.alpha, m.alpha_mode), (1.0, AlphaMode::Opaque));
         for (mtl, needle) in [
             ("newmtl t\nmap_d gone.png\n", "map_d"),
             ("newmtl t\nmap_Ke gone.png\n", "map_Ke"),
             ("newmtl t\nKe -1 0 0\n", "Ke [-1.0, 0.0, 0.0]"),
+            ("newmtl t\nd 1.5\n", "d gives an opacity of 1.5"),
+            ("newmtl t\nTr glass\n", "Tr \"glass\" is not a number"),
         ] {
             let e = load(mtl).unwrap_err().to_string();
             assert!(

@@ -187,7 +187,7 @@ impl Material {
             extra: [
                 self.textures.normal_scale,
                 self.textures.occlusion_strength,
-                self.alpha_cutoff.unwrap_or(-1.0),
+                self.alpha_mode.shadow_cutoff().unwrap_or(-1.0),
                 0.0,
             ],
             emission: [r, g, b, 0.0],

@@ -26,7 +26,7 @@
 //! A scene without textures binds 1 × 1 placeholder arrays that no material reads.
 
 use super::output::srgb_eotf;
-use super::scene::{Scene, TextureImage, Wrap};
+use super::scene::{AlphaMode, Scene, TextureImage, Wrap};
 
 /// The largest side of a texture layer, in texels (a 2048² layer and its mips take 21 MiB).
 pub const MAX_LAYER_SIDE: u32 = 2048;
@@ -82,7 +82,10 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
             });
             if SRGB_SLOTS[slot] {
                 cutoffs.resize(base_color.len(), None);
-                let cutoff = m.alpha_cutoff.filter(|&c| c > 0.0);
+                let cutoff = match m.alpha_mode {
+                    AlphaMode::Mask(c) if c > 0.0 => Some(c),
+                    _ => None,
+                };
                 if slot == 0 && cutoffs[layer].is_none() {
                     cutoffs[layer] = cutoff;
                 }
@@ -665,9 +668,12 @@ mod tests {
         assert_eq!(plan.cutoffs, vec![None, None]);
         assert_eq!(plan.data, vec![0, 2]);
         // A cut-out material's base colour carries its cutoff (its emissive texture does not).
-        scene.materials[1].alpha_cutoff = Some(0.25);
+        // A blended one's does not (its mips are plain averages, as the blending wants).
+        scene.materials[1].alpha_mode = AlphaMode::Mask(0.25);
         assert_eq!(plan_layers(&scene, 16384).cutoffs, vec![None, Some(0.25)]);
-        scene.materials[1].alpha_cutoff = None;
+        scene.materials[1].alpha_mode = AlphaMode::Blend;
+        assert_eq!(plan_layers(&scene, 16384).cutoffs, vec![None, None]);
+        scene.materials[1].alpha_mode = AlphaMode::Opaque;
         assert_eq!(plan.side, 512);
         assert_eq!(plan_layers(&scene, 256).side, 256);
         assert_eq!(plan_layers(&scene, 300).side, 256);
