@@ -265,6 +265,7 @@ pub struct RawRender {
     pub height: Option<u32>,
     pub scene: Option<String>,
     pub shadow_resolution: Option<u32>,
+    pub supersample: Option<u32>,
     pub culling: Option<bool>,
     pub shadow_catcher: Option<bool>,
     pub shadow_raster: Option<String>,
@@ -795,6 +796,13 @@ impl RawRender {
                 self.shadow_resolution,
                 d.settings.shadow_resolution,
                 16..=8192,
+                "",
+            )?,
+            supersample: integer_in(
+                "render.supersample",
+                self.supersample,
+                d.settings.supersample,
+                1..=crate::render::supersample::MAX_SUPERSAMPLE,
                 "",
             )?,
             shadows: true,
@@ -1755,6 +1763,10 @@ mod tests {
             (
                 "[render]\nshadow_resolution = 1",
                 "render.shadow_resolution = 1: must be 16..=8192",
+            ),
+            (
+                "[render]\nsupersample = 5",
+                "render.supersample = 5: must be 1..=4",
             ),
             (
                 "[asg]\nfit_height = 1025",

@@ -869,6 +869,33 @@ fn cli_renders_png_and_exr_per_frame() {
     assert_eq!((png.width(), png.height()), (48, 32));
     let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
     assert_eq!(stats.lines().count(), 2);
+    // Supersampled: the same image size; a factor past 4 is a usage error.
+    let supersampled = dir.path().join("supersampled");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args([
+            "render",
+            "--size",
+            "48x32",
+            "--supersample",
+            "2",
+            "--lights",
+        ])
+        .arg(&lights)
+        .arg("--out")
+        .arg(&supersampled)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let png = image::open(supersampled.join("frame_00001.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (48, 32));
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+        .args(["render", "--supersample", "5", "--out"])
+        .arg(dir.path().join("never"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("--supersample"), "{stderr}");
 
     // A bad scene file is an error that names it, not a panic.
     let bad = dir.path().join("bad.glb");
@@ -1931,6 +1958,146 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
     assert!(front[0] > 0.1 && behind[0] > 0.1, "{front:?} {behind:?}");
     let want = over(front, 0.4, over(blue_front, 0.4, behind));
     assert_close("ASG, two layers", blended, want, 0.02);
+}
+
+/// Supersampling: with s = 4 each pixel of a glowing triangle's edge is the fraction of its
+/// 4 × 4 sample centres inside the triangle (the GPU's samples are the CPU's, but for a sample
+/// on the edge itself), so within 1/8 of the exact covered area, and its alpha the same; the
+/// image's mean is the triangle's area fraction. Without it the edge pixels are all or nothing.
+/// The light and ASG passes resolve the same way; a factor outside 1..=4, or one that makes
+/// the frame larger than the GPU allows, is refused in words.
+#[test]
+fn supersampling_resolves_edges_to_their_covered_fraction() {
+    use envlight::asg::Asg;
+    use glam::{DVec3, Vec2};
+    let glow = Material {
+        emission: [1.0; 3],
+        ..Material::lambertian([0.0; 3])
+    };
+    let mut scene = textured_quad(glow, vec![], 1.0);
+    for (v, p) in
+        scene
+            .vertices
+            .iter_mut()
+            .zip([[-0.9, -0.7, 0.0], [0.8, -0.45, 0.0], [-0.2, 0.95, 0.0]])
+    {
+        v.position = p;
+    }
+    scene.indices = vec![0, 1, 2];
+    scene.caster_indices = 3;
+    let (width, height) = (40, 32);
+    let settings = |supersample| RenderSettings {
+        width,
+        height,
+        supersample,
+        ..quad_settings()
+    };
+    let render = |supersample| {
+        let mut r = renderer(scene.clone(), settings(supersample));
+        let (img, _) = r.render(&[]).unwrap();
+        (r, img)
+    };
+    let (r4, img4) = render(4);
+    // The triangle in pixel coordinates, and the fraction of a pixel's n × n sample centres
+    // inside it.
+    let corners: Vec<Vec2> = scene.vertices[..3]
+        .iter()
+        .map(|v| {
+            let c = r4.view_proj() * Vec3::from(v.position).extend(1.0);
+            let ndc = c.truncate() / c.w;
+            Vec2::new(
+                (ndc.x + 1.0) / 2.0 * width as f32,
+                (1.0 - ndc.y) / 2.0 * height as f32,
+            )
+        })
+        .collect();
+    let inside = |p: Vec2| {
+        let edge = |a: Vec2, b: Vec2| (b - a).perp_dot(p - a);
+        let e = [
+            edge(corners[0], corners[1]),
+            edge(corners[1], corners[2]),
+            edge(corners[2], corners[0]),
+        ];
+        e.iter().all(|&v| v > 0.0) || e.iter().all(|&v| v < 0.0)
+    };
+    let covered = |x: u32, y: u32, n: u32| {
+        let hits = (0..n * n)
+            .filter(|k| {
+                let sub = Vec2::new((k % n) as f32 + 0.5, (k / n) as f32 + 0.5) / n as f32;
+                inside(Vec2::new(x as f32, y as f32) + sub)
+            })
+            .count();
+        hits as f32 / (n * n) as f32
+    };
+    let (mut partial, mut worst_area, mut off_samples, mut sum) = (0, 0.0f32, 0.0f32, 0.0f32);
+    for y in 0..height {
+        for x in 0..width {
+            let p = img4.pixel(x, y);
+            let area = covered(x, y, 64);
+            assert!(
+                (p[3] - p[0]).abs() < 1e-5,
+                "alpha {} ≠ {} at ({x}, {y})",
+                p[3],
+                p[0]
+            );
+            if area > 0.0 && area < 1.0 {
+                partial += 1;
+            }
+            worst_area = worst_area.max((p[0] - area).abs());
+            off_samples += ((p[0] - covered(x, y, 4)) * 16.0).abs().round();
+            sum += area;
+        }
+    }
+    eprintln!(
+        "supersampling 4: {partial} edge pixels, worst {worst_area:.4} off the covered area, \
+         {off_samples} samples off the CPU's"
+    );
+    assert!(partial > 40, "{partial} edge pixels");
+    assert!(
+        worst_area <= 0.13,
+        "a pixel {worst_area} off its covered area"
+    );
+    assert!(
+        off_samples <= 3.0,
+        "{off_samples} samples differ from the CPU's"
+    );
+    let mean =
+        |img: &Image| img.rgba.chunks(4).map(|p| p[0]).sum::<f32>() / (width * height) as f32;
+    let area_fraction = sum / (width * height) as f32;
+    assert!((mean(&img4) - area_fraction).abs() < 0.005 * area_fraction);
+    // Without supersampling the edge pixels are all or nothing.
+    let (_, img1) = render(1);
+    assert!(img1.rgba.iter().all(|&v| v == 0.0 || v == 1.0));
+    // The ASG pass resolves its samples too (emission only: no lobe reaches a black surface).
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let mut r = renderer(scene.clone(), settings(4));
+    let (asg, _) = r.render_asg(&lobes).unwrap();
+    let diff = asg
+        .rgba
+        .iter()
+        .zip(&img4.rgba)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
+    assert!(diff < 1e-5, "ASG and light passes differ by {diff}");
+    for (supersample, size, needle) in [
+        (0, (8, 8), "supersampling 0 outside 1..=4"),
+        (5, (8, 8), "supersampling 5 outside 1..=4"),
+        (4, (8192, 8), "supersampled 4× is 32768x32"),
+    ] {
+        let e = Renderer::new(
+            scene.clone(),
+            RenderSettings {
+                width: size.0,
+                height: size.1,
+                supersample,
+                ..quad_settings()
+            },
+        )
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+        assert!(e.contains(needle), "{supersample}: {e}");
+    }
 }
 
 /// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour

@@ -55,6 +55,11 @@ pub(crate) struct RenderArgs {
     /// Shadow-map side in texels (16..=8192). [default: 512]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(16..=8192))]
     shadow_res: Option<u32>,
+    /// Supersampling anti-aliasing: render at N times the width and height and average each
+    /// pixel's N × N samples (1..=4; about N² the shading time and G-buffer memory).
+    /// [default: 1, off]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=4))]
+    supersample: Option<u32>,
     /// How the shadow maps are drawn: `pipeline`, a depth-only render pass per light, or
     /// `compute`, compute shaders (faster where the raster pipeline is a small part of the GPU,
     /// as on an H200), or `auto`: compute on a GPU, pipeline on a CPU rasteriser such as
@@ -262,6 +267,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         culling: !args.no_culling,
         shadow_catcher: args.catcher,
         shadow_raster: args.shadow_raster.unwrap_or_default(),
+        supersample: args.supersample.unwrap_or(1),
         ..RenderSettings::default()
     };
     let mut next_frame =

@@ -291,6 +291,9 @@ impl Renderer {
                 asg.blended_pipeline.as_ref(),
             );
         }
+        if let Some(resolve) = &self.resolve {
+            resolve.encode(&mut enc, None);
+        }
         if readback {
             self.encode_readback(&mut enc);
         }

@@ -28,9 +28,16 @@
 //!    multiprocessor of a GPU runs: on an H200, whose graphics pipeline has a small part of the
 //!    chip, the frame without shadows went from 20.8 ms as a fragment shader to 1.66 ms
 //!    (1280×720, 256 lights; docs/performance.md).
-//! 4. Read-back (for files and tests) and timing: GPU timestamps around the shadow passes and
-//!    the shading where the adapter has them, CPU wall time from submit to completion
-//!    otherwise.
+//! 4. **Blended surfaces** (glTF's BLEND; only where the scene has any): a render pass
+//!    (`fs_blended`) draws them over the shaded frame, back to front ([`order_triangles`]),
+//!    depth-tested against the G-buffer pass's depth, each fragment shaded as `cs_shade` shades
+//!    a pixel and blended by its alpha (premultiplied over).
+//! 5. **Resolve** (only with [`RenderSettings::supersample`] above 1): every pass above runs at
+//!    s times the output's size, and a compute pass averages each pixel's s × s samples
+//!    ([`supersample`]).
+//! 6. Read-back (for files and tests) and timing: GPU timestamps around the shadow passes and
+//!    the rest of the frame where the adapter has them, CPU wall time from submit to
+//!    completion otherwise.
 //!
 //! **Per-pixel light culling** (Havran et al. 2005 cull lights below a pixel's horizon; this
 //! renderer also culls by the specular lobe): a light with n·l ≤ 0 is skipped before any
@@ -59,6 +66,7 @@ pub mod scene;
 pub mod shading;
 pub mod shadow;
 pub mod shadow_raster;
+pub mod supersample;
 pub mod textures;
 #[cfg(feature = "window")]
 pub mod window;
@@ -93,6 +101,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("shade.wgsl", SHADE_WGSL),
     ("shadow.wgsl", SHADOW_WGSL),
     ("shadow_raster.wgsl", shadow_raster::SHADOW_RASTER_WGSL),
+    ("resolve.wgsl", supersample::RESOLVE_WGSL),
 ];
 /// The shared prelude prepended to `shade.wgsl`, `asg.wgsl`, `shadow.wgsl` and
 /// `shadow_raster.wgsl`: vertex layout, materials and their textures, the shaded point's set-up.
@@ -105,7 +114,7 @@ pub const CULLING_TOLERANCE: (f32, f32) = (0.0005, 0.01);
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// GPU timestamps per frame: start of the shadow passes, start of the G-buffer pass, end of the
-/// shading pass.
+/// frame's last pass (shading, blended surfaces or resolve).
 const TIMESTAMPS: u32 = 3;
 /// `cs_shade`'s workgroup is 8×8 pixels.
 const SHADE_WORKGROUP: u32 = 8;
@@ -142,6 +151,10 @@ pub struct RenderSettings {
     /// The most samples of anisotropic texture filtering, 1 (off) to
     /// [`textures::MAX_ANISOTROPY`] (the default; where the adapter has it).
     pub texture_anisotropy: u16,
+    /// Supersampling anti-aliasing ([`supersample`]): the frame is rendered at this many times
+    /// `width` and `height`, and each pixel is the mean of its samples; 1 (the default) is
+    /// off, at most [`supersample::MAX_SUPERSAMPLE`].
+    pub supersample: u32,
 }
 
 impl Default for RenderSettings {
@@ -155,6 +168,7 @@ impl Default for RenderSettings {
             shadow_catcher: false,
             shadow_raster: ShadowRaster::default(),
             texture_anisotropy: textures::MAX_ANISOTROPY,
+            supersample: 1,
         }
     }
 }
@@ -251,8 +265,11 @@ pub struct Renderer {
     /// The blended surfaces' pass over the shaded frame (`fs_blended`), where the scene has
     /// any.
     blended_pipeline: Option<wgpu::RenderPipeline>,
+    /// The frame the passes draw (at `supersample` times the output's size).
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
+    /// The output image resolved from `color_view`'s samples, with supersampling.
+    resolve: Option<supersample::Resolve>,
     depth_view: wgpu::TextureView,
     gbuffer_views: [wgpu::TextureView; GBUFFER_TARGETS],
     /// The materials' texture arrays (group 2 of the G-buffer and ASG passes).
@@ -496,6 +513,23 @@ impl Renderer {
             return Err(RenderError::Settings(format!(
                 "image size {}x{} outside 1..={max_dim}",
                 settings.width, settings.height
+            )));
+        }
+        let s = settings.supersample;
+        if !(1..=supersample::MAX_SUPERSAMPLE).contains(&s) {
+            return Err(RenderError::Settings(format!(
+                "supersampling {s} outside 1..={}",
+                supersample::MAX_SUPERSAMPLE
+            )));
+        }
+        if u64::from(settings.width.max(settings.height)) * u64::from(s) > u64::from(max_dim) {
+            return Err(RenderError::Settings(format!(
+                "image size {}x{} supersampled {s}× is {}x{}, past the adapter's largest \
+                 texture side {max_dim}; a smaller size or supersampling",
+                settings.width,
+                settings.height,
+                u64::from(settings.width) * u64::from(s),
+                u64::from(settings.height) * u64::from(s),
             )));
         }
         if !(16..=max_dim).contains(&settings.shadow_resolution) {
@@ -789,9 +823,12 @@ impl Renderer {
             None,
         );
 
-        let (color_texture, color_view, depth_view) =
-            Self::make_targets(device, settings.width, settings.height);
-        let gbuffer_views = Self::make_gbuffer(device, settings.width, settings.height);
+        let (width, height) = (settings.width * s, settings.height * s);
+        let (color_texture, color_view, depth_view) = Self::make_targets(device, width, height);
+        let gbuffer_views = Self::make_gbuffer(device, width, height);
+        let resolve = (s > 1).then(|| {
+            supersample::Resolve::new(device, &color_view, settings.width, settings.height)
+        });
         let gbuffer_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("g-buffer and frame"),
             layout: &gbuffer_layout,
@@ -914,6 +951,7 @@ impl Renderer {
             blended_pipeline,
             color_view,
             color_texture,
+            resolve,
             depth_view,
             gbuffer_views,
             surface_textures,
@@ -1138,9 +1176,17 @@ impl Renderer {
         &self.settings
     }
 
-    /// The HDR colour target (`Rgba32Float`), for passes that read the frame.
+    /// The HDR output image (`Rgba32Float`, `settings().width` × `height`; resolved from the
+    /// samples with supersampling), for passes that read the frame.
     pub fn color_view(&self) -> &wgpu::TextureView {
-        &self.color_view
+        self.resolve.as_ref().map_or(&self.color_view, |r| &r.view)
+    }
+
+    /// The texture behind [`Self::color_view`].
+    fn output_texture(&self) -> &wgpu::Texture {
+        self.resolve
+            .as_ref()
+            .map_or(&self.color_texture, |r| &r.texture)
     }
 
     /// Turns culling on or off for the next frames.
@@ -1352,11 +1398,13 @@ impl Renderer {
             None => self.encode_shadow_passes(&mut enc, maps),
         }
         self.encode_gbuffer_pass(&mut enc);
-        // The frame's end: after the blended surfaces where there are any.
+        // The frame's end, written by its last pass: the resolve with supersampling, else the
+        // blended surfaces' where there are any, else the shading.
         let frame_end = ts.map(|t| (t, 2));
-        let (shade_end, blended_end) = match &self.blended_pipeline {
-            Some(_) => (None, frame_end),
-            None => (frame_end, None),
+        let (shade_end, blended_end, resolve_end) = match (&self.blended_pipeline, &self.resolve) {
+            (_, Some(_)) => (None, None, frame_end),
+            (Some(_), None) => (None, frame_end, None),
+            (None, None) => (frame_end, None, None),
         };
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -1370,14 +1418,25 @@ impl Renderer {
             pass.set_pipeline(&self.shade_pipeline);
             pass.set_bind_group(0, &self.shade_bind_group, &[]);
             pass.set_bind_group(1, &self.gbuffer_bind_group, &[]);
+            let s = self.settings.supersample;
             pass.dispatch_workgroups(
-                self.settings.width.div_ceil(SHADE_WORKGROUP),
-                self.settings.height.div_ceil(SHADE_WORKGROUP),
+                (self.settings.width * s).div_ceil(SHADE_WORKGROUP),
+                (self.settings.height * s).div_ceil(SHADE_WORKGROUP),
                 1,
             );
         }
         if let Some(pipeline) = &self.blended_pipeline {
             self.encode_blended_pass(&mut enc, pipeline, blended_end);
+        }
+        if let Some(resolve) = &self.resolve {
+            resolve.encode(
+                &mut enc,
+                resolve_end.map(|(t, end)| wgpu::ComputePassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: None,
+                    end_of_pass_write_index: Some(end),
+                }),
+            );
         }
         if let Some(t) = ts {
             enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
@@ -1564,12 +1623,12 @@ impl Renderer {
         }
     }
 
-    /// Copies the colour target into the read-back buffer.
+    /// Copies the output image into the read-back buffer.
     fn encode_readback(&self, enc: &mut wgpu::CommandEncoder) {
         {
             enc.copy_texture_to_buffer(
                 wgpu::TexelCopyTextureInfo {
-                    texture: &self.color_texture,
+                    texture: self.output_texture(),
                     mip_level: 0,
                     origin: wgpu::Origin3d::ZERO,
                     aspect: wgpu::TextureAspect::All,
@@ -1674,7 +1733,7 @@ impl Renderer {
         let start = Instant::now();
         let (gl, maps) = self.prepare(lights)?;
         let mut enc = self.encode(maps, false);
-        then(&self.gpu.device, &mut enc, &self.color_view);
+        then(&self.gpu.device, &mut enc, self.color_view());
         self.gpu.queue.submit([enc.finish()]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
