@@ -156,7 +156,8 @@ fn half_vector(v: vec3<f32>, l: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 // where the half vector falls, not the surface's masking) × Schlick Fresnel. The cosines are
 // clamped to [0, 1]: v·h rounds to just above 1 where the light lies along the view ray, and
 // pow(1 − v·h, 5) of a negative base is NaN.
-fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32, f0: vec3<f32>) -> vec3<f32> {
+fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32, f0: vec3<f32>,
+                f90: f32) -> vec3<f32> {
     let h = half_vector(v, l, n);
     let ndl = clamp(dot(n, l), 0.0, 1.0);
     let ndv = clamp(dot(n, v), 1e-4, 1.0);
@@ -167,7 +168,7 @@ fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f
     let d = ad2 / (PI * dd * dd);
     let a2 = alpha * alpha;
     let vis = 0.5 / max(ndl * sqrt(ndv * ndv * (1.0 - a2) + a2) + ndv * sqrt(ndl * ndl * (1.0 - a2) + a2), 1e-6);
-    let f = f0 + (vec3<f32>(1.0) - f0) * pow(1.0 - vdh, 5.0);
+    let f = f0 + (vec3<f32>(f90) - f0) * pow(1.0 - vdh, 5.0);
     return d * vis * f;
 }
 
@@ -281,7 +282,7 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         let e = rgb.rgb * ndl;
         var brdf = diffuse;
         if has_specular {
-            brdf = brdf + ggx_specular(n, v, l, alpha_l, alpha, f0);
+            brdf = brdf + ggx_specular(n, v, l, alpha_l, alpha, f0, s.f90);
         }
         radiance = radiance + brdf * e * vis;
         let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));

@@ -19,7 +19,7 @@ const TEX_EMISSIVE: u32 = 4u;
 struct Material {
     // rgb: base colour; a: its alpha.
     base_color: vec4<f32>,
-    // x: roughness, y: metallic, z: specular level, w: flags (bit 0: shadow catcher, bit 1:
+    // x: roughness, y: metallic, z: unused, w: flags (bit 0: shadow catcher, bit 1:
     // double-sided).
     params: vec4<f32>,
     // Slot k's layer at layers[k / 4][k % 4] (negative: none): of the base-colour array for
@@ -39,6 +39,10 @@ struct Material {
     // slot k's image is read at (dot(row0.xyz, (u, v, 1)), dot(row1.xyz, (u, v, 1))) with
     // row0 = uv_transforms[2k], row1 = uv_transforms[2k + 1].
     uv_transforms: array<vec4<f32>, 10>,
+    // rgb: the dielectric reflectance at normal incidence F0; w: at grazing incidence F90
+    // (glTF's KHR_materials_ior and KHR_materials_specular; src/render/shading.rs,
+    // `Material::dielectric_fresnel`).
+    specular: vec4<f32>,
 };
 
 // The materials' textures (src/render/textures.rs): sRGB colours (base colours, emission),
@@ -249,19 +253,21 @@ fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tang
 }
 
 // A shaded point: unit normal n, unit direction to the camera v, GGX α = roughness² (floored),
-// Lambertian albedo/π and specular f0 (dielectric 0.16·level², or the base colour for metals).
+// Lambertian albedo/π and Schlick's Fresnel terms f0 and f90 (the material's dielectric ones,
+// or the base colour and 1 for metals).
 struct Surface {
     n: vec3<f32>,
     v: vec3<f32>,
     alpha: f32,
     diffuse: vec3<f32>,
     f0: vec3<f32>,
+    f90: f32,
     has_specular: bool,
     catcher: bool,
 };
 
 // `world`: the point; `normal`: the interpolated vertex normal (any length); `p`: the material's
-// parameters there (`surface_params`); `mat`: the material (specular level and flags).
+// parameters there (`surface_params`); `mat`: the material (dielectric Fresnel and flags).
 fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Material,
               camera_pos: vec3<f32>) -> Surface {
     var s: Surface;
@@ -269,11 +275,11 @@ fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Materi
     s.v = normalize(camera_pos - world);
     let roughness = clamp(p.roughness, 0.0, 1.0);
     let metallic = clamp(p.metallic, 0.0, 1.0);
-    let spec_level = mat.params.z;
     s.alpha = max(roughness * roughness, 0.002);
     s.diffuse = p.base_color * (1.0 - metallic) / PI;
-    s.f0 = mix(vec3<f32>(0.16 * spec_level * spec_level), p.base_color, metallic);
-    s.has_specular = any(s.f0 > vec3<f32>(0.0));
+    s.f0 = mix(mat.specular.rgb, p.base_color, metallic);
+    s.f90 = mix(mat.specular.w, 1.0, metallic);
+    s.has_specular = any(s.f0 > vec3<f32>(0.0)) || s.f90 > 0.0;
     s.catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
     return s;
 }

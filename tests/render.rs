@@ -2100,6 +2100,113 @@ fn supersampling_resolves_edges_to_their_covered_fraction() {
     }
 }
 
+/// The dielectric Fresnel terms of glTF's KHR_materials_ior and KHR_materials_specular: on a
+/// black glossy quad seen head-on under a light from the camera (v = l = n: Schlick's F = F0),
+/// an index of refraction of 2.42 reflects ((1.42/3.42)²)/0.04 times the default's light, and
+/// a tint and strength scale each channel as F0 does; on a floor seen at grazing angles with
+/// the light along the mirror direction, a tint of 2 at strength 0.5 (F0 the default's 0.04,
+/// F90 0.5) changes each pixel by Schlick's ratio (0.04 + 0.46 w)/(0.04 + 0.96 w),
+/// w = (1 − v·h)⁵ — 1 head-on, towards 0.5 where the view grazes: the grazing reflectance F90
+/// is the material's.
+#[test]
+fn ior_and_specular_set_the_fresnel_reflectance() {
+    use envlight::render::scene::{Sphere, Vertex};
+    let glossy = |ior: f32, color: [f32; 3], factor: f32| Material {
+        specular: (ior - 1.0) / (ior + 1.0) / 0.4,
+        specular_color: color,
+        specular_factor: factor,
+        roughness: 0.4,
+        ..Material::lambertian([0.0; 3])
+    };
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let head_on = |m: Material| {
+        let (r, img) = render_quad(textured_quad(m, vec![], 1.0), &lights);
+        mean_over(&r, &img, -0.3..0.3)
+    };
+    let default = head_on(glossy(1.5, [1.0; 3], 1.0));
+    assert!(default[0] > 0.01, "{default:?}");
+    let diamond = head_on(glossy(2.42, [1.0; 3], 1.0));
+    let f0 = (1.42f32 / 3.42).powi(2);
+    assert_close("ior 2.42", diamond, default.map(|c| c * f0 / 0.04), 0.005);
+    let tinted = head_on(glossy(1.5, [1.0, 0.5, 0.25], 0.5));
+    assert_close(
+        "tint and factor",
+        tinted,
+        [0.5, 0.25, 0.125].map(|k| k * default[0]),
+        0.005,
+    );
+    // The floor y = 0, 2 wide and 40 deep, seen at grazing angles.
+    let corner = |x: f32, z: f32, material: u32| Vertex {
+        position: [x, 0.0, z],
+        normal: [0.0, 1.0, 0.0],
+        material,
+        uv: [0.0; 2],
+        uv1: [0.0; 2],
+        tangent: [0.0; 4],
+        color: envlight::render::scene::WHITE,
+    };
+    let eye = Vec3::new(0.0, 0.5, 3.0);
+    let target = Vec3::new(0.0, 0.0, -4.0);
+    let view = (eye - target).normalize();
+    let l = Vec3::new(-view.x, view.y, -view.z);
+    let floor = |m: Material| {
+        let scene = Scene {
+            vertices: vec![
+                corner(-1.0, 2.0, 0),
+                corner(1.0, 2.0, 0),
+                corner(1.0, -38.0, 0),
+                corner(-1.0, -38.0, 0),
+            ],
+            indices: vec![0, 1, 2, 0, 2, 3],
+            caster_indices: 6,
+            materials: vec![m],
+            textures: vec![],
+            ground_material: None,
+            camera: Camera {
+                eye,
+                target,
+                fov_y: 30f32.to_radians(),
+            },
+            bounds: Sphere {
+                center: Vec3::new(0.0, 0.0, -18.0),
+                radius: 21.0,
+            },
+        };
+        let mut r = renderer(scene, quad_settings());
+        let (img, _) = r.render(&[light(0, l, [3.0, 3.0, 3.0], 0.0)]).unwrap();
+        (r, img)
+    };
+    let (r, full) = floor(glossy(1.5, [1.0; 3], 1.0));
+    let (_, half) = floor(glossy(1.5, [2.0; 3], 0.5));
+    let peak = full.rgba.chunks(4).map(|p| p[0]).fold(0.0, f32::max);
+    let (mut checked, mut worst, mut grazing) = (0, 0.0f32, 1.0f32);
+    for y in 0..full.height {
+        for x in 0..full.width {
+            let a = full.pixel(x, y)[0];
+            if a < 0.01 * peak {
+                continue;
+            }
+            let d = r.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+            let hit = eye + d * (-eye.y / d.y);
+            // Away from the floor's edges, where a pixel mixes floor and background.
+            if hit.x.abs() > 0.9 || hit.z > 1.9 || hit.z < -37.0 {
+                continue;
+            }
+            let v = (eye - hit).normalize();
+            let w = (1.0 - v.dot((v + l).normalize()).clamp(0.0, 1.0)).powi(5);
+            let want = (0.04 + 0.46 * w) / (0.04 + 0.96 * w);
+            let got = half.pixel(x, y)[0] / a;
+            worst = worst.max((got / want - 1.0).abs());
+            grazing = grazing.min(want);
+            checked += 1;
+        }
+    }
+    eprintln!("F90: {checked} pixels, Schlick ratios down to {grazing:.3}, worst {worst:.5} off");
+    assert!(checked > 500, "{checked} pixels");
+    assert!(grazing < 0.7, "no grazing pixel: ratio at least {grazing}");
+    assert!(worst < 0.01, "a pixel {worst} off Schlick's ratio");
+}
+
 /// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour
 /// texture's) is not there where the alpha is below the cutoff: not drawn (light and ASG
 /// passes) and casting no shadow, with either shadow raster; an opaque material ignores its
@@ -2490,11 +2597,12 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
     std::fs::write(d.join("quad.bin"), &bin).unwrap();
     let gltf = r#"{"asset":{"version":"2.0"},
-        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_clearcoat"],
+        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_clearcoat","KHR_materials_specular"],
         "scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
         "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,"material":0}]}],
         "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":1},
-                      "emissiveFactor":[1,0,0],"alphaMode":"BLEND"}],
+                      "emissiveFactor":[1,0,0],"alphaMode":"BLEND",
+                      "extensions":{"KHR_materials_specular":{"specularFactor":0.5,"specularTexture":{"index":0}}}}],
         "textures":[{"source":0},{"source":1}],"images":[{"uri":"tex.png"},{"uri":"tex.png"}],
         "accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[-1,0,0],"max":[1,2,0]},
                      {"bufferView":1,"componentType":5126,"count":4,"type":"VEC2"},
@@ -2519,6 +2627,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
         "textures: 2 layers of 8²",
         "not drawn",
         "extension KHR_materials_clearcoat",
+        "KHR_materials_specular.specularTexture (its factor is drawn)",
     ] {
         assert!(
             stderr.contains(needle),
@@ -2529,7 +2638,12 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     // blending.
     let left_out = stderr.split("textures): ").nth(1).unwrap_or("");
     let left_out = left_out.lines().next().unwrap_or("");
-    for drawn in ["normal", "emissi", "blend"] {
+    for drawn in [
+        "normal",
+        "emissi",
+        "blend",
+        "extension KHR_materials_specular",
+    ] {
         assert!(!left_out.contains(drawn), "{drawn}: {stderr}");
     }
     let png = image::open(d.join("out/frame_00000.png")).unwrap();

@@ -314,9 +314,16 @@ pub struct Material {
     pub roughness: f32,
     /// 0: dielectric, 1: metal.
     pub metallic: f32,
-    /// Dielectric specular level (Filament's): F0 = 0.16 · specular²; 0.5 gives F0 = 0.04.
-    /// 0 makes a dielectric purely Lambertian.
+    /// Dielectric specular level (Filament's): F0 = 0.16 · specular²; 0.5 gives F0 = 0.04
+    /// (glTF's default index of refraction, 1.5; `KHR_materials_ior` sets it). 0 makes a
+    /// dielectric purely Lambertian.
     pub specular: f32,
+    /// Tint of the dielectric F0 (`KHR_materials_specular`'s `specularColorFactor`; white by
+    /// default): F0 = min(0.16 · specular² · tint, 1) · `specular_factor`.
+    pub specular_color: [f32; 3],
+    /// Strength of the dielectric specular (`KHR_materials_specular`'s `specularFactor`, in
+    /// [0, 1]; 1 by default): scales F0 and the grazing reflectance F90.
+    pub specular_factor: f32,
     /// Emitted radiance (linear RGB, W·sr⁻¹·m⁻² in the lights' units), added to the light the
     /// surface reflects: glTF's `emissiveFactor` times `KHR_materials_emissive_strength`.
     /// Zero for a surface that does not glow.
@@ -343,6 +350,8 @@ impl Default for Material {
             roughness: 0.5,
             metallic: 0.0,
             specular: 0.5,
+            specular_color: [1.0; 3],
+            specular_factor: 1.0,
             emission: [0.0; 3],
             alpha: 1.0,
             alpha_mode: AlphaMode::Opaque,
@@ -1206,7 +1215,7 @@ fn parse_gltf(bytes: &[u8], path: &Path) -> Result<gltf::Gltf, String> {
             return Err(format!(
                 "the file requires extension {extension}, which envlight does not implement \
                  (it draws {})",
-                DRAWN_EXTENSIONS.join(" and ")
+                DRAWN_EXTENSIONS.join(", ")
             ));
         }
     }
@@ -1582,6 +1591,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
                 None => {
+                    note_ignored_material_features(&mat, &mut ignored);
                     for &(slot, set) in &channels.unplaced {
                         tracing::warn!(
                             "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
@@ -1738,11 +1748,14 @@ fn gltf_material(
         gltf::material::AlphaMode::Blend => AlphaMode::Blend,
         gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
     };
+    let (specular, specular_color, specular_factor) = gltf_specular(material)?;
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
         roughness,
         metallic,
-        specular: 0.5,
+        specular,
+        specular_color,
+        specular_factor,
         emission: gltf_emission(material)?,
         alpha: c[3],
         alpha_mode,
@@ -1755,7 +1768,79 @@ fn gltf_material(
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 2] = [TEXTURE_TRANSFORM, EMISSIVE_STRENGTH];
+const DRAWN_EXTENSIONS: [&str; 4] = [TEXTURE_TRANSFORM, EMISSIVE_STRENGTH, IOR, SPECULAR];
+
+/// The glTF extension that sets a material's index of refraction (its dielectric F0).
+const IOR: &str = "KHR_materials_ior";
+/// The glTF extension that scales and tints a material's dielectric specular.
+const SPECULAR: &str = "KHR_materials_specular";
+
+/// A glTF material's dielectric specular as [`Material`]'s `specular` (level),
+/// `specular_color` and `specular_factor`: the level from `KHR_materials_ior.ior` (≥ 1; 1.5
+/// without the extension: F0 = ((ior − 1)/(ior + 1))² = 0.16 · level²), the tint and the
+/// strength from `KHR_materials_specular`'s `specularColorFactor` (finite, ≥ 0; white without)
+/// and `specularFactor` (in [0, 1]; 1 without). Errors name the property.
+fn gltf_specular(material: &gltf::Material) -> Result<(f32, [f32; 3], f32), String> {
+    let number = |extension: &str, name: &str| {
+        material
+            .extension_value(extension)
+            .and_then(|e| e.get(name))
+            .map(|v| v.as_f64().map(|x| x as f32).ok_or_else(|| v.to_string()))
+    };
+    let ior = match number(IOR, "ior") {
+        None => 1.5,
+        Some(Ok(ior)) if ior.is_finite() && ior >= 1.0 => ior,
+        Some(v) => {
+            let v = v.map_or_else(|s| s, |x| x.to_string());
+            return Err(format!("{IOR}.ior {v} is not a finite number ≥ 1"));
+        }
+    };
+    let factor = match number(SPECULAR, "specularFactor") {
+        None => 1.0,
+        Some(Ok(f)) if (0.0..=1.0).contains(&f) => f,
+        Some(v) => {
+            let v = v.map_or_else(|s| s, |x| x.to_string());
+            return Err(format!("{SPECULAR}.specularFactor {v} must lie in [0, 1]"));
+        }
+    };
+    let color = match material
+        .extension_value(SPECULAR)
+        .and_then(|e| e.get("specularColorFactor"))
+    {
+        None => [1.0; 3],
+        Some(v) => v
+            .as_array()
+            .filter(|a| a.len() == 3)
+            .and_then(|a| {
+                let c: Vec<f32> = a
+                    .iter()
+                    .filter_map(|x| x.as_f64())
+                    .map(|x| x as f32)
+                    .collect();
+                <[f32; 3]>::try_from(c).ok()
+            })
+            .filter(|c| c.iter().all(|x| x.is_finite() && *x >= 0.0))
+            .ok_or_else(|| {
+                format!("{SPECULAR}.specularColorFactor {v} is not three finite numbers ≥ 0")
+            })?,
+    };
+    Ok(((ior - 1.0) / (ior + 1.0) / 0.4, color, factor))
+}
+
+/// Adds to `ignored` what a glTF material asks for that the renderer does not draw: the
+/// textures of `KHR_materials_specular` (its factors are drawn).
+fn note_ignored_material_features(
+    material: &gltf::Material,
+    ignored: &mut std::collections::BTreeSet<String>,
+) {
+    if let Some(specular) = material.extension_value(SPECULAR) {
+        for texture in ["specularTexture", "specularColorTexture"] {
+            if specular.get(texture).is_some() {
+                ignored.insert(format!("{SPECULAR}.{texture} (its factor is drawn)"));
+            }
+        }
+    }
+}
 
 /// A glTF material's emitted radiance: `emissiveFactor` (each in [0, 1]) times its
 /// `KHR_materials_emissive_strength.emissiveStrength` (finite, ≥ 0; 1 without the extension).
@@ -3120,6 +3205,80 @@ mod tests {
         }
     }
 
+    /// `KHR_materials_ior` sets the dielectric specular level (F0 = 0.16 · level² =
+    /// ((ior − 1)/(ior + 1))²) and `KHR_materials_specular` its strength and tint, which
+    /// [`Material::dielectric_fresnel`] combines as the extension does; without them F0 is
+    /// 0.04 and F90 1; bad values are errors naming the property.
+    #[test]
+    fn ior_and_specular_load_as_the_dielectric_fresnel() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let text = textured_gltf_text(d);
+        let p = d.join("shiny.gltf");
+        let with = |extensions: &str| {
+            text.replace(
+                r#""normalTexture":{"index":0}"#,
+                &format!(r#""normalTexture":{{"index":0}},"extensions":{{{extensions}}}"#),
+            )
+        };
+        let load = |extensions: &str| {
+            std::fs::write(&p, with(extensions)).unwrap();
+            Scene::load(&p, false).map(|s| s.materials[0])
+        };
+        let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6);
+        let m = load("").unwrap();
+        let (f0, f90) = m.dielectric_fresnel();
+        assert!(close(f0, [0.04; 3]) && f90 == 1.0, "{f0:?} {f90}");
+        // Diamond: ((2.42 − 1)/(3.42))² = 0.1724.
+        let m = load(r#""KHR_materials_ior":{"ior":2.42}"#).unwrap();
+        let f = (1.42f32 / 3.42).powi(2);
+        assert!(close(m.dielectric_fresnel().0, [f; 3]), "{m:?}");
+        let m = load(
+            r#""KHR_materials_ior":{"ior":2},
+               "KHR_materials_specular":{"specularFactor":0.5,"specularColorFactor":[1,0.5,8]}"#,
+        )
+        .unwrap();
+        let (f0, f90) = m.dielectric_fresnel();
+        let ninth = 1.0 / 9.0;
+        // The tinted F0 is clamped to 1 before the factor: 8/9 stays, as 0.5 · 8/9.
+        assert!(
+            close(f0, [0.5 * ninth, 0.25 * ninth, 0.5 * 8.0 * ninth]),
+            "{f0:?}"
+        );
+        assert_eq!(f90, 0.5);
+        let m = load(r#""KHR_materials_ior":{"ior":1}"#).unwrap();
+        assert_eq!(
+            m.dielectric_fresnel(),
+            ([0.0; 3], 0.0),
+            "ior 1 reflects nothing"
+        );
+        for (extensions, needle) in [
+            (
+                r#""KHR_materials_ior":{"ior":0.5}"#,
+                "KHR_materials_ior.ior 0.5",
+            ),
+            (
+                r#""KHR_materials_ior":{"ior":"glass"}"#,
+                "KHR_materials_ior.ior \"glass\"",
+            ),
+            (
+                r#""KHR_materials_specular":{"specularFactor":2}"#,
+                "specularFactor 2 must lie in [0, 1]",
+            ),
+            (
+                r#""KHR_materials_specular":{"specularColorFactor":[1,-1,0]}"#,
+                "specularColorFactor [1,-1,0]",
+            ),
+            (
+                r#""KHR_materials_specular":{"specularColorFactor":[1,1]}"#,
+                "specularColorFactor [1,1]",
+            ),
+        ] {
+            let e = load(extensions).unwrap_err().to_string();
+            assert!(e.contains("shiny.gltf") && e.contains(needle), "{e}");
+        }
+    }
+
     /// glTF's alpha mode MASK gives a cutoff (0.5 by default), BLEND blending, and each the
     /// base colour factor's alpha; a negative cutoff is an error naming it.
     #[test]
@@ -3261,7 +3420,9 @@ mod tests {
         };
         std::fs::write(
             &p,
-            requiring(r#"["KHR_texture_transform","KHR_materials_emissive_strength"]"#),
+            requiring(
+                r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular"]"#,
+            ),
         )
         .unwrap();
         Scene::load(&p, false).unwrap();

@@ -131,19 +131,23 @@ impl GpuLight {
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct MaterialRaw {
     base_color: [f32; 4],
+    /// x: roughness, y: metallic, z: unused, w: flags.
     params: [f32; 4],
     /// The layers of the base-colour, metallic-roughness, normal and occlusion textures, then
     /// of the emissive texture, the wrap modes, the texture-coordinate channels and an unused
     /// zero ([`super::textures::MaterialLayers`]); −1: no texture.
     layers: [[f32; 4]; 2],
     /// x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff
-    /// (negative: opaque); w: unused.
+    /// (the shadow maps' for a blended material; negative: opaque); w: unused.
     extra: [f32; 4],
     /// rgb: emitted radiance (the emissive texture multiplies it); w: unused.
     emission: [f32; 4],
     /// The texture-coordinate transforms of the textures in slot order, two rows
     /// (m0, m1, m2, unused) each ([`super::scene::TextureRef::transform`]).
     uv_transforms: [[[f32; 4]; 2]; TEXTURE_SLOTS],
+    /// rgb: the dielectric reflectance at normal incidence F0; w: at grazing incidence F90
+    /// ([`Material::dielectric_fresnel`]).
+    specular: [f32; 4],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -152,6 +156,22 @@ pub const FLAG_CATCHER: u32 = 1;
 pub const FLAG_DOUBLE_SIDED: u32 = 2;
 
 impl Material {
+    /// The dielectric Fresnel terms (F0 per channel, F90) of glTF's `KHR_materials_specular`:
+    /// F0 = min(0.16 · specular² · specular_color, 1) · specular_factor, F90 =
+    /// specular_factor; both 0 where the level `specular` is 0 (a Lambertian material: no
+    /// reflection at grazing incidence either).
+    pub fn dielectric_fresnel(&self) -> ([f32; 3], f32) {
+        if self.specular <= 0.0 {
+            return ([0.0; 3], 0.0);
+        }
+        let f0 = 0.16 * self.specular * self.specular;
+        (
+            self.specular_color
+                .map(|c| (f0 * c).min(1.0) * self.specular_factor),
+            self.specular_factor,
+        )
+    }
+
     /// The shaders' form, with its texture layers from [`super::textures::material_layers`].
     pub fn to_raw(&self, flags: u32, textures: MaterialLayers) -> MaterialRaw {
         let [l0, l1, l2, l3, l4] = textures.layers;
@@ -166,7 +186,7 @@ impl Material {
             params: [
                 self.roughness,
                 self.metallic,
-                self.specular,
+                0.0,
                 (flags
                     | if self.double_sided {
                         FLAG_DOUBLE_SIDED
@@ -195,6 +215,10 @@ impl Material {
                 let m = t.map_or(super::scene::NO_UV_TRANSFORM, |t| t.transform);
                 m.map(|[a, b, c]| [a, b, c, 0.0])
             }),
+            specular: {
+                let ([r, g, b], f90) = self.dielectric_fresnel();
+                [r, g, b, f90]
+            },
         }
     }
 }
