@@ -4,8 +4,9 @@
 //
 //  * vs_main (no fragment stage): the opaque casters, positions only.
 //  * vs_masked + fs_masked: the casters whose material is cut out by its alpha (glTF's MASK):
-//    a fragment whose alpha is below the cutoff writes no depth (`cut_out`, surface.wgsl, with
-//    the mip level of the texture's footprint in the map).
+//    a fragment whose alpha is below the cutoff writes no depth; and the blended ones (BLEND),
+//    dithered by their alpha (`shadow_cut_out`, surface.wgsl, with the mip level of the
+//    texture's footprint in the map).
 //
 // Prepended: surface.wgsl (vertex layout, materials and their textures).
 
@@ -52,7 +53,7 @@ fn vs_masked(v: MaskedIn) -> MaskedOut {
 @fragment
 fn fs_masked(in: MaskedOut) {
     let tc = fragment_coordinates(in.uv, in.uv1);
-    if cut_out(shadow_materials[in.material], tc, in.alpha) {
+    if shadow_cut_out(shadow_materials[in.material], tc, in.alpha, vec2<u32>(in.clip.xy)) {
         discard;
     }
 }

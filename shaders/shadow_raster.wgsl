@@ -186,7 +186,8 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
                 let tc = TextureCoordinates(
                     uv_plane[0] * xc + uv_plane[1] * yc + uv_plane[2], uv_plane[0], uv_plane[1],
                     uv_plane[3] * xc + uv_plane[4] * yc + uv_plane[5], uv_plane[3], uv_plane[4]);
-                if cut_out(mat, tc, dot(alpha_plane, vec3<f32>(xc, yc, 1.0))) {
+                let texel = vec2<u32>(u32(x), u32(y));
+                if shadow_cut_out(mat, tc, dot(alpha_plane, vec3<f32>(xc, yc, 1.0)), texel) {
                     continue;
                 }
             }

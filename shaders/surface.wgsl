@@ -30,8 +30,9 @@ struct Material {
     layers: array<vec4<f32>, 2>,
     // x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff,
     // below which the surface casts no shadow and (glTF's MASK) is not drawn: MASK's cutoff,
-    // 0.5 for BLEND (whose surfaces the blended passes draw without testing it), negative for
-    // an opaque material; w: unused.
+    // negative for an opaque material, positive (unused) for BLEND, whose surfaces the blended
+    // passes draw without testing it; w: 1 for BLEND (its shadow dithered by its alpha:
+    // `shadow_cut_out`), else 0.
     extra: vec4<f32>,
     // rgb: emitted radiance, times the emissive texture; w: unused.
     emission: vec4<f32>,
@@ -193,14 +194,28 @@ fn surface_alpha(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> f3
     return alpha;
 }
 
-// Whether the material is cut out at `tc` (glTF's alpha mode MASK; a blended material in the
-// shadow maps): its alpha (`surface_alpha`) is below its cutoff. Always false for an opaque
-// material.
+// Whether the material is cut out at `tc` (glTF's alpha mode MASK): its alpha
+// (`surface_alpha`) is below its cutoff. Always false for an opaque material.
 fn cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
     if mat.extra.z < 0.0 {
         return false;
     }
     return surface_alpha(mat, tc, vertex_alpha) < mat.extra.z;
+}
+
+// Whether a shadow caster leaves shadow-map texel `texel` (its integer coordinates) empty: a
+// masked material where it is cut out (`cut_out`); a blended one where its alpha is at or
+// below the texel's threshold in a 4 × 4 ordered-dither (Bayer) pattern, so that it covers the
+// fraction α of the texels (round(16α)/16 of each 4 × 4 block), and the shadow filter, which
+// averages the comparisons over several texels, darkens the receiver by about α.
+fn shadow_cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32, texel: vec2<u32>) -> bool {
+    if mat.extra.w <= 0.0 {
+        return cut_out(mat, tc, vertex_alpha);
+    }
+    var bayer = array<f32, 16>(0.0, 8.0, 2.0, 10.0, 12.0, 4.0, 14.0, 6.0,
+                               3.0, 11.0, 1.0, 9.0, 15.0, 7.0, 13.0, 5.0);
+    let threshold = (bayer[(texel.y % 4u) * 4u + texel.x % 4u] + 0.5) / 16.0;
+    return surface_alpha(mat, tc, vertex_alpha) <= threshold;
 }
 
 // The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point

@@ -1881,8 +1881,9 @@ fn mean_alpha_over(r: &Renderer, img: &Image, x_range: std::ops::Range<f32>) -> 
 /// glTF's BLEND: a blended surface is drawn over what lies behind it by the over operator
 /// (premultiplied: colour · α + behind · (1 − α), alpha α + behind's · (1 − α)), after the
 /// opaque surfaces and back to front whatever the order of its triangles in the scene; hidden
-/// behind an opaque one; casting a shadow where its alpha is at least 0.5. In the light pass
-/// (either shadow raster) and the ASG pass.
+/// behind an opaque one; casting a shadow that blocks the fraction α of the light (dithered in
+/// the maps: two layers of one pattern block the larger α). In the light pass (either shadow
+/// raster) and the ASG pass.
 #[test]
 fn blended_materials_are_drawn_over_what_lies_behind_them() {
     use envlight::asg::Asg;
@@ -1909,23 +1910,29 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
     let alpha = mean_alpha_over(&r, &img, -0.5..0.5);
     assert!((alpha - 0.25).abs() < 1e-3, "alone: alpha {alpha}");
     for raster in RASTERS {
-        // Before a white receiver under a frontal light: at α 0.25 no shadow (the receiver is
-        // lit behind it), at 0.75 a full one.
-        for (alpha, behind) in [(0.25, lit([1.0; 3])), (0.75, [0.0; 3])] {
+        // Before a white receiver under a frontal light, which the square's shadow dims to
+        // 1 − α (α a multiple of 1/16, as the dither covers).
+        for alpha in [0.25, 0.75] {
+            let behind = lit([1.0 - alpha; 3]);
             let mut r = before_receiver(textured_quad(blend(red, alpha), vec![], 1.0), raster);
             let (img, _) = r.render(&lights).unwrap();
             let what = format!("{raster:?}, α {alpha} before the receiver");
             let got = mean_over(&r, &img, -0.5..0.5);
+            // The receiver's light through the square, from the green channel (red's is 0.2).
+            let through = (got[1] - alpha * lit(red)[1]) / (1.0 - alpha) / lit([1.0; 3])[1];
+            eprintln!("{what}: the receiver gets {through:.4} of its light");
             assert_close(&what, got, over(lit(red), alpha, behind), 0.02);
             let a = mean_alpha_over(&r, &img, -0.5..0.5);
             assert!((a - 1.0).abs() < 1e-3, "{what}: alpha {a}");
         }
-        // Two blended squares, the near one (red, z = 0) listed first: drawn far to near.
-        let mut scene = textured_quad(blend(red, 0.4), vec![], 1.0);
-        add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.4));
+        // Two blended squares, the near one (red, z = 0) listed first: drawn far to near; the
+        // blue one half in the red one's shadow, the receiver half in both (one pattern).
+        let mut scene = textured_quad(blend(red, 0.5), vec![], 1.0);
+        add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.5));
         let mut r = before_receiver(scene, raster);
         let (img, _) = r.render(&lights).unwrap();
-        let want = over(lit(red), 0.4, over(lit(blue), 0.4, lit([1.0; 3])));
+        let half_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.5 * c);
+        let want = over(lit(red), 0.5, over(half_lit(blue), 0.5, half_lit([1.0; 3])));
         let got = mean_over(&r, &img, -0.5..0.5);
         assert_close(&format!("{raster:?}, two layers"), got, want, 0.02);
         // Behind an opaque square: hidden.

@@ -29,9 +29,9 @@
 //!    chip, the frame without shadows went from 20.8 ms as a fragment shader to 1.66 ms
 //!    (1280×720, 256 lights; docs/performance.md).
 //! 4. **Blended surfaces** (glTF's BLEND; only where the scene has any): a render pass
-//!    (`fs_blended`) draws them over the shaded frame, back to front ([`order_triangles`]),
-//!    depth-tested against the G-buffer pass's depth, each fragment shaded as `cs_shade` shades
-//!    a pixel and blended by its alpha (premultiplied over).
+//!    (`fs_blended`) draws them over the shaded frame, back to front (sorted by
+//!    `order_triangles`), depth-tested against the G-buffer pass's depth, each fragment shaded
+//!    as `cs_shade` shades a pixel and blended by its alpha (premultiplied over).
 //! 5. **Resolve** (only with [`RenderSettings::supersample`] above 1): every pass above runs at
 //!    s times the output's size, and a compute pass averages each pixel's s × s samples
 //!    ([`supersample`]).

@@ -384,25 +384,11 @@ pub enum AlphaMode {
     /// not there — not drawn, and casting no shadow.
     Mask(f32),
     /// glTF's BLEND: the surface is drawn over what lies behind it by the over operator
-    /// (colour · α + behind · (1 − α)), after the opaque surfaces, back to front. It casts
-    /// shadows as a cut-out at [`BLEND_SHADOW_CUTOFF`] (a shadow map holds one depth, not a
-    /// transmittance).
+    /// (colour · α + behind · (1 − α)), after the opaque surfaces, back to front. Its shadow
+    /// blocks the fraction α of the light (glTF's alpha is coverage): in the shadow maps it
+    /// covers the fraction α of the texels in an ordered-dither pattern, which the shadow
+    /// filter averages (a shadow map holds one depth, not a transmittance).
     Blend,
-}
-
-/// The alpha at or above which a blended surface ([`AlphaMode::Blend`]) casts a shadow.
-pub const BLEND_SHADOW_CUTOFF: f32 = 0.5;
-
-impl AlphaMode {
-    /// The alpha below which the surface casts no shadow: a mask's cutoff,
-    /// [`BLEND_SHADOW_CUTOFF`] for a blended surface, none for an opaque one.
-    pub fn shadow_cutoff(self) -> Option<f32> {
-        match self {
-            AlphaMode::Opaque => None,
-            AlphaMode::Mask(cutoff) => Some(cutoff),
-            AlphaMode::Blend => Some(BLEND_SHADOW_CUTOFF),
-        }
-    }
 }
 
 /// A perspective camera.

@@ -2,7 +2,7 @@
 //! `…Raw` twin (as in the wgpu examples), made by `to_raw()`. The layouts match
 //! `shaders/shade.wgsl`.
 
-use super::scene::Material;
+use super::scene::{AlphaMode, Material};
 use super::shadow;
 use super::shadow_raster::ShadowRaster;
 use super::textures::{MaterialLayers, TEXTURE_SLOTS};
@@ -138,7 +138,8 @@ pub struct MaterialRaw {
     /// zero ([`super::textures::MaterialLayers`]); −1: no texture.
     layers: [[f32; 4]; 2],
     /// x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff
-    /// (the shadow maps' for a blended material; negative: opaque); w: unused.
+    /// (negative: opaque; positive for a blended material); w: 1 for a blended material (its
+    /// shadow dithered by its alpha), else 0.
     extra: [f32; 4],
     /// rgb: emitted radiance (the emissive texture multiplies it); w: unused.
     emission: [f32; 4],
@@ -207,8 +208,17 @@ impl Material {
             extra: [
                 self.textures.normal_scale,
                 self.textures.occlusion_strength,
-                self.alpha_mode.shadow_cutoff().unwrap_or(-1.0),
-                0.0,
+                match self.alpha_mode {
+                    AlphaMode::Opaque => -1.0,
+                    AlphaMode::Mask(cutoff) => cutoff,
+                    // Any positive value: tested in the shadow maps, by the dither.
+                    AlphaMode::Blend => 1.0,
+                },
+                if self.alpha_mode == AlphaMode::Blend {
+                    1.0
+                } else {
+                    0.0
+                },
             ],
             emission: [r, g, b, 0.0],
             uv_transforms: self.textures.slots().map(|t| {
