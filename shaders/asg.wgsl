@@ -234,6 +234,7 @@ fn asg_shaded(in: VertexOut, front: bool, mat: Material, tc: TextureCoordinates)
 
     var irradiance = vec3<f32>(0.0);
     var specular = vec3<f32>(0.0);
+    var coat = vec3<f32>(0.0);
     for (var k = 0u; k < globals.lobe_count; k = k + 1u) {
         let c = lobes[k].rgb;
         let h = cosine_h(dot(n, lobes[k].z.xyz), lobes[k].z.w);
@@ -241,6 +242,13 @@ fn asg_shaded(in: VertexOut, front: bool, mat: Material, tc: TextureCoordinates)
         if has_specular {
             specular = specular + c.rgb * ggx_response(k, n, v, alpha);
         }
+        if s.coat > 0.0 {
+            coat = coat + c.rgb * ggx_response(k, n, v, s.coat_alpha);
+        }
     }
-    return vec4<f32>((diffuse * irradiance + f0 * specular) * p.occlusion + p.emission, 1.0);
+    // A clear coat with its Fresnel reflectance at n·v (as F = f0 stands for the base's):
+    // it reflects that share and takes it from the layer beneath, emission included.
+    let fc = s.coat * coat_fresnel(dot(n, v));
+    let beneath = (diffuse * irradiance + f0 * specular) * p.occlusion + p.emission;
+    return vec4<f32>(beneath * (1.0 - fc) + fc * coat * p.occlusion, 1.0);
 }

@@ -158,18 +158,24 @@ fn half_vector(v: vec3<f32>, l: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 // pow(1 − v·h, 5) of a negative base is NaN.
 fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32, f0: vec3<f32>,
                 f90: f32) -> vec3<f32> {
+    let vdh = clamp(dot(v, half_vector(v, l, n)), 0.0, 1.0);
+    let f = f0 + (vec3<f32>(f90) - f0) * pow(1.0 - vdh, 5.0);
+    return ggx_lobe(n, v, l, alpha_d, alpha) * f;
+}
+
+// The GGX lobe without its Fresnel factor: D (of roughness `alpha_d`) × the height-correlated
+// Smith visibility (of `alpha`).
+fn ggx_lobe(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32) -> f32 {
     let h = half_vector(v, l, n);
     let ndl = clamp(dot(n, l), 0.0, 1.0);
     let ndv = clamp(dot(n, v), 1e-4, 1.0);
     let ndh = clamp(dot(n, h), 0.0, 1.0);
-    let vdh = clamp(dot(v, h), 0.0, 1.0);
     let ad2 = alpha_d * alpha_d;
     let dd = ndh * ndh * (ad2 - 1.0) + 1.0;
     let d = ad2 / (PI * dd * dd);
     let a2 = alpha * alpha;
     let vis = 0.5 / max(ndl * sqrt(ndv * ndv * (1.0 - a2) + a2) + ndv * sqrt(ndl * ndl * (1.0 - a2) + a2), 1e-6);
-    let f = f0 + (vec3<f32>(f90) - f0) * pow(1.0 - vdh, 5.0);
-    return d * vis * f;
+    return d * vis;
 }
 
 struct GBuffer {
@@ -270,19 +276,31 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         // distribution and so keeps the energy; Karis's (α/α')² belongs to his representative-
         // point method, which keeps the narrow lobe, and here took that much energy away.
         let alpha_l = min(alpha + 0.5 * rho, 1.0);
+        let coat_alpha_l = min(s.coat_alpha + 0.5 * rho, 1.0);
         var full = true;
-        if culling && has_specular {
+        if culling && (has_specular || s.coat > 0.0) {
             // The GGX lobe is below ~1% of its peak beyond tan θ_h = 3α′ (θ_h: the half vector's
             // angle to n), i.e. outside a cone of half-angle ≈ 2θ_h around the mirror direction.
-            // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light.
+            // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light. A clear coat's lobe
+            // counts too.
             let nh = max(dot(n, half_vector(v, l, n)), 0.0);
-            full = nh * nh * (1.0 + 9.0 * alpha_l * alpha_l) >= 1.0;
+            var widest = select(0.0, alpha_l, has_specular);
+            if s.coat > 0.0 {
+                widest = max(widest, coat_alpha_l);
+            }
+            full = nh * nh * (1.0 + 9.0 * widest * widest) >= 1.0;
         }
         let vis = visibility(i, world, n, l, i32(rgb.w), full);
         let e = rgb.rgb * ndl;
         var brdf = diffuse;
         if has_specular {
             brdf = brdf + ggx_specular(n, v, l, alpha_l, alpha, f0, s.f90);
+        }
+        if s.coat > 0.0 {
+            // The clear coat (glTF's KHR_materials_clearcoat): its Fresnel reflectance takes
+            // that fraction of the light from the layer beneath.
+            let fc = s.coat * coat_fresnel(dot(v, half_vector(v, l, n)));
+            brdf = brdf * (1.0 - fc) + vec3<f32>(fc * ggx_lobe(n, v, l, coat_alpha_l, s.coat_alpha));
         }
         radiance = radiance + brdf * e * vis;
         let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));
@@ -297,6 +315,7 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         return vec4<f32>(0.0, 0.0, 0.0, shadow);
     }
     // The occlusion texture darkens the light from the environment (the lights), not the
-    // surface's own emission.
-    return vec4<f32>(radiance * p.occlusion + p.emission, 1.0);
+    // surface's own emission; a clear coat reflects its Fresnel share of the emission away.
+    let emission = p.emission * (1.0 - s.coat * coat_fresnel(dot(n, v)));
+    return vec4<f32>(radiance * p.occlusion + emission, 1.0);
 }

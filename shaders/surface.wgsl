@@ -44,6 +44,9 @@ struct Material {
     // (glTF's KHR_materials_ior and KHR_materials_specular; src/render/shading.rs,
     // `Material::dielectric_fresnel`).
     specular: vec4<f32>,
+    // x: the clear coat's strength (KHR_materials_clearcoat; 0: none); y: its roughness;
+    // z, w: unused.
+    coat: vec4<f32>,
 };
 
 // The materials' textures (src/render/textures.rs): sRGB colours (base colours, emission),
@@ -279,7 +282,15 @@ struct Surface {
     f90: f32,
     has_specular: bool,
     catcher: bool,
+    // The clear coat: strength (0: none) and GGX α = roughness² (floored), of F0 0.04.
+    coat: f32,
+    coat_alpha: f32,
 };
+
+// The clear coat's Fresnel reflectance (Schlick, F0 0.04, F90 1) at cosine `c`.
+fn coat_fresnel(c: f32) -> f32 {
+    return 0.04 + 0.96 * pow(1.0 - clamp(c, 0.0, 1.0), 5.0);
+}
 
 // `world`: the point; `normal`: the interpolated vertex normal (any length); `p`: the material's
 // parameters there (`surface_params`); `mat`: the material (dielectric Fresnel and flags).
@@ -295,6 +306,9 @@ fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Materi
     s.f0 = mix(mat.specular.rgb, p.base_color, metallic);
     s.f90 = mix(mat.specular.w, 1.0, metallic);
     s.has_specular = any(s.f0 > vec3<f32>(0.0)) || s.f90 > 0.0;
+    s.coat = clamp(mat.coat.x, 0.0, 1.0);
+    let coat_roughness = clamp(mat.coat.y, 0.0, 1.0);
+    s.coat_alpha = max(coat_roughness * coat_roughness, 0.002);
     s.catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
     return s;
 }

@@ -2107,6 +2107,79 @@ fn supersampling_resolves_edges_to_their_covered_fraction() {
     }
 }
 
+/// Where the grazing-floor tests' camera is.
+const FLOOR_EYE: Vec3 = Vec3::new(0.0, 0.5, 3.0);
+
+/// The grazing-floor tests' light: along the mirror direction of the view of the floor's
+/// middle, so the specular lobes are seen at grazing angles.
+fn floor_mirror_light() -> Vec3 {
+    let view = (FLOOR_EYE - Vec3::new(0.0, 0.0, -4.0)).normalize();
+    Vec3::new(-view.x, view.y, -view.z)
+}
+
+/// A floor y = 0, 2 wide and 40 deep, of `material`, seen at grazing angles from
+/// [`FLOOR_EYE`] and lit by one light of 3 W/m² from [`floor_mirror_light`], no shadows.
+fn render_floor(material: Material) -> (Renderer, Image) {
+    use envlight::render::scene::{Sphere, Vertex};
+    let corner = |x: f32, z: f32| Vertex {
+        position: [x, 0.0, z],
+        normal: [0.0, 1.0, 0.0],
+        material: 0,
+        uv: [0.0; 2],
+        uv1: [0.0; 2],
+        tangent: [0.0; 4],
+        color: envlight::render::scene::WHITE,
+    };
+    let scene = Scene {
+        vertices: vec![
+            corner(-1.0, 2.0),
+            corner(1.0, 2.0),
+            corner(1.0, -38.0),
+            corner(-1.0, -38.0),
+        ],
+        indices: vec![0, 1, 2, 0, 2, 3],
+        caster_indices: 6,
+        materials: vec![material],
+        textures: vec![],
+        ground_material: None,
+        camera: Camera {
+            eye: FLOOR_EYE,
+            target: Vec3::new(0.0, 0.0, -4.0),
+            fov_y: 30f32.to_radians(),
+        },
+        bounds: Sphere {
+            center: Vec3::new(0.0, 0.0, -18.0),
+            radius: 21.0,
+        },
+    };
+    let mut r = renderer(scene, quad_settings());
+    let (img, _) = r
+        .render(&[light(0, floor_mirror_light(), [3.0, 3.0, 3.0], 0.0)])
+        .unwrap();
+    (r, img)
+}
+
+/// The pixels of a [`render_floor`] image worth comparing: red at least 1% of the image's
+/// brightest, away from the floor's edges (where a pixel mixes floor and background), with
+/// the floor point each sees.
+fn floor_pixels(r: &Renderer, img: &Image) -> Vec<(u32, u32, Vec3)> {
+    let peak = img.rgba.chunks(4).map(|p| p[0]).fold(0.0, f32::max);
+    let mut out = Vec::new();
+    for y in 0..img.height {
+        for x in 0..img.width {
+            if img.pixel(x, y)[0] < 0.01 * peak {
+                continue;
+            }
+            let d = r.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
+            let hit = FLOOR_EYE + d * (-FLOOR_EYE.y / d.y);
+            if hit.x.abs() <= 0.9 && hit.z <= 1.9 && hit.z >= -37.0 {
+                out.push((x, y, hit));
+            }
+        }
+    }
+    out
+}
+
 /// The dielectric Fresnel terms of glTF's KHR_materials_ior and KHR_materials_specular: on a
 /// black glossy quad seen head-on under a light from the camera (v = l = n: Schlick's F = F0),
 /// an index of refraction of 2.42 reflects ((1.42/3.42)²)/0.04 times the default's light, and
@@ -2117,7 +2190,6 @@ fn supersampling_resolves_edges_to_their_covered_fraction() {
 /// is the material's.
 #[test]
 fn ior_and_specular_set_the_fresnel_reflectance() {
-    use envlight::render::scene::{Sphere, Vertex};
     let glossy = |ior: f32, color: [f32; 3], factor: f32| Material {
         specular: (ior - 1.0) / (ior + 1.0) / 0.4,
         specular_color: color,
@@ -2142,76 +2214,96 @@ fn ior_and_specular_set_the_fresnel_reflectance() {
         [0.5, 0.25, 0.125].map(|k| k * default[0]),
         0.005,
     );
-    // The floor y = 0, 2 wide and 40 deep, seen at grazing angles.
-    let corner = |x: f32, z: f32, material: u32| Vertex {
-        position: [x, 0.0, z],
-        normal: [0.0, 1.0, 0.0],
-        material,
-        uv: [0.0; 2],
-        uv1: [0.0; 2],
-        tangent: [0.0; 4],
-        color: envlight::render::scene::WHITE,
-    };
-    let eye = Vec3::new(0.0, 0.5, 3.0);
-    let target = Vec3::new(0.0, 0.0, -4.0);
-    let view = (eye - target).normalize();
-    let l = Vec3::new(-view.x, view.y, -view.z);
-    let floor = |m: Material| {
-        let scene = Scene {
-            vertices: vec![
-                corner(-1.0, 2.0, 0),
-                corner(1.0, 2.0, 0),
-                corner(1.0, -38.0, 0),
-                corner(-1.0, -38.0, 0),
-            ],
-            indices: vec![0, 1, 2, 0, 2, 3],
-            caster_indices: 6,
-            materials: vec![m],
-            textures: vec![],
-            ground_material: None,
-            camera: Camera {
-                eye,
-                target,
-                fov_y: 30f32.to_radians(),
-            },
-            bounds: Sphere {
-                center: Vec3::new(0.0, 0.0, -18.0),
-                radius: 21.0,
-            },
-        };
-        let mut r = renderer(scene, quad_settings());
-        let (img, _) = r.render(&[light(0, l, [3.0, 3.0, 3.0], 0.0)]).unwrap();
-        (r, img)
-    };
-    let (r, full) = floor(glossy(1.5, [1.0; 3], 1.0));
-    let (_, half) = floor(glossy(1.5, [2.0; 3], 0.5));
-    let peak = full.rgba.chunks(4).map(|p| p[0]).fold(0.0, f32::max);
+    let l = floor_mirror_light();
+    let (r, full) = render_floor(glossy(1.5, [1.0; 3], 1.0));
+    let (_, half) = render_floor(glossy(1.5, [2.0; 3], 0.5));
     let (mut checked, mut worst, mut grazing) = (0, 0.0f32, 1.0f32);
-    for y in 0..full.height {
-        for x in 0..full.width {
-            let a = full.pixel(x, y)[0];
-            if a < 0.01 * peak {
-                continue;
-            }
-            let d = r.pixel_ray(x as f32 + 0.5, y as f32 + 0.5);
-            let hit = eye + d * (-eye.y / d.y);
-            // Away from the floor's edges, where a pixel mixes floor and background.
-            if hit.x.abs() > 0.9 || hit.z > 1.9 || hit.z < -37.0 {
-                continue;
-            }
-            let v = (eye - hit).normalize();
-            let w = (1.0 - v.dot((v + l).normalize()).clamp(0.0, 1.0)).powi(5);
-            let want = (0.04 + 0.46 * w) / (0.04 + 0.96 * w);
-            let got = half.pixel(x, y)[0] / a;
-            worst = worst.max((got / want - 1.0).abs());
-            grazing = grazing.min(want);
-            checked += 1;
-        }
+    for (x, y, hit) in floor_pixels(&r, &full) {
+        let v = (FLOOR_EYE - hit).normalize();
+        let w = (1.0 - v.dot((v + l).normalize()).clamp(0.0, 1.0)).powi(5);
+        let want = (0.04 + 0.46 * w) / (0.04 + 0.96 * w);
+        let got = half.pixel(x, y)[0] / full.pixel(x, y)[0];
+        worst = worst.max((got / want - 1.0).abs());
+        grazing = grazing.min(want);
+        checked += 1;
     }
     eprintln!("F90: {checked} pixels, Schlick ratios down to {grazing:.3}, worst {worst:.5} off");
     assert!(checked > 500, "{checked} pixels");
     assert!(grazing < 0.7, "no grazing pixel: ratio at least {grazing}");
     assert!(worst < 0.01, "a pixel {worst} off Schlick's ratio");
+}
+
+/// glTF's KHR_materials_clearcoat: a clear coat of roughness r over a black, non-reflecting
+/// material reflects exactly as a plain dielectric of roughness r (F0 0.04, F90 1), pixel by
+/// pixel on the grazing floor (the coat's Fresnel share times its GGX lobe is the dielectric's
+/// Schlick Fresnel times the same lobe); over a white Lambertian quad seen head-on it takes its
+/// Fresnel share, 0.04, from the diffuse light, and from the emission; the ASG pass agrees
+/// head-on with its dielectric.
+#[test]
+fn clear_coats_reflect_as_a_dielectric_layer() {
+    use envlight::asg::Asg;
+    use glam::DVec3;
+    let coat = |base: Material| Material {
+        clearcoat: 1.0,
+        clearcoat_roughness: 0.4,
+        ..base
+    };
+    let black = Material::lambertian([0.0; 3]);
+    let dielectric = Material {
+        specular: 0.5,
+        roughness: 0.4,
+        ..black
+    };
+    // Grazing floor: pixel by pixel.
+    let (r, plain) = render_floor(dielectric);
+    let (_, coated) = render_floor(coat(black));
+    let mut worst = 0.0f32;
+    let pixels = floor_pixels(&r, &plain);
+    for &(x, y, _) in &pixels {
+        let (a, b) = (plain.pixel(x, y), coated.pixel(x, y));
+        for c in 0..3 {
+            worst = worst.max((b[c] / a[c] - 1.0).abs());
+        }
+    }
+    eprintln!(
+        "clear coat against a dielectric: {} pixels, worst {worst:.5} off",
+        pixels.len()
+    );
+    assert!(
+        pixels.len() > 500 && worst < 0.005,
+        "{} pixels, worst {worst}",
+        pixels.len()
+    );
+    // Head-on: the coat takes its share of the diffuse light and of the emission.
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let head_on = |m: Material| {
+        let (r, img) = render_quad(textured_quad(m, vec![], 1.0), &lights);
+        mean_over(&r, &img, -0.3..0.3)
+    };
+    let coat_alone = head_on(coat(black));
+    assert_close("coat alone", coat_alone, head_on(dielectric), 0.005);
+    let white = Material::lambertian([1.0; 3]);
+    let want = [0, 1, 2].map(|c| 0.96 * head_on(white)[c] + coat_alone[c]);
+    assert_close("coat over white", head_on(coat(white)), want, 0.005);
+    let glow = Material {
+        emission: [2.0, 1.0, 0.5],
+        ..black
+    };
+    let want = head_on(glow).map(|c| 0.96 * c);
+    let got = head_on(coat(glow));
+    // (The coat's own reflection of the light is there too.)
+    let got = [0, 1, 2].map(|c| got[c] - coat_alone[c]);
+    assert_close("coat over emission", got, want, 0.005);
+    // ASG lighting: head-on the coat's Fresnel at n·v is its F0, 0.04, the dielectric's.
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let asg = |m: Material| {
+        let mut r = renderer(textured_quad(m, vec![], 1.0), quad_settings());
+        let (img, _) = r.render_asg(&lobes).unwrap();
+        mean_over(&r, &img, -0.3..0.3)
+    };
+    let plain = asg(dielectric);
+    assert!(plain[0] > 1e-3, "{plain:?}");
+    assert_close("ASG, coat alone", asg(coat(black)), plain, 0.01);
 }
 
 /// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour
@@ -2604,7 +2696,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
     std::fs::write(d.join("quad.bin"), &bin).unwrap();
     let gltf = r#"{"asset":{"version":"2.0"},
-        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_clearcoat","KHR_materials_specular"],
+        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_sheen","KHR_materials_specular"],
         "scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
         "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,"material":0}]}],
         "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":1},
@@ -2633,7 +2725,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     for needle in [
         "textures: 2 layers of 8²",
         "not drawn",
-        "extension KHR_materials_clearcoat",
+        "extension KHR_materials_sheen",
         "KHR_materials_specular.specularTexture (its factor is drawn)",
     ] {
         assert!(

@@ -324,6 +324,13 @@ pub struct Material {
     /// Strength of the dielectric specular (`KHR_materials_specular`'s `specularFactor`, in
     /// [0, 1]; 1 by default): scales F0 and the grazing reflectance F90.
     pub specular_factor: f32,
+    /// Strength of a clear coat over the material (`KHR_materials_clearcoat`'s
+    /// `clearcoatFactor`, in [0, 1]; 0: none): a dielectric GGX layer of F0 0.04 whose
+    /// Fresnel reflectance Fc takes the fraction `clearcoat` · Fc of the light from the
+    /// material beneath.
+    pub clearcoat: f32,
+    /// The clear coat's perceptual roughness (`clearcoatRoughnessFactor`, in [0, 1]).
+    pub clearcoat_roughness: f32,
     /// Emitted radiance (linear RGB, W·sr⁻¹·m⁻² in the lights' units), added to the light the
     /// surface reflects: glTF's `emissiveFactor` times `KHR_materials_emissive_strength`.
     /// Zero for a surface that does not glow.
@@ -352,6 +359,8 @@ impl Default for Material {
             specular: 0.5,
             specular_color: [1.0; 3],
             specular_factor: 1.0,
+            clearcoat: 0.0,
+            clearcoat_roughness: 0.0,
             emission: [0.0; 3],
             alpha: 1.0,
             alpha_mode: AlphaMode::Opaque,
@@ -1635,8 +1644,9 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     }
     if !ignored.is_empty() {
         tracing::warn!(
-            "{}: not drawn (envlight renders base colour, metallic, roughness and emission, \
-             with their textures, and normal and occlusion textures): {}",
+            "{}: not drawn (envlight renders the alpha modes, the ior, specular and clear-coat \
+             factors, and base colour, metallic, roughness and emission, with their textures, \
+             and normal and occlusion textures): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -1735,6 +1745,7 @@ fn gltf_material(
         gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
     };
     let (specular, specular_color, specular_factor) = gltf_specular(material)?;
+    let (clearcoat, clearcoat_roughness) = gltf_clearcoat(material)?;
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
         roughness,
@@ -1742,6 +1753,8 @@ fn gltf_material(
         specular,
         specular_color,
         specular_factor,
+        clearcoat,
+        clearcoat_roughness,
         emission: gltf_emission(material)?,
         alpha: c[3],
         alpha_mode,
@@ -1754,7 +1767,36 @@ fn gltf_material(
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 4] = [TEXTURE_TRANSFORM, EMISSIVE_STRENGTH, IOR, SPECULAR];
+const DRAWN_EXTENSIONS: [&str; 5] = [
+    TEXTURE_TRANSFORM,
+    EMISSIVE_STRENGTH,
+    IOR,
+    SPECULAR,
+    CLEARCOAT,
+];
+
+/// The glTF extension that lays a clear coat over a material.
+const CLEARCOAT: &str = "KHR_materials_clearcoat";
+
+/// A glTF material's clear coat: `KHR_materials_clearcoat`'s `clearcoatFactor` and
+/// `clearcoatRoughnessFactor` (each in [0, 1]; 0 without). Errors name the property.
+fn gltf_clearcoat(material: &gltf::Material) -> Result<(f32, f32), String> {
+    let factor = |name: &str| match material
+        .extension_value(CLEARCOAT)
+        .and_then(|e| e.get(name))
+    {
+        None => Ok(0.0),
+        Some(v) => v
+            .as_f64()
+            .map(|x| x as f32)
+            .filter(|x| (0.0..=1.0).contains(x))
+            .ok_or_else(|| format!("{CLEARCOAT}.{name} {v} must lie in [0, 1]")),
+    };
+    Ok((
+        factor("clearcoatFactor")?,
+        factor("clearcoatRoughnessFactor")?,
+    ))
+}
 
 /// The glTF extension that sets a material's index of refraction (its dielectric F0).
 const IOR: &str = "KHR_materials_ior";
@@ -1814,7 +1856,8 @@ fn gltf_specular(material: &gltf::Material) -> Result<(f32, [f32; 3], f32), Stri
 }
 
 /// Adds to `ignored` what a glTF material asks for that the renderer does not draw: the
-/// textures of `KHR_materials_specular` (its factors are drawn).
+/// textures of `KHR_materials_specular` and `KHR_materials_clearcoat` (their factors are
+/// drawn).
 fn note_ignored_material_features(
     material: &gltf::Material,
     ignored: &mut std::collections::BTreeSet<String>,
@@ -1823,6 +1866,17 @@ fn note_ignored_material_features(
         for texture in ["specularTexture", "specularColorTexture"] {
             if specular.get(texture).is_some() {
                 ignored.insert(format!("{SPECULAR}.{texture} (its factor is drawn)"));
+            }
+        }
+    }
+    if let Some(coat) = material.extension_value(CLEARCOAT) {
+        for texture in [
+            "clearcoatTexture",
+            "clearcoatRoughnessTexture",
+            "clearcoatNormalTexture",
+        ] {
+            if coat.get(texture).is_some() {
+                ignored.insert(format!("{CLEARCOAT}.{texture} (the factors are drawn)"));
             }
         }
     }
@@ -2522,10 +2576,21 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                             mat.name
                         )));
                     }
-                    // Blinn-Phong exponent → roughness (α² ≈ 2 / (Ns + 2)).
-                    let roughness = mat
-                        .shininess
-                        .map_or(0.5, |ns| (2.0 / (ns.max(0.0) + 2.0)).sqrt().sqrt());
+                    // The PBR statements (Pr, Pm, Pc, Pcr), where given; else the Blinn-Phong
+                    // exponent → roughness (α² ≈ 2 / (Ns + 2)).
+                    let pbr = |key: &str| {
+                        obj_pbr_factor(mat, key)
+                            .map_err(|m| err(format!("material {:?}: {m}", mat.name)))
+                    };
+                    let roughness = match pbr("Pr")? {
+                        Some(r) => r,
+                        None => mat
+                            .shininess
+                            .map_or(0.5, |ns| (2.0 / (ns.max(0.0) + 2.0)).sqrt().sqrt()),
+                    };
+                    let metallic = pbr("Pm")?.unwrap_or(0.0);
+                    let clearcoat = pbr("Pc")?.unwrap_or(0.0);
+                    let clearcoat_roughness = pbr("Pcr")?.unwrap_or(0.0);
                     for (kind, texture) in [
                         ("map_Ka", &mat.ambient_texture),
                         ("map_Ks", &mat.specular_texture),
@@ -2533,7 +2598,13 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         ("map_Ns", &mat.shininess_texture),
                     ] {
                         if texture.is_some() {
-                            ignored.insert(kind);
+                            ignored.insert(kind.to_string());
+                        }
+                    }
+                    // Other maps (map_Pr, map_Pm, …), named rather than dropped silently.
+                    for key in mat.unknown_param.keys() {
+                        if key.starts_with("map_") && key != "map_Ke" {
+                            ignored.insert(key.clone());
                         }
                     }
                     // d (or Tr = 1 − d) below 1: the surface is blended with that alpha.
@@ -2576,8 +2647,10 @@ fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                     let id = b.material(Material {
                         base_color: d,
                         roughness: roughness.clamp(0.0, 1.0),
-                        metallic: 0.0,
+                        metallic,
                         specular: 0.5,
+                        clearcoat,
+                        clearcoat_roughness,
                         emission,
                         alpha: dissolve,
                         alpha_mode: if mat.dissolve_texture.is_some() {
@@ -2629,6 +2702,19 @@ fn map_file_name(map: &str) -> &str {
         map.split_whitespace().last().unwrap_or(map)
     } else {
         map
+    }
+}
+
+/// An MTL material's PBR factor `key` (the PBR extension of MTL: `Pr` roughness, `Pm`
+/// metallic, `Pc` clear coat, `Pcr` its roughness), where given: a number in [0, 1], else an
+/// error naming the statement.
+fn obj_pbr_factor(mat: &tobj::Material, key: &str) -> Result<Option<f32>, String> {
+    let Some(text) = mat.unknown_param.get(key) else {
+        return Ok(None);
+    };
+    match text.trim().parse::<f32>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(Some(v)),
+        _ => Err(format!("{key} {text:?} is not a number in [0, 1]")),
     }
 }
 
@@ -3194,9 +3280,10 @@ mod tests {
     /// `KHR_materials_ior` sets the dielectric specular level (F0 = 0.16 · level² =
     /// ((ior − 1)/(ior + 1))²) and `KHR_materials_specular` its strength and tint, which
     /// [`Material::dielectric_fresnel`] combines as the extension does; without them F0 is
-    /// 0.04 and F90 1; bad values are errors naming the property.
+    /// 0.04 and F90 1; `KHR_materials_clearcoat` gives the coat's factors; bad values are
+    /// errors naming the property.
     #[test]
-    fn ior_and_specular_load_as_the_dielectric_fresnel() {
+    fn ior_specular_and_clearcoat_load_with_their_factors() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
         let text = textured_gltf_text(d);
@@ -3238,6 +3325,13 @@ mod tests {
             ([0.0; 3], 0.0),
             "ior 1 reflects nothing"
         );
+        // A clear coat's factors (none without the extension).
+        assert_eq!((m.clearcoat, m.clearcoat_roughness), (0.0, 0.0));
+        let m = load(
+            r#""KHR_materials_clearcoat":{"clearcoatFactor":0.75,"clearcoatRoughnessFactor":0.25}"#,
+        )
+        .unwrap();
+        assert_eq!((m.clearcoat, m.clearcoat_roughness), (0.75, 0.25));
         for (extensions, needle) in [
             (
                 r#""KHR_materials_ior":{"ior":0.5}"#,
@@ -3258,6 +3352,14 @@ mod tests {
             (
                 r#""KHR_materials_specular":{"specularColorFactor":[1,1]}"#,
                 "specularColorFactor [1,1]",
+            ),
+            (
+                r#""KHR_materials_clearcoat":{"clearcoatFactor":1.5}"#,
+                "KHR_materials_clearcoat.clearcoatFactor 1.5 must lie in [0, 1]",
+            ),
+            (
+                r#""KHR_materials_clearcoat":{"clearcoatRoughnessFactor":-1}"#,
+                "clearcoatRoughnessFactor -1",
             ),
         ] {
             let e = load(extensions).unwrap_err().to_string();
@@ -3407,7 +3509,7 @@ mod tests {
         std::fs::write(
             &p,
             requiring(
-                r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular"]"#,
+                r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular","KHR_materials_clearcoat"]"#,
             ),
         )
         .unwrap();
@@ -3501,7 +3603,8 @@ mod tests {
     /// R where it has no alpha, its A where it has) joined to the `map_Kd` image's alpha, at
     /// the cutoff 0.5; the scene's files include both maps; a missing map, a negative `Ke` or an
     /// opacity outside [0, 1] is an error naming it; `d` (or `Tr` = 1 − d) below 1 without a
-    /// map blends the surface with that opacity.
+    /// map blends the surface with that opacity; the PBR statements `Pr`, `Pm`, `Pc`, `Pcr`
+    /// set the roughness, metallic and clear coat (a value outside [0, 1] is an error).
     #[test]
     fn obj_emission_and_dissolve_maps_load() {
         let dir = tempfile::tempdir().unwrap();
@@ -3572,12 +3675,23 @@ mod tests {
         }
         let m = load("newmtl t\nd 1\n").unwrap().materials[0];
         assert_eq!((m.alpha, m.alpha_mode), (1.0, AlphaMode::Opaque));
+        // The PBR statements override Ns's roughness and give the metallic and a clear coat.
+        let m = load("newmtl t\nNs 900\nPr 0.25\nPm 1\nPc 0.5\nPcr 0.125\n")
+            .unwrap()
+            .materials[0];
+        let pbr = (m.roughness, m.metallic, m.clearcoat, m.clearcoat_roughness);
+        assert_eq!(pbr, (0.25, 1.0, 0.5, 0.125));
         for (mtl, needle) in [
             ("newmtl t\nmap_d gone.png\n", "map_d"),
             ("newmtl t\nmap_Ke gone.png\n", "map_Ke"),
             ("newmtl t\nKe -1 0 0\n", "Ke [-1.0, 0.0, 0.0]"),
             ("newmtl t\nd 1.5\n", "d gives an opacity of 1.5"),
             ("newmtl t\nTr glass\n", "Tr \"glass\" is not a number"),
+            ("newmtl t\nPr 2\n", "Pr \"2\" is not a number in [0, 1]"),
+            (
+                "newmtl t\nPm shiny\n",
+                "Pm \"shiny\" is not a number in [0, 1]",
+            ),
         ] {
             let e = load(mtl).unwrap_err().to_string();
             assert!(

@@ -149,6 +149,8 @@ pub struct MaterialRaw {
     /// rgb: the dielectric reflectance at normal incidence F0; w: at grazing incidence F90
     /// ([`Material::dielectric_fresnel`]).
     specular: [f32; 4],
+    /// x: the clear coat's strength; y: its roughness; z, w: unused.
+    coat: [f32; 4],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -229,6 +231,7 @@ impl Material {
                 let ([r, g, b], f90) = self.dielectric_fresnel();
                 [r, g, b, f90]
             },
+            coat: [self.clearcoat, self.clearcoat_roughness, 0.0, 0.0],
         }
     }
 }
