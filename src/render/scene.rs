@@ -4251,6 +4251,25 @@ mod tests {
                 loads_without_panic(&path);
             }
         }
+        // Its material with every drawn extension's numbers, blended.
+        let extended = text.replace(
+            r#""normalTexture":{"index":0}"#,
+            r#""normalTexture":{"index":0},"alphaMode":"BLEND","emissiveFactor":[1,1,1],
+               "extensions":{"KHR_materials_ior":{"ior":1.5},
+                 "KHR_materials_emissive_strength":{"emissiveStrength":2},
+                 "KHR_materials_specular":{"specularFactor":0.5,"specularColorFactor":[1,0.5,0.25]},
+                 "KHR_materials_clearcoat":{"clearcoatFactor":0.5,"clearcoatRoughnessFactor":0.25}}"#,
+        );
+        std::fs::write(&path, &extended).unwrap();
+        let m = Scene::load(&path, false).expect("the unmutated extended scene loads");
+        assert_eq!(m.materials[0].clearcoat, 0.5);
+        for (start, end) in number_spans(&extended) {
+            for value in HOSTILE_NUMBERS {
+                let mutated = format!("{}{value}{}", &extended[..start], &extended[end..]);
+                std::fs::write(&path, mutated).unwrap();
+                loads_without_panic(&path);
+            }
+        }
 
         // The same scene as a GLB: the buffer as its BIN chunk.
         let document: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -4292,7 +4311,7 @@ mod tests {
         let d = dir.path();
         let obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nusemtl red\n\
                    f 1/1/1 2/1/1 3/1/1\nf -3 -2 -1\n";
-        let mtl = "newmtl red\nKd 1 0.5 0\nNs 10\nd 1\n";
+        let mtl = "newmtl red\nKd 1 0.5 0\nNs 10\nd 1\nTr 0\nPr 0.5\nPm 0\nPc 0.25\nPcr 0.5\n";
         let hostile = [
             "0",
             "-1",
