@@ -2117,20 +2117,20 @@ fn floor_mirror_light() -> Vec3 {
     Vec3::new(-view.x, view.y, -view.z)
 }
 
-/// A floor y = 0, 2 wide and 40 deep, of `material`, seen at grazing angles from
-/// [`FLOOR_EYE`] and lit by one light of 3 W/m² from [`floor_mirror_light`], no shadows.
-fn render_floor(material: Material) -> (Renderer, Image) {
+/// A floor y = 0 from z = 2 to −38, x in −1…1, of `material` (texture coordinates u = (x + 1)/2,
+/// v = (2 − z)/2), seen from `eye` towards `target` with a 30° field of view.
+fn floor_scene(material: Material, eye: Vec3, target: Vec3) -> Scene {
     use envlight::render::scene::{Sphere, Vertex};
     let corner = |x: f32, z: f32| Vertex {
         position: [x, 0.0, z],
         normal: [0.0, 1.0, 0.0],
         material: 0,
-        uv: [0.0; 2],
+        uv: [(x + 1.0) / 2.0, (2.0 - z) / 2.0],
         uv1: [0.0; 2],
         tangent: [0.0; 4],
         color: envlight::render::scene::WHITE,
     };
-    let scene = Scene {
+    Scene {
         vertices: vec![
             corner(-1.0, 2.0),
             corner(1.0, 2.0),
@@ -2143,15 +2143,21 @@ fn render_floor(material: Material) -> (Renderer, Image) {
         textures: vec![],
         ground_material: None,
         camera: Camera {
-            eye: FLOOR_EYE,
-            target: Vec3::new(0.0, 0.0, -4.0),
+            eye,
+            target,
             fov_y: 30f32.to_radians(),
         },
         bounds: Sphere {
             center: Vec3::new(0.0, 0.0, -18.0),
             radius: 21.0,
         },
-    };
+    }
+}
+
+/// A [`floor_scene`] of `material` seen at grazing angles from [`FLOOR_EYE`] and lit by one
+/// light of 3 W/m² from [`floor_mirror_light`], no shadows.
+fn render_floor(material: Material) -> (Renderer, Image) {
+    let scene = floor_scene(material, FLOOR_EYE, Vec3::new(0.0, 0.0, -4.0));
     let mut r = renderer(scene, quad_settings());
     let (img, _) = r
         .render(&[light(0, floor_mirror_light(), [3.0, 3.0, 3.0], 0.0)])
@@ -2421,7 +2427,7 @@ fn back_faces_are_reversed_when_double_sided_and_not_drawn_when_single_sided() {
 /// 1..=16 is refused in words.
 #[test]
 fn grazing_textures_are_filtered_anisotropically() {
-    use envlight::render::scene::{Sphere, TextureRef, Vertex};
+    use envlight::render::scene::TextureRef;
     // 256 texels a side, columns alternating black and white every 8: gone by mip level 3.
     let stripes = TextureImage {
         name: "stripes".into(),
@@ -2436,38 +2442,13 @@ fn grazing_textures_are_filtered_anisotropically() {
     };
     let mut material = Material::lambertian([1.0; 3]);
     material.textures.base_color = Some(TextureRef::repeating(0));
-    // A floor 2 wide and 40 deep, one copy of the image across, 20 along.
-    let corner = |x: f32, z: f32| Vertex {
-        position: [x, 0.0, z],
-        normal: [0.0, 1.0, 0.0],
-        material: 0,
-        uv: [(x + 1.0) / 2.0, (2.0 - z) / 2.0],
-        uv1: [0.0; 2],
-        tangent: [0.0; 4],
-        color: envlight::render::scene::WHITE,
-    };
-    let scene = Scene {
-        vertices: vec![
-            corner(-1.0, 2.0),
-            corner(1.0, 2.0),
-            corner(1.0, -38.0),
-            corner(-1.0, -38.0),
-        ],
-        indices: vec![0, 1, 2, 0, 2, 3],
-        caster_indices: 6,
-        materials: vec![material],
-        textures: vec![stripes],
-        ground_material: None,
-        camera: Camera {
-            eye: Vec3::new(0.0, 0.25, 3.0),
-            target: Vec3::new(0.0, 0.0, -10.0),
-            fov_y: 30f32.to_radians(),
-        },
-        bounds: Sphere {
-            center: Vec3::new(0.0, 0.0, -18.0),
-            radius: 21.0,
-        },
-    };
+    // One copy of the image across the floor, 20 along.
+    let mut scene = floor_scene(
+        material,
+        Vec3::new(0.0, 0.25, 3.0),
+        Vec3::new(0.0, 0.0, -10.0),
+    );
+    scene.textures.push(stripes);
     for bad in [0, 17] {
         let settings = RenderSettings {
             texture_anisotropy: bad,
