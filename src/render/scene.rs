@@ -2734,6 +2734,14 @@ fn obj_dissolve(mat: &tobj::Material) -> Result<f32, String> {
             "{statement} gives an opacity of {opacity}, outside [0, 1]"
         ));
     }
+    if statement == "Tr" && opacity == 0.0 {
+        // Some writers put the opacity in Tr (three.js's MTL loader has a switch for them).
+        tracing::warn!(
+            "material {:?}: Tr 1 makes it invisible (Tr is 1 − opacity); if its writer meant \
+             opaque, write d 1",
+            mat.name
+        );
+    }
     Ok(opacity)
 }
 
