@@ -1965,6 +1965,32 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
     assert!(front[0] > 0.1 && behind[0] > 0.1, "{front:?} {behind:?}");
     let want = over(front, 0.4, over(blue_front, 0.4, behind));
     assert_close("ASG, two layers", blended, want, 0.02);
+    // Supersampled, the blended layers are drawn into the samples before the resolve: the
+    // same two layers (α 0.5) as above, and the ASG pass's as without supersampling.
+    let mut scene = textured_quad(blend(red, 0.5), vec![], 1.0);
+    add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.5));
+    add_quad(&mut scene, 2.0, -0.5, Material::lambertian([1.0; 3]));
+    scene.bounds.radius = 8f32.sqrt();
+    let settings = |supersample| RenderSettings {
+        shadows: true,
+        shadow_resolution: 256,
+        supersample,
+        ..quad_settings()
+    };
+    let mut r = renderer(scene.clone(), settings(2));
+    let (img, _) = r.render(&lights).unwrap();
+    let half_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.5 * c);
+    let want = over(lit(red), 0.5, over(half_lit(blue), 0.5, half_lit([1.0; 3])));
+    let got = mean_over(&r, &img, -0.5..0.5);
+    assert_close("supersampled, two layers", got, want, 0.02);
+    let (img, _) = r.render_asg(&lobes).unwrap();
+    let mut plain = renderer(scene, settings(1));
+    let (plain_img, _) = plain.render_asg(&lobes).unwrap();
+    let (got, want) = (
+        mean_over(&r, &img, -0.5..0.5),
+        mean_over(&plain, &plain_img, -0.5..0.5),
+    );
+    assert_close("supersampled ASG, two layers", got, want, 0.01);
 }
 
 /// Supersampling: with s = 4 each pixel of a glowing triangle's edge is the fraction of its
