@@ -888,6 +888,7 @@ fn build_renderer(
         Some(path) => Scene::load(path, true).map_err(|e| DaemonError::Render(e.to_string()))?,
         None => Scene::default_scene(),
     };
+    tracing::info!("render scene: {}", scene.summary());
     let renderer =
         Renderer::new(scene, config.settings).map_err(|e| DaemonError::Render(e.to_string()))?;
     tracing::info!(

@@ -2732,6 +2732,8 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     for needle in [
         "textures: 2 layers of 8²",
         "not drawn",
+        "scene: 4 triangles (2 casting shadows), 2 materials (1 blended, 1 emissive, 1 \
+         textured), 2 texture images",
         "extension KHR_materials_sheen",
         "KHR_materials_specular.specularTexture (its factor is drawn)",
     ] {

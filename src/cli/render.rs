@@ -197,6 +197,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         Some(path) => Scene::load(path, true)?,
         None => Scene::default_scene(),
     };
+    tracing::info!("scene: {}", scene.summary());
     let asg_lighting = args.lighting == LightingArg::Asg;
     let mut fitter = if asg_lighting {
         let settings = envlight::asg::fit::FitSettings {

@@ -949,6 +949,45 @@ impl Scene {
     pub fn caster_triangles(&self) -> u32 {
         self.caster_indices / 3
     }
+
+    /// What the scene holds, in words, for the log: triangles (and how many cast shadows),
+    /// materials (and how many are blended, cut out, clear-coated, emissive or textured) and
+    /// texture images, so that a user sees what of a file was taken up.
+    pub fn summary(&self) -> String {
+        let count = |f: &dyn Fn(&Material) -> bool| self.materials.iter().filter(|m| f(m)).count();
+        let kinds = [
+            ("blended", count(&|m| m.alpha_mode == AlphaMode::Blend)),
+            (
+                "cut out",
+                count(&|m| matches!(m.alpha_mode, AlphaMode::Mask(_))),
+            ),
+            ("clear-coated", count(&|m| m.clearcoat > 0.0)),
+            ("emissive", count(&|m| m.emission.iter().any(|&e| e > 0.0))),
+            (
+                "textured",
+                count(&|m| m.textures.slots().iter().any(Option::is_some)),
+            ),
+        ];
+        let kinds: Vec<String> = kinds
+            .iter()
+            .filter(|(_, n)| *n > 0)
+            .map(|(what, n)| format!("{n} {what}"))
+            .collect();
+        let counted = |n: usize, what: &str| match n {
+            1 => format!("1 {what}"),
+            _ => format!("{n} {what}s"),
+        };
+        let mut materials = counted(self.materials.len(), "material");
+        if !kinds.is_empty() {
+            materials += &format!(" ({})", kinds.join(", "));
+        }
+        format!(
+            "{} ({} casting shadows), {materials}, {}",
+            counted(self.indices.len() / 3, "triangle"),
+            self.caster_triangles(),
+            counted(self.textures.len(), "texture image")
+        )
+    }
 }
 
 /// Checks what the `gltf` crate's reader takes on trust (it panics or aborts otherwise): the
@@ -3283,6 +3322,26 @@ mod tests {
             let e = Scene::load(&p, false).unwrap_err().to_string();
             assert!(e.contains("glowing.gltf") && e.contains(needle), "{e}");
         }
+    }
+
+    /// The summary names what the scene holds.
+    #[test]
+    fn summaries_count_triangles_materials_and_textures() {
+        let mut s = Scene::default_scene();
+        let plain = s.summary();
+        assert!(
+            plain.ends_with("5 materials, 0 texture images")
+                && plain.contains(&format!("{} triangles", s.indices.len() / 3)),
+            "{plain}"
+        );
+        s.materials[0].alpha_mode = AlphaMode::Blend;
+        s.materials[1].clearcoat = 0.5;
+        s.materials[2].emission = [1.0; 3];
+        let text = s.summary();
+        assert!(
+            text.contains("5 materials (1 blended, 1 clear-coated, 1 emissive)"),
+            "{text}"
+        );
     }
 
     /// `KHR_materials_ior` sets the dielectric specular level (F0 = 0.16 · level² =
