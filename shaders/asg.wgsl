@@ -200,7 +200,8 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) ve
     if !fragment_drawn(mat, front, tc, in.color.a) {
         discard;
     }
-    return asg_shaded(in, front, mat, tc);
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
+    return asg_shaded(in.world, mat, p);
 }
 
 // A blended surface (glTF's BLEND), drawn after the opaque ones back to front without writing
@@ -212,16 +213,16 @@ fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0)
     if !side_drawn(mat, front) {
         discard;
     }
-    let a = clamp(surface_alpha(mat, tc, in.color.a), 0.0, 1.0);
-    let c = asg_shaded(in, front, mat, tc);
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
+    let a = clamp(p.alpha, 0.0, 1.0);
+    let c = asg_shaded(in.world, mat, p);
     return vec4<f32>(c.rgb * a, a);
 }
 
-// The radiance (RGBA, opaque; transparent black on a shadow catcher) of the fragment `in` of
-// material `mat` at texture coordinates `tc`, seen from the front or from behind.
-fn asg_shaded(in: VertexOut, front: bool, mat: Material, tc: TextureCoordinates) -> vec4<f32> {
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
-    let s = surface_at(in.world, p.normal, p, mat, globals.camera_pos.xyz);
+// The radiance (RGBA, opaque; transparent black on a shadow catcher) at the point `world` of
+// material `mat`, whose parameters there are `p` (`surface_params`).
+fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
+    let s = surface_at(world, p.normal, p, mat, globals.camera_pos.xyz);
     if s.catcher {
         return vec4<f32>(0.0);
     }

@@ -156,17 +156,17 @@ fn half_vector(v: vec3<f32>, l: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 // where the half vector falls, not the surface's masking) × Schlick Fresnel. The cosines are
 // clamped to [0, 1]: v·h rounds to just above 1 where the light lies along the view ray, and
 // pow(1 − v·h, 5) of a negative base is NaN.
-fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32, f0: vec3<f32>,
-                f90: f32) -> vec3<f32> {
-    let vdh = clamp(dot(v, half_vector(v, l, n)), 0.0, 1.0);
+// `h`: the half vector of v and l (`half_vector`).
+fn ggx_specular(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, h: vec3<f32>, alpha_d: f32, alpha: f32,
+                f0: vec3<f32>, f90: f32) -> vec3<f32> {
+    let vdh = clamp(dot(v, h), 0.0, 1.0);
     let f = f0 + (vec3<f32>(f90) - f0) * pow(1.0 - vdh, 5.0);
-    return ggx_lobe(n, v, l, alpha_d, alpha) * f;
+    return ggx_lobe(n, v, l, h, alpha_d, alpha) * f;
 }
 
 // The GGX lobe without its Fresnel factor: D (of roughness `alpha_d`) × the height-correlated
-// Smith visibility (of `alpha`).
-fn ggx_lobe(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, alpha_d: f32, alpha: f32) -> f32 {
-    let h = half_vector(v, l, n);
+// Smith visibility (of `alpha`); `h` the half vector of v and l.
+fn ggx_lobe(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, h: vec3<f32>, alpha_d: f32, alpha: f32) -> f32 {
     let ndl = clamp(dot(n, l), 0.0, 1.0);
     let ndv = clamp(dot(n, v), 1e-4, 1.0);
     let ndh = clamp(dot(n, h), 0.0, 1.0);
@@ -197,7 +197,7 @@ fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
     if !fragment_drawn(mat, front, tc, in.color.a) {
         discard;
     }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);
@@ -213,8 +213,8 @@ fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0)
     if !side_drawn(mat, front) {
         discard;
     }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color.rgb, front);
-    let a = clamp(surface_alpha(mat, tc, in.color.a), 0.0, 1.0);
+    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
+    let a = clamp(p.alpha, 0.0, 1.0);
     let c = shade_point(in.world, p.normal, in.material, p);
     return vec4<f32>(c.rgb * a, a);
 }
@@ -241,6 +241,7 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
     p.normal = normal.xyz;
     p.emission = emission.rgb;
     p.occlusion = emission.a;
+    p.alpha = 1.0;
     textureStore(frame, texel, shade_point(g.xyz, normal.xyz, u32(g.w) - 1u, p));
 }
 
@@ -277,13 +278,19 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         // point method, which keeps the narrow lobe, and here took that much energy away.
         let alpha_l = min(alpha + 0.5 * rho, 1.0);
         let coat_alpha_l = min(s.coat_alpha + 0.5 * rho, 1.0);
+        let glossy = has_specular || s.coat > 0.0;
+        // The half vector, once per light, where a lobe needs it.
+        var h = n;
+        if glossy {
+            h = half_vector(v, l, n);
+        }
         var full = true;
-        if culling && (has_specular || s.coat > 0.0) {
+        if culling && glossy {
             // The GGX lobe is below ~1% of its peak beyond tan θ_h = 3α′ (θ_h: the half vector's
             // angle to n), i.e. outside a cone of half-angle ≈ 2θ_h around the mirror direction.
             // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light. A clear coat's lobe
             // counts too.
-            let nh = max(dot(n, half_vector(v, l, n)), 0.0);
+            let nh = max(dot(n, h), 0.0);
             var widest = select(0.0, alpha_l, has_specular);
             if s.coat > 0.0 {
                 widest = max(widest, coat_alpha_l);
@@ -294,13 +301,13 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         let e = rgb.rgb * ndl;
         var brdf = diffuse;
         if has_specular {
-            brdf = brdf + ggx_specular(n, v, l, alpha_l, alpha, f0, s.f90);
+            brdf = brdf + ggx_specular(n, v, l, h, alpha_l, alpha, f0, s.f90);
         }
         if s.coat > 0.0 {
             // The clear coat (glTF's KHR_materials_clearcoat): its Fresnel reflectance takes
             // that fraction of the light from the layer beneath.
-            let fc = s.coat * coat_fresnel(dot(v, half_vector(v, l, n)));
-            brdf = brdf * (1.0 - fc) + vec3<f32>(fc * ggx_lobe(n, v, l, coat_alpha_l, s.coat_alpha));
+            let fc = s.coat * coat_fresnel(dot(v, h));
+            brdf = brdf * (1.0 - fc) + vec3<f32>(fc * ggx_lobe(n, v, l, h, coat_alpha_l, s.coat_alpha));
         }
         radiance = radiance + brdf * e * vis;
         let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));

@@ -100,6 +100,8 @@ fn surface_vertex(view_proj: mat4x4<f32>, v: VertexIn) -> VertexOut {
 // A material's parameters at a point: its factors times its textures, and the shading normal.
 struct SurfaceParams {
     base_color: vec3<f32>,
+    // The base colour's alpha (the blended passes' coverage).
+    alpha: f32,
     roughness: f32,
     metallic: f32,
     // The interpolated normal, turned by the normal texture where there is one (any length).
@@ -222,21 +224,25 @@ fn shadow_cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32, texe
 }
 
 // The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point
-// with interpolated `normal`, `tangent` and vertex colour `color` (multiplying the base colour),
+// with interpolated `normal`, `tangent` and vertex colour `color` (multiplying the base colour
+// and its alpha: `alpha` is `surface_alpha`'s, from the same texel),
 // seen from the front or (`front` false) from behind,
 // where the shading normal is reversed (glTF's double-sided materials: the whole tangent frame
 // turned); the mip levels follow the coordinates' screen derivatives.
 fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tangent: vec4<f32>,
-                  color: vec3<f32>, front: bool) -> SurfaceParams {
+                  color: vec4<f32>, front: bool) -> SurfaceParams {
     var p: SurfaceParams;
-    p.base_color = mat.base_color.rgb * color;
+    p.base_color = mat.base_color.rgb * color.rgb;
+    p.alpha = mat.base_color.a * color.a;
     p.roughness = mat.params.x;
     p.metallic = mat.params.y;
     p.normal = normal;
     p.occlusion = 1.0;
     p.emission = mat.emission.rgb;
     if texture_layer(mat, TEX_BASE_COLOR) >= 0.0 {
-        p.base_color = p.base_color * sample_slot(mat, TEX_BASE_COLOR, true, tc).rgb;
+        let texel = sample_slot(mat, TEX_BASE_COLOR, true, tc);
+        p.base_color = p.base_color * texel.rgb;
+        p.alpha = p.alpha * texel.a;
     }
     if texture_layer(mat, TEX_METALLIC_ROUGHNESS) >= 0.0 {
         let mr = sample_slot(mat, TEX_METALLIC_ROUGHNESS, false, tc);

@@ -59,7 +59,12 @@ pub(crate) struct RenderArgs {
     /// Supersampling anti-aliasing: render at N times the width and height and average each
     /// pixel's N × N samples (1..=4; about N² the shading time and G-buffer memory).
     /// [default: 1, off]
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=4))]
+    #[arg(
+        long,
+        value_name = "N",
+        value_parser = clap::value_parser!(u32)
+            .range(1..=i64::from(envlight::render::supersample::MAX_SUPERSAMPLE))
+    )]
     supersample: Option<u32>,
     /// How the shadow maps are drawn: `pipeline`, a depth-only render pass per light, or
     /// `compute`, compute shaders (faster where the raster pipeline is a small part of the GPU,

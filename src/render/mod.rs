@@ -458,7 +458,8 @@ fn order_triangles(scene: &mut Scene) -> TriangleGroups {
             .sum();
         eye.distance(sum / 3.0)
     };
-    blended.sort_by(|a, b| distance(b).total_cmp(&distance(a)));
+    // Farthest first; each distance computed once (non-negative floats order as their bits).
+    blended.sort_by_cached_key(|t| std::cmp::Reverse(distance(t).to_bits()));
     let groups = TriangleGroups {
         cutout_start: (opaque.len() * 3) as u32,
         blended_start: ((opaque.len() + masked.len()) * 3) as u32,

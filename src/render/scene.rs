@@ -1820,16 +1820,14 @@ const CLEARCOAT: &str = "KHR_materials_clearcoat";
 /// A glTF material's clear coat: `KHR_materials_clearcoat`'s `clearcoatFactor` and
 /// `clearcoatRoughnessFactor` (each in [0, 1]; 0 without). Errors name the property.
 fn gltf_clearcoat(material: &gltf::Material) -> Result<(f32, f32), String> {
-    let factor = |name: &str| match material
-        .extension_value(CLEARCOAT)
-        .and_then(|e| e.get(name))
-    {
-        None => Ok(0.0),
-        Some(v) => v
-            .as_f64()
-            .map(|x| x as f32)
-            .filter(|x| (0.0..=1.0).contains(x))
-            .ok_or_else(|| format!("{CLEARCOAT}.{name} {v} must lie in [0, 1]")),
+    let factor = |name| {
+        extension_number(
+            material,
+            (CLEARCOAT, name),
+            0.0,
+            in_unit_interval,
+            IN_UNIT_INTERVAL,
+        )
     };
     Ok((
         factor("clearcoatFactor")?,
@@ -1848,28 +1846,20 @@ const SPECULAR: &str = "KHR_materials_specular";
 /// strength from `KHR_materials_specular`'s `specularColorFactor` (finite, ≥ 0; white without)
 /// and `specularFactor` (in [0, 1]; 1 without). Errors name the property.
 fn gltf_specular(material: &gltf::Material) -> Result<(f32, [f32; 3], f32), String> {
-    let number = |extension: &str, name: &str| {
-        material
-            .extension_value(extension)
-            .and_then(|e| e.get(name))
-            .map(|v| v.as_f64().map(|x| x as f32).ok_or_else(|| v.to_string()))
-    };
-    let ior = match number(IOR, "ior") {
-        None => 1.5,
-        Some(Ok(ior)) if ior.is_finite() && ior >= 1.0 => ior,
-        Some(v) => {
-            let v = v.map_or_else(|s| s, |x| x.to_string());
-            return Err(format!("{IOR}.ior {v} is not a finite number ≥ 1"));
-        }
-    };
-    let factor = match number(SPECULAR, "specularFactor") {
-        None => 1.0,
-        Some(Ok(f)) if (0.0..=1.0).contains(&f) => f,
-        Some(v) => {
-            let v = v.map_or_else(|s| s, |x| x.to_string());
-            return Err(format!("{SPECULAR}.specularFactor {v} must lie in [0, 1]"));
-        }
-    };
+    let ior = extension_number(
+        material,
+        (IOR, "ior"),
+        1.5,
+        |x| x.is_finite() && x >= 1.0,
+        "is not a finite number ≥ 1",
+    )?;
+    let factor = extension_number(
+        material,
+        (SPECULAR, "specularFactor"),
+        1.0,
+        in_unit_interval,
+        IN_UNIT_INTERVAL,
+    )?;
     let color = match material
         .extension_value(SPECULAR)
         .and_then(|e| e.get("specularColorFactor"))
@@ -1929,20 +1919,44 @@ fn gltf_emission(material: &gltf::Material) -> Result<[f32; 3], String> {
     if !factor.iter().all(|v| (0.0..=1.0).contains(v)) {
         return Err(format!("emissiveFactor {factor:?} must lie in [0, 1]"));
     }
-    let strength = match material
-        .extension_value(EMISSIVE_STRENGTH)
-        .and_then(|e| e.get("emissiveStrength"))
+    let strength = extension_number(
+        material,
+        (EMISSIVE_STRENGTH, "emissiveStrength"),
+        1.0,
+        |x| x.is_finite() && x >= 0.0,
+        "is not a finite number ≥ 0",
+    )?;
+    Ok(factor.map(|f| f * strength))
+}
+
+/// Number `name` of a glTF material's extension `extension`: `default` where either is absent;
+/// a number `valid` accepts, else an error naming the property and its value and saying
+/// `requirement`.
+fn extension_number(
+    material: &gltf::Material,
+    (extension, name): (&str, &str),
+    default: f32,
+    valid: impl Fn(f32) -> bool,
+    requirement: &str,
+) -> Result<f32, String> {
+    match material
+        .extension_value(extension)
+        .and_then(|e| e.get(name))
     {
-        None => 1.0,
+        None => Ok(default),
         Some(v) => v
             .as_f64()
             .map(|x| x as f32)
-            .filter(|x| x.is_finite() && *x >= 0.0)
-            .ok_or_else(|| {
-                format!("{EMISSIVE_STRENGTH}.emissiveStrength {v} is not a finite number ≥ 0")
-            })?,
-    };
-    Ok(factor.map(|f| f * strength))
+            .filter(|&x| valid(x))
+            .ok_or_else(|| format!("{extension}.{name} {v} {requirement}")),
+    }
+}
+
+/// [`extension_number`]'s requirement for factors in [0, 1].
+const IN_UNIT_INTERVAL: &str = "must lie in [0, 1]";
+
+fn in_unit_interval(x: f32) -> bool {
+    (0.0..=1.0).contains(&x)
 }
 
 /// A primitive's per-vertex attribute `name`: one value per position, every component finite.
