@@ -244,12 +244,13 @@ fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
             specular = specular + c.rgb * ggx_response(k, n, v, alpha);
         }
         if s.coat > 0.0 {
-            coat = coat + c.rgb * ggx_response(k, n, v, s.coat_alpha);
+            coat = coat + c.rgb * ggx_response(k, s.n_coat, v, s.coat_alpha);
         }
     }
-    // A clear coat with its Fresnel reflectance at n·v (as F = f0 stands for the base's):
-    // it reflects that share and takes it from the layer beneath, emission included.
-    let fc = s.coat * coat_fresnel(dot(n, v));
+    // A clear coat, on its own normal, with its Fresnel reflectance at n·v (as F = f0 stands
+    // for the base's): it reflects that share and takes it from the layer beneath, emission
+    // included.
+    let fc = s.coat * coat_fresnel(dot(s.n_coat, v));
     let beneath = (diffuse * irradiance + f0 * specular) * p.occlusion + p.emission;
     return vec4<f32>(beneath * (1.0 - fc) + fc * coat * p.occlusion, 1.0);
 }

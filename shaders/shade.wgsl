@@ -3,7 +3,8 @@
 //  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into four Rgba32Float
 //    targets: world position with material index + 1 (0: no surface), the shading normal with
 //    the roughness, the base colour with the metallic, and the emission with the occlusion
-//    (factors times textures).
+//    (factors times textures); and one Rgba32Uint target of 16-bit fields: the dielectric
+//    Fresnel terms, the clear coat's strength and roughness, and its normal (`GBuffer`).
 //  * Shading (compute pass: cs_shade, 8×8 workgroups): one invocation per pixel reads the
 //    G-buffer, sums the lights and writes the frame (rgba32float storage texture).
 //  * Blended surfaces (glTF's alpha mode BLEND; render pass: vs_main + fs_blended), after the
@@ -65,6 +66,7 @@ struct Light {
 @group(1) @binding(2) var frame: texture_storage_2d<rgba32float, write>;
 @group(1) @binding(3) var gbuffer_surface: texture_2d<f32>;
 @group(1) @binding(4) var gbuffer_emission: texture_2d<f32>;
+@group(1) @binding(5) var gbuffer_layers: texture_2d<u32>;
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
@@ -188,7 +190,53 @@ struct GBuffer {
     @location(2) surface: vec4<f32>,
     // rgb: emitted radiance; a: occlusion.
     @location(3) emission: vec4<f32>,
+    // The layers over the base, 16 bits a value (`pack_layers`): the dielectric F0 (rgb) and
+    // F90, the clear coat's strength and roughness (unorm), its unit normal (octahedral,
+    // snorm).
+    @location(4) layers: vec4<u32>,
 };
+
+// A unit vector on the octahedron folded into [−1, 1]² (Cigolle et al. 2014).
+fn octahedral_encode(n: vec3<f32>) -> vec2<f32> {
+    let p = n.xy / (abs(n.x) + abs(n.y) + abs(n.z));
+    if n.z >= 0.0 {
+        return p;
+    }
+    return (vec2<f32>(1.0) - abs(p.yx)) * select(vec2<f32>(-1.0), vec2<f32>(1.0), p >= vec2<f32>(0.0));
+}
+
+// The unit vector of `octahedral_encode`'s `e`.
+fn octahedral_decode(e: vec2<f32>) -> vec3<f32> {
+    var n = vec3<f32>(e, 1.0 - abs(e.x) - abs(e.y));
+    let t = max(-n.z, 0.0);
+    n.x = n.x + select(t, -t, n.x >= 0.0);
+    n.y = n.y + select(t, -t, n.y >= 0.0);
+    return normalize(n);
+}
+
+// The G-buffer's `layers` of surface parameters `p`.
+fn pack_layers(p: SurfaceParams) -> vec4<u32> {
+    let f = clamp(p.specular, vec4<f32>(0.0), vec4<f32>(1.0));
+    var coat_normal = vec2<f32>(0.0);
+    if p.coat > 0.0 && dot(p.coat_normal, p.coat_normal) > 1e-12 {
+        coat_normal = octahedral_encode(normalize(p.coat_normal));
+    }
+    return vec4<u32>(pack2x16unorm(f.xy), pack2x16unorm(f.zw),
+                     pack2x16unorm(clamp(vec2<f32>(p.coat, p.coat_roughness), vec2<f32>(0.0), vec2<f32>(1.0))),
+                     pack2x16snorm(coat_normal));
+}
+
+// `pack_layers` undone into `p`; a coat without a normal takes `normal`.
+fn unpack_layers(layers: vec4<u32>, normal: vec3<f32>, p: ptr<function, SurfaceParams>) {
+    (*p).specular = vec4<f32>(unpack2x16unorm(layers.x), unpack2x16unorm(layers.y));
+    let coat = unpack2x16unorm(layers.z);
+    (*p).coat = coat.x;
+    (*p).coat_roughness = coat.y;
+    (*p).coat_normal = normal;
+    if coat.x > 0.0 {
+        (*p).coat_normal = octahedral_decode(unpack2x16snorm(layers.w));
+    }
+}
 
 @fragment
 fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
@@ -203,6 +251,7 @@ fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
     out.normal = vec4<f32>(p.normal, p.roughness);
     out.surface = vec4<f32>(p.base_color, p.metallic);
     out.emission = vec4<f32>(p.emission, p.occlusion);
+    out.layers = pack_layers(p);
     return out;
 }
 
@@ -242,6 +291,7 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
     p.emission = emission.rgb;
     p.occlusion = emission.a;
     p.alpha = 1.0;
+    unpack_layers(textureLoad(gbuffer_layers, texel, 0), normal.xyz, &p);
     textureStore(frame, texel, shade_point(g.xyz, normal.xyz, u32(g.w) - 1u, p));
 }
 
@@ -266,7 +316,9 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         let dir = lights[i].dir;
         let l = dir.xyz;
         let ndl_raw = dot(n, l);
-        if culling && ndl_raw <= 0.0 {
+        // A clear coat with a normal of its own may face a light the base turns from.
+        let ndl_coat = select(0.0, max(dot(s.n_coat, l), 0.0), s.coat > 0.0);
+        if culling && ndl_raw <= 0.0 && ndl_coat <= 0.0 {
             continue;
         }
         let rgb = lights[i].rgb;
@@ -291,11 +343,11 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
             // cos θ_h ≥ 1/√(1 + 9α′²) needs no transcendental per light. A clear coat's lobe
             // counts too.
             let nh = max(dot(n, h), 0.0);
-            var widest = select(0.0, alpha_l, has_specular);
+            full = has_specular && nh * nh * (1.0 + 9.0 * alpha_l * alpha_l) >= 1.0;
             if s.coat > 0.0 {
-                widest = max(widest, coat_alpha_l);
+                let ch = max(dot(s.n_coat, h), 0.0);
+                full = full || ch * ch * (1.0 + 9.0 * coat_alpha_l * coat_alpha_l) >= 1.0;
             }
-            full = nh * nh * (1.0 + 9.0 * widest * widest) >= 1.0;
         }
         let vis = visibility(i, world, n, l, i32(rgb.w), full);
         let e = rgb.rgb * ndl;
@@ -303,13 +355,15 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         if has_specular {
             brdf = brdf + ggx_specular(n, v, l, h, alpha_l, alpha, f0, s.f90);
         }
+        var reflected = brdf * ndl;
         if s.coat > 0.0 {
-            // The clear coat (glTF's KHR_materials_clearcoat): its Fresnel reflectance takes
-            // that fraction of the light from the layer beneath.
+            // The clear coat (glTF's KHR_materials_clearcoat), on its own normal: its Fresnel
+            // reflectance takes that fraction of the light from the layer beneath.
             let fc = s.coat * coat_fresnel(dot(v, h));
-            brdf = brdf * (1.0 - fc) + vec3<f32>(fc * ggx_lobe(n, v, l, h, coat_alpha_l, s.coat_alpha));
+            let coat_lobe = ggx_lobe(s.n_coat, v, l, h, coat_alpha_l, s.coat_alpha);
+            reflected = reflected * (1.0 - fc) + vec3<f32>(fc * coat_lobe * ndl_coat);
         }
-        radiance = radiance + brdf * e * vis;
+        radiance = radiance + reflected * rgb.rgb * vis;
         let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));
         e_lit = e_lit + lum * vis;
         e_all = e_all + lum;
@@ -323,6 +377,6 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
     }
     // The occlusion texture darkens the light from the environment (the lights), not the
     // surface's own emission; a clear coat reflects its Fresnel share of the emission away.
-    let emission = p.emission * (1.0 - s.coat * coat_fresnel(dot(n, v)));
+    let emission = p.emission * (1.0 - s.coat * coat_fresnel(dot(s.n_coat, v)));
     return vec4<f32>(radiance * p.occlusion + emission, 1.0);
 }

@@ -15,6 +15,11 @@ const TEX_METALLIC_ROUGHNESS: u32 = 1u;
 const TEX_NORMAL: u32 = 2u;
 const TEX_OCCLUSION: u32 = 3u;
 const TEX_EMISSIVE: u32 = 4u;
+const TEX_SPECULAR: u32 = 5u;
+const TEX_SPECULAR_COLOR: u32 = 6u;
+const TEX_CLEARCOAT: u32 = 7u;
+const TEX_CLEARCOAT_ROUGHNESS: u32 = 8u;
+const TEX_CLEARCOAT_NORMAL: u32 = 9u;
 
 struct Material {
     // rgb: base colour; a: its alpha.
@@ -23,11 +28,13 @@ struct Material {
     // double-sided).
     params: vec4<f32>,
     // Slot k's layer at layers[k / 4][k % 4] (negative: none): of the base-colour array for
-    // the base-colour and emissive slots, of the data array for the others. layers[1].y: the
-    // wrap modes, slot k's at bits 4k..4k+4 as u + 4·v (0 repeat, 1 clamp to edge, 2 mirrored
-    // repeat); layers[1].z: bit k set, slot k reads the second texture coordinates.
+    // the base-colour, emissive and specular-colour slots, of the data array for the others.
     // src/render/textures.rs, `MaterialLayers`.
-    layers: array<vec4<f32>, 2>,
+    layers: array<vec4<f32>, 3>,
+    // x, y: the wrap modes, slot k's at bits 4(k % 8)..4(k % 8) + 4 of word k / 8, as u + 4·v
+    // (0 repeat, 1 clamp to edge, 2 mirrored repeat); z: bit k set, slot k reads the second
+    // texture coordinates; w: unused.
+    texture_modes: vec4<u32>,
     // x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff,
     // below which the surface casts no shadow and (glTF's MASK) is not drawn: MASK's cutoff,
     // negative for an opaque material, positive (unused) for BLEND, whose surfaces the blended
@@ -39,19 +46,21 @@ struct Material {
     // The texture-coordinate transforms (KHR_texture_transform) of the slots, two rows each:
     // slot k's image is read at (dot(row0.xyz, (u, v, 1)), dot(row1.xyz, (u, v, 1))) with
     // row0 = uv_transforms[2k], row1 = uv_transforms[2k + 1].
-    uv_transforms: array<vec4<f32>, 10>,
-    // rgb: the dielectric reflectance at normal incidence F0; w: at grazing incidence F90
-    // (glTF's KHR_materials_ior and KHR_materials_specular; src/render/shading.rs,
-    // `Material::dielectric_fresnel`).
+    uv_transforms: array<vec4<f32>, 20>,
+    // rgb: the dielectric reflectance at normal incidence before its tint texture and clamp,
+    // 0.16 · level² · tint; w: the specular strength (glTF's KHR_materials_ior and
+    // KHR_materials_specular): F0 = min(rgb · tint texture, 1) · strength, F90 = strength,
+    // the strength times the specular texture's A (`surface_params`).
     specular: vec4<f32>,
     // x: the clear coat's strength (KHR_materials_clearcoat; 0: none); y: its roughness;
-    // z, w: unused.
+    // z: the scale of its normal texture; w: unused.
     coat: vec4<f32>,
 };
 
-// The materials' textures (src/render/textures.rs): sRGB colours (base colours, emission),
-// and linear data (metallic-roughness: roughness in G, metallic in B; tangent-space normals;
-// occlusion in R), one layer per image, all layers of one square side with full mip chains.
+// The materials' textures (src/render/textures.rs): sRGB colours (base colours, emission,
+// specular tints), and linear data (metallic-roughness: roughness in G, metallic in B;
+// tangent-space normals; occlusion in R; specular strength in A; clear coat in R, its
+// roughness in G), one layer per image, all layers of one square side with full mip chains.
 // The sampler repeats; clamping and mirroring are done by `wrap_coordinate`. Bound by the
 // fragment passes (G-buffer, ASG) only.
 @group(2) @binding(0) var base_color_textures: texture_2d_array<f32>;
@@ -111,6 +120,14 @@ struct SurfaceParams {
     occlusion: f32,
     // Emitted radiance.
     emission: vec3<f32>,
+    // The dielectric Fresnel reflectance at normal (rgb) and grazing (w) incidence.
+    specular: vec4<f32>,
+    // The clear coat's strength (0: none) and roughness.
+    coat: f32,
+    coat_roughness: f32,
+    // The clear coat's normal (any length): the interpolated one, turned by the coat's own
+    // normal texture where there is one.
+    coat_normal: vec3<f32>,
 };
 
 // A texture coordinate wrapped by `mode` for a layer of `texels` a side, for the repeating
@@ -148,7 +165,7 @@ struct TextureCoordinates {
 // base-colour array (`srgb`) or the data array with explicit gradients. The slot must have a
 // layer.
 fn sample_slot(mat: Material, k: u32, srgb: bool, tc: TextureCoordinates) -> vec4<f32> {
-    let second = ((u32(mat.layers[1].z) >> k) & 1u) == 1u;
+    let second = ((mat.texture_modes.z >> k) & 1u) == 1u;
     let uv = select(tc.uv0, tc.uv1, second);
     let ddx = select(tc.ddx0, tc.ddx1, second);
     let ddy = select(tc.ddy0, tc.ddy1, second);
@@ -157,7 +174,7 @@ fn sample_slot(mat: Material, k: u32, srgb: bool, tc: TextureCoordinates) -> vec
     let t = vec2<f32>(dot(r0.xy, uv) + r0.z, dot(r1.xy, uv) + r1.z);
     let tdx = vec2<f32>(dot(r0.xy, ddx), dot(r1.xy, ddx));
     let tdy = vec2<f32>(dot(r0.xy, ddy), dot(r1.xy, ddy));
-    let mode = (u32(mat.layers[1].y) >> (4u * k)) & 15u;
+    let mode = (mat.texture_modes[k / 8u] >> (4u * (k % 8u))) & 15u;
     let layer = i32(texture_layer(mat, k));
     if srgb {
         let texels = f32(textureDimensions(base_color_textures).x);
@@ -256,24 +273,59 @@ fn surface_params(mat: Material, tc: TextureCoordinates, normal: vec3<f32>, tang
     if texture_layer(mat, TEX_EMISSIVE) >= 0.0 && any(p.emission > vec3<f32>(0.0)) {
         p.emission = p.emission * sample_slot(mat, TEX_EMISSIVE, true, tc).rgb;
     }
-    // The tangent frame: the tangent made perpendicular to the normal (Gram-Schmidt), the
-    // bitangent cross(n, t) · w (glTF); a tangent along the normal leaves the normal as it is.
-    let n = normalize(normal);
-    let t_perp = tangent.xyz - n * dot(n, tangent.xyz);
-    if texture_layer(mat, TEX_NORMAL) >= 0.0 && dot(t_perp, t_perp) > 1e-12 {
-        let texel = sample_slot(mat, TEX_NORMAL, false, tc).xyz;
-        let m = texel * 2.0 - 1.0;
-        let t = normalize(t_perp);
-        let b = cross(n, t) * select(1.0, -1.0, tangent.w < 0.0);
-        let turned = t * (m.x * mat.extra.x) + b * (m.y * mat.extra.x) + n * m.z;
-        if dot(turned, turned) > 1e-12 {
-            p.normal = turned;
+    var strength = mat.specular.w;
+    var tint = mat.specular.rgb;
+    if strength > 0.0 {
+        if texture_layer(mat, TEX_SPECULAR) >= 0.0 {
+            strength = strength * sample_slot(mat, TEX_SPECULAR, false, tc).a;
+        }
+        if texture_layer(mat, TEX_SPECULAR_COLOR) >= 0.0 {
+            tint = tint * sample_slot(mat, TEX_SPECULAR_COLOR, true, tc).rgb;
         }
     }
+    p.specular = vec4<f32>(min(tint, vec3<f32>(1.0)) * strength, strength);
+    p.coat = mat.coat.x;
+    p.coat_roughness = mat.coat.y;
+    p.coat_normal = normal;
+    if p.coat > 0.0 {
+        if texture_layer(mat, TEX_CLEARCOAT) >= 0.0 {
+            p.coat = p.coat * sample_slot(mat, TEX_CLEARCOAT, false, tc).r;
+        }
+        if texture_layer(mat, TEX_CLEARCOAT_ROUGHNESS) >= 0.0 {
+            p.coat_roughness = p.coat_roughness * sample_slot(mat, TEX_CLEARCOAT_ROUGHNESS, false, tc).g;
+        }
+        p.coat_normal = turned_normal(mat, TEX_CLEARCOAT_NORMAL, mat.coat.z, tc, normal, tangent);
+    }
+    p.normal = turned_normal(mat, TEX_NORMAL, mat.extra.x, tc, normal, tangent);
     if !front {
         p.normal = -p.normal;
+        p.coat_normal = -p.coat_normal;
     }
     return p;
+}
+
+// The interpolated `normal` turned by the tangent-space normal texture of slot `k` (its x and
+// y times `scale`) where the material has one: the tangent made perpendicular to the normal
+// (Gram-Schmidt), the bitangent cross(n, t) · w (glTF); without a texture, or with a tangent
+// along the normal, the normal as it is.
+fn turned_normal(mat: Material, k: u32, scale: f32, tc: TextureCoordinates, normal: vec3<f32>,
+                 tangent: vec4<f32>) -> vec3<f32> {
+    if texture_layer(mat, k) < 0.0 {
+        return normal;
+    }
+    let n = normalize(normal);
+    let t_perp = tangent.xyz - n * dot(n, tangent.xyz);
+    if dot(t_perp, t_perp) <= 1e-12 {
+        return normal;
+    }
+    let m = sample_slot(mat, k, false, tc).xyz * 2.0 - 1.0;
+    let t = normalize(t_perp);
+    let b = cross(n, t) * select(1.0, -1.0, tangent.w < 0.0);
+    let turned = t * (m.x * scale) + b * (m.y * scale) + n * m.z;
+    if dot(turned, turned) > 1e-12 {
+        return turned;
+    }
+    return normal;
 }
 
 // A shaded point: unit normal n, unit direction to the camera v, GGX α = roughness² (floored),
@@ -288,9 +340,11 @@ struct Surface {
     f90: f32,
     has_specular: bool,
     catcher: bool,
-    // The clear coat: strength (0: none) and GGX α = roughness² (floored), of F0 0.04.
+    // The clear coat: strength (0: none), GGX α = roughness² (floored), of F0 0.04, and its
+    // unit normal.
     coat: f32,
     coat_alpha: f32,
+    n_coat: vec3<f32>,
 };
 
 // The clear coat's Fresnel reflectance (Schlick, F0 0.04, F90 1) at cosine `c`.
@@ -298,8 +352,8 @@ fn coat_fresnel(c: f32) -> f32 {
     return 0.04 + 0.96 * pow(1.0 - clamp(c, 0.0, 1.0), 5.0);
 }
 
-// `world`: the point; `normal`: the interpolated vertex normal (any length); `p`: the material's
-// parameters there (`surface_params`); `mat`: the material (dielectric Fresnel and flags).
+// `world`: the point; `normal`: the shading normal (any length); `p`: the material's
+// parameters there (`surface_params`); `mat`: the material (its flags).
 fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Material,
               camera_pos: vec3<f32>) -> Surface {
     var s: Surface;
@@ -309,12 +363,16 @@ fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Materi
     let metallic = clamp(p.metallic, 0.0, 1.0);
     s.alpha = max(roughness * roughness, 0.002);
     s.diffuse = p.base_color * (1.0 - metallic) / PI;
-    s.f0 = mix(mat.specular.rgb, p.base_color, metallic);
-    s.f90 = mix(mat.specular.w, 1.0, metallic);
+    s.f0 = mix(p.specular.rgb, p.base_color, metallic);
+    s.f90 = mix(p.specular.w, 1.0, metallic);
     s.has_specular = any(s.f0 > vec3<f32>(0.0)) || s.f90 > 0.0;
-    s.coat = clamp(mat.coat.x, 0.0, 1.0);
-    let coat_roughness = clamp(mat.coat.y, 0.0, 1.0);
+    s.coat = clamp(p.coat, 0.0, 1.0);
+    let coat_roughness = clamp(p.coat_roughness, 0.0, 1.0);
     s.coat_alpha = max(coat_roughness * coat_roughness, 0.002);
+    s.n_coat = s.n;
+    if s.coat > 0.0 && dot(p.coat_normal, p.coat_normal) > 1e-12 {
+        s.n_coat = normalize(p.coat_normal);
+    }
     s.catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
     return s;
 }

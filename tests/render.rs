@@ -2338,6 +2338,202 @@ fn clear_coats_reflect_as_a_dielectric_layer() {
     assert_close("ASG, coat alone", asg(coat(black)), plain, 0.01);
 }
 
+/// The textures of KHR_materials_specular and KHR_materials_clearcoat multiply their factors:
+/// on a glossy quad seen head-on under a light from the camera, each half of a two-valued
+/// texture shades as the untextured material whose factor is the product, over the same
+/// region — the specular texture's A scaling the dielectric reflection, the specular-colour
+/// texture (sRGB) tinting F0 before its clamp to 1, the clear-coat texture's R the coat's
+/// strength and the clear-coat roughness texture's G its roughness.
+#[test]
+fn specular_and_clear_coat_textures_multiply_their_factors() {
+    use envlight::render::scene::TextureRef;
+    let lights = [light(0, Vec3::Z, [3.0, 3.0, 3.0], 0.0)];
+    let halves_of = |m: Material, left: [u8; 4], right: [u8; 4]| {
+        let row = texture_row(4, |x| if x < 2 { left } else { right });
+        let (r, img) = render_quad(textured_quad(m, vec![row], 1.0), &lights);
+        quad_halves(&r, &img)
+    };
+    let plain_halves = |m: Material| {
+        let (r, img) = render_quad(textured_quad(m, vec![], 1.0), &lights);
+        quad_halves(&r, &img)
+    };
+    let check = |what: &str, got: ([f32; 3], [f32; 3]), want: ([f32; 3], [f32; 3])| {
+        eprintln!(
+            "{what}: left {:?} / {:?}, right {:?} / {:?}",
+            got.0, want.0, got.1, want.1
+        );
+        assert!(
+            want.0[0].max(want.1[0]) > 1e-3,
+            "{what}: too dark to compare"
+        );
+        assert_close(&format!("{what}, left"), got.0, want.0, 0.01);
+        assert_close(&format!("{what}, right"), got.1, want.1, 0.01);
+    };
+    let glossy = Material {
+        specular: 0.5,
+        roughness: 0.4,
+        ..Material::lambertian([0.0; 3])
+    };
+    let texture = TextureRef::repeating(0);
+    // Specular strength: A = 255 and 64.
+    let mut m = glossy;
+    m.textures.specular = Some(texture);
+    let got = halves_of(m, [0, 0, 0, 255], [255, 255, 255, 64]);
+    let full = plain_halves(glossy);
+    let scaled = plain_halves(Material {
+        specular_factor: 64.0 / 255.0,
+        ..glossy
+    });
+    check("specular texture", got, (full.0, scaled.1));
+    // Specular colour: a tint of 50 makes F0 = 0.04 · 50 = 2 before the texture; a white
+    // texel leaves it clamped to 1, an sRGB (64, 128, 255) one scales each channel first.
+    let mut m = Material {
+        specular_color: [50.0; 3],
+        ..glossy
+    };
+    m.textures.specular_color = Some(texture);
+    let got = halves_of(m, [255; 4], [64, 128, 255, 255]);
+    let tint = [64, 128, 255].map(|c| 50.0 * srgb_code_to_linear(c));
+    let want_left = plain_halves(Material {
+        specular_color: [25.0; 3],
+        ..glossy
+    });
+    let want_right = plain_halves(Material {
+        specular_color: tint,
+        ..glossy
+    });
+    check("specular colour texture", got, (want_left.0, want_right.1));
+    // Clear coat over a black, non-reflecting base: strength R = 255 and 102, roughness
+    // G = 102 and 255 of a factor of 1.
+    let black = Material::lambertian([0.0; 3]);
+    let coat = |strength: f32, roughness: f32| Material {
+        clearcoat: strength,
+        clearcoat_roughness: roughness,
+        ..black
+    };
+    let mut m = coat(1.0, 0.4);
+    m.textures.clearcoat = Some(texture);
+    let got = halves_of(m, [255, 0, 0, 255], [102, 255, 255, 255]);
+    check(
+        "clear-coat texture",
+        got,
+        (
+            plain_halves(coat(1.0, 0.4)).0,
+            plain_halves(coat(0.4, 0.4)).1,
+        ),
+    );
+    let mut m = coat(1.0, 1.0);
+    m.textures.clearcoat_roughness = Some(texture);
+    let got = halves_of(m, [0, 102, 0, 255], [0, 255, 0, 255]);
+    check(
+        "clear-coat roughness texture",
+        got,
+        (
+            plain_halves(coat(1.0, 0.4)).0,
+            plain_halves(coat(1.0, 1.0)).1,
+        ),
+    );
+}
+
+/// A clear coat has a normal of its own (KHR_materials_clearcoat): without a clear-coat
+/// normal texture it follows the interpolated normal, not the base's normal texture — a coat
+/// over a black base with a tilted normal texture shades pixel for pixel as the same coat
+/// without one (light and ASG passes) — and with one, a coat over black shades as a plain
+/// dielectric (F0 0.04, F90 1) whose normal texture it is, at the texture's scale.
+#[test]
+fn clear_coats_follow_their_own_normal() {
+    use envlight::asg::Asg;
+    use envlight::render::scene::TextureRef;
+    use glam::DVec3;
+    // 30° towards +x in tangent space.
+    const TILT_X: [u8; 4] = [191, 128, 238, 255];
+    let tilted = || vec![texture_row(1, |_| TILT_X)];
+    let lights = [light(
+        0,
+        Vec3::new(0.5, 0.0, 1.0).normalize(),
+        [3.0, 3.0, 3.0],
+        0.0,
+    )];
+    let render = |m: Material, textures: Vec<TextureImage>| {
+        render_quad(textured_quad(m, textures, 1.0), &lights)
+    };
+    // Pixels lit in `a`, and the worst relative difference of `b` there.
+    let compare = |a: &Image, b: &Image| {
+        let peak = a.rgba.chunks(4).map(|p| p[0]).fold(0.0, f32::max);
+        let (mut n, mut worst) = (0, 0.0f32);
+        for y in 0..a.height {
+            for x in 0..a.width {
+                let (p, q) = (a.pixel(x, y), b.pixel(x, y));
+                if p[0] < 0.01 * peak {
+                    continue;
+                }
+                n += 1;
+                for c in 0..3 {
+                    worst = worst.max((q[c] / p[c] - 1.0).abs());
+                }
+            }
+        }
+        (n, worst)
+    };
+    let coat = Material {
+        clearcoat: 1.0,
+        clearcoat_roughness: 0.4,
+        ..Material::lambertian([0.0; 3])
+    };
+    let (_, bare) = render(coat, vec![]);
+    let mut base_normal = coat;
+    base_normal.textures.normal = Some(TextureRef::repeating(0));
+    let (_, beneath) = render(base_normal, tilted());
+    let (n, worst) = compare(&bare, &beneath);
+    eprintln!("coat over a normal-textured base: {n} pixels, worst {worst:.5} off the bare coat");
+    assert!(n > 500 && worst < 0.002, "{n} pixels, worst {worst}");
+    // The tilt does matter where the coat has it as its own normal.
+    let mut coat_normal = coat;
+    coat_normal.textures.clearcoat_normal = Some(TextureRef::repeating(0));
+    for scale in [1.0f32, 0.5] {
+        coat_normal.textures.clearcoat_normal_scale = scale;
+        let (_, own) = render(coat_normal, tilted());
+        let mut dielectric = Material {
+            specular: 0.5,
+            roughness: 0.4,
+            ..Material::lambertian([0.0; 3])
+        };
+        dielectric.textures.normal = Some(TextureRef::repeating(0));
+        dielectric.textures.normal_scale = scale;
+        let (_, want) = render(dielectric, tilted());
+        let (n, worst) = compare(&want, &own);
+        let (_, moved) = compare(&bare, &own);
+        eprintln!(
+            "coat normal at scale {scale}: {n} pixels, worst {worst:.5} off the dielectric, \
+             {moved:.3} off the bare coat"
+        );
+        assert!(
+            n > 500 && worst < 0.005,
+            "scale {scale}: {n} pixels, worst {worst}"
+        );
+        assert!(
+            moved > 0.1,
+            "scale {scale}: the coat's normal texture changed nothing"
+        );
+    }
+    // The ASG pass: the coat over a normal-textured base is the bare coat.
+    let lobes = [Asg::new(
+        DVec3::new(0.5, 0.0, 1.0).normalize(),
+        DVec3::Y,
+        4.0,
+        4.0,
+        [2.0; 3],
+    )
+    .unwrap()];
+    let asg = |m: Material, textures: Vec<TextureImage>| {
+        let mut r = renderer(textured_quad(m, textures, 1.0), quad_settings());
+        r.render_asg(&lobes).unwrap().0
+    };
+    let (n, worst) = compare(&asg(coat, vec![]), &asg(base_normal, tilted()));
+    eprintln!("ASG: coat over a normal-textured base: {n} pixels, worst {worst:.5} off");
+    assert!(n > 500 && worst < 0.002, "ASG: {n} pixels, worst {worst}");
+}
+
 /// A material cut out by its alpha (glTF's MASK; the factor's alpha times the base-colour
 /// texture's) is not there where the alpha is below the cutoff: not drawn (light and ASG
 /// passes) and casting no shadow, with either shadow raster; an opaque material ignores its
@@ -2730,12 +2926,12 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
     for needle in [
-        "textures: 2 layers of 8²",
+        // The image as base colour (sRGB), and as normal texture and specular texture (data).
+        "textures: 3 layers of 8²",
         "not drawn",
         "scene: 4 triangles (2 casting shadows), 2 materials (1 blended, 1 emissive, 1 \
          textured), 2 texture images",
         "extension KHR_materials_sheen",
-        "KHR_materials_specular.specularTexture (its factor is drawn)",
     ] {
         assert!(
             stderr.contains(needle),
@@ -2743,14 +2939,15 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
         );
     }
     // What is drawn is not named: the normal texture, the emission and its strength, the
-    // blending.
+    // blending, the specular texture.
     let left_out = stderr.split("textures): ").nth(1).unwrap_or("");
     let left_out = left_out.lines().next().unwrap_or("");
     for drawn in [
         "normal",
         "emissi",
         "blend",
-        "extension KHR_materials_specular",
+        "KHR_materials_specular",
+        "specularTexture",
     ] {
         assert!(!left_out.contains(drawn), "{drawn}: {stderr}");
     }

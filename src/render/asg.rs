@@ -165,7 +165,7 @@ impl AsgPass {
             &module,
             ("vs_main", &super::SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
-            Some(("fs_main", 1)),
+            Some(("fs_main", &[super::COLOR_FORMAT])),
             None,
         );
         let blended_pipeline = renderer.blended_pipeline.is_some().then(|| {
@@ -176,7 +176,7 @@ impl AsgPass {
                 &module,
                 ("vs_main", &super::SURFACE_ATTRIBUTES),
                 wgpu::DepthBiasState::default(),
-                Some(("fs_blended", 1)),
+                Some(("fs_blended", &[super::COLOR_FORMAT])),
                 Some(wgpu::BlendState::PREMULTIPLIED_ALPHA_BLENDING),
             )
         });

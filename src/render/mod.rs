@@ -287,8 +287,19 @@ pub struct Renderer {
 }
 
 /// The G-buffer's targets: position + material, normal + roughness, base colour + metallic,
-/// emission + occlusion.
-const GBUFFER_TARGETS: usize = 4;
+/// emission + occlusion (`Rgba32Float`), and the layers over the base (`Rgba32Uint`, 16-bit
+/// fields: the dielectric Fresnel terms, the clear coat's strength, roughness and normal;
+/// `shaders/shade.wgsl`, `pack_layers`).
+const GBUFFER_TARGETS: usize = 5;
+
+/// The formats of the G-buffer's targets, in order.
+const GBUFFER_FORMATS: [wgpu::TextureFormat; GBUFFER_TARGETS] = [
+    COLOR_FORMAT,
+    COLOR_FORMAT,
+    COLOR_FORMAT,
+    COLOR_FORMAT,
+    wgpu::TextureFormat::Rgba32Uint,
+];
 
 /// The vertex attributes the surface passes (G-buffer, ASG) read: position, normal, material,
 /// the two texture coordinates, tangent, colour (`shaders/surface.wgsl`, `VertexIn`), in
@@ -361,8 +372,8 @@ fn compute_storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayout
 }
 
 /// A triangle pipeline over the scene's vertices (the vertex entry point reading the given
-/// attributes), depth-tested with `Less`, no culling; with `fragment = Some((entry, n))`, that
-/// fragment entry point writes `n` `Rgba32Float` targets (none: it only discards), without it
+/// attributes), depth-tested with `Less`, no culling; with `fragment = Some((entry, formats))`,
+/// that fragment entry point writes targets of those formats (none: it only discards), without it
 /// the pass is depth-only (shadow maps). Unblended, it writes depth; with `blend` (the blended
 /// surfaces' passes) its targets are blended so and depth is only tested.
 #[allow(clippy::too_many_arguments)]
@@ -373,15 +384,20 @@ fn depth_tested_pipeline(
     module: &wgpu::ShaderModule,
     (vertex_entry, attributes): (&str, &[wgpu::VertexAttribute]),
     bias: wgpu::DepthBiasState,
-    fragment: Option<(&str, usize)>,
+    fragment: Option<(&str, &[wgpu::TextureFormat])>,
     blend: Option<wgpu::BlendState>,
 ) -> wgpu::RenderPipeline {
-    let target = Some(wgpu::ColorTargetState {
-        format: COLOR_FORMAT,
-        blend,
-        write_mask: wgpu::ColorWrites::ALL,
-    });
-    let targets = vec![target; fragment.map_or(0, |(_, n)| n)];
+    let targets: Vec<_> = fragment
+        .map_or(&[][..], |(_, formats)| formats)
+        .iter()
+        .map(|&format| {
+            Some(wgpu::ColorTargetState {
+                format,
+                blend,
+                write_mask: wgpu::ColorWrites::ALL,
+            })
+        })
+        .collect();
     device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
         label: Some(label),
         layout: Some(layout),
@@ -721,6 +737,16 @@ impl Renderer {
                 gbuffer_texture(3),
                 gbuffer_texture(4),
                 wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
                     binding: 2,
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::StorageTexture {
@@ -764,7 +790,7 @@ impl Renderer {
             &shade_module,
             ("vs_main", &SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
-            Some(("fs_gbuffer", GBUFFER_TARGETS)),
+            Some(("fs_gbuffer", &GBUFFER_FORMATS)),
             None,
         );
         let blended_pipeline = (groups.blended_start < scene.caster_indices).then(|| {
@@ -775,7 +801,7 @@ impl Renderer {
                 &shade_module,
                 ("vs_main", &SURFACE_ATTRIBUTES),
                 wgpu::DepthBiasState::default(),
-                Some(("fs_blended", 1)),
+                Some(("fs_blended", &[COLOR_FORMAT])),
                 Some(wgpu::BlendState::PREMULTIPLIED_ALPHA_BLENDING),
             )
         });
@@ -820,7 +846,7 @@ impl Renderer {
             &shadow_module,
             ("vs_masked", &MASKED_SHADOW_ATTRIBUTES),
             shadow_bias,
-            Some(("fs_masked", 0)),
+            Some(("fs_masked", &[])),
             None,
         );
 
@@ -853,6 +879,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 4,
                     resource: wgpu::BindingResource::TextureView(&gbuffer_views[3]),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: wgpu::BindingResource::TextureView(&gbuffer_views[4]),
                 },
             ],
         });
@@ -1023,20 +1053,22 @@ impl Renderer {
         }
     }
 
-    /// The G-buffer's targets (`Rgba32Float`): world position + material, normal + roughness,
-    /// base colour + metallic, emission + occlusion.
+    /// The G-buffer's targets ([`GBUFFER_FORMATS`]): world position + material, normal +
+    /// roughness, base colour + metallic, emission + occlusion, the layers over the base.
     fn make_gbuffer(
         device: &wgpu::Device,
         width: u32,
         height: u32,
     ) -> [wgpu::TextureView; GBUFFER_TARGETS] {
-        [
+        let labels = [
             "g-buffer position",
             "g-buffer normal",
             "g-buffer surface",
             "g-buffer emission",
-        ]
-        .map(|label| {
+            "g-buffer layers",
+        ];
+        std::array::from_fn(|i| {
+            let (label, format) = (labels[i], GBUFFER_FORMATS[i]);
             device
                 .create_texture(&wgpu::TextureDescriptor {
                     label: Some(label),
@@ -1048,7 +1080,7 @@ impl Renderer {
                     mip_level_count: 1,
                     sample_count: 1,
                     dimension: wgpu::TextureDimension::D2,
-                    format: COLOR_FORMAT,
+                    format,
                     usage: wgpu::TextureUsages::RENDER_ATTACHMENT
                         | wgpu::TextureUsages::TEXTURE_BINDING,
                     view_formats: &[],

@@ -203,30 +203,64 @@ pub struct MaterialTextures {
     pub occlusion_strength: f32,
     /// sRGB-encoded emission (RGB), multiplying [`Material::emission`].
     pub emissive: Option<TextureRef>,
+    /// Linear; in A, the strength of the dielectric specular, multiplying
+    /// [`Material::specular_factor`] (glTF's `KHR_materials_specular.specularTexture`).
+    pub specular: Option<TextureRef>,
+    /// sRGB-encoded tint of the dielectric F0 (RGB), multiplying [`Material::specular_color`]
+    /// (`KHR_materials_specular.specularColorTexture`).
+    pub specular_color: Option<TextureRef>,
+    /// Linear; in R, the clear coat's strength, multiplying [`Material::clearcoat`]
+    /// (`KHR_materials_clearcoat.clearcoatTexture`).
+    pub clearcoat: Option<TextureRef>,
+    /// Linear; in G, the clear coat's roughness, multiplying [`Material::clearcoat_roughness`]
+    /// (`clearcoatRoughnessTexture`).
+    pub clearcoat_roughness: Option<TextureRef>,
+    /// Linear; the clear coat's own tangent-space normal, as [`MaterialTextures::normal`]
+    /// (`clearcoatNormalTexture`). Without it the coat follows the interpolated vertex normal,
+    /// not the base's normal texture (as the extension asks).
+    pub clearcoat_normal: Option<TextureRef>,
+    /// Scales the clear-coat normal's x and y (`clearcoatNormalTexture.scale`).
+    pub clearcoat_normal_scale: f32,
 }
 
 impl MaterialTextures {
     /// The textures in slot order: base colour, metallic-roughness, normal, occlusion,
-    /// emissive ([`SLOT_NAMES`]; the shaders' `TEX_*` slots, `textures::TEXTURE_SLOTS`).
-    pub fn slots(&self) -> [Option<TextureRef>; 5] {
+    /// emissive, specular, specular colour, clear coat, clear-coat roughness, clear-coat
+    /// normal ([`SLOT_NAMES`]; the shaders' `TEX_*` slots, `textures::TEXTURE_SLOTS`).
+    pub fn slots(&self) -> [Option<TextureRef>; 10] {
         [
             self.base_color,
             self.metallic_roughness,
             self.normal,
             self.occlusion,
             self.emissive,
+            self.specular,
+            self.specular_color,
+            self.clearcoat,
+            self.clearcoat_roughness,
+            self.clearcoat_normal,
         ]
     }
 
     /// [`MaterialTextures::slots`], to change.
-    pub fn slots_mut(&mut self) -> [&mut Option<TextureRef>; 5] {
+    pub fn slots_mut(&mut self) -> [&mut Option<TextureRef>; 10] {
         [
             &mut self.base_color,
             &mut self.metallic_roughness,
             &mut self.normal,
             &mut self.occlusion,
             &mut self.emissive,
+            &mut self.specular,
+            &mut self.specular_color,
+            &mut self.clearcoat,
+            &mut self.clearcoat_roughness,
+            &mut self.clearcoat_normal,
         ]
+    }
+
+    /// Whether a tangent frame is needed: a normal texture, the base's or the clear coat's.
+    pub fn need_tangents(&self) -> bool {
+        self.normal.is_some() || self.clearcoat_normal.is_some()
     }
 }
 
@@ -240,6 +274,12 @@ impl Default for MaterialTextures {
             occlusion: None,
             occlusion_strength: 1.0,
             emissive: None,
+            specular: None,
+            specular_color: None,
+            clearcoat: None,
+            clearcoat_roughness: None,
+            clearcoat_normal: None,
+            clearcoat_normal_scale: 1.0,
         }
     }
 }
@@ -1578,14 +1618,21 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
                 uvs[channel] = read;
             }
-            // MikkTSpace's tangents follow the normal texture's coordinates.
-            let normal_uvs = &uvs[channels.channel[2] as usize];
+            // MikkTSpace's tangents follow the normal texture's coordinates (the clear
+            // coat's where the base has none).
+            let normal_slot = if mat.normal_texture().is_some() { 2 } else { 9 };
+            let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
+            let normal_textured = mat.normal_texture().is_some()
+                || extension_texture(&mat, EXTENSION_TEXTURES[4])
+                    .ok()
+                    .flatten()
+                    .is_some();
             // Tangents where a normal texture needs them: the file's, turned with the node
             // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
-            let tangents: Vec<[f32; 4]> = match (mat.normal_texture(), reader.read_tangents()) {
-                (None, _) => Vec::new(),
-                (Some(_), _) if normal_uvs.is_empty() => Vec::new(),
-                (Some(_), Some(t)) => {
+            let tangents: Vec<[f32; 4]> = match (normal_textured, reader.read_tangents()) {
+                (false, _) => Vec::new(),
+                (true, _) if normal_uvs.is_empty() => Vec::new(),
+                (true, Some(t)) => {
                     let handedness = world.determinant().signum();
                     t.map(|[x, y, z, w]| {
                         let t = world
@@ -1600,13 +1647,13 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     })
                     .collect()
                 }
-                (Some(_), None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
+                (true, None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
                     return Err(err(format!(
                         "{}: its TANGENT accessor cannot be read (out of range of its buffer?)",
                         mesh_name(&prim)
                     )))
                 }
-                (Some(_), None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
+                (true, None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
                     .unwrap_or_else(|| {
                         tracing::warn!(
                             "{}: {}: no tangents could be made for its normal texture (degenerate \
@@ -1625,7 +1672,6 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
                 None => {
-                    note_ignored_material_features(&mat, &mut ignored);
                     for &(slot, set) in &channels.unplaced {
                         tracing::warn!(
                             "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
@@ -1638,15 +1684,22 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                             channels.sets[0]
                         );
                     }
-                    let material =
-                        gltf_material(&mat, &channels, &buffers, base, &mut b, &mut images)
-                            .map_err(|m| {
-                                err(format!(
-                                    "material {} ({:?}): {m}",
-                                    mat.index().map_or("default".to_string(), |i| i.to_string()),
-                                    mat.name().unwrap_or("")
-                                ))
-                            })?;
+                    let material = gltf_material(
+                        &gltf.document,
+                        &mat,
+                        &channels,
+                        &buffers,
+                        base,
+                        &mut b,
+                        &mut images,
+                    )
+                    .map_err(|m| {
+                        err(format!(
+                            "material {} ({:?}): {m}",
+                            mat.index().map_or("default".to_string(), |i| i.to_string()),
+                            mat.name().unwrap_or("")
+                        ))
+                    })?;
                     let id = b.material(material);
                     material_ids.insert(key, id);
                     id
@@ -1683,9 +1736,9 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     }
     if !ignored.is_empty() {
         tracing::warn!(
-            "{}: not drawn (envlight renders the alpha modes, the ior, specular and clear-coat \
-             factors, and base colour, metallic, roughness and emission, with their textures, \
-             and normal and occlusion textures): {}",
+            "{}: not drawn (envlight renders the alpha modes, the index of refraction, and base \
+             colour, metallic, roughness, emission, specular and clear coat, with their \
+             textures, and normal and occlusion textures): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -1698,6 +1751,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
 /// [`gltf_texture`]), each reading the vertex channel `channels` gives it
 /// ([`texture_channels`]). Errors name the property; the caller names the material.
 fn gltf_material(
+    document: &gltf::Document,
     material: &gltf::Material,
     channels: &TextureChannels,
     buffers: &[gltf::buffer::Data],
@@ -1758,6 +1812,31 @@ fn gltf_material(
                 .map_err(|m| format!("emissive {m}"))
         })
         .transpose()?;
+    let mut extension = |property| {
+        extension_texture(material, property)?
+            .map(|t| {
+                let texture = document.textures().nth(t.index).ok_or_else(|| {
+                    format!(
+                        "{}.{}.index {}: the file has {} textures",
+                        property.0,
+                        property.1,
+                        t.index,
+                        document.textures().len()
+                    )
+                })?;
+                let loaded = gltf_texture(&texture, t.transform, buffers, base, b, images)
+                    .map_err(|m| format!("{}.{} {m}", property.0, property.1))?;
+                Ok::<_, String>((loaded, t.scale))
+            })
+            .transpose()
+    };
+    let mut loaded = [None; EXTENSION_TEXTURES.len()];
+    for (texture, property) in loaded.iter_mut().zip(EXTENSION_TEXTURES) {
+        *texture = extension(property)?;
+    }
+    let [specular, specular_color, clearcoat, clearcoat_roughness, clearcoat_normal] =
+        loaded.map(|t| t.map(|t| t.0));
+    let clearcoat_normal_scale = loaded[4].map_or(1.0, |t| t.1);
     let mut textures = MaterialTextures {
         base_color,
         metallic_roughness,
@@ -1766,6 +1845,12 @@ fn gltf_material(
         occlusion,
         occlusion_strength,
         emissive,
+        specular,
+        specular_color,
+        clearcoat,
+        clearcoat_roughness,
+        clearcoat_normal,
+        clearcoat_normal_scale,
     };
     for (slot, texture) in textures.slots_mut().into_iter().enumerate() {
         if let Some(t) = texture {
@@ -1884,32 +1969,72 @@ fn gltf_specular(material: &gltf::Material) -> Result<(f32, [f32; 3], f32), Stri
     Ok(((ior - 1.0) / (ior + 1.0) / 0.4, color, factor))
 }
 
-/// Adds to `ignored` what a glTF material asks for that the renderer does not draw: the
-/// textures of `KHR_materials_specular` and `KHR_materials_clearcoat` (their factors are
-/// drawn).
-fn note_ignored_material_features(
-    material: &gltf::Material,
-    ignored: &mut std::collections::BTreeSet<String>,
-) {
-    if let Some(specular) = material.extension_value(SPECULAR) {
-        for texture in ["specularTexture", "specularColorTexture"] {
-            if specular.get(texture).is_some() {
-                ignored.insert(format!("{SPECULAR}.{texture} (its factor is drawn)"));
-            }
-        }
-    }
-    if let Some(coat) = material.extension_value(CLEARCOAT) {
-        for texture in [
-            "clearcoatTexture",
-            "clearcoatRoughnessTexture",
-            "clearcoatNormalTexture",
-        ] {
-            if coat.get(texture).is_some() {
-                ignored.insert(format!("{CLEARCOAT}.{texture} (the factors are drawn)"));
-            }
-        }
-    }
+/// A texture named in a glTF material's extension (a `textureInfo` object in the extension's
+/// JSON, which the `gltf` crate does not parse): its texture `index`, its texture-coordinate
+/// set (`texCoord`, 0 without), the `scale` of a normal texture (1 without) and its own
+/// `KHR_texture_transform` object.
+#[derive(Clone, Copy, Debug)]
+struct ExtensionTexture<'a> {
+    index: usize,
+    tex_coord: u32,
+    scale: f32,
+    transform: Option<&'a serde_json::Value>,
 }
+
+/// Texture `name` of a glTF material's extension `extension` (`None` where either is absent).
+/// Errors name the property and its value.
+fn extension_texture<'a>(
+    material: &'a gltf::Material,
+    (extension, name): (&str, &str),
+) -> Result<Option<ExtensionTexture<'a>>, String> {
+    let Some(info) = material
+        .extension_value(extension)
+        .and_then(|e| e.get(name))
+    else {
+        return Ok(None);
+    };
+    let whole = |key: &str, default: u64| -> Result<u64, String> {
+        match info.get(key) {
+            None => Ok(default),
+            Some(v) => v
+                .as_u64()
+                .ok_or_else(|| format!("{extension}.{name}.{key} {v} is not a whole number ≥ 0")),
+        }
+    };
+    if info.get("index").is_none() {
+        return Err(format!("{extension}.{name} has no index"));
+    }
+    let index = usize::try_from(whole("index", 0)?).unwrap_or(usize::MAX);
+    let tex_coord = u32::try_from(whole("texCoord", 0)?)
+        .map_err(|_| format!("{extension}.{name}.texCoord is out of range"))?;
+    let scale = match info.get("scale") {
+        None => 1.0,
+        Some(v) => v
+            .as_f64()
+            .map(|x| x as f32)
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("{extension}.{name}.scale {v} is not a finite number"))?,
+    };
+    let transform = info
+        .get("extensions")
+        .and_then(|e| e.get(TEXTURE_TRANSFORM));
+    Ok(Some(ExtensionTexture {
+        index,
+        tex_coord,
+        scale,
+        transform,
+    }))
+}
+
+/// The extension textures, in slot order after the core five ([`SLOT_NAMES`]): specular,
+/// specular colour, clear coat, clear-coat roughness, clear-coat normal.
+const EXTENSION_TEXTURES: [(&str, &str); 5] = [
+    (SPECULAR, "specularTexture"),
+    (SPECULAR, "specularColorTexture"),
+    (CLEARCOAT, "clearcoatTexture"),
+    (CLEARCOAT, "clearcoatRoughnessTexture"),
+    (CLEARCOAT, "clearcoatNormalTexture"),
+];
 
 /// A glTF material's emitted radiance: `emissiveFactor` (each in [0, 1]) times its
 /// `KHR_materials_emissive_strength.emissiveStrength` (finite, ≥ 0; 1 without the extension).
@@ -1978,12 +2103,17 @@ fn check_per_vertex<const N: usize>(
 }
 
 /// The names of a material's texture slots ([`MaterialTextures::slots`]' order), for messages.
-pub const SLOT_NAMES: [&str; 5] = [
+pub const SLOT_NAMES: [&str; 10] = [
     "base colour",
     "metallic-roughness",
     "normal",
     "occlusion",
     "emissive",
+    "specular",
+    "specular colour",
+    "clear-coat",
+    "clear-coat roughness",
+    "clear-coat normal",
 ];
 
 /// Which of a glTF material's texture-coordinate sets fill the vertex's two channels
@@ -1992,8 +2122,8 @@ pub const SLOT_NAMES: [&str; 5] = [
 struct TextureChannels {
     /// The `TEXCOORD_n` set of channel 0, then of channel 1 (at most two).
     sets: Vec<u32>,
-    /// Per slot (base colour, metallic-roughness, normal, occlusion, emissive): its channel.
-    channel: [u32; 5],
+    /// Per slot ([`SLOT_NAMES`]' order): its channel.
+    channel: [u32; 10],
     /// Textures on a third set, read with channel 0: (slot name, set).
     unplaced: Vec<(&'static str, u32)>,
 }
@@ -2017,8 +2147,15 @@ fn texture_channels(material: &gltf::Material) -> TextureChannels {
             .map(|t| texture_set(t.tex_coord(), t.extension_value(TEXTURE_TRANSFORM))),
         material.emissive_texture().map(info_set),
     ];
+    // A malformed extension texture is reported by `gltf_material`.
+    let extension_sets = EXTENSION_TEXTURES.map(|property| {
+        extension_texture(material, property)
+            .ok()
+            .flatten()
+            .map(|t| texture_set(t.tex_coord, t.transform))
+    });
     let mut channels = TextureChannels::default();
-    for (slot, set) in slot_sets.into_iter().enumerate() {
+    for (slot, set) in slot_sets.into_iter().chain(extension_sets).enumerate() {
         let Some(set) = set else { continue };
         match channels.sets.iter().position(|&s| s == set) {
             Some(c) => channels.channel[slot] = c as u32,
@@ -3445,6 +3582,81 @@ mod tests {
         ] {
             let e = load(extensions).unwrap_err().to_string();
             assert!(e.contains("shiny.gltf") && e.contains(needle), "{e}");
+        }
+    }
+
+    /// The textures of KHR_materials_specular and KHR_materials_clearcoat load into their
+    /// slots with their own coordinate sets, transforms and (the coat's normal texture) scale;
+    /// a clear-coat normal texture alone gets the mesh tangents; a missing, out-of-range or
+    /// malformed texture reference is an error naming the property.
+    #[test]
+    fn specular_and_clearcoat_textures_load_into_their_slots() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let text = textured_gltf_text(d);
+        let p = d.join("layered.gltf");
+        let load = |extensions: &str| {
+            let edited = text.replace(
+                r#""normalTexture":{"index":0}"#,
+                &format!(r#""extensions":{{{extensions}}}"#),
+            );
+            std::fs::write(&p, edited).unwrap();
+            Scene::load(&p, false)
+        };
+        let s = load(
+            r#""KHR_materials_specular":{"specularTexture":{"index":0},
+                 "specularColorTexture":{"index":0,"extensions":{"KHR_texture_transform":{"offset":[0.5,0]}}}},
+               "KHR_materials_clearcoat":{"clearcoatFactor":1,"clearcoatTexture":{"index":0},
+                 "clearcoatRoughnessTexture":{"index":0,"texCoord":0},
+                 "clearcoatNormalTexture":{"index":0,"scale":0.5}}"#,
+        )
+        .unwrap();
+        let t = s.materials[0].textures;
+        let plain = TextureRef {
+            image: 0,
+            wrap: [Wrap::ClampToEdge, Wrap::MirroredRepeat],
+            transform: NO_UV_TRANSFORM,
+            channel: 0,
+        };
+        assert_eq!(s.textures.len(), 1, "one image for all the slots");
+        assert_eq!(t.normal, None);
+        for (name, slot) in [
+            ("specular", t.specular),
+            ("clear coat", t.clearcoat),
+            ("clear-coat roughness", t.clearcoat_roughness),
+            ("clear-coat normal", t.clearcoat_normal),
+        ] {
+            assert_eq!(slot, Some(plain), "{name}");
+        }
+        let moved = t.specular_color.unwrap();
+        assert_eq!(moved.transform, [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0]]);
+        assert_eq!(t.clearcoat_normal_scale, 0.5);
+        assert!(t.need_tangents());
+        assert!(
+            s.vertices.iter().all(|v| v.tangent[..3] != [0.0; 3]),
+            "the coat's normal texture needs tangents: {:?}",
+            s.vertices
+        );
+        for (extensions, needle) in [
+            (
+                r#""KHR_materials_clearcoat":{"clearcoatTexture":{"index":3}}"#,
+                "KHR_materials_clearcoat.clearcoatTexture.index 3: the file has 1 textures",
+            ),
+            (
+                r#""KHR_materials_specular":{"specularTexture":{"texCoord":0}}"#,
+                "KHR_materials_specular.specularTexture has no index",
+            ),
+            (
+                r#""KHR_materials_specular":{"specularColorTexture":{"index":-1}}"#,
+                "KHR_materials_specular.specularColorTexture.index -1 is not a whole number",
+            ),
+            (
+                r#""KHR_materials_clearcoat":{"clearcoatNormalTexture":{"index":0,"scale":"x"}}"#,
+                "KHR_materials_clearcoat.clearcoatNormalTexture.scale \"x\" is not a finite",
+            ),
+        ] {
+            let e = load(extensions).unwrap_err().to_string();
+            assert!(e.contains("layered.gltf") && e.contains(needle), "{e}");
         }
     }
 

@@ -133,10 +133,12 @@ pub struct MaterialRaw {
     base_color: [f32; 4],
     /// x: roughness, y: metallic, z: unused, w: flags.
     params: [f32; 4],
-    /// The layers of the base-colour, metallic-roughness, normal and occlusion textures, then
-    /// of the emissive texture, the wrap modes, the texture-coordinate channels and an unused
-    /// zero ([`super::textures::MaterialLayers`]); −1: no texture.
-    layers: [[f32; 4]; 2],
+    /// The layers of the textures in slot order ([`super::textures::MaterialLayers`],
+    /// `scene::MaterialTextures::slots`), four a row, then two unused; −1: no texture.
+    layers: [[f32; 4]; 3],
+    /// x, y: the wrap modes of slots 0–7 and 8–9, four bits each; z: the texture-coordinate
+    /// channels, a bit per slot; w: unused.
+    texture_modes: [u32; 4],
     /// x: the normal texture's scale; y: the occlusion texture's strength; z: the alpha cutoff
     /// (negative: opaque; positive for a blended material); w: 1 for a blended material (its
     /// shadow dithered by its alpha), else 0.
@@ -146,10 +148,13 @@ pub struct MaterialRaw {
     /// The texture-coordinate transforms of the textures in slot order, two rows
     /// (m0, m1, m2, unused) each ([`super::scene::TextureRef::transform`]).
     uv_transforms: [[[f32; 4]; 2]; TEXTURE_SLOTS],
-    /// rgb: the dielectric reflectance at normal incidence F0; w: at grazing incidence F90
-    /// ([`Material::dielectric_fresnel`]).
+    /// rgb: the dielectric F0 before its clamp to 1 and its strength, 0.16 · specular² ·
+    /// specular_color; w: the strength `specular_factor` (0 where the level is 0). The shaders
+    /// take F0 = min(rgb · the specular-colour texture, 1) · w · the specular texture's A,
+    /// and F90 = w · A ([`Material::dielectric_fresnel`] without textures).
     specular: [f32; 4],
-    /// x: the clear coat's strength; y: its roughness; z, w: unused.
+    /// x: the clear coat's strength; y: its roughness; z: the scale of its normal texture;
+    /// w: unused.
     coat: [f32; 4],
 }
 
@@ -177,8 +182,11 @@ impl Material {
 
     /// The shaders' form, with its texture layers from [`super::textures::material_layers`].
     pub fn to_raw(&self, flags: u32, textures: MaterialLayers) -> MaterialRaw {
-        let [l0, l1, l2, l3, l4] = textures.layers;
         let [r, g, b] = self.emission;
+        let mut layers = [[-1.0; 4]; 3];
+        for (slot, &layer) in textures.layers.iter().enumerate() {
+            layers[slot / 4][slot % 4] = layer;
+        }
         MaterialRaw {
             base_color: [
                 self.base_color[0],
@@ -197,15 +205,12 @@ impl Material {
                         0
                     }) as f32,
             ],
-            // The wrap modes use 4 · TEXTURE_SLOTS = 20 bits: exact in an f32.
-            layers: [
-                [l0, l1, l2, l3],
-                [
-                    l4,
-                    textures.wrap_modes as f32,
-                    textures.channels as f32,
-                    0.0,
-                ],
+            layers,
+            texture_modes: [
+                textures.wrap_modes[0],
+                textures.wrap_modes[1],
+                textures.channels,
+                0,
             ],
             extra: [
                 self.textures.normal_scale,
@@ -227,11 +232,19 @@ impl Material {
                 let m = t.map_or(super::scene::NO_UV_TRANSFORM, |t| t.transform);
                 m.map(|[a, b, c]| [a, b, c, 0.0])
             }),
-            specular: {
-                let ([r, g, b], f90) = self.dielectric_fresnel();
-                [r, g, b, f90]
+            specular: if self.specular <= 0.0 {
+                [0.0; 4]
+            } else {
+                let f0 = 0.16 * self.specular * self.specular;
+                let [r, g, b] = self.specular_color.map(|c| f0 * c);
+                [r, g, b, self.specular_factor]
             },
-            coat: [self.clearcoat, self.clearcoat_roughness, 0.0, 0.0],
+            coat: [
+                self.clearcoat,
+                self.clearcoat_roughness,
+                self.textures.clearcoat_normal_scale,
+                0.0,
+            ],
         }
     }
 }

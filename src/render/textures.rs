@@ -2,9 +2,10 @@
 //!
 //! The scene is drawn in one draw call, so a material's textures cannot be bound per draw:
 //! they are layers of two 2D array textures, one of sRGB colours (`Rgba8UnormSrgb`, filtered
-//! in linear light by the sampler: base colours and emission) and one of linear data
+//! in linear light by the sampler: base colours, emission, specular tints) and one of linear data
 //! (`Rgba8Unorm`: metallic-roughness, roughness in G and metallic in B; tangent-space normals;
-//! occlusion in R), each layer one image resampled to the arrays' common square side. A
+//! occlusion in R; the specular strength in A; the clear coat in R and its roughness in G),
+//! each layer one image resampled to the arrays' common square side. A
 //! material has up to [`TEXTURE_SLOTS`] textures; the materials' table carries each one's
 //! layer and wrap modes ([`material_layers`]); `shaders/surface.wgsl` (`surface_params`)
 //! samples them in the fragment stages (the G-buffer and ASG passes), with explicit gradients
@@ -124,12 +125,16 @@ pub fn plan_layers(scene: &Scene, max_side: u32) -> LayerPlan {
 }
 
 /// How many textures a material may have: base colour, metallic-roughness, normal,
-/// occlusion and emissive, in that order ([`super::scene::MaterialTextures::slots`]; the slots of
+/// occlusion, emissive, specular, specular colour, clear coat, clear-coat roughness and
+/// clear-coat normal, in that order ([`super::scene::MaterialTextures::slots`]; the slots of
 /// `shaders/surface.wgsl`, `TEX_*`).
-pub const TEXTURE_SLOTS: usize = 5;
+pub const TEXTURE_SLOTS: usize = 10;
 
-/// Which slots hold sRGB colours (the base-colour array); the others hold linear data.
-const SRGB_SLOTS: [bool; TEXTURE_SLOTS] = [true, false, false, false, true];
+/// Which slots hold sRGB colours (the base-colour array: base colour, emission, specular
+/// colour); the others hold linear data.
+const SRGB_SLOTS: [bool; TEXTURE_SLOTS] = [
+    true, false, false, false, true, false, true, false, false, false,
+];
 
 /// Where a material's textures are on the GPU, as `MaterialRaw::layers` holds them.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,9 +142,9 @@ pub struct MaterialLayers {
     /// Per slot, the layer of its array (the base-colour array for sRGB slots, the data array
     /// for the others); −1: none.
     pub layers: [f32; TEXTURE_SLOTS],
-    /// Per slot k, its wrap modes at bits 4k..4k+4, as u + 4·v with 0 repeat, 1 clamp to edge,
-    /// 2 mirrored repeat (`surface.wgsl`, `wrap_coordinate`).
-    pub wrap_modes: u32,
+    /// Per slot k, its wrap modes at bits 4(k mod 8)..4(k mod 8) + 4 of word k / 8, as u + 4·v
+    /// with 0 repeat, 1 clamp to edge, 2 mirrored repeat (`surface.wgsl`, `wrap_coordinate`).
+    pub wrap_modes: [u32; 2],
     /// Bit k set: slot k reads the vertex's second texture coordinates ([`super::scene::TextureRef::channel`]).
     pub channels: u32,
 }
@@ -156,10 +161,11 @@ pub fn material_layers(scene: &Scene, plan: &LayerPlan) -> Vec<MaterialLayers> {
         .iter()
         .map(|m| {
             let slots = m.textures.slots();
-            let (mut wrap_modes, mut channels) = (0, 0);
+            let (mut wrap_modes, mut channels) = ([0; 2], 0);
             for (slot, t) in slots.iter().enumerate() {
                 if let Some(t) = t {
-                    wrap_modes |= (code(t.wrap[0]) + 4 * code(t.wrap[1])) << (4 * slot);
+                    wrap_modes[slot / 8] |=
+                        (code(t.wrap[0]) + 4 * code(t.wrap[1])) << (4 * (slot % 8));
                     channels |= u32::from(t.channel == 1) << slot;
                 }
             }
@@ -659,6 +665,10 @@ mod tests {
                 ..repeating(2)
             }),
             emissive: Some(r(1)),
+            // An sRGB slot past the core five shares the base colour's layer; a data one
+            // past the eighth slot has its wrap modes in the second word.
+            specular_color: Some(repeating(1)),
+            clearcoat_normal: Some(r(1)),
             ..Default::default()
         };
         scene.materials[1].textures.base_color = Some(r(0));
@@ -666,7 +676,7 @@ mod tests {
         let plan = plan_layers(&scene, 16384);
         assert_eq!(plan.base_color, vec![1, 0]);
         assert_eq!(plan.cutoffs, vec![None, None]);
-        assert_eq!(plan.data, vec![0, 2]);
+        assert_eq!(plan.data, vec![0, 2, 1]);
         // A cut-out material's base colour carries its cutoff (its emissive texture does not).
         // A blended one's does not (its mips are plain averages, as the blending wants).
         scene.materials[1].alpha_mode = AlphaMode::Mask(0.25);
@@ -683,16 +693,19 @@ mod tests {
         assert_eq!(
             layers[0],
             MaterialLayers {
-                layers: [0.0, 0.0, 0.0, 1.0, 0.0],
-                wrap_modes: clamp_mirror | clamp_mirror << 4 | clamp_mirror << 16,
+                layers: [0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0, -1.0, -1.0, 2.0],
+                wrap_modes: [
+                    clamp_mirror | clamp_mirror << 4 | clamp_mirror << 16,
+                    clamp_mirror << 4
+                ],
                 channels: 1 << 3,
             }
         );
         assert_eq!(
             layers[1],
             MaterialLayers {
-                layers: [1.0, -1.0, -1.0, -1.0, -1.0],
-                wrap_modes: clamp_mirror,
+                layers: [1.0, -1.0, -1.0, -1.0, -1.0, -1.0, -1.0, -1.0, -1.0, -1.0],
+                wrap_modes: [clamp_mirror, 0],
                 channels: 0,
             }
         );
@@ -700,7 +713,7 @@ mod tests {
             layers[2],
             MaterialLayers {
                 layers: [-1.0; TEXTURE_SLOTS],
-                wrap_modes: 0,
+                wrap_modes: [0; 2],
                 channels: 0,
             }
         );
