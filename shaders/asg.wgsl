@@ -222,7 +222,7 @@ fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0)
 // The radiance (RGBA, opaque; transparent black on a shadow catcher) at the point `world` of
 // material `mat`, whose parameters there are `p` (`surface_params`).
 fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
-    let s = surface_at(world, p.normal, p, mat, globals.camera_pos.xyz);
+    let s = surface_at(world, p.normal, p, mat.params.w, globals.camera_pos.xyz);
     if s.catcher {
         return vec4<f32>(0.0);
     }

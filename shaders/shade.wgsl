@@ -3,8 +3,9 @@
 //  * G-buffer (render pass: vs_main + fs_gbuffer): the scene rasterised into four Rgba32Float
 //    targets: world position with material index + 1 (0: no surface), the shading normal with
 //    the roughness, the base colour with the metallic, and the emission with the occlusion
-//    (factors times textures); and one Rgba32Uint target of 16-bit fields: the dielectric
-//    Fresnel terms, the clear coat's strength and roughness, and its normal (`GBuffer`).
+//    (factors times textures); where the scene needs it (`LAYERED_GBUFFER`,
+//    fs_gbuffer_layered), one Rgba32Uint target of 16-bit fields: the dielectric Fresnel
+//    terms, the clear coat's strength and roughness, and its normal (`LayeredGBuffer`).
 //  * Shading (compute pass: cs_shade, 8×8 workgroups): one invocation per pixel reads the
 //    G-buffer, sums the lights and writes the frame (rgba32float storage texture).
 //  * Blended surfaces (glTF's alpha mode BLEND; render pass: vs_main + fs_blended), after the
@@ -180,6 +181,13 @@ fn ggx_lobe(n: vec3<f32>, v: vec3<f32>, l: vec3<f32>, h: vec3<f32>, alpha_d: f32
     return d * vis;
 }
 
+// Whether the G-buffer has its fifth target, `layers` (`fs_gbuffer_layered`), which the scene
+// needs where a material's Fresnel terms or clear coat vary over its surface (their textures),
+// or a clear coat lies over a normal texture (the coat keeps the interpolated normal, which
+// the G-buffer does not otherwise hold). Without it (`fs_gbuffer`) `cs_shade` takes them from
+// the material's factors. Set by src/render/mod.rs.
+override LAYERED_GBUFFER: bool = true;
+
 struct GBuffer {
     // xyz: world position; w: material index + 1 (cleared to 0 where no surface is).
     @location(0) position: vec4<f32>,
@@ -189,6 +197,14 @@ struct GBuffer {
     // rgb: base colour; a: metallic.
     @location(2) surface: vec4<f32>,
     // rgb: emitted radiance; a: occlusion.
+    @location(3) emission: vec4<f32>,
+};
+
+// `GBuffer` and its fifth target.
+struct LayeredGBuffer {
+    @location(0) position: vec4<f32>,
+    @location(1) normal: vec4<f32>,
+    @location(2) surface: vec4<f32>,
     @location(3) emission: vec4<f32>,
     // The layers over the base, 16 bits a value (`pack_layers`): the dielectric F0 (rgb) and
     // F90, the clear coat's strength and roughness (unorm), its unit normal (octahedral,
@@ -226,6 +242,19 @@ fn pack_layers(p: SurfaceParams) -> vec4<u32> {
                      pack2x16snorm(coat_normal));
 }
 
+// The layers of a material without their textures, as `pack_layers` would give them (where
+// `LAYERED_GBUFFER` is false): the factors, and the coat on the shading normal `normal`, which
+// is then the interpolated one.
+// Field by field: copying the whole Material costs on CPU rasterisers.
+fn material_layers(material: u32, normal: vec3<f32>, p: ptr<function, SurfaceParams>) {
+    let specular = materials[material].specular;
+    let coat = materials[material].coat;
+    (*p).specular = vec4<f32>(min(specular.rgb, vec3<f32>(1.0)) * specular.w, specular.w);
+    (*p).coat = coat.x;
+    (*p).coat_roughness = coat.y;
+    (*p).coat_normal = normal;
+}
+
 // `pack_layers` undone into `p`; a coat without a normal takes `normal`.
 fn unpack_layers(layers: vec4<u32>, normal: vec3<f32>, p: ptr<function, SurfaceParams>) {
     (*p).specular = vec4<f32>(unpack2x16unorm(layers.x), unpack2x16unorm(layers.y));
@@ -238,15 +267,31 @@ fn unpack_layers(layers: vec4<u32>, normal: vec3<f32>, p: ptr<function, SurfaceP
     }
 }
 
-@fragment
-fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
+// A fragment's surface parameters for the G-buffer; cut-out and hidden back faces discarded.
+fn gbuffer_params(in: VertexOut, front: bool) -> SurfaceParams {
     let mat = materials[in.material];
     let tc = fragment_coordinates(in.uv, in.uv1);
     if !fragment_drawn(mat, front, tc, in.color.a) {
         discard;
     }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
+    return surface_params(mat, tc, in.normal, in.tangent, in.color, front);
+}
+
+@fragment
+fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
+    let p = gbuffer_params(in, front);
     var out: GBuffer;
+    out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
+    out.normal = vec4<f32>(p.normal, p.roughness);
+    out.surface = vec4<f32>(p.base_color, p.metallic);
+    out.emission = vec4<f32>(p.emission, p.occlusion);
+    return out;
+}
+
+@fragment
+fn fs_gbuffer_layered(in: VertexOut, @builtin(front_facing) front: bool) -> LayeredGBuffer {
+    let p = gbuffer_params(in, front);
+    var out: LayeredGBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);
     out.surface = vec4<f32>(p.base_color, p.metallic);
@@ -291,14 +336,19 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
     p.emission = emission.rgb;
     p.occlusion = emission.a;
     p.alpha = 1.0;
-    unpack_layers(textureLoad(gbuffer_layers, texel, 0), normal.xyz, &p);
-    textureStore(frame, texel, shade_point(g.xyz, normal.xyz, u32(g.w) - 1u, p));
+    let material = u32(g.w) - 1u;
+    if LAYERED_GBUFFER {
+        unpack_layers(textureLoad(gbuffer_layers, texel, 0), normal.xyz, &p);
+    } else {
+        material_layers(material, normal.xyz, &p);
+    }
+    textureStore(frame, texel, shade_point(g.xyz, normal.xyz, material, p));
 }
 
 // The shaded colour (premultiplied RGBA) of the surface point `world` with interpolated normal
 // `normal`, material `material` and its parameters there `p`.
 fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfaceParams) -> vec4<f32> {
-    let s = surface_at(world, normal, p, materials[material], globals.camera_pos.xyz);
+    let s = surface_at(world, normal, p, materials[material].params.w, globals.camera_pos.xyz);
     let n = s.n;
     let v = s.v;
     let alpha = s.alpha;

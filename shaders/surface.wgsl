@@ -353,8 +353,8 @@ fn coat_fresnel(c: f32) -> f32 {
 }
 
 // `world`: the point; `normal`: the shading normal (any length); `p`: the material's
-// parameters there (`surface_params`); `mat`: the material (its flags).
-fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Material,
+// parameters there (`surface_params`); `flags`: the material's (`Material::params.w`).
+fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, flags: f32,
               camera_pos: vec3<f32>) -> Surface {
     var s: Surface;
     s.n = normalize(normal);
@@ -373,6 +373,6 @@ fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, mat: Materi
     if s.coat > 0.0 && dot(p.coat_normal, p.coat_normal) > 1e-12 {
         s.n_coat = normalize(p.coat_normal);
     }
-    s.catcher = (u32(mat.params.w) & FLAG_CATCHER) != 0u;
+    s.catcher = (u32(flags) & FLAG_CATCHER) != 0u;
     return s;
 }

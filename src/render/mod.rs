@@ -15,7 +15,9 @@
 //!    their alpha (glTF's MASK) write no depth where it is below the cutoff, in both ways.
 //! 2. **G-buffer pass** (`fs_gbuffer` of `shaders/shade.wgsl`): one draw of the whole scene
 //!    into four `Rgba32Float` targets: world position with material, shading normal (turned by
-//!    a normal texture) with roughness, base colour with metallic, and emission with occlusion
+//!    a normal texture) with roughness, base colour with metallic, and emission with occlusion,
+//!    and an `Rgba32Uint` one of 16-bit fields: the dielectric Fresnel terms and the clear
+//!    coat's strength, roughness and normal
 //!    — the material's factors times its textures ([`textures`]), sampled here where the
 //!    screen derivatives that choose their mip level exist.
 //! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
@@ -272,6 +274,10 @@ pub struct Renderer {
     resolve: Option<supersample::Resolve>,
     depth_view: wgpu::TextureView,
     gbuffer_views: [wgpu::TextureView; GBUFFER_TARGETS],
+    /// Whether the G-buffer pass writes its fifth target (else a 1 × 1 placeholder is bound):
+    /// some material's Fresnel terms or clear coat vary over it
+    /// ([`scene::Material::needs_layered_gbuffer`]).
+    layered_gbuffer: bool,
     /// The materials' texture arrays (group 2 of the G-buffer and ASG passes).
     surface_textures: textures::SurfaceTextures,
     readback: wgpu::Buffer,
@@ -599,6 +605,10 @@ impl Renderer {
             draw_blended_opaque(&mut scene);
         }
         let groups = order_triangles(&mut scene);
+        let layered_gbuffer = scene
+            .materials
+            .iter()
+            .any(scene::Material::needs_layered_gbuffer);
         let device = &gpu.device;
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
@@ -790,7 +800,11 @@ impl Renderer {
             &shade_module,
             ("vs_main", &SURFACE_ATTRIBUTES),
             wgpu::DepthBiasState::default(),
-            Some(("fs_gbuffer", &GBUFFER_FORMATS)),
+            Some(if layered_gbuffer {
+                ("fs_gbuffer_layered", &GBUFFER_FORMATS[..])
+            } else {
+                ("fs_gbuffer", &GBUFFER_FORMATS[..GBUFFER_TARGETS - 1])
+            }),
             None,
         );
         let blended_pipeline = (groups.blended_start < scene.caster_indices).then(|| {
@@ -810,7 +824,10 @@ impl Renderer {
             layout: Some(&shade_pl),
             module: &shade_module,
             entry_point: Some("cs_shade"),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[("LAYERED_GBUFFER", f64::from(u8::from(layered_gbuffer)))],
+                ..Default::default()
+            },
             cache: None,
         });
         let shadow_bias = wgpu::DepthBiasState {
@@ -852,7 +869,7 @@ impl Renderer {
 
         let (width, height) = (settings.width * s, settings.height * s);
         let (color_texture, color_view, depth_view) = Self::make_targets(device, width, height);
-        let gbuffer_views = Self::make_gbuffer(device, width, height);
+        let gbuffer_views = Self::make_gbuffer(device, width, height, layered_gbuffer);
         let resolve = (s > 1).then(|| {
             supersample::Resolve::new(device, &color_view, settings.width, settings.height)
         });
@@ -985,6 +1002,7 @@ impl Renderer {
             resolve,
             depth_view,
             gbuffer_views,
+            layered_gbuffer,
             surface_textures,
             readback,
             padded_row,
@@ -1054,11 +1072,13 @@ impl Renderer {
     }
 
     /// The G-buffer's targets ([`GBUFFER_FORMATS`]): world position + material, normal +
-    /// roughness, base colour + metallic, emission + occlusion, the layers over the base.
+    /// roughness, base colour + metallic, emission + occlusion, the layers over the base (1 × 1
+    /// unless `layered`).
     fn make_gbuffer(
         device: &wgpu::Device,
         width: u32,
         height: u32,
+        layered: bool,
     ) -> [wgpu::TextureView; GBUFFER_TARGETS] {
         let labels = [
             "g-buffer position",
@@ -1069,6 +1089,11 @@ impl Renderer {
         ];
         std::array::from_fn(|i| {
             let (label, format) = (labels[i], GBUFFER_FORMATS[i]);
+            let (width, height) = if i + 1 < GBUFFER_TARGETS || layered {
+                (width, height)
+            } else {
+                (1, 1)
+            };
             device
                 .create_texture(&wgpu::TextureDescriptor {
                     label: Some(label),
@@ -1586,7 +1611,11 @@ impl Renderer {
         self.encode_scene_pass(
             enc,
             "g-buffer",
-            &self.gbuffer_views.each_ref(),
+            &self.gbuffer_views.each_ref()[..if self.layered_gbuffer {
+                GBUFFER_TARGETS
+            } else {
+                GBUFFER_TARGETS - 1
+            }],
             &self.gbuffer_pipeline,
             &self.shade_bind_group,
             timestamps,

@@ -284,6 +284,23 @@ impl Default for MaterialTextures {
     }
 }
 
+impl Material {
+    /// Whether the G-buffer must carry this material's dielectric Fresnel terms and clear coat
+    /// per pixel (its fifth target): their textures vary them over the surface, or a clear
+    /// coat lies over a normal texture (the coat keeps the interpolated normal, which the
+    /// G-buffer does not otherwise hold). Otherwise the shading takes them from the factors.
+    pub fn needs_layered_gbuffer(&self) -> bool {
+        let t = &self.textures;
+        t.specular.is_some()
+            || t.specular_color.is_some()
+            || (self.clearcoat > 0.0
+                && (t.normal.is_some()
+                    || t.clearcoat.is_some()
+                    || t.clearcoat_roughness.is_some()
+                    || t.clearcoat_normal.is_some()))
+    }
+}
+
 /// A texture image of a scene, decoded to 8-bit RGBA (still in its own encoding: sRGB for base
 /// colours, linear for metallic-roughness).
 #[derive(Clone, Debug, PartialEq)]
@@ -1672,6 +1689,18 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let id = match material_ids.get(&key) {
                 Some(&id) => id,
                 None => {
+                    if mat.normal_texture().is_some()
+                        && channels.channel[2] != channels.channel[9]
+                        && extension_texture(&mat, EXTENSION_TEXTURES[4]).is_ok_and(|t| t.is_some())
+                    {
+                        tracing::warn!(
+                            "{}: material {:?}: its clear-coat normal texture reads other \
+                             texture coordinates than its normal texture; read with the normal \
+                             texture's tangents",
+                            path.display(),
+                            mat.name().unwrap_or("")
+                        );
+                    }
                     for &(slot, set) in &channels.unplaced {
                         tracing::warn!(
                             "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
