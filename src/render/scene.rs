@@ -4579,12 +4579,17 @@ mod tests {
             r#""normalTexture":{"index":0},"alphaMode":"BLEND","emissiveFactor":[1,1,1],
                "extensions":{"KHR_materials_ior":{"ior":1.5},
                  "KHR_materials_emissive_strength":{"emissiveStrength":2},
-                 "KHR_materials_specular":{"specularFactor":0.5,"specularColorFactor":[1,0.5,0.25]},
-                 "KHR_materials_clearcoat":{"clearcoatFactor":0.5,"clearcoatRoughnessFactor":0.25}}"#,
+                 "KHR_materials_specular":{"specularFactor":0.5,"specularColorFactor":[1,0.5,0.25],
+                   "specularTexture":{"index":0,"texCoord":0},"specularColorTexture":{"index":0}},
+                 "KHR_materials_clearcoat":{"clearcoatFactor":0.5,"clearcoatRoughnessFactor":0.25,
+                   "clearcoatTexture":{"index":0},"clearcoatRoughnessTexture":{"index":0},
+                   "clearcoatNormalTexture":{"index":0,"scale":1,
+                     "extensions":{"KHR_texture_transform":{"offset":[0,0],"scale":[1,1],"rotation":0}}}}}"#,
         );
         std::fs::write(&path, &extended).unwrap();
         let m = Scene::load(&path, false).expect("the unmutated extended scene loads");
         assert_eq!(m.materials[0].clearcoat, 0.5);
+        assert!(m.materials[0].textures.clearcoat_normal.is_some());
         for (start, end) in number_spans(&extended) {
             for value in HOSTILE_NUMBERS {
                 let mutated = format!("{}{value}{}", &extended[..start], &extended[end..]);
