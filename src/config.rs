@@ -266,6 +266,7 @@ pub struct RawRender {
     pub scene: Option<String>,
     pub shadow_resolution: Option<u32>,
     pub supersample: Option<u32>,
+    pub fxaa: Option<bool>,
     pub culling: Option<bool>,
     pub shadow_catcher: Option<bool>,
     pub shadow_raster: Option<String>,
@@ -805,6 +806,7 @@ impl RawRender {
                 1..=crate::render::supersample::MAX_SUPERSAMPLE,
                 "",
             )?,
+            fxaa: self.fxaa.unwrap_or(d.settings.fxaa),
             shadows: true,
             culling: self.culling.unwrap_or(d.settings.culling),
             shadow_catcher: self.shadow_catcher.unwrap_or(d.settings.shadow_catcher),
@@ -820,6 +822,17 @@ impl RawRender {
             },
             ..crate::render::RenderSettings::default()
         };
+        if settings.fxaa && settings.supersample > 1 {
+            return Err(invalid(
+                "render.fxaa",
+                true,
+                format!(
+                    "cannot be combined with render.supersample = {} (FXAA would blur the \
+                     resolved edges); choose one",
+                    settings.supersample
+                ),
+            ));
+        }
         if let Some(ms) = self.budget_ms {
             if !(ms.is_finite() && ms > 0.0) {
                 return Err(invalid(
@@ -1642,6 +1655,7 @@ mod tests {
             "scene",
             "shadow_resolution",
             "supersample",
+            "fxaa",
             "culling",
             "shadow_catcher",
             "budget_ms",
@@ -1774,6 +1788,10 @@ mod tests {
             (
                 "[render]\nsupersample = 5",
                 "render.supersample = 5: must be 1..=4",
+            ),
+            (
+                "[render]\nsupersample = 2\nfxaa = true",
+                "render.fxaa = true: cannot be combined with render.supersample = 2",
             ),
             (
                 "[asg]\nfit_height = 1025",

@@ -66,6 +66,11 @@ pub(crate) struct RenderArgs {
             .range(1..=i64::from(envlight::render::supersample::MAX_SUPERSAMPLE))
     )]
     supersample: Option<u32>,
+    /// Fast approximate anti-aliasing (FXAA 3.11, quality variant) of each frame: edges
+    /// smoothed along their length from the image alone, at a small part of supersampling's
+    /// cost (docs/rendering.md, "Anti-aliasing"). Not with --supersample above 1.
+    #[arg(long)]
+    fxaa: bool,
     /// How the shadow maps are drawn: `pipeline`, a depth-only render pass per light, or
     /// `compute`, compute shaders (faster where the raster pipeline is a small part of the GPU,
     /// as on an H200), or `auto`: compute on a GPU, pipeline on a CPU rasteriser such as
@@ -275,6 +280,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         shadow_catcher: args.catcher,
         shadow_raster: args.shadow_raster.unwrap_or_default(),
         supersample: args.supersample.unwrap_or(1),
+        fxaa: args.fxaa,
         ..RenderSettings::default()
     };
     let mut next_frame =

@@ -291,9 +291,7 @@ impl Renderer {
                 asg.blended_pipeline.as_ref(),
             );
         }
-        if let Some(resolve) = &self.resolve {
-            resolve.encode(&mut enc, None);
-        }
+        self.encode_post_passes(&mut enc, None);
         if readback {
             self.encode_readback(&mut enc);
         }

@@ -36,7 +36,8 @@
 //!    as `cs_shade` shades a pixel and blended by its alpha (premultiplied over).
 //! 5. **Resolve** (only with [`RenderSettings::supersample`] above 1): every pass above runs at
 //!    s times the output's size, and a compute pass averages each pixel's s × s samples
-//!    ([`supersample`]).
+//!    ([`supersample`]); or **FXAA** (only with [`RenderSettings::fxaa`]): a compute pass
+//!    smooths the frame's edges ([`post`], `shaders/fxaa.wgsl`).
 //! 6. Read-back (for files and tests) and timing: GPU timestamps around the shadow passes and
 //!    the rest of the frame where the adapter has them, CPU wall time from submit to
 //!    completion otherwise.
@@ -64,6 +65,7 @@ pub mod asg;
 pub mod budget;
 pub mod device;
 pub mod output;
+pub mod post;
 pub mod scene;
 pub mod shading;
 pub mod shadow;
@@ -104,6 +106,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("shadow.wgsl", SHADOW_WGSL),
     ("shadow_raster.wgsl", shadow_raster::SHADOW_RASTER_WGSL),
     ("resolve.wgsl", supersample::RESOLVE_WGSL),
+    ("fxaa.wgsl", post::FXAA_WGSL),
 ];
 /// The shared prelude prepended to `shade.wgsl`, `asg.wgsl`, `shadow.wgsl` and
 /// `shadow_raster.wgsl`: vertex layout, materials and their textures, the shaded point's set-up.
@@ -116,7 +119,7 @@ pub const CULLING_TOLERANCE: (f32, f32) = (0.0005, 0.01);
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// GPU timestamps per frame: start of the shadow passes, start of the G-buffer pass, end of the
-/// frame's last pass (shading, blended surfaces or resolve).
+/// frame's last pass (shading, blended surfaces, resolve or FXAA).
 const TIMESTAMPS: u32 = 3;
 /// `cs_shade`'s workgroup is 8×8 pixels.
 const SHADE_WORKGROUP: u32 = 8;
@@ -157,6 +160,11 @@ pub struct RenderSettings {
     /// `width` and `height`, and each pixel is the mean of its samples; 1 (the default) is
     /// off, at most [`supersample::MAX_SUPERSAMPLE`].
     pub supersample: u32,
+    /// Fast approximate anti-aliasing ([`post`], `shaders/fxaa.wgsl`) of the output image:
+    /// edges smoothed along their length from the image alone, for a small part of
+    /// supersampling's cost. Off by default; not with `supersample` above 1 (it would blur
+    /// the resolved edges).
+    pub fxaa: bool,
 }
 
 impl Default for RenderSettings {
@@ -171,6 +179,7 @@ impl Default for RenderSettings {
             shadow_raster: ShadowRaster::default(),
             texture_anisotropy: textures::MAX_ANISOTROPY,
             supersample: 1,
+            fxaa: false,
         }
     }
 }
@@ -271,7 +280,9 @@ pub struct Renderer {
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
     /// The output image resolved from `color_view`'s samples, with supersampling.
-    resolve: Option<supersample::Resolve>,
+    resolve: Option<post::PostPass>,
+    /// The output image anti-aliased by FXAA (from the resolved image or `color_view`).
+    fxaa: Option<post::PostPass>,
     depth_view: wgpu::TextureView,
     gbuffer_views: [wgpu::TextureView; GBUFFER_TARGETS],
     /// Whether the G-buffer pass writes its fifth target (else a 1 × 1 placeholder is bound):
@@ -543,6 +554,12 @@ impl Renderer {
             return Err(RenderError::Settings(format!(
                 "supersampling {s} outside 1..={}",
                 supersample::MAX_SUPERSAMPLE
+            )));
+        }
+        if settings.fxaa && s > 1 {
+            return Err(RenderError::Settings(format!(
+                "FXAA with supersampling {s}: FXAA blurs the resolved edges (further from their \
+                 covered fraction than the supersampling alone, docs/rendering.md); choose one"
             )));
         }
         if u64::from(settings.width.max(settings.height)) * u64::from(s) > u64::from(max_dim) {
@@ -870,8 +887,11 @@ impl Renderer {
         let (width, height) = (settings.width * s, settings.height * s);
         let (color_texture, color_view, depth_view) = Self::make_targets(device, width, height);
         let gbuffer_views = Self::make_gbuffer(device, width, height, layered_gbuffer);
-        let resolve = (s > 1).then(|| {
-            supersample::Resolve::new(device, &color_view, settings.width, settings.height)
+        let resolve = (s > 1)
+            .then(|| supersample::resolve(device, &color_view, settings.width, settings.height));
+        let fxaa = settings.fxaa.then(|| {
+            let input = resolve.as_ref().map_or(&color_view, |r| &r.view);
+            post::fxaa(device, input, settings.width, settings.height)
         });
         let gbuffer_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("g-buffer and frame"),
@@ -1000,6 +1020,7 @@ impl Renderer {
             color_view,
             color_texture,
             resolve,
+            fxaa,
             depth_view,
             gbuffer_views,
             layered_gbuffer,
@@ -1235,16 +1256,42 @@ impl Renderer {
     }
 
     /// The HDR output image (`Rgba32Float`, `settings().width` × `height`; resolved from the
-    /// samples with supersampling), for passes that read the frame.
+    /// samples with supersampling, anti-aliased with FXAA), for passes that read the frame.
     pub fn color_view(&self) -> &wgpu::TextureView {
-        self.resolve.as_ref().map_or(&self.color_view, |r| &r.view)
+        self.last_post_pass().map_or(&self.color_view, |p| &p.view)
     }
 
     /// The texture behind [`Self::color_view`].
     fn output_texture(&self) -> &wgpu::Texture {
-        self.resolve
-            .as_ref()
-            .map_or(&self.color_texture, |r| &r.texture)
+        self.last_post_pass()
+            .map_or(&self.color_texture, |p| &p.texture)
+    }
+
+    /// The pass that makes the output image, where one follows the shading: FXAA, else the
+    /// supersampling's resolve.
+    fn last_post_pass(&self) -> Option<&post::PostPass> {
+        self.fxaa.as_ref().or(self.resolve.as_ref())
+    }
+
+    /// Encodes the passes after the shading (resolve, FXAA), the last one writing
+    /// `frame_end`.
+    fn encode_post_passes(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        frame_end: Option<(&Timestamps, u32)>,
+    ) {
+        let passes: Vec<&post::PostPass> = self.resolve.iter().chain(&self.fxaa).collect();
+        for (i, pass) in passes.iter().enumerate() {
+            let end = frame_end.filter(|_| i + 1 == passes.len());
+            pass.encode(
+                enc,
+                end.map(|(t, end)| wgpu::ComputePassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: None,
+                    end_of_pass_write_index: Some(end),
+                }),
+            );
+        }
     }
 
     /// Turns culling on or off for the next frames.
@@ -1456,14 +1503,15 @@ impl Renderer {
             None => self.encode_shadow_passes(&mut enc, maps),
         }
         self.encode_gbuffer_pass(&mut enc);
-        // The frame's end, written by its last pass: the resolve with supersampling, else the
-        // blended surfaces' where there are any, else the shading.
+        // The frame's end, written by its last pass: the resolve or FXAA where there is one,
+        // else the blended surfaces' where there are any, else the shading.
         let frame_end = ts.map(|t| (t, 2));
-        let (shade_end, blended_end, resolve_end) = match (&self.blended_pipeline, &self.resolve) {
-            (_, Some(_)) => (None, None, frame_end),
-            (Some(_), None) => (None, frame_end, None),
-            (None, None) => (frame_end, None, None),
-        };
+        let (shade_end, blended_end, post_end) =
+            match (&self.blended_pipeline, self.last_post_pass()) {
+                (_, Some(_)) => (None, None, frame_end),
+                (Some(_), None) => (None, frame_end, None),
+                (None, None) => (frame_end, None, None),
+            };
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("shade"),
@@ -1486,16 +1534,7 @@ impl Renderer {
         if let Some(pipeline) = &self.blended_pipeline {
             self.encode_blended_pass(&mut enc, pipeline, blended_end);
         }
-        if let Some(resolve) = &self.resolve {
-            resolve.encode(
-                &mut enc,
-                resolve_end.map(|(t, end)| wgpu::ComputePassTimestampWrites {
-                    query_set: &t.set,
-                    beginning_of_pass_write_index: None,
-                    end_of_pass_write_index: Some(end),
-                }),
-            );
-        }
+        self.encode_post_passes(&mut enc, post_end);
         if let Some(t) = ts {
             enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
             enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(TIMESTAMPS));
