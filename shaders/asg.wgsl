@@ -1,7 +1,8 @@
 // ASG lighting pass: Lambertian diffuse + GGX specular (metallic-roughness) under a set of
-// anisotropic spherical Gaussians, in closed form, in linear HDR (rgba32float target). No shadows
-// and no occlusion but the material's occlusion texture: every lobe lights every surface facing
-// it. Emission is added as in shade.wgsl.
+// anisotropic spherical Gaussians, in closed form, in linear HDR (rgba32float target). Each
+// lobe's light is shadowed by a shadow map along its axis (the renderer treats the lobe as a
+// directional light of its solid angle, so a wide lobe's PCF kernel, and its shadow, is soft):
+// its diffuse and specular terms both times that visibility. Emission is added as in shade.wgsl.
 //
 // The same maths as src/asg/mod.rs (docs/asg.md; Xu et al. 2013):
 //  * irradiance: E(n) = c · ∫G · H(n·z, ν), ν = 2√(λμ), with H the normalised cosine convolution
@@ -13,10 +14,12 @@
 //    ASG's tangent plane (where the warped lobe is foreshortened) and in r's tangent plane
 //    (where the ASG is linearised), the two blended by the lobes' widths, times Smith's
 //    height-correlated G2 / (4 n·v) and F = f0 (`Asg::ggx_specular`).
-// A shadow-catcher material outputs (0, 0, 0, 0): without shadows there is nothing to catch.
+// A shadow-catcher material outputs premultiplied (0, 0, 0, α), α = 1 − E_shadowed/E_unshadowed
+// (luminance of the lobes' diffuse irradiance), as shade.wgsl's does.
 // Blended materials (glTF's BLEND): fs_blended, drawn after the opaque surfaces in the same
 // pass, back to front, over them (premultiplied alpha).
-// Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
+// Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up) and
+// shadow_lookup.wgsl (the lobes' shadow maps: `lights[k]` is lobe k's).
 
 const TABLE_T: u32 = 129u;
 const TABLE_NU: u32 = 72u;
@@ -27,9 +30,11 @@ struct Globals {
     view_proj: mat4x4<f32>,
     camera_pos: vec4<f32>,
     lobe_count: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+    shadows: u32,
+    // As shade.wgsl's Globals: where the maps are, and the lookup's offsets and map side.
+    shadow_source: u32,
+    _pad: u32,
+    shadow_params: vec4<f32>,
 };
 
 struct Lobe {
@@ -47,6 +52,15 @@ struct Lobe {
 @group(0) @binding(1) var<storage, read> lobes: array<Lobe>;
 @group(0) @binding(2) var<storage, read> materials: array<Material>;
 @group(0) @binding(3) var<storage, read> cosine_table: array<f32>;
+// Lobe k's shadow map: `lights[k]` (the renderer's light buffer, one record per lobe).
+@group(0) @binding(4) var<storage, read> lights: array<Light>;
+@group(0) @binding(5) var shadow_maps: texture_depth_2d_array;
+@group(0) @binding(6) var shadow_sampler: sampler_comparison;
+@group(0) @binding(7) var<storage, read> shadow_depths: array<u32>;
+
+fn shadow_state() -> ShadowState {
+    return ShadowState(globals.shadows != 0u, globals.shadow_source, globals.shadow_params);
+}
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
@@ -219,13 +233,10 @@ fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0)
     return vec4<f32>(c.rgb * a, a);
 }
 
-// The radiance (RGBA, opaque; transparent black on a shadow catcher) at the point `world` of
-// material `mat`, whose parameters there are `p` (`surface_params`).
+// The radiance (RGBA, opaque; a shadow catcher's premultiplied shadow) at the point `world`
+// of material `mat`, whose parameters there are `p` (`surface_params`).
 fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
     let s = surface_at(world, p.normal, p, mat.params.w, globals.camera_pos.xyz);
-    if s.catcher {
-        return vec4<f32>(0.0);
-    }
     let n = s.n;
     let v = s.v;
     let alpha = s.alpha;
@@ -236,16 +247,33 @@ fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
     var irradiance = vec3<f32>(0.0);
     var specular = vec3<f32>(0.0);
     var coat = vec3<f32>(0.0);
+    var e_lit = 0.0;
+    var e_all = 0.0;
     for (var k = 0u; k < globals.lobe_count; k = k + 1u) {
+        let axis = lobes[k].z;
+        let vis = visibility(k, world, n, axis.xyz, i32(lights[k].rgb.w), true);
         let c = lobes[k].rgb;
-        let h = cosine_h(dot(n, lobes[k].z.xyz), lobes[k].z.w);
-        irradiance = irradiance + c.rgb * (c.w * h);
+        let e = c.rgb * (c.w * cosine_h(dot(n, axis.xyz), axis.w));
+        irradiance = irradiance + e * vis;
+        let lum = dot(e, vec3<f32>(0.2126, 0.7152, 0.0722));
+        e_lit = e_lit + lum * vis;
+        e_all = e_all + lum;
+        if s.catcher {
+            continue;
+        }
         if has_specular {
-            specular = specular + c.rgb * ggx_response(k, n, v, alpha);
+            specular = specular + c.rgb * (ggx_response(k, n, v, alpha) * vis);
         }
         if s.coat > 0.0 {
-            coat = coat + c.rgb * ggx_response(k, s.n_coat, v, s.coat_alpha);
+            coat = coat + c.rgb * (ggx_response(k, s.n_coat, v, s.coat_alpha) * vis);
         }
+    }
+    if s.catcher {
+        var shadow = 0.0;
+        if e_all > 0.0 {
+            shadow = clamp(1.0 - e_lit / e_all, 0.0, 1.0);
+        }
+        return vec4<f32>(0.0, 0.0, 0.0, shadow);
     }
     // A clear coat, on its own normal, with its Fresnel reflectance at n·v (as F = f0 stands
     // for the base's): it reflects that share and takes it from the layer beneath, emission

@@ -721,7 +721,7 @@ pub enum Lighting {
     /// The directional lights, with shadows (the default).
     #[default]
     Lights,
-    /// The ASG stage's lobes, in closed form (no shadows).
+    /// The ASG stage's lobes, in closed form, each shadowed along its axis.
     Asg,
 }
 

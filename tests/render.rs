@@ -1023,11 +1023,13 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
     // views, where a coarser sphere's interpolated normals alone move a pixel by 2%.
     let scene = Scene::sphere(Vec3::ZERO, 1.0, 320, material, None, camera);
     let lobes = test_lobes();
+    // The closed form has no shadows (`asg_lobes_cast_soft_shadows` tests them).
     let mut r = renderer(
         scene,
         RenderSettings {
             width: 96,
             height: 96,
+            shadows: false,
             ..Default::default()
         },
     );
@@ -1153,7 +1155,9 @@ fn cli_renders_with_asg_lighting() {
     for line in stats.lines() {
         let v: serde_json::Value = serde_json::from_str(line).unwrap();
         assert_eq!(v["lights"], 4, "{line}");
-        assert_eq!(v["shadow_maps"], 0, "{line}");
+        // A shadow map per lobe that reaches a visible surface.
+        let maps = v["shadow_maps"].as_u64().unwrap();
+        assert!((1..=4).contains(&maps), "{line}");
     }
     let png = image::open(out.join("frame_00001.png")).unwrap();
     assert_eq!((png.width(), png.height()), (48, 32));
@@ -1943,11 +1947,12 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
         let got = mean_over(&r, &img, -0.5..0.5);
         assert_close(&format!("{raster:?}, hidden"), got, lit([0.5; 3]), 0.02);
     }
-    // ASG lighting (no shadows): the blended square over the receiver is the over operator of
+    // ASG lighting, shadows off: the blended square over the receiver is the over operator of
     // the square drawn opaque and the receiver alone.
     let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
-    let asg_mean = |scene: Scene| {
-        let mut r = before_receiver(scene, ShadowRaster::Pipeline);
+    let asg_mean = |mut scene: Scene| {
+        add_quad(&mut scene, 2.0, -0.5, Material::lambertian([1.0; 3]));
+        let mut r = renderer(scene, quad_settings());
         let (img, _) = r.render_asg(&lobes).unwrap();
         mean_over(&r, &img, -0.5..0.5)
     };
@@ -2264,6 +2269,119 @@ fn fxaa_brings_edges_towards_their_covered_fraction() {
     .map(|e| e.to_string())
     .unwrap_or_default();
     assert!(e.contains("FXAA with supersampling 2"), "{e}");
+}
+
+/// ASG lighting casts shadows: each lobe is shadowed by a map along its axis with a PCF kernel
+/// as wide as the lobe (its solid angle). A square before a white receiver, lit by one lobe
+/// from the side: under a narrow lobe the receiver in the square's umbra gets almost none of
+/// the light it gets without shadows, under a wide lobe much more (its shadow is soft), and
+/// away from the shadow the same as without; with either raster. A shadow-catcher ground under
+/// a lobe from above outputs the spheres' shadows as alpha (transparent black before).
+#[test]
+fn asg_lobes_cast_soft_shadows() {
+    use envlight::asg::Asg;
+    use glam::DVec3;
+    let axis = DVec3::new(0.5, 0.0, 1.0).normalize();
+    let lobe = |sharpness: f64| [Asg::new(axis, DVec3::Y, sharpness, sharpness, [2.0; 3]).unwrap()];
+    let mut scene = textured_quad(Material::lambertian([0.5; 3]), vec![], 1.0);
+    for v in &mut scene.vertices {
+        v.position[0] *= 0.3;
+        v.position[1] *= 0.3;
+    }
+    add_quad(&mut scene, 2.0, -1.5, Material::lambertian([1.0; 3]));
+    scene.bounds.radius = 3.3;
+    // The mean red of the receiver's pixels (where the camera ray meets the plane z = −1.5)
+    // within `x` and |y| < `half_y`, past the square.
+    let receiver_mean = |r: &Renderer, img: &Image, x: std::ops::Range<f32>, half_y: f32| {
+        let eye = Vec3::new(0.0, 0.0, 3.0);
+        let (mut sum, mut n) = (0.0f32, 0);
+        for py in 0..img.height {
+            for px in 0..img.width {
+                let d = r.pixel_ray(px as f32 + 0.5, py as f32 + 0.5);
+                let at_square = eye + d * (-eye.z / d.z);
+                if at_square.x.abs() < 0.32 && at_square.y.abs() < 0.32 {
+                    continue;
+                }
+                let hit = eye + d * ((-1.5 - eye.z) / d.z);
+                if x.contains(&hit.x) && hit.y.abs() < half_y {
+                    sum += img.pixel(px, py)[0];
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 10, "{n} pixels in {x:?}");
+        sum / n as f32
+    };
+    for raster in RASTERS {
+        let render = |sharpness: f64, shadows: bool| {
+            let mut r = renderer(
+                scene.clone(),
+                RenderSettings {
+                    shadows,
+                    shadow_resolution: 256,
+                    shadow_raster: raster,
+                    ..quad_settings()
+                },
+            );
+            let (img, stats) = r.render_asg(&lobe(sharpness)).unwrap();
+            assert_eq!(stats.shadow_maps, usize::from(shadows), "{raster:?}");
+            // The square's shadow is centred at x = −1.5 · 0.5 = −0.75.
+            let umbra = receiver_mean(&r, &img, -0.87..-0.63, 0.12);
+            let lit = receiver_mean(&r, &img, 0.7..1.5, 0.5);
+            (umbra, lit)
+        };
+        let (narrow_umbra, narrow_lit) = render(400.0, true);
+        let (free_umbra, free_lit) = render(400.0, false);
+        // Sharpness 400: 0.008 sr, an angular radius of 0.05 rad; 30: 0.1 sr, 0.18 rad, whose
+        // penumbra (1.7 units from the square to the receiver along the axis) is as wide as
+        // the square, so its umbra is gone and the middle is partly lit.
+        let (wide_umbra, wide_lit) = render(30.0, true);
+        let (wide_free_umbra, wide_free_lit) = render(30.0, false);
+        let (narrow, wide) = (narrow_umbra / free_umbra, wide_umbra / wide_free_umbra);
+        eprintln!(
+            "{raster:?}: umbra keeps {narrow:.3} of its light under a narrow lobe, {wide:.3} \
+             under a wide one; lit region {:.4} and {:.4} of its unshadowed value",
+            narrow_lit / free_lit,
+            wide_lit / wide_free_lit
+        );
+        assert!(narrow < 0.05, "{raster:?}: narrow lobe's umbra {narrow}");
+        assert!(
+            (0.2..0.8).contains(&wide),
+            "{raster:?}: wide lobe's umbra {wide}"
+        );
+        assert!((narrow_lit / free_lit - 1.0).abs() < 0.01, "{raster:?}");
+        assert!((wide_lit / wide_free_lit - 1.0).abs() < 0.05, "{raster:?}");
+    }
+    // The shadow catcher: the spheres' shadows under a lobe from above.
+    let mut r = renderer(
+        Scene::default_scene(),
+        RenderSettings {
+            width: 96,
+            height: 64,
+            shadow_resolution: 256,
+            shadow_catcher: true,
+            ..Default::default()
+        },
+    );
+    let above = [Asg::new(
+        DVec3::new(0.2, 1.0, 0.3).normalize(),
+        DVec3::X,
+        400.0,
+        400.0,
+        [500.0; 3],
+    )
+    .unwrap()];
+    let (img, _) = r.render_asg(&above).unwrap();
+    let (mut shadow, mut clear) = (0, 0);
+    for p in img.rgba.chunks_exact(4) {
+        if p[..3] == [0.0; 3] && p[3] > 0.5 {
+            shadow += 1;
+        } else if p[3] < 0.01 {
+            clear += 1;
+        }
+    }
+    eprintln!("ASG catcher: {shadow} shadow pixels, {clear} clear");
+    assert!(shadow > 50 && clear > 1000, "{shadow} {clear}");
 }
 
 /// Where the grazing-floor tests' camera is.

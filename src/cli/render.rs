@@ -100,8 +100,9 @@ pub(crate) struct RenderArgs {
     #[arg(long, conflicts_with = "background")]
     window: bool,
     /// Shade with the decomposed lights (shadow maps) or with ASG lobes fitted to each frame
-    /// (closed-form Lambert + GGX, no shadows; warm-started from frame to frame; not with
-    /// --lights, --window, --budget-ms or --light-count).
+    /// (closed-form Lambert + GGX, each lobe shadowed by a soft shadow map along its axis;
+    /// warm-started from frame to frame; not with --lights, --window, --budget-ms,
+    /// --light-count or --no-culling).
     #[arg(long, value_enum, default_value = "lights")]
     lighting: LightingArg,
     /// ASG lobes per frame with --lighting asg (1..=64). [default: 16]
@@ -124,9 +125,6 @@ impl RenderArgs {
                 (self.window, "--window"),
                 (self.budget_ms.is_some(), "--budget-ms"),
                 (self.light_count.is_some(), "--light-count"),
-                (self.shadow_res.is_some(), "--shadow-res"),
-                (self.no_shadows, "--no-shadows"),
-                (self.shadow_raster.is_some(), "--shadow-raster"),
                 (self.no_culling, "--no-culling"),
             ];
             if let Some((_, flag)) = with.iter().find(|(given, _)| *given) {

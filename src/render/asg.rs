@@ -4,20 +4,24 @@
 //! One pass draws the scene into the renderer's HDR target: per pixel, Lambertian diffuse
 //! (albedo/π · Σ E_k(n), E from the normalised cosine convolution H tabulated by
 //! [`crate::asg::cosine_convolution`] and uploaded once as a storage buffer) plus GGX specular
-//! (Σ c_k · S_k(n, v, α) · f0, the spherical-Gaussian approximation of the GGX lobe). No shadow
-//! maps and no ambient occlusion: every lobe lights every surface that faces it, so a shadow
-//! catcher outputs transparent black. `tests/render.rs` compares the shaded pixels of a sphere
-//! with the CPU closed form.
+//! (Σ c_k · S_k(n, v, α) · f0, the spherical-Gaussian approximation of the GGX lobe), each
+//! lobe's terms times its visibility: lobe k is a directional light along its axis, of its
+//! solid angle, for the light pass's shadow maps and PCF (`Renderer::prepare`), so a sharp
+//! lobe casts a hard shadow and a wide one a soft shadow; a shadow catcher outputs the
+//! shadowed fraction of the lobes' irradiance as alpha. `tests/render.rs` compares the shaded
+//! pixels of a sphere (shadows off) with the CPU closed form and measures the shadows.
 //!
 //! The pass is built on first use ([`Renderer::render_asg`]); the light pass is untouched.
 
 use super::{FrameStats, Image, RenderError, Renderer};
 use crate::asg::{cosine_convolution, integral, Asg};
+use crate::light::Light;
 use std::time::Instant;
 
 /// WGSL source of the ASG pass (`surface.wgsl` prepended).
 pub const ASG_WGSL: &str = concat!(
     include_str!("../../shaders/surface.wgsl"),
+    include_str!("../../shaders/shadow_lookup.wgsl"),
     include_str!("../../shaders/asg.wgsl")
 );
 
@@ -35,7 +39,13 @@ pub struct AsgGlobalsRaw {
     view_proj: [[f32; 4]; 4],
     camera_pos: [f32; 4],
     lobe_count: u32,
-    _pad: [u32; 3],
+    /// 1 where the lobes' shadow maps are read.
+    shadows: u32,
+    /// Where the maps are (as the light pass's `GlobalsRaw`).
+    shadow_source: u32,
+    _pad: u32,
+    /// Normal offset, depth bias, map side (as the light pass's).
+    shadow_params: [f32; 4],
 }
 
 /// One lobe as the shader reads it (matches `Lobe` in asg.wgsl).
@@ -147,6 +157,24 @@ impl AsgPass {
                 storage_entry(1),
                 storage_entry(2),
                 storage_entry(3),
+                storage_entry(4),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Depth,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 6,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
+                storage_entry(7),
             ],
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -236,50 +264,101 @@ impl AsgPass {
                         binding: 3,
                         resource: table.as_entire_binding(),
                     },
+                    // The lobes' shadow maps, as the light pass binds them.
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: renderer.light_buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 5,
+                        resource: wgpu::BindingResource::TextureView(&renderer.shadow.array_view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 6,
+                        resource: wgpu::BindingResource::Sampler(&renderer.shadow_sampler),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 7,
+                        resource: renderer
+                            .compute_shadows
+                            .as_ref()
+                            .map_or(&renderer.no_shadow_depths, super::ComputeShadows::depths)
+                            .as_entire_binding(),
+                    },
                 ],
             })
     }
 }
 
 impl Renderer {
-    /// Uploads the lobes (building the pass on first use); returns how many are drawn.
-    fn prepare_asg(&mut self, lobes: &[Asg]) -> usize {
+    /// Uploads the lobes (building the pass on first use) and prepares their shadow maps: each
+    /// lobe is, for the light pass's shadow machinery ([`Renderer::prepare`]), a directional
+    /// light along its axis of its solid angle (the exact integral of the unit-amplitude lobe,
+    /// which sets its PCF kernel: a wide lobe casts a soft shadow), record k for lobe k.
+    /// Returns how many lobes are drawn and how many shadow maps the frame has.
+    fn prepare_asg(&mut self, lobes: &[Asg]) -> Result<(usize, usize), RenderError> {
+        let raw: Vec<LobeRaw> = lobes.iter().filter_map(LobeRaw::from_asg).collect();
+        let as_lights: Vec<Light> = raw
+            .iter()
+            .enumerate()
+            .map(|(k, lobe)| Light {
+                id: k as u32,
+                dir: [lobe.z[0], lobe.z[1], lobe.z[2]],
+                rgb: std::array::from_fn(|c| lobe.rgb[c] * lobe.rgb[3]),
+                solid_angle: lobe.rgb[3],
+            })
+            .collect();
+        let (records, maps) = self.prepare(&as_lights)?;
+        if records.len() != raw.len() {
+            // Every lobe that LobeRaw keeps is a valid light; a mismatch would put one lobe's
+            // shadow under another.
+            return Err(RenderError::Settings(format!(
+                "{} lobes but {} shadow records",
+                raw.len(),
+                records.len()
+            )));
+        }
         let mut pass = match self.asg_pass.take() {
             Some(pass) => pass,
             None => AsgPass::new(self),
         };
-        let raw: Vec<LobeRaw> = lobes.iter().filter_map(LobeRaw::from_asg).collect();
         if raw.len() > pass.capacity {
             pass.capacity = raw.len().next_power_of_two();
             pass.lobes = lobe_buffer(&self.gpu.device, pass.capacity);
-            pass.bind_group =
-                AsgPass::bind(self, &pass.layout, &pass.globals, &pass.lobes, &pass.table);
         }
+        // Rebound every frame: the light buffer and the maps may have grown.
+        pass.bind_group =
+            AsgPass::bind(self, &pass.layout, &pass.globals, &pass.lobes, &pass.table);
         if !raw.is_empty() {
             self.gpu
                 .queue
                 .write_buffer(&pass.lobes, 0, bytemuck::cast_slice(&raw));
         }
+        let shadow = self.frame_globals(raw.len() as u32).to_raw();
         let globals = AsgGlobalsRaw {
             view_proj: self.view_proj().to_cols_array_2d(),
             camera_pos: self.scene.camera.eye.extend(1.0).to_array(),
             lobe_count: raw.len() as u32,
-            _pad: [0; 3],
+            shadows: shadow.shadows,
+            shadow_source: shadow.shadow_source,
+            _pad: 0,
+            shadow_params: shadow.shadow_params,
         };
         self.gpu
             .queue
             .write_buffer(&pass.globals, 0, bytemuck::bytes_of(&globals));
         self.asg_pass = Some(pass);
-        raw.len()
+        Ok((raw.len(), maps))
     }
 
-    fn encode_asg(&self, readback: bool) -> wgpu::CommandEncoder {
+    fn encode_asg(&self, maps: usize, readback: bool) -> wgpu::CommandEncoder {
         let mut enc = self
             .gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("asg frame"),
             });
+        self.encode_shadow_maps(&mut enc, maps);
         if let Some(asg) = &self.asg_pass {
             self.encode_scene_pass(
                 &mut enc,
@@ -299,17 +378,17 @@ impl Renderer {
     }
 
     /// Renders one frame under ASG lighting and waits for it, without reading the image back.
-    /// `FrameStats::lights` counts the lobes drawn; there are no shadow maps and no GPU
+    /// `FrameStats::lights` counts the lobes drawn, `shadow_maps` their maps; there are no GPU
     /// timestamps (CPU wall time only).
     pub fn render_asg_timed(&mut self, lobes: &[Asg]) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
-        let n = self.prepare_asg(lobes);
-        let cmd = self.encode_asg(false).finish();
+        let (n, maps) = self.prepare_asg(lobes)?;
+        let cmd = self.encode_asg(maps, false).finish();
         self.gpu.queue.submit([cmd]);
         self.wait()?;
         Ok(FrameStats {
             lights: n,
-            shadow_maps: 0,
+            shadow_maps: maps,
             gpu_ms: None,
             shadow_gpu_ms: None,
             cpu_ms: start.elapsed().as_secs_f64() * 1e3,
@@ -319,8 +398,8 @@ impl Renderer {
     /// Renders one frame under ASG lighting (module doc) and reads the image back.
     pub fn render_asg(&mut self, lobes: &[Asg]) -> Result<(Image, FrameStats), RenderError> {
         let start = Instant::now();
-        let n = self.prepare_asg(lobes);
-        let cmd = self.encode_asg(true).finish();
+        let (n, maps) = self.prepare_asg(lobes)?;
+        let cmd = self.encode_asg(maps, true).finish();
         self.gpu.queue.submit([cmd]);
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -329,7 +408,7 @@ impl Renderer {
             image,
             FrameStats {
                 lights: n,
-                shadow_maps: 0,
+                shadow_maps: maps,
                 gpu_ms: None,
                 shadow_gpu_ms: None,
                 cpu_ms,
@@ -344,7 +423,7 @@ mod tests {
 
     #[test]
     fn raw_sizes_match_the_shader() {
-        assert_eq!(std::mem::size_of::<AsgGlobalsRaw>(), 96);
+        assert_eq!(std::mem::size_of::<AsgGlobalsRaw>(), 112);
         assert_eq!(std::mem::size_of::<LobeRaw>(), 64);
     }
 

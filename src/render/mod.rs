@@ -88,6 +88,7 @@ use thiserror::Error;
 /// WGSL source of the G-buffer and shading passes (`surface.wgsl` prepended).
 pub const SHADE_WGSL: &str = concat!(
     include_str!("../../shaders/surface.wgsl"),
+    include_str!("../../shaders/shadow_lookup.wgsl"),
     include_str!("../../shaders/shade.wgsl")
 );
 /// WGSL source of the shadow pass (`surface.wgsl` prepended, for the cut-out casters).
@@ -111,6 +112,9 @@ pub const SHADERS: &[(&str, &str)] = &[
 /// The shared prelude prepended to `shade.wgsl`, `asg.wgsl`, `shadow.wgsl` and
 /// `shadow_raster.wgsl`: vertex layout, materials and their textures, the shaded point's set-up.
 pub const SURFACE_WGSL: &str = include_str!("../../shaders/surface.wgsl");
+/// The second prelude of `shade.wgsl` and `asg.wgsl`, after [`SURFACE_WGSL`]: the light
+/// records and the PCF shadow lookup, over bindings each of those files declares.
+pub const SHADOW_LOOKUP_WGSL: &str = include_str!("../../shaders/shadow_lookup.wgsl");
 
 /// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
 /// opaque value (see docs/rendering.md): (mean absolute difference, 99.9th percentile).
@@ -1409,18 +1413,7 @@ impl Renderer {
                 .queue
                 .write_buffer(&self.light_buffer, 0, bytemuck::cast_slice(&raw));
         }
-        let texel_world = 2.0 * bounds.radius / res as f32;
-        let globals = Globals {
-            view_proj: self.view_proj(),
-            camera_pos: self.scene.camera.eye,
-            light_count: gpu_lights.len() as u32,
-            culling: self.settings.culling,
-            shadows: self.settings.shadows,
-            shadow_raster: self.settings.shadow_raster,
-            shadow_resolution: res,
-            normal_offset: 2.0 * texel_world,
-            depth_bias: 1.0 / res as f32,
-        };
+        let globals = self.frame_globals(gpu_lights.len() as u32);
         self.gpu.queue.write_buffer(
             &self.globals_buffer,
             0,
@@ -1428,6 +1421,24 @@ impl Renderer {
         );
         self.check_gpu()?;
         Ok((gpu_lights, maps as usize))
+    }
+
+    /// The light pass's constants for a frame of `light_count` lights (the shadow lookup's
+    /// offsets follow the map side and the casters' bounds).
+    fn frame_globals(&self, light_count: u32) -> Globals {
+        let res = self.settings.shadow_resolution;
+        let texel_world = 2.0 * self.scene.bounds.radius / res as f32;
+        Globals {
+            view_proj: self.view_proj(),
+            camera_pos: self.scene.camera.eye,
+            light_count,
+            culling: self.settings.culling,
+            shadows: self.settings.shadows,
+            shadow_raster: self.settings.shadow_raster,
+            shadow_resolution: res,
+            normal_offset: 2.0 * texel_world,
+            depth_bias: 1.0 / res as f32,
+        }
     }
 
     /// The render passes' part of [`Self::prepare`]: grows the depth array and the light-camera
@@ -1489,19 +1500,7 @@ impl Renderer {
                 label: Some("frame"),
             });
         let ts = self.timestamps.as_ref();
-        match &self.compute_shadows {
-            Some(compute) if maps > 0 => compute.encode(
-                &mut enc,
-                maps as u32,
-                ts.map(|t| wgpu::ComputePassTimestampWrites {
-                    query_set: &t.set,
-                    beginning_of_pass_write_index: Some(0),
-                    end_of_pass_write_index: None,
-                }),
-            ),
-            Some(_) => {}
-            None => self.encode_shadow_passes(&mut enc, maps),
-        }
+        self.encode_shadow_maps(&mut enc, maps);
         self.encode_gbuffer_pass(&mut enc);
         // The frame's end, written by its last pass: the resolve or FXAA where there is one,
         // else the blended surfaces' where there are any, else the shading.
@@ -1547,6 +1546,26 @@ impl Renderer {
 
     /// One depth-only render pass per map into its layer of the depth array (the GPU timestamp
     /// of the frame's start at the first).
+    /// The frame's `maps` shadow maps, by the compute rasteriser or by render passes (the
+    /// frame's start timestamp at the first).
+    fn encode_shadow_maps(&self, enc: &mut wgpu::CommandEncoder, maps: usize) {
+        match &self.compute_shadows {
+            Some(compute) if maps > 0 => compute.encode(
+                enc,
+                maps as u32,
+                self.timestamps
+                    .as_ref()
+                    .map(|t| wgpu::ComputePassTimestampWrites {
+                        query_set: &t.set,
+                        beginning_of_pass_write_index: Some(0),
+                        end_of_pass_write_index: None,
+                    }),
+            ),
+            Some(_) => {}
+            None => self.encode_shadow_passes(enc, maps),
+        }
+    }
+
     fn encode_shadow_passes(&self, enc: &mut wgpu::CommandEncoder, maps: usize) {
         let ts = self.timestamps.as_ref();
         for layer in 0..maps {
@@ -2169,17 +2188,28 @@ mod tests {
             let name = path.file_name().unwrap().to_str().unwrap();
             let file = std::fs::read_to_string(path).unwrap();
             // Every file on disk is one the renderer loads: a module's entry file is its source
-            // or its source after the prelude; the prelude itself must stand alone too.
+            // or its source after the preludes; the first prelude must stand alone too, the
+            // second is validated within the files it precedes.
             let text = if name == "surface.wgsl" {
                 assert_eq!(file, SURFACE_WGSL);
                 file
+            } else if name == "shadow_lookup.wgsl" {
+                assert_eq!(file, SHADOW_LOOKUP_WGSL);
+                let users = SHADERS
+                    .iter()
+                    .filter(|(_, text)| text.contains(SHADOW_LOOKUP_WGSL))
+                    .count();
+                assert_eq!(users, 2, "shade.wgsl and asg.wgsl include it");
+                continue;
             } else {
                 let (_, text) = SHADERS
                     .iter()
                     .find(|(n, _)| *n == name)
                     .unwrap_or_else(|| panic!("{name} is not in render::SHADERS"));
                 assert!(
-                    *text == file || *text == format!("{SURFACE_WGSL}{file}"),
+                    *text == file
+                        || *text == format!("{SURFACE_WGSL}{file}")
+                        || *text == format!("{SURFACE_WGSL}{SHADOW_LOOKUP_WGSL}{file}"),
                     "{name}: render::SHADERS holds another text"
                 );
                 text.to_string()
@@ -2193,7 +2223,8 @@ mod tests {
             .validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
         }
-        assert_eq!(files.len(), SHADERS.len() + 1);
+        // The two preludes are not in SHADERS.
+        assert_eq!(files.len(), SHADERS.len() + 2);
     }
 
     /// The Rust twins of the shaders' structs have the WGSL layouts' sizes (naga's), and the

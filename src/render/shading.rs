@@ -34,9 +34,10 @@ pub struct GlobalsRaw {
     camera_pos: [f32; 4],
     light_count: u32,
     culling: u32,
-    shadows: u32,
-    shadow_source: u32,
-    shadow_params: [f32; 4],
+    /// Read by the ASG pass too (its lobes' shadow maps).
+    pub(super) shadows: u32,
+    pub(super) shadow_source: u32,
+    pub(super) shadow_params: [f32; 4],
 }
 
 impl Globals {
