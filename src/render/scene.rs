@@ -1490,17 +1490,22 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             let channels = texture_channels(&mat);
             for (semantic, accessor) in prim.attributes() {
                 use gltf::accessor::{
-                    DataType::{F32, U16, U8},
+                    DataType::{F32, I16, I8, U16, U8},
                     Dimensions::{Vec2, Vec3, Vec4},
                 };
+                // Floats, and the integers KHR_mesh_quantization allows (`read_attribute`).
                 let (name, dimensions, types) = match semantic {
-                    gltf::Semantic::Positions => ("POSITION".to_string(), Vec3, &[F32][..]),
-                    gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32][..]),
-                    gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => {
-                        (format!("TEXCOORD_{set}"), Vec2, &[F32, U8, U16][..])
+                    gltf::Semantic::Positions => {
+                        ("POSITION".to_string(), Vec3, &[F32, I8, U8, I16, U16][..])
                     }
-                    gltf::Semantic::Tangents if mat.normal_texture().is_some() => {
-                        ("TANGENT".to_string(), Vec4, &[F32][..])
+                    gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32, I8, I16][..]),
+                    gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => (
+                        format!("TEXCOORD_{set}"),
+                        Vec2,
+                        &[F32, I8, U8, I16, U16][..],
+                    ),
+                    gltf::Semantic::Tangents if needs_tangents(&mat) => {
+                        ("TANGENT".to_string(), Vec4, &[F32, I8, I16][..])
                     }
                     gltf::Semantic::Colors(0) => {
                         // VEC3 or VEC4.
@@ -1547,7 +1552,10 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 )));
             }
             let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
-            let Some(positions) = reader.read_positions() else {
+            let attribute = |semantic: gltf::Semantic| prim.get(&semantic);
+            let Some(positions) = attribute(gltf::Semantic::Positions)
+                .and_then(|a| read_attribute::<3>(&a, &buffers))
+            else {
                 if prim.get(&gltf::Semantic::Positions).is_none() {
                     // The spec's advice for a primitive without positions: skip it.
                     tracing::warn!(
@@ -1563,6 +1571,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 )));
             };
             let positions: Vec<Vec3> = positions
+                .into_iter()
                 .map(|p| world.transform_point3(Vec3::from_array(p)))
                 .collect();
             let mut indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
@@ -1597,8 +1606,11 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                     triangle.swap(1, 2);
                 }
             }
-            let mut normals: Vec<Vec3> = match reader.read_normals() {
+            let read_normals =
+                attribute(gltf::Semantic::Normals).and_then(|a| read_attribute::<3>(&a, &buffers));
+            let mut normals: Vec<Vec3> = match read_normals {
                 Some(n) => n
+                    .into_iter()
                     .map(|n| normal_matrix * Vec3::from_array(n))
                     .collect::<Vec<_>>(),
                 None if prim.get(&gltf::Semantic::Normals).is_some() => {
@@ -1624,13 +1636,14 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             // it).
             let mut uvs: [Vec<[f32; 2]>; 2] = Default::default();
             for (channel, &set) in channels.sets.iter().enumerate() {
-                let Some(read) = reader.read_tex_coords(set) else {
+                let read = attribute(gltf::Semantic::TexCoords(set))
+                    .and_then(|a| read_attribute::<2>(&a, &buffers));
+                let Some(read) = read else {
                     return Err(err(format!(
                         "{}: its material is textured, but it has no readable TEXCOORD_{set}",
                         mesh_name(&prim)
                     )));
                 };
-                let read: Vec<[f32; 2]> = read.into_f32().collect();
                 check_per_vertex(&read, positions.len(), &format!("TEXCOORD_{set}"))
                     .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
                 uvs[channel] = read;
@@ -1639,30 +1652,29 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             // coat's where the base has none).
             let normal_slot = if mat.normal_texture().is_some() { 2 } else { 9 };
             let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
-            let normal_textured = mat.normal_texture().is_some()
-                || extension_texture(&mat, EXTENSION_TEXTURES[4])
-                    .ok()
-                    .flatten()
-                    .is_some();
+            let normal_textured = needs_tangents(&mat);
             // Tangents where a normal texture needs them: the file's, turned with the node
             // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
-            let tangents: Vec<[f32; 4]> = match (normal_textured, reader.read_tangents()) {
+            let read_tangents =
+                attribute(gltf::Semantic::Tangents).and_then(|a| read_attribute::<4>(&a, &buffers));
+            let tangents: Vec<[f32; 4]> = match (normal_textured, read_tangents) {
                 (false, _) => Vec::new(),
                 (true, _) if normal_uvs.is_empty() => Vec::new(),
                 (true, Some(t)) => {
                     let handedness = world.determinant().signum();
-                    t.map(|[x, y, z, w]| {
-                        let t = world
-                            .transform_vector3(Vec3::new(x, y, z))
-                            .normalize_or_zero();
-                        [
-                            t.x,
-                            t.y,
-                            t.z,
-                            if w < 0.0 { -handedness } else { handedness },
-                        ]
-                    })
-                    .collect()
+                    t.into_iter()
+                        .map(|[x, y, z, w]| {
+                            let t = world
+                                .transform_vector3(Vec3::new(x, y, z))
+                                .normalize_or_zero();
+                            [
+                                t.x,
+                                t.y,
+                                t.z,
+                                if w < 0.0 { -handedness } else { handedness },
+                            ]
+                        })
+                        .collect()
                 }
                 (true, None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
                     return Err(err(format!(
@@ -1916,11 +1928,15 @@ fn gltf_material(
     })
 }
 
+/// The glTF extension that lets vertex attributes be bytes and shorts (`read_attribute`).
+const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
+
 /// The glTF extension that scales a material's emission past 1.
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 5] = [
+const DRAWN_EXTENSIONS: [&str; 6] = [
+    MESH_QUANTIZATION,
     TEXTURE_TRANSFORM,
     EMISSIVE_STRENGTH,
     IOR,
@@ -2196,6 +2212,70 @@ fn texture_channels(material: &gltf::Material) -> TextureChannels {
         }
     }
     channels
+}
+
+/// Whether a glTF material needs the mesh's tangent frame: a normal texture, its own or its
+/// clear coat's.
+fn needs_tangents(material: &gltf::Material) -> bool {
+    material.normal_texture().is_some()
+        || extension_texture(material, EXTENSION_TEXTURES[4]).is_ok_and(|t| t.is_some())
+}
+
+/// A vertex attribute's values as floats, whatever its component type: glTF's floats, and the
+/// integers of `KHR_mesh_quantization` (bytes and shorts, signed or not) — normalised ones
+/// mapped as glTF defines (c / 255 or c / 65535; max(c / 127, −1) or max(c / 32767, −1)),
+/// others taken as their values (the node's transform then scales them, as a quantising
+/// writer such as gltfpack arranges). Sparse accessors are read through the `gltf` crate.
+/// `None` where the accessor cannot be read; the caller has checked its type and span
+/// (`check_accessor`).
+fn read_attribute<const N: usize>(
+    accessor: &gltf::Accessor,
+    buffers: &[gltf::buffer::Data],
+) -> Option<Vec<[f32; N]>>
+where
+    [f32; N]: gltf::accessor::Item,
+    [i8; N]: gltf::accessor::Item,
+    [u8; N]: gltf::accessor::Item,
+    [i16; N]: gltf::accessor::Item,
+    [u16; N]: gltf::accessor::Item,
+{
+    use gltf::accessor::{DataType, Iter};
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let normalized = accessor.normalized();
+    fn widened<T: Copy, const N: usize>(
+        values: Iter<'_, [T; N]>,
+        to_f32: impl Fn(T) -> f32,
+    ) -> Vec<[f32; N]>
+    where
+        [T; N]: gltf::accessor::Item,
+    {
+        values.map(|v| v.map(&to_f32)).collect()
+    }
+    let read = accessor.clone();
+    Some(match accessor.data_type() {
+        DataType::F32 => Iter::<[f32; N]>::new(read, get)?.collect(),
+        DataType::I8 => widened(Iter::<[i8; N]>::new(read, get)?, |c| {
+            if normalized {
+                (f32::from(c) / 127.0).max(-1.0)
+            } else {
+                f32::from(c)
+            }
+        }),
+        DataType::U8 => widened(Iter::<[u8; N]>::new(read, get)?, |c| {
+            f32::from(c) / if normalized { 255.0 } else { 1.0 }
+        }),
+        DataType::I16 => widened(Iter::<[i16; N]>::new(read, get)?, |c| {
+            if normalized {
+                (f32::from(c) / 32767.0).max(-1.0)
+            } else {
+                f32::from(c)
+            }
+        }),
+        DataType::U16 => widened(Iter::<[u16; N]>::new(read, get)?, |c| {
+            f32::from(c) / if normalized { 65535.0 } else { 1.0 }
+        }),
+        DataType::U32 => return None,
+    })
 }
 
 /// MikkTSpace tangents (the `mikktspace` crate) of an indexed triangle mesh, one per vertex, in
@@ -3611,6 +3691,117 @@ mod tests {
         ] {
             let e = load(extensions).unwrap_err().to_string();
             assert!(e.contains("shiny.gltf") && e.contains(needle), "{e}");
+        }
+    }
+
+    /// KHR_mesh_quantization: positions, normals, tangents and texture coordinates as bytes
+    /// and shorts load as the floats they stand for — normalised ones mapped as glTF defines
+    /// (a signed minimum clamped to −1), plain ones as their values, scaled by the node as a
+    /// quantising writer arranges — through strided views; a 32-bit integer position is still
+    /// refused, and no number mutated to a hostile value makes the loader panic.
+    #[test]
+    fn quantized_attributes_load_as_the_floats_they_stand_for() {
+        let mut bin: Vec<u8> = Vec::new();
+        // POSITION: i16, not normalised, 8-byte stride (glTF's 4-byte alignment).
+        for p in [[0i16, 0, 0], [1000, 0, 0], [0, 1000, 0]] {
+            for c in p {
+                bin.extend(c.to_le_bytes());
+            }
+            bin.extend([0u8; 2]);
+        }
+        // NORMAL: i8, normalised, 4-byte stride; −128 is clamped to −1.
+        for n in [[0i8, 0, 127], [0, 0, 127], [0, -128, 0]] {
+            bin.extend(n.map(|c| c as u8));
+            bin.push(0);
+        }
+        // TEXCOORD_0: u16, normalised.
+        for t in [[0u16, 0], [65535, 0], [0, 65535]] {
+            for c in t {
+                bin.extend(c.to_le_bytes());
+            }
+        }
+        // TEXCOORD_1: u8, not normalised (texture coordinates past 1), 4-byte stride.
+        for t in [[0u8, 0], [2, 0], [0, 2]] {
+            bin.extend(t);
+            bin.extend([0u8; 2]);
+        }
+        // TANGENT: i16, normalised.
+        for t in [
+            [32767i16, 0, 0, 32767],
+            [32767, 0, 0, 32767],
+            [32767, 0, 0, -32767],
+        ] {
+            for c in t {
+                bin.extend(c.to_le_bytes());
+            }
+        }
+        assert_eq!(bin.len(), 24 + 12 + 12 + 12 + 24);
+        let json = format!(
+            r#"{{"asset":{{"version":"2.0"}},
+            "extensionsUsed":["KHR_mesh_quantization"],"extensionsRequired":["KHR_mesh_quantization"],
+            "scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"scale":[0.001,0.001,0.001]}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"NORMAL":1,"TEXCOORD_0":2,
+                "TEXCOORD_1":3,"TANGENT":4}},"material":0}}]}}],
+            "materials":[{{"pbrMetallicRoughness":{{"baseColorTexture":{{"index":0}}}},
+                "normalTexture":{{"index":0}},"occlusionTexture":{{"index":0,"texCoord":1}}}}],
+            "textures":[{{"source":0}}],"images":[{{"uri":"tex.png"}}],
+            "accessors":[
+                {{"bufferView":0,"componentType":5122,"count":3,"type":"VEC3","min":[0,0,0],"max":[1000,1000,0]}},
+                {{"bufferView":1,"componentType":5120,"normalized":true,"count":3,"type":"VEC3"}},
+                {{"bufferView":2,"componentType":5123,"normalized":true,"count":3,"type":"VEC2"}},
+                {{"bufferView":3,"componentType":5121,"count":3,"type":"VEC2"}},
+                {{"bufferView":4,"componentType":5122,"normalized":true,"count":3,"type":"VEC4"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":24,"byteStride":8}},
+                {{"buffer":0,"byteOffset":24,"byteLength":12,"byteStride":4}},
+                {{"buffer":0,"byteOffset":36,"byteLength":12}},
+                {{"buffer":0,"byteOffset":48,"byteLength":12,"byteStride":4}},
+                {{"buffer":0,"byteOffset":60,"byteLength":24}}],
+            "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
+            bin.len(),
+            base64_encode(&bin)
+        );
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("tex.png"), two_texel_png()).unwrap();
+        let path = dir.path().join("quantized.gltf");
+        std::fs::write(&path, json).unwrap();
+        let s = Scene::load(&path, false).unwrap();
+        let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5);
+        let positions: Vec<[f32; 3]> = s.vertices.iter().map(|v| v.position).collect();
+        assert!(
+            positions
+                .iter()
+                .zip([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+                .all(|(a, b)| close(a, &b)),
+            "{positions:?}"
+        );
+        let normals: Vec<[f32; 3]> = s.vertices.iter().map(|v| v.normal).collect();
+        assert!(
+            close(&normals[0], &[0.0, 0.0, 1.0]) && close(&normals[2], &[0.0, -1.0, 0.0]),
+            "{normals:?}"
+        );
+        let uv: Vec<[f32; 2]> = s.vertices.iter().map(|v| v.uv).collect();
+        assert_eq!(uv, [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]);
+        let uv1: Vec<[f32; 2]> = s.vertices.iter().map(|v| v.uv1).collect();
+        assert_eq!(uv1, [[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]]);
+        let tangents: Vec<[f32; 4]> = s.vertices.iter().map(|v| v.tangent).collect();
+        assert!(
+            close(&tangents[0], &[1.0, 0.0, 0.0, 1.0])
+                && close(&tangents[2], &[1.0, 0.0, 0.0, -1.0]),
+            "{tangents:?}"
+        );
+        // A 32-bit integer position is still refused in words.
+        let text = std::fs::read_to_string(&path).unwrap();
+        let position = r#""componentType":5122,"count":3,"type":"VEC3""#;
+        let wide = text.replacen(position, &position.replace("5122", "5125"), 1);
+        std::fs::write(&path, wide).unwrap();
+        let e = Scene::load(&path, false).unwrap_err().to_string();
+        assert!(e.contains("POSITION") && e.contains("U32"), "{e}");
+        for (start, end) in number_spans(&text) {
+            for value in HOSTILE_NUMBERS {
+                let mutated = format!("{}{value}{}", &text[..start], &text[end..]);
+                std::fs::write(&path, mutated).unwrap();
+                loads_without_panic(&path);
+            }
         }
     }
 
