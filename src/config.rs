@@ -273,6 +273,9 @@ pub struct RawRender {
     pub budget_ms: Option<f64>,
     pub latest_png: Option<String>,
     pub lighting: Option<String>,
+    pub eye: Option<Vec<f64>>,
+    pub look_at: Option<Vec<f64>>,
+    pub fov_deg: Option<f64>,
 }
 
 /// `[daemon]`.
@@ -782,6 +785,9 @@ pub struct RenderConfig {
     pub latest_png: Option<PathBuf>,
     /// Shade with the lights (shadowed) or with the ASG stage's lobes.
     pub lighting: Lighting,
+    /// The camera's eye, look-at point and field of view where given, over the scene's own
+    /// (a glTF's camera, or one fitted to the scene).
+    pub camera: crate::render::scene::CameraOverride,
 }
 
 impl RawRender {
@@ -875,6 +881,53 @@ impl RawRender {
                     .map_err(|e| invalid("render.latest_png", png.display(), e.to_string()))?;
             }
         }
+        let point = |key: &'static str, v: &Option<Vec<f64>>| -> Result<_, ConfigError> {
+            match v.as_deref() {
+                None => Ok(None),
+                Some(&[x, y, z])
+                    if [x, y, z]
+                        .iter()
+                        .all(|c| c.is_finite() && c.abs() <= f64::from(f32::MAX)) =>
+                {
+                    Ok(Some(glam::Vec3::new(x as f32, y as f32, z as f32)))
+                }
+                Some(other) => Err(invalid(
+                    key,
+                    other,
+                    "must be three finite numbers [x, y, z]",
+                )),
+            }
+        };
+        let fov_range = crate::render::scene::CameraOverride::FOV_DEG;
+        let fov_deg = match self.fov_deg {
+            None => None,
+            Some(f) if f.is_finite() && fov_range.contains(&(f as f32)) => Some(f as f32),
+            Some(f) => {
+                return Err(invalid(
+                    "render.fov_deg",
+                    f,
+                    format!(
+                        "must be a vertical field of view in {}..={} degrees",
+                        fov_range.start(),
+                        fov_range.end()
+                    ),
+                ))
+            }
+        };
+        let camera = crate::render::scene::CameraOverride {
+            eye: point("render.eye", &self.eye)?,
+            look_at: point("render.look_at", &self.look_at)?,
+            fov_deg,
+        };
+        if let (Some(eye), Some(target)) = (camera.eye, camera.look_at) {
+            if eye == target {
+                return Err(invalid(
+                    "render.look_at",
+                    [target.x, target.y, target.z],
+                    "is render.eye: the camera must look somewhere else",
+                ));
+            }
+        }
         Ok(RenderConfig {
             enabled,
             settings,
@@ -882,6 +935,7 @@ impl RawRender {
             budget_ms: self.budget_ms,
             latest_png,
             lighting,
+            camera,
         })
     }
 }
@@ -1660,6 +1714,9 @@ mod tests {
             "shadow_catcher",
             "budget_ms",
             "latest_png",
+            "eye",
+            "look_at",
+            "fov_deg",
             "basis",
             "side",
             "coefficients",
@@ -1788,6 +1845,18 @@ mod tests {
             (
                 "[render]\nsupersample = 5",
                 "render.supersample = 5: must be 1..=4",
+            ),
+            (
+                "[render]\neye = [1, 2]",
+                "render.eye = [1.0, 2.0]: must be three finite numbers",
+            ),
+            (
+                "[render]\nfov_deg = 180",
+                "render.fov_deg = 180.0: must be a vertical field of view in 1..=179 degrees",
+            ),
+            (
+                "[render]\neye = [1, 2, 3]\nlook_at = [1, 2, 3]",
+                "render.look_at = [1.0, 2.0, 3.0]: is render.eye",
             ),
             (
                 "[render]\nsupersample = 2\nfxaa = true",

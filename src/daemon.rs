@@ -884,11 +884,16 @@ fn build_renderer(
     config: &crate::config::RenderConfig,
 ) -> Result<crate::render::Renderer, DaemonError> {
     use crate::render::{scene::Scene, Renderer};
-    let scene = match &config.scene {
+    let mut scene = match &config.scene {
         Some(path) => Scene::load(path, true).map_err(|e| DaemonError::Render(e.to_string()))?,
         None => Scene::default_scene(),
     };
+    scene.camera = config
+        .camera
+        .apply(scene.camera)
+        .map_err(|m| DaemonError::Render(format!("[render] camera: {m}")))?;
     tracing::info!("render scene: {}", scene.summary());
+    tracing::info!("render camera: {}", scene.camera.describe());
     let renderer =
         Renderer::new(scene, config.settings).map_err(|e| DaemonError::Render(e.to_string()))?;
     tracing::info!(

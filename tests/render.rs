@@ -3214,6 +3214,55 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     );
 }
 
+/// `envlight render --eye --look-at --fov` place the camera (logged in words) and change the
+/// image; a camera whose eye is where it looks, or a field of view outside 1..=179°, is a
+/// usage error naming the problem.
+#[test]
+fn cli_places_the_camera_where_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let render = |out: &str, camera: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["render", "--size", "24x16", "-n", "8", "--out"])
+            .arg(dir.path().join(out))
+            .args(camera)
+            .output()
+            .unwrap()
+    };
+    let o = render(
+        "placed",
+        &["--eye", "-1,2,6", "--look-at", "0,0.5,0", "--fov", "30"],
+    );
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(
+            "camera: eye (-1.000, 2.000, 6.000), looking at (0.000, 0.500, 0.000), vertical \
+             field of view 30.0°"
+        ),
+        "{stderr}"
+    );
+    let o = render("fitted", &[]);
+    assert!(o.status.success());
+    let png = |out: &str| image::open(dir.path().join(out).join("frame_00000.png")).unwrap();
+    assert_ne!(png("placed").to_rgba8(), png("fitted").to_rgba8());
+    for (camera, needle) in [
+        (
+            &["--eye", "0,0.5,0", "--look-at", "0,0.5,0"][..],
+            "is where it looks",
+        ),
+        (
+            &["--fov", "180"][..],
+            "field of view 180° is outside 1..=179°",
+        ),
+        (&["--eye", "1,2"][..], "\"1,2\" is not three numbers X,Y,Z"),
+    ] {
+        let o = render("bad", camera);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{camera:?}: {stderr}");
+        assert!(stderr.contains(needle), "{camera:?}: {stderr}");
+    }
+}
+
 /// A base-colour texture's KHR_texture_transform moves, turns and scales where the image is
 /// read: an offset of half the image swaps the quad's halves, and a quarter turn
 /// counter-clockwise reads a texture that varies down the image (v) along the quad's u (as the

@@ -112,6 +112,19 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 /// A number an option holds as f32: one beyond f32's range (`1e39`) is an error naming it,
 /// not infinity (which later checks reported as "got inf", without the value given), and so is
 /// a non-zero one too small to be other than 0 (`1e-300`).
+/// A point X,Y,Z of three finite numbers (`render --eye`, `--look-at`).
+pub(crate) fn parse_point(s: &str) -> Result<[f32; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    let [x, y, z] = parts[..] else {
+        return Err(format!("{s:?} is not three numbers X,Y,Z"));
+    };
+    Ok([
+        parse_finite_f32(x)?,
+        parse_finite_f32(y)?,
+        parse_finite_f32(z)?,
+    ])
+}
+
 pub(crate) fn parse_finite_f32(s: &str) -> Result<f32, String> {
     let x: f64 = (s.trim().parse()).map_err(|_| format!("{s:?} is not a number"))?;
     if x.is_finite() && x.abs() <= f64::from(f32::MAX) {

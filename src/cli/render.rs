@@ -2,7 +2,8 @@
 //! `--lights` file, or ASG lobes fitted here), written as PNG and EXR with per-frame stats.
 
 use super::{
-    open_source, parse_finite_f32, parse_render_size, parse_shadow_raster, usage_error, Utf8Input,
+    open_source, parse_finite_f32, parse_point, parse_render_size, parse_shadow_raster,
+    usage_error, Utf8Input,
 };
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
@@ -66,6 +67,17 @@ pub(crate) struct RenderArgs {
             .range(1..=i64::from(envlight::render::supersample::MAX_SUPERSAMPLE))
     )]
     supersample: Option<u32>,
+    /// The camera's position, X,Y,Z in the scene's coordinates (+Y up). [default: a glTF
+    /// scene's first camera, else one fitted to the scene]
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_point, allow_hyphen_values = true)]
+    eye: Option<[f32; 3]>,
+    /// The point the camera looks at, X,Y,Z (the horizon stays level: +Y up).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_point, allow_hyphen_values = true)]
+    look_at: Option<[f32; 3]>,
+    /// The camera's vertical field of view in degrees (1..=179). [default: the scene camera's;
+    /// 40 for a fitted one]
+    #[arg(long, value_name = "DEG", value_parser = parse_finite_f32)]
+    fov: Option<f32>,
     /// Fast approximate anti-aliasing (FXAA 3.11, quality variant) of each frame: edges
     /// smoothed along their length from the image alone, at a small part of supersampling's
     /// cost (docs/rendering.md, "Anti-aliasing"). Not with --supersample above 1.
@@ -201,11 +213,21 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
     if args.exposure.is_some_and(|e| !(e.is_finite() && e > 0.0)) {
         crate::cli::usage_error!("invalid --exposure: must be a positive number");
     }
-    let scene = match &args.scene {
+    let mut scene = match &args.scene {
         Some(path) => Scene::load(path, true)?,
         None => Scene::default_scene(),
     };
+    let camera = envlight::render::scene::CameraOverride {
+        eye: args.eye.map(glam::Vec3::from_array),
+        look_at: args.look_at.map(glam::Vec3::from_array),
+        fov_deg: args.fov,
+    };
+    scene.camera = match camera.apply(scene.camera) {
+        Ok(c) => c,
+        Err(m) => crate::cli::usage_error!("invalid camera: {m}"),
+    };
     tracing::info!("scene: {}", scene.summary());
+    tracing::info!("camera: {}", scene.camera.describe());
     let asg_lighting = args.lighting == LightingArg::Asg;
     let mut fitter = if asg_lighting {
         let settings = envlight::asg::fit::FitSettings {

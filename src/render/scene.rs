@@ -477,6 +477,17 @@ impl Camera {
         look_at_rh(self.eye, self.target, up)
     }
 
+    /// The camera in words, for the log: eye, look-at point, vertical field of view.
+    pub fn describe(&self) -> String {
+        let p = |v: Vec3| format!("({:.3}, {:.3}, {:.3})", v.x, v.y, v.z);
+        format!(
+            "eye {}, looking at {}, vertical field of view {:.1}°",
+            p(self.eye),
+            p(self.target),
+            self.fov_y.to_degrees()
+        )
+    }
+
     /// View-projection with wgpu's [0, 1] depth range.
     pub fn view_proj(&self, aspect: f32, near: f32, far: f32) -> Mat4 {
         perspective_rh(self.fov_y, aspect, near, far) * self.view()
@@ -563,6 +574,8 @@ struct Builder {
     indices: Vec<u32>,
     materials: Vec<Material>,
     textures: Vec<TextureImage>,
+    /// The file's own camera (glTF's first perspective camera node), if any.
+    camera: Option<Camera>,
 }
 
 impl Builder {
@@ -702,6 +715,87 @@ impl Builder {
             camera,
             bounds,
         }
+    }
+}
+
+/// A glTF perspective camera placed by its node's world transform `world` (it looks along the
+/// node's −Z with +Y up) with vertical field of view `yfov` (radians): the camera's eye and
+/// target (one unit ahead). The renderer keeps the horizon level (+Y up), so a camera rolled
+/// about its view direction is drawn unrolled, with a warning; glTF's aspect ratio and clip
+/// planes are the renderer's own (the image's, and the scene's bounds).
+fn gltf_camera(world: Mat4, yfov: f32) -> Result<Camera, String> {
+    if !(yfov.is_finite() && yfov > 0.0 && yfov < std::f32::consts::PI) {
+        return Err(format!("yfov {yfov} is not an angle in (0, π) radians"));
+    }
+    let eye = world.transform_point3(Vec3::ZERO);
+    let forward = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+    if !eye.is_finite() || forward == Vec3::ZERO || !forward.is_finite() {
+        return Err("its transform does not place it (not finite, or degenerate)".into());
+    }
+    let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
+    if forward.y.abs() < 0.999 {
+        let level = forward.cross(Vec3::Y).normalize().cross(forward);
+        let roll = up.dot(level).clamp(-1.0, 1.0).acos().to_degrees();
+        if roll > 1.0 {
+            tracing::warn!(
+                "a glTF camera rolled {roll:.0}° about its view direction is drawn level (+Y up)"
+            );
+        }
+    }
+    Ok(Camera {
+        eye,
+        target: eye + forward,
+        fov_y: yfov,
+    })
+}
+
+/// A camera set by the user over a scene's own (`envlight render --eye`, `--look-at`, `--fov`;
+/// the daemon's `[render] eye`, `look_at`, `fov_deg`): each given part replaces the camera's.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CameraOverride {
+    pub eye: Option<Vec3>,
+    pub look_at: Option<Vec3>,
+    /// Vertical field of view, degrees.
+    pub fov_deg: Option<f32>,
+}
+
+impl CameraOverride {
+    /// The range of [`CameraOverride::fov_deg`].
+    pub const FOV_DEG: std::ops::RangeInclusive<f32> = 1.0..=179.0;
+
+    /// `camera` with the given parts replaced; an error where a part is not finite, the field
+    /// of view is outside [`CameraOverride::FOV_DEG`] or the eye is at the point it looks at.
+    pub fn apply(&self, camera: Camera) -> Result<Camera, String> {
+        let mut c = camera;
+        if let Some(eye) = self.eye {
+            if !eye.is_finite() {
+                return Err(format!("camera eye {eye} is not finite"));
+            }
+            c.eye = eye;
+        }
+        if let Some(target) = self.look_at {
+            if !target.is_finite() {
+                return Err(format!("camera look-at point {target} is not finite"));
+            }
+            c.target = target;
+        }
+        if let Some(fov) = self.fov_deg {
+            if !Self::FOV_DEG.contains(&fov) {
+                return Err(format!(
+                    "field of view {fov}° is outside {}..={}°",
+                    Self::FOV_DEG.start(),
+                    Self::FOV_DEG.end()
+                ));
+            }
+            c.fov_y = fov.to_radians();
+        }
+        if c.eye.distance(c.target) < 1e-6 * (1.0 + c.eye.length()) {
+            return Err(format!(
+                "the camera's eye {} is where it looks ({}); give another --look-at or --eye",
+                c.eye, c.target
+            ));
+        }
+        Ok(c)
     }
 }
 
@@ -960,7 +1054,8 @@ impl Scene {
                 ..Material::default()
             },
         });
-        Ok(b.finish(g, None))
+        let camera = b.camera;
+        Ok(b.finish(g, camera))
     }
 
     /// The base colour (linear) at vertex `index`: its material's factor times its texture
@@ -1444,6 +1539,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
     // glTF's node hierarchy is a forest: a node reached twice sits in a cycle or has several
     // parents (flattening such a graph could multiply the meshes without bound).
     let mut reached = vec![false; gltf.document.nodes().len()];
+    let mut camera_nodes: Vec<(usize, Mat4)> = Vec::new();
     while let Some((node, parent)) = stack.pop() {
         match reached.get_mut(node.index()) {
             Some(seen) if !*seen => *seen = true,
@@ -1458,6 +1554,9 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
             stack.push((child, world));
+        }
+        if node.camera().is_some() {
+            camera_nodes.push((node.index(), world));
         }
         let Some(mesh) = node.mesh() else { continue };
         // Only where a mesh is drawn: a helper node without one may overflow harmlessly.
@@ -1773,6 +1872,30 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             b.set_second_uvs(first, &uvs[1]);
             b.set_colors(first, &colors);
             b.set_tangents(first, &tangents);
+        }
+    }
+    // The first camera node (by index) of the scene: the view the file was made for.
+    if let Some(&(index, world)) = camera_nodes.iter().min_by_key(|(index, _)| *index) {
+        let node = gltf.document.nodes().nth(index);
+        let camera = node.as_ref().and_then(|n| n.camera());
+        let name = format!(
+            "camera node {index} ({:?})",
+            node.as_ref().and_then(|n| n.name()).unwrap_or("")
+        );
+        let yfov = camera.as_ref().and_then(|c| match c.projection() {
+            gltf::camera::Projection::Perspective(p) => Some(p.yfov()),
+            gltf::camera::Projection::Orthographic(_) => None,
+        });
+        match yfov {
+            Some(yfov) => {
+                b.camera = Some(gltf_camera(world, yfov).map_err(|m| err(format!("{name}: {m}")))?);
+                tracing::info!("{}: the view of its {name}", path.display());
+            }
+            _ => tracing::warn!(
+                "{}: its {name} is orthographic, which envlight does not draw: the camera is \
+                 fitted to the scene instead",
+                path.display()
+            ),
         }
     }
     if !ignored.is_empty() {
@@ -3691,6 +3814,111 @@ mod tests {
         ] {
             let e = load(extensions).unwrap_err().to_string();
             assert!(e.contains("shiny.gltf") && e.contains(needle), "{e}");
+        }
+    }
+
+    /// A glTF scene's first camera node (by index) is its camera: the eye at the node's world
+    /// position, looking along its −Z, with its vertical field of view; a rolled one loads
+    /// (drawn level); an orthographic one leaves the fitted camera; a bad field of view is an
+    /// error naming the node. A camera override replaces the parts given and refuses bad ones.
+    #[test]
+    fn gltf_cameras_place_the_view_and_overrides_replace_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let text = textured_gltf_text(d);
+        let p = d.join("camera.gltf");
+        let load = |nodes: &str, cameras: &str| {
+            let edited = text
+                .replace(
+                    r#""scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],"#,
+                    &format!(r#""scenes":[{{"nodes":[0,1,2]}}],"nodes":[{{"mesh":0}},{nodes}],"cameras":[{cameras}],"#),
+                );
+            assert_ne!(edited, text);
+            std::fs::write(&p, edited).unwrap();
+            Scene::load(&p, false)
+        };
+        let perspective = r#"{"type":"perspective","perspective":{"yfov":0.5,"znear":0.1}}"#;
+        let ortho =
+            r#"{"type":"orthographic","orthographic":{"xmag":1,"ymag":1,"zfar":10,"znear":0.1}}"#;
+        // Node 2 (a camera turned 90° about +Y, looking along −X) is not the first; node 1 is.
+        let s = load(
+            r#"{"camera":0,"translation":[0,1,5]},
+               {"camera":1,"translation":[3,0,0],"rotation":[0,0.70710677,0,0.70710677]}"#,
+            &format!("{perspective},{perspective}"),
+        )
+        .unwrap();
+        assert_eq!(s.camera.eye, Vec3::new(0.0, 1.0, 5.0));
+        assert!((s.camera.target - Vec3::new(0.0, 1.0, 4.0)).length() < 1e-6);
+        assert_eq!(s.camera.fov_y, 0.5);
+        let s = load(
+            r#"{"camera":1,"translation":[0,1,5]},
+               {"camera":0,"translation":[3,0,0],"rotation":[0,0.70710677,0,0.70710677]}"#,
+            &format!("{perspective},{ortho}"),
+        )
+        .unwrap();
+        assert_eq!(s.camera, fit_camera(s.bounds), "orthographic: fitted");
+        let s = load(
+            r#"{"camera":0,"translation":[3,0,0],"rotation":[0,0.70710677,0,0.70710677]},
+               {"camera":0,"translation":[0,0,9],"rotation":[0,0,0.38268343,0.9238795]}"#,
+            perspective,
+        )
+        .unwrap();
+        assert!((s.camera.target - s.camera.eye - Vec3::NEG_X).length() < 1e-6);
+        // Rolled 45° about its view direction (node 2): loads, drawn level.
+        let s = load(
+            r#"{"camera":0,"translation":[0,0,9],"rotation":[0,0,0.38268343,0.9238795]},
+               {"translation":[0,0,0]}"#,
+            perspective,
+        )
+        .unwrap();
+        assert!((s.camera.target - s.camera.eye - Vec3::NEG_Z).length() < 1e-6);
+        let e = load(
+            r#"{"camera":0,"translation":[0,1,5]},{"translation":[0,0,0]}"#,
+            r#"{"type":"perspective","perspective":{"yfov":4,"znear":0.1}}"#,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("camera.gltf") && e.contains("camera node 1") && e.contains("yfov 4"),
+            "{e}"
+        );
+        // Overrides.
+        let camera = s.camera;
+        let moved = CameraOverride {
+            eye: Some(Vec3::new(1.0, 2.0, 3.0)),
+            fov_deg: Some(30.0),
+            ..Default::default()
+        }
+        .apply(camera)
+        .unwrap();
+        assert_eq!(moved.eye, Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(moved.target, camera.target);
+        assert!((moved.fov_y - 30f32.to_radians()).abs() < 1e-7);
+        for (bad, needle) in [
+            (
+                CameraOverride {
+                    fov_deg: Some(0.5),
+                    ..Default::default()
+                },
+                "field of view 0.5° is outside 1..=179°",
+            ),
+            (
+                CameraOverride {
+                    eye: Some(camera.target),
+                    ..Default::default()
+                },
+                "is where it looks",
+            ),
+            (
+                CameraOverride {
+                    look_at: Some(Vec3::new(f32::NAN, 0.0, 0.0)),
+                    ..Default::default()
+                },
+                "not finite",
+            ),
+        ] {
+            let e = bad.apply(camera).unwrap_err();
+            assert!(e.contains(needle), "{e}");
         }
     }
 
