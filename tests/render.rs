@@ -3216,7 +3216,7 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
 
 /// `envlight render --eye --look-at --fov` place the camera (logged in words) and change the
 /// image; a camera whose eye is where it looks, or a field of view outside 1..=179°, is a
-/// usage error naming the problem.
+/// usage error naming the problem (as is --fxaa with supersampling).
 #[test]
 fn cli_places_the_camera_where_asked() {
     let dir = tempfile::tempdir().unwrap();
@@ -3255,6 +3255,10 @@ fn cli_places_the_camera_where_asked() {
             "field of view 180° is outside 1..=179°",
         ),
         (&["--eye", "1,2"][..], "\"1,2\" is not three numbers X,Y,Z"),
+        (
+            &["--fxaa", "--supersample", "2"][..],
+            "--fxaa with --supersample above 1",
+        ),
     ] {
         let o = render("bad", camera);
         let stderr = String::from_utf8_lossy(&o.stderr);

@@ -158,6 +158,11 @@ impl RenderArgs {
                 "--light-count sets the lights of frames decomposed here (INPUT or the sky); --lights renders every light of each frame in the file"
             );
         }
+        if self.fxaa && self.supersample.is_some_and(|n| n > 1) {
+            usage_error!(
+                "--fxaa with --supersample above 1: FXAA would blur the resolved edges; choose one"
+            );
+        }
         Ok(())
     }
 }
