@@ -51,9 +51,10 @@ fn vs_masked(v: MaskedIn) -> MaskedOut {
 }
 
 @fragment
-fn fs_masked(in: MaskedOut) {
+fn fs_masked(in: MaskedOut, @builtin(front_facing) front: bool) {
     let tc = fragment_coordinates(in.uv, in.uv1);
-    if shadow_cut_out(shadow_materials[in.material], tc, in.alpha, vec2<u32>(in.clip.xy)) {
+    let pattern = dither_pattern(in.material, front);
+    if shadow_cut_out(shadow_materials[in.material], tc, in.alpha, vec2<u32>(in.clip.xy), pattern) {
         discard;
     }
 }

@@ -136,6 +136,9 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
     let ic = indices[3u * tri + 2u];
     let material = vertex_words[VERTEX_WORDS * ia + MATERIAL_WORD];
     let masked = raster_materials[material].extra.z > 0.0;
+    // Texel space has y down: a triangle counter-clockwise as the render passes see it (front
+    // facing) has a negative area here.
+    let pattern = dither_pattern(material, area < 0.0);
     var mat: Material;
     var uv_plane: array<vec2<f32>, 6>;
     // The vertex colours' alpha: d/dx, d/dy, the value at (0, 0).
@@ -187,7 +190,8 @@ fn rasterize(tri: u32, map: u32, row_lane: i32, row_lanes: i32, col_lane: f32, c
                     uv_plane[0] * xc + uv_plane[1] * yc + uv_plane[2], uv_plane[0], uv_plane[1],
                     uv_plane[3] * xc + uv_plane[4] * yc + uv_plane[5], uv_plane[3], uv_plane[4]);
                 let texel = vec2<u32>(u32(x), u32(y));
-                if shadow_cut_out(mat, tc, dot(alpha_plane, vec3<f32>(xc, yc, 1.0)), texel) {
+                let alpha = dot(alpha_plane, vec3<f32>(xc, yc, 1.0));
+                if shadow_cut_out(mat, tc, alpha, texel, pattern) {
                     continue;
                 }
             }

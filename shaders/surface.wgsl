@@ -227,17 +227,36 @@ fn cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32) -> bool {
 
 // Whether a shadow caster leaves shadow-map texel `texel` (its integer coordinates) empty: a
 // masked material where it is cut out (`cut_out`); a blended one where its alpha is at or
-// below the texel's threshold in a 4 × 4 ordered-dither (Bayer) pattern, so that it covers the
+// below the texel's threshold in a 4 × 4 ordered-dither pattern, so that it covers the
 // fraction α of the texels (round(16α)/16 of each 4 × 4 block), and the shadow filter, which
 // averages the comparisons over several texels, darkens the receiver by about α.
-fn shadow_cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32, texel: vec2<u32>) -> bool {
+// `pattern` (`dither_pattern`) picks one of two patterns: 0 the Bayer matrix, value
+// b = 4h + l; 1 its twin 4·((h + l) mod 4) + l, as dispersed (one of each four values in every
+// 2 × 2 block) and independent of it — the texels the two cover at alphas that are multiples
+// of 1/4 overlap as the product of the alphas, within 1.25 texels of 16 at any other pair — so
+// that two blended layers of different patterns in line block 1 − (1 − α₁)(1 − α₂) of the
+// light, as stacked translucent surfaces do, not the larger α.
+fn shadow_cut_out(mat: Material, tc: TextureCoordinates, vertex_alpha: f32, texel: vec2<u32>,
+                  pattern: u32) -> bool {
     if mat.extra.w <= 0.0 {
         return cut_out(mat, tc, vertex_alpha);
     }
-    var bayer = array<f32, 16>(0.0, 8.0, 2.0, 10.0, 12.0, 4.0, 14.0, 6.0,
-                               3.0, 11.0, 1.0, 9.0, 15.0, 7.0, 13.0, 5.0);
-    let threshold = (bayer[(texel.y % 4u) * 4u + texel.x % 4u] + 0.5) / 16.0;
+    var bayer = array<u32, 16>(0u, 8u, 2u, 10u, 12u, 4u, 14u, 6u,
+                               3u, 11u, 1u, 9u, 15u, 7u, 13u, 5u);
+    var b = bayer[(texel.y % 4u) * 4u + texel.x % 4u];
+    if pattern == 1u {
+        b = 4u * (((b >> 2u) + (b & 3u)) & 3u) + (b & 3u);
+    }
+    let threshold = (f32(b) + 0.5) / 16.0;
     return surface_alpha(mat, tc, vertex_alpha) <= threshold;
+}
+
+// The dither pattern of a blended caster's triangle (`shadow_cut_out`): by its material's
+// index and by whether it faces the light (`front`: counter-clockwise in the map as on screen),
+// so that the two sides of one translucent object, and two objects of neighbouring materials,
+// take different patterns.
+fn dither_pattern(material: u32, front: bool) -> u32 {
+    return (material + select(1u, 0u, front)) & 1u;
 }
 
 // The material's parameters at texture coordinates `tc` (`fragment_coordinates`) of a point
