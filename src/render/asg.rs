@@ -359,6 +359,10 @@ impl Renderer {
                 label: Some("asg frame"),
             });
         self.encode_shadow_maps(&mut enc, maps);
+        // GPU timestamps as the light pass's: the shadow maps' start (0), the shading's (1),
+        // the frame's end (2) after the last pass.
+        let ts = self.timestamps.as_ref();
+        let post = self.last_post_pass().is_some();
         if let Some(asg) = &self.asg_pass {
             self.encode_scene_pass(
                 &mut enc,
@@ -366,11 +370,19 @@ impl Renderer {
                 &[&self.color_view],
                 &asg.pipeline,
                 &asg.bind_group,
-                None,
+                ts.map(|t| wgpu::RenderPassTimestampWrites {
+                    query_set: &t.set,
+                    beginning_of_pass_write_index: Some(1),
+                    end_of_pass_write_index: (!post).then_some(2),
+                }),
                 asg.blended_pipeline.as_ref(),
             );
         }
-        self.encode_post_passes(&mut enc, None);
+        self.encode_post_passes(&mut enc, ts.filter(|_| post).map(|t| (t, 2)));
+        if let Some(t) = ts {
+            enc.resolve_query_set(&t.set, 0..super::TIMESTAMPS, &t.resolve, 0);
+            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(super::TIMESTAMPS));
+        }
         if readback {
             self.encode_readback(&mut enc);
         }
@@ -378,20 +390,22 @@ impl Renderer {
     }
 
     /// Renders one frame under ASG lighting and waits for it, without reading the image back.
-    /// `FrameStats::lights` counts the lobes drawn, `shadow_maps` their maps; there are no GPU
-    /// timestamps (CPU wall time only).
+    /// `FrameStats::lights` counts the lobes drawn, `shadow_maps` their maps; GPU times where
+    /// the adapter has timestamps, as for the lights.
     pub fn render_asg_timed(&mut self, lobes: &[Asg]) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
         let (n, maps) = self.prepare_asg(lobes)?;
         let cmd = self.encode_asg(maps, false).finish();
         self.gpu.queue.submit([cmd]);
         self.wait()?;
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
         Ok(FrameStats {
             lights: n,
             shadow_maps: maps,
-            gpu_ms: None,
-            shadow_gpu_ms: None,
-            cpu_ms: start.elapsed().as_secs_f64() * 1e3,
+            gpu_ms,
+            shadow_gpu_ms,
+            cpu_ms,
         })
     }
 
@@ -404,13 +418,14 @@ impl Renderer {
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
         let image = self.read_image()?;
+        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
         Ok((
             image,
             FrameStats {
                 lights: n,
                 shadow_maps: maps,
-                gpu_ms: None,
-                shadow_gpu_ms: None,
+                gpu_ms,
+                shadow_gpu_ms,
                 cpu_ms,
             },
         ))
