@@ -2374,28 +2374,28 @@ where
     {
         values.map(|v| v.map(&to_f32)).collect()
     }
+    // A component of `max` as its largest value: normalised, to [0, 1] or [−1, 1].
+    let unit = move |c: f32, max: f32| {
+        if normalized {
+            (c / max).max(-1.0)
+        } else {
+            c
+        }
+    };
     let read = accessor.clone();
     Some(match accessor.data_type() {
         DataType::F32 => Iter::<[f32; N]>::new(read, get)?.collect(),
         DataType::I8 => widened(Iter::<[i8; N]>::new(read, get)?, |c| {
-            if normalized {
-                (f32::from(c) / 127.0).max(-1.0)
-            } else {
-                f32::from(c)
-            }
+            unit(f32::from(c), 127.0)
         }),
         DataType::U8 => widened(Iter::<[u8; N]>::new(read, get)?, |c| {
-            f32::from(c) / if normalized { 255.0 } else { 1.0 }
+            unit(f32::from(c), 255.0)
         }),
         DataType::I16 => widened(Iter::<[i16; N]>::new(read, get)?, |c| {
-            if normalized {
-                (f32::from(c) / 32767.0).max(-1.0)
-            } else {
-                f32::from(c)
-            }
+            unit(f32::from(c), 32767.0)
         }),
         DataType::U16 => widened(Iter::<[u16; N]>::new(read, get)?, |c| {
-            f32::from(c) / if normalized { 65535.0 } else { 1.0 }
+            unit(f32::from(c), 65535.0)
         }),
         DataType::U32 => return None,
     })
