@@ -44,9 +44,9 @@ fn signal(c: vec4<f32>) -> f32 {
     return sqrt(clamp(dot(c.rgb, LUMA) * inverse_luma_max, 0.0, 1.0));
 }
 
-// The signal's range over a pixel `c` and its four neighbours.
-fn cross_range(c: vec4<f32>, n: vec4<f32>, s: vec4<f32>, e: vec4<f32>, w: vec4<f32>) -> f32 {
-    let v = array<f32, 5>(signal(c), signal(n), signal(s), signal(e), signal(w));
+// The range of the signal values `v` over a pixel's cross (its first five: the pixel and its
+// four neighbours).
+fn cross_range(v: array<f32, 9>) -> f32 {
     var lo = v[0];
     var hi = v[0];
     for (var i = 1u; i < 5u; i = i + 1u) {
@@ -92,27 +92,34 @@ fn cs_fxaa(@builtin(global_invocation_id) id: vec3<u32>) {
     let csw = texel(p + vec2<i32>(-1, 1));
     let cse = texel(p + vec2<i32>(1, 1));
 
-    // Step 1: which signal, and its normaliser.
-    let lumas = array<f32, 9>(dot(centre.rgb, LUMA), dot(cn.rgb, LUMA), dot(cs.rgb, LUMA),
-                              dot(ce.rgb, LUMA), dot(cw.rgb, LUMA), dot(cnw.rgb, LUMA),
-                              dot(cne.rgb, LUMA), dot(csw.rgb, LUMA), dot(cse.rgb, LUMA));
+    // Step 1: the normaliser, both signals over the 3 × 3 (the cross first: centre, north,
+    // south, east, west; then the corners), and the one that varies more over the cross.
+    let texels = array<vec4<f32>, 9>(centre, cn, cs, ce, cw, cnw, cne, csw, cse);
     var luma_max = 0.0;
     for (var i = 0u; i < 9u; i = i + 1u) {
-        luma_max = max(luma_max, lumas[i]);
+        luma_max = max(luma_max, dot(texels[i].rgb, LUMA));
     }
     inverse_luma_max = select(0.0, 1.0 / luma_max, luma_max > 0.0);
-    signal_is_alpha = false;
-    let luma_range = cross_range(centre, cn, cs, ce, cw);
-    signal_is_alpha = true;
-    let alpha_range = cross_range(centre, cn, cs, ce, cw);
-    signal_is_alpha = alpha_range > luma_range;
+    var by_luma: array<f32, 9>;
+    var by_alpha: array<f32, 9>;
+    for (var i = 0u; i < 9u; i = i + 1u) {
+        signal_is_alpha = false;
+        by_luma[i] = signal(texels[i]);
+        signal_is_alpha = true;
+        by_alpha[i] = signal(texels[i]);
+    }
+    signal_is_alpha = cross_range(by_alpha) > cross_range(by_luma);
+    var v = by_luma;
+    if signal_is_alpha {
+        v = by_alpha;
+    }
 
     // Step 2: edges only.
-    let s = signal(centre);
-    let sn = signal(cn);
-    let ss = signal(cs);
-    let se = signal(ce);
-    let sw = signal(cw);
+    let s = v[0];
+    let sn = v[1];
+    let ss = v[2];
+    let se = v[3];
+    let sw = v[4];
     let s_min = min(s, min(min(sn, ss), min(se, sw)));
     let s_max = max(s, max(max(sn, ss), max(se, sw)));
     let range = s_max - s_min;
@@ -120,10 +127,10 @@ fn cs_fxaa(@builtin(global_invocation_id) id: vec3<u32>) {
         textureStore(frame_out, p, centre);
         return;
     }
-    let snw = signal(cnw);
-    let sne = signal(cne);
-    let ssw = signal(csw);
-    let sse = signal(cse);
+    let snw = v[5];
+    let sne = v[6];
+    let ssw = v[7];
+    let sse = v[8];
 
     // Step 3: a horizontal edge (signal changing along y) or a vertical one.
     let edge_horizontal = abs(-2.0 * sw + snw + ssw) + 2.0 * abs(-2.0 * s + sn + ss)

@@ -201,9 +201,8 @@ fn gbuffer_params(in: VertexOut, front: bool) -> SurfaceParams {
     return surface_params(mat, tc, in.normal, in.tangent, in.color, front);
 }
 
-@fragment
-fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
-    let p = gbuffer_params(in, front);
+// The four targets of a fragment of `in` with parameters `p`.
+fn gbuffer_targets(in: VertexOut, p: SurfaceParams) -> GBuffer {
     var out: GBuffer;
     out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
     out.normal = vec4<f32>(p.normal, p.roughness);
@@ -213,15 +212,15 @@ fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
 }
 
 @fragment
+fn fs_gbuffer(in: VertexOut, @builtin(front_facing) front: bool) -> GBuffer {
+    return gbuffer_targets(in, gbuffer_params(in, front));
+}
+
+@fragment
 fn fs_gbuffer_layered(in: VertexOut, @builtin(front_facing) front: bool) -> LayeredGBuffer {
     let p = gbuffer_params(in, front);
-    var out: LayeredGBuffer;
-    out.position = vec4<f32>(in.world, f32(in.material) + 1.0);
-    out.normal = vec4<f32>(p.normal, p.roughness);
-    out.surface = vec4<f32>(p.base_color, p.metallic);
-    out.emission = vec4<f32>(p.emission, p.occlusion);
-    out.layers = pack_layers(p);
-    return out;
+    let g = gbuffer_targets(in, p);
+    return LayeredGBuffer(g.position, g.normal, g.surface, g.emission, pack_layers(p));
 }
 
 @fragment

@@ -1829,7 +1829,18 @@ fn occlusion_and_emissive_textures_darken_glow_and_keep_their_own_modes() {
 /// A renderer of a [`textured_quad`] scene with a white Lambertian receiver, 4 × 4, 0.5
 /// behind the quad (a caster too), shadowed with `raster` at 256² (the cut-out tests: through
 /// a hole the receiver is lit).
-fn before_receiver(mut scene: Scene, raster: ShadowRaster) -> Renderer {
+fn before_receiver(scene: Scene, raster: ShadowRaster) -> Renderer {
+    before_receiver_with(
+        scene,
+        RenderSettings {
+            shadow_raster: raster,
+            ..quad_settings()
+        },
+    )
+}
+
+/// [`before_receiver`] with `settings`, shadows on at 256².
+fn before_receiver_with(mut scene: Scene, settings: RenderSettings) -> Renderer {
     add_quad(&mut scene, 2.0, -0.5, Material::lambertian([1.0; 3]));
     scene.bounds.radius = 8f32.sqrt();
     renderer(
@@ -1837,8 +1848,7 @@ fn before_receiver(mut scene: Scene, raster: ShadowRaster) -> Renderer {
         RenderSettings {
             shadows: true,
             shadow_resolution: 256,
-            shadow_raster: raster,
-            ..quad_settings()
+            ..settings
         },
     )
 }
@@ -1904,6 +1914,16 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
         [0, 1, 2].map(|c| front[c] * alpha + behind[c] * (1.0 - alpha))
     };
     let (red, blue) = ([1.0, 0.2, 0.1], [0.1, 0.3, 1.0]);
+    let half_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.5 * c);
+    let quarter_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.25 * c);
+    // Red (α 0.5) over blue (α 0.5), half in red's shadow, over the receiver a quarter lit
+    // behind both (two materials, two independent dither patterns: 1 − (1 − ½)(1 − ½) of the
+    // light blocked).
+    let two_layers = over(
+        lit(red),
+        0.5,
+        over(half_lit(blue), 0.5, quarter_lit([1.0; 3])),
+    );
     // Alone: premultiplied colour and alpha over the empty background.
     let (r, img) = render_quad(textured_quad(blend(red, 0.25), vec![], 1.0), &lights);
     assert_close(
@@ -1930,23 +1950,14 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
             let a = mean_alpha_over(&r, &img, -0.5..0.5);
             assert!((a - 1.0).abs() < 1e-3, "{what}: alpha {a}");
         }
-        // Two blended squares, the near one (red, z = 0) listed first: drawn far to near; the
-        // blue one half in the red one's shadow, the receiver a quarter lit behind both (two
-        // materials, two independent dither patterns: 1 − (1 − ½)(1 − ½) of the light
-        // blocked).
+        // Two blended squares, the near one (red, z = 0) listed first: drawn far to near
+        // (`two_layers`).
         let mut scene = textured_quad(blend(red, 0.5), vec![], 1.0);
         add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.5));
         let mut r = before_receiver(scene, raster);
         let (img, _) = r.render(&lights).unwrap();
-        let half_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.5 * c);
-        let quarter_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.25 * c);
-        let want = over(
-            lit(red),
-            0.5,
-            over(half_lit(blue), 0.5, quarter_lit([1.0; 3])),
-        );
         let got = mean_over(&r, &img, -0.5..0.5);
-        assert_close(&format!("{raster:?}, two layers"), got, want, 0.02);
+        assert_close(&format!("{raster:?}, two layers"), got, two_layers, 0.02);
         // Two sides of one translucent object: two squares of one double-sided material
         // (α 0.5), the far one facing away from the light and the camera (its back seen, lit
         // as its front would be), before the receiver: the receiver a quarter lit, where one
@@ -2006,27 +2017,16 @@ fn blended_materials_are_drawn_over_what_lies_behind_them() {
     // same two layers (α 0.5) as above, and the ASG pass's as without supersampling.
     let mut scene = textured_quad(blend(red, 0.5), vec![], 1.0);
     add_quad(&mut scene, 1.5, -0.25, blend(blue, 0.5));
-    add_quad(&mut scene, 2.0, -0.5, Material::lambertian([1.0; 3]));
-    scene.bounds.radius = 8f32.sqrt();
     let settings = |supersample| RenderSettings {
-        shadows: true,
-        shadow_resolution: 256,
         supersample,
         ..quad_settings()
     };
-    let mut r = renderer(scene.clone(), settings(2));
+    let mut r = before_receiver_with(scene.clone(), settings(2));
     let (img, _) = r.render(&lights).unwrap();
-    let half_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.5 * c);
-    let quarter_lit = |albedo: [f32; 3]| lit(albedo).map(|c| 0.25 * c);
-    let want = over(
-        lit(red),
-        0.5,
-        over(half_lit(blue), 0.5, quarter_lit([1.0; 3])),
-    );
     let got = mean_over(&r, &img, -0.5..0.5);
-    assert_close("supersampled, two layers", got, want, 0.02);
+    assert_close("supersampled, two layers", got, two_layers, 0.02);
     let (img, _) = r.render_asg(&lobes).unwrap();
-    let mut plain = renderer(scene, settings(1));
+    let mut plain = before_receiver_with(scene, settings(1));
     let (plain_img, _) = plain.render_asg(&lobes).unwrap();
     let (got, want) = (
         mean_over(&r, &img, -0.5..0.5),

@@ -113,7 +113,17 @@ pub(super) struct AsgPass {
     capacity: usize,
     table: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
+    /// The renderer's `shadow_bindings_generation` when `bind_group` was made.
+    bound_generation: u64,
 }
+
+/// Where the ASG pass binds the lobes' shadow maps (`shaders/asg.wgsl`, group 0).
+const ASG_SHADOW_BINDINGS: super::ShadowLookupBindings = super::ShadowLookupBindings {
+    lights: 4,
+    maps: 5,
+    sampler: 6,
+    depths: 7,
+};
 
 fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
@@ -141,6 +151,8 @@ impl AsgPass {
     fn new(renderer: &Renderer) -> Self {
         use wgpu::util::DeviceExt;
         let device = &renderer.gpu.device;
+        let [lights_entry, maps_entry, sampler_entry, depths_entry] =
+            ASG_SHADOW_BINDINGS.layout_entries(wgpu::ShaderStages::FRAGMENT);
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("asg"),
             entries: &[
@@ -157,24 +169,10 @@ impl AsgPass {
                 storage_entry(1),
                 storage_entry(2),
                 storage_entry(3),
-                storage_entry(4),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 5,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Depth,
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 6,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
-                    count: None,
-                },
-                storage_entry(7),
+                lights_entry,
+                maps_entry,
+                sampler_entry,
+                depths_entry,
             ],
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -223,6 +221,7 @@ impl AsgPass {
         });
         let bind_group = Self::bind(renderer, &layout, &globals, &lobes, &table);
         Self {
+            bound_generation: renderer.shadow_bindings_generation,
             pipeline,
             blended_pipeline,
             layout,
@@ -241,6 +240,13 @@ impl AsgPass {
         lobes: &wgpu::Buffer,
         table: &wgpu::Buffer,
     ) -> wgpu::BindGroup {
+        // The lobes' shadow maps, as the light pass binds them.
+        let [lights, maps, sampler, depths] = ASG_SHADOW_BINDINGS.bind_entries(
+            &renderer.light_buffer,
+            &renderer.shadow.array_view,
+            &renderer.shadow_sampler,
+            renderer.shadow_depths(),
+        );
         renderer
             .gpu
             .device
@@ -264,27 +270,10 @@ impl AsgPass {
                         binding: 3,
                         resource: table.as_entire_binding(),
                     },
-                    // The lobes' shadow maps, as the light pass binds them.
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: renderer.light_buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
-                        resource: wgpu::BindingResource::TextureView(&renderer.shadow.array_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 6,
-                        resource: wgpu::BindingResource::Sampler(&renderer.shadow_sampler),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 7,
-                        resource: renderer
-                            .compute_shadows
-                            .as_ref()
-                            .map_or(&renderer.no_shadow_depths, super::ComputeShadows::depths)
-                            .as_entire_binding(),
-                    },
+                    lights,
+                    maps,
+                    sampler,
+                    depths,
                 ],
             })
     }
@@ -322,13 +311,17 @@ impl Renderer {
             Some(pass) => pass,
             None => AsgPass::new(self),
         };
+        let mut rebind = pass.bound_generation != self.shadow_bindings_generation;
         if raw.len() > pass.capacity {
             pass.capacity = raw.len().next_power_of_two();
             pass.lobes = lobe_buffer(&self.gpu.device, pass.capacity);
+            rebind = true;
         }
-        // Rebound every frame: the light buffer and the maps may have grown.
-        pass.bind_group =
-            AsgPass::bind(self, &pass.layout, &pass.globals, &pass.lobes, &pass.table);
+        if rebind {
+            pass.bind_group =
+                AsgPass::bind(self, &pass.layout, &pass.globals, &pass.lobes, &pass.table);
+            pass.bound_generation = self.shadow_bindings_generation;
+        }
         if !raw.is_empty() {
             self.gpu
                 .queue
@@ -362,7 +355,7 @@ impl Renderer {
         // GPU timestamps as the light pass's: the shadow maps' start (0), the shading's (1),
         // the frame's end (2) after the last pass.
         let ts = self.timestamps.as_ref();
-        let post = self.last_post_pass().is_some();
+        let post = self.post_pass.is_some();
         if let Some(asg) = &self.asg_pass {
             self.encode_scene_pass(
                 &mut enc,
@@ -378,7 +371,7 @@ impl Renderer {
                 asg.blended_pipeline.as_ref(),
             );
         }
-        self.encode_post_passes(&mut enc, ts.filter(|_| post).map(|t| (t, 2)));
+        self.encode_post_pass(&mut enc, ts.filter(|_| post).map(|t| (t, 2)));
         if let Some(t) = ts {
             enc.resolve_query_set(&t.set, 0..super::TIMESTAMPS, &t.resolve, 0);
             enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(super::TIMESTAMPS));

@@ -283,10 +283,10 @@ pub struct Renderer {
     /// The frame the passes draw (at `supersample` times the output's size).
     color_view: wgpu::TextureView,
     color_texture: wgpu::Texture,
-    /// The output image resolved from `color_view`'s samples, with supersampling.
-    resolve: Option<post::PostPass>,
-    /// The output image anti-aliased by FXAA (from the resolved image or `color_view`).
-    fxaa: Option<post::PostPass>,
+    /// The pass after the shading that makes the output image, where there is one: the
+    /// supersampling's resolve of `color_view`'s samples, or FXAA (the two are not combined,
+    /// [`RenderSettings::fxaa`]).
+    post_pass: Option<post::PostPass>,
     depth_view: wgpu::TextureView,
     gbuffer_views: [wgpu::TextureView; GBUFFER_TARGETS],
     /// Whether the G-buffer pass writes its fifth target (else a 1 × 1 placeholder is bound):
@@ -305,6 +305,10 @@ pub struct Renderer {
     compute_shadows: Option<ComputeShadows>,
     /// Bound in its place otherwise.
     no_shadow_depths: wgpu::Buffer,
+    /// Counts the times [`Self::prepare`] replaced a buffer or texture the shadow lookup binds
+    /// (the light buffer, the map array, the compute maps), so that the ASG pass, which binds
+    /// them too, rebinds only then.
+    shadow_bindings_generation: u64,
 }
 
 /// The G-buffer's targets: position + material, normal + roughness, base colour + metallic,
@@ -379,6 +383,49 @@ fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGrou
 }
 
 /// A storage-buffer binding read (or, without `read_only`, written) by compute shaders.
+/// A single-level, single-sample 2D texture of `width` × `height` (the frame, the G-buffer, the
+/// post passes' outputs).
+fn texture_2d(
+    device: &wgpu::Device,
+    label: &str,
+    (width, height): (u32, u32),
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+/// A layout entry for a 2D float texture read with `textureLoad` (not filtered: the
+/// `Rgba32Float` frame and G-buffer), visible to `visibility`.
+fn unfiltered_texture_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
 fn compute_storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -391,6 +438,85 @@ fn compute_storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayout
         count: None,
     }
 }
+
+/// Where a pass binds what `shaders/shadow_lookup.wgsl` reads: the light records, the
+/// shadow-map array, its comparison sampler and the compute rasteriser's depths (the light
+/// pass and the ASG pass, each at its own binding numbers).
+#[derive(Clone, Copy, Debug)]
+struct ShadowLookupBindings {
+    lights: u32,
+    maps: u32,
+    sampler: u32,
+    depths: u32,
+}
+
+impl ShadowLookupBindings {
+    /// The layout entries, visible to `visibility`.
+    fn layout_entries(self, visibility: wgpu::ShaderStages) -> [wgpu::BindGroupLayoutEntry; 4] {
+        [
+            wgpu::BindGroupLayoutEntry {
+                visibility,
+                ..compute_storage_entry(self.lights, true)
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: self.maps,
+                visibility,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Depth,
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
+                    multisampled: false,
+                },
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: self.sampler,
+                visibility,
+                ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                visibility,
+                ..compute_storage_entry(self.depths, true)
+            },
+        ]
+    }
+
+    /// The bind-group entries of those resources.
+    fn bind_entries<'a>(
+        self,
+        lights: &'a wgpu::Buffer,
+        maps: &'a wgpu::TextureView,
+        sampler: &'a wgpu::Sampler,
+        depths: &'a wgpu::Buffer,
+    ) -> [wgpu::BindGroupEntry<'a>; 4] {
+        [
+            wgpu::BindGroupEntry {
+                binding: self.lights,
+                resource: lights.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: self.maps,
+                resource: wgpu::BindingResource::TextureView(maps),
+            },
+            wgpu::BindGroupEntry {
+                binding: self.sampler,
+                resource: wgpu::BindingResource::Sampler(sampler),
+            },
+            wgpu::BindGroupEntry {
+                binding: self.depths,
+                resource: depths.as_entire_binding(),
+            },
+        ]
+    }
+}
+
+/// The light pass's [`ShadowLookupBindings`] (group 0 of `shaders/shade.wgsl`).
+const SHADE_SHADOW_BINDINGS: ShadowLookupBindings = ShadowLookupBindings {
+    lights: 1,
+    maps: 3,
+    sampler: 4,
+    depths: 5,
+};
 
 /// A triangle pipeline over the scene's vertices (the vertex entry point reading the given
 /// attributes), depth-tested with `Less`, no culling; with `fragment = Some((entry, formats))`,
@@ -690,43 +816,23 @@ impl Renderer {
             ..Default::default()
         });
 
+        // The fragment stages: the G-buffer pass reads the materials' factors and texture
+        // layers, the blended pass shades as the compute pass does.
+        let shading_stages = wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT;
+        let [lights_entry, maps_entry, sampler_entry, depths_entry] =
+            SHADE_SHADOW_BINDINGS.layout_entries(shading_stages);
         let shade_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("shade"),
             entries: &[
-                // The fragment stages: the G-buffer pass reads the materials' factors and
-                // texture layers, the blended pass shades as the compute pass does.
-                uniform_entry(
-                    0,
-                    wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE,
-                ),
+                uniform_entry(0, wgpu::ShaderStages::VERTEX | shading_stages),
+                lights_entry,
                 wgpu::BindGroupLayoutEntry {
-                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
-                    ..compute_storage_entry(1, true)
-                },
-                wgpu::BindGroupLayoutEntry {
-                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
+                    visibility: shading_stages,
                     ..compute_storage_entry(2, true)
                 },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 3,
-                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Depth,
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 4,
-                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    visibility: wgpu::ShaderStages::COMPUTE | wgpu::ShaderStages::FRAGMENT,
-                    ..compute_storage_entry(5, true)
-                },
+                maps_entry,
+                sampler_entry,
+                depths_entry,
             ],
         });
         let shadow_cam_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -750,16 +856,8 @@ impl Renderer {
             ],
         });
 
-        let gbuffer_texture = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                view_dimension: wgpu::TextureViewDimension::D2,
-                multisampled: false,
-            },
-            count: None,
-        };
+        let gbuffer_texture =
+            |binding| unfiltered_texture_entry(binding, wgpu::ShaderStages::COMPUTE);
         let gbuffer_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("g-buffer and frame"),
             entries: &[
@@ -891,12 +989,19 @@ impl Renderer {
         let (width, height) = (settings.width * s, settings.height * s);
         let (color_texture, color_view, depth_view) = Self::make_targets(device, width, height);
         let gbuffer_views = Self::make_gbuffer(device, width, height, layered_gbuffer);
-        let resolve = (s > 1)
-            .then(|| supersample::resolve(device, &color_view, settings.width, settings.height));
-        let fxaa = settings.fxaa.then(|| {
-            let input = resolve.as_ref().map_or(&color_view, |r| &r.view);
-            post::fxaa(device, input, settings.width, settings.height)
-        });
+        let (out_width, out_height) = (settings.width, settings.height);
+        let post_pass = if s > 1 {
+            Some(supersample::resolve(
+                device,
+                &color_view,
+                out_width,
+                out_height,
+            ))
+        } else if settings.fxaa {
+            Some(post::fxaa(device, &color_view, out_width, out_height))
+        } else {
+            None
+        };
         let gbuffer_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("g-buffer and frame"),
             layout: &gbuffer_layout,
@@ -1023,8 +1128,7 @@ impl Renderer {
             blended_pipeline,
             color_view,
             color_texture,
-            resolve,
-            fxaa,
+            post_pass,
             depth_view,
             gbuffer_views,
             layered_gbuffer,
@@ -1036,6 +1140,7 @@ impl Renderer {
             asg_pass: None,
             compute_shadows,
             no_shadow_depths,
+            shadow_bindings_generation: 0,
         })
     }
 
@@ -1119,22 +1224,9 @@ impl Renderer {
             } else {
                 (1, 1)
             };
-            device
-                .create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size: wgpu::Extent3d {
-                        width,
-                        height,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                        | wgpu::TextureUsages::TEXTURE_BINDING,
-                    view_formats: &[],
-                })
+            let usage =
+                wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+            texture_2d(device, label, (width, height), format, usage)
                 .create_view(&Default::default())
         })
     }
@@ -1144,34 +1236,23 @@ impl Renderer {
         width: u32,
         height: u32,
     ) -> (wgpu::Texture, wgpu::TextureView, wgpu::TextureView) {
-        let size = wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        };
-        let color = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("color"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: COLOR_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+        let color = texture_2d(
+            device,
+            "color",
+            (width, height),
+            COLOR_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
                 | wgpu::TextureUsages::COPY_SRC
                 | wgpu::TextureUsages::TEXTURE_BINDING
                 | wgpu::TextureUsages::STORAGE_BINDING,
-            view_formats: &[],
-        });
-        let depth = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("depth"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: DEPTH_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            view_formats: &[],
-        });
+        );
+        let depth = texture_2d(
+            device,
+            "depth",
+            (width, height),
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
         let cv = color.create_view(&Default::default());
         let dv = depth.create_view(&Default::default());
         (color, cv, dv)
@@ -1188,6 +1269,8 @@ impl Renderer {
         sampler: &wgpu::Sampler,
         shadow_depths: &wgpu::Buffer,
     ) -> wgpu::BindGroup {
+        let [lights, maps, sampler, depths] =
+            SHADE_SHADOW_BINDINGS.bind_entries(lights, shadow_view, sampler, shadow_depths);
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("shade"),
             layout,
@@ -1196,26 +1279,14 @@ impl Renderer {
                     binding: 0,
                     resource: globals.as_entire_binding(),
                 },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: lights.as_entire_binding(),
-                },
+                lights,
                 wgpu::BindGroupEntry {
                     binding: 2,
                     resource: materials.as_entire_binding(),
                 },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: wgpu::BindingResource::TextureView(shadow_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: wgpu::BindingResource::Sampler(sampler),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: shadow_depths.as_entire_binding(),
-                },
+                maps,
+                sampler,
+                depths,
             ],
         })
     }
@@ -1262,34 +1333,29 @@ impl Renderer {
     /// The HDR output image (`Rgba32Float`, `settings().width` × `height`; resolved from the
     /// samples with supersampling, anti-aliased with FXAA), for passes that read the frame.
     pub fn color_view(&self) -> &wgpu::TextureView {
-        self.last_post_pass().map_or(&self.color_view, |p| &p.view)
+        self.post_pass
+            .as_ref()
+            .map_or(&self.color_view, |p| &p.view)
     }
 
     /// The texture behind [`Self::color_view`].
     fn output_texture(&self) -> &wgpu::Texture {
-        self.last_post_pass()
+        self.post_pass
+            .as_ref()
             .map_or(&self.color_texture, |p| &p.texture)
     }
 
-    /// The pass that makes the output image, where one follows the shading: FXAA, else the
-    /// supersampling's resolve.
-    fn last_post_pass(&self) -> Option<&post::PostPass> {
-        self.fxaa.as_ref().or(self.resolve.as_ref())
-    }
-
-    /// Encodes the passes after the shading (resolve, FXAA), the last one writing
+    /// Encodes the pass after the shading (resolve or FXAA), where there is one, writing
     /// `frame_end`.
-    fn encode_post_passes(
+    fn encode_post_pass(
         &self,
         enc: &mut wgpu::CommandEncoder,
         frame_end: Option<(&Timestamps, u32)>,
     ) {
-        let passes: Vec<&post::PostPass> = self.resolve.iter().chain(&self.fxaa).collect();
-        for (i, pass) in passes.iter().enumerate() {
-            let end = frame_end.filter(|_| i + 1 == passes.len());
+        if let Some(pass) = &self.post_pass {
             pass.encode(
                 enc,
-                end.map(|(t, end)| wgpu::ComputePassTimestampWrites {
+                frame_end.map(|(t, end)| wgpu::ComputePassTimestampWrites {
                     query_set: &t.set,
                     beginning_of_pass_write_index: None,
                     end_of_pass_write_index: Some(end),
@@ -1402,10 +1468,9 @@ impl Renderer {
                 &self.material_buffer,
                 &self.shadow.array_view,
                 &self.shadow_sampler,
-                self.compute_shadows
-                    .as_ref()
-                    .map_or(&self.no_shadow_depths, ComputeShadows::depths),
+                self.shadow_depths(),
             );
+            self.shadow_bindings_generation += 1;
         }
         let raw: Vec<shading::LightRaw> = gpu_lights.iter().map(GpuLight::to_raw).collect();
         if !raw.is_empty() {
@@ -1421,6 +1486,13 @@ impl Renderer {
         );
         self.check_gpu()?;
         Ok((gpu_lights, maps as usize))
+    }
+
+    /// The compute rasteriser's depth buffer, or the placeholder bound in its place.
+    fn shadow_depths(&self) -> &wgpu::Buffer {
+        self.compute_shadows
+            .as_ref()
+            .map_or(&self.no_shadow_depths, ComputeShadows::depths)
     }
 
     /// The light pass's constants for a frame of `light_count` lights (the shadow lookup's
@@ -1505,12 +1577,11 @@ impl Renderer {
         // The frame's end, written by its last pass: the resolve or FXAA where there is one,
         // else the blended surfaces' where there are any, else the shading.
         let frame_end = ts.map(|t| (t, 2));
-        let (shade_end, blended_end, post_end) =
-            match (&self.blended_pipeline, self.last_post_pass()) {
-                (_, Some(_)) => (None, None, frame_end),
-                (Some(_), None) => (None, frame_end, None),
-                (None, None) => (frame_end, None, None),
-            };
+        let (shade_end, blended_end, post_end) = match (&self.blended_pipeline, &self.post_pass) {
+            (_, Some(_)) => (None, None, frame_end),
+            (Some(_), None) => (None, frame_end, None),
+            (None, None) => (frame_end, None, None),
+        };
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("shade"),
@@ -1533,7 +1604,7 @@ impl Renderer {
         if let Some(pipeline) = &self.blended_pipeline {
             self.encode_blended_pass(&mut enc, pipeline, blended_end);
         }
-        self.encode_post_passes(&mut enc, post_end);
+        self.encode_post_pass(&mut enc, post_end);
         if let Some(t) = ts {
             enc.resolve_query_set(&t.set, 0..TIMESTAMPS, &t.resolve, 0);
             enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(TIMESTAMPS));

@@ -257,11 +257,6 @@ impl MaterialTextures {
             &mut self.clearcoat_normal,
         ]
     }
-
-    /// Whether a tangent frame is needed: a normal texture, the base's or the clear coat's.
-    pub fn need_tangents(&self) -> bool {
-        self.normal.is_some() || self.clearcoat_normal.is_some()
-    }
 }
 
 impl Default for MaterialTextures {
@@ -1587,6 +1582,10 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             }
             let mat = prim.material();
             let channels = texture_channels(&mat);
+            // A normal texture, the base's or the clear coat's, needs the tangent frame.
+            let coat_normal =
+                extension_texture(&mat, COAT_NORMAL_TEXTURE).is_ok_and(|t| t.is_some());
+            let normal_textured = mat.normal_texture().is_some() || coat_normal;
             for (semantic, accessor) in prim.attributes() {
                 use gltf::accessor::{
                     DataType::{F32, I16, I8, U16, U8},
@@ -1603,7 +1602,7 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                         Vec2,
                         &[F32, I8, U8, I16, U16][..],
                     ),
-                    gltf::Semantic::Tangents if needs_tangents(&mat) => {
+                    gltf::Semantic::Tangents if normal_textured => {
                         ("TANGENT".to_string(), Vec4, &[F32, I8, I16][..])
                     }
                     gltf::Semantic::Colors(0) => {
@@ -1749,9 +1748,12 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
             }
             // MikkTSpace's tangents follow the normal texture's coordinates (the clear
             // coat's where the base has none).
-            let normal_slot = if mat.normal_texture().is_some() { 2 } else { 9 };
+            let normal_slot = if mat.normal_texture().is_some() {
+                NORMAL_SLOT
+            } else {
+                COAT_NORMAL_SLOT
+            };
             let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
-            let normal_textured = needs_tangents(&mat);
             // Tangents where a normal texture needs them: the file's, turned with the node
             // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
             let read_tangents =
@@ -1801,8 +1803,8 @@ fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Builder, SceneEr
                 Some(&id) => id,
                 None => {
                     if mat.normal_texture().is_some()
-                        && channels.channel[2] != channels.channel[9]
-                        && extension_texture(&mat, EXTENSION_TEXTURES[4]).is_ok_and(|t| t.is_some())
+                        && coat_normal
+                        && channels.channel[NORMAL_SLOT] != channels.channel[COAT_NORMAL_SLOT]
                     {
                         tracing::warn!(
                             "{}: material {:?}: its clear-coat normal texture reads other \
@@ -2201,8 +2203,15 @@ const EXTENSION_TEXTURES: [(&str, &str); 5] = [
     (SPECULAR, "specularColorTexture"),
     (CLEARCOAT, "clearcoatTexture"),
     (CLEARCOAT, "clearcoatRoughnessTexture"),
-    (CLEARCOAT, "clearcoatNormalTexture"),
+    COAT_NORMAL_TEXTURE,
 ];
+
+/// The clear coat's normal texture (the last of [`EXTENSION_TEXTURES`]).
+const COAT_NORMAL_TEXTURE: (&str, &str) = (CLEARCOAT, "clearcoatNormalTexture");
+
+/// The slots ([`SLOT_NAMES`]) of the two normal textures, the base's and the clear coat's.
+const NORMAL_SLOT: usize = 2;
+const COAT_NORMAL_SLOT: usize = 9;
 
 /// A glTF material's emitted radiance: `emissiveFactor` (each in [0, 1]) times its
 /// `KHR_materials_emissive_strength.emissiveStrength` (finite, ≥ 0; 1 without the extension).
@@ -2335,13 +2344,6 @@ fn texture_channels(material: &gltf::Material) -> TextureChannels {
         }
     }
     channels
-}
-
-/// Whether a glTF material needs the mesh's tangent frame: a normal texture, its own or its
-/// clear coat's.
-fn needs_tangents(material: &gltf::Material) -> bool {
-    material.normal_texture().is_some()
-        || extension_texture(material, EXTENSION_TEXTURES[4]).is_ok_and(|t| t.is_some())
 }
 
 /// A vertex attribute's values as floats, whatever its component type: glTF's floats, and the
@@ -4079,7 +4081,6 @@ mod tests {
         let moved = t.specular_color.unwrap();
         assert_eq!(moved.transform, [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0]]);
         assert_eq!(t.clearcoat_normal_scale, 0.5);
-        assert!(t.need_tangents());
         assert!(
             s.vertices.iter().all(|v| v.tangent[..3] != [0.0; 3]),
             "the coat's normal texture needs tangents: {:?}",

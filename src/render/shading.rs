@@ -170,15 +170,19 @@ impl Material {
     /// specular_factor; both 0 where the level `specular` is 0 (a Lambertian material: no
     /// reflection at grazing incidence either).
     pub fn dielectric_fresnel(&self) -> ([f32; 3], f32) {
+        let (tinted, strength) = self.dielectric_factors();
+        (tinted.map(|c| c.min(1.0) * strength), strength)
+    }
+
+    /// The factors of [`Material::dielectric_fresnel`] before its clamp, which the shaders
+    /// apply after the specular-colour texture: 0.16 · specular² · specular_color and the
+    /// strength `specular_factor` (both 0 where the level is 0).
+    fn dielectric_factors(&self) -> ([f32; 3], f32) {
         if self.specular <= 0.0 {
             return ([0.0; 3], 0.0);
         }
         let f0 = 0.16 * self.specular * self.specular;
-        (
-            self.specular_color
-                .map(|c| (f0 * c).min(1.0) * self.specular_factor),
-            self.specular_factor,
-        )
+        (self.specular_color.map(|c| f0 * c), self.specular_factor)
     }
 
     /// The shaders' form, with its texture layers from [`super::textures::material_layers`].
@@ -233,12 +237,9 @@ impl Material {
                 let m = t.map_or(super::scene::NO_UV_TRANSFORM, |t| t.transform);
                 m.map(|[a, b, c]| [a, b, c, 0.0])
             }),
-            specular: if self.specular <= 0.0 {
-                [0.0; 4]
-            } else {
-                let f0 = 0.16 * self.specular * self.specular;
-                let [r, g, b] = self.specular_color.map(|c| f0 * c);
-                [r, g, b, self.specular_factor]
+            specular: {
+                let ([r, g, b], strength) = self.dielectric_factors();
+                [r, g, b, strength]
             },
             coat: [
                 self.clearcoat,
