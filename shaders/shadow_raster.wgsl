@@ -37,7 +37,7 @@ struct Params {
 };
 
 @group(0) @binding(0) var<uniform> params: Params;
-// The scene's vertices as words, VERTEX_WORDS each (src/render/scene.rs `Vertex`: position,
+// The scene's vertices as words, VERTEX_WORDS each (src/render/scene/mod.rs `Vertex`: position,
 // normal, material, uv, uv1, tangent).
 // As u32 words (the colour's and material's bits are no f32s: read as floats, a NaN pattern
 // might not survive the load).
@@ -51,7 +51,7 @@ struct Params {
 @group(0) @binding(5) var<storage, read> triangle_ids: array<u32>;
 @group(0) @binding(6) var<storage, read> raster_materials: array<Material>;
 
-// The words of a vertex (src/render/scene.rs, `Vertex`): its position is the first three, its
+// The words of a vertex (src/render/scene/mod.rs, `Vertex`): its position is the first three, its
 // material the seventh, its texture coordinates the next two pairs, its colour the last two.
 const VERTEX_WORDS: u32 = 17u;
 const MATERIAL_WORD: u32 = 6u;
