@@ -28,7 +28,8 @@ const TABLE_NU_MAX: f32 = 400000.0;
 
 struct Globals {
     view_proj: mat4x4<f32>,
-    camera_pos: vec4<f32>,
+    // The viewer: the eye (w = 1) or, for an orthographic camera, the direction towards it (w = 0).
+    viewer: vec4<f32>,
     lobe_count: u32,
     shadows: u32,
     // As shade.wgsl's Globals: where the maps are, and the lookup's offsets and map side.
@@ -236,7 +237,7 @@ fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0)
 // The radiance (RGBA, opaque; a shadow catcher's premultiplied shadow) at the point `world`
 // of material `mat`, whose parameters there are `p` (`surface_params`).
 fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
-    let s = surface_at(world, p.normal, p, mat.params.w, globals.camera_pos.xyz);
+    let s = surface_at(world, p.normal, p, mat.params.w, globals.viewer);
     let n = s.n;
     let v = s.v;
     let alpha = s.alpha;

@@ -32,7 +32,8 @@
 
 struct Globals {
     view_proj: mat4x4<f32>,
-    camera_pos: vec4<f32>,
+    // The viewer: the eye (w = 1) or, for an orthographic camera, the direction towards it (w = 0).
+    viewer: vec4<f32>,
     light_count: u32,
     culling: u32,
     shadows: u32,
@@ -271,7 +272,7 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
 // The shaded colour (premultiplied RGBA) of the surface point `world` with interpolated normal
 // `normal`, material `material` and its parameters there `p`.
 fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfaceParams) -> vec4<f32> {
-    let s = surface_at(world, normal, p, materials[material].params.w, globals.camera_pos.xyz);
+    let s = surface_at(world, normal, p, materials[material].params.w, globals.viewer);
     let n = s.n;
     let v = s.v;
     let alpha = s.alpha;

@@ -374,10 +374,10 @@ fn coat_fresnel(c: f32) -> f32 {
 // `world`: the point; `normal`: the shading normal (any length); `p`: the material's
 // parameters there (`surface_params`); `flags`: the material's (`Material::params.w`).
 fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, flags: f32,
-              camera_pos: vec3<f32>) -> Surface {
+              viewer: vec4<f32>) -> Surface {
     var s: Surface;
     s.n = normalize(normal);
-    s.v = normalize(camera_pos - world);
+    s.v = normalize(viewer.xyz - viewer.w * world);
     let roughness = clamp(p.roughness, 0.0, 1.0);
     let metallic = clamp(p.metallic, 0.0, 1.0);
     s.alpha = max(roughness * roughness, 0.002);

@@ -130,11 +130,7 @@ fn sphere_pixels(r: &Renderer, eye: Vec3, size: u32) -> Vec<(u32, u32, Vec3, Vec
 #[test]
 fn diffuse_sphere_matches_the_analytic_reference_within_one_percent() {
     let albedo = [0.8, 0.6, 0.4];
-    let camera = Camera {
-        eye: Vec3::new(0.0, 0.5, 4.0),
-        target: Vec3::ZERO,
-        fov_y: 35f32.to_radians(),
-    };
+    let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians());
     let scene = Scene::sphere(
         Vec3::ZERO,
         1.0,
@@ -206,11 +202,11 @@ fn ground_behind_the_occluder(raster: ShadowRaster) {
     let albedo = 0.5;
     let center = Vec3::new(0.0, 0.9, 0.0);
     let radius = 0.5;
-    let camera = Camera {
-        eye: Vec3::new(0.0, 4.5, 4.0),
-        target: Vec3::new(0.0, 0.0, 0.3),
-        fov_y: 45f32.to_radians(),
-    };
+    let camera = Camera::perspective(
+        Vec3::new(0.0, 4.5, 4.0),
+        Vec3::new(0.0, 0.0, 0.3),
+        45f32.to_radians(),
+    );
     let scene = Scene::sphere(
         center,
         radius,
@@ -408,11 +404,7 @@ fn culling_on_and_off_agree_within_the_stated_tolerance() {
 
 #[test]
 fn merged_light_spread_softens_its_shadow() {
-    let camera = Camera {
-        eye: Vec3::new(0.0, 5.0, 0.01),
-        target: Vec3::ZERO,
-        fov_y: 40f32.to_radians(),
-    };
+    let camera = Camera::perspective(Vec3::new(0.0, 5.0, 0.01), Vec3::ZERO, 40f32.to_radians());
     let scene = || {
         Scene::sphere(
             Vec3::new(0.0, 0.8, 0.0),
@@ -471,11 +463,11 @@ fn each_light_reads_its_own_shadow_layer() {
 }
 
 fn each_light_reads_its_own_map(raster: ShadowRaster) {
-    let camera = Camera {
-        eye: Vec3::new(0.0, 5.0, 3.0),
-        target: Vec3::new(0.0, 0.3, 0.0),
-        fov_y: 50f32.to_radians(),
-    };
+    let camera = Camera::perspective(
+        Vec3::new(0.0, 5.0, 3.0),
+        Vec3::new(0.0, 0.3, 0.0),
+        50f32.to_radians(),
+    );
     let scene = || {
         Scene::sphere(
             Vec3::new(0.0, 0.8, 0.0),
@@ -604,11 +596,7 @@ fn shadow_catcher_output_composites_over_a_camera_image() {
 #[test]
 fn lights_that_reach_no_visible_surface_render_no_map() {
     // Seen from straight above, only the ground and the sphere's upper half are visible.
-    let camera = Camera {
-        eye: Vec3::new(0.0, 6.0, 0.01),
-        target: Vec3::ZERO,
-        fov_y: 0.7,
-    };
+    let camera = Camera::perspective(Vec3::new(0.0, 6.0, 0.01), Vec3::ZERO, 0.7);
     let scene = Scene::sphere(
         Vec3::new(0.0, 0.5, 0.0),
         0.5,
@@ -1014,11 +1002,7 @@ fn test_lobes() -> Vec<envlight::asg::Asg> {
 /// CPU value (pixels above 5% of the image's brightest) and the worst error relative to the
 /// brightest CPU value (all pixels), after asserting both are within `tolerance`.
 fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32)) -> (f32, f32) {
-    let camera = Camera {
-        eye: Vec3::new(0.0, 0.5, 4.0),
-        target: Vec3::ZERO,
-        fov_y: 35f32.to_radians(),
-    };
+    let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians());
     // 320 segments: the warped GGX lobe is narrow across the plane of incidence at grazing
     // views, where a coarser sphere's interpolated normals alone move a pixel by 2%.
     let scene = Scene::sphere(Vec3::ZERO, 1.0, 320, material, None, camera);
@@ -1362,11 +1346,7 @@ fn specular_of_a_uniform_environment_keeps_its_energy() {
     .decompose(&frame)
     .lights;
     let uniform = LatLongMap::from_fn(256, 128, |_| [1.0; 3]);
-    let camera = Camera {
-        eye: Vec3::new(0.0, 0.5, 4.0),
-        target: Vec3::ZERO,
-        fov_y: 35f32.to_radians(),
-    };
+    let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians());
     for roughness in [0.3f32, 0.5, 0.8] {
         let material = Material {
             base_color: [1.0; 3],
@@ -1474,11 +1454,7 @@ fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -
         materials: vec![material],
         textures,
         ground_material: None,
-        camera: Camera {
-            eye: Vec3::new(0.0, 0.0, 3.0),
-            target: Vec3::ZERO,
-            fov_y: 40f32.to_radians(),
-        },
+        camera: Camera::perspective(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, 40f32.to_radians()),
         bounds: Sphere {
             center: Vec3::ZERO,
             radius: 2f32.sqrt(),
@@ -2502,11 +2478,7 @@ fn floor_scene(material: Material, eye: Vec3, target: Vec3) -> Scene {
         materials: vec![material],
         textures: vec![],
         ground_material: None,
-        camera: Camera {
-            eye,
-            target,
-            fov_y: 30f32.to_radians(),
-        },
+        camera: Camera::perspective(eye, target, 30f32.to_radians()),
         bounds: Sphere {
             center: Vec3::new(0.0, 0.0, -18.0),
             radius: 21.0,
@@ -3387,4 +3359,83 @@ fn texture_transforms_move_and_turn_the_image() {
     let (left, right) = textured(column, [[c, -s, 0.0], [s, c, 0.0]]);
     assert_close("quarter turn: left", left, red, 0.005);
     assert_close("quarter turn: right", right, blue, 0.005);
+}
+
+/// An orthographic camera (a glTF file's, `Camera::orthographic`) projects along parallel
+/// rays and sees every point from one direction. Its image of the unit sphere is a disc of the
+/// radius its half-height gives (64×64 pixels over a half-height of 2: 16 pixels, π·16² ≈ 804
+/// pixels of disc) from near and from far — a perspective camera's disc would shrink 3× from
+/// 4 to 12 units away. On a glossy floor seen obliquely under one light, its every pixel has
+/// the radiance of the perspective camera's centre pixel, whose ray runs along the same view
+/// direction, where the perspective image's centre column varies by tens of per cent (its
+/// view direction changes down the image): the shading takes the view vector from the
+/// camera's `viewer` (w = 0: a direction), not from the eye.
+#[test]
+fn orthographic_cameras_project_in_parallel_and_see_from_one_direction() {
+    for distance in [4.0, 12.0] {
+        let camera = Camera::orthographic(Vec3::new(0.0, 0.0, distance), Vec3::ZERO, 2.0);
+        let scene = Scene::sphere(
+            Vec3::ZERO,
+            1.0,
+            128,
+            Material::lambertian([0.8; 3]),
+            None,
+            camera,
+        );
+        let mut r = renderer(
+            scene,
+            RenderSettings {
+                width: 64,
+                height: 64,
+                ..Default::default()
+            },
+        );
+        let (img, _) = r.render(&[light(0, Vec3::Z, [3.0; 3], 0.0)]).unwrap();
+        let disc = img.rgba.chunks(4).filter(|p| p[0] > 0.05).count();
+        let want = PI * 16.0 * 16.0;
+        eprintln!("orthographic disc from {distance}: {disc} pixels (want {want:.0})");
+        assert!(
+            (disc as f32 / want - 1.0).abs() < 0.04,
+            "from {distance}: a disc of {disc} pixels, not {want:.0}"
+        );
+    }
+    let glossy = Material {
+        specular: 0.5,
+        roughness: 0.3,
+        ..Material::lambertian([0.0; 3])
+    };
+    let target = Vec3::new(0.0, 0.0, -4.0);
+    let eye = target + 6.0 * Vec3::new(0.0, 1.0, 1.0).normalize();
+    let lights = [light(0, Vec3::new(0.0, 1.0, -0.7), [3.0; 3], 0.0)];
+    let render = |camera: Camera, size: u32| {
+        let mut scene = floor_scene(glossy, eye, target);
+        scene.camera = camera;
+        let mut r = renderer(
+            scene,
+            RenderSettings {
+                width: size,
+                height: size,
+                ..quad_settings()
+            },
+        );
+        r.render(&lights).unwrap().0
+    };
+    let ortho = render(Camera::orthographic(eye, target, 0.4), 48);
+    let red: Vec<f32> = ortho.rgba.chunks(4).map(|p| p[0]).collect();
+    let (low, high) = red
+        .iter()
+        .fold((f32::MAX, 0.0f32), |(l, h), &c| (l.min(c), h.max(c)));
+    let mean = red.iter().sum::<f32>() / red.len() as f32;
+    let perspective = render(Camera::perspective(eye, target, 30f32.to_radians()), 49);
+    let centre = perspective.pixel(24, 24)[0];
+    let column: Vec<f32> = (0..49).map(|y| perspective.pixel(24, y)[0]).collect();
+    let spread = column.iter().fold(0.0f32, |m, &c| m.max(c))
+        / column.iter().fold(f32::MAX, |m, &c| m.min(c));
+    eprintln!(
+        "orthographic floor: red {low:.5}..{high:.5} (mean {mean:.5}); perspective centre \
+         {centre:.5}, its centre column varies {spread:.2}×"
+    );
+    assert!(low > 0.0 && high / low < 1.01, "{low}..{high}");
+    assert!((mean / centre - 1.0).abs() < 0.01, "{mean} vs {centre}");
+    assert!(spread > 1.3, "the perspective view varies only {spread}×");
 }

@@ -71,11 +71,12 @@ pub(crate) struct RenderArgs {
     /// scene's first camera, else one fitted to the scene]
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_point, allow_hyphen_values = true)]
     eye: Option<[f32; 3]>,
-    /// The point the camera looks at, X,Y,Z (the horizon stays level: +Y up).
+    /// The point the camera looks at, X,Y,Z (the camera keeps its up direction: +Y, level,
+    /// unless a glTF camera is rolled).
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_point, allow_hyphen_values = true)]
     look_at: Option<[f32; 3]>,
-    /// The camera's vertical field of view in degrees (1..=179). [default: the scene camera's;
-    /// 40 for a fitted one]
+    /// The camera's vertical field of view in degrees (1..=179); it makes a glTF scene's
+    /// orthographic camera a perspective one. [default: the scene camera's; 40 for a fitted one]
     #[arg(long, value_name = "DEG", value_parser = parse_finite_f32)]
     fov: Option<f32>,
     /// Fast approximate anti-aliasing (FXAA 3.11, quality variant) of each frame: edges

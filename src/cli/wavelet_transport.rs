@@ -5,7 +5,7 @@
 use crate::cli::wavelet::FrameInput;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use envlight::render::scene::Scene;
+use envlight::render::scene::{Projection, Scene};
 use envlight::wavelet::approx::Coefficients;
 use envlight::wavelet::inverse::{
     prediction_error, refine, relative_error, synthesize, transport_rows, upper_hemisphere_error,
@@ -131,7 +131,8 @@ pub struct RelightArgs {
     /// GGX α for --brdf ggx (α = perceptual roughness², 0.001..=1). [default: 0.3]
     #[arg(long, value_parser = parse_ggx_alpha)]
     alpha: Option<f32>,
-    /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera]
+    /// Eye position for --brdf phong or ggx, x,y,z. [default: the scene's camera; an
+    /// orthographic camera's view direction for every vertex]
     #[arg(long, value_parser = parse_vec3, value_name = "X,Y,Z")]
     eye: Option<Vec3>,
     /// Vertices compared with brute-force integration per frame (0: no check); unlit ones are
@@ -395,7 +396,11 @@ pub fn relight(args: &RelightArgs) -> Result<()> {
             alpha: args.alpha.unwrap_or(DEFAULT_GGX_ALPHA),
         },
     };
-    let view = View::Eye(args.eye.unwrap_or(scene.camera.eye));
+    let view = match (args.eye, scene.camera.projection) {
+        (Some(eye), _) => View::Eye(eye),
+        (None, Projection::Orthographic { .. }) => View::Direction(-scene.camera.forward()),
+        (None, _) => View::Eye(scene.camera.eye),
+    };
     let transport = Transport::precompute(
         &grid,
         &mesh.positions,

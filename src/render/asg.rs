@@ -37,7 +37,8 @@ const TABLE_NU_MAX: f64 = 4.0e5;
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct AsgGlobalsRaw {
     view_proj: [[f32; 4]; 4],
-    camera_pos: [f32; 4],
+    /// The camera's [`Camera::viewer`](super::scene::Camera::viewer).
+    viewer: [f32; 4],
     lobe_count: u32,
     /// 1 where the lobes' shadow maps are read.
     shadows: u32,
@@ -330,7 +331,7 @@ impl Renderer {
         let shadow = self.frame_globals(raw.len() as u32).to_raw();
         let globals = AsgGlobalsRaw {
             view_proj: self.view_proj().to_cols_array_2d(),
-            camera_pos: self.scene.camera.eye.extend(1.0).to_array(),
+            viewer: self.scene.camera.viewer().to_array(),
             lobe_count: raw.len() as u32,
             shadows: shadow.shadows,
             shadow_source: shadow.shadow_source,

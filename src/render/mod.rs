@@ -612,17 +612,18 @@ fn order_triangles(scene: &mut Scene) -> TriangleGroups {
             _ => opaque.push(triangle),
         }
     }
-    let eye = scene.camera.eye;
-    let distance = |triangle: &[u32]| {
+    let depth = |triangle: &[u32]| {
         let sum: Vec3 = triangle
             .iter()
             .filter_map(|&i| scene.vertices.get(i as usize))
             .map(|v| Vec3::from(v.position))
             .sum();
-        eye.distance(sum / 3.0)
+        scene.camera.sort_depth(sum / 3.0)
     };
-    // Farthest first; each distance computed once (non-negative floats order as their bits).
-    blended.sort_by_cached_key(|t| std::cmp::Reverse(distance(t).to_bits()));
+    // Farthest first; each depth computed once.
+    let mut by_depth: Vec<(f32, &[u32])> = blended.into_iter().map(|t| (depth(t), t)).collect();
+    by_depth.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let blended: Vec<&[u32]> = by_depth.into_iter().map(|(_, t)| t).collect();
     let groups = TriangleGroups {
         cutout_start: (opaque.len() * 3) as u32,
         blended_start: ((opaque.len() + masked.len()) * 3) as u32,
@@ -1502,7 +1503,7 @@ impl Renderer {
         let texel_world = 2.0 * self.scene.bounds.radius / res as f32;
         Globals {
             view_proj: self.view_proj(),
-            camera_pos: self.scene.camera.eye,
+            viewer: self.scene.camera.viewer(),
             light_count,
             culling: self.settings.culling,
             shadows: self.settings.shadows,
@@ -1980,13 +1981,14 @@ impl Renderer {
         })
     }
 
-    /// World-space direction of the camera ray through the centre of pixel (x, y).
+    /// World-space direction of the camera ray through the centre of pixel (x, y): from the
+    /// eye for a perspective camera, the view direction for an orthographic one.
     pub fn pixel_ray(&self, x: f32, y: f32) -> Vec3 {
         let inv = self.view_proj().inverse();
         let ndc_x = (x + 0.5) / self.settings.width as f32 * 2.0 - 1.0;
         let ndc_y = 1.0 - (y + 0.5) / self.settings.height as f32 * 2.0;
         let p = inv.project_point3(Vec3::new(ndc_x, ndc_y, 0.5));
-        (p - self.scene.camera.eye).normalize()
+        -self.scene.camera.toward_viewer(p)
     }
 }
 

@@ -7,13 +7,15 @@ use super::shadow;
 use super::shadow_raster::ShadowRaster;
 use super::textures::{MaterialLayers, TEXTURE_SLOTS};
 use crate::light::Light;
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec3, Vec4};
 
 /// Per-frame constants of the G-buffer and shading passes.
 #[derive(Clone, Copy, Debug)]
 pub struct Globals {
     pub view_proj: Mat4,
-    pub camera_pos: Vec3,
+    /// The camera's [`Camera::viewer`](super::scene::Camera::viewer): its eye (w = 1) or, for
+    /// an orthographic camera, the direction towards it (w = 0).
+    pub viewer: Vec4,
     pub light_count: u32,
     pub culling: bool,
     pub shadows: bool,
@@ -31,7 +33,7 @@ pub struct Globals {
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GlobalsRaw {
     view_proj: [[f32; 4]; 4],
-    camera_pos: [f32; 4],
+    viewer: [f32; 4],
     light_count: u32,
     culling: u32,
     /// Read by the ASG pass too (its lobes' shadow maps).
@@ -44,7 +46,7 @@ impl Globals {
     pub fn to_raw(&self) -> GlobalsRaw {
         GlobalsRaw {
             view_proj: self.view_proj.to_cols_array_2d(),
-            camera_pos: self.camera_pos.extend(1.0).to_array(),
+            viewer: self.viewer.to_array(),
             light_count: self.light_count,
             culling: u32::from(self.culling),
             shadows: u32::from(self.shadows),

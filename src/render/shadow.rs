@@ -48,13 +48,12 @@ pub fn pcf_radius_uv(omega: f32, resolution: u32) -> f32 {
 /// The normals of the camera-facing vertices, deduplicated on a coarse grid to bound the work
 /// of [`reaches_visible`].
 pub fn facing_normals(scene: &Scene) -> Vec<Vec3> {
-    let eye = scene.camera.eye;
     let mut facing: Vec<Vec3> = Vec::new();
     let mut seen = std::collections::HashSet::new();
     for v in &scene.vertices {
         let p = Vec3::from_array(v.position);
         let n = Vec3::from_array(v.normal);
-        if n.dot(eye - p) > 0.0 {
+        if n.dot(scene.camera.toward_viewer(p)) > 0.0 {
             let key = (n * 64.0).round().as_ivec3();
             if seen.insert(key) {
                 facing.push(n);
@@ -126,11 +125,7 @@ mod tests {
     #[test]
     fn lights_below_the_visible_surfaces_need_no_map() {
         // A camera straight above sees the ground and the sphere's upper half only.
-        let cam = Camera {
-            eye: Vec3::new(0.0, 6.0, 0.01),
-            target: Vec3::ZERO,
-            fov_y: 0.7,
-        };
+        let cam = Camera::perspective(Vec3::new(0.0, 6.0, 0.01), Vec3::ZERO, 0.7);
         let scene = Scene::sphere(
             Vec3::new(0.0, 0.5, 0.0),
             0.5,

@@ -2,41 +2,132 @@
 //! user's override and the camera fitted to a scene's bounds.
 
 use super::*;
+use glam::Vec4;
 
-/// A perspective camera.
+/// How a camera projects the scene onto the image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// A pinhole camera of this vertical field of view, in radians.
+    Perspective { fov_y: f32 },
+    /// Parallel rays along the view: half the view's height in world units (glTF's `ymag`);
+    /// its width follows the image's aspect ratio.
+    Orthographic { half_height: f32 },
+}
+
+/// The camera: where it is, where it looks, which way is up in the image, and its projection.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
     pub eye: Vec3,
     pub target: Vec3,
-    /// Vertical field of view in radians.
-    pub fov_y: f32,
+    /// The world direction drawn upwards in the image (any length; only its part across the
+    /// view counts): +Y for a level camera, a glTF camera's own +Y for a rolled one. Where it
+    /// lies along the view, the camera is drawn level (+Y up, or +Z looking straight up or
+    /// down).
+    pub up: Vec3,
+    pub projection: Projection,
 }
 
 impl Camera {
-    pub fn view(&self) -> Mat4 {
-        let fwd = (self.target - self.eye).normalize_or(Vec3::NEG_Z);
-        let up = if fwd.y.abs() > 0.999 {
-            Vec3::Z
-        } else {
-            Vec3::Y
-        };
-        look_at_rh(self.eye, self.target, up)
+    /// A level perspective camera of vertical field of view `fov_y` (radians).
+    pub fn perspective(eye: Vec3, target: Vec3, fov_y: f32) -> Self {
+        Self {
+            eye,
+            target,
+            up: Vec3::Y,
+            projection: Projection::Perspective { fov_y },
+        }
     }
 
-    /// The camera in words, for the log: eye, look-at point, vertical field of view.
+    /// A level orthographic camera showing `half_height` world units above and below the
+    /// point it looks at.
+    pub fn orthographic(eye: Vec3, target: Vec3, half_height: f32) -> Self {
+        Self {
+            eye,
+            target,
+            up: Vec3::Y,
+            projection: Projection::Orthographic { half_height },
+        }
+    }
+
+    /// The unit direction the camera looks along.
+    pub fn forward(&self) -> Vec3 {
+        (self.target - self.eye).normalize_or(Vec3::NEG_Z)
+    }
+
+    /// The up direction the view uses: [`Camera::up`] unless it lies within 2.6° of the view
+    /// direction, then +Y, or +Z where that does too.
+    fn view_up(&self) -> Vec3 {
+        let forward = self.forward();
+        [self.up, Vec3::Y, Vec3::Z]
+            .into_iter()
+            .map(Vec3::normalize_or_zero)
+            .find(|up| up.is_finite() && forward.cross(*up).length() > 0.0447)
+            .unwrap_or(Vec3::X)
+    }
+
+    pub fn view(&self) -> Mat4 {
+        look_at_rh(self.eye, self.target, self.view_up())
+    }
+
+    /// The camera in words, for the log: eye, look-at point, up direction where not +Y, and
+    /// the projection.
     pub fn describe(&self) -> String {
         let p = |v: Vec3| format!("({:.3}, {:.3}, {:.3})", v.x, v.y, v.z);
+        let up = self.view_up();
+        let up = if up == Vec3::Y {
+            String::new()
+        } else {
+            format!(", up {}", p(up))
+        };
+        let projection = match self.projection {
+            Projection::Perspective { fov_y } => {
+                format!("vertical field of view {:.1}°", fov_y.to_degrees())
+            }
+            Projection::Orthographic { half_height } => {
+                format!("orthographic, {:.3} units high", 2.0 * half_height)
+            }
+        };
         format!(
-            "eye {}, looking at {}, vertical field of view {:.1}°",
+            "eye {}, looking at {}{up}, {projection}",
             p(self.eye),
-            p(self.target),
-            self.fov_y.to_degrees()
+            p(self.target)
         )
     }
 
     /// View-projection with wgpu's [0, 1] depth range.
     pub fn view_proj(&self, aspect: f32, near: f32, far: f32) -> Mat4 {
-        perspective_rh(self.fov_y, aspect, near, far) * self.view()
+        let projection = match self.projection {
+            Projection::Perspective { fov_y } => perspective_rh(fov_y, aspect, near, far),
+            Projection::Orthographic { half_height: h } => {
+                orthographic_rh(-h * aspect, h * aspect, -h, h, near, far)
+            }
+        };
+        projection * self.view()
+    }
+
+    /// The viewer in homogeneous coordinates, as the shaders take it: the eye (w = 1) for a
+    /// perspective camera, the direction towards the viewer (w = 0, a point at infinity) for
+    /// an orthographic one. The view vector at a point p is normalize(xyz − w·p) either way.
+    pub fn viewer(&self) -> Vec4 {
+        match self.projection {
+            Projection::Perspective { .. } => self.eye.extend(1.0),
+            Projection::Orthographic { .. } => (-self.forward()).extend(0.0),
+        }
+    }
+
+    /// The unit direction from `p` towards the viewer.
+    pub fn toward_viewer(&self, p: Vec3) -> Vec3 {
+        let viewer = self.viewer();
+        (viewer.truncate() - viewer.w * p).normalize_or_zero()
+    }
+
+    /// How far from the viewer `p` lies, to draw back to front: the distance from the eye for
+    /// a perspective camera, the depth along the view for an orthographic one.
+    pub fn sort_depth(&self, p: Vec3) -> f32 {
+        match self.projection {
+            Projection::Perspective { .. } => self.eye.distance(p),
+            Projection::Orthographic { .. } => (p - self.eye).dot(self.forward()),
+        }
     }
 }
 
@@ -79,39 +170,46 @@ pub fn orthographic_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, 
     )
 }
 
-/// A glTF perspective camera placed by its node's world transform `world` (it looks along the
-/// node's −Z with +Y up) with vertical field of view `yfov` (radians): the camera's eye and
-/// target (one unit ahead). The renderer keeps the horizon level (+Y up), so a camera rolled
-/// about its view direction is drawn unrolled, with a warning; glTF's aspect ratio and clip
-/// planes are the renderer's own (the image's, and the scene's bounds).
-pub(super) fn gltf_camera(world: Mat4, yfov: f32) -> Result<Camera, String> {
-    if !(yfov.is_finite() && yfov > 0.0 && yfov < std::f32::consts::PI) {
-        return Err(format!("yfov {yfov} is not an angle in (0, π) radians"));
+/// A glTF camera placed by its node's world transform `world`: the eye at the node's origin,
+/// looking along its −Z (the target one unit ahead) with its +Y up in the image, so a rolled
+/// camera is drawn rolled. A perspective camera keeps its vertical field of view `yfov`
+/// (radians), an orthographic one its half-height `ymag` (world units; its `xmag` gives way to
+/// the image's aspect ratio). glTF's aspect ratio and clip planes are the renderer's own (the
+/// image's, and the scene's bounds).
+pub(super) fn gltf_camera(world: Mat4, projection: Projection) -> Result<Camera, String> {
+    match projection {
+        Projection::Perspective { fov_y } => {
+            if !(fov_y.is_finite() && fov_y > 0.0 && fov_y < std::f32::consts::PI) {
+                return Err(format!("yfov {fov_y} is not an angle in (0, π) radians"));
+            }
+        }
+        Projection::Orthographic { half_height } => {
+            if !(half_height.is_finite() && half_height > 0.0) {
+                return Err(format!("ymag {half_height} is not a positive height"));
+            }
+        }
     }
     let eye = world.transform_point3(Vec3::ZERO);
     let forward = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
-    if !eye.is_finite() || forward == Vec3::ZERO || !forward.is_finite() {
+    let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
+    if !eye.is_finite() || forward == Vec3::ZERO || !forward.is_finite() || !up.is_finite() {
         return Err("its transform does not place it (not finite, or degenerate)".into());
     }
-    let up = world.transform_vector3(Vec3::Y).normalize_or_zero();
-    if forward.y.abs() < 0.999 {
-        let level = forward.cross(Vec3::Y).normalize().cross(forward);
-        let roll = up.dot(level).clamp(-1.0, 1.0).acos().to_degrees();
-        if roll > 1.0 {
-            tracing::warn!(
-                "a glTF camera rolled {roll:.0}° about its view direction is drawn level (+Y up)"
-            );
-        }
+    if forward.cross(up).length() < 0.0447 {
+        return Err("its transform turns its up direction (+Y) along its view (−Z)".into());
     }
     Ok(Camera {
         eye,
         target: eye + forward,
-        fov_y: yfov,
+        up,
+        projection,
     })
 }
 
 /// A camera set by the user over a scene's own (`envlight render --eye`, `--look-at`, `--fov`;
 /// the daemon's `[render] eye`, `look_at`, `fov_deg`): each given part replaces the camera's.
+/// The camera keeps its up direction (drawn level where the new view runs along it); a field
+/// of view makes an orthographic camera a perspective one.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct CameraOverride {
     pub eye: Option<Vec3>,
@@ -148,7 +246,9 @@ impl CameraOverride {
                     Self::FOV_DEG.end()
                 ));
             }
-            c.fov_y = fov.to_radians();
+            c.projection = Projection::Perspective {
+                fov_y: fov.to_radians(),
+            };
         }
         if c.eye.distance(c.target) < 1e-6 * (1.0 + c.eye.length()) {
             return Err(format!(
@@ -165,9 +265,5 @@ pub fn fit_camera(bounds: Sphere) -> Camera {
     let fov_y = 40f32.to_radians();
     let dist = bounds.radius / (fov_y * 0.5).sin() * 1.15;
     let dir = Vec3::new(0.0, 0.35, 1.0).normalize();
-    Camera {
-        eye: bounds.center + dir * dist,
-        target: bounds.center,
-        fov_y,
-    }
+    Camera::perspective(bounds.center + dir * dist, bounds.center, fov_y)
 }

@@ -792,20 +792,19 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
             "camera node {index} ({:?})",
             node.as_ref().and_then(|n| n.name()).unwrap_or("")
         );
-        let yfov = camera.as_ref().and_then(|c| match c.projection() {
-            gltf::camera::Projection::Perspective(p) => Some(p.yfov()),
-            gltf::camera::Projection::Orthographic(_) => None,
-        });
-        match yfov {
-            Some(yfov) => {
-                b.camera = Some(gltf_camera(world, yfov).map_err(|m| err(format!("{name}: {m}")))?);
-                tracing::info!("{}: the view of its {name}", path.display());
-            }
-            _ => tracing::warn!(
-                "{}: its {name} is orthographic, which envlight does not draw: the camera is \
-                 fitted to the scene instead",
-                path.display()
-            ),
+        // `node.camera()` is there: the node was listed for its camera.
+        if let Some(camera) = camera {
+            let projection = match camera.projection() {
+                gltf::camera::Projection::Perspective(p) => {
+                    Projection::Perspective { fov_y: p.yfov() }
+                }
+                gltf::camera::Projection::Orthographic(o) => Projection::Orthographic {
+                    half_height: o.ymag(),
+                },
+            };
+            b.camera =
+                Some(gltf_camera(world, projection).map_err(|m| err(format!("{name}: {m}")))?);
+            tracing::info!("{}: the view of its {name}", path.display());
         }
     }
     if !ignored.is_empty() {

@@ -24,7 +24,9 @@ mod gltf_loader;
 mod material;
 mod obj_loader;
 
-pub use camera::{fit_camera, look_at_rh, orthographic_rh, perspective_rh, Camera, CameraOverride};
+pub use camera::{
+    fit_camera, look_at_rh, orthographic_rh, perspective_rh, Camera, CameraOverride, Projection,
+};
 pub use material::{
     AlphaMode, Material, MaterialTextures, TextureImage, TextureRef, Wrap, MAX_TEXTURE_SIDE,
     NO_UV_TRANSFORM, SLOT_NAMES, WHITE,
@@ -407,11 +409,11 @@ impl Scene {
         b.uv_sphere(Vec3::new(0.0, 0.5, -0.3), 0.5, 48, metal);
         b.uv_sphere(Vec3::new(1.15, 0.5, 0.0), 0.5, 48, rough);
         b.cuboid(Vec3::new(0.3, 0.2, 0.9), Vec3::new(0.2, 0.2, 0.2), matte);
-        let camera = Camera {
-            eye: Vec3::new(0.0, 1.9, 4.6),
-            target: Vec3::new(0.0, 0.35, 0.0),
-            fov_y: 40f32.to_radians(),
-        };
+        let camera = Camera::perspective(
+            Vec3::new(0.0, 1.9, 4.6),
+            Vec3::new(0.0, 0.35, 0.0),
+            40f32.to_radians(),
+        );
         b.finish(
             Some(Ground {
                 height: 0.0,

@@ -4,11 +4,7 @@ use super::*;
 
 #[test]
 fn camera_matrices_map_the_view_frustum_to_wgpu_clip_space() {
-    let cam = Camera {
-        eye: Vec3::new(0.0, 0.0, 5.0),
-        target: Vec3::ZERO,
-        fov_y: 1.0,
-    };
+    let cam = Camera::perspective(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, 1.0);
     let m = cam.view_proj(2.0, 1.0, 10.0);
     // The target is at the centre; near and far map to depth 0 and 1.
     let c = m.project_point3(Vec3::ZERO);

@@ -414,9 +414,11 @@ fn ior_specular_and_clearcoat_load_with_their_factors() {
 }
 
 /// A glTF scene's first camera node (by index) is its camera: the eye at the node's world
-/// position, looking along its −Z, with its vertical field of view; a rolled one loads
-/// (drawn level); an orthographic one leaves the fitted camera; a bad field of view is an
-/// error naming the node. A camera override replaces the parts given and refuses bad ones.
+/// position, looking along its −Z with its +Y up (a rolled camera is drawn rolled), with its
+/// vertical field of view or, orthographic, its half-height; a bad field of view or height, or
+/// a transform that turns up along the view, is an error naming the node. A camera override
+/// replaces the parts given (a field of view makes the camera a perspective one), keeps the
+/// camera's up direction, and refuses bad parts.
 #[test]
 fn gltf_cameras_place_the_view_and_overrides_replace_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -445,14 +447,20 @@ fn gltf_cameras_place_the_view_and_overrides_replace_it() {
     .unwrap();
     assert_eq!(s.camera.eye, Vec3::new(0.0, 1.0, 5.0));
     assert!((s.camera.target - Vec3::new(0.0, 1.0, 4.0)).length() < 1e-6);
-    assert_eq!(s.camera.fov_y, 0.5);
+    assert_eq!(s.camera.projection, Projection::Perspective { fov_y: 0.5 });
+    assert!((s.camera.up - Vec3::Y).length() < 1e-6);
     let s = load(
         r#"{"camera":1,"translation":[0,1,5]},
            {"camera":0,"translation":[3,0,0],"rotation":[0,0.70710677,0,0.70710677]}"#,
         &format!("{perspective},{ortho}"),
     )
     .unwrap();
-    assert_eq!(s.camera, fit_camera(s.bounds), "orthographic: fitted");
+    assert_eq!(s.camera.eye, Vec3::new(0.0, 1.0, 5.0));
+    assert_eq!(
+        s.camera.projection,
+        Projection::Orthographic { half_height: 1.0 }
+    );
+    let ortho_camera = s.camera;
     let s = load(
         r#"{"camera":0,"translation":[3,0,0],"rotation":[0,0.70710677,0,0.70710677]},
            {"camera":0,"translation":[0,0,9],"rotation":[0,0,0.38268343,0.9238795]}"#,
@@ -460,7 +468,8 @@ fn gltf_cameras_place_the_view_and_overrides_replace_it() {
     )
     .unwrap();
     assert!((s.camera.target - s.camera.eye - Vec3::NEG_X).length() < 1e-6);
-    // Rolled 45° about its view direction (node 2): loads, drawn level.
+    // Rolled 45° about its view direction (node 1): its +Y, turned 45° towards −X, is up in
+    // the image, and the world's +Y leans to the right.
     let s = load(
         r#"{"camera":0,"translation":[0,0,9],"rotation":[0,0,0.38268343,0.9238795]},
            {"translation":[0,0,0]}"#,
@@ -468,14 +477,44 @@ fn gltf_cameras_place_the_view_and_overrides_replace_it() {
     )
     .unwrap();
     assert!((s.camera.target - s.camera.eye - Vec3::NEG_Z).length() < 1e-6);
+    let half = std::f32::consts::FRAC_1_SQRT_2;
+    assert!((s.camera.up - Vec3::new(-half, half, 0.0)).length() < 1e-6);
+    let m = s.camera.view_proj(1.0, 0.1, 100.0);
+    let along_up = m.project_point3(s.camera.target + 0.1 * s.camera.up);
+    assert!(along_up.x.abs() < 1e-5 && along_up.y > 0.01, "{along_up}");
+    let world_up = m.project_point3(s.camera.target + 0.1 * Vec3::Y);
+    assert!(world_up.x > 0.01 && world_up.y > 0.01, "{world_up}");
+    let rolled_camera = s.camera;
+    for (camera, needle) in [
+        (
+            r#"{"type":"perspective","perspective":{"yfov":4,"znear":0.1}}"#,
+            "yfov 4",
+        ),
+        (
+            r#"{"type":"orthographic","orthographic":{"xmag":1,"ymag":0,"zfar":10,"znear":0.1}}"#,
+            "ymag 0 is not a positive height",
+        ),
+    ] {
+        let e = load(
+            r#"{"camera":0,"translation":[0,1,5]},{"translation":[0,0,0]}"#,
+            camera,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("camera.gltf") && e.contains("camera node 1") && e.contains(needle),
+            "{e}"
+        );
+    }
+    // +Y mapped onto −Z: up along the view.
     let e = load(
-        r#"{"camera":0,"translation":[0,1,5]},{"translation":[0,0,0]}"#,
-        r#"{"type":"perspective","perspective":{"yfov":4,"znear":0.1}}"#,
+        r#"{"camera":0,"matrix":[1,0,0,0, 0,0,-1,0, 0,0,1,0, 0,0,0,1]},{"translation":[0,0,0]}"#,
+        perspective,
     )
     .unwrap_err()
     .to_string();
     assert!(
-        e.contains("camera.gltf") && e.contains("camera node 1") && e.contains("yfov 4"),
+        e.contains("camera node 1") && e.contains("turns its up direction (+Y) along its view"),
         "{e}"
     );
     // Overrides.
@@ -489,7 +528,31 @@ fn gltf_cameras_place_the_view_and_overrides_replace_it() {
     .unwrap();
     assert_eq!(moved.eye, Vec3::new(1.0, 2.0, 3.0));
     assert_eq!(moved.target, camera.target);
-    assert!((moved.fov_y - 30f32.to_radians()).abs() < 1e-7);
+    assert_eq!(
+        moved.projection,
+        Projection::Perspective {
+            fov_y: 30f32.to_radians()
+        }
+    );
+    let widened = CameraOverride {
+        fov_deg: Some(50.0),
+        ..Default::default()
+    }
+    .apply(ortho_camera)
+    .unwrap();
+    assert_eq!(
+        widened.projection,
+        Projection::Perspective {
+            fov_y: 50f32.to_radians()
+        }
+    );
+    let turned = CameraOverride {
+        look_at: Some(Vec3::new(1.0, 0.0, 0.0)),
+        ..Default::default()
+    }
+    .apply(rolled_camera)
+    .unwrap();
+    assert_eq!(turned.up, rolled_camera.up);
     for (bad, needle) in [
         (
             CameraOverride {
