@@ -276,6 +276,7 @@ pub struct RawRender {
     pub eye: Option<Vec<f64>>,
     pub look_at: Option<Vec<f64>>,
     pub fov_deg: Option<f64>,
+    pub ortho_height: Option<f64>,
 }
 
 /// `[daemon]`.
@@ -914,10 +915,36 @@ impl RawRender {
                 ))
             }
         };
+        let ortho_height = match self.ortho_height {
+            None => None,
+            Some(_) if fov_deg.is_some() => {
+                return Err(invalid(
+                    "render.ortho_height",
+                    self.ortho_height.unwrap_or_default(),
+                    "cannot be combined with render.fov_deg (a camera is perspective or \
+                     orthographic)",
+                ))
+            }
+            Some(h)
+                if h.is_finite()
+                    && h > 0.0
+                    && h <= f64::from(crate::render::scene::MAX_SCENE_RADIUS) =>
+            {
+                Some(h as f32)
+            }
+            Some(h) => {
+                return Err(invalid(
+                    "render.ortho_height",
+                    h,
+                    "must be a positive height in scene units",
+                ))
+            }
+        };
         let camera = crate::render::scene::CameraOverride {
             eye: point("render.eye", &self.eye)?,
             look_at: point("render.look_at", &self.look_at)?,
             fov_deg,
+            ortho_height,
         };
         if let (Some(eye), Some(target)) = (camera.eye, camera.look_at) {
             if eye == target {
@@ -1853,6 +1880,14 @@ mod tests {
             (
                 "[render]\nfov_deg = 180",
                 "render.fov_deg = 180.0: must be a vertical field of view in 1..=179 degrees",
+            ),
+            (
+                "[render]\northo_height = 0",
+                "render.ortho_height = 0.0: must be a positive height in scene units",
+            ),
+            (
+                "[render]\nfov_deg = 30\northo_height = 2",
+                "render.ortho_height = 2.0: cannot be combined with render.fov_deg",
             ),
             (
                 "[render]\neye = [1, 2, 3]\nlook_at = [1, 2, 3]",

@@ -3296,6 +3296,13 @@ fn cli_places_the_camera_where_asked() {
         ),
         "{stderr}"
     );
+    let o = render("plan", &["--eye", "0,6,0.01", "--ortho-height", "3"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("orthographic, 3.000 units high"),
+        "{stderr}"
+    );
     let o = render("fitted", &[]);
     assert!(o.status.success());
     let png = |out: &str| image::open(dir.path().join(out).join("frame_00000.png")).unwrap();
@@ -3310,6 +3317,14 @@ fn cli_places_the_camera_where_asked() {
             "field of view 180° is outside 1..=179°",
         ),
         (&["--eye", "1,2"][..], "\"1,2\" is not three numbers X,Y,Z"),
+        (
+            &["--fov", "30", "--ortho-height", "2"][..],
+            "cannot be used with",
+        ),
+        (
+            &["--ortho-height", "0"][..],
+            "orthographic height 0 is not a positive number",
+        ),
         (
             &["--fxaa", "--supersample", "2"][..],
             "--fxaa with --supersample above 1",

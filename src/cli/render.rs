@@ -79,6 +79,11 @@ pub(crate) struct RenderArgs {
     /// orthographic camera a perspective one. [default: the scene camera's; 40 for a fitted one]
     #[arg(long, value_name = "DEG", value_parser = parse_finite_f32)]
     fov: Option<f32>,
+    /// An orthographic camera showing this many scene units from the bottom of the image to
+    /// its top (parallel rays along the view: sizes do not shrink with distance, as for
+    /// product shots and plans); its width follows the image's aspect ratio. Not with --fov.
+    #[arg(long, value_name = "UNITS", value_parser = parse_finite_f32, conflicts_with = "fov")]
+    ortho_height: Option<f32>,
     /// Fast approximate anti-aliasing (FXAA 3.11, quality variant) of each frame: edges
     /// smoothed along their length from the image alone, at a small part of supersampling's
     /// cost (docs/rendering.md, "Anti-aliasing"). Not with --supersample above 1.
@@ -227,6 +232,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         eye: args.eye.map(glam::Vec3::from_array),
         look_at: args.look_at.map(glam::Vec3::from_array),
         fov_deg: args.fov,
+        ortho_height: args.ortho_height,
     };
     scene.camera = match camera.apply(scene.camera) {
         Ok(c) => c,

@@ -209,13 +209,15 @@ pub(super) fn gltf_camera(world: Mat4, projection: Projection) -> Result<Camera,
 /// A camera set by the user over a scene's own (`envlight render --eye`, `--look-at`, `--fov`;
 /// the daemon's `[render] eye`, `look_at`, `fov_deg`): each given part replaces the camera's.
 /// The camera keeps its up direction (drawn level where the new view runs along it); a field
-/// of view makes an orthographic camera a perspective one.
+/// of view makes the camera a perspective one, an orthographic height an orthographic one.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct CameraOverride {
     pub eye: Option<Vec3>,
     pub look_at: Option<Vec3>,
-    /// Vertical field of view, degrees.
+    /// Vertical field of view, degrees: a perspective camera.
     pub fov_deg: Option<f32>,
+    /// The view's height in world units: an orthographic camera (not with a field of view).
+    pub ortho_height: Option<f32>,
 }
 
 impl CameraOverride {
@@ -223,7 +225,8 @@ impl CameraOverride {
     pub const FOV_DEG: std::ops::RangeInclusive<f32> = 1.0..=179.0;
 
     /// `camera` with the given parts replaced; an error where a part is not finite, the field
-    /// of view is outside [`CameraOverride::FOV_DEG`] or the eye is at the point it looks at.
+    /// of view is outside [`CameraOverride::FOV_DEG`], the orthographic height is not
+    /// positive (or comes with a field of view) or the eye is at the point it looks at.
     pub fn apply(&self, camera: Camera) -> Result<Camera, String> {
         let mut c = camera;
         if let Some(eye) = self.eye {
@@ -248,6 +251,23 @@ impl CameraOverride {
             }
             c.projection = Projection::Perspective {
                 fov_y: fov.to_radians(),
+            };
+        }
+        if let Some(height) = self.ortho_height {
+            if self.fov_deg.is_some() {
+                return Err(
+                    "a field of view (perspective) and an orthographic height exclude each other"
+                        .into(),
+                );
+            }
+            if !(height.is_finite() && height > 0.0 && height <= MAX_SCENE_RADIUS) {
+                return Err(format!(
+                    "orthographic height {height} is not a positive number of scene units \
+                     (at most {MAX_SCENE_RADIUS:e})"
+                ));
+            }
+            c.projection = Projection::Orthographic {
+                half_height: 0.5 * height,
             };
         }
         if c.eye.distance(c.target) < 1e-6 * (1.0 + c.eye.length()) {

@@ -553,6 +553,16 @@ fn gltf_cameras_place_the_view_and_overrides_replace_it() {
     .apply(rolled_camera)
     .unwrap();
     assert_eq!(turned.up, rolled_camera.up);
+    let plan = CameraOverride {
+        ortho_height: Some(3.0),
+        ..Default::default()
+    }
+    .apply(camera)
+    .unwrap();
+    assert_eq!(
+        plan.projection,
+        Projection::Orthographic { half_height: 1.5 }
+    );
     for (bad, needle) in [
         (
             CameraOverride {
@@ -560,6 +570,21 @@ fn gltf_cameras_place_the_view_and_overrides_replace_it() {
                 ..Default::default()
             },
             "field of view 0.5° is outside 1..=179°",
+        ),
+        (
+            CameraOverride {
+                ortho_height: Some(-1.0),
+                ..Default::default()
+            },
+            "orthographic height -1 is not a positive number",
+        ),
+        (
+            CameraOverride {
+                fov_deg: Some(30.0),
+                ortho_height: Some(1.0),
+                ..Default::default()
+            },
+            "exclude each other",
         ),
         (
             CameraOverride {
