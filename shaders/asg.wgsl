@@ -245,9 +245,15 @@ fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
     let f0 = s.f0;
     let has_specular = s.has_specular;
 
+    // A sheen (KHR_materials_sheen): each lobe as a directional light of its power along its
+    // axis, as its shadow is (the sheen's lobe is broad; no closed form over the lobe's shape;
+    // the lobe's irradiance times the BRDF at its axis jumped where a wide lobe's axis crossed
+    // the horizon).
+    let sheen = sheen_at(mat.sheen, mat.sheen_albedo, dot(n, v));
     var irradiance = vec3<f32>(0.0);
     var specular = vec3<f32>(0.0);
     var coat = vec3<f32>(0.0);
+    var fibres = vec3<f32>(0.0);
     var e_lit = 0.0;
     var e_all = 0.0;
     for (var k = 0u; k < globals.lobe_count; k = k + 1u) {
@@ -268,6 +274,17 @@ fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
         if s.coat > 0.0 {
             coat = coat + c.rgb * (ggx_response(k, s.n_coat, v, s.coat_alpha) * vis);
         }
+        if sheen.alpha > 0.0 {
+            let l = axis.xyz;
+            var h = n;
+            let vl = v + l;
+            if dot(vl, vl) > 1e-12 {
+                h = normalize(vl);
+            }
+            let n_l = dot(n, l);
+            let f = sheen_brdf(sheen.alpha, max(dot(n, h), 0.0), dot(n, v), n_l);
+            fibres = fibres + c.rgb * (c.w * f * max(n_l, 0.0) * vis);
+        }
     }
     if s.catcher {
         var shadow = 0.0;
@@ -280,6 +297,7 @@ fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
     // for the base's): it reflects that share and takes it from the layer beneath, emission
     // included.
     let fc = s.coat * coat_fresnel(dot(s.n_coat, v));
-    let beneath = (diffuse * irradiance + f0 * specular) * p.occlusion + p.emission;
+    let base = (diffuse * irradiance + f0 * specular) * sheen.beneath + sheen.colour * fibres;
+    let beneath = base * p.occlusion + p.emission;
     return vec4<f32>(beneath * (1.0 - fc) + fc * coat * p.occlusion, 1.0);
 }

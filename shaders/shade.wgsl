@@ -281,6 +281,12 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
     let has_specular = s.has_specular;
     let catcher = s.catcher;
     let culling = globals.culling != 0u;
+    // A sheen (KHR_materials_sheen) over the base, beneath any clear coat. Its albedo table
+    // is read only where there is one (copying it costs on CPU rasterisers).
+    var sheen = Sheen(vec3<f32>(0.0), 0.0, 1.0);
+    if materials[material].sheen.w > 0.0 {
+        sheen = sheen_at(materials[material].sheen, materials[material].sheen_albedo, dot(n, v));
+    }
 
     var radiance = vec3<f32>(0.0);
     var e_lit = 0.0;
@@ -305,9 +311,9 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         let alpha_l = min(alpha + 0.5 * rho, 1.0);
         let coat_alpha_l = min(s.coat_alpha + 0.5 * rho, 1.0);
         let glossy = has_specular || s.coat > 0.0;
-        // The half vector, once per light, where a lobe needs it.
+        // The half vector, once per light, where a lobe or the sheen needs it.
         var h = n;
-        if glossy {
+        if glossy || sheen.alpha > 0.0 {
             h = half_vector(v, l, n);
         }
         var full = true;
@@ -328,6 +334,11 @@ fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfacePar
         var brdf = diffuse;
         if has_specular {
             brdf = brdf + ggx_specular(n, v, l, h, alpha_l, alpha, f0, s.f90);
+        }
+        if sheen.alpha > 0.0 {
+            // The sheen's fibres take their albedo's share from the base beneath them.
+            let fibres = sheen_brdf(sheen.alpha, max(dot(n, h), 0.0), dot(n, v), ndl);
+            brdf = brdf * sheen.beneath + sheen.colour * fibres;
         }
         var reflected = brdf * ndl;
         if s.coat > 0.0 {

@@ -55,6 +55,11 @@ struct Material {
     // x: the clear coat's strength (KHR_materials_clearcoat; 0: none); y: its roughness;
     // z: the scale of its normal texture; w: unused.
     coat: vec4<f32>,
+    // rgb: the sheen's colour (KHR_materials_sheen); w: its distribution's α, 0 for none.
+    sheen: vec4<f32>,
+    // The sheen's directional albedo E(n·v) at n·v = k/15, k = 0…15: sheen_albedo[k / 4][k % 4]
+    // (src/render/sheen.rs, `albedo_table`).
+    sheen_albedo: array<vec4<f32>, 4>,
 };
 
 // The materials' textures (src/render/textures.rs): sRGB colours (base colours, emission,
@@ -365,6 +370,63 @@ struct Surface {
     coat_alpha: f32,
     n_coat: vec3<f32>,
 };
+
+// The sheen of a material at a point (src/render/sheen.rs): its colour, its distribution's α
+// (0: none), and the factor on the layer beneath, 1 − max(colour) · E(n·v).
+struct Sheen {
+    colour: vec3<f32>,
+    alpha: f32,
+    beneath: f32,
+};
+
+// The sheen of a material whose `sheen` and `sheen_albedo` these are, seen at cosine `n_v`.
+fn sheen_at(sheen: vec4<f32>, albedo: array<vec4<f32>, 4>, n_v: f32) -> Sheen {
+    var s: Sheen;
+    s.colour = sheen.rgb;
+    s.alpha = sheen.w;
+    s.beneath = 1.0;
+    if sheen.w > 0.0 {
+        let x = clamp(n_v, 0.0, 1.0) * 15.0;
+        let k = min(u32(x), 14u);
+        let e0 = albedo[k / 4u][k % 4u];
+        let e1 = albedo[(k + 1u) / 4u][(k + 1u) % 4u];
+        let e = mix(e0, e1, x - f32(k));
+        s.beneath = 1.0 - max(sheen.r, max(sheen.g, sheen.b)) * e;
+    }
+    return s;
+}
+
+// Conty and Kulla's fitted exponent of the sheen's Λ (src/render/sheen.rs, `lambda_exponent`).
+fn sheen_lambda_exponent(x: f32, alpha: f32) -> f32 {
+    let t = (1.0 - alpha) * (1.0 - alpha);
+    let a = mix(21.5473, 25.3245, t);
+    let b = mix(3.82987, 3.32435, t);
+    let c = mix(0.19823, 0.16801, t);
+    let d = mix(-1.97760, -1.27393, t);
+    let e = mix(-4.32054, -4.85967, t);
+    return a / (1.0 + b * pow(x, c)) + d * x + e;
+}
+
+fn sheen_lambda(cos: f32, alpha: f32) -> f32 {
+    if cos < 0.5 {
+        return exp(sheen_lambda_exponent(cos, alpha));
+    }
+    return exp(2.0 * sheen_lambda_exponent(0.5, alpha) - sheen_lambda_exponent(1.0 - cos, alpha));
+}
+
+// The sheen BRDF without its colour (src/render/sheen.rs, `brdf`): the Charlie distribution
+// of α at the half vector's cosine `n_h` times its visibility (capped at 1), 0 where the view
+// or the light lies below the surface.
+fn sheen_brdf(alpha: f32, n_h: f32, n_v: f32, n_l: f32) -> f32 {
+    if n_v <= 0.0 || n_l <= 0.0 {
+        return 0.0;
+    }
+    let inv = 1.0 / alpha;
+    let sin2 = max(1.0 - n_h * n_h, 0.0);
+    let d = (2.0 + inv) * pow(sin2, 0.5 * inv) / (2.0 * PI);
+    let v = 1.0 / ((1.0 + sheen_lambda(n_v, alpha) + sheen_lambda(n_l, alpha)) * 4.0 * n_v * n_l);
+    return d * min(v, 1.0);
+}
 
 // The clear coat's Fresnel reflectance (Schlick, F0 0.04, F90 1) at cosine `c`.
 fn coat_fresnel(c: f32) -> f32 {

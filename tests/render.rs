@@ -3205,12 +3205,14 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
     bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()));
     std::fs::write(d.join("quad.bin"), &bin).unwrap();
     let gltf = r#"{"asset":{"version":"2.0"},
-        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_sheen","KHR_materials_specular"],
+        "extensionsUsed":["KHR_materials_emissive_strength","KHR_materials_sheen","KHR_materials_specular",
+                          "KHR_materials_transmission"],
         "scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
         "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,"material":0}]}],
         "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}},"normalTexture":{"index":1},
                       "emissiveFactor":[1,0,0],"alphaMode":"BLEND",
-                      "extensions":{"KHR_materials_specular":{"specularFactor":0.5,"specularTexture":{"index":0}}}}],
+                      "extensions":{"KHR_materials_specular":{"specularFactor":0.5,"specularTexture":{"index":0}},
+                                    "KHR_materials_sheen":{"sheenColorFactor":[0.5,0.5,0.5],"sheenColorTexture":{"index":0}}}}],
         "textures":[{"source":0},{"source":1}],"images":[{"uri":"tex.png"},{"uri":"tex.png"}],
         "accessors":[{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[-1,0,0],"max":[1,2,0]},
                      {"bufferView":1,"componentType":5126,"count":4,"type":"VEC2"},
@@ -3237,7 +3239,8 @@ fn cli_renders_a_textured_gltf_and_names_what_it_does_not_draw() {
         "not drawn",
         "scene: 4 triangles (2 casting shadows), 2 materials (1 blended, 1 emissive, 1 \
          textured), 2 texture images",
-        "extension KHR_materials_sheen",
+        "extension KHR_materials_transmission",
+        "KHR_materials_sheen textures (its factors are drawn)",
     ] {
         assert!(
             stderr.contains(needle),
@@ -3453,4 +3456,112 @@ fn orthographic_cameras_project_in_parallel_and_see_from_one_direction() {
     assert!(low > 0.0 && high / low < 1.01, "{low}..{high}");
     assert!((mean / centre - 1.0).abs() < 0.01, "{mean} vs {centre}");
     assert!(spread > 1.3, "the perspective view varies only {spread}×");
+}
+
+/// glTF's KHR_materials_sheen (src/render/sheen.rs): on a sphere of a Lambertian base under
+/// five lights, every pixel away from the silhouette is Σ (albedo/π · (1 − max(colour) ·
+/// E(n·v)) + colour · D · V) (n·l) E_l with the Charlie distribution and visibility and the
+/// sheen's directional albedo E, computed on the CPU (`sheen::fibres`, `sheen::beneath`: E
+/// integrated at each pixel's n·v, where the shaders interpolate 16 cosines); a sheen over a black
+/// base, alone. The ASG pass takes each lobe's sheen as that of a directional light of the
+/// lobe's power along its axis: its sheen-only sphere against that on the CPU.
+#[test]
+fn sheen_reflects_its_brdf_and_dims_the_base_by_its_albedo() {
+    use envlight::render::sheen;
+    let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians());
+    let lights = vec![
+        light(0, Vec3::new(0.3, 1.0, 0.5), [3.0, 2.8, 2.5], 0.0),
+        light(1, Vec3::new(-1.0, 0.2, 0.4), [0.6, 0.8, 1.2], 0.0),
+        light(2, Vec3::new(0.8, -0.3, 0.6), [0.4, 0.3, 0.2], 0.0),
+        light(3, Vec3::new(0.0, 0.1, -1.0), [1.0, 1.0, 1.0], 0.0),
+        light(4, Vec3::new(-0.2, 0.9, 0.9), [0.25, 0.5, 0.25], 0.0),
+    ];
+    let colour = [1.0, 0.6, 0.3];
+    let roughness = 0.5;
+    // Stated tolerance: 1% of the pixel's brightest channel.
+    let tolerance = 0.01;
+    let check = |name: &str, albedo: [f32; 3], lobes: Option<Vec<envlight::asg::Asg>>| {
+        let material = Material {
+            sheen_color: colour,
+            sheen_roughness: roughness,
+            ..Material::lambertian(albedo)
+        };
+        // 320 segments: the sheen rises steeply towards grazing views, where a coarser
+        // sphere's interpolated normals alone move a pixel by over 1%.
+        let scene = Scene::sphere(Vec3::ZERO, 1.0, 320, material, None, camera);
+        let mut r = renderer(
+            scene,
+            RenderSettings {
+                width: 96,
+                height: 96,
+                shadows: false,
+                ..Default::default()
+            },
+        );
+        let img = match &lobes {
+            Some(lobes) => r.render_asg(lobes).unwrap().0,
+            None => r.render(&lights).unwrap().0,
+        };
+        let (mut worst, mut checked) = (0.0f32, 0);
+        let mut failures = Vec::new();
+        for (x, y, n, v) in sphere_pixels(&r, camera.eye, 96) {
+            let mut want = [0.0f32; 3];
+            let beneath = if albedo == [0.0; 3] {
+                0.0
+            } else {
+                sheen::beneath(colour, roughness, n.dot(v))
+            };
+            // `e_base`: the irradiance the base takes from the light; `e_sheen`: the sheen's.
+            let mut add = |l: Vec3, e_base: [f32; 3], e_sheen: [f32; 3]| {
+                let fibres = sheen::fibres(colour, roughness, n, v, l);
+                for c in 0..3 {
+                    want[c] += albedo[c] / PI * beneath * e_base[c] + fibres[c] * e_sheen[c];
+                }
+            };
+            match &lobes {
+                None => {
+                    for l in &lights {
+                        let d = Vec3::from_array(l.dir);
+                        let cos = n.dot(d).max(0.0);
+                        let e = l.rgb.map(|c| c * cos);
+                        add(d, e, e);
+                    }
+                }
+                Some(lobes) => {
+                    for lobe in lobes {
+                        let axis = Vec3::from_array(lobe.axis.map(|c| c as f32));
+                        let cos = n.dot(axis).max(0.0);
+                        add(
+                            axis,
+                            lobe.irradiance(n.as_dvec3()).map(|c| c as f32),
+                            lobe.integral().map(|c| c as f32 * cos),
+                        );
+                    }
+                }
+            }
+            let got = img.pixel(x, y);
+            let peak = want.iter().fold(0.0f32, |m, &c| m.max(c));
+            for c in 0..3 {
+                let err = (got[c] - want[c]).abs() / peak.max(1e-6);
+                worst = worst.max(err);
+                if err > tolerance {
+                    failures.push(format!(
+                        "pixel ({x},{y}) channel {c}: GPU {} vs CPU {}",
+                        got[c], want[c]
+                    ));
+                }
+            }
+            checked += 1;
+        }
+        fail_with_image(name, &img, &failures);
+        eprintln!(
+            "{name}: {checked} pixels, worst {:.3}% of the pixel's brightest channel",
+            worst * 100.0
+        );
+        assert!(checked > 2500, "only {checked} pixels checked");
+    };
+    check("sheen_over_lambertian", [0.5, 0.5, 0.5], None);
+    check("sheen_alone", [0.0; 3], None);
+    check("asg_sheen_alone", [0.0; 3], Some(test_lobes()));
+    check("asg_sheen_over_lambertian", [0.5; 3], Some(test_lobes()));
 }

@@ -70,6 +70,7 @@ pub mod scene;
 pub mod shading;
 pub mod shadow;
 pub mod shadow_raster;
+pub mod sheen;
 pub mod supersample;
 pub mod textures;
 #[cfg(feature = "window")]

@@ -159,6 +159,12 @@ pub struct MaterialRaw {
     /// x: the clear coat's strength; y: its roughness; z: the scale of its normal texture;
     /// w: unused.
     coat: [f32; 4],
+    /// rgb: the sheen's colour; w: its distribution's α ([`super::sheen::alpha`]), 0 where the
+    /// colour is black (no sheen).
+    sheen: [f32; 4],
+    /// The sheen's directional albedo E(n·v) at n·v = 0, 1/15, …, 1, four a row
+    /// ([`super::sheen::albedo_table`]); zero without a sheen.
+    sheen_albedo: [[f32; 4]; 4],
 }
 
 /// Material flag: the surface is a shadow catcher (mixed-reality compositing).
@@ -249,6 +255,16 @@ impl Material {
                 self.textures.clearcoat_normal_scale,
                 0.0,
             ],
+            sheen: match self.sheen_color {
+                [0.0, 0.0, 0.0] => [0.0; 4],
+                [r, g, b] => [r, g, b, super::sheen::alpha(self.sheen_roughness)],
+            },
+            sheen_albedo: if self.sheen_color == [0.0; 3] {
+                [[0.0; 4]; 4]
+            } else {
+                let table = super::sheen::albedo_table(self.sheen_roughness);
+                std::array::from_fn(|row| std::array::from_fn(|k| table[4 * row + k]))
+            },
         }
     }
 }

@@ -431,6 +431,15 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
             ignored.insert(format!("extension {extension}"));
         }
     }
+    for material in gltf.document.materials() {
+        let sheen = material.extension_value(SHEEN);
+        if SHEEN_TEXTURES
+            .iter()
+            .any(|t| sheen.and_then(|s| s.get(*t)).is_some())
+        {
+            ignored.insert(format!("{SHEEN} textures (its factors are drawn)"));
+        }
+    }
     let scene = gltf
         .document
         .default_scene()
@@ -811,7 +820,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         tracing::warn!(
             "{}: not drawn (envlight renders the alpha modes, the index of refraction, and base \
              colour, metallic, roughness, emission, specular and clear coat, with their \
-             textures, and normal and occlusion textures): {}",
+             textures, the sheen's factors, and normal and occlusion textures): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -943,6 +952,7 @@ fn gltf_material(
     };
     let (specular, specular_color, specular_factor) = gltf_specular(material)?;
     let (clearcoat, clearcoat_roughness) = gltf_clearcoat(material)?;
+    let (sheen_color, sheen_roughness) = gltf_sheen(material)?;
     Ok(Material {
         base_color: [c[0], c[1], c[2]],
         roughness,
@@ -952,6 +962,8 @@ fn gltf_material(
         specular_factor,
         clearcoat,
         clearcoat_roughness,
+        sheen_color,
+        sheen_roughness,
         emission: gltf_emission(material)?,
         alpha: c[3],
         alpha_mode,
@@ -967,14 +979,42 @@ const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 6] = [
+const DRAWN_EXTENSIONS: [&str; 7] = [
     MESH_QUANTIZATION,
     TEXTURE_TRANSFORM,
     EMISSIVE_STRENGTH,
     IOR,
     SPECULAR,
     CLEARCOAT,
+    SHEEN,
 ];
+
+/// The glTF extension that lays a velvet-like sheen over a material.
+const SHEEN: &str = "KHR_materials_sheen";
+
+/// The sheen's textures, which the renderer does not draw (its factors alone are).
+const SHEEN_TEXTURES: [&str; 2] = ["sheenColorTexture", "sheenRoughnessTexture"];
+
+/// A glTF material's sheen: `KHR_materials_sheen`'s `sheenColorFactor` (three numbers in
+/// [0, 1]; black without) and `sheenRoughnessFactor` (in [0, 1]; 0 without). Errors name the
+/// property.
+fn gltf_sheen(material: &gltf::Material) -> Result<([f32; 3], f32), String> {
+    let roughness = extension_number(
+        material,
+        (SHEEN, "sheenRoughnessFactor"),
+        0.0,
+        in_unit_interval,
+        IN_UNIT_INTERVAL,
+    )?;
+    let color = extension_rgb(
+        material,
+        (SHEEN, "sheenColorFactor"),
+        [0.0; 3],
+        in_unit_interval,
+        "is not three numbers in [0, 1]",
+    )?;
+    Ok((color, roughness))
+}
 
 /// The glTF extension that lays a clear coat over a material.
 const CLEARCOAT: &str = "KHR_materials_clearcoat";
@@ -1022,27 +1062,13 @@ fn gltf_specular(material: &gltf::Material) -> Result<(f32, [f32; 3], f32), Stri
         in_unit_interval,
         IN_UNIT_INTERVAL,
     )?;
-    let color = match material
-        .extension_value(SPECULAR)
-        .and_then(|e| e.get("specularColorFactor"))
-    {
-        None => [1.0; 3],
-        Some(v) => v
-            .as_array()
-            .filter(|a| a.len() == 3)
-            .and_then(|a| {
-                let c: Vec<f32> = a
-                    .iter()
-                    .filter_map(|x| x.as_f64())
-                    .map(|x| x as f32)
-                    .collect();
-                <[f32; 3]>::try_from(c).ok()
-            })
-            .filter(|c| c.iter().all(|x| x.is_finite() && *x >= 0.0))
-            .ok_or_else(|| {
-                format!("{SPECULAR}.specularColorFactor {v} is not three finite numbers ≥ 0")
-            })?,
-    };
+    let color = extension_rgb(
+        material,
+        (SPECULAR, "specularColorFactor"),
+        [1.0; 3],
+        |x| x.is_finite() && x >= 0.0,
+        "is not three finite numbers ≥ 0",
+    )?;
     Ok(((ior - 1.0) / (ior + 1.0) / 0.4, color, factor))
 }
 
@@ -1157,6 +1183,37 @@ fn extension_number(
             .as_f64()
             .map(|x| x as f32)
             .filter(|&x| valid(x))
+            .ok_or_else(|| format!("{extension}.{name} {v} {requirement}")),
+    }
+}
+
+/// A colour (three numbers, each `valid`) named `name` in a glTF material's `extension`:
+/// `default` where absent; else an error naming the property, the value and the
+/// `requirement`.
+fn extension_rgb(
+    material: &gltf::Material,
+    (extension, name): (&str, &str),
+    default: [f32; 3],
+    valid: impl Fn(f32) -> bool,
+    requirement: &str,
+) -> Result<[f32; 3], String> {
+    match material
+        .extension_value(extension)
+        .and_then(|e| e.get(name))
+    {
+        None => Ok(default),
+        Some(v) => v
+            .as_array()
+            .filter(|a| a.len() == 3)
+            .and_then(|a| {
+                let c: Vec<f32> = a
+                    .iter()
+                    .filter_map(|x| x.as_f64())
+                    .map(|x| x as f32)
+                    .collect();
+                <[f32; 3]>::try_from(c).ok()
+            })
+            .filter(|c| c.iter().all(|&x| valid(x)))
             .ok_or_else(|| format!("{extension}.{name} {v} {requirement}")),
     }
 }

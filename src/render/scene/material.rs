@@ -27,6 +27,13 @@ pub struct Material {
     pub clearcoat: f32,
     /// The clear coat's perceptual roughness (`clearcoatRoughnessFactor`, in [0, 1]).
     pub clearcoat_roughness: f32,
+    /// The colour of a velvet-like sheen over the base (glTF's `KHR_materials_sheen`
+    /// `sheenColorFactor`, linear, each in [0, 1]; black: none), beneath any clear coat
+    /// ([`crate::render::sheen`]).
+    pub sheen_color: [f32; 3],
+    /// The sheen's perceptual roughness (`sheenRoughnessFactor`, in [0, 1]; drawn at least
+    /// [`crate::render::sheen::MIN_ROUGHNESS`]).
+    pub sheen_roughness: f32,
     /// Emitted radiance (linear RGB, W·sr⁻¹·m⁻² in the lights' units), added to the light the
     /// surface reflects: glTF's `emissiveFactor` times `KHR_materials_emissive_strength`.
     /// Zero for a surface that does not glow.
@@ -57,6 +64,8 @@ impl Default for Material {
             specular_factor: 1.0,
             clearcoat: 0.0,
             clearcoat_roughness: 0.0,
+            sheen_color: [0.0; 3],
+            sheen_roughness: 0.0,
             emission: [0.0; 3],
             alpha: 1.0,
             alpha_mode: AlphaMode::Opaque,

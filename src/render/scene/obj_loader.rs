@@ -405,6 +405,8 @@ pub(super) fn load_obj(path: &Path) -> Result<Builder, SceneError> {
                         specular: 0.5,
                         clearcoat,
                         clearcoat_roughness,
+                        sheen_color: [0.0; 3],
+                        sheen_roughness: 0.0,
                         emission,
                         alpha: dissolve,
                         alpha_mode: if mat.dissolve_texture.is_some() {

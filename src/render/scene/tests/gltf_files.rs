@@ -326,10 +326,10 @@ fn summaries_count_triangles_materials_and_textures() {
 /// `KHR_materials_ior` sets the dielectric specular level (F0 = 0.16 · level² =
 /// ((ior − 1)/(ior + 1))²) and `KHR_materials_specular` its strength and tint, which
 /// [`Material::dielectric_fresnel`] combines as the extension does; without them F0 is
-/// 0.04 and F90 1; `KHR_materials_clearcoat` gives the coat's factors; bad values are
-/// errors naming the property.
+/// 0.04 and F90 1; `KHR_materials_clearcoat` gives the coat's factors and
+/// `KHR_materials_sheen` the sheen's; bad values are errors naming the property.
 #[test]
-fn ior_specular_and_clearcoat_load_with_their_factors() {
+fn ior_specular_clearcoat_and_sheen_load_with_their_factors() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let text = textured_gltf_text(d);
@@ -378,6 +378,13 @@ fn ior_specular_and_clearcoat_load_with_their_factors() {
     )
     .unwrap();
     assert_eq!((m.clearcoat, m.clearcoat_roughness), (0.75, 0.25));
+    // A sheen's factors (black, none, without the extension).
+    assert_eq!((m.sheen_color, m.sheen_roughness), ([0.0; 3], 0.0));
+    let m = load(
+        r#""KHR_materials_sheen":{"sheenColorFactor":[0.9,0.5,0.25],"sheenRoughnessFactor":0.4}"#,
+    )
+    .unwrap();
+    assert_eq!((m.sheen_color, m.sheen_roughness), ([0.9, 0.5, 0.25], 0.4));
     for (extensions, needle) in [
         (
             r#""KHR_materials_ior":{"ior":0.5}"#,
@@ -406,6 +413,14 @@ fn ior_specular_and_clearcoat_load_with_their_factors() {
         (
             r#""KHR_materials_clearcoat":{"clearcoatRoughnessFactor":-1}"#,
             "clearcoatRoughnessFactor -1",
+        ),
+        (
+            r#""KHR_materials_sheen":{"sheenColorFactor":[1,2,0]}"#,
+            "KHR_materials_sheen.sheenColorFactor [1,2,0] is not three numbers in [0, 1]",
+        ),
+        (
+            r#""KHR_materials_sheen":{"sheenRoughnessFactor":1.5}"#,
+            "KHR_materials_sheen.sheenRoughnessFactor 1.5 must lie in [0, 1]",
         ),
     ] {
         let e = load(extensions).unwrap_err().to_string();
