@@ -13,7 +13,7 @@
 //! (docs/performance.md gives both).
 
 use super::scene::Scene;
-use super::{compute_storage_entry, uniform_entry};
+use super::setup::{compute_storage_entry, uniform_entry};
 use glam::{Mat4, Vec3};
 
 /// How the shadow maps are drawn.
