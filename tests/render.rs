@@ -996,19 +996,18 @@ fn test_lobes() -> Vec<envlight::asg::Asg> {
     .collect()
 }
 
-/// Renders one sphere of `material` under [`test_lobes`] with ASG lighting and compares every
-/// pixel away from the silhouette with the CPU closed form (`Asg::irradiance` for the diffuse
-/// part, `Asg::ggx_specular` for the specular one). Returns the worst error relative to the
-/// CPU value (pixels above 5% of the image's brightest) and the worst error relative to the
-/// brightest CPU value (all pixels), after asserting both are within `tolerance`.
-fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32)) -> (f32, f32) {
-    let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians());
-    // 320 segments: the warped GGX lobe is narrow across the plane of incidence at grazing
-    // views, where a coarser sphere's interpolated normals alone move a pixel by 2%.
+/// The camera of [`reference_sphere`].
+fn reference_sphere_camera() -> Camera {
+    Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians())
+}
+
+/// A renderer of the unit sphere of `material`, finely tessellated, seen by `camera` at 96×96
+/// without shadows, for comparisons with a CPU closed form per pixel. 320 segments: the warped
+/// GGX lobe is narrow across the plane of incidence at grazing views, and the sheen rises
+/// steeply there, where a coarser sphere's interpolated normals alone move a pixel by 1–2%.
+fn reference_sphere(material: Material, camera: Camera) -> Renderer {
     let scene = Scene::sphere(Vec3::ZERO, 1.0, 320, material, None, camera);
-    let lobes = test_lobes();
-    // The closed form has no shadows (`asg_lobes_cast_soft_shadows` tests them).
-    let mut r = renderer(
+    renderer(
         scene,
         RenderSettings {
             width: 96,
@@ -1016,7 +1015,19 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
             shadows: false,
             ..Default::default()
         },
-    );
+    )
+}
+
+/// Renders one sphere of `material` under [`test_lobes`] with ASG lighting and compares every
+/// pixel away from the silhouette with the CPU closed form (`Asg::irradiance` for the diffuse
+/// part, `Asg::ggx_specular` for the specular one). Returns the worst error relative to the
+/// CPU value (pixels above 5% of the image's brightest) and the worst error relative to the
+/// brightest CPU value (all pixels), after asserting both are within `tolerance`.
+fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32)) -> (f32, f32) {
+    let camera = reference_sphere_camera();
+    let lobes = test_lobes();
+    // The closed form has no shadows (`asg_lobes_cast_soft_shadows` tests them).
+    let mut r = reference_sphere(material, camera);
     let (img, stats) = r.render_asg(&lobes).unwrap();
     assert_eq!(stats.lights, lobes.len());
     assert_eq!(stats.shadow_maps, 0);
@@ -3468,7 +3479,7 @@ fn orthographic_cameras_project_in_parallel_and_see_from_one_direction() {
 #[test]
 fn sheen_reflects_its_brdf_and_dims_the_base_by_its_albedo() {
     use envlight::render::sheen;
-    let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 35f32.to_radians());
+    let camera = reference_sphere_camera();
     let lights = vec![
         light(0, Vec3::new(0.3, 1.0, 0.5), [3.0, 2.8, 2.5], 0.0),
         light(1, Vec3::new(-1.0, 0.2, 0.4), [0.6, 0.8, 1.2], 0.0),
@@ -3486,18 +3497,7 @@ fn sheen_reflects_its_brdf_and_dims_the_base_by_its_albedo() {
             sheen_roughness: roughness,
             ..Material::lambertian(albedo)
         };
-        // 320 segments: the sheen rises steeply towards grazing views, where a coarser
-        // sphere's interpolated normals alone move a pixel by over 1%.
-        let scene = Scene::sphere(Vec3::ZERO, 1.0, 320, material, None, camera);
-        let mut r = renderer(
-            scene,
-            RenderSettings {
-                width: 96,
-                height: 96,
-                shadows: false,
-                ..Default::default()
-            },
-        );
+        let mut r = reference_sphere(material, camera);
         let img = match &lobes {
             Some(lobes) => r.render_asg(lobes).unwrap().0,
             None => r.render(&lights).unwrap().0,
