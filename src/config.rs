@@ -915,6 +915,7 @@ impl RawRender {
                 ))
             }
         };
+        let ortho_range = crate::render::scene::CameraOverride::ORTHO_HEIGHT;
         let ortho_height = match self.ortho_height {
             None => None,
             Some(_) if fov_deg.is_some() => {
@@ -925,18 +926,16 @@ impl RawRender {
                      orthographic)",
                 ))
             }
-            Some(h)
-                if h.is_finite()
-                    && h > 0.0
-                    && h <= f64::from(crate::render::scene::MAX_SCENE_RADIUS) =>
-            {
-                Some(h as f32)
-            }
+            Some(h) if h.is_finite() && ortho_range.contains(&(h as f32)) => Some(h as f32),
             Some(h) => {
                 return Err(invalid(
                     "render.ortho_height",
                     h,
-                    "must be a positive height in scene units",
+                    format!(
+                        "must be a positive height in scene units ({}..={:e})",
+                        ortho_range.start(),
+                        ortho_range.end()
+                    ),
                 ))
             }
         };

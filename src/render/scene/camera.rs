@@ -66,7 +66,7 @@ impl Camera {
     }
 
     pub fn view(&self) -> Mat4 {
-        look_at_rh(self.eye, self.target, self.view_up())
+        look_along_rh(self.eye, self.forward(), self.view_up())
     }
 
     /// The camera in words, for the log: eye, look-at point, up direction where not +Y, and
@@ -133,7 +133,11 @@ impl Camera {
 
 /// Right-handed view matrix (camera looks along −Z).
 pub fn look_at_rh(eye: Vec3, center: Vec3, up: Vec3) -> Mat4 {
-    let f = (center - eye).normalize();
+    look_along_rh(eye, (center - eye).normalize(), up)
+}
+
+/// Right-handed view matrix of a camera at `eye` looking along the unit direction `f`.
+pub fn look_along_rh(eye: Vec3, f: Vec3, up: Vec3) -> Mat4 {
     let s = f.cross(up).normalize();
     let u = s.cross(f);
     Mat4::from_cols(
@@ -179,13 +183,18 @@ pub fn orthographic_rh(left: f32, right: f32, bottom: f32, top: f32, near: f32, 
 pub(super) fn gltf_camera(world: Mat4, projection: Projection) -> Result<Camera, String> {
     match projection {
         Projection::Perspective { fov_y } => {
-            if !(fov_y.is_finite() && fov_y > 0.0 && fov_y < std::f32::consts::PI) {
-                return Err(format!("yfov {fov_y} is not an angle in (0, π) radians"));
+            // Below 10⁻⁶ rad the projection's 1/tan(fov/2) leaves f32.
+            if !(1e-6..std::f32::consts::PI).contains(&fov_y) {
+                return Err(format!("yfov {fov_y} is not an angle in [10⁻⁶, π) radians"));
             }
         }
         Projection::Orthographic { half_height } => {
-            if !(half_height.is_finite() && half_height > 0.0) {
-                return Err(format!("ymag {half_height} is not a positive height"));
+            if !CameraOverride::ORTHO_HEIGHT.contains(&(2.0 * half_height)) {
+                return Err(format!(
+                    "ymag {half_height} is not a positive height (a view {}..={:e} units high)",
+                    CameraOverride::ORTHO_HEIGHT.start(),
+                    CameraOverride::ORTHO_HEIGHT.end()
+                ));
             }
         }
     }
@@ -198,9 +207,12 @@ pub(super) fn gltf_camera(world: Mat4, projection: Projection) -> Result<Camera,
     if forward.cross(up).length() < 0.0447 {
         return Err("its transform turns its up direction (+Y) along its view (−Z)".into());
     }
+    // The target ahead by a step the eye's coordinates can tell from it (one unit, more far from
+    // the origin: 10⁻³ of the eye's largest coordinate).
+    let step = (eye.abs().max_element() * 1e-3).max(1.0);
     Ok(Camera {
         eye,
-        target: eye + forward,
+        target: eye + forward * step,
         up,
         projection,
     })
@@ -223,6 +235,10 @@ pub struct CameraOverride {
 impl CameraOverride {
     /// The range of [`CameraOverride::fov_deg`].
     pub const FOV_DEG: std::ops::RangeInclusive<f32> = 1.0..=179.0;
+
+    /// The range of [`CameraOverride::ortho_height`], scene units: smaller views' projection
+    /// leaves f32, larger ones than a scene may be ([`MAX_SCENE_RADIUS`]).
+    pub const ORTHO_HEIGHT: std::ops::RangeInclusive<f32> = 1e-6..=MAX_SCENE_RADIUS;
 
     /// `camera` with the given parts replaced; an error where a part is not finite, the field
     /// of view is outside [`CameraOverride::FOV_DEG`], the orthographic height is not
@@ -260,10 +276,12 @@ impl CameraOverride {
                         .into(),
                 );
             }
-            if !(height.is_finite() && height > 0.0 && height <= MAX_SCENE_RADIUS) {
+            if !Self::ORTHO_HEIGHT.contains(&height) {
                 return Err(format!(
                     "orthographic height {height} is not a positive number of scene units \
-                     (at most {MAX_SCENE_RADIUS:e})"
+                     ({}..={:e})",
+                    Self::ORTHO_HEIGHT.start(),
+                    Self::ORTHO_HEIGHT.end()
                 ));
             }
             c.projection = Projection::Orthographic {

@@ -335,17 +335,64 @@ fn mutated_gltf_and_glb_files_never_panic() {
              "KHR_materials_clearcoat":{"clearcoatFactor":0.5,"clearcoatRoughnessFactor":0.25,
                "clearcoatTexture":{"index":0},"clearcoatRoughnessTexture":{"index":0},
                "clearcoatNormalTexture":{"index":0,"scale":1,
-                 "extensions":{"KHR_texture_transform":{"offset":[0,0],"scale":[1,1],"rotation":0}}}}}"#,
+                 "extensions":{"KHR_texture_transform":{"offset":[0,0],"scale":[1,1],"rotation":0}}}},
+             "KHR_materials_sheen":{"sheenColorFactor":[0.5,0.25,1],"sheenRoughnessFactor":0.5}}"#,
     );
     std::fs::write(&path, &extended).unwrap();
     let m = Scene::load(&path, false).expect("the unmutated extended scene loads");
     assert_eq!(m.materials[0].clearcoat, 0.5);
+    assert_eq!(m.materials[0].sheen_color, [0.5, 0.25, 1.0]);
     assert!(m.materials[0].textures.clearcoat_normal.is_some());
     for (start, end) in number_spans(&extended) {
         for value in HOSTILE_NUMBERS {
             let mutated = format!("{}{value}{}", &extended[..start], &extended[end..]);
             std::fs::write(&path, mutated).unwrap();
             loads_without_panic(&path);
+        }
+    }
+
+    // Cameras, perspective and orthographic, rolled and moved: a camera that loads projects
+    // to finite clip coordinates.
+    let cameras = text.replace(
+        r#""scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],"#,
+        r#""scenes":[{"nodes":[0,1,2]}],"nodes":[{"mesh":0},
+             {"camera":0,"translation":[0,1,5],"rotation":[0,0,0.38268343,0.9238795]},
+             {"camera":1,"translation":[3,0,0],"scale":[1,1,1]}],
+           "cameras":[{"type":"perspective","perspective":{"yfov":0.5,"znear":0.1}},
+             {"type":"orthographic","orthographic":{"xmag":1,"ymag":1,"zfar":10,"znear":0.1}}],"#,
+    );
+    assert_ne!(cameras, text);
+    for first in [0, 1] {
+        // Node 1 is the first camera node; swapping the cameras tries the orthographic one.
+        let scene = if first == 0 {
+            cameras.clone()
+        } else {
+            cameras
+                .replace(r#"{"camera":0,"#, r#"{"camera":2,"#)
+                .replace(r#"{"camera":1,"#, r#"{"camera":0,"#)
+                .replace(r#"{"camera":2,"#, r#"{"camera":1,"#)
+        };
+        std::fs::write(&path, &scene).unwrap();
+        let s = Scene::load(&path, false).expect("the unmutated camera scene loads");
+        assert_eq!(
+            matches!(s.camera.projection, Projection::Orthographic { .. }),
+            first == 1
+        );
+        for (start, end) in number_spans(&scene) {
+            for value in HOSTILE_NUMBERS {
+                let mutated = format!("{}{value}{}", &scene[..start], &scene[end..]);
+                std::fs::write(&path, mutated).unwrap();
+                if !loads_without_panic(&path) {
+                    continue;
+                }
+                let s = Scene::load(&path, false).unwrap();
+                let m = s.camera.view_proj(16.0 / 9.0, 1e-3, 1e4);
+                assert!(
+                    m.is_finite(),
+                    "camera {:?} of a mutated scene projects to {m}",
+                    s.camera
+                );
+            }
         }
     }
 
