@@ -21,7 +21,8 @@
 //!    — the material's factors times its textures ([`textures`]), sampled here where the
 //!    screen derivatives that choose their mip level exist.
 //! 3. **Shading pass** (`cs_shade`, a compute shader): per pixel it reads the G-buffer and sums
-//!    Lambertian diffuse + GGX specular (metallic-roughness) over the lights, each times its
+//!    Lambertian diffuse + GGX specular (metallic-roughness; a sheen, [`sheen`], and a clear
+//!    coat over it where the material has them) over the lights, each times its
 //!    PCF-filtered shadow visibility; a light's solid angle widens both its PCF kernel (softer
 //!    shadows for merged lights) and its specular lobe. The sum is scaled by the occlusion
 //!    texture's value and the emission added. It writes an `Rgba32Float` frame (linear
