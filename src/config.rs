@@ -918,10 +918,10 @@ impl RawRender {
         let ortho_range = crate::render::scene::CameraOverride::ORTHO_HEIGHT;
         let ortho_height = match self.ortho_height {
             None => None,
-            Some(_) if fov_deg.is_some() => {
+            Some(h) if fov_deg.is_some() => {
                 return Err(invalid(
                     "render.ortho_height",
-                    self.ortho_height.unwrap_or_default(),
+                    h,
                     "cannot be combined with render.fov_deg (a camera is perspective or \
                      orthographic)",
                 ))

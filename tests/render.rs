@@ -549,9 +549,9 @@ fn each_light_reads_its_own_map(raster: ShadowRaster) {
     );
 }
 
-#[test]
-fn shadow_catcher_output_composites_over_a_camera_image() {
-    let mut r = renderer(
+/// A 96×64 renderer of the built-in scene whose ground is a shadow catcher.
+fn default_scene_catcher() -> Renderer {
+    renderer(
         Scene::default_scene(),
         RenderSettings {
             width: 96,
@@ -560,7 +560,12 @@ fn shadow_catcher_output_composites_over_a_camera_image() {
             shadow_catcher: true,
             ..Default::default()
         },
-    );
+    )
+}
+
+#[test]
+fn shadow_catcher_output_composites_over_a_camera_image() {
+    let mut r = default_scene_catcher();
     let (mut img, _) = r
         .render(&[light(0, Vec3::new(0.2, 1.0, 0.3), [500.0; 3], 1e-4)])
         .unwrap();
@@ -2423,16 +2428,7 @@ fn asg_lobes_cast_soft_shadows() {
         assert!((wide_lit / wide_free_lit - 1.0).abs() < 0.05, "{raster:?}");
     }
     // The shadow catcher: the spheres' shadows under a lobe from above.
-    let mut r = renderer(
-        Scene::default_scene(),
-        RenderSettings {
-            width: 96,
-            height: 64,
-            shadow_resolution: 256,
-            shadow_catcher: true,
-            ..Default::default()
-        },
-    );
+    let mut r = default_scene_catcher();
     let above = [Asg::new(
         DVec3::new(0.2, 1.0, 0.3).normalize(),
         DVec3::X,

@@ -13,6 +13,7 @@
 //!
 //! The pass is built on first use ([`Renderer::render_asg`]); the light pass is untouched.
 
+use super::setup::{compute_storage_entry, uniform_entry};
 use super::{FrameStats, Image, RenderError, Renderer};
 use crate::asg::{cosine_convolution, integral, Asg};
 use crate::light::Light;
@@ -126,16 +127,11 @@ const ASG_SHADOW_BINDINGS: super::ShadowLookupBindings = super::ShadowLookupBind
     depths: 7,
 };
 
+/// A read-only storage buffer of the fragment stage.
 fn storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
-        binding,
         visibility: wgpu::ShaderStages::FRAGMENT,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only: true },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
+        ..compute_storage_entry(binding, true)
     }
 }
 
@@ -157,16 +153,7 @@ impl AsgPass {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("asg"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
+                uniform_entry(0, wgpu::ShaderStages::VERTEX_FRAGMENT),
                 storage_entry(1),
                 storage_entry(2),
                 storage_entry(3),

@@ -6,7 +6,7 @@ use super::*;
 
 impl Renderer {
     /// The texture behind [`Self::color_view`].
-    pub(super) fn output_texture(&self) -> &wgpu::Texture {
+    fn output_texture(&self) -> &wgpu::Texture {
         self.post_pass
             .as_ref()
             .map_or(&self.color_texture, |p| &p.texture)
@@ -171,10 +171,7 @@ impl Renderer {
     /// The render passes' part of [`Self::prepare`]: grows the depth array and the light-camera
     /// buffer to hold the frame's maps and writes their cameras (map k's at the k-th dynamic
     /// offset); returns whether the array was replaced (the shading pass must bind the new one).
-    pub(super) fn prepare_shadow_passes(
-        &mut self,
-        cameras: impl ExactSizeIterator<Item = Mat4>,
-    ) -> bool {
+    fn prepare_shadow_passes(&mut self, cameras: impl ExactSizeIterator<Item = Mat4>) -> bool {
         let device = &self.gpu.device;
         let maps = cameras.len();
         let mut grown = false;
@@ -213,7 +210,7 @@ impl Renderer {
     /// Fails with the first error the device reported (an allocation it could not make, such
     /// as shadow maps of a huge --shadow-res or targets of a huge --size) instead of rendering
     /// with the resource missing.
-    pub(super) fn check_gpu(&self) -> Result<(), RenderError> {
+    fn check_gpu(&self) -> Result<(), RenderError> {
         match self.gpu.take_error() {
             Some(error) => Err(RenderError::Gpu(format!(
                 "{error} (a smaller --size or --shadow-res needs less GPU memory)"
@@ -295,7 +292,7 @@ impl Renderer {
         }
     }
 
-    pub(super) fn encode_shadow_passes(&self, enc: &mut wgpu::CommandEncoder, maps: usize) {
+    fn encode_shadow_passes(&self, enc: &mut wgpu::CommandEncoder, maps: usize) {
         let ts = self.timestamps.as_ref();
         for layer in 0..maps {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -339,7 +336,7 @@ impl Renderer {
     /// Draws the blended surfaces over the shaded frame (`fs_blended`, back to front as
     /// [`super::setup::order_triangles`] sorted them), depth-tested against the G-buffer pass's depth;
     /// `frame_end`: the timestamp to write at its end.
-    pub(super) fn encode_blended_pass(
+    fn encode_blended_pass(
         &self,
         enc: &mut wgpu::CommandEncoder,
         pipeline: &wgpu::RenderPipeline,
@@ -386,7 +383,7 @@ impl Renderer {
 
     /// Rasterises the scene into the G-buffer (cleared to zero: no surface), all but the
     /// blended surfaces; their pass reads its depth afterwards.
-    pub(super) fn encode_gbuffer_pass(&self, enc: &mut wgpu::CommandEncoder) {
+    fn encode_gbuffer_pass(&self, enc: &mut wgpu::CommandEncoder) {
         let timestamps = self
             .timestamps
             .as_ref()
@@ -508,7 +505,7 @@ impl Renderer {
     }
 
     /// Maps `buffer`, waits, and hands its bytes to `f`.
-    pub(super) fn read_buffer<T>(
+    fn read_buffer<T>(
         &self,
         buffer: &wgpu::Buffer,
         f: impl FnOnce(&[u8]) -> T,

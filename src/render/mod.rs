@@ -100,8 +100,8 @@ mod setup;
 
 pub use prefix::light_prefix;
 use setup::{
-    depth_tested_pipeline, texture_2d, unfiltered_texture_entry, ShadowArray, ShadowLookupBindings,
-    Timestamps, TriangleGroups, GBUFFER_TARGETS, SURFACE_ATTRIBUTES,
+    depth_tested_pipeline, frame_storage_entry, texture_2d, unfiltered_texture_entry, ShadowArray,
+    ShadowLookupBindings, Timestamps, TriangleGroups, GBUFFER_TARGETS, SURFACE_ATTRIBUTES,
 };
 
 use crate::light::Light;

@@ -57,16 +57,7 @@ impl PostPass {
             label: Some(label),
             entries: &[
                 super::unfiltered_texture_entry(0, wgpu::ShaderStages::COMPUTE),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::StorageTexture {
-                        access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: COLOR_FORMAT,
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                    },
-                    count: None,
-                },
+                super::frame_storage_entry(1),
             ],
         });
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {

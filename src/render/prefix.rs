@@ -58,7 +58,7 @@ pub fn light_prefix(lights: &[Light], count: usize) -> Vec<Light> {
 /// the next shell can hold nothing nearer than the best point found (every point of shell
 /// s + 1 is at least s cell sides away). Exact: on unit vectors the nearest point in space is
 /// the one of largest dot product.
-pub(super) struct DirectionGrid {
+struct DirectionGrid {
     points: Vec<Vec3>,
     side: f32,
     cells: usize,
@@ -68,7 +68,7 @@ pub(super) struct DirectionGrid {
 }
 
 impl DirectionGrid {
-    pub(super) fn new(points: Vec<Vec3>) -> Self {
+    fn new(points: Vec<Vec3>) -> Self {
         let n = points.len().max(1);
         let cells =
             ((2.0 / (4.0 * std::f32::consts::PI / n as f32).sqrt()).ceil() as usize).clamp(1, 128);
@@ -110,7 +110,7 @@ impl DirectionGrid {
     /// of 900,000 lights in one direction put them all in one cell, which every query then
     /// scanned (33 s a frame; found by an audit). Cells of a spread prefix hold a few points
     /// and are left as they are.
-    pub(super) fn drop_repeated_points(&mut self) {
+    fn drop_repeated_points(&mut self) {
         let mut start = Vec::with_capacity(self.start.len());
         let mut order = Vec::with_capacity(self.order.len());
         start.push(0);
@@ -131,12 +131,12 @@ impl DirectionGrid {
         (self.start, self.order) = (start, order);
     }
 
-    pub(super) fn cell(&self, p: Vec3) -> [usize; 3] {
+    fn cell(&self, p: Vec3) -> [usize; 3] {
         let at = |x: f32| (((x + 1.0) / self.side) as usize).min(self.cells - 1);
         [at(p.x), at(p.y), at(p.z)]
     }
 
-    pub(super) fn cell_index(&self, p: Vec3) -> usize {
+    fn cell_index(&self, p: Vec3) -> usize {
         let [x, y, z] = self.cell(p);
         (x * self.cells + y) * self.cells + z
     }
@@ -144,7 +144,7 @@ impl DirectionGrid {
     /// The index of the point nearest to `to` (0 if there are none). Points far from the
     /// query (a prefix that is not spread over the sphere, from a light file) would take many
     /// shells of empty cells: past as many cells as there are points, all points are tried.
-    pub(super) fn nearest(&self, to: Vec3) -> usize {
+    fn nearest(&self, to: Vec3) -> usize {
         let home = self.cell(to).map(|c| c as i64);
         let last = self.cells as i64 - 1;
         let (mut best, mut best_d2) = (0, f32::INFINITY);

@@ -25,7 +25,7 @@ pub(super) struct Timestamps {
 pub(super) const GBUFFER_TARGETS: usize = 5;
 
 /// The formats of the G-buffer's targets, in order.
-pub(super) const GBUFFER_FORMATS: [wgpu::TextureFormat; GBUFFER_TARGETS] = [
+const GBUFFER_FORMATS: [wgpu::TextureFormat; GBUFFER_TARGETS] = [
     COLOR_FORMAT,
     COLOR_FORMAT,
     COLOR_FORMAT,
@@ -44,7 +44,7 @@ pub(super) const SURFACE_ATTRIBUTES: [wgpu::VertexAttribute; 7] = wgpu::vertex_a
 /// The vertex attributes the cut-out casters' shadow pass reads (`shaders/shadow.wgsl`,
 /// `MaskedIn`): position, material, the two texture coordinates and the colour (its alpha), at
 /// their offsets in [`scene::Vertex`].
-pub(super) const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 5] = {
+const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 5] = {
     use std::mem::offset_of;
     use wgpu::VertexFormat::{Float32x2, Float32x3, Uint32, Unorm16x4};
     const fn at(
@@ -67,7 +67,7 @@ pub(super) const MASKED_SHADOW_ATTRIBUTES: [wgpu::VertexAttribute; 5] = {
     ]
 };
 
-pub(super) fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
+fn vertex_layout(attributes: &[wgpu::VertexAttribute]) -> wgpu::VertexBufferLayout<'_> {
     wgpu::VertexBufferLayout {
         array_stride: std::mem::size_of::<scene::Vertex>() as u64,
         step_mode: wgpu::VertexStepMode::Vertex,
@@ -87,6 +87,20 @@ pub(super) fn uniform_entry(
             ty: wgpu::BufferBindingType::Uniform,
             has_dynamic_offset: false,
             min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The frame a compute pass writes: a write-only 2D storage texture of [`COLOR_FORMAT`].
+pub(super) fn frame_storage_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::StorageTexture {
+            access: wgpu::StorageTextureAccess::WriteOnly,
+            format: COLOR_FORMAT,
+            view_dimension: wgpu::TextureViewDimension::D2,
         },
         count: None,
     }
@@ -224,7 +238,7 @@ impl ShadowLookupBindings {
 }
 
 /// The light pass's [`ShadowLookupBindings`] (group 0 of `shaders/shade.wgsl`).
-pub(super) const SHADE_SHADOW_BINDINGS: ShadowLookupBindings = ShadowLookupBindings {
+const SHADE_SHADOW_BINDINGS: ShadowLookupBindings = ShadowLookupBindings {
     lights: 1,
     maps: 3,
     sampler: 4,
@@ -589,16 +603,7 @@ impl Renderer {
                     },
                     count: None,
                 },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::StorageTexture {
-                        access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: COLOR_FORMAT,
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                    },
-                    count: None,
-                },
+                frame_storage_entry(2),
             ],
         });
 
@@ -926,7 +931,7 @@ impl Renderer {
     /// The G-buffer's targets ([`GBUFFER_FORMATS`]): world position + material, normal +
     /// roughness, base colour + metallic, emission + occlusion, the layers over the base (1 × 1
     /// unless `layered`).
-    pub(super) fn make_gbuffer(
+    fn make_gbuffer(
         device: &wgpu::Device,
         width: u32,
         height: u32,
@@ -953,7 +958,7 @@ impl Renderer {
         })
     }
 
-    pub(super) fn make_targets(
+    fn make_targets(
         device: &wgpu::Device,
         width: u32,
         height: u32,

@@ -99,16 +99,7 @@ fn make_present(gpu: &Gpu, renderer: &Renderer, format: wgpu::TextureFormat) -> 
         label: Some("present"),
         entries: &[
             super::unfiltered_texture_entry(0, wgpu::ShaderStages::FRAGMENT),
-            wgpu::BindGroupLayoutEntry {
-                binding: 1,
-                visibility: wgpu::ShaderStages::FRAGMENT,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            },
+            super::setup::uniform_entry(1, wgpu::ShaderStages::FRAGMENT),
         ],
     });
     let params = device.create_buffer(&wgpu::BufferDescriptor {

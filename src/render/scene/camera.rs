@@ -55,13 +55,13 @@ impl Camera {
     }
 
     /// The up direction the view uses: [`Camera::up`] unless it lies within 2.6° of the view
-    /// direction, then +Y, or +Z where that does too.
+    /// direction ([`MIN_UP_SINE`]), then +Y, or +Z where that does too.
     fn view_up(&self) -> Vec3 {
         let forward = self.forward();
         [self.up, Vec3::Y, Vec3::Z]
             .into_iter()
             .map(Vec3::normalize_or_zero)
-            .find(|up| up.is_finite() && forward.cross(*up).length() > 0.0447)
+            .find(|up| up.is_finite() && forward.cross(*up).length() > MIN_UP_SINE)
             .unwrap_or(Vec3::X)
     }
 
@@ -130,6 +130,10 @@ impl Camera {
         }
     }
 }
+
+/// The sine of the smallest angle (2.6°) between a camera's up direction and its view for the
+/// up direction to set the image's: nearer, the image's up is ill-defined.
+const MIN_UP_SINE: f32 = 0.0447;
 
 /// Right-handed view matrix (camera looks along −Z).
 pub fn look_at_rh(eye: Vec3, center: Vec3, up: Vec3) -> Mat4 {
@@ -204,7 +208,7 @@ pub(super) fn gltf_camera(world: Mat4, projection: Projection) -> Result<Camera,
     if !eye.is_finite() || forward == Vec3::ZERO || !forward.is_finite() || !up.is_finite() {
         return Err("its transform does not place it (not finite, or degenerate)".into());
     }
-    if forward.cross(up).length() < 0.0447 {
+    if forward.cross(up).length() <= MIN_UP_SINE {
         return Err("its transform turns its up direction (+Y) along its view (−Z)".into());
     }
     // The target ahead by a step the eye's coordinates can tell from it (one unit, more far from

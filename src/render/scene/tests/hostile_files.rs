@@ -353,30 +353,26 @@ fn mutated_gltf_and_glb_files_never_panic() {
 
     // Cameras, perspective and orthographic, rolled and moved: a camera that loads projects
     // to finite clip coordinates.
-    let cameras = text.replace(
-        r#""scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],"#,
-        r#""scenes":[{"nodes":[0,1,2]}],"nodes":[{"mesh":0},
-             {"camera":0,"translation":[0,1,5],"rotation":[0,0,0.38268343,0.9238795]},
-             {"camera":1,"translation":[3,0,0],"scale":[1,1,1]}],
-           "cameras":[{"type":"perspective","perspective":{"yfov":0.5,"znear":0.1}},
-             {"type":"orthographic","orthographic":{"xmag":1,"ymag":1,"zfar":10,"znear":0.1}}],"#,
-    );
-    assert_ne!(cameras, text);
-    for first in [0, 1] {
-        // Node 1 is the first camera node; swapping the cameras tries the orthographic one.
-        let scene = if first == 0 {
-            cameras.clone()
-        } else {
-            cameras
-                .replace(r#"{"camera":0,"#, r#"{"camera":2,"#)
-                .replace(r#"{"camera":1,"#, r#"{"camera":0,"#)
-                .replace(r#"{"camera":2,"#, r#"{"camera":1,"#)
-        };
+    let perspective = r#"{"type":"perspective","perspective":{"yfov":0.5,"znear":0.1}}"#;
+    let ortho =
+        r#"{"type":"orthographic","orthographic":{"xmag":1,"ymag":1,"zfar":10,"znear":0.1}}"#;
+    // Node 1, the first camera node, takes camera 0: each kind in turn.
+    for (first, second, orthographic) in [(perspective, ortho, false), (ortho, perspective, true)] {
+        let scene = text.replace(
+            r#""scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],"#,
+            &format!(
+                r#""scenes":[{{"nodes":[0,1,2]}}],"nodes":[{{"mesh":0}},
+                     {{"camera":0,"translation":[0,1,5],"rotation":[0,0,0.38268343,0.9238795]}},
+                     {{"camera":1,"translation":[3,0,0],"scale":[1,1,1]}}],
+                   "cameras":[{first},{second}],"#
+            ),
+        );
+        assert_ne!(scene, text);
         std::fs::write(&path, &scene).unwrap();
         let s = Scene::load(&path, false).expect("the unmutated camera scene loads");
         assert_eq!(
             matches!(s.camera.projection, Projection::Orthographic { .. }),
-            first == 1
+            orthographic
         );
         for (start, end) in number_spans(&scene) {
             for value in HOSTILE_NUMBERS {
