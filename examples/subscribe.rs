@@ -1,11 +1,13 @@
 //! A Rust client of the envlight daemon: connect, subscribe for the brightest N lights (or ASG
-//! lobes, or wavelet coefficients), and print each frame's strongest one.
+//! lobes, or wavelet coefficients), and print each frame's strongest one — or, for
+//! spherical harmonics, the irradiance of surfaces facing up and sideways.
 //!
 //! ```sh
 //! cargo run --release -- run &                       # the daemon on the built-in sky
 //! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 16
 //! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 16 asg   # needs [asg] enabled
 //! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 256 wavelet   # [wavelet] enabled
+//! cargo run --release --example subscribe -- tcp:127.0.0.1:7878 9 sh   # [sh] enabled, degree 2
 //! ```
 
 use envlight::stream::client::{Client, Endpoint};
@@ -23,8 +25,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None | Some("lights") => Representation::Lights,
         Some("asg") => Representation::Asg,
         Some("wavelet") => Representation::Wavelet,
+        Some("sh") => Representation::Sh,
         Some(other) => {
-            return Err(format!("unknown representation {other:?}: lights, asg or wavelet").into())
+            return Err(
+                format!("unknown representation {other:?}: lights, asg, wavelet or sh").into(),
+            )
         }
     };
     let request = Request {
@@ -105,6 +110,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     ),
                     None => writeln!(out, "seq {:>5}: no coefficients", frame.seq),
                 };
+                if written.is_err() {
+                    break;
+                }
+            }
+            Message::Sh(frame) => {
+                let frame = frame.into_sh_frame();
+                // The decoder accepts only (degree + 1)² coefficients, so this is a set.
+                let Some(set) = frame.to_coefficients() else {
+                    return Err("an SH frame that is no set".into());
+                };
+                let facing = |x, y, z| set.irradiance(glam::DVec3::new(x, y, z)).map(|c| c as f32);
+                let written = writeln!(
+                    out,
+                    "seq {:>5}: SH degree {}; irradiance up {:?}, towards +X {:?}, down {:?} W/m²",
+                    frame.seq,
+                    set.degree(),
+                    facing(0.0, 1.0, 0.0),
+                    facing(1.0, 0.0, 0.0),
+                    facing(0.0, -1.0, 0.0)
+                );
                 if written.is_err() {
                     break;
                 }

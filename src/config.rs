@@ -192,6 +192,17 @@ pub struct RawConfig {
     pub asg: RawAsg,
     #[serde(default)]
     pub wavelet: RawWavelet,
+    #[serde(default)]
+    pub sh: RawSh,
+}
+
+/// `[sh]`: the daemon's spherical-harmonics stage (the newest frames' radiance projected onto
+/// the real SH basis, streamed as representation `sh`).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawSh {
+    pub enabled: Option<bool>,
+    pub degree: Option<usize>,
 }
 
 /// `[wavelet]`: the daemon's wavelet stage (sparse wavelet coefficient sets of the newest
@@ -456,6 +467,7 @@ impl RawConfig {
             render: self.render.validate()?,
             asg: self.asg.validate()?,
             wavelet: self.wavelet.validate()?,
+            sh: self.sh.validate()?,
         })
         .and_then(|config: Config| {
             check_endpoints_apart(&config)?;
@@ -530,6 +542,36 @@ pub struct Config {
     pub render: RenderConfig,
     pub asg: AsgConfig,
     pub wavelet: WaveletConfig,
+    pub sh: ShConfig,
+}
+
+/// Validated `[sh]`: the daemon's SH stage. Default: disabled; when enabled, degree 2 (nine
+/// coefficients per channel).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ShConfig {
+    pub enabled: bool,
+    /// What the stage computes.
+    pub settings: crate::sh_stage::ShSettings,
+}
+
+impl RawSh {
+    fn validate(&self) -> Result<ShConfig, ConfigError> {
+        use crate::sh_stage::{ShSettings, ShStageError};
+        let settings = ShSettings {
+            degree: self.degree.unwrap_or(crate::sh_stage::DEFAULT_DEGREE),
+        };
+        if let Err(ShStageError::Settings { value, rule, .. }) = settings.validate() {
+            return Err(ConfigError::Invalid {
+                key: "sh.degree",
+                value,
+                message: format!("must be {rule}"),
+            });
+        }
+        Ok(ShConfig {
+            enabled: self.enabled.unwrap_or(false),
+            settings,
+        })
+    }
 }
 
 /// Validated `[wavelet]`: the daemon's wavelet stage. Default: disabled; when enabled, the 256
@@ -2056,6 +2098,7 @@ mod tests {
                 "65",
             ),
             ("[wavelet]\nbasis = \"db42\"", "wavelet.basis", "db42"),
+            ("[sh]\ndegree = 16", "sh.degree", "16"),
             (
                 "[decompose]\nconcentrated_lloyd = \"yes\"",
                 "concentrated_lloyd",

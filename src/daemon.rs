@@ -8,15 +8,17 @@
 //!                                   ├─tap─► envlight-record (optional)
 //!                                   ├─feed─► envlight-asg (optional, [asg]) ─watch─► stream server
 //!                                   │                                              envlight-render
-//!                                   └─feed─► envlight-wavelet (optional, [wavelet]) ─watch─► stream server
+//!                                   ├─feed─► envlight-wavelet (optional, [wavelet]) ─watch─► stream server
+//!                                   └─feed─► envlight-sh (optional, [sh]) ─watch─► stream server
 //! ```
 //!
 //! The ASG stage ([`crate::asg_stage`]) gets each frame after its lights are published and
 //! fits the newest one whenever it is free (skipping, and counting, the frames in between), so
 //! it never slows the lights; in a replay it fits every frame. Clients subscribe to it with
 //! representation `asg`; `[render] lighting = "asg"` shades the render thread's scene with its
-//! lobes. The wavelet stage ([`crate::wavelet_stage`]) is fed the same way and serves
-//! representation `wavelet`. `/health` is about the lights only.
+//! lobes. The wavelet stage ([`crate::wavelet_stage`]) and the spherical-harmonics stage
+//! ([`crate::sh_stage`]) are fed the same way and serve representations `wavelet` and `sh`.
+//! `/health` is about the lights only.
 //!
 //! - A daemon reads `[source]` as a service: the built-in sky, when the config leaves its frame
 //!   count unset, runs until stopped, at [`DAEMON_SKY_FPS`] frames per second unless `fps` says
@@ -48,6 +50,7 @@ use crate::pipeline::{
     QueuePolicy, StaleHandle, StatsHandle,
 };
 use crate::record::{Pacing, RecordError, RecordSummary, Recorder, ReplaySource};
+use crate::sh_stage::{ShHook, ShStage, ShStageError, ShStaleHandle, ShStats, ShStatsHandle};
 use crate::stream::server::{ServerError, Streams, SHUTDOWN_MESSAGE};
 use crate::stream::{BoundAddresses, FanoutOn, PublisherPass, StreamServer};
 use crate::wavelet_stage::{
@@ -152,6 +155,8 @@ pub enum DaemonError {
     Asg(#[from] AsgStageError),
     #[error("wavelet stage: {0}")]
     Wavelet(#[from] WaveletStageError),
+    #[error("SH stage: {0}")]
+    Sh(#[from] ShStageError),
 }
 
 /// Where the daemon listens.
@@ -187,6 +192,8 @@ pub struct DaemonSummary {
     pub asg: Option<crate::asg_stage::AsgStats>,
     /// The wavelet stage's counters, if it ran.
     pub wavelet: Option<WaveletStats>,
+    /// The SH stage's counters, if it ran.
+    pub sh: Option<ShStats>,
     pub recorded: Option<RecordSummary>,
     /// Whether every client took its goodbye within the grace period.
     pub clients_closed_in_time: bool,
@@ -213,6 +220,21 @@ pub struct Daemon {
     asg: Option<AsgStage>,
     /// The wavelet stage (`[wavelet] enabled`).
     wavelet: Option<WaveletStage>,
+    /// The SH stage (`[sh] enabled`).
+    sh: Option<ShStage>,
+}
+
+/// Waits for the slow stages that started before a later part of the start failed.
+fn join_started(asg: Option<AsgStage>, wavelet: Option<WaveletStage>, sh: Option<ShStage>) {
+    if let Some(asg) = asg {
+        let _ = asg.join();
+    }
+    if let Some(wavelet) = wavelet {
+        let _ = wavelet.join();
+    }
+    if let Some(sh) = sh {
+        let _ = sh.join();
+    }
 }
 
 /// How [`Daemon::start_parts`] runs its source: the decomposition settings, what a full
@@ -361,9 +383,24 @@ impl Daemon {
             match WaveletStage::start(config.wavelet.settings, replaying, Some(hook)) {
                 Ok(stage) => Some(stage),
                 Err(error) => {
-                    if let Some(asg) = asg {
-                        let _ = asg.join();
-                    }
+                    join_started(asg, None, None);
+                    return Err(error.into());
+                }
+            }
+        } else {
+            None
+        };
+        let sh = if config.sh.enabled {
+            let hook_metrics = Arc::clone(&metrics);
+            let hook: ShHook = Arc::new(move |published| {
+                hook_metrics
+                    .sh_seconds
+                    .observe(published.compute_time.as_secs_f64());
+            });
+            match ShStage::start(config.sh.settings, replaying, Some(hook)) {
+                Ok(stage) => Some(stage),
+                Err(error) => {
+                    join_started(asg, wavelet, None);
                     return Err(error.into());
                 }
             }
@@ -375,6 +412,7 @@ impl Daemon {
             .map(AsgStage::feed)
             .into_iter()
             .chain(wavelet.as_ref().map(WaveletStage::feed))
+            .chain(sh.as_ref().map(ShStage::feed))
             .collect();
         // The recording is started last before the pipeline, and removed again if the start
         // fails, so a failed start leaves the directory as it was.
@@ -387,12 +425,7 @@ impl Daemon {
                         (Some(tx), Some(recorder))
                     }
                     Err(error) => {
-                        if let Some(asg) = asg {
-                            let _ = asg.join();
-                        }
-                        if let Some(wavelet) = wavelet {
-                            let _ = wavelet.join();
-                        }
+                        join_started(asg, wavelet, sh);
                         return Err(error.into());
                     }
                 }
@@ -409,12 +442,7 @@ impl Daemon {
         let pipeline = match Pipeline::start(source, settings, pipeline_options) {
             Ok(pipeline) => pipeline,
             Err(error) => {
-                if let Some(asg) = asg {
-                    let _ = asg.join();
-                }
-                if let Some(wavelet) = wavelet {
-                    let _ = wavelet.join();
-                }
+                join_started(asg, wavelet, sh);
                 if let Some(recorder) = recorder {
                     recorder.discard();
                 }
@@ -422,13 +450,15 @@ impl Daemon {
             }
         };
         let wavelet_rx = wavelet.as_ref().map(WaveletStage::subscribe);
+        let sh_rx = sh.as_ref().map(ShStage::subscribe);
         let asg_rx: Option<watch::Receiver<LatestAsg>> = asg.as_ref().map(AsgStage::subscribe);
 
         // Endpoints: if one cannot be bound, stop what was started and report it.
         let started = runtime.block_on(async {
             let mut streams = Streams::new(pipeline.subscribe())
                 .with_optional(asg_rx.clone())
-                .with_optional(wavelet_rx);
+                .with_optional(wavelet_rx)
+                .with_optional(sh_rx);
             if let Some(pass) = publisher_pass {
                 streams = streams.with_publisher_pass(pass);
             }
@@ -456,6 +486,7 @@ impl Daemon {
                         max_frame_age: config.metrics.max_frame_age,
                         asg: asg.as_ref().map(AsgStage::stats_handle),
                         wavelet: wavelet.as_ref().map(WaveletStage::stats_handle),
+                        sh: sh.as_ref().map(ShStage::stats_handle),
                     });
                     tracing::info!(
                         address = %crate::stream::server::shown(bound),
@@ -470,8 +501,11 @@ impl Daemon {
                 tokio::spawn(monitor_health(
                     Arc::clone(health),
                     pipeline.stale_handle(),
-                    asg.as_ref().map(AsgStage::stale_handle),
-                    wavelet.as_ref().map(WaveletStage::stale_handle),
+                    SlowStaleHandles {
+                        asg: asg.as_ref().map(AsgStage::stale_handle),
+                        wavelet: wavelet.as_ref().map(WaveletStage::stale_handle),
+                        sh: sh.as_ref().map(ShStage::stale_handle),
+                    },
                 ));
             }
             Ok::<_, DaemonError>((server, http))
@@ -481,12 +515,7 @@ impl Daemon {
             Err(error) => {
                 pipeline.stop();
                 let _ = pipeline.join();
-                if let Some(asg) = asg {
-                    let _ = asg.join();
-                }
-                if let Some(wavelet) = wavelet {
-                    let _ = wavelet.join();
-                }
+                join_started(asg, wavelet, sh);
                 if let Some(recorder) = recorder {
                     recorder.discard();
                 }
@@ -532,6 +561,7 @@ impl Daemon {
             render_thread,
             asg,
             wavelet,
+            sh,
         })
     }
 
@@ -550,12 +580,13 @@ impl Daemon {
         &self.pipeline
     }
 
-    /// Whether a finite source has been fully decomposed (and, with an ASG or wavelet stage,
-    /// its last frame fitted or transformed).
+    /// Whether a finite source has been fully decomposed (and, with an ASG, wavelet or SH
+    /// stage, its last frame fitted, transformed or projected).
     pub fn source_finished(&self) -> bool {
         self.pipeline.is_finished()
             && self.asg.as_ref().is_none_or(AsgStage::is_finished)
             && self.wavelet.as_ref().is_none_or(WaveletStage::is_finished)
+            && self.sh.as_ref().is_none_or(ShStage::is_finished)
     }
 
     /// The ASG stage, if `[asg]` enabled it.
@@ -566,6 +597,11 @@ impl Daemon {
     /// The wavelet stage, if `[wavelet]` enabled it.
     pub fn wavelet(&self) -> Option<&WaveletStage> {
         self.wavelet.as_ref()
+    }
+
+    /// The SH stage, if `[sh]` enabled it.
+    pub fn sh(&self) -> Option<&ShStage> {
+        self.sh.as_ref()
     }
 
     /// Applies a new configuration: the decomposition settings change live (from the next
@@ -628,6 +664,22 @@ impl Daemon {
                 _ => report.needs_restart.push(
                     "[wavelet] enabled (restart envlight to start or stop the stage)".to_owned(),
                 ),
+            }
+        }
+        if new.sh != self.config.sh {
+            match &self.sh {
+                Some(stage) if new.sh.enabled => match stage.reconfigure(new.sh.settings) {
+                    Ok(()) => {
+                        report.applied.push("[sh]".to_owned());
+                        self.config.sh = new.sh;
+                    }
+                    Err(e) => report.needs_restart.push(format!("[sh] ({e})")),
+                },
+                // Disabled before and after: nothing runs, nothing to apply.
+                None if !new.sh.enabled => self.config.sh = new.sh,
+                _ => report
+                    .needs_restart
+                    .push("[sh] enabled (restart envlight to start or stop the stage)".to_owned()),
             }
         }
         let old = &self.config;
@@ -709,6 +761,9 @@ impl Daemon {
                     if let Some(wavelet) = &self.wavelet {
                         wavelet.abandon();
                     }
+                    if let Some(sh) = &self.sh {
+                        sh.abandon();
+                    }
                     break StopReason::Signal;
                 }
                 Wake::Reload => self.handle_reload(config_path),
@@ -784,6 +839,7 @@ impl Daemon {
             render_thread,
             asg,
             wavelet,
+            sh,
             ..
         } = self;
         let rendered = render_thread.map(|(handle, stop)| {
@@ -806,10 +862,12 @@ impl Daemon {
             pipeline.stale_handle(),
             asg.as_ref().map(AsgStage::stale_handle),
             wavelet.as_ref().map(WaveletStage::stale_handle),
+            sh.as_ref().map(ShStage::stale_handle),
         );
         let stats = pipeline.join();
         let asg_stats = asg.map(AsgStage::join).transpose();
         let wavelet_stats = wavelet.map(WaveletStage::join).transpose();
+        let sh_stats = sh.map(ShStage::join).transpose();
         let clients_closed_in_time = runtime.block_on(async {
             if let Some((task, stop)) = http {
                 stop.send_replace(true);
@@ -825,6 +883,7 @@ impl Daemon {
         let stats = stats?;
         let asg_stats = asg_stats?;
         let wavelet_stats = wavelet_stats?;
+        let sh_stats = sh_stats?;
         let recorded = recorded?;
         if let Some(rendered) = rendered {
             let frames = rendered.map_err(DaemonError::Render)?;
@@ -840,6 +899,7 @@ impl Daemon {
             pipeline: stats,
             asg: asg_stats,
             wavelet: wavelet_stats,
+            sh: sh_stats,
             recorded,
             clients_closed_in_time,
         })
@@ -1070,14 +1130,16 @@ fn notify(states: &[sd_notify::NotifyState]) {
     }
 }
 
-/// Marks the lights (and ASG and wavelet sets) stale while the source is lost; the first ones
-/// computed after it is back are live (with a higher seq), and logs both changes.
-async fn monitor_health(
-    health: Arc<SourceHealth>,
-    stale: StaleHandle,
-    asg_stale: Option<AsgStaleHandle>,
-    wavelet_stale: Option<WaveletStaleHandle>,
-) {
+/// The stale handles of the slow stages that run.
+struct SlowStaleHandles {
+    asg: Option<AsgStaleHandle>,
+    wavelet: Option<WaveletStaleHandle>,
+    sh: Option<ShStaleHandle>,
+}
+
+/// Marks the lights (and ASG, wavelet and SH sets) stale while the source is lost; the first
+/// ones computed after it is back are live (with a higher seq), and logs both changes.
+async fn monitor_health(health: Arc<SourceHealth>, stale: StaleHandle, stages: SlowStaleHandles) {
     let mut interval = tokio::time::interval(Duration::from_millis(50));
     let mut was_lost = false;
     loop {
@@ -1088,11 +1150,14 @@ async fn monitor_health(
             // The source is tested again under each channel's lock: it is marked healthy
             // before its first fresh frame is published, so that frame is never marked stale.
             let still_lost = || health.is_stale();
-            if let Some(asg) = &asg_stale {
+            if let Some(asg) = &stages.asg {
                 asg.mark_stale_if(still_lost);
             }
-            if let Some(wavelet) = &wavelet_stale {
+            if let Some(wavelet) = &stages.wavelet {
                 wavelet.mark_stale_if(still_lost);
+            }
+            if let Some(sh) = &stages.sh {
+                sh.mark_stale_if(still_lost);
             }
             stale.mark_stale_if(still_lost);
         }
@@ -1117,6 +1182,7 @@ struct HttpState {
     max_frame_age: Duration,
     asg: Option<AsgStatsHandle>,
     wavelet: Option<WaveletStatsHandle>,
+    sh: Option<ShStatsHandle>,
 }
 
 impl HttpState {
@@ -1168,6 +1234,9 @@ impl HttpState {
         }
         if let Some(asg) = &self.asg {
             self.metrics.update_asg(&asg.stats());
+        }
+        if let Some(sh) = &self.sh {
+            self.metrics.update_sh(&sh.stats());
         }
         let stale = self.lights.borrow().as_ref().is_some_and(|p| p.stale);
         self.metrics.source_stale.set(i64::from(stale));
@@ -1322,8 +1391,11 @@ mod tests {
             let monitor = tokio::spawn(monitor_health(
                 Arc::clone(&health),
                 StaleHandle::new(Arc::clone(&tx)),
-                None,
-                None,
+                SlowStaleHandles {
+                    asg: None,
+                    wavelet: None,
+                    sh: None,
+                },
             ));
             health.mark_failure("unplugged");
             let deadline = Instant::now() + Duration::from_secs(10);

@@ -28,6 +28,8 @@ pub mod publication;
 pub mod read_file;
 pub mod record;
 pub mod render;
+pub mod sh;
+pub mod sh_stage;
 pub mod slow_stage;
 pub mod stream;
 pub mod wavelet;

@@ -95,6 +95,14 @@ pub struct Metrics {
     pub wavelet_errors: Counter,
     /// Wavelet stage: time per set (resample, transform, selection).
     pub wavelet_seconds: Histogram,
+    /// SH stage (`[sh]`): sets computed and published.
+    pub sh_sets: Counter,
+    /// SH stage: frames that were replaced by a newer one before the stage was free.
+    pub sh_frames_skipped: Counter,
+    /// SH stage: frames that gave no set.
+    pub sh_errors: Counter,
+    /// SH stage: time per set (projection).
+    pub sh_seconds: Histogram,
 }
 
 /// Latency buckets from 50 µs to about 1.6 s, doubling.
@@ -162,6 +170,30 @@ impl Metrics {
             "wavelet_seconds",
             "Wavelet stage time per set: resampling, transform and selection",
             wavelet_seconds.clone(),
+        );
+        let sh_sets = Counter::default();
+        let sh_frames_skipped = Counter::default();
+        let sh_errors = Counter::default();
+        let sh_seconds = Histogram::new(latency_buckets());
+        registry.register(
+            "sh_sets",
+            "Spherical-harmonic sets computed and published by the [sh] stage",
+            sh_sets.clone(),
+        );
+        registry.register(
+            "sh_frames_skipped",
+            "Frames the [sh] stage skipped because a newer one arrived while it was busy",
+            sh_frames_skipped.clone(),
+        );
+        registry.register(
+            "sh_errors",
+            "Frames the [sh] stage could not turn into a set",
+            sh_errors.clone(),
+        );
+        registry.register(
+            "sh_seconds",
+            "SH stage time per set: the projection of the frame",
+            sh_seconds.clone(),
         );
         registry.register(
             "asg_fits",
@@ -311,6 +343,10 @@ impl Metrics {
             wavelet_frames_skipped,
             wavelet_errors,
             wavelet_seconds,
+            sh_sets,
+            sh_frames_skipped,
+            sh_errors,
+            sh_seconds,
         }
     }
 
@@ -352,6 +388,17 @@ impl Metrics {
             .inner()
             .store(stats.frames_skipped, Ordering::Relaxed);
         self.wavelet_errors
+            .inner()
+            .store(stats.errors, Ordering::Relaxed);
+    }
+
+    /// Copies the SH stage's counters into the metrics.
+    pub fn update_sh(&self, stats: &crate::sh_stage::ShStats) {
+        self.sh_sets.inner().store(stats.sets, Ordering::Relaxed);
+        self.sh_frames_skipped
+            .inner()
+            .store(stats.frames_skipped, Ordering::Relaxed);
+        self.sh_errors
             .inner()
             .store(stats.errors, Ordering::Relaxed);
     }

@@ -420,6 +420,13 @@ fn canonical(result: Result<Message, ProtocolError>) -> String {
             }
             s
         }
+        Ok(Message::Sh(h)) => {
+            let mut s = frame(h.seq, h.time, 3, h.stale, h.coefficients.len());
+            for rgb in &h.coefficients {
+                floats(&mut s, rgb);
+            }
+            s
+        }
         Ok(Message::Asg(a)) => {
             let mut s = frame(a.seq, a.time, 1, a.stale, a.lobes.len());
             for g in &a.lobes {

@@ -276,6 +276,16 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
     } else {
         writeln!(text, "  wavelet: off")?;
     }
+    if config.sh.enabled {
+        let degree = config.sh.settings.degree;
+        writeln!(
+            text,
+            "  sh: spherical harmonics up to degree {degree} ({} coefficients per channel)",
+            envlight::sh::coefficient_count(degree)
+        )?;
+    } else {
+        writeln!(text, "  sh: off")?;
+    }
     crate::cli::output::print(&text)
 }
 

@@ -1,5 +1,5 @@
-//! `envlight subscribe`: a client of a running daemon that prints its stream (lights, ASG or
-//! wavelet sets) as summary lines or JSON.
+//! `envlight subscribe`: a client of a running daemon that prints its stream (lights, ASG,
+//! wavelet or SH sets) as summary lines or JSON.
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
@@ -16,7 +16,10 @@ one summary line per frame. --representation asg prints the ASG sets of a daemon
 stage is enabled (--max-lights then caps the lobes); --representation wavelet the wavelet
 coefficient sets of a daemon whose [wavelet] stage is enabled (--max-lights then caps the
 coefficients: the scaling coefficient first, then the largest; the summary line's total rgb is
-∫L dω from the scaling coefficient).";
+∫L dω from the scaling coefficient); --representation sh the spherical-harmonic coefficients of
+a daemon whose [sh] stage is enabled (--max-lights N then keeps the bands that fit in N
+coefficients: 4 = degrees 0 and 1; the summary line gives ∫L dω and the irradiance of an
+upward-facing surface).";
 
 #[derive(Args, Debug)]
 pub(crate) struct SubscribeArgs {
@@ -37,9 +40,10 @@ pub(crate) struct SubscribeArgs {
     /// waiting for its camera may be silent for long]
     #[arg(long, value_name = "SECONDS", value_parser = parse_timeout)]
     timeout: Option<f64>,
-    /// What to receive: directional lights, ASG sets (the daemon needs [asg] enabled) or
-    /// wavelet coefficient sets (needs [wavelet] enabled); --max-lights then caps the lobes or
-    /// the coefficients (the largest are kept).
+    /// What to receive: directional lights, ASG sets (the daemon needs [asg] enabled),
+    /// wavelet coefficient sets (needs [wavelet] enabled) or spherical-harmonic sets (needs
+    /// [sh] enabled); --max-lights then caps the lobes or the coefficients (the largest
+    /// wavelet coefficients, the lowest SH bands).
     #[arg(long, value_enum, default_value = "lights")]
     representation: RepresentationArg,
 }
@@ -52,6 +56,8 @@ enum RepresentationArg {
     Asg,
     /// Sparse wavelet coefficients of the environment (equal-area octahedral map).
     Wavelet,
+    /// Spherical-harmonic coefficients of the environment's radiance.
+    Sh,
 }
 
 /// `--timeout SECONDS` of `subscribe`: from a millisecond to a day.
@@ -80,6 +86,7 @@ pub(crate) fn run(args: &SubscribeArgs) -> Result<()> {
             RepresentationArg::Lights => Representation::Lights,
             RepresentationArg::Asg => Representation::Asg,
             RepresentationArg::Wavelet => Representation::Wavelet,
+            RepresentationArg::Sh => Representation::Sh,
         },
     };
     let timeout = args.timeout.map(std::time::Duration::from_secs_f64);
@@ -109,6 +116,7 @@ pub(crate) fn run(args: &SubscribeArgs) -> Result<()> {
             Message::Frame(_) => Some(Representation::Lights),
             Message::Asg(_) => Some(Representation::Asg),
             Message::Wavelet(_) => Some(Representation::Wavelet),
+            Message::Sh(_) => Some(Representation::Sh),
             _ => None,
         };
         if let Some(sent) = sent.filter(|&sent| sent != request.representation) {
@@ -191,6 +199,36 @@ pub(crate) fn run(args: &SubscribeArgs) -> Result<()> {
                         total[0],
                         total[1],
                         total[2],
+                        if stale { " (stale)" } else { "" }
+                    )
+                }
+            }
+            Message::Sh(frame) => {
+                frames += 1;
+                let stale = frame.stale;
+                let frame = frame.into_sh_frame();
+                if args.json {
+                    envlight::stream::protocol::sh_frame_to_json(&frame, None, stale)
+                } else {
+                    // The decoder accepts only (degree + 1)² coefficients.
+                    let set = frame
+                        .to_coefficients()
+                        .ok_or_else(|| anyhow!("{}: an SH frame that is no set", args.address))?;
+                    let total = set.integral();
+                    let up = set.irradiance(glam::DVec3::Y);
+                    format!(
+                        "seq {} time {:.3} s: SH degree {} ({} coefficients), total rgb \
+                         [{:.4}, {:.4}, {:.4}], irradiance up [{:.4}, {:.4}, {:.4}]{}",
+                        frame.seq,
+                        frame.time,
+                        set.degree(),
+                        frame.coefficients.len(),
+                        total[0],
+                        total[1],
+                        total[2],
+                        up[0],
+                        up[1],
+                        up[2],
                         if stale { " (stale)" } else { "" }
                     )
                 }

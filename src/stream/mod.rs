@@ -17,7 +17,7 @@ pub mod server;
 pub use fanout::{FANOUT_THREAD_NAME, PASS_THREAD_NAME};
 pub use protocol::{
     AsgFrameMessage, Decoder, Format, FrameMessage, Message, Messages, ProtocolError,
-    Representation, Request, WaveletFrame, WaveletFrameMessage,
+    Representation, Request, ShFrame, ShFrameMessage, WaveletFrame, WaveletFrameMessage,
 };
 pub use server::{
     BoundAddresses, FanoutOn, PublisherPass, ServerConfig, StreamServer, Streamed, Streams,

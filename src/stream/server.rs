@@ -48,9 +48,9 @@ use super::fanout::{
 };
 use super::protocol::{
     self, asg_frame_to_json, code as error_code, decode_message, encode_asg_frame, encode_error,
-    encode_frame, encode_goodbye, encode_wavelet_frame, frame_to_json, goodbye_to_json,
-    wavelet_frame_to_json, Decoder, Format, Message, ProtocolError, Representation, Request,
-    WaveletFrame,
+    encode_frame, encode_goodbye, encode_sh_frame, encode_wavelet_frame, frame_to_json,
+    goodbye_to_json, sh_frame_to_json, wavelet_frame_to_json, Decoder, Format, Message,
+    ProtocolError, Representation, Request, ShFrame, WaveletFrame,
 };
 use crate::light::{AsgSet, LightFrame};
 use crate::metrics::{ClientLabel, EndpointLabel, Metrics};
@@ -334,6 +334,16 @@ impl Streamed for WaveletFrame {
     }
     fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
         wavelet_frame_to_json(self, cap, stale)
+    }
+}
+
+impl Streamed for ShFrame {
+    const REPRESENTATION: Representation = Representation::Sh;
+    fn encode_binary(&self, cap: Option<usize>, stale: bool, out: &mut Vec<u8>) {
+        encode_sh_frame(self, cap, stale, out);
+    }
+    fn to_json(&self, cap: Option<usize>, stale: bool) -> String {
+        sh_frame_to_json(self, cap, stale)
     }
 }
 
@@ -1768,7 +1778,9 @@ impl Connection {
             Ok(message) => {
                 let what = match message {
                     Some(Message::Subscribe(_)) => "a second subscribe",
-                    Some(Message::Frame(_) | Message::Asg(_) | Message::Wavelet(_)) => "a frame",
+                    Some(
+                        Message::Frame(_) | Message::Asg(_) | Message::Wavelet(_) | Message::Sh(_),
+                    ) => "a frame",
                     Some(Message::Error { .. }) => "an error message",
                     Some(Message::Goodbye { .. }) => return Close::Quiet,
                     None => "bytes",

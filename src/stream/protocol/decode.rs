@@ -142,6 +142,14 @@ pub(super) fn decode_body(
                     set,
                 }));
             }
+            if representation == Representation::Sh {
+                return Ok(Message::Sh(ShFrameMessage {
+                    seq,
+                    time,
+                    stale,
+                    coefficients: decode_sh(&rest[..layout.prefix_len], records)?,
+                }));
+            }
             if representation == Representation::Asg {
                 return Ok(Message::Asg(AsgFrameMessage {
                     seq,
@@ -319,6 +327,57 @@ pub(super) fn decode_wavelet(prefix: &[u8], records: &[u8]) -> Result<WaveletSet
     };
     validate_wavelet_set(&set)?;
     Ok(set)
+}
+
+/// An SH set from its 4-byte prefix and its records (whose total length the caller checked).
+pub(super) fn decode_sh(prefix: &[u8], records: &[u8]) -> Result<Vec<[f32; 3]>, ProtocolError> {
+    let bad = |reason: String| ProtocolError::InvalidShSet { reason };
+    if prefix[1] != SH_BASIS_REAL {
+        return Err(bad(format!(
+            "unknown basis code {} (0 = real orthonormal, envlight's axes)",
+            prefix[1]
+        )));
+    }
+    let degree = usize::from(prefix[0]);
+    if degree > MAX_SH_DEGREE {
+        return Err(bad(format!("degree {degree} (at most {MAX_SH_DEGREE})")));
+    }
+    let count = records.len() / SH_RECORD_LEN;
+    if count != crate::sh::coefficient_count(degree) {
+        return Err(bad(format!(
+            "{count} coefficients for degree {degree} (it has {})",
+            crate::sh::coefficient_count(degree)
+        )));
+    }
+    let mut coefficients = Vec::with_capacity(count);
+    for (i, r) in records.chunks_exact(SH_RECORD_LEN).enumerate() {
+        let f = |at: usize| finite(f32_at(r, at), || format!("SH coefficient {i}"));
+        coefficients.push([f(0)?, f(4)?, f(8)?]);
+    }
+    Ok(coefficients)
+}
+
+/// Whether an SH set may be sent: (L + 1)² coefficients for an L up to [`MAX_SH_DEGREE`],
+/// every value finite. Returns L. Decoders of JSON frames apply it; the daemon's SH stage
+/// applies it before publishing.
+pub fn validate_sh_set(coefficients: &[[f32; 3]]) -> Result<usize, ProtocolError> {
+    let degree = (0..=MAX_SH_DEGREE)
+        .find(|&l| crate::sh::coefficient_count(l) == coefficients.len())
+        .ok_or_else(|| ProtocolError::InvalidShSet {
+            reason: format!(
+                "{} coefficients: not (degree + 1)² for a degree up to {MAX_SH_DEGREE}",
+                coefficients.len()
+            ),
+        })?;
+    if let Some(i) = coefficients
+        .iter()
+        .position(|rgb| !rgb.iter().all(|v| v.is_finite()))
+    {
+        return Err(ProtocolError::NonFinite {
+            field: format!("SH coefficient {i}"),
+        });
+    }
+    Ok(degree)
 }
 
 /// Whether `set` may be sent: a supported basis, a power-of-two side in 2..=[`MAX_WAVELET_SIDE`],

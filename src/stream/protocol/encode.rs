@@ -1,4 +1,4 @@
-//! Binary encoding: frames (light lists, ASG sets, wavelet sets), errors, goodbyes and
+//! Binary encoding: frames (light lists, ASG sets, wavelet and SH sets), errors, goodbyes and
 //! requests as length-prefixed messages (docs/protocol.md).
 
 use super::*;
@@ -137,6 +137,40 @@ pub fn encode_wavelet_frame(
     out.extend_from_slice(&set.side.to_le_bytes());
     for (index, rgb) in coefficients.iter() {
         out.extend_from_slice(&index.to_le_bytes());
+        for v in rgb {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
+/// Appends one binary SH frame message (representation 3) for `frame` to `out`.
+///
+/// With `max_coefficients = Some(n)`, the coefficients of the highest complete degree that
+/// fits are sent: degree ⌊√n⌋ − 1 (at least degree 0), each bit for bit as in the frame — the
+/// same environment band-limited further. The prefix carries the degree sent and
+/// [`SH_BASIS_REAL`]. The frame should be valid ([`validate_sh_set`]: (L + 1)² finite
+/// coefficients, L ≤ [`MAX_SH_DEGREE`]; the daemon's stage checks); decoders reject anything
+/// else. `stale` sets [`FLAG_STALE`].
+pub fn encode_sh_frame(
+    frame: &ShFrame,
+    max_coefficients: Option<usize>,
+    stale: bool,
+    out: &mut Vec<u8>,
+) {
+    let coefficients = select_sh(&frame.coefficients, max_coefficients);
+    put_frame_head(
+        out,
+        frame.seq,
+        frame.time,
+        Representation::Sh,
+        stale,
+        coefficients.len(),
+    );
+    let degree = (0..=u8::MAX)
+        .find(|&l| crate::sh::coefficient_count(usize::from(l)) >= coefficients.len())
+        .unwrap_or(u8::MAX);
+    out.extend_from_slice(&[degree, SH_BASIS_REAL, 0, 0]);
+    for rgb in coefficients {
         for v in rgb {
             out.extend_from_slice(&v.to_le_bytes());
         }

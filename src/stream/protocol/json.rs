@@ -39,6 +39,17 @@ pub(super) struct JsonWaveletFrame<'a> {
 }
 
 #[derive(Serialize, Deserialize)]
+pub(super) struct JsonShFrame<'a> {
+    seq: u64,
+    time: f64,
+    representation: Representation,
+    #[serde(default)]
+    stale: bool,
+    degree: u32,
+    sh: Cow<'a, [[f32; 3]]>,
+}
+
+#[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct JsonText<'a> {
     code: u16,
@@ -134,6 +145,27 @@ pub fn wavelet_frame_to_json(
     })
 }
 
+/// The JSON form of an SH frame, with the same selection as [`encode_sh_frame`]; `sh` lists
+/// the (degree + 1)² coefficients as `[r, g, b]`, coefficient `l² + l + m` for Y_l^m:
+///
+/// ```json
+/// {"seq":17,"time":0.5,"representation":"sh","stale":false,"degree":1,"sh":[[1.0,0.9,0.8],[0.1,0.1,0.1],[0.0,0.0,0.0],[-0.05,0.0,0.02]]}
+/// ```
+pub fn sh_frame_to_json(frame: &ShFrame, max_coefficients: Option<usize>, stale: bool) -> String {
+    let coefficients = select_sh(&frame.coefficients, max_coefficients);
+    let degree = (0..=u32::from(u8::MAX))
+        .find(|&l| crate::sh::coefficient_count(l as usize) >= coefficients.len())
+        .unwrap_or(u32::from(u8::MAX));
+    to_json(&JsonShFrame {
+        seq: frame.seq,
+        time: frame.time,
+        representation: Representation::Sh,
+        stale,
+        degree,
+        sh: Cow::Borrowed(coefficients),
+    })
+}
+
 /// The JSON form of an error: `{"error":{"code":5,"message":"..."}}`.
 pub fn error_to_json(code: u16, message: &str) -> String {
     to_json(&JsonEnvelope::Error(JsonText {
@@ -208,13 +240,45 @@ fn request_problem(text: &str) -> Option<String> {
 }
 
 /// Parses any JSON message (what a JSON client receives, or a request): a light frame (has
-/// `lights`), an ASG frame (has `lobes`), `{"error":…}`, `{"goodbye":…}` or
+/// `lights`), an ASG frame (has `lobes`), a wavelet frame (has `coefficients`), an SH frame
+/// (has `sh`), `{"error":…}`, `{"goodbye":…}` or
 /// `{"subscribe":…}`. Frame values must be finite (and lobes valid, as in binary frames).
 pub fn parse_json_message(text: &str) -> Result<Message, ProtocolError> {
     check_json_len(text, MAX_JSON_MESSAGE_LEN)?;
     let value: serde_json::Value =
         serde_json::from_str(text).map_err(|e| ProtocolError::Json(e.to_string()))?;
     let json_err = |e: serde_json::Error| ProtocolError::Json(e.to_string());
+    if value.get("sh").is_some() {
+        let frame: JsonShFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
+        if frame.representation != Representation::Sh {
+            return Err(ProtocolError::Json(format!(
+                "a frame with sh coefficients must have representation \"sh\", not {:?}",
+                frame.representation.name()
+            )));
+        }
+        if !frame.time.is_finite() {
+            return Err(ProtocolError::NonFinite {
+                field: "frame time".into(),
+            });
+        }
+        let coefficients = frame.sh.into_owned();
+        let degree = validate_sh_set(&coefficients)?;
+        if degree as u32 != frame.degree {
+            return Err(ProtocolError::InvalidShSet {
+                reason: format!(
+                    "degree {} with {} coefficients (degree {degree})",
+                    frame.degree,
+                    coefficients.len()
+                ),
+            });
+        }
+        return Ok(Message::Sh(ShFrameMessage {
+            seq: frame.seq,
+            time: frame.time,
+            stale: frame.stale,
+            coefficients,
+        }));
+    }
     if value.get("coefficients").is_some() {
         let frame: JsonWaveletFrame<'static> = serde_json::from_value(value).map_err(json_err)?;
         if frame.representation != Representation::Wavelet {

@@ -41,6 +41,7 @@ use std::borrow::Cow;
 use serde::{Deserialize, Serialize};
 
 use crate::light::{AsgLobe, AsgSet, Light, LightFrame};
+use crate::sh::ShCoefficients;
 use crate::wavelet::{Basis, WaveletSet};
 
 mod decode;
@@ -48,15 +49,15 @@ mod decoder;
 mod encode;
 mod json;
 
-pub use decode::{decode_message, validate_lobe, validate_wavelet_set};
+pub use decode::{decode_message, validate_lobe, validate_sh_set, validate_wavelet_set};
 pub use decoder::{Decoder, Messages};
 pub use encode::{
-    encode_asg_frame, encode_error, encode_frame, encode_goodbye, encode_request,
+    encode_asg_frame, encode_error, encode_frame, encode_goodbye, encode_request, encode_sh_frame,
     encode_wavelet_frame,
 };
 pub use json::{
     asg_frame_to_json, error_to_json, frame_to_json, goodbye_to_json, parse_json_message,
-    parse_json_request, request_to_json, wavelet_frame_to_json,
+    parse_json_request, request_to_json, sh_frame_to_json, wavelet_frame_to_json,
 };
 
 /// The four bytes after the length prefix of every message.
@@ -114,6 +115,15 @@ pub const MAX_WAVELET_SIDE: u32 = 1 << 15;
 /// Wavelet map code: the equal-area octahedral map of [`crate::wavelet::sphere`] (the only one
 /// in version 1).
 pub const WAVELET_MAP_OCTAHEDRAL: u8 = 0;
+/// Bytes of an SH frame's prefix: degree, basis, two reserved.
+pub const SH_PREFIX_LEN: usize = 4;
+/// Bytes of an SH coefficient record: r, g, b as f32.
+pub const SH_RECORD_LEN: usize = 12;
+/// Basis code of an SH frame: envlight's real orthonormal basis without the Condon–Shortley
+/// phase, in its +Y-up axes ([`crate::sh`]; the only one in version 1).
+pub const SH_BASIS_REAL: u8 = 0;
+/// The highest degree an SH frame may carry in version 1 (256 coefficients).
+pub const MAX_SH_DEGREE: usize = crate::sh::MAX_DEGREE;
 /// Tolerance of an ASG record's frame: |axis|, |tangent| within this of 1 and |axis·tangent|
 /// at most this (f32 rounding of a unit frame is about 10⁻⁷).
 pub const ASG_FRAME_TOLERANCE: f32 = 1e-3;
@@ -149,8 +159,8 @@ pub mod code {
     pub const SHUTDOWN: u16 = 0;
 }
 
-/// What kind of lighting a frame carries: lights (0), ASG sets (1) and wavelet coefficient sets
-/// (2) all have frame layouts in version 1.
+/// What kind of lighting a frame carries: lights (0), ASG sets (1), wavelet coefficient sets
+/// (2) and spherical-harmonic sets (3) all have frame layouts in version 1.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Representation {
@@ -161,6 +171,8 @@ pub enum Representation {
     Asg,
     /// Sparse wavelet coefficients (code 2).
     Wavelet,
+    /// Spherical-harmonic coefficients of the radiance (code 3).
+    Sh,
 }
 
 impl Representation {
@@ -170,6 +182,7 @@ impl Representation {
             Representation::Lights => 0,
             Representation::Asg => 1,
             Representation::Wavelet => 2,
+            Representation::Sh => 3,
         }
     }
 
@@ -179,6 +192,7 @@ impl Representation {
             0 => Ok(Representation::Lights),
             1 => Ok(Representation::Asg),
             2 => Ok(Representation::Wavelet),
+            3 => Ok(Representation::Sh),
             _ => Err(ProtocolError::UnknownRepresentation { code }),
         }
     }
@@ -200,15 +214,20 @@ impl Representation {
                 prefix_len: WAVELET_PREFIX_LEN,
                 record_len: WAVELET_RECORD_LEN,
             }),
+            Representation::Sh => Some(FrameLayout {
+                prefix_len: SH_PREFIX_LEN,
+                record_len: SH_RECORD_LEN,
+            }),
         }
     }
 
-    /// The name used in JSON and messages: `lights`, `asg`, `wavelet`.
+    /// The name used in JSON and messages: `lights`, `asg`, `wavelet`, `sh`.
     pub fn name(self) -> &'static str {
         match self {
             Representation::Lights => "lights",
             Representation::Asg => "asg",
             Representation::Wavelet => "wavelet",
+            Representation::Sh => "sh",
         }
     }
 }
@@ -396,6 +415,75 @@ impl WaveletFrameMessage {
     }
 }
 
+/// The spherical-harmonic coefficients of one source frame, as the daemon's SH stage publishes
+/// them and the wire carries them (representation 3): (degree + 1)² rgb triples, coefficient
+/// `l² + l + m` for Y_l^m of [`crate::sh`]'s basis, radiance in W/(m²·sr).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShFrame {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, seconds since the source started.
+    pub time: f64,
+    /// The coefficients; their number is a square (degree + 1)².
+    pub coefficients: Vec<[f32; 3]>,
+}
+
+impl ShFrame {
+    /// The frame of a projected set (coefficients rounded to f32, saturating).
+    pub fn new(seq: u64, time: f64, set: &ShCoefficients) -> Self {
+        Self {
+            seq,
+            time,
+            coefficients: set
+                .rgb()
+                .iter()
+                .map(|rgb| rgb.map(crate::light::saturating_f32))
+                .collect(),
+        }
+    }
+
+    /// The degree L, `None` if the number of coefficients is not (L + 1)² for an L up to
+    /// [`MAX_SH_DEGREE`].
+    pub fn degree(&self) -> Option<usize> {
+        (0..=MAX_SH_DEGREE).find(|&l| crate::sh::coefficient_count(l) == self.coefficients.len())
+    }
+
+    /// The coefficients in f64, to evaluate radiance or irradiance
+    /// ([`ShCoefficients::irradiance`]); `None` if their number is not a square.
+    pub fn to_coefficients(&self) -> Option<ShCoefficients> {
+        ShCoefficients::from_rgb(
+            self.coefficients
+                .iter()
+                .map(|rgb| rgb.map(f64::from))
+                .collect(),
+        )
+    }
+}
+
+/// A decoded SH-set message (representation 3).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShFrameMessage {
+    /// Sequence number of the source frame.
+    pub seq: u64,
+    /// Capture time of the source frame, seconds since the source started.
+    pub time: f64,
+    /// The set is the last known one; the source is lost.
+    pub stale: bool,
+    /// The (degree + 1)² coefficients as sent.
+    pub coefficients: Vec<[f32; 3]>,
+}
+
+impl ShFrameMessage {
+    /// The SH frame without the transport fields.
+    pub fn into_sh_frame(self) -> ShFrame {
+        ShFrame {
+            seq: self.seq,
+            time: self.time,
+            coefficients: self.coefficients,
+        }
+    }
+}
+
 /// One decoded message.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
@@ -405,6 +493,8 @@ pub enum Message {
     Asg(AsgFrameMessage),
     /// A wavelet coefficient set.
     Wavelet(WaveletFrameMessage),
+    /// A spherical-harmonic coefficient set.
+    Sh(ShFrameMessage),
     /// An error; the sender closes the connection after it.
     Error {
         /// One of [`code`].
@@ -488,6 +578,13 @@ pub enum ProtocolError {
         /// What is wrong.
         reason: String,
     },
+    /// An SH frame that is not a valid set (unknown basis code, a degree above
+    /// [`MAX_SH_DEGREE`], a count that is not (degree + 1)²).
+    #[error("invalid SH set: {reason}")]
+    InvalidShSet {
+        /// What is wrong.
+        reason: String,
+    },
     /// Text that is not valid UTF-8.
     #[error("{kind} message text is not valid UTF-8: {detail}")]
     InvalidUtf8 {
@@ -497,7 +594,7 @@ pub enum ProtocolError {
         detail: String,
     },
     /// A representation code that no version defines.
-    #[error("unknown representation code {code} (0 = lights, 1 = asg, 2 = wavelet)")]
+    #[error("unknown representation code {code} (0 = lights, 1 = asg, 2 = wavelet, 3 = sh)")]
     UnknownRepresentation {
         /// The code found.
         code: u8,
@@ -534,6 +631,7 @@ impl ProtocolError {
             | ProtocolError::NonFinite { .. }
             | ProtocolError::InvalidLobe { .. }
             | ProtocolError::InvalidWaveletSet { .. }
+            | ProtocolError::InvalidShSet { .. }
             | ProtocolError::InvalidUtf8 { .. }
             | ProtocolError::Truncated { .. } => code::MALFORMED,
             ProtocolError::UnsupportedVersion { .. } => code::UNSUPPORTED_VERSION,
@@ -600,6 +698,21 @@ fn select_coefficients(set: &WaveletSet, max: Option<usize>) -> Cow<'_, [(u32, [
     order.truncate(cap);
     order.sort_unstable();
     Cow::Owned(order.into_iter().map(|i| items[i]).collect())
+}
+
+/// The coefficients of an SH set to send for a cap: those of the highest complete degree that
+/// fits, ⌊√cap⌋ − 1 (a cap of 4 sends degrees 0 and 1), so a capped set is the same
+/// environment band-limited further; all of them without a cap or below it. A prefix of the
+/// list, so never copied.
+fn select_sh(coefficients: &[[f32; 3]], max: Option<usize>) -> &[[f32; 3]] {
+    let Some(cap) = max else {
+        return coefficients;
+    };
+    let mut keep = 1usize;
+    while (keep + 1) * (keep + 1) <= cap {
+        keep += 1;
+    }
+    &coefficients[..coefficients.len().min(keep * keep)]
 }
 
 /// The `cap` (at most `limit`) records of largest `luminance`, ties to the earlier one, kept in

@@ -1,0 +1,371 @@
+//! Spherical harmonics: the environment's radiance projected onto the real SH basis up to a
+//! degree L ((L + 1)² coefficients per channel), the representation engines use for ambient and
+//! diffuse light (three.js `SphericalHarmonics3`, light probes) — 27 numbers at L = 2 instead
+//! of hundreds of lights.
+//!
+//! **Basis.** Real, orthonormal over the sphere, *without* the Condon–Shortley phase, in
+//! envlight's own axes (right-handed, +Y up; the polar axis of the formulas is +Z):
+//!
+//! ```text
+//! Y_l^0  = K_l^0 · P_l^0(z)
+//! Y_l^m  = √2 K_l^m · P_l^m(z) / sin^m θ · Re (x + iy)^m     (m > 0)
+//! Y_l^−m = √2 K_l^m · P_l^m(z) / sin^m θ · Im (x + iy)^m
+//! K_l^m  = √((2l + 1)/(4π) · (l − m)!/(l + m)!)
+//! ```
+//!
+//! with P_l^m the associated Legendre functions without the (−1)^m factor. Coefficient
+//! `l² + l + m` holds Y_l^m. Up to degree 2 these are the nine polynomials of
+//! Sloan's "Stupid Spherical Harmonics Tricks" with the signs taken positive, exactly those
+//! of three.js: 0.282095; 0.488603 y, 0.488603 z, 0.488603 x; 1.092548 xy, 1.092548 yz,
+//! 0.315392 (3z² − 1), 1.092548 xz, 0.546274 (x² − y²).
+//!
+//! **Evaluation** ([`Basis`]): Re and Im of (x + iy)^m by the complex product, and
+//! P_l^m / sin^m θ — a polynomial in z — by the standard three-term recurrence in l, so no
+//! trigonometry and no division by sin θ at the poles.
+//!
+//! **Projection** of a frame ([`Projector`]): L_lm = ∫ L(ω) Y_lm(ω) dω ≈ Σ_pixels rgb ·
+//! Y_lm(centre) · Ω, with each pixel's exact solid angle ([`Projection::solid_angles`]) and
+//! centre direction, summed in f64 (a sun 10⁴× the sky is not lost); non-finite and negative
+//! pixels count as 0 (the decomposition warns about them). The directions and solid angles are
+//! a plan built once per frame shape; the pixels are summed in fixed bands of rows, so the
+//! result does not depend on the number of threads. A fisheye sees only the upper hemisphere:
+//! the lower one counts as black, as for the lights.
+//!
+//! **Irradiance** (Ramamoorthi & Hanrahan 2001, "An Efficient Representation for Irradiance
+//! Environment Maps"): the clamped cosine is zonal, so E(n) = Σ_l Â_l Σ_m L_lm Y_lm(n) with
+//! Â_0 = π, Â_1 = 2π/3, Â_2 = π/4, Â_odd>1 = 0 ([`cosine_lobe_factor`]). Degree 2 is within a
+//! few per cent of the exact irradiance on real maps (docs/sh.md measures it).
+
+use crate::envmap::Projection;
+use crate::frame::HdrFrame;
+use crate::light::Light;
+use glam::DVec3;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// The highest degree envlight computes (256 coefficients per channel).
+pub const MAX_DEGREE: usize = 15;
+
+/// Number of coefficients per channel of a set of degree `degree`: (degree + 1)².
+pub const fn coefficient_count(degree: usize) -> usize {
+    (degree + 1) * (degree + 1)
+}
+
+/// Position of Y_l^m in a coefficient list: l² + l + m (|m| ≤ l).
+pub const fn index(l: usize, m: isize) -> usize {
+    (l * l + l).wrapping_add_signed(m)
+}
+
+/// Â_l: the clamped cosine max(cos θ, 0) convolved with band l, so that irradiance is
+/// E(n) = Σ_l Â_l Σ_m L_lm Y_lm(n). π, 2π/3, π/4, 0, −π/24, 0, π/64, …; 0 for odd l > 1.
+pub fn cosine_lobe_factor(l: usize) -> f64 {
+    match l {
+        0 => PI,
+        1 => 2.0 * PI / 3.0,
+        _ if l % 2 == 1 => 0.0,
+        _ => {
+            // 2π (−1)^(l/2 − 1) / ((l + 2)(l − 1)) · l! / (2^l ((l/2)!)²); the last factor is
+            // the central binomial coefficient over 2^l, built up as a product.
+            let half = l / 2;
+            let mut central = 1.0f64;
+            for k in 1..=half {
+                central *= (half + k) as f64 / k as f64 / 4.0;
+            }
+            let sign = if half % 2 == 1 { 1.0 } else { -1.0 };
+            2.0 * PI * sign * central / ((l + 2) as f64 * (l - 1) as f64)
+        }
+    }
+}
+
+/// The real SH basis up to a degree, with its normalisation constants computed once.
+#[derive(Clone, Debug)]
+pub struct Basis {
+    degree: usize,
+    /// K_l^m (×√2 for m > 0) at `l * (l + 1) / 2 + m`, m ≥ 0.
+    norm: Vec<f64>,
+}
+
+impl Basis {
+    /// The basis up to `degree` (at most [`MAX_DEGREE`]; larger degrees are clamped to it).
+    pub fn new(degree: usize) -> Self {
+        let degree = degree.min(MAX_DEGREE);
+        let mut norm = Vec::with_capacity((degree + 1) * (degree + 2) / 2);
+        for l in 0..=degree {
+            for m in 0..=l {
+                // (l − m)!/(l + m)! as the product of 1/k for k in l − m + 1 ..= l + m.
+                let ratio: f64 = ((l - m + 1)..=(l + m)).map(|k| 1.0 / k as f64).product();
+                let k = ((2 * l + 1) as f64 / (4.0 * PI) * ratio).sqrt();
+                norm.push(if m == 0 {
+                    k
+                } else {
+                    k * std::f64::consts::SQRT_2
+                });
+            }
+        }
+        Self { degree, norm }
+    }
+
+    /// The degree L.
+    pub fn degree(&self) -> usize {
+        self.degree
+    }
+
+    /// Number of coefficients, (L + 1)².
+    pub fn len(&self) -> usize {
+        coefficient_count(self.degree)
+    }
+
+    /// Always false: a basis has at least Y_0^0.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Y_lm(d) for every coefficient into `out` (at least [`Basis::len`] long). `d` must be a
+    /// unit vector (the formulas are polynomials in its components).
+    pub fn evaluate(&self, d: DVec3, out: &mut [f64]) {
+        let (x, y, z) = (d.x, d.y, d.z);
+        // Re, Im of (x + iy)^m, and Q_m^m = (2m − 1)!! (P_m^m / sin^m θ).
+        let (mut re, mut im) = (1.0f64, 0.0f64);
+        let mut q_diagonal = 1.0f64;
+        for m in 0..=self.degree {
+            if m > 0 {
+                (re, im) = (re * x - im * y, re * y + im * x);
+                q_diagonal *= (2 * m - 1) as f64;
+            }
+            // Q_l^m for l = m, m + 1, …: Q_{m+1}^m = (2m + 1) z Q_m^m,
+            // Q_l^m = ((2l − 1) z Q_{l−1}^m − (l + m − 1) Q_{l−2}^m) / (l − m).
+            let (mut q_before, mut q) = (0.0f64, q_diagonal);
+            for l in m..=self.degree {
+                if l > m {
+                    let next = ((2 * l - 1) as f64 * z * q - (l + m - 1) as f64 * q_before)
+                        / (l - m) as f64;
+                    (q_before, q) = (q, next);
+                }
+                let nq = self.norm[l * (l + 1) / 2 + m] * q;
+                let mi = m as isize;
+                if m == 0 {
+                    out[index(l, 0)] = nq;
+                } else {
+                    out[index(l, mi)] = nq * re;
+                    out[index(l, -mi)] = nq * im;
+                }
+            }
+        }
+    }
+}
+
+/// Radiance SH coefficients of one environment, per channel (W/(m²·sr) · sr^½ … in short: the
+/// projection of radiance, so Σ_lm L_lm Y_lm(ω) approximates L(ω)).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShCoefficients {
+    degree: usize,
+    rgb: Vec<[f64; 3]>,
+}
+
+impl ShCoefficients {
+    /// All zero, of degree `degree` (clamped to [`MAX_DEGREE`]).
+    pub fn zero(degree: usize) -> Self {
+        let degree = degree.min(MAX_DEGREE);
+        Self {
+            degree,
+            rgb: vec![[0.0; 3]; coefficient_count(degree)],
+        }
+    }
+
+    /// From a coefficient list whose length is a square (L + 1)² with L ≤ [`MAX_DEGREE`];
+    /// `None` otherwise.
+    pub fn from_rgb(rgb: Vec<[f64; 3]>) -> Option<Self> {
+        let degree = (0..=MAX_DEGREE).find(|&l| coefficient_count(l) == rgb.len())?;
+        Some(Self { degree, rgb })
+    }
+
+    /// The projection of a light list: each light a point of energy `rgb` at `dir`, so
+    /// L_lm = Σ rgb · Y_lm(dir). Lights with a non-unit or non-finite direction are skipped.
+    pub fn from_lights(lights: &[Light], degree: usize) -> Self {
+        let mut set = Self::zero(degree);
+        let basis = Basis::new(set.degree);
+        let mut y = vec![0.0; basis.len()];
+        for light in lights {
+            let d = DVec3::from(light.dir.map(f64::from));
+            if !d.is_finite() || (d.length() - 1.0).abs() > 1e-3 {
+                continue;
+            }
+            basis.evaluate(d.normalize(), &mut y);
+            for (coefficient, &yi) in set.rgb.iter_mut().zip(&y) {
+                for c in 0..3 {
+                    coefficient[c] += f64::from(light.rgb[c]) * yi;
+                }
+            }
+        }
+        set
+    }
+
+    /// The degree L.
+    pub fn degree(&self) -> usize {
+        self.degree
+    }
+
+    /// The (L + 1)² coefficients, at [`index`]`(l, m)`.
+    pub fn rgb(&self) -> &[[f64; 3]] {
+        &self.rgb
+    }
+
+    /// The coefficients up to degree `degree` (all of them if it is not lower).
+    pub fn truncated(&self, degree: usize) -> Self {
+        let degree = degree.min(self.degree);
+        Self {
+            degree,
+            rgb: self.rgb[..coefficient_count(degree)].to_vec(),
+        }
+    }
+
+    /// ∫ L dω per channel (W/m², the counterpart of the sum of a light list's `rgb`):
+    /// L_00 · √(4π), since Y_0^0 = 1/√(4π). Exact for a projected map, whatever the degree.
+    pub fn integral(&self) -> [f64; 3] {
+        self.rgb[0].map(|v| v * (4.0 * PI).sqrt())
+    }
+
+    /// The band-limited radiance Σ L_lm Y_lm(d) towards unit direction `d`.
+    pub fn radiance(&self, d: DVec3) -> [f64; 3] {
+        self.weighted_sum(d, |_| 1.0)
+    }
+
+    /// Irradiance at a surface of unit normal `n` (W/m², per channel), from the coefficients
+    /// convolved with the clamped cosine ([`cosine_lobe_factor`]).
+    pub fn irradiance(&self, n: DVec3) -> [f64; 3] {
+        self.weighted_sum(n, cosine_lobe_factor)
+    }
+
+    fn weighted_sum(&self, d: DVec3, band_factor: impl Fn(usize) -> f64) -> [f64; 3] {
+        let basis = Basis::new(self.degree);
+        let mut y = vec![0.0; basis.len()];
+        basis.evaluate(d, &mut y);
+        let mut sum = [0.0; 3];
+        for l in 0..=self.degree {
+            let factor = band_factor(l);
+            for i in coefficient_count(l) - (2 * l + 1)..coefficient_count(l) {
+                for c in 0..3 {
+                    sum[c] += factor * self.rgb[i][c] * y[i];
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// Rows summed together by one task of [`Projector::project`]: a fixed split, so the f64 sums
+/// (and the coefficients, bit for bit) do not depend on the number of threads.
+const ROWS_PER_BAND: usize = 8;
+
+/// Projects frames of one shape (size and projection) onto the SH basis: the pixels' centre
+/// directions and exact solid angles, computed once.
+#[derive(Clone, Debug)]
+pub struct Projector {
+    basis: Basis,
+    width: u32,
+    height: u32,
+    projection: Projection,
+    /// Per pixel, row-major: unit centre direction and solid angle (0 where the image sees
+    /// nothing, outside a fisheye's circle).
+    samples: Vec<([f64; 3], f64)>,
+}
+
+impl Projector {
+    /// The plan for `width` × `height` frames of `projection`, up to `degree` (clamped to
+    /// [`MAX_DEGREE`]).
+    pub fn new(degree: usize, width: u32, height: u32, projection: Projection) -> Self {
+        let solid_angles = projection.solid_angles(width, height);
+        let samples = solid_angles
+            .iter()
+            .enumerate()
+            .map(|(i, &omega)| {
+                let (x, y) = (i % width as usize, i / width as usize);
+                match projection.pixel_to_direction(width, height, x as f64 + 0.5, y as f64 + 0.5) {
+                    Some(d) if omega > 0.0 && d.is_finite() => (d.normalize().to_array(), omega),
+                    _ => ([0.0, 1.0, 0.0], 0.0),
+                }
+            })
+            .collect();
+        Self {
+            basis: Basis::new(degree),
+            width,
+            height,
+            projection,
+            samples,
+        }
+    }
+
+    /// Whether `frame` has the shape this plan was built for.
+    pub fn fits(&self, frame: &HdrFrame) -> bool {
+        frame.width == self.width
+            && frame.height == self.height
+            && frame.projection == self.projection
+    }
+
+    /// The degree of the coefficients it computes.
+    pub fn degree(&self) -> usize {
+        self.basis.degree()
+    }
+
+    /// The coefficients of `frame`, or `None` if the frame's shape is not the plan's
+    /// ([`Projector::fits`]).
+    pub fn project(&self, frame: &HdrFrame) -> Option<ShCoefficients> {
+        if !self.fits(frame) {
+            return None;
+        }
+        let width = self.width as usize;
+        let count = self.basis.len();
+        let band_pixels = width * ROWS_PER_BAND;
+        let partial_sums: Vec<Vec<[f64; 3]>> = frame
+            .pixels
+            .par_chunks(band_pixels)
+            .zip(self.samples.par_chunks(band_pixels))
+            .map(|(pixels, samples)| {
+                let mut sums = vec![[0.0f64; 3]; count];
+                let mut y = vec![0.0f64; count];
+                for (rgb, &(dir, omega)) in pixels.iter().zip(samples) {
+                    if omega == 0.0 {
+                        continue;
+                    }
+                    let energy = rgb.map(|v| {
+                        if v.is_finite() && v > 0.0 {
+                            f64::from(v) * omega
+                        } else {
+                            0.0
+                        }
+                    });
+                    if energy == [0.0; 3] {
+                        continue;
+                    }
+                    self.basis.evaluate(DVec3::from(dir), &mut y);
+                    for (sum, &yi) in sums.iter_mut().zip(&y) {
+                        for c in 0..3 {
+                            sum[c] += energy[c] * yi;
+                        }
+                    }
+                }
+                sums
+            })
+            .collect();
+        let mut set = ShCoefficients::zero(self.basis.degree());
+        for sums in partial_sums {
+            for (total, part) in set.rgb.iter_mut().zip(sums) {
+                for c in 0..3 {
+                    total[c] += part[c];
+                }
+            }
+        }
+        Some(set)
+    }
+}
+
+/// The coefficients of one frame: [`Projector::project`] with a plan built for it.
+pub fn project(frame: &HdrFrame, degree: usize) -> ShCoefficients {
+    let projector = Projector::new(degree, frame.width, frame.height, frame.projection);
+    projector
+        .project(frame)
+        .unwrap_or_else(|| ShCoefficients::zero(degree))
+}
+
+#[cfg(test)]
+mod tests;

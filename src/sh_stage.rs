@@ -1,0 +1,403 @@
+//! The daemon's spherical-harmonics stage (`[sh]`): the newest frames projected onto the real
+//! SH basis up to a degree ([`crate::sh`]), computed on their own thread and published on a
+//! latest-value channel for the stream server (representation 3, docs/protocol.md).
+//!
+//! ```text
+//! envlight-decompose ──FrameFeed (one slot, newest wins)──► envlight-sh ──watch──► stream server
+//!   (after publishing its lights)                          (ShProjector)   Latest<ShFrame>
+//! ```
+//!
+//! Per frame, [`ShProjector::project`]: take the projection plan of the frame's shape (built
+//! once per size and projection, [`crate::sh::Projector`]; [`ShStats::plans`] counts them),
+//! sum the pixels against the basis in f64, round to f32 and check the set as the wire would
+//! ([`validate_sh_set`]). Deterministic, so what a client receives equals
+//! [`crate::sh::project`] of the same frame, bit for bit, and a replay reproduces it.
+//!
+//! The set is not filtered in time (as the ASG and wavelet sets are not): it follows the frames
+//! without the lights' FIR delay. An SH set is an integral over the whole sphere, steady by
+//! nature; docs/sh.md measures it.
+//!
+//! The thread is the generic runner of [`crate::slow_stage`], shared with the ASG and wavelet
+//! stages: the decompose thread offers each frame after publishing its lights, a live feed keeps
+//! only the newest (skips counted), a lossless feed (replay) makes every frame projected in
+//! order; [`ShStage::reconfigure`] (SIGHUP) swaps the degree before the next frame;
+//! [`ShStage::join`] turns a panic into an error.
+
+use crate::frame::HdrFrame;
+use crate::frame_feed::FrameFeed;
+use crate::publication::{Latest, StaleHandle};
+use crate::sh::{Projector, MAX_DEGREE};
+use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
+use crate::stream::protocol::{validate_sh_set, ShFrame};
+use std::time::Duration;
+use tokio::sync::watch;
+
+/// Name of the SH thread.
+pub const SH_THREAD_NAME: &str = "envlight-sh";
+
+/// Default degree: 2, the nine coefficients per channel of irradiance environment maps
+/// (Ramamoorthi & Hanrahan 2001) and of engines' light probes.
+pub const DEFAULT_DEGREE: usize = 2;
+
+/// What the stage computes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShSettings {
+    /// The highest band, 0..=[`MAX_DEGREE`]: (degree + 1)² coefficients per channel.
+    pub degree: usize,
+}
+
+impl Default for ShSettings {
+    fn default() -> Self {
+        Self {
+            degree: DEFAULT_DEGREE,
+        }
+    }
+}
+
+impl ShSettings {
+    /// Checks every field (the error names the field and the value).
+    pub fn validate(&self) -> Result<(), ShStageError> {
+        if self.degree > MAX_DEGREE {
+            return Err(ShStageError::Settings {
+                field: "degree",
+                value: self.degree.to_string(),
+                rule: format!("an integer in 0..={MAX_DEGREE}"),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Errors of the SH stage.
+#[derive(Debug, thiserror::Error)]
+pub enum ShStageError {
+    #[error("invalid [sh] setting {field} = {value}: must be {rule}")]
+    Settings {
+        field: &'static str,
+        value: String,
+        rule: String,
+    },
+    #[error("frame {seq}: the SH set would not be accepted on the wire: {source}")]
+    Invalid {
+        seq: u64,
+        #[source]
+        source: crate::stream::ProtocolError,
+    },
+    #[error("cannot start thread {SH_THREAD_NAME}: {0}")]
+    Spawn(#[source] std::io::Error),
+    #[error("thread {SH_THREAD_NAME} panicked: {0}")]
+    Panicked(String),
+}
+
+/// Frames to SH sets, with the projection plan kept from frame to frame.
+pub struct ShProjector {
+    settings: ShSettings,
+    plan: Option<Projector>,
+    plans: u64,
+}
+
+impl ShProjector {
+    /// A projector with validated `settings`.
+    pub fn new(settings: ShSettings) -> Result<Self, ShStageError> {
+        settings.validate()?;
+        Ok(Self {
+            settings,
+            plan: None,
+            plans: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &ShSettings {
+        &self.settings
+    }
+
+    /// Projection plans built so far (one per frame shape met, again after a shape change).
+    pub fn plans(&self) -> u64 {
+        self.plans
+    }
+
+    /// The set of `frame`.
+    pub fn project(&mut self, frame: &HdrFrame) -> Result<ShFrame, ShStageError> {
+        let plan = match self.plan.take() {
+            Some(plan) if plan.fits(frame) => plan,
+            _ => {
+                self.plans += 1;
+                Projector::new(
+                    self.settings.degree,
+                    frame.width,
+                    frame.height,
+                    frame.projection,
+                )
+            }
+        };
+        let set = plan.project(frame);
+        self.plan = Some(plan);
+        // The plan was built for this frame's shape, so it always projects it.
+        let set = set.unwrap_or_else(|| crate::sh::ShCoefficients::zero(self.settings.degree));
+        let sh = ShFrame::new(frame.seq, frame.time, &set);
+        validate_sh_set(&sh.coefficients).map_err(|source| ShStageError::Invalid {
+            seq: frame.seq,
+            source,
+        })?;
+        Ok(sh)
+    }
+}
+
+impl StageWorker for ShProjector {
+    type Output = ShFrame;
+    type Error = ShStageError;
+
+    fn process(&mut self, frame: &HdrFrame) -> Result<ShFrame, ShStageError> {
+        self.project(frame)
+    }
+
+    fn plans(&self) -> u64 {
+        self.plans
+    }
+}
+
+/// One publication of the SH stage: the set is the
+/// [`Publication::payload`](crate::publication::Publication::payload), `compute_time` the
+/// projection's.
+pub type PublishedSh = crate::publication::Publication<ShFrame>;
+
+/// What SH consumers receive: the newest publication, `None` until the first one.
+pub type LatestSh = Latest<ShFrame>;
+
+/// Marks the newest SH set stale; see [`ShStage::mark_stale`].
+pub type ShStaleHandle = StaleHandle<ShFrame>;
+
+/// Called on the SH thread after each published set (metrics).
+pub type ShHook = PublishHook<ShFrame>;
+
+/// Counters of the SH stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ShStats {
+    /// Frames offered to the stage.
+    pub frames_offered: u64,
+    /// Frames replaced by a newer one before the stage took them.
+    pub frames_skipped: u64,
+    /// Sets computed and published.
+    pub sets: u64,
+    /// Frames that gave no set (values beyond f32).
+    pub errors: u64,
+    /// Projection plans built (one per frame size and projection met).
+    pub plans: u64,
+    /// Duration of the most recent projection.
+    pub last_time: Duration,
+}
+
+impl From<StageCounters> for ShStats {
+    fn from(c: StageCounters) -> Self {
+        Self {
+            frames_offered: c.offered,
+            frames_skipped: c.skipped,
+            sets: c.published,
+            errors: c.errors,
+            plans: c.plans,
+            last_time: c.last_time,
+        }
+    }
+}
+
+/// The running SH stage. See the module documentation.
+pub struct ShStage(SlowStage<ShProjector>);
+
+impl ShStage {
+    /// Validates `settings` and starts the `envlight-sh` thread, fed by a new feed (`lossless`
+    /// as in [`FrameFeed::new`]). `on_publish` runs on the thread after each set.
+    pub fn start(
+        settings: ShSettings,
+        lossless: bool,
+        on_publish: Option<ShHook>,
+    ) -> Result<ShStage, ShStageError> {
+        let projector = ShProjector::new(settings)?;
+        tracing::info!(degree = settings.degree, lossless, "starting the SH stage");
+        SlowStage::start(SH_THREAD_NAME, projector, lossless, on_publish)
+            .map(ShStage)
+            .map_err(ShStageError::Spawn)
+    }
+
+    /// The feed to hand frames to (give it to the pipeline).
+    pub fn feed(&self) -> FrameFeed {
+        self.0.feed()
+    }
+
+    /// A receiver of the newest set; a set published already shows as changed.
+    pub fn subscribe(&self) -> watch::Receiver<LatestSh> {
+        self.0.subscribe()
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> ShStats {
+        self.0.counters().into()
+    }
+
+    /// A handle that reads the counters from anywhere (the metrics endpoint).
+    pub fn stats_handle(&self) -> ShStatsHandle {
+        ShStatsHandle(self.0.counters_handle())
+    }
+
+    /// Replaces the settings from the next frame on (a new plan for the new degree). Invalid
+    /// settings are rejected and change nothing.
+    pub fn reconfigure(&self, settings: ShSettings) -> Result<(), ShStageError> {
+        self.0.replace_worker(ShProjector::new(settings)?);
+        Ok(())
+    }
+
+    /// Marks the newest set stale (the source is lost), re-publishing it unless it is stale
+    /// already; the next projected set is live. Returns whether anything was published.
+    pub fn mark_stale(&self) -> bool {
+        self.stale_handle().mark_stale()
+    }
+
+    /// A handle for [`ShStage::mark_stale`] from another thread.
+    pub fn stale_handle(&self) -> ShStaleHandle {
+        self.0.stale_handle()
+    }
+
+    /// Whether the thread has ended (the feed was closed and drained).
+    pub fn is_finished(&self) -> bool {
+        self.0.is_finished()
+    }
+
+    /// Closes the feed and drops the frame still waiting (a signal's shutdown; the projection
+    /// in progress is finished and published).
+    pub fn abandon(&self) {
+        self.0.abandon();
+    }
+
+    /// Closes the feed, waits for the thread and returns the final counters.
+    pub fn join(self) -> Result<ShStats, ShStageError> {
+        self.0
+            .join()
+            .map(ShStats::from)
+            .map_err(ShStageError::Panicked)
+    }
+}
+
+/// Reads the stage's counters; valid after the stage has ended.
+#[derive(Clone)]
+pub struct ShStatsHandle(CountersHandle<ShProjector>);
+
+impl ShStatsHandle {
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> ShStats {
+        self.0.counters().into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::envmap::Projection;
+    use crate::frame_feed::CloseOnDrop;
+    use std::sync::Arc;
+
+    fn frame(seq: u64, width: u32) -> HdrFrame {
+        let height = width / 2;
+        let pixels = (0..width * height)
+            .map(|i| {
+                let v = 0.1 + ((i * 13 + seq as u32 * 5) % 17) as f32;
+                [v, 0.5 * v, 0.25 * v]
+            })
+            .collect();
+        let mut f = HdrFrame::new(width, height, pixels, Projection::LatLong).unwrap();
+        f.seq = seq;
+        f.time = seq as f64 / 30.0;
+        f
+    }
+
+    #[test]
+    fn the_projector_equals_the_library_and_plans_once_per_shape() {
+        let mut p = ShProjector::new(ShSettings { degree: 3 }).unwrap();
+        for (seq, width) in [(0, 32), (1, 32), (2, 32), (3, 64), (4, 64)] {
+            let f = frame(seq, width);
+            let got = p.project(&f).unwrap();
+            let want = ShFrame::new(seq, f.time, &crate::sh::project(&f, 3));
+            assert_eq!(got, want, "seq {seq}");
+            assert_eq!(got.degree(), Some(3));
+        }
+        assert_eq!(p.plans(), 2, "one plan per frame size");
+    }
+
+    #[test]
+    fn a_degree_above_the_highest_is_refused_by_name() {
+        match ShStage::start(ShSettings { degree: 16 }, false, None) {
+            Err(
+                e @ ShStageError::Settings {
+                    field: "degree", ..
+                },
+            ) => {
+                assert!(e.to_string().contains("degree = 16"), "{e}")
+            }
+            other => panic!("{:?}", other.err()),
+        }
+        assert!(ShSettings::default().validate().is_ok());
+        assert!(ShSettings { degree: 0 }.validate().is_ok());
+    }
+
+    #[test]
+    fn coefficients_beyond_f32_saturate() {
+        // Radiance near f32::MAX over a whole map sums past f32: the coefficients saturate,
+        // which the wire accepts (finite); a NaN cannot arise (non-finite pixels count as 0).
+        let mut f = frame(0, 32);
+        for p in &mut f.pixels {
+            *p = [f32::MAX; 3];
+        }
+        let set = ShProjector::new(ShSettings::default())
+            .unwrap()
+            .project(&f)
+            .unwrap();
+        assert!(set.coefficients.iter().flatten().all(|v| v.is_finite()));
+        assert_eq!(set.coefficients[0], [f32::MAX; 3]);
+    }
+
+    #[test]
+    fn lossless_stage_projects_every_frame_and_stale_republishes() {
+        let stage = ShStage::start(ShSettings::default(), true, None).unwrap();
+        let mut rx = stage.subscribe();
+        let feed = stage.feed();
+        let sender = std::thread::Builder::new()
+            .name("test-feeder".into())
+            .spawn(move || {
+                let _close = CloseOnDrop(feed.clone());
+                for seq in 0..6 {
+                    feed.offer(frame(seq, 32));
+                }
+            })
+            .unwrap();
+        let mut seen = Vec::new();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            while rx.changed().await.is_ok() {
+                let p = rx.borrow_and_update().clone().unwrap();
+                let last = p.payload.seq == 5;
+                seen.push(p);
+                if last {
+                    break;
+                }
+            }
+        });
+        sender.join().unwrap();
+        let live = stage.subscribe().borrow().clone().unwrap();
+        assert!(stage.mark_stale());
+        let stale = stage.subscribe().borrow().clone().unwrap();
+        assert!(stale.stale && Arc::ptr_eq(&stale.payload, &live.payload));
+        let stats = stage.join().unwrap();
+        assert_eq!(
+            (stats.frames_offered, stats.frames_skipped, stats.sets),
+            (6, 0, 6)
+        );
+        assert_eq!((stats.errors, stats.plans), (0, 1));
+        let mut p = ShProjector::new(ShSettings::default()).unwrap();
+        for published in &seen {
+            let want = p.project(&frame(published.payload.seq, 32)).unwrap();
+            assert_eq!(*published.payload, want);
+        }
+        assert_eq!(live.index, 6, "every set was published");
+    }
+}
