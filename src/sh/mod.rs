@@ -26,9 +26,10 @@
 //! **Projection** of a frame ([`Projector`]): L_lm = ∫ L(ω) Y_lm(ω) dω ≈ Σ_pixels rgb ·
 //! Y_lm(centre) · Ω, with each pixel's exact solid angle ([`Projection::solid_angles`]) and
 //! centre direction, summed in f64 (a sun 10⁴× the sky is not lost); non-finite and negative
-//! pixels count as 0 (the decomposition warns about them). The directions and solid angles are
-//! a plan built once per frame shape; the pixels are summed in fixed bands of rows, so the
-//! result does not depend on the number of threads. A fisheye sees only the upper hemisphere:
+//! pixels count as 0 (the decomposition warns about them). What depends on the frame's shape
+//! is a plan built once; a lat-long frame is summed separably, row by row through Fourier
+//! sums in φ, any other through per-pixel basis values. The pixels are summed in fixed bands
+//! of rows, so the result does not depend on the number of threads. A fisheye sees only the upper hemisphere:
 //! the lower one counts as black, as for the lights.
 //!
 //! **Irradiance** (Ramamoorthi & Hanrahan 2001, "An Efficient Representation for Irradiance
@@ -257,23 +258,127 @@ impl ShCoefficients {
 /// (and the coefficients, bit for bit) do not depend on the number of threads.
 const ROWS_PER_BAND: usize = 8;
 
-/// Projects frames of one shape (size and projection) onto the SH basis: the pixels' centre
-/// directions and exact solid angles, computed once.
+/// The most numbers a lat-long plan's per-row tables may hold (f64: 64 MiB); a larger degree
+/// and height take the per-pixel path instead.
+const MAX_ROW_TABLE: usize = 8 << 20;
+
+/// Projects frames of one shape (size and projection) onto the SH basis, with what depends
+/// only on the shape computed once.
+///
+/// Two paths, the same sums up to rounding:
+/// - **lat-long** (separable): along a row θ is fixed and φ = 2π(x + ½)/W, and every Y_lm of
+///   degree ≤ L is a trigonometric polynomial of degree ≤ L in φ there. So per row the pixels
+///   are first summed against cos kφ and sin kφ, k ≤ L (2L + 1 sums per channel, from a table
+///   per column), and the coefficients follow from those sums and each row's Fourier
+///   coefficients of the Y_lm — found once per plan from 2L + 1 samples of each Y_lm along
+///   the row, exact for such polynomials. 15 multiply-adds a pixel at degree 2 instead of a
+///   basis evaluation;
+/// - **any projection** (fisheye, angular map, or a lat-long plan whose row tables would
+///   exceed 64 MiB): per pixel, its centre direction and solid angle, the basis evaluated and
+///   accumulated.
 #[derive(Clone, Debug)]
 pub struct Projector {
     basis: Basis,
     width: u32,
     height: u32,
     projection: Projection,
-    /// Per pixel, row-major: unit centre direction and solid angle (0 where the image sees
-    /// nothing, outside a fisheye's circle).
-    samples: Vec<([f64; 3], f64)>,
+    summation: Summation,
+}
+
+#[derive(Clone, Debug)]
+enum Summation {
+    LatLong {
+        /// Term-major: for each of the 2L + 1 functions 1, cos φ, sin φ, cos 2φ, sin 2φ, …
+        /// its value at every column.
+        trig: Vec<f64>,
+        /// Per row, its pixels' solid angle times the (L + 1)² × (2L + 1) Fourier coefficients
+        /// of the Y_lm along it, in the order of `trig`.
+        rows: Vec<f64>,
+    },
+    PerPixel {
+        /// Per pixel, row-major: unit centre direction and solid angle (0 where the image sees
+        /// nothing, outside a fisheye's circle).
+        samples: Vec<([f64; 3], f64)>,
+    },
 }
 
 impl Projector {
     /// The plan for `width` × `height` frames of `projection`, up to `degree` (clamped to
     /// [`MAX_DEGREE`]).
     pub fn new(degree: usize, width: u32, height: u32, projection: Projection) -> Self {
+        let basis = Basis::new(degree);
+        let terms = 2 * basis.degree() + 1;
+        let summation = if projection == Projection::LatLong
+            && (height as usize)
+                .saturating_mul(basis.len())
+                .saturating_mul(terms)
+                <= MAX_ROW_TABLE
+        {
+            Self::latlong_path(&basis, width, height)
+        } else {
+            Self::per_pixel_path(width, height, projection)
+        };
+        Self {
+            basis,
+            width,
+            height,
+            projection,
+            summation,
+        }
+    }
+
+    fn latlong_path(basis: &Basis, width: u32, height: u32) -> Summation {
+        let degree = basis.degree();
+        let terms = 2 * degree + 1;
+        let harmonics = |phi: f64, out: &mut [f64]| {
+            out[0] = 1.0;
+            for k in 1..=degree {
+                let (sin, cos) = (k as f64 * phi).sin_cos();
+                out[2 * k - 1] = cos;
+                out[2 * k] = sin;
+            }
+        };
+        let mut trig = vec![0.0; width as usize * terms];
+        let mut values = vec![0.0; terms];
+        for x in 0..width as usize {
+            harmonics(2.0 * PI * (x as f64 + 0.5) / f64::from(width), &mut values);
+            for (t, &v) in values.iter().enumerate() {
+                trig[t * width as usize + x] = v;
+            }
+        }
+        let count = basis.len();
+        let solid_angles = Projection::LatLong.solid_angles(width, 1.max(height));
+        let mut rows = vec![0.0; height as usize * count * terms];
+        let mut y = vec![0.0; count];
+        let mut samples = vec![0.0; terms];
+        for (row, table) in rows.chunks_exact_mut(count * terms).enumerate() {
+            let omega = solid_angles[row * width as usize];
+            // Y_lm at 2L + 1 equally spaced φ along the row, then their discrete Fourier
+            // coefficients: exact for trigonometric polynomials of degree ≤ L.
+            for j in 0..terms {
+                let phi = 2.0 * PI * j as f64 / terms as f64;
+                let d = Projection::LatLong
+                    .pixel_to_direction(
+                        width,
+                        height,
+                        phi / (2.0 * PI) * f64::from(width),
+                        row as f64 + 0.5,
+                    )
+                    .unwrap_or(DVec3::Y);
+                basis.evaluate(d, &mut y);
+                harmonics(phi, &mut samples);
+                for i in 0..count {
+                    for t in 0..terms {
+                        let weight = if t == 0 { 1.0 } else { 2.0 };
+                        table[i * terms + t] += omega * weight / terms as f64 * y[i] * samples[t];
+                    }
+                }
+            }
+        }
+        Summation::LatLong { trig, rows }
+    }
+
+    fn per_pixel_path(width: u32, height: u32, projection: Projection) -> Summation {
         let solid_angles = projection.solid_angles(width, height);
         let samples = solid_angles
             .iter()
@@ -286,12 +391,18 @@ impl Projector {
                 }
             })
             .collect();
+        Summation::PerPixel { samples }
+    }
+
+    /// The same plan forced onto the per-pixel path (to check the separable one against it).
+    #[cfg(test)]
+    fn per_pixel(degree: usize, width: u32, height: u32, projection: Projection) -> Self {
         Self {
             basis: Basis::new(degree),
             width,
             height,
             projection,
-            samples,
+            summation: Self::per_pixel_path(width, height, projection),
         }
     }
 
@@ -314,39 +425,24 @@ impl Projector {
             return None;
         }
         let width = self.width as usize;
-        let count = self.basis.len();
         let band_pixels = width * ROWS_PER_BAND;
-        let partial_sums: Vec<Vec<[f64; 3]>> = frame
-            .pixels
-            .par_chunks(band_pixels)
-            .zip(self.samples.par_chunks(band_pixels))
-            .map(|(pixels, samples)| {
-                let mut sums = vec![[0.0f64; 3]; count];
-                let mut y = vec![0.0f64; count];
-                for (rgb, &(dir, omega)) in pixels.iter().zip(samples) {
-                    if omega == 0.0 {
-                        continue;
-                    }
-                    let energy = rgb.map(|v| {
-                        if v.is_finite() && v > 0.0 {
-                            f64::from(v) * omega
-                        } else {
-                            0.0
-                        }
-                    });
-                    if energy == [0.0; 3] {
-                        continue;
-                    }
-                    self.basis.evaluate(DVec3::from(dir), &mut y);
-                    for (sum, &yi) in sums.iter_mut().zip(&y) {
-                        for c in 0..3 {
-                            sum[c] += energy[c] * yi;
-                        }
-                    }
-                }
-                sums
-            })
-            .collect();
+        let partial_sums: Vec<Vec<[f64; 3]>> = match &self.summation {
+            Summation::LatLong { trig, rows } => {
+                let table_len = rows.len() / self.height.max(1) as usize;
+                frame
+                    .pixels
+                    .par_chunks(band_pixels)
+                    .zip(rows.par_chunks(table_len * ROWS_PER_BAND))
+                    .map(|(pixels, tables)| self.latlong_band(pixels, tables, trig))
+                    .collect()
+            }
+            Summation::PerPixel { samples } => frame
+                .pixels
+                .par_chunks(band_pixels)
+                .zip(samples.par_chunks(band_pixels))
+                .map(|(pixels, samples)| self.per_pixel_band(pixels, samples))
+                .collect(),
+        };
         let mut set = ShCoefficients::zero(self.basis.degree());
         for sums in partial_sums {
             for (total, part) in set.rgb.iter_mut().zip(sums) {
@@ -356,6 +452,91 @@ impl Projector {
             }
         }
         Some(set)
+    }
+
+    /// The sums of a band of lat-long rows: per row its Fourier sums, then the coefficients.
+    fn latlong_band(&self, pixels: &[[f32; 3]], tables: &[f64], trig: &[f64]) -> Vec<[f64; 3]> {
+        let count = self.basis.len();
+        let terms = 2 * self.basis.degree() + 1;
+        let width = self.width as usize;
+        let mut sums = vec![[0.0f64; 3]; count];
+        let mut fourier = vec![[0.0f64; 3]; terms];
+        // The row's radiance, one channel after another, for contiguous dot products.
+        let mut channels = vec![0.0f64; 3 * width];
+        for (row, table) in pixels
+            .chunks_exact(width)
+            .zip(tables.chunks_exact(count * terms))
+        {
+            for (x, rgb) in row.iter().enumerate() {
+                for c in 0..3 {
+                    channels[c * width + x] = clean(rgb[c]);
+                }
+            }
+            for (f, harmonic) in fourier.iter_mut().zip(trig.chunks_exact(width)) {
+                for c in 0..3 {
+                    f[c] = dot(&channels[c * width..(c + 1) * width], harmonic);
+                }
+            }
+            for (sum, weights) in sums.iter_mut().zip(table.chunks_exact(terms)) {
+                for (f, &w) in fourier.iter().zip(weights) {
+                    for c in 0..3 {
+                        sum[c] += f[c] * w;
+                    }
+                }
+            }
+        }
+        sums
+    }
+
+    /// The sums of a band of pixels against the basis at their centres.
+    fn per_pixel_band(&self, pixels: &[[f32; 3]], samples: &[([f64; 3], f64)]) -> Vec<[f64; 3]> {
+        let count = self.basis.len();
+        let mut sums = vec![[0.0f64; 3]; count];
+        let mut y = vec![0.0f64; count];
+        for (rgb, &(dir, omega)) in pixels.iter().zip(samples) {
+            if omega == 0.0 {
+                continue;
+            }
+            let energy = rgb.map(|v| clean(v) * omega);
+            if energy == [0.0; 3] {
+                continue;
+            }
+            self.basis.evaluate(DVec3::from(dir), &mut y);
+            for (sum, &yi) in sums.iter_mut().zip(&y) {
+                for c in 0..3 {
+                    sum[c] += energy[c] * yi;
+                }
+            }
+        }
+        sums
+    }
+}
+
+/// Σ a_i b_i with four running sums (in a fixed order, so the same on every machine), which
+/// the compiler turns into vector instructions.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut lanes = [0.0f64; 4];
+    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = a4
+        .remainder()
+        .iter()
+        .zip(b4.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in a4.zip(b4) {
+        for k in 0..4 {
+            lanes[k] += x[k] * y[k];
+        }
+    }
+    (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + tail
+}
+
+/// A pixel value as radiance: non-finite and negative values count as 0.
+fn clean(v: f32) -> f64 {
+    if v.is_finite() && v > 0.0 {
+        f64::from(v)
+    } else {
+        0.0
     }
 }
 

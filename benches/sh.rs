@@ -1,0 +1,65 @@
+//! Spherical-harmonics speed (`[sh]` stage, src/sh): the projection plan of a lat-long map
+//! (pixel directions and exact solid angles, built once per frame shape) and the per-frame
+//! projection of rooitou_park at 512×256, 1024×512 and 2048×1024 onto degree 2 (9
+//! coefficients per channel) and degree 4 (25), on one thread and on rayon's threads; the
+//! evaluation of irradiance from a set. Run: `cargo bench --bench sh` (`-- --quick` for a short
+//! run).
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use envlight::capture::image_file::read_hdr_image;
+use envlight::envmap::Projection;
+use envlight::sh::{project, Projector};
+use envlight::HdrFrame;
+use std::hint::black_box;
+
+fn bench(c: &mut Criterion) {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/rooitou_park_1k.hdr"
+    );
+    let image = read_hdr_image(std::path::Path::new(path)).expect("test map");
+    let park =
+        HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).expect("frame");
+    let sizes = [(512u32, 256u32), (1024, 512), (2048, 1024)];
+    let one_thread = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+
+    let mut group = c.benchmark_group("sh");
+    group.sample_size(20);
+    for (width, height) in sizes {
+        let frame = park
+            .reprojected(Projection::LatLong, width, height)
+            .expect("resized frame");
+        let size = format!("{width}x{height}");
+        group.bench_function(BenchmarkId::new("plan", &size), |b| {
+            b.iter(|| Projector::new(2, width, height, Projection::LatLong))
+        });
+        for degree in [2usize, 4] {
+            let plan = Projector::new(degree, width, height, Projection::LatLong);
+            group.bench_function(
+                BenchmarkId::new(format!("project_degree{degree}_1thread"), &size),
+                |b| b.iter(|| one_thread.install(|| plan.project(black_box(&frame)))),
+            );
+            group.bench_function(
+                BenchmarkId::new(format!("project_degree{degree}_all_threads"), &size),
+                |b| b.iter(|| plan.project(black_box(&frame))),
+            );
+        }
+    }
+    let set = project(&park, 2);
+    let normals: Vec<glam::DVec3> = envlight::yardstick::evaluation_directions();
+    group.bench_function("irradiance_degree2_1024_normals", |b| {
+        b.iter(|| {
+            normals
+                .iter()
+                .map(|&n| set.irradiance(black_box(n)))
+                .fold(0.0, |s, e| s + e[1])
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,192 @@
+//! The spherical-harmonics stage end to end (`[sh]`, src/sh_stage.rs): clients that subscribe
+//! with representation `sh` receive the coefficients the library computes for the same frames
+//! (`envlight::sh::project`), capped to whole bands as asked, over every transport and format;
+//! the received sets hold the frame's ∫L dω; without the stage an `sh` subscribe is refused with
+//! error 6; SIGHUP changes the degree live.
+//!
+//! As for the wavelet stage (tests/wavelet_stream.rs), the comparison uses a replay, in which
+//! the stage projects every frame in order; the projection is deterministic, so every set a
+//! client receives must equal the library's for that frame, bit for bit (matched by seq: a
+//! client may skip sets, newest wins).
+
+mod common;
+
+use common::{
+    assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
+    read_until_goodbye, record_sky, subscribe_all, wait_until, TIMEOUT,
+};
+use envlight::capture::FrameSource;
+use envlight::config::Config;
+use envlight::daemon::{Daemon, DaemonOptions};
+use envlight::record::{Pacing, ReplaySource};
+use envlight::stream::client::{Client, Endpoint};
+use envlight::stream::{Message, Representation, Request, ShFrame};
+use std::path::Path;
+
+fn config(dir: &Path, extra: &str) -> Config {
+    common::config(dir, 2.0, extra)
+}
+
+/// A live sky source small enough for any machine.
+const LIVE_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                        [decompose]\nlights = 8\nworking_width = 16\n";
+
+/// Everything an SH client received until the goodbye, with each set's stale flag.
+fn read_sets(client: Client) -> (Vec<(ShFrame, bool)>, Option<String>) {
+    read_until_goodbye(client, |message| match message {
+        Message::Sh(m) => {
+            let stale = m.stale;
+            Ok((m.into_sh_frame(), stale))
+        }
+        other => Err(other),
+    })
+}
+
+#[test]
+fn sh_clients_receive_what_the_library_computes() {
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("session");
+    let n = record_sky(&recording, 12);
+    assert!(n >= 4, "only {n} frames recorded");
+    let config = config(dir.path(), "[sh]\nenabled = true\ndegree = 3\n");
+    assert_eq!(config.sh.settings.degree, 3);
+
+    // What the library gives for the recorded frames, and each frame's ∫L dω.
+    let mut replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
+    let mut expected = Vec::new();
+    while let Some(frame) = replay.next_frame().unwrap() {
+        let set = envlight::sh::project(&frame, 3);
+        let solid_angles = frame.projection.solid_angles(frame.width, frame.height);
+        let mut integral = [0.0f64; 3];
+        for (rgb, omega) in frame.pixels.iter().zip(solid_angles) {
+            for c in 0..3 {
+                integral[c] += f64::from(rgb[c]) * omega;
+            }
+        }
+        expected.push((ShFrame::new(frame.seq, frame.time, &set), integral));
+    }
+    assert_eq!(expected.len() as u64, n);
+
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: Some((recording.clone(), Pacing::Original)),
+            record: None,
+            source_paths: None,
+        },
+    )
+    .unwrap();
+    let addrs = daemon.addresses().clone();
+    let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
+    // Caps: all 16; 4 keeps degrees 0 and 1; 1 the constant; 15 degrees 0–2 (9).
+    let endpoints = every_transport(&addrs.stream, [0, 4, 1, 15]);
+    let clients = subscribe_all(&endpoints, Representation::Sh, read_sets);
+    let lights = Client::connect(&tcp, &Request::default(), Some(TIMEOUT)).unwrap();
+    let http = addrs.metrics.unwrap();
+    wait_until("the end of the replay", || daemon.source_finished());
+    let metrics = http_get(http, "/metrics").1;
+    let summary = daemon.shutdown().unwrap();
+    let stats = summary.sh.expect("the SH stage ran");
+    assert_eq!(stats.sets, n, "a replay projects every frame");
+    assert_eq!((stats.frames_skipped, stats.errors), (0, 0));
+    assert_eq!(stats.plans, 1, "one projection plan for one frame size");
+    assert_eq!(metric_value(&metrics, "envlight_sh_sets_total"), n as f64);
+    assert_eq!(
+        metric_value(&metrics, "envlight_sh_seconds_count"),
+        n as f64
+    );
+
+    let mut full_sets = 0;
+    for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
+        let what = format!("{endpoint} {format:?} cap {cap}");
+        let (sets, goodbye) = client.join().unwrap();
+        let seqs: Vec<u64> = sets.iter().map(|(s, _)| s.seq).collect();
+        assert_ordered_to_the_end(&what, goodbye.as_deref(), &seqs, n - 1);
+        let count = match cap {
+            0 => 16,
+            4 => 4,
+            1 => 1,
+            15 => 9,
+            other => panic!("no count for cap {other}"),
+        };
+        for (set, stale) in &sets {
+            let (want, integral) = &expected[set.seq as usize];
+            assert!(!stale);
+            assert_eq!(set.time, want.time, "{what}");
+            assert_eq!(
+                set.coefficients,
+                want.coefficients[..count],
+                "{what} seq {}",
+                set.seq
+            );
+            // Any cap keeps the constant, so ∫L dω: the frame's to f32 rounding.
+            let received = set.to_coefficients().unwrap().integral();
+            for c in 0..3 {
+                assert!(
+                    (received[c] - integral[c]).abs() <= 1e-6 * integral[c].abs(),
+                    "{what} channel {c}: {} against {}",
+                    received[c],
+                    integral[c]
+                );
+            }
+            full_sets += usize::from(*cap == 0);
+        }
+    }
+    assert!(full_sets >= 2);
+    drop(lights);
+}
+
+#[test]
+fn sh_subscribe_without_the_stage_is_unsupported() {
+    let dir = tempfile::tempdir().unwrap();
+    let daemon = Daemon::start(config(dir.path(), LIVE_SKY), DaemonOptions::default()).unwrap();
+    assert!(daemon.sh().is_none());
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    assert_unsupported(tcp, Representation::Sh, "[sh] enabled = true");
+    daemon.shutdown().unwrap();
+}
+
+#[test]
+fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = "[sh]\nenabled = true\ndegree = 1\n";
+    let mut daemon = Daemon::start(
+        config(dir.path(), &format!("{LIVE_SKY}{stage}")),
+        DaemonOptions::default(),
+    )
+    .unwrap();
+    let mut rx = daemon.sh().unwrap().subscribe();
+    wait_until("a first set", || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.payload.degree() == Some(1))
+    });
+    let changed = stage.replace("degree = 1", "degree = 4");
+    let report = daemon.reload(config(dir.path(), &format!("{LIVE_SKY}{changed}")));
+    assert_eq!(report.applied, vec!["[sh]".to_owned()]);
+    assert!(report.needs_restart.is_empty(), "{report:?}");
+    wait_until("a set of the new degree", || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.payload.degree() == Some(4))
+    });
+    // A bad degree changes nothing; turning the stage off needs a restart.
+    let bad = envlight::config::RawConfig::parse(
+        &format!("{LIVE_SKY}[sh]\ndegree = 99\n"),
+        Path::new("bad.toml"),
+    )
+    .unwrap()
+    .validate();
+    assert!(bad.is_err_and(|e| e.to_string().contains("sh.degree")));
+    let off = changed.replace("enabled = true", "enabled = false");
+    let report = daemon.reload(config(dir.path(), &format!("{LIVE_SKY}{off}")));
+    assert!(
+        report.needs_restart.iter().any(|s| s.starts_with("[sh]")),
+        "{report:?}"
+    );
+    assert!(daemon.sh().is_some());
+    let summary = daemon.shutdown().unwrap();
+    let stats = summary.sh.unwrap();
+    assert!(stats.sets >= 2 && stats.errors == 0, "{stats:?}");
+    assert_eq!(stats.plans, 2, "a new plan for the new degree");
+}
