@@ -3,12 +3,14 @@
 
 Connects to a running daemon over a Unix socket or TCP, subscribes (binary frames), and prints
 one line per light list (or per ASG set with --representation asg, per wavelet coefficient set
-with --representation wavelet). The wire format is docs/protocol.md.
+with --representation wavelet, per spherical-harmonic set with --representation sh). The wire
+format is docs/protocol.md.
 
     python3 examples/client.py unix:/run/envlight/envlight.sock
     python3 examples/client.py 127.0.0.1:7878 --max-lights 16 --frames 10
     python3 examples/client.py 127.0.0.1:7878 --representation asg   # needs [asg] enabled
     python3 examples/client.py 127.0.0.1:7878 --representation wavelet   # needs [wavelet] enabled
+    python3 examples/client.py 127.0.0.1:7878 --representation sh   # needs [sh] enabled
 """
 
 import argparse
@@ -22,7 +24,8 @@ MAGIC = b"ENVL"
 VERSION = 1
 TYPE_FRAME, TYPE_ERROR, TYPE_GOODBYE, TYPE_SUBSCRIBE = 1, 2, 3, 16
 MAX_MESSAGE_LEN = 1 << 20
-REPRESENTATIONS = {"lights": 0, "asg": 1, "wavelet": 2}
+REPRESENTATIONS = {"lights": 0, "asg": 1, "wavelet": 2, "sh": 3}
+MAX_SH_DEGREE = 15
 BASES = {1: "haar", **{n: f"db{n}" for n in range(2, 11)}, **{16 + n: f"coif{n}" for n in range(1, 6)}}
 
 
@@ -63,8 +66,8 @@ def count(limit):
 
 
 def subscribe_message(max_lights, representation=0):
-    # length, magic, version, type | max_lights, representation (0 = lights, 1 = asg, 2 = wavelet),
-    # format 0 = binary, reserved
+    # length, magic, version, type | max_lights, representation (0 = lights, 1 = asg, 2 = wavelet,
+    # 3 = sh), format 0 = binary, reserved
     body = struct.pack("<IBBH", max_lights, representation, 0, 0)
     return struct.pack("<I4sHH", 8 + len(body), MAGIC, VERSION, TYPE_SUBSCRIBE) + body
 
@@ -93,7 +96,7 @@ def read_message(sock):
 
 
 # Per representation code: the bytes of its fields after `count`, and of each record.
-LAYOUTS = {0: (0, 32), 1: (0, 52), 2: (8, 16)}
+LAYOUTS = {0: (0, 32), 1: (0, 52), 2: (8, 16), 3: (4, 12)}
 
 
 def parse_frame(body):
@@ -107,7 +110,20 @@ def parse_frame(body):
         raise ValueError(f"frame of {count} records is {len(body) + 12} bytes, "
                          f"not {36 + prefix + record * count} (error 1)")
     frame = {"seq": seq, "time": time, "stale": bool(flags & 1), "representation": representation}
-    if representation == 2:
+    if representation == 3:
+        # Prefix: degree L, basis (0 = real orthonormal, the only one), reserved u16; then
+        # (L + 1)^2 records of rgb, coefficient l^2 + l + m for Y_l^m.
+        degree, basis, _reserved = struct.unpack_from("<BBH", body, 24)
+        if basis != 0:
+            raise ValueError(f"SH frame {seq} has unknown basis code {basis} (error 1)")
+        if degree > MAX_SH_DEGREE:
+            raise ValueError(f"SH frame {seq} has degree {degree} > {MAX_SH_DEGREE} (error 1)")
+        if count != (degree + 1) ** 2:
+            raise ValueError(f"SH frame {seq} has {count} coefficients for degree {degree} (error 1)")
+        sh = [struct.unpack_from("<3f", body, 28 + 12 * i) for i in range(count)]
+        frame.update(degree=degree, sh=sh)
+        floats = [x for rgb in sh for x in rgb]
+    elif representation == 2:
         # Prefix: basis code, levels, map (0 = equal-area octahedral), reserved, side; then
         # records of index (row * side + column in the coefficient layout) and rgb.
         basis, levels, _map, _reserved, side = struct.unpack_from("<BBBBI", body, 24)
@@ -138,6 +154,42 @@ def parse_frame(body):
     return frame
 
 
+def sh_irradiance(sh, degree, normal):
+    """Irradiance (W/m^2 per channel) of a surface of unit `normal` under an SH set:
+    E(n) = sum_l A_l sum_m L_lm Y_lm(n) (Ramamoorthi & Hanrahan 2001), A_l = pi, 2 pi / 3, pi / 4,
+    0, -pi / 24, ... (0 for odd l > 1), Y_lm the basis of docs/protocol.md: Re, Im of (x + iy)^m
+    times K_l^m P_l^m(z) / sin^m, the last by the three-term recurrence in l."""
+    x, y, z = normal
+
+    def band_factor(l):
+        if l < 2:
+            return (math.pi, 2 * math.pi / 3)[l]
+        if l % 2:
+            return 0.0
+        half = l // 2
+        central = math.comb(l, half) / 4 ** half
+        return 2 * math.pi * (1 if half % 2 else -1) * central / ((l + 2) * (l - 1))
+
+    out = [0.0, 0.0, 0.0]
+    re, im, q_diagonal = 1.0, 0.0, 1.0
+    for m in range(degree + 1):
+        if m > 0:
+            re, im = re * x - im * y, re * y + im * x
+            q_diagonal *= 2 * m - 1
+        q_before, q = 0.0, q_diagonal
+        for l in range(m, degree + 1):
+            if l > m:
+                q_before, q = q, ((2 * l - 1) * z * q - (l + m - 1) * q_before) / (l - m)
+            norm = math.sqrt((2 * l + 1) / (4 * math.pi) * math.factorial(l - m) / math.factorial(l + m))
+            weight = band_factor(l) * norm * q * (math.sqrt(2) if m else 1.0)
+            for c in range(3):
+                if m == 0:
+                    out[c] += weight * sh[l * l + l][c]
+                else:
+                    out[c] += weight * (sh[l * l + l + m][c] * re + sh[l * l + l - m][c] * im)
+    return out
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("address", help="unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT")
@@ -146,8 +198,9 @@ def main():
     parser.add_argument("--frames", type=count(2**63), default=0,
                         help="stop after N frames (0 = until goodbye)")
     parser.add_argument("--representation", choices=sorted(REPRESENTATIONS), default="lights",
-                        help="directional lights, ASG lobes or wavelet coefficients "
-                             "(--max-lights then caps the lobes or coefficients)")
+                        help="directional lights, ASG lobes, wavelet coefficients or spherical "
+                             "harmonics (--max-lights then caps the lobes or coefficients; SH: "
+                             "the bands that fit, 4 = degrees 0 and 1)")
     args = parser.parse_args()
     try:
         kind, target = parse_address(args.address)
@@ -173,23 +226,31 @@ def stream(sock, args):
         if kind == TYPE_FRAME:
             frame = parse_frame(body)
             stale = " (stale)" if frame["stale"] else ""
-            if "coefficients" in frame:
+            items = frame[("lights", "lobes", "coefficients", "sh")[frame["representation"]]]
+            what, extra = f"{len(items)} lights", ""
+            if "sh" in frame:
+                # As `envlight subscribe`: the integral of L, sqrt(4 pi) L_00, and the irradiance
+                # of a surface facing up (+Y).
+                what = f"SH degree {frame['degree']} ({len(items)} coefficients)"
+                total = [math.sqrt(4 * math.pi) * items[0][c] for c in range(3)]
+                up = sh_irradiance(items, frame["degree"], (0.0, 1.0, 0.0))
+                extra = f", irradiance up [{up[0]:.4f}, {up[1]:.4f}, {up[2]:.4f}]"
+            elif "coefficients" in frame:
                 # The scaling coefficients (top-left block of side / 2^levels) give the integral:
                 # sum of texels = 2^levels * sum of scaling coefficients, texel = 4 pi / side^2 sr.
-                side, levels, items = frame["side"], frame["levels"], frame["coefficients"]
+                side, levels = frame["side"], frame["levels"]
                 block = side >> levels
                 scaling = [rgb for index, rgb in items if index // side < block and index % side < block]
                 scale = 2 ** levels * 4 * math.pi / side ** 2
                 total = [scale * sum(rgb[c] for rgb in scaling) for c in range(3)]
-                what = f"wavelet coefficients ({frame['basis']} on {side}^2, {levels} levels)"
+                what = f"{len(items)} wavelet coefficients ({frame['basis']} on {side}^2, {levels} levels)"
             elif "lobes" in frame:
-                items, what = frame["lobes"], "ASG lobes"
+                what = f"{len(items)} ASG lobes"
                 total = [sum(g["rgb"][c] * g["integral"] for g in items) for c in range(3)]
             else:
-                items, what = frame["lights"], "lights"
                 total = [sum(l["rgb"][c] for l in items) for c in range(3)]
-            print(f"seq {frame['seq']} time {frame['time']:.3f} s: {len(items)} {what}, "
-                  f"total rgb [{total[0]:.4f}, {total[1]:.4f}, {total[2]:.4f}]{stale}", flush=True)
+            print(f"seq {frame['seq']} time {frame['time']:.3f} s: {what}, "
+                  f"total rgb [{total[0]:.4f}, {total[1]:.4f}, {total[2]:.4f}]{extra}{stale}", flush=True)
             frames += 1
         elif kind in (TYPE_ERROR, TYPE_GOODBYE):
             code, text_len = struct.unpack_from("<HI", body)

@@ -3,7 +3,8 @@
 //! `$CXX`): its decoder gives the same answer as envlight's own on thousands of valid, damaged
 //! and random messages of every type and representation; its socket layer reassembles streams
 //! served in pieces of any size and ends them as envlight would; and the example reads a
-//! running daemon's lights, ASG sets and wavelet sets bit for bit as a Rust client does.
+//! running daemon's lights, ASG sets, wavelet sets and spherical-harmonic (SH) sets bit for bit
+//! as a Rust client does.
 
 mod common;
 mod splitmix;
@@ -84,6 +85,7 @@ fn frame_seq(message: &Message) -> u64 {
         Message::Frame(f) => f.seq,
         Message::Asg(a) => a.seq,
         Message::Wavelet(w) => w.seq,
+        Message::Sh(h) => h.seq,
         other => panic!("not a frame: {other:?}"),
     }
 }
@@ -278,6 +280,43 @@ fn wavelet_frame(rng: &mut Rng) -> Vec<u8> {
     message(1, &b)
 }
 
+/// An SH frame: usually a valid set of a small degree, up to 15 now and then; sometimes a
+/// basis code other than 0, a degree above 15, a count other than (degree + 1)² (the length
+/// still that of the count) or non-finite values.
+fn sh_frame(rng: &mut Rng) -> Vec<u8> {
+    let degree = match rng.below(20) {
+        0 => 16 + rng.below(240) as u32,
+        1..=3 => rng.below(16) as u32,
+        _ => rng.below(4) as u32,
+    };
+    let count = match rng.below(20) {
+        0 => ((degree + 1) * (degree + 1))
+            .wrapping_add(rng.below(3) as u32)
+            .wrapping_sub(1),
+        1 if degree > 15 => rng.below(8) as u32,
+        _ => (degree + 1) * (degree + 1),
+    }
+    .min(1000) as usize;
+    let mut b = frame_head(rng, 3, count);
+    let basis = if rng.chance(0.95) {
+        0
+    } else {
+        rng.next_u64() as u8
+    };
+    b.extend([degree as u8, basis]);
+    b.extend((rng.next_u64() as u16).to_le_bytes()); // reserved: ignored
+    let dirty = if rng.chance(0.85) { 0.0 } else { 0.02 };
+    for _ in 0..count {
+        let rgb = [
+            random_float(rng, dirty),
+            random_float(rng, dirty),
+            random_float(rng, dirty),
+        ];
+        push_f32s(&mut b, &rgb);
+    }
+    message(1, &b)
+}
+
 /// Text of an error or goodbye: ASCII, valid multi-byte characters, and now and then a byte
 /// sequence that is not UTF-8 (overlong forms, surrogates, beyond U+10FFFF, cut short).
 fn text(rng: &mut Rng) -> Vec<u8> {
@@ -329,7 +368,7 @@ fn closing(rng: &mut Rng) -> Vec<u8> {
 fn subscribe(rng: &mut Rng) -> Vec<u8> {
     let mut b = Vec::new();
     b.extend((rng.next_u64() as u32).to_le_bytes());
-    b.push(rng.below(4) as u8);
+    b.push(rng.below(5) as u8);
     b.push(rng.below(3) as u8);
     b.extend((rng.next_u64() as u16).to_le_bytes());
     if rng.chance(0.05) {
@@ -370,12 +409,13 @@ fn cases(seed: u64, n: usize) -> Vec<Vec<u8>> {
     let mut rng = SplitMix64(seed);
     (0..n)
         .map(|_| {
-            let mut m = match rng.below(12) {
+            let mut m = match rng.below(15) {
                 0..=2 => lights_frame(&mut rng),
                 3..=5 => asg_frame(&mut rng),
                 6..=8 => wavelet_frame(&mut rng),
-                9 => closing(&mut rng),
-                10 => subscribe(&mut rng),
+                9..=11 => sh_frame(&mut rng),
+                12 => closing(&mut rng),
+                13 => subscribe(&mut rng),
                 _ => (0..rng.below(48)).map(|_| rng.next_u64() as u8).collect(),
             };
             if rng.chance(0.25) {
@@ -502,6 +542,7 @@ fn the_c_decoder_answers_every_message_as_envlight_does() {
         ("frame 0", 300),
         ("frame 1", 300),
         ("frame 2", 200),
+        ("frame 3", 300),
         ("error", 50),
         ("goodbye", 50),
         ("subscribe", 100),
@@ -550,7 +591,8 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
                  [decompose]\nlights = 8\nworking_width = 16\n\
                  [asg]\nenabled = true\nlobes = 4\nfit_height = 8\niterations = 40\n\
                  warm_iterations = 8\ndiffuse_normals = 16\nthreads = 1\n\
-                 [wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n";
+                 [wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n\
+                 [sh]\nenabled = true\ndegree = 3\n";
     let daemon = Daemon::start(config(dir.path(), 2.0, extra), DaemonOptions::default()).unwrap();
     let stream = &daemon.addresses().stream;
     let unix = format!("unix:{}", stream.unix_socket.clone().unwrap().display());
@@ -562,6 +604,8 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
         (&tcp, "lights", Representation::Lights, 3, &[]),
         (&unix, "asg", Representation::Asg, 2, &[]),
         (&tcp, "wavelet", Representation::Wavelet, 5, &[]),
+        // Degree 3 (16 coefficients) capped to the bands that fit in 4: degrees 0 and 1.
+        (&unix, "sh", Representation::Sh, 4, &[]),
         (
             &unix,
             "lights",
@@ -605,8 +649,12 @@ fn the_c_example_reads_the_daemon_bit_for_bit() {
             }
         }
         assert!(compared >= 1, "{address} {name}: no frame in common: {c:?}");
-        // The cap holds (the sky's frames have more lights, lobes and coefficients).
-        let counts: Vec<&str> = c.iter().filter_map(|(_, l)| l.split(' ').nth(5)).collect();
+        // The cap holds (the sky's frames have more lights, lobes and coefficients). An SH
+        // line's coefficients follow its count without a space.
+        let counts: Vec<&str> = c
+            .iter()
+            .filter_map(|(_, l)| l.split(' ').nth(5)?.split(':').next())
+            .collect();
         let expected = if cap == 0 {
             "8".to_owned()
         } else {
@@ -651,10 +699,11 @@ fn served_stream(seed: u64, ending: Ending) -> (Vec<u8>, Vec<String>, Vec<String
     let mut bytes = Vec::new();
     let mut frames = Vec::new();
     while frames.len() < 60 {
-        let m = match rng.below(4) {
+        let m = match rng.below(5) {
             0 => lights_frame(&mut rng),
             1 => asg_frame(&mut rng),
             2 => wavelet_frame(&mut rng),
+            3 => sh_frame(&mut rng),
             _ => {
                 let count = if rng.chance(0.5) { 8000 } else { 32_000 };
                 let mut b = Vec::new();
@@ -671,7 +720,12 @@ fn served_stream(seed: u64, ending: Ending) -> (Vec<u8>, Vec<String>, Vec<String
             }
         };
         match decode_message(&m) {
-            Ok(decoded @ (Message::Frame(_) | Message::Asg(_) | Message::Wavelet(_))) => {
+            Ok(
+                decoded @ (Message::Frame(_)
+                | Message::Asg(_)
+                | Message::Wavelet(_)
+                | Message::Sh(_)),
+            ) => {
                 frames.push(canonical(Ok(decoded)));
                 bytes.extend(m);
             }

@@ -5,13 +5,13 @@
  *
  *   - envlight_decode(): one binary message (length prefix included) from a buffer into an
  *     envlight_message, with every check the daemon's own decoder makes (lengths against the
- *     layout of the type and representation, finite floats, valid ASG lobes and wavelet sets,
- *     UTF-8 text). No I/O: use it where the bytes arrive some other way, e.g. the binary
- *     messages of a WebSocket.
+ *     layout of the type and representation, finite floats, valid ASG lobes, wavelet sets and
+ *     spherical-harmonic (SH) sets, UTF-8 text). No I/O: use it where the bytes arrive some
+ *     other way, e.g. the binary messages of a WebSocket.
  *   - envlight_connect() / envlight_next(): a blocking client over a Unix domain socket or TCP
- *     that subscribes and hands back one frame (light list, ASG set or wavelet set) per call;
- *     or envlight_poll(), which never waits and hands back the newest frame that has arrived
- *     (for a render loop that wants the current lighting once per frame).
+ *     that subscribes and hands back one frame (light list, ASG set, wavelet set or SH set) per
+ *     call; or envlight_poll(), which never waits and hands back the newest frame that has
+ *     arrived (for a render loop that wants the current lighting once per frame).
  *
  * In exactly one C or C++ file of a program:
  *
@@ -69,8 +69,12 @@ enum envlight_type {
 enum envlight_representation {
     ENVLIGHT_LIGHTS = 0,  /* directional lights */
     ENVLIGHT_ASG = 1,     /* anisotropic spherical Gaussians (needs [asg] enabled) */
-    ENVLIGHT_WAVELET = 2  /* sparse wavelet coefficients (needs [wavelet] enabled) */
+    ENVLIGHT_WAVELET = 2, /* sparse wavelet coefficients (needs [wavelet] enabled) */
+    ENVLIGHT_SH = 3       /* spherical-harmonic coefficients (needs [sh] enabled) */
 };
+
+/* The highest degree an SH frame may carry in version 1 ((15 + 1)^2 = 256 coefficients). */
+#define ENVLIGHT_MAX_SH_DEGREE 15
 
 /* Error codes: those of the protocol's error messages (docs/protocol.md, "Error codes"), which
  * the decoder also returns for bad bytes, plus local ones from 1000 on. 0 is no error (and the
@@ -117,6 +121,14 @@ typedef struct envlight_coefficient {
     float rgb[3];
 } envlight_coefficient;
 
+/* One spherical-harmonic coefficient: L_lm = integral of L(w) Y_lm(w) dw per channel, at
+ * index l^2 + l + m (-l <= m <= l) of the real orthonormal basis of docs/protocol.md (no
+ * Condon-Shortley phase; +Y up, the formulas' polar axis +Z). The radiance towards a unit
+ * direction is sum L_lm Y_lm; the integral of L over the sphere is sqrt(4 pi) L_00. */
+typedef struct envlight_sh_coefficient {
+    float rgb[3];
+} envlight_sh_coefficient;
+
 /* A decoded message. Zero-initialise one before its first use (C: envlight_message m = {0};,
  * C++: envlight_message m = {};, or memset) and
  * release it with envlight_message_free() when decoding into it yourself; a client's messages
@@ -133,10 +145,13 @@ typedef struct envlight_message {
     const envlight_light *lights;             /* ENVLIGHT_LIGHTS, ordered by id */
     const envlight_lobe *lobes;               /* ENVLIGHT_ASG, ordered by id */
     const envlight_coefficient *coefficients; /* ENVLIGHT_WAVELET, increasing index */
-    int basis;     /* wavelet: 1 = haar, 2..10 = db2..db10, 17..21 = coif1..coif5 */
+    const envlight_sh_coefficient *sh;        /* ENVLIGHT_SH, (degree + 1)^2 of them */
+    int basis;     /* wavelet: 1 = haar, 2..10 = db2..db10, 17..21 = coif1..coif5;
+                      SH: 0 = the real orthonormal basis (the only one in version 1) */
     int levels;    /* wavelet: decomposition levels, <= log2(side) */
     int map;       /* wavelet: 0 = equal-area octahedral map */
     uint32_t side; /* wavelet: side of the square map, a power of two */
+    int degree;    /* SH: L, 0..ENVLIGHT_MAX_SH_DEGREE; count = (L + 1)^2 */
 
     /* ENVLIGHT_TYPE_ERROR and ENVLIGHT_TYPE_GOODBYE */
     int code;         /* error code; goodbye: 0 = shutdown */
@@ -251,6 +266,8 @@ void envlight_close(envlight_client *c);
 #define ENVLIGHT_WAVELET_PREFIX_ 8u
 #define ENVLIGHT_WAVELET_RECORD_ 16u
 #define ENVLIGHT_MAX_WAVELET_SIDE_ 32768u
+#define ENVLIGHT_SH_PREFIX_ 4u
+#define ENVLIGHT_SH_RECORD_ 12u
 #define ENVLIGHT_ASG_TOLERANCE_ 1e-3f
 
 static void envlight_say_(char *err, size_t err_len, const char *fmt, ...) {
@@ -421,11 +438,12 @@ static int envlight_lobe_valid_(const envlight_lobe *g, char *err, size_t err_le
 }
 
 /* The records of a frame of `m->count` records after a `prefix` of `rest` bytes: checks that
- * they are exactly `record` bytes each, that the `floats` floats after each record's leading
- * u32 are finite, and makes room in the message for as many structs of `size` bytes. */
+ * they are exactly `record` bytes each, that the `floats` floats of each record from byte
+ * `first` on (after its leading u32 id or index: 4; SH records have none: 0) are finite, and
+ * makes room in the message for as many structs of `size` bytes. */
 static int envlight_records_(envlight_message *m, const uint8_t *r, size_t rest, size_t prefix,
-                             size_t record, int floats, size_t size, const char *what,
-                             char *err, size_t err_len) {
+                             size_t record, size_t first, int floats, size_t size,
+                             const char *what, char *err, size_t err_len) {
     uint32_t n = m->count;
     if (rest < prefix || rest - prefix != (size_t)n * record) {
         envlight_say_(err, err_len, "malformed frame message: count %lu does not fit the %lu "
@@ -435,8 +453,8 @@ static int envlight_records_(envlight_message *m, const uint8_t *r, size_t rest,
     }
     r += prefix;
     for (uint32_t i = 0; i < n; i++, r += record)
-        for (int k = 1; k <= floats; k++)
-            if (!envlight_finite_bits_(r + 4 * k)) {
+        for (int k = 0; k < floats; k++)
+            if (!envlight_finite_bits_(r + first + 4 * k)) {
                 envlight_say_(err, err_len, "non-finite value in %s %lu", what, (unsigned long)i);
                 return ENVLIGHT_E_MALFORMED;
             }
@@ -453,8 +471,8 @@ static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_
     uint32_t n = m->count;
     int rc;
     if (m->representation == ENVLIGHT_LIGHTS) {
-        rc = envlight_records_(m, r, rest, 0, ENVLIGHT_LIGHT_RECORD_, 7, sizeof(envlight_light),
-                               "light", err, err_len);
+        rc = envlight_records_(m, r, rest, 0, ENVLIGHT_LIGHT_RECORD_, 4, 7,
+                               sizeof(envlight_light), "light", err, err_len);
         if (rc != ENVLIGHT_OK) return rc;
         envlight_light *lights = (envlight_light *)m->storage_;
         for (uint32_t i = 0; i < n; i++, r += ENVLIGHT_LIGHT_RECORD_) {
@@ -470,8 +488,8 @@ static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_
         return ENVLIGHT_OK;
     }
     if (m->representation == ENVLIGHT_ASG) {
-        rc = envlight_records_(m, r, rest, 0, ENVLIGHT_LOBE_RECORD_, 12, sizeof(envlight_lobe),
-                               "lobe", err, err_len);
+        rc = envlight_records_(m, r, rest, 0, ENVLIGHT_LOBE_RECORD_, 4, 12,
+                               sizeof(envlight_lobe), "lobe", err, err_len);
         if (rc != ENVLIGHT_OK) return rc;
         envlight_lobe *lobes = (envlight_lobe *)m->storage_;
         for (uint32_t i = 0; i < n; i++, r += ENVLIGHT_LOBE_RECORD_) {
@@ -490,8 +508,38 @@ static int envlight_decode_records_(envlight_message *m, const uint8_t *r, size_
         m->lobes = lobes;
         return ENVLIGHT_OK;
     }
+    if (m->representation == ENVLIGHT_SH) {
+        /* The 4-byte prefix (degree, basis, reserved u16), then 12-byte rgb records. */
+        rc = envlight_records_(m, r, rest, ENVLIGHT_SH_PREFIX_, ENVLIGHT_SH_RECORD_, 0, 3,
+                               sizeof(envlight_sh_coefficient), "SH coefficient", err, err_len);
+        if (rc != ENVLIGHT_OK) return rc;
+        m->degree = r[0];
+        m->basis = r[1];
+        if (m->basis != 0) {
+            envlight_say_(err, err_len, "invalid SH set: unknown basis code %d (0 = real "
+                          "orthonormal, envlight's axes)", m->basis);
+            return ENVLIGHT_E_MALFORMED;
+        }
+        if (m->degree > ENVLIGHT_MAX_SH_DEGREE) {
+            envlight_say_(err, err_len, "invalid SH set: degree %d (at most %d)", m->degree,
+                          ENVLIGHT_MAX_SH_DEGREE);
+            return ENVLIGHT_E_MALFORMED;
+        }
+        uint32_t expected = (uint32_t)(m->degree + 1) * (uint32_t)(m->degree + 1);
+        if (n != expected) {
+            envlight_say_(err, err_len, "invalid SH set: %lu coefficients for degree %d (it has "
+                          "%lu)", (unsigned long)n, m->degree, (unsigned long)expected);
+            return ENVLIGHT_E_MALFORMED;
+        }
+        r += ENVLIGHT_SH_PREFIX_;
+        envlight_sh_coefficient *sh = (envlight_sh_coefficient *)m->storage_;
+        for (uint32_t i = 0; i < n; i++, r += ENVLIGHT_SH_RECORD_)
+            for (int k = 0; k < 3; k++) sh[i].rgb[k] = envlight_f32_(r + 4 * k);
+        m->sh = sh;
+        return ENVLIGHT_OK;
+    }
     /* ENVLIGHT_WAVELET: the 8-byte prefix, then 16-byte records */
-    rc = envlight_records_(m, r, rest, ENVLIGHT_WAVELET_PREFIX_, ENVLIGHT_WAVELET_RECORD_, 3,
+    rc = envlight_records_(m, r, rest, ENVLIGHT_WAVELET_PREFIX_, ENVLIGHT_WAVELET_RECORD_, 4, 3,
                            sizeof(envlight_coefficient), "coefficient", err, err_len);
     if (rc != ENVLIGHT_OK) return rc;
     m->basis = r[0];
@@ -571,10 +619,9 @@ int envlight_decode(const uint8_t *b, size_t n, envlight_message *m, char *err, 
             return ENVLIGHT_E_MALFORMED;
         }
         m->representation = body[16];
-        if (m->representation > ENVLIGHT_WAVELET) {
-            envlight_say_(err, err_len,
-                          "unknown representation code %d (0 = lights, 1 = asg, 2 = wavelet)",
-                          m->representation);
+        if (m->representation > ENVLIGHT_SH) {
+            envlight_say_(err, err_len, "unknown representation code %d (0 = lights, 1 = asg, "
+                          "2 = wavelet, 3 = sh)", m->representation);
             return ENVLIGHT_E_BAD_REQUEST;
         }
         m->stale = body[17] & 1;
@@ -614,7 +661,7 @@ int envlight_decode(const uint8_t *b, size_t n, envlight_message *m, char *err, 
         m->max_lights = envlight_u32_(body);
         m->representation = body[4];
         m->format = body[5];
-        if (m->representation > ENVLIGHT_WAVELET) {
+        if (m->representation > ENVLIGHT_SH) {
             envlight_say_(err, err_len, "unknown representation code %d", m->representation);
             return ENVLIGHT_E_BAD_REQUEST;
         }
@@ -672,9 +719,9 @@ envlight_client *envlight_connect(const char *address, uint32_t max_lights, int 
     }
     c->fd = -1;
     c->state = 1;
-    if (representation < ENVLIGHT_LIGHTS || representation > ENVLIGHT_WAVELET) {
+    if (representation < ENVLIGHT_LIGHTS || representation > ENVLIGHT_SH) {
         snprintf(c->error, sizeof c->error, "representation %d: expected ENVLIGHT_LIGHTS (0), "
-                 "ENVLIGHT_ASG (1) or ENVLIGHT_WAVELET (2)", representation);
+                 "ENVLIGHT_ASG (1), ENVLIGHT_WAVELET (2) or ENVLIGHT_SH (3)", representation);
         return envlight_fail_connect_(c, err, err_len);
     }
     if (strncmp(address, "ws://", 5) == 0 || strncmp(address, "wss://", 6) == 0) {

@@ -9,6 +9,7 @@
  *     ./subscribe 127.0.0.1:7878 --max-lights 16 --frames 10 --json
  *     ./subscribe 127.0.0.1:7878 --representation asg       # needs [asg] enabled
  *     ./subscribe 127.0.0.1:7878 --representation wavelet   # needs [wavelet] enabled
+ *     ./subscribe 127.0.0.1:7878 --representation sh        # needs [sh] enabled
  *     ./subscribe 127.0.0.1:7878 --poll 16   # a 60 Hz render loop that never waits
  *
  * Exit status: 0 after --frames frames or the daemon's goodbye, 1 on an error (the daemon's
@@ -18,6 +19,7 @@
 #define ENVLIGHT_CLIENT_IMPLEMENTATION
 #include "envlight_client.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -25,11 +27,13 @@
 
 static const char usage[] =
     "usage: subscribe ADDRESS [--max-lights N] [--frames N] "
-    "[--representation lights|asg|wavelet] [--json] [--poll MS]\n"
+    "[--representation lights|asg|wavelet|sh] [--json] [--poll MS]\n"
     "  ADDRESS: unix:PATH, a socket path, HOST:PORT or tcp:HOST:PORT\n"
-    "  --max-lights N   at most N records per frame, the brightest (0 = all; default 0)\n"
+    "  --max-lights N   at most N records per frame, the brightest (0 = all; default 0); SH:\n"
+    "                   the bands that fit in N coefficients (4 = degrees 0 and 1)\n"
     "  --frames N       stop after N frames (0 = until the daemon's goodbye; default 0)\n"
-    "  --representation lights (default), asg (needs [asg] enabled) or wavelet ([wavelet])\n"
+    "  --representation lights (default), asg (needs [asg] enabled), wavelet ([wavelet])\n"
+    "                   or sh ([sh])\n"
     "  --json           print each frame as JSON (docs/protocol.md) instead of a summary\n"
     "  --poll MS        a render loop: every MS milliseconds take the newest frame, if a new\n"
     "                   one came, without waiting (envlight_poll); older ones are skipped\n";
@@ -54,8 +58,63 @@ static const char *basis_name(int code, char *buf, size_t len) {
     return buf;
 }
 
+/* The irradiance (W/m^2 per channel) of a surface of unit normal (x, y, z) under an SH set:
+ * E(n) = sum_l A_l sum_m L_lm Y_lm(n) (Ramamoorthi & Hanrahan 2001), with A_l the clamped
+ * cosine's band factors (pi, 2 pi / 3, pi / 4, 0, -pi / 24, ...; 0 for odd l > 1) and Y_lm
+ * the basis of docs/protocol.md: Re, Im of (x + iy)^m times K_l^m P_l^m(z) / sin^m, the last
+ * factor by the three-term recurrence in l, as envlight's ShCoefficients::irradiance. */
+static void sh_irradiance(const envlight_message *m, double x, double y, double z,
+                          double out[3]) {
+    const double pi = 3.14159265358979323846;
+    double factor[ENVLIGHT_MAX_SH_DEGREE + 1];
+    for (int l = 0; l <= m->degree; l++) {
+        if (l == 0) factor[l] = pi;
+        else if (l == 1) factor[l] = 2.0 * pi / 3.0;
+        else if (l % 2 == 1) factor[l] = 0.0;
+        else {
+            /* 2 pi (-1)^(l/2 - 1) / ((l + 2)(l - 1)) * l! / (2^l ((l/2)!)^2) */
+            int half = l / 2;
+            double central = 1.0;
+            for (int k = 1; k <= half; k++) central *= (double)(half + k) / k / 4.0;
+            factor[l] = 2.0 * pi * (half % 2 == 1 ? 1.0 : -1.0) * central /
+                        ((double)(l + 2) * (l - 1));
+        }
+    }
+    out[0] = out[1] = out[2] = 0.0;
+    double re = 1.0, im = 0.0, q_diagonal = 1.0;
+    for (int mm = 0; mm <= m->degree; mm++) {
+        if (mm > 0) {
+            double next_re = re * x - im * y;
+            im = re * y + im * x;
+            re = next_re;
+            q_diagonal *= 2 * mm - 1;
+        }
+        double q_before = 0.0, q = q_diagonal;
+        for (int l = mm; l <= m->degree; l++) {
+            if (l > mm) {
+                double next = ((2 * l - 1) * z * q - (l + mm - 1) * q_before) / (l - mm);
+                q_before = q;
+                q = next;
+            }
+            /* K_l^m = sqrt((2l + 1) / (4 pi) (l - m)! / (l + m)!), times sqrt 2 for m > 0 */
+            double ratio = 1.0;
+            for (int k = l - mm + 1; k <= l + mm; k++) ratio *= 1.0 / k;
+            double norm = sqrt((2 * l + 1) / (4.0 * pi) * ratio) * (mm > 0 ? sqrt(2.0) : 1.0);
+            double nq = norm * q;
+            for (int k = 0; k < 3; k++) {
+                if (mm == 0) {
+                    out[k] += factor[l] * m->sh[l * l + l].rgb[k] * nq;
+                } else {
+                    out[k] += factor[l] * m->sh[l * l + l + mm].rgb[k] * nq * re;
+                    out[k] += factor[l] * m->sh[l * l + l - mm].rgb[k] * nq * im;
+                }
+            }
+        }
+    }
+}
+
 static void print_json(const envlight_message *m) {
-    static const char *const names[3] = {"lights", "asg", "wavelet"};
+    static const char *const names[4] = {"lights", "asg", "wavelet", "sh"};
     printf("{\"seq\":%llu,\"time\":%.17g,\"representation\":\"%s\",\"stale\":%s,",
            (unsigned long long)m->seq, m->time, names[m->representation],
            m->stale ? "true" : "false");
@@ -81,6 +140,12 @@ static void print_json(const envlight_message *m) {
             print_vec(g->rgb);
             printf(",\"integral\":%.9g}", (double)g->integral);
         }
+    } else if (m->representation == ENVLIGHT_SH) {
+        printf("\"degree\":%d,\"sh\":[", m->degree);
+        for (uint32_t i = 0; i < m->count; i++) {
+            printf("%s", i ? "," : "");
+            print_vec(m->sh[i].rgb);
+        }
     } else {
         char buf[16];
         printf("\"basis\":\"%s\",\"side\":%lu,\"levels\":%d,\"coefficients\":[",
@@ -96,6 +161,19 @@ static void print_json(const envlight_message *m) {
 
 static void print_summary(const envlight_message *m) {
     double total[3] = {0, 0, 0};
+    if (m->representation == ENVLIGHT_SH) {
+        /* As `envlight subscribe`: the integral of L over the sphere, sqrt(4 pi) L_00, and the
+         * irradiance of a surface facing up (+Y). */
+        double up[3];
+        sh_irradiance(m, 0.0, 1.0, 0.0, up);
+        for (int k = 0; k < 3; k++)
+            total[k] = m->sh[0].rgb[k] * sqrt(4.0 * 3.14159265358979323846);
+        printf("seq %llu time %.3f s: SH degree %d (%lu coefficients), total rgb [%.4f, %.4f, "
+               "%.4f], irradiance up [%.4f, %.4f, %.4f]%s\n", (unsigned long long)m->seq,
+               m->time, m->degree, (unsigned long)m->count, total[0], total[1], total[2], up[0],
+               up[1], up[2], m->stale ? " (stale)" : "");
+        return;
+    }
     const char *what = "lights";
     char buf[16];
     char wavelet_what[96];
@@ -153,9 +231,10 @@ int main(int argc, char **argv) {
             if (value && strcmp(value, "lights") == 0) representation = ENVLIGHT_LIGHTS;
             else if (value && strcmp(value, "asg") == 0) representation = ENVLIGHT_ASG;
             else if (value && strcmp(value, "wavelet") == 0) representation = ENVLIGHT_WAVELET;
+            else if (value && strcmp(value, "sh") == 0) representation = ENVLIGHT_SH;
             else {
-                fprintf(stderr, "subscribe: --representation is lights, asg or wavelet, got %s\n",
-                        value ? value : "nothing");
+                fprintf(stderr, "subscribe: --representation is lights, asg, wavelet or sh, "
+                        "got %s\n", value ? value : "nothing");
                 return 2;
             }
             i++;

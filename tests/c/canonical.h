@@ -1,7 +1,9 @@
 /* canonical.h: one line per decoded message, with every float as its bit pattern in hex, for
  * tests/c_client.rs to compare with envlight's own decoding (its `canonical`):
  *   frame SEQ TIMEBITS REPRESENTATION STALE COUNT, then per record " ID:BITS:BITS..." (lights,
- *   lobes) or " BASIS LEVELS MAP SIDE" and per coefficient " INDEX:BITS:BITS:BITS" (wavelet);
+ *   lobes) or " BASIS LEVELS MAP SIDE" and per coefficient " INDEX:BITS:BITS:BITS" (wavelet)
+ *   or per coefficient ":BITS:BITS:BITS", with no space, right after COUNT (SH; the degree is
+ *   that of COUNT = (degree + 1)^2);
  *   error CODE TEXTHEX; goodbye TEXTHEX; subscribe MAX REPRESENTATION FORMAT.
  * Include after envlight_client.h. */
 #include <stdio.h>
@@ -48,6 +50,8 @@ static void print_canonical(const envlight_message *m) {
                 canonical_floats(&g->mu, 1);
                 canonical_floats(g->rgb, 3);
                 canonical_floats(&g->integral, 1);
+            } else if (m->representation == ENVLIGHT_SH) {
+                canonical_floats(m->sh[i].rgb, 3);
             } else {
                 printf(" %lu", (unsigned long)m->coefficients[i].index);
                 canonical_floats(m->coefficients[i].rgb, 3);
