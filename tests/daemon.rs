@@ -2288,8 +2288,12 @@ header = struct.pack("<QdBBHI", 5, 0.5, 0, 0, 0, 2)
 light = struct.pack("<I3f3ff", 0, 0, 1, 0, 1, 2, 3, 0.1)
 assert client.parse_frame(header + light * 2)["lights"][1]["rgb"] == (1, 2, 3)
 nan = light[:-4] + struct.pack("<f", float("nan"))
-for bad in (header + light * 2 + b"x", header + light, struct.pack("<QdBBHI", 5, 0.5, 3, 0, 0, 0),
-            header + light + nan):
+sh_header = struct.pack("<QdBBHI", 5, 0.5, 3, 0, 0, 4)
+sh = struct.pack("<12f", *range(12))
+assert client.parse_frame(sh_header + struct.pack("<BBH", 1, 0, 0) + sh)["sh"][3] == (9, 10, 11)
+for bad in (header + light * 2 + b"x", header + light, struct.pack("<QdBBHI", 5, 0.5, 4, 0, 0, 0),
+            header + light + nan, sh_header + struct.pack("<BBH", 1, 1, 0) + sh,
+            sh_header + struct.pack("<BBH", 2, 0, 0) + sh, sh_header + struct.pack("<BBH", 16, 0, 0) + sh):
     try:
         client.parse_frame(bad)
     except ValueError as e:
@@ -2306,9 +2310,9 @@ for bad in (header + light * 2 + b"x", header + light, struct.pack("<QdBBHI", 5,
         String::from_utf8_lossy(&out.stderr),
     );
     assert!(out.status.success(), "{text}{err}");
-    assert_eq!(text.matches("error 1").count(), 3, "{text}");
+    assert_eq!(text.matches("error 1").count(), 6, "{text}");
     assert_eq!(
-        text.matches("unknown representation 3").count(),
+        text.matches("unknown representation 4").count(),
         1,
         "{text}"
     );

@@ -190,3 +190,31 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
     assert!(stats.sets >= 2 && stats.errors == 0, "{stats:?}");
     assert_eq!(stats.plans, 2, "a new plan for the new degree");
 }
+
+#[test]
+fn the_python_example_client_reads_sh_sets() {
+    common::require_python3();
+    let dir = tempfile::tempdir().unwrap();
+    let extra = format!("{LIVE_SKY}[sh]\nenabled = true\ndegree = 3\n");
+    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
+    let tcp = daemon.addresses().stream.tcp.unwrap();
+    // A cap of 5 keeps the bands that fit whole: degrees 0 and 1.
+    let lines = common::python_client(&[
+        &tcp.to_string(),
+        "--representation",
+        "sh",
+        "--frames",
+        "2",
+        "--max-lights",
+        "5",
+    ]);
+    assert_eq!(lines.len(), 2, "{lines:?}");
+    assert!(
+        lines.iter().all(|l| {
+            l.contains(": SH degree 1 (4 coefficients), total rgb [")
+                && l.contains("], irradiance up [")
+        }),
+        "{lines:?}"
+    );
+    daemon.shutdown().unwrap();
+}
