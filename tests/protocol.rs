@@ -1282,3 +1282,186 @@ proptest! {
         prop_assert_eq!(json, decoded);
     }
 }
+
+// -------------------------------------------------------------------------------------------
+// Spherical-harmonic sets (representation 3)
+
+use envlight::stream::protocol::{
+    encode_sh_frame, sh_frame_to_json, ShFrame, ShFrameMessage, MAX_SH_DEGREE, SH_PREFIX_LEN,
+    SH_RECORD_LEN,
+};
+
+fn as_sh(message: Message) -> ShFrameMessage {
+    match message {
+        Message::Sh(m) => m,
+        other => panic!("expected an SH frame, got {other:?}"),
+    }
+}
+
+/// The SH frame of docs/protocol.md's JSON example: seq 17, time 0.5, live, degree 1.
+fn golden_sh() -> ShFrame {
+    ShFrame {
+        seq: 17,
+        time: 0.5,
+        coefficients: vec![
+            [1.0, 0.9, 0.8],
+            [0.1, 0.1, 0.1],
+            [0.0, 0.0, 0.0],
+            [-0.05, 0.0, 0.02],
+        ],
+    }
+}
+
+#[test]
+fn golden_sh_frame_bytes_and_json() {
+    let mut bytes = Vec::new();
+    encode_sh_frame(&golden_sh(), None, false, &mut bytes);
+    let head = hex(
+        "54000000 454e564c 0100 0100 1100000000000000 000000000000e03f 03 00 0000 04000000 \
+         01 00 0000",
+    );
+    assert_eq!(bytes[..head.len()], head[..]);
+    assert_eq!(
+        bytes.len(),
+        HEADER_LEN + FRAME_FIXED_LEN + SH_PREFIX_LEN + 4 * SH_RECORD_LEN
+    );
+    // The records are the coefficients' f32 in order, little-endian.
+    let floats: Vec<f32> = bytes[head.len()..]
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+        .collect();
+    assert_eq!(floats, golden_sh().coefficients.concat());
+    let json = sh_frame_to_json(&golden_sh(), None, false);
+    assert_eq!(
+        json,
+        r#"{"seq":17,"time":0.5,"representation":"sh","stale":false,"degree":1,"sh":[[1.0,0.9,0.8],[0.1,0.1,0.1],[0.0,0.0,0.0],[-0.05,0.0,0.02]]}"#
+    );
+    let decoded = as_sh(decode_message(&bytes).unwrap());
+    assert_eq!(decoded, as_sh(parse_json_message(&json).unwrap()));
+    assert_eq!(decoded.into_sh_frame(), golden_sh());
+    assert_eq!(golden_sh().degree(), Some(1));
+    // ∫L dω = √(4π) · L_00.
+    let red = golden_sh().to_coefficients().unwrap().integral()[0];
+    assert!(
+        (red - (4.0 * std::f64::consts::PI).sqrt()).abs() < 1e-12,
+        "{red}"
+    );
+    let extended = json.replacen('{', r#"{"future":[1,2],"#, 1);
+    assert_eq!(
+        parse_json_message(&extended).map(as_sh),
+        parse_json_message(&json).map(as_sh)
+    );
+}
+
+#[test]
+fn sh_subscribe_round_trips_and_code_4_is_unknown() {
+    let request = Request {
+        max_lights: 9,
+        representation: Representation::Sh,
+        format: Format::Binary,
+    };
+    let mut bytes = Vec::new();
+    encode_request(&request, &mut bytes);
+    assert_eq!(bytes[16], 3);
+    assert_eq!(decode_message(&bytes), Ok(Message::Subscribe(request)));
+    assert_eq!(
+        parse_json_request(
+            r#"{"subscribe":{"representation":"sh","max_lights":9,"format":"binary"}}"#
+        ),
+        Ok(request)
+    );
+    bytes[16] = 4;
+    assert_eq!(
+        decode_message(&bytes).unwrap_err().code(),
+        code::BAD_REQUEST
+    );
+}
+
+#[test]
+fn bad_sh_frames_are_errors_not_panics() {
+    let mut good = Vec::new();
+    encode_sh_frame(&golden_sh(), None, false, &mut good);
+    let malformed = |b: &[u8], what: &str| {
+        assert_eq!(
+            decode_message(b).map(as_sh).unwrap_err().code(),
+            code::MALFORMED,
+            "{what}"
+        )
+    };
+    let mut b = good.clone();
+    b[37] = 1;
+    malformed(&b, "basis 1");
+    let mut b = good.clone();
+    b[36] = 2;
+    malformed(&b, "degree 2 with 4 coefficients");
+    let mut b = good.clone();
+    b[36] = MAX_SH_DEGREE as u8 + 1;
+    malformed(&b, "degree 16");
+    let mut b = good.clone();
+    b[40..44].copy_from_slice(&f32::NAN.to_le_bytes());
+    malformed(&b, "NaN");
+    let mut b = good.clone();
+    b[32..36].copy_from_slice(&u32::MAX.to_le_bytes());
+    malformed(&b, "a count beyond the message");
+    // Every single-byte corruption decodes or fails cleanly; what decodes is a valid set.
+    for at in 28..good.len() {
+        for value in [0u8, 1, 3, 0x7f, 0x80, 0xff] {
+            let mut b = good.clone();
+            b[at] = value;
+            if let Ok(Message::Sh(m)) = decode_message(&b) {
+                protocol::validate_sh_set(&m.coefficients).unwrap();
+            }
+        }
+    }
+    // JSON: a degree that disagrees with the coefficients, a count that is no square.
+    for text in [
+        r#"{"seq":1,"time":0,"representation":"sh","degree":2,"sh":[[1,1,1],[0,0,0],[0,0,0],[0,0,0]]}"#,
+        r#"{"seq":1,"time":0,"representation":"sh","degree":1,"sh":[[1,1,1],[0,0,0]]}"#,
+        r#"{"seq":1,"time":0,"representation":"lights","degree":0,"sh":[[1,1,1]]}"#,
+        r#"{"seq":1,"time":0,"representation":"sh","degree":0,"sh":[[1e39,1,1]]}"#,
+    ] {
+        assert!(parse_json_message(text).is_err(), "{text}");
+    }
+}
+
+fn arb_sh_frame() -> impl Strategy<Value = ShFrame> {
+    (0usize..=MAX_SH_DEGREE, any::<u64>(), -1e9f64..1e9).prop_flat_map(|(degree, seq, time)| {
+        let value = -1e6f32..1e6;
+        proptest::collection::vec(
+            [value.clone(), value.clone(), value],
+            (degree + 1) * (degree + 1),
+        )
+        .prop_map(move |coefficients| ShFrame {
+            seq,
+            time,
+            coefficients,
+        })
+    })
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_sh_sets_round_trip_and_caps_keep_whole_bands(
+        frame in arb_sh_frame(),
+        stale in any::<bool>(),
+        cap in proptest::option::of(1usize..300),
+        chunk in 1usize..100,
+    ) {
+        let mut bytes = Vec::new();
+        encode_sh_frame(&frame, cap, stale, &mut bytes);
+        let messages = decode_chunked(&bytes, || chunk);
+        prop_assert_eq!(messages.len(), 1);
+        let decoded = as_sh(messages[0].clone());
+        prop_assert_eq!(decoded.stale, stale);
+        // The largest whole set of bands within the cap: a prefix of the coefficients.
+        let all = frame.coefficients.len();
+        let mut bands = 1;
+        while (bands + 1) * (bands + 1) <= cap.unwrap_or(usize::MAX).min(all) {
+            bands += 1;
+        }
+        let kept = if cap.is_none() { all } else { bands * bands };
+        prop_assert_eq!(&decoded.coefficients[..], &frame.coefficients[..kept]);
+        let json = as_sh(parse_json_message(&sh_frame_to_json(&frame, cap, stale)).unwrap());
+        prop_assert_eq!(json, decoded);
+    }
+}
