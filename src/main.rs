@@ -5,7 +5,7 @@
 
 use clap::{Parser, Subcommand};
 use cli::{
-    camera, daemon, decompose, fit_asg, print_to_stderr, render, subscribe, wavelet, UsageError,
+    camera, daemon, decompose, fit_asg, print_to_stderr, render, sh, subscribe, wavelet, UsageError,
 };
 use std::io::IsTerminal;
 use std::process::ExitCode;
@@ -53,7 +53,7 @@ enum Command {
     CheckConfig(daemon::CheckConfigArgs),
     /// Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
     FitAsg(fit_asg::FitAsgArgs),
-    /// Connect to a running daemon and print its light stream (or ASG or wavelet sets).
+    /// Connect to a running daemon and print its light stream (or ASG, wavelet or SH sets).
     #[command(long_about = subscribe::LONG_ABOUT)]
     Subscribe(subscribe::SubscribeArgs),
     /// List V4L2 cameras (all, or the ones named) with their formats, frame sizes, rates and
@@ -70,6 +70,9 @@ enum Command {
     /// Wavelet lighting: sparse wavelet sets of HDR frames (`approx`), relighting a mesh
     /// (`relight`) and recovering lighting from observations (`recover`).
     Wavelet(wavelet::WaveletArgs),
+    /// Spherical-harmonic coefficients of HDR frames (files or the built-in sky), JSON Lines.
+    #[command(long_about = sh::LONG_ABOUT)]
+    Sh(sh::ShArgs),
 }
 
 /// The command line, parsed so that a value starting with '-' reaches its option's parser and
@@ -132,6 +135,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render::run(&args),
         Command::FitAsg(args) => fit_asg::run(&args),
         Command::Wavelet(args) => wavelet::run(&args),
+        Command::Sh(args) => sh::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

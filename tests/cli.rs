@@ -461,6 +461,7 @@ fn non_utf8_input_is_named_and_read_through_its_directory() {
         &["fit-asg"],
         &["render"],
         &["wavelet", "approx"],
+        &["sh"],
     ] {
         let o = Command::new(env!("CARGO_BIN_EXE_envlight"))
             .args(command)
@@ -1106,6 +1107,7 @@ fn outputs_that_are_inputs_are_refused() {
         (vec!["decompose", input, "--latest", link], "--latest"),
         (vec!["fit-asg", input, "--out", link], "--out"),
         (vec!["wavelet", "approx", input, "--out", input], "--out"),
+        (vec!["sh", input, "--out", link], "--out"),
         (
             vec![
                 "wavelet",
@@ -1783,4 +1785,63 @@ fn wavelet_commands_read_fisheye_frames() {
         assert_eq!(o.status.code(), Some(code), "{args:?}: {}", stderr(&o));
         assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
     }
+}
+
+/// `envlight sh` prints the wire's JSON SH frame per frame (what a daemon's `sh` client gets),
+/// plus the frame's ∫L dω; a fisheye input works; a bad degree is a usage error and a missing
+/// file is named.
+#[test]
+fn sh_prints_wire_frames_of_spherical_harmonics() {
+    use envlight::stream::protocol::parse_json_message;
+    use envlight::stream::Message;
+    let o = envlight(&["sh", "--frames", "2", "--degree", "3"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let lines: Vec<String> = stdout(&o).lines().map(str::to_owned).collect();
+    assert_eq!(lines.len(), 2);
+    for (seq, line) in lines.iter().enumerate() {
+        let Ok(Message::Sh(frame)) = parse_json_message(line) else {
+            panic!("not an SH frame: {line}");
+        };
+        assert_eq!((frame.seq, frame.stale), (seq as u64, false));
+        let set = frame.into_sh_frame().to_coefficients().unwrap();
+        assert_eq!(set.degree(), 3);
+        let value: Value = serde_json::from_str(line).unwrap();
+        let integral: Vec<f64> = value["integral"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        for (received, printed) in set.integral().into_iter().zip(integral) {
+            assert!(printed > 0.0, "{line}");
+            assert!((received - printed).abs() <= 1e-6 * printed, "{line}");
+        }
+    }
+    // A file through a fisheye lens; the flags are decompose's.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sh.jsonl");
+    let o = envlight(&[
+        "sh",
+        &data("rooitou_park_1k.hdr"),
+        "--projection",
+        "fisheye",
+        "--radius",
+        "200",
+        "--degree",
+        "1",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(matches!(
+        parse_json_message(text.trim()),
+        Ok(Message::Sh(frame)) if frame.coefficients.len() == 4
+    ));
+    let o = envlight(&["sh", "--degree", "16"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("0..=15"), "{}", stderr(&o));
+    let o = envlight(&["sh", "/nonexistent/sky.hdr"]);
+    assert_fails_naming(&o, &["/nonexistent/sky.hdr"]);
+    assert_eq!(o.status.code(), Some(1));
 }

@@ -22,6 +22,7 @@ pub(crate) mod fisheye_flags;
 pub(crate) mod fit_asg;
 pub(crate) mod output;
 pub(crate) mod render;
+pub(crate) mod sh;
 pub(crate) mod subscribe;
 pub(crate) mod wavelet;
 pub(crate) mod wavelet_transport;

@@ -1,0 +1,97 @@
+//! `envlight sh`: spherical-harmonic coefficients of HDR frames (files or the built-in sky), as
+//! JSON Lines in the wire's JSON form. Only argument handling, I/O and printing; the work is in
+//! `envlight::sh`.
+
+use anyhow::{Context, Result};
+use clap::Args;
+use envlight::sh::{Projector, MAX_DEGREE};
+use envlight::stream::protocol::{sh_frame_to_json, ShFrame};
+use std::io::Write;
+use std::path::PathBuf;
+
+pub(crate) const LONG_ABOUT: &str = "\
+Project HDR frames onto the real spherical harmonics up to --degree: (degree + 1)² rgb
+coefficients of radiance per frame, the ambient light of engines' light probes (at degree 2
+three.js's SphericalHarmonics3, +Y up). Prints one JSON line per frame, the JSON form of the
+daemon's representation `sh` (docs/protocol.md) with the frame's ∫L dω added:
+
+  {\"seq\":0,\"time\":0.0,\"representation\":\"sh\",\"stale\":false,\"degree\":2,
+   \"sh\":[[r,g,b],…],\"integral\":[r,g,b]}
+
+Coefficient l² + l + m belongs to Y_l^m (docs/sh.md gives the basis); the irradiance of a
+surface of normal n is Σ_l Â_l Σ_m L_lm Y_lm(n) with Â = π, 2π/3, π/4, 0, −π/24, …
+Without INPUT the built-in sky is used (1 frame unless --frames says otherwise).";
+
+#[derive(Args, Debug)]
+pub(crate) struct ShArgs {
+    #[command(flatten)]
+    input: crate::cli::wavelet::FrameInput,
+    /// Highest band, 0..=15: (degree + 1)² coefficients per channel.
+    #[arg(long, value_name = "L", default_value_t = envlight::sh_stage::DEFAULT_DEGREE,
+          value_parser = parse_degree)]
+    degree: usize,
+    /// Output file (JSON Lines). [default: stdout]
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+}
+
+fn parse_degree(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(degree) if degree <= MAX_DEGREE => Ok(degree),
+        _ => Err(format!("{text:?}: must be an integer in 0..={MAX_DEGREE}")),
+    }
+}
+
+pub(crate) fn run(args: &ShArgs) -> Result<()> {
+    let mut source = args.input.open()?;
+    let mut inputs = crate::cli::output::InputFiles::new(source.files());
+    let mut writer = std::io::BufWriter::new(crate::cli::output::open_output(
+        args.out.as_deref(),
+        "--out",
+        &inputs,
+    )?);
+    if let Some(path) = &args.out {
+        inputs.protect_output(path, "--out");
+    }
+    let out_name = args
+        .out
+        .as_ref()
+        .map_or("stdout".to_string(), |p| p.display().to_string());
+    let mut plan: Option<Projector> = None;
+    while let Some(frame) = source.next_frame().context("cannot read a frame")? {
+        // One plan per projection and frame size.
+        let projector = match plan.take() {
+            Some(p) if p.fits(&frame) => p,
+            _ => Projector::new(args.degree, frame.width, frame.height, frame.projection),
+        };
+        let set = projector
+            .project(&frame)
+            .with_context(|| format!("frame {}: no projection plan for its shape", frame.seq))?;
+        plan = Some(projector);
+        let sh = ShFrame::new(frame.seq, frame.time, &set);
+        // The wire's JSON frame (an object) with the frame's ∫L dω appended.
+        let frame_json = sh_frame_to_json(&sh, None, false);
+        let integral = serde_json::to_string(&set.integral()).context("cannot encode a frame")?;
+        let line = format!(
+            "{},\"integral\":{integral}}}",
+            frame_json.strip_suffix('}').unwrap_or(&frame_json)
+        );
+        match writeln!(writer, "{line}") {
+            Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => return Ok(()),
+            r => r.with_context(|| format!("cannot write to {out_name}"))?,
+        }
+        let up = set.irradiance(glam::DVec3::Y);
+        tracing::info!(
+            "frame {}: degree {}, irradiance up [{:.4}, {:.4}, {:.4}]",
+            frame.seq,
+            set.degree(),
+            up[0],
+            up[1],
+            up[2]
+        );
+    }
+    match writer.flush() {
+        Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => Ok(()),
+        r => r.with_context(|| format!("cannot write to {out_name}")),
+    }
+}
