@@ -102,6 +102,50 @@ pub fn open_output(
     })
 }
 
+/// The JSON Lines output of a one-shot command (`wavelet approx`, `sh`): the file given with
+/// an option, or stdout. A write error names the output; stdout closed by its reader (`| head`)
+/// ends the command quietly ([`JsonLines::line`] returns `false`).
+pub struct JsonLines {
+    writer: std::io::BufWriter<Box<dyn Write>>,
+    /// The file's path, or "stdout".
+    name: String,
+    to_stdout: bool,
+}
+
+impl JsonLines {
+    /// Opens `out` (given with `option`, checked against `inputs`, and then protected among
+    /// them so that no later output of the command replaces it), or stdout.
+    pub fn open(out: Option<&Path>, option: &str, inputs: &mut InputFiles) -> Result<Self> {
+        let writer = std::io::BufWriter::new(open_output(out, option, inputs)?);
+        if let Some(path) = out {
+            inputs.protect_output(path, option);
+        }
+        Ok(Self {
+            writer,
+            name: out.map_or("stdout".to_owned(), |p| p.display().to_string()),
+            to_stdout: out.is_none(),
+        })
+    }
+
+    /// Writes one line; `false` when stdout's reader has gone away (stop, successfully).
+    pub fn line(&mut self, text: &str) -> Result<bool> {
+        match writeln!(self.writer, "{text}") {
+            Err(e) if self.to_stdout && is_broken_pipe(&e) => Ok(false),
+            r => r
+                .map(|()| true)
+                .with_context(|| format!("cannot write to {}", self.name)),
+        }
+    }
+
+    /// Flushes what is buffered.
+    pub fn finish(mut self) -> Result<()> {
+        match self.writer.flush() {
+            Err(e) if self.to_stdout && is_broken_pipe(&e) => Ok(()),
+            r => r.with_context(|| format!("cannot write to {}", self.name)),
+        }
+    }
+}
+
 /// Writes `text` to stdout and flushes it. A closed stdout (`| head`) is not an error: the
 /// reader has what it wanted.
 pub fn print(text: &str) -> Result<()> {

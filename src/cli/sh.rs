@@ -2,11 +2,11 @@
 //! JSON Lines in the wire's JSON form. Only argument handling, I/O and printing; the work is in
 //! `envlight::sh`.
 
+use crate::cli::output::JsonLines;
 use anyhow::{Context, Result};
 use clap::Args;
 use envlight::sh::{Projector, MAX_DEGREE};
 use envlight::stream::protocol::{sh_frame_to_json, ShFrame};
-use std::io::Write;
 use std::path::PathBuf;
 
 pub(crate) const LONG_ABOUT: &str = "\
@@ -45,18 +45,7 @@ fn parse_degree(text: &str) -> Result<usize, String> {
 pub(crate) fn run(args: &ShArgs) -> Result<()> {
     let mut source = args.input.open()?;
     let mut inputs = crate::cli::output::InputFiles::new(source.files());
-    let mut writer = std::io::BufWriter::new(crate::cli::output::open_output(
-        args.out.as_deref(),
-        "--out",
-        &inputs,
-    )?);
-    if let Some(path) = &args.out {
-        inputs.protect_output(path, "--out");
-    }
-    let out_name = args
-        .out
-        .as_ref()
-        .map_or("stdout".to_string(), |p| p.display().to_string());
+    let mut output = JsonLines::open(args.out.as_deref(), "--out", &mut inputs)?;
     let mut plan: Option<Projector> = None;
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
         // One plan per projection and frame size.
@@ -76,9 +65,8 @@ pub(crate) fn run(args: &ShArgs) -> Result<()> {
             "{},\"integral\":{integral}}}",
             frame_json.strip_suffix('}').unwrap_or(&frame_json)
         );
-        match writeln!(writer, "{line}") {
-            Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => return Ok(()),
-            r => r.with_context(|| format!("cannot write to {out_name}"))?,
+        if !output.line(&line)? {
+            return Ok(());
         }
         let up = set.irradiance(glam::DVec3::Y);
         tracing::info!(
@@ -90,8 +78,5 @@ pub(crate) fn run(args: &ShArgs) -> Result<()> {
             up[2]
         );
     }
-    match writer.flush() {
-        Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => Ok(()),
-        r => r.with_context(|| format!("cannot write to {out_name}")),
-    }
+    output.finish()
 }

@@ -11,7 +11,6 @@ use envlight::wavelet::approx::Coefficients;
 use envlight::wavelet::sphere::Resampler;
 use envlight::wavelet::transform::{max_levels, Workspace};
 use envlight::wavelet::{Basis, WaveletSet};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 const APPROX_LONG_ABOUT: &str = "\
@@ -266,18 +265,8 @@ fn approx(args: &ApproxArgs) -> Result<()> {
     }
     let mut source = args.input.open()?;
     let mut inputs = crate::cli::output::InputFiles::new(source.files());
-    let mut writer = std::io::BufWriter::new(crate::cli::output::open_output(
-        args.out.as_deref(),
-        "--out",
-        &inputs,
-    )?);
-    if let Some(path) = &args.out {
-        inputs.protect_output(path, "--out");
-    }
-    let out_name = args
-        .out
-        .as_ref()
-        .map_or("stdout".to_string(), |p| p.display().to_string());
+    let mut output =
+        crate::cli::output::JsonLines::open(args.out.as_deref(), "--out", &mut inputs)?;
     let mut ws = Workspace::new();
     let mut resampler: Option<Resampler> = None;
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
@@ -317,9 +306,8 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             integral: map.integral(),
         };
         let line = serde_json::to_string(&line).context("cannot encode a frame")?;
-        match writeln!(writer, "{line}") {
-            Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => return Ok(()),
-            r => r.with_context(|| format!("cannot write to {out_name}"))?,
+        if !output.line(&line)? {
+            return Ok(());
         }
         tracing::info!(
             "frame {}: {} of {} coefficients ({}), relative L2 error {:.4}",
@@ -330,10 +318,7 @@ fn approx(args: &ApproxArgs) -> Result<()> {
             relative_l2
         );
     }
-    match writer.flush() {
-        Err(e) if args.out.is_none() && crate::cli::output::is_broken_pipe(&e) => Ok(()),
-        r => r.with_context(|| format!("cannot write to {out_name}")),
-    }
+    output.finish()
 }
 
 /// Whether `--reconstruct pattern` names `out` for some frame: the same file, or with `{seq}`

@@ -93,9 +93,11 @@ impl SeamWindow {
     }
 }
 
-/// Σ aᵢ·bᵢ with four running sums (so the compiler can vectorise it).
+/// Σ aᵢ·bᵢ with four running sums (so the compiler can vectorise it), in a fixed order: the
+/// same sum on every machine and vector width. Also the spherical harmonics' row sums
+/// ([`crate::sh`]).
 #[inline]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut sums = [0.0f64; 4];
     let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
     let tail: f64 = a4

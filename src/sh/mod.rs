@@ -37,6 +37,7 @@
 //! Â_0 = π, Â_1 = 2π/3, Â_2 = π/4, Â_odd>1 = 0 ([`cosine_lobe_factor`]). Degree 2 is within a
 //! few per cent of the exact irradiance on real maps (docs/sh.md measures it).
 
+use crate::decompose::distribution::dot;
 use crate::envmap::Projection;
 use crate::frame::HdrFrame;
 use crate::light::Light;
@@ -433,7 +434,7 @@ impl Projector {
                     .pixels
                     .par_chunks(band_pixels)
                     .zip(rows.par_chunks(table_len * ROWS_PER_BAND))
-                    .map(|(pixels, tables)| self.latlong_band(pixels, tables, trig))
+                    .map(|(pixels, tables)| self.latlong_band_dispatch(pixels, tables, trig))
                     .collect()
             }
             Summation::PerPixel { samples } => frame
@@ -454,7 +455,37 @@ impl Projector {
         Some(set)
     }
 
+    /// [`Projector::latlong_band`] compiled for AVX2 where the CPU has it (the same sums, bit
+    /// for bit: [`dot`] keeps four running sums whatever the vector width).
+    fn latlong_band_dispatch(
+        &self,
+        pixels: &[[f32; 3]],
+        tables: &[f64],
+        trig: &[f64],
+    ) -> Vec<[f64; 3]> {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { self.latlong_band_avx2(pixels, tables, trig) };
+            }
+        }
+        self.latlong_band(pixels, tables, trig)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn latlong_band_avx2(
+        &self,
+        pixels: &[[f32; 3]],
+        tables: &[f64],
+        trig: &[f64],
+    ) -> Vec<[f64; 3]> {
+        self.latlong_band(pixels, tables, trig)
+    }
+
     /// The sums of a band of lat-long rows: per row its Fourier sums, then the coefficients.
+    #[inline(always)]
     fn latlong_band(&self, pixels: &[[f32; 3]], tables: &[f64], trig: &[f64]) -> Vec<[f64; 3]> {
         let count = self.basis.len();
         let terms = 2 * self.basis.degree() + 1;
@@ -512,26 +543,8 @@ impl Projector {
     }
 }
 
-/// Σ a_i b_i with four running sums (in a fixed order, so the same on every machine), which
-/// the compiler turns into vector instructions.
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut lanes = [0.0f64; 4];
-    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
-    let tail: f64 = a4
-        .remainder()
-        .iter()
-        .zip(b4.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in a4.zip(b4) {
-        for k in 0..4 {
-            lanes[k] += x[k] * y[k];
-        }
-    }
-    (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + tail
-}
-
 /// A pixel value as radiance: non-finite and negative values count as 0.
+#[inline(always)]
 fn clean(v: f32) -> f64 {
     if v.is_finite() && v > 0.0 {
         f64::from(v)

@@ -1250,7 +1250,7 @@ mod tests {
             r#"{"subscribe":{"max_lights":-1}}"#,
             r#"{"subscribe":{"max_lights":1.5}}"#,
             r#"{"subscribe":{"max_lights":1e999}}"#,
-            r#"{"subscribe":{"representation":"sh"}}"#,
+            r#"{"subscribe":{"representation":"spherical"}}"#,
             r#"{"subscribe":{"colour":"red"}}"#,
             r#"{"subscribe":{},"extra":1}"#,
             r#"{"unsubscribe":{}}"#,
