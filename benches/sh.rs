@@ -2,7 +2,8 @@
 //! (pixel directions and exact solid angles, built once per frame shape) and the per-frame
 //! projection of rooitou_park at 512×256, 1024×512 and 2048×1024 onto degree 2 (9
 //! coefficients per channel) and degree 4 (25), on one thread and on rayon's threads; the
-//! evaluation of irradiance from a set. Run: `cargo bench --bench sh` (`-- --quick` for a short
+//! same for a camera's 1280×960 fisheye frame (the per-pixel path); the evaluation of
+//! irradiance from a set. Run: `cargo bench --bench sh` (`-- --quick` for a short
 //! run).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
@@ -47,6 +48,30 @@ fn bench(c: &mut Criterion) {
                 |b| b.iter(|| plan.project(black_box(&frame))),
             );
         }
+    }
+    // A camera's frame: rooitou_park's upper hemisphere through the default fisheye lens at
+    // 1280×960 (the per-pixel path).
+    let fisheye = Projection::Fisheye(envlight::envmap::FisheyeCalibration::default());
+    let camera = park.reprojected(fisheye, 1280, 960).expect("fisheye frame");
+    group.bench_function("plan/fisheye_1280x960", |b| {
+        b.iter(|| Projector::new(2, 1280, 960, fisheye))
+    });
+    for degree in [2usize, 4] {
+        let plan = Projector::new(degree, 1280, 960, fisheye);
+        group.bench_function(
+            BenchmarkId::new(
+                format!("project_degree{degree}_1thread"),
+                "fisheye_1280x960",
+            ),
+            |b| b.iter(|| one_thread.install(|| plan.project(black_box(&camera)))),
+        );
+        group.bench_function(
+            BenchmarkId::new(
+                format!("project_degree{degree}_all_threads"),
+                "fisheye_1280x960",
+            ),
+            |b| b.iter(|| plan.project(black_box(&camera))),
+        );
     }
     let set = project(&park, 2);
     let normals: Vec<glam::DVec3> = envlight::yardstick::evaluation_directions();

@@ -263,6 +263,13 @@ const ROWS_PER_BAND: usize = 8;
 /// and height take the per-pixel path instead.
 const MAX_ROW_TABLE: usize = 8 << 20;
 
+/// The most basis weights a per-pixel plan may keep (f32: 96 MiB, a 1280 × 960 fisheye to
+/// degree 4); beyond, the basis is evaluated at every pixel of every frame.
+const MAX_WEIGHTS: usize = 24 << 20;
+
+/// Pixels summed together by one task of the weights path (fixed, as [`ROWS_PER_BAND`]).
+const PIXELS_PER_BAND: usize = 8192;
+
 /// Projects frames of one shape (size and projection) onto the SH basis, with what depends
 /// only on the shape computed once.
 ///
@@ -275,8 +282,11 @@ const MAX_ROW_TABLE: usize = 8 << 20;
 ///   the row, exact for such polynomials. 15 multiply-adds a pixel at degree 2 instead of a
 ///   basis evaluation;
 /// - **any projection** (fisheye, angular map, or a lat-long plan whose row tables would
-///   exceed 64 MiB): per pixel, its centre direction and solid angle, the basis evaluated and
-///   accumulated.
+///   exceed 64 MiB): per pixel that sees something, Y_lm at its centre times its solid angle,
+///   kept as f32 weights when they fit in 96 MiB (a 1280 × 960 fisheye's 0.72 million seen
+///   pixels: 26 MB at degree 2, 72 MB at degree 4) and multiplied with the pixel's radiance
+///   each frame; beyond that the basis is evaluated at each pixel's centre direction every
+///   frame.
 #[derive(Clone, Debug)]
 pub struct Projector {
     basis: Basis,
@@ -295,6 +305,12 @@ enum Summation {
         /// Per row, its pixels' solid angle times the (L + 1)² × (2L + 1) Fourier coefficients
         /// of the Y_lm along it, in the order of `trig`.
         rows: Vec<f64>,
+    },
+    Weights {
+        /// The pixels that see something (index in the frame), in row-major order.
+        pixels: Vec<u32>,
+        /// Per such pixel, Y_lm(centre) · Ω for each coefficient.
+        weights: Vec<f32>,
     },
     PerPixel {
         /// Per pixel, row-major: unit centre direction and solid angle (0 where the image sees
@@ -317,7 +333,8 @@ impl Projector {
         {
             Self::latlong_path(&basis, width, height)
         } else {
-            Self::per_pixel_path(width, height, projection)
+            let per_pixel = Self::per_pixel_path(width, height, projection);
+            Self::weights_path(&basis, per_pixel)
         };
         Self {
             basis,
@@ -395,6 +412,28 @@ impl Projector {
         Summation::PerPixel { samples }
     }
 
+    /// The per-pixel plan as f32 weights, if they fit in [`MAX_WEIGHTS`].
+    fn weights_path(basis: &Basis, per_pixel: Summation) -> Summation {
+        let Summation::PerPixel { samples } = &per_pixel else {
+            return per_pixel;
+        };
+        let seen = samples.iter().filter(|(_, omega)| *omega > 0.0).count();
+        if seen.saturating_mul(basis.len()) > MAX_WEIGHTS || samples.len() > u32::MAX as usize {
+            return per_pixel;
+        }
+        let mut pixels = Vec::with_capacity(seen);
+        let mut weights = Vec::with_capacity(seen * basis.len());
+        let mut y = vec![0.0; basis.len()];
+        for (i, &(dir, omega)) in samples.iter().enumerate() {
+            if omega > 0.0 {
+                basis.evaluate(DVec3::from(dir), &mut y);
+                pixels.push(i as u32);
+                weights.extend(y.iter().map(|&v| (v * omega) as f32));
+            }
+        }
+        Summation::Weights { pixels, weights }
+    }
+
     /// The same plan forced onto the per-pixel path (to check the separable one against it).
     #[cfg(test)]
     fn per_pixel(degree: usize, width: u32, height: u32, projection: Projection) -> Self {
@@ -437,6 +476,13 @@ impl Projector {
                     .map(|(pixels, tables)| self.latlong_band_dispatch(pixels, tables, trig))
                     .collect()
             }
+            Summation::Weights { pixels, weights } => pixels
+                .par_chunks(PIXELS_PER_BAND)
+                .zip(weights.par_chunks(PIXELS_PER_BAND * self.basis.len()))
+                .map(|(indices, weights)| {
+                    self.weights_band_dispatch(&frame.pixels, indices, weights)
+                })
+                .collect(),
             Summation::PerPixel { samples } => frame
                 .pixels
                 .par_chunks(band_pixels)
@@ -517,6 +563,64 @@ impl Projector {
             }
         }
         sums
+    }
+
+    /// [`Projector::weights_band`] compiled for AVX2 where the CPU has it (the same sums).
+    fn weights_band_dispatch(
+        &self,
+        frame: &[[f32; 3]],
+        indices: &[u32],
+        weights: &[f32],
+    ) -> Vec<[f64; 3]> {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { self.weights_band_avx2(frame, indices, weights) };
+            }
+        }
+        self.weights_band(frame, indices, weights)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn weights_band_avx2(
+        &self,
+        frame: &[[f32; 3]],
+        indices: &[u32],
+        weights: &[f32],
+    ) -> Vec<[f64; 3]> {
+        self.weights_band(frame, indices, weights)
+    }
+
+    /// The sums of a band of seen pixels against their weights, one channel's sums beside
+    /// another's so that the loop over the coefficients is a vector operation.
+    #[inline(always)]
+    fn weights_band(&self, frame: &[[f32; 3]], indices: &[u32], weights: &[f32]) -> Vec<[f64; 3]> {
+        let count = self.basis.len();
+        let mut channels = vec![0.0f64; 3 * count];
+        let (red, rest) = channels.split_at_mut(count);
+        let (green, blue) = rest.split_at_mut(count);
+        for (&index, weights) in indices.iter().zip(weights.chunks_exact(count)) {
+            // The plan fits the frame, so every index is in it.
+            let Some(rgb) = frame.get(index as usize) else {
+                continue;
+            };
+            let [r, g, b] = rgb.map(clean);
+            if [r, g, b] == [0.0; 3] {
+                continue;
+            }
+            for (((sr, sg), sb), &w) in red.iter_mut().zip(&mut *green).zip(&mut *blue).zip(weights)
+            {
+                let w = f64::from(w);
+                *sr += r * w;
+                *sg += g * w;
+                *sb += b * w;
+            }
+        }
+        (0..count)
+            .map(|i| [channels[i], channels[count + i], channels[2 * count + i]])
+            .collect()
     }
 
     /// The sums of a band of pixels against the basis at their centres.

@@ -364,7 +364,41 @@ fn the_separable_latlong_sums_equal_the_per_pixel_ones() {
             }
         }
     }
-    // A plan whose row tables would be too large takes the per-pixel path.
+    // A plan whose row tables would be too large takes the per-pixel weights.
     let tall = Projector::new(MAX_DEGREE, 8, 4096, Projection::LatLong);
-    assert!(matches!(tall.summation, Summation::PerPixel { .. }));
+    assert!(matches!(tall.summation, Summation::Weights { .. }));
+}
+
+#[test]
+fn the_weights_of_a_camera_plan_give_the_per_pixel_sums() {
+    // A fisheye frame takes the f32 weights; they give the evaluated per-pixel sums to f32
+    // rounding of each weight, at every degree up to the highest (whose weights would exceed
+    // the budget at full size, so a small frame).
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
+    let image = crate::capture::image_file::read_hdr_image(&path).unwrap();
+    let park = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).unwrap();
+    let fisheye = Projection::Fisheye(crate::envmap::FisheyeCalibration::default());
+    let frame = park.reprojected(fisheye, 160, 120).unwrap();
+    for degree in [0, 2, 4, MAX_DEGREE] {
+        let weights = Projector::new(degree, 160, 120, fisheye);
+        assert!(matches!(weights.summation, Summation::Weights { .. }));
+        let per_pixel = Projector::per_pixel(degree, 160, 120, fisheye);
+        let (a, b) = (
+            weights.project(&frame).unwrap(),
+            per_pixel.project(&frame).unwrap(),
+        );
+        let scale = b.rgb()[0][1].abs();
+        for (i, (x, y)) in a.rgb().iter().zip(b.rgb()).enumerate() {
+            for c in 0..3 {
+                assert!(
+                    (x[c] - y[c]).abs() <= 1e-6 * scale,
+                    "degree {degree}, coefficient {i}: {x:?} against {y:?}"
+                );
+            }
+        }
+    }
+    // Weights beyond the budget: the basis is evaluated per pixel instead.
+    let large = Projector::new(MAX_DEGREE, 640, 480, fisheye);
+    assert!(matches!(large.summation, Summation::PerPixel { .. }));
 }
