@@ -8,14 +8,14 @@
 //! Reads `.hdr` and `.exr` lat-long maps; a file that cannot be read is reported on stderr and
 //! skipped, and the exit status is then 1. A method is one more entry in `methods`.
 
-use anyhow::{bail, Context, Result};
-use envlight::capture::image_file::read_hdr_image;
+mod common;
+
+use anyhow::Result;
 use envlight::decompose::merge::DEFAULT_SPACING_FRACTION;
 use envlight::decompose::split::DEFAULT_SPLIT_FACTOR;
 use envlight::decompose::{
     DecomposeSettings, Decomposer, LightPlacement, Warp, DEFAULT_PDF_EXPONENT,
 };
-use envlight::envmap::Projection;
 use envlight::yardstick::{evaluate, median_cut, ReferenceMap};
 use envlight::{HdrFrame, LightFrame};
 use std::path::Path;
@@ -27,17 +27,6 @@ const LIGHT_COUNTS: [usize; 2] = [64, 256];
 
 /// A light-generation method: frame and light count in, lights out.
 type Method = Box<dyn Fn(&HdrFrame, usize) -> Result<LightFrame>>;
-
-fn read_map(path: &Path) -> Result<HdrFrame> {
-    let image = read_hdr_image(path)?;
-    if image.width != 2 * image.height {
-        bail!("{}x{} is not a 2:1 lat-long map", image.width, image.height);
-    }
-    let mut frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
-        .context("empty image")?;
-    frame.sanitize();
-    Ok(frame)
-}
 
 /// envlight's decomposition of a single frame (the temporal filter is a no-op on one frame).
 fn envlight_method(placement: LightPlacement, merge: bool, pdf_exponent: f64) -> Method {
@@ -120,7 +109,7 @@ fn main() {
             || path.display().to_string(),
             |s| s.to_string_lossy().into_owned(),
         );
-        let (frame, map) = match read_map(path).and_then(|frame| {
+        let (frame, map) = match common::read_latlong_map(path).and_then(|frame| {
             let map = ReferenceMap::new(&frame, REFERENCE_WIDTH)?;
             Ok((frame, map))
         }) {

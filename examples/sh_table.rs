@@ -10,15 +10,14 @@
 //!
 //! A file that cannot be read is reported on stderr and skipped; the exit status is then 1.
 
-use anyhow::{bail, Context, Result};
-use envlight::capture::image_file::read_hdr_image;
+mod common;
+
+use anyhow::Result;
 use envlight::decompose::{DecomposeSettings, Decomposer};
-use envlight::envmap::Projection;
 use envlight::sh::{coefficient_count, project};
 use envlight::yardstick::{
     diffuse_irradiance_error, evaluation_directions, relative_rms, ReferenceMap,
 };
-use envlight::HdrFrame;
 use std::path::Path;
 
 /// Width of the reference map the yardsticks are computed on (as docs/quality.md).
@@ -26,20 +25,9 @@ const REFERENCE_WIDTH: u32 = 256;
 const DEGREES: [usize; 6] = [1, 2, 3, 4, 6, 8];
 const LIGHT_COUNTS: [usize; 2] = [16, 64];
 
-fn read_map(path: &Path) -> Result<HdrFrame> {
-    let image = read_hdr_image(path)?;
-    if image.width != 2 * image.height {
-        bail!("{}x{} is not a 2:1 lat-long map", image.width, image.height);
-    }
-    let mut frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
-        .context("empty image")?;
-    frame.sanitize();
-    Ok(frame)
-}
-
 /// One row per representation of the map at `path`.
 fn rows(path: &Path) -> Result<Vec<String>> {
-    let frame = read_map(path)?;
+    let frame = common::read_latlong_map(path)?;
     let name = path.file_stem().map_or_else(
         || path.display().to_string(),
         |s| s.to_string_lossy().into(),

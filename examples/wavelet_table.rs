@@ -21,31 +21,19 @@
 //! Options (before the files): `--size N` (octahedral side, default 128), `--all-bases` (every
 //! supported basis instead of the Haar, db2, db3, db4, coif1, coif2).
 
-use anyhow::{bail, Context, Result};
-use envlight::capture::image_file::read_hdr_image;
-use envlight::envmap::Projection;
+mod common;
+
+use anyhow::Result;
 use envlight::frame::LUMINANCE_WEIGHTS;
 use envlight::wavelet::approx::Coefficients;
 use envlight::wavelet::sphere::OctahedralMap;
 use envlight::wavelet::transform::{inverse_2d_with, max_levels, Workspace};
 use envlight::wavelet::Basis;
 use envlight::yardstick::{evaluate, evaluation_directions, ReferenceMap};
-use envlight::HdrFrame;
 use std::path::Path;
 
 /// Coefficient counts of the tables.
 const K_TABLE: [usize; 4] = [64, 256, 1024, 4096];
-
-fn read_map(path: &Path) -> Result<HdrFrame> {
-    let image = read_hdr_image(path)?;
-    if image.width != 2 * image.height {
-        bail!("{}x{} is not a 2:1 lat-long map", image.width, image.height);
-    }
-    let mut frame = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong)
-        .context("empty image")?;
-    frame.sanitize();
-    Ok(frame)
-}
 
 /// Clamped cosines between the evaluation directions and the texel centres, row per direction.
 struct Kernel {
@@ -274,7 +262,7 @@ fn main() {
             |s| s.to_string_lossy().into(),
         );
         let run = || -> Result<(Vec<Curve>, [f64; 3])> {
-            let frame = read_map(path)?;
+            let frame = common::read_latlong_map(path)?;
             let map = OctahedralMap::from_frame(&frame, side)?;
             // Resampling floor: the full octahedral map against the lat-long map.
             let reference = ReferenceMap::new(&frame, 256)?;

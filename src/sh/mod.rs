@@ -54,6 +54,12 @@ pub const fn coefficient_count(degree: usize) -> usize {
     (degree + 1) * (degree + 1)
 }
 
+/// The degree L of a list of `count` coefficients: `Some(L)` when `count` is (L + 1)² with
+/// L ≤ [`MAX_DEGREE`].
+pub fn degree_of(count: usize) -> Option<usize> {
+    (0..=MAX_DEGREE).find(|&l| coefficient_count(l) == count)
+}
+
 /// Position of Y_l^m in a coefficient list: l² + l + m (|m| ≤ l).
 pub const fn index(l: usize, m: isize) -> usize {
     (l * l + l).wrapping_add_signed(m)
@@ -178,7 +184,7 @@ impl ShCoefficients {
     /// From a coefficient list whose length is a square (L + 1)² with L ≤ [`MAX_DEGREE`];
     /// `None` otherwise.
     pub fn from_rgb(rgb: Vec<[f64; 3]>) -> Option<Self> {
-        let degree = (0..=MAX_DEGREE).find(|&l| coefficient_count(l) == rgb.len())?;
+        let degree = degree_of(rgb.len())?;
         Some(Self { degree, rgb })
     }
 
@@ -246,7 +252,7 @@ impl ShCoefficients {
         let mut sum = [0.0; 3];
         for l in 0..=self.degree {
             let factor = band_factor(l);
-            for i in coefficient_count(l) - (2 * l + 1)..coefficient_count(l) {
+            for i in l * l..coefficient_count(l) {
                 for c in 0..3 {
                     sum[c] += factor * self.rgb[i][c] * y[i];
                 }

@@ -361,9 +361,8 @@ pub(super) fn decode_sh(prefix: &[u8], records: &[u8]) -> Result<Vec<[f32; 3]>, 
 /// every value finite. Returns L. Decoders of JSON frames apply it; the daemon's SH stage
 /// applies it before publishing.
 pub fn validate_sh_set(coefficients: &[[f32; 3]]) -> Result<usize, ProtocolError> {
-    let degree = (0..=MAX_SH_DEGREE)
-        .find(|&l| crate::sh::coefficient_count(l) == coefficients.len())
-        .ok_or_else(|| ProtocolError::InvalidShSet {
+    let degree =
+        crate::sh::degree_of(coefficients.len()).ok_or_else(|| ProtocolError::InvalidShSet {
             reason: format!(
                 "{} coefficients: not (degree + 1)² for a degree up to {MAX_SH_DEGREE}",
                 coefficients.len()

@@ -166,10 +166,7 @@ pub fn encode_sh_frame(
         stale,
         coefficients.len(),
     );
-    let degree = (0..=u8::MAX)
-        .find(|&l| crate::sh::coefficient_count(usize::from(l)) >= coefficients.len())
-        .unwrap_or(u8::MAX);
-    out.extend_from_slice(&[degree, SH_BASIS_REAL, 0, 0]);
+    out.extend_from_slice(&[sh_degree_field(coefficients.len()), SH_BASIS_REAL, 0, 0]);
     for rgb in coefficients {
         for v in rgb {
             out.extend_from_slice(&v.to_le_bytes());

@@ -153,9 +153,7 @@ pub fn wavelet_frame_to_json(
 /// ```
 pub fn sh_frame_to_json(frame: &ShFrame, max_coefficients: Option<usize>, stale: bool) -> String {
     let coefficients = select_sh(&frame.coefficients, max_coefficients);
-    let degree = (0..=u32::from(u8::MAX))
-        .find(|&l| crate::sh::coefficient_count(l as usize) >= coefficients.len())
-        .unwrap_or(u32::from(u8::MAX));
+    let degree = u32::from(sh_degree_field(coefficients.len()));
     to_json(&JsonShFrame {
         seq: frame.seq,
         time: frame.time,

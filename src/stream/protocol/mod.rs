@@ -445,7 +445,7 @@ impl ShFrame {
     /// The degree L, `None` if the number of coefficients is not (L + 1)² for an L up to
     /// [`MAX_SH_DEGREE`].
     pub fn degree(&self) -> Option<usize> {
-        (0..=MAX_SH_DEGREE).find(|&l| crate::sh::coefficient_count(l) == self.coefficients.len())
+        crate::sh::degree_of(self.coefficients.len())
     }
 
     /// The coefficients in f64, to evaluate radiance or irradiance
@@ -713,6 +713,14 @@ fn select_sh(coefficients: &[[f32; 3]], max: Option<usize>) -> &[[f32; 3]] {
         keep += 1;
     }
     &coefficients[..coefficients.len().min(keep * keep)]
+}
+
+/// The degree an SH frame of `count` coefficients declares: the smallest that holds them
+/// (exact for a valid set, whose count is (L + 1)²; decoders reject any other count).
+fn sh_degree_field(count: usize) -> u8 {
+    (0..=u8::MAX)
+        .find(|&l| crate::sh::coefficient_count(usize::from(l)) >= count)
+        .unwrap_or(u8::MAX)
 }
 
 /// The `cap` (at most `limit`) records of largest `luminance`, ties to the earlier one, kept in
