@@ -14,7 +14,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, TIMEOUT,
+    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, LIVE_SKY, TIMEOUT,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -30,10 +30,6 @@ use std::path::Path;
 fn config(dir: &Path, extra: &str) -> Config {
     common::config(dir, 2.0, extra)
 }
-
-/// A live sky source small enough for any machine.
-const LIVE_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                        [decompose]\nlights = 8\nworking_width = 16\n";
 
 /// Everything a wavelet client received until the goodbye, with each set's stale flag.
 fn read_sets(client: Client) -> (Vec<(WaveletFrame, bool)>, Option<String>) {

@@ -17,6 +17,10 @@ use std::time::{Duration, Instant};
 pub const SMALL_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
                              [decompose]\nlights = 8\nworking_width = 16\n";
 
+/// A live sky source small enough for any machine (config TOML for the stage tests).
+pub const LIVE_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                            [decompose]\nlights = 8\nworking_width = 16\n";
+
 /// How long a test waits for anything (a frame, a thread, an HTTP answer) before failing.
 pub const TIMEOUT: Duration = Duration::from_secs(30);
 
