@@ -38,10 +38,11 @@ pub use crate::frame_feed::CloseOnDrop;
 use crate::frame_feed::FrameFeed;
 use crate::light::AsgSet;
 use crate::publication::{Latest, Publication};
-use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
+use crate::slow_stage::{
+    DaemonStage, PublishHook, StageCounters, StageKind, StageStatsHandle, StageWorker,
+};
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::sync::watch;
 
 /// Name of the ASG thread.
 pub const ASG_THREAD_NAME: &str = "envlight-asg";
@@ -110,7 +111,7 @@ pub type AsgFeed = FrameFeed;
 pub type AsgHook = PublishHook<AsgSet>;
 
 /// The stage's work per frame: a warm-started fit, checked against the wire format.
-struct AsgWorker(AsgFitter);
+pub struct AsgWorker(AsgFitter);
 
 impl StageWorker for AsgWorker {
     type Output = AsgSet;
@@ -136,107 +137,46 @@ impl StageWorker for AsgWorker {
     }
 }
 
-/// The running ASG stage. See the module documentation.
-pub struct AsgStage(SlowStage<AsgWorker>);
+impl StageKind for AsgWorker {
+    type Settings = FitSettings;
+    type Stats = AsgStats;
+    type SettingsError = AsgError;
+    type StageError = AsgStageError;
+    const THREAD_NAME: &'static str = ASG_THREAD_NAME;
 
-impl AsgStage {
-    /// Validates `settings` and starts the `envlight-asg` thread, fed by a new feed
-    /// (`lossless` as in [`AsgFeed::new`]). `on_publish` runs on the thread after each set.
-    pub fn start(
-        settings: FitSettings,
-        lossless: bool,
-        on_publish: Option<AsgHook>,
-    ) -> Result<AsgStage, AsgStageError> {
-        let fitter = AsgFitter::new(settings)?;
+    fn from_settings(settings: FitSettings) -> Result<Self, AsgError> {
+        AsgFitter::new(settings).map(AsgWorker)
+    }
+
+    fn log_start(&self, lossless: bool) {
+        let settings = self.0.settings();
         tracing::info!(
-            lobes = fitter.settings().lobes,
-            height = fitter.settings().height,
-            iterations = fitter.settings().iterations,
-            warm_iterations = fitter.settings().warm_iterations,
+            lobes = settings.lobes,
+            height = settings.height,
+            iterations = settings.iterations,
+            warm_iterations = settings.warm_iterations,
             lossless,
             "starting the ASG stage"
         );
-        SlowStage::start(ASG_THREAD_NAME, AsgWorker(fitter), lossless, on_publish)
-            .map(AsgStage)
-            .map_err(AsgStageError::Spawn)
     }
 
-    /// The feed to hand frames to (give it to the pipeline).
-    pub fn feed(&self) -> AsgFeed {
-        self.0.feed()
+    fn spawn_error(error: std::io::Error) -> AsgStageError {
+        AsgStageError::Spawn(error)
     }
 
-    /// A receiver of the newest ASG set; a set published already shows as changed.
-    pub fn subscribe(&self) -> watch::Receiver<LatestAsg> {
-        self.0.subscribe()
-    }
-
-    /// A snapshot of the counters.
-    pub fn stats(&self) -> AsgStats {
-        self.0.counters().into()
-    }
-
-    /// A handle that reads the counters from anywhere (the metrics endpoint).
-    pub fn stats_handle(&self) -> AsgStatsHandle {
-        AsgStatsHandle(self.0.counters_handle())
-    }
-
-    /// Replaces the fit settings from the next frame on (a new fitter: the next frame is
-    /// fitted from scratch). Invalid settings are rejected and change nothing.
-    pub fn reconfigure(&self, settings: FitSettings) -> Result<(), AsgError> {
-        self.0.replace_worker(AsgWorker(AsgFitter::new(settings)?));
-        Ok(())
-    }
-
-    /// Marks the newest set stale (the source is lost), re-publishing it unless it is stale
-    /// already; the next fitted set is live. Returns whether anything was published.
-    pub fn mark_stale(&self) -> bool {
-        self.stale_handle().mark_stale()
-    }
-
-    /// A handle for [`AsgStage::mark_stale`] from another thread.
-    pub fn stale_handle(&self) -> AsgStaleHandle {
-        self.0.stale_handle()
-    }
-
-    /// Whether the thread has ended (the feed was closed and drained).
-    pub fn is_finished(&self) -> bool {
-        self.0.is_finished()
-    }
-
-    /// Closes the feed (the stage fits the frame still waiting, then ends).
-    pub fn stop(&self) {
-        self.0.stop();
-    }
-
-    /// Closes the feed and gives up the fit in progress (within one iteration) and the frame
-    /// still waiting: a signal's shutdown, which a first fit of many iterations would hold
-    /// up ([`SlowStage::abandon`]).
-    pub fn abandon(&self) {
-        self.0.abandon();
-    }
-
-    /// Closes the feed, waits for the thread and returns the final counters.
-    pub fn join(self) -> Result<AsgStats, AsgStageError> {
-        self.0
-            .join()
-            .map(AsgStats::from)
-            .map_err(AsgStageError::Panicked)
+    fn panic_error(message: String) -> AsgStageError {
+        AsgStageError::Panicked(message)
     }
 }
+
+/// The running ASG stage ([`DaemonStage`]: start, feed, subscribe, reconfigure, join). See
+/// the module documentation.
+pub type AsgStage = DaemonStage<AsgWorker>;
 
 /// Reads the stage's counters; valid after the stage has ended.
-#[derive(Clone)]
-pub struct AsgStatsHandle(CountersHandle<AsgWorker>);
+pub type AsgStatsHandle = StageStatsHandle<AsgWorker>;
 
-impl AsgStatsHandle {
-    /// A snapshot of the counters.
-    pub fn stats(&self) -> AsgStats {
-        self.0.counters().into()
-    }
-}
-
-/// Marks the newest ASG set stale; see [`AsgStage::mark_stale`].
+/// Marks the newest ASG set stale; see [`DaemonStage::mark_stale`].
 pub type AsgStaleHandle = crate::publication::StaleHandle<AsgSet>;
 
 #[cfg(test)]

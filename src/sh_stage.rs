@@ -20,17 +20,17 @@
 //! The thread is the generic runner of [`crate::slow_stage`], shared with the ASG and wavelet
 //! stages: the decompose thread offers each frame after publishing its lights, a live feed keeps
 //! only the newest (skips counted), a lossless feed (replay) makes every frame projected in
-//! order; [`ShStage::reconfigure`] (SIGHUP) swaps the degree before the next frame;
-//! [`ShStage::join`] turns a panic into an error.
+//! order; [`DaemonStage::reconfigure`] (SIGHUP) swaps the degree before the next frame (a new
+//! plan); [`DaemonStage::join`] turns a panic into an error.
 
 use crate::frame::HdrFrame;
-use crate::frame_feed::FrameFeed;
 use crate::publication::{Latest, StaleHandle};
 use crate::sh::{Projector, MAX_DEGREE};
-use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
+use crate::slow_stage::{
+    DaemonStage, PublishHook, StageCounters, StageKind, StageStatsHandle, StageWorker,
+};
 use crate::stream::protocol::{validate_sh_set, ShFrame};
 use std::time::Duration;
-use tokio::sync::watch;
 
 /// Name of the SH thread.
 pub const SH_THREAD_NAME: &str = "envlight-sh";
@@ -157,6 +157,34 @@ impl StageWorker for ShProjector {
     }
 }
 
+impl StageKind for ShProjector {
+    type Settings = ShSettings;
+    type Stats = ShStats;
+    type SettingsError = ShStageError;
+    type StageError = ShStageError;
+    const THREAD_NAME: &'static str = SH_THREAD_NAME;
+
+    fn from_settings(settings: ShSettings) -> Result<Self, ShStageError> {
+        Self::new(settings)
+    }
+
+    fn log_start(&self, lossless: bool) {
+        tracing::info!(
+            degree = self.settings.degree,
+            lossless,
+            "starting the SH stage"
+        );
+    }
+
+    fn spawn_error(error: std::io::Error) -> ShStageError {
+        ShStageError::Spawn(error)
+    }
+
+    fn panic_error(message: String) -> ShStageError {
+        ShStageError::Panicked(message)
+    }
+}
+
 /// One publication of the SH stage: the set is the
 /// [`Publication::payload`](crate::publication::Publication::payload), `compute_time` the
 /// projection's.
@@ -165,7 +193,7 @@ pub type PublishedSh = crate::publication::Publication<ShFrame>;
 /// What SH consumers receive: the newest publication, `None` until the first one.
 pub type LatestSh = Latest<ShFrame>;
 
-/// Marks the newest SH set stale; see [`ShStage::mark_stale`].
+/// Marks the newest SH set stale; see [`DaemonStage::mark_stale`].
 pub type ShStaleHandle = StaleHandle<ShFrame>;
 
 /// Called on the SH thread after each published set (metrics).
@@ -201,92 +229,12 @@ impl From<StageCounters> for ShStats {
     }
 }
 
-/// The running SH stage. See the module documentation.
-pub struct ShStage(SlowStage<ShProjector>);
-
-impl ShStage {
-    /// Validates `settings` and starts the `envlight-sh` thread, fed by a new feed (`lossless`
-    /// as in [`FrameFeed::new`]). `on_publish` runs on the thread after each set.
-    pub fn start(
-        settings: ShSettings,
-        lossless: bool,
-        on_publish: Option<ShHook>,
-    ) -> Result<ShStage, ShStageError> {
-        let projector = ShProjector::new(settings)?;
-        tracing::info!(degree = settings.degree, lossless, "starting the SH stage");
-        SlowStage::start(SH_THREAD_NAME, projector, lossless, on_publish)
-            .map(ShStage)
-            .map_err(ShStageError::Spawn)
-    }
-
-    /// The feed to hand frames to (give it to the pipeline).
-    pub fn feed(&self) -> FrameFeed {
-        self.0.feed()
-    }
-
-    /// A receiver of the newest set; a set published already shows as changed.
-    pub fn subscribe(&self) -> watch::Receiver<LatestSh> {
-        self.0.subscribe()
-    }
-
-    /// A snapshot of the counters.
-    pub fn stats(&self) -> ShStats {
-        self.0.counters().into()
-    }
-
-    /// A handle that reads the counters from anywhere (the metrics endpoint).
-    pub fn stats_handle(&self) -> ShStatsHandle {
-        ShStatsHandle(self.0.counters_handle())
-    }
-
-    /// Replaces the settings from the next frame on (a new plan for the new degree). Invalid
-    /// settings are rejected and change nothing.
-    pub fn reconfigure(&self, settings: ShSettings) -> Result<(), ShStageError> {
-        self.0.replace_worker(ShProjector::new(settings)?);
-        Ok(())
-    }
-
-    /// Marks the newest set stale (the source is lost), re-publishing it unless it is stale
-    /// already; the next projected set is live. Returns whether anything was published.
-    pub fn mark_stale(&self) -> bool {
-        self.stale_handle().mark_stale()
-    }
-
-    /// A handle for [`ShStage::mark_stale`] from another thread.
-    pub fn stale_handle(&self) -> ShStaleHandle {
-        self.0.stale_handle()
-    }
-
-    /// Whether the thread has ended (the feed was closed and drained).
-    pub fn is_finished(&self) -> bool {
-        self.0.is_finished()
-    }
-
-    /// Closes the feed and drops the frame still waiting (a signal's shutdown; the projection
-    /// in progress is finished and published).
-    pub fn abandon(&self) {
-        self.0.abandon();
-    }
-
-    /// Closes the feed, waits for the thread and returns the final counters.
-    pub fn join(self) -> Result<ShStats, ShStageError> {
-        self.0
-            .join()
-            .map(ShStats::from)
-            .map_err(ShStageError::Panicked)
-    }
-}
+/// The running SH stage ([`DaemonStage`]: start, feed, subscribe, reconfigure, join). See
+/// the module documentation.
+pub type ShStage = DaemonStage<ShProjector>;
 
 /// Reads the stage's counters; valid after the stage has ended.
-#[derive(Clone)]
-pub struct ShStatsHandle(CountersHandle<ShProjector>);
-
-impl ShStatsHandle {
-    /// A snapshot of the counters.
-    pub fn stats(&self) -> ShStats {
-        self.0.counters().into()
-    }
-}
+pub type ShStatsHandle = StageStatsHandle<ShProjector>;
 
 #[cfg(test)]
 mod tests {

@@ -1,6 +1,9 @@
 //! The thread behind every slow stage of the daemon (the ASG fits of [`crate::asg_stage`], the
-//! wavelet sets of [`crate::wavelet_stage`]): take the newest frame from a [`FrameFeed`], run a
-//! [`StageWorker`] on it, publish the result on a latest-value channel.
+//! wavelet sets of [`crate::wavelet_stage`], the SH sets of [`crate::sh_stage`]): take the
+//! newest frame from a [`FrameFeed`], run a [`StageWorker`] on it, publish the result on a
+//! latest-value channel. [`DaemonStage`] is the stage as the daemon holds it: built from its
+//! settings ([`StageKind`]), each stage module supplying only its worker, settings, counters
+//! and errors.
 //!
 //! ```text
 //! envlight-decompose ──FrameFeed (one slot, newest wins)──► named thread ──watch──► stream server
@@ -305,6 +308,130 @@ fn run<W: StageWorker>(
                 hook(published);
             }
         }
+    }
+}
+
+/// A [`StageWorker`] that a daemon stage builds from its section of the config: what
+/// [`DaemonStage`] needs to start it on its own named thread, swap it on SIGHUP and report it.
+pub trait StageKind: StageWorker + Sized {
+    /// The stage's section of the config.
+    type Settings;
+    /// The stage's counters, named for what it publishes (fits, sets).
+    type Stats: From<StageCounters>;
+    /// What [`StageKind::from_settings`] gives for invalid settings.
+    type SettingsError;
+    /// Every error of the stage: invalid settings, a thread that cannot start or panicked.
+    type StageError: From<Self::SettingsError>;
+    /// The thread's name (`envlight-…`), in logs, `ps` and panic messages.
+    const THREAD_NAME: &'static str;
+    /// A worker for `settings`, which it validates (the error names the field and the value).
+    fn from_settings(settings: Self::Settings) -> Result<Self, Self::SettingsError>;
+    /// Logs the stage's start with its settings (one line, on the caller's thread).
+    fn log_start(&self, lossless: bool);
+    /// The error for a thread that could not be started.
+    fn spawn_error(error: std::io::Error) -> Self::StageError;
+    /// The error for a thread that panicked, with the panic's message.
+    fn panic_error(message: String) -> Self::StageError;
+}
+
+/// A running daemon stage (the ASG, wavelet and SH stages): a [`SlowStage`] built from its
+/// settings, reconfigurable from new settings, reporting its own counters
+/// ([`StageKind::Stats`]) and errors ([`StageKind::StageError`]).
+pub struct DaemonStage<W: StageKind>(SlowStage<W>);
+
+impl<W: StageKind> DaemonStage<W> {
+    /// Validates `settings` and starts the stage's thread ([`StageKind::THREAD_NAME`]), fed
+    /// by a new feed (`lossless` as in [`FrameFeed::new`]). `on_publish` runs on the thread
+    /// after each publication.
+    pub fn start(
+        settings: W::Settings,
+        lossless: bool,
+        on_publish: Option<PublishHook<W::Output>>,
+    ) -> Result<Self, W::StageError> {
+        let worker = W::from_settings(settings)?;
+        worker.log_start(lossless);
+        SlowStage::start(W::THREAD_NAME, worker, lossless, on_publish)
+            .map(DaemonStage)
+            .map_err(W::spawn_error)
+    }
+
+    /// The feed to hand frames to (give it to the pipeline).
+    pub fn feed(&self) -> FrameFeed {
+        self.0.feed()
+    }
+
+    /// A receiver of the newest result; a result published already shows as changed.
+    pub fn subscribe(&self) -> watch::Receiver<Latest<W::Output>> {
+        self.0.subscribe()
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> W::Stats {
+        self.0.counters().into()
+    }
+
+    /// A handle that reads the counters from anywhere (the metrics endpoint).
+    pub fn stats_handle(&self) -> StageStatsHandle<W> {
+        StageStatsHandle(self.0.counters_handle())
+    }
+
+    /// Replaces the settings from the next frame on, with a new worker (its plans and any
+    /// warm-start chain start afresh). Invalid settings are rejected and change nothing.
+    pub fn reconfigure(&self, settings: W::Settings) -> Result<(), W::SettingsError> {
+        self.0.replace_worker(W::from_settings(settings)?);
+        Ok(())
+    }
+
+    /// Marks the newest result stale (the source is lost), re-publishing it unless it is
+    /// stale already; the next computed result is live. Returns whether anything was
+    /// published.
+    pub fn mark_stale(&self) -> bool {
+        self.stale_handle().mark_stale()
+    }
+
+    /// A handle for [`DaemonStage::mark_stale`] from another thread.
+    pub fn stale_handle(&self) -> StaleHandle<W::Output> {
+        self.0.stale_handle()
+    }
+
+    /// Whether the thread has ended (the feed was closed and drained).
+    pub fn is_finished(&self) -> bool {
+        self.0.is_finished()
+    }
+
+    /// Closes the feed (the stage processes the frame still waiting, then ends).
+    pub fn stop(&self) {
+        self.0.stop();
+    }
+
+    /// Closes the feed and drops the frame still waiting (a signal's shutdown). A worker that
+    /// watches the flag ([`StageWorker::watch_abandon`]: the ASG fit, within one iteration)
+    /// gives up the computation in progress; the others finish and publish it
+    /// ([`SlowStage::abandon`]).
+    pub fn abandon(&self) {
+        self.0.abandon();
+    }
+
+    /// Closes the feed, waits for the thread and returns the final counters.
+    pub fn join(self) -> Result<W::Stats, W::StageError> {
+        self.0.join().map(W::Stats::from).map_err(W::panic_error)
+    }
+}
+
+/// Reads a daemon stage's counters; valid after the stage has ended.
+pub struct StageStatsHandle<W>(CountersHandle<W>);
+
+// Derived `Clone` would require `W: Clone`.
+impl<W> Clone for StageStatsHandle<W> {
+    fn clone(&self) -> Self {
+        Self(self.0.clone())
+    }
+}
+
+impl<W: StageKind> StageStatsHandle<W> {
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> W::Stats {
+        self.0.counters().into()
     }
 }
 

@@ -30,20 +30,20 @@
 //! lossless feed (replay) makes every frame transformed in order so a replay reproduces the
 //! stream; a set the wire format would reject ([`validate_wavelet_set`]; a non-finite value from
 //! a non-finite frame, say) or a frame that cannot be resampled is logged and counted
-//! ([`WaveletStats::errors`]); [`WaveletStage::reconfigure`] (SIGHUP) swaps the settings before
-//! the next frame; [`WaveletStage::join`] turns a panic into an error.
+//! ([`WaveletStats::errors`]); [`DaemonStage::reconfigure`] (SIGHUP) swaps the settings before
+//! the next frame; [`DaemonStage::join`] turns a panic into an error.
 
 use crate::frame::HdrFrame;
-use crate::frame_feed::FrameFeed;
 use crate::publication::{Latest, StaleHandle};
-use crate::slow_stage::{CountersHandle, PublishHook, SlowStage, StageCounters, StageWorker};
+use crate::slow_stage::{
+    DaemonStage, PublishHook, StageCounters, StageKind, StageStatsHandle, StageWorker,
+};
 use crate::stream::protocol::{validate_wavelet_set, WaveletFrame, MAX_FRAME_COEFFICIENTS};
 use crate::wavelet::approx::{ApproxError, Coefficients};
 use crate::wavelet::sphere::{Resampler, SphereError, MAX_SIDE};
 use crate::wavelet::transform::{max_levels, Workspace};
 use crate::wavelet::Basis;
 use std::time::Duration;
-use tokio::sync::watch;
 
 /// Name of the wavelet thread.
 pub const WAVELET_THREAD_NAME: &str = "envlight-wavelet";
@@ -233,6 +233,38 @@ impl StageWorker for WaveletTransformer {
     }
 }
 
+impl StageKind for WaveletTransformer {
+    type Settings = WaveletSettings;
+    type Stats = WaveletStats;
+    type SettingsError = WaveletStageError;
+    type StageError = WaveletStageError;
+    const THREAD_NAME: &'static str = WAVELET_THREAD_NAME;
+
+    fn from_settings(settings: WaveletSettings) -> Result<Self, WaveletStageError> {
+        Self::new(settings)
+    }
+
+    fn log_start(&self, lossless: bool) {
+        let settings = &self.settings;
+        tracing::info!(
+            basis = %settings.basis,
+            side = settings.side,
+            levels = settings.levels(),
+            coefficients = settings.coefficients,
+            lossless,
+            "starting the wavelet stage"
+        );
+    }
+
+    fn spawn_error(error: std::io::Error) -> WaveletStageError {
+        WaveletStageError::Spawn(error)
+    }
+
+    fn panic_error(message: String) -> WaveletStageError {
+        WaveletStageError::Panicked(message)
+    }
+}
+
 /// One publication of the wavelet stage: the set is the
 /// [`Publication::payload`](crate::publication::Publication::payload),
 /// `compute_time` the time of the three steps.
@@ -241,7 +273,7 @@ pub type PublishedWavelet = crate::publication::Publication<WaveletFrame>;
 /// What wavelet consumers receive: the newest publication, `None` until the first one.
 pub type LatestWavelet = Latest<WaveletFrame>;
 
-/// Marks the newest wavelet set stale; see [`WaveletStage::mark_stale`].
+/// Marks the newest wavelet set stale; see [`DaemonStage::mark_stale`].
 pub type WaveletStaleHandle = StaleHandle<WaveletFrame>;
 
 /// Called on the wavelet thread after each published set (metrics).
@@ -277,99 +309,12 @@ impl From<StageCounters> for WaveletStats {
     }
 }
 
-/// The running wavelet stage. See the module documentation.
-pub struct WaveletStage(SlowStage<WaveletTransformer>);
-
-impl WaveletStage {
-    /// Validates `settings` and starts the `envlight-wavelet` thread, fed by a new feed
-    /// (`lossless` as in [`FrameFeed::new`]). `on_publish` runs on the thread after each set.
-    pub fn start(
-        settings: WaveletSettings,
-        lossless: bool,
-        on_publish: Option<WaveletHook>,
-    ) -> Result<WaveletStage, WaveletStageError> {
-        let transformer = WaveletTransformer::new(settings)?;
-        tracing::info!(
-            basis = %settings.basis,
-            side = settings.side,
-            levels = settings.levels(),
-            coefficients = settings.coefficients,
-            lossless,
-            "starting the wavelet stage"
-        );
-        SlowStage::start(WAVELET_THREAD_NAME, transformer, lossless, on_publish)
-            .map(WaveletStage)
-            .map_err(WaveletStageError::Spawn)
-    }
-
-    /// The feed to hand frames to (give it to the pipeline).
-    pub fn feed(&self) -> FrameFeed {
-        self.0.feed()
-    }
-
-    /// A receiver of the newest set; a set published already shows as changed.
-    pub fn subscribe(&self) -> watch::Receiver<LatestWavelet> {
-        self.0.subscribe()
-    }
-
-    /// A snapshot of the counters.
-    pub fn stats(&self) -> WaveletStats {
-        self.0.counters().into()
-    }
-
-    /// A handle that reads the counters from anywhere (the metrics endpoint).
-    pub fn stats_handle(&self) -> WaveletStatsHandle {
-        WaveletStatsHandle(self.0.counters_handle())
-    }
-
-    /// Replaces the settings from the next frame on (a new resampling plan if the side
-    /// changed). Invalid settings are rejected and change nothing.
-    pub fn reconfigure(&self, settings: WaveletSettings) -> Result<(), WaveletStageError> {
-        self.0.replace_worker(WaveletTransformer::new(settings)?);
-        Ok(())
-    }
-
-    /// Marks the newest set stale (the source is lost), re-publishing it unless it is stale
-    /// already; the next transformed set is live. Returns whether anything was published.
-    pub fn mark_stale(&self) -> bool {
-        self.stale_handle().mark_stale()
-    }
-
-    /// A handle for [`WaveletStage::mark_stale`] from another thread.
-    pub fn stale_handle(&self) -> WaveletStaleHandle {
-        self.0.stale_handle()
-    }
-
-    /// Whether the thread has ended (the feed was closed and drained).
-    pub fn is_finished(&self) -> bool {
-        self.0.is_finished()
-    }
-
-    /// Closes the feed and drops the frame still waiting (a signal's shutdown; the transform
-    /// in progress, a few milliseconds, is finished and published).
-    pub fn abandon(&self) {
-        self.0.abandon();
-    }
-
-    /// Closes the feed, waits for the thread and returns the final counters.
-    pub fn join(self) -> Result<WaveletStats, WaveletStageError> {
-        self.0
-            .join()
-            .map(WaveletStats::from)
-            .map_err(WaveletStageError::Panicked)
-    }
-}
+/// The running wavelet stage ([`DaemonStage`]: start, feed, subscribe, reconfigure, join).
+/// See the module documentation.
+pub type WaveletStage = DaemonStage<WaveletTransformer>;
 
 /// Reads the stage's counters; valid after the stage has ended.
-#[derive(Clone)]
-pub struct WaveletStatsHandle(CountersHandle<WaveletTransformer>);
-
-impl WaveletStatsHandle {
-    /// A snapshot of the counters.
-    pub fn stats(&self) -> WaveletStats {
-        self.0.counters().into()
-    }
-}
+pub type WaveletStatsHandle = StageStatsHandle<WaveletTransformer>;
 
 #[cfg(test)]
 mod tests {
