@@ -27,10 +27,9 @@ use crate::frame::HdrFrame;
 use crate::publication::{Latest, StaleHandle};
 use crate::sh::{Projector, MAX_DEGREE};
 use crate::slow_stage::{
-    DaemonStage, PublishHook, StageCounters, StageKind, StageStatsHandle, StageWorker,
+    DaemonStage, PublishHook, SetStageStats, StageKind, StageStatsHandle, StageWorker,
 };
 use crate::stream::protocol::{validate_sh_set, ShFrame};
-use std::time::Duration;
 
 /// Name of the SH thread.
 pub const SH_THREAD_NAME: &str = "envlight-sh";
@@ -199,35 +198,9 @@ pub type ShStaleHandle = StaleHandle<ShFrame>;
 /// Called on the SH thread after each published set (metrics).
 pub type ShHook = PublishHook<ShFrame>;
 
-/// Counters of the SH stage.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ShStats {
-    /// Frames offered to the stage.
-    pub frames_offered: u64,
-    /// Frames replaced by a newer one before the stage took them.
-    pub frames_skipped: u64,
-    /// Sets computed and published.
-    pub sets: u64,
-    /// Frames that gave no set (values beyond f32).
-    pub errors: u64,
-    /// Projection plans built (one per frame size and projection met).
-    pub plans: u64,
-    /// Duration of the most recent projection.
-    pub last_time: Duration,
-}
-
-impl From<StageCounters> for ShStats {
-    fn from(c: StageCounters) -> Self {
-        Self {
-            frames_offered: c.offered,
-            frames_skipped: c.skipped,
-            sets: c.published,
-            errors: c.errors,
-            plans: c.plans,
-            last_time: c.last_time,
-        }
-    }
-}
+/// Counters of the SH stage (errors: values beyond f32; plans: one per frame size and projection
+/// met; `last_time`: the most recent projection).
+pub type ShStats = SetStageStats;
 
 /// The running SH stage ([`DaemonStage`]: start, feed, subscribe, reconfigure, join). See
 /// the module documentation.

@@ -311,6 +311,37 @@ fn run<W: StageWorker>(
     }
 }
 
+/// The counters of a stage that publishes sets (the wavelet and SH stages), as
+/// [`StageCounters`] under the names the metrics use.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SetStageStats {
+    /// Frames offered to the stage.
+    pub frames_offered: u64,
+    /// Frames replaced by a newer one before the stage took them.
+    pub frames_skipped: u64,
+    /// Sets computed and published.
+    pub sets: u64,
+    /// Frames that gave no set.
+    pub errors: u64,
+    /// Plans built (resampling or projection tables; one per frame size and projection met).
+    pub plans: u64,
+    /// Duration of the most recent set.
+    pub last_time: Duration,
+}
+
+impl From<StageCounters> for SetStageStats {
+    fn from(c: StageCounters) -> Self {
+        Self {
+            frames_offered: c.offered,
+            frames_skipped: c.skipped,
+            sets: c.published,
+            errors: c.errors,
+            plans: c.plans,
+            last_time: c.last_time,
+        }
+    }
+}
+
 /// A [`StageWorker`] that a daemon stage builds from its section of the config: what
 /// [`DaemonStage`] needs to start it on its own named thread, swap it on SIGHUP and report it.
 pub trait StageKind: StageWorker + Sized {

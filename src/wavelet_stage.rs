@@ -36,14 +36,13 @@
 use crate::frame::HdrFrame;
 use crate::publication::{Latest, StaleHandle};
 use crate::slow_stage::{
-    DaemonStage, PublishHook, StageCounters, StageKind, StageStatsHandle, StageWorker,
+    DaemonStage, PublishHook, SetStageStats, StageKind, StageStatsHandle, StageWorker,
 };
 use crate::stream::protocol::{validate_wavelet_set, WaveletFrame, MAX_FRAME_COEFFICIENTS};
 use crate::wavelet::approx::{ApproxError, Coefficients};
 use crate::wavelet::sphere::{Resampler, SphereError, MAX_SIDE};
 use crate::wavelet::transform::{max_levels, Workspace};
 use crate::wavelet::Basis;
-use std::time::Duration;
 
 /// Name of the wavelet thread.
 pub const WAVELET_THREAD_NAME: &str = "envlight-wavelet";
@@ -279,35 +278,10 @@ pub type WaveletStaleHandle = StaleHandle<WaveletFrame>;
 /// Called on the wavelet thread after each published set (metrics).
 pub type WaveletHook = PublishHook<WaveletFrame>;
 
-/// Counters of the wavelet stage.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct WaveletStats {
-    /// Frames offered to the stage.
-    pub frames_offered: u64,
-    /// Frames replaced by a newer one before the stage took them.
-    pub frames_skipped: u64,
-    /// Sets computed and published.
-    pub sets: u64,
-    /// Frames that gave no set (resampling failed, invalid values).
-    pub errors: u64,
-    /// Resampling plans built (one per frame size and projection met).
-    pub plans: u64,
-    /// Duration of the most recent set (resample, transform, selection).
-    pub last_time: Duration,
-}
-
-impl From<StageCounters> for WaveletStats {
-    fn from(c: StageCounters) -> Self {
-        Self {
-            frames_offered: c.offered,
-            frames_skipped: c.skipped,
-            sets: c.published,
-            errors: c.errors,
-            plans: c.plans,
-            last_time: c.last_time,
-        }
-    }
-}
+/// Counters of the wavelet stage (errors: resampling failed, invalid values; plans: resampling
+/// plans, one per frame size and projection met; `last_time`: the most recent set — resample,
+/// transform, selection).
+pub type WaveletStats = SetStageStats;
 
 /// The running wavelet stage ([`DaemonStage`]: start, feed, subscribe, reconfigure, join).
 /// See the module documentation.
