@@ -86,6 +86,22 @@ pub fn cosine_lobe_factor(l: usize) -> f64 {
     }
 }
 
+/// g_l ≈ exp(−l(l + 1)/(2λ)): band l of a spherical Gaussian lobe exp(λ(cos θ − 1))
+/// normalised to integral 1, relative to band 0 (the lobe's convolution factor, as Â_l is the
+/// clamped cosine's). The heat-kernel form of the exact ratio i_l(λ)/i_0(λ) of modified
+/// spherical Bessel functions: within 1.5 % of it for λ ≥ 10 at l = 1 and 2, but 13 % above it
+/// at λ = 2 (α = 0.5 as a GGX lobe) and 17 % at λ = 1, where it blurs less than the lobe does.
+/// 1 for l = 0; 0 for a sharpness that is not positive (a uniform lobe).
+pub fn gaussian_lobe_factor(l: usize, sharpness: f64) -> f64 {
+    if l == 0 {
+        return 1.0;
+    }
+    if sharpness.is_nan() || sharpness <= 0.0 {
+        return 0.0;
+    }
+    (-((l * (l + 1)) as f64) / (2.0 * sharpness)).exp()
+}
+
 /// The real SH basis up to a degree, with its normalisation constants computed once.
 #[derive(Clone, Debug)]
 pub struct Basis {
@@ -243,6 +259,13 @@ impl ShCoefficients {
     /// convolved with the clamped cosine ([`cosine_lobe_factor`]).
     pub fn irradiance(&self, n: DVec3) -> [f64; 3] {
         self.weighted_sum(n, cosine_lobe_factor)
+    }
+
+    /// The radiance around unit direction `r` averaged under a normalised spherical Gaussian
+    /// lobe exp(λ(r·ω − 1)) of sharpness `sharpness` = λ > 0: Σ_l g_l Σ_m L_lm Y_lm(r) with
+    /// g_l = [`gaussian_lobe_factor`]`(l, λ)` — a glossy reflection's prefiltered radiance.
+    pub fn prefiltered_radiance(&self, r: DVec3, sharpness: f64) -> [f64; 3] {
+        self.weighted_sum(r, |l| gaussian_lobe_factor(l, sharpness))
     }
 
     fn weighted_sum(&self, d: DVec3, band_factor: impl Fn(usize) -> f64) -> [f64; 3] {

@@ -402,3 +402,62 @@ fn the_weights_of_a_camera_plan_give_the_per_pixel_sums() {
     let large = Projector::new(MAX_DEGREE, 640, 480, fisheye);
     assert!(matches!(large.summation, Summation::PerPixel { .. }));
 }
+
+/// g_l(λ) exactly: ∫ e^{λ(t−1)} P_l(t) dt / ∫ e^{λ(t−1)} dt over [−1, 1], by the midpoint rule.
+fn exact_gaussian_factor(l: usize, sharpness: f64) -> f64 {
+    let steps = 200_000;
+    let (mut num, mut den) = (0.0, 0.0);
+    for k in 0..steps {
+        let t = -1.0 + 2.0 * (k as f64 + 0.5) / steps as f64;
+        let w = (sharpness * (t - 1.0)).exp();
+        num += w * legendre(l, t);
+        den += w;
+    }
+    num / den
+}
+
+#[test]
+fn gaussian_lobe_factors_approach_the_exact_ones_as_the_lobe_narrows() {
+    // The accuracy stated on `gaussian_lobe_factor`.
+    let ratio = |l: usize, s: f64| gaussian_lobe_factor(l, s) / exact_gaussian_factor(l, s);
+    for s in [10.0, 30.0, 100.0, 1000.0] {
+        for l in 1..=2 {
+            let r = ratio(l, s);
+            assert!((r - 1.0).abs() < 0.015, "λ {s}, l {l}: {r}");
+        }
+    }
+    assert!((ratio(1, 2.0) - 1.13).abs() < 0.005, "{}", ratio(1, 2.0));
+    assert!((ratio(1, 1.0) - 1.175).abs() < 0.005, "{}", ratio(1, 1.0));
+    // Closed forms of the exact ratio: i_1/i_0 = coth λ − 1/λ.
+    let exact1 = |s: f64| 1.0 / s.tanh() - 1.0 / s;
+    assert!((exact_gaussian_factor(1, 2.0) - exact1(2.0)).abs() < 1e-6);
+    assert_eq!(gaussian_lobe_factor(0, 5.0), 1.0);
+    assert_eq!(gaussian_lobe_factor(3, 0.0), 0.0);
+    assert_eq!(gaussian_lobe_factor(3, f64::NAN), 0.0);
+    assert_eq!(gaussian_lobe_factor(0, f64::NAN), 1.0);
+}
+
+#[test]
+fn prefiltered_radiance_of_a_point_light_is_its_lobe_band_limited() {
+    // One light: L_lm = rgb · Y_lm(d); prefiltering weights band l by g_l, so along d the
+    // prefiltered radiance is rgb · Σ_l g_l (2l + 1)/(4π) (addition theorem).
+    let light = Light {
+        id: 0,
+        dir: [0.0, 1.0, 0.0],
+        rgb: [2.0, 1.0, 0.5],
+        solid_angle: 0.0,
+    };
+    let set = ShCoefficients::from_lights(&[light], 6);
+    let s = 20.0;
+    let got = set.prefiltered_radiance(DVec3::Y, s);
+    let want: f64 = (0..=6)
+        .map(|l| gaussian_lobe_factor(l, s) * (2 * l + 1) as f64 / (4.0 * PI))
+        .sum();
+    for c in 0..3 {
+        let w = want * f64::from(light.rgb[c]);
+        assert!((got[c] - w).abs() < 1e-12 * w.max(1.0), "{got:?} vs {w}");
+    }
+    // A uniform lobe keeps only the mean radiance.
+    let mean = set.prefiltered_radiance(DVec3::X, 0.0);
+    assert!((mean[0] - 2.0 / (4.0 * PI)).abs() < 1e-12);
+}
