@@ -1058,11 +1058,23 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
         }
         pixels.push((x, y, want.map(|w| w as f32), img.pixel(x, y)));
     }
+    check_against_cpu(name, &img, &pixels, tolerance)
+}
+
+/// Compares the rendered `img` at `pixels` (x, y, CPU value, GPU value) and returns the worst
+/// error relative to the CPU value (pixels above 5% of the brightest CPU value) and the worst
+/// relative to that brightest value (all pixels), after asserting both are within `tolerance`.
+fn check_against_cpu(
+    name: &str,
+    img: &Image,
+    pixels: &[(u32, u32, [f32; 3], [f32; 4])],
+    tolerance: (f32, f32),
+) -> (f32, f32) {
     assert!(pixels.len() > 2500, "only {} pixels checked", pixels.len());
     let peak = pixels.iter().flat_map(|p| p.2).fold(0.0f32, f32::max);
     let (mut worst_rel, mut worst_abs) = (0.0f32, 0.0f32);
     let mut failures = Vec::new();
-    for (x, y, want, got) in &pixels {
+    for (x, y, want, got) in pixels {
         for c in 0..3 {
             let abs = (got[c] - want[c]).abs() / peak;
             worst_abs = worst_abs.max(abs);
@@ -1082,7 +1094,7 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
             }
         }
     }
-    fail_with_image(name, &img, &failures);
+    fail_with_image(name, img, &failures);
     eprintln!(
         "{name}: {} pixels, worst {:.3}% of the CPU value (bright pixels), {:.3}% of the peak",
         pixels.len(),
@@ -1125,6 +1137,112 @@ fn asg_lit_spheres_match_the_cpu_closed_form() {
         },
         tolerance,
     );
+}
+
+/// An environment as SH coefficients of `degree`: three lights of different colours and a
+/// uniform sky of radiance 0.5 (L_00 = 0.5 √(4π)).
+fn test_sh(degree: usize) -> envlight::sh::ShCoefficients {
+    use envlight::sh::ShCoefficients;
+    let light = |dir: [f32; 3], rgb: [f32; 3]| {
+        let d = Vec3::from_array(dir).normalize();
+        Light {
+            id: 0,
+            dir: d.to_array(),
+            rgb,
+            solid_angle: 0.0,
+        }
+    };
+    let lights = [
+        light([0.3, 1.0, 0.5], [6.0, 5.0, 4.0]),
+        light([-1.0, 0.2, 0.4], [1.0, 2.0, 3.0]),
+        light([0.5, -0.3, 1.0], [2.0, 1.0, 0.5]),
+    ];
+    let mut rgb = ShCoefficients::from_lights(&lights, degree).rgb().to_vec();
+    let sky = 0.5 * (4.0 * std::f64::consts::PI).sqrt();
+    for c in 0..3 {
+        rgb[0][c] += sky;
+    }
+    ShCoefficients::from_rgb(rgb).unwrap()
+}
+
+/// Renders one sphere of `material` under [`test_sh`] of `degree` with SH lighting and
+/// compares every pixel away from the silhouette with the CPU reference
+/// (`render::sh::shade_reference`).
+fn sh_sphere_against_cpu(
+    name: &str,
+    material: Material,
+    degree: usize,
+    tolerance: (f32, f32),
+) -> (f32, f32) {
+    let camera = reference_sphere_camera();
+    let sh = test_sh(degree);
+    let mut r = reference_sphere(material, camera);
+    let (img, stats) = r.render_sh(&sh).unwrap();
+    assert_eq!(stats.lights, (degree + 1) * (degree + 1));
+    assert_eq!(stats.shadow_maps, 0);
+    let alpha = f64::from(material.roughness * material.roughness);
+    let f0: [f64; 3] = if material.metallic > 0.0 {
+        material.base_color.map(f64::from)
+    } else {
+        [0.16 * f64::from(material.specular).powi(2); 3]
+    };
+    let albedo = material
+        .base_color
+        .map(|c| f64::from(c) * f64::from(1.0 - material.metallic));
+    let pixels: Vec<_> = sphere_pixels(&r, camera.eye, 96)
+        .into_iter()
+        .map(|(x, y, n, v)| {
+            let want = envlight::render::sh::shade_reference(
+                &sh,
+                n.as_dvec3(),
+                v.as_dvec3(),
+                albedo,
+                f0,
+                alpha,
+            );
+            (x, y, want.map(|w| w as f32), img.pixel(x, y))
+        })
+        .collect();
+    check_against_cpu(name, &img, &pixels, tolerance)
+}
+
+#[test]
+fn sh_lit_spheres_match_the_cpu_reference() {
+    // The ASG spheres' tolerances: 2% of the CPU value on pixels above 5% of the peak, 1% of
+    // the peak everywhere.
+    let tolerance = (0.02, 0.01);
+    for degree in [2, 8] {
+        sh_sphere_against_cpu(
+            &format!("sh{degree}_diffuse_sphere"),
+            Material::lambertian([0.8, 0.6, 0.4]),
+            degree,
+            tolerance,
+        );
+        sh_sphere_against_cpu(
+            &format!("sh{degree}_glossy_metal_sphere"),
+            Material {
+                base_color: [0.95, 0.9, 0.8],
+                roughness: 0.5,
+                metallic: 1.0,
+                specular: 0.5,
+                ..Default::default()
+            },
+            degree,
+            tolerance,
+        );
+        sh_sphere_against_cpu(
+            &format!("sh{degree}_smooth_plastic_sphere"),
+            Material {
+                base_color: [0.2, 0.5, 0.8],
+                roughness: 0.15,
+                metallic: 0.0,
+                specular: 0.5,
+                ..Default::default()
+            },
+            degree,
+            tolerance,
+        );
+    }
 }
 
 #[test]

@@ -58,6 +58,11 @@
 //! scene shaded in closed form under anisotropic spherical Gaussians instead of lights — one
 //! pass, no shadow maps, no occlusion but the materials' occlusion textures.
 //!
+//! **SH lighting** ([`Renderer::render_sh`], module [`sh`], `shaders/sh.wgsl`): the same scene
+//! shaded in closed form under spherical-harmonic coefficients (the environment's ambient
+//! light): Lambert by the irradiance formula, GGX by a split sum over the prefiltered
+//! coefficients; unshadowed.
+//!
 //! Mixed reality: with [`RenderSettings::shadow_catcher`], the ground outputs (0, 0, 0, α) with
 //! α = 1 − E_shadowed/E_unshadowed, so the RGBA image composites over the camera picture (or
 //! over the environment map, [`output::composite_background`]).
@@ -80,6 +85,8 @@ pub mod post;
 pub mod scene;
 
 pub mod shading;
+
+pub mod sh;
 
 pub mod shadow;
 
@@ -142,6 +149,7 @@ pub const PRESENT_WGSL: &str = include_str!("../../shaders/present.wgsl");
 /// composed (the naga test validates each).
 pub const SHADERS: &[(&str, &str)] = &[
     ("asg.wgsl", asg::ASG_WGSL),
+    ("sh.wgsl", sh::SH_WGSL),
     ("present.wgsl", PRESENT_WGSL),
     ("shade.wgsl", SHADE_WGSL),
     ("shadow.wgsl", SHADOW_WGSL),
@@ -332,6 +340,8 @@ pub struct Renderer {
     warned_layers: bool,
     /// The ASG lighting pass, built on first use.
     asg_pass: Option<asg::AsgPass>,
+    /// The SH lighting pass, built on first use.
+    sh_pass: Option<sh::ShPass>,
     /// The compute rasteriser, with [`ShadowRaster::Compute`].
     compute_shadows: Option<ComputeShadows>,
     /// Bound in its place otherwise.
@@ -613,6 +623,8 @@ mod tests {
             struct_size(&asg, "Globals"),
             size_of::<asg::AsgGlobalsRaw>()
         );
+        let sh = parse("sh.wgsl");
+        assert_eq!(struct_size(&sh, "Globals"), size_of::<sh::ShGlobalsRaw>());
         let raster = parse("shadow_raster.wgsl");
         let (_, words) = raster
             .constants

@@ -857,6 +857,7 @@ impl Renderer {
             timestamps,
             warned_layers: false,
             asg_pass: None,
+            sh_pass: None,
             compute_shadows,
             no_shadow_depths,
             shadow_bindings_generation: 0,
