@@ -1310,6 +1310,60 @@ fn cli_renders_with_asg_lighting() {
     );
 }
 
+#[test]
+fn cli_renders_with_sh_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let render = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .arg("render")
+            .args(args)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let o = render(&[
+        "--lighting",
+        "sh",
+        "--degree",
+        "3",
+        "--frames",
+        "2",
+        "--size",
+        "48x32",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
+    assert_eq!(stats.lines().count(), 2);
+    for line in stats.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert_eq!(v["lights"], 16, "(3 + 1)² coefficients: {line}");
+        assert_eq!(v["shadow_maps"], 0, "{line}");
+    }
+    // The sky lights the spheres: the image is not black.
+    let img = image::open(out.join("frame_00001.png")).unwrap().to_rgba8();
+    assert_eq!(img.dimensions(), (48, 32));
+    assert!(img.pixels().any(|p| p.0[..3].iter().any(|&c| c > 32)));
+    // What SH lighting cannot do is a usage error naming the option.
+    for (args, named) in [
+        (&["--lighting", "sh", "--catcher"][..], "--catcher"),
+        (
+            &["--lighting", "sh", "--shadow-res", "256"][..],
+            "--shadow-res",
+        ),
+        (&["--lighting", "sh", "--lights", "x.jsonl"][..], "--lights"),
+        (&["--lighting", "sh", "--degree", "16"][..], "--degree 16"),
+        (&["--lighting", "sh", "--lobes", "4"][..], "--lobes"),
+        (&["--degree", "2"][..], "--degree"),
+    ] {
+        let o = render(args);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(named), "{args:?}: {stderr}");
+    }
+}
+
 /// An error the device reports outside an error scope (here a texture past the adapter's size
 /// limit; on a real run, shadow maps the GPU has no memory for) is kept for the renderer to
 /// return, not a panic in wgpu's default handler (`render --shadow-res 8192` with 128 lights

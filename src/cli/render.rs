@@ -24,7 +24,8 @@ RGBA) and OUT/stats.jsonl (lights, shadow maps and time of every frame).
 --budget-ms holds a frame time by rendering a prefix of the progressive light set (the other
 lights' power merged into their nearest prefix light).
 --lighting asg shades instead with ASG lobes fitted to each INPUT frame (or sky frame), in closed
-form (Lambert + GGX, no shadows; --lobes, --fit-height).";
+form (Lambert + GGX, each lobe with a soft shadow; --lobes, --fit-height); --lighting sh with the
+frame's spherical-harmonic coefficients (Lambert + GGX, unshadowed ambient light; --degree).";
 
 #[derive(Args, Debug)]
 pub(crate) struct RenderArgs {
@@ -117,10 +118,11 @@ pub(crate) struct RenderArgs {
     /// Show the frames in a window instead of writing files (needs the `window` feature).
     #[arg(long, conflicts_with = "background")]
     window: bool,
-    /// Shade with the decomposed lights (shadow maps) or with ASG lobes fitted to each frame
+    /// Shade with the decomposed lights (shadow maps), with ASG lobes fitted to each frame
     /// (closed-form Lambert + GGX, each lobe shadowed by a soft shadow map along its axis;
-    /// warm-started from frame to frame; not with --lights, --window, --budget-ms,
-    /// --light-count or --no-culling).
+    /// warm-started from frame to frame), or with each frame's SH coefficients (closed-form
+    /// Lambert + GGX, no shadows; also not with --catcher, --shadow-res or --shadow-raster).
+    /// asg and sh: not with --lights, --window, --budget-ms, --light-count or --no-culling.
     #[arg(long, value_enum, default_value = "lights")]
     lighting: LightingArg,
     /// ASG lobes per frame with --lighting asg (1..=64). [default: 16]
@@ -129,6 +131,9 @@ pub(crate) struct RenderArgs {
     /// Fit-map height with --lighting asg (width is twice; 4..=1024). [default: 64]
     #[arg(long, value_name = "H")]
     fit_height: Option<u32>,
+    /// SH degree with --lighting sh: (L + 1)² coefficients per channel (0..=15). [default: 2]
+    #[arg(long, value_name = "L")]
+    degree: Option<usize>,
 }
 
 /// `render --shadow-res` when not given.
@@ -137,7 +142,8 @@ const DEFAULT_SHADOW_RES: u32 = 512;
 impl RenderArgs {
     /// The options that the chosen lighting or light source would ignore are usage errors.
     fn check_usage(&self) -> Result<()> {
-        if self.lighting == LightingArg::Asg {
+        if self.lighting != LightingArg::Lights {
+            let name = self.lighting.name();
             let with = [
                 (self.lights.is_some(), "--lights"),
                 (self.window, "--window"),
@@ -147,11 +153,33 @@ impl RenderArgs {
             ];
             if let Some((_, flag)) = with.iter().find(|(given, _)| *given) {
                 usage_error!(
-                    "--lighting asg fits lobes to INPUT frames or the sky; {flag} applies to directional lights"
+                    "--lighting {name} is computed from INPUT frames or the sky; {flag} applies to directional lights"
                 );
             }
-        } else if self.lobes.is_some() || self.fit_height.is_some() {
+        }
+        if self.lighting != LightingArg::Asg && (self.lobes.is_some() || self.fit_height.is_some())
+        {
             usage_error!("--lobes and --fit-height apply to --lighting asg");
+        }
+        if self.lighting == LightingArg::Sh {
+            let with = [
+                (self.catcher, "--catcher"),
+                (self.shadow_res.is_some(), "--shadow-res"),
+                (self.shadow_raster.is_some(), "--shadow-raster"),
+            ];
+            if let Some((_, flag)) = with.iter().find(|(given, _)| *given) {
+                usage_error!(
+                    "--lighting sh is unshadowed ambient light; {flag} applies to shadows (use --lighting lights or asg)"
+                );
+            }
+            if let Some(degree) = self.degree.filter(|&l| l > envlight::sh::MAX_DEGREE) {
+                usage_error!(
+                    "invalid --degree {degree}: must be an integer in 0..={}",
+                    envlight::sh::MAX_DEGREE
+                );
+            }
+        } else if self.degree.is_some() {
+            usage_error!("--degree applies to --lighting sh");
         }
         if self.no_shadows && self.shadow_res.is_some() {
             usage_error!("--shadow-res sizes the shadow maps; with --no-shadows there are none");
@@ -179,6 +207,28 @@ enum LightingArg {
     Lights,
     /// Anisotropic spherical Gaussians fitted to each frame, in closed form.
     Asg,
+    /// Spherical harmonics projected from each frame, in closed form, unshadowed.
+    Sh,
+}
+
+impl LightingArg {
+    /// The value as given on the command line.
+    fn name(self) -> &'static str {
+        match self {
+            LightingArg::Lights => "lights",
+            LightingArg::Asg => "asg",
+            LightingArg::Sh => "sh",
+        }
+    }
+
+    /// What `FrameStats::lights` counts.
+    fn counted(self) -> &'static str {
+        match self {
+            LightingArg::Lights => "lights",
+            LightingArg::Asg => "lobes",
+            LightingArg::Sh => "SH coefficients a channel",
+        }
+    }
 }
 
 /// The frames of `render --lights`, read as they are rendered.
@@ -241,6 +291,10 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
     tracing::info!("scene: {}", scene.summary());
     tracing::info!("camera: {}", scene.camera.describe());
     let asg_lighting = args.lighting == LightingArg::Asg;
+    let sh_degree = (args.lighting == LightingArg::Sh)
+        .then(|| args.degree.unwrap_or(envlight::sh_stage::DEFAULT_DEGREE));
+    // The projection plan of the frames' shape, kept from frame to frame.
+    let mut sh_plan: Option<envlight::sh::Projector> = None;
     let mut fitter = if asg_lighting {
         let settings = envlight::asg::fit::FitSettings {
             lobes: args.lobes.unwrap_or(envlight::asg::fit::DEFAULT_LOBES),
@@ -327,8 +381,8 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 .next_frame()
                 .context("cannot read a frame")?
                 .map(|frame| {
-                    // ASG lighting fits the frame itself; the lights are not needed.
-                    let lights = if asg_lighting {
+                    // ASG and SH lighting use the frame itself; the lights are not needed.
+                    let lights = if asg_lighting || sh_degree.is_some() {
                         envlight::LightFrame {
                             seq: frame.seq,
                             time: frame.time,
@@ -417,12 +471,28 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 envlight::decompose::MAX_POINTS
             );
         }
-        let (mut image, stats) = match (&mut fitter, &env) {
-            (Some(fitter), Some(frame)) => {
+        let (mut image, stats) = match (&mut fitter, sh_degree, &env) {
+            (Some(fitter), _, Some(frame)) => {
                 let fit = fitter
                     .fit_frame(frame)
                     .with_context(|| format!("cannot fit ASG lobes to frame {}", frame.seq))?;
                 renderer.render_asg(&fit.lobes)?
+            }
+            (None, Some(degree), Some(frame)) => {
+                let plan = match sh_plan.take() {
+                    Some(plan) if plan.fits(frame) => plan,
+                    _ => envlight::sh::Projector::new(
+                        degree,
+                        frame.width,
+                        frame.height,
+                        frame.projection,
+                    ),
+                };
+                let sh = plan.project(frame).with_context(|| {
+                    format!("cannot project frame {} onto the SH basis", frame.seq)
+                })?;
+                sh_plan = Some(plan);
+                renderer.render_sh(&sh)?
             }
             _ => renderer.render(&render::light_prefix(&all, count))?,
         };
@@ -484,9 +554,10 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         writeln!(stats_file, "{line}")
             .with_context(|| format!("cannot write {}", stats_path.display()))?;
         tracing::info!(
-            "frame {}: {} lights, {} shadow maps, {:.2} ms ({})",
+            "frame {}: {} {}, {} shadow maps, {:.2} ms ({})",
             lights.seq,
             stats.lights,
+            args.lighting.counted(),
             stats.shadow_maps,
             stats.frame_ms(),
             if stats.gpu_ms.is_some() {
