@@ -471,15 +471,19 @@ impl RawConfig {
         })
         .and_then(|config: Config| {
             check_endpoints_apart(&config)?;
-            if config.render.enabled
-                && config.render.lighting == Lighting::Asg
-                && !config.asg.enabled
-            {
-                return Err(invalid(
-                    "render.lighting",
-                    "asg",
-                    "needs the ASG stage: set [asg] enabled = true",
-                ));
+            if config.render.enabled {
+                let missing = match config.render.lighting {
+                    Lighting::Asg if !config.asg.enabled => Some(("asg", "ASG", "[asg]")),
+                    Lighting::Sh if !config.sh.enabled => Some(("sh", "SH", "[sh]")),
+                    _ => None,
+                };
+                if let Some((value, stage, section)) = missing {
+                    return Err(invalid(
+                        "render.lighting",
+                        value,
+                        format!("needs the {stage} stage: set {section} enabled = true"),
+                    ));
+                }
             }
             Ok(config)
         })
@@ -769,6 +773,8 @@ pub enum Lighting {
     Lights,
     /// The ASG stage's lobes, in closed form, each shadowed along its axis.
     Asg,
+    /// The SH stage's coefficients, in closed form, unshadowed.
+    Sh,
 }
 
 /// Parses a `--lighting` / `render.lighting` value.
@@ -776,6 +782,7 @@ pub fn parse_lighting(s: &str) -> Option<Lighting> {
     match s {
         "lights" => Some(Lighting::Lights),
         "asg" => Some(Lighting::Asg),
+        "sh" => Some(Lighting::Sh),
         _ => None,
     }
 }
@@ -894,8 +901,13 @@ impl RawRender {
         let path = |v: &Option<String>| v.as_deref().filter(|p| !p.is_empty()).map(PathBuf::from);
         let lighting = match self.lighting.as_deref() {
             None => Lighting::default(),
-            Some(s) => parse_lighting(s)
-                .ok_or_else(|| invalid("render.lighting", s, "must be \"lights\" or \"asg\""))?,
+            Some(s) => parse_lighting(s).ok_or_else(|| {
+                invalid(
+                    "render.lighting",
+                    s,
+                    "must be \"lights\", \"asg\" or \"sh\"",
+                )
+            })?,
         };
         let enabled = self.enabled.unwrap_or(false);
         let (scene, latest_png) = (path(&self.scene), path(&self.latest_png));
@@ -2077,7 +2089,16 @@ mod tests {
             ("[asg]\nwarm_subset = 0", "asg.warm_subset", "0"),
             ("[asg]\nfirst_subset = 17", "asg.first_subset", "17"),
             ("[asg]\nthreads = 1000", "asg.threads", "1000"),
-            ("[render]\nlighting = \"sh\"", "render.lighting", "sh"),
+            (
+                "[render]\nlighting = \"ambient\"",
+                "render.lighting",
+                "ambient",
+            ),
+            (
+                "[render]\nenabled = true\nlighting = \"sh\"",
+                "render.lighting",
+                "sh",
+            ),
             (
                 "[render]\nshadow_raster = \"raster\"",
                 "render.shadow_raster",

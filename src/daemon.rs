@@ -458,7 +458,7 @@ impl Daemon {
             let mut streams = Streams::new(pipeline.subscribe())
                 .with_optional(asg_rx.clone())
                 .with_optional(wavelet_rx)
-                .with_optional(sh_rx);
+                .with_optional(sh_rx.clone());
             if let Some(pass) = publisher_pass {
                 streams = streams.with_publisher_pass(pass);
             }
@@ -531,6 +531,7 @@ impl Daemon {
                     config: config.render.clone(),
                     lights: pipeline.subscribe(),
                     asg: asg_rx.clone(),
+                    sh: sh_rx.clone(),
                     stop: Arc::clone(&stop),
                     metrics: Arc::clone(&metrics),
                     runtime: runtime.handle().clone(),
@@ -968,13 +969,14 @@ fn build_renderer(
 
 /// The render consumer: shades the scene under every new light list (the newest one; a slow
 /// renderer skips lists), holding `budget_ms` by using a prefix of the progressive light set;
-/// or, with `lighting = "asg"`, under every new ASG set (closed form, no budget: the cost is
-/// one pass over 16-ish lobes).
+/// or, with `lighting = "asg"` or `"sh"`, under every new ASG or SH set (closed form, no
+/// budget: the cost is one pass over 16-ish lobes or a few dozen coefficients).
 struct RenderThread {
     renderer: crate::render::Renderer,
     config: crate::config::RenderConfig,
     lights: watch::Receiver<LatestLights>,
     asg: Option<watch::Receiver<LatestAsg>>,
+    sh: Option<watch::Receiver<crate::sh_stage::LatestSh>>,
     stop: Arc<std::sync::atomic::AtomicBool>,
     metrics: Arc<Metrics>,
     runtime: tokio::runtime::Handle,
@@ -985,8 +987,10 @@ impl RenderThread {
     /// first GPU or output error (which also ends the thread, logged).
     fn run(mut self) -> Result<u64, String> {
         use crate::render::{budget, light_prefix};
-        if self.config.lighting == crate::config::Lighting::Asg {
-            return self.run_asg();
+        match self.config.lighting {
+            crate::config::Lighting::Lights => {}
+            crate::config::Lighting::Asg => return self.run_asg(),
+            crate::config::Lighting::Sh => return self.run_sh(),
         }
         let mut controller: Option<budget::BudgetController> = None;
         let mut frames = 0u64;
@@ -1044,12 +1048,66 @@ impl RenderThread {
 impl RenderThread {
     /// The ASG loop of [`RenderThread::run`].
     fn run_asg(mut self) -> Result<u64, String> {
-        let Some(mut rx) = self.asg.take() else {
+        let Some(rx) = self.asg.take() else {
             return Err("lighting = \"asg\" needs the ASG stage ([asg] enabled = true)".into());
         };
+        self.run_sets(rx, |renderer, set: &crate::light::AsgSet, image| {
+            let lobes: Vec<crate::asg::Asg> = set
+                .lobes
+                .iter()
+                .filter_map(crate::light::AsgLobe::to_asg)
+                .collect();
+            if image {
+                renderer.render_asg(&lobes).map(|(i, s)| (Some(i), s))
+            } else {
+                renderer.render_asg_timed(&lobes).map(|s| (None, s))
+            }
+        })
+    }
+
+    /// The SH loop of [`RenderThread::run`].
+    fn run_sh(mut self) -> Result<u64, String> {
+        let Some(rx) = self.sh.take() else {
+            return Err("lighting = \"sh\" needs the SH stage ([sh] enabled = true)".into());
+        };
+        self.run_sets(rx, |renderer, set: &crate::stream::ShFrame, image| {
+            // The stage publishes only squares (validate_sh_set); anything else is no light.
+            let sh = set
+                .to_coefficients()
+                .unwrap_or_else(|| crate::sh::ShCoefficients::zero(0));
+            if image {
+                renderer.render_sh(&sh).map(|(i, s)| (Some(i), s))
+            } else {
+                renderer.render_sh_timed(&sh).map(|s| (None, s))
+            }
+        })
+    }
+
+    /// Renders under every new set of `rx` with `draw` (asked for the image when
+    /// `latest_png` is set) until stopped or the stream ends.
+    fn run_sets<T>(
+        self,
+        mut rx: watch::Receiver<crate::publication::Latest<T>>,
+        mut draw: impl FnMut(
+            &mut crate::render::Renderer,
+            &T,
+            bool,
+        ) -> Result<
+            (Option<crate::render::Image>, crate::render::FrameStats),
+            crate::render::RenderError,
+        >,
+    ) -> Result<u64, String> {
+        let Self {
+            mut renderer,
+            config,
+            stop,
+            metrics,
+            runtime,
+            ..
+        } = self;
         let mut frames = 0u64;
-        while !self.stop.load(std::sync::atomic::Ordering::Acquire) {
-            let changed = self.runtime.block_on(async {
+        while !stop.load(std::sync::atomic::Ordering::Acquire) {
+            let changed = runtime.block_on(async {
                 tokio::time::timeout(Duration::from_millis(100), rx.changed()).await
             });
             match changed {
@@ -1060,19 +1118,15 @@ impl RenderThread {
             let Some(published) = rx.borrow_and_update().clone() else {
                 continue;
             };
-            let lobes: Vec<crate::asg::Asg> = published
-                .payload
-                .lobes
-                .iter()
-                .filter_map(crate::light::AsgLobe::to_asg)
-                .collect();
-            let result = match &self.config.latest_png {
-                Some(path) => self
-                    .renderer
-                    .render_asg(&lobes)
-                    .and_then(|(image, stats)| write_latest_png(path, &image).map(|()| stats)),
-                None => self.renderer.render_asg_timed(&lobes),
-            };
+            let result = draw(
+                &mut renderer,
+                &published.payload,
+                config.latest_png.is_some(),
+            )
+            .and_then(|(image, stats)| match (&config.latest_png, image) {
+                (Some(path), Some(image)) => write_latest_png(path, &image).map(|()| stats),
+                _ => Ok(stats),
+            });
             let stats = match result {
                 Ok(stats) => stats,
                 Err(error) => {
@@ -1081,8 +1135,8 @@ impl RenderThread {
                 }
             };
             frames += 1;
-            self.metrics.frames_rendered.inc();
-            self.metrics.render_seconds.observe(stats.frame_ms() / 1e3);
+            metrics.frames_rendered.inc();
+            metrics.render_seconds.observe(stats.frame_ms() / 1e3);
         }
         Ok(frames)
     }

@@ -133,6 +133,50 @@ fn sh_clients_receive_what_the_library_computes() {
 }
 
 #[test]
+fn the_render_thread_shades_with_sh_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("latest.png");
+    let extra = format!(
+        "{LIVE_SKY}[sh]\nenabled = true\ndegree = 4\n\
+         [render]\nenabled = true\nwidth = 48\nheight = 32\nlighting = \"sh\"\n\
+         latest_png = \"{}\"\n",
+        png.display()
+    );
+    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default())
+        .unwrap_or_else(|e| {
+            panic!(
+                "the render thread needs a graphics adapter; without a GPU install Mesa's \
+                 lavapipe (apt-get install mesa-vulkan-drivers libvulkan1): {e}"
+            )
+        });
+    let http = daemon.addresses().metrics.unwrap();
+    wait_until("rendered frames", || {
+        let text = http_get(http, "/metrics").1;
+        metric_value(&text, "envlight_frames_rendered_total") >= 3.0
+    });
+    let image = image::open(&png).unwrap().to_rgba8();
+    assert_eq!(image.dimensions(), (48, 32));
+    assert!(
+        image.pixels().any(|p| p.0[..3].iter().any(|&c| c > 32)),
+        "the sky lights the scene"
+    );
+    daemon.shutdown().unwrap();
+    // Without the stage the config is refused, naming the key.
+    let refused = envlight::config::RawConfig::parse(
+        "[render]\nenabled = true\nlighting = \"sh\"\n",
+        Path::new("envlight.toml"),
+    )
+    .unwrap()
+    .validate()
+    .unwrap_err()
+    .to_string();
+    assert!(
+        refused.contains("render.lighting") && refused.contains("[sh]"),
+        "{refused}"
+    );
+}
+
+#[test]
 fn sh_subscribe_without_the_stage_is_unsupported() {
     let dir = tempfile::tempdir().unwrap();
     let daemon = Daemon::start(config(dir.path(), LIVE_SKY), DaemonOptions::default()).unwrap();

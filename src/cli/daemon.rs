@@ -328,6 +328,7 @@ fn render_description(
     let lighting = match render.lighting {
         envlight::config::Lighting::Lights => "the lights with shadows".to_owned(),
         envlight::config::Lighting::Asg => "the ASG lobes".to_owned(),
+        envlight::config::Lighting::Sh => "the SH coefficients (unshadowed)".to_owned(),
     };
     let budget = render.budget_ms.map_or("every light".to_owned(), |ms| {
         format!(
