@@ -13,6 +13,7 @@
 //!
 //! The pass is built on first use ([`Renderer::render_asg`]); the light pass is untouched.
 
+use super::closed_form::SurfacePipelines;
 use super::setup::{compute_storage_entry, uniform_entry};
 use super::{FrameStats, Image, RenderError, Renderer};
 use crate::asg::{cosine_convolution, integral, Asg};
@@ -106,9 +107,7 @@ pub fn cosine_table() -> Vec<f32> {
 
 /// GPU objects of the ASG pass.
 pub(super) struct AsgPass {
-    pipeline: wgpu::RenderPipeline,
-    /// The blended surfaces' (`fs_blended`), where the scene has any.
-    blended_pipeline: Option<wgpu::RenderPipeline>,
+    pipelines: SurfacePipelines,
     layout: wgpu::BindGroupLayout,
     globals: wgpu::Buffer,
     lobes: wgpu::Buffer,
@@ -172,28 +171,7 @@ impl AsgPass {
             bind_group_layouts: &[Some(&layout), None, Some(&renderer.surface_textures.layout)],
             immediate_size: 0,
         });
-        let pipeline = super::depth_tested_pipeline(
-            device,
-            "asg",
-            &pipeline_layout,
-            &module,
-            ("vs_main", &super::SURFACE_ATTRIBUTES),
-            wgpu::DepthBiasState::default(),
-            Some(("fs_main", &[super::COLOR_FORMAT])),
-            None,
-        );
-        let blended_pipeline = renderer.blended_pipeline.is_some().then(|| {
-            super::depth_tested_pipeline(
-                device,
-                "asg blended",
-                &pipeline_layout,
-                &module,
-                ("vs_main", &super::SURFACE_ATTRIBUTES),
-                wgpu::DepthBiasState::default(),
-                Some(("fs_blended", &[super::COLOR_FORMAT])),
-                Some(wgpu::BlendState::PREMULTIPLIED_ALPHA_BLENDING),
-            )
-        });
+        let pipelines = SurfacePipelines::new(renderer, "asg", &pipeline_layout, &module);
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("asg globals"),
             size: std::mem::size_of::<AsgGlobalsRaw>() as u64,
@@ -210,8 +188,7 @@ impl AsgPass {
         let bind_group = Self::bind(renderer, &layout, &globals, &lobes, &table);
         Self {
             bound_generation: renderer.shadow_bindings_generation,
-            pipeline,
-            blended_pipeline,
+            pipelines,
             layout,
             globals,
             lobes,
@@ -333,41 +310,11 @@ impl Renderer {
     }
 
     fn encode_asg(&self, maps: usize, readback: bool) -> wgpu::CommandEncoder {
-        let mut enc = self
-            .gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("asg frame"),
-            });
-        self.encode_shadow_maps(&mut enc, maps);
-        // GPU timestamps as the light pass's: the shadow maps' start (0), the shading's (1),
-        // the frame's end (2) after the last pass.
-        let ts = self.timestamps.as_ref();
-        let post = self.post_pass.is_some();
-        if let Some(asg) = &self.asg_pass {
-            self.encode_scene_pass(
-                &mut enc,
-                "asg shade",
-                &[&self.color_view],
-                &asg.pipeline,
-                &asg.bind_group,
-                ts.map(|t| wgpu::RenderPassTimestampWrites {
-                    query_set: &t.set,
-                    beginning_of_pass_write_index: Some(1),
-                    end_of_pass_write_index: (!post).then_some(2),
-                }),
-                asg.blended_pipeline.as_ref(),
-            );
-        }
-        self.encode_post_pass(&mut enc, ts.filter(|_| post).map(|t| (t, 2)));
-        if let Some(t) = ts {
-            enc.resolve_query_set(&t.set, 0..super::TIMESTAMPS, &t.resolve, 0);
-            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(super::TIMESTAMPS));
-        }
-        if readback {
-            self.encode_readback(&mut enc);
-        }
-        enc
+        let pass = self
+            .asg_pass
+            .as_ref()
+            .map(|p| (&p.pipelines, &p.bind_group));
+        self.encode_closed_form("asg shade", pass, maps, readback)
     }
 
     /// Renders one frame under ASG lighting and waits for it, without reading the image back.
@@ -376,40 +323,17 @@ impl Renderer {
     pub fn render_asg_timed(&mut self, lobes: &[Asg]) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
         let (n, maps) = self.prepare_asg(lobes)?;
-        let cmd = self.encode_asg(maps, false).finish();
-        self.gpu.queue.submit([cmd]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
-        Ok(FrameStats {
-            lights: n,
-            shadow_maps: maps,
-            gpu_ms,
-            shadow_gpu_ms,
-            cpu_ms,
-        })
+        let enc = self.encode_asg(maps, false);
+        self.run_closed_form(enc, start, n, maps)
     }
 
     /// Renders one frame under ASG lighting (module doc) and reads the image back.
     pub fn render_asg(&mut self, lobes: &[Asg]) -> Result<(Image, FrameStats), RenderError> {
         let start = Instant::now();
         let (n, maps) = self.prepare_asg(lobes)?;
-        let cmd = self.encode_asg(maps, true).finish();
-        self.gpu.queue.submit([cmd]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
-        let image = self.read_image()?;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
-        Ok((
-            image,
-            FrameStats {
-                lights: n,
-                shadow_maps: maps,
-                gpu_ms,
-                shadow_gpu_ms,
-                cpu_ms,
-            },
-        ))
+        let enc = self.encode_asg(maps, true);
+        let stats = self.run_closed_form(enc, start, n, maps)?;
+        Ok((self.read_image()?, stats))
     }
 }
 

@@ -70,7 +70,8 @@
 //! Files: this one holds the renderer's settings, its state and its public frame API;
 //! `setup.rs` builds the pipelines, bind groups and targets, `frame.rs` writes a frame's lights
 //! and encodes its passes, `prefix.rs` takes a budget's prefix of the lights; the passes'
-//! pieces have modules of their own (shadows, shading constants, ASG, post passes, textures).
+//! pieces have modules of their own (shadows, shading constants, ASG, SH and what their
+//! closed-form passes share, post passes, textures).
 
 pub mod asg;
 
@@ -101,6 +102,7 @@ pub mod textures;
 #[cfg(feature = "window")]
 pub mod window;
 
+mod closed_form;
 mod frame;
 mod prefix;
 mod setup;

@@ -19,6 +19,7 @@
 //!
 //! The pass is built on first use ([`Renderer::render_sh`]); the light pass is untouched.
 
+use super::closed_form::SurfacePipelines;
 use super::setup::{compute_storage_entry, uniform_entry};
 use super::{FrameStats, Image, RenderError, Renderer};
 use crate::sh::{coefficient_count, cosine_lobe_factor, ShCoefficients, MAX_DEGREE};
@@ -171,9 +172,7 @@ pub fn shade_reference(
 
 /// GPU objects of the SH pass.
 pub(super) struct ShPass {
-    pipeline: wgpu::RenderPipeline,
-    /// The blended surfaces' (`fs_blended`), where the scene has any.
-    blended_pipeline: Option<wgpu::RenderPipeline>,
+    pipelines: SurfacePipelines,
     globals: wgpu::Buffer,
     /// Room for the coefficients of [`MAX_DEGREE`], so it is never replaced.
     coefficients: wgpu::Buffer,
@@ -219,28 +218,7 @@ impl ShPass {
             bind_group_layouts: &[Some(&layout), None, Some(&renderer.surface_textures.layout)],
             immediate_size: 0,
         });
-        let pipeline = super::depth_tested_pipeline(
-            device,
-            "sh",
-            &pipeline_layout,
-            &module,
-            ("vs_main", &super::SURFACE_ATTRIBUTES),
-            wgpu::DepthBiasState::default(),
-            Some(("fs_main", &[super::COLOR_FORMAT])),
-            None,
-        );
-        let blended_pipeline = renderer.blended_pipeline.is_some().then(|| {
-            super::depth_tested_pipeline(
-                device,
-                "sh blended",
-                &pipeline_layout,
-                &module,
-                ("vs_main", &super::SURFACE_ATTRIBUTES),
-                wgpu::DepthBiasState::default(),
-                Some(("fs_blended", &[super::COLOR_FORMAT])),
-                Some(wgpu::BlendState::PREMULTIPLIED_ALPHA_BLENDING),
-            )
-        });
+        let pipelines = SurfacePipelines::new(renderer, "sh", &pipeline_layout, &module);
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("sh globals"),
             size: std::mem::size_of::<ShGlobalsRaw>() as u64,
@@ -275,8 +253,7 @@ impl ShPass {
             ],
         });
         Self {
-            pipeline,
-            blended_pipeline,
+            pipelines,
             globals,
             coefficients,
             bind_group,
@@ -320,40 +297,8 @@ impl Renderer {
     }
 
     fn encode_sh(&self, readback: bool) -> wgpu::CommandEncoder {
-        let mut enc = self
-            .gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("sh frame"),
-            });
-        // GPU timestamps as the light pass's without shadow maps: the shading's start (1), the
-        // frame's end (2) after the last pass.
-        let ts = self.timestamps.as_ref();
-        let post = self.post_pass.is_some();
-        if let Some(sh) = &self.sh_pass {
-            self.encode_scene_pass(
-                &mut enc,
-                "sh shade",
-                &[&self.color_view],
-                &sh.pipeline,
-                &sh.bind_group,
-                ts.map(|t| wgpu::RenderPassTimestampWrites {
-                    query_set: &t.set,
-                    beginning_of_pass_write_index: Some(1),
-                    end_of_pass_write_index: (!post).then_some(2),
-                }),
-                sh.blended_pipeline.as_ref(),
-            );
-        }
-        self.encode_post_pass(&mut enc, ts.filter(|_| post).map(|t| (t, 2)));
-        if let Some(t) = ts {
-            enc.resolve_query_set(&t.set, 0..super::TIMESTAMPS, &t.resolve, 0);
-            enc.copy_buffer_to_buffer(&t.resolve, 0, &t.read, 0, 8 * u64::from(super::TIMESTAMPS));
-        }
-        if readback {
-            self.encode_readback(&mut enc);
-        }
-        enc
+        let pass = self.sh_pass.as_ref().map(|p| (&p.pipelines, &p.bind_group));
+        self.encode_closed_form("sh shade", pass, 0, readback)
     }
 
     /// Renders one frame under SH lighting and waits for it, without reading the image back.
@@ -362,40 +307,17 @@ impl Renderer {
     pub fn render_sh_timed(&mut self, sh: &ShCoefficients) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
         let n = self.prepare_sh(sh)?;
-        let cmd = self.encode_sh(false).finish();
-        self.gpu.queue.submit([cmd]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(false)?;
-        Ok(FrameStats {
-            lights: n,
-            shadow_maps: 0,
-            gpu_ms,
-            shadow_gpu_ms,
-            cpu_ms,
-        })
+        let enc = self.encode_sh(false);
+        self.run_closed_form(enc, start, n, 0)
     }
 
     /// Renders one frame under SH lighting (module doc) and reads the image back.
     pub fn render_sh(&mut self, sh: &ShCoefficients) -> Result<(Image, FrameStats), RenderError> {
         let start = Instant::now();
         let n = self.prepare_sh(sh)?;
-        let cmd = self.encode_sh(true).finish();
-        self.gpu.queue.submit([cmd]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
-        let image = self.read_image()?;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(false)?;
-        Ok((
-            image,
-            FrameStats {
-                lights: n,
-                shadow_maps: 0,
-                gpu_ms,
-                shadow_gpu_ms,
-                cpu_ms,
-            },
-        ))
+        let enc = self.encode_sh(true);
+        let stats = self.run_closed_form(enc, start, n, 0)?;
+        Ok((self.read_image()?, stats))
     }
 }
 
