@@ -2,7 +2,8 @@
 //! (pixel directions and exact solid angles, built once per frame shape) and the per-frame
 //! projection of rooitou_park at 512×256, 1024×512 and 2048×1024 onto degree 2 (9
 //! coefficients per channel) and degree 4 (25), on one thread and on rayon's threads; the
-//! same for a camera's 1280×960 fisheye frame (the per-pixel path); the evaluation of
+//! same for a camera's 1280×960 fisheye frame (the per-pixel weights at degrees 2 and 4, the
+//! basis evaluated at every pixel at degree 8); the evaluation of
 //! irradiance from a set. Run: `cargo bench --bench sh` (`-- --quick` for a short
 //! run).
 
@@ -73,6 +74,16 @@ fn bench(c: &mut Criterion) {
             |b| b.iter(|| plan.project(black_box(&camera))),
         );
     }
+    // Degree 8: weights past the plan's budget, so the basis is evaluated at every pixel.
+    let plan = Projector::new(8, 1280, 960, fisheye);
+    group.bench_function(
+        BenchmarkId::new("project_degree8_1thread", "fisheye_1280x960"),
+        |b| b.iter(|| one_thread.install(|| plan.project(black_box(&camera)))),
+    );
+    group.bench_function(
+        BenchmarkId::new("project_degree8_all_threads", "fisheye_1280x960"),
+        |b| b.iter(|| plan.project(black_box(&camera))),
+    );
     let set = project(&park, 2);
     let normals: Vec<glam::DVec3> = envlight::yardstick::evaluation_directions();
     group.bench_function("irradiance_degree2_1024_normals", |b| {
