@@ -654,10 +654,12 @@ impl Projector {
     }
 
     /// The sums of a band of pixels against the basis at their centres.
+    /// The per-pixel path's sums over one band: the pixels that see something and hold light
+    /// are gathered [`LANES`] at a time and their basis values computed lane by lane
+    /// ([`Projector::accumulate_lanes`]), so the compiler vectorises across pixels.
     fn per_pixel_band(&self, pixels: &[[f32; 3]], samples: &[([f64; 3], f64)]) -> Vec<[f64; 3]> {
-        let count = self.basis.len();
-        let mut sums = vec![[0.0f64; 3]; count];
-        let mut y = vec![0.0f64; count];
+        let mut sums = vec![[0.0f64; 3]; self.basis.len()];
+        let mut lanes = Lanes::empty();
         for (rgb, &(dir, omega)) in pixels.iter().zip(samples) {
             if omega == 0.0 {
                 continue;
@@ -666,14 +668,102 @@ impl Projector {
             if energy == [0.0; 3] {
                 continue;
             }
-            self.basis.evaluate(DVec3::from(dir), &mut y);
-            for (sum, &yi) in sums.iter_mut().zip(&y) {
+            lanes.push(dir, energy);
+            if lanes.len == LANES {
+                self.accumulate_lanes(&lanes, &mut sums);
+                lanes = Lanes::empty();
+            }
+        }
+        if lanes.len > 0 {
+            // The unused lanes hold no energy: they add nothing.
+            self.accumulate_lanes(&lanes, &mut sums);
+        }
+        sums
+    }
+
+    /// Adds Σ_pixels energy · Y_lm(direction) of every lane to `sums`: the recurrences of
+    /// [`Basis::evaluate`] run for all lanes at once — Re, Im of (x + iy)^m by complex
+    /// products, Q_l^m by the three-term recurrence in l from the diagonal (2m − 1)!!, the
+    /// same for every pixel — and each (l, m) is summed over the lanes with [`dot`].
+    fn accumulate_lanes(&self, lanes: &Lanes, sums: &mut [[f64; 3]]) {
+        let degree = self.basis.degree();
+        let (x, y, z) = (&lanes.x, &lanes.y, &lanes.z);
+        let mut re = [1.0f64; LANES];
+        let mut im = [0.0f64; LANES];
+        let mut energy_re = lanes.energy;
+        let mut energy_im = [[0.0f64; LANES]; 3];
+        let mut q_diagonal = 1.0f64;
+        let mut q_before = [0.0f64; LANES];
+        let mut q = [0.0f64; LANES];
+        for m in 0..=degree {
+            if m > 0 {
+                for p in 0..LANES {
+                    (re[p], im[p]) = (re[p] * x[p] - im[p] * y[p], re[p] * y[p] + im[p] * x[p]);
+                }
                 for c in 0..3 {
-                    sum[c] += energy[c] * yi;
+                    for p in 0..LANES {
+                        energy_re[c][p] = lanes.energy[c][p] * re[p];
+                        energy_im[c][p] = lanes.energy[c][p] * im[p];
+                    }
+                }
+                q_diagonal *= (2 * m - 1) as f64;
+            }
+            q_before.fill(0.0);
+            q.fill(q_diagonal);
+            for l in m..=degree {
+                if l > m {
+                    let a = (2 * l - 1) as f64 / (l - m) as f64;
+                    let b = (l + m - 1) as f64 / (l - m) as f64;
+                    for p in 0..LANES {
+                        let next = a * z[p] * q[p] - b * q_before[p];
+                        q_before[p] = q[p];
+                        q[p] = next;
+                    }
+                }
+                let norm = self.basis.norm[l * (l + 1) / 2 + m];
+                let mi = m as isize;
+                for c in 0..3 {
+                    sums[index(l, mi)][c] += norm * dot(&energy_re[c], &q);
+                    if m > 0 {
+                        sums[index(l, -mi)][c] += norm * dot(&energy_im[c], &q);
+                    }
                 }
             }
         }
-        sums
+    }
+}
+
+/// Pixels gathered for [`Projector::accumulate_lanes`].
+const LANES: usize = 64;
+
+/// Up to [`LANES`] pixels' unit directions and energies (radiance × solid angle, per channel),
+/// structure of arrays; the lanes past `len` hold no energy.
+struct Lanes {
+    x: [f64; LANES],
+    y: [f64; LANES],
+    z: [f64; LANES],
+    energy: [[f64; LANES]; 3],
+    len: usize,
+}
+
+impl Lanes {
+    fn empty() -> Self {
+        Self {
+            x: [0.0; LANES],
+            y: [1.0; LANES],
+            z: [0.0; LANES],
+            energy: [[0.0; LANES]; 3],
+            len: 0,
+        }
+    }
+
+    fn push(&mut self, dir: [f64; 3], energy: [f64; 3]) {
+        let p = self.len;
+        (self.x[p], self.y[p], self.z[p]) = (dir[0], dir[1], dir[2]);
+        for c in 0..3 {
+            self.energy[c][p] = energy[c];
+        }
+        self.len += 1;
     }
 }
 
