@@ -461,3 +461,41 @@ fn prefiltered_radiance_of_a_point_light_is_its_lobe_band_limited() {
     let mean = set.prefiltered_radiance(DVec3::X, 0.0);
     assert!((mean[0] - 2.0 / (4.0 * PI)).abs() < 1e-12);
 }
+
+#[test]
+fn the_avx2_builds_of_the_sums_give_the_same_bits() {
+    // Each path's band sums compiled for AVX2 (where this CPU has it) equal the baseline
+    // build's to the bit: the sums' order is fixed in the code, and no fused multiply-add is
+    // enabled.
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rooitou_park_1k.hdr");
+    let image = crate::capture::image_file::read_hdr_image(&path).unwrap();
+    let park = HdrFrame::new(image.width, image.height, image.pixels, Projection::LatLong).unwrap();
+    let fisheye = Projection::Fisheye(crate::envmap::FisheyeCalibration::default());
+    let camera = park.reprojected(fisheye, 160, 120).unwrap();
+    let per_pixel = Projector::per_pixel(8, 160, 120, fisheye);
+    let Summation::PerPixel { samples } = &per_pixel.summation else {
+        panic!("not the per-pixel path");
+    };
+    assert_eq!(
+        per_pixel.per_pixel_band(&camera.pixels, samples),
+        per_pixel.per_pixel_band_dispatch(&camera.pixels, samples)
+    );
+    let weights = Projector::new(4, 160, 120, fisheye);
+    let Summation::Weights { pixels, weights: w } = &weights.summation else {
+        panic!("not the weights path");
+    };
+    assert_eq!(
+        weights.weights_band(&camera.pixels, pixels, w),
+        weights.weights_band_dispatch(&camera.pixels, pixels, w)
+    );
+    let frame = park.reprojected(Projection::LatLong, 256, 128).unwrap();
+    let latlong = Projector::new(4, 256, 128, Projection::LatLong);
+    let Summation::LatLong { trig, rows } = &latlong.summation else {
+        panic!("not the lat-long path");
+    };
+    assert_eq!(
+        latlong.latlong_band(&frame.pixels, rows, trig),
+        latlong.latlong_band_dispatch(&frame.pixels, rows, trig)
+    );
+}
