@@ -1023,6 +1023,21 @@ fn reference_sphere(material: Material, camera: Camera) -> Renderer {
     )
 }
 
+/// The GGX α (floored as the shading floors it), the specular reflectance f0 and the diffuse
+/// albedo of an untextured metallic-roughness `material`, as the CPU references take them.
+fn reference_brdf(material: &Material) -> (f64, [f64; 3], [f64; 3]) {
+    let alpha = f64::from(material.roughness * material.roughness).max(0.002);
+    let f0: [f64; 3] = if material.metallic > 0.0 {
+        material.base_color.map(f64::from)
+    } else {
+        [0.16 * f64::from(material.specular).powi(2); 3]
+    };
+    let albedo = material
+        .base_color
+        .map(|c| f64::from(c) * f64::from(1.0 - material.metallic));
+    (alpha, f0, albedo)
+}
+
 /// Renders one sphere of `material` under [`test_lobes`] with ASG lighting and compares every
 /// pixel away from the silhouette with the CPU closed form (`Asg::irradiance` for the diffuse
 /// part, `Asg::ggx_specular` for the specular one). Returns the worst error relative to the
@@ -1036,15 +1051,7 @@ fn asg_sphere_against_cpu(name: &str, material: Material, tolerance: (f32, f32))
     let (img, stats) = r.render_asg(&lobes).unwrap();
     assert_eq!(stats.lights, lobes.len());
     assert_eq!(stats.shadow_maps, 0);
-    let alpha = f64::from(material.roughness * material.roughness).max(0.002);
-    let f0: [f64; 3] = if material.metallic > 0.0 {
-        material.base_color.map(f64::from)
-    } else {
-        [0.16 * f64::from(material.specular).powi(2); 3]
-    };
-    let albedo = material
-        .base_color
-        .map(|c| f64::from(c) * f64::from(1.0 - material.metallic));
+    let (alpha, f0, albedo) = reference_brdf(&material);
     let mut pixels = Vec::new();
     for (x, y, n, v) in sphere_pixels(&r, camera.eye, 96) {
         let (n64, v64) = (n.as_dvec3(), v.as_dvec3());
@@ -1180,15 +1187,7 @@ fn sh_sphere_against_cpu(
     let (img, stats) = r.render_sh(&sh).unwrap();
     assert_eq!(stats.lights, (degree + 1) * (degree + 1));
     assert_eq!(stats.shadow_maps, 0);
-    let alpha = f64::from(material.roughness * material.roughness);
-    let f0: [f64; 3] = if material.metallic > 0.0 {
-        material.base_color.map(f64::from)
-    } else {
-        [0.16 * f64::from(material.specular).powi(2); 3]
-    };
-    let albedo = material
-        .base_color
-        .map(|c| f64::from(c) * f64::from(1.0 - material.metallic));
+    let (alpha, f0, albedo) = reference_brdf(&material);
     let pixels: Vec<_> = sphere_pixels(&r, camera.eye, 96)
         .into_iter()
         .map(|(x, y, n, v)| {
