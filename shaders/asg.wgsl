@@ -19,7 +19,8 @@
 // Blended materials (glTF's BLEND): fs_blended, drawn after the opaque surfaces in the same
 // pass, back to front, over them (premultiplied alpha).
 // Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up) and
-// shadow_lookup.wgsl (the lobes' shadow maps: `lights[k]` is lobe k's).
+// shadow_lookup.wgsl (the lobes' shadow maps: `lights[k]` is lobe k's); appended:
+// closed_form.wgsl (the entry points, which call `shaded`).
 
 const TABLE_T: u32 = 129u;
 const TABLE_NU: u32 = 72u;
@@ -61,11 +62,6 @@ struct Lobe {
 
 fn shadow_state() -> ShadowState {
     return ShadowState(globals.shadows != 0u, globals.shadow_source, globals.shadow_params);
-}
-
-@vertex
-fn vs_main(v: VertexIn) -> VertexOut {
-    return surface_vertex(globals.view_proj, v);
 }
 
 // H(t, ν): bilinear in t and ln ν on the table (clamped at its ends), as
@@ -208,35 +204,9 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
     return conv / (PI * a2) * g2 / (4.0 * n_v);
 }
 
-@fragment
-fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    let tc = fragment_coordinates(in.uv, in.uv1);
-    if !fragment_drawn(mat, front, tc, in.color.a) {
-        discard;
-    }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
-    return asg_shaded(in.world, mat, p);
-}
-
-// A blended surface (glTF's BLEND), drawn after the opaque ones back to front without writing
-// depth: shaded as fs_main shades, premultiplied by its alpha for the over operator.
-@fragment
-fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    let tc = fragment_coordinates(in.uv, in.uv1);
-    if !side_drawn(mat, front) {
-        discard;
-    }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
-    let a = clamp(p.alpha, 0.0, 1.0);
-    let c = asg_shaded(in.world, mat, p);
-    return vec4<f32>(c.rgb * a, a);
-}
-
 // The radiance (RGBA, opaque; a shadow catcher's premultiplied shadow) at the point `world`
 // of material `mat`, whose parameters there are `p` (`surface_params`).
-fn asg_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
+fn shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
     let s = surface_at(world, p.normal, p, mat.params.w, globals.viewer);
     let n = s.n;
     let v = s.v;

@@ -22,7 +22,8 @@
 // A shadow-catcher material outputs transparent black: there is no shadow to catch.
 // Blended materials (glTF's BLEND): fs_blended, drawn after the opaque surfaces in the same
 // pass, back to front, over them (premultiplied alpha).
-// Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up).
+// Prepended: surface.wgsl (vertex layout, materials, the shaded point's set-up); appended:
+// closed_form.wgsl (the entry points, which call `shaded`).
 
 // The highest degree (`sh::MAX_DEGREE`): the band tables below hold MAX_DEGREE + 1 entries.
 const MAX_DEGREE: u32 = 15u;
@@ -48,11 +49,6 @@ struct Globals {
 @group(0) @binding(3) var<storage, read> basis_table: array<f32>;
 // The GGX directional albedo (F = 1) at n·v = i/31 and √α = j/31, at j · 32 + i.
 @group(0) @binding(4) var<storage, read> albedo_table: array<f32>;
-
-@vertex
-fn vs_main(v: VertexIn) -> VertexOut {
-    return surface_vertex(globals.view_proj, v);
-}
 
 // The weight of band l: Â_l (`cosine` true) or the Gaussian lobe's g_l of sharpness λ.
 fn band_weight(l: u32, cosine: bool, sharpness: f32) -> f32 {
@@ -132,35 +128,9 @@ fn sh_specular(n: vec3<f32>, v: vec3<f32>, alpha: f32) -> vec3<f32> {
     return prefiltered * ggx_albedo(n_v, alpha);
 }
 
-@fragment
-fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    let tc = fragment_coordinates(in.uv, in.uv1);
-    if !fragment_drawn(mat, front, tc, in.color.a) {
-        discard;
-    }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
-    return sh_shaded(in.world, mat, p);
-}
-
-// A blended surface (glTF's BLEND), drawn after the opaque ones back to front without writing
-// depth: shaded as fs_main shades, premultiplied by its alpha for the over operator.
-@fragment
-fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    let tc = fragment_coordinates(in.uv, in.uv1);
-    if !side_drawn(mat, front) {
-        discard;
-    }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
-    let a = clamp(p.alpha, 0.0, 1.0);
-    let c = sh_shaded(in.world, mat, p);
-    return vec4<f32>(c.rgb * a, a);
-}
-
 // The radiance (RGBA, opaque; transparent black for a shadow catcher) at the point `world` of
 // material `mat`, whose parameters there are `p` (`surface_params`).
-fn sh_shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
+fn shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
     let s = surface_at(world, p.normal, p, mat.params.w, globals.viewer);
     if s.catcher {
         return vec4<f32>(0.0);

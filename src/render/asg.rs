@@ -24,7 +24,8 @@ use std::time::Instant;
 pub const ASG_WGSL: &str = concat!(
     include_str!("../../shaders/surface.wgsl"),
     include_str!("../../shaders/shadow_lookup.wgsl"),
-    include_str!("../../shaders/asg.wgsl")
+    include_str!("../../shaders/asg.wgsl"),
+    include_str!("../../shaders/closed_form.wgsl")
 );
 
 /// Nodes of the cosine-convolution table over t = n·z (as in `crate::asg`).

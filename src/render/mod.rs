@@ -168,6 +168,10 @@ pub const SURFACE_WGSL: &str = include_str!("../../shaders/surface.wgsl");
 /// records and the PCF shadow lookup, over bindings each of those files declares.
 pub const SHADOW_LOOKUP_WGSL: &str = include_str!("../../shaders/shadow_lookup.wgsl");
 
+/// The entry points appended to `asg.wgsl` and `sh.wgsl` (the closed-form lighting passes):
+/// the vertex stage and the opaque and blended fragment stages, which call the file's `shaded`.
+pub const CLOSED_FORM_WGSL: &str = include_str!("../../shaders/closed_form.wgsl");
+
 /// Culled vs unculled images: bounds on the difference, relative to the unculled image's mean
 /// opaque value (see docs/rendering.md): (mean absolute difference, 99.9th percentile).
 pub const CULLING_TOLERANCE: (f32, f32) = (0.0005, 0.01);
@@ -564,6 +568,14 @@ mod tests {
                     .count();
                 assert_eq!(users, 2, "shade.wgsl and asg.wgsl include it");
                 continue;
+            } else if name == "closed_form.wgsl" {
+                assert_eq!(file, CLOSED_FORM_WGSL);
+                let users = SHADERS
+                    .iter()
+                    .filter(|(_, text)| text.ends_with(CLOSED_FORM_WGSL))
+                    .count();
+                assert_eq!(users, 2, "asg.wgsl and sh.wgsl end with it");
+                continue;
             } else {
                 let (_, text) = SHADERS
                     .iter()
@@ -572,7 +584,12 @@ mod tests {
                 assert!(
                     *text == file
                         || *text == format!("{SURFACE_WGSL}{file}")
-                        || *text == format!("{SURFACE_WGSL}{SHADOW_LOOKUP_WGSL}{file}"),
+                        || *text == format!("{SURFACE_WGSL}{file}{CLOSED_FORM_WGSL}")
+                        || *text == format!("{SURFACE_WGSL}{SHADOW_LOOKUP_WGSL}{file}")
+                        || *text
+                            == format!(
+                                "{SURFACE_WGSL}{SHADOW_LOOKUP_WGSL}{file}{CLOSED_FORM_WGSL}"
+                            ),
                     "{name}: render::SHADERS holds another text"
                 );
                 text.to_string()
@@ -586,8 +603,8 @@ mod tests {
             .validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
         }
-        // The two preludes are not in SHADERS.
-        assert_eq!(files.len(), SHADERS.len() + 2);
+        // The two preludes and the closed-form entry points are not in SHADERS.
+        assert_eq!(files.len(), SHADERS.len() + 3);
     }
 
     /// The Rust twins of the shaders' structs have the WGSL layouts' sizes (naga's), and the

@@ -29,7 +29,8 @@ use std::time::Instant;
 /// WGSL source of the SH pass (`surface.wgsl` prepended).
 pub const SH_WGSL: &str = concat!(
     include_str!("../../shaders/surface.wgsl"),
-    include_str!("../../shaders/sh.wgsl")
+    include_str!("../../shaders/sh.wgsl"),
+    include_str!("../../shaders/closed_form.wgsl")
 );
 
 /// Per-frame constants of the SH pass (matches `Globals` in sh.wgsl).
