@@ -909,6 +909,15 @@ impl RawRender {
                 )
             })?,
         };
+        if let (Some(ms), Lighting::Asg | Lighting::Sh) = (self.budget_ms, lighting) {
+            // The closed-form passes have no light count to hold a budget with.
+            return Err(invalid(
+                "render.budget_ms",
+                ms,
+                "applies to lighting = \"lights\" (a prefix of the light set); ASG and SH \
+                 lighting draw every lobe or coefficient",
+            ));
+        }
         let enabled = self.enabled.unwrap_or(false);
         let (scene, latest_png) = (path(&self.scene), path(&self.latest_png));
         // The paths are checked where the render thread will use them (when it is enabled), so
@@ -2093,6 +2102,11 @@ mod tests {
                 "[render]\nlighting = \"ambient\"",
                 "render.lighting",
                 "ambient",
+            ),
+            (
+                "[render]\nlighting = \"sh\"\nbudget_ms = 16.0",
+                "render.budget_ms",
+                "16",
             ),
             (
                 "[render]\nenabled = true\nlighting = \"sh\"",
