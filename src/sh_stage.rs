@@ -118,6 +118,18 @@ impl ShProjector {
 
     /// The set of `frame`.
     pub fn project(&mut self, frame: &HdrFrame) -> Result<ShFrame, ShStageError> {
+        let set = self.coefficients(frame);
+        let sh = ShFrame::new(frame.seq, frame.time, &set);
+        validate_sh_set(&sh.coefficients).map_err(|source| ShStageError::Invalid {
+            seq: frame.seq,
+            source,
+        })?;
+        Ok(sh)
+    }
+
+    /// The coefficients of `frame` in f64, before the wire's rounding (the renderer's
+    /// `--lighting sh`), with the plan kept as for [`ShProjector::project`].
+    pub fn coefficients(&mut self, frame: &HdrFrame) -> crate::sh::ShCoefficients {
         let plan = match self.plan.take() {
             Some(plan) if plan.fits(frame) => plan,
             _ => {
@@ -133,13 +145,7 @@ impl ShProjector {
         let set = plan.project(frame);
         self.plan = Some(plan);
         // The plan was built for this frame's shape, so it always projects it.
-        let set = set.unwrap_or_else(|| crate::sh::ShCoefficients::zero(self.settings.degree));
-        let sh = ShFrame::new(frame.seq, frame.time, &set);
-        validate_sh_set(&sh.coefficients).map_err(|source| ShStageError::Invalid {
-            seq: frame.seq,
-            source,
-        })?;
-        Ok(sh)
+        set.unwrap_or_else(|| crate::sh::ShCoefficients::zero(self.settings.degree))
     }
 }
 

@@ -193,20 +193,8 @@ fn the_render_thread_shades_with_asg_lighting() {
          latest_png = \"{}\"\n",
         png.display()
     );
-    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default())
-        .unwrap_or_else(|e| {
-            panic!(
-                "the render thread needs a graphics adapter; without a GPU install Mesa's \
-                 lavapipe (apt-get install mesa-vulkan-drivers libvulkan1): {e}"
-            )
-        });
-    let http = daemon.addresses().metrics.unwrap();
-    wait_until("rendered frames", || {
-        let text = http_get(http, "/metrics").1;
-        metric_value(&text, "envlight_frames_rendered_total") >= 3.0
-    });
-    let image = image::open(&png).unwrap();
-    assert_eq!((image.width(), image.height()), (48, 32));
+    let (daemon, image) = common::render_three_frames(config(dir.path(), &extra), &png);
+    assert_eq!(image.dimensions(), (48, 32));
     daemon.shutdown().unwrap();
 }
 

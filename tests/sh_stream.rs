@@ -13,7 +13,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    read_until_goodbye, record_sky, subscribe_all, wait_until, LIVE_SKY, TIMEOUT,
+    read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY, TIMEOUT,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -137,24 +137,12 @@ fn the_render_thread_shades_with_sh_lighting() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("latest.png");
     let extra = format!(
-        "{LIVE_SKY}[sh]\nenabled = true\ndegree = 4\n\
+        "{SMALL_SKY}[sh]\nenabled = true\ndegree = 4\n\
          [render]\nenabled = true\nwidth = 48\nheight = 32\nlighting = \"sh\"\n\
          latest_png = \"{}\"\n",
         png.display()
     );
-    let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default())
-        .unwrap_or_else(|e| {
-            panic!(
-                "the render thread needs a graphics adapter; without a GPU install Mesa's \
-                 lavapipe (apt-get install mesa-vulkan-drivers libvulkan1): {e}"
-            )
-        });
-    let http = daemon.addresses().metrics.unwrap();
-    wait_until("rendered frames", || {
-        let text = http_get(http, "/metrics").1;
-        metric_value(&text, "envlight_frames_rendered_total") >= 3.0
-    });
-    let image = image::open(&png).unwrap().to_rgba8();
+    let (daemon, image) = common::render_three_frames(config(dir.path(), &extra), &png);
     assert_eq!(image.dimensions(), (48, 32));
     assert!(
         image.pixels().any(|p| p.0[..3].iter().any(|&c| c > 32)),
@@ -179,7 +167,7 @@ fn the_render_thread_shades_with_sh_lighting() {
 #[test]
 fn sh_subscribe_without_the_stage_is_unsupported() {
     let dir = tempfile::tempdir().unwrap();
-    let daemon = Daemon::start(config(dir.path(), LIVE_SKY), DaemonOptions::default()).unwrap();
+    let daemon = Daemon::start(config(dir.path(), SMALL_SKY), DaemonOptions::default()).unwrap();
     assert!(daemon.sh().is_none());
     let tcp = daemon.addresses().stream.tcp.unwrap();
     assert_unsupported(tcp, Representation::Sh, "[sh] enabled = true");
@@ -191,7 +179,7 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
     let dir = tempfile::tempdir().unwrap();
     let stage = "[sh]\nenabled = true\ndegree = 1\n";
     let mut daemon = Daemon::start(
-        config(dir.path(), &format!("{LIVE_SKY}{stage}")),
+        config(dir.path(), &format!("{SMALL_SKY}{stage}")),
         DaemonOptions::default(),
     )
     .unwrap();
@@ -202,7 +190,7 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
             .is_some_and(|p| p.payload.degree() == Some(1))
     });
     let changed = stage.replace("degree = 1", "degree = 4");
-    let report = daemon.reload(config(dir.path(), &format!("{LIVE_SKY}{changed}")));
+    let report = daemon.reload(config(dir.path(), &format!("{SMALL_SKY}{changed}")));
     assert_eq!(report.applied, vec!["[sh]".to_owned()]);
     assert!(report.needs_restart.is_empty(), "{report:?}");
     wait_until("a set of the new degree", || {
@@ -212,14 +200,14 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
     });
     // A bad degree changes nothing; turning the stage off needs a restart.
     let bad = envlight::config::RawConfig::parse(
-        &format!("{LIVE_SKY}[sh]\ndegree = 99\n"),
+        &format!("{SMALL_SKY}[sh]\ndegree = 99\n"),
         Path::new("bad.toml"),
     )
     .unwrap()
     .validate();
     assert!(bad.is_err_and(|e| e.to_string().contains("sh.degree")));
     let off = changed.replace("enabled = true", "enabled = false");
-    let report = daemon.reload(config(dir.path(), &format!("{LIVE_SKY}{off}")));
+    let report = daemon.reload(config(dir.path(), &format!("{SMALL_SKY}{off}")));
     assert!(
         report.needs_restart.iter().any(|s| s.starts_with("[sh]")),
         "{report:?}"
@@ -235,7 +223,7 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
 fn the_python_example_client_reads_sh_sets() {
     common::require_python3();
     let dir = tempfile::tempdir().unwrap();
-    let extra = format!("{LIVE_SKY}[sh]\nenabled = true\ndegree = 3\n");
+    let extra = format!("{SMALL_SKY}[sh]\nenabled = true\ndegree = 3\n");
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     // A cap of 5 keeps the bands that fit whole: degrees 0 and 1.

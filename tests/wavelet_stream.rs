@@ -14,7 +14,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, LIVE_SKY, TIMEOUT,
+    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY, TIMEOUT,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -204,7 +204,7 @@ fn check_reconstruction(received: &WaveletFrame, map: &OctahedralMap) {
 #[test]
 fn wavelet_subscribe_without_the_stage_is_unsupported() {
     let dir = tempfile::tempdir().unwrap();
-    let daemon = Daemon::start(config(dir.path(), LIVE_SKY), DaemonOptions::default()).unwrap();
+    let daemon = Daemon::start(config(dir.path(), SMALL_SKY), DaemonOptions::default()).unwrap();
     assert!(daemon.wavelet().is_none());
     let tcp = daemon.addresses().stream.tcp.unwrap();
     assert_unsupported(tcp, Representation::Wavelet, "[wavelet] enabled = true");
@@ -216,7 +216,7 @@ fn sighup_reload_applies_new_wavelet_settings_from_the_next_frame() {
     let dir = tempfile::tempdir().unwrap();
     let stage = "[wavelet]\nenabled = true\nbasis = \"db2\"\nside = 16\ncoefficients = 20\n";
     let mut daemon = Daemon::start(
-        config(dir.path(), &format!("{LIVE_SKY}{stage}")),
+        config(dir.path(), &format!("{SMALL_SKY}{stage}")),
         DaemonOptions::default(),
     )
     .unwrap();
@@ -231,7 +231,7 @@ fn sighup_reload_applies_new_wavelet_settings_from_the_next_frame() {
     let changed = stage
         .replace("db2", "coif1")
         .replace("side = 16", "side = 32");
-    let report = daemon.reload(config(dir.path(), &format!("{LIVE_SKY}{changed}")));
+    let report = daemon.reload(config(dir.path(), &format!("{SMALL_SKY}{changed}")));
     assert_eq!(report.applied, vec!["[wavelet]".to_owned()]);
     assert!(report.needs_restart.is_empty(), "{report:?}");
     wait_until("a set with the new settings", || {
@@ -242,7 +242,7 @@ fn sighup_reload_applies_new_wavelet_settings_from_the_next_frame() {
     });
     // Turning the stage off needs a restart; the stage keeps running.
     let off = changed.replace("enabled = true", "enabled = false");
-    let report = daemon.reload(config(dir.path(), &format!("{LIVE_SKY}{off}")));
+    let report = daemon.reload(config(dir.path(), &format!("{SMALL_SKY}{off}")));
     assert!(
         report
             .needs_restart
@@ -261,7 +261,7 @@ fn sighup_reload_applies_new_wavelet_settings_from_the_next_frame() {
 fn the_python_example_client_reads_wavelet_sets() {
     common::require_python3();
     let dir = tempfile::tempdir().unwrap();
-    let extra = format!("{LIVE_SKY}[wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n");
+    let extra = format!("{SMALL_SKY}[wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n");
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     let lines = python_client(&[

@@ -143,7 +143,11 @@ impl RenderArgs {
     /// The options that the chosen lighting or light source would ignore are usage errors.
     fn check_usage(&self) -> Result<()> {
         if self.lighting != LightingArg::Lights {
-            let name = self.lighting.name();
+            // The value as given on the command line (clap's name of the variant).
+            let name = self
+                .lighting
+                .to_possible_value()
+                .map_or_else(String::new, |v| v.get_name().to_owned());
             let with = [
                 (self.lights.is_some(), "--lights"),
                 (self.window, "--window"),
@@ -212,15 +216,6 @@ enum LightingArg {
 }
 
 impl LightingArg {
-    /// The value as given on the command line.
-    fn name(self) -> &'static str {
-        match self {
-            LightingArg::Lights => "lights",
-            LightingArg::Asg => "asg",
-            LightingArg::Sh => "sh",
-        }
-    }
-
     /// What `FrameStats::lights` counts.
     fn counted(self) -> &'static str {
         match self {
@@ -291,10 +286,19 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
     tracing::info!("scene: {}", scene.summary());
     tracing::info!("camera: {}", scene.camera.describe());
     let asg_lighting = args.lighting == LightingArg::Asg;
-    let sh_degree = (args.lighting == LightingArg::Sh)
-        .then(|| args.degree.unwrap_or(envlight::sh_stage::DEFAULT_DEGREE));
-    // The projection plan of the frames' shape, kept from frame to frame.
-    let mut sh_plan: Option<envlight::sh::Projector> = None;
+    let sh_lighting = args.lighting == LightingArg::Sh;
+    // The projection plan of the frames' shape is kept from frame to frame.
+    let mut sh_projector = if args.lighting == LightingArg::Sh {
+        let settings = envlight::sh_stage::ShSettings {
+            degree: args.degree.unwrap_or(envlight::sh_stage::DEFAULT_DEGREE),
+        };
+        Some(
+            envlight::sh_stage::ShProjector::new(settings)
+                .map_err(|e| crate::cli::usage(format!("invalid --degree: {e}")))?,
+        )
+    } else {
+        None
+    };
     let mut fitter = if asg_lighting {
         let settings = envlight::asg::fit::FitSettings {
             lobes: args.lobes.unwrap_or(envlight::asg::fit::DEFAULT_LOBES),
@@ -382,7 +386,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 .context("cannot read a frame")?
                 .map(|frame| {
                     // ASG and SH lighting use the frame itself; the lights are not needed.
-                    let lights = if asg_lighting || sh_degree.is_some() {
+                    let lights = if asg_lighting || sh_lighting {
                         envlight::LightFrame {
                             seq: frame.seq,
                             time: frame.time,
@@ -471,28 +475,15 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                 envlight::decompose::MAX_POINTS
             );
         }
-        let (mut image, stats) = match (&mut fitter, sh_degree, &env) {
+        let (mut image, stats) = match (&mut fitter, &mut sh_projector, &env) {
             (Some(fitter), _, Some(frame)) => {
                 let fit = fitter
                     .fit_frame(frame)
                     .with_context(|| format!("cannot fit ASG lobes to frame {}", frame.seq))?;
                 renderer.render_asg(&fit.lobes)?
             }
-            (None, Some(degree), Some(frame)) => {
-                let plan = match sh_plan.take() {
-                    Some(plan) if plan.fits(frame) => plan,
-                    _ => envlight::sh::Projector::new(
-                        degree,
-                        frame.width,
-                        frame.height,
-                        frame.projection,
-                    ),
-                };
-                let sh = plan.project(frame).with_context(|| {
-                    format!("cannot project frame {} onto the SH basis", frame.seq)
-                })?;
-                sh_plan = Some(plan);
-                renderer.render_sh(&sh)?
+            (None, Some(projector), Some(frame)) => {
+                renderer.render_sh(&projector.coefficients(frame))?
             }
             _ => renderer.render(&render::light_prefix(&all, count))?,
         };

@@ -22,7 +22,7 @@
 use super::closed_form::SurfacePipelines;
 use super::setup::{compute_storage_entry, uniform_entry};
 use super::{FrameStats, Image, RenderError, Renderer};
-use crate::sh::{coefficient_count, cosine_lobe_factor, ShCoefficients, MAX_DEGREE};
+use crate::sh::{coefficient_count, cosine_lobe_factor, Basis, ShCoefficients, MAX_DEGREE};
 use glam::DVec3;
 use std::time::Instant;
 
@@ -47,22 +47,11 @@ pub struct ShGlobalsRaw {
 /// The band table sh.wgsl reads: Â_0 ..= Â_15, then K_l^m (×√2 for m > 0) at
 /// 16 + l(l + 1)/2 + m, as [`crate::sh::Basis`] computes them.
 pub fn basis_table() -> Vec<f32> {
-    let mut table: Vec<f32> = (0..=MAX_DEGREE)
-        .map(|l| cosine_lobe_factor(l) as f32)
-        .collect();
-    for l in 0..=MAX_DEGREE {
-        for m in 0..=l {
-            let ratio: f64 = ((l - m + 1)..=(l + m)).map(|k| 1.0 / k as f64).product();
-            let k = ((2 * l + 1) as f64 / (4.0 * std::f64::consts::PI) * ratio).sqrt();
-            let k = if m == 0 {
-                k
-            } else {
-                k * std::f64::consts::SQRT_2
-            };
-            table.push(k as f32);
-        }
-    }
-    table
+    let basis = Basis::new(MAX_DEGREE);
+    let bands = (0..=MAX_DEGREE).map(|l| cosine_lobe_factor(l) as f32);
+    bands
+        .chain(basis.norms().iter().map(|&k| k as f32))
+        .collect()
 }
 
 /// λ = 1/(2α²): the sharpness of the spherical Gaussian that stands for a GGX lobe of α around
@@ -107,7 +96,7 @@ fn ggx_albedo_integral(n_v: f64, alpha: f64) -> f64 {
         return 0.0;
     }
     let a2 = alpha * alpha;
-    let lambda = |c: f64| ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5;
+    let lambda = |c: f64| crate::wavelet::relight::smith_lambda(c, a2);
     let v = DVec3::new((1.0 - n_v * n_v).max(0.0).sqrt(), 0.0, n_v);
     let mut sum = 0.0;
     for a in 0..THETA_STEPS {

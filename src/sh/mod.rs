@@ -135,6 +135,12 @@ impl Basis {
         self.degree
     }
 
+    /// K_l^m (×√2 for m > 0) at `l * (l + 1) / 2 + m`, m ≥ 0: the constants
+    /// [`Basis::evaluate`] multiplies the recurrences' polynomials by.
+    pub fn norms(&self) -> &[f64] {
+        &self.norm
+    }
+
     /// Number of coefficients, (L + 1)².
     pub fn len(&self) -> usize {
         coefficient_count(self.degree)

@@ -330,7 +330,7 @@ pub const MAX_LOBE_SAMPLES: usize = 65536;
 
 /// Smith's Λ of a direction at cosine `c` to the normal, for GGX with α² = `a2`: G1 = 1/(1 + Λ),
 /// height-correlated G2 = 1/(1 + Λ(v) + Λ(l)).
-fn smith_lambda(c: f64, a2: f64) -> f64 {
+pub(crate) fn smith_lambda(c: f64, a2: f64) -> f64 {
     ((1.0 + a2 * (1.0 / (c * c) - 1.0)).sqrt() - 1.0) * 0.5
 }
 

@@ -1,6 +1,7 @@
 //! Helpers shared by the daemon's end-to-end tests (tests/daemon.rs, tests/asg_stream.rs,
 //! tests/wavelet_stream.rs): configs on loopback port 0, waiting with a deadline, named client
-//! threads, the metrics endpoint, and a short recorded sky session.
+//! threads, the metrics endpoint, a short recorded sky session, and a daemon whose render thread
+//! has drawn a few frames.
 
 // Each test binary uses its own subset of these helpers.
 #![allow(dead_code)]
@@ -17,12 +18,27 @@ use std::time::{Duration, Instant};
 pub const SMALL_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
                              [decompose]\nlights = 8\nworking_width = 16\n";
 
-/// A live sky source small enough for any machine (config TOML for the stage tests).
-pub const LIVE_SKY: &str = "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
-                            [decompose]\nlights = 8\nworking_width = 16\n";
-
 /// How long a test waits for anything (a frame, a thread, an HTTP answer) before failing.
 pub const TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Starts the daemon of `config`, whose render thread writes `png` (`render.latest_png`),
+/// waits until it has rendered three frames and returns it with the newest image. A daemon
+/// that cannot start fails with the install hint for a graphics adapter.
+pub fn render_three_frames(config: Config, png: &Path) -> (Daemon, image::RgbaImage) {
+    let daemon = Daemon::start(config, DaemonOptions::default()).unwrap_or_else(|e| {
+        panic!(
+            "the render thread needs a graphics adapter; without a GPU install Mesa's \
+             lavapipe (apt-get install mesa-vulkan-drivers libvulkan1): {e}"
+        )
+    });
+    let http = daemon.addresses().metrics.unwrap();
+    wait_until("rendered frames", || {
+        let text = http_get(http, "/metrics").1;
+        metric_value(&text, "envlight_frames_rendered_total") >= 3.0
+    });
+    let image = image::open(png).unwrap().to_rgba8();
+    (daemon, image)
+}
 
 /// Starts a named thread (clippy bans unnamed ones).
 pub fn spawn<T: Send + 'static>(
