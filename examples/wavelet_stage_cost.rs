@@ -80,6 +80,8 @@ fn main() -> anyhow::Result<()> {
         basis,
         side,
         coefficients: k,
+        // Filtered in time with the lights' taps, as the daemon's stage is by default.
+        ..d
     };
     let frames: Vec<HdrFrame> = if input == "sky" {
         let options = SkyOptions {

@@ -203,6 +203,7 @@ pub struct RawConfig {
 pub struct RawSh {
     pub enabled: Option<bool>,
     pub degree: Option<usize>,
+    pub filter: Option<bool>,
 }
 
 /// `[wavelet]`: the daemon's wavelet stage (sparse wavelet coefficient sets of the newest
@@ -214,6 +215,7 @@ pub struct RawWavelet {
     pub basis: Option<String>,
     pub side: Option<usize>,
     pub coefficients: Option<usize>,
+    pub filter: Option<bool>,
 }
 
 /// `[asg]`: the daemon's ASG stage (fits anisotropic spherical Gaussians to the newest frames).
@@ -455,19 +457,21 @@ impl RawConfig {
     /// Checks every value and fills in the defaults.
     pub fn validate(&self) -> Result<Config, ConfigError> {
         let source = self.source.validate()?;
+        let decompose = self.decompose.validate()?;
+        let lights_taps = decompose.filter_taps.as_deref();
         Ok(Config {
             camera: self.camera.validate(source.projection)?,
             source,
             sky: self.sky.validate()?,
-            decompose: self.decompose.validate()?,
             pipeline: self.pipeline.validate()?,
             stream: self.stream.validate()?,
             metrics: self.metrics.validate()?,
             daemon: self.daemon.validate()?,
             render: self.render.validate()?,
             asg: self.asg.validate()?,
-            wavelet: self.wavelet.validate()?,
-            sh: self.sh.validate()?,
+            wavelet: self.wavelet.validate(lights_taps)?,
+            sh: self.sh.validate(lights_taps)?,
+            decompose,
         })
         .and_then(|config: Config| {
             check_endpoints_apart(&config)?;
@@ -550,19 +554,52 @@ pub struct Config {
 }
 
 /// Validated `[sh]`: the daemon's SH stage. Default: disabled; when enabled, degree 2 (nine
-/// coefficients per channel).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// coefficients per channel), filtered in time with the lights' taps.
+#[derive(Clone, Debug, PartialEq)]
 pub struct ShConfig {
     pub enabled: bool,
+    /// `[sh] filter`: filter the sets with the lights' taps (when the lights are filtered);
+    /// [`ShConfig::settings`]`.filter_taps` holds the outcome.
+    pub filter: bool,
     /// What the stage computes.
     pub settings: crate::sh_stage::ShSettings,
 }
 
+impl Default for ShConfig {
+    /// Disabled; filtered with the lights' default taps.
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            filter: true,
+            settings: crate::sh_stage::ShSettings::default(),
+        }
+    }
+}
+
+impl Default for WaveletConfig {
+    /// Disabled; filtered with the lights' default taps.
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            filter: true,
+            settings: crate::wavelet_stage::WaveletSettings::default(),
+        }
+    }
+}
+
+/// A stage's filter taps: the lights' (`[decompose]`'s, `None` when the lights are not
+/// filtered) unless the stage's `filter = false`.
+pub(crate) fn stage_taps(filter: bool, lights_taps: Option<&[f64]>) -> Option<Vec<f64>> {
+    lights_taps.filter(|_| filter).map(<[f64]>::to_vec)
+}
+
 impl RawSh {
-    fn validate(&self) -> Result<ShConfig, ConfigError> {
+    /// `lights_taps`: the validated `[decompose]` filter taps.
+    fn validate(&self, lights_taps: Option<&[f64]>) -> Result<ShConfig, ConfigError> {
         use crate::sh_stage::{ShSettings, ShStageError};
         let settings = ShSettings {
             degree: self.degree.unwrap_or(crate::sh_stage::DEFAULT_DEGREE),
+            filter_taps: stage_taps(self.filter.unwrap_or(true), lights_taps),
         };
         if let Err(ShStageError::Settings { value, rule, .. }) = settings.validate() {
             return Err(ConfigError::Invalid {
@@ -573,22 +610,28 @@ impl RawSh {
         }
         Ok(ShConfig {
             enabled: self.enabled.unwrap_or(false),
+            filter: self.filter.unwrap_or(true),
             settings,
         })
     }
 }
 
 /// Validated `[wavelet]`: the daemon's wavelet stage. Default: disabled; when enabled, the 256
-/// largest Haar coefficients of a 64×64 octahedral map per frame.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// largest Haar coefficients of a 64×64 octahedral map per frame, the map filtered in time with
+/// the lights' taps.
+#[derive(Clone, Debug, PartialEq)]
 pub struct WaveletConfig {
     pub enabled: bool,
+    /// `[wavelet] filter`: filter the maps with the lights' taps (when the lights are
+    /// filtered); [`WaveletConfig::settings`]`.filter_taps` holds the outcome.
+    pub filter: bool,
     /// What the stage computes.
     pub settings: crate::wavelet_stage::WaveletSettings,
 }
 
 impl RawWavelet {
-    fn validate(&self) -> Result<WaveletConfig, ConfigError> {
+    /// `lights_taps`: the validated `[decompose]` filter taps.
+    fn validate(&self, lights_taps: Option<&[f64]>) -> Result<WaveletConfig, ConfigError> {
         use crate::wavelet_stage::{WaveletSettings, WaveletStageError};
         let d = WaveletSettings::default();
         let basis = match &self.basis {
@@ -605,6 +648,7 @@ impl RawWavelet {
             basis,
             side: self.side.unwrap_or(d.side),
             coefficients: self.coefficients.unwrap_or(d.coefficients),
+            filter_taps: stage_taps(self.filter.unwrap_or(true), lights_taps),
         };
         if let Err(WaveletStageError::Settings { field, value, rule }) = settings.validate() {
             let key = match field {
@@ -620,6 +664,7 @@ impl RawWavelet {
         }
         Ok(WaveletConfig {
             enabled: self.enabled.unwrap_or(false),
+            filter: self.filter.unwrap_or(true),
             settings,
         })
     }

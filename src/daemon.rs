@@ -380,7 +380,7 @@ impl Daemon {
                     .wavelet_seconds
                     .observe(published.compute_time.as_secs_f64());
             });
-            match WaveletStage::start(config.wavelet.settings, replaying, Some(hook)) {
+            match WaveletStage::start(config.wavelet.settings.clone(), replaying, Some(hook)) {
                 Ok(stage) => Some(stage),
                 Err(error) => {
                     join_started(asg, None, None);
@@ -397,7 +397,7 @@ impl Daemon {
                     .sh_seconds
                     .observe(published.compute_time.as_secs_f64());
             });
-            match ShStage::start(config.sh.settings, replaying, Some(hook)) {
+            match ShStage::start(config.sh.settings.clone(), replaying, Some(hook)) {
                 Ok(stage) => Some(stage),
                 Err(error) => {
                     join_started(asg, wavelet, None);
@@ -612,6 +612,9 @@ impl Daemon {
         // Read as at start, so an unchanged file reports no change of [source].
         let new = daemon_source_defaults(new);
         let mut report = ReloadReport::default();
+        // Whether the lights' temporal filter restarts: the wavelet and SH stages' filters,
+        // which share its taps, restart with it so that all describe the same moment.
+        let mut lights_filter_restarted = false;
         if new.decompose != self.config.decompose {
             if self.replaying {
                 report
@@ -628,6 +631,7 @@ impl Daemon {
                     Ok(()) => {
                         report.applied.push("[decompose]".to_owned());
                         self.config.decompose = new.decompose.clone();
+                        lights_filter_restarted = true;
                     }
                     Err(e) => report.needs_restart.push(format!("[decompose] ({e})")),
                 }
@@ -649,38 +653,61 @@ impl Daemon {
                     .push("[asg] enabled (restart envlight to start or stop the stage)".to_owned()),
             }
         }
+        // The stages' taps are the lights' as they now run (a [decompose] that could not
+        // change live keeps its taps for them too).
+        let mut new = new;
+        let lights_taps = self.config.decompose.filter_taps.as_deref();
+        new.wavelet.settings.filter_taps =
+            crate::config::stage_taps(new.wavelet.filter, lights_taps);
+        new.sh.settings.filter_taps = crate::config::stage_taps(new.sh.filter, lights_taps);
+        let restart_filter = |section: &str, report: &mut ReloadReport| {
+            report.applied.push(format!(
+                "{section} (its temporal filter restarts with the lights')"
+            ));
+        };
         if new.wavelet != self.config.wavelet {
             match &self.wavelet {
                 Some(stage) if new.wavelet.enabled => {
-                    match stage.reconfigure(new.wavelet.settings) {
+                    match stage.reconfigure(new.wavelet.settings.clone()) {
                         Ok(()) => {
                             report.applied.push("[wavelet]".to_owned());
-                            self.config.wavelet = new.wavelet;
+                            self.config.wavelet = new.wavelet.clone();
                         }
                         Err(e) => report.needs_restart.push(format!("[wavelet] ({e})")),
                     }
                 }
                 // Disabled before and after: nothing runs, nothing to apply.
-                None if !new.wavelet.enabled => self.config.wavelet = new.wavelet,
+                None if !new.wavelet.enabled => self.config.wavelet = new.wavelet.clone(),
                 _ => report.needs_restart.push(
                     "[wavelet] enabled (restart envlight to start or stop the stage)".to_owned(),
                 ),
             }
+        } else if let Some(stage) = self.wavelet.as_ref().filter(|_| lights_filter_restarted) {
+            if stage
+                .reconfigure(self.config.wavelet.settings.clone())
+                .is_ok()
+            {
+                restart_filter("[wavelet]", &mut report);
+            }
         }
         if new.sh != self.config.sh {
             match &self.sh {
-                Some(stage) if new.sh.enabled => match stage.reconfigure(new.sh.settings) {
+                Some(stage) if new.sh.enabled => match stage.reconfigure(new.sh.settings.clone()) {
                     Ok(()) => {
                         report.applied.push("[sh]".to_owned());
-                        self.config.sh = new.sh;
+                        self.config.sh = new.sh.clone();
                     }
                     Err(e) => report.needs_restart.push(format!("[sh] ({e})")),
                 },
                 // Disabled before and after: nothing runs, nothing to apply.
-                None if !new.sh.enabled => self.config.sh = new.sh,
+                None if !new.sh.enabled => self.config.sh = new.sh.clone(),
                 _ => report
                     .needs_restart
                     .push("[sh] enabled (restart envlight to start or stop the stage)".to_owned()),
+            }
+        } else if let Some(stage) = self.sh.as_ref().filter(|_| lights_filter_restarted) {
+            if stage.reconfigure(self.config.sh.settings.clone()).is_ok() {
+                restart_filter("[sh]", &mut report);
             }
         }
         let old = &self.config;

@@ -17,8 +17,20 @@ use std::time::Instant;
 
 #[derive(Default)]
 struct Slot {
-    frame: Option<(HdrFrame, Instant)>,
+    frame: Option<FedFrame>,
     closed: bool,
+}
+
+/// A frame as the stage takes it from the feed.
+#[derive(Debug)]
+pub struct FedFrame {
+    pub frame: HdrFrame,
+    /// When it was offered.
+    pub arrived: Instant,
+    /// Its place among the frames offered to the feed (0 for the first): the decompose
+    /// thread's count, so a gap between two frames a stage takes is the number it skipped
+    /// (what a temporal filter of the stage's sets fills in, [`crate::set_filter`]).
+    pub number: u64,
 }
 
 #[derive(Default)]
@@ -68,7 +80,7 @@ impl FrameFeed {
         if slot.closed {
             return;
         }
-        self.0.offered.fetch_add(1, Ordering::AcqRel);
+        let number = self.0.offered.fetch_add(1, Ordering::AcqRel);
         if self.0.lossless {
             while slot.frame.is_some() && !slot.closed {
                 slot = self
@@ -81,7 +93,12 @@ impl FrameFeed {
                 return;
             }
         }
-        if slot.frame.replace((frame, Instant::now())).is_some() {
+        let fed = FedFrame {
+            frame,
+            arrived: Instant::now(),
+            number,
+        };
+        if slot.frame.replace(fed).is_some() {
             self.0.skipped.fetch_add(1, Ordering::AcqRel);
         }
         drop(slot);
@@ -105,7 +122,7 @@ impl FrameFeed {
     }
 
     /// The next frame, waiting for one; `None` once the feed is closed and empty.
-    pub fn take(&self) -> Option<(HdrFrame, Instant)> {
+    pub fn take(&self) -> Option<FedFrame> {
         let mut slot = self.lock();
         loop {
             if let Some(frame) = slot.frame.take() {
@@ -151,14 +168,16 @@ mod tests {
         feed.offer(frame(0));
         feed.offer(frame(1));
         feed.offer(frame(2));
-        assert_eq!(feed.take().map(|(f, _)| f.seq), Some(2));
+        let taken = feed.take().unwrap();
+        assert_eq!((taken.frame.seq, taken.number), (2, 2));
         assert_eq!(feed.skipped(), 2);
         assert_eq!(feed.offered(), 3);
         feed.offer(frame(3));
         feed.close();
         // The waiting frame is still delivered after close; later offers are dropped.
         feed.offer(frame(4));
-        assert_eq!(feed.take().map(|(f, _)| f.seq), Some(3));
+        let taken = feed.take().unwrap();
+        assert_eq!((taken.frame.seq, taken.number), (3, 3));
         assert!(feed.take().is_none());
     }
 }

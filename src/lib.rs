@@ -28,6 +28,7 @@ pub mod publication;
 pub mod read_file;
 pub mod record;
 pub mod render;
+pub mod set_filter;
 pub mod sh;
 pub mod sh_stage;
 pub mod slow_stage;

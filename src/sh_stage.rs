@@ -13,9 +13,13 @@
 //! ([`validate_sh_set`]). Deterministic, so what a client receives equals
 //! [`crate::sh::project`] of the same frame, bit for bit, and a replay reproduces it.
 //!
-//! The set is not filtered in time (as the ASG and wavelet sets are not): it follows the frames
-//! without the lights' FIR delay. An SH set is an integral over the whole sphere, steady by
-//! nature; docs/sh.md measures it.
+//! **In time.** With [`ShSettings::filter_taps`] (the daemon passes `[decompose]`'s taps unless
+//! `[sh] filter = false`) each set is then filtered with the lights' FIR taps
+//! ([`crate::set_filter`]): the set is linear in the frame, so the filtered set is the set of
+//! the filtered map, it lags the frames by the lights' delay (3 frames by default) and
+//! describes the same moment as the lights of the same seq (their ∫L dω agree, tested).
+//! Frames the stage skipped while busy are filled in by interpolation, so the delay stays the
+//! lights' in frames. A replay feeds every frame, so it still reproduces the stream.
 //!
 //! The thread is the generic runner of [`crate::slow_stage`], shared with the ASG and wavelet
 //! stages: the decompose thread offers each frame after publishing its lights, a live feed keeps
@@ -25,6 +29,7 @@
 
 use crate::frame::HdrFrame;
 use crate::publication::{Latest, StaleHandle};
+use crate::set_filter::SetFilter;
 use crate::sh::{Projector, MAX_DEGREE};
 use crate::slow_stage::{
     DaemonStage, PublishHook, SetStageStats, StageKind, StageStatsHandle, StageWorker,
@@ -39,16 +44,21 @@ pub const SH_THREAD_NAME: &str = "envlight-sh";
 pub const DEFAULT_DEGREE: usize = 2;
 
 /// What the stage computes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct ShSettings {
     /// The highest band, 0..=[`MAX_DEGREE`]: (degree + 1)² coefficients per channel.
     pub degree: usize,
+    /// FIR taps (newest first) that filter the sets in time, the lights' taps
+    /// ([`crate::decompose::DecomposeSettings::filter_taps`]); `None`: each frame's own set.
+    pub filter_taps: Option<Vec<f64>>,
 }
 
 impl Default for ShSettings {
+    /// Degree [`DEFAULT_DEGREE`], filtered with the lights' default taps.
     fn default() -> Self {
         Self {
             degree: DEFAULT_DEGREE,
+            filter_taps: Some(crate::decompose::filter::DEFAULT_TAPS.to_vec()),
         }
     }
 }
@@ -63,7 +73,22 @@ impl ShSettings {
                 rule: format!("an integer in 0..={MAX_DEGREE}"),
             });
         }
+        self.filter()?;
         Ok(())
+    }
+
+    /// The temporal filter the settings ask for.
+    fn filter(&self) -> Result<Option<SetFilter<f64>>, ShStageError> {
+        let Some(taps) = &self.filter_taps else {
+            return Ok(None);
+        };
+        SetFilter::new(taps)
+            .map(Some)
+            .map_err(|rule| ShStageError::Settings {
+                field: "filter_taps",
+                value: format!("{taps:?}"),
+                rule,
+            })
     }
 }
 
@@ -88,22 +113,35 @@ pub enum ShStageError {
     Panicked(String),
 }
 
-/// Frames to SH sets, with the projection plan kept from frame to frame.
+/// Frames to SH sets, with the projection plan kept from frame to frame and, if the settings
+/// ask, the temporal filter's window.
 pub struct ShProjector {
     settings: ShSettings,
     plan: Option<Projector>,
     plans: u64,
+    filter: Option<SetFilter<f64>>,
+    /// The number of the next frame in the feed ([`StageWorker::frame_number`]); counts up by
+    /// one per frame when nobody says.
+    next_number: u64,
 }
 
 impl ShProjector {
     /// A projector with validated `settings`.
     pub fn new(settings: ShSettings) -> Result<Self, ShStageError> {
         settings.validate()?;
+        let filter = settings.filter()?;
         Ok(Self {
             settings,
             plan: None,
             plans: 0,
+            filter,
+            next_number: 0,
         })
+    }
+
+    /// The temporal filter's delay in frames (0 without one).
+    pub fn delay_frames(&self) -> f64 {
+        self.filter.as_ref().map_or(0.0, SetFilter::delay_frames)
     }
 
     /// The settings.
@@ -116,7 +154,8 @@ impl ShProjector {
         self.plans
     }
 
-    /// The set of `frame`.
+    /// The set of `frame`, filtered in time if the settings ask: frames are taken to follow
+    /// one another unless [`StageWorker::frame_number`] says how many were skipped.
     pub fn project(&mut self, frame: &HdrFrame) -> Result<ShFrame, ShStageError> {
         let set = self.coefficients(frame);
         let sh = ShFrame::new(frame.seq, frame.time, &set);
@@ -128,7 +167,7 @@ impl ShProjector {
     }
 
     /// The coefficients of `frame` in f64, before the wire's rounding (the renderer's
-    /// `--lighting sh`), with the plan kept as for [`ShProjector::project`].
+    /// `--lighting sh`), with the plan and the filter kept as for [`ShProjector::project`].
     pub fn coefficients(&mut self, frame: &HdrFrame) -> crate::sh::ShCoefficients {
         let plan = match self.plan.take() {
             Some(plan) if plan.fits(frame) => plan,
@@ -145,7 +184,13 @@ impl ShProjector {
         let set = plan.project(frame);
         self.plan = Some(plan);
         // The plan was built for this frame's shape, so it always projects it.
-        set.unwrap_or_else(|| crate::sh::ShCoefficients::zero(self.settings.degree))
+        let mut set = set.unwrap_or_else(|| crate::sh::ShCoefficients::zero(self.settings.degree));
+        let number = self.next_number;
+        self.next_number = number.wrapping_add(1);
+        if let Some(filter) = &mut self.filter {
+            filter.apply(number, set.values_mut());
+        }
+        set
     }
 }
 
@@ -159,6 +204,10 @@ impl StageWorker for ShProjector {
 
     fn plans(&self) -> u64 {
         self.plans
+    }
+
+    fn frame_number(&mut self, number: u64) {
+        self.next_number = number;
     }
 }
 
@@ -176,6 +225,7 @@ impl StageKind for ShProjector {
     fn log_start(&self, lossless: bool) {
         tracing::info!(
             degree = self.settings.degree,
+            filter_delay_frames = self.delay_frames(),
             lossless,
             "starting the SH stage"
         );
@@ -238,7 +288,11 @@ mod tests {
 
     #[test]
     fn the_projector_equals_the_library_and_plans_once_per_shape() {
-        let mut p = ShProjector::new(ShSettings { degree: 3 }).unwrap();
+        let mut p = ShProjector::new(ShSettings {
+            degree: 3,
+            filter_taps: None,
+        })
+        .unwrap();
         for (seq, width) in [(0, 32), (1, 32), (2, 32), (3, 64), (4, 64)] {
             let f = frame(seq, width);
             let got = p.project(&f).unwrap();
@@ -249,9 +303,57 @@ mod tests {
         assert_eq!(p.plans(), 2, "one plan per frame size");
     }
 
+    /// Filtered, the stage's set is the library's set of each frame through the lights' FIR
+    /// taps, with the frames the stage skipped (a gap in the feed's numbers) filled in.
+    #[test]
+    fn the_filtered_projector_is_the_library_through_the_set_filter() {
+        let taps = crate::decompose::filter::DEFAULT_TAPS;
+        let mut p = ShProjector::new(ShSettings {
+            degree: 2,
+            filter_taps: Some(taps.to_vec()),
+        })
+        .unwrap();
+        assert_eq!(p.delay_frames(), 3.0);
+        let mut reference = SetFilter::<f64>::new(&taps).unwrap();
+        let mut differs = false;
+        for number in [0u64, 1, 2, 4, 5, 9, 10, 11] {
+            let f = frame(number, 32);
+            p.frame_number(number);
+            let got = p.project(&f).unwrap();
+            let mut want = crate::sh::project(&f, 2);
+            let unfiltered = ShFrame::new(number, f.time, &want);
+            reference.apply(number, want.values_mut());
+            assert_eq!(got, ShFrame::new(number, f.time, &want), "frame {number}");
+            differs |= got != unfiltered;
+        }
+        assert!(
+            differs,
+            "the frames change, so filtering must change the sets"
+        );
+    }
+
+    #[test]
+    fn bad_filter_taps_are_refused_by_name() {
+        let e = ShProjector::new(ShSettings {
+            degree: 2,
+            filter_taps: Some(vec![1.0, -2.0]),
+        })
+        .err()
+        .unwrap();
+        assert!(
+            e.to_string().contains("filter_taps = [1.0, -2.0]")
+                && e.to_string().contains("negative"),
+            "{e}"
+        );
+    }
+
     #[test]
     fn a_degree_above_the_highest_is_refused_by_name() {
-        match ShStage::start(ShSettings { degree: 16 }, false, None) {
+        let settings = ShSettings {
+            degree: 16,
+            ..ShSettings::default()
+        };
+        match ShStage::start(settings, false, None) {
             Err(
                 e @ ShStageError::Settings {
                     field: "degree", ..
@@ -262,7 +364,12 @@ mod tests {
             other => panic!("{:?}", other.err()),
         }
         assert!(ShSettings::default().validate().is_ok());
-        assert!(ShSettings { degree: 0 }.validate().is_ok());
+        assert!(ShSettings {
+            degree: 0,
+            filter_taps: None
+        }
+        .validate()
+        .is_ok());
     }
 
     #[test]

@@ -14,7 +14,9 @@
 //! 1. **Reconfigure** first if [`SlowStage::replace_worker`] (SIGHUP) left a new worker: it
 //!    replaces the old one before this frame, so a warm-start chain or a resampling plan starts
 //!    afresh.
-//! 2. **Compute** with [`StageWorker::process`], timed.
+//! 2. **Compute** with [`StageWorker::process`], timed, after telling the worker the frame's
+//!    number in the feed ([`StageWorker::frame_number`]: what a temporal filter needs to fill
+//!    in the frames the stage skipped).
 //! 3. **Publish** a [`crate::publication::Publication`] numbered one more than the last (so a
 //!    consumer can count what it skipped), stamped with the frame's arrival and the compute
 //!    time, then run the stage's hook (metrics) on it.
@@ -31,7 +33,7 @@
 
 use crate::frame::HdrFrame;
 pub use crate::frame_feed::CloseOnDrop;
-use crate::frame_feed::FrameFeed;
+use crate::frame_feed::{FedFrame, FrameFeed};
 use crate::publication::{publish, Latest, Publication, StaleHandle};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -57,6 +59,10 @@ pub trait StageWorker: Send + 'static {
     /// returning an error (which the stage, seeing the flag, neither logs nor counts as one).
     /// The default ignores it: the computation in progress runs to its end.
     fn watch_abandon(&mut self, _flag: Arc<AtomicBool>) {}
+    /// Tells the worker the number of the frame it is about to process
+    /// ([`crate::frame_feed::FedFrame::number`]): a worker that filters its sets in time fills
+    /// in the frames skipped since the last one ([`crate::set_filter`]). The default ignores it.
+    fn frame_number(&mut self, _number: u64) {}
 }
 
 /// Called on the stage's thread after each publication (metrics).
@@ -255,7 +261,12 @@ fn run<W: StageWorker>(
     let abandoned = || shared.abandon.load(Ordering::Acquire);
     let mut plans_counted = worker.plans();
     shared.plans.fetch_add(plans_counted, Ordering::AcqRel);
-    while let Some((frame, arrived)) = feed.take() {
+    while let Some(FedFrame {
+        frame,
+        arrived,
+        number,
+    }) = feed.take()
+    {
         let replacement = shared
             .pending
             .lock()
@@ -276,6 +287,7 @@ fn run<W: StageWorker>(
         }
         tracing::debug!(stage = name, seq = frame.seq, "processing the frame");
         let started = Instant::now();
+        worker.frame_number(number);
         let result = worker.process(&frame);
         let elapsed = started.elapsed();
         let plans = worker.plans();

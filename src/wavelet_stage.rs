@@ -13,6 +13,11 @@
 //!    (per source pixel, the texels it reaches and their weights) is built once per frame
 //!    size and projection and reused for every later frame of that shape; a frame of another
 //!    shape builds a new one ([`WaveletStats::plans`] counts them).
+//!    With [`WaveletSettings::filter_taps`] (the daemon passes `[decompose]`'s taps unless
+//!    `[wavelet] filter = false`) the map is then filtered in time with the lights' FIR taps
+//!    ([`crate::set_filter`]; frames the stage skipped are interpolated): the transform is
+//!    linear, so the set describes the same moment as the lights of the same seq, with their
+//!    delay (3 frames by default).
 //! 2. **Transform** each channel with the orthonormal 2-D wavelet transform of `basis`, full
 //!    pyramid (log2(side) levels, periodic boundary; [`crate::wavelet::transform`]), with one
 //!    reused workspace.
@@ -22,7 +27,8 @@
 //!
 //! Every step is deterministic, so the set of a frame does not depend on timing: what a client
 //! receives equals [`crate::wavelet::approximate`] on
-//! [`crate::wavelet::sphere::OctahedralMap::from_frame`] of the same frame, bit for bit.
+//! [`crate::wavelet::sphere::OctahedralMap::from_frame`] of the same frame (of the filtered
+//! maps, when filtered), bit for bit.
 //!
 //! The thread is the generic runner of [`crate::slow_stage`], shared with the ASG stage
 //! ([`crate::asg_stage`]): the decompose thread offers each
@@ -35,6 +41,7 @@
 
 use crate::frame::HdrFrame;
 use crate::publication::{Latest, StaleHandle};
+use crate::set_filter::SetFilter;
 use crate::slow_stage::{
     DaemonStage, PublishHook, SetStageStats, StageKind, StageStatsHandle, StageWorker,
 };
@@ -61,7 +68,7 @@ pub const DEFAULT_COEFFICIENTS: usize = 256;
 pub const MIN_SIDE: usize = 8;
 
 /// What the stage computes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct WaveletSettings {
     /// The wavelet basis.
     pub basis: Basis,
@@ -69,14 +76,19 @@ pub struct WaveletSettings {
     pub side: usize,
     /// Coefficients kept per frame, 1..=min(side², [`MAX_FRAME_COEFFICIENTS`]).
     pub coefficients: usize,
+    /// FIR taps (newest first) that filter the octahedral maps in time, the lights' taps
+    /// ([`crate::decompose::DecomposeSettings::filter_taps`]); `None`: each frame's own map.
+    pub filter_taps: Option<Vec<f64>>,
 }
 
 impl Default for WaveletSettings {
+    /// Haar, side 64, 256 coefficients, filtered with the lights' default taps.
     fn default() -> Self {
         Self {
             basis: DEFAULT_BASIS,
             side: DEFAULT_SIDE,
             coefficients: DEFAULT_COEFFICIENTS,
+            filter_taps: Some(crate::decompose::filter::DEFAULT_TAPS.to_vec()),
         }
     }
 }
@@ -117,7 +129,22 @@ impl WaveletSettings {
                 ),
             );
         }
+        self.filter()?;
         Ok(())
+    }
+
+    /// The temporal filter the settings ask for.
+    fn filter(&self) -> Result<Option<SetFilter<f32>>, WaveletStageError> {
+        let Some(taps) = &self.filter_taps else {
+            return Ok(None);
+        };
+        SetFilter::new(taps)
+            .map(Some)
+            .map_err(|rule| WaveletStageError::Settings {
+                field: "filter_taps",
+                value: format!("{taps:?}"),
+                rule,
+            })
     }
 }
 
@@ -161,18 +188,30 @@ pub struct WaveletTransformer {
     resampler: Option<Resampler>,
     workspace: Workspace,
     plans: u64,
+    filter: Option<SetFilter<f32>>,
+    /// The number of the next frame in the feed ([`StageWorker::frame_number`]); counts up by
+    /// one per frame when nobody says.
+    next_number: u64,
 }
 
 impl WaveletTransformer {
     /// A transformer with validated `settings`.
     pub fn new(settings: WaveletSettings) -> Result<Self, WaveletStageError> {
         settings.validate()?;
+        let filter = settings.filter()?;
         Ok(Self {
             settings,
             resampler: None,
             workspace: Workspace::new(),
             plans: 0,
+            filter,
+            next_number: 0,
         })
+    }
+
+    /// The temporal filter's delay in frames (0 without one).
+    pub fn delay_frames(&self) -> f64 {
+        self.filter.as_ref().map_or(0.0, SetFilter::delay_frames)
     }
 
     /// The settings.
@@ -185,7 +224,9 @@ impl WaveletTransformer {
         self.plans
     }
 
-    /// The set of `frame`: resample, transform, keep the largest coefficients.
+    /// The set of `frame`: resample, filter in time if the settings ask (frames are taken to
+    /// follow one another unless [`StageWorker::frame_number`] says how many were skipped),
+    /// transform, keep the largest coefficients.
     pub fn transform(&mut self, frame: &HdrFrame) -> Result<WaveletFrame, WaveletStageError> {
         let seq = frame.seq;
         let side = self.settings.side;
@@ -200,9 +241,14 @@ impl WaveletTransformer {
         };
         let map = resampler.resample(frame);
         self.resampler = Some(resampler);
-        let map = map.map_err(resample_error)?;
+        let mut texels = map.map_err(resample_error)?.into_texels();
+        let number = self.next_number;
+        self.next_number = number.wrapping_add(1);
+        if let Some(filter) = &mut self.filter {
+            filter.apply(number, bytemuck::cast_slice_mut(&mut texels));
+        }
         let coefficients = Coefficients::analyze_with(
-            map.texels(),
+            &texels,
             side,
             self.settings.basis,
             self.settings.levels(),
@@ -230,6 +276,10 @@ impl StageWorker for WaveletTransformer {
     fn plans(&self) -> u64 {
         self.plans
     }
+
+    fn frame_number(&mut self, number: u64) {
+        self.next_number = number;
+    }
 }
 
 impl StageKind for WaveletTransformer {
@@ -250,6 +300,7 @@ impl StageKind for WaveletTransformer {
             side = settings.side,
             levels = settings.levels(),
             coefficients = settings.coefficients,
+            filter_delay_frames = self.delay_frames(),
             lossless,
             "starting the wavelet stage"
         );
@@ -317,6 +368,14 @@ mod tests {
             basis: Basis::Daubechies(2),
             side: 16,
             coefficients: 40,
+            filter_taps: None,
+        }
+    }
+
+    fn filtered() -> WaveletSettings {
+        WaveletSettings {
+            filter_taps: Some(crate::decompose::filter::DEFAULT_TAPS.to_vec()),
+            ..settings()
         }
     }
 
@@ -333,6 +392,34 @@ mod tests {
             assert_eq!((got.seq, got.time), (seq, f.time));
         }
         assert_eq!(t.plans(), 2, "one plan per frame size");
+    }
+
+    /// Filtered, the stage's set is the library's set of the octahedral maps through the
+    /// lights' FIR taps, with the frames the stage skipped (a gap in the feed's numbers)
+    /// filled in.
+    #[test]
+    fn the_filtered_transformer_is_the_library_on_filtered_maps() {
+        let mut t = WaveletTransformer::new(filtered()).unwrap();
+        assert_eq!(t.delay_frames(), 3.0);
+        let mut reference = SetFilter::<f32>::new(&crate::decompose::filter::DEFAULT_TAPS).unwrap();
+        let mut differs = false;
+        for number in [0u64, 1, 2, 4, 5, 9, 10, 11] {
+            let f = frame(number, 32);
+            t.frame_number(number);
+            let got = t.transform(&f).unwrap();
+            let mut texels = OctahedralMap::from_frame(&f, 16).unwrap().into_texels();
+            let approximate = |texels: &[[f32; 3]]| {
+                crate::wavelet::approximate(texels, 16, Basis::Daubechies(2), 4, 40).unwrap()
+            };
+            let unfiltered = approximate(&texels);
+            reference.apply(number, bytemuck::cast_slice_mut(&mut texels));
+            assert_eq!(got.set, approximate(&texels), "frame {number}");
+            differs |= got.set != unfiltered;
+        }
+        assert!(
+            differs,
+            "the frames change, so filtering must change the sets"
+        );
     }
 
     #[test]
@@ -373,8 +460,15 @@ mod tests {
                 },
                 "basis",
             ),
+            (
+                WaveletSettings {
+                    filter_taps: Some(vec![0.0; 3]),
+                    ..settings()
+                },
+                "filter_taps",
+            ),
         ] {
-            match WaveletStage::start(bad, false, None) {
+            match WaveletStage::start(bad.clone(), false, None) {
                 Err(WaveletStageError::Settings { field: f, .. }) => assert_eq!(f, field),
                 other => panic!("{bad:?}: {:?}", other.err()),
             }
@@ -384,7 +478,7 @@ mod tests {
 
     #[test]
     fn lossless_stage_transforms_every_frame_and_stale_republishes() {
-        let stage = WaveletStage::start(settings(), true, None).unwrap();
+        let stage = WaveletStage::start(filtered(), true, None).unwrap();
         let mut rx = stage.subscribe();
         let feed = stage.feed();
         let sender = std::thread::Builder::new()
@@ -421,7 +515,7 @@ mod tests {
             (6, 0, 6)
         );
         assert_eq!((stats.errors, stats.plans), (0, 1));
-        let mut t = WaveletTransformer::new(settings()).unwrap();
+        let mut t = WaveletTransformer::new(filtered()).unwrap();
         for p in &seen {
             assert_eq!(*p.payload, t.transform(&frame(p.payload.seq, 32)).unwrap());
         }

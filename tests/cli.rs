@@ -1841,6 +1841,57 @@ fn sh_prints_wire_frames_of_spherical_harmonics() {
     let o = envlight(&["sh", "--degree", "16"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("0..=15"), "{}", stderr(&o));
+    let o = envlight(&["sh", "--taps", "0,0"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("invalid --taps"), "{}", stderr(&o));
+}
+
+/// `envlight sh` filters the sets in time with the lights' taps (as `envlight decompose` its
+/// lights): the first frame's set is its own, later ones are the taps' weighted sums of the
+/// frames' own sets (`--no-filter`), and `--taps 1` is no filter at all.
+#[test]
+fn sh_filters_the_sets_with_the_lights_taps() {
+    use envlight::set_filter::SetFilter;
+    use envlight::stream::protocol::parse_json_message;
+    use envlight::stream::Message;
+    let sets = |extra: &[&str]| -> Vec<Vec<f64>> {
+        let mut args = vec!["sh", "--frames", "8", "--degree", "2"];
+        args.extend_from_slice(extra);
+        let o = envlight(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        stdout(&o)
+            .lines()
+            .map(|line| match parse_json_message(line) {
+                Ok(Message::Sh(frame)) => frame
+                    .coefficients
+                    .iter()
+                    .flatten()
+                    .map(|&v| f64::from(v))
+                    .collect(),
+                _ => panic!("not an SH frame: {line}"),
+            })
+            .collect()
+    };
+    let filtered = sets(&[]);
+    let own = sets(&["--no-filter"]);
+    assert_eq!(sets(&["--taps", "1"]), own);
+    assert_eq!((filtered.len(), own.len()), (8, 8));
+    assert_eq!(filtered[0], own[0], "the first set is the frame's own");
+    let mut reference = SetFilter::<f64>::new(&envlight::decompose::filter::DEFAULT_TAPS).unwrap();
+    let mut differs = false;
+    for (t, (got, own)) in filtered.iter().zip(&own).enumerate() {
+        let mut want = own.clone();
+        reference.apply(t as u64, &mut want);
+        // The frames' own sets went through f32 on the way out; the filter saw them in f64.
+        for (g, w) in got.iter().zip(&want) {
+            assert!(
+                (g - w).abs() <= 1e-6 * want[0].abs(),
+                "frame {t}: {g} vs {w}"
+            );
+        }
+        differs |= got != own;
+    }
+    assert!(differs, "the sky moves, so the filter must change the sets");
     let o = envlight(&["sh", "/nonexistent/sky.hdr"]);
     assert_fails_naming(&o, &["/nonexistent/sky.hdr"]);
     assert_eq!(o.status.code(), Some(1));

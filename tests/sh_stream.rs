@@ -6,8 +6,9 @@
 //!
 //! As for the wavelet stage (tests/wavelet_stream.rs), the comparison uses a replay, in which
 //! the stage projects every frame in order; the projection is deterministic, so every set a
-//! client receives must equal the library's for that frame, bit for bit (matched by seq: a
-//! client may skip sets, newest wins).
+//! client receives must equal the library's for that frame filtered in time with the lights'
+//! taps (`SetFilter`), bit for bit (matched by seq: a client may skip sets, newest wins), and
+//! its ∫L dω the filtered lights' Σ rgb of the same seq.
 
 mod common;
 
@@ -19,6 +20,7 @@ use envlight::capture::FrameSource;
 use envlight::config::Config;
 use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::record::{Pacing, ReplaySource};
+use envlight::set_filter::SetFilter;
 use envlight::stream::client::{Client, Endpoint};
 use envlight::stream::{Message, Representation, Request, ShFrame};
 use std::path::Path;
@@ -46,12 +48,26 @@ fn sh_clients_receive_what_the_library_computes() {
     assert!(n >= 4, "only {n} frames recorded");
     let config = config(dir.path(), "[sh]\nenabled = true\ndegree = 3\n");
     assert_eq!(config.sh.settings.degree, 3);
+    // Filtered in time with the lights' taps (the recording's: the defaults).
+    let taps = config
+        .sh
+        .settings
+        .filter_taps
+        .clone()
+        .expect("filtered by default");
+    assert_eq!(Some(&taps), config.decompose.filter_taps.as_ref());
 
-    // What the library gives for the recorded frames, and each frame's ∫L dω.
+    // What the library gives for the recorded frames through the filter (a replay feeds the
+    // stage every frame: numbers 0, 1, 2, …), each frame's ∫L dω through the same filter,
+    // and its own ∫L dω.
     let mut replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
+    let mut set_filter = SetFilter::<f64>::new(&taps).unwrap();
+    let mut integral_filter = SetFilter::<f64>::new(&taps).unwrap();
     let mut expected = Vec::new();
+    let mut own_integrals = Vec::new();
     while let Some(frame) = replay.next_frame().unwrap() {
-        let set = envlight::sh::project(&frame, 3);
+        let mut set = envlight::sh::project(&frame, 3);
+        set_filter.apply(frame.seq, set.values_mut());
         let solid_angles = frame.projection.solid_angles(frame.width, frame.height);
         let mut integral = [0.0f64; 3];
         for (rgb, omega) in frame.pixels.iter().zip(solid_angles) {
@@ -59,6 +75,8 @@ fn sh_clients_receive_what_the_library_computes() {
                 integral[c] += f64::from(rgb[c]) * omega;
             }
         }
+        own_integrals.push(integral);
+        integral_filter.apply(frame.seq, &mut integral);
         expected.push((ShFrame::new(frame.seq, frame.time, &set), integral));
     }
     assert_eq!(expected.len() as u64, n);
@@ -78,6 +96,15 @@ fn sh_clients_receive_what_the_library_computes() {
     let endpoints = every_transport(&addrs.stream, [0, 4, 1, 15]);
     let clients = subscribe_all(&endpoints, Representation::Sh, read_sets);
     let lights = Client::connect(&tcp, &Request::default(), Some(TIMEOUT)).unwrap();
+    let lights = std::thread::Builder::new()
+        .name("lights-client".into())
+        .spawn(move || {
+            read_until_goodbye(lights, |message| match message {
+                Message::Frame(frame) => Ok(frame.into_light_frame()),
+                other => Err(other),
+            })
+        })
+        .unwrap();
     let http = addrs.metrics.unwrap();
     wait_until("the end of the replay", || daemon.source_finished());
     let metrics = http_get(http, "/metrics").1;
@@ -129,7 +156,32 @@ fn sh_clients_receive_what_the_library_computes() {
         }
     }
     assert!(full_sets >= 2);
-    drop(lights);
+
+    // The same moment as the lights: each set's ∫L dω equals the filtered lights' Σ rgb of
+    // the same seq, and the frame's own would not (the sun moves).
+    let (lights, _) = lights.join().unwrap();
+    let mut unfiltered_worst = 0.0f64;
+    for frame in &lights {
+        let (set, _) = &expected[frame.seq as usize];
+        let integral = set.to_coefficients().unwrap().integral();
+        let own = own_integrals[frame.seq as usize];
+        for c in 0..3 {
+            let sum: f64 = frame.lights.iter().map(|l| f64::from(l.rgb[c])).sum();
+            let relative = |x: f64| (x - sum).abs() / sum;
+            assert!(
+                relative(integral[c]) < 2e-5,
+                "seq {} channel {c}: set {} vs lights {sum}",
+                frame.seq,
+                integral[c]
+            );
+            unfiltered_worst = unfiltered_worst.max(relative(own[c]));
+        }
+    }
+    assert!(lights.len() >= 4, "{} light frames", lights.len());
+    assert!(
+        unfiltered_worst > 1e-3,
+        "the frames' own sets would have matched too ({unfiltered_worst})"
+    );
 }
 
 #[test]
@@ -217,6 +269,65 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
     let stats = summary.sh.unwrap();
     assert!(stats.sets >= 2 && stats.errors == 0, "{stats:?}");
     assert_eq!(stats.plans, 2, "a new plan for the new degree");
+}
+
+/// The SH filter follows the lights': new [decompose] taps reach the stage, another
+/// [decompose] change restarts its window with the lights', `filter = false` turns it off
+/// (each a new worker: the plans count them).
+#[test]
+fn sighup_keeps_the_sh_filter_on_the_lights_taps() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = "[sh]\nenabled = true\n";
+    let with = |decompose: &str, stage: &str| {
+        let sky = SMALL_SKY.replace(
+            "working_width = 16\n",
+            &format!("working_width = 16\n{decompose}"),
+        );
+        config(dir.path(), &format!("{sky}{stage}"))
+    };
+    let mut daemon = Daemon::start(with("", stage), DaemonOptions::default()).unwrap();
+    let mut rx = daemon.sh().unwrap().subscribe();
+    let mut sets = 0;
+    let mut next_set = |what: &str| {
+        sets += 1;
+        let want = sets;
+        wait_until(what, || {
+            rx.borrow_and_update()
+                .as_ref()
+                .is_some_and(|p| p.index >= want)
+        });
+    };
+    next_set("a first set");
+
+    let taps = "filter_taps = [1.0, 2.0, 1.0]\n";
+    let report = daemon.reload(with(taps, stage));
+    assert_eq!(report.applied, ["[decompose]", "[sh]"], "{report:?}");
+    next_set("a set with the new taps");
+
+    let report = daemon.reload(with(&format!("{taps}merge = true\n"), stage));
+    assert_eq!(
+        report.applied,
+        [
+            "[decompose]",
+            "[sh] (its temporal filter restarts with the lights')"
+        ],
+        "{report:?}"
+    );
+    next_set("a set after the restart");
+
+    let off = format!("{stage}filter = false\n");
+    let report = daemon.reload(with(&format!("{taps}merge = true\n"), &off));
+    assert_eq!(report.applied, ["[sh]"], "{report:?}");
+    next_set("an unfiltered set");
+    // Unchanged: nothing to apply.
+    let report = daemon.reload(with(&format!("{taps}merge = true\n"), &off));
+    assert!(report.applied.is_empty(), "{report:?}");
+    let stats = daemon.shutdown().unwrap().sh.unwrap();
+    assert_eq!(
+        stats.plans, 4,
+        "a new worker (and plan) for each of the three changes"
+    );
+    assert_eq!(stats.errors, 0);
 }
 
 #[test]

@@ -6,7 +6,8 @@
 //!
 //! The comparison uses a replay: there the stage transforms every frame in order (lossless, like
 //! the replay's decomposition), and every step is deterministic, so every set a client receives
-//! must equal, bit for bit, the library's set for that frame. A client may still skip sets
+//! must equal, bit for bit, the library's set for that frame's octahedral map filtered in time
+//! with the lights' taps (`SetFilter`); the set's ∫L dω then equals the lights' of the same seq. A client may still skip sets
 //! (newest wins), so the test matches by seq; the stage's counters show that every frame was
 //! transformed, i.e. that the replay reproduced the whole stream.
 
@@ -20,6 +21,7 @@ use envlight::capture::FrameSource;
 use envlight::config::Config;
 use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::record::{Pacing, ReplaySource};
+use envlight::set_filter::SetFilter;
 use envlight::stream::client::{Client, Endpoint};
 use envlight::stream::protocol::{decode_message, encode_wavelet_frame};
 use envlight::stream::{Message, Representation, Request, WaveletFrame};
@@ -50,17 +52,28 @@ fn wavelet_clients_receive_what_the_library_computes() {
     assert!(n >= 4, "only {n} frames recorded");
     // The defaults (haar, 64², 256 coefficients) with the stage on.
     let config = config(dir.path(), "[wavelet]\nenabled = true\n");
-    let settings = config.wavelet.settings;
+    let settings = &config.wavelet.settings;
     assert_eq!(
         (settings.basis, settings.side, settings.coefficients),
         (Basis::Haar, 64, 256)
     );
+    // Filtered in time with the lights' taps (the recording's: the defaults).
+    let taps = settings.filter_taps.clone().expect("filtered by default");
+    assert_eq!(Some(&taps), config.decompose.filter_taps.as_ref());
 
-    // What the library gives for the recorded frames, and each frame's octahedral map.
+    // What the library gives for the recorded frames, and each frame's octahedral map, filtered
+    // in time (a replay feeds the stage every frame: numbers 0, 1, 2, …); and each frame's own
+    // map's energy.
     let mut replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
+    let mut filter = SetFilter::<f32>::new(&taps).unwrap();
     let mut expected = Vec::new();
+    let mut unfiltered_integrals = Vec::new();
     while let Some(frame) = replay.next_frame().unwrap() {
-        let map = OctahedralMap::from_frame(&frame, 64).unwrap();
+        let own = OctahedralMap::from_frame(&frame, 64).unwrap();
+        unfiltered_integrals.push(own.integral());
+        let mut texels = own.into_texels();
+        filter.apply(frame.seq, bytemuck::cast_slice_mut(&mut texels));
+        let map = OctahedralMap::new(64, texels).unwrap();
         let set = approximate(map.texels(), 64, Basis::Haar, 6, 256).unwrap();
         let wavelet = WaveletFrame {
             seq: frame.seq,
@@ -87,6 +100,15 @@ fn wavelet_clients_receive_what_the_library_computes() {
     let clients = subscribe_all(&endpoints, Representation::Wavelet, read_sets);
     // A lights client on the same daemon is unaffected.
     let lights = Client::connect(&tcp, &Request::default(), Some(TIMEOUT)).unwrap();
+    let lights = std::thread::Builder::new()
+        .name("lights-client".into())
+        .spawn(move || {
+            read_until_goodbye(lights, |message| match message {
+                Message::Frame(frame) => Ok(frame.into_light_frame()),
+                other => Err(other),
+            })
+        })
+        .unwrap();
     let http = addrs.metrics.unwrap();
     wait_until("the end of the replay", || daemon.source_finished());
     let metrics = http_get(http, "/metrics").1;
@@ -141,7 +163,32 @@ fn wavelet_clients_receive_what_the_library_computes() {
         }
     }
     assert!(full_sets >= 2);
-    drop(lights);
+
+    // The same moment as the lights: each set's ∫L dω (its scaling coefficient) equals the
+    // filtered lights' Σ rgb of the same seq, and would not without the filter (the sun moves).
+    let (lights, _) = lights.join().unwrap();
+    let mut unfiltered_worst = 0.0f64;
+    for frame in &lights {
+        let (set, _) = &expected[frame.seq as usize];
+        let integral = set.integral();
+        let own = unfiltered_integrals[frame.seq as usize];
+        for c in 0..3 {
+            let sum: f64 = frame.lights.iter().map(|l| f64::from(l.rgb[c])).sum();
+            let relative = |x: f64| (x - sum).abs() / sum;
+            assert!(
+                relative(integral[c]) < 2e-5,
+                "seq {} channel {c}: set {} vs lights {sum}",
+                frame.seq,
+                integral[c]
+            );
+            unfiltered_worst = unfiltered_worst.max(relative(own[c]));
+        }
+    }
+    assert!(lights.len() >= 4, "{} light frames", lights.len());
+    assert!(
+        unfiltered_worst > 1e-3,
+        "the frames' own sets would have matched too ({unfiltered_worst})"
+    );
 }
 
 /// The received set reconstructs the frame: its energy (∫L dω, from the scaling coefficient

@@ -289,8 +289,11 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
     let sh_lighting = args.lighting == LightingArg::Sh;
     // The projection plan of the frames' shape is kept from frame to frame.
     let mut sh_projector = if args.lighting == LightingArg::Sh {
+        // Filtered in time with the lights' default taps, as the lights of `--lighting lights`
+        // and the daemon's SH stage are.
         let settings = envlight::sh_stage::ShSettings {
             degree: args.degree.unwrap_or(envlight::sh_stage::DEFAULT_DEGREE),
+            ..envlight::sh_stage::ShSettings::default()
         };
         Some(
             envlight::sh_stage::ShProjector::new(settings)

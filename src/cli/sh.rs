@@ -5,7 +5,9 @@
 use crate::cli::output::JsonLines;
 use anyhow::{Context, Result};
 use clap::Args;
-use envlight::sh::{Projector, MAX_DEGREE};
+use envlight::decompose::filter::{FirFilter, DEFAULT_TAPS};
+use envlight::sh::MAX_DEGREE;
+use envlight::sh_stage::{ShProjector, ShSettings};
 use envlight::stream::protocol::{sh_frame_to_json, ShFrame};
 use std::path::PathBuf;
 
@@ -20,7 +22,13 @@ daemon's representation `sh` (docs/protocol.md) with the frame's ∫L dω added:
 
 Coefficient l² + l + m belongs to Y_l^m (docs/sh.md gives the basis); the irradiance of a
 surface of normal n is Σ_l Â_l Σ_m L_lm Y_lm(n) with Â = π, 2π/3, π/4, 0, −π/24, …
-Without INPUT the built-in sky is used (1 frame unless --frames says otherwise).";
+Without INPUT the built-in sky is used (1 frame unless --frames says otherwise).
+
+The sets are filtered in time with the lights' FIR taps (those of `envlight decompose`, newest
+frame first; --taps, --no-filter as there): the set of frame t is Σ_k w_k · set(t−k), the set of
+the filtered map, so it lags the frames by the lights' delay (3 frames with the default taps)
+and describes the same moment as `envlight decompose`'s lights of the same seq. The first
+frame's set fills the window, so a single frame's set is its own.";
 
 #[derive(Args, Debug)]
 pub(crate) struct ShArgs {
@@ -33,6 +41,19 @@ pub(crate) struct ShArgs {
     /// Output file (JSON Lines). [default: stdout]
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
+    /// Each frame's own set: no temporal filter.
+    #[arg(long, conflicts_with = "taps")]
+    no_filter: bool,
+    /// FIR filter taps, newest frame first: 1 to 64 non-negative weights, normalised to sum to 1.
+    /// [default: 1,6,15,20,15,6,1, the lights' default]
+    #[arg(
+        long,
+        value_name = "W,W,…",
+        value_delimiter = ',',
+        num_args = 1,
+        value_parser = crate::cli::parse_tap
+    )]
+    taps: Option<Vec<f64>>,
 }
 
 fn parse_degree(text: &str) -> Result<usize, String> {
@@ -46,17 +67,24 @@ pub(crate) fn run(args: &ShArgs) -> Result<()> {
     let mut source = args.input.open()?;
     let mut inputs = crate::cli::output::InputFiles::new(source.files());
     let mut output = JsonLines::open(args.out.as_deref(), "--out", &mut inputs)?;
-    let mut plan: Option<Projector> = None;
+    let filter_taps = match (&args.taps, args.no_filter) {
+        (_, true) => None,
+        (Some(taps), false) => Some(taps.clone()),
+        (None, false) => Some(DEFAULT_TAPS.to_vec()),
+    };
+    if let Some(taps) = &filter_taps {
+        if let Err(e) = FirFilter::new(taps) {
+            crate::cli::usage_error!("invalid --taps: {e}");
+        }
+    }
+    // One projection plan per projection and frame size; the filter's window.
+    let mut projector = ShProjector::new(ShSettings {
+        degree: args.degree,
+        filter_taps,
+    })
+    .map_err(|e| crate::cli::usage(e.to_string()))?;
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
-        // One plan per projection and frame size.
-        let projector = match plan.take() {
-            Some(p) if p.fits(&frame) => p,
-            _ => Projector::new(args.degree, frame.width, frame.height, frame.projection),
-        };
-        let set = projector
-            .project(&frame)
-            .with_context(|| format!("frame {}: no projection plan for its shape", frame.seq))?;
-        plan = Some(projector);
+        let set = projector.coefficients(&frame);
         let sh = ShFrame::new(frame.seq, frame.time, &set);
         // The wire's JSON frame (an object) with the frame's ∫L dω appended.
         let frame_json = sh_frame_to_json(&sh, None, false);

@@ -241,6 +241,12 @@ impl ShCoefficients {
         &self.rgb
     }
 
+    /// The coefficients as one flat slice (r, g, b of coefficient 0, then of 1, …), to change
+    /// in place (a temporal filter, [`crate::set_filter`]).
+    pub fn values_mut(&mut self) -> &mut [f64] {
+        bytemuck::cast_slice_mut(&mut self.rgb)
+    }
+
     /// The coefficients up to degree `degree` (all of them if it is not lower).
     pub fn truncated(&self, degree: usize) -> Self {
         let degree = degree.min(self.degree);
