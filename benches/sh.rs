@@ -4,12 +4,15 @@
 //! coefficients per channel) and degree 4 (25), on one thread and on rayon's threads; the
 //! same for a camera's 1280×960 fisheye frame (the per-pixel weights at degrees 2 and 4, the
 //! basis evaluated at every pixel at degree 8); the evaluation of
-//! irradiance from a set. Run: `cargo bench --bench sh` (`-- --quick` for a short
+//! irradiance from a set; the temporal filter with the lights' default taps
+//! (`envlight::set_filter`) on a degree-8 set (243 numbers) and, for the wavelet stage, on a
+//! 64² octahedral map (12,288 f32). Run: `cargo bench --bench sh` (`-- --quick` for a short
 //! run).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::envmap::Projection;
+use envlight::set_filter::SetFilter;
 use envlight::sh::{project, Projector};
 use envlight::HdrFrame;
 use std::hint::black_box;
@@ -92,6 +95,29 @@ fn bench(c: &mut Criterion) {
                 .iter()
                 .map(|&n| set.irradiance(black_box(n)))
                 .fold(0.0, |s, e| s + e[1])
+        })
+    });
+    // The temporal filter, per frame, on a full window (7 taps).
+    let taps = envlight::decompose::filter::DEFAULT_TAPS;
+    let degree8 = project(&park, 8);
+    let mut sh_filter = SetFilter::<f64>::new(&taps).expect("taps");
+    let mut number = 0u64;
+    group.bench_function("filter_degree8_set", |b| {
+        b.iter(|| {
+            let mut set = degree8.clone();
+            number += 1;
+            sh_filter.apply(number, set.values_mut());
+            set
+        })
+    });
+    let map = envlight::wavelet::sphere::OctahedralMap::from_frame(&park, 64).expect("map");
+    let mut map_filter = SetFilter::<f32>::new(&taps).expect("taps");
+    let mut number = 0u64;
+    let mut texels = map.texels().to_vec();
+    group.bench_function("filter_octahedral_map_64", |b| {
+        b.iter(|| {
+            number += 1;
+            map_filter.apply(number, bytemuck::cast_slice_mut(black_box(&mut texels)));
         })
     });
     group.finish();
