@@ -1939,6 +1939,38 @@ fn check_config_checks_the_render_thread_as_run_does() {
     );
 }
 
+/// `check-config` says how the wavelet and SH stages are filtered in time: with the lights'
+/// taps, not when `filter = false`, not when the lights are not.
+#[test]
+fn check_config_reports_the_stages_temporal_filters() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("stages.toml");
+    let report = |text: &str| {
+        std::fs::write(&path, text).unwrap();
+        let out = envlight().arg("check-config").arg(&path).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let text = report("[wavelet]\nenabled = true\nfilter = false\n[sh]\nenabled = true\n");
+    assert!(
+        text.contains("levels), not filtered (filter = false)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("per channel), filtered with the lights' taps"),
+        "{text}"
+    );
+    let text = report("[decompose]\nfilter = false\n[sh]\nenabled = true\n");
+    assert!(
+        text.contains("per channel), not filtered (the lights are not)"),
+        "{text}"
+    );
+}
+
 #[test]
 fn check_config_names_the_bad_key_and_value() {
     let dir = tempfile::tempdir().unwrap();

@@ -266,12 +266,13 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
         let w = &config.wavelet.settings;
         writeln!(
             text,
-            "  wavelet: {} largest {} coefficients of a {}x{} octahedral map ({} levels)",
+            "  wavelet: {} largest {} coefficients of a {}x{} octahedral map ({} levels), {}",
             w.coefficients,
             w.basis,
             w.side,
             w.side,
-            w.levels()
+            w.levels(),
+            stage_filter(config.wavelet.filter, w.filter_taps.is_some())
         )?;
     } else {
         writeln!(text, "  wavelet: off")?;
@@ -280,13 +281,24 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
         let degree = config.sh.settings.degree;
         writeln!(
             text,
-            "  sh: spherical harmonics up to degree {degree} ({} coefficients per channel)",
-            envlight::sh::coefficient_count(degree)
+            "  sh: spherical harmonics up to degree {degree} ({} coefficients per channel), {}",
+            envlight::sh::coefficient_count(degree),
+            stage_filter(config.sh.filter, config.sh.settings.filter_taps.is_some())
         )?;
     } else {
         writeln!(text, "  sh: off")?;
     }
     crate::cli::output::print(&text)
+}
+
+/// How a wavelet or SH stage is filtered in time: `filter` as configured, `filtered` in effect
+/// (the lights' taps, when the lights are filtered).
+fn stage_filter(filter: bool, filtered: bool) -> &'static str {
+    match (filter, filtered) {
+        (_, true) => "filtered with the lights' taps",
+        (true, false) => "not filtered (the lights are not)",
+        (false, false) => "not filtered (filter = false)",
+    }
 }
 
 /// `check-config`'s line for an enabled `[render]`, after the checks `envlight run` makes
