@@ -862,6 +862,15 @@ fn cli_renders_png_and_exr_per_frame() {
     assert_eq!((png.width(), png.height()), (48, 32));
     let stats = std::fs::read_to_string(out.join("stats.jsonl")).unwrap();
     assert_eq!(stats.lines().count(), 2);
+    for line in stats.lines() {
+        // The CPU's share of the frame is part of its wall time.
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        let (encode, cpu) = (v["encode_ms"].as_f64(), v["cpu_ms"].as_f64());
+        assert!(
+            matches!((encode, cpu), (Some(e), Some(c)) if e > 0.0 && e <= c),
+            "{line}"
+        );
+    }
     // Supersampled: the same image size; a factor past 4 is a usage error.
     let supersampled = dir.path().join("supersampled");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))

@@ -543,7 +543,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         let line = serde_json::json!({
             "seq": lights.seq, "lights": stats.lights, "shadow_maps": stats.shadow_maps,
             "gpu_ms": stats.gpu_ms, "shadow_gpu_ms": stats.shadow_gpu_ms,
-            "cpu_ms": stats.cpu_ms, "frame_ms": stats.frame_ms(),
+            "cpu_ms": stats.cpu_ms, "encode_ms": stats.encode_ms, "frame_ms": stats.frame_ms(),
         });
         writeln!(stats_file, "{line}")
             .with_context(|| format!("cannot write {}", stats_path.display()))?;

@@ -325,7 +325,7 @@ impl Renderer {
         let start = Instant::now();
         let (n, maps) = self.prepare_asg(lobes)?;
         let enc = self.encode_asg(maps, false);
-        self.run_closed_form(enc, start, n, maps)
+        self.submit_frame(enc, start, n, maps)
     }
 
     /// Renders one frame under ASG lighting (module doc) and reads the image back.
@@ -333,7 +333,7 @@ impl Renderer {
         let start = Instant::now();
         let (n, maps) = self.prepare_asg(lobes)?;
         let enc = self.encode_asg(maps, true);
-        let stats = self.run_closed_form(enc, start, n, maps)?;
+        let stats = self.submit_frame(enc, start, n, maps)?;
         Ok((self.read_image()?, stats))
     }
 }

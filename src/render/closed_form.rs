@@ -3,8 +3,7 @@
 //! surfaces, encoded after the frame's shadow maps (the ASG lobes' maps; none for SH) and
 //! before the post pass, timed and waited for as the light pass is.
 
-use super::{FrameStats, RenderError, Renderer};
-use std::time::Instant;
+use super::Renderer;
 
 /// The pipelines of a closed-form pass: `fs_main` for the opaque surfaces and, where the scene
 /// has blended ones, `fs_blended` drawn over them back to front (premultiplied alpha).
@@ -92,28 +91,5 @@ impl Renderer {
             self.encode_readback(&mut enc);
         }
         enc
-    }
-
-    /// Submits `enc`, waits for it and returns the frame's stats: `counted` lobes or
-    /// coefficients in `lights`, `maps` shadow maps, CPU time since `start`, GPU times where
-    /// the adapter has timestamps.
-    pub(super) fn run_closed_form(
-        &mut self,
-        enc: wgpu::CommandEncoder,
-        start: Instant,
-        counted: usize,
-        maps: usize,
-    ) -> Result<FrameStats, RenderError> {
-        self.gpu.queue.submit([enc.finish()]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
-        Ok(FrameStats {
-            lights: counted,
-            shadow_maps: maps,
-            gpu_ms,
-            shadow_gpu_ms,
-            cpu_ms,
-        })
     }
 }

@@ -281,6 +281,9 @@ pub struct FrameStats {
     pub shadow_gpu_ms: Option<f64>,
     /// CPU wall time from the start of encoding to completion on the GPU.
     pub cpu_ms: f64,
+    /// The CPU's share of `cpu_ms`: preparing the lights, encoding every pass and submitting,
+    /// before the wait for the GPU.
+    pub encode_ms: f64,
 }
 
 impl FrameStats {
@@ -400,17 +403,32 @@ impl Renderer {
     pub fn render_timed(&mut self, lights: &[Light]) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
         let (gl, maps) = self.prepare(lights)?;
-        let cmd = self.encode(maps, false).finish();
-        self.gpu.queue.submit([cmd]);
+        let enc = self.encode(maps, false);
+        self.submit_frame(enc, start, gl.len(), maps)
+    }
+
+    /// Submits `enc`, waits for it and returns the frame's stats: `counted` lights, lobes or
+    /// coefficients in `lights`, `maps` shadow maps, CPU times since `start`, GPU times where
+    /// the adapter has timestamps.
+    pub(super) fn submit_frame(
+        &mut self,
+        enc: wgpu::CommandEncoder,
+        start: Instant,
+        counted: usize,
+        maps: usize,
+    ) -> Result<FrameStats, RenderError> {
+        self.gpu.queue.submit([enc.finish()]);
+        let encode_ms = start.elapsed().as_secs_f64() * 1e3;
         self.wait()?;
         let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
         let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
         Ok(FrameStats {
-            lights: gl.len(),
+            lights: counted,
             shadow_maps: maps,
             gpu_ms,
             shadow_gpu_ms,
             cpu_ms,
+            encode_ms,
         })
     }
 
@@ -426,36 +444,16 @@ impl Renderer {
         let (gl, maps) = self.prepare(lights)?;
         let mut enc = self.encode(maps, false);
         then(&self.gpu.device, &mut enc, self.color_view());
-        self.gpu.queue.submit([enc.finish()]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
-        Ok(FrameStats {
-            lights: gl.len(),
-            shadow_maps: maps,
-            gpu_ms,
-            shadow_gpu_ms,
-            cpu_ms,
-        })
+        self.submit_frame(enc, start, gl.len(), maps)
     }
 
     /// Renders one frame and reads the image back.
     pub fn render(&mut self, lights: &[Light]) -> Result<(Image, FrameStats), RenderError> {
         let start = Instant::now();
         let (gl, maps) = self.prepare(lights)?;
-        let cmd = self.encode(maps, true).finish();
-        self.gpu.queue.submit([cmd]);
-        self.wait()?;
-        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        let enc = self.encode(maps, true);
+        let stats = self.submit_frame(enc, start, gl.len(), maps)?;
         let image = self.read_image()?;
-        let (gpu_ms, shadow_gpu_ms) = self.gpu_time(maps > 0)?;
-        let stats = FrameStats {
-            lights: gl.len(),
-            shadow_maps: maps,
-            gpu_ms,
-            shadow_gpu_ms,
-            cpu_ms,
-        };
         Ok((image, stats))
     }
 

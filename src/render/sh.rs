@@ -298,7 +298,7 @@ impl Renderer {
         let start = Instant::now();
         let n = self.prepare_sh(sh)?;
         let enc = self.encode_sh(false);
-        self.run_closed_form(enc, start, n, 0)
+        self.submit_frame(enc, start, n, 0)
     }
 
     /// Renders one frame under SH lighting (module doc) and reads the image back.
@@ -306,7 +306,7 @@ impl Renderer {
         let start = Instant::now();
         let n = self.prepare_sh(sh)?;
         let enc = self.encode_sh(true);
-        let stats = self.run_closed_form(enc, start, n, 0)?;
+        let stats = self.submit_frame(enc, start, n, 0)?;
         Ok((self.read_image()?, stats))
     }
 }
