@@ -338,6 +338,34 @@ pub struct Projector {
     summation: Summation,
 }
 
+/// Defines `$dispatch(&self, …)`, which runs `$body` compiled for AVX2 (as `$avx2`) where the
+/// CPU has it and as built otherwise: the same code, so the same sums, in both. `$body` is
+/// `#[inline(always)]` so that it is compiled into each.
+macro_rules! avx2_dispatch {
+    (
+        $(#[$doc:meta])*
+        fn $dispatch:ident / $avx2:ident => $body:ident($($arg:ident: $ty:ty),* $(,)?) -> $ret:ty
+    ) => {
+        $(#[$doc])*
+        fn $dispatch(&self, $($arg: $ty),*) -> $ret {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU supports AVX2 (checked just above).
+                    return unsafe { self.$avx2($($arg),*) };
+                }
+            }
+            self.$body($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        fn $avx2(&self, $($arg: $ty),*) -> $ret {
+            self.$body($($arg),*)
+        }
+    };
+}
+
 #[derive(Clone, Debug)]
 enum Summation {
     LatLong {
@@ -543,33 +571,14 @@ impl Projector {
         Some(set)
     }
 
-    /// [`Projector::latlong_band`] compiled for AVX2 where the CPU has it (the same sums, bit
-    /// for bit: [`dot`] keeps four running sums whatever the vector width).
-    fn latlong_band_dispatch(
-        &self,
-        pixels: &[[f32; 3]],
-        tables: &[f64],
-        trig: &[f64],
-    ) -> Vec<[f64; 3]> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU supports AVX2 (checked just above).
-                return unsafe { self.latlong_band_avx2(pixels, tables, trig) };
-            }
-        }
-        self.latlong_band(pixels, tables, trig)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn latlong_band_avx2(
-        &self,
-        pixels: &[[f32; 3]],
-        tables: &[f64],
-        trig: &[f64],
-    ) -> Vec<[f64; 3]> {
-        self.latlong_band(pixels, tables, trig)
+    avx2_dispatch! {
+        /// [`Projector::latlong_band`] compiled for AVX2 where the CPU has it (the same sums, bit
+        /// for bit: [`dot`] keeps four running sums whatever the vector width).
+        fn latlong_band_dispatch / latlong_band_avx2 => latlong_band(
+            pixels: &[[f32; 3]],
+            tables: &[f64],
+            trig: &[f64],
+        ) -> Vec<[f64; 3]>
     }
 
     /// The sums of a band of lat-long rows: per row its Fourier sums, then the coefficients.
@@ -607,32 +616,13 @@ impl Projector {
         sums
     }
 
-    /// [`Projector::weights_band`] compiled for AVX2 where the CPU has it (the same sums).
-    fn weights_band_dispatch(
-        &self,
-        frame: &[[f32; 3]],
-        indices: &[u32],
-        weights: &[f32],
-    ) -> Vec<[f64; 3]> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU supports AVX2 (checked just above).
-                return unsafe { self.weights_band_avx2(frame, indices, weights) };
-            }
-        }
-        self.weights_band(frame, indices, weights)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn weights_band_avx2(
-        &self,
-        frame: &[[f32; 3]],
-        indices: &[u32],
-        weights: &[f32],
-    ) -> Vec<[f64; 3]> {
-        self.weights_band(frame, indices, weights)
+    avx2_dispatch! {
+        /// [`Projector::weights_band`] compiled for AVX2 where the CPU has it (the same sums).
+        fn weights_band_dispatch / weights_band_avx2 => weights_band(
+            frame: &[[f32; 3]],
+            indices: &[u32],
+            weights: &[f32],
+        ) -> Vec<[f64; 3]>
     }
 
     /// The sums of a band of seen pixels against their weights, one channel's sums beside
@@ -665,31 +655,12 @@ impl Projector {
             .collect()
     }
 
-    /// The sums of a band of pixels against the basis at their centres.
-    /// [`Projector::per_pixel_band`] compiled for AVX2 where the CPU has it (the same sums).
-    fn per_pixel_band_dispatch(
-        &self,
-        pixels: &[[f32; 3]],
-        samples: &[([f64; 3], f64)],
-    ) -> Vec<[f64; 3]> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU supports AVX2 (checked just above).
-                return unsafe { self.per_pixel_band_avx2(pixels, samples) };
-            }
-        }
-        self.per_pixel_band(pixels, samples)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn per_pixel_band_avx2(
-        &self,
-        pixels: &[[f32; 3]],
-        samples: &[([f64; 3], f64)],
-    ) -> Vec<[f64; 3]> {
-        self.per_pixel_band(pixels, samples)
+    avx2_dispatch! {
+        /// [`Projector::per_pixel_band`] compiled for AVX2 where the CPU has it (the same sums).
+        fn per_pixel_band_dispatch / per_pixel_band_avx2 => per_pixel_band(
+            pixels: &[[f32; 3]],
+            samples: &[([f64; 3], f64)],
+        ) -> Vec<[f64; 3]>
     }
 
     /// The per-pixel path's sums over one band: the pixels that see something and hold light
