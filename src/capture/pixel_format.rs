@@ -2,7 +2,7 @@
 //!
 //! Nothing here touches a device, so every conversion is tested on made-up buffers. The output
 //! is the camera's *code value* per channel, normalised by the format's largest code
-//! (255, 1023, 4095 or 65535); turning code values into radiance is [`super::response`]'s job.
+//! (255, 1023, 4095, 16383 or 65535); turning code values into radiance is [`super::response`]'s job.
 //!
 //! | format             | V4L2 fourcc                 | conversion                                        |
 //! |--------------------|-----------------------------|---------------------------------------------------|
@@ -11,10 +11,10 @@
 //! | Y'CbCr 4:2:0, planar | `NV12`, `NV21`, `YU12`, `YV12` | the same, one chroma pair per 2×2 pixels       |
 //! | Y'CbCr 4:2:2, planar | `NV16`, `NV61`, `422P`    | the same, one chroma pair per 2×1 pixels (as YUYV) |
 //! | Motion JPEG        | `MJPG`, `JPEG`              | `zune-jpeg` (JFIF full-range BT.601) → RGB        |
-//! | grey 8/10/12/16    | `GREY`, `Y10 `, `Y12 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
+//! | grey 8/10/12/14/16 | `GREY`, `Y10 `, `Y12 `, `Y14 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
-//! | Bayer 8/10/12/16   | `RGGB` `BA81` …, `RG10` …, `RG12` …, `RG16` `BYR2` … | bilinear demosaic |
-//! | MIPI CSI-2 packed raw | `pRAA` `pBAA` `pGAA` `pgAA`, `pRCC` … `pgCC`, `Y10P`, `Y12P` | unpacked, then as Bayer or grey |
+//! | Bayer 8/10/12/14/16 | `RGGB` `BA81` …, `RG10` …, `RG12` …, `RG14` …, `RG16` `BYR2` … | bilinear demosaic |
+//! | MIPI CSI-2 packed raw | `pRAA` `pBAA` `pGAA` `pgAA`, `pRCC` … `pgCC`, `pREE` … `pgEE`, `Y10P`, `Y12P`, `Y14P` | unpacked, then as Bayer or grey |
 //!
 //! MJPEG frames without Huffman tables (many UVC cameras leave them out, as Motion-JPEG in AVI
 //! does) get an `AVI1` APP0 segment, which makes zune-jpeg use the standard tables of JPEG
@@ -47,14 +47,17 @@
 //! a small buffer of its own, and kernels specialised to the row's colours take the interior
 //! pixels in pairs; only the two border columns use mirrored indices.
 //!
-//! 10/12/16-bit formats are the unpacked V4L2 layouts: one little-endian 16-bit word per
+//! 10/12/14/16-bit formats are the unpacked V4L2 layouts: one little-endian 16-bit word per
 //! sample, the value in the low bits. Values above the format's largest code are clamped.
 //! The MIPI CSI-2 packed layouts (what a Raspberry Pi's or another CSI-2 receiver's raw
 //! capture gives) hold 10-bit samples four in five bytes (the high 8 bits of each, then a byte
 //! of their low 2 bits, the first sample's in bits 0–1) and 12-bit samples two in three bytes
-//! (the high 8 bits of each, then a byte of their low 4 bits, the first sample's in bits 0–3);
-//! a row is width × 5/4 or × 3/2 bytes (the width a multiple of 4 or of 2), then padding to the
-//! stride. They decode to the same codes, to the bit, as the unpacked layouts of the same
+//! (the high 8 bits of each, then a byte of their low 4 bits, the first sample's in bits 0–3)
+//! and 14-bit samples four in seven bytes (the high 8 bits of each, then their low 6 bits in
+//! order from bit 0 of the fifth byte on: bits 0–5 the first sample's, 6–7 and 8–11 the
+//! second's, and so on; Linux's `pixfmt-srggb14p`);
+//! a row is width × 5/4, × 3/2 or × 7/4 bytes (the width a multiple of 4, 2 or 4), then
+//! padding to the stride. They decode to the same codes, to the bit, as the unpacked layouts of the same
 //! samples.
 //!
 //! Formats whose every code is one byte (MJPEG, RGB24, BGR24, 8-bit grey) can also be kept as
@@ -65,7 +68,7 @@
 //!
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, a
 //! width the format does not allow (odd for YUYV, UYVY, 4:2:0 and Bayer; not a multiple of 4
-//! for the 10-bit CSI-2 packing), an odd height for 4:2:0, or a corrupt JPEG is a
+//! for the 10- and 14-bit CSI-2 packings), an odd height for 4:2:0, or a corrupt JPEG is a
 //! [`PixelError`], never a panic.
 
 use std::fmt;
@@ -204,18 +207,18 @@ pub enum PixelFormat {
     /// `422P`).
     PlanarYuv(PlanarYuv),
     Mjpeg,
-    /// Grey with 8, 10, 12 or 16 significant bits.
+    /// Grey with 8, 10, 12, 14 or 16 significant bits.
     Grey {
         bits: u8,
     },
     Rgb24,
     Bgr24,
-    /// Raw Bayer with 8, 10, 12 or 16 significant bits.
+    /// Raw Bayer with 8, 10, 12, 14 or 16 significant bits.
     Bayer {
         pattern: BayerPattern,
         bits: u8,
     },
-    /// MIPI CSI-2 packed raw, 10 or 12 bits: Bayer, or grey where `pattern` is `None`.
+    /// MIPI CSI-2 packed raw, 10, 12 or 14 bits: Bayer, or grey where `pattern` is `None`.
     Csi2Packed {
         pattern: Option<BayerPattern>,
         bits: u8,
@@ -223,7 +226,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 29] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 35] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -231,6 +234,19 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 29] = {
         Bayer {
             pattern: Rggb,
             bits: 16,
+        },
+        Grey { bits: 14 },
+        Bayer {
+            pattern: Rggb,
+            bits: 14,
+        },
+        Csi2Packed {
+            pattern: None,
+            bits: 14,
+        },
+        Csi2Packed {
+            pattern: Some(Rggb),
+            bits: 14,
         },
         Grey { bits: 12 },
         Bayer {
@@ -261,6 +277,14 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 29] = {
         Bayer {
             pattern: Bggr,
             bits: 16,
+        },
+        Bayer {
+            pattern: Bggr,
+            bits: 14,
+        },
+        Csi2Packed {
+            pattern: Some(Bggr),
+            bits: 14,
         },
         Bayer {
             pattern: Bggr,
@@ -298,8 +322,9 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 29] = {
     ]
 };
 
-/// The MIPI CSI-2 packed layouts' fourccs (`V4L2_PIX_FMT_S….10P`, `….12P`, `Y10P`, `Y12P`).
-const CSI2_FOURCCS: [(Option<BayerPattern>, u8, &[u8; 4]); 10] = {
+/// The MIPI CSI-2 packed layouts' fourccs (`V4L2_PIX_FMT_S….10P`, `….12P`, `….14P`, `Y10P`,
+/// `Y12P`, `Y14P`).
+const CSI2_FOURCCS: [(Option<BayerPattern>, u8, &[u8; 4]); 15] = {
     use BayerPattern::*;
     [
         (None, 10, b"Y10P"),
@@ -312,10 +337,15 @@ const CSI2_FOURCCS: [(Option<BayerPattern>, u8, &[u8; 4]); 10] = {
         (Some(Gbrg), 12, b"pGCC"),
         (Some(Grbg), 12, b"pgCC"),
         (Some(Rggb), 12, b"pRCC"),
+        (None, 14, b"Y14P"),
+        (Some(Bggr), 14, b"pBEE"),
+        (Some(Gbrg), 14, b"pGEE"),
+        (Some(Grbg), 14, b"pgEE"),
+        (Some(Rggb), 14, b"pREE"),
     ]
 };
 
-const BAYER_FOURCCS: [(BayerPattern, u8, &[u8; 4]); 16] = {
+const BAYER_FOURCCS: [(BayerPattern, u8, &[u8; 4]); 20] = {
     use BayerPattern::*;
     [
         (Bggr, 8, b"BA81"),
@@ -330,6 +360,10 @@ const BAYER_FOURCCS: [(BayerPattern, u8, &[u8; 4]); 16] = {
         (Gbrg, 12, b"GB12"),
         (Grbg, 12, b"BA12"),
         (Rggb, 12, b"RG12"),
+        (Bggr, 14, b"BG14"),
+        (Gbrg, 14, b"GB14"),
+        (Grbg, 14, b"GR14"),
+        (Rggb, 14, b"RG14"),
         (Bggr, 16, b"BYR2"),
         (Gbrg, 16, b"GB16"),
         (Grbg, 16, b"GR16"),
@@ -347,6 +381,7 @@ impl PixelFormat {
             PixelFormat::Grey { bits: 8 },
             PixelFormat::Grey { bits: 10 },
             PixelFormat::Grey { bits: 12 },
+            PixelFormat::Grey { bits: 14 },
             PixelFormat::Grey { bits: 16 },
             PixelFormat::Rgb24,
             PixelFormat::Bgr24,
@@ -374,6 +409,7 @@ impl PixelFormat {
             PixelFormat::Mjpeg => *b"MJPG",
             PixelFormat::Grey { bits: 10 } => *b"Y10 ",
             PixelFormat::Grey { bits: 12 } => *b"Y12 ",
+            PixelFormat::Grey { bits: 14 } => *b"Y14 ",
             PixelFormat::Grey { bits: 16 } => *b"Y16 ",
             PixelFormat::Grey { .. } => *b"GREY",
             PixelFormat::Rgb24 => *b"RGB3",
@@ -405,6 +441,7 @@ impl PixelFormat {
             b"GREY" => PixelFormat::Grey { bits: 8 },
             b"Y10 " => PixelFormat::Grey { bits: 10 },
             b"Y12 " => PixelFormat::Grey { bits: 12 },
+            b"Y14 " => PixelFormat::Grey { bits: 14 },
             b"Y16 " => PixelFormat::Grey { bits: 16 },
             b"RGB3" => PixelFormat::Rgb24,
             b"BGR3" => PixelFormat::Bgr24,
@@ -481,12 +518,13 @@ impl PixelFormat {
     }
 
     /// The bytes of one row of `width` pixels without padding (of the luma plane for 4:2:0; 0
-    /// for MJPEG); for the CSI-2 packed layouts, width × 5/4 (10 bits) or × 3/2 (12 bits),
-    /// rounded up (a width they do not allow is an error of [`check`]).
+    /// for MJPEG); for the CSI-2 packed layouts, width × 5/4 (10 bits), × 3/2 (12 bits) or
+    /// × 7/4 (14 bits), rounded up (a width they do not allow is an error of [`check`]).
     pub fn row_bytes(self, width: u32) -> usize {
         let w = width as usize;
         match self {
             PixelFormat::Csi2Packed { bits: 10, .. } => w.div_ceil(4) * 5,
+            PixelFormat::Csi2Packed { bits: 14, .. } => w.div_ceil(4) * 7,
             PixelFormat::Csi2Packed { .. } => w.div_ceil(2) * 3,
             other => w * other.bytes_per_pixel(),
         }
@@ -1028,6 +1066,15 @@ fn unpack_csi2_row(bits: u8, row: &[u8], inv: f32, out: &mut [f32]) {
                 d[k] = f32::from(code) * inv;
             }
         }
+    } else if bits == 14 {
+        for (group, d) in row.chunks_exact(7).zip(out.chunks_exact_mut(4)) {
+            // The four 6-bit low parts, in order from bit 0 of byte 4.
+            let low = u32::from(group[4]) | u32::from(group[5]) << 8 | u32::from(group[6]) << 16;
+            for k in 0..4 {
+                let code = (u32::from(group[k]) << 6) | ((low >> (6 * k)) & 0x3F);
+                d[k] = code as f32 * inv;
+            }
+        }
     } else {
         for (group, d) in row.chunks_exact(3).zip(out.chunks_exact_mut(2)) {
             let low = group[2];
@@ -1133,6 +1180,10 @@ fn frame_layout(
         PixelFormat::Csi2Packed { bits: 10, .. } => (
             4,
             "width must be a multiple of 4 (10-bit packed: 4 samples in 5 bytes)",
+        ),
+        PixelFormat::Csi2Packed { bits: 14, .. } => (
+            4,
+            "width must be a multiple of 4 (14-bit packed: 4 samples in 7 bytes)",
         ),
         PixelFormat::Csi2Packed { .. } => (
             2,
@@ -1667,6 +1718,15 @@ mod tests {
                                     .fold(0u8, |low, (k, v)| low | (((v & 0b11) as u8) << (2 * k))),
                             );
                         }
+                    } else if bits == 14 {
+                        // Byte by byte as Linux's pixfmt-srggb14p table draws them.
+                        for s in row.chunks(4) {
+                            let low = |k: usize| (s[k] & 0x3F) as u8;
+                            data.extend(s.iter().map(|v| (v >> 6) as u8));
+                            data.push(low(0) | (low(1) & 0b11) << 6);
+                            data.push(low(1) >> 2 | (low(2) & 0xF) << 4);
+                            data.push(low(2) >> 4 | low(3) << 2);
+                        }
                     } else {
                         for s in row.chunks(2) {
                             data.extend([(s[0] >> 4) as u8, (s[1] >> 4) as u8]);
@@ -1711,7 +1771,22 @@ mod tests {
         for (got, want) in codes.iter().zip([0xABC, 0x123]) {
             assert!((got - f32::from(want as u16)).abs() < 1e-3, "{codes:?}");
         }
+        // 14-bit samples 0x3FFF, 0x0001, 0x2000, 0x1555: high bytes, then the low 6-bit parts
+        // 0x3F, 0x01, 0x00, 0x15 from bit 0 of byte 4 on.
+        let y14p = PixelFormat::Csi2Packed {
+            pattern: None,
+            bits: 14,
+        };
+        let group = [0xFF, 0x00, 0x80, 0x55, 0x7F, 0x00, 0x54];
+        let img = decode(&raw(&group, y14p, 4, 1), YuvMatrix::Auto).unwrap();
+        let codes: Vec<f32> = img.pixels.iter().map(|p| p[0] * 16383.0).collect();
+        for (got, want) in codes.iter().zip([0x3FFF, 0x0001, 0x2000, 0x1555]) {
+            assert!((got - f32::from(want as u16)).abs() < 1e-2, "{codes:?}");
+        }
+        assert_eq!(y14p.row_bytes(8), 14);
         // Widths the packing does not allow.
+        let e = decode(&raw(&[0; 64], y14p, 6, 2), YuvMatrix::Auto).unwrap_err();
+        assert!(e.to_string().contains("14-bit packed"), "{e}");
         let e = decode(&raw(&[0; 64], y10p, 6, 2), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("multiple of 4"), "{e}");
         let e = decode(&raw(&[0; 64], y12p, 3, 2), YuvMatrix::Auto).unwrap_err();
@@ -1734,6 +1809,25 @@ mod tests {
             })
         );
         assert_eq!(PixelFormat::parse("y10p"), Some(y10p));
+        assert_eq!(PixelFormat::parse("Y14P"), Some(y14p));
+        assert_eq!(
+            PixelFormat::parse("pREE"),
+            Some(PixelFormat::Csi2Packed {
+                pattern: Some(BayerPattern::Rggb),
+                bits: 14
+            })
+        );
+        assert_eq!(
+            PixelFormat::parse("RG14"),
+            Some(PixelFormat::Bayer {
+                pattern: BayerPattern::Rggb,
+                bits: 14
+            })
+        );
+        assert_eq!(
+            PixelFormat::parse("Y14"),
+            Some(PixelFormat::Grey { bits: 14 })
+        );
     }
 
     /// UYVY and the seven planar layouts (4:2:0 and 4:2:2) of one image (with and without row
