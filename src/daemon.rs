@@ -225,6 +225,15 @@ pub struct Daemon {
 }
 
 /// Waits for the slow stages that started before a later part of the start failed.
+/// The lights' temporal filter's delay in frames under `settings` (0 without a filter).
+fn filter_delay(settings: &crate::decompose::DecomposeSettings) -> f64 {
+    settings
+        .filter_taps
+        .as_deref()
+        .and_then(|taps| crate::decompose::filter::FirFilter::new(taps).ok())
+        .map_or(0.0, |f| f.delay_frames())
+}
+
 fn join_started(asg: Option<AsgStage>, wavelet: Option<WaveletStage>, sh: Option<ShStage>) {
     if let Some(asg) = asg {
         let _ = asg.join();
@@ -340,6 +349,7 @@ impl Daemon {
         let health = source.health();
 
         let metrics = Arc::new(Metrics::new());
+        metrics.set_filter_delay(filter_delay(&config.decompose));
         let hook_metrics = Arc::clone(&metrics);
         let observe = PublishHook(Arc::new(move |published| {
             hook_metrics.observe_decompose(published.compute_time);
@@ -631,6 +641,7 @@ impl Daemon {
                     Ok(()) => {
                         report.applied.push("[decompose]".to_owned());
                         self.config.decompose = new.decompose.clone();
+                        self.metrics.set_filter_delay(filter_delay(&new.decompose));
                         lights_filter_restarted = true;
                     }
                     Err(e) => report.needs_restart.push(format!("[decompose] ({e})")),

@@ -13,6 +13,7 @@
 //! | `envlight_frames_decomposed_total` | counter | light lists published |
 //! | `envlight_capture_errors_total` | counter | source errors |
 //! | `envlight_lights` | gauge | lights in the newest light list |
+//! | `envlight_filter_delay_frames` | gauge | the lights' temporal filter's delay in frames (Σ k·w_k; 0 unfiltered), shared by the filtered wavelet and SH sets |
 //! | `envlight_source_stale` | gauge | 1 while the newest lights are stale (source lost) |
 //! | `envlight_source_failures_total` | counter | times a live source (camera) was lost |
 //! | `envlight_source_reconnect_attempts_total` | counter | attempts to reopen a lost source |
@@ -62,6 +63,7 @@ pub struct Metrics {
     frames_decomposed: Counter,
     capture_errors: Counter,
     lights: Gauge,
+    filter_delay_frames: Gauge<f64, std::sync::atomic::AtomicU64>,
     source_failures: Counter,
     source_reconnects: Counter,
     pub source_stale: Gauge,
@@ -263,6 +265,13 @@ impl Metrics {
             capture_errors.clone(),
         );
         registry.register("lights", "Lights in the newest light list", lights.clone());
+        let filter_delay_frames = Gauge::<f64, std::sync::atomic::AtomicU64>::default();
+        registry.register(
+            "filter_delay_frames",
+            "Delay of the lights' temporal FIR filter in frames (sum of k times tap k; 0 without \
+             the filter); the wavelet and SH sets, when filtered, share it",
+            filter_delay_frames.clone(),
+        );
         registry.register(
             "source_failures",
             "Times the source (a camera) was lost: unplugged, I/O error, timeout",
@@ -320,6 +329,7 @@ impl Metrics {
             frames_decomposed,
             capture_errors,
             lights,
+            filter_delay_frames,
             source_failures,
             source_reconnects,
             source_stale,
@@ -366,6 +376,11 @@ impl Metrics {
             .store(stats.capture_errors, Ordering::Relaxed);
         self.lights
             .set(i64::try_from(stats.light_count).unwrap_or(i64::MAX));
+    }
+
+    /// Sets the lights' temporal filter's delay in frames (0 without a filter).
+    pub fn set_filter_delay(&self, frames: f64) {
+        self.filter_delay_frames.set(frames);
     }
 
     /// Copies the ASG stage's counters into the metrics.

@@ -298,10 +298,19 @@ fn sighup_keeps_the_sh_filter_on_the_lights_taps() {
         });
     };
     next_set("a first set");
+    let http = daemon.addresses().metrics.unwrap();
+    let delay = || {
+        metric_value(
+            &http_get(http, "/metrics").1,
+            "envlight_filter_delay_frames",
+        )
+    };
+    assert_eq!(delay(), 3.0, "the default taps' delay");
 
     let taps = "filter_taps = [1.0, 2.0, 1.0]\n";
     let report = daemon.reload(with(taps, stage));
     assert_eq!(report.applied, ["[decompose]", "[sh]"], "{report:?}");
+    assert_eq!(delay(), 1.0, "the new taps' delay");
     next_set("a set with the new taps");
 
     let report = daemon.reload(with(&format!("{taps}merge = true\n"), stage));
