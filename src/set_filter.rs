@@ -92,11 +92,7 @@ impl<T: SetValue> SetFilter<T> {
     /// Group delay in frames, Σ k·w_k: the lights' ([`FirFilter::delay_frames`]) for the same
     /// taps.
     pub fn delay_frames(&self) -> f64 {
-        self.taps
-            .iter()
-            .enumerate()
-            .map(|(k, w)| k as f64 * w)
-            .sum()
+        crate::decompose::filter::group_delay(&self.taps)
     }
 
     /// Forgets the window: the next set starts it afresh.

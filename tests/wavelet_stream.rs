@@ -167,27 +167,10 @@ fn wavelet_clients_receive_what_the_library_computes() {
     // The same moment as the lights: each set's ∫L dω (its scaling coefficient) equals the
     // filtered lights' Σ rgb of the same seq, and would not without the filter (the sun moves).
     let (lights, _) = lights.join().unwrap();
-    let mut unfiltered_worst = 0.0f64;
-    for frame in &lights {
-        let (set, _) = &expected[frame.seq as usize];
-        let integral = set.integral();
-        let own = unfiltered_integrals[frame.seq as usize];
-        for c in 0..3 {
-            let sum: f64 = frame.lights.iter().map(|l| f64::from(l.rgb[c])).sum();
-            let relative = |x: f64| (x - sum).abs() / sum;
-            assert!(
-                relative(integral[c]) < 2e-5,
-                "seq {} channel {c}: set {} vs lights {sum}",
-                frame.seq,
-                integral[c]
-            );
-            unfiltered_worst = unfiltered_worst.max(relative(own[c]));
-        }
-    }
-    assert!(lights.len() >= 4, "{} light frames", lights.len());
-    assert!(
-        unfiltered_worst > 1e-3,
-        "the frames' own sets would have matched too ({unfiltered_worst})"
+    common::assert_sets_follow_the_lights(
+        &lights,
+        |seq| expected[seq as usize].0.integral(),
+        |seq| unfiltered_integrals[seq as usize],
     );
 }
 

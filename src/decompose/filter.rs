@@ -270,6 +270,11 @@ impl NearestLight {
     }
 }
 
+/// Group delay at low frequencies, in frames, of normalised `taps` (newest first): Σ k·w_k.
+pub fn group_delay(taps: &[f64]) -> f64 {
+    taps.iter().enumerate().map(|(k, w)| k as f64 * w).sum()
+}
+
 /// Per-id FIR filter over light lists.
 #[derive(Clone, Debug)]
 pub struct FirFilter {
@@ -346,11 +351,7 @@ impl FirFilter {
 
     /// Group delay at low frequencies, in frames: Σ k·w_k. (T−1)/2 for symmetric taps.
     pub fn delay_frames(&self) -> f64 {
-        self.taps
-            .iter()
-            .enumerate()
-            .map(|(k, w)| k as f64 * w)
-            .sum()
+        group_delay(&self.taps)
     }
 
     /// Forgets all histories.

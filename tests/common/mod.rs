@@ -298,3 +298,35 @@ pub fn assert_ordered_to_the_end(what: &str, goodbye: Option<&str>, seqs: &[u64]
     assert!(seqs.windows(2).all(|w| w[0] < w[1]), "{what}: {seqs:?}");
     assert_eq!(seqs.last(), Some(&last), "{what}: {seqs:?}");
 }
+
+/// A filtered set stream and the filtered lights describe the same moment: for every light
+/// frame a client received, `set_integral(seq)` (the set's ∫L dω) equals the lights' Σ rgb to
+/// 2·10⁻⁵ relative, while `own_integral(seq)` (the frame's own, unfiltered) is more than 10⁻³
+/// off for some frame, so the check could fail (the frames change).
+pub fn assert_sets_follow_the_lights(
+    lights: &[envlight::LightFrame],
+    set_integral: impl Fn(u64) -> [f64; 3],
+    own_integral: impl Fn(u64) -> [f64; 3],
+) {
+    let mut unfiltered_worst = 0.0f64;
+    for frame in lights {
+        let integral = set_integral(frame.seq);
+        let own = own_integral(frame.seq);
+        for c in 0..3 {
+            let sum: f64 = frame.lights.iter().map(|l| f64::from(l.rgb[c])).sum();
+            let relative = |x: f64| (x - sum).abs() / sum;
+            assert!(
+                relative(integral[c]) < 2e-5,
+                "seq {} channel {c}: set {} vs lights {sum}",
+                frame.seq,
+                integral[c]
+            );
+            unfiltered_worst = unfiltered_worst.max(relative(own[c]));
+        }
+    }
+    assert!(lights.len() >= 4, "{} light frames", lights.len());
+    assert!(
+        unfiltered_worst > 1e-3,
+        "the frames' own sets would have matched too ({unfiltered_worst})"
+    );
+}
