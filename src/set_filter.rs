@@ -152,6 +152,45 @@ impl<T: SetValue> SetFilter<T> {
     }
 }
 
+/// A stage's filter in time (the SH and wavelet stages'): a [`SetFilter`] where the settings
+/// give taps, nothing otherwise, and the number of the next frame in the feed
+/// ([`crate::slow_stage::StageWorker::frame_number`]), which counts up by one per set when
+/// nobody says.
+#[derive(Clone, Debug)]
+pub struct StageFilter<T: SetValue> {
+    filter: Option<SetFilter<T>>,
+    next_number: u64,
+}
+
+impl<T: SetValue> StageFilter<T> {
+    /// Filtering with `taps` (checked as [`SetFilter::new`] checks them), or not at all.
+    pub fn new(taps: Option<&[f64]>) -> Result<Self, String> {
+        Ok(Self {
+            filter: taps.map(SetFilter::new).transpose()?,
+            next_number: 0,
+        })
+    }
+
+    /// The delay in frames (0 without a filter).
+    pub fn delay_frames(&self) -> f64 {
+        self.filter.as_ref().map_or(0.0, SetFilter::delay_frames)
+    }
+
+    /// The number in the feed of the frame whose set comes next.
+    pub fn set_next_number(&mut self, number: u64) {
+        self.next_number = number;
+    }
+
+    /// Filters `values`, the next frame's set, in place (nothing without a filter).
+    pub fn apply(&mut self, values: &mut [T]) {
+        let number = self.next_number;
+        self.next_number = number.wrapping_add(1);
+        if let Some(filter) = &mut self.filter {
+            filter.apply(number, values);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

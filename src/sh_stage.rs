@@ -29,7 +29,7 @@
 
 use crate::frame::HdrFrame;
 use crate::publication::{Latest, StaleHandle};
-use crate::set_filter::SetFilter;
+use crate::set_filter::StageFilter;
 use crate::sh::{Projector, MAX_DEGREE};
 use crate::slow_stage::{
     DaemonStage, PublishHook, SetStageStats, StageKind, StageStatsHandle, StageWorker,
@@ -78,17 +78,12 @@ impl ShSettings {
     }
 
     /// The temporal filter the settings ask for.
-    fn filter(&self) -> Result<Option<SetFilter<f64>>, ShStageError> {
-        let Some(taps) = &self.filter_taps else {
-            return Ok(None);
-        };
-        SetFilter::new(taps)
-            .map(Some)
-            .map_err(|rule| ShStageError::Settings {
-                field: "filter_taps",
-                value: format!("{taps:?}"),
-                rule,
-            })
+    fn filter(&self) -> Result<StageFilter<f64>, ShStageError> {
+        StageFilter::new(self.filter_taps.as_deref()).map_err(|rule| ShStageError::Settings {
+            field: "filter_taps",
+            value: format!("{:?}", self.filter_taps.as_deref().unwrap_or_default()),
+            rule,
+        })
     }
 }
 
@@ -119,10 +114,7 @@ pub struct ShProjector {
     settings: ShSettings,
     plan: Option<Projector>,
     plans: u64,
-    filter: Option<SetFilter<f64>>,
-    /// The number of the next frame in the feed ([`StageWorker::frame_number`]); counts up by
-    /// one per frame when nobody says.
-    next_number: u64,
+    filter: StageFilter<f64>,
 }
 
 impl ShProjector {
@@ -135,13 +127,12 @@ impl ShProjector {
             plan: None,
             plans: 0,
             filter,
-            next_number: 0,
         })
     }
 
     /// The temporal filter's delay in frames (0 without one).
     pub fn delay_frames(&self) -> f64 {
-        self.filter.as_ref().map_or(0.0, SetFilter::delay_frames)
+        self.filter.delay_frames()
     }
 
     /// The settings.
@@ -185,11 +176,7 @@ impl ShProjector {
         self.plan = Some(plan);
         // The plan was built for this frame's shape, so it always projects it.
         let mut set = set.unwrap_or_else(|| crate::sh::ShCoefficients::zero(self.settings.degree));
-        let number = self.next_number;
-        self.next_number = number.wrapping_add(1);
-        if let Some(filter) = &mut self.filter {
-            filter.apply(number, set.values_mut());
-        }
+        self.filter.apply(set.values_mut());
         set
     }
 }
@@ -207,7 +194,7 @@ impl StageWorker for ShProjector {
     }
 
     fn frame_number(&mut self, number: u64) {
-        self.next_number = number;
+        self.filter.set_next_number(number);
     }
 }
 
@@ -270,6 +257,7 @@ mod tests {
     use super::*;
     use crate::envmap::Projection;
     use crate::frame_feed::CloseOnDrop;
+    use crate::set_filter::SetFilter;
     use std::sync::Arc;
 
     fn frame(seq: u64, width: u32) -> HdrFrame {

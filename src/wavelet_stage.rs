@@ -41,7 +41,7 @@
 
 use crate::frame::HdrFrame;
 use crate::publication::{Latest, StaleHandle};
-use crate::set_filter::SetFilter;
+use crate::set_filter::StageFilter;
 use crate::slow_stage::{
     DaemonStage, PublishHook, SetStageStats, StageKind, StageStatsHandle, StageWorker,
 };
@@ -134,17 +134,12 @@ impl WaveletSettings {
     }
 
     /// The temporal filter the settings ask for.
-    fn filter(&self) -> Result<Option<SetFilter<f32>>, WaveletStageError> {
-        let Some(taps) = &self.filter_taps else {
-            return Ok(None);
-        };
-        SetFilter::new(taps)
-            .map(Some)
-            .map_err(|rule| WaveletStageError::Settings {
-                field: "filter_taps",
-                value: format!("{taps:?}"),
-                rule,
-            })
+    fn filter(&self) -> Result<StageFilter<f32>, WaveletStageError> {
+        StageFilter::new(self.filter_taps.as_deref()).map_err(|rule| WaveletStageError::Settings {
+            field: "filter_taps",
+            value: format!("{:?}", self.filter_taps.as_deref().unwrap_or_default()),
+            rule,
+        })
     }
 }
 
@@ -188,10 +183,7 @@ pub struct WaveletTransformer {
     resampler: Option<Resampler>,
     workspace: Workspace,
     plans: u64,
-    filter: Option<SetFilter<f32>>,
-    /// The number of the next frame in the feed ([`StageWorker::frame_number`]); counts up by
-    /// one per frame when nobody says.
-    next_number: u64,
+    filter: StageFilter<f32>,
 }
 
 impl WaveletTransformer {
@@ -205,13 +197,12 @@ impl WaveletTransformer {
             workspace: Workspace::new(),
             plans: 0,
             filter,
-            next_number: 0,
         })
     }
 
     /// The temporal filter's delay in frames (0 without one).
     pub fn delay_frames(&self) -> f64 {
-        self.filter.as_ref().map_or(0.0, SetFilter::delay_frames)
+        self.filter.delay_frames()
     }
 
     /// The settings.
@@ -242,11 +233,7 @@ impl WaveletTransformer {
         let map = resampler.resample(frame);
         self.resampler = Some(resampler);
         let mut texels = map.map_err(resample_error)?.into_texels();
-        let number = self.next_number;
-        self.next_number = number.wrapping_add(1);
-        if let Some(filter) = &mut self.filter {
-            filter.apply(number, bytemuck::cast_slice_mut(&mut texels));
-        }
+        self.filter.apply(bytemuck::cast_slice_mut(&mut texels));
         let coefficients = Coefficients::analyze_with(
             &texels,
             side,
@@ -278,7 +265,7 @@ impl StageWorker for WaveletTransformer {
     }
 
     fn frame_number(&mut self, number: u64) {
-        self.next_number = number;
+        self.filter.set_next_number(number);
     }
 }
 
@@ -346,6 +333,7 @@ mod tests {
     use super::*;
     use crate::envmap::Projection;
     use crate::frame_feed::CloseOnDrop;
+    use crate::set_filter::SetFilter;
     use crate::wavelet::sphere::OctahedralMap;
     use std::sync::Arc;
 

@@ -14,7 +14,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY, TIMEOUT,
+    read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -22,7 +22,7 @@ use envlight::daemon::{Daemon, DaemonOptions};
 use envlight::record::{Pacing, ReplaySource};
 use envlight::set_filter::SetFilter;
 use envlight::stream::client::{Client, Endpoint};
-use envlight::stream::{Message, Representation, Request, ShFrame};
+use envlight::stream::{Message, Representation, ShFrame};
 use std::path::Path;
 
 fn config(dir: &Path, extra: &str) -> Config {
@@ -95,16 +95,7 @@ fn sh_clients_receive_what_the_library_computes() {
     // Caps: all 16; 4 keeps degrees 0 and 1; 1 the constant; 15 degrees 0–2 (9).
     let endpoints = every_transport(&addrs.stream, [0, 4, 1, 15]);
     let clients = subscribe_all(&endpoints, Representation::Sh, read_sets);
-    let lights = Client::connect(&tcp, &Request::default(), Some(TIMEOUT)).unwrap();
-    let lights = std::thread::Builder::new()
-        .name("lights-client".into())
-        .spawn(move || {
-            read_until_goodbye(lights, |message| match message {
-                Message::Frame(frame) => Ok(frame.into_light_frame()),
-                other => Err(other),
-            })
-        })
-        .unwrap();
+    let lights = common::spawn_lights_reader(&tcp);
     let http = addrs.metrics.unwrap();
     wait_until("the end of the replay", || daemon.source_finished());
     let metrics = http_get(http, "/metrics").1;

@@ -15,7 +15,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY, TIMEOUT,
+    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -24,7 +24,7 @@ use envlight::record::{Pacing, ReplaySource};
 use envlight::set_filter::SetFilter;
 use envlight::stream::client::{Client, Endpoint};
 use envlight::stream::protocol::{decode_message, encode_wavelet_frame};
-use envlight::stream::{Message, Representation, Request, WaveletFrame};
+use envlight::stream::{Message, Representation, WaveletFrame};
 use envlight::wavelet::sphere::OctahedralMap;
 use envlight::wavelet::{approximate, Basis};
 use std::path::Path;
@@ -99,16 +99,7 @@ fn wavelet_clients_receive_what_the_library_computes() {
     let endpoints = every_transport(&addrs.stream, [0, 32, 1, 0]);
     let clients = subscribe_all(&endpoints, Representation::Wavelet, read_sets);
     // A lights client on the same daemon is unaffected.
-    let lights = Client::connect(&tcp, &Request::default(), Some(TIMEOUT)).unwrap();
-    let lights = std::thread::Builder::new()
-        .name("lights-client".into())
-        .spawn(move || {
-            read_until_goodbye(lights, |message| match message {
-                Message::Frame(frame) => Ok(frame.into_light_frame()),
-                other => Err(other),
-            })
-        })
-        .unwrap();
+    let lights = common::spawn_lights_reader(&tcp);
     let http = addrs.metrics.unwrap();
     wait_until("the end of the replay", || daemon.source_finished());
     let metrics = http_get(http, "/metrics").1;

@@ -288,7 +288,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
     let asg_lighting = args.lighting == LightingArg::Asg;
     let sh_lighting = args.lighting == LightingArg::Sh;
     // The projection plan of the frames' shape is kept from frame to frame.
-    let mut sh_projector = if args.lighting == LightingArg::Sh {
+    let mut sh_projector = if sh_lighting {
         // Filtered in time with the lights' default taps, as the lights of `--lighting lights`
         // and the daemon's SH stage are.
         let settings = envlight::sh_stage::ShSettings {

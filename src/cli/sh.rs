@@ -5,9 +5,9 @@
 use crate::cli::output::JsonLines;
 use anyhow::{Context, Result};
 use clap::Args;
-use envlight::decompose::filter::{FirFilter, DEFAULT_TAPS};
+use envlight::decompose::filter::DEFAULT_TAPS;
 use envlight::sh::MAX_DEGREE;
-use envlight::sh_stage::{ShProjector, ShSettings};
+use envlight::sh_stage::{ShProjector, ShSettings, ShStageError};
 use envlight::stream::protocol::{sh_frame_to_json, ShFrame};
 use std::path::PathBuf;
 
@@ -72,17 +72,18 @@ pub(crate) fn run(args: &ShArgs) -> Result<()> {
         (Some(taps), false) => Some(taps.clone()),
         (None, false) => Some(DEFAULT_TAPS.to_vec()),
     };
-    if let Some(taps) = &filter_taps {
-        if let Err(e) = FirFilter::new(taps) {
-            crate::cli::usage_error!("invalid --taps: {e}");
-        }
-    }
     // One projection plan per projection and frame size; the filter's window.
-    let mut projector = ShProjector::new(ShSettings {
+    let mut projector = match ShProjector::new(ShSettings {
         degree: args.degree,
         filter_taps,
-    })
-    .map_err(|e| crate::cli::usage(e.to_string()))?;
+    }) {
+        Ok(projector) => projector,
+        // The degree is clap's to check; the taps' rule is the lights' filter's.
+        Err(ShStageError::Settings { rule, .. }) => {
+            crate::cli::usage_error!("invalid --taps: {rule}")
+        }
+        Err(e) => return Err(e.into()),
+    };
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
         let set = projector.coefficients(&frame);
         let sh = ShFrame::new(frame.seq, frame.time, &set);

@@ -724,7 +724,7 @@ impl Projector {
             q.fill(q_diagonal);
             for l in m..=degree {
                 // Step the recurrence (past the diagonal) and sum the six products
-                // energy_{re,im}[c] · Q_l^m in one pass, four running sums each: 24
+                // energy_{re,im}[c] · Q_l^m in one pass, eight running sums each: 48
                 // independent additions, so the sums do not wait on one another.
                 let (a, b) = if l > m {
                     (
@@ -735,9 +735,9 @@ impl Projector {
                     (0.0, 0.0)
                 };
                 let mut acc = [[0.0f64; 8]; 6];
-                for p4 in (0..LANES).step_by(8) {
+                for p8 in (0..LANES).step_by(8) {
                     for k in 0..8 {
-                        let p = p4 + k;
+                        let p = p8 + k;
                         if l > m {
                             let next = a * z[p] * q[p] - b * q_before[p];
                             q_before[p] = q[p];

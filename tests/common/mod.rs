@@ -299,6 +299,29 @@ pub fn assert_ordered_to_the_end(what: &str, goodbye: Option<&str>, seqs: &[u64]
     assert_eq!(seqs.last(), Some(&last), "{what}: {seqs:?}");
 }
 
+/// A lights client of `endpoint`, subscribed now, reading on its own thread until the
+/// goodbye: its light frames, and the goodbye's text.
+pub fn spawn_lights_reader(
+    endpoint: &envlight::stream::client::Endpoint,
+) -> std::thread::JoinHandle<(Vec<envlight::LightFrame>, Option<String>)> {
+    use envlight::stream::Message;
+    let client = envlight::stream::client::Client::connect(
+        endpoint,
+        &envlight::stream::Request::default(),
+        Some(TIMEOUT),
+    )
+    .unwrap();
+    std::thread::Builder::new()
+        .name("lights-client".into())
+        .spawn(move || {
+            read_until_goodbye(client, |message| match message {
+                Message::Frame(frame) => Ok(frame.into_light_frame()),
+                other => Err(other),
+            })
+        })
+        .unwrap()
+}
+
 /// A filtered set stream and the filtered lights describe the same moment: for every light
 /// frame a client received, `set_integral(seq)` (the set's ∫L dω) equals the lights' Σ rgb to
 /// 2·10⁻⁵ relative, while `own_integral(seq)` (the frame's own, unfiltered) is more than 10⁻³
