@@ -2,9 +2,7 @@
 //! lights, optionally also the newest frame kept in a file (`--latest`).
 
 use super::fisheye_flags::{validate_with_flags, FisheyeFlags};
-use super::{
-    on_off, open_source, parse_size, parse_tap, split_description, usage_error, Utf8Input,
-};
+use super::{on_off, open_source, parse_size, split_description, usage_error, Utf8Input};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use envlight::config::{Config, RawConfig};
@@ -96,20 +94,8 @@ pub(crate) struct DecomposeArgs {
     #[command(flatten)]
     fisheye: FisheyeFlags,
 
-    /// Disable the temporal FIR filter.
-    #[arg(long, conflicts_with_all = ["taps", "bright_history"])]
-    no_filter: bool,
-
-    /// FIR filter taps, newest frame first: 1 to 64 non-negative weights, normalised to sum to 1.
-    /// [default: 1,6,15,20,15,6,1]
-    #[arg(
-        long,
-        value_name = "W,W,…",
-        value_delimiter = ',',
-        num_args = 1,
-        value_parser = parse_tap
-    )]
-    taps: Option<Vec<f64>>,
+    #[command(flatten)]
+    filter: crate::cli::FilterFlags,
 
     /// Merge lights crowding a concentrated source (the sun) into one light that records the
     /// source's spread in `solid_angle`. Off by default.
@@ -181,7 +167,7 @@ pub(crate) struct DecomposeArgs {
     /// What the filter does with the window of a light brighter than 10× the frame's mean light
     /// (a sun's or a lamp's, whose few pixels change hands between lights): see
     /// docs/quality.md, "Temporal stability". [default: fold]
-    #[arg(long, value_enum, value_name = "HOW")]
+    #[arg(long, value_enum, value_name = "HOW", conflicts_with = "no_filter")]
     bright_history: Option<BrightHistoryArg>,
 
     /// Size of the built-in sky map in pixels, at most 16384 a side and 16384x8192 in all
@@ -359,10 +345,10 @@ impl DecomposeArgs {
             );
             note("decompose.placement", "--placement");
         }
-        if self.no_filter {
+        if self.filter.no_filter {
             dec.filter = Some(false);
         }
-        if let Some(taps) = &self.taps {
+        if let Some(taps) = &self.filter.taps {
             dec.filter = Some(true);
             dec.filter_taps = Some(taps.clone());
             note("decompose.filter_taps", "--taps");

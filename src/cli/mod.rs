@@ -144,6 +144,26 @@ pub(crate) fn parse_finite_f32(s: &str) -> Result<f32, String> {
     }
 }
 
+/// `--no-filter` and `--taps`: the temporal FIR filter of `decompose`'s lights and, with the
+/// same taps, of `sh`'s sets.
+#[derive(clap::Args, Debug)]
+pub(crate) struct FilterFlags {
+    /// Disable the temporal FIR filter.
+    #[arg(long, conflicts_with = "taps")]
+    pub(crate) no_filter: bool,
+
+    /// FIR filter taps, newest frame first: 1 to 64 non-negative weights, normalised to sum to 1.
+    /// [default: 1,6,15,20,15,6,1]
+    #[arg(
+        long,
+        value_name = "W,W,…",
+        value_delimiter = ',',
+        num_args = 1,
+        value_parser = parse_tap
+    )]
+    pub(crate) taps: Option<Vec<f64>>,
+}
+
 /// One weight of `--taps` (spaces around it allowed, as in `--taps "1, 2, 1"`).
 fn parse_tap(s: &str) -> Result<f64, String> {
     s.trim()

@@ -41,19 +41,8 @@ pub(crate) struct ShArgs {
     /// Output file (JSON Lines). [default: stdout]
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
-    /// Each frame's own set: no temporal filter.
-    #[arg(long, conflicts_with = "taps")]
-    no_filter: bool,
-    /// FIR filter taps, newest frame first: 1 to 64 non-negative weights, normalised to sum to 1.
-    /// [default: 1,6,15,20,15,6,1, the lights' default]
-    #[arg(
-        long,
-        value_name = "W,W,…",
-        value_delimiter = ',',
-        num_args = 1,
-        value_parser = crate::cli::parse_tap
-    )]
-    taps: Option<Vec<f64>>,
+    #[command(flatten)]
+    filter: crate::cli::FilterFlags,
 }
 
 fn parse_degree(text: &str) -> Result<usize, String> {
@@ -67,7 +56,7 @@ pub(crate) fn run(args: &ShArgs) -> Result<()> {
     let mut source = args.input.open()?;
     let mut inputs = crate::cli::output::InputFiles::new(source.files());
     let mut output = JsonLines::open(args.out.as_deref(), "--out", &mut inputs)?;
-    let filter_taps = match (&args.taps, args.no_filter) {
+    let filter_taps = match (&args.filter.taps, args.filter.no_filter) {
         (_, true) => None,
         (Some(taps), false) => Some(taps.clone()),
         (None, false) => Some(DEFAULT_TAPS.to_vec()),
