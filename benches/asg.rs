@@ -17,7 +17,10 @@
 //!   frame through `AsgFitter::fit_frame` — the target of the new frame prepared (refilling
 //!   the previous frame's, tiles included) and refitted from the fitter's state after the
 //!   default first frame, on one thread. The refits run with `FitSettings::warm_loss` off (the
-//!   default, as the daemon runs them): no whole-map loss of the result.
+//!   default, as the daemon runs them): no whole-map loss of the result;
+//! - `lobe_filter_16_lobes`: the lights' FIR filter (default taps) on one frame's 16 fitted
+//!   lobes (`envlight::asg::temporal::LobeFilter`, as the daemon's stage applies it after each
+//!   fit): alignment, states, the window's sum and the lobes rebuilt.
 //!
 //! Run: `cargo bench --bench asg` (or `-- --warm-up-time 1 --measurement-time 5`; the first-frame
 //! cases take seconds per sample: `-- warm` runs the refit alone).
@@ -150,6 +153,17 @@ fn bench(c: &mut Criterion) {
             },
             criterion::BatchSize::PerIteration,
         )
+    });
+    group.bench_function("lobe_filter_16_lobes", |b| {
+        let mut filter = envlight::asg::temporal::LobeFilter::new(Some(
+            &envlight::decompose::filter::DEFAULT_TAPS,
+        ))
+        .expect("default taps");
+        let mut lobes = first.lobes.clone();
+        b.iter(|| {
+            lobes.copy_from_slice(&first.lobes);
+            filter.apply(black_box(&mut lobes));
+        })
     });
     group.finish();
 }

@@ -19,19 +19,29 @@
 //! - **Thread** `envlight-asg` (the generic runner of [`crate::slow_stage`]) runs an
 //!   [`AsgFitter`]: the first frame is fitted from scratch,
 //!   every later one is warm-started from the previous lobes (skipped frames simply are not
-//!   part of that chain). Each result is published as a [`PublishedAsg`] (a
+//!   part of that chain).
+//! - **In time.** With [`AsgSettings::filter_taps`] (the daemon passes `[decompose]`'s taps
+//!   unless `[asg] filter = false`) the fitted lobes are then filtered by id with the lights'
+//!   FIR taps ([`crate::asg::temporal`]), so that the set of seq s describes the same moment as
+//!   the lights of seq s (both lag the frames by the filter's delay, 3 frames by default)
+//!   instead of leading them. Frames the stage skipped are filled in from the feed's frame
+//!   numbers ([`crate::frame_feed::FedFrame::number`]) so the delay stays the lights' in
+//!   frames. The fitter's warm starts go on from its own, unfiltered lobes.
+//! - **Publication.** Each result is published as a [`PublishedAsg`] (a
 //!   [`crate::publication::Publication`], numbered like the lights', so a consumer can count
 //!   what it skipped) with its fit time. A frame that cannot be fitted, or whose fit has a
 //!   lobe the wire format rejects ([`crate::stream::protocol::validate_lobe`]), is logged and
 //!   counted
 //!   ([`AsgStats::fit_errors`]); the stage goes on with the next one.
 //! - **Reconfiguration** ([`AsgStage::reconfigure`], SIGHUP) swaps in a new fitter before the
-//!   next frame (the warm-start chain restarts).
+//!   next frame (the warm-start chain restarts); new filter taps alone, or a restart of the
+//!   filter with the lights', keep the fitter and its chain ([`StageWorker::take_over`]).
 //! - **End.** Closing the feed ([`AsgFeed::close`]; the pipeline does it when its decompose
 //!   thread ends) lets the stage fit the frame still waiting and end; [`AsgStage::join`] waits
 //!   for it. A panic in the thread becomes an error of `join`, never a panic in the caller.
 
 use crate::asg::fit::{AsgFitter, FitSettings};
+use crate::asg::temporal::LobeFilter;
 use crate::asg::AsgError;
 use crate::frame::HdrFrame;
 pub use crate::frame_feed::CloseOnDrop;
@@ -81,11 +91,44 @@ impl From<StageCounters> for AsgStats {
     }
 }
 
+/// What the stage computes: the fit, and the lobes' filter in time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AsgSettings {
+    /// The fitter's settings.
+    pub fit: FitSettings,
+    /// FIR taps (newest first) that filter the lobes in time ([`crate::asg::temporal`]), the
+    /// lights' taps ([`crate::decompose::DecomposeSettings::filter_taps`]); `None`: each
+    /// frame's own fit.
+    pub filter_taps: Option<Vec<f64>>,
+}
+
+impl Default for AsgSettings {
+    /// The fitter's defaults, filtered with the lights' default taps.
+    fn default() -> Self {
+        Self {
+            fit: FitSettings::default(),
+            filter_taps: Some(crate::decompose::filter::DEFAULT_TAPS.to_vec()),
+        }
+    }
+}
+
+impl AsgSettings {
+    /// The lobes' filter in time the settings ask for.
+    pub fn filter(&self) -> Result<LobeFilter, AsgStageError> {
+        LobeFilter::new(self.filter_taps.as_deref()).map_err(|rule| AsgStageError::FilterTaps {
+            value: format!("{:?}", self.filter_taps.as_deref().unwrap_or_default()),
+            rule,
+        })
+    }
+}
+
 /// Errors of the ASG stage.
 #[derive(Debug, thiserror::Error)]
 pub enum AsgStageError {
     #[error("invalid [asg] settings: {0}")]
     Settings(#[from] AsgError),
+    #[error("invalid [asg] setting filter_taps = {value}: must be {rule}")]
+    FilterTaps { value: String, rule: String },
     #[error("frame {seq}: ASG fit failed: {source}")]
     Fit {
         seq: u64,
@@ -110,8 +153,28 @@ pub type AsgFeed = FrameFeed;
 /// Called on the ASG thread after each published set (metrics).
 pub type AsgHook = PublishHook<AsgSet>;
 
-/// The stage's work per frame: a warm-started fit, checked against the wire format.
-pub struct AsgWorker(AsgFitter);
+/// The stage's work per frame: a warm-started fit, filtered in time when the settings ask,
+/// checked against the wire format.
+pub struct AsgWorker {
+    fitter: AsgFitter,
+    filter: LobeFilter,
+}
+
+impl AsgWorker {
+    /// A worker for `settings` (checked: the error names the setting).
+    pub fn new(settings: AsgSettings) -> Result<Self, AsgStageError> {
+        let filter = settings.filter()?;
+        Ok(Self {
+            fitter: AsgFitter::new(settings.fit)?,
+            filter,
+        })
+    }
+
+    /// The filter's delay in frames (0 without one).
+    pub fn delay_frames(&self) -> f64 {
+        self.filter.delay_frames()
+    }
+}
 
 impl StageWorker for AsgWorker {
     type Output = AsgSet;
@@ -119,11 +182,14 @@ impl StageWorker for AsgWorker {
 
     fn process(&mut self, frame: &HdrFrame) -> Result<AsgSet, AsgStageError> {
         let seq = frame.seq;
-        let result = self
-            .0
+        let mut lobes = self
+            .fitter
             .fit_frame(frame)
-            .map_err(|source| AsgStageError::Fit { seq, source })?;
-        let set = AsgSet::from_fit(seq, frame.time, &result.lobes);
+            .map_err(|source| AsgStageError::Fit { seq, source })?
+            .lobes;
+        // The fitter keeps its own (unfiltered) lobes for the next warm start.
+        self.filter.apply(&mut lobes);
+        let set = AsgSet::from_fit(seq, frame.time, &lobes);
         // Never publish what a client's decoder would reject (and close on).
         for (i, lobe) in set.lobes.iter().enumerate() {
             crate::stream::protocol::validate_lobe(i, lobe)
@@ -133,28 +199,43 @@ impl StageWorker for AsgWorker {
     }
 
     fn watch_abandon(&mut self, flag: Arc<std::sync::atomic::AtomicBool>) {
-        self.0.watch_cancel(flag);
+        self.fitter.watch_cancel(flag);
+    }
+
+    fn frame_number(&mut self, number: u64) {
+        self.filter.set_next_number(number);
+    }
+
+    /// New fit settings start a new fitter (the warm-start chain restarts); a new filter alone
+    /// (the lights' filter restarted, or new taps) keeps the fitter and its chain.
+    fn take_over(&mut self, new: Self) {
+        if new.fitter.settings() == self.fitter.settings() {
+            self.filter = new.filter;
+        } else {
+            *self = new;
+        }
     }
 }
 
 impl StageKind for AsgWorker {
-    type Settings = FitSettings;
+    type Settings = AsgSettings;
     type Stats = AsgStats;
-    type SettingsError = AsgError;
+    type SettingsError = AsgStageError;
     type StageError = AsgStageError;
     const THREAD_NAME: &'static str = ASG_THREAD_NAME;
 
-    fn from_settings(settings: FitSettings) -> Result<Self, AsgError> {
-        AsgFitter::new(settings).map(AsgWorker)
+    fn from_settings(settings: AsgSettings) -> Result<Self, AsgStageError> {
+        Self::new(settings)
     }
 
     fn log_start(&self, lossless: bool) {
-        let settings = self.0.settings();
+        let settings = self.fitter.settings();
         tracing::info!(
             lobes = settings.lobes,
             height = settings.height,
             iterations = settings.iterations,
             warm_iterations = settings.warm_iterations,
+            filter_delay_frames = self.delay_frames(),
             lossless,
             "starting the ASG stage"
         );
@@ -200,7 +281,7 @@ mod tests {
         f
     }
 
-    fn settings() -> FitSettings {
+    fn fit_settings() -> FitSettings {
         FitSettings {
             lobes: 3,
             height: 8,
@@ -209,6 +290,13 @@ mod tests {
             diffuse_normals: 16,
             threads: 1,
             ..FitSettings::default()
+        }
+    }
+
+    fn settings() -> AsgSettings {
+        AsgSettings {
+            fit: fit_settings(),
+            ..AsgSettings::default()
         }
     }
 
@@ -245,13 +333,23 @@ mod tests {
         assert_eq!(stats.frames_skipped, 0);
         assert_eq!(stats.fits, 5);
         assert_eq!(stats.frames_offered, 5);
-        // Same lobes as a fitter run over the same frames in order.
-        let mut fitter = AsgFitter::new(settings()).unwrap();
+        // Same lobes as a fitter run over the same frames in order, through the lobes'
+        // filter with the lights' default taps.
+        let mut fitter = AsgFitter::new(fit_settings()).unwrap();
+        let mut filter = LobeFilter::new(Some(&crate::decompose::filter::DEFAULT_TAPS)).unwrap();
         let mut want = Vec::new();
+        let mut filtering_changed_a_set = false;
         for seq in 0..5 {
-            let r = fitter.fit_frame(&frame(seq)).unwrap();
-            want.push(AsgSet::from_fit(seq, seq as f64 / 30.0, &r.lobes));
+            let fitted = fitter.fit_frame(&frame(seq)).unwrap().lobes;
+            let mut lobes = fitted.clone();
+            filter.apply(&mut lobes);
+            filtering_changed_a_set |= lobes != fitted;
+            want.push(AsgSet::from_fit(seq, seq as f64 / 30.0, &lobes));
         }
+        assert!(
+            filtering_changed_a_set,
+            "the fits change, so filtering must change them"
+        );
         let last = seen.last().unwrap();
         assert_eq!(*last.payload, want[4]);
         assert_eq!(last.index, 5, "every fit was published");
@@ -260,16 +358,69 @@ mod tests {
         }
     }
 
+    /// New taps alone keep the fitter's warm-start chain; new fit settings start a new one.
+    #[test]
+    fn a_new_filter_keeps_the_warm_start_chain_and_new_fit_settings_restart_it() {
+        let mut worker = AsgWorker::new(settings()).unwrap();
+        let mut chain = AsgFitter::new(fit_settings()).unwrap();
+        for seq in 0..2 {
+            worker.process(&frame(seq)).unwrap();
+            chain.fit_frame(&frame(seq)).unwrap();
+        }
+        let unfiltered = AsgSettings {
+            filter_taps: None,
+            ..settings()
+        };
+        worker.take_over(AsgWorker::new(unfiltered.clone()).unwrap());
+        assert_eq!(worker.delay_frames(), 0.0);
+        let warm = chain.fit_frame(&frame(2)).unwrap().lobes;
+        let got = worker.process(&frame(2)).unwrap();
+        assert_eq!(
+            got,
+            AsgSet::from_fit(2, frame(2).time, &warm),
+            "the chain went on"
+        );
+
+        let other_fit = AsgSettings {
+            fit: FitSettings {
+                warm_iterations: 2,
+                ..fit_settings()
+            },
+            ..unfiltered
+        };
+        worker.take_over(AsgWorker::new(other_fit.clone()).unwrap());
+        let fresh = AsgFitter::new(other_fit.fit)
+            .unwrap()
+            .fit_frame(&frame(3))
+            .unwrap()
+            .lobes;
+        let got = worker.process(&frame(3)).unwrap();
+        assert_eq!(
+            got,
+            AsgSet::from_fit(3, frame(3).time, &fresh),
+            "a new chain"
+        );
+    }
+
     #[test]
     fn bad_settings_are_rejected_and_stale_republishes() {
-        let bad = FitSettings {
-            lobes: 0,
+        let bad = AsgSettings {
+            fit: FitSettings {
+                lobes: 0,
+                ..fit_settings()
+            },
             ..settings()
         };
         assert!(matches!(
             AsgStage::start(bad.clone(), false, None),
             Err(AsgStageError::Settings(_))
         ));
+        let bad_taps = AsgSettings {
+            filter_taps: Some(vec![1.0, -2.0]),
+            ..settings()
+        };
+        let e = AsgStage::start(bad_taps, false, None).err().unwrap();
+        assert!(e.to_string().contains("filter_taps = [1.0, -2.0]"), "{e}");
         let stage = AsgStage::start(settings(), false, None).unwrap();
         assert!(stage.reconfigure(bad).is_err());
         assert!(!stage.mark_stale(), "nothing published yet");

@@ -236,6 +236,7 @@ pub struct RawAsg {
     pub first_subset: Option<usize>,
     pub warm_subset: Option<usize>,
     pub warm_centroid: Option<bool>,
+    pub filter: Option<bool>,
 }
 
 /// `[pipeline]`.
@@ -468,7 +469,7 @@ impl RawConfig {
             metrics: self.metrics.validate()?,
             daemon: self.daemon.validate()?,
             render: self.render.validate()?,
-            asg: self.asg.validate()?,
+            asg: self.asg.validate(lights_taps)?,
             wavelet: self.wavelet.validate(lights_taps)?,
             sh: self.sh.validate(lights_taps)?,
             decompose,
@@ -587,6 +588,37 @@ impl Default for WaveletConfig {
     }
 }
 
+/// A daemon stage's validated section (`[asg]`, `[wavelet]`, `[sh]`), as a SIGHUP reload reads
+/// it.
+pub trait StageConfig: Clone + PartialEq {
+    /// What the stage is started or reconfigured with.
+    type Settings;
+    /// The section's `enabled`.
+    fn enabled(&self) -> bool;
+    /// The stage's settings.
+    fn settings(&self) -> Self::Settings;
+}
+
+macro_rules! stage_config {
+    ($($config:ty => $settings:ty),* $(,)?) => {$(
+        impl StageConfig for $config {
+            type Settings = $settings;
+            fn enabled(&self) -> bool {
+                self.enabled
+            }
+            fn settings(&self) -> $settings {
+                self.settings.clone()
+            }
+        }
+    )*};
+}
+
+stage_config!(
+    AsgConfig => crate::asg_stage::AsgSettings,
+    WaveletConfig => crate::wavelet_stage::WaveletSettings,
+    ShConfig => crate::sh_stage::ShSettings,
+);
+
 /// A stage's filter taps: the lights' (`[decompose]`'s, `None` when the lights are not
 /// filtered) unless the stage's `filter = false`.
 pub(crate) fn stage_taps(filter: bool, lights_taps: Option<&[f64]>) -> Option<Vec<f64>> {
@@ -672,12 +704,16 @@ impl RawWavelet {
 
 /// Validated `[asg]`: the daemon's ASG stage. Default: disabled; when enabled, 16 lobes fitted
 /// at 64×128 (first frame 8,000 iterations on 1/4 subsets, then 8 warm-started ones per frame,
-/// also on 1/4 subsets) on one thread: the fitter's own defaults.
+/// also on 1/4 subsets) on one thread: the fitter's own defaults; the lobes filtered in time
+/// with the lights' taps.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AsgConfig {
     pub enabled: bool,
-    /// The fitter's settings.
-    pub fit: crate::asg::fit::FitSettings,
+    /// `[asg] filter`: filter the lobes with the lights' taps (when the lights are filtered);
+    /// [`AsgConfig::settings`]`.filter_taps` holds the outcome.
+    pub filter: bool,
+    /// The fitter's settings and the lobes' filter taps.
+    pub settings: crate::asg_stage::AsgSettings,
 }
 
 /// Default `[asg] fit_height`: a 64×128 fit map, 16 times fewer pixels per iteration than the
@@ -692,18 +728,23 @@ impl Default for AsgConfig {
     fn default() -> Self {
         Self {
             enabled: false,
-            fit: crate::asg::fit::FitSettings {
-                height: DEFAULT_ASG_FIT_HEIGHT,
-                threads: 1,
-                ..crate::asg::fit::FitSettings::default()
+            filter: true,
+            settings: crate::asg_stage::AsgSettings {
+                fit: crate::asg::fit::FitSettings {
+                    height: DEFAULT_ASG_FIT_HEIGHT,
+                    threads: 1,
+                    ..crate::asg::fit::FitSettings::default()
+                },
+                ..crate::asg_stage::AsgSettings::default()
             },
         }
     }
 }
 
 impl RawAsg {
-    fn validate(&self) -> Result<AsgConfig, ConfigError> {
-        let d = AsgConfig::default().fit;
+    /// `lights_taps`: the validated `[decompose]` filter taps.
+    fn validate(&self, lights_taps: Option<&[f64]>) -> Result<AsgConfig, ConfigError> {
+        let d = AsgConfig::default().settings.fit;
         let int = |key, v, default, range| integer_in(key, v, default, range, "");
         let real =
             |key: &'static str, v: Option<f64>, default: f64, positive: bool, max: f64| match v {
@@ -803,9 +844,15 @@ impl RawAsg {
                 "the ASG fitter rejects these settings",
             )
         })?;
+        let filter = self.filter.unwrap_or(true);
         Ok(AsgConfig {
             enabled: self.enabled.unwrap_or(false),
-            fit,
+            filter,
+            settings: crate::asg_stage::AsgSettings {
+                fit,
+                // The lights' taps, already checked.
+                filter_taps: stage_taps(filter, lights_taps),
+            },
         })
     }
 }
@@ -1711,6 +1758,33 @@ mod tests {
 
     fn parse(text: &str) -> Result<Config, ConfigError> {
         RawConfig::parse(text, Path::new("test.toml"))?.validate()
+    }
+
+    /// Each stage's filter takes the lights' taps as validated, none with `filter = false` or
+    /// when the lights are not filtered.
+    #[test]
+    fn the_stages_filter_with_the_lights_taps() {
+        let taps = |c: &Config| {
+            [
+                c.asg.settings.filter_taps.clone(),
+                c.wavelet.settings.filter_taps.clone(),
+                c.sh.settings.filter_taps.clone(),
+            ]
+        };
+        let defaults = parse("").unwrap();
+        let lights = crate::decompose::filter::DEFAULT_TAPS.to_vec();
+        assert_eq!(taps(&defaults), [0, 1, 2].map(|_| Some(lights.clone())));
+        assert!(defaults.asg.filter && defaults.wavelet.filter && defaults.sh.filter);
+        let custom = parse("[decompose]\nfilter_taps = [1, 2, 1]\n").unwrap();
+        let normalised = custom.decompose.filter_taps.clone();
+        assert_eq!(normalised.as_deref().map(<[f64]>::len), Some(3));
+        assert_eq!(taps(&custom), [0, 1, 2].map(|_| normalised.clone()));
+        let off = parse("[asg]\nfilter = false\n[sh]\nfilter = false\n").unwrap();
+        assert_eq!(taps(&off), [None, Some(lights), None]);
+        let unfiltered_lights = parse("[decompose]\nfilter = false\n").unwrap();
+        assert_eq!(taps(&unfiltered_lights), [None, None, None]);
+        let e = parse("[asg]\nfilter = 1\n").unwrap_err().to_string();
+        assert!(e.contains("filter") && e.contains("bool"), "{e}");
     }
 
     /// A long value is shown by its start and length, so the reason is not lost behind it

@@ -234,6 +234,49 @@ fn filter_delay(settings: &crate::decompose::DecomposeSettings) -> f64 {
         .map_or(0.0, |f| f.delay_frames())
 }
 
+/// Applies a stage's reloaded section: new settings go to the running stage live; a stage
+/// started or stopped needs a restart; a stage whose section did not change restarts its
+/// temporal filter when the lights' filter restarted (`lights_filter_restarted`), so that it
+/// keeps describing the lights' moment.
+/// keeps describing the lights' moment. `name`: `[asg]`, `[wavelet]`, `[sh]`; `new`: the
+/// reloaded section (its filter taps already the lights' as they run); `running`: the section
+/// the daemon runs with, replaced by `new` where it applies.
+fn reload_stage<W, C>(
+    name: &str,
+    new: &C,
+    running: &mut C,
+    stage: Option<&crate::slow_stage::DaemonStage<W>>,
+    lights_filter_restarted: bool,
+    report: &mut ReloadReport,
+) where
+    W: crate::slow_stage::StageKind,
+    W::SettingsError: std::fmt::Display,
+    C: crate::config::StageConfig<Settings = W::Settings>,
+{
+    if new != running {
+        match stage {
+            Some(stage) if new.enabled() => match stage.reconfigure(new.settings()) {
+                Ok(()) => {
+                    report.applied.push(name.to_owned());
+                    *running = new.clone();
+                }
+                Err(e) => report.needs_restart.push(format!("{name} ({e})")),
+            },
+            // Disabled before and after: nothing runs, nothing to apply.
+            None if !new.enabled() => *running = new.clone(),
+            _ => report.needs_restart.push(format!(
+                "{name} enabled (restart envlight to start or stop the stage)"
+            )),
+        }
+    } else if let Some(stage) = stage.filter(|_| lights_filter_restarted) {
+        if stage.reconfigure(running.settings()).is_ok() {
+            report.applied.push(format!(
+                "{name} (its temporal filter restarts with the lights')"
+            ));
+        }
+    }
+}
+
 fn join_started(asg: Option<AsgStage>, wavelet: Option<WaveletStage>, sh: Option<ShStage>) {
     if let Some(asg) = asg {
         let _ = asg.join();
@@ -376,7 +419,7 @@ impl Daemon {
                     .observe(published.compute_time.as_secs_f64());
             });
             Some(AsgStage::start(
-                config.asg.fit.clone(),
+                config.asg.settings.clone(),
                 replaying,
                 Some(hook),
             )?)
@@ -648,79 +691,38 @@ impl Daemon {
                 }
             }
         }
-        if new.asg != self.config.asg {
-            match &self.asg {
-                Some(stage) if new.asg.enabled => match stage.reconfigure(new.asg.fit.clone()) {
-                    Ok(()) => {
-                        report.applied.push("[asg]".to_owned());
-                        self.config.asg = new.asg.clone();
-                    }
-                    Err(e) => report.needs_restart.push(format!("[asg] ({e})")),
-                },
-                // Disabled before and after: nothing runs, nothing to apply.
-                None if !new.asg.enabled => self.config.asg = new.asg.clone(),
-                _ => report
-                    .needs_restart
-                    .push("[asg] enabled (restart envlight to start or stop the stage)".to_owned()),
-            }
-        }
         // The stages' taps are the lights' as they now run (a [decompose] that could not
         // change live keeps its taps for them too).
         let mut new = new;
         let lights_taps = self.config.decompose.filter_taps.as_deref();
+        new.asg.settings.filter_taps = crate::config::stage_taps(new.asg.filter, lights_taps);
         new.wavelet.settings.filter_taps =
             crate::config::stage_taps(new.wavelet.filter, lights_taps);
         new.sh.settings.filter_taps = crate::config::stage_taps(new.sh.filter, lights_taps);
-        let restart_filter = |section: &str, report: &mut ReloadReport| {
-            report.applied.push(format!(
-                "{section} (its temporal filter restarts with the lights')"
-            ));
-        };
-        if new.wavelet != self.config.wavelet {
-            match &self.wavelet {
-                Some(stage) if new.wavelet.enabled => {
-                    match stage.reconfigure(new.wavelet.settings.clone()) {
-                        Ok(()) => {
-                            report.applied.push("[wavelet]".to_owned());
-                            self.config.wavelet = new.wavelet.clone();
-                        }
-                        Err(e) => report.needs_restart.push(format!("[wavelet] ({e})")),
-                    }
-                }
-                // Disabled before and after: nothing runs, nothing to apply.
-                None if !new.wavelet.enabled => self.config.wavelet = new.wavelet.clone(),
-                _ => report.needs_restart.push(
-                    "[wavelet] enabled (restart envlight to start or stop the stage)".to_owned(),
-                ),
-            }
-        } else if let Some(stage) = self.wavelet.as_ref().filter(|_| lights_filter_restarted) {
-            if stage
-                .reconfigure(self.config.wavelet.settings.clone())
-                .is_ok()
-            {
-                restart_filter("[wavelet]", &mut report);
-            }
-        }
-        if new.sh != self.config.sh {
-            match &self.sh {
-                Some(stage) if new.sh.enabled => match stage.reconfigure(new.sh.settings.clone()) {
-                    Ok(()) => {
-                        report.applied.push("[sh]".to_owned());
-                        self.config.sh = new.sh.clone();
-                    }
-                    Err(e) => report.needs_restart.push(format!("[sh] ({e})")),
-                },
-                // Disabled before and after: nothing runs, nothing to apply.
-                None if !new.sh.enabled => self.config.sh = new.sh.clone(),
-                _ => report
-                    .needs_restart
-                    .push("[sh] enabled (restart envlight to start or stop the stage)".to_owned()),
-            }
-        } else if let Some(stage) = self.sh.as_ref().filter(|_| lights_filter_restarted) {
-            if stage.reconfigure(self.config.sh.settings.clone()).is_ok() {
-                restart_filter("[sh]", &mut report);
-            }
-        }
+        reload_stage(
+            "[asg]",
+            &new.asg,
+            &mut self.config.asg,
+            self.asg.as_ref(),
+            lights_filter_restarted,
+            &mut report,
+        );
+        reload_stage(
+            "[wavelet]",
+            &new.wavelet,
+            &mut self.config.wavelet,
+            self.wavelet.as_ref(),
+            lights_filter_restarted,
+            &mut report,
+        );
+        reload_stage(
+            "[sh]",
+            &new.sh,
+            &mut self.config.sh,
+            self.sh.as_ref(),
+            lights_filter_restarted,
+            &mut report,
+        );
         let old = &self.config;
         let sections = [
             ("[source]", new.source != old.source),

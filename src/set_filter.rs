@@ -152,7 +152,8 @@ impl<T: SetValue> SetFilter<T> {
     }
 }
 
-/// A stage's filter in time (the SH and wavelet stages'): a [`SetFilter`] where the settings
+/// A stage's filter in time (the SH and wavelet stages', and the ASG stage's lobe states,
+/// [`crate::asg::temporal`]): a [`SetFilter`] where the settings
 /// give taps, nothing otherwise, and the number of the next frame in the feed
 /// ([`crate::slow_stage::StageWorker::frame_number`]), which counts up by one per set when
 /// nobody says.
@@ -169,6 +170,11 @@ impl<T: SetValue> StageFilter<T> {
             filter: taps.map(SetFilter::new).transpose()?,
             next_number: 0,
         })
+    }
+
+    /// Whether the sets are filtered (the settings gave taps).
+    pub fn is_filtering(&self) -> bool {
+        self.filter.is_some()
     }
 
     /// The delay in frames (0 without a filter).

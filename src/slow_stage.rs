@@ -63,6 +63,16 @@ pub trait StageWorker: Send + 'static {
     /// ([`crate::frame_feed::FedFrame::number`]): a worker that filters its sets in time fills
     /// in the frames skipped since the last one ([`crate::set_filter`]). The default ignores it.
     fn frame_number(&mut self, _number: u64) {}
+    /// Hands over to `new`, a worker built from new settings (a reconfiguration), before the
+    /// next frame. The default replaces this worker whole (its plans and any warm-start chain
+    /// start afresh); a worker may keep what the new settings leave unchanged (the ASG worker
+    /// keeps its warm-started fitter when only its filter changes).
+    fn take_over(&mut self, new: Self)
+    where
+        Self: Sized,
+    {
+        *self = new;
+    }
 }
 
 /// Called on the stage's thread after each publication (metrics).
@@ -273,7 +283,7 @@ fn run<W: StageWorker>(
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .take();
         if let Some(new) = replacement {
-            worker = new;
+            worker.take_over(new);
             worker.watch_abandon(Arc::clone(&shared.abandon));
             plans_counted = 0;
         }

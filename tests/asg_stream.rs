@@ -1,5 +1,6 @@
 //! The ASG stage end to end (`[asg]`, src/asg_stage.rs): clients that subscribe with
-//! representation `asg` receive the sets `AsgFitter` computes for the same frames; without the
+//! representation `asg` receive the sets `AsgFitter` computes for the same frames, filtered in
+//! time with the lights' taps (`LobeFilter`); a SIGHUP keeps that filter on the lights'; without the
 //! stage an `asg` subscribe is refused with error 6; the live stage skips frames instead of
 //! slowing the lights; the render thread shades with ASG lighting.
 //!
@@ -49,15 +50,30 @@ fn asg_clients_receive_what_the_fitter_computes() {
     assert!(n >= 4, "only {n} frames recorded");
     let config = config(dir.path(), ASG);
 
-    // What the fitter gives for the recorded frames, in order, with the daemon's settings.
-    let mut fitter = AsgFitter::new(config.asg.fit.clone()).unwrap();
+    // What the fitter gives for the recorded frames, in order, with the daemon's settings,
+    // filtered with the lights' taps.
+    assert_eq!(
+        config.asg.settings.filter_taps.as_deref(),
+        Some(&envlight::decompose::filter::DEFAULT_TAPS[..]),
+        "the lights' default taps"
+    );
+    let mut fitter = AsgFitter::new(config.asg.settings.fit.clone()).unwrap();
+    let mut filter = config.asg.settings.filter().unwrap();
     let mut replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
     let mut expected = Vec::new();
+    let mut filtering_changed_a_set = false;
     while let Some(frame) = replay.next_frame().unwrap() {
-        let fit = fitter.fit_frame(&frame).unwrap();
-        expected.push(AsgSet::from_fit(frame.seq, frame.time, &fit.lobes));
+        let fitted = fitter.fit_frame(&frame).unwrap().lobes;
+        let mut lobes = fitted.clone();
+        filter.apply(&mut lobes);
+        filtering_changed_a_set |= lobes != fitted;
+        expected.push(AsgSet::from_fit(frame.seq, frame.time, &lobes));
     }
     assert_eq!(expected.len() as u64, n);
+    assert!(
+        filtering_changed_a_set,
+        "the sky moves: the filter must change the sets"
+    );
 
     // Original timing (the sky's 30 fps), so that the clients are connected early on.
     let daemon = Daemon::start(
@@ -240,6 +256,62 @@ fn sighup_reload_applies_new_fit_settings_from_the_next_frame() {
     );
     assert!(daemon.asg().is_some());
     daemon.shutdown().unwrap();
+}
+
+/// The lobes' filter follows the lights': new [decompose] taps reach the stage, another
+/// [decompose] change restarts its window with the lights', `filter = false` turns it off —
+/// each without a new fit (src/asg_stage.rs tests that the warm-start chain goes on).
+#[test]
+fn sighup_keeps_the_asg_filter_on_the_lights_taps() {
+    let dir = tempfile::tempdir().unwrap();
+    let with = |decompose: &str, asg: &str| {
+        config(
+            dir.path(),
+            &format!(
+                "[source]\nfps = 30.0\nframes = 0\n[sky]\nwidth = 32\nheight = 16\n\
+                 [decompose]\nlights = 8\nworking_width = 16\n{decompose}{ASG}{asg}"
+            ),
+        )
+    };
+    let mut daemon = Daemon::start(with("", ""), DaemonOptions::default()).unwrap();
+    let mut rx = daemon.asg().unwrap().subscribe();
+    let mut sets = 0;
+    let mut next_set = |what: &str| {
+        sets += 1;
+        let want = sets;
+        wait_until(what, || {
+            rx.borrow_and_update()
+                .as_ref()
+                .is_some_and(|p| p.index >= want)
+        });
+    };
+    next_set("a first set");
+
+    let taps = "filter_taps = [1.0, 2.0, 1.0]\n";
+    let report = daemon.reload(with(taps, ""));
+    assert_eq!(report.applied, ["[decompose]", "[asg]"], "{report:?}");
+    next_set("a set with the new taps");
+
+    let merge = format!("{taps}merge = true\n");
+    let report = daemon.reload(with(&merge, ""));
+    assert_eq!(
+        report.applied,
+        [
+            "[decompose]",
+            "[asg] (its temporal filter restarts with the lights')"
+        ],
+        "{report:?}"
+    );
+    next_set("a set after the restart");
+
+    let report = daemon.reload(with(&merge, "filter = false\n"));
+    assert_eq!(report.applied, ["[asg]"], "{report:?}");
+    next_set("an unfiltered set");
+    // Unchanged: nothing to apply.
+    let report = daemon.reload(with(&merge, "filter = false\n"));
+    assert!(report.applied.is_empty(), "{report:?}");
+    let stats = daemon.shutdown().unwrap().asg.unwrap();
+    assert_eq!(stats.fit_errors, 0);
 }
 
 #[test]

@@ -1067,6 +1067,71 @@ fn options_the_mode_would_ignore_are_usage_errors() {
     assert_eq!(o.status.code(), Some(1));
 }
 
+/// `fit-asg` filters the lobes with the lights' default taps: its lines are the `--no-filter`
+/// fits through `LobeFilter` (`--taps 1` is no filter); the loss stays the fit's own.
+#[test]
+fn fit_asg_filters_the_lobes_with_the_lights_taps() {
+    use envlight::asg::temporal::LobeFilter;
+    use envlight::asg::Asg;
+    let lines = |extra: &[&str]| -> Vec<(Vec<Asg>, f64)> {
+        let mut args = vec![
+            "fit-asg",
+            "--frames",
+            "6",
+            "--height",
+            "8",
+            "--iterations",
+            "30",
+            "--lobes",
+            "3",
+        ];
+        args.extend_from_slice(extra);
+        let o = envlight(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        stdout(&o)
+            .lines()
+            .map(|line| {
+                let v: serde_json::Value = serde_json::from_str(line).unwrap();
+                let lobes = serde_json::from_value(v["lobes"].clone()).unwrap();
+                (lobes, v["loss"].as_f64().unwrap())
+            })
+            .collect()
+    };
+    let filtered = lines(&[]);
+    let own = lines(&["--no-filter"]);
+    assert_eq!(lines(&["--taps", "1"]), own);
+    assert_eq!((filtered.len(), own.len()), (6, 6));
+    let mut reference = LobeFilter::new(Some(&envlight::decompose::filter::DEFAULT_TAPS)).unwrap();
+    let mut differs = false;
+    for (t, ((got, got_loss), (own, own_loss))) in filtered.iter().zip(&own).enumerate() {
+        assert_eq!(got_loss, own_loss, "frame {t}: the fit's own loss");
+        let mut want = own.clone();
+        reference.apply(&mut want);
+        for (g, w) in got.iter().zip(&want) {
+            let close = |a: &[f64], b: &[f64]| {
+                a.iter()
+                    .zip(b)
+                    .all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1.0))
+            };
+            assert!(
+                close(&g.axis, &w.axis)
+                    && close(&g.tangent, &w.tangent)
+                    && close(&g.rgb, &w.rgb)
+                    && close(&[g.lambda, g.mu], &[w.lambda, w.mu]),
+                "frame {t}: {g:?} vs {w:?}"
+            );
+        }
+        differs |= got != own;
+    }
+    assert!(
+        differs,
+        "the sky moves, so the filter must change the lobes"
+    );
+    let o = envlight(&["fit-asg", "--taps", "1,-1"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("invalid --taps"), "{}", stderr(&o));
+}
+
 /// `fit-asg --frames` limits INPUT files too (it used to apply to the sky only).
 #[test]
 fn fit_asg_frames_limits_input_files() {

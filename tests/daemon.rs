@@ -1939,8 +1939,8 @@ fn check_config_checks_the_render_thread_as_run_does() {
     );
 }
 
-/// `check-config` says how the wavelet and SH stages are filtered in time: with the lights'
-/// taps, not when `filter = false`, not when the lights are not.
+/// `check-config` says how the ASG, wavelet and SH stages are filtered in time: with the
+/// lights' taps, not when `filter = false`, not when the lights are not.
 #[test]
 fn check_config_reports_the_stages_temporal_filters() {
     let dir = tempfile::tempdir().unwrap();
@@ -1967,6 +1967,16 @@ fn check_config_reports_the_stages_temporal_filters() {
     let text = report("[decompose]\nfilter = false\n[sh]\nenabled = true\n");
     assert!(
         text.contains("per channel), not filtered (the lights are not)"),
+        "{text}"
+    );
+    let text = report("[asg]\nenabled = true\n");
+    assert!(
+        text.contains("1 thread(s), filtered with the lights' taps"),
+        "{text}"
+    );
+    let text = report("[asg]\nenabled = true\nfilter = false\n");
+    assert!(
+        text.contains("1 thread(s), not filtered (filter = false)"),
         "{text}"
     );
 }

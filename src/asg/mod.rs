@@ -118,6 +118,7 @@ pub mod fast;
 pub mod fit;
 mod splat;
 pub mod target;
+pub mod temporal;
 
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;

@@ -246,18 +246,20 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
         writeln!(text, "  render: off")?;
     }
     if config.asg.enabled {
+        let fit = &config.asg.settings.fit;
         writeln!(
             text,
-            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {}",
-            config.asg.fit.lobes,
-            2 * config.asg.fit.height,
-            config.asg.fit.height,
-            config.asg.fit.iterations,
-            config.asg.fit.warm_iterations,
-            match config.asg.fit.threads {
+            "  asg: {} lobes on a {}x{} fit map, {} + {} warm iterations, {}, {}",
+            fit.lobes,
+            2 * fit.height,
+            fit.height,
+            fit.iterations,
+            fit.warm_iterations,
+            match fit.threads {
                 0 => "a thread per core".to_string(),
                 n => format!("{n} thread(s)"),
-            }
+            },
+            stage_filter(config.asg.filter, config.asg.settings.filter_taps.is_some())
         )?;
     } else {
         writeln!(text, "  asg: off")?;
@@ -291,7 +293,7 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
     crate::cli::output::print(&text)
 }
 
-/// How a wavelet or SH stage is filtered in time: `filter` as configured, `filtered` in effect
+/// How an ASG, wavelet or SH stage is filtered in time: `filter` as configured, `filtered` in effect
 /// (the lights' taps, when the lights are filtered).
 fn stage_filter(filter: bool, filtered: bool) -> &'static str {
     match (filter, filtered) {

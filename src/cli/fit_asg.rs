@@ -11,7 +11,8 @@ use std::io::Write;
 use std::path::PathBuf;
 
 /// `fit-asg`: one JSON line per frame,
-/// {"seq","time","lobes":[{"axis","tangent","bitangent","lambda","mu","rgb"}],"loss"}.
+/// {"seq","time","lobes":[{"axis","tangent","bitangent","lambda","mu","rgb"}],"loss"}; the lobes
+/// filtered in time with the lights' taps unless --no-filter.
 #[derive(Args, Debug)]
 pub(crate) struct FitAsgArgs {
     /// .exr/.hdr lat-long files, directories or glob patterns. None: the built-in sky. Every
@@ -47,6 +48,11 @@ pub(crate) struct FitAsgArgs {
     /// Output file (JSON Lines). [default: stdout]
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
+    /// The lobes are filtered in time by id with the lights' FIR taps (as the daemon's [asg]
+    /// stage does), so that they describe the moment the lights of `decompose` describe; each
+    /// line's "loss" stays that of its frame's own fit, before the filter.
+    #[command(flatten)]
+    filter: crate::cli::FilterFlags,
 }
 
 pub(crate) fn run(args: &FitAsgArgs) -> Result<()> {
@@ -81,6 +87,11 @@ pub(crate) fn run(args: &FitAsgArgs) -> Result<()> {
             crate::cli::usage(format!("invalid {flag}: {e}"))
         }
     })?;
+    let mut filter =
+        match envlight::asg::temporal::LobeFilter::new(args.filter.chosen_taps().as_deref()) {
+            Ok(filter) => filter,
+            Err(rule) => crate::cli::usage_error!("invalid --taps: {rule}"),
+        };
     let mut source: Box<dyn FrameSource> = if args.inputs.is_empty() {
         let options = SkyOptions {
             frames: args.frames.map_or(Some(10), |n| (n > 0).then_some(n)),
@@ -105,9 +116,10 @@ pub(crate) fn run(args: &FitAsgArgs) -> Result<()> {
         &crate::cli::output::InputFiles::new(source.files()),
     )?);
     while let Some(frame) = source.next_frame().context("cannot read a frame")? {
-        let result = fitter
+        let mut result = fitter
             .fit_frame(&frame)
             .with_context(|| format!("cannot fit frame {}", frame.seq))?;
+        filter.apply(&mut result.lobes);
         #[derive(serde::Serialize)]
         struct Line<'a> {
             seq: u64,

@@ -145,7 +145,7 @@ pub(crate) fn parse_finite_f32(s: &str) -> Result<f32, String> {
 }
 
 /// `--no-filter` and `--taps`: the temporal FIR filter of `decompose`'s lights and, with the
-/// same taps, of `sh`'s sets.
+/// same taps, of `sh`'s sets and `fit-asg`'s lobes.
 #[derive(clap::Args, Debug)]
 pub(crate) struct FilterFlags {
     /// Disable the temporal FIR filter.
@@ -162,6 +162,17 @@ pub(crate) struct FilterFlags {
         value_parser = parse_tap
     )]
     pub(crate) taps: Option<Vec<f64>>,
+}
+
+impl FilterFlags {
+    /// The taps asked for: none with `--no-filter`, `--taps`, or the lights' default taps.
+    pub(crate) fn chosen_taps(&self) -> Option<Vec<f64>> {
+        match (&self.taps, self.no_filter) {
+            (_, true) => None,
+            (Some(taps), false) => Some(taps.clone()),
+            (None, false) => Some(envlight::decompose::filter::DEFAULT_TAPS.to_vec()),
+        }
+    }
 }
 
 /// One weight of `--taps` (spaces around it allowed, as in `--taps "1, 2, 1"`).

@@ -25,7 +25,8 @@ RGBA) and OUT/stats.jsonl (lights, shadow maps and time of every frame).
 lights' power merged into their nearest prefix light).
 --lighting asg shades instead with ASG lobes fitted to each INPUT frame (or sky frame), in closed
 form (Lambert + GGX, each lobe with a soft shadow; --lobes, --fit-height); --lighting sh with the
-frame's spherical-harmonic coefficients (Lambert + GGX, unshadowed ambient light; --degree).";
+frame's spherical-harmonic coefficients (Lambert + GGX, unshadowed ambient light; --degree). Lobes
+and coefficients are filtered in time with the lights' default taps, as the lights are.";
 
 #[derive(Args, Debug)]
 pub(crate) struct RenderArgs {
@@ -311,14 +312,21 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
             ..envlight::asg::fit::FitSettings::default()
         };
         // Name the flag at fault (both were named whichever it was).
-        Some(envlight::asg::fit::AsgFitter::new(settings).map_err(|e| {
+        let fitter = envlight::asg::fit::AsgFitter::new(settings).map_err(|e| {
             let flag = match &e {
                 envlight::asg::AsgError::MapSize { .. } => "--fit-height",
                 envlight::asg::AsgError::LobeCount(_) => "--lobes",
                 _ => "--lobes or --fit-height",
             };
             crate::cli::usage(format!("invalid {flag}: {e}"))
-        })?)
+        })?;
+        // The lobes filtered in time with the lights' default taps, as the lights of
+        // `--lighting lights` and the daemon's ASG stage are.
+        let filter = envlight::asg::temporal::LobeFilter::new(Some(
+            &envlight::decompose::filter::DEFAULT_TAPS,
+        ))
+        .map_err(|rule| anyhow::anyhow!("the default taps are refused: {rule}"))?;
+        Some((fitter, filter))
     } else {
         None
     };
@@ -479,11 +487,13 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
             );
         }
         let (mut image, stats) = match (&mut fitter, &mut sh_projector, &env) {
-            (Some(fitter), _, Some(frame)) => {
-                let fit = fitter
+            (Some((fitter, filter)), _, Some(frame)) => {
+                let mut lobes = fitter
                     .fit_frame(frame)
-                    .with_context(|| format!("cannot fit ASG lobes to frame {}", frame.seq))?;
-                renderer.render_asg(&fit.lobes)?
+                    .with_context(|| format!("cannot fit ASG lobes to frame {}", frame.seq))?
+                    .lobes;
+                filter.apply(&mut lobes);
+                renderer.render_asg(&lobes)?
             }
             (None, Some(projector), Some(frame)) => {
                 renderer.render_sh(&projector.coefficients(frame))?

@@ -5,7 +5,6 @@
 use crate::cli::output::JsonLines;
 use anyhow::{Context, Result};
 use clap::Args;
-use envlight::decompose::filter::DEFAULT_TAPS;
 use envlight::sh::MAX_DEGREE;
 use envlight::sh_stage::{ShProjector, ShSettings, ShStageError};
 use envlight::stream::protocol::{sh_frame_to_json, ShFrame};
@@ -56,11 +55,7 @@ pub(crate) fn run(args: &ShArgs) -> Result<()> {
     let mut source = args.input.open()?;
     let mut inputs = crate::cli::output::InputFiles::new(source.files());
     let mut output = JsonLines::open(args.out.as_deref(), "--out", &mut inputs)?;
-    let filter_taps = match (&args.filter.taps, args.filter.no_filter) {
-        (_, true) => None,
-        (Some(taps), false) => Some(taps.clone()),
-        (None, false) => Some(DEFAULT_TAPS.to_vec()),
-    };
+    let filter_taps = args.filter.chosen_taps();
     // One projection plan per projection and frame size; the filter's window.
     let mut projector = match ShProjector::new(ShSettings {
         degree: args.degree,
