@@ -276,15 +276,7 @@ fn sighup_keeps_the_asg_filter_on_the_lights_taps() {
     let mut daemon = Daemon::start(with("", ""), DaemonOptions::default()).unwrap();
     let mut rx = daemon.asg().unwrap().subscribe();
     let mut sets = 0;
-    let mut next_set = |what: &str| {
-        sets += 1;
-        let want = sets;
-        wait_until(what, || {
-            rx.borrow_and_update()
-                .as_ref()
-                .is_some_and(|p| p.index >= want)
-        });
-    };
+    let mut next_set = |what: &str| common::wait_for_next_publication(&mut rx, &mut sets, what);
     next_set("a first set");
 
     let taps = "filter_taps = [1.0, 2.0, 1.0]\n";

@@ -268,15 +268,7 @@ fn sighup_keeps_the_sh_filter_on_the_lights_taps() {
     let mut daemon = Daemon::start(with("", stage), DaemonOptions::default()).unwrap();
     let mut rx = daemon.sh().unwrap().subscribe();
     let mut sets = 0;
-    let mut next_set = |what: &str| {
-        sets += 1;
-        let want = sets;
-        wait_until(what, || {
-            rx.borrow_and_update()
-                .as_ref()
-                .is_some_and(|p| p.index >= want)
-        });
-    };
+    let mut next_set = |what: &str| common::wait_for_next_publication(&mut rx, &mut sets, what);
     next_set("a first set");
     let http = daemon.addresses().metrics.unwrap();
     let delay = || {

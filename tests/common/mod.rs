@@ -353,3 +353,19 @@ pub fn assert_sets_follow_the_lights(
         "the frames' own sets would have matched too ({unfiltered_worst})"
     );
 }
+
+/// Waits on a stage's channel for its next publication: each call wants one more than the last
+/// (`published` counts them), so a test steps through the sets its changes produce.
+pub fn wait_for_next_publication<T>(
+    rx: &mut tokio::sync::watch::Receiver<envlight::publication::Latest<T>>,
+    published: &mut u64,
+    what: &str,
+) {
+    *published += 1;
+    let want = *published;
+    wait_until(what, || {
+        rx.borrow_and_update()
+            .as_ref()
+            .is_some_and(|p| p.index >= want)
+    });
+}
