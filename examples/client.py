@@ -1,19 +1,22 @@
 #!/usr/bin/env python3
 """Minimal envlight client using only the Python standard library.
 
-Connects to a running daemon over a Unix socket or TCP, subscribes (binary frames), and prints
-one line per light list (or per ASG set with --representation asg, per wavelet coefficient set
-with --representation wavelet, per spherical-harmonic set with --representation sh). The wire
-format is docs/protocol.md.
+Connects to a running daemon over a Unix socket or TCP, subscribes (binary frames, or JSON
+lines with --json), and prints one line per light list (or per ASG set with --representation
+asg, per wavelet coefficient set with --representation wavelet, per spherical-harmonic set with
+--representation sh). The wire format is docs/protocol.md; both forms are checked as it asks of
+a decoder (lengths, finite numbers, known representations).
 
     python3 examples/client.py unix:/run/envlight/envlight.sock
     python3 examples/client.py 127.0.0.1:7878 --max-lights 16 --frames 10
+    python3 examples/client.py 127.0.0.1:7878 --json   # JSON lines (json module) instead
     python3 examples/client.py 127.0.0.1:7878 --representation asg   # needs [asg] enabled
     python3 examples/client.py 127.0.0.1:7878 --representation wavelet   # needs [wavelet] enabled
     python3 examples/client.py 127.0.0.1:7878 --representation sh   # needs [sh] enabled
 """
 
 import argparse
+import json
 import math
 import os
 import socket
@@ -24,6 +27,8 @@ MAGIC = b"ENVL"
 VERSION = 1
 TYPE_FRAME, TYPE_ERROR, TYPE_GOODBYE, TYPE_SUBSCRIBE = 1, 2, 3, 16
 MAX_MESSAGE_LEN = 1 << 20
+# A server's JSON message may be up to 8 MiB (docs/protocol.md, "JSON form").
+MAX_JSON_MESSAGE_LEN = 8 << 20
 REPRESENTATIONS = {"lights": 0, "asg": 1, "wavelet": 2, "sh": 3}
 MAX_SH_DEGREE = 15
 BASES = {1: "haar", **{n: f"db{n}" for n in range(2, 11)}, **{16 + n: f"coif{n}" for n in range(1, 6)}}
@@ -72,6 +77,12 @@ def subscribe_message(max_lights, representation=0):
     return struct.pack("<I4sHH", 8 + len(body), MAGIC, VERSION, TYPE_SUBSCRIBE) + body
 
 
+def json_subscribe_message(max_lights, representation="lights"):
+    """The subscribe as one JSON line: everything the server sends is then JSON lines."""
+    request = {"max_lights": max_lights, "representation": representation, "format": "json"}
+    return (json.dumps({"subscribe": request}) + "\n").encode()
+
+
 def read_exact(sock, n):
     data = bytearray()
     while len(data) < n:
@@ -93,6 +104,124 @@ def read_message(sock):
     if version != VERSION:
         raise ValueError(f"unsupported version {version}")
     return kind, payload[8:]
+
+
+class LineReader:
+    """JSON lines from a socket, each at most MAX_JSON_MESSAGE_LEN bytes."""
+
+    def __init__(self, sock):
+        self.sock, self.buffer = sock, bytearray()
+
+    def message(self):
+        """The next line, parsed: a dict; ValueError for a line that is too long or not an
+        object; EOFError at the end of the stream."""
+        while True:
+            end = self.buffer.find(b"\n")
+            if end >= 0:
+                line = bytes(self.buffer[:end])
+                del self.buffer[:end + 1]
+                break
+            if len(self.buffer) > MAX_JSON_MESSAGE_LEN:
+                raise ValueError(f"a JSON line longer than {MAX_JSON_MESSAGE_LEN} bytes")
+            chunk = self.sock.recv(1 << 16)
+            if not chunk:
+                raise EOFError("the daemon closed the connection")
+            self.buffer += chunk
+        if len(line) > MAX_JSON_MESSAGE_LEN:
+            raise ValueError(f"a JSON line of {len(line)} bytes (at most {MAX_JSON_MESSAGE_LEN})")
+        # JSON has no NaN or infinity: Python's own extensions are refused.
+        value = json.loads(line, parse_constant=lambda name: _refuse(f"{name} is not JSON"))
+        if not isinstance(value, dict):
+            raise ValueError(f"a JSON message is an object, not {type(value).__name__}")
+        return value
+
+
+def _refuse(reason):
+    raise ValueError(reason)
+
+
+def numbers(value, n, what):
+    """`value` as a tuple of n floats; ValueError naming `what` otherwise."""
+    if not isinstance(value, list) or len(value) != n or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+        raise ValueError(f"{what} is not a list of {n} numbers: {value!r}")
+    floats = tuple(float(x) for x in value)
+    # json reads 1e400 as an infinity.
+    if not all(math.isfinite(x) for x in floats):
+        raise ValueError(f"{what} holds a number beyond range (error 1)")
+    return floats
+
+
+def number(value, what):
+    return numbers([value], 1, what)[0]
+
+
+def parse_json_frame(message):
+    """The frame of a JSON message, in the form `parse_frame` gives for binary ones, with the
+    same checks (docs/protocol.md, "JSON form": unknown fields are ignored)."""
+    seq, time = message.get("seq"), number(message.get("time"), "time")
+    if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
+        raise ValueError(f"seq {seq!r} is not a frame number")
+    name = message.get("representation", "lights")
+    if name not in REPRESENTATIONS:
+        raise ValueError(f"frame of unknown representation {name!r} (error 5)")
+    stale = message.get("stale", False)
+    if not isinstance(stale, bool):
+        raise ValueError(f"frame {seq}: stale {stale!r} is not true or false")
+    representation = REPRESENTATIONS[name]
+    frame = {"seq": seq, "time": time, "stale": stale, "representation": representation}
+    where = f"frame {seq}"
+
+    def records(key):
+        items = message.get(key)
+        if not isinstance(items, list):
+            raise ValueError(f"{where}: {key} is not a list")
+        return items
+
+    if representation == 3:
+        degree = message.get("degree")
+        if not isinstance(degree, int) or not 0 <= degree <= MAX_SH_DEGREE:
+            raise ValueError(f"{where}: SH degree {degree!r} is not in 0..={MAX_SH_DEGREE} (error 1)")
+        sh = [numbers(c, 3, f"{where} SH coefficient {i}") for i, c in enumerate(records("sh"))]
+        if len(sh) != (degree + 1) ** 2:
+            raise ValueError(f"{where} has {len(sh)} SH coefficients for degree {degree} (error 1)")
+        frame.update(degree=degree, sh=sh)
+    elif representation == 2:
+        side, levels = message.get("side"), message.get("levels")
+        if not (isinstance(side, int) and isinstance(levels, int) and side > 0 and levels >= 0):
+            raise ValueError(f"{where}: side {side!r} and levels {levels!r} are not a wavelet map")
+        coefficients = []
+        for i, c in enumerate(records("coefficients")):
+            if not (isinstance(c, list) and len(c) == 2 and isinstance(c[0], int)
+                    and 0 <= c[0] < side * side):
+                raise ValueError(f"{where}: coefficient {i} is not [index < side^2, [r, g, b]]")
+            coefficients.append((c[0], numbers(c[1], 3, f"{where} coefficient {i}")))
+        frame.update(basis=str(message.get("basis")), levels=levels, side=side,
+                     coefficients=coefficients)
+    elif representation == 1:
+        lobes = []
+        for i, g in enumerate(records("lobes")):
+            if not isinstance(g, dict):
+                raise ValueError(f"{where}: lobe {i} is not an object")
+            what = f"{where} lobe {i}"
+            lobes.append({"id": g.get("id"), "axis": numbers(g.get("axis"), 3, f"{what} axis"),
+                          "tangent": numbers(g.get("tangent"), 3, f"{what} tangent"),
+                          "lambda": number(g.get("lambda"), f"{what} lambda"),
+                          "mu": number(g.get("mu"), f"{what} mu"),
+                          "rgb": numbers(g.get("rgb"), 3, f"{what} rgb"),
+                          "integral": number(g.get("integral"), f"{what} integral")})
+        frame["lobes"] = lobes
+    else:
+        lights = []
+        for i, l in enumerate(records("lights")):
+            if not isinstance(l, dict):
+                raise ValueError(f"{where}: light {i} is not an object")
+            what = f"{where} light {i}"
+            lights.append({"id": l.get("id"), "dir": numbers(l.get("dir"), 3, f"{what} dir"),
+                           "rgb": numbers(l.get("rgb"), 3, f"{what} rgb"),
+                           "solid_angle": number(l.get("solid_angle"), f"{what} solid_angle")})
+        frame["lights"] = lights
+    return frame
 
 
 # Per representation code: the bytes of its fields after `count`, and of each record.
@@ -201,6 +330,9 @@ def main():
                         help="directional lights, ASG lobes, wavelet coefficients or spherical "
                              "harmonics (--max-lights then caps the lobes or coefficients; SH: "
                              "the bands that fit, 4 = degrees 0 and 1)")
+    parser.add_argument("--json", action="store_true",
+                        help="subscribe with a JSON line and read JSON lines (docs/protocol.md, "
+                             "\"JSON form\") instead of binary frames")
     args = parser.parse_args()
     try:
         kind, target = parse_address(args.address)
@@ -218,13 +350,45 @@ def main():
         return 1
 
 
-def stream(sock, args):
-    sock.sendall(subscribe_message(args.max_lights, REPRESENTATIONS[args.representation]))
-    frames = 0
-    while args.frames == 0 or frames < args.frames:
+def binary_messages(sock):
+    """(kind, frame or (code, text)) of each binary message."""
+    while True:
         kind, body = read_message(sock)
         if kind == TYPE_FRAME:
-            frame = parse_frame(body)
+            yield kind, parse_frame(body)
+        elif kind in (TYPE_ERROR, TYPE_GOODBYE):
+            code, text_len = struct.unpack_from("<HI", body)
+            yield kind, (code, body[6:6 + text_len].decode("utf-8", "replace"))
+        else:
+            yield kind, None
+
+
+def json_messages(sock):
+    """The same from JSON lines."""
+    lines = LineReader(sock)
+    while True:
+        message = lines.message()
+        for key, kind in (("error", TYPE_ERROR), ("goodbye", TYPE_GOODBYE)):
+            if isinstance(message.get(key), dict):
+                body = message[key]
+                yield kind, (body.get("code"), str(body.get("message")))
+                break
+        else:
+            yield TYPE_FRAME, parse_json_frame(message)
+
+
+def stream(sock, args):
+    if args.json:
+        sock.sendall(json_subscribe_message(args.max_lights, args.representation))
+        messages = json_messages(sock)
+    else:
+        sock.sendall(subscribe_message(args.max_lights, REPRESENTATIONS[args.representation]))
+        messages = binary_messages(sock)
+    frames = 0
+    while args.frames == 0 or frames < args.frames:
+        kind, content = next(messages)
+        if kind == TYPE_FRAME:
+            frame = content
             stale = " (stale)" if frame["stale"] else ""
             items = frame[("lights", "lobes", "coefficients", "sh")[frame["representation"]]]
             what, extra = f"{len(items)} lights", ""
@@ -253,8 +417,7 @@ def stream(sock, args):
                   f"total rgb [{total[0]:.4f}, {total[1]:.4f}, {total[2]:.4f}]{extra}{stale}", flush=True)
             frames += 1
         elif kind in (TYPE_ERROR, TYPE_GOODBYE):
-            code, text_len = struct.unpack_from("<HI", body)
-            text = body[6:6 + text_len].decode("utf-8", "replace")
+            code, text = content
             what = "goodbye" if kind == TYPE_GOODBYE else f"error {code}"
             print(f"{what}: {text}", file=sys.stderr)
             return 0 if kind == TYPE_GOODBYE else 1

@@ -316,19 +316,25 @@ fn the_python_example_client_reads_asg_sets() {
     );
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let lines = python_client(&[
-        &tcp.to_string(),
-        "--representation",
-        "asg",
-        "--frames",
-        "2",
-        "--max-lights",
-        "3",
-    ]);
-    assert_eq!(lines.len(), 2, "{lines:?}");
-    assert!(
-        lines.iter().all(|l| l.contains(": 3 ASG lobes")),
-        "{lines:?}"
-    );
+    let address = tcp.to_string();
+    // Binary frames and JSON lines alike.
+    for json in [&[][..], &["--json"]] {
+        let mut args = vec![
+            address.as_str(),
+            "--representation",
+            "asg",
+            "--frames",
+            "2",
+            "--max-lights",
+            "3",
+        ];
+        args.extend_from_slice(json);
+        let lines = python_client(&args);
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(
+            lines.iter().all(|l| l.contains(": 3 ASG lobes")),
+            "{lines:?}"
+        );
+    }
     daemon.shutdown().unwrap();
 }

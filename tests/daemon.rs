@@ -2286,6 +2286,139 @@ fn a_lost_source_is_served_stale_until_it_returns() {
     daemon.shutdown().unwrap();
 }
 
+/// The Python client's JSON decoder (`--json`) gives what its binary decoder gives for the same
+/// frames, as the daemon encodes them (to f32's precision: JSON carries each f32 in its
+/// shortest decimal form), and refuses what docs/protocol.md says a decoder must.
+#[test]
+fn the_python_client_decodes_json_frames_as_binary_ones() {
+    use envlight::light::AsgSet;
+    use envlight::stream::protocol::{
+        asg_frame_to_json, encode_asg_frame, encode_frame, encode_sh_frame, encode_wavelet_frame,
+        frame_to_json, sh_frame_to_json, wavelet_frame_to_json,
+    };
+    use envlight::stream::{ShFrame, WaveletFrame};
+    common::require_python3();
+    let lights = envlight::LightFrame {
+        seq: 7,
+        time: 0.1,
+        lights: (0..3)
+            .map(|i| envlight::Light {
+                id: i * 5,
+                dir: [0.6, 0.0, 0.8],
+                rgb: [0.1 * i as f32, 1.0 / 3.0, 2e-7],
+                solid_angle: 0.3,
+            })
+            .collect(),
+    };
+    let lobe = envlight::asg::Asg::new(
+        glam::DVec3::new(0.0, 0.6, 0.8),
+        glam::DVec3::X,
+        12.5,
+        0.7,
+        [3.1, 2.2, 1.3],
+    )
+    .unwrap();
+    let asg = AsgSet::from_fit(8, 0.2, &[lobe, lobe]);
+    let wavelet = WaveletFrame {
+        seq: 9,
+        time: 0.3,
+        set: envlight::wavelet::WaveletSet {
+            basis: envlight::wavelet::Basis::parse("db4").unwrap(),
+            side: 8,
+            levels: 2,
+            coefficients: vec![(0, [4.0, 2.0, 1.0]), (9, [-0.1, 0.25, 1.0 / 7.0])],
+        },
+    };
+    let sh = ShFrame {
+        seq: 10,
+        time: 0.4,
+        coefficients: (0..9).map(|i| [i as f32 / 3.0, -0.01, 1e-3]).collect(),
+    };
+    let mut binary = Vec::new();
+    let mut json = Vec::new();
+    let mut add = |bytes: Vec<u8>, text: String| {
+        // The body after length, magic, version and type, as `parse_frame` takes it.
+        binary.push(hex(&bytes[12..]));
+        json.push(text);
+    };
+    fn hex(bytes: &[u8]) -> String {
+        bytes.iter().map(|b| format!("{b:02x}")).collect()
+    }
+    let mut bytes = Vec::new();
+    encode_frame(&lights, None, false, &mut bytes);
+    add(
+        std::mem::take(&mut bytes),
+        frame_to_json(&lights, None, false),
+    );
+    encode_asg_frame(&asg, None, true, &mut bytes);
+    add(
+        std::mem::take(&mut bytes),
+        asg_frame_to_json(&asg, None, true),
+    );
+    encode_wavelet_frame(&wavelet, None, false, &mut bytes);
+    add(
+        std::mem::take(&mut bytes),
+        wavelet_frame_to_json(&wavelet, None, false),
+    );
+    encode_sh_frame(&sh, None, false, &mut bytes);
+    add(
+        std::mem::take(&mut bytes),
+        sh_frame_to_json(&sh, None, false),
+    );
+    let script = format!(
+        r#"
+import json, math, sys
+sys.path.insert(0, "examples")
+import client
+def close(a, b, where):
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), (where, a.keys(), b.keys())
+        for k in a:
+            close(a[k], b[k], f"{{where}}.{{k}}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            close(x, y, f"{{where}}[{{i}}]")
+    elif isinstance(a, float):
+        assert abs(a - b) <= 1e-7 * max(abs(a), abs(b)), (where, a, b)
+    else:
+        assert a == b, (where, a, b)
+for body, line in zip({binary:?}, {json:?}):
+    close(client.parse_frame(bytes.fromhex(body)), client.parse_json_frame(json.loads(line)), "frame")
+    print("same")
+good = json.loads({first:?})
+for change in ({{"time": 1e400}}, {{"representation": "hdr"}}, {{"lights": [{{"dir": [0, 1]}}]}},
+               {{"seq": -1}}, {{"stale": 1}}):
+    try:
+        client.parse_json_frame({{**good, **change}})
+    except ValueError as e:
+        print("refused:", e)
+    else:
+        sys.exit(f"accepted {{change}}")
+sh = json.loads({last:?})
+try:
+    client.parse_json_frame({{**sh, "degree": 3}})
+except ValueError as e:
+    print("refused:", e)
+"#,
+        first = json[0],
+        last = json[3],
+    );
+    let out = std::process::Command::new("python3")
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    let (text, err) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{text}{err}");
+    assert_eq!(text.matches("same").count(), 4, "{text}");
+    assert_eq!(text.matches("refused:").count(), 6, "{text}");
+    assert!(text.contains("unknown representation 'hdr'"), "{text}");
+    assert!(text.contains("9 SH coefficients for degree 3"), "{text}");
+}
+
 #[test]
 fn the_python_example_client_reads_the_stream() {
     common::require_python3();
@@ -2295,9 +2428,16 @@ fn the_python_example_client_reads_the_stream() {
     let socket = daemon.addresses().stream.unix_socket.clone().unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     for address in [format!("unix:{}", socket.display()), tcp.to_string()] {
-        let lines = python_client(&[&address, "--frames", "3", "--max-lights", "4"]);
-        assert_eq!(lines.len(), 3, "{lines:?}");
-        assert!(lines.iter().all(|l| l.contains(": 4 lights")), "{lines:?}");
+        for json in [&[][..], &["--json"]] {
+            let mut args = vec![address.as_str(), "--frames", "3", "--max-lights", "4"];
+            args.extend_from_slice(json);
+            let lines = python_client(&args);
+            assert_eq!(lines.len(), 3, "{args:?}: {lines:?}");
+            assert!(
+                lines.iter().all(|l| l.contains(": 4 lights, total rgb [")),
+                "{args:?}: {lines:?}"
+            );
+        }
     }
     // Bad addresses and options, a refused connection and a closed stdout end with a message
     // and a status, not a Python traceback.

@@ -285,21 +285,27 @@ fn the_python_example_client_reads_wavelet_sets() {
     let extra = format!("{SMALL_SKY}[wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n");
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let lines = python_client(&[
-        &tcp.to_string(),
-        "--representation",
-        "wavelet",
-        "--frames",
-        "2",
-        "--max-lights",
-        "5",
-    ]);
-    assert_eq!(lines.len(), 2, "{lines:?}");
-    assert!(
-        lines
-            .iter()
-            .all(|l| l.contains(": 5 wavelet coefficients (haar on 16^2, 4 levels)")),
-        "{lines:?}"
-    );
+    let address = tcp.to_string();
+    // Binary frames and JSON lines alike.
+    for json in [&[][..], &["--json"]] {
+        let mut args = vec![
+            address.as_str(),
+            "--representation",
+            "wavelet",
+            "--frames",
+            "2",
+            "--max-lights",
+            "5",
+        ];
+        args.extend_from_slice(json);
+        let lines = python_client(&args);
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(
+            lines
+                .iter()
+                .all(|l| l.contains(": 5 wavelet coefficients (haar on 16^2, 4 levels)")),
+            "{lines:?}"
+        );
+    }
     daemon.shutdown().unwrap();
 }
