@@ -18,6 +18,8 @@
 //!   source converts formats whose codes are bytes ([`Linearizer::linearize_bytes_into_on`]);
 //! - `…/bayer_rg12`: a 12-bit RGGB mosaic of the same scene (bilinear demosaic);
 //! - `…/bayer_rg12_csi2`: the same mosaic in the MIPI CSI-2 12-bit packing (`pRCC`);
+//! - `…/bayer_rg14`, `…/bayer_rg14_csi2`: a 14-bit RGGB mosaic in 16-bit words (`RG14`) and in
+//!   the CSI-2 14-bit packing (`pREE`, four samples in seven bytes);
 //! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
 //! - `…/nv16`: the scene as NV16 (planar 4:2:2: YUYV's samples in a luma and a chroma plane);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
@@ -151,27 +153,55 @@ fn nv16(scene: &[[f32; 3]]) -> Vec<u8> {
     luma.chain(chroma).collect()
 }
 
-/// An RGGB mosaic with 12-bit codes in little-endian 16-bit words.
-fn bayer12(scene: &[[f32; 3]]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(scene.len() * 2);
-    for (i, p) in scene.iter().enumerate() {
-        let (x, y) = (i % W as usize, i / W as usize);
-        let c = [[0, 1], [1, 2]][y & 1][x & 1];
-        let v = ((p[c] * 0.25).clamp(0.0, 1.0) * 4095.0).round() as u16;
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    out
+/// An RGGB mosaic's samples with `bits`-bit codes.
+fn bayer_samples(scene: &[[f32; 3]], bits: u32) -> Vec<u16> {
+    let max = ((1u32 << bits) - 1) as f32;
+    scene
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let (x, y) = (i % W as usize, i / W as usize);
+            let c = [[0, 1], [1, 2]][y & 1][x & 1];
+            ((p[c] * 0.25).clamp(0.0, 1.0) * max).round() as u16
+        })
+        .collect()
 }
 
-/// The same mosaic in the MIPI CSI-2 12-bit packing (`pRCC`): two samples' high bytes, then
+/// An RGGB mosaic with `bits`-bit codes in little-endian 16-bit words.
+fn bayer_words(scene: &[[f32; 3]], bits: u32) -> Vec<u8> {
+    bayer_samples(scene, bits)
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect()
+}
+
+/// The 14-bit mosaic in the MIPI CSI-2 14-bit packing (`pREE`): four samples' high bytes, then
+/// their low 6-bit parts in order from bit 0 of the fifth byte on.
+fn bayer14_packed(scene: &[[f32; 3]]) -> Vec<u8> {
+    bayer_samples(scene, 14)
+        .chunks_exact(4)
+        .flat_map(|s| {
+            let low = s
+                .iter()
+                .enumerate()
+                .fold(0u32, |acc, (k, v)| acc | (u32::from(v & 0x3F) << (6 * k)));
+            [
+                (s[0] >> 6) as u8,
+                (s[1] >> 6) as u8,
+                (s[2] >> 6) as u8,
+                (s[3] >> 6) as u8,
+                low as u8,
+                (low >> 8) as u8,
+                (low >> 16) as u8,
+            ]
+        })
+        .collect()
+}
+
+/// The 12-bit mosaic in the MIPI CSI-2 12-bit packing (`pRCC`): two samples' high bytes, then
 /// their low nibbles.
 fn bayer12_packed(scene: &[[f32; 3]]) -> Vec<u8> {
-    let words = bayer12(scene);
-    let samples: Vec<u16> = words
-        .chunks_exact(2)
-        .map(|b| u16::from_le_bytes([b[0], b[1]]))
-        .collect();
-    samples
+    bayer_samples(scene, 12)
         .chunks_exact(2)
         .flat_map(|s| {
             [
@@ -217,7 +247,7 @@ fn bench_capture(c: &mut Criterion) {
                 pattern: pixel_format::BayerPattern::Rggb,
                 bits: 12,
             },
-            bayer12(&scene),
+            bayer_words(&scene, 12),
         ),
         (
             "bayer_rg12_csi2",
@@ -227,7 +257,49 @@ fn bench_capture(c: &mut Criterion) {
             },
             bayer12_packed(&scene),
         ),
+        (
+            "bayer_rg14",
+            PixelFormat::Bayer {
+                pattern: pixel_format::BayerPattern::Rggb,
+                bits: 14,
+            },
+            bayer_words(&scene, 14),
+        ),
+        (
+            "bayer_rg14_csi2",
+            PixelFormat::Csi2Packed {
+                pattern: Some(pixel_format::BayerPattern::Rggb),
+                bits: 14,
+            },
+            bayer14_packed(&scene),
+        ),
     ];
+    // The packed buffers hold the words' samples: the same codes once decoded.
+    let codes_of = |name: &str| {
+        let (_, format, data) = buffers.iter().find(|b| b.0 == name).expect("a buffer");
+        let raw = RawFrame {
+            data,
+            format: *format,
+            width: W,
+            height: H,
+            stride: 0,
+        };
+        let mut codes = CodeImage {
+            width: 0,
+            height: 0,
+            pixels: Vec::new(),
+        };
+        pixel_format::decode_into(&raw, YuvMatrix::Bt709, &mut codes)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        codes.pixels
+    };
+    for bits in [12, 14] {
+        let words = format!("bayer_rg{bits}");
+        assert!(
+            codes_of(&words) == codes_of(&format!("{words}_csi2")),
+            "the {bits}-bit packing"
+        );
+    }
     let radiometry = Radiometry {
         exposure_s: 0.01,
         ..Radiometry::default()
