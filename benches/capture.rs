@@ -22,6 +22,7 @@
 //!   the CSI-2 14-bit packing (`pREE`, four samples in seven bytes);
 //! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
 //! - `…/nv16`: the scene as NV16 (planar 4:2:2: YUYV's samples in a luma and a chroma plane);
+//! - `…/nv24`: the scene as NV24 (planar 4:4:4: every pixel's own Cb, Cr);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `response_recovery/levels_L_samples_S`: recovering a response curve from four 200×150
 //!   brackets (Debevec & Malik's gsolve, three channels) at L levels and S sample pixels;
@@ -153,6 +154,19 @@ fn nv16(scene: &[[f32; 3]]) -> Vec<u8> {
     luma.chain(chroma).collect()
 }
 
+/// NV24 (4:4:4): the luma plane, then every pixel's Cb and Cr interleaved.
+fn nv24(scene: &[[f32; 3]]) -> Vec<u8> {
+    let mut out: Vec<u8> = scene
+        .iter()
+        .map(|&p| code8(16.0 + 219.0 * ycbcr709(p).0))
+        .collect();
+    for &p in scene {
+        let (_, cb, cr) = ycbcr709(p);
+        out.extend_from_slice(&[code8(128.0 + 224.0 * cb), code8(128.0 + 224.0 * cr)]);
+    }
+    out
+}
+
 /// An RGGB mosaic's samples with `bits`-bit codes.
 fn bayer_samples(scene: &[[f32; 3]], bits: u32) -> Vec<u16> {
     let max = ((1u32 << bits) - 1) as f32;
@@ -239,6 +253,11 @@ fn bench_capture(c: &mut Criterion) {
             "nv16",
             PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv16),
             nv16(&scene),
+        ),
+        (
+            "nv24",
+            PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv24),
+            nv24(&scene),
         ),
         ("mjpeg", PixelFormat::Mjpeg, mjpeg(&scene)),
         (

@@ -656,8 +656,8 @@ bracket_exposures_s = [0.001, 0.004, 0.016]
         m.contains("camera.curve") && m.contains("/nonexistent/curve.txt"),
         "{m}"
     );
-    let m = bad("formats = [\"NV24\"]");
-    assert!(m.contains("camera.formats") && m.contains("NV24"), "{m}");
+    let m = bad("formats = [\"AYUV\"]");
+    assert!(m.contains("camera.formats") && m.contains("AYUV"), "{m}");
     let m = bad("white_balance = [1.0, -1.0, 1.0]");
     assert!(m.contains("camera.white_balance"), "{m}");
     let m = bad("bracket_exposures_s = [0.01, 0.0]");

@@ -113,10 +113,14 @@ pub enum PlanarYuv {
     Nv61,
     /// `422P`: luma, Cb plane, Cr plane (4:2:2).
     Yuv422p,
+    /// `NV24`: luma, then one plane of interleaved Cb, Cr, a pair for every pixel (4:4:4).
+    Nv24,
+    /// `NV42`: luma, then one plane of interleaved Cr, Cb (4:4:4).
+    Nv42,
 }
 
 impl PlanarYuv {
-    pub const ALL: [PlanarYuv; 7] = [
+    pub const ALL: [PlanarYuv; 9] = [
         PlanarYuv::Nv12,
         PlanarYuv::Nv21,
         PlanarYuv::Yu12,
@@ -124,6 +128,8 @@ impl PlanarYuv {
         PlanarYuv::Nv16,
         PlanarYuv::Nv61,
         PlanarYuv::Yuv422p,
+        PlanarYuv::Nv24,
+        PlanarYuv::Nv42,
     ];
 
     fn fourcc(self) -> [u8; 4] {
@@ -135,37 +141,51 @@ impl PlanarYuv {
             PlanarYuv::Nv16 => *b"NV16",
             PlanarYuv::Nv61 => *b"NV61",
             PlanarYuv::Yuv422p => *b"422P",
+            PlanarYuv::Nv24 => *b"NV24",
+            PlanarYuv::Nv42 => *b"NV42",
         }
     }
 
-    /// Luma rows per chroma row: 2 for 4:2:0, 1 for 4:2:2.
+    /// Luma rows per chroma row: 2 for 4:2:0, 1 for 4:2:2 and 4:4:4.
     pub fn rows_per_chroma_row(self) -> usize {
         match self {
             PlanarYuv::Nv12 | PlanarYuv::Nv21 | PlanarYuv::Yu12 | PlanarYuv::Yv12 => 2,
-            PlanarYuv::Nv16 | PlanarYuv::Nv61 | PlanarYuv::Yuv422p => 1,
+            _ => 1,
+        }
+    }
+
+    /// Pixels of a row per Cb, Cr pair: 2 for 4:2:0 and 4:2:2, 1 for 4:4:4.
+    pub fn pixels_per_chroma_pair(self) -> usize {
+        match self {
+            PlanarYuv::Nv24 | PlanarYuv::Nv42 => 1,
+            _ => 2,
         }
     }
 
     /// Whether Cb and Cr are interleaved in one plane (else each has a plane of its own, of
     /// half the luma's row length).
     pub fn interleaved(self) -> bool {
-        matches!(
-            self,
-            PlanarYuv::Nv12 | PlanarYuv::Nv21 | PlanarYuv::Nv16 | PlanarYuv::Nv61
-        )
+        !matches!(self, PlanarYuv::Yu12 | PlanarYuv::Yv12 | PlanarYuv::Yuv422p)
     }
 
     /// Where the chroma of a frame of this layout is, from the luma plane's `stride` and the
-    /// frame's `height` (even for 4:2:0; for the three-plane layouts the stride too).
+    /// frame's `height` (even for 4:2:0; for the three-plane layouts the stride too). An
+    /// interleaved plane's rows are `stride` bytes apart, or twice that for 4:4:4 (a pair per
+    /// pixel: V4L2's chroma bytes per line for `NV24`).
     fn chroma(self, stride: usize, height: usize) -> Option<ChromaPlanes> {
         let luma = stride.checked_mul(height)?;
         let rows = height / self.rows_per_chroma_row();
         let cb_first = matches!(
             self,
-            PlanarYuv::Nv12 | PlanarYuv::Nv16 | PlanarYuv::Yu12 | PlanarYuv::Yuv422p
+            PlanarYuv::Nv12
+                | PlanarYuv::Nv16
+                | PlanarYuv::Nv24
+                | PlanarYuv::Yu12
+                | PlanarYuv::Yuv422p
         );
         let (first, second, stride, step) = if self.interleaved() {
-            (luma, luma + 1, stride, 2)
+            let chroma_stride = stride.checked_mul(2 / self.pixels_per_chroma_pair())?;
+            (luma, luma + 1, chroma_stride, 2)
         } else {
             let second = luma.checked_add((stride / 2).checked_mul(rows)?)?;
             (luma, second, stride / 2, 1)
@@ -181,6 +201,7 @@ impl PlanarYuv {
             stride,
             step,
             rows_per: self.rows_per_chroma_row(),
+            pixels_per: self.pixels_per_chroma_pair(),
         })
     }
 }
@@ -195,6 +216,8 @@ struct ChromaPlanes {
     stride: usize,
     step: usize,
     rows_per: usize,
+    /// Pixels of a row per pair: 2 (4:2:0, 4:2:2) or 1 (4:4:4).
+    pixels_per: usize,
 }
 
 /// The pixel formats envlight converts.
@@ -203,8 +226,8 @@ pub enum PixelFormat {
     Yuyv,
     /// YUYV's samples in the order U Y0 V Y1.
     Uyvy,
-    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`) or 4:2:2 (`NV16`, `NV61`,
-    /// `422P`).
+    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`), 4:2:2 (`NV16`, `NV61`, `422P`) or
+    /// 4:4:4 (`NV24`, `NV42`).
     PlanarYuv(PlanarYuv),
     Mjpeg,
     /// Grey with 8, 10, 12, 14 or 16 significant bits.
@@ -226,7 +249,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 35] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 37] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -310,6 +333,8 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 35] = {
         Bgr24,
         Yuyv,
         Uyvy,
+        PlanarYuv(self::PlanarYuv::Nv24),
+        PlanarYuv(self::PlanarYuv::Nv42),
         PlanarYuv(self::PlanarYuv::Nv16),
         PlanarYuv(self::PlanarYuv::Yuv422p),
         PlanarYuv(self::PlanarYuv::Nv61),
@@ -435,6 +460,8 @@ impl PixelFormat {
             b"NV16" => PixelFormat::PlanarYuv(PlanarYuv::Nv16),
             b"NV61" => PixelFormat::PlanarYuv(PlanarYuv::Nv61),
             b"422P" => PixelFormat::PlanarYuv(PlanarYuv::Yuv422p),
+            b"NV24" => PixelFormat::PlanarYuv(PlanarYuv::Nv24),
+            b"NV42" => PixelFormat::PlanarYuv(PlanarYuv::Nv42),
             b"YU12" => PixelFormat::PlanarYuv(PlanarYuv::Yu12),
             b"YV12" => PixelFormat::PlanarYuv(PlanarYuv::Yv12),
             b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
@@ -963,7 +990,15 @@ impl<'a> BandDecoder<'a> {
                 for (y, dst) in rows {
                     let luma = self.row(y).chunks_exact(2);
                     let pairs = dst.chunks_exact_mut(2);
-                    if chroma.step == 2 {
+                    if chroma.pixels_per == 1 {
+                        // 4:4:4: a Cb, Cr pair (Cr, Cb for NV42) for every pixel.
+                        let cb_first = chroma.cb < chroma.cr;
+                        let cbcr = chroma_row(chroma.cb.min(chroma.cr), y, 2 * w).chunks_exact(2);
+                        for ((&l, c), px) in self.row(y).iter().zip(cbcr).zip(dst.iter_mut()) {
+                            let (u, v) = if cb_first { (c[0], c[1]) } else { (c[1], c[0]) };
+                            *px = to_rgb.pixel(l, u, v);
+                        }
+                    } else if chroma.step == 2 {
                         // One plane of interleaved pairs: Cb first (NV12) or Cr first (NV21).
                         let cb_first = chroma.cb < chroma.cr;
                         let cbcr = chroma_row(chroma.cb.min(chroma.cr), y, w).chunks_exact(2);
@@ -1107,15 +1142,21 @@ impl YcbcrToRgb {
     /// Two pixels that share one chroma pair: their luma codes, Cb and Cr.
     #[inline]
     fn pair(&self, luma: [u8; 2], cb: u8, cr: u8, out: &mut [[f32; 3]]) {
+        for (k, luma) in luma.into_iter().enumerate() {
+            out[k] = self.pixel(luma, cb, cr);
+        }
+    }
+
+    /// One pixel: its luma code, Cb and Cr.
+    #[inline]
+    fn pixel(&self, luma: u8, cb: u8, cr: u8) -> [f32; 3] {
         let u = (f32::from(cb) - 128.0) / 224.0;
         let v = (f32::from(cr) - 128.0) / 224.0;
-        for (k, luma) in luma.into_iter().enumerate() {
-            let l = (f32::from(luma) - 16.0) / 219.0;
-            let r = l + self.rv * v;
-            let b = l + self.bu * u;
-            let g = (l - self.kr * r - self.kb * b) * self.kg;
-            out[k] = [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)];
-        }
+        let l = (f32::from(luma) - 16.0) / 219.0;
+        let r = l + self.rv * v;
+        let b = l + self.bu * u;
+        let g = (l - self.kr * r - self.kb * b) * self.kg;
+        [r.clamp(0.0, 1.0), g.clamp(0.0, 1.0), b.clamp(0.0, 1.0)]
     }
 }
 
@@ -1189,6 +1230,7 @@ fn frame_layout(
             2,
             "width must be even (12-bit packed: 2 samples in 3 bytes)",
         ),
+        PixelFormat::PlanarYuv(layout) if layout.pixels_per_chroma_pair() == 1 => (1, ""),
         PixelFormat::Yuyv
         | PixelFormat::Uyvy
         | PixelFormat::PlanarYuv(_)
@@ -1230,7 +1272,7 @@ fn frame_layout(
     // The last chroma sample of each plane, one past it.
     let chroma_end = |c: ChromaPlanes| {
         let last = (h as usize / c.rows_per - 1).checked_mul(c.stride)?;
-        let last = last.checked_add((w as usize / 2 - 1) * c.step)?;
+        let last = last.checked_add((w as usize / c.pixels_per - 1) * c.step)?;
         c.cb.max(c.cr).checked_add(last)?.checked_add(1)
     };
     let needed = match chroma {
@@ -1658,7 +1700,11 @@ mod tests {
             PixelFormat::parse("I420"),
             Some(PixelFormat::PlanarYuv(PlanarYuv::Yu12))
         );
-        assert_eq!(PixelFormat::parse("NV24"), None);
+        assert_eq!(
+            PixelFormat::parse("nv24"),
+            Some(PixelFormat::PlanarYuv(PlanarYuv::Nv24))
+        );
+        assert_eq!(PixelFormat::parse("AYUV"), None);
         assert_eq!(
             PixelFormat::parse("422p"),
             Some(PixelFormat::PlanarYuv(PlanarYuv::Yuv422p))
@@ -1830,9 +1876,10 @@ mod tests {
         );
     }
 
-    /// UYVY and the seven planar layouts (4:2:0 and 4:2:2) of one image (with and without row
-    /// padding) decode to the same bits as YUYV carrying the same samples (for 4:2:0 each
-    /// chroma pair repeated on the two rows it covers), which the known-value test below pins;
+    /// UYVY and the nine planar layouts (4:2:0, 4:2:2 and 4:4:4) of one image (with and without
+    /// row padding) decode to the same bits as YUYV carrying the same samples (for 4:2:0 each
+    /// chroma pair repeated on the two rows it covers, for 4:4:4 on the two pixels of the
+    /// YUYV pair), which the known-value test below pins;
     /// known values for black, white and BT.601 red; and their buffers are checked.
     #[test]
     fn uyvy_and_planar_layouts_equal_yuyv_with_the_same_samples() {
@@ -1889,22 +1936,29 @@ mod tests {
                 }
                 out
             };
+            // Pairs per chroma row: w / 2, or w for 4:4:4 (each sample for both pixels of
+            // the YUYV pair), the rows `stride` (4:4:4: 2 × stride) bytes apart.
+            let repeat = 2 / layout.pixels_per_chroma_pair();
             let interleave = |first: &[u8], second: &[u8]| {
                 let pairs: Vec<u8> = first
                     .iter()
                     .zip(second)
-                    .flat_map(|(&a, &b)| [a, b])
+                    .flat_map(|(&a, &b)| [a, b].repeat(repeat))
                     .collect();
                 let mut out = Vec::new();
-                for row in pairs.chunks(w) {
+                for row in pairs.chunks(w * repeat) {
                     out.extend(row);
-                    out.resize(out.len() + stride - w, 0xEE);
+                    out.resize(out.len() + (stride - w) * repeat, 0xEE);
                 }
                 out
             };
             match layout {
-                PlanarYuv::Nv12 | PlanarYuv::Nv16 => data.extend(interleave(cb, cr)),
-                PlanarYuv::Nv21 | PlanarYuv::Nv61 => data.extend(interleave(cr, cb)),
+                PlanarYuv::Nv12 | PlanarYuv::Nv16 | PlanarYuv::Nv24 => {
+                    data.extend(interleave(cb, cr))
+                }
+                PlanarYuv::Nv21 | PlanarYuv::Nv61 | PlanarYuv::Nv42 => {
+                    data.extend(interleave(cr, cb))
+                }
                 PlanarYuv::Yu12 | PlanarYuv::Yuv422p => {
                     data.extend([plane(cb, stride / 2), plane(cr, stride / 2)].concat())
                 }
@@ -1937,7 +1991,7 @@ mod tests {
                 // The last row's padding is not needed.
                 let needed = format.buffer_len(w32, h32, stride).unwrap();
                 let last_padding = if layout.interleaved() {
-                    stride - w
+                    (stride - w) * 2 / layout.pixels_per_chroma_pair()
                 } else {
                     (stride - w) / 2
                 };
@@ -1981,6 +2035,29 @@ mod tests {
             for p in &img.pixels {
                 assert!(close(*p, rgb, 0.006), "{p:?} for {rgb:?}");
             }
+        }
+        // 4:4:4 gives every pixel its own chroma: red, blue, white on one row of 3 (an odd
+        // width and height are fine), in NV24 and NV42, each as its own 2 × 2 NV12 frame.
+        let samples = [(81u8, 90u8, 240u8), (41, 240, 110), (235, 128, 128)];
+        let one_colour = |&(y, cb, cr): &(u8, u8, u8)| {
+            let format = PixelFormat::PlanarYuv(PlanarYuv::Nv12);
+            decode(&raw(&[y, y, y, y, cb, cr], format, 2, 2), YuvMatrix::Bt601)
+                .unwrap()
+                .pixels[0]
+        };
+        let want: Vec<u32> = samples
+            .iter()
+            .flat_map(|s| one_colour(s).map(f32::to_bits))
+            .collect();
+        for (layout, cb_first) in [(PlanarYuv::Nv24, true), (PlanarYuv::Nv42, false)] {
+            let mut data: Vec<u8> = samples.iter().map(|s| s.0).collect();
+            for &(_, cb, cr) in &samples {
+                data.extend(if cb_first { [cb, cr] } else { [cr, cb] });
+            }
+            let format = PixelFormat::PlanarYuv(layout);
+            assert_eq!(format.buffer_len(3, 1, 0), Some(data.len()));
+            let got = decode(&raw(&data, format, 3, 1), YuvMatrix::Bt601).unwrap();
+            assert_eq!(bits(&got), want, "{format}");
         }
         // Odd sizes and an odd stride of the three-plane layouts are errors.
         let data = [0u8; 64];

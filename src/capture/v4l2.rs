@@ -1021,11 +1021,16 @@ mod tests {
             single(&pref, &[*b"NV12", *b"YUYV"]),
             Some(PixelFormat::Yuyv)
         );
-        assert_eq!(single(&pref, &[*b"NV24"]), None);
-        // 4:2:2 (a chroma row per row) comes before 4:2:0.
+        assert_eq!(single(&pref, &[*b"AYUV"]), None);
+        // 4:2:2 (a chroma row per row) comes before 4:2:0, and 4:4:4 (a pair per pixel)
+        // before both.
         assert_eq!(
             single(&pref, &[*b"NV12", *b"NV16"]),
             Some(PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv16))
+        );
+        assert_eq!(
+            single(&pref, &[*b"NV12", *b"NV16", *b"NV42"]),
+            Some(PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv42))
         );
         // A multi-planar node offers NV12 in two planes as NM12: chosen for NV12, and asked
         // for under its own code. A single-planar node knows no NM12.
