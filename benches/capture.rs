@@ -239,6 +239,17 @@ fn mjpeg(scene: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// A packed `W`×`H` frame of `format` in `data`.
+fn frame(format: PixelFormat, data: &[u8]) -> RawFrame<'_> {
+    RawFrame {
+        data,
+        format,
+        width: W,
+        height: H,
+        stride: 0,
+    }
+}
+
 fn bench_capture(c: &mut Criterion) {
     let scene = scene();
     let buffers = [
@@ -296,13 +307,7 @@ fn bench_capture(c: &mut Criterion) {
     // The packed buffers hold the words' samples: the same codes once decoded.
     let codes_of = |name: &str| {
         let (_, format, data) = buffers.iter().find(|b| b.0 == name).expect("a buffer");
-        let raw = RawFrame {
-            data,
-            format: *format,
-            width: W,
-            height: H,
-            stride: 0,
-        };
+        let raw = frame(*format, data);
         let mut codes = CodeImage {
             width: 0,
             height: 0,
@@ -327,13 +332,7 @@ fn bench_capture(c: &mut Criterion) {
     // Two threads in all, as the camera source converts: the bench's thread and one helper.
     let pool2 = envlight::parallel::helper_pool(2, "bench-convert").expect("a helper thread");
     for (name, format, data) in &buffers {
-        let raw = RawFrame {
-            data,
-            format: *format,
-            width: W,
-            height: H,
-            stride: 0,
-        };
+        let raw = frame(*format, data);
         let model = if format.is_raw() {
             ResponseModel::Linear
         } else {

@@ -199,29 +199,32 @@ def parse_json_frame(message):
         frame.update(basis=str(message.get("basis")), levels=levels, side=side,
                      coefficients=coefficients)
     elif representation == 1:
-        lobes = []
-        for i, g in enumerate(records("lobes")):
-            if not isinstance(g, dict):
-                raise ValueError(f"{where}: lobe {i} is not an object")
-            what = f"{where} lobe {i}"
-            lobes.append({"id": g.get("id"), "axis": numbers(g.get("axis"), 3, f"{what} axis"),
-                          "tangent": numbers(g.get("tangent"), 3, f"{what} tangent"),
-                          "lambda": number(g.get("lambda"), f"{what} lambda"),
-                          "mu": number(g.get("mu"), f"{what} mu"),
-                          "rgb": numbers(g.get("rgb"), 3, f"{what} rgb"),
-                          "integral": number(g.get("integral"), f"{what} integral")})
-        frame["lobes"] = lobes
+        frame["lobes"] = objects(records("lobes"), f"{where} lobe", LOBE_FIELDS)
     else:
-        lights = []
-        for i, l in enumerate(records("lights")):
-            if not isinstance(l, dict):
-                raise ValueError(f"{where}: light {i} is not an object")
-            what = f"{where} light {i}"
-            lights.append({"id": l.get("id"), "dir": numbers(l.get("dir"), 3, f"{what} dir"),
-                           "rgb": numbers(l.get("rgb"), 3, f"{what} rgb"),
-                           "solid_angle": number(l.get("solid_angle"), f"{what} solid_angle")})
-        frame["lights"] = lights
+        frame["lights"] = objects(records("lights"), f"{where} light", LIGHT_FIELDS)
     return frame
+
+
+# The numbers of a JSON light and lobe (docs/protocol.md), each with its count: 1 is a number,
+# 3 a list of three.
+LIGHT_FIELDS = (("dir", 3), ("rgb", 3), ("solid_angle", 1))
+LOBE_FIELDS = (("axis", 3), ("tangent", 3), ("lambda", 1), ("mu", 1), ("rgb", 3), ("integral", 1))
+
+
+def objects(items, what, fields):
+    """The records of a JSON frame's list `items` ("frame 7 light" is `what`): each an object
+    with an id and the numbers of `fields`; ValueError naming the record and field otherwise."""
+    out = []
+    for i, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ValueError(f"{what} {i} is not an object")
+        record = {"id": item.get("id")}
+        for key, n in fields:
+            value = item.get(key) if n > 1 else [item.get(key)]
+            found = numbers(value, n, f"{what} {i} {key}")
+            record[key] = found if n > 1 else found[0]
+        out.append(record)
+    return out
 
 
 # Per representation code: the bytes of its fields after `count`, and of each record.

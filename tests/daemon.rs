@@ -2334,37 +2334,36 @@ fn the_python_client_decodes_json_frames_as_binary_ones() {
         time: 0.4,
         coefficients: (0..9).map(|i| [i as f32 / 3.0, -0.01, 1e-3]).collect(),
     };
-    let mut binary = Vec::new();
-    let mut json = Vec::new();
-    let mut add = |bytes: Vec<u8>, text: String| {
-        // The body after length, magic, version and type, as `parse_frame` takes it.
-        binary.push(hex(&bytes[12..]));
-        json.push(text);
-    };
-    fn hex(bytes: &[u8]) -> String {
-        bytes.iter().map(|b| format!("{b:02x}")).collect()
-    }
-    let mut bytes = Vec::new();
-    encode_frame(&lights, None, false, &mut bytes);
-    add(
-        std::mem::take(&mut bytes),
-        frame_to_json(&lights, None, false),
-    );
-    encode_asg_frame(&asg, None, true, &mut bytes);
-    add(
-        std::mem::take(&mut bytes),
-        asg_frame_to_json(&asg, None, true),
-    );
-    encode_wavelet_frame(&wavelet, None, false, &mut bytes);
-    add(
-        std::mem::take(&mut bytes),
-        wavelet_frame_to_json(&wavelet, None, false),
-    );
-    encode_sh_frame(&sh, None, false, &mut bytes);
-    add(
-        std::mem::take(&mut bytes),
-        sh_frame_to_json(&sh, None, false),
-    );
+    // Each frame's binary message (as hex) and JSON line.
+    type Encode<'a> = &'a dyn Fn(&mut Vec<u8>);
+    let encoded: [(Encode, String); 4] = [
+        (
+            &|b| encode_frame(&lights, None, false, b),
+            frame_to_json(&lights, None, false),
+        ),
+        (
+            &|b| encode_asg_frame(&asg, None, true, b),
+            asg_frame_to_json(&asg, None, true),
+        ),
+        (
+            &|b| encode_wavelet_frame(&wavelet, None, false, b),
+            wavelet_frame_to_json(&wavelet, None, false),
+        ),
+        (
+            &|b| encode_sh_frame(&sh, None, false, b),
+            sh_frame_to_json(&sh, None, false),
+        ),
+    ];
+    let (binary, json): (Vec<String>, Vec<String>) = encoded
+        .into_iter()
+        .map(|(encode, text)| {
+            let mut bytes = Vec::new();
+            encode(&mut bytes);
+            // The body after length, magic, version and type, as `parse_frame` takes it.
+            let hex: String = bytes[12..].iter().map(|b| format!("{b:02x}")).collect();
+            (hex, text)
+        })
+        .unzip();
     let script = format!(
         r#"
 import json, math, sys
