@@ -9,7 +9,8 @@
 //! | YUYV 4:2:2         | `YUYV`                      | limited-range Y'CbCr → R'G'B', BT.601 or BT.709   |
 //! | UYVY 4:2:2         | `UYVY`                      | the same, bytes U Y0 V Y1                         |
 //! | Y'CbCr 4:2:0, planar | `NV12`, `NV21`, `YU12`, `YV12` | the same, one chroma pair per 2×2 pixels       |
-//! | Y'CbCr 4:2:2, planar | `NV16`, `NV61`, `422P`    | the same, one chroma pair per 2×1 pixels (as YUYV) |
+//! | Y'CbCr 4:2:2, planar | `NV16`, `NV61`, `422P`, `YM61` | the same, one chroma pair per 2×1 pixels (as YUYV) |
+//! | Y'CbCr 4:4:4, planar | `NV24`, `NV42`, `YM24`, `YM42` | the same, one chroma pair per pixel        |
 //! | Motion JPEG        | `MJPG`, `JPEG`              | `zune-jpeg` (JFIF full-range BT.601) → RGB        |
 //! | grey 8/10/12/14/16 | `GREY`, `Y10 `, `Y12 `, `Y14 `, `Y16 ` | one code per pixel (16-bit little-endian words), R = G = B |
 //! | RGB24 / BGR24      | `RGB3`, `BGR3`              | byte order swapped for BGR                        |
@@ -36,8 +37,12 @@
 //! must be even, and for the three-plane layouts the stride too. The 4:2:2 layouts are the
 //! same with a chroma row for every luma row: `NV16` (Cb, Cr) and `NV61` (Cr, Cb) interleaved
 //! in one plane of `height` rows, `422P` a Cb then a Cr plane of `height` rows of stride/2
-//! bytes; each chroma pair is that of the two pixels it covers, as in YUYV. Their height may
-//! be odd.
+//! bytes (`YM61`, a multi-planar node's YVU 4:2:2 in three planes, gathered into one buffer:
+//! a Cr then a Cb plane); each chroma pair is that of the two pixels it covers, as in YUYV.
+//! Their height may be odd. The 4:4:4 layouts give every pixel its own pair: `NV24` (Cb, Cr)
+//! and `NV42` (Cr, Cb) interleaved in one plane of `height` rows 2 × stride bytes apart, and
+//! the multi-planar `YM24` (Cb plane, then Cr) and `YM42` (Cr, then Cb), gathered into one
+//! buffer, planes of `height` rows of `stride` bytes; any width and height.
 //!
 //! Bayer demosaic (bilinear): each pixel keeps its own colour; a missing colour is the mean of
 //! the pixels of that colour in its 3×3 neighbourhood (the 2 or 4 nearest samples). Borders are
@@ -117,10 +122,17 @@ pub enum PlanarYuv {
     Nv24,
     /// `NV42`: luma, then one plane of interleaved Cr, Cb (4:4:4).
     Nv42,
+    /// `YM61` (YVU 4:2:2 in three planes on a multi-planar node, which has no one-buffer
+    /// code): luma, Cr plane, Cb plane, gathered into one buffer.
+    Yvu422p,
+    /// `YM24` (YUV 4:4:4 in three planes, multi-planar only): luma, Cb plane, Cr plane.
+    Yuv444p,
+    /// `YM42` (YVU 4:4:4 in three planes, multi-planar only): luma, Cr plane, Cb plane.
+    Yvu444p,
 }
 
 impl PlanarYuv {
-    pub const ALL: [PlanarYuv; 9] = [
+    pub const ALL: [PlanarYuv; 12] = [
         PlanarYuv::Nv12,
         PlanarYuv::Nv21,
         PlanarYuv::Yu12,
@@ -130,6 +142,9 @@ impl PlanarYuv {
         PlanarYuv::Yuv422p,
         PlanarYuv::Nv24,
         PlanarYuv::Nv42,
+        PlanarYuv::Yvu422p,
+        PlanarYuv::Yuv444p,
+        PlanarYuv::Yvu444p,
     ];
 
     fn fourcc(self) -> [u8; 4] {
@@ -143,6 +158,9 @@ impl PlanarYuv {
             PlanarYuv::Yuv422p => *b"422P",
             PlanarYuv::Nv24 => *b"NV24",
             PlanarYuv::Nv42 => *b"NV42",
+            PlanarYuv::Yvu422p => *b"YM61",
+            PlanarYuv::Yuv444p => *b"YM24",
+            PlanarYuv::Yvu444p => *b"YM42",
         }
     }
 
@@ -157,15 +175,23 @@ impl PlanarYuv {
     /// Pixels of a row per Cb, Cr pair: 2 for 4:2:0 and 4:2:2, 1 for 4:4:4.
     pub fn pixels_per_chroma_pair(self) -> usize {
         match self {
-            PlanarYuv::Nv24 | PlanarYuv::Nv42 => 1,
+            PlanarYuv::Nv24 | PlanarYuv::Nv42 | PlanarYuv::Yuv444p | PlanarYuv::Yvu444p => 1,
             _ => 2,
         }
     }
 
     /// Whether Cb and Cr are interleaved in one plane (else each has a plane of its own, of
-    /// half the luma's row length).
+    /// the luma's row length for 4:4:4, half of it otherwise).
     pub fn interleaved(self) -> bool {
-        !matches!(self, PlanarYuv::Yu12 | PlanarYuv::Yv12 | PlanarYuv::Yuv422p)
+        !matches!(
+            self,
+            PlanarYuv::Yu12
+                | PlanarYuv::Yv12
+                | PlanarYuv::Yuv422p
+                | PlanarYuv::Yvu422p
+                | PlanarYuv::Yuv444p
+                | PlanarYuv::Yvu444p
+        )
     }
 
     /// Where the chroma of a frame of this layout is, from the luma plane's `stride` and the
@@ -182,13 +208,15 @@ impl PlanarYuv {
                 | PlanarYuv::Nv24
                 | PlanarYuv::Yu12
                 | PlanarYuv::Yuv422p
+                | PlanarYuv::Yuv444p
         );
         let (first, second, stride, step) = if self.interleaved() {
             let chroma_stride = stride.checked_mul(2 / self.pixels_per_chroma_pair())?;
             (luma, luma + 1, chroma_stride, 2)
         } else {
-            let second = luma.checked_add((stride / 2).checked_mul(rows)?)?;
-            (luma, second, stride / 2, 1)
+            let chroma_stride = stride / self.pixels_per_chroma_pair();
+            let second = luma.checked_add(chroma_stride.checked_mul(rows)?)?;
+            (luma, second, chroma_stride, 1)
         };
         let (cb, cr) = if cb_first {
             (first, second)
@@ -226,8 +254,8 @@ pub enum PixelFormat {
     Yuyv,
     /// YUYV's samples in the order U Y0 V Y1.
     Uyvy,
-    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`), 4:2:2 (`NV16`, `NV61`, `422P`) or
-    /// 4:4:4 (`NV24`, `NV42`).
+    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`), 4:2:2 (`NV16`, `NV61`, `422P`,
+    /// `YM61`) or 4:4:4 (`NV24`, `NV42`, `YM24`, `YM42`).
     PlanarYuv(PlanarYuv),
     Mjpeg,
     /// Grey with 8, 10, 12, 14 or 16 significant bits.
@@ -249,7 +277,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 37] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 40] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -334,10 +362,13 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 37] = {
         Yuyv,
         Uyvy,
         PlanarYuv(self::PlanarYuv::Nv24),
+        PlanarYuv(self::PlanarYuv::Yuv444p),
         PlanarYuv(self::PlanarYuv::Nv42),
+        PlanarYuv(self::PlanarYuv::Yvu444p),
         PlanarYuv(self::PlanarYuv::Nv16),
         PlanarYuv(self::PlanarYuv::Yuv422p),
         PlanarYuv(self::PlanarYuv::Nv61),
+        PlanarYuv(self::PlanarYuv::Yvu422p),
         PlanarYuv(self::PlanarYuv::Nv12),
         PlanarYuv(self::PlanarYuv::Yu12),
         PlanarYuv(self::PlanarYuv::Nv21),
@@ -462,6 +493,9 @@ impl PixelFormat {
             b"422P" => PixelFormat::PlanarYuv(PlanarYuv::Yuv422p),
             b"NV24" => PixelFormat::PlanarYuv(PlanarYuv::Nv24),
             b"NV42" => PixelFormat::PlanarYuv(PlanarYuv::Nv42),
+            b"YM61" => PixelFormat::PlanarYuv(PlanarYuv::Yvu422p),
+            b"YM24" => PixelFormat::PlanarYuv(PlanarYuv::Yuv444p),
+            b"YM42" => PixelFormat::PlanarYuv(PlanarYuv::Yvu444p),
             b"YU12" => PixelFormat::PlanarYuv(PlanarYuv::Yu12),
             b"YV12" => PixelFormat::PlanarYuv(PlanarYuv::Yv12),
             b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
@@ -990,7 +1024,7 @@ impl<'a> BandDecoder<'a> {
                 for (y, dst) in rows {
                     let luma = self.row(y).chunks_exact(2);
                     let pairs = dst.chunks_exact_mut(2);
-                    if chroma.pixels_per == 1 {
+                    if chroma.step == 2 && chroma.pixels_per == 1 {
                         // 4:4:4: a Cb, Cr pair (Cr, Cb for NV42) for every pixel.
                         let cb_first = chroma.cb < chroma.cr;
                         let cbcr = chroma_row(chroma.cb.min(chroma.cr), y, 2 * w).chunks_exact(2);
@@ -1005,6 +1039,13 @@ impl<'a> BandDecoder<'a> {
                         for ((l, c), pair) in luma.zip(cbcr).zip(pairs) {
                             let (u, v) = if cb_first { (c[0], c[1]) } else { (c[1], c[0]) };
                             to_rgb.pair([l[0], l[1]], u, v, pair);
+                        }
+                    } else if chroma.pixels_per == 1 {
+                        // 4:4:4 in three planes: a Cb and a Cr sample for every pixel.
+                        let (cb, cr) = (chroma_row(chroma.cb, y, w), chroma_row(chroma.cr, y, w));
+                        let samples = self.row(y).iter().zip(cb).zip(cr);
+                        for (((&l, &u), &v), px) in samples.zip(dst.iter_mut()) {
+                            *px = to_rgb.pixel(l, u, v);
                         }
                     } else {
                         let (cb, cr) = (
@@ -1255,7 +1296,9 @@ fn frame_layout(
         )));
     }
     let chroma = match format {
-        PixelFormat::PlanarYuv(layout) if !layout.interleaved() && stride % 2 != 0 => {
+        PixelFormat::PlanarYuv(layout)
+            if !layout.interleaved() && layout.pixels_per_chroma_pair() == 2 && stride % 2 != 0 =>
+        {
             return Err(geometry(&format!(
                 "stride {stride} must be even ({layout:?}: the chroma rows are half as long)"
             )));
@@ -1928,17 +1971,20 @@ mod tests {
                 data.extend(row);
                 data.resize(data.len() + stride - w, 0xEE);
             }
-            let plane = |samples: &[u8], row_stride: usize| {
+            // Pairs per chroma row: w / 2, or w for 4:4:4 (each sample for both pixels of
+            // the YUYV pair), the rows `stride` (4:4:4: 2 × stride) bytes apart; a plane's
+            // rows stride / 2 (4:4:4: stride) apart.
+            let repeat = 2 / layout.pixels_per_chroma_pair();
+            let plane_stride = stride * repeat / 2;
+            let plane = |samples: &[u8]| {
                 let mut out = Vec::new();
                 for row in samples.chunks(w / 2) {
-                    out.extend(row);
-                    out.resize(out.len() + row_stride - w / 2, 0xEE);
+                    let row: Vec<u8> = row.iter().flat_map(|&c| [c].repeat(repeat)).collect();
+                    out.extend(&row);
+                    out.resize(out.len() + plane_stride - row.len(), 0xEE);
                 }
                 out
             };
-            // Pairs per chroma row: w / 2, or w for 4:4:4 (each sample for both pixels of
-            // the YUYV pair), the rows `stride` (4:4:4: 2 × stride) bytes apart.
-            let repeat = 2 / layout.pixels_per_chroma_pair();
             let interleave = |first: &[u8], second: &[u8]| {
                 let pairs: Vec<u8> = first
                     .iter()
@@ -1959,11 +2005,11 @@ mod tests {
                 PlanarYuv::Nv21 | PlanarYuv::Nv61 | PlanarYuv::Nv42 => {
                     data.extend(interleave(cr, cb))
                 }
-                PlanarYuv::Yu12 | PlanarYuv::Yuv422p => {
-                    data.extend([plane(cb, stride / 2), plane(cr, stride / 2)].concat())
+                PlanarYuv::Yu12 | PlanarYuv::Yuv422p | PlanarYuv::Yuv444p => {
+                    data.extend([plane(cb), plane(cr)].concat())
                 }
-                PlanarYuv::Yv12 => {
-                    data.extend([plane(cr, stride / 2), plane(cb, stride / 2)].concat())
+                PlanarYuv::Yv12 | PlanarYuv::Yvu422p | PlanarYuv::Yvu444p => {
+                    data.extend([plane(cr), plane(cb)].concat())
                 }
             }
             data
@@ -1993,7 +2039,7 @@ mod tests {
                 let last_padding = if layout.interleaved() {
                     (stride - w) * 2 / layout.pixels_per_chroma_pair()
                 } else {
-                    (stride - w) / 2
+                    (stride - w) / layout.pixels_per_chroma_pair()
                 };
                 assert_eq!(
                     needed,

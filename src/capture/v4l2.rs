@@ -1034,12 +1034,27 @@ mod tests {
         );
         // A multi-planar node offers NV12 in two planes as NM12: chosen for NV12, and asked
         // for under its own code. A single-planar node knows no NM12.
-        let mplane = [*b"YM61", *b"NM12"];
+        let mplane = [*b"AYUV", *b"NM12"];
         assert_eq!(
             choose_format(&pref, &mplane, CaptureApi::MultiPlanar),
             Some((nv12, *b"NM12"))
         );
         assert_eq!(single(&pref, &mplane), None);
+        // The three-plane layouts without a one-buffer code (YVU 4:2:2, 4:4:4) are their own.
+        assert_eq!(
+            choose_format(&pref, &[*b"NM12", *b"YM61"], CaptureApi::MultiPlanar),
+            Some((
+                PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Yvu422p),
+                *b"YM61"
+            ))
+        );
+        assert_eq!(
+            choose_format(&pref, &[*b"YM61", *b"YM42"], CaptureApi::MultiPlanar),
+            Some((
+                PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Yvu444p),
+                *b"YM42"
+            ))
+        );
     }
 
     #[test]

@@ -189,10 +189,15 @@ pub(super) fn plane_rows(
     match (format, planes) {
         (_, 1) => Some(vec![(format.row_bytes(width), h)]),
         (PixelFormat::PlanarYuv(layout), 2) if layout.interleaved() => {
-            Some(vec![(w, h), (w, h / layout.rows_per_chroma_row())])
+            // A pair per pixel (4:4:4) or per two.
+            let row = 2 * w / layout.pixels_per_chroma_pair();
+            Some(vec![(w, h), (row, h / layout.rows_per_chroma_row())])
         }
         (PixelFormat::PlanarYuv(layout), 3) if !layout.interleaved() => {
-            let chroma = (w / 2, h / layout.rows_per_chroma_row());
+            let chroma = (
+                w / layout.pixels_per_chroma_pair(),
+                h / layout.rows_per_chroma_row(),
+            );
             Some(vec![(w, h), chroma, chroma])
         }
         _ => None,
@@ -256,6 +261,10 @@ mod tests {
             (*b"YM21", yuv(PlanarYuv::Yv12)),
             (*b"NM16", yuv(PlanarYuv::Nv16)),
             (*b"YM16", yuv(PlanarYuv::Yuv422p)),
+            // Three-plane layouts without a one-buffer code stand for themselves.
+            (*b"YM61", yuv(PlanarYuv::Yvu422p)),
+            (*b"YM24", yuv(PlanarYuv::Yuv444p)),
+            (*b"YM42", yuv(PlanarYuv::Yvu444p)),
             // Codes a multi-planar node offers in one plane are read as on any node.
             (*b"NV12", yuv(PlanarYuv::Nv12)),
             (
@@ -265,8 +274,8 @@ mod tests {
                     bits: 10,
                 }),
             ),
-            // YVU 4:2:2 in three planes has no one-buffer twin in V4L2: not converted.
-            (*b"YM61", None),
+            // Packed 4:4:4 with alpha: not converted.
+            (*b"AYUV", None),
         ] {
             assert_eq!(
                 pixel_format(code),
@@ -311,6 +320,9 @@ mod tests {
             (PlanarYuv::Nv16, vec![(6, 4), (6, 4)]),
             (PlanarYuv::Nv61, vec![(6, 4), (6, 4)]),
             (PlanarYuv::Yuv422p, vec![(6, 4), (3, 4), (3, 4)]),
+            (PlanarYuv::Yvu422p, vec![(6, 4), (3, 4), (3, 4)]),
+            (PlanarYuv::Yuv444p, vec![(6, 4), (6, 4), (6, 4)]),
+            (PlanarYuv::Yvu444p, vec![(6, 4), (6, 4), (6, 4)]),
         ] {
             let format = PixelFormat::PlanarYuv(layout);
             let len = format.buffer_len(w, h, 0).unwrap();
