@@ -52,6 +52,7 @@ enum Command {
     /// Validate a config file without running anything.
     CheckConfig(daemon::CheckConfigArgs),
     /// Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
+    #[command(long_about = fit_asg::LONG_ABOUT)]
     FitAsg(fit_asg::FitAsgArgs),
     /// Connect to a running daemon and print its light stream (or ASG, wavelet or SH sets).
     #[command(long_about = subscribe::LONG_ABOUT)]

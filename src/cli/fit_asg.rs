@@ -10,6 +10,17 @@ use envlight::envmap::Projection;
 use std::io::Write;
 use std::path::PathBuf;
 
+/// `envlight fit-asg --help`.
+pub(crate) const LONG_ABOUT: &str = "\
+Fit anisotropic spherical Gaussians to HDR frames (files or the built-in sky), JSON Lines.
+
+Each frame's K lobes are fitted as the daemon's [asg] stage fits them (the first frame from
+scratch, each later one warm-started; docs/asg.md) and then, by default, filtered in time by lobe
+id with the lights' FIR taps (energy, power-weighted axis and tangent, bandwidths), so that they
+describe the moment the lights of `envlight decompose` describe (3 frames behind with the default
+taps). --no-filter prints each frame's own fit; --taps sets the taps. Each line's \"loss\" is that
+of its frame's own fit, before the filter.";
+
 /// `fit-asg`: one JSON line per frame,
 /// {"seq","time","lobes":[{"axis","tangent","bitangent","lambda","mu","rgb"}],"loss"}; the lobes
 /// filtered in time with the lights' taps unless --no-filter.
@@ -48,9 +59,7 @@ pub(crate) struct FitAsgArgs {
     /// Output file (JSON Lines). [default: stdout]
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
-    /// The lobes are filtered in time by id with the lights' FIR taps (as the daemon's [asg]
-    /// stage does), so that they describe the moment the lights of `decompose` describe; each
-    /// line's "loss" stays that of its frame's own fit, before the filter.
+    /// The lobes' temporal filter (`LONG_ABOUT`).
     #[command(flatten)]
     filter: crate::cli::FilterFlags,
 }
