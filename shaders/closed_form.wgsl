@@ -23,12 +23,6 @@ fn fs_main(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) ve
 @fragment
 fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
     let mat = materials[in.material];
-    let tc = fragment_coordinates(in.uv, in.uv1);
-    if !side_drawn(mat, front) {
-        discard;
-    }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
-    let a = clamp(p.alpha, 0.0, 1.0);
-    let c = shaded(in.world, mat, p);
-    return vec4<f32>(c.rgb * a, a);
+    let p = blended_params(mat, in, front);
+    return premultiplied(shaded(in.world, mat, p).rgb, p.alpha);
 }

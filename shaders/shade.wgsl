@@ -226,15 +226,8 @@ fn fs_gbuffer_layered(in: VertexOut, @builtin(front_facing) front: bool) -> Laye
 
 @fragment
 fn fs_blended(in: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let mat = materials[in.material];
-    let tc = fragment_coordinates(in.uv, in.uv1);
-    if !side_drawn(mat, front) {
-        discard;
-    }
-    let p = surface_params(mat, tc, in.normal, in.tangent, in.color, front);
-    let a = clamp(p.alpha, 0.0, 1.0);
-    let c = shade_point(in.world, p.normal, in.material, p);
-    return vec4<f32>(c.rgb * a, a);
+    let p = blended_params(materials[in.material], in, front);
+    return premultiplied(shade_point(in.world, p.normal, in.material, p).rgb, p.alpha);
 }
 
 @compute @workgroup_size(8, 8)

@@ -457,3 +457,19 @@ fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, flags: f32,
     s.catcher = (u32(flags) & FLAG_CATCHER) != 0u;
     return s;
 }
+
+// The parameters of a blended fragment (glTF's BLEND) of material `mat`, discarded where its
+// side is not drawn (a blended surface is not cut out: its alpha blends).
+fn blended_params(mat: Material, in: VertexOut, front: bool) -> SurfaceParams {
+    let tc = fragment_coordinates(in.uv, in.uv1);
+    if !side_drawn(mat, front) {
+        discard;
+    }
+    return surface_params(mat, tc, in.normal, in.tangent, in.color, front);
+}
+
+// Radiance `c` premultiplied by the clamped `alpha`, for the over operator.
+fn premultiplied(c: vec3<f32>, alpha: f32) -> vec4<f32> {
+    let a = clamp(alpha, 0.0, 1.0);
+    return vec4<f32>(c * a, a);
+}
