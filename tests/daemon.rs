@@ -1955,30 +1955,32 @@ fn check_config_reports_the_stages_temporal_filters() {
         );
         String::from_utf8_lossy(&out.stdout).into_owned()
     };
-    let text = report("[wavelet]\nenabled = true\nfilter = false\n[sh]\nenabled = true\n");
-    assert!(
-        text.contains("levels), not filtered (filter = false)"),
-        "{text}"
-    );
-    assert!(
-        text.contains("per channel), filtered with the lights' taps"),
-        "{text}"
-    );
-    let text = report("[decompose]\nfilter = false\n[sh]\nenabled = true\n");
-    assert!(
-        text.contains("per channel), not filtered (the lights are not)"),
-        "{text}"
-    );
-    let text = report("[asg]\nenabled = true\n");
-    assert!(
-        text.contains("1 thread(s), filtered with the lights' taps"),
-        "{text}"
-    );
-    let text = report("[asg]\nenabled = true\nfilter = false\n");
-    assert!(
-        text.contains("1 thread(s), not filtered (filter = false)"),
-        "{text}"
-    );
+    for (config, wanted) in [
+        (
+            "[wavelet]\nenabled = true\nfilter = false\n[sh]\nenabled = true\n",
+            &[
+                "levels), not filtered (filter = false)",
+                "per channel), filtered with the lights' taps",
+            ][..],
+        ),
+        (
+            "[decompose]\nfilter = false\n[sh]\nenabled = true\n",
+            &["per channel), not filtered (the lights are not)"],
+        ),
+        (
+            "[asg]\nenabled = true\n",
+            &["1 thread(s), filtered with the lights' taps"],
+        ),
+        (
+            "[asg]\nenabled = true\nfilter = false\n",
+            &["1 thread(s), not filtered (filter = false)"],
+        ),
+    ] {
+        let text = report(config);
+        for line in wanted {
+            assert!(text.contains(line), "{config}: {line} not in {text}");
+        }
+    }
 }
 
 #[test]
