@@ -1776,9 +1776,9 @@ mod tests {
         assert_eq!(taps(&defaults), [0, 1, 2].map(|_| Some(lights.clone())));
         assert!(defaults.asg.filter && defaults.wavelet.filter && defaults.sh.filter);
         let custom = parse("[decompose]\nfilter_taps = [1, 2, 1]\n").unwrap();
-        let normalised = custom.decompose.filter_taps.clone();
-        assert_eq!(normalised.as_deref().map(<[f64]>::len), Some(3));
-        assert_eq!(taps(&custom), [0, 1, 2].map(|_| normalised.clone()));
+        let custom_taps = custom.decompose.filter_taps.clone();
+        assert_eq!(custom_taps.as_deref().map(<[f64]>::len), Some(3));
+        assert_eq!(taps(&custom), [0, 1, 2].map(|_| custom_taps.clone()));
         let off = parse("[asg]\nfilter = false\n[sh]\nfilter = false\n").unwrap();
         assert_eq!(taps(&off), [None, Some(lights), None]);
         let unfiltered_lights = parse("[decompose]\nfilter = false\n").unwrap();

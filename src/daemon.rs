@@ -224,7 +224,6 @@ pub struct Daemon {
     sh: Option<ShStage>,
 }
 
-/// Waits for the slow stages that started before a later part of the start failed.
 /// The lights' temporal filter's delay in frames under `settings` (0 without a filter).
 fn filter_delay(settings: &crate::decompose::DecomposeSettings) -> f64 {
     settings
@@ -237,7 +236,6 @@ fn filter_delay(settings: &crate::decompose::DecomposeSettings) -> f64 {
 /// Applies a stage's reloaded section: new settings go to the running stage live; a stage
 /// started or stopped needs a restart; a stage whose section did not change restarts its
 /// temporal filter when the lights' filter restarted (`lights_filter_restarted`), so that it
-/// keeps describing the lights' moment.
 /// keeps describing the lights' moment. `name`: `[asg]`, `[wavelet]`, `[sh]`; `new`: the
 /// reloaded section (its filter taps already the lights' as they run); `running`: the section
 /// the daemon runs with, replaced by `new` where it applies.
@@ -277,6 +275,7 @@ fn reload_stage<W, C>(
     }
 }
 
+/// Waits for the slow stages that started before a later part of the start failed.
 fn join_started(asg: Option<AsgStage>, wavelet: Option<WaveletStage>, sh: Option<ShStage>) {
     if let Some(asg) = asg {
         let _ = asg.join();

@@ -13,7 +13,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    python_client, read_until_goodbye, record_sky, spawn, subscribe_all, wait_until, TIMEOUT,
+    read_until_goodbye, record_sky, spawn, subscribe_all, wait_until, TIMEOUT,
 };
 use envlight::asg::fit::AsgFitter;
 use envlight::capture::FrameSource;
@@ -316,24 +316,21 @@ fn the_python_example_client_reads_asg_sets() {
     );
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let address = tcp.to_string();
     // Binary frames and JSON lines alike.
-    for json in [&[][..], &["--json"]] {
-        let mut args = vec![
-            address.as_str(),
-            "--representation",
-            "asg",
-            "--frames",
-            "2",
-            "--max-lights",
-            "3",
-        ];
-        args.extend_from_slice(json);
-        let lines = python_client(&args);
-        assert_eq!(lines.len(), 2, "{lines:?}");
+    let address = tcp.to_string();
+    for (form, lines) in common::python_client_both_forms(&[
+        &address,
+        "--representation",
+        "asg",
+        "--frames",
+        "2",
+        "--max-lights",
+        "3",
+    ]) {
+        assert_eq!(lines.len(), 2, "{form}: {lines:?}");
         assert!(
             lines.iter().all(|l| l.contains(": 3 ASG lobes")),
-            "{lines:?}"
+            "{form}: {lines:?}"
         );
     }
     daemon.shutdown().unwrap();

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{http_get, metric_value, python_client, spawn, wait_until, TIMEOUT};
+use common::{http_get, metric_value, spawn, wait_until, TIMEOUT};
 use envlight::capture::sequence::{SequenceOptions, SequenceSource};
 use envlight::capture::sky::{SkyOptions, SkySource};
 use envlight::capture::FrameSource;
@@ -2405,15 +2405,7 @@ except ValueError as e:
         first = json[0],
         last = json[3],
     );
-    let out = std::process::Command::new("python3")
-        .args(["-c", &script])
-        .output()
-        .unwrap();
-    let (text, err) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
-    assert!(out.status.success(), "{text}{err}");
+    let text = common::python_script(&script);
     assert_eq!(text.matches("same").count(), 4, "{text}");
     assert_eq!(text.matches("refused:").count(), 6, "{text}");
     assert!(text.contains("unknown representation 'hdr'"), "{text}");
@@ -2429,14 +2421,12 @@ fn the_python_example_client_reads_the_stream() {
     let socket = daemon.addresses().stream.unix_socket.clone().unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     for address in [format!("unix:{}", socket.display()), tcp.to_string()] {
-        for json in [&[][..], &["--json"]] {
-            let mut args = vec![address.as_str(), "--frames", "3", "--max-lights", "4"];
-            args.extend_from_slice(json);
-            let lines = python_client(&args);
-            assert_eq!(lines.len(), 3, "{args:?}: {lines:?}");
+        let args = [address.as_str(), "--frames", "3", "--max-lights", "4"];
+        for (form, lines) in common::python_client_both_forms(&args) {
+            assert_eq!(lines.len(), 3, "{address} {form}: {lines:?}");
             assert!(
                 lines.iter().all(|l| l.contains(": 4 lights, total rgb [")),
-                "{args:?}: {lines:?}"
+                "{address} {form}: {lines:?}"
             );
         }
     }
@@ -2484,15 +2474,7 @@ for bad in (header + light * 2 + b"x", header + light, struct.pack("<QdBBHI", 5,
     else:
         sys.exit("accepted a bad frame")
 "#;
-    let out = std::process::Command::new("python3")
-        .args(["-c", script])
-        .output()
-        .unwrap();
-    let (text, err) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
-    assert!(out.status.success(), "{text}{err}");
+    let text = common::python_script(script);
     assert_eq!(text.matches("error 1").count(), 6, "{text}");
     assert_eq!(
         text.matches("unknown representation 4").count(),

@@ -319,27 +319,24 @@ fn the_python_example_client_reads_sh_sets() {
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
     // A cap of 5 keeps the bands that fit whole: degrees 0 and 1.
-    let address = tcp.to_string();
     // Binary frames and JSON lines alike.
-    for json in [&[][..], &["--json"]] {
-        let mut args = vec![
-            address.as_str(),
-            "--representation",
-            "sh",
-            "--frames",
-            "2",
-            "--max-lights",
-            "5",
-        ];
-        args.extend_from_slice(json);
-        let lines = common::python_client(&args);
-        assert_eq!(lines.len(), 2, "{lines:?}");
+    let address = tcp.to_string();
+    for (form, lines) in common::python_client_both_forms(&[
+        &address,
+        "--representation",
+        "sh",
+        "--frames",
+        "2",
+        "--max-lights",
+        "5",
+    ]) {
+        assert_eq!(lines.len(), 2, "{form}: {lines:?}");
         assert!(
             lines.iter().all(|l| {
                 l.contains(": SH degree 1 (4 coefficients), total rgb [")
                     && l.contains("], irradiance up [")
             }),
-            "{lines:?}"
+            "{form}: {lines:?}"
         );
     }
     daemon.shutdown().unwrap();

@@ -15,7 +15,7 @@ mod common;
 
 use common::{
     assert_ordered_to_the_end, assert_unsupported, every_transport, http_get, metric_value,
-    python_client, read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY,
+    read_until_goodbye, record_sky, subscribe_all, wait_until, SMALL_SKY,
 };
 use envlight::capture::FrameSource;
 use envlight::config::Config;
@@ -285,26 +285,23 @@ fn the_python_example_client_reads_wavelet_sets() {
     let extra = format!("{SMALL_SKY}[wavelet]\nenabled = true\nside = 16\ncoefficients = 40\n");
     let daemon = Daemon::start(config(dir.path(), &extra), DaemonOptions::default()).unwrap();
     let tcp = daemon.addresses().stream.tcp.unwrap();
-    let address = tcp.to_string();
     // Binary frames and JSON lines alike.
-    for json in [&[][..], &["--json"]] {
-        let mut args = vec![
-            address.as_str(),
-            "--representation",
-            "wavelet",
-            "--frames",
-            "2",
-            "--max-lights",
-            "5",
-        ];
-        args.extend_from_slice(json);
-        let lines = python_client(&args);
-        assert_eq!(lines.len(), 2, "{lines:?}");
+    let address = tcp.to_string();
+    for (form, lines) in common::python_client_both_forms(&[
+        &address,
+        "--representation",
+        "wavelet",
+        "--frames",
+        "2",
+        "--max-lights",
+        "5",
+    ]) {
+        assert_eq!(lines.len(), 2, "{form}: {lines:?}");
         assert!(
             lines
                 .iter()
                 .all(|l| l.contains(": 5 wavelet coefficients (haar on 16^2, 4 levels)")),
-            "{lines:?}"
+            "{form}: {lines:?}"
         );
     }
     daemon.shutdown().unwrap();

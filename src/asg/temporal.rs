@@ -49,11 +49,6 @@ const STATE_LEN: usize = 12;
 /// any real lobe's power (W/m²), and its square is still a normal f64.
 pub const WEIGHT_FLOOR: f64 = 1e-100;
 
-/// The lights' luminance weights (Rec. 709), negative parts as 0.
-fn luminance(e: [f64; 3]) -> f64 {
-    (0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]).max(0.0)
-}
-
 /// `lobe` in the representation whose tangent is nearest to `reference` (step 1).
 fn aligned(lobe: &Asg, reference: DVec3) -> Asg {
     let (x, y, z) = lobe.frame();
@@ -76,7 +71,8 @@ fn aligned(lobe: &Asg, reference: DVec3) -> Asg {
 /// The lobe's state (step 2).
 fn state(lobe: &Asg) -> [f64; STATE_LEN] {
     let energy = lobe.integral();
-    let q = luminance(energy) + WEIGHT_FLOOR;
+    // The lights' weight: Rec. 709 luminance, negative parts as 0.
+    let q = crate::decompose::luminance_f64(energy).max(0.0) + WEIGHT_FLOOR;
     let (x, _, z) = lobe.frame();
     [
         energy[0],
@@ -99,13 +95,13 @@ fn lobe_of(s: &[f64]) -> Option<Asg> {
     let q = s[11];
     let axis = DVec3::new(s[3], s[4], s[5]);
     let tangent = DVec3::new(s[6], s[7], s[8]);
-    let (lambda, mu) = ((s[9] / q).exp(), (s[10] / q).exp());
-    let shape_integral = integral(lambda, mu);
-    let rgb = [s[0], s[1], s[2]].map(|e| e / shape_integral);
     // Axes that (nearly) cancel give a direction made of rounding: keep the fitted lobe.
     if axis.length() <= 1e-9 * q {
         return None;
     }
+    let (lambda, mu) = ((s[9] / q).exp(), (s[10] / q).exp());
+    let shape_integral = integral(lambda, mu);
+    let rgb = [s[0], s[1], s[2]].map(|e| e / shape_integral);
     Asg::new(axis, tangent, lambda, mu, rgb)
 }
 
@@ -113,8 +109,9 @@ fn lobe_of(s: &[f64]) -> Option<Asg> {
 #[derive(Clone, Debug)]
 pub struct LobeFilter {
     filter: StageFilter<f64>,
-    /// The last frame's lobes as aligned (step 1), the reference of the next frame's.
-    previous: Vec<Asg>,
+    /// The tangents of the last frame's lobes as aligned (step 1), the references of the next
+    /// frame's.
+    previous_tangents: Vec<DVec3>,
     /// Scratch: the states of one frame.
     states: Vec<f64>,
 }
@@ -131,7 +128,7 @@ impl LobeFilter {
             } else {
                 filter
             },
-            previous: Vec::new(),
+            previous_tangents: Vec::new(),
             states: Vec::new(),
         })
     }
@@ -159,13 +156,14 @@ impl LobeFilter {
         if !self.is_filtering() {
             return;
         }
-        if self.previous.len() == lobes.len() {
-            for (lobe, previous) in lobes.iter_mut().zip(&self.previous) {
-                *lobe = aligned(lobe, DVec3::from_array(previous.tangent));
+        if self.previous_tangents.len() == lobes.len() {
+            for (lobe, &reference) in lobes.iter_mut().zip(&self.previous_tangents) {
+                *lobe = aligned(lobe, reference);
             }
         }
-        self.previous.clear();
-        self.previous.extend_from_slice(lobes);
+        self.previous_tangents.clear();
+        self.previous_tangents
+            .extend(lobes.iter().map(|l| DVec3::from_array(l.tangent)));
         self.states.clear();
         self.states.extend(lobes.iter().flat_map(state));
         self.filter.apply(&mut self.states);

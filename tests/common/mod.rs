@@ -187,6 +187,31 @@ pub fn python_client(args: &[&str]) -> Vec<String> {
         .collect()
 }
 
+/// [`python_client`] with `args` reading binary frames, then JSON lines (`--json`): each
+/// form's name and stdout lines.
+pub fn python_client_both_forms(args: &[&str]) -> [(&'static str, Vec<String>); 2] {
+    let json: Vec<&str> = args.iter().copied().chain(["--json"]).collect();
+    [
+        ("binary", python_client(args)),
+        ("json", python_client(&json)),
+    ]
+}
+
+/// Runs a Python `script` (`python3 -c`), asserts it exited successfully and returns its
+/// stdout.
+pub fn python_script(script: &str) -> String {
+    let out = std::process::Command::new("python3")
+        .args(["-c", script])
+        .output()
+        .unwrap();
+    let (text, err) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{text}{err}");
+    text.into_owned()
+}
+
 /// Asserts that the daemon at `tcp` answers a subscription to `representation` (binary and
 /// JSON) with error 6 whose message contains `hint` (the config section that enables it).
 pub fn assert_unsupported(
