@@ -23,6 +23,8 @@
 //! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
 //! - `…/nv16`: the scene as NV16 (planar 4:2:2: YUYV's samples in a luma and a chroma plane);
 //! - `…/nv24`: the scene as NV24 (planar 4:4:4: every pixel's own Cb, Cr);
+//! - `…/yuv3`, `…/vuya`: NV24's samples packed, three bytes a pixel (`YUV3`: Y Cb Cr) and
+//!   four (`VUYA`: Cr Cb Y alpha);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
 //! - `response_recovery/levels_L_samples_S`: recovering a response curve from four 200×150
 //!   brackets (Debevec & Malik's gsolve, three channels) at L levels and S sample pixels;
@@ -44,7 +46,7 @@ use envlight::capture::bracket::{
 };
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::pixel_format::{
-    self, ByteImage, CodeImage, PixelFormat, RawFrame, YuvMatrix,
+    self, ByteImage, CodeImage, PackedYuv, PixelFormat, RawFrame, YuvMatrix,
 };
 use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
 use std::hint::black_box;
@@ -167,6 +169,19 @@ fn nv24(scene: &[[f32; 3]]) -> Vec<u8> {
     out
 }
 
+/// Packed 4:4:4 (`YUV3`, or `VUYA` with an alpha byte): NV24's samples, a pixel's Y, Cb and
+/// Cr next to each other.
+fn packed444(scene: &[[f32; 3]], alpha: bool) -> Vec<u8> {
+    let nv24 = nv24(scene);
+    let (luma, chroma) = nv24.split_at(scene.len());
+    let pixels = luma.iter().zip(chroma.chunks_exact(2));
+    if alpha {
+        pixels.flat_map(|(&y, c)| [c[1], c[0], y, 255]).collect()
+    } else {
+        pixels.flat_map(|(&y, c)| [y, c[0], c[1]]).collect()
+    }
+}
+
 /// An RGGB mosaic's samples with `bits`-bit codes.
 fn bayer_samples(scene: &[[f32; 3]], bits: u32) -> Vec<u16> {
     let max = ((1u32 << bits) - 1) as f32;
@@ -254,7 +269,11 @@ fn bench_capture(c: &mut Criterion) {
     let scene = scene();
     let buffers = [
         ("y16", PixelFormat::Grey { bits: 16 }, y16(&scene)),
-        ("yuyv", PixelFormat::Yuyv, yuyv(&scene)),
+        (
+            "yuyv",
+            PixelFormat::PackedYuv(PackedYuv::Yuyv),
+            yuyv(&scene),
+        ),
         (
             "nv12",
             PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv12),
@@ -269,6 +288,16 @@ fn bench_capture(c: &mut Criterion) {
             "nv24",
             PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv24),
             nv24(&scene),
+        ),
+        (
+            "yuv3",
+            PixelFormat::PackedYuv(PackedYuv::Yuv24),
+            packed444(&scene, false),
+        ),
+        (
+            "vuya",
+            PixelFormat::PackedYuv(PackedYuv::Vuya32),
+            packed444(&scene, true),
         ),
         ("mjpeg", PixelFormat::Mjpeg, mjpeg(&scene)),
         (
@@ -317,6 +346,12 @@ fn bench_capture(c: &mut Criterion) {
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         codes.pixels
     };
+    for packed in ["yuv3", "vuya"] {
+        assert!(
+            codes_of(packed) == codes_of("nv24"),
+            "{packed}: NV24's samples"
+        );
+    }
     for bits in [12, 14] {
         let words = format!("bayer_rg{bits}");
         assert!(
@@ -436,7 +471,7 @@ fn bench_capture(c: &mut Criterion) {
     }
     let raw = RawFrame {
         data: &buffers[1].2,
-        format: PixelFormat::Yuyv,
+        format: PixelFormat::PackedYuv(PackedYuv::Yuyv),
         width: W,
         height: H,
         stride: 0,

@@ -18,7 +18,7 @@
 use envlight::capture::convert::{Calibration, FrameConverter, StreamFormat};
 use envlight::capture::image_file::read_hdr_image;
 use envlight::capture::pixel_format::{
-    self, BayerPattern, CodeImage, PixelError, PixelFormat, RawFrame, YuvMatrix,
+    self, BayerPattern, CodeImage, PackedYuv, PixelError, PixelFormat, RawFrame, YuvMatrix,
 };
 use envlight::capture::response::{Linearizer, Radiometry, ResponseModel};
 use std::time::Instant;
@@ -145,8 +145,18 @@ fn main() -> anyhow::Result<()> {
             &y16,
             true,
         ),
-        ("YUYV via a code image", PixelFormat::Yuyv, &yuyv, false),
-        ("YUYV in one pass", PixelFormat::Yuyv, &yuyv, true),
+        (
+            "YUYV via a code image",
+            PixelFormat::PackedYuv(PackedYuv::Yuyv),
+            &yuyv,
+            false,
+        ),
+        (
+            "YUYV in one pass",
+            PixelFormat::PackedYuv(PackedYuv::Yuyv),
+            &yuyv,
+            true,
+        ),
         ("MJPEG via a code image", PixelFormat::Mjpeg, &mjpeg, false),
         ("MJPEG as bytes", PixelFormat::Mjpeg, &mjpeg, true),
         ("Bayer RG12 via a code image", rg12, &bayer, false),

@@ -656,8 +656,13 @@ bracket_exposures_s = [0.001, 0.004, 0.016]
         m.contains("camera.curve") && m.contains("/nonexistent/curve.txt"),
         "{m}"
     );
-    let m = bad("formats = [\"AYUV\"]");
-    assert!(m.contains("camera.formats") && m.contains("AYUV"), "{m}");
+    let m = bad("formats = [\"Y444\"]");
+    assert!(m.contains("camera.formats") && m.contains("Y444"), "{m}");
+    // The error lists what is supported.
+    assert!(
+        m.contains("VUYA") && m.contains("pREE") && m.contains("NM12"),
+        "{m}"
+    );
     let m = bad("white_balance = [1.0, -1.0, 1.0]");
     assert!(m.contains("camera.white_balance"), "{m}");
     let m = bad("bracket_exposures_s = [0.01, 0.0]");

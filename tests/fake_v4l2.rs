@@ -27,7 +27,7 @@
 
 mod common;
 
-use envlight::capture::pixel_format::PixelFormat;
+use envlight::capture::pixel_format::{PackedYuv, PixelFormat};
 use envlight::capture::v4l2::{CameraSettings, V4l2Source};
 use envlight::capture::FrameSource;
 use envlight::frame::HdrFrame;
@@ -1887,7 +1887,7 @@ fn interrupted_or_empty_dequeues_are_retried_and_a_stalled_camera_times_out() {
 #[test]
 fn a_format_the_camera_does_not_give_is_an_error_naming_what_it_has() {
     let device = FakeDevice::start(nv12_camera());
-    let e = V4l2Source::open(&device.settings(PixelFormat::Yuyv, 64, 48))
+    let e = V4l2Source::open(&device.settings(PixelFormat::PackedYuv(PackedYuv::Yuyv), 64, 48))
         .err()
         .unwrap()
         .to_string();

@@ -60,7 +60,7 @@ impl StreamFormat {
 }
 
 /// What turns a code into radiance apart from the exposure: the response model, the Y'CbCr
-/// matrix of YUYV, UYVY and 4:2:0, white balance and absolute scale (docs/camera.md).
+/// matrix of the Y'CbCr formats, white balance and absolute scale (docs/camera.md).
 #[derive(Clone, Debug)]
 pub struct Calibration {
     pub response: ResponseModel,
@@ -262,7 +262,7 @@ impl FrameConverter {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::capture::pixel_format::{byte_stream, decode, BayerPattern};
+    use crate::capture::pixel_format::{byte_stream, decode, BayerPattern, PackedYuv};
 
     const W: u32 = 40;
     const H: u32 = 70;
@@ -321,7 +321,7 @@ mod tests {
             (PixelFormat::Bgr24, Kept::Bytes),
             (PixelFormat::Grey { bits: 8 }, Kept::Bytes),
             (PixelFormat::Grey { bits: 16 }, Kept::Raw),
-            (PixelFormat::Yuyv, Kept::Raw),
+            (PixelFormat::PackedYuv(PackedYuv::Yuyv), Kept::Raw),
             (rg12, Kept::Raw),
         ] {
             let (stream, _) = frame(format, 1);
@@ -372,7 +372,7 @@ mod tests {
 
     #[test]
     fn tables_are_built_once_per_exposure_and_gain() {
-        let (stream, data) = frame(PixelFormat::Yuyv, 5);
+        let (stream, data) = frame(PixelFormat::PackedYuv(PackedYuv::Yuyv), 5);
         let mut converter = FrameConverter::new(stream, calibration(), false, None);
         converter.keep(&data).unwrap();
         let mut built = Vec::new();
@@ -394,7 +394,7 @@ mod tests {
     /// not kept.
     #[test]
     fn recycled_buffers_receive_the_next_frame() {
-        for format in [PixelFormat::Mjpeg, PixelFormat::Yuyv] {
+        for format in [PixelFormat::Mjpeg, PixelFormat::PackedYuv(PackedYuv::Yuyv)] {
             let (stream, data) = frame(format, 6);
             let mut converter = FrameConverter::new(stream, calibration(), false, None);
             converter.keep(&data).unwrap();
@@ -417,7 +417,11 @@ mod tests {
     /// is kept; before the first frame there is nothing to convert either.
     #[test]
     fn a_bad_buffer_is_an_error_and_leaves_no_frame() {
-        for format in [PixelFormat::Mjpeg, PixelFormat::Yuyv, PixelFormat::Rgb24] {
+        for format in [
+            PixelFormat::Mjpeg,
+            PixelFormat::PackedYuv(PackedYuv::Yuyv),
+            PixelFormat::Rgb24,
+        ] {
             let (stream, data) = frame(format, 7);
             for merges_brackets in [false, true] {
                 let mut converter =

@@ -7,7 +7,8 @@
 //! | format             | V4L2 fourcc                 | conversion                                        |
 //! |--------------------|-----------------------------|---------------------------------------------------|
 //! | YUYV 4:2:2         | `YUYV`                      | limited-range Y'CbCr → R'G'B', BT.601 or BT.709   |
-//! | UYVY 4:2:2         | `UYVY`                      | the same, bytes U Y0 V Y1                         |
+//! | packed 4:2:2       | `UYVY`, `YVYU`, `VYUY`      | the same, bytes U Y0 V Y1, Y0 V Y1 U, V Y0 U Y1   |
+//! | packed 4:4:4       | `YUV3`, `AYUV`, `XYUV`, `VUYA`, `VUYX`, `YUVA`, `YUVX` | the same, a Cb Cr pair per pixel; alpha and padding bytes ignored |
 //! | Y'CbCr 4:2:0, planar | `NV12`, `NV21`, `YU12`, `YV12` | the same, one chroma pair per 2×2 pixels       |
 //! | Y'CbCr 4:2:2, planar | `NV16`, `NV61`, `422P`, `YM61` | the same, one chroma pair per 2×1 pixels (as YUYV) |
 //! | Y'CbCr 4:4:4, planar | `NV24`, `NV42`, `YM24`, `YM42` | the same, one chroma pair per pixel        |
@@ -39,7 +40,10 @@
 //! in one plane of `height` rows, `422P` a Cb then a Cr plane of `height` rows of stride/2
 //! bytes (`YM61`, a multi-planar node's YVU 4:2:2 in three planes, gathered into one buffer:
 //! a Cr then a Cb plane); each chroma pair is that of the two pixels it covers, as in YUYV.
-//! Their height may be odd. The 4:4:4 layouts give every pixel its own pair: `NV24` (Cb, Cr)
+//! Their height may be odd. The packed 4:4:4 layouts hold a pixel in three bytes (`YUV3`: Y
+//! Cb Cr) or four (`AYUV`/`XYUV`: alpha or padding, Y, Cb, Cr; `VUYA`/`VUYX`: Cr, Cb, Y,
+//! alpha or padding; `YUVA`/`YUVX`: Y, Cb, Cr, alpha or padding), any width. The planar 4:4:4
+//! layouts give every pixel its own pair: `NV24` (Cb, Cr)
 //! and `NV42` (Cr, Cb) interleaved in one plane of `height` rows 2 × stride bytes apart, and
 //! the multi-planar `YM24` (Cb plane, then Cr) and `YM42` (Cr, then Cb), gathered into one
 //! buffer, planes of `height` rows of `stride` bytes; any width and height.
@@ -72,7 +76,7 @@
 //! the linearisation takes each band's codes from the cache instead of a whole-frame image.
 //!
 //! Every buffer is checked before it is read: a short buffer, a stride smaller than a row, a
-//! width the format does not allow (odd for YUYV, UYVY, 4:2:0 and Bayer; not a multiple of 4
+//! width the format does not allow (odd for packed 4:2:2, 4:2:0 and Bayer; not a multiple of 4
 //! for the 10- and 14-bit CSI-2 packings), an odd height for 4:2:0, or a corrupt JPEG is a
 //! [`PixelError`], never a panic.
 
@@ -248,12 +252,112 @@ struct ChromaPlanes {
     pixels_per: usize,
 }
 
+/// The layout of a packed Y'CbCr format: 4:2:2, two pixels in four bytes, or 4:4:4, one
+/// pixel in three or four bytes (module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PackedYuv {
+    /// `YUYV`: Y0 Cb Y1 Cr (4:2:2).
+    Yuyv,
+    /// `UYVY`: Cb Y0 Cr Y1 (4:2:2).
+    Uyvy,
+    /// `YVYU`: Y0 Cr Y1 Cb (4:2:2).
+    Yvyu,
+    /// `VYUY`: Cr Y0 Cb Y1 (4:2:2).
+    Vyuy,
+    /// `YUV3` (`V4L2_PIX_FMT_YUV24`): Y Cb Cr (4:4:4).
+    Yuv24,
+    /// `AYUV` (`V4L2_PIX_FMT_AYUV32`): alpha, Y, Cb, Cr (4:4:4).
+    Ayuv32,
+    /// `XYUV` (`V4L2_PIX_FMT_XYUV32`): padding, Y, Cb, Cr (4:4:4).
+    Xyuv32,
+    /// `VUYA` (`V4L2_PIX_FMT_VUYA32`): Cr, Cb, Y, alpha (4:4:4).
+    Vuya32,
+    /// `VUYX` (`V4L2_PIX_FMT_VUYX32`): Cr, Cb, Y, padding (4:4:4).
+    Vuyx32,
+    /// `YUVA` (`V4L2_PIX_FMT_YUVA32`): Y, Cb, Cr, alpha (4:4:4).
+    Yuva32,
+    /// `YUVX` (`V4L2_PIX_FMT_YUVX32`): Y, Cb, Cr, padding (4:4:4).
+    Yuvx32,
+}
+
+/// Where a packed Y'CbCr format's samples are in a group of `bytes` bytes that holds
+/// `pixels` pixels (2 for 4:2:2, sharing one chroma pair; 1 for 4:4:4): the luma of pixel k at
+/// `luma[k]`, the chroma at `cb` and `cr`. Alpha and padding bytes are not read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PackedYuvGroup {
+    pub bytes: usize,
+    pub pixels: usize,
+    pub luma: [usize; 2],
+    pub cb: usize,
+    pub cr: usize,
+}
+
+impl PackedYuv {
+    pub const ALL: [PackedYuv; 11] = [
+        PackedYuv::Yuyv,
+        PackedYuv::Uyvy,
+        PackedYuv::Yvyu,
+        PackedYuv::Vyuy,
+        PackedYuv::Yuv24,
+        PackedYuv::Ayuv32,
+        PackedYuv::Xyuv32,
+        PackedYuv::Vuya32,
+        PackedYuv::Vuyx32,
+        PackedYuv::Yuva32,
+        PackedYuv::Yuvx32,
+    ];
+
+    fn fourcc(self) -> [u8; 4] {
+        match self {
+            PackedYuv::Yuyv => *b"YUYV",
+            PackedYuv::Uyvy => *b"UYVY",
+            PackedYuv::Yvyu => *b"YVYU",
+            PackedYuv::Vyuy => *b"VYUY",
+            PackedYuv::Yuv24 => *b"YUV3",
+            PackedYuv::Ayuv32 => *b"AYUV",
+            PackedYuv::Xyuv32 => *b"XYUV",
+            PackedYuv::Vuya32 => *b"VUYA",
+            PackedYuv::Vuyx32 => *b"VUYX",
+            PackedYuv::Yuva32 => *b"YUVA",
+            PackedYuv::Yuvx32 => *b"YUVX",
+        }
+    }
+
+    /// Where the samples are in a group (Linux's `pixfmt-packed-yuv`).
+    pub fn group(self) -> PackedYuvGroup {
+        let subsampled = |luma, cb, cr| PackedYuvGroup {
+            bytes: 4,
+            pixels: 2,
+            luma,
+            cb,
+            cr,
+        };
+        let full = |bytes, y, cb, cr| PackedYuvGroup {
+            bytes,
+            pixels: 1,
+            luma: [y, y],
+            cb,
+            cr,
+        };
+        match self {
+            PackedYuv::Yuyv => subsampled([0, 2], 1, 3),
+            PackedYuv::Uyvy => subsampled([1, 3], 0, 2),
+            PackedYuv::Yvyu => subsampled([0, 2], 3, 1),
+            PackedYuv::Vyuy => subsampled([1, 3], 2, 0),
+            PackedYuv::Yuv24 => full(3, 0, 1, 2),
+            PackedYuv::Ayuv32 | PackedYuv::Xyuv32 => full(4, 1, 2, 3),
+            PackedYuv::Vuya32 | PackedYuv::Vuyx32 => full(4, 2, 1, 0),
+            PackedYuv::Yuva32 | PackedYuv::Yuvx32 => full(4, 0, 1, 2),
+        }
+    }
+}
+
 /// The pixel formats envlight converts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum PixelFormat {
-    Yuyv,
-    /// YUYV's samples in the order U Y0 V Y1.
-    Uyvy,
+    /// Packed Y'CbCr 4:2:2 (`YUYV`, `UYVY`, `YVYU`, `VYUY`) or 4:4:4 (`YUV3`, `AYUV`, `XYUV`,
+    /// `VUYA`, `VUYX`, `YUVA`, `YUVX`).
+    PackedYuv(PackedYuv),
     /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`), 4:2:2 (`NV16`, `NV61`, `422P`,
     /// `YM61`) or 4:4:4 (`NV24`, `NV42`, `YM24`, `YM42`).
     PlanarYuv(PlanarYuv),
@@ -277,7 +381,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 40] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 49] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -359,8 +463,17 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 40] = {
         },
         Rgb24,
         Bgr24,
-        Yuyv,
-        Uyvy,
+        PackedYuv(self::PackedYuv::Yuyv),
+        PackedYuv(self::PackedYuv::Uyvy),
+        PackedYuv(self::PackedYuv::Yvyu),
+        PackedYuv(self::PackedYuv::Vyuy),
+        PackedYuv(self::PackedYuv::Yuv24),
+        PackedYuv(self::PackedYuv::Xyuv32),
+        PackedYuv(self::PackedYuv::Ayuv32),
+        PackedYuv(self::PackedYuv::Vuyx32),
+        PackedYuv(self::PackedYuv::Vuya32),
+        PackedYuv(self::PackedYuv::Yuvx32),
+        PackedYuv(self::PackedYuv::Yuva32),
         PlanarYuv(self::PlanarYuv::Nv24),
         PlanarYuv(self::PlanarYuv::Yuv444p),
         PlanarYuv(self::PlanarYuv::Nv42),
@@ -431,8 +544,6 @@ impl PixelFormat {
     /// Every format envlight converts (for tests and listings).
     pub fn all() -> Vec<PixelFormat> {
         let mut v = vec![
-            PixelFormat::Yuyv,
-            PixelFormat::Uyvy,
             PixelFormat::Mjpeg,
             PixelFormat::Grey { bits: 8 },
             PixelFormat::Grey { bits: 10 },
@@ -442,6 +553,7 @@ impl PixelFormat {
             PixelFormat::Rgb24,
             PixelFormat::Bgr24,
         ];
+        v.extend(PackedYuv::ALL.map(PixelFormat::PackedYuv));
         v.extend(PlanarYuv::ALL.map(PixelFormat::PlanarYuv));
         v.extend(
             BAYER_FOURCCS
@@ -459,8 +571,7 @@ impl PixelFormat {
     /// The V4L2 four-character code.
     pub fn fourcc(self) -> [u8; 4] {
         match self {
-            PixelFormat::Yuyv => *b"YUYV",
-            PixelFormat::Uyvy => *b"UYVY",
+            PixelFormat::PackedYuv(layout) => layout.fourcc(),
             PixelFormat::PlanarYuv(layout) => layout.fourcc(),
             PixelFormat::Mjpeg => *b"MJPG",
             PixelFormat::Grey { bits: 10 } => *b"Y10 ",
@@ -484,8 +595,6 @@ impl PixelFormat {
     /// The format of a V4L2 four-character code, `None` if envlight cannot convert it.
     pub fn from_fourcc(code: [u8; 4]) -> Option<Self> {
         Some(match &code {
-            b"YUYV" => PixelFormat::Yuyv,
-            b"UYVY" => PixelFormat::Uyvy,
             b"NV12" => PixelFormat::PlanarYuv(PlanarYuv::Nv12),
             b"NV21" => PixelFormat::PlanarYuv(PlanarYuv::Nv21),
             b"NV16" => PixelFormat::PlanarYuv(PlanarYuv::Nv16),
@@ -507,6 +616,9 @@ impl PixelFormat {
             b"RGB3" => PixelFormat::Rgb24,
             b"BGR3" => PixelFormat::Bgr24,
             _ => {
+                if let Some(&layout) = PackedYuv::ALL.iter().find(|l| l.fourcc() == code) {
+                    return Some(PixelFormat::PackedYuv(layout));
+                }
                 if let Some(&(pattern, bits, _)) = CSI2_FOURCCS.iter().find(|(_, _, f)| **f == code)
                 {
                     return Some(PixelFormat::Csi2Packed { pattern, bits });
@@ -526,7 +638,7 @@ impl PixelFormat {
     pub fn parse(name: &str) -> Option<Self> {
         let lower = name.trim().to_ascii_lowercase();
         match lower.as_str() {
-            "yuyv" => return Some(PixelFormat::Yuyv),
+            "yuyv" => return Some(PixelFormat::PackedYuv(PackedYuv::Yuyv)),
             "mjpeg" | "mjpg" => return Some(PixelFormat::Mjpeg),
             "grey" | "gray" => return Some(PixelFormat::Grey { bits: 8 }),
             "rgb24" => return Some(PixelFormat::Rgb24),
@@ -564,7 +676,10 @@ impl PixelFormat {
     /// luma plane's rows: [`PixelFormat::buffer_len`] gives a whole frame's).
     pub fn bytes_per_pixel(self) -> usize {
         match self {
-            PixelFormat::Yuyv | PixelFormat::Uyvy => 2,
+            PixelFormat::PackedYuv(layout) => {
+                let group = layout.group();
+                group.bytes / group.pixels
+            }
             PixelFormat::PlanarYuv(_) => 1,
             PixelFormat::Mjpeg | PixelFormat::Csi2Packed { .. } => 0,
             PixelFormat::Rgb24 | PixelFormat::Bgr24 => 3,
@@ -603,7 +718,7 @@ impl PixelFormat {
     }
 
     /// Whether code values are proportional to sensor exposure (raw grey and Bayer data) rather
-    /// than gamma-encoded for display (YUYV, UYVY, 4:2:0, MJPEG, RGB24 usually are).
+    /// than gamma-encoded for display (Y'CbCr, MJPEG, RGB24 usually are).
     pub fn is_raw(self) -> bool {
         matches!(
             self,
@@ -614,7 +729,7 @@ impl PixelFormat {
     /// Whether every code value of a frame is one byte as sent (MJPEG once decoded, RGB24,
     /// BGR24, 8-bit grey), so that [`decode_bytes_into_on`] can keep the frame as bytes and the
     /// linearisation can look each byte up in a 256-entry table
-    /// ([`super::response::Linearizer::linearize_bytes_into_on`]). YUYV, 4:2:0 and Bayer codes
+    /// ([`super::response::Linearizer::linearize_bytes_into_on`]). Y'CbCr and Bayer codes
     /// are computed from several bytes, so they are not.
     pub fn has_byte_codes(self) -> bool {
         matches!(
@@ -635,7 +750,7 @@ impl fmt::Display for PixelFormat {
     }
 }
 
-/// Y'CbCr → R'G'B' matrix for YUYV and 4:2:0.
+/// Y'CbCr → R'G'B' matrix of the packed and planar Y'CbCr formats.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum YuvMatrix {
     /// BT.709 from 1280×720 up, BT.601 below.
@@ -821,7 +936,7 @@ pub fn decode_bytes_into_on(
 /// Largest frame accepted (pixels), so a corrupt size cannot allocate gigabytes.
 pub const MAX_PIXELS: u64 = 16384 * 16384;
 
-/// Converts a raw buffer into normalised code values. `matrix` is used for YUYV and 4:2:0
+/// Converts a raw buffer into normalised code values. `matrix` is used for the Y'CbCr formats
 /// only.
 pub fn decode(raw: &RawFrame<'_>, matrix: YuvMatrix) -> Result<CodeImage, PixelError> {
     let mut out = CodeImage {
@@ -961,7 +1076,7 @@ struct BandDecoder<'a> {
     row_bytes: usize,
     /// A 4:2:0 frame's chroma planes.
     chroma: Option<ChromaPlanes>,
-    /// YUYV's and 4:2:0's (Kr, Kb) for the frame's size.
+    /// The Y'CbCr formats' (Kr, Kb) for the frame's size.
     yuv: (f32, f32),
 }
 
@@ -998,18 +1113,17 @@ impl<'a> BandDecoder<'a> {
             .enumerate()
             .map(|(r, d)| (y0 + r, d));
         match format {
-            PixelFormat::Yuyv | PixelFormat::Uyvy => {
+            PixelFormat::PackedYuv(layout) => {
                 let to_rgb = YcbcrToRgb::new(self.yuv);
-                // Where Y0, U, Y1 and V are in a group of four bytes.
-                let [y0, u, y1, v] = if format == PixelFormat::Yuyv {
-                    [0, 1, 2, 3]
-                } else {
-                    [1, 0, 3, 2]
+                let group = layout.group();
+                // A loop for each group size, known when it is compiled.
+                let decode_row = match (group.bytes, group.pixels) {
+                    (4, 2) => packed_yuv_row::<4, 2>,
+                    (3, 1) => packed_yuv_row::<3, 1>,
+                    _ => packed_yuv_row::<4, 1>,
                 };
                 for (y, dst) in rows {
-                    for (quad, pair) in self.row(y).chunks_exact(4).zip(dst.chunks_exact_mut(2)) {
-                        to_rgb.pair([quad[y0], quad[y1]], quad[u], quad[v], pair);
-                    }
+                    decode_row(self.row(y), dst, group, &to_rgb);
                 }
             }
             PixelFormat::PlanarYuv(_) => {
@@ -1160,6 +1274,29 @@ fn unpack_csi2_row(bits: u8, row: &[u8], inv: f32, out: &mut [f32]) {
     }
 }
 
+/// A row of a packed Y'CbCr layout whose groups are `BYTES` bytes of `PIXELS` pixels (as
+/// `group` says) into `dst`.
+fn packed_yuv_row<const BYTES: usize, const PIXELS: usize>(
+    row: &[u8],
+    dst: &mut [[f32; 3]],
+    group: PackedYuvGroup,
+    to_rgb: &YcbcrToRgb,
+) {
+    let PackedYuvGroup {
+        luma: [y0, y1],
+        cb,
+        cr,
+        ..
+    } = group;
+    for (g, px) in row.chunks_exact(BYTES).zip(dst.chunks_exact_mut(PIXELS)) {
+        if PIXELS == 2 {
+            to_rgb.pair([g[y0], g[y1]], g[cb], g[cr], px);
+        } else {
+            px[0] = to_rgb.pixel(g[y0], g[cb], g[cr]);
+        }
+    }
+}
+
 /// Limited-range Y'CbCr → R'G'B' (module doc) for one matrix's (Kr, Kb).
 struct YcbcrToRgb {
     kr: f32,
@@ -1272,10 +1409,10 @@ fn frame_layout(
             "width must be even (12-bit packed: 2 samples in 3 bytes)",
         ),
         PixelFormat::PlanarYuv(layout) if layout.pixels_per_chroma_pair() == 1 => (1, ""),
-        PixelFormat::Yuyv
-        | PixelFormat::Uyvy
-        | PixelFormat::PlanarYuv(_)
-        | PixelFormat::Bayer { .. } => (2, "width must be even"),
+        PixelFormat::PackedYuv(layout) if layout.group().pixels == 1 => (1, ""),
+        PixelFormat::PackedYuv(_) | PixelFormat::PlanarYuv(_) | PixelFormat::Bayer { .. } => {
+            (2, "width must be even")
+        }
         _ => (1, ""),
     };
     if !w.is_multiple_of(group) {
@@ -1747,7 +1884,15 @@ mod tests {
             PixelFormat::parse("nv24"),
             Some(PixelFormat::PlanarYuv(PlanarYuv::Nv24))
         );
-        assert_eq!(PixelFormat::parse("AYUV"), None);
+        assert_eq!(
+            PixelFormat::parse("ayuv"),
+            Some(PixelFormat::PackedYuv(PackedYuv::Ayuv32))
+        );
+        assert_eq!(
+            PixelFormat::parse("YUV3"),
+            Some(PixelFormat::PackedYuv(PackedYuv::Yuv24))
+        );
+        assert_eq!(PixelFormat::parse("YUV4"), None);
         assert_eq!(
             PixelFormat::parse("422p"),
             Some(PixelFormat::PlanarYuv(PlanarYuv::Yuv422p))
@@ -1919,6 +2064,89 @@ mod tests {
         );
     }
 
+    /// Every packed Y'CbCr layout (4:2:2 and 4:4:4, with and without row padding) decodes to
+    /// the same bits as YUYV carrying the same samples (for 4:4:4 each chroma pair on the two
+    /// pixels of the YUYV pair); alpha and padding bytes are not read; 4:4:4 takes an odd
+    /// width (the same bits as NV24), 4:2:2 does not; a short buffer is an error.
+    #[test]
+    fn packed_yuv_layouts_equal_yuyv_with_the_same_samples() {
+        let (w, h) = (6usize, 3usize);
+        let mut byte = byte_stream(0x9ac4_e700);
+        let samples: Vec<u8> = (0..w * h * 2).map(|_| byte()).collect();
+        let bits = |img: &CodeImage| -> Vec<u32> {
+            img.pixels.iter().flatten().map(|v| v.to_bits()).collect()
+        };
+        let yuyv = PixelFormat::PackedYuv(PackedYuv::Yuyv);
+        let (w32, h32) = (w as u32, h as u32);
+        let expected = bits(&decode(&raw(&samples, yuyv, w32, h32), YuvMatrix::Bt601).unwrap());
+        // The bytes of a YUYV group's two pixels in `layout` (Linux's pixfmt-packed-yuv tables),
+        // `a` an alpha or padding byte.
+        let group = |layout: PackedYuv, [y0, cb, y1, cr]: [u8; 4], a: u8| -> Vec<u8> {
+            let each = |f: &dyn Fn(u8) -> Vec<u8>| [f(y0), f(y1)].concat();
+            match layout {
+                PackedYuv::Yuyv => vec![y0, cb, y1, cr],
+                PackedYuv::Uyvy => vec![cb, y0, cr, y1],
+                PackedYuv::Yvyu => vec![y0, cr, y1, cb],
+                PackedYuv::Vyuy => vec![cr, y0, cb, y1],
+                PackedYuv::Yuv24 => each(&|y| vec![y, cb, cr]),
+                PackedYuv::Ayuv32 | PackedYuv::Xyuv32 => each(&|y| vec![a, y, cb, cr]),
+                PackedYuv::Vuya32 | PackedYuv::Vuyx32 => each(&|y| vec![cr, cb, y, a]),
+                PackedYuv::Yuva32 | PackedYuv::Yuvx32 => each(&|y| vec![y, cb, cr, a]),
+            }
+        };
+        for layout in PackedYuv::ALL {
+            let format = PixelFormat::PackedYuv(layout);
+            let row_bytes = format.row_bytes(w32);
+            for padding in [0, 5] {
+                let mut data = Vec::new();
+                for row in samples.chunks(2 * w) {
+                    for quad in row.chunks(4) {
+                        data.extend(group(layout, quad.try_into().unwrap(), byte()));
+                    }
+                    data.resize(data.len() + padding, 0xEE);
+                }
+                assert_eq!(data.len(), h * (row_bytes + padding), "{format}");
+                let stride = row_bytes + padding;
+                let frame = RawFrame {
+                    stride,
+                    ..raw(&data, format, w32, h32)
+                };
+                let got = decode(&frame, YuvMatrix::Bt601).unwrap();
+                assert_eq!(bits(&got), expected, "{format} padding {padding}");
+                let needed = format.buffer_len(w32, h32, stride).unwrap();
+                assert_eq!(needed, data.len() - padding, "{format}");
+                let short = RawFrame {
+                    data: &data[..needed - 1],
+                    ..frame
+                };
+                let e = decode(&short, YuvMatrix::Bt601).unwrap_err();
+                assert!(e.to_string().contains(&format!("needs {needed}")), "{e}");
+            }
+            // A row of 3 pixels: 4:4:4 as NV24 of its samples, 4:2:2 refused.
+            let odd = [(81u8, 90u8, 240u8), (41, 240, 110), (235, 128, 128)];
+            if layout.group().pixels == 1 {
+                let data: Vec<u8> = odd
+                    .iter()
+                    .flat_map(|&(y, cb, cr)| {
+                        group(layout, [y, cb, y, cr], 7)[..row_bytes / w].to_vec()
+                    })
+                    .collect();
+                let mut nv24: Vec<u8> = odd.iter().map(|s| s.0).collect();
+                nv24.extend(odd.iter().flat_map(|&(_, cb, cr)| [cb, cr]));
+                let nv24_format = PixelFormat::PlanarYuv(PlanarYuv::Nv24);
+                let want = decode(&raw(&nv24, nv24_format, 3, 1), YuvMatrix::Bt601).unwrap();
+                let got = decode(&raw(&data, format, 3, 1), YuvMatrix::Bt601).unwrap();
+                assert_eq!(bits(&got), bits(&want), "{format} of width 3");
+            } else {
+                let e = decode(&raw(&[0; 64], format, 3, 1), YuvMatrix::Bt601).unwrap_err();
+                assert!(
+                    e.to_string().contains("width must be even"),
+                    "{format}: {e}"
+                );
+            }
+        }
+    }
+
     /// UYVY and the nine planar layouts (4:2:0, 4:2:2 and 4:4:4) of one image (with and without
     /// row padding) decode to the same bits as YUYV carrying the same samples (for 4:2:0 each
     /// chroma pair repeated on the two rows it covers, for 4:4:4 on the two pixels of the
@@ -1954,13 +2182,21 @@ mod tests {
             yuyv
         };
         let yuyv = yuyv_of(2);
-        let expected = decode(&raw(&yuyv, PixelFormat::Yuyv, w32, h32), YuvMatrix::Bt601).unwrap();
+        let expected = decode(
+            &raw(&yuyv, PixelFormat::PackedYuv(PackedYuv::Yuyv), w32, h32),
+            YuvMatrix::Bt601,
+        )
+        .unwrap();
         // UYVY: the same samples in the order U Y0 V Y1.
         let uyvy: Vec<u8> = yuyv
             .chunks(4)
             .flat_map(|q| [q[1], q[0], q[3], q[2]])
             .collect();
-        let got = decode(&raw(&uyvy, PixelFormat::Uyvy, w32, h32), YuvMatrix::Bt601).unwrap();
+        let got = decode(
+            &raw(&uyvy, PixelFormat::PackedYuv(PackedYuv::Uyvy), w32, h32),
+            YuvMatrix::Bt601,
+        )
+        .unwrap();
         assert_eq!(bits(&got), bits(&expected), "UYVY");
         // A layout's buffer with luma rows `stride` bytes apart (padding bytes 0xEE).
         let buffer = |layout: PlanarYuv, stride: usize| {
@@ -2019,7 +2255,7 @@ mod tests {
             let expected = decode(
                 &raw(
                     &yuyv_of(layout.rows_per_chroma_row()),
-                    PixelFormat::Yuyv,
+                    PixelFormat::PackedYuv(PackedYuv::Yuyv),
                     w32,
                     h32,
                 ),
@@ -2067,7 +2303,11 @@ mod tests {
             .flat_map(|i| [y3[i], c3[i], y3[i + 1], c3[i + 1]])
             .collect();
         let got = decode(&raw(&data, nv16, w32, 3), YuvMatrix::Bt601).unwrap();
-        let want = decode(&raw(&yuyv3, PixelFormat::Yuyv, w32, 3), YuvMatrix::Bt601).unwrap();
+        let want = decode(
+            &raw(&yuyv3, PixelFormat::PackedYuv(PackedYuv::Yuyv), w32, 3),
+            YuvMatrix::Bt601,
+        )
+        .unwrap();
         assert_eq!(bits(&got), bits(&want), "NV16 of odd height");
         // Black, white and 100% red (BT.601: Y 81, Cb 90, Cr 240) in NV12, 2 × 2 each.
         for (y, cb, cr, rgb) in [
@@ -2131,11 +2371,20 @@ mod tests {
         // Black, white, and 100% red of each standard: Y = 16 + 219·Kr, Cb = 128 − 112·Kr/(1 − Kb),
         // Cr = 240 (BT.601: 81, 90, 240; BT.709: 63, 102, 240).
         let data = [16, 128, 235, 128];
-        let img = decode(&raw(&data, PixelFormat::Yuyv, 2, 1), YuvMatrix::Bt601).unwrap();
+        let img = decode(
+            &raw(&data, PixelFormat::PackedYuv(PackedYuv::Yuyv), 2, 1),
+            YuvMatrix::Bt601,
+        )
+        .unwrap();
         assert!(close(img.pixels[0], [0.0; 3], 1e-6));
         assert!(close(img.pixels[1], [1.0; 3], 1e-6));
         let img = decode(
-            &raw(&[81, 90, 81, 240], PixelFormat::Yuyv, 2, 1),
+            &raw(
+                &[81, 90, 81, 240],
+                PixelFormat::PackedYuv(PackedYuv::Yuyv),
+                2,
+                1,
+            ),
             YuvMatrix::Bt601,
         )
         .unwrap();
@@ -2145,7 +2394,12 @@ mod tests {
             img.pixels[0]
         );
         let img = decode(
-            &raw(&[63, 102, 63, 240], PixelFormat::Yuyv, 2, 1),
+            &raw(
+                &[63, 102, 63, 240],
+                PixelFormat::PackedYuv(PackedYuv::Yuyv),
+                2,
+                1,
+            ),
             YuvMatrix::Bt709,
         )
         .unwrap();
@@ -2167,14 +2421,22 @@ mod tests {
             0,
             code(128.0 + 224.0 * cr),
         ];
-        let img = decode(&raw(&quad, PixelFormat::Yuyv, 2, 1), YuvMatrix::Bt709).unwrap();
+        let img = decode(
+            &raw(&quad, PixelFormat::PackedYuv(PackedYuv::Yuyv), 2, 1),
+            YuvMatrix::Bt709,
+        )
+        .unwrap();
         assert!(
             close(img.pixels[0], [r, g, b], 0.008),
             "{:?}",
             img.pixels[0]
         );
         // the same code read with the wrong matrix is visibly off
-        let wrong = decode(&raw(&quad, PixelFormat::Yuyv, 2, 1), YuvMatrix::Bt601).unwrap();
+        let wrong = decode(
+            &raw(&quad, PixelFormat::PackedYuv(PackedYuv::Yuyv), 2, 1),
+            YuvMatrix::Bt601,
+        )
+        .unwrap();
         assert!(
             !close(wrong.pixels[0], [r, g, b], 0.02),
             "{:?}",
@@ -2560,7 +2822,11 @@ mod tests {
         r.stride = usize::MAX;
         let e = decode(&r, YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().contains("too large"), "{e}");
-        let e = decode(&raw(&[0; 64], PixelFormat::Yuyv, 3, 2), YuvMatrix::Auto).unwrap_err();
+        let e = decode(
+            &raw(&[0; 64], PixelFormat::PackedYuv(PackedYuv::Yuyv), 3, 2),
+            YuvMatrix::Auto,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("even"), "{e}");
         let e = decode(&raw(&garbage, PixelFormat::Mjpeg, 4, 4), YuvMatrix::Auto).unwrap_err();
         assert!(e.to_string().starts_with("MJPEG"), "{e}");

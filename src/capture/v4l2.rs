@@ -6,7 +6,7 @@
 //! 2. format negotiation: the first format of the preference list that the device enumerates is
 //!    requested at the configured size (`VIDIOC_S_FMT`); the driver's answer (size, stride) is
 //!    used as it comes, and a driver that substitutes another pixel format is rejected;
-//!    With `yuv_matrix = "auto"`, YUYV and 4:2:0 use the matrix V4L2 implies for the colorspace the
+//!    With `yuv_matrix = "auto"`, the Y'CbCr formats use the matrix V4L2 implies for the colorspace the
 //!    driver reports ([`yuv_matrix_for`]: BT.709 for Rec. 709, BT.601 for sRGB/SMPTE 170M/JPEG,
 //!    which covers most UVC webcams), and the frame-size rule only if it reports none;
 //! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
@@ -1009,7 +1009,13 @@ mod tests {
             Some(PixelFormat::Grey { bits: 16 })
         );
         assert_eq!(
-            single(&[PixelFormat::Mjpeg, PixelFormat::Yuyv], &offered),
+            single(
+                &[
+                    PixelFormat::Mjpeg,
+                    PixelFormat::PackedYuv(pixel_format::PackedYuv::Yuyv)
+                ],
+                &offered
+            ),
             Some(PixelFormat::Mjpeg)
         );
         assert_eq!(single(&[PixelFormat::Rgb24], &offered), None);
@@ -1019,9 +1025,18 @@ mod tests {
         assert_eq!(single(&pref, &[*b"MJPG", *b"NV12", *b"YU12"]), Some(nv12));
         assert_eq!(
             single(&pref, &[*b"NV12", *b"YUYV"]),
-            Some(PixelFormat::Yuyv)
+            Some(PixelFormat::PackedYuv(pixel_format::PackedYuv::Yuyv))
         );
-        assert_eq!(single(&pref, &[*b"AYUV"]), None);
+        assert_eq!(single(&pref, &[*b"Y444"]), None);
+        // Packed 4:4:4 comes after packed 4:2:2 and before planar 4:4:4.
+        assert_eq!(
+            single(&pref, &[*b"NV24", *b"VUYA", *b"UYVY"]),
+            Some(PixelFormat::PackedYuv(pixel_format::PackedYuv::Uyvy))
+        );
+        assert_eq!(
+            single(&pref, &[*b"NV24", *b"VUYA"]),
+            Some(PixelFormat::PackedYuv(pixel_format::PackedYuv::Vuya32))
+        );
         // 4:2:2 (a chroma row per row) comes before 4:2:0, and 4:4:4 (a pair per pixel)
         // before both.
         assert_eq!(
@@ -1034,7 +1049,7 @@ mod tests {
         );
         // A multi-planar node offers NV12 in two planes as NM12: chosen for NV12, and asked
         // for under its own code. A single-planar node knows no NM12.
-        let mplane = [*b"AYUV", *b"NM12"];
+        let mplane = [*b"Y444", *b"NM12"];
         assert_eq!(
             choose_format(&pref, &mplane, CaptureApi::MultiPlanar),
             Some((nv12, *b"NM12"))

@@ -249,7 +249,7 @@ pub fn gather_planes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::capture::pixel_format::{BayerPattern, PlanarYuv};
+    use crate::capture::pixel_format::{BayerPattern, PackedYuv, PlanarYuv};
 
     #[test]
     fn separate_plane_codes_name_their_one_buffer_twins() {
@@ -274,8 +274,9 @@ mod tests {
                     bits: 10,
                 }),
             ),
-            // Packed 4:4:4 with alpha: not converted.
-            (*b"AYUV", None),
+            (*b"AYUV", Some(PixelFormat::PackedYuv(PackedYuv::Ayuv32))),
+            // Packed 4:4:4 of 4 bits a sample: not converted.
+            (*b"Y444", None),
         ] {
             assert_eq!(
                 pixel_format(code),

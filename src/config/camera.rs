@@ -7,6 +7,7 @@ use crate::capture::pixel_format::{PixelFormat, YuvMatrix};
 use crate::capture::resilient::RetryPolicy;
 use crate::capture::response::{ResponseCurve, ResponseModel};
 use crate::capture::v4l2::CameraSettings;
+use crate::capture::v4l2_mplane::SEPARATE_PLANE_FOURCCS;
 use crate::envmap::Projection;
 use serde::Deserialize;
 use std::path::Path;
@@ -79,13 +80,21 @@ impl RawCamera {
                 .iter()
                 .map(|n| {
                     PixelFormat::parse(n).ok_or_else(|| {
+                        let supported: Vec<String> =
+                            PixelFormat::all().iter().map(|f| f.to_string()).collect();
+                        let separate: Vec<String> = SEPARATE_PLANE_FOURCCS
+                            .iter()
+                            .map(|(c, _)| String::from_utf8_lossy(c).into_owned())
+                            .collect();
                         invalid(
                             "camera.formats",
                             n,
-                            "is not a supported format (YUYV, UYVY, NV12, NV21, YU12/I420, YV12, \
-                             MJPG, GREY, Y10, Y12, Y16, Y10P, Y12P, RGB3, BGR3, Bayer \
-                             RGGB/BA81/GBRG/GRBG and their 10/12/16-bit codes, CSI-2 packed \
-                             pRAA/pBAA/pGAA/pgAA and pRCC/pBCC/pGCC/pgCC)",
+                            format!(
+                                "is not a supported format (one of {}; I420 for YU12; on a \
+                                 multi-planar node also {})",
+                                supported.join(", "),
+                                separate.join(", ")
+                            ),
                         )
                     })
                 })
