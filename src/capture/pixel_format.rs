@@ -151,51 +151,45 @@ impl PlanarYuv {
         PlanarYuv::Yvu444p,
     ];
 
-    fn fourcc(self) -> [u8; 4] {
+    /// The layout's fourcc, luma rows per chroma row (2 for 4:2:0, 1 for 4:2:2 and 4:4:4),
+    /// pixels of a row per Cb, Cr pair (2 for 4:2:0 and 4:2:2, 1 for 4:4:4), whether Cb and Cr
+    /// are interleaved in one plane (else each has a plane of its own, of the luma's row length
+    /// for 4:4:4, half of it otherwise) and whether Cb comes first.
+    fn geometry(self) -> ([u8; 4], usize, usize, bool, bool) {
         match self {
-            PlanarYuv::Nv12 => *b"NV12",
-            PlanarYuv::Nv21 => *b"NV21",
-            PlanarYuv::Yu12 => *b"YU12",
-            PlanarYuv::Yv12 => *b"YV12",
-            PlanarYuv::Nv16 => *b"NV16",
-            PlanarYuv::Nv61 => *b"NV61",
-            PlanarYuv::Yuv422p => *b"422P",
-            PlanarYuv::Nv24 => *b"NV24",
-            PlanarYuv::Nv42 => *b"NV42",
-            PlanarYuv::Yvu422p => *b"YM61",
-            PlanarYuv::Yuv444p => *b"YM24",
-            PlanarYuv::Yvu444p => *b"YM42",
+            PlanarYuv::Nv12 => (*b"NV12", 2, 2, true, true),
+            PlanarYuv::Nv21 => (*b"NV21", 2, 2, true, false),
+            PlanarYuv::Yu12 => (*b"YU12", 2, 2, false, true),
+            PlanarYuv::Yv12 => (*b"YV12", 2, 2, false, false),
+            PlanarYuv::Nv16 => (*b"NV16", 1, 2, true, true),
+            PlanarYuv::Nv61 => (*b"NV61", 1, 2, true, false),
+            PlanarYuv::Yuv422p => (*b"422P", 1, 2, false, true),
+            PlanarYuv::Yvu422p => (*b"YM61", 1, 2, false, false),
+            PlanarYuv::Nv24 => (*b"NV24", 1, 1, true, true),
+            PlanarYuv::Nv42 => (*b"NV42", 1, 1, true, false),
+            PlanarYuv::Yuv444p => (*b"YM24", 1, 1, false, true),
+            PlanarYuv::Yvu444p => (*b"YM42", 1, 1, false, false),
         }
+    }
+
+    fn fourcc(self) -> [u8; 4] {
+        self.geometry().0
     }
 
     /// Luma rows per chroma row: 2 for 4:2:0, 1 for 4:2:2 and 4:4:4.
     pub fn rows_per_chroma_row(self) -> usize {
-        match self {
-            PlanarYuv::Nv12 | PlanarYuv::Nv21 | PlanarYuv::Yu12 | PlanarYuv::Yv12 => 2,
-            _ => 1,
-        }
+        self.geometry().1
     }
 
     /// Pixels of a row per Cb, Cr pair: 2 for 4:2:0 and 4:2:2, 1 for 4:4:4.
     pub fn pixels_per_chroma_pair(self) -> usize {
-        match self {
-            PlanarYuv::Nv24 | PlanarYuv::Nv42 | PlanarYuv::Yuv444p | PlanarYuv::Yvu444p => 1,
-            _ => 2,
-        }
+        self.geometry().2
     }
 
     /// Whether Cb and Cr are interleaved in one plane (else each has a plane of its own, of
     /// the luma's row length for 4:4:4, half of it otherwise).
     pub fn interleaved(self) -> bool {
-        !matches!(
-            self,
-            PlanarYuv::Yu12
-                | PlanarYuv::Yv12
-                | PlanarYuv::Yuv422p
-                | PlanarYuv::Yvu422p
-                | PlanarYuv::Yuv444p
-                | PlanarYuv::Yvu444p
-        )
+        self.geometry().3
     }
 
     /// Where the chroma of a frame of this layout is, from the luma plane's `stride` and the
@@ -205,15 +199,7 @@ impl PlanarYuv {
     fn chroma(self, stride: usize, height: usize) -> Option<ChromaPlanes> {
         let luma = stride.checked_mul(height)?;
         let rows = height / self.rows_per_chroma_row();
-        let cb_first = matches!(
-            self,
-            PlanarYuv::Nv12
-                | PlanarYuv::Nv16
-                | PlanarYuv::Nv24
-                | PlanarYuv::Yu12
-                | PlanarYuv::Yuv422p
-                | PlanarYuv::Yuv444p
-        );
+        let cb_first = self.geometry().4;
         let (first, second, stride, step) = if self.interleaved() {
             let chroma_stride = stride.checked_mul(2 / self.pixels_per_chroma_pair())?;
             (luma, luma + 1, chroma_stride, 2)
@@ -595,18 +581,6 @@ impl PixelFormat {
     /// The format of a V4L2 four-character code, `None` if envlight cannot convert it.
     pub fn from_fourcc(code: [u8; 4]) -> Option<Self> {
         Some(match &code {
-            b"NV12" => PixelFormat::PlanarYuv(PlanarYuv::Nv12),
-            b"NV21" => PixelFormat::PlanarYuv(PlanarYuv::Nv21),
-            b"NV16" => PixelFormat::PlanarYuv(PlanarYuv::Nv16),
-            b"NV61" => PixelFormat::PlanarYuv(PlanarYuv::Nv61),
-            b"422P" => PixelFormat::PlanarYuv(PlanarYuv::Yuv422p),
-            b"NV24" => PixelFormat::PlanarYuv(PlanarYuv::Nv24),
-            b"NV42" => PixelFormat::PlanarYuv(PlanarYuv::Nv42),
-            b"YM61" => PixelFormat::PlanarYuv(PlanarYuv::Yvu422p),
-            b"YM24" => PixelFormat::PlanarYuv(PlanarYuv::Yuv444p),
-            b"YM42" => PixelFormat::PlanarYuv(PlanarYuv::Yvu444p),
-            b"YU12" => PixelFormat::PlanarYuv(PlanarYuv::Yu12),
-            b"YV12" => PixelFormat::PlanarYuv(PlanarYuv::Yv12),
             b"MJPG" | b"JPEG" => PixelFormat::Mjpeg,
             b"GREY" => PixelFormat::Grey { bits: 8 },
             b"Y10 " => PixelFormat::Grey { bits: 10 },
@@ -618,6 +592,9 @@ impl PixelFormat {
             _ => {
                 if let Some(&layout) = PackedYuv::ALL.iter().find(|l| l.fourcc() == code) {
                     return Some(PixelFormat::PackedYuv(layout));
+                }
+                if let Some(&layout) = PlanarYuv::ALL.iter().find(|l| l.fourcc() == code) {
+                    return Some(PixelFormat::PlanarYuv(layout));
                 }
                 if let Some(&(pattern, bits, _)) = CSI2_FOURCCS.iter().find(|(_, _, f)| **f == code)
                 {
