@@ -9,7 +9,7 @@ use envlight::capture::bracket::{
     merge_brackets, recover_response, Bracket, MergeLimits, SolveSettings,
 };
 use envlight::capture::image_file::read_hdr_image;
-use envlight::capture::pixel_format::CodeImage;
+use envlight::capture::pixel_format::{CodeImage, YuvMatrix};
 use envlight::capture::resilient::{ResilientSource, RetryPolicy};
 use envlight::capture::response::{Radiometry, ResponseCurve, ResponseModel};
 use envlight::capture::{CaptureError, FrameSource};
@@ -673,6 +673,20 @@ bracket_exposures_s = [0.001, 0.004, 0.016]
     assert!(m.contains("exposure"), "{m}");
     let m = bad("width = 0");
     assert!(m.contains("camera.width"), "{m}");
+    let m = bad("yuv_matrix = \"bt2100\"");
+    assert!(
+        m.contains("camera.yuv_matrix") && m.contains("bt2020"),
+        "{m}"
+    );
+    // HDR video: BT.2020's matrix with a PQ or an HLG response.
+    for (response, model) in [("pq", ResponseModel::Pq), ("hlg", ResponseModel::Hlg)] {
+        let t = format!("[camera]\nresponse = \"{response}\"\nyuv_matrix = \"bt2020\"\n");
+        let cfg = RawConfig::parse(&t, Path::new("t.toml"))
+            .and_then(|r| r.validate())
+            .unwrap_or_else(|e| panic!("{response}: {e}"));
+        assert_eq!(cfg.camera.response, model);
+        assert_eq!(cfg.camera.yuv_matrix, YuvMatrix::Bt2020);
+    }
 }
 
 // ----------------------------------------------------------------------------------------------

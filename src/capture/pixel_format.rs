@@ -735,6 +735,8 @@ pub enum YuvMatrix {
     Auto,
     Bt601,
     Bt709,
+    /// ITU-R BT.2020's non-constant-luminance Y'CbCr (UHD and HDR video: HLG, PQ).
+    Bt2020,
 }
 
 impl YuvMatrix {
@@ -750,6 +752,7 @@ impl YuvMatrix {
     fn coefficients(self) -> (f32, f32) {
         match self {
             YuvMatrix::Bt709 => (0.2126, 0.0722),
+            YuvMatrix::Bt2020 => (0.2627, 0.0593),
             _ => (0.299, 0.114),
         }
     }
@@ -2344,7 +2347,7 @@ mod tests {
     }
 
     #[test]
-    fn yuyv_known_values_bt601_and_bt709() {
+    fn yuyv_known_values_bt601_bt709_and_bt2020() {
         // Black, white, and 100% red of each standard: Y = 16 + 219·Kr, Cb = 128 − 112·Kr/(1 − Kb),
         // Cr = 240 (BT.601: 81, 90, 240; BT.709: 63, 102, 240).
         let data = [16, 128, 235, 128];
@@ -2385,6 +2388,22 @@ mod tests {
             "{:?}",
             img.pixels[0]
         );
+        // BT.2020's 100% red: Y = 16 + 219·0.2627 = 73.5, Cb = 128 − 112·0.2627/0.9407 = 96.7;
+        // BT.709's matrix takes it for a magenta-tinted red.
+        let red2020 = raw(
+            &[74, 97, 74, 240],
+            PixelFormat::PackedYuv(PackedYuv::Yuyv),
+            2,
+            1,
+        );
+        let img = decode(&red2020, YuvMatrix::Bt2020).unwrap();
+        assert!(
+            close(img.pixels[0], [1.0, 0.0, 0.0], 0.006),
+            "{:?}",
+            img.pixels[0]
+        );
+        let wrong = decode(&red2020, YuvMatrix::Bt709).unwrap();
+        assert!(!close(wrong.pixels[0], [1.0, 0.0, 0.0], 0.02), "{wrong:?}");
         // 75% yellow (R = G = 0.75, B = 0) encoded with the BT.709 forward equations
         let (kr, kb) = (0.2126f32, 0.0722f32);
         let (r, g, b) = (0.75f32, 0.75f32, 0.0f32);

@@ -180,12 +180,44 @@ impl ResponseCurve {
     }
 }
 
+/// SMPTE ST 2084's EOTF: the luminance of PQ code `v` (in [0, 1]) as a fraction of
+/// 10,000 cd/m².
+pub fn pq_luminance(v: f64) -> f64 {
+    const M1: f64 = 2610.0 / 16384.0;
+    const M2: f64 = 2523.0 / 4096.0 * 128.0;
+    const C1: f64 = 3424.0 / 4096.0;
+    const C2: f64 = 2413.0 / 4096.0 * 32.0;
+    const C3: f64 = 2392.0 / 4096.0 * 32.0;
+    let p = v.clamp(0.0, 1.0).powf(1.0 / M2);
+    ((p - C1).max(0.0) / (C2 - C3 * p)).powf(1.0 / M1)
+}
+
+/// ITU-R BT.2100's HLG inverse OETF: the scene light (in [0, 1]) of HLG code `v` (in [0, 1]).
+pub fn hlg_scene_light(v: f64) -> f64 {
+    const A: f64 = 0.178_832_77;
+    const B: f64 = 1.0 - 4.0 * A;
+    // c = 0.5 − a·ln(4a), as BT.2100 gives it to 8 digits.
+    const C: f64 = 0.559_910_73;
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.5 {
+        v * v / 3.0
+    } else {
+        (((v - C) / A).exp() + B) / 12.0
+    }
+}
+
 /// How code values relate to light.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ResponseModel {
     Linear,
     Srgb,
     Gamma(f64),
+    /// SMPTE ST 2084's perceptual quantiser (HDR10 video; ITU-R BT.2100 PQ): X is the display
+    /// luminance the code stands for, as a fraction of 10,000 cd/m² (X = 0.01 is 100 cd/m²).
+    Pq,
+    /// ITU-R BT.2100 hybrid log-gamma (ARIB STD-B67; HDR broadcast video): X is the scene
+    /// light, in [0, 1], of the inverse OETF (no display OOTF: the camera's scene is wanted).
+    Hlg,
     /// HDRC logarithmic sensor: digital number D = a·ln X + b.
     Logarithmic {
         a: f64,
@@ -208,6 +240,8 @@ impl ResponseModel {
                 }
             }
             ResponseModel::Gamma(g) => v.max(0.0).powf(*g),
+            ResponseModel::Pq => pq_luminance(v),
+            ResponseModel::Hlg => hlg_scene_light(v),
             ResponseModel::Logarithmic { a, b } => ((v * code_max - b) / a).exp(),
             ResponseModel::Curve(c) => c.eval(channel, v),
         }
@@ -235,6 +269,8 @@ impl ResponseModel {
             ResponseModel::Linear => "linear",
             ResponseModel::Srgb => "srgb",
             ResponseModel::Gamma(_) => "gamma",
+            ResponseModel::Pq => "pq",
+            ResponseModel::Hlg => "hlg",
             ResponseModel::Logarithmic { .. } => "logarithmic",
             ResponseModel::Curve(_) => "curve",
         }
@@ -733,6 +769,51 @@ mod tests {
             .contains("gamma"));
     }
 
+    /// PQ against its inverse (ST 2084's OETF⁻¹ written out here) and the codes of 100,
+    /// 1,000 and 10,000 cd/m²; HLG at its knee (1/12 at code 1/2, where both pieces meet), its
+    /// top (1) and below the knee (E'²/3); codes outside [0, 1] clamped.
+    #[test]
+    fn pq_and_hlg_known_values() {
+        let pq_code = |l: f64| {
+            let (m1, m2) = (2610.0 / 16384.0, 2523.0 / 4096.0 * 128.0);
+            let (c1, c2, c3) = (
+                3424.0 / 4096.0,
+                2413.0 / 4096.0 * 32.0,
+                2392.0 / 4096.0 * 32.0,
+            );
+            let lm: f64 = f64::powf(l, m1);
+            ((c1 + c2 * lm) / (1.0 + c3 * lm)).powf(m2)
+        };
+        for l in [1e-6, 1e-4, 0.003, 0.01, 0.1, 0.5, 1.0] {
+            let x = ResponseModel::Pq.relative_exposure(0, pq_code(l), 1023.0);
+            assert!(rel(x, l) < 1e-9, "PQ {l}: {x}");
+        }
+        // Published codes (to 4 digits): 100 cd/m² 0.5081, 1,000 cd/m² 0.7518.
+        for (code, nits) in [(0.5081, 100.0), (0.7518, 1000.0), (1.0, 10_000.0)] {
+            let l = pq_luminance(code) * 1e4;
+            assert!(rel(l, nits) < 2e-3, "PQ {code}: {l} cd/m²");
+        }
+        assert_eq!(pq_luminance(0.0), 0.0);
+        assert_eq!(pq_luminance(-0.5), 0.0);
+        assert_eq!(pq_luminance(1.5), pq_luminance(1.0));
+        let hlg = |v| ResponseModel::Hlg.relative_exposure(2, v, 1023.0);
+        assert!(rel(hlg(0.5), 1.0 / 12.0) < 1e-8);
+        assert!(
+            rel(hlg(0.5 + 1e-12), 1.0 / 12.0) < 1e-8,
+            "continuous at the knee"
+        );
+        assert!(rel(hlg(1.0), 1.0) < 1e-7);
+        assert!(rel(hlg(0.3), 0.03) < 1e-12);
+        assert_eq!(hlg(-1.0), 0.0);
+        assert_eq!(hlg(2.0), hlg(1.0));
+        // Monotonic: more code, more light.
+        let codes: Vec<f64> = (0..=1000).map(|i| f64::from(i) / 1000.0).collect();
+        for w in codes.windows(2) {
+            assert!(pq_luminance(w[1]) >= pq_luminance(w[0]));
+            assert!(hlg_scene_light(w[1]) > hlg_scene_light(w[0]));
+        }
+    }
+
     #[test]
     fn logarithmic_sensor_known_values() {
         // D = a ln X + b with a = 60 DN per neper and b = 300 DN, 10-bit codes
@@ -897,6 +978,8 @@ mod tests {
             ResponseModel::Srgb,
             ResponseModel::Gamma(2.2),
             ResponseModel::Linear,
+            ResponseModel::Pq,
+            ResponseModel::Hlg,
             ResponseModel::Logarithmic { a: 60.0, b: 700.0 },
         ];
         for m in models {

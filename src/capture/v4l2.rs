@@ -7,7 +7,7 @@
 //!    requested at the configured size (`VIDIOC_S_FMT`); the driver's answer (size, stride) is
 //!    used as it comes, and a driver that substitutes another pixel format is rejected;
 //!    With `yuv_matrix = "auto"`, the Y'CbCr formats use the matrix V4L2 implies for the colorspace the
-//!    driver reports ([`yuv_matrix_for`]: BT.709 for Rec. 709, BT.601 for sRGB/SMPTE 170M/JPEG,
+//!    driver reports ([`yuv_matrix_for`]: BT.709 for Rec. 709, BT.2020 for Rec. 2020, BT.601 for sRGB/SMPTE 170M/JPEG,
 //!    which covers most UVC webcams), and the frame-size rule only if it reports none;
 //! 3. the frame rate is requested (`VIDIOC_S_PARM`); exposure is set to manual with the
 //!    configured time when the config gives one (`V4L2_CID_EXPOSURE_AUTO` = manual,
@@ -713,6 +713,7 @@ pub fn yuv_matrix_for(colorspace: v4l::format::Colorspace) -> YuvMatrix {
     use v4l::format::Colorspace as C;
     match colorspace {
         C::Rec709 | C::DCIP3 => YuvMatrix::Bt709,
+        C::Rec2020 => YuvMatrix::Bt2020,
         C::SMPTE170M | C::NTSC | C::EBUTech3212 | C::SRGB | C::JPEG | C::OPRGB => YuvMatrix::Bt601,
         _ => YuvMatrix::Auto,
     }
@@ -1145,6 +1146,7 @@ mod tests {
     fn yuv_matrix_follows_the_driver_colorspace() {
         use v4l::format::Colorspace as C;
         assert_eq!(yuv_matrix_for(C::Rec709), YuvMatrix::Bt709);
+        assert_eq!(yuv_matrix_for(C::Rec2020), YuvMatrix::Bt2020);
         assert_eq!(yuv_matrix_for(C::SRGB), YuvMatrix::Bt601);
         assert_eq!(yuv_matrix_for(C::SMPTE170M), YuvMatrix::Bt601);
         assert_eq!(yuv_matrix_for(C::Default), YuvMatrix::Auto);

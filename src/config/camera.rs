@@ -109,57 +109,60 @@ impl RawCamera {
             "auto" => YuvMatrix::Auto,
             "bt601" => YuvMatrix::Bt601,
             "bt709" => YuvMatrix::Bt709,
+            "bt2020" => YuvMatrix::Bt2020,
             other => {
                 return Err(invalid(
                     "camera.yuv_matrix",
                     other,
-                    "must be \"auto\", \"bt601\" or \"bt709\"",
+                    "must be \"auto\", \"bt601\", \"bt709\" or \"bt2020\"",
                 ))
             }
         };
         // Checked even when another response is used, so a typo does not hide.
         let gamma = in_range("camera.gamma", self.gamma.unwrap_or(2.2), 0.05, 20.0, "")?;
-        let response = match self.response.as_deref().unwrap_or("srgb") {
-            "srgb" => ResponseModel::Srgb,
-            "linear" => ResponseModel::Linear,
-            "gamma" => ResponseModel::Gamma(gamma),
-            "logarithmic" => {
-                let (Some(a), Some(b)) = (self.log_a, self.log_b) else {
-                    return Err(invalid(
-                        "camera.response",
-                        "logarithmic",
-                        "needs camera.log_a and camera.log_b (code = log_a·ln(X) + log_b)",
-                    ));
-                };
-                let a = check_finite("camera.log_a", a)?;
-                if a == 0.0 {
-                    return Err(invalid("camera.log_a", a, "must not be 0"));
+        let response =
+            match self.response.as_deref().unwrap_or("srgb") {
+                "srgb" => ResponseModel::Srgb,
+                "linear" => ResponseModel::Linear,
+                "pq" => ResponseModel::Pq,
+                "hlg" => ResponseModel::Hlg,
+                "gamma" => ResponseModel::Gamma(gamma),
+                "logarithmic" => {
+                    let (Some(a), Some(b)) = (self.log_a, self.log_b) else {
+                        return Err(invalid(
+                            "camera.response",
+                            "logarithmic",
+                            "needs camera.log_a and camera.log_b (code = log_a·ln(X) + log_b)",
+                        ));
+                    };
+                    let a = check_finite("camera.log_a", a)?;
+                    if a == 0.0 {
+                        return Err(invalid("camera.log_a", a, "must not be 0"));
+                    }
+                    ResponseModel::Logarithmic {
+                        a,
+                        b: check_finite("camera.log_b", b)?,
+                    }
                 }
-                ResponseModel::Logarithmic {
-                    a,
-                    b: check_finite("camera.log_b", b)?,
+                "curve" => {
+                    let Some(path) = &self.curve else {
+                        return Err(invalid(
+                            "camera.response",
+                            "curve",
+                            "needs camera.curve = \"FILE\" (see envlight calibrate-response)",
+                        ));
+                    };
+                    let curve = ResponseCurve::read(Path::new(path))
+                        .map_err(|e| invalid("camera.curve", path, e.to_string()))?;
+                    ResponseModel::Curve(Arc::new(curve))
                 }
-            }
-            "curve" => {
-                let Some(path) = &self.curve else {
-                    return Err(invalid(
-                        "camera.response",
-                        "curve",
-                        "needs camera.curve = \"FILE\" (see envlight calibrate-response)",
-                    ));
-                };
-                let curve = ResponseCurve::read(Path::new(path))
-                    .map_err(|e| invalid("camera.curve", path, e.to_string()))?;
-                ResponseModel::Curve(Arc::new(curve))
-            }
-            other => {
-                return Err(invalid(
+                other => return Err(invalid(
                     "camera.response",
                     other,
-                    "must be \"srgb\", \"gamma\", \"linear\", \"logarithmic\" or \"curve\"",
-                ))
-            }
-        };
+                    "must be \"srgb\", \"gamma\", \"linear\", \"pq\", \"hlg\", \"logarithmic\" \
+                     or \"curve\"",
+                )),
+            };
         let exposure_s = (self.exposure_s)
             .map(|v| in_range("camera.exposure_s", v, 1e-9, 3600.0, " seconds"))
             .transpose()?;
