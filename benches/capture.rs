@@ -23,6 +23,7 @@
 //! - `…/nv12`: the scene as NV12 (planar 4:2:0, BT.709, each 2 × 2 block's mean chroma);
 //! - `…/nv16`: the scene as NV16 (planar 4:2:2: YUYV's samples in a luma and a chroma plane);
 //! - `…/nv24`: the scene as NV24 (planar 4:4:4: every pixel's own Cb, Cr);
+//! - `…/y210`, `…/p010`: YUYV's and NV12's samples as 16-bit words (10-bit `Y210`, `P010`);
 //! - `…/yuv3`, `…/vuya`: NV24's samples packed, three bytes a pixel (`YUV3`: Y Cb Cr) and
 //!   four (`VUYA`: Cr Cb Y alpha);
 //! - `merge/3_brackets`: merging three 1280×960 brackets into one HDR frame;
@@ -182,6 +183,12 @@ fn packed444(scene: &[[f32; 3]], alpha: bool) -> Vec<u8> {
     }
 }
 
+/// A layout of 16-bit words from the 8-bit one carrying the same samples (`P010` from NV12,
+/// `Y210` from YUYV): each byte c as the word 256·c, which decodes to the same codes.
+fn widened(bytes: &[u8]) -> Vec<u8> {
+    bytes.iter().flat_map(|&c| [0, c]).collect()
+}
+
 /// An RGGB mosaic's samples with `bits`-bit codes.
 fn bayer_samples(scene: &[[f32; 3]], bits: u32) -> Vec<u16> {
     let max = ((1u32 << bits) - 1) as f32;
@@ -280,6 +287,16 @@ fn bench_capture(c: &mut Criterion) {
             nv12(&scene),
         ),
         (
+            "y210",
+            PixelFormat::PackedYuv(PackedYuv::Y210),
+            widened(&yuyv(&scene)),
+        ),
+        (
+            "p010",
+            PixelFormat::PlanarYuv(pixel_format::PlanarYuv::P010),
+            widened(&nv12(&scene)),
+        ),
+        (
             "nv16",
             PixelFormat::PlanarYuv(pixel_format::PlanarYuv::Nv16),
             nv16(&scene),
@@ -350,6 +367,12 @@ fn bench_capture(c: &mut Criterion) {
         assert!(
             codes_of(packed) == codes_of("nv24"),
             "{packed}: NV24's samples"
+        );
+    }
+    for (wide, narrow) in [("y210", "yuyv"), ("p010", "nv12")] {
+        assert!(
+            codes_of(wide) == codes_of(narrow),
+            "{wide}: {narrow}'s samples"
         );
     }
     for bits in [12, 14] {

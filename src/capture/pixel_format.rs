@@ -9,6 +9,7 @@
 //! | YUYV 4:2:2         | `YUYV`                      | limited-range Y'CbCr → R'G'B', BT.601 or BT.709   |
 //! | packed 4:2:2       | `UYVY`, `YVYU`, `VYUY`      | the same, bytes U Y0 V Y1, Y0 V Y1 U, V Y0 U Y1   |
 //! | packed 4:4:4       | `YUV3`, `AYUV`, `XYUV`, `VUYA`, `VUYX`, `YUVA`, `YUVX` | the same, a Cb Cr pair per pixel; alpha and padding bytes ignored |
+//! | 10/12/16-bit Y'CbCr | `Y210`, `Y212`, `Y216` (as YUYV), `P010`, `P012` (as NV12) | the same on 16-bit words, the code in their high bits |
 //! | Y'CbCr 4:2:0, planar | `NV12`, `NV21`, `YU12`, `YV12` | the same, one chroma pair per 2×2 pixels       |
 //! | Y'CbCr 4:2:2, planar | `NV16`, `NV61`, `422P`, `YM61` | the same, one chroma pair per 2×1 pixels (as YUYV) |
 //! | Y'CbCr 4:4:4, planar | `NV24`, `NV42`, `YM24`, `YM42` | the same, one chroma pair per pixel        |
@@ -40,7 +41,12 @@
 //! in one plane of `height` rows, `422P` a Cb then a Cr plane of `height` rows of stride/2
 //! bytes (`YM61`, a multi-planar node's YVU 4:2:2 in three planes, gathered into one buffer:
 //! a Cr then a Cb plane); each chroma pair is that of the two pixels it covers, as in YUYV.
-//! Their height may be odd. The packed 4:4:4 layouts hold a pixel in three bytes (`YUV3`: Y
+//! Their height may be odd. `P010` and `P012` are NV12 with a 16-bit little-endian word per
+//! sample (the luma rows `stride` bytes apart, at least 2 × width), and `Y210`, `Y212`, `Y216`
+//! YUYV with four words for two pixels; the code is in a word's high 10, 12 or 16 bits (the
+//! bits below it are not read), and the limited range is scaled to the word (BT.2100's 10-bit
+//! black 64 and white 940 are 4096 and 60160), so a word 256·c decodes to the bits of the byte
+//! c. The packed 4:4:4 layouts hold a pixel in three bytes (`YUV3`: Y
 //! Cb Cr) or four (`AYUV`/`XYUV`: alpha or padding, Y, Cb, Cr; `VUYA`/`VUYX`: Cr, Cb, Y,
 //! alpha or padding; `YUVA`/`YUVX`: Y, Cb, Cr, alpha or padding), any width. The planar 4:4:4
 //! layouts give every pixel its own pair: `NV24` (Cb, Cr)
@@ -133,10 +139,15 @@ pub enum PlanarYuv {
     Yuv444p,
     /// `YM42` (YVU 4:4:4 in three planes, multi-planar only): luma, Cr plane, Cb plane.
     Yvu444p,
+    /// `P010`: NV12's layout with a 16-bit little-endian word per sample, the 10-bit code in
+    /// its high bits (4:2:0).
+    P010,
+    /// `P012`: the same with 12-bit codes.
+    P012,
 }
 
 impl PlanarYuv {
-    pub const ALL: [PlanarYuv; 12] = [
+    pub const ALL: [PlanarYuv; 14] = [
         PlanarYuv::Nv12,
         PlanarYuv::Nv21,
         PlanarYuv::Yu12,
@@ -149,47 +160,77 @@ impl PlanarYuv {
         PlanarYuv::Yvu422p,
         PlanarYuv::Yuv444p,
         PlanarYuv::Yvu444p,
+        PlanarYuv::P010,
+        PlanarYuv::P012,
     ];
 
-    /// The layout's fourcc, luma rows per chroma row (2 for 4:2:0, 1 for 4:2:2 and 4:4:4),
-    /// pixels of a row per Cb, Cr pair (2 for 4:2:0 and 4:2:2, 1 for 4:4:4), whether Cb and Cr
-    /// are interleaved in one plane (else each has a plane of its own, of the luma's row length
-    /// for 4:4:4, half of it otherwise) and whether Cb comes first.
-    fn geometry(self) -> ([u8; 4], usize, usize, bool, bool) {
+    /// The layout's fourcc, subsampling, planes, chroma order and bits per sample.
+    fn geometry(self) -> PlanarGeometry {
+        let g = |fourcc: &[u8; 4], rows_per, pixels_per, interleaved, cb_first| PlanarGeometry {
+            fourcc: *fourcc,
+            rows_per,
+            pixels_per,
+            interleaved,
+            cb_first,
+            bits: 8,
+        };
         match self {
-            PlanarYuv::Nv12 => (*b"NV12", 2, 2, true, true),
-            PlanarYuv::Nv21 => (*b"NV21", 2, 2, true, false),
-            PlanarYuv::Yu12 => (*b"YU12", 2, 2, false, true),
-            PlanarYuv::Yv12 => (*b"YV12", 2, 2, false, false),
-            PlanarYuv::Nv16 => (*b"NV16", 1, 2, true, true),
-            PlanarYuv::Nv61 => (*b"NV61", 1, 2, true, false),
-            PlanarYuv::Yuv422p => (*b"422P", 1, 2, false, true),
-            PlanarYuv::Yvu422p => (*b"YM61", 1, 2, false, false),
-            PlanarYuv::Nv24 => (*b"NV24", 1, 1, true, true),
-            PlanarYuv::Nv42 => (*b"NV42", 1, 1, true, false),
-            PlanarYuv::Yuv444p => (*b"YM24", 1, 1, false, true),
-            PlanarYuv::Yvu444p => (*b"YM42", 1, 1, false, false),
+            PlanarYuv::Nv12 => g(b"NV12", 2, 2, true, true),
+            PlanarYuv::Nv21 => g(b"NV21", 2, 2, true, false),
+            PlanarYuv::Yu12 => g(b"YU12", 2, 2, false, true),
+            PlanarYuv::Yv12 => g(b"YV12", 2, 2, false, false),
+            PlanarYuv::Nv16 => g(b"NV16", 1, 2, true, true),
+            PlanarYuv::Nv61 => g(b"NV61", 1, 2, true, false),
+            PlanarYuv::Yuv422p => g(b"422P", 1, 2, false, true),
+            PlanarYuv::Yvu422p => g(b"YM61", 1, 2, false, false),
+            PlanarYuv::Nv24 => g(b"NV24", 1, 1, true, true),
+            PlanarYuv::Nv42 => g(b"NV42", 1, 1, true, false),
+            PlanarYuv::Yuv444p => g(b"YM24", 1, 1, false, true),
+            PlanarYuv::Yvu444p => g(b"YM42", 1, 1, false, false),
+            PlanarYuv::P010 => PlanarGeometry {
+                bits: 10,
+                ..g(b"P010", 2, 2, true, true)
+            },
+            PlanarYuv::P012 => PlanarGeometry {
+                bits: 12,
+                ..g(b"P012", 2, 2, true, true)
+            },
         }
     }
 
     fn fourcc(self) -> [u8; 4] {
-        self.geometry().0
+        self.geometry().fourcc
     }
 
     /// Luma rows per chroma row: 2 for 4:2:0, 1 for 4:2:2 and 4:4:4.
     pub fn rows_per_chroma_row(self) -> usize {
-        self.geometry().1
+        self.geometry().rows_per
     }
 
     /// Pixels of a row per Cb, Cr pair: 2 for 4:2:0 and 4:2:2, 1 for 4:4:4.
     pub fn pixels_per_chroma_pair(self) -> usize {
-        self.geometry().2
+        self.geometry().pixels_per
     }
 
     /// Whether Cb and Cr are interleaved in one plane (else each has a plane of its own, of
     /// the luma's row length for 4:4:4, half of it otherwise).
     pub fn interleaved(self) -> bool {
-        self.geometry().3
+        self.geometry().interleaved
+    }
+
+    /// Significant bits per sample: 8, or 10 and 12 for `P010` and `P012`, whose samples are
+    /// 16-bit words.
+    pub fn bits(self) -> u8 {
+        self.geometry().bits
+    }
+
+    /// Bytes per sample: 1, or 2 for the layouts of more than 8 bits.
+    pub fn sample_bytes(self) -> usize {
+        if self.bits() > 8 {
+            2
+        } else {
+            1
+        }
     }
 
     /// Where the chroma of a frame of this layout is, from the luma plane's `stride` and the
@@ -199,14 +240,15 @@ impl PlanarYuv {
     fn chroma(self, stride: usize, height: usize) -> Option<ChromaPlanes> {
         let luma = stride.checked_mul(height)?;
         let rows = height / self.rows_per_chroma_row();
-        let cb_first = self.geometry().4;
+        let cb_first = self.geometry().cb_first;
+        let sample = self.sample_bytes();
         let (first, second, stride, step) = if self.interleaved() {
             let chroma_stride = stride.checked_mul(2 / self.pixels_per_chroma_pair())?;
-            (luma, luma + 1, chroma_stride, 2)
+            (luma, luma + sample, chroma_stride, 2 * sample)
         } else {
             let chroma_stride = stride / self.pixels_per_chroma_pair();
             let second = luma.checked_add(chroma_stride.checked_mul(rows)?)?;
-            (luma, second, chroma_stride, 1)
+            (luma, second, chroma_stride, sample)
         };
         let (cb, cr) = if cb_first {
             (first, second)
@@ -220,8 +262,25 @@ impl PlanarYuv {
             step,
             rows_per: self.rows_per_chroma_row(),
             pixels_per: self.pixels_per_chroma_pair(),
+            sample_bytes: sample,
         })
     }
+}
+
+/// A planar layout's geometry ([`PlanarYuv::geometry`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PlanarGeometry {
+    fourcc: [u8; 4],
+    /// Luma rows per chroma row.
+    rows_per: usize,
+    /// Pixels of a row per Cb, Cr pair.
+    pixels_per: usize,
+    /// Cb and Cr interleaved in one plane, or a plane each.
+    interleaved: bool,
+    /// Cb before Cr (in the plane, or as the first plane).
+    cb_first: bool,
+    /// Significant bits per sample (8: a byte; more: a 16-bit word, the code in its high bits).
+    bits: u8,
 }
 
 /// Where a planar frame's chroma samples are in its buffer: the Cb and Cr of chroma pixel
@@ -236,6 +295,8 @@ struct ChromaPlanes {
     rows_per: usize,
     /// Pixels of a row per pair: 2 (4:2:0, 4:2:2) or 1 (4:4:4).
     pixels_per: usize,
+    /// Bytes per sample: 1, or 2 (a 16-bit little-endian word).
+    sample_bytes: usize,
 }
 
 /// The layout of a packed Y'CbCr format: 4:2:2, two pixels in four bytes, or 4:4:4, one
@@ -264,14 +325,23 @@ pub enum PackedYuv {
     Yuva32,
     /// `YUVX` (`V4L2_PIX_FMT_YUVX32`): Y, Cb, Cr, padding (4:4:4).
     Yuvx32,
+    /// `Y210`: YUYV's order in 16-bit little-endian words, the 10-bit code in the high bits
+    /// (4:2:2).
+    Y210,
+    /// `Y212`: the same with 12-bit codes.
+    Y212,
+    /// `Y216`: the same with 16-bit codes.
+    Y216,
 }
 
 /// Where a packed Y'CbCr format's samples are in a group of `bytes` bytes that holds
-/// `pixels` pixels (2 for 4:2:2, sharing one chroma pair; 1 for 4:4:4): the luma of pixel k at
-/// `luma[k]`, the chroma at `cb` and `cr`. Alpha and padding bytes are not read.
+/// `pixels` pixels (2 for 4:2:2, sharing one chroma pair; 1 for 4:4:4): the luma of pixel k is
+/// sample `luma[k]`, the chroma samples `cb` and `cr`, each sample `sample_bytes` long (1, or
+/// 2 for a 16-bit little-endian word). Alpha and padding bytes are not read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PackedYuvGroup {
     pub bytes: usize,
+    pub sample_bytes: usize,
     pub pixels: usize,
     pub luma: [usize; 2],
     pub cb: usize,
@@ -279,7 +349,7 @@ pub struct PackedYuvGroup {
 }
 
 impl PackedYuv {
-    pub const ALL: [PackedYuv; 11] = [
+    pub const ALL: [PackedYuv; 14] = [
         PackedYuv::Yuyv,
         PackedYuv::Uyvy,
         PackedYuv::Yvyu,
@@ -291,6 +361,9 @@ impl PackedYuv {
         PackedYuv::Vuyx32,
         PackedYuv::Yuva32,
         PackedYuv::Yuvx32,
+        PackedYuv::Y210,
+        PackedYuv::Y212,
+        PackedYuv::Y216,
     ];
 
     fn fourcc(self) -> [u8; 4] {
@@ -306,6 +379,19 @@ impl PackedYuv {
             PackedYuv::Vuyx32 => *b"VUYX",
             PackedYuv::Yuva32 => *b"YUVA",
             PackedYuv::Yuvx32 => *b"YUVX",
+            PackedYuv::Y210 => *b"Y210",
+            PackedYuv::Y212 => *b"Y212",
+            PackedYuv::Y216 => *b"Y216",
+        }
+    }
+
+    /// Significant bits per sample: 8, or 10, 12 and 16 for `Y210`, `Y212` and `Y216`.
+    pub fn bits(self) -> u8 {
+        match self {
+            PackedYuv::Y210 => 10,
+            PackedYuv::Y212 => 12,
+            PackedYuv::Y216 => 16,
+            _ => 8,
         }
     }
 
@@ -313,6 +399,7 @@ impl PackedYuv {
     pub fn group(self) -> PackedYuvGroup {
         let subsampled = |luma, cb, cr| PackedYuvGroup {
             bytes: 4,
+            sample_bytes: 1,
             pixels: 2,
             luma,
             cb,
@@ -320,6 +407,7 @@ impl PackedYuv {
         };
         let full = |bytes, y, cb, cr| PackedYuvGroup {
             bytes,
+            sample_bytes: 1,
             pixels: 1,
             luma: [y, y],
             cb,
@@ -334,6 +422,11 @@ impl PackedYuv {
             PackedYuv::Ayuv32 | PackedYuv::Xyuv32 => full(4, 1, 2, 3),
             PackedYuv::Vuya32 | PackedYuv::Vuyx32 => full(4, 2, 1, 0),
             PackedYuv::Yuva32 | PackedYuv::Yuvx32 => full(4, 0, 1, 2),
+            PackedYuv::Y210 | PackedYuv::Y212 | PackedYuv::Y216 => PackedYuvGroup {
+                bytes: 8,
+                sample_bytes: 2,
+                ..subsampled([0, 2], 1, 3)
+            },
         }
     }
 }
@@ -367,7 +460,7 @@ pub enum PixelFormat {
 }
 
 /// The formats in envlight's default preference order (most dynamic range first).
-pub const DEFAULT_PREFERENCE: [PixelFormat; 49] = {
+pub const DEFAULT_PREFERENCE: [PixelFormat; 54] = {
     use BayerPattern::*;
     use PixelFormat::*;
     [
@@ -447,6 +540,11 @@ pub const DEFAULT_PREFERENCE: [PixelFormat; 49] = {
             pattern: Rggb,
             bits: 8,
         },
+        PackedYuv(self::PackedYuv::Y216),
+        PackedYuv(self::PackedYuv::Y212),
+        PlanarYuv(self::PlanarYuv::P012),
+        PackedYuv(self::PackedYuv::Y210),
+        PlanarYuv(self::PlanarYuv::P010),
         Rgb24,
         Bgr24,
         PackedYuv(self::PackedYuv::Yuyv),
@@ -639,6 +737,8 @@ impl PixelFormat {
             PixelFormat::Grey { bits }
             | PixelFormat::Bayer { bits, .. }
             | PixelFormat::Csi2Packed { bits, .. } => bits,
+            PixelFormat::PlanarYuv(layout) => layout.bits(),
+            PixelFormat::PackedYuv(layout) => layout.bits(),
             _ => 8,
         }
     }
@@ -657,7 +757,7 @@ impl PixelFormat {
                 let group = layout.group();
                 group.bytes / group.pixels
             }
-            PixelFormat::PlanarYuv(_) => 1,
+            PixelFormat::PlanarYuv(layout) => layout.sample_bytes(),
             PixelFormat::Mjpeg | PixelFormat::Csi2Packed { .. } => 0,
             PixelFormat::Rgb24 | PixelFormat::Bgr24 => 3,
             PixelFormat::Grey { bits } | PixelFormat::Bayer { bits, .. } => {
@@ -1094,10 +1194,11 @@ impl<'a> BandDecoder<'a> {
             .map(|(r, d)| (y0 + r, d));
         match format {
             PixelFormat::PackedYuv(layout) => {
-                let to_rgb = YcbcrToRgb::new(self.yuv);
+                let to_rgb = YcbcrToRgb::new(self.yuv, format.bits());
                 let group = layout.group();
                 // A loop for each group size, known when it is compiled.
                 let decode_row = match (group.bytes, group.pixels) {
+                    (8, _) => packed_yuv16_row,
                     (4, 2) => packed_yuv_row::<4, 2>,
                     (3, 1) => packed_yuv_row::<3, 1>,
                     _ => packed_yuv_row::<4, 1>,
@@ -1107,7 +1208,7 @@ impl<'a> BandDecoder<'a> {
                 }
             }
             PixelFormat::PlanarYuv(_) => {
-                let to_rgb = YcbcrToRgb::new(self.yuv);
+                let to_rgb = YcbcrToRgb::new(self.yuv, format.bits());
                 let Some(chroma) = self.chroma else { return };
                 let data = self.raw.data;
                 // Checked by `check_layout`: every chroma sample of the frame is in `data`.
@@ -1118,7 +1219,19 @@ impl<'a> BandDecoder<'a> {
                 for (y, dst) in rows {
                     let luma = self.row(y).chunks_exact(2);
                     let pairs = dst.chunks_exact_mut(2);
-                    if chroma.step == 2 && chroma.pixels_per == 1 {
+                    if chroma.sample_bytes == 2 {
+                        // 16-bit words (P010, P012): one interleaved plane of pairs.
+                        let mask = to_rgb.word_mask;
+                        let words = |b: &[u8]| u16::from_le_bytes([b[0], b[1]]) & mask;
+                        let (first, cb_first) = (chroma.cb.min(chroma.cr), chroma.cb < chroma.cr);
+                        let cbcr = chroma_row(first, y, 2 * w).chunks_exact(4);
+                        for ((l, c), pair) in self.row(y).chunks_exact(4).zip(cbcr).zip(pairs) {
+                            let (a, b) = (words(&c[..2]), words(&c[2..]));
+                            let (u, v) = if cb_first { (a, b) } else { (b, a) };
+                            pair[0] = to_rgb.pixel16(words(&l[..2]), u, v);
+                            pair[1] = to_rgb.pixel16(words(&l[2..]), u, v);
+                        }
+                    } else if chroma.step == 2 && chroma.pixels_per == 1 {
                         // 4:4:4: a Cb, Cr pair (Cr, Cb for NV42) for every pixel.
                         let cb_first = chroma.cb < chroma.cr;
                         let cbcr = chroma_row(chroma.cb.min(chroma.cr), y, 2 * w).chunks_exact(2);
@@ -1277,8 +1390,25 @@ fn packed_yuv_row<const BYTES: usize, const PIXELS: usize>(
     }
 }
 
+/// A row of a packed Y'CbCr layout of 16-bit words into `dst`: `Y210`, `Y212` and `Y216`,
+/// four words Y0 Cb Y1 Cr for two pixels (the only order V4L2 has for them; fixed here, which
+/// makes the loop twice as fast as reading the group's places); the bits below the format's
+/// code are not read.
+fn packed_yuv16_row(row: &[u8], dst: &mut [[f32; 3]], group: PackedYuvGroup, to_rgb: &YcbcrToRgb) {
+    debug_assert_eq!((group.luma, group.cb, group.cr), ([0, 2], 1, 3));
+    let mask = to_rgb.word_mask;
+    for (g, px) in row.chunks_exact(8).zip(dst.chunks_exact_mut(2)) {
+        let [y0, u, y1, v]: [u16; 4] =
+            std::array::from_fn(|i| u16::from_le_bytes([g[2 * i], g[2 * i + 1]]) & mask);
+        px[0] = to_rgb.pixel16(y0, u, v);
+        px[1] = to_rgb.pixel16(y1, u, v);
+    }
+}
+
 /// Limited-range Y'CbCr → R'G'B' (module doc) for one matrix's (Kr, Kb).
 struct YcbcrToRgb {
+    /// The bits of a 16-bit word that hold the code (the high `bits`; all for 8-bit formats).
+    word_mask: u16,
     kr: f32,
     kb: f32,
     rv: f32,
@@ -1287,8 +1417,10 @@ struct YcbcrToRgb {
 }
 
 impl YcbcrToRgb {
-    fn new((kr, kb): (f32, f32)) -> Self {
+    /// The conversion for a format of `bits` bits a sample (8 to 16).
+    fn new((kr, kb): (f32, f32), bits: u8) -> Self {
         Self {
+            word_mask: !(u16::MAX.checked_shr(u32::from(bits)).unwrap_or(0)),
             kr,
             kb,
             rv: 2.0 * (1.0 - kr),
@@ -1311,6 +1443,22 @@ impl YcbcrToRgb {
         let u = (f32::from(cb) - 128.0) / 224.0;
         let v = (f32::from(cr) - 128.0) / 224.0;
         let l = (f32::from(luma) - 16.0) / 219.0;
+        self.rgb(l, u, v)
+    }
+
+    /// One pixel of 16-bit words, the code in their high bits: the limited range scaled by
+    /// 256 (BT.2100's 10-bit 64–940 is 4096–60160), so that a word 256·c decodes to the
+    /// same bits as the byte c (the scaling by a power of two is exact).
+    #[inline]
+    fn pixel16(&self, luma: u16, cb: u16, cr: u16) -> [f32; 3] {
+        let u = (f32::from(cb) - 32768.0) / 57344.0;
+        let v = (f32::from(cr) - 32768.0) / 57344.0;
+        let l = (f32::from(luma) - 4096.0) / 56064.0;
+        self.rgb(l, u, v)
+    }
+
+    #[inline]
+    fn rgb(&self, l: f32, u: f32, v: f32) -> [f32; 3] {
         let r = l + self.rv * v;
         let b = l + self.bu * u;
         let g = (l - self.kr * r - self.kb * b) * self.kg;
@@ -1433,7 +1581,9 @@ fn frame_layout(
     let chroma_end = |c: ChromaPlanes| {
         let last = (h as usize / c.rows_per - 1).checked_mul(c.stride)?;
         let last = last.checked_add((w as usize / c.pixels_per - 1) * c.step)?;
-        c.cb.max(c.cr).checked_add(last)?.checked_add(1)
+        c.cb.max(c.cr)
+            .checked_add(last)?
+            .checked_add(c.sample_bytes)
     };
     let needed = match chroma {
         Some(c) => luma.zip(chroma_end(c)).map(|(a, b)| a.max(b)),
@@ -2072,6 +2222,13 @@ mod tests {
                 PackedYuv::Ayuv32 | PackedYuv::Xyuv32 => each(&|y| vec![a, y, cb, cr]),
                 PackedYuv::Vuya32 | PackedYuv::Vuyx32 => each(&|y| vec![cr, cb, y, a]),
                 PackedYuv::Yuva32 | PackedYuv::Yuvx32 => each(&|y| vec![y, cb, cr, a]),
+                // Each sample as the word 256·c, with bits below the code that must not be
+                // read (none for 16-bit codes).
+                PackedYuv::Y210 | PackedYuv::Y212 | PackedYuv::Y216 => {
+                    let below_code = u16::MAX.checked_shr(layout.bits().into()).unwrap_or(0);
+                    let low = a & below_code as u8;
+                    [y0, cb, y1, cr].iter().flat_map(|&c| [low, c]).collect()
+                }
             }
         };
         for layout in PackedYuv::ALL {
@@ -2124,6 +2281,45 @@ mod tests {
                     "{format}: {e}"
                 );
             }
+        }
+    }
+
+    /// 10-bit codes keep their precision: BT.2100's limited range (64 black, 940 white, 512 no
+    /// chroma) in the high bits of P010's and Y210's words gives (Y − 64)/876 for grey, codes
+    /// one apart differ, and a 12-bit P012 code likewise ((Y − 256)/3504).
+    #[test]
+    fn ten_and_twelve_bit_yuv_keep_their_precision() {
+        let grey = |y10: u16| (f32::from(y10) - 64.0) / 876.0;
+        let packed = PixelFormat::PackedYuv(PackedYuv::Y210);
+        let planar = PixelFormat::PlanarYuv(PlanarYuv::P010);
+        for y10 in [64u16, 65, 66, 502, 939, 940] {
+            let w = |c: u16| (c << 6).to_le_bytes();
+            // Y210: Y0 Cb Y1 Cr; P010 2 × 2: four luma words, then a Cb, Cr pair.
+            let y210: Vec<u8> = [y10, 512, y10, 512].iter().flat_map(|&c| w(c)).collect();
+            let p010: Vec<u8> = [y10, y10, y10, y10, 512, 512]
+                .iter()
+                .flat_map(|&c| w(c))
+                .collect();
+            for (data, format, h) in [(&y210, packed, 1), (&p010, planar, 2)] {
+                let img = decode(&raw(data, format, 2, h), YuvMatrix::Bt2020).unwrap();
+                for p in &img.pixels {
+                    assert!(close(*p, [grey(y10); 3], 1e-6), "{format} {y10}: {p:?}");
+                }
+            }
+        }
+        let p012 = PixelFormat::PlanarYuv(PlanarYuv::P012);
+        let w = |c: u16| (c << 4).to_le_bytes();
+        let data: Vec<u8> = [257u16, 257, 257, 257, 2048, 2048]
+            .iter()
+            .flat_map(|&c| w(c))
+            .collect();
+        let img = decode(&raw(&data, p012, 2, 2), YuvMatrix::Bt709).unwrap();
+        assert!(close(img.pixels[3], [1.0 / 3504.0; 3], 1e-9), "{img:?}");
+        assert_eq!(p012.bits(), 12);
+        assert_eq!(PixelFormat::PackedYuv(PackedYuv::Y216).code_max(), 65535.0);
+        // Odd sizes are refused as for NV12 and YUYV.
+        for (format, w, h) in [(planar, 2, 3), (planar, 3, 2), (packed, 3, 1)] {
+            assert!(decode(&raw(&[0; 64], format, w, h), YuvMatrix::Auto).is_err());
         }
     }
 
@@ -2215,9 +2411,11 @@ mod tests {
                 out
             };
             match layout {
-                PlanarYuv::Nv12 | PlanarYuv::Nv16 | PlanarYuv::Nv24 => {
-                    data.extend(interleave(cb, cr))
-                }
+                PlanarYuv::Nv12
+                | PlanarYuv::Nv16
+                | PlanarYuv::Nv24
+                | PlanarYuv::P010
+                | PlanarYuv::P012 => data.extend(interleave(cb, cr)),
                 PlanarYuv::Nv21 | PlanarYuv::Nv61 | PlanarYuv::Nv42 => {
                     data.extend(interleave(cr, cb))
                 }
@@ -2242,8 +2440,19 @@ mod tests {
                 YuvMatrix::Bt601,
             )
             .unwrap();
-            for stride in [w, w + 4] {
-                let data = buffer(layout, stride);
+            for samples_stride in [w, w + 4] {
+                // P010 and P012: each byte b of the NV12 buffer as the word 256·b, plus
+                // bits below the code that must not be read.
+                let sample = layout.sample_bytes();
+                let below_code = u16::MAX.checked_shr(layout.bits().into()).unwrap_or(0) as u8;
+                let data: Vec<u8> = if sample == 2 {
+                    let mut byte = byte_stream(0x10b1_7500);
+                    let bytes = buffer(layout, samples_stride).into_iter();
+                    bytes.flat_map(|b| [byte() & below_code, b]).collect()
+                } else {
+                    buffer(layout, samples_stride)
+                };
+                let stride = samples_stride * sample;
                 let frame = RawFrame {
                     stride,
                     ..raw(&data, format, w32, h32)
@@ -2252,11 +2461,12 @@ mod tests {
                 assert_eq!(bits(&got), bits(&expected), "{format} stride {stride}");
                 // The last row's padding is not needed.
                 let needed = format.buffer_len(w32, h32, stride).unwrap();
-                let last_padding = if layout.interleaved() {
-                    (stride - w) * 2 / layout.pixels_per_chroma_pair()
-                } else {
-                    (stride - w) / layout.pixels_per_chroma_pair()
-                };
+                let last_padding = sample
+                    * if layout.interleaved() {
+                        (samples_stride - w) * 2 / layout.pixels_per_chroma_pair()
+                    } else {
+                        (samples_stride - w) / layout.pixels_per_chroma_pair()
+                    };
                 assert_eq!(
                     needed,
                     data.len() - last_padding,

@@ -1029,6 +1029,15 @@ mod tests {
             Some(PixelFormat::PackedYuv(pixel_format::PackedYuv::Yuyv))
         );
         assert_eq!(single(&pref, &[*b"Y444"]), None);
+        // Y'CbCr of 10 bits and more comes before 8-bit Y'CbCr and RGB.
+        assert_eq!(
+            single(&pref, &[*b"YUYV", *b"RGB3", *b"P010", *b"MJPG"]),
+            Some(PixelFormat::PlanarYuv(pixel_format::PlanarYuv::P010))
+        );
+        assert_eq!(
+            single(&pref, &[*b"P010", *b"Y210"]),
+            Some(PixelFormat::PackedYuv(pixel_format::PackedYuv::Y210))
+        );
         // Packed 4:4:4 comes after packed 4:2:2 and before planar 4:4:4.
         assert_eq!(
             single(&pref, &[*b"NV24", *b"VUYA", *b"UYVY"]),

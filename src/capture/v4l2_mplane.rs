@@ -189,9 +189,13 @@ pub(super) fn plane_rows(
     match (format, planes) {
         (_, 1) => Some(vec![(format.row_bytes(width), h)]),
         (PixelFormat::PlanarYuv(layout), 2) if layout.interleaved() => {
-            // A pair per pixel (4:4:4) or per two.
-            let row = 2 * w / layout.pixels_per_chroma_pair();
-            Some(vec![(w, h), (row, h / layout.rows_per_chroma_row())])
+            // A pair per pixel (4:4:4) or per two; samples of one byte or two (P010).
+            let sample = layout.sample_bytes();
+            let row = 2 * w / layout.pixels_per_chroma_pair() * sample;
+            Some(vec![
+                (w * sample, h),
+                (row, h / layout.rows_per_chroma_row()),
+            ])
         }
         (PixelFormat::PlanarYuv(layout), 3) if !layout.interleaved() => {
             let chroma = (
@@ -285,6 +289,23 @@ mod tests {
                 String::from_utf8_lossy(&code)
             );
         }
+    }
+
+    /// The planes' row bytes and rows: NV12 in two planes, P010's of 16-bit words twice as
+    /// long, YU12 in three; a plane count the format does not come in is `None`.
+    #[test]
+    fn plane_rows_count_bytes_of_every_sample_size() {
+        let nv12 = PixelFormat::PlanarYuv(PlanarYuv::Nv12);
+        let p010 = PixelFormat::PlanarYuv(PlanarYuv::P010);
+        let yu12 = PixelFormat::PlanarYuv(PlanarYuv::Yu12);
+        assert_eq!(plane_rows(nv12, 8, 4, 2), Some(vec![(8, 4), (8, 2)]));
+        assert_eq!(plane_rows(p010, 8, 4, 2), Some(vec![(16, 4), (16, 2)]));
+        assert_eq!(plane_rows(p010, 8, 4, 1), Some(vec![(16, 4)]));
+        assert_eq!(
+            plane_rows(yu12, 8, 4, 3),
+            Some(vec![(8, 4), (4, 2), (4, 2)])
+        );
+        assert_eq!(plane_rows(yu12, 8, 4, 2), None);
     }
 
     /// Spreads a one-buffer frame with packed rows over padded planes, as a driver would.
