@@ -1492,6 +1492,46 @@ fn two_plane_nv16_streams_as_one_buffer_nv16_does() {
     stream_both_ways(single, multi, nv16, 2);
 }
 
+/// A 10-bit `P010` camera (HDMI capture of HDR video, the 10-bit output of an ISP) with padded
+/// rows: negotiated, its 16-bit words read at the driver's stride, every frame finite,
+/// non-negative and its own.
+#[test]
+fn p010_streams_from_a_camera_with_padded_rows() {
+    let (w, h) = (64u32, 48u32);
+    // Luma rows of 64 words, then 24 rows of 32 interleaved Cb Cr word pairs, 160 bytes apart.
+    let content = vec![
+        ContentPlane {
+            row_bytes: 128,
+            rows: 48,
+        },
+        ContentPlane {
+            row_bytes: 128,
+            rows: 24,
+        },
+    ];
+    let carriage = Carriage::Single {
+        fourcc: *b"P010",
+        strides: vec![160, 160],
+    };
+    let p010 = PixelFormat::parse("P010").unwrap();
+    let (frames, log) = stream(Camera::new(w, h, content, carriage), p010, 3);
+    assert!(log.iter().any(|l| l.starts_with("S_FMT")), "{log:?}");
+    for f in &frames {
+        assert_eq!((f.width, f.height), (w, h));
+        assert!(
+            f.pixels
+                .iter()
+                .flatten()
+                .all(|v| v.is_finite() && *v >= 0.0),
+            "frame {}",
+            f.seq
+        );
+    }
+    assert!(frames[1].pixels != frames[0].pixels, "frames do not change");
+    let first = &frames[0].pixels;
+    assert!(first.iter().any(|p| p != &first[0]), "a flat frame");
+}
+
 /// Motion JPEG as UVC webcams send it: frames of varying length in buffers of a fixed size
 /// (`bytesused` below the length), decoded to the same radiance as RGB24 frames of the decoded
 /// pixels; a frame cut short in transfer is skipped.
