@@ -336,12 +336,12 @@ pub enum PackedYuv {
 
 /// Where a packed Y'CbCr format's samples are in a group of `bytes` bytes that holds
 /// `pixels` pixels (2 for 4:2:2, sharing one chroma pair; 1 for 4:4:4): the luma of pixel k is
-/// sample `luma[k]`, the chroma samples `cb` and `cr`, each sample `sample_bytes` long (1, or
-/// 2 for a 16-bit little-endian word). Alpha and padding bytes are not read.
+/// sample `luma[k]`, the chroma samples `cb` and `cr`, each sample a byte, or a 16-bit
+/// little-endian word for the layouts of more than 8 bits ([`PackedYuv::bits`]). Alpha and
+/// padding bytes are not read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PackedYuvGroup {
     pub bytes: usize,
-    pub sample_bytes: usize,
     pub pixels: usize,
     pub luma: [usize; 2],
     pub cb: usize,
@@ -399,7 +399,6 @@ impl PackedYuv {
     pub fn group(self) -> PackedYuvGroup {
         let subsampled = |luma, cb, cr| PackedYuvGroup {
             bytes: 4,
-            sample_bytes: 1,
             pixels: 2,
             luma,
             cb,
@@ -407,7 +406,6 @@ impl PackedYuv {
         };
         let full = |bytes, y, cb, cr| PackedYuvGroup {
             bytes,
-            sample_bytes: 1,
             pixels: 1,
             luma: [y, y],
             cb,
@@ -424,7 +422,6 @@ impl PackedYuv {
             PackedYuv::Yuva32 | PackedYuv::Yuvx32 => full(4, 0, 1, 2),
             PackedYuv::Y210 | PackedYuv::Y212 | PackedYuv::Y216 => PackedYuvGroup {
                 bytes: 8,
-                sample_bytes: 2,
                 ..subsampled([0, 2], 1, 3)
             },
         }
@@ -434,11 +431,11 @@ impl PackedYuv {
 /// The pixel formats envlight converts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum PixelFormat {
-    /// Packed Y'CbCr 4:2:2 (`YUYV`, `UYVY`, `YVYU`, `VYUY`) or 4:4:4 (`YUV3`, `AYUV`, `XYUV`,
-    /// `VUYA`, `VUYX`, `YUVA`, `YUVX`).
+    /// Packed Y'CbCr 4:2:2 (`YUYV`, `UYVY`, `YVYU`, `VYUY`; of 10 to 16 bits `Y210`, `Y212`,
+    /// `Y216`) or 4:4:4 (`YUV3`, `AYUV`, `XYUV`, `VUYA`, `VUYX`, `YUVA`, `YUVX`).
     PackedYuv(PackedYuv),
-    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`), 4:2:2 (`NV16`, `NV61`, `422P`,
-    /// `YM61`) or 4:4:4 (`NV24`, `NV42`, `YM24`, `YM42`).
+    /// Planar Y'CbCr 4:2:0 (`NV12`, `NV21`, `YU12`, `YV12`; of 10 and 12 bits `P010`, `P012`),
+    /// 4:2:2 (`NV16`, `NV61`, `422P`, `YM61`) or 4:4:4 (`NV24`, `NV42`, `YM24`, `YM42`).
     PlanarYuv(PlanarYuv),
     Mjpeg,
     /// Grey with 8, 10, 12, 14 or 16 significant bits.
@@ -1198,7 +1195,7 @@ impl<'a> BandDecoder<'a> {
                 let group = layout.group();
                 // A loop for each group size, known when it is compiled.
                 let decode_row = match (group.bytes, group.pixels) {
-                    (8, _) => packed_yuv16_row,
+                    _ if layout.bits() > 8 => packed_yuv16_row,
                     (4, 2) => packed_yuv_row::<4, 2>,
                     (3, 1) => packed_yuv_row::<3, 1>,
                     _ => packed_yuv_row::<4, 1>,
@@ -1407,7 +1404,8 @@ fn packed_yuv16_row(row: &[u8], dst: &mut [[f32; 3]], group: PackedYuvGroup, to_
 
 /// Limited-range Y'CbCr → R'G'B' (module doc) for one matrix's (Kr, Kb).
 struct YcbcrToRgb {
-    /// The bits of a 16-bit word that hold the code (the high `bits`; all for 8-bit formats).
+    /// The bits of a 16-bit word that hold the code (the high `bits`), for the formats of more
+    /// than 8 bits ([`Self::pixel16`]).
     word_mask: u16,
     kr: f32,
     kb: f32,
