@@ -293,7 +293,10 @@ fn check_node_transform(node: &gltf::json::Node) -> Result<(), String> {
     Ok(())
 }
 
-fn parse_gltf(bytes: &[u8], path: &Path) -> Result<gltf::Gltf, String> {
+/// A glTF file's JSON, checked and mended where the `gltf` crate would trust it, and its GLB
+/// binary chunk; not yet validated (compressed geometry is decoded first: a Draco primitive's
+/// accessors have no data until then, which the crate's validation refuses).
+fn parse_gltf(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec<u8>>), String> {
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
     let mut root = document.into_json();
@@ -339,8 +342,7 @@ fn parse_gltf(bytes: &[u8], path: &Path) -> Result<gltf::Gltf, String> {
             }
         }
     }
-    let document = gltf::Document::from_json(root).map_err(|e| e.to_string())?;
-    Ok(gltf::Gltf { document, blob })
+    Ok((root, blob))
 }
 
 /// Where a glTF buffer's data is: embedded (`data:` URIs, the GLB blob) or in a file, as the
@@ -371,16 +373,38 @@ fn buffer_source(base: &Path, uri: &str) -> Result<BufferSource, String> {
 /// (regular files of at most [`MAX_SCENE_FILE_BYTES`]; the `gltf` crate would read a device
 /// without end, or allocate a sparse file's whole size at once), the embedded ones with the
 /// `gltf` crate. Each must hold at least its declared `byteLength`. Errors name the buffer.
-fn load_gltf_buffers(gltf: &gltf::Gltf, base: &Path) -> Result<Vec<gltf::buffer::Data>, String> {
-    let mut blob = gltf.blob.clone();
+fn load_gltf_buffers(
+    root: &gltf::json::Root,
+    glb_blob: Option<&[u8]>,
+    base: &Path,
+) -> Result<Vec<gltf::buffer::Data>, String> {
+    let mut blob = glb_blob.map(<[u8]>::to_vec);
     let mut buffers = Vec::new();
-    for buffer in gltf.document.buffers() {
-        let index = buffer.index();
-        let source = match buffer.source() {
-            gltf::buffer::Source::Uri(uri) => {
-                buffer_source(base, uri).map_err(|m| format!("buffer {index}: {m}"))?
+    let uses_meshopt = root
+        .extensions_used
+        .iter()
+        .any(|e| e == super::gltf_compression::MESHOPT);
+    for (index, buffer) in root.buffers.iter().enumerate() {
+        let length = buffer.byte_length.0 as usize;
+        if super::gltf_compression::is_placeholder(buffer, index, glb_blob.is_some(), uses_meshopt)
+        {
+            // Filled by the decoded views (zeroed pages cost nothing until written).
+            if length as u64 > MAX_SCENE_FILE_BYTES {
+                return Err(format!(
+                    "buffer {index} (a placeholder for {} data) declares {length} bytes, more \
+                     than the {MAX_SCENE_FILE_BYTES} a scene's buffer may hold",
+                    super::gltf_compression::MESHOPT,
+                ));
             }
-            gltf::buffer::Source::Bin => BufferSource::Embedded,
+            buffers.push(gltf::buffer::Data(vec![0; length.next_multiple_of(4)]));
+            continue;
+        }
+        let (source, crate_source) = match buffer.uri.as_deref() {
+            Some(uri) => (
+                buffer_source(base, uri).map_err(|m| format!("buffer {index}: {m}"))?,
+                gltf::buffer::Source::Uri(uri),
+            ),
+            None => (BufferSource::Embedded, gltf::buffer::Source::Bin),
         };
         let mut data = match source {
             BufferSource::File(file) => {
@@ -388,16 +412,15 @@ fn load_gltf_buffers(gltf: &gltf::Gltf, base: &Path) -> Result<Vec<gltf::buffer:
                     .map_err(|e| format!("buffer {index} ({}): {e}", file.display()))?
             }
             BufferSource::Embedded => {
-                gltf::buffer::Data::from_source_and_blob(buffer.source(), None, &mut blob)
+                gltf::buffer::Data::from_source_and_blob(crate_source, None, &mut blob)
                     .map_err(|e| format!("buffer {index}: {e}"))?
                     .0
             }
         };
-        if data.len() < buffer.length() {
+        if data.len() < length {
             return Err(format!(
-                "buffer {index} holds {} bytes, less than its byteLength {}",
+                "buffer {index} holds {} bytes, less than its byteLength {length}",
                 data.len(),
-                buffer.length()
             ));
         }
         // As the gltf crate does: buffers are padded to four bytes.
@@ -419,9 +442,12 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     };
     let bytes = read_scene_file(path)?;
     check_glb_header(&bytes).map_err(err)?;
-    let gltf = parse_gltf(&bytes, path).map_err(err)?;
+    let (root, blob) = parse_gltf(&bytes, path).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new("."));
-    let buffers = load_gltf_buffers(&gltf, base).map_err(err)?;
+    let buffers = load_gltf_buffers(&root, blob.as_deref(), base).map_err(err)?;
+    let (root, buffers) = super::gltf_compression::decompress(root, buffers).map_err(err)?;
+    let document = gltf::Document::from_json(root).map_err(|e| err(e.to_string()))?;
+    let gltf = gltf::Gltf { document, blob };
     let mut b = Builder::default();
     let mut material_ids = std::collections::HashMap::new();
     let mut images = std::collections::HashMap::new();
@@ -979,8 +1005,10 @@ const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 7] = [
+const DRAWN_EXTENSIONS: [&str; 9] = [
     MESH_QUANTIZATION,
+    super::gltf_compression::MESHOPT,
+    super::gltf_compression::DRACO,
     TEXTURE_TRANSFORM,
     EMISSIVE_STRENGTH,
     IOR,
@@ -1528,24 +1556,21 @@ fn gltf_image(
 }
 
 /// The external buffers and images a glTF file (`bytes`, in directory `base`) refers to, for
-/// [`scene_files`]; best effort.
+/// [`scene_files`]; best effort. Read from the JSON without validation, so that a file which
+/// requires an extension the `gltf` crate does not know (a compression, say) still names its
+/// files.
 pub(super) fn referenced_files(bytes: &[u8], base: &Path) -> Vec<PathBuf> {
-    let mut files = Vec::new();
-    if let Ok(gltf) = gltf::Gltf::from_slice(bytes) {
-        for buffer in gltf.document.buffers() {
-            if let gltf::buffer::Source::Uri(uri) = buffer.source() {
-                if let Ok(BufferSource::File(file)) = buffer_source(base, uri) {
-                    files.push(file);
-                }
-            }
-        }
-        for image in gltf.document.images() {
-            if let gltf::image::Source::Uri { uri, .. } = image.source() {
-                if let Ok(BufferSource::File(file)) = buffer_source(base, uri) {
-                    files.push(file);
-                }
-            }
-        }
-    }
-    files
+    let Ok(gltf) = gltf::Gltf::from_slice_without_validation(bytes) else {
+        return Vec::new();
+    };
+    let root = gltf.document.as_json();
+    let buffer_uris = root.buffers.iter().filter_map(|b| b.uri.as_deref());
+    let image_uris = root.images.iter().filter_map(|i| i.uri.as_deref());
+    buffer_uris
+        .chain(image_uris)
+        .filter_map(|uri| match buffer_source(base, uri) {
+            Ok(BufferSource::File(file)) => Some(file),
+            _ => None,
+        })
+        .collect()
 }

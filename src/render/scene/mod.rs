@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 mod camera;
+mod gltf_compression;
 mod gltf_loader;
 mod material;
 mod obj_loader;

@@ -947,15 +947,15 @@ fn required_extensions_load_when_drawn_and_are_named_otherwise() {
     std::fs::write(
         &p,
         requiring(
-            r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular","KHR_materials_clearcoat"]"#,
+            r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular","KHR_materials_clearcoat","KHR_draco_mesh_compression","EXT_meshopt_compression"]"#,
         ),
     )
     .unwrap();
     Scene::load(&p, false).unwrap();
-    std::fs::write(&p, requiring(r#"["KHR_draco_mesh_compression"]"#)).unwrap();
+    std::fs::write(&p, requiring(r#"["KHR_texture_basisu"]"#)).unwrap();
     let e = Scene::load(&p, false).unwrap_err().to_string();
     assert!(
-        e.contains("required.gltf") && e.contains("requires extension KHR_draco_mesh_compression"),
+        e.contains("required.gltf") && e.contains("requires extension KHR_texture_basisu"),
         "{e}"
     );
 }

@@ -1,6 +1,7 @@
 //! Tests of scene loading, by source; the scene files they write share the helpers here.
 
 mod built_in;
+mod compressed_files;
 mod gltf_files;
 mod hostile_files;
 mod obj_files;
