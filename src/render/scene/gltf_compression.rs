@@ -2,13 +2,14 @@
 //! that everything after it (the accessor checks, the `gltf` crate's reader,
 //! `KHR_mesh_quantization`) sees an ordinary glTF file.
 //!
-//! - **`EXT_meshopt_compression`** (meshoptimizer's codecs, as gltfpack and glTF-Transform
-//!   write them): each compressed buffer view is decoded into its place in its buffer — most
-//!   often a *placeholder* buffer that has a length and no data ([`is_placeholder`]) — with
-//!   the `meshopt` crate's meshoptimizer: mode `ATTRIBUTES`, `TRIANGLES` or `INDICES`, then
-//!   the view's filter (`OCTAHEDRAL`, `QUATERNION`, `EXPONENTIAL`). The library checks the
-//!   compressed bytes but takes its parameters on trust (C `assert`s), so every rule of the
-//!   extension's validity list is checked here first, by name.
+//! - **`EXT_meshopt_compression`** and its ratified successor **`KHR_meshopt_compression`**
+//!   (meshoptimizer's codecs, as gltfpack and glTF-Transform write them): each compressed
+//!   buffer view is decoded into its place in its buffer — most often a *placeholder* buffer
+//!   that has a length and no data ([`is_placeholder`]) — with the `meshopt` crate's
+//!   meshoptimizer: mode `ATTRIBUTES`, `TRIANGLES` or `INDICES`, then the view's filter
+//!   (`OCTAHEDRAL`, `QUATERNION`, `EXPONENTIAL`, and the KHR version's `COLOR`). The library
+//!   checks the compressed bytes but takes its parameters on trust (C `assert`s), so every
+//!   rule of the extensions' validity lists is checked here first, by name.
 //! - **`KHR_draco_mesh_compression`** (Google's Draco, as Blender, glTF-Transform and
 //!   gltf-pipeline write it): each primitive's Draco bitstream is decoded with `draco-core`
 //!   (a pure-Rust port of Draco 1.5.7), under ceilings of [`MAX_SCENE_ELEMENTS`] points and
@@ -27,6 +28,15 @@ use serde_json::Value;
 
 /// The extension compressing buffer views.
 pub(super) const MESHOPT: &str = "EXT_meshopt_compression";
+/// Its Khronos version (the same, with the `COLOR` filter and the vertex codec's version 1).
+pub(super) const MESHOPT_KHR: &str = "KHR_meshopt_compression";
+
+/// A bufferView's or buffer's meshopt extension object (either version), and its name.
+fn meshopt_extension(others: &serde_json::Map<String, Value>) -> Option<(&'static str, &Value)> {
+    [MESHOPT, MESHOPT_KHR]
+        .into_iter()
+        .find_map(|name| Some((name, others.get(name)?)))
+}
 /// The extension compressing primitives.
 pub(super) const DRACO: &str = "KHR_draco_mesh_compression";
 
@@ -43,8 +53,8 @@ pub(super) fn is_placeholder(
     let fallback = buffer
         .extensions
         .as_ref()
-        .and_then(|e| e.others.get(MESHOPT))
-        .and_then(|e| e.get("fallback"))
+        .and_then(|e| meshopt_extension(&e.others))
+        .and_then(|(_, e)| e.get("fallback"))
         .and_then(Value::as_bool)
         == Some(true);
     fallback || (uses_meshopt && buffer.uri.is_none() && (index > 0 || !has_blob))
@@ -56,7 +66,7 @@ fn has_compressed_data(root: &json::Root) -> bool {
     let views = root.buffer_views.iter().any(|v| {
         v.extensions
             .as_ref()
-            .is_some_and(|e| e.others.contains_key(MESHOPT))
+            .is_some_and(|e| meshopt_extension(&e.others).is_some())
     });
     let primitives = root.meshes.iter().flat_map(|m| &m.primitives).any(|p| {
         p.extensions
@@ -77,11 +87,15 @@ pub(super) fn decompress(
         return Ok((root, buffers));
     }
     for (index, view) in root.buffer_views.iter().enumerate() {
-        let Some(extension) = view.extensions.as_ref().and_then(|e| e.others.get(MESHOPT)) else {
+        let Some((name, extension)) = view
+            .extensions
+            .as_ref()
+            .and_then(|e| meshopt_extension(&e.others))
+        else {
             continue;
         };
         decode_meshopt_view(view, extension, &mut buffers)
-            .map_err(|m| format!("buffer view {index}: {MESHOPT}: {m}"))?;
+            .map_err(|m| format!("buffer view {index}: {name}: {m}"))?;
     }
     let mut decoded = DecodedBuffer::new(root.buffers.len());
     let mut rewritten = vec![false; root.accessors.len()];
@@ -107,7 +121,7 @@ pub(super) fn decompress(
 // ---------------------------------------------------------------------------------------------
 // EXT_meshopt_compression
 
-/// A bufferView's `EXT_meshopt_compression` object.
+/// A bufferView's `EXT_meshopt_compression` or `KHR_meshopt_compression` object.
 #[derive(Debug, serde::Deserialize)]
 #[serde(rename_all = "camelCase")]
 struct MeshoptView {
@@ -138,6 +152,7 @@ enum MeshoptFilter {
     Octahedral,
     Quaternion,
     Exponential,
+    Color,
 }
 
 impl MeshoptView {
@@ -195,13 +210,13 @@ impl MeshoptView {
         }
         let filter_fits = match self.filter {
             MeshoptFilter::None | MeshoptFilter::Exponential => true,
-            MeshoptFilter::Octahedral => stride == 4 || stride == 8,
+            MeshoptFilter::Octahedral | MeshoptFilter::Color => stride == 4 || stride == 8,
             MeshoptFilter::Quaternion => stride == 8,
         };
         if !filter_fits {
             return Err(format!(
-                "filter {:?} does not take byteStride {stride} (OCTAHEDRAL takes 4 or 8, \
-                 QUATERNION 8)",
+                "filter {:?} does not take byteStride {stride} (OCTAHEDRAL and COLOR take 4 or \
+                 8, QUATERNION 8)",
                 self.filter
             ));
         }
@@ -209,7 +224,7 @@ impl MeshoptView {
     }
 }
 
-/// Decodes one compressed buffer view (its `EXT_meshopt_compression` object `extension`) into
+/// Decodes one compressed buffer view (its meshopt extension object `extension`) into
 /// its place in its buffer.
 fn decode_meshopt_view(
     view: &json::buffer::View,
@@ -293,6 +308,7 @@ fn decode_meshopt_view(
             MeshoptFilter::Octahedral => ffi::meshopt_decodeFilterOct(out, count, stride),
             MeshoptFilter::Quaternion => ffi::meshopt_decodeFilterQuat(out, count, stride),
             MeshoptFilter::Exponential => ffi::meshopt_decodeFilterExp(out, count, stride),
+            MeshoptFilter::Color => ffi::meshopt_decodeFilterColor(out, count, stride),
         }
     }
     let target = view.buffer.value();
@@ -379,6 +395,14 @@ fn decode_draco_primitive(
         return Ok(());
     };
     let spec = DracoPrimitive::deserialize(extension).map_err(|e| e.to_string())?;
+    if let Some(indices) = primitive.indices.map(|i| i.value()) {
+        if indices >= root.accessors.len() {
+            return Err(format!(
+                "indices name accessor {indices}, but the file has {} accessors",
+                root.accessors.len()
+            ));
+        }
+    }
     let view = root
         .buffer_views
         .get(spec.buffer_view)
@@ -387,6 +411,17 @@ fn decode_draco_primitive(
         view_bytes(view, buffers).map_err(|e| format!("buffer view {}: {e}", spec.buffer_view))?;
     let mesh = decode_draco(bytes)?;
     let points = mesh.num_points();
+    let triangles = matches!(
+        root.meshes[m].primitives[p].mode,
+        Checked::Valid(Mode::Triangles | Mode::TriangleStrip)
+    );
+    if triangles && mesh.num_faces() == 0 {
+        return Err(format!(
+            "the Draco data ({} bytes) hold no triangles (a point cloud?), for a primitive of \
+             triangles",
+            bytes.len()
+        ));
+    }
     let mut indices = Vec::with_capacity(mesh.num_faces() * 3);
     for face in mesh.faces() {
         for point in face {
@@ -425,7 +460,15 @@ fn decode_draco_primitive(
                 "attribute {semantic}: accessor {accessor_index} has no valid type"
             ));
         };
-        let mut values = attribute.read_f32s(points, type_.multiplicity());
+        let components = usize::from(attribute.num_components());
+        if components != type_.multiplicity() {
+            return Err(format!(
+                "attribute {semantic}: the Draco data have {components} components, accessor \
+                 {accessor_index} ({type_:?}) takes {}",
+                type_.multiplicity()
+            ));
+        }
+        let mut values = attribute.read_f32s(points, components);
         if let (true, Some((largest, signed))) =
             (accessor.normalized, integer_range(attribute.data_type()))
         {

@@ -311,6 +311,35 @@ fn parse_gltf(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec
             ));
         }
     }
+    // A texture's WebP image, where it has one, is the one drawn (the core `source` is then a
+    // fallback for viewers without the extension, or absent).
+    let images = root.images.len();
+    for (t, texture) in root.textures.iter_mut().enumerate() {
+        let webp = texture
+            .extensions
+            .as_ref()
+            .and_then(|e| e.others.get(TEXTURE_WEBP))
+            .map(|e| e.get("source"));
+        match webp {
+            None => {}
+            Some(Some(source)) => match source.as_u64() {
+                Some(i) if (i as usize) < images => {
+                    texture.source = gltf::json::Index::new(i as u32);
+                }
+                _ => {
+                    return Err(format!(
+                        "texture {t}: {TEXTURE_WEBP}.source {source} is not one of the file's \
+                         {images} images"
+                    ))
+                }
+            },
+            Some(None) => {
+                return Err(format!(
+                    "texture {t}: {TEXTURE_WEBP} has no source (the index of its WebP image)"
+                ))
+            }
+        }
+    }
     for (n, node) in root.nodes.iter_mut().enumerate() {
         check_node_transform(node).map_err(|m| format!("node {n}: {m}"))?;
         if let Some(rotation) = &mut node.rotation {
@@ -380,10 +409,9 @@ fn load_gltf_buffers(
 ) -> Result<Vec<gltf::buffer::Data>, String> {
     let mut blob = glb_blob.map(<[u8]>::to_vec);
     let mut buffers = Vec::new();
-    let uses_meshopt = root
-        .extensions_used
-        .iter()
-        .any(|e| e == super::gltf_compression::MESHOPT);
+    let uses_meshopt = root.extensions_used.iter().any(|e| {
+        e == super::gltf_compression::MESHOPT || e == super::gltf_compression::MESHOPT_KHR
+    });
     for (index, buffer) in root.buffers.iter().enumerate() {
         let length = buffer.byte_length.0 as usize;
         if super::gltf_compression::is_placeholder(buffer, index, glb_blob.is_some(), uses_meshopt)
@@ -1001,15 +1029,21 @@ fn gltf_material(
 /// The glTF extension that lets vertex attributes be bytes and shorts (`read_attribute`).
 const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
 
+/// The glTF extension that gives a texture a WebP image (in place of, or besides, its PNG or
+/// JPEG `source`).
+const TEXTURE_WEBP: &str = "EXT_texture_webp";
+
 /// The glTF extension that scales a material's emission past 1.
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 9] = [
+const DRAWN_EXTENSIONS: [&str; 11] = [
     MESH_QUANTIZATION,
     super::gltf_compression::MESHOPT,
+    super::gltf_compression::MESHOPT_KHR,
     super::gltf_compression::DRACO,
     TEXTURE_TRANSFORM,
+    TEXTURE_WEBP,
     EMISSIVE_STRENGTH,
     IOR,
     SPECULAR,

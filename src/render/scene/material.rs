@@ -341,7 +341,7 @@ impl TextureImage {
 /// The largest side of a scene's texture image, in pixels.
 pub const MAX_TEXTURE_SIDE: u32 = 8192;
 
-/// Decodes a PNG or JPEG texture image to RGBA8, at most [`MAX_TEXTURE_SIDE`] a side. Errors
+/// Decodes a PNG, JPEG or WebP texture image to RGBA8, at most [`MAX_TEXTURE_SIDE`] a side. Errors
 /// begin with `name`.
 pub(super) fn decode_texture(bytes: &[u8], name: String) -> Result<TextureImage, String> {
     let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
@@ -349,10 +349,11 @@ pub(super) fn decode_texture(bytes: &[u8], name: String) -> Result<TextureImage,
         .map_err(|e| format!("{name}: {e}"))?;
     if !matches!(
         reader.format(),
-        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)
+        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg | image::ImageFormat::WebP)
     ) {
         return Err(format!(
-            "{name}: not a PNG or JPEG image (the formats a glTF core texture may have)"
+            "{name}: not a PNG, JPEG or WebP image (the formats of a glTF core texture, and \
+             of EXT_texture_webp)"
         ));
     }
     let mut limits = image::Limits::default();

@@ -1,10 +1,13 @@
 #!/usr/bin/env python3
 """Writes sphere.glb: a UV sphere (24 segments, 12 rings) with positions, normals, texture
 coordinates, vertex colours and 16-bit indices, textured with a 2x1 PNG: the uncompressed
-source of the compressed fixtures (README.md beside it)."""
+source of the compressed fixtures (README.md beside it).
+
+Usage: make_sphere.py [OUT.glb [SEGMENTS RINGS]]; above 65,535 vertices the indices are
+32-bit (for timing the decoders on larger meshes)."""
 import json, math, struct, sys, zlib
 
-SEGMENTS, RINGS = 24, 12
+SEGMENTS, RINGS = (int(sys.argv[2]), int(sys.argv[3])) if len(sys.argv) > 3 else (24, 12)
 
 def png_2x1():
     raw = b"\x00" + bytes([255, 0, 0, 255, 0, 0, 255, 255])
@@ -38,8 +41,9 @@ for r in range(RINGS):
 def pack(fmt, rows):
     return b"".join(struct.pack("<" + fmt, *row) for row in rows)
 
+wide = len(pos) > 65535
 chunks = [pack("3f", pos), pack("3f", nrm), pack("2f", uv), pack("4f", col),
-          struct.pack("<%dH" % len(idx), *idx)]
+          struct.pack("<%d%s" % (len(idx), "I" if wide else "H"), *idx)]
 png = png_2x1()
 chunks.append(png)
 views, blob = [], b""
@@ -67,7 +71,7 @@ doc = {
         {"bufferView": 1, "componentType": 5126, "count": n, "type": "VEC3"},
         {"bufferView": 2, "componentType": 5126, "count": n, "type": "VEC2"},
         {"bufferView": 3, "componentType": 5126, "count": n, "type": "VEC4"},
-        {"bufferView": 4, "componentType": 5123, "count": len(idx), "type": "SCALAR"},
+        {"bufferView": 4, "componentType": 5125 if wide else 5123, "count": len(idx), "type": "SCALAR"},
     ],
     "bufferViews": views,
     "buffers": [{"byteLength": len(blob)}],

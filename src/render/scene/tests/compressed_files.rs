@@ -334,6 +334,10 @@ fn inconsistent_or_corrupt_draco_primitives_are_named() {
             "attribute NORMAL: the Draco data have no attribute of unique id 7",
         ),
         (
+            Box::new(|j, _| j["accessors"][4]["type"] = "VEC3".into()),
+            "attribute COLOR_0: the Draco data have 4 components, accessor 4 (Vec3) takes 3",
+        ),
+        (
             Box::new(|j, _| j["bufferViews"][1]["byteLength"] = 1000.into()),
             "KHR_draco_mesh_compression: the Draco data (1000 bytes) do not decode",
         ),
@@ -384,5 +388,40 @@ fn damaged_compressed_bytes_never_panic() {
         }
         eprintln!("{name}: {loaded} damaged files loaded, {refused} refused");
         assert!(refused > 0, "{name}: no damage was noticed");
+    }
+}
+
+/// Every number of the compressed fixtures' JSON (the extensions' offsets, lengths, strides,
+/// counts and unique ids, the accessors, views and buffers) replaced by hostile values
+/// (0, -1, 2³² − 1, 2⁶⁴ − 1, 1e308, …): each load returns, an error or a scene, and no
+/// reader panics ([`loads_without_panic`]).
+#[test]
+fn mutated_compressed_files_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("mutated.glb");
+    for name in [
+        "sphere_draco.glb",
+        "sphere_gltfpack.glb",
+        "sphere_gltfpack_khr.glb",
+    ] {
+        let (json, bin) = glb_parts(&std::fs::read(fixture(name)).unwrap());
+        let text = serde_json::to_string(&json).unwrap();
+        let numbers = number_spans(&text);
+        assert!(numbers.len() > 40, "{name}: {}", numbers.len());
+        let mut loaded = 0;
+        for &(start, end) in &numbers {
+            for value in HOSTILE_NUMBERS {
+                let mutated = format!("{}{value}{}", &text[..start], &text[end..]);
+                let Ok(json) = serde_json::from_str::<serde_json::Value>(&mutated) else {
+                    continue;
+                };
+                std::fs::write(&path, glb(&json, &bin)).unwrap();
+                loaded += usize::from(loads_without_panic(&path));
+            }
+        }
+        eprintln!(
+            "{name}: {} mutated files, {loaded} loaded",
+            numbers.len() * HOSTILE_NUMBERS.len()
+        );
     }
 }

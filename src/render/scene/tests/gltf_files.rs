@@ -33,7 +33,7 @@ fn gltf_with_embedded_buffer_loads_with_transform_and_material() {
 
 /// glTF textures load from a data URI or a file beside the scene, once per image, with
 /// their sampler's wrap modes and the primitive's TEXCOORD_0; the scene's files include
-/// the image file; an image that is missing, corrupt or neither PNG nor JPEG is an error
+/// the image file; an image that is missing, corrupt or neither PNG, JPEG nor WebP is an error
 /// naming the image and the problem.
 #[test]
 fn gltf_textures_load_with_their_coordinates_and_wrap_modes() {
@@ -70,7 +70,7 @@ fn gltf_textures_load_with_their_coordinates_and_wrap_modes() {
     for (uri, needle) in [
         ("missing.png", "missing.png"),
         ("bad.png", "bad.png"),
-        ("pic.gif", "not a PNG or JPEG"),
+        ("pic.gif", "not a PNG, JPEG or WebP"),
     ] {
         let p = textured_gltf(d, "t.gltf", uri);
         let e = Scene::load(&p, false).unwrap_err().to_string();
@@ -927,6 +927,75 @@ fn vertex_colours_load() {
     assert_eq!(s.vertices[0].color, [65535, 0, 13107, 26214]);
     let e = write(r#""COLOR_0":3"#).unwrap_err().to_string();
     assert!(e.contains("COLOR_0") && e.contains("Scalar"), "{e}");
+}
+
+/// A texture's `EXT_texture_webp` image is the one drawn, whether its core `source` is a PNG
+/// fallback or absent (the extension then required); a WebP source that names no image, or
+/// the extension without a source, is an error naming the texture.
+#[test]
+fn webp_textures_are_drawn_in_place_of_their_fallback() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let text = textured_gltf_text(d);
+    // The PNG's texels swapped: blue, then red.
+    let mut webp = Vec::new();
+    image::codecs::webp::WebPEncoder::new_lossless(&mut webp)
+        .encode(
+            &[0, 0, 255, 255, 255, 0, 0, 255],
+            2,
+            1,
+            image::ExtendedColorType::Rgba8,
+        )
+        .unwrap();
+    std::fs::write(d.join("tex.webp"), &webp).unwrap();
+    let text = text.replace(
+        r#""images":[{"uri":"tex.png"}]"#,
+        r#""images":[{"uri":"tex.png"},{"uri":"tex.webp"}]"#,
+    );
+    let p = d.join("webp.gltf");
+    let load = |texture: &str, required: bool| {
+        let mut file = text.replace(r#""textures":[{"source":0,"sampler":0}]"#, texture);
+        if required {
+            file = file.replacen(
+                "{",
+                r#"{"extensionsUsed":["EXT_texture_webp"],"extensionsRequired":["EXT_texture_webp"],"#,
+                1,
+            );
+        }
+        std::fs::write(&p, file).unwrap();
+        Scene::load(&p, false).map_err(|e| e.to_string())
+    };
+    for (texture, required) in [
+        (
+            r#""textures":[{"source":0,"sampler":0,"extensions":{"EXT_texture_webp":{"source":1}}}]"#,
+            false,
+        ),
+        (
+            r#""textures":[{"sampler":0,"extensions":{"EXT_texture_webp":{"source":1}}}]"#,
+            true,
+        ),
+    ] {
+        let s = load(texture, required).unwrap();
+        assert_eq!(s.textures.len(), 1, "{texture}");
+        assert_eq!(
+            s.textures[0].rgba,
+            [0, 0, 255, 255, 255, 0, 0, 255],
+            "{texture}"
+        );
+    }
+    for (texture, want) in [
+        (
+            r#""textures":[{"source":0,"sampler":0,"extensions":{"EXT_texture_webp":{"source":5}}}]"#,
+            "texture 0: EXT_texture_webp.source 5 is not one of the file's 2 images",
+        ),
+        (
+            r#""textures":[{"source":0,"sampler":0,"extensions":{"EXT_texture_webp":{}}}]"#,
+            "texture 0: EXT_texture_webp has no source",
+        ),
+    ] {
+        let e = load(texture, false).unwrap_err();
+        assert!(e.contains("webp.gltf") && e.contains(want), "{want}\n{e}");
+    }
 }
 
 /// A file may require the extensions the renderer draws (the `gltf` crate refused them,
