@@ -207,6 +207,9 @@ fn ggx_response(k: u32, n: vec3<f32>, v: vec3<f32>, alpha_in: f32) -> f32 {
 // The radiance (RGBA, opaque; a shadow catcher's premultiplied shadow) at the point `world`
 // of material `mat`, whose parameters there are `p` (`surface_params`).
 fn shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
+    if is_unlit(mat.params.w) {
+        return vec4<f32>(p.base_color, 1.0);
+    }
     let s = surface_at(world, p.normal, p, mat.params.w, globals.viewer);
     let n = s.n;
     let v = s.v;

@@ -131,6 +131,9 @@ fn sh_specular(n: vec3<f32>, v: vec3<f32>, alpha: f32) -> vec3<f32> {
 // The radiance (RGBA, opaque; transparent black for a shadow catcher) at the point `world` of
 // material `mat`, whose parameters there are `p` (`surface_params`).
 fn shaded(world: vec3<f32>, mat: Material, p: SurfaceParams) -> vec4<f32> {
+    if is_unlit(mat.params.w) {
+        return vec4<f32>(p.base_color, 1.0);
+    }
     let s = surface_at(world, p.normal, p, mat.params.w, globals.viewer);
     if s.catcher {
         return vec4<f32>(0.0);

@@ -265,6 +265,9 @@ fn cs_shade(@builtin(global_invocation_id) id: vec3<u32>) {
 // The shaded colour (premultiplied RGBA) of the surface point `world` with interpolated normal
 // `normal`, material `material` and its parameters there `p`.
 fn shade_point(world: vec3<f32>, normal: vec3<f32>, material: u32, p: SurfaceParams) -> vec4<f32> {
+    if is_unlit(materials[material].params.w) {
+        return vec4<f32>(p.base_color, 1.0);
+    }
     let s = surface_at(world, normal, p, materials[material].params.w, globals.viewer);
     let n = s.n;
     let v = s.v;

@@ -8,6 +8,7 @@
 const PI: f32 = 3.14159265358979;
 const FLAG_CATCHER: u32 = 1u;
 const FLAG_DOUBLE_SIDED: u32 = 2u;
+const FLAG_UNLIT: u32 = 4u;
 
 // A material's texture slots (src/render/textures.rs, `texture_slots`).
 const TEX_BASE_COLOR: u32 = 0u;
@@ -25,7 +26,7 @@ struct Material {
     // rgb: base colour; a: its alpha.
     base_color: vec4<f32>,
     // x: roughness, y: metallic, z: unused, w: flags (bit 0: shadow catcher, bit 1:
-    // double-sided).
+    // double-sided, bit 2: unlit).
     params: vec4<f32>,
     // Slot k's layer at layers[k / 4][k % 4] (negative: none): of the base-colour array for
     // the base-colour, emissive and specular-colour slots, of the data array for the others.
@@ -456,6 +457,12 @@ fn surface_at(world: vec3<f32>, normal: vec3<f32>, p: SurfaceParams, flags: f32,
     }
     s.catcher = (u32(flags) & FLAG_CATCHER) != 0u;
     return s;
+}
+
+// Whether a material of `flags` (`Material::params.w`) is unlit (`KHR_materials_unlit`): its
+// radiance is its base colour there (times texture and vertex colour), whatever the lights.
+fn is_unlit(flags: f32) -> bool {
+    return (u32(flags) & FLAG_UNLIT) != 0u;
 }
 
 // The parameters of a blended fragment (glTF's BLEND) of material `mat`, discarded where its

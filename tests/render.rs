@@ -1872,6 +1872,62 @@ fn asg_lighting_reads_base_colour_textures() {
     assert_close("ASG, grey texels", right, grey_right, 0.005);
 }
 
+/// An unlit material (`KHR_materials_unlit`) shows its base colour times its texture, as its
+/// radiance, in the light, ASG and SH passes alike, under any lights and none; the same
+/// material lit reflects the lights instead (so the test sees the flag).
+#[test]
+fn unlit_materials_show_their_base_colour_under_any_light() {
+    use envlight::asg::Asg;
+    use envlight::render::scene::TextureRef;
+    use envlight::sh::ShCoefficients;
+    use glam::DVec3;
+    const GREEN: [u8; 4] = [30, 180, 70, 255];
+    const GREY: [u8; 4] = [128, 128, 128, 255];
+    let linear = |code: [u8; 4]| [0, 1, 2].map(|c| srgb_code_to_linear(code[c]) * 0.5);
+    let mut material = Material::lambertian([0.5; 3]);
+    material.unlit = true;
+    material.textures.base_color = Some(TextureRef::repeating(0));
+    let halves = texture_row(4, |x| if x < 2 { GREEN } else { GREY });
+    let scene = textured_quad(material, vec![halves.clone()], 1.0);
+    let lit = textured_quad(
+        Material {
+            unlit: false,
+            ..material
+        },
+        vec![halves],
+        1.0,
+    );
+    let bright = [light(0, Vec3::Z, [30.0, 20.0, 10.0], 0.0)];
+    let grazing = [light(0, Vec3::new(1.0, 0.0, 0.2), [3.0, 3.0, 3.0], 0.0)];
+    let lobes = [Asg::new(DVec3::Z, DVec3::X, 4.0, 4.0, [2.0, 2.0, 2.0]).unwrap()];
+    let sh = ShCoefficients::from_lights(&bright, 2);
+    type Pass<'a> = &'a dyn Fn(&mut Renderer) -> Image;
+    let passes: [(&str, Pass); 5] = [
+        ("lights, bright", &|r| r.render(&bright).unwrap().0),
+        ("lights, grazing", &|r| r.render(&grazing).unwrap().0),
+        ("no lights", &|r| r.render(&[]).unwrap().0),
+        ("ASG", &|r| r.render_asg(&lobes).unwrap().0),
+        ("SH", &|r| r.render_sh(&sh).unwrap().0),
+    ];
+    for (pass, render) in passes {
+        let mut r = renderer(scene.clone(), quad_settings());
+        let img = render(&mut r);
+        let (left, right) = quad_halves(&r, &img);
+        assert_close(&format!("{pass}, green texels"), left, linear(GREEN), 0.005);
+        assert_close(&format!("{pass}, grey texels"), right, linear(GREY), 0.005);
+        let mut r = renderer(lit.clone(), quad_settings());
+        let img = render(&mut r);
+        let (left, _) = quad_halves(&r, &img);
+        let off = (0..3)
+            .map(|c| (left[c] - linear(GREEN)[c]).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            off > 0.05,
+            "{pass}: the lit material shows its base colour too ({left:?})"
+        );
+    }
+}
+
 /// An occlusion texture scales the light a surface reflects by 1 + strength · (R − 1), and an
 /// emissive texture's (sRGB-decoded) texels times the material's emission are added to it —
 /// alone under no lights — in the lit and the ASG passes. Each texture keeps its own wrap

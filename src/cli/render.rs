@@ -39,8 +39,8 @@ pub(crate) struct RenderArgs {
     /// Scene file (.gltf, .glb, .obj; glTF base-colour, metallic-roughness, normal, occlusion
     /// and emissive textures, vertex colours, emission, alpha cut-outs and blending, the index
     /// of refraction, specular and clear-coat factors, and an MTL's map_Kd, Ke, map_Ke, map_d,
-    /// d, Pr, Pm, Pc and Pcr are drawn; PNG, JPEG or WebP; Draco- or meshopt-compressed
-    /// geometry is decoded). [default: built-in spheres on a ground plane]
+    /// d, Pr, Pm, Pc and Pcr are drawn, and unlit materials; PNG, JPEG or WebP; Draco- or
+    /// meshopt-compressed geometry is decoded). [default: built-in spheres on a ground plane]
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
     /// Image size, 1..=16384 a side (the GPU's own limit applies too: 16384 on most).

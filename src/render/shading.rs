@@ -171,6 +171,8 @@ pub struct MaterialRaw {
 pub const FLAG_CATCHER: u32 = 1;
 /// Material flag: the surface is double-sided (set by [`Material::to_raw`] from the material).
 pub const FLAG_DOUBLE_SIDED: u32 = 2;
+/// Material flag: the surface is unlit (set by [`Material::to_raw`] from the material).
+pub const FLAG_UNLIT: u32 = 4;
 
 impl Material {
     /// The dielectric Fresnel terms (F0 per channel, F90) of glTF's `KHR_materials_specular`:
@@ -216,7 +218,8 @@ impl Material {
                         FLAG_DOUBLE_SIDED
                     } else {
                         0
-                    }) as f32,
+                    }
+                    | if self.unlit { FLAG_UNLIT } else { 0 }) as f32,
             ],
             layers,
             texture_modes: [

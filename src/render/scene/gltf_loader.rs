@@ -1022,12 +1022,16 @@ fn gltf_material(
         alpha: c[3],
         alpha_mode,
         double_sided: material.double_sided(),
+        unlit: material.extension_value(UNLIT).is_some(),
         textures,
     })
 }
 
 /// The glTF extension that lets vertex attributes be bytes and shorts (`read_attribute`).
 const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
+
+/// The glTF extension that shows a material's base colour unlit ([`Material::unlit`]).
+const UNLIT: &str = "KHR_materials_unlit";
 
 /// The glTF extension that gives a texture a WebP image (in place of, or besides, its PNG or
 /// JPEG `source`).
@@ -1037,8 +1041,9 @@ const TEXTURE_WEBP: &str = "EXT_texture_webp";
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 11] = [
+const DRAWN_EXTENSIONS: [&str; 12] = [
     MESH_QUANTIZATION,
+    UNLIT,
     super::gltf_compression::MESHOPT,
     super::gltf_compression::MESHOPT_KHR,
     super::gltf_compression::DRACO,

@@ -48,6 +48,11 @@ pub struct Material {
     /// surface is shaded with its normal reversed; single-sided, its back is not drawn (it
     /// still casts shadows). OBJ and built-in materials are double-sided.
     pub double_sided: bool,
+    /// glTF's `KHR_materials_unlit`: the surface shows its base colour (times its texture and
+    /// vertex colour) as its radiance, whatever the lights, as a photogrammetric scan with its
+    /// lighting baked in wants; its other factors and textures are not drawn. It still casts
+    /// shadows.
+    pub unlit: bool,
     /// Textures multiplying `base_color`, `roughness`, `metallic` and `emission`, the normal
     /// texture and the occlusion texture.
     pub textures: MaterialTextures,
@@ -70,6 +75,7 @@ impl Default for Material {
             alpha: 1.0,
             alpha_mode: AlphaMode::Opaque,
             double_sided: true,
+            unlit: false,
             textures: MaterialTextures::default(),
         }
     }

@@ -999,7 +999,8 @@ fn webp_textures_are_drawn_in_place_of_their_fallback() {
 }
 
 /// A file may require the extensions the renderer draws (the `gltf` crate refused them,
-/// none of its features being enabled); another required extension is an error naming it.
+/// none of its features being enabled), and `KHR_materials_unlit` makes its material unlit;
+/// another required extension is an error naming it.
 #[test]
 fn required_extensions_load_when_drawn_and_are_named_otherwise() {
     let dir = tempfile::tempdir().unwrap();
@@ -1016,11 +1017,21 @@ fn required_extensions_load_when_drawn_and_are_named_otherwise() {
     std::fs::write(
         &p,
         requiring(
-            r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular","KHR_materials_clearcoat","KHR_draco_mesh_compression","EXT_meshopt_compression"]"#,
+            r#"["KHR_texture_transform","KHR_materials_emissive_strength","KHR_materials_ior","KHR_materials_specular","KHR_materials_clearcoat","KHR_draco_mesh_compression","EXT_meshopt_compression","KHR_meshopt_compression","EXT_texture_webp","KHR_materials_unlit"]"#,
         ),
     )
     .unwrap();
-    Scene::load(&p, false).unwrap();
+    assert!(!Scene::load(&p, false).unwrap().materials[0].unlit);
+    // KHR_materials_unlit on the material makes it unlit.
+    std::fs::write(
+        &p,
+        requiring(r#"["KHR_materials_unlit"]"#).replace(
+            r#""normalTexture":{"index":0}"#,
+            r#""normalTexture":{"index":0},"extensions":{"KHR_materials_unlit":{}}"#,
+        ),
+    )
+    .unwrap();
+    assert!(Scene::load(&p, false).unwrap().materials[0].unlit);
     std::fs::write(&p, requiring(r#"["KHR_texture_basisu"]"#)).unwrap();
     let e = Scene::load(&p, false).unwrap_err().to_string();
     assert!(
