@@ -15,8 +15,11 @@
 //!   (a pure-Rust port of Draco 1.5.7), under ceilings of [`MAX_SCENE_ELEMENTS`] points and
 //!   faces. Its faces become `u32` indices and each attribute the extension names (by Draco
 //!   unique id) becomes `FLOAT` values — integer values divided by their type's largest value
-//!   where the primitive's accessor is normalised — in a new buffer, read through a new
-//!   accessor, so that an accessor shared with another primitive is left as it was.
+//!   where the primitive's accessor is normalised — in a new buffer. The primitive's own
+//!   accessors, which hold no data (the `gltf` crate's validation refuses them, so this runs
+//!   before it), are rewritten to read them; an accessor that holds data (an uncompressed
+//!   fallback, perhaps read by another primitive too) or that an earlier Draco primitive
+//!   already took is left as it is, and a new accessor reads the decoded values instead.
 //!
 //! Errors name the buffer view or primitive and the property at fault; a decoder's panic on a
 //! hostile file is caught and reported as an error.
@@ -31,19 +34,20 @@ pub(super) const MESHOPT: &str = "EXT_meshopt_compression";
 /// Its Khronos version (the same, with the `COLOR` filter and the vertex codec's version 1).
 pub(super) const MESHOPT_KHR: &str = "KHR_meshopt_compression";
 
+/// The extension compressing primitives.
+pub(super) const DRACO: &str = "KHR_draco_mesh_compression";
+
 /// A bufferView's or buffer's meshopt extension object (either version), and its name.
 fn meshopt_extension(others: &serde_json::Map<String, Value>) -> Option<(&'static str, &Value)> {
     [MESHOPT, MESHOPT_KHR]
         .into_iter()
         .find_map(|name| Some((name, others.get(name)?)))
 }
-/// The extension compressing primitives.
-pub(super) const DRACO: &str = "KHR_draco_mesh_compression";
 
 /// Whether buffer `index` of a file (`has_blob`: a GLB with a binary chunk) is a placeholder
-/// for `EXT_meshopt_compression`'s decoded views, to be allocated (zeroed) rather than read:
-/// one marked `"fallback": true`, or one without a URI that is not the GLB's binary chunk
-/// (index 0) in a file using the extension.
+/// for meshopt's decoded views, to be allocated (zeroed) rather than read: one marked
+/// `"fallback": true` by either version of the extension, or one without a URI that is not
+/// the GLB's binary chunk (index 0) in a file using it (`uses_meshopt`).
 pub(super) fn is_placeholder(
     buffer: &json::Buffer,
     index: usize,
@@ -155,6 +159,30 @@ enum MeshoptFilter {
     Color,
 }
 
+impl std::fmt::Display for MeshoptMode {
+    /// The JSON's name.
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Attributes => "ATTRIBUTES",
+            Self::Triangles => "TRIANGLES",
+            Self::Indices => "INDICES",
+        })
+    }
+}
+
+impl std::fmt::Display for MeshoptFilter {
+    /// The JSON's name.
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::None => "NONE",
+            Self::Octahedral => "OCTAHEDRAL",
+            Self::Quaternion => "QUATERNION",
+            Self::Exponential => "EXPONENTIAL",
+            Self::Color => "COLOR",
+        })
+    }
+}
+
 impl MeshoptView {
     /// The extension's validity rules that the decoders assume, as errors.
     fn check(&self, view: &json::buffer::View) -> Result<(), String> {
@@ -191,7 +219,7 @@ impl MeshoptView {
             MeshoptMode::Triangles | MeshoptMode::Indices => {
                 if stride != 2 && stride != 4 {
                     return Err(format!(
-                        "byteStride {stride} of mode {:?} is neither 2 nor 4",
+                        "byteStride {stride} of mode {} is neither 2 nor 4",
                         self.mode
                     ));
                 }
@@ -202,7 +230,7 @@ impl MeshoptView {
                 }
                 if self.filter != MeshoptFilter::None {
                     return Err(format!(
-                        "filter {:?} on mode {:?} (filters apply to ATTRIBUTES only)",
+                        "filter {} on mode {} (filters apply to ATTRIBUTES only)",
                         self.filter, self.mode
                     ));
                 }
@@ -215,7 +243,7 @@ impl MeshoptView {
         };
         if !filter_fits {
             return Err(format!(
-                "filter {:?} does not take byteStride {stride} (OCTAHEDRAL and COLOR take 4 or \
+                "filter {} does not take byteStride {stride} (OCTAHEDRAL and COLOR take 4 or \
                  8, QUATERNION 8)",
                 self.filter
             ));
@@ -287,7 +315,7 @@ fn decode_meshopt_view(
     };
     if status != 0 {
         return Err(format!(
-            "the {:?} data ({} bytes in buffer {}) do not decode to {count} elements of {stride} \
+            "the {} data ({} bytes in buffer {}) do not decode to {count} elements of {stride} \
              bytes (meshoptimizer's code {status}: {})",
             spec.mode,
             spec.byte_length,

@@ -527,266 +527,278 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         let Some(mesh) = node.mesh() else { continue };
         // Only where a mesh is drawn: a helper node without one may overflow harmlessly.
         let node_name = format!("node {} ({:?})", node.index(), node.name().unwrap_or(""));
-        if !world.is_finite() {
-            return Err(err(format!(
-                "{node_name}: its transform combined with its parents' overflows f32 (scales \
-                 or translations whose product exceeds 3.4e38)"
-            )));
-        }
-        let normal_matrix = normal_matrix(world);
-        let mesh_name = |prim: &gltf::Primitive| {
-            format!(
-                "mesh {} ({:?}) primitive {}",
-                mesh.index(),
-                mesh.name().unwrap_or(""),
-                prim.index()
-            )
-        };
-        for prim in mesh.primitives() {
-            if prim.mode() != gltf::mesh::Mode::Triangles {
-                tracing::warn!(
-                    "{}: skipping a primitive of mode {:?} (only triangles are drawn)",
-                    path.display(),
-                    prim.mode()
-                );
-                continue;
-            }
-            let mat = prim.material();
-            let channels = texture_channels(&mat);
-            // A normal texture, the base's or the clear coat's, needs the tangent frame.
-            let coat_normal =
-                extension_texture(&mat, COAT_NORMAL_TEXTURE).is_ok_and(|t| t.is_some());
-            let normal_textured = mat.normal_texture().is_some() || coat_normal;
-            for (semantic, accessor) in prim.attributes() {
-                use gltf::accessor::{
-                    DataType::{F32, I16, I8, U16, U8},
-                    Dimensions::{Vec2, Vec3, Vec4},
-                };
-                // Floats, and the integers KHR_mesh_quantization allows (`read_attribute`).
-                let (name, dimensions, types) = match semantic {
-                    gltf::Semantic::Positions => {
-                        ("POSITION".to_string(), Vec3, &[F32, I8, U8, I16, U16][..])
-                    }
-                    gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32, I8, I16][..]),
-                    gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => (
-                        format!("TEXCOORD_{set}"),
-                        Vec2,
-                        &[F32, I8, U8, I16, U16][..],
-                    ),
-                    gltf::Semantic::Tangents if normal_textured => {
-                        ("TANGENT".to_string(), Vec4, &[F32, I8, I16][..])
-                    }
-                    gltf::Semantic::Colors(0) => {
-                        // VEC3 or VEC4.
-                        let dimensions = match accessor.dimensions() {
-                            Vec3 => Vec3,
-                            _ => Vec4,
-                        };
-                        ("COLOR_0".to_string(), dimensions, &[F32, U8, U16][..])
-                    }
-                    gltf::Semantic::Colors(_) => {
-                        ignored.insert("vertex colours past COLOR_0".into());
-                        continue;
-                    }
-                    _ => continue,
-                };
-                check_accessor(&accessor, &buffers, dimensions, types)
-                    .map_err(|m| err(format!("{}: {name} {m}", mesh_name(&prim))))?;
-            }
-            if let Some(accessor) = prim.indices() {
-                use gltf::accessor::{
-                    DataType::{U16, U32, U8},
-                    Dimensions::Scalar,
-                };
-                check_accessor(&accessor, &buffers, Scalar, &[U8, U16, U32])
-                    .map_err(|m| err(format!("{}: indices {m}", mesh_name(&prim))))?;
-            }
-            // The whole scene, flattened, within the per-accessor limit too: nodes that
-            // instance one mesh add its vertices again each time (4,000 nodes of one
-            // 100,000-vertex mesh, a 1.4 MB file, needed 13 GB).
-            let vertex_count = prim
-                .get(&gltf::Semantic::Positions)
-                .map_or(0, |a| a.count());
-            let index_count = prim.indices().map_or(vertex_count, |a| a.count());
-            if b.vertices.len() + vertex_count > max_elements
-                || b.indices.len() + index_count > max_elements
-            {
+        let instances = node_instances(&node, &gltf.document, &buffers)
+            .map_err(|m| err(format!("{node_name}: {INSTANCING}: {m}")))?;
+        let parent_world = world;
+        for (instance, local) in instances.iter().enumerate() {
+            let world = parent_world * *local;
+            let node_name = if instances.len() > 1 {
+                format!("{node_name}, instance {instance}")
+            } else {
+                node_name.clone()
+            };
+            if !world.is_finite() {
                 return Err(err(format!(
-                    "{}: the scene flattened to world space holds more than {max_elements} \
-                     vertices or indices ({} and {} before this primitive of {vertex_count} \
-                     and {index_count}; every node that uses a mesh adds it again)",
-                    mesh_name(&prim),
-                    b.vertices.len(),
-                    b.indices.len()
+                    "{node_name}: its transform combined with its parents' overflows f32 (scales \
+                 or translations whose product exceeds 3.4e38)"
                 )));
             }
-            let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
-            let attribute = |semantic: gltf::Semantic| prim.get(&semantic);
-            let Some(positions) = attribute(gltf::Semantic::Positions)
-                .and_then(|a| read_attribute::<3>(&a, &buffers))
-            else {
-                if prim.get(&gltf::Semantic::Positions).is_none() {
-                    // The spec's advice for a primitive without positions: skip it.
+            let normal_matrix = normal_matrix(world);
+            let mesh_name = |prim: &gltf::Primitive| {
+                format!(
+                    "mesh {} ({:?}) primitive {}",
+                    mesh.index(),
+                    mesh.name().unwrap_or(""),
+                    prim.index()
+                )
+            };
+            for prim in mesh.primitives() {
+                if prim.mode() != gltf::mesh::Mode::Triangles {
                     tracing::warn!(
-                        "{}: skipping {}: it has no POSITION attribute",
+                        "{}: skipping a primitive of mode {:?} (only triangles are drawn)",
                         path.display(),
-                        mesh_name(&prim)
+                        prim.mode()
                     );
                     continue;
                 }
-                return Err(err(format!(
-                    "{}: its POSITION accessor cannot be read (out of range of its buffer?)",
-                    mesh_name(&prim)
-                )));
-            };
-            let positions: Vec<Vec3> = positions
-                .into_iter()
-                .map(|p| world.transform_point3(Vec3::from_array(p)))
-                .collect();
-            let mut indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
-                (Some(i), _) => i.into_u32().collect(),
-                (None, None) => (0..positions.len() as u32).collect(),
-                (None, Some(_)) => {
+                let mat = prim.material();
+                let channels = texture_channels(&mat);
+                // A normal texture, the base's or the clear coat's, needs the tangent frame.
+                let coat_normal =
+                    extension_texture(&mat, COAT_NORMAL_TEXTURE).is_ok_and(|t| t.is_some());
+                let normal_textured = mat.normal_texture().is_some() || coat_normal;
+                for (semantic, accessor) in prim.attributes() {
+                    use gltf::accessor::{
+                        DataType::{F32, I16, I8, U16, U8},
+                        Dimensions::{Vec2, Vec3, Vec4},
+                    };
+                    // Floats, and the integers KHR_mesh_quantization allows (`read_attribute`).
+                    let (name, dimensions, types) = match semantic {
+                        gltf::Semantic::Positions => {
+                            ("POSITION".to_string(), Vec3, &[F32, I8, U8, I16, U16][..])
+                        }
+                        gltf::Semantic::Normals => {
+                            ("NORMAL".to_string(), Vec3, &[F32, I8, I16][..])
+                        }
+                        gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => (
+                            format!("TEXCOORD_{set}"),
+                            Vec2,
+                            &[F32, I8, U8, I16, U16][..],
+                        ),
+                        gltf::Semantic::Tangents if normal_textured => {
+                            ("TANGENT".to_string(), Vec4, &[F32, I8, I16][..])
+                        }
+                        gltf::Semantic::Colors(0) => {
+                            // VEC3 or VEC4.
+                            let dimensions = match accessor.dimensions() {
+                                Vec3 => Vec3,
+                                _ => Vec4,
+                            };
+                            ("COLOR_0".to_string(), dimensions, &[F32, U8, U16][..])
+                        }
+                        gltf::Semantic::Colors(_) => {
+                            ignored.insert("vertex colours past COLOR_0".into());
+                            continue;
+                        }
+                        _ => continue,
+                    };
+                    check_accessor(&accessor, &buffers, dimensions, types)
+                        .map_err(|m| err(format!("{}: {name} {m}", mesh_name(&prim))))?;
+                }
+                if let Some(accessor) = prim.indices() {
+                    use gltf::accessor::{
+                        DataType::{U16, U32, U8},
+                        Dimensions::Scalar,
+                    };
+                    check_accessor(&accessor, &buffers, Scalar, &[U8, U16, U32])
+                        .map_err(|m| err(format!("{}: indices {m}", mesh_name(&prim))))?;
+                }
+                // The whole scene, flattened, within the per-accessor limit too: nodes that
+                // instance one mesh add its vertices again each time (4,000 nodes of one
+                // 100,000-vertex mesh, a 1.4 MB file, needed 13 GB).
+                let vertex_count = prim
+                    .get(&gltf::Semantic::Positions)
+                    .map_or(0, |a| a.count());
+                let index_count = prim.indices().map_or(vertex_count, |a| a.count());
+                if b.vertices.len() + vertex_count > max_elements
+                    || b.indices.len() + index_count > max_elements
+                {
                     return Err(err(format!(
-                        "{}: its indices accessor cannot be read (out of range of its buffer?)",
+                        "{}: the scene flattened to world space holds more than {max_elements} \
+                     vertices or indices ({} and {} before this primitive of {vertex_count} \
+                     and {index_count}; every node that uses a mesh adds it again)",
+                        mesh_name(&prim),
+                        b.vertices.len(),
+                        b.indices.len()
+                    )));
+                }
+                let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
+                let attribute = |semantic: gltf::Semantic| prim.get(&semantic);
+                let Some(positions) = attribute(gltf::Semantic::Positions)
+                    .and_then(|a| read_attribute::<3>(&a, &buffers))
+                else {
+                    if prim.get(&gltf::Semantic::Positions).is_none() {
+                        // The spec's advice for a primitive without positions: skip it.
+                        tracing::warn!(
+                            "{}: skipping {}: it has no POSITION attribute",
+                            path.display(),
+                            mesh_name(&prim)
+                        );
+                        continue;
+                    }
+                    return Err(err(format!(
+                        "{}: its POSITION accessor cannot be read (out of range of its buffer?)",
                         mesh_name(&prim)
-                    )))
-                }
-            };
-            if !indices.len().is_multiple_of(3) {
-                return Err(err(format!(
-                    "{}: {} indices, not a multiple of 3 (triangles)",
-                    mesh_name(&prim),
-                    indices.len()
-                )));
-            }
-            if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
-                return Err(err(format!(
-                    "{}: index {i} out of range of its {} vertices",
-                    mesh_name(&prim),
-                    positions.len()
-                )));
-            }
-            // A mirroring node reverses the triangles' winding (glTF): turned back, so that
-            // front faces wind counter-clockwise in world space (single-sided materials, the
-            // normals made from the winding).
-            if world.determinant() < 0.0 {
-                for triangle in indices.chunks_exact_mut(3) {
-                    triangle.swap(1, 2);
-                }
-            }
-            let read_normals =
-                attribute(gltf::Semantic::Normals).and_then(|a| read_attribute::<3>(&a, &buffers));
-            let mut normals: Vec<Vec3> = match read_normals {
-                Some(n) => n
+                    )));
+                };
+                let positions: Vec<Vec3> = positions
                     .into_iter()
-                    .map(|n| normal_matrix * Vec3::from_array(n))
-                    .collect::<Vec<_>>(),
-                None if prim.get(&gltf::Semantic::Normals).is_some() => {
+                    .map(|p| world.transform_point3(Vec3::from_array(p)))
+                    .collect();
+                let mut indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
+                    (Some(i), _) => i.into_u32().collect(),
+                    (None, None) => (0..positions.len() as u32).collect(),
+                    (None, Some(_)) => {
+                        return Err(err(format!(
+                            "{}: its indices accessor cannot be read (out of range of its buffer?)",
+                            mesh_name(&prim)
+                        )))
+                    }
+                };
+                if !indices.len().is_multiple_of(3) {
                     return Err(err(format!(
-                        "{}: its NORMAL accessor cannot be read (out of range of its buffer?)",
-                        mesh_name(&prim)
-                    )))
+                        "{}: {} indices, not a multiple of 3 (triangles)",
+                        mesh_name(&prim),
+                        indices.len()
+                    )));
                 }
-                None => smooth_normals(&positions, &indices),
-            };
-            if normals.len() != positions.len() {
-                return Err(err("normal count differs from position count".into()));
-            }
-            if positions.iter().chain(&normals).any(|p| !p.is_finite()) {
-                return Err(err(format!(
+                if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+                    return Err(err(format!(
+                        "{}: index {i} out of range of its {} vertices",
+                        mesh_name(&prim),
+                        positions.len()
+                    )));
+                }
+                // A mirroring node reverses the triangles' winding (glTF): turned back, so that
+                // front faces wind counter-clockwise in world space (single-sided materials, the
+                // normals made from the winding).
+                if world.determinant() < 0.0 {
+                    for triangle in indices.chunks_exact_mut(3) {
+                        triangle.swap(1, 2);
+                    }
+                }
+                let read_normals = attribute(gltf::Semantic::Normals)
+                    .and_then(|a| read_attribute::<3>(&a, &buffers));
+                let mut normals: Vec<Vec3> = match read_normals {
+                    Some(n) => n
+                        .into_iter()
+                        .map(|n| normal_matrix * Vec3::from_array(n))
+                        .collect::<Vec<_>>(),
+                    None if prim.get(&gltf::Semantic::Normals).is_some() => {
+                        return Err(err(format!(
+                            "{}: its NORMAL accessor cannot be read (out of range of its buffer?)",
+                            mesh_name(&prim)
+                        )))
+                    }
+                    None => smooth_normals(&positions, &indices),
+                };
+                if normals.len() != positions.len() {
+                    return Err(err("normal count differs from position count".into()));
+                }
+                if positions.iter().chain(&normals).any(|p| !p.is_finite()) {
+                    return Err(err(format!(
                     "{node_name}, {}: a vertex position or normal is not finite in world space \
                      (a vertex times the node's transform overflows f32?)",
                     mesh_name(&prim)
                 )));
-            }
-            repair_zero_normals(path, &positions, &mut normals, &indices);
-            // The texture coordinates of each channel (none where the material has no set for
-            // it).
-            let mut uvs: [Vec<[f32; 2]>; 2] = Default::default();
-            for (channel, &set) in channels.sets.iter().enumerate() {
-                let read = attribute(gltf::Semantic::TexCoords(set))
-                    .and_then(|a| read_attribute::<2>(&a, &buffers));
-                let Some(read) = read else {
-                    return Err(err(format!(
-                        "{}: its material is textured, but it has no readable TEXCOORD_{set}",
-                        mesh_name(&prim)
-                    )));
+                }
+                repair_zero_normals(path, &positions, &mut normals, &indices);
+                // The texture coordinates of each channel (none where the material has no set for
+                // it).
+                let mut uvs: [Vec<[f32; 2]>; 2] = Default::default();
+                for (channel, &set) in channels.sets.iter().enumerate() {
+                    let read = attribute(gltf::Semantic::TexCoords(set))
+                        .and_then(|a| read_attribute::<2>(&a, &buffers));
+                    let Some(read) = read else {
+                        return Err(err(format!(
+                            "{}: its material is textured, but it has no readable TEXCOORD_{set}",
+                            mesh_name(&prim)
+                        )));
+                    };
+                    check_per_vertex(&read, positions.len(), &format!("TEXCOORD_{set}"))
+                        .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
+                    uvs[channel] = read;
+                }
+                // MikkTSpace's tangents follow the normal texture's coordinates (the clear
+                // coat's where the base has none).
+                let normal_slot = if mat.normal_texture().is_some() {
+                    NORMAL_SLOT
+                } else {
+                    COAT_NORMAL_SLOT
                 };
-                check_per_vertex(&read, positions.len(), &format!("TEXCOORD_{set}"))
-                    .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
-                uvs[channel] = read;
-            }
-            // MikkTSpace's tangents follow the normal texture's coordinates (the clear
-            // coat's where the base has none).
-            let normal_slot = if mat.normal_texture().is_some() {
-                NORMAL_SLOT
-            } else {
-                COAT_NORMAL_SLOT
-            };
-            let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
-            // Tangents where a normal texture needs them: the file's, turned with the node
-            // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
-            let read_tangents =
-                attribute(gltf::Semantic::Tangents).and_then(|a| read_attribute::<4>(&a, &buffers));
-            let tangents: Vec<[f32; 4]> = match (normal_textured, read_tangents) {
-                (false, _) => Vec::new(),
-                (true, _) if normal_uvs.is_empty() => Vec::new(),
-                (true, Some(t)) => {
-                    let handedness = world.determinant().signum();
-                    t.into_iter()
-                        .map(|[x, y, z, w]| {
-                            let t = world
-                                .transform_vector3(Vec3::new(x, y, z))
-                                .normalize_or_zero();
-                            [
-                                t.x,
-                                t.y,
-                                t.z,
-                                if w < 0.0 { -handedness } else { handedness },
-                            ]
-                        })
-                        .collect()
-                }
-                (true, None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
-                    return Err(err(format!(
-                        "{}: its TANGENT accessor cannot be read (out of range of its buffer?)",
-                        mesh_name(&prim)
-                    )))
-                }
-                (true, None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
-                    .unwrap_or_else(|| {
-                        tracing::warn!(
+                let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
+                // Tangents where a normal texture needs them: the file's, turned with the node
+                // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
+                let read_tangents = attribute(gltf::Semantic::Tangents)
+                    .and_then(|a| read_attribute::<4>(&a, &buffers));
+                let tangents: Vec<[f32; 4]> = match (normal_textured, read_tangents) {
+                    (false, _) => Vec::new(),
+                    (true, _) if normal_uvs.is_empty() => Vec::new(),
+                    (true, Some(t)) => {
+                        let handedness = world.determinant().signum();
+                        t.into_iter()
+                            .map(|[x, y, z, w]| {
+                                let t = world
+                                    .transform_vector3(Vec3::new(x, y, z))
+                                    .normalize_or_zero();
+                                [
+                                    t.x,
+                                    t.y,
+                                    t.z,
+                                    if w < 0.0 { -handedness } else { handedness },
+                                ]
+                            })
+                            .collect()
+                    }
+                    (true, None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
+                        return Err(err(format!(
+                            "{}: its TANGENT accessor cannot be read (out of range of its buffer?)",
+                            mesh_name(&prim)
+                        )))
+                    }
+                    (true, None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
+                        .unwrap_or_else(|| {
+                            tracing::warn!(
                             "{}: {}: no tangents could be made for its normal texture (degenerate \
                              texture coordinates?); drawn without it",
                             path.display(),
                             mesh_name(&prim)
                         );
-                        Vec::new()
-                    }),
-            };
-            if !tangents.is_empty() {
-                check_per_vertex(&tangents, positions.len(), "TANGENT")
-                    .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
-            }
-            let key = mat.index();
-            let id = match material_ids.get(&key) {
-                Some(&id) => id,
-                None => {
-                    if mat.normal_texture().is_some()
-                        && coat_normal
-                        && channels.channel[NORMAL_SLOT] != channels.channel[COAT_NORMAL_SLOT]
-                    {
-                        tracing::warn!(
-                            "{}: material {:?}: its clear-coat normal texture reads other \
+                            Vec::new()
+                        }),
+                };
+                if !tangents.is_empty() {
+                    check_per_vertex(&tangents, positions.len(), "TANGENT")
+                        .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
+                }
+                let key = mat.index();
+                let id = match material_ids.get(&key) {
+                    Some(&id) => id,
+                    None => {
+                        if mat.normal_texture().is_some()
+                            && coat_normal
+                            && channels.channel[NORMAL_SLOT] != channels.channel[COAT_NORMAL_SLOT]
+                        {
+                            tracing::warn!(
+                                "{}: material {:?}: its clear-coat normal texture reads other \
                              texture coordinates than its normal texture; read with the normal \
                              texture's tangents",
-                            path.display(),
-                            mat.name().unwrap_or("")
-                        );
-                    }
-                    for &(slot, set) in &channels.unplaced {
-                        tracing::warn!(
+                                path.display(),
+                                mat.name().unwrap_or("")
+                            );
+                        }
+                        for &(slot, set) in &channels.unplaced {
+                            tracing::warn!(
                             "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
                              set (envlight reads two: TEXCOORD_{} and TEXCOORD_{}); read with \
                              TEXCOORD_{}",
@@ -796,55 +808,56 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                             channels.sets[1],
                             channels.sets[0]
                         );
+                        }
+                        let material = gltf_material(
+                            &gltf.document,
+                            &mat,
+                            &channels,
+                            &buffers,
+                            base,
+                            &mut b,
+                            &mut images,
+                        )
+                        .map_err(|m| {
+                            err(format!(
+                                "material {} ({:?}): {m}",
+                                mat.index().map_or("default".to_string(), |i| i.to_string()),
+                                mat.name().unwrap_or("")
+                            ))
+                        })?;
+                        let id = b.material(material);
+                        material_ids.insert(key, id);
+                        id
                     }
-                    let material = gltf_material(
-                        &gltf.document,
-                        &mat,
-                        &channels,
-                        &buffers,
-                        base,
-                        &mut b,
-                        &mut images,
-                    )
-                    .map_err(|m| {
-                        err(format!(
-                            "material {} ({:?}): {m}",
-                            mat.index().map_or("default".to_string(), |i| i.to_string()),
-                            mat.name().unwrap_or("")
-                        ))
-                    })?;
-                    let id = b.material(material);
-                    material_ids.insert(key, id);
-                    id
-                }
-            };
-            let colors: Vec<[u16; 4]> = match reader.read_colors(0) {
-                // Through f32: the crate widens bytes by a shift (255 became 65280, not 1).
-                Some(c) => c
-                    .into_rgba_f32()
-                    .map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
-                    .collect(),
-                None if prim.get(&gltf::Semantic::Colors(0)).is_some() => {
+                };
+                let colors: Vec<[u16; 4]> = match reader.read_colors(0) {
+                    // Through f32: the crate widens bytes by a shift (255 became 65280, not 1).
+                    Some(c) => c
+                        .into_rgba_f32()
+                        .map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
+                        .collect(),
+                    None if prim.get(&gltf::Semantic::Colors(0)).is_some() => {
+                        return Err(err(format!(
+                            "{}: its COLOR_0 accessor cannot be read (out of range of its buffer?)",
+                            mesh_name(&prim)
+                        )))
+                    }
+                    None => Vec::new(),
+                };
+                if !colors.is_empty() && colors.len() != positions.len() {
                     return Err(err(format!(
-                        "{}: its COLOR_0 accessor cannot be read (out of range of its buffer?)",
-                        mesh_name(&prim)
-                    )))
+                        "{}: {} COLOR_0 values for {} positions",
+                        mesh_name(&prim),
+                        colors.len(),
+                        positions.len()
+                    )));
                 }
-                None => Vec::new(),
-            };
-            if !colors.is_empty() && colors.len() != positions.len() {
-                return Err(err(format!(
-                    "{}: {} COLOR_0 values for {} positions",
-                    mesh_name(&prim),
-                    colors.len(),
-                    positions.len()
-                )));
+                let first = b.vertices.len();
+                b.mesh(&positions, &normals, &uvs[0], &indices, id);
+                b.set_second_uvs(first, &uvs[1]);
+                b.set_colors(first, &colors);
+                b.set_tangents(first, &tangents);
             }
-            let first = b.vertices.len();
-            b.mesh(&positions, &normals, &uvs[0], &indices, id);
-            b.set_second_uvs(first, &uvs[1]);
-            b.set_colors(first, &colors);
-            b.set_tangents(first, &tangents);
         }
     }
     // The first camera node (by index) of the scene: the view the file was made for.
@@ -874,7 +887,8 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         tracing::warn!(
             "{}: not drawn (envlight renders the alpha modes, the index of refraction, and base \
              colour, metallic, roughness, emission, specular and clear coat, with their \
-             textures, the sheen's factors, and normal and occlusion textures): {}",
+             textures, the sheen's factors, unlit materials, and normal and occlusion \
+             textures): {}",
             path.display(),
             ignored.into_iter().collect::<Vec<_>>().join(", ")
         );
@@ -1030,6 +1044,118 @@ fn gltf_material(
 /// The glTF extension that lets vertex attributes be bytes and shorts (`read_attribute`).
 const MESH_QUANTIZATION: &str = "KHR_mesh_quantization";
 
+/// The glTF extension that draws a node's mesh once per instance ([`node_instances`]).
+const INSTANCING: &str = "EXT_mesh_gpu_instancing";
+
+/// The local transforms of a node's mesh instances: `EXT_mesh_gpu_instancing`'s
+/// TRANSLATION, ROTATION and SCALE of each instance, as T · R · S within the node's space (each
+/// attribute absent is the identity's; floats, or the bytes and shorts `KHR_mesh_quantization`
+/// allows); the identity alone for a node without the extension. The attributes' accessors
+/// are checked as the vertex attributes are ([`check_accessor`]) and must have one count.
+/// Errors name the attribute or instance.
+fn node_instances(
+    node: &gltf::Node,
+    document: &gltf::Document,
+    buffers: &[gltf::buffer::Data],
+) -> Result<Vec<Mat4>, String> {
+    use gltf::accessor::{
+        DataType::{F32, I16, I8, U16, U8},
+        Dimensions,
+    };
+    let Some(extension) = node.extension_value(INSTANCING) else {
+        return Ok(vec![Mat4::IDENTITY]);
+    };
+    let attributes = extension
+        .get("attributes")
+        .and_then(serde_json::Value::as_object)
+        .ok_or("no attributes object")?;
+    let accessor = |name: &str| -> Result<Option<gltf::Accessor>, String> {
+        let Some(value) = attributes.get(name) else {
+            return Ok(None);
+        };
+        let index = value
+            .as_u64()
+            .ok_or_else(|| format!("{name} {value} is not an accessor index"))?;
+        document
+            .accessors()
+            .nth(index as usize)
+            .map(Some)
+            .ok_or_else(|| format!("{name} names accessor {index}, which does not exist"))
+    };
+    let (translation, rotation, scale) = (
+        accessor("TRANSLATION")?,
+        accessor("ROTATION")?,
+        accessor("SCALE")?,
+    );
+    let mut counts = Vec::new();
+    for (name, a, dimensions, types) in [
+        (
+            "TRANSLATION",
+            &translation,
+            Dimensions::Vec3,
+            &[F32, I8, U8, I16, U16][..],
+        ),
+        ("ROTATION", &rotation, Dimensions::Vec4, &[F32, I8, I16][..]),
+        (
+            "SCALE",
+            &scale,
+            Dimensions::Vec3,
+            &[F32, I8, U8, I16, U16][..],
+        ),
+    ] {
+        if let Some(a) = a {
+            check_accessor(a, buffers, dimensions, types).map_err(|m| format!("{name} {m}"))?;
+            counts.push((name, a.count()));
+        }
+    }
+    let Some(&(_, count)) = counts.first() else {
+        return Err("none of TRANSLATION, ROTATION and SCALE".into());
+    };
+    if let Some((name, other)) = counts.iter().find(|(_, c)| *c != count) {
+        return Err(format!(
+            "{name} holds {other} instances, {} {count}",
+            counts[0].0
+        ));
+    }
+    let read3 = |a: &Option<gltf::Accessor>, name: &str| -> Result<Vec<[f32; 3]>, String> {
+        match a {
+            Some(a) => read_attribute::<3>(a, buffers)
+                .filter(|v| v.len() == count)
+                .ok_or_else(|| format!("{name} could not be read")),
+            None => Ok(Vec::new()),
+        }
+    };
+    let translations = read3(&translation, "TRANSLATION")?;
+    let scales = read3(&scale, "SCALE")?;
+    let rotations = match &rotation {
+        Some(a) => read_attribute::<4>(a, buffers)
+            .filter(|v| v.len() == count)
+            .ok_or("ROTATION could not be read")?,
+        None => Vec::new(),
+    };
+    (0..count)
+        .map(|i| {
+            let t = translations.get(i).map_or(Vec3::ZERO, |&t| Vec3::from(t));
+            let s = scales.get(i).map_or(Vec3::ONE, |&s| Vec3::from(s));
+            let q = rotations.get(i).map_or([0.0, 0.0, 0.0, 1.0], |&q| q);
+            let quaternion = glam::DVec4::from_array(q.map(f64::from));
+            if !(t.is_finite() && s.is_finite() && quaternion.is_finite()) {
+                return Err(format!(
+                    "instance {i}: translation {t}, rotation {q:?} or scale {s} is not finite"
+                ));
+            }
+            if quaternion.length() < 1e-6 {
+                return Err(format!(
+                    "instance {i}: rotation {q:?} is not a rotation (a unit quaternion x, y, z, w)"
+                ));
+            }
+            let q = quaternion.normalize().as_vec4();
+            let rotation = glam::Quat::from_xyzw(q.x, q.y, q.z, q.w);
+            Ok(Mat4::from_scale_rotation_translation(s, rotation, t))
+        })
+        .collect()
+}
+
 /// The glTF extension that shows a material's base colour unlit ([`Material::unlit`]).
 const UNLIT: &str = "KHR_materials_unlit";
 
@@ -1041,8 +1167,9 @@ const TEXTURE_WEBP: &str = "EXT_texture_webp";
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 12] = [
+const DRAWN_EXTENSIONS: [&str; 13] = [
     MESH_QUANTIZATION,
+    INSTANCING,
     UNLIT,
     super::gltf_compression::MESHOPT,
     super::gltf_compression::MESHOPT_KHR,

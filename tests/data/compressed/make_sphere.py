@@ -3,11 +3,22 @@
 coordinates, vertex colours and 16-bit indices, textured with a 2x1 PNG: the uncompressed
 source of the compressed fixtures (README.md beside it).
 
-Usage: make_sphere.py [OUT.glb [SEGMENTS RINGS]]; above 65,535 vertices the indices are
-32-bit (for timing the decoders on larger meshes)."""
+Usage: make_sphere.py [OUT.glb [SEGMENTS RINGS [NODES]]]; above 65,535 vertices the indices
+are 32-bit (for timing the decoders on larger meshes). NODES > 1 draws the mesh from that many
+nodes, each moved, turned and stretched differently (the source of the instancing fixture)."""
 import json, math, struct, sys, zlib
 
 SEGMENTS, RINGS = (int(sys.argv[2]), int(sys.argv[3])) if len(sys.argv) > 3 else (24, 12)
+NODES = int(sys.argv[4]) if len(sys.argv) > 4 else 1
+
+
+def turn(yaw, pitch):
+    """The quaternion (x, y, z, w) of a turn by `yaw` about y after one by `pitch` about x."""
+    y = (0.0, math.sin(yaw / 2), 0.0, math.cos(yaw / 2))
+    x = (math.sin(pitch / 2), 0.0, 0.0, math.cos(pitch / 2))
+    (x1, y1, z1, w1), (x2, y2, z2, w2) = y, x
+    return [w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2]
 
 def png_2x1():
     raw = b"\x00" + bytes([255, 0, 0, 255, 0, 0, 255, 255])
@@ -58,8 +69,11 @@ lo = [min(p[i] for p in pos) for i in range(3)]
 hi = [max(p[i] for p in pos) for i in range(3)]
 doc = {
     "asset": {"version": "2.0", "generator": "envlight tests/data/compressed/make_sphere.py"},
-    "scene": 0, "scenes": [{"nodes": [0]}],
-    "nodes": [{"mesh": 0, "translation": [0.0, 0.5, 0.0]}],
+    "scene": 0, "scenes": [{"nodes": list(range(NODES))}],
+    "nodes": [{"mesh": 0, "translation": [0.0, 0.5, 0.0]}] if NODES == 1 else [
+        {"mesh": 0, "translation": [3.0 * i - 7.5, 0.2 * i, -1.0 * (i % 2)],
+         "rotation": turn(0.7 * i, 0.3 * i), "scale": [1.0, 0.5 + 0.2 * i, 1.0]}
+        for i in range(NODES)],
     "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2, "COLOR_0": 3},
                                  "indices": 4, "material": 0}]}],
     "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0, "roughnessFactor": 0.5}}],
