@@ -47,13 +47,13 @@ fn meshopt_extension(others: &serde_json::Map<String, Value>) -> Option<(&'stati
 /// Whether buffer `index` of a file (`has_blob`: a GLB with a binary chunk) is a placeholder
 /// for meshopt's decoded views, to be allocated (zeroed) rather than read: one marked
 /// `"fallback": true` by either version of the extension, or one without a URI that is not
-/// the GLB's binary chunk (index 0) in a file using it (`uses_meshopt`).
-pub(super) fn is_placeholder(
-    buffer: &json::Buffer,
-    index: usize,
-    has_blob: bool,
-    uses_meshopt: bool,
-) -> bool {
+/// the GLB's binary chunk (index 0) in a file using either.
+pub(super) fn is_placeholder(root: &json::Root, index: usize, has_blob: bool) -> bool {
+    let buffer = &root.buffers[index];
+    let uses_meshopt = root
+        .extensions_used
+        .iter()
+        .any(|e| e == MESHOPT || e == MESHOPT_KHR);
     let fallback = buffer
         .extensions
         .as_ref()
@@ -102,10 +102,9 @@ pub(super) fn decompress(
             .map_err(|m| format!("buffer view {index}: {name}: {m}"))?;
     }
     let mut decoded = DecodedBuffer::new(root.buffers.len());
-    let mut rewritten = vec![false; root.accessors.len()];
     for m in 0..root.meshes.len() {
         for p in 0..root.meshes[m].primitives.len() {
-            decode_draco_primitive(&mut root, m, p, &buffers, &mut decoded, &mut rewritten)
+            decode_draco_primitive(&mut root, m, p, &buffers, &mut decoded)
                 .map_err(|e| format!("mesh {m} primitive {p}: {DRACO}: {e}"))?;
         }
     }
@@ -401,16 +400,15 @@ struct DracoPrimitive {
 }
 
 /// Decodes primitive `p` of mesh `m` if it is Draco-compressed: its geometry goes into
-/// `decoded`, read by the primitive's accessors where they have no data of their own and
-/// were not rewritten for another primitive (`rewritten`), by new accessors otherwise (so an
-/// accessor that another primitive also reads keeps its meaning).
+/// `decoded`, read by the primitive's accessors where they have no data of their own (one
+/// rewritten for an earlier primitive has: its view into `decoded`), by new accessors
+/// otherwise (so an accessor that another primitive also reads keeps its meaning).
 fn decode_draco_primitive(
     root: &mut json::Root,
     m: usize,
     p: usize,
     buffers: &[gltf::buffer::Data],
     decoded: &mut DecodedBuffer,
-    rewritten: &mut Vec<bool>,
 ) -> Result<(), String> {
     use json::mesh::Mode;
     use json::validation::Checked;
@@ -516,11 +514,9 @@ fn decode_draco_primitive(
         attributes.push((semantic, accessor_index, values, type_));
     }
     // Every check passed: the data, then the accessors that read them.
-    let mut place = |root: &mut json::Root, accessor: Option<usize>, new: json::Accessor| {
+    let place = |root: &mut json::Root, accessor: Option<usize>, new: json::Accessor| {
         let in_place = accessor.filter(|&a| {
-            root.accessors[a].buffer_view.is_none()
-                && root.accessors[a].sparse.is_none()
-                && !rewritten[a]
+            root.accessors[a].buffer_view.is_none() && root.accessors[a].sparse.is_none()
         });
         match in_place {
             Some(a) => {
@@ -528,12 +524,10 @@ fn decode_draco_primitive(
                     name: root.accessors[a].name.take(),
                     ..new
                 };
-                rewritten[a] = true;
                 a
             }
             None => {
                 root.accessors.push(new);
-                rewritten.push(true);
                 root.accessors.len() - 1
             }
         }

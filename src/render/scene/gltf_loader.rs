@@ -409,19 +409,15 @@ fn load_gltf_buffers(
 ) -> Result<Vec<gltf::buffer::Data>, String> {
     let mut blob = glb_blob.map(<[u8]>::to_vec);
     let mut buffers = Vec::new();
-    let uses_meshopt = root.extensions_used.iter().any(|e| {
-        e == super::gltf_compression::MESHOPT || e == super::gltf_compression::MESHOPT_KHR
-    });
     for (index, buffer) in root.buffers.iter().enumerate() {
         let length = buffer.byte_length.0 as usize;
-        if super::gltf_compression::is_placeholder(buffer, index, glb_blob.is_some(), uses_meshopt)
-        {
+        if super::gltf_compression::is_placeholder(root, index, glb_blob.is_some()) {
             // Filled by the decoded views (zeroed pages cost nothing until written).
             if length as u64 > MAX_SCENE_FILE_BYTES {
                 return Err(format!(
-                    "buffer {index} (a placeholder for {} data) declares {length} bytes, more \
-                     than the {MAX_SCENE_FILE_BYTES} a scene's buffer may hold",
-                    super::gltf_compression::MESHOPT,
+                    "buffer {index} (a placeholder for meshopt-compressed data) declares \
+                     {length} bytes, more than the {MAX_SCENE_FILE_BYTES} a scene's buffer may \
+                     hold"
                 ));
             }
             buffers.push(gltf::buffer::Data(vec![0; length.next_multiple_of(4)]));

@@ -294,6 +294,11 @@ fn load_edited(
     Scene::load(&path, false).map_err(|e| e.to_string())
 }
 
+/// View `view`'s `EXT_meshopt_compression` object in a GLB's JSON.
+fn meshopt(json: &mut serde_json::Value, view: usize) -> &mut serde_json::Value {
+    &mut json["bufferViews"][view]["extensions"]["EXT_meshopt_compression"]
+}
+
 /// The extension's validity rules that meshoptimizer takes on trust (C `assert`s in a debug
 /// build, undefined behaviour otherwise), and bytes that do not decode, are errors naming the
 /// buffer view and the property.
@@ -306,27 +311,17 @@ fn inconsistent_or_corrupt_meshopt_views_are_named() {
     // (TRIANGLES, stride 2, 1584); buffer 1 the placeholder.
     let name = "sphere_gltfpack.glb";
     let refusal = |edit: &GlbEdit<'_>| load_edited(d, name, |j, b| edit(j, b)).unwrap_err();
-    let ext = |j: &mut serde_json::Value, view: usize| -> serde_json::Value {
-        j["bufferViews"][view]["extensions"]["EXT_meshopt_compression"].take()
-    };
-    let set = |j: &mut serde_json::Value, view: usize, e: serde_json::Value| {
-        j["bufferViews"][view]["extensions"]["EXT_meshopt_compression"] = e;
-    };
     let cases: Vec<(Box<GlbEdit<'_>>, &str)> = vec![
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 5);
-                e["count"] = 1582.into();
-                set(j, 5, e);
+                meshopt(j, 5)["count"] = 1582.into();
                 j["bufferViews"][5]["byteLength"] = 3164.into();
             }),
             "buffer view 5: EXT_meshopt_compression: count 1582 of mode TRIANGLES is not a multiple of 3",
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 3);
-                e["byteStride"] = 6.into();
-                set(j, 3, e);
+                meshopt(j, 3)["byteStride"] = 6.into();
                 j["bufferViews"][3]["byteStride"] = 6.into();
                 j["bufferViews"][3]["byteLength"] = 1938.into();
             }),
@@ -334,33 +329,25 @@ fn inconsistent_or_corrupt_meshopt_views_are_named() {
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 1);
-                e["filter"] = "OCTAHEDRAL".into();
-                set(j, 1, e);
+                meshopt(j, 1)["filter"] = "OCTAHEDRAL".into();
             }),
             "buffer view 1: EXT_meshopt_compression: filter OCTAHEDRAL does not take byteStride 12",
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 5);
-                e["filter"] = "EXPONENTIAL".into();
-                set(j, 5, e);
+                meshopt(j, 5)["filter"] = "EXPONENTIAL".into();
             }),
             "filter EXPONENTIAL on mode TRIANGLES (filters apply to ATTRIBUTES only)",
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 5);
-                e["mode"] = "STRIPS".into();
-                set(j, 5, e);
+                meshopt(j, 5)["mode"] = "STRIPS".into();
             }),
             "buffer view 5: EXT_meshopt_compression: unknown variant `STRIPS`",
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 2);
-                e["count"] = 322.into();
-                set(j, 2, e);
+                meshopt(j, 2)["count"] = 322.into();
             }),
             "count 322 × byteStride 4 is not the buffer view's byteLength 1292",
         ),
@@ -372,9 +359,7 @@ fn inconsistent_or_corrupt_meshopt_views_are_named() {
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 2);
-                e["byteOffset"] = 1_000_000.into();
-                set(j, 2, e);
+                meshopt(j, 2)["byteOffset"] = 1_000_000.into();
             }),
             "the compressed bytes 1000000..+688 lie outside buffer 0",
         ),
@@ -387,10 +372,7 @@ fn inconsistent_or_corrupt_meshopt_views_are_named() {
         (
             // The vertex codec's header byte (0xa0 | version) made unknown.
             Box::new(|j, b| {
-                let offset = j["bufferViews"][2]["extensions"]["EXT_meshopt_compression"]
-                    ["byteOffset"]
-                    .as_u64()
-                    .unwrap() as usize;
+                let offset = meshopt(j, 2)["byteOffset"].as_u64().unwrap() as usize;
                 b[offset] = 0x00;
             }),
             "buffer view 2: EXT_meshopt_compression: the ATTRIBUTES data (688 bytes in buffer 0) \
@@ -398,9 +380,7 @@ fn inconsistent_or_corrupt_meshopt_views_are_named() {
         ),
         (
             Box::new(|j, _| {
-                let mut e = ext(j, 5);
-                e["byteLength"] = 100.into();
-                set(j, 5, e);
+                meshopt(j, 5)["byteLength"] = 100.into();
             }),
             "the TRIANGLES data (100 bytes in buffer 0) do not decode to 1584 elements of 2 bytes",
         ),
