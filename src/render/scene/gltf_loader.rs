@@ -404,14 +404,14 @@ fn buffer_source(base: &Path, uri: &str) -> Result<BufferSource, String> {
 /// `gltf` crate. Each must hold at least its declared `byteLength`. Errors name the buffer.
 fn load_gltf_buffers(
     root: &gltf::json::Root,
-    glb_blob: Option<&[u8]>,
+    mut blob: Option<Vec<u8>>,
     base: &Path,
 ) -> Result<Vec<gltf::buffer::Data>, String> {
-    let mut blob = glb_blob.map(<[u8]>::to_vec);
+    let has_blob = blob.is_some();
     let mut buffers = Vec::new();
     for (index, buffer) in root.buffers.iter().enumerate() {
         let length = buffer.byte_length.0 as usize;
-        if super::gltf_compression::is_placeholder(root, index, glb_blob.is_some()) {
+        if super::gltf_compression::is_placeholder(root, index, has_blob) {
             // Filled by the decoded views (zeroed pages cost nothing until written).
             if length as u64 > MAX_SCENE_FILE_BYTES {
                 return Err(format!(
@@ -468,20 +468,21 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     check_glb_header(&bytes).map_err(err)?;
     let (root, blob) = parse_gltf(&bytes, path).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new("."));
-    let buffers = load_gltf_buffers(&root, blob.as_deref(), base).map_err(err)?;
+    // The GLB's binary chunk moves into its buffer (nothing reads it after).
+    let buffers = load_gltf_buffers(&root, blob, base).map_err(err)?;
     let (root, buffers) = super::gltf_compression::decompress(root, buffers).map_err(err)?;
     let document = gltf::Document::from_json(root).map_err(|e| err(e.to_string()))?;
-    let gltf = gltf::Gltf { document, blob };
+
     let mut b = Builder::default();
     let mut material_ids = std::collections::HashMap::new();
     let mut images = std::collections::HashMap::new();
     let mut ignored = std::collections::BTreeSet::<String>::new();
-    for extension in gltf.document.extensions_used() {
+    for extension in document.extensions_used() {
         if !DRAWN_EXTENSIONS.contains(&extension) {
             ignored.insert(format!("extension {extension}"));
         }
     }
-    for material in gltf.document.materials() {
+    for material in document.materials() {
         let sheen = material.extension_value(SHEEN);
         if SHEEN_TEXTURES
             .iter()
@@ -490,17 +491,16 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
             ignored.insert(format!("{SHEEN} textures (its factors are drawn)"));
         }
     }
-    let scene = gltf
-        .document
+    let scene = document
         .default_scene()
-        .or_else(|| gltf.document.scenes().next());
+        .or_else(|| document.scenes().next());
     let Some(scene) = scene else {
         return Err(err("no scene".into()));
     };
     let mut stack: Vec<(gltf::Node, Mat4)> = scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
     // glTF's node hierarchy is a forest: a node reached twice sits in a cycle or has several
     // parents (flattening such a graph could multiply the meshes without bound).
-    let mut reached = vec![false; gltf.document.nodes().len()];
+    let mut reached = vec![false; document.nodes().len()];
     let mut camera_nodes: Vec<(usize, Mat4)> = Vec::new();
     while let Some((node, parent)) = stack.pop() {
         match reached.get_mut(node.index()) {
@@ -523,7 +523,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         let Some(mesh) = node.mesh() else { continue };
         // Only where a mesh is drawn: a helper node without one may overflow harmlessly.
         let node_name = format!("node {} ({:?})", node.index(), node.name().unwrap_or(""));
-        let instances = node_instances(&node, &gltf.document, &buffers)
+        let instances = node_instances(&node, &document, &buffers)
             .map_err(|m| err(format!("{node_name}: {INSTANCING}: {m}")))?;
         let parent_world = world;
         for (instance, local) in instances.iter().enumerate() {
@@ -806,7 +806,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                         );
                         }
                         let material = gltf_material(
-                            &gltf.document,
+                            &document,
                             &mat,
                             &channels,
                             &buffers,
@@ -858,7 +858,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     }
     // The first camera node (by index) of the scene: the view the file was made for.
     if let Some(&(index, world)) = camera_nodes.iter().min_by_key(|(index, _)| *index) {
-        let node = gltf.document.nodes().nth(index);
+        let node = document.nodes().nth(index);
         let camera = node.as_ref().and_then(|n| n.camera());
         let name = format!(
             "camera node {index} ({:?})",
