@@ -291,6 +291,7 @@ pub struct RawRender {
     pub look_at: Option<Vec<f64>>,
     pub fov_deg: Option<f64>,
     pub ortho_height: Option<f64>,
+    pub animation: Option<String>,
 }
 
 /// `[daemon]`.
@@ -930,6 +931,8 @@ pub struct RenderConfig {
     /// The camera's eye, look-at point and field of view where given, over the scene's own
     /// (a glTF's camera, or one fitted to the scene).
     pub camera: crate::render::scene::CameraOverride,
+    /// The glTF animation played on the frames' capture times (the scene's first by default).
+    pub animation: crate::render::scene::AnimationChoice,
 }
 
 impl RawRender {
@@ -1117,6 +1120,21 @@ impl RawRender {
             latest_png,
             lighting,
             camera,
+            // Whether the scene has the clip is known once it is loaded (the render thread's
+            // start and check-config name the clips it has); here only an empty name is
+            // refused.
+            animation: match self.animation.as_deref() {
+                None => crate::render::scene::AnimationChoice::First,
+                Some("") => {
+                    return Err(invalid(
+                        "render.animation",
+                        "",
+                        "must name a clip (its index or name) or be \"none\"; leave it out \
+                         for the scene's first",
+                    ))
+                }
+                Some(clip) => crate::render::scene::AnimationChoice::parse(clip),
+            },
         })
     }
 }
@@ -1760,6 +1778,21 @@ mod tests {
         RawConfig::parse(text, Path::new("test.toml"))?.validate()
     }
 
+    /// `render.animation` names a clip by index or name, or `none`; absent, the first.
+    #[test]
+    fn render_animation_is_an_index_a_name_or_none() {
+        use crate::render::scene::AnimationChoice;
+        for (text, choice) in [
+            ("", AnimationChoice::First),
+            ("animation = \"none\"", AnimationChoice::None),
+            ("animation = \"1\"", AnimationChoice::Index(1)),
+            ("animation = \"walk\"", AnimationChoice::Name("walk".into())),
+        ] {
+            let config = parse(&format!("[render]\n{text}")).unwrap();
+            assert_eq!(config.render.animation, choice, "{text}");
+        }
+    }
+
     /// Each stage's filter takes the lights' taps as validated, none with `filter = false` or
     /// when the lights are not filtered.
     #[test]
@@ -2073,6 +2106,10 @@ mod tests {
             (
                 "[render]\neye = [1, 2, 3]\nlook_at = [1, 2, 3]",
                 "render.look_at = [1.0, 2.0, 3.0]: is render.eye",
+            ),
+            (
+                "[render]\nanimation = \"\"",
+                "render.animation = \"\": must name a clip",
             ),
             (
                 "[render]\nsupersample = 2\nfxaa = true",

@@ -992,6 +992,15 @@ fn build_renderer(
         .camera
         .apply(scene.camera)
         .map_err(|m| DaemonError::Render(format!("[render] camera: {m}")))?;
+    scene
+        .select_animation(&config.animation)
+        .map_err(|m| DaemonError::Render(format!("[render] animation: {m}")))?;
+    if let Some((index, name, seconds)) = scene.playing_animation() {
+        tracing::info!(
+            "render animation {index} ({name:?}): {seconds:.3} s, looped over the frames' \
+             capture times"
+        );
+    }
     tracing::info!("render scene: {}", scene.summary());
     tracing::info!("render camera: {}", scene.camera.describe());
     let renderer =
@@ -1055,6 +1064,8 @@ impl RenderThread {
                     .count(),
                 None => all,
             };
+            // An animated scene's clock: the frame's capture time.
+            self.renderer.set_scene_time(published.payload.time);
             let used = light_prefix(&published.payload.lights, count);
             let result = match &self.config.latest_png {
                 Some(path) => self
@@ -1091,6 +1102,7 @@ impl RenderThread {
             return Err("lighting = \"asg\" needs the ASG stage ([asg] enabled = true)".into());
         };
         self.run_sets(rx, |renderer, set: &crate::light::AsgSet, image| {
+            renderer.set_scene_time(set.time);
             let lobes: Vec<crate::asg::Asg> = set
                 .lobes
                 .iter()
@@ -1110,6 +1122,7 @@ impl RenderThread {
             return Err("lighting = \"sh\" needs the SH stage ([sh] enabled = true)".into());
         };
         self.run_sets(rx, |renderer, set: &crate::stream::ShFrame, image| {
+            renderer.set_scene_time(set.time);
             // The stage publishes only squares (validate_sh_set); anything else is no light.
             let sh = set
                 .to_coefficients()

@@ -1871,6 +1871,8 @@ fn check_config_checks_the_render_thread_as_run_does() {
     std::fs::write(&bad_obj, "v 0 0 0\nf 1 2 3\n").unwrap();
     let good_obj = dir.path().join("tri.obj");
     std::fs::write(&good_obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let animated = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/animated/turning_boxes.gltf");
     let source = format!(
         "[source]\nkind = \"sequence\"\npaths = [\"{}\"]\n",
         frame.display()
@@ -1904,6 +1906,13 @@ fn check_config_checks_the_render_thread_as_run_does() {
             format!("scene = \"{}\"\n", bad_obj.display()),
             vec!["render.scene", "bad.obj"],
         ),
+        (
+            format!("scene = \"{}\"\nanimation = \"run\"\n", animated.display()),
+            vec![
+                "render.animation",
+                "no animation named \"run\": it has 0 \"turn\", 1 \"hop\"",
+            ],
+        ),
     ] {
         let out = check(&render);
         let stderr = String::from_utf8_lossy(&out.stderr);
@@ -1936,6 +1945,16 @@ fn check_config_checks_the_render_thread_as_run_does() {
     assert!(
         !dir.path().join("out.png").exists(),
         "check-config wrote the image"
+    );
+    let out = check(&format!(
+        "scene = \"{}\"\nanimation = \"hop\"\n",
+        animated.display()
+    ));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("casting shadows, animation 1 (\"hop\", 1.000 s) played)"),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
     );
 }
 

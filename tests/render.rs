@@ -15,7 +15,7 @@ use envlight::render::{
 };
 use glam::Vec3;
 use std::f32::consts::PI;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Both ways of drawing the shadow maps: the tests of shadows run on each.
 const RASTERS: [ShadowRaster; 2] = [ShadowRaster::Pipeline, ShadowRaster::Compute];
@@ -1655,6 +1655,7 @@ fn textured_quad(material: Material, textures: Vec<TextureImage>, u_span: f32) -
             center: Vec3::ZERO,
             radius: 2f32.sqrt(),
         },
+        animation: None,
     }
 }
 
@@ -2726,6 +2727,7 @@ fn floor_scene(material: Material, eye: Vec3, target: Vec3) -> Scene {
             center: Vec3::new(0.0, 0.0, -18.0),
             radius: 21.0,
         },
+        animation: None,
     }
 }
 
@@ -3796,4 +3798,139 @@ fn sheen_reflects_its_brdf_and_dims_the_base_by_its_albedo() {
     check("sheen_alone", [0.0; 3], None);
     check("asg_sheen_alone", [0.0; 3], Some(test_lobes()));
     check("asg_sheen_over_lambertian", [0.5; 3], Some(test_lobes()));
+}
+
+/// The animated fixture (tests/data/animated) and its still twin, posed as clip "turn" poses
+/// the animated one at 1 s.
+fn animated_fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/animated")
+        .join(name)
+}
+
+/// An animated glTF scene posed at a time renders as a still file of that pose does: the
+/// vertices uploaded again, the shadow maps of the moved casters and the lights' visibility
+/// follow the pose. The still file gets the animated scene's bounds (the shadow maps are
+/// fitted to every pose of the clip, which a still file does not know), so the images agree
+/// to rounding; at another time they do not.
+#[test]
+fn animated_scenes_render_as_the_still_pose_they_reach() {
+    let lights = sky_lights(48);
+    let settings = RenderSettings {
+        width: 160,
+        height: 120,
+        shadow_resolution: 256,
+        ..RenderSettings::default()
+    };
+    let animated = Scene::load(&animated_fixture("turning_boxes.gltf"), true).unwrap();
+    let mut still = Scene::load(&animated_fixture("turned_boxes.gltf"), true).unwrap();
+    assert!(still.animation.is_none());
+    // The ground (its 4 vertices last) lies under the lowest pose of either clip there.
+    still.bounds = animated.bounds;
+    let ground = still.vertices.len() - 4;
+    assert_eq!(ground + 4, animated.vertices.len());
+    still.vertices[ground..].copy_from_slice(&animated.vertices[ground..]);
+    let reference = renderer(still, settings).render(&lights).unwrap().0;
+    for raster in RASTERS {
+        let mut r = renderer(
+            animated.clone(),
+            RenderSettings {
+                shadow_raster: raster,
+                ..settings
+            },
+        );
+        r.set_scene_time(1.0);
+        let posed = r.render(&lights).unwrap().0;
+        let (mean, p999, _) = relative_differences(&reference, &posed);
+        eprintln!("{raster:?}: posed vs still: mean {mean}, p999 {p999}");
+        if mean > 1e-4 || p999 > 0.02 {
+            fail_with_image(
+                "animated_at_1s",
+                &posed,
+                &[format!("{raster:?}: posed at 1 s differs from the still pose: mean {mean}, 99.9th percentile {p999}")],
+            );
+        }
+        // At 0.2 s the base has turned 9°, not 45°: a different image. And the loop: 3 s is
+        // 1 s again.
+        r.set_scene_time(0.2);
+        let early = r.render(&lights).unwrap().0;
+        let (mean, _, _) = relative_differences(&reference, &early);
+        eprintln!("{raster:?}: 0.2 s vs still: mean {mean}");
+        assert!(
+            mean > 0.01,
+            "{raster:?}: at 0.2 s only {mean} from the 1 s pose"
+        );
+        r.set_scene_time(3.0);
+        let looped = r.render(&lights).unwrap().0;
+        assert_eq!(looped.rgba, posed.rgba, "{raster:?}: 3 s is not 1 s");
+    }
+}
+
+/// `envlight render --scene` plays the scene's animation on the frames' times: a frame at 1 s
+/// is the frame at 0 s with `--animation-start 1`; `--animation none` holds the rest pose; an
+/// unknown clip is refused naming those the file has.
+#[test]
+fn cli_plays_animations_on_the_frames_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = |seq: u64, time: f64| {
+        serde_json::json!({"seq": seq, "time": time, "lights": sky_lights(8)}).to_string()
+    };
+    let two = dir.path().join("two.jsonl");
+    std::fs::write(&two, format!("{}\n{}\n", frame(0, 0.0), frame(1, 1.0))).unwrap();
+    let one = dir.path().join("one.jsonl");
+    std::fs::write(&one, format!("{}\n", frame(0, 0.0))).unwrap();
+    let render = |lights: &Path, out: &str, extra: &[&str]| {
+        let out = dir.path().join(out);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args([
+                "render",
+                "--size",
+                "64x48",
+                "--shadow-res",
+                "64",
+                "--exposure",
+                "1",
+            ])
+            .arg("--scene")
+            .arg(animated_fixture("turning_boxes.gltf"))
+            .arg("--lights")
+            .arg(lights)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .env_remove("XDG_RUNTIME_DIR")
+            .output()
+            .unwrap();
+        (o, out)
+    };
+    let pixels = |path: PathBuf| image::open(path).unwrap().to_rgba8().into_raw();
+    let (o, played) = render(&two, "played", &["--animation", "turn"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("animation 0 (\"turn\"): 2.000 s"),
+        "{stderr}"
+    );
+    let (o, started) = render(
+        &one,
+        "started",
+        &["--animation", "0", "--animation-start", "1"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let at_one = pixels(played.join("frame_00001.png"));
+    assert_eq!(at_one, pixels(started.join("frame_00000.png")));
+    assert_ne!(at_one, pixels(played.join("frame_00000.png")));
+    let (o, rest) = render(&two, "rest", &["--animation", "none"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        pixels(rest.join("frame_00000.png")),
+        pixels(rest.join("frame_00001.png"))
+    );
+    let (o, _) = render(&one, "unknown", &["--animation", "run"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("invalid --animation \"run\": the scene has no animation named \"run\": it has 0 \"turn\", 1 \"hop\""),
+        "{stderr}"
+    );
 }

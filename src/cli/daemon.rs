@@ -315,11 +315,20 @@ fn render_description(
     let render = &config.render;
     let scene = match &render.scene {
         Some(path) => {
-            let scene = envlight::render::scene::Scene::load(path, true)
+            let mut scene = envlight::render::scene::Scene::load(path, true)
                 .with_context(|| "render.scene".to_owned())?;
+            scene
+                .select_animation(&render.animation)
+                .map_err(|m| anyhow::anyhow!("render.animation: {m}"))?;
             let triangles = scene.caster_indices / 3;
+            let animation = match scene.playing_animation() {
+                Some((index, name, seconds)) => {
+                    format!(", animation {index} ({name:?}, {seconds:.3} s) played")
+                }
+                None => String::new(),
+            };
             format!(
-                "scene {} ({triangles} triangle{} casting shadows)",
+                "scene {} ({triangles} triangle{} casting shadows{animation})",
                 path.display(),
                 if triangles == 1 { "" } else { "s" }
             )

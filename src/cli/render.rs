@@ -40,7 +40,8 @@ pub(crate) struct RenderArgs {
     /// and emissive textures, vertex colours, emission, alpha cut-outs and blending, the index
     /// of refraction, specular and clear-coat factors, and an MTL's map_Kd, Ke, map_Ke, map_d,
     /// d, Pr, Pm, Pc and Pcr are drawn, and unlit materials; PNG, JPEG or WebP; Draco- or
-    /// meshopt-compressed geometry is decoded). [default: built-in spheres on a ground plane]
+    /// meshopt-compressed geometry is decoded; glTF node animations play, see --animation).
+    /// [default: built-in spheres on a ground plane]
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
     /// Image size, 1..=16384 a side (the GPU's own limit applies too: 16384 on most).
@@ -116,6 +117,15 @@ pub(crate) struct RenderArgs {
     /// frame with lit pixels]
     #[arg(long, value_name = "X", value_parser = parse_finite_f32)]
     exposure: Option<f32>,
+    /// The glTF animation to play: by index (0, 1, …) or name, or `none` for the scene's rest
+    /// pose. The frames' capture times are its clock, from the first frame's (plus
+    /// --animation-start); it loops. [default: the scene's first animation]
+    #[arg(long, value_name = "CLIP")]
+    animation: Option<String>,
+    /// Where the animation stands at the first frame, in seconds (with one frame, the pose
+    /// drawn). [default: 0]
+    #[arg(long, value_name = "SECONDS", value_parser = parse_seconds)]
+    animation_start: Option<f64>,
     /// Show the frames in a window instead of writing files (needs the `window` feature).
     #[arg(long, conflicts_with = "background")]
     window: bool,
@@ -206,6 +216,14 @@ impl RenderArgs {
     }
 }
 
+/// A time in seconds: a finite number (negative allowed: the clip loops).
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        _ => Err(format!("{s:?} is not a finite number of seconds")),
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 enum LightingArg {
     /// Directional lights from the decomposition, with shadow maps.
@@ -284,6 +302,17 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         Ok(c) => c,
         Err(m) => crate::cli::usage_error!("invalid camera: {m}"),
     };
+    if let Some(clip) = &args.animation {
+        let choice = envlight::render::scene::AnimationChoice::parse(clip);
+        if let Err(m) = scene.select_animation(&choice) {
+            crate::cli::usage_error!("invalid --animation {clip:?}: {m}");
+        }
+    }
+    if let Some((index, name, seconds)) = scene.playing_animation() {
+        tracing::info!(
+            "animation {index} ({name:?}): {seconds:.3} s, looped over the frames' times"
+        );
+    }
     tracing::info!("scene: {}", scene.summary());
     tracing::info!("camera: {}", scene.camera.describe());
     let asg_lighting = args.lighting == LightingArg::Asg;
@@ -409,12 +438,23 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
                     (lights, Some(frame))
                 }))
         };
+    // The scene's clock: each frame's time from the first frame's, plus --animation-start.
+    let animation_start = args.animation_start.unwrap_or(0.0);
+    let mut first_time = None;
+    let mut scene_time = move |frame_time: f64| {
+        animation_start + (frame_time - *first_time.get_or_insert(frame_time))
+    };
     let Some(out) = args.out.as_ref().filter(|_| !args.window) else {
         #[cfg(feature = "window")]
         {
             let source = Box::new(move || {
                 next_frame()
-                    .map(|f| f.map(|(l, _)| l.lights))
+                    .map(|f| {
+                        f.map(|(mut l, _)| {
+                            l.time = scene_time(l.time);
+                            l
+                        })
+                    })
                     .map_err(|e| format!("{e:#}"))
             });
             let exposure = args.exposure.unwrap_or(0.02);
@@ -466,6 +506,7 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         let Some((lights, env)) = next_frame()? else {
             break;
         };
+        renderer.set_scene_time(scene_time(lights.time));
         let all = render::light_prefix(&lights.lights, usize::MAX);
         // The controller's range is every light a list can hold, not the first frame's count
         // (which capped every later frame: a first frame of one light left one of 70 at one).

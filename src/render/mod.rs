@@ -383,6 +383,32 @@ impl Renderer {
             .map_or(&self.color_view, |p| &p.view)
     }
 
+    /// Poses an animated scene ([`Scene::animate`]) at `seconds` of its playing clip (looped)
+    /// for the next frames: its vertices uploaded again, the camera-facing normals that decide
+    /// which lights get shadow maps recomputed, and its blended triangles sorted back to front
+    /// again. Nothing happens for a scene without animations.
+    pub fn set_scene_time(&mut self, seconds: f64) {
+        if !self.scene.animate(seconds) {
+            return;
+        }
+        let queue = &self.gpu.queue;
+        queue.write_buffer(
+            &self.vertex_buffer,
+            0,
+            bytemuck::cast_slice(&self.scene.vertices),
+        );
+        self.facing = shadow::facing_normals(&self.scene);
+        if self.groups.blended_start < self.scene.caster_indices {
+            self.groups = setup::order_triangles(&mut self.scene);
+            let blended = self.groups.blended_start as usize..self.scene.caster_indices as usize;
+            queue.write_buffer(
+                &self.index_buffer,
+                4 * blended.start as u64,
+                bytemuck::cast_slice(&self.scene.indices[blended]),
+            );
+        }
+    }
+
     /// Turns culling on or off for the next frames.
     pub fn set_culling(&mut self, on: bool) {
         self.settings.culling = on;

@@ -488,13 +488,19 @@ impl Renderer {
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
             contents: bytemuck::cast_slice(&scene.vertices),
-            // Storage: the compute rasteriser reads the positions.
-            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::STORAGE,
+            // Storage: the compute rasteriser reads the positions. Copied to: an animated
+            // scene's poses (`Renderer::set_scene_time`).
+            usage: wgpu::BufferUsages::VERTEX
+                | wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST,
         });
         let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("indices"),
             contents: bytemuck::cast_slice(&scene.indices),
-            usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::STORAGE,
+            // Copied to: an animated scene's blended triangles, sorted again.
+            usage: wgpu::BufferUsages::INDEX
+                | wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST,
         });
         let texture_plan = textures::plan_layers(&scene, max_dim);
         let surface_textures = textures::SurfaceTextures::new(

@@ -10,7 +10,7 @@ use super::budget::{BudgetController, BudgetSettings};
 use super::device::Gpu;
 use super::scene::Scene;
 use super::{light_prefix, RenderError, RenderSettings, Renderer, PRESENT_WGSL};
-use crate::light::Light;
+use crate::light::{Light, LightFrame};
 use std::sync::Arc;
 use thiserror::Error;
 use winit::application::ApplicationHandler;
@@ -31,8 +31,9 @@ pub enum WindowError {
 }
 
 /// Where the windowed loop gets each frame's lights: `Ok(None)` when the source has ended
-/// (the last frame stays on screen).
-pub type LightSource<'a> = Box<dyn FnMut() -> Result<Option<Vec<Light>>, String> + 'a>;
+/// (the last frame stays on screen). Each frame's `time` poses an animated scene
+/// ([`Renderer::set_scene_time`]): the caller makes it the scene's clock.
+pub type LightSource<'a> = Box<dyn FnMut() -> Result<Option<LightFrame>, String> + 'a>;
 
 struct Present {
     pipeline: wgpu::RenderPipeline,
@@ -55,6 +56,8 @@ struct App<'a> {
     budget_ms: Option<f64>,
     source: LightSource<'a>,
     lights: Vec<Light>,
+    /// The latest frame's time, in seconds.
+    time: f64,
     ended: bool,
     controller: Option<BudgetController>,
     state: Option<State>,
@@ -78,6 +81,7 @@ pub fn run(
         budget_ms,
         source,
         lights: Vec::new(),
+        time: 0.0,
         ended: false,
         controller: None,
         state: None,
@@ -205,7 +209,10 @@ impl App<'_> {
     fn redraw(&mut self) -> Result<(), WindowError> {
         if !self.ended {
             match (self.source)().map_err(WindowError::Source)? {
-                Some(l) => self.lights = light_prefix(&l, usize::MAX),
+                Some(frame) => {
+                    self.lights = light_prefix(&frame.lights, usize::MAX);
+                    self.time = frame.time;
+                }
                 None => self.ended = true,
             }
         }
@@ -241,6 +248,7 @@ impl App<'_> {
             0,
             bytemuck::cast_slice(&params),
         );
+        state.renderer.set_scene_time(self.time);
         let present = &state.present;
         let stats =
             state

@@ -68,7 +68,7 @@ pub(super) fn uv_transform(
 /// the elements, sparse values and sparse indices within their buffer views and the views
 /// within their buffers ([`check_span`]), and a sparse accessor's indices within its count.
 /// Returns the problem, worded to follow the accessor's name.
-fn check_accessor(
+pub(super) fn check_accessor(
     accessor: &gltf::Accessor,
     buffers: &[gltf::buffer::Data],
     dimensions: gltf::accessor::Dimensions,
@@ -497,12 +497,16 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     let Some(scene) = scene else {
         return Err(err("no scene".into()));
     };
-    let mut stack: Vec<(gltf::Node, Mat4)> = scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    // The animations, where the file has any (the meshes they move are recorded below).
+    let clips = super::gltf_animation::read_clips(&document, &buffers).map_err(err)?;
+    let mut rig = (!clips.is_empty()).then(|| SceneAnimation::new(&document, clips));
+    let mut stack: Vec<(gltf::Node, Mat4, Option<usize>)> =
+        scene.nodes().map(|n| (n, Mat4::IDENTITY, None)).collect();
     // glTF's node hierarchy is a forest: a node reached twice sits in a cycle or has several
     // parents (flattening such a graph could multiply the meshes without bound).
     let mut reached = vec![false; document.nodes().len()];
     let mut camera_nodes: Vec<(usize, Mat4)> = Vec::new();
-    while let Some((node, parent)) = stack.pop() {
+    while let Some((node, parent, parent_index)) = stack.pop() {
         match reached.get_mut(node.index()) {
             Some(seen) if !*seen => *seen = true,
             _ => {
@@ -513,9 +517,12 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                 )))
             }
         }
+        if let Some(rig) = rig.as_mut() {
+            rig.visit(node.index(), parent_index);
+        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
-            stack.push((child, world));
+            stack.push((child, world, Some(node.index())));
         }
         if node.camera().is_some() {
             camera_nodes.push((node.index(), world));
@@ -525,276 +532,97 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         let node_name = format!("node {} ({:?})", node.index(), node.name().unwrap_or(""));
         let instances = node_instances(&node, &document, &buffers)
             .map_err(|m| err(format!("{node_name}: {INSTANCING}: {m}")))?;
-        let parent_world = world;
-        for (instance, local) in instances.iter().enumerate() {
-            let world = parent_world * *local;
-            let node_name = if instances.len() > 1 {
-                format!("{node_name}, instance {instance}")
-            } else {
-                node_name.clone()
-            };
-            if !world.is_finite() {
-                return Err(err(format!(
-                    "{node_name}: its transform combined with its parents' overflows f32 (scales \
-                 or translations whose product exceeds 3.4e38)"
-                )));
+        let moved = rig.as_ref().is_some_and(|r| r.moves(node.index()));
+        let mesh_name = |prim: &gltf::Primitive| {
+            format!(
+                "mesh {} ({:?}) primitive {}",
+                mesh.index(),
+                mesh.name().unwrap_or(""),
+                prim.index()
+            )
+        };
+        if mesh.weights().is_some() || mesh.primitives().any(|p| p.morph_targets().len() > 0) {
+            ignored.insert("morph targets (drawn in their base shape)".into());
+        }
+        if node.skin().is_some() {
+            ignored.insert("skins (drawn in their bind pose)".into());
+        }
+        for prim in mesh.primitives() {
+            if prim.mode() != gltf::mesh::Mode::Triangles {
+                tracing::warn!(
+                    "{}: skipping a primitive of mode {:?} (only triangles are drawn)",
+                    path.display(),
+                    prim.mode()
+                );
+                continue;
             }
-            let normal_matrix = normal_matrix(world);
-            let mesh_name = |prim: &gltf::Primitive| {
-                format!(
-                    "mesh {} ({:?}) primitive {}",
-                    mesh.index(),
-                    mesh.name().unwrap_or(""),
-                    prim.index()
-                )
-            };
-            for prim in mesh.primitives() {
-                if prim.mode() != gltf::mesh::Mode::Triangles {
-                    tracing::warn!(
-                        "{}: skipping a primitive of mode {:?} (only triangles are drawn)",
-                        path.display(),
-                        prim.mode()
-                    );
-                    continue;
-                }
-                let mat = prim.material();
-                let channels = texture_channels(&mat);
-                // A normal texture, the base's or the clear coat's, needs the tangent frame.
-                let coat_normal =
-                    extension_texture(&mat, COAT_NORMAL_TEXTURE).is_ok_and(|t| t.is_some());
-                let normal_textured = mat.normal_texture().is_some() || coat_normal;
-                for (semantic, accessor) in prim.attributes() {
-                    use gltf::accessor::{
-                        DataType::{F32, I16, I8, U16, U8},
-                        Dimensions::{Vec2, Vec3, Vec4},
-                    };
-                    // Floats, and the integers KHR_mesh_quantization allows (`read_attribute`).
-                    let (name, dimensions, types) = match semantic {
-                        gltf::Semantic::Positions => {
-                            ("POSITION".to_string(), Vec3, &[F32, I8, U8, I16, U16][..])
-                        }
-                        gltf::Semantic::Normals => {
-                            ("NORMAL".to_string(), Vec3, &[F32, I8, I16][..])
-                        }
-                        gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => (
-                            format!("TEXCOORD_{set}"),
-                            Vec2,
-                            &[F32, I8, U8, I16, U16][..],
-                        ),
-                        gltf::Semantic::Tangents if normal_textured => {
-                            ("TANGENT".to_string(), Vec4, &[F32, I8, I16][..])
-                        }
-                        gltf::Semantic::Colors(0) => {
-                            // VEC3 or VEC4.
-                            let dimensions = match accessor.dimensions() {
-                                Vec3 => Vec3,
-                                _ => Vec4,
-                            };
-                            ("COLOR_0".to_string(), dimensions, &[F32, U8, U16][..])
-                        }
-                        gltf::Semantic::Colors(_) => {
-                            ignored.insert("vertex colours past COLOR_0".into());
-                            continue;
-                        }
-                        _ => continue,
-                    };
-                    check_accessor(&accessor, &buffers, dimensions, types)
-                        .map_err(|m| err(format!("{}: {name} {m}", mesh_name(&prim))))?;
-                }
-                if let Some(accessor) = prim.indices() {
-                    use gltf::accessor::{
-                        DataType::{U16, U32, U8},
-                        Dimensions::Scalar,
-                    };
-                    check_accessor(&accessor, &buffers, Scalar, &[U8, U16, U32])
-                        .map_err(|m| err(format!("{}: indices {m}", mesh_name(&prim))))?;
-                }
-                // The whole scene, flattened, within the per-accessor limit too: nodes that
-                // instance one mesh add its vertices again each time (4,000 nodes of one
-                // 100,000-vertex mesh, a 1.4 MB file, needed 13 GB).
-                let vertex_count = prim
-                    .get(&gltf::Semantic::Positions)
-                    .map_or(0, |a| a.count());
-                let index_count = prim.indices().map_or(vertex_count, |a| a.count());
+            let mat = prim.material();
+            let channels = texture_channels(&mat);
+            // A normal texture, the base's or the clear coat's, needs the tangent frame.
+            let coat_normal =
+                extension_texture(&mat, COAT_NORMAL_TEXTURE).is_ok_and(|t| t.is_some());
+            let normal_textured = mat.normal_texture().is_some() || coat_normal;
+            // The whole scene, flattened, within the per-accessor limit too: nodes that
+            // instance one mesh add its vertices again each time (4,000 nodes of one
+            // 100,000-vertex mesh, a 1.4 MB file, needed 13 GB).
+            let vertex_count = prim
+                .get(&gltf::Semantic::Positions)
+                .map_or(0, |a| a.count());
+            let index_count = prim.indices().map_or(vertex_count, |a| a.count());
+            let room = |b: &Builder| {
                 if b.vertices.len() + vertex_count > max_elements
                     || b.indices.len() + index_count > max_elements
                 {
                     return Err(err(format!(
                         "{}: the scene flattened to world space holds more than {max_elements} \
-                     vertices or indices ({} and {} before this primitive of {vertex_count} \
-                     and {index_count}; every node that uses a mesh adds it again)",
+                         vertices or indices ({} and {} before this primitive of \
+                         {vertex_count} and {index_count}; every node that uses a mesh adds it \
+                         again)",
                         mesh_name(&prim),
                         b.vertices.len(),
                         b.indices.len()
                     )));
                 }
-                let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
-                let attribute = |semantic: gltf::Semantic| prim.get(&semantic);
-                let Some(positions) = attribute(gltf::Semantic::Positions)
-                    .and_then(|a| read_attribute::<3>(&a, &buffers))
-                else {
-                    if prim.get(&gltf::Semantic::Positions).is_none() {
-                        // The spec's advice for a primitive without positions: skip it.
+                Ok(())
+            };
+            check_primitive(
+                &prim,
+                &buffers,
+                &channels,
+                normal_textured,
+                &mesh_name(&prim),
+                &mut ignored,
+            )
+            .map_err(err)?;
+            room(&b)?;
+            let local = read_primitive(
+                &prim,
+                &buffers,
+                &channels,
+                normal_textured,
+                path,
+                &mesh_name(&prim),
+            )
+            .map_err(err)?;
+            let Some(local) = local else { continue };
+            let key = mat.index();
+            let id = match material_ids.get(&key) {
+                Some(&id) => id,
+                None => {
+                    if mat.normal_texture().is_some()
+                        && coat_normal
+                        && channels.channel[NORMAL_SLOT] != channels.channel[COAT_NORMAL_SLOT]
+                    {
                         tracing::warn!(
-                            "{}: skipping {}: it has no POSITION attribute",
-                            path.display(),
-                            mesh_name(&prim)
-                        );
-                        continue;
-                    }
-                    return Err(err(format!(
-                        "{}: its POSITION accessor cannot be read (out of range of its buffer?)",
-                        mesh_name(&prim)
-                    )));
-                };
-                let positions: Vec<Vec3> = positions
-                    .into_iter()
-                    .map(|p| world.transform_point3(Vec3::from_array(p)))
-                    .collect();
-                let mut indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
-                    (Some(i), _) => i.into_u32().collect(),
-                    (None, None) => (0..positions.len() as u32).collect(),
-                    (None, Some(_)) => {
-                        return Err(err(format!(
-                            "{}: its indices accessor cannot be read (out of range of its buffer?)",
-                            mesh_name(&prim)
-                        )))
-                    }
-                };
-                if !indices.len().is_multiple_of(3) {
-                    return Err(err(format!(
-                        "{}: {} indices, not a multiple of 3 (triangles)",
-                        mesh_name(&prim),
-                        indices.len()
-                    )));
-                }
-                if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
-                    return Err(err(format!(
-                        "{}: index {i} out of range of its {} vertices",
-                        mesh_name(&prim),
-                        positions.len()
-                    )));
-                }
-                // A mirroring node reverses the triangles' winding (glTF): turned back, so that
-                // front faces wind counter-clockwise in world space (single-sided materials, the
-                // normals made from the winding).
-                if world.determinant() < 0.0 {
-                    for triangle in indices.chunks_exact_mut(3) {
-                        triangle.swap(1, 2);
-                    }
-                }
-                let read_normals = attribute(gltf::Semantic::Normals)
-                    .and_then(|a| read_attribute::<3>(&a, &buffers));
-                let mut normals: Vec<Vec3> = match read_normals {
-                    Some(n) => n
-                        .into_iter()
-                        .map(|n| normal_matrix * Vec3::from_array(n))
-                        .collect::<Vec<_>>(),
-                    None if prim.get(&gltf::Semantic::Normals).is_some() => {
-                        return Err(err(format!(
-                            "{}: its NORMAL accessor cannot be read (out of range of its buffer?)",
-                            mesh_name(&prim)
-                        )))
-                    }
-                    None => smooth_normals(&positions, &indices),
-                };
-                if normals.len() != positions.len() {
-                    return Err(err("normal count differs from position count".into()));
-                }
-                if positions.iter().chain(&normals).any(|p| !p.is_finite()) {
-                    return Err(err(format!(
-                    "{node_name}, {}: a vertex position or normal is not finite in world space \
-                     (a vertex times the node's transform overflows f32?)",
-                    mesh_name(&prim)
-                )));
-                }
-                repair_zero_normals(path, &positions, &mut normals, &indices);
-                // The texture coordinates of each channel (none where the material has no set for
-                // it).
-                let mut uvs: [Vec<[f32; 2]>; 2] = Default::default();
-                for (channel, &set) in channels.sets.iter().enumerate() {
-                    let read = attribute(gltf::Semantic::TexCoords(set))
-                        .and_then(|a| read_attribute::<2>(&a, &buffers));
-                    let Some(read) = read else {
-                        return Err(err(format!(
-                            "{}: its material is textured, but it has no readable TEXCOORD_{set}",
-                            mesh_name(&prim)
-                        )));
-                    };
-                    check_per_vertex(&read, positions.len(), &format!("TEXCOORD_{set}"))
-                        .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
-                    uvs[channel] = read;
-                }
-                // MikkTSpace's tangents follow the normal texture's coordinates (the clear
-                // coat's where the base has none).
-                let normal_slot = if mat.normal_texture().is_some() {
-                    NORMAL_SLOT
-                } else {
-                    COAT_NORMAL_SLOT
-                };
-                let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
-                // Tangents where a normal texture needs them: the file's, turned with the node
-                // (mirrored by a negative determinant), or MikkTSpace's, as glTF asks.
-                let read_tangents = attribute(gltf::Semantic::Tangents)
-                    .and_then(|a| read_attribute::<4>(&a, &buffers));
-                let tangents: Vec<[f32; 4]> = match (normal_textured, read_tangents) {
-                    (false, _) => Vec::new(),
-                    (true, _) if normal_uvs.is_empty() => Vec::new(),
-                    (true, Some(t)) => {
-                        let handedness = world.determinant().signum();
-                        t.into_iter()
-                            .map(|[x, y, z, w]| {
-                                let t = world
-                                    .transform_vector3(Vec3::new(x, y, z))
-                                    .normalize_or_zero();
-                                [
-                                    t.x,
-                                    t.y,
-                                    t.z,
-                                    if w < 0.0 { -handedness } else { handedness },
-                                ]
-                            })
-                            .collect()
-                    }
-                    (true, None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
-                        return Err(err(format!(
-                            "{}: its TANGENT accessor cannot be read (out of range of its buffer?)",
-                            mesh_name(&prim)
-                        )))
-                    }
-                    (true, None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
-                        .unwrap_or_else(|| {
-                            tracing::warn!(
-                            "{}: {}: no tangents could be made for its normal texture (degenerate \
-                             texture coordinates?); drawn without it",
-                            path.display(),
-                            mesh_name(&prim)
-                        );
-                            Vec::new()
-                        }),
-                };
-                if !tangents.is_empty() {
-                    check_per_vertex(&tangents, positions.len(), "TANGENT")
-                        .map_err(|m| err(format!("{}: {m}", mesh_name(&prim))))?;
-                }
-                let key = mat.index();
-                let id = match material_ids.get(&key) {
-                    Some(&id) => id,
-                    None => {
-                        if mat.normal_texture().is_some()
-                            && coat_normal
-                            && channels.channel[NORMAL_SLOT] != channels.channel[COAT_NORMAL_SLOT]
-                        {
-                            tracing::warn!(
-                                "{}: material {:?}: its clear-coat normal texture reads other \
+                            "{}: material {:?}: its clear-coat normal texture reads other \
                              texture coordinates than its normal texture; read with the normal \
                              texture's tangents",
-                                path.display(),
-                                mat.name().unwrap_or("")
-                            );
-                        }
-                        for &(slot, set) in &channels.unplaced {
-                            tracing::warn!(
+                            path.display(),
+                            mat.name().unwrap_or("")
+                        );
+                    }
+                    for &(slot, set) in &channels.unplaced {
+                        tracing::warn!(
                             "{}: material {:?}: its {slot} texture reads TEXCOORD_{set}, a third \
                              set (envlight reads two: TEXCOORD_{} and TEXCOORD_{}); read with \
                              TEXCOORD_{}",
@@ -804,58 +632,97 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                             channels.sets[1],
                             channels.sets[0]
                         );
-                        }
-                        let material = gltf_material(
-                            &document,
-                            &mat,
-                            &channels,
-                            &buffers,
-                            base,
-                            &mut b,
-                            &mut images,
-                        )
-                        .map_err(|m| {
-                            err(format!(
-                                "material {} ({:?}): {m}",
-                                mat.index().map_or("default".to_string(), |i| i.to_string()),
-                                mat.name().unwrap_or("")
-                            ))
-                        })?;
-                        let id = b.material(material);
-                        material_ids.insert(key, id);
-                        id
                     }
+                    let material = gltf_material(
+                        &document,
+                        &mat,
+                        &channels,
+                        &buffers,
+                        base,
+                        &mut b,
+                        &mut images,
+                    )
+                    .map_err(|m| {
+                        err(format!(
+                            "material {} ({:?}): {m}",
+                            mat.index().map_or("default".to_string(), |i| i.to_string()),
+                            mat.name().unwrap_or("")
+                        ))
+                    })?;
+                    let id = b.material(material);
+                    material_ids.insert(key, id);
+                    id
+                }
+            };
+            for (instance, transform) in instances.iter().enumerate() {
+                let world = world * *transform;
+                let node_name = if instances.len() > 1 {
+                    format!("{node_name}, instance {instance}")
+                } else {
+                    node_name.clone()
                 };
-                let colors: Vec<[u16; 4]> = match reader.read_colors(0) {
-                    // Through f32: the crate widens bytes by a shift (255 became 65280, not 1).
-                    Some(c) => c
-                        .into_rgba_f32()
-                        .map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
-                        .collect(),
-                    None if prim.get(&gltf::Semantic::Colors(0)).is_some() => {
-                        return Err(err(format!(
-                            "{}: its COLOR_0 accessor cannot be read (out of range of its buffer?)",
-                            mesh_name(&prim)
-                        )))
-                    }
-                    None => Vec::new(),
-                };
-                if !colors.is_empty() && colors.len() != positions.len() {
+                if !world.is_finite() {
                     return Err(err(format!(
-                        "{}: {} COLOR_0 values for {} positions",
-                        mesh_name(&prim),
-                        colors.len(),
-                        positions.len()
+                        "{node_name}: its transform combined with its parents' overflows f32 \
+                         (scales or translations whose product exceeds 3.4e38)"
                     )));
                 }
+                room(&b)?;
+                let placed = local.geometry.place(world);
+                if placed
+                    .positions
+                    .iter()
+                    .chain(&placed.normals)
+                    .any(|p| !p.is_finite())
+                {
+                    return Err(err(format!(
+                        "{node_name}, {}: a vertex position or normal is not finite in world \
+                         space (a vertex times the node's transform overflows f32?)",
+                        mesh_name(&prim)
+                    )));
+                }
+                // A mirroring node reverses the triangles' winding (glTF): turned back, so
+                // that front faces wind counter-clockwise in world space (single-sided
+                // materials, the normals made from the winding).
+                let mut indices = local.indices.clone();
+                if world.determinant() < 0.0 {
+                    for triangle in indices.chunks_exact_mut(3) {
+                        triangle.swap(1, 2);
+                    }
+                }
                 let first = b.vertices.len();
-                b.mesh(&positions, &normals, &uvs[0], &indices, id);
-                b.set_second_uvs(first, &uvs[1]);
-                b.set_colors(first, &colors);
-                b.set_tangents(first, &tangents);
+                b.mesh(
+                    &placed.positions,
+                    &placed.normals,
+                    &local.uvs[0],
+                    &indices,
+                    id,
+                );
+                b.set_second_uvs(first, &local.uvs[1]);
+                b.set_colors(first, &local.colors);
+                b.set_tangents(first, &placed.tangents);
+                if let (true, Some(rig)) = (moved, rig.as_mut()) {
+                    rig.pieces.push(super::animation::Piece {
+                        node: node.index(),
+                        instance: *transform,
+                        first_vertex: first,
+                        geometry: local.geometry.clone(),
+                    });
+                }
             }
         }
     }
+    b.animation = match rig {
+        Some(rig) if rig.pieces.is_empty() => {
+            tracing::info!(
+                "{}: its {} animation(s) move no drawn mesh; drawn still",
+                path.display(),
+                rig.clips.len()
+            );
+            None
+        }
+        rig => rig,
+    };
     // The first camera node (by index) of the scene: the view the file was made for.
     if let Some(&(index, world)) = camera_nodes.iter().min_by_key(|(index, _)| *index) {
         let node = document.nodes().nth(index);
@@ -1493,7 +1360,7 @@ fn texture_channels(material: &gltf::Material) -> TextureChannels {
 /// writer such as gltfpack arranges). Sparse accessors are read through the `gltf` crate.
 /// `None` where the accessor cannot be read; the caller has checked its type and span
 /// (`check_accessor`).
-fn read_attribute<const N: usize>(
+pub(super) fn read_attribute<const N: usize>(
     accessor: &gltf::Accessor,
     buffers: &[gltf::buffer::Data],
 ) -> Option<Vec<[f32; N]>>
@@ -1735,4 +1602,231 @@ pub(super) fn referenced_files(bytes: &[u8], base: &Path) -> Vec<PathBuf> {
             _ => None,
         })
         .collect()
+}
+
+/// A triangle primitive's vertices in its mesh's own space, read once however many nodes and
+/// instances draw it.
+struct LocalPrimitive {
+    /// Positions, normals (the file's, else smooth ones from the triangles; zero normals
+    /// repaired) and tangents where a normal texture needs them (the file's, else MikkTSpace's).
+    geometry: std::sync::Arc<LocalGeometry>,
+    /// The texture coordinates of each channel ([`TextureChannels`]; none where the material
+    /// has no set for it).
+    uvs: [Vec<[f32; 2]>; 2],
+    /// `COLOR_0`, or none.
+    colors: Vec<[u16; 4]>,
+    /// As the file winds them (the loader turns them where a node mirrors).
+    indices: Vec<u32>,
+}
+
+/// Reads primitive `prim` (named `name` in errors) of a material with these texture
+/// `channels`: `None` for one without positions (skipped with a warning, as the spec
+/// advises). Its accessors were checked ([`check_accessor`]).
+fn read_primitive(
+    prim: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    channels: &TextureChannels,
+    normal_textured: bool,
+    path: &Path,
+    name: &str,
+) -> Result<Option<LocalPrimitive>, String> {
+    let mat = prim.material();
+    let reader = prim.reader(|buf| buffers.get(buf.index()).map(|d| &d.0[..]));
+    let attribute = |semantic: gltf::Semantic| prim.get(&semantic);
+    let Some(positions) =
+        attribute(gltf::Semantic::Positions).and_then(|a| read_attribute::<3>(&a, buffers))
+    else {
+        if prim.get(&gltf::Semantic::Positions).is_none() {
+            // The spec's advice for a primitive without positions: skip it.
+            tracing::warn!(
+                "{}: skipping {name}: it has no POSITION attribute",
+                path.display()
+            );
+            return Ok(None);
+        }
+        return Err(format!(
+            "{name}: its POSITION accessor cannot be read (out of range of its buffer?)"
+        ));
+    };
+    let positions: Vec<Vec3> = positions.into_iter().map(Vec3::from_array).collect();
+    let indices: Vec<u32> = match (reader.read_indices(), prim.indices()) {
+        (Some(i), _) => i.into_u32().collect(),
+        (None, None) => (0..positions.len() as u32).collect(),
+        (None, Some(_)) => {
+            return Err(format!(
+                "{name}: its indices accessor cannot be read (out of range of its buffer?)"
+            ))
+        }
+    };
+    if !indices.len().is_multiple_of(3) {
+        return Err(format!(
+            "{name}: {} indices, not a multiple of 3 (triangles)",
+            indices.len()
+        ));
+    }
+    if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+        return Err(format!(
+            "{name}: index {i} out of range of its {} vertices",
+            positions.len()
+        ));
+    }
+    let read_normals =
+        attribute(gltf::Semantic::Normals).and_then(|a| read_attribute::<3>(&a, buffers));
+    let mut normals: Vec<Vec3> = match read_normals {
+        Some(n) => n.into_iter().map(Vec3::from_array).collect(),
+        None if prim.get(&gltf::Semantic::Normals).is_some() => {
+            return Err(format!(
+                "{name}: its NORMAL accessor cannot be read (out of range of its buffer?)"
+            ))
+        }
+        None => smooth_normals(&positions, &indices),
+    };
+    if normals.len() != positions.len() {
+        return Err(format!(
+            "{name}: {} normals for {} positions",
+            normals.len(),
+            positions.len()
+        ));
+    }
+    // Placed later; a value the file gives as not a number is said as such then (in world
+    // space, with the node's name). Repairs need finite data.
+    if positions.iter().chain(&normals).all(|p| p.is_finite()) {
+        repair_zero_normals(path, &positions, &mut normals, &indices);
+    }
+    let mut uvs: [Vec<[f32; 2]>; 2] = Default::default();
+    for (channel, &set) in channels.sets.iter().enumerate() {
+        let read = attribute(gltf::Semantic::TexCoords(set))
+            .and_then(|a| read_attribute::<2>(&a, buffers));
+        let Some(read) = read else {
+            return Err(format!(
+                "{name}: its material is textured, but it has no readable TEXCOORD_{set}"
+            ));
+        };
+        check_per_vertex(&read, positions.len(), &format!("TEXCOORD_{set}"))
+            .map_err(|m| format!("{name}: {m}"))?;
+        uvs[channel] = read;
+    }
+    // MikkTSpace's tangents follow the normal texture's coordinates (the clear coat's where
+    // the base has none).
+    let normal_slot = if mat.normal_texture().is_some() {
+        NORMAL_SLOT
+    } else {
+        COAT_NORMAL_SLOT
+    };
+    let normal_uvs = &uvs[channels.channel[normal_slot] as usize];
+    // Tangents where a normal texture needs them: the file's, or MikkTSpace's, as glTF asks.
+    let read_tangents =
+        attribute(gltf::Semantic::Tangents).and_then(|a| read_attribute::<4>(&a, buffers));
+    let tangents: Vec<[f32; 4]> = match (normal_textured, read_tangents) {
+        (false, _) => Vec::new(),
+        (true, _) if normal_uvs.is_empty() => Vec::new(),
+        (true, Some(t)) => t,
+        (true, None) if prim.get(&gltf::Semantic::Tangents).is_some() => {
+            return Err(format!(
+                "{name}: its TANGENT accessor cannot be read (out of range of its buffer?)"
+            ))
+        }
+        (true, None) => generate_tangents(&positions, &normals, normal_uvs, &indices)
+            .unwrap_or_else(|| {
+                tracing::warn!(
+                    "{}: {name}: no tangents could be made for its normal texture (degenerate \
+                     texture coordinates?); drawn without it",
+                    path.display()
+                );
+                Vec::new()
+            }),
+    };
+    if !tangents.is_empty() {
+        check_per_vertex(&tangents, positions.len(), "TANGENT")
+            .map_err(|m| format!("{name}: {m}"))?;
+    }
+    let colors: Vec<[u16; 4]> = match reader.read_colors(0) {
+        // Through f32: the crate widens bytes by a shift (255 became 65280, not 1).
+        Some(c) => c
+            .into_rgba_f32()
+            .map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16))
+            .collect(),
+        None if prim.get(&gltf::Semantic::Colors(0)).is_some() => {
+            return Err(format!(
+                "{name}: its COLOR_0 accessor cannot be read (out of range of its buffer?)"
+            ))
+        }
+        None => Vec::new(),
+    };
+    if !colors.is_empty() && colors.len() != positions.len() {
+        return Err(format!(
+            "{name}: {} COLOR_0 values for {} positions",
+            colors.len(),
+            positions.len()
+        ));
+    }
+    Ok(Some(LocalPrimitive {
+        geometry: std::sync::Arc::new(LocalGeometry {
+            positions,
+            normals,
+            tangents,
+        }),
+        uvs,
+        colors,
+        indices,
+    }))
+}
+
+/// Checks the accessors of primitive `prim` (named `name` in errors) that [`read_primitive`]
+/// reads ([`check_accessor`]): positions, normals, the texture coordinates of its material's
+/// `channels`, tangents where a normal texture needs them, `COLOR_0` and the indices. Further
+/// colour sets are named in `ignored`.
+fn check_primitive(
+    prim: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    channels: &TextureChannels,
+    normal_textured: bool,
+    name: &str,
+    ignored: &mut std::collections::BTreeSet<String>,
+) -> Result<(), String> {
+    for (semantic, accessor) in prim.attributes() {
+        use gltf::accessor::{
+            DataType::{F32, I16, I8, U16, U8},
+            Dimensions::{Vec2, Vec3, Vec4},
+        };
+        // Floats, and the integers KHR_mesh_quantization allows (`read_attribute`).
+        let (attribute, dimensions, types) = match semantic {
+            gltf::Semantic::Positions => {
+                ("POSITION".to_string(), Vec3, &[F32, I8, U8, I16, U16][..])
+            }
+            gltf::Semantic::Normals => ("NORMAL".to_string(), Vec3, &[F32, I8, I16][..]),
+            gltf::Semantic::TexCoords(set) if channels.sets.contains(&set) => (
+                format!("TEXCOORD_{set}"),
+                Vec2,
+                &[F32, I8, U8, I16, U16][..],
+            ),
+            gltf::Semantic::Tangents if normal_textured => {
+                ("TANGENT".to_string(), Vec4, &[F32, I8, I16][..])
+            }
+            gltf::Semantic::Colors(0) => {
+                // VEC3 or VEC4.
+                let dimensions = match accessor.dimensions() {
+                    Vec3 => Vec3,
+                    _ => Vec4,
+                };
+                ("COLOR_0".to_string(), dimensions, &[F32, U8, U16][..])
+            }
+            gltf::Semantic::Colors(_) => {
+                ignored.insert("vertex colours past COLOR_0".into());
+                continue;
+            }
+            _ => continue,
+        };
+        check_accessor(&accessor, buffers, dimensions, types)
+            .map_err(|m| format!("{name}: {attribute} {m}"))?;
+    }
+    if let Some(accessor) = prim.indices() {
+        use gltf::accessor::{
+            DataType::{U16, U32, U8},
+            Dimensions::Scalar,
+        };
+        check_accessor(&accessor, buffers, Scalar, &[U8, U16, U32])
+            .map_err(|m| format!("{name}: indices {m}"))?;
+    }
+    Ok(())
 }

@@ -19,12 +19,18 @@ use glam::{Mat3, Mat4, Vec3};
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
+mod animation;
 mod camera;
+mod gltf_animation;
 mod gltf_compression;
 mod gltf_loader;
 mod material;
 mod obj_loader;
 
+pub use animation::{
+    AnimationChoice, Channel, Clip, Interpolation, LocalGeometry, Piece, PlacedGeometry, Property,
+    RestTransform, SceneAnimation,
+};
 pub use camera::{
     fit_camera, look_at_rh, orthographic_rh, perspective_rh, Camera, CameraOverride, Projection,
 };
@@ -134,8 +140,11 @@ pub struct Scene {
     /// Index of the ground's material, if the scene has a ground plane.
     pub ground_material: Option<u32>,
     pub camera: Camera,
-    /// Bounding sphere of the shadow casters.
+    /// Bounding sphere of the shadow casters (of every pose, in an animated scene).
     pub bounds: Sphere,
+    /// The glTF file's animations and the meshes they move, where it has any that move a
+    /// drawn mesh ([`Scene::animate`]).
+    pub animation: Option<SceneAnimation>,
 }
 
 /// Accumulates meshes (casters first), then the ground.
@@ -147,6 +156,11 @@ struct Builder {
     textures: Vec<TextureImage>,
     /// The file's own camera (glTF's first perspective camera node), if any.
     camera: Option<Camera>,
+    /// The file's animations (glTF), where they move a mesh.
+    animation: Option<SceneAnimation>,
+    /// The casters' bounding sphere where worked out before [`Self::finish`] (of every pose,
+    /// [`swept_bounds`]).
+    bounds: Option<Sphere>,
 }
 
 impl Builder {
@@ -260,7 +274,7 @@ impl Builder {
 
     /// Finishes the casters, adds the ground (if any) and fits the camera when none is given.
     fn finish(mut self, ground: Option<Ground>, camera: Option<Camera>) -> Scene {
-        let bounds = bounding_sphere(&self.vertices);
+        let bounds = (self.bounds).unwrap_or_else(|| bounding_sphere(&self.vertices));
         let caster_indices = self.indices.len() as u32;
         let ground_material = ground.map(|g| {
             let m = self.material(g.material);
@@ -285,8 +299,51 @@ impl Builder {
             ground_material,
             camera,
             bounds,
+            animation: self.animation,
         }
     }
+}
+
+/// The bounding sphere of `vertices` in every pose of `animation`'s clips sampled over their
+/// loops ([`SceneAnimation::sweep_times`]) and in the rest pose, and the lowest height they
+/// reach: the box of all poses gives the centre, the farthest vertex of any pose the radius.
+fn swept_bounds(animation: &SceneAnimation, vertices: &[Vertex]) -> (Sphere, f32) {
+    let mut posed = vertices.to_vec();
+    let poses =
+        || {
+            std::iter::once((None, 0.0)).chain(
+                animation.clips.iter().enumerate().flat_map(|(c, clip)| {
+                    SceneAnimation::sweep_times(clip).map(move |t| (Some(c), t))
+                }),
+            )
+        };
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for (clip, t) in poses() {
+        animation.pose(clip, t, &mut posed);
+        for v in &posed {
+            let p = Vec3::from_array(v.position);
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    let center = 0.5 * (lo + hi);
+    let mut radius = 1e-3f32;
+    for (clip, t) in poses() {
+        animation.pose(clip, t, &mut posed);
+        for v in &posed {
+            radius = radius.max(Vec3::from_array(v.position).distance(center));
+        }
+    }
+    (Sphere { center, radius }, lo.y)
+}
+
+/// The lowest height (y) of `vertices`.
+fn lowest(vertices: &[Vertex]) -> f32 {
+    vertices
+        .iter()
+        .map(|v| v.position[1])
+        .fold(f32::INFINITY, f32::min)
 }
 
 /// Ritter-style bounding sphere: the box centre and the farthest vertex.
@@ -470,7 +527,7 @@ impl Scene {
         // The checks before the gltf and tobj crates cover what they were found to panic on;
         // a panic still left in them becomes an error naming the file (the default panic hook
         // prints its message to stderr too).
-        let b = std::panic::catch_unwind(|| load(path)).unwrap_or_else(|panic| {
+        let mut b = std::panic::catch_unwind(|| load(path)).unwrap_or_else(|panic| {
             let what = (panic.downcast_ref::<&str>().map(|s| s.to_string()))
                 .or_else(|| panic.downcast_ref::<String>().cloned())
                 .unwrap_or_else(|| "unknown panic".to_string());
@@ -486,7 +543,10 @@ impl Scene {
                 path: path.to_path_buf(),
             });
         }
-        let bounds = bounding_sphere(&b.vertices);
+        let (bounds, low) = match &b.animation {
+            Some(animation) => swept_bounds(animation, &b.vertices),
+            None => (bounding_sphere(&b.vertices), lowest(&b.vertices)),
+        };
         if !(bounds.radius.is_finite() && bounds.radius <= MAX_SCENE_RADIUS) {
             // f32 sums overflow for coordinates near 1e38: the size is then measured in f64
             // (half the bounding box's diagonal).
@@ -516,11 +576,6 @@ impl Scene {
                 ratio: distance / f64::from(bounds.radius),
             });
         }
-        let low = b
-            .vertices
-            .iter()
-            .map(|v| v.position[1])
-            .fold(f32::INFINITY, f32::min);
         let g = ground.then_some(Ground {
             height: low,
             half_size: bounds.radius * 6.0 + bounds.center.x.abs().max(bounds.center.z.abs()),
@@ -533,6 +588,7 @@ impl Scene {
             },
         });
         let camera = b.camera;
+        b.bounds = Some(bounds);
         Ok(b.finish(g, camera))
     }
 

@@ -1,5 +1,6 @@
 //! Tests of scene loading, by source; the scene files they write share the helpers here.
 
+mod animated_files;
 mod built_in;
 mod compressed_files;
 mod gltf_files;

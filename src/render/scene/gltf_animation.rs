@@ -1,0 +1,257 @@
+//! glTF animations read into [`SceneAnimation`]'s clips: every channel's sampler checked
+//! (key times finite and non-decreasing, as many values as the interpolation needs, the
+//! component types glTF allows) before its accessors are read, so that a bad file is an
+//! error naming the animation and channel, never a panic. Morph-target weight channels are
+//! left out (the loader names morph targets as not drawn).
+
+use super::animation::{Channel, Clip, Interpolation, Property, RestTransform, SceneAnimation};
+use super::gltf_loader::{check_accessor, read_attribute};
+use super::*;
+use glam::{Quat, Vec4};
+
+/// The file's animations, in its order: each clip's channels that drive a node's translation,
+/// rotation or scale. Errors name the animation and channel.
+pub(super) fn read_clips(
+    document: &gltf::Document,
+    buffers: &[gltf::buffer::Data],
+) -> Result<Vec<Clip>, String> {
+    check_channel_targets(document)?;
+    document
+        .animations()
+        .map(|animation| {
+            let name = animation.name().unwrap_or("").to_string();
+            let mut channels = Vec::new();
+            for channel in animation.channels() {
+                let read = read_channel(&channel, buffers).map_err(|m| {
+                    format!(
+                        "animation {} ({name:?}) channel {}: {m}",
+                        animation.index(),
+                        channel.index()
+                    )
+                })?;
+                channels.extend(read);
+            }
+            let duration = (channels.iter())
+                .filter_map(|c: &Channel| c.times.last().copied())
+                .fold(0.0f32, f32::max);
+            Ok(Clip {
+                name,
+                channels,
+                duration,
+            })
+        })
+        .collect()
+}
+
+/// Checks what the `gltf` crate's validation leaves out for animations (its accessors unwrap
+/// them): each channel's target node exists, and its path and its sampler's interpolation are
+/// ones glTF defines.
+fn check_channel_targets(document: &gltf::Document) -> Result<(), String> {
+    use gltf::json::validation::Checked;
+    let root = document.as_json();
+    for (a, animation) in root.animations.iter().enumerate() {
+        let name = animation.name.as_deref().unwrap_or("");
+        for (c, channel) in animation.channels.iter().enumerate() {
+            let at = || format!("animation {a} ({name:?}) channel {c}");
+            let node = channel.target.node.value();
+            if node >= root.nodes.len() {
+                return Err(format!(
+                    "{}: its target node {node} does not exist ({} nodes)",
+                    at(),
+                    root.nodes.len()
+                ));
+            }
+            if matches!(channel.target.path, Checked::Invalid) {
+                return Err(format!(
+                    "{}: its target path is not translation, rotation, scale or weights",
+                    at()
+                ));
+            }
+            let sampler = animation.samplers.get(channel.sampler.value());
+            match sampler.map(|s| &s.interpolation) {
+                Some(Checked::Valid(_)) => {}
+                Some(Checked::Invalid) => {
+                    return Err(format!(
+                        "{}: its sampler's interpolation is not LINEAR, STEP or CUBICSPLINE",
+                        at()
+                    ))
+                }
+                None => {
+                    return Err(format!(
+                        "{}: its sampler {} does not exist",
+                        at(),
+                        channel.sampler.value()
+                    ))
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// One channel's keys and values; `None` for a morph-target weights channel.
+fn read_channel(
+    channel: &gltf::animation::Channel,
+    buffers: &[gltf::buffer::Data],
+) -> Result<Option<Channel>, String> {
+    use gltf::accessor::{
+        DataType::{F32, I16, I8, U16, U8},
+        Dimensions,
+    };
+    let property = match channel.target().property() {
+        gltf::animation::Property::Translation => Property::Translation,
+        gltf::animation::Property::Rotation => Property::Rotation,
+        gltf::animation::Property::Scale => Property::Scale,
+        gltf::animation::Property::MorphTargetWeights => return Ok(None),
+    };
+    let sampler = channel.sampler();
+    let interpolation = match sampler.interpolation() {
+        gltf::animation::Interpolation::Step => Interpolation::Step,
+        gltf::animation::Interpolation::Linear => Interpolation::Linear,
+        gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+    };
+    let input = sampler.input();
+    check_accessor(&input, buffers, Dimensions::Scalar, &[F32])
+        .map_err(|m| format!("its key times: {m}"))?;
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let times: Vec<f32> = gltf::accessor::Iter::<f32>::new(input, get)
+        .ok_or("its key times cannot be read")?
+        .collect();
+    if let Some(t) = times.iter().find(|t| !t.is_finite()) {
+        return Err(format!("key time {t} is not a finite number"));
+    }
+    if let Some(k) = times.windows(2).position(|w| w[1] < w[0]) {
+        return Err(format!(
+            "key times decrease ({} then {}); glTF requires increasing times",
+            times[k],
+            times[k + 1]
+        ));
+    }
+    let output = sampler.output();
+    // Rotations may be normalised integers (glTF 2.0, 3.11), the rest floats.
+    let (dimensions, types) = match property {
+        Property::Rotation => (Dimensions::Vec4, &[F32, I8, U8, I16, U16][..]),
+        _ => (Dimensions::Vec3, &[F32][..]),
+    };
+    check_accessor(&output, buffers, dimensions, types).map_err(|m| format!("its values: {m}"))?;
+    let values: Vec<Vec4> = match property {
+        Property::Rotation => read_attribute::<4>(&output, buffers)
+            .map(|v| v.into_iter().map(Vec4::from_array).collect()),
+        _ => read_attribute::<3>(&output, buffers).map(|v| {
+            v.into_iter()
+                .map(|v| Vec3::from_array(v).extend(0.0))
+                .collect()
+        }),
+    }
+    .ok_or("its values cannot be read")?;
+    let per_key = if interpolation == Interpolation::CubicSpline {
+        3
+    } else {
+        1
+    };
+    if values.len() != per_key * times.len() {
+        return Err(format!(
+            "{} values for {} key times ({per_key} a key with {interpolation:?} interpolation)",
+            values.len(),
+            times.len()
+        ));
+    }
+    if let Some(v) = values.iter().find(|v| !v.is_finite()) {
+        let shown = match property {
+            Property::Rotation => format!("{v}"),
+            _ => format!("{}", v.truncate()),
+        };
+        return Err(format!("value {shown} is not finite"));
+    }
+    if property == Property::Rotation {
+        // Every key's value (not the tangents) must be a rotation.
+        let key_values = values.iter().skip(per_key / 2).step_by(per_key);
+        if let Some(q) = key_values.clone().find(|q| q.length() < 1e-6) {
+            return Err(format!(
+                "rotation {q} is not a rotation (a unit quaternion x, y, z, w)"
+            ));
+        }
+    }
+    Ok(Some(Channel {
+        node: channel.target().node().index(),
+        property,
+        interpolation,
+        times,
+        values,
+    }))
+}
+
+impl SceneAnimation {
+    /// The clips of `document` over its nodes' rest transforms; the hierarchy (parents, order)
+    /// and the moved pieces are filled in as the loader walks the scene ([`Self::visit`]).
+    pub(super) fn new(document: &gltf::Document, clips: Vec<Clip>) -> Self {
+        let nodes = document.nodes().len();
+        let mut animated = vec![false; nodes];
+        for channel in clips.iter().flat_map(|c| &c.channels) {
+            if let Some(a) = animated.get_mut(channel.node) {
+                *a = true;
+            }
+        }
+        let rest = document
+            .nodes()
+            .map(|node| {
+                let matrix = Mat4::from_cols_array_2d(&node.transform().matrix());
+                let (translation, rotation, scale) = match node.transform() {
+                    gltf::scene::Transform::Decomposed {
+                        translation,
+                        rotation,
+                        scale,
+                    } => (
+                        Vec3::from_array(translation),
+                        Quat::from_array(rotation),
+                        Vec3::from_array(scale),
+                    ),
+                    // glTF animates only nodes given by parts; a matrix node is taken apart.
+                    gltf::scene::Transform::Matrix { .. } => {
+                        let (s, r, t) = matrix.to_scale_rotation_translation();
+                        (t, r, s)
+                    }
+                };
+                let finite = |v: Vec3, or: Vec3| if v.is_finite() { v } else { or };
+                let unit = rotation.length() > 1e-6 && rotation.is_finite();
+                RestTransform {
+                    matrix,
+                    translation: finite(translation, Vec3::ZERO),
+                    rotation: if unit {
+                        rotation.normalize()
+                    } else {
+                        Quat::IDENTITY
+                    },
+                    scale: finite(scale, Vec3::ONE),
+                }
+            })
+            .collect();
+        SceneAnimation {
+            parents: vec![None; nodes],
+            rest,
+            order: Vec::new(),
+            clips,
+            pieces: Vec::new(),
+            playing: Some(0),
+            moved: animated,
+        }
+    }
+
+    /// Records that the loader reached `node` under `parent` (parents are reached first):
+    /// it is moved if a clip drives it or moves its parent.
+    pub(super) fn visit(&mut self, node: usize, parent: Option<usize>) {
+        if node >= self.parents.len() {
+            return;
+        }
+        self.parents[node] = parent;
+        self.order.push(node);
+        if let Some(p) = parent.and_then(|p| self.moved.get(p).copied()) {
+            self.moved[node] |= p;
+        }
+    }
+
+    /// Whether a clip moves `node` (after [`Self::visit`]).
+    pub(super) fn moves(&self, node: usize) -> bool {
+        self.moved.get(node).copied().unwrap_or(false)
+    }
+}

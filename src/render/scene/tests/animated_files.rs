@@ -1,0 +1,399 @@
+//! Animated glTF files: clips played on the scene's nodes, their meshes and children moved,
+//! bounds that hold every pose, and bad keyframes refused naming the animation and channel.
+
+use super::*;
+
+/// One channel of a test clip: node, `path` (translation, rotation, scale), interpolation,
+/// key times and values (3 or 4 numbers each, three per key for CUBICSPLINE).
+struct Keys<'a> {
+    node: usize,
+    path: &'a str,
+    interpolation: &'a str,
+    times: Vec<f32>,
+    values: Vec<f32>,
+}
+
+/// A glTF of [`write_gltf`]'s one triangle, drawn by `nodes` (the scene's roots `roots`), with
+/// the clips `clips` (name, channels), their keys in a second buffer.
+fn animated_gltf(
+    dir: &Path,
+    name: &str,
+    nodes: &str,
+    roots: &str,
+    clips: &[(&str, Vec<Keys>)],
+) -> PathBuf {
+    let triangle = write_gltf(dir, name, nodes, [3, 3, 3], "[0.5,0.5,0.5,1]");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&triangle).unwrap()).unwrap();
+    json["scenes"][0]["nodes"] = serde_json::from_str(roots).unwrap();
+    let mut data: Vec<u8> = Vec::new();
+    let mut accessors = json["accessors"].as_array().unwrap().clone();
+    let mut views = json["bufferViews"].as_array().unwrap().clone();
+    // Adds `floats` as an accessor of `kind` over a view of its own; returns its index.
+    let mut add = |floats: &[f32], kind: &str, width: usize| {
+        let offset = data.len();
+        data.extend(floats.iter().flat_map(|f| f.to_le_bytes()));
+        views.push(serde_json::json!({"buffer": 1, "byteOffset": offset,
+            "byteLength": 4 * floats.len()}));
+        accessors.push(serde_json::json!({"bufferView": views.len() - 1,
+            "componentType": 5126, "count": floats.len() / width, "type": kind}));
+        accessors.len() - 1
+    };
+    let mut animations = Vec::new();
+    for (clip, channels) in clips {
+        let (mut samplers, mut targets) = (Vec::new(), Vec::new());
+        for keys in channels {
+            let input = add(&keys.times, "SCALAR", 1);
+            let (kind, width) = if keys.path == "rotation" {
+                ("VEC4", 4)
+            } else {
+                ("VEC3", 3)
+            };
+            let output = add(&keys.values, kind, width);
+            samplers.push(serde_json::json!({"input": input, "output": output,
+                "interpolation": keys.interpolation}));
+            targets.push(serde_json::json!({"sampler": samplers.len() - 1,
+                "target": {"node": keys.node, "path": keys.path}}));
+        }
+        animations.push(serde_json::json!({"name": clip, "channels": targets,
+            "samplers": samplers}));
+    }
+    json["accessors"] = accessors.into();
+    json["bufferViews"] = views.into();
+    json["animations"] = animations.into();
+    json["buffers"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({
+            "byteLength": data.len(),
+            "uri": format!("data:application/octet-stream;base64,{}", base64_encode(&data)),
+        }));
+    std::fs::write(&triangle, serde_json::to_string(&json).unwrap()).unwrap();
+    triangle
+}
+
+/// The quaternion (x, y, z, w) of `degrees` about +z.
+fn about_z(degrees: f32) -> [f32; 4] {
+    glam::Quat::from_rotation_z(degrees.to_radians()).to_array()
+}
+
+/// A parent sliding 4 units along +x over 2 s, with a child that snaps a quarter turn
+/// about z at 1 s, and a still node beside them: clip "slide".
+fn sliding_parent(dir: &Path) -> PathBuf {
+    let keys = vec![
+        Keys {
+            node: 0,
+            path: "translation",
+            interpolation: "LINEAR",
+            times: vec![0.0, 2.0],
+            values: vec![0.0, 0.0, 0.0, 4.0, 0.0, 0.0],
+        },
+        Keys {
+            node: 1,
+            path: "rotation",
+            interpolation: "STEP",
+            times: vec![0.0, 1.0],
+            values: [about_z(0.0), about_z(90.0)].concat(),
+        },
+    ];
+    animated_gltf(
+        dir,
+        "slide.gltf",
+        r#"[{"name":"parent","children":[1]},{"name":"child","mesh":0,"translation":[0,1,0]},
+            {"name":"still","mesh":0,"translation":[5,0,0]}]"#,
+        "[0,2]",
+        &[("slide", keys)],
+    )
+}
+
+/// Where vertex `k` of the animated piece lies after [`Scene::animate`] at `t`.
+fn posed(scene: &mut Scene, t: f64, k: usize) -> Vec3 {
+    assert!(scene.animate(t));
+    let first = scene.animation.as_ref().unwrap().pieces[0].first_vertex;
+    Vec3::from_array(scene.vertices[first + k].position)
+}
+
+#[test]
+fn animated_nodes_move_their_meshes_and_their_children() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut scene = Scene::load(&sliding_parent(dir.path()), false).unwrap();
+    let animation = scene.animation.as_ref().unwrap();
+    // The child is moved (through its parent); the still node is not.
+    assert_eq!(animation.pieces.len(), 1);
+    assert_eq!(animation.pieces[0].node, 1);
+    assert_eq!(scene.playing_animation(), Some((0, "slide", 2.0)));
+    let still: Vec<Vertex> = (scene.vertices.iter())
+        .filter(|v| v.position[0] >= 5.0)
+        .copied()
+        .collect();
+    assert_eq!(still.len(), 3);
+    // Vertex 1 is (1, 0, 0) in the mesh; the child stands 1 up in its parent.
+    let close = |a: Vec3, b: Vec3| a.distance(b) < 1e-5;
+    let at = posed(&mut scene, 0.5, 1);
+    assert!(close(at, Vec3::new(2.0, 1.0, 0.0)), "{at}");
+    // At 1.5 s the parent is 3 along and the child turned: (1, 0, 0) → (0, 1, 0).
+    let at = posed(&mut scene, 1.5, 1);
+    assert!(close(at, Vec3::new(3.0, 2.0, 0.0)), "{at}");
+    let first = scene.animation.as_ref().unwrap().pieces[0].first_vertex;
+    // The triangle's normal (+z) is along the axis of the turn.
+    let normal = Vec3::from_array(scene.vertices[first].normal);
+    assert!(close(normal, Vec3::Z), "{normal}");
+    // The clip loops; negative times too.
+    assert!(close(posed(&mut scene, 3.5, 1), at));
+    assert!(close(posed(&mut scene, -0.5, 1), at));
+    // The still node never moved.
+    let now: Vec<Vertex> = (scene.vertices.iter())
+        .filter(|v| v.position[0] >= 5.0)
+        .copied()
+        .collect();
+    assert_eq!(now, still);
+    // No clip: the rest pose, whatever the time.
+    scene.select_animation(&AnimationChoice::None).unwrap();
+    assert_eq!(scene.playing_animation(), None);
+    let rest = posed(&mut scene, 1.5, 1);
+    assert!(close(rest, Vec3::new(1.0, 1.0, 0.0)), "{rest}");
+    // By name or index; an absent one is refused, naming those there are.
+    scene
+        .select_animation(&AnimationChoice::Name("slide".into()))
+        .unwrap();
+    assert!(close(posed(&mut scene, 1.5, 1), at));
+    for (choice, needle) in [
+        (
+            AnimationChoice::Index(1),
+            "no animation 1: it has 0 \"slide\"",
+        ),
+        (
+            AnimationChoice::Name("run".into()),
+            "no animation named \"run\": it has 0 \"slide\"",
+        ),
+    ] {
+        let e = scene.select_animation(&choice).unwrap_err();
+        assert!(e.contains(needle), "{e}");
+    }
+    // A still scene takes the default and `none`; a clip by index is refused.
+    let p = write_gltf(
+        dir.path(),
+        "still.gltf",
+        r#"[{"mesh":0}]"#,
+        [3, 3, 3],
+        "[1,1,1,1]",
+    );
+    let mut still = Scene::load(&p, false).unwrap();
+    assert!(still.animation.is_none());
+    assert!(!still.animate(1.0));
+    still.select_animation(&AnimationChoice::First).unwrap();
+    still.select_animation(&AnimationChoice::None).unwrap();
+    let e = still
+        .select_animation(&AnimationChoice::Index(0))
+        .unwrap_err();
+    assert!(e.contains("it has none"), "{e}");
+}
+
+/// The shadow maps are fitted to the casters' bounds once: every pose of the clip lies within
+/// them, and the ground lies under the lowest pose.
+#[test]
+fn bounds_hold_every_pose_and_the_ground_lies_under_the_lowest() {
+    let dir = tempfile::tempdir().unwrap();
+    let bounce = vec![Keys {
+        node: 0,
+        path: "translation",
+        interpolation: "LINEAR",
+        times: vec![0.0, 1.0, 2.0],
+        values: vec![0.0, 0.0, 0.0, 0.0, -3.0, 0.0, 0.0, 0.0, 0.0],
+    }];
+    let spin = vec![Keys {
+        node: 0,
+        path: "rotation",
+        interpolation: "LINEAR",
+        times: vec![0.0, 1.0, 2.0, 3.0, 4.0],
+        values: [0.0, 90.0, 180.0, 270.0, 360.0].map(about_z).concat(),
+    }];
+    let p = animated_gltf(
+        dir.path(),
+        "bounce.gltf",
+        r#"[{"mesh":0}]"#,
+        "[0]",
+        &[("bounce", bounce), ("spin", spin)],
+    );
+    let mut scene = Scene::load(&p, true).unwrap();
+    let ground = scene.vertices.len() - 4;
+    for v in &scene.vertices[ground..] {
+        assert!((v.position[1] - -3.0).abs() < 1e-6, "{:?}", v.position);
+    }
+    let bounds = scene.bounds;
+    for clip in ["bounce", "spin"] {
+        scene
+            .select_animation(&AnimationChoice::Name(clip.into()))
+            .unwrap();
+        for step in 0..=400 {
+            scene.animate(f64::from(step) * 0.01);
+            for v in &scene.vertices[..ground] {
+                let d = Vec3::from_array(v.position).distance(bounds.center);
+                assert!(d <= bounds.radius * (1.0 + 1e-5), "{clip} at {step}: {d}");
+            }
+            assert_eq!(scene.bounds, bounds, "{clip} at {step}");
+        }
+    }
+}
+
+#[test]
+fn animations_with_bad_keys_are_refused_naming_the_channel() {
+    let dir = tempfile::tempdir().unwrap();
+    let translation = |interpolation, times: Vec<f32>, values: Vec<f32>| Keys {
+        node: 0,
+        path: "translation",
+        interpolation,
+        times,
+        values,
+    };
+    let cases = [
+        (
+            translation("LINEAR", vec![1.0, 0.0], vec![0.0; 6]),
+            "key times decrease (1 then 0)",
+        ),
+        (
+            translation("LINEAR", vec![0.0, f32::NAN], vec![0.0; 6]),
+            "key time NaN is not a finite number",
+        ),
+        (
+            translation("LINEAR", vec![0.0, 1.0], vec![0.0; 9]),
+            "3 values for 2 key times",
+        ),
+        (
+            translation("CUBICSPLINE", vec![0.0, 1.0], vec![0.0; 6]),
+            "2 values for 2 key times (3 a key with CubicSpline interpolation)",
+        ),
+        (
+            translation(
+                "STEP",
+                vec![0.0, 1.0],
+                vec![0.0, 0.0, 0.0, f32::INFINITY, 0.0, 0.0],
+            ),
+            "value [inf, 0, 0] is not finite",
+        ),
+        (
+            Keys {
+                node: 0,
+                path: "rotation",
+                interpolation: "LINEAR",
+                times: vec![0.0, 1.0],
+                values: vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            },
+            "rotation [0, 0, 0, 0] is not a rotation",
+        ),
+    ];
+    for (i, (keys, needle)) in cases.into_iter().enumerate() {
+        let p = animated_gltf(
+            dir.path(),
+            &format!("bad{i}.gltf"),
+            r#"[{"mesh":0}]"#,
+            "[0]",
+            &[("walk", vec![keys])],
+        );
+        assert_load_fails_naming(&p, &format!("animation 0 (\"walk\") channel 0: {needle}"));
+    }
+    // Accessors are checked before they are read: values past their view, times of ints.
+    let p = sliding_parent(dir.path());
+    let text = std::fs::read_to_string(&p).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["accessors"][4]["count"] = 3.into();
+    std::fs::write(&p, json.to_string()).unwrap();
+    assert_load_fails_naming(
+        &p,
+        "channel 0: its values: accessor 4: 3 elements of 12 bytes",
+    );
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["accessors"][3]["componentType"] = 5125.into();
+    std::fs::write(&p, json.to_string()).unwrap();
+    assert_load_fails_naming(
+        &p,
+        "channel 0: its key times: accessor 3 has component type U32",
+    );
+}
+
+/// Every number of an animated file's JSON replaced by hostile values: each load returns, and
+/// a scene that loads plays its clip at any time without a panic or a non-finite vertex that
+/// its nodes' values do not explain.
+#[test]
+fn mutated_animated_files_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(sliding_parent(dir.path())).unwrap();
+    let path = dir.path().join("mutated.gltf");
+    let numbers = number_spans(&text);
+    assert!(numbers.len() > 40, "{}", numbers.len());
+    let mut played = 0;
+    for &(start, end) in &numbers {
+        for value in HOSTILE_NUMBERS {
+            let mutated = format!("{}{value}{}", &text[..start], &text[end..]);
+            std::fs::write(&path, mutated).unwrap();
+            if !loads_without_panic(&path) {
+                continue;
+            }
+            let Ok(mut scene) = Scene::load(&path, true) else {
+                continue;
+            };
+            for t in [-1.0, 0.0, 0.5, 1.0, 1e9, f64::NAN, f64::INFINITY] {
+                scene.animate(t);
+            }
+            played += 1;
+        }
+    }
+    assert!(played > 100, "{played}");
+}
+
+fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/animated")
+        .join(name)
+}
+
+/// The fixtures of tests/data/animated: the animated boxes at 1 s of clip "turn" are the
+/// still file of that pose, vertex for vertex — and so, within its quantisation, is the file
+/// gltfpack made of them (positions of 14 bits, rotations as normalised 16-bit integers, keys
+/// resampled at 30 a second, all meshopt-compressed). Clip "hop" (a cubic spline with flat
+/// tangents) lifts the top box half way at a quarter of its second.
+#[test]
+fn fixtures_play_as_their_still_pose_and_tools_files_too() {
+    let still = Scene::load(&fixture("turned_boxes.gltf"), false).unwrap();
+    let mut turning = Scene::load(&fixture("turning_boxes.gltf"), false).unwrap();
+    assert_eq!(turning.animation_names(), ["turn", "hop"]);
+    turning.animate(1.0);
+    assert_eq!(turning.vertices.len(), still.vertices.len());
+    for (a, b) in turning.vertices.iter().zip(&still.vertices) {
+        let (pa, pb) = (Vec3::from_array(a.position), Vec3::from_array(b.position));
+        let (na, nb) = (Vec3::from_array(a.normal), Vec3::from_array(b.normal));
+        assert!(
+            pa.distance(pb) < 1e-5 && na.distance(nb) < 1e-5,
+            "{pa} {pb}"
+        );
+    }
+    let mut packed = Scene::load(&fixture("turning_boxes_gltfpack.glb"), false).unwrap();
+    assert_eq!(packed.animation_names(), ["turn", "hop"]);
+    packed.animate(1.0);
+    // Every vertex near one of the still file's with the same normal, and back.
+    let near = |from: &Scene, to: &Scene| {
+        from.vertices.iter().all(|a| {
+            to.vertices.iter().any(|b| {
+                let d = Vec3::from_array(a.position).distance(Vec3::from_array(b.position));
+                let n = Vec3::from_array(a.normal).distance(Vec3::from_array(b.normal));
+                d < 2e-3 && n < 1e-2
+            })
+        })
+    };
+    assert!(near(&packed, &still) && near(&still, &packed));
+    for scene in [&mut turning, &mut packed] {
+        scene
+            .select_animation(&AnimationChoice::Name("hop".into()))
+            .unwrap();
+        for (t, height) in [(0.0, 1.25), (0.25, 1.75), (0.5, 2.25), (1.25, 1.75)] {
+            scene.animate(t);
+            let top: Vec<f32> = (scene.vertices.iter())
+                .map(|v| v.position[1])
+                .filter(|&y| y > 0.52)
+                .collect();
+            assert_eq!(top.len(), 24, "at {t}");
+            let mean = top.iter().sum::<f32>() / 24.0;
+            assert!((mean - height).abs() < 5e-3, "at {t}: {mean}");
+        }
+    }
+}
