@@ -62,11 +62,23 @@ impl LocalGeometry {
     }
 
     /// [`Self::place`] written into `vertices` (one per local vertex, the rest left as they
-    /// are), normals normalised as the builder does.
+    /// are), normals normalised as the builder does; in parallel over blocks of vertices.
     pub fn place_into(&self, world: Mat4, vertices: &mut [Vertex]) {
+        use rayon::prelude::*;
+        /// Vertices a task places (about 0.2 ms of work).
+        const BLOCK: usize = 16384;
+        let count = self.positions.len().min(vertices.len());
+        vertices[..count]
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .for_each(|(k, block)| self.place_block(world, k * BLOCK, block));
+    }
+
+    /// Places vertices `first..` into `vertices`.
+    fn place_block(&self, world: Mat4, first: usize, vertices: &mut [Vertex]) {
         let normal_matrix = normal_matrix(world);
         let handedness = world.determinant().signum();
-        for (i, v) in vertices.iter_mut().enumerate().take(self.positions.len()) {
+        for (i, v) in (first..).zip(vertices.iter_mut()) {
             v.position = world.transform_point3(self.positions[i]).to_array();
             if let Some(&n) = self.normals.get(i) {
                 v.normal = (normal_matrix * n).normalize_or(Vec3::Y).to_array();
@@ -381,9 +393,14 @@ impl Scene {
         let t = animation.clip_time(seconds);
         animation.pose(animation.playing, t, &mut self.vertices);
         let casters = self.caster_vertices();
-        let outside = (self.vertices[..casters].iter())
-            .map(|v| Vec3::from_array(v.position).distance(self.bounds.center))
-            .fold(0.0f32, f32::max);
+        let center = self.bounds.center;
+        let outside = {
+            use rayon::prelude::*;
+            (self.vertices[..casters].par_iter())
+                .map(|v| Vec3::from_array(v.position).distance_squared(center))
+                .reduce(|| 0.0f32, f32::max)
+                .sqrt()
+        };
         if outside > self.bounds.radius && outside.is_finite() {
             tracing::debug!(
                 "animation at {t} s leaves the casters' bounding sphere ({} → {outside})",
