@@ -101,9 +101,12 @@ fn turning_sphere(segments: u32) -> Scene {
             instance: Mat4::IDENTITY,
             first_vertex: 0,
             geometry: std::sync::Arc::new(geometry),
+            skin: None,
         }],
         playing: Some(0),
         moved: vec![true],
+        skins: Vec::new(),
+        last_pose: None,
     });
     scene
 }

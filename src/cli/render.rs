@@ -40,7 +40,8 @@ pub(crate) struct RenderArgs {
     /// and emissive textures, vertex colours, emission, alpha cut-outs and blending, the index
     /// of refraction, specular and clear-coat factors, and an MTL's map_Kd, Ke, map_Ke, map_d,
     /// d, Pr, Pm, Pc and Pcr are drawn, and unlit materials; PNG, JPEG or WebP; Draco- or
-    /// meshopt-compressed geometry is decoded; glTF node animations play, see --animation).
+    /// meshopt-compressed geometry is decoded; glTF node animations and skins play, see
+    /// --animation).
     /// [default: built-in spheres on a ground plane]
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,

@@ -15,10 +15,14 @@
 //!    `EXT_mesh_gpu_instancing` transform): positions by the matrix, normals by its cofactor
 //!    matrix, tangents by its linear part with the handedness turned by a mirror.
 //!
+//!    A skinned mesh (glTF skins) is placed by linear blend skinning instead: each vertex
+//!    through the sum of its (up to four) joints' world matrices times their inverse bind
+//!    matrices, weighted; its node's own transform does not apply.
+//!
 //! A clip loops over `[0, duration]`, its duration the latest key time of its channels. The
 //! triangles' winding is fixed when the scene is loaded (turned where the rest pose mirrors a
 //! mesh); a clip whose scale changes sign mid-play leaves those triangles facing the other
-//! way. Morph-target weights and skins are not played (the loader names them).
+//! way. Morph-target weights are not played (the loader names morph targets).
 
 use super::*;
 use glam::{Quat, Vec4};
@@ -65,8 +69,6 @@ impl LocalGeometry {
     /// are), normals normalised as the builder does; in parallel over blocks of vertices.
     pub fn place_into(&self, world: Mat4, vertices: &mut [Vertex]) {
         use rayon::prelude::*;
-        /// Vertices a task places (about 0.2 ms of work).
-        const BLOCK: usize = 16384;
         let count = self.positions.len().min(vertices.len());
         vertices[..count]
             .par_chunks_mut(BLOCK)
@@ -89,6 +91,9 @@ impl LocalGeometry {
         }
     }
 }
+
+/// Vertices a task places or skins (about 0.2 ms of work).
+const BLOCK: usize = 16384;
 
 /// A tangent (xyz, handedness w) through `world`, whose determinant has the sign
 /// `handedness`.
@@ -210,13 +215,68 @@ impl RestTransform {
 }
 
 /// A mesh instance that a clip may move: its node, its instance transform within the node,
-/// where its vertices lie in the scene's vertex list, and its local geometry.
+/// where its vertices lie in the scene's vertex list, and its local geometry; a skinned one
+/// also its skin (by index into [`SceneAnimation::skins`]) and vertex weights.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Piece {
     pub node: usize,
     pub instance: Mat4,
     pub first_vertex: usize,
     pub geometry: Arc<LocalGeometry>,
+    pub skin: Option<(usize, Arc<SkinWeights>)>,
+}
+
+/// A glTF skin: its joints (node indices) and each joint's inverse bind matrix (the
+/// identity where the file gives none).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Skin {
+    pub joints: Vec<usize>,
+    pub inverse_bind: Vec<Mat4>,
+}
+
+/// Per vertex of a skinned primitive: four joints (indices into its skin's joints) and their
+/// weights, which sum to 1.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SkinWeights {
+    pub joints: Vec<[u16; 4]>,
+    pub weights: Vec<[f32; 4]>,
+}
+
+impl LocalGeometry {
+    /// Skins vertices `first..` of this geometry into `vertices` (linear blend skinning: each
+    /// vertex through the weighted sum of its joints' matrices; normals and tangents through
+    /// the sum's linear part, renormalised).
+    fn skin_block(
+        &self,
+        joint_matrices: &[Mat4],
+        influences: &SkinWeights,
+        first: usize,
+        vertices: &mut [Vertex],
+    ) {
+        for (i, v) in (first..).zip(vertices.iter_mut()) {
+            let (Some(joints), Some(weights)) =
+                (influences.joints.get(i), influences.weights.get(i))
+            else {
+                continue;
+            };
+            let mut m = Mat4::ZERO;
+            for (&j, &w) in joints.iter().zip(weights) {
+                if w != 0.0 {
+                    m += *joint_matrices
+                        .get(usize::from(j))
+                        .unwrap_or(&Mat4::IDENTITY)
+                        * w;
+                }
+            }
+            v.position = m.transform_point3(self.positions[i]).to_array();
+            if let Some(&n) = self.normals.get(i) {
+                v.normal = m.transform_vector3(n).normalize_or(Vec3::Y).to_array();
+            }
+            if let Some(&t) = self.tangents.get(i) {
+                v.tangent = place_tangent(m, m.determinant().signum(), t);
+            }
+        }
+    }
 }
 
 /// The scene's animations and what they move.
@@ -235,6 +295,11 @@ pub struct SceneAnimation {
     pub playing: Option<usize>,
     /// Per node: whether some clip drives it or one of its ancestors.
     pub moved: Vec<bool>,
+    /// The file's skins by index (`None`: not used by a drawn mesh).
+    pub skins: Vec<Option<Skin>>,
+    /// The clip and time of the pose the scene's vertices hold, once [`Scene::animate`] has
+    /// posed them (a repeat of it changes nothing).
+    pub last_pose: Option<(Option<usize>, f32)>,
 }
 
 impl SceneAnimation {
@@ -285,13 +350,41 @@ impl SceneAnimation {
         }
     }
 
-    /// Places every piece in `vertices` for `clip` at `t` seconds.
+    /// Places every piece in `vertices` for `clip` at `t` seconds: a skinned one by its
+    /// joints (its node's own transform does not apply, as glTF defines), the others by their
+    /// node's world matrix and instance transform.
     pub fn pose(&self, clip: Option<usize>, t: f32, vertices: &mut [Vertex]) {
         let worlds = self.node_worlds(clip, t);
+        let world = |n: usize| worlds.get(n).copied().unwrap_or(Mat4::IDENTITY);
+        // Each used skin's joint matrices: the joint's world matrix times its inverse bind.
+        let joint_matrices: Vec<Vec<Mat4>> = (self.skins.iter())
+            .map(|skin| {
+                skin.as_ref().map_or(Vec::new(), |skin| {
+                    (skin.joints.iter().zip(&skin.inverse_bind))
+                        .map(|(&j, &inverse)| world(j) * inverse)
+                        .collect()
+                })
+            })
+            .collect();
         for piece in &self.pieces {
-            let world = worlds.get(piece.node).copied().unwrap_or(Mat4::IDENTITY) * piece.instance;
-            if let Some(vertices) = vertices.get_mut(piece.first_vertex..) {
-                piece.geometry.place_into(world, vertices);
+            let Some(vertices) = vertices.get_mut(piece.first_vertex..) else {
+                continue;
+            };
+            match &piece.skin {
+                Some((skin, influences)) => {
+                    use rayon::prelude::*;
+                    let matrices = joint_matrices.get(*skin).map_or(&[][..], |m| &m[..]);
+                    let count = piece.geometry.positions.len().min(vertices.len());
+                    vertices[..count]
+                        .par_chunks_mut(BLOCK)
+                        .enumerate()
+                        .for_each(|(k, block)| {
+                            (piece.geometry).skin_block(matrices, influences, k * BLOCK, block)
+                        });
+                }
+                None => piece
+                    .geometry
+                    .place_into(world(piece.node) * piece.instance, vertices),
             }
         }
     }
@@ -383,14 +476,19 @@ impl Scene {
 
     /// Poses the scene at `seconds` of its playing clip (looped), or at its rest pose where
     /// none plays; returns whether the vertices may have moved (false for a scene without
-    /// animations). The casters' bounding sphere, which holds every pose of the loaded clips
+    /// animations, or where the pose is the one they hold). The casters' bounding sphere, which holds every pose of the loaded clips
     /// sampled over their loops ([`SceneAnimation::sweep_times`]), grows where a pose between
     /// the samples leaves it.
     pub fn animate(&mut self, seconds: f64) -> bool {
-        let Some(animation) = &self.animation else {
+        let Some(animation) = &mut self.animation else {
             return false;
         };
         let t = animation.clip_time(seconds);
+        let pose = Some((animation.playing, t));
+        if animation.last_pose == pose {
+            return false;
+        }
+        animation.last_pose = pose;
         animation.pose(animation.playing, t, &mut self.vertices);
         let casters = self.caster_vertices();
         let center = self.bounds.center;

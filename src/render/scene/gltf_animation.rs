@@ -1,10 +1,14 @@
-//! glTF animations read into [`SceneAnimation`]'s clips: every channel's sampler checked
+//! glTF animations and skins read into [`SceneAnimation`]: every channel's sampler checked
 //! (key times finite and non-decreasing, as many values as the interpolation needs, the
 //! component types glTF allows) before its accessors are read, so that a bad file is an
 //! error naming the animation and channel, never a panic. Morph-target weight channels are
-//! left out (the loader names morph targets as not drawn).
+//! left out (the loader names morph targets as not drawn). A skin's joints and inverse bind
+//! matrices are read when a drawn mesh first uses it; the loader reads each skinned
+//! primitive's joints and weights.
 
-use super::animation::{Channel, Clip, Interpolation, Property, RestTransform, SceneAnimation};
+use super::animation::{
+    Channel, Clip, Interpolation, Property, RestTransform, SceneAnimation, Skin,
+};
 use super::gltf_loader::{check_accessor, read_attribute};
 use super::*;
 use glam::{Quat, Vec4};
@@ -185,6 +189,7 @@ impl SceneAnimation {
     /// The clips of `document` over its nodes' rest transforms; the hierarchy (parents, order)
     /// and the moved pieces are filled in as the loader walks the scene ([`Self::visit`]).
     pub(super) fn new(document: &gltf::Document, clips: Vec<Clip>) -> Self {
+        let clips_empty = clips.is_empty();
         let nodes = document.nodes().len();
         let mut animated = vec![false; nodes];
         for channel in clips.iter().flat_map(|c| &c.channels) {
@@ -232,9 +237,29 @@ impl SceneAnimation {
             order: Vec::new(),
             clips,
             pieces: Vec::new(),
-            playing: Some(0),
+            playing: (!clips_empty).then_some(0),
             moved: animated,
+            skins: vec![None; document.skins().len()],
+            last_pose: None,
         }
+    }
+
+    /// The index of `skin` in [`Self::skins`], read from the file the first time a drawn mesh
+    /// uses it ([`read_skin`]).
+    pub(super) fn skin(
+        &mut self,
+        skin: &gltf::Skin,
+        buffers: &[gltf::buffer::Data],
+    ) -> Result<usize, String> {
+        let index = skin.index();
+        let slot = self
+            .skins
+            .get_mut(index)
+            .ok_or_else(|| format!("skin {index} does not exist"))?;
+        if slot.is_none() {
+            *slot = Some(read_skin(skin, buffers)?);
+        }
+        Ok(index)
     }
 
     /// Records that the loader reached `node` under `parent` (parents are reached first):
@@ -254,4 +279,50 @@ impl SceneAnimation {
     pub(super) fn moves(&self, node: usize) -> bool {
         self.moved.get(node).copied().unwrap_or(false)
     }
+}
+
+/// A skin's joints and inverse bind matrices (MAT4 floats, at least one per joint; the
+/// identity for each where the file gives none). Errors name the skin.
+fn read_skin(skin: &gltf::Skin, buffers: &[gltf::buffer::Data]) -> Result<Skin, String> {
+    let name = format!("skin {} ({:?})", skin.index(), skin.name().unwrap_or(""));
+    let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+    if joints.is_empty() {
+        return Err(format!("{name} has no joints"));
+    }
+    if joints.len() > usize::from(u16::MAX) + 1 {
+        return Err(format!(
+            "{name} has {} joints, more than the 65536 a JOINTS_0 index can name",
+            joints.len()
+        ));
+    }
+    let inverse_bind = match skin.inverse_bind_matrices() {
+        None => vec![Mat4::IDENTITY; joints.len()],
+        Some(accessor) => {
+            use gltf::accessor::{DataType::F32, Dimensions::Mat4 as Mat4x4};
+            check_accessor(&accessor, buffers, Mat4x4, &[F32])
+                .map_err(|m| format!("{name}: its inverseBindMatrices {m}"))?;
+            let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+            let matrices: Vec<Mat4> = gltf::accessor::Iter::<[[f32; 4]; 4]>::new(accessor, get)
+                .ok_or_else(|| format!("{name}: its inverseBindMatrices cannot be read"))?
+                .map(|m| Mat4::from_cols_array_2d(&m))
+                .collect();
+            if matrices.len() < joints.len() {
+                return Err(format!(
+                    "{name}: {} inverse bind matrices for {} joints",
+                    matrices.len(),
+                    joints.len()
+                ));
+            }
+            if let Some(m) = matrices.iter().find(|m| !m.is_finite()) {
+                return Err(format!(
+                    "{name}: inverse bind matrix {m} has a value that is not a finite number"
+                ));
+            }
+            matrices
+        }
+    };
+    Ok(Skin {
+        joints,
+        inverse_bind,
+    })
 }

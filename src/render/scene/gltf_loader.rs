@@ -499,7 +499,9 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     };
     // The animations, where the file has any (the meshes they move are recorded below).
     let clips = super::gltf_animation::read_clips(&document, &buffers).map_err(err)?;
-    let mut rig = (!clips.is_empty()).then(|| SceneAnimation::new(&document, clips));
+    // Skinned meshes are placed by their joints, so they need the hierarchy too.
+    let mut rig = (!clips.is_empty() || document.skins().len() > 0)
+        .then(|| SceneAnimation::new(&document, clips));
     let mut stack: Vec<(gltf::Node, Mat4, Option<usize>)> =
         scene.nodes().map(|n| (n, Mat4::IDENTITY, None)).collect();
     // glTF's node hierarchy is a forest: a node reached twice sits in a cycle or has several
@@ -533,6 +535,17 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         let instances = node_instances(&node, &document, &buffers)
             .map_err(|m| err(format!("{node_name}: {INSTANCING}: {m}")))?;
         let moved = rig.as_ref().is_some_and(|r| r.moves(node.index()));
+        // A skinned mesh: its skin (read once), and every primitive's joints and weights.
+        let skin = match (node.skin(), rig.as_mut()) {
+            (Some(skin), Some(rig)) => Some(
+                rig.skin(&skin, &buffers)
+                    .map_err(|m| err(format!("{node_name}: {m}")))?,
+            ),
+            _ => None,
+        };
+        let joint_count = skin
+            .and_then(|s| rig.as_ref().and_then(|r| r.skins[s].as_ref()))
+            .map_or(0, |s| s.joints.len());
         let mesh_name = |prim: &gltf::Primitive| {
             format!(
                 "mesh {} ({:?}) primitive {}",
@@ -543,9 +556,6 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         };
         if mesh.weights().is_some() || mesh.primitives().any(|p| p.morph_targets().len() > 0) {
             ignored.insert("morph targets (drawn in their base shape)".into());
-        }
-        if node.skin().is_some() {
-            ignored.insert("skins (drawn in their bind pose)".into());
         }
         for prim in mesh.primitives() {
             if prim.mode() != gltf::mesh::Mode::Triangles {
@@ -589,7 +599,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                 &prim,
                 &buffers,
                 &channels,
-                normal_textured,
+                (normal_textured, skin.is_some()),
                 &mesh_name(&prim),
                 &mut ignored,
             )
@@ -599,7 +609,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                 &prim,
                 &buffers,
                 &channels,
-                normal_textured,
+                (normal_textured, joint_count),
                 path,
                 &mesh_name(&prim),
             )
@@ -701,14 +711,38 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                 b.set_second_uvs(first, &local.uvs[1]);
                 b.set_colors(first, &local.colors);
                 b.set_tangents(first, &placed.tangents);
-                if let (true, Some(rig)) = (moved, rig.as_mut()) {
+                let skinned = skin.zip(local.skin.clone());
+                if let (true, Some(rig)) = (moved || skinned.is_some(), rig.as_mut()) {
                     rig.pieces.push(super::animation::Piece {
                         node: node.index(),
                         instance: *transform,
                         first_vertex: first,
                         geometry: local.geometry.clone(),
+                        skin: skinned,
                     });
                 }
+            }
+        }
+    }
+    // Skinned meshes stand as their joints' rest pose places them (their node's transform,
+    // with which they were placed above, does not apply).
+    if let Some(rig) = rig
+        .as_ref()
+        .filter(|r| r.pieces.iter().any(|p| p.skin.is_some()))
+    {
+        rig.pose(None, 0.0, &mut b.vertices);
+        for piece in rig.pieces.iter().filter(|p| p.skin.is_some()) {
+            let end = piece.first_vertex + piece.geometry.positions.len();
+            let placed = b.vertices.get(piece.first_vertex..end).unwrap_or(&[]);
+            if placed
+                .iter()
+                .any(|v| !v.position.iter().all(|c| c.is_finite()))
+            {
+                return Err(err(format!(
+                    "node {}: its skin's joints place a vertex at a position that is not \
+                     finite (joint or inverse bind matrices that overflow f32?)",
+                    piece.node
+                )));
             }
         }
     }
@@ -1617,6 +1651,8 @@ struct LocalPrimitive {
     colors: Vec<[u16; 4]>,
     /// As the file winds them (the loader turns them where a node mirrors).
     indices: Vec<u32>,
+    /// A skinned primitive's joints and weights.
+    skin: Option<std::sync::Arc<SkinWeights>>,
 }
 
 /// Reads primitive `prim` (named `name` in errors) of a material with these texture
@@ -1626,7 +1662,7 @@ fn read_primitive(
     prim: &gltf::Primitive,
     buffers: &[gltf::buffer::Data],
     channels: &TextureChannels,
-    normal_textured: bool,
+    (normal_textured, joints): (bool, usize),
     path: &Path,
     name: &str,
 ) -> Result<Option<LocalPrimitive>, String> {
@@ -1760,6 +1796,17 @@ fn read_primitive(
             positions.len()
         ));
     }
+    let skin = if joints > 0 {
+        Some(std::sync::Arc::new(read_influences(
+            prim,
+            buffers,
+            joints,
+            positions.len(),
+            name,
+        )?))
+    } else {
+        None
+    };
     Ok(Some(LocalPrimitive {
         geometry: std::sync::Arc::new(LocalGeometry {
             positions,
@@ -1769,18 +1816,79 @@ fn read_primitive(
         uvs,
         colors,
         indices,
+        skin,
     }))
+}
+
+/// A skinned primitive's `JOINTS_0` and `WEIGHTS_0` (checked by [`check_primitive`]): one of
+/// each per vertex, joints within the skin's `joints`, weights finite and not negative, made
+/// to sum to 1 (a vertex of zero weights follows its first joint).
+fn read_influences(
+    prim: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    joints: usize,
+    vertices: usize,
+    name: &str,
+) -> Result<SkinWeights, String> {
+    let (Some(joint_accessor), Some(weight_accessor)) = (
+        prim.get(&gltf::Semantic::Joints(0)),
+        prim.get(&gltf::Semantic::Weights(0)),
+    ) else {
+        return Err(format!(
+            "{name}: its node has a skin, but it has no JOINTS_0 and WEIGHTS_0"
+        ));
+    };
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let read: Option<Vec<[u16; 4]>> = match joint_accessor.data_type() {
+        gltf::accessor::DataType::U8 => gltf::accessor::Iter::<[u8; 4]>::new(joint_accessor, get)
+            .map(|i| i.map(|j| j.map(u16::from)).collect()),
+        _ => gltf::accessor::Iter::<[u16; 4]>::new(joint_accessor, get).map(|i| i.collect()),
+    };
+    let joint_indices = read.ok_or_else(|| format!("{name}: its JOINTS_0 cannot be read"))?;
+    let mut weights = read_attribute::<4>(&weight_accessor, buffers)
+        .ok_or_else(|| format!("{name}: its WEIGHTS_0 cannot be read"))?;
+    if joint_indices.len() != vertices || weights.len() != vertices {
+        return Err(format!(
+            "{name}: {} JOINTS_0 and {} WEIGHTS_0 values for {vertices} positions",
+            joint_indices.len(),
+            weights.len()
+        ));
+    }
+    for (v, (j, w)) in joint_indices.iter().zip(&mut weights).enumerate() {
+        if let Some(k) = (0..4).find(|&k| w[k] != 0.0 && usize::from(j[k]) >= joints) {
+            return Err(format!(
+                "{name}: vertex {v}'s JOINTS_0 names joint {}, past its skin's {joints}",
+                j[k]
+            ));
+        }
+        if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
+            return Err(format!(
+                "{name}: vertex {v}'s WEIGHTS_0 {w:?} are not finite, non-negative numbers"
+            ));
+        }
+        let sum: f32 = w.iter().sum();
+        if sum > 0.0 {
+            *w = w.map(|x| x / sum);
+        } else {
+            *w = [1.0, 0.0, 0.0, 0.0];
+        }
+    }
+    Ok(SkinWeights {
+        joints: joint_indices,
+        weights,
+    })
 }
 
 /// Checks the accessors of primitive `prim` (named `name` in errors) that [`read_primitive`]
 /// reads ([`check_accessor`]): positions, normals, the texture coordinates of its material's
-/// `channels`, tangents where a normal texture needs them, `COLOR_0` and the indices. Further
-/// colour sets are named in `ignored`.
+/// `channels`, tangents where a normal texture needs them, `COLOR_0`, `JOINTS_0` and
+/// `WEIGHTS_0` of a skinned mesh, and the indices. Further colour sets and influences are
+/// named in `ignored`.
 fn check_primitive(
     prim: &gltf::Primitive,
     buffers: &[gltf::buffer::Data],
     channels: &TextureChannels,
-    normal_textured: bool,
+    (normal_textured, skinned): (bool, bool),
     name: &str,
     ignored: &mut std::collections::BTreeSet<String>,
 ) -> Result<(), String> {
@@ -1813,6 +1921,14 @@ fn check_primitive(
             }
             gltf::Semantic::Colors(_) => {
                 ignored.insert("vertex colours past COLOR_0".into());
+                continue;
+            }
+            gltf::Semantic::Joints(0) if skinned => ("JOINTS_0".to_string(), Vec4, &[U8, U16][..]),
+            gltf::Semantic::Weights(0) if skinned => {
+                ("WEIGHTS_0".to_string(), Vec4, &[F32, U8, U16][..])
+            }
+            gltf::Semantic::Joints(_) | gltf::Semantic::Weights(_) if skinned => {
+                ignored.insert("joint influences past the fourth (JOINTS_1, WEIGHTS_1)".into());
                 continue;
             }
             _ => continue,

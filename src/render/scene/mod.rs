@@ -29,7 +29,7 @@ mod obj_loader;
 
 pub use animation::{
     AnimationChoice, Channel, Clip, Interpolation, LocalGeometry, Piece, PlacedGeometry, Property,
-    RestTransform, SceneAnimation,
+    RestTransform, SceneAnimation, Skin, SkinWeights,
 };
 pub use camera::{
     fit_camera, look_at_rh, orthographic_rh, perspective_rh, Camera, CameraOverride, Projection,
