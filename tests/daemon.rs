@@ -2800,3 +2800,41 @@ fn connection_churn_leaves_nothing_behind() {
     assert!(status.success(), "exit {status:?}\n{log}");
     assert_stayed_to_the_goodbye(&stayer.join().unwrap(), 30);
 }
+
+/// The render thread plays `[render] animation` on the frames' capture times: under one
+/// frame looped (the same lights every frame), the newest image of an animated scene changes
+/// from frame to frame while its clip plays and stays as it was with `animation = "none"`
+/// (unfiltered lights: a filling filter's weights could move the lights by a rounding).
+#[test]
+fn the_render_thread_plays_the_scene_animation() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = dir.path().join("frame.hdr");
+    std::fs::copy("tests/data/rooitou_park_1k.hdr", &frame).unwrap();
+    let scene =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/animated/turning_boxes.gltf");
+    let png = dir.path().join("latest.png");
+    for (animation, changes) in [("\"turn\"", true), ("\"none\"", false)] {
+        let extra = format!(
+            "[source]\nkind = \"sequence\"\npaths = [\"{}\"]\nloop = true\nfps = 20.0\n\
+             frames = 0\n[decompose]\nlights = 8\nworking_width = 32\nfilter = false\n\
+             [render]\nenabled = true\nwidth = 48\nheight = 32\nshadow_resolution = 64\n\
+             scene = \"{}\"\nanimation = {animation}\nlatest_png = \"{}\"\n",
+            frame.display(),
+            scene.display(),
+            png.display()
+        );
+        let (daemon, first) = common::render_three_frames(config(dir.path(), &extra), &png);
+        let http = daemon.addresses().metrics.unwrap();
+        let rendered = || {
+            metric_value(
+                &http_get(http, "/metrics").1,
+                "envlight_frames_rendered_total",
+            )
+        };
+        let seen = rendered();
+        wait_until("two more rendered frames", || rendered() >= seen + 2.0);
+        let later = image::open(&png).unwrap().to_rgba8();
+        assert_eq!(first != later, changes, "animation = {animation}");
+        daemon.shutdown().unwrap();
+    }
+}
