@@ -107,6 +107,7 @@ fn turning_sphere(segments: u32) -> Scene {
         moved: vec![true],
         skins: Vec::new(),
         last_pose: None,
+        camera: None,
     });
     scene
 }

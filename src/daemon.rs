@@ -992,6 +992,10 @@ fn build_renderer(
         .camera
         .apply(scene.camera)
         .map_err(|m| DaemonError::Render(format!("[render] camera: {m}")))?;
+    if config.camera != crate::render::scene::CameraOverride::default() {
+        // Placed by hand: an animated camera node no longer moves it.
+        scene.hold_camera();
+    }
     scene
         .select_animation(&config.animation)
         .map_err(|m| DaemonError::Render(format!("[render] animation: {m}")))?;

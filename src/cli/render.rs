@@ -303,6 +303,10 @@ pub(crate) fn run(args: &RenderArgs) -> Result<()> {
         Ok(c) => c,
         Err(m) => crate::cli::usage_error!("invalid camera: {m}"),
     };
+    if camera != envlight::render::scene::CameraOverride::default() {
+        // Placed by hand: an animated camera node no longer moves it.
+        scene.hold_camera();
+    }
     if let Some(clip) = &args.animation {
         let choice = envlight::render::scene::AnimationChoice::parse(clip);
         if let Err(m) = scene.select_animation(&choice) {

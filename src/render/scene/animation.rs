@@ -18,6 +18,7 @@
 //!    A skinned mesh (glTF skins) is placed by linear blend skinning instead: each vertex
 //!    through the sum of its (up to four) joints' world matrices times their inverse bind
 //!    matrices, weighted; its node's own transform does not apply.
+//! 4. the scene's camera, where its node moves, is placed at the node's new world matrix.
 //!
 //! A clip loops over `[0, duration]`, its duration the latest key time of its channels. The
 //! triangles' winding is fixed when the scene is loaded (turned where the rest pose mirrors a
@@ -300,6 +301,9 @@ pub struct SceneAnimation {
     /// The clip and time of the pose the scene's vertices hold, once [`Scene::animate`] has
     /// posed them (a repeat of it changes nothing).
     pub last_pose: Option<(Option<usize>, f32)>,
+    /// The scene's camera node and projection where a clip moves it (the view follows), unless
+    /// the camera was set by hand ([`Scene::hold_camera`]).
+    pub camera: Option<(usize, super::Projection)>,
 }
 
 impl SceneAnimation {
@@ -352,8 +356,8 @@ impl SceneAnimation {
 
     /// Places every piece in `vertices` for `clip` at `t` seconds: a skinned one by its
     /// joints (its node's own transform does not apply, as glTF defines), the others by their
-    /// node's world matrix and instance transform.
-    pub fn pose(&self, clip: Option<usize>, t: f32, vertices: &mut [Vertex]) {
+    /// node's world matrix and instance transform. Returns every node's world matrix.
+    pub fn pose(&self, clip: Option<usize>, t: f32, vertices: &mut [Vertex]) -> Vec<Mat4> {
         let worlds = self.node_worlds(clip, t);
         let world = |n: usize| worlds.get(n).copied().unwrap_or(Mat4::IDENTITY);
         // Each used skin's joint matrices: the joint's world matrix times its inverse bind.
@@ -387,6 +391,7 @@ impl SceneAnimation {
                     .place_into(world(piece.node) * piece.instance, vertices),
             }
         }
+        worlds
     }
 
     /// Times at which to pose each clip to find the space it sweeps: 64 evenly spaced over its
@@ -489,7 +494,16 @@ impl Scene {
             return false;
         }
         animation.last_pose = pose;
-        animation.pose(animation.playing, t, &mut self.vertices);
+        let worlds = animation.pose(animation.playing, t, &mut self.vertices);
+        if let Some((node, projection)) = animation.camera {
+            // A pose that makes no camera (its up along its view) keeps the last view.
+            let camera = worlds
+                .get(node)
+                .map(|&w| super::camera::gltf_camera(w, projection));
+            if let Some(Ok(camera)) = camera {
+                self.camera = camera;
+            }
+        }
         let casters = self.caster_vertices();
         let center = self.bounds.center;
         let outside = {
@@ -507,6 +521,14 @@ impl Scene {
             self.bounds.radius = outside;
         }
         true
+    }
+
+    /// Keeps the camera where it is when the scene is posed (a camera placed by hand: it no
+    /// longer follows an animated camera node).
+    pub fn hold_camera(&mut self) {
+        if let Some(animation) = &mut self.animation {
+            animation.camera = None;
+        }
     }
 
     /// How many vertices (from the first) belong to shadow casters: the ground's come after.

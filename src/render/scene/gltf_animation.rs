@@ -241,6 +241,7 @@ impl SceneAnimation {
             moved: animated,
             skins: vec![None; document.skins().len()],
             last_pose: None,
+            camera: None,
         }
     }
 

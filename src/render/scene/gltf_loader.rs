@@ -724,6 +724,33 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
             }
         }
     }
+    // The first camera node (by index) of the scene: the view the file was made for.
+    if let Some(&(index, world)) = camera_nodes.iter().min_by_key(|(index, _)| *index) {
+        let node = document.nodes().nth(index);
+        let camera = node.as_ref().and_then(|n| n.camera());
+        let name = format!(
+            "camera node {index} ({:?})",
+            node.as_ref().and_then(|n| n.name()).unwrap_or("")
+        );
+        // `node.camera()` is there: the node was listed for its camera.
+        if let Some(camera) = camera {
+            let projection = match camera.projection() {
+                gltf::camera::Projection::Perspective(p) => {
+                    Projection::Perspective { fov_y: p.yfov() }
+                }
+                gltf::camera::Projection::Orthographic(o) => Projection::Orthographic {
+                    half_height: o.ymag(),
+                },
+            };
+            b.camera =
+                Some(gltf_camera(world, projection).map_err(|m| err(format!("{name}: {m}")))?);
+            tracing::info!("{}: the view of its {name}", path.display());
+            // A camera a clip moves follows it.
+            if let Some(rig) = rig.as_mut().filter(|r| r.moves(index)) {
+                rig.camera = Some((index, projection));
+            }
+        }
+    }
     // Skinned meshes stand as their joints' rest pose places them (their node's transform,
     // with which they were placed above, does not apply).
     if let Some(rig) = rig
@@ -747,9 +774,9 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         }
     }
     b.animation = match rig {
-        Some(rig) if rig.pieces.is_empty() => {
+        Some(rig) if rig.pieces.is_empty() && rig.camera.is_none() => {
             tracing::info!(
-                "{}: its {} animation(s) move no drawn mesh; drawn still",
+                "{}: its {} animation(s) move no drawn mesh and not its camera; drawn still",
                 path.display(),
                 rig.clips.len()
             );
@@ -757,29 +784,6 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
         }
         rig => rig,
     };
-    // The first camera node (by index) of the scene: the view the file was made for.
-    if let Some(&(index, world)) = camera_nodes.iter().min_by_key(|(index, _)| *index) {
-        let node = document.nodes().nth(index);
-        let camera = node.as_ref().and_then(|n| n.camera());
-        let name = format!(
-            "camera node {index} ({:?})",
-            node.as_ref().and_then(|n| n.name()).unwrap_or("")
-        );
-        // `node.camera()` is there: the node was listed for its camera.
-        if let Some(camera) = camera {
-            let projection = match camera.projection() {
-                gltf::camera::Projection::Perspective(p) => {
-                    Projection::Perspective { fov_y: p.yfov() }
-                }
-                gltf::camera::Projection::Orthographic(o) => Projection::Orthographic {
-                    half_height: o.ymag(),
-                },
-            };
-            b.camera =
-                Some(gltf_camera(world, projection).map_err(|m| err(format!("{name}: {m}")))?);
-            tracing::info!("{}: the view of its {name}", path.display());
-        }
-    }
     if !ignored.is_empty() {
         tracing::warn!(
             "{}: not drawn (envlight renders the alpha modes, the index of refraction, and base \

@@ -465,3 +465,42 @@ fn skinned_meshes_bend_with_their_joints() {
     std::fs::write(&path, json.to_string()).unwrap();
     assert_load_fails_naming(&path, "WEIGHTS_0 accessor 3 has component type U32");
 }
+
+/// A camera node that a clip moves carries the view with it; a camera placed by hand
+/// ([`Scene::hold_camera`]) stays.
+#[test]
+fn animated_cameras_carry_the_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = vec![Keys {
+        node: 0,
+        path: "translation",
+        interpolation: "LINEAR",
+        times: vec![0.0, 2.0],
+        values: vec![0.0, 0.0, 0.0, 4.0, 0.0, 0.0],
+    }];
+    let p = animated_gltf(
+        dir.path(),
+        "dolly.gltf",
+        r#"[{"name":"rig","children":[1]},{"name":"camera","camera":0,"translation":[0,0,10]},
+            {"name":"model","mesh":0}]"#,
+        "[0,2]",
+        &[("dolly", keys)],
+    );
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    json["cameras"] =
+        serde_json::json!([{"type":"perspective","perspective":{"yfov":0.8,"znear":0.1}}]);
+    std::fs::write(&p, json.to_string()).unwrap();
+    let mut scene = Scene::load(&p, false).unwrap();
+    // Nothing drawn moves, but the camera does: the animation is kept for it.
+    assert!(scene.animation.as_ref().unwrap().pieces.is_empty());
+    assert!(scene.camera.eye.distance(Vec3::new(0.0, 0.0, 10.0)) < 1e-5);
+    scene.animate(0.5);
+    let eye = scene.camera.eye;
+    assert!(eye.distance(Vec3::new(1.0, 0.0, 10.0)) < 1e-5, "{eye}");
+    let ahead = scene.camera.target - eye;
+    assert!(ahead.normalize().distance(Vec3::NEG_Z) < 1e-5, "{ahead}");
+    scene.hold_camera();
+    scene.animate(1.5);
+    assert_eq!(scene.camera.eye, eye);
+}
