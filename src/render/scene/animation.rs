@@ -23,7 +23,9 @@
 //! A clip loops over `[0, duration]`, its duration the latest key time of its channels. The
 //! triangles' winding is fixed when the scene is loaded (turned where the rest pose mirrors a
 //! mesh); a clip whose scale changes sign mid-play leaves those triangles facing the other
-//! way. Morph-target weights are not played (the loader names morph targets).
+//! way. A vertex that a pose would take past f32 (a clip's values overflowing in their
+//! products) keeps its last place. Morph-target weights are not played (the loader names
+//! morph targets).
 
 use super::*;
 use glam::{Quat, Vec4};
@@ -82,7 +84,12 @@ impl LocalGeometry {
         let normal_matrix = normal_matrix(world);
         let handedness = world.determinant().signum();
         for (i, v) in (first..).zip(vertices.iter_mut()) {
-            v.position = world.transform_point3(self.positions[i]).to_array();
+            let position = world.transform_point3(self.positions[i]);
+            if !position.is_finite() {
+                // A pose past f32 (a clip's values overflowing): the vertex keeps its place.
+                continue;
+            }
+            v.position = position.to_array();
             if let Some(&n) = self.normals.get(i) {
                 v.normal = (normal_matrix * n).normalize_or(Vec3::Y).to_array();
             }
@@ -177,8 +184,8 @@ impl Channel {
                     + (u3 - 2.0 * u2 + u) * interval * out_tangent
                     + (-2.0 * u3 + 3.0 * u2) * value(next)
                     + (u3 - u2) * interval * in_tangent;
-                if rotation {
-                    Vec4::from(Quat::from_vec4(v).normalize())
+                if rotation && v.length_squared() > 0.0 {
+                    v.normalize()
                 } else {
                     v
                 }
@@ -269,7 +276,12 @@ impl LocalGeometry {
                         * w;
                 }
             }
-            v.position = m.transform_point3(self.positions[i]).to_array();
+            let position = m.transform_point3(self.positions[i]);
+            if !position.is_finite() {
+                // A pose past f32: the vertex keeps its place.
+                continue;
+            }
+            v.position = position.to_array();
             if let Some(&n) = self.normals.get(i) {
                 v.normal = m.transform_vector3(n).normalize_or(Vec3::Y).to_array();
             }
@@ -321,7 +333,13 @@ impl SceneAnimation {
                 let v = channel.sample(t);
                 match channel.property {
                     Property::Translation => node.translation = v.truncate(),
-                    Property::Rotation => node.rotation = Quat::from_vec4(v).normalize(),
+                    Property::Rotation => {
+                        // A cubic spline may pass through (0, 0, 0, 0): the rest rotation holds.
+                        let q = Quat::from_vec4(v);
+                        if q.is_finite() && q.length_squared() > 0.0 {
+                            node.rotation = q.normalize();
+                        }
+                    }
                     Property::Scale => node.scale = v.truncate(),
                 }
             }

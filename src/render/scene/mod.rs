@@ -63,6 +63,8 @@ pub enum SceneError {
     UnknownFormat { path: PathBuf },
     #[error("scene {path}: its vertices span a sphere of radius {radius:.3e}, more than the {MAX_SCENE_RADIUS:e} that can be drawn (f32 depth and shadow maps); scale the model down")]
     TooLarge { path: PathBuf, radius: f64 },
+    #[error("scene {path}: its animations take its vertices over a sphere of radius {radius:.3e}, more than the {MAX_SCENE_RADIUS:e} that can be drawn (f32 depth and shadow maps); its clips' translations or scales are too large")]
+    AnimationTooLarge { path: PathBuf, radius: f32 },
     #[error("scene {path}: its vertices lie {distance:.3e} from the origin, {ratio:.1e} times their bounding radius {radius:.3e} (at most {MAX_SCENE_OFFSET:e}): f32 positions that far out lose the model's detail; move the model near the origin")]
     TooFar {
         path: PathBuf,
@@ -547,6 +549,19 @@ impl Scene {
             Some(animation) => swept_bounds(animation, &b.vertices),
             None => (bounding_sphere(&b.vertices), lowest(&b.vertices)),
         };
+        let rest_radius = match &b.animation {
+            Some(_) => bounding_sphere(&b.vertices).radius,
+            None => bounds.radius,
+        };
+        if rest_radius.is_finite()
+            && rest_radius <= MAX_SCENE_RADIUS
+            && !(bounds.radius <= MAX_SCENE_RADIUS)
+        {
+            return Err(SceneError::AnimationTooLarge {
+                path: path.to_path_buf(),
+                radius: bounds.radius,
+            });
+        }
         if !(bounds.radius.is_finite() && bounds.radius <= MAX_SCENE_RADIUS) {
             // f32 sums overflow for coordinates near 1e38: the size is then measured in f64
             // (half the bounding box's diagonal).

@@ -504,3 +504,61 @@ fn animated_cameras_carry_the_view() {
     scene.animate(1.5);
     assert_eq!(scene.camera.eye, eye);
 }
+
+/// Keys that are finite but whose spline overflows f32 (tangents of 3·10³⁸): a file whose
+/// clip sweeps the model past what can be drawn is refused naming its animations; a pose
+/// that overflows anyway (the clip changed after loading) leaves the vertices where they
+/// were, finite, rather than handing the GPU infinities.
+#[test]
+fn poses_past_f32_keep_the_vertices_finite() {
+    let dir = tempfile::tempdir().unwrap();
+    let big = 3e38f32;
+    let huge = [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, big, big, big];
+    let keys = vec![Keys {
+        node: 0,
+        path: "scale",
+        interpolation: "CUBICSPLINE",
+        times: vec![0.0, 1.0],
+        values: [huge, [big, big, big, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0]].concat(),
+    }];
+    let p = animated_gltf(
+        dir.path(),
+        "huge.gltf",
+        r#"[{"mesh":0}]"#,
+        "[0]",
+        &[("grow", keys)],
+    );
+    let e = Scene::load(&p, true).unwrap_err().to_string();
+    assert!(
+        e.contains("huge.gltf: its animations take its vertices over a sphere of radius inf"),
+        "{e}"
+    );
+    let mut scene = Scene::load(&sliding_parent(dir.path()), true).unwrap();
+    // The parent and the child each scaled by about 5·10³⁷ half way: their product overflows.
+    let clip = &mut scene.animation.as_mut().unwrap().clips[0];
+    for channel in &mut clip.channels {
+        channel.property = Property::Scale;
+        channel.interpolation = Interpolation::CubicSpline;
+        channel.times = vec![0.0, 2.0];
+        channel.values = [0.0, 1.0, big, 0.0, 1.0, 0.0]
+            .map(glam::Vec4::splat)
+            .to_vec();
+    }
+    let piece = scene.animation.as_ref().unwrap().pieces[0].first_vertex;
+    let before = scene.vertices[piece..piece + 3].to_vec();
+    scene.animate(1.0);
+    assert_eq!(
+        scene.vertices[piece..piece + 3],
+        before[..],
+        "the overflowing pose moved them"
+    );
+    for t in [0.25, 0.5, 0.75] {
+        scene.animate(t);
+        for v in &scene.vertices {
+            assert!(
+                v.position.iter().chain(&v.normal).all(|c| c.is_finite()),
+                "{t}: {v:?}"
+            );
+        }
+    }
+}
