@@ -555,7 +555,7 @@ impl Scene {
         };
         if rest_radius.is_finite()
             && rest_radius <= MAX_SCENE_RADIUS
-            && !(bounds.radius <= MAX_SCENE_RADIUS)
+            && !(bounds.radius.is_finite() && bounds.radius <= MAX_SCENE_RADIUS)
         {
             return Err(SceneError::AnimationTooLarge {
                 path: path.to_path_buf(),
