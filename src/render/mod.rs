@@ -399,7 +399,7 @@ impl Renderer {
         );
         self.facing = shadow::facing_normals(&self.scene);
         if self.groups.blended_start < self.scene.caster_indices {
-            self.groups = setup::order_triangles(&mut self.scene);
+            setup::sort_blended(&mut self.scene, self.groups);
             let blended = self.groups.blended_start as usize..self.scene.caster_indices as usize;
             queue.write_buffer(
                 &self.index_buffer,

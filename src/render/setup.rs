@@ -339,18 +339,6 @@ pub(super) fn order_triangles(scene: &mut Scene) -> TriangleGroups {
             _ => opaque.push(triangle),
         }
     }
-    let depth = |triangle: &[u32]| {
-        let sum: Vec3 = triangle
-            .iter()
-            .filter_map(|&i| scene.vertices.get(i as usize))
-            .map(|v| Vec3::from(v.position))
-            .sum();
-        scene.camera.sort_depth(sum / 3.0)
-    };
-    // Farthest first; each depth computed once.
-    let mut by_depth: Vec<(f32, &[u32])> = blended.into_iter().map(|t| (depth(t), t)).collect();
-    by_depth.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let blended: Vec<&[u32]> = by_depth.into_iter().map(|(_, t)| t).collect();
     let groups = TriangleGroups {
         cutout_start: (opaque.len() * 3) as u32,
         blended_start: ((opaque.len() + masked.len()) * 3) as u32,
@@ -362,7 +350,36 @@ pub(super) fn order_triangles(scene: &mut Scene) -> TriangleGroups {
         .copied()
         .collect();
     scene.indices[..ordered.len()].copy_from_slice(&ordered);
+    sort_blended(scene, groups);
     groups
+}
+
+/// Sorts the blended casters of `scene` (`groups.blended_start..caster_indices` of its
+/// indices, as [`order_triangles`] leaves them) back to front from the camera, by the distance
+/// of their centroids; again after the vertices or the camera move (an animated scene).
+pub(super) fn sort_blended(scene: &mut Scene, groups: TriangleGroups) {
+    let casters = (scene.caster_indices as usize).min(scene.indices.len());
+    let start = (groups.blended_start as usize).min(casters);
+    let depth = |triangle: &[u32]| {
+        let sum: Vec3 = triangle
+            .iter()
+            .filter_map(|&i| scene.vertices.get(i as usize))
+            .map(|v| Vec3::from(v.position))
+            .sum();
+        scene.camera.sort_depth(sum / 3.0)
+    };
+    // Farthest first; each depth computed once.
+    let mut by_depth: Vec<(f32, [u32; 3])> = scene.indices[start..casters]
+        .chunks_exact(3)
+        .map(|t| (depth(t), [t[0], t[1], t[2]]))
+        .collect();
+    by_depth.sort_by(|a, b| b.0.total_cmp(&a.0));
+    for (slot, (_, triangle)) in scene.indices[start..casters]
+        .chunks_exact_mut(3)
+        .zip(by_depth)
+    {
+        slot.copy_from_slice(&triangle);
+    }
 }
 
 /// Makes the blended materials of `scene` opaque (an adapter that cannot blend `Rgba32Float`

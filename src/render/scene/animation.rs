@@ -412,6 +412,11 @@ impl SceneAnimation {
         worlds
     }
 
+    /// Where the pieces' vertices lie in the scene's vertex list.
+    pub fn moved_vertices(&self) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        (self.pieces.iter()).map(|p| p.first_vertex..p.first_vertex + p.geometry.positions.len())
+    }
+
     /// Times at which to pose each clip to find the space it sweeps: 64 evenly spaced over its
     /// loop and its end.
     pub fn sweep_times(clip: &Clip) -> impl Iterator<Item = f32> + '_ {
@@ -522,13 +527,19 @@ impl Scene {
                 self.camera = camera;
             }
         }
-        let casters = self.caster_vertices();
+        // Only the moved vertices can have left it.
         let center = self.bounds.center;
         let outside = {
             use rayon::prelude::*;
-            (self.vertices[..casters].par_iter())
-                .map(|v| Vec3::from_array(v.position).distance_squared(center))
-                .reduce(|| 0.0f32, f32::max)
+            let vertices = &self.vertices;
+            (animation.moved_vertices())
+                .filter_map(|range| vertices.get(range))
+                .map(|moved| {
+                    (moved.par_iter())
+                        .map(|v| Vec3::from_array(v.position).distance_squared(center))
+                        .reduce(|| 0.0f32, f32::max)
+                })
+                .fold(0.0f32, f32::max)
                 .sqrt()
         };
         if outside > self.bounds.radius && outside.is_finite() {
@@ -546,14 +557,6 @@ impl Scene {
     pub fn hold_camera(&mut self) {
         if let Some(animation) = &mut self.animation {
             animation.camera = None;
-        }
-    }
-
-    /// How many vertices (from the first) belong to shadow casters: the ground's come after.
-    pub(super) fn caster_vertices(&self) -> usize {
-        match self.ground_material {
-            Some(_) => self.vertices.len().saturating_sub(4),
-            None => self.vertices.len(),
         }
     }
 }

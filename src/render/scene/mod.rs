@@ -311,32 +311,32 @@ impl Builder {
 /// reach: the box of all poses gives the centre, the farthest vertex of any pose the radius.
 fn swept_bounds(animation: &SceneAnimation, vertices: &[Vertex]) -> (Sphere, f32) {
     let mut posed = vertices.to_vec();
-    let poses =
-        || {
-            std::iter::once((None, 0.0)).chain(
-                animation.clips.iter().enumerate().flat_map(|(c, clip)| {
-                    SceneAnimation::sweep_times(clip).map(move |t| (Some(c), t))
-                }),
-            )
-        };
+    let moved: Vec<std::ops::Range<usize>> = animation.moved_vertices().collect();
+    // Every position of every pose: the vertices as given (the rest pose, the still ones
+    // too), then the moved ones in each sampled pose of each clip.
+    let mut each_position = |f: &mut dyn FnMut(Vec3)| {
+        vertices
+            .iter()
+            .for_each(|v| f(Vec3::from_array(v.position)));
+        for (c, clip) in animation.clips.iter().enumerate() {
+            for t in SceneAnimation::sweep_times(clip) {
+                animation.pose(Some(c), t, &mut posed);
+                for range in &moved {
+                    let placed = posed.get(range.clone()).unwrap_or(&[]);
+                    placed.iter().for_each(|v| f(Vec3::from_array(v.position)));
+                }
+            }
+        }
+    };
     let mut lo = Vec3::splat(f32::INFINITY);
     let mut hi = Vec3::splat(f32::NEG_INFINITY);
-    for (clip, t) in poses() {
-        animation.pose(clip, t, &mut posed);
-        for v in &posed {
-            let p = Vec3::from_array(v.position);
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
-    }
+    each_position(&mut |p| {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    });
     let center = 0.5 * (lo + hi);
     let mut radius = 1e-3f32;
-    for (clip, t) in poses() {
-        animation.pose(clip, t, &mut posed);
-        for v in &posed {
-            radius = radius.max(Vec3::from_array(v.position).distance(center));
-        }
-    }
+    each_position(&mut |p| radius = radius.max(p.distance(center)));
     (Sphere { center, radius }, lo.y)
 }
 

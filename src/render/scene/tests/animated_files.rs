@@ -295,20 +295,32 @@ fn animations_with_bad_keys_are_refused_naming_the_channel() {
     // Accessors are checked before they are read: values past their view, times of ints.
     let p = sliding_parent(dir.path());
     let text = std::fs::read_to_string(&p).unwrap();
-    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    json["accessors"][4]["count"] = 3.into();
-    std::fs::write(&p, json.to_string()).unwrap();
-    assert_load_fails_naming(
+    fails_when_edited(
         &p,
+        &text,
+        |json| json["accessors"][4]["count"] = 3.into(),
         "channel 0: its values: accessor 4: 3 elements of 12 bytes",
     );
-    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    json["accessors"][3]["componentType"] = 5125.into();
-    std::fs::write(&p, json.to_string()).unwrap();
-    assert_load_fails_naming(
+    fails_when_edited(
         &p,
+        &text,
+        |json| json["accessors"][3]["componentType"] = 5125.into(),
         "channel 0: its key times: accessor 3 has component type U32",
     );
+}
+
+/// `text` (a glTF's JSON) edited by `edit` and written to `path` fails to load, naming the
+/// file and `needle`.
+fn fails_when_edited(
+    path: &Path,
+    text: &str,
+    edit: impl FnOnce(&mut serde_json::Value),
+    needle: &str,
+) {
+    let mut json: serde_json::Value = serde_json::from_str(text).unwrap();
+    edit(&mut json);
+    std::fs::write(path, json.to_string()).unwrap();
+    assert_load_fails_naming(path, needle);
 }
 
 /// Every number of an animated file's JSON (a node animation, and the skinned arm) replaced by
@@ -445,25 +457,27 @@ fn skinned_meshes_bend_with_their_joints() {
             }
         }
     }
-    // JOINTS_0 past the skin's joints, or negative weights, are named.
+    // A JOINTS_0 past the skin's joints, and weights of a type glTF does not allow, are named.
     let text = std::fs::read_to_string(fixture("bending_arm.gltf")).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("arm.gltf");
-    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    json["skins"][0]["joints"] = serde_json::json!([1]);
-    json["skins"][0]
-        .as_object_mut()
-        .unwrap()
-        .remove("inverseBindMatrices");
-    std::fs::write(&path, json.to_string()).unwrap();
-    assert_load_fails_naming(
+    let one_joint = |json: &mut serde_json::Value| {
+        json["skins"][0]["joints"] = serde_json::json!([1]);
+        let skin = json["skins"][0].as_object_mut().unwrap();
+        skin.remove("inverseBindMatrices");
+    };
+    fails_when_edited(
         &path,
+        &text,
+        one_joint,
         "vertex 2's JOINTS_0 names joint 1, past its skin's 1",
     );
-    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    json["accessors"][3]["componentType"] = 5125.into();
-    std::fs::write(&path, json.to_string()).unwrap();
-    assert_load_fails_naming(&path, "WEIGHTS_0 accessor 3 has component type U32");
+    fails_when_edited(
+        &path,
+        &text,
+        |json| json["accessors"][3]["componentType"] = 5125.into(),
+        "WEIGHTS_0 accessor 3 has component type U32",
+    );
 }
 
 /// A camera node that a clip moves carries the view with it; a camera placed by hand
