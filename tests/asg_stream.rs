@@ -181,13 +181,30 @@ fn the_live_stage_skips_frames_and_never_slows_the_lights() {
     let reader = spawn("asg-client", move || read_sets(client));
     wait_until("the end of the source", || daemon.source_finished());
     let summary = daemon.shutdown().unwrap();
-    // Every frame was decomposed: the lights never waited for the fits.
-    assert_eq!(summary.pipeline.frames_decomposed, 90);
-    assert_eq!(summary.pipeline.frames_dropped, 0);
+    // The lights never waited for the fits: had they, the decomposition would run at the fit's
+    // pace (about one frame in four) and the capture queue would drop the rest. Some frames may
+    // still be dropped when tests running in parallel starve the decomposition thread on CI's
+    // 2 cores (once 89 of 90 decomposed; 81 here with two busy loops beside the tests), which
+    // says nothing about the fits.
+    let pipeline = &summary.pipeline;
+    assert_eq!(
+        pipeline.frames_decomposed + pipeline.frames_dropped,
+        90,
+        "{pipeline:?}"
+    );
+    assert!(pipeline.frames_decomposed >= 60, "{pipeline:?}");
     let asg = summary.asg.unwrap();
-    assert_eq!(asg.frames_offered, 90);
+    assert_eq!(asg.frames_offered, pipeline.frames_decomposed);
     assert!(asg.frames_skipped > 0, "{asg:?}");
-    assert_eq!(asg.fits + asg.frames_skipped, 90, "{asg:?}");
+    assert!(
+        asg.fits * 2 < pipeline.frames_decomposed,
+        "the fits kept pace with the lights, so the test shows nothing: {asg:?}"
+    );
+    assert_eq!(
+        asg.fits + asg.frames_skipped,
+        pipeline.frames_decomposed,
+        "{asg:?}"
+    );
     let (sets, _) = reader.join().unwrap();
     assert!(!sets.is_empty());
     assert_eq!(
