@@ -55,25 +55,61 @@ fn bench(c: &mut Criterion) {
 }
 
 /// A sphere of `segments` × `segments / 2` quads turning about +y (LINEAR, one turn in 4 s)
-/// on node 0: every vertex moves.
-fn turning_sphere(segments: u32) -> Scene {
+/// on node 0: every vertex moves. With `morph`, it also breathes and squashes by two morph
+/// targets (displacements of every position and normal) whose weights a LINEAR channel
+/// drives.
+fn turning_sphere(segments: u32, morph: bool) -> Scene {
     use envlight::render::scene::{
-        Camera, Channel, Clip, Interpolation, LocalGeometry, Material, Piece, Property,
-        RestTransform, SceneAnimation,
+        Camera, Channel, Clip, Interpolation, LocalGeometry, Material, MorphTarget, Piece,
+        Property, RestTransform, SceneAnimation, WeightsChannel,
     };
     use glam::{Mat4, Quat, Vec3, Vec4};
     let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 0.7);
     let mut scene = Scene::sphere(Vec3::ZERO, 1.0, segments, Material::default(), None, camera);
+    let positions: Vec<Vec3> = (scene.vertices.iter())
+        .map(|v| Vec3::from_array(v.position))
+        .collect();
+    let normals: Vec<Vec3> = (scene.vertices.iter())
+        .map(|v| Vec3::from_array(v.normal))
+        .collect();
+    let targets = if morph {
+        let breathe = MorphTarget {
+            positions: normals.iter().map(|&n| 0.2 * n).collect(),
+            normals: Vec::new(),
+            tangents: Vec::new(),
+        };
+        let squash = MorphTarget {
+            positions: positions
+                .iter()
+                .map(|p| Vec3::new(0.0, -0.3 * p.y, 0.0))
+                .collect(),
+            normals: normals
+                .iter()
+                .map(|n| Vec3::new(0.0, 0.3 * n.y, 0.0))
+                .collect(),
+            tangents: Vec::new(),
+        };
+        vec![breathe, squash]
+    } else {
+        Vec::new()
+    };
+    let weights = if morph {
+        vec![WeightsChannel {
+            node: 0,
+            interpolation: Interpolation::Linear,
+            times: vec![0.0, 2.0, 4.0],
+            targets: 2,
+            values: vec![0.0, 1.0, 1.0, 0.5, 0.0, 1.0],
+        }]
+    } else {
+        Vec::new()
+    };
+    let morph_weights = vec![0.0; targets.len()];
     let geometry = LocalGeometry {
-        positions: (scene.vertices.iter())
-            .map(|v| Vec3::from_array(v.position))
-            .collect(),
-        normals: scene
-            .vertices
-            .iter()
-            .map(|v| Vec3::from_array(v.normal))
-            .collect(),
+        positions,
+        normals,
         tangents: Vec::new(),
+        targets,
     };
     let turn = |degrees: f32| Vec4::from(Quat::from_rotation_y(degrees.to_radians()));
     scene.animation = Some(SceneAnimation {
@@ -94,6 +130,7 @@ fn turning_sphere(segments: u32) -> Scene {
                 times: vec![0.0, 1.0, 2.0, 3.0, 4.0],
                 values: [0.0, 90.0, 180.0, 270.0, 360.0].map(turn).to_vec(),
             }],
+            weights,
             duration: 4.0,
         }],
         pieces: vec![Piece {
@@ -102,9 +139,11 @@ fn turning_sphere(segments: u32) -> Scene {
             first_vertex: 0,
             geometry: std::sync::Arc::new(geometry),
             skin: None,
+            morph_weights,
         }],
         playing: Some(0),
         moved: vec![true],
+        morphed: vec![morph],
         skins: Vec::new(),
         last_pose: None,
         camera: None,
@@ -114,9 +153,10 @@ fn turning_sphere(segments: u32) -> Scene {
 
 fn bench_animate(c: &mut Criterion) {
     let mut group = c.benchmark_group("scene_animate");
-    for segments in [256u32, 724] {
-        let mut scene = turning_sphere(segments);
-        let name = format!("{}_vertices", scene.vertices.len());
+    for (segments, morph) in [(256u32, false), (724, false), (256, true), (724, true)] {
+        let mut scene = turning_sphere(segments, morph);
+        let targets = if morph { "_2_morph_targets" } else { "" };
+        let name = format!("{}_vertices{targets}", scene.vertices.len());
         let mut t = 0.0;
         group.bench_function(&name, |b| {
             b.iter(|| {

@@ -3866,6 +3866,60 @@ fn animated_scenes_render_as_the_still_pose_they_reach() {
     }
 }
 
+/// A mesh that morph targets shape renders, at 1.5 s of its clip, as the still file of that
+/// shape (tests/data/animated/make_morphed.py), with either shadow raster; its rest shape
+/// (flat) is a different image.
+#[test]
+fn morphing_scenes_render_as_the_still_shape_they_reach() {
+    let lights = sky_lights(48);
+    let settings = RenderSettings {
+        width: 160,
+        height: 120,
+        shadow_resolution: 256,
+        ..RenderSettings::default()
+    };
+    let animated = Scene::load(&animated_fixture("morphing_tent.gltf"), true).unwrap();
+    let mut still = Scene::load(&animated_fixture("morphed_tent.gltf"), true).unwrap();
+    assert!(still.animation.is_none());
+    // The ground (its 4 vertices last) lies under the lowest shape of either clip there, and
+    // the camera frames the space the clips sweep.
+    still.bounds = animated.bounds;
+    still.camera = animated.camera;
+    let ground = still.vertices.len() - 4;
+    assert_eq!(ground + 4, animated.vertices.len());
+    still.vertices[ground..].copy_from_slice(&animated.vertices[ground..]);
+    let reference = renderer(still, settings).render(&lights).unwrap().0;
+    for raster in RASTERS {
+        let mut r = renderer(
+            animated.clone(),
+            RenderSettings {
+                shadow_raster: raster,
+                ..settings
+            },
+        );
+        r.set_scene_time(1.5);
+        let shaped = r.render(&lights).unwrap().0;
+        let (mean, p999, _) = relative_differences(&reference, &shaped);
+        eprintln!("{raster:?}: morphed vs still: mean {mean}, p999 {p999}");
+        if mean > 1e-4 || p999 > 0.02 {
+            fail_with_image(
+                "morphed_at_1_5s",
+                &shaped,
+                &[format!("{raster:?}: morphed at 1.5 s differs from the still shape: mean {mean}, 99.9th percentile {p999}")],
+            );
+        }
+        r.set_scene_time(0.0);
+        let rest = r.render(&lights).unwrap().0;
+        let (mean, _, _) = relative_differences(&reference, &rest);
+        eprintln!("{raster:?}: rest vs still: mean {mean}");
+        // (0.0095 here: the sheets cover a small part of the frame.)
+        assert!(
+            mean > 2e-3,
+            "{raster:?}: the rest shape only {mean} from 1.5 s"
+        );
+    }
+}
+
 /// `envlight render --scene` plays the scene's animation on the frames' times: a frame at 1 s
 /// is the frame at 0 s with `--animation-start 1`; `--animation none` holds the rest pose; an
 /// unknown clip is refused naming those the file has.

@@ -1,20 +1,20 @@
 //! glTF animations and skins read into [`SceneAnimation`]: every channel's sampler checked
 //! (key times finite and non-decreasing, as many values as the interpolation needs, the
 //! component types glTF allows) before its accessors are read, so that a bad file is an
-//! error naming the animation and channel, never a panic. Morph-target weight channels are
-//! left out (the loader names morph targets as not drawn). A skin's joints and inverse bind
+//! error naming the animation and channel, never a panic. A morph-target weights channel
+//! holds one weight per morph target of its node's mesh each key. A skin's joints and inverse bind
 //! matrices are read when a drawn mesh first uses it; the loader reads each skinned
 //! primitive's joints and weights.
 
 use super::animation::{
-    Channel, Clip, Interpolation, Property, RestTransform, SceneAnimation, Skin,
+    Channel, Clip, Interpolation, Property, RestTransform, SceneAnimation, Skin, WeightsChannel,
 };
 use super::gltf_loader::{check_accessor, read_attribute};
 use super::*;
 use glam::{Quat, Vec4};
 
 /// The file's animations, in its order: each clip's channels that drive a node's translation,
-/// rotation or scale. Errors name the animation and channel.
+/// rotation, scale or morph-target weights. Errors name the animation and channel.
 pub(super) fn read_clips(
     document: &gltf::Document,
     buffers: &[gltf::buffer::Data],
@@ -25,6 +25,7 @@ pub(super) fn read_clips(
         .map(|animation| {
             let name = animation.name().unwrap_or("").to_string();
             let mut channels = Vec::new();
+            let mut weights = Vec::new();
             for channel in animation.channels() {
                 let read = read_channel(&channel, buffers).map_err(|m| {
                     format!(
@@ -33,14 +34,19 @@ pub(super) fn read_clips(
                         channel.index()
                     )
                 })?;
-                channels.extend(read);
+                match read {
+                    ReadChannel::Transform(c) => channels.push(c),
+                    ReadChannel::Weights(w) => weights.push(w),
+                }
             }
-            let duration = (channels.iter())
-                .filter_map(|c: &Channel| c.times.last().copied())
-                .fold(0.0f32, f32::max);
+            let last_keys = (channels.iter().map(|c: &Channel| &c.times))
+                .chain(weights.iter().map(|w: &WeightsChannel| &w.times))
+                .filter_map(|times| times.last().copied());
+            let duration = last_keys.fold(0.0f32, f32::max);
             Ok(Clip {
                 name,
                 channels,
+                weights,
                 duration,
             })
         })
@@ -93,11 +99,17 @@ fn check_channel_targets(document: &gltf::Document) -> Result<(), String> {
     Ok(())
 }
 
-/// One channel's keys and values; `None` for a morph-target weights channel.
+/// A channel as read: of a node's transform or of its morph-target weights.
+enum ReadChannel {
+    Transform(Channel),
+    Weights(WeightsChannel),
+}
+
+/// One channel's keys and values.
 fn read_channel(
     channel: &gltf::animation::Channel,
     buffers: &[gltf::buffer::Data],
-) -> Result<Option<Channel>, String> {
+) -> Result<ReadChannel, String> {
     use gltf::accessor::{
         DataType::{F32, I16, I8, U16, U8},
         Dimensions,
@@ -106,31 +118,13 @@ fn read_channel(
         gltf::animation::Property::Translation => Property::Translation,
         gltf::animation::Property::Rotation => Property::Rotation,
         gltf::animation::Property::Scale => Property::Scale,
-        gltf::animation::Property::MorphTargetWeights => return Ok(None),
+        gltf::animation::Property::MorphTargetWeights => {
+            return read_weights_channel(channel, buffers).map(ReadChannel::Weights)
+        }
     };
     let sampler = channel.sampler();
-    let interpolation = match sampler.interpolation() {
-        gltf::animation::Interpolation::Step => Interpolation::Step,
-        gltf::animation::Interpolation::Linear => Interpolation::Linear,
-        gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
-    };
-    let input = sampler.input();
-    check_accessor(&input, buffers, Dimensions::Scalar, &[F32])
-        .map_err(|m| format!("its key times: {m}"))?;
-    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
-    let times: Vec<f32> = gltf::accessor::Iter::<f32>::new(input, get)
-        .ok_or("its key times cannot be read")?
-        .collect();
-    if let Some(t) = times.iter().find(|t| !t.is_finite()) {
-        return Err(format!("key time {t} is not a finite number"));
-    }
-    if let Some(k) = times.windows(2).position(|w| w[1] < w[0]) {
-        return Err(format!(
-            "key times decrease ({} then {}); glTF requires increasing times",
-            times[k],
-            times[k + 1]
-        ));
-    }
+    let interpolation = read_interpolation(&sampler);
+    let times = read_key_times(&sampler, buffers)?;
     let output = sampler.output();
     // Rotations may be normalised integers (glTF 2.0, 3.11), the rest floats.
     let (dimensions, types) = match property {
@@ -148,11 +142,7 @@ fn read_channel(
         }),
     }
     .ok_or("its values cannot be read")?;
-    let per_key = if interpolation == Interpolation::CubicSpline {
-        3
-    } else {
-        1
-    };
+    let per_key = values_per_key(interpolation);
     if values.len() != per_key * times.len() {
         return Err(format!(
             "{} values for {} key times ({per_key} a key with {interpolation:?} interpolation)",
@@ -176,13 +166,148 @@ fn read_channel(
             ));
         }
     }
-    Ok(Some(Channel {
+    Ok(ReadChannel::Transform(Channel {
         node: channel.target().node().index(),
         property,
         interpolation,
         times,
         values,
     }))
+}
+
+/// A sampler's interpolation as ours.
+fn read_interpolation(sampler: &gltf::animation::Sampler) -> Interpolation {
+    match sampler.interpolation() {
+        gltf::animation::Interpolation::Step => Interpolation::Step,
+        gltf::animation::Interpolation::Linear => Interpolation::Linear,
+        gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+    }
+}
+
+/// How many values a key holds: three (in-tangent, value, out-tangent) with a cubic spline.
+fn values_per_key(interpolation: Interpolation) -> usize {
+    if interpolation == Interpolation::CubicSpline {
+        3
+    } else {
+        1
+    }
+}
+
+/// A sampler's key times: finite floats, non-decreasing.
+fn read_key_times(
+    sampler: &gltf::animation::Sampler,
+    buffers: &[gltf::buffer::Data],
+) -> Result<Vec<f32>, String> {
+    use gltf::accessor::{DataType::F32, Dimensions};
+    let input = sampler.input();
+    check_accessor(&input, buffers, Dimensions::Scalar, &[F32])
+        .map_err(|m| format!("its key times: {m}"))?;
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let times: Vec<f32> = gltf::accessor::Iter::<f32>::new(input, get)
+        .ok_or("its key times cannot be read")?
+        .collect();
+    if let Some(t) = times.iter().find(|t| !t.is_finite()) {
+        return Err(format!("key time {t} is not a finite number"));
+    }
+    if let Some(k) = times.windows(2).position(|w| w[1] < w[0]) {
+        return Err(format!(
+            "key times decrease ({} then {}); glTF requires increasing times",
+            times[k],
+            times[k + 1]
+        ));
+    }
+    Ok(times)
+}
+
+/// A morph-target weights channel: its node's mesh must have morph targets, and each key
+/// holds one weight per target (floats, or normalised integers as glTF 2.0, 3.11 allows).
+fn read_weights_channel(
+    channel: &gltf::animation::Channel,
+    buffers: &[gltf::buffer::Data],
+) -> Result<WeightsChannel, String> {
+    use gltf::accessor::{
+        DataType::{F32, I16, I8, U16, U8},
+        Dimensions,
+    };
+    let node = channel.target().node();
+    let targets = node.mesh().map_or(0, |mesh| {
+        (mesh.primitives())
+            .map(|p| p.morph_targets().len())
+            .max()
+            .unwrap_or(0)
+    });
+    if targets == 0 {
+        return Err(format!(
+            "it animates the morph-target weights of node {} ({:?}), whose {} no morph targets",
+            node.index(),
+            node.name().unwrap_or(""),
+            if node.mesh().is_some() {
+                "mesh has"
+            } else {
+                "has no mesh and"
+            }
+        ));
+    }
+    let sampler = channel.sampler();
+    let interpolation = read_interpolation(&sampler);
+    let times = read_key_times(&sampler, buffers)?;
+    let output = sampler.output();
+    check_accessor(
+        &output,
+        buffers,
+        Dimensions::Scalar,
+        &[F32, I8, U8, I16, U16],
+    )
+    .map_err(|m| format!("its weights: {m}"))?;
+    let values = read_scalars(&output, buffers).ok_or("its weights cannot be read")?;
+    let per_key = values_per_key(interpolation);
+    if values.len() != per_key * targets * times.len() {
+        return Err(format!(
+            "{} weights for {} key times of {targets} morph targets ({per_key} sets a key \
+             with {interpolation:?} interpolation)",
+            values.len(),
+            times.len()
+        ));
+    }
+    if let Some(w) = values.iter().find(|w| !w.is_finite()) {
+        return Err(format!("weight {w} is not a finite number"));
+    }
+    Ok(WeightsChannel {
+        node: node.index(),
+        interpolation,
+        times,
+        targets,
+        values,
+    })
+}
+
+/// A scalar accessor's values as floats (normalised integers to [0, 1] or [−1, 1]); `None`
+/// where it cannot be read. Its type was checked ([`check_accessor`]).
+pub(super) fn read_scalars(
+    accessor: &gltf::Accessor,
+    buffers: &[gltf::buffer::Data],
+) -> Option<Vec<f32>> {
+    use gltf::accessor::{DataType, Iter};
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    let normalized = accessor.normalized();
+    let unit = move |c: f32, max: f32| if normalized { (c / max).max(-1.0) } else { c };
+    let read = accessor.clone();
+    Some(match accessor.data_type() {
+        DataType::F32 => Iter::<f32>::new(read, get)?.collect(),
+        DataType::I8 => (Iter::<i8>::new(read, get)?)
+            .map(|c| unit(f32::from(c), 127.0))
+            .collect(),
+        DataType::U8 => (Iter::<u8>::new(read, get)?)
+            .map(|c| unit(f32::from(c), 255.0))
+            .collect(),
+        DataType::I16 => (Iter::<i16>::new(read, get)?)
+            .map(|c| unit(f32::from(c), 32767.0))
+            .collect(),
+        DataType::U16 => (Iter::<u16>::new(read, get)?)
+            .map(|c| unit(f32::from(c), 65535.0))
+            .collect(),
+        DataType::U32 => return None,
+    })
 }
 
 impl SceneAnimation {
@@ -195,6 +320,12 @@ impl SceneAnimation {
         for channel in clips.iter().flat_map(|c| &c.channels) {
             if let Some(a) = animated.get_mut(channel.node) {
                 *a = true;
+            }
+        }
+        let mut morphed = vec![false; nodes];
+        for channel in clips.iter().flat_map(|c| &c.weights) {
+            if let Some(m) = morphed.get_mut(channel.node) {
+                *m = true;
             }
         }
         let rest = document
@@ -239,6 +370,7 @@ impl SceneAnimation {
             pieces: Vec::new(),
             playing: (!clips_empty).then_some(0),
             moved: animated,
+            morphed,
             skins: vec![None; document.skins().len()],
             last_pose: None,
             camera: None,
@@ -279,6 +411,11 @@ impl SceneAnimation {
     /// Whether a clip moves `node` (after [`Self::visit`]).
     pub(super) fn moves(&self, node: usize) -> bool {
         self.moved.get(node).copied().unwrap_or(false)
+    }
+
+    /// Whether a clip drives the morph-target weights of `node`.
+    pub(super) fn morphs(&self, node: usize) -> bool {
+        self.morphed.get(node).copied().unwrap_or(false)
     }
 }
 

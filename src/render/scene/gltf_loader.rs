@@ -554,9 +554,10 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                 prim.index()
             )
         };
-        if mesh.weights().is_some() || mesh.primitives().any(|p| p.morph_targets().len() > 0) {
-            ignored.insert("morph targets (drawn in their base shape)".into());
-        }
+        // Its morph-target weights where no clip drives them: the node's, else the mesh's.
+        let morph_weights =
+            morph_weights(&node, &mesh).map_err(|m| err(format!("{node_name}: {m}")))?;
+        let morphed = rig.as_ref().is_some_and(|r| r.morphs(node.index()));
         for prim in mesh.primitives() {
             if prim.mode() != gltf::mesh::Mode::Triangles {
                 tracing::warn!(
@@ -678,7 +679,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                     )));
                 }
                 room(&b)?;
-                let placed = local.geometry.place(world);
+                let placed = local.geometry.place(world, &morph_weights);
                 if placed
                     .positions
                     .iter()
@@ -712,13 +713,15 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
                 b.set_colors(first, &local.colors);
                 b.set_tangents(first, &placed.tangents);
                 let skinned = skin.zip(local.skin.clone());
-                if let (true, Some(rig)) = (moved || skinned.is_some(), rig.as_mut()) {
+                let posed = moved || skinned.is_some() || morphed;
+                if let (true, Some(rig)) = (posed, rig.as_mut()) {
                     rig.pieces.push(super::animation::Piece {
                         node: node.index(),
                         instance: *transform,
                         first_vertex: first,
                         geometry: local.geometry.clone(),
                         skin: skinned,
+                        morph_weights: morph_weights.clone(),
                     });
                 }
             }
@@ -1800,6 +1803,8 @@ fn read_primitive(
             positions.len()
         ));
     }
+    let targets = read_morph_targets(prim, buffers, positions.len(), !tangents.is_empty())
+        .map_err(|m| format!("{name}: {m}"))?;
     let skin = if joints > 0 {
         Some(std::sync::Arc::new(read_influences(
             prim,
@@ -1816,12 +1821,89 @@ fn read_primitive(
             positions,
             normals,
             tangents,
+            targets,
         }),
         uvs,
         colors,
         indices,
         skin,
     }))
+}
+
+/// The morph-target weights of a mesh drawn by `node` where no clip drives them: the node's
+/// `weights`, else its mesh's, else zeros; one per morph target of its primitives (which must
+/// have as many each), finite. Empty for a mesh without morph targets.
+fn morph_weights(node: &gltf::Node, mesh: &gltf::Mesh) -> Result<Vec<f32>, String> {
+    let counts: Vec<usize> = mesh.primitives().map(|p| p.morph_targets().len()).collect();
+    let targets = counts.first().copied().unwrap_or(0);
+    if let Some(p) = counts.iter().position(|&c| c != targets) {
+        return Err(format!(
+            "mesh {} ({:?}): its primitive {p} has {} morph targets, its primitive 0 {targets} \
+             (glTF requires as many in every primitive)",
+            mesh.index(),
+            mesh.name().unwrap_or(""),
+            counts[p]
+        ));
+    }
+    let (weights, whose) = match (node.weights(), mesh.weights()) {
+        (Some(w), _) => (w, "its weights"),
+        (None, Some(w)) => (w, "its mesh's weights"),
+        (None, None) => return Ok(vec![0.0; targets]),
+    };
+    if weights.len() != targets {
+        return Err(format!(
+            "{whose} hold {} values for {targets} morph targets",
+            weights.len()
+        ));
+    }
+    if let Some(w) = weights.iter().find(|w| !w.is_finite()) {
+        return Err(format!("{whose} hold {w}, not a finite number"));
+    }
+    Ok(weights.to_vec())
+}
+
+/// A primitive's morph targets (their accessors checked by [`check_primitive`]): per
+/// target, the displacements of its `vertices` positions and normals, and of their tangents
+/// where the primitive has them (`tangents`); each finite, one per vertex.
+fn read_morph_targets(
+    prim: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    vertices: usize,
+    tangents: bool,
+) -> Result<Vec<MorphTarget>, String> {
+    let displacements = |accessor: Option<gltf::Accessor>, what: &str, k: usize| {
+        let Some(accessor) = accessor else {
+            return Ok(Vec::new());
+        };
+        let read = read_attribute::<3>(&accessor, buffers)
+            .ok_or_else(|| format!("morph target {k}: its {what} cannot be read"))?;
+        if read.len() != vertices {
+            return Err(format!(
+                "morph target {k}: {} {what} displacements for {vertices} positions",
+                read.len()
+            ));
+        }
+        if let Some(d) = read.iter().find(|d| !d.iter().all(|c| c.is_finite())) {
+            return Err(format!(
+                "morph target {k}: {what} displacement {d:?} is not finite"
+            ));
+        }
+        Ok(read.into_iter().map(Vec3::from_array).collect())
+    };
+    prim.morph_targets()
+        .enumerate()
+        .map(|(k, target)| {
+            Ok(MorphTarget {
+                positions: displacements(target.positions(), "POSITION", k)?,
+                normals: displacements(target.normals(), "NORMAL", k)?,
+                tangents: if tangents {
+                    displacements(target.tangents(), "TANGENT", k)?
+                } else {
+                    Vec::new()
+                },
+            })
+        })
+        .collect()
 }
 
 /// A skinned primitive's `JOINTS_0` and `WEIGHTS_0` (checked by [`check_primitive`]): one of
@@ -1886,7 +1968,7 @@ fn read_influences(
 /// Checks the accessors of primitive `prim` (named `name` in errors) that [`read_primitive`]
 /// reads ([`check_accessor`]): positions, normals, the texture coordinates of its material's
 /// `channels`, tangents where a normal texture needs them, `COLOR_0`, `JOINTS_0` and
-/// `WEIGHTS_0` of a skinned mesh, and the indices. Further colour sets and influences are
+/// `WEIGHTS_0` of a skinned mesh, its morph targets' displacements, and the indices. Further colour sets and influences are
 /// named in `ignored`.
 fn check_primitive(
     prim: &gltf::Primitive,
@@ -1939,6 +2021,24 @@ fn check_primitive(
         };
         check_accessor(&accessor, buffers, dimensions, types)
             .map_err(|m| format!("{name}: {attribute} {m}"))?;
+    }
+    for (k, target) in prim.morph_targets().enumerate() {
+        use gltf::accessor::{
+            DataType::{F32, I16, I8},
+            Dimensions::Vec3,
+        };
+        // Floats, or the integers KHR_mesh_quantization allows for displacements.
+        let attributes = [
+            ("POSITION", target.positions()),
+            ("NORMAL", target.normals()),
+            ("TANGENT", target.tangents().filter(|_| normal_textured)),
+        ];
+        for (attribute, accessor) in attributes {
+            if let Some(accessor) = accessor {
+                check_accessor(&accessor, buffers, Vec3, &[F32, I8, I16])
+                    .map_err(|m| format!("{name}: morph target {k}'s {attribute} {m}"))?;
+            }
+        }
     }
     if let Some(accessor) = prim.indices() {
         use gltf::accessor::{

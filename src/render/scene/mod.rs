@@ -28,8 +28,8 @@ mod material;
 mod obj_loader;
 
 pub use animation::{
-    AnimationChoice, Channel, Clip, Interpolation, LocalGeometry, Piece, PlacedGeometry, Property,
-    RestTransform, SceneAnimation, Skin, SkinWeights,
+    AnimationChoice, Channel, Clip, Interpolation, LocalGeometry, MorphTarget, Piece,
+    PlacedGeometry, Property, RestTransform, SceneAnimation, Skin, SkinWeights, WeightsChannel,
 };
 pub use camera::{
     fit_camera, look_at_rh, orthographic_rh, perspective_rh, Camera, CameraOverride, Projection,

@@ -330,7 +330,12 @@ fn fails_when_edited(
 fn mutated_animated_files_never_panic() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("mutated.gltf");
-    for source in [sliding_parent(dir.path()), fixture("bending_arm.gltf")] {
+    let sources = [
+        sliding_parent(dir.path()),
+        fixture("bending_arm.gltf"),
+        fixture("morphing_tent.gltf"),
+    ];
+    for source in sources {
         let text = std::fs::read_to_string(&source).unwrap();
         let numbers = number_spans(&text);
         assert!(numbers.len() > 40, "{}", numbers.len());
@@ -477,6 +482,129 @@ fn skinned_meshes_bend_with_their_joints() {
         &text,
         |json| json["accessors"][3]["componentType"] = 5125.into(),
         "WEIGHTS_0 accessor 3 has component type U32",
+    );
+}
+
+/// tests/data/animated/morphing_tent.gltf (make_morphed.py): one mesh with two morph targets
+/// (a sparse one lifting the centre vertex, a ramp with normal displacements) drawn by a node
+/// whose weights clip "rise" drives and by one whose own weights [0.5, 1] hold. Loaded, the
+/// posed node stands as its weights shape it and the animated one flat (its mesh's weights);
+/// at 1.5 s of "rise" both are the vertices and normals that the script baked into
+/// morphed_tent.gltf; the STEP clip "blink" jumps at 0.5 s. gltfpack's file of it (positions
+/// and displacements as 16-bit integers, normals as normalised bytes, the weights as
+/// normalised bytes resampled at 30 keys a second) plays the same within its quantisation.
+#[test]
+fn morph_targets_shape_meshes_by_their_weights() {
+    let still = Scene::load(&fixture("morphed_tent.gltf"), false).unwrap();
+    assert_eq!(still.vertices.len(), 50);
+    // Every vertex of `a` at the one of `b` with the same index (`near`) or near one of
+    // them, and back (the packed file orders its vertices as it likes).
+    let same = |a: &Scene, b: &Scene, what: &str, tolerance: [f32; 2]| {
+        let close = |u: &Vertex, v: &Vertex| {
+            let d = Vec3::from_array(u.position).distance(Vec3::from_array(v.position));
+            let n = Vec3::from_array(u.normal).distance(Vec3::from_array(v.normal));
+            d < tolerance[0] && n < tolerance[1]
+        };
+        let near = |from: &Scene, to: &Scene| {
+            (from.vertices.iter()).all(|u| to.vertices.iter().any(|v| close(u, v)))
+        };
+        assert_eq!(a.vertices.len(), b.vertices.len(), "{what}");
+        assert!(near(a, b) && near(b, a), "{what}");
+    };
+    // The vertices of the sheet left (x < 2: the animated node's) or right of x = 2 that lie
+    // at y = 0 (within `tolerance`).
+    let flat = |scene: &Scene, left: bool, tolerance: f32| {
+        (scene.vertices.iter())
+            .filter(|v| (v.position[0] < 2.0) == left && v.position[1].abs() < tolerance)
+            .count()
+    };
+    for (file, tolerance) in [
+        ("morphing_tent.gltf", [1e-5, 1e-5]),
+        ("morphing_tent_gltfpack.glb", [5e-3, 2e-2]),
+    ] {
+        let mut scene = Scene::load(&fixture(file), false).unwrap();
+        assert_eq!(scene.animation_names(), ["rise", "blink"], "{file}");
+        // At rest the animated sheet is flat; the posed one only along its x = 0 (the ramp's
+        // foot), but for the centre that the peak lifts.
+        let flats = [true, false].map(|left| flat(&scene, left, tolerance[0]));
+        assert_eq!(flats, [25, 4], "{file}");
+        scene.animate(1.5);
+        same(&scene, &still, file, tolerance);
+        // Vertex for vertex where no tool reordered them.
+        if file.ends_with(".gltf") {
+            for (u, v) in scene.vertices.iter().zip(&still.vertices) {
+                assert!(
+                    Vec3::from_array(u.position).distance(Vec3::from_array(v.position)) < 1e-5,
+                    "{file}"
+                );
+            }
+        }
+        // "blink" (STEP): flat until 0.5 s, then the centre vertex lifted by 1.
+        scene
+            .select_animation(&AnimationChoice::Name("blink".into()))
+            .unwrap();
+        let peak = |scene: &Scene| {
+            (scene.vertices.iter())
+                .filter(|v| v.position[0].abs() < 0.1 && v.position[2].abs() < 0.1)
+                .map(|v| v.position[1])
+                .fold(f32::NEG_INFINITY, f32::max)
+        };
+        scene.animate(0.45);
+        assert!(
+            peak(&scene).abs() < tolerance[0],
+            "{file}: {}",
+            peak(&scene)
+        );
+        scene.animate(0.55);
+        assert!(
+            (peak(&scene) - 1.0).abs() < tolerance[0],
+            "{file}: {}",
+            peak(&scene)
+        );
+        // The bounds hold the lifted peak.
+        assert!(scene.bounds.center.y + scene.bounds.radius >= 1.0, "{file}");
+    }
+    // Weights that do not match the targets, and displacements of the wrong type, are named.
+    let text = std::fs::read_to_string(fixture("morphing_tent.gltf")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tent.gltf");
+    fails_when_edited(
+        &path,
+        &text,
+        |json| json["nodes"][1]["weights"] = serde_json::json!([0.5]),
+        "node 1 (\"posed\"): its weights hold 1 values for 2 morph targets",
+    );
+    fails_when_edited(
+        &path,
+        &text,
+        |json| json["accessors"][7]["count"] = 5.into(),
+        "channel 0: 5 weights for 3 key times of 2 morph targets",
+    );
+    fails_when_edited(
+        &path,
+        &text,
+        |json| json["meshes"][0]["primitives"][0]["targets"][1]["POSITION"] = 0.into(),
+        "morph target 1's POSITION accessor 0 has type Scalar",
+    );
+    fails_when_edited(
+        &path,
+        &text,
+        |json| json["accessors"][7]["componentType"] = 5125.into(),
+        "channel 0: its weights: accessor 7 has component type U32",
+    );
+    // A weights channel on a node whose mesh has no morph targets.
+    let no_targets = |json: &mut serde_json::Value| {
+        let primitive = json["meshes"][0]["primitives"][0].as_object_mut().unwrap();
+        primitive.remove("targets");
+        let mesh = json["meshes"][0].as_object_mut().unwrap();
+        mesh.remove("weights");
+        json["nodes"][1].as_object_mut().unwrap().remove("weights");
+    };
+    fails_when_edited(
+        &path,
+        &text,
+        no_targets,
+        "node 0 (\"animated\"), whose mesh has no morph targets",
     );
 }
 
