@@ -55,10 +55,11 @@ fn bench(c: &mut Criterion) {
 }
 
 /// A sphere of `segments` × `segments / 2` quads turning about +y (LINEAR, one turn in 4 s)
-/// on node 0: every vertex moves. With `morph`, it also breathes and squashes by two morph
-/// targets (displacements of every position and normal) whose weights a LINEAR channel
-/// drives.
-fn turning_sphere(segments: u32, morph: bool) -> Scene {
+/// on node 0: its first `moved` vertices move (all, where there are fewer), the rest stand
+/// (a small animated model in a large still scene). With `morph`, it also breathes and
+/// squashes by two morph targets (displacements of every position and normal) whose weights
+/// a LINEAR channel drives.
+fn turning_sphere(segments: u32, morph: bool, moved: usize) -> Scene {
     use envlight::render::scene::{
         Camera, Channel, Clip, Interpolation, LocalGeometry, Material, MorphTarget, Piece,
         Property, RestTransform, SceneAnimation, WeightsChannel,
@@ -66,12 +67,11 @@ fn turning_sphere(segments: u32, morph: bool) -> Scene {
     use glam::{Mat4, Quat, Vec3, Vec4};
     let camera = Camera::perspective(Vec3::new(0.0, 0.5, 4.0), Vec3::ZERO, 0.7);
     let mut scene = Scene::sphere(Vec3::ZERO, 1.0, segments, Material::default(), None, camera);
-    let positions: Vec<Vec3> = (scene.vertices.iter())
+    let moved = &scene.vertices[..moved.min(scene.vertices.len())];
+    let positions: Vec<Vec3> = (moved.iter())
         .map(|v| Vec3::from_array(v.position))
         .collect();
-    let normals: Vec<Vec3> = (scene.vertices.iter())
-        .map(|v| Vec3::from_array(v.normal))
-        .collect();
+    let normals: Vec<Vec3> = (moved.iter()).map(|v| Vec3::from_array(v.normal)).collect();
     let targets = if morph {
         let breathe = MorphTarget {
             positions: normals.iter().map(|&n| 0.2 * n).collect(),
@@ -153,16 +153,32 @@ fn turning_sphere(segments: u32, morph: bool) -> Scene {
 
 fn bench_animate(c: &mut Criterion) {
     let mut group = c.benchmark_group("scene_animate");
-    for (segments, morph) in [(256u32, false), (724, false), (256, true), (724, true)] {
-        let mut scene = turning_sphere(segments, morph);
+    use envlight::render::shadow::{posed_facing_normals, still_facing};
+    let all = usize::MAX;
+    for (segments, morph, moved) in [
+        (256u32, false, all),
+        (724, false, all),
+        (256, true, all),
+        (724, true, all),
+        (724, false, 33153),
+    ] {
+        let mut scene = turning_sphere(segments, morph, moved);
         let targets = if morph { "_2_morph_targets" } else { "" };
-        let name = format!("{}_vertices{targets}", scene.vertices.len());
+        let moved: usize = (scene.animation.as_ref().unwrap().moved_vertices())
+            .map(|r| r.len())
+            .sum();
+        let name = if moved < scene.vertices.len() {
+            format!("{moved}_of_{}_vertices{targets}", scene.vertices.len())
+        } else {
+            format!("{}_vertices{targets}", scene.vertices.len())
+        };
+        let still = still_facing(&scene);
         let mut t = 0.0;
         group.bench_function(&name, |b| {
             b.iter(|| {
                 t += 0.016;
                 scene.animate(t);
-                envlight::render::shadow::facing_normals(&scene).len()
+                posed_facing_normals(&scene, still.as_ref()).len()
             })
         });
     }

@@ -299,6 +299,8 @@ pub struct Renderer {
     scene: Scene,
     settings: RenderSettings,
     facing: Vec<Vec3>,
+    /// The facing normals of the vertices no clip moves ([`shadow::still_facing`]).
+    still_facing: Option<shadow::FacingSet>,
     vertex_buffer: wgpu::Buffer,
     index_buffer: wgpu::Buffer,
     material_buffer: wgpu::Buffer,
@@ -384,20 +386,29 @@ impl Renderer {
     }
 
     /// Poses an animated scene ([`Scene::animate`]) at `seconds` of its playing clip (looped)
-    /// for the next frames: its vertices uploaded again, the camera-facing normals that decide
-    /// which lights get shadow maps recomputed, and its blended triangles sorted back to front
-    /// again. Nothing happens for a scene without animations.
+    /// for the next frames: its moved vertices uploaded again, the camera-facing normals that
+    /// decide which lights get shadow maps recomputed (from the moved vertices, where the
+    /// camera holds still), and its blended triangles sorted back to front again. Nothing
+    /// happens for a scene without animations.
     pub fn set_scene_time(&mut self, seconds: f64) {
         if !self.scene.animate(seconds) {
             return;
         }
         let queue = &self.gpu.queue;
-        queue.write_buffer(
-            &self.vertex_buffer,
-            0,
-            bytemuck::cast_slice(&self.scene.vertices),
-        );
-        self.facing = shadow::facing_normals(&self.scene);
+        if let Some(animation) = &self.scene.animation {
+            for range in merged_ranges(animation.moved_vertices()) {
+                let Some(moved) = self.scene.vertices.get(range.clone()) else {
+                    continue;
+                };
+                let offset = range.start * std::mem::size_of::<scene::Vertex>();
+                queue.write_buffer(
+                    &self.vertex_buffer,
+                    offset as u64,
+                    bytemuck::cast_slice(moved),
+                );
+            }
+        }
+        self.facing = shadow::posed_facing_normals(&self.scene, self.still_facing.as_ref());
         if self.groups.blended_start < self.scene.caster_indices {
             setup::sort_blended(&mut self.scene, self.groups);
             let blended = self.groups.blended_start as usize..self.scene.caster_indices as usize;
@@ -494,10 +505,34 @@ impl Renderer {
     }
 }
 
+/// `ranges` sorted and joined where they touch or overlap (the moved pieces of an animated
+/// scene lie back to back where one node's primitives follow each other: one upload each run).
+fn merged_ranges(
+    ranges: impl Iterator<Item = std::ops::Range<usize>>,
+) -> Vec<std::ops::Range<usize>> {
+    let mut sorted: Vec<std::ops::Range<usize>> = ranges.filter(|r| !r.is_empty()).collect();
+    sorted.sort_by_key(|r| r.start);
+    let mut merged: Vec<std::ops::Range<usize>> = Vec::with_capacity(sorted.len());
+    for range in sorted {
+        match merged.last_mut() {
+            Some(last) if range.start <= last.end => last.end = last.end.max(range.end),
+            _ => merged.push(range),
+        }
+    }
+    merged
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use setup::{draw_blended_opaque, order_triangles};
+
+    #[test]
+    fn moved_ranges_merge_where_they_touch_or_overlap() {
+        let ranges = [10..20, 0..4, 4..6, 30..30, 15..25, 40..41];
+        assert_eq!(merged_ranges(ranges.into_iter()), [0..6, 10..25, 40..41]);
+        assert!(merged_ranges(std::iter::empty()).is_empty());
+    }
 
     /// The casters are ordered opaque, masked, then blended back to front from the camera;
     /// the ground stays after them; no triangle is lost or changed.

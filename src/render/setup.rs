@@ -836,6 +836,7 @@ impl Renderer {
             &material_buffer,
         );
         let facing = shadow::facing_normals(&scene);
+        let still_facing = shadow::still_facing(&scene);
         if let Some(error) = gpu.take_error() {
             return Err(RenderError::Gpu(format!(
                 "{error} (a smaller --size or --shadow-res needs less GPU memory)"
@@ -846,6 +847,7 @@ impl Renderer {
             scene,
             settings,
             facing,
+            still_facing,
             vertex_buffer,
             index_buffer,
             material_buffer,
