@@ -224,7 +224,14 @@ fn streams_what_decompose_computes(fanout_on: &str, more_clients: usize) {
         assert_eq!(shares, 0.0);
     }
     let summary = daemon.shutdown().unwrap();
-    assert_eq!(summary.pipeline.frames_decomposed, N);
+    // Every frame captured; decomposed unless a starved machine held the decomposition past
+    // two frames (133 ms), which the clients' checks below allow for.
+    let pipeline = &summary.pipeline;
+    assert_eq!(
+        pipeline.frames_decomposed + pipeline.frames_dropped,
+        N,
+        "{pipeline:?}"
+    );
     assert!(summary.clients_closed_in_time);
 
     for ((endpoint, format, cap), client) in endpoints.iter().zip(clients) {
