@@ -21,8 +21,8 @@
 //!    matrix, tangents by its linear part with the handedness turned by a mirror.
 //!
 //!    A skinned mesh (glTF skins) is placed by linear blend skinning instead: each vertex
-//!    through the sum of its (up to four) joints' world matrices times their inverse bind
-//!    matrices, weighted; its node's own transform does not apply (morphed first, as glTF
+//!    through the sum of its joints' world matrices (four from each `JOINTS_n`/`WEIGHTS_n`
+//!    set) times their inverse bind matrices, weighted; its node's own transform does not apply (morphed first, as glTF
 //!    orders it).
 //! 5. the scene's camera, where its node moves, is placed at the node's new world matrix.
 //!
@@ -407,18 +407,21 @@ pub struct Skin {
     pub inverse_bind: Vec<Mat4>,
 }
 
-/// Per vertex of a skinned primitive: four joints (indices into its skin's joints) and their
-/// weights, which sum to 1.
+/// Per vertex of a skinned primitive: its joints (indices into its skin's joints) and their
+/// weights, which sum to 1 — four from each of the file's `JOINTS_n`/`WEIGHTS_n` sets, the
+/// vertex's `influences` of them back to back.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SkinWeights {
-    pub joints: Vec<[u16; 4]>,
-    pub weights: Vec<[f32; 4]>,
+    /// Joints and weights a vertex: 4 per set.
+    pub influences: usize,
+    pub joints: Vec<u16>,
+    pub weights: Vec<f32>,
 }
 
 impl LocalGeometry {
     /// Skins vertices `first..` of this geometry into `vertices` (linear blend skinning: each
-    /// vertex through the weighted sum of its joints' matrices; normals and tangents through
-    /// the sum's linear part, renormalised).
+    /// vertex through the weighted sum of its joints' matrices — four or more — normals and
+    /// tangents through the sum's linear part, renormalised).
     fn skin_block(
         &self,
         joint_matrices: &[Mat4],
@@ -428,9 +431,12 @@ impl LocalGeometry {
         vertices: &mut [Vertex],
     ) {
         for (i, v) in (first..).zip(vertices.iter_mut()) {
-            let (Some(joints), Some(weights)) =
-                (influences.joints.get(i), influences.weights.get(i))
-            else {
+            let n = influences.influences;
+            let span = i * n..(i + 1) * n;
+            let (Some(joints), Some(weights)) = (
+                influences.joints.get(span.clone()),
+                influences.weights.get(span),
+            ) else {
                 continue;
             };
             let mut m = Mat4::ZERO;

@@ -1906,9 +1906,21 @@ fn read_morph_targets(
         .collect()
 }
 
-/// A skinned primitive's `JOINTS_0` and `WEIGHTS_0` (checked by [`check_primitive`]): one of
-/// each per vertex, joints within the skin's `joints`, weights finite and not negative, made
-/// to sum to 1 (a vertex of zero weights follows its first joint).
+/// How many sets of joint influences a primitive has: `JOINTS_n` or `WEIGHTS_n` for n = 0, 1,
+/// … without a gap (one past a gap is not read: [`check_primitive`] names it).
+fn influence_sets(prim: &gltf::Primitive) -> u32 {
+    (0..)
+        .take_while(|&n| {
+            prim.get(&gltf::Semantic::Joints(n)).is_some()
+                || prim.get(&gltf::Semantic::Weights(n)).is_some()
+        })
+        .count() as u32
+}
+
+/// A skinned primitive's `JOINTS_n` and `WEIGHTS_n` sets (checked by [`check_primitive`]):
+/// one of each per vertex in every set, joints within the skin's `joints`, weights finite and
+/// not negative, made to sum to 1 over all sets (a vertex of zero weights follows its first
+/// joint).
 fn read_influences(
     prim: &gltf::Primitive,
     buffers: &[gltf::buffer::Data],
@@ -1916,50 +1928,75 @@ fn read_influences(
     vertices: usize,
     name: &str,
 ) -> Result<SkinWeights, String> {
-    let (Some(joint_accessor), Some(weight_accessor)) = (
-        prim.get(&gltf::Semantic::Joints(0)),
-        prim.get(&gltf::Semantic::Weights(0)),
-    ) else {
+    let sets = influence_sets(prim);
+    if sets == 0 {
         return Err(format!(
             "{name}: its node has a skin, but it has no JOINTS_0 and WEIGHTS_0"
         ));
-    };
-    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
-    let read: Option<Vec<[u16; 4]>> = match joint_accessor.data_type() {
-        gltf::accessor::DataType::U8 => gltf::accessor::Iter::<[u8; 4]>::new(joint_accessor, get)
-            .map(|i| i.map(|j| j.map(u16::from)).collect()),
-        _ => gltf::accessor::Iter::<[u16; 4]>::new(joint_accessor, get).map(|i| i.collect()),
-    };
-    let joint_indices = read.ok_or_else(|| format!("{name}: its JOINTS_0 cannot be read"))?;
-    let mut weights = read_attribute::<4>(&weight_accessor, buffers)
-        .ok_or_else(|| format!("{name}: its WEIGHTS_0 cannot be read"))?;
-    if joint_indices.len() != vertices || weights.len() != vertices {
-        return Err(format!(
-            "{name}: {} JOINTS_0 and {} WEIGHTS_0 values for {vertices} positions",
-            joint_indices.len(),
-            weights.len()
-        ));
     }
-    for (v, (j, w)) in joint_indices.iter().zip(&mut weights).enumerate() {
-        if let Some(k) = (0..4).find(|&k| w[k] != 0.0 && usize::from(j[k]) >= joints) {
+    let stride = 4 * sets as usize;
+    let mut joint_indices = vec![0u16; vertices * stride];
+    let mut weights = vec![0.0f32; vertices * stride];
+    let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
+    for set in 0..sets {
+        let (Some(joint_accessor), Some(weight_accessor)) = (
+            prim.get(&gltf::Semantic::Joints(set)),
+            prim.get(&gltf::Semantic::Weights(set)),
+        ) else {
             return Err(format!(
-                "{name}: vertex {v}'s JOINTS_0 names joint {}, past its skin's {joints}",
+                "{name}: it has only one of JOINTS_{set} and WEIGHTS_{set} (glTF pairs them)"
+            ));
+        };
+        let read: Option<Vec<[u16; 4]>> = match joint_accessor.data_type() {
+            gltf::accessor::DataType::U8 => {
+                gltf::accessor::Iter::<[u8; 4]>::new(joint_accessor, get)
+                    .map(|i| i.map(|j| j.map(u16::from)).collect())
+            }
+            _ => gltf::accessor::Iter::<[u16; 4]>::new(joint_accessor, get).map(|i| i.collect()),
+        };
+        let set_joints = read.ok_or_else(|| format!("{name}: its JOINTS_{set} cannot be read"))?;
+        let set_weights = read_attribute::<4>(&weight_accessor, buffers)
+            .ok_or_else(|| format!("{name}: its WEIGHTS_{set} cannot be read"))?;
+        if set_joints.len() != vertices || set_weights.len() != vertices {
+            return Err(format!(
+                "{name}: {} JOINTS_{set} and {} WEIGHTS_{set} values for {vertices} positions",
+                set_joints.len(),
+                set_weights.len()
+            ));
+        }
+        let slots = |v: usize| v * stride + 4 * set as usize..v * stride + 4 * set as usize + 4;
+        for (v, (j, w)) in set_joints.iter().zip(&set_weights).enumerate() {
+            joint_indices[slots(v)].copy_from_slice(j);
+            weights[slots(v)].copy_from_slice(w);
+        }
+    }
+    let vertex_influences =
+        (joint_indices.chunks_exact(stride)).zip(weights.chunks_exact_mut(stride));
+    for (v, (j, w)) in vertex_influences.enumerate() {
+        if let Some(k) = (0..stride).find(|&k| w[k] != 0.0 && usize::from(j[k]) >= joints) {
+            return Err(format!(
+                "{name}: vertex {v}'s JOINTS_{} names joint {}, past its skin's {joints}",
+                k / 4,
                 j[k]
             ));
         }
-        if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
+        if let Some(k) = (0..stride).find(|&k| !(w[k].is_finite() && w[k] >= 0.0)) {
+            let set = k / 4;
             return Err(format!(
-                "{name}: vertex {v}'s WEIGHTS_0 {w:?} are not finite, non-negative numbers"
+                "{name}: vertex {v}'s WEIGHTS_{set} {:?} are not finite, non-negative numbers",
+                &w[4 * set..4 * set + 4]
             ));
         }
         let sum: f32 = w.iter().sum();
         if sum > 0.0 {
-            *w = w.map(|x| x / sum);
+            w.iter_mut().for_each(|x| *x /= sum);
         } else {
-            *w = [1.0, 0.0, 0.0, 0.0];
+            w.fill(0.0);
+            w[0] = 1.0;
         }
     }
     Ok(SkinWeights {
+        influences: stride,
         joints: joint_indices,
         weights,
     })
@@ -1967,8 +2004,8 @@ fn read_influences(
 
 /// Checks the accessors of primitive `prim` (named `name` in errors) that [`read_primitive`]
 /// reads ([`check_accessor`]): positions, normals, the texture coordinates of its material's
-/// `channels`, tangents where a normal texture needs them, `COLOR_0`, `JOINTS_0` and
-/// `WEIGHTS_0` of a skinned mesh, its morph targets' displacements, and the indices. Further colour sets and influences are
+/// `channels`, tangents where a normal texture needs them, `COLOR_0`, the `JOINTS_n` and
+/// `WEIGHTS_n` of a skinned mesh, its morph targets' displacements, and the indices. Further colour sets and influences past a gap are
 /// named in `ignored`.
 fn check_primitive(
     prim: &gltf::Primitive,
@@ -1978,6 +2015,7 @@ fn check_primitive(
     name: &str,
     ignored: &mut std::collections::BTreeSet<String>,
 ) -> Result<(), String> {
+    let influence_sets = influence_sets(prim);
     for (semantic, accessor) in prim.attributes() {
         use gltf::accessor::{
             DataType::{F32, I16, I8, U16, U8},
@@ -2009,12 +2047,14 @@ fn check_primitive(
                 ignored.insert("vertex colours past COLOR_0".into());
                 continue;
             }
-            gltf::Semantic::Joints(0) if skinned => ("JOINTS_0".to_string(), Vec4, &[U8, U16][..]),
-            gltf::Semantic::Weights(0) if skinned => {
-                ("WEIGHTS_0".to_string(), Vec4, &[F32, U8, U16][..])
+            gltf::Semantic::Joints(n) if skinned && n < influence_sets => {
+                (format!("JOINTS_{n}"), Vec4, &[U8, U16][..])
+            }
+            gltf::Semantic::Weights(n) if skinned && n < influence_sets => {
+                (format!("WEIGHTS_{n}"), Vec4, &[F32, U8, U16][..])
             }
             gltf::Semantic::Joints(_) | gltf::Semantic::Weights(_) if skinned => {
-                ignored.insert("joint influences past the fourth (JOINTS_1, WEIGHTS_1)".into());
+                ignored.insert("joint influences past a gap in JOINTS_n, WEIGHTS_n".into());
                 continue;
             }
             _ => continue,

@@ -485,6 +485,87 @@ fn skinned_meshes_bend_with_their_joints() {
     );
 }
 
+/// The bending arm with its influences split over two sets (`JOINTS_1`/`WEIGHTS_1`: the top
+/// ring's elbow and half the middle ring's in the second set, the rest in the first) bends as
+/// the file with one set does; a `JOINTS_1` without its `WEIGHTS_1` is named.
+#[test]
+fn a_second_set_of_influences_weighs_in() {
+    let text = std::fs::read_to_string(fixture("bending_arm.gltf")).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    // The fixture's vertices: per side, rings 0, 1 and 2 of two vertices each.
+    let (mut data, mut sets): (Vec<u8>, [Vec<u8>; 2]) = (Vec::new(), Default::default());
+    let mut set_weights: [Vec<f32>; 2] = Default::default();
+    for v in 0..24 {
+        let (first, second) = match (v % 6) / 2 {
+            0 => (1.0, 0.0),
+            1 => (0.5, 0.5),
+            _ => (0.0, 1.0),
+        };
+        sets[0].extend([0, 0, 0, 0]);
+        sets[1].extend([1, 0, 0, 0]);
+        set_weights[0].extend([first, 0.0, 0.0, 0.0]);
+        set_weights[1].extend([second, 0.0, 0.0, 0.0]);
+    }
+    let mut accessors = json["accessors"].as_array().unwrap().clone();
+    let mut views = json["bufferViews"].as_array().unwrap().clone();
+    let mut add = |bytes: &[u8], component: u32| {
+        let offset = data.len();
+        data.extend_from_slice(bytes);
+        views.push(serde_json::json!({"buffer": 1, "byteOffset": offset,
+            "byteLength": bytes.len()}));
+        accessors.push(serde_json::json!({"bufferView": views.len() - 1,
+            "componentType": component, "count": 24, "type": "VEC4"}));
+        accessors.len() - 1
+    };
+    let floats = |w: &[f32]| w.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>();
+    let joints_0 = add(&sets[0], 5121);
+    let weights_0 = add(&floats(&set_weights[0]), 5126);
+    let joints_1 = add(&sets[1], 5121);
+    let weights_1 = add(&floats(&set_weights[1]), 5126);
+    json["accessors"] = accessors.into();
+    json["bufferViews"] = views.into();
+    json["buffers"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({"byteLength": data.len(),
+            "uri": format!("data:application/octet-stream;base64,{}", base64_encode(&data))}));
+    let attributes = &mut json["meshes"][0]["primitives"][0]["attributes"];
+    attributes["JOINTS_0"] = joints_0.into();
+    attributes["WEIGHTS_0"] = weights_0.into();
+    attributes["JOINTS_1"] = joints_1.into();
+    attributes["WEIGHTS_1"] = weights_1.into();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two_sets.gltf");
+    std::fs::write(&path, json.to_string()).unwrap();
+    let mut one = Scene::load(&fixture("bending_arm.gltf"), false).unwrap();
+    let mut two = Scene::load(&path, false).unwrap();
+    for t in [0.0, 0.5, 1.0 - 1e-6] {
+        one.animate(t);
+        two.animate(t);
+        for (a, b) in one.vertices.iter().zip(&two.vertices) {
+            let (pa, pb) = (Vec3::from_array(a.position), Vec3::from_array(b.position));
+            assert!(pa.distance(pb) < 1e-5, "at {t}: {pa} and {pb}");
+        }
+    }
+    // The bend is there (the top ring far from where it stood).
+    let top = |scene: &Scene| {
+        (scene.vertices.iter())
+            .map(|v| v.position[0])
+            .fold(0.0, f32::min)
+    };
+    assert!(top(&two) < -0.9, "{}", top(&two));
+    let text = json.to_string();
+    fails_when_edited(
+        &path,
+        &text,
+        |json| {
+            let attributes = &mut json["meshes"][0]["primitives"][0]["attributes"];
+            attributes.as_object_mut().unwrap().remove("WEIGHTS_1");
+        },
+        "only one of JOINTS_1 and WEIGHTS_1",
+    );
+}
+
 /// tests/data/animated/morphing_tent.gltf (make_morphed.py): one mesh with two morph targets
 /// (a sparse one lifting the centre vertex, a ramp with normal displacements) drawn by a node
 /// whose weights clip "rise" drives and by one whose own weights [0.5, 1] hold. Loaded, the
