@@ -3808,6 +3808,61 @@ fn animated_fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// The settings of the animation tests: 160×120, shadow maps of 256² drawn by `raster`.
+fn pose_settings(raster: ShadowRaster) -> RenderSettings {
+    RenderSettings {
+        width: 160,
+        height: 120,
+        shadow_resolution: 256,
+        shadow_raster: raster,
+        ..RenderSettings::default()
+    }
+}
+
+/// The still file of an animated scene's pose, given the animated scene's bounds, camera
+/// (fitted to the bounds where the file has none) and ground (its 4 vertices last: it lies
+/// under the lowest pose of every clip there), rendered under `lights` as the reference of
+/// that pose.
+fn still_reference(animated: &Scene, still: Scene, lights: &[Light]) -> Image {
+    let mut still = still;
+    assert!(still.animation.is_none());
+    still.bounds = animated.bounds;
+    still.camera = animated.camera;
+    let ground = still.vertices.len() - 4;
+    assert_eq!(ground + 4, animated.vertices.len());
+    still.vertices[ground..].copy_from_slice(&animated.vertices[ground..]);
+    renderer(still, pose_settings(ShadowRaster::default()))
+        .render(lights)
+        .unwrap()
+        .0
+}
+
+/// Poses `r` at `t` seconds and renders it; fails (the image written as `tag`) unless it is
+/// `reference` to rounding: a mean relative difference of at most 10⁻⁴ and a 99.9th
+/// percentile of at most 0.02. Returns the image.
+fn assert_posed_like(
+    r: &mut Renderer,
+    t: f64,
+    lights: &[Light],
+    reference: &Image,
+    tag: &str,
+) -> Image {
+    r.set_scene_time(t);
+    let posed = r.render(lights).unwrap().0;
+    let (mean, p999, _) = relative_differences(reference, &posed);
+    eprintln!("{tag} at {t} s: mean {mean}, p999 {p999}");
+    if mean > 1e-4 || p999 > 0.02 {
+        fail_with_image(
+            tag,
+            &posed,
+            &[format!(
+                "{tag}: posed at {t} s, not the reference: mean {mean}, 99.9th percentile {p999}"
+            )],
+        );
+    }
+    posed
+}
+
 /// An animated glTF scene posed at a time renders as a still file of that pose does: the
 /// vertices uploaded again, the shadow maps of the moved casters and the lights' visibility
 /// follow the pose. The still file gets the animated scene's bounds (the shadow maps are
@@ -3816,40 +3871,13 @@ fn animated_fixture(name: &str) -> PathBuf {
 #[test]
 fn animated_scenes_render_as_the_still_pose_they_reach() {
     let lights = sky_lights(48);
-    let settings = RenderSettings {
-        width: 160,
-        height: 120,
-        shadow_resolution: 256,
-        ..RenderSettings::default()
-    };
     let animated = Scene::load(&animated_fixture("turning_boxes.gltf"), true).unwrap();
-    let mut still = Scene::load(&animated_fixture("turned_boxes.gltf"), true).unwrap();
-    assert!(still.animation.is_none());
-    // The ground (its 4 vertices last) lies under the lowest pose of either clip there.
-    still.bounds = animated.bounds;
-    let ground = still.vertices.len() - 4;
-    assert_eq!(ground + 4, animated.vertices.len());
-    still.vertices[ground..].copy_from_slice(&animated.vertices[ground..]);
-    let reference = renderer(still, settings).render(&lights).unwrap().0;
+    let still = Scene::load(&animated_fixture("turned_boxes.gltf"), true).unwrap();
+    let reference = still_reference(&animated, still, &lights);
     for raster in RASTERS {
-        let mut r = renderer(
-            animated.clone(),
-            RenderSettings {
-                shadow_raster: raster,
-                ..settings
-            },
-        );
-        r.set_scene_time(1.0);
-        let posed = r.render(&lights).unwrap().0;
-        let (mean, p999, _) = relative_differences(&reference, &posed);
-        eprintln!("{raster:?}: posed vs still: mean {mean}, p999 {p999}");
-        if mean > 1e-4 || p999 > 0.02 {
-            fail_with_image(
-                "animated_at_1s",
-                &posed,
-                &[format!("{raster:?}: posed at 1 s differs from the still pose: mean {mean}, 99.9th percentile {p999}")],
-            );
-        }
+        let mut r = renderer(animated.clone(), pose_settings(raster));
+        let tag = format!("animated_{raster:?}");
+        let posed = assert_posed_like(&mut r, 1.0, &lights, &reference, &tag);
         // At 0.2 s the base has turned 9°, not 45°: a different image. And the loop: 3 s is
         // 1 s again.
         r.set_scene_time(0.2);
@@ -3886,42 +3914,26 @@ fn animated_blended_scenes_sort_their_triangles_for_each_pose() {
         path
     };
     let lights = sky_lights(48);
-    let settings = RenderSettings {
-        width: 160,
-        height: 120,
-        shadow_resolution: 256,
-        ..RenderSettings::default()
-    };
     let animated = Scene::load(&see_through("turning_boxes.gltf"), true).unwrap();
-    let mut still = Scene::load(&see_through("turned_boxes.gltf"), true).unwrap();
-    still.bounds = animated.bounds;
-    let ground = still.vertices.len() - 4;
-    still.vertices[ground..].copy_from_slice(&animated.vertices[ground..]);
+    let still = Scene::load(&see_through("turned_boxes.gltf"), true).unwrap();
     // Near the end of the clip (85° turned) the faces that were the sides at rest are the
     // front and back: the rest order draws them in the wrong order. The reference there is the
     // scene posed before the renderer was made (sorted for that pose when it was set up).
     let mut turned_far = animated.clone();
     turned_far.animate(1.9);
     let references = [
-        (1.0, renderer(still, settings).render(&lights).unwrap().0),
+        (1.0, still_reference(&animated, still, &lights)),
         (
             1.9,
-            renderer(turned_far, settings).render(&lights).unwrap().0,
+            renderer(turned_far, pose_settings(ShadowRaster::default()))
+                .render(&lights)
+                .unwrap()
+                .0,
         ),
     ];
-    let mut r = renderer(animated, settings);
+    let mut r = renderer(animated, pose_settings(ShadowRaster::default()));
     for (t, reference) in references {
-        r.set_scene_time(t);
-        let posed = r.render(&lights).unwrap().0;
-        let (mean, p999, _) = relative_differences(&reference, &posed);
-        eprintln!("blended at {t} s: mean {mean}, p999 {p999}");
-        if mean > 1e-4 || p999 > 0.02 {
-            fail_with_image(
-                "blended_posed",
-                &posed,
-                &[format!("blended boxes posed at {t} s differ from the scene made in that pose: mean {mean}, 99.9th percentile {p999}")],
-            );
-        }
+        assert_posed_like(&mut r, t, &lights, &reference, "blended");
     }
 }
 
@@ -3931,42 +3943,18 @@ fn animated_blended_scenes_sort_their_triangles_for_each_pose() {
 #[test]
 fn morphing_scenes_render_as_the_still_shape_they_reach() {
     let lights = sky_lights(48);
-    let settings = RenderSettings {
-        width: 160,
-        height: 120,
-        shadow_resolution: 256,
-        ..RenderSettings::default()
-    };
     let animated = Scene::load(&animated_fixture("morphing_tent.gltf"), true).unwrap();
-    let mut still = Scene::load(&animated_fixture("morphed_tent.gltf"), true).unwrap();
-    assert!(still.animation.is_none());
-    // The ground (its 4 vertices last) lies under the lowest shape of either clip there, and
-    // the camera frames the space the clips sweep.
-    still.bounds = animated.bounds;
-    still.camera = animated.camera;
-    let ground = still.vertices.len() - 4;
-    assert_eq!(ground + 4, animated.vertices.len());
-    still.vertices[ground..].copy_from_slice(&animated.vertices[ground..]);
-    let reference = renderer(still, settings).render(&lights).unwrap().0;
+    let still = Scene::load(&animated_fixture("morphed_tent.gltf"), true).unwrap();
+    let reference = still_reference(&animated, still, &lights);
     for raster in RASTERS {
-        let mut r = renderer(
-            animated.clone(),
-            RenderSettings {
-                shadow_raster: raster,
-                ..settings
-            },
+        let mut r = renderer(animated.clone(), pose_settings(raster));
+        assert_posed_like(
+            &mut r,
+            1.5,
+            &lights,
+            &reference,
+            &format!("morphed_{raster:?}"),
         );
-        r.set_scene_time(1.5);
-        let shaped = r.render(&lights).unwrap().0;
-        let (mean, p999, _) = relative_differences(&reference, &shaped);
-        eprintln!("{raster:?}: morphed vs still: mean {mean}, p999 {p999}");
-        if mean > 1e-4 || p999 > 0.02 {
-            fail_with_image(
-                "morphed_at_1_5s",
-                &shaped,
-                &[format!("{raster:?}: morphed at 1.5 s differs from the still shape: mean {mean}, 99.9th percentile {p999}")],
-            );
-        }
         r.set_scene_time(0.0);
         let rest = r.render(&lights).unwrap().0;
         let (mean, _, _) = relative_differences(&reference, &rest);
