@@ -464,3 +464,113 @@ fn read_skin(skin: &gltf::Skin, buffers: &[gltf::buffer::Data]) -> Result<Skin, 
         inverse_bind,
     })
 }
+
+/// The glTF extension whose animation channels target a property by JSON pointer.
+pub(super) const ANIMATION_POINTER: &str = "KHR_animation_pointer";
+
+/// A file's bytes as rewritten by [`resolve_animation_pointers`], and its notes of what was
+/// left out.
+pub(super) type ResolvedPointers = (Vec<u8>, Vec<String>);
+
+/// A glTF or GLB file's bytes with its `KHR_animation_pointer` channels made core channels
+/// where they drive a node's translation, rotation, scale or morph-target weights
+/// (`/nodes/N/translation` becomes node N, path `translation`), and taken out where they
+/// drive anything else (a camera's field of view, a material's factors: not played), with one
+/// note for each kind taken out. `None` where the file uses no animation pointer (the bytes
+/// are read as they are). The `gltf` crate cannot read such a channel (it has no `node`):
+/// without this the whole file failed to load. Errors name the animation and channel.
+pub(super) fn resolve_animation_pointers(bytes: &[u8]) -> Result<Option<ResolvedPointers>, String> {
+    let needle = ANIMATION_POINTER.as_bytes();
+    if !bytes.windows(needle.len()).any(|w| w == needle) {
+        return Ok(None);
+    }
+    let glb = bytes.starts_with(b"glTF");
+    // A GLB: its JSON chunk (the header was checked: 12 bytes, then chunk 0 is the JSON).
+    let (json_bytes, rest) = if glb {
+        let length = bytes
+            .get(12..16)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+            .ok_or("its GLB has no JSON chunk")?;
+        let json = bytes
+            .get(20..20 + length)
+            .ok_or("its GLB's JSON chunk runs past the file")?;
+        (json, &bytes[20 + length..])
+    } else {
+        (bytes, &[][..])
+    };
+    let mut root: serde_json::Value =
+        serde_json::from_slice(json_bytes).map_err(|e| e.to_string())?;
+    let mut notes = std::collections::BTreeSet::new();
+    let mut changed = false;
+    let animations = root.get_mut("animations").and_then(|a| a.as_array_mut());
+    for (a, animation) in animations.into_iter().flatten().enumerate() {
+        let Some(channels) = animation.get_mut("channels").and_then(|c| c.as_array_mut()) else {
+            continue;
+        };
+        let mut kept = Vec::new();
+        for (c, mut channel) in std::mem::take(channels).into_iter().enumerate() {
+            let target = channel.get("target");
+            if target.and_then(|t| t.get("path")).and_then(|p| p.as_str()) != Some("pointer") {
+                kept.push(channel);
+                continue;
+            }
+            changed = true;
+            let pointer = target
+                .and_then(|t| t.get("extensions"))
+                .and_then(|e| e.get(ANIMATION_POINTER))
+                .and_then(|e| e.get("pointer"))
+                .and_then(|p| p.as_str())
+                .ok_or_else(|| {
+                    format!(
+                        "animation {a} channel {c}: its target path is \"pointer\" but it has \
+                         no {ANIMATION_POINTER} pointer string"
+                    )
+                })?;
+            match node_pointer(pointer) {
+                Some((node, path)) => {
+                    channel["target"] = serde_json::json!({"node": node, "path": path});
+                    kept.push(channel);
+                }
+                None => {
+                    // "/materials/0/pbrMetallicRoughness/baseColorFactor" → "materials".
+                    let kind = pointer.trim_start_matches('/').split('/').next();
+                    notes.insert(format!(
+                        "{ANIMATION_POINTER} channels of {} (not played)",
+                        kind.filter(|k| !k.is_empty())
+                            .unwrap_or("the document root")
+                    ));
+                }
+            }
+        }
+        *channels = kept;
+    }
+    if !changed {
+        return Ok(None);
+    }
+    let mut json = serde_json::to_vec(&root).map_err(|e| e.to_string())?;
+    if !glb {
+        return Ok(Some((json, notes.into_iter().collect())));
+    }
+    // The GLB again: the JSON chunk padded with spaces to 4 bytes, the rest as it was.
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let total = 12 + 8 + json.len() + rest.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(&bytes[..8]);
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(rest);
+    Ok(Some((out, notes.into_iter().collect())))
+}
+
+/// The node and core path of a pointer to a node's transform or weights
+/// (`/nodes/3/rotation` → (3, "rotation")); `None` for any other pointer.
+fn node_pointer(pointer: &str) -> Option<(u64, &str)> {
+    let rest = pointer.strip_prefix("/nodes/")?;
+    let (node, path) = rest.split_once('/')?;
+    let node: u64 = node.parse().ok()?;
+    matches!(path, "translation" | "rotation" | "scale" | "weights").then_some((node, path))
+}

@@ -466,6 +466,12 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     };
     let bytes = read_scene_file(path)?;
     check_glb_header(&bytes).map_err(err)?;
+    // Animation pointers to nodes made core channels; those to other things left out, named.
+    let (bytes, pointer_notes) =
+        match super::gltf_animation::resolve_animation_pointers(&bytes).map_err(err)? {
+            Some((resolved, notes)) => (resolved, notes),
+            None => (bytes, Vec::new()),
+        };
     let (root, blob) = parse_gltf(&bytes, path).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new("."));
     // The GLB's binary chunk moves into its buffer (nothing reads it after).
@@ -476,7 +482,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     let mut b = Builder::default();
     let mut material_ids = std::collections::HashMap::new();
     let mut images = std::collections::HashMap::new();
-    let mut ignored = std::collections::BTreeSet::<String>::new();
+    let mut ignored: std::collections::BTreeSet<String> = pointer_notes.into_iter().collect();
     for extension in document.extensions_used() {
         if !DRAWN_EXTENSIONS.contains(&extension) {
             ignored.insert(format!("extension {extension}"));
@@ -1071,7 +1077,7 @@ const TEXTURE_WEBP: &str = "EXT_texture_webp";
 const EMISSIVE_STRENGTH: &str = "KHR_materials_emissive_strength";
 
 /// The glTF extensions the renderer draws (a file may require them).
-const DRAWN_EXTENSIONS: [&str; 13] = [
+const DRAWN_EXTENSIONS: [&str; 14] = [
     MESH_QUANTIZATION,
     INSTANCING,
     UNLIT,
@@ -1085,6 +1091,7 @@ const DRAWN_EXTENSIONS: [&str; 13] = [
     SPECULAR,
     CLEARCOAT,
     SHEEN,
+    super::gltf_animation::ANIMATION_POINTER,
 ];
 
 /// The glTF extension that lays a velvet-like sheen over a material.

@@ -566,6 +566,89 @@ fn a_second_set_of_influences_weighs_in() {
     );
 }
 
+/// `KHR_animation_pointer` channels (Blender and three.js write them): those pointing at a
+/// node's translation, rotation, scale or weights play as core channels — the boxes and the
+/// tent with every channel so written pose as the files with core channels, a `.glb` (its JSON
+/// chunk rewritten) too — and one pointing at anything else (a camera's field of view) is left
+/// out while the rest plays. Without this such a file failed to load ("missing field `node`").
+#[test]
+fn animation_pointers_to_nodes_play_as_core_channels() {
+    // `channel` rewritten as a pointer channel to the same node and path.
+    fn as_pointer(channel: &mut serde_json::Value) {
+        let node = channel["target"]["node"].as_u64().unwrap();
+        let path = channel["target"]["path"].as_str().unwrap().to_string();
+        channel["target"] = serde_json::json!({"path": "pointer", "extensions":
+            {"KHR_animation_pointer": {"pointer": format!("/nodes/{node}/{path}")}}});
+    }
+    let pointered = |json: &mut serde_json::Value| {
+        for animation in json["animations"].as_array_mut().unwrap() {
+            animation["channels"]
+                .as_array_mut()
+                .unwrap()
+                .iter_mut()
+                .for_each(as_pointer);
+        }
+        json["extensionsUsed"] = serde_json::json!(["KHR_animation_pointer"]);
+    };
+    let dir = tempfile::tempdir().unwrap();
+    for (file, t) in [("turning_boxes.gltf", 1.0), ("morphing_tent.gltf", 1.5)] {
+        let text = std::fs::read_to_string(fixture(file)).unwrap();
+        let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        pointered(&mut json);
+        // And a pointer at something else, left out.
+        let yfov = serde_json::json!({"sampler": 0, "target": {"path": "pointer", "extensions":
+            {"KHR_animation_pointer": {"pointer": "/cameras/0/perspective/yfov"}}}});
+        json["animations"][0]["channels"]
+            .as_array_mut()
+            .unwrap()
+            .push(yfov);
+        let path = dir.path().join(file);
+        std::fs::write(&path, json.to_string()).unwrap();
+        let mut core = Scene::load(&fixture(file), false).unwrap();
+        let mut pointer = Scene::load(&path, false).unwrap();
+        assert_eq!(pointer.animation_names(), core.animation_names());
+        core.animate(t);
+        pointer.animate(t);
+        assert_eq!(pointer.vertices, core.vertices, "{file}");
+        assert!(pointer.animate(t + 0.1), "{file}: the clip plays");
+    }
+    // The packed boxes (a .glb) with pointer channels: its JSON chunk is rewritten.
+    let bytes = std::fs::read(fixture("turning_boxes_gltfpack.glb")).unwrap();
+    let json_length = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let mut json: serde_json::Value = serde_json::from_slice(&bytes[20..20 + json_length]).unwrap();
+    pointered(&mut json);
+    let mut chunk = json.to_string().into_bytes();
+    while !chunk.len().is_multiple_of(4) {
+        chunk.push(b' ');
+    }
+    let rest = &bytes[20 + json_length..];
+    let mut glb = bytes[..8].to_vec();
+    glb.extend(((20 + chunk.len() + rest.len()) as u32).to_le_bytes());
+    glb.extend((chunk.len() as u32).to_le_bytes());
+    glb.extend(b"JSON");
+    glb.extend(&chunk);
+    glb.extend(rest);
+    let path = dir.path().join("packed.glb");
+    std::fs::write(&path, glb).unwrap();
+    let mut core = Scene::load(&fixture("turning_boxes_gltfpack.glb"), false).unwrap();
+    let mut pointer = Scene::load(&path, false).unwrap();
+    core.animate(1.0);
+    pointer.animate(1.0);
+    assert_eq!(pointer.vertices, core.vertices);
+    // A pointer channel without its pointer is named.
+    let text = std::fs::read_to_string(fixture("turning_boxes.gltf")).unwrap();
+    fails_when_edited(
+        &dir.path().join("bad.gltf"),
+        &text,
+        |json| {
+            pointered(json);
+            json["animations"][0]["channels"][1]["target"]["extensions"] = serde_json::json!({});
+        },
+        "animation 0 channel 1: its target path is \"pointer\" but it has no \
+         KHR_animation_pointer pointer string",
+    );
+}
+
 /// tests/data/animated/morphing_tent.gltf (make_morphed.py): one mesh with two morph targets
 /// (a sparse one lifting the centre vertex, a ramp with normal displacements) drawn by a node
 /// whose weights clip "rise" drives and by one whose own weights [0.5, 1] hold. Loaded, the
