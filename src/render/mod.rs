@@ -396,7 +396,7 @@ impl Renderer {
         }
         let queue = &self.gpu.queue;
         if let Some(animation) = &self.scene.animation {
-            for range in merged_ranges(animation.moved_vertices()) {
+            for range in animation.moved_runs() {
                 let Some(moved) = self.scene.vertices.get(range.clone()) else {
                     continue;
                 };
@@ -505,34 +505,10 @@ impl Renderer {
     }
 }
 
-/// `ranges` sorted and joined where they touch or overlap (the moved pieces of an animated
-/// scene lie back to back where one node's primitives follow each other: one upload each run).
-fn merged_ranges(
-    ranges: impl Iterator<Item = std::ops::Range<usize>>,
-) -> Vec<std::ops::Range<usize>> {
-    let mut sorted: Vec<std::ops::Range<usize>> = ranges.filter(|r| !r.is_empty()).collect();
-    sorted.sort_by_key(|r| r.start);
-    let mut merged: Vec<std::ops::Range<usize>> = Vec::with_capacity(sorted.len());
-    for range in sorted {
-        match merged.last_mut() {
-            Some(last) if range.start <= last.end => last.end = last.end.max(range.end),
-            _ => merged.push(range),
-        }
-    }
-    merged
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use setup::{draw_blended_opaque, order_triangles};
-
-    #[test]
-    fn moved_ranges_merge_where_they_touch_or_overlap() {
-        let ranges = [10..20, 0..4, 4..6, 30..30, 15..25, 40..41];
-        assert_eq!(merged_ranges(ranges.into_iter()), [0..6, 10..25, 40..41]);
-        assert!(merged_ranges(std::iter::empty()).is_empty());
-    }
 
     /// The casters are ordered opaque, masked, then blended back to front from the camera;
     /// the ground stays after them; no triangle is lost or changed.

@@ -112,17 +112,15 @@ impl FacingSet {
 /// towards or away from it).
 pub fn still_facing(scene: &Scene) -> Option<FacingSet> {
     let animation = scene.animation.as_ref().filter(|a| a.camera.is_none())?;
-    let mut moved: Vec<std::ops::Range<usize>> = animation.moved_vertices().collect();
-    moved.sort_by_key(|r| r.start);
     let mut still = FacingSet::default();
     let viewer = scene.camera.viewer();
     // The runs between the moved ranges, and after the last.
     let mut next = 0;
-    for range in moved {
+    for range in animation.moved_runs() {
         if let Some(between) = scene.vertices.get(next..range.start) {
             still.add(between, viewer);
         }
-        next = next.max(range.end);
+        next = range.end;
     }
     if let Some(rest) = scene.vertices.get(next..) {
         still.add(rest, viewer);

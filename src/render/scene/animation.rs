@@ -616,12 +616,35 @@ impl SceneAnimation {
         (self.pieces.iter()).map(|p| p.first_vertex..p.first_vertex + p.geometry.positions.len())
     }
 
+    /// [`Self::moved_vertices`] in order, joined where they touch (one run of the vertex list
+    /// for each run of adjacent pieces).
+    pub fn moved_runs(&self) -> Vec<std::ops::Range<usize>> {
+        merged_ranges(self.moved_vertices())
+    }
+
     /// Times at which to pose each clip to find the space it sweeps: 64 evenly spaced over its
     /// loop and its end.
     pub fn sweep_times(clip: &Clip) -> impl Iterator<Item = f32> + '_ {
         const STEPS: u32 = 64;
         (0..=STEPS).map(move |i| clip.duration * i as f32 / STEPS as f32)
     }
+}
+
+/// `ranges` sorted and joined where they touch or overlap (the moved pieces of an animated
+/// scene lie back to back where one node's primitives follow each other: one upload each run).
+fn merged_ranges(
+    ranges: impl Iterator<Item = std::ops::Range<usize>>,
+) -> Vec<std::ops::Range<usize>> {
+    let mut sorted: Vec<std::ops::Range<usize>> = ranges.filter(|r| !r.is_empty()).collect();
+    sorted.sort_by_key(|r| r.start);
+    let mut merged: Vec<std::ops::Range<usize>> = Vec::with_capacity(sorted.len());
+    for range in sorted {
+        match merged.last_mut() {
+            Some(last) if range.start <= last.end => last.end = last.end.max(range.end),
+            _ => merged.push(range),
+        }
+    }
+    merged
 }
 
 /// Which clip plays: the file's first (the default), one by index or name, or none (the rest
@@ -955,6 +978,13 @@ mod tests {
             geometry.place(world, &[]).positions[1],
             Vec3::new(11.0, 0.0, 0.0)
         );
+    }
+
+    #[test]
+    fn moved_ranges_merge_where_they_touch_or_overlap() {
+        let ranges = [10..20, 0..4, 4..6, 30..30, 15..25, 40..41];
+        assert_eq!(merged_ranges(ranges.into_iter()), [0..6, 10..25, 40..41]);
+        assert!(merged_ranges(std::iter::empty()).is_empty());
     }
 
     #[test]

@@ -9,7 +9,7 @@
 use super::animation::{
     Channel, Clip, Interpolation, Property, RestTransform, SceneAnimation, Skin, WeightsChannel,
 };
-use super::gltf_loader::{check_accessor, read_attribute};
+use super::gltf_loader::{check_accessor, normalised_component, read_attribute};
 use super::*;
 use glam::{Quat, Vec4};
 
@@ -290,7 +290,7 @@ pub(super) fn read_scalars(
     use gltf::accessor::{DataType, Iter};
     let get = |b: gltf::Buffer| buffers.get(b.index()).map(|d| &d.0[..]);
     let normalized = accessor.normalized();
-    let unit = move |c: f32, max: f32| if normalized { (c / max).max(-1.0) } else { c };
+    let unit = move |c: f32, max: f32| normalised_component(c, max, normalized);
     let read = accessor.clone();
     Some(match accessor.data_type() {
         DataType::F32 => Iter::<f32>::new(read, get)?.collect(),

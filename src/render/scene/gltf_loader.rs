@@ -1431,14 +1431,7 @@ where
     {
         values.map(|v| v.map(&to_f32)).collect()
     }
-    // A component of `max` as its largest value: normalised, to [0, 1] or [−1, 1].
-    let unit = move |c: f32, max: f32| {
-        if normalized {
-            (c / max).max(-1.0)
-        } else {
-            c
-        }
-    };
+    let unit = move |c: f32, max: f32| normalised_component(c, max, normalized);
     let read = accessor.clone();
     Some(match accessor.data_type() {
         DataType::F32 => Iter::<[f32; N]>::new(read, get)?.collect(),
@@ -1456,6 +1449,16 @@ where
         }),
         DataType::U32 => return None,
     })
+}
+
+/// An integer component `c` of a type whose largest value is `max` as a float: normalised to
+/// [0, 1] or [−1, 1] where its accessor is `normalized` (glTF 2.0, 3.11), else as it is.
+pub(super) fn normalised_component(c: f32, max: f32, normalized: bool) -> f32 {
+    if normalized {
+        (c / max).max(-1.0)
+    } else {
+        c
+    }
 }
 
 /// MikkTSpace tangents (the `mikktspace` crate) of an indexed triangle mesh, one per vertex, in
