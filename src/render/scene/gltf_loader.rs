@@ -216,6 +216,27 @@ fn check_span(
     Ok(())
 }
 
+/// Every image has the source glTF 2.0 requires (section 5.18): a `uri`, or a `bufferView`
+/// with its `mimeType`. The `gltf` crate's validation lets either miss and then unwraps them
+/// when the image is read (found by fuzz/: a panic that `Scene::load` caught).
+fn check_image_sources(root: &gltf::json::Root) -> Result<(), String> {
+    for (index, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.uri, &image.mime_type) {
+            (Some(_), _, None) => {
+                return Err(format!(
+                    "image {index} lies in a bufferView but has no mimeType (glTF requires \
+                     one there: \"image/png\", \"image/jpeg\", ...)"
+                ))
+            }
+            (None, None, _) => {
+                return Err(format!("image {index} has neither a uri nor a bufferView"))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// A binary glTF's header declares the file's length, which the `gltf` crate takes on trust
 /// (a length under the header's own 12 bytes underflows its subtraction, a panic with overflow
 /// checks on).
@@ -477,6 +498,7 @@ pub(super) fn load_gltf_within(path: &Path, max_elements: usize) -> Result<Build
     // The GLB's binary chunk moves into its buffer (nothing reads it after).
     let buffers = load_gltf_buffers(&root, blob, base).map_err(err)?;
     let (root, buffers) = super::gltf_compression::decompress(root, buffers).map_err(err)?;
+    check_image_sources(&root).map_err(err)?;
     let document = gltf::Document::from_json(root).map_err(|e| err(e.to_string()))?;
 
     let mut b = Builder::default();

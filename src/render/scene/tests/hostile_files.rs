@@ -282,6 +282,38 @@ fn files_the_scene_crates_trust_are_checked_first() {
     assert_load_fails_naming(&link, "not a regular file");
 }
 
+/// An image without the source glTF requires: in a buffer view but without a `mimeType`, or
+/// with neither a `uri` nor a `bufferView` (the `gltf` crate unwraps both; found by
+/// fuzz/'s scene target).
+#[test]
+fn images_without_a_source_are_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = textured_gltf_text(dir.path());
+    let image = r#""images":[{"uri":"tex.png"}]"#;
+    assert!(text.contains(image));
+    for (name, edited, needle) in [
+        (
+            "view.gltf",
+            r#""images":[{"bufferView":0}]"#,
+            "image 0 lies in a bufferView but has no mimeType",
+        ),
+        (
+            "none.gltf",
+            r#""images":[{"name":"lost"}]"#,
+            "image 0 has neither a uri nor a bufferView",
+        ),
+    ] {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text.replacen(image, edited, 1)).unwrap();
+        assert_load_fails_naming(&path, needle);
+    }
+    let typed = dir.path().join("typed.gltf");
+    let edited = r#""images":[{"bufferView":0,"mimeType":"image/png"}]"#;
+    std::fs::write(&typed, text.replacen(image, edited, 1)).unwrap();
+    // The view holds positions, not a PNG: an error about the image, no longer a panic.
+    assert_load_fails_naming(&typed, "image 0 (buffer view 0)");
+}
+
 /// Every number of a valid glTF replaced by hostile values (0, -1, 2³² − 1, 2⁶⁴ − 1, 1e308,
 /// …), and a GLB of the same scene with every byte inverted and cut at every length: each
 /// load returns, an error or a scene, and no reader panics, caught or not
