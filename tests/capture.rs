@@ -826,6 +826,50 @@ fn paced_mode_takes_at_least_the_nominal_time() {
     assert!(elapsed >= nominal * 0.9, "{elapsed} s < {nominal} s");
 }
 
+/// Damaged EXR files of a few hundred bytes that declare about 10⁸ pixels (found by fuzz/):
+/// `envlight decompose` fails on each naming the missing data, and its peak resident memory
+/// stays small, because nothing of the declared size is filled before blocks arrive. With
+/// the `exr` crate's layer reader, which filled every channel first, the peaks were 0.59 and
+/// 0.80 GB; now about 10 MB.
+#[test]
+fn small_damaged_exr_files_declaring_huge_images_cost_little_memory() {
+    for name in [
+        "damaged/b44_declares_99_megapixels.exr",
+        "damaged/piz_inverted_data_window.exr",
+    ] {
+        let path = data(name);
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
+            .args(["decompose", "--lights", "16"])
+            .arg(&path)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let pid = libc::pid_t::try_from(child.id()).unwrap();
+        let stderr = std::io::read_to_string(child.stderr.unwrap()).unwrap();
+        // Reaped with wait4 for the child's own peak resident set (kilobytes on Linux).
+        let mut status = 0;
+        // SAFETY: an all-zero rusage is valid; wait4 fills it for our own child.
+        let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+        // SAFETY: valid pointers to locals; the child is ours and not yet reaped.
+        let reaped = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+        assert_eq!(reaped, pid, "{name}");
+        assert!(
+            libc::WIFEXITED(status) && libc::WEXITSTATUS(status) != 0,
+            "{name}: {stderr}"
+        );
+        assert!(
+            stderr.contains("cannot decode OpenEXR pixels") && stderr.contains(name),
+            "{name}: {stderr}"
+        );
+        let peak_mb = usage.ru_maxrss as f64 / 1024.0;
+        assert!(
+            peak_mb < 150.0,
+            "{name}: peak resident memory {peak_mb:.0} MB"
+        );
+    }
+}
+
 /// Truncation at every length and single-byte corruption of small files of every encoding:
 /// reading must return (Ok or Err), never panic or abort.
 #[test]

@@ -21,15 +21,18 @@
 //!   display window. (Environment maps have data window = display window; for the rest this is
 //!   the simplest honest answer: every pixel returned is one the file stores.) A warning says
 //!   so, once per process, when the windows differ.
-//! - Only the chosen part is read and decompressed (`ReadPart`): the other parts' blocks are
+//! - Only the chosen part is read and decompressed (`decode_exr_part`): the other parts' blocks are
 //!   skipped, so a multi-part file (views, passes) costs what its one part does.
 //! - Compressed blocks are decompressed on rayon's global pool and put in place as each one is
 //!   done (`decode_exr_part`, `par_iter`: a panic in a decoder unwinds into the caller, where
 //!   `catch_unwind` below turns it into an error); uncompressed and RLE ones on the calling
 //!   thread (`parallel_pays`). Not the `exr` crate's own parallel reader: it builds a thread
 //!   pool per file and spawns its jobs there, where a panic on corrupt data aborts the process.
-//! - Half floats become f32 a block at a time (F16C where the CPU has it), straight into the
-//!   interleaved pixels.
+//! - Each block's lines of the chosen channels go straight into the interleaved RGB pixels
+//!   (half floats become f32 a line at a time, F16C where the CPU has it); the output is
+//!   allocated zeroed and is the only image-sized buffer, so its pages are touched only as
+//!   blocks fill them: a damaged file that declares a large image but holds few blocks costs
+//!   little memory.
 //!
 //! Radiance `.hdr`: RLE or flat RGBE with the usual `-Y H +X W` orientation (the decoder rejects
 //! others); comment lines in the header (including a repeated `#?RADIANCE` magic line) are
@@ -55,12 +58,9 @@
 
 use super::CaptureError;
 use exr::block::reader::ChunksReader;
-use exr::block::{chunk::TileCoordinates, BlockIndex, UncompressedBlock};
+use exr::block::UncompressedBlock;
 use exr::error::UnitResult;
-use exr::image::read::image::{LayersReader, ReadLayers};
-use exr::image::read::layers::{ChannelsReader, ReadChannels};
 use exr::meta::{header::Header, MetaData};
-use exr::prelude::{AnyChannels, FlatSamples};
 use half::slice::HalfFloatSliceExt;
 use image::ImageDecoder;
 use rayon::prelude::*;
@@ -469,49 +469,41 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
         );
     }
 
-    warn_of_a_cropped_data_window(&meta.headers[choice.part], path);
-    let parallel = parallel_pays(&meta.headers[choice.part]);
-    let (channel_data, size) = decode_exr_part(bytes, choice.part, parallel)
-        .map_err(|e| format!("cannot decode OpenEXR pixels: {e}"))?;
-    let (width, height) = (size.width(), size.height());
-    check_size(width as u64, height as u64)?;
-    let count = width * height;
-    // The decoded channel list is sorted by name just like the header's, but look the channels
-    // up by name rather than trust the indices.
-    let mut samples: Vec<&FlatSamples> = Vec::with_capacity(3);
+    let header = &meta.headers[choice.part];
+    warn_of_a_cropped_data_window(header, path);
     for &index in &choice.channels {
-        let name = &parts[choice.part][index];
-        let channel = channel_data
-            .list
-            .iter()
-            .find(|c| c.name.to_string() == *name)
-            .ok_or_else(|| format!("channel {name} is missing from the decoded file"))?;
+        let channel = &header.channels.list[index];
         if channel.sampling.x() != 1 || channel.sampling.y() != 1 {
             return Err(format!(
-                "channel {name} is subsampled ({}x{}), which is not supported",
+                "channel {} is subsampled ({}x{}), which is not supported",
+                channel.name,
                 channel.sampling.x(),
                 channel.sampling.y()
             ));
         }
-        if channel.sample_data.len() != count {
-            return Err(format!(
-                "channel {name} has {} samples, expected {count}",
-                channel.sample_data.len()
-            ));
-        }
-        samples.push(&channel.sample_data);
     }
-    let mut pixels = vec![[0.0f32; 3]; count];
     let grey = choice.channels[0] == choice.channels[1];
-    for (c, samples) in samples.iter().enumerate().take(if grey { 1 } else { 3 }) {
-        write_channel(samples, &mut pixels, c);
-    }
+    // (channel index, RGB lane): luminance fills the red lane, copied to the others below.
+    let lanes: Vec<(usize, usize)> = if grey {
+        vec![(choice.channels[0], 0)]
+    } else {
+        choice
+            .channels
+            .iter()
+            .enumerate()
+            .map(|(lane, &index)| (index, lane))
+            .collect()
+    };
+    let size = header.layer_size;
+    let parallel = parallel_pays(header);
+    let mut pixels = decode_exr_part(bytes, choice.part, &lanes, parallel)
+        .map_err(|e| format!("cannot decode OpenEXR pixels: {e}"))?;
     if grey {
         pixels.iter_mut().for_each(|p| *p = [p[0]; 3]);
     }
     Ok(RgbImage {
-        width: u32::try_from(width).map_err(|_| "image too wide".to_string())?,
-        height: u32::try_from(height).map_err(|_| "image too high".to_string())?,
+        width: u32::try_from(size.width()).map_err(|_| "image too wide".to_string())?,
+        height: u32::try_from(size.height()).map_err(|_| "image too high".to_string())?,
         pixels,
     })
 }
@@ -543,43 +535,47 @@ fn warn_of_a_cropped_data_window(header: &exr::meta::header::Header, path: &Path
     }
 }
 
-/// Decodes part `part` of an OpenEXR file (its largest resolution level, every channel). Only
-/// that part's blocks are read and decompressed; with `parallel` they are decompressed on
-/// rayon's global pool (`par_iter`, so a panic in a decoder unwinds into the caller, where
-/// [`decode_hdr_image`] catches it; the `exr` crate's own parallel reader spawns its jobs on a
-/// new pool per file, where a panic aborts the process), each put in place (under a lock) as
-/// soon as it is done, so the copying overlaps the other blocks' decompression.
+/// Decodes part `part` of an OpenEXR file (its largest resolution level) into RGB pixels:
+/// each block's lines of the chosen channels (`lanes`: channel index in the part's list, RGB
+/// lane) are converted straight into the output. Only that part's blocks are read and
+/// decompressed; with `parallel` they are decompressed on rayon's global pool (`par_iter`, so
+/// a panic in a decoder unwinds into the caller, where [`decode_hdr_image`] catches it; the
+/// `exr` crate's own parallel reader spawns its jobs on a new pool per file, where a panic
+/// aborts the process), each put in place (under a lock) as soon as it is done, so the
+/// copying overlaps the other blocks' decompression.
+///
+/// The output is allocated zeroed and nothing else of the image's size is: its pages are
+/// touched only as blocks fill them, so a damaged file that declares a large image but holds
+/// few blocks costs memory for what it holds (with the `exr` crate's layer reader, which
+/// fills every channel's samples first, a 418-byte file declaring 393 985 × 251 pixels
+/// touched 0.6 GB before failing; found by fuzz/).
 fn decode_exr_part(
     bytes: &[u8],
     part: usize,
+    lanes: &[(usize, usize)],
     parallel: bool,
-) -> exr::error::Result<(AnyChannels<FlatSamples>, exr::math::Vec2<usize>)> {
-    let select = ReadPart {
-        read_channels: exr::prelude::read()
-            .no_deep_data()
-            .largest_resolution_level()
-            .all_channels(),
-        part,
-    };
+) -> exr::error::Result<Vec<[f32; 3]>> {
     let chunks = exr::block::read(Cursor::new(bytes), false)?;
-    let mut reader = select.create_layers_reader(chunks.headers())?;
-    let chunks = chunks.filter_chunks(false, |meta, tile, block| {
-        reader.filter_block(meta, tile, block)
+    let chunks = chunks.filter_chunks(false, |_, tile, block| {
+        block.layer == part && tile.is_largest_resolution_level()
     })?;
     let meta = chunks.meta_data().clone();
+    let header = part_header(&meta.headers, part)?;
+    let size = header.layer_size;
+    let mut pixels = vec![[0.0f32; 3]; size.area()];
     let mut covered: Vec<(exr::math::Vec2<usize>, usize)> = Vec::new();
     if parallel {
         let compressed = chunks.collect::<exr::error::Result<Vec<_>>>()?;
-        let reader_lock = std::sync::Mutex::new((&mut reader, &mut covered));
+        let output = std::sync::Mutex::new((&mut pixels, &mut covered));
         compressed.into_par_iter().try_for_each(|chunk| {
             check_dwa_counters(&chunk, &meta)?;
             let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)?;
-            let mut guard = reader_lock
+            let mut guard = output
                 .lock()
                 .unwrap_or_else(|poisoned| poisoned.into_inner());
-            let (reader, covered) = &mut *guard;
+            let (pixels, covered) = &mut *guard;
             covered.push((block.index.pixel_position, block.index.pixel_size.area()));
-            reader.read_block(&meta.headers, block)
+            write_block(&block, header, lanes, pixels)
         })?;
     } else {
         for chunk in chunks {
@@ -587,12 +583,61 @@ fn decode_exr_part(
             check_dwa_counters(&chunk, &meta)?;
             let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)?;
             covered.push((block.index.pixel_position, block.index.pixel_size.area()));
-            reader.read_block(&meta.headers, block)?;
+            write_block(&block, header, lanes, &mut pixels)?;
         }
     }
-    let (channels, size) = reader.into_layers();
     check_every_pixel_stored(covered, size.area())?;
-    Ok((channels, size))
+    Ok(pixels)
+}
+
+/// Writes a decompressed block's lines of the chosen channels (`lanes`: channel index, RGB
+/// lane) into `pixels`, the part's rows: half floats converted a line at a time (F16C where
+/// the CPU has it; every half is exact in f32), floats copied, unsigned integers rounded to
+/// the nearest f32 as the `exr` crate's `Sample::to_f32` does.
+fn write_block(
+    block: &UncompressedBlock,
+    header: &Header,
+    lanes: &[(usize, usize)],
+    pixels: &mut [[f32; 3]],
+) -> UnitResult {
+    use exr::meta::attribute::SampleType;
+    let width = header.layer_size.width();
+    let mut halves: Vec<half::f16> = Vec::new();
+    let mut floats: Vec<f32> = Vec::new();
+    for line in block.lines(&header.channels) {
+        let at = line.location;
+        let Some(&(channel, lane)) = lanes.iter().find(|&&(c, _)| c == at.channel) else {
+            continue;
+        };
+        let n = at.sample_count;
+        let target = at
+            .position
+            .y()
+            .checked_mul(width)
+            .and_then(|row| row.checked_add(at.position.x()))
+            .and_then(|start| pixels.get_mut(start..start.checked_add(n)?))
+            .ok_or_else(|| {
+                exr::error::Error::Invalid("a block's line lies outside the image".into())
+            })?;
+        floats.resize(n, 0.0);
+        match header.channels.list[channel].sample_type {
+            SampleType::F16 => {
+                halves.resize(n, half::f16::ZERO);
+                line.read_samples_into_slice(&mut halves)?;
+                halves.convert_to_f32_slice(&mut floats);
+            }
+            SampleType::F32 => line.read_samples_into_slice(&mut floats)?,
+            SampleType::U32 => {
+                for (float, integer) in floats.iter_mut().zip(line.read_samples::<u32>()) {
+                    *float = integer? as f32;
+                }
+            }
+        }
+        for (pixel, &value) in target.iter_mut().zip(&floats) {
+            pixel[lane] = value;
+        }
+    }
+    Ok(())
 }
 
 /// Fails unless the blocks read (`covered`: each block's first pixel and pixel count) store
@@ -679,60 +724,11 @@ fn check_dwa_counters(chunk: &exr::block::chunk::Chunk, meta: &MetaData) -> Unit
     Ok(())
 }
 
-/// Reads one part of an OpenEXR file (the chosen RGB or Y part): the other parts' blocks are
-/// skipped before they are decompressed, so a multi-part file (views, passes) costs what its
-/// one part does.
-struct ReadPart<C> {
-    read_channels: C,
-    part: usize,
-}
-
 /// The header of part `part`, or an error if the file has fewer parts.
 fn part_header(headers: &[Header], part: usize) -> exr::error::Result<&Header> {
     headers
         .get(part)
         .ok_or_else(|| exr::error::Error::Invalid("part index beyond the file's parts".into()))
-}
-
-/// The reader behind [`ReadPart`]: that part's channels and size.
-struct PartReader<R> {
-    channels: R,
-    part: usize,
-    size: exr::math::Vec2<usize>,
-}
-
-impl<'s, C: ReadChannels<'s>> ReadLayers<'s> for ReadPart<C> {
-    type Layers = (
-        <C::Reader as ChannelsReader>::Channels,
-        exr::math::Vec2<usize>,
-    );
-    type Reader = PartReader<C::Reader>;
-
-    fn create_layers_reader(&'s self, headers: &[Header]) -> exr::error::Result<Self::Reader> {
-        let header = part_header(headers, self.part)?;
-        Ok(PartReader {
-            channels: self.read_channels.create_channels_reader(header)?,
-            part: self.part,
-            size: header.layer_size,
-        })
-    }
-}
-
-impl<R: ChannelsReader> LayersReader for PartReader<R> {
-    type Layers = (R::Channels, exr::math::Vec2<usize>);
-
-    fn filter_block(&self, _: &MetaData, tile: TileCoordinates, block: BlockIndex) -> bool {
-        block.layer == self.part && self.channels.filter_block(tile)
-    }
-
-    fn read_block(&mut self, headers: &[Header], block: UncompressedBlock) -> UnitResult {
-        self.channels
-            .read_block(part_header(headers, self.part)?, block)
-    }
-
-    fn into_layers(self) -> Self::Layers {
-        (self.channels.into_channels(), self.size)
-    }
 }
 
 /// Whether decompressing `header`'s blocks on several threads pays: for ZIP, PIZ, PXR24, B44
@@ -746,36 +742,6 @@ fn parallel_pays(header: &Header) -> bool {
         header.compression,
         Compression::Uncompressed | Compression::RLE
     )
-}
-
-/// Writes one channel's samples into lane `c` of `pixels` (as many as both hold): half floats
-/// converted a block at a time (F16C where the CPU has it; every half is exact in f32), floats
-/// copied, unsigned integers rounded to the nearest f32 as the `exr` crate's `Sample::to_f32`
-/// does. No channel-sized buffer is allocated.
-fn write_channel(samples: &FlatSamples, pixels: &mut [[f32; 3]], c: usize) {
-    match samples {
-        FlatSamples::F16(halves) => {
-            const BLOCK: usize = 1024;
-            let mut block = [0.0f32; BLOCK];
-            for (halves, pixels) in halves.chunks(BLOCK).zip(pixels.chunks_mut(BLOCK)) {
-                let floats = &mut block[..halves.len()];
-                halves.convert_to_f32_slice(floats);
-                for (p, &v) in pixels.iter_mut().zip(floats.iter()) {
-                    p[c] = v;
-                }
-            }
-        }
-        FlatSamples::F32(floats) => {
-            for (p, &v) in pixels.iter_mut().zip(floats) {
-                p[c] = v;
-            }
-        }
-        FlatSamples::U32(integers) => {
-            for (p, &v) in pixels.iter_mut().zip(integers) {
-                p[c] = v as f32;
-            }
-        }
-    }
 }
 
 #[cfg(test)]
