@@ -747,6 +747,8 @@ fn parallel_pays(header: &Header) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use exr::image::read::image::ReadLayers;
+    use exr::image::read::layers::ReadChannels;
 
     fn names(list: &[&str]) -> Vec<String> {
         list.iter().map(|s| s.to_string()).collect()
