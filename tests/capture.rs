@@ -838,6 +838,8 @@ fn small_damaged_exr_files_declaring_huge_images_cost_little_memory() {
         "damaged/piz_inverted_data_window.exr",
     ] {
         let path = data(name);
+        // Reaped below with wait4 rather than Child::wait, for its resource usage.
+        #[allow(clippy::zombie_processes)]
         let child = std::process::Command::new(env!("CARGO_BIN_EXE_envlight"))
             .args(["decompose", "--lights", "16"])
             .arg(&path)
