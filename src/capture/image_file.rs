@@ -495,6 +495,8 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
             .collect()
     };
     let size = header.layer_size;
+    check_block_sizes(bytes, &meta, choice.part)
+        .map_err(|e| format!("damaged OpenEXR file: {e}"))?;
     let parallel = parallel_pays(header);
     let mut pixels = decode_exr_part(bytes, choice.part, &lanes, parallel)
         .map_err(|e| format!("cannot decode OpenEXR pixels: {e}"))?;
@@ -662,6 +664,71 @@ fn check_every_pixel_stored(
         ));
     }
     Ok(())
+}
+
+/// Checks the size that each block of part `part` declares against the bytes after it in the
+/// file, before the `exr` crate reads the blocks: it sizes its buffer from that field (up to
+/// the part's largest block) and fills it before it finds that the data ends early, so a
+/// 660-byte damaged file whose one block declared 1.7 GB made `envlight decompose` touch
+/// 1.7 GB (found by fuzz/). Blocks whose offsets lie outside the file are left to the reader
+/// (and to [`check_every_pixel_stored`]).
+fn check_block_sizes(bytes: &[u8], meta: &MetaData, part: usize) -> Result<(), String> {
+    let multipart = meta.requirements.has_multiple_layers;
+    let Some(tables) = headers_end(bytes, multipart) else {
+        return Ok(()); // the header reader accepted it; let the block reader report the rest
+    };
+    let skipped: usize = meta.headers[..part].iter().map(|h| h.chunk_count).sum();
+    let header = &meta.headers[part];
+    // Before a block's size: its part number (multi-part files), then its row (scan lines)
+    // or its tile and level coordinates (tiles).
+    let tiled = matches!(header.blocks, exr::meta::BlockDescription::Tiles(_));
+    let before_size = usize::from(multipart) * 4 + if tiled { 16 } else { 4 };
+    let read_u64 = |at: usize| {
+        bytes
+            .get(at..at + 8)
+            .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
+    };
+    for block in 0..header.chunk_count {
+        let entry = tables + (skipped + block) * 8;
+        let Some(offset) = read_u64(entry).and_then(|o| usize::try_from(o).ok()) else {
+            return Ok(()); // a short offset table: the block reader names it
+        };
+        let Some(size_at) = offset.checked_add(before_size) else {
+            continue;
+        };
+        let Some(size) = bytes.get(size_at..size_at + 4) else {
+            continue;
+        };
+        let size = i32::from_le_bytes(size.try_into().unwrap_or_default());
+        let available = bytes.len() - (size_at + 4).min(bytes.len());
+        if size < 0 || size as usize > available {
+            return Err(format!(
+                "block {block} of part {part} declares {size} bytes of data, and the file has \
+                 {available} after it"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Where the header (or, in a multi-part file, the list of headers ended by an empty one)
+/// ends and the offset tables begin: after the 8-byte magic and version, attributes of a
+/// name, a type (both NUL-terminated), a 4-byte size and that many bytes, each header ended by
+/// a NUL. `None` if the bytes end first.
+fn headers_end(bytes: &[u8], multipart: bool) -> Option<usize> {
+    let nul_after = |at: usize| Some(at + bytes.get(at..)?.iter().position(|&b| b == 0)?);
+    let mut at = 8;
+    loop {
+        while *bytes.get(at)? != 0 {
+            at = nul_after(nul_after(at)? + 1)? + 1;
+            let size = i32::from_le_bytes(bytes.get(at..at + 4)?.try_into().ok()?);
+            at = at.checked_add(4 + usize::try_from(size).ok()?)?;
+        }
+        at += 1;
+        if !multipart || *bytes.get(at)? == 0 {
+            return Some(at + usize::from(multipart));
+        }
+    }
 }
 
 /// Checks the eleven counters that open a DWAA or DWAB block against the block's own size
