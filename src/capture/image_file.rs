@@ -409,8 +409,15 @@ fn dropped_chroma(names: &[String], luminance: usize) -> Option<&str> {
 
 fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
     // The header first: reject deep data and absurd sizes before any pixel is allocated.
-    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+    // Read through a counter: the header ends (and the offset tables begin) where the
+    // reader stopped, as the `exr` crate itself parsed it.
+    let mut header_reader = CountingReader {
+        bytes: Cursor::new(bytes),
+        consumed: 0,
+    };
+    let meta = exr::meta::MetaData::read_from_buffered(&mut header_reader, false)
         .map_err(|e| format!("not a valid OpenEXR file: {e}"))?;
+    let tables = header_reader.consumed;
     // Each block has an 8-byte entry in the offset tables, which are read (and allocated)
     // before any block: a file too short for its tables fails here.
     let blocks = meta
@@ -495,7 +502,7 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
             .collect()
     };
     let size = header.layer_size;
-    check_block_sizes(bytes, &meta, choice.part)
+    check_block_sizes(bytes, tables, &meta, choice.part)
         .map_err(|e| format!("damaged OpenEXR file: {e}"))?;
     let parallel = parallel_pays(header);
     let mut pixels = decode_exr_part(bytes, choice.part, &lanes, parallel)
@@ -671,12 +678,14 @@ fn check_every_pixel_stored(
 /// the part's largest block) and fills it before it finds that the data ends early, so a
 /// 660-byte damaged file whose one block declared 1.7 GB made `envlight decompose` touch
 /// 1.7 GB (found by fuzz/). Blocks whose offsets lie outside the file are left to the reader
-/// (and to [`check_every_pixel_stored`]).
-fn check_block_sizes(bytes: &[u8], meta: &MetaData, part: usize) -> Result<(), String> {
+/// (and to [`check_every_pixel_stored`]). `tables`: where the offset tables begin.
+fn check_block_sizes(
+    bytes: &[u8],
+    tables: usize,
+    meta: &MetaData,
+    part: usize,
+) -> Result<(), String> {
     let multipart = meta.requirements.has_multiple_layers;
-    let Some(tables) = headers_end(bytes, multipart) else {
-        return Ok(()); // the header reader accepted it; let the block reader report the rest
-    };
     let skipped: usize = meta.headers[..part].iter().map(|h| h.chunk_count).sum();
     let header = &meta.headers[part];
     // Before a block's size: its part number (multi-part files), then its row (scan lines)
@@ -696,11 +705,14 @@ fn check_block_sizes(bytes: &[u8], meta: &MetaData, part: usize) -> Result<(), S
         let Some(size_at) = offset.checked_add(before_size) else {
             continue;
         };
-        let Some(size) = bytes.get(size_at..size_at + 4) else {
+        let Some(size) = size_at
+            .checked_add(4)
+            .and_then(|end| bytes.get(size_at..end))
+        else {
             continue;
         };
         let size = i32::from_le_bytes(size.try_into().unwrap_or_default());
-        let available = bytes.len() - (size_at + 4).min(bytes.len());
+        let available = bytes.len() - (size_at + 4);
         if size < 0 || size as usize > available {
             return Err(format!(
                 "block {block} of part {part} declares {size} bytes of data, and the file has \
@@ -711,23 +723,18 @@ fn check_block_sizes(bytes: &[u8], meta: &MetaData, part: usize) -> Result<(), S
     Ok(())
 }
 
-/// Where the header (or, in a multi-part file, the list of headers ended by an empty one)
-/// ends and the offset tables begin: after the 8-byte magic and version, attributes of a
-/// name, a type (both NUL-terminated), a 4-byte size and that many bytes, each header ended by
-/// a NUL. `None` if the bytes end first.
-fn headers_end(bytes: &[u8], multipart: bool) -> Option<usize> {
-    let nul_after = |at: usize| Some(at + bytes.get(at..)?.iter().position(|&b| b == 0)?);
-    let mut at = 8;
-    loop {
-        while *bytes.get(at)? != 0 {
-            at = nul_after(nul_after(at)? + 1)? + 1;
-            let size = i32::from_le_bytes(bytes.get(at..at + 4)?.try_into().ok()?);
-            at = at.checked_add(4 + usize::try_from(size).ok()?)?;
-        }
-        at += 1;
-        if !multipart || *bytes.get(at)? == 0 {
-            return Some(at + usize::from(multipart));
-        }
+/// A reader of `bytes` that counts what was taken from it: where the `exr` crate's header
+/// reader stopped is where the header ends (it takes one byte at a time past the attributes).
+struct CountingReader<'a> {
+    bytes: Cursor<&'a [u8]>,
+    consumed: usize,
+}
+
+impl std::io::Read for CountingReader<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.bytes.read(buf)?;
+        self.consumed += n;
+        Ok(n)
     }
 }
 
@@ -874,6 +881,33 @@ mod tests {
     /// reading gives, bit for bit (NaN as NaN): every half bit pattern (PIZ scan lines), a
     /// tiled mip-mapped ZIP16 file (the parallel path), a multi-part file (part 0 of 10, ZIP1:
     /// the sequential path).
+    /// The counted header length is where the offset tables begin: in files written by
+    /// OpenEXR the first block follows the tables at once, so the first entry points just past
+    /// them (one part, tiled mip-maps, ten parts); and `check_block_sizes` passes them.
+    #[test]
+    fn offset_tables_are_found_where_the_counted_header_ends() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+        for name in [
+            "AllHalfValues.exr",
+            "KernerEnvLatLong.exr",
+            "multipart.0001.exr",
+        ] {
+            let bytes = std::fs::read(dir.join(name)).unwrap();
+            let mut reader = CountingReader {
+                bytes: Cursor::new(&bytes),
+                consumed: 0,
+            };
+            let meta = MetaData::read_from_buffered(&mut reader, false).unwrap();
+            let tables = reader.consumed;
+            let blocks: usize = meta.headers.iter().map(|h| h.chunk_count).sum();
+            let first = u64::from_le_bytes(bytes[tables..tables + 8].try_into().unwrap());
+            assert_eq!(first as usize, tables + 8 * blocks, "{name}");
+            for part in 0..meta.headers.len() {
+                check_block_sizes(&bytes, tables, &meta, part).unwrap();
+            }
+        }
+    }
+
     #[test]
     fn fast_exr_reading_equals_the_crates_plain_reading() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
