@@ -52,7 +52,9 @@
 //! allocated, and so are files too short for what their headers declare (an EXR's offset
 //! tables, an HDR's rows). What a decoder cannot catch is an allocation that fails, which
 //! aborts: a DWA block's counters are checked against the block's size before it is
-//! decompressed (`check_dwa_counters`). An EXR part is read only if its blocks store every
+//! decompressed (`check_dwa_counters`), and every block's declared data size against the
+//! bytes after it before the `exr` crate reads the blocks, which fills a buffer of that size
+//! first (`check_block_sizes`). An EXR part is read only if its blocks store every
 //! pixel (`check_every_pixel_stored`): the lenient block reader skips blocks it cannot place,
 //! which would leave rows black.
 
@@ -573,26 +575,28 @@ fn decode_exr_part(
     let size = header.layer_size;
     let mut pixels = vec![[0.0f32; 3]; size.area()];
     let mut covered: Vec<(exr::math::Vec2<usize>, usize)> = Vec::new();
+    let decompress = |chunk| {
+        check_dwa_counters(&chunk, &meta)?;
+        UncompressedBlock::decompress_chunk(chunk, &meta, false)
+    };
+    let place = |block: UncompressedBlock, pixels: &mut [[f32; 3]], covered: &mut Vec<_>| {
+        covered.push((block.index.pixel_position, block.index.pixel_size.area()));
+        write_block(&block, header, lanes, pixels)
+    };
     if parallel {
         let compressed = chunks.collect::<exr::error::Result<Vec<_>>>()?;
         let output = std::sync::Mutex::new((&mut pixels, &mut covered));
         compressed.into_par_iter().try_for_each(|chunk| {
-            check_dwa_counters(&chunk, &meta)?;
-            let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)?;
+            let block = decompress(chunk)?;
             let mut guard = output
                 .lock()
                 .unwrap_or_else(|poisoned| poisoned.into_inner());
             let (pixels, covered) = &mut *guard;
-            covered.push((block.index.pixel_position, block.index.pixel_size.area()));
-            write_block(&block, header, lanes, pixels)
+            place(block, pixels, covered)
         })?;
     } else {
         for chunk in chunks {
-            let chunk = chunk?;
-            check_dwa_counters(&chunk, &meta)?;
-            let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)?;
-            covered.push((block.index.pixel_position, block.index.pixel_size.area()));
-            write_block(&block, header, lanes, &mut pixels)?;
+            place(decompress(chunk?)?, &mut pixels, &mut covered)?;
         }
     }
     check_every_pixel_stored(covered, size.area())?;
