@@ -10,10 +10,17 @@ WebSocket handshake, before subscribing). Every --every seconds it prints a Mark
 row: the daemon's resident memory, open file descriptors and threads, the clients it counts
 as connected, frames decomposed and dropped, and the connections made so far. At the end it
 stops the daemon with SIGTERM and reports its exit status and what the steady clients got.
-Standard library only; docs/daemon.md ("Running for days") has a run.
+Standard library only; docs/daemon.md ("Running for days") has runs.
+
+--stages also runs the ASG, wavelet and SH stages, and the steady clients take turns
+subscribing to lights, ASG lobes, wavelet sets and SH coefficients; --render adds the render
+thread (a small image, lavapipe where there is no GPU); --reload-every S sends SIGHUP every S
+seconds with the config's light count switched between 256 and 192 (a change the daemon
+applies live), so reloads run all along.
 
     cargo build --release
     python3 examples/soak.py --envlight target/release/envlight --minutes 20
+    python3 examples/soak.py --minutes 30 --stages --render --reload-every 60
 """
 
 import argparse
@@ -33,8 +40,11 @@ from client import TYPE_FRAME, read_exact, read_message  # noqa: E402
 from client import subscribe_message as subscribe  # noqa: E402
 
 
-def subscribe_message():
-    return subscribe(0)
+REPRESENTATION_NAMES = ["lights", "asg", "wavelet", "sh"]
+
+
+def subscribe_message(representation=0):
+    return subscribe(0, representation)
 
 
 def free_port():
@@ -116,18 +126,38 @@ def main():
     parser.add_argument("--rate", type=float, default=20.0, help="short connections per second")
     parser.add_argument("--steady", type=int, default=8, help="clients connected throughout")
     parser.add_argument("--every", type=float, default=60.0, help="seconds between rows")
+    parser.add_argument("--stages", action="store_true",
+                        help="also run the ASG, wavelet and SH stages; steady clients take turns "
+                        "subscribing to each representation")
+    parser.add_argument("--render", action="store_true",
+                        help="also run the render thread (96x54 pixels, 64-texel shadow maps)")
+    parser.add_argument("--reload-every", type=float, default=0.0,
+                        help="seconds between SIGHUP reloads that switch the light count between "
+                        "256 and 192 (0: none)")
     args = parser.parse_args()
 
     tmp = tempfile.mkdtemp(prefix="envlight-soak-")
     sock_path = os.path.join(tmp, "envlight.sock")
     tcp_port, ws_port, metrics_port = free_port(), free_port(), free_port()
     config = os.path.join(tmp, "envlight.toml")
-    with open(config, "w") as f:
-        f.write(
-            f'[source]\nframes = 0\n[stream]\nunix_socket = "{sock_path}"\n'
+
+    def write_config(lights):
+        text = (
+            f'[source]\nframes = 0\n[decompose]\nlights = {lights}\n'
+            f'[stream]\nunix_socket = "{sock_path}"\n'
             f'tcp = "127.0.0.1:{tcp_port}"\nwebsocket = "127.0.0.1:{ws_port}"\n'
             f'[metrics]\nlisten = "127.0.0.1:{metrics_port}"\n'
         )
+        if args.stages:
+            text += "[asg]\nenabled = true\n[wavelet]\nenabled = true\n[sh]\nenabled = true\n"
+        if args.render:
+            text += "[render]\nenabled = true\nwidth = 96\nheight = 54\nshadow_resolution = 64\n"
+        # Replaced whole, so a reload never reads half a file.
+        with open(config + ".tmp", "w") as f:
+            f.write(text)
+        os.replace(config + ".tmp", config)
+
+    write_config(256)
     log = open(os.path.join(tmp, "envlight.log"), "w")
     daemon = subprocess.Popen([args.envlight, "run", "--config", config], stderr=log)
     try:
@@ -138,13 +168,17 @@ def main():
             time.sleep(0.05)
 
         stop = threading.Event()
-        steady = [{"frames": 0, "out_of_order": 0, "error": None} for _ in range(args.steady)]
+        steady = [
+            {"frames": 0, "out_of_order": 0, "error": None,
+             "representation": i % 4 if args.stages else 0}
+            for i in range(args.steady)
+        ]
 
         def read_steadily(record):
             try:
                 with socket.socket(socket.AF_UNIX) as s:
                     s.connect(sock_path)
-                    s.sendall(subscribe_message())
+                    s.sendall(subscribe_message(record["representation"]))
                     last = -1
                     while True:
                         seq = read_frame_seq(s)
@@ -182,8 +216,23 @@ def main():
         churner = threading.Thread(target=churn, name="churn", daemon=True)
         churner.start()
 
-        print("| minutes | resident MiB | fds | threads | clients | decomposed | dropped | connections |")
-        print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+        reloads = [0]
+
+        def reload_now_and_then():
+            while not stop.wait(args.reload_every):
+                write_config(192 if reloads[0] % 2 == 0 else 256)
+                daemon.send_signal(signal.SIGHUP)
+                reloads[0] += 1
+
+        reloader = None
+        if args.reload_every > 0:
+            reloader = threading.Thread(target=reload_now_and_then, name="reload", daemon=True)
+            reloader.start()
+
+        extra = args.stages or args.render
+        print("| minutes | resident MiB | fds | threads | clients | decomposed | dropped | connections |"
+              + (" lights | ASG fits, wavelet sets, SH sets, renders |" if extra else ""))
+        print("|---:|---:|---:|---:|---:|---:|---:|---:|" + ("---:|---:|" if extra else ""))
         start = time.time()
         end = start + args.minutes * 60
         while True:
@@ -194,7 +243,11 @@ def main():
             print(
                 f"| {(time.time() - start) / 60:.1f} | {int(status['VmRSS'].split()[0]) / 1024:.1f} | {fds} "
                 f"| {status['Threads']} | {connected:.0f} | {m.get('envlight_frames_decomposed_total', 0):.0f} "
-                f"| {m.get('envlight_frames_dropped_total', 0):.0f} | {made[0]} |",
+                f"| {m.get('envlight_frames_dropped_total', 0):.0f} | {made[0]} |"
+                + (f" {m.get('envlight_lights', 0):.0f} | "
+                   + ", ".join(f"{m.get(f'envlight_{name}_total', 0):.0f}" for name in
+                               ("asg_fits", "wavelet_sets", "sh_sets", "frames_rendered"))
+                   + " |" if extra else ""),
                 flush=True,
             )
             if time.time() >= end:
@@ -203,15 +256,19 @@ def main():
 
         stop.set()
         churner.join()
+        if reloader is not None:
+            reloader.join()
         daemon.send_signal(signal.SIGTERM)
         code = daemon.wait(timeout=30)
         for reader in readers:
             reader.join(timeout=10)
-        print(f"\nexit status {code}; short connections {made[0]}, failed {len(churn_errors)}")
+        print(f"\nexit status {code}; short connections {made[0]}, failed {len(churn_errors)}; "
+              f"reloads {reloads[0]}")
         for e in churn_errors[:5]:
             print(f"  {e}")
         for i, r in enumerate(steady):
-            print(f"steady client {i}: {r['frames']} frames, {r['out_of_order']} out of order, error {r['error']}")
+            print(f"steady client {i} ({REPRESENTATION_NAMES[r['representation']]}): {r['frames']} "
+                  f"frames, {r['out_of_order']} out of order, error {r['error']}")
         print(f"log: {log.name}")
     finally:
         if daemon.poll() is None:
