@@ -5,6 +5,7 @@ The seeds are valid inputs of each kind (the protocol's worked examples, tiny EX
 the project's test scenes, the example config), so that libFuzzer starts from the formats'
 structure instead of from nothing. EXR seeds need the OpenEXR Python package (pip install
 OpenEXR numpy); without it they are skipped."""
+import json
 import os
 import shutil
 import struct
@@ -128,3 +129,43 @@ put("scene", "quad.obj", bytes([2]) + b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0
 # Camera frames: format index, width, height, stride/4, flags, then the bytes.
 for fmt in range(54):
     put("camera_frame", f"format{fmt}", bytes([fmt, 8, 4, 0, 0]) + bytes(range(256)) * 2)
+
+# Response curves: a gamma-2.2 table of 256 entries (as calibrate-response writes, with its
+# comment), a two-entry linear one and one with a flat toe and a steep shoulder.
+lines = ["# envlight response curve: code red green blue"]
+lines += [f"{i / 255:.6f} {(i / 255) ** 2.2:.6g} {(i / 255) ** 2.1:.6g} {(i / 255) ** 2.3:.6g}"
+          for i in range(256)]
+put("response_curve", "gamma.curve", ("\n".join(lines) + "\n").encode())
+put("response_curve", "linear.curve", b"0 0 0 0\n1 1 1 1\n")
+put("response_curve", "shoulder.curve", b"0 0 0 0\n0.5 0 0 0\n0.99 1e3 1e3 1e3\n1 3e38 1e300 1e30\n")
+
+# Recordings: two bytes giving the length of session.json, session.json (as envlight record
+# writes it, with variants of its settings), then frames.jsonl naming the target's three frames.
+session = {
+    "format": "envlight-recording", "version": 1, "source": "fuzz seed",
+    "decompose": {"lights": 64, "working_width": 32, "placement": "centroid",
+                  "filter_taps": [1.0, 6.0, 15.0, 20.0, 15.0, 6.0, 1.0],
+                  "merge_spacing_fraction": None, "pdf_exponent": 0.75, "warp": "rows",
+                  "concentrated_lloyd": False, "refine_concentrated": True,
+                  "bright_history": "fold", "split_factor": None, "resample_threads": 1},
+    "envlight": "0.1.0", "created_unix_s": 0,
+}
+fisheye = {"fisheye": {"model": "equidistant", "center": [8.0, 8.0], "radius": 8.0,
+                       "fov_deg": 180.0, "rotation_deg": 0.0}}
+index = "".join(json.dumps(line) + "\n" for line in [
+    {"seq": 0, "time": 0.0, "file": "frames/000000.exr", "projection": "lat-long"},
+    {"seq": 1, "time": 0.03, "file": "frames/000001.exr", "projection": "lat-long"},
+    {"seq": 2, "time": 0.06, "file": "frames/000002.hdr", "projection": fisheye},
+    {"seq": 3, "time": 0.09, "file": "frames/000002.hdr", "projection": "angular-map"},
+])
+variants = {
+    "default": {},
+    "merge_split": {"merge_spacing_fraction": 0.5, "split_factor": 4.0, "warp": "hierarchical"},
+    "lloyd_blend": {"concentrated_lloyd": True, "bright_history": "blend", "placement": "sample-point",
+                    "filter_taps": None, "pdf_exponent": 1.0},
+}
+for name, change in variants.items():
+    s = json.loads(json.dumps(session))
+    s["decompose"].update(change)
+    text = json.dumps(s).encode()
+    put("recording", name, struct.pack("<H", len(text)) + text + index.encode())
