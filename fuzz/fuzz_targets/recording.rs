@@ -26,7 +26,8 @@ use libfuzzer_sys::fuzz_target;
 fn recording_dir() -> &'static PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("envlight-fuzz-recording-{}", std::process::id()));
+        let dir =
+            std::env::temp_dir().join(format!("envlight-fuzz-recording-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("frames")).unwrap();
         write_exr(&dir.join("frames/000000.exr"), 16, 8);
         write_exr(&dir.join("frames/000001.exr"), 32, 16);
@@ -59,14 +60,20 @@ fn write_exr(path: &std::path::Path, width: usize, height: usize) {
 
 /// A flat (not run-length encoded) Radiance RGBE file.
 fn flat_hdr(width: usize, height: usize) -> Vec<u8> {
-    let mut bytes = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {height} +X {width}\n").into_bytes();
+    let mut bytes =
+        format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {height} +X {width}\n").into_bytes();
     for y in 0..height {
         for x in 0..width {
             let [r, g, b] = pixel(x, y, width);
             let m = r.max(g).max(b);
             let e = m.log2().floor() as i32 + 1;
             let scale = 256.0 / 2f32.powi(e);
-            bytes.extend([(r * scale) as u8, (g * scale) as u8, (b * scale) as u8, (e + 128) as u8]);
+            bytes.extend([
+                (r * scale) as u8,
+                (g * scale) as u8,
+                (b * scale) as u8,
+                (e + 128) as u8,
+            ]);
         }
     }
     bytes
