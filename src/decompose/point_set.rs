@@ -9,10 +9,15 @@
 //!    ~256 samples per cell) while the points [0, P/2) stay fixed. Every prefix of 2^k points is
 //!    therefore a relaxed, blue-noise-like set, and adding points never moves earlier ones.
 //!
-//! The set is computed once per process and extended on demand (`progressive_points`).
+//! The relaxation of all [`MAX_POINTS`] points takes seconds (100 million nearest-point
+//! searches: 2.8 s on two cores, 5 s on one), which a daemon asked for thousands of lights paid
+//! at every start. So the set ships with envlight, computed: `progressive_points.bin` beside
+//! this file holds the [`MAX_POINTS`] points as little-endian f64 pairs, written by
+//! `cargo run --release --example point_set_table` from [`relax_progressive_points`], and the
+//! test `the_shipped_set_is_the_relaxation` redoes the relaxation and compares every bit.
 
 use rayon::prelude::*;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, OnceLock};
 
 /// Largest supported light count.
 pub const MAX_POINTS: usize = 16384;
@@ -138,8 +143,12 @@ fn relax_level(points: &mut [[f64; 2]], fixed: usize) {
     }
 }
 
-fn extend(points: &mut Vec<[f64; 2]>, n: usize) {
+/// The first `n.next_power_of_two()` points (at most [`MAX_POINTS`]) of the progressive set,
+/// computed: Halton points relaxed level by level (the module doc). [`progressive_points`]
+/// serves the same points from the shipped table.
+pub fn relax_progressive_points(n: usize) -> Vec<[f64; 2]> {
     let target = n.next_power_of_two().min(MAX_POINTS);
+    let mut points = Vec::with_capacity(target);
     while points.len() < target {
         let fixed = points.len();
         let size = (fixed * 2).max(1);
@@ -150,24 +159,41 @@ fn extend(points: &mut Vec<[f64; 2]>, n: usize) {
             ]);
         }
         if fixed > 0 {
-            relax_level(points, fixed);
+            relax_level(&mut points, fixed);
         }
     }
+    points
 }
 
-/// The first `n` points (1 ≤ n ≤ [`MAX_POINTS`]) of the progressive relaxed set. Computed once
-/// per process (extended when a larger prefix is first asked for) and shared.
+/// The shipped set ([`relax_progressive_points`] of [`MAX_POINTS`]; the module doc).
+static SHIPPED: &[u8; MAX_POINTS * 16] = include_bytes!("progressive_points.bin");
+
+/// The first `n` points (1 ≤ n ≤ [`MAX_POINTS`]) of the progressive relaxed set, from the
+/// shipped table (decoded once per process).
 pub fn progressive_points(n: usize) -> Arc<[[f64; 2]]> {
-    static CACHE: OnceLock<Mutex<Vec<[f64; 2]>>> = OnceLock::new();
+    static POINTS: OnceLock<Vec<[f64; 2]>> = OnceLock::new();
     let n = n.clamp(1, MAX_POINTS);
-    let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
-    let mut points = cache
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner());
-    if points.len() < n {
-        extend(&mut points, n);
-    }
+    let points = POINTS.get_or_init(|| {
+        SHIPPED
+            .chunks_exact(16)
+            .map(|p| {
+                let (x, y) = p.split_at(8);
+                let coordinate = |b: &[u8]| f64::from_le_bytes(b.try_into().unwrap_or_default());
+                [coordinate(x), coordinate(y)]
+            })
+            .collect()
+    });
     Arc::from(&points[..n])
+}
+
+/// The set as [`progressive_points`]' table stores it: each point's x then y, little-endian
+/// f64.
+pub fn table_bytes(points: &[[f64; 2]]) -> Vec<u8> {
+    points
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect()
 }
 
 #[cfg(test)]
@@ -212,6 +238,25 @@ mod tests {
             }
         }
         sum / (res * res) as f64
+    }
+
+    /// The shipped table is the relaxation's result to the bit: a change of the relaxation
+    /// must come with a new table (`cargo run --release --example point_set_table`).
+    #[test]
+    fn the_shipped_set_is_the_relaxation() {
+        let computed = relax_progressive_points(MAX_POINTS);
+        assert_eq!(computed.len(), MAX_POINTS);
+        let shipped = progressive_points(MAX_POINTS);
+        if let Some(i) =
+            (0..MAX_POINTS).find(|&i| computed[i].map(f64::to_bits) != shipped[i].map(f64::to_bits))
+        {
+            panic!(
+                "point {i}: relaxed {:?}, shipped {:?} (regenerate the table: cargo run \
+                 --release --example point_set_table)",
+                computed[i], shipped[i]
+            );
+        }
+        assert_eq!(table_bytes(&computed), SHIPPED.as_slice());
     }
 
     #[test]
