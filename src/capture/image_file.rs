@@ -891,11 +891,6 @@ mod tests {
         (layer.size.width(), layer.size.height(), pixels)
     }
 
-    /// Reading only the chosen part, converting half floats a slice at a time and
-    /// decompressing on several threads where that pays gives what the exr crate's plain
-    /// reading gives, bit for bit (NaN as NaN): every half bit pattern (PIZ scan lines), a
-    /// tiled mip-mapped ZIP16 file (the parallel path), a multi-part file (part 0 of 10, ZIP1:
-    /// the sequential path).
     /// The counted header length is where the offset tables begin: in files written by
     /// OpenEXR the first block follows the tables at once, so the first entry points just past
     /// them (one part, tiled mip-maps, ten parts); and `check_block_sizes` passes them.
@@ -923,6 +918,11 @@ mod tests {
         }
     }
 
+    /// Reading only the chosen part, converting half floats a slice at a time and
+    /// decompressing on several threads where that pays gives what the exr crate's plain
+    /// reading gives, bit for bit (NaN as NaN): every half bit pattern (PIZ scan lines), a
+    /// tiled mip-mapped ZIP16 file (the parallel path), a multi-part file (part 0 of 10, ZIP1:
+    /// the sequential path).
     #[test]
     fn fast_exr_reading_equals_the_crates_plain_reading() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
