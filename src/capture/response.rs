@@ -137,7 +137,9 @@ impl ResponseCurve {
         Self::parse(&text, path)
     }
 
-    /// The text format, with a header comment.
+    /// The text format, with a header comment. Every number is written in the shortest form
+    /// that reads back to the same `f64`, so `parse(to_text(c)) == c` for any valid curve
+    /// (codes closer than 10⁻⁶ included).
     pub fn to_text(&self, comment: &str) -> String {
         let mut s = String::from("# envlight response curve: code red green blue\n");
         s.push_str("# code = normalised code value in [0, 1]; columns = relative exposure X\n");
@@ -146,7 +148,7 @@ impl ResponseCurve {
         }
         for (i, code) in self.codes.iter().enumerate() {
             s.push_str(&format!(
-                "{code:.6} {:.8e} {:.8e} {:.8e}\n",
+                "{code} {:e} {:e} {:e}\n",
                 self.values[0][i], self.values[1][i], self.values[2][i]
             ));
         }
@@ -850,6 +852,21 @@ mod tests {
         assert_eq!(m.relative_exposure(1, 0.75, 255.0), 3.0);
         assert_eq!(m.relative_exposure(0, -1.0, 255.0), 0.0);
         assert_eq!(m.relative_exposure(0, 2.0, 255.0), 4.0);
+    }
+
+    /// Codes 10⁻⁷ apart and values with 17 significant digits: the six decimals the text
+    /// format used to write merged such codes into a file that could not be read back.
+    #[test]
+    fn curve_text_reads_back_exactly() {
+        let codes = vec![0.0, 1e-7, 2e-7, 0.333_333_333_333_333_3, 1.0];
+        let values = [
+            vec![0.0, 1e-300, 0.1 + 0.2, 1.234_567_890_123_456_7, f64::MAX],
+            vec![0.0; 5],
+            vec![5e-324, 1.0, 2.0, 3.0, 4.0],
+        ];
+        let curve = ResponseCurve::new(codes, values).unwrap();
+        let back = ResponseCurve::parse(&curve.to_text("a\nb"), Path::new("c.txt")).unwrap();
+        assert_eq!(back, curve);
     }
 
     #[test]
