@@ -138,7 +138,10 @@ pub enum DaemonError {
     Record(#[from] RecordError),
     #[error("cannot start the serving runtime: {0}")]
     Runtime(#[source] std::io::Error),
-    #[error("cannot listen on metrics {address}: {source}")]
+    #[error(
+        "cannot listen on metrics {address}: {source}{}",
+        crate::stream::server::bind_hint("metrics", source)
+    )]
     Metrics {
         address: SocketAddr,
         #[source]
@@ -1479,6 +1482,22 @@ mod tests {
     use super::*;
     use crate::light::LightFrame;
     use crate::publication::{publish, Latest};
+
+    /// A metrics address in use names the key to change; other errors get no hint.
+    #[test]
+    fn a_metrics_address_in_use_names_its_key() {
+        let error = |kind| {
+            DaemonError::Metrics {
+                address: "127.0.0.1:9898".parse().unwrap(),
+                source: std::io::Error::from(kind),
+            }
+            .to_string()
+        };
+        let e = error(std::io::ErrorKind::AddrInUse);
+        assert!(e.contains("`listen`") && e.contains("[metrics]"), "{e}");
+        let e = error(std::io::ErrorKind::PermissionDenied);
+        assert!(!e.contains(';'), "{e}");
+    }
 
     /// The health monitor marks the newest lights stale when the source is lost and, when it
     /// is back, leaves them stale until a fresh frame is published: the old lights are never

@@ -150,7 +150,10 @@ impl Default for ServerConfig {
 /// Errors of starting the server.
 #[derive(Debug, thiserror::Error)]
 pub enum ServerError {
-    #[error("cannot listen on {endpoint} {address}: {source}")]
+    #[error(
+        "cannot listen on {endpoint} {address}: {source}{}",
+        bind_hint(endpoint, source)
+    )]
     Bind {
         endpoint: &'static str,
         address: String,
@@ -165,6 +168,29 @@ pub enum ServerError {
     Spawn(#[source] std::io::Error),
     #[error("cannot start the {PASS_THREAD_NAME} threads: {0}")]
     SpawnPass(#[source] std::io::Error),
+}
+
+/// What to do about the two bind errors a new user meets: a Unix socket directory only root
+/// may write (the default /run/envlight) and an address another process listens on.
+/// `endpoint`: "uds", "tcp", "websocket" or "metrics".
+pub(crate) fn bind_hint(endpoint: &str, source: &std::io::Error) -> String {
+    use std::io::ErrorKind;
+    let (section, key) = match endpoint {
+        "uds" => ("stream", "unix_socket"),
+        "metrics" => ("metrics", "listen"),
+        other => ("stream", other),
+    };
+    match (endpoint, source.kind()) {
+        ("uds", ErrorKind::PermissionDenied) => "; as an ordinary user, set `unix_socket` in \
+             the [stream] section of a --config file to a path you own, or to \"\" to turn the \
+             Unix socket off (README, \"The daemon\")"
+            .to_string(),
+        (_, ErrorKind::AddrInUse) => format!(
+            "; another process (another envlight?) listens there: stop it, or set `{key}` in \
+             the [{section}] section of a --config file to another address (\"\" turns it off)"
+        ),
+        _ => String::new(),
+    }
 }
 
 /// The pass helper threads of every channel ([`ServerConfig::pass_threads`]); told to stop
@@ -2165,6 +2191,43 @@ mod tests {
             "{e}"
         );
         assert!(bind(&dir.path().join("new").join("envlight.sock")).is_ok());
+    }
+
+    /// The two bind errors a new user meets say what to change: an address in use names the
+    /// config key of its endpoint; a Unix socket directory the user may not write (root can,
+    /// so that error is built here) points to `unix_socket`.
+    #[test]
+    fn bind_errors_say_what_to_change() {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        runtime.block_on(async {
+            let taken = TcpListener::bind("127.0.0.1:0").await.unwrap();
+            let addr = taken.local_addr().unwrap();
+            for (endpoint, key) in [("tcp", "`tcp`"), ("websocket", "`websocket`")] {
+                let e = bind_tcp(endpoint, addr).await.unwrap_err().to_string();
+                assert!(
+                    e.contains(&format!("cannot listen on {endpoint} {addr}")),
+                    "{e}"
+                );
+                assert!(e.contains("another process") && e.contains(key), "{e}");
+            }
+        });
+        let e = ServerError::Bind {
+            endpoint: "uds",
+            address: "/run/envlight/envlight.sock".into(),
+            source: std::io::Error::from(std::io::ErrorKind::PermissionDenied),
+        }
+        .to_string();
+        assert!(e.contains("`unix_socket`") && e.contains("[stream]"), "{e}");
+        let e = ServerError::Bind {
+            endpoint: "tcp",
+            address: "127.0.0.1:7878".into(),
+            source: std::io::Error::from(std::io::ErrorKind::PermissionDenied),
+        }
+        .to_string();
+        assert!(!e.contains(';'), "no hint for other errors: {e}");
     }
 
     /// The socket file appears already listening and with its mode, and nothing else is left
