@@ -747,6 +747,34 @@ fn subscribe_to_a_file_says_it_is_no_socket() {
     assert_fails_naming(&o, &["a directory, not a socket"]);
 }
 
+/// `subscribe` to an endpoint nobody serves asks whether the daemon runs there, and names
+/// the default endpoints.
+#[test]
+fn subscribe_where_no_daemon_serves_asks_whether_it_runs() {
+    // A port that was free a moment ago (bound, then released).
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let dir = tempfile::tempdir().unwrap();
+    for address in [
+        format!("tcp:127.0.0.1:{port}"),
+        format!("ws://127.0.0.1:{port}/"),
+        format!("unix:{}", s(&dir.path().join("none.sock"))),
+    ] {
+        let o = envlight(&["subscribe", &address]);
+        assert_fails_naming(
+            &o,
+            &[
+                &address,
+                "is `envlight run` serving there?",
+                "tcp:127.0.0.1:7878",
+            ],
+        );
+    }
+}
+
 #[test]
 fn bad_taps_name_the_flag() {
     // Spaces after the commas are fine.

@@ -101,7 +101,25 @@ pub(crate) fn run(args: &SubscribeArgs) -> Result<()> {
             anyhow!(e)
         }
     };
-    let mut client = Client::connect(&args.address, &request, timeout).map_err(timed_out)?;
+    let mut client = Client::connect(&args.address, &request, timeout).map_err(|e| {
+        use envlight::stream::client::ClientError;
+        use std::io::ErrorKind;
+        match &e {
+            ClientError::Io { source, .. }
+                if matches!(
+                    source.kind(),
+                    ErrorKind::ConnectionRefused | ErrorKind::NotFound
+                ) =>
+            {
+                anyhow!(
+                    "{e}; is `envlight run` serving there? (by default it listens on \
+                     unix:/run/envlight/envlight.sock, tcp:127.0.0.1:7878 and \
+                     ws://127.0.0.1:7879/)"
+                )
+            }
+            _ => timed_out(e),
+        }
+    })?;
     let mut stdout = std::io::stdout().lock();
     let mut frames = 0u64;
     // --frames 0 is no limit, as for every command (it stopped at once, printing nothing).
