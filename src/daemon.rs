@@ -185,6 +185,9 @@ pub enum StopReason {
     Signal,
     /// A finite source was fully decomposed and served.
     SourceFinished,
+    /// The recording (`--record`, `envlight record`) stopped with an error; the daemon's
+    /// shutdown returns that error.
+    RecordingFailed,
 }
 
 /// What the daemon did, returned by [`Daemon::shutdown`].
@@ -320,7 +323,7 @@ impl Daemon {
     /// Opens the source, binds every endpoint and starts the threads.
     /// A sky source gets the daemon's defaults ([`daemon_source_defaults`]).
     pub fn start(config: Config, options: DaemonOptions) -> Result<Daemon, DaemonError> {
-        let config = daemon_source_defaults(config);
+        let mut config = daemon_source_defaults(config);
         let (source, settings, policy): (Box<dyn FrameSource>, _, _) = match &options.replay {
             Some((dir, pacing)) => {
                 let replay = ReplaySource::open(dir, *pacing).map_err(DaemonError::Source)?;
@@ -345,6 +348,18 @@ impl Daemon {
             }
         }
         let replaying = options.replay.is_some();
+        if replaying {
+            // What follows the lights' settings follows the recording's, not the config's:
+            // the stages' temporal filters share the lights' taps (so that every set describes
+            // the lights' moment), and the metrics report their delay. A replay used the
+            // config's taps for them, which the recorded lights were not made with.
+            let taps = settings.filter_taps.as_deref();
+            config.asg.settings.filter_taps = crate::config::stage_taps(config.asg.filter, taps);
+            config.wavelet.settings.filter_taps =
+                crate::config::stage_taps(config.wavelet.filter, taps);
+            config.sh.settings.filter_taps = crate::config::stage_taps(config.sh.filter, taps);
+            config.decompose = settings.clone();
+        }
         let parts = StartParts {
             settings,
             policy,
@@ -795,22 +810,21 @@ impl Daemon {
             match wake {
                 Wake::Stop(signal) => {
                     tracing::info!("{signal}: shutting down");
-                    // A signal's shutdown does not wait for slow work: a first ASG fit of
-                    // many iterations held it up for seconds (or minutes), clients without a
-                    // frame or a goodbye meanwhile.
-                    if let Some(asg) = &self.asg {
-                        asg.abandon();
-                    }
-                    if let Some(wavelet) = &self.wavelet {
-                        wavelet.abandon();
-                    }
-                    if let Some(sh) = &self.sh {
-                        sh.abandon();
-                    }
+                    self.abandon_slow_work();
                     break StopReason::Signal;
                 }
                 Wake::Reload => self.handle_reload(config_path),
                 Wake::Tick => {
+                    // A recording asked for is not allowed to end unnoticed while the lights
+                    // go on: every frame from here on would be missing from it.
+                    if self.recorder.as_ref().is_some_and(Recorder::has_failed) {
+                        tracing::error!(
+                            "the recording has stopped with an error; shutting down (what it \
+                             stored so far replays)"
+                        );
+                        self.abandon_slow_work();
+                        break StopReason::RecordingFailed;
+                    }
                     if self.source_finished() {
                         tracing::info!("the source has ended; shutting down");
                         break StopReason::SourceFinished;
@@ -833,6 +847,21 @@ impl Daemon {
         notify(&[sd_notify::NotifyState::Stopping]);
         let summary = self.shutdown()?;
         Ok((reason, summary))
+    }
+
+    /// A stop that does not wait for slow work: a first ASG fit of many iterations held a
+    /// signal's shutdown up for seconds (or minutes), clients without a frame or a goodbye
+    /// meanwhile.
+    fn abandon_slow_work(&self) {
+        if let Some(asg) = &self.asg {
+            asg.abandon();
+        }
+        if let Some(wavelet) = &self.wavelet {
+            wavelet.abandon();
+        }
+        if let Some(sh) = &self.sh {
+            sh.abandon();
+        }
     }
 
     fn handle_reload(&mut self, config_path: Option<&Path>) {

@@ -15,7 +15,9 @@
 //! ([`crate::pipeline::PipelineOptions::tap`]): it stores the frames that reached the
 //! decomposition (frames the capture dropped never reached it and are not part of the stream)
 //! and the lights made from them. Every line is flushed as it is written, so a recording cut
-//! short by a crash is readable up to its last whole frame.
+//! short by a crash is readable up to its last whole frame. An error that stops the recorder
+//! (a full disk) is flagged ([`Recorder::has_failed`]); the daemon then shuts down, and
+//! what was stored before it replays.
 //!
 //! [`ReplaySource`] plays a recording back as a [`FrameSource`], at its original timing or as
 //! fast as possible. Decomposed with the recorded settings and a lossless queue
@@ -33,6 +35,8 @@ use crossbeam_channel::Receiver;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -115,6 +119,8 @@ pub struct Recorder {
     /// parents), which [`Recorder::discard`] removes again with the folders below it.
     created_dir: Option<PathBuf>,
     thread: JoinHandle<Result<RecordSummary, RecordError>>,
+    /// Set by the recorder thread when an error stopped it ([`Recorder::has_failed`]).
+    failed: Arc<AtomicBool>,
 }
 
 /// Removes what [`Recorder::start`] and its thread wrote into `dir`: `session.json`, the two
@@ -256,6 +262,8 @@ impl Recorder {
         let mut index = LinesFile::create(dir.join("frames.jsonl"))?;
         let mut lights = LinesFile::create(dir.join("lights.jsonl"))?;
         let root = dir.to_path_buf();
+        let failed = Arc::new(AtomicBool::new(false));
+        let failed_flag = Arc::clone(&failed);
         let thread = std::thread::Builder::new()
             .name(RECORD_THREAD_NAME.to_owned())
             .spawn(move || {
@@ -264,6 +272,7 @@ impl Recorder {
                     let result = write_frame(&root, &tapped, &mut index, &mut lights);
                     if let Err(error) = result {
                         tracing::error!(%error, "recording failed; the recording stops here");
+                        failed_flag.store(true, Ordering::Release);
                         return Err(error);
                     }
                     summary.frames += 1;
@@ -275,7 +284,15 @@ impl Recorder {
             dir: dir.to_path_buf(),
             created_dir,
             thread,
+            failed,
         })
+    }
+
+    /// Whether an error (a full disk, a frame file that cannot be written) has stopped the
+    /// recorder: it stores nothing more, and [`Recorder::finish`] returns the error. The
+    /// daemon then shuts down rather than go on with a recording that silently ends.
+    pub fn has_failed(&self) -> bool {
+        self.failed.load(Ordering::Acquire)
     }
 
     /// The recording directory.

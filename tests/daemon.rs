@@ -1594,6 +1594,61 @@ fn a_shutdown_ends_the_wait_for_a_slow_frame() {
     );
 }
 
+/// A recording that fails while the daemon runs (here the next frames' files are blocked by
+/// folders of their names, as a full disk would refuse them) stops `envlight record`: the
+/// clients get their goodbye, the command exits 1 naming the file, and what was stored before
+/// the error replays, every indexed frame present. It used to log the error and go on serving,
+/// the recording silently ended.
+#[test]
+fn a_recording_that_fails_stops_the_daemon_and_keeps_what_it_stored() {
+    let dir = tempfile::tempdir().unwrap();
+    let (socket, config) = write_uds_only_config(dir.path(), common::SMALL_SKY);
+    let recording = dir.path().join("recording");
+    let mut daemon = RunningDaemon::spawn(
+        envlight()
+            .arg("record")
+            .arg("--config")
+            .arg(&config)
+            .arg("--out")
+            .arg(&recording),
+    );
+    let client = unix_client_once_listening(&socket);
+    let client = spawn("recording client", move || read_all(client));
+    let index = recording.join("frames.jsonl");
+    wait_until("three recorded frames", || {
+        std::fs::read_to_string(&index).is_ok_and(|t| t.lines().count() >= 3)
+    });
+    let recorded = std::fs::read_to_string(&index).unwrap().lines().count() as u64;
+    // The sky runs at 30 frames/s: ten seconds of the next frames' files are blocked.
+    for seq in recorded..recorded + 300 {
+        let _ = std::fs::create_dir(recording.join(format!("frames/{seq:06}.exr")));
+    }
+    let (status, log) = daemon.exit_and_log();
+    assert_eq!(status.code(), Some(1), "{log}");
+    assert!(
+        log.contains("the recording has stopped with an error; shutting down"),
+        "{log}"
+    );
+    assert!(
+        log.lines()
+            .last()
+            .is_some_and(|l| l.starts_with("error: recording:") && l.contains("frames/")),
+        "the last line names the frame's file: {log}"
+    );
+    let received = client.join().unwrap();
+    assert_stayed_to_the_goodbye(&received, 3);
+    let stored = std::fs::read_to_string(&index).unwrap().lines().count();
+    assert!(stored >= 3, "{stored}");
+    let mut source = envlight::record::ReplaySource::open(&recording, Pacing::AsFastAsPossible)
+        .unwrap_or_else(|e| panic!("the recording does not open: {e}"));
+    let mut replayed = 0;
+    while let Some(frame) = source.next_frame().unwrap() {
+        assert_eq!(frame.width, 32);
+        replayed += 1;
+    }
+    assert_eq!(replayed, stored);
+}
+
 /// A replay whose session.json holds settings no decomposer accepts names the file.
 #[test]
 fn a_recordings_bad_settings_name_its_session_file() {
