@@ -254,6 +254,70 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
 /// The SH filter follows the lights': new [decompose] taps reach the stage, another
 /// [decompose] change restarts its window with the lights', `filter = false` turns it off
 /// (each a new worker: the plans count them).
+/// A replay filters the SH sets with the recording's taps (the lights'), not with those of
+/// the config it is started with, and reports their delay: here the config asks for
+/// `[1, 2, 1]` (delay 1), the recording was made with the defaults (delay 3). The stage used
+/// the config's taps, so its sets described another moment than the replayed lights.
+#[test]
+fn a_replay_filters_the_sets_with_the_recordings_taps() {
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("session");
+    let n = record_sky(&recording, 10);
+    let config = config(
+        dir.path(),
+        "[decompose]\nfilter_taps = [1.0, 2.0, 1.0]\n[sh]\nenabled = true\n",
+    );
+    assert_eq!(config.sh.settings.filter_taps, Some(vec![1.0, 2.0, 1.0]));
+    let daemon = Daemon::start(
+        config,
+        DaemonOptions {
+            replay: Some((recording.clone(), Pacing::Original)),
+            record: None,
+            source_paths: None,
+        },
+    )
+    .unwrap();
+    let addrs = daemon.addresses().clone();
+    let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
+    let endpoints = every_transport(&addrs.stream, [0; 4]);
+    let clients = subscribe_all(&endpoints, Representation::Sh, read_sets);
+    let lights = common::spawn_lights_reader(&tcp);
+    let http = addrs.metrics.unwrap();
+    let delay = metric_value(
+        &http_get(http, "/metrics").1,
+        "envlight_filter_delay_frames",
+    );
+    assert_eq!(delay, 3.0, "the recording's taps' delay");
+    wait_until("the end of the replay", || daemon.source_finished());
+    daemon.shutdown().unwrap();
+
+    let mut own_integrals = Vec::new();
+    let mut replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
+    while let Some(frame) = replay.next_frame().unwrap() {
+        let set = envlight::sh::project(&frame, 2);
+        own_integrals.push(set.integral());
+    }
+    assert_eq!(own_integrals.len() as u64, n);
+    let (lights, _) = lights.join().unwrap();
+    for client in clients {
+        let (sets, _) = client.join().unwrap();
+        let received: std::collections::HashMap<u64, [f64; 3]> = sets
+            .iter()
+            .map(|(set, _)| (set.seq, set.to_coefficients().unwrap().integral()))
+            .collect();
+        let lights: Vec<_> = lights
+            .iter()
+            .filter(|f| received.contains_key(&f.seq))
+            .cloned()
+            .collect();
+        common::assert_sets_follow_the_lights(
+            &lights,
+            |seq| received[&seq],
+            |seq| own_integrals[seq as usize],
+        );
+    }
+}
+
 #[test]
 fn sighup_keeps_the_sh_filter_on_the_lights_taps() {
     let dir = tempfile::tempdir().unwrap();
