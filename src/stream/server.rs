@@ -1753,7 +1753,11 @@ impl Connection {
                 socket.write_done();
             }
             if fanout.ended() {
-                slot.close();
+                // A helper's share of the last pass may have left a frame half written (the
+                // socket took part of it): a goodbye after it would read as the frame's body.
+                if slot.close() {
+                    return Close::Quiet;
+                }
                 return Close::Goodbye("the light stream ended".to_owned());
             }
             let event = tokio::select! {
