@@ -18,7 +18,7 @@
 //! 0.0088 (docs/quality.md, "Temporal stability").
 //!
 //! Default taps: the binomial kernel [1, 6, 15, 20, 15, 6, 1]/64, a Gaussian of σ ≈ 1.22 frames.
-//! At 30 frames/s its −3 dB point is ≈ 3.2 Hz and it passes 1/64 of 10 Hz (−36 dB; the gain is cos⁶(πf/30)): temporal
+//! At 30 frames/s its gain is cos⁶(πf/30): −3 dB at ≈ 3.2 Hz, 1/64 (−36 dB) at 10 Hz. Temporal
 //! contrast sensitivity peaks around 8–20 Hz (de Lange curves), so the band where flicker is most
 //! visible is removed while slow lighting changes pass. Being symmetric, it delays by exactly
 //! (7 − 1)/2 = 3 frames (100 ms at 30 frames/s); [`FirFilter::delay_frames`] reports the group
