@@ -139,6 +139,9 @@ enum Transport {
     },
     JsonLines {
         reader: BufReader<Box<dyn ReadWrite>>,
+        /// The line read so far: kept when a read times out in its middle, so that the next
+        /// call goes on with it.
+        pending: Vec<u8>,
     },
     WebSocket(Box<tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>>),
 }
@@ -245,6 +248,7 @@ impl Client {
             },
             Format::Json => Transport::JsonLines {
                 reader: BufReader::new(stream),
+                pending: Vec::new(),
             },
         };
         Ok(Client {
@@ -295,26 +299,37 @@ impl Client {
                 }
                 *unread = 0..n;
             },
-            Transport::JsonLines { reader } => {
+            Transport::JsonLines { reader, pending } => {
                 // A line is one message: at most MAX_JSON_MESSAGE_LEN bytes and its newline, so
                 // a server that never ends its line cannot grow this buffer without bound.
                 let limit = protocol::MAX_JSON_MESSAGE_LEN as u64 + 2;
-                let mut line = String::new();
+                let room = limit.saturating_sub(pending.len() as u64);
+                // On an error (a timeout) the bytes read stay in `pending` (`read_until`
+                // keeps them), and the next call goes on with the line: they were dropped, so
+                // a caller that retried after a timeout parsed the rest of a line.
                 let read = reader
                     .by_ref()
-                    .take(limit)
-                    .read_line(&mut line)
+                    .take(room)
+                    .read_until(b'\n', pending)
                     .map_err(io)?;
-                if read == 0 {
+                if read == 0 && pending.is_empty() {
                     return Ok(None);
                 }
-                if read as u64 == limit && !line.ends_with('\n') {
+                if pending.len() as u64 >= limit && pending.last() != Some(&b'\n') {
+                    pending.clear();
                     return Err(protocol_error(ProtocolError::OversizedJson {
                         len: limit,
                         limit: protocol::MAX_JSON_MESSAGE_LEN,
                     }));
                 }
-                protocol::parse_json_message(line.trim_end())
+                let line = std::mem::take(pending);
+                let text = String::from_utf8(line).map_err(|_| {
+                    io(std::io::Error::new(
+                        std::io::ErrorKind::InvalidData,
+                        "stream did not contain valid UTF-8",
+                    ))
+                })?;
+                protocol::parse_json_message(text.trim_end())
                     .map(Some)
                     .map_err(protocol_error)
             }
@@ -407,6 +422,55 @@ mod tests {
             "{e}"
         );
         drop(client);
+        server.join().unwrap();
+    }
+
+    /// A JSON line that arrives in two parts with a pause longer than the read timeout between
+    /// them: the first call times out, the next one returns the whole message (the part read
+    /// before the timeout was dropped, and the next call parsed the rest of the line).
+    #[test]
+    fn a_json_line_split_by_a_timeout_is_read_whole_on_the_next_call() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let address = listener.local_addr().unwrap().to_string();
+        let line = r#"{"seq":17,"time":0.5,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}"#;
+        let (first, rest) = line.split_at(40);
+        let (go_on_tx, go_on_rx) = std::sync::mpsc::channel::<()>();
+        let server = std::thread::Builder::new()
+            .name("split-line".into())
+            .spawn(move || {
+                let (mut stream, _) = listener.accept().unwrap();
+                let mut subscribe = [0u8; protocol::HEADER_LEN + protocol::SUBSCRIBE_BODY_LEN];
+                stream.read_exact(&mut subscribe).unwrap();
+                stream.write_all(first.as_bytes()).unwrap();
+                // The rest once the client has timed out.
+                go_on_rx.recv().unwrap();
+                stream.write_all(rest.as_bytes()).unwrap();
+                stream.write_all(b"\n").unwrap();
+                // Until the client has read it.
+                let _ = go_on_rx.recv();
+            })
+            .unwrap();
+        let request = Request {
+            format: Format::Json,
+            ..Request::default()
+        };
+        let endpoint = Endpoint::Tcp(address);
+        let mut client =
+            Client::connect(&endpoint, &request, Some(Duration::from_millis(200))).unwrap();
+        let e = client.next_message().unwrap_err();
+        assert!(e.is_timeout(), "{e}");
+        go_on_tx.send(()).unwrap();
+        let message = loop {
+            match client.next_message() {
+                Err(e) if e.is_timeout() => continue,
+                other => break other,
+            }
+        };
+        assert_eq!(
+            message.unwrap(),
+            Some(protocol::parse_json_message(line).unwrap())
+        );
+        drop(go_on_tx);
         server.join().unwrap();
     }
 
