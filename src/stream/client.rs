@@ -434,7 +434,7 @@ mod tests {
         let address = listener.local_addr().unwrap().to_string();
         let line = r#"{"seq":17,"time":0.5,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}"#;
         let (first, rest) = line.split_at(40);
-        let (go_on_tx, go_on_rx) = std::sync::mpsc::channel::<()>();
+        let (go_on_tx, go_on_rx) = std::sync::mpsc::sync_channel::<()>(2);
         let server = std::thread::Builder::new()
             .name("split-line".into())
             .spawn(move || {
