@@ -268,8 +268,10 @@ impl Recorder {
             .name(RECORD_THREAD_NAME.to_owned())
             .spawn(move || {
                 let mut summary = RecordSummary::default();
+                let mut previous = None;
                 for tapped in frames.iter() {
-                    let result = write_frame(&root, &tapped, &mut index, &mut lights);
+                    let result = write_frame(&root, &tapped, previous, &mut index, &mut lights);
+                    previous = Some((tapped.frame.seq, tapped.frame.time));
                     if let Err(error) = result {
                         tracing::error!(%error, "recording failed; the recording stops here");
                         failed_flag.store(true, Ordering::Release);
@@ -325,15 +327,38 @@ impl Recorder {
     }
 }
 
+/// Stores one frame and its lights; `previous` is the (seq, time) of the frame stored last.
 fn write_frame(
     root: &Path,
     tapped: &Tapped,
+    previous: Option<(u64, f64)>,
     index: &mut LinesFile,
     lights: &mut LinesFile,
 ) -> Result<(), RecordError> {
     let frame = &tapped.frame;
     let file = format!("frames/{:06}.exr", frame.seq);
     let path = root.join(&file);
+    // The replay's rules for the index (`ReplaySource::open`): a frame that breaks them would
+    // make it refuse the recording from that line on (a time of NaN, written as `null`, the
+    // whole recording), and a repeated seq would overwrite an earlier frame's file. The
+    // built-in sources keep them; a library caller's own source might not.
+    let time_ok = frame.time.is_finite() && (0.0..=MAX_FRAME_TIME_S).contains(&frame.time);
+    let follows = previous.is_none_or(|(seq, time)| frame.seq > seq && frame.time >= time);
+    if !(time_ok && follows) {
+        let after = previous.map_or(String::new(), |(seq, time)| {
+            format!(" after seq {seq} at {} s", shown_number(time))
+        });
+        return Err(RecordError::Exr {
+            path,
+            message: format!(
+                "frame seq {} at {} s{after}: a recording's frames need increasing seqs and \
+                 times in 0..={MAX_FRAME_TIME_S} s that do not go back, or its replay would \
+                 refuse them",
+                frame.seq,
+                shown_number(frame.time)
+            ),
+        });
+    }
     // A frame the replay could not read is not stored: the recording would end there.
     let pixels = u64::from(frame.width) * u64::from(frame.height);
     if pixels > crate::capture::image_file::MAX_PIXELS {
@@ -643,6 +668,53 @@ impl FrameSource for ReplaySource {
 mod tests {
     use super::*;
 
+    /// Frames out of the replay's order are refused as they come, naming the frame (a NaN
+    /// time was written as `null`, and the replay refused the whole recording); the frames
+    /// before stay and replay.
+    #[test]
+    fn frames_the_replay_would_refuse_stop_the_recording() {
+        for (times, seqs, expected) in [
+            (
+                [0.0, f64::NAN],
+                [0, 1],
+                "frame seq 1 at NaN s after seq 0 at 0 s",
+            ),
+            (
+                [1.0, 0.5],
+                [0, 1],
+                "frame seq 1 at 0.5 s after seq 0 at 1 s",
+            ),
+            (
+                [0.0, 0.1],
+                [3, 3],
+                "frame seq 3 at 0.1 s after seq 3 at 0 s",
+            ),
+            ([0.0, 2e9], [0, 1], "frame seq 1 at 2000000000 s"),
+        ] {
+            let dir = tempfile::tempdir().unwrap();
+            let recording = dir.path().join("rec");
+            let (tx, rx) = crossbeam_channel::bounded(4);
+            let recorder =
+                Recorder::start(&recording, "test", &DecomposeSettings::default(), rx).unwrap();
+            for (time, seq) in times.into_iter().zip(seqs) {
+                let mut frame =
+                    HdrFrame::new(4, 2, vec![[1.0; 3]; 8], Projection::LatLong).unwrap();
+                (frame.seq, frame.time) = (seq, time);
+                let lights = std::sync::Arc::new(crate::light::LightFrame {
+                    seq,
+                    time,
+                    lights: Vec::new(),
+                });
+                tx.send(Tapped { frame, lights }).unwrap();
+            }
+            drop(tx);
+            let e = recorder.finish().unwrap_err().to_string();
+            assert!(e.contains(expected), "{e}");
+            let replay = ReplaySource::open(&recording, Pacing::AsFastAsPossible).unwrap();
+            assert_eq!(replay.len(), 1, "{expected}");
+        }
+    }
+
     /// A recording directory with a valid `session.json` and the given `frames.jsonl`.
     fn recording_with_index(index: &str) -> tempfile::TempDir {
         let dir = tempfile::tempdir().unwrap();
@@ -725,7 +797,7 @@ mod tests {
         };
         let mut index = LinesFile::create(dir.path().join("frames.jsonl")).unwrap();
         let mut lights = LinesFile::create(dir.path().join("lights.jsonl")).unwrap();
-        let e = write_frame(dir.path(), &tapped, &mut index, &mut lights).unwrap_err();
+        let e = write_frame(dir.path(), &tapped, None, &mut index, &mut lights).unwrap_err();
         assert!(e.to_string().contains("16384x16384"), "{e}");
         assert_eq!((index.len, lights.len), (0, 0));
         assert!(!dir.path().join("frames/000000.exr").exists());
