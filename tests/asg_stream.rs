@@ -76,15 +76,7 @@ fn asg_clients_receive_what_the_fitter_computes() {
     );
 
     // Original timing (the sky's 30 fps), so that the clients are connected early on.
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: Some((recording.clone(), Pacing::Original)),
-            record: None,
-            source_paths: None,
-        },
-    )
-    .unwrap();
+    let daemon = common::start_replay(config, &recording);
     let addrs = daemon.addresses().clone();
     let endpoints = every_transport(&addrs.stream, [0, 2, 3, 0]);
     let clients = subscribe_all(&endpoints, Representation::Asg, read_sets);

@@ -81,15 +81,7 @@ fn sh_clients_receive_what_the_library_computes() {
     }
     assert_eq!(expected.len() as u64, n);
 
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: Some((recording.clone(), Pacing::Original)),
-            record: None,
-            source_paths: None,
-        },
-    )
-    .unwrap();
+    let daemon = common::start_replay(config, &recording);
     let addrs = daemon.addresses().clone();
     let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
     // Caps: all 16; 4 keeps degrees 0 and 1; 1 the constant; 15 degrees 0–2 (9).
@@ -268,15 +260,7 @@ fn a_replay_filters_the_sets_with_the_recordings_taps() {
         "[decompose]\nfilter_taps = [1.0, 2.0, 1.0]\n[sh]\nenabled = true\n",
     );
     assert_eq!(config.sh.settings.filter_taps, Some(vec![1.0, 2.0, 1.0]));
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: Some((recording.clone(), Pacing::Original)),
-            record: None,
-            source_paths: None,
-        },
-    )
-    .unwrap();
+    let daemon = common::start_replay(config, &recording);
     let addrs = daemon.addresses().clone();
     let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
     let endpoints = every_transport(&addrs.stream, [0; 4]);

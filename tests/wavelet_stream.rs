@@ -85,15 +85,7 @@ fn wavelet_clients_receive_what_the_library_computes() {
     assert_eq!(expected.len() as u64, n);
 
     // Original timing (the sky's 30 fps), so that the clients are connected early on.
-    let daemon = Daemon::start(
-        config,
-        DaemonOptions {
-            replay: Some((recording.clone(), Pacing::Original)),
-            record: None,
-            source_paths: None,
-        },
-    )
-    .unwrap();
+    let daemon = common::start_replay(config, &recording);
     let addrs = daemon.addresses().clone();
     let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
     let endpoints = every_transport(&addrs.stream, [0, 32, 1, 0]);

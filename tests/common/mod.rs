@@ -114,6 +114,20 @@ pub fn metric_value(text: &str, name: &str) -> f64 {
         .unwrap_or_else(|| panic!("no {name} in\n{text}"))
 }
 
+/// The daemon of `config` replaying `recording` at its original timing (so that clients
+/// connected right after the start see it from its first frames).
+pub fn start_replay(
+    config: envlight::config::Config,
+    recording: &Path,
+) -> envlight::daemon::Daemon {
+    let options = envlight::daemon::DaemonOptions {
+        replay: Some((recording.to_path_buf(), envlight::record::Pacing::Original)),
+        record: None,
+        source_paths: None,
+    };
+    envlight::daemon::Daemon::start(config, options).unwrap()
+}
+
 /// Records `frames` small sky frames (64×32; frame times 1/30 s apart) into `dir` with no
 /// stage but the decomposition; returns how many were recorded: all, since the sky is made as
 /// fast as possible (no `fps`), so capture waits for the decomposition. (Paced at 30 fps, a
