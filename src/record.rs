@@ -327,6 +327,30 @@ impl Recorder {
     }
 }
 
+/// The order a recording's frames keep, which its replay checks in the index and the recorder
+/// as it writes: a time in 0..=[`MAX_FRAME_TIME_S`] and, after the frame before
+/// (`previous`: its seq and time), a larger seq and a time that does not go back. The
+/// problem, if any.
+fn frame_order_problem(seq: u64, time: f64, previous: Option<(u64, f64)>) -> Option<String> {
+    if !(time.is_finite() && (0.0..=MAX_FRAME_TIME_S).contains(&time)) {
+        return Some(format!(
+            "time {} s is not in 0..={MAX_FRAME_TIME_S} s (frame times count from the \
+             session's start)",
+            shown_number(time)
+        ));
+    }
+    match previous {
+        Some((previous_seq, previous_time)) if seq <= previous_seq || time < previous_time => {
+            Some(format!(
+                "frame seq {seq} at {} s does not follow seq {previous_seq} at {} s",
+                shown_number(time),
+                shown_number(previous_time)
+            ))
+        }
+        _ => None,
+    }
+}
+
 /// Stores one frame and its lights; `previous` is the (seq, time) of the frame stored last.
 fn write_frame(
     root: &Path,
@@ -338,25 +362,14 @@ fn write_frame(
     let frame = &tapped.frame;
     let file = format!("frames/{:06}.exr", frame.seq);
     let path = root.join(&file);
-    // The replay's rules for the index (`ReplaySource::open`): a frame that breaks them would
-    // make it refuse the recording from that line on (a time of NaN, written as `null`, the
-    // whole recording), and a repeated seq would overwrite an earlier frame's file. The
-    // built-in sources keep them; a library caller's own source might not.
-    let time_ok = frame.time.is_finite() && (0.0..=MAX_FRAME_TIME_S).contains(&frame.time);
-    let follows = previous.is_none_or(|(seq, time)| frame.seq > seq && frame.time >= time);
-    if !(time_ok && follows) {
-        let after = previous.map_or(String::new(), |(seq, time)| {
-            format!(" after seq {seq} at {} s", shown_number(time))
-        });
+    // A frame that breaks the replay's order would make it refuse the recording from that
+    // line on (a time of NaN, written as `null`, the whole recording), and a repeated seq
+    // would overwrite an earlier frame's file. The built-in sources keep the order; a library
+    // caller's own source might not.
+    if let Some(problem) = frame_order_problem(frame.seq, frame.time, previous) {
         return Err(RecordError::Exr {
             path,
-            message: format!(
-                "frame seq {} at {} s{after}: a recording's frames need increasing seqs and \
-                 times in 0..={MAX_FRAME_TIME_S} s that do not go back, or its replay would \
-                 refuse them",
-                frame.seq,
-                shown_number(frame.time)
-            ),
+            message: format!("{problem}; a replay would refuse the frame"),
         });
     }
     // A frame the replay could not read is not stored: the recording would end there.
@@ -526,22 +539,9 @@ impl ReplaySource {
                 path: index_path.clone(),
                 message: format!("line {}: {message}", number + 1),
             };
-            if !(entry.time.is_finite() && (0.0..=MAX_FRAME_TIME_S).contains(&entry.time)) {
-                return Err(bad(format!(
-                    "time {} s is not in 0..={MAX_FRAME_TIME_S} s (frame times count from the session's start)",
-                    shown_number(entry.time)
-                )));
-            }
-            if let Some(previous) = entries.last() {
-                if entry.seq <= previous.seq || entry.time < previous.time {
-                    return Err(bad(format!(
-                        "frame seq {} at {} s does not follow seq {} at {} s",
-                        entry.seq,
-                        shown_number(entry.time),
-                        previous.seq,
-                        shown_number(previous.time)
-                    )));
-                }
+            let previous = entries.last().map(|e| (e.seq, e.time));
+            if let Some(problem) = frame_order_problem(entry.seq, entry.time, previous) {
+                return Err(bad(problem));
             }
             let relative = Path::new(&entry.file);
             if relative.is_absolute()
@@ -674,22 +674,22 @@ mod tests {
     #[test]
     fn frames_the_replay_would_refuse_stop_the_recording() {
         for (times, seqs, expected) in [
-            (
-                [0.0, f64::NAN],
-                [0, 1],
-                "frame seq 1 at NaN s after seq 0 at 0 s",
-            ),
+            ([0.0, f64::NAN], [0, 1], "000001.exr: time NaN s is not in"),
             (
                 [1.0, 0.5],
                 [0, 1],
-                "frame seq 1 at 0.5 s after seq 0 at 1 s",
+                "000001.exr: frame seq 1 at 0.5 s does not follow seq 0 at 1 s",
             ),
             (
                 [0.0, 0.1],
                 [3, 3],
-                "frame seq 3 at 0.1 s after seq 3 at 0 s",
+                "000003.exr: frame seq 3 at 0.1 s does not follow seq 3 at 0 s",
             ),
-            ([0.0, 2e9], [0, 1], "frame seq 1 at 2000000000 s"),
+            (
+                [0.0, 2e9],
+                [0, 1],
+                "000001.exr: time 2000000000 s is not in",
+            ),
         ] {
             let dir = tempfile::tempdir().unwrap();
             let recording = dir.path().join("rec");

@@ -388,18 +388,39 @@ mod tests {
 
     /// A JSON Lines server whose line never ends: the client stops at one message's size
     /// instead of buffering without bound (it reached 2.2 GB in 4.5 s).
-    #[test]
-    fn an_endless_json_line_is_an_error() {
+    /// A one-connection TCP server on a thread named `name`: it accepts, reads the client's
+    /// (binary) subscribe — closing with it unread would reset the connection, and the reset
+    /// could overtake the bytes written — and hands the stream to `serve`. Returns a JSON
+    /// client connected to it with `read_timeout`, and the server's thread.
+    fn json_client_of(
+        name: &str,
+        read_timeout: Duration,
+        serve: impl FnOnce(TcpStream) + Send + 'static,
+    ) -> (Client, std::thread::JoinHandle<()>) {
         let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         let address = listener.local_addr().unwrap().to_string();
         let server = std::thread::Builder::new()
-            .name("endless-line".into())
+            .name(name.into())
             .spawn(move || {
                 let (mut stream, _) = listener.accept().unwrap();
-                // The (binary) subscribe is read first: closing with it unread would reset
-                // the connection, and the reset could overtake the bytes written.
                 let mut subscribe = [0u8; protocol::HEADER_LEN + protocol::SUBSCRIBE_BODY_LEN];
                 stream.read_exact(&mut subscribe).unwrap();
+                serve(stream);
+            })
+            .unwrap();
+        let request = Request {
+            format: Format::Json,
+            ..Request::default()
+        };
+        let client =
+            Client::connect(&Endpoint::Tcp(address), &request, Some(read_timeout)).unwrap();
+        (client, server)
+    }
+
+    #[test]
+    fn an_endless_json_line_is_an_error() {
+        let (mut client, server) =
+            json_client_of("endless-line", Duration::from_secs(30), |mut stream| {
                 let chunk = vec![b'a'; 64 * 1024];
                 // Until the client goes away (at most 10 MiB, past the 8 MiB limit).
                 for _ in 0..160 {
@@ -407,15 +428,7 @@ mod tests {
                         break;
                     }
                 }
-            })
-            .unwrap();
-        let request = Request {
-            format: Format::Json,
-            ..Request::default()
-        };
-        let endpoint = Endpoint::Tcp(address);
-        let mut client =
-            Client::connect(&endpoint, &request, Some(Duration::from_secs(30))).unwrap();
+            });
         let e = client.next_message().unwrap_err().to_string();
         assert!(
             e.contains("JSON message") && e.contains("exceeds the maximum"),
@@ -430,17 +443,13 @@ mod tests {
     /// before the timeout was dropped, and the next call parsed the rest of the line).
     #[test]
     fn a_json_line_split_by_a_timeout_is_read_whole_on_the_next_call() {
-        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let address = listener.local_addr().unwrap().to_string();
         let line = r#"{"seq":17,"time":0.5,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}"#;
         let (first, rest) = line.split_at(40);
         let (go_on_tx, go_on_rx) = std::sync::mpsc::sync_channel::<()>(2);
-        let server = std::thread::Builder::new()
-            .name("split-line".into())
-            .spawn(move || {
-                let (mut stream, _) = listener.accept().unwrap();
-                let mut subscribe = [0u8; protocol::HEADER_LEN + protocol::SUBSCRIBE_BODY_LEN];
-                stream.read_exact(&mut subscribe).unwrap();
+        let (mut client, server) = json_client_of(
+            "split-line",
+            Duration::from_millis(200),
+            move |mut stream| {
                 stream.write_all(first.as_bytes()).unwrap();
                 // The rest once the client has timed out.
                 go_on_rx.recv().unwrap();
@@ -448,15 +457,8 @@ mod tests {
                 stream.write_all(b"\n").unwrap();
                 // Until the client has read it.
                 let _ = go_on_rx.recv();
-            })
-            .unwrap();
-        let request = Request {
-            format: Format::Json,
-            ..Request::default()
-        };
-        let endpoint = Endpoint::Tcp(address);
-        let mut client =
-            Client::connect(&endpoint, &request, Some(Duration::from_millis(200))).unwrap();
+            },
+        );
         let e = client.next_message().unwrap_err();
         assert!(e.is_timeout(), "{e}");
         go_on_tx.send(()).unwrap();
