@@ -221,14 +221,31 @@ impl Recorder {
             });
         }
         std::fs::create_dir_all(dir).map_err(io_error(dir))?;
-        if std::fs::read_dir(dir)
-            .map_err(io_error(dir))?
-            .next()
-            .is_some()
-        {
-            return Err(RecordError::NotEmpty {
-                path: dir.to_path_buf(),
-            });
+        // Creating `frames` claims the directory: of two recorders started on the same empty
+        // directory only one creates it, and the other leaves without removing anything (the
+        // cleanup below would delete the first one's files).
+        let frames_dir = dir.join("frames");
+        let not_empty = || RecordError::NotEmpty {
+            path: dir.to_path_buf(),
+        };
+        match std::fs::create_dir(&frames_dir) {
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => return Err(not_empty()),
+            result => result.map_err(io_error(&frames_dir))?,
+        }
+        let claimed_empty =
+            std::fs::read_dir(dir)
+                .map_err(io_error(dir))
+                .and_then(|mut entries| {
+                    let only_frames = entries.all(|e| e.is_ok_and(|e| e.file_name() == "frames"));
+                    if only_frames {
+                        Ok(())
+                    } else {
+                        Err(not_empty())
+                    }
+                });
+        if let Err(error) = claimed_empty {
+            let _ = std::fs::remove_dir(&frames_dir);
+            return Err(error);
         }
         // From here on a failure removes what was created (a full disk leaves the directory
         // as it was, and the same command can be run again).
@@ -244,8 +261,6 @@ impl Recorder {
         frames: Receiver<Tapped>,
         created_dir: Option<PathBuf>,
     ) -> Result<Recorder, RecordError> {
-        let frames_dir = dir.join("frames");
-        std::fs::create_dir(&frames_dir).map_err(io_error(&frames_dir))?;
         let session = Session {
             format: FORMAT_NAME.to_owned(),
             version: FORMAT_VERSION,
@@ -955,6 +970,47 @@ mod tests {
             e.contains("frames.jsonl") && e.contains("frame seq 0") && e.contains("radius"),
             "{e}"
         );
+    }
+
+    /// Of recorders started together on one empty directory one records, and the others
+    /// fail as on a directory that is not empty without removing the first one's files.
+    #[test]
+    fn recorders_started_together_on_one_directory_leave_the_winner_alone() {
+        const RECORDERS: usize = 8;
+        let parent = tempfile::tempdir().unwrap();
+        for round in 0..20 {
+            let dir = parent.path().join(format!("rec_{round}"));
+            let barrier = std::sync::Barrier::new(RECORDERS);
+            let started: Vec<_> = std::thread::scope(|scope| {
+                let starts: Vec<_> = (0..RECORDERS)
+                    .map(|_| {
+                        scope.spawn(|| {
+                            let (_tx, rx) = crossbeam_channel::bounded(1);
+                            barrier.wait();
+                            Recorder::start(&dir, "test", &DecomposeSettings::default(), rx)
+                        })
+                    })
+                    .collect();
+                starts.into_iter().map(|s| s.join().unwrap()).collect()
+            });
+            let mut winners = 0;
+            for result in started {
+                match result {
+                    Ok(recorder) => {
+                        winners += 1;
+                        for name in ["session.json", "frames.jsonl", "lights.jsonl", "frames"] {
+                            assert!(dir.join(name).exists(), "round {round}: {name} removed");
+                        }
+                        assert_eq!(recorder.finish().unwrap().frames, 0);
+                    }
+                    Err(error) => assert!(
+                        matches!(error, RecordError::NotEmpty { .. }),
+                        "round {round}: {error}"
+                    ),
+                }
+            }
+            assert_eq!(winners, 1, "round {round}");
+        }
     }
 
     /// A session that failed to start leaves its directory as it was: the frames recorded
