@@ -1194,6 +1194,46 @@ fn fisheye_rim_pixels_keep_their_energy() {
     );
 }
 
+/// A fisheye camera looks up, so it sees the sky mirrored from a map: a bright spot right of
+/// the image centre is a light towards −X, one above it towards −Z (with rotation 0), and a
+/// rotation of 90° turns the right-hand spot to +Z (counter-clockwise about +Y seen from above).
+#[test]
+fn a_fisheye_frame_is_the_sky_seen_from_below() {
+    use envlight::envmap::FisheyeCalibration;
+    let (w, h) = (101u32, 101u32);
+    let brightest = |pixel: (usize, usize), rotation_deg: f64| {
+        let mut pixels = vec![[1.0f32; 3]; (w * h) as usize];
+        pixels[pixel.1 * w as usize + pixel.0] = [1e6; 3];
+        let calibration = FisheyeCalibration {
+            rotation_deg,
+            ..FisheyeCalibration::default()
+        };
+        let frame = HdrFrame::new(w, h, pixels, Projection::Fisheye(calibration)).unwrap();
+        let lights = Decomposer::new(raw_settings(64))
+            .unwrap()
+            .decompose(&frame)
+            .lights;
+        let d = lights
+            .iter()
+            .max_by(|a, b| a.rgb[0].total_cmp(&b.rgb[0]))
+            .unwrap()
+            .dir;
+        // 45° up (half the radius from the centre): the horizontal part is sin 45°.
+        [d[0], d[2]].map(|c| c / std::f32::consts::FRAC_1_SQRT_2)
+    };
+    let close = |got: [f32; 2], want: [f32; 2], what: &str| {
+        let off = (got[0] - want[0]).hypot(got[1] - want[1]);
+        assert!(off < 0.05, "{what}: horizontal {got:?}, expected {want:?}");
+    };
+    close(brightest((75, 50), 0.0), [-1.0, 0.0], "image right");
+    close(brightest((50, 25), 0.0), [0.0, -1.0], "image up");
+    close(
+        brightest((75, 50), 90.0),
+        [0.0, 1.0],
+        "image right at rotation 90°",
+    );
+}
+
 /// The red power of `frame`'s `n` lights (no filter, no merge).
 fn red_sum(frame: &HdrFrame, n: usize) -> f64 {
     Decomposer::new(raw_settings(n))

@@ -39,7 +39,9 @@ pub(crate) struct FisheyeFlags {
     #[arg(long, value_name = "DEG")]
     fov: Option<f64>,
 
-    /// Fisheye rotation about the zenith in degrees. [default: 0]
+    /// Fisheye rotation about the zenith in degrees: at 0 image up looks along −Z and image
+    /// right along −X; positive turns the directions counter-clockwise about +Y seen from
+    /// above (clockwise on the image). [default: 0]
     #[arg(long, value_name = "DEG")]
     rotation: Option<f64>,
 }

@@ -22,12 +22,14 @@
 //! reject such a calibration, so a user's field of view is never silently changed.
 //!
 //! Azimuth: with `rotation_deg` = 0 the image offset (dx, dy) = (x − cx, y − cy) (dy grows down
-//! the image) looks along the horizontal unit vector h₀ = (dx, 0, dy)/r: image right = +X, image
-//! down = +Z, image up = −Z (the lat-long map's u = 0 direction). The image is therefore the sky
-//! as seen from above, as on a map. `rotation_deg` = ψ rotates every direction right-handedly
-//! about +Y (counter-clockwise seen from above, i.e. counter-clockwise on the image as displayed):
+//! the image) looks along the horizontal unit vector h₀ = (−dx, 0, dy)/r: image up = −Z (the
+//! lat-long map's u = 0 direction), image down = +Z, image right = −X. That is what a camera
+//! looking up sees: its right is forward × up = (+Y) × (−Z) = −X, so the image is the sky seen
+//! from below, the mirror image of a map (lying on your back with your head to the north, east
+//! is on your left). `rotation_deg` = ψ rotates every direction right-handedly about +Y
+//! (counter-clockwise seen from above, which is clockwise on the image as displayed):
 //! h = R_y(ψ)·h₀ with h.x = h₀.x cos ψ + h₀.z sin ψ, h.z = −h₀.x sin ψ + h₀.z cos ψ. So at ψ = 90°
-//! image right looks along −Z and image down along +X; in lat-long terms a pixel's azimuth
+//! image right looks along +Z and image down along +X; in lat-long terms a pixel's azimuth
 //! φ = atan2(d.x, −d.z) decreases by ψ. The direction is d = (sin θ·h.x, cos θ, sin θ·h.z).
 //! Positions with r > R, and directions with θ > θ_max, give `None`; the centre gives +Y.
 //!
@@ -685,7 +687,8 @@ impl FisheyeCalibration {
             return Some(DVec3::Y);
         }
         let (sin_t, cos_t) = map.theta_at(r).sin_cos();
-        let (h0x, h0z) = (dx / r, dy / r);
+        // Image right is −X: the camera looks up, so it sees the sky mirrored from a map.
+        let (h0x, h0z) = (-dx / r, dy / r);
         let hx = h0x * map.cos_rot + h0z * map.sin_rot;
         let hz = -h0x * map.sin_rot + h0z * map.cos_rot;
         Some(DVec3::new(sin_t * hx, cos_t, sin_t * hz))
@@ -708,7 +711,7 @@ impl FisheyeCalibration {
         let (hx, hz) = (d.x / horizontal, d.z / horizontal);
         let h0x = hx * map.cos_rot - hz * map.sin_rot;
         let h0z = hx * map.sin_rot + hz * map.cos_rot;
-        Some((map.cx + r * h0x, map.cy + r * h0z))
+        Some((map.cx - r * h0x, map.cy + r * h0z))
     }
 
     /// Exact solid angle (steradians) of every pixel, row-major; 0 outside the image circle and
@@ -1060,8 +1063,8 @@ mod tests {
             .pixel_to_direction(w, h, 90.0, 40.0)
             .unwrap_or(DVec3::ZERO);
         assert!(
-            (right - DVec3::X).length() < 1e-12,
-            "image right → +X: {right}"
+            (right - DVec3::NEG_X).length() < 1e-12,
+            "image right → −X (the camera looks up): {right}"
         );
         let down = c
             .pixel_to_direction(w, h, 50.0, 80.0)
@@ -1100,6 +1103,32 @@ mod tests {
         );
     }
 
+    /// docs/camera.md's rule for setting the rotation: a landmark at angle α on the image
+    /// (counter-clockwise from image up) lies at azimuth ψ − α, counted from −Z
+    /// counter-clockwise about +Y seen from above, i.e. along R_y(ψ − α)·(−Z).
+    #[test]
+    fn a_landmark_at_image_angle_alpha_lies_at_azimuth_psi_minus_alpha() {
+        let (w, h) = (100, 80);
+        for psi in [0.0, 35.0, -120.0, 270.0] {
+            let c = FisheyeCalibration {
+                rotation_deg: psi,
+                ..Default::default()
+            };
+            for alpha in [0.0, 30.0, 90.0, 200.0] {
+                let a = f64::to_radians(alpha);
+                let (x, y) = (50.0 - 20.0 * a.sin(), 40.0 - 20.0 * a.cos());
+                let d = c.pixel_to_direction(w, h, x, y).unwrap_or(DVec3::ZERO);
+                let beta = f64::to_radians(psi - alpha);
+                let horizontal = DVec3::new(d.x, 0.0, d.z).normalize_or_zero();
+                let want = DVec3::new(-beta.sin(), 0.0, -beta.cos());
+                assert!(
+                    (horizontal - want).length() < 1e-12,
+                    "ψ = {psi}, α = {alpha}: {d} vs {want}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn rotation_is_counter_clockwise_seen_from_above() {
         let (w, h) = (100, 80);
@@ -1111,8 +1140,8 @@ mod tests {
             .pixel_to_direction(w, h, 90.0, 40.0)
             .unwrap_or(DVec3::ZERO);
         assert!(
-            (right - DVec3::NEG_Z).length() < 1e-12,
-            "ψ = 90°: image right → −Z: {right}"
+            (right - DVec3::Z).length() < 1e-12,
+            "ψ = 90°: image right → +Z: {right}"
         );
         let down = rotated
             .pixel_to_direction(w, h, 50.0, 80.0)
