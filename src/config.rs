@@ -1440,7 +1440,7 @@ impl RawSource {
             return Err(invalid(
                 "source.paths",
                 &paths,
-                "an empty path names no file (it read the config file's own folder)",
+                "an empty path names no file",
             ));
         }
         if let Some(camera) = paths.iter().find(|p| p.starts_with("v4l2:")) {

@@ -94,13 +94,14 @@ pub struct DaemonOptions {
     /// Record the session into this (new or empty) directory.
     pub record: Option<PathBuf>,
     /// Frame files given on the command line (INPUT): they replace `[source]` with a sequence
-    /// of these paths when the config is read, at start and on every reload
-    /// ([`read_config`]).
+    /// of these paths (or, for one `v4l2:DEVICE`, with that camera) when the config is read, at
+    /// start and on every reload ([`read_config`]).
     pub source_paths: Option<Vec<String>>,
 }
 
 /// Reads and validates the daemon's config: the file at `path` (the defaults without one), its
-/// `[source]` replaced by a sequence of `source_paths` when INPUT files were given.
+/// `[source]` replaced by a sequence of `source_paths` when INPUT files were given, or by the
+/// camera DEVICE when the one INPUT is `v4l2:DEVICE` (as `envlight decompose` takes it).
 pub fn read_config(
     path: Option<&Path>,
     source_paths: Option<&[String]>,
@@ -109,9 +110,17 @@ pub fn read_config(
         Some(path) => RawConfig::from_file(path)?,
         None => RawConfig::default(),
     };
-    if let Some(paths) = source_paths {
-        raw.source.kind = Some("sequence".to_owned());
-        raw.source.paths = Some(paths.to_vec());
+    match source_paths {
+        Some([one]) if one.starts_with("v4l2:") => {
+            raw.source.kind = Some("v4l2".to_owned());
+            raw.source.paths = None;
+            raw.camera.device = Some(one["v4l2:".len()..].to_owned());
+        }
+        Some(paths) => {
+            raw.source.kind = Some("sequence".to_owned());
+            raw.source.paths = Some(paths.to_vec());
+        }
+        None => {}
     }
     raw.validate()
 }

@@ -337,6 +337,93 @@ fn config_file_is_used_and_flags_override_it() {
     assert_fails_naming(&o, &["source.fisheye.fov_deg", "400"]);
 }
 
+/// INPUT and --device replace the configured source whatever its kind, and a mistake on the
+/// command line is a usage error that names it (not the config file, nor a flag the command
+/// would have ignored).
+#[test]
+fn the_command_line_replaces_the_configured_source_and_names_its_own_mistakes() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = dir.path().join("in.exr");
+    write_rgb(&frame, 16, 8, 1.0);
+    let config = |name: &str, text: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        path.display().to_string()
+    };
+    let camera = config("cam.toml", "[source]\nkind = \"v4l2\"\n");
+    let sequence = config(
+        "seq.toml",
+        &format!("[source]\nkind = \"sequence\"\npaths = [{:?}]\n", s(&frame)),
+    );
+    let unfiltered = config("nf.toml", "[decompose]\nfilter = false\n");
+    // INPUT files replace a configured camera (decompose waited for the camera).
+    let o = envlight(&["decompose", "--config", &camera, s(&frame), "-n", "4"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(check_frames(&stdout(&o), 4).len(), 1);
+    let out = dir.path().join("check.txt");
+    let o = envlight(&["check-config", "--config", &sequence]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("seq.toml: ok"), "{}", stdout(&o));
+    let usage_errors: [(&[&str], &[&str]); 11] = [
+        (&["sh", "--radius", "5"], &["--radius", "INPUT", "sky"]),
+        (&["wavelet", "approx", "--fov", "120"], &["--fov", "INPUT"]),
+        (
+            &["sh", "v4l2:/dev/video0"],
+            &["INPUT v4l2:/dev/video0", "reads frame files"],
+        ),
+        (&["sh", ""], &["invalid INPUT", "empty path"]),
+        (&["decompose", ""], &["invalid INPUT", "empty path"]),
+        (&["run", ""], &["invalid INPUT", "empty path"]),
+        (
+            &["run", "v4l2:/dev/video0", s(&frame)],
+            &["INPUT v4l2:/dev/video0", "only INPUT"],
+        ),
+        (
+            &[
+                "decompose",
+                "--config",
+                &unfiltered,
+                "--bright-history",
+                "fade",
+            ],
+            &["--bright-history", "decompose.filter = false"],
+        ),
+        (
+            &["decompose", "--sky-size", "100x0"],
+            &["--sky-size height 0"],
+        ),
+        (
+            &["calibrate-fisheye", "--config", &camera, s(&frame)],
+            &["--config", "--device"],
+        ),
+        (
+            &[
+                "calibrate-response",
+                "--config",
+                &camera,
+                s(&frame),
+                s(&frame),
+                "--exposures",
+                "0.01,0.04",
+                "-o",
+                s(&out),
+            ],
+            &["--config", "--device"],
+        ),
+    ];
+    for (args, needles) in usage_errors {
+        let o = envlight(args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert_fails_naming(&o, needles);
+        assert!(
+            !stderr(&o).contains("invalid setting"),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+    }
+    assert!(!out.exists());
+}
+
 /// Relative paths in a config file are the file's folder's: the same config works from any
 /// working directory (a service runs from `/`), for files, patterns and a folder whose name
 /// holds glob characters; a path given on the command line stays the working directory's.

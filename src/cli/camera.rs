@@ -36,7 +36,7 @@ pub struct CalibrateResponseArgs {
 
     /// With --device: the config file whose [camera] table opens the camera (formats, size,
     /// rate; the device is --device's). [default: the built-in [camera] defaults]
-    #[arg(long, value_name = "FILE", requires = "device")]
+    #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
 
     /// Where to write the curve file.
@@ -77,7 +77,7 @@ pub struct CalibrateFisheyeArgs {
 
     /// With --device: the config file whose [camera] table opens the camera (formats, size,
     /// response, exposure; the device is --device's). [default: the built-in [camera] defaults]
-    #[arg(long, value_name = "FILE", requires = "device")]
+    #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
 
     /// Lens model to write (not detectable from the circle). [default: equidistant]
@@ -131,6 +131,7 @@ pub fn devices(args: &DevicesArgs) -> Result<()> {
 }
 
 pub fn calibrate_response(args: &CalibrateResponseArgs) -> Result<()> {
+    refuse_config_without_device(args.config.is_some(), args.device.is_some())?;
     // Checked before the brackets are read and solved: --out replaced an input image.
     crate::cli::output::check_output_path(&args.out, "--out")?;
     crate::cli::output::InputFiles::new(&args.images).refuse(&args.out, "--out")?;
@@ -233,7 +234,20 @@ fn camera_settings(device: &str, config: Option<&Path>) -> Result<CameraSettings
     })
 }
 
+/// `--config` opens the camera of `--device`; with IMAGE files it would be read by nobody
+/// (clap's `requires` does not hold once the IMAGEs, which conflict with --device, are given).
+fn refuse_config_without_device(config: bool, device: bool) -> Result<()> {
+    if config && !device {
+        crate::cli::usage_error!(
+            "--config FILE opens the camera of --device (its [camera] table); IMAGE files need \
+             no config"
+        );
+    }
+    Ok(())
+}
+
 pub fn calibrate_fisheye(args: &CalibrateFisheyeArgs) -> Result<()> {
+    refuse_config_without_device(args.config.is_some(), args.device.is_some())?;
     let (source, (w, h, pixels)) = match (&args.device, &args.image) {
         (Some(device), _) => {
             let settings = camera_settings(device, args.config.as_deref())?;

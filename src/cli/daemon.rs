@@ -43,7 +43,8 @@ struct DaemonArgs {
     /// Config file (TOML; see config/envlight.toml). Reloaded on SIGHUP.
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
-    /// Input frames instead of the configured source: .exr/.hdr files, directories or globs.
+    /// Input frames instead of the configured source: .exr/.hdr files, directories or globs;
+    /// or one `v4l2:DEVICE`, a camera with the config's [camera] settings.
     #[arg(value_name = "INPUT", value_parser = Utf8Input)]
     inputs: Vec<String>,
 }
@@ -77,6 +78,9 @@ pub(crate) struct CheckConfigArgs {
     /// The config file; without it the built-in defaults are checked and shown.
     #[arg(value_name = "FILE")]
     file: Option<PathBuf>,
+    /// The config file, as the other subcommands take it (the same as FILE).
+    #[arg(long = "config", value_name = "FILE", conflicts_with = "file")]
+    config: Option<PathBuf>,
 }
 
 /// INPUT files of `envlight run`/`record`, which replace `[source]`.
@@ -86,9 +90,17 @@ fn source_paths(args: &DaemonArgs) -> Option<Vec<String>> {
 
 /// Loads the config (defaults without --config) with INPUT as the source.
 fn daemon_config(args: &DaemonArgs) -> Result<Config> {
+    crate::cli::refuse_camera_among_files(&args.inputs)?;
     let paths = source_paths(args);
-    envlight::daemon::read_config(args.config.as_deref(), paths.as_deref())
-        .map_err(|e| naming_the_file(e, args.config.as_deref()))
+    envlight::daemon::read_config(args.config.as_deref(), paths.as_deref()).map_err(|e| match &e {
+        // INPUT replaced source.paths: a bad one is the command line's, not the file's.
+        ConfigError::Invalid {
+            key: "source.paths",
+            value,
+            message,
+        } if paths.is_some() => crate::cli::usage(format!("invalid INPUT {value}: {message}")),
+        _ => naming_the_file(e, args.config.as_deref()),
+    })
 }
 
 /// A config error that names `path`: an invalid value names only its key (read and parse
@@ -135,7 +147,8 @@ fn run_daemon(args: &DaemonArgs, options: DaemonOptions) -> Result<()> {
 }
 
 pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
-    let (config, name) = match &args.file {
+    let file = args.file.as_ref().or(args.config.as_ref());
+    let (config, name) = match file {
         Some(path) => (
             Config::from_file(path).map_err(|e| naming_the_file(e, Some(path)))?,
             path.display().to_string(),
@@ -239,7 +252,7 @@ pub(crate) fn check_config(args: &CheckConfigArgs) -> Result<()> {
         writeln!(
             text,
             "  render: {}",
-            render_description(&config, args.file.as_deref(), &source_files)
+            render_description(&config, file.map(PathBuf::as_path), &source_files)
                 .with_context(|| name.clone())?
         )?;
     } else {

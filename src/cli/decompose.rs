@@ -204,6 +204,7 @@ impl DecomposeArgs {
     fn apply(&self, raw: &mut RawConfig) -> Result<Vec<(&'static str, &'static str)>> {
         let mut set = Vec::new();
         let mut note = |key, flag| set.push((key, flag));
+        crate::cli::refuse_camera_among_files(&self.inputs)?;
         let device = self
             .device
             .clone()
@@ -211,16 +212,19 @@ impl DecomposeArgs {
                 [one] => one.strip_prefix("v4l2:").map(str::to_string),
                 _ => None,
             });
-        if let Some(dev) = device {
-            raw.source.kind = Some("v4l2".into());
-            raw.camera.device = Some(dev);
-        }
+        // A camera or INPUT files replace the configured source, whatever its kind (the
+        // config's files are not used with a camera, nor its camera with files).
         let src = &mut raw.source;
-        if !self.inputs.is_empty() && src.kind.as_deref() != Some("v4l2") {
+        if let Some(dev) = device {
+            src.kind = Some("v4l2".into());
+            src.paths = None;
+            raw.camera.device = Some(dev);
+        } else if !self.inputs.is_empty() {
             src.kind = Some("sequence".into());
             src.paths = Some(self.inputs.clone());
             note("source.paths", "INPUT");
         }
+        let src = &mut raw.source;
         if let Some(v) = self.frames {
             src.frames = Some(v);
         }
@@ -265,8 +269,8 @@ impl DecomposeArgs {
         if let Some((w, h)) = self.sky_size {
             raw.sky.width = Some(w);
             raw.sky.height = Some(h);
-            note("sky.width", "--sky-size");
-            note("sky.height", "--sky-size");
+            note("sky.width", "--sky-size width");
+            note("sky.height", "--sky-size height");
         }
         if self.no_clouds {
             raw.sky.clouds = Some(false);
@@ -352,6 +356,12 @@ impl DecomposeArgs {
             dec.filter = Some(true);
             dec.filter_taps = Some(taps.clone());
             note("decompose.filter_taps", "--taps");
+        }
+        if self.bright_history.is_some() && dec.filter == Some(false) {
+            usage_error!(
+                "--bright-history shapes the temporal filter, which the config file turns off \
+                 (decompose.filter = false; --taps would turn it on)"
+            );
         }
         if self.merge {
             dec.merge = Some(true);

@@ -47,6 +47,15 @@ pub(crate) struct FisheyeFlags {
 }
 
 impl FisheyeFlags {
+    /// Whether any of the flags was given.
+    pub(crate) fn given(&self) -> bool {
+        self.fisheye_model.is_some()
+            || self.center.is_some()
+            || self.radius.is_some()
+            || self.fov.is_some()
+            || self.rotation.is_some()
+    }
+
     /// Writes the flags given into `src.fisheye`, noting for each the config key and the flag
     /// (`note(key, flag)`). They need `src.projection` to be "fisheye": a usage error otherwise.
     pub(crate) fn apply(
@@ -54,12 +63,7 @@ impl FisheyeFlags {
         src: &mut RawSource,
         mut note: impl FnMut(&'static str, &'static str),
     ) -> Result<()> {
-        let given = self.fisheye_model.is_some()
-            || self.center.is_some()
-            || self.radius.is_some()
-            || self.fov.is_some()
-            || self.rotation.is_some();
-        if given && src.projection.as_deref() != Some("fisheye") {
+        if self.given() && src.projection.as_deref() != Some("fisheye") {
             usage_error!(
                 "--fisheye-model, --center, --radius, --fov and --rotation need --projection fisheye"
             );

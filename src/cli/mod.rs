@@ -73,6 +73,16 @@ pub(crate) fn usage(message: impl Into<String>) -> anyhow::Error {
     UsageError(message.into()).into()
 }
 
+/// A `v4l2:DEVICE` INPUT among others is a usage error: a camera is given as the only INPUT.
+pub(crate) fn refuse_camera_among_files(inputs: &[String]) -> Result<()> {
+    match inputs.iter().find(|p| p.starts_with("v4l2:")) {
+        Some(camera) if inputs.len() > 1 => Err(usage(format!(
+            "INPUT {camera}: a camera is the only INPUT (one v4l2:DEVICE, no files with it)"
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// Returns a [`UsageError`] from the enclosing function.
 macro_rules! usage_error {
     ($($arg:tt)*) => {

@@ -113,6 +113,18 @@ impl FrameInput {
                 "--projection describes INPUT files; the built-in sky is a lat-long map"
             );
         }
+        if self.inputs.is_empty() && self.fisheye.given() {
+            crate::cli::usage_error!(
+                "--fisheye-model, --center, --radius, --fov and --rotation describe fisheye INPUT \
+                 files; the built-in sky is a lat-long map"
+            );
+        }
+        if let Some(camera) = self.inputs.iter().find(|p| p.starts_with("v4l2:")) {
+            crate::cli::usage_error!(
+                "INPUT {camera}: this command reads frame files; a camera is read by `envlight \
+                 decompose` or `envlight run`"
+            );
+        }
         if self.inputs.is_empty() {
             let frames = match self.frames {
                 Some(0) => None,
@@ -134,6 +146,7 @@ impl FrameInput {
         let src = &mut raw.source;
         src.kind = Some("sequence".into());
         src.paths = Some(self.inputs.clone());
+        flags.push(("source.paths", "INPUT"));
         src.frames = self.frames;
         src.projection = Some(
             self.projection
