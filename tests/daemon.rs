@@ -1196,6 +1196,31 @@ fn an_unpaced_file_sequence_reaches_the_decomposition_whole() {
     assert_eq!(lights.lines().count() as u64, files);
 }
 
+/// INPUT replaces the configured source at every read of the config: files make a sequence
+/// (whatever the file's kind), one `v4l2:DEVICE` the camera (with the file's [camera] table).
+#[test]
+fn input_replaces_the_configured_source() {
+    use envlight::config::SourceKind;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("envlight.toml");
+    std::fs::write(
+        &path,
+        "[source]\nkind = \"sequence\"\npaths = [\"a.exr\"]\n[camera]\nwidth = 320\n",
+    )
+    .unwrap();
+    let camera = vec!["v4l2:/dev/video7".to_owned()];
+    let config = envlight::daemon::read_config(Some(&path), Some(&camera)).unwrap();
+    assert_eq!(config.source.kind, SourceKind::V4l2);
+    assert!(config.source.paths.is_empty());
+    assert_eq!(config.camera.device, "/dev/video7");
+    assert_eq!(config.camera.width, 320);
+    std::fs::write(&path, "[source]\nkind = \"v4l2\"\n").unwrap();
+    let files = vec!["b.exr".to_owned(), "c/*.hdr".to_owned()];
+    let config = envlight::daemon::read_config(Some(&path), Some(&files)).unwrap();
+    assert_eq!(config.source.kind, SourceKind::Sequence);
+    assert_eq!(config.source.paths, files);
+}
+
 /// The built-in sky made as fast as possible (a config that sets `frames` but no `fps`) has no
 /// clock to keep either: every frame is decomposed and recorded (a `frames = 10` sky of 64×32
 /// recorded 3 of its 10 frames, with exit status 0; an audit). The queue of one frame and a
