@@ -206,6 +206,8 @@ fn oversized_length_prefix_fails_before_buffering() {
     let mut d = Decoder::new();
     let len = (MAX_MESSAGE_LEN as u32 + 1).to_le_bytes();
     d.push(&len);
+    assert_eq!(d.next_message(), Ok(None), "judged before the magic");
+    d.push(b"ENVL");
     assert_eq!(
         d.next_message(),
         Err(ProtocolError::Oversized {
@@ -340,10 +342,13 @@ fn garbage_is_an_error_not_a_panic() {
     // is named as no envlight stream.
     assert_eq!(e.code(), code::MALFORMED, "{e}");
     assert!(e.to_string().contains("not an envlight stream"), "{e}");
-    // Only the length has arrived: an absurd one is refused at once.
+    // Only the length has arrived: nothing is judged before the magic, so the request's
+    // first four bytes alone are no absurd length but wait for the rest.
     let mut d = Decoder::new();
     d.push(b"GET ");
-    assert_eq!(d.next_message().unwrap_err().code(), code::TOO_LARGE);
+    assert_eq!(d.next_message(), Ok(None));
+    d.push(b"/ HTTP/1.1\r\n");
+    assert_eq!(d.next_message().unwrap_err().code(), code::MALFORMED);
     let mut d = Decoder::new();
     d.push(b"\x10\x00\x00\x00HTTP/1.1 200 OK");
     assert_eq!(d.next_message().unwrap_err().code(), code::MALFORMED);

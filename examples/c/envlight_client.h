@@ -317,10 +317,10 @@ void envlight_encode_subscribe(uint32_t max_lights, int representation, int form
 int envlight_check_header(const uint8_t *b, size_t n, size_t *message_len, char *err,
                           size_t err_len) {
     if (message_len) *message_len = 0;
-    if (n < 4) return ENVLIGHT_OK;
-    /* The magic first where it has arrived: bytes that are no envlight stream are named as
-       such, not as an absurd length. */
-    if (n >= 8 && memcmp(b + 4, "ENVL", 4) != 0) {
+    /* Nothing is judged before the magic has arrived: bytes that are no envlight stream are
+       named as such, not as an absurd length, however the first bytes were split. */
+    if (n < 8) return ENVLIGHT_OK;
+    if (memcmp(b + 4, "ENVL", 4) != 0) {
         envlight_say_(err, err_len,
                       "bad magic %02x %02x %02x %02x (expected \"ENVL\"): not an envlight stream, "
                       "or the stream lost its framing", b[4], b[5], b[6], b[7]);
@@ -445,7 +445,8 @@ static int envlight_records_(envlight_message *m, const uint8_t *r, size_t rest,
                              size_t record, size_t first, int floats, size_t size,
                              const char *what, char *err, size_t err_len) {
     uint32_t n = m->count;
-    if (rest < prefix || rest - prefix != (size_t)n * record) {
+    /* n is compared by division first: n * record wraps around a 32-bit size_t. */
+    if (rest < prefix || n > (rest - prefix) / record || rest - prefix != (size_t)n * record) {
         envlight_say_(err, err_len, "malformed frame message: count %lu does not fit the %lu "
                       "bytes of records of representation %d", (unsigned long)n,
                       (unsigned long)rest, m->representation);

@@ -34,16 +34,15 @@ pub(super) fn kind_name(message_type: u16) -> &'static str {
 /// Checks whatever part of the 12-byte header `b` already holds (it may hold less). Returns the
 /// length prefix once it is known.
 pub(super) fn check_header(b: &[u8]) -> Result<Option<usize>, ProtocolError> {
-    if b.len() < 4 {
+    // Nothing is judged before the magic has arrived: bytes that are no envlight stream (an
+    // HTTP request on the TCP port) are named as such, not as an absurd length, however the
+    // first bytes were split.
+    if b.len() < 8 {
         return Ok(None);
     }
-    // The magic first where it has arrived: bytes that are no envlight stream (an HTTP request
-    // on the TCP port) are named as such, not as an absurd length.
-    if b.len() >= 8 {
-        let found = [b[4], b[5], b[6], b[7]];
-        if found != MAGIC {
-            return Err(ProtocolError::BadMagic { found });
-        }
+    let found = [b[4], b[5], b[6], b[7]];
+    if found != MAGIC {
+        return Err(ProtocolError::BadMagic { found });
     }
     let len = u32_at(b, 0) as usize;
     if len > MAX_MESSAGE_LEN {

@@ -975,6 +975,22 @@ mod tests {
             d.next_message(),
             Err(ProtocolError::BadMagic { found }) if &found == b"HTTP"
         ));
+        // However the first bytes are split: an HTTP request whose first four bytes arrive
+        // alone is no absurd length prefix ("GET " is 542393671) but a bad magic.
+        let request = b"GET / HTTP/1.1\r\nHost: rig\r\n\r\n";
+        for first in 1..8 {
+            let mut split = Decoder::new();
+            split.push(&request[..first]);
+            assert_eq!(split.next_message(), Ok(None), "after {first} bytes");
+            split.push(&request[first..]);
+            assert!(
+                matches!(
+                    split.next_message(),
+                    Err(ProtocolError::BadMagic { found }) if &found == b"/ HT"
+                ),
+                "split after {first} bytes"
+            );
+        }
         // Sticky: later input is discarded and the error repeats.
         d.push(&[0; 100]);
         assert_eq!(d.buffered(), 0);
@@ -998,7 +1014,7 @@ mod tests {
         );
 
         let mut d = Decoder::new();
-        d.push(&[3, 0, 0, 0]);
+        d.push(&[3, 0, 0, 0, b'E', b'N', b'V', b'L']);
         assert!(matches!(
             d.next_message(),
             Err(ProtocolError::Inconsistent { .. })
