@@ -5,7 +5,7 @@ Connects to a running daemon over a Unix socket or TCP, subscribes (binary frame
 lines with --json), and prints one line per light list (or per ASG set with --representation
 asg, per wavelet coefficient set with --representation wavelet, per spherical-harmonic set with
 --representation sh). The wire format is docs/protocol.md; both forms are checked as it asks of
-a decoder (lengths, finite numbers, known representations).
+a decoder (lengths, finite numbers, known representations, ASG lobes, wavelet sets, error texts).
 
     python3 examples/client.py unix:/run/envlight/envlight.sock
     python3 examples/client.py 127.0.0.1:7878 --max-lights 16 --frames 10
@@ -112,6 +112,18 @@ class LineReader:
     def __init__(self, sock):
         self.sock, self.buffer = sock, bytearray()
 
+    def binary_first(self):
+        """A socket-like reader of the stream from its start if its first bytes are a binary
+        message (the magic at bytes 4..8; a JSON line starts with '{'), else None."""
+        while len(self.buffer) < 8:
+            chunk = self.sock.recv(1 << 16)
+            if not chunk:
+                break
+            self.buffer += chunk
+        if self.buffer[4:8] != MAGIC:
+            return None
+        return BufferedSocket(bytes(self.buffer), self.sock)
+
     def message(self):
         """The next line, parsed: a dict; ValueError for a line that is too long or not an
         object; EOFError at the end of the stream."""
@@ -136,6 +148,19 @@ class LineReader:
         return value
 
 
+class BufferedSocket:
+    """`recv` of bytes already read, then of the socket."""
+
+    def __init__(self, data, sock):
+        self.data, self.sock = data, sock
+
+    def recv(self, n):
+        if self.data:
+            chunk, self.data = self.data[:n], self.data[n:]
+            return chunk
+        return self.sock.recv(n)
+
+
 def _refuse(reason):
     raise ValueError(reason)
 
@@ -154,6 +179,43 @@ def numbers(value, n, what):
 
 def number(value, what):
     return numbers([value], 1, what)[0]
+
+
+# Within this of 1, |axis| and |tangent| of an ASG lobe, and at most this |axis . tangent|
+# (docs/protocol.md: the fit's values rounded to f32).
+ASG_TOLERANCE = 1e-3
+MAX_WAVELET_SIDE = 32768
+
+
+def check_lobes(lobes, where):
+    """docs/protocol.md's checks of ASG lobes: lambda, mu and integral > 0, an orthonormal
+    frame (within ASG_TOLERANCE); ValueError naming the lobe otherwise."""
+    for i, g in enumerate(lobes):
+        axis, tangent = g["axis"], g["tangent"]
+        norms = [math.sqrt(sum(c * c for c in v)) for v in (axis, tangent)]
+        dot = sum(a * t for a, t in zip(axis, tangent))
+        if not (g["lambda"] > 0 and g["mu"] > 0 and g["integral"] > 0):
+            raise ValueError(f"{where} lobe {i}: lambda, mu and integral must be > 0 (error 1)")
+        if any(abs(n - 1) > ASG_TOLERANCE for n in norms) or abs(dot) > ASG_TOLERANCE:
+            raise ValueError(f"{where} lobe {i}: axis and tangent are no orthonormal pair "
+                             f"(|axis| {norms[0]:.4g}, |tangent| {norms[1]:.4g}, "
+                             f"axis.tangent {dot:.3g}; error 1)")
+
+
+def check_wavelet_set(side, levels, indices, where):
+    """docs/protocol.md's checks of a wavelet set: a side that is a power of two in
+    2..=32768, at most log2(side) levels, indices < side^2 and strictly increasing."""
+    if not (isinstance(side, int) and 2 <= side <= MAX_WAVELET_SIDE and side & (side - 1) == 0):
+        raise ValueError(f"{where}: side {side!r} is not a power of two in 2..={MAX_WAVELET_SIDE} "
+                         "(error 1)")
+    if not (isinstance(levels, int) and 0 <= levels <= side.bit_length() - 1):
+        raise ValueError(f"{where}: levels {levels!r} is not in 0..=log2(side {side}) (error 1)")
+    previous = -1
+    for index in indices:
+        if not previous < index < side * side:
+            raise ValueError(f"{where}: index {index} is not above {previous} and below "
+                             f"side^2 = {side * side} (error 1)")
+        previous = index
 
 
 def parse_json_frame(message):
@@ -187,19 +249,20 @@ def parse_json_frame(message):
             raise ValueError(f"{where} has {len(sh)} SH coefficients for degree {degree} (error 1)")
         frame.update(degree=degree, sh=sh)
     elif representation == 2:
-        side, levels = message.get("side"), message.get("levels")
-        if not (isinstance(side, int) and isinstance(levels, int) and side > 0 and levels >= 0):
-            raise ValueError(f"{where}: side {side!r} and levels {levels!r} are not a wavelet map")
+        side, levels, basis = message.get("side"), message.get("levels"), message.get("basis")
+        if basis not in BASES.values():
+            raise ValueError(f"{where}: unknown wavelet basis {basis!r} (error 1)")
         coefficients = []
         for i, c in enumerate(records("coefficients")):
             if not (isinstance(c, list) and len(c) == 2 and isinstance(c[0], int)
-                    and 0 <= c[0] < side * side):
-                raise ValueError(f"{where}: coefficient {i} is not [index < side^2, [r, g, b]]")
+                    and not isinstance(c[0], bool)):
+                raise ValueError(f"{where}: coefficient {i} is not [index, [r, g, b]]")
             coefficients.append((c[0], numbers(c[1], 3, f"{where} coefficient {i}")))
-        frame.update(basis=str(message.get("basis")), levels=levels, side=side,
-                     coefficients=coefficients)
+        check_wavelet_set(side, levels, [index for index, _ in coefficients], where)
+        frame.update(basis=basis, levels=levels, side=side, coefficients=coefficients)
     elif representation == 1:
         frame["lobes"] = objects(records("lobes"), f"{where} lobe", LOBE_FIELDS)
+        check_lobes(frame["lobes"], where)
     else:
         frame["lights"] = objects(records("lights"), f"{where} light", LIGHT_FIELDS)
     return frame
@@ -258,9 +321,13 @@ def parse_frame(body):
     elif representation == 2:
         # Prefix: basis code, levels, map (0 = equal-area octahedral), reserved, side; then
         # records of index (row * side + column in the coefficient layout) and rgb.
-        basis, levels, _map, _reserved, side = struct.unpack_from("<BBBBI", body, 24)
+        basis, levels, map_code, _reserved, side = struct.unpack_from("<BBBBI", body, 24)
+        if basis not in BASES or map_code != 0:
+            raise ValueError(f"wavelet frame {seq}: unknown basis code {basis} or map code "
+                             f"{map_code} (error 1)")
         coefficients = [struct.unpack_from("<I3f", body, 32 + 16 * i) for i in range(count)]
-        frame.update(basis=BASES.get(basis, f"code {basis}"), levels=levels, side=side,
+        check_wavelet_set(side, levels, [c[0] for c in coefficients], f"wavelet frame {seq}")
+        frame.update(basis=BASES[basis], levels=levels, side=side,
                      coefficients=[(c[0], c[1:4]) for c in coefficients])
         floats = [x for c in coefficients for x in c[1:4]]
     elif representation == 1:
@@ -283,6 +350,8 @@ def parse_frame(body):
         floats = [x for field in lights for x in (*field["dir"], *field["rgb"], field["solid_angle"])]
     if not all(math.isfinite(x) for x in [time, *floats]):
         raise ValueError(f"frame {seq} holds a NaN or an infinity (error 1)")
+    if representation == 1:
+        check_lobes(frame["lobes"], f"ASG frame {seq}")
     return frame
 
 
@@ -360,15 +429,32 @@ def binary_messages(sock):
         if kind == TYPE_FRAME:
             yield kind, parse_frame(body)
         elif kind in (TYPE_ERROR, TYPE_GOODBYE):
-            code, text_len = struct.unpack_from("<HI", body)
-            yield kind, (code, body[6:6 + text_len].decode("utf-8", "replace"))
+            yield kind, closing_message(body)
         else:
             yield kind, None
 
 
+def closing_message(body):
+    """(code, text) of an error or goodbye body (after the header), checked as
+    docs/protocol.md asks: text_len equal to the bytes left, the text valid UTF-8."""
+    code, text_len = struct.unpack_from("<HI", body)
+    if text_len != len(body) - 6:
+        raise ValueError(f"an error or goodbye of {len(body) - 6} text bytes says {text_len} "
+                         "(error 1)")
+    try:
+        return code, body[6:].decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"an error or goodbye text is not UTF-8: {e} (error 1)") from None
+
+
 def json_messages(sock):
-    """The same from JSON lines."""
+    """The same from JSON lines. The first reply may be binary all the same: a daemon at its
+    client limit refuses a connection before reading its subscribe (error 100, docs/protocol.md),
+    so it cannot know the form asked."""
     lines = LineReader(sock)
+    binary = lines.binary_first()
+    if binary is not None:
+        yield from binary_messages(binary)
     while True:
         message = lines.message()
         for key, kind in (("error", TYPE_ERROR), ("goodbye", TYPE_GOODBYE)):

@@ -2579,9 +2579,48 @@ for bad in (header + light * 2 + b"x", header + light, struct.pack("<QdBBHI", 5,
         print(e)
     else:
         sys.exit("accepted a bad frame")
+# Wavelet and ASG sets, errors and goodbyes are checked too (a side of 0 raised
+# ZeroDivisionError, 5000 levels OverflowError; bad lobes and texts passed).
+def wavelet(basis, levels, map_code, side, indices):
+    head = struct.pack("<QdBBHI", 5, 0.5, 2, 0, 0, len(indices))
+    head += struct.pack("<BBBBI", basis, levels, map_code, 0, side)
+    return head + b"".join(struct.pack("<I3f", i, 1, 1, 1) for i in indices)
+def lobe(lam, axis):
+    head = struct.pack("<QdBBHI", 5, 0.5, 1, 0, 0, 1)
+    return head + struct.pack("<I3f3fff3ff", 0, *axis, 1, 0, 0, lam, 1.0, 1, 1, 1, 0.5)
+assert client.parse_frame(wavelet(1, 2, 0, 4, [0, 5]))["basis"] == "haar"
+assert client.parse_frame(lobe(2.0, (0, 1, 0)))["lobes"][0]["lambda"] == 2.0
+def json_wavelet(**fields):
+    return dict({"seq": 1, "time": 0.0, "representation": "wavelet", "basis": "haar",
+                 "side": 4, "levels": 2, "coefficients": [[0, [1, 1, 1]]]}, **fields)
+assert client.parse_json_frame(json_wavelet())["side"] == 4
+checks = [lambda m=m: client.parse_frame(m) for m in (
+    wavelet(1, 2, 0, 0, []), wavelet(99, 2, 0, 4, [0]), wavelet(1, 2, 7, 4, [0]),
+    wavelet(1, 3, 0, 4, [0]), wavelet(1, 2, 0, 4, [16]), wavelet(1, 2, 0, 4, [5, 5]),
+    wavelet(1, 2, 0, 6, [0]), lobe(-1.0, (0, 1, 0)), lobe(2.0, (0, 5, 0)),
+    lobe(2.0, (1, 0, 0)))]
+checks += [lambda m=m: client.parse_json_frame(json_wavelet(**m)) for m in (
+    {"levels": 5000}, {"basis": "nope"}, {"side": 0}, {"coefficients": [[16, [1, 1, 1]]]})]
+checks += [lambda b=b: client.closing_message(b) for b in (
+    struct.pack("<HI", 5, 2) + b"hello", struct.pack("<HI", 0, 2) + b"\xff\xfe")]
+for check in checks:
+    try:
+        check()
+    except ValueError as e:
+        print(e)
+    else:
+        sys.exit("accepted a bad message")
+# A JSON reader reads a binary first reply (a daemon at its client limit refuses in binary).
+import socket
+server, reader = socket.socketpair()
+text = b"too many clients (limit 2)"
+body = struct.pack("<HI", 100, len(text)) + text
+server.sendall(struct.pack("<I4sHH", 8 + len(body), b"ENVL", 1, 2) + body)
+server.close()
+assert next(client.json_messages(reader)) == (client.TYPE_ERROR, (100, text.decode()))
 "#;
     let text = common::python_script(script);
-    assert_eq!(text.matches("error 1").count(), 6, "{text}");
+    assert_eq!(text.matches("error 1").count(), 6 + 16, "{text}");
     assert_eq!(
         text.matches("unknown representation 4").count(),
         1,

@@ -142,6 +142,8 @@ enum Transport {
         /// The line read so far: kept when a read times out in its middle, so that the next
         /// call goes on with it.
         pending: Vec<u8>,
+        /// No message has been read yet: the first reply may be binary ([`binary_reply`]).
+        first: bool,
     },
     WebSocket(Box<tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>>),
 }
@@ -249,6 +251,7 @@ impl Client {
             Format::Json => Transport::JsonLines {
                 reader: BufReader::new(stream),
                 pending: Vec::new(),
+                first: true,
             },
         };
         Ok(Client {
@@ -299,7 +302,11 @@ impl Client {
                 }
                 *unread = 0..n;
             },
-            Transport::JsonLines { reader, pending } => {
+            Transport::JsonLines {
+                reader,
+                pending,
+                first,
+            } => {
                 // A line is one message: at most MAX_JSON_MESSAGE_LEN bytes and its newline, so
                 // a server that never ends its line cannot grow this buffer without bound.
                 let limit = protocol::MAX_JSON_MESSAGE_LEN as u64 + 2;
@@ -314,6 +321,13 @@ impl Client {
                     .map_err(io)?;
                 if read == 0 && pending.is_empty() {
                     return Ok(None);
+                }
+                if *first {
+                    if let Some(message) = binary_reply(reader, pending).map_err(io)? {
+                        pending.clear();
+                        return message.map(Some).map_err(protocol_error);
+                    }
+                    *first = false;
                 }
                 if pending.len() as u64 >= limit && pending.last() != Some(&b'\n') {
                     pending.clear();
@@ -364,6 +378,37 @@ impl Client {
             },
         }
     }
+}
+
+/// The first reply of a JSON Lines subscription when it is a binary message: a daemon at its
+/// client limit refuses a connection before it reads the subscribe (error 100,
+/// docs/protocol.md), so in binary whatever form was asked. `pending` holds the first "line"
+/// read, up to a newline byte, which in a binary message may be one of its bytes; the rest of
+/// the message is read here. `None` when `pending` starts no binary message (a JSON line starts
+/// with `{`; a binary message has the magic at bytes 4..8). On an error (a timeout) the bytes
+/// read so far stay in `pending` for the next call.
+fn binary_reply(
+    reader: &mut impl BufRead,
+    pending: &mut Vec<u8>,
+) -> std::io::Result<Option<Result<Message, ProtocolError>>> {
+    while pending.len() < 8 && pending.first() != Some(&b'{') {
+        let missing = (8 - pending.len()) as u64;
+        if reader.by_ref().take(missing).read_to_end(pending)? == 0 {
+            break;
+        }
+    }
+    if pending.len() < 8 || pending[4..8] != protocol::MAGIC {
+        return Ok(None);
+    }
+    let len = u32::from_le_bytes([pending[0], pending[1], pending[2], pending[3]]) as usize;
+    // An oversized prefix is refused by the decoder from the header alone.
+    let total = 4 + len.min(protocol::MAX_MESSAGE_LEN);
+    if pending.len() < total {
+        let missing = (total - pending.len()) as u64;
+        reader.by_ref().take(missing).read_to_end(pending)?;
+    }
+    let message = &pending[..total.min(pending.len())];
+    Ok(Some(protocol::decode_message(message)))
 }
 
 #[cfg(test)]
@@ -441,6 +486,35 @@ mod tests {
     /// A JSON line that arrives in two parts with a pause longer than the read timeout between
     /// them: the first call times out, the next one returns the whole message (the part read
     /// before the timeout was dropped, and the next call parsed the rest of the line).
+    /// A daemon at its client limit answers before reading the subscribe, so in binary: a JSON
+    /// client reads the refusal as the error it is (it reported "invalid JSON message"), also
+    /// when a byte of the length prefix is a newline (26 and 252 text bytes: a length of 40,
+    /// and of 266 = 0x10A, whose first byte ends a line).
+    #[test]
+    fn a_json_client_reads_a_binary_refusal() {
+        for text_len in [26, 252] {
+            let text = "m".repeat(text_len);
+            let sent = text.clone();
+            let (mut client, server) = json_client_of(
+                "binary-refusal",
+                Duration::from_secs(30),
+                move |mut stream| {
+                    let mut refusal = Vec::new();
+                    protocol::encode_error(protocol::code::INTERNAL, &sent, &mut refusal);
+                    stream.write_all(&refusal).unwrap();
+                },
+            );
+            match client.next_message() {
+                Ok(Some(Message::Error { code, message })) => {
+                    assert_eq!(code, protocol::code::INTERNAL);
+                    assert_eq!(message, text);
+                }
+                other => panic!("text of {text_len} bytes: {other:?}"),
+            }
+            server.join().unwrap();
+        }
+    }
+
     #[test]
     fn a_json_line_split_by_a_timeout_is_read_whole_on_the_next_call() {
         let line = r#"{"seq":17,"time":0.5,"lights":[{"id":3,"dir":[0.0,1.0,0.0],"rgb":[1.0,0.5,0.25],"solid_angle":0.0625}]}"#;
