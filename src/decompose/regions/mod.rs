@@ -369,6 +369,22 @@ fn accumulate(args: Accumulate<'_>) {
     empty_regions_exactly(regions, members);
 }
 
+/// Takes from each region the solid angle of its working pixels that the frame does not see
+/// ([`WorkingMap::unseen`]: below a fisheye's field of view), so that a light's `solid_angle`
+/// is the part of the sphere its energy comes from (the sum of the input's shares in its
+/// working pixels); a concentrated working pixel's input
+/// pixels carry their own (seen) solid angles already. Run after the region pass, on its
+/// final labels.
+pub(super) fn remove_unseen(map: &WorkingMap, scratch: &Scratch, regions: &mut [Region]) {
+    for &(pixel, unseen) in &map.unseen {
+        let pixel = pixel as usize;
+        if !map.concentrated[pixel] {
+            let region = &mut regions[scratch.labels[pixel] as usize];
+            region.solid_angle = (region.solid_angle - unseen).max(0.0);
+        }
+    }
+}
+
 /// A region that lost every pixel is empty, not the rounding left by the subtractions of
 /// [`move_member`]; one that kept some keeps no negative energy from them.
 #[inline(always)]
