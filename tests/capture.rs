@@ -567,7 +567,7 @@ fn file_names(source: &SequenceSource) -> Vec<String> {
 }
 
 #[test]
-fn directory_is_ordered_by_last_number() {
+fn directory_is_ordered_by_the_numbers_in_names() {
     let dir = tempfile::tempdir().unwrap();
     for (name, v) in [
         ("frame_10.exr", 10.0),

@@ -687,8 +687,10 @@ fn bad_clients_are_disconnected_and_the_others_keep_receiving() {
     // Garbage bytes: bad magic.
     let garbage = raw_exchange(tcp, b"\x08\0\0\0GET / HTTP/1.1\r\n\r\n", false);
     assert_eq!(error_code(&garbage), Some(code::MALFORMED), "{garbage:?}");
-    // An oversized length prefix is refused as soon as it is read.
-    let oversized = raw_exchange(tcp, &u32::MAX.to_le_bytes(), false);
+    // An oversized length prefix is refused as soon as it and the magic are read.
+    let mut oversized = u32::MAX.to_le_bytes().to_vec();
+    oversized.extend_from_slice(b"ENVL");
+    let oversized = raw_exchange(tcp, &oversized, false);
     assert_eq!(
         error_code(&oversized),
         Some(code::TOO_LARGE),

@@ -5,10 +5,15 @@
 //! frame extension that is no readable regular file (a broken or looping link, a pipe) is an
 //! error naming it. The frames found are put in natural order and deduplicated (by canonical
 //! path; two names of one file, such as a link and its target, are one frame, at the place of
-//! the first name in that order, with a warning naming both). Natural order: by the last run
-//! of digits in the file name (without
-//! extension), so `frame_2.exr` comes before `frame_10.exr`; files without a number come after
-//! the numbered ones, and ties are broken by file name and then full path.
+//! the first name in that order, with a warning naming both). Natural order: by the numbers in
+//! the path, compared one after another as numbers — those of its folders, then those of the
+//! file name (without extension) — so `frame_2.exr` comes before `frame_10.exr`, a timestamp
+//! `12-30-58` before `12-31-00`, `t_0.5` before `t_1.0`, `f_1_v2` before `f_10_v2`, and the
+//! frames of `take_1/` before those of `take_2/`. A `-` before a number is its sign after a
+//! `.` or `_` or at the start of a name (`shot.-002`, a pre-roll frame, comes before
+//! `shot.0000`), not between numbers (`2024-05-01`). A file whose numbers begin another's
+//! comes first (`f_1` before `f_1_v2`); files without a number come after the numbered ones,
+//! and ties are broken by file name and then full path.
 //!
 //! Each call of [`FrameSource::next_frame`] reads one file ([`read_hdr_image`]), checks it has
 //! the first frame's size, sanitises its pixels ([`HdrFrame::sanitize`], one warning per frame
@@ -379,36 +384,90 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
     Ok(unique)
 }
 
-/// The last run of ASCII digits in `stem`, without leading zeros ("" for zero). Found in the
-/// bytes: the byte before the run may end a character of several bytes (`é1`, `frame—2`, the
-/// U+FFFD of a name that is not UTF-8), where the index of that character's start plus one
-/// was not a character boundary (slicing there panicked).
-fn last_number(stem: &str) -> Option<&str> {
-    let bytes = stem.as_bytes();
-    let end = bytes.iter().rposition(u8::is_ascii_digit)? + 1;
-    let start = bytes[..end]
-        .iter()
-        .rposition(|b| !b.is_ascii_digit())
-        .map_or(0, |i| i + 1);
-    Some(stem[start..end].trim_start_matches('0'))
+/// A number in a path: its sign and its ASCII digits without leading zeros ("" for zero).
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct PathNumber {
+    negative: bool,
+    digits: String,
+}
+
+impl Ord for PathNumber {
+    fn cmp(&self, other: &Self) -> Ordering {
+        let magnitude =
+            || (self.digits.len(), &self.digits).cmp(&(other.digits.len(), &other.digits));
+        match (self.negative, other.negative) {
+            (false, false) => magnitude(),
+            (true, true) => magnitude().reverse(),
+            (negative, _) => {
+                if negative {
+                    Ordering::Less
+                } else {
+                    Ordering::Greater
+                }
+            }
+        }
+    }
+}
+
+impl PartialOrd for PathNumber {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// The runs of ASCII digits in `name`, as numbers (see the module docs for the sign). Found in
+/// the bytes: a run may follow a character of several bytes (`é1`, `frame—2`, the U+FFFD of a
+/// name that is not UTF-8), and digits are ASCII, so every run is a slice on character
+/// boundaries. A zero, "-0" included, is not negative.
+fn numbers_in(name: &str, out: &mut Vec<PathNumber>) {
+    let bytes = name.as_bytes();
+    let mut i = 0;
+    while i < bytes.len() {
+        if !bytes[i].is_ascii_digit() {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < bytes.len() && bytes[i].is_ascii_digit() {
+            i += 1;
+        }
+        let signed = start >= 1
+            && bytes[start - 1] == b'-'
+            && (start == 1 || matches!(bytes[start - 2], b'.' | b'_'));
+        let digits = name[start..i].trim_start_matches('0').to_owned();
+        out.push(PathNumber {
+            negative: signed && !digits.is_empty(),
+            digits,
+        });
+    }
+}
+
+/// The numbers of a frame file's path: those of its folders, then those of its file name
+/// without the extension.
+fn path_numbers(path: &Path) -> Vec<PathNumber> {
+    let mut numbers = Vec::new();
+    if let Some(parent) = path.parent() {
+        for part in parent.components() {
+            numbers_in(&part.as_os_str().to_string_lossy(), &mut numbers);
+        }
+    }
+    if let Some(stem) = path.file_stem() {
+        numbers_in(&stem.to_string_lossy(), &mut numbers);
+    }
+    numbers
 }
 
 /// Natural order of frame files (see the module docs).
 fn compare_frame_paths(a: &Path, b: &Path) -> Ordering {
-    let stem = |p: &Path| {
-        p.file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
     let name = |p: &Path| p.file_name().map(|s| s.to_os_string()).unwrap_or_default();
-    let (stem_a, stem_b) = (stem(a), stem(b));
-    let by_number = match (last_number(&stem_a), last_number(&stem_b)) {
-        (Some(x), Some(y)) => x.len().cmp(&y.len()).then_with(|| x.cmp(y)),
-        (Some(_), None) => Ordering::Less,
-        (None, Some(_)) => Ordering::Greater,
-        (None, None) => Ordering::Equal,
+    let (numbers_a, numbers_b) = (path_numbers(a), path_numbers(b));
+    let by_numbers = match (numbers_a.is_empty(), numbers_b.is_empty()) {
+        (false, false) => numbers_a.cmp(&numbers_b),
+        (false, true) => Ordering::Less,
+        (true, false) => Ordering::Greater,
+        (true, true) => Ordering::Equal,
     };
-    by_number
+    by_numbers
         .then_with(|| name(a).cmp(&name(b)))
         .then_with(|| a.cmp(b))
 }
@@ -418,17 +477,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn last_number_finds_the_last_digit_run() {
-        assert_eq!(last_number("frame_10"), Some("10"));
-        assert_eq!(last_number("take3_frame_0007"), Some("7"));
-        assert_eq!(last_number("multipart.0001"), Some("1"));
-        assert_eq!(last_number("f000"), Some(""));
-        assert_eq!(last_number("sky"), None);
-        assert_eq!(last_number("12"), Some("12"));
-        assert_eq!(last_number("é1"), Some("1"));
-        assert_eq!(last_number("frame—02"), Some("2"));
-        assert_eq!(last_number("f_\u{fffd}5"), Some("5"));
-        assert_eq!(last_number("7日"), Some("7"));
+    fn numbers_in_finds_every_digit_run_and_its_sign() {
+        let shown = |name: &str| {
+            let mut numbers = Vec::new();
+            numbers_in(name, &mut numbers);
+            numbers
+                .iter()
+                .map(|n| format!("{}{}", if n.negative { "-" } else { "" }, n.digits))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        assert_eq!(shown("frame_10"), "10");
+        assert_eq!(shown("take3_frame_0007"), "3 7");
+        assert_eq!(shown("multipart.0001"), "1");
+        assert_eq!(shown("f000"), "");
+        assert_eq!(shown("sky"), "");
+        assert_eq!(shown("12"), "12");
+        assert_eq!(shown("é1"), "1");
+        assert_eq!(shown("frame—02"), "2");
+        assert_eq!(shown("f_\u{fffd}5"), "5");
+        assert_eq!(shown("7日"), "7");
+        assert_eq!(shown("cam_2024-05-01_12-30-58"), "2024 5 1 12 30 58");
+        assert_eq!(shown("shot.-002"), "-2");
+        assert_eq!(shown("f_-1"), "-1");
+        assert_eq!(shown("-3x"), "-3");
+        assert_eq!(shown("render-0004"), "4");
+        assert_eq!(shown("shot.-000"), "");
     }
 
     #[test]
@@ -447,6 +521,35 @@ mod tests {
         .map(PathBuf::from)
         .collect();
         paths.sort_by(|a, b| compare_frame_paths(a, b));
+        // Names the last number alone ordered wrongly (an audit): each list is in order.
+        for ordered in [
+            &[
+                "cam_2024-05-01_12-30-58.hdr",
+                "cam_2024-05-01_12-30-59.hdr",
+                "cam_2024-05-01_12-31-00.hdr",
+                "cam_2024-05-01_12-31-01.hdr",
+            ][..],
+            &["t_0.5.exr", "t_1.0.exr", "t_1.5.exr", "t_2.0.exr"],
+            &[
+                "shot.-002.exr",
+                "shot.-001.exr",
+                "shot.0000.exr",
+                "shot.0001.exr",
+            ],
+            &["frame_1_v2.exr", "frame_2_v2.exr", "frame_10_v2.exr"],
+            &["f_1.exr", "f_1_v2.exr", "f_2.exr"],
+            &[
+                "take_1/f_0001.hdr",
+                "take_1/f_0002.hdr",
+                "take_2/f_0001.hdr",
+                "take_2/f_0002.hdr",
+            ],
+        ] {
+            let mut shuffled: Vec<PathBuf> = ordered.iter().rev().map(PathBuf::from).collect();
+            shuffled.sort_by(|a, b| compare_frame_paths(a, b));
+            let expected: Vec<PathBuf> = ordered.iter().map(PathBuf::from).collect();
+            assert_eq!(shuffled, expected);
+        }
         let expected: Vec<PathBuf> = [
             "a/frame_1.exr",
             "a/frame_0002.hdr",
