@@ -762,9 +762,14 @@ impl Daemon {
         ];
         for (name, changed) in sections {
             if changed {
-                report
-                    .needs_restart
-                    .push(format!("{name} (restart envlight to apply)"));
+                // A replay reads its recording whatever the source sections say.
+                let source_section = matches!(name, "[source]" | "[source] / [sky]" | "[camera]");
+                let why = if self.replaying && source_section {
+                    "a replay reads its recording, not this section"
+                } else {
+                    "restart envlight to apply"
+                };
+                report.needs_restart.push(format!("{name} ({why})"));
             }
         }
         report

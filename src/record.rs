@@ -572,7 +572,10 @@ impl ReplaySource {
             entries.push(entry);
         }
         if entries.is_empty() {
-            return Err(CaptureError::NoFrames(index_path.display().to_string()));
+            return Err(CaptureError::Format {
+                path: index_path.clone(),
+                message: "the recording holds no frame (its index is empty)".to_owned(),
+            });
         }
         // At the original timing a long gap is a long silent wait (a time edited to 10⁹ s
         // waited 31 years without a word; an audit): the longest is said at the start.
@@ -763,6 +766,21 @@ mod tests {
         let dir = recording_with_index(&index);
         let replay = ReplaySource::open(dir.path(), Pacing::Original).unwrap();
         assert_eq!(replay.len(), 2);
+    }
+
+    /// An empty index is a recording without frames, said as such (it was reported as a
+    /// sequence: "no .exr or .hdr frames found in …/frames.jsonl").
+    #[test]
+    fn an_empty_index_is_a_recording_without_frames() {
+        let dir = recording_with_index("");
+        let error = ReplaySource::open(dir.path(), Pacing::Original)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            error.contains("frames.jsonl") && error.contains("holds no frame"),
+            "{error}"
+        );
     }
 
     #[test]

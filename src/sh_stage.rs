@@ -196,6 +196,19 @@ impl StageWorker for ShProjector {
     fn frame_number(&mut self, number: u64) {
         self.filter.set_next_number(number);
     }
+
+    /// New settings keep the projection plan when the degree is unchanged (it depends on the
+    /// frame's shape and the degree alone); everything else is the new worker's.
+    fn take_over(&mut self, new: Self) {
+        let plan = self
+            .plan
+            .take()
+            .filter(|plan| plan.degree() == new.settings.degree);
+        let plans = self.plans;
+        *self = new;
+        self.plan = plan;
+        self.plans = plans;
+    }
 }
 
 impl StageKind for ShProjector {
@@ -289,6 +302,36 @@ mod tests {
             assert_eq!(got.degree(), Some(3));
         }
         assert_eq!(p.plans(), 2, "one plan per frame size");
+    }
+
+    /// New settings of the same degree keep the projection plan; a new degree makes a new
+    /// one. Each set is the new settings' all the same.
+    #[test]
+    fn a_reconfiguration_keeps_the_plan_while_the_degree_stays() {
+        let unfiltered = ShSettings {
+            degree: 2,
+            filter_taps: None,
+        };
+        let mut p = ShProjector::new(unfiltered.clone()).unwrap();
+        p.project(&frame(0, 32)).unwrap();
+        let filtered = ShSettings {
+            filter_taps: Some(crate::decompose::filter::DEFAULT_TAPS.to_vec()),
+            ..unfiltered
+        };
+        p.take_over(ShProjector::new(filtered.clone()).unwrap());
+        let got = p.project(&frame(1, 32)).unwrap();
+        let mut fresh = ShProjector::new(filtered).unwrap();
+        assert_eq!(got, fresh.project(&frame(1, 32)).unwrap());
+        assert_eq!(p.plans(), 1, "the plan kept");
+        let higher = ShSettings {
+            degree: 3,
+            filter_taps: None,
+        };
+        p.take_over(ShProjector::new(higher.clone()).unwrap());
+        let got = p.project(&frame(2, 32)).unwrap();
+        let mut fresh = ShProjector::new(higher).unwrap();
+        assert_eq!(got, fresh.project(&frame(2, 32)).unwrap());
+        assert_eq!(p.plans(), 2, "a new plan for the new degree");
     }
 
     /// Filtered, the stage's set is the library's set of each frame through the lights' FIR

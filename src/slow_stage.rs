@@ -285,7 +285,8 @@ fn run<W: StageWorker>(
         if let Some(new) = replacement {
             worker.take_over(new);
             worker.watch_abandon(Arc::clone(&shared.abandon));
-            plans_counted = 0;
+            // Counted already, if the worker kept its plans (and with them their count).
+            plans_counted = worker.plans();
         }
         if abandoned() {
             tracing::info!(

@@ -245,7 +245,7 @@ fn sighup_reload_applies_a_new_degree_from_the_next_frame() {
 
 /// The SH filter follows the lights': new [decompose] taps reach the stage, another
 /// [decompose] change restarts its window with the lights', `filter = false` turns it off
-/// (each a new worker: the plans count them).
+/// (each a new worker, which keeps the projection plan).
 /// A replay filters the SH sets with the recording's taps (the lights'), not with those of
 /// the config it is started with, and reports their delay: here the config asks for
 /// `[1, 2, 1]` (delay 1), the recording was made with the defaults (delay 3). The stage used
@@ -260,7 +260,7 @@ fn a_replay_filters_the_sets_with_the_recordings_taps() {
         "[decompose]\nfilter_taps = [1.0, 2.0, 1.0]\n[sh]\nenabled = true\n",
     );
     assert_eq!(config.sh.settings.filter_taps, Some(vec![1.0, 2.0, 1.0]));
-    let daemon = common::start_replay(config, &recording);
+    let mut daemon = common::start_replay(config, &recording);
     let addrs = daemon.addresses().clone();
     let tcp = Endpoint::Tcp(addrs.stream.tcp.unwrap().to_string());
     let endpoints = every_transport(&addrs.stream, [0; 4]);
@@ -272,6 +272,21 @@ fn a_replay_filters_the_sets_with_the_recordings_taps() {
         "envlight_filter_delay_frames",
     );
     assert_eq!(delay, 3.0, "the recording's taps' delay");
+    // A reload's new sky is read by nobody: a replay reads its recording (it said "restart
+    // envlight to apply", which would not apply it either).
+    let other_sky = self::config(
+        dir.path(),
+        "[decompose]\nfilter_taps = [1.0, 2.0, 1.0]\n[sh]\nenabled = true\n\
+         [sky]\nwidth = 128\nheight = 64\n",
+    );
+    let report = daemon.reload(other_sky);
+    assert!(
+        report
+            .needs_restart
+            .iter()
+            .any(|s| s.starts_with("[source] / [sky] (a replay reads its recording")),
+        "{report:?}"
+    );
     wait_until("the end of the replay", || daemon.source_finished());
     daemon.shutdown().unwrap();
 
@@ -352,10 +367,9 @@ fn sighup_keeps_the_sh_filter_on_the_lights_taps() {
     let report = daemon.reload(with(&format!("{taps}merge = true\n"), &off));
     assert!(report.applied.is_empty(), "{report:?}");
     let stats = daemon.shutdown().unwrap().sh.unwrap();
-    assert_eq!(
-        stats.plans, 4,
-        "a new worker (and plan) for each of the three changes"
-    );
+    // Each change is a new worker, which keeps the projection plan: the degree stays (every
+    // change rebuilt it before).
+    assert_eq!(stats.plans, 1, "one plan through the three changes");
     assert_eq!(stats.errors, 0);
 }
 

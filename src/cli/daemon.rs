@@ -21,8 +21,9 @@ stopped, at 30 frames/s, unless [source] sets `frames` or `fps` (envlight decomp
 frames, as fast as possible).
 
 Signals: SIGTERM / SIGINT shut down gracefully (clients get a goodbye, the socket file is
-removed); SIGHUP reloads --config: [decompose] applies from the next frame, other changed
-sections are reported as needing a restart, and a bad file changes nothing. Under systemd
+removed); SIGHUP reloads --config: [decompose], [asg], [wavelet] and [sh] apply from the next
+frame (turning a stage on or off needs a restart), other changed sections are reported as
+needing a restart, and a bad file changes nothing. Under systemd
 (Type=notify) it reports READY, RELOADING and STOPPING and feeds the watchdog.
 
 --replay DIR plays a recording (envlight record) at its original timing (--fast: as fast as
