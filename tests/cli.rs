@@ -693,6 +693,67 @@ fn a_cropped_data_window_is_read_with_a_warning() {
     );
 }
 
+/// A Blender-style multilayer frame is read from its beauty pass (`ViewLayer.Combined`, which
+/// sorts after `ViewLayer.AO`: the AO pass was read, without a word), with a warning naming
+/// the layer read and the others; primaries other than Rec. 709's (ACES AP0) are warned of.
+#[test]
+fn a_multilayer_frame_is_read_from_its_beauty_pass_with_warnings() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("render.exr");
+    let (w, h) = (16usize, 8usize);
+    let layer_channels = |layer: &str, value: f32| {
+        ["R", "G", "B"].map(|c| {
+            AnyChannel::new(
+                format!("ViewLayer.{layer}.{c}").as_str(),
+                FlatSamples::F32(vec![value; w * h]),
+            )
+        })
+    };
+    let mut channels = layer_channels("AO", 0.5).to_vec();
+    channels.extend(layer_channels("Combined", 10.0));
+    let layer = Layer::new(
+        (w, h),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(SmallVec::from_vec(channels)),
+    );
+    let mut attributes = ImageAttributes::new(IntegerBounds::from_dimensions((w, h)));
+    attributes.chromaticities = Some(exr::meta::attribute::Chromaticities {
+        red: exr::math::Vec2(0.7347, 0.2653),
+        green: exr::math::Vec2(0.0, 1.0),
+        blue: exr::math::Vec2(0.0001, -0.077),
+        white: exr::math::Vec2(0.32168, 0.33767),
+    });
+    Image::from_layers(attributes, vec![layer])
+        .write()
+        .to_file(&path)
+        .unwrap();
+    let o = envlight(&["decompose", "-n", "4", "--no-filter", s(&path)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let frames = check_frames(&stdout(&o), 4);
+    let red: f64 = frames[0]["lights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l["rgb"][0].as_f64().unwrap())
+        .sum();
+    let sphere = 4.0 * std::f64::consts::PI;
+    assert!(
+        (red - 10.0 * sphere).abs() < 1e-3 * red,
+        "{red}: not the Combined pass"
+    );
+    let err = stderr(&o);
+    assert!(
+        err.contains("read from the layer ViewLayer.Combined (part 0)")
+            && err.contains("not read: ViewLayer.AO (part 0)"),
+        "{err}"
+    );
+    assert!(
+        err.contains("chromaticities") && err.contains("(0.7347, 0.2653)"),
+        "{err}"
+    );
+}
+
 #[test]
 fn bad_light_counts_name_the_flag() {
     for n in ["0", "100000000"] {

@@ -12,10 +12,14 @@
 //! - Channels: `R`,`G`,`B` (any further channel such as `A` is ignored) or, failing that,
 //!   luminance-only `Y` (returned as grey RGB; a luminance/chroma image's `RY` and `BY` are not
 //!   read, with a warning naming the file). Names may carry a layer/view prefix
-//!   (`left.R`, `diffuse.R`). In a multi-part or multi-layer file the first part, and within it
-//!   the first channel group (the unprefixed channels first, then prefixes in the file's
-//!   alphabetical channel order), that has R, G and B is used; only if none has, the first with
-//!   `Y`. Otherwise a `Format` error lists the channels found.
+//!   (`left.R`, `diffuse.R`). In a multi-part or multi-layer file, of the channel groups with R,
+//!   G and B (part by part; in a part the unprefixed channels first, then prefixes in the
+//!   file's alphabetical channel order) the first that is unprefixed or a beauty pass
+//!   (Blender's `ViewLayer.Combined`, `beauty`, `rgba`, `rgb`, `color`, `colour`) is used, else
+//!   the first; which one is said once when there are several. Only if none has R, G and B,
+//!   the first with `Y`. Otherwise a `Format` error lists the channels found.
+//! - Colour: the channels are taken as Rec. 709 primaries; a file whose `chromaticities` say
+//!   otherwise (ACES AP0) is read the same, with a warning (once).
 //! - **Data window**: the image returned is the size of the chosen part's *data window*, not of
 //!   its display window; an offset or smaller data window is not padded or cropped to the
 //!   display window. (Environment maps have data window = display window; for the rest this is
@@ -353,10 +357,37 @@ fn split_channel_name(name: &str) -> (&str, &str) {
     }
 }
 
-/// Picks the channels to use from the channel names of every part (see the module docs).
-fn choose_channels(parts: &[Vec<String>]) -> Option<ChannelChoice> {
-    // Channel groups in priority order: per part, the unprefixed group first, then the others
-    // in the order they first appear.
+/// Whether a layer prefix names a beauty pass: its last component (`ViewLayer.Combined.` →
+/// `Combined`) is Blender's `Combined`, or `beauty`, `rgba`, `rgb`, `color` or `colour`, in any
+/// case.
+fn is_beauty_pass(prefix: &str) -> bool {
+    let last = prefix
+        .trim_end_matches('.')
+        .rsplit('.')
+        .next()
+        .unwrap_or("");
+    ["combined", "beauty", "rgba", "rgb", "color", "colour"]
+        .iter()
+        .any(|name| last.eq_ignore_ascii_case(name))
+}
+
+/// The channel groups of every part that have R, G and B, in priority order (per part, the
+/// unprefixed group first, then the others in the order they first appear), each with its
+/// prefix.
+fn rgb_groups(parts: &[Vec<String>]) -> Vec<(ChannelChoice, &str)> {
+    channel_groups(parts)
+        .into_iter()
+        .filter_map(|(part, prefix)| {
+            let find = |base| find_channel(parts, part, prefix, base);
+            let channels = [find("R")?, find("G")?, find("B")?];
+            Some((ChannelChoice { part, channels }, prefix))
+        })
+        .collect()
+}
+
+/// Channel groups in priority order: per part, the unprefixed group first, then the others in
+/// the order they first appear.
+fn channel_groups(parts: &[Vec<String>]) -> Vec<(usize, &str)> {
     let mut groups: Vec<(usize, &str)> = Vec::new();
     for (part, names) in parts.iter().enumerate() {
         groups.push((part, ""));
@@ -367,30 +398,38 @@ fn choose_channels(parts: &[Vec<String>]) -> Option<ChannelChoice> {
             }
         }
     }
-    let find = |part: usize, prefix: &str, base: &str| {
-        parts[part]
-            .iter()
-            .position(|n| split_channel_name(n) == (prefix, base))
-    };
-    let rgb = groups.iter().find_map(|&(part, prefix)| {
-        Some(ChannelChoice {
-            part,
-            channels: [
-                find(part, prefix, "R")?,
-                find(part, prefix, "G")?,
-                find(part, prefix, "B")?,
-            ],
-        })
-    });
-    rgb.or_else(|| {
-        groups.iter().find_map(|&(part, prefix)| {
-            let y = find(part, prefix, "Y")?;
+    groups
+}
+
+/// The index of channel `prefix` + `base` in part `part`.
+fn find_channel(parts: &[Vec<String>], part: usize, prefix: &str, base: &str) -> Option<usize> {
+    parts[part]
+        .iter()
+        .position(|n| split_channel_name(n) == (prefix, base))
+}
+
+/// Picks the channels to use from the channel names of every part (see the module docs): of
+/// the groups with R, G and B the first that is unprefixed or a beauty pass
+/// ([`is_beauty_pass`]: Blender's `ViewLayer.Combined` sorts after `ViewLayer.AO`), else the
+/// first; without any, the first group with Y.
+fn choose_channels(parts: &[Vec<String>]) -> Option<ChannelChoice> {
+    let rgb = rgb_groups(parts);
+    let beauty = rgb
+        .iter()
+        .position(|(_, prefix)| prefix.is_empty() || is_beauty_pass(prefix))
+        .unwrap_or(0);
+    if let Some((choice, _)) = rgb.into_iter().nth(beauty) {
+        return Some(choice);
+    }
+    channel_groups(parts)
+        .into_iter()
+        .find_map(|(part, prefix)| {
+            let y = find_channel(parts, part, prefix, "Y")?;
             Some(ChannelChoice {
                 part,
                 channels: [y; 3],
             })
         })
-    })
 }
 
 /// A chroma channel (`RY` or `BY` beside a luminance `Y`) of `names` that a luminance-only read
@@ -480,6 +519,8 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
 
     let header = &meta.headers[choice.part];
     warn_of_a_cropped_data_window(header, path);
+    warn_of_other_rgb_layers(&parts, &choice, path);
+    warn_of_other_primaries(header, path);
     for &index in &choice.channels {
         let channel = &header.channels.list[index];
         if channel.sampling.x() != 1 || channel.sampling.y() != 1 {
@@ -517,6 +558,67 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
         height: u32::try_from(size.height()).map_err(|_| "image too high".to_string())?,
         pixels,
     })
+}
+
+/// Which RGB layer was read, said once per process when the file has several (a sequence of
+/// such frames would say it every frame): nothing else tells which pass became the lights.
+fn warn_of_other_rgb_layers(parts: &[Vec<String>], choice: &ChannelChoice, path: &Path) {
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let groups = rgb_groups(parts);
+    if groups.len() < 2 || WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        return;
+    }
+    let name = |(group, prefix): &(ChannelChoice, &str)| {
+        let layer = prefix.trim_end_matches('.');
+        let layer = if layer.is_empty() { "R, G, B" } else { layer };
+        format!("{layer} (part {})", group.part)
+    };
+    let chosen = groups.iter().find(|(g, _)| g == choice).map(name);
+    let others: Vec<String> = groups
+        .iter()
+        .filter(|(g, _)| g != choice)
+        .map(name)
+        .collect();
+    tracing::warn!(
+        "{}: its colour is read from the layer {}; its other RGB layers are not read: {} \
+         (said once)",
+        path.display(),
+        chosen.unwrap_or_default(),
+        others.join(", ")
+    );
+}
+
+/// Rec. 709 / sRGB primaries and D65 white, as (x, y) chromaticities: red, green, blue, white.
+const REC709_CHROMATICITIES: [[f32; 2]; 4] =
+    [[0.64, 0.33], [0.30, 0.60], [0.15, 0.06], [0.3127, 0.3290]];
+
+/// Said once per process when a file's `chromaticities` are not Rec. 709's (within 0.002): its
+/// channels are read as Rec. 709 all the same (luminance, the PDF and the lights' colours
+/// assume those primaries), so an ACES AP0 file's colours and energies come out wrong.
+fn warn_of_other_primaries(header: &exr::meta::header::Header, path: &Path) {
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let Some(c) = header.shared_attributes.chromaticities else {
+        return;
+    };
+    let found = [c.red, c.green, c.blue, c.white].map(|v| [v.x(), v.y()]);
+    let rec709 = found
+        .iter()
+        .zip(REC709_CHROMATICITIES)
+        .all(|(f, r)| (f[0] - r[0]).abs() <= 2e-3 && (f[1] - r[1]).abs() <= 2e-3);
+    if rec709 || WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        return;
+    }
+    let shown: Vec<String> = found
+        .iter()
+        .map(|[x, y]| format!("({x:.4}, {y:.4})"))
+        .collect();
+    tracing::warn!(
+        "{}: its chromaticities (red, green, blue, white: {}) are not Rec. 709's; its channels \
+         are read as Rec. 709 all the same, so the lights' colours and luminance are off \
+         (convert the frames to Rec. 709 primaries; said once)",
+        path.display(),
+        shown.join(", ")
+    );
 }
 
 /// The module doc's data-window rule, said once per process when it applies: a data window
@@ -1025,6 +1127,45 @@ mod tests {
             Some(ChannelChoice {
                 part: 2,
                 channels: [3, 2, 1]
+            })
+        );
+    }
+
+    /// Blender's multilayer files sort `ViewLayer.AO` before `ViewLayer.Combined`: the beauty
+    /// pass is read, not the first RGB layer (the AO pass was).
+    #[test]
+    fn chooses_a_beauty_pass_over_earlier_layers() {
+        let parts = vec![names(&[
+            "ViewLayer.AO.B",
+            "ViewLayer.AO.G",
+            "ViewLayer.AO.R",
+            "ViewLayer.Combined.A",
+            "ViewLayer.Combined.B",
+            "ViewLayer.Combined.G",
+            "ViewLayer.Combined.R",
+        ])];
+        assert_eq!(
+            choose_channels(&parts),
+            Some(ChannelChoice {
+                part: 0,
+                channels: [6, 5, 4]
+            })
+        );
+        assert!(is_beauty_pass("beauty.") && is_beauty_pass("RGBA.") && !is_beauty_pass("AO."));
+        // Without a beauty pass, the first RGB layer.
+        let parts = vec![names(&[
+            "diffuse.B",
+            "diffuse.G",
+            "diffuse.R",
+            "spec.B",
+            "spec.G",
+            "spec.R",
+        ])];
+        assert_eq!(
+            choose_channels(&parts),
+            Some(ChannelChoice {
+                part: 0,
+                channels: [2, 1, 0]
             })
         );
     }
