@@ -64,6 +64,10 @@ impl HdrFrame {
     /// the vertical axis by `shift` pixels (what a camera panning by that much would see).
     pub fn turned_columns(&self, shift: usize) -> HdrFrame {
         let w = self.width as usize;
+        // A frame built through its public fields may be 0 wide (`new` refuses it).
+        if w == 0 {
+            return self.clone();
+        }
         let s = shift % w;
         let mut pixels = Vec::with_capacity(self.pixels.len());
         for row in self.pixels.chunks_exact(w) {
@@ -215,6 +219,16 @@ mod tests {
         assert_eq!((turned.width, turned.height, turned.seq), (4, 3, 7));
         assert_eq!(frame.turned_columns(4), frame);
         assert_eq!(frame.turned_columns(5), turned);
+        // A frame 0 wide (only through the public fields) turns into itself, as with
+        // turned_by, instead of dividing by zero.
+        let empty = HdrFrame {
+            width: 0,
+            height: 0,
+            pixels: Vec::new(),
+            ..frame
+        };
+        assert_eq!(empty.turned_columns(3), empty);
+        assert_eq!(empty.turned_by(1.5), empty);
     }
 
     #[test]
