@@ -346,7 +346,7 @@ fn collect_frames(inputs: &[String]) -> Result<Vec<PathBuf>, CaptureError> {
 
     // In natural order first, so that of two names of one file the first in the sequence is
     // kept (the directory's listing order kept `f2` of links f1, f2, f3, f10 to one file).
-    found.sort_by(|a, b| compare_frame_paths(a, b));
+    found.sort_by_cached_key(|path| frame_order_key(path));
     let mut seen = HashMap::new();
     let mut unique = Vec::with_capacity(found.len());
     let (mut repeated, mut first_repeated) = (0usize, None);
@@ -457,19 +457,16 @@ fn path_numbers(path: &Path) -> Vec<PathNumber> {
     numbers
 }
 
-/// Natural order of frame files (see the module docs).
-fn compare_frame_paths(a: &Path, b: &Path) -> Ordering {
-    let name = |p: &Path| p.file_name().map(|s| s.to_os_string()).unwrap_or_default();
-    let (numbers_a, numbers_b) = (path_numbers(a), path_numbers(b));
-    let by_numbers = match (numbers_a.is_empty(), numbers_b.is_empty()) {
-        (false, false) => numbers_a.cmp(&numbers_b),
-        (false, true) => Ordering::Less,
-        (true, false) => Ordering::Greater,
-        (true, true) => Ordering::Equal,
-    };
-    by_numbers
-        .then_with(|| name(a).cmp(&name(b)))
-        .then_with(|| a.cmp(b))
+/// The natural-order key of a frame file (see the module docs): files with numbers first, by
+/// their numbers, then by file name and full path. Made once per file
+/// (`sort_by_cached_key`), not once per comparison.
+fn frame_order_key(path: &Path) -> (bool, Vec<PathNumber>, std::ffi::OsString, PathBuf) {
+    let numbers = path_numbers(path);
+    let name = path
+        .file_name()
+        .map(|s| s.to_os_string())
+        .unwrap_or_default();
+    (numbers.is_empty(), numbers, name, path.to_path_buf())
 }
 
 #[cfg(test)]
@@ -520,7 +517,7 @@ mod tests {
         .iter()
         .map(PathBuf::from)
         .collect();
-        paths.sort_by(|a, b| compare_frame_paths(a, b));
+        paths.sort_by_cached_key(|path| frame_order_key(path));
         // Names the last number alone ordered wrongly (an audit): each list is in order.
         for ordered in [
             &[
@@ -546,7 +543,7 @@ mod tests {
             ],
         ] {
             let mut shuffled: Vec<PathBuf> = ordered.iter().rev().map(PathBuf::from).collect();
-            shuffled.sort_by(|a, b| compare_frame_paths(a, b));
+            shuffled.sort_by_cached_key(|path| frame_order_key(path));
             let expected: Vec<PathBuf> = ordered.iter().map(PathBuf::from).collect();
             assert_eq!(shuffled, expected);
         }
