@@ -110,19 +110,23 @@ pub fn read_config(
         Some(path) => RawConfig::from_file(path)?,
         None => RawConfig::default(),
     };
-    match source_paths {
-        Some([one]) if one.starts_with("v4l2:") => {
-            raw.source.kind = Some("v4l2".to_owned());
-            raw.source.paths = None;
-            raw.camera.device = Some(one["v4l2:".len()..].to_owned());
-        }
-        Some(paths) => {
-            raw.source.kind = Some("sequence".to_owned());
-            raw.source.paths = Some(paths.to_vec());
-        }
-        None => {}
+    if let Some(device) = source_paths.and_then(camera_input) {
+        raw.source.kind = Some("v4l2".to_owned());
+        raw.source.paths = None;
+        raw.camera.device = Some(device.to_owned());
+    } else if let Some(paths) = source_paths {
+        raw.source.kind = Some("sequence".to_owned());
+        raw.source.paths = Some(paths.to_vec());
     }
     raw.validate()
+}
+
+/// The camera of INPUT when it is one `v4l2:DEVICE`: DEVICE.
+pub fn camera_input(inputs: &[String]) -> Option<&str> {
+    match inputs {
+        [one] => one.strip_prefix("v4l2:"),
+        _ => None,
+    }
 }
 
 /// `text` on one line: its lines trimmed, the empty ones dropped, joined by " | ".

@@ -208,10 +208,7 @@ impl DecomposeArgs {
         let device = self
             .device
             .clone()
-            .or_else(|| match self.inputs.as_slice() {
-                [one] => one.strip_prefix("v4l2:").map(str::to_string),
-                _ => None,
-            });
+            .or_else(|| envlight::daemon::camera_input(&self.inputs).map(str::to_owned));
         // A camera or INPUT files replace the configured source, whatever its kind (the
         // config's files are not used with a camera, nor its camera with files).
         let src = &mut raw.source;

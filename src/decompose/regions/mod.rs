@@ -372,9 +372,8 @@ fn accumulate(args: Accumulate<'_>) {
 /// Takes from each region the solid angle of its working pixels that the frame does not see
 /// ([`WorkingMap::unseen`]: below a fisheye's field of view), so that a light's `solid_angle`
 /// is the part of the sphere its energy comes from (the sum of the input's shares in its
-/// working pixels); a concentrated working pixel's input
-/// pixels carry their own (seen) solid angles already. Run after the region pass, on its
-/// final labels.
+/// working pixels); a concentrated working pixel's input pixels carry their own (seen) solid
+/// angles already. Run after the region pass, on its final labels.
 pub(super) fn remove_unseen(map: &WorkingMap, scratch: &Scratch, regions: &mut [Region]) {
     for &(pixel, unseen) in &map.unseen {
         let pixel = pixel as usize;
