@@ -564,6 +564,10 @@ fn decode_exr(bytes: &[u8], path: &Path) -> Result<RgbImage, String> {
 /// such frames would say it every frame): nothing else tells which pass became the lights.
 fn warn_of_other_rgb_layers(parts: &[Vec<String>], choice: &ChannelChoice, path: &Path) {
     static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    // Once said, a sequence's later frames do not list their groups again.
+    if WARNED.load(std::sync::atomic::Ordering::Relaxed) {
+        return;
+    }
     let groups = rgb_groups(parts);
     if groups.len() < 2 || WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
         return;
